@@ -1,0 +1,417 @@
+"""Exact forward geometry of both devices (``shared/spec/geometry-and-effects.md``).
+
+Everything here is a pure, vectorised function of numpy arrays. Lengths are in mm,
+angles in rad. No small-angle shortcut is taken anywhere: readings come from exact
+ray-circle, ray-ellipse, ray-lobed-bore (Newton to machine precision) and ray-cylinder
+intersections.
+
+Three-sensor device (``tri_lds``, Yang et al. 2017)
+    Device frame: origin at the rotation axis O'. Beam i has direction
+    u = (cos beta, sin beta), normal n = (-sin beta, cos beta), foot point F = rho * n and
+    base length d_b; a reading v puts the wall point at W = F + (d_b + v) u, so
+    |O'W|^2 = (d_b + v)^2 + rho^2 (Yang 2017, Eq. 8).
+
+Measuring rod (``rod``, Wang et al. 2017)
+    Rod frame: z along the rotation axis, origin at the rear end B. Layer m at rotation
+    alpha and reading v (l = l0 + v) has its spot at
+    d n(alpha+phi) + l cos(gamma) u(alpha+phi) + (h + l sin(gamma)) z.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = [
+    "Beams",
+    "Bore",
+    "RodLayer",
+    "Hole",
+    "RodAxis",
+    "beam_frame",
+    "wall_points_device",
+    "ray_circle_distance",
+    "ray_bore_distance",
+    "bore_wall_radius",
+    "tri_spindle_readings",
+    "tri_static_readings",
+    "circumcircle",
+    "rod_axis_rotation",
+    "rod_readings",
+]
+
+
+# --------------------------------------------------------------------------- tri_lds
+
+
+@dataclass(frozen=True)
+class Beams:
+    """Beam geometry of a three-sensor (or n-sensor) device, one entry per channel.
+
+    Attributes
+    ----------
+    channels : tuple of int
+        1-based channel numbers, in the order of the arrays below.
+    beta_rad : ndarray (c,)
+        Direction in which each laser travels, counter-clockwise from the device x axis [rad].
+    rho_mm : ndarray (c,)
+        Signed offset of each beam line from the rotation axis O' [mm]; r = |rho|.
+    d_b_mm : ndarray (c,)
+        Base-circle length, from the foot point F to the measuring start point [mm].
+    """
+
+    channels: tuple[int, ...]
+    beta_rad: np.ndarray
+    rho_mm: np.ndarray
+    d_b_mm: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("beta_rad", "rho_mm", "d_b_mm"):
+            arr = np.asarray(getattr(self, name), dtype=float)
+            if arr.shape != (len(self.channels),):
+                raise ValueError(f"Beams.{name} must have shape ({len(self.channels)},), got {arr.shape}")
+            object.__setattr__(self, name, arr)
+
+    @classmethod
+    def from_nominal(cls, beams: list[dict]) -> "Beams":
+        """Build from ``scan.json`` ``device.nominal.beams`` (keys channel, beta, rho, d_b)."""
+        beams = sorted(beams, key=lambda b: int(b["channel"]))
+        return cls(
+            channels=tuple(int(b["channel"]) for b in beams),
+            beta_rad=np.array([float(b["beta"]) for b in beams]),
+            rho_mm=np.array([float(b["rho"]) for b in beams]),
+            d_b_mm=np.array([float(b["d_b"]) for b in beams]),
+        )
+
+    def to_nominal(self) -> list[dict]:
+        """Inverse of :meth:`from_nominal`."""
+        return [
+            {"channel": int(c), "beta": float(b), "rho": float(r), "d_b": float(d)}
+            for c, b, r, d in zip(self.channels, self.beta_rad, self.rho_mm, self.d_b_mm)
+        ]
+
+
+@dataclass(frozen=True)
+class Bore:
+    """A bore cross-section in machine coordinates.
+
+    The wall radius about the centre at polar angle theta is
+    ``r_e(theta) + sum_k a_k cos(k (theta - phase_k))`` where ``r_e`` is the ellipse of
+    ``axis_tilt`` (semi-axes R / cos(tilt) along ``tilt_azimuth_rad`` and R across; a circle
+    when tilt is 0) and the sum is ``bore_lobing``.
+
+    Attributes
+    ----------
+    center_xy_mm : (2,) bore centre C in machine coordinates [mm].
+    radius_mm : nominal radius R (already thermally expanded if applicable) [mm].
+    tilt_rad, tilt_azimuth_rad : axis_tilt angle and the azimuth of the long axis [rad].
+    lobes : tuple of (k, a_mm, phase_rad) lobing terms, k >= 2.
+    """
+
+    center_xy_mm: tuple[float, float]
+    radius_mm: float
+    tilt_rad: float = 0.0
+    tilt_azimuth_rad: float = 0.0
+    lobes: tuple[tuple[int, float, float], ...] = field(default_factory=tuple)
+
+    @property
+    def is_circle(self) -> bool:
+        return self.tilt_rad == 0.0 and not any(a != 0.0 for _, a, _ in self.lobes)
+
+
+def beam_frame(beta_rad: np.ndarray, rho_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Foot points F = rho n and unit directions u of beams in the device frame.
+
+    Returns
+    -------
+    F, u : ndarray (..., 2) [mm], [-]
+    """
+    beta = np.asarray(beta_rad, dtype=float)
+    rho = np.asarray(rho_mm, dtype=float)
+    u = np.stack([np.cos(beta), np.sin(beta)], axis=-1)
+    n = np.stack([-np.sin(beta), np.cos(beta)], axis=-1)
+    return rho[..., None] * n, u
+
+
+def wall_points_device(readings_mm: np.ndarray, beams: Beams) -> np.ndarray:
+    """Wall points W = F + (d_b + v) u in the device frame.
+
+    Parameters
+    ----------
+    readings_mm : ndarray (..., c) readings v [mm], channels in ``beams`` order.
+
+    Returns
+    -------
+    ndarray (..., c, 2) [mm]
+    """
+    v = np.asarray(readings_mm, dtype=float)
+    F, u = beam_frame(beams.beta_rad, beams.rho_mm)
+    s = beams.d_b_mm + v
+    return F + s[..., None] * u
+
+
+def _positive_root(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Larger root of a s^2 + 2 b s + c = 0 (a > 0, c < 0 when the origin is inside).
+
+    Uses the cancellation-free form, so the root is accurate to a few ulp.
+    """
+    disc = b * b - a * c
+    with np.errstate(invalid="ignore"):
+        sq = np.sqrt(disc)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = np.where(b <= 0.0, (-b + sq) / a, -c / (b + sq))
+    return np.where(disc >= 0.0, root, np.nan)
+
+
+def ray_circle_distance(origin: np.ndarray, direction: np.ndarray, center: np.ndarray, radius: float | np.ndarray) -> np.ndarray:
+    """Distance s > 0 along a unit-direction ray to a circle: |o + s d - C| = R.
+
+    Parameters
+    ----------
+    origin, direction : ndarray (..., 2); ``direction`` need not be unit length (s is then
+        measured in units of |d|).
+    center : (2,) or (..., 2) [mm]; radius : [mm]
+
+    Returns
+    -------
+    ndarray (...) [mm]; NaN where the ray misses (origin outside and pointing away).
+    """
+    w = np.asarray(origin, dtype=float) - np.asarray(center, dtype=float)
+    d = np.asarray(direction, dtype=float)
+    a = np.einsum("...i,...i->...", d, d)
+    b = np.einsum("...i,...i->...", w, d)
+    c = np.einsum("...i,...i->...", w, w) - np.asarray(radius, dtype=float) ** 2
+    return _positive_root(a, b, c)
+
+
+def bore_wall_radius(theta_rad: np.ndarray, bore: Bore) -> tuple[np.ndarray, np.ndarray]:
+    """Wall radius r(theta) of a bore about its centre and its derivative dr/dtheta.
+
+    Ellipse of ``axis_tilt``: r_e = A B / sqrt((B cos t)^2 + (A sin t)^2), t = theta - azimuth,
+    A = R / cos(tilt), B = R. Lobing adds a cos(k (theta - phase)).
+    """
+    theta = np.asarray(theta_rad, dtype=float)
+    R = float(bore.radius_mm)
+    A = R / np.cos(bore.tilt_rad)
+    B = R
+    t = theta - bore.tilt_azimuth_rad
+    q = (B * np.cos(t)) ** 2 + (A * np.sin(t)) ** 2
+    r = A * B / np.sqrt(q)
+    dq = 2.0 * (A * A - B * B) * np.sin(t) * np.cos(t)
+    dr = -0.5 * A * B * q ** (-1.5) * dq
+    for k, a, ph in bore.lobes:
+        r = r + a * np.cos(k * (theta - ph))
+        dr = dr - a * k * np.sin(k * (theta - ph))
+    return r, dr
+
+
+def ray_bore_distance(origin: np.ndarray, direction: np.ndarray, bore: Bore, *, tol_mm: float = 1e-13, max_iter: int = 60) -> np.ndarray:
+    """Distance s > 0 along rays (unit ``direction``) from inside a bore to its wall.
+
+    Circle and ellipse are solved in closed form; lobed bores by Newton iteration on
+    |P(s) - C| - r(theta(P(s))) = 0 started from the circle/ellipse root, to ``tol_mm``.
+
+    Returns
+    -------
+    ndarray (...) [mm]
+    """
+    o = np.asarray(origin, dtype=float) - np.asarray(bore.center_xy_mm, dtype=float)
+    d = np.asarray(direction, dtype=float)
+    R = float(bore.radius_mm)
+    if bore.tilt_rad != 0.0:
+        # Rotate into the ellipse frame and shrink the long axis by cos(tilt): circle of radius R.
+        ca, sa = np.cos(bore.tilt_azimuth_rad), np.sin(bore.tilt_azimuth_rad)
+        ct = np.cos(bore.tilt_rad)
+
+        def to_circle(p: np.ndarray) -> np.ndarray:
+            x = p[..., 0] * ca + p[..., 1] * sa
+            y = -p[..., 0] * sa + p[..., 1] * ca
+            return np.stack([x * ct, y], axis=-1)
+
+        s = ray_circle_distance(to_circle(o), to_circle(d), np.zeros(2), R)
+    else:
+        s = ray_circle_distance(o, d, np.zeros(2), R)
+    if not any(a != 0.0 for _, a, _ in bore.lobes):
+        return s
+    s = np.array(s, dtype=float, copy=True)
+    for _ in range(max_iter):
+        p = o + s[..., None] * d
+        rp = np.hypot(p[..., 0], p[..., 1])
+        theta = np.arctan2(p[..., 1], p[..., 0])
+        rw, drw = bore_wall_radius(theta, bore)
+        f = rp - rw
+        drp = np.einsum("...i,...i->...", p, d) / rp
+        dtheta = (p[..., 0] * d[..., 1] - p[..., 1] * d[..., 0]) / rp**2
+        step = f / (drp - drw * dtheta)
+        s = s - step
+        if np.nanmax(np.abs(step), initial=0.0) < tol_mm:
+            break
+    return s
+
+
+def _rot(phi: np.ndarray, vec: np.ndarray) -> np.ndarray:
+    """Rotate 2-vectors ``vec`` (..., 2) counter-clockwise by ``phi`` (...) [rad]."""
+    c, s = np.cos(phi), np.sin(phi)
+    return np.stack([c * vec[..., 0] - s * vec[..., 1], s * vec[..., 0] + c * vec[..., 1]], axis=-1)
+
+
+def tri_spindle_readings(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore) -> np.ndarray:
+    """Readings of a device turning on a spindle inside a bore (exact).
+
+    p_machine = S + Rot(phi) p_device; the reading is v = s - d_b with s > 0 the root of
+    |S + Rot(phi)(F + s u) - C| = r_wall (spec, "Spindle scan"; Yang 2017 Eq. 8 at the extrema).
+
+    Parameters
+    ----------
+    phi_rad : ndarray (n,) or (n, c)
+        Device rotation angle per sample (per channel when channels see different times) [rad].
+    spindle_xy_mm : ndarray (2,), (n, 2) or (n, c, 2)
+        Spindle axis S in machine coordinates [mm].
+    beams : Beams; bore : Bore
+
+    Returns
+    -------
+    ndarray (n, c) readings v [mm]
+    """
+    phi = np.asarray(phi_rad, dtype=float)
+    if phi.ndim == 1:
+        phi = phi[:, None]
+    phi = np.broadcast_to(phi, (phi.shape[0], len(beams.channels)))
+    S = np.asarray(spindle_xy_mm, dtype=float)
+    if S.ndim == 2:
+        S = S[:, None, :]
+    F, u = beam_frame(beams.beta_rad, beams.rho_mm)
+    origin = S + _rot(phi, np.broadcast_to(F, phi.shape + (2,)))
+    direction = _rot(phi, np.broadcast_to(u, phi.shape + (2,)))
+    s = ray_bore_distance(origin, direction, bore)
+    return s - beams.d_b_mm
+
+
+def tri_static_readings(device_xy_mm: np.ndarray, device_angle_rad: np.ndarray, beams: Beams, bore: Bore) -> np.ndarray:
+    """Readings of a static device at position(s) ``device_xy_mm`` (…, 2) and angle(s) (…).
+
+    Returns ndarray (…, c) [mm].
+    """
+    ang = np.atleast_1d(np.asarray(device_angle_rad, dtype=float))
+    xy = np.atleast_2d(np.asarray(device_xy_mm, dtype=float))
+    return tri_spindle_readings(ang, xy, beams, bore)
+
+
+def circumcircle(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Circle through three points (closed form), vectorised.
+
+    Parameters
+    ----------
+    points : ndarray (..., 3, 2) [mm]
+
+    Returns
+    -------
+    center : ndarray (..., 2) [mm]; radius : ndarray (...) [mm]
+    (Yang 2017 Eqs. 1-3 in coordinate form: R = AB*BC*CA / (4 S).)
+    """
+    p = np.asarray(points, dtype=float)
+    # Shift to the first point for conditioning.
+    a = p[..., 0, :]
+    b = p[..., 1, :] - a
+    c = p[..., 2, :] - a
+    d = 2.0 * (b[..., 0] * c[..., 1] - b[..., 1] * c[..., 0])
+    b2 = b[..., 0] ** 2 + b[..., 1] ** 2
+    c2 = c[..., 0] ** 2 + c[..., 1] ** 2
+    ux = (c[..., 1] * b2 - b[..., 1] * c2) / d
+    uy = (b[..., 0] * c2 - c[..., 0] * b2) / d
+    center = a + np.stack([ux, uy], axis=-1)
+    return center, np.hypot(ux, uy)
+
+
+# --------------------------------------------------------------------------- rod
+
+
+@dataclass(frozen=True)
+class RodLayer:
+    """One sensor layer of the measuring rod (rod frame, spec "Measuring rod").
+
+    channel : 1-based layer/channel index; h_mm : height along the rod axis from the rear end B;
+    phi_rad : in-plane beam angle; d_mm : perpendicular offset of the beam from the axis
+    (``beam_offset``, Wang 2017 Eq. 5); gamma_rad : out-of-plane tilt (Wang 2017 Eq. 6);
+    l0_mm : base length from the axis foot to the measuring start point.
+    """
+
+    channel: int
+    h_mm: float
+    l0_mm: float
+    phi_rad: float = 0.0
+    d_mm: float = 0.0
+    gamma_rad: float = 0.0
+
+
+@dataclass(frozen=True)
+class Hole:
+    """A hole: cylinder parallel to the part z axis, centre (a, b) [mm], radius [mm]."""
+
+    center_xy_mm: tuple[float, float]
+    radius_mm: float
+
+
+@dataclass(frozen=True)
+class RodAxis:
+    """Pose of the rod's rotation axis in the part frame.
+
+    dx_mm, dy_mm : eccentricity of the axis at z = 0 [mm];
+    omega_rad : deflection angle of the axis from the part z axis [rad];
+    omega_az_rad : azimuth towards which it deflects [rad].
+    """
+
+    dx_mm: float = 0.0
+    dy_mm: float = 0.0
+    omega_rad: float = 0.0
+    omega_az_rad: float = 0.0
+
+
+def rod_axis_rotation(axis: RodAxis) -> np.ndarray:
+    """Rotation matrix rod frame -> part frame: tilts z by omega towards azimuth omega_az."""
+    k = np.array([-np.sin(axis.omega_az_rad), np.cos(axis.omega_az_rad), 0.0])
+    w = axis.omega_rad
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(w) * K + (1.0 - np.cos(w)) * (K @ K)
+
+
+def rod_readings(alpha_rad: np.ndarray, layers: list[RodLayer], holes: list[Hole], axis: RodAxis = RodAxis()) -> np.ndarray:
+    """Readings of the measuring rod at rotations ``alpha_rad`` (exact ray-cylinder).
+
+    The beam of layer m starts at o = d n(a) + h z and travels along
+    e = cos(gamma) u(a) + sin(gamma) z, a = alpha + phi (rod frame); it is moved into the
+    part frame by the rod axis pose and intersected with the hole cylinder
+    (x - a_m)^2 + (y - b_m)^2 = r_m^2. The reading is v = l - l0. With gamma = d = omega = 0
+    this is Wang 2017 Eq. 16: (x_m + l cos a)^2 + (y_m + l sin a)^2 = r_m^2 with
+    (x_m, y_m) = (dx - a_m, dy - b_m).
+
+    Parameters
+    ----------
+    alpha_rad : ndarray (n,) rod rotation per pose [rad]
+    layers : list of RodLayer (m); holes : list of Hole, one per layer (m)
+
+    Returns
+    -------
+    ndarray (n, m) readings [mm]
+    """
+    alpha = np.atleast_1d(np.asarray(alpha_rad, dtype=float))
+    Rm = rod_axis_rotation(axis)
+    T = np.array([axis.dx_mm, axis.dy_mm, 0.0])
+    out = np.empty((alpha.size, len(layers)))
+    for j, (lay, hole) in enumerate(zip(layers, holes)):
+        a = alpha + lay.phi_rad
+        u = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)
+        n = np.stack([-np.sin(a), np.cos(a), np.zeros_like(a)], axis=-1)
+        z = np.array([0.0, 0.0, 1.0])
+        o = lay.d_mm * n + lay.h_mm * z
+        e = np.cos(lay.gamma_rad) * u + np.sin(lay.gamma_rad) * z
+        O = o @ Rm.T + T
+        E = e @ Rm.T
+        w = O[:, :2] - np.asarray(hole.center_xy_mm, dtype=float)
+        d2 = E[:, :2]
+        qa = np.einsum("ij,ij->i", d2, d2)
+        qb = np.einsum("ij,ij->i", w, d2)
+        qc = np.einsum("ij,ij->i", w, w) - hole.radius_mm**2
+        out[:, j] = _positive_root(qa, qb, qc) - lay.l0_mm
+    return out
