@@ -1,0 +1,1108 @@
+"""Reader, writer and validator of ``borescan-raw/1`` (``shared/spec/raw-scan-format.md``).
+
+This module is the only place that touches raw files. Layout::
+
+    <raw_root>/night=<YYYY-MM-DD>/scan=<scan_id>/
+        scan.json        required   metadata
+        lds.parquet      required   long table: sample, t_ns, sensor, value_mm, pose
+        spindle.parquet  optional   t_ns, angle_rad, x_mm, y_mm, rpm
+
+Raw files are opened read-only and never modified; :func:`write_scan` writes a new scan folder
+atomically (temporary folder beside it, then a rename) and refuses to replace an existing folder
+with different content. A bad scan raises :class:`ScanError` naming the scan, the file and the
+problem; :func:`validate_root` collects every problem of every scan.
+
+Decisions the spec leaves open (documented here, enforced by the reader):
+
+- all five ``lds.parquet`` columns are required, with exactly the listed Arrow types;
+  ``sample``, ``t_ns``, ``sensor`` are never null; ``sample`` and ``t_ns`` are >= 0;
+- rows are sorted by ``(sample, sensor)`` with no duplicate pair; all rows of one ``sample`` share
+  one ``t_ns``, and ``t_ns`` strictly increases with ``sample``;
+- ``value_mm`` null means "no reading"; NaN or +-inf is an error; every channel listed in
+  ``sensors`` needs at least one non-null reading; readings outside ``[0, range_mm]`` are
+  physical and only counted in :attr:`RawScan.warnings`;
+- ``pose`` is non-null and >= 0 (and constant within a sample) on ``rod`` scans, and null on
+  ``tri_lds`` scans that carry a ``spindle.parquet``;
+- ``spindle.parquet``: ``t_ns`` non-null, >= 0, strictly increasing; ``x_mm``, ``y_mm``, ``rpm``
+  non-null and finite; ``angle_rad`` null or finite; at least one row;
+- ``started_at`` must carry an explicit UTC designator (``Z`` or ``+00:00``);
+- scan folders (or files in them) that resolve outside ``raw_root`` are rejected.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import math
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+__all__ = [
+    "FORMAT",
+    "ScanError",
+    "RawScan",
+    "LdsMatrix",
+    "read_scan",
+    "read_scan_meta",
+    "write_scan",
+    "discover_scans",
+    "validate_root",
+    "check_scan_data",
+    "lds_matrix",
+    "sha256_file",
+    "LDS_SCHEMA",
+    "SPINDLE_SCHEMA",
+]
+
+FORMAT = "borescan-raw/1"
+SCAN_JSON = "scan.json"
+LDS_FILE = "lds.parquet"
+SPINDLE_FILE = "spindle.parquet"
+
+KINDS = ("calibration", "centering", "verification", "measurement")
+DEVICE_TYPES = ("tri_lds", "rod")
+ARTIFACT_TYPES = ("ring_gauge", "part")
+
+SCAN_ID_RE = re.compile(r"[A-Za-z0-9_-]{1,64}")
+NIGHT_RE = re.compile(r"\d{4}-\d{2}-\d{2}")
+
+LDS_SCHEMA = pa.schema(
+    [
+        ("sample", pa.int64()),
+        ("t_ns", pa.int64()),
+        ("sensor", pa.int16()),
+        ("value_mm", pa.float64()),
+        ("pose", pa.int32()),
+    ]
+)
+LDS_NULLABLE = frozenset({"value_mm", "pose"})
+SPINDLE_SCHEMA = pa.schema(
+    [
+        ("t_ns", pa.int64()),
+        ("angle_rad", pa.float64()),
+        ("x_mm", pa.float64()),
+        ("y_mm", pa.float64()),
+        ("rpm", pa.float64()),
+    ]
+)
+SPINDLE_NULLABLE = frozenset({"angle_rad"})
+
+_NO_SCAN = "-"
+
+
+class ScanError(Exception):
+    """A raw scan that breaks ``borescan-raw/1``.
+
+    Parameters
+    ----------
+    scan_id : str
+        Scan the problem belongs to (``"-"`` when no scan can be named).
+    file : str
+        File (or folder, relative to the raw root) with the problem.
+    problem : str
+        What is wrong, in words.
+    """
+
+    def __init__(self, scan_id: str, file: str, problem: str):
+        self.scan_id = str(scan_id)
+        self.file = str(file)
+        self.problem = str(problem)
+        super().__init__(f"{self.scan_id}: {self.file}: {self.problem}")
+
+    def __reduce__(self):
+        return (type(self), (self.scan_id, self.file, self.problem))
+
+
+@dataclass
+class RawScan:
+    """One validated raw scan.
+
+    Attributes
+    ----------
+    scan_id, night : str
+        From the folder names (equal to ``scan.json``).
+    path : Path
+        The scan folder.
+    meta : dict
+        Parsed ``scan.json`` (unknown keys kept as read).
+    lds : pl.DataFrame
+        The five ``lds.parquet`` columns (extra columns are not read).
+    spindle : pl.DataFrame or None
+        The five ``spindle.parquet`` columns, or None when the file is absent.
+    sha256 : dict
+        File name -> hex SHA-256 digest of the raw bytes.
+    warnings : list of str
+        Non-fatal findings (readings outside ``[0, range_mm]``, counted per channel).
+    """
+
+    scan_id: str
+    night: str
+    path: Path
+    meta: dict
+    lds: pl.DataFrame
+    spindle: pl.DataFrame | None
+    sha256: dict[str, str]
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def device_type(self) -> str:
+        """``meta["device"]["type"]`` (``tri_lds`` or ``rod``)."""
+        return self.meta["device"]["type"]
+
+    @property
+    def channels(self) -> tuple[int, ...]:
+        """Channels listed in ``sensors``, ascending."""
+        return tuple(sorted(int(s["channel"]) for s in self.meta["sensors"]))
+
+
+@dataclass(frozen=True)
+class LdsMatrix:
+    """Wide view of ``lds.parquet``: one row per sample, one column per channel.
+
+    Attributes
+    ----------
+    sample : ndarray, shape (n,), int64
+    t_s : ndarray, shape (n,), float64
+        Time since scan start [s] (``t_ns / 1e9``, correctly rounded).
+    channels : tuple of int
+        Column order of ``values_mm`` (ascending channel).
+    values_mm : ndarray, shape (n, c), float64
+        Readings [mm]; NaN where null or where a channel has no row for the sample.
+    pose : ndarray, shape (n,), int64
+        Rod pose index, -1 where null.
+    """
+
+    sample: np.ndarray
+    t_s: np.ndarray
+    channels: tuple[int, ...]
+    values_mm: np.ndarray
+    pose: np.ndarray
+
+    def channel(self, ch: int) -> np.ndarray:
+        """Readings [mm] of channel ``ch`` (1-based)."""
+        return self.values_mm[:, self.channels.index(ch)]
+
+
+# ---------------------------------------------------------------------------------------------
+# helpers
+
+
+def sha256_file(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes (read-only, streamed)."""
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+class _Problems:
+    """Collects :class:`ScanError` for one scan."""
+
+    def __init__(self, scan_id: str):
+        self.scan_id = scan_id
+        self.errors: list[ScanError] = []
+
+    def add(self, file: str, problem: str) -> None:
+        self.errors.append(ScanError(self.scan_id, file, problem))
+
+    def __bool__(self) -> bool:
+        return bool(self.errors)
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _jtype(x: Any) -> str:
+    return {
+        dict: "object",
+        list: "array",
+        str: "string",
+        bool: "boolean",
+        int: "integer",
+        float: "number",
+        type(None): "null",
+    }.get(type(x), type(x).__name__)
+
+
+def _valid_night(s: Any) -> bool:
+    if not isinstance(s, str) or not NIGHT_RE.fullmatch(s):
+        return False
+    try:
+        _dt.date.fromisoformat(s)
+    except ValueError:
+        return False
+    return True
+
+
+def _valid_scan_id(s: Any) -> bool:
+    return isinstance(s, str) and SCAN_ID_RE.fullmatch(s) is not None
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"non-standard JSON constant {name}")
+
+
+def _no_duplicate_keys(pairs):
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise ValueError(f"duplicate key {k!r}")
+        out[k] = v
+    return out
+
+
+def _parse_json_bytes(data: bytes) -> Any:
+    return json.loads(
+        data.decode("utf-8"),
+        parse_constant=_reject_constant,
+        object_pairs_hook=_no_duplicate_keys,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# scan.json checks
+
+_NUM, _STR, _DICT, _LIST, _BOOL, _INT = "number", "string", "object", "array", "boolean", "integer"
+
+# Optional keys the pipeline uses: checked for type when present.
+_OPTIONAL_TYPES: dict[tuple[str, ...], str] = {
+    ("device", "nominal"): _DICT,
+    ("spindle",): _DICT,
+    ("spindle", "rpm_nominal"): _NUM,
+    ("spindle", "direction"): _STR,
+    ("spindle", "position"): _DICT,
+    ("spindle", "position", "label"): _STR,
+    ("spindle", "position", "x_mm"): _NUM,
+    ("spindle", "position", "y_mm"): _NUM,
+    ("artifact", "nominal_diameter_mm"): _NUM,
+    ("artifact", "certified_diameter_mm"): _NUM,
+    ("artifact", "u_diameter_mm"): _NUM,
+    ("artifact", "k"): _NUM,
+    ("artifact", "certificate"): _STR,
+    ("artifact", "cte_per_k"): _NUM,
+    ("artifact", "features"): _LIST,
+    ("center",): _DICT,
+    ("center", "x_mm"): _NUM,
+    ("center", "y_mm"): _NUM,
+    ("center", "method"): _STR,
+    ("rod",): _DICT,
+    ("rod", "layers"): _LIST,
+    ("environment",): _DICT,
+    ("environment", "temperature_c"): _NUM,
+    ("operator",): _STR,
+    ("acquisition",): _DICT,
+    ("acquisition", "software"): _STR,
+    ("acquisition", "simulated"): _BOOL,
+}
+_SENSOR_OPTIONAL: dict[str, str] = {
+    "model": _STR,
+    "serial": _STR,
+    "range_mm": _NUM,
+    "linearity_fs": _NUM,
+    "repeatability_mm": _NUM,
+}
+
+
+def _type_ok(x: Any, want: str) -> bool:
+    if want == _NUM:
+        return _is_number(x) and math.isfinite(x)
+    if want == _INT:
+        return _is_int(x)
+    if want == _STR:
+        return isinstance(x, str)
+    if want == _DICT:
+        return isinstance(x, dict)
+    if want == _LIST:
+        return isinstance(x, list)
+    if want == _BOOL:
+        return isinstance(x, bool)
+    raise AssertionError(want)  # pragma: no cover
+
+
+def _check_meta(meta: Any, p: _Problems, file: str) -> None:
+    """Append every ``scan.json`` problem of ``meta`` to ``p`` (no folder checks)."""
+    if not isinstance(meta, dict):
+        p.add(file, f"top level must be a JSON object, not {_jtype(meta)}")
+        return
+
+    def need(key: str, want: str, where: dict = meta, prefix: str = "") -> Any:
+        name = prefix + key
+        if key not in where:
+            p.add(file, f"missing required key '{name}'")
+            return None
+        v = where[key]
+        if not _type_ok(v, want):
+            what = "a finite number" if want == _NUM else f"a JSON {want}"
+            p.add(file, f"key '{name}' must be {what}, got {_jtype(v)} {v!r:.40}")
+            return None
+        return v
+
+    fmt = need("format", _STR)
+    if fmt is not None and fmt != FORMAT:
+        p.add(file, f"unknown format {fmt!r} (this reader knows {FORMAT!r})")
+    sid = need("scan_id", _STR)
+    if sid is not None and not _valid_scan_id(sid):
+        p.add(file, f"scan_id {sid!r:.80} does not match [A-Za-z0-9_-]{{1,64}}")
+    night = need("night", _STR)
+    if night is not None and not _valid_night(night):
+        p.add(file, f"night {night!r:.40} is not a date YYYY-MM-DD")
+    started = need("started_at", _STR)
+    if started is not None:
+        try:
+            ts = _dt.datetime.fromisoformat(started)
+        except ValueError:
+            p.add(file, f"started_at {started!r:.40} is not an ISO 8601 date-time")
+        else:
+            if ts.tzinfo is None or ts.utcoffset() != _dt.timedelta(0):
+                p.add(file, f"started_at {started!r:.40} must be UTC (end in 'Z' or '+00:00')")
+    kind = need("kind", _STR)
+    if kind is not None and kind not in KINDS:
+        p.add(file, f"kind {kind!r:.40} not one of {', '.join(KINDS)}")
+    dev = need("device", _DICT)
+    if dev is not None:
+        devid = need("id", _STR, dev, "device.")
+        if devid == "":
+            p.add(file, "key 'device.id' is empty")
+        dtype = need("type", _STR, dev, "device.")
+        if dtype is not None and dtype not in DEVICE_TYPES:
+            p.add(file, f"device.type {dtype!r:.40} not one of {', '.join(DEVICE_TYPES)}")
+    rate = need("sample_rate_hz", _NUM)
+    if rate is not None and not rate > 0:
+        p.add(file, f"sample_rate_hz must be > 0, got {rate!r}")
+    sensors = need("sensors", _LIST)
+    if sensors is not None:
+        if not sensors:
+            p.add(file, "sensors is empty (one entry per channel needed)")
+        seen: set[int] = set()
+        for i, s in enumerate(sensors):
+            where = f"sensors[{i}]"
+            if not isinstance(s, dict):
+                p.add(file, f"{where} must be a JSON object, got {_jtype(s)}")
+                continue
+            ch = need("channel", _INT, s, where + ".")
+            if ch is not None:
+                if ch < 1 or ch > 32767:
+                    p.add(file, f"{where}.channel must be in 1..32767, got {ch}")
+                elif ch in seen:
+                    p.add(file, f"channel {ch} listed twice in sensors")
+                seen.add(ch)
+            for key, want in _SENSOR_OPTIONAL.items():
+                if key in s and not _type_ok(s[key], want):
+                    what = "a finite number" if want == _NUM else f"a JSON {want}"
+                    p.add(file, f"key '{where}.{key}' must be {what}, got {_jtype(s[key])}")
+            rng = s.get("range_mm")
+            if _is_number(rng) and math.isfinite(rng) and not rng > 0:
+                p.add(file, f"{where}.range_mm must be > 0, got {rng!r}")
+    art = need("artifact", _DICT)
+    if art is not None:
+        need("id", _STR, art, "artifact.")
+        atype = need("type", _STR, art, "artifact.")
+        if atype is not None and atype not in ARTIFACT_TYPES:
+            p.add(file, f"artifact.type {atype!r:.40} not one of {', '.join(ARTIFACT_TYPES)}")
+    for path, want in _OPTIONAL_TYPES.items():
+        node: Any = meta
+        for k in path[:-1]:
+            node = node.get(k) if isinstance(node, dict) else None
+        if isinstance(node, dict) and path[-1] in node and not _type_ok(node[path[-1]], want):
+            v = node[path[-1]]
+            what = "a finite number" if want == _NUM else f"a JSON {want}"
+            p.add(file, f"key '{'.'.join(path)}' must be {what}, got {_jtype(v)} {v!r:.40}")
+
+
+# ---------------------------------------------------------------------------------------------
+# table checks (vectorised, on Arrow / numpy)
+
+
+def _check_schema(
+    schema: pa.Schema, want: pa.Schema, p: _Problems, file: str
+) -> bool:
+    ok = True
+    names = schema.names
+    for f in want:
+        if names.count(f.name) > 1:
+            p.add(file, f"column '{f.name}' appears {names.count(f.name)} times")
+            ok = False
+        elif f.name not in names:
+            p.add(file, f"missing column '{f.name}' ({f.type})")
+            ok = False
+        else:
+            got = schema.field(f.name).type
+            if got != f.type:
+                p.add(file, f"column '{f.name}' has dtype {got}, expected {f.type}")
+                ok = False
+    return ok
+
+
+def _np(col: pa.ChunkedArray | pa.Array, fill) -> np.ndarray:
+    """Column as numpy, nulls replaced by ``fill``."""
+    if isinstance(col, pa.ChunkedArray):
+        col = col.combine_chunks()
+    if col.null_count:
+        col = col.fill_null(fill)
+    return col.to_numpy(zero_copy_only=False)
+
+
+def _check_nonnull(table: pa.Table, nullable: frozenset, p: _Problems, file: str) -> bool:
+    ok = True
+    for name in table.column_names:
+        if name not in nullable and table.column(name).null_count:
+            p.add(file, f"column '{name}' has {table.column(name).null_count} null values (not nullable)")
+            ok = False
+    return ok
+
+
+def _first(mask: np.ndarray) -> int:
+    return int(np.flatnonzero(mask)[0])
+
+
+def _check_lds(
+    table: pa.Table, meta: dict | None, has_spindle: bool, p: _Problems, file: str
+) -> list[str]:
+    """Check the data of an ``lds.parquet`` table with the right schema; return warnings."""
+    warnings: list[str] = []
+    n = table.num_rows
+    if n == 0:
+        p.add(file, "no rows")
+        return warnings
+    if not _check_nonnull(table, LDS_NULLABLE, p, file):
+        return warnings
+    sample = _np(table.column("sample"), 0)
+    t_ns = _np(table.column("t_ns"), 0)
+    sensor = _np(table.column("sensor"), 0).astype(np.int64)
+    vcol = table.column("value_mm")
+    value = _np(vcol, np.nan)
+    valid = _np(vcol.is_valid(), False) if vcol.null_count else np.ones(n, dtype=bool)
+
+    if sample.min() < 0:
+        p.add(file, f"negative sample at row {_first(sample < 0)} (sample is 0-based)")
+    if t_ns.min() < 0:
+        p.add(file, f"negative t_ns at row {_first(t_ns < 0)} (time since scan start)")
+
+    ds = np.diff(sample)
+    dsen = np.diff(sensor)
+    dt = np.diff(t_ns)
+    sorted_ok = True
+    if (ds < 0).any():
+        i = _first(ds < 0) + 1
+        p.add(file, f"sample is non-monotonic: decreases at row {i} ({sample[i - 1]} -> {sample[i]})")
+        sorted_ok = False
+    same = ds == 0
+    bad = same & (dsen < 0)
+    if bad.any():
+        i = _first(bad) + 1
+        p.add(
+            file,
+            f"rows not sorted by (sample, sensor): row {i} has sensor {sensor[i]} after {sensor[i - 1]}",
+        )
+        sorted_ok = False
+    dup = same & (dsen == 0)
+    if dup.any():
+        i = _first(dup) + 1
+        p.add(file, f"duplicate (sample, sensor) = ({sample[i]}, {sensor[i]}) at row {i}")
+        sorted_ok = False
+    if sorted_ok:
+        bad = same & (dt != 0)
+        if bad.any():
+            i = _first(bad) + 1
+            p.add(file, f"t_ns differs within sample {sample[i]} ({t_ns[i - 1]} vs {t_ns[i]})")
+        bad = (ds > 0) & (dt <= 0)
+        if bad.any():
+            i = _first(bad) + 1
+            p.add(
+                file,
+                f"t_ns is non-monotonic: sample {sample[i - 1]} -> {sample[i]} has t_ns "
+                f"{t_ns[i - 1]} -> {t_ns[i]}",
+            )
+
+    nonfinite = valid & ~np.isfinite(value)
+    if nonfinite.any():
+        i = _first(nonfinite)
+        p.add(
+            file,
+            f"value_mm has {int(nonfinite.sum())} NaN/inf values (first at row {i}); "
+            "use null for 'no reading'",
+        )
+
+    # channels (bincount over the int16 channel numbers: one pass each)
+    if meta is not None and isinstance(meta.get("sensors"), list):
+        listed = {}
+        for s in meta["sensors"]:
+            if isinstance(s, dict) and _is_int(s.get("channel")):
+                listed[int(s["channel"])] = s
+        smin = int(sensor.min())
+        nbin = int(sensor.max()) - smin + 1
+        offset = sensor - smin
+        present = np.flatnonzero(np.bincount(offset, minlength=nbin)) + smin
+        for ch in sorted(set(present.tolist()) - set(listed)):
+            p.add(file, f"channel {ch} is not listed in scan.json sensors")
+        good = valid & np.isfinite(value)
+        n_good = np.bincount(offset[good], minlength=nbin)
+        # readings outside [0, range_mm] are physical: warnings only
+        rng_of = np.full(nbin, np.inf)
+        for ch, s in listed.items():
+            rng = s.get("range_mm")
+            if 0 <= ch - smin < nbin and _is_number(rng) and math.isfinite(rng) and rng > 0:
+                rng_of[ch - smin] = rng
+        outside = good & ((value < 0) | (value > rng_of[offset]))
+        n_out = np.bincount(offset[outside], minlength=nbin)
+        for ch in sorted(listed):
+            k = ch - smin
+            if not (0 <= k < nbin and n_good[k] > 0):
+                p.add(file, f"channel {ch} has no valid readings")
+            elif n_out[k]:
+                rng = listed[ch]["range_mm"]
+                warnings.append(f"{file}: channel {ch}: {int(n_out[k])} readings outside [0, {rng:g}] mm")
+
+    # pose
+    pcol = table.column("pose")
+    dev = meta.get("device") if isinstance(meta, dict) else None
+    dtype = dev.get("type") if isinstance(dev, dict) else None
+    if dtype == "rod":
+        if pcol.null_count:
+            pv = _np(pcol.is_null(), False)
+            p.add(
+                file, f"pose is null in {pcol.null_count} rows (first at row {_first(pv)}); rod scans need it"
+            )
+        else:
+            pose = _np(pcol, 0)
+            if pose.min() < 0:
+                p.add(file, f"negative pose at row {_first(pose < 0)}")
+            if sorted_ok:
+                bad = same & (np.diff(pose) != 0)
+                if bad.any():
+                    i = _first(bad) + 1
+                    p.add(file, f"pose differs within sample {sample[i]}")
+    elif dtype == "tri_lds" and has_spindle and pcol.null_count != n:
+        i = _first(_np(pcol.is_valid(), False))
+        p.add(file, f"pose must be null on tri_lds spindle scans (non-null at row {i})")
+    return warnings
+
+
+def _check_spindle(table: pa.Table, p: _Problems, file: str) -> None:
+    if table.num_rows == 0:
+        p.add(file, "no rows")
+        return
+    if not _check_nonnull(table, SPINDLE_NULLABLE, p, file):
+        return
+    t_ns = _np(table.column("t_ns"), 0)
+    if t_ns.min() < 0:
+        p.add(file, f"negative t_ns at row {_first(t_ns < 0)}")
+    dt = np.diff(t_ns)
+    if (dt <= 0).any():
+        i = _first(dt <= 0) + 1
+        p.add(file, f"t_ns is non-monotonic at row {i} ({t_ns[i - 1]} -> {t_ns[i]})")
+    for name in ("angle_rad", "x_mm", "y_mm", "rpm"):
+        col = table.column(name)
+        v = _np(col, 0.0)
+        bad = ~np.isfinite(v)
+        if bad.any():
+            p.add(file, f"{name} has {int(bad.sum())} NaN/inf values (first at row {_first(bad)})")
+
+
+def _lds_to_arrow(lds: pl.DataFrame | pa.Table, p: _Problems, file: str) -> pa.Table | None:
+    """In-memory frame -> Arrow table with exactly the schema columns (cast losslessly)."""
+    return _frame_to_arrow(lds, LDS_SCHEMA, p, file)
+
+
+def _frame_to_arrow(df: Any, schema: pa.Schema, p: _Problems, file: str) -> pa.Table | None:
+    if isinstance(df, pl.DataFrame):
+        t = df.to_arrow()
+    elif isinstance(df, pa.Table):
+        t = df
+    else:
+        p.add(file, f"expected a polars DataFrame or Arrow table, got {type(df).__name__}")
+        return None
+    missing = [f.name for f in schema if f.name not in t.column_names]
+    if missing:
+        for name in missing:
+            p.add(file, f"missing column '{name}'")
+        return None
+    cols = []
+    for f in schema:
+        c = t.column(f.name)
+        if c.type != f.type:
+            castable = pa.types.is_null(c.type) or pa.types.is_integer(c.type) or (
+                pa.types.is_floating(c.type) and pa.types.is_floating(f.type)
+            )
+            if castable:
+                try:
+                    c = c.cast(f.type, safe=True)
+                except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as e:
+                    p.add(file, f"column '{f.name}' cannot be stored as {f.type}: {e}")
+                    return None
+            else:
+                p.add(file, f"column '{f.name}' has dtype {c.type}, expected {f.type}")
+                return None
+        cols.append(c)
+    return pa.Table.from_arrays(cols, schema=schema)
+
+
+def check_scan_data(
+    meta: dict,
+    lds: pl.DataFrame | pa.Table,
+    spindle: pl.DataFrame | pa.Table | None = None,
+    *,
+    meta_file: str = SCAN_JSON,
+    lds_file: str = LDS_FILE,
+    spindle_file: str = SPINDLE_FILE,
+) -> list[ScanError]:
+    """Every ``borescan-raw/1`` problem of in-memory scan data (no folder checks).
+
+    Integer/float columns are cast losslessly to the format's dtypes first (as
+    :func:`write_scan` does). File labels name the files in the messages.
+
+    Returns
+    -------
+    list of ScanError
+        Empty when the data would make a valid scan.
+    """
+    sid = meta.get("scan_id") if isinstance(meta, dict) else None
+    p = _Problems(sid if _valid_scan_id(sid) else _NO_SCAN)
+    _check_meta(meta, p, meta_file)
+    meta_ok = not p
+    lt = _lds_to_arrow(lds, p, lds_file)
+    if lt is not None:
+        _check_lds(lt, meta if meta_ok else None, spindle is not None, p, lds_file)
+    if spindle is not None:
+        st = _frame_to_arrow(spindle, SPINDLE_SCHEMA, p, spindle_file)
+        if st is not None:
+            _check_spindle(st, p, spindle_file)
+    return p.errors
+
+
+# ---------------------------------------------------------------------------------------------
+# reading
+
+
+def _scan_id_from_dir(scan_dir: Path) -> str:
+    name = scan_dir.name
+    sid = name[5:] if name.startswith("scan=") else name
+    return sid if _valid_scan_id(sid) else (sid[:64] or _NO_SCAN)
+
+
+def _check_folder(scan_dir: Path, raw_root: Path | None, p: _Problems) -> tuple[str | None, str | None]:
+    """Folder-name and containment checks; return (scan_id, night) from the names."""
+    name, parent = scan_dir.name, scan_dir.parent.name
+    sid = name[5:] if name.startswith("scan=") else None
+    night = parent[6:] if parent.startswith("night=") else None
+    rel = f"{parent}/{name}"
+    if sid is None or night is None:
+        p.add(rel, "folder is not <raw_root>/night=<YYYY-MM-DD>/scan=<scan_id>")
+    if sid is not None and not _valid_scan_id(sid):
+        p.add(rel, f"folder scan_id {sid!r:.80} does not match [A-Za-z0-9_-]{{1,64}}")
+        sid = None
+    if night is not None and not _valid_night(night):
+        p.add(rel, f"folder night {night!r:.40} is not a date YYYY-MM-DD")
+        night = None
+    root = Path(raw_root) if raw_root is not None else scan_dir.parent.parent
+    try:
+        real_root = root.resolve(strict=True)
+        real = scan_dir.resolve(strict=True)
+    except (OSError, RuntimeError) as e:
+        p.add(rel, f"cannot resolve folder: {e}")
+        return sid, night
+    if not real.is_relative_to(real_root) or real == real_root:
+        p.add(rel, f"folder resolves to {real}, outside the raw root {real_root}")
+    elif not real.is_dir():
+        p.add(rel, "not a directory")
+    return sid, night
+
+
+def _open_file(
+    scan_dir: Path, fname: str, real_root: Path | None, p: _Problems, required: bool
+) -> Path | None:
+    path = scan_dir / fname
+    if not path.exists() and not path.is_symlink():
+        if required:
+            p.add(fname, "missing (required)")
+        return None
+    try:
+        real = path.resolve(strict=True)
+    except (OSError, RuntimeError) as e:
+        p.add(fname, f"cannot resolve: {e}")
+        return None
+    if real_root is not None and not real.is_relative_to(real_root):
+        p.add(fname, f"resolves to {real}, outside the raw root")
+        return None
+    if not real.is_file():
+        p.add(fname, "not a regular file")
+        return None
+    return path
+
+
+def _read_meta_file(path: Path, p: _Problems) -> tuple[Any, str | None]:
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as e:
+        p.add(SCAN_JSON, f"unreadable: {e.strerror or e}")
+        return None, None
+    digest = hashlib.sha256(data).hexdigest()
+    try:
+        return _parse_json_bytes(data), digest
+    except UnicodeDecodeError as e:
+        p.add(SCAN_JSON, f"not UTF-8 text: {e.reason} at byte {e.start}")
+    except (ValueError, RecursionError) as e:
+        p.add(SCAN_JSON, f"invalid JSON: {e}")
+    return None, digest
+
+
+def _read_parquet(
+    path: Path, fname: str, schema: pa.Schema, p: _Problems
+) -> tuple[pa.Table | None, str | None]:
+    """Read only the schema's columns of a Parquet file; None after a problem."""
+    try:
+        digest = sha256_file(path)
+        with open(path, "rb") as f:
+            pf = pq.ParquetFile(f)
+            if not _check_schema(pf.schema_arrow, schema, p, fname):
+                return None, digest
+            table = pf.read(columns=schema.names, use_threads=False)
+    except OSError as e:
+        if e.errno is not None:
+            p.add(fname, f"unreadable: {e.strerror}")
+        else:
+            p.add(fname, f"not a readable Parquet file (truncated or corrupt): {e}")
+        return None, None
+    except Exception as e:  # noqa: BLE001 - any decoder failure means a corrupt file
+        p.add(fname, f"not a readable Parquet file (truncated or corrupt): {type(e).__name__}: {e}")
+        return None, None
+    return table.select(schema.names), digest
+
+
+def _meta_folder_checks(meta: dict, sid: str | None, night: str | None, p: _Problems) -> None:
+    msid = meta.get("scan_id")
+    if sid is not None and isinstance(msid, str) and msid != sid:
+        p.add(SCAN_JSON, f"scan_id {msid!r:.80} differs from the folder name scan={sid}")
+    mnight = meta.get("night")
+    if night is not None and isinstance(mnight, str) and mnight != night:
+        p.add(SCAN_JSON, f"night {mnight!r:.40} differs from the folder name night={night}")
+
+
+def _inspect(
+    scan_dir: Path, raw_root: Path | None = None, meta_only: bool = False
+) -> tuple[RawScan | dict | None, list[ScanError]]:
+    scan_dir = Path(scan_dir)
+    p = _Problems(_scan_id_from_dir(scan_dir))
+    sid, night = _check_folder(scan_dir, raw_root, p)
+    if p:
+        return None, p.errors
+    root = Path(raw_root) if raw_root is not None else scan_dir.parent.parent
+    real_root = root.resolve()
+    meta_path = _open_file(scan_dir, SCAN_JSON, real_root, p, required=True)
+    lds_path = _open_file(scan_dir, LDS_FILE, real_root, p, required=True) if not meta_only else None
+    sp_path = _open_file(scan_dir, SPINDLE_FILE, real_root, p, required=False) if not meta_only else None
+    meta, meta_digest = (None, None)
+    if meta_path is not None:
+        meta, meta_digest = _read_meta_file(meta_path, p)
+    meta_ok = False
+    if meta is not None:
+        n0 = len(p.errors)
+        _check_meta(meta, p, SCAN_JSON)
+        if isinstance(meta, dict):
+            _meta_folder_checks(meta, sid, night, p)
+        meta_ok = len(p.errors) == n0
+    if meta_only:
+        return (meta if not p else None), p.errors
+    has_spindle_file = (scan_dir / SPINDLE_FILE).exists() or (scan_dir / SPINDLE_FILE).is_symlink()
+    lds_tab, lds_digest = (None, None)
+    if lds_path is not None:
+        lds_tab, lds_digest = _read_parquet(lds_path, LDS_FILE, LDS_SCHEMA, p)
+    sp_tab, sp_digest = (None, None)
+    if sp_path is not None:
+        sp_tab, sp_digest = _read_parquet(sp_path, SPINDLE_FILE, SPINDLE_SCHEMA, p)
+    warnings: list[str] = []
+    if lds_tab is not None:
+        warnings = _check_lds(lds_tab, meta if meta_ok else None, has_spindle_file, p, LDS_FILE)
+    if sp_tab is not None:
+        _check_spindle(sp_tab, p, SPINDLE_FILE)
+    if p:
+        return None, p.errors
+    sha = {SCAN_JSON: meta_digest, LDS_FILE: lds_digest}
+    if sp_tab is not None:
+        sha[SPINDLE_FILE] = sp_digest
+    scan = RawScan(
+        scan_id=sid,
+        night=night,
+        path=scan_dir,
+        meta=meta,
+        lds=pl.from_arrow(lds_tab),
+        spindle=pl.from_arrow(sp_tab) if sp_tab is not None else None,
+        sha256=sha,
+        warnings=warnings,
+    )
+    return scan, []
+
+
+def read_scan(scan_dir: Path, raw_root: Path | None = None) -> RawScan:
+    """Read and fully validate one scan folder.
+
+    Parameters
+    ----------
+    scan_dir : Path
+        ``<raw_root>/night=<YYYY-MM-DD>/scan=<scan_id>``.
+    raw_root : Path, optional
+        The raw root; defaults to ``scan_dir.parent.parent``. The folder and its files must
+        resolve inside it (symlinks that leave it are rejected).
+
+    Returns
+    -------
+    RawScan
+
+    Raises
+    ------
+    ScanError
+        The first problem found (:func:`validate_root` lists them all).
+    """
+    scan, errors = _inspect(scan_dir, raw_root)
+    if errors:
+        raise errors[0]
+    return scan
+
+
+def read_scan_meta(scan_dir: Path, raw_root: Path | None = None) -> dict:
+    """Read and check only ``scan.json`` of a scan folder (fast path for listings).
+
+    Raises
+    ------
+    ScanError
+        First problem of the folder names or of ``scan.json``.
+    """
+    meta, errors = _inspect(scan_dir, raw_root, meta_only=True)
+    if errors:
+        raise errors[0]
+    return meta
+
+
+def _sort_key(scan_dir: Path) -> tuple[str, str]:
+    return (scan_dir.parent.name[6:], scan_dir.name[5:])
+
+
+def discover_scans(raw_root: Path) -> list[Path]:
+    """Scan folders ``<raw_root>/night=*/scan=*``, sorted by (night, scan_id).
+
+    Hidden entries (names starting with ``.``, e.g. unfinished temporary folders) are skipped.
+    Folders are listed, not validated.
+    """
+    raw_root = Path(raw_root)
+    out = []
+    if not raw_root.is_dir():
+        return out
+    for night_dir in raw_root.iterdir():
+        if not night_dir.name.startswith("night=") or not night_dir.is_dir():
+            continue
+        for scan_dir in night_dir.iterdir():
+            if scan_dir.name.startswith("scan=") and scan_dir.is_dir():
+                out.append(scan_dir)
+    return sorted(out, key=_sort_key)
+
+
+def validate_root(raw_root: Path, *, warnings: list[str] | None = None) -> list[ScanError]:
+    """Every problem of every scan under ``raw_root``, plus stray folders and duplicate ids.
+
+    Parameters
+    ----------
+    raw_root : Path
+    warnings : list, optional
+        If given, non-fatal warnings of valid scans are appended as ``"scan_id: file: text"``.
+
+    Returns
+    -------
+    list of ScanError
+        Empty when every scan is valid. Entries that are not ``night=<date>/scan=<id>``
+        folders are reported with scan_id ``"-"``.
+    """
+    raw_root = Path(raw_root)
+    if not raw_root.is_dir():
+        return [ScanError(_NO_SCAN, str(raw_root), "raw root does not exist or is not a folder")]
+    errors: list[ScanError] = []
+    for entry in sorted(raw_root.iterdir()):
+        if entry.name.startswith("."):
+            continue
+        if not (entry.name.startswith("night=") and entry.is_dir()):
+            errors.append(ScanError(_NO_SCAN, entry.name, "not a night=<YYYY-MM-DD> folder"))
+            continue
+        if not _valid_night(entry.name[6:]):
+            errors.append(ScanError(_NO_SCAN, entry.name, "folder night is not a date YYYY-MM-DD"))
+        for sub in sorted(entry.iterdir()):
+            if sub.name.startswith("."):
+                continue
+            if not (sub.name.startswith("scan=") and sub.is_dir()):
+                errors.append(
+                    ScanError(_NO_SCAN, f"{entry.name}/{sub.name}", "not a scan=<scan_id> folder")
+                )
+    seen: dict[str, str] = {}
+    for scan_dir in discover_scans(raw_root):
+        if not _valid_night(scan_dir.parent.name[6:]):
+            continue  # reported above
+        scan, errs = _inspect(scan_dir, raw_root)
+        errors.extend(errs)
+        sid = scan_dir.name[5:]
+        if sid in seen:
+            errors.append(
+                ScanError(sid, f"{scan_dir.parent.name}/{scan_dir.name}",
+                          f"scan_id also used in {seen[sid]} (scan ids are unique across nights)")
+            )
+        else:
+            seen[sid] = scan_dir.parent.name
+        if scan is not None and warnings is not None:
+            warnings.extend(f"{scan.scan_id}: {w}" for w in scan.warnings)
+    return errors
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+
+
+def _json_bytes(meta: dict) -> bytes:
+    return (json.dumps(meta, indent=2, ensure_ascii=False, allow_nan=False) + "\n").encode("utf-8")
+
+
+def _write_parquet(table: pa.Table, path: Path) -> None:
+    pq.write_table(table, path, compression="zstd", use_dictionary=False, write_statistics=True)
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _same_content(a: Path, b: Path) -> bool:
+    fa = sorted(x.name for x in a.iterdir())
+    fb = sorted(x.name for x in b.iterdir())
+    return fa == fb and all(sha256_file(a / n) == sha256_file(b / n) for n in fa)
+
+
+def write_scan(
+    raw_root: Path, meta: dict, lds: pl.DataFrame, spindle: pl.DataFrame | None = None
+) -> Path:
+    """Write one scan as ``<raw_root>/night=<night>/scan=<scan_id>/`` (atomic, write-once).
+
+    Columns are cast losslessly to the format dtypes (e.g. int64 -> int16 for ``sensor``);
+    extra columns are dropped. The data are validated before anything is written. The files go
+    to a temporary folder beside the target, which is then renamed into place. Writing the
+    same content again is a no-op.
+
+    Parameters
+    ----------
+    raw_root : Path
+    meta : dict
+        ``scan.json`` content.
+    lds : pl.DataFrame
+        Long table: sample, t_ns, sensor, value_mm, pose.
+    spindle : pl.DataFrame, optional
+        t_ns, angle_rad, x_mm, y_mm, rpm.
+
+    Returns
+    -------
+    Path
+        The scan folder.
+
+    Raises
+    ------
+    ScanError
+        The data would not make a valid scan (first problem; all are in ``problems``).
+    FileExistsError
+        The folder exists with different content, or the scan_id exists under another night.
+    """
+    raw_root = Path(raw_root)
+    errors = check_scan_data(meta, lds, spindle)
+    if errors:
+        err = errors[0]
+        err.problems = errors  # type: ignore[attr-defined]
+        raise err
+    p = _Problems(meta["scan_id"])
+    lds_t = _lds_to_arrow(lds, p, LDS_FILE)
+    sp_t = _frame_to_arrow(spindle, SPINDLE_SCHEMA, p, SPINDLE_FILE) if spindle is not None else None
+    sid, night = meta["scan_id"], meta["night"]
+    night_dir = raw_root / f"night={night}"
+    final = night_dir / f"scan={sid}"
+    if raw_root.is_dir():
+        for other in raw_root.glob(f"night=*/scan={sid}"):
+            if other.parent.name != night_dir.name:
+                raise FileExistsError(
+                    f"{sid}: {other.parent.name}/{other.name}: scan_id already used under another night"
+                )
+    night_dir.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".scan={sid}.tmp-", dir=night_dir))
+    try:
+        (tmp / SCAN_JSON).write_bytes(_json_bytes(meta))
+        _write_parquet(lds_t, tmp / LDS_FILE)
+        if sp_t is not None:
+            _write_parquet(sp_t, tmp / SPINDLE_FILE)
+        for f in tmp.iterdir():
+            _fsync(f)
+        os.chmod(tmp, 0o755)
+        if final.exists() or final.is_symlink():
+            if final.is_dir() and not final.is_symlink() and _same_content(tmp, final):
+                return final
+            raise FileExistsError(
+                f"{sid}: {night_dir.name}/{final.name}: exists with different content "
+                "(raw folders are write-once)"
+            )
+        try:
+            os.rename(tmp, final)
+        except OSError:
+            if final.is_dir() and _same_content(tmp, final):
+                return final
+            raise FileExistsError(
+                f"{sid}: {night_dir.name}/{final.name}: appeared while writing with different content"
+            ) from None
+        _fsync(night_dir)
+        return final
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# wide view
+
+
+def lds_matrix(scan: RawScan) -> LdsMatrix:
+    """Long ``lds`` -> one row per sample, one column per listed channel (ascending).
+
+    NaN where a reading is null or a channel has no row for a sample; ``t_s = t_ns / 1e9``;
+    ``pose`` is -1 where null.
+    """
+    t = scan.lds
+    sample = t["sample"].to_numpy()
+    sensor = t["sensor"].to_numpy().astype(np.int64)
+    value = t["value_mm"].fill_null(np.nan).to_numpy().astype(np.float64, copy=False)
+    t_ns = t["t_ns"].to_numpy()
+    pose = t["pose"].fill_null(-1).to_numpy().astype(np.int64)
+    channels = tuple(sorted(set(scan.channels) | set(np.unique(sensor).tolist())))
+    starts = np.flatnonzero(np.r_[True, np.diff(sample) != 0])
+    row = np.cumsum(np.r_[True, np.diff(sample) != 0]) - 1
+    lut = np.full(max(channels) + 1, -1, dtype=np.int64)
+    lut[list(channels)] = np.arange(len(channels))
+    values = np.full((len(starts), len(channels)), np.nan)
+    values[row, lut[sensor]] = value
+    # pose of a sample: first non-null pose among its rows
+    pose_s = np.full(len(starts), -1, dtype=np.int64)
+    have = pose >= 0
+    pose_s[row[have][::-1]] = pose[have][::-1]
+    return LdsMatrix(
+        sample=sample[starts].astype(np.int64),
+        t_s=t_ns[starts] / 1e9,
+        channels=channels,
+        values_mm=values,
+        pose=pose_s,
+    )

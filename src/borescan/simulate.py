@@ -1,0 +1,834 @@
+"""Digital twin: forward models with the named effects and scan generators (``borescan-raw/1``).
+
+Composition order of :func:`tri_readings` (``shared/spec/geometry-and-effects.md``):
+
+1. time base: ``channel_delay`` gives channel c the time t_c = t - tau_c; everything below
+   is evaluated at t_c (the channel shows the whole reading of time t - tau);
+2. kinematics: x = omega_nominal t_c, then ``speed_error`` (x (1 + eps)), then
+   ``speed_ripple`` (x + a sin(x + phase)); device angle phi = phase_rad + x (ccw) or
+   phase_rad - x (cw);
+3. spindle position: S = S0 (+ ``spindle_error_motion`` terms at phi);
+4. bore: circle C, R20, then ``thermal_expansion``, ``axis_tilt``, ``bore_lobing``;
+5. exact intersection: closed form for a circular bore (same numbers as
+   :func:`borescan.geometry.tri_spindle_readings`, ~3x faster), that function otherwise;
+6. beam: ``beam_tilt`` (v / cos gamma);
+7. reading: offset, gain, nonlinearity, drift (k t_c), vibration;
+8. (generators only) Gaussian noise, then ``quantization``, ``outliers``; readings outside
+   [0, range_mm] become null.
+
+Steps 1-7 are noise-free and deterministic; fitting code calls :func:`tri_readings` and
+:func:`rod_readings_with_effects` inside least squares.
+
+What the simulated machine reports (``spindle.parquet``): ``angle_rad`` is the true turned
+angle phi(t) - phase_rad of the spindle (so it shows ``speed_error``/``speed_ripple``), or null
+with ``encoder=False``; ``x_mm``/``y_mm`` are the commanded position S0 (the machine does not
+see its own ``spindle_error_motion``); ``rpm`` is the nominal speed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+from borescan import __version__, rawio
+from borescan.effects import Effect, apply_effects, effects_to_dicts, sort_effects
+from borescan.geometry import (
+    Beams,
+    Bore,
+    Hole,
+    RodAxis,
+    RodLayer,
+    rod_readings,
+    tri_spindle_readings,
+)
+
+__all__ = [
+    "YANG_RING_GAUGE_DIAMETER_MM",
+    "YANG_P0_XY_MM",
+    "YANG_P1_XY_MM",
+    "YANG_BEAMS",
+    "TRI_NOISE_MM",
+    "ROD_NOISE_MM",
+    "TriScene",
+    "RodScene",
+    "SimulatedScan",
+    "tri_phi",
+    "tri_readings",
+    "tri_static_readings_with_effects",
+    "rod_readings_with_effects",
+    "default_tri_scene",
+    "default_rod_scene",
+    "simulate_tri_spindle",
+    "simulate_tri_static",
+    "simulate_rod",
+    "write_simulated",
+    "load_truth",
+    "started_at_plus",
+]
+
+# --------------------------------------------------------------------------- defaults (papers)
+
+#: Yang 2017 §3.1: ring gauge inner diameter [mm].
+YANG_RING_GAUGE_DIAMETER_MM = 275.029
+#: Yang 2017 §3.1: ring gauge centre P0 in machine coordinates [mm].
+YANG_P0_XY_MM = (262.833, -273.182)
+#: Yang 2017 §3.1: spindle position P1 during calibration [mm] (oe = 2.3232 mm; the paper prints 2.3222).
+YANG_P1_XY_MM = (262.955, -275.502)
+#: Beams with r and d_b of Yang 2017 Table 1, about 120 deg apart; in a 60 rpm ccw scan at P1
+#: the feature points come in the order 2-1-3 and sensors 1, 2 are "backward", 3 "advanced" (Table 2).
+YANG_BEAMS = Beams(
+    channels=(1, 2, 3),
+    beta_rad=np.array([0.35, 0.35 + math.radians(121.0), 0.35 + math.radians(241.0)]),
+    rho_mm=np.array([-5.5484, -2.5295, 1.5262]),
+    d_b_mm=np.array([132.6718, 132.8883, 134.1108]),
+)
+#: Noise sigma of the HG-C1030 readings after the paper's filtering (Yang 2017 §4: the 15 um
+#: raw beat falls to 3 um after filtering; repeatability 10 um) [mm].
+TRI_NOISE_MM = 0.004
+#: Noise sigma of the rod's OD2-P30W04 readings (Wang 2017 §2.2: 0.02 mm over the span,
+#: taken as 2 sigma) [mm].
+ROD_NOISE_MM = 0.010
+
+
+# --------------------------------------------------------------------------- scenes
+
+
+@dataclass(frozen=True)
+class TriScene:
+    """A three-sensor device turning on a spindle inside a bore (the truth of one scan).
+
+    Attributes
+    ----------
+    beams : true beam geometry.
+    bore_center_xy_mm : bore centre C in machine coordinates [mm].
+    bore_radius_20_mm : bore radius R20 at 20 degC [mm].
+    spindle_xy_mm : commanded spindle position S0 [mm].
+    rpm_nominal : commanded speed [1/min]; phase_rad : device angle at t = 0 [rad];
+    direction : ``"ccw"`` or ``"cw"``; sample_rate_hz : LDS sample rate [Hz];
+    range_mm : sensor range per channel [mm]; cte_per_k : artifact CTE [1/K];
+    temperature_c : artifact temperature written to scan.json [degC] (the radius changes only
+    through a ``thermal_expansion`` effect).
+    """
+
+    beams: Beams = YANG_BEAMS
+    bore_center_xy_mm: tuple[float, float] = YANG_P0_XY_MM
+    bore_radius_20_mm: float = YANG_RING_GAUGE_DIAMETER_MM / 2
+    spindle_xy_mm: tuple[float, float] = YANG_P1_XY_MM
+    rpm_nominal: float = 60.0
+    phase_rad: float = 0.0
+    direction: str = "ccw"
+    sample_rate_hz: float = 660.0
+    range_mm: tuple[float, ...] = (10.0, 10.0, 10.0)
+    cte_per_k: float = 11.5e-6
+    temperature_c: float = 20.0
+
+    def __post_init__(self) -> None:
+        if self.direction not in ("ccw", "cw"):
+            raise ValueError(f"direction must be 'ccw' or 'cw', got {self.direction!r}")
+        if len(self.range_mm) != len(self.beams.channels):
+            raise ValueError("range_mm needs one entry per channel")
+
+    @property
+    def omega_rad_per_s(self) -> float:
+        """Nominal angular speed 2 pi rpm / 60 [rad/s]."""
+        return 2.0 * math.pi * self.rpm_nominal / 60.0
+
+    def bore(self) -> Bore:
+        """The effect-free bore: circle C, R20."""
+        return Bore(tuple(map(float, self.bore_center_xy_mm)), float(self.bore_radius_20_mm))
+
+    def to_dict(self) -> dict:
+        return {
+            "beams": self.beams.to_nominal(),
+            "bore_center_xy_mm": list(map(float, self.bore_center_xy_mm)),
+            "bore_radius_20_mm": float(self.bore_radius_20_mm),
+            "spindle_xy_mm": list(map(float, self.spindle_xy_mm)),
+            "rpm_nominal": self.rpm_nominal,
+            "phase_rad": self.phase_rad,
+            "direction": self.direction,
+            "sample_rate_hz": self.sample_rate_hz,
+            "range_mm": list(self.range_mm),
+            "cte_per_k": self.cte_per_k,
+            "temperature_c": self.temperature_c,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TriScene":
+        """Inverse of :meth:`to_dict` (e.g. ``truth["scene"]`` of a tri_lds scan)."""
+        return cls(
+            beams=Beams.from_nominal(d["beams"]),
+            bore_center_xy_mm=tuple(d["bore_center_xy_mm"]),
+            bore_radius_20_mm=d["bore_radius_20_mm"],
+            spindle_xy_mm=tuple(d["spindle_xy_mm"]),
+            rpm_nominal=d["rpm_nominal"],
+            phase_rad=d["phase_rad"],
+            direction=d["direction"],
+            sample_rate_hz=d["sample_rate_hz"],
+            range_mm=tuple(d["range_mm"]),
+            cte_per_k=d["cte_per_k"],
+            temperature_c=d["temperature_c"],
+        )
+
+
+@dataclass(frozen=True)
+class RodScene:
+    """A measuring rod in a part with coaxial holes (the truth of one scan).
+
+    layers : true layer geometry (one per channel); holes : one hole per layer (part frame);
+    axis : rod axis pose; range_mm : sensor range per layer [mm]; sample_rate_hz [Hz];
+    cte_per_k [1/K]; temperature_c [degC] (as in :class:`TriScene`).
+    """
+
+    layers: tuple[RodLayer, ...]
+    holes: tuple[Hole, ...]
+    axis: RodAxis = RodAxis()
+    range_mm: tuple[float, ...] = (8.0, 8.0)
+    sample_rate_hz: float = 100.0
+    cte_per_k: float = 11.5e-6
+    temperature_c: float = 20.0
+
+    def __post_init__(self) -> None:
+        if not (len(self.layers) == len(self.holes) == len(self.range_mm)):
+            raise ValueError("RodScene needs one hole and one range per layer")
+
+    @property
+    def channels(self) -> tuple[int, ...]:
+        return tuple(int(lay.channel) for lay in self.layers)
+
+    def to_dict(self) -> dict:
+        return {
+            "layers": [_layer_dict(lay) for lay in self.layers],
+            "holes": [{"center_xy_mm": list(h.center_xy_mm), "radius_mm": h.radius_mm} for h in self.holes],
+            "axis": {"dx_mm": self.axis.dx_mm, "dy_mm": self.axis.dy_mm,
+                     "omega_rad": self.axis.omega_rad, "omega_az_rad": self.axis.omega_az_rad},
+            "range_mm": list(self.range_mm),
+            "sample_rate_hz": self.sample_rate_hz,
+            "cte_per_k": self.cte_per_k,
+            "temperature_c": self.temperature_c,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "RodScene":
+        """Inverse of :meth:`to_dict` (e.g. ``truth["scene"]`` of a rod scan)."""
+        layers = tuple(RodLayer(channel=int(x["channel"]), h_mm=x["h"], l0_mm=x["l0"], phi_rad=x["phi"],
+                                d_mm=x["d"], gamma_rad=x["gamma"]) for x in d["layers"])
+        holes = tuple(Hole(tuple(h["center_xy_mm"]), h["radius_mm"]) for h in d["holes"])
+        a = d["axis"]
+        return cls(layers=layers, holes=holes,
+                   axis=RodAxis(a["dx_mm"], a["dy_mm"], a["omega_rad"], a["omega_az_rad"]),
+                   range_mm=tuple(d["range_mm"]), sample_rate_hz=d["sample_rate_hz"],
+                   cte_per_k=d["cte_per_k"], temperature_c=d["temperature_c"])
+
+
+def _layer_dict(lay: RodLayer) -> dict:
+    """Layer in the spec's names (channel, h, phi, d, gamma, l0)."""
+    return {"channel": int(lay.channel), "h": float(lay.h_mm), "phi": float(lay.phi_rad),
+            "d": float(lay.d_mm), "gamma": float(lay.gamma_rad), "l0": float(lay.l0_mm)}
+
+
+# --------------------------------------------------------------------------- forward models
+
+
+def _as_effects(effects: Iterable[Effect | dict] | None) -> list[Effect]:
+    return [e if isinstance(e, Effect) else Effect.from_dict(e) for e in (effects or ())]
+
+
+def _channel_times(t_s: np.ndarray, channels: Sequence[int], time_effects: list[Effect]) -> np.ndarray:
+    t = np.asarray(t_s, dtype=float)
+    if not time_effects:
+        return t[:, None]  # (n, 1), broadcasts over channels
+    tc = np.repeat(t[:, None], len(channels), axis=1)
+    for e in time_effects:
+        j = list(channels).index(e.channel)
+        tc[:, j] = e.spec.forward["tri_lds"](tc[:, j], e.params)
+    return tc
+
+
+def tri_phi(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
+    """Device angle phi(t) with the kinematic effects.
+
+    phi = phase + sgn x, x = omega t, then x <- x (1 + eps) (``speed_error``) and
+    x <- x + a sin(x + phase) (``speed_ripple``); sgn = +1 for ccw, -1 for cw.
+
+    Parameters
+    ----------
+    t_s : ndarray (...) times [s]
+
+    Returns
+    -------
+    ndarray (...) [rad]
+    """
+    st = sort_effects(_as_effects(effects), "tri_lds", scene.beams.channels)
+    x = scene.omega_rad_per_s * np.asarray(t_s, dtype=float)
+    for e in st["kinematics"]:
+        x = e.spec.forward["tri_lds"](x, e.params)
+    sgn = 1.0 if scene.direction == "ccw" else -1.0
+    return scene.phase_rad + sgn * x
+
+
+def _bore_with_effects(
+    bore: Bore, bore_effects: list[Effect], cte_per_k: float, device: str = "tri_lds"
+) -> Bore:
+    for e in bore_effects:
+        bore = e.spec.forward[device](bore, e.params, cte_per_k)
+    return bore
+
+
+def _tri_circle_readings(
+    phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore
+) -> np.ndarray:
+    """Fast closed form of :func:`borescan.geometry.tri_spindle_readings` for a circular bore.
+
+    With a = phi + beta, u' = (cos a, sin a), n' = (-sin a, cos a), D = S - C:
+    s = -b + sqrt(b^2 - c), b = D.u', c = |D|^2 + 2 rho D.n' + rho^2 - R^2 (the origin
+    S + rho n' lies inside, c < 0); v = s - d_b. Same numbers as the general model to ~1e-13 mm.
+    """
+    ang = np.asarray(phi_rad, dtype=float) + beams.beta_rad
+    ca, sa = np.cos(ang), np.sin(ang)
+    D = np.asarray(spindle_xy_mm, dtype=float) - np.asarray(bore.center_xy_mm, dtype=float)
+    dx, dy = D[..., 0], D[..., 1]
+    b = dx * ca + dy * sa
+    c = dx * dx + dy * dy + 2.0 * beams.rho_mm * (dy * ca - dx * sa) + beams.rho_mm**2 - bore.radius_mm**2
+    disc = b * b - c
+    with np.errstate(invalid="ignore"):
+        sq = np.sqrt(disc)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(b <= 0.0, sq - b, -c / (b + sq))
+    return np.where(disc >= 0.0, s, np.nan) - beams.d_b_mm
+
+
+def tri_readings(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
+    """Noise-free readings of a spindle scan with effects (composition order in the module doc).
+
+    v = s - d_b, s > 0 the root of |S(phi) + Rot(phi)(F + s u) - C| = r_wall, phi = phi(t_c),
+    then beam and reading effects.
+
+    Parameters
+    ----------
+    scene : TriScene
+    t_s : ndarray (n,) sample times since scan start [s]
+    effects : iterable of :class:`~borescan.effects.Effect`
+
+    Returns
+    -------
+    ndarray (n, c) readings [mm], channels in ``scene.beams.channels`` order; not clipped to
+    the sensor range. Output-stage effects (``quantization``, ``outliers``) act after the noise
+    and are left to the generators (:func:`simulate_tri_spindle`).
+    """
+    effects = _as_effects(effects)
+    channels = scene.beams.channels
+    st = sort_effects(effects, "tri_lds", channels)
+    tc = _channel_times(t_s, channels, st["time_base"])
+    phi = tri_phi(scene, tc, st["kinematics"])
+    S: np.ndarray = np.asarray(scene.spindle_xy_mm, dtype=float)
+    if st["spindle_position"]:
+        phi_full = np.broadcast_to(phi, (phi.shape[0], len(channels)))
+        S = np.broadcast_to(S, phi_full.shape + (2,))
+        for e in st["spindle_position"]:
+            S = e.spec.forward["tri_lds"](S, phi_full, e.params)
+    bore = _bore_with_effects(scene.bore(), st["bore"], scene.cte_per_k)
+    if bore.is_circle:  # phi (n, 1) or (n, c); S (2,) or (n, c, 2)
+        v = _tri_circle_readings(phi, S, scene.beams, bore)
+    else:
+        v = tri_spindle_readings(phi, S, scene.beams, bore)
+    if st["beam"] or st["reading"]:
+        v = apply_effects(v, tc, channels, st["beam"] + st["reading"], range_mm=scene.range_mm,
+                          stages=("beam", "reading"))
+    return v
+
+
+def tri_static_readings_with_effects(
+    scene: TriScene,
+    device_xy_mm: np.ndarray,
+    device_angle_rad: np.ndarray,
+    t_s: np.ndarray,
+    effects: Iterable[Effect] = (),
+) -> np.ndarray:
+    """Noise-free readings of a static device at poses (xy (n, 2), angle (n,)) with effects.
+
+    Same composition as :func:`tri_readings` with phi and S given per sample; kinematic and
+    spindle effects do not apply (``ValueError``); ``channel_delay`` shifts the time that
+    drift and vibration see.
+
+    Returns
+    -------
+    ndarray (n, c) [mm]
+    """
+    effects = _as_effects(effects)
+    channels = scene.beams.channels
+    st = sort_effects(effects, "tri_lds", channels)
+    if st["kinematics"] or st["spindle_position"]:
+        bad = [e.name for e in st["kinematics"] + st["spindle_position"]]
+        raise ValueError(f"effects {bad} do not apply to a static tri_lds measurement")
+    tc = _channel_times(t_s, channels, st["time_base"])
+    bore = _bore_with_effects(scene.bore(), st["bore"], scene.cte_per_k)
+    phi = np.asarray(device_angle_rad, dtype=float)
+    xy = np.asarray(device_xy_mm, dtype=float)
+    if bore.is_circle:
+        v = _tri_circle_readings(phi[:, None], xy[:, None, :], scene.beams, bore)
+    else:
+        v = tri_spindle_readings(phi, xy, scene.beams, bore)
+    if st["beam"] or st["reading"]:
+        v = apply_effects(v, tc, channels, st["beam"] + st["reading"], range_mm=scene.range_mm,
+                          stages=("beam", "reading"))
+    return v
+
+
+def rod_readings_with_effects(
+    scene: RodScene, alpha_rad: np.ndarray, effects: Iterable[Effect] = (), t_s: np.ndarray | None = None
+) -> np.ndarray:
+    """Noise-free rod readings with effects.
+
+    Beam effects change the layer (``beam_offset``: d += d_mm, Wang 2017 Eq. 5; ``beam_tilt``:
+    gamma += gamma_rad, Eq. 6), ``thermal_expansion`` scales every hole radius by
+    1 + cte (T - 20), then the exact ray-cylinder readings (:func:`borescan.geometry.rod_readings`;
+    Wang Eq. 16 when gamma = d = omega = 0) and the reading effects at times ``t_s``.
+
+    Parameters
+    ----------
+    alpha_rad : ndarray (n,) rod rotation per reading [rad]
+    t_s : ndarray (n,) times [s] for ``sensor_drift`` (zeros when omitted)
+
+    Returns
+    -------
+    ndarray (n, m) [mm]
+    """
+    effects = _as_effects(effects)
+    channels = scene.channels
+    st = sort_effects(effects, "rod", channels)
+    layers = list(scene.layers)
+    for e in st["beam"]:
+        j = channels.index(e.channel)
+        layers[j] = e.spec.forward["rod"](layers[j], e.params)
+    holes = list(scene.holes)
+    for e in st["bore"]:
+        f = e.spec.forward["rod"]
+        holes = [
+            Hole(h.center_xy_mm, f(Bore(h.center_xy_mm, h.radius_mm), e.params, scene.cte_per_k).radius_mm)
+            for h in holes
+        ]
+    alpha = np.atleast_1d(np.asarray(alpha_rad, dtype=float))
+    v = rod_readings(alpha, layers, holes, scene.axis)
+    if st["reading"]:
+        t = np.zeros(alpha.shape) if t_s is None else np.asarray(t_s, dtype=float)
+        v = apply_effects(v, t, channels, st["reading"], device_type="rod", range_mm=scene.range_mm,
+                          stages=("reading",))
+    return v
+
+
+# --------------------------------------------------------------------------- default scenes
+
+
+def default_tri_scene(**overrides: Any) -> TriScene:
+    """Yang 2017 calibration set-up: RG-275 at P0, spindle at P1, 60 rpm, 660 samples/rev, HG-C1030."""
+    return replace(TriScene(), **overrides)
+
+
+#: Wang 2017 §3.5: 500 mm rod, two 150 mm holes; layers at h = 100 and 400 mm.
+def default_rod_scene(**overrides: Any) -> RodScene:
+    """Wang 2017 set-up: 500 mm rod, two 150 mm holes at h = 100, 400 mm, OD2-P30W04 (span 8 mm).
+
+    l0 = 71 mm puts the readings mid-span (l = r = 75 mm gives v = 4 mm); d = 0.3 mm and
+    gamma = 0.3 deg are within Wang's d_m < 0.5 mm, gamma_m < 0.5 deg; eccentricity 1.2 mm < 2 mm.
+    """
+    scene = RodScene(
+        layers=(
+            RodLayer(channel=1, h_mm=100.0, l0_mm=71.0, phi_rad=0.0, d_mm=0.3, gamma_rad=math.radians(0.3)),
+            RodLayer(channel=2, h_mm=400.0, l0_mm=71.0, phi_rad=0.05, d_mm=-0.2,
+                     gamma_rad=math.radians(-0.2)),
+        ),
+        holes=(Hole((0.0, 0.0), 75.004), Hole((0.02, -0.015), 74.997)),
+        axis=RodAxis(dx_mm=1.2, dy_mm=-0.8, omega_rad=math.radians(0.1), omega_az_rad=0.7),
+        range_mm=(8.0, 8.0),
+        sample_rate_hz=100.0,
+    )
+    return replace(scene, **overrides)
+
+
+# --------------------------------------------------------------------------- generators
+
+
+@dataclass
+class SimulatedScan:
+    """A simulated scan: ``meta`` (scan.json), ``lds`` and ``spindle`` frames per
+    ``raw-scan-format.md``, and the ground ``truth`` (written outside the raw tree)."""
+
+    meta: dict
+    lds: pl.DataFrame
+    spindle: pl.DataFrame | None
+    truth: dict = field(default_factory=dict)
+
+    @property
+    def scan_id(self) -> str:
+        return self.meta["scan_id"]
+
+
+def _t_ns(sample: np.ndarray, rate_hz: float) -> np.ndarray:
+    return np.round(sample.astype(np.float64) * (1e9 / rate_hz)).astype(np.int64)
+
+
+def _finish_readings(
+    v: np.ndarray, channels, effects: list[Effect], device_type: str, range_mm, noise_mm: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Noise, then quantization and outliers, then null (NaN) outside [0, range_mm]."""
+    v = v + rng.normal(0.0, noise_mm, v.shape) if noise_mm > 0 else v.copy()
+    v = apply_effects(v, np.zeros(v.shape[0]), channels, effects, device_type=device_type,
+                      range_mm=range_mm, stages=("output",), rng=rng)
+    rng_arr = np.asarray(range_mm, dtype=float)
+    with np.errstate(invalid="ignore"):
+        v[(v < 0.0) | (v > rng_arr)] = np.nan
+    return v
+
+
+def _lds_frame(sample: np.ndarray, t_ns: np.ndarray, channels, values: np.ndarray,
+               pose: np.ndarray | None) -> pl.DataFrame:
+    """Long lds frame sorted by sample, then sensor, with the spec's dtypes."""
+    n, c = values.shape
+    vals = values.reshape(-1)
+    cols = {
+        "sample": pl.Series("sample", np.repeat(sample, c), dtype=pl.Int64),
+        "t_ns": pl.Series("t_ns", np.repeat(t_ns, c), dtype=pl.Int64),
+        "sensor": pl.Series("sensor", np.tile(np.asarray(channels, dtype=np.int16), n), dtype=pl.Int16),
+        "value_mm": pl.Series("value_mm", vals, dtype=pl.Float64, nan_to_null=True),
+    }
+    if pose is None:
+        cols["pose"] = pl.Series("pose", [None] * (n * c), dtype=pl.Int32)
+    else:
+        cols["pose"] = pl.Series("pose", np.repeat(pose, c), dtype=pl.Int32)
+    return pl.DataFrame(cols)
+
+
+def _sensors_meta(device_id: str, channels, range_mm, model: str, linearity_fs: float,
+                  repeatability_mm: float) -> list[dict]:
+    return [
+        {"channel": int(c), "model": model, "serial": f"{device_id}-S{int(c)}", "range_mm": float(r),
+         "linearity_fs": linearity_fs, "repeatability_mm": repeatability_mm}
+        for c, r in zip(channels, range_mm)
+    ]
+
+
+def _temperature(scene_t: float, effects: list[Effect]) -> float:
+    for e in effects:
+        if e.name == "thermal_expansion":
+            return e.params["temperature_c"]
+    return scene_t
+
+
+def _base_meta(scan_id, night, kind, started_at, device, sample_rate_hz, sensors, artifact, temperature_c,
+               seed, extra) -> dict:
+    if started_at is None:
+        started_at = f"{night}T22:00:00Z"
+    meta = {
+        "format": "borescan-raw/1",
+        "scan_id": scan_id,
+        "night": night,
+        "started_at": started_at,
+        "kind": kind,
+        "device": device,
+        "sample_rate_hz": float(sample_rate_hz),
+        "sensors": sensors,
+        "artifact": artifact,
+        "environment": {"temperature_c": float(temperature_c)},
+        "operator": "night-shift",
+        "acquisition": {"software": f"borescan-simulate {__version__}", "simulated": True, "seed": seed},
+    }
+    meta.update(extra or {})
+    return meta
+
+
+def _default_artifact(diameter_mm: float, cte_per_k: float) -> dict:
+    return {"id": "RG-275", "type": "ring_gauge", "nominal_diameter_mm": diameter_mm,
+            "certified_diameter_mm": diameter_mm, "u_diameter_mm": 0.0015, "k": 2,
+            "certificate": "RG-275/2026-03", "cte_per_k": cte_per_k}
+
+
+def _tri_device(device_id: str, nominal_beams: Beams | None, truth_beams: Beams) -> dict:
+    return {"id": device_id, "type": "tri_lds",
+            "nominal": {"beams": (nominal_beams or truth_beams).to_nominal()}}
+
+
+def simulate_tri_spindle(
+    scene: TriScene | None = None,
+    *,
+    scan_id: str = "SIM-TRI-SPINDLE",
+    night: str = "2026-11-20",
+    kind: str = "calibration",
+    n_rev: float = 60.0,
+    effects: Iterable[Effect] = (),
+    noise_mm: float = TRI_NOISE_MM,
+    seed: int = 0,
+    device_id: str = "TRI-01",
+    nominal_beams: Beams | None = None,
+    artifact: dict | None = None,
+    spindle_label: str = "P1",
+    center_xy_mm: tuple[float, float] | None = None,
+    encoder: bool = True,
+    spindle_rate_hz: float = 50.0,
+    started_at: str | None = None,
+    extra_meta: dict | None = None,
+) -> SimulatedScan:
+    """Simulate a spindle scan (``n_rev`` revolutions at ``scene.rpm_nominal``).
+
+    Samples k = 0..n-1 at t = k / sample_rate_hz, n = round(n_rev 60 / rpm * rate); readings
+    from :func:`tri_readings`, then noise N(0, noise_mm^2), quantization, outliers, nulls.
+    The spindle stream runs on its own clock at ``spindle_rate_hz``.
+
+    Returns
+    -------
+    SimulatedScan
+    """
+    scene = scene or default_tri_scene()
+    effects = _as_effects(effects)
+    rng = np.random.default_rng(seed)
+    channels = scene.beams.channels
+    n = int(round(n_rev * 60.0 / scene.rpm_nominal * scene.sample_rate_hz))
+    sample = np.arange(n, dtype=np.int64)
+    t_ns = _t_ns(sample, scene.sample_rate_hz)
+    t_s = t_ns * 1e-9
+    v_true = tri_readings(scene, t_s, effects)
+    v = _finish_readings(v_true, channels, effects, "tri_lds", scene.range_mm, noise_mm, rng)
+    lds = _lds_frame(sample, t_ns, channels, v, None)
+
+    duration_s = n / scene.sample_rate_hz
+    m = int(math.floor(duration_s * spindle_rate_hz)) + 1
+    ts_ns = _t_ns(np.arange(m, dtype=np.int64), spindle_rate_hz)
+    kinematic = [e for e in effects if e.spec.stage == "kinematics"]
+    angle = tri_phi(scene, ts_ns * 1e-9, kinematic) - scene.phase_rad
+    spindle = pl.DataFrame({
+        "t_ns": pl.Series("t_ns", ts_ns, dtype=pl.Int64),
+        "angle_rad": pl.Series("angle_rad", angle if encoder else [None] * m, dtype=pl.Float64),
+        "x_mm": pl.Series("x_mm", np.full(m, float(scene.spindle_xy_mm[0])), dtype=pl.Float64),
+        "y_mm": pl.Series("y_mm", np.full(m, float(scene.spindle_xy_mm[1])), dtype=pl.Float64),
+        "rpm": pl.Series("rpm", np.full(m, float(scene.rpm_nominal)), dtype=pl.Float64),
+    })
+    extra = {"spindle": {"rpm_nominal": float(scene.rpm_nominal), "direction": scene.direction,
+                         "position": {"label": spindle_label, "x_mm": float(scene.spindle_xy_mm[0]),
+                                      "y_mm": float(scene.spindle_xy_mm[1])}}}
+    if center_xy_mm is not None:
+        extra["center"] = {"x_mm": float(center_xy_mm[0]), "y_mm": float(center_xy_mm[1]),
+                           "method": "centring scan"}
+    extra.update(extra_meta or {})
+    meta = _base_meta(
+        scan_id, night, kind, started_at, _tri_device(device_id, nominal_beams, scene.beams),
+        scene.sample_rate_hz, _sensors_meta(device_id, channels, scene.range_mm, "HG-C1030", 0.001, 0.010),
+        artifact or _default_artifact(2 * scene.bore_radius_20_mm, scene.cte_per_k),
+        _temperature(scene.temperature_c, effects), seed, extra,
+    )
+    bore = _bore_with_effects(scene.bore(), sort_effects(effects, "tri_lds", channels)["bore"],
+                              scene.cte_per_k)
+    truth = _truth(meta, scene.to_dict(), effects, noise_mm, seed, n_samples=n,
+                   extra={"encoder": encoder, "n_rev": n_rev, "bore_radius_mm": bore.radius_mm,
+                          "reading_mean_mm": np.nanmean(v_true, axis=0).tolist()})
+    return SimulatedScan(meta, lds, spindle, truth)
+
+
+def _pose_samples(n_poses: int, samples_per_pose: int, pose_interval_s: float, rate_hz: float):
+    """Sample ticks: pose p occupies ticks p * round(interval * rate) + 0..samples_per_pose-1."""
+    stride = max(int(round(pose_interval_s * rate_hz)), samples_per_pose)
+    pose = np.repeat(np.arange(n_poses, dtype=np.int64), samples_per_pose)
+    sample = pose * stride + np.tile(np.arange(samples_per_pose, dtype=np.int64), n_poses)
+    return sample, pose
+
+
+def simulate_tri_static(
+    scene: TriScene | None = None,
+    device_xy_mm: np.ndarray | None = None,
+    device_angle_rad: np.ndarray | None = None,
+    *,
+    scan_id: str = "SIM-TRI-STATIC",
+    night: str = "2026-11-20",
+    kind: str = "verification",
+    samples_per_pose: int = 20,
+    pose_interval_s: float = 5.0,
+    effects: Iterable[Effect] = (),
+    noise_mm: float = TRI_NOISE_MM,
+    seed: int = 0,
+    device_id: str = "TRI-01",
+    nominal_beams: Beams | None = None,
+    artifact: dict | None = None,
+    started_at: str | None = None,
+    extra_meta: dict | None = None,
+) -> SimulatedScan:
+    """Simulate static three-sensor measurements: one block of samples per device pose.
+
+    Pose p (device rotation axis at ``device_xy_mm[p]``, angle ``device_angle_rad[p]``) gives
+    ``samples_per_pose`` samples; the ``pose`` column carries p; no spindle stream. By default
+    10 poses like Yang 2017 Table 3: within 1.5 mm of the bore centre, random angles.
+
+    Returns
+    -------
+    SimulatedScan
+    """
+    scene = scene or default_tri_scene()
+    effects = _as_effects(effects)
+    rng = np.random.default_rng(seed)
+    channels = scene.beams.channels
+    if device_xy_mm is None or device_angle_rad is None:
+        n_poses = 10
+        r = 1.5 * np.sqrt(rng.uniform(0, 1, n_poses))
+        a = rng.uniform(0, 2 * np.pi, n_poses)
+        device_xy_mm = np.asarray(scene.bore_center_xy_mm) + np.stack([r * np.cos(a), r * np.sin(a)], -1)
+        device_angle_rad = rng.uniform(0, 2 * np.pi, n_poses)
+    xy = np.atleast_2d(np.asarray(device_xy_mm, dtype=float))
+    ang = np.atleast_1d(np.asarray(device_angle_rad, dtype=float))
+    sample, pose = _pose_samples(len(ang), samples_per_pose, pose_interval_s, scene.sample_rate_hz)
+    t_ns = _t_ns(sample, scene.sample_rate_hz)
+    v_true = tri_static_readings_with_effects(scene, xy[pose], ang[pose], t_ns * 1e-9, effects)
+    v = _finish_readings(v_true, channels, effects, "tri_lds", scene.range_mm, noise_mm, rng)
+    lds = _lds_frame(sample, t_ns, channels, v, pose)
+    meta = _base_meta(
+        scan_id, night, kind, started_at, _tri_device(device_id, nominal_beams, scene.beams),
+        scene.sample_rate_hz, _sensors_meta(device_id, channels, scene.range_mm, "HG-C1030", 0.001, 0.010),
+        artifact or _default_artifact(2 * scene.bore_radius_20_mm, scene.cte_per_k),
+        _temperature(scene.temperature_c, effects), seed, extra_meta,
+    )
+    bore = _bore_with_effects(scene.bore(), sort_effects(effects, "tri_lds", channels)["bore"],
+                              scene.cte_per_k)
+    poses = [{"pose": p, "device_xy_mm": xy[p].tolist(), "device_angle_rad": float(ang[p])}
+             for p in range(len(ang))]
+    truth = _truth(meta, scene.to_dict(), effects, noise_mm, seed, n_samples=len(sample),
+                   extra={"poses": poses,
+                          "bore_radius_mm": bore.radius_mm, "diameter_mm": 2 * bore.radius_mm})
+    return SimulatedScan(meta, lds, None, truth)
+
+
+def simulate_rod(
+    scene: RodScene | None = None,
+    alpha_rad: np.ndarray | None = None,
+    *,
+    n_poses: int = 24,
+    samples_per_pose: int = 5,
+    pose_interval_s: float = 3.0,
+    scan_id: str = "SIM-ROD",
+    night: str = "2026-11-20",
+    kind: str = "measurement",
+    effects: Iterable[Effect] = (),
+    noise_mm: float = ROD_NOISE_MM,
+    seed: int = 0,
+    device_id: str = "ROD-01",
+    nominal_layers: Sequence[RodLayer] | None = None,
+    artifact: dict | None = None,
+    features: Sequence[str] | None = None,
+    started_at: str | None = None,
+    extra_meta: dict | None = None,
+) -> SimulatedScan:
+    """Simulate a hand-turned measuring rod: ``n_poses`` stationary rotations, a few samples each.
+
+    Rotations alpha_p = alpha_0 + 2 pi (p + U(-0.3, 0.3)) / n_poses (Wang 2017: turned "randomly
+    and discretely"); readings from :func:`rod_readings_with_effects`, noise, quantization,
+    outliers, nulls. The nominal layers in scan.json have d = gamma = 0 and phi = 0 (Wang §3.5).
+
+    Returns
+    -------
+    SimulatedScan
+    """
+    scene = scene or default_rod_scene()
+    effects = _as_effects(effects)
+    rng = np.random.default_rng(seed)
+    channels = scene.channels
+    if alpha_rad is None:
+        jitter = rng.uniform(-0.3, 0.3, n_poses)
+        alpha_rad = rng.uniform(0, 2 * np.pi) + 2 * np.pi * (np.arange(n_poses) + jitter) / n_poses
+    alpha = np.atleast_1d(np.asarray(alpha_rad, dtype=float))
+    sample, pose = _pose_samples(len(alpha), samples_per_pose, pose_interval_s, scene.sample_rate_hz)
+    t_ns = _t_ns(sample, scene.sample_rate_hz)
+    v_true = rod_readings_with_effects(scene, alpha[pose], effects, t_ns * 1e-9)
+    v = _finish_readings(v_true, channels, effects, "rod", scene.range_mm, noise_mm, rng)
+    lds = _lds_frame(sample, t_ns, channels, v, pose)
+    features = list(features or [f"H{c}" for c in channels])
+    if nominal_layers is None:
+        nominal_layers = [replace(lay, d_mm=0.0, gamma_rad=0.0, phi_rad=0.0) for lay in scene.layers]
+    if artifact is None:
+        artifact = {"id": "PART-2H", "type": "part", "nominal_diameter_mm": 150.0,
+                    "cte_per_k": scene.cte_per_k,
+                    "features": [{"id": f, "z_mm": float(lay.h_mm), "nominal_diameter_mm": 150.0}
+                                 for f, lay in zip(features, scene.layers)]}
+    device = {"id": device_id, "type": "rod",
+              "nominal": {"layers": [_layer_dict(lay) for lay in nominal_layers]}}
+    extra = {"rod": {"layers": [{"channel": int(lay.channel), "feature": f, "h_mm": float(lay.h_mm)}
+                                for f, lay in zip(features, scene.layers)]}}
+    extra.update(extra_meta or {})
+    meta = _base_meta(
+        scan_id, night, kind, started_at, device, scene.sample_rate_hz,
+        _sensors_meta(device_id, channels, scene.range_mm, "OD2-P30W04", 0.0025, 0.020),
+        artifact, _temperature(scene.temperature_c, effects), seed, extra,
+    )
+    radii = [h.radius_mm for h in scene.holes]
+    for e in sort_effects(effects, "rod", channels)["bore"]:
+        radii = [r * (1.0 + scene.cte_per_k * (e.params["temperature_c"] - 20.0)) for r in radii]
+    truth = _truth(meta, scene.to_dict(), effects, noise_mm, seed, n_samples=len(sample),
+                   extra={"alpha_rad": alpha.tolist(),
+                          "diameters_mm": {f: 2 * r for f, r in zip(features, radii)}})
+    return SimulatedScan(meta, lds, None, truth)
+
+
+def _truth(meta: dict, scene: dict, effects: list[Effect], noise_mm: float, seed: int, n_samples: int,
+           extra: dict) -> dict:
+    return {
+        "scan_id": meta["scan_id"],
+        "night": meta["night"],
+        "device_id": meta["device"]["id"],
+        "device_type": meta["device"]["type"],
+        "kind": meta["kind"],
+        "scene": scene,
+        "effects": effects_to_dicts(effects),
+        "noise_sigma_mm": noise_mm,
+        "seed": seed,
+        "n_samples": n_samples,
+        **extra,
+    }
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+def write_simulated(sim: SimulatedScan, raw_root: Path | str, truth_root: Path | str) -> Path:
+    """Write the scan in ``borescan-raw/1`` under ``raw_root`` and its truth outside it.
+
+    The scan goes through :func:`borescan.rawio.write_scan` (validated, atomic, write-once); truth goes to
+    ``<truth_root>/<scan_id>.truth.json``.
+
+    Returns
+    -------
+    Path of the scan folder.
+    """
+    raw_root, truth_root = Path(raw_root), Path(truth_root)
+    path = rawio.write_scan(raw_root, sim.meta, sim.lds, sim.spindle)
+    truth_root.mkdir(parents=True, exist_ok=True)
+    tmp = truth_root / f".{sim.scan_id}.truth.json.tmp"
+    tmp.write_text(json.dumps(sim.truth, indent=2, sort_keys=True, default=_json_default) + "\n")
+    os.replace(tmp, truth_root / f"{sim.scan_id}.truth.json")
+    return Path(path)
+
+
+def load_truth(truth_root: Path | str, scan_id: str) -> dict:
+    """Read ``<truth_root>/<scan_id>.truth.json`` (evaluation code only; the pipeline never reads truth).
+
+    ``truth["scene"]`` rebuilds with :meth:`TriScene.from_dict` / :meth:`RodScene.from_dict`,
+    ``truth["effects"]`` with :func:`borescan.effects.effects_from_dicts`.
+    """
+    return json.loads((Path(truth_root) / f"{scan_id}.truth.json").read_text())
+
+
+def started_at_plus(night: str, hour: int, minute: int) -> str:
+    """ISO 8601 UTC timestamp ``night`` + hh:mm (hours >= 24 roll into the next day)."""
+    t = datetime.fromisoformat(night).replace(tzinfo=timezone.utc) + timedelta(hours=hour, minutes=minute)
+    return t.strftime("%Y-%m-%dT%H:%M:%SZ")
