@@ -1,0 +1,24 @@
+# borescan: LDS bore scans -> calibrated devices, certified diameters, traceable history.
+# Table of contents only; each stage lives in rules/<stage>.smk and calls src/borescan.
+from snakemake.utils import min_version, validate
+
+min_version("8.0")
+
+
+configfile: "config/config.yaml"
+
+
+validate(config, "workflow/schemas/config.schema.yaml")
+
+
+include: "rules/common.smk"
+include: "rules/ingest.smk"
+include: "rules/catalog.smk"
+include: "rules/report.smk"
+
+
+rule all:
+    default_target: True
+    input:
+        rules.catalog.input,
+        rules.report.input,

@@ -1,0 +1,19 @@
+rule ingest_night:
+    message:
+        "Validating and registering the scans of night {wildcards.night}"
+    input:
+        raw=raw_files_of_night,
+    output:
+        scans=f"{RES}/stage/scans/night={{night}}.parquet",
+        files=f"{RES}/stage/scan_files/night={{night}}.parquet",
+        quarantine=f"{RES}/stage/quarantine/stage=ingest/night={{night}}.parquet",
+    params:
+        raw_root=RAW,
+        results_root=RES,
+        duplicates=duplicate_ids_of_night,
+    log:
+        f"{RES}/logs/ingest_night/{{night}}.log",
+    benchmark:
+        f"{RES}/benchmarks/ingest_night/{{night}}.tsv"
+    script:
+        "../workflow/scripts/ingest_night.py"
