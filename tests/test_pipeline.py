@@ -1,55 +1,16 @@
-"""The whole pipeline, run by Snakemake on the embedded demo nights (issue 6 tests).
-
-One session-scoped run on a copy of the demo nights plus one deliberately corrupt scan;
-the tests then read the catalog and the result files.
-"""
+"""The whole pipeline, run by Snakemake on the embedded demo nights (issue 6 tests)."""
 
 from __future__ import annotations
 
-import json
-import shutil
-import subprocess
-import sys
-from pathlib import Path
-
 import duckdb
-import pytest
 
-from borescan import demo, rawio
+from conftest import checksums, run_snakemake
 
-ROOT = Path(__file__).resolve().parents[1]
-SNAKEMAKE = Path(sys.executable).with_name("snakemake")
+from borescan import rawio
 
 
-def run_snakemake(raw_root: Path, results_root: Path, *extra: str) -> subprocess.CompletedProcess:
-    cmd = [str(SNAKEMAKE), "--cores", "2", "--config", f"raw_root={raw_root}", f"results_root={results_root}", *extra]
-    env = {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(results_root.parent), "MPLBACKEND": "Agg"}
-    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=900)
-
-
-def checksums(root: Path) -> dict[str, str]:
-    return {str(p.relative_to(root)): rawio.sha256_file(p) for p in sorted(root.rglob("*")) if p.is_file()}
-
-
-@pytest.fixture(scope="session")
-def pipeline_run(tmp_path_factory):
-    base = tmp_path_factory.mktemp("pipeline")
-    demo.make_demo(base / "demo")
-    raw = base / "demo" / "raw"
-    # A truncated lds.parquet in a copy of a good scan: must be quarantined, never stop the night.
-    night = sorted(raw.iterdir())[0]
-    good = sorted(night.iterdir())[0]
-    bad = night / "scan=BROKEN-TRUNCATED"
-    shutil.copytree(good, bad)
-    meta = json.loads((bad / "scan.json").read_text())
-    meta["scan_id"] = "BROKEN-TRUNCATED"
-    (bad / "scan.json").write_text(json.dumps(meta))
-    data = (bad / "lds.parquet").read_bytes()
-    (bad / "lds.parquet").write_bytes(data[: len(data) // 2])
-    before = checksums(raw)
-    results = base / "results"
-    proc = run_snakemake(raw, results)
-    return {"raw": raw, "results": results, "proc": proc, "before": before}
+def _con(run):
+    return duckdb.connect(str(run["results"] / "catalog.duckdb"), read_only=True)
 
 
 def test_pipeline_completes(pipeline_run):
@@ -60,26 +21,17 @@ def test_pipeline_completes(pipeline_run):
 
 
 def test_catalog_has_every_scan_with_checksums(pipeline_run):
-    con = duckdb.connect(str(pipeline_run["results"] / "catalog.duckdb"), read_only=True)
-    rows = con.execute("SELECT scan_id, status, reason, raw_sha256 FROM scans ORDER BY scan_id").fetchall()
+    con = _con(pipeline_run)
+    rows = con.execute("SELECT scan_id, night, status, raw_sha256 FROM scans").fetchall()
     n_raw = sum(1 for _ in pipeline_run["raw"].glob("night=*/scan=*"))
-    assert len(rows) == n_raw == 19
-    by_id = {r[0]: r for r in rows}
-    assert by_id["BROKEN-TRUNCATED"][1] == "quarantined"
-    assert "lds.parquet" in by_id["BROKEN-TRUNCATED"][2]
-    assert all(r[1] == "ok" for sid, r in by_id.items() if sid != "BROKEN-TRUNCATED")
+    assert len(rows) == n_raw
+    ok = {r[0] for r in rows if r[2] == "ok"}
+    assert ok == set(pipeline_run["good_ids"])
     assert all(len(r[3]) == 64 for r in rows)
-    # per-file SHA-256 equals the raw bytes' digest
-    for scan_id, file, sha in con.execute("SELECT scan_id, file, sha256 FROM scan_files").fetchall():
-        night = con.execute("SELECT night FROM scans WHERE scan_id = ?", [scan_id]).fetchone()[0]
-        path = pipeline_run["raw"] / f"night={night}" / f"scan={scan_id}" / file
-        assert rawio.sha256_file(path) == sha
-
-
-def test_quarantine_record_names_scan_file_and_problem(pipeline_run):
-    rec = json.loads((pipeline_run["results"] / "quarantine" / "BROKEN-TRUNCATED.json").read_text())
-    assert rec["scan_id"] == "BROKEN-TRUNCATED" and rec["file"] == "lds.parquet" and rec["reason"]
-    assert rec["message"].startswith("BROKEN-TRUNCATED: lds.parquet: ")
+    for scan_id, night, file, sha in con.execute(
+        "SELECT f.scan_id, s.night, f.file, f.sha256 FROM scan_files f JOIN scans s USING (scan_id, night) WHERE s.status = 'ok'"
+    ).fetchall():
+        assert rawio.sha256_file(pipeline_run["raw"] / f"night={night}" / f"scan={scan_id}" / file) == sha
 
 
 def test_raw_files_untouched(pipeline_run):

@@ -95,15 +95,16 @@ SCHEMA: dict[str, dict[str, str]] = {
 
 #: Key columns of each table: rows are inserted in this order (and unique where ``PRIMARY``).
 KEYS: dict[str, tuple[str, ...]] = {
-    "scans": ("scan_id",),
-    "scan_files": ("scan_id", "file"),
+    # (scan_id, night): a scan id reused in a later night is quarantined but still recorded.
+    "scans": ("scan_id", "night"),
+    "scan_files": ("scan_id", "night", "file"),
     "artifacts": ("artifact_id",),
     "calibrations": ("calibration_id", "channel"),
     "calibration_scans": ("calibration_id", "scan_id"),
     "diameters": ("diameter_id", "method"),
     "verifications": ("scan_id", "calibration_id"),
     "findings": ("scan_id", "effect", "channel"),
-    "quarantine": ("scan_id", "stage", "file"),
+    "quarantine": ("scan_id", "night", "stage", "file"),
 }
 _PRIMARY = {"scans", "scan_files", "artifacts", "calibrations", "calibration_scans"}
 

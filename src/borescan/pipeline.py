@@ -182,7 +182,8 @@ def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, dup
     for d in scan_dirs(raw_root, night):
         scan_id = SCAN_RE.match(d.name).group(1)
         hashes = {}
-        for f in sorted(d.iterdir()):
+        inside = not d.is_symlink() and d.resolve().is_relative_to(Path(raw_root).resolve())
+        for f in sorted(d.iterdir()) if inside else []:
             if f.is_file() and not f.is_symlink():
                 digest = rawio.sha256_file(f)
                 hashes[f.name] = digest
@@ -197,9 +198,16 @@ def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, dup
             problem = Quarantined(scan_id, night, "ingest", "scan.json", "scan_id already used by a scan of an earlier night (scan ids are unique across nights)")
         else:
             try:
-                rawio.read_scan(d)
+                scan = rawio.read_scan(d, raw_root=Path(raw_root))
             except rawio.ScanError as err:
                 problem = Quarantined.from_error(err, night, "ingest")
+            else:
+                # The sensor reports null when out of range (raw-scan-format.md), so a logged value
+                # outside [0, range_mm] is a mislabelled or corrupt export, not a measurement.
+                out_of_range = [w for w in scan.warnings if "outside" in w]
+                if out_of_range:
+                    file, _, msg = out_of_range[0].partition(": ")
+                    problem = Quarantined(scan_id, night, "ingest", file, msg + " (a sensor reports null when out of range)")
         if problem is not None:
             bad.append(problem)
             write_quarantine_record(results_root, problem)
@@ -275,18 +283,20 @@ def assemble_history(results_root: str | Path) -> dict[str, pl.DataFrame]:
         order = {"ingest": 0, "signal": 1, "calibrate": 2, "measure": 3, "discrepancy": 4}
         first = (
             quarantine.with_columns(pl.col("stage").replace_strict(order, default=9).alias("_o"))
-            .sort("scan_id", "_o")
-            .group_by("scan_id", maintain_order=True)
+            .sort("scan_id", "night", "_o")
+            .group_by("scan_id", "night", maintain_order=True)
             .first()
-            .select("scan_id", (pl.col("file") + ": " + pl.col("reason")).alias("_reason"))
+            .select("scan_id", "night", (pl.col("file") + ": " + pl.col("reason")).alias("_reason"))
         )
-        scans = tables["scans"].join(first, on="scan_id", how="left")
+        scans = tables["scans"].join(first, on=["scan_id", "night"], how="left")
         tables["scans"] = scans.with_columns(
             pl.when(pl.col("_reason").is_not_null()).then(pl.lit("quarantined")).otherwise(pl.col("status")).alias("status"),
             pl.coalesce("reason", "_reason").alias("reason"),
         ).drop("_reason")
     if "scans" in tables:
         tables["scans"] = tables["scans"].sort("night", "scan_id")
+    if "artifacts" in tables:  # the same gauge is seen on many nights: its latest record wins
+        tables["artifacts"] = tables["artifacts"].unique("artifact_id", keep="last", maintain_order=True)
     return tables
 
 

@@ -1,0 +1,48 @@
+"""Shared fixtures: one real Snakemake run over the demo nights plus the bad-input battery."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from bad_inputs import make_bad_scans  # noqa: E402
+
+from borescan import demo, rawio  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+SNAKEMAKE = Path(sys.executable).with_name("snakemake")
+BAD_NIGHT = "2026-11-22"
+
+
+def run_snakemake(raw_root: Path, results_root: Path, *extra: str, timeout: float = 900) -> subprocess.CompletedProcess:
+    """Run the project's Snakefile like a user would (``snakemake --cores 2``)."""
+    cmd = [str(SNAKEMAKE), "--cores", "2", "--config", f"raw_root={raw_root}", f"results_root={results_root}", *extra]
+    env = {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(results_root.parent), "MPLBACKEND": "Agg"}
+    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=timeout)
+
+
+def checksums(root: Path) -> dict[str, str]:
+    """SHA-256 of every file below ``root`` (following the layout, not symlinks out of it)."""
+    return {str(p.relative_to(root)): rawio.sha256_file(p) for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="session")
+def pipeline_run(tmp_path_factory):
+    """The demo nights + the bad-input battery (a third night), processed by Snakemake once."""
+    base = tmp_path_factory.mktemp("pipeline")
+    demo.make_demo(base / "demo")
+    raw = base / "demo" / "raw"
+    first_night = sorted(raw.iterdir())[0]
+    good_tri = next(p for p in sorted(first_night.iterdir()) if "CAL-P1-A" in p.name)
+    good_rod = next(p for p in sorted(first_night.iterdir()) if "ROD" in p.name)
+    good_ids = sorted(p.name.removeprefix("scan=") for p in raw.glob("night=*/scan=*"))
+    cases = make_bad_scans(raw, BAD_NIGHT, good_tri, good_rod, good_tri.name.removeprefix("scan="))
+    before = checksums(raw)
+    results = base / "results"
+    proc = run_snakemake(raw, results)
+    return {"raw": raw, "results": results, "proc": proc, "before": before, "cases": cases, "good_ids": good_ids}

@@ -1,0 +1,38 @@
+"""Bad input never stops a night and never loses data (issue 8), through the real pipeline."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import duckdb
+import pytest
+
+from conftest import BAD_NIGHT
+
+
+def test_battery_is_large_enough(pipeline_run):
+    assert len(pipeline_run["cases"]) >= 30
+
+
+def test_every_bad_scan_is_quarantined_with_scan_file_and_problem(pipeline_run):
+    con = duckdb.connect(str(pipeline_run["results"] / "catalog.duckdb"), read_only=True)
+    for case in pipeline_run["cases"]:
+        rec_path = pipeline_run["results"] / "quarantine" / f"{case.scan_id}.json"
+        assert rec_path.is_file(), f"{case.scan_id} was not quarantined"
+        rec = json.loads(rec_path.read_text())
+        assert rec["scan_id"] == case.scan_id
+        assert rec["file"] == case.file, (case.scan_id, rec)
+        assert re.search(case.problem, rec["reason"], re.I), (case.scan_id, rec["reason"])
+        assert rec["message"] == f"{case.scan_id}: {case.file}: {rec['reason']}"
+        status, reason = con.execute(
+            "SELECT status, reason FROM scans WHERE scan_id = ? AND night = ?", [case.scan_id, BAD_NIGHT]
+        ).fetchone()
+        assert status == "quarantined" and case.file in reason
+
+
+@pytest.mark.parametrize("table", ["scans"])
+def test_good_scans_processed_beside_bad_ones(pipeline_run, table):
+    con = duckdb.connect(str(pipeline_run["results"] / "catalog.duckdb"), read_only=True)
+    n_ok = con.execute(f"SELECT count(*) FROM {table} WHERE status = 'ok'").fetchone()[0]
+    assert n_ok == len(pipeline_run["good_ids"])
