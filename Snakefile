@@ -13,6 +13,9 @@ validate(config, "workflow/schemas/config.schema.yaml")
 
 include: "rules/common.smk"
 include: "rules/ingest.smk"
+include: "rules/signal.smk"
+include: "rules/calibrate.smk"
+include: "rules/measure.smk"
 include: "rules/catalog.smk"
 include: "rules/report.smk"
 
@@ -22,3 +25,14 @@ rule all:
     input:
         rules.catalog.input,
         rules.report.input,
+
+
+rule calibrate:
+    input:
+        stage_table("calibrations"),
+
+
+rule measure:
+    input:
+        stage_table("diameters"),
+        stage_table("verifications"),

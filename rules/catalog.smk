@@ -5,6 +5,15 @@ rule build_catalog:
         scans=stage_table("scans"),
         scan_files=stage_table("scan_files"),
         quarantine=stage_table("quarantine/stage=ingest"),
+        signal_summary=stage_table("signal_summary"),
+        signal_quarantine=stage_table("quarantine/stage=signal"),
+        calibrations=stage_table("calibrations"),
+        calibration_scans=stage_table("calibration_scans"),
+        calibrate_quarantine=stage_table("quarantine/stage=calibrate"),
+        diameters=stage_table("diameters"),
+        verifications=stage_table("verifications"),
+        artifacts=stage_table("artifacts"),
+        measure_quarantine=stage_table("quarantine/stage=measure"),
     output:
         catalog=f"{RES}/catalog.duckdb",
     params:

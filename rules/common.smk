@@ -17,3 +17,13 @@ def raw_files_of_night(wildcards):
 
 def duplicate_ids_of_night(wildcards):
     return pipeline.earlier_duplicate_ids(RAW, wildcards.night)
+
+
+def calibrations_up_to_night(wildcards):
+    """Calibration tables of this and every earlier night (a measurement uses the latest valid one)."""
+    return [f"{RES}/stage/calibrations/night={n}.parquet" for n in NIGHTS if n <= wildcards.night]
+
+
+def verifications_before_night(wildcards):
+    """Verification tables of earlier nights (a calibration that failed one is refused)."""
+    return [f"{RES}/stage/verifications/night={n}.parquet" for n in NIGHTS if n < wildcards.night]

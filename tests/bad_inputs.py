@@ -127,6 +127,14 @@ def make_bad_scans(raw_root: Path, night: str, good_tri: Path, good_rod: Path, e
     d = case("BAD-CLOCK-BACKWARDS", "lds.parquet", r"t_ns")
     _edit_table(d, "lds.parquet", clock_backwards)
 
+    def clock_jumps_forward(t: pa.Table) -> pa.Table:
+        v = _values(t, "t_ns")
+        v[len(v) // 2 :] += 2_000_000_000
+        return _set_col(t, "t_ns", v)
+
+    cases.append(BadCase("BAD-CLOCK-JUMP", "lds.parquet", r"clock jump", stage="signal"))
+    _edit_table(_copy(good_tri, raw_root, night, "BAD-CLOCK-JUMP"), "lds.parquet", clock_jumps_forward)
+
     def duplicate_rows(t: pa.Table) -> pa.Table:
         return pa.concat_tables([t.slice(0, 3), t.slice(0, 3), t.slice(3)])
 
@@ -192,3 +200,66 @@ def make_bad_scans(raw_root: Path, night: str, good_tri: Path, good_rod: Path, e
     # The same scan id as a scan of an earlier night.
     case(earlier_night_scan_id, "scan.json", r"earlier night|unique")
     return cases
+
+
+def make_stage_cases(raw_root: Path, truth_root: Path, night: str) -> tuple[list[BadCase], dict]:
+    """Scans that are valid raw data but cannot be calibrated or measured (issue 8).
+
+    Returns the cases and the ids of the verification that must fail and of the measurement
+    that must then be refused.
+    """
+    from dataclasses import replace
+
+    from borescan import demo, simulate
+
+    cases: list[BadCase] = []
+    base = simulate.default_tri_scene()
+    started = simulate.started_at_plus(night, 23, 0)
+    ring = dict(demo.RG275)
+
+    def write(sim):
+        simulate.write_simulated(sim, raw_root, truth_root)
+
+    # Too few revolutions to calibrate (2 < min_revolutions).
+    scene = replace(base, spindle_xy_mm=simulate.YANG_P1_XY_MM)
+    write(simulate.simulate_tri_spindle(scene, n_rev=2, artifact=ring, spindle_label="P1", center_xy_mm=simulate.YANG_P0_XY_MM,
+                                        nominal_beams=demo.NOMINAL_BEAMS, scan_id="BAD-FEW-REVOLUTIONS", night=night,
+                                        kind="calibration", seed=11, started_at=started))
+    cases.append(BadCase("BAD-FEW-REVOLUTIONS", "lds.parquet", r"too few revolutions", stage="calibrate"))
+
+    # A calibration that cannot converge: the spindle turns at the gauge centre, so the readings
+    # are constant and the beam geometry is undetermined (device TRI-02, nothing else calibrates it).
+    scene = replace(base, spindle_xy_mm=simulate.YANG_P0_XY_MM)
+    write(simulate.simulate_tri_spindle(scene, n_rev=8, artifact=ring, spindle_label="P0", center_xy_mm=simulate.YANG_P0_XY_MM,
+                                        nominal_beams=demo.NOMINAL_BEAMS, scan_id="BAD-CAL-NO-CONVERGENCE", night=night,
+                                        kind="calibration", seed=12, started_at=started, device_id="TRI-02"))
+    cases.append(BadCase("BAD-CAL-NO-CONVERGENCE", "lds.parquet", r"calibration failed", stage="calibrate"))
+
+    # A device that has no calibration at all.
+    part = {"id": "HSG-9001", "type": "part", "nominal_diameter_mm": 277.0, "cte_per_k": 11.5e-6}
+    scene = replace(base, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=138.5)
+    xy = [[0.3, -0.2], [-0.4, 0.1], [0.1, 0.5]]
+    write(simulate.simulate_tri_static(scene, xy, [0.1, 1.0, 2.0], artifact=part, nominal_beams=demo.NOMINAL_BEAMS,
+                                       scan_id="BAD-UNCALIBRATED-DEVICE", night=night, kind="measurement", seed=13,
+                                       started_at=started, device_id="TRI-77"))
+    cases.append(BadCase("BAD-UNCALIBRATED-DEVICE", "scan.json", r"no calibration of device TRI-77", stage="measure"))
+
+    # Too few rod poses for Wang Eq. 16 (2 holes need 3m + n - 1 <= mn, i.e. n >= 5).
+    write(simulate.simulate_rod(simulate.default_rod_scene(), n_poses=3, samples_per_pose=3, artifact=dict(part, id="CYL-X"),
+                                features=("H1", "H2"), device_id="ROD-01", scan_id="BAD-FEW-ROD-POSES", night=night,
+                                kind="measurement", seed=14, started_at=started))
+    cases.append(BadCase("BAD-FEW-ROD-POSES", "lds.parquet", r"pose|equations|unknowns", stage="measure"))
+
+    # A ring gauge labelled with the wrong certified diameter: the verification fails (a result,
+    # not bad input), and the same night's measurement with that calibration must be refused.
+    wrong = dict(ring, certified_diameter_mm=ring["certified_diameter_mm"] + 0.05)
+    scene = replace(base, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=ring["certified_diameter_mm"] / 2)
+    write(simulate.simulate_tri_static(scene, xy, [0.1, 1.0, 2.0], artifact=wrong, nominal_beams=demo.NOMINAL_BEAMS,
+                                       scan_id="VER-MISLABELLED-GAUGE", night=night, kind="verification", seed=15,
+                                       started_at=started))
+    scene = replace(base, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=139.0)
+    write(simulate.simulate_tri_static(scene, xy, [0.1, 1.0, 2.0], artifact=dict(part, id="HSG-9002"), nominal_beams=demo.NOMINAL_BEAMS,
+                                       scan_id="MEAS-AFTER-FAILED-VERIFICATION", night=night, kind="measurement", seed=16,
+                                       started_at=started))
+    cases.append(BadCase("MEAS-AFTER-FAILED-VERIFICATION", "scan.json", r"failed its verification", stage="measure"))
+    return cases, {"failed_verification": "VER-MISLABELLED-GAUGE", "refused": "MEAS-AFTER-FAILED-VERIFICATION"}

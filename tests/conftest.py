@@ -10,7 +10,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from bad_inputs import make_bad_scans  # noqa: E402
+from bad_inputs import make_bad_scans, make_stage_cases  # noqa: E402
 
 from borescan import demo, rawio  # noqa: E402
 
@@ -42,7 +42,10 @@ def pipeline_run(tmp_path_factory):
     good_rod = next(p for p in sorted(first_night.iterdir()) if "ROD" in p.name)
     good_ids = sorted(p.name.removeprefix("scan=") for p in raw.glob("night=*/scan=*"))
     cases = make_bad_scans(raw, BAD_NIGHT, good_tri, good_rod, good_tri.name.removeprefix("scan="))
+    stage_cases, special = make_stage_cases(raw, base / "demo" / "truth", BAD_NIGHT)
+    cases += stage_cases
     before = checksums(raw)
     results = base / "results"
     proc = run_snakemake(raw, results)
-    return {"raw": raw, "results": results, "proc": proc, "before": before, "cases": cases, "good_ids": good_ids}
+    return {"raw": raw, "results": results, "proc": proc, "before": before, "cases": cases, "good_ids": good_ids,
+            "special": special, "truth": base / "demo" / "truth"}

@@ -295,6 +295,10 @@ def assemble_history(results_root: str | Path) -> dict[str, pl.DataFrame]:
         ).drop("_reason")
     if "scans" in tables:
         tables["scans"] = tables["scans"].sort("night", "scan_id")
+    if "calibrations" in tables:  # a rod's nominal geometry recurs every night: first night wins
+        tables["calibrations"] = tables["calibrations"].sort("night").unique(["calibration_id", "channel"], keep="first", maintain_order=True)
+    if "calibration_scans" in tables:
+        tables["calibration_scans"] = tables["calibration_scans"].unique(maintain_order=True)
     if "artifacts" in tables:  # the same gauge is seen on many nights: its latest record wins
         tables["artifacts"] = tables["artifacts"].unique("artifact_id", keep="last", maintain_order=True)
     return tables
@@ -309,3 +313,455 @@ def stage_catalog(results_root: str | Path, catalog_file: str | Path | None = No
     if catalog_file is not None and Path(catalog_file).resolve() != Path(path).resolve():
         raise RuntimeError(f"catalog written to {path}, rule expected {catalog_file}")
     return {name: df.height for name, df in sorted(tables.items())}
+
+
+# --------------------------------------------------------------------------- shared helpers
+
+
+def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame, **where: str) -> list[tuple[dict, Path]]:
+    """The ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their folders."""
+    df = ok_scans(scans_table)
+    for col, value in where.items():
+        df = df.filter(pl.col(col) == value)
+    return [(row, Path(raw_root) / f"night={night}" / f"scan={row['scan_id']}") for row in df.iter_rows(named=True)]
+
+
+def _quarantine(results_root, records: list[Quarantined], scan_id: str, night: str, stage: str, file: str, reason: str) -> None:
+    q = Quarantined(scan_id, night, stage, file, reason)
+    records.append(q)
+    write_quarantine_record(results_root, q)
+
+
+def _frames_or_empty(frames: list[pl.DataFrame]) -> pl.DataFrame:
+    frames = [f for f in frames if f.height]
+    return pl.concat(frames, how="diagonal_relaxed") if frames else pl.DataFrame()
+
+
+def clock_jump(sample: "np.ndarray", t_s: "np.ndarray", sample_rate_hz: float) -> str | None:
+    """Describe the first tick whose time step disagrees with the sample step by > half a period.
+
+    On a spindle scan one clock drives every channel (raw-scan-format.md), so t_ns must advance
+    by (sample step) / sample_rate_hz; a jump means the logger's clock or counter slipped.
+    """
+    import numpy as np
+
+    if sample.size < 2:
+        return None
+    expected = np.diff(sample) / sample_rate_hz
+    err = np.diff(t_s) - expected
+    bad = np.flatnonzero(np.abs(err) > 0.5 / sample_rate_hz)
+    if bad.size == 0:
+        return None
+    i = int(bad[0])
+    return (f"clock jump: t_ns advances {np.diff(t_s)[i]:.6g} s between samples {int(sample[i])} and "
+            f"{int(sample[i + 1])}, expected {expected[i]:.6g} s at {sample_rate_hz:g} Hz")
+
+
+# --------------------------------------------------------------------------- signal
+
+
+def signal_options(cfg: dict) -> dict:
+    """Translate the ``signal`` config section into :func:`borescan.signal.process_scan` keywords."""
+    method = cfg.get("filter", "median")
+    params: dict = {}
+    if method in ("median", "moving_average"):
+        params["window_samples"] = int(cfg.get("window_samples", 5))
+    elif method == "gaussian":
+        params["cutoff_upr"] = float(cfg.get("gaussian_cutoff_upr", 50))
+    return {"filter": method, "filter_params": params, "spike_threshold": float(cfg.get("spike_threshold_mad", 6.0))}
+
+
+def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log=print) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
+    """Revolutions, sub-sample extrema and per-channel summaries of every spindle scan of a night.
+
+    Returns (extrema, summary, quarantined). The summary has one row per scan and channel with
+    mean d_min/d_max and their uncertainties, n/m counts, advanced/backward status and the
+    rotation period (``period_*`` columns, including whether it disagrees with the nominal).
+    """
+    import numpy as np
+
+    from borescan import signal
+
+    opts = signal_options(cfg)
+    extrema, summaries, bad = [], [], []
+    for row, d in night_scans(raw_root, night, scans_table, device_type="tri_lds"):
+        scan = rawio.read_scan(d, raw_root=Path(raw_root))
+        if scan.spindle is None:
+            continue  # static readings: no revolutions
+        mat = rawio.lds_matrix(scan)
+        jump = clock_jump(np.asarray(mat.sample), np.asarray(mat.t_s), float(scan.meta["sample_rate_hz"]))
+        if jump:
+            _quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", jump)
+            continue
+        try:
+            res = signal.process_scan(scan, **opts)
+        except (ValueError, np.linalg.LinAlgError, IndexError) as err:
+            _quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", f"signal stage failed: {err}")
+            continue
+        frames = res.to_frames()
+        period = {(k if k.startswith("period_") else f"period_{k}"): v for k, v in res.period.to_dict().items()}
+        summaries.append(frames["summary"].with_columns(n_samples_recorded=pl.lit(mat.values_mm.shape[0]),
+                                                        **{k: pl.lit(v) for k, v in period.items()}))
+        extrema.append(frames["extrema"])
+        log(f"{scan.scan_id}: {frames['revolutions'].height} revolutions, "
+            f"{res.period.samples_per_rev:.3f} samples/rev ({res.period.source})")
+    return _frames_or_empty(extrema), _frames_or_empty(summaries), bad
+
+
+# --------------------------------------------------------------------------- calibrate
+
+
+def config_hash(cfg: dict) -> str:
+    """SHA-256 (hex, 16 chars) of a config section, for certificates and provenance."""
+    return hashlib.sha256(json.dumps(cfg, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def gauge_radius_mm(meta: dict) -> float:
+    """Radius of the ring gauge at the scan's temperature: R20 (1 + cte (T - 20)) [mm]."""
+    art = meta.get("artifact") or {}
+    d20 = art.get("certified_diameter_mm", art.get("nominal_diameter_mm"))
+    if d20 is None:
+        raise ValueError("artifact has neither certified_diameter_mm nor nominal_diameter_mm")
+    temp = (meta.get("environment") or {}).get("temperature_c", 20.0)
+    return 0.5 * float(d20) * (1.0 + float(art.get("cte_per_k", 0.0)) * (float(temp) - 20.0))
+
+
+def _spindle_inputs(scan) -> dict:
+    """Times, despiked readings and spindle/centre positions of a spindle scan for the full fit."""
+    import numpy as np
+
+    from borescan import signal
+
+    mat = rawio.lds_matrix(scan)
+    clean, _ = signal.remove_spikes(np.asarray(mat.values_mm, dtype=float))
+    meta = scan.meta
+    sp = scan.spindle
+    spindle_xy = (float(sp["x_mm"].mean()), float(sp["y_mm"].mean()))
+    center = meta.get("center")
+    phase0 = 0.0
+    ang = sp["angle_rad"].cast(pl.Float64).to_numpy()
+    if np.all(np.isfinite(ang)):
+        phase0 = float(np.interp(mat.t_s[0], sp["t_ns"].to_numpy() * 1e-9, ang))
+    return {
+        "t_s": np.asarray(mat.t_s, dtype=float),
+        "readings": clean,
+        "channels": tuple(mat.channels),
+        "spindle_xy": spindle_xy,
+        "center_xy": None if not center else (float(center["x_mm"]), float(center["y_mm"])),
+        "rpm": float((meta.get("spindle") or {}).get("rpm_nominal") or sp["rpm"].mean()),
+        "direction": (meta.get("spindle") or {}).get("direction", "ccw"),
+        "phase0": phase0,
+        "R": gauge_radius_mm(meta),
+    }
+
+
+def _calibration_rows(cal, device_type: str, night: str, certificate_path: str | None, raw_sha256: str) -> list[dict]:
+    rows = []
+    u_beta, u_rho, u_db = cal.u_beta_rad, cal.u_rho_mm, cal.u_d_b_mm
+    cal_json = json.dumps(cal.to_dict(), sort_keys=True)
+    for i, ch in enumerate(cal.beams.channels):
+        rows.append({
+            "calibration_id": cal.calibration_id, "device_id": cal.device_id, "device_type": device_type,
+            "scan_id": cal.scan_ids[0], "channel": int(ch),
+            "rho_mm": float(cal.beams.rho_mm[i]), "d_b_mm": float(cal.beams.d_b_mm[i]), "beta_rad": float(cal.beams.beta_rad[i]),
+            "u_rho_mm": float(u_rho[i]), "u_d_b_mm": float(u_db[i]), "u_beta_rad": float(u_beta[i]),
+            "method": cal.method, "certificate_path": certificate_path, "night": night, "valid_from": night,
+            "status": "valid", "raw_sha256": raw_sha256, "residual_rms_mm": float(cal.residual_rms_mm),
+            "calibration_json": cal_json,
+        })
+    return rows
+
+
+def rod_nominal_calibration_rows(meta: dict, night: str, scan_id: str) -> list[dict]:
+    """The rod's layer geometry from ``device.nominal`` as a calibration record (method ``nominal``).
+
+    Wang 2017 calibrates nothing: the layer base lengths l0 are design values. Recording them as
+    a calibration lets every rod diameter name the geometry it used, like a tri_lds diameter.
+    """
+    layers = sorted(((meta.get("device") or {}).get("nominal") or {}).get("layers") or [], key=lambda l: int(l["channel"]))
+    if not layers:
+        return []
+    digest = hashlib.sha256(json.dumps(layers, sort_keys=True).encode()).hexdigest()[:8]
+    cal_id = f"{meta['device']['id']}-nominal-{digest}"
+    return [{
+        "calibration_id": cal_id, "device_id": meta["device"]["id"], "device_type": "rod", "scan_id": scan_id,
+        "channel": int(l["channel"]), "l0_mm": float(l["l0"]), "h_mm": float(l.get("h", float("nan"))),
+        "phi_rad": float(l.get("phi", 0.0)), "d_mm": float(l.get("d", 0.0)), "gamma_rad": float(l.get("gamma", 0.0)),
+        "method": "nominal", "certificate_path": None, "night": night, "valid_from": night, "status": "valid",
+    } for l in layers]
+
+
+def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_table, cfg: dict, log=print):
+    """Calibrate every tri_lds device from its calibration scans of the night; write certificates.
+
+    ``cfg["method"]``: ``full_lsq`` (every sample, exact forward model, all calibration scans of
+    the device together) or ``yang2017`` (the paper's extrema method, per device from the first
+    calibration scan with a known centre). Returns (calibrations rows, calibration_scans rows,
+    quarantined). A scan with too few revolutions, or a calibration that does not converge, is
+    quarantined with the reason; the other devices and nights go on.
+    """
+    import numpy as np
+
+    from borescan import __version__, calibration, certificate
+    from borescan.geometry import Beams
+
+    method = cfg.get("method", "full_lsq")
+    min_rev = int(cfg.get("min_revolutions", 5))
+    summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
+    cal_rows, link_rows, bad = [], [], []
+    by_device: dict[str, list] = {}
+    for row, d in night_scans(raw_root, night, scans_table, kind="calibration", device_type="tri_lds"):
+        by_device.setdefault(row["device_id"], []).append((row, d))
+    for device_id, items in sorted(by_device.items()):
+        scans, inputs = [], []
+        for row, d in items:
+            scan = rawio.read_scan(d, raw_root=Path(raw_root))
+            s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
+            if scan.spindle is None:
+                _quarantine(results_root, bad, scan.scan_id, night, "calibrate", "spindle.parquet",
+                            "calibration scan has no spindle stream (a ring-gauge calibration turns on a spindle)")
+                continue
+            if s.height == 0:
+                continue  # set aside by the signal stage already
+            spr = float(s["period_samples_per_rev"][0])
+            recorded = int(s["n_samples_recorded"][0] // spr) if "n_samples_recorded" in s.columns else None
+            with_extrema = int(s["n_revolutions_min"].min())
+            if recorded is not None and recorded < min_rev:
+                _quarantine(results_root, bad, scan.scan_id, night, "calibrate", "lds.parquet",
+                            f"too few revolutions to calibrate: {recorded} whole revolutions recorded, at least {min_rev} needed")
+                continue
+            if with_extrema < min_rev:
+                _quarantine(results_root, bad, scan.scan_id, night, "calibrate", "lds.parquet",
+                            f"calibration failed: a once-per-revolution extremum was found in only {with_extrema} revolutions "
+                            f"(at least {min_rev} needed); the readings barely vary with rotation, is the spindle at the gauge centre?")
+                continue
+            try:
+                inputs.append(_spindle_inputs(scan))
+            except ValueError as err:
+                _quarantine(results_root, bad, scan.scan_id, night, "calibrate", "scan.json", str(err))
+                continue
+            scans.append(scan)
+        if not scans:
+            continue
+        nominal = Beams.from_nominal(scans[0].meta["device"]["nominal"]["beams"])
+        ids = [s.scan_id for s in scans]
+        try:
+            if method == "yang2017":
+                cal = _yang_from_summary(scans[0], inputs[0], summary, nominal, night)
+            else:
+                cal = calibration.fit_full_calibration(
+                    [x["t_s"] for x in inputs], [x["readings"] for x in inputs], inputs[0]["channels"], nominal,
+                    inputs[0]["R"], [x["spindle_xy"] for x in inputs], [x["rpm"] for x in inputs],
+                    center_xy_mm=[x["center_xy"] for x in inputs], direction=inputs[0]["direction"],
+                    phase0_rad=[x["phase0"] for x in inputs], scan_ids=ids, device_id=device_id,
+                    raw_sha256={f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}, night=night,
+                )
+        except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+            for s in scans:
+                _quarantine(results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}")
+            continue
+        out_dir = certificate.certificate_dir(results_root, cal)
+        scan0 = scans[0]
+        art = scan0.meta.get("artifact") or {}
+        if cal.method == "full_lsq":
+            residuals = {"t_s": inputs[0]["t_s"], "residual_mm": calibration.full_residuals(cal, inputs[0]["t_s"], inputs[0]["readings"], inputs[0]["R"], scan0.scan_id)}
+        else:
+            residuals = {"t_s": np.zeros(0), "residual_mm": np.zeros((0, len(cal.beams.channels)))}
+        certificate.write_certificate(
+            cal, out_dir,
+            device={"id": device_id, "type": "tri_lds", "sensors": scan0.meta.get("sensors", [])},
+            artifact={"id": art.get("id"), "certificate": art.get("certificate"), "certified_diameter_mm": art.get("certified_diameter_mm"),
+                      "u_diameter_mm": art.get("u_diameter_mm"), "k": art.get("k", 2)},
+            conditions={"temperature_c": (scan0.meta.get("environment") or {}).get("temperature_c"),
+                        "spindle_position": (scan0.meta.get("spindle") or {}).get("position"),
+                        "rpm": inputs[0]["rpm"], "revolutions": int(summary.filter(pl.col("scan_id") == scan0.scan_id)["n_revolutions_min"].min()),
+                        "gauge_radius_at_temperature_mm": inputs[0]["R"]},
+            residuals=residuals,
+            raw_files={f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())},
+            software_version=__version__, config_hash=config_hash(cfg),
+        )
+        rel_cert = str((Path(out_dir) / "certificate.pdf").relative_to(Path(results_root)))
+        combined = combined_sha256({f"{s.scan_id}/{k}": v for s in scans for k, v in s.sha256.items()})
+        cal_rows += _calibration_rows(cal, "tri_lds", night, rel_cert, combined)
+        link_rows += [{"calibration_id": cal.calibration_id, "scan_id": sid} for sid in ids]
+        log(f"{device_id}: {cal.calibration_id} ({cal.method}) from {', '.join(ids)}; residual rms {cal.residual_rms_mm * 1e3:.2f} um")
+    for row, d in night_scans(raw_root, night, scans_table, device_type="rod"):
+        meta = rawio.read_scan_meta(d, raw_root=Path(raw_root))
+        rows = rod_nominal_calibration_rows(meta, night, row["scan_id"])
+        if rows and rows[0]["calibration_id"] not in {r["calibration_id"] for r in cal_rows}:
+            cal_rows += rows
+            link_rows.append({"calibration_id": rows[0]["calibration_id"], "scan_id": row["scan_id"]})
+    cals = pl.DataFrame(cal_rows, infer_schema_length=None) if cal_rows else pl.DataFrame()
+    links = pl.DataFrame(link_rows) if link_rows else pl.DataFrame()
+    return cals, links, bad
+
+
+def _yang_from_summary(scan, inputs: dict, summary: pl.DataFrame, nominal, night: str):
+    """Yang 2017 (Eq. 8-15) from the signal stage's per-channel means of one scan."""
+    import numpy as np
+
+    from borescan import calibration
+
+    s = summary.filter(pl.col("scan_id") == scan.scan_id).sort("channel")
+    if inputs["center_xy"] is None:
+        raise ValueError("yang2017 needs scan.json center (the gauge centre from a centring scan) for oe (Eq. 9)")
+    oe = calibration.yang_oe(inputs["spindle_xy"], inputs["center_xy"])
+    spr = float(s["period_samples_per_rev"][0])
+    return calibration.yang_calibration(
+        s["d_max_mm"].to_numpy(), s["d_min_mm"].to_numpy(), list(s["status"]), s["feature_sample"].to_numpy()
+        if "feature_sample" in s.columns else np.zeros(s.height), spr, inputs["R"], oe,
+        channels=tuple(int(c) for c in s["channel"]), device_id=scan.meta["device"]["id"], scan_ids=[scan.scan_id],
+        raw_sha256=dict(scan.sha256), beta_nominal_rad=nominal.beta_rad, direction=inputs["direction"],
+        u_d_max_mm=s["u_d_max_mm"].to_numpy(), u_d_min_mm=s["u_d_min_mm"].to_numpy(), night=night,
+    )
+
+
+# --------------------------------------------------------------------------- measure and verify
+
+
+def _read_tables(paths) -> pl.DataFrame:
+    frames = [pl.read_parquet(p) for p in (paths if isinstance(paths, (list, tuple)) else [paths])]
+    return _frames_or_empty([f for f in frames if f.width])
+
+
+def _days_between(a: str, b: str) -> int:
+    import datetime as dt
+
+    return (dt.date.fromisoformat(b) - dt.date.fromisoformat(a)).days
+
+
+def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_id: str, night: str,
+                       validity_days: int, allow_unverified: bool) -> tuple[str | None, str | None]:
+    """The calibration a device's result of ``night`` must use, or the reason there is none.
+
+    The latest calibration of the device made on or before the night (same night included), if
+    it has not expired (older than ``validity_days``) and has not failed a verification. A failed
+    or expired latest calibration is refused (never silently replaced by an older one) unless
+    ``allow_unverified``.
+    """
+    if calibrations.height == 0 or "device_id" not in calibrations.columns:
+        return None, f"no calibration of device {device_id} on or before night {night}"
+    c = calibrations.filter((pl.col("device_id") == device_id) & (pl.col("valid_from") <= night))
+    if c.height == 0:
+        return None, f"no calibration of device {device_id} on or before night {night}"
+    c = c.sort("valid_from", "calibration_id")
+    cal_id, valid_from = c["calibration_id"][-1], c["valid_from"][-1]
+    if allow_unverified:
+        return cal_id, None
+    if cal_id in failed_ids:
+        return None, f"latest calibration {cal_id} of device {device_id} failed its verification; recalibrate"
+    age = _days_between(valid_from, night)
+    if age > validity_days:
+        return None, f"latest calibration {cal_id} of device {device_id} expired ({age} days old, validity {validity_days} days)"
+    return cal_id, None
+
+
+def _tri_calibration(calibrations: pl.DataFrame, cal_id: str):
+    from borescan.calibration import TriCalibration
+
+    row = calibrations.filter(pl.col("calibration_id") == cal_id).row(0, named=True)
+    return TriCalibration.from_dict(json.loads(row["calibration_json"]))
+
+
+def _artifact_row(meta: dict) -> dict | None:
+    art = meta.get("artifact") or {}
+    if not art.get("id"):
+        return None
+    return {"artifact_id": art["id"], "type": art.get("type"), "certificate": art.get("certificate"),
+            "nominal_diameter_mm": art.get("nominal_diameter_mm"), "certified_diameter_mm": art.get("certified_diameter_mm"),
+            "u_diameter_mm": art.get("u_diameter_mm"), "k": art.get("k"), "cte_per_k": art.get("cte_per_k")}
+
+
+def measure_rod_scan(scan, layer_rows: pl.DataFrame) -> list[dict]:
+    """Hole diameters of a rod scan: mean reading per pose and layer, then Wang Eq. 16 jointly."""
+    import numpy as np
+
+    from borescan import rod
+
+    mat = rawio.lds_matrix(scan)
+    pose = np.asarray(mat.pose)
+    poses = np.unique(pose[pose >= 0])
+    v = np.asarray(mat.values_mm, dtype=float)
+    means = np.vstack([np.nanmean(v[pose == p], axis=0) for p in poses])
+    counts = np.vstack([np.sum(np.isfinite(v[pose == p]), axis=0) for p in poses])
+    layers = layer_rows.sort("channel")
+    l0 = np.array([float(layers.filter(pl.col("channel") == ch)["l0_mm"][0]) for ch in mat.channels])
+    sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
+    # one reading's standard uncertainty: the sensor's stated linearity (a rectangular +-a) and repeatability
+    u_one = np.array([np.hypot((sensors.get(ch, {}).get("linearity_fs") or 0.0) * (sensors.get(ch, {}).get("range_mm") or 0.0) / np.sqrt(3),
+                               sensors.get(ch, {}).get("repeatability_mm") or 0.0) for ch in mat.channels])
+    u_mean = float(np.max(u_one / np.sqrt(np.maximum(counts.min(axis=0), 1)))) if np.any(u_one > 0) else None
+    sol = rod.solve_rod(means, l0, u_reading_mm=u_mean)
+    feat = {int(l["channel"]): l.get("feature") for l in (scan.meta.get("rod") or {}).get("layers", [])}
+    return [{"channel": int(ch), "feature": feat.get(int(ch)) or f"layer{ch}", "diameter_mm": float(sol.diameter_mm[j]),
+             "u_diameter_mm": float(sol.u_diameter_mm[j]), "poses": int(len(poses)), "condition": float(sol.condition)}
+            for j, ch in enumerate(mat.channels)]
+
+
+def stage_measure(raw_root, night: str, results_root, scans_table, calibration_tables, verification_tables_before,
+                  cfg: dict, log=print):
+    """Verification scans first, then measurements, each with the calibration it may use.
+
+    Returns (diameters, verifications, artifacts, quarantined). ``verification_tables_before``
+    are the verifications of earlier nights (a calibration that failed one is refused).
+    """
+    import numpy as np
+
+    from borescan import measure, rod
+    from borescan.calibration import CalibrationError
+
+    ver_cfg, meas_cfg, cal_cfg = cfg["verification"], cfg["measurement"], cfg["calibration"]
+    tol = float(ver_cfg.get("tolerance_mm", 0.015))
+    allow = bool(meas_cfg.get("allow_unverified_calibration", False))
+    validity = int(cal_cfg.get("validity_days", 30))
+    cals = _read_tables(calibration_tables)
+    earlier = _read_tables(verification_tables_before)
+    failed = set(earlier.filter(~pl.col("passed"))["calibration_id"].drop_nulls()) if earlier.height else set()
+    diam, ver, arts, bad = [], [], {}, []
+    items = night_scans(raw_root, night, scans_table)
+    order = {"verification": 0, "measurement": 1}
+    items = sorted((it for it in items if it[0]["kind"] in order), key=lambda it: (order[it[0]["kind"]], it[0]["scan_id"]))
+    for row, d in items:
+        scan = rawio.read_scan(d, raw_root=Path(raw_root))
+        meta, sid, dev = scan.meta, scan.scan_id, row["device_id"]
+        art = _artifact_row(meta)
+        if art:
+            arts[art["artifact_id"]] = art
+        cal_id, why = choose_calibration(cals, failed, dev, night, validity, allow)
+        if cal_id is None:
+            _quarantine(results_root, bad, sid, night, "measure", "scan.json", why)
+            continue
+        try:
+            if row["device_type"] == "rod":
+                res = measure_rod_scan(scan, cals.filter(pl.col("calibration_id") == cal_id))
+                for r in res:
+                    diam.append(measure.diameter_row(sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"],
+                                                     r["u_diameter_mm"], cal_id, "rod_wang2017_eq16"))
+                log(f"{sid}: " + ", ".join(f"{r['feature']} {r['diameter_mm']:.4f} +- {r['u_diameter_mm'] * 1e3:.1f} um" for r in res))
+                continue
+            cal = _tri_calibration(cals, cal_id)
+            out = measure.measure_scan(scan, cal.beams, cal.cov)
+        except (rod.RodSolveError, CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+            _quarantine(results_root, bad, sid, night, "measure", "lds.parquet", f"measurement failed: {err}")
+            continue
+        diam.append(measure.diameter_row(sid, dev, row["artifact_id"], None, out["diameter_mm"], out["u_diameter_mm"], cal_id, out["method"]))
+        msg = f"{sid}: D = {out['diameter_mm']:.4f} mm +- {out['u_diameter_mm'] * 1e3:.2f} um ({out['method']}, {cal_id})"
+        if row["kind"] == "verification":
+            a = meta.get("artifact") or {}
+            if a.get("type") != "ring_gauge" or a.get("certified_diameter_mm") is None:
+                _quarantine(results_root, bad, sid, night, "measure", "scan.json", "verification scan needs a ring_gauge artifact with certified_diameter_mm")
+                continue
+            k = float(a.get("k") or 2.0)
+            v = measure.verify(out["diameter_mm"], out["u_diameter_mm"], a["certified_diameter_mm"], float(a.get("u_diameter_mm") or 0.0) / k,
+                               float(a.get("cte_per_k") or 0.0), float((meta.get("environment") or {}).get("temperature_c", 20.0)), tol)
+            vrow = measure.verification_row(sid, dev, a["id"], v)
+            vrow["calibration_id"] = cal_id
+            ver.append(vrow)
+            if not v.passed:
+                failed.add(cal_id)
+            msg += f"; error {v.error_mm * 1e3:+.2f} um vs {a['certified_diameter_mm']} at {(meta.get('environment') or {}).get('temperature_c', 20.0)} degC: {'PASS' if v.passed else 'FAIL'}"
+        log(msg)
+    diameters = pl.DataFrame(diam, infer_schema_length=None) if diam else pl.DataFrame()
+    verifications = pl.DataFrame(ver, infer_schema_length=None) if ver else pl.DataFrame()
+    artifacts = pl.DataFrame(list(arts.values()), infer_schema_length=None) if arts else pl.DataFrame()
+    return diameters, verifications, artifacts, bad

@@ -1,0 +1,21 @@
+rule calibrate_night:
+    message:
+        "Calibrating the devices scanned in ring gauges on night {wildcards.night}"
+    input:
+        scans=f"{RES}/stage/scans/night={{night}}.parquet",
+        summary=f"{RES}/stage/signal_summary/night={{night}}.parquet",
+        raw=raw_files_of_night,
+    output:
+        calibrations=f"{RES}/stage/calibrations/night={{night}}.parquet",
+        calibration_scans=f"{RES}/stage/calibration_scans/night={{night}}.parquet",
+        quarantine=f"{RES}/stage/quarantine/stage=calibrate/night={{night}}.parquet",
+    params:
+        raw_root=RAW,
+        results_root=RES,
+        calibration=config["calibration"],
+    log:
+        f"{RES}/logs/calibrate_night/{{night}}.log",
+    benchmark:
+        f"{RES}/benchmarks/calibrate_night/{{night}}.tsv"
+    script:
+        "../workflow/scripts/calibrate_night.py"

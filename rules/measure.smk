@@ -1,0 +1,25 @@
+rule measure_night:
+    message:
+        "Verifying calibrations and measuring parts of night {wildcards.night}"
+    input:
+        scans=f"{RES}/stage/scans/night={{night}}.parquet",
+        calibrations=calibrations_up_to_night,
+        verifications_before=verifications_before_night,
+        raw=raw_files_of_night,
+    output:
+        diameters=f"{RES}/stage/diameters/night={{night}}.parquet",
+        verifications=f"{RES}/stage/verifications/night={{night}}.parquet",
+        artifacts=f"{RES}/stage/artifacts/night={{night}}.parquet",
+        quarantine=f"{RES}/stage/quarantine/stage=measure/night={{night}}.parquet",
+    params:
+        raw_root=RAW,
+        results_root=RES,
+        verification=config["verification"],
+        measurement=config["measurement"],
+        calibration=config["calibration"],
+    log:
+        f"{RES}/logs/measure_night/{{night}}.log",
+    benchmark:
+        f"{RES}/benchmarks/measure_night/{{night}}.tsv"
+    script:
+        "../workflow/scripts/measure_night.py"

@@ -1,0 +1,20 @@
+rule signal_night:
+    message:
+        "Filtering readings, finding revolutions and extrema for night {wildcards.night}"
+    input:
+        scans=f"{RES}/stage/scans/night={{night}}.parquet",
+        raw=raw_files_of_night,
+    output:
+        extrema=f"{RES}/stage/extrema/night={{night}}.parquet",
+        summary=f"{RES}/stage/signal_summary/night={{night}}.parquet",
+        quarantine=f"{RES}/stage/quarantine/stage=signal/night={{night}}.parquet",
+    params:
+        raw_root=RAW,
+        results_root=RES,
+        signal=config["signal"],
+    log:
+        f"{RES}/logs/signal_night/{{night}}.log",
+    benchmark:
+        f"{RES}/benchmarks/signal_night/{{night}}.tsv"
+    script:
+        "../workflow/scripts/signal_night.py"

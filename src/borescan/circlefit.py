@@ -1,0 +1,441 @@
+"""Circle fitting: least squares (NIST-conformant) and the ISO 12181 reference circles.
+
+All functions take point coordinates ``x_mm, y_mm`` (n,) and return a :class:`Circle`.
+Coordinates are centred on their mean before any arithmetic so that parts far from the
+origin (NIST places them up to 1000 mm out) keep full precision.
+
+- :func:`fit_circle_ls`: geometric least squares min sum (|p_i - c| - R)^2 (LSCI), Gauss-Newton
+  from the algebraic Kasa start, Levenberg damping only when a step does not descend.
+- :func:`min_circumscribed_circle` (MCCI): exact, Welzl's algorithm (move-to-front, seeded).
+- :func:`max_inscribed_circle` (MICI) and :func:`min_zone_circle` (MZCI): sequential linear
+  programming (exact gradients, trust region) on the Chebyshev problems
+  max_c min_i |p_i - c| and min_c (max_i |p_i - c| - min_i |p_i - c|), converged to a vertex,
+  then polished by solving the active-set equations exactly (Newton).
+- roundness RONt (peak-to-valley of radial deviations) about each centre: :func:`roundness`.
+- :func:`harmonic_spectrum`: amplitude per undulations per revolution (UPR), least-squares
+  Fourier fit (valid for non-uniform angles).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linprog
+
+__all__ = [
+    "Circle",
+    "CircleFitError",
+    "fit_circle_ls",
+    "fit_circle_kasa",
+    "min_circumscribed_circle",
+    "max_inscribed_circle",
+    "min_zone_circle",
+    "roundness",
+    "reference_circles",
+    "harmonic_spectrum",
+]
+
+
+class CircleFitError(ValueError):
+    """Too few points, collinear points or a failed iteration."""
+
+
+@dataclass(frozen=True)
+class Circle:
+    """A fitted or reference circle.
+
+    Attributes
+    ----------
+    center_xy_mm : ndarray (2,) centre [mm]
+    radius_mm : radius [mm]; for the minimum zone circle the mean of the two zone radii
+    method : "LSCI", "MCCI", "MICI", "MZCI" or "KASA"
+    ront_mm : peak-to-valley of radial deviations about the centre (ISO 12181 RONt) [mm]
+    rms_mm : RMS of radial deviations about (centre, radius) [mm]
+    zone_mm : (r_min, r_max) of the points about the centre [mm]
+    cov : (3, 3) covariance of (cx, cy, R) from the residual scatter (LSCI only) else None
+    n_iter : iterations used
+    """
+
+    center_xy_mm: np.ndarray
+    radius_mm: float
+    method: str
+    ront_mm: float
+    rms_mm: float
+    zone_mm: tuple[float, float]
+    cov: np.ndarray | None = None
+    n_iter: int = 0
+
+    @property
+    def diameter_mm(self) -> float:
+        return 2.0 * self.radius_mm
+
+    @property
+    def u_diameter_mm(self) -> float:
+        """Standard uncertainty of the diameter from the residual scatter (LSCI), else NaN."""
+        return float(2.0 * np.sqrt(self.cov[2, 2])) if self.cov is not None else float("nan")
+
+
+def _prep(x_mm, y_mm, min_points: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    x = np.asarray(x_mm, dtype=float).ravel()
+    y = np.asarray(y_mm, dtype=float).ravel()
+    if x.shape != y.shape:
+        raise CircleFitError(f"x and y differ in length ({x.size} vs {y.size})")
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if x.size < min_points:
+        raise CircleFitError(f"need at least {min_points} finite points, got {x.size}")
+    shift = np.array([x.mean(), y.mean()])
+    return x - shift[0], y - shift[1], shift
+
+
+def _make(method: str, xc, yc, shift, center, radius, cov=None, n_iter=0) -> Circle:
+    d = np.hypot(xc - center[0], yc - center[1])
+    return Circle(
+        center_xy_mm=np.asarray(center, dtype=float) + shift,
+        radius_mm=float(radius),
+        method=method,
+        ront_mm=float(d.max() - d.min()),
+        rms_mm=float(np.sqrt(np.mean((d - radius) ** 2))),
+        zone_mm=(float(d.min()), float(d.max())),
+        cov=cov,
+        n_iter=n_iter,
+    )
+
+
+def _kasa(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+    """Algebraic (Kasa) circle: x^2 + y^2 + D x + E y + F = 0 in least squares."""
+    A = np.column_stack([x, y, np.ones_like(x)])
+    b = -(x * x + y * y)
+    (D, E, F), _, rank, sv = np.linalg.lstsq(A, b, rcond=None)
+    if rank < 3 or sv[-1] < 1e-12 * sv[0]:
+        raise CircleFitError("points are collinear: no algebraic circle")
+    c = np.array([-D / 2.0, -E / 2.0])
+    r2 = c @ c - F
+    if not np.isfinite(r2) or r2 <= 0:
+        raise CircleFitError("points are collinear: no algebraic circle")
+    return c, float(np.sqrt(r2))
+
+
+def fit_circle_kasa(x_mm, y_mm) -> Circle:
+    """Algebraic Kasa circle (the start value of :func:`fit_circle_ls`)."""
+    x, y, shift = _prep(x_mm, y_mm)
+    c, r = _kasa(x, y)
+    return _make("KASA", x, y, shift, c, r)
+
+
+def fit_circle_ls(x_mm, y_mm, *, max_iter: int = 200) -> Circle:
+    """Geometric least-squares circle (ISO 12181 LSCI; NIST Algorithm Testing System definition).
+
+    Minimises sum_i (|p_i - c| - R)^2 by Gauss-Newton (QR solve) with Levenberg damping when a
+    step fails to descend; start from the Kasa algebraic circle. Coordinates centred first.
+
+    Parameters
+    ----------
+    x_mm, y_mm : array_like (n,), n >= 3 [mm]; non-finite points are dropped.
+
+    Returns
+    -------
+    Circle with ``cov`` = s^2 (J^T J)^-1 for (cx, cy, R), s^2 = RSS / (n - 3) (NaN when n = 3).
+    """
+    x, y, shift = _prep(x_mm, y_mm)
+    c, r = _kasa(x, y)
+    p = np.array([c[0], c[1], r])
+
+    def resid_jac(p):
+        dx, dy = x - p[0], y - p[1]
+        d = np.hypot(dx, dy)
+        J = np.column_stack([-dx / d, -dy / d, -np.ones_like(d)])
+        return d - p[2], J
+
+    e, J = resid_jac(p)
+    f = e @ e
+    lam = 0.0
+    it = 0
+    for it in range(1, max_iter + 1):
+        if lam == 0.0:
+            step, *_ = np.linalg.lstsq(J, -e, rcond=None)
+        else:
+            A = J.T @ J
+            step = np.linalg.solve(A + lam * np.diag(np.diag(A)), -J.T @ e)
+        p_new = p + step
+        e_new, J_new = resid_jac(p_new)
+        f_new = e_new @ e_new
+        if f_new <= f * (1 + 1e-15) or np.max(np.abs(step)) < 1e-14 * max(1.0, abs(p[2])):
+            small = np.max(np.abs(step)) <= 1e-13 * max(1.0, abs(p[2])) + 1e-300
+            p, e, J, f = p_new, e_new, J_new, f_new
+            lam = 0.0 if lam < 1e-6 else lam / 10.0
+            if small:
+                break
+        else:
+            lam = 1e-3 if lam == 0.0 else lam * 10.0
+            if lam > 1e12:
+                break
+    n = x.size
+    cov = None
+    if n > 3:
+        s2 = f / (n - 3)
+        cov = s2 * np.linalg.inv(J.T @ J)
+    else:
+        cov = np.full((3, 3), np.nan)
+    return _make("LSCI", x, y, shift, p[:2], abs(p[2]), cov, it)
+
+
+# --------------------------------------------------------------------------- MCCI (Welzl)
+
+
+def _circle2(a, b):
+    c = 0.5 * (a + b)
+    return c, float(np.hypot(*(a - c)))
+
+
+def _circle3(a, b, c):
+    bx, by = b - a
+    cx, cy = c - a
+    d = 2.0 * (bx * cy - by * cx)
+    if d == 0.0:
+        return None
+    b2, c2 = bx * bx + by * by, cx * cx + cy * cy
+    ux = (cy * b2 - by * c2) / d
+    uy = (bx * c2 - cx * b2) / d
+    return a + np.array([ux, uy]), float(np.hypot(ux, uy))
+
+
+def _welzl(P: np.ndarray, tol: float) -> tuple[np.ndarray, float]:
+    """Iterative move-to-front Welzl: smallest enclosing circle of points P (n, 2)."""
+
+    def inside(c, r, p):
+        return np.hypot(*(p - c)) <= r + tol
+
+    c, r = P[0].copy(), 0.0
+    for i in range(1, len(P)):
+        if inside(c, r, P[i]):
+            continue
+        c, r = P[i].copy(), 0.0
+        for j in range(i):
+            if inside(c, r, P[j]):
+                continue
+            c, r = _circle2(P[i], P[j])
+            for k in range(j):
+                if inside(c, r, P[k]):
+                    continue
+                res = _circle3(P[i], P[j], P[k])
+                if res is None:  # collinear: the farthest pair spans it
+                    pairs = [(P[i], P[j]), (P[i], P[k]), (P[j], P[k])]
+                    c, r = max((_circle2(a, b) for a, b in pairs), key=lambda t: t[1])
+                else:
+                    c, r = res
+    return c, r
+
+
+def min_circumscribed_circle(x_mm, y_mm, *, seed: int = 0) -> Circle:
+    """Minimum circumscribed circle (ISO 12181 MCCI), exact (Welzl, expected linear time).
+
+    The smallest circle containing every point; defined by 2 or 3 points on it.
+    """
+    x, y, shift = _prep(x_mm, y_mm, min_points=2)
+    P = np.column_stack([x, y])
+    if P.shape[0] > 50:  # the enclosing circle of a set is that of its convex hull
+        from scipy.spatial import ConvexHull
+
+        try:
+            P = P[ConvexHull(P).vertices]
+        except Exception:  # noqa: BLE001 - degenerate hull (collinear): Welzl copes with all points
+            pass
+    order = np.random.default_rng(seed).permutation(len(P))
+    scale = float(np.max(np.abs(P))) or 1.0
+    c, r = _welzl(P[order], tol=1e-12 * scale)
+    # the enclosing radius is the farthest point from c (removes the tolerance slack)
+    r = float(np.max(np.hypot(x - c[0], y - c[1])))
+    return _make("MCCI", x, y, shift, c, r)
+
+
+# --------------------------------------------------------------------------- MICI / MZCI (SLP)
+
+
+def _slp(x, y, c0, kind: str, max_iter: int = 100) -> tuple[np.ndarray, int]:
+    """Sequential LP with a trust region for the Chebyshev centre problems.
+
+    kind "MICI": maximise t subject to |p_i - c| >= t; "MZCI": minimise (s - t) subject to
+    t <= |p_i - c| <= s. Linearised about c: |p_i - c - dc| ~= d_i - n_i . dc.
+    """
+    scale = float(np.max(np.hypot(x, y)))
+    c = np.array(c0, dtype=float)
+    delta = 0.05 * scale
+
+    def objective(c):
+        d = np.hypot(x - c[0], y - c[1])
+        return -d.min() if kind == "MICI" else d.max() - d.min()
+
+    f = objective(c)
+    it = 0
+    opts = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
+    for it in range(1, max_iter + 1):
+        dx, dy = x - c[0], y - c[1]
+        d = np.hypot(dx, dy)
+        nx, ny = dx / d, dy / d
+        n = x.size
+        # work in units of the current zone width about the mean radius so that the LP
+        # tolerances (~1e-7 relative) act on the form deviations, not on the radius
+        w = max(float(d.max() - d.min()), 1e-12 * scale)
+        b = (d - d.mean()) / w
+        lim = delta / w
+        if kind == "MICI":
+            # variables (dcx, dcy, t); maximise t: d_i - n_i.dc >= t  ->  n_i.dc + t <= d_i
+            A = np.column_stack([nx, ny, np.ones(n)])
+            res = linprog([0, 0, -1.0], A_ub=A, b_ub=b, bounds=[(-lim, lim)] * 2 + [(None, None)],
+                          method="highs", options=opts)
+        else:
+            # variables (dcx, dcy, t, s); minimise s - t
+            A1 = np.column_stack([-nx, -ny, np.zeros(n), -np.ones(n)])  # d - n.dc <= s
+            A2 = np.column_stack([nx, ny, np.ones(n), np.zeros(n)])  # t <= d - n.dc
+            res = linprog(
+                [0, 0, -1.0, 1.0],
+                A_ub=np.vstack([A1, A2]),
+                b_ub=np.concatenate([-b, b]),
+                bounds=[(-lim, lim)] * 2 + [(None, None)] * 2,
+                method="highs",
+                options=opts,
+            )
+        if res.status != 0:
+            raise CircleFitError(f"{kind}: linear program failed: {res.message}")
+        step = res.x[:2] * w
+        c_new = c + step
+        f_new = objective(c_new)
+        if f_new <= f + 1e-15 * scale:
+            c, f = c_new, f_new
+            if np.hypot(*step) < 1e-13 * scale:
+                break
+            if np.hypot(*step) > 0.5 * delta:
+                delta *= 2.0
+        else:
+            delta *= 0.25
+            if delta < 1e-15 * scale:
+                break
+    return c, it
+
+
+def _polish(x, y, c, kind: str) -> np.ndarray:
+    """Solve the active-set equations exactly (Newton) from the SLP vertex.
+
+    MICI: three nearest points equidistant. MZCI: two inner + two outer, or 3 + 1, with
+    equal inner distances and equal outer distances (2 equations, 2 unknowns).
+    """
+    d = np.hypot(x - c[0], y - c[1])
+    scale = float(d.max())
+    tol = 1e-7 * scale
+    if kind == "MICI":
+        act = np.flatnonzero(d <= d.min() + tol)
+        if act.size != 3:
+            return c
+        groups = [act]
+    else:
+        inner = np.flatnonzero(d <= d.min() + tol)
+        outer = np.flatnonzero(d >= d.max() - tol)
+        if inner.size + outer.size != 4 or inner.size < 1 or outer.size < 1:
+            return c
+        groups = [g for g in (inner, outer) if g.size >= 2]
+    best = c.copy()
+    cc = c.copy()
+    for _ in range(20):
+        F, J = [], []
+        for g in groups:
+            for k in g[1:]:
+                i = g[0]
+                # |p_k - c|^2 - |p_i - c|^2 = 0 is linear in c: 2 (p_i - p_k).c + |p_k|^2 - |p_i|^2
+                F.append((x[k] - cc[0]) ** 2 + (y[k] - cc[1]) ** 2 - (x[i] - cc[0]) ** 2 - (y[i] - cc[1]) ** 2)
+                J.append([2 * (x[i] - x[k]), 2 * (y[i] - y[k])])
+        F, J = np.array(F), np.array(J)
+        if F.size != 2:
+            return c
+        try:
+            step = np.linalg.solve(J, -F)
+        except np.linalg.LinAlgError:
+            return c
+        cc = cc + step
+        if np.hypot(*step) < 1e-15 * scale:
+            break
+    # accept only if it does not worsen the objective (guards a wrong active set)
+    def obj(cv):
+        dv = np.hypot(x - cv[0], y - cv[1])
+        return -dv.min() if kind == "MICI" else dv.max() - dv.min()
+
+    return cc if obj(cc) <= obj(best) + 1e-15 * scale and np.hypot(*(cc - best)) < tol else best
+
+
+def max_inscribed_circle(x_mm, y_mm) -> Circle:
+    """Maximum inscribed circle (ISO 12181 MICI) of a closed profile.
+
+    max over c of min_i |p_i - c|, started at the least-squares centre (the profile must
+    surround its centre); sequential LP to the vertex, then exact 3-point polish.
+    """
+    x, y, shift = _prep(x_mm, y_mm)
+    c0 = fit_circle_ls(x, y).center_xy_mm
+    c, it = _slp(x, y, c0, "MICI")
+    c = _polish(x, y, c, "MICI")
+    r = float(np.min(np.hypot(x - c[0], y - c[1])))
+    return _make("MICI", x, y, shift, c, r, n_iter=it)
+
+
+def min_zone_circle(x_mm, y_mm) -> Circle:
+    """Minimum zone circles (ISO 12181 MZCI): concentric pair of least radial separation.
+
+    Returns the common centre, radius = mean of the inner and outer zone radii and
+    ``ront_mm`` = the zone width (the smallest RONt of any centre).
+    """
+    x, y, shift = _prep(x_mm, y_mm, min_points=4)
+    c0 = fit_circle_ls(x, y).center_xy_mm
+    c, it = _slp(x, y, c0, "MZCI")
+    c = _polish(x, y, c, "MZCI")
+    d = np.hypot(x - c[0], y - c[1])
+    return _make("MZCI", x, y, shift, c, 0.5 * (d.min() + d.max()), n_iter=it)
+
+
+def roundness(x_mm, y_mm, center_xy_mm) -> float:
+    """RONt about a given centre: max_i |p_i - c| - min_i |p_i - c| [mm] (ISO 12181-1)."""
+    x = np.asarray(x_mm, dtype=float)
+    y = np.asarray(y_mm, dtype=float)
+    d = np.hypot(x - center_xy_mm[0], y - center_xy_mm[1])
+    return float(np.nanmax(d) - np.nanmin(d))
+
+
+def reference_circles(x_mm, y_mm) -> dict[str, Circle]:
+    """All four ISO 12181 reference circles: {"LSCI", "MZCI", "MICI", "MCCI"}."""
+    return {
+        "LSCI": fit_circle_ls(x_mm, y_mm),
+        "MZCI": min_zone_circle(x_mm, y_mm),
+        "MICI": max_inscribed_circle(x_mm, y_mm),
+        "MCCI": min_circumscribed_circle(x_mm, y_mm),
+    }
+
+
+def harmonic_spectrum(theta_rad, r_mm, max_upr: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Amplitude per undulations per revolution (UPR) of a radial profile r(theta).
+
+    Least-squares fit r = a_0 + sum_k a_k cos(k theta) + b_k sin(k theta), k = 1..K; for
+    uniform sampling this equals the DFT amplitudes 2|R_k|/n.
+
+    Parameters
+    ----------
+    theta_rad, r_mm : array_like (n,) polar angle [rad] and radius [mm]
+    max_upr : highest UPR K (default min(50, (n - 1) // 2))
+
+    Returns
+    -------
+    upr : ndarray (K + 1,) 0..K; amplitude_mm : ndarray (K + 1,) (amplitude_mm[0] = mean radius);
+    phase_rad : ndarray (K + 1,) so that the term is amplitude cos(k theta - phase)
+    """
+    th = np.asarray(theta_rad, dtype=float).ravel()
+    r = np.asarray(r_mm, dtype=float).ravel()
+    ok = np.isfinite(th) & np.isfinite(r)
+    th, r = th[ok], r[ok]
+    K = min(50, (th.size - 1) // 2) if max_upr is None else int(max_upr)
+    if 2 * K + 1 > th.size:
+        raise CircleFitError(f"max_upr={K} needs at least {2 * K + 1} points, got {th.size}")
+    k = np.arange(1, K + 1)
+    A = np.column_stack([np.ones_like(th), np.cos(np.outer(th, k)), np.sin(np.outer(th, k))])
+    coef, *_ = np.linalg.lstsq(A, r, rcond=None)
+    a, b = coef[1 : K + 1], coef[K + 1 :]
+    amp = np.concatenate([[coef[0]], np.hypot(a, b)])
+    phase = np.concatenate([[0.0], np.arctan2(b, a)])
+    return np.arange(K + 1), amp, phase

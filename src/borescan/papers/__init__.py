@@ -1,0 +1,1 @@
+"""Reproductions of the published tables and figures (Yang 2017, Wang 2017)."""

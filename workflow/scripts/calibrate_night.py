@@ -1,0 +1,14 @@
+"""Rule calibrate_night: calibrate each device from the night's ring-gauge scans; certificates."""
+
+from borescan import pipeline
+from borescan.workflow_log import log_to
+
+with log_to(snakemake.log[0]) as log:
+    cals, links, bad = pipeline.stage_calibrate(
+        snakemake.params.raw_root, snakemake.wildcards.night, snakemake.params.results_root,
+        snakemake.input.scans, snakemake.input.summary, snakemake.params.calibration, log=log,
+    )
+    pipeline.write_table(cals, snakemake.output.calibrations)
+    pipeline.write_table(links, snakemake.output.calibration_scans)
+    pipeline.write_table(pipeline.quarantine_frame(bad), snakemake.output.quarantine)
+    log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans quarantined")
