@@ -16,6 +16,7 @@ include: "rules/ingest.smk"
 include: "rules/signal.smk"
 include: "rules/calibrate.smk"
 include: "rules/measure.smk"
+include: "rules/papers.smk"
 include: "rules/catalog.smk"
 include: "rules/report.smk"
 
@@ -25,14 +26,5 @@ rule all:
     input:
         rules.catalog.input,
         rules.report.input,
+        rules.papers.input,
 
-
-rule calibrate:
-    input:
-        stage_table("calibrations"),
-
-
-rule measure:
-    input:
-        stage_table("diameters"),
-        stage_table("verifications"),

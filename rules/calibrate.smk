@@ -11,11 +11,18 @@ rule calibrate_night:
         quarantine=f"{RES}/stage/quarantine/stage=calibrate/night={{night}}.parquet",
     params:
         raw_root=RAW,
-        results_root=RES,
+        results_root=results_root_for,
         calibration=config["calibration"],
     log:
         f"{RES}/logs/calibrate_night/{{night}}.log",
     benchmark:
         f"{RES}/benchmarks/calibrate_night/{{night}}.tsv"
+    conda:
+        "../workflow/envs/borescan.yaml"
     script:
         "../workflow/scripts/calibrate_night.py"
+
+
+rule calibrate:
+    input:
+        stage_table("calibrations"),

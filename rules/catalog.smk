@@ -17,9 +17,11 @@ rule build_catalog:
     output:
         catalog=f"{RES}/catalog.duckdb",
     params:
-        results_root=RES,
+        results_root=results_root_for,
     log:
         f"{RES}/logs/build_catalog.log",
+    conda:
+        "../workflow/envs/borescan.yaml"
     script:
         "../workflow/scripts/build_catalog.py"
 

@@ -6,6 +6,16 @@ RES = config["results_root"]
 NIGHTS = pipeline.nights(RAW)
 
 
+def results_root_for(wildcards):
+    """results_root for scripts that also write beside their declared outputs.
+
+    Quarantine records (quarantine/<scan_id>.json), certificates (calibration/...), findings and
+    gap plots (discrepancy/...) depend on what the data holds, so they cannot be declared
+    up front; they go under results_root, which must be on a shared filesystem on a cluster.
+    """
+    return RES
+
+
 def stage_table(table):
     """Paths of one stage table for every night."""
     return expand(f"{RES}/stage/{table}/night={{night}}.parquet", night=NIGHTS)

@@ -9,11 +9,13 @@ rule ingest_night:
         quarantine=f"{RES}/stage/quarantine/stage=ingest/night={{night}}.parquet",
     params:
         raw_root=RAW,
-        results_root=RES,
+        results_root=results_root_for,
         duplicates=duplicate_ids_of_night,
     log:
         f"{RES}/logs/ingest_night/{{night}}.log",
     benchmark:
         f"{RES}/benchmarks/ingest_night/{{night}}.tsv"
+    conda:
+        "../workflow/envs/borescan.yaml"
     script:
         "../workflow/scripts/ingest_night.py"

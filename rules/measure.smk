@@ -13,7 +13,7 @@ rule measure_night:
         quarantine=f"{RES}/stage/quarantine/stage=measure/night={{night}}.parquet",
     params:
         raw_root=RAW,
-        results_root=RES,
+        results_root=results_root_for,
         verification=config["verification"],
         measurement=config["measurement"],
         calibration=config["calibration"],
@@ -21,5 +21,13 @@ rule measure_night:
         f"{RES}/logs/measure_night/{{night}}.log",
     benchmark:
         f"{RES}/benchmarks/measure_night/{{night}}.tsv"
+    conda:
+        "../workflow/envs/borescan.yaml"
     script:
         "../workflow/scripts/measure_night.py"
+
+
+rule measure:
+    input:
+        stage_table("diameters"),
+        stage_table("verifications"),

@@ -3,12 +3,15 @@ rule write_report:
         "Writing the browsable report {output.html}"
     input:
         catalog=f"{RES}/catalog.duckdb",
+        papers=f"{RES}/papers/index.csv",
     output:
         html=f"{RES}/report.html",
     params:
-        results_root=RES,
+        results_root=results_root_for,
     log:
         f"{RES}/logs/write_report.log",
+    conda:
+        "../workflow/envs/borescan.yaml"
     script:
         "../workflow/scripts/write_report.py"
 

@@ -10,11 +10,13 @@ rule signal_night:
         quarantine=f"{RES}/stage/quarantine/stage=signal/night={{night}}.parquet",
     params:
         raw_root=RAW,
-        results_root=RES,
+        results_root=results_root_for,
         signal=config["signal"],
     log:
         f"{RES}/logs/signal_night/{{night}}.log",
     benchmark:
         f"{RES}/benchmarks/signal_night/{{night}}.tsv"
+    conda:
+        "../workflow/envs/borescan.yaml"
     script:
         "../workflow/scripts/signal_night.py"

@@ -42,3 +42,16 @@ def test_rerun_does_nothing(pipeline_run):
     proc = run_snakemake(pipeline_run["raw"], pipeline_run["results"], "--dry-run")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "Nothing to be done" in proc.stdout + proc.stderr
+
+
+def test_slurm_profile_dry_run(tmp_path):
+    """The SLURM profile (snakemake-executor-plugin-slurm) plans the whole workflow."""
+    from borescan import demo
+
+    demo.make_demo(tmp_path / "demo")
+    proc = run_snakemake(tmp_path / "demo" / "raw", tmp_path / "results", "--profile", "profiles/slurm", "--dry-run")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = proc.stdout + proc.stderr
+    assert "slurm_partition=compute" in out
+    for rule in ("ingest_night", "signal_night", "calibrate_night", "measure_night", "build_catalog", "write_report"):
+        assert rule in out
