@@ -400,8 +400,11 @@ def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log
             continue
         frames = res.to_frames()
         period = {(k if k.startswith("period_") else f"period_{k}"): v for k, v in res.period.to_dict().items()}
-        summaries.append(frames["summary"].with_columns(n_samples_recorded=pl.lit(mat.values_mm.shape[0]),
-                                                        **{k: pl.lit(v) for k, v in period.items()}))
+        feats = signal.feature_points(frames["extrema"], res.period.samples_per_rev).select(
+            "channel", "feature_sample", "u_feature_sample")
+        summary = frames["summary"].join(feats, on="channel", how="left")
+        summaries.append(summary.with_columns(n_samples_recorded=pl.lit(mat.values_mm.shape[0]),
+                                              **{k: pl.lit(v) for k, v in period.items()}))
         extrema.append(frames["extrema"])
         log(f"{scan.scan_id}: {frames['revolutions'].height} revolutions, "
             f"{res.period.samples_per_rev:.3f} samples/rev ({res.period.source})")
@@ -500,9 +503,6 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     quarantined). A scan with too few revolutions, or a calibration that does not converge, is
     quarantined with the reason; the other devices and nights go on.
     """
-    import numpy as np
-
-    from borescan import __version__, calibration, certificate
     from borescan.geometry import Beams
 
     method = cfg.get("method", "full_lsq")
@@ -544,47 +544,12 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
         if not scans:
             continue
         nominal = Beams.from_nominal(scans[0].meta["device"]["nominal"]["beams"])
-        ids = [s.scan_id for s in scans]
-        try:
-            if method == "yang2017":
-                cal = _yang_from_summary(scans[0], inputs[0], summary, nominal, night)
-            else:
-                cal = calibration.fit_full_calibration(
-                    [x["t_s"] for x in inputs], [x["readings"] for x in inputs], inputs[0]["channels"], nominal,
-                    inputs[0]["R"], [x["spindle_xy"] for x in inputs], [x["rpm"] for x in inputs],
-                    center_xy_mm=[x["center_xy"] for x in inputs], direction=inputs[0]["direction"],
-                    phase0_rad=[x["phase0"] for x in inputs], scan_ids=ids, device_id=device_id,
-                    raw_sha256={f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}, night=night,
-                )
-        except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
-            for s in scans:
-                _quarantine(results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}")
-            continue
-        out_dir = certificate.certificate_dir(results_root, cal)
-        scan0 = scans[0]
-        art = scan0.meta.get("artifact") or {}
-        if cal.method == "full_lsq":
-            residuals = {"t_s": inputs[0]["t_s"], "residual_mm": calibration.full_residuals(cal, inputs[0]["t_s"], inputs[0]["readings"], inputs[0]["R"], scan0.scan_id)}
-        else:
-            residuals = {"t_s": np.zeros(0), "residual_mm": np.zeros((0, len(cal.beams.channels)))}
-        certificate.write_certificate(
-            cal, out_dir,
-            device={"id": device_id, "type": "tri_lds", "sensors": scan0.meta.get("sensors", [])},
-            artifact={"id": art.get("id"), "certificate": art.get("certificate"), "certified_diameter_mm": art.get("certified_diameter_mm"),
-                      "u_diameter_mm": art.get("u_diameter_mm"), "k": art.get("k", 2)},
-            conditions={"temperature_c": (scan0.meta.get("environment") or {}).get("temperature_c"),
-                        "spindle_position": (scan0.meta.get("spindle") or {}).get("position"),
-                        "rpm": inputs[0]["rpm"], "revolutions": int(summary.filter(pl.col("scan_id") == scan0.scan_id)["n_revolutions_min"].min()),
-                        "gauge_radius_at_temperature_mm": inputs[0]["R"]},
-            residuals=residuals,
-            raw_files={f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())},
-            software_version=__version__, config_hash=config_hash(cfg),
-        )
-        rel_cert = str((Path(out_dir) / "certificate.pdf").relative_to(Path(results_root)))
-        combined = combined_sha256({f"{s.scan_id}/{k}": v for s in scans for k, v in s.sha256.items()})
-        cal_rows += _calibration_rows(cal, "tri_lds", night, rel_cert, combined)
-        link_rows += [{"calibration_id": cal.calibration_id, "scan_id": sid} for sid in ids]
-        log(f"{device_id}: {cal.calibration_id} ({cal.method}) from {', '.join(ids)}; residual rms {cal.residual_rms_mm * 1e3:.2f} um")
+        # full_lsq fits all calibration scans of the device together; the paper's method
+        # calibrates from one scan's extrema, so each scan gives its own calibration.
+        groups = [(scans, inputs)] if method != "yang2017" else [([s], [x]) for s, x in zip(scans, inputs)]
+        for group_scans, group_inputs in groups:
+            cal_rows, link_rows = _calibrate_group(group_scans, group_inputs, method, nominal, summary, night,
+                                                   results_root, cfg, bad, cal_rows, link_rows, log)
     for row, d in night_scans(raw_root, night, scans_table, device_type="rod"):
         meta = rawio.read_scan_meta(d, raw_root=Path(raw_root))
         rows = rod_nominal_calibration_rows(meta, night, row["scan_id"])
@@ -596,23 +561,31 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     return cals, links, bad
 
 
-def _yang_from_summary(scan, inputs: dict, summary: pl.DataFrame, nominal, night: str):
+def _yang_from_summary(scan, inputs: dict, summary: pl.DataFrame, nominal, night: str, log=print):
     """Yang 2017 (Eq. 8-15) from the signal stage's per-channel means of one scan."""
-    import numpy as np
-
     from borescan import calibration
 
     s = summary.filter(pl.col("scan_id") == scan.scan_id).sort("channel")
+    statuses = list(s["status"])
+    if "status_significant" in s.columns:
+        # |n - m| within its uncertainty: the data cannot tell the beam's side (the sign of rho);
+        # take it from the design geometry, as an engineer would, and say so.
+        sgn = 1.0 if inputs["direction"] == "ccw" else -1.0
+        for i, (ch, ok) in enumerate(zip(s["channel"], s["status_significant"])):
+            if not ok:
+                statuses[i] = "advanced" if sgn * nominal.rho_mm[i] > 0 else "backward"
+                log(f"{scan.scan_id}: channel {ch}: status not significant (|n - m| within its uncertainty); "
+                    f"side of the beam taken from device.nominal (rho {nominal.rho_mm[i]:+.3f} mm): {statuses[i]}")
     if inputs["center_xy"] is None:
         raise ValueError("yang2017 needs scan.json center (the gauge centre from a centring scan) for oe (Eq. 9)")
     oe = calibration.yang_oe(inputs["spindle_xy"], inputs["center_xy"])
     spr = float(s["period_samples_per_rev"][0])
     return calibration.yang_calibration(
-        s["d_max_mm"].to_numpy(), s["d_min_mm"].to_numpy(), list(s["status"]), s["feature_sample"].to_numpy()
-        if "feature_sample" in s.columns else np.zeros(s.height), spr, inputs["R"], oe,
+        s["d_max_mm"].to_numpy(), s["d_min_mm"].to_numpy(), statuses, s["feature_sample"].to_numpy(), spr, inputs["R"], oe,
         channels=tuple(int(c) for c in s["channel"]), device_id=scan.meta["device"]["id"], scan_ids=[scan.scan_id],
-        raw_sha256=dict(scan.sha256), beta_nominal_rad=nominal.beta_rad, direction=inputs["direction"],
-        u_d_max_mm=s["u_d_max_mm"].to_numpy(), u_d_min_mm=s["u_d_min_mm"].to_numpy(), night=night,
+        raw_sha256=dict(scan.sha256), beta_ref_rad=float(nominal.beta_rad[0]), beta_nominal_rad=nominal.beta_rad,
+        direction=inputs["direction"], u_d_max_mm=s["u_d_max_mm"].to_numpy(), u_d_min_mm=s["u_d_min_mm"].to_numpy(),
+        u_feature_sample=s["u_feature_sample"].to_numpy(), night=night,
     )
 
 
@@ -807,3 +780,60 @@ def stage_papers(out_dir: str | Path, log=print) -> pl.DataFrame:
     write_table(index, out_dir / "index.parquet")
     index.write_csv(out_dir / "index.csv")
     return index
+
+
+
+def _calibrate_group(scans, inputs, method, nominal, summary, night, results_root, cfg, bad, cal_rows, link_rows, log):
+    """Calibrate one device from ``scans`` (already checked), write the certificate, add rows.
+
+    A calibration that fails (no convergence, rank deficiency, no real solution) quarantines
+    the scans it was made from, with the reason.
+    """
+    import numpy as np
+
+    from borescan import __version__, calibration, certificate
+
+    device_id = scans[0].meta["device"]["id"]
+    ids = [s.scan_id for s in scans]
+    raw_files = {f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}
+    try:
+        if method == "yang2017":
+            cal = _yang_from_summary(scans[0], inputs[0], summary, nominal, night, log=log)
+        else:
+            cal = calibration.fit_full_calibration(
+                [x["t_s"] for x in inputs], [x["readings"] for x in inputs], inputs[0]["channels"], nominal,
+                inputs[0]["R"], [x["spindle_xy"] for x in inputs], [x["rpm"] for x in inputs],
+                center_xy_mm=[x["center_xy"] for x in inputs], direction=inputs[0]["direction"],
+                phase0_rad=[x["phase0"] for x in inputs], scan_ids=ids, device_id=device_id,
+                raw_sha256=raw_files, night=night,
+            )
+    except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+        for s in scans:
+            _quarantine(results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}")
+        return cal_rows, link_rows
+    out_dir = certificate.certificate_dir(results_root, cal)
+    scan0, first = scans[0], inputs[0]
+    art = scan0.meta.get("artifact") or {}
+    if cal.method == "full_lsq":
+        residual_mm = calibration.full_residuals(cal, first["t_s"], first["readings"], first["R"], scan0.scan_id)
+        residuals = {"t_s": first["t_s"], "residual_mm": residual_mm}
+    else:
+        residuals = {"t_s": np.zeros(0), "residual_mm": np.zeros((0, len(cal.beams.channels)))}
+    revolutions = int(summary.filter(pl.col("scan_id") == scan0.scan_id)["n_revolutions_min"].min())
+    certificate.write_certificate(
+        cal, out_dir,
+        device={"id": device_id, "type": "tri_lds", "sensors": scan0.meta.get("sensors", [])},
+        artifact={"id": art.get("id"), "certificate": art.get("certificate"),
+                  "certified_diameter_mm": art.get("certified_diameter_mm"),
+                  "u_diameter_mm": art.get("u_diameter_mm"), "k": art.get("k", 2)},
+        conditions={"temperature_c": (scan0.meta.get("environment") or {}).get("temperature_c"),
+                    "spindle_position": (scan0.meta.get("spindle") or {}).get("position"),
+                    "rpm": first["rpm"], "revolutions": revolutions, "gauge_radius_at_temperature_mm": first["R"]},
+        residuals=residuals, raw_files=raw_files, software_version=__version__, config_hash=config_hash(cfg),
+    )
+    rel_cert = str((Path(out_dir) / "certificate.pdf").relative_to(Path(results_root)))
+    cal_rows += _calibration_rows(cal, "tri_lds", night, rel_cert, combined_sha256(raw_files))
+    link_rows += [{"calibration_id": cal.calibration_id, "scan_id": sid} for sid in ids]
+    log(f"{device_id}: {cal.calibration_id} ({cal.method}) from {', '.join(ids)}; "
+        f"residual rms {cal.residual_rms_mm * 1e3:.2f} um")
+    return cal_rows, link_rows

@@ -1116,3 +1116,28 @@ def _mins(y: np.ndarray, samples_per_rev: int, w: int) -> np.ndarray:
     keep = (r >= 1) & (r < out.size - 1)
     out[r[keep]] = mn["sample_pos"].to_numpy()[keep]
     return out[1:-1]
+
+
+def feature_points(extrema: pl.DataFrame, samples_per_rev: float) -> pl.DataFrame:
+    """Feature point (minimum) of each channel as a phase in samples within one revolution.
+
+    The circular mean over revolutions of ``sample_pos mod samples_per_rev`` (the common origin
+    is sample 0), with its standard uncertainty (circular scatter / sqrt(revolutions)). The
+    differences between channels are the spacings of Yang 2017 Eq. 15.
+
+    Returns
+    -------
+    polars.DataFrame: channel, feature_sample, u_feature_sample, n_revolutions
+    """
+    rows = []
+    mins = extrema.filter(pl.col("kind") == "min")
+    for ch in sorted(mins["channel"].unique().to_list()):
+        pos = mins.filter(pl.col("channel") == ch)["sample_pos"].to_numpy().astype(float)
+        ang = 2.0 * np.pi * np.mod(pos, samples_per_rev) / samples_per_rev
+        mean_ang = math.atan2(np.sin(ang).mean(), np.cos(ang).mean())
+        dev = np.angle(np.exp(1j * (ang - mean_ang)))
+        u = float(dev.std(ddof=1) / math.sqrt(dev.size)) if dev.size > 1 else float("nan")
+        rows.append({"channel": int(ch), "feature_sample": float(np.mod(mean_ang, 2 * np.pi) * samples_per_rev / (2 * np.pi)),
+                     "u_feature_sample": u * samples_per_rev / (2 * np.pi), "n_revolutions": int(dev.size)})
+    return pl.DataFrame(rows, schema={"channel": pl.Int64, "feature_sample": pl.Float64,
+                                      "u_feature_sample": pl.Float64, "n_revolutions": pl.Int64})
