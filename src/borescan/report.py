@@ -381,8 +381,10 @@ class _Builder:
         cs = self.t["calibration_scans"]
         for dev in sorted(cal["device_id"].drop_nulls().unique().to_list()):
             out.append(f"<h3>Device {_e(dev)}</h3>")
-            out.append(self.figure(plot_calibration_trends(cal, dev), f"calibration_{dev}",
-                                   f"calibration parameters of {dev}"))
+            measured = cal.filter((pl.col("device_id") == dev) & (pl.col("method") != "nominal"))
+            if measured.height:  # design geometry (method "nominal") does not trend: table only
+                out.append(self.figure(plot_calibration_trends(cal, dev), f"calibration_{dev}",
+                                       f"calibration parameters of {dev}"))
             rows = []
             per = cal.filter(pl.col("device_id") == dev).unique("calibration_id", keep="first").sort(
                 "valid_from", "calibration_id")
