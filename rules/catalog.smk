@@ -14,6 +14,8 @@ rule build_catalog:
         verifications=stage_table("verifications"),
         artifacts=stage_table("artifacts"),
         measure_quarantine=stage_table("quarantine/stage=measure"),
+        findings=stage_table("findings"),
+        discrepancy_quarantine=stage_table("quarantine/stage=discrepancy"),
     output:
         catalog=f"{RES}/catalog.duckdb",
     params:

@@ -3,6 +3,7 @@ rule discrepancy_night:
         "Looking for missing physical effects in the scans of night {wildcards.night}"
     input:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",
+        calibrations=calibrations_up_to_night,
         raw=raw_files_of_night,
     output:
         findings=f"{RES}/stage/findings/night={{night}}.parquet",
@@ -19,3 +20,8 @@ rule discrepancy_night:
         "../workflow/envs/borescan.yaml"
     script:
         "../workflow/scripts/discrepancy_night.py"
+
+
+rule discrepancy:
+    input:
+        stage_table("findings"),

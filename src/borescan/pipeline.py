@@ -837,3 +837,75 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
     log(f"{device_id}: {cal.calibration_id} ({cal.method}) from {', '.join(ids)}; "
         f"residual rms {cal.residual_rms_mm * 1e3:.2f} um")
     return cal_rows, link_rows
+
+
+# --------------------------------------------------------------------------- discrepancy
+
+
+def findings_rows(findings: dict) -> list[dict]:
+    """The catalog's ``findings`` rows of one scan: one per named effect (one empty row if none)."""
+    base = {"scan_id": findings["scan_id"], "verdict": findings["verdict"],
+            "gap_before_mm": (findings.get("gap_before") or {}).get("rms_mm"),
+            "gap_after_mm": (findings.get("gap_after") or {}).get("rms_mm"),
+            "noise_floor_mm": findings.get("noise_floor_mm")}
+    named = findings.get("named") or []
+    if not named:
+        return [dict(base, effect=None, channel=None, parameters=None)]
+    return [dict(base, effect=n.get("effect"), channel=n.get("channel"),
+                 parameters=json.dumps(n.get("parameters") or {}, sort_keys=True)) for n in named]
+
+
+def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_type: str, night: str) -> tuple[dict, str]:
+    """What a scan is compared with: the device's latest calibration, else its design geometry.
+
+    A three-sensor device's design geometry (``device.nominal``) is off the real device by
+    degrees and tens of um; compared with it, every scan would "miss" offsets and gains that are
+    the calibration's business. So a calibrated device is examined against its latest
+    calibration made on or before the night (the scan's own calibration for calibration scans),
+    and a device without one against ``device.nominal`` with its beam lengths and angles freed.
+    """
+    if device_type == "tri_lds" and calibrations.height and "device_id" in calibrations.columns:
+        c = calibrations.filter((pl.col("device_id") == device_id) & (pl.col("valid_from") <= night)
+                                & (pl.col("method") != "nominal"))
+        if c.height:
+            cal_id = c.sort("valid_from", "calibration_id")["calibration_id"][-1]
+            return {"beams": _tri_calibration(calibrations, cal_id).beams}, f"calibration {cal_id}"
+    if device_type == "tri_lds":
+        return {"free_beams": ("d_b", "beta")}, "device.nominal (beam lengths and angles free)"
+    return {}, "device.nominal"
+
+
+def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibration_tables, cfg: dict,
+                      log=print) -> tuple[pl.DataFrame, list[Quarantined]]:
+    """Model-discrepancy examination of every scan of a night (``discrepancy/<scan_id>/``).
+
+    Each scan is compared with its device as :func:`discrepancy_reference` says; the named
+    missing effect, the gap before and after and the noise floor go to ``findings.json``
+    (with ``reference`` naming what the scan was compared with), the residual plots to ``gap.png``.
+    """
+    from borescan import discrepancy
+
+    threshold = float(cfg.get("delta_bic_threshold", 10.0))
+    cals = _read_tables(calibration_tables) if calibration_tables else pl.DataFrame()
+    rows, bad = [], []
+    for row, d in night_scans(raw_root, night, scans_table):
+        scan = rawio.read_scan(d, raw_root=Path(raw_root))
+        out_dir = Path(results_root) / "discrepancy" / scan.scan_id
+        ref_kw, ref = discrepancy_reference(cals, row["device_id"], row["device_type"], night)
+        try:
+            ex = discrepancy.analyse_scan(scan, threshold=threshold, **ref_kw)
+            findings = ex.findings
+            findings["reference"] = ref
+            discrepancy.write_findings(findings, out_dir)
+            discrepancy.plot_gap(ex, out_dir / "gap.png")
+        except (ValueError, KeyError, ArithmeticError) as err:
+            _quarantine(results_root, bad, scan.scan_id, night, "discrepancy", "lds.parquet", f"model-discrepancy examination failed: {err}")
+            continue
+        rows += findings_rows(findings)
+        named = ", ".join(f"{n['effect']}" + (f" ch{n['channel']}" if n.get("channel") else "") for n in findings.get("named", []))
+        log(f"{scan.scan_id} vs {ref}: {findings['verdict']}{': ' + named if named else ''} "
+            f"(gap {findings['gap_before']['rms_mm'] * 1e3:.2f} -> {findings['gap_after']['rms_mm'] * 1e3:.2f} um, "
+            f"noise floor {findings['noise_floor_mm'] * 1e3:.2f} um)")
+    schema = {"scan_id": pl.Utf8, "verdict": pl.Utf8, "effect": pl.Utf8, "channel": pl.Int64, "parameters": pl.Utf8,
+              "gap_before_mm": pl.Float64, "gap_after_mm": pl.Float64, "noise_floor_mm": pl.Float64}
+    return (pl.DataFrame(rows, schema=schema, orient="row") if rows else pl.DataFrame(schema=schema)), bad

@@ -1,0 +1,92 @@
+"""gap.png: residuals before and after the named effect, against angle and time, and their spectrum."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from borescan.discrepancy.fitting import leading_block
+
+__all__ = ["plot_gap"]
+
+
+def _spectrum(r: np.ndarray, dt: float, rev_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Amplitude spectrum [mm] of each channel's residual against undulations per revolution."""
+    z = np.where(np.isfinite(r), r, 0.0)
+    z = z - z.mean(axis=0)
+    n = z.shape[0]
+    nfft = 1 << int(math.ceil(math.log2(max(n, 2) * 4)))
+    amp = 2.0 * np.abs(np.fft.rfft(z, nfft, axis=0)) / n
+    return np.fft.rfftfreq(nfft, dt) / rev_hz, amp
+
+
+def plot_gap(examination, out_path: str | Path) -> Path:
+    """Write gap.png for one :class:`~borescan.discrepancy.examine.Examination`.
+
+    Rows: residual against device angle, against time, spectrum in undulations per revolution
+    (UPR; pose scans: residual per sample); left column before (base model), right column after
+    adding the named effect(s).
+    Dashed lines mark +-1.5 noise floor.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ex = examination
+    f = ex.findings
+    out = Path(out_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    floor_um = (f.get("noise_floor_mm") or 0.0) * 1e3
+    fig, axes = plt.subplots(3, 2, figsize=(12, 9.5), sharey="row")
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    labels = [
+        n["effect"] + (f" ch{n['channel']}" if n.get("channel") is not None else "") for n in f["named"]
+    ]
+    names = ", ".join(labels) or "none"
+    if len(labels) > 2:
+        names = f"{labels[0]}, {labels[1]} +{len(labels) - 2} more"
+    for col, (r, label, gap) in enumerate(
+        [
+            (ex.residual_before_mm, "before (base model)", f["gap_before"]["rms_mm"]),
+            (ex.residual_after_mm, f"after (+ {names})", f["gap_after"]["rms_mm"]),
+        ]
+    ):
+        for j, ch in enumerate(ex.channels):
+            y = r[:, j] * 1e3
+            color = colors[j % 10]
+            axes[0, col].plot(np.degrees(ex.angle_rad), y, ".", ms=1.5, color=color, label=f"ch {ch}")
+            style = "-" if ex.rev_hz else "."
+            axes[1, col].plot(ex.t_s, y, style, lw=0.6, ms=2, color=color, label=f"ch {ch}")
+        if ex.rev_hz:
+            nb = leading_block(ex.t_s)
+            upr, amp = _spectrum(r[:nb], float(np.median(np.diff(ex.t_s[:nb]))), ex.rev_hz)
+            for j, ch in enumerate(ex.channels):
+                axes[2, col].plot(upr, amp[:, j] * 1e3, lw=0.8, color=colors[j % 10], label=f"ch {ch}")
+            axes[2, col].set_xlabel("undulations per revolution [UPR]")
+            axes[2, col].set_xlim(0, min(30.0, float(upr.max()) if upr.size else 30.0))
+        else:  # pose scans: no revolution; residual per sample index instead
+            for j, ch in enumerate(ex.channels):
+                axes[2, col].plot(np.arange(r.shape[0]), r[:, j] * 1e3, ".", ms=2, color=colors[j % 10])
+            axes[2, col].set_xlabel("sample (poses in order)")
+        for row in (0, 1):
+            for s in (-1.5, 1.5):
+                axes[row, col].axhline(s * floor_um, ls="--", lw=0.8, color="0.4")
+        axes[0, col].set_title(f"{label}: rms {gap * 1e3:.2f} um" if gap is not None else label, fontsize=10)
+        axes[0, col].set_xlabel(ex.angle_label)
+        axes[1, col].set_xlabel("time [s]")
+        axes[0, col].set_xlim(0, 360)
+    axes[0, 0].set_ylabel("residual [um]")
+    axes[1, 0].set_ylabel("residual [um]")
+    axes[2, 0].set_ylabel("amplitude [um]" if ex.rev_hz else "residual [um]")
+    axes[0, 0].legend(loc="upper right", fontsize=8, markerscale=5)
+    fig.suptitle(
+        f"{f['scan_id']}: {f['verdict']} ({names}); noise floor {floor_um:.2f} um (dashed: +-1.5x)",
+        fontsize=11,
+    )
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    fig.savefig(out, dpi=100, metadata={"Software": None, "CreationDate": None})
+    plt.close(fig)
+    return out

@@ -1,0 +1,387 @@
+"""Scans made of stationary poses: measuring-rod scans and static three-sensor sets.
+
+Both share the pose structure (``pose`` column): the noise floor comes from sample-to-sample
+differences within a pose (1.4826 MAD / sqrt 2), outliers are jumps away from the pose median,
+and the base model has per-pose nuisance parameters.
+
+Rod (Wang 2017, spec "Measuring rod"): layer m at pose angle alpha_p sees the hole m, a circle
+of nominal radius r_m (feature ``nominal_diameter_mm``) with centre c_m in the rod frame; the
+in-plane beam leaves d n(a) along u(a), a = alpha_p + phi_m; l = s / cos(gamma), v = l - l0.
+Base: nominal layers (l0, phi, d, gamma) fixed; free the pose angles (alpha_0 = 0: a common
+rotation is the centres' business), the centres (2 per layer) and, for a hole without a
+certified diameter (a part: its diameter is the measurand), the radius. A free radius absorbs
+every offset-like effect of its layer (``sensor_offset``, ``beam_offset``, ``thermal_expansion``):
+those are then a calibration matter and are not tried. ``beam_offset`` then acts only
+to second order (its first-order part, a phase shift d / r, is absorbed by the free centre):
+a constant -d^2 / (2 r), the look-alike of ``sensor_offset`` and ``beam_tilt`` on that layer.
+
+Static set (tri_lds without spindle stream): pose p puts the device at S_p relative to the bore
+centre, device angle 0 (for a round bore only S_p in the device frame matters). Base: nominal
+beams, R20 (free for a part without certified diameter); free S_p (2 per pose). Three
+channels leave one degree of freedom per pose, so the
+per-channel offset-like effects and ``thermal_expansion`` mostly look alike: the workflow then
+says "ambiguous" and lists them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from borescan.discrepancy.fitting import dead_zone, robust_sigma
+from borescan.discrepancy.tri import INTERNAL, Term, apply_reading_terms, fast_readings
+from borescan.geometry import Beams, Bore
+
+__all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
+
+INTERNAL.setdefault("beam_offset", (("d_mm", 1e-2),))
+
+
+class PoseData:
+    """Readings of a pose scan with the metadata the models need."""
+
+    def __init__(self, scan_id, meta, t_s, values_mm, channels, pose):
+        self.scan_id = scan_id
+        self.meta = meta
+        self.t_s = np.asarray(t_s, dtype=float)
+        self.values_mm = np.asarray(values_mm, dtype=float)
+        self.channels = tuple(int(c) for c in channels)
+        pose = np.asarray(pose)
+        keep = pose >= 0
+        self.t_s, self.values_mm, pose = self.t_s[keep], self.values_mm[keep], pose[keep]
+        self.poses, self.pose_index = np.unique(pose, return_inverse=True)
+        sensors = {int(s["channel"]): s for s in meta.get("sensors", [])}
+        self.range_mm = np.array(
+            [float(sensors.get(c, {}).get("range_mm", 10.0) or 10.0) for c in self.channels]
+        )
+        art = meta.get("artifact", {}) or {}
+        self.cte_per_k = None if art.get("cte_per_k") is None else float(art["cte_per_k"])
+
+
+def pose_data_from_arrays(scan_id, meta, t_s, values_mm, channels, pose) -> PoseData:
+    """Build :class:`PoseData` (samples without a pose are dropped)."""
+    return PoseData(scan_id, meta, t_s, values_mm, channels, pose)
+
+
+class _PoseModel:
+    """Shared engine interface of the pose models (see ``TriModel`` for the contract)."""
+
+    angle_label = "pose angle [deg]"
+    rev_hz = None
+
+    def __init__(self, data: PoseData):
+        self.data = data
+        self.valid = np.isfinite(data.values_mm)
+        self.mask = self.valid.copy()
+        self.weights = np.ones(len(data.channels))
+        self.dead_zone_mm: np.ndarray | None = None
+        self._last = None
+
+    def residual(self, p, terms):
+        r = dead_zone(self.data.values_mm - self.predict(p, terms), self.dead_zone_mm) * self.weights
+        return r[self.mask]
+
+    def residual_matrix(self, p, terms):
+        return self.data.values_mm - self.predict(p, terms)
+
+    def noise_floor(self, r: np.ndarray) -> np.ndarray:
+        """1.4826 MAD of sample-to-sample differences within poses / sqrt(2), per channel."""
+        same = self.data.pose_index[1:] == self.data.pose_index[:-1]
+        out = np.zeros(r.shape[1])
+        for j in range(r.shape[1]):
+            d = (r[1:, j] - r[:-1, j])[same]
+            s = robust_sigma(d)
+            if s == 0.0:
+                d = d[np.isfinite(d)]
+                s = float(np.std(d)) if d.size > 2 else 0.0
+            out[j] = s / math.sqrt(2.0)
+        return out
+
+    def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
+        """Readings further than ``k_sigma`` noise levels from their pose median."""
+        out = np.zeros(r.shape, dtype=bool)
+        idx = self.data.pose_index
+        for j in range(r.shape[1]):
+            med = np.full(r.shape[0], np.nan)
+            for p in np.unique(idx):
+                sel = idx == p
+                x = r[sel, j]
+                if np.isfinite(x).sum() >= 3:
+                    med[sel] = np.nanmedian(x)
+            with np.errstate(invalid="ignore"):
+                out[:, j] = np.abs(r[:, j] - med) > k_sigma * max(float(sigma[j]), 1e-12)
+        return out
+
+    def localise(self, r: np.ndarray, sigma: np.ndarray) -> dict:
+        d = self.data
+        out = {"channels": {}, "poses": {}}
+        for j, ch in enumerate(d.channels):
+            ok = np.isfinite(r[:, j]) & self.mask[:, j]
+            x = r[ok, j]
+            tt, vv = d.t_s[ok], d.values_mm[ok, j]
+            out["channels"][str(ch)] = {
+                "rms_mm": float(np.sqrt(np.mean(x**2))) if x.size else None,
+                "mean_mm": float(np.mean(x)) if x.size else None,
+                "noise_mm": float(sigma[j]),
+                "excess": float(np.sqrt(np.mean(x**2)) / max(sigma[j], 1e-12)) if x.size else None,
+                "trend_mm_per_s": float(np.polyfit(tt, x, 1)[0]) if x.size > 2 and np.ptp(tt) > 0 else 0.0,
+                "trend_per_mm_reading": (
+                    float(np.polyfit(vv, x, 1)[0]) if x.size > 2 and np.ptp(vv) > 0 else 0.0
+                ),
+            }
+        rr = np.where(self.mask, r, np.nan)
+        for k, p in enumerate(d.poses):
+            seg = rr[d.pose_index == k]
+            seg = seg[np.isfinite(seg)]
+            out["poses"][str(int(p))] = float(np.sqrt(np.mean(seg**2))) if seg.size else None
+        return out
+
+    def vibration_f(self, r):
+        return None
+
+    def base_scales(self):
+        return [self._scale(n) for n in self.base_names()]
+
+    def term_parameters(self, term: Term, x: dict, u: dict):
+        g = lambda n: x[f"{term.key}.{n}"]  # noqa: E731
+        ug = lambda n: u.get(f"{term.key}.{n}", float("nan"))  # noqa: E731
+        e = term.effect
+        if e == "beam_tilt":
+            h, uh = g("h"), ug("h")
+            gam = math.acos(1.0 / (1.0 + h)) if h > 0 else 0.0
+            ugam = uh / ((1.0 + h) ** 2 * math.sin(gam)) if gam > 0 else float("nan")
+            return {"gamma_rad": gam}, {"gamma_rad": ugam}
+        if e == "thermal_expansion":
+            return {"temperature_c": 20.0 + g("dT")}, {"temperature_c": ug("dT")}
+        if e == "beam_offset":
+            return {"d_mm": abs(g("d_mm"))}, {"d_mm": ug("d_mm")}
+        n = INTERNAL[e][0][0]
+        return {n: g(n)}, {n: ug(n)}
+
+    def plot_angle(self) -> np.ndarray:
+        return np.zeros(self.data.t_s.size) if self._last is None else self._last
+
+
+# ---------------------------------------------------------------------------- rod
+
+
+class RodModel(_PoseModel):
+    """Measuring-rod scan (Wang 2017 Eq. 16 with the spec's beam geometry); see the module doc."""
+
+    device_type = "rod"
+    base_description = "device.nominal layers (l0, phi, d, gamma), feature nominal radii"
+    absorbed_by = {
+        "sensor_offset": "l0_mm of the layer",
+        "beam_offset": "l0_mm of the layer (acts as a constant -d^2 / (2 r))",
+        "beam_tilt": "l0_mm of the layer (to first order)",
+    }
+
+    def __init__(self, data: PoseData):
+        super().__init__(data)
+        meta = data.meta
+        layers = {int(lay["channel"]): lay for lay in meta["device"]["nominal"]["layers"]}
+        get = lambda c, k, dflt=0.0: float(layers[c].get(k, dflt) or dflt)  # noqa: E731
+        self.l0 = np.array([get(c, "l0") for c in data.channels])
+        self.phi = np.array([get(c, "phi") for c in data.channels])
+        self.d = np.array([get(c, "d") for c in data.channels])
+        self.gamma = np.array([get(c, "gamma") for c in data.channels])
+        art = meta.get("artifact", {}) or {}
+        feats = {f["id"]: f for f in art.get("features", []) or []}
+        rod_layers = {int(lay["channel"]): lay for lay in (meta.get("rod", {}) or {}).get("layers", [])}
+        default_dia = art.get("certified_diameter_mm") or art.get("nominal_diameter_mm")
+        radii, free = [], []
+        for c in data.channels:
+            f = feats.get(rod_layers.get(c, {}).get("feature"))
+            cert = (f or {}).get("certified_diameter_mm") if f else art.get("certified_diameter_mm")
+            dia = cert or (f or {}).get("nominal_diameter_mm") or default_dia
+            if dia is None:
+                raise ValueError(f"{data.scan_id}: scan.json: no nominal diameter for rod layer {c}")
+            radii.append(float(dia) / 2.0)
+            free.append(cert is None)
+        self.radius = np.array(radii)
+        #: layers whose hole radius is a free base parameter (no certified diameter: it is the measurand)
+        self.radius_free = np.array(free)
+        self.n_pose = len(data.poses)
+
+    def base_names(self):
+        m = len(self.data.channels)
+        return (
+            [f"alpha[{k}]" for k in range(1, self.n_pose)]
+            + [f"cx[{j}]" for j in range(m)]
+            + [f"cy[{j}]" for j in range(m)]
+            + [f"dr[{j}]" for j in range(m) if self.radius_free[j]]
+        )
+
+    def _scale(self, n):
+        return 1e-3 if n.startswith(("alpha", "dr")) else 1e-2
+
+    def base_start(self):
+        from borescan.rod import RodSolveError, rod_start
+
+        d = self.data
+        m = len(d.channels)
+        L = np.full((self.n_pose, m), np.nan)
+        for k in range(self.n_pose):
+            L[k] = np.nanmean(np.where(self.valid, d.values_mm, np.nan)[d.pose_index == k], axis=0) + self.l0
+        mask = np.isfinite(L)
+        try:
+            p0, _ = rod_start(np.where(mask, L, 0.0), mask, 0)
+            x, y, a = p0[m : 2 * m], p0[2 * m : 3 * m], np.insert(p0[3 * m :], 0, 0.0)
+        except (RodSolveError, np.linalg.LinAlgError, ValueError):
+            x, y, a = np.zeros(m), np.zeros(m), np.linspace(0, 2 * np.pi, self.n_pose, endpoint=False)
+        out = {f"alpha[{k}]": float(a[k]) for k in range(1, self.n_pose)}
+        for j in range(m):  # rod.py's (x, y) is axis minus centre; here the centre relative to the axis
+            out[f"cx[{j}]"], out[f"cy[{j}]"] = float(-x[j]), float(-y[j])
+            if self.radius_free[j]:
+                out[f"dr[{j}]"] = float(np.nanmean(L[:, j]) - self.radius[j])
+        return out
+
+    def base_summary(self, p):
+        alpha = np.array([0.0] + [p[f"alpha[{k}]"] for k in range(1, self.n_pose)])
+        self._last = np.mod(alpha[self.data.pose_index], 2 * np.pi)
+        m = len(self.data.channels)
+        return {"hole_center_mm": [[float(p[f"cx[{j}]"]), float(p[f"cy[{j}]"])] for j in range(m)],
+                "hole_radius_mm": [float(self.radius[j] + p.get(f"dr[{j}]", 0.0)) for j in range(m)],
+                "radius_free": [bool(f) for f in self.radius_free],
+                "pose_angle_rad": [float(a) for a in alpha]}
+
+    def predict(self, p, terms):
+        d = self.data
+        by: dict[str, list[Term]] = {}
+        for t in terms:
+            by.setdefault(t.effect, []).append(t)
+        m = len(d.channels)
+        alpha = np.array([0.0] + [p[f"alpha[{k}]"] for k in range(1, self.n_pose)])[d.pose_index]
+        dd, gam = self.d.copy(), self.gamma.copy()
+        r = self.radius + np.array([p.get(f"dr[{j}]", 0.0) for j in range(m)])
+        h = np.zeros(m)
+        for t in by.get("beam_offset", []):
+            dd[d.channels.index(t.channel)] += p[f"{t.key}.d_mm"]
+        for t in by.get("beam_tilt", []):
+            h[d.channels.index(t.channel)] += p[f"{t.key}.h"]
+        for t in by.get("thermal_expansion", []):
+            r = r * (1.0 + (d.cte_per_k or 0.0) * p[f"{t.key}.dT"])
+        a = alpha[:, None] + self.phi[None, :]
+        ca, sa = np.cos(a), np.sin(a)
+        cx = np.array([p[f"cx[{j}]"] for j in range(m)])
+        cy = np.array([p[f"cy[{j}]"] for j in range(m)])
+        wx, wy = -dd * sa - cx, dd * ca - cy
+        b = wx * ca + wy * sa
+        c = wx * wx + wy * wy - r * r
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sq = np.sqrt(b * b - c)  # NaN where a start puts the beam outside the hole
+            s = np.where(b <= 0.0, -b + sq, -c / (b + sq))
+        v = s / np.cos(gam) * (1.0 + h) - self.l0
+        t_s = np.broadcast_to(d.t_s[:, None], v.shape)
+        return apply_reading_terms(v, t_s, by, p, d.channels, d.range_mm, beam_tilt=False)
+
+    def candidate_terms(self, *, k_max=8, vibration_f_hz=None):
+        """Offset-like terms of a layer whose radius is free are absorbed by it and not tried."""
+        chans = self.data.channels
+        fixed = [c for c, f in zip(chans, self.radius_free) if not f]
+        terms = [Term("sensor_offset", c) for c in fixed]
+        for eff in ("sensor_gain", "sensor_nonlinearity", "sensor_drift", "beam_tilt"):
+            terms += [Term(eff, c) for c in chans]
+        if len(fixed) == len(chans) > 1:
+            terms.append(Term("sensor_offset", 0))
+        if self.data.cte_per_k and len(fixed) == len(chans):
+            terms.append(Term("thermal_expansion"))
+        return terms
+
+    def extra_starts(self, screen, keys, t1):
+        """beam_offset is second order at d = 0: start it from the offset screen, d = sqrt(2 r |b|)."""
+        out = []
+        for z in screen:
+            t = z[1]
+            if t.effect != "sensor_offset" or t.channel in (None, 0):
+                continue
+            if not ("*" in keys or t.key in keys) or (t1 is not None and t1.channel == t.channel):
+                continue
+            j = self.data.channels.index(t.channel)
+            b = z[2][f"{t.key}.b_mm"]
+            st = {k: v for k, v in z[2].items() if not k.startswith(t.key)}
+            st[f"beam_offset@{t.channel}.d_mm"] = math.sqrt(2.0 * self.radius[j] * max(abs(b), 1e-6))
+            out.append((0.0, Term("beam_offset", t.channel), st))
+        return out
+
+
+# ---------------------------------------------------------------------------- static tri set
+
+
+class StaticModel(_PoseModel):
+    """Static three-sensor set: device at unknown S_p per pose inside the artifact (module doc)."""
+
+    device_type = "tri_lds"
+    base_description = "device.nominal beams, artifact R20; device position per pose free"
+    absorbed_by = {
+        "sensor_offset": "d_b_mm of the channel",
+        "thermal_expansion": "every d_b_mm (a common offset)",
+    }
+
+    def __init__(self, data: PoseData):
+        super().__init__(data)
+        meta = data.meta
+        allb = Beams.from_nominal(meta["device"]["nominal"]["beams"])
+        idx = [allb.channels.index(c) for c in data.channels]
+        self.beams = Beams(data.channels, allb.beta_rad[idx], allb.rho_mm[idx], allb.d_b_mm[idx])
+        art = meta.get("artifact", {}) or {}
+        dia = art.get("certified_diameter_mm") or art.get("nominal_diameter_mm")
+        if dia is None:
+            raise ValueError(f"{data.scan_id}: scan.json: artifact has no certified or nominal diameter")
+        self.R = float(dia) / 2.0
+        #: no certified diameter (a part): the radius is the measurand and a free base parameter
+        self.radius_free = art.get("certified_diameter_mm") is None
+        self.n_pose = len(data.poses)
+
+    def base_names(self):
+        names = [f"sx[{k}]" for k in range(self.n_pose)] + [f"sy[{k}]" for k in range(self.n_pose)]
+        return names + (["dR"] if self.radius_free else [])
+
+    def _scale(self, n):
+        return 1e-3 if n == "dR" else 1e-2
+
+    def base_start(self):
+        """Per pose, to first order v_c = m_c - S . u_c (m_c the centred reading): least squares."""
+        d = self.data
+        m0 = np.sqrt(self.R**2 - self.beams.rho_mm**2) - self.beams.d_b_mm
+        U = np.stack([np.cos(self.beams.beta_rad), np.sin(self.beams.beta_rad)], axis=1)
+        out = {}
+        for k in range(self.n_pose):
+            v = np.nanmean(np.where(self.valid, d.values_mm, np.nan)[d.pose_index == k], axis=0)
+            ok = np.isfinite(v)
+            s, *_ = np.linalg.lstsq(-U[ok], (v - m0)[ok], rcond=None)
+            out[f"sx[{k}]"], out[f"sy[{k}]"] = float(s[0]), float(s[1])
+        return out
+
+    def base_summary(self, p):
+        self._last = np.zeros(self.data.t_s.size)
+        return {"device_xy_mm": [[float(p[f"sx[{k}]"]), float(p[f"sy[{k}]"])] for k in range(self.n_pose)],
+                "radius_mm": float(self.R + p.get("dR", 0.0)), "radius_free": bool(self.radius_free)}
+
+    def predict(self, p, terms):
+        d = self.data
+        by: dict[str, list[Term]] = {}
+        for t in terms:
+            by.setdefault(t.effect, []).append(t)
+        R = self.R + p.get("dR", 0.0)
+        for t in by.get("thermal_expansion", []):
+            R = R * (1.0 + (d.cte_per_k or 0.0) * p[f"{t.key}.dT"])
+        sx = np.array([p[f"sx[{k}]"] for k in range(self.n_pose)])[d.pose_index]
+        sy = np.array([p[f"sy[{k}]"] for k in range(self.n_pose)])[d.pose_index]
+        v = fast_readings(np.zeros(d.t_s.size), np.stack([sx, sy], axis=-1), self.beams, Bore((0.0, 0.0), R))
+        t_s = np.broadcast_to(d.t_s[:, None], v.shape)
+        return apply_reading_terms(v, t_s, by, p, d.channels, d.range_mm)
+
+    def candidate_terms(self, *, k_max=8, vibration_f_hz=None):
+        terms = []
+        for eff in ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift", "beam_tilt"):
+            terms += [Term(eff, c) for c in self.data.channels]
+        if not self.radius_free:
+            terms.append(Term("sensor_offset", 0))
+            if self.data.cte_per_k:
+                terms.append(Term("thermal_expansion"))
+        return terms
+
+    def extra_starts(self, screen, keys, t1):
+        return []
