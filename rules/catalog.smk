@@ -22,6 +22,8 @@ rule build_catalog:
         results_root=results_root_for,
     log:
         f"{RES}/logs/build_catalog.log",
+    benchmark:
+        f"{RES}/benchmarks/build_catalog.tsv"
     conda:
         "../workflow/envs/borescan.yaml"
     script:

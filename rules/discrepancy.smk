@@ -12,6 +12,7 @@ rule discrepancy_night:
         raw_root=RAW,
         results_root=results_root_for,
         discrepancy=config["discrepancy"],
+    threads: config["stage_workers"]
     log:
         f"{RES}/logs/discrepancy_night/{{night}}.log",
     benchmark:

@@ -11,6 +11,7 @@ rule ingest_night:
         raw_root=RAW,
         results_root=results_root_for,
         duplicates=duplicate_ids_of_night,
+    threads: config["stage_workers"]
     log:
         f"{RES}/logs/ingest_night/{{night}}.log",
     benchmark:

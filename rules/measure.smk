@@ -17,6 +17,7 @@ rule measure_night:
         verification=config["verification"],
         measurement=config["measurement"],
         calibration=config["calibration"],
+    threads: config["stage_workers"]
     log:
         f"{RES}/logs/measure_night/{{night}}.log",
     benchmark:

@@ -9,6 +9,9 @@ rule reproduce_papers:
         ],
     output:
         index=f"{RES}/papers/index.csv",
+    # independent of the scans: let the night's stages go first and fill a core left idle by the
+    # one-process calibration, instead of holding one that a two-process stage is waiting for
+    priority: -10
     log:
         f"{RES}/logs/reproduce_papers.log",
     benchmark:

@@ -10,6 +10,8 @@ rule write_report:
         results_root=results_root_for,
     log:
         f"{RES}/logs/write_report.log",
+    benchmark:
+        f"{RES}/benchmarks/write_report.tsv"
     conda:
         "../workflow/envs/borescan.yaml"
     script:

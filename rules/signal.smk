@@ -12,6 +12,7 @@ rule signal_night:
         raw_root=RAW,
         results_root=results_root_for,
         signal=config["signal"],
+    threads: config["stage_workers"]
     log:
         f"{RES}/logs/signal_night/{{night}}.log",
     benchmark:

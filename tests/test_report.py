@@ -138,7 +138,7 @@ def test_report_written_with_sections_and_existing_links(results):
     files = _check_links_resolve(results)
     # the plots, certificates, gap plots and paper outputs are all linked
     for expect in ("report/control_TRI-01.png", "report/calibration_TRI-01.png", "report/calibration_ROD-01.png",
-                   "report/diameters_P-7.png", "calibration/TRI-01/CAL-A/certificate.pdf",
+                   "calibration/TRI-01/CAL-A/certificate.pdf",
                    "calibration/TRI-01/CAL-A/certificate.json", "discrepancy/PART-7/gap.png",
                    "papers/wang_fig7.png", "papers/yang_table1.csv", "quarantine/BAD-1.json"):
         assert expect in files, expect
@@ -154,6 +154,20 @@ def test_report_written_with_sections_and_existing_links(results):
     # every PNG written is a real PNG
     for png in (results / "report").iterdir():
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # parts measured once share one table (a single value has no distribution to plot)
+    once = text.split("Parts measured once (3)")[1].split("</table>")[0]
+    assert all(p in once for p in ("P-7", "P-8", "P-9")) and "diameters_P-7.png" not in files
+
+
+def test_report_plots_parts_measured_more_than_once(results):
+    t = report.load_tables(results)
+    dia = t["diameters"]
+    again = dia.filter(pl.col("artifact_id") == "P-7").with_columns(
+        pl.lit("PART-7B").alias("scan_id"), (pl.col("diameter_mm") + 0.002).alias("diameter_mm"))
+    t["diameters"] = pl.concat([dia, again], how="diagonal_relaxed")
+    text = report.write_report(results, t).read_text()
+    assert "<h3>Part P-7</h3>" in text and "Parts measured once (2)" in text
+    assert (results / "report" / "diameters_P-7.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_report_links_survive_moving_the_folder(results, tmp_path):

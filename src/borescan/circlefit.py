@@ -439,6 +439,50 @@ def reference_circles(x_mm, y_mm) -> dict[str, Circle]:
     }
 
 
+def _fourier_lsq(th: np.ndarray, r: np.ndarray, K: int) -> np.ndarray:
+    """Coefficients [a_0, a_1..a_K, b_1..b_K] of the least-squares Fourier series of r(theta).
+
+    The normal equations are assembled from the power sums P_m = sum_i exp(i m theta_i),
+    m = 0..2K, and Q_k = sum_i r_i exp(i k theta_i) (cos j cos k = (cos(j-k) + cos(j+k)) / 2 and
+    alike), so the work is O(n K) with no n x (2K + 1) design matrix. The (2K + 1)-square
+    system is solved by SVD; when it is ill-conditioned (cond > 1e8, e.g. angles bunched in a
+    short arc) the design matrix is solved directly instead, as the normal equations would
+    square its condition number.
+    """
+    r0 = float(np.median(r))
+    dr = r - r0
+    z = np.exp(1j * th)
+    P = np.empty(2 * K + 1, dtype=complex)
+    Q = np.empty(K + 1, dtype=complex)
+    w = np.ones_like(z)
+    for m in range(2 * K + 1):
+        P[m] = w.sum()
+        if m <= K:
+            Q[m] = (dr * w).sum()
+        w *= z
+    k = np.arange(1, K + 1)
+    jm, km = np.meshgrid(k, k, indexing="ij")
+    Pdiff = P[np.abs(jm - km)]
+    Pdiff_im = np.sign(jm - km) * Pdiff.imag  # Im P_{j-k} with P_{-m} = conj(P_m)
+    Psum = P[jm + km]
+    N = np.empty((2 * K + 1, 2 * K + 1))
+    N[0, 0] = P[0].real
+    N[0, 1 : K + 1] = N[1 : K + 1, 0] = P[1 : K + 1].real
+    N[0, K + 1 :] = N[K + 1 :, 0] = P[1 : K + 1].imag
+    N[1 : K + 1, 1 : K + 1] = 0.5 * (Pdiff.real + Psum.real)  # cos j cos k
+    N[K + 1 :, K + 1 :] = 0.5 * (Pdiff.real - Psum.real)  # sin j sin k
+    N[1 : K + 1, K + 1 :] = 0.5 * (Psum.imag - Pdiff_im)  # cos j sin k
+    N[K + 1 :, 1 : K + 1] = N[1 : K + 1, K + 1 :].T
+    rhs = np.concatenate([[Q[0].real], Q[1:].real, Q[1:].imag])
+    if np.linalg.cond(N) > 1e8:
+        A = np.column_stack([np.ones_like(th), np.cos(np.outer(th, k)), np.sin(np.outer(th, k))])
+        coef, *_ = np.linalg.lstsq(A, dr, rcond=None)
+    else:
+        coef = np.linalg.solve(N, rhs)
+    coef[0] += r0
+    return coef
+
+
 def harmonic_spectrum(theta_rad, r_mm, max_upr: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Amplitude per undulations per revolution (UPR) of a radial profile r(theta).
 
@@ -462,9 +506,7 @@ def harmonic_spectrum(theta_rad, r_mm, max_upr: int | None = None) -> tuple[np.n
     K = min(50, (th.size - 1) // 2) if max_upr is None else int(max_upr)
     if 2 * K + 1 > th.size:
         raise CircleFitError(f"max_upr={K} needs at least {2 * K + 1} points, got {th.size}")
-    k = np.arange(1, K + 1)
-    A = np.column_stack([np.ones_like(th), np.cos(np.outer(th, k)), np.sin(np.outer(th, k))])
-    coef, *_ = np.linalg.lstsq(A, r, rcond=None)
+    coef = _fourier_lsq(th, r, K)
     a, b = coef[1 : K + 1], coef[K + 1 :]
     amp = np.concatenate([[coef[0]], np.hypot(a, b)])
     phase = np.concatenate([[0.0], np.arctan2(b, a)])

@@ -170,66 +170,77 @@ def _meta_field(meta: dict, *keys: str) -> str | None:
     return None if cur is None else str(cur)
 
 
-def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, duplicate_ids: list[str] = ()) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
-    """Validate and register every scan of one night.
+def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, duplicate_ids: list[str] = (),
+                 workers: int = 1) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
+    """Validate and register every scan of one night (spread over ``workers`` processes).
 
     Returns the ``scans`` rows (status ``ok`` or ``quarantined`` with the reason), the
     ``scan_files`` rows (SHA-256 and size of every raw file, bad scans included) and the
     quarantine records (also written as ``quarantine/<scan_id>.json``).
     """
-    rows, file_rows, bad = [], [], []
+    from borescan.parallel import map_in_order
+
     dup = set(duplicate_ids)
-    for d in scan_dirs(raw_root, night):
-        scan_id = SCAN_RE.match(d.name).group(1)
-        hashes = {}
-        inside = not d.is_symlink() and d.resolve().is_relative_to(Path(raw_root).resolve())
-        for f in sorted(d.iterdir()) if inside else []:
-            if f.is_file() and not f.is_symlink():
-                digest = rawio.sha256_file(f)
-                hashes[f.name] = digest
-                file_rows.append({"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": f.stat().st_size})
-        meta: dict = {}
-        try:
-            meta = rawio.read_scan_meta(d)
-        except rawio.ScanError:
-            pass
-        problem: Quarantined | None = None
-        if scan_id in dup:
-            problem = Quarantined(scan_id, night, "ingest", "scan.json", "scan_id already used by a scan of an earlier night (scan ids are unique across nights)")
-        else:
-            try:
-                scan = rawio.read_scan(d, raw_root=Path(raw_root))
-            except rawio.ScanError as err:
-                problem = Quarantined.from_error(err, night, "ingest")
-            else:
-                # The sensor reports null when out of range (raw-scan-format.md), so a logged value
-                # outside [0, range_mm] is a mislabelled or corrupt export, not a measurement.
-                out_of_range = [w for w in scan.warnings if "outside" in w]
-                if out_of_range:
-                    file, _, msg = out_of_range[0].partition(": ")
-                    problem = Quarantined(scan_id, night, "ingest", file, msg + " (a sensor reports null when out of range)")
+    jobs = [(raw_root, night, results_root, d, SCAN_RE.match(d.name).group(1) in dup) for d in scan_dirs(raw_root, night)]
+    rows, file_rows, bad = [], [], []
+    for row, files, problem in map_in_order(_ingest_one, jobs, workers):
+        rows.append(row)
+        file_rows += files
         if problem is not None:
             bad.append(problem)
-            write_quarantine_record(results_root, problem)
-        rows.append(
-            {
-                "scan_id": scan_id,
-                "night": night,
-                "device_id": _meta_field(meta, "device", "id"),
-                "device_type": _meta_field(meta, "device", "type"),
-                "kind": _meta_field(meta, "kind"),
-                "artifact_id": _meta_field(meta, "artifact", "id"),
-                "started_at": _meta_field(meta, "started_at"),
-                "status": "quarantined" if problem else "ok",
-                "reason": f"{problem.file}: {problem.reason}" if problem else None,
-                "raw_sha256": combined_sha256(hashes),
-                "raw_path": str(d),
-                "simulated": bool(meta.get("acquisition", {}).get("simulated", False)) if isinstance(meta.get("acquisition"), dict) else False,
-            }
-        )
     scans = pl.DataFrame(rows, schema=SCANS_SCHEMA, orient="row") if rows else pl.DataFrame(schema=SCANS_SCHEMA)
     files = pl.DataFrame(file_rows, schema=SCAN_FILES_SCHEMA, orient="row") if file_rows else pl.DataFrame(schema=SCAN_FILES_SCHEMA)
     return scans, files, bad
+
+
+def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
+    """Hash, validate and describe one scan folder: (scans row, scan_files rows, quarantine or None)."""
+    raw_root, night, results_root, d, duplicate = job
+    scan_id = SCAN_RE.match(d.name).group(1)
+    hashes, file_rows = {}, []
+    inside = not d.is_symlink() and d.resolve().is_relative_to(Path(raw_root).resolve())
+    for f in sorted(d.iterdir()) if inside else []:
+        if f.is_file() and not f.is_symlink():
+            digest = rawio.sha256_file(f)
+            hashes[f.name] = digest
+            file_rows.append({"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": f.stat().st_size})
+    meta: dict = {}
+    try:
+        meta = rawio.read_scan_meta(d)
+    except rawio.ScanError:
+        pass
+    problem: Quarantined | None = None
+    if duplicate:
+        problem = Quarantined(scan_id, night, "ingest", "scan.json", "scan_id already used by a scan of an earlier night (scan ids are unique across nights)")
+    else:
+        try:
+            scan = rawio.read_scan(d, raw_root=Path(raw_root))
+        except rawio.ScanError as err:
+            problem = Quarantined.from_error(err, night, "ingest")
+        else:
+            # The sensor reports null when out of range (raw-scan-format.md), so a logged value
+            # outside [0, range_mm] is a mislabelled or corrupt export, not a measurement.
+            out_of_range = [w for w in scan.warnings if "outside" in w]
+            if out_of_range:
+                file, _, msg = out_of_range[0].partition(": ")
+                problem = Quarantined(scan_id, night, "ingest", file, msg + " (a sensor reports null when out of range)")
+    if problem is not None:
+        write_quarantine_record(results_root, problem)
+    row = {
+        "scan_id": scan_id,
+        "night": night,
+        "device_id": _meta_field(meta, "device", "id"),
+        "device_type": _meta_field(meta, "device", "type"),
+        "kind": _meta_field(meta, "kind"),
+        "artifact_id": _meta_field(meta, "artifact", "id"),
+        "started_at": _meta_field(meta, "started_at"),
+        "status": "quarantined" if problem else "ok",
+        "reason": f"{problem.file}: {problem.reason}" if problem else None,
+        "raw_sha256": combined_sha256(hashes),
+        "raw_path": str(d),
+        "simulated": bool(meta.get("acquisition", {}).get("simulated", False)) if isinstance(meta.get("acquisition"), dict) else False,
+    }
+    return row, file_rows, problem
 
 
 def ok_scans(scans_table: str | Path | pl.DataFrame) -> pl.DataFrame:
@@ -371,44 +382,60 @@ def signal_options(cfg: dict) -> dict:
     return {"filter": method, "filter_params": params, "spike_threshold": float(cfg.get("spike_threshold_mad", 6.0))}
 
 
-def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log=print) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
+def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log=print,
+                 workers: int = 1) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
     """Revolutions, sub-sample extrema and per-channel summaries of every spindle scan of a night.
 
     Returns (extrema, summary, quarantined). The summary has one row per scan and channel with
     mean d_min/d_max and their uncertainties, n/m counts, advanced/backward status and the
     rotation period (``period_*`` columns, including whether it disagrees with the nominal).
+    Scans are spread over ``workers`` processes.
     """
+    from borescan.parallel import map_in_order
+
+    opts = signal_options(cfg)
+    jobs = [(raw_root, night, results_root, d, opts) for _, d in night_scans(raw_root, night, scans_table, device_type="tri_lds")]
+    extrema, summaries, bad = [], [], []
+    for ext, summ, q, msg in map_in_order(_signal_one, jobs, workers):
+        bad += q
+        if ext is not None:
+            extrema.append(ext)
+            summaries.append(summ)
+        if msg:
+            log(msg)
+    return _frames_or_empty(extrema), _frames_or_empty(summaries), bad
+
+
+def _signal_one(job) -> tuple[pl.DataFrame | None, pl.DataFrame | None, list[Quarantined], str | None]:
+    """Signal stage of one scan: (extrema, summary, quarantined, log line); None frames when skipped."""
     import numpy as np
 
     from borescan import signal
 
-    opts = signal_options(cfg)
-    extrema, summaries, bad = [], [], []
-    for row, d in night_scans(raw_root, night, scans_table, device_type="tri_lds"):
-        scan = rawio.read_scan(d, raw_root=Path(raw_root))
-        if scan.spindle is None:
-            continue  # static readings: no revolutions
-        mat = rawio.lds_matrix(scan)
-        jump = clock_jump(np.asarray(mat.sample), np.asarray(mat.t_s), float(scan.meta["sample_rate_hz"]))
-        if jump:
-            _quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", jump)
-            continue
-        try:
-            res = signal.process_scan(scan, **opts)
-        except (ValueError, np.linalg.LinAlgError, IndexError) as err:
-            _quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", f"signal stage failed: {err}")
-            continue
-        frames = res.to_frames()
-        period = {(k if k.startswith("period_") else f"period_{k}"): v for k, v in res.period.to_dict().items()}
-        feats = signal.feature_points(frames["extrema"], res.period.samples_per_rev).select(
-            "channel", "feature_sample", "u_feature_sample")
-        summary = frames["summary"].join(feats, on="channel", how="left")
-        summaries.append(summary.with_columns(n_samples_recorded=pl.lit(mat.values_mm.shape[0]),
-                                              **{k: pl.lit(v) for k, v in period.items()}))
-        extrema.append(frames["extrema"])
-        log(f"{scan.scan_id}: {frames['revolutions'].height} revolutions, "
-            f"{res.period.samples_per_rev:.3f} samples/rev ({res.period.source})")
-    return _frames_or_empty(extrema), _frames_or_empty(summaries), bad
+    raw_root, night, results_root, d, opts = job
+    bad: list[Quarantined] = []
+    scan = rawio.read_scan(d, raw_root=Path(raw_root))
+    if scan.spindle is None:
+        return None, None, bad, None  # static readings: no revolutions
+    mat = rawio.lds_matrix(scan)
+    jump = clock_jump(np.asarray(mat.sample), np.asarray(mat.t_s), float(scan.meta["sample_rate_hz"]))
+    if jump:
+        _quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", jump)
+        return None, None, bad, None
+    try:
+        res = signal.process_scan(scan, **opts)
+    except (ValueError, np.linalg.LinAlgError, IndexError) as err:
+        _quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", f"signal stage failed: {err}")
+        return None, None, bad, None
+    frames = res.to_frames()
+    period = {(k if k.startswith("period_") else f"period_{k}"): v for k, v in res.period.to_dict().items()}
+    feats = signal.feature_points(frames["extrema"], res.period.samples_per_rev).select(
+        "channel", "feature_sample", "u_feature_sample")
+    summary = frames["summary"].join(feats, on="channel", how="left").with_columns(
+        n_samples_recorded=pl.lit(mat.values_mm.shape[0]), **{k: pl.lit(v) for k, v in period.items()})
+    msg = (f"{scan.scan_id}: {frames['revolutions'].height} revolutions, "
+           f"{res.period.samples_per_rev:.3f} samples/rev ({res.period.source})")
+    return frames["extrema"], summary, bad, msg
 
 
 # --------------------------------------------------------------------------- calibrate
@@ -672,16 +699,15 @@ def measure_rod_scan(scan, layer_rows: pl.DataFrame) -> list[dict]:
 
 
 def stage_measure(raw_root, night: str, results_root, scans_table, calibration_tables, verification_tables_before,
-                  cfg: dict, log=print):
+                  cfg: dict, log=print, workers: int = 1):
     """Verification scans first, then measurements, each with the calibration it may use.
 
     Returns (diameters, verifications, artifacts, quarantined). ``verification_tables_before``
-    are the verifications of earlier nights (a calibration that failed one is refused).
+    are the verifications of earlier nights (a calibration that failed one is refused). The
+    verifications run in order (a failed one bars its calibration from the rest of the night);
+    the measurements are spread over ``workers`` processes.
     """
-    import numpy as np
-
-    from borescan import measure, rod
-    from borescan.calibration import CalibrationError
+    from borescan.parallel import map_in_order
 
     ver_cfg, meas_cfg, cal_cfg = cfg["verification"], cfg["measurement"], cfg["calibration"]
     tol = float(ver_cfg.get("tolerance_mm", 0.015))
@@ -692,52 +718,83 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     failed = set(earlier.filter(~pl.col("passed"))["calibration_id"].drop_nulls()) if earlier.height else set()
     diam, ver, arts, bad = [], [], {}, []
     items = night_scans(raw_root, night, scans_table)
-    order = {"verification": 0, "measurement": 1}
-    items = sorted((it for it in items if it[0]["kind"] in order), key=lambda it: (order[it[0]["kind"]], it[0]["scan_id"]))
-    for row, d in items:
-        scan = rawio.read_scan(d, raw_root=Path(raw_root))
-        meta, sid, dev = scan.meta, scan.scan_id, row["device_id"]
-        art = _artifact_row(meta)
-        if art:
-            arts[art["artifact_id"]] = art
-        cal_id, why = choose_calibration(cals, failed, dev, night, validity, allow)
-        if cal_id is None:
-            _quarantine(results_root, bad, sid, night, "measure", "scan.json", why)
-            continue
-        try:
-            if row["device_type"] == "rod":
-                res = measure_rod_scan(scan, cals.filter(pl.col("calibration_id") == cal_id))
-                for r in res:
-                    diam.append(measure.diameter_row(sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"],
-                                                     r["u_diameter_mm"], cal_id, "rod_wang2017_eq16"))
-                log(f"{sid}: " + ", ".join(f"{r['feature']} {r['diameter_mm']:.4f} +- {r['u_diameter_mm'] * 1e3:.1f} um" for r in res))
-                continue
-            cal = _tri_calibration(cals, cal_id)
-            out = measure.measure_scan(scan, cal.beams, cal.cov)
-        except (rod.RodSolveError, CalibrationError, ValueError, np.linalg.LinAlgError) as err:
-            _quarantine(results_root, bad, sid, night, "measure", "lds.parquet", f"measurement failed: {err}")
-            continue
-        diam.append(measure.diameter_row(sid, dev, row["artifact_id"], None, out["diameter_mm"], out["u_diameter_mm"], cal_id, out["method"]))
-        msg = f"{sid}: D = {out['diameter_mm']:.4f} mm +- {out['u_diameter_mm'] * 1e3:.2f} um ({out['method']}, {cal_id})"
-        if row["kind"] == "verification":
-            a = meta.get("artifact") or {}
-            if a.get("type") != "ring_gauge" or a.get("certified_diameter_mm") is None:
-                _quarantine(results_root, bad, sid, night, "measure", "scan.json", "verification scan needs a ring_gauge artifact with certified_diameter_mm")
-                continue
-            k = float(a.get("k") or 2.0)
-            v = measure.verify(out["diameter_mm"], out["u_diameter_mm"], a["certified_diameter_mm"], float(a.get("u_diameter_mm") or 0.0) / k,
-                               float(a.get("cte_per_k") or 0.0), float((meta.get("environment") or {}).get("temperature_c", 20.0)), tol)
-            vrow = measure.verification_row(sid, dev, a["id"], v)
-            vrow["calibration_id"] = cal_id
-            ver.append(vrow)
-            if not v.passed:
-                failed.add(cal_id)
-            msg += f"; error {v.error_mm * 1e3:+.2f} um vs {a['certified_diameter_mm']} at {(meta.get('environment') or {}).get('temperature_c', 20.0)} degC: {'PASS' if v.passed else 'FAIL'}"
-        log(msg)
+
+    def job(row, d):
+        cal_id, why = choose_calibration(cals, failed, row["device_id"], night, validity, allow)
+        cal = cals.filter(pl.col("calibration_id") == cal_id) if cal_id is not None else None
+        return (raw_root, night, results_root, row, d, cal_id, why, cal, tol)
+
+    def take(out):
+        diam.extend(out["diameters"])
+        ver.extend(out["verifications"])
+        bad.extend(out["quarantined"])
+        if out["artifact"]:
+            arts[out["artifact"]["artifact_id"]] = out["artifact"]
+        if out["log"]:
+            log(out["log"])
+
+    for row, d in sorted((it for it in items if it[0]["kind"] == "verification"), key=lambda it: it[0]["scan_id"]):
+        out = _measure_one(job(row, d))
+        take(out)
+        failed.update(v["calibration_id"] for v in out["verifications"] if not v["passed"])
+    jobs = [job(row, d) for row, d in sorted((it for it in items if it[0]["kind"] == "measurement"), key=lambda it: it[0]["scan_id"])]
+    for out in map_in_order(_measure_one, jobs, workers):
+        take(out)
     diameters = pl.DataFrame(diam, infer_schema_length=None) if diam else pl.DataFrame()
     verifications = pl.DataFrame(ver, infer_schema_length=None) if ver else pl.DataFrame()
     artifacts = pl.DataFrame(list(arts.values()), infer_schema_length=None) if arts else pl.DataFrame()
     return diameters, verifications, artifacts, bad
+
+
+def _measure_one(job) -> dict:
+    """Measure (and for a verification scan, verify) one scan with the calibration chosen for it.
+
+    Returns {"diameters", "verifications", "quarantined": lists, "artifact": row or None, "log": str}.
+    """
+    import numpy as np
+
+    from borescan import measure, rod
+    from borescan.calibration import CalibrationError
+
+    raw_root, night, results_root, row, d, cal_id, why, cals, tol = job
+    out = {"diameters": [], "verifications": [], "quarantined": [], "artifact": None, "log": None}
+    bad = out["quarantined"]
+    scan = rawio.read_scan(d, raw_root=Path(raw_root))
+    meta, sid, dev = scan.meta, scan.scan_id, row["device_id"]
+    out["artifact"] = _artifact_row(meta)
+    if cal_id is None:
+        _quarantine(results_root, bad, sid, night, "measure", "scan.json", why)
+        return out
+    try:
+        if row["device_type"] == "rod":
+            res = measure_rod_scan(scan, cals)
+            for r in res:
+                out["diameters"].append(measure.diameter_row(sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"],
+                                                             r["u_diameter_mm"], cal_id, "rod_wang2017_eq16"))
+            out["log"] = f"{sid}: " + ", ".join(f"{r['feature']} {r['diameter_mm']:.4f} +- {r['u_diameter_mm'] * 1e3:.1f} um" for r in res)
+            return out
+        cal = _tri_calibration(cals, cal_id)
+        res = measure.measure_scan(scan, cal.beams, cal.cov)
+    except (rod.RodSolveError, CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+        _quarantine(results_root, bad, sid, night, "measure", "lds.parquet", f"measurement failed: {err}")
+        return out
+    out["diameters"].append(measure.diameter_row(sid, dev, row["artifact_id"], None, res["diameter_mm"], res["u_diameter_mm"], cal_id, res["method"]))
+    msg = f"{sid}: D = {res['diameter_mm']:.4f} mm +- {res['u_diameter_mm'] * 1e3:.2f} um ({res['method']}, {cal_id})"
+    if row["kind"] == "verification":
+        a = meta.get("artifact") or {}
+        if a.get("type") != "ring_gauge" or a.get("certified_diameter_mm") is None:
+            _quarantine(results_root, bad, sid, night, "measure", "scan.json", "verification scan needs a ring_gauge artifact with certified_diameter_mm")
+            return out
+        k = float(a.get("k") or 2.0)
+        temp_c = float((meta.get("environment") or {}).get("temperature_c", 20.0))
+        v = measure.verify(res["diameter_mm"], res["u_diameter_mm"], a["certified_diameter_mm"], float(a.get("u_diameter_mm") or 0.0) / k,
+                           float(a.get("cte_per_k") or 0.0), temp_c, tol)
+        vrow = measure.verification_row(sid, dev, a["id"], v)
+        vrow["calibration_id"] = cal_id
+        out["verifications"].append(vrow)
+        msg += f"; error {v.error_mm * 1e3:+.2f} um vs {a['certified_diameter_mm']} at {temp_c} degC: {'PASS' if v.passed else 'FAIL'}"
+    out["log"] = msg
+    return out
 
 
 # --------------------------------------------------------------------------- papers
@@ -876,36 +933,51 @@ def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_typ
 
 
 def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibration_tables, cfg: dict,
-                      log=print) -> tuple[pl.DataFrame, list[Quarantined]]:
+                      log=print, workers: int = 1) -> tuple[pl.DataFrame, list[Quarantined]]:
     """Model-discrepancy examination of every scan of a night (``discrepancy/<scan_id>/``).
 
     Each scan is compared with its device as :func:`discrepancy_reference` says; the named
     missing effect, the gap before and after and the noise floor go to ``findings.json``
     (with ``reference`` naming what the scan was compared with), the residual plots to ``gap.png``.
+    Scans are spread over ``workers`` processes.
     """
-    from borescan import discrepancy
+    from borescan.parallel import map_in_order
 
     threshold = float(cfg.get("delta_bic_threshold", 10.0))
     cals = _read_tables(calibration_tables) if calibration_tables else pl.DataFrame()
-    rows, bad = [], []
+    jobs = []
     for row, d in night_scans(raw_root, night, scans_table):
-        scan = rawio.read_scan(d, raw_root=Path(raw_root))
-        out_dir = Path(results_root) / "discrepancy" / scan.scan_id
         ref_kw, ref = discrepancy_reference(cals, row["device_id"], row["device_type"], night)
-        try:
-            ex = discrepancy.analyse_scan(scan, threshold=threshold, **ref_kw)
-            findings = ex.findings
-            findings["reference"] = ref
-            discrepancy.write_findings(findings, out_dir)
-            discrepancy.plot_gap(ex, out_dir / "gap.png")
-        except (ValueError, KeyError, ArithmeticError) as err:
-            _quarantine(results_root, bad, scan.scan_id, night, "discrepancy", "lds.parquet", f"model-discrepancy examination failed: {err}")
-            continue
-        rows += findings_rows(findings)
-        named = ", ".join(f"{n['effect']}" + (f" ch{n['channel']}" if n.get("channel") else "") for n in findings.get("named", []))
-        log(f"{scan.scan_id} vs {ref}: {findings['verdict']}{': ' + named if named else ''} "
-            f"(gap {findings['gap_before']['rms_mm'] * 1e3:.2f} -> {findings['gap_after']['rms_mm'] * 1e3:.2f} um, "
-            f"noise floor {findings['noise_floor_mm'] * 1e3:.2f} um)")
+        jobs.append((raw_root, night, results_root, d, threshold, ref_kw, ref))
+    rows, bad = [], []
+    for r, q, msg in map_in_order(_discrepancy_one, jobs, workers):
+        rows += r
+        bad += q
+        log(msg)
     schema = {"scan_id": pl.Utf8, "verdict": pl.Utf8, "effect": pl.Utf8, "channel": pl.Int64, "parameters": pl.Utf8,
               "gap_before_mm": pl.Float64, "gap_after_mm": pl.Float64, "noise_floor_mm": pl.Float64}
     return (pl.DataFrame(rows, schema=schema, orient="row") if rows else pl.DataFrame(schema=schema)), bad
+
+
+def _discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
+    """Examine one scan, write findings.json and gap.png: (findings rows, quarantined, log line)."""
+    from borescan import discrepancy
+
+    raw_root, night, results_root, d, threshold, ref_kw, ref = job
+    bad: list[Quarantined] = []
+    scan = rawio.read_scan(d, raw_root=Path(raw_root))
+    out_dir = Path(results_root) / "discrepancy" / scan.scan_id
+    try:
+        ex = discrepancy.analyse_scan(scan, threshold=threshold, **ref_kw)
+        findings = ex.findings
+        findings["reference"] = ref
+        discrepancy.write_findings(findings, out_dir)
+        discrepancy.plot_gap(ex, out_dir / "gap.png")
+    except (ValueError, KeyError, ArithmeticError) as err:
+        _quarantine(results_root, bad, scan.scan_id, night, "discrepancy", "lds.parquet", f"model-discrepancy examination failed: {err}")
+        return [], bad, f"{scan.scan_id}: quarantined ({err})"
+    named = ", ".join(f"{n['effect']}" + (f" ch{n['channel']}" if n.get("channel") else "") for n in findings.get("named", []))
+    msg = (f"{scan.scan_id} vs {ref}: {findings['verdict']}{': ' + named if named else ''} "
+           f"(gap {findings['gap_before']['rms_mm'] * 1e3:.2f} -> {findings['gap_after']['rms_mm'] * 1e3:.2f} um, "
+           f"noise floor {findings['noise_floor_mm'] * 1e3:.2f} um)")
+    return findings_rows(findings), bad, msg

@@ -450,10 +450,20 @@ class _Builder:
         if dia.height == 0:
             return '<p class="empty">No diameters in the catalog.</p>'
         out = []
-        for part in sorted(dia["artifact_id"].fill_null("?").unique().to_list()):
-            sub = dia.filter(pl.col("artifact_id").fill_null("?") == part)
+        dia = dia.with_columns(pl.col("artifact_id").fill_null("?"))
+        counts = dia.group_by("artifact_id", "feature").len().group_by("artifact_id").agg(pl.col("len").max())
+        once = set(counts.filter(pl.col("len") < 2)["artifact_id"].to_list())
+        if once:  # a single value per feature has no distribution: one table for all such parts
+            single = dia.filter(pl.col("artifact_id").is_in(sorted(once))).sort("artifact_id", "feature", "scan_id")
+            out.append(f"<h3>Parts measured once ({len(once)})</h3>")
+            rows = [[_e(r["artifact_id"]), _e(r.get("feature")), _num(r["diameter_mm"], 9), _num(r.get("u_diameter_mm"), 3),
+                     _e(r.get("scan_id")), _e(r.get("calibration_id"))] for r in single.iter_rows(named=True)]
+            out.append(_table(["part", "feature", "diameter [mm]", "u [mm]", "scan", "calibration"], rows,
+                              num_cols={2, 3}))
+        for part in sorted(set(dia["artifact_id"].unique().to_list()) - once):
+            sub = dia.filter(pl.col("artifact_id") == part)
             out.append(f"<h3>Part {_e(part)}</h3>")
-            out.append(self.figure(plot_diameters(dia.with_columns(pl.col("artifact_id").fill_null("?")), part),
+            out.append(self.figure(plot_diameters(dia, part),
                                    f"diameters_{part}", f"diameters of {part}"))
             stats = (sub.group_by("feature").agg(pl.len().alias("n"), pl.col("diameter_mm").mean().alias("mean"),
                                                  pl.col("diameter_mm").std().alias("sd"),

@@ -3,11 +3,17 @@
 from borescan import pipeline
 from borescan.workflow_log import log_to
 
-with log_to(snakemake.log[0]) as log:
-    findings, bad = pipeline.stage_discrepancy(
-        snakemake.params.raw_root, snakemake.wildcards.night, snakemake.params.results_root,
-        snakemake.input.scans, list(snakemake.input.calibrations), snakemake.params.discrepancy, log=log,
-    )
-    pipeline.write_table(findings, snakemake.output.findings)
-    pipeline.write_table(pipeline.quarantine_frame(bad), snakemake.output.quarantine)
-    log(f"{findings['scan_id'].n_unique() if findings.height else 0} scans examined, {len(bad)} set aside")
+
+def main(smk) -> None:
+    with log_to(smk.log[0]) as log:
+        findings, bad = pipeline.stage_discrepancy(
+            smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
+            smk.input.scans, list(smk.input.calibrations), smk.params.discrepancy, log=log, workers=smk.threads,
+        )
+        pipeline.write_table(findings, smk.output.findings)
+        pipeline.write_table(pipeline.quarantine_frame(bad), smk.output.quarantine)
+        log(f"{findings['scan_id'].n_unique() if findings.height else 0} scans examined, {len(bad)} set aside")
+
+
+if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage
+    main(snakemake)  # noqa: F821 (defined by Snakemake's script preamble)

@@ -3,14 +3,20 @@
 from borescan import pipeline
 from borescan.workflow_log import log_to
 
-with log_to(snakemake.log[0]) as log:
-    night = snakemake.wildcards.night
-    scans, files, bad = pipeline.stage_ingest(
-        snakemake.params.raw_root, night, snakemake.params.results_root, snakemake.params.duplicates
-    )
-    pipeline.write_table(scans, snakemake.output.scans)
-    pipeline.write_table(files, snakemake.output.files)
-    pipeline.write_table(pipeline.quarantine_frame(bad), snakemake.output.quarantine)
-    log(f"night {night}: {scans.height} scans, {len(bad)} quarantined")
-    for q in bad:
-        log(f"QUARANTINED {q.scan_id}: {q.file}: {q.reason}")
+
+def main(smk) -> None:
+    with log_to(smk.log[0]) as log:
+        night = smk.wildcards.night
+        scans, files, bad = pipeline.stage_ingest(
+            smk.params.raw_root, night, smk.params.results_root, smk.params.duplicates, workers=smk.threads
+        )
+        pipeline.write_table(scans, smk.output.scans)
+        pipeline.write_table(files, smk.output.files)
+        pipeline.write_table(pipeline.quarantine_frame(bad), smk.output.quarantine)
+        log(f"night {night}: {scans.height} scans, {len(bad)} quarantined")
+        for q in bad:
+            log(f"QUARANTINED {q.scan_id}: {q.file}: {q.reason}")
+
+
+if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage
+    main(snakemake)  # noqa: F821 (defined by Snakemake's script preamble)

@@ -3,14 +3,20 @@
 from borescan import pipeline
 from borescan.workflow_log import log_to
 
-with log_to(snakemake.log[0]) as log:
-    diameters, verifications, artifacts, bad = pipeline.stage_measure(
-        snakemake.params.raw_root, snakemake.wildcards.night, snakemake.params.results_root,
-        snakemake.input.scans, list(snakemake.input.calibrations), list(snakemake.input.verifications_before),
-        {k: snakemake.params[k] for k in ("verification", "measurement", "calibration")}, log=log,
-    )
-    pipeline.write_table(diameters, snakemake.output.diameters)
-    pipeline.write_table(verifications, snakemake.output.verifications)
-    pipeline.write_table(artifacts, snakemake.output.artifacts)
-    pipeline.write_table(pipeline.quarantine_frame(bad), snakemake.output.quarantine)
-    log(f"{diameters.height} diameters, {verifications.height} verifications, {len(bad)} quarantined")
+
+def main(smk) -> None:
+    with log_to(smk.log[0]) as log:
+        diameters, verifications, artifacts, bad = pipeline.stage_measure(
+            smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
+            smk.input.scans, list(smk.input.calibrations), list(smk.input.verifications_before),
+            {k: smk.params[k] for k in ("verification", "measurement", "calibration")}, log=log, workers=smk.threads,
+        )
+        pipeline.write_table(diameters, smk.output.diameters)
+        pipeline.write_table(verifications, smk.output.verifications)
+        pipeline.write_table(artifacts, smk.output.artifacts)
+        pipeline.write_table(pipeline.quarantine_frame(bad), smk.output.quarantine)
+        log(f"{diameters.height} diameters, {verifications.height} verifications, {len(bad)} quarantined")
+
+
+if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage
+    main(snakemake)  # noqa: F821 (defined by Snakemake's script preamble)

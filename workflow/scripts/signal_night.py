@@ -3,12 +3,18 @@
 from borescan import pipeline
 from borescan.workflow_log import log_to
 
-with log_to(snakemake.log[0]) as log:
-    extrema, summary, bad = pipeline.stage_signal(
-        snakemake.params.raw_root, snakemake.wildcards.night,
-        snakemake.params.results_root, snakemake.input.scans, snakemake.params.signal, log=log,
-    )
-    pipeline.write_table(extrema, snakemake.output.extrema)
-    pipeline.write_table(summary, snakemake.output.summary)
-    pipeline.write_table(pipeline.quarantine_frame(bad), snakemake.output.quarantine)
-    log(f"{summary['scan_id'].n_unique() if summary.height else 0} scans processed, {len(bad)} quarantined")
+
+def main(smk) -> None:
+    with log_to(smk.log[0]) as log:
+        extrema, summary, bad = pipeline.stage_signal(
+            smk.params.raw_root, smk.wildcards.night,
+            smk.params.results_root, smk.input.scans, smk.params.signal, log=log, workers=smk.threads,
+        )
+        pipeline.write_table(extrema, smk.output.extrema)
+        pipeline.write_table(summary, smk.output.summary)
+        pipeline.write_table(pipeline.quarantine_frame(bad), smk.output.quarantine)
+        log(f"{summary['scan_id'].n_unique() if summary.height else 0} scans processed, {len(bad)} quarantined")
+
+
+if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage
+    main(snakemake)  # noqa: F821 (defined by Snakemake's script preamble)

@@ -1,0 +1,59 @@
+"""Scan-level parallelism inside one batch job: the night's scans spread over worker processes.
+
+A night is one Snakemake job per stage (per-job overhead would otherwise dominate), so the job
+itself spreads its scans over the cores Snakemake gave it (``threads:``). Results come back in
+input order, so outputs do not depend on the number of workers.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any, TypeVar
+
+__all__ = ["map_in_order", "MIN_ITEMS_PER_WORKER"]
+
+T = TypeVar("T")
+
+#: fewer items than this per worker run in the job's own process: a spawned worker costs
+#: about a second of imports (numpy, scipy, polars), more than a handful of scans take
+MIN_ITEMS_PER_WORKER = 4
+
+
+def map_in_order(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1) -> Iterator[T]:
+    """``fn(item)`` for every item, in order, on up to ``workers`` processes.
+
+    ``fn`` must be a module-level function and items picklable. Workers are spawned, not forked
+    (polars and BLAS keep thread pools that a fork would copy in an unknown state); a spawned
+    worker imports the parent's main script as ``__mp_main__``, so scripts that call this keep
+    their work under ``if __name__ == "__main__":``.
+    """
+    items = list(items)
+    workers = max(1, min(int(workers), len(items) // MIN_ITEMS_PER_WORKER))
+    if workers <= 1:
+        for it in items:
+            yield fn(it)
+        return
+    ctx = multiprocessing.get_context("spawn")
+    saved = {k: os.environ.get(k) for k in _ONE_THREAD}
+    os.environ.update(_ONE_THREAD)  # each worker one BLAS thread: the workers already fill the cores
+    try:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            results = pool.map(fn, items, chunksize=1)  # submits every item (spawns the workers) now
+            _restore(saved)
+            yield from results
+    finally:
+        _restore(saved)
+
+
+_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "POLARS_MAX_THREADS": "1"}
+
+
+def _restore(saved: dict[str, str | None]) -> None:
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
