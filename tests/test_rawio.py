@@ -178,6 +178,32 @@ def test_lds_matrix_wide_nan_and_channel_order(root):
     np.testing.assert_array_equal(m.pose, [-1, -1, -1, -1])
 
 
+def test_lds_matrix_reshape_path_equals_general_path():
+    """The usual layout (every channel on every sample, sorted) takes a reshape; it must give
+    what the general scatter gives, poses (first non-null of a sample) included."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(3)
+    n, chans = 500, (1, 2, 4)
+    pose = np.where(rng.random(n * 3) < 0.3, -1, np.repeat(np.arange(n) // 50, 3))
+    full = pl.DataFrame({
+        "sample": np.repeat(np.arange(n) * 2, 3), "t_ns": np.repeat(np.arange(n) * 2000, 3),
+        "sensor": np.tile(chans, n).astype(np.int16),
+        "value_mm": pl.Series(rng.uniform(0, 10, n * 3)).fill_nan(None).scatter([5, 77], None),
+        "pose": pl.Series(pose, dtype=pl.Int32).set(pl.Series(pose < 0), None),
+    })
+    fast = lds_matrix(SimpleNamespace(lds=full, channels=chans))
+    # one extra row of an unlisted-by-data channel forces the general path; drop its column after
+    extra = pl.concat([full, full.tail(1).with_columns(pl.lit(9, dtype=pl.Int16).alias("sensor"))])
+    general = lds_matrix(SimpleNamespace(lds=extra, channels=chans))
+    assert fast.channels == chans and general.channels == (*chans, 9)
+    np.testing.assert_array_equal(fast.values_mm, general.values_mm[:, :3])
+    np.testing.assert_array_equal(fast.sample, general.sample)
+    np.testing.assert_array_equal(fast.t_s, general.t_s)
+    np.testing.assert_array_equal(fast.pose, general.pose)
+    assert np.isnan(fast.values_mm).sum() == 2 and (fast.pose >= 0).sum() > 0.9 * n
+
+
 def test_out_of_range_readings_are_warnings_not_errors(root):
     lds = make_lds(null_every=1000).with_columns(
         value_mm=pl.when((pl.col("sensor") == 2) & (pl.col("sample") < 3)).then(10.5)

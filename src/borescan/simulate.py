@@ -336,12 +336,18 @@ def tri_readings(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = (
         for e in st["spindle_position"]:
             S = e.spec.forward["tri_lds"](S, phi_full, e.params)
     bore = _bore_with_effects(scene.bore(), st["bore"], scene.cte_per_k)
-    if bore.is_circle:  # phi (n, 1) or (n, c); S (2,) or (n, c, 2)
+    return _readings_in_bore(scene, bore, phi, S, tc, st)
+
+
+def _readings_in_bore(scene: TriScene, bore, phi, S, tc: np.ndarray, st: dict) -> np.ndarray:
+    """Exact readings of ``scene.beams`` in ``bore`` (device angle phi (n, 1) or (n, c), position
+    S (2,), (n, 1, 2) or (n, c, 2)), then the sorted beam and reading effects ``st`` at times ``tc``."""
+    if bore.is_circle:
         v = _tri_circle_readings(phi, S, scene.beams, bore)
     else:
         v = tri_spindle_readings(phi, S, scene.beams, bore)
     if st["beam"] or st["reading"]:
-        v = apply_effects(v, tc, channels, st["beam"] + st["reading"], range_mm=scene.range_mm,
+        v = apply_effects(v, tc, scene.beams.channels, st["beam"] + st["reading"], range_mm=scene.range_mm,
                           stages=("beam", "reading"))
     return v
 
@@ -373,14 +379,7 @@ def tri_static_readings_with_effects(
     bore = _bore_with_effects(scene.bore(), st["bore"], scene.cte_per_k)
     phi = np.asarray(device_angle_rad, dtype=float)
     xy = np.asarray(device_xy_mm, dtype=float)
-    if bore.is_circle:
-        v = _tri_circle_readings(phi[:, None], xy[:, None, :], scene.beams, bore)
-    else:
-        v = tri_spindle_readings(phi, xy, scene.beams, bore)
-    if st["beam"] or st["reading"]:
-        v = apply_effects(v, tc, channels, st["beam"] + st["reading"], range_mm=scene.range_mm,
-                          stages=("beam", "reading"))
-    return v
+    return _readings_in_bore(scene, bore, phi[:, None], xy[:, None, :], tc, st)
 
 
 def rod_readings_with_effects(

@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from borescan.discrepancy.fitting import dead_zone, robust_sigma
-from borescan.discrepancy.tri import INTERNAL, Term, apply_reading_terms, fast_readings
+from borescan.discrepancy.tri import INTERNAL, Term, apply_reading_terms, fast_readings, term_parameters
 from borescan.geometry import Beams, Bore
 
 __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
@@ -144,20 +144,9 @@ class _PoseModel:
         return [self._scale(n) for n in self.base_names()]
 
     def term_parameters(self, term: Term, x: dict, u: dict):
-        g = lambda n: x[f"{term.key}.{n}"]  # noqa: E731
-        ug = lambda n: u.get(f"{term.key}.{n}", float("nan"))  # noqa: E731
-        e = term.effect
-        if e == "beam_tilt":
-            h, uh = g("h"), ug("h")
-            gam = math.acos(1.0 / (1.0 + h)) if h > 0 else 0.0
-            ugam = uh / ((1.0 + h) ** 2 * math.sin(gam)) if gam > 0 else float("nan")
-            return {"gamma_rad": gam}, {"gamma_rad": ugam}
-        if e == "thermal_expansion":
-            return {"temperature_c": 20.0 + g("dT")}, {"temperature_c": ug("dT")}
-        if e == "beam_offset":
-            return {"d_mm": abs(g("d_mm"))}, {"d_mm": ug("d_mm")}
-        n = INTERNAL[e][0][0]
-        return {n: g(n)}, {n: ug(n)}
+        if term.effect == "beam_offset":  # the rod's own term; the rest convert as on the spindle
+            return {"d_mm": abs(x[f"{term.key}.d_mm"])}, {"d_mm": u.get(f"{term.key}.d_mm", float("nan"))}
+        return term_parameters(term, x, u, None)
 
     def plot_angle(self) -> np.ndarray:
         return np.zeros(self.data.t_s.size) if self._last is None else self._last

@@ -511,7 +511,7 @@ def _wrap(a: float, period: float = 2.0 * np.pi) -> float:
     return float(np.mod(a, period))
 
 
-def term_parameters(term: Term, x: dict[str, float], u: dict[str, float], data: TriData) -> tuple[dict, dict]:
+def term_parameters(term: Term, x: dict[str, float], u: dict[str, float], data: TriData | None = None) -> tuple[dict, dict]:
     """The spec's parameters of a fitted term and their standard uncertainties."""
     g = lambda n: x[f"{term.key}.{n}"]  # noqa: E731
     ug = lambda n: u.get(f"{term.key}.{n}", float("nan"))  # noqa: E731
