@@ -248,7 +248,9 @@ def write_reproduction(out_dir, fig11_trials: int = 200) -> dict[str, Path]:
     a.set_xlabel("eccentricity [mm]")
     a.set_ylabel("radius error [um]")
     a.set_title("Fig. 9: front hole, 500 mm rod")
-    a.legend(fontsize=6)
+    top = float(np.nanmax(f9["paper_um"]))
+    a.set_ylim(-0.5, 1.75 * top)  # head room for the legend above the curves
+    a.legend(fontsize=6, ncol=2, loc="upper left")
     a = ax[2]
     a.plot(f11["n"], f11["rms_um"], "o-", label="RMS |D error|")
     a.plot(f11["n"], f11["p95_um"], "s-", label="95th percentile")
