@@ -748,7 +748,7 @@ def fit_full_calibration(
     colnorm = np.linalg.norm(J, axis=0)
     colnorm[colnorm == 0] = 1.0
     Js = J / colnorm
-    sv = np.linalg.svd(Js, compute_uv=False)
+    _, sv, Vt = np.linalg.svd(Js, full_matrices=False)
     tol = sv[0] * max(Js.shape) * np.finfo(float).eps
     rank = int(np.sum(sv > tol))
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
@@ -764,7 +764,6 @@ def fit_full_calibration(
             f"full_lsq Jacobian rank {rank} of {p_free}, condition {cond:.3g} (limit {cond_max:.3g}); "
             "the data do not determine the parameters (is the spindle offset from the gauge centre?)",
         )
-    _, _, Vt = np.linalg.svd(Js, full_matrices=False)
     cov_s = (Vt.T / sv**2) @ Vt
     cov_int = s2 * cov_s / np.outer(colnorm, colnorm)
     # back to (beta, rho, d_b): d_b = g - rho^2 / (2 R)
