@@ -208,3 +208,17 @@ def test_interrupted_run_resumes(pipeline_run, tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     cals = pl.read_parquet(res / "stage" / "calibrations" / "night=2026-11-20.parquet")
     assert cals.filter(pl.col("method") == "full_lsq").height == 3
+
+
+def test_night_jobs_spread_scans_over_two_processes(pipeline_run):
+    """A demo night (9 scans) is examined on 2 worker processes inside one job, every scan once,
+    in scan order (the findings table does not depend on the number of workers)."""
+    import polars as pl
+
+    res = pipeline_run["results"]
+    log = (res / "logs" / "discrepancy_night" / "2026-11-20.log").read_text()
+    assert "9 scans on 2 process(es)" in log
+    f = pl.read_parquet(res / "stage" / "findings" / "night=2026-11-20.parquet")
+    ids = f["scan_id"].unique(maintain_order=True).to_list()
+    scans = pl.read_parquet(res / "stage" / "scans" / "night=2026-11-20.parquet")
+    assert ids == sorted(ids) and set(ids) == set(scans["scan_id"])

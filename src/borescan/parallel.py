@@ -13,13 +13,18 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, TypeVar
 
-__all__ = ["map_in_order", "MIN_ITEMS_PER_WORKER"]
+__all__ = ["map_in_order", "workers_for", "MIN_ITEMS_PER_WORKER"]
 
 T = TypeVar("T")
 
 #: fewer items than this per worker run in the job's own process: a spawned worker costs
 #: about a second of imports (numpy, scipy, polars), more than a handful of scans take
 MIN_ITEMS_PER_WORKER = 4
+
+
+def workers_for(n_items: int, workers: int) -> int:
+    """Processes :func:`map_in_order` uses for ``n_items`` items with ``workers`` allowed."""
+    return max(1, min(int(workers), n_items // MIN_ITEMS_PER_WORKER))
 
 
 def map_in_order(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1) -> Iterator[T]:
@@ -31,7 +36,7 @@ def map_in_order(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1)
     their work under ``if __name__ == "__main__":``.
     """
     items = list(items)
-    workers = max(1, min(int(workers), len(items) // MIN_ITEMS_PER_WORKER))
+    workers = workers_for(len(items), workers)
     if workers <= 1:
         for it in items:
             yield fn(it)

@@ -391,10 +391,11 @@ def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log
     rotation period (``period_*`` columns, including whether it disagrees with the nominal).
     Scans are spread over ``workers`` processes.
     """
-    from borescan.parallel import map_in_order
+    from borescan.parallel import map_in_order, workers_for
 
     opts = signal_options(cfg)
     jobs = [(raw_root, night, results_root, d, opts) for _, d in night_scans(raw_root, night, scans_table, device_type="tri_lds")]
+    log(f"{len(jobs)} three-sensor scans on {workers_for(len(jobs), workers)} process(es)")
     extrema, summaries, bad = [], [], []
     for ext, summ, q, msg in map_in_order(_signal_one, jobs, workers):
         bad += q
@@ -707,7 +708,7 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     verifications run in order (a failed one bars its calibration from the rest of the night);
     the measurements are spread over ``workers`` processes.
     """
-    from borescan.parallel import map_in_order
+    from borescan.parallel import map_in_order, workers_for
 
     ver_cfg, meas_cfg, cal_cfg = cfg["verification"], cfg["measurement"], cfg["calibration"]
     tol = float(ver_cfg.get("tolerance_mm", 0.015))
@@ -738,6 +739,7 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
         take(out)
         failed.update(v["calibration_id"] for v in out["verifications"] if not v["passed"])
     jobs = [job(row, d) for row, d in sorted((it for it in items if it[0]["kind"] == "measurement"), key=lambda it: it[0]["scan_id"])]
+    log(f"{len(jobs)} measurements on {workers_for(len(jobs), workers)} process(es)")
     for out in map_in_order(_measure_one, jobs, workers):
         take(out)
     diameters = pl.DataFrame(diam, infer_schema_length=None) if diam else pl.DataFrame()
@@ -941,7 +943,7 @@ def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibrati
     (with ``reference`` naming what the scan was compared with), the residual plots to ``gap.png``.
     Scans are spread over ``workers`` processes.
     """
-    from borescan.parallel import map_in_order
+    from borescan.parallel import map_in_order, workers_for
 
     threshold = float(cfg.get("delta_bic_threshold", 10.0))
     cals = _read_tables(calibration_tables) if calibration_tables else pl.DataFrame()
@@ -949,6 +951,7 @@ def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibrati
     for row, d in night_scans(raw_root, night, scans_table):
         ref_kw, ref = discrepancy_reference(cals, row["device_id"], row["device_type"], night)
         jobs.append((raw_root, night, results_root, d, threshold, ref_kw, ref))
+    log(f"{len(jobs)} scans on {workers_for(len(jobs), workers)} process(es)")
     rows, bad = [], []
     for r, q, msg in map_in_order(_discrepancy_one, jobs, workers):
         rows += r
