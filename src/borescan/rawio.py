@@ -1084,22 +1084,28 @@ def lds_matrix(scan: RawScan) -> LdsMatrix:
     """
     t = scan.lds
     sample = t["sample"].to_numpy()
-    sensor = t["sensor"].to_numpy().astype(np.int64)
+    sensor16 = t["sensor"].to_numpy()
     value = t["value_mm"].fill_null(np.nan).to_numpy().astype(np.float64, copy=False)
     t_ns = t["t_ns"].to_numpy()
+    no_pose = t["pose"].null_count() == t.height
+    listed = tuple(sorted({int(ch) for ch in scan.channels}))
+    c = len(listed)
+    if sample.size and c and sample.size % c == 0:
+        # the usual layout (sorted by sample, sensor; every listed channel on every sample): a reshape
+        S, C = sample.reshape(-1, c), sensor16.reshape(-1, c)
+        if (C == np.asarray(listed, dtype=C.dtype)).all() and (S == S[:, :1]).all() and (np.diff(S[:, 0]) > 0).all():
+            if no_pose:
+                pose_s = np.full(S.shape[0], -1, dtype=np.int64)
+            else:
+                P = t["pose"].fill_null(-1).to_numpy().astype(np.int64).reshape(-1, c)
+                first = np.argmax(P >= 0, axis=1)
+                pose_s = P[np.arange(P.shape[0]), first]  # -1 where the whole sample has no pose
+            return LdsMatrix(sample=S[:, 0].astype(np.int64), t_s=t_ns[::c] / 1e9, channels=listed,
+                             values_mm=value.reshape(-1, c).copy(), pose=pose_s)
+    sensor = sensor16.astype(np.int64)
     pose = t["pose"].fill_null(-1).to_numpy().astype(np.int64)
     present = np.flatnonzero(np.bincount(sensor)) if sensor.size and sensor.min() >= 0 else np.unique(sensor)
     channels = tuple(sorted(set(scan.channels) | set(present.tolist())))
-    c = len(channels)
-    if sample.size and sample.size % c == 0:
-        # the usual layout (sorted by sample, sensor; every channel on every sample): a reshape
-        S, C = sample.reshape(-1, c), sensor.reshape(-1, c)
-        if (C == np.asarray(channels)).all() and (S == S[:, :1]).all() and (np.diff(S[:, 0]) > 0).all():
-            P = pose.reshape(-1, c)
-            first = np.argmax(P >= 0, axis=1)
-            pose_s = P[np.arange(P.shape[0]), first]  # -1 where the whole sample has no pose
-            return LdsMatrix(sample=S[:, 0].astype(np.int64), t_s=t_ns[::c] / 1e9, channels=channels,
-                             values_mm=value.reshape(-1, c).copy(), pose=pose_s)
     starts = np.flatnonzero(np.r_[True, np.diff(sample) != 0])
     row = np.cumsum(np.r_[True, np.diff(sample) != 0]) - 1
     lut = np.full(max(channels) + 1, -1, dtype=np.int64)
