@@ -130,6 +130,7 @@ def _apply(scan_dir: Path, muts) -> tuple[bool, set[str]]:
     raw_bytes: dict[str, bytes] = {}
     bad_files: set[str] = set()
     order = np.arange(tables["lds.parquet"].height)
+    injected: set[int] = set()  # original rows now holding NaN / inf
     for file, valid, what, payload in muts:
         if what == "drop":
             node = meta
@@ -175,6 +176,8 @@ def _apply(scan_dir: Path, muts) -> tuple[bool, set[str]]:
                 vals = df["value_mm"].to_list()
                 vals[row] = float(value)
                 tables[file] = df.with_columns(pl.Series("value_mm", vals, dtype=pl.Float64))
+                injected.add(int(order[row]))  # judged at the end: a later write may overwrite it
+            valid = True
         elif what == "reorder_keys":
             meta = dict(reversed(list(meta.items())))
         elif what == "out_of_range":
@@ -184,10 +187,13 @@ def _apply(scan_dir: Path, muts) -> tuple[bool, set[str]]:
                 vals = df["value_mm"].to_list()
                 vals[row] = value
                 tables[file] = df.with_columns(pl.Series("value_mm", vals, dtype=pl.Float64))
+                injected.discard(int(order[row]))
         elif what == "truncate":
             raw_bytes[file] = None, payload
         if not valid:
             bad_files.add(file)
+    if injected:
+        bad_files.add("lds.parquet")
     # rows are distinct (sample, sensor) pairs: any net reordering breaks the sort
     if not np.array_equal(order, np.arange(len(order))):
         bad_files.add("lds.parquet")
