@@ -136,6 +136,15 @@ def write_table(df: pl.DataFrame, path: str | Path) -> None:
     tmp.replace(path)
 
 
+def write_stage_outputs(output, quarantined: list[Quarantined] | None = None, **tables: pl.DataFrame) -> None:
+    """Write a stage's tables to the rule's outputs of the same names (``output.<name>``), and
+    its quarantine records as ``output.quarantine`` when given."""
+    if quarantined is not None:
+        tables["quarantine"] = quarantine_frame(quarantined)
+    for name, df in tables.items():
+        write_table(df, getattr(output, name))
+
+
 # --------------------------------------------------------------------------- ingest
 
 SCANS_SCHEMA = {

@@ -8,7 +8,5 @@ with log_to(snakemake.log[0]) as log:
         snakemake.params.raw_root, snakemake.wildcards.night, snakemake.params.results_root,
         snakemake.input.scans, snakemake.input.summary, snakemake.params.calibration, log=log,
     )
-    pipeline.write_table(cals, snakemake.output.calibrations)
-    pipeline.write_table(links, snakemake.output.calibration_scans)
-    pipeline.write_table(pipeline.quarantine_frame(bad), snakemake.output.quarantine)
+    pipeline.write_stage_outputs(snakemake.output, bad, calibrations=cals, calibration_scans=links)
     log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans quarantined")

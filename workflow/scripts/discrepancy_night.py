@@ -10,8 +10,7 @@ def main(smk) -> None:
             smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
             smk.input.scans, list(smk.input.calibrations), smk.params.discrepancy, log=log, workers=smk.threads,
         )
-        pipeline.write_table(findings, smk.output.findings)
-        pipeline.write_table(pipeline.quarantine_frame(bad), smk.output.quarantine)
+        pipeline.write_stage_outputs(smk.output, bad, findings=findings)
         log(f"{findings['scan_id'].n_unique() if findings.height else 0} scans examined, {len(bad)} set aside")
 
 

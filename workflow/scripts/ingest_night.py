@@ -10,9 +10,7 @@ def main(smk) -> None:
         scans, files, bad = pipeline.stage_ingest(
             smk.params.raw_root, night, smk.params.results_root, smk.params.duplicates, workers=smk.threads
         )
-        pipeline.write_table(scans, smk.output.scans)
-        pipeline.write_table(files, smk.output.files)
-        pipeline.write_table(pipeline.quarantine_frame(bad), smk.output.quarantine)
+        pipeline.write_stage_outputs(smk.output, bad, scans=scans, files=files)
         log(f"night {night}: {scans.height} scans, {len(bad)} quarantined")
         for q in bad:
             log(f"QUARANTINED {q.scan_id}: {q.file}: {q.reason}")

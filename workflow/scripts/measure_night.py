@@ -11,10 +11,8 @@ def main(smk) -> None:
             smk.input.scans, list(smk.input.calibrations), list(smk.input.verifications_before),
             {k: smk.params[k] for k in ("verification", "measurement", "calibration")}, log=log, workers=smk.threads,
         )
-        pipeline.write_table(diameters, smk.output.diameters)
-        pipeline.write_table(verifications, smk.output.verifications)
-        pipeline.write_table(artifacts, smk.output.artifacts)
-        pipeline.write_table(pipeline.quarantine_frame(bad), smk.output.quarantine)
+        pipeline.write_stage_outputs(smk.output, bad, diameters=diameters, verifications=verifications,
+                                     artifacts=artifacts)
         log(f"{diameters.height} diameters, {verifications.height} verifications, {len(bad)} quarantined")
 
 

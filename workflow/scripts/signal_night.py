@@ -10,9 +10,7 @@ def main(smk) -> None:
             smk.params.raw_root, smk.wildcards.night,
             smk.params.results_root, smk.input.scans, smk.params.signal, log=log, workers=smk.threads,
         )
-        pipeline.write_table(extrema, smk.output.extrema)
-        pipeline.write_table(summary, smk.output.summary)
-        pipeline.write_table(pipeline.quarantine_frame(bad), smk.output.quarantine)
+        pipeline.write_stage_outputs(smk.output, bad, extrema=extrema, summary=summary)
         log(f"{summary['scan_id'].n_unique() if summary.height else 0} scans processed, {len(bad)} quarantined")
 
 
