@@ -393,28 +393,30 @@ def _polish(x, y, c, kind: str) -> np.ndarray:
     return cc if obj(cc) <= obj(best) + 1e-15 * scale and np.hypot(*(cc - best)) < tol else best
 
 
-def max_inscribed_circle(x_mm, y_mm) -> Circle:
+def max_inscribed_circle(x_mm, y_mm, start_xy_mm=None) -> Circle:
     """Maximum inscribed circle (ISO 12181 MICI) of a closed profile.
 
     max over c of min_i |p_i - c|, started at the least-squares centre (the profile must
     surround its centre); sequential LP to the vertex, then exact 3-point polish.
     """
     x, y, shift = _prep(x_mm, y_mm)
-    c0 = fit_circle_ls(x, y).center_xy_mm
+    # start: the least-squares centre (given by the caller when it has one)
+    c0 = fit_circle_ls(x, y).center_xy_mm if start_xy_mm is None else np.asarray(start_xy_mm, float) - shift
     c, it = _slp(x, y, c0, "MICI")
     c = _polish(x, y, c, "MICI")
     r = float(np.min(np.hypot(x - c[0], y - c[1])))
     return _make("MICI", x, y, shift, c, r, n_iter=it)
 
 
-def min_zone_circle(x_mm, y_mm) -> Circle:
+def min_zone_circle(x_mm, y_mm, start_xy_mm=None) -> Circle:
     """Minimum zone circles (ISO 12181 MZCI): concentric pair of least radial separation.
 
     Returns the common centre, radius = mean of the inner and outer zone radii and
     ``ront_mm`` = the zone width (the smallest RONt of any centre).
     """
     x, y, shift = _prep(x_mm, y_mm, min_points=4)
-    c0 = fit_circle_ls(x, y).center_xy_mm
+    # start: the least-squares centre (given by the caller when it has one)
+    c0 = fit_circle_ls(x, y).center_xy_mm if start_xy_mm is None else np.asarray(start_xy_mm, float) - shift
     c, it = _slp(x, y, c0, "MZCI")
     c = _polish(x, y, c, "MZCI")
     d = np.hypot(x - c[0], y - c[1])
@@ -431,10 +433,11 @@ def roundness(x_mm, y_mm, center_xy_mm) -> float:
 
 def reference_circles(x_mm, y_mm) -> dict[str, Circle]:
     """All four ISO 12181 reference circles: {"LSCI", "MZCI", "MICI", "MCCI"}."""
+    ls = fit_circle_ls(x_mm, y_mm)
     return {
-        "LSCI": fit_circle_ls(x_mm, y_mm),
-        "MZCI": min_zone_circle(x_mm, y_mm),
-        "MICI": max_inscribed_circle(x_mm, y_mm),
+        "LSCI": ls,
+        "MZCI": min_zone_circle(x_mm, y_mm, start_xy_mm=ls.center_xy_mm),
+        "MICI": max_inscribed_circle(x_mm, y_mm, start_xy_mm=ls.center_xy_mm),
         "MCCI": min_circumscribed_circle(x_mm, y_mm),
     }
 

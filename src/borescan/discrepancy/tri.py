@@ -190,6 +190,11 @@ def tri_data_from_arrays(
     )
 
 
+#: effects applied to the readings after the ray geometry (:func:`apply_reading_terms`)
+READING_EFFECTS = frozenset({"beam_tilt", "sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift",
+                             "vibration"})
+
+
 def apply_reading_terms(
     v: np.ndarray,
     t: np.ndarray,
@@ -302,6 +307,7 @@ class TriModel:
         self.mask = self.valid.copy()
         #: half cell of coarsely quantised channels (c,) or None (see ``examine_model``)
         self.dead_zone_mm: np.ndarray | None = None
+        self._geo_cache: tuple | None = None
 
     # ------------------------------------------------------------------ forward
     def predict(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
@@ -357,8 +363,20 @@ class TriModel:
                 beams.rho_mm,
                 beams.d_b_mm + np.array([p.get(f"dd_b[{j}]", 0.0) for j in range(c)]),
             )
-        v = fast_readings(phi, S, beams, bore)
+        v = self._geometric_readings(p, terms, phi, S, beams, bore)
         return apply_reading_terms(v, t, by, p, d.channels, d.range_mm)
+
+    def _geometric_readings(self, p, terms, phi, S, beams, bore) -> np.ndarray:
+        """:func:`fast_readings`, remembered for the last geometry: a finite-difference step in a
+        reading-stage parameter (offset, gain, ...) leaves the ray geometry as it was."""
+        geo_terms = tuple(t.key for t in terms if t.effect not in READING_EFFECTS)
+        key = (geo_terms, tuple(sorted((k, v) for k, v in p.items()
+                                       if k.split(".", 1)[0].split("@", 1)[0].split("[", 1)[0] not in READING_EFFECTS)))
+        if self._geo_cache is not None and self._geo_cache[0] == key:
+            return self._geo_cache[1]
+        v = fast_readings(phi, S, beams, bore)
+        self._geo_cache = (key, v)
+        return v
 
     def residual(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
         """Weighted residual vector (data - model) over the unmasked samples."""
