@@ -95,5 +95,6 @@ def plot_gap(examination, out_path: str | Path) -> Path:
     )
     # fixed margins: tight_layout measures every tick label and costs about as much as the drawing
     fig.subplots_adjust(left=0.07 if labels else 0.11, right=0.98, bottom=0.06, top=0.92, hspace=0.32, wspace=0.06)
-    fig.savefig(out, dpi=100, metadata={"Software": None, "CreationDate": None})
+    # fast zlib level: one gap plot per scan; encoding at level 1 is ~3x faster, files ~10 % larger
+    fig.savefig(out, dpi=100, metadata={"Software": None, "CreationDate": None}, pil_kwargs={"compress_level": 1})
     return out
