@@ -5,18 +5,10 @@ from __future__ import annotations
 import json
 
 import pytest
-from test_catalog import _sha, make_history
+from test_catalog import _sha, built  # noqa: F401 (built: the catalog fixture, shared)
 
-from borescan import catalog, trace
+from borescan import trace
 from borescan.cli import main as cli_main
-
-
-@pytest.fixture()
-def built(tmp_path):
-    res = tmp_path / "results"
-    tables = make_history(res)
-    catalog.build_catalog(res, tables)
-    return res, tables
 
 
 def _sha_of(tables, scan_id):

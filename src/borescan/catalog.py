@@ -24,7 +24,6 @@ Reading the history
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import json
 import os
 import re
@@ -33,6 +32,8 @@ from pathlib import Path
 
 import duckdb
 import polars as pl
+
+from borescan.rawio import combined_sha256, sha256_file
 
 __all__ = [
     "CATALOG_NAME",
@@ -116,20 +117,6 @@ def catalog_path(results_root: str | os.PathLike) -> Path:
     return Path(results_root) / CATALOG_NAME
 
 
-def combined_sha256(file_hashes: Mapping[str, str]) -> str:
-    """One digest for a scan: SHA-256 over the sorted ``"name:sha256\\n"`` lines of its raw files."""
-    lines = "".join(f"{name}:{digest}\n" for name, digest in sorted(file_hashes.items()))
-    return hashlib.sha256(lines.encode()).hexdigest()
-
-
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def certificate_json_path(results_root: str | os.PathLike, certificate_path: str) -> Path:
     """The ``certificate.json`` belonging to a ``certificate_path`` (a certificate file or its folder).
 
@@ -182,7 +169,7 @@ def _prepare(name: str, df: pl.DataFrame, results_root: Path) -> pl.DataFrame:
         for path, sha in zip(df["certificate_path"].to_list(), have, strict=True):
             if sha is None and path:
                 cj = certificate_json_path(results_root, path)
-                sha = _sha256_file(cj) if cj.is_file() else None
+                sha = sha256_file(cj) if cj.is_file() else None
             shas.append(sha)
         df = df.with_columns(pl.Series("certificate_sha256", shas, dtype=pl.Utf8))
     return df

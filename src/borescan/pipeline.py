@@ -19,6 +19,7 @@ from pathlib import Path
 import polars as pl
 
 from borescan import rawio
+from borescan.atomic import atomic_write_text
 
 NIGHT_RE = re.compile(r"^night=(\d{4}-\d{2}-\d{2})$")
 SCAN_RE = re.compile(r"^scan=(.+)$")
@@ -109,7 +110,7 @@ def write_quarantine_record(results_root: str | Path, q: Quarantined) -> Path:
         "reason": q.reason,
         "message": f"{q.scan_id}: {q.file}: {q.reason}",
     }
-    _atomic_write_text(path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
+    atomic_write_text(path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
     return path
 
 
@@ -119,12 +120,6 @@ def quarantine_frame(records: list[Quarantined]) -> pl.DataFrame:
         return pl.DataFrame(schema=QUARANTINE_SCHEMA)
     return pl.DataFrame([r.__dict__ for r in records], schema=QUARANTINE_SCHEMA, orient="row")
 
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
 
 
 def write_table(df: pl.DataFrame, path: str | Path) -> None:
@@ -163,11 +158,6 @@ SCANS_SCHEMA = {
 }
 SCAN_FILES_SCHEMA = {"scan_id": pl.Utf8, "night": pl.Utf8, "file": pl.Utf8, "sha256": pl.Utf8, "bytes": pl.Int64}
 
-
-def combined_sha256(file_hashes: dict[str, str]) -> str:
-    """One digest for a scan: SHA-256 over the sorted ``name:sha256`` lines of its raw files."""
-    lines = "".join(f"{name}:{digest}\n" for name, digest in sorted(file_hashes.items()))
-    return hashlib.sha256(lines.encode()).hexdigest()
 
 
 def _meta_field(meta: dict, *keys: str) -> str | None:
@@ -245,7 +235,7 @@ def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
         "started_at": _meta_field(meta, "started_at"),
         "status": "quarantined" if problem else "ok",
         "reason": f"{problem.file}: {problem.reason}" if problem else None,
-        "raw_sha256": combined_sha256(hashes),
+        "raw_sha256": rawio.combined_sha256(hashes),
         "raw_path": str(d),
         "simulated": bool(meta.get("acquisition", {}).get("simulated", False)) if isinstance(meta.get("acquisition"), dict) else False,
     }
@@ -900,7 +890,7 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
         residuals=residuals, raw_files=raw_files, software_version=__version__, config_hash=config_hash(cfg),
     )
     rel_cert = str((Path(out_dir) / "certificate.pdf").relative_to(Path(results_root)))
-    cal_rows += _calibration_rows(cal, "tri_lds", night, rel_cert, combined_sha256(raw_files))
+    cal_rows += _calibration_rows(cal, "tri_lds", night, rel_cert, rawio.combined_sha256(raw_files))
     link_rows += [{"calibration_id": cal.calibration_id, "scan_id": sid} for sid in ids]
     log(f"{device_id}: {cal.calibration_id} ({cal.method}) from {', '.join(ids)}; "
         f"residual rms {cal.residual_rms_mm * 1e3:.2f} um")

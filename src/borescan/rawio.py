@@ -204,6 +204,12 @@ def sha256_file(path: Path) -> str:
         return hashlib.file_digest(f, "sha256").hexdigest()
 
 
+def combined_sha256(file_hashes: dict[str, str]) -> str:
+    """One digest for a scan: SHA-256 over the sorted ``"name:sha256\\n"`` lines of its raw files."""
+    lines = "".join(f"{name}:{digest}\n" for name, digest in sorted(file_hashes.items()))
+    return hashlib.sha256(lines.encode()).hexdigest()
+
+
 class _Problems:
     """Collects :class:`ScanError` for one scan."""
 

@@ -15,14 +15,13 @@ An id found nowhere raises :class:`UnknownId`.
 
 from __future__ import annotations
 
-import hashlib
 import os
 from pathlib import Path
 from typing import Any
 
 import duckdb
 
-from borescan import catalog
+from borescan import catalog, rawio
 
 __all__ = ["UnknownId", "trace", "format_trace"]
 
@@ -36,13 +35,6 @@ def _rows(con: duckdb.DuckDBPyConnection, sql: str, params: list | tuple = ()) -
     cols = [d[0] for d in cur.description]
     return [dict(zip(cols, r, strict=True)) for r in cur.fetchall()]
 
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 class _Tracer:
@@ -77,7 +69,7 @@ class _Tracer:
         cj = catalog.certificate_json_path(self.root, path)
         node: dict[str, Any] = {"path": path, "json_path": os.path.relpath(cj, self.root),
                                 "catalog_sha256": cal.get("certificate_sha256")}
-        node["json_sha256"] = _sha256(cj) if cj.is_file() else None
+        node["json_sha256"] = rawio.sha256_file(cj) if cj.is_file() else None
         return node
 
     def calibration(self, calibration_id: str) -> dict[str, Any]:
