@@ -6,7 +6,8 @@ file. Measured in the same run, best of several repeats:
 - plain read: ``polars.read_parquet`` of the five columns;
 - stage: the same read, ``rawio.lds_matrix`` (long -> wide) and ``signal.process_arrays`` with
   its defaults (spikes, period from the readings, extrema, n/m, status, spacings).
-Throughput is readings (rows of the long table) per second. Also prints the filter table of
+Throughput is readings (rows of the long table) per second. Also prints where ``process_arrays``
+spends its time (its three heavy public steps timed on their own) and the filter table of
 ``signal.filter_performance`` (scatter reduction, phase lag, amplitude loss per filter).
 """
 
@@ -22,7 +23,13 @@ import polars as pl
 
 from borescan import rawio
 from borescan.geometry import Beams, Bore, tri_spindle_readings
-from borescan.signal import filter_performance, process_arrays
+from borescan.signal import (
+    filter_performance,
+    find_extrema,
+    period_from_readings,
+    process_arrays,
+    remove_spikes,
+)
 
 N_REV = 600
 SPR = 660
@@ -82,16 +89,28 @@ def main() -> dict:
         t_matrix = _best(lambda: rawio.lds_matrix(SimpleNamespace(lds=df, channels=(1, 2, 3))))
         t_proc = _best(lambda: process_arrays(mat.values_mm, sample_rate_hz=float(SPR), rpm_nominal=60.0,
                                               t_s=mat.t_s, channels=mat.channels, scan_id="bench"))
+        # where process_arrays spends its time (the public steps it calls, each on its own)
+        clean, _ = remove_spikes(mat.values_mm)
+        u = np.arange(clean.shape[0]) / res.period.samples_per_rev
+        steps = {
+            "remove_spikes": _best(lambda: remove_spikes(mat.values_mm)),
+            "period_from_readings": _best(lambda: period_from_readings(clean, samples_per_rev_guess=float(SPR))),
+            "find_extrema": _best(lambda: find_extrema(clean, u, samples_per_rev=res.period.samples_per_rev,
+                                                       channels=mat.channels)),
+        }
     out = {"rows": rows, "read_s": t_read, "stage_s": t_stage, "matrix_s": t_matrix, "process_s": t_proc,
            "read_rows_per_s": rows / t_read, "stage_rows_per_s": rows / t_stage, "ratio": t_read / t_stage,
            "ratio_process_only": t_read / t_proc,
-           "samples_per_rev": res.period.samples_per_rev, "extrema": res.extrema.height}
+           "samples_per_rev": res.period.samples_per_rev, "extrema": res.extrema.height,
+           **{f"{k}_s": t for k, t in steps.items()}}
     print(f"signal stage: {rows} readings ({N_REV} rev x {SPR} x 3 channels), best of 5")
     print(f"  plain read_parquet          : {t_read * 1e3:8.1f} ms  {rows / t_read / 1e6:7.2f} M readings/s")
     print(f"  read + lds_matrix + process : {t_stage * 1e3:8.1f} ms  "
           f"{rows / t_stage / 1e6:7.2f} M readings/s")
     print(f"    of which rawio.lds_matrix : {t_matrix * 1e3:8.1f} ms")
     print(f"    of which process_arrays   : {t_proc * 1e3:8.1f} ms  {rows / t_proc / 1e6:7.2f} M readings/s")
+    for name, t in steps.items():
+        print(f"      {name:24s}: {t * 1e3:8.1f} ms")
     print(f"  ratio stage / read          : {out['ratio']:.3f}  (target >= 0.5)")
     print(f"  ratio process_arrays / read : {out['ratio_process_only']:.3f}")
     print(f"  period {res.period.samples_per_rev:.5f} +- {res.period.u_samples_per_rev:.1e} samples/rev "

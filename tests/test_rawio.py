@@ -204,6 +204,45 @@ def test_lds_matrix_reshape_path_equals_general_path():
     assert np.isnan(fast.values_mm).sum() == 2 and (fast.pose >= 0).sum() > 0.9 * n
 
 
+def test_lds_matrix_from_chunks_not_aligned_to_samples():
+    """The reshape path copies straight from the Arrow chunks; chunks that split a sample's rows,
+    chunks that start at an offset and nulls in several chunks must give the general path's result,
+    and a group whose rows disagree on the sample must fall back to the general path."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(8)
+    n, chans = 700, (2, 3, 5)
+    full = pl.DataFrame({
+        "sample": np.repeat(np.arange(n) + 10, 3), "t_ns": np.repeat(np.arange(n) * 1515, 3),
+        "sensor": np.tile(chans, n).astype(np.int16),
+        "value_mm": pl.Series(rng.uniform(0, 10, n * 3)).scatter([0, 4, 500, 1000, 2099], None),
+        "pose": pl.Series([None] * (n * 3), dtype=pl.Int32),
+    })
+    big = pl.concat([full.head(7), full], rechunk=True).slice(7)  # one chunk starting at an offset
+    cuts = [0, 1, 301, 302, 1000, 1501, 2100]  # 1, 300, 1, 698, 501, 599 rows: no chunk a whole sample
+    chunked = pl.concat([big.slice(a, b - a) for a, b in zip(cuts, cuts[1:])], rechunk=False)
+    assert chunked["value_mm"].n_chunks() == 6
+    extra = pl.concat([full, full.tail(1).with_columns(pl.lit(9, dtype=pl.Int16).alias("sensor"))])
+    general = lds_matrix(SimpleNamespace(lds=extra, channels=chans))
+    for frame in (full, big, chunked):
+        assert rawio._lds_matrix_reshaped(frame, chans) is not None  # the chunk path applies
+        m = lds_matrix(SimpleNamespace(lds=frame, channels=chans))
+        np.testing.assert_array_equal(m.values_mm, general.values_mm[:, :3])
+        np.testing.assert_array_equal(m.sample, general.sample)
+        np.testing.assert_array_equal(m.t_s, general.t_s)
+        np.testing.assert_array_equal(m.pose, general.pose)
+    assert np.isnan(general.values_mm[:, :3]).sum() == 5
+    # channel 5 lags one sample from sample 11 on: every sample still has three rows (2, 3, 5), but
+    # their samples disagree; the general scatter must decide (one more sample, with channel 5 only)
+    lag = (pl.col("sensor") == 5) & (pl.int_range(pl.len()) >= 5)
+    odd = chunked.with_columns(sample=pl.when(lag).then(pl.col("sample") + 1).otherwise(pl.col("sample")))
+    assert rawio._lds_matrix_reshaped(odd, chans) is None
+    m = lds_matrix(SimpleNamespace(lds=odd, channels=chans))
+    assert m.values_mm.shape == (n + 1, 3)
+    assert np.isnan(m.values_mm[1, 2]) and np.isnan(m.values_mm[-1, :2]).all()
+    np.testing.assert_array_equal(m.values_mm[2:, 2], general.values_mm[1:, 2])
+
+
 def test_out_of_range_readings_are_warnings_not_errors(root):
     lds = make_lds(null_every=1000).with_columns(
         value_mm=pl.when((pl.col("sensor") == 2) & (pl.col("sample") < 3)).then(10.5)

@@ -17,6 +17,7 @@ from borescan.signal import (
     filter_performance,
     filter_readings,
     find_extrema,
+    find_revolutions,
     fit_extremum_cubic,
     gaussian_filter_upr,
     gaussian_transmission,
@@ -191,6 +192,58 @@ def test_spike_removal_counts_exactly_the_injected_spikes_and_nulls():
     assert sa["nulls"].to_list() == [nulls[c] for c in range(3)]
 
 
+def _spikes_by_definition(y, w=7, threshold=6.0, cand=2.5):
+    """remove_spikes' documented rule, one sample at a time (independent of the vectorised code).
+
+    Short records only (fewer than 5000 samples, so every MAD runs over all samples it names)."""
+    n = y.size
+    h = w // 2
+
+    def mad(r):
+        r = r[~np.isnan(r)]
+        return 1.4826 * np.median(np.abs(r - np.median(r)))
+
+    chord = np.full(n, np.nan)
+    chord[1:-1] = y[1:-1] - 0.5 * (y[:-2] + y[2:])
+    sc_c = mad(chord)
+    with np.errstate(invalid="ignore"):
+        excluded = ~(np.abs(chord) <= cand * sc_c)  # candidates, nulls, ends
+
+    def reference(k):
+        js = [j for j in range(-h, h + 1) if j and 0 <= k + j < n and not excluded[k + j]]
+        if len(js) < 2:
+            return np.nan
+        slopes = [(y[k + b] - y[k + a]) / (b - a) for i, a in enumerate(js) for b in js[i + 1:]]
+        s = np.median(slopes)
+        return np.median([y[k + j] - j * s for j in js])
+
+    probes = [k for k in range(n) if not excluded[k]]
+    scale = mad(np.array([y[k] - reference(k) for k in probes]))
+    spikes = np.zeros(n, dtype=bool)
+    for k in np.flatnonzero(excluded & ~np.isnan(y)):
+        r = y[k] - reference(k)
+        spikes[k] = bool(abs(r) > threshold * scale)
+    return spikes
+
+
+def test_spike_removal_equals_its_definition_sample_by_sample():
+    """Near-threshold spikes, runs of two, nulls and spikes beside nulls: the vectorised test must
+    flag exactly what the rule says, sample by sample."""
+    y, *_ = _simulate(n_rev=4, seed=21)
+    rng = np.random.default_rng(22)
+    n = y.shape[0]
+    for ch in range(3):
+        pos = rng.choice(np.arange(3, n - 3), size=60, replace=False)
+        y[pos, ch] += rng.uniform(0.010, 0.030, pos.size) * rng.choice([-1, 1], pos.size)  # 4-12 sigma
+        y[pos[:5] + 1, ch] += 0.05  # a few pairs of neighbouring spikes
+        y[rng.choice(n, 30, replace=False), ch] = np.nan
+    _, spikes = remove_spikes(y)
+    for ch in range(3):
+        expected = _spikes_by_definition(y[:, ch])
+        assert 20 < expected.sum() < 70  # the set really is near the threshold, not all-or-nothing
+        np.testing.assert_array_equal(spikes[:, ch], expected)
+
+
 # --------------------------------------------------------------------------- period
 
 
@@ -206,6 +259,42 @@ def test_period_from_readings_recovers_a_speed_error_and_flags_it():
     est0 = period_from_readings(y0, samples_per_rev_guess=N_REV, rpm_nominal=60.0, sample_rate_hz=660.0)
     assert abs(est0.samples_per_rev - N_REV) < 3 * est0.u_samples_per_rev
     assert not est0.period_disagrees_with_nominal
+
+
+def test_period_from_readings_with_few_samples_per_revolution_on_a_long_record():
+    """20 samples/rev over 60 000 revolutions (1.2 M samples): the coarse FFT must not decimate the
+    fundamental above Nyquist (its stride is limited to an eighth of the nominal period; a stride
+    of n / 65 536 = 18 samples used to alias it and find no peak near the guess)."""
+    spr = 20
+    y, *_ = _simulate(n_rev=60_000, spr=spr, eps=0.002, seed=13)
+    est = period_from_readings(y, samples_per_rev_guess=spr, rpm_nominal=60.0, sample_rate_hz=20.0)
+    true_p = spr / 1.002
+    assert abs(est.samples_per_rev - true_p) < 3 * est.u_samples_per_rev
+    assert est.period_disagrees_with_nominal
+
+
+def test_find_revolutions_bisection_equals_floor_rule():
+    """Monotonic coordinates take a bisection path; it must equal revolution = floor(u) row by row,
+    exact integer hits and a non-monotonic (general path) coordinate included."""
+    def by_floor(u, sample0):  # one row per run of equal floor(u), sample by sample
+        rows = []
+        for k, r in enumerate(np.floor(u).astype(int).tolist()):
+            if rows and rows[-1][0] == r:
+                rows[-1] = (r, rows[-1][1], k + sample0, rows[-1][3] + 1)
+            else:
+                rows.append((r, k + sample0, k + sample0, 1))
+        return rows
+
+    rng = np.random.default_rng(4)
+    cases = [np.arange(5000) / 659.72, np.arange(1320) / 660.0 - 0.25,
+             np.cumsum(rng.uniform(0, 0.01, 3000)) + 0.3, np.arange(1000) / 200.0 + rng.normal(0, 3e-3, 1000)]
+    assert not (np.diff(cases[-1]) >= 0).all()  # the last one exercises the general path
+    for u in cases:
+        tab = find_revolutions(u, 7)
+        cols = ("revolution", "first_sample", "last_sample", "n_samples")
+        got = list(zip(*(tab[c].to_list() for c in cols)))
+        assert got == by_floor(u, 7)
+        assert tab["complete"].to_list() == [0 < i < tab.height - 1 for i in range(tab.height)]
 
 
 def test_period_from_encoder_and_revolution_index():

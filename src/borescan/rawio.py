@@ -1082,6 +1082,81 @@ def write_scan(
 # wide view
 
 
+def _chunk_views(col: pa.ChunkedArray) -> list[np.ndarray] | None:
+    """Zero-copy numpy views of the chunks of a null-free primitive column; None if it has nulls."""
+    if col.null_count:
+        return None
+    return [ch.to_numpy(zero_copy_only=True) for ch in col.chunks if len(ch)]
+
+
+def _residue_views(views: list[np.ndarray], k: int, c: int):
+    """Rows r = k (mod c) of a chunked column: yields (those rows of one chunk, r // c of the first)."""
+    r0 = 0
+    for a in views:
+        j = (k - r0) % c
+        yield a[j::c], (r0 + j) // c
+        r0 += a.size
+
+
+def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
+    """Float column of a long table, c rows per sample -> (n, c) (row r -> [r // c, r % c], i.e. the
+    flat index r of a C-ordered array: one copy of the value buffers); nulls NaN."""
+    out = np.empty(n * c)
+    r0 = 0
+    for ch in col.chunks:
+        m = len(ch)
+        if not m:
+            continue
+        out[r0: r0 + m] = np.frombuffer(ch.buffers()[1], dtype=np.float64, count=ch.offset + m)[ch.offset:]
+        if ch.null_count:
+            bits = np.unpackbits(np.frombuffer(ch.buffers()[0], dtype=np.uint8), bitorder="little")
+            out[r0 + np.flatnonzero(bits[ch.offset: ch.offset + m] == 0)] = np.nan
+        r0 += m
+    return out.reshape(n, c)
+
+
+def _lds_matrix_reshaped(t: pl.DataFrame, listed: tuple[int, ...]) -> LdsMatrix | None:
+    """:func:`lds_matrix` for the usual layout, straight from the Arrow chunks; None when it does not apply.
+
+    The usual layout: rows sorted by (sample, sensor), every listed channel on every sample, no
+    null sample / sensor / t_ns, float64 readings. Then row r is sample r // c, channel r % c and
+    the wide matrix is a strided copy of the value buffers (no long -> wide scatter).
+    """
+    c = len(listed)
+    if not t.height or not c or t.height % c or t.schema["value_mm"] != pl.Float64:
+        return None
+    tab = t.select("sample", "sensor", "t_ns", "value_mm").to_arrow()
+    sample, sensor, t_ns = (_chunk_views(tab.column(k)) for k in ("sample", "sensor", "t_ns"))
+    if sample is None or sensor is None or t_ns is None:
+        return None
+    n = t.height // c
+    s0 = np.empty(n, dtype=np.int64)
+    for v, g in _residue_views(sample, 0, c):
+        s0[g: g + v.size] = v
+    if not (s0[1:] > s0[:-1]).all():
+        return None
+    for k in range(c):
+        for v, g in _residue_views(sensor, k, c):
+            if not (v == listed[k]).all():
+                return None
+        if k:
+            for v, g in _residue_views(sample, k, c):
+                if not np.array_equal(v, s0[g: g + v.size]):
+                    return None
+    t_s = np.empty(n)
+    for v, g in _residue_views(t_ns, 0, c):
+        t_s[g: g + v.size] = v
+    t_s /= 1e9
+    if t["pose"].null_count() == t.height:
+        pose_s = np.full(n, -1, dtype=np.int64)
+    else:
+        P = t["pose"].fill_null(-1).to_numpy().astype(np.int64).reshape(-1, c)
+        first = np.argmax(P >= 0, axis=1)
+        pose_s = P[np.arange(n), first]  # -1 where the whole sample has no pose
+    return LdsMatrix(sample=s0, t_s=t_s, channels=listed, values_mm=_wide_values(tab.column("value_mm"), c, n),
+                     pose=pose_s)
+
+
 def lds_matrix(scan: RawScan) -> LdsMatrix:
     """Long ``lds`` -> one row per sample, one column per listed channel (ascending).
 
@@ -1089,25 +1164,14 @@ def lds_matrix(scan: RawScan) -> LdsMatrix:
     ``pose`` is -1 where null.
     """
     t = scan.lds
+    listed = tuple(sorted({int(ch) for ch in scan.channels}))
+    fast = _lds_matrix_reshaped(t, listed)
+    if fast is not None:
+        return fast
     sample = t["sample"].to_numpy()
     sensor16 = t["sensor"].to_numpy()
-    value = t["value_mm"].fill_null(np.nan).to_numpy().astype(np.float64, copy=False)
+    value = t["value_mm"].cast(pl.Float64).to_arrow().to_numpy(zero_copy_only=False)
     t_ns = t["t_ns"].to_numpy()
-    no_pose = t["pose"].null_count() == t.height
-    listed = tuple(sorted({int(ch) for ch in scan.channels}))
-    c = len(listed)
-    if sample.size and c and sample.size % c == 0:
-        # the usual layout (sorted by sample, sensor; every listed channel on every sample): a reshape
-        S, C = sample.reshape(-1, c), sensor16.reshape(-1, c)
-        if (C == np.asarray(listed, dtype=C.dtype)).all() and (S == S[:, :1]).all() and (np.diff(S[:, 0]) > 0).all():
-            if no_pose:
-                pose_s = np.full(S.shape[0], -1, dtype=np.int64)
-            else:
-                P = t["pose"].fill_null(-1).to_numpy().astype(np.int64).reshape(-1, c)
-                first = np.argmax(P >= 0, axis=1)
-                pose_s = P[np.arange(P.shape[0]), first]  # -1 where the whole sample has no pose
-            return LdsMatrix(sample=S[:, 0].astype(np.int64), t_s=t_ns[::c] / 1e9, channels=listed,
-                             values_mm=value.reshape(-1, c).copy(), pose=pose_s)
     sensor = sensor16.astype(np.int64)
     pose = t["pose"].fill_null(-1).to_numpy().astype(np.int64)
     present = np.flatnonzero(np.bincount(sensor)) if sensor.size and sensor.min() >= 0 else np.unique(sensor)

@@ -29,12 +29,14 @@ rho flips (cw: backward <=> rho > 0). :func:`beam_status` returns both.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 import polars as pl
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy import ndimage
 
 __all__ = [
@@ -65,6 +67,7 @@ __all__ = [
 
 FILTERS = ("none", "median", "moving_average", "kalman", "gaussian")
 _ALPHA_GAUSS = math.sqrt(math.log(2.0) / math.pi)  # ISO 16610-21: 50 % transmission at cutoff
+_SPIKE_CANDIDATE_THRESHOLD = 2.5  # chord test of remove_spikes, in MAD scales
 
 
 def _as_2d(values_mm: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -136,34 +139,52 @@ def _running_median(v: np.ndarray, w: int) -> np.ndarray:
     return out
 
 
-def _ll_reference(col: np.ndarray, idx: np.ndarray, w: int, excluded: np.ndarray) -> np.ndarray:
-    """Robust local-linear reference of ``col`` at rows ``idx`` (see :func:`remove_spikes`).
+def _ll_reference(col_x: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
+    """Robust local-linear reference of a column at rows ``idx`` (see :func:`remove_spikes`).
 
-    Uses the neighbours j = -h..h, j != 0, that are valid and not ``excluded``: Theil-Sen slope
-    s (median of pairwise slopes), reference = median_j (v_{k+j} - j s). NaN when fewer than two
-    neighbours are usable.
+    ``col_x`` is the column with excluded samples (nulls, candidates) set to NaN and padded with
+    ``w // 2`` NaN at both ends. Uses the neighbours j = -h..h, j != 0, that are not NaN:
+    Theil-Sen slope s (median of pairwise slopes), reference = median_j (v_{k+j} - j s). NaN when
+    fewer than two neighbours are usable.
     """
     h = w // 2
-    n = col.size
-    offs = np.arange(-h, h + 1)
-    rows = idx[:, None] + offs
-    inb = (rows >= 0) & (rows < n)
-    rc = np.clip(rows, 0, n - 1)
-    win = np.where(inb & ~excluded[rc], col[rc], np.nan)
-    win[:, h] = np.nan
-    ii, jj = np.triu_indices(w, 1)
-    sl = (win[:, jj] - win[:, ii]) / (offs[jj] - offs[ii])
-    cnt = np.sum(~np.isnan(win), axis=1)
-    slope = _nanmedian_rows(sl)
-    ref = _nanmedian_rows(win - offs * slope[:, None])
-    ref[cnt < 2] = np.nan
+    offs_i = np.concatenate([np.arange(-h, 0), np.arange(1, h + 1)])
+    offs = offs_i.astype(float)
+    win = sliding_window_view(col_x, w)[idx][:, offs_i + h]
+    ii, jj = np.triu_indices(offs.size, 1)
+    full = ~np.isnan(win).any(axis=1)
+    ref = np.empty(idx.size)
+    if full.any():  # every neighbour usable (most rows): pair slopes as one product, medians by partition
+        wf = win[full]
+        pairs = np.zeros((offs.size, ii.size))
+        d = offs[jj] - offs[ii]
+        pairs[jj, np.arange(ii.size)] = 1.0 / d
+        pairs[ii, np.arange(ii.size)] = -1.0 / d
+        slope = _median_rows_full(wf @ pairs)
+        ref[full] = _median_rows_full(wf - offs * slope[:, None])
+    part = ~full
+    if part.any():
+        wp = win[part]
+        slope = _nanmedian_rows((wp[:, jj] - wp[:, ii]) / (offs[jj] - offs[ii]))
+        rp = _nanmedian_rows(wp - offs * slope[:, None])
+        rp[np.sum(~np.isnan(wp), axis=1) < 2] = np.nan
+        ref[part] = rp
     return ref
+
+
+def _median_rows_full(a: np.ndarray) -> np.ndarray:
+    """Median of each row of a NaN-free 2-D array (partition, exact)."""
+    m = a.shape[1]
+    if m % 2:
+        return np.partition(a, m // 2, axis=1)[:, m // 2]
+    p = np.partition(a, (m // 2 - 1, m // 2), axis=1)
+    return 0.5 * (p[:, m // 2 - 1] + p[:, m // 2])
 
 
 def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
     """Median of each row ignoring NaN (NaN for an all-NaN row); sort-based, no warnings."""
     srt = np.sort(a, axis=1)  # NaN sort last
-    cnt = np.sum(~np.isnan(a), axis=1)
+    cnt = a.shape[1] - np.count_nonzero(np.isnan(a), axis=1)
     r = np.arange(a.shape[0])
     lo = srt[r, np.maximum((cnt - 1) // 2, 0)]
     hi = srt[r, np.minimum(cnt // 2, a.shape[1] - 1)]
@@ -172,13 +193,24 @@ def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
     return med
 
 
-def _mad_scale(r: np.ndarray, max_n: int = 100_000) -> float:
-    r = r[~np.isnan(r)]
+def _median(x: np.ndarray) -> float:
+    """Median of a NaN-free 1-D array by partition (np.median's checks cost ~5x here)."""
+    m = x.size
+    if m % 2:
+        return float(np.partition(x, m // 2)[m // 2])
+    p = np.partition(x, (m // 2 - 1, m // 2))
+    return 0.5 * float(p[m // 2 - 1] + p[m // 2])
+
+
+def _mad_scale(r: np.ndarray, max_n: int = 20_000) -> float:
+    """1.4826 x median absolute deviation of the non-NaN values, on a uniform stride of at most
+    ``max_n`` of them (relative standard uncertainty of the scale about 1 / sqrt(0.74 max_n))."""
     if r.size > max_n:
         r = r[:: r.size // max_n]
+    r = r[~np.isnan(r)]
     if r.size == 0:
         return float("inf")
-    sc = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    sc = 1.4826 * _median(np.abs(r - _median(r)))
     return sc if sc > 0 else float(np.finfo(float).tiny)
 
 
@@ -374,7 +406,7 @@ def filter_readings(values_mm: np.ndarray, *, method: str = "median", samples_pe
 
 
 def remove_spikes(values_mm: np.ndarray, *, window_samples: int = 7, threshold: float = 6.0,
-                  candidate_threshold: float = 2.5) -> tuple[np.ndarray, np.ndarray]:
+                  candidate_threshold: float = _SPIKE_CANDIDATE_THRESHOLD) -> tuple[np.ndarray, np.ndarray]:
     """Set spikes aside as NaN: Hampel test against a robust local-linear reference.
 
     1. Candidates: |v_k - (v_{k-1} + v_{k+1}) / 2| > ``candidate_threshold`` x its MAD scale, and
@@ -393,32 +425,77 @@ def remove_spikes(values_mm: np.ndarray, *, window_samples: int = 7, threshold: 
     spikes : bool ndarray like ``values_mm``
     """
     v, one = _as_2d(values_mm)
+    h = _check_spike_window(window_samples)
+    vp = _padded_rows(v, h)
+    found, _ = _despike_rows(vp, window_samples, threshold, candidate_threshold)
+    vt = vp[:, h: vp.shape[1] - h]
+    spikes = np.zeros(vt.shape, dtype=bool)
+    for j, idx in enumerate(found):
+        spikes[j, idx] = True
+    return _back(vt.T, one), _back(spikes.T, one)
+
+
+def _check_spike_window(window_samples: int) -> int:
     w = int(window_samples)
     if w < 3 or w % 2 == 0:
         raise ValueError(f"window_samples must be odd and >= 3, got {window_samples}")
+    return w // 2
+
+
+def _padded_rows(v: np.ndarray, h: int) -> np.ndarray:
+    """Copy of (n, c) readings as (c, n + 2h) rows, NaN in the h columns at each end."""
     n, c = v.shape
-    nan = np.isnan(v)
-    chord = np.full_like(v, np.nan)
-    if n > 2:
-        chord[1:-1] = v[1:-1] - 0.5 * (v[:-2] + v[2:])
-    spikes = np.zeros(v.shape, dtype=bool)
-    for j in range(c):
-        col = v[:, j]
-        sc_c = _mad_scale(chord[:, j])
-        with np.errstate(invalid="ignore"):
-            cand = (np.abs(chord[:, j]) > candidate_threshold * sc_c) | (np.isnan(chord[:, j]) & ~nan[:, j])
-        excluded = cand | nan[:, j]
-        step = max(1, n // 5_000)
-        probe = np.arange(0, n, step)
-        probe = probe[~excluded[probe]]
-        scale = _mad_scale(col[probe] - _ll_reference(col, probe, w, excluded))
-        idx = np.flatnonzero(cand)
-        if idx.size:
-            r = col[idx] - _ll_reference(col, idx, w, excluded)
-            with np.errstate(invalid="ignore"):
-                spikes[idx[np.abs(r) > threshold * scale], j] = True
-    out = np.where(spikes, np.nan, v)
-    return _back(out, one), _back(spikes, one)
+    vp = np.empty((c, n + 2 * h))
+    vp[:, :h] = np.nan
+    vp[:, n + h:] = np.nan
+    vp[:, h: n + h] = v.T
+    return vp
+
+
+def _despike_rows(vp: np.ndarray, window_samples: int, threshold: float, candidate_threshold: float
+                  ) -> tuple[list[np.ndarray], np.ndarray]:
+    """:func:`remove_spikes` in place on rows padded by :func:`_padded_rows` (c, n + 2h).
+
+    Returns the spike indices (into the unpadded row) and the null count of each row.
+    """
+    h = _check_spike_window(window_samples)
+    res = [_despike_row(row, h, threshold, candidate_threshold) for row in vp]
+    return [r[0] for r in res], np.array([r[1] for r in res], dtype=np.int64)
+
+
+def _despike_row(row: np.ndarray, h: int, threshold: float, candidate_threshold: float
+                 ) -> tuple[np.ndarray, int]:
+    """One padded row of :func:`_despike_rows`: (spike indices, null count); spikes set to NaN in place.
+
+    The candidate test uses the second difference v_{k+1} - 2 v_k + v_{k-1} (= -2 x the chord of
+    :func:`remove_spikes`; the test is scale-free). While the row is tested its candidates are NaN
+    in place (so the reference skips them); all but the spikes are restored afterwards.
+    """
+    n = row.size - 2 * h
+    col = row[h: h + n]
+    if n < 3:
+        return np.zeros(0, dtype=np.int64), int(np.isnan(col).sum())
+    d1 = np.subtract(col[1:], col[:-1])
+    d2 = np.empty(n)
+    np.subtract(d1[1:], d1[:-1], out=d2[1:-1])
+    d2[0] = d2[-1] = np.nan
+    sc_c = _mad_scale(d2)
+    np.abs(d2, out=d2)
+    with np.errstate(invalid="ignore"):
+        ok = d2 <= candidate_threshold * sc_c  # NaN (nulls, their neighbours, ends) -> False
+    idx = np.flatnonzero(~ok)
+    saved = col[idx]
+    is_null = np.isnan(saved)
+    idx, saved = idx[~is_null], saved[~is_null]  # candidates
+    col[idx] = np.nan
+    probe = np.arange(0, n, max(1, n // 5_000))
+    probe = probe[ok[probe]]
+    ref = _ll_reference(row, np.concatenate([probe, idx]), 2 * h + 1)  # one call for probes and candidates
+    scale = _mad_scale(col[probe] - ref[: probe.size], max_n=probe.size)
+    with np.errstate(invalid="ignore"):
+        spike = np.abs(saved - ref[probe.size:]) > threshold * scale
+    col[idx[~spike]] = saved[~spike]
+    return idx[spike], int(is_null.sum())
 
 
 # --------------------------------------------------------------------------- period / revolutions
@@ -489,12 +566,21 @@ def _lsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _harmonic_basis(x: np.ndarray, omega: float, n_harmonics: int, trend: bool) -> np.ndarray:
-    cols = [np.ones_like(x)]
+    """Columns [1, (x / max|x|), cos(h w x), sin(h w x) for h = 1..H] (harmonics by angle addition)."""
+    n0 = 2 if trend else 1
+    b = np.empty((x.size, n0 + 2 * n_harmonics), order="F")  # column-major: each column written contiguously
+    b[:, 0] = 1.0
     if trend:
-        cols.append(x / max(np.abs(x).max(), 1.0))
+        b[:, 1] = x / max(float(np.abs(x).max()), 1.0) if x.size else x
+    wx = omega * x
+    c1, s1 = np.cos(wx), np.sin(wx)
+    ch, sh = c1, s1
     for h in range(1, n_harmonics + 1):
-        cols += [np.cos(h * omega * x), np.sin(h * omega * x)]
-    return np.stack(cols, axis=1)
+        if h > 1:  # angle addition: cos((h-1)a + a), sin((h-1)a + a)
+            ch, sh = ch * c1 - sh * s1, sh * c1 + ch * s1
+        b[:, n0 + 2 * h - 2] = ch
+        b[:, n0 + 2 * h - 1] = sh
+    return b
 
 
 def period_from_readings(values_mm: np.ndarray, *, samples_per_rev_guess: float | None = None,
@@ -507,26 +593,35 @@ def period_from_readings(values_mm: np.ndarray, *, samples_per_rev_guess: float 
     B_ch sin(h w k)], one frequency w shared by all channels (variable projection; Gauss-Newton
     on w with the linear parameters profiled out). u(w) is the marginal standard uncertainty
     from the full covariance s^2 (J^T J)^-1 (Schur complement), P = 2 pi / w,
-    u(P) = P u(w) / w. Rows with any NaN are left out; at most ``max_samples`` rows are used
-    (uniform stride), which the uncertainty accounts for.
+    u(P) = P u(w) / w. The fit uses a uniform stride of at most ``max_samples`` rows, of which
+    rows with any NaN are left out; the uncertainty accounts for the rows used.
     """
     v, _ = _as_2d(values_mm)
-    rows = np.flatnonzero(~np.isnan(v).any(axis=1))
-    if rows.size < 16:
-        raise ValueError("too few complete rows to estimate the rotation period")
-    stride = max(1, int(math.ceil(rows.size / max_samples)))
-    rows = rows[::stride]
+    n = v.shape[0]
+    stride = max(1, int(math.ceil(n / max_samples)))
+    rows = np.arange(0, n, stride)
+    y = np.array(v[::stride])  # a strided slice: faster than gathering by index
+    keep = ~np.isnan(y).any(axis=1)
+    if keep.sum() < 16:
+        rows_all = np.flatnonzero(~np.isnan(v).any(axis=1))  # sparse complete rows: use them all
+        if rows_all.size < 16:
+            raise ValueError("too few complete rows to estimate the rotation period")
+        rows = rows_all[:: max(1, int(math.ceil(rows_all.size / max_samples)))]
+        y = v[rows]
+    else:
+        rows, y = rows[keep], y[keep]
     x = rows.astype(float)
     x = x - x.mean()
-    y = v[rows]
     # coarse: FFT of a uniformly indexed copy (NaN -> channel mean), peak near the guess
-    sf = max(1, v.shape[0] // 65_536)  # decimate for the coarse FFT (the fundamental is << Nyquist)
-    dec = v[::sf]
-    mu = np.nanmean(dec, axis=0)
-    full = np.where(np.isnan(dec), mu, dec) - mu
+    # decimate for the coarse FFT, keeping the 3rd harmonic of the guess below Nyquist
+    sf = max(1, n // 16_384)
+    if samples_per_rev_guess:
+        sf = max(1, min(sf, int(samples_per_rev_guess // 8)))
+    full = v.T[:, ::sf].T - y.mean(axis=0)
+    full[np.isnan(full)] = 0.0  # NaN -> the channel mean
     spec = np.sum(np.abs(np.fft.rfft(full, axis=0)), axis=1)
-    freqs = np.fft.rfftfreq(dec.shape[0], d=sf)
-    sel = freqs > 1.5 / (dec.shape[0] * sf)
+    freqs = np.fft.rfftfreq(full.shape[0], d=sf)
+    sel = freqs > 1.5 / (full.shape[0] * sf)
     if samples_per_rev_guess:
         f0 = 1.0 / samples_per_rev_guess
         sel &= (freqs > 0.7 * f0) & (freqs < 1.3 * f0)
@@ -537,31 +632,28 @@ def period_from_readings(values_mm: np.ndarray, *, samples_per_rev_guess: float 
         d = 0.5 * (la - lc) / den if den != 0 else 0.0
     else:
         d = 0.0
-    omega = 2.0 * math.pi * (i + float(np.clip(d, -0.5, 0.5))) / (dec.shape[0] * sf)
-    n_tr = 1 if trend else 0
+    omega = 2.0 * math.pi * (i + float(np.clip(d, -0.5, 0.5))) / (full.shape[0] * sf)
+    n0 = 2 if trend else 1
+    hh = np.repeat(np.arange(1, n_harmonics + 1), 2).astype(float)
     for _ in range(30):
         basis = _harmonic_basis(x, omega, n_harmonics, trend)
-        coef = _lsq(basis, y)
+        btb = basis.T @ basis
+        coef = np.linalg.solve(btb, basis.T @ y)
         resid = y - basis @ coef
-        # d model / d omega per channel
-        g = np.zeros_like(y)
-        for h in range(1, n_harmonics + 1):
-            ca = coef[n_tr + 2 * h - 1]
-            cb = coef[n_tr + 2 * h]
-            hx = h * omega * x
-            g += (h * x)[:, None] * (-ca * np.sin(hx)[:, None] + cb * np.cos(hx)[:, None])
-        gp = g - basis @ _lsq(basis, g)
+        # d model / d omega per channel: d/dw [A cos(hwx) + B sin(hwx)] = h x (-A sin + B cos)
+        harm = basis[:, n0:]
+        dcoef = np.empty_like(coef[n0:])
+        dcoef[0::2] = coef[n0 + 1::2]
+        dcoef[1::2] = -coef[n0::2]
+        g = x[:, None] * (harm @ (hh[:, None] * dcoef))
+        gp = g - basis @ np.linalg.solve(btb, basis.T @ g)
         gg = float(np.sum(gp * gp))
         step = float(np.sum(gp * resid)) / gg
         omega += step
-        u_step = math.sqrt(float(np.sum(resid * resid)) / max(y.size - coef.size - 1, 1) / gg)
-        if abs(step) < 1e-3 * u_step or abs(step) < 1e-15 * abs(omega):
-            break
-    basis = _harmonic_basis(x, omega, n_harmonics, trend)
-    coef = _lsq(basis, y)
-    resid = y - basis @ coef
-    dof = y.size - (coef.size + 1)
-    s2 = float(np.sum(resid * resid)) / max(dof, 1)
+        # s^2 with one more parameter (w) than the linear ones
+        s2 = float(np.sum(resid * resid)) / max(y.size - coef.size - 1, 1)
+        if abs(step) < 1e-2 * math.sqrt(s2 / gg) or abs(step) < 1e-15 * abs(omega):
+            break  # the last step moved w by < 1 % of u(w): s^2 and gg of this iterate stand for the result
     u_omega = math.sqrt(s2 / gg)
     p = 2.0 * math.pi / omega
     u = p * u_omega / omega
@@ -595,10 +687,19 @@ def find_revolutions(u_rev: np.ndarray, sample0: int = 0) -> pl.DataFrame:
     polars.DataFrame: revolution, first_sample, last_sample, n_samples, complete (the
     revolution is covered from u = r to u = r + 1).
     """
-    rev = np.floor(np.asarray(u_rev, dtype=float)).astype(np.int64)
-    starts = np.flatnonzero(np.concatenate([[True], np.diff(rev) != 0]))
-    ends = np.concatenate([starts[1:] - 1, [rev.size - 1]])
-    r = rev[starts]
+    u = np.asarray(u_rev, dtype=float)
+    if u.size > 1 and bool((u[1:] >= u[:-1]).all()):  # non-decreasing: revolution starts by bisection
+        r_all = np.arange(math.floor(u[0]), math.floor(u[-1]) + 1)
+        st = np.searchsorted(u, r_all.astype(float), side="left")
+        st[0] = 0
+        nonempty = np.diff(np.append(st, u.size)) > 0
+        starts, r = st[nonempty], r_all[nonempty]
+        ends = np.concatenate([starts[1:] - 1, [u.size - 1]])
+    else:
+        rev = np.floor(u).astype(np.int64)
+        starts = np.flatnonzero(np.concatenate([[True], np.diff(rev) != 0]))
+        ends = np.concatenate([starts[1:] - 1, [rev.size - 1]])
+        r = rev[starts]
     complete = (np.arange(r.size) > 0) & (np.arange(r.size) < r.size - 1)
     return pl.DataFrame({
         "revolution": r,
@@ -615,6 +716,16 @@ def find_revolutions(u_rev: np.ndarray, sample0: int = 0) -> pl.DataFrame:
 def _cubic_design(half_window: int) -> np.ndarray:
     x = np.arange(-half_window, half_window + 1, dtype=float)
     return np.stack([np.ones_like(x), x, x * x, x ** 3], axis=1)
+
+
+@functools.lru_cache(maxsize=8)
+def _cubic_fit_matrices(half_window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Design X (2W+1, 4), its pseudo-inverse and (X^T X)^-1 for complete windows (read-only)."""
+    X = _cubic_design(half_window)
+    out = (X, np.linalg.pinv(X), np.linalg.inv(X.T @ X))
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 def _cubic_stationary(coef: np.ndarray) -> np.ndarray:
@@ -653,27 +764,122 @@ def fit_extremum_cubic(y_mm: np.ndarray, *, kind: str, sigma_mm: float | None = 
             "ok": bool(good and abs(x) <= w)}
 
 
-def _fit_windows(col: np.ndarray, centers: np.ndarray, w: int
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Cubic fits of the windows centred on ``centers``: coef (R, 4), rss (R,), n_valid (R,), NaN mask."""
-    X = _cubic_design(w)
-    pinv = np.linalg.pinv(X)
-    Y = col[centers[:, None] + np.arange(-w, w + 1)]
+def _fit_windows(windows: np.ndarray, centers: np.ndarray, w: int, pinv: np.ndarray, X: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cubic least-squares fits of the windows centred on ``centers``.
+
+    ``windows`` is ``sliding_window_view(col, 2w+1)`` of the channel (row k = samples k..k+2w).
+    Returns coef (R, 4) (NaN where fewer than 8 valid samples), the windows Y (R, 2w+1) and
+    their NaN mask. Complete windows use the pseudo-inverse ``pinv`` of the design ``X``; windows
+    with NaN are solved from their own masked normal equations (batched).
+    """
+    Y = windows[centers - w]
     bad = np.isnan(Y)
     rows_bad = bad.any(axis=1)
+    if not rows_bad.any():
+        return Y @ pinv.T, Y, bad
     coef = np.empty((centers.size, 4))
     coef[~rows_bad] = Y[~rows_bad] @ pinv.T
-    nvalid = np.sum(~bad, axis=1)
-    ib = np.flatnonzero(rows_bad & (nvalid >= 8))
-    if ib.size:  # masked least squares, batched normal equations
-        m = (~bad[ib]).astype(float)
+    ib = np.flatnonzero(rows_bad)
+    ok_b = ~bad[ib]
+    enough = ok_b.sum(axis=1) >= 8
+    coef[ib[~enough]] = np.nan
+    ib, ok_b = ib[enough], ok_b[enough]
+    if ib.size:
+        m = ok_b.astype(float)
         xtx = np.einsum("ki,kj,rk->rij", X, X, m)
-        xty = np.einsum("ki,rk->ri", X, m * np.where(bad[ib], 0.0, Y[ib]))
+        xty = np.einsum("ki,rk->ri", X, m * np.where(ok_b, Y[ib], 0.0))
         coef[ib] = np.linalg.solve(xtx, xty[..., None])[..., 0]
-    coef[rows_bad & (nvalid < 8)] = np.nan
+    return coef, Y, bad
+
+
+def _sample_at(u: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Fractional sample index where the (increasing) revolution coordinate ``u`` equals ``targets``."""
+    i = np.clip(np.searchsorted(u, targets, side="right"), 1, u.size - 1)
+    u0, u1 = u[i - 1], u[i]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(u1 > u0, (targets - u0) / (u1 - u0), 0.0)
+    return (i - 1) + np.clip(f, 0.0, 1.0)
+
+
+def _u_at(u: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """Revolution coordinate at fractional sample positions (linear between samples)."""
+    i = np.clip(np.floor(pos).astype(np.int64), 0, u.size - 2)
+    return u[i] + (pos - i) * (u[i + 1] - u[i])
+
+
+def _extrema_channel(col: np.ndarray, ch: int, u: np.ndarray, w: int, rows: np.ndarray, basis: np.ndarray,
+                     grid: np.ndarray, gb: np.ndarray, revs: np.ndarray, n_harmonics: int,
+                     min_valid_fraction: float, sample0: int) -> tuple[dict | None, int, float]:
+    """One channel of :func:`find_extrema`: (columns of its extrema, windows dropped, pooled sigma [mm])."""
+    n = col.size
+    X, pinv, xtx_inv = _cubic_fit_matrices(w)
+    windows = sliding_window_view(col, 2 * w + 1)
+    yr = col[rows]
+    okr = ~np.isnan(yr)
+    if okr.sum() < 2 * n_harmonics + 2:
+        return None, 0, float("nan")
+    coef_h = _lsq(basis, yr) if okr.all() else _lsq(basis[okr], yr[okr])
+    model = gb @ coef_h
+    cen, is_min = [], []
+    for kind_min, ue in ((True, grid[np.argmin(model)]), (False, grid[np.argmax(model)])):
+        targets = ue + revs
+        targets = targets[(targets >= u[0]) & (targets <= u[-1])]
+        ck = np.round(_sample_at(u, targets)).astype(np.int64)
+        ck = ck[(ck - w >= 0) & (ck + w < n)]
+        cen.append(ck)
+        is_min.append(np.full(ck.size, kind_min))
+    centers = np.concatenate(cen)
+    is_min = np.concatenate(is_min)
+    coef, Y, bad = _fit_windows(windows, centers, w, pinv, X)
+    x = _cubic_stationary(coef)
+    for _ in range(8):
+        # re-centre on the rounded optimum; hysteresis (|x| > 0.6) stops 0.5-toggling
+        move = np.where(np.isfinite(x) & (np.abs(x) > 0.6), np.clip(np.round(x), -w, w), 0).astype(np.int64)
+        mv = np.flatnonzero(move)
+        new = np.clip(centers[mv] + move[mv], w, n - w - 1)
+        mv, new = mv[new != centers[mv]], new[new != centers[mv]]
+        if not mv.size:
+            break
+        centers[mv] = new  # refit only the windows that moved
+        coef[mv], Y[mv], bad[mv] = _fit_windows(windows, new, w, pinv, X)
+        x[mv] = _cubic_stationary(coef[mv])
+    # windows that converged onto the same centre (per kind) are one extremum
+    _, keep = np.unique(centers * 2 + is_min, return_index=True)
+    centers, coef, Y, bad, x, is_min = centers[keep], coef[keep], Y[keep], bad[keep], x[keep], is_min[keep]
+    nvalid = (2 * w + 1) - bad.sum(axis=1)
     resid = np.where(bad, 0.0, Y - coef @ X.T)
-    rss = np.sum(resid * resid, axis=1)
-    return coef, rss, nvalid, bad
+    rss = np.einsum("ij,ij->i", resid, resid)
+    fin = np.isfinite(rss)
+    # pooled noise variance over all windows of this channel
+    s2 = float(rss[fin].sum() / max(int((nvalid[fin] - 4).sum()), 1))
+    xx = np.where(np.isfinite(x), x, 0.0)
+    sign_ok = np.where(is_min, coef[:, 2] > 0, coef[:, 2] < 0)
+    left = ~bad[:, :w].all(axis=1)
+    right = ~bad[:, w + 1:].all(axis=1)
+    enough = nvalid >= min_valid_fraction * (2 * w + 1)
+    good = np.isfinite(x) & sign_ok & (np.abs(x) <= 1.0) & enough & left & right
+    gx = -np.stack([np.zeros_like(xx), np.ones_like(xx), 2 * xx, 3 * xx * xx], 1) / (
+        2 * coef[:, 2:3] + 6 * coef[:, 3:4] * xx[:, None])
+    gv = np.stack([np.ones_like(xx), xx, xx * xx, xx ** 3], 1)
+    cov = np.broadcast_to(xtx_inv, (xx.size, 4, 4)).copy()
+    part = np.flatnonzero(bad.any(axis=1) & good)
+    if part.size:  # windows with nulls: their own (X^T X)^-1
+        m = (~bad[part]).astype(float)
+        cov[part] = np.linalg.inv(np.einsum("ki,kj,rk->rij", X, X, m))
+    ux = np.sqrt(s2 * np.einsum("ri,rij,rj->r", gx, cov, gx))
+    uv = np.sqrt(s2 * np.einsum("ri,rij,rj->r", gv, cov, gv))
+    pos_g = (centers + xx)[good]
+    return {
+        "channel": np.full(pos_g.size, ch, dtype=np.int64),
+        "revolution": np.floor(_u_at(u, pos_g)).astype(np.int64),
+        "kind": is_min[good],
+        "sample_pos": (pos_g + sample0).astype(float),
+        "u_sample_pos": ux[good],
+        "value_mm": np.einsum("ri,ri->r", gv, coef)[good],
+        "u_value_mm": uv[good],
+        "n_valid": nvalid[good].astype(np.int64),
+    }, int(np.sum(~good)), math.sqrt(s2)
 
 
 def find_extrema(values_mm: np.ndarray, u_rev: np.ndarray, *, half_window_samples: int | None = None,
@@ -681,12 +887,12 @@ def find_extrema(values_mm: np.ndarray, u_rev: np.ndarray, *, half_window_sample
                  channels: tuple[int, ...] | None = None, sample0: int = 0) -> tuple[pl.DataFrame, dict]:
     """Minima and maxima per revolution and channel at sub-sample precision.
 
-    1. Predict: a harmonic model in the revolution coordinate u (linear least squares) gives
-       the phase of each channel's minimum and maximum; their predicted sample positions are
-       where u = u_ext + r.
+    1. Predict: a harmonic model in the revolution coordinate u (linear least squares on a stride
+       of at most 10 000 samples) gives the phase of each channel's minimum and maximum; their
+       predicted sample positions are where u = u_ext + r.
     2. Refine: cubic least-squares fit over 2W+1 samples around the prediction
        (:func:`fit_extremum_cubic`), re-centred on the rounded optimum until it stays
-       (|x*| <= 0.5). s^2 is pooled per channel over all windows (dof = sum(n_i - 4)).
+       (|x*| <= 0.6). s^2 is pooled per channel over all windows (dof = sum(n_i - 4)).
     A window with fewer than ``min_valid_fraction`` valid samples, or no valid samples on one
     side of the extremum, is dropped and counted (never interpolated).
 
@@ -698,102 +904,35 @@ def find_extrema(values_mm: np.ndarray, u_rev: np.ndarray, *, half_window_sample
     """
     v, _ = _as_2d(values_mm)
     n, c = v.shape
+    vt = v.T
     chans = tuple(channels) if channels is not None else tuple(range(1, c + 1))
     u = np.asarray(u_rev, dtype=float)
     w = int(half_window_samples) if half_window_samples else max(4, int(round(samples_per_rev / 16.0)))
-    X = _cubic_design(w)
-    xtx_inv = np.linalg.inv(X.T @ X)
-    kidx = np.arange(n, dtype=float)
-    # 1. prediction from a harmonic fit in u (stride so that at most ~50k rows are used)
-    stride = max(1, n // 50_000)
-    rows = np.arange(0, n, stride)
+    # 1. prediction from a harmonic fit in u
+    rows = np.arange(0, n, max(1, n // 10_000))
     basis = _harmonic_basis(u[rows], 2.0 * math.pi, n_harmonics, False)
     grid = np.linspace(0.0, 1.0, 3600, endpoint=False)
     gb = _harmonic_basis(grid, 2.0 * math.pi, n_harmonics, False)
-    frames = []
+    revs = np.arange(math.floor(u[0]) - 1, math.ceil(u[-1]) + 1)
     info = {"dropped": {}, "sigma_mm": {}, "half_window_samples": w}
-    for j, ch in enumerate(chans):
-        col = v[:, j]
-        okr = ~np.isnan(col[rows])
-        recs = []
-        if okr.sum() < 2 * n_harmonics + 2:
-            info["dropped"][ch] = 0
-            info["sigma_mm"][ch] = float("nan")
-            continue
-        coef_h = _lsq(basis[okr], col[rows][okr])
-        model = gb @ coef_h
-        dropped = 0
-        fits = {}
-        for kind, ue in (("min", grid[np.argmin(model)]), ("max", grid[np.argmax(model)])):
-            targets = ue + np.arange(math.floor(u[0]) - 1, math.ceil(u[-1]) + 1)
-            targets = targets[(targets >= u[0]) & (targets <= u[-1])]
-            pred = np.interp(targets, u, kidx)
-            centers = np.round(pred).astype(np.int64)
-            inside = (centers - w >= 0) & (centers + w < n)
-            centers = centers[inside]
-            for _ in range(8):
-                coef, rss, nvalid, bad = _fit_windows(col, centers, w)
-                x = _cubic_stationary(coef)
-                # re-centre on the rounded optimum; hysteresis (|x| > 0.6) stops 0.5-toggling
-                move = np.where(np.isfinite(x) & (np.abs(x) > 0.6), np.clip(np.round(x), -w, w), 0)
-                new = np.clip(centers + move.astype(np.int64), w, n - w - 1)
-                if np.array_equal(new, centers):
-                    break
-                centers = new
-            else:
-                coef, rss, nvalid, bad = _fit_windows(col, centers, w)
-                x = _cubic_stationary(coef)
-            centers, keep = np.unique(centers, return_index=True)
-            coef, rss, nvalid, bad = coef[keep], rss[keep], nvalid[keep], bad[keep]
-            x = x[keep]
-            fits[kind] = (centers, coef, rss, nvalid, bad, x)
-        # pooled noise variance over all windows of this channel
-        rss_all = np.concatenate([f[2][np.isfinite(f[2])] for f in fits.values()])
-        dof_all = np.concatenate([f[3][np.isfinite(f[2])] - 4 for f in fits.values()])
-        s2 = float(rss_all.sum() / max(dof_all.sum(), 1))
-        info["sigma_mm"][ch] = math.sqrt(s2)
-        for kind, (centers, coef, rss, nvalid, bad, x) in fits.items():
-            xx = np.where(np.isfinite(x), x, 0.0)
-            sign_ok = coef[:, 2] > 0 if kind == "min" else coef[:, 2] < 0
-            left = ~bad[:, :w].all(axis=1)
-            right = ~bad[:, w + 1:].all(axis=1)
-            enough = nvalid >= min_valid_fraction * (2 * w + 1)
-            good = np.isfinite(x) & sign_ok & (np.abs(x) <= 1.0) & enough & left & right
-            dropped += int(np.sum(~good))
-            gx = -np.stack([np.zeros_like(xx), np.ones_like(xx), 2 * xx, 3 * xx * xx], 1) / (
-                2 * coef[:, 2:3] + 6 * coef[:, 3:4] * xx[:, None])
-            gv = np.stack([np.ones_like(xx), xx, xx * xx, xx ** 3], 1)
-            ux = np.empty(xx.size)
-            uv = np.empty(xx.size)
-            full = ~bad.any(axis=1)
-            ux[full] = np.sqrt(s2 * np.einsum("ri,ij,rj->r", gx[full], xtx_inv, gx[full]))
-            uv[full] = np.sqrt(s2 * np.einsum("ri,ij,rj->r", gv[full], xtx_inv, gv[full]))
-            for i in np.flatnonzero(~full & good):
-                m = ~bad[i]
-                ci = np.linalg.inv(X[m].T @ X[m])
-                ux[i] = math.sqrt(s2 * gx[i] @ ci @ gx[i])
-                uv[i] = math.sqrt(s2 * gv[i] @ ci @ gv[i])
-            pos = centers + xx
-            val = np.einsum("ri,ri->r", gv, coef)
-            pos_g = pos[good]
-            rev = np.floor(np.interp(pos_g, kidx, u)).astype(np.int64)
-            recs.append(pl.DataFrame({
-                "channel": np.full(pos_g.size, ch, dtype=np.int64),
-                "revolution": rev,
-                "kind": pl.Series([kind] * pos_g.size, dtype=pl.Utf8),
-                "sample_pos": (pos_g + sample0).astype(float),
-                "u_sample_pos": ux[good],
-                "value_mm": val[good],
-                "u_value_mm": uv[good],
-                "n_valid": nvalid[good].astype(np.int64),
-            }))
+    res = [_extrema_channel(vt[j], chans[j], u, w, rows, basis, grid, gb, revs, n_harmonics,
+                            min_valid_fraction, sample0) for j in range(c)]
+    frames = []
+    for ch, (cols, dropped, sigma) in zip(chans, res):
         info["dropped"][ch] = dropped
-        frames.extend(recs)
+        info["sigma_mm"][ch] = sigma
+        if cols is not None:
+            frames.append(cols)
     schema = {"channel": pl.Int64, "revolution": pl.Int64, "kind": pl.Utf8, "sample_pos": pl.Float64,
               "u_sample_pos": pl.Float64, "value_mm": pl.Float64, "u_value_mm": pl.Float64,
               "n_valid": pl.Int64}
-    ext = pl.concat(frames) if frames else pl.DataFrame(schema=schema)
-    return ext.sort(["channel", "sample_pos"]), info
+    if not frames:
+        return pl.DataFrame(schema=schema), info
+    cols = {k: np.concatenate([f[k] for f in frames]) for k in schema}
+    order = np.lexsort((cols["sample_pos"], cols["channel"]))
+    cols = {k: a[order] for k, a in cols.items()}
+    kind = pl.when(pl.col("kind")).then(pl.lit("min")).otherwise(pl.lit("max")).alias("kind")
+    return pl.DataFrame(cols).with_columns(kind).cast(schema), info
 
 
 def n_m_counts(min_pos: np.ndarray, max_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -938,8 +1077,10 @@ def process_arrays(
     v, _ = _as_2d(values_mm)
     n, c = v.shape
     chans = tuple(channels) if channels is not None else tuple(range(1, c + 1))
-    nulls = np.isnan(v).sum(axis=0)
-    clean, spikes = remove_spikes(v, window_samples=spike_window_samples, threshold=spike_threshold)
+    h = _check_spike_window(spike_window_samples)
+    vp = _padded_rows(v, h)  # own copy, one contiguous row per channel
+    spike_idx, nulls = _despike_rows(vp, spike_window_samples, spike_threshold, _SPIKE_CANDIDATE_THRESHOLD)
+    clean = vp[:, h: h + n].T
     nom = _nominal(sample_rate_hz, rpm_nominal)
     if t_s is None:
         t_s = np.arange(n) / float(sample_rate_hz)
@@ -955,21 +1096,27 @@ def process_arrays(
                                       n_harmonics=n_harmonics)
         u = revolution_coordinate(n, period)
     spr = period.samples_per_rev
-    filtered = filter_readings(clean, method=filter, samples_per_rev=spr, **(filter_params or {}))
+    if filter == "none":
+        filtered = clean  # no copy: nothing writes to either
+    else:
+        filtered = filter_readings(clean, method=filter, samples_per_rev=spr, **(filter_params or {}))
     src = clean if extrema_on == "despiked" else filtered
     ext, info = find_extrema(src, u, half_window_samples=half_window_samples, samples_per_rev=spr,
                              channels=chans, sample0=sample0, n_harmonics=n_harmonics)
+    e_ch = ext["channel"].to_numpy()
+    e_min = (ext["kind"] == "min").to_numpy()
+    e_pos = ext["sample_pos"].to_numpy()
+    e_val = ext["value_mm"].to_numpy()
     ext = ext.select(pl.lit(scan_id).alias("scan_id"), pl.all())
     srows = []
     min_pos = {}
     for ch in chans:
-        e = ext.filter(pl.col("channel") == ch)
-        mn = e.filter(pl.col("kind") == "min")
-        mx = e.filter(pl.col("kind") == "max")
-        min_pos[ch] = mn["sample_pos"].to_numpy()
-        nn, mm = n_m_counts(mn["sample_pos"].to_numpy(), mx["sample_pos"].to_numpy())
-        dmin, u_dmin = _mean_u(mn["value_mm"].to_numpy())
-        dmax, u_dmax = _mean_u(mx["value_mm"].to_numpy())
+        in_ch = e_ch == ch
+        mn, mx = in_ch & e_min, in_ch & ~e_min
+        min_pos[ch] = e_pos[mn]
+        nn, mm = n_m_counts(e_pos[mn], e_pos[mx])
+        dmin, u_dmin = _mean_u(e_val[mn])
+        dmax, u_dmax = _mean_u(e_val[mx])
         n_mean, u_n = _mean_u(nn)
         m_mean, u_m = _mean_u(mm)
         if nn.size and mm.size:
@@ -983,18 +1130,19 @@ def process_arrays(
         u_nm *= math.sqrt(8.0 / 6.0)
         srows.append({
             "channel": ch, "d_min_mm": dmin, "u_d_min_mm": u_dmin, "d_max_mm": dmax, "u_d_max_mm": u_dmax,
-            "n_revolutions_min": mn.height, "n_revolutions_max": mx.height,
+            "n_revolutions_min": int(mn.sum()), "n_revolutions_max": int(mx.sum()),
             "n_samples": n_mean, "u_n_samples": u_n, "m_samples": m_mean, "u_m_samples": u_m,
             "n_minus_m_samples": nm, "u_n_minus_m_samples": u_nm,
             "status": st["status"], "status_significant": bool(abs(nm) >= 3 * u_nm) if k > 1 else False,
             "rho_sign": st["rho_sign"], "sigma_fit_mm": info["sigma_mm"].get(ch),
             "extrema_dropped": info["dropped"].get(ch, 0),
         })
-    summary = pl.DataFrame(srows).select(pl.lit(scan_id).alias("scan_id"), pl.all())
+    columns = {k: [r[k] for r in srows] for k in (srows[0] if srows else {})}  # by column: faster than rows
+    summary = pl.DataFrame({"scan_id": [scan_id] * len(srows)} | columns)
     spac = feature_spacings(min_pos, spr, period.u_samples_per_rev)
     revs = find_revolutions(u, sample0)
     set_aside = pl.DataFrame({"channel": list(chans), "nulls": nulls.astype(np.int64),
-                              "spikes": spikes.sum(axis=0).astype(np.int64)})
+                              "spikes": np.array([i.size for i in spike_idx], dtype=np.int64)})
     cfg = {"filter": filter, "filter_params": filter_params or {},
            "spike_window_samples": spike_window_samples, "spike_threshold": spike_threshold,
            "half_window_samples": info["half_window_samples"],
