@@ -1098,6 +1098,14 @@ def _residue_views(views: list[np.ndarray], k: int, c: int):
         r0 += a.size
 
 
+def _residue_column(views: list[np.ndarray], k: int, c: int, n: int, dtype) -> np.ndarray:
+    """Rows r = k (mod c) of a chunked column gathered into one array of length ``n``."""
+    out = np.empty(n, dtype=dtype)
+    for v, g in _residue_views(views, k, c):
+        out[g: g + v.size] = v
+    return out
+
+
 def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
     """Float column of a long table, c rows per sample -> (n, c) (row r -> [r // c, r % c], i.e. the
     flat index r of a C-ordered array: one copy of the value buffers); nulls NaN."""
@@ -1130,9 +1138,7 @@ def _lds_matrix_reshaped(t: pl.DataFrame, listed: tuple[int, ...]) -> LdsMatrix 
     if sample is None or sensor is None or t_ns is None:
         return None
     n = t.height // c
-    s0 = np.empty(n, dtype=np.int64)
-    for v, g in _residue_views(sample, 0, c):
-        s0[g: g + v.size] = v
+    s0 = _residue_column(sample, 0, c, n, np.int64)
     if not (s0[1:] > s0[:-1]).all():
         return None
     for k in range(c):
@@ -1143,9 +1149,7 @@ def _lds_matrix_reshaped(t: pl.DataFrame, listed: tuple[int, ...]) -> LdsMatrix 
             for v, g in _residue_views(sample, k, c):
                 if not np.array_equal(v, s0[g: g + v.size]):
                     return None
-    t_s = np.empty(n)
-    for v, g in _residue_views(t_ns, 0, c):
-        t_s[g: g + v.size] = v
+    t_s = _residue_column(t_ns, 0, c, n, np.float64)
     t_s /= 1e9
     if t["pose"].null_count() == t.height:
         pose_s = np.full(n, -1, dtype=np.int64)

@@ -427,7 +427,7 @@ def remove_spikes(values_mm: np.ndarray, *, window_samples: int = 7, threshold: 
     v, one = _as_2d(values_mm)
     h = _check_spike_window(window_samples)
     vp = _padded_rows(v, h)
-    found, _ = _despike_rows(vp, window_samples, threshold, candidate_threshold)
+    found, _ = _despike_rows(vp, h, threshold, candidate_threshold)
     vt = vp[:, h: vp.shape[1] - h]
     spikes = np.zeros(vt.shape, dtype=bool)
     for j, idx in enumerate(found):
@@ -452,13 +452,13 @@ def _padded_rows(v: np.ndarray, h: int) -> np.ndarray:
     return vp
 
 
-def _despike_rows(vp: np.ndarray, window_samples: int, threshold: float, candidate_threshold: float
+def _despike_rows(vp: np.ndarray, h: int, threshold: float, candidate_threshold: float
                   ) -> tuple[list[np.ndarray], np.ndarray]:
-    """:func:`remove_spikes` in place on rows padded by :func:`_padded_rows` (c, n + 2h).
+    """:func:`remove_spikes` in place on rows padded by :func:`_padded_rows` (c, n + 2h); ``h`` is
+    the half window from :func:`_check_spike_window`.
 
     Returns the spike indices (into the unpadded row) and the null count of each row.
     """
-    h = _check_spike_window(window_samples)
     res = [_despike_row(row, h, threshold, candidate_threshold) for row in vp]
     return [r[0] for r in res], np.array([r[1] for r in res], dtype=np.int64)
 
@@ -764,6 +764,11 @@ def fit_extremum_cubic(y_mm: np.ndarray, *, kind: str, sigma_mm: float | None = 
             "ok": bool(good and abs(x) <= w)}
 
 
+def _masked_xtx(X: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Normal matrices X^T diag(m_r) X of the design ``X`` (k, 4) for each row of the 0/1 masks ``m`` (R, k)."""
+    return np.einsum("ki,kj,rk->rij", X, X, m)
+
+
 def _fit_windows(windows: np.ndarray, centers: np.ndarray, w: int, pinv: np.ndarray, X: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cubic least-squares fits of the windows centred on ``centers``.
@@ -787,7 +792,7 @@ def _fit_windows(windows: np.ndarray, centers: np.ndarray, w: int, pinv: np.ndar
     ib, ok_b = ib[enough], ok_b[enough]
     if ib.size:
         m = ok_b.astype(float)
-        xtx = np.einsum("ki,kj,rk->rij", X, X, m)
+        xtx = _masked_xtx(X, m)
         xty = np.einsum("ki,rk->ri", X, m * np.where(ok_b, Y[ib], 0.0))
         coef[ib] = np.linalg.solve(xtx, xty[..., None])[..., 0]
     return coef, Y, bad
@@ -866,7 +871,7 @@ def _extrema_channel(col: np.ndarray, ch: int, u: np.ndarray, w: int, rows: np.n
     part = np.flatnonzero(bad.any(axis=1) & good)
     if part.size:  # windows with nulls: their own (X^T X)^-1
         m = (~bad[part]).astype(float)
-        cov[part] = np.linalg.inv(np.einsum("ki,kj,rk->rij", X, X, m))
+        cov[part] = np.linalg.inv(_masked_xtx(X, m))
     ux = np.sqrt(s2 * np.einsum("ri,rij,rj->r", gx, cov, gx))
     uv = np.sqrt(s2 * np.einsum("ri,rij,rj->r", gv, cov, gv))
     pos_g = (centers + xx)[good]
@@ -1079,7 +1084,7 @@ def process_arrays(
     chans = tuple(channels) if channels is not None else tuple(range(1, c + 1))
     h = _check_spike_window(spike_window_samples)
     vp = _padded_rows(v, h)  # own copy, one contiguous row per channel
-    spike_idx, nulls = _despike_rows(vp, spike_window_samples, spike_threshold, _SPIKE_CANDIDATE_THRESHOLD)
+    spike_idx, nulls = _despike_rows(vp, h, spike_threshold, _SPIKE_CANDIDATE_THRESHOLD)
     clean = vp[:, h: h + n].T
     nom = _nominal(sample_rate_hz, rpm_nominal)
     if t_s is None:
