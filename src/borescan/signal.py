@@ -39,6 +39,8 @@ import polars as pl
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy import ndimage
 
+from borescan.sortnet import median_columns
+
 __all__ = [
     "FILTERS",
     "PeriodEstimate",
@@ -143,28 +145,34 @@ def _ll_reference(col_x: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
     """Robust local-linear reference of a column at rows ``idx`` (see :func:`remove_spikes`).
 
     ``col_x`` is the column with excluded samples (nulls, candidates) set to NaN and padded with
-    ``w // 2`` NaN at both ends. Uses the neighbours j = -h..h, j != 0, that are not NaN:
-    Theil-Sen slope s (median of pairwise slopes), reference = median_j (v_{k+j} - j s). NaN when
-    fewer than two neighbours are usable.
+    ``w // 2`` NaN at both ends (``idx`` indexes windows of ``w`` samples, i.e. the padded
+    position of each window's first sample; several padded rows may be laid end to end). Uses
+    the neighbours j = -h..h, j != 0, that are not NaN: Theil-Sen slope s (median of pairwise
+    slopes), reference = median_j (v_{k+j} - j s). NaN when fewer than two neighbours are usable.
     """
     h = w // 2
     offs_i = np.concatenate([np.arange(-h, 0), np.arange(1, h + 1)])
     offs = offs_i.astype(float)
-    win = sliding_window_view(col_x, w)[idx][:, offs_i + h]
+    win = sliding_window_view(col_x, w)[idx]  # (places, w), the centre sample in column h
     ii, jj = np.triu_indices(offs.size, 1)
-    full = ~np.isnan(win).any(axis=1)
+    nan_nb = np.isnan(win)
+    nan_nb[:, h] = False
+    full = ~nan_nb.any(axis=1)
     ref = np.empty(idx.size)
-    if full.any():  # every neighbour usable (most rows): pair slopes as one product, medians by partition
+    if full.any():  # every neighbour usable (most rows): pair slopes as one product
         wf = win[full]
-        pairs = np.zeros((offs.size, ii.size))
+        wf[:, h] = 0.0  # the centre (NaN at candidates) takes no part: its row of ``pairs`` is zero
+        pairs = np.zeros((w, ii.size))
         d = offs[jj] - offs[ii]
-        pairs[jj, np.arange(ii.size)] = 1.0 / d
-        pairs[ii, np.arange(ii.size)] = -1.0 / d
+        pairs[offs_i[jj] + h, np.arange(ii.size)] = 1.0 / d
+        pairs[offs_i[ii] + h, np.arange(ii.size)] = -1.0 / d
         slope = _median_rows_full(wf @ pairs)
-        ref[full] = _median_rows_full(wf - offs * slope[:, None])
+        # median of the 2h offsets: a selection network on the columns (np.partition with two
+        # ranks along a short axis costs ~7x more)
+        ref[full] = median_columns([wf[:, h + j] - j * slope for j in offs_i.tolist()])
     part = ~full
     if part.any():
-        wp = win[part]
+        wp = win[part][:, offs_i + h]
         slope = _nanmedian_rows((wp[:, jj] - wp[:, ii]) / (offs[jj] - offs[ii]))
         rp = _nanmedian_rows(wp - offs * slope[:, None])
         rp[np.sum(~np.isnan(wp), axis=1) < 2] = np.nan
@@ -173,12 +181,11 @@ def _ll_reference(col_x: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
 
 
 def _median_rows_full(a: np.ndarray) -> np.ndarray:
-    """Median of each row of a NaN-free 2-D array (partition, exact)."""
+    """Median of each row of a NaN-free 2-D array with an odd number of columns (partition, exact)."""
     m = a.shape[1]
     if m % 2:
         return np.partition(a, m // 2, axis=1)[:, m // 2]
-    p = np.partition(a, (m // 2 - 1, m // 2), axis=1)
-    return 0.5 * (p[:, m // 2 - 1] + p[:, m // 2])
+    return median_columns([a[:, k] for k in range(m)])
 
 
 def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
@@ -584,7 +591,7 @@ def _harmonic_basis(x: np.ndarray, omega: float, n_harmonics: int, trend: bool) 
 
 
 def period_from_readings(values_mm: np.ndarray, *, samples_per_rev_guess: float | None = None,
-                         n_harmonics: int = 3, trend: bool = True, max_samples: int = 20_000,
+                         n_harmonics: int = 3, trend: bool = True, max_samples: int = 10_000,
                          rpm_nominal: float | None = None, sample_rate_hz: float | None = None,
                          direction: str = "ccw") -> PeriodEstimate:
     """Rotation period in samples from the readings: FFT peak, refined by nonlinear least squares.
@@ -594,7 +601,10 @@ def period_from_readings(values_mm: np.ndarray, *, samples_per_rev_guess: float 
     on w with the linear parameters profiled out). u(w) is the marginal standard uncertainty
     from the full covariance s^2 (J^T J)^-1 (Schur complement), P = 2 pi / w,
     u(P) = P u(w) / w. The fit uses a uniform stride of at most ``max_samples`` rows, of which
-    rows with any NaN are left out; the uncertainty accounts for the rows used.
+    rows with any NaN are left out; the uncertainty accounts for the rows used. 10 000 rows give
+    u(P) / P ~ 1e-8 on a 600-revolution scan (the period moves an extremum prediction by
+    n u(P) / P^2 ~ 1e-5 revolutions); 20 000 rows would halve u(P)^2 at three times the cost
+    (the design no longer fits the cache).
     """
     v, _ = _as_2d(values_mm)
     n = v.shape[0]
@@ -769,16 +779,44 @@ def _masked_xtx(X: np.ndarray, m: np.ndarray) -> np.ndarray:
     return np.einsum("ki,kj,rk->rij", X, X, m)
 
 
-def _fit_windows(windows: np.ndarray, centers: np.ndarray, w: int, pinv: np.ndarray, X: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cubic least-squares fits of the windows centred on ``centers``.
+class _FlatWindows(np.ndarray):
+    """``sliding_window_view`` of one flat array laid over equally spaced channel rows;
+    ``row_step`` = elements from one row's start to the next."""
 
-    ``windows`` is ``sliding_window_view(col, 2w+1)`` of the channel (row k = samples k..k+2w).
-    Returns coef (R, 4) (NaN where fewer than 8 valid samples), the windows Y (R, 2w+1) and
-    their NaN mask. Complete windows use the pseudo-inverse ``pinv`` of the design ``X``; windows
-    with NaN are solved from their own masked normal equations (batched).
+    row_step: int
+
+
+def _row_windows(vt: np.ndarray, k: int) -> np.ndarray:
+    """Windows of ``k`` samples of each row of ``vt`` (c, n), for :func:`_fit_windows`.
+
+    When the rows are contiguous and equally spaced in one buffer (the channel rows of
+    :func:`process_arrays`), one flat view spans them all and a window is gathered as one
+    contiguous run (several times faster than indexing a 3-D window view); otherwise the 3-D
+    view ``sliding_window_view(vt, k, axis=1)``. Windows never cross rows: callers keep every
+    window inside its row.
     """
-    Y = windows[centers - w]
+    c, n = vt.shape
+    isz = vt.itemsize
+    if c and n >= k and vt.strides[1] == isz and vt.strides[0] >= n * isz and vt.strides[0] % isz == 0:
+        step = vt.strides[0] // isz
+        flat = np.lib.stride_tricks.as_strided(vt, shape=((c - 1) * step + n,), strides=(isz,), writeable=False)
+        win = sliding_window_view(flat, k).view(_FlatWindows)
+        win.row_step = step
+        return win
+    return sliding_window_view(vt, k, axis=1)
+
+
+def _fit_windows(windows: np.ndarray, chan: np.ndarray, centers: np.ndarray, w: int, pinv: np.ndarray,
+                 X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cubic least-squares fits of the windows of rows ``chan`` centred on ``centers``.
+
+    ``windows`` is ``sliding_window_view(rows, 2w+1, axis=1)`` of the channel rows (c, n)
+    (windows[j, k] = samples k..k+2w of row j). Returns coef (R, 4) (NaN where fewer than 8
+    valid samples), the windows Y (R, 2w+1) and their NaN mask. Complete windows use the
+    pseudo-inverse ``pinv`` of the design ``X``; windows with NaN are solved from their own
+    masked normal equations (batched).
+    """
+    Y = windows[chan, centers - w] if windows.ndim == 3 else windows[chan * windows.row_step + centers - w]
     bad = np.isnan(Y)
     rows_bad = bad.any(axis=1)
     if not rows_bad.any():
@@ -813,30 +851,87 @@ def _u_at(u: np.ndarray, pos: np.ndarray) -> np.ndarray:
     return u[i] + (pos - i) * (u[i + 1] - u[i])
 
 
-def _extrema_channel(col: np.ndarray, ch: int, u: np.ndarray, w: int, rows: np.ndarray, basis: np.ndarray,
-                     grid: np.ndarray, gb: np.ndarray, revs: np.ndarray, n_harmonics: int,
-                     min_valid_fraction: float, sample0: int) -> tuple[dict | None, int, float]:
-    """One channel of :func:`find_extrema`: (columns of its extrema, windows dropped, pooled sigma [mm])."""
-    n = col.size
-    X, pinv, xtx_inv = _cubic_fit_matrices(w)
-    windows = sliding_window_view(col, 2 * w + 1)
-    yr = col[rows]
+def _predicted_centers(vt: np.ndarray, u: np.ndarray, w: int, n_harmonics: int
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Step 1 of :func:`find_extrema`: per channel row of ``vt`` (c, n), the sample nearest each
+    predicted minimum and maximum (windows of 2w+1 inside the record).
+
+    Returns (channel row, centre, is_min) of every window and a bool per channel row: True where
+    the row had enough valid samples for the harmonic prediction.
+    """
+    c, n = vt.shape
+    rows = np.arange(0, n, max(1, n // 10_000))
+    basis = _harmonic_basis(u[rows], 2.0 * math.pi, n_harmonics, False)
+    grid = np.linspace(0.0, 1.0, 3600, endpoint=False)
+    gb = _harmonic_basis(grid, 2.0 * math.pi, n_harmonics, False)
+    revs = np.arange(math.floor(u[0]) - 1, math.ceil(u[-1]) + 1)
+    yr = vt[:, rows].T  # (rows, c)
     okr = ~np.isnan(yr)
-    if okr.sum() < 2 * n_harmonics + 2:
-        return None, 0, float("nan")
-    coef_h = _lsq(basis, yr) if okr.all() else _lsq(basis[okr], yr[okr])
-    model = gb @ coef_h
-    cen, is_min = [], []
-    for kind_min, ue in ((True, grid[np.argmin(model)]), (False, grid[np.argmax(model)])):
-        targets = ue + revs
-        targets = targets[(targets >= u[0]) & (targets <= u[-1])]
-        ck = np.round(_sample_at(u, targets)).astype(np.int64)
-        ck = ck[(ck - w >= 0) & (ck + w < n)]
-        cen.append(ck)
-        is_min.append(np.full(ck.size, kind_min))
-    centers = np.concatenate(cen)
-    is_min = np.concatenate(is_min)
-    coef, Y, bad = _fit_windows(windows, centers, w, pinv, X)
+    usable = okr.sum(axis=0) >= 2 * n_harmonics + 2
+    coef_h = np.full((basis.shape[1], c), np.nan)
+    if okr.all():
+        coef_h[:] = _lsq(basis, yr)
+    elif usable.any():  # each channel's own rows: the normal equations less its few missing rows
+        btb_all = basis.T @ basis
+        bty = basis.T @ np.where(okr, yr, 0.0)
+        for j in np.flatnonzero(usable):
+            bb = basis[~okr[:, j]]
+            coef_h[:, j] = np.linalg.solve(btb_all - bb.T @ bb, bty[:, j])
+    model = gb @ coef_h  # (grid, c)
+    ue = np.concatenate([grid[np.argmin(model, axis=0)], grid[np.argmax(model, axis=0)]])  # (2c,) min then max
+    targets = ue[:, None] + revs[None, :]
+    inside = (targets >= u[0]) & (targets <= u[-1])
+    inside[np.tile(~usable, 2)] = False
+    which, r_i = np.nonzero(inside)
+    tg = targets[which, r_i]
+    order = np.argsort(tg, kind="stable")  # sorted keys: searchsorted narrows from the last hit
+    ck = np.empty(tg.size, dtype=np.int64)
+    ck[order] = np.round(_sample_at(u, tg[order])).astype(np.int64)
+    keep = (ck - w >= 0) & (ck + w < n)
+    which, ck = which[keep], ck[keep]
+    return which % c, ck, which < c, usable
+
+
+def find_extrema(values_mm: np.ndarray, u_rev: np.ndarray, *, half_window_samples: int | None = None,
+                 samples_per_rev: float, min_valid_fraction: float = 0.8, n_harmonics: int = 3,
+                 channels: tuple[int, ...] | None = None, sample0: int = 0) -> tuple[pl.DataFrame, dict]:
+    """Minima and maxima per revolution and channel at sub-sample precision.
+
+    1. Predict: a harmonic model in the revolution coordinate u (linear least squares on a stride
+       of at most 10 000 samples) gives the phase of each channel's minimum and maximum; their
+       predicted sample positions are where u = u_ext + r.
+    2. Refine: cubic least-squares fit over 2W+1 samples around the prediction
+       (:func:`fit_extremum_cubic`), re-centred on the rounded optimum until it stays
+       (|x*| <= 0.6). s^2 is pooled per channel over all windows (dof = sum(n_i - 4)).
+    A window with fewer than ``min_valid_fraction`` valid samples, or no valid samples on one
+    side of the extremum, is dropped and counted (never interpolated). All channels are fitted
+    in one batch.
+
+    Returns
+    -------
+    extrema : polars.DataFrame channel, revolution, kind ("min"/"max"), sample_pos, u_sample_pos,
+        value_mm, u_value_mm, n_valid
+    info : dict with ``dropped`` per channel and ``sigma_mm`` per channel
+    """
+    v, _ = _as_2d(values_mm)
+    n, c = v.shape
+    vt = v.T
+    chans = tuple(channels) if channels is not None else tuple(range(1, c + 1))
+    u = np.asarray(u_rev, dtype=float)
+    w = int(half_window_samples) if half_window_samples else max(4, int(round(samples_per_rev / 16.0)))
+    info = {"dropped": {}, "sigma_mm": {}, "half_window_samples": w}
+    schema = {"channel": pl.Int64, "revolution": pl.Int64, "kind": pl.Utf8, "sample_pos": pl.Float64,
+              "u_sample_pos": pl.Float64, "value_mm": pl.Float64, "u_value_mm": pl.Float64,
+              "n_valid": pl.Int64}
+    X, pinv, xtx_inv = _cubic_fit_matrices(w)
+    ch, centers, is_min, usable = _predicted_centers(vt, u, w, n_harmonics)
+    if not ch.size:
+        for j, name in enumerate(chans):
+            info["dropped"][name] = 0
+            info["sigma_mm"][name] = 0.0 if usable[j] else float("nan")
+        return pl.DataFrame(schema=schema), info
+    windows = _row_windows(vt, 2 * w + 1)
+    coef, Y, bad = _fit_windows(windows, ch, centers, w, pinv, X)
     x = _cubic_stationary(coef)
     for _ in range(8):
         # re-centre on the rounded optimum; hysteresis (|x| > 0.6) stops 0.5-toggling
@@ -847,17 +942,22 @@ def _extrema_channel(col: np.ndarray, ch: int, u: np.ndarray, w: int, rows: np.n
         if not mv.size:
             break
         centers[mv] = new  # refit only the windows that moved
-        coef[mv], Y[mv], bad[mv] = _fit_windows(windows, new, w, pinv, X)
+        coef[mv], Y[mv], bad[mv] = _fit_windows(windows, ch[mv], new, w, pinv, X)
         x[mv] = _cubic_stationary(coef[mv])
-    # windows that converged onto the same centre (per kind) are one extremum
-    _, keep = np.unique(centers * 2 + is_min, return_index=True)
-    centers, coef, Y, bad, x, is_min = centers[keep], coef[keep], Y[keep], bad[keep], x[keep], is_min[keep]
+    # windows that converged onto the same centre (per channel and kind) are one extremum
+    _, keep = np.unique((ch * n + centers) * 2 + is_min, return_index=True)
+    ch, centers, coef, Y, bad, x, is_min = ch[keep], centers[keep], coef[keep], Y[keep], bad[keep], x[keep], is_min[keep]
     nvalid = (2 * w + 1) - bad.sum(axis=1)
-    resid = np.where(bad, 0.0, Y - coef @ X.T)
+    resid = coef @ X.T
+    np.subtract(Y, resid, out=resid)
+    resid[bad] = 0.0
     rss = np.einsum("ij,ij->i", resid, resid)
     fin = np.isfinite(rss)
-    # pooled noise variance over all windows of this channel
-    s2 = float(rss[fin].sum() / max(int((nvalid[fin] - 4).sum()), 1))
+    # pooled noise variance over all windows of each channel
+    rss_c = np.bincount(ch[fin], weights=rss[fin], minlength=c)
+    dof_c = np.bincount(ch[fin], weights=nvalid[fin] - 4, minlength=c)
+    s2_c = rss_c / np.maximum(dof_c, 1)
+    s2 = s2_c[ch]
     xx = np.where(np.isfinite(x), x, 0.0)
     sign_ok = np.where(is_min, coef[:, 2] > 0, coef[:, 2] < 0)
     left = ~bad[:, :w].all(axis=1)
@@ -874,70 +974,26 @@ def _extrema_channel(col: np.ndarray, ch: int, u: np.ndarray, w: int, rows: np.n
         cov[part] = np.linalg.inv(_masked_xtx(X, m))
     ux = np.sqrt(s2 * np.einsum("ri,rij,rj->r", gx, cov, gx))
     uv = np.sqrt(s2 * np.einsum("ri,rij,rj->r", gv, cov, gv))
+    dropped = np.bincount(ch[~good], minlength=c)
+    for j, name in enumerate(chans):
+        info["dropped"][name] = int(dropped[j])
+        info["sigma_mm"][name] = math.sqrt(s2_c[j]) if usable[j] else float("nan")
     pos_g = (centers + xx)[good]
-    return {
-        "channel": np.full(pos_g.size, ch, dtype=np.int64),
+    ch_g = ch[good]
+    order = np.lexsort((pos_g, ch_g))
+    g = np.flatnonzero(good)[order]
+    pos_g, ch_g = pos_g[order], ch_g[order]
+    chan_names = np.asarray(chans, dtype=np.int64)
+    return pl.DataFrame({
+        "channel": chan_names[ch_g],
         "revolution": np.floor(_u_at(u, pos_g)).astype(np.int64),
-        "kind": is_min[good],
+        "kind": pl.Series(["max", "min"])[is_min[g].astype(np.int64)],
         "sample_pos": (pos_g + sample0).astype(float),
-        "u_sample_pos": ux[good],
-        "value_mm": np.einsum("ri,ri->r", gv, coef)[good],
-        "u_value_mm": uv[good],
-        "n_valid": nvalid[good].astype(np.int64),
-    }, int(np.sum(~good)), math.sqrt(s2)
-
-
-def find_extrema(values_mm: np.ndarray, u_rev: np.ndarray, *, half_window_samples: int | None = None,
-                 samples_per_rev: float, min_valid_fraction: float = 0.8, n_harmonics: int = 3,
-                 channels: tuple[int, ...] | None = None, sample0: int = 0) -> tuple[pl.DataFrame, dict]:
-    """Minima and maxima per revolution and channel at sub-sample precision.
-
-    1. Predict: a harmonic model in the revolution coordinate u (linear least squares on a stride
-       of at most 10 000 samples) gives the phase of each channel's minimum and maximum; their
-       predicted sample positions are where u = u_ext + r.
-    2. Refine: cubic least-squares fit over 2W+1 samples around the prediction
-       (:func:`fit_extremum_cubic`), re-centred on the rounded optimum until it stays
-       (|x*| <= 0.6). s^2 is pooled per channel over all windows (dof = sum(n_i - 4)).
-    A window with fewer than ``min_valid_fraction`` valid samples, or no valid samples on one
-    side of the extremum, is dropped and counted (never interpolated).
-
-    Returns
-    -------
-    extrema : polars.DataFrame channel, revolution, kind ("min"/"max"), sample_pos, u_sample_pos,
-        value_mm, u_value_mm, n_valid
-    info : dict with ``dropped`` per channel and ``sigma_mm`` per channel
-    """
-    v, _ = _as_2d(values_mm)
-    n, c = v.shape
-    vt = v.T
-    chans = tuple(channels) if channels is not None else tuple(range(1, c + 1))
-    u = np.asarray(u_rev, dtype=float)
-    w = int(half_window_samples) if half_window_samples else max(4, int(round(samples_per_rev / 16.0)))
-    # 1. prediction from a harmonic fit in u
-    rows = np.arange(0, n, max(1, n // 10_000))
-    basis = _harmonic_basis(u[rows], 2.0 * math.pi, n_harmonics, False)
-    grid = np.linspace(0.0, 1.0, 3600, endpoint=False)
-    gb = _harmonic_basis(grid, 2.0 * math.pi, n_harmonics, False)
-    revs = np.arange(math.floor(u[0]) - 1, math.ceil(u[-1]) + 1)
-    info = {"dropped": {}, "sigma_mm": {}, "half_window_samples": w}
-    res = [_extrema_channel(vt[j], chans[j], u, w, rows, basis, grid, gb, revs, n_harmonics,
-                            min_valid_fraction, sample0) for j in range(c)]
-    frames = []
-    for ch, (cols, dropped, sigma) in zip(chans, res):
-        info["dropped"][ch] = dropped
-        info["sigma_mm"][ch] = sigma
-        if cols is not None:
-            frames.append(cols)
-    schema = {"channel": pl.Int64, "revolution": pl.Int64, "kind": pl.Utf8, "sample_pos": pl.Float64,
-              "u_sample_pos": pl.Float64, "value_mm": pl.Float64, "u_value_mm": pl.Float64,
-              "n_valid": pl.Int64}
-    if not frames:
-        return pl.DataFrame(schema=schema), info
-    cols = {k: np.concatenate([f[k] for f in frames]) for k in schema}
-    order = np.lexsort((cols["sample_pos"], cols["channel"]))
-    cols = {k: a[order] for k, a in cols.items()}
-    kind = pl.when(pl.col("kind")).then(pl.lit("min")).otherwise(pl.lit("max")).alias("kind")
-    return pl.DataFrame(cols).with_columns(kind).cast(schema), info
+        "u_sample_pos": ux[g],
+        "value_mm": np.einsum("ri,ri->r", gv[g], coef[g]),
+        "u_value_mm": uv[g],
+        "n_valid": nvalid[g].astype(np.int64),
+    }, schema=schema), info
 
 
 def n_m_counts(min_pos: np.ndarray, max_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
