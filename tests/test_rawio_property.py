@@ -238,3 +238,37 @@ def test_mutated_scans_are_accepted_only_when_valid(base, muts):
         np.testing.assert_array_equal(lds_matrix(scan).sample, lds_matrix(base_scan).sample)
         assert validate_root(Path(d)) == []
         assert read_scan(scan_dir).sha256 == scan.sha256
+
+
+@settings(max_examples=200, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
+@given(muts=st.lists(mutation, min_size=1, max_size=3), rod=st.booleans(), spindle=st.booleans())
+def test_fast_lds_check_agrees_with_the_full_check(base, muts, rod, spindle):
+    """The fast path of the lds check returns exactly the full check's warnings when the table
+    has no problem, and declines (None) whenever the full check finds one."""
+    from borescan import rawio
+
+    base_dir, _ = base
+    with tempfile.TemporaryDirectory() as d:
+        scan_dir = Path(d) / base_dir.parent.name / base_dir.name
+        shutil.copytree(base_dir, scan_dir)
+        _apply(scan_dir, muts)
+        try:
+            pf = pq.ParquetFile(scan_dir / "lds.parquet")
+        except Exception:  # noqa: BLE001 - a truncated file never reaches the data checks
+            return
+        p = rawio._Problems("P1")
+        if not rawio._check_schema(pf.schema_arrow, rawio.LDS_SCHEMA, p, "lds.parquet"):
+            return
+        table = pf.read(columns=rawio.LDS_SCHEMA.names)
+        if rod:  # a rod scan: poses per sample (valid) or null (invalid)
+            pose = pl.Series(np.repeat(np.arange(table.num_rows // 3 + 1), 3)[: table.num_rows], dtype=pl.Int32)
+            table = table.set_column(table.column_names.index("pose"), "pose", pose.to_arrow())
+        meta = {**META, "device": {"id": "R", "type": "rod" if rod else "tri_lds"}}
+        full = rawio._check_lds_full(table, meta, spindle, p, "lds.parquet")
+        fast = rawio._lds_clean_warnings(table, meta, spindle, "lds.parquet")
+        if p.errors:
+            event("problem")
+            assert fast is None
+        else:
+            event("clean, with warnings" if full else "clean")
+            assert fast == full

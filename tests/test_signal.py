@@ -508,3 +508,34 @@ def test_process_scan_on_a_raw_scan(tmp_path, with_angle):
     assert ext.height >= 3 * 2 * 11
     for name, f in frames.items():
         f.write_parquet(tmp_path / f"{name}.parquet")
+
+
+def test_filter_runs_only_where_it_shapes_a_result(monkeypatch):
+    """extrema_on="despiked" (default): the extrema are the unfiltered fit and the filter is computed
+    only when filtered_mm is read (then equal to filter_readings of the despiked readings);
+    extrema_on="filtered": the extrema come from the filtered readings."""
+    import borescan.signal as sig
+
+    y, *_ = _simulate(n_rev=8, seed=71)
+    calls = []
+    real = sig.filter_readings
+    monkeypatch.setattr(sig, "filter_readings", lambda *a, **k: calls.append(k.get("method")) or real(*a, **k))
+    plain = process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="none")
+    res = process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="median",
+                         filter_params={"window_samples": 25})
+    assert calls == []
+    assert res.extrema.equals(plain.extrema)
+    expect = real(res.despiked_mm, method="median", window_samples=25)
+    np.testing.assert_array_equal(res.filtered_mm, expect)
+    assert calls == ["median"]
+    res.filtered_mm  # cached: computed once
+    assert calls == ["median"]
+    filt = process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="median",
+                          filter_params={"window_samples": 25}, extrema_on="filtered")
+    assert calls == ["median", "median"]
+    np.testing.assert_array_equal(filt.filtered_mm, expect)
+    assert not filt.extrema["value_mm"].equals(plain.extrema["value_mm"])  # fitted on other readings
+    with pytest.raises(ValueError, match="extrema_on"):
+        process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, extrema_on="smoothed")
+    with pytest.raises(ValueError, match="unknown filter"):
+        process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="butterworth")

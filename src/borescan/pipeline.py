@@ -378,7 +378,8 @@ def signal_options(cfg: dict) -> dict:
         params["window_samples"] = int(cfg.get("window_samples", 5))
     elif method == "gaussian":
         params["cutoff_upr"] = float(cfg.get("gaussian_cutoff_upr", 50))
-    return {"filter": method, "filter_params": params, "spike_threshold": float(cfg.get("spike_threshold_mad", 6.0))}
+    return {"filter": method, "filter_params": params, "spike_threshold": float(cfg.get("spike_threshold_mad", 6.0)),
+            "extrema_on": cfg.get("extrema_on", "despiked")}
 
 
 def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log=print,
@@ -423,7 +424,7 @@ def _signal_one(job) -> tuple[pl.DataFrame | None, pl.DataFrame | None, list[Qua
         _quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", jump)
         return None, None, bad, None
     try:
-        res = signal.process_scan(scan, **opts)
+        res = signal.process_scan(scan, mat, **opts)
     except (ValueError, np.linalg.LinAlgError, IndexError) as err:
         _quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", f"signal stage failed: {err}")
         return None, None, bad, None

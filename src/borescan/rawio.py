@@ -140,10 +140,14 @@ class RawScan:
         The five ``lds.parquet`` columns (extra columns are not read).
     spindle : pl.DataFrame or None
         The five ``spindle.parquet`` columns, or None when the file is absent.
-    sha256 : dict
-        File name -> hex SHA-256 digest of the raw bytes.
+    files : dict
+        File name -> the path it was read from.
     warnings : list of str
         Non-fatal findings (readings outside ``[0, range_mm]``, counted per channel).
+    sha256 : dict (property)
+        File name -> hex SHA-256 digest of the raw bytes. ``scan.json`` is hashed as it is read;
+        the Parquet files on first use of ``sha256`` (stages that only use the data do not pay
+        for hashing megabytes; raw files are never modified).
     """
 
     scan_id: str
@@ -152,8 +156,17 @@ class RawScan:
     meta: dict
     lds: pl.DataFrame
     spindle: pl.DataFrame | None
-    sha256: dict[str, str]
+    files: dict[str, Path]
     warnings: list[str] = field(default_factory=list)
+    _digests: dict[str, str] = field(default_factory=dict, repr=False)
+
+    @property
+    def sha256(self) -> dict[str, str]:
+        """File name -> hex SHA-256 of the raw bytes (computed once per file, on first use)."""
+        for name, path in self.files.items():
+            if name not in self._digests:
+                self._digests[name] = sha256_file(path)
+        return dict(self._digests)
 
     @property
     def device_type(self) -> str:
@@ -475,10 +488,98 @@ def _first(mask: np.ndarray) -> int:
     return int(np.flatnonzero(mask)[0])
 
 
+def _listed_sensors(meta: dict | None) -> dict[int, dict] | None:
+    """``scan.json`` sensors by channel (entries with an integer channel), None when not a list."""
+    if meta is None or not isinstance(meta.get("sensors"), list):
+        return None
+    return {int(s["channel"]): s for s in meta["sensors"] if isinstance(s, dict) and _is_int(s.get("channel"))}
+
+
+def _range_warning(file: str, ch: int, count: int, rng: float) -> str:
+    return f"{file}: channel {ch}: {count} readings outside [0, {rng:g}] mm"
+
+
+def _range_of(sensor: dict) -> float | None:
+    rng = sensor.get("range_mm")
+    return rng if _is_number(rng) and math.isfinite(rng) and rng > 0 else None
+
+
+def _column(table: pa.Table, name: str) -> np.ndarray:
+    """A null-free primitive column as one numpy array (zero-copy for a single chunk)."""
+    col = table.column(name)
+    return col.chunk(0).to_numpy() if col.num_chunks == 1 else col.combine_chunks().to_numpy()
+
+
+def _lds_clean_warnings(table: pa.Table, meta: dict | None, has_spindle: bool, file: str) -> list[str] | None:
+    """:func:`_check_lds` for a table that passes every check, in far fewer passes over the data.
+
+    Returns the warnings :func:`_check_lds` would return when the table has no problem, and None
+    as soon as anything might be one; the caller then runs :func:`_check_lds` for the messages.
+    Sorting is tested with comparisons of neighbours (no int64 differences); channel counts
+    with one comparison per listed channel.
+    """
+    n = table.num_rows
+    if n == 0 or any(table.column(k).null_count for k in table.column_names if k not in LDS_NULLABLE):
+        return None
+    sample, t_ns, sensor = (_column(table, k) for k in ("sample", "t_ns", "sensor"))
+    if sample.min() < 0 or t_ns.min() < 0:
+        return None
+    same = sample[1:] == sample[:-1]
+    if not (same | (sample[1:] > sample[:-1])).all():
+        return None  # decreasing sample
+    t_inc = t_ns[1:] > t_ns[:-1]
+    if not np.where(same, (sensor[1:] > sensor[:-1]) & (t_ns[1:] == t_ns[:-1]), t_inc).all():
+        return None  # unsorted or duplicate (sample, sensor), t_ns differing within a sample or not increasing
+    del t_inc
+    vcol = table.column("value_mm")
+    value = vcol.chunk(0).to_numpy(zero_copy_only=False) if vcol.num_chunks == 1 else \
+        vcol.combine_chunks().to_numpy(zero_copy_only=False)  # nulls -> NaN
+    finite = np.isfinite(value)
+    if n - int(np.count_nonzero(finite)) != vcol.null_count:
+        return None  # NaN/inf readings
+    warnings: list[str] = []
+    listed = _listed_sensors(meta)
+    if listed is not None:
+        matched = 0
+        for ch in sorted(listed):
+            mine = sensor == ch
+            k = int(np.count_nonzero(mine))
+            matched += k
+            if not k or not np.count_nonzero(mine & finite):
+                return None  # a listed channel without valid readings
+            rng = _range_of(listed[ch])
+            if rng is not None:
+                out = int(np.count_nonzero(mine & ((value < 0) | (value > rng))))
+                if out:
+                    warnings.append(_range_warning(file, ch, out, rng))
+        if matched != n:
+            return None  # an unlisted channel
+    pcol = table.column("pose")
+    dev = meta.get("device") if isinstance(meta, dict) else None
+    dtype = dev.get("type") if isinstance(dev, dict) else None
+    if dtype == "rod":
+        if pcol.null_count:
+            return None
+        pose = _column(table, "pose")
+        if pose.min() < 0 or (same & (pose[1:] != pose[:-1])).any():
+            return None
+    elif dtype == "tri_lds" and has_spindle and pcol.null_count != n:
+        return None
+    return warnings
+
+
 def _check_lds(
     table: pa.Table, meta: dict | None, has_spindle: bool, p: _Problems, file: str
 ) -> list[str]:
     """Check the data of an ``lds.parquet`` table with the right schema; return warnings."""
+    fast = _lds_clean_warnings(table, meta, has_spindle, file)
+    return fast if fast is not None else _check_lds_full(table, meta, has_spindle, p, file)
+
+
+def _check_lds_full(
+    table: pa.Table, meta: dict | None, has_spindle: bool, p: _Problems, file: str
+) -> list[str]:
+    """Every check of :func:`_check_lds` with its message (the path for tables with problems)."""
     warnings: list[str] = []
     n = table.num_rows
     if n == 0:
@@ -544,11 +645,8 @@ def _check_lds(
         )
 
     # channels (bincount over the int16 channel numbers: one pass each)
-    if meta is not None and isinstance(meta.get("sensors"), list):
-        listed = {}
-        for s in meta["sensors"]:
-            if isinstance(s, dict) and _is_int(s.get("channel")):
-                listed[int(s["channel"])] = s
+    listed = _listed_sensors(meta)
+    if listed is not None:
         smin = int(sensor.min())
         nbin = int(sensor.max()) - smin + 1
         offset = sensor - smin
@@ -560,8 +658,8 @@ def _check_lds(
         # readings outside [0, range_mm] are physical: warnings only
         rng_of = np.full(nbin, np.inf)
         for ch, s in listed.items():
-            rng = s.get("range_mm")
-            if 0 <= ch - smin < nbin and _is_number(rng) and math.isfinite(rng) and rng > 0:
+            rng = _range_of(s)
+            if 0 <= ch - smin < nbin and rng is not None:
                 rng_of[ch - smin] = rng
         outside = good & ((value < 0) | (value > rng_of[offset]))
         n_out = np.bincount(offset[outside], minlength=nbin)
@@ -570,8 +668,7 @@ def _check_lds(
             if not (0 <= k < nbin and n_good[k] > 0):
                 p.add(file, f"channel {ch} has no valid readings")
             elif n_out[k]:
-                rng = listed[ch]["range_mm"]
-                warnings.append(f"{file}: channel {ch}: {int(n_out[k])} readings outside [0, {rng:g}] mm")
+                warnings.append(_range_warning(file, ch, int(n_out[k]), listed[ch]["range_mm"]))
 
     # pose
     pcol = table.column("pose")
@@ -767,27 +864,24 @@ def _read_meta_file(path: Path, p: _Problems) -> tuple[Any, str | None]:
     return None, digest
 
 
-def _read_parquet(
-    path: Path, fname: str, schema: pa.Schema, p: _Problems
-) -> tuple[pa.Table | None, str | None]:
+def _read_parquet(path: Path, fname: str, schema: pa.Schema, p: _Problems) -> pa.Table | None:
     """Read only the schema's columns of a Parquet file; None after a problem."""
     try:
-        digest = sha256_file(path)
         with open(path, "rb") as f:
             pf = pq.ParquetFile(f)
             if not _check_schema(pf.schema_arrow, schema, p, fname):
-                return None, digest
-            table = pf.read(columns=schema.names, use_threads=False)
+                return None
+            table = pf.read(columns=schema.names)  # Arrow's pool: OMP_NUM_THREADS threads
     except OSError as e:
         if e.errno is not None:
             p.add(fname, f"unreadable: {e.strerror}")
         else:
             p.add(fname, f"not a readable Parquet file (truncated or corrupt): {e}")
-        return None, None
+        return None
     except Exception as e:  # noqa: BLE001 - any decoder failure means a corrupt file
         p.add(fname, f"not a readable Parquet file (truncated or corrupt): {type(e).__name__}: {e}")
-        return None, None
-    return table.select(schema.names), digest
+        return None
+    return table.select(schema.names)
 
 
 def _meta_folder_checks(meta: dict, sid: str | None, night: str | None, p: _Problems) -> None:
@@ -825,12 +919,8 @@ def _inspect(
     if meta_only:
         return (meta if not p else None), p.errors
     has_spindle_file = (scan_dir / SPINDLE_FILE).exists() or (scan_dir / SPINDLE_FILE).is_symlink()
-    lds_tab, lds_digest = (None, None)
-    if lds_path is not None:
-        lds_tab, lds_digest = _read_parquet(lds_path, LDS_FILE, LDS_SCHEMA, p)
-    sp_tab, sp_digest = (None, None)
-    if sp_path is not None:
-        sp_tab, sp_digest = _read_parquet(sp_path, SPINDLE_FILE, SPINDLE_SCHEMA, p)
+    lds_tab = _read_parquet(lds_path, LDS_FILE, LDS_SCHEMA, p) if lds_path is not None else None
+    sp_tab = _read_parquet(sp_path, SPINDLE_FILE, SPINDLE_SCHEMA, p) if sp_path is not None else None
     warnings: list[str] = []
     if lds_tab is not None:
         warnings = _check_lds(lds_tab, meta if meta_ok else None, has_spindle_file, p, LDS_FILE)
@@ -838,9 +928,9 @@ def _inspect(
         _check_spindle(sp_tab, p, SPINDLE_FILE)
     if p:
         return None, p.errors
-    sha = {SCAN_JSON: meta_digest, LDS_FILE: lds_digest}
+    files = {SCAN_JSON: meta_path, LDS_FILE: lds_path}
     if sp_tab is not None:
-        sha[SPINDLE_FILE] = sp_digest
+        files[SPINDLE_FILE] = sp_path
     scan = RawScan(
         scan_id=sid,
         night=night,
@@ -848,8 +938,9 @@ def _inspect(
         meta=meta,
         lds=pl.from_arrow(lds_tab),
         spindle=pl.from_arrow(sp_tab) if sp_tab is not None else None,
-        sha256=sha,
+        files=files,
         warnings=warnings,
+        _digests={SCAN_JSON: meta_digest},
     )
     return scan, []
 

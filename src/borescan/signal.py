@@ -1078,7 +1078,7 @@ class SignalResult:
     scan_id: str
     channels: tuple[int, ...]
     sample: np.ndarray
-    filtered_mm: np.ndarray
+    despiked_mm: np.ndarray
     period: PeriodEstimate
     revolutions: pl.DataFrame
     extrema: pl.DataFrame
@@ -1086,6 +1086,17 @@ class SignalResult:
     spacings: pl.DataFrame
     set_aside: pl.DataFrame
     config: dict = field(default_factory=dict)
+
+    @functools.cached_property
+    def filtered_mm(self) -> np.ndarray:
+        """The despiked readings through the configured filter (``config["filter"]``, zero-phase) [mm].
+
+        Computed on first use: with ``extrema_on="despiked"`` (the default) nothing else needs it.
+        """
+        if self.config.get("filter", "none") == "none":
+            return self.despiked_mm
+        return filter_readings(self.despiked_mm, method=self.config["filter"],
+                               samples_per_rev=self.period.samples_per_rev, **self.config.get("filter_params", {}))
 
     def to_frames(self) -> dict[str, pl.DataFrame]:
         """Tables for Parquet: revolutions, extrema, summary, spacings, period, set_aside (with scan_id)."""
@@ -1126,10 +1137,11 @@ def process_arrays(
     """The whole signal stage on plain arrays.
 
     nulls counted -> spikes set aside (:func:`remove_spikes`) -> period (encoder when given,
-    else :func:`period_from_readings`) and revolution coordinate -> optional filter
-    (``filter``, ``filter_params``; zero-phase) -> extrema (:func:`find_extrema`, on the
-    despiked readings by default because filtering correlates the noise that the fit
-    uncertainty assumes white; ``extrema_on="filtered"`` to change) -> n, m, status, spacings.
+    else :func:`period_from_readings`) and revolution coordinate -> extrema
+    (:func:`find_extrema`, on the despiked readings by default because filtering correlates the
+    noise that the fit uncertainty assumes white; ``extrema_on="filtered"`` fits them on the
+    readings through ``filter`` with ``filter_params``, zero-phase) -> n, m, status, spacings.
+    With the default the filter is computed only when ``SignalResult.filtered_mm`` is read.
 
     The summary keeps the paper's rule for ``status`` (n < m -> backward) and adds
     ``n_minus_m_samples`` with its standard uncertainty and ``status_significant`` (|n - m| >= 3u):
@@ -1157,11 +1169,15 @@ def process_arrays(
                                       n_harmonics=n_harmonics)
         u = revolution_coordinate(n, period)
     spr = period.samples_per_rev
-    if filter == "none":
-        filtered = clean  # no copy: nothing writes to either
-    else:
-        filtered = filter_readings(clean, method=filter, samples_per_rev=spr, **(filter_params or {}))
-    src = clean if extrema_on == "despiked" else filtered
+    if extrema_on not in ("despiked", "filtered"):
+        raise ValueError(f"extrema_on must be 'despiked' or 'filtered', got {extrema_on!r}")
+    if filter not in FILTERS:
+        raise ValueError(f"unknown filter {filter!r}; valid: {', '.join(FILTERS)}")
+    filtered = None
+    if extrema_on == "filtered":  # otherwise the filter runs only if SignalResult.filtered_mm is read
+        filtered = clean if filter == "none" else filter_readings(clean, method=filter, samples_per_rev=spr,
+                                                                    **(filter_params or {}))
+    src = clean if filtered is None else filtered
     ext, info = find_extrema(src, u, half_window_samples=half_window_samples, samples_per_rev=spr,
                              channels=chans, sample0=sample0, n_harmonics=n_harmonics)
     e_ch = ext["channel"].to_numpy()
@@ -1208,21 +1224,24 @@ def process_arrays(
            "spike_window_samples": spike_window_samples, "spike_threshold": spike_threshold,
            "half_window_samples": info["half_window_samples"],
            "extrema_on": extrema_on, "n_harmonics": n_harmonics}
-    return SignalResult(scan_id, chans, np.arange(n, dtype=np.int64) + sample0, filtered, period, revs, ext,
-                        summary, spac, set_aside, cfg)
+    res = SignalResult(scan_id, chans, np.arange(n, dtype=np.int64) + sample0, clean, period, revs, ext,
+                       summary, spac, set_aside, cfg)
+    if filtered is not None:
+        res.__dict__["filtered_mm"] = filtered  # computed already (the cached property's slot)
+    return res
 
 
-def process_scan(scan: Any, **cfg: Any) -> SignalResult:
+def process_scan(scan: Any, matrix: Any = None, **cfg: Any) -> SignalResult:
     """Signal stage of one ``borescan.rawio.RawScan`` (keyword ``cfg`` as :func:`process_arrays`).
 
-    Uses ``rawio.lds_matrix(scan)``; missing ticks in ``sample`` become NaN rows (counted as
-    nulls). The encoder angle is used when the spindle stream has a non-null ``angle_rad``;
-    otherwise the period comes from the readings. ``scan.json`` gives ``sample_rate_hz`` and
-    ``spindle.rpm_nominal``/``direction``.
+    Uses ``rawio.lds_matrix(scan)`` (or ``matrix``, when the caller has built it already);
+    missing ticks in ``sample`` become NaN rows (counted as nulls). The encoder angle is used
+    when the spindle stream has a non-null ``angle_rad``; otherwise the period comes from the
+    readings. ``scan.json`` gives ``sample_rate_hz`` and ``spindle.rpm_nominal``/``direction``.
     """
     from borescan import rawio
 
-    mat = rawio.lds_matrix(scan)
+    mat = rawio.lds_matrix(scan) if matrix is None else matrix
     sample = np.asarray(mat.sample, dtype=np.int64)
     vals = np.asarray(mat.values_mm, dtype=float)
     t_s = np.asarray(mat.t_s, dtype=float)
