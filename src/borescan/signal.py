@@ -1358,9 +1358,11 @@ def feature_points(extrema: pl.DataFrame, samples_per_rev: float) -> pl.DataFram
     polars.DataFrame: channel, feature_sample, u_feature_sample, n_revolutions
     """
     rows = []
-    mins = extrema.filter(pl.col("kind") == "min")
-    for ch in sorted(mins["channel"].unique().to_list()):
-        pos = mins.filter(pl.col("channel") == ch)["sample_pos"].to_numpy().astype(float)
+    is_min = (extrema["kind"] == "min").to_numpy()
+    chan = extrema["channel"].to_numpy()[is_min]
+    pos_all = extrema["sample_pos"].to_numpy()[is_min].astype(float)
+    for ch in np.unique(chan).tolist():
+        pos = pos_all[chan == ch]
         ang = 2.0 * np.pi * np.mod(pos, samples_per_rev) / samples_per_rev
         mean_ang = math.atan2(np.sin(ang).mean(), np.cos(ang).mean())
         dev = np.angle(np.exp(1j * (ang - mean_ang)))
