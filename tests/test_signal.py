@@ -452,6 +452,21 @@ def test_extrema_windows_with_gaps_are_dropped_not_bridged():
     assert not np.any(np.abs(e["sample_pos"].to_numpy() - c) < 5)
 
 
+def test_extrema_equal_for_every_memory_layout_of_the_readings():
+    """Channel rows laid in one buffer (process_arrays' padded rows: windows gathered from one flat
+    view) and row-major (n, c) readings (a 3-D window view) give the same extrema, gaps included."""
+    y, *_ = _simulate(n_rev=6, seed=81)
+    y[[100, 101, 2000], [0, 0, 2]] = np.nan
+    u = np.arange(y.shape[0]) / N_REV
+    padded = np.full((3, y.shape[0] + 6), np.nan)
+    padded[:, 3:-3] = y.T
+    layouts = [y, np.asfortranarray(y), padded[:, 3:-3].T]
+    got = [find_extrema(v, u, samples_per_rev=N_REV)[0] for v in layouts]
+    assert got[0].height >= 30  # 6 revolutions x 3 channels x min and max, less the ends
+    for g in got[1:]:
+        assert g.equals(got[0])
+
+
 # --------------------------------------------------------------------------- process_scan on a raw scan
 
 

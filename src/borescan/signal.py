@@ -779,20 +779,14 @@ def _masked_xtx(X: np.ndarray, m: np.ndarray) -> np.ndarray:
     return np.einsum("ki,kj,rk->rij", X, X, m)
 
 
-class _FlatWindows(np.ndarray):
-    """``sliding_window_view`` of one flat array laid over equally spaced channel rows;
-    ``row_step`` = elements from one row's start to the next."""
-
-    row_step: int
-
-
-def _row_windows(vt: np.ndarray, k: int) -> np.ndarray:
+def _row_windows(vt: np.ndarray, k: int) -> tuple[np.ndarray, int | None]:
     """Windows of ``k`` samples of each row of ``vt`` (c, n), for :func:`_fit_windows`.
 
     When the rows are contiguous and equally spaced in one buffer (the channel rows of
-    :func:`process_arrays`), one flat view spans them all and a window is gathered as one
-    contiguous run (several times faster than indexing a 3-D window view); otherwise the 3-D
-    view ``sliding_window_view(vt, k, axis=1)``. Windows never cross rows: callers keep every
+    :func:`process_arrays`), returns ``sliding_window_view`` of one flat view spanning them all and
+    the row step (elements from one row's start to the next): a window is then gathered as one
+    contiguous run, several times faster than indexing a 3-D window view. Otherwise returns
+    ``(sliding_window_view(vt, k, axis=1), None)``. Windows never cross rows: callers keep every
     window inside its row.
     """
     c, n = vt.shape
@@ -800,23 +794,22 @@ def _row_windows(vt: np.ndarray, k: int) -> np.ndarray:
     if c and n >= k and vt.strides[1] == isz and vt.strides[0] >= n * isz and vt.strides[0] % isz == 0:
         step = vt.strides[0] // isz
         flat = np.lib.stride_tricks.as_strided(vt, shape=((c - 1) * step + n,), strides=(isz,), writeable=False)
-        win = sliding_window_view(flat, k).view(_FlatWindows)
-        win.row_step = step
-        return win
-    return sliding_window_view(vt, k, axis=1)
+        return sliding_window_view(flat, k), step
+    return sliding_window_view(vt, k, axis=1), None
 
 
-def _fit_windows(windows: np.ndarray, chan: np.ndarray, centers: np.ndarray, w: int, pinv: np.ndarray,
-                 X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fit_windows(windows: tuple[np.ndarray, int | None], chan: np.ndarray, centers: np.ndarray, w: int,
+                 pinv: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cubic least-squares fits of the windows of rows ``chan`` centred on ``centers``.
 
-    ``windows`` is ``sliding_window_view(rows, 2w+1, axis=1)`` of the channel rows (c, n)
-    (windows[j, k] = samples k..k+2w of row j). Returns coef (R, 4) (NaN where fewer than 8
+    ``windows`` comes from :func:`_row_windows` on the channel rows (c, n) with 2w+1 samples
+    (the window of row j at k holds samples k..k+2w). Returns coef (R, 4) (NaN where fewer than 8
     valid samples), the windows Y (R, 2w+1) and their NaN mask. Complete windows use the
     pseudo-inverse ``pinv`` of the design ``X``; windows with NaN are solved from their own
     masked normal equations (batched).
     """
-    Y = windows[chan, centers - w] if windows.ndim == 3 else windows[chan * windows.row_step + centers - w]
+    win, step = windows
+    Y = win[chan, centers - w] if step is None else win[chan * step + centers - w]
     bad = np.isnan(Y)
     rows_bad = bad.any(axis=1)
     if not rows_bad.any():
