@@ -18,7 +18,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["batcher_pairs", "selection_ops", "median_columns"]
+__all__ = ["batcher_pairs", "selection_ops", "select_ranks", "median_columns"]
 
 
 def batcher_pairs(n: int) -> tuple[tuple[int, int], ...]:
@@ -61,20 +61,28 @@ def selection_ops(n: int, ranks: tuple[int, ...]) -> tuple[tuple[int, int, bool,
     return tuple(reversed(ops))
 
 
+def select_ranks(cols: list[np.ndarray], ranks: tuple[int, ...]) -> list[np.ndarray]:
+    """Element-wise order statistics of k equally shaped NaN-free arrays: one array per rank in
+    ``ranks`` (0-based, ascending), by the pruned network; the inputs are not modified (a rank
+    no comparator touches comes back as the input array itself)."""
+    v = list(cols)
+    for i, j, keep_min, keep_max in selection_ops(len(v), tuple(ranks)):
+        a, b = v[i], v[j]
+        if keep_min:
+            v[i] = np.minimum(a, b)
+        if keep_max:
+            v[j] = np.maximum(a, b)
+    return [v[r] for r in ranks]
+
+
 def median_columns(cols: list[np.ndarray]) -> np.ndarray:
     """Element-wise median of k equally shaped NaN-free arrays (mean of the two middle ranks for
     even k), by a selection network; the inputs are not modified."""
     k = len(cols)
     if k == 0:
         raise ValueError("median of no values")
-    ranks = (k // 2,) if k % 2 else (k // 2 - 1, k // 2)
-    v = list(cols)
-    for i, j, keep_min, keep_max in selection_ops(k, ranks):
-        a, b = v[i], v[j]
-        if keep_min:
-            v[i] = np.minimum(a, b)
-        if keep_max:
-            v[j] = np.maximum(a, b)
     if k % 2:
-        return np.array(v[k // 2], copy=True) if v[k // 2] is cols[k // 2] else v[k // 2]
-    return 0.5 * (v[k // 2 - 1] + v[k // 2])
+        (mid,) = select_ranks(cols, (k // 2,))
+        return np.array(mid, copy=True) if mid is cols[k // 2] else mid
+    lo, hi = select_ranks(cols, (k // 2 - 1, k // 2))
+    return 0.5 * (lo + hi)
