@@ -146,8 +146,7 @@ def _ll_reference(col_x: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
 
     ``col_x`` is the column with excluded samples (nulls, candidates) set to NaN and padded with
     ``w // 2`` NaN at both ends (``idx`` indexes windows of ``w`` samples, i.e. the padded
-    position of each window's first sample; several padded rows may be laid end to end). Uses
-    the neighbours j = -h..h, j != 0, that are not NaN: Theil-Sen slope s (median of pairwise
+    position of each window's first sample). Uses the neighbours j = -h..h, j != 0, that are not NaN: Theil-Sen slope s (median of pairwise
     slopes), reference = median_j (v_{k+j} - j s). NaN when fewer than two neighbours are usable.
     """
     h = w // 2
@@ -181,7 +180,8 @@ def _ll_reference(col_x: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
 
 
 def _median_rows_full(a: np.ndarray) -> np.ndarray:
-    """Median of each row of a NaN-free 2-D array with an odd number of columns (partition, exact)."""
+    """Median of each row of a NaN-free 2-D array (exact: partition for an odd number of columns, a
+    selection network on the columns for an even one, where partition needs two ranks)."""
     m = a.shape[1]
     if m % 2:
         return np.partition(a, m // 2, axis=1)[:, m // 2]
