@@ -213,7 +213,7 @@ def _mad_scale(r: np.ndarray, max_n: int = 20_000) -> float:
     """1.4826 x median absolute deviation of the non-NaN values, on a uniform stride of at most
     ``max_n`` of them (relative standard uncertainty of the scale about 1 / sqrt(0.74 max_n))."""
     if r.size > max_n:
-        r = r[:: r.size // max_n]
+        r = r[:: -(-r.size // max_n)]  # ceil: at most max_n values
     r = r[~np.isnan(r)]
     if r.size == 0:
         return float("inf")
