@@ -631,3 +631,29 @@ def test_validate_cli_warnings_flag(root, capsys):
     assert out.err.splitlines() == [
         f"warning: S1: lds.parquet: channel {c}: 2 readings outside [0, 10] mm" for c in (1, 2, 3)
     ]
+
+
+def test_lds_fast_check_on_columns_chunked_differently():
+    """Columns whose Arrow chunks do not line up are checked as one chunk each: same warnings as the
+    full check (a reading above the range), and a decreasing sample is still declined."""
+    lds = make_lds(n=40)
+    vals = lds["value_mm"].to_list()
+    vals[5] = 12.5  # above the 10 mm range: a warning, not a problem
+    lds = lds.with_columns(pl.Series("value_mm", vals, dtype=pl.Float64))
+    tab = lds.to_arrow().select(rawio.LDS_SCHEMA.names).cast(rawio.LDS_SCHEMA)
+
+    def rechunk(t: pa.Table, name: str, at: int) -> pa.Table:
+        col = t.column(name).combine_chunks()
+        return t.set_column(t.column_names.index(name), name, pa.chunked_array([col[:at], col[at:]]))
+
+    tab = rechunk(rechunk(tab, "sample", 50), "value_mm", 17)
+    assert [len(c) for c in tab.column("sample").chunks] != [len(c) for c in tab.column("value_mm").chunks]
+    meta = make_meta()
+    p = rawio._Problems("S1")
+    full = rawio._check_lds_full(tab, meta, True, p, "lds.parquet")
+    assert not p.errors and full == ["lds.parquet: channel 3: 1 readings outside [0, 10] mm"]
+    assert rawio._lds_clean_warnings(tab, meta, True, "lds.parquet") == full
+    sample = tab.column("sample").combine_chunks().to_numpy().copy()
+    sample[60] = 0
+    bad = tab.set_column(0, "sample", pa.chunked_array([sample[:50], sample[50:]]))
+    assert rawio._lds_clean_warnings(bad, meta, True, "lds.parquet") is None

@@ -495,6 +495,12 @@ def _listed_sensors(meta: dict | None) -> dict[int, dict] | None:
     return {int(s["channel"]): s for s in meta["sensors"] if isinstance(s, dict) and _is_int(s.get("channel"))}
 
 
+def _device_type(meta: dict | None) -> Any:
+    """``meta["device"]["type"]`` when ``scan.json`` has it (any JSON value), else None."""
+    dev = meta.get("device") if isinstance(meta, dict) else None
+    return dev.get("type") if isinstance(dev, dict) else None
+
+
 def _range_warning(file: str, ch: int, count: int, rng: float) -> str:
     return f"{file}: channel {ch}: {count} readings outside [0, {rng:g}] mm"
 
@@ -504,13 +510,14 @@ def _range_of(sensor: dict) -> float | None:
     return rng if _is_number(rng) and math.isfinite(rng) and rng > 0 else None
 
 
-def _aligned_chunks(table: pa.Table, names: tuple[str, ...]) -> list[tuple[np.ndarray, ...]] | None:
-    """Zero-copy numpy views of the columns ``names``, chunk by chunk (nulls of a float column
-    read as NaN, which costs a copy of that chunk); None when the columns are chunked differently."""
+def _aligned_chunks(table: pa.Table, names: tuple[str, ...]) -> list[tuple[np.ndarray, ...]]:
+    """Numpy arrays of the columns ``names``, chunk by chunk: zero-copy views of the chunks as read
+    (nulls of a float column as NaN, which costs a copy of that chunk), or one combined chunk per
+    column when the columns are chunked differently."""
     cols = [table.column(k) for k in names]
     lengths = [[len(ch) for ch in c.chunks] for c in cols]
     if any(ln != lengths[0] for ln in lengths[1:]):
-        return None
+        return [tuple(_chunk_numpy(c.combine_chunks()) for c in cols)]
     return [tuple(_chunk_numpy(c.chunk(i)) for c in cols) for i in range(cols[0].num_chunks) if lengths[0][i]]
 
 
@@ -535,8 +542,6 @@ def _lds_clean_warnings(table: pa.Table, meta: dict | None, has_spindle: bool, f
     if n == 0 or any(table.column(k).null_count for k in table.column_names if k not in LDS_NULLABLE):
         return None
     chunks = _aligned_chunks(table, ("sample", "t_ns", "sensor", "value_mm"))
-    if chunks is None:
-        chunks = [tuple(_chunk_numpy(table.column(k).combine_chunks()) for k in ("sample", "t_ns", "sensor", "value_mm"))]
     listed = _listed_sensors(meta)
     chans = sorted(listed) if listed is not None else []
     per_ch = np.zeros(len(chans), dtype=np.int64)
@@ -587,8 +592,7 @@ def _lds_clean_warnings(table: pa.Table, meta: dict | None, has_spindle: bool, f
                 if out:
                     warnings.append(_range_warning(file, ch, out, rng))
     pcol = table.column("pose")
-    dev = meta.get("device") if isinstance(meta, dict) else None
-    dtype = dev.get("type") if isinstance(dev, dict) else None
+    dtype = _device_type(meta)
     if dtype == "rod":
         if pcol.null_count:
             return None
@@ -705,8 +709,7 @@ def _check_lds_full(
 
     # pose
     pcol = table.column("pose")
-    dev = meta.get("device") if isinstance(meta, dict) else None
-    dtype = dev.get("type") if isinstance(dev, dict) else None
+    dtype = _device_type(meta)
     if dtype == "rod":
         if pcol.null_count:
             pv = _np(pcol.is_null(), False)
