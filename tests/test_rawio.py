@@ -652,8 +652,12 @@ def test_lds_fast_check_on_columns_chunked_differently():
     p = rawio._Problems("S1")
     full = rawio._check_lds_full(tab, meta, True, p, "lds.parquet")
     assert not p.errors and full == ["lds.parquet: channel 3: 1 readings outside [0, 10] mm"]
-    assert rawio._lds_clean_warnings(tab, meta, True, "lds.parquet") == full
+    warnings, mat = rawio._lds_fast_check(tab, meta, True, "lds.parquet")  # the usual layout: on the matrix
+    assert warnings == full and mat is not None and mat.values_mm[5 // 3, 5 % 3] == 12.5
+    listed = rawio._listed_sensors(meta)
+    assert rawio._lds_chunk_warnings(tab, listed, "lds.parquet") == full  # and chunk by chunk
     sample = tab.column("sample").combine_chunks().to_numpy().copy()
     sample[60] = 0
     bad = tab.set_column(0, "sample", pa.chunked_array([sample[:50], sample[50:]]))
-    assert rawio._lds_clean_warnings(bad, meta, True, "lds.parquet") is None
+    assert rawio._lds_fast_check(bad, meta, True, "lds.parquet") is None
+    assert rawio._lds_chunk_warnings(bad, listed, "lds.parquet") is None

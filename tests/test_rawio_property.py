@@ -7,6 +7,7 @@ import json
 import shutil
 import tempfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import polars as pl
@@ -246,8 +247,9 @@ def test_mutated_scans_are_accepted_only_when_valid(base, muts):
        cuts=st.lists(st.integers(1, N * len(CHANS) - 1), max_size=4))
 def test_fast_lds_check_agrees_with_the_full_check(base, muts, rod, spindle, cuts):
     """The fast path of the lds check returns exactly the full check's warnings when the table
-    has no problem, and declines (None) whenever the full check finds one; the table is cut into
-    chunks at random rows (the fast path works chunk by chunk, pairs across a cut included)."""
+    has no problem, and declines (None) whenever the full check finds one, both on the wide matrix
+    (tables in the usual layout) and chunk by chunk; the table is cut into chunks at random rows
+    (both paths work on the chunks as read, pairs across a cut included)."""
     from borescan import rawio
 
     base_dir, _ = base
@@ -270,10 +272,19 @@ def test_fast_lds_check_agrees_with_the_full_check(base, muts, rod, spindle, cut
             table = table.set_column(table.column_names.index("pose"), "pose", pose.to_arrow())
         meta = {**META, "device": {"id": "R", "type": "rod" if rod else "tri_lds"}}
         full = rawio._check_lds_full(table, meta, spindle, p, "lds.parquet")
-        fast = rawio._lds_clean_warnings(table, meta, spindle, "lds.parquet")
+        fast = rawio._lds_fast_check(table, meta, spindle, "lds.parquet")
         if p.errors:
             event("problem")
             assert fast is None
+            assert rawio._lds_fast_check(table, meta, spindle, "lds.parquet", layout=False) is None
         else:
             event("clean, with warnings" if full else "clean")
-            assert fast == full
+            assert fast is not None and fast[0] == full
+            assert rawio._lds_fast_check(table, meta, spindle, "lds.parquet", layout=False) == (full, None)
+            if fast[1] is not None:  # checked on the wide matrix: it is the general long -> wide one
+                event("usual layout")
+                # a channel listed without rows forces the general scatter (its column all NaN)
+                general = rawio.lds_matrix(SimpleNamespace(lds=pl.from_arrow(table), channels=(*CHANS, 99)))
+                np.testing.assert_array_equal(fast[1].values_mm, general.values_mm[:, :len(CHANS)])
+                for k in ("sample", "t_s", "pose"):
+                    np.testing.assert_array_equal(getattr(fast[1], k), getattr(general, k))

@@ -159,6 +159,8 @@ class RawScan:
     files: dict[str, Path]
     warnings: list[str] = field(default_factory=list)
     _digests: dict[str, str] = field(default_factory=dict, repr=False)
+    # (the ``lds`` frame, its wide matrix) when validation built the matrix on the way: see lds_matrix
+    _matrix: tuple[pl.DataFrame, LdsMatrix] | None = field(default=None, repr=False, compare=False)
 
     @property
     def sha256(self) -> dict[str, str]:
@@ -529,20 +531,87 @@ def _chunk_numpy(arr: pa.Array) -> np.ndarray:
     return arr.to_numpy(zero_copy_only=False)
 
 
-def _lds_clean_warnings(table: pa.Table, meta: dict | None, has_spindle: bool, file: str) -> list[str] | None:
+def _lds_fast_check(table: pa.Table, meta: dict | None, has_spindle: bool, file: str, *, layout: bool = True
+                    ) -> tuple[list[str], LdsMatrix | None] | None:
     """:func:`_check_lds` for a table that passes every check, in far fewer passes over the data.
 
-    Returns the warnings :func:`_check_lds` would return when the table has no problem, and None
-    as soon as anything might be one; the caller then runs :func:`_check_lds_full` for the
-    messages. Works on the Arrow chunks as they were read (no concatenation); sorting is tested
-    by comparing neighbours (no int64 differences), readings per channel by one comparison per
-    listed channel, and the range only where the extreme readings leave [0, range].
+    Returns (the warnings :func:`_check_lds` would return, the wide matrix when the table is in the
+    usual layout of :func:`_regular_matrix`, else None) when the table has no problem, and None as
+    soon as anything might be one; the caller then runs :func:`_check_lds_full` for the messages.
+    A table in the usual layout is checked on its wide matrix (the layout implies the ordering
+    checks); any other one (or every one, ``layout=False``) chunk by chunk as Arrow read it
+    (:func:`_lds_chunk_warnings`).
     """
     n = table.num_rows
     if n == 0 or any(table.column(k).null_count for k in table.column_names if k not in LDS_NULLABLE):
         return None
-    chunks = _aligned_chunks(table, ("sample", "t_ns", "sensor", "value_mm"))
     listed = _listed_sensors(meta)
+    mat = _regular_matrix(table, tuple(sorted(listed))) if listed and layout else None
+    if mat is not None:
+        warnings = _matrix_warnings(mat, table.column("value_mm").null_count, listed, file)
+    else:
+        warnings = _lds_chunk_warnings(table, listed, file)
+    if warnings is None or not _pose_ok(table, meta, has_spindle):
+        return None
+    return warnings, mat
+
+
+def _matrix_warnings(mat: LdsMatrix, nulls: int, listed: dict[int, dict], file: str) -> list[str] | None:
+    """Range warnings of a table in the usual layout from its wide matrix (NaN = null); None when
+    something might be a problem: a negative first sample or time, NaN or infinite readings, a
+    listed channel without valid readings."""
+    if mat.sample[0] < 0 or mat.t_s[0] < 0:
+        return None
+    vals = mat.values_mm.reshape(-1)
+    lo, hi = float(np.fmin.reduce(vals)), float(np.fmax.reduce(vals))  # NaN (null) ignored
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return None  # infinite readings, or no valid reading at all
+    nan_at = np.flatnonzero(np.isnan(vals))
+    if nan_at.size != nulls:
+        return None  # NaN readings
+    c = len(mat.channels)
+    if (np.bincount(nan_at % c, minlength=c) >= mat.values_mm.shape[0]).any():
+        return None  # a listed channel without valid readings
+    return _range_warnings(lo, hi, listed, file,
+                           lambda j, rng: int(np.count_nonzero((mat.values_mm[:, j] < 0) | (mat.values_mm[:, j] > rng))))
+
+
+def _range_warnings(lo: float, hi: float, listed: dict[int, dict], file: str, count_out) -> list[str]:
+    """Warnings for readings outside [0, range] per listed channel, counted (``count_out(j, range)``
+    for the j-th channel ascending) only when the extreme readings ``lo``, ``hi`` leave [0, range]."""
+    chans = sorted(listed)
+    ranges = [_range_of(listed[ch]) for ch in chans]
+    limit = min((r for r in ranges if r is not None), default=np.inf)
+    warnings: list[str] = []
+    if lo < 0 or hi > limit:
+        for j, (ch, rng) in enumerate(zip(chans, ranges)):
+            out = count_out(j, rng) if rng is not None else 0
+            if out:
+                warnings.append(_range_warning(file, ch, out, rng))
+    return warnings
+
+
+def _pose_ok(table: pa.Table, meta: dict | None, has_spindle: bool) -> bool:
+    """The pose checks of :func:`_check_lds_full` pass (rod: every pose set, >= 0, one per sample;
+    tri_lds with a spindle stream: no pose)."""
+    pcol = table.column("pose")
+    dtype = _device_type(meta)
+    if dtype == "rod":
+        if pcol.null_count:
+            return False
+        sample = table.column("sample").combine_chunks().to_numpy()
+        pose = pcol.combine_chunks().to_numpy()
+        return not (pose.min() < 0 or ((sample[1:] == sample[:-1]) & (pose[1:] != pose[:-1])).any())
+    return not (dtype == "tri_lds" and has_spindle and pcol.null_count != table.num_rows)
+
+
+def _lds_chunk_warnings(table: pa.Table, listed: dict[int, dict] | None, file: str) -> list[str] | None:
+    """Ordering, finiteness, channel and range checks of any table without nulls where they are not
+    allowed, on the Arrow chunks as they were read (no concatenation): sorting is tested by
+    comparing neighbours (no int64 differences), readings per channel by one comparison per listed
+    channel. Returns the range warnings, None when something might be a problem."""
+    n = table.num_rows
+    chunks = _aligned_chunks(table, ("sample", "t_ns", "sensor", "value_mm"))
     chans = sorted(listed) if listed is not None else []
     per_ch = np.zeros(len(chans), dtype=np.int64)
     lo, hi, non_finite = np.inf, -np.inf, 0
@@ -571,46 +640,26 @@ def _lds_clean_warnings(table: pa.Table, meta: dict | None, has_spindle: bool, f
     vcol = table.column("value_mm")
     if non_finite != vcol.null_count:
         return None  # NaN/inf readings
-    warnings: list[str] = []
-    if listed is not None:
-        if per_ch.sum() != n:
-            return None  # an unlisted channel
-        if vcol.null_count:  # readings per channel less its nulls (few): every listed channel needs one
-            sensor_all = table.column("sensor").filter(vcol.is_null()).to_numpy()
-            per_ch = per_ch - np.array([np.count_nonzero(sensor_all == ch) for ch in chans], dtype=np.int64)
-        if not (per_ch > 0).all():
-            return None  # a listed channel without valid readings
-        ranges = {ch: _range_of(listed[ch]) for ch in chans}
-        limit = min((r for r in ranges.values() if r is not None), default=np.inf)
-        if lo < 0 or hi > limit:  # some reading may leave its channel's range: count them per channel
-            for ch in chans:
-                rng = ranges[ch]
-                if rng is None:
-                    continue
-                out = sum(int(np.count_nonzero((sensor == ch) & ((value < 0) | (value > rng))))
-                          for _, _, sensor, value in chunks)
-                if out:
-                    warnings.append(_range_warning(file, ch, out, rng))
-    pcol = table.column("pose")
-    dtype = _device_type(meta)
-    if dtype == "rod":
-        if pcol.null_count:
-            return None
-        sample = table.column("sample").combine_chunks().to_numpy()
-        pose = pcol.combine_chunks().to_numpy()
-        if pose.min() < 0 or ((sample[1:] == sample[:-1]) & (pose[1:] != pose[:-1])).any():
-            return None
-    elif dtype == "tri_lds" and has_spindle and pcol.null_count != n:
-        return None
-    return warnings
+    if listed is None:
+        return []
+    if per_ch.sum() != n:
+        return None  # an unlisted channel
+    if vcol.null_count:  # readings per channel less its nulls (few): every listed channel needs one
+        sensor_all = table.column("sensor").filter(vcol.is_null()).to_numpy()
+        per_ch = per_ch - np.array([np.count_nonzero(sensor_all == ch) for ch in chans], dtype=np.int64)
+    if not (per_ch > 0).all():
+        return None  # a listed channel without valid readings
+    return _range_warnings(lo, hi, listed, file, lambda j, rng: sum(
+        int(np.count_nonzero((sensor == chans[j]) & ((value < 0) | (value > rng)))) for _, _, sensor, value in chunks))
 
 
 def _check_lds(
     table: pa.Table, meta: dict | None, has_spindle: bool, p: _Problems, file: str
-) -> list[str]:
-    """Check the data of an ``lds.parquet`` table with the right schema; return warnings."""
-    fast = _lds_clean_warnings(table, meta, has_spindle, file)
-    return fast if fast is not None else _check_lds_full(table, meta, has_spindle, p, file)
+) -> tuple[list[str], LdsMatrix | None]:
+    """Check the data of an ``lds.parquet`` table with the right schema; return (warnings, the wide
+    matrix when the fast check built it on the way, else None)."""
+    fast = _lds_fast_check(table, meta, has_spindle, file)
+    return fast if fast is not None else (_check_lds_full(table, meta, has_spindle, p, file), None)
 
 
 def _check_lds_full(
@@ -958,8 +1007,9 @@ def _inspect(
     lds_tab = _read_parquet(lds_path, LDS_FILE, LDS_SCHEMA, p) if lds_path is not None else None
     sp_tab = _read_parquet(sp_path, SPINDLE_FILE, SPINDLE_SCHEMA, p) if sp_path is not None else None
     warnings: list[str] = []
+    matrix = None
     if lds_tab is not None:
-        warnings = _check_lds(lds_tab, meta if meta_ok else None, has_spindle_file, p, LDS_FILE)
+        warnings, matrix = _check_lds(lds_tab, meta if meta_ok else None, has_spindle_file, p, LDS_FILE)
     if sp_tab is not None:
         _check_spindle(sp_tab, p, SPINDLE_FILE)
     if p:
@@ -967,16 +1017,23 @@ def _inspect(
     files = {SCAN_JSON: meta_path, LDS_FILE: lds_path}
     if sp_tab is not None:
         files[SPINDLE_FILE] = sp_path
+    lds = pl.from_arrow(lds_tab)
+    if matrix is not None and matrix.channels != tuple(sorted(int(s["channel"]) for s in meta["sensors"])):
+        matrix = None
+    if matrix is not None:
+        for a in (matrix.sample, matrix.t_s, matrix.values_mm, matrix.pose):
+            a.flags.writeable = False  # shared by every lds_matrix(scan) call
     scan = RawScan(
         scan_id=sid,
         night=night,
         path=scan_dir,
         meta=meta,
-        lds=pl.from_arrow(lds_tab),
+        lds=lds,
         spindle=pl.from_arrow(sp_tab) if sp_tab is not None else None,
         files=files,
         warnings=warnings,
         _digests={SCAN_JSON: meta_digest},
+        _matrix=(lds, matrix) if matrix is not None else None,
     )
     return scan, []
 
@@ -1250,42 +1307,53 @@ def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
     return out.reshape(n, c)
 
 
-def _lds_matrix_reshaped(t: pl.DataFrame, listed: tuple[int, ...]) -> LdsMatrix | None:
-    """:func:`lds_matrix` for the usual layout, straight from the Arrow chunks; None when it does not apply.
+def _regular_matrix(tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
+    """The wide matrix of an ``lds`` Arrow table in the usual layout, straight from its chunks; None
+    when the layout does not apply.
 
-    The usual layout: rows sorted by (sample, sensor), every listed channel on every sample, no
-    null sample / sensor / t_ns, float64 readings. Then row r is sample r // c, channel r % c and
-    the wide matrix is a strided copy of the value buffers (no long -> wide scatter).
+    The usual layout: every sample has one row per listed channel (``listed`` ascending) in channel
+    order, rows sorted by sample, ``sample`` strictly increasing from one sample to the next and
+    ``t_ns`` too, both equal within a sample; no null sample / sensor / t_ns; float64 readings.
+    Then row r is sample r // c, channel r % c and the wide matrix is a strided copy of the value
+    buffers (no long -> wide scatter). Such a table passes every ordering check of
+    :func:`_check_lds_full`, so the validation uses this too (:func:`_lds_fast_check`).
     """
-    c = len(listed)
-    if not t.height or not c or t.height % c or t.schema["value_mm"] != pl.Float64:
+    c, rows = len(listed), tab.num_rows
+    if not rows or not c or rows % c or tab.schema.field("value_mm").type != pa.float64():
         return None
-    tab = t.select("sample", "sensor", "t_ns", "value_mm").to_arrow()
     sample, sensor, t_ns = (_chunk_views(tab.column(k)) for k in ("sample", "sensor", "t_ns"))
     if sample is None or sensor is None or t_ns is None:
         return None
-    n = t.height // c
+    n = rows // c
     s0 = _residue_column(sample, 0, c, n, np.int64)
-    if not (s0[1:] > s0[:-1]).all():
+    t0 = _residue_column(t_ns, 0, c, n, np.int64)
+    if not ((s0[1:] > s0[:-1]).all() and (t0[1:] > t0[:-1]).all()):
         return None
     for k in range(c):
         for v, g in _residue_views(sensor, k, c):
             if not (v == listed[k]).all():
                 return None
         if k:
-            for v, g in _residue_views(sample, k, c):
-                if not np.array_equal(v, s0[g: g + v.size]):
-                    return None
-    t_s = _residue_column(t_ns, 0, c, n, np.float64)
-    t_s /= 1e9
-    if t["pose"].null_count() == t.height:
+            for col, first in ((sample, s0), (t_ns, t0)):
+                for v, g in _residue_views(col, k, c):
+                    if not np.array_equal(v, first[g: g + v.size]):
+                        return None
+    pose = tab.column("pose")
+    if pose.null_count == rows:
         pose_s = np.full(n, -1, dtype=np.int64)
     else:
-        P = t["pose"].fill_null(-1).to_numpy().astype(np.int64).reshape(-1, c)
+        P = pose.fill_null(-1).to_numpy().astype(np.int64).reshape(-1, c)
         first = np.argmax(P >= 0, axis=1)
         pose_s = P[np.arange(n), first]  # -1 where the whole sample has no pose
-    return LdsMatrix(sample=s0, t_s=t_s, channels=listed, values_mm=_wide_values(tab.column("value_mm"), c, n),
+    return LdsMatrix(sample=s0, t_s=t0 / 1e9, channels=listed, values_mm=_wide_values(tab.column("value_mm"), c, n),
                      pose=pose_s)
+
+
+def _lds_matrix_reshaped(t: pl.DataFrame, listed: tuple[int, ...]) -> LdsMatrix | None:
+    """:func:`_regular_matrix` of a polars ``lds`` frame; None when the usual layout does not apply."""
+    if not t.height or not listed or t.schema["value_mm"] != pl.Float64:
+        return None
+    return _regular_matrix(t.select(*LDS_SCHEMA.names).to_arrow(), listed)
 
 
 def lds_matrix(scan: RawScan) -> LdsMatrix:
@@ -1296,6 +1364,9 @@ def lds_matrix(scan: RawScan) -> LdsMatrix:
     """
     t = scan.lds
     listed = tuple(sorted({int(ch) for ch in scan.channels}))
+    built = getattr(scan, "_matrix", None)
+    if built is not None and built[0] is t and built[1].channels == listed:
+        return built[1]  # built by read_scan's validation (read-only arrays)
     fast = _lds_matrix_reshaped(t, listed)
     if fast is not None:
         return fast
