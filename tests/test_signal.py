@@ -529,7 +529,7 @@ def test_filter_runs_only_where_it_shapes_a_result(monkeypatch):
     """extrema_on="despiked" (default): the extrema are the unfiltered fit and the filter is computed
     only when filtered_mm is read (then equal to filter_readings of the despiked readings);
     extrema_on="filtered": the extrema come from the filtered readings."""
-    import borescan.signal as sig
+    import borescan.signal.stage as sig
 
     y, *_ = _simulate(n_rev=8, seed=71)
     calls = []
