@@ -161,8 +161,8 @@ def main() -> dict:
     print(f"  processing only (lds_matrix + process_arrays): {t_proc * 1e3:6.1f} ms")
     for name, t in steps.items():
         print(f"    {name:26s}: {t * 1e3:7.1f} ms")
-    print(f"  the stage besides its read      : {(t_stage - t_read) * 1e3:6.1f} ms on one thread; at 0.5x it has"
-          f" {t_read * 1e3:.1f} ms (the read's own time)")
+    print(f"  stage less the plain read       : {(t_stage - t_read) * 1e3:6.1f} ms (one thread); at 0.5x it may take"
+          f" {t_read * 1e3:.1f} ms, the read's own time")
     print(f"  pyarrow read on one thread      : {t_read_one * 1e3:6.1f} ms (the threaded read keeps both cores busy)")
     print(f"  ratio whole stage / read        : {out['ratio']:.3f}  (target >= 0.5)")
     print(f"  ratio read + processing / read  : {out['ratio_processing']:.3f}  (no validation)")
