@@ -16,12 +16,3 @@ def _as_2d(values_mm: np.ndarray) -> tuple[np.ndarray, bool]:
 
 def _back(v: np.ndarray, was_1d: bool) -> np.ndarray:
     return v[:, 0] if was_1d else v
-
-
-def _median(x: np.ndarray) -> float:
-    """Median of a NaN-free 1-D array by partition (np.median's checks cost ~5x here)."""
-    m = x.size
-    if m % 2:
-        return float(np.partition(x, m // 2)[m // 2])
-    p = np.partition(x, (m // 2 - 1, m // 2))
-    return 0.5 * float(p[m // 2 - 1] + p[m // 2])
