@@ -1018,8 +1018,6 @@ def _inspect(
     if sp_tab is not None:
         files[SPINDLE_FILE] = sp_path
     lds = pl.from_arrow(lds_tab)
-    if matrix is not None and matrix.channels != tuple(sorted(int(s["channel"]) for s in meta["sensors"])):
-        matrix = None
     if matrix is not None:
         for a in (matrix.sample, matrix.t_s, matrix.values_mm, matrix.pose):
             a.flags.writeable = False  # shared by every lds_matrix(scan) call
@@ -1351,8 +1349,6 @@ def _regular_matrix(tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
 
 def _lds_matrix_reshaped(t: pl.DataFrame, listed: tuple[int, ...]) -> LdsMatrix | None:
     """:func:`_regular_matrix` of a polars ``lds`` frame; None when the usual layout does not apply."""
-    if not t.height or not listed or t.schema["value_mm"] != pl.Float64:
-        return None
     return _regular_matrix(t.select(*LDS_SCHEMA.names).to_arrow(), listed)
 
 
