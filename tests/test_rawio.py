@@ -661,3 +661,29 @@ def test_lds_fast_check_on_columns_chunked_differently():
     bad = tab.set_column(0, "sample", pa.chunked_array([sample[:50], sample[50:]]))
     assert rawio._lds_fast_check(bad, meta, True, "lds.parquet") is None
     assert rawio._lds_chunk_warnings(bad, listed, "lds.parquet") is None
+
+
+def test_read_scan_keeps_the_matrix_its_check_built(root):
+    """read_scan's check builds the wide matrix of a usual-layout table; lds_matrix(scan) returns
+    that one (read-only, the same object every call), equal to the general long -> wide scatter;
+    a scan whose lds frame was replaced gets a matrix of its own frame, not the stored one."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    scan = read_scan(write_scan(root, make_meta(), make_lds(), make_spindle()))
+    m = lds_matrix(scan)
+    assert lds_matrix(scan) is m
+    for a in (m.sample, m.t_s, m.values_mm, m.pose):
+        assert not a.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        m.values_mm[0, 0] = 1.0
+    # a channel listed without rows forces the general scatter (its column all NaN)
+    general = lds_matrix(SimpleNamespace(lds=scan.lds, channels=(1, 2, 3, 99)))
+    np.testing.assert_array_equal(m.values_mm, general.values_mm[:, :3])
+    np.testing.assert_array_equal(m.t_s, general.t_s)
+    np.testing.assert_array_equal(m.sample, general.sample)
+    assert np.isnan(m.values_mm).sum() == scan.lds["value_mm"].null_count() > 0
+    other = dataclasses.replace(scan, lds=scan.lds.with_columns(pl.col("value_mm") + 1.0))
+    m2 = lds_matrix(other)
+    assert m2 is not m
+    np.testing.assert_allclose(m2.values_mm, m.values_mm + 1.0)
