@@ -125,6 +125,29 @@ def test_filters_never_bridge_gaps(method, params):
     assert rms_out < 1.05 * np.sqrt(np.mean((y - truth[:, :2])[ok] ** 2))
 
 
+@pytest.mark.parametrize("w", [5, 7])
+def test_median_filter_near_nulls_is_the_median_of_the_valid_neighbours(w):
+    """Windows that touch a null take the median of their valid samples only (even count: mean of
+    the middle two), the ends padded with the edge sample; checked against np.nanmedian per window."""
+    rng = np.random.default_rng(11)
+    y = rng.normal(5.0, 0.01, (400, 2))
+    y[[0, 3, 4, 50, 51, 52, 53, 54, 55, 56, 200, 399], 0] = np.nan  # runs longer than a window too
+    y[[1, 2, 120, 122, 124, 398], 1] = np.nan
+    out = median_filter(y, w)
+    h = w // 2
+    for j in range(2):
+        col = y[:, j]
+        padded = np.concatenate([np.full(h, col[0]), col, np.full(h, col[-1])])
+        for k in range(col.size):
+            win = padded[k: k + w]
+            if np.isnan(col[k]):
+                assert np.isnan(out[k, j])
+            elif np.isnan(win).any():
+                assert out[k, j] == np.nanmedian(win), (j, k)
+            else:
+                assert out[k, j] == np.median(win), (j, k)
+
+
 def test_unknown_filter_names_the_valid_ones():
     with pytest.raises(ValueError, match="valid: none, median, moving_average, kalman, gaussian"):
         filter_readings(np.zeros(10), method="butterworth")
