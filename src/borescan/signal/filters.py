@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from borescan.signal._common import _as_2d, _back
+from borescan.signal._common import _as_2d, _back, _nanmedian_rows
 
 FILTERS = ("none", "median", "moving_average", "kalman", "gaussian")
 _ALPHA_GAUSS = math.sqrt(math.log(2.0) / math.pi)  # ISO 16610-21: 50 % transmission at cutoff
@@ -58,12 +58,7 @@ def _running_median(v: np.ndarray, w: int) -> np.ndarray:
         med = ndimage.median_filter(filled, size=w, mode="nearest")
         touched = np.flatnonzero(ndimage.maximum_filter1d(bad.astype(np.uint8), size=w, mode="nearest"))
         padded = np.concatenate([np.full(h, col[0]), col, np.full(h, col[-1])])
-        win = padded[touched[:, None] + np.arange(w)]
-        cnt = np.sum(~np.isnan(win), axis=1)
-        srt = np.sort(win, axis=1)  # NaN sort last
-        lo = srt[np.arange(len(touched)), np.maximum((cnt - 1) // 2, 0)]
-        hi = srt[np.arange(len(touched)), np.maximum(cnt // 2, 0)]
-        med[touched] = np.where(cnt > 0, 0.5 * (lo + hi), np.nan)
+        med[touched] = _nanmedian_rows(padded[touched[:, None] + np.arange(w)])
         out[:, j] = med
     return out
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from borescan.signal._common import _as_2d, _back
+from borescan.signal._common import _as_2d, _back, _nanmedian_rows
 from borescan.sortnet import median_columns
 
 _SPIKE_CANDIDATE_THRESHOLD = 2.5  # chord test of remove_spikes, in MAD scales
@@ -56,18 +56,6 @@ def _median_rows_full(a: np.ndarray) -> np.ndarray:
     if m % 2:
         return np.partition(a, m // 2, axis=1)[:, m // 2]
     return median_columns([a[:, k] for k in range(m)])
-
-
-def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
-    """Median of each row ignoring NaN (NaN for an all-NaN row); sort-based, no warnings."""
-    srt = np.sort(a, axis=1)  # NaN sort last
-    cnt = a.shape[1] - np.count_nonzero(np.isnan(a), axis=1)
-    r = np.arange(a.shape[0])
-    lo = srt[r, np.maximum((cnt - 1) // 2, 0)]
-    hi = srt[r, np.minimum(cnt // 2, a.shape[1] - 1)]
-    med = np.where(cnt % 2 == 1, lo, 0.5 * (lo + hi))
-    med[cnt == 0] = np.nan
-    return med
 
 
 def _median(x: np.ndarray) -> float:
