@@ -111,6 +111,10 @@ def process_arrays(
     n, c = v.shape
     chans = tuple(channels) if channels is not None else tuple(range(1, c + 1))
     h = _check_spike_window(spike_window_samples)
+    if extrema_on not in ("despiked", "filtered"):
+        raise ValueError(f"extrema_on must be 'despiked' or 'filtered', got {extrema_on!r}")
+    if filter not in FILTERS:
+        raise ValueError(f"unknown filter {filter!r}; valid: {', '.join(FILTERS)}")
     vp = _padded_rows(v, h)  # own copy, one contiguous row per channel
     spike_idx, nulls = _despike_rows(vp, h, spike_threshold, _SPIKE_CANDIDATE_THRESHOLD)
     clean = vp[:, h: h + n].T
@@ -129,10 +133,6 @@ def process_arrays(
                                       n_harmonics=n_harmonics)
         u = revolution_coordinate(n, period)
     spr = period.samples_per_rev
-    if extrema_on not in ("despiked", "filtered"):
-        raise ValueError(f"extrema_on must be 'despiked' or 'filtered', got {extrema_on!r}")
-    if filter not in FILTERS:
-        raise ValueError(f"unknown filter {filter!r}; valid: {', '.join(FILTERS)}")
     filtered = None
     if extrema_on == "filtered":  # otherwise the filter runs only if SignalResult.filtered_mm is read
         filtered = clean if filter == "none" else filter_readings(clean, method=filter, samples_per_rev=spr,
