@@ -332,3 +332,126 @@ def test_uncertainties_are_honest_over_200_calibrations():
     per_param = inside.mean(axis=0)
     assert np.all(per_param >= 0.88), per_param
     assert 0.90 <= inside.mean() <= 0.99, inside.mean()
+
+
+# ----------------------------------------------------------------------------- any scan the contract allows
+
+
+def _twin_scan(scene, *, encoder, n_rev=20, seed=0, effects=(), noise_mm=0.003, spindle_stream=True):
+    """A scan drawn by the digital twin, reduced to what the fit reads (times, readings, angle model)."""
+    import polars as pl
+
+    from borescan import kinematics, simulate
+
+    sim = simulate.simulate_tri_spindle(scene, n_rev=n_rev, encoder=encoder, seed=seed, effects=effects,
+                                        noise_mm=noise_mm, center_xy_mm=scene.bore_center_xy_mm)
+    w = sim.lds.pivot(on="sensor", index="t_ns", values="value_mm").sort("t_ns")
+    t = w["t_ns"].to_numpy() * 1e-9
+    v = w.select([str(c) for c in scene.beams.channels]).to_numpy().astype(float)
+    sp = sim.spindle
+    if spindle_stream:
+        am = kinematics.angle_model_from_arrays(
+            rpm_nominal=scene.rpm_nominal, direction=scene.direction, spindle_t_s=sp["t_ns"].to_numpy() * 1e-9,
+            spindle_angle_rad=sp["angle_rad"].cast(pl.Float64).fill_null(np.nan).to_numpy(),
+            spindle_rpm=sp["rpm"].to_numpy())
+    else:
+        am = kinematics.angle_model_from_arrays(rpm_nominal=60.0, direction=scene.direction)
+    return t, v, am
+
+
+def _contract_scene(**kw):
+    from dataclasses import replace
+
+    from borescan import simulate
+
+    beams = Beams((1, 2, 3), np.array([0.9, 2.9, 5.1]), np.array([7.2, -3.1, 0.8]), np.array([96.8, 99.0, 98.3]))
+    scene = simulate.default_tri_scene(beams=beams, bore_radius_20_mm=101.5, bore_center_xy_mm=(10.0, -4.0),
+                                       spindle_xy_mm=(11.2, -2.9), sample_rate_hz=450.0, rpm_nominal=60.0)
+    return replace(scene, **kw)
+
+
+def _z(cal, truth: Beams):
+    dbeta = cal.beams.beta_rad - truth.beta_rad
+    u_beta = cal.u_beta_rad.copy()
+    if cal.diagnostics["beta_reference"] != "absolute":
+        dbeta = dbeta - dbeta[0]
+        dbeta, u_beta = dbeta[1:], u_beta[1:]
+    return np.r_[dbeta / u_beta, (cal.beams.rho_mm - truth.rho_mm) / cal.u_rho_mm,
+                 (cal.beams.d_b_mm - truth.d_b_mm) / cal.u_d_b_mm]
+
+
+RAMP = ((0.0, 60.0), (8.0, 60.0), (9.0, 34.0))
+
+
+@pytest.mark.parametrize("encoder", [True, False])
+def test_speed_change_with_and_without_encoder(encoder):
+    """60 rpm, a 1 s ramp, then 34 rpm: the angle comes from the encoder, else from the rpm profile."""
+    scene = _contract_scene(rpm_profile=RAMP, phase_rad=1.3, direction="cw")
+    t, v, am = _twin_scan(scene, encoder=encoder, seed=3)
+    truth = scene.beams
+    nominal = Beams(truth.channels, truth.beta_rad + 0.018, truth.rho_mm - 0.8, truth.d_b_mm + 0.6)
+    cal = fit_full_calibration(t, v, truth.channels, nominal, scene.bore_radius_20_mm, scene.spindle_xy_mm,
+                               center_xy_mm=scene.bore_center_xy_mm, angle_models=[am], scan_ids=["R"])
+    z = _z(cal, truth)
+    assert np.all(np.abs(z) < 4), z
+    nu = cal.nuisance["R"]
+    assert nu["angle_source"] == ("encoder" if encoder else "profile")
+    if encoder:
+        # the encoder, the centre and the spindle position make every beta absolute: no design value is kept
+        assert cal.diagnostics["beta_reference"] == "absolute" and cal.u_beta_rad[0] > 0
+        assert abs(cal.beams.beta_rad[0] - truth.beta_rad[0]) < 4 * cal.u_beta_rad[0]
+    else:
+        assert cal.diagnostics["beta_reference"] == "channel 1 fixed"
+        assert abs(nu["speed_scale"] - 1.0) < 4 * nu["u_speed_scale"]
+    assert max(nu["residual_to_noise"]) < 1.1
+
+
+def test_mistyped_speed_without_spindle_stream():
+    """No spindle stream, rpm_nominal 60 while the spindle turns at 64.5 rpm (7.5 % off)."""
+    from dataclasses import replace
+
+    scene = _contract_scene(rpm_nominal=64.5)
+    t, v, am = _twin_scan(scene, encoder=False, seed=4, spindle_stream=False)
+    cal = fit_full_calibration(t, v, scene.beams.channels, scene.beams, scene.bore_radius_20_mm,
+                               angle_models=[am], scan_ids=["M"])
+    nu = cal.nuisance["M"]
+    assert nu["angle_source"] == "nominal"
+    assert abs(nu["speed_scale"] - 64.5 / 60.0) < 4 * nu["u_speed_scale"]
+    assert np.all(np.abs(_z(cal, replace(scene).beams)) < 4)
+
+
+def test_mirror_rho_start_finds_the_true_minimum():
+    """Design offsets of the wrong sign on every beam: the rho profile start still lands on the truth."""
+    scene = _contract_scene(rpm_profile=RAMP)
+    t, v, am = _twin_scan(scene, encoder=True, seed=5)
+    truth = scene.beams
+    nominal = Beams(truth.channels, truth.beta_rad, -truth.rho_mm, truth.d_b_mm)
+    cal = fit_full_calibration(t, v, truth.channels, nominal, scene.bore_radius_20_mm, scene.spindle_xy_mm,
+                               center_xy_mm=scene.bore_center_xy_mm, angle_models=[am], scan_ids=["X"])
+    assert np.all(np.sign(cal.beams.rho_mm) == np.sign(truth.rho_mm))
+    assert np.all(np.abs(_z(cal, truth)) < 4)
+
+
+def test_unmodelled_effect_is_refused_with_the_reason():
+    """A 6 um, 7.3 Hz vibration on every channel, which no beam geometry absorbs: no certificate."""
+    from borescan.effects import Effect
+
+    scene = _contract_scene()
+    t, v, am = _twin_scan(scene, encoder=True, seed=6,
+                          effects=[Effect("vibration", {"f_hz": 7.3, "a_mm": 0.006, "phase": 0.4})])
+    with pytest.raises(CalibrationError, match=r"^B: calibration refused: B channel 1: residual rms is \d+\.\d\d times "
+                                               r"the readings' own noise floor \(limit 1\.25\)"):
+        fit_full_calibration(t, v, scene.beams.channels, scene.beams, scene.bore_radius_20_mm, scene.spindle_xy_mm,
+                             center_xy_mm=scene.bore_center_xy_mm, angle_models=[am], scan_ids=["B"])
+
+
+def test_impossible_geometry_is_refused():
+    """A head radius smaller than a beam's true offset: the fit is refused for physics, not noise."""
+    from borescan.calibration import AcceptanceRule
+
+    scene = _contract_scene()
+    t, v, am = _twin_scan(scene, encoder=True, seed=7)
+    with pytest.raises(CalibrationError, match=r"channel 1: \|rho\| = 7\.\d{3} mm exceeds the head radius 5 mm"):
+        fit_full_calibration(t, v, scene.beams.channels, scene.beams, scene.bore_radius_20_mm, scene.spindle_xy_mm,
+                             center_xy_mm=scene.bore_center_xy_mm, angle_models=[am], scan_ids=["H"],
+                             rule=AcceptanceRule(head_radius_mm=5.0))

@@ -48,6 +48,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from borescan.geometry import Beams, Bore, beam_frame, tri_spindle_readings
+from borescan.kinematics import AngleModel, angle_model_from_arrays, estimate_speed_scale
+from borescan.noise import noise_floor_mm
 
 __all__ = [
     "CalibrationError",
@@ -61,6 +63,7 @@ __all__ = [
     "yang_status",
     "yang_to_beams",
     "yang_calibration",
+    "AcceptanceRule",
     "fit_full_calibration",
     "full_residuals",
 ]
@@ -510,14 +513,14 @@ def yang_calibration(
 
 
 def _readings_and_jacobian(
-    t: np.ndarray, beams: Beams, offset: np.ndarray, omega: float, phase0: float, R: float
+    phi: np.ndarray, beams: Beams, offset: np.ndarray, R: float
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Exact readings (n, c) and their analytic derivatives for one scan.
+    """Exact readings (n, c) at device angles ``phi`` (n,) and their analytic derivatives.
 
     The wall point is P = o + Rot(phi)(F + s u) with the gauge centre at the origin; implicit
     differentiation of |P|^2 = R^2 gives ds/dp = -(P . dP/dp) / (P . Rot(phi) u).
+    ``jac["phi"]`` is dv/dphi (the chain rule gives phase and speed-scale columns).
     """
-    phi = phase0 + omega * t
     v = tri_spindle_readings(phi, offset, beams, Bore((0.0, 0.0), R))
     s = v + beams.d_b_mm
     F, u = beam_frame(beams.beta_rad, beams.rho_mm)  # (c, 2)
@@ -542,23 +545,23 @@ def _readings_and_jacobian(
         "rho": -(Px * nx + Py * ny) / den,
         "ox": -Px / den,
         "oy": -Py / den,
+        # dP/dphi = perp(Rot(phi)(F + s u)) = (-wy, wx)
+        "phi": -(Px * (-wy) + Py * wx) / den,
     }
-    # dP/dphi = perp(Rot(phi)(F + s u)) = (-wy, wx)
-    dphi = -(Px * (-wy) + Py * wx) / den
-    jac["phase"] = dphi
-    jac["omega"] = dphi * t[:, None]
     return v, jac
 
 
-def _linear_start(
-    t: np.ndarray, y: np.ndarray, mask: np.ndarray, beta: np.ndarray, omega: float, phase0: float
-):
-    """Offset (S - C) and constant per channel from v ~ k_c - ox cos(phi + beta_c) - oy sin(phi + beta_c)."""
+def _linear_start(phi: np.ndarray, y: np.ndarray, mask: np.ndarray, beta: np.ndarray):
+    """Offset (S - C) and constant per channel from v ~ k_c - ox cos(phi + beta_c) - oy sin(phi + beta_c).
+
+    First order in the offset (spec geometry expanded about a centred spindle); returns
+    (offset (2,), k (c,), SSE).
+    """
     n, c = y.shape
     rows, rhs = [], []
     for j in range(c):
         m = mask[:, j]
-        ang = phase0 + omega * t[m] + beta[j]
+        ang = phi[m] + beta[j]
         A = np.zeros((m.sum(), 2 + c))
         A[:, 0] = -np.cos(ang)
         A[:, 1] = -np.sin(ang)
@@ -567,9 +570,29 @@ def _linear_start(
         rhs.append(y[m, j])
     A = np.vstack(rows)
     b = np.concatenate(rhs)
-    sol, res, *_ = np.linalg.lstsq(A, b, rcond=None)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
     sse = float(np.sum((A @ sol - b) ** 2))
     return sol[:2], sol[2:], sse
+
+
+@dataclass(frozen=True)
+class AcceptanceRule:
+    """When a full-data calibration is trusted (``calibration`` section of the config).
+
+    max_residual_to_noise : largest accepted ratio of a channel's residual rms to its readings'
+        own white-noise floor (4th differences, model-free); under the model the ratio is
+        1 within ~1 % for the scans of the contract, so 1.25 refuses no correct fit while an
+        unmodelled effect of about 0.75 noise sigma rms is refused.
+    head_radius_mm : |rho| of a beam cannot exceed the sensor head's radius [mm].
+    position_accuracy_mm : standard uncertainty of each coordinate of the scan's ``center`` and
+        ``spindle.position`` (the machine's stated accuracy) [mm]; they enter the fit as priors.
+    speed_scale_range : speeds the search considers, as multiples of the commanded profile.
+    """
+
+    max_residual_to_noise: float = 1.25
+    head_radius_mm: float = 40.0
+    position_accuracy_mm: float = 0.002
+    speed_scale_range: tuple[float, float] = (0.25, 4.0)
 
 
 def fit_full_calibration(
@@ -584,37 +607,60 @@ def fit_full_calibration(
     center_xy_mm=None,
     direction: str = "ccw",
     phase0_rad=0.0,
+    angle_models: Sequence[AngleModel] | None = None,
+    range_mm=None,
+    rule: AcceptanceRule | None = None,
     scan_ids: Sequence[str] | None = None,
     device_id: str = "",
     raw_sha256: dict[str, str] | None = None,
     night: str | None = None,
-    speed_search: float = 0.01,
     max_nfev: int = 1000,
     cond_max: float = 1e10,
 ) -> TriCalibration:
     """Least-squares calibration on every sample of one or more ring-gauge spindle scans.
 
     Model (spec "Spindle scan", exact via :func:`borescan.geometry.tri_spindle_readings`):
-    v_c(t) = s - d_b_c with |o + Rot(phi(t))(F_c + s u_c)| = R, phi(t) = phi_0 + omega t,
-    o = spindle axis minus gauge centre (machine frame). The Yang 2017 Eq. 8 relations hold at
-    the extremes of this model.
+    v_c(t) = s - d_b_c with |o + Rot(phi(t))(F_c + s u_c)| = R, o = S - C (machine frame).
+    The angle phi(t) comes from each scan's :class:`~borescan.kinematics.AngleModel`: the encoder
+    angle itself, or phase + (1 + eps) Phi(t) with Phi the integral of the rpm profile (or
+    rpm_nominal t). The Yang 2017 Eq. 8 relations hold at the extremes of this model.
 
-    Free parameters: beta_c (c >= 2), rho_c, d_b_c; per scan o (2) and omega. Fixed (gauge):
-    beta of the first channel (``nominal``) and phi_0 per scan (``phase0_rad``, the encoder
-    zero). Solved with ``scipy.optimize.least_squares`` (Levenberg-Marquardt, analytic Jacobian,
-    Jacobian-scaled steps). Covariance: s^2 (J^T J)^-1 with s^2 = SSR / dof.
+    Unknowns: per channel beta, rho, d_b; per scan o (2), and with a commanded (not measured)
+    angle the speed scale 1 + eps and the phase. A ring gauge is a circle, so the data fix
+    beta_c + phi - angle(o) and |o| only. Hence:
+
+    - a scan with ``center_xy_mm`` and ``spindle_xy_mm`` gives o a prior (each coordinate with
+      ``rule.position_accuracy_mm``), which fixes angle(o);
+    - with an encoder and such a prior the beams are absolute (beta of every channel free);
+      otherwise beta of the first channel is held at ``nominal`` (the gauge freedom, said in
+      ``diagnostics["gauge"]`` and ``diagnostics["beta_reference"]``);
+    - a commanded angle's phase is free only where the prior fixes angle(o) (else it is held at
+      ``phase0_rad``, the same gauge freedom).
+
+    Starting values that cannot miss: the speed scale from the readings' spectrum over
+    ``rule.speed_scale_range`` refined on the first-harmonic misfit; offset and levels from the
+    linear first harmonic; each beam's rho from a profile over [-head, head] at fixed first
+    harmonic (beta + asin(rho / R) and d_b + rho^2 / (2 R) held, the quantities the data fix
+    best; this covers the mirror solutions of opposite rho). Internally those two combinations
+    are the fitted parameters, which straightens the valleys. Solved with
+    ``scipy.optimize.least_squares`` (Levenberg-Marquardt, analytic Jacobian). Covariance
+    s^2 (J^T J)^-1, s^2 = SSR / dof.
+
+    Acceptance (:class:`AcceptanceRule`): each channel's residual rms within
+    ``max_residual_to_noise`` of its readings' own noise floor, |rho| within the head radius,
+    d_b within what the gauge and the sensor range allow; otherwise ``CalibrationError`` with
+    the reason.
 
     Parameters
     ----------
     t_s : (n,) or list of (n_k,) sample times per scan [s]
     readings_mm : (n, c) or list of (n_k, c), NaN = missing [mm]
-    channels : channel numbers (c,), ascending; nominal : Beams, the starting point and gauge
-    R_mm : ring gauge radius [mm]
-    spindle_xy_mm, center_xy_mm : optional spindle position and gauge centre per scan (machine
-        frame) for the starting offset; without them the offset starts from a linear first-
-        harmonic fit
-    rpm : nominal speed per scan (scalar or list); direction : "ccw" or "cw"
-    speed_search : relative range of a coarse search of the rotation rate around rpm
+    channels : channel numbers (c,), ascending; nominal : Beams, the design geometry (a start)
+    R_mm : ring gauge radius at the scan's temperature [mm]
+    spindle_xy_mm, center_xy_mm : per scan spindle axis and gauge centre (machine frame) or None
+    rpm, direction, phase0_rad : without ``angle_models``: constant speed ``rpm`` per scan
+    angle_models : per scan :class:`~borescan.kinematics.AngleModel` (overrides rpm/direction)
+    range_mm : sensor range per channel (d_b plausibility), default 10 mm
     max_nfev, cond_max : iteration limit; largest acceptable condition number
 
     Returns
@@ -624,8 +670,10 @@ def fit_full_calibration(
     Raises
     ------
     CalibrationError naming the scans when the fit does not converge, the Jacobian is rank
-    deficient or worse conditioned than ``cond_max``, or there are fewer samples than parameters.
+    deficient or worse conditioned than ``cond_max``, there are fewer samples than parameters,
+    or the result fails the acceptance rule.
     """
+    rule = rule or AcceptanceRule()
     multi = isinstance(t_s, (list, tuple))
     ts = [np.asarray(x, dtype=float) for x in (t_s if multi else [t_s])]
     ys = [np.asarray(x, dtype=float) for x in (readings_mm if multi else [readings_mm])]
@@ -640,87 +688,182 @@ def fit_full_calibration(
     for k in range(K):
         if ys[k].shape != (ts[k].size, c):
             raise ValueError(f"{scan_ids[k]}: readings shape {ys[k].shape}, expected ({ts[k].size}, {c})")
-    sgn = {"ccw": 1.0, "cw": -1.0}[direction]
-    rpms = [float(x) for x in np.broadcast_to(np.asarray(rpm, float), (K,))]
-    phases = [float(x) for x in np.broadcast_to(np.asarray(phase0_rad, float), (K,))]
+    if angle_models is None:
+        rpms = np.broadcast_to(np.asarray(rpm, float), (K,))
+        angle_models = [angle_model_from_arrays(rpm_nominal=float(r), direction=direction) for r in rpms]
+    angle_models = list(angle_models)
+    if len(angle_models) != K:
+        raise ValueError("angle_models needs one entry per scan")
+    phases0 = [float(x) for x in np.broadcast_to(np.asarray(phase0_rad, float), (K,))]
+    Ss = _per_scan_xy(spindle_xy_mm, K)
+    Cs = _per_scan_xy(center_xy_mm, K)
+    priors = [None if (Ss[k] is None or Cs[k] is None) else Ss[k] - Cs[k] for k in range(K)]
+    range_arr = np.broadcast_to(np.asarray(10.0 if range_mm is None else range_mm, float), (c,))
     masks = [np.isfinite(y) for y in ys]
     n_obs = int(sum(m.sum() for m in masks))
+    Phis = [am.commanded_rad(t) for am, t in zip(angle_models, ts)]
+    commanded = [am.fits_speed_and_phase for am in angle_models]
+    free_phase = [commanded[k] and priors[k] is not None for k in range(K)]
+    absolute = any(am.source == "encoder" and priors[k] is not None for k, am in enumerate(angle_models))
 
-    # ---- starting values: rotation rate (coarse search), offset and d_b (linear first harmonic)
-    offsets0, omegas0 = [], []
+    n_needed = 3 * c - 1 + int(absolute) + sum(2 + int(free_phase[k]) + int(commanded[k]) for k in range(K))
+    n_prior_rows = 2 * sum(p is not None for p in priors)
+    if n_obs + n_prior_rows <= n_needed:
+        raise CalibrationError(scan_ids, f"{n_obs} valid samples for {n_needed} parameters")
+
+    # ---- noise floor of the readings themselves (model-free), per scan and channel
+    floors = np.array([noise_floor_mm(y, order=4) for y in ys])  # (K, c)
+    sigma = float(np.sqrt(np.mean(floors**2))) if np.all(np.isfinite(floors)) else 0.0
+    prior_w = (sigma if sigma > 0 else 1e-3) / rule.position_accuracy_mm
+
+    # ---- per scan: speed scale, offset, phase (starts)
+    scales0, offsets0, phase_start = [], [], []
     kconst = np.zeros(c)
     for k in range(K):
-        w_nom = sgn * 2.0 * np.pi * rpms[k] / 60.0
-        # grid step keeps the phase error at the end of the scan below ~0.05 rad
-        span = float(np.ptp(ts[k])) if ts[k].size else 0.0
-        n_grid = int(np.clip(np.ceil(2.0 * speed_search * abs(w_nom) * span / 0.05), 1, 4000)) | 1
-        grid = w_nom * (1.0 + np.linspace(-speed_search, speed_search, n_grid)) if speed_search > 0 else [w_nom]
-
-        # the search only ranks rates on the grid: every stride-th sample (<= 4000 per scan) is plenty
-        sub = slice(None, None, max(1, ts[k].size // 4000))
-        t_sub, y_sub, m_sub = ts[k][sub], ys[k][sub], masks[k][sub]
-
-        def sse(w: float, k: int = k, t_sub=t_sub, y_sub=y_sub, m_sub=m_sub) -> float:
-            return _linear_start(t_sub, y_sub, m_sub, nominal.beta_rad, w, phases[k])[2]
-
-        best = min(grid, key=sse)
-        off, kc, _ = _linear_start(ts[k], ys[k], masks[k], nominal.beta_rad, best, phases[k])
-        if spindle_xy_mm is not None and center_xy_mm is not None:
-            S = np.broadcast_to(np.asarray(spindle_xy_mm, float), (K, 2))[k]
-            C = np.broadcast_to(np.asarray(center_xy_mm, float), (K, 2))[k]
-            off = S - C
+        if commanded[k]:
+            try:
+                g = estimate_speed_scale(Phis[k], ys[k], scale_range=rule.speed_scale_range)
+            except ValueError as exc:
+                raise CalibrationError([scan_ids[k]], f"no rotation found in the readings: {exc}") from exc
+            phi_k = g * Phis[k]
+        else:
+            g = 1.0
+            phi_k = Phis[k]
+        off, kc, _ = _linear_start(phi_k, ys[k], masks[k], nominal.beta_rad)
+        ph = phases0[k] if commanded[k] else 0.0
+        if priors[k] is not None:
+            if free_phase[k]:
+                ph = float(np.arctan2(priors[k][1], priors[k][0]) - np.arctan2(off[1], off[0]))
+            off = priors[k]
+        elif commanded[k]:
+            # phase held at phase0: the linear fit was made at phase 0, rotate its offset
+            cph, sph = np.cos(ph), np.sin(ph)
+            off = np.array([cph * off[0] - sph * off[1], sph * off[0] + cph * off[1]])
+        scales0.append(g)
         offsets0.append(np.asarray(off, float))
-        omegas0.append(float(best))
+        phase_start.append(ph)
         kconst += kc / K
-    d_b0 = np.sqrt(R_mm**2 - nominal.rho_mm**2) - kconst
 
-    # ---- internal parameter vector: [beta_2..c, rho_1..c, g_1..c, (ox, oy, omega) per scan] with
-    # g = d_b + rho^2 / (2 R), the well-determined mean level: it straightens the curved
-    # rho-d_b valley (readings depend on rho mostly through rho^2 / (2 R) - d_b).
-    n_beam = 3 * c - 1
-    p_free = n_beam + 3 * K
-    if n_obs <= p_free:
+    def phi_of(k: int, phase: float, scale: float) -> np.ndarray:
+        return phase + scale * Phis[k] if commanded[k] else Phis[k]
+
+    # ---- internal parameters: per channel psi = beta + asin(rho/R), rho, g = d_b + rho^2/(2R);
+    # psi of the first channel only when the beams are absolute; per scan ox, oy, [phase], [scale]
+    ch0_free = 1 if absolute else 0
+    n_beam = 3 * c - 1 + ch0_free
+    nuis_cols: list[dict[str, int]] = []
+    col = n_beam
+    for k in range(K):
+        d = {"ox": col, "oy": col + 1}
+        col += 2
+        if free_phase[k]:
+            d["phase"] = col
+            col += 1
+        if commanded[k]:
+            d["scale"] = col
+            col += 1
+        nuis_cols.append(d)
+    p_free = col
+    n_prior = 2 * sum(p is not None for p in priors)
+    if n_obs + n_prior <= p_free:
         raise CalibrationError(scan_ids, f"{n_obs} valid samples for {p_free} parameters")
-    beta1 = float(nominal.beta_rad[0])
+    beta1_fixed = float(nominal.beta_rad[0])
+    psi1_fixed = beta1_fixed + np.arcsin(np.clip(nominal.rho_mm[0] / R_mm, -1, 1))
 
-    def unpack(x: np.ndarray) -> tuple[Beams, list[np.ndarray], list[float]]:
-        beta = np.concatenate([[beta1], x[: c - 1]])
-        rho = x[c - 1 : 2 * c - 1]
-        d_b = x[2 * c - 1 : 3 * c - 1] - rho**2 / (2.0 * R_mm)
-        nuis = x[n_beam:].reshape(K, 3)
-        return Beams(channels, beta, rho, d_b), [nu[:2] for nu in nuis], [float(nu[2]) for nu in nuis]
+    def split(x: np.ndarray):
+        psi = x[: c - 1 + ch0_free]
+        if not ch0_free:
+            psi = np.concatenate([[np.nan], psi])
+        rho = x[c - 1 + ch0_free : 2 * c - 1 + ch0_free]
+        g = x[2 * c - 1 + ch0_free : n_beam]
+        return psi, rho, g
 
-    x0 = np.concatenate(
-        [nominal.beta_rad[1:], nominal.rho_mm, d_b0 + nominal.rho_mm**2 / (2.0 * R_mm)]
-        + [np.r_[offsets0[k], omegas0[k]] for k in range(K)]
-    )
+    def unpack(x: np.ndarray):
+        psi, rho, g = split(x)
+        arc = np.arcsin(np.clip(rho / R_mm, -1.0, 1.0))
+        beta = psi - arc
+        if not ch0_free:
+            beta[0] = beta1_fixed
+        d_b = g - rho**2 / (2.0 * R_mm)
+        beams = Beams(channels, beta, rho, d_b)
+        nuis = []
+        for k in range(K):
+            cols = nuis_cols[k]
+            nuis.append((np.array([x[cols["ox"]], x[cols["oy"]]]),
+                         x[cols["phase"]] if "phase" in cols else phase_start[k],
+                         x[cols["scale"]] if "scale" in cols else 1.0))
+        return beams, nuis
 
-    def model(x: np.ndarray, with_jac: bool, full: bool = False):
-        beams, offs, oms = unpack(x)
+    def pack(beams: Beams, nuis) -> np.ndarray:
+        arc = np.arcsin(np.clip(beams.rho_mm / R_mm, -1.0, 1.0))
+        psi = beams.beta_rad + arc
+        x = np.zeros(p_free)
+        x[: c - 1 + ch0_free] = psi if ch0_free else psi[1:]
+        x[c - 1 + ch0_free : 2 * c - 1 + ch0_free] = beams.rho_mm
+        x[2 * c - 1 + ch0_free : n_beam] = beams.d_b_mm + beams.rho_mm**2 / (2.0 * R_mm)
+        for k in range(K):
+            cols = nuis_cols[k]
+            x[cols["ox"]], x[cols["oy"]] = nuis[k][0]
+            if "phase" in cols:
+                x[cols["phase"]] = nuis[k][1]
+            if "scale" in cols:
+                x[cols["scale"]] = nuis[k][2]
+        return x
+
+    def model(x: np.ndarray, with_jac: bool, full: bool = False, rows: list | None = None):
+        beams, nuis = unpack(x)
+        rho = beams.rho_mm
+        dbeta_drho = -1.0 / np.sqrt(np.maximum(R_mm**2 - rho**2, 1e-300))
         res_parts, jac_parts = [], []
         ncols = p_free + (1 + K if full else 0)
         for k in range(K):
-            v, jac = _readings_and_jacobian(ts[k], beams, offs[k], oms[k], phases[k], R_mm)
-            m = masks[k]
-            res_parts.append((v - ys[k])[m])
+            off, ph, sc = nuis[k]
+            sel = slice(None) if rows is None else rows[k]
+            t_phi = phi_of(k, ph, sc)[sel]
+            v, jac = _readings_and_jacobian(t_phi, beams, off, R_mm)
+            m = masks[k][sel]
+            res_parts.append((v - ys[k][sel])[m])
             if with_jac:
-                nk = ts[k].size
+                nk = t_phi.size
                 Jk = np.zeros((nk, c, ncols))
                 for j in range(c):
-                    if j > 0:
-                        Jk[:, j, j - 1] = jac["beta"][:, j]
-                    Jk[:, j, c - 1 + j] = jac["rho"][:, j] + beams.rho_mm[j] / R_mm
-                    Jk[:, j, 2 * c - 1 + j] = -1.0
-                col = n_beam + 3 * k
-                Jk[:, :, col] = jac["ox"]
-                Jk[:, :, col + 1] = jac["oy"]
-                Jk[:, :, col + 2] = jac["omega"]
+                    if j > 0 or ch0_free:
+                        Jk[:, j, j - 1 + ch0_free] = jac["beta"][:, j]
+                    # d/drho at fixed psi and g: beta moves by -drho/sqrt(R^2-rho^2), d_b by -rho/R drho
+                    drho = jac["rho"][:, j] + rho[j] / R_mm
+                    if j > 0 or ch0_free:
+                        drho = drho + jac["beta"][:, j] * dbeta_drho[j]
+                    Jk[:, j, c - 1 + ch0_free + j] = drho
+                    Jk[:, j, 2 * c - 1 + ch0_free + j] = -1.0
+                cols = nuis_cols[k]
+                Jk[:, :, cols["ox"]] = jac["ox"]
+                Jk[:, :, cols["oy"]] = jac["oy"]
+                if "phase" in cols:
+                    Jk[:, :, cols["phase"]] = jac["phi"]
+                if "scale" in cols:
+                    Jk[:, :, cols["scale"]] = jac["phi"] * Phis[k][sel][:, None]
                 if full:
-                    Jk[:, 0, p_free] = jac["beta"][:, 0]
-                    Jk[:, :, p_free + 1 + k] = jac["phase"]
+                    if not ch0_free:
+                        Jk[:, 0, p_free] = jac["beta"][:, 0]
+                    Jk[:, :, p_free + 1 + k] = jac["phi"]
                 jac_parts.append(Jk[m])
+        for k in range(K):
+            if priors[k] is not None:
+                res_parts.append(prior_w * (nuis[k][0] - priors[k]))
+                if with_jac:
+                    Jp = np.zeros((2, ncols))
+                    Jp[0, nuis_cols[k]["ox"]] = prior_w
+                    Jp[1, nuis_cols[k]["oy"]] = prior_w
+                    jac_parts.append(Jp)
         r = np.concatenate(res_parts)
         return (r, np.vstack(jac_parts)) if with_jac else r
+
+    # ---- rho profile per channel at fixed first harmonic (covers mirror solutions)
+    d_b0 = np.sqrt(np.maximum(R_mm**2 - nominal.rho_mm**2, 0.0)) - kconst
+    start_beams = Beams(channels, nominal.beta_rad.copy(), nominal.rho_mm.copy(), d_b0)
+    x0 = pack(start_beams, [(offsets0[k], phase_start[k], scales0[k]) for k in range(K)])
+    rows_sub = [np.arange(0, ts[k].size, max(1, ts[k].size // 3000)) for k in range(K)]
+    x0 = _rho_profile(x0, model, rows_sub, c, ch0_free, R_mm, rule.head_radius_mm)
 
     try:
         sol = least_squares(
@@ -742,8 +885,10 @@ def fit_full_calibration(
         raise CalibrationError(
             scan_ids, f"full_lsq did not converge after {sol.nfev} evaluations ({sol.message})"
         )
-    dof = n_obs - p_free
+    n_rows = n_obs + n_prior
+    dof = n_rows - p_free
     ssr = float(r @ r)
+    ssr_readings = float(r[:n_obs] @ r[:n_obs])
     s2 = ssr / dof
     colnorm = np.linalg.norm(J, axis=0)
     colnorm[colnorm == 0] = 1.0
@@ -752,7 +897,6 @@ def fit_full_calibration(
     tol = sv[0] * max(Js.shape) * np.finfo(float).eps
     rank = int(np.sum(sv > tol))
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
-    # rank with the gauge parameters (beta_1, phase per scan) free too
     _, Jf = model(sol.x, True, full=True)
     cf = np.linalg.norm(Jf, axis=0)
     cf[cf == 0] = 1.0
@@ -766,43 +910,75 @@ def fit_full_calibration(
         )
     cov_s = (Vt.T / sv**2) @ Vt
     cov_int = s2 * cov_s / np.outer(colnorm, colnorm)
-    # back to (beta, rho, d_b): d_b = g - rho^2 / (2 R)
+    beams, nuis = unpack(sol.x)
+    rho_hat = beams.rho_mm
+    # Jacobian of the public free parameters (beta free, rho, d_b, nuisance) w.r.t. internal ones
     A = np.eye(p_free)
-    rho_hat = sol.x[c - 1 : 2 * c - 1]
     for j in range(c):
-        A[2 * c - 1 + j, c - 1 + j] = -rho_hat[j] / R_mm
+        i_rho = c - 1 + ch0_free + j
+        i_g = 2 * c - 1 + ch0_free + j
+        A[i_g, i_rho] = -rho_hat[j] / R_mm
+        if j > 0 or ch0_free:
+            A[j - 1 + ch0_free, i_rho] = -1.0 / np.sqrt(R_mm**2 - rho_hat[j] ** 2)
     cov_free = A @ cov_int @ A.T
-    # map to (beta, rho, d_b) per channel; beta_1 row/column zero (gauge)
     idx = np.full(3 * c, -1)
     for j in range(c):
-        idx[3 * j] = j - 1 if j > 0 else -1
-        idx[3 * j + 1] = c - 1 + j
-        idx[3 * j + 2] = 2 * c - 1 + j
+        idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
+        idx[3 * j + 1] = c - 1 + ch0_free + j
+        idx[3 * j + 2] = 2 * c - 1 + ch0_free + j
     cov = np.zeros((3 * c, 3 * c))
     ok = idx >= 0
     cov[np.ix_(ok, ok)] = cov_free[np.ix_(idx[ok], idx[ok])]
-    beams, offs, oms = unpack(sol.x)
-    u_rho = np.sqrt(np.diag(cov_free)[c - 1 : 2 * c - 1])
-    g_hat = sol.x[2 * c - 1 : 3 * c - 1]
-    u_g = np.sqrt(np.diag(cov_int)[2 * c - 1 : 3 * c - 1])
-    weak = [int(ch) for ch, r_, u_ in zip(channels, beams.rho_mm, u_rho) if abs(r_) < 2.0 * u_]
+    u_rho = np.sqrt(np.diag(cov_free)[c - 1 + ch0_free : 2 * c - 1 + ch0_free])
+    g_hat = sol.x[2 * c - 1 + ch0_free : n_beam]
+    u_g = np.sqrt(np.diag(cov_int)[2 * c - 1 + ch0_free : n_beam])
+    weak = [int(ch) for ch, r_, u_ in zip(channels, rho_hat, u_rho) if abs(r_) < 2.0 * u_]
+
+    # ---- per scan figures and the acceptance rule
     nuisance = {}
     bounds = np.concatenate([[0], np.cumsum([int(m.sum()) for m in masks])])
+    ratios = np.zeros((K, c))
     for k in range(K):
-        col = n_beam + 3 * k
-        u_nu = np.sqrt(np.diag(cov_free)[col : col + 3])
-        nuisance[scan_ids[k]] = {
-            "offset_x_mm": float(offs[k][0]),
-            "offset_y_mm": float(offs[k][1]),
-            "oe_mm": float(np.hypot(*offs[k])),
-            "omega_rad_s": oms[k],
-            "rpm": float(abs(oms[k]) * 60.0 / (2.0 * np.pi)),
-            "u_offset_x_mm": float(u_nu[0]),
-            "u_offset_y_mm": float(u_nu[1]),
-            "u_omega_rad_s": float(u_nu[2]),
-            "phase0_rad": phases[k],
+        off, ph, sc = nuis[k]
+        cols = nuis_cols[k]
+        res_k = np.full(ys[k].shape, np.nan)
+        res_k[masks[k]] = r[bounds[k] : bounds[k + 1]]
+        rms_ch = np.sqrt(np.nanmean(res_k**2, axis=0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratios[k] = np.where(floors[k] > 0, rms_ch / floors[k], np.inf)
+        am = angle_models[k]
+        entry = {
+            "offset_x_mm": float(off[0]),
+            "offset_y_mm": float(off[1]),
+            "oe_mm": float(np.hypot(*off)),
+            "u_offset_x_mm": float(np.sqrt(cov_free[cols["ox"], cols["ox"]])),
+            "u_offset_y_mm": float(np.sqrt(cov_free[cols["oy"], cols["oy"]])),
+            "angle_source": am.source,
+            "phase0_rad": float(ph),
+            "phase_free": bool(free_phase[k]),
+            "speed_scale": float(sc),
+            "u_speed_scale": float(np.sqrt(cov_free[cols["scale"], cols["scale"]])) if "scale" in cols else 0.0,
+            "omega_rad_s": float(sc * am.mean_omega_rad_s()),
             "residual_rms_mm": float(np.sqrt(np.mean(r[bounds[k] : bounds[k + 1]] ** 2))),
+            "noise_floor_mm": [float(f) for f in floors[k]],
+            "residual_to_noise": [float(x) for x in ratios[k]],
         }
+        entry["u_omega_rad_s"] = float(abs(entry["u_speed_scale"] * am.mean_omega_rad_s()))
+        entry["rpm"] = float(abs(entry["omega_rad_s"]) * 60.0 / (2.0 * np.pi))
+        if "phase" in cols:
+            entry["u_phase0_rad"] = float(np.sqrt(cov_free[cols["phase"], cols["phase"]]))
+        nuisance[scan_ids[k]] = entry
+    problems = _acceptance_problems(beams, nuis, ratios, scan_ids, channels, R_mm, range_arr, rule)
+    if problems:
+        raise CalibrationError(scan_ids, "calibration refused: " + "; ".join(problems))
+    ref = "absolute" if absolute else f"channel {channels[0]} fixed"
+    gauge = (
+        "beams absolute in the encoder frame: the scan's centre and spindle position fix the offset direction"
+        if absolute else
+        f"beta of channel {channels[0]} held at the design value {beta1_fixed!r} rad: a ring gauge fixes only "
+        "beta_c - beta_1, |offset| and beta_1 + phase - angle(offset) per scan, and no scan has both an encoder "
+        "angle and a known centre and spindle position"
+    )
     return TriCalibration(
         calibration_id=make_calibration_id(device_id, scan_ids, "full_lsq", night),
         device_id=device_id,
@@ -811,21 +987,19 @@ def fit_full_calibration(
         method="full_lsq",
         scan_ids=tuple(scan_ids),
         raw_sha256=dict(raw_sha256 or {}),
-        residual_rms_mm=float(np.sqrt(ssr / n_obs)),
+        residual_rms_mm=float(np.sqrt(ssr_readings / n_obs)),
         dof=dof,
         rank=rank,
         condition=cond,
         converged=converged,
         nuisance=nuisance,
         diagnostics={
-            "gauge": (
-                f"beta of channel {channels[0]} fixed at {beta1!r} rad and phase0 per scan fixed: "
-                "a ring gauge "
-                "determines only beta_c - beta_1, |offset| and beta_1 + phase0 - angle(offset) per scan"
-            ),
+            "gauge": gauge,
+            "beta_reference": ref,
             "n_obs": n_obs,
+            "n_prior_rows": n_prior,
             "n_params": p_free,
-            "n_params_all_free": p_free + 1 + K,
+            "n_params_all_free": p_free + (0 if ch0_free else 1) + K,
             "rank_all_free": rank_all,
             "nfev": int(sol.nfev),
             "cost": float(sol.cost),
@@ -838,34 +1012,113 @@ def fit_full_calibration(
                 "|rho| < 2 u(rho): rho is not distinguished from 0, d_b = g - rho^2/(2R) is then far from "
                 "linear in the data and its linearised u understates the error"
             ),
-            "param_names": _param_names(channels, scan_ids),
+            "acceptance": {
+                "max_residual_to_noise": rule.max_residual_to_noise,
+                "residual_to_noise_max": float(np.max(ratios)),
+                "head_radius_mm": rule.head_radius_mm,
+                "position_accuracy_mm": rule.position_accuracy_mm,
+            },
+            "param_names": _param_names(channels, scan_ids, ch0_free, nuis_cols),
             "cov_free": cov_free,
         },
     )
 
 
-def _param_names(channels: Sequence[int], scan_ids: Sequence[str]) -> list[str]:
-    names = [f"beta_rad[{ch}]" for ch in channels[1:]]
+def _per_scan_xy(xy, K: int) -> list:
+    """``None``, one (x, y) for every scan, or one (x, y) / None per scan -> list of (2,) or None."""
+    if xy is None:
+        return [None] * K
+    if isinstance(xy, (list, tuple)) and len(xy) == K and (K != 2 or not np.isscalar(xy[0])):
+        return [None if p is None else np.asarray(p, dtype=float).reshape(2) for p in xy]
+    a = np.asarray(xy, dtype=float)
+    if a.shape == (2,):
+        return [a] * K
+    return [np.asarray(p, dtype=float).reshape(2) for p in a]
+
+
+def _rho_profile(x0, model, rows, c, ch0_free, R_mm, head_mm, n_grid: int = 41):
+    """Start each beam's rho at the best of a grid over [-head, head] (and its start value).
+
+    psi = beta + asin(rho/R) and g = d_b + rho^2/(2R) are held, so every grid point keeps the
+    first harmonic and the mean level the data fix; rho then acts through the second harmonic's
+    phase, whose misfit has one minimum over |rho| < R. Channels are profiled one after another on
+    a subsample (``rows``); mirror solutions (rho of opposite sign) are grid points.
+    """
+    x = np.array(x0, dtype=float)
+    head = min(float(head_mm), 0.95 * R_mm)
+    grid = np.linspace(-head, head, n_grid)
+    for j in range(c):
+        i_rho = c - 1 + ch0_free + j
+        cand = np.unique(np.concatenate([grid, [x[i_rho]]]))
+        costs = []
+        for rv in cand:
+            xt = x.copy()
+            xt[i_rho] = rv
+            with np.errstate(all="ignore"):
+                rr = model(xt, False, rows=rows)
+            costs.append(float(rr @ rr) if np.all(np.isfinite(rr)) else np.inf)
+        costs = np.asarray(costs)
+        if np.any(np.isfinite(costs)):
+            x[i_rho] = cand[int(np.argmin(costs))]
+    return x
+
+
+def _acceptance_problems(beams, nuis, ratios, scan_ids, channels, R_mm, range_arr, rule) -> list[str]:
+    """Why a converged fit is not a calibration (empty when it is)."""
+    out = []
+    for k, sid in enumerate(scan_ids):
+        for j, ch in enumerate(channels):
+            if not ratios[k, j] <= rule.max_residual_to_noise:
+                out.append(
+                    f"{sid} channel {ch}: residual rms is {ratios[k, j]:.2f} times the readings' own noise floor "
+                    f"(limit {rule.max_residual_to_noise:g}): the model misses an effect"
+                )
+    for j, ch in enumerate(channels):
+        rho, d_b = float(beams.rho_mm[j]), float(beams.d_b_mm[j])
+        if abs(rho) > rule.head_radius_mm:
+            out.append(f"channel {ch}: |rho| = {abs(rho):.3f} mm exceeds the head radius {rule.head_radius_mm:g} mm")
+            continue
+        oe = max(float(np.hypot(*n[0])) for n in nuis)
+        s0 = np.sqrt(max(R_mm**2 - rho**2, 0.0))
+        lo, hi = s0 - oe - range_arr[j], s0 + oe
+        if not (lo - 0.01 <= d_b <= hi + 0.01):
+            out.append(f"channel {ch}: d_b = {d_b:.4f} mm outside [{lo:.4f}, {hi:.4f}] mm, what a gauge of radius "
+                       f"{R_mm:.4f} mm with offset {oe:.4f} mm and a {range_arr[j]:g} mm sensor allow")
+    return out
+
+
+def _param_names(channels: Sequence[int], scan_ids: Sequence[str], ch0_free: int = 0,
+                 nuis_cols: list[dict[str, int]] | None = None) -> list[str]:
+    names = [f"beta_rad[{ch}]" for ch in (channels if ch0_free else channels[1:])]
     names += [f"rho_mm[{ch}]" for ch in channels] + [f"d_b_mm[{ch}]" for ch in channels]
-    for s in scan_ids:
-        names += [f"offset_x_mm[{s}]", f"offset_y_mm[{s}]", f"omega_rad_s[{s}]"]
+    for k, s in enumerate(scan_ids):
+        cols = nuis_cols[k] if nuis_cols else {"ox": 0, "oy": 1}
+        names += [f"offset_x_mm[{s}]", f"offset_y_mm[{s}]"]
+        if "phase" in cols:
+            names.append(f"phase0_rad[{s}]")
+        if "scale" in cols:
+            names.append(f"speed_scale[{s}]")
     return names
 
 
 def full_residuals(
-    cal: TriCalibration, t_s, readings_mm, R_mm: float, scan_id: str | None = None
+    cal: TriCalibration, t_s, readings_mm, R_mm: float, scan_id: str | None = None,
+    angle_model: AngleModel | None = None,
 ) -> np.ndarray:
     """Residuals (model - reading) (n, c) [mm] of a ``full_lsq`` calibration on one of its scans.
 
-    Uses the scan's fitted offset, rotation rate and fixed phase from ``cal.nuisance``; NaN
-    readings give NaN residuals.
+    Uses the scan's fitted offset, phase and speed scale from ``cal.nuisance`` with the scan's
+    ``angle_model`` (default: constant speed ``omega_rad_s``); NaN readings give NaN residuals.
     """
     if cal.method != "full_lsq":
         raise ValueError(f"full_residuals needs a full_lsq calibration, got {cal.method!r}")
     scan_id = scan_id if scan_id is not None else cal.scan_ids[0]
     nu = cal.nuisance[scan_id]
     t = np.asarray(t_s, dtype=float)
-    phi = nu["phase0_rad"] + nu["omega_rad_s"] * t
+    if angle_model is None:
+        phi = nu["phase0_rad"] + nu["omega_rad_s"] * t
+    else:
+        phi = angle_model.phi_rad(t, nu["phase0_rad"], nu.get("speed_scale", 1.0))
     off = np.array([nu["offset_x_mm"], nu["offset_y_mm"]])
     model = tri_spindle_readings(phi, off, cal.beams, Bore((0.0, 0.0), R_mm))
     return model - np.asarray(readings_mm, dtype=float)

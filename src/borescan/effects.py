@@ -147,7 +147,7 @@ def _channel_delay(t_s: np.ndarray, p: Mapping) -> np.ndarray:
 
 
 def _speed_error(x_rad: np.ndarray, p: Mapping) -> np.ndarray:
-    """Spindle turns at rpm_nominal (1 + eps): x' = (1 + eps) x, x = omega_nominal t."""
+    """Spindle turns at (1 + eps) times the commanded profile: x' = (1 + eps) x, x = Phi(t) the commanded angle."""
     return np.asarray(x_rad, dtype=float) * (1.0 + p["eps"])
 
 
@@ -272,7 +272,7 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("vibration", (TRI,), {"f_hz": "Hz", "a_mm": "mm", "phase": "rad"}, "reading",
                    {TRI: _vibration}, "v' = v + a sin(2 pi f t + phase)"),
         EffectSpec("speed_error", (TRI,), {"eps": "-"}, "kinematics",
-                   {TRI: _speed_error}, "the spindle turns at rpm_nominal (1 + eps)"),
+                   {TRI: _speed_error}, "the spindle turns at (1 + eps) times the commanded profile"),
         EffectSpec("speed_ripple", (TRI,), {"a_rad": "rad", "phase": "rad"}, "kinematics",
                    {TRI: _speed_ripple}, "phi(t) = omega t + a sin(omega t + phase)"),
         EffectSpec("spindle_error_motion", (TRI,), {"k": "-", "rho_mm": "mm", "phase": "rad"},

@@ -215,11 +215,29 @@ def measure_rotating(readings_mm, phi_rad, spindle_xy_mm, beams: Beams, *, max_u
     )
 
 
+def _rotating_angle(scan, t_sp: np.ndarray, t_s: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Device angle at the readings (:mod:`borescan.kinematics`): the encoder angle, else the
+    commanded profile with its speed scale found from the readings (the phase of a closed
+    profile does not change a circle's diameter or roundness)."""
+    from .kinematics import angle_model_from_arrays, estimate_speed_scale
+
+    sp, sp_meta = scan.spindle, scan.meta.get("spindle") or {}
+    am = angle_model_from_arrays(
+        rpm_nominal=sp_meta.get("rpm_nominal"), direction=sp_meta.get("direction", "ccw"), spindle_t_s=t_sp,
+        spindle_angle_rad=sp["angle_rad"].cast(float).fill_null(np.nan).to_numpy(),
+        spindle_rpm=sp["rpm"].cast(float).fill_null(np.nan).to_numpy())
+    if not am.fits_speed_and_phase:
+        return am.phi_rad(t_s)
+    Phi = am.commanded_rad(t_s)
+    return estimate_speed_scale(Phi, v) * Phi
+
+
 def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
     """Diameter of one ``tri_lds`` raw scan (``rawio.RawScan``) with calibrated ``beams``.
 
-    With a spindle stream: rotating scan (encoder angle interpolated to the LDS times, or
-    phi = 2 pi rpm t / 60 when the angle is null; spindle position interpolated likewise),
+    With a spindle stream: rotating scan (angle from :mod:`borescan.kinematics`: the encoder
+    angle, else the rpm profile with its speed scale from the readings; spindle position
+    interpolated to the LDS times),
     :func:`measure_rotating`. Without: static poses (the ``pose`` column; all samples one pose
     if it is null). Per pose the mean reading per channel, u of the mean = max(scatter,
     repeatability) / sqrt(samples), gives :func:`static_diameter`; the scan's diameter is the
@@ -238,12 +256,7 @@ def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
     sp = scan.spindle
     if sp is not None and sp.height > 1:
         t_sp = sp["t_ns"].to_numpy() * 1e-9
-        ang = sp["angle_rad"].fill_null(np.nan).to_numpy().astype(float)
-        if np.all(np.isfinite(ang)):
-            phi = np.interp(m.t_s, t_sp, ang)
-        else:
-            rpm = float(np.nanmean(sp["rpm"].to_numpy()))
-            phi = 2 * np.pi * rpm / 60.0 * m.t_s
+        phi = _rotating_angle(scan, t_sp, m.t_s, v)
         S = np.column_stack([np.interp(m.t_s, t_sp, sp["x_mm"].to_numpy()), np.interp(m.t_s, t_sp, sp["y_mm"].to_numpy())])
         res = measure_rotating(v, phi, S, beams)
         return {

@@ -458,32 +458,87 @@ def gauge_radius_mm(meta: dict) -> float:
 
 
 def _spindle_inputs(scan) -> dict:
-    """Times, despiked readings and spindle/centre positions of a spindle scan for the full fit."""
+    """Times, despiked readings, rotation angle model and positions of a spindle scan for the full fit."""
     import numpy as np
 
-    from borescan import signal
+    from borescan import kinematics, signal
 
     mat = rawio.lds_matrix(scan)
     clean, _ = signal.remove_spikes(np.asarray(mat.values_mm, dtype=float))
     meta = scan.meta
     sp = scan.spindle
-    spindle_xy = (float(sp["x_mm"].mean()), float(sp["y_mm"].mean()))
+    sp_meta = meta.get("spindle") or {}
+    pos = sp_meta.get("position") or {}
+    if pos.get("x_mm") is not None and pos.get("y_mm") is not None:
+        spindle_xy = (float(pos["x_mm"]), float(pos["y_mm"]))
+    else:
+        spindle_xy = (float(sp["x_mm"].mean()), float(sp["y_mm"].mean()))
     center = meta.get("center")
-    phase0 = 0.0
-    ang = sp["angle_rad"].cast(pl.Float64).to_numpy()
-    if np.all(np.isfinite(ang)):
-        phase0 = float(np.interp(mat.t_s[0], sp["t_ns"].to_numpy() * 1e-9, ang))
+    try:
+        angle_model = kinematics.angle_model_from_arrays(
+            rpm_nominal=sp_meta.get("rpm_nominal"), direction=sp_meta.get("direction", "ccw"),
+            spindle_t_s=sp["t_ns"].to_numpy() * 1e-9,
+            spindle_angle_rad=sp["angle_rad"].cast(pl.Float64).fill_null(np.nan).to_numpy(),
+            spindle_rpm=sp["rpm"].cast(pl.Float64).fill_null(np.nan).to_numpy(),
+        )
+    except ValueError as err:
+        raise ValueError(f"{scan.scan_id}: spindle.parquet: {err}") from None
+    sensors = {int(s["channel"]): s for s in meta.get("sensors", [])}
     return {
         "t_s": np.asarray(mat.t_s, dtype=float),
         "readings": clean,
         "channels": tuple(mat.channels),
         "spindle_xy": spindle_xy,
         "center_xy": None if not center else (float(center["x_mm"]), float(center["y_mm"])),
-        "rpm": float((meta.get("spindle") or {}).get("rpm_nominal") or sp["rpm"].mean()),
-        "direction": (meta.get("spindle") or {}).get("direction", "ccw"),
-        "phase0": phase0,
+        "rpm": float(abs(angle_model.mean_omega_rad_s()) * 60.0 / (2.0 * np.pi)),
+        "direction": sp_meta.get("direction", "ccw"),
+        "angle_model": angle_model,
+        "range_mm": [float((sensors.get(ch) or {}).get("range_mm") or 10.0) for ch in mat.channels],
         "R": gauge_radius_mm(meta),
     }
+
+
+def acceptance_rule(cal_cfg: dict):
+    """The calibration section's acceptance settings as a :class:`calibration.AcceptanceRule`."""
+    from borescan.calibration import AcceptanceRule
+
+    return AcceptanceRule(
+        max_residual_to_noise=float(cal_cfg["max_residual_to_noise"]),
+        head_radius_mm=float(cal_cfg["head_radius_mm"]),
+        position_accuracy_mm=float(cal_cfg["position_accuracy_mm"]),
+        speed_scale_range=(float(cal_cfg["speed_scale_min"]), float(cal_cfg["speed_scale_max"])),
+    )
+
+
+def fit_device_calibration(scans, inputs, nominal, cal_cfg: dict, night: str | None = None):
+    """Full-data calibration of one device from its spindle scans (``_spindle_inputs`` of each).
+
+    Raises ``calibration.CalibrationError`` (naming the scans and the reason) when the fit fails
+    or is refused.
+    """
+    from borescan import calibration
+
+    raw_files = {f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}
+    return calibration.fit_full_calibration(
+        [x["t_s"] for x in inputs], [x["readings"] for x in inputs], inputs[0]["channels"], nominal,
+        inputs[0]["R"], [x["spindle_xy"] for x in inputs], center_xy_mm=[x["center_xy"] for x in inputs],
+        angle_models=[x["angle_model"] for x in inputs], range_mm=inputs[0]["range_mm"],
+        rule=acceptance_rule(cal_cfg), scan_ids=[s.scan_id for s in scans],
+        device_id=scans[0].meta["device"]["id"], raw_sha256=raw_files, night=night,
+    )
+
+
+def calibrate_raw_scans(scans, cal_cfg: dict, night: str | None = None):
+    """Full-data calibration of the calibration scans ``scans`` (``rawio.RawScan``, one device).
+
+    The same path as the night's calibrate stage; ``cal_cfg`` is the config's ``calibration``
+    section with its schema defaults. Raises ``calibration.CalibrationError``.
+    """
+    from borescan.geometry import Beams
+
+    inputs = [_spindle_inputs(s) for s in scans]
+    nominal = Beams.from_nominal(scans[0].meta["device"]["nominal"]["beams"])
+    return fit_device_calibration(scans, inputs, nominal, cal_cfg, night=night or scans[0].night)
 
 
 def _calibration_rows(cal, device_type: str, night: str, certificate_path: str | None, raw_sha256: str) -> list[dict]:
@@ -859,13 +914,7 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
         if method == "yang2017":
             cal = _yang_from_summary(scans[0], inputs[0], summary, nominal, night, log=log)
         else:
-            cal = calibration.fit_full_calibration(
-                [x["t_s"] for x in inputs], [x["readings"] for x in inputs], inputs[0]["channels"], nominal,
-                inputs[0]["R"], [x["spindle_xy"] for x in inputs], [x["rpm"] for x in inputs],
-                center_xy_mm=[x["center_xy"] for x in inputs], direction=inputs[0]["direction"],
-                phase0_rad=[x["phase0"] for x in inputs], scan_ids=ids, device_id=device_id,
-                raw_sha256=raw_files, night=night,
-            )
+            cal = fit_device_calibration(scans, inputs, nominal, cfg, night=night)
     except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
         for s in scans:
             _quarantine(results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}")
@@ -874,7 +923,8 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
     scan0, first = scans[0], inputs[0]
     art = scan0.meta.get("artifact") or {}
     if cal.method == "full_lsq":
-        residual_mm = calibration.full_residuals(cal, first["t_s"], first["readings"], first["R"], scan0.scan_id)
+        residual_mm = calibration.full_residuals(cal, first["t_s"], first["readings"], first["R"], scan0.scan_id,
+                                                 angle_model=first["angle_model"])
         residuals = {"t_s": first["t_s"], "residual_mm": residual_mm}
     else:
         residuals = {"t_s": np.zeros(0), "residual_mm": np.zeros((0, len(cal.beams.channels)))}

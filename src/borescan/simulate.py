@@ -4,7 +4,7 @@ Composition order of :func:`tri_readings` (``shared/spec/geometry-and-effects.md
 
 1. time base: ``channel_delay`` gives channel c the time t_c = t - tau_c; everything below
    is evaluated at t_c (the channel shows the whole reading of time t - tau);
-2. kinematics: x = omega_nominal t_c, then ``speed_error`` (x (1 + eps)), then
+2. kinematics: x = Phi(t_c) the commanded angle (omega_nominal t_c, or the integral of the rpm profile), then ``speed_error`` (x (1 + eps)), then
    ``speed_ripple`` (x + a sin(x + phase)); device angle phi = phase_rad + x (ccw) or
    phase_rad - x (cw);
 3. spindle position: S = S0 (+ ``spindle_error_motion`` terms at phi);
@@ -19,10 +19,11 @@ Composition order of :func:`tri_readings` (``shared/spec/geometry-and-effects.md
 Steps 1-7 are noise-free and deterministic; fitting code calls :func:`tri_readings` and
 :func:`rod_readings_with_effects` inside least squares.
 
-What the simulated machine reports (``spindle.parquet``): ``angle_rad`` is the true turned
-angle phi(t) - phase_rad of the spindle (so it shows ``speed_error``/``speed_ripple``), or null
-with ``encoder=False``; ``x_mm``/``y_mm`` are the commanded position S0 (the machine does not
-see its own ``spindle_error_motion``); ``rpm`` is the nominal speed.
+What the simulated machine reports (``spindle.parquet``): ``angle_rad`` is the true device
+angle phi(t) (the spec: the device frame is the machine frame at encoder angle 0; it shows
+``speed_error``/``speed_ripple``), or null with ``encoder=False``; ``x_mm``/``y_mm`` are the
+commanded position S0 (the machine does not see its own ``spindle_error_motion``); ``rpm`` is
+the commanded speed (``TriScene.rpm_profile``, else ``rpm_nominal``).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ import polars as pl
 
 from borescan import __version__, rawio
 from borescan.effects import Effect, apply_effects, effects_to_dicts, sort_effects
+from borescan.kinematics import RPM_TO_RAD_S, profile_angle_rad
 from borescan.geometry import (
     Beams,
     Bore,
@@ -113,6 +115,8 @@ class TriScene:
     bore_radius_20_mm : bore radius R20 at 20 degC [mm].
     spindle_xy_mm : commanded spindle position S0 [mm].
     rpm_nominal : commanded speed [1/min]; phase_rad : device angle at t = 0 [rad];
+    rpm_profile : commanded speed profile as knots ((t_s, rpm), ...), linear between knots and
+    constant outside them (empty: ``rpm_nominal`` throughout) [s, 1/min];
     direction : ``"ccw"`` or ``"cw"``; sample_rate_hz : LDS sample rate [Hz];
     range_mm : sensor range per channel [mm]; cte_per_k : artifact CTE [1/K];
     temperature_c : artifact temperature written to scan.json [degC] (the radius changes only
@@ -130,8 +134,13 @@ class TriScene:
     range_mm: tuple[float, ...] = (10.0, 10.0, 10.0)
     cte_per_k: float = 11.5e-6
     temperature_c: float = 20.0
+    rpm_profile: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
+        if self.rpm_profile:
+            t = [float(k[0]) for k in self.rpm_profile]
+            if any(b <= a for a, b in zip(t, t[1:])) or any(float(k[1]) < 0 for k in self.rpm_profile):
+                raise ValueError("rpm_profile needs strictly increasing times and speeds >= 0")
         if self.direction not in ("ccw", "cw"):
             raise ValueError(f"direction must be 'ccw' or 'cw', got {self.direction!r}")
         if len(self.range_mm) != len(self.beams.channels):
@@ -141,6 +150,23 @@ class TriScene:
     def omega_rad_per_s(self) -> float:
         """Nominal angular speed 2 pi rpm / 60 [rad/s]."""
         return 2.0 * math.pi * self.rpm_nominal / 60.0
+
+    def commanded_angle_rad(self, t_s: np.ndarray) -> np.ndarray:
+        """Unsigned commanded angle Phi(t) since t = 0: the integral of the profile
+        (:func:`borescan.kinematics.profile_angle_rad`, the function the pipeline reads scans with),
+        omega_nominal t without a profile [rad]."""
+        if not self.rpm_profile:
+            return self.omega_rad_per_s * np.asarray(t_s, dtype=float)
+        kt = np.array([float(k[0]) for k in self.rpm_profile])
+        kw = np.array([float(k[1]) for k in self.rpm_profile]) * RPM_TO_RAD_S
+        return profile_angle_rad(t_s, kt, kw)
+
+    def commanded_rpm(self, t_s: np.ndarray) -> np.ndarray:
+        """Commanded speed at times t (what ``spindle.parquet`` reports in ``rpm``) [1/min]."""
+        t = np.asarray(t_s, dtype=float)
+        if not self.rpm_profile:
+            return np.full(t.shape, float(self.rpm_nominal))
+        return np.interp(t, [float(k[0]) for k in self.rpm_profile], [float(k[1]) for k in self.rpm_profile])
 
     def bore(self) -> Bore:
         """The effect-free bore: circle C, R20."""
@@ -159,6 +185,7 @@ class TriScene:
             "range_mm": list(self.range_mm),
             "cte_per_k": self.cte_per_k,
             "temperature_c": self.temperature_c,
+            "rpm_profile": [list(map(float, k)) for k in self.rpm_profile],
         }
 
     @classmethod
@@ -176,6 +203,7 @@ class TriScene:
             range_mm=tuple(d["range_mm"]),
             cte_per_k=d["cte_per_k"],
             temperature_c=d["temperature_c"],
+            rpm_profile=tuple(tuple(map(float, k)) for k in d.get("rpm_profile", ())),
         )
 
 
@@ -256,7 +284,8 @@ def _channel_times(t_s: np.ndarray, channels: Sequence[int], time_effects: list[
 def tri_phi(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
     """Device angle phi(t) with the kinematic effects.
 
-    phi = phase + sgn x, x = omega t, then x <- x (1 + eps) (``speed_error``) and
+    phi = phase + sgn x, x = Phi(t) the commanded angle (``scene.commanded_angle_rad``: omega t,
+    or the integral of the rpm profile), then x <- x (1 + eps) (``speed_error``) and
     x <- x + a sin(x + phase) (``speed_ripple``); sgn = +1 for ccw, -1 for cw.
 
     Parameters
@@ -268,7 +297,7 @@ def tri_phi(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) ->
     ndarray (...) [rad]
     """
     st = sort_effects(_as_effects(effects), "tri_lds", scene.beams.channels)
-    x = scene.omega_rad_per_s * np.asarray(t_s, dtype=float)
+    x = scene.commanded_angle_rad(t_s)
     for e in st["kinematics"]:
         x = e.spec.forward["tri_lds"](x, e.params)
     sgn = 1.0 if scene.direction == "ccw" else -1.0
@@ -590,7 +619,7 @@ def simulate_tri_spindle(
     effects = _as_effects(effects)
     rng = np.random.default_rng(seed)
     channels = scene.beams.channels
-    n = int(round(n_rev * 60.0 / scene.rpm_nominal * scene.sample_rate_hz))
+    n = int(round(_duration_s(scene, n_rev) * scene.sample_rate_hz))
     sample = np.arange(n, dtype=np.int64)
     t_ns = _t_ns(sample, scene.sample_rate_hz)
     t_s = t_ns * 1e-9
@@ -602,13 +631,13 @@ def simulate_tri_spindle(
     m = int(math.floor(duration_s * spindle_rate_hz)) + 1
     ts_ns = _t_ns(np.arange(m, dtype=np.int64), spindle_rate_hz)
     kinematic = [e for e in effects if e.spec.stage == "kinematics"]
-    angle = tri_phi(scene, ts_ns * 1e-9, kinematic) - scene.phase_rad
+    angle = tri_phi(scene, ts_ns * 1e-9, kinematic)  # the spec: phi(t) is the encoder angle itself
     spindle = pl.DataFrame({
         "t_ns": pl.Series("t_ns", ts_ns, dtype=pl.Int64),
         "angle_rad": pl.Series("angle_rad", angle if encoder else [None] * m, dtype=pl.Float64),
         "x_mm": pl.Series("x_mm", np.full(m, float(scene.spindle_xy_mm[0])), dtype=pl.Float64),
         "y_mm": pl.Series("y_mm", np.full(m, float(scene.spindle_xy_mm[1])), dtype=pl.Float64),
-        "rpm": pl.Series("rpm", np.full(m, float(scene.rpm_nominal)), dtype=pl.Float64),
+        "rpm": pl.Series("rpm", scene.commanded_rpm(ts_ns * 1e-9), dtype=pl.Float64),
     })
     extra = {"spindle": {"rpm_nominal": float(scene.rpm_nominal), "direction": scene.direction,
                          "position": {"label": spindle_label, "x_mm": float(scene.spindle_xy_mm[0]),
@@ -629,6 +658,23 @@ def simulate_tri_spindle(
                    extra={"encoder": encoder, "n_rev": n_rev, "bore_radius_mm": bore.radius_mm,
                           "reading_mean_mm": np.nanmean(v_true, axis=0).tolist()})
     return SimulatedScan(meta, lds, spindle, truth)
+
+
+def _duration_s(scene: TriScene, n_rev: float) -> float:
+    """Time the commanded profile needs for ``n_rev`` revolutions [s]."""
+    if not scene.rpm_profile:
+        return n_rev * 60.0 / scene.rpm_nominal
+    target = 2.0 * math.pi * n_rev
+    hi = 1.0
+    while scene.commanded_angle_rad(hi) < target:
+        hi *= 2.0
+        if hi > 1e7:
+            raise ValueError("the rpm profile never completes the requested revolutions")
+    lo = 0.0
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if scene.commanded_angle_rad(mid) < target else (lo, mid)
+    return hi
 
 
 def _pose_samples(n_poses: int, samples_per_pose: int, pose_interval_s: float, rate_hz: float):

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from borescan.noise import noise_floor_mm, robust_sigma  # noqa: F401  (re-exported: the discrepancy workflow names them here)
+
 __all__ = [
     "leading_block",
     "block_indices",
@@ -126,44 +128,6 @@ def dead_zone(r: np.ndarray, half_mm: np.ndarray | None) -> np.ndarray:
     if half_mm is None:
         return r
     return np.sign(r) * np.maximum(np.abs(r) - half_mm, 0.0)
-
-
-def robust_sigma(x: np.ndarray) -> float:
-    """1.4826 * MAD of ``x`` (NaN ignored); 0 for fewer than 3 finite values."""
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    if x.size < 3:
-        return 0.0
-    return float(1.4826 * np.median(np.abs(x - np.median(x))))
-
-
-def noise_floor_mm(residual_mm: np.ndarray) -> np.ndarray:
-    """Per-channel white-noise level from second differences: 1.4826 MAD(d2) / sqrt(6).
-
-    The second difference r[i+1] - 2 r[i] + r[i-1] of white noise of variance s^2 has variance
-    6 s^2, while smooth model misfit (a few undulations per revolution, trends) nearly cancels.
-    When the MAD is zero (coarsely quantised readings) the standard deviation is used instead.
-
-    Parameters
-    ----------
-    residual_mm : ndarray (n, c), NaN for missing samples.
-
-    Returns
-    -------
-    ndarray (c,) [mm]
-    """
-    r = np.asarray(residual_mm, dtype=float)
-    if r.ndim == 1:
-        r = r[:, None]
-    out = np.zeros(r.shape[1])
-    for j in range(r.shape[1]):
-        d2 = r[2:, j] - 2.0 * r[1:-1, j] + r[:-2, j]
-        d2 = d2[np.isfinite(d2)]
-        s = robust_sigma(d2)
-        if s == 0.0 and d2.size > 2:
-            s = float(np.std(d2))
-        out[j] = s / np.sqrt(6.0)
-    return out
 
 
 def spike_mask(

@@ -1,0 +1,88 @@
+"""Rotation angle of a spindle scan (spec "Spindle scan"): encoder, rpm profile, rpm_nominal."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from borescan.kinematics import (
+    AngleModel,
+    angle_model_from_arrays,
+    estimate_speed_scale,
+    profile_angle_rad,
+    speed_scale_from_readings,
+)
+
+
+def test_profile_integral_is_exact_for_piecewise_linear_speed():
+    # 60 rpm for 2 s, linear ramp to 30 rpm over 1 s, then 30 rpm: closed-form angles
+    tk = np.array([0.0, 2.0, 3.0])
+    wk = np.array([2 * np.pi, 2 * np.pi, np.pi])
+    t = np.array([0.0, 1.0, 2.0, 2.5, 3.0, 5.0, -1.0])
+    ramp_half = 2 * np.pi * 0.5 - 0.5 * np.pi * 0.25  # w0 tau - (w0 - w1) tau^2 / 2 at tau = 0.5
+    expected = [0.0, 2 * np.pi, 4 * np.pi, 4 * np.pi + ramp_half, 4 * np.pi + 1.5 * np.pi, 5.5 * np.pi + 2 * np.pi,
+                -2 * np.pi]
+    assert np.allclose(profile_angle_rad(t, tk, wk), expected, atol=1e-12)
+
+
+def test_profile_starts_at_zero_when_the_clock_starts_late():
+    tk = np.array([0.5, 1.0])
+    wk = np.array([1.0, 3.0])
+    assert profile_angle_rad(np.array([0.0]), tk, wk)[0] == pytest.approx(0.0, abs=1e-15)
+    assert profile_angle_rad(np.array([1.0]), tk, wk)[0] == pytest.approx(0.5 + 1.0, abs=1e-12)
+
+
+def test_order_of_preference_encoder_profile_nominal():
+    t = np.arange(0.0, 2.0, 0.02)
+    enc = angle_model_from_arrays(rpm_nominal=60, spindle_t_s=t, spindle_angle_rad=0.3 + 2 * np.pi * t,
+                                  spindle_rpm=np.full(t.size, 60.0))
+    assert enc.source == "encoder" and not enc.fits_speed_and_phase
+    assert enc.phi_rad(np.array([0.5]), phase_rad=9.0, speed_scale=3.0)[0] == pytest.approx(0.3 + np.pi, abs=1e-12)
+    prof = angle_model_from_arrays(rpm_nominal=60, direction="cw", spindle_t_s=t,
+                                   spindle_angle_rad=np.full(t.size, np.nan), spindle_rpm=np.full(t.size, 30.0))
+    assert prof.source == "profile" and prof.fits_speed_and_phase
+    assert prof.phi_rad(np.array([1.0]), phase_rad=0.1, speed_scale=1.02)[0] == pytest.approx(0.1 - 1.02 * np.pi)
+    nom = angle_model_from_arrays(rpm_nominal=120, direction="ccw")
+    assert nom.source == "nominal" and nom.commanded_rad(np.array([0.25]))[0] == pytest.approx(np.pi)
+    with pytest.raises(ValueError, match="rotation angle is unknown"):
+        angle_model_from_arrays(rpm_nominal=None)
+    with pytest.raises(ValueError, match="direction must be 'ccw' or 'cw'"):
+        angle_model_from_arrays(rpm_nominal=60, direction="left")
+
+
+def test_encoder_spline_follows_a_ramp_between_samples():
+    # true angle of a ramp 60 -> 30 rpm, encoder sampled at 50 Hz, read at 600 Hz
+    tk = np.array([0.0, 1.0, 2.0])
+    wk = np.array([2 * np.pi, 2 * np.pi, np.pi])
+    t_enc = np.arange(0.0, 4.0, 0.02)
+    am = AngleModel("encoder", t_enc, profile_angle_rad(t_enc, tk, wk))
+    t = np.arange(0.0, 3.98, 1 / 600)
+    err = am.phi_rad(t) - profile_angle_rad(t, tk, wk)
+    # a cubic spline cannot follow the speed's kinks exactly: ~ (dw/dt) dt^2 / 20 near them
+    assert np.max(np.abs(err)) < 1e-4
+
+
+@pytest.mark.parametrize("scale", [0.3, 0.93, 1.0, 1.036, 2.5])
+def test_speed_scale_found_from_the_readings(scale):
+    rng = np.random.default_rng(1)
+    tk, wk = np.array([0.0, 6.0, 7.5]), np.array([2 * np.pi, 2 * np.pi, 0.55 * 2 * np.pi])
+    t = np.arange(0.0, 30.0, 1 / 500)
+    Phi = profile_angle_rad(t, tk, wk)
+    phi = 0.7 + scale * Phi
+    y = np.stack([2.1 * np.cos(phi + b) + 0.01 * np.cos(2 * (phi + b)) for b in (0.2, 2.3, 4.4)], axis=1)
+    y += 0.003 * rng.standard_normal(y.shape)
+    y[rng.random(y.shape) < 0.01] = np.nan
+    coarse = speed_scale_from_readings(Phi, y)
+    assert abs(coarse / scale - 1) < 0.02
+    fine = estimate_speed_scale(Phi, y)
+    # phase error at the end of the scan well under a tenth of a radian
+    assert abs(fine - scale) * np.ptp(Phi) < 0.05
+
+
+def test_speed_scale_without_rotation_is_an_error():
+    t = np.arange(0.0, 10.0, 0.01)
+    with pytest.raises(ValueError, match="does not advance"):
+        speed_scale_from_readings(np.zeros(t.size), np.ones((t.size, 3)))
+    assert math.isfinite(AngleModel("nominal", np.zeros(1), np.array([1.0])).mean_omega_rad_s())
