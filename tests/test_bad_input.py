@@ -35,7 +35,9 @@ def test_every_bad_scan_is_quarantined_with_scan_file_and_problem(pipeline_run):
 def test_good_scans_processed_beside_bad_ones(pipeline_run, table):
     con = duckdb.connect(str(pipeline_run["results"] / "catalog.duckdb"), read_only=True)
     n_ok = con.execute(f"SELECT count(*) FROM {table} WHERE status = 'ok'").fetchone()[0]
-    assert n_ok == len(pipeline_run["good_ids"]) + 1  # + the verification that fails (a result, not bad input)
+    # + the verification that fails (a result, not bad input); - night 2's two calibration scans, whose
+    # joint calibration is refused (they disagree: a hidden channel_delay on one, tests/test_pipeline.py)
+    assert n_ok == len(pipeline_run["good_ids"]) + 1 - 2
 
 
 def test_very_large_scan_is_read_with_bounded_memory(tmp_path):

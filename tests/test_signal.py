@@ -577,3 +577,21 @@ def test_filter_runs_only_where_it_shapes_a_result(monkeypatch):
         process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, extrema_on="smoothed")
     with pytest.raises(ValueError, match="unknown filter"):
         process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="butterworth")
+
+
+def test_revolutions_follow_the_rpm_profile_when_the_speed_changes(tmp_path):
+    """No encoder, 60 rpm then a ramp to 30 rpm: revolutions come from the profile's angle, not one period."""
+    from dataclasses import replace
+
+    from borescan import rawio, simulate
+
+    scene = replace(simulate.default_tri_scene(), rpm_profile=((0.0, 60.0), (6.0, 60.0), (7.0, 30.0)))
+    sim = simulate.simulate_tri_spindle(scene, n_rev=20, encoder=False, seed=2, scan_id="RAMP")
+    path = simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth")
+    res = process_scan(rawio.read_scan(path))
+    assert res.period.source == "profile"
+    # 20 revolutions in 660 * 6.5 + 1320 * 13.5 samples: mean 1056 samples per revolution
+    n = sim.lds["sample"].n_unique()
+    assert res.period.samples_per_rev == pytest.approx(n / 20, rel=2e-3)
+    assert res.revolutions.height == 20
+    assert res.summary["n_revolutions_min"].min() >= 19

@@ -96,7 +96,7 @@ def certificate_dict(
     t, res = _residual_arrays(residuals)
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(res**2, axis=0)) if res.size else np.array([])
-    keys = ("gauge", "n_obs", "n_params", "n_params_all_free", "rank_all_free", "weak_rho_channels", "g_mm", "u_g_mm")
+    keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free", "weak_rho_channels", "g_mm", "u_g_mm")
     diag = {k: cal.diagnostics[k] for k in keys if k in cal.diagnostics}
     return _fixed(
         {
@@ -198,6 +198,12 @@ def _page1(cert: dict) -> Figure:
                      "(correlation matrix in certificate.json).")
     if fit.get("gauge"):
         notes.append("Gauge: " + fit["gauge"] + ".")
+    acc = fit.get("acceptance")
+    if acc:
+        notes.append(f"Accepted: largest ratio of a channel's residual rms to its readings' own noise floor "
+                     f"{_fmt(acc.get('residual_to_noise_max'), '.3f')} (limit {_fmt(acc.get('max_residual_to_noise'), 'g')}); "
+                     f"|rho| within the head radius {_fmt(acc.get('head_radius_mm'), 'g')} mm; centre and spindle position "
+                     f"taken with {_fmt(1e3 * acc['position_accuracy_mm'], 'g')} um per coordinate.")
     if fit.get("weak_rho_channels"):
         notes.append(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho); U(d_b) of these channels is a "
                      "linearised value and understates the error.")

@@ -137,9 +137,11 @@ def random_tri_case(
     )
     names = [str(x) for x in rng.choice(TRI_EFFECTS, size=n_effects, replace=False)] if n_effects else []
     effects = [_scaled(random_effect(n, rng, beams.channels, rpm / 60.0, rate), scale) for n in names]
+    # the spec: with an encoder the angle is measured and a speed error or ripple is not there to find
+    kinematic = any(e.name in ("speed_error", "speed_ripple") for e in effects)
     sim = simulate_tri_spindle(
         scene, scan_id=scan_id, n_rev=int(rng.integers(5, 11)), effects=effects,
-        noise_mm=float(rng.uniform(0.001, 0.004)), seed=int(rng.integers(0, 2**31)),
+        noise_mm=float(rng.uniform(0.001, 0.004)), seed=int(rng.integers(0, 2**31)), encoder=not kinematic,
     )
     return sim, effects
 

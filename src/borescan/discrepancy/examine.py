@@ -91,6 +91,7 @@ def scan_arrays(scan) -> tuple[np.ndarray, tuple[int, ...], np.ndarray, np.ndarr
             "angle_rad": sp["angle_rad"].cast(pl.Float64).fill_null(np.nan).to_numpy()
             if "angle_rad" in sp.columns
             else None,
+            "rpm": sp["rpm"].cast(pl.Float64).fill_null(np.nan).to_numpy() if "rpm" in sp.columns else None,
         }
     return t_s, channels, vals, pose, spindle
 

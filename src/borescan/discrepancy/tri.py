@@ -29,6 +29,7 @@ import numpy as np
 
 from borescan.discrepancy.fitting import block_indices, dead_zone, leading_block, noise_floor_mm, spike_mask
 from borescan.geometry import Beams, Bore, bore_wall_radius
+from borescan.kinematics import AngleModel, angle_model_from_arrays
 
 __all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_terms", "term_parameters"]
 
@@ -112,10 +113,27 @@ class TriData:
     temperature_c: float | None = None
     n_total: int | None = None
     radius_free: bool = False
+    angle_model: AngleModel | None = None
 
     @property
     def rev_hz(self) -> float:
         return self.omega_rad_s / (2.0 * np.pi)
+
+    @property
+    def encoder(self) -> bool:
+        """The angle is measured (spec: then there is no speed error to find)."""
+        return self.angle_model is not None and self.angle_model.source == "encoder"
+
+    def turned_rad(self, t_s: np.ndarray) -> np.ndarray:
+        """Unsigned turned angle x(t) since t = 0 that the model assumes (phi = phase + direction x):
+        the commanded profile's angle (:mod:`borescan.kinematics`), omega t without one; with an
+        encoder the measured angle less its value at t = 0."""
+        if self.angle_model is None:
+            return self.omega_rad_s * np.asarray(t_s, dtype=float)
+        x = self.angle_model.commanded_rad(t_s)
+        if self.encoder:
+            x = x - self.phase_rad
+        return self.direction * x
 
 
 def tri_data_from_arrays(
@@ -150,7 +168,11 @@ def tri_data_from_arrays(
     S = np.array([float(pos.get("x_mm", 0.0)), float(pos.get("y_mm", 0.0))])
     phase, free_phase = 0.0, False
     t_s = np.asarray(t_s, dtype=float)
+    angle_model = None
     if spindle is not None and len(spindle.get("t_s", [])):
+        angle_model = angle_model_from_arrays(
+            rpm_nominal=rpm, direction=sp.get("direction", "ccw"), spindle_t_s=np.asarray(spindle["t_s"], dtype=float),
+            spindle_angle_rad=spindle.get("angle_rad"), spindle_rpm=spindle.get("rpm"))
         ts = np.asarray(spindle["t_s"], dtype=float)
         xs = np.interp(t_s, ts, np.asarray(spindle["x_mm"], dtype=float))
         ys = np.interp(t_s, ts, np.asarray(spindle["y_mm"], dtype=float))
@@ -179,8 +201,9 @@ def tri_data_from_arrays(
         beams=beams,
         radius_mm=float(dia) / 2.0,
         cte_per_k=None if cte is None else float(cte),
-        omega_rad_s=2.0 * np.pi * rpm / 60.0,
+        omega_rad_s=abs(angle_model.mean_omega_rad_s()) if angle_model is not None else 2.0 * np.pi * rpm / 60.0,
         direction=direction,
+        angle_model=angle_model,
         spindle_xy_mm=S,
         center_xy_mm=C,
         range_mm=range_mm,
@@ -329,7 +352,7 @@ class TriModel:
             t = t.copy()
             for j in cols(term):
                 t[:, j] = t[:, j] - par(term, "tau_s")
-        x = d.omega_rad_s * t
+        x = d.turned_rad(t)
         for term in by.get("speed_error", []):
             x = x * (1.0 + par(term, "eps"))
         for term in by.get("speed_ripple", []):
@@ -466,7 +489,7 @@ class TriModel:
             "*" in keys or "bore_lobing[k=2]" in keys
         ):
             out.append((0.0, Term("axis_tilt"), _tilt_start(lob[2], self.data)))
-        if t1 is None:
+        if t1 is None and not self.data.encoder:
             eps0 = _rotation_eps(self)
             if eps0 is not None and abs(eps0) > 2e-3:
                 C0 = self.initial_center(eps0)
@@ -479,7 +502,7 @@ class TriModel:
 
     def plot_angle(self) -> np.ndarray:
         d = self.data
-        return np.mod(d.phase_rad + d.direction * d.omega_rad_s * d.t_s, 2 * np.pi)
+        return np.mod(d.phase_rad + d.direction * d.turned_rad(d.t_s), 2 * np.pi)
 
     def initial_center(self, eps: float = 0.0) -> np.ndarray:
         """Bore centre from the one-undulation-per-revolution content of the readings.
@@ -488,7 +511,7 @@ class TriModel:
         ``rpm_nominal (1 + eps)``).
         """
         d = self.data
-        phi = d.phase_rad + d.direction * d.omega_rad_s * (1.0 + eps) * d.t_s
+        phi = d.phase_rad + d.direction * (1.0 + eps) * d.turned_rad(d.t_s)
         S = np.asarray(d.spindle_xy_mm, dtype=float)
         S0 = S.mean(axis=0) if S.ndim == 2 else S
         rows, rhs = [], []
@@ -515,7 +538,8 @@ def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | No
     for eff in per_channel:
         terms += [Term(eff, c) for c in data.channels]
     terms.append(Term("sensor_offset", 0))
-    terms += [Term("speed_error"), Term("speed_ripple")]
+    if not data.encoder:  # a measured angle has no speed error or ripple to find (spec, speed_error)
+        terms += [Term("speed_error"), Term("speed_ripple")]
     if vibration_f_hz is not None:
         terms.append(Term("vibration"))
     if data.cte_per_k:

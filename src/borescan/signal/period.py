@@ -21,7 +21,7 @@ class PeriodEstimate:
 
     samples_per_rev: float
     u_samples_per_rev: float
-    source: str  # "encoder" | "readings"
+    source: str  # "encoder" | "readings" | "profile"
     samples_per_rev_nominal: float | None
     period_disagrees_with_nominal: bool
     direction: str  # "ccw" | "cw"

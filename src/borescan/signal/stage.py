@@ -86,6 +86,7 @@ def process_arrays(
     t_s: np.ndarray | None = None,
     encoder_t_s: np.ndarray | None = None,
     encoder_angle_rad: np.ndarray | None = None,
+    commanded_rad: np.ndarray | None = None,
     filter: str = "none",
     filter_params: dict | None = None,
     spike_window_samples: int = 7,
@@ -102,6 +103,11 @@ def process_arrays(
     noise that the fit uncertainty assumes white; ``extrema_on="filtered"`` fits them on the
     readings through ``filter`` with ``filter_params``, zero-phase) -> n, m, status, spacings.
     With the default the filter is computed only when ``SignalResult.filtered_mm`` is read.
+
+    Without an encoder angle, ``commanded_rad`` (the rpm profile's angle Phi at each sample,
+    :mod:`borescan.kinematics`) gives the revolutions when the speed changes during the scan:
+    u = (1 + eps) |Phi - Phi_0| / 2 pi with the speed scale found from the readings; the
+    period is then the scan's mean samples per revolution (source ``"profile"``).
 
     The summary keeps the paper's rule for ``status`` (n < m -> backward) and adds
     ``n_minus_m_samples`` with its standard uncertainty and ``status_significant`` (|n - m| >= 3u):
@@ -127,6 +133,8 @@ def process_arrays(
                                      sample_rate_hz=sample_rate_hz)
         u = revolution_coordinate(n, period, sample_times_s=t_s, encoder_t_s=encoder_t_s,
                                   encoder_angle_rad=enc)
+    elif commanded_rad is not None and _speed_changes(commanded_rad):
+        period, u = _profile_revolutions(np.asarray(commanded_rad, dtype=float), clean, nom, direction)
     else:
         period = period_from_readings(clean, samples_per_rev_guess=nom, rpm_nominal=rpm_nominal,
                                       sample_rate_hz=sample_rate_hz, direction=direction,
@@ -191,6 +199,29 @@ def process_arrays(
     return res
 
 
+def _speed_changes(commanded_rad: np.ndarray) -> bool:
+    """True when the commanded angle is not a straight line in the sample index (a speed change)."""
+    x = np.asarray(commanded_rad, dtype=float)
+    if x.size < 3:
+        return False
+    line = x[0] + (x[-1] - x[0]) * np.arange(x.size) / (x.size - 1)
+    return bool(np.max(np.abs(x - line)) > 1e-3 * max(abs(x[-1] - x[0]), 1e-12))
+
+
+def _profile_revolutions(Phi: np.ndarray, clean: np.ndarray, nominal: float | None, direction: str):
+    """Revolution coordinate from the rpm profile's angle with the speed scale from the readings."""
+    from borescan.kinematics import estimate_speed_scale
+
+    scale = estimate_speed_scale(Phi, clean)
+    turned = np.abs(scale * (Phi - Phi[0])) / (2.0 * math.pi)
+    n = Phi.size
+    spr = (n - 1) / turned[-1] if turned[-1] > 0 else float("nan")
+    # the refined scale leaves < ~0.05 rad at the end of the scan: relative u(P) ~ 0.05 / span
+    u_spr = spr * 0.05 / max(2.0 * math.pi * turned[-1], 1e-12)
+    period = PeriodEstimate(spr, u_spr, "profile", nominal, False, direction)
+    return period, turned
+
+
 def process_scan(scan: Any, matrix: Any = None, **cfg: Any) -> SignalResult:
     """Signal stage of one ``borescan.rawio.RawScan`` (keyword ``cfg`` as :func:`process_arrays`).
 
@@ -213,14 +244,22 @@ def process_scan(scan: Any, matrix: Any = None, **cfg: Any) -> SignalResult:
         t_s = np.interp(full, sample, t_s)
     meta = scan.meta
     sp = meta.get("spindle") or {}
-    enc_t = enc_a = None
+    enc_t = enc_a = commanded = None
     if scan.spindle is not None and "angle_rad" in scan.spindle.columns:
         a = scan.spindle["angle_rad"].cast(pl.Float64).to_numpy()
         if np.any(~np.isnan(a)):
             enc_t = scan.spindle["t_ns"].to_numpy().astype(float) * 1e-9
             enc_a = a
+    if enc_a is None and scan.spindle is not None and scan.spindle.height > 1:
+        from borescan.kinematics import angle_model_from_arrays
+
+        am = angle_model_from_arrays(
+            rpm_nominal=sp.get("rpm_nominal"), direction=sp.get("direction", "ccw"),
+            spindle_t_s=scan.spindle["t_ns"].to_numpy().astype(float) * 1e-9,
+            spindle_rpm=scan.spindle["rpm"].cast(pl.Float64).fill_null(np.nan).to_numpy())
+        commanded = am.commanded_rad(t_s)
     kw = dict(sample_rate_hz=float(meta["sample_rate_hz"]), rpm_nominal=sp.get("rpm_nominal"),
               direction=sp.get("direction", "ccw"), scan_id=scan.scan_id, channels=tuple(mat.channels),
-              sample0=int(full[0]), t_s=t_s, encoder_t_s=enc_t, encoder_angle_rad=enc_a)
+              sample0=int(full[0]), t_s=t_s, encoder_t_s=enc_t, encoder_angle_rad=enc_a, commanded_rad=commanded)
     kw.update(cfg)
     return process_arrays(vals, **kw)
