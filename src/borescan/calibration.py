@@ -584,8 +584,9 @@ class AcceptanceRule:
         1 within ~1 % for the scans of the contract, so 1.25 refuses no correct fit while an
         unmodelled effect of about 0.75 noise sigma rms is refused.
     head_radius_mm : |rho| of a beam cannot exceed the sensor head's radius [mm].
-    position_accuracy_mm : standard uncertainty of each coordinate of the scan's ``center`` and
-        ``spindle.position`` (the machine's stated accuracy) [mm]; they enter the fit as priors.
+    position_accuracy_mm : the machine's stated accuracy of each coordinate of the scan's
+        ``center`` and ``spindle.position``, a half-width (rectangular: standard uncertainty
+        a / sqrt(3), GUM 4.3.7) [mm]; they enter the fit as priors.
     speed_scale_range : speeds the search considers, as multiples of the commanded profile.
     """
 
@@ -629,8 +630,8 @@ def fit_full_calibration(
     angle the speed scale 1 + eps and the phase. A ring gauge is a circle, so the data fix
     beta_c + phi - angle(o) and |o| only. Hence:
 
-    - a scan with ``center_xy_mm`` and ``spindle_xy_mm`` gives o a prior (each coordinate with
-      ``rule.position_accuracy_mm``), which fixes angle(o);
+    - a scan with ``center_xy_mm`` and ``spindle_xy_mm`` gives o a prior (each coordinate within
+      +-``rule.position_accuracy_mm``, standard uncertainty that / sqrt(3)), which fixes angle(o);
     - with an encoder and such a prior the beams are absolute (beta of every channel free);
       otherwise beta of the first channel is held at ``nominal`` (the gauge freedom, said in
       ``diagnostics["gauge"]`` and ``diagnostics["beta_reference"]``);
@@ -639,10 +640,11 @@ def fit_full_calibration(
 
     Starting values that cannot miss: the speed scale from the readings' spectrum over
     ``rule.speed_scale_range`` refined on the first-harmonic misfit; offset and levels from the
-    linear first harmonic; each beam's rho from a profile over [-head, head] at fixed first
-    harmonic (beta + asin(rho / R) and d_b + rho^2 / (2 R) held, the quantities the data fix
-    best; this covers the mirror solutions of opposite rho). Internally those two combinations
-    are the fitted parameters, which straightens the valleys. Solved with
+    linear first harmonic; the beams from the design. Internally beta + asin(rho / R) and
+    d_b + rho^2 / (2 R) (the quantities the data fix best) are the fitted parameters, which
+    straightens the valleys; then every beam's mirror solution (rho of opposite sign at the same
+    first harmonic, a second minimum of nearly equal cost) is tried and the lower kept
+    (``diagnostics["mirror_solutions"]``). Solved with
     ``scipy.optimize.least_squares`` (Levenberg-Marquardt, analytic Jacobian). Covariance
     s^2 (J^T J)^-1, s^2 = SSR / dof.
 
@@ -714,7 +716,8 @@ def fit_full_calibration(
     # ---- noise floor of the readings themselves (model-free), per scan and channel
     floors = np.array([noise_floor_mm(y, order=4) for y in ys])  # (K, c)
     sigma = float(np.sqrt(np.mean(floors**2))) if np.all(np.isfinite(floors)) else 0.0
-    prior_w = (sigma if sigma > 0 else 1e-3) / rule.position_accuracy_mm
+    # the machine's stated accuracy is a half-width (rectangular distribution, GUM 4.3.7): u = a / sqrt(3)
+    prior_w = (sigma if sigma > 0 else 1e-3) / (rule.position_accuracy_mm / np.sqrt(3.0))
 
     # ---- per scan: speed scale, offset, phase (starts)
     scales0, offsets0, phase_start = [], [], []
@@ -858,25 +861,45 @@ def fit_full_calibration(
         r = np.concatenate(res_parts)
         return (r, np.vstack(jac_parts)) if with_jac else r
 
-    # ---- rho profile per channel at fixed first harmonic (covers mirror solutions)
+    # ---- start from the design geometry, then the mirror solutions: rho_c -> -rho_c at fixed psi and g
+    # keeps the first harmonic and the mean level, so each beam has two minima of nearly equal cost
+    # that only the second harmonic's phase tells apart. Each flip is refined on a subsample and
+    # kept when it lowers the cost there; the final fit uses every sample.
     d_b0 = np.sqrt(np.maximum(R_mm**2 - nominal.rho_mm**2, 0.0)) - kconst
     start_beams = Beams(channels, nominal.beta_rad.copy(), nominal.rho_mm.copy(), d_b0)
     x0 = pack(start_beams, [(offsets0[k], phase_start[k], scales0[k]) for k in range(K)])
-    rows_sub = [np.arange(0, ts[k].size, max(1, ts[k].size // 3000)) for k in range(K)]
-    x0 = _rho_profile(x0, model, rows_sub, c, ch0_free, R_mm, rule.head_radius_mm)
+    rows_sub = [np.arange(0, ts[k].size, max(1, ts[k].size // 12000)) for k in range(K)]
 
-    try:
-        sol = least_squares(
-            lambda x: model(x, False),
-            x0,
-            jac=lambda x: model(x, True)[1],
+    def solve(x_start: np.ndarray, rows=None, nfev: int = max_nfev):
+        return least_squares(
+            lambda x: model(x, False, rows=rows),
+            x_start,
+            jac=lambda x: model(x, True, rows=rows)[1],
             method="lm",
             x_scale="jac",
-            max_nfev=max_nfev,
+            max_nfev=nfev,
             xtol=1e-10,
             ftol=1e-10,
             gtol=1e-10,
         )
+
+    mirrors_tried = []
+    try:
+        best = solve(x0, rows_sub)
+        if bool(best.success) and np.isfinite(best.cost):
+            for j in range(c):
+                i_rho = c - 1 + ch0_free + j
+                xf = best.x.copy()
+                xf[i_rho] = -xf[i_rho]
+                with np.errstate(all="ignore"):
+                    trial = solve(xf, rows_sub)
+                better = bool(trial.success) and np.isfinite(trial.cost) and trial.cost < best.cost
+                mirrors_tried.append({"channel": int(channels[j]), "cost_kept": float(best.cost),
+                                      "cost_mirror": float(trial.cost), "mirror_taken": better})
+                if better:
+                    best = trial
+            x0 = best.x
+        sol = solve(x0)
     except (ValueError, FloatingPointError) as exc:  # NaN readings from a diverging step
         raise CalibrationError(scan_ids, f"full_lsq fit failed: {exc}") from exc
     r, J = model(sol.x, True)
@@ -1008,6 +1031,7 @@ def fit_full_calibration(
             "u_g_mm": u_g,
             "g_note": "g = d_b + rho^2 / (2 R): the mean level the data fix best (R the gauge radius)",
             "weak_rho_channels": weak,
+            "mirror_solutions": mirrors_tried,
             "weak_rho_note": (
                 "|rho| < 2 u(rho): rho is not distinguished from 0, d_b = g - rho^2/(2R) is then far from "
                 "linear in the data and its linearised u understates the error"
@@ -1034,33 +1058,6 @@ def _per_scan_xy(xy, K: int) -> list:
     if a.shape == (2,):
         return [a] * K
     return [np.asarray(p, dtype=float).reshape(2) for p in a]
-
-
-def _rho_profile(x0, model, rows, c, ch0_free, R_mm, head_mm, n_grid: int = 41):
-    """Start each beam's rho at the best of a grid over [-head, head] (and its start value).
-
-    psi = beta + asin(rho/R) and g = d_b + rho^2/(2R) are held, so every grid point keeps the
-    first harmonic and the mean level the data fix; rho then acts through the second harmonic's
-    phase, whose misfit has one minimum over |rho| < R. Channels are profiled one after another on
-    a subsample (``rows``); mirror solutions (rho of opposite sign) are grid points.
-    """
-    x = np.array(x0, dtype=float)
-    head = min(float(head_mm), 0.95 * R_mm)
-    grid = np.linspace(-head, head, n_grid)
-    for j in range(c):
-        i_rho = c - 1 + ch0_free + j
-        cand = np.unique(np.concatenate([grid, [x[i_rho]]]))
-        costs = []
-        for rv in cand:
-            xt = x.copy()
-            xt[i_rho] = rv
-            with np.errstate(all="ignore"):
-                rr = model(xt, False, rows=rows)
-            costs.append(float(rr @ rr) if np.all(np.isfinite(rr)) else np.inf)
-        costs = np.asarray(costs)
-        if np.any(np.isfinite(costs)):
-            x[i_rho] = cand[int(np.argmin(costs))]
-    return x
 
 
 def _acceptance_problems(beams, nuis, ratios, scan_ids, channels, R_mm, range_arr, rule) -> list[str]:

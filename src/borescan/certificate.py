@@ -203,7 +203,7 @@ def _page1(cert: dict) -> Figure:
         notes.append(f"Accepted: largest ratio of a channel's residual rms to its readings' own noise floor "
                      f"{_fmt(acc.get('residual_to_noise_max'), '.3f')} (limit {_fmt(acc.get('max_residual_to_noise'), 'g')}); "
                      f"|rho| within the head radius {_fmt(acc.get('head_radius_mm'), 'g')} mm; centre and spindle position "
-                     f"taken with {_fmt(1e3 * acc['position_accuracy_mm'], 'g')} um per coordinate.")
+                     f"taken within +-{_fmt(1e3 * acc['position_accuracy_mm'], 'g')} um per coordinate (rectangular).")
     if fit.get("weak_rho_channels"):
         notes.append(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho); U(d_b) of these channels is a "
                      "linearised value and understates the error.")
