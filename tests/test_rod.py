@@ -1,10 +1,22 @@
-"""Wang 2017 Eq. 16 joint solve: recovery of simulated radii, honest u, refusals."""
+"""Rod solve (Wang 2017 Eq. 16 generalised to the spec's layer geometry and axis deflection):
+forward-model parity, recovery over the contract's ranges, honest u at small omega, refusals."""
 
 import numpy as np
 import pytest
 
 from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
-from borescan.rod import RodSolveError, rod_crb, rod_jacobian, rod_residuals, rod_start, solve_rod
+from borescan.rod import (
+    RodSolveError,
+    _k,
+    _RodProblem,
+    rod_cost_mm2,
+    rod_crb,
+    rod_jacobian,
+    rod_residuals,
+    rod_section_geometry,
+    rod_start,
+    solve_rod,
+)
 
 # Wang 2017 Section 4: two 150 mm ring gauges on a 500 mm rod; OD2-P30W04 span 8 mm.
 LAYERS = [RodLayer(1, 100.0, 71.0), RodLayer(2, 400.0, 71.0)]
@@ -13,60 +25,139 @@ R_TRUE = np.array([75.0, 75.012])
 L0 = [71.0, 71.0]
 SKEW = RodAxis(1.0, 0.5, np.deg2rad(0.3), np.deg2rad(120.0))  # rod axis skew to the holes' axis
 SIG = 0.02 / np.sqrt(3)  # 20 um linearity read as a uniform +-20 um error: sigma = 11.5 um
+# the spec's full layer geometry (beam offset, tilt, in-plane angle)
+GEOM = [RodLayer(1, 100.0, 71.0, phi_rad=0.02, d_mm=0.3, gamma_rad=np.deg2rad(0.3)),
+        RodLayer(2, 400.0, 71.0, phi_rad=-0.05, d_mm=-0.2, gamma_rad=np.deg2rad(-0.4))]
 
 
-def _scan(axis=SKEW, n=12, seed=0, noise=True, spread=2 * np.pi):
+def _scan(axis=SKEW, n=12, seed=0, noise=True, spread=2 * np.pi, layers=LAYERS):
     rng = np.random.default_rng(seed)
     alpha = np.sort(rng.uniform(0, spread, n))
-    v = rod_readings(alpha, LAYERS, HOLES, axis)
+    v = rod_readings(alpha, layers, HOLES, axis)
     assert np.all((v > 0) & (v < 8)), "readings inside the 8 mm span"
     if noise:
         v = v + rng.uniform(-0.02, 0.02, v.shape)
     return alpha, v
 
 
-def test_noise_free_recovery_exact():
-    """gamma = d = omega-bias aside, Eq. 16 is exact: radii to 1e-7 mm (tilt 0.3 deg bias < 1 um)."""
-    axis = RodAxis(1.0, 0.5, 0.0, 0.0)
-    layers = LAYERS
-    # exact Eq. 16 geometry: give each layer its own parallel offset by moving the hole centres
-    holes = [Hole((0.0, 0.0), 75.0), Hole((-0.8, 1.3), 75.012)]
-    alpha = np.linspace(0.3, 0.3 + 2 * np.pi, 9, endpoint=False)
-    v = rod_readings(alpha, layers, holes, axis)
-    sol = solve_rod(v, L0, u_reading_mm=SIG)
-    assert np.allclose(sol.radius_mm, R_TRUE, atol=1e-7)
-    a = np.mod(sol.alpha_rad - sol.alpha_rad[0], 2 * np.pi)
-    a_true = np.mod(alpha - alpha[0], 2 * np.pi)
-    a_mirror = np.mod(-(alpha - alpha[0]), 2 * np.pi)  # the reflection is an exact symmetry
-    assert min(np.max(np.abs(a - a_true)), np.max(np.abs(a - a_mirror))) < 1e-8
-    assert sol.rank == sol.n_params == 3 * 2 + 9 - 1
+def draw_contract_scan(rng):
+    """Effect-free scan over the contract's ranges (as bench/bench_rod_contract.py): 2-3 holes of
+    100-200 mm, 8-40 poses at random angles, 5-30 readings per pose (means), noise 2-20 um,
+    eccentricity <= 2.5 mm, deflection <= 1 deg, |d| <= 0.5 mm, |gamma| <= 0.5 deg."""
+    m = int(rng.integers(2, 4))
+    r = rng.uniform(50.0, 100.0, m)
+    h = rng.uniform(50.0, 150.0) + np.concatenate([[0.0], np.cumsum(rng.uniform(100.0, 300.0, m - 1))])
+    layers = [RodLayer(j + 1, h[j], r[j] - 4.0, phi_rad=rng.uniform(-0.1, 0.1), d_mm=rng.uniform(-0.5, 0.5),
+                       gamma_rad=np.deg2rad(rng.uniform(-0.5, 0.5))) for j in range(m)]
+    off = rng.uniform(-0.05, 0.05, (m, 2))
+    holes = [Hole((off[j, 0], off[j, 1]), r[j]) for j in range(m)]
+    e, te = 2.5 * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
+    axis = RodAxis(e * np.cos(te), e * np.sin(te), np.deg2rad(rng.uniform(0.0, 1.0)), rng.uniform(0, 2 * np.pi))
+    n, k, sig = int(rng.integers(8, 41)), int(rng.integers(5, 31)), rng.uniform(0.002, 0.020)
+    alpha = rng.uniform(0, 2 * np.pi, n)
+    v0 = rod_readings(alpha, layers, holes, axis)
+    v = v0 + sig * rng.standard_normal((k,) + v0.shape).mean(axis=0)
+    return layers, holes, axis, alpha, v, sig / np.sqrt(k)
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_noisy_recovery_within_3u(seed):
-    _, v = _scan(seed=seed)
-    sol = solve_rod(v, L0, u_reading_mm=SIG)
-    assert sol.method == "joint"
-    assert np.all(np.abs(sol.radius_mm - R_TRUE) < 3 * sol.u_radius_mm + 1e-3)  # +1 um tilt bias
+def test_solver_model_equals_the_forward_model():
+    """The solver's unknowns (gauge: axis through the origin, centres relative to the axis at the
+    spot height, rho = r k(omega^2)) reproduce geometry.rod_readings to 1e-12 mm."""
+    axis = RodAxis(1.7, -0.9, np.deg2rad(0.8), 2.1)
+    alpha = np.linspace(0.0, 2 * np.pi, 17)
+    v = rod_readings(alpha, GEOM, HOLES, axis)
+    w = axis.omega_rad * np.array([np.cos(axis.omega_az_rad), np.sin(axis.omega_az_rad)])
+    r = np.array([h.radius_mm for h in HOLES])
+    z = np.array([lay.h_mm + rr * np.tan(lay.gamma_rad) for lay, rr in zip(GEOM, r)])
+    c = np.array([h.center_xy_mm for h in HOLES]) - [axis.dx_mm, axis.dy_mm] - (z * np.sinc(axis.omega_rad / np.pi))[:, None] * w
+    prob = _RodProblem(v, np.ones_like(v, dtype=bool), GEOM, 0, True, alpha_fix=alpha[0])
+    p = prob.pack(r * _k(w @ w), c, alpha, w)
+    assert np.max(np.abs(prob.readings(*prob.unpack(p)) - v)) < 1e-12
+    assert np.max(np.abs(prob.residual(p))) < 1e-12
+    holes, ax = rod_section_geometry(GEOM, c, r, w)
+    assert np.max(np.abs(rod_readings(alpha, GEOM, holes, ax) - v)) < 1e-12
 
 
-def test_uncertainty_matches_monte_carlo_and_crb():
-    """Gaussian noise sigma: scatter of r over 300 scans / reported u within 15 %; u equals the CRB."""
-    rng = np.random.default_rng(11)
-    alpha, v0 = _scan(noise=False)
-    v0 = rod_readings(alpha, LAYERS, HOLES, SKEW)
-    est, us = [], []
-    for _ in range(300):
-        sol = solve_rod(v0 + SIG * rng.standard_normal(v0.shape), L0, u_reading_mm=SIG)
-        est.append(sol.radius_mm)
-        us.append(sol.u_radius_mm)
-    est, us = np.array(est), np.array(us)
-    ratio = est.std(axis=0) / us.mean(axis=0)
-    assert np.all(np.abs(ratio - 1) < 0.15), ratio
-    sol = solve_rod(v0, L0, u_reading_mm=SIG)
-    L = v0 + np.array(L0)
-    crb = rod_crb(sol.alpha_rad, L, sol.xy_mm, sol.radius_mm, SIG)
-    assert np.allclose(sol.u_radius_mm, crb, rtol=1e-3)
+def test_noise_free_recovery_exact_with_layer_geometry_and_deflection():
+    axis = RodAxis(1.0, 0.5, np.deg2rad(0.7), 0.4)
+    alpha = np.linspace(0.3, 0.3 + 2 * np.pi, 11, endpoint=False)
+    v = rod_readings(alpha, GEOM, HOLES, axis)
+    sol = solve_rod(v, layers=GEOM)  # sigma from the residuals (0): the debiasing is then void
+    assert sol.method == "joint" and sol.rank == sol.n_params == 3 * 2 + 11 - 1 + 2
+    assert np.allclose(sol.radius_mm, R_TRUE, atol=1e-8)
+    assert sol.deflection_rad == pytest.approx(axis.omega_rad, abs=1e-7)
+    # gauge: pose 0 at angle 0, i.e. the part frame turned by -alpha_0; the azimuth is an axis (mod pi)
+    az = axis.omega_az_rad - alpha[0]
+    assert np.mod(sol.deflection_az_rad - az + np.pi / 2, np.pi) - np.pi / 2 == pytest.approx(0.0, abs=1e-5)
+    c, s = np.cos(-alpha[0]), np.sin(-alpha[0])
+    assert np.allclose(sol.eccentricity_mm, [c * 1.0 - s * 0.5, s * 1.0 + c * 0.5], atol=1e-6)  # hole 1 at the origin
+    assert sol.cost_mm2 < 1e-20
+
+
+def test_deflection_free_solve_removes_the_eq16_bias():
+    """omega = 1 deg, r = 75 mm: Eq. 16 (omega held) is biased by ~ r omega^2 / 4 = 5.7 um in r,
+    many standard uncertainties at 2 um noise; the joint solve recovers r within 3 u."""
+    axis = RodAxis(1.2, -0.8, np.deg2rad(1.0), 0.7)
+    rng = np.random.default_rng(3)
+    alpha = rng.uniform(0, 2 * np.pi, 30)
+    v = rod_readings(alpha, GEOM, HOLES, axis) + 0.002 * rng.standard_normal((30, 2))
+    old = solve_rod(v, layers=GEOM, u_reading_mm=0.002, deflection="none")
+    assert old.method == "eq16" and np.all(np.abs(old.radius_mm - R_TRUE) > 5 * old.u_radius_mm)
+    sol = solve_rod(v, layers=GEOM, u_reading_mm=0.002)
+    assert np.all(np.abs(sol.radius_mm - R_TRUE) < 3 * sol.u_radius_mm)
+    assert abs(sol.deflection_sq_rad2 - axis.omega_rad**2) < 3 * sol.u_deflection_sq_rad2
+    crb = rod_crb(alpha, layers=GEOM, holes=HOLES, axis=axis, sigma_mm=0.002)
+    assert np.all(sol.u_radius_mm / crb < 1.2) and np.all(sol.u_radius_mm / crb > 0.8)
+
+
+def test_recovery_over_the_contract_ranges():
+    """30 effect-free scans over the contract's ranges (fixed seed): every solved diameter within
+    4 u, no wrong minimum (cost <= cost at the truth + sqrt(2 N) sigma^2), refusals only with
+    their named reasons and rare."""
+    rng = np.random.default_rng(20170)
+    z, solved = [], 0
+    for _ in range(30):
+        layers, holes, axis, alpha, v, sig = draw_contract_scan(rng)
+        try:
+            sol = solve_rod(v, layers=layers, u_reading_mm=sig)
+        except RodSolveError as err:
+            assert str(err).startswith(("degenerate geometry", "deflection not separable")), err
+            continue
+        solved += 1
+        r = np.array([h.radius_mm for h in holes])
+        z.append((sol.radius_mm - r) / sol.u_radius_mm)
+        c_true = rod_cost_mm2(v, alpha, layers, holes, axis)
+        assert sol.cost_mm2 <= c_true + np.sqrt(2 * v.size) * sig**2
+    z = np.concatenate(z)
+    assert solved >= 26
+    assert np.max(np.abs(z)) < 4.0
+    assert 0.7 < np.sqrt(np.mean(z**2)) < 1.3
+
+
+def test_small_deflection_few_poses_large_noise_is_not_biased():
+    """omega = 0.05 deg (signal far below the noise), 16 poses, 8 um pose means: the maximum-likelihood
+    omega^2 is a Rice magnitude biased up, so its radii are biased low; the debiased default keeps
+    the mean z-score near 0 and the z spread near 1."""
+    axis = RodAxis(1.5, 0.4, np.deg2rad(0.05), 1.0)
+    rng = np.random.default_rng(8)
+    alpha = rng.uniform(0, 2 * np.pi, 16)
+    v0 = rod_readings(alpha, GEOM, HOLES, axis)
+    zf, zm, refused = [], [], 0
+    for _ in range(40):
+        v = v0 + 0.008 * rng.standard_normal(v0.shape)  # a pose mean of 6 readings with 20 um noise
+        try:
+            f = solve_rod(v, layers=GEOM, u_reading_mm=0.008)
+        except RodSolveError as err:  # a noise draw that puts omega far out (open issue): refused, counted
+            assert str(err).startswith(("deflection not separable", "degenerate geometry"))
+            refused += 1
+            continue
+        m = solve_rod(v, layers=GEOM, u_reading_mm=0.008, deflection="mle", max_deflection_ratio=np.inf)
+        zf.append((f.radius_mm - R_TRUE) / f.u_radius_mm)
+        zm.append((m.radius_mm - R_TRUE) / m.u_radius_mm)
+    zf, zm = np.array(zf), np.array(zm)
+    assert refused <= 3
+    assert abs(zf.mean()) < 0.35 and 0.7 < zf.std() < 1.3
+    assert zm.mean() < zf.mean() - 0.2  # the MLE's Rice bias, removed by the default
 
 
 def test_exact_jacobian_matches_finite_differences():
@@ -85,18 +176,31 @@ def test_missing_readings_are_skipped():
     v[2, 0] = np.nan
     v[7, 1] = np.nan
     sol = solve_rod(v, L0, u_reading_mm=SIG)
-    assert np.all(np.abs(sol.radius_mm - R_TRUE) < 3 * sol.u_radius_mm + 1e-3)
+    assert np.all(np.abs(sol.radius_mm - R_TRUE) < 3 * sol.u_radius_mm)
     v[4, :] = [np.nan, 3.0]  # poses seen by one layer only (2, 4, 7): dropped, angle NaN
     sol = solve_rod(v, L0, u_reading_mm=SIG)
-    assert np.isnan(sol.alpha_rad[4]) and np.isfinite(sol.alpha_rad[5]) and sol.n_params == 6 + 11 - 1  # poses 2, 4 and 7 dropped
+    assert np.isnan(sol.alpha_rad[4]) and np.isfinite(sol.alpha_rad[5]) and sol.n_params == 6 + 11 - 1 + 2
 
 
 def test_refuses_underdetermined():
-    _, v = _scan(n=4)
-    with pytest.raises(RodSolveError, match=r"underdetermined: 8 readings < 3m \+ n - 1 = 9 unknowns"):
+    _, v = _scan(n=5)
+    with pytest.raises(RodSolveError, match=r"underdetermined: 10 readings < 3m \+ n - 1 \+ 2 = 12 unknowns"):
         solve_rod(v, L0)
     with pytest.raises(RodSolveError, match="one hole"):
         solve_rod(v[:, :1], L0[:1])
+
+
+def test_refuses_poses_that_cannot_separate_the_deflection():
+    """8 poses over 150 deg: the section's second harmonic trades against the radii and the centres."""
+    axis = RodAxis(1.5, 0.5, np.deg2rad(0.5), np.deg2rad(120.0))
+    alpha = np.deg2rad(np.linspace(0, 150, 8))
+    v = rod_readings(alpha, GEOM, HOLES, axis) + 0.002 * np.random.default_rng(1).standard_normal((8, 2))
+    with pytest.raises(RodSolveError, match=r"deflection not separable from the radii: freeing the rod axis deflection multiplies u\(r\) by 10\.\d"):
+        solve_rod(v, layers=GEOM, u_reading_mm=0.002)
+    sol = solve_rod(v, layers=GEOM, u_reading_mm=0.002, max_deflection_ratio=20.0)  # the caller may accept it
+    assert 10.0 < sol.deflection_ratio < 11.0
+    eq16 = solve_rod(v, layers=GEOM, u_reading_mm=0.002, deflection="none")  # omega held: no such refusal
+    assert eq16.method == "eq16"
 
 
 def test_refuses_parallel_rod_and_bunched_poses():
@@ -108,7 +212,7 @@ def test_refuses_parallel_rod_and_bunched_poses():
     with pytest.raises(RodSolveError, match="all poses are at nearly one angle"):
         solve_rod(v, L0, u_reading_mm=SIG)
     _, v = _scan(spread=np.deg2rad(20.0))  # bunched, but not flat: ill-conditioned joint solve
-    with pytest.raises(RodSolveError, match="degenerate geometry: radii ill-determined"):
+    with pytest.raises(RodSolveError, match="degenerate geometry"):
         solve_rod(v, L0, u_reading_mm=SIG)
 
 

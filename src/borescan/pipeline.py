@@ -729,7 +729,8 @@ def _artifact_row(meta: dict) -> dict | None:
 
 
 def measure_rod_scan(scan, layer_rows: pl.DataFrame) -> list[dict]:
-    """Hole diameters of a rod scan: mean reading per pose and layer, then Wang Eq. 16 jointly."""
+    """Hole diameters of a rod scan: mean reading per pose and layer, then the joint rod solve
+    (Wang Eq. 16 generalised: layer geometry phi, d, gamma, l0 and the axis deflection; ``rod.solve_rod``)."""
     import numpy as np
 
     from borescan import rod
@@ -740,14 +741,19 @@ def measure_rod_scan(scan, layer_rows: pl.DataFrame) -> list[dict]:
     v = np.asarray(mat.values_mm, dtype=float)
     means = np.vstack([np.nanmean(v[pose == p], axis=0) for p in poses])
     counts = np.vstack([np.sum(np.isfinite(v[pose == p]), axis=0) for p in poses])
-    layers = layer_rows.sort("channel")
-    l0 = np.array([float(layers.filter(pl.col("channel") == ch)["l0_mm"][0]) for ch in mat.channels])
+    from borescan.geometry import RodLayer
+
+    rows = {int(r["channel"]): r for r in layer_rows.sort("channel").iter_rows(named=True)}
+    num = lambda r, k: float(r[k]) if r.get(k) is not None and np.isfinite(float(r[k])) else 0.0  # noqa: E731
+    # the layer geometry of the calibration row (phi, d, gamma, h, l0): the solve uses the spec's exact beam
+    lays = [RodLayer(int(ch), num(rows[int(ch)], "h_mm"), float(rows[int(ch)]["l0_mm"]), num(rows[int(ch)], "phi_rad"),
+                     num(rows[int(ch)], "d_mm"), num(rows[int(ch)], "gamma_rad")) for ch in mat.channels]
     sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
     # one reading's standard uncertainty: the sensor's stated linearity (a rectangular +-a) and repeatability
     u_one = np.array([np.hypot((sensors.get(ch, {}).get("linearity_fs") or 0.0) * (sensors.get(ch, {}).get("range_mm") or 0.0) / np.sqrt(3),
                                sensors.get(ch, {}).get("repeatability_mm") or 0.0) for ch in mat.channels])
     u_mean = float(np.max(u_one / np.sqrt(np.maximum(counts.min(axis=0), 1)))) if np.any(u_one > 0) else None
-    sol = rod.solve_rod(means, l0, u_reading_mm=u_mean)
+    sol = rod.solve_rod(means, layers=lays, u_reading_mm=u_mean)
     feat = {int(l["channel"]): l.get("feature") for l in (scan.meta.get("rod") or {}).get("layers", [])}
     return [{"channel": int(ch), "feature": feat.get(int(ch)) or f"layer{ch}", "diameter_mm": float(sol.diameter_mm[j]),
              "u_diameter_mm": float(sol.u_diameter_mm[j]), "poses": int(len(poses)), "condition": float(sol.condition)}

@@ -1,40 +1,80 @@
-"""Measuring rod: joint solve of all hole radii and pose angles (Wang 2017, Eq. 16).
+"""Measuring rod: joint solve of the hole radii, pose angles and rod axis deflection.
 
-Model (phi_m = 0, Wang Eq. 16): for hole m and pose n with l_nm = l0_m + v_nm,
+Model (spec "Measuring rod"; Wang 2017 Eq. 16 with the beam geometry of Eqs. 5-6 and the axis
+deflection of Section 3.4). Layer m has in-plane angle phi_m, beam offset d_m, tilt gamma_m,
+base length l0_m (device.nominal or a rod calibration); at pose n the reading is the exact
+ray-cylinder distance of :func:`borescan.geometry.rod_readings`,
 
-    e_nm = sqrt((x_m + l_nm cos a_n)^2 + (y_m + l_nm sin a_n)^2) - r_m = 0.
+    v_nm = F(alpha_n; layer m, hole m, axis) ,   e_nm = v_nm(observed) - v_nm(model),
 
-Unknowns r_m, x_m, y_m (3m) and a_n (n); a global rotation leaves every e_nm unchanged, so
-one pose angle is fixed (a_0 = 0) and 3m + n - 1 unknowns remain (the paper counts 3m + n).
-Solved by Levenberg-Marquardt (``scipy.optimize.least_squares``) with the exact Jacobian
+and the solve minimises sum e_nm^2 (Levenberg-Marquardt, central-difference Jacobian in blocks).
+With d = gamma = omega = 0, phi = 0 this is Wang Eq. 16,
+(x_m + l cos a_n)^2 + (y_m + l sin a_n)^2 = r_m^2.
 
-    de/dr_m = -1,  de/dx_m = (x_m + l c)/rho,  de/dy_m = (y_m + l s)/rho,
-    de/da_n = l (y_m c - x_m s)/rho,   rho = |(x_m + l c, y_m + l s)|.
+Unknowns (3m + n - 1 + 2): per hole the mean section radius rho_m and the centre c_m = (cx, cy)
+(relative to the point where the rod axis crosses the height of layer m's spot); the pose
+angles alpha_n with one fixed; the deflection vector w = omega (cos omega_az, sin omega_az).
+The hole radius is r_m = rho_m / k(omega^2), k(s) = 1 + s/4 + 5 s^2/48 = (1 + 1/cos omega)/2 + O(s^3).
 
-Start values (no search): to first order l_nm = r_m - x_m cos a_n - y_m sin a_n, so the
-column-centred reading matrix has rank 2; its two leading left singular vectors, scaled,
-lie on an ellipse that is an affine image of (cos a_n, sin a_n). An algebraic ellipse fit
-undoes the affine map, giving a_n up to a rotation (the gauge) and a reflection; a linear
-least-squares fit then gives (r_m, x_m, y_m).
+Gauge freedoms (removed, not estimated): a rotation of the whole set-up about the part z axis
+(alpha_fix = 0); a translation (the axis passes through the origin at z = 0, so the eccentricity
+(dx, dy) is reported relative to hole 1's centre: ``eccentricity_mm``); and the axis shift
+z_m tan(omega) at each layer, which is exactly a centre shift and is moved into c_m. The
+mirror image (alpha -> -alpha) is a near-symmetry (broken by d, phi only at second order):
+both reflections are started.
 
-Identifiability (first order): the 2-vectors p_m = (x_m, y_m) must not all lie on one line
-through the origin, i.e. the rod axis must be skew to the holes' axis. A rod parallel to the
-holes (p_m all equal), or one whose axis meets the holes' axis, leaves a one-parameter family
-(|p| and r trade against the pose angles) broken only by terms of order |p|^2 / r, and is
-refused. A centred rod (readings constant within the noise) has undetermined angles; the
-radii are then the mean readings (``method="centred"``), which assumes the poses were
-spread around the circle as the procedure prescribes (otherwise an off-centre rod with all
-poses at one angle explains the same data).
+Deflection (identifiability). With the centres free, what is left of omega is the tilt of the
+beam plane against the hole: the section is an ellipse, semi-axes r/cos(omega) along omega_az
+and r across, i.e. a mean radius r k(omega^2) = rho and a second harmonic
+(r/4) omega^2 cos 2(theta - omega_az). In beta = w^2 = omega^2 (cos 2 omega_az, sin 2 omega_az)
+(a complex square) the readings are linear in beta near 0 (rho absorbs the mean), so the
+maximum-likelihood beta is nearly Gaussian with covariance Sigma_beta and the Jacobian, rank
+and condition are taken in [rho, c, alpha, beta]. The radius needs |beta| = omega^2, a Rice
+magnitude: |beta_hat| is biased up by ~1.25 sd at omega = 0, which biases r low by ~0.8 u
+(few poses, large noise). The default estimator ("free") uses the debiased signed magnitude
+
+    s = sign(q) sqrt(|q|),  q = |beta_hat|^2 - tr(Sigma_beta) / 2,   r_m = rho_m / k(s),
+
+whose bias stays within 0.1 sd of |beta| for signal-to-noise >= 0.5 (0.48 sd at 0) and whose
+RMS error is at most 1.21 sd (table ``_RICE_RMS``, used to inflate the beta part of u(r)). The
+Cramer-Rao bound of r with omega free tends to a finite limit as omega -> 0 (``rod_crb``);
+u(r) lies within 1.21 of it. ``deflection="mle"`` gives r at |beta_hat|; "none" holds omega = 0.
+
+Start (cannot miss): the rank-2 structure of the readings gives the pose angles up to a
+rotation and a reflection (SVD + ellipse fit, below), a linear fit the radii and centres; LM
+without deflection from both reflections, then one Gauss-Newton step in beta (the model is
+linear in beta) and LM from w = +-sqrt(beta); the lowest cost wins.
+
+Refusals (RodSolveError): fewer readings than unknowns; degenerate geometry (rank or condition of
+the column-scaled Jacobian, or u(r) with omega held > ``max_u_ratio`` sigma/sqrt(n): offsets
+(x_m, y_m) collinear with the axis, a rod parallel to the holes, poses bunched); a deflection the
+poses cannot separate from the radii (freeing omega multiplies u(r) by > ``max_deflection_ratio``).
+
+Eq. 16 helpers (``rod_residuals``, ``rod_jacobian``, ``rod_start``; pose-0 frame, x_m, y_m the
+axis minus the centre): unknowns r_m, x_m, y_m (3m) and a_n (n - 1). To first order
+l_nm = r_m - x_m cos a_n - y_m sin a_n, so the column-centred reading matrix has rank 2; its two
+leading left singular vectors, scaled, lie on an ellipse that is an affine image of
+(cos a_n, sin a_n). An algebraic ellipse fit undoes the affine map, giving a_n up to a rotation
+and a reflection. The 2-vectors p_m = (x_m, y_m) must not all lie on one line through the
+origin (rod axis skew to the holes' axis); a centred rod (readings constant within the noise)
+has undetermined angles: the radii are then the mean readings (``method="centred"``), which
+assumes the poses were spread around the circle as the procedure prescribes.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["RodSolveError", "RodSolution", "rod_residuals", "rod_jacobian", "rod_start", "solve_rod", "solve_rod_pso", "rod_crb"]
+from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
+
+__all__ = [
+    "RodSolveError", "RodSolution", "rod_residuals", "rod_jacobian", "rod_start", "solve_rod", "solve_rod_pso", "rod_crb",
+    "rod_layers", "rod_section_geometry", "rod_cost_mm2",
+]
 
 
 class RodSolveError(ValueError):
@@ -50,8 +90,18 @@ class RodSolution:
     alpha_rad : (n,) pose angles, alpha_rad[fix_pose] = 0 (NaN for the centred case)
     residual_rms_mm : RMS of e_nm; sigma_mm : noise used for the covariance
     rank, n_params, condition : of the (column-scaled) Jacobian at the solution
-    cov : (p, p) covariance of the parameter vector [r (m), x (m), y (m), alpha (n - 1)]
-    method : "joint" | "centred" | "pso"; nfev : function evaluations
+    cov : (p, p) covariance of the parameter vector [rho (m), cx (m), cy (m), alpha (n - 1), beta (2)]
+        (Eq. 16 order [r, x, y, alpha] for "pso"; no beta for "eq16")
+    method : "joint" (deflection free, debiased omega^2) | "joint-mle" | "eq16" (omega = 0) |
+        "centred" | "pso"; nfev : function evaluations
+    center_xy_mm : (m, 2) hole centre relative to the axis at the spot height (= -xy_mm)
+    deflection_xy_rad : (2,) maximum-likelihood w = omega (cos omega_az, sin omega_az) [rad]
+    deflection_rad, deflection_az_rad : omega (from the debiased omega^2, 0 if negative), omega_az
+    deflection_sq_rad2, u_deflection_sq_rad2 : the estimate s of omega^2 (may be < 0) and its u
+    eccentricity_mm, u_eccentricity_mm : (2,) axis at z = 0 minus hole 1's centre [mm]
+    radius_mle_mm : (m,) radii at the maximum-likelihood omega; deflection_ratio : max u(r) with
+        omega free / u(r) with omega held; cost_mm2 : sum of squared residuals at the solution
+    layers : the layer geometry used
     """
 
     radius_mm: np.ndarray
@@ -66,6 +116,18 @@ class RodSolution:
     cov: np.ndarray | None
     method: str
     nfev: int
+    center_xy_mm: np.ndarray | None = None
+    deflection_xy_rad: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    deflection_rad: float = 0.0
+    deflection_az_rad: float = 0.0
+    deflection_sq_rad2: float = 0.0
+    u_deflection_sq_rad2: float = float("nan")
+    eccentricity_mm: np.ndarray | None = None
+    u_eccentricity_mm: np.ndarray | None = None
+    radius_mle_mm: np.ndarray | None = None
+    deflection_ratio: float = float("nan")
+    cost_mm2: float = float("nan")
+    layers: tuple = ()
 
     @property
     def diameter_mm(self) -> np.ndarray:
@@ -164,9 +226,10 @@ def rod_start(L: np.ndarray, mask: np.ndarray, fix: int = 0) -> tuple[np.ndarray
     return np.concatenate([r, x, y, np.delete(alpha, fix)]), S
 
 
-def _prepare(readings_mm, l0_mm):
+def _prepare(readings_mm, l0_mm, n_extra: int = 0):
     """l = l0 + v, the observation mask and the poses kept (those with >= 2 readings: a pose
-    seen by one layer only determines its own angle and nothing else, so it is dropped)."""
+    seen by one layer only determines its own angle and nothing else, so it is dropped).
+    ``n_extra`` unknowns beyond Wang's 3m + n - 1 (2 for the deflection)."""
     v = np.asarray(readings_mm, dtype=float)
     if v.ndim != 2:
         raise RodSolveError(f"readings must be (poses, holes), got shape {v.shape}")
@@ -177,16 +240,18 @@ def _prepare(readings_mm, l0_mm):
     mask = np.isfinite(L)
     n = L.shape[0]
     n_obs = int(mask.sum())
-    n_par = 3 * m + n - 1
+    n_par = 3 * m + n - 1 + n_extra
     if m < 2:
         raise RodSolveError(
             f"underdetermined: one hole gives {int(np.isfinite(v).sum())} readings for 3 + n - 1 unknowns; "
             "Wang Eq. 16 needs at least two layers sharing the pose angles"
         )
     if n_obs < n_par:
+        label = "3m + n - 1" + (f" + {n_extra}" if n_extra else "")
+        need = int(np.ceil((3 * m - 1 + n_extra) / (m - 1)))
         raise RodSolveError(
-            f"underdetermined: {n_obs} readings < 3m + n - 1 = {n_par} unknowns "
-            f"(m = {m} holes, n = {n} poses with >= 2 readings; need n >= {int(np.ceil((3 * m - 1) / (m - 1)))} complete poses)"
+            f"underdetermined: {n_obs} readings < {label} = {n_par} unknowns "
+            f"(m = {m} holes, n = {n} poses with >= 2 readings; need n >= {need} complete poses)"
         )
     per_hole = mask.sum(axis=0)
     if np.any(per_hole < 3):
@@ -194,48 +259,303 @@ def _prepare(readings_mm, l0_mm):
     return L, mask, keep
 
 
+# --------------------------------------------------------------------------- deflection-aware model
+
+
+def _k(s):
+    """Mean-radius factor of the tilted section, s = omega^2 [rad^2]: (1 + 1/cos omega) / 2 to O(s^2).
+
+    Analytic in s, so a negative s (the debiased estimate of a small omega^2) is allowed."""
+    return 1.0 + s / 4.0 + 5.0 * s * s / 48.0
+
+
+def _dk(s):
+    return 0.25 + 5.0 * s / 24.0
+
+
+def rod_layers(l0_mm=None, layers: Sequence[RodLayer] | None = None, m: int | None = None) -> tuple[RodLayer, ...]:
+    """Layer geometry for the solve: ``layers`` (device nominal or a rod calibration), their l0
+    replaced by ``l0_mm`` when both are given; l0 alone gives phi = d = gamma = 0 (Wang Eq. 16)."""
+    if layers is None:
+        if l0_mm is None:
+            raise ValueError("rod_layers needs l0_mm or layers")
+        l0 = np.broadcast_to(np.asarray(l0_mm, dtype=float), (m,) if m is not None else np.shape(l0_mm))
+        return tuple(RodLayer(channel=j + 1, h_mm=0.0, l0_mm=float(x)) for j, x in enumerate(l0))
+    out = tuple(layers)
+    if l0_mm is not None:
+        l0 = np.broadcast_to(np.asarray(l0_mm, dtype=float), (len(out),))
+        out = tuple(replace(lay, l0_mm=float(x)) for lay, x in zip(out, l0))
+    return out
+
+
+def rod_section_geometry(layers: Sequence[RodLayer], center_xy_mm, radius_mm, deflection_xy_rad) -> tuple[list[Hole], RodAxis]:
+    """Holes and rod axis of :func:`borescan.geometry.rod_readings` from the solver's unknowns.
+
+    Gauge: the rod axis passes through the part origin at z = 0 (dx = dy = 0); the deflection
+    vector w = omega (cos omega_az, sin omega_az) [rad]. ``center_xy_mm`` (m, 2) is hole m's
+    centre relative to the point where the tilted axis crosses the height of layer m's spot,
+    z_m = h_m + r_m tan(gamma_m): the shift z_m sin(omega) (cos omega_az, sin omega_az) (first
+    order in omega, not identifiable beside a free centre) is moved out of the unknowns, so that
+    the readings depend on w only through the section's ellipse (second order).
+
+    Returns
+    -------
+    holes : list of Hole (m); axis : RodAxis
+    """
+    c = np.asarray(center_xy_mm, dtype=float).reshape(-1, 2)
+    r = np.asarray(radius_mm, dtype=float).reshape(-1)
+    w = np.asarray(deflection_xy_rad, dtype=float)
+    om = float(np.hypot(w[0], w[1]))
+    az = float(np.arctan2(w[1], w[0])) if om > 0 else 0.0
+    h = np.array([lay.h_mm for lay in layers])
+    g = np.array([lay.gamma_rad for lay in layers])
+    z = h + r * np.tan(g)
+    ctr = c + (z * np.sinc(om / np.pi))[:, None] * w[None, :]
+    return [Hole((float(x), float(y)), float(rr)) for (x, y), rr in zip(ctr, r)], RodAxis(0.0, 0.0, om, az)
+
+
+class _RodProblem:
+    """Exact forward model in the solver's unknowns p = [rho (m), cx (m), cy (m), alpha\\fix (n-1), w (2)].
+
+    rho_m = r_m k(omega^2) is the mean radius of section m; w the deflection vector (omitted when
+    ``deflection`` is False). Readings from :func:`borescan.geometry.rod_readings` only.
+    """
+
+    def __init__(self, V, mask, layers, fix, deflection, alpha_fix=0.0):
+        self.V, self.mask, self.layers, self.fix = V, mask, tuple(layers), fix
+        self.n, self.m = V.shape
+        self.deflection = deflection
+        self.alpha_fix = alpha_fix
+        self.n_par = 3 * self.m + self.n - 1 + (2 if deflection else 0)
+        self.Vz = np.where(mask, V, 0.0)
+
+    def unpack(self, p):
+        m, n = self.m, self.n
+        rho, cx, cy = p[:m], p[m : 2 * m], p[2 * m : 3 * m]
+        alpha = np.insert(p[3 * m : 3 * m + n - 1], self.fix, self.alpha_fix)
+        w = p[3 * m + n - 1 :] if self.deflection else np.zeros(2)
+        return rho, np.column_stack([cx, cy]), alpha, np.asarray(w, dtype=float)
+
+    def pack(self, rho, c, alpha, w=None):
+        parts = [rho, c[:, 0], c[:, 1], np.delete(alpha, self.fix)]
+        if self.deflection:
+            parts.append(np.zeros(2) if w is None else w)
+        return np.concatenate(parts)
+
+    def readings(self, rho, c, alpha, w):
+        s = w[0] ** 2 + w[1] ** 2
+        holes, axis = rod_section_geometry(self.layers, c, rho / _k(s), w)
+        return rod_readings(alpha, list(self.layers), holes, axis)
+
+    def residual(self, p):
+        e = np.where(self.mask, self.V - self.readings(*self.unpack(p)), 0.0)
+        return e[self.mask]
+
+    def jac(self, p, beta_step=None):
+        """d(model)/dp by central differences in blocks (a pose angle moves its row only, a hole's
+        unknowns its column only: 12 model evaluations). With ``beta_step`` the last two columns
+        are secants in beta = w^2 (complex square) instead: the statistics' coordinates."""
+        rho, c, alpha, w = self.unpack(p)
+        n, m = self.n, self.m
+        J = np.zeros((n, m, self.n_par))
+        f = self.readings
+        h = 1e-6
+        d = (f(rho, c, alpha + h, w) - f(rho, c, alpha - h, w)) / (2 * h)
+        free = np.delete(np.arange(n), self.fix)
+        J[free, :, 3 * m + np.arange(n - 1)] = d[free]
+        idx = np.arange(m)
+        hr = 1e-5
+        J[:, idx, idx] = (f(rho + hr, c, alpha, w) - f(rho - hr, c, alpha, w)) / (2 * hr)
+        for k in range(2):
+            e = np.zeros((1, 2))
+            e[0, k] = hr
+            J[:, idx, (1 + k) * m + idx] = (f(rho, c + e, alpha, w) - f(rho, c - e, alpha, w)) / (2 * hr)
+        if self.deflection:
+            if beta_step is None:
+                for k in range(2):
+                    e = np.zeros(2)
+                    e[k] = h
+                    J[:, :, -2 + k] = (f(rho, c, alpha, w + e) - f(rho, c, alpha, w - e)) / (2 * h)
+            else:
+                b = _beta(w)
+                for k in range(2):
+                    e = np.zeros(2)
+                    e[k] = beta_step
+                    J[:, :, -2 + k] = (f(rho, c, alpha, _w_of_beta(b + e, w)) - f(rho, c, alpha, _w_of_beta(b - e, w))) / (2 * beta_step)
+        return -J[self.mask]  # residual = V - model
+
+
+def _beta(w):
+    """beta = w^2 as a complex square: omega^2 (cos 2 omega_az, sin 2 omega_az)."""
+    return np.array([w[0] ** 2 - w[1] ** 2, 2 * w[0] * w[1]])
+
+
+def _w_of_beta(b, w_ref):
+    """Complex square root of beta on the branch nearest ``w_ref``."""
+    z = np.sqrt(complex(b[0], b[1]))
+    if z.real * w_ref[0] + z.imag * w_ref[1] < 0:
+        z = -z
+    return np.array([z.real, z.imag])
+
+
+def _linear_start(L, mask, alpha, layers):
+    """Per layer, l = r - p . u(alpha + phi) by linear least squares; centre = -p (Eq. 16 to first order)."""
+    n, m = L.shape
+    r, c = np.empty(m), np.empty((m, 2))
+    for j, lay in enumerate(layers):
+        a = alpha + lay.phi_rad
+        A = np.column_stack([np.ones(n), -np.cos(a), -np.sin(a)])
+        ok = mask[:, j]
+        (r[j], px, py), *_ = np.linalg.lstsq(A[ok], L[ok, j], rcond=None)
+        c[j] = -px, -py
+    return r, c
+
+
+def _lm(prob, p0, n_par):
+    sol = least_squares(prob.residual, p0, jac=prob.jac, method="lm", x_scale="jac",
+                        xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=100 * n_par)
+    return sol.x, float(sol.fun @ sol.fun), int(sol.nfev)
+
+
+def _magnitude(b, half_tr):
+    """Debiased signed magnitude of beta (module doc): sign(q) sqrt|q|, q = |b|^2 - tr(Sigma)/2."""
+    q = b[..., 0] ** 2 + b[..., 1] ** 2 - half_tr
+    return np.sign(q) * np.sqrt(np.abs(q))
+
+
+def _deflected_radii(rho, b, cov, m, mode, n_draw: int = 4000):
+    """omega^2 estimate s, u(r_m) and u(s) for r_m = rho_m / k(s).
+
+    "free": s the debiased magnitude of beta_hat; u is the RMS error of r (spread and bias) in a
+    parametric bootstrap of (rho, beta) ~ N((rho_hat, s u_hat), Cov) at the plug-in truth
+    beta = max(s, 0) u_hat (fixed seed, ``n_draw`` draws), which stays honest for an anisotropic
+    Sigma_beta and at low signal-to-noise. "mle": s = |beta_hat|, u by the delta method."""
+    idx = np.r_[np.arange(m), cov.shape[0] - 2, cov.shape[0] - 1]
+    C = cov[np.ix_(idx, idx)]
+    Sb = C[-2:, -2:]
+    nb = float(np.hypot(*b))
+    uhat = b / nb if nb > 0 else np.array([1.0, 0.0])
+    if mode == "mle":
+        s = nb
+        G = np.zeros((m, m + 2))
+        G[np.arange(m), np.arange(m)] = 1.0 / _k(s)
+        G[:, -2:] = -(rho * _dk(s) / _k(s) ** 2)[:, None] * uhat[None, :]
+        return s, np.sqrt(np.clip(np.diag(G @ C @ G.T), 0.0, None)), float(np.sqrt(max(uhat @ Sb @ uhat, 0.0)))
+    half_tr = 0.5 * float(np.trace(Sb))
+    s = float(_magnitude(b, half_tr))
+    w_, V_ = np.linalg.eigh(C)
+    X = (np.random.default_rng(0).standard_normal((n_draw, m + 2)) * np.sqrt(np.clip(w_, 0.0, None))) @ V_.T
+    s_true = max(s, 0.0)
+    s_star = _magnitude(s_true * uhat + X[:, -2:], half_tr)
+    r_star = (rho + X[:, :m]) / _k(s_star)[:, None]
+    u_r = np.sqrt(np.mean((r_star - rho / _k(s_true)) ** 2, axis=0))
+    return s, u_r, float(np.sqrt(np.mean((s_star - s_true) ** 2)))
+
+
+#: largest deflection a start may take [rad] (5.7 deg; the contract's rods deflect <= 1 deg)
+_MAX_START_RAD = 0.1
+
+
+def _solve_core(prob, L, mask, starts_alpha, deflection):
+    """Multi-start LM: every start (both reflections) first without deflection, then from the
+    closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0)."""
+    n, m = prob.n, prob.m
+    best, nfev = None, 0
+    flat = _RodProblem(prob.V, mask, prob.layers, prob.fix, False)
+    for alpha0 in starts_alpha:
+        r0, c0 = _linear_start(L, mask, alpha0, prob.layers)
+        p, cost, k = _lm(flat, flat.pack(r0, c0, alpha0), flat.n_par)
+        nfev += k
+        cand = [(p, cost)]
+        if deflection:
+            rho, c, alpha, _ = flat.unpack(p)
+            full = prob.pack(rho, c, alpha, np.zeros(2))
+            J = prob.jac(full, beta_step=1e-4)
+            step, *_ = np.linalg.lstsq(J, -prob.residual(full), rcond=None)
+            b = step[-2:]
+            w0 = _w_of_beta(b, np.array([1.0, 0.0]))
+            om0 = float(np.hypot(*w0))
+            if om0 < 1e-4:
+                w0 = np.array([1e-3, 0.0])
+            elif om0 > _MAX_START_RAD:  # an ill-conditioned step: keep the rays inside the holes
+                w0 = w0 * (_MAX_START_RAD / om0)
+            cand = [(full, float(prob.residual(full) @ prob.residual(full)))]
+            for sgn in (1.0, -1.0):
+                try:
+                    p1, cost1, k = _lm(prob, prob.pack(rho, c, alpha, sgn * w0), prob.n_par)
+                except ValueError:  # the start puts a beam outside its hole
+                    continue
+                nfev += k
+                # a minimum beyond _MAX_START_RAD is a low-signal wander, not a hand-held rod: not taken
+                if np.isfinite(cost1) and np.hypot(*prob.unpack(p1)[3]) <= _MAX_START_RAD:
+                    cand.append((p1, cost1))
+        for p1, cost1 in cand:
+            if best is None or cost1 < best[1]:
+                best = (p1, cost1)
+    return best[0], best[1], nfev
+
+
 def solve_rod(
     readings_mm,
-    l0_mm,
+    l0_mm=None,
     *,
+    layers: Sequence[RodLayer] | None = None,
     u_reading_mm: float | None = None,
     fix_pose: int = 0,
+    deflection: str = "free",
     max_condition: float = 1e8,
     max_u_ratio: float = 50.0,
+    max_deflection_ratio: float = 10.0,
     centred: str = "refuse",
 ) -> RodSolution:
-    """Solve Wang 2017 Eq. 16 for all holes at once (exact-Jacobian Levenberg-Marquardt).
+    """Solve the exact rod model (spec "Measuring rod"; Wang 2017 Eq. 16 generalised) jointly.
 
     Parameters
     ----------
     readings_mm : ndarray (n, m) readings v per pose n and layer/hole m [mm]; NaN = missing
-    l0_mm : (m,) calibrated base length of each layer (l = l0 + v is the distance from the axis)
+    l0_mm : (m,) base length of each layer [mm] (replaces the layers' l0 when both are given)
+    layers : RodLayer per column (phi, d, gamma, h, l0 from device.nominal or a rod calibration);
+        None: phi = d = gamma = 0 (Wang Eq. 16)
     u_reading_mm : standard uncertainty of one reading [mm]; if None the residual RMS is used
         (with the degrees of freedom), which needs more readings than unknowns
     fix_pose : index (among the kept poses) of the pose whose angle is fixed at 0
+    deflection : "free" (default: w unknown, radii with the debiased omega^2 of the module doc,
+        method "joint"), "mle" (w unknown, radii at the maximum-likelihood omega^2, method
+        "joint-mle": biased low by up to ~0.9 u at small omega), "none" (omega = 0: Wang Eq. 16
+        with the layer geometry, method "eq16"; biased by -r omega^2 / 4 on a deflected rod)
     centred : what to do when the readings are constant within the noise ("refuse" or "mean").
         The data cannot tell a centred rod (angles undetermined, r = mean l) from an eccentric
         rod with all poses at one angle (r undetermined); "mean" asserts the poses were spread
         around the circle and returns r_m = mean_n l_nm, u = sigma / sqrt(n_m)
     max_condition : refuse when the column-scaled Jacobian is worse conditioned than this
-    max_u_ratio : refuse when some u(r_m) exceeds this multiple of sigma / sqrt(n_m), the
-        uncertainty of a centred rod's mean reading (a near-degenerate, not a singular, geometry)
+    max_u_ratio : refuse when some u(r_m) with omega held exceeds this multiple of
+        sigma / sqrt(n_m), the uncertainty of a centred rod's mean reading
+    max_deflection_ratio : refuse when freeing the deflection multiplies some u(r_m) by more than
+        this (the poses do not separate the section's ellipse from the radius)
 
     Returns
     -------
-    RodSolution (covariance sigma^2 (J^T J)^-1; u(diameter) = 2 u(r))
+    RodSolution (covariance sigma^2 (J^T J)^-1 in [rho, cx, cy, alpha\\fix, beta]; u(diameter) = 2 u(r))
 
     Raises
     ------
     RodSolveError
-        fewer readings than 3m + n - 1 unknowns, a single hole, or degenerate geometry (rank
-        deficient or ill-conditioned Jacobian: poses bunched at one angle, rod axis parallel
-        to or intersecting the holes' axis).
+        fewer readings than unknowns, a single hole, degenerate geometry (rank deficient or
+        ill-conditioned Jacobian: poses bunched at one angle, rod axis parallel to or
+        intersecting the holes' axis), or a deflection the poses cannot separate from the radii.
     """
-    L, mask, keep = _prepare(readings_mm, l0_mm)
+    if deflection not in ("free", "mle", "none"):
+        raise ValueError(f"deflection must be 'free', 'mle' or 'none', got {deflection!r}")
+    v_in = np.asarray(readings_mm, dtype=float)
+    m_in = v_in.shape[1] if v_in.ndim == 2 else None
+    lays = rod_layers(l0_mm, layers, m_in)
+    if m_in is not None and len(lays) != m_in:
+        raise RodSolveError(f"{len(lays)} layers for {m_in} reading columns")
+    l0 = np.array([lay.l0_mm for lay in lays])
+    defl = deflection != "none"
+    L, mask, keep = _prepare(v_in, l0, 2 if defl else 0)
     n, m = L.shape
     n_obs = int(mask.sum())
-    n_par = 3 * m + n - 1
     p0, S = rod_start(L, mask, fix_pose)
     # Noise reference for the centred test: the given u, else the third singular value (m >= 3)
     sig_ref = u_reading_mm if u_reading_mm is not None else (S[2] / np.sqrt(max(n - 2, 1)) if S.size > 2 else None)
@@ -246,7 +566,6 @@ def solve_rod(
                 "(angles undetermined; pass centred='mean' if the poses were spread around the circle) "
                 "or all poses are at nearly one angle (radii undetermined)"
             )
-        # centred rod: every layer reads its radius; angles undetermined
         Lf = np.where(mask, L, np.nan)
         r = np.nanmean(Lf, axis=0)
         cnt = mask.sum(axis=0)
@@ -255,17 +574,18 @@ def solve_rod(
         return RodSolution(
             radius_mm=r, u_radius_mm=sig / np.sqrt(cnt), xy_mm=np.zeros((m, 2)), alpha_rad=np.full(keep.size, np.nan),
             residual_rms_mm=float(np.sqrt(np.nanmean((Lf - r) ** 2))), sigma_mm=float(np.mean(sig)),
-            rank=m, n_params=n_par, condition=float("inf"), cov=None, method="centred", nfev=0,
+            rank=m, n_params=3 * m + n - 1 + (2 if defl else 0), condition=float("inf"), cov=None, method="centred", nfev=0,
         )
-    sol = least_squares(
-        rod_residuals, p0, jac=rod_jacobian, args=(L, mask, fix_pose), method="lm",
-        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * n_par,
-    )
-    p = sol.x
-    J = rod_jacobian(p, L, mask, fix_pose)
+    a0 = np.insert(p0[3 * m :], fix_pose, 0.0)
+    V = L - l0
+    prob = _RodProblem(V, mask, lays, fix_pose, defl)
+    p, cost, nfev = _solve_core(prob, L, mask, [a0, -a0], defl)
+    n_par = prob.n_par
+    J = prob.jac(p, beta_step=1e-4 if defl else None)
     col = np.linalg.norm(J, axis=0)
     col[col == 0] = 1.0
-    sv = np.linalg.svd(J / col, compute_uv=False)
+    Js = J / col
+    sv = np.linalg.svd(Js, compute_uv=False)
     rank = int(np.sum(sv > sv[0] * 1e-12))
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
     if rank < n_par or cond > max_condition:
@@ -274,7 +594,7 @@ def solve_rod(
             f"(poses bunched at one angle, or the rod axis parallel to / intersecting the holes' axis "
             "so that the offsets (x_m, y_m) are collinear with the axis)"
         )
-    e = sol.fun
+    e = prob.residual(p)
     rms = float(np.sqrt(np.mean(e**2)))
     dof = n_obs - n_par
     if u_reading_mm is not None:
@@ -283,21 +603,49 @@ def solve_rod(
         sigma = float(np.sqrt(e @ e / dof))
     else:
         sigma = float("nan")
-    Js = J / col
     cov = sigma**2 * (np.linalg.pinv(Js.T @ Js) / np.outer(col, col))
-    r, x, y, a = _unpack(p, m, n, fix_pose)
-    u_r = np.sqrt(np.diag(cov)[:m])
-    ratio = u_r / (sigma / np.sqrt(mask.sum(axis=0)))
+    rho, c, alpha, w = prob.unpack(p)
+    ref = sigma / np.sqrt(mask.sum(axis=0))
+    if defl:
+        nb = n_par - 2
+        cov0 = sigma**2 * (np.linalg.pinv(Js[:, :nb].T @ Js[:, :nb]) / np.outer(col[:nb], col[:nb]))
+        u_fixed = np.sqrt(np.diag(cov0)[:m])
+    else:
+        u_fixed = np.sqrt(np.diag(cov)[:m])
+    ratio = u_fixed / ref
     if np.any(ratio > max_u_ratio):
         raise RodSolveError(
-            f"degenerate geometry: radii ill-determined, u(r) = {np.array2string(u_r, precision=4)} mm is up to "
+            f"degenerate geometry: radii ill-determined, u(r) = {np.array2string(u_fixed, precision=4)} mm is up to "
             f"{ratio.max():.0f} x sigma/sqrt(n) (condition {cond:.3g}); the offsets (x_m, y_m) are nearly collinear "
             "with the axis (rod parallel to, or intersecting, the holes' axis) or the poses are bunched"
         )
+    b = _beta(w)
+    if defl:
+        s, u_r, u_s = _deflected_radii(rho, b, cov, m, deflection)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dratio = float(np.nanmax(u_r / u_fixed))
+        if dratio > max_deflection_ratio:
+            raise RodSolveError(
+                f"deflection not separable from the radii: freeing the rod axis deflection multiplies u(r) by "
+                f"{dratio:.1f} (> {max_deflection_ratio:g}); the poses do not span the second harmonic of the "
+                f"tilted section (u(omega^2) = {u_s:.3g} rad^2) - add poses spread around the circle"
+            )
+    else:
+        s, u_s, dratio = 0.0, 0.0, 1.0
+        u_r = u_fixed
+    r = rho / _k(s)
+    holes, _ = rod_section_geometry(lays, c, rho / _k(float(w @ w)), w)
+    ecc = -np.array(holes[0].center_xy_mm)
+    u_ecc = np.sqrt(np.clip(np.diag(cov)[[m, 2 * m]], 0.0, None))
+    meth = {"free": "joint", "mle": "joint-mle", "none": "eq16"}[deflection]
     return RodSolution(
-        radius_mm=np.abs(r), u_radius_mm=u_r, xy_mm=np.column_stack([x, y]),
-        alpha_rad=_expand(np.mod(a + np.pi, 2 * np.pi) - np.pi, keep), residual_rms_mm=rms, sigma_mm=sigma, rank=rank,
-        n_params=n_par, condition=cond, cov=cov, method="joint", nfev=int(sol.nfev),
+        radius_mm=np.abs(r), u_radius_mm=u_r, xy_mm=-c,
+        alpha_rad=_expand(np.mod(alpha + np.pi, 2 * np.pi) - np.pi, keep), residual_rms_mm=rms, sigma_mm=sigma, rank=rank,
+        n_params=n_par, condition=cond, cov=cov, method=meth, nfev=nfev,
+        center_xy_mm=c, deflection_xy_rad=w.copy(), deflection_rad=float(np.sqrt(max(s, 0.0))),
+        deflection_az_rad=float(np.arctan2(w[1], w[0])) if np.any(w != 0) else 0.0,
+        deflection_sq_rad2=s, u_deflection_sq_rad2=float(u_s), eccentricity_mm=ecc, u_eccentricity_mm=u_ecc,
+        radius_mle_mm=rho / _k(float(w @ w)), deflection_ratio=dratio, cost_mm2=cost, layers=lays,
     )
 
 
@@ -307,17 +655,59 @@ def _expand(a, keep):
     return out
 
 
-def rod_crb(alpha_rad, l_mm, xy_mm, radius_mm, sigma_mm: float, fix_pose: int = 0) -> np.ndarray:
-    """Cramér-Rao bound on the radii for Gaussian reading noise sigma (exact model at the truth).
+def rod_cost_mm2(readings_mm, alpha_rad, layers, holes, axis) -> float:
+    """Sum of squared residuals of ``readings_mm`` (n, m; NaN skipped) against the exact forward
+    model at the given geometry (e.g. the truth of a simulated scan) [mm^2]."""
+    v = np.asarray(readings_mm, dtype=float)
+    e = v - rod_readings(alpha_rad, list(layers), list(holes), axis)
+    e = e[np.isfinite(e)]
+    return float(e @ e)
 
-    Readings enter Eq. 16 through l, so the residual noise of e_nm is sigma * de/dl with
-    de/dl = (X c + Y s)/rho; CRB = (J^T W J)^-1, W = diag(1 / (sigma de/dl)^2).
+
+def rod_crb(alpha_rad, l_mm=None, xy_mm=None, radius_mm=None, sigma_mm: float | None = None, fix_pose: int = 0, *,
+            layers: Sequence[RodLayer] | None = None, holes: Sequence[Hole] | None = None, axis: RodAxis | None = None,
+            deflection: bool = True) -> np.ndarray:
+    """Cramér-Rao bound on the radii for Gaussian reading noise sigma.
+
+    Exact model (``layers``, ``holes``, ``axis`` given): Fisher information sigma^-2 J^T J of the
+    readings in the solver's unknowns [rho, cx, cy, alpha\\fix, beta] at the truth, then
+    r = rho / k(|beta|) by the delta method along the true beta direction (the bound of the
+    deflection-free unknowns with ``deflection=False``). The bound is the same in any
+    parameterisation and tends to a finite limit as omega -> 0.
+
+    Legacy form (``l_mm`` (n, m) = l0 + v, ``xy_mm``, ``radius_mm``): Wang Eq. 16 (no deflection),
+    with the noise of e_nm = sigma de/dl, de/dl = (X c + Y s)/rho; CRB = (J^T W J)^-1.
 
     Returns
     -------
     ndarray (m,) standard deviation bound of each radius [mm]
     """
     a = np.asarray(alpha_rad, float)
+    if layers is not None:
+        lays = tuple(layers)
+        ax = axis or RodAxis()
+        V = rod_readings(a, list(lays), list(holes), ax)
+        n, m = V.shape
+        w = ax.omega_rad * np.array([np.cos(ax.omega_az_rad), np.sin(ax.omega_az_rad)])
+        r = np.array([h.radius_mm for h in holes])
+        # the solver's gauge: axis through the origin at z = 0, centres relative to the axis at the spot height
+        z = np.array([lay.h_mm for lay in lays]) + r * np.tan([lay.gamma_rad for lay in lays])
+        c = (np.array([h.center_xy_mm for h in holes]) - [ax.dx_mm, ax.dy_mm]
+             - (z * np.sinc(ax.omega_rad / np.pi))[:, None] * w[None, :])
+        prob = _RodProblem(V, np.ones_like(V, dtype=bool), lays, fix_pose, deflection, alpha_fix=a[fix_pose])
+        s = float(w @ w)
+        p = prob.pack(r * _k(s), c, a, w)
+        J = prob.jac(p, beta_step=1e-4 if deflection else None)
+        col = np.linalg.norm(J, axis=0)
+        col[col == 0] = 1.0
+        F = (J / col).T @ (J / col) / sigma_mm**2
+        cov = np.linalg.pinv(F) / np.outer(col, col)
+        G = np.zeros((m, prob.n_par))
+        rho = r * _k(s)
+        G[np.arange(m), np.arange(m)] = 1.0 / _k(s)
+        if deflection:
+            G[:, -2:] = -(rho * _dk(s) / _k(s) ** 2)[:, None] * np.array([np.cos(2 * ax.omega_az_rad), np.sin(2 * ax.omega_az_rad)])[None, :]
+        return np.sqrt(np.diag(G @ cov @ G.T))
     L = np.asarray(l_mm, float)
     n, m = L.shape
     xy = np.asarray(xy_mm, float)

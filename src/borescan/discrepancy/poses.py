@@ -4,11 +4,14 @@ Both share the pose structure (``pose`` column): the noise floor comes from samp
 differences within a pose (1.4826 MAD / sqrt 2), outliers are jumps away from the pose median,
 and the base model has per-pose nuisance parameters.
 
-Rod (Wang 2017, spec "Measuring rod"): layer m at pose angle alpha_p sees the hole m, a circle
-of nominal radius r_m (feature ``nominal_diameter_mm``) with centre c_m in the rod frame; the
-in-plane beam leaves d n(a) along u(a), a = alpha_p + phi_m; l = s / cos(gamma), v = l - l0.
-Base: nominal layers (l0, phi, d, gamma) fixed; free the pose angles (alpha_0 = 0: a common
-rotation is the centres' business), the centres (2 per layer) and, for a hole without a
+Rod (Wang 2017, spec "Measuring rod"): layer m at pose angle alpha_p sees hole m, a cylinder
+of nominal radius r_m (feature ``nominal_diameter_mm``); the readings are the shared exact
+forward model :func:`borescan.geometry.rod_readings` with the rod solve's unknowns
+(:func:`borescan.rod.rod_section_geometry`): centre c_m relative to the axis at the spot height
+and the axis deflection w = omega (cos omega_az, sin omega_az) (a hand-held rod is never
+aligned: base geometry, not an effect). Base: nominal layers (l0, phi, d, gamma) fixed; free the
+pose angles (alpha_0 = 0: a common rotation is the centres' business), the centres (2 per
+layer), the deflection (2, started from ``rod.solve_rod``) and, for a hole without a
 certified diameter (a part: its diameter is the measurand), the radius. A free radius absorbs
 every offset-like effect of its layer (``sensor_offset``, ``beam_offset``, ``thermal_expansion``):
 those are then a calibration matter and are not tried. ``beam_offset`` then acts only
@@ -31,7 +34,8 @@ import numpy as np
 
 from borescan.discrepancy.fitting import dead_zone, robust_sigma
 from borescan.discrepancy.tri import INTERNAL, Term, apply_reading_terms, fast_readings, term_parameters
-from borescan.geometry import Beams, Bore
+from borescan.geometry import Beams, Bore, RodLayer, rod_readings
+from borescan.rod import rod_section_geometry
 
 __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
 
@@ -175,6 +179,7 @@ class RodModel(_PoseModel):
         self.phi = np.array([get(c, "phi") for c in data.channels])
         self.d = np.array([get(c, "d") for c in data.channels])
         self.gamma = np.array([get(c, "gamma") for c in data.channels])
+        self.h = np.array([get(c, "h") for c in data.channels])
         art = meta.get("artifact", {}) or {}
         feats = {f["id"]: f for f in art.get("features", []) or []}
         rod_layers = {int(lay["channel"]): lay for lay in (meta.get("rod", {}) or {}).get("layers", [])}
@@ -199,31 +204,50 @@ class RodModel(_PoseModel):
             [f"alpha[{k}]" for k in range(1, self.n_pose)]
             + [f"cx[{j}]" for j in range(m)]
             + [f"cy[{j}]" for j in range(m)]
+            + ["wx", "wy"]
             + [f"dr[{j}]" for j in range(m) if self.radius_free[j]]
         )
 
     def _scale(self, n):
-        return 1e-3 if n.startswith(("alpha", "dr")) else 1e-2
+        return 1e-3 if n.startswith(("alpha", "dr", "w")) else 1e-2
+
+    def layers(self, d_mm=None) -> list[RodLayer]:
+        """Nominal layer geometry (h, l0, phi, d, gamma) of the channels, ``d_mm`` overriding d."""
+        d_mm = self.d if d_mm is None else d_mm
+        return [RodLayer(int(c), float(h), float(l0), float(ph), float(dd), float(g))
+                for c, h, l0, ph, dd, g in zip(self.data.channels, self.h, self.l0, self.phi, d_mm, self.gamma)]
 
     def base_start(self):
-        from borescan.rod import RodSolveError, rod_start
+        """Pose means solved by ``rod.solve_rod`` (deflection free, maximum likelihood); on refusal
+        the closed-form Eq. 16 start with w = 0."""
+        from borescan.rod import RodSolveError, rod_start, solve_rod
 
         d = self.data
         m = len(d.channels)
-        L = np.full((self.n_pose, m), np.nan)
+        V = np.full((self.n_pose, m), np.nan)
         for k in range(self.n_pose):
-            L[k] = np.nanmean(np.where(self.valid, d.values_mm, np.nan)[d.pose_index == k], axis=0) + self.l0
+            V[k] = np.nanmean(np.where(self.valid, d.values_mm, np.nan)[d.pose_index == k], axis=0)
+        L = V + self.l0
         mask = np.isfinite(L)
+        w = np.zeros(2)
         try:
-            p0, _ = rod_start(np.where(mask, L, 0.0), mask, 0)
-            x, y, a = p0[m : 2 * m], p0[2 * m : 3 * m], np.insert(p0[3 * m :], 0, 0.0)
+            sol = solve_rod(V, layers=self.layers(), deflection="mle", max_deflection_ratio=np.inf)
+            a = np.nan_to_num(sol.alpha_rad)
+            c, w, r = sol.center_xy_mm, sol.deflection_xy_rad, sol.radius_mm
         except (RodSolveError, np.linalg.LinAlgError, ValueError):
-            x, y, a = np.zeros(m), np.zeros(m), np.linspace(0, 2 * np.pi, self.n_pose, endpoint=False)
+            try:
+                p0, _ = rod_start(np.where(mask, L, 0.0), mask, 0)
+                x, y, a = p0[m : 2 * m], p0[2 * m : 3 * m], np.insert(p0[3 * m :], 0, 0.0)
+                c = np.column_stack([-x, -y])  # rod.py's (x, y) is the axis minus the centre
+            except (RodSolveError, np.linalg.LinAlgError, ValueError):
+                c, a = np.zeros((m, 2)), np.linspace(0, 2 * np.pi, self.n_pose, endpoint=False)
+            r = np.nanmean(L, axis=0)
         out = {f"alpha[{k}]": float(a[k]) for k in range(1, self.n_pose)}
-        for j in range(m):  # rod.py's (x, y) is axis minus centre; here the centre relative to the axis
-            out[f"cx[{j}]"], out[f"cy[{j}]"] = float(-x[j]), float(-y[j])
+        out["wx"], out["wy"] = float(w[0]), float(w[1])
+        for j in range(m):
+            out[f"cx[{j}]"], out[f"cy[{j}]"] = float(c[j, 0]), float(c[j, 1])
             if self.radius_free[j]:
-                out[f"dr[{j}]"] = float(np.nanmean(L[:, j]) - self.radius[j])
+                out[f"dr[{j}]"] = float(r[j] - self.radius[j])
         return out
 
     def base_summary(self, p):
@@ -233,6 +257,8 @@ class RodModel(_PoseModel):
         return {"hole_center_mm": [[float(p[f"cx[{j}]"]), float(p[f"cy[{j}]"])] for j in range(m)],
                 "hole_radius_mm": [float(self.radius[j] + p.get(f"dr[{j}]", 0.0)) for j in range(m)],
                 "radius_free": [bool(f) for f in self.radius_free],
+                "deflection_rad": float(np.hypot(p.get("wx", 0.0), p.get("wy", 0.0))),
+                "deflection_az_rad": float(np.arctan2(p.get("wy", 0.0), p.get("wx", 0.0))),
                 "pose_angle_rad": [float(a) for a in alpha]}
 
     def predict(self, p, terms):
@@ -242,7 +268,7 @@ class RodModel(_PoseModel):
             by.setdefault(t.effect, []).append(t)
         m = len(d.channels)
         alpha = np.array([0.0] + [p[f"alpha[{k}]"] for k in range(1, self.n_pose)])[d.pose_index]
-        dd, gam = self.d.copy(), self.gamma.copy()
+        dd = self.d.copy()
         r = self.radius + np.array([p.get(f"dr[{j}]", 0.0) for j in range(m)])
         h = np.zeros(m)
         for t in by.get("beam_offset", []):
@@ -251,17 +277,14 @@ class RodModel(_PoseModel):
             h[d.channels.index(t.channel)] += p[f"{t.key}.h"]
         for t in by.get("thermal_expansion", []):
             r = r * (1.0 + (d.cte_per_k or 0.0) * p[f"{t.key}.dT"])
-        a = alpha[:, None] + self.phi[None, :]
-        ca, sa = np.cos(a), np.sin(a)
         cx = np.array([p[f"cx[{j}]"] for j in range(m)])
         cy = np.array([p[f"cy[{j}]"] for j in range(m)])
-        wx, wy = -dd * sa - cx, dd * ca - cy
-        b = wx * ca + wy * sa
-        c = wx * wx + wy * wy - r * r
-        with np.errstate(invalid="ignore", divide="ignore"):
-            sq = np.sqrt(b * b - c)  # NaN where a start puts the beam outside the hole
-            s = np.where(b <= 0.0, -b + sq, -c / (b + sq))
-        v = s / np.cos(gam) * (1.0 + h) - self.l0
+        w = np.array([p.get("wx", 0.0), p.get("wy", 0.0)])
+        lays = self.layers(dd)
+        holes, axis = rod_section_geometry(lays, np.column_stack([cx, cy]), r, w)
+        with np.errstate(invalid="ignore", divide="ignore"):  # NaN where a start puts the beam outside the hole
+            s = rod_readings(alpha, lays, holes, axis) + self.l0
+        v = s * (1.0 + h) - self.l0
         t_s = np.broadcast_to(d.t_s[:, None], v.shape)
         return apply_reading_terms(v, t_s, by, p, d.channels, d.range_mm, beam_tilt=False)
 

@@ -142,7 +142,7 @@ def fig11_error_vs_rotations(n_rot=range(6, 31, 2), n_trials: int = 200, seed: i
             v0 = rod_readings(alpha, layers, holes, axis)
             v = v0 + rng.uniform(-0.02, 0.02, v0.shape)
             try:
-                sol = solve_rod(v, [L0_MM, L0_MM], u_reading_mm=SIGMA_LIN_MM)
+                sol = solve_rod(v, [L0_MM, L0_MM], u_reading_mm=SIGMA_LIN_MM, deflection="none")  # the paper's Eq. 16
             except RodSolveError:
                 refused += 1
                 continue

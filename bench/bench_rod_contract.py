@@ -1,0 +1,122 @@
+"""Rod solve on effect-free scans drawn over the contract's ranges (the rod-deflection issue).
+
+Each scan: 2-3 coaxial holes (diameter 100-200 mm, centres within 0.05 mm), layer heights
+50-150 mm then 100-300 mm apart, beam offset |d| <= 0.5 mm, tilt |gamma| <= 0.5 deg, angle
+|phi| <= 0.1 rad (known device geometry, as in device.nominal), eccentricity |e| <= 2.5 mm,
+deflection omega ~ U(0, 1 deg) towards a uniform azimuth, 8-40 poses at uniformly random angles,
+5-30 readings per pose with Gaussian noise 2-20 um; the solver sees the pose means and their
+standard uncertainty sigma / sqrt(k). Prints: solved / refused (reasons), pooled z-scores of the
+diameters (SD, RMS, max |z|, 95 % coverage), max u / CRB, wrong minima (cost at the solution
+above the cost at the truth + sqrt(2 N) sigma^2), time; then the discrepancy workflow's verdicts
+on a subset of effect-free rod scans (``simulate_rod`` + ``examine_scan``).
+Run: .venv/bin/python -m bench rod_contract
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+
+import numpy as np
+
+from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
+from borescan.rod import RodSolveError, rod_cost_mm2, rod_crb, solve_rod
+
+
+def draw_scan(rng: np.random.Generator) -> dict:
+    """One effect-free rod scan over the contract's ranges (module doc); pose-mean readings."""
+    m = int(rng.integers(2, 4))
+    r = rng.uniform(50.0, 100.0, m)
+    h = rng.uniform(50.0, 150.0) + np.concatenate([[0.0], np.cumsum(rng.uniform(100.0, 300.0, m - 1))])
+    layers = [RodLayer(j + 1, float(h[j]), float(r[j] - 4.0), phi_rad=float(rng.uniform(-0.1, 0.1)),
+                       d_mm=float(rng.uniform(-0.5, 0.5)), gamma_rad=float(np.deg2rad(rng.uniform(-0.5, 0.5))))
+              for j in range(m)]
+    off = rng.uniform(-0.05, 0.05, (m, 2))
+    holes = [Hole((float(off[j, 0]), float(off[j, 1])), float(r[j])) for j in range(m)]
+    e, te = 2.5 * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
+    axis = RodAxis(float(e * np.cos(te)), float(e * np.sin(te)), float(np.deg2rad(rng.uniform(0.0, 1.0))),
+                   float(rng.uniform(0, 2 * np.pi)))
+    n = int(rng.integers(8, 41))
+    k = int(rng.integers(5, 31))
+    sig = float(rng.uniform(0.002, 0.020))
+    alpha = rng.uniform(0, 2 * np.pi, n)
+    v0 = rod_readings(alpha, layers, holes, axis)
+    v = v0 + sig * rng.standard_normal((k,) + v0.shape).mean(axis=0)
+    return {"layers": layers, "holes": holes, "axis": axis, "alpha": alpha, "v": v, "sigma": sig / np.sqrt(k),
+            "n": n, "k": k, "m": m, "noise": sig}
+
+
+def evaluate(scan: dict) -> dict:
+    """Solve one drawn scan; z-scores, u/CRB and the wrong-minimum test against the truth."""
+    s = scan
+    r_true = np.array([hh.radius_mm for hh in s["holes"]])
+    try:
+        sol = solve_rod(s["v"], layers=s["layers"], u_reading_mm=s["sigma"])
+    except RodSolveError as err:
+        return {"refused": str(err).split(":")[0] + (": " + str(err).split(":")[1].split("(")[0].strip() if ":" in str(err) else "")}
+    crb = rod_crb(s["alpha"], layers=s["layers"], holes=s["holes"], axis=s["axis"], sigma_mm=s["sigma"])
+    c_true = rod_cost_mm2(s["v"], s["alpha"], s["layers"], s["holes"], s["axis"])
+    spread = np.sqrt(2.0 * s["v"].size) * s["sigma"] ** 2
+    return {"z": (sol.diameter_mm - 2 * r_true) / sol.u_diameter_mm, "u_crb": sol.u_radius_mm / crb,
+            "wrong": bool(sol.cost_mm2 > c_true + spread), "cost": sol.cost_mm2, "cost_true": c_true,
+            "err_um": (sol.diameter_mm - 2 * r_true) * 1e3, "ratio": sol.deflection_ratio}
+
+
+def run_contract(n_scans: int = 240, seed: int = 2017) -> dict:
+    rng = np.random.default_rng(seed)
+    z, ucrb, wrong, refused, t = [], [], 0, Counter(), time.perf_counter()
+    for _ in range(n_scans):
+        res = evaluate(draw_scan(rng))
+        if "refused" in res:
+            refused[res["refused"]] += 1
+            continue
+        z.append(res["z"])
+        ucrb.append(res["u_crb"])
+        wrong += res["wrong"]
+    z = np.concatenate(z)
+    ucrb = np.concatenate(ucrb)
+    return {"n": n_scans, "solved": n_scans - sum(refused.values()), "refused": refused, "z": z, "u_crb": ucrb,
+            "wrong": wrong, "seconds": time.perf_counter() - t}
+
+
+def run_discrepancy(n_scans: int = 20, seed: int = 7) -> Counter:
+    """Verdicts of the discrepancy workflow on effect-free simulated rod scans (contract-like scenes)."""
+    from borescan.discrepancy import examine_scan
+    from borescan.simulate import RodScene, simulate_rod
+
+    rng = np.random.default_rng(seed)
+    out = Counter()
+    for i in range(n_scans):
+        s = draw_scan(rng)
+        scene = RodScene(layers=tuple(s["layers"]), holes=tuple(s["holes"]), axis=s["axis"], range_mm=(30.0,) * s["m"])
+        feats = [{"id": f"H{j + 1}", "z_mm": lay.h_mm, "nominal_diameter_mm": round(2 * hh.radius_mm)}
+                 for j, (lay, hh) in enumerate(zip(s["layers"], s["holes"]))]
+        art = {"id": "PART", "type": "part", "nominal_diameter_mm": feats[0]["nominal_diameter_mm"], "cte_per_k": 11.5e-6,
+               "features": feats}
+        scan = simulate_rod(scene, s["alpha"], samples_per_pose=s["k"], noise_mm=s["noise"], seed=1000 + i, artifact=art,
+                            nominal_layers=s["layers"])
+        f = examine_scan(scan)
+        out[f["verdict"]] += 1
+    return out
+
+
+def main() -> None:
+    res = run_contract()
+    z = res["z"]
+    print(f"effect-free rod scans: {res['n']} drawn, {res['solved']} solved, {res['n'] - res['solved']} refused "
+          f"({res['seconds']:.1f} s)")
+    for why, k in res["refused"].most_common():
+        print(f"  refused {k:3d}: {why}")
+    print(f"diameters: {z.size}; z-scores SD {z.std():.3f}, RMS {np.sqrt(np.mean(z**2)):.3f}, mean {z.mean():+.3f}, "
+          f"max |z| {np.abs(z).max():.2f}; 95 % coverage {np.mean(np.abs(z) < 1.959964):.3f}")
+    print(f"u / CRB: max {res['u_crb'].max():.3f}, median {np.median(res['u_crb']):.3f}; wrong minima: {res['wrong']}")
+    t = time.perf_counter()
+    verdicts = run_discrepancy()
+    n = sum(verdicts.values())
+    fa = n - verdicts.get("no_missing_effect", 0)
+    print(f"discrepancy workflow on {n} effect-free rod scans: {dict(verdicts)}; false-alarm rate {fa / n:.2f} "
+          f"({time.perf_counter() - t:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
