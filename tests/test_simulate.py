@@ -91,7 +91,8 @@ def test_spindle_scan_frames_follow_the_raw_format():
     sp = sim.spindle
     assert dict(sp.schema) == {"t_ns": pl.Int64, "angle_rad": pl.Float64, "x_mm": pl.Float64, "y_mm": pl.Float64,
                                "rpm": pl.Float64}
-    assert np.allclose(sp["angle_rad"].to_numpy(), 2 * np.pi * sp["t_ns"].to_numpy() * 1e-9, rtol=0, atol=1e-12)
+    # the spec: the device frame is the machine frame at encoder angle 0, so the encoder shows phi itself
+    assert np.allclose(sp["angle_rad"].to_numpy(), 1.0 + 2 * np.pi * sp["t_ns"].to_numpy() * 1e-9, rtol=0, atol=1e-12)
     assert sim.meta["format"] == "borescan-raw/1" and sim.meta["acquisition"]["simulated"] is True
     assert "truth" not in json.dumps(sim.meta)
 
@@ -138,7 +139,7 @@ def test_spindle_stream_reports_commanded_position_and_true_angle():
     assert np.all(sim.spindle["x_mm"].to_numpy() == YANG_P1_XY_MM[0])
     assert np.all(sim.spindle["y_mm"].to_numpy() == YANG_P1_XY_MM[1])
     ts = sim.spindle["t_ns"].to_numpy() * 1e-9
-    assert np.allclose(sim.spindle["angle_rad"].to_numpy(), 2 * np.pi * 1.001 * ts, rtol=0, atol=1e-12)
+    assert np.allclose(sim.spindle["angle_rad"].to_numpy(), 1.0 + 2 * np.pi * 1.001 * ts, rtol=0, atol=1e-12)
     assert np.all(sim.spindle["rpm"].to_numpy() == 60.0)
     no_enc = simulate_tri_spindle(SCENE, n_rev=1, encoder=False)
     assert no_enc.spindle["angle_rad"].null_count() == no_enc.spindle.height

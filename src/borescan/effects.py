@@ -28,7 +28,29 @@ Stages, in the order the digital twin (:mod:`borescan.simulate`) composes them:
 
 Within a stage, effects act in the order of the spec's table (the order of :data:`EFFECTS`)
 and effects of the same name in the order given. Effects compose freely, including several
-of the same name on different channels.
+of the same name on different channels. :mod:`borescan.model` composes them into the one
+forward model of a spindle scan that the digital twin and the discrepancy workflow share.
+
+The registry is also the vocabulary of the fits (lmfit style: an effect adds prefixed
+parameters, e.g. ``sensor_gain@2.g``). Each spec carries
+
+- ``fit``: the parameters a fit varies (:class:`FitParam`: name, unit, typical scale, bounds),
+  with ``to_internal`` / ``from_internal`` beside the effect where they differ from the
+  spec's parameters for conditioning (an amplitude and phase as A = a cos(phase),
+  B = a sin(phase); ``beam_tilt`` as h = 1 / cos(gamma) - 1; ``axis_tilt`` as
+  p + i q = beta^2 exp(2 i azimuth); ``thermal_expansion`` as dT = T - 20);
+- ``absorbed_by``: per scan kind (:data:`SCAN_KINDS`), the base parameters that absorb the
+  effect, with the text a finding reports (``"R"``: the bore radius, which absorbs only the
+  form common to every channel);
+- ``candidate``: per scan kind, how the discrepancy workflow looks for it: ``"screen"`` (a
+  term of the linear screen), ``"start"`` (not linear at zero: only from a start another
+  term's screen gives), ``"evidence"`` (named by its own test, not fitted);
+  ``needs``: what a scan must have for the term to be tried (``"commanded_angle"``: no
+  encoder, ``"vibration_line"``: a residual line off the rotation harmonics, ``"cte"``: the
+  artifact's expansion coefficient); ``common``: a per-channel effect also tried as one
+  value on every channel.
+
+Adding a reading effect is one :class:`EffectSpec` here (plus its row in the spec).
 """
 
 from __future__ import annotations
@@ -44,6 +66,8 @@ from borescan.geometry import Bore, RodLayer
 
 __all__ = [
     "STAGES",
+    "SCAN_KINDS",
+    "FitParam",
     "EffectSpec",
     "Effect",
     "EFFECTS",
@@ -59,6 +83,27 @@ __all__ = [
 STAGES: tuple[str, ...] = ("time_base", "kinematics", "spindle_position", "bore", "beam", "reading", "output")
 TRI = "tri_lds"
 ROD = "rod"
+#: Scan kinds the registry describes absorption and candidacy for.
+SCAN_KINDS: tuple[str, ...] = ("tri_spindle", "tri_static", "rod")
+
+
+@dataclass(frozen=True)
+class FitParam:
+    """One parameter a fit varies for an effect (its internal parameterisation).
+
+    Attributes
+    ----------
+    name : internal name, e.g. ``"A"``; a fit prefixes it with the term, ``bore_lobing[k=3].A``.
+    unit : unit of the value (``"-"`` dimensionless).
+    scale : typical magnitude, for step sizes and starting values [unit].
+    lower, upper : bounds of the physical domain [unit]; the forward model clips to them.
+    """
+
+    name: str
+    unit: str
+    scale: float
+    lower: float = -math.inf
+    upper: float = math.inf
 
 
 @dataclass(frozen=True)
@@ -73,6 +118,17 @@ class EffectSpec:
     stage : one of :data:`STAGES`.
     forward : device type -> pure forward function (signature per stage, see module doc).
     definition : the spec's definition, for messages and reports.
+    fit : the parameters a fit varies (empty: not fitted).
+    to_internal : spec parameters -> ``{fit name: value}``; None: the same names and values.
+    from_internal : ``(x, u, k) -> (parameters, uncertainties)``, the inverse with linear
+        propagation of standard uncertainties ``u`` (may be None); ``k`` the harmonic of a
+        term; None: the same names and values.
+    absorbed_by : scan kind -> {base parameter: what a finding reports}.
+    candidate : scan kind -> ``"screen"``, ``"start"`` or ``"evidence"`` (module doc).
+    needs : conditions a scan must meet for the term to be tried (module doc).
+    common : a per-channel effect is also tried as one value on every channel.
+    example : sensible parameter values (spec names; channel 2 for channel effects), for tests,
+        demos and docs.
     """
 
     name: str
@@ -81,11 +137,50 @@ class EffectSpec:
     stage: str
     forward: Mapping[str, Callable[..., Any]]
     definition: str
+    fit: tuple[FitParam, ...] = ()
+    to_internal: Callable[[Mapping[str, float]], dict] | None = None
+    from_internal: Callable[..., tuple[dict, dict]] | None = None
+    absorbed_by: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
+    candidate: Mapping[str, str] = field(default_factory=dict)
+    needs: tuple[str, ...] = ()
+    common: bool = False
+    example: Mapping[str, Any] = field(default_factory=dict)
 
     @property
     def per_channel(self) -> bool:
         """True when the effect acts on one channel (has a ``channel`` parameter)."""
         return "channel" in self.params
+
+    @property
+    def harmonic(self) -> bool:
+        """True when the effect has a whole-number harmonic ``k`` (one term per k)."""
+        return "k" in self.params
+
+    def internal(self, params: Mapping[str, float]) -> dict[str, float]:
+        """The fit's values ``{fit name: value}`` of the spec's ``params`` (``to_internal``)."""
+        if self.to_internal is not None:
+            return self.to_internal(params)
+        return {q.name: float(params[q.name]) for q in self.fit}
+
+    def spec_params(
+        self, x: Mapping[str, float], u: Mapping[str, float] | None = None, k: int | None = None
+    ) -> tuple[dict[str, Any], dict[str, float]]:
+        """The spec's parameters (and their standard uncertainties when ``u`` is given) of
+        fitted values ``x`` (``{fit name: value}``), clipped to the fit's bounds first;
+        ``channel`` is not included, ``k`` is for harmonic effects."""
+        x = {q.name: min(max(float(x[q.name]), q.lower), q.upper) for q in self.fit}
+        if self.from_internal is not None:
+            par, unc = self.from_internal(x, u, k)
+        else:
+            par = dict(x)
+            unc = {} if u is None else {q.name: u.get(q.name, math.nan) for q in self.fit}
+        if self.harmonic:
+            par = {"k": k, **par}
+        return par, unc
+
+    def absorbers(self, scan_kind: str) -> Mapping[str, str]:
+        """Base parameters that absorb the effect in scans of ``scan_kind`` (may be empty)."""
+        return self.absorbed_by.get(scan_kind, {})
 
 
 @dataclass(frozen=True)
@@ -252,42 +347,181 @@ def _reading(f):
     return {TRI: f, ROD: f}
 
 
+# --------------------------------------------------------------------------- fit parameterisations
+
+
+def _polar(A: float, B: float, uA: float, uB: float) -> tuple[float, float, float, float]:
+    """Amplitude m = hypot(A, B), angle atan2(B, A) and their linear standard uncertainties."""
+    m = math.hypot(A, B)
+    if math.isnan(uA) and math.isnan(uB):  # no uncertainties asked for (a forward evaluation)
+        return m, math.atan2(B, A), math.nan, math.nan
+    um = math.sqrt((A * uA) ** 2 + (B * uB) ** 2) / max(m, 1e-300)
+    ua = math.sqrt((B * uA) ** 2 + (A * uB) ** 2) / (m * m) if m > 0 else math.nan
+    return m, math.atan2(B, A), um, ua
+
+
+def _wrap(a: float, period: float = 2.0 * math.pi) -> float:
+    return float(np.mod(a, period))
+
+
+def _u(u: Mapping | None, name: str) -> float:
+    return math.nan if u is None else u.get(name, math.nan)
+
+
+def _phase_type(amp: str, k_divides: bool = False):
+    """(to_internal, from_internal) of an amplitude ``amp`` and ``phase`` fitted as
+    A = amp cos(k phase), B = amp sin(k phase) (k = 1 unless ``k_divides``: ``bore_lobing``
+    has cos(k (theta - phase)) = cos(k theta - k phase))."""
+
+    def to_internal(p: Mapping) -> dict:
+        arg = (p["k"] if k_divides else 1) * p["phase"]
+        out = {"A": p[amp] * math.cos(arg), "B": p[amp] * math.sin(arg)}
+        if "f_hz" in p:
+            out = {"f_hz": float(p["f_hz"]), **out}
+        return out
+
+    def from_internal(x: Mapping, u: Mapping | None, k: int | None) -> tuple[dict, dict]:
+        m, ph, um, uph = _polar(x["A"], x["B"], _u(u, "A"), _u(u, "B"))
+        kk = k if k_divides else 1
+        par = {amp: m, "phase": _wrap(ph / kk, 2.0 * math.pi / kk)}
+        unc = {amp: um, "phase": uph / kk}
+        if "f_hz" in x:
+            par, unc = {"f_hz": x["f_hz"], **par}, {"f_hz": _u(u, "f_hz"), **unc}
+        return par, unc
+
+    return to_internal, from_internal
+
+
+def _beam_tilt_to_internal(p: Mapping) -> dict:
+    """h = 1 / cos(gamma) - 1 (linear in the reading, >= 0)."""
+    return {"h": 1.0 / math.cos(p["gamma_rad"]) - 1.0}
+
+
+def _beam_tilt_from_internal(x: Mapping, u: Mapping | None, k=None) -> tuple[dict, dict]:
+    """gamma = acos(1 / (1 + h)), u(gamma) = u(h) / ((1 + h)^2 sin gamma)."""
+    h = x["h"]
+    gam = math.acos(1.0 / (1.0 + h)) if h > 0 else 0.0
+    ug = _u(u, "h") / ((1.0 + h) ** 2 * math.sin(gam)) if gam > 0 else math.nan
+    return {"gamma_rad": gam}, {"gamma_rad": ug}
+
+
+def _axis_tilt_to_internal(p: Mapping) -> dict:
+    """p + i q = beta^2 exp(2 i azimuth) (the ellipse's k = 2 content, linear near a circle)."""
+    b2 = p["beta_rad"] ** 2
+    return {"p": b2 * math.cos(2.0 * p["azimuth"]), "q": b2 * math.sin(2.0 * p["azimuth"])}
+
+
+def _axis_tilt_from_internal(x: Mapping, u: Mapping | None, k=None) -> tuple[dict, dict]:
+    """beta = |p + i q|^(1/2), azimuth = arg(p + i q) / 2 (mod pi)."""
+    m, ang, um, ua = _polar(x["p"], x["q"], _u(u, "p"), _u(u, "q"))
+    beta = math.sqrt(m)
+    return ({"beta_rad": beta, "azimuth": _wrap(0.5 * ang, math.pi)},
+            {"beta_rad": um / (2.0 * max(beta, 1e-300)), "azimuth": 0.5 * ua})
+
+
+def _thermal_to_internal(p: Mapping) -> dict:
+    """dT = T - 20 degC."""
+    return {"dT": p["temperature_c"] - 20.0}
+
+
+def _thermal_from_internal(x: Mapping, u: Mapping | None, k=None) -> tuple[dict, dict]:
+    return {"temperature_c": 20.0 + x["dT"]}, {"temperature_c": _u(u, "dT")}
+
+
+_RIPPLE = _phase_type("a_rad")
+_MOTION = _phase_type("rho_mm")
+_LOBING = _phase_type("a_mm", k_divides=True)
+_VIBRATION = _phase_type("a_mm")
+_ALL_KINDS = {"tri_spindle": "screen", "tri_static": "screen", "rod": "screen"}
+_EVIDENCE = {"tri_spindle": "evidence", "tri_static": "evidence", "rod": "evidence"}
+
+
 EFFECTS: dict[str, EffectSpec] = {
     s.name: s
     for s in [
         EffectSpec("sensor_offset", (TRI, ROD), {"channel": "channel", "b_mm": "mm"}, "reading",
-                   _reading(_sensor_offset), "v' = v + b"),
+                   _reading(_sensor_offset), "v' = v + b",
+                   fit=(FitParam("b_mm", "mm", 1e-3),), candidate=_ALL_KINDS, common=True,
+                   absorbed_by={"tri_spindle": {"d_b": "d_b_mm of the channel (every d_b when common)",
+                                                "R": "the bore radius (when common)"},
+                                "tri_static": {"d_b": "d_b_mm of the channel"},
+                                "rod": {"R": "the hole radius, when free"}},
+                   example={"channel": 2, "b_mm": 0.012}),
         EffectSpec("sensor_gain", (TRI, ROD), {"channel": "channel", "g": "-"}, "reading",
-                   _reading(_sensor_gain), "v' = v (1 + g)"),
+                   _reading(_sensor_gain), "v' = v (1 + g)",
+                   fit=(FitParam("g", "-", 1e-4),), candidate=_ALL_KINDS,
+                   example={"channel": 2, "g": -0.004}),
         EffectSpec("sensor_nonlinearity", (TRI, ROD), {"channel": "channel", "a_mm": "mm"}, "reading",
-                   _reading(_sensor_nonlinearity), "v' = v + a 4u(1 - u), u = v / range_mm"),
+                   _reading(_sensor_nonlinearity), "v' = v + a 4u(1 - u), u = v / range_mm",
+                   fit=(FitParam("a_mm", "mm", 1e-3),), candidate=_ALL_KINDS,
+                   example={"channel": 2, "a_mm": 0.01}),
         EffectSpec("sensor_drift", (TRI, ROD), {"channel": "channel", "k_mm_per_s": "mm/s"}, "reading",
-                   _reading(_sensor_drift), "v' = v + k t"),
+                   _reading(_sensor_drift), "v' = v + k t",
+                   fit=(FitParam("k_mm_per_s", "mm/s", 1e-5),), candidate=_ALL_KINDS,
+                   example={"channel": 2, "k_mm_per_s": 0.0015}),
         EffectSpec("channel_delay", (TRI,), {"channel": "channel", "tau_s": "s"}, "time_base",
-                   {TRI: _channel_delay}, "channel c at time t shows the reading of time t - tau"),
+                   {TRI: _channel_delay}, "channel c at time t shows the reading of time t - tau",
+                   fit=(FitParam("tau_s", "s", 1e-4),), candidate={"tri_spindle": "screen"},
+                   absorbed_by={"tri_spindle": {"beta": "beta_rad of the channel (at constant speed)"}},
+                   example={"channel": 2, "tau_s": 0.0012}),
         EffectSpec("quantization", (TRI, ROD), {"channel": "channel", "lsb_mm": "mm"}, "output",
-                   _reading(_quantization), "v' = lsb round(v / lsb)"),
+                   _reading(_quantization), "v' = lsb round(v / lsb)", candidate=_EVIDENCE,
+                   example={"channel": 2, "lsb_mm": 0.002}),
         EffectSpec("outliers", (TRI, ROD), {"channel": "channel", "rate": "-", "size_mm": "mm"}, "output",
-                   _reading(_outliers), "a fraction rate of samples jumps by about +-size"),
+                   _reading(_outliers), "a fraction rate of samples jumps by about +-size", candidate=_EVIDENCE,
+                   example={"channel": 2, "rate": 0.01, "size_mm": 0.05}),
         EffectSpec("vibration", (TRI,), {"f_hz": "Hz", "a_mm": "mm", "phase": "rad"}, "reading",
-                   {TRI: _vibration}, "v' = v + a sin(2 pi f t + phase)"),
+                   {TRI: _vibration}, "v' = v + a sin(2 pi f t + phase)",
+                   fit=(FitParam("f_hz", "Hz", 1e-2), FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
+                   to_internal=_VIBRATION[0], from_internal=_VIBRATION[1],
+                   candidate={"tri_spindle": "screen"}, needs=("vibration_line",),
+                   example={"f_hz": 7.3, "a_mm": 0.004, "phase": 0.4}),
         EffectSpec("speed_error", (TRI,), {"eps": "-"}, "kinematics",
-                   {TRI: _speed_error}, "the spindle turns at (1 + eps) times the commanded profile"),
+                   {TRI: _speed_error}, "the spindle turns at (1 + eps) times the commanded profile",
+                   fit=(FitParam("eps", "-", 1e-4),), candidate={"tri_spindle": "screen"},
+                   needs=("commanded_angle",),
+                   example={"eps": 0.002}),
         EffectSpec("speed_ripple", (TRI,), {"a_rad": "rad", "phase": "rad"}, "kinematics",
-                   {TRI: _speed_ripple}, "phi(t) = omega t + a sin(omega t + phase)"),
+                   {TRI: _speed_ripple}, "phi(t) = omega t + a sin(omega t + phase)",
+                   fit=(FitParam("A", "rad", 1e-3), FitParam("B", "rad", 1e-3)),
+                   to_internal=_RIPPLE[0], from_internal=_RIPPLE[1],
+                   candidate={"tri_spindle": "screen"}, needs=("commanded_angle",),
+                   example={"a_rad": 0.006, "phase": 1.0}),
         EffectSpec("spindle_error_motion", (TRI,), {"k": "-", "rho_mm": "mm", "phase": "rad"},
                    "spindle_position", {TRI: _spindle_error_motion},
-                   "S(phi) = S0 + rho (cos(k phi + phase), sin(k phi + phase))"),
+                   "S(phi) = S0 + rho (cos(k phi + phase), sin(k phi + phase))",
+                   fit=(FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
+                   to_internal=_MOTION[0], from_internal=_MOTION[1], candidate={"tri_spindle": "screen"},
+                   example={"k": 3, "rho_mm": 0.006, "phase": 0.5}),
         EffectSpec("axis_tilt", (TRI,), {"beta_rad": "rad", "azimuth": "rad"}, "bore",
-                   {TRI: _axis_tilt}, "bore is an ellipse R / cos(beta) along azimuth, R across"),
+                   {TRI: _axis_tilt}, "bore is an ellipse R / cos(beta) along azimuth, R across",
+                   fit=(FitParam("p", "rad^2", 1e-4), FitParam("q", "rad^2", 1e-4)),
+                   to_internal=_axis_tilt_to_internal, from_internal=_axis_tilt_from_internal,
+                   candidate={"tri_spindle": "start"},
+                   example={"beta_rad": 0.02, "azimuth": 0.6}),
         EffectSpec("bore_lobing", (TRI,), {"k": "-", "a_mm": "mm", "phase": "rad"}, "bore",
-                   {TRI: _bore_lobing}, "R(theta) = R + a cos(k (theta - phase))"),
+                   {TRI: _bore_lobing}, "R(theta) = R + a cos(k (theta - phase))",
+                   fit=(FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
+                   to_internal=_LOBING[0], from_internal=_LOBING[1], candidate={"tri_spindle": "screen"},
+                   example={"k": 3, "a_mm": 0.005, "phase": 0.4}),
         EffectSpec("thermal_expansion", (TRI, ROD), {"temperature_c": "degC"}, "bore",
-                   {TRI: _thermal_expansion, ROD: _thermal_expansion}, "R = R20 (1 + cte (T - 20))"),
+                   {TRI: _thermal_expansion, ROD: _thermal_expansion}, "R = R20 (1 + cte (T - 20))",
+                   fit=(FitParam("dT", "K", 1.0),), to_internal=_thermal_to_internal,
+                   from_internal=_thermal_from_internal, candidate=_ALL_KINDS, needs=("cte",),
+                   absorbed_by={"tri_spindle": {"d_b": "every d_b_mm (a common offset)", "R": "the bore radius"},
+                                "tri_static": {"d_b": "every d_b_mm (a common offset)", "R": "the bore radius"},
+                                "rod": {"R": "the hole radius, when free"}},
+                   example={"temperature_c": 24.0}),
         EffectSpec("beam_tilt", (TRI, ROD), {"channel": "channel", "gamma_rad": "rad"}, "beam",
-                   {TRI: _beam_tilt_tri, ROD: _beam_tilt_rod}, "reading = in-plane distance / cos(gamma)"),
+                   {TRI: _beam_tilt_tri, ROD: _beam_tilt_rod}, "reading = in-plane distance / cos(gamma)",
+                   fit=(FitParam("h", "-", 1e-4, 0.0),), to_internal=_beam_tilt_to_internal,
+                   from_internal=_beam_tilt_from_internal, candidate=_ALL_KINDS,
+                   example={"channel": 2, "gamma_rad": 0.06}),
         EffectSpec("beam_offset", (ROD,), {"channel": "channel", "d_mm": "mm"}, "beam",
-                   {ROD: _beam_offset_rod}, "rod: layer c's beam misses the axis by d (Wang 2017 Eq. 5)"),
+                   {ROD: _beam_offset_rod}, "rod: layer c's beam misses the axis by d (Wang 2017 Eq. 5)",
+                   fit=(FitParam("d_mm", "mm", 1e-2),), candidate={"rod": "start"},
+                   absorbed_by={"rod": {"R": "the hole radius, when free"}},
+                   example={"channel": 2, "d_mm": 0.3}),
     ]
 }
 _ORDER = {name: i for i, name in enumerate(EFFECTS)}

@@ -156,12 +156,9 @@ def _positive_root(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
 
     Uses the cancellation-free form, so the root is accurate to a few ulp.
     """
-    disc = b * b - a * c
-    with np.errstate(invalid="ignore"):
-        sq = np.sqrt(disc)
     with np.errstate(divide="ignore", invalid="ignore"):
-        root = np.where(b <= 0.0, (-b + sq) / a, -c / (b + sq))
-    return np.where(disc >= 0.0, root, np.nan)
+        sq = np.sqrt(b * b - a * c)  # NaN where the ray misses: then both branches are NaN
+        return np.where(b <= 0.0, (sq - b) / a, -c / (b + sq))
 
 
 def ray_circle_distance(origin: np.ndarray, direction: np.ndarray, center: np.ndarray, radius: float | np.ndarray) -> np.ndarray:
@@ -206,11 +203,53 @@ def bore_wall_radius(theta_rad: np.ndarray, bore: Bore) -> tuple[np.ndarray, np.
     return r, dr
 
 
+def _wall_distance(ox, oy, dx, dy, bore: Bore, tol_mm: float = 1e-13, max_iter: int = 60) -> np.ndarray:
+    """Distance s > 0 along rays o + s d (unit d, o relative to the bore centre) to the wall.
+
+    The one ray-to-bore solver of borescan (components as separate arrays, for speed).
+    Circle: the cancellation-free root s = -b + sqrt(b^2 - c) (b <= 0) or -c / (b + sqrt(b^2 - c)),
+    b = o.d, c = |o|^2 - R^2. Ellipse of ``axis_tilt``: the same root after rotating into the
+    ellipse frame and shrinking the long axis by cos(tilt) (a circle of radius R; s keeps its
+    scale through the quadratic's leading coefficient). Lobes: Newton on
+    |P(s)| - r(theta(P(s))) = 0 from that root, until the step is below ``tol_mm``.
+
+    Returns
+    -------
+    ndarray [mm]; NaN where the ray misses (origin outside and pointing away).
+    """
+    R = float(bore.radius_mm)
+    if bore.tilt_rad != 0.0:
+        ca, sa = np.cos(bore.tilt_azimuth_rad), np.sin(bore.tilt_azimuth_rad)
+        ct = np.cos(bore.tilt_rad)
+        ex, ey = (ox * ca + oy * sa) * ct, -ox * sa + oy * ca
+        fx, fy = (dx * ca + dy * sa) * ct, -dx * sa + dy * ca
+        s = _positive_root(fx * fx + fy * fy, ex * fx + ey * fy, ex * ex + ey * ey - R * R)
+    else:
+        s = _positive_root(1.0, ox * dx + oy * dy, ox * ox + oy * oy - R * R)
+    if not any(a != 0.0 for _, a, _ in bore.lobes):
+        return s
+    for _ in range(max_iter):
+        px, py = ox + s * dx, oy + s * dy
+        rp = np.hypot(px, py)
+        rw, drw = bore_wall_radius(np.arctan2(py, px), bore)
+        step = (rp - rw) / ((px * dx + py * dy) / rp - drw * (px * dy - py * dx) / rp**2)
+        s = s - step
+        if np.nanmax(np.abs(step), initial=0.0) < tol_mm:
+            break
+    return s
+
+
 def ray_bore_distance(origin: np.ndarray, direction: np.ndarray, bore: Bore, *, tol_mm: float = 1e-13, max_iter: int = 60) -> np.ndarray:
     """Distance s > 0 along rays (unit ``direction``) from inside a bore to its wall.
 
     Circle and ellipse are solved in closed form; lobed bores by Newton iteration on
-    |P(s) - C| - r(theta(P(s))) = 0 started from the circle/ellipse root, to ``tol_mm``.
+    |P(s) - C| - r(theta(P(s))) = 0 started from the circle/ellipse root, to ``tol_mm``
+    (the solver :func:`tri_spindle_readings` uses too).
+
+    Parameters
+    ----------
+    origin, direction : ndarray (..., 2) [mm], [-]
+    bore : Bore
 
     Returns
     -------
@@ -218,49 +257,19 @@ def ray_bore_distance(origin: np.ndarray, direction: np.ndarray, bore: Bore, *, 
     """
     o = np.asarray(origin, dtype=float) - np.asarray(bore.center_xy_mm, dtype=float)
     d = np.asarray(direction, dtype=float)
-    R = float(bore.radius_mm)
-    if bore.tilt_rad != 0.0:
-        # Rotate into the ellipse frame and shrink the long axis by cos(tilt): circle of radius R.
-        ca, sa = np.cos(bore.tilt_azimuth_rad), np.sin(bore.tilt_azimuth_rad)
-        ct = np.cos(bore.tilt_rad)
-
-        def to_circle(p: np.ndarray) -> np.ndarray:
-            x = p[..., 0] * ca + p[..., 1] * sa
-            y = -p[..., 0] * sa + p[..., 1] * ca
-            return np.stack([x * ct, y], axis=-1)
-
-        s = ray_circle_distance(to_circle(o), to_circle(d), np.zeros(2), R)
-    else:
-        s = ray_circle_distance(o, d, np.zeros(2), R)
-    if not any(a != 0.0 for _, a, _ in bore.lobes):
-        return s
-    s = np.array(s, dtype=float, copy=True)
-    for _ in range(max_iter):
-        p = o + s[..., None] * d
-        rp = np.hypot(p[..., 0], p[..., 1])
-        theta = np.arctan2(p[..., 1], p[..., 0])
-        rw, drw = bore_wall_radius(theta, bore)
-        f = rp - rw
-        drp = np.einsum("...i,...i->...", p, d) / rp
-        dtheta = (p[..., 0] * d[..., 1] - p[..., 1] * d[..., 0]) / rp**2
-        step = f / (drp - drw * dtheta)
-        s = s - step
-        if np.nanmax(np.abs(step), initial=0.0) < tol_mm:
-            break
-    return s
-
-
-def _rot(phi: np.ndarray, vec: np.ndarray) -> np.ndarray:
-    """Rotate 2-vectors ``vec`` (..., 2) counter-clockwise by ``phi`` (...) [rad]."""
-    c, s = np.cos(phi), np.sin(phi)
-    return np.stack([c * vec[..., 0] - s * vec[..., 1], s * vec[..., 0] + c * vec[..., 1]], axis=-1)
+    o, d = np.broadcast_arrays(o, d)
+    return _wall_distance(o[..., 0], o[..., 1], d[..., 0], d[..., 1], bore, tol_mm, max_iter)
 
 
 def tri_spindle_readings(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore) -> np.ndarray:
-    """Readings of a device turning on a spindle inside a bore (exact).
+    """Readings of a device turning on a spindle inside a bore (exact; the one implementation).
 
     p_machine = S + Rot(phi) p_device; the reading is v = s - d_b with s > 0 the root of
     |S + Rot(phi)(F + s u) - C| = r_wall (spec, "Spindle scan"; Yang 2017 Eq. 8 at the extrema).
+    With a = phi + beta the ray starts at o = S - C + Rot(phi) F and runs along
+    (cos a, sin a); the distance comes from the closed-form circle / ellipse root, Newton for
+    lobes (:func:`ray_bore_distance`). Used by the digital twin, calibration, measurement and
+    the discrepancy workflow alike.
 
     Parameters
     ----------
@@ -272,19 +281,22 @@ def tri_spindle_readings(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: 
 
     Returns
     -------
-    ndarray (n, c) readings v [mm]
+    ndarray (n, c) readings v [mm]; NaN where a beam misses the wall.
     """
     phi = np.asarray(phi_rad, dtype=float)
     if phi.ndim == 1:
         phi = phi[:, None]
-    phi = np.broadcast_to(phi, (phi.shape[0], len(beams.channels)))
     S = np.asarray(spindle_xy_mm, dtype=float)
     if S.ndim == 2:
         S = S[:, None, :]
-    F, u = beam_frame(beams.beta_rad, beams.rho_mm)
-    origin = S + _rot(phi, np.broadcast_to(F, phi.shape + (2,)))
-    direction = _rot(phi, np.broadcast_to(u, phi.shape + (2,)))
-    s = ray_bore_distance(origin, direction, bore)
+    cb, sb = np.cos(beams.beta_rad), np.sin(beams.beta_rad)
+    fx, fy = -beams.rho_mm * sb, beams.rho_mm * cb
+    cp, sp = np.cos(phi), np.sin(phi)
+    ox = S[..., 0] - bore.center_xy_mm[0] + cp * fx - sp * fy
+    oy = S[..., 1] - bore.center_xy_mm[1] + sp * fx + cp * fy
+    dx = cp * cb - sp * sb
+    dy = sp * cb + cp * sb
+    s = _wall_distance(ox, oy, dx, dy, bore)
     return s - beams.d_b_mm
 
 

@@ -1,23 +1,10 @@
 """Digital twin: forward models with the named effects and scan generators (``borescan-raw/1``).
 
-Composition order of :func:`tri_readings` (``shared/spec/geometry-and-effects.md``):
-
-1. time base: ``channel_delay`` gives channel c the time t_c = t - tau_c; everything below
-   is evaluated at t_c (the channel shows the whole reading of time t - tau);
-2. kinematics: x = Phi(t_c) the commanded angle (omega_nominal t_c, or the integral of the rpm profile), then ``speed_error`` (x (1 + eps)), then
-   ``speed_ripple`` (x + a sin(x + phase)); device angle phi = phase_rad + x (ccw) or
-   phase_rad - x (cw);
-3. spindle position: S = S0 (+ ``spindle_error_motion`` terms at phi);
-4. bore: circle C, R20, then ``thermal_expansion``, ``axis_tilt``, ``bore_lobing``;
-5. exact intersection: closed form for a circular bore (same numbers as
-   :func:`borescan.geometry.tri_spindle_readings`, ~3x faster), that function otherwise;
-6. beam: ``beam_tilt`` (v / cos gamma);
-7. reading: offset, gain, nonlinearity, drift (k t_c), vibration;
-8. (generators only) Gaussian noise, then ``quantization``, ``outliers``; readings outside
-   [0, range_mm] become null.
-
-Steps 1-7 are noise-free and deterministic; fitting code calls :func:`tri_readings` and
-:func:`rod_readings_with_effects` inside least squares.
+Forward models: :func:`tri_readings` is :func:`borescan.model.tri_forward` (the one forward
+model of a spindle scan, shared with the discrepancy workflow; composition order in its
+module doc) on the scene's true geometry; the generators add noise, then ``quantization``,
+``outliers``, and null the readings outside [0, range_mm]. Fitting code calls the same
+:func:`borescan.model.tri_forward` and :func:`rod_readings_with_effects` inside least squares.
 
 What the simulated machine reports (``spindle.parquet``): ``angle_rad`` is the true device
 angle phi(t) (the spec: the device frame is the machine frame at encoder angle 0; it shows
@@ -41,6 +28,7 @@ import numpy as np
 import polars as pl
 
 from borescan import __version__, rawio
+from borescan import model
 from borescan.effects import Effect, apply_effects, effects_to_dicts, sort_effects
 from borescan.kinematics import RPM_TO_RAD_S, profile_angle_rad
 from borescan.geometry import (
@@ -52,6 +40,7 @@ from borescan.geometry import (
     rod_readings,
     tri_spindle_readings,
 )
+from borescan.model import TriBase, bore_with_effects, tri_forward
 
 __all__ = [
     "YANG_RING_GAUGE_DIAMETER_MM",
@@ -63,6 +52,7 @@ __all__ = [
     "TriScene",
     "RodScene",
     "SimulatedScan",
+    "tri_base",
     "tri_phi",
     "tri_readings",
     "tri_static_readings_with_effects",
@@ -270,19 +260,23 @@ def _as_effects(effects: Iterable[Effect | dict] | None) -> list[Effect]:
     return [e if isinstance(e, Effect) else Effect.from_dict(e) for e in (effects or ())]
 
 
-def _channel_times(t_s: np.ndarray, channels: Sequence[int], time_effects: list[Effect]) -> np.ndarray:
-    t = np.asarray(t_s, dtype=float)
-    if not time_effects:
-        return t[:, None]  # (n, 1), broadcasts over channels
-    tc = np.repeat(t[:, None], len(channels), axis=1)
-    for e in time_effects:
-        j = list(channels).index(e.channel)
-        tc[:, j] = e.spec.forward["tri_lds"](tc[:, j], e.params)
-    return tc
+def tri_base(scene: TriScene) -> TriBase:
+    """The scene's true base geometry for :mod:`borescan.model` (effect-free bore C, R20;
+    turned angle the commanded profile; phase and direction of the scene)."""
+    return TriBase(
+        beams=scene.beams,
+        bore=scene.bore(),
+        spindle_xy_mm=np.asarray(scene.spindle_xy_mm, dtype=float),
+        turned_rad=scene.commanded_angle_rad,
+        phase_rad=float(scene.phase_rad),
+        direction=1.0 if scene.direction == "ccw" else -1.0,
+        cte_per_k=float(scene.cte_per_k),
+        range_mm=tuple(scene.range_mm),
+    )
 
 
 def tri_phi(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
-    """Device angle phi(t) with the kinematic effects.
+    """Device angle phi(t) with the kinematic effects (:func:`borescan.model.device_angle`).
 
     phi = phase + sgn x, x = Phi(t) the commanded angle (``scene.commanded_angle_rad``: omega t,
     or the integral of the rpm profile), then x <- x (1 + eps) (``speed_error``) and
@@ -297,46 +291,12 @@ def tri_phi(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) ->
     ndarray (...) [rad]
     """
     st = sort_effects(_as_effects(effects), "tri_lds", scene.beams.channels)
-    x = scene.commanded_angle_rad(t_s)
-    for e in st["kinematics"]:
-        x = e.spec.forward["tri_lds"](x, e.params)
-    sgn = 1.0 if scene.direction == "ccw" else -1.0
-    return scene.phase_rad + sgn * x
-
-
-def _bore_with_effects(
-    bore: Bore, bore_effects: list[Effect], cte_per_k: float, device: str = "tri_lds"
-) -> Bore:
-    for e in bore_effects:
-        bore = e.spec.forward[device](bore, e.params, cte_per_k)
-    return bore
-
-
-def _tri_circle_readings(
-    phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore
-) -> np.ndarray:
-    """Fast closed form of :func:`borescan.geometry.tri_spindle_readings` for a circular bore.
-
-    With a = phi + beta, u' = (cos a, sin a), n' = (-sin a, cos a), D = S - C:
-    s = -b + sqrt(b^2 - c), b = D.u', c = |D|^2 + 2 rho D.n' + rho^2 - R^2 (the origin
-    S + rho n' lies inside, c < 0); v = s - d_b. Same numbers as the general model to ~1e-13 mm.
-    """
-    ang = np.asarray(phi_rad, dtype=float) + beams.beta_rad
-    ca, sa = np.cos(ang), np.sin(ang)
-    D = np.asarray(spindle_xy_mm, dtype=float) - np.asarray(bore.center_xy_mm, dtype=float)
-    dx, dy = D[..., 0], D[..., 1]
-    b = dx * ca + dy * sa
-    c = dx * dx + dy * dy + 2.0 * beams.rho_mm * (dy * ca - dx * sa) + beams.rho_mm**2 - bore.radius_mm**2
-    disc = b * b - c
-    with np.errstate(invalid="ignore"):
-        sq = np.sqrt(disc)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(b <= 0.0, sq - b, -c / (b + sq))
-    return np.where(disc >= 0.0, s, np.nan) - beams.d_b_mm
+    return model.device_angle(tri_base(scene), np.asarray(t_s, dtype=float), st["kinematics"])
 
 
 def tri_readings(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
-    """Noise-free readings of a spindle scan with effects (composition order in the module doc).
+    """Noise-free readings of a spindle scan with effects: :func:`borescan.model.tri_forward`
+    on the scene's true geometry (:func:`tri_base`).
 
     v = s - d_b, s > 0 the root of |S(phi) + Rot(phi)(F + s u) - C| = r_wall, phi = phi(t_c),
     then beam and reading effects.
@@ -353,32 +313,7 @@ def tri_readings(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = (
     the sensor range. Output-stage effects (``quantization``, ``outliers``) act after the noise
     and are left to the generators (:func:`simulate_tri_spindle`).
     """
-    effects = _as_effects(effects)
-    channels = scene.beams.channels
-    st = sort_effects(effects, "tri_lds", channels)
-    tc = _channel_times(t_s, channels, st["time_base"])
-    phi = tri_phi(scene, tc, st["kinematics"])
-    S: np.ndarray = np.asarray(scene.spindle_xy_mm, dtype=float)
-    if st["spindle_position"]:
-        phi_full = np.broadcast_to(phi, (phi.shape[0], len(channels)))
-        S = np.broadcast_to(S, phi_full.shape + (2,))
-        for e in st["spindle_position"]:
-            S = e.spec.forward["tri_lds"](S, phi_full, e.params)
-    bore = _bore_with_effects(scene.bore(), st["bore"], scene.cte_per_k)
-    return _readings_in_bore(scene, bore, phi, S, tc, st)
-
-
-def _readings_in_bore(scene: TriScene, bore, phi, S, tc: np.ndarray, st: dict) -> np.ndarray:
-    """Exact readings of ``scene.beams`` in ``bore`` (device angle phi (n, 1) or (n, c), position
-    S (2,), (n, 1, 2) or (n, c, 2)), then the sorted beam and reading effects ``st`` at times ``tc``."""
-    if bore.is_circle:
-        v = _tri_circle_readings(phi, S, scene.beams, bore)
-    else:
-        v = tri_spindle_readings(phi, S, scene.beams, bore)
-    if st["beam"] or st["reading"]:
-        v = apply_effects(v, tc, scene.beams.channels, st["beam"] + st["reading"], range_mm=scene.range_mm,
-                          stages=("beam", "reading"))
-    return v
+    return tri_forward(tri_base(scene), t_s, _as_effects(effects))
 
 
 def tri_static_readings_with_effects(
@@ -404,11 +339,12 @@ def tri_static_readings_with_effects(
     if st["kinematics"] or st["spindle_position"]:
         bad = [e.name for e in st["kinematics"] + st["spindle_position"]]
         raise ValueError(f"effects {bad} do not apply to a static tri_lds measurement")
-    tc = _channel_times(t_s, channels, st["time_base"])
-    bore = _bore_with_effects(scene.bore(), st["bore"], scene.cte_per_k)
+    tc = model.channel_times(t_s, channels, st["time_base"])
+    bore = bore_with_effects(scene.bore(), st["bore"], scene.cte_per_k)
     phi = np.asarray(device_angle_rad, dtype=float)
     xy = np.asarray(device_xy_mm, dtype=float)
-    return _readings_in_bore(scene, bore, phi[:, None], xy[:, None, :], tc, st)
+    v = tri_spindle_readings(phi[:, None], xy[:, None, :], scene.beams, bore)
+    return model.tri_reading_stage(v, tc, st, channels, scene.range_mm)
 
 
 def rod_readings_with_effects(
@@ -652,7 +588,7 @@ def simulate_tri_spindle(
         artifact or _default_artifact(2 * scene.bore_radius_20_mm, scene.cte_per_k),
         _temperature(scene.temperature_c, effects), seed, extra,
     )
-    bore = _bore_with_effects(scene.bore(), sort_effects(effects, "tri_lds", channels)["bore"],
+    bore = bore_with_effects(scene.bore(), sort_effects(effects, "tri_lds", channels)["bore"],
                               scene.cte_per_k)
     truth = _truth(meta, scene.to_dict(), effects, noise_mm, seed, n_samples=n,
                    extra={"encoder": encoder, "n_rev": n_rev, "bore_radius_mm": bore.radius_mm,
@@ -737,7 +673,7 @@ def simulate_tri_static(
         artifact or _default_artifact(2 * scene.bore_radius_20_mm, scene.cte_per_k),
         _temperature(scene.temperature_c, effects), seed, extra_meta,
     )
-    bore = _bore_with_effects(scene.bore(), sort_effects(effects, "tri_lds", channels)["bore"],
+    bore = bore_with_effects(scene.bore(), sort_effects(effects, "tri_lds", channels)["bore"],
                               scene.cte_per_k)
     poses = [{"pose": p, "device_xy_mm": xy[p].tolist(), "device_angle_rad": float(ang[p])}
              for p in range(len(ang))]

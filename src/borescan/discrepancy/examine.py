@@ -22,6 +22,7 @@ import numpy as np
 from borescan.discrepancy.fitting import FitResult, fit_least_squares
 from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays
 from borescan.discrepancy.tri import Term, TriData, TriModel, tri_data_from_arrays
+from borescan.effects import EFFECTS
 
 __all__ = ["Examination", "examine_scan", "examine_tri", "analyse_scan", "write_findings", "scan_arrays"]
 
@@ -361,7 +362,7 @@ def examine_model(model, **cfg) -> Examination:
     Jb = _jacobian_columns(model, p0, [], base_names, base_scales)
     screen = []
     for t in terms:
-        if t.effect == "sensor_offset" and t.channel == 0 and len(model.data.channels) == 1:
+        if t.channel == 0 and len(model.data.channels) == 1:  # a common term is the channel's own
             continue
         pt = {**p0, **{n: 0.0 for n in t.names()}, **vib_start}
         tn = [n for n in t.names() if not n.endswith("f_hz")]
@@ -528,13 +529,14 @@ def examine_model(model, **cfg) -> Examination:
 
 
 def _physical(z: tuple[FitResult, list[Term]]) -> bool:
-    """False for fits that need a physically impossible value (beam_tilt shortening the reading)."""
+    """False for fits that need a physically impossible value: a fitted parameter more than two
+    standard uncertainties outside its registry bounds (e.g. ``beam_tilt`` shortening the reading)."""
     fr, ts = z
     v, u = fr.values(), fr.uncertainties()
     for t in ts:
-        if t.effect == "beam_tilt":
-            n = f"{t.key}.h"
-            if v[n] < -2.0 * u[n]:
+        for q in EFFECTS[t.effect].fit:
+            n = f"{t.key}.{q.name}"
+            if v[n] < q.lower - 2.0 * u[n] or v[n] > q.upper + 2.0 * u[n]:
                 return False
     return True
 

@@ -15,8 +15,12 @@ identifiable, and a finding of such an effect says which calibration parameter w
 it (a calibration matter rather than a missing physical effect).
 
 Each candidate is a :class:`Term`: one named effect of the spec, its channel (if any) and its
-fitted parameters. Internally phase-type effects are fitted in Cartesian form (A, B), which is
-linear near zero amplitude, and converted to the spec's (amplitude, phase) at the end.
+fitted parameters. The registry (:data:`borescan.effects.EFFECTS`) is the vocabulary: it gives
+each term its fitted parameters (phase-type effects in Cartesian form (A, B), linear near
+zero amplitude), their conversion to the spec's parameters, which base parameters absorb it
+and whether it is a candidate of a spindle scan. :meth:`TriModel.predict` converts the fitted
+values to the spec's parameters and evaluates :func:`borescan.model.tri_forward`'s composition,
+the forward model the digital twin uses.
 """
 
 from __future__ import annotations
@@ -28,33 +32,28 @@ from typing import Any
 import numpy as np
 
 from borescan.discrepancy.fitting import block_indices, dead_zone, leading_block, noise_floor_mm, spike_mask
-from borescan.geometry import Beams, Bore, bore_wall_radius
+from borescan.effects import EFFECTS, Effect, apply_effects, sort_effects
+from borescan.geometry import Beams, Bore, tri_spindle_readings
 from borescan.kinematics import AngleModel, angle_model_from_arrays
+from borescan.model import GEOMETRY_STAGES, TriBase, tri_geometry, tri_reading_stage
 
-__all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_terms", "term_parameters"]
+__all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_terms", "term_parameters",
+           "term_effects", "term_values"]
 
-# Internal parameters of each effect and their typical scale (for step sizes and starting values).
+#: Scan kind of this model in the registry's ``absorbed_by`` / ``candidate``.
+SCAN_KIND = "tri_spindle"
+#: Fitted parameters of each effect and their typical scale, derived from the registry's
+#: :class:`~borescan.effects.FitParam` (the source; kept under this name for the pose models).
 INTERNAL: dict[str, tuple[tuple[str, float], ...]] = {
-    "sensor_offset": (("b_mm", 1e-3),),
-    "sensor_gain": (("g", 1e-4),),
-    "sensor_nonlinearity": (("a_mm", 1e-3),),
-    "sensor_drift": (("k_mm_per_s", 1e-5),),
-    "channel_delay": (("tau_s", 1e-4),),
-    "beam_tilt": (("h", 1e-4),),  # h = 1 / cos(gamma) - 1
-    "vibration": (("f_hz", 1e-2), ("A", 1e-3), ("B", 1e-3)),
-    "speed_error": (("eps", 1e-4),),
-    "speed_ripple": (("A", 1e-3), ("B", 1e-3)),
-    "spindle_error_motion": (("A", 1e-3), ("B", 1e-3)),
-    "axis_tilt": (("p", 1e-4), ("q", 1e-4)),  # beta^2 (cos 2 az, sin 2 az)
-    "bore_lobing": (("A", 1e-3), ("B", 1e-3)),
-    "thermal_expansion": (("dT", 1.0),),  # T - 20 degC
+    name: tuple((q.name, q.scale) for q in spec.fit) for name, spec in EFFECTS.items() if spec.fit
 }
 BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dbeta": 1e-4, "dd_b": 1e-3, "dR": 1e-3}
-# Calibration parameter that would absorb an effect (reported with the finding).
+#: Calibration parameter that would absorb an effect (reported with the finding), from the
+#: registry (the bore radius "R" is the measurand, not a calibration parameter).
 ABSORBED_BY = {
-    "sensor_offset": "d_b_mm of the channel (every d_b when common)",
-    "channel_delay": "beta_rad of the channel (at constant speed)",
-    "thermal_expansion": "every d_b_mm (a common offset)",
+    name: "; ".join(text for par, text in spec.absorbers(SCAN_KIND).items() if par != "R")
+    for name, spec in EFFECTS.items()
+    if any(par != "R" for par in spec.absorbers(SCAN_KIND))
 }
 
 
@@ -80,9 +79,11 @@ class Term:
         return s
 
     def names(self) -> list[str]:
+        """Prefixed fitted parameter names, e.g. ``bore_lobing[k=3].A`` (registry ``fit``)."""
         return [f"{self.key}.{n}" for n, _ in INTERNAL[self.effect]]
 
     def scales(self) -> list[float]:
+        """Typical magnitudes of :meth:`names` (registry ``fit``)."""
         return [s for _, s in INTERNAL[self.effect]]
 
 
@@ -213,9 +214,23 @@ def tri_data_from_arrays(
     )
 
 
-#: effects applied to the readings after the ray geometry (:func:`apply_reading_terms`)
-READING_EFFECTS = frozenset({"beam_tilt", "sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift",
-                             "vibration"})
+def term_effects(term: Term, p: dict[str, float], channels) -> list[Effect]:
+    """The spec's effects of a fitted term: its fitted values ``p[f"{term.key}.{name}"]``
+    converted by the registry (:meth:`~borescan.effects.EffectSpec.spec_params`); a
+    per-channel term with ``channel`` 0 (or None) is one effect per channel."""
+    spec = EFFECTS[term.effect]
+    x = {q.name: p[f"{term.key}.{q.name}"] for q in spec.fit}
+    par, _ = spec.spec_params(x, None, term.k)
+    if spec.per_channel:
+        chans = channels if term.channel in (None, 0) else (term.channel,)
+        return [Effect(term.effect, {"channel": c, **par}) for c in chans]
+    return [Effect(term.effect, par)]
+
+
+def term_values(term: Term, effect: Effect) -> dict[str, float]:
+    """Inverse of :func:`term_effects`: the term's fitted values ``{f"{term.key}.{name}": value}``
+    of a spec effect (:meth:`~borescan.effects.EffectSpec.internal`)."""
+    return {f"{term.key}.{n}": v for n, v in effect.spec.internal(effect.params).items()}
 
 
 def apply_reading_terms(
@@ -227,87 +242,20 @@ def apply_reading_terms(
     range_mm,
     beam_tilt: bool = True,
 ) -> np.ndarray:
-    """Beam (``beam_tilt``: v / cos(gamma) = v (1 + h)) and reading-stage terms, in the order of
-    :mod:`borescan.effects`: offset, gain, nonlinearity, drift, vibration. ``t`` (n, c) [s]."""
-    v = np.array(v, dtype=float, copy=True)
-    c = len(channels)
-
-    def par(term: Term, name: str) -> float:
-        return p[f"{term.key}.{name}"]
-
-    def cols(term: Term) -> list[int]:
-        return list(range(c)) if term.channel in (None, 0) else [list(channels).index(term.channel)]
-
-    if beam_tilt:
-        for term in by.get("beam_tilt", []):
-            for j in cols(term):
-                v[:, j] = v[:, j] * (1.0 + par(term, "h"))
-    for term in by.get("sensor_offset", []):
-        for j in cols(term):
-            v[:, j] = v[:, j] + par(term, "b_mm")
-    for term in by.get("sensor_gain", []):
-        for j in cols(term):
-            v[:, j] = v[:, j] * (1.0 + par(term, "g"))
-    for term in by.get("sensor_nonlinearity", []):
-        for j in cols(term):
-            u = v[:, j] / range_mm[j]
-            v[:, j] = v[:, j] + par(term, "a_mm") * 4.0 * u * (1.0 - u)
-    for term in by.get("sensor_drift", []):
-        for j in cols(term):
-            v[:, j] = v[:, j] + par(term, "k_mm_per_s") * t[:, j]
-    for term in by.get("vibration", []):
-        w = 2.0 * np.pi * par(term, "f_hz") * t
-        v = v + par(term, "A") * np.sin(w) + par(term, "B") * np.cos(w)
-    return v
+    """Beam (``beam_tilt``, unless ``beam_tilt`` is False) and reading-stage terms on readings
+    ``v`` (n, c) at times ``t`` (n, c) [s], through the registry's forward functions
+    (:func:`borescan.effects.apply_effects`), in its composition order."""
+    stages = ("beam", "reading") if beam_tilt else ("reading",)
+    effects = [e for terms in by.values() for term in terms if EFFECTS[term.effect].stage in stages
+               for e in term_effects(term, p, channels)]
+    if not effects:
+        return np.array(v, dtype=float, copy=True)
+    return apply_effects(v, t, channels, effects, device_type="tri_lds" if beam_tilt else "rod",
+                         range_mm=range_mm, stages=stages)
 
 
-def fast_readings(
-    phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore, n_iter: int = 3
-) -> np.ndarray:
-    """Readings of :func:`borescan.geometry.tri_spindle_readings`, written out for speed.
-
-    Circle: the cancellation-free root of |o + s u - C| = R. Ellipse / lobes: fixed point
-    s <- root for the wall radius r(theta(s)) at the current hit point; near-normal incidence
-    makes each step shrink the error by about (dr/dtheta / R) tan(incidence), so three steps
-    reach machine precision for the bores of the spec.
-
-    Parameters
-    ----------
-    phi_rad : (n,) or (n, c); spindle_xy_mm : (2,), (n, 2) or (n, c, 2)
-
-    Returns
-    -------
-    ndarray (n, c) [mm]
-    """
-    phi = np.asarray(phi_rad, dtype=float)
-    if phi.ndim == 1:
-        phi = phi[:, None]
-    S = np.asarray(spindle_xy_mm, dtype=float)
-    if S.ndim == 2:
-        S = S[:, None, :]
-    cb, sb = np.cos(beams.beta_rad), np.sin(beams.beta_rad)
-    fx, fy = -beams.rho_mm * sb, beams.rho_mm * cb
-    cp, sp = np.cos(phi), np.sin(phi)
-    ox = S[..., 0] - bore.center_xy_mm[0] + cp * fx - sp * fy
-    oy = S[..., 1] - bore.center_xy_mm[1] + sp * fx + cp * fy
-    dx = cp * cb - sp * sb
-    dy = sp * cb + cp * sb
-    b = ox * dx + oy * dy
-    oo = ox * ox + oy * oy
-
-    def root(R):
-        c = oo - R * R
-        with np.errstate(invalid="ignore", divide="ignore"):
-            sq = np.sqrt(b * b - c)  # NaN where the ray misses
-            return np.where(b <= 0.0, -b + sq, -c / (b + sq))
-
-    s = root(bore.radius_mm)
-    if not bore.is_circle:
-        for _ in range(n_iter):
-            theta = np.arctan2(oy + s * dy, ox + s * dx)
-            r, _ = bore_wall_radius(theta, bore)
-            s = root(r)
-    return s - beams.d_b_mm
+#: The ray-to-bore readings (one implementation: :func:`borescan.geometry.tri_spindle_readings`).
+fast_readings = tri_spindle_readings
 
 
 class TriModel:
@@ -333,50 +281,9 @@ class TriModel:
         self._geo_cache: tuple | None = None
 
     # ------------------------------------------------------------------ forward
-    def predict(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
-        """Readings (n, c) [mm] for full parameters ``p`` (base + every term's internal names)."""
+    def base(self, p: dict[str, float]) -> TriBase:
+        """The base geometry at base parameters ``p`` (centre, phase, radius, freed beams)."""
         d = self.data
-        c = len(d.channels)
-        t = np.broadcast_to(d.t_s[:, None], (d.t_s.size, c)).astype(float)
-        by = {}
-        for term in terms:
-            by.setdefault(term.effect, []).append(term)
-
-        def par(term: Term, name: str) -> float:
-            return p[f"{term.key}.{name}"]
-
-        def cols(term: Term) -> list[int]:
-            return list(range(c)) if term.channel in (None, 0) else [d.channels.index(term.channel)]
-
-        for term in by.get("channel_delay", []):
-            t = t.copy()
-            for j in cols(term):
-                t[:, j] = t[:, j] - par(term, "tau_s")
-        x = d.turned_rad(t)
-        for term in by.get("speed_error", []):
-            x = x * (1.0 + par(term, "eps"))
-        for term in by.get("speed_ripple", []):
-            x = x + par(term, "A") * np.sin(x) + par(term, "B") * np.cos(x)
-        phi = p.get("phase", d.phase_rad) + d.direction * x
-        S = np.asarray(d.spindle_xy_mm, dtype=float)
-        for term in by.get("spindle_error_motion", []):
-            kp = term.k * phi
-            A, B = par(term, "A"), par(term, "B")
-            S0 = S[:, None, :] if S.ndim == 2 else S
-            S = S0 + np.stack([A * np.cos(kp) - B * np.sin(kp), A * np.sin(kp) + B * np.cos(kp)], axis=-1)
-        R = d.radius_mm + p.get("dR", 0.0)
-        for term in by.get("thermal_expansion", []):
-            R = R * (1.0 + (d.cte_per_k or 0.0) * par(term, "dT"))
-        tilt, az = 0.0, 0.0
-        for term in by.get("axis_tilt", []):
-            pp, qq = par(term, "p"), par(term, "q")
-            tilt = math.sqrt(math.hypot(pp, qq))
-            az = 0.5 * math.atan2(qq, pp)
-        lobes = []
-        for term in by.get("bore_lobing", []):
-            A, B = par(term, "A"), par(term, "B")
-            lobes.append((term.k, math.hypot(A, B), math.atan2(B, A) / term.k))
-        bore = Bore((p["cx"], p["cy"]), R, tilt, az, tuple(lobes))
         beams = d.beams
         if self.free_beams:
             c = len(d.channels)
@@ -386,20 +293,35 @@ class TriModel:
                 beams.rho_mm,
                 beams.d_b_mm + np.array([p.get(f"dd_b[{j}]", 0.0) for j in range(c)]),
             )
-        v = self._geometric_readings(p, terms, phi, S, beams, bore)
-        return apply_reading_terms(v, t, by, p, d.channels, d.range_mm)
+        return TriBase(
+            beams=beams,
+            bore=Bore((p["cx"], p["cy"]), d.radius_mm + p.get("dR", 0.0)),
+            spindle_xy_mm=np.asarray(d.spindle_xy_mm, dtype=float),
+            turned_rad=d.turned_rad,
+            phase_rad=p.get("phase", d.phase_rad),
+            direction=d.direction,
+            cte_per_k=d.cte_per_k or 0.0,
+            range_mm=d.range_mm,
+        )
 
-    def _geometric_readings(self, p, terms, phi, S, beams, bore) -> np.ndarray:
-        """:func:`fast_readings`, remembered for the last geometry: a finite-difference step in a
-        reading-stage parameter (offset, gain, ...) leaves the ray geometry as it was."""
-        geo_terms = tuple(t.key for t in terms if t.effect not in READING_EFFECTS)
-        key = (geo_terms, tuple(sorted((k, v) for k, v in p.items()
-                                       if k.split(".", 1)[0].split("@", 1)[0].split("[", 1)[0] not in READING_EFFECTS)))
+    def predict(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
+        """Readings (n, c) [mm] for full parameters ``p`` (base + every term's fitted names).
+
+        The terms' fitted values become the spec's effects (:func:`term_effects`) and the
+        readings come from the composition of :mod:`borescan.model` (the digital twin's). The
+        ray geometry is remembered for the last geometric state: a finite-difference step in a
+        beam- or reading-stage parameter (offset, gain, ...) leaves it as it was.
+        """
+        d = self.data
+        st = sort_effects([e for t in terms for e in term_effects(t, p, d.channels)], "tri_lds", d.channels)
+        key = (tuple(e for stage in GEOMETRY_STAGES for e in st[stage]),
+               tuple(sorted((k, v) for k, v in p.items() if "." not in k)))
         if self._geo_cache is not None and self._geo_cache[0] == key:
-            return self._geo_cache[1]
-        v = fast_readings(phi, S, beams, bore)
-        self._geo_cache = (key, v)
-        return v
+            v, tc = self._geo_cache[1]
+        else:
+            v, tc = tri_geometry(self.base(p), d.t_s, st)
+            self._geo_cache = (key, (v, tc))
+        return tri_reading_stage(v, tc, st, d.channels, d.range_mm)
 
     def residual(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
         """Weighted residual vector (data - model) over the unmasked samples."""
@@ -465,16 +387,19 @@ class TriModel:
         return _vibration_peak(self, r)[0]
 
     def candidate_terms(self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[Term]:
-        """Every applicable term, less those a freed beam parameter absorbs (d_b: offsets and
-        thermal expansion; beta: channel delay)."""
+        """Every applicable term (:func:`candidate_terms`), less those a freed base parameter
+        absorbs (the registry's ``absorbed_by``: d_b offsets and thermal expansion, beta channel
+        delay, a free radius R the common offset and thermal expansion)."""
         terms = candidate_terms(self.data, k_max=k_max, vibration_f_hz=vibration_f_hz)
-        if self.data.radius_free:  # a part's radius is the measurand: it absorbs a common offset
-            terms = [t for t in terms if t.effect != "thermal_expansion" and t.channel != 0]
-        if "d_b" in self.free_beams:
-            terms = [t for t in terms if t.effect not in ("sensor_offset", "thermal_expansion")]
-        if "beta" in self.free_beams:
-            terms = [t for t in terms if t.effect != "channel_delay"]
-        return terms
+        # a part's radius is the measurand: a free R absorbs what is common to every channel
+        freed = set(self.free_beams) | ({"R"} if self.data.radius_free else set())
+
+        def absorbed(t: Term) -> bool:
+            spec = EFFECTS[t.effect]
+            return any(b in freed and (b != "R" or t.channel == 0 or not spec.per_channel)
+                       for b in spec.absorbers(SCAN_KIND))
+
+        return [t for t in terms if not absorbed(t)]
 
     def extra_starts(self, screen: list, keys: set, t1: Term | None) -> list:
         """Starts the linear screen cannot give.
@@ -530,74 +455,35 @@ class TriModel:
 
 
 def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[Term]:
-    """Every named effect that applies to a spindle scan, as terms (one per channel or harmonic)."""
-    terms: list[Term] = []
-    per_channel = (
-        "sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift", "channel_delay", "beam_tilt"
-    )
-    for eff in per_channel:
-        terms += [Term(eff, c) for c in data.channels]
-    terms.append(Term("sensor_offset", 0))
-    if not data.encoder:  # a measured angle has no speed error or ripple to find (spec, speed_error)
-        terms += [Term("speed_error"), Term("speed_ripple")]
-    if vibration_f_hz is not None:
-        terms.append(Term("vibration"))
-    if data.cte_per_k:
-        terms.append(Term("thermal_expansion"))
-    terms += [Term("bore_lobing", None, k) for k in range(2, k_max + 1)]
-    terms += [Term("spindle_error_motion", None, k) for k in range(2, k_max + 1)]
+    """The registry's candidates of a spindle scan, as terms.
+
+    Every effect whose ``candidate["tri_spindle"]`` is ``"screen"`` and whose ``needs`` the
+    scan meets (``commanded_angle``: no encoder; ``vibration_line``: ``vibration_f_hz`` found;
+    ``cte``: the artifact's CTE known): per-channel effects one term per channel, then the
+    ``common`` ones as one term on every channel (channel 0), then the others, one term per
+    harmonic k = 2..k_max where the effect has one.
+    """
+    have = {"commanded_angle": not data.encoder, "vibration_line": vibration_f_hz is not None,
+            "cte": bool(data.cte_per_k)}
+    specs = [s for s in EFFECTS.values()
+             if s.candidate.get(SCAN_KIND) == "screen" and all(have[n] for n in s.needs)]
+    terms = [Term(s.name, c) for s in specs if s.per_channel for c in data.channels]
+    terms += [Term(s.name, 0) for s in specs if s.per_channel and s.common]
+    for s in specs:
+        if not s.per_channel:
+            terms += [Term(s.name, None, k) for k in range(2, k_max + 1)] if s.harmonic else [Term(s.name)]
     return terms
 
 
-def _wrap(a: float, period: float = 2.0 * np.pi) -> float:
-    return float(np.mod(a, period))
-
-
 def term_parameters(term: Term, x: dict[str, float], u: dict[str, float], data: TriData | None = None) -> tuple[dict, dict]:
-    """The spec's parameters of a fitted term and their standard uncertainties."""
-    g = lambda n: x[f"{term.key}.{n}"]  # noqa: E731
-    ug = lambda n: u.get(f"{term.key}.{n}", float("nan"))  # noqa: E731
-    e = term.effect
-    if e in ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift", "channel_delay",
-             "speed_error"):
-        n = INTERNAL[e][0][0]
-        return {n: g(n)}, {n: ug(n)}
-    if e == "beam_tilt":
-        h, uh = g("h"), ug("h")
-        gam = math.acos(1.0 / (1.0 + h)) if h > 0 else 0.0
-        ugam = uh / ((1.0 + h) ** 2 * math.sin(gam)) if gam > 0 else float("nan")
-        return {"gamma_rad": gam}, {"gamma_rad": ugam}
-    if e == "thermal_expansion":
-        return {"temperature_c": 20.0 + g("dT")}, {"temperature_c": ug("dT")}
-    if e == "axis_tilt":
-        P, Q = g("p"), g("q")
-        m = math.hypot(P, Q)
-        um = math.sqrt(((P * ug("p")) ** 2 + (Q * ug("q")) ** 2)) / max(m, 1e-300)
-        beta = math.sqrt(m)
-        return (
-            {"beta_rad": beta, "azimuth": _wrap(0.5 * math.atan2(Q, P), np.pi)},
-            {"beta_rad": um / (2.0 * max(beta, 1e-300)), "azimuth": 0.5 * um / max(m, 1e-300)},
-        )
-    A, B = g("A"), g("B")
-    amp = math.hypot(A, B)
-    uamp = math.sqrt((A * ug("A")) ** 2 + (B * ug("B")) ** 2) / max(amp, 1e-300)
-    uph = math.sqrt((B * ug("A")) ** 2 + (A * ug("B")) ** 2) / max(amp, 1e-300) ** 2
-    ph = math.atan2(B, A)
-    if e == "bore_lobing":
-        return (
-            {"k": term.k, "a_mm": amp, "phase": _wrap(ph / term.k, 2 * np.pi / term.k)},
-            {"a_mm": uamp, "phase": uph / term.k},
-        )
-    if e == "spindle_error_motion":
-        return {"k": term.k, "rho_mm": amp, "phase": _wrap(ph)}, {"rho_mm": uamp, "phase": uph}
-    if e == "speed_ripple":
-        return {"a_rad": amp, "phase": _wrap(ph)}, {"a_rad": uamp, "phase": uph}
-    if e == "vibration":
-        return (
-            {"f_hz": g("f_hz"), "a_mm": amp, "phase": _wrap(ph)},
-            {"f_hz": ug("f_hz"), "a_mm": uamp, "phase": uph},
-        )
-    raise ValueError(f"no parameter conversion for {e!r}")
+    """The spec's parameters of a fitted term and their standard uncertainties (the registry's
+    :meth:`~borescan.effects.EffectSpec.spec_params`)."""
+    spec = EFFECTS[term.effect]
+    if not spec.fit:
+        raise ValueError(f"no parameter conversion for {term.effect!r}")
+    xi = {q.name: x[f"{term.key}.{q.name}"] for q in spec.fit}
+    ui = {q.name: u.get(f"{term.key}.{q.name}", float("nan")) for q in spec.fit}
+    return spec.spec_params(xi, ui, term.k)
 
 
 def _vibration_peak(model: TriModel, r: np.ndarray) -> tuple[float | None, float]:

@@ -1,0 +1,190 @@
+"""The one forward model of a three-sensor spindle scan: base geometry plus registered effects.
+
+The digital twin (:func:`borescan.simulate.tri_readings`) and the discrepancy workflow
+(:meth:`borescan.discrepancy.tri.TriModel.predict`) evaluate readings here and nowhere else.
+The physics of each named effect is its forward function in :mod:`borescan.effects`; the
+ray-to-bore reading is :func:`borescan.geometry.tri_spindle_readings`.
+
+Composition order (``shared/spec/geometry-and-effects.md``; stages of :mod:`borescan.effects`):
+
+1. time base: ``channel_delay`` gives channel c the time t_c = t - tau_c; everything below
+   is evaluated at t_c (the channel shows the whole reading of time t - tau);
+2. kinematics: x = Phi(t_c), the unsigned turned angle the base model assumes (the commanded
+   profile, omega t at constant speed), then ``speed_error`` (x (1 + eps)), then
+   ``speed_ripple`` (x + a sin(x + phase)); device angle phi = phase_rad + direction x;
+3. spindle position: S = S0 (+ ``spindle_error_motion`` at phi);
+4. bore: circle C, R20, then ``axis_tilt``, ``bore_lobing``, ``thermal_expansion`` (each
+   changes its own part of :class:`~borescan.geometry.Bore`, so their order is immaterial);
+5. exact intersection, v = s - d_b (:func:`~borescan.geometry.tri_spindle_readings`);
+6. beam: ``beam_tilt`` (v / cos gamma);
+7. reading: offset, gain, nonlinearity, drift (k t_c), vibration (at t_c).
+
+Output-stage effects (noise, ``quantization``, ``outliers``) are the generators' business
+(:func:`borescan.simulate.simulate_tri_spindle`). Steps 1-7 are noise-free and deterministic.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from borescan.effects import Effect, apply_effects, sort_effects
+from borescan.geometry import Beams, Bore, tri_spindle_readings
+
+__all__ = [
+    "TriBase",
+    "GEOMETRY_STAGES",
+    "channel_times",
+    "device_angle",
+    "spindle_positions",
+    "bore_with_effects",
+    "tri_geometry",
+    "tri_reading_stage",
+    "tri_forward",
+]
+
+TRI = "tri_lds"
+#: Stages that change the ray geometry (steps 1-5); the rest act on the readings.
+GEOMETRY_STAGES: tuple[str, ...] = ("time_base", "kinematics", "spindle_position", "bore")
+
+
+@dataclass(frozen=True)
+class TriBase:
+    """Base geometry of a spindle scan: everything the readings depend on except the effects.
+
+    Attributes
+    ----------
+    beams : beam geometry (beta [rad], rho [mm], d_b [mm] per channel).
+    bore : the effect-free bore: circle of centre C (machine frame) and radius R20 [mm].
+    spindle_xy_mm : spindle axis S0, (2,) or one per sample (n, 2) [mm].
+    turned_rad : t [s] -> unsigned turned angle x(t) the base model assumes [rad] (omega t,
+        the integral of the commanded rpm profile, or the encoder angle less its start).
+    phase_rad : device angle at x = 0 [rad]; direction : +1 ccw, -1 cw.
+    cte_per_k : artifact expansion coefficient for ``thermal_expansion`` [1/K].
+    range_mm : sensor range per channel, for ``sensor_nonlinearity`` [mm].
+    """
+
+    beams: Beams
+    bore: Bore
+    spindle_xy_mm: np.ndarray
+    turned_rad: Callable[[np.ndarray], np.ndarray]
+    phase_rad: float = 0.0
+    direction: float = 1.0
+    cte_per_k: float = 0.0
+    range_mm: Sequence[float] | float = 10.0
+
+    @property
+    def channels(self) -> tuple[int, ...]:
+        return self.beams.channels
+
+
+def channel_times(t_s: np.ndarray, channels: Sequence[int], time_effects: Sequence[Effect]) -> np.ndarray:
+    """Times each channel's reading belongs to (step 1): t_c = t - tau_c.
+
+    Returns
+    -------
+    ndarray (n, 1) without time-base effects (broadcasts over channels), else (n, c) [s].
+    """
+    t = np.asarray(t_s, dtype=float)
+    if not time_effects:
+        return t[:, None]
+    tc = np.repeat(t[:, None], len(channels), axis=1)
+    for e in time_effects:
+        j = list(channels).index(e.channel)
+        tc[:, j] = e.spec.forward[TRI](tc[:, j], e.params)
+    return tc
+
+
+def device_angle(base: TriBase, t_s: np.ndarray, kinematic_effects: Sequence[Effect]) -> np.ndarray:
+    """Device angle phi = phase + direction x, x = turned angle after the kinematic effects (step 2).
+
+    Parameters
+    ----------
+    t_s : ndarray (...) [s]
+
+    Returns
+    -------
+    ndarray (...) [rad]
+    """
+    x = base.turned_rad(t_s)
+    for e in kinematic_effects:
+        x = e.spec.forward[TRI](x, e.params)
+    return base.phase_rad + base.direction * x
+
+
+def spindle_positions(base: TriBase, phi_rad: np.ndarray, position_effects: Sequence[Effect]) -> np.ndarray:
+    """Spindle axis S(phi) (step 3): S0, plus ``spindle_error_motion`` at the device angle.
+
+    Returns
+    -------
+    ndarray (2,) or (n, 2) without effects, else (n, c, 2) [mm].
+    """
+    S = np.asarray(base.spindle_xy_mm, dtype=float)
+    if not position_effects:
+        return S
+    phi = np.broadcast_to(phi_rad, (phi_rad.shape[0], len(base.channels)))
+    S = np.broadcast_to(S[:, None, :] if S.ndim == 2 else S, phi.shape + (2,))
+    for e in position_effects:
+        S = e.spec.forward[TRI](S, phi, e.params)
+    return S
+
+
+def bore_with_effects(bore: Bore, bore_effects: Iterable[Effect], cte_per_k: float, device: str = TRI) -> Bore:
+    """The bore after the bore-stage effects (step 4), in composition order."""
+    for e in bore_effects:
+        bore = e.spec.forward[device](bore, e.params, cte_per_k)
+    return bore
+
+
+def tri_geometry(base: TriBase, t_s: np.ndarray, st: dict[str, list[Effect]]) -> tuple[np.ndarray, np.ndarray]:
+    """Steps 1-5: exact readings of the ray geometry with the geometric effects.
+
+    Parameters
+    ----------
+    base : TriBase
+    t_s : ndarray (n,) sample times since scan start [s]
+    st : effects grouped by stage (:func:`borescan.effects.sort_effects`)
+
+    Returns
+    -------
+    v : ndarray (n, c) [mm]; tc : ndarray (n, 1) or (n, c), the channel times [s].
+    """
+    tc = channel_times(t_s, base.channels, st["time_base"])
+    phi = device_angle(base, tc, st["kinematics"])
+    S = spindle_positions(base, phi, st["spindle_position"])
+    bore = bore_with_effects(base.bore, st["bore"], base.cte_per_k)
+    return tri_spindle_readings(phi, S, base.beams, bore), tc
+
+
+def tri_reading_stage(
+    v_mm: np.ndarray, tc_s: np.ndarray, st: dict[str, list[Effect]], channels: Sequence[int],
+    range_mm: Sequence[float] | float,
+) -> np.ndarray:
+    """Steps 6-7: beam and reading effects on readings ``v_mm`` (n, c) at channel times ``tc_s``."""
+    if not (st["beam"] or st["reading"]):
+        return v_mm
+    return apply_effects(v_mm, tc_s, channels, st["beam"] + st["reading"], range_mm=range_mm,
+                         stages=("beam", "reading"))
+
+
+def tri_forward(base: TriBase, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
+    """Noise-free readings of a spindle scan with effects (steps 1-7 of the module doc).
+
+    v = s - d_b, s > 0 the root of |S(phi) + Rot(phi)(F + s u) - C| = r_wall(theta),
+    phi = phi(t_c), then beam and reading effects.
+
+    Parameters
+    ----------
+    base : TriBase
+    t_s : ndarray (n,) sample times since scan start [s]
+    effects : :class:`~borescan.effects.Effect` (output-stage effects are ignored)
+
+    Returns
+    -------
+    ndarray (n, c) readings [mm], channels in ``base.beams`` order; NaN where a beam misses.
+    """
+    st = sort_effects(effects, TRI, base.channels)
+    v, tc = tri_geometry(base, t_s, st)
+    return tri_reading_stage(v, tc, st, base.channels, base.range_mm)
