@@ -7,7 +7,7 @@ same run, best of several repeats, throughput in readings (rows of the long tabl
 
 - plain read: the five ``lds.parquet`` columns by the faster of ``polars.read_parquet`` and
   ``pyarrow.parquet.read_table`` (both multi-threaded);
-- whole stage: what the night's signal job does for one scan (``pipeline._signal_one``): read
+- whole stage: what the night's signal job does for one scan (``borescan.stages.signal.signal_one``): read
   and validate the folder (``rawio.read_scan``), the wide matrix, the clock check, spikes, period,
   extrema, n/m, status, spacings, feature points, the summary row. Not included: writing the
   night's tables (once per night, for all scans);
@@ -33,7 +33,9 @@ import numpy as np
 import polars as pl
 import pyarrow.parquet as pq
 
-from borescan import pipeline, rawio
+from borescan import rawio
+from borescan.config import load_config
+from borescan.stages.signal import signal_one, signal_options
 from borescan.geometry import Beams, Bore, tri_spindle_readings
 from borescan.signal import (
     filter_performance,
@@ -100,7 +102,7 @@ def main() -> dict:
         raw = Path(tmp) / "raw"
         folder, rows = _write_scan(raw)
         lds_path = folder / rawio.LDS_FILE
-        opts = pipeline.signal_options({})
+        opts = signal_options(load_config()["signal"])
         job = (raw, NIGHT, Path(tmp) / "results", folder, opts)
 
         def read_polars() -> pl.DataFrame:
@@ -113,7 +115,7 @@ def main() -> dict:
             return pq.read_table(lds_path, columns=COLUMNS, use_threads=False)
 
         def whole_stage():
-            ext, summary, bad, _ = pipeline._signal_one(job)
+            ext, summary, bad, _ = signal_one(job)
             assert not bad and ext is not None
             return ext, summary
 

@@ -1,9 +1,9 @@
 # Names the rules use: roots from the config and the nights found under raw_root.
-from borescan import pipeline
+from borescan import rawio
 
 RAW = config["raw_root"]
 RES = config["results_root"]
-NIGHTS = pipeline.nights(RAW)
+NIGHTS = rawio.nights(RAW)
 
 
 def results_root_for(wildcards):
@@ -22,11 +22,11 @@ def stage_table(table):
 
 
 def raw_files_of_night(wildcards):
-    return pipeline.night_raw_files(RAW, wildcards.night)
+    return rawio.night_raw_files(RAW, wildcards.night)
 
 
 def duplicate_ids_of_night(wildcards):
-    return pipeline.earlier_duplicate_ids(RAW, wildcards.night)
+    return rawio.earlier_duplicate_ids(RAW, wildcards.night)
 
 
 def calibrations_up_to_night(wildcards):

@@ -152,3 +152,31 @@ def test_measure_scan_on_simulated_raw_scans(tmp_path):
     res = measure_scan(scan, BEAMS)
     assert res["diameter_mm"] == pytest.approx(2 * R, abs=1e-6)
     assert res["ront_mm"]["MZCI"] < 1e-6
+
+
+# --------------------------------------------------------------------------- readings per pose (rod)
+
+
+def test_pose_means_and_counts():
+    from borescan.measure import pose_means
+
+    v = np.array([[1.0, 10.0], [3.0, np.nan], [5.0, 20.0], [7.0, 40.0], [100.0, 100.0]])
+    pose = np.array([0, 0, 1, 1, -1])  # -1: between poses, left out
+    poses, means, counts = pose_means(v, pose)
+    np.testing.assert_array_equal(poses, [0, 1])
+    np.testing.assert_array_equal(means, [[2.0, 10.0], [6.0, 30.0]])
+    np.testing.assert_array_equal(counts, [[2, 1], [2, 2]])
+
+
+def test_reading_u_from_linearity_and_repeatability():
+    from borescan.measure import mean_reading_u_mm, reading_u_mm
+
+    sensors = {1: {"linearity_fs": 0.0003, "range_mm": 10.0, "repeatability_mm": 0.004},  # a = 3 um rectangular
+               2: {"repeatability_mm": 0.002}}
+    u = reading_u_mm(sensors, (1, 2, 3))
+    np.testing.assert_allclose(u, [np.hypot(0.003 / np.sqrt(3), 0.004), 0.002, 0.0], rtol=1e-15)
+    counts = np.array([[100, 4, 9], [25, 16, 9]])
+    # largest u / sqrt(fewest readings per channel): channel 1: u1 / 5, channel 2: 0.002 / 2
+    assert mean_reading_u_mm(u, counts) == pytest.approx(max(u[0] / 5.0, 0.001), rel=1e-15)
+    assert mean_reading_u_mm(np.zeros(3), counts) is None
+    assert mean_reading_u_mm([0.002], np.array([[0]])) == pytest.approx(0.002)  # no reading: counted as one

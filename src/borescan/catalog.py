@@ -34,14 +34,20 @@ import duckdb
 import polars as pl
 
 from borescan.rawio import combined_sha256, sha256_file
+from borescan.tables import TABLES, polars_schema
 
 __all__ = [
     "CATALOG_NAME",
     "SCHEMA",
     "KEYS",
     "DEFAULT_QUERIES_DIR",
+    "STAGE_TABLES",
+    "STAGE_ORDER",
+    "assemble_history",
     "build_catalog",
     "open_catalog",
+    "read_quarantine",
+    "read_stage_table",
     "catalog_path",
     "combined_sha256",
     "saved_queries",
@@ -54,60 +60,13 @@ CATALOG_NAME = "catalog.duckdb"
 #: Saved queries shipped with the project (``workflow/queries/*.sql``), one view each.
 DEFAULT_QUERIES_DIR = Path(__file__).resolve().parents[2] / "workflow" / "queries"
 
-_F = "DOUBLE"
-_S = "VARCHAR"
+#: Column name -> DuckDB type of every catalog table, in column order (from :mod:`borescan.tables`,
+#: the one definition of the history tables). Input frames may carry more columns: they are kept
+#: after these, with the type DuckDB infers.
+SCHEMA: dict[str, dict[str, str]] = {name: t.duckdb_types() for name, t in TABLES.items()}
 
-#: Column name -> DuckDB type of every catalog table, in column order. Input frames may carry
-#: more columns: they are kept after these, with the type DuckDB infers.
-SCHEMA: dict[str, dict[str, str]] = {
-    "scans": {
-        "scan_id": _S, "night": "DATE", "device_id": _S, "device_type": _S, "kind": _S,
-        "artifact_id": _S, "started_at": "TIMESTAMP", "status": _S, "reason": _S,
-        "raw_sha256": _S, "raw_path": _S, "simulated": "BOOLEAN",
-    },
-    "scan_files": {"scan_id": _S, "file": _S, "sha256": _S, "bytes": "BIGINT", "night": "DATE"},
-    "artifacts": {
-        "artifact_id": _S, "type": _S, "certificate": _S, "nominal_diameter_mm": _F,
-        "certified_diameter_mm": _F, "u_diameter_mm": _F, "k": _F, "cte_per_k": _F,
-    },
-    "calibrations": {
-        "calibration_id": _S, "device_id": _S, "device_type": _S, "scan_id": _S, "channel": "SMALLINT",
-        "rho_mm": _F, "d_b_mm": _F, "beta_rad": _F, "u_rho_mm": _F, "u_d_b_mm": _F, "u_beta_rad": _F,
-        "l0_mm": _F, "h_mm": _F, "phi_rad": _F, "d_mm": _F, "gamma_rad": _F,
-        "u_l0_mm": _F, "u_h_mm": _F, "u_phi_rad": _F, "u_d_mm": _F, "u_gamma_rad": _F,
-        "method": _S, "certificate_path": _S, "certificate_sha256": _S, "night": "DATE",
-        "valid_from": "DATE", "status": _S, "raw_sha256": _S,
-    },
-    "calibration_scans": {"calibration_id": _S, "scan_id": _S},
-    "diameters": {
-        "diameter_id": _S, "scan_id": _S, "night": "DATE", "device_id": _S, "artifact_id": _S, "feature": _S,
-        "diameter_mm": _F, "u_diameter_mm": _F, "calibration_id": _S, "method": _S, "raw_sha256": _S,
-    },
-    "verifications": {
-        "scan_id": _S, "night": "DATE", "device_id": _S, "artifact_id": _S, "measured_mm": _F,
-        "certified_mm": _F, "error_mm": _F, "tolerance_mm": _F, "passed": "BOOLEAN", "calibration_id": _S,
-    },
-    "findings": {
-        "scan_id": _S, "night": "DATE", "verdict": _S, "effect": _S, "channel": "SMALLINT", "parameters": _S,
-        "gap_before_mm": _F, "gap_after_mm": _F, "noise_floor_mm": _F,
-    },
-    "quarantine": {"scan_id": _S, "night": "DATE", "stage": _S, "file": _S, "reason": _S},
-}
-
-#: Key columns of each table: rows are inserted in this order (and unique where ``PRIMARY``).
-KEYS: dict[str, tuple[str, ...]] = {
-    # (scan_id, night): a scan id reused in a later night is quarantined but still recorded.
-    "scans": ("scan_id", "night"),
-    "scan_files": ("scan_id", "night", "file"),
-    "artifacts": ("artifact_id",),
-    "calibrations": ("calibration_id", "channel"),
-    "calibration_scans": ("calibration_id", "scan_id"),
-    "diameters": ("diameter_id", "method"),
-    "verifications": ("scan_id", "calibration_id"),
-    "findings": ("scan_id", "effect", "channel"),
-    "quarantine": ("scan_id", "night", "stage", "file"),
-}
-_PRIMARY = {"scans", "scan_files", "artifacts", "calibrations", "calibration_scans"}
+#: Key columns of each table: rows are inserted in this order (and unique where ``primary``).
+KEYS: dict[str, tuple[str, ...]] = {name: t.key for name, t in TABLES.items()}
 
 _IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -183,19 +142,13 @@ def _create_table(con: duckdb.DuckDBPyConnection, name: str, df: pl.DataFrame | 
     schema = SCHEMA[name]
     if df is not None and df.width == 0:
         df = None
-    cols = [f"{_q(c)} {t}" for c, t in schema.items()]
-    extra: list[str] = []
+    extra: dict[str, str] = {}
     if df is not None:
         con.register("_in", df)
         in_types = {row[0]: row[1] for row in con.execute("DESCRIBE SELECT * FROM _in").fetchall()}
-        for c in df.columns:
-            if c not in schema:
-                extra.append(c)
-                cols.append(f"{_q(c)} {in_types[c]}")
+        extra = {c: in_types[c] for c in df.columns if c not in schema}
     keys = KEYS[name]
-    if name in _PRIMARY:
-        cols.append(f"PRIMARY KEY ({', '.join(_q(k) for k in keys)})")
-    con.execute(f"CREATE TABLE {_q(name)} ({', '.join(cols)})")
+    con.execute(TABLES[name].ddl(extra))
     if df is None or df.height == 0:
         if df is not None:
             con.unregister("_in")
@@ -284,6 +237,73 @@ def _view_sql(sql: str) -> str:
     return body
 
 
+# --------------------------------------------------------------------------- stage tables
+
+#: History tables the catalog is built from, each the union of ``stage/<table>/night=*.parquet``.
+STAGE_TABLES = ("scans", "scan_files", "calibrations", "calibration_scans", "diameters", "verifications", "findings",
+                "artifacts")
+
+#: The stages in the order a night runs them: a scan's reason in ``scans`` is its earliest stage's.
+STAGE_ORDER = ("ingest", "signal", "calibrate", "measure", "discrepancy")
+
+
+def read_stage_table(results_root: str | os.PathLike, table: str) -> pl.DataFrame | None:
+    """All nights of one stage table (``stage/<table>/night=*.parquet``); None when there are none."""
+    files = sorted((Path(results_root) / "stage" / table).glob("night=*.parquet"))
+    frames = [f for f in (pl.read_parquet(f) for f in files) if f.width > 0]
+    return pl.concat(frames, how="diagonal_relaxed") if frames else None
+
+
+def read_quarantine(results_root: str | os.PathLike) -> pl.DataFrame:
+    """Every stage's quarantine rows (``stage/quarantine/stage=*/night=*.parquet``), by scan and stage."""
+    files = sorted((Path(results_root) / "stage" / "quarantine").glob("stage=*/night=*.parquet"))
+    frames = [f for f in (pl.read_parquet(f) for f in files) if f.height > 0]
+    if not frames:
+        return pl.DataFrame(schema=polars_schema("quarantine"))
+    return pl.concat(frames, how="diagonal_relaxed").sort("scan_id", "stage")
+
+
+def assemble_history(results_root: str | os.PathLike) -> dict[str, pl.DataFrame]:
+    """The catalog's tables from the stage tables; a scan any stage set aside is ``quarantined``.
+
+    The ``scans`` reason is the first stage's reason (:data:`STAGE_ORDER`), prefixed with the
+    file, so ``SELECT reason FROM scans`` answers "why" without a join. A rod's nominal geometry
+    recurs every night (its first night's row wins); an artifact seen on many nights keeps its
+    latest record.
+    """
+    tables: dict[str, pl.DataFrame] = {}
+    for name in STAGE_TABLES:
+        df = read_stage_table(results_root, name)
+        if df is not None:
+            tables[name] = df
+    quarantine = read_quarantine(results_root)
+    tables["quarantine"] = quarantine
+    if "scans" in tables and quarantine.height:
+        order = {stage: i for i, stage in enumerate(STAGE_ORDER)}
+        first = (
+            quarantine.with_columns(pl.col("stage").replace_strict(order, default=9).alias("_o"))
+            .sort("scan_id", "night", "_o")
+            .group_by("scan_id", "night", maintain_order=True)
+            .first()
+            .select("scan_id", "night", (pl.col("file") + ": " + pl.col("reason")).alias("_reason"))
+        )
+        scans = tables["scans"].join(first, on=["scan_id", "night"], how="left")
+        tables["scans"] = scans.with_columns(
+            pl.when(pl.col("_reason").is_not_null()).then(pl.lit("quarantined")).otherwise(pl.col("status")).alias("status"),
+            pl.coalesce("reason", "_reason").alias("reason"),
+        ).drop("_reason")
+    if "scans" in tables:
+        tables["scans"] = tables["scans"].sort("night", "scan_id")
+    if "calibrations" in tables:
+        tables["calibrations"] = tables["calibrations"].sort("night").unique(["calibration_id", "channel"], keep="first",
+                                                                             maintain_order=True)
+    if "calibration_scans" in tables:
+        tables["calibration_scans"] = tables["calibration_scans"].unique(maintain_order=True)
+    if "artifacts" in tables:
+        tables["artifacts"] = tables["artifacts"].unique("artifact_id", keep="last", maintain_order=True)
+    return tables
+
+
 # --------------------------------------------------------------------------- build / open
 
 
@@ -301,7 +321,7 @@ def build_catalog(
     tables
         Table name -> polars frame with (a subset of) the columns of :data:`SCHEMA`; missing
         tables are created empty, missing columns are null, extra columns are kept. ``None``
-        reads the stage tables with :func:`borescan.pipeline.assemble_history`.
+        reads the stage tables with :func:`assemble_history`.
     queries_dir
         Folder of saved ``*.sql`` queries, one view each (default: the project's
         ``workflow/queries``).
@@ -312,9 +332,7 @@ def build_catalog(
     root = Path(results_root)
     root.mkdir(parents=True, exist_ok=True)
     if tables is None:
-        from borescan import pipeline  # the stage layout belongs to the pipeline
-
-        tables = pipeline.assemble_history(root)
+        tables = assemble_history(root)
     unknown = sorted(set(tables) - set(SCHEMA))
     if unknown:
         raise ValueError(f"unknown catalog table(s) {unknown}; valid: {sorted(SCHEMA)}")

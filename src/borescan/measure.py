@@ -34,6 +34,9 @@ __all__ = [
     "measure_rotating",
     "measure_scan",
     "verify",
+    "pose_means",
+    "reading_u_mm",
+    "mean_reading_u_mm",
     "diameter_row",
     "verification_row",
 ]
@@ -286,6 +289,56 @@ def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
     return {"diameter_mm": float(D.mean()), "u_diameter_mm": float(np.sqrt(u_cal**2 + var_mean)),
             "method": f"static {'circumcircle' if len(beams.channels) == 3 else 'least-squares circle'}, mean of {k} poses",
             "poses": poses}
+
+
+# --------------------------------------------------------------------------- readings per pose (rod)
+
+
+def pose_means(values_mm, pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean reading per pose and channel, and how many readings each mean has.
+
+    Parameters
+    ----------
+    values_mm : (n, c) readings, NaN where null [mm].
+    pose : (n,) pose number of each sample (-1 or below: no pose, left out).
+
+    Returns
+    -------
+    poses (k,), means (k, c) [mm] (NaN where a pose has no reading of a channel), counts (k, c).
+    """
+    v = np.asarray(values_mm, dtype=float)
+    pose = np.asarray(pose)
+    poses = np.unique(pose[pose >= 0])
+    means = np.vstack([np.nanmean(v[pose == p], axis=0) for p in poses])
+    counts = np.vstack([np.sum(np.isfinite(v[pose == p]), axis=0) for p in poses])
+    return poses, means, counts
+
+
+def reading_u_mm(sensors: dict, channels) -> np.ndarray:
+    """Standard uncertainty of one reading per channel from the sensors' data sheet [mm].
+
+    u = hypot(linearity_fs * range_mm / sqrt(3), repeatability_mm): the stated linearity is a
+    rectangular +-a (GUM 4.3.7), the repeatability a standard deviation. Missing values count 0.
+    ``sensors`` maps channel -> the ``scan.json`` sensor entry.
+    """
+    def one(ch: int) -> float:
+        s = sensors.get(ch, {})
+        lin = (s.get("linearity_fs") or 0.0) * (s.get("range_mm") or 0.0)
+        return float(np.hypot(lin / np.sqrt(3), s.get("repeatability_mm") or 0.0))
+
+    return np.array([one(int(ch)) for ch in channels])
+
+
+def mean_reading_u_mm(u_one_mm, counts) -> float | None:
+    """One standard uncertainty for every mean of :func:`pose_means`: the largest u / sqrt(n) [mm].
+
+    ``u_one_mm`` (c,) from :func:`reading_u_mm`; ``counts`` (k, c). n is each channel's fewest
+    readings in a pose (at least 1). None when no sensor states an uncertainty.
+    """
+    u = np.asarray(u_one_mm, dtype=float)
+    if not np.any(u > 0):
+        return None
+    return float(np.max(u / np.sqrt(np.maximum(np.asarray(counts).min(axis=0), 1))))
 
 
 # --------------------------------------------------------------------------- verification

@@ -57,6 +57,11 @@ __all__ = [
     "read_scan_meta",
     "write_scan",
     "discover_scans",
+    "nights",
+    "night_scan_dirs",
+    "night_raw_files",
+    "earlier_duplicate_ids",
+    "clock_jump",
     "validate_root",
     "check_scan_data",
     "lds_matrix",
@@ -1097,6 +1102,74 @@ def discover_scans(raw_root: Path) -> list[Path]:
             if scan_dir.name.startswith("scan=") and scan_dir.is_dir():
                 out.append(scan_dir)
     return sorted(out, key=_sort_key)
+
+
+def nights(raw_root: str | Path) -> list[str]:
+    """Nights (``YYYY-MM-DD``) with a ``night=<date>`` folder under ``raw_root``, sorted; [] when it does not exist.
+
+    The unit of work of the pipeline: each stage runs once per night. Folders whose name is not
+    ``night=`` + a date pattern are never processed (:func:`validate_root` reports them).
+    """
+    root = Path(raw_root)
+    if not root.is_dir():
+        return []
+    return sorted(p.name[6:] for p in root.iterdir()
+                  if p.name.startswith("night=") and NIGHT_RE.fullmatch(p.name[6:]) and p.is_dir())
+
+
+def night_scan_dirs(raw_root: str | Path, night: str) -> list[Path]:
+    """Scan folders ``scan=<scan_id>`` (non-empty id) of one night, sorted by folder name; listed, not validated."""
+    night_dir = Path(raw_root) / f"night={night}"
+    if not night_dir.is_dir():
+        return []
+    return sorted(p for p in night_dir.iterdir() if p.name.startswith("scan=") and len(p.name) > 5 and p.is_dir())
+
+
+def night_raw_files(raw_root: str | Path, night: str) -> list[str]:
+    """Every regular file of a night's scan folders (the inputs whose change must rerun that night)."""
+    return [str(f) for d in night_scan_dirs(raw_root, night) for f in sorted(d.iterdir()) if f.is_file()]
+
+
+def earlier_duplicate_ids(raw_root: str | Path, night: str) -> list[str]:
+    """Scan ids of ``night`` that already occur in an earlier night (the earlier scan keeps the id).
+
+    Scan ids are unique across nights. Depends only on this and earlier nights, so adding a
+    later night changes nothing here.
+    """
+    ids_here = {d.name[5:] for d in night_scan_dirs(raw_root, night)}
+    seen: set[str] = set()
+    for n in nights(raw_root):
+        if n >= night:
+            break
+        seen.update(d.name[5:] for d in night_scan_dirs(raw_root, n))
+    return sorted(ids_here & seen)
+
+
+def clock_jump(sample: np.ndarray, t_s: np.ndarray, sample_rate_hz: float) -> str | None:
+    """Describe the first tick whose time step disagrees with the sample step by more than half a period.
+
+    On a spindle scan one clock drives every channel, so ``t`` must advance by
+    ``(sample step) / sample_rate_hz``; a larger error means the logger's clock or counter
+    slipped. Returns None when every step agrees (or there are fewer than two samples).
+
+    Parameters
+    ----------
+    sample : (n,) sample numbers, increasing.
+    t_s : (n,) times of the samples [s].
+    sample_rate_hz : the scan's nominal sample rate [Hz].
+    """
+    sample = np.asarray(sample)
+    t_s = np.asarray(t_s, dtype=float)
+    if sample.size < 2:
+        return None
+    expected = np.diff(sample) / sample_rate_hz
+    step = np.diff(t_s)
+    bad = np.flatnonzero(np.abs(step - expected) > 0.5 / sample_rate_hz)
+    if bad.size == 0:
+        return None
+    i = int(bad[0])
+    return (f"clock jump: t_ns advances {step[i]:.6g} s between samples {int(sample[i])} and "
+            f"{int(sample[i + 1])}, expected {expected[i]:.6g} s at {sample_rate_hz:g} Hz")
 
 
 def validate_root(raw_root: Path, *, warnings: list[str] | None = None) -> list[ScanError]:

@@ -29,21 +29,20 @@ and r across, i.e. a mean radius r k(omega^2) = rho and a second harmonic
 (r/4) omega^2 cos 2(theta - omega_az). In beta = w^2 = omega^2 (cos 2 omega_az, sin 2 omega_az)
 (a complex square) the readings are linear in beta near 0 (rho absorbs the mean), so the
 maximum-likelihood beta is nearly Gaussian with covariance Sigma_beta and the Jacobian, rank
-and condition are taken in [rho, c, alpha, beta]. The radius needs |beta| = omega^2, a Rice
-magnitude: |beta_hat| is biased up by ~1.25 sd at omega = 0, which biases r low by ~0.8 u
-(few poses, large noise). The default estimator ("free") uses the debiased signed magnitude
+and condition are taken in [rho, c, alpha, beta]. The radius needs |beta| = omega^2, whose
+direction the data may barely see; the local Cramer-Rao bound at the truth depends on that
+direction (through the rho-beta correlation) and is not attainable by any estimator when
+|beta| is below its noise. The default ("free") averages r = rho(beta) / k(|beta|) over the
+posterior of w under a bounded prior (omega ~ U(0, ``MAX_DEFLECTION_RAD`` = 2 deg), widened when
+the data put omega clearly beyond it): see ``_deflected_radii``. ``deflection="mle"`` gives r at
+|beta_hat|; "none" holds omega = 0.
 
-    s = sign(q) sqrt(|q|),  q = |beta_hat|^2 - tr(Sigma_beta) / 2,   r_m = rho_m / k(s),
-
-whose bias stays within 0.1 sd of |beta| for signal-to-noise >= 0.5 (0.48 sd at 0) and whose
-RMS error is at most 1.21 sd (table ``_RICE_RMS``, used to inflate the beta part of u(r)). The
-Cramer-Rao bound of r with omega free tends to a finite limit as omega -> 0 (``rod_crb``);
-u(r) lies within 1.21 of it. ``deflection="mle"`` gives r at |beta_hat|; "none" holds omega = 0.
-
-Start (cannot miss): the rank-2 structure of the readings gives the pose angles up to a
+Start: the rank-2 structure of the readings gives the pose angles up to a
 rotation and a reflection (SVD + ellipse fit, below), a linear fit the radii and centres; LM
 without deflection from both reflections, then one Gauss-Newton step in beta (the model is
-linear in beta) and LM from w = +-sqrt(beta); the lowest cost wins.
+linear in beta) and LM from w = +-sqrt(beta); the lowest cost wins. A per-pose angle profile
+(each pose searched on a 1 deg grid with the rest held, LM re-run when a pose moves) frees pose
+angles stuck in a local minimum of their own (``_repair_poses``).
 
 Refusals (RodSolveError): fewer readings than unknowns; degenerate geometry (rank or condition of
 the column-scaled Jacobian, or u(r) with omega held > ``max_u_ratio`` sigma/sqrt(n): offsets
@@ -423,13 +422,23 @@ def _magnitude(b, half_tr):
     return np.sign(q) * np.sqrt(np.abs(q))
 
 
-def _deflected_radii(rho, b, cov, m, mode, n_draw: int = 4000):
-    """omega^2 estimate s, u(r_m) and u(s) for r_m = rho_m / k(s).
+#: bound of the deflection prior [rad]: a hand-held rod deflects by a few degrees at most (the
+#: contract's rods <= 1 deg; 2 deg leaves a factor 2). A deflection the data put clearly beyond it
+#: (|beta_hat| - 3 sd > bound^2) widens the bound to cover the likelihood: never truncated.
+MAX_DEFLECTION_RAD = float(np.deg2rad(2.0))
 
-    "free": s the debiased magnitude of beta_hat; u is the RMS error of r (spread and bias) in a
-    parametric bootstrap of (rho, beta) ~ N((rho_hat, s u_hat), Cov) at the plug-in truth
-    beta = max(s, 0) u_hat (fixed seed, ``n_draw`` draws), which stays honest for an anisotropic
-    Sigma_beta and at low signal-to-noise. "mle": s = |beta_hat|, u by the delta method."""
+
+def _deflected_radii(rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD, n_draw: int = 4000):
+    """omega^2 estimate s, u(r_m) and u(s) for r_m = rho_m / k(omega^2) (module doc, "Deflection").
+
+    "free": the readings are linear in beta near 0, so the likelihood of beta (the other unknowns
+    profiled) is N(beta_hat, Sigma_beta) and, given beta, rho_m(beta) = rho_hat_m - K_m (beta_hat - beta)
+    (K = Sigma_rho,beta Sigma_beta^-1) with variance Sigma_rho|beta. r is averaged over the posterior
+    of w under the prior omega ~ U(0, ``max_deflection_rad``) (widened when the data demand), azimuth uniform (importance sampling
+    from a fixed-seed mixture of the prior and the likelihood): r_m = E[rho_m(beta) / k(|beta|)],
+    u^2 = Var[rho_m(beta) / k] + Sigma_rho|beta / k^2, s = E[omega^2], u(s) its posterior SD.
+    The direction of a deflection that the data barely see is averaged over instead of fixed at
+    its noisy estimate. "mle": s = |beta_hat|, u by the delta method along beta_hat."""
     idx = np.r_[np.arange(m), cov.shape[0] - 2, cov.shape[0] - 1]
     C = cov[np.ix_(idx, idx)]
     Sb = C[-2:, -2:]
@@ -441,30 +450,95 @@ def _deflected_radii(rho, b, cov, m, mode, n_draw: int = 4000):
         G[np.arange(m), np.arange(m)] = 1.0 / _k(s)
         G[:, -2:] = -(rho * _dk(s) / _k(s) ** 2)[:, None] * uhat[None, :]
         return s, np.sqrt(np.clip(np.diag(G @ C @ G.T), 0.0, None)), float(np.sqrt(max(uhat @ Sb @ uhat, 0.0)))
-    half_tr = 0.5 * float(np.trace(Sb))
-    s = float(_magnitude(b, half_tr))
-    w_, V_ = np.linalg.eigh(C)
-    X = (np.random.default_rng(0).standard_normal((n_draw, m + 2)) * np.sqrt(np.clip(w_, 0.0, None))) @ V_.T
-    s_true = max(s, 0.0)
-    s_star = _magnitude(s_true * uhat + X[:, -2:], half_tr)
-    r_star = (rho + X[:, :m]) / _k(s_star)[:, None]
-    u_r = np.sqrt(np.mean((r_star - rho / _k(s_true)) ** 2, axis=0))
-    return s, u_r, float(np.sqrt(np.mean((s_star - s_true) ** 2)))
+    Crr, Crb = C[:m, :m], C[:m, m:]
+    Sb_inv = np.linalg.pinv(Sb)
+    K = Crb @ Sb_inv
+    cond = np.clip(np.diag(Crr - K @ Crb.T), 0.0, None)
+    ev, V = np.linalg.eigh(Sb)
+    ev = np.clip(ev, 0.0, None)
+    W = float(max_deflection_rad)
+    if nb - 3.0 * np.sqrt(ev[-1]) > W**2:  # the data put omega clearly beyond the bound
+        W = float(np.sqrt(nb + 3.0 * np.sqrt(ev[-1])))
+    rng = np.random.default_rng(0)
+    # proposal 1: the prior (omega uniform on [0, W], azimuth uniform)
+    om = W * rng.random(n_draw)
+    az = rng.uniform(0.0, 2 * np.pi, n_draw)
+    w1 = np.column_stack([om * np.cos(az), om * np.sin(az)])
+    # proposal 2: the likelihood N(beta_hat, Sigma_beta), pushed to w = sqrt(beta)
+    B = b + (rng.standard_normal((n_draw, 2)) * np.sqrt(ev)) @ V.T
+    zc = np.sqrt(B[:, 0] + 1j * B[:, 1])
+    w = np.vstack([w1, np.column_stack([zc.real, zc.imag])])
+    o = np.hypot(w[:, 0], w[:, 1])
+    beta = np.column_stack([w[:, 0] ** 2 - w[:, 1] ** 2, 2 * w[:, 0] * w[:, 1]])
+    d = beta - b
+    lik = np.exp(-0.5 * np.einsum("ij,jk,ik->i", d, Sb_inv, d)) / (2 * np.pi * np.sqrt(max(ev[0] * ev[1], 1e-300)))
+    # densities per unit area of the w plane: prior 1 / (2 pi W omega); likelihood 2 omega^2 N(beta)
+    prior = np.where(o <= W, 1.0 / (2 * np.pi * W * np.maximum(o, 1e-300)), 0.0)
+    wt = prior * lik / (0.5 * prior + np.maximum(o, 1e-300) ** 2 * lik + 1e-300)
+    if not np.isfinite(wt.sum()) or wt.sum() <= 0:  # the likelihood lies far outside the prior
+        wt = (o <= W) * np.exp(-0.5 * (np.einsum("ij,jk,ik->i", d, Sb_inv, d) - np.min(np.einsum("ij,jk,ik->i", d, Sb_inv, d))))
+    wt = wt / wt.sum()
+    s2 = o**2
+    R = (rho[None, :] - (b - beta) @ K.T) / _k(s2)[:, None]
+    r = wt @ R
+    sm = float(wt @ s2)
+    u_r = np.sqrt(wt @ (R - r) ** 2 + cond / _k(sm) ** 2)
+    return sm, u_r, float(np.sqrt(wt @ (s2 - sm) ** 2)), r
 
 
 #: largest deflection a start may take [rad] (5.7 deg; the contract's rods deflect <= 1 deg)
 _MAX_START_RAD = 0.1
+#: pose-angle grid of the per-pose profile (module doc, "Start")
+_POSE_GRID = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+
+
+def _repair_poses(prob, p, max_rounds: int = 3):
+    """Per-pose angle profile: with the holes and the axis held, each pose angle is searched on a
+    grid over the whole circle; a pose whose grid minimum is clearly below its current cost is
+    moved there and the joint LM re-run. A single pose angle can sit in a local minimum of its
+    own (its readings are periodic in alpha_n) which LM cannot leave; this finds it."""
+    cost = float(prob.residual(p) @ prob.residual(p))
+    nfev = 0
+    for _ in range(max_rounds):
+        rho, c, alpha, w = prob.unpack(p)
+        s = float(w @ w)
+        holes, axis = rod_section_geometry(prob.layers, c, rho / _k(s), w)
+        G = rod_readings(_POSE_GRID, list(prob.layers), holes, axis)  # (g, m)
+        cur = np.where(prob.mask, prob.V - prob.readings(rho, c, alpha, w), 0.0)
+        cur = np.sum(cur**2, axis=1)
+        d = np.where(prob.mask[:, None, :], prob.Vz[:, None, :] - G[None, :, :], 0.0)
+        grid_cost = np.sum(d**2, axis=2)  # (n, g)
+        k = np.argmin(grid_cost, axis=1)
+        best = grid_cost[np.arange(prob.n), k]
+        move = best < 0.5 * cur  # a clear improvement: the pose sits in another basin
+        move[prob.fix] = False
+        if not np.any(move):
+            break
+        alpha = alpha.copy()
+        alpha[move] = _POSE_GRID[k[move]]
+        try:
+            p1, cost1, kf = _lm(prob, prob.pack(rho, c, alpha, w if prob.deflection else None), prob.n_par)
+        except ValueError:
+            break
+        nfev += kf
+        if not (np.isfinite(cost1) and cost1 < cost):
+            break
+        p, cost = p1, cost1
+    return p, cost, nfev
 
 
 def _solve_core(prob, L, mask, starts_alpha, deflection):
     """Multi-start LM: every start (both reflections) first without deflection, then from the
-    closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0)."""
+    closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0); the
+    lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`)."""
     n, m = prob.n, prob.m
     best, nfev = None, 0
     flat = _RodProblem(prob.V, mask, prob.layers, prob.fix, False)
     for alpha0 in starts_alpha:
         r0, c0 = _linear_start(L, mask, alpha0, prob.layers)
         p, cost, k = _lm(flat, flat.pack(r0, c0, alpha0), flat.n_par)
+        nfev += k
+        p, cost, k = _repair_poses(flat, p)
         nfev += k
         cand = [(p, cost)]
         if deflection:
@@ -492,7 +566,16 @@ def _solve_core(prob, L, mask, starts_alpha, deflection):
         for p1, cost1 in cand:
             if best is None or cost1 < best[1]:
                 best = (p1, cost1)
-    return best[0], best[1], nfev
+    p, cost = best
+    if deflection:
+        try:
+            p1, cost1, k = _repair_poses(prob, p)
+            nfev += k
+            if cost1 < cost and np.hypot(*prob.unpack(p1)[3]) <= _MAX_START_RAD:
+                p, cost = p1, cost1
+        except ValueError:
+            pass
+    return p, cost, nfev
 
 
 def solve_rod(
@@ -506,6 +589,7 @@ def solve_rod(
     max_condition: float = 1e8,
     max_u_ratio: float = 50.0,
     max_deflection_ratio: float = 10.0,
+    max_deflection_rad: float = MAX_DEFLECTION_RAD,
     centred: str = "refuse",
 ) -> RodSolution:
     """Solve the exact rod model (spec "Measuring rod"; Wang 2017 Eq. 16 generalised) jointly.
@@ -621,9 +705,16 @@ def solve_rod(
         )
     b = _beta(w)
     if defl:
-        s, u_r, u_s = _deflected_radii(rho, b, cov, m, deflection)
+        out = _deflected_radii(rho, b, cov, m, deflection, max_deflection_rad)
+        s, u_r, u_s = out[:3]
+        r_post = out[3] if len(out) > 3 else None
+        # linearised, worst deflection direction: u(r) with omega free over u(r) with it held
+        q = rho / 4.0
+        Crb = cov[:m, -2:]
+        lam = float(np.linalg.eigvalsh(cov[-2:, -2:])[-1])
+        u_lin = np.sqrt(np.diag(cov)[:m] + 2 * q * np.linalg.norm(Crb, axis=1) + q**2 * max(lam, 0.0))
         with np.errstate(invalid="ignore", divide="ignore"):
-            dratio = float(np.nanmax(u_r / u_fixed))
+            dratio = float(np.nanmax(u_lin / u_fixed))
         if dratio > max_deflection_ratio:
             raise RodSolveError(
                 f"deflection not separable from the radii: freeing the rod axis deflection multiplies u(r) by "
@@ -631,9 +722,9 @@ def solve_rod(
                 f"tilted section (u(omega^2) = {u_s:.3g} rad^2) - add poses spread around the circle"
             )
     else:
-        s, u_s, dratio = 0.0, 0.0, 1.0
+        s, u_s, dratio, r_post = 0.0, 0.0, 1.0, None
         u_r = u_fixed
-    r = rho / _k(s)
+    r = rho / _k(s) if r_post is None else r_post
     holes, _ = rod_section_geometry(lays, c, rho / _k(float(w @ w)), w)
     ecc = -np.array(holes[0].center_xy_mm)
     u_ecc = np.sqrt(np.clip(np.diag(cov)[[m, 2 * m]], 0.0, None))

@@ -1,9 +1,9 @@
 """Rule build_catalog: (re)build results_root/catalog.duckdb from every stage table."""
 
-from borescan import pipeline
+from borescan.stages.catalog import stage_catalog
 from borescan.workflow_log import log_to
 
 with log_to(snakemake.log[0]) as log:
-    counts = pipeline.stage_catalog(snakemake.params.results_root, snakemake.output.catalog)
+    counts = stage_catalog(snakemake.params.results_root, snakemake.output.catalog)
     for table, n in counts.items():
         log(f"{table}: {n} rows")

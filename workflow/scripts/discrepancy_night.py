@@ -1,16 +1,17 @@
 """Rule discrepancy_night: name the physical effect missing from the model, per scan."""
 
-from borescan import pipeline
+from borescan.stages._common import write_stage_outputs
+from borescan.stages.discrepancy import stage_discrepancy
 from borescan.workflow_log import log_to
 
 
 def main(smk) -> None:
     with log_to(smk.log[0]) as log:
-        findings, bad = pipeline.stage_discrepancy(
+        findings, bad = stage_discrepancy(
             smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
             smk.input.scans, list(smk.input.calibrations), smk.params.discrepancy, log=log, workers=smk.threads,
         )
-        pipeline.write_stage_outputs(smk.output, bad, findings=findings)
+        write_stage_outputs(smk.output, bad, findings=findings)
         log(f"{findings['scan_id'].n_unique() if findings.height else 0} scans examined, {len(bad)} set aside")
 
 

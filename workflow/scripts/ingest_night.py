@@ -1,16 +1,17 @@
 """Rule ingest_night: validate every scan of a night, record checksums, quarantine bad ones."""
 
-from borescan import pipeline
+from borescan.stages._common import write_stage_outputs
+from borescan.stages.ingest import stage_ingest
 from borescan.workflow_log import log_to
 
 
 def main(smk) -> None:
     with log_to(smk.log[0]) as log:
         night = smk.wildcards.night
-        scans, files, bad = pipeline.stage_ingest(
+        scans, files, bad = stage_ingest(
             smk.params.raw_root, night, smk.params.results_root, smk.params.duplicates, workers=smk.threads
         )
-        pipeline.write_stage_outputs(smk.output, bad, scans=scans, files=files)
+        write_stage_outputs(smk.output, bad, scans=scans, files=files)
         log(f"night {night}: {scans.height} scans, {len(bad)} quarantined")
         for q in bad:
             log(f"QUARANTINED {q.scan_id}: {q.file}: {q.reason}")

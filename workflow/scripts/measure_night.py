@@ -1,18 +1,18 @@
 """Rule measure_night: verify calibrations on certified gauges, then measure the night's parts."""
 
-from borescan import pipeline
+from borescan.stages._common import write_stage_outputs
+from borescan.stages.measure import stage_measure
 from borescan.workflow_log import log_to
 
 
 def main(smk) -> None:
     with log_to(smk.log[0]) as log:
-        diameters, verifications, artifacts, bad = pipeline.stage_measure(
+        diameters, verifications, artifacts, bad = stage_measure(
             smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
             smk.input.scans, list(smk.input.calibrations), list(smk.input.verifications_before),
             {k: smk.params[k] for k in ("verification", "measurement", "calibration")}, log=log, workers=smk.threads,
         )
-        pipeline.write_stage_outputs(smk.output, bad, diameters=diameters, verifications=verifications,
-                                     artifacts=artifacts)
+        write_stage_outputs(smk.output, bad, diameters=diameters, verifications=verifications, artifacts=artifacts)
         log(f"{diameters.height} diameters, {verifications.height} verifications, {len(bad)} quarantined")
 
 

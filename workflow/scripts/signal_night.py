@@ -1,16 +1,17 @@
 """Rule signal_night: revolutions, sub-sample extrema and per-channel summaries of a night."""
 
-from borescan import pipeline
+from borescan.stages._common import write_stage_outputs
+from borescan.stages.signal import stage_signal
 from borescan.workflow_log import log_to
 
 
 def main(smk) -> None:
     with log_to(smk.log[0]) as log:
-        extrema, summary, bad = pipeline.stage_signal(
+        extrema, summary, bad = stage_signal(
             smk.params.raw_root, smk.wildcards.night,
             smk.params.results_root, smk.input.scans, smk.params.signal, log=log, workers=smk.threads,
         )
-        pipeline.write_stage_outputs(smk.output, bad, extrema=extrema, summary=summary)
+        write_stage_outputs(smk.output, bad, extrema=extrema, summary=summary)
         log(f"{summary['scan_id'].n_unique() if summary.height else 0} scans processed, {len(bad)} quarantined")
 
 

@@ -1,0 +1,33 @@
+"""What a scan is compared with in the model-discrepancy examination: a calibration, else the design."""
+
+from __future__ import annotations
+
+import polars as pl
+
+from borescan.calibrations import tri_calibration
+
+__all__ = ["discrepancy_reference"]
+
+
+def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_type: str, night: str) -> tuple[dict, str]:
+    """The keywords of :func:`borescan.discrepancy.analyse_scan` that fix the reference, and its description.
+
+    A three-sensor device's design geometry (``device.nominal``) is off the real device by
+    degrees and tens of um; compared with it, every scan would "miss" offsets and gains that are
+    the calibration's business. So a calibrated device is examined against its latest
+    calibration made on or before the night (ties broken by calibration id; the scan's own
+    calibration for calibration scans; ``nominal`` records excluded) -> ``{"beams": ...}``, and a
+    device without one against ``device.nominal`` with its beam lengths and angles freed ->
+    ``{"free_beams": ("d_b", "beta")}``. Rods are always examined against ``device.nominal`` -> ``{}``.
+    Unlike a measurement, the examination uses expired or failed calibrations too: it asks what
+    the model misses, not whether a result may be certified.
+    """
+    if device_type == "tri_lds" and calibrations.height and "device_id" in calibrations.columns:
+        c = calibrations.filter((pl.col("device_id") == device_id) & (pl.col("valid_from") <= night)
+                                & (pl.col("method") != "nominal"))
+        if c.height:
+            cal_id = c.sort("valid_from", "calibration_id")["calibration_id"][-1]
+            return {"beams": tri_calibration(calibrations, cal_id).beams}, f"calibration {cal_id}"
+    if device_type == "tri_lds":
+        return {"free_beams": ("d_b", "beta")}, "device.nominal (beam lengths and angles free)"
+    return {}, "device.nominal"

@@ -1,0 +1,76 @@
+"""Stage ``discrepancy_night``: name the physical effect missing from the model, per scan of a night."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import polars as pl
+
+from borescan import discrepancy, rawio, tables
+from borescan.discrepancy.reference import discrepancy_reference
+from borescan.parallel import map_in_order, workers_for
+from borescan.stages._common import Quarantined, night_scans, quarantine, read_tables
+
+__all__ = ["stage_discrepancy", "findings_rows", "discrepancy_one"]
+
+
+def findings_rows(findings: dict) -> list[dict]:
+    """The ``findings`` rows of one scan's findings.json: one per named effect (one row with null effect if none)."""
+    base = {"scan_id": findings["scan_id"], "verdict": findings["verdict"],
+            "gap_before_mm": (findings.get("gap_before") or {}).get("rms_mm"),
+            "gap_after_mm": (findings.get("gap_after") or {}).get("rms_mm"),
+            "noise_floor_mm": findings.get("noise_floor_mm")}
+    named = findings.get("named") or []
+    if not named:
+        return [dict(base, effect=None, channel=None, parameters=None)]
+    return [dict(base, effect=n.get("effect"), channel=n.get("channel"),
+                 parameters=json.dumps(n.get("parameters") or {}, sort_keys=True)) for n in named]
+
+
+def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibration_tables, cfg: dict,
+                      log=print, workers: int = 1) -> tuple[pl.DataFrame, list[Quarantined]]:
+    """Model-discrepancy examination of every scan of a night (``discrepancy/<scan_id>/``).
+
+    Each scan is compared with its device as :func:`borescan.discrepancy.reference.discrepancy_reference`
+    says; the named missing effect, the gap before and after and the noise floor go to
+    ``findings.json`` (with ``reference`` naming what the scan was compared with), the residual
+    plots to ``gap.png``. ``cfg`` is the config's ``discrepancy`` section. Scans are spread over
+    ``workers`` processes.
+    """
+    threshold = float(cfg["delta_bic_threshold"])
+    cals = read_tables(calibration_tables) if calibration_tables else pl.DataFrame()
+    jobs = []
+    for row, d in night_scans(raw_root, night, scans_table):
+        ref_kw, ref = discrepancy_reference(cals, row["device_id"], row["device_type"], night)
+        jobs.append((raw_root, night, results_root, d, threshold, ref_kw, ref))
+    log(f"{len(jobs)} scans on {workers_for(len(jobs), workers)} process(es)")
+    rows, bad = [], []
+    for r, q, msg in map_in_order(discrepancy_one, jobs, workers):
+        rows += r
+        bad += q
+        log(msg)
+    return tables.frame("findings", rows), bad
+
+
+def discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
+    """Examine one scan, write findings.json and gap.png: (findings rows, quarantined, log line)."""
+    raw_root, night, results_root, d, threshold, ref_kw, ref = job
+    bad: list[Quarantined] = []
+    scan = rawio.read_scan(d, raw_root=Path(raw_root))
+    out_dir = Path(results_root) / "discrepancy" / scan.scan_id
+    try:
+        ex = discrepancy.analyse_scan(scan, threshold=threshold, **ref_kw)
+        findings = ex.findings
+        findings["reference"] = ref
+        discrepancy.write_findings(findings, out_dir)
+        discrepancy.plot_gap(ex, out_dir / "gap.png")
+    except (ValueError, KeyError, ArithmeticError) as err:
+        quarantine(results_root, bad, scan.scan_id, night, "discrepancy", "lds.parquet",
+                   f"model-discrepancy examination failed: {err}")
+        return [], bad, f"{scan.scan_id}: quarantined ({err})"
+    named = ", ".join(f"{n['effect']}" + (f" ch{n['channel']}" if n.get("channel") else "") for n in findings.get("named", []))
+    msg = (f"{scan.scan_id} vs {ref}: {findings['verdict']}{': ' + named if named else ''} "
+           f"(gap {findings['gap_before']['rms_mm'] * 1e3:.2f} -> {findings['gap_after']['rms_mm'] * 1e3:.2f} um, "
+           f"noise floor {findings['noise_floor_mm'] * 1e3:.2f} um)")
+    return findings_rows(findings), bad, msg

@@ -1,0 +1,100 @@
+"""Stage ``ingest_night``: validate and register every scan of a night, record checksums, quarantine bad ones."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import polars as pl
+
+from borescan import rawio, tables
+from borescan.parallel import map_in_order
+from borescan.stages._common import Quarantined, write_quarantine_record
+
+__all__ = ["stage_ingest", "scan_row"]
+
+DUPLICATE_REASON = "scan_id already used by a scan of an earlier night (scan ids are unique across nights)"
+
+
+def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, duplicate_ids: list[str] = (),
+                 workers: int = 1) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
+    """Validate and register every scan of one night (spread over ``workers`` processes).
+
+    Returns the ``scans`` rows (status ``ok`` or ``quarantined`` with the reason), the
+    ``scan_files`` rows (SHA-256 and size of every raw file, bad scans included) and the
+    quarantine records (also written as ``quarantine/<scan_id>.json``). ``duplicate_ids``
+    (:func:`borescan.rawio.earlier_duplicate_ids`) are quarantined: an earlier night has them.
+    """
+    dup = set(duplicate_ids)
+    jobs = [(raw_root, night, results_root, d, d.name[5:] in dup) for d in rawio.night_scan_dirs(raw_root, night)]
+    rows, file_rows, bad = [], [], []
+    for row, files, problem in map_in_order(_ingest_one, jobs, workers):
+        rows.append(row)
+        file_rows += files
+        if problem is not None:
+            bad.append(problem)
+    return tables.frame("scans", rows), tables.frame("scan_files", file_rows), bad
+
+
+def _meta_field(meta: dict, *keys: str) -> str | None:
+    cur: object = meta
+    for k in keys:
+        if not isinstance(cur, dict) or k not in cur:
+            return None
+        cur = cur[k]
+    return None if cur is None else str(cur)
+
+
+def scan_row(scan_id: str, night: str, scan_dir: Path, meta: dict, hashes: dict[str, str],
+             problem: Quarantined | None) -> dict:
+    """The ``scans`` row of one scan folder (whatever of ``scan.json`` could be read, else nulls)."""
+    acq = meta.get("acquisition")
+    return {
+        "scan_id": scan_id,
+        "night": night,
+        "device_id": _meta_field(meta, "device", "id"),
+        "device_type": _meta_field(meta, "device", "type"),
+        "kind": _meta_field(meta, "kind"),
+        "artifact_id": _meta_field(meta, "artifact", "id"),
+        "started_at": _meta_field(meta, "started_at"),
+        "status": "quarantined" if problem else "ok",
+        "reason": f"{problem.file}: {problem.reason}" if problem else None,
+        "raw_sha256": rawio.combined_sha256(hashes),
+        "raw_path": str(scan_dir),
+        "simulated": bool(acq.get("simulated", False)) if isinstance(acq, dict) else False,
+    }
+
+
+def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
+    """Hash, validate and describe one scan folder: (scans row, scan_files rows, quarantine or None)."""
+    raw_root, night, results_root, d, duplicate = job
+    scan_id = d.name[5:]
+    hashes, file_rows = {}, []
+    inside = not d.is_symlink() and d.resolve().is_relative_to(Path(raw_root).resolve())
+    for f in sorted(d.iterdir()) if inside else []:
+        if f.is_file() and not f.is_symlink():
+            digest = rawio.sha256_file(f)
+            hashes[f.name] = digest
+            file_rows.append({"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": f.stat().st_size})
+    meta: dict = {}
+    try:
+        meta = rawio.read_scan_meta(d)
+    except rawio.ScanError:
+        pass
+    problem: Quarantined | None = None
+    if duplicate:
+        problem = Quarantined(scan_id, night, "ingest", "scan.json", DUPLICATE_REASON)
+    else:
+        try:
+            scan = rawio.read_scan(d, raw_root=Path(raw_root))
+        except rawio.ScanError as err:
+            problem = Quarantined.from_error(err, night, "ingest")
+        else:
+            # The sensor reports null when out of range (raw-scan-format.md), so a logged value
+            # outside [0, range_mm] is a mislabelled or corrupt export, not a measurement.
+            out_of_range = [w for w in scan.warnings if "outside" in w]
+            if out_of_range:
+                file, _, msg = out_of_range[0].partition(": ")
+                problem = Quarantined(scan_id, night, "ingest", file, msg + " (a sensor reports null when out of range)")
+    if problem is not None:
+        write_quarantine_record(results_root, problem)
+    return scan_row(scan_id, night, d, meta, hashes, problem), file_rows, problem

@@ -1,0 +1,132 @@
+"""Stage ``measure_night``: verify calibrations on certified gauges, then measure the night's parts.
+
+Each scan uses the calibration :func:`borescan.calibrations.choose_calibration` allows; a scan
+without one is quarantined with the reason. Verifications run first and in order (a failed one
+bars its calibration from the rest of the night); measurements are spread over processes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from borescan import measure, rawio, rod
+from borescan.artifacts import artifact_row
+from borescan.calibration import CalibrationError
+from borescan.calibrations import choose_calibration, failed_calibration_ids, rod_layers, tri_calibration
+from borescan.parallel import map_in_order, workers_for
+from borescan.stages._common import night_scans, quarantine, read_tables
+
+__all__ = ["stage_measure", "measure_rod_scan", "measure_one"]
+
+
+def measure_rod_scan(scan: rawio.RawScan, layer_rows: pl.DataFrame) -> list[dict]:
+    """Hole diameters of a rod scan: mean reading per pose and layer, then the joint rod solve
+    (Wang Eq. 16 generalised: layer geometry phi, d, gamma, l0 and the axis deflection; ``rod.solve_rod``)
+    with each mean's uncertainty from the sensors' data sheet (:func:`borescan.measure.mean_reading_u_mm`)."""
+    mat = rawio.lds_matrix(scan)
+    poses, means, counts = measure.pose_means(mat.values_mm, mat.pose)
+    sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
+    u_mean = measure.mean_reading_u_mm(measure.reading_u_mm(sensors, mat.channels), counts)
+    sol = rod.solve_rod(means, layers=rod_layers(layer_rows, mat.channels), u_reading_mm=u_mean)
+    feat = {int(l["channel"]): l.get("feature") for l in (scan.meta.get("rod") or {}).get("layers", [])}
+    return [{"channel": int(ch), "feature": feat.get(int(ch)) or f"layer{ch}", "diameter_mm": float(sol.diameter_mm[j]),
+             "u_diameter_mm": float(sol.u_diameter_mm[j]), "poses": int(len(poses)), "condition": float(sol.condition)}
+            for j, ch in enumerate(mat.channels)]
+
+
+def stage_measure(raw_root, night: str, results_root, scans_table, calibration_tables, verification_tables_before,
+                  cfg: dict, log=print, workers: int = 1):
+    """Verification scans first, then measurements, each with the calibration it may use.
+
+    ``cfg`` holds the config's ``verification``, ``measurement`` and ``calibration`` sections.
+    Returns (diameters, verifications, artifacts, quarantined). ``verification_tables_before``
+    are the verifications of earlier nights (a calibration that failed one is refused).
+    """
+    tol = float(cfg["verification"]["tolerance_mm"])
+    allow = bool(cfg["measurement"]["allow_unverified_calibration"])
+    validity = int(cfg["calibration"]["validity_days"])
+    cals = read_tables(calibration_tables)
+    failed = failed_calibration_ids(read_tables(verification_tables_before))
+    diam, ver, arts, bad = [], [], {}, []
+    items = night_scans(raw_root, night, scans_table)
+
+    def job(row, d):
+        cal_id, why = choose_calibration(cals, failed, row["device_id"], night, validity, allow)
+        cal = cals.filter(pl.col("calibration_id") == cal_id) if cal_id is not None else None
+        return (raw_root, night, results_root, row, d, cal_id, why, cal, tol)
+
+    def take(out):
+        diam.extend(out["diameters"])
+        ver.extend(out["verifications"])
+        bad.extend(out["quarantined"])
+        if out["artifact"]:
+            arts[out["artifact"]["artifact_id"]] = out["artifact"]
+        if out["log"]:
+            log(out["log"])
+
+    def of_kind(kind):
+        return sorted((it for it in items if it[0]["kind"] == kind), key=lambda it: it[0]["scan_id"])
+
+    for row, d in of_kind("verification"):
+        out = measure_one(job(row, d))
+        take(out)
+        failed.update(v["calibration_id"] for v in out["verifications"] if not v["passed"])
+    jobs = [job(row, d) for row, d in of_kind("measurement")]
+    log(f"{len(jobs)} measurements on {workers_for(len(jobs), workers)} process(es)")
+    for out in map_in_order(measure_one, jobs, workers):
+        take(out)
+    frame = lambda rows: pl.DataFrame(rows, infer_schema_length=None) if rows else pl.DataFrame()  # noqa: E731
+    return frame(diam), frame(ver), frame(list(arts.values())), bad
+
+
+def measure_one(job) -> dict:
+    """Measure (and for a verification scan, verify) one scan with the calibration chosen for it.
+
+    Returns {"diameters", "verifications", "quarantined": lists, "artifact": row or None, "log": str}.
+    """
+    raw_root, night, results_root, row, d, cal_id, why, cals, tol = job
+    out = {"diameters": [], "verifications": [], "quarantined": [], "artifact": None, "log": None}
+    bad = out["quarantined"]
+    scan = rawio.read_scan(d, raw_root=Path(raw_root))
+    meta, sid, dev = scan.meta, scan.scan_id, row["device_id"]
+    out["artifact"] = artifact_row(meta)
+    if cal_id is None:
+        quarantine(results_root, bad, sid, night, "measure", "scan.json", why)
+        return out
+    try:
+        if row["device_type"] == "rod":
+            res = measure_rod_scan(scan, cals)
+            for r in res:
+                out["diameters"].append(measure.diameter_row(sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"],
+                                                             r["u_diameter_mm"], cal_id, "rod_wang2017_eq16"))
+            out["log"] = f"{sid}: " + ", ".join(f"{r['feature']} {r['diameter_mm']:.4f} +- {r['u_diameter_mm'] * 1e3:.1f} um"
+                                                for r in res)
+            return out
+        cal = tri_calibration(cals, cal_id)
+        res = measure.measure_scan(scan, cal.beams, cal.cov)
+    except (rod.RodSolveError, CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+        quarantine(results_root, bad, sid, night, "measure", "lds.parquet", f"measurement failed: {err}")
+        return out
+    out["diameters"].append(measure.diameter_row(sid, dev, row["artifact_id"], None, res["diameter_mm"],
+                                                 res["u_diameter_mm"], cal_id, res["method"]))
+    msg = f"{sid}: D = {res['diameter_mm']:.4f} mm +- {res['u_diameter_mm'] * 1e3:.2f} um ({res['method']}, {cal_id})"
+    if row["kind"] == "verification":
+        a = meta.get("artifact") or {}
+        if a.get("type") != "ring_gauge" or a.get("certified_diameter_mm") is None:
+            quarantine(results_root, bad, sid, night, "measure", "scan.json",
+                       "verification scan needs a ring_gauge artifact with certified_diameter_mm")
+            return out
+        k = float(a.get("k") or 2.0)
+        temp_c = float((meta.get("environment") or {}).get("temperature_c", 20.0))
+        v = measure.verify(res["diameter_mm"], res["u_diameter_mm"], a["certified_diameter_mm"],
+                           float(a.get("u_diameter_mm") or 0.0) / k, float(a.get("cte_per_k") or 0.0), temp_c, tol)
+        vrow = measure.verification_row(sid, dev, a["id"], v)
+        vrow["calibration_id"] = cal_id
+        out["verifications"].append(vrow)
+        msg += (f"; error {v.error_mm * 1e3:+.2f} um vs {a['certified_diameter_mm']} at {temp_c} degC: "
+                f"{'PASS' if v.passed else 'FAIL'}")
+    out["log"] = msg
+    return out

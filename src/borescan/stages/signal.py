@@ -1,0 +1,80 @@
+"""Stage ``signal_night``: revolutions, sub-sample extrema and per-channel summaries of a night's spindle scans."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from borescan import rawio, signal
+from borescan.parallel import map_in_order, workers_for
+from borescan.stages._common import Quarantined, frames_or_empty, night_scans, quarantine
+
+__all__ = ["signal_options", "stage_signal", "signal_one"]
+
+
+def signal_options(cfg: dict) -> dict:
+    """The config's ``signal`` section (schema defaults filled) as :func:`borescan.signal.process_scan` keywords."""
+    method = cfg["filter"]
+    params: dict = {}
+    if method in ("median", "moving_average"):
+        params["window_samples"] = int(cfg["window_samples"])
+    elif method == "gaussian":
+        params["cutoff_upr"] = float(cfg["gaussian_cutoff_upr"])
+    return {"filter": method, "filter_params": params, "spike_threshold": float(cfg["spike_threshold_mad"]),
+            "extrema_on": cfg["extrema_on"]}
+
+
+def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log=print,
+                 workers: int = 1) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
+    """Revolutions, sub-sample extrema and per-channel summaries of every spindle scan of a night.
+
+    Returns (extrema, summary, quarantined). The summary has one row per scan and channel with
+    mean d_min/d_max and their uncertainties, n/m counts, advanced/backward status and the
+    rotation period (``period_*`` columns, including whether it disagrees with the nominal).
+    A scan whose clock jumps (:func:`borescan.rawio.clock_jump`) is quarantined. Scans are
+    spread over ``workers`` processes.
+    """
+    opts = signal_options(cfg)
+    jobs = [(raw_root, night, results_root, d, opts)
+            for _, d in night_scans(raw_root, night, scans_table, device_type="tri_lds")]
+    log(f"{len(jobs)} three-sensor scans on {workers_for(len(jobs), workers)} process(es)")
+    extrema, summaries, bad = [], [], []
+    for ext, summ, q, msg in map_in_order(signal_one, jobs, workers):
+        bad += q
+        if ext is not None:
+            extrema.append(ext)
+            summaries.append(summ)
+        if msg:
+            log(msg)
+    return frames_or_empty(extrema), frames_or_empty(summaries), bad
+
+
+def signal_one(job) -> tuple[pl.DataFrame | None, pl.DataFrame | None, list[Quarantined], str | None]:
+    """Signal stage of one scan ``(raw_root, night, results_root, scan_dir, options)``:
+    (extrema, summary, quarantined, log line); None frames when skipped (static scans)."""
+    raw_root, night, results_root, d, opts = job
+    bad: list[Quarantined] = []
+    scan = rawio.read_scan(d, raw_root=Path(raw_root))
+    if scan.spindle is None:
+        return None, None, bad, None  # static readings: no revolutions
+    mat = rawio.lds_matrix(scan)
+    jump = rawio.clock_jump(np.asarray(mat.sample), np.asarray(mat.t_s), float(scan.meta["sample_rate_hz"]))
+    if jump:
+        quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", jump)
+        return None, None, bad, None
+    try:
+        res = signal.process_scan(scan, mat, **opts)
+    except (ValueError, np.linalg.LinAlgError, IndexError) as err:
+        quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", f"signal stage failed: {err}")
+        return None, None, bad, None
+    frames = res.to_frames()
+    period = {(k if k.startswith("period_") else f"period_{k}"): v for k, v in res.period.to_dict().items()}
+    feats = signal.feature_points(frames["extrema"], res.period.samples_per_rev).select(
+        "channel", "feature_sample", "u_feature_sample")
+    summary = frames["summary"].join(feats, on="channel", how="left").with_columns(
+        n_samples_recorded=pl.lit(mat.values_mm.shape[0]), **{k: pl.lit(v) for k, v in period.items()})
+    msg = (f"{scan.scan_id}: {frames['revolutions'].height} revolutions, "
+           f"{res.period.samples_per_rev:.3f} samples/rev ({res.period.source})")
+    return frames["extrema"], summary, bad, msg

@@ -1,0 +1,138 @@
+"""The history tables, defined once: columns, types, keys.
+
+Each :class:`Table` names its columns with a logical type; from it come both the polars schema
+of the per-night stage tables (``<results_root>/stage/<table>/night=<night>.parquet``) and the
+DuckDB DDL of ``catalog.duckdb`` (:mod:`borescan.catalog`). Dates and times are text in the
+stage tables (as the raw ``scan.json`` has them) and ``DATE`` / ``TIMESTAMP`` in the catalog.
+
+A column marked ``stage=False`` is the catalog's alone: it is filled there from other tables
+(a finding's night from its scan, ...), so the stage table does not carry it. Columns not listed
+here may still be written by a stage (e.g. ``calibration_json``); the catalog keeps them after
+these, with the type DuckDB infers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+import polars as pl
+
+__all__ = ["TYPES", "Column", "Table", "TABLES", "polars_schema", "frame"]
+
+#: logical type -> (polars dtype of the stage table, DuckDB type of the catalog)
+TYPES: dict[str, tuple[pl.DataType, str]] = {
+    "text": (pl.Utf8, "VARCHAR"),
+    "float": (pl.Float64, "DOUBLE"),
+    "bool": (pl.Boolean, "BOOLEAN"),
+    "int": (pl.Int64, "BIGINT"),
+    "channel": (pl.Int64, "SMALLINT"),
+    "date": (pl.Utf8, "DATE"),
+    "timestamp": (pl.Utf8, "TIMESTAMP"),
+}
+
+
+@dataclass(frozen=True)
+class Column:
+    name: str
+    type: str
+    stage: bool = True
+
+    def __post_init__(self) -> None:
+        if self.type not in TYPES:
+            raise ValueError(f"column {self.name}: unknown type {self.type!r}; valid: {sorted(TYPES)}")
+
+
+@dataclass(frozen=True)
+class Table:
+    """One history table: columns in order, key columns (rows are inserted in key order;
+    unique when ``primary``)."""
+
+    name: str
+    columns: tuple[Column, ...]
+    key: tuple[str, ...]
+    primary: bool = False
+
+    def polars_schema(self) -> dict[str, pl.DataType]:
+        """Column -> polars dtype of the stage table (catalog-only columns left out)."""
+        return {c.name: TYPES[c.type][0] for c in self.columns if c.stage}
+
+    def duckdb_types(self) -> dict[str, str]:
+        """Column -> DuckDB type of the catalog table, in column order."""
+        return {c.name: TYPES[c.type][1] for c in self.columns}
+
+    def ddl(self, extra: Mapping[str, str] | None = None) -> str:
+        """``CREATE TABLE`` of the catalog table; ``extra`` columns (name -> DuckDB type) go after ours."""
+        cols = [f"{_q(n)} {t}" for n, t in self.duckdb_types().items()]
+        cols += [f"{_q(n)} {t}" for n, t in (extra or {}).items()]
+        if self.primary:
+            cols.append(f"PRIMARY KEY ({', '.join(_q(k) for k in self.key)})")
+        return f"CREATE TABLE {_q(self.name)} ({', '.join(cols)})"
+
+
+def _q(name: str) -> str:
+    return '"' + name.replace('"', '""') + '"'
+
+
+def _cols(spec: str) -> tuple[Column, ...]:
+    """``"a:text b:float c:date!"`` -> columns; a trailing ``!`` marks a catalog-only column."""
+    out = []
+    for item in spec.split():
+        name, _, typ = item.partition(":")
+        out.append(Column(name, typ.rstrip("!"), stage=not typ.endswith("!")))
+    return tuple(out)
+
+
+_T = [
+    # (scan_id, night): a scan id reused in a later night is quarantined but still recorded.
+    Table("scans", _cols("scan_id:text night:date device_id:text device_type:text kind:text artifact_id:text "
+                         "started_at:timestamp status:text reason:text raw_sha256:text raw_path:text simulated:bool"),
+          ("scan_id", "night"), primary=True),
+    Table("scan_files", _cols("scan_id:text file:text sha256:text bytes:int night:date"),
+          ("scan_id", "night", "file"), primary=True),
+    Table("artifacts", _cols("artifact_id:text type:text certificate:text nominal_diameter_mm:float "
+                             "certified_diameter_mm:float u_diameter_mm:float k:float cte_per_k:float"),
+          ("artifact_id",), primary=True),
+    Table("calibrations", _cols(
+        "calibration_id:text device_id:text device_type:text scan_id:text channel:channel "
+        "rho_mm:float d_b_mm:float beta_rad:float u_rho_mm:float u_d_b_mm:float u_beta_rad:float "
+        "l0_mm:float h_mm:float phi_rad:float d_mm:float gamma_rad:float "
+        "u_l0_mm:float u_h_mm:float u_phi_rad:float u_d_mm:float u_gamma_rad:float "
+        "method:text certificate_path:text certificate_sha256:text night:date valid_from:date status:text raw_sha256:text"),
+          ("calibration_id", "channel"), primary=True),
+    Table("calibration_scans", _cols("calibration_id:text scan_id:text"), ("calibration_id", "scan_id"), primary=True),
+    Table("diameters", _cols("diameter_id:text scan_id:text night:date device_id:text artifact_id:text feature:text "
+                             "diameter_mm:float u_diameter_mm:float calibration_id:text method:text raw_sha256:text"),
+          ("diameter_id", "method")),
+    Table("verifications", _cols("scan_id:text night:date device_id:text artifact_id:text measured_mm:float "
+                                 "certified_mm:float error_mm:float tolerance_mm:float passed:bool calibration_id:text"),
+          ("scan_id", "calibration_id")),
+    Table("findings", _cols("scan_id:text night:date! verdict:text effect:text channel:channel parameters:text "
+                            "gap_before_mm:float gap_after_mm:float noise_floor_mm:float"),
+          ("scan_id", "effect", "channel")),
+    Table("quarantine", _cols("scan_id:text night:date stage:text file:text reason:text"),
+          ("scan_id", "night", "stage", "file")),
+]
+
+#: every history table by name, in catalog order
+TABLES: dict[str, Table] = {t.name: t for t in _T}
+
+
+def _table(name: str) -> Table:
+    try:
+        return TABLES[name]
+    except KeyError:
+        raise ValueError(f"unknown history table {name!r}; valid: {sorted(TABLES)}") from None
+
+
+def polars_schema(name: str) -> dict[str, pl.DataType]:
+    """The stage table's polars schema of history table ``name``."""
+    return _table(name).polars_schema()
+
+
+def frame(name: str, rows: Iterable[Mapping]) -> pl.DataFrame:
+    """Rows (dicts keyed by column name) as a frame with table ``name``'s stage schema; empty frame
+    with the schema when there are none."""
+    schema = polars_schema(name)
+    rows = list(rows)
+    return pl.DataFrame(rows, schema=schema, orient="row") if rows else pl.DataFrame(schema=schema)

@@ -1,0 +1,63 @@
+"""Config defaults live in one place, the schema; the shipped config agrees with it."""
+
+import copy
+from pathlib import Path
+
+import pytest
+import yaml
+from snakemake.utils import validate
+
+from borescan.config import SCHEMA_PATH, load_config, schema_defaults
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = ROOT / "config" / "config.yaml"
+
+
+def _leaves(node, path=()):
+    if node.get("type") == "object" and "properties" in node:
+        for key, sub in node["properties"].items():
+            yield from _leaves(sub, path + (key,))
+    else:
+        yield path, node
+
+
+def _schema():
+    return yaml.safe_load(SCHEMA_PATH.read_text())
+
+
+def test_every_key_has_a_default_and_a_description():
+    for path, node in _leaves(_schema()):
+        assert "default" in node, f"{'.'.join(path)} has no default"
+        assert node.get("description"), f"{'.'.join(path)} has no description"
+
+
+def test_shipped_config_validates_and_holds_the_schema_defaults():
+    cfg = yaml.safe_load(SHIPPED.read_text())
+    validate(copy.deepcopy(cfg), str(SCHEMA_PATH))
+    defaults = schema_defaults()
+
+    def check(user, dflt, where):
+        for k, v in user.items():
+            assert k in dflt, f"{where}{k} is not in the schema"
+            if isinstance(v, dict):
+                check(v, dflt[k], f"{where}{k}.")
+            else:
+                assert v == dflt[k], f"{where}{k}: config/config.yaml says {v!r}, the schema's default is {dflt[k]!r}"
+
+    check(cfg, defaults, "")
+
+
+@pytest.mark.parametrize("user", [{}, "shipped", {"calibration": {"validity_days": 7}, "signal": {"filter": "gaussian"}}])
+def test_load_config_fills_what_snakemake_validate_fills(user, tmp_path):
+    user = yaml.safe_load(SHIPPED.read_text()) if user == "shipped" else user
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(user))
+    snake = copy.deepcopy(user)
+    validate(snake, str(SCHEMA_PATH), set_default=True)
+    assert load_config(path) == snake
+
+
+def test_unknown_or_removed_keys_are_refused():
+    # measurement.sensor_noise_mm was never read; it is gone from the schema (README migration note)
+    with pytest.raises(Exception, match="sensor_noise_mm"):
+        validate({"measurement": {"sensor_noise_mm": 0.003}}, str(SCHEMA_PATH))

@@ -1,0 +1,61 @@
+"""The stage modules: small, importable without cycles, and the old ``borescan.pipeline`` names still resolve."""
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import borescan
+from borescan import pipeline
+from borescan.stages._common import Quarantined, quarantine_frame, write_quarantine_record
+
+STAGES = Path(borescan.__file__).parent / "stages"
+
+
+def test_stage_modules_are_small_and_import_at_the_top():
+    for f in sorted(STAGES.glob("*.py")):
+        text = f.read_text()
+        assert len(text.splitlines()) < 200, f.name
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                inner = [n for n in ast.walk(node) if isinstance(n, (ast.Import, ast.ImportFrom))]
+                assert not inner, f"{f.name}: {node.name} imports inside the function"
+
+
+@pytest.mark.parametrize("module, never", [
+    ("borescan.catalog", ("borescan.stages", "borescan.pipeline")),
+    ("borescan.rawio", ("borescan.stages", "borescan.pipeline", "borescan.catalog")),
+    ("borescan.stages", ("borescan.stages.", "numpy")),  # the package itself imports nothing: common.smk stays light
+])
+def test_library_modules_do_not_import_the_stages(module, never):
+    code = f"import sys, {module}; print(sorted(m for m in sys.modules if m.startswith({never!r})))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", f"{module} imports {out}"
+
+
+def test_former_pipeline_names_resolve_to_their_new_homes():
+    from borescan import artifacts, calibrations, rawio
+    from borescan.stages import calibration_fit, signal
+
+    assert pipeline.gauge_radius_mm is artifacts.gauge_radius_mm
+    assert pipeline.choose_calibration is calibrations.choose_calibration
+    assert pipeline.nights is rawio.nights and pipeline.clock_jump is rawio.clock_jump
+    assert pipeline._spindle_inputs is calibration_fit.spindle_inputs and pipeline._signal_one is signal.signal_one
+    for name in pipeline.MOVED:
+        assert getattr(pipeline, name) is not None
+    assert list(pipeline.SCANS_SCHEMA)[:2] == ["scan_id", "night"]
+    with pytest.raises(AttributeError, match="no attribute 'stage_everything'"):
+        pipeline.stage_everything  # noqa: B018
+
+
+def test_quarantine_record_file_and_row(tmp_path):
+    q = Quarantined("S1", "2026-11-20", "signal", "lds.parquet", "clock jump")
+    path = write_quarantine_record(tmp_path, q)
+    assert path == tmp_path / "quarantine" / "S1.json"
+    assert json.loads(path.read_text()) == {"scan_id": "S1", "night": "2026-11-20", "stage": "signal", "file": "lds.parquet",
+                                            "reason": "clock jump", "message": "S1: lds.parquet: clock jump"}
+    assert quarantine_frame([q]).row(0) == ("S1", "2026-11-20", "signal", "lds.parquet", "clock jump")
+    assert quarantine_frame([]).columns == ["scan_id", "night", "stage", "file", "reason"]
