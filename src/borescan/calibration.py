@@ -643,8 +643,9 @@ def fit_full_calibration(
     linear first harmonic; the beams from the design. Internally beta + asin(rho / R) and
     d_b + rho^2 / (2 R) (the quantities the data fix best) are the fitted parameters, which
     straightens the valleys; then every beam's mirror solution (rho of opposite sign at the same
-    first harmonic, a second minimum of nearly equal cost) is tried and the lower kept
-    (``diagnostics["mirror_solutions"]``). Solved with
+    first harmonic, a second minimum of nearly equal cost) is refitted on every sample and the
+    lower cost kept (``diagnostics["mirror_solutions"]``). u(d_b) includes the second-order
+    term of d_b = g - rho^2 / (2R) (3 u(rho)^4 / (4 R^2)), which dominates where rho is weak. Solved with
     ``scipy.optimize.least_squares`` (Levenberg-Marquardt, analytic Jacobian). Covariance
     s^2 (J^T J)^-1, s^2 = SSR / dof.
 
@@ -716,8 +717,9 @@ def fit_full_calibration(
     # ---- noise floor of the readings themselves (model-free), per scan and channel
     floors = np.array([noise_floor_mm(y, order=4) for y in ys])  # (K, c)
     sigma = float(np.sqrt(np.mean(floors**2))) if np.all(np.isfinite(floors)) else 0.0
-    # the machine's stated accuracy is a half-width (rectangular distribution, GUM 4.3.7): u = a / sqrt(3)
-    prior_w = (sigma if sigma > 0 else 1e-3) / (rule.position_accuracy_mm / np.sqrt(3.0))
+    # the machine's stated accuracy is a half-width (rectangular, GUM 4.3.7: u = a / sqrt(3)) on each of
+    # the centre and the spindle position, so o = S - C has u = a sqrt(2/3) per coordinate
+    prior_w = (sigma if sigma > 0 else 1e-3) / (rule.position_accuracy_mm * np.sqrt(2.0 / 3.0))
 
     # ---- per scan: speed scale, offset, phase (starts)
     scales0, offsets0, phase_start = [], [], []
@@ -868,8 +870,6 @@ def fit_full_calibration(
     d_b0 = np.sqrt(np.maximum(R_mm**2 - nominal.rho_mm**2, 0.0)) - kconst
     start_beams = Beams(channels, nominal.beta_rad.copy(), nominal.rho_mm.copy(), d_b0)
     x0 = pack(start_beams, [(offsets0[k], phase_start[k], scales0[k]) for k in range(K)])
-    rows_sub = [np.arange(0, ts[k].size, max(1, ts[k].size // 12000)) for k in range(K)]
-
     def solve(x_start: np.ndarray, rows=None, nfev: int = max_nfev):
         return least_squares(
             lambda x: model(x, False, rows=rows),
@@ -885,21 +885,19 @@ def fit_full_calibration(
 
     mirrors_tried = []
     try:
-        best = solve(x0, rows_sub)
-        if bool(best.success) and np.isfinite(best.cost):
+        sol = solve(x0)
+        if bool(sol.success) and np.isfinite(sol.cost):
             for j in range(c):
                 i_rho = c - 1 + ch0_free + j
-                xf = best.x.copy()
+                xf = sol.x.copy()
                 xf[i_rho] = -xf[i_rho]
                 with np.errstate(all="ignore"):
-                    trial = solve(xf, rows_sub)
-                better = bool(trial.success) and np.isfinite(trial.cost) and trial.cost < best.cost
-                mirrors_tried.append({"channel": int(channels[j]), "cost_kept": float(best.cost),
+                    trial = solve(xf)
+                better = bool(trial.success) and np.isfinite(trial.cost) and trial.cost < sol.cost
+                mirrors_tried.append({"channel": int(channels[j]), "cost_kept": float(sol.cost),
                                       "cost_mirror": float(trial.cost), "mirror_taken": better})
                 if better:
-                    best = trial
-            x0 = best.x
-        sol = solve(x0)
+                    sol = trial
     except (ValueError, FloatingPointError) as exc:  # NaN readings from a diverging step
         raise CalibrationError(scan_ids, f"full_lsq fit failed: {exc}") from exc
     r, J = model(sol.x, True)
@@ -944,6 +942,14 @@ def fit_full_calibration(
         if j > 0 or ch0_free:
             A[j - 1 + ch0_free, i_rho] = -1.0 / np.sqrt(R_mm**2 - rho_hat[j] ** 2)
     cov_free = A @ cov_int @ A.T
+    # d_b = g - rho^2 / (2R) is quadratic in rho: with rho ~ N(rho_hat, u^2) the linear term above
+    # misses var(rho^2) = 2 u^4 and the bias E[rho_hat^2] - rho^2 = u^2, which matter where rho is
+    # weakly determined (u(rho) of mm at small offsets); both are added to u(d_b)^2 as 3 u^4 / (4 R^2)
+    # (the estimate itself stays the least-squares one, consistent with its residuals)
+    u2_rho = np.diag(cov_free)[c - 1 + ch0_free : 2 * c - 1 + ch0_free].copy()
+    for j in range(c):
+        i_g = 2 * c - 1 + ch0_free + j
+        cov_free[i_g, i_g] += 3.0 * u2_rho[j] ** 2 / (4.0 * R_mm**2)
     idx = np.full(3 * c, -1)
     for j in range(c):
         idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
@@ -1033,8 +1039,8 @@ def fit_full_calibration(
             "weak_rho_channels": weak,
             "mirror_solutions": mirrors_tried,
             "weak_rho_note": (
-                "|rho| < 2 u(rho): rho is not distinguished from 0, d_b = g - rho^2/(2R) is then far from "
-                "linear in the data and its linearised u understates the error"
+                "|rho| < 2 u(rho): rho is not distinguished from 0; d_b = g - rho^2/(2R) is then far from "
+                "linear in the data, and u(d_b) carries the second-order term 3 u(rho)^4 / (4 R^2)"
             ),
             "acceptance": {
                 "max_residual_to_noise": rule.max_residual_to_noise,

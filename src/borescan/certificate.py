@@ -205,8 +205,8 @@ def _page1(cert: dict) -> Figure:
                      f"|rho| within the head radius {_fmt(acc.get('head_radius_mm'), 'g')} mm; centre and spindle position "
                      f"taken within +-{_fmt(1e3 * acc['position_accuracy_mm'], 'g')} um per coordinate (rectangular).")
     if fit.get("weak_rho_channels"):
-        notes.append(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho); U(d_b) of these channels is a "
-                     "linearised value and understates the error.")
+        notes.append(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho), rho is not distinguished from 0; "
+                     "U(d_b) of these channels includes the second-order term of d_b = g - rho^2/(2R).")
     import textwrap
 
     for note in notes:

@@ -2,7 +2,10 @@
 
 ``borescan simulate demo --out DIR [--seed N]`` writes the embedded demo nights;
 ``borescan simulate tri|static|rod --raw-root RAW --truth-root TRUTH ...`` writes one scan, with
-``--effect NAME:key=value,...`` (repeatable) for the named effects of the spec.
+``--effect NAME:key=value,...`` (repeatable) for the named effects of the spec;
+``borescan simulate contract --n N --seed S --out DIR`` writes the contract battery
+(:func:`borescan.scenarios.write_battery`: ring-gauge calibration scans drawn over every range
+the raw format and the geometry page allow; DIR/raw, DIR/truth, DIR/battery.json).
 """
 
 from __future__ import annotations
@@ -16,7 +19,26 @@ import numpy as np
 from borescan.effects import EFFECTS, parse_effect
 
 NAME = "simulate"
-HELP = "write simulated scans in borescan-raw/1 plus ground truth (demo nights or one scan)"
+HELP = "write simulated scans in borescan-raw/1 plus ground truth (demo nights, one scan, or the contract battery)"
+
+
+def _int_at_least(minimum: int):
+    """argparse type: an integer >= ``minimum``, with a message naming the bound."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {v}")
+        return v
+
+    return parse
+
+
+_positive_int = _int_at_least(1)
+_nonnegative_int = _int_at_least(0)
 
 
 def _common(p: argparse.ArgumentParser, kind: str, scan_id: str, noise: float) -> None:
@@ -37,7 +59,7 @@ def _common(p: argparse.ArgumentParser, kind: str, scan_id: str, noise: float) -
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Sub-subcommands ``demo``, ``tri``, ``static``, ``rod``."""
+    """Sub-subcommands ``demo``, ``tri``, ``static``, ``rod``, ``contract``."""
     from borescan.simulate import ROD_NOISE_MM, TRI_NOISE_MM, YANG_RING_GAUGE_DIAMETER_MM
 
     sub = parser.add_subparsers(dest="sim_kind", metavar="WHAT", required=True)
@@ -71,6 +93,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--poses", type=int, default=24, help="rod rotations (default 24)")
     p.add_argument("--samples-per-pose", type=int, default=5, help="samples per rotation (default 5)")
 
+    p = sub.add_parser("contract", help="battery of ring-gauge calibration scans drawn over the whole contract "
+                                        "(borescan.scenarios; fixed seeds, scan i from its own child seed)")
+    p.add_argument("--n", type=_positive_int, default=200, help="number of scans, >= 1 (default 200)")
+    p.add_argument("--seed", type=_nonnegative_int, default=0, help="battery seed, >= 0 (default 0)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="output folder (DIR/raw, DIR/truth, DIR/battery.json)")
+    p.add_argument("--with-effects", action="store_true",
+                   help="one named effect per scan (default: effect-free scans)")
+
 
 def run(args: argparse.Namespace) -> int:
     """Write the requested scans; print the scan folders; exit 2 on bad effect specs."""
@@ -80,6 +111,8 @@ def run(args: argparse.Namespace) -> int:
         paths = demo.make_demo(args.out, seed=demo.DEMO_SEED if args.seed is None else args.seed)
         print(f"{len(paths)} scans written under {args.out / 'raw'}; truth in {args.out / 'truth'}")
         return 0
+    if args.sim_kind == "contract":
+        return _run_contract(args)
     try:
         effects = [parse_effect(s) for s in args.effect]
     except ValueError as e:
@@ -114,4 +147,29 @@ def run(args: argparse.Namespace) -> int:
         return 2
     path = simulate.write_simulated(sim, args.raw_root, args.truth_root)
     print(path)
+    return 0
+
+
+def _run_contract(args: argparse.Namespace) -> int:
+    """``simulate contract``: write the battery, one progress line every ~10 % of the scans."""
+    from borescan import rawio, scenarios
+
+    if args.n < 1:  # also checked by argparse; kept for programmatic callers
+        print(f"borescan simulate contract: --n must be >= 1, got {args.n}", file=sys.stderr)
+        return 2
+    step = max(1, args.n // 10)
+
+    def progress(i: int, n: int, path: Path) -> None:
+        if (i + 1) % step == 0 or i + 1 == n:
+            print(f"  {i + 1}/{n} {path.name}", flush=True)
+
+    print(f"contract battery: {args.n} scans, seed {args.seed} -> {args.out}", flush=True)
+    try:
+        paths = scenarios.write_battery(args.out, args.n, args.seed, effect_free=not args.with_effects,
+                                        progress=progress)
+    except (FileExistsError, ValueError, rawio.ScanError) as e:
+        print(f"borescan simulate contract: {e}", file=sys.stderr)
+        return 2
+    print(f"{len(paths)} scans written under {args.out / 'raw'}; truth in {args.out / 'truth'}; "
+          f"index {args.out / 'battery.json'}")
     return 0

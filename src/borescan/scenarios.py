@@ -1,0 +1,465 @@
+"""Scan scenarios drawn over the whole contract (``shared/spec``), not only the demo's geometry.
+
+The digital twin (:mod:`borescan.simulate`) draws Yang's device at 60 rpm by default. The
+functions here draw the scene of a scan at random over everything the raw-scan format and the
+geometry page allow, so that the solvers are tested where independent generators will take them.
+All randomness comes from the :class:`numpy.random.Generator` passed in; the functions are
+otherwise pure (no global state, no I/O except :func:`write_battery`).
+
+Three-sensor ring-gauge calibration scans (:func:`draw_tri_calibration`), ranges in
+:data:`TRI_CONTRACT`:
+
+- ring gauge: bore radius R20 75-200 mm, certified diameter 2 R20 (u 1.5 um, k = 2), CTE
+  11.5e-6 /K at 20 degC (no thermal change unless an effect says so); centre C anywhere in
+  +-300 mm of the machine frame;
+- spindle axis S at |S - C| 0.5-3 mm in a random direction;
+- three beams at random directions, at least 20 deg apart, |rho| <= 15 mm, d_b such that the
+  readings stay inside the sensor range (4-10 mm per channel) over the whole revolution, except
+  in ~30 % of the scans where one channel leaves its range (below 0 or above the range: null)
+  for 5-30 % of every revolution;
+- noise sigma 1-5 um; 400-1000 samples per revolution; 20-120 revolutions; 20-120 rpm; ccw or
+  cw; random phase;
+- in ~40 % of the scans a speed change: constant speed, a ramp of 0.5-2 s to 0.4-0.9 or 1.1-1.6
+  times the first speed, then constant; the ramp's knots lie on spindle clock ticks, so the rpm
+  column integrated over the spindle clock is the profile exactly. Both speeds stay in 20-120
+  rpm and 400-1000 samples per revolution;
+- an encoder (``angle_rad``) in half of the scans, else a null encoder column (the angle is
+  the integral of the ``rpm`` column); spindle stream rate 50-500 Hz;
+- ~0.1-1 % sporadic nulls (set after simulation, before writing);
+- ``center`` and ``spindle.position`` in scan.json in ~70 % of the scans, each coordinate off
+  the truth by a uniform error within +-2 um (the machine's stated accuracy); the spindle
+  stream's ``x_mm``/``y_mm`` carry the same reported position (what the machine reports);
+- ``device.nominal`` beams: the truth perturbed by up to +-30 mrad (beta), +-1 mm (rho),
+  +-1 mm (d_b): a design geometry, not the truth.
+
+The truth of each scan (``truth["contract"]``) records everything an evaluation needs: the
+true beams, R, S, C, the angle source, the noise, the reported positions and their errors, the
+speed profile, the out-of-range channel and the nulls.
+
+:func:`write_battery` writes a battery of such scans deterministically: scan i is drawn from
+its own child seed ``SeedSequence(seed, spawn_key=(i,))``, so adding scans never changes the
+earlier ones. Command: ``borescan simulate contract --n N --seed S --out DIR``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import polars as pl
+
+from borescan.geometry import Beams
+
+__all__ = [
+    "TRI_CONTRACT",
+    "draw_beam_directions",
+    "draw_speed_profile",
+    "spindle_tick_s",
+    "reading_span_mm",
+    "draw_tri_calibration",
+    "battery_rng",
+    "battery_scan_id",
+    "write_battery",
+]
+
+#: Ranges of the three-sensor calibration scenarios (units in the names; probabilities as shares).
+TRI_CONTRACT: dict = {
+    "bore_radius_mm": (75.0, 200.0),
+    "center_xy_mm": (-300.0, 300.0),
+    "spindle_offset_mm": (0.5, 3.0),
+    "rho_max_mm": 15.0,
+    "min_beam_separation_rad": math.radians(20.0),
+    "range_mm": (4.0, 10.0),
+    "range_margin_mm": 0.2,
+    "noise_mm": (0.001, 0.005),
+    "samples_per_rev": (400, 1000),
+    "n_rev": (20, 120),
+    "rpm": (20.0, 120.0),
+    "p_speed_change": 0.4,
+    "ramp_s": (0.5, 2.0),
+    "speed_factor": ((0.4, 0.9), (1.1, 1.6)),
+    "ramp_start_fraction": (0.2, 0.6),
+    "p_encoder": 0.5,
+    "spindle_rate_hz": (50.0, 500.0),
+    "p_out_of_range": 0.3,
+    "out_of_range_fraction": (0.05, 0.3),
+    "null_fraction": (0.001, 0.01),
+    "p_position_known": 0.7,
+    "position_error_mm": 0.002,
+    "nominal_beta_rad": 0.030,
+    "nominal_rho_mm": 1.0,
+    "nominal_d_b_mm": 1.0,
+    "gauge_u_diameter_mm": 0.0015,
+    "cte_per_k": 11.5e-6,
+}
+
+
+# --------------------------------------------------------------------------- building blocks
+
+
+def draw_beam_directions(
+    rng: np.random.Generator, n_beams: int = 3, min_separation_rad: float = TRI_CONTRACT["min_beam_separation_rad"]
+) -> np.ndarray:
+    """Beam directions beta, uniform on the circle, every pair at least ``min_separation_rad`` apart.
+
+    Rejection sampling of independent uniform directions (the accepted set is uniform over the
+    allowed configurations); the channel order is the draw order.
+
+    Parameters
+    ----------
+    rng : numpy Generator
+    n_beams : number of beams
+    min_separation_rad : smallest circular distance between two beams [rad]
+
+    Returns
+    -------
+    ndarray (n_beams,) in [0, 2 pi) [rad]
+    """
+    if n_beams * min_separation_rad >= 2 * math.pi:
+        raise ValueError("the beams cannot be that far apart")
+    while True:
+        beta = rng.uniform(0.0, 2 * math.pi, n_beams)
+        d = np.abs(beta[:, None] - beta[None, :]) % (2 * math.pi)
+        d = np.minimum(d, 2 * math.pi - d)
+        if n_beams < 2 or d[np.triu_indices(n_beams, 1)].min() >= min_separation_rad:
+            return beta
+
+
+def spindle_tick_s(k: int | np.ndarray, spindle_rate_hz: float) -> np.ndarray:
+    """Time of spindle clock tick k exactly as the simulator writes it: round(k 1e9 / rate) ns [s].
+
+    Parameters
+    ----------
+    k : tick index (or indices)
+    spindle_rate_hz : spindle stream rate [Hz]
+
+    Returns
+    -------
+    ndarray (same shape as k) [s]
+    """
+    k = np.asarray(k, dtype=np.int64)
+    t_ns = np.round(k.astype(np.float64) * (1e9 / spindle_rate_hz)).astype(np.int64)
+    return t_ns * 1e-9
+
+
+def draw_speed_profile(
+    rng: np.random.Generator,
+    *,
+    change: bool,
+    n_rev: int,
+    spindle_rate_hz: float,
+    contract: dict = TRI_CONTRACT,
+) -> dict:
+    """Commanded speed and samples per revolution; with ``change`` a ramp to another speed.
+
+    Without a change: rpm uniform in ``contract["rpm"]``, samples per revolution an integer
+    uniform in ``contract["samples_per_rev"]``. With a change: the factor f from one of the two
+    bins of ``contract["speed_factor"]`` (chosen with equal odds), then rpm_1 and the samples per
+    revolution at rpm_1 drawn where both speeds stay inside those ranges (rpm_2 = f rpm_1, the
+    samples per revolution at rpm_2 are spr_1 / f; the sample rate is fixed). The ramp starts
+    after ``contract["ramp_start_fraction"]`` of ``n_rev`` revolutions at rpm_1 and lasts
+    ``contract["ramp_s"]``; both knots are put on spindle clock ticks
+    (:func:`spindle_tick_s`).
+
+    Returns
+    -------
+    dict with ``rpm_nominal`` (the first speed), ``samples_per_rev`` (at the first speed),
+    ``sample_rate_hz``, ``rpm_profile`` (knots ((t_s, rpm), ...), empty for constant speed),
+    ``speed_factor``, ``ramp_start_s``, ``ramp_end_s`` (None without a change).
+    """
+    rpm_lo, rpm_hi = contract["rpm"]
+    spr_lo, spr_hi = contract["samples_per_rev"]
+    if not change:
+        rpm = float(rng.uniform(rpm_lo, rpm_hi))
+        spr = int(rng.integers(spr_lo, spr_hi + 1))
+        return {"rpm_nominal": rpm, "samples_per_rev": spr, "sample_rate_hz": spr * rpm / 60.0,
+                "rpm_profile": (), "speed_factor": None, "ramp_start_s": None, "ramp_end_s": None}
+    bins = contract["speed_factor"]
+    lo, hi = bins[int(rng.integers(0, len(bins)))]
+    f = float(rng.uniform(lo, hi))
+    rpm = float(rng.uniform(max(rpm_lo, rpm_lo / f), min(rpm_hi, rpm_hi / f)))
+    spr_min, spr_max = math.ceil(max(spr_lo, spr_lo * f)), math.floor(min(spr_hi, spr_hi * f))
+    spr = int(rng.integers(spr_min, spr_max + 1))
+    t1 = float(rng.uniform(*contract["ramp_start_fraction"])) * n_rev * 60.0 / rpm
+    ramp = float(rng.uniform(*contract["ramp_s"]))
+    k1 = max(1, int(round(t1 * spindle_rate_hz)))
+    k2 = max(k1 + 1, int(round((t1 + ramp) * spindle_rate_hz)))
+    t1_s, t2_s = (float(x) for x in spindle_tick_s(np.array([k1, k2]), spindle_rate_hz))
+    profile = ((0.0, rpm), (t1_s, rpm), (t2_s, rpm * f))
+    return {"rpm_nominal": rpm, "samples_per_rev": spr, "sample_rate_hz": spr * rpm / 60.0,
+            "rpm_profile": profile, "speed_factor": f, "ramp_start_s": t1_s, "ramp_end_s": t2_s}
+
+
+def reading_span_mm(
+    beta_rad: np.ndarray, rho_mm: np.ndarray, offset_xy_mm: np.ndarray, radius_mm: float, n_phi: int = 4096
+) -> np.ndarray:
+    """Distances s from each beam's foot point to the wall over one revolution (d_b = 0).
+
+    The exact circle model of the spec (s > 0 the root of |S + Rot(phi)(F + s u) - C| = R),
+    evaluated by :func:`borescan.geometry.tri_spindle_readings` on ``n_phi`` angles.
+
+    Parameters
+    ----------
+    beta_rad, rho_mm : (c,) beam directions [rad] and offsets [mm]
+    offset_xy_mm : (2,) S - C [mm]
+    radius_mm : bore radius [mm]
+
+    Returns
+    -------
+    ndarray (n_phi, c) [mm]
+    """
+    from borescan.geometry import Bore, tri_spindle_readings
+
+    c = len(beta_rad)
+    beams = Beams(tuple(range(1, c + 1)), np.asarray(beta_rad, float), np.asarray(rho_mm, float), np.zeros(c))
+    phi = np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)[:, None]
+    return tri_spindle_readings(phi, np.asarray(offset_xy_mm, float), beams, Bore((0.0, 0.0), float(radius_mm)))
+
+
+# --------------------------------------------------------------------------- three-sensor calibration
+
+
+def draw_tri_calibration(
+    rng: np.random.Generator,
+    *,
+    scan_id: str,
+    night: str,
+    effect_free: bool = True,
+    device_id: str | None = None,
+    contract: dict = TRI_CONTRACT,
+):
+    """A ring-gauge calibration spindle scan drawn over the contract (module doc).
+
+    Parameters
+    ----------
+    rng : numpy Generator; every random draw comes from it
+    scan_id, night : scan id and night (``YYYY-MM-DD``)
+    effect_free : False adds one named effect of the spec at a realistic magnitude
+        (:func:`borescan.discrepancy.battery.random_effect`), listed in the truth
+    device_id : device id in scan.json (default ``TRI-<scan_id>``, one device per scan: each
+        scan has its own beams)
+    contract : ranges, :data:`TRI_CONTRACT` by default
+
+    Returns
+    -------
+    borescan.simulate.SimulatedScan
+        ``truth["contract"]`` holds the draw (see module doc); ``truth["scene"]`` the TriScene.
+    """
+    from borescan import simulate
+
+    c = 3
+    channels = (1, 2, 3)
+    # bore, spindle axis
+    R = float(rng.uniform(*contract["bore_radius_mm"]))
+    C = rng.uniform(*contract["center_xy_mm"], 2)
+    ecc = float(rng.uniform(*contract["spindle_offset_mm"]))
+    ecc_dir = float(rng.uniform(0.0, 2 * math.pi))
+    o = ecc * np.array([math.cos(ecc_dir), math.sin(ecc_dir)])
+    S = C + o
+    # beams and sensor ranges
+    beta = draw_beam_directions(rng, c, contract["min_beam_separation_rad"])
+    rho = rng.uniform(-contract["rho_max_mm"], contract["rho_max_mm"], c)
+    s = reading_span_mm(beta, rho, o, R)
+    s_min, s_max = s.min(axis=0), s.max(axis=0)
+    span = s_max - s_min
+    m = contract["range_margin_mm"]
+    r_lo, r_hi = contract["range_mm"]
+    range_mm = np.array([rng.uniform(max(r_lo, sp + 2 * m), r_hi) for sp in span])
+    d_b = np.array([rng.uniform(s_max[j] - range_mm[j] + m, s_min[j] - m) for j in range(c)])
+    out_of_range = None
+    if rng.random() < contract["p_out_of_range"]:
+        j = int(rng.integers(0, c))
+        q = float(rng.uniform(*contract["out_of_range_fraction"]))
+        side = "low" if rng.random() < 0.5 else "high"
+        # v < 0 where s < d_b (low); v > range where s > d_b + range (high)
+        d_b[j] = np.quantile(s[:, j], q) if side == "low" else np.quantile(s[:, j], 1.0 - q) - range_mm[j]
+        out_of_range = {"channel": channels[j], "side": side, "fraction_per_rev": q}
+    beams = Beams(channels, beta, rho, d_b)
+    # kinematics
+    n_rev = int(rng.integers(contract["n_rev"][0], contract["n_rev"][1] + 1))
+    spindle_rate_hz = float(rng.uniform(*contract["spindle_rate_hz"]))
+    change = bool(rng.random() < contract["p_speed_change"])
+    speed = draw_speed_profile(rng, change=change, n_rev=n_rev, spindle_rate_hz=spindle_rate_hz, contract=contract)
+    encoder = bool(rng.random() < contract["p_encoder"])
+    direction = "ccw" if rng.random() < 0.5 else "cw"
+    phase = float(rng.uniform(0.0, 2 * math.pi))
+    noise_mm = float(rng.uniform(*contract["noise_mm"]))
+    # what the machine reports
+    known = bool(rng.random() < contract["p_position_known"])
+    e = contract["position_error_mm"]
+    err_S = rng.uniform(-e, e, 2)
+    err_C = rng.uniform(-e, e, 2)
+    S_rep, C_rep = S + err_S, C + err_C
+    nominal = Beams(
+        channels,
+        beta + rng.uniform(-contract["nominal_beta_rad"], contract["nominal_beta_rad"], c),
+        rho + rng.uniform(-contract["nominal_rho_mm"], contract["nominal_rho_mm"], c),
+        d_b + rng.uniform(-contract["nominal_d_b_mm"], contract["nominal_d_b_mm"], c),
+    )
+    null_fraction = float(rng.uniform(*contract["null_fraction"]))
+    effects = []
+    if not effect_free:
+        from borescan.discrepancy.battery import TRI_EFFECTS, random_effect
+
+        name = str(rng.choice(TRI_EFFECTS))
+        effects = [random_effect(name, rng, channels, speed["rpm_nominal"] / 60.0, speed["sample_rate_hz"])]
+    sim_seed = int(rng.integers(0, 2**31 - 1))
+
+    scene = simulate.TriScene(
+        beams=beams, bore_center_xy_mm=(float(C[0]), float(C[1])), bore_radius_20_mm=R,
+        spindle_xy_mm=(float(S[0]), float(S[1])), rpm_nominal=speed["rpm_nominal"], phase_rad=phase,
+        direction=direction, sample_rate_hz=speed["sample_rate_hz"], range_mm=tuple(float(r) for r in range_mm),
+        cte_per_k=contract["cte_per_k"], temperature_c=20.0, rpm_profile=speed["rpm_profile"],
+    )
+    d_nom = round(2 * R)
+    artifact = {"id": f"RG-{d_nom}", "type": "ring_gauge", "nominal_diameter_mm": float(d_nom),
+                "certified_diameter_mm": 2 * R, "u_diameter_mm": contract["gauge_u_diameter_mm"], "k": 2,
+                "certificate": f"RG-{d_nom}/{night[:4]}", "cte_per_k": contract["cte_per_k"]}
+    sim = simulate.simulate_tri_spindle(
+        scene, scan_id=scan_id, night=night, kind="calibration", n_rev=float(n_rev), effects=effects,
+        noise_mm=noise_mm, seed=sim_seed, device_id=device_id or f"TRI-{scan_id}"[:64], nominal_beams=nominal,
+        artifact=artifact, spindle_label="P1", center_xy_mm=(float(C_rep[0]), float(C_rep[1])) if known else None,
+        encoder=encoder, spindle_rate_hz=spindle_rate_hz,
+    )
+    # sporadic nulls
+    vals = sim.lds["value_mm"].to_numpy().astype(float, copy=True)
+    null_mask = rng.random(vals.size) < null_fraction
+    vals[null_mask] = np.nan
+    lds = sim.lds.with_columns(pl.Series("value_mm", vals, dtype=pl.Float64, nan_to_null=True))
+    # reported positions: the spindle stream and scan.json carry what the machine reports
+    spindle = sim.spindle.with_columns(
+        pl.lit(float(S_rep[0]), dtype=pl.Float64).alias("x_mm"),
+        pl.lit(float(S_rep[1]), dtype=pl.Float64).alias("y_mm"),
+    )
+    meta = json.loads(json.dumps(sim.meta))
+    if known:
+        meta["spindle"]["position"] = {"label": "P1", "x_mm": float(S_rep[0]), "y_mm": float(S_rep[1])}
+    else:
+        meta["spindle"].pop("position", None)
+        meta.pop("center", None)
+    n = int(sim.truth["n_samples"])
+    truth = dict(sim.truth)
+    truth["contract"] = {
+        "generator": "borescan.scenarios.draw_tri_calibration",
+        "effect_free": not effects,
+        "beams": beams.to_nominal(),
+        "nominal_beams": nominal.to_nominal(),
+        "bore_radius_mm": R,
+        "center_xy_mm": [float(x) for x in C],
+        "spindle_xy_mm": [float(x) for x in S],
+        "offset_xy_mm": [float(x) for x in o],
+        "spindle_offset_mm": ecc,
+        "position_known": known,
+        "center_reported_xy_mm": [float(x) for x in C_rep] if known else None,
+        "spindle_reported_xy_mm": [float(x) for x in S_rep],
+        "center_error_xy_mm": [float(x) for x in err_C],
+        "spindle_error_xy_mm": [float(x) for x in err_S],
+        "position_error_mm": e,
+        "angle_source": "encoder" if encoder else "profile",
+        "encoder": encoder,
+        "direction": direction,
+        "phase_rad": phase,
+        "rpm_nominal": speed["rpm_nominal"],
+        "rpm_profile": [list(k) for k in speed["rpm_profile"]],
+        "speed_change": change,
+        "speed_factor": speed["speed_factor"],
+        "ramp_start_s": speed["ramp_start_s"],
+        "ramp_end_s": speed["ramp_end_s"],
+        "samples_per_rev": speed["samples_per_rev"],
+        "sample_rate_hz": speed["sample_rate_hz"],
+        "spindle_rate_hz": spindle_rate_hz,
+        "n_rev": n_rev,
+        "n_samples": n,
+        "noise_mm": noise_mm,
+        "range_mm": [float(r) for r in range_mm],
+        "out_of_range": out_of_range,
+        "null_fraction": null_fraction,
+        "n_sporadic_nulls": int(null_mask.sum()),
+        "simulate_seed": sim_seed,
+    }
+    return replace(sim, meta=meta, lds=lds, spindle=spindle, truth=truth)
+
+
+# --------------------------------------------------------------------------- battery
+
+
+def battery_rng(seed: int, index: int) -> np.random.Generator:
+    """Generator of scan ``index`` of the battery ``seed``: ``SeedSequence(seed, spawn_key=(index,))``.
+
+    The same as ``SeedSequence(seed).spawn(n)[index]`` for any n > index, so a longer battery
+    starts with the scans of a shorter one.
+    """
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(index),)))
+
+
+def battery_scan_id(seed: int, index: int) -> str:
+    """Scan id of scan ``index`` of battery ``seed``: ``CT<seed>-<index:05d>``."""
+    return f"CT{int(seed)}-{int(index):05d}"
+
+
+def _battery_night(index: int, per_night: int = 25) -> str:
+    from datetime import date, timedelta
+
+    return (date(2027, 1, 1) + timedelta(days=index // per_night)).isoformat()
+
+
+def write_battery(
+    out_dir: Path | str,
+    n: int,
+    seed: int,
+    *,
+    effect_free: bool = True,
+    only: Sequence[int] | None = None,
+    progress: Callable[[int, int, Path], None] | None = None,
+) -> list[Path]:
+    """Write ``n`` contract calibration scans: raw tree under ``out_dir/raw``, truth under ``out_dir/truth``.
+
+    Scan i (0-based) is :func:`draw_tri_calibration` with :func:`battery_rng` (seed, i), id
+    :func:`battery_scan_id` and its own device (``TRI-<scan id>``); 25 scans a night from
+    2027-01-01. ``out_dir/battery.json`` lists the seed, n and the scan ids. Writing the same
+    battery again is a no-op (raw folders are write-once; same content is accepted).
+
+    Parameters
+    ----------
+    out_dir : output folder
+    n : number of scans (>= 1)
+    seed : battery seed (>= 0)
+    effect_free : False draws one named effect per scan
+    only : write only these scan indices (each in 0..n-1): the same scans as in the whole
+        battery, e.g. to re-examine a few
+    progress : called as progress(k, total, scan_folder) after each scan (k counts from 0)
+
+    Returns
+    -------
+    list of the scan folders, in the order written.
+    """
+    from borescan import simulate
+
+    if int(n) < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    if int(seed) < 0:
+        raise ValueError(f"seed must be >= 0, got {seed}")
+    indices = list(range(int(n))) if only is None else [int(i) for i in only]
+    if any(i < 0 or i >= int(n) for i in indices):
+        raise ValueError(f"scan indices must lie in 0..{int(n) - 1}, got {indices}")
+    out_dir = Path(out_dir)
+    raw, truth = out_dir / "raw", out_dir / "truth"
+    paths = []
+    for k, i in enumerate(indices):
+        sid = battery_scan_id(seed, i)
+        sim = draw_tri_calibration(battery_rng(seed, i), scan_id=sid, night=_battery_night(i),
+                                   effect_free=effect_free)
+        paths.append(simulate.write_simulated(sim, raw, truth))
+        if progress is not None:
+            progress(k, len(indices), paths[-1])
+    index = {"generator": "borescan.scenarios.write_battery", "seed": int(seed), "n": int(n),
+             "effect_free": bool(effect_free), "scan_ids": [battery_scan_id(seed, i) for i in indices]}
+    tmp = out_dir / ".battery.json.tmp"
+    tmp.write_text(json.dumps(index, indent=2) + "\n")
+    os.replace(tmp, out_dir / "battery.json")
+    return paths
