@@ -82,6 +82,10 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     return frame(diam), frame(ver), frame(list(arts.values())), bad
 
 
+#: ``diameters.method`` of a rod hole (rod.solve_rod: Wang 2017 Eq. 16 generalised)
+ROD_METHOD = "rod joint solve (Wang Eq. 16 with layer geometry and axis deflection)"
+
+
 def measure_one(job) -> dict:
     """Measure (and for a verification scan, verify) one scan with the calibration chosen for it.
 
@@ -101,7 +105,7 @@ def measure_one(job) -> dict:
             res = measure_rod_scan(scan, cals)
             for r in res:
                 out["diameters"].append(measure.diameter_row(sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"],
-                                                             r["u_diameter_mm"], cal_id, "rod_wang2017_eq16"))
+                                                             r["u_diameter_mm"], cal_id, ROD_METHOD))
             out["log"] = f"{sid}: " + ", ".join(f"{r['feature']} {r['diameter_mm']:.4f} +- {r['u_diameter_mm'] * 1e3:.1f} um"
                                                 for r in res)
             return out
