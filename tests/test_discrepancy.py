@@ -359,3 +359,15 @@ def test_static_set_on_a_part_is_quiet():
     art = {"id": "P-2", "type": "part", "nominal_diameter_mm": 275.0, "cte_per_k": 11.5e-6}
     f = examine_scan(simulate_tri_static(effects=[], seed=6, artifact=art))
     assert f["verdict"] == "no_missing_effect" and f["base_model"]["radius_free"] is True
+
+
+def test_screen_skips_undefined_jacobians():
+    """A screen column that leaves the model undefined (NaN: a ray missing the bore, a pose with
+    no reading) skips that candidate instead of failing the examination (SVD did not converge)."""
+    from borescan.discrepancy.examine import _lstsq
+
+    J = np.eye(3)
+    assert np.allclose(_lstsq(J, np.ones(3)), np.ones(3))
+    J[1, 2] = np.nan
+    assert _lstsq(J, np.ones(3)) is None
+    assert _lstsq(np.eye(3), np.array([1.0, np.inf, 0.0])) is None

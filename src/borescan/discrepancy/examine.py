@@ -158,6 +158,17 @@ def _jacobian_columns(model, p: dict, terms: list[Term], names: list[str], scale
     return np.stack(cols, axis=1) if cols else np.zeros((f0.size, 0))
 
 
+def _lstsq(J: np.ndarray, r: np.ndarray) -> np.ndarray | None:
+    """Linearised least squares of the screen; None when the Jacobian or the residual is not
+    finite (a finite-difference step left the model undefined) or the solver fails."""
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
+        return None
+    try:
+        return np.linalg.lstsq(J, r, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        return None
+
+
 def _rms(r: np.ndarray, mask: np.ndarray) -> float:
     x = r[mask & np.isfinite(r)]
     return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
@@ -369,7 +380,9 @@ def examine_model(model, **cfg) -> Examination:
         ts = [s for n, s in zip(t.names(), t.scales()) if not n.endswith("f_hz")]
         Jt = _jacobian_columns(model, pt, [t], tn, ts)
         J = np.hstack([Jb, Jt])
-        coef, *_ = np.linalg.lstsq(J, rvec, rcond=None)
+        coef = _lstsq(J, rvec)
+        if coef is None:  # the term's start leaves the model undefined (a ray missing the bore)
+            continue
         rss = float(np.sum((rvec - J @ coef) ** 2))
         start = dict(pt)
         for n, s, a in zip(base_names + tn, base_scales + ts, coef):
@@ -420,7 +433,9 @@ def examine_model(model, **cfg) -> Examination:
             ts = [s for n, s in zip(t2.names(), t2.scales()) if not n.endswith("f_hz")]
             Jt = _jacobian_columns(model, pt, [t1, t2], tn, ts)
             J = np.hstack([Jb1, Jt])
-            coef, *_ = np.linalg.lstsq(J, r1, rcond=None)
+            coef = _lstsq(J, r1)
+            if coef is None:
+                continue
             start = dict(pt)
             for n, s, a in zip(base_names + t1.names() + tn, base_scales + t1.scales() + ts, coef):
                 start[n] = start[n] + a * s

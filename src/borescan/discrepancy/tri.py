@@ -418,7 +418,8 @@ class TriModel:
             eps0 = _rotation_eps(self)
             if eps0 is not None and abs(eps0) > 2e-3:
                 C0 = self.initial_center(eps0)
-                st = {**screen[0][2], "cx": float(C0[0]), "cy": float(C0[1]), "speed_error.eps": eps0}
+                st = {**(screen[0][2] if screen else self.base_start()), "cx": float(C0[0]), "cy": float(C0[1]),
+                      "speed_error.eps": eps0}
                 out.append((0.0, Term("speed_error"), st))
         return out
 
