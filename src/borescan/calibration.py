@@ -644,8 +644,10 @@ def fit_full_calibration(
     d_b + rho^2 / (2 R) (the quantities the data fix best) are the fitted parameters, which
     straightens the valleys; then every beam's mirror solution (rho of opposite sign at the same
     first harmonic, a second minimum of nearly equal cost) is refitted on every sample and the
-    lower cost kept (``diagnostics["mirror_solutions"]``). u(d_b) includes the second-order
-    term of d_b = g - rho^2 / (2R) (3 u(rho)^4 / (4 R^2)), which dominates where rho is weak. Solved with
+    lower cost kept (``diagnostics["mirror_solutions"]``); where the data cannot reject the mirror
+    (its SSR within 4 s^2), the spread between the two solutions is added to the covariance. u(d_b)
+    includes the second-order term of d_b = g - rho^2 / (2R) (3 u(rho)^4 / (4 R^2)), which
+    dominates where rho is weak. Solved with
     ``scipy.optimize.least_squares`` (Levenberg-Marquardt, analytic Jacobian). Covariance
     s^2 (J^T J)^-1, s^2 = SSR / dof.
 
@@ -815,6 +817,16 @@ def fit_full_calibration(
                 x[cols["scale"]] = nuis[k][2]
         return x
 
+    def public(x: np.ndarray) -> np.ndarray:
+        """Internal free parameters -> public ones (beta for psi, d_b for g; the rest as they are)."""
+        out = np.array(x, dtype=float, copy=True)
+        psi, rho, g = split(x)
+        for j in range(c):
+            if j > 0 or ch0_free:
+                out[j - 1 + ch0_free] = psi[j] - np.arcsin(np.clip(rho[j] / R_mm, -1.0, 1.0))
+            out[2 * c - 1 + ch0_free + j] = g[j] - rho[j] ** 2 / (2.0 * R_mm)
+        return out
+
     def model(x: np.ndarray, with_jac: bool, full: bool = False, rows: list | None = None):
         beams, nuis = unpack(x)
         rho = beams.rho_mm
@@ -883,7 +895,7 @@ def fit_full_calibration(
             gtol=1e-10,
         )
 
-    mirrors_tried = []
+    mirrors_tried, alternatives = [], []
     try:
         sol = solve(x0)
         if bool(sol.success) and np.isfinite(sol.cost):
@@ -896,6 +908,7 @@ def fit_full_calibration(
                 better = bool(trial.success) and np.isfinite(trial.cost) and trial.cost < sol.cost
                 mirrors_tried.append({"channel": int(channels[j]), "cost_kept": float(sol.cost),
                                       "cost_mirror": float(trial.cost), "mirror_taken": better})
+                alternatives.append((sol if better else trial) if trial.success and np.isfinite(trial.cost) else None)
                 if better:
                     sol = trial
     except (ValueError, FloatingPointError) as exc:  # NaN readings from a diverging step
@@ -950,6 +963,19 @@ def fit_full_calibration(
     for j in range(c):
         i_g = 2 * c - 1 + ch0_free + j
         cov_free[i_g, i_g] += 3.0 * u2_rho[j] ** 2 / (4.0 * R_mm**2)
+    # A mirror solution the data cannot reject (its SSR within 4 s^2 of the kept one: less than a
+    # 2-sigma likelihood-ratio difference) is as likely as the one kept: the spread between the two
+    # (rectangular, (p_mirror - p) (p_mirror - p)^T / 3) is added, so either one is covered.
+    p_hat = public(sol.x)
+    for entry, alt in zip(mirrors_tried, alternatives):
+        if alt is None:
+            continue
+        d_ssr = 2.0 * abs(alt.cost - sol.cost) / s2
+        entry["delta_ssr_over_s2"] = float(d_ssr)
+        entry["within_noise"] = bool(d_ssr < 4.0)
+        if d_ssr < 4.0:
+            d = public(alt.x) - p_hat
+            cov_free += np.outer(d, d) / 3.0
     idx = np.full(3 * c, -1)
     for j in range(c):
         idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
