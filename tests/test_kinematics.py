@@ -86,3 +86,24 @@ def test_speed_scale_without_rotation_is_an_error():
     with pytest.raises(ValueError, match="does not advance"):
         speed_scale_from_readings(np.zeros(t.size), np.ones((t.size, 3)))
     assert math.isfinite(AngleModel("nominal", np.zeros(1), np.array([1.0])).mean_omega_rad_s())
+
+
+def test_angle_model_of_a_simulated_scan_matches_the_twin():
+    """The raw scan's spindle stream gives back the twin's angle: encoder -> phi, profile -> Phi (cw signed)."""
+    from dataclasses import replace
+
+    from borescan import simulate
+    from borescan.kinematics import angle_model_of_scan
+
+    scene = replace(simulate.default_tri_scene(), rpm_profile=((0.0, 60.0), (2.0, 60.0), (3.0, 30.0)),
+                    direction="cw", phase_rad=0.4)
+    t = np.linspace(0.0, 5.0, 301)
+    enc = simulate.simulate_tri_spindle(scene, n_rev=4, encoder=True, seed=1, spindle_rate_hz=50.0)
+    am = angle_model_of_scan(enc.meta, enc.spindle)
+    assert am.source == "encoder"
+    assert np.max(np.abs(am.phi_rad(t) - simulate.tri_phi(scene, t))) < 1e-4  # spline through the ramp's kinks
+    prof = simulate.simulate_tri_spindle(scene, n_rev=4, encoder=False, seed=1, spindle_rate_hz=50.0)
+    am = angle_model_of_scan(prof.meta, prof.spindle)
+    assert am.source == "profile"
+    assert np.allclose(am.commanded_rad(t), -scene.commanded_angle_rad(t), atol=1e-9)
+    assert angle_model_of_scan(prof.meta, None).source == "nominal"

@@ -30,6 +30,7 @@ __all__ = [
     "AngleModel",
     "profile_angle_rad",
     "angle_model_from_arrays",
+    "angle_model_of_scan",
     "direction_sign",
     "speed_scale_from_readings",
     "refine_speed_scale",
@@ -216,6 +217,19 @@ def angle_model_from_arrays(
     if rpm_nominal is None or not np.isfinite(float(rpm_nominal)) or float(rpm_nominal) == 0.0:
         raise ValueError("no encoder angle, no rpm profile and no spindle.rpm_nominal: the rotation angle is unknown")
     return AngleModel("nominal", np.zeros(1), np.array([sgn * abs(float(rpm_nominal)) * RPM_TO_RAD_S]))
+
+
+def angle_model_of_scan(meta: dict, spindle) -> AngleModel:
+    """:func:`angle_model_from_arrays` of one raw scan: ``scan.json`` (``meta``) and its spindle
+    stream (a polars frame with the raw format's columns, or None); nulls become NaN."""
+    sp_meta = meta.get("spindle") or {}
+    kw = {}
+    if spindle is not None and spindle.height:
+        kw = {"spindle_t_s": spindle["t_ns"].to_numpy().astype(float) * 1e-9,
+              "spindle_angle_rad": spindle["angle_rad"].cast(float).fill_null(np.nan).to_numpy(),
+              "spindle_rpm": spindle["rpm"].cast(float).fill_null(np.nan).to_numpy()}
+    return angle_model_from_arrays(rpm_nominal=sp_meta.get("rpm_nominal"),
+                                   direction=sp_meta.get("direction", "ccw"), **kw)
 
 
 def speed_scale_from_readings(

@@ -218,17 +218,13 @@ def measure_rotating(readings_mm, phi_rad, spindle_xy_mm, beams: Beams, *, max_u
     )
 
 
-def _rotating_angle(scan, t_sp: np.ndarray, t_s: np.ndarray, v: np.ndarray) -> np.ndarray:
+def _rotating_angle(scan, t_s: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Device angle at the readings (:mod:`borescan.kinematics`): the encoder angle, else the
     commanded profile with its speed scale found from the readings (the phase of a closed
     profile does not change a circle's diameter or roundness)."""
-    from .kinematics import angle_model_from_arrays, estimate_speed_scale
+    from .kinematics import angle_model_of_scan, estimate_speed_scale
 
-    sp, sp_meta = scan.spindle, scan.meta.get("spindle") or {}
-    am = angle_model_from_arrays(
-        rpm_nominal=sp_meta.get("rpm_nominal"), direction=sp_meta.get("direction", "ccw"), spindle_t_s=t_sp,
-        spindle_angle_rad=sp["angle_rad"].cast(float).fill_null(np.nan).to_numpy(),
-        spindle_rpm=sp["rpm"].cast(float).fill_null(np.nan).to_numpy())
+    am = angle_model_of_scan(scan.meta, scan.spindle)
     if not am.fits_speed_and_phase:
         return am.phi_rad(t_s)
     Phi = am.commanded_rad(t_s)
@@ -259,7 +255,7 @@ def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
     sp = scan.spindle
     if sp is not None and sp.height > 1:
         t_sp = sp["t_ns"].to_numpy() * 1e-9
-        phi = _rotating_angle(scan, t_sp, m.t_s, v)
+        phi = _rotating_angle(scan, m.t_s, v)
         S = np.column_stack([np.interp(m.t_s, t_sp, sp["x_mm"].to_numpy()), np.interp(m.t_s, t_sp, sp["y_mm"].to_numpy())])
         res = measure_rotating(v, phi, S, beams)
         return {

@@ -251,12 +251,9 @@ def process_scan(scan: Any, matrix: Any = None, **cfg: Any) -> SignalResult:
             enc_t = scan.spindle["t_ns"].to_numpy().astype(float) * 1e-9
             enc_a = a
     if enc_a is None and scan.spindle is not None and scan.spindle.height > 1:
-        from borescan.kinematics import angle_model_from_arrays
+        from borescan.kinematics import angle_model_of_scan
 
-        am = angle_model_from_arrays(
-            rpm_nominal=sp.get("rpm_nominal"), direction=sp.get("direction", "ccw"),
-            spindle_t_s=scan.spindle["t_ns"].to_numpy().astype(float) * 1e-9,
-            spindle_rpm=scan.spindle["rpm"].cast(pl.Float64).fill_null(np.nan).to_numpy())
+        am = angle_model_of_scan(meta, scan.spindle)
         commanded = am.commanded_rad(t_s)
     kw = dict(sample_rate_hz=float(meta["sample_rate_hz"]), rpm_nominal=sp.get("rpm_nominal"),
               direction=sp.get("direction", "ccw"), scan_id=scan.scan_id, channels=tuple(mat.channels),

@@ -33,12 +33,7 @@ def spindle_inputs(scan: rawio.RawScan) -> dict:
         spindle_xy = (float(sp["x_mm"].mean()), float(sp["y_mm"].mean()))
     center = meta.get("center")
     try:
-        angle_model = kinematics.angle_model_from_arrays(
-            rpm_nominal=sp_meta.get("rpm_nominal"), direction=sp_meta.get("direction", "ccw"),
-            spindle_t_s=sp["t_ns"].to_numpy() * 1e-9,
-            spindle_angle_rad=sp["angle_rad"].cast(pl.Float64).fill_null(np.nan).to_numpy(),
-            spindle_rpm=sp["rpm"].cast(pl.Float64).fill_null(np.nan).to_numpy(),
-        )
+        angle_model = kinematics.angle_model_of_scan(meta, sp)
     except ValueError as err:
         raise ValueError(f"{scan.scan_id}: spindle.parquet: {err}") from None
     sensors = {int(s["channel"]): s for s in meta.get("sensors", [])}
