@@ -221,6 +221,11 @@ def test_full_fit_noise_free_is_exact_and_gauge_is_reported():
     assert d["n_params"] == 11 and cal.rank == 11
     assert d["n_params_all_free"] == 13 and d["rank_all_free"] == 11
     assert cal.u_beta_rad[0] == 0.0 and cal.cov.shape == (9, 9)
+    # the fit reports through the project's one fit result, in its internal parameters
+    f = cal.fit
+    assert f.p == 11 and f.rank == cal.rank and f.dof == cal.dof and f.success
+    assert f.names[:2] == ("psi_2_rad", "psi_3_rad") and f.names[-3:] == ("A.ox", "A.oy", "A.scale")
+    assert f.values()["rho_1_mm"] == pytest.approx(cal.beams.rho_mm[0], abs=1e-12)
 
 
 def test_full_fit_recovers_truth_within_3u():

@@ -267,3 +267,24 @@ def test_effects_are_pure():
     assert b.radius_mm == 10.0
     r, _ = bore_wall_radius(np.array([0.0]), b)
     assert r[0] == 10.0
+
+
+def test_candidates_of_every_scan_kind_come_from_the_registry():
+    """The discrepancy candidates are the registry's "screen" entries of the scan kind, less what a
+    freed base parameter absorbs: a rod layer's free hole radius its own offset (and everything
+    common), a free bore radius only what every channel shares."""
+    from borescan.discrepancy.tri import registry_terms
+    from borescan.effects import EFFECTS
+
+    for kind in ("tri_spindle", "tri_static", "rod"):
+        keys = {t.effect for t in registry_terms(kind, (1, 2, 3), have={"cte": True, "commanded_angle": True,
+                                                                         "vibration_line": True})}
+        assert keys == {n for n, s in EFFECTS.items() if s.candidate.get(kind) == "screen"}
+    rod = [t.key for t in registry_terms("rod", (1, 2), have={"cte": True}, freed={"R": {2}})]
+    assert "sensor_offset@1" in rod and "sensor_offset@2" not in rod
+    assert "sensor_offset@all" not in rod and "thermal_expansion" not in rod and "sensor_gain@2" in rod
+    static = [t.key for t in registry_terms("tri_static", (1, 2, 3), have={"cte": True}, freed={"R": "shared"})]
+    assert {"sensor_offset@1", "sensor_offset@2", "sensor_offset@3"} <= set(static)
+    assert "sensor_offset@all" not in static and "thermal_expansion" not in static
+    free_db = registry_terms("tri_spindle", (1, 2, 3), have={}, freed={"d_b": {1, 2, 3}})
+    assert not any(t.effect in ("sensor_offset", "thermal_expansion") for t in free_db)

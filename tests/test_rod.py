@@ -108,6 +108,10 @@ def test_deflection_free_solve_removes_the_eq16_bias():
     assert abs(sol.deflection_sq_rad2 - axis.omega_rad**2) < 3 * sol.u_deflection_sq_rad2
     crb = rod_crb(alpha, layers=GEOM, holes=HOLES, axis=axis, sigma_mm=0.002)
     assert np.all(sol.u_radius_mm / crb < 1.2) and np.all(sol.u_radius_mm / crb > 0.8)
+    # the solve reports through the project's one fit result: same covariance, parameter names
+    assert sol.fit.cov.shape == sol.cov.shape and np.array_equal(sol.fit.cov, sol.cov)
+    assert sol.fit.names[:2] == ("rho_1_mm", "rho_2_mm") and sol.fit.names[-2:] == ("w_x_rad", "w_y_rad")
+    assert sol.fit.rank == sol.rank == sol.fit.p and sol.fit.sigma == 0.002
 
 
 def test_recovery_over_the_contract_ranges():

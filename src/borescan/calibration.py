@@ -47,6 +47,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
+from borescan.fit import FitResult, fit_result
 from borescan.geometry import Beams, Bore, beam_frame, tri_spindle_readings
 from borescan.kinematics import AngleModel, angle_model_from_arrays, estimate_speed_scale
 from borescan.noise import noise_floor_mm
@@ -145,6 +146,8 @@ class TriCalibration:
     residual_rms_mm, dof, rank, condition, converged : fit diagnostics (NaN/-1 where undefined)
     nuisance : dict scan_id -> dict of per-scan estimates (offset, rotation rate, ...)
     diagnostics : dict of further JSON-safe information (gauge, rank with all parameters free, ...)
+    fit : the least-squares :class:`borescan.fit.FitResult` in the fit's internal parameters
+        (full_lsq; not serialised by :meth:`to_dict`, None after :meth:`from_dict`)
     """
 
     calibration_id: str
@@ -161,6 +164,7 @@ class TriCalibration:
     converged: bool = True
     nuisance: dict[str, dict[str, float]] = field(default_factory=dict)
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    fit: FitResult | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         c = len(self.beams.channels)
@@ -771,6 +775,10 @@ def fit_full_calibration(
             col += 1
         nuis_cols.append(d)
     p_free = col
+    internal_names = ([f"psi_{ch}_rad" for j, ch in enumerate(channels) if j > 0 or ch0_free]
+                      + [f"rho_{ch}_mm" for ch in channels] + [f"g_{ch}_mm" for ch in channels])
+    for k in range(K):
+        internal_names += [f"{scan_ids[k]}.{name}" for name in nuis_cols[k]]
     n_prior = 2 * sum(p is not None for p in priors)
     if n_obs + n_prior <= p_free:
         raise CalibrationError(scan_ids, f"{n_obs} valid samples for {p_free} parameters")
@@ -921,16 +929,11 @@ def fit_full_calibration(
         )
     n_rows = n_obs + n_prior
     dof = n_rows - p_free
-    ssr = float(r @ r)
+    fit = fit_result(internal_names, sol.x, r, J, success=converged, message=str(sol.message), nfev=int(sol.nfev))
+    ssr = fit.rss
     ssr_readings = float(r[:n_obs] @ r[:n_obs])
-    s2 = ssr / dof
-    colnorm = np.linalg.norm(J, axis=0)
-    colnorm[colnorm == 0] = 1.0
-    Js = J / colnorm
-    _, sv, Vt = np.linalg.svd(Js, full_matrices=False)
-    tol = sv[0] * max(Js.shape) * np.finfo(float).eps
-    rank = int(np.sum(sv > tol))
-    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+    s2 = fit.sigma**2
+    rank, cond = fit.rank, fit.condition
     _, Jf = model(sol.x, True, full=True)
     cf = np.linalg.norm(Jf, axis=0)
     cf[cf == 0] = 1.0
@@ -942,8 +945,7 @@ def fit_full_calibration(
             f"full_lsq Jacobian rank {rank} of {p_free}, condition {cond:.3g} (limit {cond_max:.3g}); "
             "the data do not determine the parameters (is the spindle offset from the gauge centre?)",
         )
-    cov_s = (Vt.T / sv**2) @ Vt
-    cov_int = s2 * cov_s / np.outer(colnorm, colnorm)
+    cov_int = fit.cov
     beams, nuis = unpack(sol.x)
     rho_hat = beams.rho_mm
     # Jacobian of the public free parameters (beta free, rho, d_b, nuisance) w.r.t. internal ones
@@ -1048,6 +1050,7 @@ def fit_full_calibration(
         condition=cond,
         converged=converged,
         nuisance=nuisance,
+        fit=fit,
         diagnostics={
             "gauge": gauge,
             "beta_reference": ref,
@@ -1058,7 +1061,7 @@ def fit_full_calibration(
             "rank_all_free": rank_all,
             "nfev": int(sol.nfev),
             "cost": float(sol.cost),
-            "singular_values_scaled": sv,
+            "singular_values_scaled": fit.extra["singular_values"],
             "g_mm": g_hat,
             "u_g_mm": u_g,
             "g_note": "g = d_b + rho^2 / (2 R): the mean level the data fix best (R the gauge radius)",
@@ -1151,3 +1154,172 @@ def full_residuals(
     off = np.array([nu["offset_x_mm"], nu["offset_y_mm"]])
     model = tri_spindle_readings(phi, off, cal.beams, Bore((0.0, 0.0), R_mm))
     return model - np.asarray(readings_mm, dtype=float)
+
+
+# --------------------------------------------------------------------------- sensitivities (GUM budget)
+
+
+def full_lsq_sensitivities(
+    cal: TriCalibration,
+    t_s,
+    readings_mm,
+    R_mm: float,
+    angle_models: Sequence[AngleModel],
+    *,
+    spindle_xy_mm=None,
+    center_xy_mm=None,
+) -> dict[str, Any]:
+    """Linear sensitivities of a ``full_lsq`` calibration to what it takes as known, and the split
+    of its covariance into the readings' part and the position priors' part.
+
+    At the solution, J is the Jacobian of the readings' residuals with respect to the free public
+    parameters p (beta where free, rho, d_b, per scan the offset o = S - C, the phase where free
+    and the speed scale without an encoder), Jp that of the prior rows w (o - o_reported) with
+    w = sigma / (a sqrt(2/3)) (sigma the readings' noise floor, a the stated position accuracy,
+    as in :func:`fit_full_calibration`), H = J^T J + Jp^T Jp and s^2 = SSR / dof. The estimate
+    stays the minimum when an input moves, so to first order (implicit differentiation of the
+    normal equations):
+
+    - gauge radius: dp/dR = -H^-1 J^T dv/dR, with dv/dR = R / (P . Rot(phi) u) from |P| = R,
+      P the wall point relative to the gauge centre (``_readings_and_jacobian``: dv/dR equals
+      |(dv/do_x, dv/do_y)|);
+    - a constant error e_c of every reading of channel c: dp/de_c = H^-1 J^T 1_c;
+    - the reported offset of scan k (prior mean): dp/do_k = H^-1 Jp_k^T w;
+    - covariance of the fit: s^2 H^-1 = s^2 H^-1 J^T J H^-1 (readings) + s^2 H^-1 Jp^T Jp H^-1
+      (priors). The calibration's ``cov`` adds to s^2 H^-1 the second-order term of d_b in rho
+      and any unresolved mirror solution; ``cov_extra`` is that difference.
+
+    Parameters
+    ----------
+    cal : the ``full_lsq`` TriCalibration (its nuisance, diagnostics cost and acceptance)
+    t_s, readings_mm : per scan (lists), exactly what the fit saw (despiked readings, NaN missing)
+    R_mm : the gauge radius the fit used [mm]
+    angle_models : per scan AngleModel, as given to the fit
+    spindle_xy_mm, center_xy_mm : per scan reported positions (None where unknown), as given to the fit
+
+    Returns
+    -------
+    dict with, in the calibration's (3c,) parameter order (gauge-fixed beta: 0):
+    ``dR`` (3c,) [per mm], ``reading_offset`` (3c, c) [-], ``offset_prior`` {scan_id: (3c, 2)} [-],
+    ``cov_readings``, ``cov_priors``, ``cov_linear`` (= their sum), ``cov_extra`` (3c, 3c),
+    ``s2`` [mm^2], ``prior_sigma_mm`` (u of each reported offset coordinate) and
+    ``second_order_d_b_mm2`` (c,) (the d_b variance term 3 u(rho)^4 / (4 R^2)).
+    """
+    if cal.method != "full_lsq":
+        raise ValueError(f"full_lsq_sensitivities needs a full_lsq calibration, got {cal.method!r}")
+    ts = [np.asarray(x, dtype=float) for x in t_s]
+    ys = [np.asarray(x, dtype=float) for x in readings_mm]
+    K = len(ts)
+    if len(ys) != K or len(angle_models) != K or len(cal.scan_ids) != K:
+        raise ValueError("t_s, readings_mm, angle_models and the calibration's scans must correspond")
+    beams = cal.beams
+    c = len(beams.channels)
+    Ss, Cs = _per_scan_xy(spindle_xy_mm, K), _per_scan_xy(center_xy_mm, K)
+    priors = [None if (Ss[k] is None or Cs[k] is None) else Ss[k] - Cs[k] for k in range(K)]
+    ch0_free = 1 if cal.diagnostics.get("beta_reference") == "absolute" else 0
+    nb = 3 * c - 1 + ch0_free
+    cols, col = [], nb
+    for k, sid in enumerate(cal.scan_ids):
+        nu = cal.nuisance[sid]
+        d = {"ox": col, "oy": col + 1}
+        col += 2
+        if nu.get("phase_free"):
+            d["phase"] = col
+            col += 1
+        if angle_models[k].fits_speed_and_phase:
+            d["scale"] = col
+            col += 1
+        cols.append(d)
+    p = col
+    floors = np.array([noise_floor_mm(y, order=4) for y in ys])
+    sigma = float(np.sqrt(np.mean(floors**2))) if np.all(np.isfinite(floors)) else 0.0
+    a = float(cal.diagnostics.get("acceptance", {}).get("position_accuracy_mm", AcceptanceRule().position_accuracy_mm))
+    prior_sigma = a * np.sqrt(2.0 / 3.0)
+    w = (sigma if sigma > 0 else 1e-3) / prior_sigma
+
+    J_parts, dR_parts, chan_parts = [], [], []
+    for k, sid in enumerate(cal.scan_ids):
+        nu, am = cal.nuisance[sid], angle_models[k]
+        Phi = am.commanded_rad(ts[k])
+        phi = float(nu["phase0_rad"]) + float(nu.get("speed_scale", 1.0)) * Phi if am.fits_speed_and_phase else Phi
+        off = np.array([nu["offset_x_mm"], nu["offset_y_mm"]], dtype=float)
+        _, jac = _readings_and_jacobian(phi, beams, off, R_mm)
+        n = ts[k].size
+        Jk = np.zeros((n, c, p))
+        for j in range(c):
+            if j > 0 or ch0_free:
+                Jk[:, j, j - 1 + ch0_free] = jac["beta"][:, j]
+            Jk[:, j, c - 1 + ch0_free + j] = jac["rho"][:, j]
+            Jk[:, j, 2 * c - 1 + ch0_free + j] = -1.0
+        Jk[:, :, cols[k]["ox"]] = jac["ox"]
+        Jk[:, :, cols[k]["oy"]] = jac["oy"]
+        if "phase" in cols[k]:
+            Jk[:, :, cols[k]["phase"]] = jac["phi"]
+        if "scale" in cols[k]:
+            Jk[:, :, cols[k]["scale"]] = jac["phi"] * Phi[:, None]
+        m = np.isfinite(ys[k])
+        J_parts.append(Jk[m])
+        dR_parts.append(np.hypot(jac["ox"], jac["oy"])[m])
+        chan_parts.append(np.broadcast_to(np.arange(c), (n, c))[m])
+    J = np.vstack(J_parts)
+    dv_dR = np.concatenate(dR_parts)
+    chan = np.concatenate(chan_parts)
+    Jp_rows, prior_cols = [], {}
+    for k, sid in enumerate(cal.scan_ids):
+        if priors[k] is None:
+            continue
+        row = np.zeros((2, p))
+        row[0, cols[k]["ox"]] = w
+        row[1, cols[k]["oy"]] = w
+        prior_cols[sid] = len(Jp_rows)
+        Jp_rows.append(row)
+    Jp = np.vstack(Jp_rows) if Jp_rows else np.zeros((0, p))
+    colnorm = np.sqrt(np.sum(J**2, axis=0) + np.sum(Jp**2, axis=0))
+    colnorm[colnorm == 0] = 1.0
+    Hs = (J / colnorm).T @ (J / colnorm) + (Jp / colnorm).T @ (Jp / colnorm)
+    Hinv = np.linalg.pinv(Hs, rcond=1e-15, hermitian=True) / np.outer(colnorm, colnorm)
+    s2 = 2.0 * float(cal.diagnostics["cost"]) / float(cal.dof)
+
+    # public free parameters -> the calibration's (3c,) order
+    idx = np.full(3 * c, -1)
+    for j in range(c):
+        idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
+        idx[3 * j + 1] = c - 1 + ch0_free + j
+        idx[3 * j + 2] = 2 * c - 1 + ch0_free + j
+    ok = idx >= 0
+
+    def vec(x: np.ndarray) -> np.ndarray:
+        out = np.zeros((3 * c,) + x.shape[1:])
+        out[ok] = x[idx[ok]]
+        return out
+
+    def mat(C: np.ndarray) -> np.ndarray:
+        out = np.zeros((3 * c, 3 * c))
+        out[np.ix_(ok, ok)] = C[np.ix_(idx[ok], idx[ok])]
+        return out
+
+    dR = vec(-Hinv @ (J.T @ dv_dR))
+    reading_offset = np.column_stack([vec(Hinv @ J[chan == j].sum(axis=0)) for j in range(c)])
+    offset_prior = {}
+    for sid, r0 in prior_cols.items():
+        rows = Jp[2 * r0 : 2 * r0 + 2]
+        offset_prior[sid] = vec(Hinv @ rows.T * w)
+    A = Hinv @ J.T
+    cov_readings = mat(s2 * (A @ A.T))
+    B = Hinv @ Jp.T
+    cov_priors = mat(s2 * (B @ B.T))
+    cov_linear = mat(s2 * Hinv)
+    u2_rho = np.diag(cov_linear)[1::3]
+    second = 3.0 * u2_rho**2 / (4.0 * R_mm**2)
+    return {
+        "dR": dR,
+        "reading_offset": reading_offset,
+        "offset_prior": offset_prior,
+        "cov_readings": cov_readings,
+        "cov_priors": cov_priors,
+        "cov_linear": cov_linear,
+        "cov_extra": cal.cov - cov_linear,
+        "s2": s2,
+        "prior_sigma_mm": float(prior_sigma),
+        "second_order_d_b_mm2": second,
+    }

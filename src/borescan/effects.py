@@ -444,7 +444,7 @@ EFFECTS: dict[str, EffectSpec] = {
                    fit=(FitParam("b_mm", "mm", 1e-3),), candidate=_ALL_KINDS, common=True,
                    absorbed_by={"tri_spindle": {"d_b": "d_b_mm of the channel (every d_b when common)",
                                                 "R": "the bore radius (when common)"},
-                                "tri_static": {"d_b": "d_b_mm of the channel"},
+                                "tri_static": {"d_b": "d_b_mm of the channel", "R": "the bore radius (when common)"},
                                 "rod": {"R": "the hole radius, when free"}},
                    example={"channel": 2, "b_mm": 0.012}),
         EffectSpec("sensor_gain", (TRI, ROD), {"channel": "channel", "g": "-"}, "reading",

@@ -68,6 +68,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import least_squares
 
+from borescan.fit import FitResult, fit_result, jacobian_summary
 from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
 
 __all__ = [
@@ -101,6 +102,8 @@ class RodSolution:
     radius_mle_mm : (m,) radii at the maximum-likelihood omega; deflection_ratio : max u(r) with
         omega free / u(r) with omega held; cost_mm2 : sum of squared residuals at the solution
     layers : the layer geometry used
+    fit : the joint solve's :class:`borescan.fit.FitResult` (parameter order as ``cov``; None for
+        "centred" and "pso")
     """
 
     radius_mm: np.ndarray
@@ -127,6 +130,7 @@ class RodSolution:
     deflection_ratio: float = float("nan")
     cost_mm2: float = float("nan")
     layers: tuple = ()
+    fit: FitResult | None = None
 
     @property
     def diameter_mm(self) -> np.ndarray:
@@ -666,12 +670,8 @@ def solve_rod(
     p, cost, nfev = _solve_core(prob, L, mask, [a0, -a0], defl)
     n_par = prob.n_par
     J = prob.jac(p, beta_step=1e-4 if defl else None)
-    col = np.linalg.norm(J, axis=0)
-    col[col == 0] = 1.0
-    Js = J / col
-    sv = np.linalg.svd(Js, compute_uv=False)
-    rank = int(np.sum(sv > sv[0] * 1e-12))
-    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+    js = jacobian_summary(J, rtol=1e-12)
+    rank, cond = js.rank, js.condition
     if rank < n_par or cond > max_condition:
         raise RodSolveError(
             f"degenerate geometry: Jacobian rank {rank} of {n_par}, condition {cond:.3g} "
@@ -687,12 +687,14 @@ def solve_rod(
         sigma = float(np.sqrt(e @ e / dof))
     else:
         sigma = float("nan")
-    cov = sigma**2 * (np.linalg.pinv(Js.T @ Js) / np.outer(col, col))
+    fit = fit_result(_rod_param_names(m, n, fix_pose, defl), p, e, J, sigma=sigma, success=True, nfev=nfev,
+                     rtol=1e-12, message=f"rod solve, deflection {deflection!r}")
+    cov = fit.cov
     rho, c, alpha, w = prob.unpack(p)
     ref = sigma / np.sqrt(mask.sum(axis=0))
     if defl:
         nb = n_par - 2
-        cov0 = sigma**2 * (np.linalg.pinv(Js[:, :nb].T @ Js[:, :nb]) / np.outer(col[:nb], col[:nb]))
+        cov0 = sigma**2 * jacobian_summary(J[:, :nb], rtol=1e-12).cov_unit
         u_fixed = np.sqrt(np.diag(cov0)[:m])
     else:
         u_fixed = np.sqrt(np.diag(cov)[:m])
@@ -736,8 +738,15 @@ def solve_rod(
         center_xy_mm=c, deflection_xy_rad=w.copy(), deflection_rad=float(np.sqrt(max(s, 0.0))),
         deflection_az_rad=float(np.arctan2(w[1], w[0])) if np.any(w != 0) else 0.0,
         deflection_sq_rad2=s, u_deflection_sq_rad2=float(u_s), eccentricity_mm=ecc, u_eccentricity_mm=u_ecc,
-        radius_mle_mm=rho / _k(float(w @ w)), deflection_ratio=dratio, cost_mm2=cost, layers=lays,
+        radius_mle_mm=rho / _k(float(w @ w)), deflection_ratio=dratio, cost_mm2=cost, layers=lays, fit=fit,
     )
+
+
+def _rod_param_names(m: int, n: int, fix_pose: int, deflection: bool) -> tuple[str, ...]:
+    """Names of the joint solve's parameter vector [rho (m), cx (m), cy (m), alpha (n - 1), w (2)]."""
+    names = [f"rho_{j + 1}_mm" for j in range(m)] + [f"cx_{j + 1}_mm" for j in range(m)]
+    names += [f"cy_{j + 1}_mm" for j in range(m)] + [f"alpha_{i}_rad" for i in range(n) if i != fix_pose]
+    return tuple(names + (["w_x_rad", "w_y_rad"] if deflection else []))
 
 
 def _expand(a, keep):

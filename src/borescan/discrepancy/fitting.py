@@ -1,18 +1,17 @@
 """Least-squares fits, information criterion and noise floor of the discrepancy workflow.
 
-A fit returns one :class:`FitResult` (lmfit style): parameters, standard uncertainties,
-residuals, RSS and the Bayesian information criterion
-``BIC = n ln(RSS / n) + p ln(n)`` (Gaussian likelihood with the variance profiled out).
+A fit returns the project's one :class:`borescan.fit.FitResult`: parameters, standard
+uncertainties, covariance, residuals, RSS, rank, condition and the Bayesian information
+criterion ``BIC = n ln(RSS / n) + p ln(n)`` (Gaussian likelihood with the variance profiled out).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
+from borescan.fit import FitResult, bic, least_squares_fit
 from borescan.noise import noise_floor_mm, robust_sigma  # noqa: F401  (re-exported: the discrepancy workflow names them here)
 
 __all__ = [
@@ -27,48 +26,6 @@ __all__ = [
 ]
 
 
-@dataclass
-class FitResult:
-    """Result of one least-squares fit.
-
-    Attributes
-    ----------
-    names : free parameter names, in ``x`` order.
-    x : best-fit values (physical units).
-    u : standard uncertainties (physical units), from (J^T J)^-1 s^2.
-    residual : weighted residual vector at the optimum.
-    rss : sum of squared weighted residuals.
-    n : number of residuals; p : number of free parameters.
-    bic : n ln(RSS/n) + p ln(n).
-    success, message : optimiser status.
-    """
-
-    names: tuple[str, ...]
-    x: np.ndarray
-    u: np.ndarray
-    residual: np.ndarray
-    rss: float
-    n: int
-    p: int
-    bic: float
-    success: bool = True
-    message: str = ""
-    extra: dict = field(default_factory=dict)
-
-    def values(self) -> dict[str, float]:
-        """Parameter name -> value."""
-        return {k: float(v) for k, v in zip(self.names, self.x)}
-
-    def uncertainties(self) -> dict[str, float]:
-        """Parameter name -> standard uncertainty."""
-        return {k: float(v) for k, v in zip(self.names, self.u)}
-
-
-def bic(rss: float, n: int, p: int) -> float:
-    """Bayesian information criterion of a Gaussian least-squares fit: n ln(RSS/n) + p ln(n)."""
-    return float(n * np.log(max(rss, 1e-300) / n) + p * np.log(n))
-
-
 def fit_least_squares(
     residual_fn: Callable[[dict[str, float]], np.ndarray],
     names: Sequence[str],
@@ -81,45 +38,17 @@ def fit_least_squares(
     """Minimise ``sum(residual_fn(params)**2)`` over ``names`` (others from ``fixed``).
 
     Parameters are scaled by ``scale`` (typical magnitudes) so that forward differences with a
-    relative step of 1e-4 of the scale give accurate Jacobians.
+    relative step of 1e-4 of the scale give accurate Jacobians (:func:`borescan.fit.least_squares_fit`).
     """
     names = tuple(names)
     fixed = dict(fixed or {})
-    scale = np.asarray(scale, dtype=float)
-    z0 = np.asarray(x0, dtype=float) / scale
 
-    def fun(z: np.ndarray) -> np.ndarray:
+    def fun(x: np.ndarray) -> np.ndarray:
         p = dict(fixed)
-        p.update(zip(names, z * scale))
+        p.update(zip(names, x))
         return residual_fn(p)
 
-    def jac(z: np.ndarray) -> np.ndarray:
-        f0 = fun(z)
-        J = np.empty((f0.size, z.size))
-        for i in range(z.size):
-            zz = z.copy()
-            h = 1e-4
-            zz[i] += h
-            J[:, i] = (fun(zz) - f0) / h
-        return J
-
-    if z0.size:
-        res = least_squares(fun, z0, jac=jac, method="lm", max_nfev=max_nfev, xtol=1e-10, ftol=1e-12)
-        z, r, J, ok, msg = res.x, res.fun, res.jac, bool(res.success), str(res.message)
-    else:
-        z, r, J, ok, msg = z0, fun(z0), np.zeros((0, 0)), True, "nothing to fit"
-    n, p = r.size, z.size
-    rss = float(r @ r)
-    if p:
-        s2 = rss / max(n - p, 1)
-        try:
-            cov = np.linalg.pinv(J.T @ J) * s2
-            u = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * scale
-        except np.linalg.LinAlgError:
-            u = np.full(p, np.nan)
-    else:
-        u = np.zeros(0)
-    return FitResult(names, z * scale, u, r, rss, n, p, bic(rss, n, p), ok, msg)
+    return least_squares_fit(fun, x0, names, scale=scale, max_nfev=max_nfev)
 
 
 def dead_zone(r: np.ndarray, half_mm: np.ndarray | None) -> np.ndarray:

@@ -33,13 +33,17 @@ import math
 import numpy as np
 
 from borescan.discrepancy.fitting import dead_zone, robust_sigma
-from borescan.discrepancy.tri import INTERNAL, Term, apply_reading_terms, fast_readings, term_parameters
+from borescan.discrepancy.tri import (
+    Term,
+    apply_reading_terms,
+    fast_readings,
+    registry_terms,
+    term_parameters,
+)
 from borescan.geometry import Beams, Bore, RodLayer, rod_readings
 from borescan.rod import rod_section_geometry
 
 __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
-
-INTERNAL.setdefault("beam_offset", (("d_mm", 1e-2),))
 
 
 class PoseData:
@@ -289,17 +293,10 @@ class RodModel(_PoseModel):
         return apply_reading_terms(v, t_s, by, p, d.channels, d.range_mm, beam_tilt=False)
 
     def candidate_terms(self, *, k_max=8, vibration_f_hz=None):
-        """Offset-like terms of a layer whose radius is free are absorbed by it and not tried."""
-        chans = self.data.channels
-        fixed = [c for c, f in zip(chans, self.radius_free) if not f]
-        terms = [Term("sensor_offset", c) for c in fixed]
-        for eff in ("sensor_gain", "sensor_nonlinearity", "sensor_drift", "beam_tilt"):
-            terms += [Term(eff, c) for c in chans]
-        if len(fixed) == len(chans) > 1:
-            terms.append(Term("sensor_offset", 0))
-        if self.data.cte_per_k and len(fixed) == len(chans):
-            terms.append(Term("thermal_expansion"))
-        return terms
+        """The registry's rod candidates; what a layer's free hole radius absorbs is left out."""
+        free = {c for c, f in zip(self.data.channels, self.radius_free) if f}
+        return registry_terms("rod", self.data.channels, have={"cte": bool(self.data.cte_per_k)},
+                              k_max=k_max, freed={"R": free})
 
     def extra_starts(self, screen, keys, t1):
         """beam_offset is second order at d = 0: start it from the offset screen, d = sqrt(2 r |b|)."""
@@ -386,14 +383,9 @@ class StaticModel(_PoseModel):
         return apply_reading_terms(v, t_s, by, p, d.channels, d.range_mm)
 
     def candidate_terms(self, *, k_max=8, vibration_f_hz=None):
-        terms = []
-        for eff in ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift", "beam_tilt"):
-            terms += [Term(eff, c) for c in self.data.channels]
-        if not self.radius_free:
-            terms.append(Term("sensor_offset", 0))
-            if self.data.cte_per_k:
-                terms.append(Term("thermal_expansion"))
-        return terms
+        """The registry's static candidates; a free bore radius absorbs what every channel shares."""
+        return registry_terms("tri_static", self.data.channels, have={"cte": bool(self.data.cte_per_k)},
+                              k_max=k_max, freed={"R": "shared" if self.radius_free else set()})
 
     def extra_starts(self, screen, keys, t1):
         return []

@@ -37,7 +37,7 @@ from borescan.geometry import Beams, Bore, tri_spindle_readings
 from borescan.kinematics import AngleModel, angle_model_from_arrays
 from borescan.model import GEOMETRY_STAGES, TriBase, tri_geometry, tri_reading_stage
 
-__all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_terms", "term_parameters",
+__all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_terms", "registry_terms", "term_parameters",
            "term_effects", "term_values"]
 
 #: Scan kind of this model in the registry's ``absorbed_by`` / ``candidate``.
@@ -390,16 +390,11 @@ class TriModel:
         """Every applicable term (:func:`candidate_terms`), less those a freed base parameter
         absorbs (the registry's ``absorbed_by``: d_b offsets and thermal expansion, beta channel
         delay, a free radius R the common offset and thermal expansion)."""
-        terms = candidate_terms(self.data, k_max=k_max, vibration_f_hz=vibration_f_hz)
-        # a part's radius is the measurand: a free R absorbs what is common to every channel
-        freed = set(self.free_beams) | ({"R"} if self.data.radius_free else set())
-
-        def absorbed(t: Term) -> bool:
-            spec = EFFECTS[t.effect]
-            return any(b in freed and (b != "R" or t.channel == 0 or not spec.per_channel)
-                       for b in spec.absorbers(SCAN_KIND))
-
-        return [t for t in terms if not absorbed(t)]
+        chans = set(self.data.channels)
+        freed: dict[str, set | str] = {b: chans for b in self.free_beams}
+        if self.data.radius_free:  # a part's radius is the measurand: it absorbs what every channel shares
+            freed["R"] = "shared"
+        return candidate_terms(self.data, k_max=k_max, vibration_f_hz=vibration_f_hz, freed=freed)
 
     def extra_starts(self, screen: list, keys: set, t1: Term | None) -> list:
         """Starts the linear screen cannot give.
@@ -455,25 +450,51 @@ class TriModel:
         return S0 - coef[:2]
 
 
-def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[Term]:
-    """The registry's candidates of a spindle scan, as terms.
+def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: int = 8,
+                   freed: dict[str, set | str] | None = None) -> list[Term]:
+    """The registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
+    ``"tri_static"``, ``"rod"``): the only list of candidates the workflow has.
 
-    Every effect whose ``candidate["tri_spindle"]`` is ``"screen"`` and whose ``needs`` the
-    scan meets (``commanded_angle``: no encoder; ``vibration_line``: ``vibration_f_hz`` found;
-    ``cte``: the artifact's CTE known): per-channel effects one term per channel, then the
-    ``common`` ones as one term on every channel (channel 0), then the others, one term per
-    harmonic k = 2..k_max where the effect has one.
+    Every effect whose ``candidate[scan_kind]`` is ``"screen"`` and whose ``needs`` the scan meets
+    (``have``: need -> met): per-channel effects one term per channel, then the ``common`` ones
+    as one term on every channel (channel 0), then the others, one term per harmonic
+    k = 2..k_max where the effect has one. Terms a freed base parameter absorbs (the registry's
+    ``absorbed_by[scan_kind]``) are left out: ``freed`` maps a base parameter to the set of
+    channels whose own copy of it is free (a per-channel term is absorbed when its channel is in
+    the set, a common term when the set is not empty), or to ``"shared"`` for one parameter of
+    every channel (absorbs only the common terms: a bore radius absorbs a common offset, not one
+    channel's).
     """
-    have = {"commanded_angle": not data.encoder, "vibration_line": vibration_f_hz is not None,
-            "cte": bool(data.cte_per_k)}
+    freed = {k: v for k, v in (freed or {}).items() if v}
     specs = [s for s in EFFECTS.values()
-             if s.candidate.get(SCAN_KIND) == "screen" and all(have[n] for n in s.needs)]
-    terms = [Term(s.name, c) for s in specs if s.per_channel for c in data.channels]
+             if s.candidate.get(scan_kind) == "screen" and all(have.get(n, False) for n in s.needs)]
+    terms = [Term(s.name, c) for s in specs if s.per_channel for c in channels]
     terms += [Term(s.name, 0) for s in specs if s.per_channel and s.common]
     for s in specs:
         if not s.per_channel:
             terms += [Term(s.name, None, k) for k in range(2, k_max + 1)] if s.harmonic else [Term(s.name)]
-    return terms
+
+    def absorbed(t: Term) -> bool:
+        common = t.channel in (0, None)
+        for b in EFFECTS[t.effect].absorbers(scan_kind):
+            f = freed.get(b)
+            if f is None:
+                continue
+            if common or (f != "shared" and t.channel in f):
+                return True
+        return False
+
+    return [t for t in terms if not absorbed(t)]
+
+
+def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | None = None,
+                    freed: dict[str, set | str] | None = None) -> list[Term]:
+    """The registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
+    when the scan has no encoder, ``vibration_line`` when ``vibration_f_hz`` was found, ``cte``
+    when the artifact's CTE is known."""
+    have = {"commanded_angle": not data.encoder, "vibration_line": vibration_f_hz is not None,
+            "cte": bool(data.cte_per_k)}
+    return registry_terms(SCAN_KIND, data.channels, have=have, k_max=k_max, freed=freed)
 
 
 def term_parameters(term: Term, x: dict[str, float], u: dict[str, float], data: TriData | None = None) -> tuple[dict, dict]:

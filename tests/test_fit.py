@@ -1,0 +1,85 @@
+"""The one fit result type (borescan.fit) against closed forms of linear regression."""
+
+import numpy as np
+import pytest
+
+from borescan.fit import fit_result, jacobian_summary, least_squares_fit
+
+
+def _line(n=50, seed=3, sigma=0.01):
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 10.0, n)
+    y = 2.0 + 0.5 * t + sigma * rng.standard_normal(n)
+    return t, y
+
+
+def test_straight_line_matches_the_textbook_covariance():
+    """Slope/intercept, their covariance s^2 (X^T X)^-1 and the correlation, exactly."""
+    t, y = _line()
+    X = np.column_stack([np.ones_like(t), t])
+    beta = np.linalg.solve(X.T @ X, X.T @ y)
+    r = y - X @ beta
+    s2 = r @ r / (t.size - 2)
+    cov = s2 * np.linalg.inv(X.T @ X)
+    fr = least_squares_fit(lambda p: y - (p[0] + p[1] * t), [0.0, 0.0], ["a_mm", "b_mm_per_s"],
+                           jac=lambda p: -X, ftol=1e-15, xtol=1e-15)
+    assert fr.success and fr.rank == 2 and fr.dof == t.size - 2
+    np.testing.assert_allclose(fr.x, beta, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fr.cov, cov, rtol=1e-9)
+    np.testing.assert_allclose(fr.u, np.sqrt(np.diag(cov)), rtol=1e-9)
+    rho = cov[0, 1] / np.sqrt(cov[0, 0] * cov[1, 1])
+    np.testing.assert_allclose(fr.correlation, [[1, rho], [rho, 1]], rtol=1e-9)
+    n, rss = t.size, float(r @ r)
+    assert fr.bic == pytest.approx(n * np.log(rss / n) + 2 * np.log(n), rel=1e-10)
+    assert fr.aic == pytest.approx(n * np.log(rss / n) + 4, rel=1e-10)
+    assert fr.values() == {"a_mm": pytest.approx(beta[0]), "b_mm_per_s": pytest.approx(beta[1])}
+
+
+def test_forward_differences_agree_with_the_analytic_jacobian():
+    """Scaled forward differences give the same optimum and uncertainties (a linear model: exact)."""
+    t, y = _line(seed=5)
+    X = np.column_stack([np.ones_like(t), t])
+    a = least_squares_fit(lambda p: y - X @ p, [1.0, 1.0], ["a", "b"], jac=lambda p: -X)
+    b = least_squares_fit(lambda p: y - X @ p, [1.0, 1.0], ["a", "b"], scale=[1.0, 0.1])
+    np.testing.assert_allclose(b.x, a.x, atol=1e-10)
+    np.testing.assert_allclose(b.u, a.u, rtol=1e-6)
+
+
+def test_known_noise_scale_is_used_as_given():
+    """sigma given: cov = sigma^2 (J^T J)^-1, whatever the residuals."""
+    t, y = _line()
+    X = np.column_stack([np.ones_like(t), t])
+    fr = fit_result(["a", "b"], [2.0, 0.5], y - X @ [2.0, 0.5], -X, sigma=0.02)
+    np.testing.assert_allclose(fr.cov, 0.02**2 * np.linalg.inv(X.T @ X), rtol=1e-10)
+    assert fr.sigma == 0.02
+
+
+def test_rank_deficiency_and_condition_are_reported():
+    """Two identical columns: rank 1, infinite condition (or beyond 1e15); the pseudo-inverse splits
+    the variance equally between them."""
+    t = np.linspace(0, 1, 20)
+    J = np.column_stack([t, t])
+    js = jacobian_summary(J)
+    assert js.rank == 1
+    assert js.condition > 1e15
+    # (J^T J)^+ of [[s, s], [s, s]] with s = sum t^2 is [[1, 1], [1, 1]] / (4 s)
+    s = float(t @ t)
+    np.testing.assert_allclose(js.cov_unit, np.full((2, 2), 1 / (4 * s)), rtol=1e-10)
+    # units do not change the condition: scaling a column leaves it unchanged
+    J2 = np.column_stack([t, 1 + t**2])
+    assert jacobian_summary(J2).condition == pytest.approx(jacobian_summary(J2 * [1e6, 1e-3]).condition, rel=1e-9)
+
+
+def test_discrepancy_fits_report_through_the_one_type():
+    """The discrepancy workflow's fit is borescan.fit's, with its closed-form covariance."""
+    from borescan.discrepancy.fitting import fit_least_squares
+    from borescan.fit import FitResult
+
+    t, y = _line(seed=11)
+    X = np.column_stack([np.ones_like(t), t])
+    fr = fit_least_squares(lambda p: y - (p["a"] + p["b"] * t), ["a", "b"], [0.0, 0.0], [1.0, 1.0])
+    assert isinstance(fr, FitResult)
+    beta = np.linalg.lstsq(X, y, rcond=None)[0]
+    np.testing.assert_allclose(fr.x, beta, atol=1e-9)
+    s2 = float(np.sum((y - X @ beta) ** 2)) / (t.size - 2)
+    np.testing.assert_allclose(fr.u, np.sqrt(np.diag(s2 * np.linalg.inv(X.T @ X))), rtol=1e-6)
