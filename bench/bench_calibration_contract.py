@@ -2,7 +2,7 @@
 
 Every scan of a fixed-seed contract battery (:func:`borescan.scenarios.write_battery`, written to a
 temporary folder) is calibrated by the pipeline's own path,
-``borescan.pipeline.calibrate_raw_scans([rawio.read_scan(path)], cfg["calibration"])`` with the
+``borescan.stages.calibration_fit.calibrate_raw_scans([rawio.read_scan(path)], cfg["calibration"])`` with the
 validated default config (config/config.yaml, schema defaults filled in). Printed, against the
 acceptance of the issue "A battery over the whole contract":
 
@@ -193,7 +193,8 @@ def evaluate_scan(job: tuple) -> dict:
     """Calibrate one scan and compare with its truth (the row the table is made of)."""
     path, truth_root, cal_cfg = job
     from borescan import calibration, rawio, simulate
-    from borescan.pipeline import calibrate_raw_scans, gauge_radius_mm
+    from borescan.artifacts import gauge_radius_mm
+    from borescan.stages.calibration_fit import calibrate_raw_scans
 
     scan = rawio.read_scan(Path(path))
     truth = simulate.load_truth(truth_root, scan.scan_id)

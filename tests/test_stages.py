@@ -1,4 +1,4 @@
-"""The stage modules: small, importable without cycles, and the old ``borescan.pipeline`` names still resolve."""
+"""The stage modules: small, importable without cycles; the former ``borescan.pipeline`` is gone."""
 
 import ast
 import json
@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 
 import borescan
-from borescan import pipeline
 from borescan.stages._common import Quarantined, quarantine_frame, write_quarantine_record
 
 STAGES = Path(borescan.__file__).parent / "stages"
@@ -36,19 +35,11 @@ def test_library_modules_do_not_import_the_stages(module, never):
     assert out.strip() == "[]", f"{module} imports {out}"
 
 
-def test_former_pipeline_names_resolve_to_their_new_homes():
-    from borescan import artifacts, calibrations, rawio
-    from borescan.stages import calibration_fit, signal
-
-    assert pipeline.gauge_radius_mm is artifacts.gauge_radius_mm
-    assert pipeline.choose_calibration is calibrations.choose_calibration
-    assert pipeline.nights is rawio.nights and pipeline.clock_jump is rawio.clock_jump
-    assert pipeline._spindle_inputs is calibration_fit.spindle_inputs and pipeline._signal_one is signal.signal_one
-    for name in pipeline.MOVED:
-        assert getattr(pipeline, name) is not None
-    assert list(pipeline.SCANS_SCHEMA)[:2] == ["scan_id", "night"]
-    with pytest.raises(AttributeError, match="no attribute 'stage_everything'"):
-        pipeline.stage_everything  # noqa: B018
+def test_the_former_glue_module_is_gone():
+    """Every stage lives in borescan.stages; the forwarding module borescan.pipeline was removed
+    (README migration note), so nothing can grow a second glue library there again."""
+    with pytest.raises(ModuleNotFoundError):
+        __import__("borescan.pipeline")
 
 
 def test_quarantine_record_file_and_row(tmp_path):
