@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 
 import duckdb
 
@@ -232,3 +235,25 @@ def test_night_jobs_spread_scans_over_two_processes(pipeline_run):
     ids = f["scan_id"].unique(maintain_order=True).to_list()
     scans = pl.read_parquet(res / "stage" / "scans" / "night=2026-11-20.parquet")
     assert ids == sorted(ids) and set(ids) == set(scans["scan_id"])
+
+
+def test_a_stage_script_runs_by_hand_and_gives_the_rules_output(pipeline_run, tmp_path):
+    """`python workflow/scripts/<rule>.py night=... raw_root=... results_root=...` builds the rule's
+    job from the Snakefile (for debugging one stage of one night) and writes what the rule wrote."""
+    import polars as pl
+
+    from conftest import ROOT
+
+    night = sorted(p.name.removeprefix("night=") for p in pipeline_run["raw"].glob("night=*"))[0]
+    for script, table in (("ingest_night", "scans"), ("signal_night", "signal_summary")):
+        proc = subprocess.run(
+            [sys.executable, str(ROOT / "workflow" / "scripts" / f"{script}.py"), f"night={night}",
+             f"raw_root={pipeline_run['raw']}", f"results_root={tmp_path}"],
+            capture_output=True, text=True, cwd=tmp_path, timeout=300, env={**os.environ, "MPLBACKEND": "Agg"})
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        by_hand = pl.read_parquet(tmp_path / "stage" / table / f"night={night}.parquet")
+        by_rule = pl.read_parquet(pipeline_run["results"] / "stage" / table / f"night={night}.parquet")
+        assert by_hand.equals(by_rule), table
+    proc = subprocess.run([sys.executable, str(ROOT / "workflow" / "scripts" / "signal_night.py")],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert proc.returncode != 0 and "needs the wildcard(s) ['night']" in proc.stderr

@@ -24,3 +24,52 @@ def log_to(path: str | Path) -> Iterator[Callable[[str], None]]:
             print(line, file=sys.stderr, flush=True)
 
         yield log
+
+
+def rule_job(namespace: dict, script: str | Path, argv: list[str] | None = None):
+    """The job a workflow script runs: Snakemake's ``snakemake`` object when Snakemake runs the
+    script, else the same job built from the Snakefile, so a person can run (and debug) one
+    stage of one night by hand::
+
+        python workflow/scripts/calibrate_night.py night=2026-11-20 [raw_root=DIR results_root=DIR]
+
+    ``key=value`` arguments are the rule's wildcards, or config overrides (as ``--config``) when
+    the key is a top-level config key. The rule is the script's name; paths are relative to the
+    project root (the working directory is changed to it, as Snakemake does).
+    """
+    if "snakemake" in namespace:
+        return namespace["snakemake"]
+    import os
+    import sys as _sys
+
+    import yaml
+    from snakemake.api import SnakemakeApi
+    from snakemake.dag import DAG
+    from snakemake.jobs import Job
+    from snakemake.script import Snakemake
+    from snakemake.settings.types import ConfigSettings, DAGSettings, ResourceSettings
+
+    script = Path(script).resolve()
+    root = script.parents[2]
+    rule_name = script.stem
+    args = dict(a.split("=", 1) for a in (_sys.argv[1:] if argv is None else argv))
+    config_keys = set(yaml.safe_load((root / "config" / "config.yaml").read_text()) or {})
+    overrides = {k: v for k, v in args.items() if k in config_keys}
+    wildcards = {k: v for k, v in args.items() if k not in config_keys}
+    os.chdir(root)
+    with SnakemakeApi() as api:
+        wf = api.workflow(resource_settings=ResourceSettings(cores=1),
+                          config_settings=ConfigSettings(config=overrides),
+                          snakefile=root / "Snakefile", workdir=root)
+        wf.dag(DAGSettings())
+        workflow = wf._workflow
+        rule = workflow.get_rule(rule_name)
+        missing = set(rule.wildcard_names) - set(wildcards)
+        if missing:
+            raise SystemExit(f"{script.name}: rule {rule_name} needs the wildcard(s) {sorted(missing)} "
+                             f"as key=value arguments, e.g. night=2026-11-20")
+        job = Job(rule, DAG(workflow, rules=[rule]), wildcards_dict=wildcards)
+        for f in list(job.output) + list(job.log):
+            Path(f).parent.mkdir(parents=True, exist_ok=True)
+        return Snakemake(job.input, job.output, job.params, job.wildcards, 1, job.resources, job.log,
+                         workflow.config, rule_name, None, scriptdir=str(script.parent))

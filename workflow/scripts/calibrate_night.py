@@ -2,12 +2,18 @@
 
 from borescan.stages._common import write_stage_outputs
 from borescan.stages.calibrate import stage_calibrate
-from borescan.workflow_log import log_to
+from borescan.workflow_log import log_to, rule_job
 
-with log_to(snakemake.log[0]) as log:
-    cals, links, bad = stage_calibrate(
-        snakemake.params.raw_root, snakemake.wildcards.night, snakemake.params.results_root,
-        snakemake.input.scans, snakemake.input.summary, snakemake.params.calibration, log=log,
-    )
-    write_stage_outputs(snakemake.output, bad, calibrations=cals, calibration_scans=links)
-    log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans quarantined")
+
+def main(smk) -> None:
+    with log_to(smk.log[0]) as log:
+        cals, links, bad = stage_calibrate(
+            smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
+            smk.input.scans, smk.input.summary, smk.params.calibration, log=log,
+        )
+        write_stage_outputs(smk.output, bad, calibrations=cals, calibration_scans=links)
+        log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans quarantined")
+
+
+if __name__ == "__main__":
+    main(rule_job(globals(), __file__))  # Snakemake's job, or by hand: python <this script> night=YYYY-MM-DD

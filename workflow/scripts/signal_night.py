@@ -2,7 +2,7 @@
 
 from borescan.stages._common import write_stage_outputs
 from borescan.stages.signal import stage_signal
-from borescan.workflow_log import log_to
+from borescan.workflow_log import log_to, rule_job
 
 
 def main(smk) -> None:
@@ -16,4 +16,4 @@ def main(smk) -> None:
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage
-    main(snakemake)  # noqa: F821 (defined by Snakemake's script preamble)
+    main(rule_job(globals(), __file__))  # Snakemake's job, or by hand: python <this script> night=YYYY-MM-DD
