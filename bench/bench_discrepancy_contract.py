@@ -86,7 +86,7 @@ def _tri_case(seed: int, i: int, effect_free: bool, reference: str):
     return sim, cfg, info
 
 
-def _rod_case(seed: int, i: int, effect_free: bool):
+def _rod_case(seed: int, i: int, effect_free: bool, noise_free: bool = False):
     from dataclasses import replace
 
     from bench.bench_rod_contract import draw_scan
@@ -109,11 +109,61 @@ def _rod_case(seed: int, i: int, effect_free: bool):
     if not effect_free:
         name = str(rng.choice(ROD_EFFECTS))
         effects = [random_effect(name, rng, scene.channels, 0.1, scene.sample_rate_hz)]
-    sim = simulate_rod(scene, s["alpha"], samples_per_pose=s["k"], noise_mm=s["noise"],
+    sim = simulate_rod(scene, s["alpha"], samples_per_pose=s["k"], noise_mm=0.0 if noise_free else s["noise"],
                        seed=int(rng.integers(0, 2**31 - 1)), artifact=art, nominal_layers=s["layers"],
                        effects=effects, scan_id=f"ROD{seed}-{i:05d}")
     info = {"poses": s["n"], "per_pose": s["k"], "noise_um": round(s["noise"] * 1e3, 1), "holes": s["m"]}
     return sim, {}, info
+
+
+def _term(label: str):
+    from borescan.discrepancy.tri import Term
+
+    name, _, rest = label.partition("@")
+    k = None
+    if "[k=" in (rest or name):
+        (rest, _, kk) = rest.partition("[k=") if rest else ("", "", name.partition("[k=")[2])
+        name = name.partition("[k=")[0]
+        k = int(kk.rstrip("]"))
+    channel = None if not rest else (0 if rest == "all" else int(rest))
+    return Term(name, channel, k)
+
+
+def data_lookalikes(clean, truth: str, others: list[str], sigma_mm: float, threshold: float = 10.0) -> dict[str, float]:
+    """How well each of ``others`` imitates the hidden effect ``truth`` in this very scan.
+
+    ``clean`` is the same rod scan simulated without noise (the same geometry, poses and hidden
+    effect): the base model plus ``truth`` fits it exactly, so fitting base plus another candidate
+    B leaves an RSS that a noisy scan would show as B's expected BIC deficit, RSS / sigma^2.
+    Below ``threshold`` the data of this scan cannot tell B from the truth however the workflow
+    decides: a look-alike of this scan (an independent check, from the simulated truth).
+
+    Returns {label: RSS / sigma^2}.
+    """
+    from borescan.discrepancy.examine import scan_arrays
+    from borescan.discrepancy.fitting import fit_least_squares
+    from borescan.discrepancy.poses import RodModel, pose_data_from_arrays
+
+    t_s, ch, vals, pose, _ = scan_arrays(clean)
+    model = RodModel(pose_data_from_arrays(clean.meta["scan_id"], clean.meta, t_s, vals, ch, pose))
+    names, scales = model.base_names(), model.base_scales()
+    st = model.base_start()
+    base = fit_least_squares(lambda p: model.residual(p, []), names, [st.get(n, 0.0) for n in names], scales)
+    out = {}
+    for lab in others:
+        t = _term(lab)
+        best = base.rss
+        for d0 in ((0.0,) if t.effect != "beam_offset" else (0.3, -0.3, 1.0, -1.0)):
+            x0 = [base.values()[n] for n in names] + [d0 if t.effect == "beam_offset" else 0.0 for _ in t.names()]
+            try:
+                fr = fit_least_squares(lambda p: model.residual(p, [t]), names + t.names(), x0,
+                                       scales + t.scales(), max_nfev=200)
+            except ValueError:
+                continue
+            if np.isfinite(fr.rss):
+                best = min(best, fr.rss)
+        out[lab] = float(best / sigma_mm**2)
+    return out
 
 
 def run_one(job: tuple) -> dict:
@@ -138,10 +188,17 @@ def run_one(job: tuple) -> dict:
                 "error": f"{type(err).__name__}: {err}", "tb": traceback.format_exc(limit=4), "info": {},
                 "effect_free": effect_free, "params": [], "cpu_s": time.process_time() - t0}
     named = [named_label(x) for x in f["named"]]
+    look = {}
+    if kind == "rod" and f["verdict"] == "ambiguous" and truth and all(t in named for t in truth):
+        clean, _, _ = _rod_case(seed, i, effect_free, noise_free=True)
+        look = data_lookalikes(clean, truth[0], [n for n in named if n not in truth], sim.truth["noise_mm"]
+                               if "noise_mm" in sim.truth else info["noise_um"] * 1e-3)
+    correct = score(f["verdict"], named, truth, kind)
     return {
         "kind": kind, "i": i, "scan_id": f["scan_id"], "truth": truth, "params": [dict(e.params) for e in effects],
         "hidden": hidden, "effect_free": effect_free or not truth, "verdict": f["verdict"], "named": named,
-        "correct": score(f["verdict"], named, truth, kind), "correct_strict": score(f["verdict"], named, truth, kind, True),
+        "correct": correct, "correct_strict": score(f["verdict"], named, truth, kind, True),
+        "correct_data": correct or bool(look and max(look.values()) < 10.0), "lookalike_rss_over_s2": look,
         "gap_before_mm": f["gap_before"]["rms_mm"], "gap_after_mm": f["gap_after"]["rms_mm"],
         "noise_floor_mm": f["noise_floor_mm"], "info": info, "cpu_s": time.process_time() - t0,
     }
@@ -166,6 +223,9 @@ def summarise(rows: list[dict]) -> str:
                  f"{sum(r['correct_strict'] for r in rows) / max(len(rows), 1):.1%}")
     n_kin = sum(1 for r in rows if r["hidden"] and not r["truth"])
     lines.append(f"  ({n_kin} encoder scans with a hidden speed_error/speed_ripple count as effect-free: spec)")
+    n_data = sum(r.get("correct_data", r["correct"]) for r in rows)
+    lines.append(f"  counting also an ambiguous rod verdict whose other candidates imitate the truth in that very "
+                 f"scan (noise-free refit, RSS/sigma^2 < 10): {n_data}/{len(rows)} = {n_data / max(len(rows), 1):.1%}")
     lines.append(f"false alarms on effect-free scans {len(fa)}/{len(free)} = {len(fa) / max(len(free), 1):.1%}")
     lines.append(f"median gap shrink (effect scans) {np.median(shrink) if shrink else float('nan'):.2f}x")
     for kind in ("tri", "rod"):

@@ -371,3 +371,48 @@ def test_screen_skips_undefined_jacobians():
     J[1, 2] = np.nan
     assert _lstsq(J, np.ones(3)) is None
     assert _lstsq(np.eye(3), np.array([1.0, np.inf, 0.0])) is None
+
+
+def test_outlier_threshold_is_the_bonferroni_quantile():
+    """Threshold for n samples: the Gaussian two-sided quantile at false_rate / n (closed form),
+    never below 4; the settings come from the schema's discrepancy section."""
+    from scipy.stats import norm
+
+    from borescan.config import schema_defaults
+    from borescan.discrepancy.examine import DEFAULTS, discrepancy_settings, outlier_threshold_sigma
+
+    assert outlier_threshold_sigma(1000, 1e-3) == pytest.approx(norm.isf(5e-7), rel=1e-12)
+    assert 4.8 < outlier_threshold_sigma(1000) < 5.0 and 5.1 < outlier_threshold_sigma(6000) < 5.4
+    assert outlier_threshold_sigma(3) == 4.0
+    # Gaussian noise: a channel of n residuals passes the threshold with probability ~ false_rate
+    rng = np.random.default_rng(4)
+    n, trials = 1000, 4000
+    k = outlier_threshold_sigma(n, 0.05)
+    hits = np.mean(np.any(np.abs(rng.standard_normal((trials, n))) > k, axis=1))
+    assert abs(hits - 0.05) < 4 * np.sqrt(0.05 * 0.95 / trials)
+    sec = schema_defaults()["discrepancy"]
+    assert DEFAULTS["threshold"] == sec["delta_bic_threshold"] and DEFAULTS["min_spikes"] == sec["min_outliers"]
+    assert discrepancy_settings({"delta_bic_threshold": 6.0})["threshold"] == 6.0
+
+
+def test_quantised_rod_readings_are_named_even_below_the_noise():
+    """Readings all on a lattice are conclusive evidence of quantisation whatever the lsb: a rod
+    scan with lsb 5 um under 10 um noise gets it named, with the rounding noise it adds."""
+    from borescan.effects import Effect
+    from borescan.geometry import Hole, RodAxis, RodLayer
+    from borescan.simulate import RodScene, simulate_rod
+
+    layers = (RodLayer(1, 0.0, 60.0, 0.0, 0.0, 0.0), RodLayer(2, 40.0, 50.0, 1.9, 0.0, 0.0))
+    holes = (Hole((0.4, -0.3), 75.0), Hole((0.1, 0.5), 65.0))
+    scene = RodScene(layers=layers, holes=holes, axis=RodAxis(0.8, -0.5, 0.004, 0.3), range_mm=(30.0, 30.0))
+    feats = [{"id": f"H{j + 1}", "z_mm": lay.h_mm, "nominal_diameter_mm": 2 * h.radius_mm,
+              "certified_diameter_mm": 2 * h.radius_mm} for j, (lay, h) in enumerate(zip(layers, holes))]
+    art = {"id": "MASTER", "type": "part", "nominal_diameter_mm": 150.0, "cte_per_k": 11.5e-6, "features": feats}
+    alpha = np.random.default_rng(2).uniform(0, 2 * np.pi, 20)
+    sim = simulate_rod(scene, alpha, samples_per_pose=10, noise_mm=0.010, seed=5, artifact=art, nominal_layers=layers,
+                       effects=[Effect("quantization", {"channel": 2, "lsb_mm": 0.005})], scan_id="ROD-Q")
+    f = examine_scan(sim)
+    q = [n for n in f["named"] if n["effect"] == "quantization"]
+    assert f["verdict"] == "missing_effect" and len(q) == 1 and q[0]["channel"] == 2
+    assert q[0]["parameters"]["lsb_mm"] == pytest.approx(0.005, rel=1e-6)
+    assert q[0]["evidence"]["rounding_noise_mm"] == pytest.approx(0.005 / np.sqrt(12), rel=1e-6)

@@ -19,23 +19,29 @@ from typing import Any
 
 import numpy as np
 
+from borescan.config import schema_defaults
 from borescan.discrepancy.fitting import FitResult, fit_least_squares
 from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays
 from borescan.discrepancy.tri import Term, TriData, TriModel, tri_data_from_arrays
 from borescan.effects import EFFECTS
 
-__all__ = ["Examination", "examine_scan", "examine_tri", "analyse_scan", "write_findings", "scan_arrays"]
+__all__ = ["Examination", "discrepancy_settings", "examine_scan", "examine_tri", "analyse_scan", "write_findings", "scan_arrays"]
+
+#: config key (``discrepancy:`` section of the schema) -> keyword of :func:`examine_model`
+SETTINGS = {"delta_bic_threshold": "threshold", "max_harmonic": "k_max", "exact_refits": "n_exact",
+            "pair_seeds": "n_pair_seeds", "pair_extensions": "n_pair_ext", "screen_gate": "screen_gate",
+            "outlier_false_rate": "spike_false_rate", "min_outliers": "min_spikes", "max_samples": "max_samples"}
+
+
+def discrepancy_settings(section: dict | None = None) -> dict[str, Any]:
+    """Keywords of :func:`examine_scan` from the config's ``discrepancy`` section; the defaults
+    (and any key the section leaves out) come from the schema, the one place defaults live."""
+    merged = {**schema_defaults()["discrepancy"], **(section or {})}
+    return {kw: merged[key] for key, kw in SETTINGS.items()}
+
 
 DEFAULTS: dict[str, Any] = {
-    "threshold": 10.0,  # Delta BIC to accept an effect and to separate it from the runner-up
-    "k_max": 8,  # highest harmonic tried for bore_lobing / spindle_error_motion
-    "n_exact": 8,  # singles refitted exactly after the linear screen
-    "n_pair_seeds": 3,  # best singles extended by a second term
-    "n_pair_ext": 3,  # second terms tried per seed
-    "screen_gate": 0.5,  # no exact refits when every linearised Delta BIC < screen_gate x threshold
-    "spike_sigma": 7.0,  # outlier threshold in noise levels (after a running median)
-    "min_spikes": 3,  # fewer isolated spikes on a channel are not called outliers
-    "max_samples": 6000,  # longer spindle scans are examined on 4 blocks spread over the scan
+    **discrepancy_settings(),
     "free_beams": (),  # spindle scans: free "d_b" and/or "beta" (then offsets / delays are absorbed)
     "beams": None,  # Beams (or nominal-format list) replacing device.nominal beams, e.g. a calibration
     "layers": None,  # rod: nominal-format layer list replacing device.nominal layers
@@ -177,6 +183,16 @@ def _rms(r: np.ndarray, mask: np.ndarray) -> float:
 LATTICE_TOL = 1e-5  # readings within this many lsb of the lattice count as on it
 
 
+def outlier_threshold_sigma(n: int, false_rate: float = 1e-3) -> float:
+    """Outlier threshold in noise levels for ``n`` samples of a channel: the two-sided Gaussian
+    quantile that ``n`` independent residuals pass with probability ``false_rate`` in all
+    (Bonferroni), at least 4. About 5.2 for 6000 samples, 4.9 for 1000 (a fixed 7 missed
+    outliers of 5-6 noise levels, which a channel of 1000 readings shows plainly)."""
+    from scipy.stats import norm
+
+    return max(4.0, float(norm.isf(false_rate / (2.0 * max(n, 1)))))
+
+
 def _lattice_lsb(v: np.ndarray) -> float | None:
     """The step of a lattice that every reading lies on (quantised sensor), else None."""
     v = v[np.isfinite(v)]
@@ -278,7 +294,8 @@ def examine_model(model, **cfg) -> Examination:
     sig_ref = float(np.sqrt(np.mean(sigma**2))) or 1e-6
     named_extra: list[dict] = []
     # --- outliers: isolated jumps (running-median residual), per channel
-    spikes = model.spike_mask(r0, sigma, k_sigma=c["spike_sigma"])
+    spikes = model.spike_mask(r0, sigma, k_sigma=outlier_threshold_sigma(int(model.valid.sum(axis=0).max()),
+                                                                          float(c["spike_false_rate"])))
     all_valid = model.valid.copy()
     for j, ch in enumerate(data.channels):
         cnt = int(spikes[:, j].sum())
@@ -327,10 +344,10 @@ def examine_model(model, **cfg) -> Examination:
         dbic_ll, s_q = _quantization_evidence(r0[ok, j], lsb, data.values_mm[ok, j])
         nq = int(np.isfinite(r0[ok, j]).sum())
         # A continuous reading lands within LATTICE_TOL lsb of the lattice with probability
-        # 2 LATTICE_TOL; every one of the nq readings did. The effect is named only when the
-        # rounding noise matters: lsb / sqrt(12) >= 0.3 sigma (adds >= 9 % to the variance).
-        material = lsb / math.sqrt(12.0) >= 0.3 * s_q
-        dbic = float(2.0 * nq * math.log(1.0 / (2.0 * LATTICE_TOL)) - math.log(nq)) if material else -math.inf
+        # 2 LATTICE_TOL; every one of the nq readings did: conclusive, whatever the lsb. The
+        # finding says what the rounding adds to the noise (lsb / sqrt(12)); once the device's
+        # model includes the quantisation it is no longer missing.
+        dbic = float(2.0 * nq * math.log(1.0 / (2.0 * LATTICE_TOL)) - math.log(nq))
         named_extra.append(
             {
                 "effect": "quantization",
@@ -338,7 +355,8 @@ def examine_model(model, **cfg) -> Examination:
                 "parameters": {"lsb_mm": lsb},
                 "uncertainties": {"u_lsb_mm": lsb * LATTICE_TOL},
                 "evidence": {"delta_bic": dbic, "delta_bic_likelihood": dbic_ll, "lattice": True,
-                             "noise_before_quantization_mm": s_q},
+                             "noise_before_quantization_mm": s_q,
+                             "rounding_noise_mm": lsb / math.sqrt(12.0)},
                 "_q": (j, lsb),
             }
         )

@@ -8,6 +8,7 @@ from pathlib import Path
 import polars as pl
 
 from borescan import discrepancy, rawio, tables
+from borescan.discrepancy.examine import discrepancy_settings
 from borescan.discrepancy.reference import discrepancy_reference
 from borescan.parallel import map_in_order, workers_for
 from borescan.stages._common import Quarantined, night_scans, quarantine, read_tables
@@ -38,12 +39,12 @@ def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibrati
     plots to ``gap.png``. ``cfg`` is the config's ``discrepancy`` section. Scans are spread over
     ``workers`` processes.
     """
-    threshold = float(cfg["delta_bic_threshold"])
+    settings = discrepancy_settings(cfg)
     cals = read_tables(calibration_tables) if calibration_tables else pl.DataFrame()
     jobs = []
     for row, d in night_scans(raw_root, night, scans_table):
         ref_kw, ref = discrepancy_reference(cals, row["device_id"], row["device_type"], night)
-        jobs.append((raw_root, night, results_root, d, threshold, ref_kw, ref))
+        jobs.append((raw_root, night, results_root, d, settings, ref_kw, ref))
     log(f"{len(jobs)} scans on {workers_for(len(jobs), workers)} process(es)")
     rows, bad = [], []
     for r, q, msg in map_in_order(discrepancy_one, jobs, workers):
@@ -55,12 +56,12 @@ def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibrati
 
 def discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
     """Examine one scan, write findings.json and gap.png: (findings rows, quarantined, log line)."""
-    raw_root, night, results_root, d, threshold, ref_kw, ref = job
+    raw_root, night, results_root, d, settings, ref_kw, ref = job
     bad: list[Quarantined] = []
     scan = rawio.read_scan(d, raw_root=Path(raw_root))
     out_dir = Path(results_root) / "discrepancy" / scan.scan_id
     try:
-        ex = discrepancy.analyse_scan(scan, threshold=threshold, **ref_kw)
+        ex = discrepancy.analyse_scan(scan, **settings, **ref_kw)
         findings = ex.findings
         findings["reference"] = ref
         discrepancy.write_findings(findings, out_dir)
