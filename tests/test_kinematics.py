@@ -107,3 +107,22 @@ def test_angle_model_of_a_simulated_scan_matches_the_twin():
     assert am.source == "profile"
     assert np.allclose(am.commanded_rad(t), -scene.commanded_angle_rad(t), atol=1e-9)
     assert angle_model_of_scan(prof.meta, None).source == "nominal"
+
+
+def test_repeated_evaluation_on_fixed_times_is_cached_and_exact():
+    """Fits evaluate Phi(t) on one read-only time array again and again: the second call returns
+    the first result (the same values), views of it hit the cache too, writable arrays never do."""
+    tk = np.linspace(0.0, 2.0, 400)
+    model = AngleModel("encoder", tk, 2 * np.pi * tk + 0.1 * np.sin(3 * tk))
+    t = np.linspace(0.01, 1.99, 5000)
+    fresh = model.commanded_rad(t.copy())
+    t.flags.writeable = False
+    a = model.commanded_rad(t)
+    assert model.commanded_rad(t) is a  # served from the cache
+    b = model.commanded_rad(t[:, None])
+    assert model.commanded_rad(t[:, None]) is b  # a new view of the same times: cached too
+    assert np.array_equal(a, fresh) and np.array_equal(b[:, 0], fresh)
+    w = t.copy()
+    assert model.commanded_rad(w) is not model.commanded_rad(w)  # writable: evaluated every time
+    w[0] = 0.5
+    assert model.commanded_rad(w)[0] == pytest.approx(model.commanded_rad(np.array([0.5]))[0])

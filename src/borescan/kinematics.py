@@ -120,6 +120,7 @@ class AngleModel:
             raise ValueError("an encoder angle needs at least 2 valid samples")
         object.__setattr__(self, "knot_t_s", t)
         object.__setattr__(self, "knot_value", v)
+        object.__setattr__(self, "_last", (None, None, None))  # (t array, Phi(t)): fits evaluate one t again and again
 
     @property
     def fits_speed_and_phase(self) -> bool:
@@ -128,10 +129,20 @@ class AngleModel:
 
     def commanded_rad(self, t_s: np.ndarray) -> np.ndarray:
         """Phi(t): the encoder angle, or the integral of the commanded speed from t = 0 [rad]."""
+        key = _readonly_key(t_s)
+        last_key, _, last_phi = self._last
+        if key is not None and key == last_key:  # the same read-only times (or a view of them) as last time
+            return last_phi
         t = np.asarray(t_s, dtype=float)
         if self.source == "encoder":
-            return _encoder_interp(t, self.knot_t_s, self.knot_value)
-        return profile_angle_rad(t, self.knot_t_s, self.knot_value)
+            phi = _encoder_interp(t, self.knot_t_s, self.knot_value)
+        else:
+            phi = profile_angle_rad(t, self.knot_t_s, self.knot_value)
+        if key is not None:
+            phi.flags.writeable = False
+            # the base array is held so that its memory cannot be reused by another array
+            object.__setattr__(self, "_last", (key, t_s.base if t_s.base is not None else t_s, phi))
+        return phi
 
     def phi_rad(self, t_s: np.ndarray, phase_rad: float = 0.0, speed_scale: float = 1.0) -> np.ndarray:
         """Device angle phi(t) = phase + scale Phi(t) (``encoder``: the interpolated angle itself)."""
@@ -150,6 +161,19 @@ class AngleModel:
         return {"encoder": "encoder angle interpolated at each reading (absolute frame)",
                 "profile": "integral of the rpm profile, phase and speed scale fitted",
                 "nominal": "rpm_nominal * t, phase and speed scale fitted"}[self.source]
+
+
+def _readonly_key(t) -> tuple | None:
+    """Identity of a read-only float array's values (memory, shape, strides), None otherwise:
+    evaluations on such an array (fits evaluate one set of times again and again) are cached."""
+    if not isinstance(t, np.ndarray) or t.dtype != np.float64 or t.flags.writeable:
+        return None
+    base = t
+    while base.base is not None and isinstance(base.base, np.ndarray):
+        base = base.base
+    if base.flags.writeable:  # a read-only view of a writable array may change under it
+        return None
+    return (t.__array_interface__["data"][0], t.shape, t.strides)
 
 
 def _encoder_interp(t: np.ndarray, tk: np.ndarray, ak: np.ndarray) -> np.ndarray:

@@ -192,6 +192,8 @@ def tri_data_from_arrays(
     C = np.array([float(center["x_mm"]), float(center["y_mm"])]) if center else None
     env = meta.get("environment", {}) or {}
     cte = art.get("cte_per_k")
+    t_s = np.array(t_s, dtype=float)
+    t_s.flags.writeable = False  # fixed for the examination: its angle is computed once (kinematics)
     return TriData(
         radius_free=art.get("certified_diameter_mm") is None,
         n_total=n_total,
