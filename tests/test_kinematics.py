@@ -114,7 +114,7 @@ def test_repeated_evaluation_on_fixed_times_is_cached_and_exact():
     the first result (the same values), views of it hit the cache too, writable arrays never do."""
     tk = np.linspace(0.0, 2.0, 400)
     model = AngleModel("encoder", tk, 2 * np.pi * tk + 0.1 * np.sin(3 * tk))
-    t = np.linspace(0.01, 1.99, 5000)
+    t = np.array(np.linspace(0.01, 1.99, 5000))  # owns its memory (linspace returns a view)
     fresh = model.commanded_rad(t.copy())
     t.flags.writeable = False
     a = model.commanded_rad(t)

@@ -7,10 +7,16 @@ origin (NIST places them up to 1000 mm out) keep full precision.
 - :func:`fit_circle_ls`: geometric least squares min sum (|p_i - c| - R)^2 (LSCI), Gauss-Newton
   from the algebraic Kasa start, Levenberg damping only when a step does not descend.
 - :func:`min_circumscribed_circle` (MCCI): exact, Welzl's algorithm (move-to-front, seeded).
-- :func:`max_inscribed_circle` (MICI) and :func:`min_zone_circle` (MZCI): sequential linear
-  programming (exact gradients, trust region) on the Chebyshev problems
-  max_c min_i |p_i - c| and min_c (max_i |p_i - c| - min_i |p_i - c|), converged to a vertex,
-  then polished by solving the active-set equations exactly (Newton).
+- :func:`max_inscribed_circle` (MICI): the global maximum of min_i |p_i - c| over centres c
+  inside the closed profile polygon: the best Voronoi vertex of the points (a Delaunay
+  circumcentre) inside the polygon, then the exact 3-point polish.
+- :func:`min_zone_circle` (MZCI): sequential linear programming (exact gradients, trust region)
+  on min_c (max_i |p_i - c| - min_i |p_i - c|), converged to a vertex, then polished by solving
+  the active-set equations exactly (Newton).
+- MZCI, MICI and MCCI need a closed profile: the largest angular gap between consecutive points
+  about the least-squares centre must not exceed ``max_gap_deg`` (default
+  :data:`CLOSED_MAX_GAP_DEG` = 150 deg); an open arc raises :class:`CircleFitError`
+  "profile is not closed (largest gap X deg)". :func:`largest_gap_deg` gives the gap.
 - roundness RONt (peak-to-valley of radial deviations) about each centre: :func:`roundness`.
 - :func:`harmonic_spectrum`: amplitude per undulations per revolution (UPR), least-squares
   Fourier fit (valid for non-uniform angles).
@@ -22,10 +28,13 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linprog
+from scipy.spatial import Delaunay, QhullError
 
 __all__ = [
     "Circle",
     "CircleFitError",
+    "CLOSED_MAX_GAP_DEG",
+    "largest_gap_deg",
     "fit_circle_ls",
     "fit_circle_kasa",
     "min_circumscribed_circle",
@@ -38,7 +47,20 @@ __all__ = [
 
 
 class CircleFitError(ValueError):
-    """Too few points, collinear points or a failed iteration."""
+    """Too few points, collinear points, an open profile or a failed iteration."""
+
+
+CLOSED_MAX_GAP_DEG = 150.0
+"""Largest angular gap [deg] between consecutive profile points, seen from the least-squares
+centre, for which the profile counts as closed (ISO 12181 reference circles are defined for a
+closed profile). The polygon through the points in angular order surrounds the centre exactly
+when every gap is below 180 deg; at 180 deg (a half circle) the centre lies on the chord across
+the gap and beyond it outside the polygon: an empty circle can then grow out through the gap,
+and the circumscribed and minimum zone circles no longer describe the feature. 150 deg keeps the
+centre at least R cos 75 deg = 0.26 R inside that chord, a margin against a least-squares
+centre pulled by form error on a near-half arc, and still admits the sparsest closed profile,
+three points 120 deg apart. The NIST circle2d reference sets that sample the whole circle have
+gaps of 1-120 deg (3 to 7 points: 51.5-120 deg); their partial arcs have 179.9-270.2 deg."""
 
 
 @dataclass(frozen=True)
@@ -54,7 +76,8 @@ class Circle:
     rms_mm : RMS of radial deviations about (centre, radius) [mm]
     zone_mm : (r_min, r_max) of the points about the centre [mm]
     cov : (3, 3) covariance of (cx, cy, R) from the residual scatter (LSCI only) else None
-    n_iter : iterations used
+    n_iter : iterations used (MICI: number of candidate centres, the Voronoi vertices that are
+        local maxima of the inscribed radius inside the profile)
     """
 
     center_xy_mm: np.ndarray
@@ -181,6 +204,55 @@ def fit_circle_ls(x_mm, y_mm, *, max_iter: int = 200) -> Circle:
     return _make("LSCI", x, y, shift, p[:2], abs(p[2]), cov, it)
 
 
+# --------------------------------------------------------------------------- closed profile
+
+
+def _angular_order(x: np.ndarray, y: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, float]:
+    """Indices of the points in increasing angle about ``c``, those angles [rad] and the
+    largest gap between angularly consecutive points (the wrap-around gap included) [deg]."""
+    th = np.arctan2(y - c[1], x - c[0])
+    order = np.argsort(th, kind="stable")
+    ths = th[order]
+    gaps = np.diff(np.concatenate([ths, ths[:1] + 2.0 * np.pi]))
+    return order, ths, float(np.degrees(gaps.max()))
+
+
+def largest_gap_deg(x_mm, y_mm, center_xy_mm=None) -> float:
+    """Largest angular gap between consecutive profile points seen from a centre [deg].
+
+    Parameters
+    ----------
+    x_mm, y_mm : array_like (n,) [mm]; non-finite points are dropped.
+    center_xy_mm : (2,) [mm]; default the least-squares centre.
+
+    Returns
+    -------
+    The gap [deg], 0 < gap <= 360: <= :data:`CLOSED_MAX_GAP_DEG` for a closed profile.
+    """
+    x, y, shift = _prep(x_mm, y_mm)
+    c = _ls_center(x, y, shift, center_xy_mm)
+    return _angular_order(x, y, c)[2]
+
+
+def _ls_center(x: np.ndarray, y: np.ndarray, shift: np.ndarray, ls_center_xy_mm) -> np.ndarray:
+    """The least-squares centre in the shifted frame (fitted unless the caller has it)."""
+    if ls_center_xy_mm is None:
+        return fit_circle_ls(x, y).center_xy_mm
+    return np.asarray(ls_center_xy_mm, dtype=float) - shift
+
+
+def _check_closed(x, y, c, max_gap_deg: float, method: str) -> tuple[np.ndarray, np.ndarray]:
+    """Angular order about ``c`` (see :func:`_angular_order`), or CircleFitError when the
+    largest gap exceeds ``max_gap_deg``."""
+    order, ths, gap = _angular_order(x, y, c)
+    if not gap <= max_gap_deg:
+        raise CircleFitError(
+            f"{method}: profile is not closed (largest gap {gap:.1f} deg) around its least-squares "
+            f"centre; a closed profile has no gap larger than {max_gap_deg:g} deg ({x.size} points)"
+        )
+    return order, ths
+
+
 # --------------------------------------------------------------------------- MCCI (Welzl)
 
 
@@ -228,12 +300,27 @@ def _welzl(P: np.ndarray, tol: float) -> tuple[np.ndarray, float]:
     return c, r
 
 
-def min_circumscribed_circle(x_mm, y_mm, *, seed: int = 0) -> Circle:
+def min_circumscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *, seed: int = 0,
+                             max_gap_deg: float = CLOSED_MAX_GAP_DEG) -> Circle:
     """Minimum circumscribed circle (ISO 12181 MCCI), exact (Welzl, expected linear time).
 
     The smallest circle containing every point; defined by 2 or 3 points on it.
+
+    Parameters
+    ----------
+    x_mm, y_mm : array_like (n,), n >= 3 [mm]; non-finite points are dropped.
+    ls_center_xy_mm : (2,) least-squares centre [mm] when the caller has it (else fitted); the
+        closed-profile check is made about it.
+    seed : seed of the random point order of Welzl's algorithm (the result does not depend on it).
+    max_gap_deg : largest angular gap of a closed profile [deg] (:data:`CLOSED_MAX_GAP_DEG`).
+
+    Raises
+    ------
+    CircleFitError
+        "profile is not closed (largest gap X deg)" for an open arc.
     """
-    x, y, shift = _prep(x_mm, y_mm, min_points=2)
+    x, y, shift = _prep(x_mm, y_mm)
+    _check_closed(x, y, _ls_center(x, y, shift, ls_center_xy_mm), max_gap_deg, "MCCI")
     P = np.column_stack([x, y])
     if P.shape[0] > 50:  # the enclosing circle of a set is that of its convex hull
         from scipy.spatial import ConvexHull
@@ -250,14 +337,14 @@ def min_circumscribed_circle(x_mm, y_mm, *, seed: int = 0) -> Circle:
     return _make("MCCI", x, y, shift, c, r)
 
 
-# --------------------------------------------------------------------------- MICI / MZCI (SLP)
+# --------------------------------------------------------------------------- MZCI (SLP)
 
 
-def _slp(x, y, c0, kind: str, max_iter: int = 100) -> tuple[np.ndarray, int]:
-    """Sequential LP with a trust region for the Chebyshev centre problems.
+def _slp(x, y, c0, max_iter: int = 100) -> tuple[np.ndarray, int]:
+    """Sequential LP with a trust region for the minimum zone centre.
 
-    kind "MICI": maximise t subject to |p_i - c| >= t; "MZCI": minimise (s - t) subject to
-    t <= |p_i - c| <= s. Linearised about c: |p_i - c - dc| ~= d_i - n_i . dc.
+    Minimise (s - t) subject to t <= |p_i - c| <= s, linearised about c:
+    |p_i - c - dc| ~= d_i - n_i . dc.
     """
     scale = float(np.max(np.hypot(x, y)))
     c = np.array(c0, dtype=float)
@@ -265,7 +352,7 @@ def _slp(x, y, c0, kind: str, max_iter: int = 100) -> tuple[np.ndarray, int]:
 
     def objective(c):
         d = np.hypot(x - c[0], y - c[1])
-        return -d.min() if kind == "MICI" else d.max() - d.min()
+        return d.max() - d.min()
 
     f = objective(c)
     it = 0
@@ -274,15 +361,14 @@ def _slp(x, y, c0, kind: str, max_iter: int = 100) -> tuple[np.ndarray, int]:
         dx, dy = x - c[0], y - c[1]
         d = np.hypot(dx, dy)
         nx, ny = dx / d, dy / d
-        n = x.size
         # work in units of the current zone width about the mean radius so that the LP
         # tolerances (~1e-7 relative) act on the form deviations, not on the radius
         w = max(float(d.max() - d.min()), 1e-12 * scale)
         b = (d - d.mean()) / w
         lim = delta / w
-        res = _lp_step(kind, nx, ny, b, lim, opts)
+        res = _lp_step(nx, ny, b, lim, opts)
         if res.status != 0:
-            raise CircleFitError(f"{kind}: linear program failed: {res.message}")
+            raise CircleFitError(f"MZCI: linear program failed: {res.message}")
         step = res.x[:2] * w
         c_new = c + step
         f_new = objective(c_new)
@@ -299,42 +385,31 @@ def _slp(x, y, c0, kind: str, max_iter: int = 100) -> tuple[np.ndarray, int]:
     return c, it
 
 
-def _lp_step(kind: str, nx: np.ndarray, ny: np.ndarray, b: np.ndarray, lim: float, opts: dict, n_seed: int = 128):
-    """One linearised Chebyshev LP of :func:`_slp`, solved by constraint generation.
+def _lp_step(nx: np.ndarray, ny: np.ndarray, b: np.ndarray, lim: float, opts: dict, n_seed: int = 128):
+    """One linearised minimum zone LP of :func:`_slp`, solved by constraint generation.
 
     The LP on all points equals the LP on the points whose constraints are active; start from
-    the ``n_seed`` most extreme points, solve, add every point whose constraint the solution
-    violates, and repeat until none does (then the subset solution is optimal for all points:
-    exact, not an approximation). A scan of 10^5 points needs a few LPs of a few hundred rows.
+    the ``n_seed`` most extreme points on either side, solve, add every point whose constraint
+    the solution violates, and repeat until none does (then the subset solution is optimal for
+    all points: exact, not an approximation). A scan of 10^5 points needs a few LPs of a few
+    hundred rows.
     """
     n = b.size
-    if kind == "MICI":
-        active = np.argsort(b)[: min(n, 2 * n_seed)]
-    else:
-        order = np.argsort(b)
-        active = np.unique(np.concatenate([order[:n_seed], order[-n_seed:]]))
+    order = np.argsort(b)
+    active = np.unique(np.concatenate([order[:n_seed], order[-n_seed:]]))
     tol = 1e-9
     while True:
         ax, ay, ab = nx[active], ny[active], b[active]
         m = active.size
-        if kind == "MICI":
-            # variables (dcx, dcy, t); maximise t: d_i - n_i.dc >= t  ->  n_i.dc + t <= d_i
-            A = np.column_stack([ax, ay, np.ones(m)])
-            res = linprog([0, 0, -1.0], A_ub=A, b_ub=ab, bounds=[(-lim, lim)] * 2 + [(None, None)],
-                          method="highs", options=opts)
-        else:
-            # variables (dcx, dcy, t, s); minimise s - t
-            A1 = np.column_stack([-ax, -ay, np.zeros(m), -np.ones(m)])  # d - n.dc <= s
-            A2 = np.column_stack([ax, ay, np.ones(m), np.zeros(m)])  # t <= d - n.dc
-            res = linprog([0, 0, -1.0, 1.0], A_ub=np.vstack([A1, A2]), b_ub=np.concatenate([-ab, ab]),
-                          bounds=[(-lim, lim)] * 2 + [(None, None)] * 2, method="highs", options=opts)
+        # variables (dcx, dcy, t, s); minimise s - t
+        A1 = np.column_stack([-ax, -ay, np.zeros(m), -np.ones(m)])  # d - n.dc <= s
+        A2 = np.column_stack([ax, ay, np.ones(m), np.zeros(m)])  # t <= d - n.dc
+        res = linprog([0, 0, -1.0, 1.0], A_ub=np.vstack([A1, A2]), b_ub=np.concatenate([-ab, ab]),
+                      bounds=[(-lim, lim)] * 2 + [(None, None)] * 2, method="highs", options=opts)
         if res.status != 0 or active.size == n:
             return res
         lin = b - nx * res.x[0] - ny * res.x[1]  # linearised distance of every point
-        if kind == "MICI":
-            viol = lin < res.x[2] - tol
-        else:
-            viol = (lin < res.x[2] - tol) | (lin > res.x[3] + tol)
+        viol = (lin < res.x[2] - tol) | (lin > res.x[3] + tol)
         viol[active] = False
         if not viol.any():
             return res
@@ -346,18 +421,25 @@ def _lp_step(kind: str, nx: np.ndarray, ny: np.ndarray, b: np.ndarray, lim: floa
 
 
 def _polish(x, y, c, kind: str) -> np.ndarray:
-    """Solve the active-set equations exactly (Newton) from the SLP vertex.
+    """Solve the active-set equations exactly (Newton) from a vertex.
 
-    MICI: three nearest points equidistant. MZCI: two inner + two outer, or 3 + 1, with
-    equal inner distances and equal outer distances (2 equations, 2 unknowns).
+    MICI: three nearest points equidistant; with more than three (cocircular points, e.g. a
+    perfect circle) the three most spread of them (a triangle of largest area, so that the
+    circumcentre is well conditioned). MZCI: two inner + two outer, or 3 + 1, with equal inner
+    distances and equal outer distances (2 equations, 2 unknowns).
     """
     d = np.hypot(x - c[0], y - c[1])
     scale = float(d.max())
     tol = 1e-7 * scale
     if kind == "MICI":
         act = np.flatnonzero(d <= d.min() + tol)
-        if act.size != 3:
+        if act.size < 3:
             return c
+        if act.size > 3:
+            a = act[0]
+            b = act[np.argmax(np.hypot(x[act] - x[a], y[act] - y[a]))]
+            area = np.abs((x[b] - x[a]) * (y[act] - y[a]) - (y[b] - y[a]) * (x[act] - x[a]))
+            act = np.array([a, b, act[np.argmax(area)]])
         groups = [act]
     else:
         inner = np.flatnonzero(d <= d.min() + tol)
@@ -393,31 +475,181 @@ def _polish(x, y, c, kind: str) -> np.ndarray:
     return cc if obj(cc) <= obj(best) + 1e-15 * scale and np.hypot(*(cc - best)) < tol else best
 
 
-def max_inscribed_circle(x_mm, y_mm, start_xy_mm=None) -> Circle:
-    """Maximum inscribed circle (ISO 12181 MICI) of a closed profile.
+# --------------------------------------------------------------------------- MICI (Voronoi)
 
-    max over c of min_i |p_i - c|, started at the least-squares centre (the profile must
-    surround its centre); sequential LP to the vertex, then exact 3-point polish.
+
+def _local_max_vertices(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Voronoi vertices of the points ``P`` (n, 2) that can be local maxima of
+    f(c) = min_i |p_i - c|: circumcentres (m, 2) of the Delaunay triangles with no obtuse angle,
+    and their circumradii (m,) (>= f there, = f up to rounding: the circle is empty).
+
+    A Voronoi vertex is the centre of an empty circle through the 3 corners of its Delaunay
+    triangle; f has a local maximum there exactly when the centre lies in the (closed)
+    triangle, i.e. the triangle has no obtuse angle (a right angle puts it on the hypotenuse,
+    as for diametrically opposite points). Across the longest side of an obtuse triangle f
+    keeps rising along the Voronoi edge, so such a vertex is never the maximum. The angle test
+    allows cos >= -1e-9 for rounding. The circumcentre is computed from the triangle's own
+    corners (relative to one of them), not taken from Qhull.
+
+    Qhull triangulates joggled input ("QJ", coordinates moved by ~1e-11 of their size): exactly
+    cocircular points (a simulated perfect circle) otherwise cost it O(n^2) time (20000 points:
+    about 30 s instead of 0.1 s). The triangles are then Delaunay for the original points except
+    where 4 or more are cocircular to within the joggle, where any choice gives the same vertex
+    to that accuracy; all geometry here uses the original coordinates.
+    """
+    if P.shape[0] == 3:  # Qhull needs 4 points
+        return _circumcentres_non_obtuse(P, np.array([[0, 1, 2]]))
+    try:
+        tri = Delaunay(P, qhull_options="Qbb Q12 QJ").simplices
+    except QhullError as exc:
+        raise CircleFitError(f"MICI: no Delaunay triangulation of the {P.shape[0]} points: {exc}") from exc
+    return _circumcentres_non_obtuse(P, tri)
+
+
+def _circumcentres_non_obtuse(P: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Circumcentres (m, 2) and circumradii (m,) of the triangles ``P[tri]`` with no obtuse
+    angle (cos >= -1e-9 allowed for rounding), computed relative to a corner."""
+    a = P[tri[:, 0]]
+    b = P[tri[:, 1]] - a
+    c = P[tri[:, 2]] - a
+    bc = c - b
+    b2, c2, bc2 = np.einsum("ij,ij->i", b, b), np.einsum("ij,ij->i", c, c), np.einsum("ij,ij->i", bc, bc)
+    eps = 1e-9
+    ok = (
+        (np.einsum("ij,ij->i", b, c) >= -eps * np.sqrt(b2 * c2))  # angle at a
+        & (-np.einsum("ij,ij->i", b, bc) >= -eps * np.sqrt(b2 * bc2))  # angle at b
+        & (np.einsum("ij,ij->i", c, bc) >= -eps * np.sqrt(c2 * bc2))  # angle at c
+    )
+    a, b, c, b2, c2 = a[ok], b[ok], c[ok], b2[ok], c2[ok]
+    d = 2.0 * (b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.column_stack([c[:, 1] * b2 - b[:, 1] * c2, b[:, 0] * c2 - c[:, 0] * b2]) / d[:, None]
+    cc = a + u
+    fin = np.all(np.isfinite(cc), axis=1)
+    return cc[fin], np.hypot(u[fin, 0], u[fin, 1])
+
+
+def _best_empty_centre(cand: np.ndarray, bound: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The candidate centre (m, 2) with the largest f(c) = min_i |p_i - c|, f evaluated exactly
+    (distances to all points; near a ring's centre every point is about as far, so a tree search
+    would visit them all anyway), in order of decreasing upper bound ``bound`` >= f, stopping
+    once no remaining bound can beat the best f found."""
+    order = np.argsort(-bound, kind="stable")
+    slack = 1e-12 * float(np.max(np.abs(bound)))  # rounding of the bounds
+    step = max(1, (1 << 22) // max(x.size, 1))
+    best, best_c = -np.inf, cand[order[0]]
+    for i in range(0, order.size, step):
+        idx = order[i : i + step]
+        if bound[idx[0]] + slack < best:
+            break
+        q = cand[idx]
+        f = np.sqrt(np.min((q[:, :1] - x) ** 2 + (q[:, 1:] - y) ** 2, axis=1))
+        j = int(np.argmax(f))
+        if f[j] > best:
+            best, best_c = float(f[j]), q[j]
+    return best_c
+
+
+def _inside_star_polygon(q: np.ndarray, V: np.ndarray, th: np.ndarray, c) -> np.ndarray:
+    """Which points ``q`` (m, 2) lie strictly inside the polygon ``V`` (n, 2), whose vertices
+    are in increasing angle ``th`` [rad] about ``c`` with every gap < 180 deg (star-shaped
+    about c): q is inside when it lies on c's side of the edge spanning its own angle."""
+    n = V.shape[0]
+    phi = np.arctan2(q[:, 1] - c[1], q[:, 0] - c[0])
+    k = np.searchsorted(th, phi, side="right") - 1  # -1: the wrap-around edge V[n-1] -> V[0]
+    a, b = V[k % n], V[(k + 1) % n]
+    cross = (b[:, 0] - a[:, 0]) * (q[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (q[:, 0] - a[:, 0])
+    return cross > 0.0
+
+
+def max_inscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
+                         max_gap_deg: float = CLOSED_MAX_GAP_DEG) -> Circle:
+    """Maximum inscribed circle (ISO 12181 MICI) of a closed profile: the global maximum.
+
+    The largest circle whose centre lies inside the profile polygon (the points joined in
+    angular order about the least-squares centre) and that contains no profile point:
+    max over c in the polygon of f(c) = min_i |p_i - c|. Inside the polygon f has its maxima at
+    vertices of the Voronoi diagram of the points, i.e. circumcentres of the Delaunay triangles
+    (circles through 3 points, empty of points), and only at those whose triangle contains its
+    circumcentre (no obtuse angle). Every such vertex inside the polygon is a candidate; f is
+    evaluated exactly (distances to all points) in order of decreasing circumradius (an upper
+    bound of f) until no candidate left can beat the best, which is polished exactly (3-point
+    circumcentre). f may have many local maxima; this is the largest, not the one nearest a
+    start.
+
+    Parameters
+    ----------
+    x_mm, y_mm : array_like (n,), n >= 3 [mm]; non-finite points are dropped.
+    ls_center_xy_mm : (2,) least-squares centre [mm] when the caller has it (else fitted): the
+        closed-profile check and the angular order of the polygon are taken about it.
+    max_gap_deg : largest angular gap of a closed profile [deg] (:data:`CLOSED_MAX_GAP_DEG`).
+
+    Returns
+    -------
+    Circle with ``n_iter`` = the number of candidate centres (Voronoi vertices inside the
+    polygon that are local maxima of f).
+
+    Raises
+    ------
+    CircleFitError
+        "profile is not closed (largest gap X deg)" for an open arc; "profile too sparse" (Notes).
+
+    Notes
+    -----
+    On the polygon's edges f is at most half the edge length (the distance to the nearer
+    end); a maximum there instead of at a Voronoi vertex needs points so sparse that an edge
+    is longer than the inscribed diameter, which a closed profile (gaps <= 150 deg about the
+    centre, radius varying by much less than R) does not have; such a profile raises
+    CircleFitError "profile too sparse".
     """
     x, y, shift = _prep(x_mm, y_mm)
-    # start: the least-squares centre (given by the caller when it has one)
-    c0 = fit_circle_ls(x, y).center_xy_mm if start_xy_mm is None else np.asarray(start_xy_mm, float) - shift
-    c, it = _slp(x, y, c0, "MICI")
-    c = _polish(x, y, c, "MICI")
+    c0 = _ls_center(x, y, shift, ls_center_xy_mm)
+    order, ths = _check_closed(x, y, c0, max_gap_deg, "MICI")
+    P = np.column_stack([x, y])
+    cand, bound = _local_max_vertices(P)
+    inside = _inside_star_polygon(cand, P[order], ths, c0)
+    cand, bound = cand[inside], bound[inside]
+    if cand.shape[0] == 0:
+        raise CircleFitError(f"MICI: no Voronoi vertex of the {x.size} points lies inside the profile")
+    c = _polish(x, y, _best_empty_centre(cand, bound, x, y), "MICI")
     r = float(np.min(np.hypot(x - c[0], y - c[1])))
-    return _make("MICI", x, y, shift, c, r, n_iter=it)
+    V = P[order]
+    edge_mm = float(np.max(np.hypot(*(np.roll(V, -1, axis=0) - V).T)))
+    if edge_mm > 2.0 * r:  # see Notes: f on that edge could exceed r
+        raise CircleFitError(
+            f"MICI: profile too sparse: an edge of the profile polygon ({edge_mm:.6g} mm) is longer than "
+            f"the inscribed diameter found ({2.0 * r:.6g} mm), the circle could be centred on that edge"
+        )
+    return _make("MICI", x, y, shift, c, r, n_iter=int(cand.shape[0]))
 
 
-def min_zone_circle(x_mm, y_mm, start_xy_mm=None) -> Circle:
+def min_zone_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
+                    max_gap_deg: float = CLOSED_MAX_GAP_DEG) -> Circle:
     """Minimum zone circles (ISO 12181 MZCI): concentric pair of least radial separation.
 
-    Returns the common centre, radius = mean of the inner and outer zone radii and
+    Sequential LP from the least-squares centre, then the exact active-set polish.
+
+    Parameters
+    ----------
+    x_mm, y_mm : array_like (n,), n >= 4 [mm]; non-finite points are dropped.
+    ls_center_xy_mm : (2,) least-squares centre [mm] when the caller has it (else fitted): the
+        start, and the centre of the closed-profile check.
+    max_gap_deg : largest angular gap of a closed profile [deg] (:data:`CLOSED_MAX_GAP_DEG`).
+
+    Returns
+    -------
+    Circle with the common centre, radius = mean of the inner and outer zone radii and
     ``ront_mm`` = the zone width (the smallest RONt of any centre).
+
+    Raises
+    ------
+    CircleFitError
+        "profile is not closed (largest gap X deg)" for an open arc.
     """
     x, y, shift = _prep(x_mm, y_mm, min_points=4)
-    # start: the least-squares centre (given by the caller when it has one)
-    c0 = fit_circle_ls(x, y).center_xy_mm if start_xy_mm is None else np.asarray(start_xy_mm, float) - shift
-    c, it = _slp(x, y, c0, "MZCI")
+    c0 = _ls_center(x, y, shift, ls_center_xy_mm)
+    _check_closed(x, y, c0, max_gap_deg, "MZCI")
+    c, it = _slp(x, y, c0)
     c = _polish(x, y, c, "MZCI")
     d = np.hypot(x - c[0], y - c[1])
     return _make("MZCI", x, y, shift, c, 0.5 * (d.min() + d.max()), n_iter=it)
@@ -431,14 +663,19 @@ def roundness(x_mm, y_mm, center_xy_mm) -> float:
     return float(np.nanmax(d) - np.nanmin(d))
 
 
-def reference_circles(x_mm, y_mm) -> dict[str, Circle]:
-    """All four ISO 12181 reference circles: {"LSCI", "MZCI", "MICI", "MCCI"}."""
+def reference_circles(x_mm, y_mm, *, max_gap_deg: float = CLOSED_MAX_GAP_DEG) -> dict[str, Circle]:
+    """All four ISO 12181 reference circles: {"LSCI", "MZCI", "MICI", "MCCI"}.
+
+    Raises CircleFitError "profile is not closed (largest gap X deg)" when the largest angular
+    gap about the least-squares centre exceeds ``max_gap_deg`` [deg].
+    """
     ls = fit_circle_ls(x_mm, y_mm)
+    c = ls.center_xy_mm
     return {
         "LSCI": ls,
-        "MZCI": min_zone_circle(x_mm, y_mm, start_xy_mm=ls.center_xy_mm),
-        "MICI": max_inscribed_circle(x_mm, y_mm, start_xy_mm=ls.center_xy_mm),
-        "MCCI": min_circumscribed_circle(x_mm, y_mm),
+        "MZCI": min_zone_circle(x_mm, y_mm, c, max_gap_deg=max_gap_deg),
+        "MICI": max_inscribed_circle(x_mm, y_mm, c, max_gap_deg=max_gap_deg),
+        "MCCI": min_circumscribed_circle(x_mm, y_mm, c, max_gap_deg=max_gap_deg),
     }
 
 
