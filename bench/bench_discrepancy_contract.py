@@ -4,16 +4,16 @@ Three-sensor scans come from :func:`borescan.scenarios.draw_tri_calibration` (bo
 any beam directions and offsets, speed ramps, encoder or rpm profile, nulls, a channel leaving
 its range; ~20 % effect-free, the rest with one named effect from
 :func:`borescan.discrepancy.battery.random_effect`). Rod scans come from
-``bench_rod_contract.draw_scan`` (2-3 holes of 100-200 mm, 8-40 poses, 5-30 readings per pose,
-noise 2-20 um, eccentricity up to 2.5 mm, deflection up to 1 deg) simulated by
-:func:`borescan.simulate.simulate_rod`, ~20 % effect-free, the rest with one rod-applicable
+:func:`borescan.scenarios.draw_rod_scan` (2-3 holes of 100-200 mm, 8-40 poses, 5-30 readings per
+pose, noise 2-20 um, eccentricity up to 2.5 mm, deflection up to 1 deg; half in ring-gauge sets
+with certified diameters, half in parts with nominal ones, whose radii are then free), ~20 % effect-free, the rest with one rod-applicable
 effect that ``random_effect`` draws (``beam_offset`` has no random magnitude there and is left out).
 
 Reference (what the scan is examined against). The pipeline examines a calibrated device
 against its latest calibration (``discrepancy.reference``). The bench's stand-in for a perfect
 calibration is the scan's true beam geometry (three-sensor: ``truth["contract"]["beams"]``
 passed as ``beams=``; rod: the true layers as ``device.nominal`` and certified hole diameters,
-as a setting master would give). ``--reference nominal`` instead examines three-sensor scans
+as a setting master would give, or nominal ones of a part). ``--reference nominal`` instead examines three-sensor scans
 the way the pipeline treats an uncalibrated device: ``device.nominal`` (the design geometry,
 off by up to 30 mrad / 1 mm) with beam lengths and angles freed; the effects a calibration
 absorbs (offsets, delays, thermal expansion) cannot then be named, and are scored as such.
@@ -87,32 +87,15 @@ def _tri_case(seed: int, i: int, effect_free: bool, reference: str):
 
 
 def _rod_case(seed: int, i: int, effect_free: bool, noise_free: bool = False):
-    from dataclasses import replace
+    from borescan.scenarios import ROD_CONTRACT, battery_rng, draw_rod_scan
 
-    from bench.bench_rod_contract import draw_scan
-    from borescan.discrepancy.battery import random_effect
-    from borescan.scenarios import battery_rng
-    from borescan.simulate import RodScene, simulate_rod
-
+    contract = dict(ROD_CONTRACT, noise_mm=(0.0, 0.0)) if noise_free else ROD_CONTRACT
     rng = battery_rng(seed + 100_000, i)
-    s = draw_scan(rng)
-    # draw_scan sets l0 = r - 4 mm (pose means, no range); a 30 mm sensor is set mid-range here so
-    # that eccentricity and deflection (up to 13 mm at the top layer) stay inside it
-    s["layers"] = [replace(lay, l0_mm=float(h.radius_mm - 15.0)) for lay, h in zip(s["layers"], s["holes"])]
-    scene = RodScene(layers=tuple(s["layers"]), holes=tuple(s["holes"]), axis=s["axis"], range_mm=(30.0,) * s["m"])
-    feats = [{"id": f"H{j + 1}", "z_mm": lay.h_mm, "nominal_diameter_mm": float(round(2 * hh.radius_mm)),
-              "certified_diameter_mm": 2 * hh.radius_mm}
-             for j, (lay, hh) in enumerate(zip(s["layers"], s["holes"]))]
-    art = {"id": "MASTER", "type": "part", "nominal_diameter_mm": feats[0]["nominal_diameter_mm"],
-           "cte_per_k": 11.5e-6, "features": feats}
-    effects = []
-    if not effect_free:
-        name = str(rng.choice(ROD_EFFECTS))
-        effects = [random_effect(name, rng, scene.channels, 0.1, scene.sample_rate_hz)]
-    sim = simulate_rod(scene, s["alpha"], samples_per_pose=s["k"], noise_mm=0.0 if noise_free else s["noise"],
-                       seed=int(rng.integers(0, 2**31 - 1)), artifact=art, nominal_layers=s["layers"],
-                       effects=effects, scan_id=f"ROD{seed}-{i:05d}")
-    info = {"poses": s["n"], "per_pose": s["k"], "noise_um": round(s["noise"] * 1e3, 1), "holes": s["m"]}
+    sim = draw_rod_scan(rng, scan_id=f"ROD{seed}-{i:05d}", night="2027-01-01", effect_free=effect_free,
+                        contract=contract)
+    c = sim.truth["contract"]
+    info = {"poses": c["n_poses"], "per_pose": c["samples_per_pose"], "noise_um": round(c["noise_mm"] * 1e3, 1),
+            "holes": len(c["diameters_mm"]), "artifact": c["artifact"]}
     return sim, {}, info
 
 

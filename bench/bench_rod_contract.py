@@ -19,31 +19,18 @@ from collections import Counter
 
 import numpy as np
 
-from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
+from borescan.geometry import rod_readings
 from borescan.rod import RodSolveError, rod_cost_mm2, rod_crb, solve_rod
+from borescan.scenarios import draw_rod_geometry
 
 
 def draw_scan(rng: np.random.Generator) -> dict:
-    """One effect-free rod scan over the contract's ranges (module doc); pose-mean readings."""
-    m = int(rng.integers(2, 4))
-    r = rng.uniform(50.0, 100.0, m)
-    h = rng.uniform(50.0, 150.0) + np.concatenate([[0.0], np.cumsum(rng.uniform(100.0, 300.0, m - 1))])
-    layers = [RodLayer(j + 1, float(h[j]), float(r[j] - 4.0), phi_rad=float(rng.uniform(-0.1, 0.1)),
-                       d_mm=float(rng.uniform(-0.5, 0.5)), gamma_rad=float(np.deg2rad(rng.uniform(-0.5, 0.5))))
-              for j in range(m)]
-    off = rng.uniform(-0.05, 0.05, (m, 2))
-    holes = [Hole((float(off[j, 0]), float(off[j, 1])), float(r[j])) for j in range(m)]
-    e, te = 2.5 * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
-    axis = RodAxis(float(e * np.cos(te)), float(e * np.sin(te)), float(np.deg2rad(rng.uniform(0.0, 1.0))),
-                   float(rng.uniform(0, 2 * np.pi)))
-    n = int(rng.integers(8, 41))
-    k = int(rng.integers(5, 31))
-    sig = float(rng.uniform(0.002, 0.020))
-    alpha = rng.uniform(0, 2 * np.pi, n)
-    v0 = rod_readings(alpha, layers, holes, axis)
-    v = v0 + sig * rng.standard_normal((k,) + v0.shape).mean(axis=0)
-    return {"layers": layers, "holes": holes, "axis": axis, "alpha": alpha, "v": v, "sigma": sig / np.sqrt(k),
-            "n": n, "k": k, "m": m, "noise": sig}
+    """One effect-free rod scan over the contract (:func:`borescan.scenarios.draw_rod_geometry`);
+    pose-mean readings."""
+    g = draw_rod_geometry(rng)
+    v0 = rod_readings(g["alpha"], g["layers"], g["holes"], g["axis"])
+    v = v0 + g["noise"] * rng.standard_normal((g["k"],) + v0.shape).mean(axis=0)
+    return {**g, "v": v, "sigma": g["noise"] / np.sqrt(g["k"])}
 
 
 def evaluate(scan: dict) -> dict:

@@ -267,3 +267,61 @@ def test_effect_free_readings_are_the_model_plus_noise(draws):
 def test_effects_can_be_drawn_on_request():
     sim = draw_tri_calibration(battery_rng(3, 0), scan_id="E0", night="2027-01-01", effect_free=False)
     assert len(sim.truth["effects"]) == 1 and not sim.truth["contract"]["effect_free"]
+
+
+def test_static_sets_over_the_contract_measure_to_their_truth(tmp_path):
+    """Static three-sensor sets (ring gauges and parts, 3-12 poses, noise 1-5 um) written and read
+    back like any scan, measured with the true beams: every diameter within 4 u of the truth, the
+    z-scores' SD near 1 (the scan's repeatability is the drawn noise)."""
+    from borescan.geometry import Beams
+    from borescan.measure import measure_scan
+
+    z, kinds = [], set()
+    for i in range(24):
+        sim = scenarios.draw_tri_static(battery_rng(5, i), scan_id=f"CS5-{i:05d}", night="2027-01-01")
+        c = sim.truth["contract"]
+        kinds.add(c["artifact"])
+        d = simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth")
+        res = measure_scan(rawio.read_scan(d, raw_root=tmp_path / "raw"), Beams.from_nominal(c["beams"]), np.zeros((9, 9)))
+        z.append((res["diameter_mm"] - c["diameter_mm"]) / res["u_diameter_mm"])
+        assert 75.0 <= c["bore_radius_mm"] <= 200.0 and 3 <= c["n_poses"] <= 12
+    z = np.array(z)
+    assert kinds == {"ring_gauge", "part"}
+    assert np.max(np.abs(z)) < 4.0 and 0.6 < np.std(z) < 1.5
+
+
+def test_rod_scans_over_the_contract_and_a_mixed_battery(tmp_path):
+    """Rod scans in ring-gauge sets (certified) and parts (nominal), ranges of the contract; the
+    rod solve recovers every hole within 4 u; write_battery writes every kind from its own
+    stream (calibration scans unchanged by adding the others)."""
+    from borescan.geometry import RodLayer
+    from borescan.rod import solve_rod
+
+    kinds = set()
+    for i in range(6):
+        sim = scenarios.draw_rod_scan(battery_rng(6, i), scan_id=f"CR6-{i:05d}", night="2027-01-01")
+        c = sim.truth["contract"]
+        kinds.add(c["artifact"])
+        assert 2 <= len(c["diameters_mm"]) <= 3 and all(100.0 <= d <= 200.0 for d in c["diameters_mm"])
+        assert 8 <= c["n_poses"] <= 40 and c["eccentricity_mm"] <= 2.5 and c["deflection_rad"] <= math.radians(1.0)
+        art = sim.meta["artifact"]
+        assert ("certified_diameter_mm" in art["features"][0]) == (c["artifact"] == "ring_gauge")
+        lds = sim.lds.sort("sample", "sensor")
+        m = len(c["diameters_mm"])
+        vals = lds["value_mm"].to_numpy().reshape(-1, m)
+        p = lds["pose"].to_numpy().reshape(-1, m)[:, 0]
+        means = np.array([vals[p == k].mean(axis=0) for k in range(c["n_poses"])])
+        layers = [RodLayer(int(lay["channel"]), lay["h"], lay["l0"], lay["phi"], lay["d"], lay["gamma"])
+                  for lay in sim.meta["device"]["nominal"]["layers"]]
+        sol = solve_rod(means, layers=layers, u_reading_mm=c["noise_mm"] / np.sqrt(c["samples_per_pose"]))
+        assert np.all(np.abs(sol.diameter_mm - np.array(c["diameters_mm"])) < 4 * sol.u_diameter_mm)
+    assert kinds == {"ring_gauge", "part"}
+    paths = scenarios.write_battery(tmp_path / "b", 2, 9, kinds=("calibration", "static", "rod"))
+    names = [p.name for p in paths]
+    assert names == ["scan=CT9-00000", "scan=CT9-00001", "scan=CS9-00000", "scan=CS9-00001",
+                     "scan=CR9-00000", "scan=CR9-00001"]
+    only_cal = scenarios.write_battery(tmp_path / "c", 2, 9)
+    assert (only_cal[0] / "lds.parquet").read_bytes() == (paths[0] / "lds.parquet").read_bytes()
+    assert json.loads((tmp_path / "b" / "battery.json").read_text())["kinds"] == ["calibration", "static", "rod"]
+    with pytest.raises(ValueError, match="kinds must be among"):
+        scenarios.write_battery(tmp_path / "d", 1, 1, kinds=("spindle",))

@@ -36,7 +36,17 @@ The truth of each scan (``truth["contract"]``) records everything an evaluation 
 true beams, R, S, C, the angle source, the noise, the reported positions and their errors, the
 speed profile, the out-of-range channel and the nulls.
 
-:func:`write_battery` writes a battery of such scans deterministically: scan i is drawn from
+Static three-sensor sets (:func:`draw_tri_static`, :data:`STATIC_CONTRACT`): a ring gauge with
+a certified diameter (verification) or a part with a nominal one (measurement), bore radius
+75-200 mm, 3-12 device poses within 3 mm of the centre at random angles, 5-30 samples per pose,
+noise 1-5 um (the sensors' stated repeatability), beams drawn as above or given.
+
+Rod scans (:func:`draw_rod_scan`, :data:`ROD_CONTRACT`): 2-3 coaxial holes of 100-200 mm, 8-40
+poses at random angles, 5-30 readings per pose, noise 2-20 um, eccentricity up to 2.5 mm,
+deflection up to 1 deg, real layer geometry (phi, d, gamma); half in ring-gauge sets with
+certified diameters (verification), half in parts with nominal ones (measurement).
+
+:func:`write_battery` writes a battery of such scans deterministically (``kinds``): scan i is drawn from
 its own child seed ``SeedSequence(seed, spawn_key=(i,))``, so adding scans never changes the
 earlier ones. Command: ``borescan simulate contract --n N --seed S --out DIR``.
 """
@@ -62,7 +72,13 @@ __all__ = [
     "spindle_tick_s",
     "reading_span_mm",
     "draw_tri_calibration",
+    "STATIC_CONTRACT",
+    "ROD_CONTRACT",
+    "draw_tri_static",
+    "draw_rod_geometry",
+    "draw_rod_scan",
     "battery_rng",
+    "BATTERY_KINDS",
     "battery_scan_id",
     "write_battery",
 ]
@@ -385,6 +401,179 @@ def draw_tri_calibration(
     return replace(sim, meta=meta, lds=lds, spindle=spindle, truth=truth)
 
 
+# --------------------------------------------------------------------------- static sets and rods
+
+#: Ranges of the static three-sensor sets (ring gauges with certified diameters, parts with
+#: nominal ones) and of the rod scans; units in the names.
+STATIC_CONTRACT: dict = {
+    "bore_radius_mm": (75.0, 200.0),
+    "device_offset_mm": 3.0,
+    "n_poses": (3, 12),
+    "samples_per_pose": (5, 30),
+    "noise_mm": (0.001, 0.005),
+    "p_ring_gauge": 0.5,
+}
+ROD_CONTRACT: dict = {
+    "n_holes": (2, 3),
+    "hole_radius_mm": (50.0, 100.0),
+    "n_poses": (8, 40),
+    "samples_per_pose": (5, 30),
+    "noise_mm": (0.002, 0.020),
+    "eccentricity_mm": 2.5,
+    "deflection_deg": 1.0,
+    "range_mm": 30.0,
+    "p_ring_gauge": 0.5,
+}
+
+
+def _artifact(kind: str, ident: str, diameters_mm, z_mm, cte_per_k: float, u_mm: float = 0.0015) -> dict:
+    """A ring-gauge set (certified diameters, u, k = 2) or a part (nominal diameters only)."""
+    d = [float(x) for x in diameters_mm]
+    feats = [{"id": f"H{j + 1}", "z_mm": float(z), "nominal_diameter_mm": float(round(x, 1))}
+             for j, (x, z) in enumerate(zip(d, z_mm))]
+    if kind == "ring_gauge":
+        for f, x in zip(feats, d):
+            f.update({"certified_diameter_mm": x, "u_diameter_mm": u_mm, "k": 2})
+        art = {"id": ident, "type": "ring_gauge", "nominal_diameter_mm": feats[0]["nominal_diameter_mm"],
+               "certified_diameter_mm": d[0], "u_diameter_mm": u_mm, "k": 2, "certificate": f"{ident}/cert",
+               "cte_per_k": cte_per_k}
+    else:
+        art = {"id": ident, "type": "part", "nominal_diameter_mm": feats[0]["nominal_diameter_mm"], "cte_per_k": cte_per_k}
+    if len(feats) > 1:
+        art["features"] = feats
+    return art
+
+
+def draw_tri_static(rng: np.random.Generator, *, scan_id: str, night: str, beams: Beams | None = None,
+                    effect_free: bool = True, contract: dict = STATIC_CONTRACT):
+    """A static three-sensor set drawn over the contract: a ring gauge with a certified diameter
+    (a verification) or a part with a nominal one (a measurement), 3-12 device poses within
+    3 mm of the bore centre at random angles, 5-30 samples per pose, noise 1-5 um. ``beams``
+    (default: drawn as for :func:`draw_tri_calibration`) is the device; d_b and the ranges keep
+    every reading inside its sensor's range.
+
+    Returns
+    -------
+    borescan.simulate.SimulatedScan; ``truth["contract"]`` holds the draw (true diameter, poses, beams).
+    """
+    from borescan import simulate
+
+    R = float(rng.uniform(*contract["bore_radius_mm"]))
+    n_p = int(rng.integers(contract["n_poses"][0], contract["n_poses"][1] + 1))
+    r = contract["device_offset_mm"] * np.sqrt(rng.uniform(0, 1, n_p))
+    a = rng.uniform(0, 2 * math.pi, n_p)
+    xy = np.stack([r * np.cos(a), r * np.sin(a)], -1)
+    ang = rng.uniform(0, 2 * math.pi, n_p)
+    if beams is None:
+        beta = draw_beam_directions(rng, 3, TRI_CONTRACT["min_beam_separation_rad"])
+        rho = rng.uniform(-TRI_CONTRACT["rho_max_mm"], TRI_CONTRACT["rho_max_mm"], 3)
+    else:
+        beta, rho = np.asarray(beams.beta_rad, float), np.asarray(beams.rho_mm, float)
+    # distances from each beam's foot to the wall at every pose: the extreme offset bounds them
+    s = np.concatenate([reading_span_mm(beta, rho, xy[p], R, n_phi=256) for p in range(n_p)])
+    s_min, s_max = s.min(axis=0), s.max(axis=0)
+    range_mm = np.array([max(10.0, float(hi - lo) + 1.0) for lo, hi in zip(s_min, s_max)])
+    d_b = s_min - 0.5 * (range_mm - (s_max - s_min)) if beams is None else np.asarray(beams.d_b_mm, float)
+    dev = Beams((1, 2, 3), beta, rho, d_b)
+    noise = float(rng.uniform(*contract["noise_mm"]))
+    kind = "ring_gauge" if rng.random() < contract["p_ring_gauge"] else "part"
+    art = _artifact(kind, f"{'RG' if kind == 'ring_gauge' else 'P'}-{round(2 * R)}", [2 * R], [0.0], 11.5e-6)
+    effects = []
+    if not effect_free:
+        from borescan.discrepancy.battery import random_effect
+
+        name = str(rng.choice(("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift")))
+        effects = [random_effect(name, rng, (1, 2, 3), 1.0, 1000.0)]
+    scene = simulate.TriScene(beams=dev, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=R,
+                              range_mm=tuple(float(x) for x in range_mm))
+    sim = simulate.simulate_tri_static(
+        scene, xy, ang, scan_id=scan_id, night=night, kind="verification" if kind == "ring_gauge" else "measurement",
+        samples_per_pose=int(rng.integers(contract["samples_per_pose"][0], contract["samples_per_pose"][1] + 1)),
+        effects=effects, noise_mm=noise, seed=int(rng.integers(0, 2**31 - 1)), device_id=f"TRI-{scan_id}"[:64],
+        nominal_beams=dev, artifact=art)
+    meta = json.loads(json.dumps(sim.meta))
+    for sensor in meta.get("sensors", []):  # the data sheet states the repeatability the scan has
+        sensor["repeatability_mm"] = noise
+    truth = dict(sim.truth)
+    truth["contract"] = {"generator": "borescan.scenarios.draw_tri_static", "effect_free": not effects,
+                         "beams": dev.to_nominal(), "bore_radius_mm": R, "diameter_mm": 2 * R, "artifact": kind,
+                         "noise_mm": noise, "n_poses": n_p, "range_mm": [float(x) for x in range_mm]}
+    return replace(sim, meta=meta, truth=truth)
+
+
+def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -> dict:
+    """Rod geometry over the contract: 2-3 coaxial holes of radius 50-100 mm 100-300 mm apart,
+    layer geometry (l0, phi, d, gamma) of a real rod, eccentricity up to 2.5 mm and deflection up
+    to 1 deg, 8-40 poses at random angles, 5-30 readings per pose, noise 2-20 um.
+
+    Returns
+    -------
+    dict: layers, holes, axis, alpha (pose angles [rad]), n (poses), k (readings per pose),
+    m (holes), noise [mm]
+    """
+    from borescan.geometry import Hole, RodAxis, RodLayer
+
+    m = int(rng.integers(contract["n_holes"][0], contract["n_holes"][1] + 1))
+    r = rng.uniform(*contract["hole_radius_mm"], m)
+    h = rng.uniform(50.0, 150.0) + np.concatenate([[0.0], np.cumsum(rng.uniform(100.0, 300.0, m - 1))])
+    layers = [RodLayer(j + 1, float(h[j]), float(r[j] - 4.0), phi_rad=float(rng.uniform(-0.1, 0.1)),
+                       d_mm=float(rng.uniform(-0.5, 0.5)), gamma_rad=float(np.deg2rad(rng.uniform(-0.5, 0.5))))
+              for j in range(m)]
+    off = rng.uniform(-0.05, 0.05, (m, 2))
+    holes = [Hole((float(off[j, 0]), float(off[j, 1])), float(r[j])) for j in range(m)]
+    e, te = contract["eccentricity_mm"] * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
+    axis = RodAxis(float(e * np.cos(te)), float(e * np.sin(te)),
+                   float(np.deg2rad(rng.uniform(0.0, contract["deflection_deg"]))), float(rng.uniform(0, 2 * np.pi)))
+    n = int(rng.integers(contract["n_poses"][0], contract["n_poses"][1] + 1))
+    k = int(rng.integers(contract["samples_per_pose"][0], contract["samples_per_pose"][1] + 1))
+    sig = float(rng.uniform(*contract["noise_mm"]))
+    alpha = rng.uniform(0, 2 * np.pi, n)
+    return {"layers": layers, "holes": holes, "axis": axis, "alpha": alpha, "n": n, "k": k, "m": m, "noise": sig}
+
+
+def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_free: bool = True,
+                  contract: dict = ROD_CONTRACT):
+    """A rod scan over the contract (:func:`draw_rod_geometry`) in a ring-gauge set with certified
+    diameters (half of the scans: what a rod is verified on) or in a part with nominal ones. Each
+    layer's sensor (range 30 mm) sits mid-range so that eccentricity and deflection stay inside it.
+
+    Returns
+    -------
+    borescan.simulate.SimulatedScan; ``truth["contract"]`` holds the draw.
+    """
+    from borescan import simulate
+
+    g = draw_rod_geometry(rng, contract)
+    layers = [replace(lay, l0_mm=float(hh.radius_mm - contract["range_mm"] / 2))
+              for lay, hh in zip(g["layers"], g["holes"])]
+    kind = "ring_gauge" if rng.random() < contract["p_ring_gauge"] else "part"
+    art = _artifact(kind, f"{'RGS' if kind == 'ring_gauge' else 'CYL'}-{scan_id}"[:40],
+                    [2 * hh.radius_mm for hh in g["holes"]], [lay.h_mm for lay in layers], 11.5e-6)
+    scene = simulate.RodScene(layers=tuple(layers), holes=tuple(g["holes"]), axis=g["axis"],
+                              range_mm=(contract["range_mm"],) * g["m"])
+    effects = []
+    if not effect_free:
+        from borescan.discrepancy.battery import random_effect
+
+        name = str(rng.choice(("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift", "quantization",
+                               "outliers", "thermal_expansion", "beam_tilt")))
+        effects = [random_effect(name, rng, scene.channels, 0.1, scene.sample_rate_hz)]
+    sim = simulate.simulate_rod(scene, g["alpha"], samples_per_pose=g["k"], noise_mm=g["noise"],
+                                seed=int(rng.integers(0, 2**31 - 1)), artifact=art, nominal_layers=layers,
+                                effects=effects, scan_id=scan_id, night=night, device_id=f"ROD-{scan_id}"[:64],
+                                kind="verification" if kind == "ring_gauge" else "measurement")
+    meta = json.loads(json.dumps(sim.meta))
+    for sensor in meta.get("sensors", []):  # the data sheet states the repeatability the scan has
+        sensor["repeatability_mm"] = g["noise"]
+    truth = dict(sim.truth)
+    truth["contract"] = {"generator": "borescan.scenarios.draw_rod_scan", "effect_free": not effects,
+                         "artifact": kind, "diameters_mm": [2 * hh.radius_mm for hh in g["holes"]],
+                         "n_poses": g["n"], "samples_per_pose": g["k"], "noise_mm": g["noise"],
+                         "eccentricity_mm": float(np.hypot(g["axis"].dx_mm, g["axis"].dy_mm)),
+                         "deflection_rad": g["axis"].omega_rad}
+    return replace(sim, meta=meta, truth=truth)
+
+
 # --------------------------------------------------------------------------- battery
 
 
@@ -397,9 +586,21 @@ def battery_rng(seed: int, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(index),)))
 
 
-def battery_scan_id(seed: int, index: int) -> str:
-    """Scan id of scan ``index`` of battery ``seed``: ``CT<seed>-<index:05d>``."""
-    return f"CT{int(seed)}-{int(index):05d}"
+#: battery scan kinds -> (id prefix, child-seed stream): calibration scans keep the stream they always had
+BATTERY_KINDS = {"calibration": ("CT", 0), "static": ("CS", 1), "rod": ("CR", 2)}
+
+
+def battery_scan_id(seed: int, index: int, kind: str = "calibration") -> str:
+    """Scan id of scan ``index`` of battery ``seed``: ``CT<seed>-<index:05d>`` (calibration),
+    ``CS...`` (static sets), ``CR...`` (rods)."""
+    return f"{BATTERY_KINDS[kind][0]}{int(seed)}-{int(index):05d}"
+
+
+def _kind_rng(seed: int, index: int, kind: str) -> np.random.Generator:
+    stream = BATTERY_KINDS[kind][1]
+    if stream == 0:
+        return battery_rng(seed, index)
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(index), stream)))
 
 
 def _battery_night(index: int, per_night: int = 25) -> str:
@@ -416,6 +617,7 @@ def write_battery(
     effect_free: bool = True,
     only: Sequence[int] | None = None,
     progress: Callable[[int, int, Path], None] | None = None,
+    kinds: Sequence[str] = ("calibration",),
 ) -> list[Path]:
     """Write ``n`` contract calibration scans: raw tree under ``out_dir/raw``, truth under ``out_dir/truth``.
 
@@ -433,6 +635,9 @@ def write_battery(
     only : write only these scan indices (each in 0..n-1): the same scans as in the whole
         battery, e.g. to re-examine a few
     progress : called as progress(k, total, scan_folder) after each scan (k counts from 0)
+    kinds : which scans, ``n`` of each: ``"calibration"`` (:func:`draw_tri_calibration`),
+        ``"static"`` (:func:`draw_tri_static`: ring gauges with certified diameters and parts
+        with nominal ones), ``"rod"`` (:func:`draw_rod_scan`); each kind from its own seed stream
 
     Returns
     -------
@@ -449,16 +654,21 @@ def write_battery(
         raise ValueError(f"scan indices must lie in 0..{int(n) - 1}, got {indices}")
     out_dir = Path(out_dir)
     raw, truth = out_dir / "raw", out_dir / "truth"
+    unknown = [k for k in kinds if k not in BATTERY_KINDS]
+    if unknown or not kinds:
+        raise ValueError(f"kinds must be among {sorted(BATTERY_KINDS)}, got {list(kinds)}")
+    draw = {"calibration": draw_tri_calibration, "static": draw_tri_static, "rod": draw_rod_scan}
+    jobs = [(kind, i) for kind in kinds for i in indices]
     paths = []
-    for k, i in enumerate(indices):
-        sid = battery_scan_id(seed, i)
-        sim = draw_tri_calibration(battery_rng(seed, i), scan_id=sid, night=_battery_night(i),
-                                   effect_free=effect_free)
+    for k, (kind, i) in enumerate(jobs):
+        sim = draw[kind](_kind_rng(seed, i, kind), scan_id=battery_scan_id(seed, i, kind), night=_battery_night(i),
+                         effect_free=effect_free)
         paths.append(simulate.write_simulated(sim, raw, truth))
         if progress is not None:
-            progress(k, len(indices), paths[-1])
+            progress(k, len(jobs), paths[-1])
     index = {"generator": "borescan.scenarios.write_battery", "seed": int(seed), "n": int(n),
-             "effect_free": bool(effect_free), "scan_ids": [battery_scan_id(seed, i) for i in indices]}
+             "effect_free": bool(effect_free), "kinds": list(kinds),
+             "scan_ids": [battery_scan_id(seed, i, kind) for kind, i in jobs]}
     tmp = out_dir / ".battery.json.tmp"
     tmp.write_text(json.dumps(index, indent=2) + "\n")
     os.replace(tmp, out_dir / "battery.json")
