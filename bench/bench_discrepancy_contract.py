@@ -79,7 +79,7 @@ def _tri_case(seed: int, i: int, effect_free: bool, reference: str):
     if reference == "truth":
         cfg = {"beams": Beams.from_nominal(sim.truth["contract"]["beams"])}
     else:
-        cfg = {"free_beams": ("d_b", "beta")}
+        cfg = {"free_beams": ("d_b", "beta", "rho")}
     c = sim.truth["contract"]
     info = {"angle": c["angle_source"], "speed_change": bool(c["speed_change"]),
             "out_of_range": c["out_of_range"] is not None, "R": round(c["bore_radius_mm"], 1)}

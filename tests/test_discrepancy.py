@@ -304,7 +304,27 @@ def test_free_beams_absorb_calibration_offsets():
     assert free["base_model"]["d_b_minus_nominal_mm"] == pytest.approx([-0.02, 0.01, -0.005], abs=2e-4)
     assert free["gap_after"]["rms_mm"] <= 1.5 * free["noise_floor_mm"]
     with pytest.raises(ValueError, match="free_beams takes"):
-        examine_scan(sim, free_beams=("rho",))
+        examine_scan(sim, free_beams=("gamma",))
+
+
+def test_free_rho_examines_a_device_never_calibrated():
+    """A design geometry off by 0.4 mm in rho (as a device never calibrated is): with beta and d_b
+    free the rho error is left as a misfit the workflow must explain with something; with rho
+    free too the base model recovers the offsets and the hidden lobing alone is named."""
+    from borescan.geometry import Beams
+
+    drho = np.array([0.4, -0.3, 0.25])
+    nominal = Beams((1, 2, 3), YANG_BEAMS.beta_rad + [0.0, 0.002, -0.003], YANG_BEAMS.rho_mm + drho,
+                    YANG_BEAMS.d_b_mm + [0.02, -0.01, 0.005])
+    lob = Effect("bore_lobing", {"k": 3, "a_mm": 0.005, "phase": 0.4})
+    sim = simulate_tri_spindle(SCENE, n_rev=6, effects=[lob], noise_mm=NOISE_MM, seed=3, nominal_beams=nominal)
+    part = examine_scan(sim, free_beams=("beta", "d_b"))
+    assert part["gap_before"]["rms_mm"] > 1.5 * part["noise_floor_mm"]
+    free = examine_scan(sim, free_beams=("beta", "d_b", "rho"))
+    assert [named_label(n) for n in free["named"]] == ["bore_lobing[k=3]"]
+    # rho itself is weakly determined by 6 revolutions (as in a calibration): it moves towards the truth
+    assert np.all(np.sign(free["base_model"]["rho_minus_nominal_mm"]) == -np.sign(drho))
+    assert free["gap_after"]["rms_mm"] <= 1.5 * free["noise_floor_mm"]
 
 
 def test_long_scan_is_examined_on_blocks():

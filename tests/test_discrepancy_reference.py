@@ -30,7 +30,7 @@ def test_latest_calibration_on_or_before_the_night():
 
 
 def test_uncalibrated_device_is_compared_with_its_design_geometry_freed():
-    expected = ({"free_beams": ("d_b", "beta")}, "device.nominal (beam lengths and angles free)")
+    expected = ({"free_beams": ("d_b", "beta", "rho")}, "device.nominal (beam geometry free)")
     assert discrepancy_reference(CALS, "TRI-01", "tri_lds", "2026-10-01") == expected
     assert discrepancy_reference(CALS, "TRI-02", "tri_lds", "2026-11-21") == expected
     assert discrepancy_reference(pl.DataFrame(), "TRI-01", "tri_lds", "2026-11-21") == expected

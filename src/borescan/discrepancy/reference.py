@@ -17,8 +17,9 @@ def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_typ
     the calibration's business. So a calibrated device is examined against its latest
     calibration made on or before the night (ties broken by calibration id; the scan's own
     calibration for calibration scans; ``nominal`` records excluded) -> ``{"beams": ...}``, and a
-    device without one against ``device.nominal`` with its beam lengths and angles freed ->
-    ``{"free_beams": ("d_b", "beta")}``. Rods are always examined against ``device.nominal`` -> ``{}``.
+    device without one against ``device.nominal`` with its whole beam geometry freed (the design
+    is off by mm in rho as well) -> ``{"free_beams": ("d_b", "beta", "rho")}``: the examination
+    then asks what a calibration of this scan could not absorb. Rods are always examined against ``device.nominal`` -> ``{}``.
     Unlike a measurement, the examination uses expired or failed calibrations too: it asks what
     the model misses, not whether a result may be certified.
     """
@@ -29,5 +30,5 @@ def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_typ
             cal_id = c.sort("valid_from", "calibration_id")["calibration_id"][-1]
             return {"beams": tri_calibration(calibrations, cal_id).beams}, f"calibration {cal_id}"
     if device_type == "tri_lds":
-        return {"free_beams": ("d_b", "beta")}, "device.nominal (beam lengths and angles free)"
+        return {"free_beams": ("d_b", "beta", "rho")}, "device.nominal (beam geometry free)"
     return {}, "device.nominal"

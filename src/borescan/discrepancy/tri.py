@@ -47,7 +47,7 @@ SCAN_KIND = "tri_spindle"
 INTERNAL: dict[str, tuple[tuple[str, float], ...]] = {
     name: tuple((q.name, q.scale) for q in spec.fit) for name, spec in EFFECTS.items() if spec.fit
 }
-BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dbeta": 1e-4, "dd_b": 1e-3, "dR": 1e-3}
+BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dbeta": 1e-4, "dd_b": 1e-3, "drho": 1e-2, "dR": 1e-3}
 #: Calibration parameter that would absorb an effect (reported with the finding), from the
 #: registry (the bore radius "R" is the measurand, not a calibration parameter).
 ABSORBED_BY = {
@@ -269,9 +269,9 @@ class TriModel:
     """
 
     def __init__(self, data: TriData, weights: np.ndarray | None = None, free_beams: tuple[str, ...] = ()):
-        bad = set(free_beams) - {"beta", "d_b"}
+        bad = set(free_beams) - {"beta", "d_b", "rho"}
         if bad:
-            raise ValueError(f"free_beams takes 'beta' and/or 'd_b', got {sorted(bad)}")
+            raise ValueError(f"free_beams takes 'beta', 'd_b' and/or 'rho', got {sorted(bad)}")
         #: beam parameters freed in the base model (their effects are then absorbed, not named)
         self.free_beams = tuple(free_beams)
         self.data = data
@@ -292,7 +292,7 @@ class TriModel:
             beams = Beams(
                 d.channels,
                 beams.beta_rad + np.array([p.get(f"dbeta[{j}]", 0.0) for j in range(c)]),
-                beams.rho_mm,
+                beams.rho_mm + np.array([p.get(f"drho[{j}]", 0.0) for j in range(c)]),
                 beams.d_b_mm + np.array([p.get(f"dd_b[{j}]", 0.0) for j in range(c)]),
             )
         return TriBase(
@@ -343,6 +343,8 @@ class TriModel:
             names += [f"dbeta[{j}]" for j in range(1, c)]
         if "d_b" in self.free_beams:
             names += [f"dd_b[{j}]" for j in range(c)]
+        if "rho" in self.free_beams:  # a device never calibrated: its design offsets are off by up to mm
+            names += [f"drho[{j}]" for j in range(c)]
         return names
 
     # ------------------------------------------------------------------ engine interface
@@ -374,6 +376,8 @@ class TriModel:
             out["beta_minus_nominal_rad"] = [float(p.get(f"dbeta[{j}]", 0.0)) for j in range(c)]
         if "d_b" in self.free_beams:
             out["d_b_minus_nominal_mm"] = [float(p.get(f"dd_b[{j}]", 0.0)) for j in range(c)]
+        if "rho" in self.free_beams:
+            out["rho_minus_nominal_mm"] = [float(p.get(f"drho[{j}]", 0.0)) for j in range(c)]
         return out
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
