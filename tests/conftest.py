@@ -22,7 +22,9 @@ BAD_NIGHT = "2026-11-22"
 def run_snakemake(raw_root: Path, results_root: Path, *extra: str, timeout: float = 900) -> subprocess.CompletedProcess:
     """Run the project's Snakefile like a user would (``snakemake --cores 2``)."""
     cmd = [str(SNAKEMAKE), "--cores", "2", "--config", f"raw_root={raw_root}", f"results_root={results_root}", *extra]
-    env = {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(results_root.parent), "MPLBACKEND": "Agg"}
+    # the workflow's jobs import the package of this checkout, the one the tests import
+    env = {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(results_root.parent), "MPLBACKEND": "Agg",
+           "PYTHONPATH": str(ROOT / "src")}
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=timeout)
 
 
