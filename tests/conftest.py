@@ -19,12 +19,17 @@ SNAKEMAKE = Path(sys.executable).with_name("snakemake")
 BAD_NIGHT = "2026-11-22"
 
 
+def workflow_env(home: Path) -> dict[str, str]:
+    """Environment of a workflow run by the tests: this venv's tools, and the package of this
+    checkout (the one the tests import) for every job."""
+    return {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(home), "MPLBACKEND": "Agg",
+            "PYTHONPATH": str(ROOT / "src")}
+
+
 def run_snakemake(raw_root: Path, results_root: Path, *extra: str, timeout: float = 900) -> subprocess.CompletedProcess:
     """Run the project's Snakefile like a user would (``snakemake --cores 2``)."""
     cmd = [str(SNAKEMAKE), "--cores", "2", "--config", f"raw_root={raw_root}", f"results_root={results_root}", *extra]
-    # the workflow's jobs import the package of this checkout, the one the tests import
-    env = {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(results_root.parent), "MPLBACKEND": "Agg",
-           "PYTHONPATH": str(ROOT / "src")}
+    env = workflow_env(results_root.parent)
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=timeout)
 
 

@@ -176,12 +176,12 @@ def test_two_runs_at_once_do_not_corrupt_results(pipeline_run, tmp_path):
     """Two snakemake runs started together on the same results: one may be refused (locked), none corrupts."""
     import subprocess
 
-    from conftest import ROOT, SNAKEMAKE
+    from conftest import ROOT, SNAKEMAKE, workflow_env
 
     raw, res = tmp_path / "raw", tmp_path / "results"
     _copy_night(pipeline_run["raw"], raw, "2026-11-20")
     cmd = [str(SNAKEMAKE), "--cores", "1", "--config", f"raw_root={raw}", f"results_root={res}", "--until", "measure_night"]
-    env = {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(tmp_path), "MPLBACKEND": "Agg"}
+    env = workflow_env(tmp_path)
     procs = [subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)]
     outs = [p.communicate(timeout=600)[0] for p in procs]
     codes = [p.returncode for p in procs]
@@ -202,12 +202,12 @@ def test_interrupted_run_resumes(pipeline_run, tmp_path):
 
     import polars as pl
 
-    from conftest import ROOT, SNAKEMAKE
+    from conftest import ROOT, SNAKEMAKE, workflow_env
 
     raw, res = tmp_path / "raw", tmp_path / "results"
     _copy_night(pipeline_run["raw"], raw, "2026-11-20")
     cmd = [str(SNAKEMAKE), "--cores", "2", "--config", f"raw_root={raw}", f"results_root={res}", "--until", "calibrate_night"]
-    env = {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(tmp_path), "MPLBACKEND": "Agg"}
+    env = workflow_env(tmp_path)
     p = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.time() + 120
     while time.time() < deadline and not (res / "stage" / "signal_summary").exists():
