@@ -1,7 +1,7 @@
 # Names the rules use: roots from the config and the nights found under raw_root.
-from borescan import rawio
+from borescan import rawio, validation
 
-RAW = config["raw_root"]
+RAW = str(validation.require_raw_root(config["raw_root"]))
 RES = config["results_root"]
 NIGHTS = rawio.nights(RAW)
 

@@ -132,7 +132,7 @@ def make_bad_scans(raw_root: Path, night: str, good_tri: Path, good_rod: Path, e
         v[len(v) // 2 :] += 2_000_000_000
         return _set_col(t, "t_ns", v)
 
-    cases.append(BadCase("BAD-CLOCK-JUMP", "lds.parquet", r"clock jump", stage="signal"))
+    cases.append(BadCase("BAD-CLOCK-JUMP", "lds.parquet", r"clock jump", stage="ingest"))
     _edit_table(_copy(good_tri, raw_root, night, "BAD-CLOCK-JUMP"), "lds.parquet", clock_jumps_forward)
 
     def duplicate_rows(t: pa.Table) -> pa.Table:

@@ -214,7 +214,7 @@ def test_table2_without_the_csv_uses_the_transcription(tmp_path):
 def test_battery_command_runs(capsys):
     from borescan.commands import discrepancy_battery as cmd
 
-    args = Namespace(n=3, seed=2, threshold=10.0, p_free=0.15, p_pair=0.15, out=None, verbose=False)
+    args = Namespace(n=3, seed=2, threshold=10.0, p_free=0.15, p_pair=0.15, out=None, verbose=False, quiet=True, scale=1.0)
     assert cmd.run(args) == 0
     out = capsys.readouterr().out
     assert "false-alarm rate" in out and "median gap shrink" in out

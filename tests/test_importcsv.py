@@ -196,3 +196,111 @@ def test_reimport_is_idempotent_and_write_once(tmp_path):
     csv2 = write_csv(tmp_path / "a.csv", header, [[repr(float(t)), *r] for t, r in zip(time_s, cells(values))])
     with pytest.raises(FileExistsError, match="write-once"):
         import_csv(csv2, meta, tmp_path / "raw")
+
+
+# --------------------------------------------------------------------------- issue 20: zones, decimal commas, ingest checks
+
+
+def test_started_at_with_an_offset_is_stored_in_utc(tmp_path):
+    csv = write_csv(tmp_path / "a.csv", ["time_s", "ch1", "ch2", "ch3"], [["0", "1", "2", "3"], ["0.0016", "1", "2", "3"]])
+    scan = read_scan(import_csv(csv, dict(META, started_at="2026-11-21T23:14:03.25+01:00"), tmp_path / "raw"))
+    assert scan.meta["started_at"] == "2026-11-21T22:14:03.25Z"
+    assert scan.meta["acquisition"]["started_at_given"] == "2026-11-21T23:14:03.25+01:00"
+    # YAML reads an offset as a datetime: the same
+    yml = tmp_path / "m.yaml"
+    yml.write_text(json.dumps(dict(META, scan_id="CSV02", started_at="X")).replace('"X"', "2026-11-21T17:14:03-05:00"))
+    scan = read_scan(import_csv(csv, yml, tmp_path / "raw"))
+    assert scan.meta["started_at"] == "2026-11-21T22:14:03Z"
+    # UTC as given stays as given, with no note
+    scan = read_scan(import_csv(csv, dict(META, scan_id="CSV03"), tmp_path / "raw"))
+    assert scan.meta["started_at"] == META["started_at"] and "started_at_given" not in scan.meta["acquisition"]
+
+
+def test_started_at_without_a_zone_is_refused_with_a_hint(tmp_path, capsys):
+    csv = write_csv(tmp_path / "a.csv", ["time_s", "ch1", "ch2", "ch3"], [["0", "1", "2", "3"]])
+    meta = write_meta(tmp_path / "m.json", dict(META, started_at="2026-11-21T22:14:03"))
+    with pytest.raises(CsvImportError, match=re.escape(f"{meta}: started_at '2026-11-21T22:14:03' has no time zone; "
+                                                       "add Z (UTC) or an offset such as +01:00")):
+        import_csv(csv, meta, tmp_path / "raw")
+    assert main(["import-csv", str(csv), "--meta", str(meta), "--raw-root", str(tmp_path / "raw")]) == 1
+    assert "has no time zone" in capsys.readouterr().err
+    assert not (tmp_path / "raw").exists()
+
+
+def test_timestamp_column_with_offsets(tmp_path):
+    rows = [["2026-11-21T23:14:03.0000+01:00", "1", "2", "3"],
+            ["2026-11-21T23:14:03.0016+01:00", "1", "2", "3"],
+            ["2026-11-21T22:14:03.0032Z", "1", "2", "3"]]  # another zone, same clock
+    csv = write_csv(tmp_path / "ts.csv", ["timestamp", "ch1", "ch2", "ch3"], rows)
+    meta = {k: v for k, v in META.items() if k != "started_at"}
+    scan = read_scan(import_csv(csv, meta, tmp_path / "raw"))
+    assert scan.meta["started_at"] == "2026-11-21T22:14:03Z"  # the first row, in UTC
+    np.testing.assert_array_equal(lds_matrix(scan).t_s * 1e9, [0, 1_600_000, 3_200_000])
+    bad = write_csv(tmp_path / "naive.csv", ["timestamp", "ch1"], [["2026-11-21T23:14:03", "1"]])
+    with pytest.raises(CsvImportError, match=r"column 'timestamp': row 1: '2026-11-21T23:14:03' has no time zone"):
+        read_vendor_csv(bad)
+
+
+def test_decimal_comma(tmp_path, capsys):
+    time_s, values = synthetic(n=30)
+    rows = [[repr(float(t)), *r] for t, r in zip(time_s, cells(values))]
+    point = write_csv(tmp_path / "point.csv", ["time_s", "ch1", "ch2", "ch3"], rows)
+    comma = write_csv(tmp_path / "comma.csv", ["time_s", "ch1", "ch2", "ch3"],
+                      [[c.replace(".", ",") for c in r] for r in rows], sep=";")
+    a = read_vendor_csv(point)
+    b = read_vendor_csv(comma, separator=";", decimal=",")
+    np.testing.assert_array_equal(a.values_mm, b.values_mm)  # bit-exact
+    np.testing.assert_array_equal(a.t_ns, b.t_ns)
+    with pytest.raises(CsvImportError, match=r"column 'time_s': row 1: '0,0' is not a number "
+                                             r"\(a decimal comma\? use --decimal ,\)"):
+        read_vendor_csv(comma, separator=";")
+    with pytest.raises(CsvImportError, match="decimal mark and field separator are both ','"):
+        read_vendor_csv(comma, decimal=",")
+    meta = write_meta(tmp_path / "m.json")
+    raw = tmp_path / "raw"
+    assert main(["import-csv", str(comma), "--meta", str(meta), "--raw-root", str(raw), "--separator", ";",
+                 "--decimal", ","]) == 0
+    np.testing.assert_array_equal(lds_matrix(read_scan(raw / "night=2026-11-21" / "scan=CSV01")).values_mm, values)
+    capsys.readouterr()
+    assert main(["import-csv", str(comma), "--meta", str(meta), "--raw-root", str(raw)]) == 1
+    assert "(fields separated by ';'? use --separator ';', and --decimal , for decimal commas)" in capsys.readouterr().err
+
+
+def _spindle_rows(n: int, rate_hz: float, value=lambda i: "5.0") -> list[list[str]]:
+    return [[repr(i / rate_hz), value(i), "5.0", "5.0", repr(i * 0.576), "60"] for i in range(n)]
+
+
+def test_import_runs_the_ingest_checks_before_writing(tmp_path, capsys):
+    """A 1 kHz export declared as 625 Hz, and a 250 mm reading on a 10 mm sensor, are refused: the
+    pipeline would quarantine them (borescan.validation), and raw folders are write-once."""
+    header = ["time_s", "ch1", "ch2", "ch3", "encoder_deg", "rpm"]
+    fast = write_csv(tmp_path / "fast.csv", header, _spindle_rows(50, 1000.0))
+    with pytest.raises(CsvImportError) as ei:
+        import_csv(fast, dict(META, sample_rate_hz=625.0), tmp_path / "raw")
+    assert str(ei.value) == (f"CSV01: {fast}: sample clock runs at 1000 Hz (median t_ns step 1 ms per sample) but "
+                             "scan.json says sample_rate_hz 625 Hz (more than 1% apart)")
+    big = write_csv(tmp_path / "big.csv", header, _spindle_rows(50, 625.0, lambda i: "250.0" if i == 7 else "5.0"))
+    meta = write_meta(tmp_path / "m.json")
+    assert main(["import-csv", str(big), "--meta", str(meta), "--raw-root", str(tmp_path / "raw")]) == 1
+    assert capsys.readouterr().err == (f"borescan import-csv: CSV01: {big}: channel 1: 1 readings outside [0, 10] mm "
+                                       "(a sensor reports null when out of range)\n")
+    assert not (tmp_path / "raw").exists()
+    # the same data at the declared rate and in range are imported
+    ok = write_csv(tmp_path / "ok.csv", header, _spindle_rows(50, 625.0))
+    assert import_csv(ok, meta, tmp_path / "raw").is_dir()
+
+
+def test_import_exit_codes(tmp_path, capsys):
+    csv = write_csv(tmp_path / "a.csv", ["time_s", "ch1", "ch2", "ch3"], [["0", "1", "2", "3"]])
+    meta = write_meta(tmp_path / "m.json")
+    raw = tmp_path / "raw"
+    assert main(["import-csv", str(tmp_path / "none.csv"), "--meta", str(meta), "--raw-root", str(raw)]) == 2
+    assert capsys.readouterr().err == f"borescan import-csv: CSV file {tmp_path / 'none.csv'} does not exist\n"
+    assert main(["import-csv", str(csv), "--meta", str(tmp_path), "--raw-root", str(raw)]) == 2
+    assert capsys.readouterr().err == f"borescan import-csv: metadata file {tmp_path} is not a file\n"
+    assert main(["import-csv", str(csv), "--meta", str(meta), "--raw-root", str(raw)]) == 0
+    capsys.readouterr()
+    other = write_csv(tmp_path / "b.csv", ["time_s", "ch1", "ch2", "ch3"], [["0", "1", "2", "4"]])
+    assert main(["import-csv", str(other), "--meta", str(meta), "--raw-root", str(raw)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("borescan import-csv: CSV01: ") and err.endswith("; import under another scan_id\n")

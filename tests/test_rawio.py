@@ -609,28 +609,37 @@ def test_validate_collects_every_problem_and_cli_prints_them(root, capsys):
         "A1: spindle.parquet: missing column 'x_mm' (double)",
         "B1: night=2026-11-23/scan=B1: scan_id also used in night=2026-11-22 (scan ids are unique across nights)",
     ]
+    # the command runs the ingest checks (borescan.validation): the duplicate is named as ingest names it
     assert main(["validate", str(root)]) == 1
     out = capsys.readouterr()
-    assert out.out.splitlines() == lines
+    assert out.out.splitlines() == lines[:-1] + [
+        "B1: scan.json: scan_id already used by a scan of night=2026-11-22 (scan ids are unique across nights)"
+    ]
     assert "7 problems; 2 of 3 scans invalid" in out.err
 
 
-def test_validate_missing_root(tmp_path, capsys):
-    assert main(["validate", str(tmp_path / "nope")]) == 1
-    assert capsys.readouterr().out.strip().endswith("nope: raw root does not exist or is not a folder")
+def test_validate_missing_root_is_a_usage_error(tmp_path, capsys):
+    assert validate_root(tmp_path / "nope")[0].problem == "raw root does not exist or is not a folder"
+    assert main(["validate", str(tmp_path / "nope")]) == 2
+    out = capsys.readouterr()
+    assert out.out == ""
+    assert out.err == f"borescan validate: raw root {tmp_path / 'nope'} does not exist\n"
 
 
-def test_validate_cli_warnings_flag(root, capsys):
+def test_validate_cli_out_of_range_readings_are_problems(root, capsys):
+    """validate_root (the format alone) only warns; the command, like ingest, rejects the scan."""
     lds = make_lds(null_every=1000).with_columns(
         value_mm=pl.when(pl.col("sample") < 2).then(12.0).otherwise(pl.col("value_mm"))
     )
     write_scan(root, make_meta(), lds)
-    assert main(["validate", str(root), "--warnings"]) == 0
+    assert validate_root(root) == []
+    assert main(["validate", str(root), "--warnings"]) == 1  # the old flag is still accepted
     out = capsys.readouterr()
-    assert out.out == "1 scans, all valid\n"
-    assert out.err.splitlines() == [
-        f"warning: S1: lds.parquet: channel {c}: 2 readings outside [0, 10] mm" for c in (1, 2, 3)
+    assert out.out.splitlines() == [
+        f"S1: lds.parquet: channel {c}: 2 readings outside [0, 10] mm (a sensor reports null when out of range)"
+        for c in (1, 2, 3)
     ]
+    assert out.err == "3 problems; 1 of 1 scans invalid\n"
 
 
 def test_lds_fast_check_on_columns_chunked_differently():

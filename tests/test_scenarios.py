@@ -194,6 +194,14 @@ def test_cli_simulate_contract(tmp_path, capsys):
     assert e.value.code == 2
     with pytest.raises(ValueError):
         scenarios.write_battery(tmp_path / "y", 0, 1)
+    assert cli.main(["simulate", "contract", "--n", "1", "--seed", "3", "--out", str(tmp_path / "mix"),
+                     "--kinds", "calibration,static,rod"]) == 0
+    names = sorted(p.name for p in (tmp_path / "mix" / "raw").glob("night=*/scan=*"))
+    assert names == ["scan=CR3-00000", "scan=CS3-00000", "scan=CT3-00000"]
+    assert {rawio.read_scan(p).meta["device"]["type"] for p in (tmp_path / "mix" / "raw").glob("night=*/scan=*")} \
+        == {"tri_lds", "rod"}
+    assert cli.main(["simulate", "contract", "--n", "1", "--out", str(tmp_path / "z"), "--kinds", "foo"]) == 2
+    assert "each kind must be one of" in capsys.readouterr().err
 
 
 # --------------------------------------------------------------------------- the angle written

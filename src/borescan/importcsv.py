@@ -3,8 +3,9 @@
 One CSV row is one acquisition tick. Columns (names are case-insensitive, surrounding spaces
 ignored):
 
-- time, exactly one of ``time_s`` / ``t_s`` (seconds, decimal) or ``t_ns`` / ``time_ns``
-  (integer nanoseconds); shifted so that the first row is at 0 and converted exactly (decimal
+- time, exactly one of ``time_s`` / ``t_s`` (seconds, decimal), ``t_ns`` / ``time_ns``
+  (integer nanoseconds) or ``timestamp`` / ``datetime`` (ISO 8601 date-times with ``Z`` or a UTC
+  offset, converted to UTC); shifted so that the first row is at 0 and converted exactly (decimal
   arithmetic) to integer nanoseconds; must strictly increase;
 - ``sample`` (optional, integer tick); default: the row index 0, 1, 2, ...;
 - one column per channel: ``ch1``, ``channel1``, ``sensor1``, ``LDS1`` (also ``ch_1``, ``ch 1``,
@@ -16,7 +17,15 @@ ignored):
 - ``pose`` (optional integer; required in practice for ``rod`` scans).
 
 Empty cells and ``NaN``, ``nan``, ``---``, ``null``, ``NA``, ``n/a`` mean "no reading" (null).
-Other columns are ignored (and listed in :attr:`VendorCsv.ignored_columns`).
+Other columns are ignored (and listed in :attr:`VendorCsv.ignored_columns`). Numbers use a
+decimal point, or a decimal comma with ``decimal=","`` (then the separator must be another
+character, usually ``;``).
+
+Times carry their zone: ``started_at`` of the metadata (and a ``timestamp`` column) may have any
+UTC offset and is stored converted to UTC (``...Z``); a time without a zone is refused. Before
+anything is written, the scan passes the pipeline's own ingest checks
+(:func:`borescan.validation.scan_problems`: format, sensor range, sample clock), so an import
+never leaves a raw folder that the pipeline would quarantine.
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import re
+import tempfile
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
@@ -33,7 +43,7 @@ import numpy as np
 import polars as pl
 import yaml
 
-from borescan import __version__, rawio
+from borescan import __version__, rawio, validation
 
 __all__ = [
     "CsvImportError",
@@ -43,6 +53,8 @@ __all__ = [
     "read_vendor_csv",
     "load_metadata",
     "csv_to_frames",
+    "utc_iso",
+    "utc_started_at",
     "import_csv",
 ]
 
@@ -52,6 +64,11 @@ _CHANNEL_RE = re.compile(
 )
 _TIME_S = ("time_s", "t_s")
 _TIME_NS = ("t_ns", "time_ns")
+_TIME_ISO = ("timestamp", "datetime")
+_ISO_RE = re.compile(
+    r"(\d{4}-\d{2}-\d{2})[T ](\d{2}):(\d{2}):(\d{2})(?:[.,](\d{1,9}))?\s*(Z|z|UTC|[+-]\d{2}(?::?\d{2})?)?"
+)
+_DECIMAL_COMMA_RE = re.compile(r"[+-]?\d*,\d+")
 _SPINDLE_COLS = ("encoder_deg", "angle_rad", "x_mm", "y_mm", "rpm")
 
 
@@ -78,6 +95,8 @@ class VendorCsv:
     spindle : dict
         Present spindle columns, name -> float64 array (``angle_rad`` with NaN where empty).
     ignored_columns : tuple of str
+    start_utc : str or None
+        Time of the first row, ISO 8601 UTC with ``Z``, when the CSV has a ``timestamp`` column.
     """
 
     path: Path
@@ -88,6 +107,7 @@ class VendorCsv:
     pose: np.ndarray | None
     spindle: dict[str, np.ndarray]
     ignored_columns: tuple[str, ...]
+    start_utc: str | None = None
 
 
 def channel_of_column(name: str) -> int | None:
@@ -100,9 +120,11 @@ def _fail(path: Path, problem: str) -> CsvImportError:
     return CsvImportError(f"{path}: {problem}")
 
 
-def _cells(df: pl.DataFrame, col: str) -> pl.Series:
-    """Stripped strings with the null tokens as null."""
+def _cells(df: pl.DataFrame, col: str, decimal: str = ".") -> pl.Series:
+    """Stripped strings with the null tokens as null; a decimal comma becomes a point."""
     s = df[col].str.strip_chars()
+    if decimal == ",":
+        s = s.str.replace_all(",", ".", literal=True)
     return (
         pl.select(pl.when(s.str.to_lowercase().is_in(list(NULL_TOKENS))).then(None).otherwise(s))
         .to_series()
@@ -110,13 +132,18 @@ def _cells(df: pl.DataFrame, col: str) -> pl.Series:
     )
 
 
-def _floats(df: pl.DataFrame, col: str, path: Path, *, allow_null: bool) -> np.ndarray:
-    cells = _cells(df, col)
+def _not_a_number(col: str, i: int, cell: str, decimal: str) -> str:
+    hint = " (a decimal comma? use --decimal ,)" if decimal == "." and _DECIMAL_COMMA_RE.fullmatch(cell) else ""
+    return f"column '{col}': row {i + 1}: {cell!r} is not a number{hint}"
+
+
+def _floats(df: pl.DataFrame, col: str, path: Path, *, allow_null: bool, decimal: str = ".") -> np.ndarray:
+    cells = _cells(df, col, decimal)
     vals = cells.cast(pl.Float64, strict=False)
     bad = vals.is_null() & cells.is_not_null()
     if bad.any():
         i = int(bad.arg_true()[0])
-        raise _fail(path, f"column '{col}': row {i + 1}: {cells[i]!r} is not a number")
+        raise _fail(path, _not_a_number(col, i, df[col][i].strip(), decimal))
     arr = vals.fill_null(np.nan).to_numpy()
     nonfinite = np.isinf(arr)
     if nonfinite.any():
@@ -141,9 +168,9 @@ def _ints(df: pl.DataFrame, col: str, path: Path, *, allow_null: bool) -> np.nda
     return vals.fill_null(-1).to_numpy()
 
 
-def _seconds_to_ns(df: pl.DataFrame, col: str, path: Path) -> np.ndarray:
+def _seconds_to_ns(df: pl.DataFrame, col: str, path: Path, decimal: str = ".") -> np.ndarray:
     """Decimal seconds -> integer ns, exactly (round half to even at 1 ns)."""
-    cells = _cells(df, col)
+    cells = _cells(df, col, decimal)
     out = np.empty(len(cells), dtype=np.int64)
     for i, c in enumerate(cells.to_list()):
         if c is None:
@@ -151,17 +178,91 @@ def _seconds_to_ns(df: pl.DataFrame, col: str, path: Path) -> np.ndarray:
         try:
             d = Decimal(c)
         except InvalidOperation:
-            raise _fail(path, f"column '{col}': row {i + 1}: {c!r} is not a number") from None
+            raise _fail(path, _not_a_number(col, i, df[col][i].strip(), decimal)) from None
         if not d.is_finite():
             raise _fail(path, f"column '{col}': row {i + 1}: {c!r} is not a finite time")
         out[i] = int((d * 1_000_000_000).to_integral_value())
     return out
 
 
-def read_vendor_csv(csv_path: Path, *, separator: str = ",") -> VendorCsv:
+def _offset_s(zone: str | None) -> int | None:
+    """Seconds east of UTC of ``Z``/``UTC``/``+hh[:mm]``; None without a zone."""
+    if zone is None:
+        return None
+    if zone.upper() in ("Z", "UTC"):
+        return 0
+    sign = -1 if zone[0] == "-" else 1
+    digits = zone[1:].replace(":", "")
+    return sign * (int(digits[:2]) * 3600 + int(digits[2:4] or 0) * 60)
+
+
+def _iso_ns(text: str) -> tuple[int, int | None] | None:
+    """ISO 8601 date-time -> (ns since 1970 in UTC, offset s or None when no zone); None if not one.
+
+    Exact to the nanosecond (up to 9 fraction digits), with the offset subtracted.
+    """
+    m = _ISO_RE.fullmatch(text.strip())
+    if m is None:
+        return None
+    date, hh, mm, ss, frac, zone = m.groups()
+    try:
+        base = _dt.datetime.fromisoformat(f"{date}T{hh}:{mm}:{ss}").replace(tzinfo=_dt.timezone.utc)
+    except ValueError:
+        return None
+    off = _offset_s(zone)
+    ns = int(base.timestamp()) * 1_000_000_000 + (int(frac.ljust(9, "0")) if frac else 0)
+    return ns - (off or 0) * 1_000_000_000, off
+
+
+def utc_iso(ns: int) -> str:
+    """ns since 1970 (UTC) -> ``YYYY-MM-DDTHH:MM:SS[.fraction]Z`` (fraction without trailing zeros)."""
+    sec, frac = divmod(int(ns), 1_000_000_000)
+    text = _dt.datetime.fromtimestamp(sec, _dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
+    return text + (f".{frac:09d}".rstrip("0") if frac else "") + "Z"
+
+
+def _timestamps_to_ns(df: pl.DataFrame, col: str, path: Path) -> tuple[np.ndarray, str]:
+    """ISO 8601 date-times with a zone -> (integer ns since the first row, first row in UTC)."""
+    out = np.empty(df.height, dtype=np.int64)
+    for i, c in enumerate(_cells(df, col).to_list()):
+        if c is None:
+            raise _fail(path, f"column '{col}': row {i + 1}: empty time cell")
+        parsed = _iso_ns(c)
+        if parsed is None:
+            raise _fail(path, f"column '{col}': row {i + 1}: {c!r} is not an ISO 8601 date-time "
+                              "(e.g. 2026-11-21T23:14:03.0016+01:00)")
+        if parsed[1] is None:
+            raise _fail(path, f"column '{col}': row {i + 1}: {c!r} has no time zone; add Z (UTC) or an "
+                              "offset such as +01:00")
+        out[i] = parsed[0]
+    return out, utc_iso(int(out[0]))
+
+
+def utc_started_at(value: object, label: str) -> tuple[str, bool]:
+    """``started_at`` as ISO 8601 UTC with ``Z``, and whether it was converted from another offset.
+
+    Raises
+    ------
+    CsvImportError
+        Not a date-time, or one without a zone (``label`` names the metadata file).
+    """
+    parsed = _iso_ns(value) if isinstance(value, str) else None
+    if parsed is None:
+        raise CsvImportError(f"{label}: started_at {value!r} is not an ISO 8601 date-time "
+                             "(e.g. 2026-11-21T22:14:03Z)")
+    ns, off = parsed
+    if off is None:
+        raise CsvImportError(f"{label}: started_at {value!r} has no time zone; add Z (UTC) or an offset "
+                             "such as +01:00 (it is stored converted to UTC)")
+    text = utc_iso(ns)
+    return text, text != value
+
+
+def read_vendor_csv(csv_path: Path, *, separator: str = ",", decimal: str = ".") -> VendorCsv:
     """Parse a vendor CSV export (see module docstring for the accepted columns).
 
     Lines starting with ``#`` are comments. Row numbers in errors count data rows from 1.
+    ``decimal`` is ``"."`` or ``","`` (then ``separator`` must differ from it).
 
     Raises
     ------
@@ -170,6 +271,11 @@ def read_vendor_csv(csv_path: Path, *, separator: str = ",") -> VendorCsv:
         strictly increasing; the message starts with the file path.
     """
     path = Path(csv_path)
+    if decimal not in (".", ","):
+        raise _fail(path, f"decimal mark must be '.' or ',', got {decimal!r}")
+    if decimal == separator:
+        raise _fail(path, f"decimal mark and field separator are both {separator!r}; "
+                          "with --decimal , give --separator ';' (or another character)")
     try:
         df = pl.read_csv(
             path, separator=separator, infer_schema=False, comment_prefix="#", truncate_ragged_lines=False
@@ -178,7 +284,10 @@ def read_vendor_csv(csv_path: Path, *, separator: str = ",") -> VendorCsv:
         raise _fail(path, "no such file") from None
     except Exception as e:  # noqa: BLE001 - any parser failure is a bad CSV
         first_line = str(e).splitlines()[0] if str(e) else ""
-        raise _fail(path, f"not a readable CSV: {type(e).__name__}: {first_line}") from None
+        hint = ""
+        if separator == "," and _first_data_line(path).count(";") > 0:
+            hint = " (fields separated by ';'? use --separator ';', and --decimal , for decimal commas)"
+        raise _fail(path, f"not a readable CSV: {type(e).__name__}: {first_line}{hint}") from None
     if df.height == 0:
         raise _fail(path, "no data rows")
     cols = {c.strip().lower(): c for c in df.columns}
@@ -187,20 +296,27 @@ def read_vendor_csv(csv_path: Path, *, separator: str = ",") -> VendorCsv:
 
     time_s = [cols[c] for c in _TIME_S if c in cols]
     time_ns = [cols[c] for c in _TIME_NS if c in cols]
-    if len(time_s) + len(time_ns) != 1:
+    time_iso = [cols[c] for c in _TIME_ISO if c in cols]
+    if len(time_s) + len(time_ns) + len(time_iso) != 1:
         raise _fail(
             path,
-            "need exactly one time column (time_s, t_s, t_ns or time_ns); "
-            f"found {time_s + time_ns or 'none'}",
+            "need exactly one time column (time_s, t_s, t_ns, time_ns, timestamp or datetime); "
+            f"found {time_s + time_ns + time_iso or 'none'}",
         )
-    t_ns = _seconds_to_ns(df, time_s[0], path) if time_s else _ints(df, time_ns[0], path, allow_null=False)
+    start_utc = None
+    if time_s:
+        t_ns = _seconds_to_ns(df, time_s[0], path, decimal)
+    elif time_ns:
+        t_ns = _ints(df, time_ns[0], path, allow_null=False)
+    else:
+        t_ns, start_utc = _timestamps_to_ns(df, time_iso[0], path)
     t_ns = t_ns - t_ns[0]
     dt = np.diff(t_ns)
     if (dt <= 0).any():
         i = int(np.flatnonzero(dt <= 0)[0]) + 1
         raise _fail(path, f"time is not strictly increasing at row {i + 1}")
 
-    used = set(time_s + time_ns)
+    used = set(time_s + time_ns + time_iso)
     if "sample" in cols:
         sample = _ints(df, cols["sample"], path, allow_null=False)
         used.add(cols["sample"])
@@ -222,7 +338,7 @@ def read_vendor_csv(csv_path: Path, *, separator: str = ",") -> VendorCsv:
     if not chan_cols:
         raise _fail(path, "no channel columns (expected names like ch1, sensor1, LDS1)")
     channels = tuple(sorted(chan_cols))
-    values = np.column_stack([_floats(df, chan_cols[ch], path, allow_null=True) for ch in channels])
+    values = np.column_stack([_floats(df, chan_cols[ch], path, allow_null=True, decimal=decimal) for ch in channels])
     used.update(chan_cols.values())
 
     pose = None
@@ -235,14 +351,23 @@ def read_vendor_csv(csv_path: Path, *, separator: str = ",") -> VendorCsv:
         raise _fail(path, "give either encoder_deg or angle_rad, not both")
     for name in _SPINDLE_COLS:
         if name in cols:
-            arr = _floats(df, cols[name], path, allow_null=name in ("encoder_deg", "angle_rad"))
+            arr = _floats(df, cols[name], path, allow_null=name in ("encoder_deg", "angle_rad"), decimal=decimal)
             if name == "encoder_deg":
                 spindle["angle_rad"] = np.deg2rad(arr)
             else:
                 spindle[name] = arr
             used.add(cols[name])
     ignored = tuple(c for c in df.columns if c not in used)
-    return VendorCsv(path, sample, t_ns, channels, values, pose, spindle, ignored)
+    return VendorCsv(path, sample, t_ns, channels, values, pose, spindle, ignored, start_utc)
+
+
+def _first_data_line(path: Path) -> str:
+    """The first line that is not a comment (for hints); '' when unreadable."""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            return next((line for line in fh if not line.startswith("#")), "")
+    except OSError:
+        return ""
 
 
 def _plain(x: Any) -> Any:
@@ -290,12 +415,15 @@ def csv_to_frames(
 ) -> tuple[dict, pl.DataFrame, pl.DataFrame | None]:
     """Build (scan.json dict, lds frame, spindle frame or None) from a parsed CSV and metadata.
 
-    ``format`` defaults to ``borescan-raw/1``; a missing ``sensors`` list becomes one
+    ``format`` defaults to ``borescan-raw/1``; a missing ``started_at`` is the first row's time
+    when the CSV has a ``timestamp`` column; a missing ``sensors`` list becomes one
     ``{"channel": c}`` entry per CSV channel; ``acquisition`` gains ``imported_from`` (CSV file
     name) and, if given, ``source_sha256``.
     """
     meta = json.loads(json.dumps(meta))  # deep copy, plain JSON types
     meta.setdefault("format", rawio.FORMAT)
+    if vendor.start_utc is not None:
+        meta.setdefault("started_at", vendor.start_utc)
     if "sensors" not in meta:
         meta["sensors"] = [{"channel": c} for c in vendor.channels]
     acq = meta.setdefault("acquisition", {})
@@ -353,7 +481,7 @@ def csv_to_frames(
 
 
 def import_csv(
-    csv_path: Path, meta_path: Path | dict, raw_root: Path, *, separator: str = ","
+    csv_path: Path, meta_path: Path | dict, raw_root: Path, *, separator: str = ",", decimal: str = "."
 ) -> Path:
     """Convert a vendor CSV export + metadata into ``<raw_root>/night=.../scan=.../``.
 
@@ -365,6 +493,8 @@ def import_csv(
     raw_root : Path
     separator : str
         CSV field separator.
+    decimal : str
+        Decimal mark of the CSV's numbers, ``"."`` or ``","``.
 
     Returns
     -------
@@ -374,20 +504,43 @@ def import_csv(
     Raises
     ------
     CsvImportError
-        Any problem, naming the CSV or metadata file (all format problems, one per line).
+        Any problem, naming the CSV or metadata file (all problems, one per line): the format,
+        and everything the pipeline's ingest would quarantine the scan for (readings outside the
+        sensor range, a sample clock that disagrees with ``sample_rate_hz``).
     FileExistsError
         The scan exists already with different content.
     """
     csv_path = Path(csv_path)
-    vendor = read_vendor_csv(csv_path, separator=separator)
+    vendor = read_vendor_csv(csv_path, separator=separator, decimal=decimal)
     if isinstance(meta_path, dict):
         meta_in, meta_label = _plain(meta_path), "metadata"
     else:
         meta_in, meta_label = load_metadata(Path(meta_path)), str(meta_path)
+    if "started_at" in meta_in:
+        given = meta_in["started_at"]
+        utc, converted = utc_started_at(given, meta_label)
+        if converted:  # stored in UTC; the time as written is kept beside it
+            acq = meta_in.get("acquisition", {})
+            meta_in = dict(meta_in, started_at=utc)
+            if isinstance(acq, dict):
+                meta_in["acquisition"] = dict(acq, started_at_given=given)
     meta, lds, spindle = csv_to_frames(vendor, meta_in, csv_sha256=rawio.sha256_file(csv_path))
     errors = rawio.check_scan_data(
         meta, lds, spindle, meta_file=meta_label, lds_file=str(csv_path), spindle_file=str(csv_path)
     )
+    if not errors:
+        errors = _ingest_problems(meta, lds, spindle, str(csv_path))
     if errors:
         raise CsvImportError("\n".join(str(e) for e in errors))
     return rawio.write_scan(Path(raw_root), meta, lds, spindle)
+
+
+def _ingest_problems(meta: dict, lds: pl.DataFrame, spindle: pl.DataFrame | None, csv_label: str) -> list:
+    """What the pipeline's ingest would quarantine this scan for, from a staged copy (the one
+    validator reads a folder); files named after the CSV."""
+    with tempfile.TemporaryDirectory(prefix="borescan-import-") as tmp:
+        root = Path(tmp)
+        scan_dir = rawio.write_scan(root, meta, lds, spindle)
+        _, problems = validation.scan_problems(scan_dir, root)
+    return [rawio.ScanError(e.scan_id, csv_label if e.file in (rawio.LDS_FILE, rawio.SPINDLE_FILE) else e.file,
+                            e.problem) for e in problems]

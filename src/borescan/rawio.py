@@ -54,6 +54,7 @@ __all__ = [
     "RawScan",
     "LdsMatrix",
     "read_scan",
+    "inspect_scan",
     "read_scan_meta",
     "write_scan",
     "discover_scans",
@@ -63,6 +64,7 @@ __all__ = [
     "earlier_duplicate_ids",
     "clock_jump",
     "validate_root",
+    "tree_problems",
     "check_scan_data",
     "lds_matrix",
     "sha256_file",
@@ -956,15 +958,20 @@ def _read_meta_file(path: Path, p: _Problems) -> tuple[Any, str | None]:
 
 def _read_parquet(path: Path, fname: str, schema: pa.Schema, p: _Problems) -> pa.Table | None:
     """Read only the schema's columns of a Parquet file; None after a problem."""
+    # An Arrow-native file, never a Python file object: column decoding runs on Arrow's thread
+    # pool, and its tasks drop their page readers after the read has returned. Over a Python file
+    # object those hold Python-owned buffers whose release needs the GIL; a worker that asks for it
+    # while the interpreter is shutting down is terminated inside a C++ destructor, and the process
+    # aborts after its output ("terminate called without an active exception", exit 134).
     try:
-        with open(path, "rb") as f:
+        with pa.OSFile(str(path)) as f:
             pf = pq.ParquetFile(f)
             if not _check_schema(pf.schema_arrow, schema, p, fname):
                 return None
             table = pf.read(columns=schema.names)  # Arrow's pool: OMP_NUM_THREADS threads
     except OSError as e:
         if e.errno is not None:
-            p.add(fname, f"unreadable: {e.strerror}")
+            p.add(fname, f"unreadable: {os.strerror(e.errno)}")
         else:
             p.add(fname, f"not a readable Parquet file (truncated or corrupt): {e}")
         return None
@@ -1065,6 +1072,12 @@ def read_scan(scan_dir: Path, raw_root: Path | None = None) -> RawScan:
     if errors:
         raise errors[0]
     return scan
+
+
+def inspect_scan(scan_dir: Path, raw_root: Path | None = None) -> tuple[RawScan | None, list[ScanError]]:
+    """Read and validate one scan folder like :func:`read_scan`, returning every problem instead of
+    raising the first: ``(scan, [])`` when valid, ``(None, problems)`` otherwise."""
+    return _inspect(scan_dir, raw_root)
 
 
 def read_scan_meta(scan_dir: Path, raw_root: Path | None = None) -> dict:
@@ -1190,8 +1203,34 @@ def validate_root(raw_root: Path, *, warnings: list[str] | None = None) -> list[
     raw_root = Path(raw_root)
     if not raw_root.is_dir():
         return [ScanError(_NO_SCAN, str(raw_root), "raw root does not exist or is not a folder")]
+    errors = tree_problems(raw_root)
+    seen: dict[str, str] = {}
+    for scan_dir in discover_scans(raw_root):
+        if not _valid_night(scan_dir.parent.name[6:]):
+            continue  # reported by tree_problems
+        scan, errs = _inspect(scan_dir, raw_root)
+        errors.extend(errs)
+        sid = scan_dir.name[5:]
+        if sid in seen:
+            errors.append(
+                ScanError(sid, f"{scan_dir.parent.name}/{scan_dir.name}",
+                          f"scan_id also used in {seen[sid]} (scan ids are unique across nights)")
+            )
+        else:
+            seen[sid] = scan_dir.parent.name
+        if scan is not None and warnings is not None:
+            warnings.extend(f"{scan.scan_id}: {w}" for w in scan.warnings)
+    return errors
+
+
+def tree_problems(raw_root: Path) -> list[ScanError]:
+    """Entries of an existing raw root that are not ``night=<date>/scan=<id>`` folders (scan_id ``"-"``).
+
+    Hidden entries are skipped. A night folder whose name is not a date is reported here, and
+    its scans are not checked further.
+    """
     errors: list[ScanError] = []
-    for entry in sorted(raw_root.iterdir()):
+    for entry in sorted(Path(raw_root).iterdir()):
         if entry.name.startswith("."):
             continue
         if not (entry.name.startswith("night=") and entry.is_dir()):
@@ -1206,22 +1245,6 @@ def validate_root(raw_root: Path, *, warnings: list[str] | None = None) -> list[
                 errors.append(
                     ScanError(_NO_SCAN, f"{entry.name}/{sub.name}", "not a scan=<scan_id> folder")
                 )
-    seen: dict[str, str] = {}
-    for scan_dir in discover_scans(raw_root):
-        if not _valid_night(scan_dir.parent.name[6:]):
-            continue  # reported above
-        scan, errs = _inspect(scan_dir, raw_root)
-        errors.extend(errs)
-        sid = scan_dir.name[5:]
-        if sid in seen:
-            errors.append(
-                ScanError(sid, f"{scan_dir.parent.name}/{scan_dir.name}",
-                          f"scan_id also used in {seen[sid]} (scan ids are unique across nights)")
-            )
-        else:
-            seen[sid] = scan_dir.parent.name
-        if scan is not None and warnings is not None:
-            warnings.extend(f"{scan.scan_id}: {w}" for w in scan.warnings)
     return errors
 
 

@@ -1,4 +1,10 @@
-"""``borescan sql``: run SQL (or a saved query) on the history catalog, read-only."""
+"""``borescan sql``: run SQL (or a saved query) on the history catalog, read-only.
+
+Output formats: ``table`` (default; numbers rounded to ``--digits`` significant digits and aligned
+on the decimal point, long text cut at ``--max-width`` characters), ``csv`` and ``json`` (full
+precision, for programs). Times are shown with their zone: the catalog's TIMESTAMP values are
+UTC (:mod:`borescan.catalog`) and print as ``2026-11-21T22:14:03Z``.
+"""
 
 from __future__ import annotations
 
@@ -10,9 +16,7 @@ import math
 import sys
 from decimal import Decimal
 
-import duckdb
-
-from borescan import catalog
+from borescan.commands._common import CommandFailed, UsageError, int_at_least, nonnegative_int, utc_text
 
 NAME = "sql"
 HELP = "run SQL on the history catalog (results/catalog.duckdb), read-only"
@@ -20,33 +24,49 @@ HELP = "run SQL on the history catalog (results/catalog.duckdb), read-only"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("query", nargs="?", help='SQL text, e.g. "SELECT * FROM scans"')
-    parser.add_argument("--results", default="results", help="results folder holding catalog.duckdb (default: results)")
+    parser.add_argument("--results", default="results",
+                        help="results folder holding catalog.duckdb, relative or absolute (default: results)")
     parser.add_argument("--query", dest="saved", metavar="NAME",
                         help="run a saved query of workflow/queries (see --list)")
     parser.add_argument("--list", action="store_true", help="list the saved queries and what they answer")
     parser.add_argument("--format", choices=("table", "csv", "json"), default="table",
-                        help="output format (default: aligned table)")
+                        help="table: aligned and rounded (default); csv, json: full precision")
+    parser.add_argument("--digits", type=int_at_least(1), default=7,
+                        help="significant digits of numbers in the table (default 7)")
+    parser.add_argument("--max-width", type=nonnegative_int, default=40,
+                        help="cut text cells of the table longer than this, 0 = never (default 40)")
     parser.epilog = (
         "The catalog is opened read-only. Saved queries are also views: "
-        "SELECT * FROM verification_drift WHERE device_id = 'TRI-01'."
+        "SELECT * FROM verification_drift WHERE device_id = 'TRI-01'. "
+        "Times are UTC and shown with a Z."
     )
 
 
-def _cell(v: object) -> str:
+# --------------------------------------------------------------------------- cells
+
+
+def _text(v: object) -> str:
+    """Full-precision text of a value (csv)."""
     if v is None:
         return ""
-    if isinstance(v, float):
-        return "" if math.isnan(v) else repr(v)
     if isinstance(v, bool):
         return "true" if v else "false"
+    if isinstance(v, float):
+        return "" if math.isnan(v) else repr(v)
+    if isinstance(v, _dt.datetime):
+        return utc_text(v)
+    if isinstance(v, (_dt.date, _dt.time)):
+        return v.isoformat()
     return str(v)
 
 
 def _jsonable(v: object) -> object:
     if isinstance(v, float):
         return v if math.isfinite(v) else None
-    if isinstance(v, (_dt.date, _dt.datetime, _dt.time)):
-        return v.isoformat().replace("T", " ") if isinstance(v, _dt.datetime) else v.isoformat()
+    if isinstance(v, _dt.datetime):
+        return utc_text(v)
+    if isinstance(v, (_dt.date, _dt.time)):
+        return v.isoformat()
     if isinstance(v, Decimal):
         return float(v)
     if isinstance(v, (list, tuple)):
@@ -58,27 +78,84 @@ def _jsonable(v: object) -> object:
     return str(v)
 
 
-def format_table(columns: list[str], rows: list[tuple]) -> str:
-    """Aligned text table: header, a rule, one line per row; numbers right-aligned."""
-    cells = [[_cell(v) for v in r] for r in rows]
-    numeric = [
-        all(isinstance(r[i], (int, float, Decimal)) and not isinstance(r[i], bool) for r in rows if r[i] is not None)
-        and any(r[i] is not None for r in rows)
-        for i in range(len(columns))
-    ]
-    widths = [max([len(c)] + [len(r[i]) for r in cells]) for i, c in enumerate(columns)]
+def _is_number(v: object) -> bool:
+    return isinstance(v, (int, float, Decimal)) and not isinstance(v, bool)
+
+
+def _round(x: float, digits: int) -> str:
+    """``x`` to ``digits`` significant digits, positional (``0.0004214``, not ``4.214e-04``) unless tiny
+    or huge; trailing zeros dropped."""
+    if x == 0 or not math.isfinite(x):
+        return f"{x:g}"
+    if not 1e-9 <= abs(x) < 1e15:
+        return f"{x:.{digits}g}"
+    decimals = max(digits - 1 - math.floor(math.log10(abs(x))), 0)
+    text = f"{x:.{decimals}f}"
+    return text.rstrip("0").rstrip(".") if "." in text else text
+
+
+def _number_cells(values: list[object], digits: int) -> list[str]:
+    """A numeric column's cells: floats to ``digits`` significant digits, decimal points aligned."""
+    raw = []
+    for v in values:
+        if v is None or (isinstance(v, float) and math.isnan(v)):
+            raw.append("")
+        elif isinstance(v, int):
+            raw.append(str(v))
+        else:
+            raw.append(_round(float(v), digits))
+    plain = [c for c in raw if c and "e" not in c and c not in ("inf", "-inf")]
+    frac = max((len(c) - c.index(".") if "." in c else 0) for c in plain) if plain else 0
+    out = []
+    for c in raw:
+        if c in plain:
+            pad = frac - (len(c) - c.index(".") if "." in c else 0)
+            c = c + " " * pad
+        out.append(c)
+    return out
+
+
+def _cut(text: str, width: int) -> str:
+    """``text`` on one line, at most ``width`` characters (0: any): the middle gives way to an
+    ellipsis, so a path keeps its file name and a digest both ends."""
+    text = text.replace("\n", " ")
+    if width <= 0 or len(text) <= width:
+        return text
+    head = (width - 1) // 3
+    return text[:head] + "\u2026" + text[len(text) - (width - 1 - head):]
+
+
+def format_table(columns: list[str], rows: list[tuple], digits: int = 7, max_width: int = 40) -> str:
+    """Aligned text table: header, a rule, one line per row; numbers rounded and right-aligned on
+    their decimal point, text left-aligned and cut at ``max_width`` characters (0: never)."""
+    numeric = [any(r[i] is not None for r in rows) and all(_is_number(r[i]) for r in rows if r[i] is not None)
+               for i in range(len(columns))]
+    cols = []
+    for i in range(len(columns)):
+        values = [r[i] for r in rows]
+        if numeric[i]:
+            cols.append(_number_cells(values, digits))
+        else:
+            cols.append([_cut(_text(v), max_width) for v in values])
+    widths = [max([len(c)] + [len(x) for x in col]) for c, col in zip(columns, cols, strict=True)]
 
     def line(values: list[str]) -> str:
         parts = [v.rjust(w) if num else v.ljust(w) for v, w, num in zip(values, widths, numeric, strict=True)]
         return "  ".join(parts).rstrip()
 
-    out = [line(list(columns)), "  ".join("-" * w for w in widths)]
-    out += [line(r) for r in cells]
+    out = [line([c.rjust(w) if num else c for c, w, num in zip(columns, widths, numeric, strict=True)]),
+           "  ".join("-" * w for w in widths)]
+    out += [line([col[j] for col in cols]) for j in range(len(rows))]
     return "\n".join(out) + "\n"
+
+
+# --------------------------------------------------------------------------- queries
 
 
 def run_query(results: str, sql: str) -> tuple[list[str], list[tuple]]:
     """Run ``sql`` on the read-only catalog under ``results``; return (column names, rows)."""
+    from borescan import catalog
+
     con = catalog.open_catalog(results, read_only=True)
     try:
         cur = con.execute(sql)
@@ -92,6 +169,8 @@ def run_query(results: str, sql: str) -> tuple[list[str], list[tuple]]:
 
 def _catalog_views(results: str) -> set[str]:
     """Names of the saved-query views inside the catalog (empty when there is no catalog)."""
+    from borescan import catalog
+
     try:
         con = catalog.open_catalog(results, read_only=True)
     except FileNotFoundError:
@@ -103,6 +182,10 @@ def _catalog_views(results: str) -> set[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    import duckdb
+
+    from borescan import catalog
+
     queries = catalog.saved_queries()
     if args.list:
         for name, (desc, _sql) in queries.items():
@@ -110,8 +193,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name:24s} {first}")
         return 0
     if args.saved and args.query:
-        print("borescan sql: give either SQL text or --query NAME, not both", file=sys.stderr)
-        return 2
+        raise UsageError("give either SQL text or --query NAME, not both")
     if args.saved:
         if args.saved in queries:
             sql = queries[args.saved][1]
@@ -119,29 +201,25 @@ def run(args: argparse.Namespace) -> int:
             sql = f'SELECT * FROM "{args.saved}"'
         else:
             valid = ", ".join(sorted(queries)) or "none found"
-            print(f"borescan sql: unknown saved query {args.saved!r}; valid: {valid}", file=sys.stderr)
-            return 1
+            raise CommandFailed(f"unknown saved query {args.saved!r}; valid: {valid}")
     elif args.query:
         sql = args.query
     else:
-        print('borescan sql: give SQL text (borescan sql "SELECT * FROM scans") or --query NAME', file=sys.stderr)
-        return 2
+        raise UsageError('give SQL text (borescan sql "SELECT * FROM scans") or --query NAME')
     try:
         columns, rows = run_query(args.results, sql)
     except FileNotFoundError as err:
-        print(f"borescan sql: {err}", file=sys.stderr)
-        return 1
+        raise CommandFailed(str(err)) from None
     except duckdb.Error as err:
-        print(f"borescan sql: {err}", file=sys.stderr)
-        return 1
+        raise CommandFailed(str(err)) from None
     if args.format == "csv":
         w = csv.writer(sys.stdout, lineterminator="\n")
         w.writerow(columns)
         for r in rows:
-            w.writerow([_cell(v) for v in r])
+            w.writerow([_text(v) for v in r])
     elif args.format == "json":
         data = [{c: _jsonable(v) for c, v in zip(columns, r, strict=True)} for r in rows]
         print(json.dumps(data, indent=2))
     else:
-        sys.stdout.write(format_table(columns, rows))
+        sys.stdout.write(format_table(columns, rows, args.digits, args.max_width))
     return 0

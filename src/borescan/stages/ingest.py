@@ -6,18 +6,22 @@ from pathlib import Path
 
 import polars as pl
 
-from borescan import rawio, tables
+from borescan import rawio, tables, validation
 from borescan.parallel import map_in_order
 from borescan.stages._common import Quarantined, write_quarantine_record
 
 __all__ = ["stage_ingest", "scan_row"]
 
-DUPLICATE_REASON = "scan_id already used by a scan of an earlier night (scan ids are unique across nights)"
+DUPLICATE_REASON = validation.DUPLICATE_REASON
 
 
 def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, duplicate_ids: list[str] = (),
                  workers: int = 1) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
     """Validate and register every scan of one night (spread over ``workers`` processes).
+
+    A scan is quarantined for the first problem :func:`borescan.validation.scan_problems` finds
+    (the checks ``borescan validate`` runs): the format, readings outside the sensor's range,
+    the sample clock of spindle scans, a scan id used by an earlier night.
 
     Returns the ``scans`` rows (status ``ok`` or ``quarantined`` with the reason), the
     ``scan_files`` rows (SHA-256 and size of every raw file, bad scans included) and the
@@ -80,21 +84,10 @@ def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
         meta = rawio.read_scan_meta(d)
     except rawio.ScanError:
         pass
-    problem: Quarantined | None = None
-    if duplicate:
-        problem = Quarantined(scan_id, night, "ingest", "scan.json", DUPLICATE_REASON)
-    else:
-        try:
-            scan = rawio.read_scan(d, raw_root=Path(raw_root))
-        except rawio.ScanError as err:
-            problem = Quarantined.from_error(err, night, "ingest")
-        else:
-            # The sensor reports null when out of range (raw-scan-format.md), so a logged value
-            # outside [0, range_mm] is a mislabelled or corrupt export, not a measurement.
-            out_of_range = [w for w in scan.warnings if "outside" in w]
-            if out_of_range:
-                file, _, msg = out_of_range[0].partition(": ")
-                problem = Quarantined(scan_id, night, "ingest", file, msg + " (a sensor reports null when out of range)")
+    # the one validator, shared with `borescan validate`: the first problem is the reason
+    earlier = validation.earlier_night_of(raw_root, night, scan_id) if duplicate else None
+    _, problems = validation.scan_problems(d, raw_root, duplicate=duplicate, earlier_night=earlier)
+    problem = Quarantined.from_error(problems[0], night, "ingest") if problems else None
     if problem is not None:
         write_quarantine_record(results_root, problem)
     return scan_row(scan_id, night, d, meta, hashes, problem), file_rows, problem

@@ -1,0 +1,199 @@
+"""The one validator: every reason the pipeline sets a raw scan aside at ingest (ingest and ``borescan validate``).
+
+:func:`scan_problems` is the single check of one scan folder. The ingest stage quarantines a
+scan when it returns a problem (the first one becomes the quarantine reason), and
+``borescan validate`` prints all of them, so the two cannot disagree. In order:
+
+1. a ``scan_id`` already used by a scan of an earlier night (ids are unique across nights);
+2. everything :func:`borescan.rawio.read_scan` rejects (the spec's Errors section and the
+   decisions documented in :mod:`borescan.rawio`);
+3. readings outside ``[0, range_mm]`` of their sensor: a sensor reports null when it is out of
+   range (``raw-scan-format.md``), so a logged value outside is a mislabelled or corrupt export;
+4. on spindle scans (a ``spindle.parquet`` is present; one clock drives every channel), the
+   sample clock: the ``t_ns`` step per sample must match ``sample_rate_hz`` (median step within
+   :data:`RATE_TOLERANCE`, :func:`rate_mismatch`), and no single step may be off by more than
+   half a period (:func:`borescan.rawio.clock_jump`).
+
+:func:`validate_tree` runs it over the scans the pipeline would ingest (``rawio.nights`` and
+``rawio.night_scan_dirs``, in night order, so the later of two scans sharing an id is the
+duplicate) and adds the entries of the tree the pipeline would silently skip.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from borescan import rawio
+from borescan.rawio import ScanError
+
+__all__ = ["DUPLICATE_REASON", "OUT_OF_RANGE_NOTE", "RATE_TOLERANCE", "RawRootError", "require_raw_root",
+           "duplicate_reason", "earlier_night_of", "rate_mismatch", "clock_problem", "scan_problems",
+           "TreeReport", "validate_tree"]
+
+DUPLICATE_REASON = "scan_id already used by a scan of an earlier night (scan ids are unique across nights)"
+OUT_OF_RANGE_NOTE = "(a sensor reports null when out of range)"
+
+#: Largest relative difference between the rate of the ``t_ns`` clock (median step per sample)
+#: and ``sample_rate_hz`` of ``scan.json``. Controller clocks agree with their nominal rate to
+#: about 1e-4; a wrong rate setting (625 Hz declared, 660 Hz or 1 kHz logged) is 5 % or more off.
+RATE_TOLERANCE = 0.01
+
+
+class RawRootError(ValueError):
+    """The raw root is missing or not a folder (a configuration error, not a bad scan)."""
+
+
+def require_raw_root(raw_root: str | Path) -> Path:
+    """``raw_root`` as a Path; raise :class:`RawRootError` naming it when it is not an existing folder.
+
+    A pipeline run or a validation over a raw root that does not exist would otherwise find no
+    nights and succeed having done nothing.
+    """
+    root = Path(raw_root)
+    if not root.exists():
+        raise RawRootError(f"raw root {root} does not exist")
+    if not root.is_dir():
+        raise RawRootError(f"raw root {root} is not a folder")
+    return root
+
+
+def duplicate_reason(earlier_night: str | None) -> str:
+    """The problem of a scan whose id an earlier night has (that night named when known)."""
+    if earlier_night is None:
+        return DUPLICATE_REASON
+    return f"scan_id already used by a scan of night={earlier_night} (scan ids are unique across nights)"
+
+
+def earlier_night_of(raw_root: str | Path, night: str, scan_id: str) -> str | None:
+    """The first night before ``night`` with a folder ``scan=<scan_id>``; None when there is none."""
+    for n in rawio.nights(raw_root):
+        if n >= night:
+            return None
+        if (Path(raw_root) / f"night={n}" / f"scan={scan_id}").is_dir():
+            return n
+    return None
+
+
+def rate_mismatch(sample: np.ndarray, t_s: np.ndarray, sample_rate_hz: float) -> str | None:
+    """Describe a sample clock whose rate disagrees with ``sample_rate_hz``; None when it agrees.
+
+    The clock's rate is 1 / (median of ``diff(t_s) / diff(sample)``), robust to a few jumps
+    (:func:`borescan.rawio.clock_jump` finds those) and to dropped samples. It disagrees when
+    ``|rate / sample_rate_hz - 1| > RATE_TOLERANCE``.
+
+    Parameters
+    ----------
+    sample : (n,) sample numbers, strictly increasing.
+    t_s : (n,) times of the samples [s], strictly increasing.
+    sample_rate_hz : the scan's declared sample rate [Hz].
+    """
+    sample = np.asarray(sample)
+    t_s = np.asarray(t_s, dtype=float)
+    if sample.size < 2:
+        return None
+    period_s = float(np.median(np.diff(t_s) / np.diff(sample)))
+    rate_hz = 1.0 / period_s
+    if abs(rate_hz / sample_rate_hz - 1.0) <= RATE_TOLERANCE:
+        return None
+    return (f"sample clock runs at {rate_hz:.6g} Hz (median t_ns step {period_s * 1e3:.6g} ms per sample) but "
+            f"scan.json says sample_rate_hz {sample_rate_hz:g} Hz (more than {RATE_TOLERANCE:.0%} apart)")
+
+
+def clock_problem(scan: rawio.RawScan) -> str | None:
+    """The sample-clock problem of a spindle scan (rate, then jumps); None when fine or not a spindle scan."""
+    if scan.spindle is None:
+        return None
+    mat = rawio.lds_matrix(scan)
+    rate = float(scan.meta["sample_rate_hz"])
+    return rate_mismatch(mat.sample, mat.t_s, rate) or rawio.clock_jump(mat.sample, mat.t_s, rate)
+
+
+def scan_problems(scan_dir: str | Path, raw_root: str | Path, *, duplicate: bool = False,
+                  earlier_night: str | None = None) -> tuple[rawio.RawScan | None, list[ScanError]]:
+    """Every reason the ingest stage sets this scan aside, in the order above ([] = accepted).
+
+    Parameters
+    ----------
+    scan_dir : ``<raw_root>/night=<night>/scan=<scan_id>``
+    raw_root : the raw root (folders and files must resolve inside it)
+    duplicate : the scan id is used by a scan of an earlier night
+        (:func:`borescan.rawio.earlier_duplicate_ids`)
+    earlier_night : that night, when known (named in the problem; implies ``duplicate``)
+
+    Returns
+    -------
+    (scan, problems)
+        The scan when it could be read (even if a later check failed), else None.
+    """
+    scan_dir = Path(scan_dir)
+    problems: list[ScanError] = []
+    sid = scan_dir.name[5:] if scan_dir.name.startswith("scan=") else scan_dir.name
+    if duplicate or earlier_night is not None:
+        problems.append(ScanError(sid, rawio.SCAN_JSON, duplicate_reason(earlier_night)))
+    scan, errors = rawio.inspect_scan(scan_dir, Path(raw_root))
+    if errors:
+        return None, problems + errors
+    for w in scan.warnings:
+        if "outside" in w:  # rawio's range warnings: "<file>: channel <c>: <n> readings outside [0, <r>] mm"
+            file, _, msg = w.partition(": ")
+            problems.append(ScanError(scan.scan_id, file, f"{msg} {OUT_OF_RANGE_NOTE}"))
+    clock = clock_problem(scan)
+    if clock:
+        problems.append(ScanError(scan.scan_id, rawio.LDS_FILE, clock))
+    return scan, problems
+
+
+@dataclass
+class TreeReport:
+    """What :func:`validate_tree` found.
+
+    Attributes
+    ----------
+    problems : list of ScanError
+        Tree entries first (scan_id ``"-"``), then per scan in night and folder order.
+    n_scans : int
+        Scan folders checked.
+    bad_scan_ids : set of str
+        Scans that ingest would quarantine.
+    """
+
+    problems: list[ScanError] = field(default_factory=list)
+    n_scans: int = 0
+    bad_scan_ids: set[str] = field(default_factory=set)
+
+
+def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | None = None) -> TreeReport:
+    """Check a raw tree as the pipeline would ingest it (see the module docstring).
+
+    ``progress(i, n)`` is called after each scan. Raises :class:`RawRootError` when ``raw_root``
+    is not an existing folder.
+    """
+    root = require_raw_root(raw_root)
+    nights = rawio.nights(root)
+    jobs: list[tuple[Path, str | None]] = []
+    first_night: dict[str, str] = {}
+    for night in nights:
+        for d in rawio.night_scan_dirs(root, night):
+            jobs.append((d, first_night.get(d.name[5:])))
+            first_night.setdefault(d.name[5:], night)
+    # entries the pipeline never ingests; a night it does ingest is reported through its scans
+    ingested_nights = {f"night={n}" for n in nights}
+    report = TreeReport(problems=[e for e in rawio.tree_problems(root) if e.file not in ingested_nights])
+    listed = {d for d, _ in jobs}
+    stray = [d for d in rawio.discover_scans(root) if d not in listed and rawio.NIGHT_RE.fullmatch(d.parent.name[6:])]
+    for d in stray:  # e.g. an empty "scan=" folder: the pipeline skips it, say why
+        report.problems += rawio.inspect_scan(d, root)[1] or [
+            ScanError("-", f"{d.parent.name}/{d.name}", "not a scan=<scan_id> folder; the pipeline skips it")]
+    for i, (d, earlier) in enumerate(jobs):
+        _, problems = scan_problems(d, root, earlier_night=earlier)
+        report.problems += problems
+        if problems:
+            report.bad_scan_ids.add(d.name[5:])
+        if progress is not None:
+            progress(i + 1, len(jobs))
+    report.n_scans = len(jobs)
+    return report
