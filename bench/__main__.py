@@ -1,4 +1,8 @@
-"""Run all benchmarks (or those named on the command line): python -m bench [name ...]."""
+"""Run all benchmarks (or those named on the command line): python -m bench [name ...].
+
+A benchmark module with ``RUN_BY_DEFAULT = False`` (one that takes many minutes) runs only
+when named.
+"""
 
 from __future__ import annotations
 
@@ -14,8 +18,12 @@ def main(argv: list[str]) -> int:
     if argv:
         names = [n for n in names if any(a in n for a in argv)]
     for name in names:
+        module = importlib.import_module(f"bench.{name}")
+        if not argv and not getattr(module, "RUN_BY_DEFAULT", True):
+            print(f"=== {name}: run on request only (python -m bench {name.removeprefix('bench_')})", flush=True)
+            continue
         print(f"=== {name}", flush=True)
-        importlib.import_module(f"bench.{name}").main()
+        module.main()
     return 0
 
 

@@ -1,6 +1,6 @@
 rule build_catalog:
     message:
-        "Building the history catalog {output.catalog}"
+        "Adding the new nights to the history catalog {output.catalog}"
     input:
         scans=stage_table("scans"),
         scan_files=stage_table("scan_files"),
@@ -17,7 +17,9 @@ rule build_catalog:
         findings=stage_table("findings"),
         discrepancy_quarantine=stage_table("quarantine/stage=discrepancy"),
     output:
-        catalog=f"{RES}/catalog.duckdb",
+        # update(): Snakemake must not delete the catalog before the job, which extends it by
+        # the new nights (borescan.catalog.update_catalog); a failed job restores the old one
+        catalog=update(f"{RES}/catalog.duckdb"),
     params:
         results_root=results_root_for,
     log:

@@ -5,7 +5,9 @@ rule write_report:
         catalog=f"{RES}/catalog.duckdb",
         papers=f"{RES}/papers/index.csv",
     output:
-        html=f"{RES}/report.html",
+        # update(): the page and its month pages (report/<YYYY-MM>/) are brought up to date in
+        # place; a month whose rows did not change keeps its page and plots
+        html=update(f"{RES}/report.html"),
     params:
         results_root=results_root_for,
     log:

@@ -257,7 +257,8 @@ def test_a_stage_script_runs_by_hand_and_gives_the_rules_output(pipeline_run, tm
         # equal to the last bits but for BLAS threading: Snakemake runs a job with its threads'
         # count (OMP_NUM_THREADS), by hand numpy uses every core, so sums may round differently
         assert_frame_equal(by_hand, by_rule, rel_tol=1e-9, abs_tol=1e-12)
-    proc = subprocess.run([sys.executable, str(ROOT / "workflow" / "scripts" / "signal_night.py")],
+    proc = subprocess.run([sys.executable, str(ROOT / "workflow" / "scripts" / "signal_night.py"),
+                           f"raw_root={pipeline_run['raw']}"],
                           capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert proc.returncode != 0 and "needs the wildcard(s) ['night']" in proc.stderr
 

@@ -36,15 +36,17 @@ def _links(page: Path) -> _Links:
     return p
 
 
-def _check_links_resolve(root: Path) -> list[str]:
-    parsed = _links(root / "report.html")
+def _check_links_resolve(root: Path, page: str = "report.html") -> list[str]:
+    """Every link of ``root/page`` is relative and resolves (from the page's folder); the links."""
+    parsed = _links(root / page)
+    here = (root / page).parent
     files = []
     for link in parsed.links:
         if link.startswith("#"):
             assert link[1:] in parsed.ids, link
             continue
         assert "://" not in link and not link.startswith("/"), f"non-relative link {link}"
-        assert (root / link).exists(), f"dangling link {link}"
+        assert (here / link).exists(), f"dangling link {link} in {page}"
         files.append(link)
     return files
 
@@ -137,11 +139,21 @@ def test_report_written_with_sections_and_existing_links(results):
         assert f'<section id="{sid}">' in text
     files = _check_links_resolve(results)
     # the plots, certificates, gap plots and paper outputs are all linked
-    for expect in ("report/control_TRI-01.png", "report/calibration_TRI-01.png", "report/calibration_ROD-01.png",
+    for expect in ("report/2026-11/control_TRI-01.png", "report/2026-11/calibration_TRI-01.png",
+                   "report/2026-11/calibration_ROD-01.png", "report/2026-11/index.html",
                    "calibration/TRI-01/CAL-A/certificate.pdf",
                    "calibration/TRI-01/CAL-A/certificate.json", "discrepancy/PART-7/gap.png",
                    "papers/wang_fig7.png", "papers/yang_table1.csv", "quarantine/BAD-1.json"):
         assert expect in files, expect
+    # the month's own page: the same sections (papers aside), its links relative to report/2026-11/
+    month = _check_links_resolve(results, "report/2026-11/index.html")
+    for expect in ("control_TRI-01.png", "../../calibration/TRI-01/CAL-A/certificate.pdf",
+                   "../../discrepancy/PART-7/gap.png", "../../quarantine/BAD-1.json", "../../report.html"):
+        assert expect in month, expect
+    month_text = (results / "report" / "2026-11" / "index.html").read_text()
+    assert text.split('<section id="calibration">')[1].split("</section>")[0].replace("report/2026-11/", "") == \
+        month_text.split('<section id="calibration">')[1].split("</section>")[0].replace("../../", "")
+    assert '<section id="papers">' not in month_text
     # a certificate whose files are absent is named, not linked
     assert "calibration/ROD-01/ROD-CAL-1/certificate.pdf (missing)" in text
     assert "lds.parquet: non-monotonic sample" in text
@@ -152,7 +164,9 @@ def test_report_written_with_sections_and_existing_links(results):
     suspect = text.split("Measurements put in doubt")[1].split("</table>")[0]
     assert "PART-7" in suspect and "PART-8" not in suspect
     # every PNG written is a real PNG
-    for png in (results / "report").iterdir():
+    pngs = list((results / "report").rglob("*.png"))
+    assert sorted(p.name for p in pngs) == ["calibration_ROD-01.png", "calibration_TRI-01.png", "control_TRI-01.png"]
+    for png in pngs:
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # parts measured once share one table (a single value has no distribution to plot)
     once = text.split("Parts measured once (3)")[1].split("</table>")[0]
@@ -167,7 +181,7 @@ def test_report_plots_parts_measured_more_than_once(results):
     t["diameters"] = pl.concat([dia, again], how="diagonal_relaxed")
     text = report.write_report(results, t).read_text()
     assert "<h3>Part P-7</h3>" in text and "Parts measured once (2)" in text
-    assert (results / "report" / "diameters_P-7.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (results / "report" / "2026-11" / "diameters_P-7.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_report_links_survive_moving_the_folder(results, tmp_path):
@@ -177,12 +191,19 @@ def test_report_links_survive_moving_the_folder(results, tmp_path):
     assert _check_links_resolve(moved)
 
 
+def _files(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
 def test_report_rerun_is_byte_identical(results):
     report.write_report(results)
-    first = {p.name: p.read_bytes() for p in (results / "report").iterdir()}
+    first = _files(results / "report")
     html1 = (results / "report.html").read_bytes()
     report.write_report(results)
-    assert {p.name: p.read_bytes() for p in (results / "report").iterdir()} == first
+    assert _files(results / "report") == first
+    assert (results / "report.html").read_bytes() == html1
+    report.write_report(results, full=True)  # everything drawn again: the same bytes
+    assert _files(results / "report") == first
     assert (results / "report.html").read_bytes() == html1
 
 
@@ -208,4 +229,4 @@ def test_report_from_given_frames_without_catalog(tmp_path):
     # limits table of the device: mean 0.003, MR-bar 7/3 µm, UCL 0.003 + 2.66 * 0.0023333
     assert f"{0.003 + 2.66 * 0.007 / 3:.6g}" in text
     assert f"{3.267 * 0.007 / 3:.6g}" in text
-    assert (res / "report" / "control_TRI-02.png").is_file()
+    assert (res / "report" / "2026-11" / "control_TRI-02.png").is_file()

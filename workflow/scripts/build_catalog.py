@@ -1,9 +1,19 @@
-"""Rule build_catalog: (re)build results_root/catalog.duckdb from every stage table."""
+"""Rule build_catalog: results_root/catalog.duckdb extended by the nights whose stage tables are new."""
 
 from borescan.stages.catalog import stage_catalog
-from borescan.workflow_log import log_to
+from borescan.workflow_log import log_to, rule_job
 
-with log_to(snakemake.log[0]) as log:
-    counts = stage_catalog(snakemake.params.results_root, snakemake.output.catalog)
-    for table, n in counts.items():
-        log(f"{table}: {n} rows")
+
+def main(smk) -> None:
+    with log_to(smk.log[0]) as log:
+        update = stage_catalog(smk.params.results_root, smk.output.catalog)
+        log(f"{update.mode}: {update.reason}")
+        if update.added or update.removed:
+            log(f"nights read: {', '.join(update.added) or 'none'}; "
+                f"nights taken out first: {', '.join(update.removed) or 'none'}")
+        for table, n in update.rows.items():
+            log(f"{table}: {n} rows")
+
+
+if __name__ == "__main__":
+    main(rule_job(globals(), __file__))  # Snakemake's job, or by hand: python <this script>

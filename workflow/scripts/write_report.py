@@ -1,8 +1,16 @@
-"""Rule write_report: results_root/report.html with plots, tables and links."""
+"""Rule write_report: results_root/report.html and the month pages, redrawn where rows changed."""
 
 from borescan import report
-from borescan.workflow_log import log_to
+from borescan.workflow_log import log_to, rule_job
 
-with log_to(snakemake.log[0]) as log:
-    path = report.write_report(snakemake.params.results_root)
-    log(f"report written to {path}")
+
+def main(smk) -> None:
+    with log_to(smk.log[0]) as log:
+        update = report.update_report(smk.params.results_root)
+        log(f"{len(update.months)} month(s); pages written: {', '.join(update.rendered) or 'none'}; "
+            f"{update.plots_drawn} plot(s) drawn")
+        log(f"report written to {update.path}")
+
+
+if __name__ == "__main__":
+    main(rule_job(globals(), __file__))  # Snakemake's job, or by hand: python <this script>
