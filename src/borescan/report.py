@@ -295,19 +295,8 @@ def load_tables(results_root: str | os.PathLike) -> dict[str, pl.DataFrame]:
     con = catalog.open_catalog(results_root, read_only=True)
     try:
         out = {}
-        order = {
-            "scans": "night, started_at, scan_id",
-            "calibrations": "device_id, valid_from, calibration_id, channel",
-            "calibration_scans": "calibration_id, scan_id",
-            "diameters": "artifact_id, feature, night, scan_id",
-            "verifications": "device_id, night, scan_id",
-            "findings": "scan_id, effect, channel",
-            "quarantine": "scan_id, stage",
-            "artifacts": "artifact_id",
-            "scan_files": "scan_id, file",
-        }
         for t in catalog.SCHEMA:
-            out[t] = con.sql(f"SELECT * FROM {t} ORDER BY {order.get(t, '1')}").pl()
+            out[t] = con.sql(f"SELECT * FROM {t} ORDER BY {_ORDER.get(t, '1')}").pl()
         if "verifications" in out and "scans" in out:
             # time order within a night: by the scan's start
             out["verifications"] = (
@@ -447,6 +436,8 @@ _ORDER = {
     "findings": "scan_id, effect, channel",
     "quarantine": "scan_id, stage",
     "suspect_measurements": "device_id, night, scan_id, feature",
+    "artifacts": "artifact_id",
+    "scan_files": "scan_id, file",
 }
 
 
