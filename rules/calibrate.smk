@@ -13,6 +13,9 @@ rule calibrate_night:
         raw_root=RAW,
         results_root=results_root_for,
         calibration=config["calibration"],
+        uncertainty=config["uncertainty"],
+        laboratory=config["laboratory"],
+        verification=config["verification"],
     log:
         f"{RES}/logs/calibrate_night/{{night}}.log",
     benchmark:

@@ -17,6 +17,8 @@ rule measure_night:
         verification=config["verification"],
         measurement=config["measurement"],
         calibration=config["calibration"],
+        uncertainty=config["uncertainty"],
+        laboratory=config["laboratory"],
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/measure_night/{{night}}.log",

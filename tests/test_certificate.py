@@ -1,4 +1,4 @@
-"""Certificates: content, layout and byte-identical regeneration."""
+"""Certificates: ISO/IEC 17025 7.8 content, GUM budget, DCC-like JSON, layout and byte-identical regeneration."""
 
 import json
 import re
@@ -6,35 +6,58 @@ import re
 import numpy as np
 import pytest
 
-from borescan.calibration import fit_full_calibration, full_residuals, yang_calibration
-from borescan.certificate import certificate_dir, write_certificate
-from borescan.geometry import Beams, Bore, tri_spindle_readings
+from borescan.calibration import full_residuals, yang_calibration
+from borescan.certificate import PLACEHOLDER, _pages, certificate_dict, certificate_dir, write_certificate
+from borescan.config import schema_defaults
+from borescan.uncertainty import Budget
 
-TRUE = Beams((1, 2, 3), np.array([0.3, 2.4, 4.5]), np.array([5.5484, -2.5295, 1.5262]),
-             np.array([132.6718, 132.8883, 134.1108]))
 R_MM = 275.029 / 2
+LAB = {"name": "Metrology Lab Example GmbH", "address": "Example Street 1, 12345 Example Town", "country_code": "DE",
+       "performance_location": "at the customer's boring mill", "accreditation": "Accredited by EXAMPLE AB, D-K-00000-00",
+       "customer": "Example Machine Works", "signatory": "A. Example", "signatory_function": "Head of laboratory",
+       "decision_rule": "guard_band", "guard_band_factor": 1.0}
 
 
 @pytest.fixture(scope="module")
-def calibrated():
-    rng = np.random.default_rng(11)
-    t = np.arange(1000) / 200.0
-    v = tri_spindle_readings(2 * np.pi * t, np.array([0.122, -2.320]), TRUE, Bore((0.0, 0.0), R_MM))
-    v = v + rng.normal(0, 0.002, v.shape)
-    cal = fit_full_calibration(t, v, TRUE.channels, TRUE, R_MM, rpm=60.0, scan_ids=["N20261121-TRI01-CAL-P1"],
-                               device_id="TRI-01", raw_sha256={"lds.parquet": "a" * 64})
+def calibrated(tmp_path_factory):
+    """A simulated calibration scan through the pipeline's own path: fit, GUM budget, certificate inputs."""
+    from borescan import rawio, simulate
+    from borescan.stages.calibration_fit import calibrate_raw_scans, spindle_inputs
+    from borescan.certificate import certificate_dates
+
+    tmp = tmp_path_factory.mktemp("cal")
+    scene = simulate.default_tri_scene()
+    sim = simulate.simulate_tri_spindle(scene, scan_id="N20261121-TRI01-CAL-P1", night="2026-11-21", n_rev=5,
+                                        noise_mm=0.002, seed=11, center_xy_mm=scene.bore_center_xy_mm)
+    scan = rawio.read_scan(simulate.write_simulated(sim, tmp / "raw", tmp / "truth"))
+    cfg = schema_defaults()
+    cal = calibrate_raw_scans([scan], cfg["calibration"], uncertainty=cfg["uncertainty"])
+    x = spindle_inputs(scan, cfg["uncertainty"])
+    dates = certificate_dates([scan.meta], [], "2026-11-21", 30)
     kw = dict(
-        device={"id": "TRI-01", "type": "tri_lds", "sensors": "HG-C1030 x3"},
-        artifact={"id": "RG-275", "certificate": "RG-275/2026-03", "certified_diameter_mm": 275.029,
-                  "u_diameter_mm": 0.0015, "k": 2},
-        conditions={"temperature_c": 20.4, "spindle_position": {"label": "P1", "x_mm": 262.955, "y_mm": -275.502},
-                    "rpm": 60.0, "revolutions": 5},
-        residuals={"t_s": t, "residual_mm": full_residuals(cal, t, v, R_MM)},
+        device={"id": "TRI-01", "type": "tri_lds", "sensors": scan.meta["sensors"]},
+        artifact=dict(scan.meta["artifact"]),
+        conditions={"temperature": {"value_c": 20.0, "u_c": 0.0577, "U_c": 0.0953, "k": 1.65, "assumed": False,
+                                    "source": "scan.json"},
+                    "gauge_radius_at_temperature_mm": x["R"], "position_accuracy_mm": 0.002,
+                    "scans": [{"scan_id": scan.scan_id, "spindle_position": scan.meta["spindle"]["position"],
+                               "center": scan.meta["center"], "rpm": 60.0, "angle_source": "encoder",
+                               "revolutions_recorded": 5.0, "revolutions_with_extrema": 4}]},
+        residuals={"t_s": x["t_s"], "residual_mm": full_residuals(cal, x["t_s"], x["readings"], x["R"], scan.scan_id,
+                                                                  angle_model=x["angle_model"])},
         raw_files={"scan.json": "b" * 64, "lds.parquet": "a" * 64},
         software_version="0.1.0",
         config_hash="c0ffee12",
+        dates=dates,
     )
     return cal, kw
+
+
+def _verification(passed: bool) -> dict:
+    return {"scan_id": "N20261121-TRI01-VER-RG275", "artifact_id": "RG-275", "measured_mm": 275.0292,
+            "measured_at_t_mm": 275.0292, "certified_mm": 275.029, "error_mm": 0.0002 if passed else 0.02,
+            "expanded_u_error_mm": 0.0189, "k": 1.98, "tolerance_mm": 0.015, "acceptance_limit_mm": 0.015, "passed": passed,
+            "temperature_c": 20.0, "conformity": "PASS" if passed else "FAIL", "budget": []}
 
 
 def test_regeneration_is_byte_identical(calibrated, tmp_path):
@@ -49,37 +72,116 @@ def test_regeneration_is_byte_identical(calibrated, tmp_path):
     assert sorted(p.name for p in a["json"].parent.iterdir()) == ["certificate.json", "certificate.pdf", "residuals.png"]
 
 
-def test_layout_and_metadata(calibrated, tmp_path):
+def test_layout_metadata_and_page_x_of_y(calibrated, tmp_path):
     cal, kw = calibrated
-    paths = write_certificate(cal, certificate_dir(tmp_path, cal), **kw)
+    paths = write_certificate(cal, certificate_dir(tmp_path, cal), **kw, verifications=[_verification(True)])
     assert paths["pdf"].parent == tmp_path / "calibration" / "TRI-01" / cal.calibration_id
     pdf = paths["pdf"].read_bytes()
     assert pdf.startswith(b"%PDF")
     for key in (b"/CreationDate", b"/ModDate", b"/Producer", b"/Creator"):
         assert key not in pdf
-    assert len(re.findall(rb"/Type /Page\b(?!s)", pdf)) == 2  # parameter page + residual page
+    n_pdf = len(re.findall(rb"/Type /Page\b(?!s)", pdf))
+    # administrative page, item/conditions/traceability, results, budget, verification, records, residuals
+    assert n_pdf >= 7
+    cert = json.loads(paths["json"].read_text())
+    t, res = np.asarray(kw["residuals"]["t_s"]), np.asarray(kw["residuals"]["residual_mm"])
+    pages = _pages(cal, cert, t, res)
+    assert len(pages) == n_pdf
+    for i, fig in enumerate(pages):
+        texts = [x.get_text() for x in fig.texts]
+        assert texts.count(f"Page {i + 1} of {n_pdf}") == 2, i  # header and footer
+        assert f"No. {cal.calibration_id}" in texts
     png = paths["png"].read_bytes()
     assert png.startswith(b"\x89PNG") and b"Software" not in png and b"matplotlib" not in png
 
 
-def test_json_content(calibrated, tmp_path):
+def test_json_content_and_budget(calibrated, tmp_path):
     cal, kw = calibrated
     text = write_certificate(cal, tmp_path, **kw)["json"].read_text()
     cert = json.loads(text)
     assert text == json.dumps(cert, sort_keys=True, indent=2) + "\n"  # sorted keys, no NaN
     assert cert["calibration_id"] == cal.calibration_id and cert["method"] == "full_lsq"
     assert list(cert["raw_files"]) == ["lds.parquet", "scan.json"]
-    for j, p in enumerate(cert["parameters"]):
-        assert p["channel"] == j + 1
-        assert p["U_rho_mm"] == pytest.approx(2 * cal.u_rho_mm[j], rel=1e-11)
-        assert p["U_d_b_mm"] == pytest.approx(2 * cal.u_d_b_mm[j], rel=1e-11)
-        assert p["d_b_mm"] == pytest.approx(cal.beams.d_b_mm[j], rel=1e-11)
-    assert cert["parameters"][0]["U_beta_rad"] == 0.0  # gauge
+    budget = Budget.from_dict(cal.diagnostics["budget"])
+    p = cert["coverage_probability"]
+    assert p == schema_defaults()["uncertainty"]["coverage_probability"]
+    for j, row in enumerate(cert["parameters"]):
+        assert row["channel"] == j + 1
+        for k, name in enumerate(("beta_rad", "rho_mm", "d_b_mm")):
+            comb = budget.combined(3 * j + k, p)
+            assert row[f"u_{name}"] == pytest.approx(np.sqrt(cal.cov[3 * j + k, 3 * j + k]), rel=1e-9)
+            assert row[f"U_{name}"] == pytest.approx(comb.k * comb.u, rel=1e-11)
+        assert row["d_b_mm"] == pytest.approx(cal.beams.d_b_mm[j], rel=1e-11)
+        # the reference standard and the sensors are in: U(d_b) is at least the linearity's 95 % bound
+        lin = kw["device"]["sensors"][j]["linearity_fs"] * kw["device"]["sensors"][j]["range_mm"]
+        assert row["U_d_b_mm"] > 0.9 * lin
     assert np.array(cert["covariance"]).shape == (9, 9)
-    assert cert["residuals"]["n_samples"] == 1000
-    assert np.allclose(cert["residuals"]["rms_mm_per_channel"], 0.002, rtol=0.1)
-    assert cert["artifact"]["certified_diameter_mm"] == 275.029 and cert["conditions"]["temperature_c"] == 20.4
+    assert np.allclose(cert["covariance"], budget.covariance(), rtol=1e-10, atol=1e-20)
+    assert np.allclose(cert["covariance_fit"], cal.diagnostics["cov_fit"])
+    # the budget table: quantity, estimate, standard uncertainty, distribution, sensitivity, contribution
+    mr = cert["measurementResults"][0]
+    rows = {r["key"]: r for r in mr["uncertaintyBudget"]["d_b_mm[2]"]["rows"]}
+    g = rows["gauge:RG-275@RG-275/2026-03:D20"]
+    assert g["estimate"] == 275.029 and g["standard_uncertainty"] == pytest.approx(0.00075)
+    assert g["distribution"] == "normal" and g["sensitivity_coefficient"] == pytest.approx(0.5, abs=0.01)
+    assert g["contribution"] == pytest.approx(0.5 * 0.00075, rel=0.02)
+    lin = rows["linearity:" + cal.calibration_id + ":ch2"]
+    assert lin["distribution"] == "rectangular" and lin["sensitivity_coefficient"] == pytest.approx(-1.0, abs=1e-6)
+    assert {"fit:" + cal.calibration_id + ":readings", "temperature:N20261121-TRI01-CAL-P1"} <= set(rows)
+    for r in mr["results"]:
+        eu = r["real"]["expandedUnc"]
+        assert {"uncertainty", "coverageFactor", "coverageProbability", "distribution"} <= set(eu)
+    # effective base length with its U (it was printed "+- 0.0000")
+    assert all(r["expandedUnc"]["uncertainty"] > 1e-3 for r in cert["effective_base_length"])
+    assert cert["artifact"]["certified_diameter_mm"] == 275.029 and cert["conditions"]["temperature"]["value_c"] == 20.0
     assert cert["software_version"] == "0.1.0" and cert["config_hash"] == "c0ffee12"
+
+
+def test_iso17025_administrative_data_and_placeholders(calibrated, tmp_path):
+    cal, kw = calibrated
+    cert = json.loads(write_certificate(cal, tmp_path / "d", **kw)["json"].read_text())
+    adm = cert["administrativeData"]
+    core = adm["coreData"]
+    assert core["uniqueIdentifier"] == cal.calibration_id
+    assert core["beginPerformanceDate"] == core["endPerformanceDate"] == core["issueDate"] == "2026-11-21"
+    assert "not the clock" in cert["dates"]["issue_rule"]
+    assert cert["dates"]["recalibration_due"] == "2026-12-21"
+    # the defaults are placeholders and the certificate says which
+    assert set(adm["placeholders"]) >= {"name", "address", "accreditation", "customer", "signatory"}
+    assert PLACEHOLDER in adm["calibrationLaboratory"]["contact"]["name"]
+    kinds = {s.get("refType", s.get("reference")): s for s in adm["statements"]}
+    assert "RG-275/2026-03" in kinds["basic_traceability"]["declaration"]
+    assert "issuer not stated" in kinds["basic_traceability"]["declaration"]
+    assert kinds["basic_conformity"]["conformity"] == "noStatement"
+    assert kinds["basic_recalibration"]["date"] == "2026-12-21"
+    # a configured laboratory, a traceable gauge, a failed verification
+    art = dict(kw["artifact"], certificate_issuer="Example NMI", certificate_valid_until="2027-03-31")
+    kw2 = dict(kw, laboratory=LAB, artifact=art, verifications=[_verification(True), _verification(False)])
+    cert = json.loads(write_certificate(cal, tmp_path / "e", **kw2)["json"].read_text())
+    adm = cert["administrativeData"]
+    assert adm["placeholders"] == []
+    assert adm["respPersons"][0]["person"]["name"] == "A. Example" and adm["customer"]["name"] == LAB["customer"]
+    kinds = {s.get("refType", s.get("reference")): s for s in adm["statements"]}
+    trace = kinds["basic_traceability"]["declaration"]
+    assert "Example NMI" in trace and "2027-03-31" in trace
+    assert kinds["basic_conformity"]["conformity"] == "fail"
+    assert "Guarded acceptance" in kinds["basic_decisionRule"]["declaration"]
+    assert mr_equipment(cert)["issuer"] == "Example NMI"
+
+
+def mr_equipment(cert):
+    return cert["measurementResults"][0]["measuringEquipments"][0]
+
+
+def test_certificate_dates_come_from_the_scans():
+    from borescan.certificate import certificate_dates
+
+    d = certificate_dates([{"started_at": "2026-11-20T22:14:03Z"}, {"started_at": "2026-11-20T23:50:00Z"}],
+                          [{"started_at": "2026-11-21T00:20:00Z"}], "2026-11-20", 30)
+    assert (d["begin"], d["end"], d["issue"], d["recalibration_due"]) == ("2026-11-20", "2026-11-20", "2026-11-21",
+                                                                          "2026-12-20")
+    d = certificate_dates([{"started_at": "2026-11-20T23:30:00-02:00"}], [], "2026-11-20", 7)  # 01:30 UTC next day
+    assert d["begin"] == "2026-11-21" and d["recalibration_due"] == "2026-11-27"
 
 
 def test_yang_certificate_without_fit_diagnostics(tmp_path):
@@ -93,3 +195,5 @@ def test_yang_certificate_without_fit_diagnostics(tmp_path):
     cert = json.loads(paths["json"].read_text())
     assert cert["method"] == "yang2017" and cert["fit"]["residual_rms_mm"] is None
     assert cert["parameters"][2]["rho_mm"] == pytest.approx(1.5627026, abs=1e-6)
+    # no budget recorded: U from the covariance alone, k for a normal output
+    assert cert["parameters"][2]["U_rho_mm"] == pytest.approx(2.0 * np.sqrt(cal.cov[7, 7]), rel=1e-4)

@@ -1,19 +1,137 @@
-"""Certified artifacts (ring gauges, parts) of a scan's ``scan.json``: size at temperature, catalog row.
+"""Certified artifacts (ring gauges, parts) of a scan's ``scan.json``: temperature, size at temperature, catalog row.
 
-A gauge is certified at 20 degC; at the scan's temperature its radius is the certified one
-expanded by the ``thermal_expansion`` effect of :mod:`borescan.effects` (the one place that
-formula lives), so the calibration and the digital twin see the same gauge.
+A gauge is certified at 20 degC (ISO 1, the reference temperature of dimensional
+specifications); at the scan's temperature its radius is the certified one expanded by the
+``thermal_expansion`` effect of :mod:`borescan.effects` (the one place that formula lives), so
+the calibration and the digital twin see the same gauge. A diameter measured at temperature T
+is brought to 20 degC by the inverse, D20 = D_T / (1 + alpha (T - 20)) (:func:`diameter_at_20`).
+
+Temperature is never silent (:func:`scan_temperature`): a scan without
+``environment.temperature_c`` is either refused or taken as "assumed 20 degC" with a larger
+stated uncertainty and a flag, as the ``uncertainty`` section of the config says. Likewise an
+artifact without ``cte_per_k`` gets the config's assumed expansion coefficient with its wide
+bound and a flag (:func:`artifact_cte`).
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 from borescan.effects import EFFECTS
 from borescan.geometry import Bore
 
-__all__ = ["radius_at_temperature_mm", "gauge_radius_mm", "artifact_row"]
+__all__ = [
+    "REFERENCE_TEMPERATURE_C",
+    "MissingTemperature",
+    "ScanTemperature",
+    "ArtifactCte",
+    "scan_temperature",
+    "artifact_cte",
+    "artifact_key",
+    "radius_at_temperature_mm",
+    "gauge_radius_mm",
+    "diameter_at_20",
+    "artifact_row",
+]
 
-#: temperature at which artifacts are certified [degC]
+#: temperature at which artifacts are certified and results reported [degC] (ISO 1)
 REFERENCE_TEMPERATURE_C = 20.0
+#: ``uncertainty.missing_temperature`` values
+MISSING_TEMPERATURE = ("refuse", "assume_20c")
+
+
+class MissingTemperature(ValueError):
+    """A scan has no ``environment.temperature_c`` and the config refuses such scans."""
+
+
+@dataclass(frozen=True)
+class ScanTemperature:
+    """The temperature a scan's results refer to.
+
+    temperature_c : value [degC]; halfwidth_c : stated bound, rectangular [K];
+    u_c : standard uncertainty halfwidth / sqrt 3 [K] (GUM 4.3.7); assumed : True when scan.json
+    gives none and 20 degC was assumed; source : where value and bound come from (text).
+    """
+
+    temperature_c: float
+    halfwidth_c: float
+    u_c: float
+    assumed: bool
+    source: str
+
+
+@dataclass(frozen=True)
+class ArtifactCte:
+    """An artifact's linear expansion coefficient alpha [1/K], its stated bound (rectangular
+    half-width) and standard uncertainty [1/K], whether it was assumed, and the source."""
+
+    cte_per_k: float
+    halfwidth_per_k: float
+    u_per_k: float
+    assumed: bool
+    source: str
+
+
+def scan_temperature(meta: dict, unc_cfg: dict) -> ScanTemperature:
+    """The temperature of a scan with its uncertainty, by the config's policy.
+
+    Parameters
+    ----------
+    meta : scan.json
+    unc_cfg : the config's ``uncertainty`` section: ``temperature_accuracy_c`` (half-width of the
+        thermometer's error [K]), ``missing_temperature`` (``"refuse"`` or ``"assume_20c"``),
+        ``assumed_temperature_accuracy_c`` (half-width when 20 degC is assumed [K])
+
+    Raises
+    ------
+    MissingTemperature
+        ``environment.temperature_c`` is absent and ``missing_temperature`` is ``"refuse"``.
+    """
+    policy = unc_cfg["missing_temperature"]
+    if policy not in MISSING_TEMPERATURE:
+        raise ValueError(f"uncertainty.missing_temperature must be one of {MISSING_TEMPERATURE}, got {policy!r}")
+    value = (meta.get("environment") or {}).get("temperature_c")
+    if value is not None:
+        a = float(unc_cfg["temperature_accuracy_c"])
+        return ScanTemperature(float(value), a, a / math.sqrt(3.0), False,
+                               f"scan.json environment.temperature_c; thermometer within +-{a:g} K "
+                               "(uncertainty.temperature_accuracy_c, rectangular)")
+    if policy == "refuse":
+        raise MissingTemperature(
+            f"{meta.get('scan_id', '<scan>')}: scan.json has no environment.temperature_c and "
+            "uncertainty.missing_temperature is 'refuse' (set it to 'assume_20c' to accept such scans "
+            "with the assumed temperature's uncertainty)")
+    a = float(unc_cfg["assumed_temperature_accuracy_c"])
+    return ScanTemperature(REFERENCE_TEMPERATURE_C, a, a / math.sqrt(3.0), True,
+                           f"ASSUMED 20 degC: scan.json has no environment.temperature_c; taken within +-{a:g} K "
+                           "(uncertainty.assumed_temperature_accuracy_c, rectangular)")
+
+
+def artifact_cte(meta: dict, unc_cfg: dict) -> ArtifactCte:
+    """The expansion coefficient of a scan's artifact with its uncertainty.
+
+    ``artifact.cte_per_k`` of scan.json within +-``uncertainty.cte_accuracy_per_k``; without it,
+    ``uncertainty.assumed_cte_per_k`` within +-``uncertainty.assumed_cte_accuracy_per_k`` (flagged).
+    Both rectangular.
+    """
+    art = meta.get("artifact") or {}
+    if art.get("cte_per_k") is not None:
+        a = float(unc_cfg["cte_accuracy_per_k"])
+        return ArtifactCte(float(art["cte_per_k"]), a, a / math.sqrt(3.0), False,
+                           f"scan.json artifact.cte_per_k, within +-{a:g} /K (uncertainty.cte_accuracy_per_k)")
+    a = float(unc_cfg["assumed_cte_accuracy_per_k"])
+    v = float(unc_cfg["assumed_cte_per_k"])
+    return ArtifactCte(v, a, a / math.sqrt(3.0), True,
+                       f"ASSUMED {v:g} /K within +-{a:g} /K: scan.json artifact has no cte_per_k "
+                       "(uncertainty.assumed_cte_per_k, assumed_cte_accuracy_per_k)")
+
+
+def artifact_key(art: dict | None) -> str:
+    """Identity of a scan.json ``artifact`` for an uncertainty budget: ``<id>`` plus ``@<certificate>``
+    if any (the same gauge under the same certificate is one physical quantity)."""
+    art = art or {}
+    return f"{art.get('id')}" + (f"@{art['certificate']}" if art.get("certificate") else "")
 
 
 def radius_at_temperature_mm(radius_20_mm: float, cte_per_k: float, temperature_c: float) -> float:
@@ -34,11 +152,15 @@ def radius_at_temperature_mm(radius_20_mm: float, cte_per_k: float, temperature_
     return bore.radius_mm
 
 
-def gauge_radius_mm(meta: dict) -> float:
+def gauge_radius_mm(meta: dict, temperature_c: float | None = None, cte_per_k: float | None = None) -> float:
     """Radius of a scan's ring gauge at the scan's temperature [mm].
 
-    From ``artifact.certified_diameter_mm`` (else ``nominal_diameter_mm``), ``artifact.cte_per_k``
-    (default 0) and ``environment.temperature_c`` (default 20 degC) of ``scan.json``.
+    From ``artifact.certified_diameter_mm`` (else ``nominal_diameter_mm``) of ``scan.json``, at
+    ``temperature_c`` with ``cte_per_k`` when given (the pipeline passes the values of
+    :func:`scan_temperature` and :func:`artifact_cte`, which never default silently). Called
+    without them, this bare helper reads ``environment.temperature_c`` (20 degC when absent) and
+    ``artifact.cte_per_k`` (0 when absent); evaluation code that only needs the simulated gauge
+    uses that.
 
     Raises
     ------
@@ -49,8 +171,26 @@ def gauge_radius_mm(meta: dict) -> float:
     d20 = art.get("certified_diameter_mm", art.get("nominal_diameter_mm"))
     if d20 is None:
         raise ValueError("artifact has neither certified_diameter_mm nor nominal_diameter_mm")
-    temp = (meta.get("environment") or {}).get("temperature_c", REFERENCE_TEMPERATURE_C)
-    return radius_at_temperature_mm(0.5 * float(d20), float(art.get("cte_per_k", 0.0)), float(temp))
+    if temperature_c is None:
+        temperature_c = (meta.get("environment") or {}).get("temperature_c", REFERENCE_TEMPERATURE_C)
+    if cte_per_k is None:
+        cte_per_k = art.get("cte_per_k", 0.0)
+    return radius_at_temperature_mm(0.5 * float(d20), float(cte_per_k or 0.0), float(temperature_c))
+
+
+def diameter_at_20(diameter_mm: float, cte_per_k: float, temperature_c: float) -> tuple[float, float, float, float]:
+    """A diameter measured at ``temperature_c`` brought to 20 degC, with its first derivatives.
+
+    D20 = D_T / (1 + alpha (T - 20)) (the inverse of :func:`radius_at_temperature_mm`).
+
+    Returns
+    -------
+    (D20 [mm], dD20/dD_T [-], dD20/dT [mm/K], dD20/dalpha [mm K])
+    """
+    dT = float(temperature_c) - REFERENCE_TEMPERATURE_C
+    f = 1.0 + float(cte_per_k) * dT
+    d20 = float(diameter_mm) / f
+    return d20, 1.0 / f, -float(diameter_mm) * float(cte_per_k) / f**2, -float(diameter_mm) * dT / f**2
 
 
 def artifact_row(meta: dict) -> dict | None:

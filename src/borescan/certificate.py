@@ -1,14 +1,38 @@
 """Calibration certificates: ``certificate.json``, ``certificate.pdf`` and ``residuals.png``.
 
 Written into ``results_root/calibration/<device_id>/<calibration_id>/`` (``outputs.md``).
+
+Content (ISO/IEC 17025:2017 7.8.2.1 and 7.8.4.1): title; issuing laboratory, its address and
+accreditation statement; place of calibration; unique identification (the calibration id) and
+"page x of y" on every page; customer; method; the item (device with its sensors as a table);
+dates of calibration and of issue; conditions with their uncertainties; results with the
+expanded uncertainty U, coverage factor k and coverage probability; the GUM uncertainty budget
+(every input: estimate, standard uncertainty, distribution, degrees of freedom, sensitivity,
+contribution); traceability (the reference gauge, its certificate, issuer and validity); the
+night's verifications with the decision rule and the conformity statement; the recalibration
+due date; the signatory. The laboratory's name, address, accreditation, customer and signatory
+come from the config's ``laboratory`` section; its defaults are placeholders that say so.
+
+``certificate.json`` carries the same content; its administrative and result parts use the
+element names of the PTB Digital Calibration Certificate (DCC 3.x: ``administrativeData``,
+``coreData``, ``uniqueIdentifier``, ``beginPerformanceDate``, ``calibrationLaboratory``,
+``respPersons``, ``customer``, ``statements``, ``measurementResults``, ``usedMethods``,
+``measuringEquipments``, ``influenceConditions``, ``results``; D-SI ``expandedUnc`` with
+``uncertainty``, ``coverageFactor``, ``coverageProbability``, ``distribution``) where they exist.
+
 Regenerating from the same inputs gives byte-identical files: JSON with sorted keys and floats
 rounded to 12 significant digits; PDF without CreationDate/ModDate/Producer/Creator; PNG without
 the Software key; figures built on fresh ``matplotlib.figure.Figure`` objects (no pyplot state).
+The issue date is therefore not the wall clock: it is derived from the data (the last date on
+which a scan of the calibration or of its verifications was taken), and the certificate says so.
 """
 
 from __future__ import annotations
 
+import datetime as _dt
 import json
+import math
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -18,18 +42,87 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
 from borescan.calibration import TriCalibration
+from borescan.uncertainty import Budget, Combined, combine, round_uncertainty
 
-__all__ = ["CERTIFICATE_FORMAT", "K_EXPANDED", "certificate_dir", "certificate_dict", "write_certificate"]
+__all__ = ["CERTIFICATE_FORMAT", "certificate_dir", "certificate_dict", "write_certificate", "PLACEHOLDER",
+           "certificate_dates", "calibration_conditions"]
 
-CERTIFICATE_FORMAT = "borescan-certificate/1"
-K_EXPANDED = 2.0
+CERTIFICATE_FORMAT = "borescan-certificate/2"
+#: text that marks a laboratory setting left at its default
+PLACEHOLDER = "PLACEHOLDER"
 _PDF_METADATA = {"Creator": None, "Producer": None, "CreationDate": None, "ModDate": None}
 _RC = {"font.family": "DejaVu Sans", "font.size": 8, "svg.hashsalt": "borescan", "pdf.compression": 6}
+_A4 = (8.27, 11.69)
+_UNITS_DSI = {"mm": "\\milli\\metre", "rad": "\\radian", "degC": "\\degreecelsius", "K": "\\kelvin",
+              "1/K": "\\kelvin\\tothe{-1}", "-": "\\one", "um": "\\micro\\metre"}
+_METHOD_TEXT = {
+    "full_lsq": (
+        "Full-data least-squares calibration (borescan fit_full_calibration): every reading of the ring-gauge "
+        "spindle scans is fitted to the exact three-sensor forward model (Yang 2017 geometry; rotation angle from "
+        "the spindle stream); free per beam: direction beta, offset rho and base length d_b; per scan the spindle "
+        "offset, phase and speed; the reported centre and spindle position enter as priors within the machine's "
+        "stated accuracy. Uncertainty evaluated by the GUM (JCGM 100:2008) law of propagation with sensitivities "
+        "of the least-squares optimum; coverage factor from Welch-Satterthwaite where JCGM 101:2008 (GUM S1) "
+        "validates it, else from the propagated distribution."),
+    "yang2017": (
+        "Yang 2017 extrema method (Eq. 8-15): base length and offset of each beam from the mean extreme readings, "
+        "beam angles from the feature points' timing. Uncertainty evaluated by the GUM (JCGM 100:2008) with "
+        "sensitivities by central differences of the closed forms."),
+}
 
 
 def certificate_dir(results_root: Path | str, cal: TriCalibration) -> Path:
     """``results_root/calibration/<device_id>/<calibration_id>`` (``outputs.md``)."""
     return Path(results_root) / "calibration" / cal.device_id / cal.calibration_id
+
+
+def certificate_dates(scan_metas: list[dict], verification_metas: list[dict], night: str, validity_days: int) -> dict:
+    """Dates of a certificate from its scans, never the clock (regeneration stays byte-identical).
+
+    ``begin``/``end``: the UTC dates of the calibration scans' ``started_at`` (ISO 8601; a scan
+    without a readable one counts as the night); ``issue``: the last date of any scan the
+    certificate reports (calibration and verification scans); ``recalibration_due``: the night +
+    ``calibration.validity_days``, the last night on which a measurement may use the calibration
+    (:func:`borescan.calibrations.choose_calibration`). ``issue_rule`` and ``recalibration_rule``
+    say so in words, for the certificate.
+    """
+    def day(meta: dict) -> str:
+        try:
+            t = _dt.datetime.fromisoformat(str(meta.get("started_at")).replace("Z", "+00:00"))
+        except ValueError:
+            return night
+        return (t.astimezone(_dt.timezone.utc) if t.tzinfo is not None else t).date().isoformat()
+
+    cal_days = sorted(day(m) for m in scan_metas) or [night]
+    all_days = sorted(cal_days + [day(m) for m in verification_metas])
+    due = (_dt.date.fromisoformat(night) + _dt.timedelta(days=int(validity_days))).isoformat()
+    return {
+        "begin": cal_days[0], "end": cal_days[-1], "issue": all_days[-1], "night": night,
+        "issue_rule": "derived from the data, not the clock: the last UTC date on which a scan reported here was "
+                      "taken (scan.json started_at), so that regenerating the certificate gives the same bytes",
+        "recalibration_due": due,
+        "recalibration_rule": f"night {night} + calibration.validity_days = {int(validity_days)} days; after it the "
+                              "pipeline refuses the calibration for measurements",
+    }
+
+
+def calibration_conditions(temperature, cte, radius_mm: float, position_accuracy_mm: float, p: float,
+                           scans: list[dict]) -> dict:
+    """The influence conditions of a certificate: the gauge's temperature with its uncertainty (U
+    for the coverage probability ``p``) and source, its expansion coefficient, its radius at that
+    temperature, the machine's stated position accuracy and per scan ``scans`` (positions, speed,
+    revolutions). ``temperature``/``cte``: :class:`borescan.artifacts.ScanTemperature` / ``ArtifactCte``."""
+    t_comb = combine([(temperature.u_c, float("inf"), "rectangular")], p)
+    return {
+        "temperature": {"value_c": temperature.temperature_c, "u_c": temperature.u_c, "U_c": t_comb.U, "k": t_comb.k,
+                        "halfwidth_c": temperature.halfwidth_c, "distribution": "rectangular",
+                        "assumed": temperature.assumed, "source": temperature.source, "refType": "basic_temperature"},
+        "gauge_cte": {"value_per_k": cte.cte_per_k, "u_per_k": cte.u_per_k, "halfwidth_per_k": cte.halfwidth_per_k,
+                      "assumed": cte.assumed, "source": cte.source},
+        "gauge_radius_at_temperature_mm": radius_mm,
+        "position_accuracy_mm": position_accuracy_mm,
+        "scans": scans,
+    }
 
 
 def _fixed(x: Any) -> Any:
@@ -60,25 +153,54 @@ def _residual_arrays(residuals: dict) -> tuple[np.ndarray, np.ndarray]:
     return t, res
 
 
-def _parameter_rows(cal: TriCalibration) -> list[dict]:
+def _laboratory(laboratory: dict | None) -> dict:
+    if laboratory is not None:
+        return dict(laboratory)
+    from borescan.config import schema_defaults
+
+    return schema_defaults()["laboratory"]
+
+
+def _budget_of(cal: TriCalibration, budget: Budget | None) -> Budget | None:
+    if budget is not None:
+        return budget
+    d = (cal.diagnostics or {}).get("budget")
+    return Budget.from_dict(d) if d else None
+
+
+def _held(cal: TriCalibration, i: int) -> bool:
+    """Parameter i is held at its design value (the gauge freedom): no variance at all."""
+    return bool(cal.cov[i, i] == 0.0)
+
+
+def _combined(cal: TriCalibration, budget: Budget | None, i: int, p: float) -> Combined:
+    if budget is not None:
+        return budget.combined(i, p)
+    return combine([(math.sqrt(max(cal.cov[i, i], 0.0)), float("inf"), "normal")], p)
+
+
+def _parameter_rows(cal: TriCalibration, budget: Budget | None, p: float) -> list[dict]:
     b = cal.beams
     rows = []
     for j, ch in enumerate(b.channels):
-        rows.append(
-            {
-                "channel": int(ch),
-                "beta_rad": b.beta_rad[j],
-                "u_beta_rad": cal.u_beta_rad[j],
-                "U_beta_rad": K_EXPANDED * cal.u_beta_rad[j],
-                "rho_mm": b.rho_mm[j],
-                "u_rho_mm": cal.u_rho_mm[j],
-                "U_rho_mm": K_EXPANDED * cal.u_rho_mm[j],
-                "d_b_mm": b.d_b_mm[j],
-                "u_d_b_mm": cal.u_d_b_mm[j],
-                "U_d_b_mm": K_EXPANDED * cal.u_d_b_mm[j],
-            }
-        )
+        row: dict[str, Any] = {"channel": int(ch)}
+        for k, (name, unit) in enumerate((("beta_rad", "rad"), ("rho_mm", "mm"), ("d_b_mm", "mm"))):
+            i = 3 * j + k
+            comb = _combined(cal, budget, i, p)
+            short = name.rsplit("_", 1)[0]
+            row[name] = cal.params[i]
+            row[f"u_{name}"] = comb.u
+            row[f"U_{name}"] = comb.U
+            row[f"k_{short}"] = comb.k
+            row[f"nu_eff_{short}"] = comb.nu_eff
+            row[f"held_{short}"] = _held(cal, i)
+        rows.append(row)
     return rows
+
+
+def _expanded(comb: Combined, distribution: str = "normal") -> dict:
+    return {"uncertainty": comb.U, "coverageFactor": comb.k, "coverageProbability": comb.p, "distribution": distribution,
+            "standardUncertainty": comb.u, "effectiveDegreesOfFreedom": comb.nu_eff, "coverageMethod": comb.method}
 
 
 def certificate_dict(
@@ -91,13 +213,70 @@ def certificate_dict(
     raw_files: dict[str, str],
     software_version: str,
     config_hash: str,
+    budget: Budget | None = None,
+    laboratory: dict | None = None,
+    coverage_probability: float = 0.9545,
+    dates: dict | None = None,
+    verifications: list[dict] | None = None,
 ) -> dict:
-    """The content of ``certificate.json`` (JSON-safe, floats rounded to 12 significant digits)."""
+    """The content of ``certificate.json`` (JSON-safe, floats rounded to 12 significant digits).
+
+    See :func:`write_certificate` for the arguments.
+    """
     t, res = _residual_arrays(residuals)
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(res**2, axis=0)) if res.size else np.array([])
-    keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free", "weak_rho_channels", "g_mm", "u_g_mm")
+    keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free",
+            "weak_rho_channels", "g_mm", "u_g_mm")
     diag = {k: cal.diagnostics[k] for k in keys if k in cal.diagnostics}
+    lab = _laboratory(laboratory)
+    budget = _budget_of(cal, budget)
+    p = float(coverage_probability)
+    dates = dict(dates or {})
+    ver = list(verifications or [])
+    params = _parameter_rows(cal, budget, p)
+    names = [f"{n}[{ch}]" for ch in cal.beams.channels for n in ("beta_rad", "rho_mm", "d_b_mm")]
+    units = ["rad", "mm", "mm"] * len(cal.beams.channels)
+    results = []
+    budgets = {}
+    for i, (name, unit) in enumerate(zip(names, units)):
+        comb = _combined(cal, budget, i, p)
+        results.append({"name": name, "refType": "borescan_beamParameter", "held_at_design_value": _held(cal, i),
+                        "real": {"value": cal.params[i], "unit": _UNITS_DSI[unit], "expandedUnc": _expanded(comb)}})
+        if budget is not None:
+            budgets[name] = {"unit": unit, "rows": budget.rows(i), "combined": comb.to_dict()}
+    g_rows = []
+    R = conditions.get("gauge_radius_at_temperature_mm") if isinstance(conditions, dict) else None
+    if budget is not None and R:
+        for j, ch in enumerate(cal.beams.channels):
+            vec = np.zeros(3 * len(cal.beams.channels))
+            rho = float(cal.beams.rho_mm[j])
+            vec[3 * j + 1], vec[3 * j + 2] = rho / float(R), 1.0
+            comb = budget.combined(vec, p)
+            g_rows.append({"channel": int(ch), "value_mm": float(cal.beams.d_b_mm[j]) + rho**2 / (2.0 * float(R)),
+                           "expandedUnc": _expanded(comb)})
+    conformity = _conformity(ver)
+    placeholders = sorted(k for k, v in lab.items() if isinstance(v, str) and PLACEHOLDER in v)
+    gauge = {
+        "id": artifact.get("id"), "certificate": artifact.get("certificate"),
+        "issuer": artifact.get("certificate_issuer"), "validUntil": artifact.get("certificate_valid_until"),
+        "certifiedDiameter": {"value": artifact.get("certified_diameter_mm"), "unit": _UNITS_DSI["mm"],
+                              "expandedUnc": {"uncertainty": artifact.get("u_diameter_mm"),
+                                              "coverageFactor": artifact.get("k"), "coverageProbability": None,
+                                              "distribution": "normal"}},
+        "cte_per_k": artifact.get("cte_per_k"),
+    }
+    statements = [
+        {"norm": "ISO/IEC 17025:2017", "reference": "7.8.2.1 m",
+         "declaration": "The results relate only to the item calibrated. This certificate shall not be reproduced "
+                        "except in full without the written approval of the issuing laboratory."},
+        {"refType": "basic_traceability", "declaration": _traceability_text(artifact)},
+        {"refType": "basic_decisionRule", "declaration": _decision_rule_text(lab)},
+        {"refType": "basic_conformity", "conformity": conformity["conformity"], "declaration": conformity["text"]},
+        {"refType": "basic_recalibration", "date": dates.get("recalibration_due"),
+         "declaration": dates.get("recalibration_rule", "")},
+        {"refType": "borescan_issueDate", "declaration": dates.get("issue_rule", "")},
+    ]
     return _fixed(
         {
             "format": CERTIFICATE_FORMAT,
@@ -105,9 +284,43 @@ def certificate_dict(
             "device_id": cal.device_id,
             "method": cal.method,
             "scan_ids": list(cal.scan_ids),
-            "coverage_factor_k": K_EXPANDED,
-            "parameters": _parameter_rows(cal),
+            "coverage_probability": p,
+            "administrativeData": {
+                "dccSoftware": {"software": [{"name": "borescan", "release": software_version}]},
+                "coreData": {
+                    "countryCodeISO3166_1": lab.get("country_code"),
+                    "usedLangCodeISO639_1": ["en"],
+                    "mandatoryLangCodeISO639_1": ["en"],
+                    "uniqueIdentifier": cal.calibration_id,
+                    "beginPerformanceDate": dates.get("begin"),
+                    "endPerformanceDate": dates.get("end"),
+                    "issueDate": dates.get("issue"),
+                    "performanceLocation": lab.get("performance_location"),
+                },
+                "items": [{"name": f"three-sensor bore measuring device ({device.get('type', 'tri_lds')})",
+                           "identifications": [{"issuer": "customer", "value": device.get("id", cal.device_id)}],
+                           "sensors": device.get("sensors", [])}],
+                "calibrationLaboratory": {"contact": {"name": lab.get("name"), "location": {"further": lab.get("address")}},
+                                          "accreditation": lab.get("accreditation")},
+                "respPersons": [{"person": {"name": lab.get("signatory")}, "role": lab.get("signatory_function"),
+                                 "mainSigner": True}],
+                "customer": {"name": lab.get("customer")},
+                "statements": statements,
+                "placeholders": placeholders,
+            },
+            "measurementResults": [{
+                "name": "calibrated beam geometry",
+                "usedMethods": [{"name": cal.method, "description": _METHOD_TEXT.get(cal.method, cal.method)},
+                                {"name": "uncertainty", "norm": "JCGM 100:2008 (GUM); JCGM 101:2008 (GUM S1)"}],
+                "measuringEquipments": [{"refType": "basic_normalUsed", "name": "ring gauge", **gauge}],
+                "influenceConditions": conditions,
+                "results": results,
+                "uncertaintyBudget": budgets,
+            }],
+            "parameters": params,
+            "effective_base_length": g_rows,
             "covariance": cal.cov,
+            "covariance_fit": cal.diagnostics.get("cov_fit", cal.cov),
             "correlation": cal.correlation,
             "fit": {
                 "residual_rms_mm": cal.residual_rms_mm,
@@ -122,6 +335,10 @@ def certificate_dict(
             "device": device,
             "artifact": artifact,
             "conditions": conditions,
+            "verifications": ver,
+            "conformity": conformity,
+            "dates": dates,
+            "laboratory": lab,
             "raw_files": dict(sorted(raw_files.items())),
             "raw_sha256": dict(sorted(cal.raw_sha256.items())),
             "software_version": software_version,
@@ -130,103 +347,591 @@ def certificate_dict(
     )
 
 
-def _fmt(x: Any, spec: str) -> str:
+def _traceability_text(art: dict) -> str:
+    issuer = art.get("certificate_issuer")
+    valid = art.get("certificate_valid_until")
+    who = f"issued by {issuer}" if issuer else "issuer not stated in scan.json (artifact.certificate_issuer)"
+    until = f"valid until {valid}" if valid else "validity not stated in scan.json (artifact.certificate_valid_until)"
+    return (f"The results are traceable to the SI unit of length (the metre) through the reference ring gauge "
+            f"{art.get('id')}, certificate {art.get('certificate')} ({who}; {until}), certified diameter "
+            f"{art.get('certified_diameter_mm')} mm at 20 degC with U = {art.get('u_diameter_mm')} mm "
+            f"(k = {art.get('k')}).")
+
+
+def _decision_rule_text(lab: dict) -> str:
+    if lab.get("decision_rule") == "guard_band":
+        return (f"Guarded acceptance (ILAC-G8:09/2019 4.2.2): a verification passes when |E| <= T - w, w = "
+                f"{lab.get('guard_band_factor')} U(E); E the error of the diameter at 20 degC, T the tolerance.")
+    return ("Simple acceptance (ILAC-G8:09/2019 4.2.1): a verification passes when |E| <= T (guard band w = 0), E the "
+            "error of the diameter at 20 degC, T the tolerance; at the limit the probability of a false accept "
+            "reaches 50 %.")
+
+
+def _conformity(ver: list[dict]) -> dict:
+    if not ver:
+        return {"conformity": "noStatement",
+                "text": "No verification scan of this device was taken in the calibration night: conformity is not stated."}
+    ok = all(bool(v.get("passed")) for v in ver)
+    n_pass = sum(bool(v.get("passed")) for v in ver)
+    text = (f"The device {'conforms' if ok else 'does NOT conform'} to the verification tolerance: {n_pass} of "
+            f"{len(ver)} verifications on certified ring gauges passed under the stated decision rule.")
+    return {"conformity": "pass" if ok else "fail", "text": text}
+
+
+# --------------------------------------------------------------------------- PDF layout
+
+
+def _wrap(text: str, width: int) -> list[str]:
+    out = []
+    for para in str(text).split("\n"):
+        out.extend(textwrap.wrap(para, width) or [""])
+    return out
+
+
+class _Doc:
+    """A4 pages with a running header/footer stamped at the end (page x of y)."""
+
+    TOP, BOTTOM, LEFT, RIGHT = 0.885, 0.075, 0.06, 0.94
+
+    def __init__(self, cert: dict):
+        self.cert = cert
+        self.pages: list[Figure] = []
+        self.new_page()
+
+    def new_page(self) -> None:
+        self.fig = Figure(figsize=_A4)
+        self.pages.append(self.fig)
+        self.y = self.TOP
+
+    def room(self, h: float) -> None:
+        if self.y - h < self.BOTTOM:
+            self.new_page()
+
+    def heading(self, text: str, size: float = 10.5) -> None:
+        self.room(0.05)
+        self.y -= 0.008
+        self.fig.text(self.LEFT, self.y, text, fontsize=size, weight="bold")
+        self.y -= 0.02
+
+    def para(self, text: str, size: float = 7.5, width: int = 120, indent: float = 0.0, style: str = "normal",
+             color: str = "black") -> None:
+        for line in _wrap(text, width):
+            self.room(0.014)
+            self.fig.text(self.LEFT + indent, self.y, line, fontsize=size, style=style, color=color)
+            self.y -= 0.0125 * size / 7.5
+        self.y -= 0.004
+
+    def kv(self, rows: list[tuple[str, str]], key_w: float = 0.23, width: int = 92, size: float = 7.5) -> None:
+        for key, val in rows:
+            lines = _wrap(val, width)
+            self.room(0.0135 * len(lines))
+            self.fig.text(self.LEFT, self.y, key, fontsize=size, weight="bold")
+            for line in lines:
+                self.fig.text(self.LEFT + key_w, self.y, line, fontsize=size)
+                self.y -= 0.0135
+            self.y -= 0.002
+
+    def table(self, cols: list[str], cells: list[list[str]], widths: list[float] | None = None, size: float = 6.5,
+              row_h: float = 0.0145, bold_last: bool = False) -> None:
+        n = len(cells) + 1
+        h = row_h * n
+        self.room(h + 0.01)
+        ax = self.fig.add_axes([self.LEFT, self.y - h, self.RIGHT - self.LEFT, h])
+        ax.axis("off")
+        tab = ax.table(cellText=cells, colLabels=cols, colWidths=widths, bbox=[0, 0, 1, 1], cellLoc="center")
+        tab.auto_set_font_size(False)
+        tab.set_fontsize(size)
+        for (r, _c), cell in tab.get_celld().items():
+            cell.set_linewidth(0.4)
+            if r == 0:
+                cell.set_facecolor("#e8e8e8")
+                cell.get_text().set_weight("bold")
+            if bold_last and r == n - 1:
+                cell.get_text().set_weight("bold")
+        self.y -= h + 0.012
+
+    def finish(self) -> list[Figure]:
+        c = self.cert
+        lab = c["laboratory"]
+        n = len(self.pages)
+        for i, fig in enumerate(self.pages):
+            fig.text(self.LEFT, 0.962, str(lab.get("name")), fontsize=10, weight="bold")
+            fig.text(self.LEFT, 0.948, str(lab.get("address")), fontsize=7)
+            fig.text(self.LEFT, 0.936, str(lab.get("accreditation")), fontsize=6.5, style="italic")
+            fig.text(self.RIGHT, 0.962, "Calibration certificate", fontsize=10, weight="bold", ha="right")
+            fig.text(self.RIGHT, 0.948, f"No. {c['calibration_id']}", fontsize=7.5, ha="right")
+            fig.text(self.RIGHT, 0.936, f"Page {i + 1} of {n}", fontsize=7.5, ha="right", weight="bold")
+            fig.add_artist(_hline(fig, 0.928))
+            fig.add_artist(_hline(fig, 0.058))
+            fig.text(self.LEFT, 0.046, "The results relate only to the item calibrated. This certificate shall not be "
+                     "reproduced except in full without the written approval of the issuing laboratory.", fontsize=6)
+            fig.text(self.LEFT, 0.034, f"Issued {c['dates'].get('issue') or 'n/a'} by borescan {c['software_version']} "
+                     f"(config {c['config_hash']}); machine-readable copy: certificate.json", fontsize=6)
+            fig.text(self.RIGHT, 0.034, f"Page {i + 1} of {n}", fontsize=6, ha="right")
+        return self.pages
+
+
+def _hline(fig: Figure, y: float):
+    from matplotlib.lines import Line2D
+
+    return Line2D([_Doc.LEFT, _Doc.RIGHT], [y, y], transform=fig.transFigure, color="0.3", lw=0.6)
+
+
+def _num(x: Any, spec: str, none: str = "n/a") -> str:
     try:
         x = float(x)
     except (TypeError, ValueError):
-        return str(x)
-    return format(x, spec) if np.isfinite(x) else "n/a"
+        return none if x is None else str(x)
+    return format(x, spec) if np.isfinite(x) else none
 
 
-def _page1(cert: dict) -> Figure:
-    """Parameter table with U (k = 2), device, artifact, conditions, hashes, software."""
-    fig = Figure(figsize=(8.27, 11.69))
-    fig.text(0.06, 0.955, "Calibration certificate", fontsize=16, weight="bold")
-    fig.text(0.06, 0.935, f"{cert['calibration_id']}   (method {cert['method']})", fontsize=10)
-    y = 0.905
-    dev, art, cond = cert["device"], cert["artifact"], cert["conditions"]
-    pos = cond.get("spindle_position", "?")
-    if isinstance(pos, dict):
-        xy = f"({_fmt(pos.get('x_mm'), '.3f')}, {_fmt(pos.get('y_mm'), '.3f')}) mm"
-        pos = f"{pos.get('label', '')} {xy}".strip()
-    lines = [
-        ("Device", f"{dev.get('id', cert['device_id'])}  type {dev.get('type', 'tri_lds')}"
-         + (f"  sensors {dev['sensors']}" if "sensors" in dev else "")),
-        ("Artifact", f"{art.get('id', '?')}  certificate {art.get('certificate', '?')}"),
-        ("", f"certified diameter {_fmt(art.get('certified_diameter_mm'), '.4f')} mm, "
-             f"uncertainty {_fmt(art.get('u_diameter_mm'), '.4f')} mm (k = {art.get('k', '?')})"),
-        ("Conditions", f"temperature {_fmt(cond.get('temperature_c'), '.2f')} degC, "
-                       f"spindle position {pos}"),
-        ("", f"speed {_fmt(cond.get('rpm'), '.1f')} rpm, revolutions {cond.get('revolutions', '?')}"),
-        ("Scans", ", ".join(cert["scan_ids"])),
-        ("Software", f"borescan {cert['software_version']}, config hash {cert['config_hash']}"),
-    ]
-    for head, text in lines:
-        fig.text(0.06, y, head, weight="bold")
-        fig.text(0.20, y, text)
-        y -= 0.018
-    y -= 0.01
-    k_exp = cert["coverage_factor_k"]
-    fig.text(0.06, y, f"Calibrated parameters: value and expanded uncertainty U (k = {k_exp:g})",
-             weight="bold", fontsize=10)
-    cols = ["channel", "beta [rad]", "U(beta) [rad]", "rho [mm]", "U(rho) [mm]", "d_b [mm]", "U(d_b) [mm]"]
-    cells = [
-        [str(p["channel"]), _fmt(p["beta_rad"], ".6f"),
-         _fmt(p["U_beta_rad"], ".2e") if p["U_beta_rad"] else "0 (gauge)", _fmt(p["rho_mm"], ".4f"),
-         _fmt(p["U_rho_mm"], ".4f"), _fmt(p["d_b_mm"], ".4f"), _fmt(p["U_d_b_mm"], ".4f")]
-        for p in cert["parameters"]
-    ]
-    h = 0.022 * (len(cells) + 1)
-    ax = fig.add_axes([0.06, y - 0.01 - h, 0.88, h])
-    ax.axis("off")
-    tab = ax.table(cellText=cells, colLabels=cols, loc="upper center", cellLoc="center")
-    tab.auto_set_font_size(False)
-    tab.set_fontsize(8)
-    tab.scale(1.0, 1.3)
-    y = y - 0.03 - h
-    fit = cert["fit"]
-    notes = [
-        f"Residual rms {_fmt(fit.get('residual_rms_mm'), '.5f')} mm, dof {fit.get('dof')}, "
-        f"Jacobian rank {fit.get('rank')}, condition {_fmt(fit.get('condition'), '.3g')}, "
-        f"converged {fit.get('converged')}.",
-    ]
-    if fit.get("g_mm") is not None:
-        pairs = zip(fit["g_mm"], fit["u_g_mm"])
-        g = ", ".join(f"{_fmt(v, '.4f')} +- {_fmt(K_EXPANDED * u, '.4f')}" for v, u in pairs)
-        notes.append(f"Effective base length g = d_b + rho^2/(2R), the combination the data fix best, "
-                     f"with U (k = 2) per channel [mm]: {g}. rho and d_b are strongly correlated "
-                     "(correlation matrix in certificate.json).")
+def _scaled(x: Any, scale: float) -> float | None:
+    return None if x is None else float(x) * scale
+
+
+def _ppm(x: Any) -> str:
+    try:
+        return f"{float(x) * 1e6:.3g} x 10^-6 /K"
+    except (TypeError, ValueError):
+        return "n/a"
+
+
+def _vu(value: float, U: float, scale: float = 1.0) -> tuple[str, str]:
+    """Value and U (2 significant digits, rounded up) with the same decimals, both times ``scale``."""
+    Ur, dec = round_uncertainty(U * scale)
+    d = max(dec, 0)
+    return f"{value * scale:.{d}f}", f"{Ur:.{d}f}"
+
+
+def _u_text(u: Any, unit: str) -> str:
+    if u is None:
+        return "(vector)"
+    u = float(u)
+    if unit == "degC":
+        return f"{u:.3g} K"
+    if unit == "mm":
+        return f"{u * 1e3:.3g} um"
+    if unit == "rad":
+        return f"{u * 1e3:.3g} mrad"
+    if unit == "1/K":
+        return f"{u * 1e6:.2g}e-6 /K"
+    return f"{u:.3g} {unit}"
+
+
+def _est_text(x: Any, unit: str) -> str:
+    if x is None:
+        return "-"
+    x = float(x)
+    if unit == "1/K":
+        return f"{x * 1e6:.3g}e-6 /K"
+    if unit == "degC":
+        return f"{x:.2f} degC"
+    if unit == "mm":
+        return f"{x:.4f} mm" if abs(x) >= 1 else f"{x * 1e3:.2f} um"
+    return f"{x:.4g} {unit}"
+
+
+_DIST = {"normal": "normal", "rectangular": "rect.", "triangular": "triang.", "arcsine": "U-shaped",
+         "multivariate normal": "normal (vec.)"}
+
+
+def _dof_text(nu: Any) -> str:
+    if nu is None:
+        return "inf"
+    nu = float(nu)
+    return "inf" if not np.isfinite(nu) or nu > 1e5 else f"{nu:.0f}"
+
+
+def _short_quantity(row: dict) -> str:
+    q = row["quantity"]
+    return q if len(q) <= 52 else q[:50] + ".."
+
+
+def _page_admin(d: _Doc) -> None:
+    c = d.cert
+    lab, dates, dev = c["laboratory"], c["dates"], c["device"]
+    d.fig.text(d.LEFT, d.y - 0.01, "Calibration certificate", fontsize=18, weight="bold")
+    d.y -= 0.035
+    d.fig.text(d.LEFT, d.y, f"Certificate number {c['calibration_id']}", fontsize=10)
+    d.y -= 0.03
+    if c["administrativeData"]["placeholders"]:
+        d.para("NOTE: the laboratory settings " + ", ".join(c["administrativeData"]["placeholders"]) + " are the "
+               "defaults of workflow/schemas/config.schema.yaml, placeholders that name no real laboratory. Set the "
+               "laboratory section of config/config.yaml before issuing this certificate to anyone.", color="firebrick",
+               size=7.5)
+    sensors = dev.get("sensors") or []
+    flags = []
+    cond = c["conditions"]
+    if (cond.get("temperature") or {}).get("assumed"):
+        flags.append("the gauge temperature was not recorded; 20 degC was ASSUMED with a wider uncertainty "
+                     "(uncertainty.missing_temperature)")
+    if (cond.get("gauge_cte") or {}).get("assumed"):
+        flags.append("the gauge's expansion coefficient was not stated; an assumed value with a wide bound was used")
+    d.kv([
+        ("Issuing laboratory", f"{lab.get('name')}, {lab.get('address')}"),
+        ("Accreditation", str(lab.get("accreditation"))),
+        ("Customer", str(lab.get("customer"))),
+        ("Item calibrated", f"three-sensor bore measuring device {dev.get('id', c['device_id'])} (type "
+                            f"{dev.get('type', 'tri_lds')}) with {len(sensors)} laser displacement sensors "
+                            "(table on page 2)"),
+        ("Place of calibration", str(lab.get("performance_location"))),
+        ("Date(s) of calibration", _date_range(dates)),
+        ("Date of issue", f"{dates.get('issue') or 'n/a'} ({dates.get('issue_rule', 'not stated')})"),
+        ("Recalibration due", f"{dates.get('recalibration_due') or 'n/a'} ({dates.get('recalibration_rule', '')})"),
+        ("Method", _METHOD_TEXT.get(c["method"], c["method"])),
+        ("Calibration scans", ", ".join(c["scan_ids"])),
+        ("Deviations from the method", "; ".join(flags) if flags else "none"),
+        ("Traceability", f"reference ring gauge {c['artifact'].get('id')}, certificate {c['artifact'].get('certificate')} "
+                         "(section 4)"),
+        ("Decision rule", _decision_rule_text(lab) + " (section 7)"),
+        ("Conformity", c["conformity"]["text"]),
+        ("Measurement uncertainty", f"Expanded uncertainties U = k u_c with a coverage probability of "
+                                    f"{100 * c['coverage_probability']:.2f} % (about 95 %); k per result (page 3). "
+                                    "Evaluated according to JCGM 100:2008 (GUM) and JCGM 101:2008 (GUM S1); the "
+                                    "budget is on the following pages and in certificate.json."),
+    ])
+    d.y -= 0.01
+    d.para("This certificate is issued in accordance with ISO/IEC 17025:2017 7.8. The results relate only to the item "
+           "calibrated, at the time of calibration. The user is responsible for arranging recalibration in due time.")
+    d.y -= 0.03
+    d.room(0.09)
+    d.fig.text(d.LEFT, d.y, "Authorised signatory", fontsize=8, weight="bold")
+    d.fig.text(0.55, d.y, "Date of issue", fontsize=8, weight="bold")
+    d.y -= 0.045
+    d.fig.add_artist(_line(d.fig, d.LEFT, 0.45, d.y))
+    d.fig.add_artist(_line(d.fig, 0.55, 0.80, d.y))
+    d.y -= 0.015
+    d.fig.text(0.55, d.y, str(dates.get("issue") or "n/a"), fontsize=7.5)
+    for line in _wrap(str(lab.get("signatory")), 60) + _wrap(str(lab.get("signatory_function")), 60):
+        d.fig.text(d.LEFT, d.y, line, fontsize=7.5)
+        d.y -= 0.013
+    d.y -= 0.01
+
+
+def _line(fig: Figure, x0: float, x1: float, y: float):
+    from matplotlib.lines import Line2D
+
+    return Line2D([x0, x1], [y, y], transform=fig.transFigure, color="black", lw=0.6)
+
+
+def _date_range(dates: dict) -> str:
+    b, e = dates.get("begin"), dates.get("end")
+    if not b:
+        return "n/a"
+    return b if b == e or not e else f"{b} to {e}"
+
+
+def _page_item_conditions(d: _Doc) -> None:
+    c = d.cert
+    dev, art, cond = c["device"], c["artifact"], c["conditions"]
+    d.new_page()
+    d.heading("1  Item calibrated")
+    d.para(f"Device {dev.get('id', c['device_id'])}, type {dev.get('type', 'tri_lds')}; sensors as recorded in scan.json:")
+    cols = ["channel", "model", "serial", "range [mm]", "linearity [% FS]", "linearity +- [um]", "repeatab. [um]",
+            "resolution [um]"]
+    cells = []
+    for s in dev.get("sensors") or []:
+        lin = s.get("linearity_fs")
+        rng = s.get("range_mm")
+        lin_um = lin * rng * 1e3 if lin is not None and rng is not None else None
+        cells.append([str(s.get("channel")), str(s.get("model", "")), str(s.get("serial", "")), _num(rng, "g"),
+                      _num(None if lin is None else 100 * lin, "g"), _num(lin_um, ".1f"),
+                      _num(None if s.get("repeatability_mm") is None else 1e3 * s["repeatability_mm"], "g"),
+                      _num(None if s.get("resolution_mm") is None else 1e3 * s["resolution_mm"], "g",
+                           none="not stated")])
+    if cells:
+        d.table(cols, cells, widths=[0.08, 0.13, 0.15, 0.1, 0.13, 0.14, 0.12, 0.15], size=6.8)
+    d.heading("2  Method")
+    d.para(_METHOD_TEXT.get(c["method"], c["method"]))
+    fit = c["fit"]
     if fit.get("gauge"):
-        notes.append("Gauge: " + fit["gauge"] + ".")
+        d.para("Reference direction: " + fit["gauge"] + ".")
+    d.heading("3  Conditions of calibration")
+    temp = cond.get("temperature") or {}
+    cte = cond.get("gauge_cte") or {}
+    rows = [("Gauge temperature", (f"{_num(temp.get('value_c'), '.2f')} degC, standard uncertainty "
+                                   f"{_num(temp.get('u_c'), '.3f')} K, U = {_num(temp.get('U_c'), '.3f')} K "
+                                   f"(k = {_num(temp.get('k'), '.2f')}, p = {100 * c['coverage_probability']:.2f} %); "
+                                   f"{temp.get('source', 'not stated')}") if temp else "not recorded")]
+    if cte:
+        rows.append(("Gauge expansion coeff.", f"{_ppm(cte.get('value_per_k'))} +- {_ppm(cte.get('halfwidth_per_k'))} "
+                                               f"(rectangular); {cte.get('source', '')}"))
+    if cond.get("gauge_radius_at_temperature_mm") is not None:
+        rows.append(("Gauge radius at T", f"{_num(cond['gauge_radius_at_temperature_mm'], '.5f')} mm "
+                                          "(R = D20/2 (1 + alpha (T - 20 degC)))"))
+    for sc in cond.get("scans") or []:
+        pos = sc.get("spindle_position") or {}
+        cen = sc.get("center") or {}
+        acc = cond.get("position_accuracy_mm")
+        acc_t = f" (each coordinate +-{_num(1e3 * acc, 'g')} um, machine's stated accuracy)" if acc else ""
+        rows.append(("Calibration scan", f"{sc.get('scan_id')}: spindle at ({_num(pos.get('x_mm'), '.3f')}, "
+                                         f"{_num(pos.get('y_mm'), '.3f')}) mm, gauge centre "
+                     f"({_num(cen.get('x_mm'), '.3f')}, {_num(cen.get('y_mm'), '.3f')}) mm{acc_t}; "
+                     f"{_num(sc.get('rpm'), '.1f')} rpm ({sc.get('angle_source', '')}); "
+                     f"{_num(sc.get('revolutions_recorded'), '.1f')} revolutions recorded, "
+                     f"{sc.get('revolutions_with_extrema', 'n/a')} complete with both extrema per channel"))
+    rows.append(("Other conditions", "humidity, pressure and vibration are not recorded in scan.json; they enter no "
+                                     "result"))
+    d.kv(rows, key_w=0.21, width=96)
+    d.heading("4  Traceability")
+    d.para(_traceability_text(art))
+    issuer = art.get("certificate_issuer")
+    valid = art.get("certificate_valid_until")
+    chain = [("Reference standard", f"ring gauge {art.get('id')}"),
+             ("Its certificate", f"{art.get('certificate')}, " + (f"issued by {issuer}" if issuer else
+                                 "issuer NOT STATED (scan.json artifact.certificate_issuer)")),
+             ("Valid until", str(valid or "NOT STATED (scan.json artifact.certificate_valid_until)")),
+             ("Certified diameter", f"{_num(art.get('certified_diameter_mm'), '.4f')} mm at 20 degC, U = "
+                                    f"{_num(_scaled(art.get('u_diameter_mm'), 1e3), 'g')} um "
+                                    f"(k = {art.get('k')})")]
+    if valid and c["dates"].get("end") and str(valid) < str(c["dates"]["end"]):
+        chain.append(("WARNING", f"the gauge certificate expired on {valid}, before this calibration: traceability is "
+                                 "not established"))
+    d.kv(chain, key_w=0.21, width=96)
+
+
+def _page_results(d: _Doc) -> None:
+    c = d.cert
+    p = c["coverage_probability"]
+    d.new_page()
+    d.heading("5  Results")
+    d.para("Calibrated beam geometry per channel: direction beta of the beam, its offset rho from the rotation axis "
+           "and its base length d_b (the distance from the foot point to the sensor's measuring start). Expanded "
+           f"uncertainty U = k u_c for a coverage probability of {100 * p:.2f} %; k from the effective degrees of "
+           "freedom (Welch-Satterthwaite) where the GUM S1 check validates it, else from the propagated distribution.")
+    cols = ["channel", "quantity", "value", "U", "unit", "k", "nu_eff", "dominant input"]
+    cells = []
+    results = {r["name"]: r for r in c["measurementResults"][0]["results"]}
+    budgets = c["measurementResults"][0]["uncertaintyBudget"]
+    for prow in c["parameters"]:
+        ch = prow["channel"]
+        for name, unit, label in (("beta_rad", "rad", "beta"), ("rho_mm", "mm", "rho"), ("d_b_mm", "mm", "d_b")):
+            key = f"{name}[{ch}]"
+            r = results[key]
+            eu = r["real"]["expandedUnc"]
+            if r["held_at_design_value"]:
+                cells.append([str(ch), label, _num(r["real"]["value"], ".6f"), "held", unit, "-", "-",
+                              "reference direction (held at design value)"])
+                continue
+            v, U = _vu(r["real"]["value"], eu["uncertainty"])
+            dom = (budgets.get(key, {}).get("combined") or {}).get("dominant_input", "")
+            cells.append([str(ch), label, v, U, unit, _num(eu["coverageFactor"], ".2f"),
+                          _dof_text(eu["effectiveDegreesOfFreedom"]), _dominant_label(dom)])
+    d.table(cols, cells, widths=[0.07, 0.08, 0.14, 0.1, 0.05, 0.06, 0.08, 0.42], size=7)
+    fit = c["fit"]
+    if c.get("effective_base_length"):
+        g = "; ".join(f"channel {r['channel']}: " + " +- ".join(_vu(r["value_mm"], r["expandedUnc"]["uncertainty"])) + " mm"
+                      f" (k = {r['expandedUnc']['coverageFactor']:.2f})" for r in c["effective_base_length"])
+        d.para(f"Effective base length g = d_b + rho^2/(2R) (R the gauge radius at its temperature), the combination the "
+               f"data fix best, with U: {g}. rho and d_b of a channel are correlated; certificate.json gives the full "
+               "covariance (combined and of the fit alone) and the correlation matrix.")
     acc = fit.get("acceptance")
+    d.para(f"Fit: residual rms {_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um, "
+           f"{_num(fit.get('n_obs'), 'g')} readings, {fit.get('dof')} degrees of freedom, Jacobian rank {fit.get('rank')}, "
+           f"condition {_num(fit.get('condition'), '.3g')}; the optimiser "
+           f"{'converged' if fit.get('converged') else 'did NOT converge'}.")
     if acc:
-        notes.append(f"Accepted: largest ratio of a channel's residual rms to its readings' own noise floor "
-                     f"{_fmt(acc.get('residual_to_noise_max'), '.3f')} (limit {_fmt(acc.get('max_residual_to_noise'), 'g')}); "
-                     f"|rho| within the head radius {_fmt(acc.get('head_radius_mm'), 'g')} mm; centre and spindle position "
-                     f"taken within +-{_fmt(1e3 * acc['position_accuracy_mm'], 'g')} um per coordinate (rectangular).")
+        d.para(f"Acceptance: largest ratio of a channel's residual rms to its readings' own noise floor "
+               f"{_num(acc.get('residual_to_noise_max'), '.3f')} (limit {_num(acc.get('max_residual_to_noise'), 'g')}); "
+               f"|rho| within the head radius {_num(acc.get('head_radius_mm'), 'g')} mm.")
     if fit.get("weak_rho_channels"):
-        notes.append(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho), rho is not distinguished from 0; "
-                     "U(d_b) of these channels includes the second-order term of d_b = g - rho^2/(2R).")
-    import textwrap
-
-    for note in notes:
-        for line in textwrap.wrap(note, 115):
-            fig.text(0.06, y, line)
-            y -= 0.016
-    y -= 0.01
-    fig.text(0.06, y, "Raw files (sha256)", weight="bold", fontsize=10)
-    y -= 0.018
-    for name, digest in cert["raw_files"].items():
-        fig.text(0.06, y, name, family="monospace", fontsize=7)
-        fig.text(0.40, y, digest, family="monospace", fontsize=7)
-        y -= 0.014
-        if y < 0.04:
-            fig.text(0.06, y, "... (list continues in certificate.json)", fontsize=7)
-            break
-    return fig
+        d.para(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho), rho is not distinguished from 0; U(d_b) of "
+               "these channels includes the second-order term of d_b = g - rho^2/(2R).")
 
 
-def _residual_figure(cal: TriCalibration, t: np.ndarray, res: np.ndarray, size=(8.27, 5.0)) -> Figure:
+def _dominant_label(key: str) -> str:
+    if not key:
+        return ""
+    kind = key.split(":", 1)[0]
+    labels = {"fit": "fit to the readings (Type A)", "linearity": "sensor linearity", "resolution": "sensor resolution",
+              "gauge": "reference gauge", "temperature": "temperature", "cte": "expansion coefficient",
+              "position": "reported positions", "readings": "readings"}
+    tail = key.rsplit(":", 1)[-1]
+    return labels.get(kind, kind) + (f" ({tail})" if kind in ("linearity", "resolution") else "")
+
+
+def _short_id(x: str, n: int = 16) -> str:
+    return x if len(x) <= n else ".." + x[-(n - 2):]
+
+
+def _label(row: dict) -> str:
+    """Short name of a budget row for the PDF tables (the full one is in certificate.json)."""
+    key = str(row.get("key", ""))
+    kind, _, rest = key.partition(":")
+    tail = key.rsplit(":", 1)[-1]
+    if kind == "fit":
+        names = {"readings": "fit to the readings (scatter)", "second_order": "2nd-order term of d_b in rho",
+                 "extrema": "extreme readings (scatter)"}
+        return names.get(tail, "unresolved mirror solution " + tail.removeprefix("mirror"))
+    if kind == "position":
+        return f"offset S-C, {tail} (reported positions)"
+    if kind == "gauge":
+        return f"gauge {rest.split('@')[0]}: certified D20"
+    if kind == "temperature":
+        return f"temperature, {_short_id(rest)}"
+    if kind == "cte":
+        return f"expansion coeff., {rest.split('@')[0]}"
+    if kind in ("linearity", "resolution"):
+        what = "calib." if "(calibration)" in row.get("quantity", "") else "meas."
+        return f"{kind}, ch {tail.removeprefix('ch')} ({what})"
+    if kind == "readings":
+        return "readings (scatter)"
+    return _short_quantity(row)
+
+
+def _tiny(r: dict, uc: float) -> bool:
+    c = r.get("contribution") or 0.0
+    return uc > 0 and c < 1e-5 * uc
+
+
+def _budget_tables(d: _Doc) -> None:
+    c = d.cert
+    budgets = c["measurementResults"][0]["uncertaintyBudget"]
+    if not budgets:
+        return
+    d.new_page()
+    d.heading("6  Uncertainty budget")
+    d.para("Per channel, every input x_i of the calibration with its estimate, standard uncertainty u(x_i), "
+           "distribution and degrees of freedom nu_i, and for each result its sensitivity coefficient c_i and "
+           "contribution u_i = |c_i| u(x_i) (GUM 5.1.3). The fit to the readings is a vector input (u(x_i): the "
+           "residual standard deviation per reading); its contribution comes from its covariance. c: for beta in rad, "
+           "for rho and d_b in mm, per unit of the input; contributions in urad (beta) and um (rho, d_b); 0: below "
+           "1e-5 u_c; 'in Type A': a resolution dithered by the readings' noise (GUM F.2.2.1).")
+    fams = ("beta", "rho", "d_b")
+    for prow in c["parameters"]:
+        ch = prow["channel"]
+        keys = [f"beta_rad[{ch}]", f"rho_mm[{ch}]", f"d_b_mm[{ch}]"]
+        rows_by = [budgets[k]["rows"] for k in keys]
+        comb = [budgets[k]["combined"] for k in keys]
+        cols = ["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c(beta)", "u_i(beta)", "c(rho)", "u_i(rho)",
+                "c(d_b)", "u_i(d_b)"]
+        cells = []
+        for i, row in enumerate(rows_by[0]):
+            u_x = row["standard_uncertainty"]
+            cell = [_label(row), _est_text(row["estimate"], row["unit"]),
+                    "-" if not u_x else _u_text(u_x, row["unit"]), _DIST.get(row["distribution"], row["distribution"]),
+                    _dof_text(row["degrees_of_freedom"])]
+            for k, rows in enumerate(rows_by):
+                r = rows[i]
+                if prow[f"held_{fams[k]}"]:
+                    cell += ["held", "-"]
+                    continue
+                if r.get("note") and not r["contribution"]:
+                    cell += ["-", "in Type A"]
+                    continue
+                if _tiny(r, comb[k]["standard_uncertainty"]):
+                    cell += ["0", "0"]
+                    continue
+                cc = r["sensitivity_coefficient"]
+                cell.append("-" if cc is None else f"{cc:.3g}")
+                cell.append(f"{r['contribution'] * (1e6 if k == 0 else 1e3):.3g}")
+            cells.append(cell)
+        for label, field, scale_fn in (("combined standard uncertainty u_c", "standard_uncertainty", True),
+                                       ("effective degrees of freedom nu_eff", "effective_degrees_of_freedom", None),
+                                       ("coverage factor k", "coverage_factor", False),
+                                       ("expanded uncertainty U = k u_c", "expanded_uncertainty", True)):
+            last = [label, "", "", "", ""]
+            for k, cb in enumerate(comb):
+                if prow[f"held_{fams[k]}"]:
+                    last += ["", "held"]
+                    continue
+                v = cb.get(field)
+                if scale_fn is None:
+                    txt = _dof_text(v)
+                elif scale_fn:
+                    txt = f"{v * (1e6 if k == 0 else 1e3):.3g} {'urad' if k == 0 else 'um'}"
+                else:
+                    txt = f"{v:.2f}" + ("" if cb.get("coverage_method") == "GUF" else " (S1)")
+                last += ["", txt]
+            cells.append(last)
+        d.room(0.0128 * (len(cells) + 1) + 0.035)
+        d.para(f"Channel {ch}", size=8.5)
+        d.table(cols, cells, widths=[0.22, 0.09, 0.07, 0.06, 0.05, 0.065, 0.08, 0.065, 0.08, 0.065, 0.08], size=5.8,
+                row_h=0.0128)
+    d.para("k marked (S1): the t-based factor was not validated by GUM S1 (one rectangular input dominates); k is that "
+           "of the propagated distribution. The gauge's expansion coefficient has no first-order effect at 20 degC. "
+           "Sensor linearity is an error of every reading of a channel within the data sheet's bound, independent "
+           "between the calibration and each later measurement. Reported positions that are the same for several "
+           "scans are one input.", size=6.8)
+
+
+def _verification_pages(d: _Doc) -> None:
+    c = d.cert
+    ver = c["verifications"]
+    d.new_page()
+    d.heading("7  Verification, decision rule and conformity")
+    d.para(_decision_rule_text(c["laboratory"]))
+    if not ver:
+        d.para(c["conformity"]["text"])
+    else:
+        d.para("Each verification measures a certified ring gauge with this calibration in the same night. The measured "
+               "diameter is brought to 20 degC (ISO 1) with the gauge's expansion coefficient and the recorded "
+               "temperature; E = D20 (measured) - D20 (certified). Where the gauge is the calibration's own, its "
+               "certified diameter enters both and largely cancels in U(E).")
+        cols = ["scan", "gauge", "T [degC]", "D(T) [mm]", "D20 [mm]", "cert. [mm]", "E [um]", "U(E) [um]",
+                "k", "T_ol [um]", "A [um]", "verdict"]
+        cells = []
+        for v in ver:
+            tflag = " (assumed)" if v.get("temperature_assumed") else ""
+            cells.append([str(v.get("scan_id")), str(v.get("artifact_id")), _num(v.get("temperature_c"), ".2f") + tflag,
+                          _num(v.get("measured_at_t_mm"), ".5f"), _num(v.get("measured_mm"), ".5f"),
+                          _num(v.get("certified_mm"), ".4f"), _num(1e3 * v["error_mm"], "+.2f"),
+                          _num(_scaled(v.get("expanded_u_error_mm"), 1e3), ".2f"),
+                          _num(v.get("k"), ".2f"), _num(1e3 * v["tolerance_mm"], ".1f"),
+                          _num(1e3 * v["acceptance_limit_mm"] if v.get("acceptance_limit_mm") is not None else None, ".2f"),
+                          "PASS" if v.get("passed") else "FAIL"])
+        d.table(cols, cells, widths=[0.2, 0.07, 0.08, 0.09, 0.1, 0.08, 0.06, 0.065, 0.04, 0.065, 0.06, 0.05], size=6)
+        d.para("T: recorded temperature; D(T): as measured at T; D20: brought to 20 degC; cert.: certified D20; "
+               "E = D20 - cert.; T_ol: tolerance; A: acceptance limit (T_ol minus the guard band).", size=6.8)
+        for v in ver:
+            d.para(f"{v.get('scan_id')}: {v.get('conformity', '')}", size=7)
+        d.para("Conformity statement: " + c["conformity"]["text"], size=8)
+        for v in ver:
+            rows = v.get("budget") or []
+            if not rows:
+                continue
+            uc = math.sqrt(sum((r.get("contribution") or 0.0) ** 2 for r in rows))
+            big = [r for r in rows if (r.get("contribution") or 0.0) >= 0.05 * uc]
+            rest = math.sqrt(max(sum((r.get("contribution") or 0.0) ** 2 for r in rows if r not in big), 0.0))
+            cells = [[_label(r), _est_text(r["estimate"], r["unit"]), _u_text(r["standard_uncertainty"], r["unit"]),
+                      _DIST.get(r["distribution"], r["distribution"]), _dof_text(r["degrees_of_freedom"]),
+                      "-" if r["sensitivity_coefficient"] is None else f"{r['sensitivity_coefficient']:.3g}",
+                      f"{1e3 * r['contribution']:.3g}"] for r in big]
+            cells.append([f"{len(rows) - len(big)} further inputs (each < 5 % of u_c), combined", "", "", "", "", "",
+                          f"{1e3 * rest:.3g}"])
+            cells.append(["combined standard uncertainty u_c(E)", "", "", "", "", "", f"{1e3 * uc:.3g}"])
+            d.room(0.013 * (len(cells) + 1) + 0.03)
+            d.para(f"Budget of E, {v.get('scan_id')} (contributions in um):", size=7.5)
+            d.table(["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c_i", "u_i [um]"], cells,
+                    widths=[0.42, 0.12, 0.1, 0.1, 0.06, 0.1, 0.1], size=6, row_h=0.013, bold_last=True)
+
+
+def _page_records(d: _Doc) -> None:
+    c = d.cert
+    d.new_page()
+    d.heading("8  Records")
+    d.kv([("Software", f"borescan {c['software_version']}, configuration hash {c['config_hash']}"),
+          ("Date of issue", f"{c['dates'].get('issue') or 'n/a'}: {c['dates'].get('issue_rule', '')}"),
+          ("Raw data", "SHA-256 of every raw file the calibration used:")])
+    for name, digest in c["raw_files"].items():
+        d.room(0.013)
+        d.fig.text(d.LEFT, d.y, name, family="monospace", fontsize=6.5)
+        d.fig.text(0.42, d.y, digest, family="monospace", fontsize=6.5)
+        d.y -= 0.012
+    ver_files = {k: h for v in c["verifications"] for k, h in sorted((v.get("raw_files") or {}).items())}
+    if ver_files:
+        d.y -= 0.006
+        d.para("SHA-256 of the raw files of the verifications reported in section 7:")
+        for name, digest in ver_files.items():
+            d.room(0.013)
+            d.fig.text(d.LEFT, d.y, name, family="monospace", fontsize=6.5)
+            d.fig.text(0.42, d.y, digest, family="monospace", fontsize=6.5)
+            d.y -= 0.012
+    d.y -= 0.01
+    d.para("Residuals of the fit: residuals.png beside this certificate, and the last page.")
+
+
+def _residual_figure(cal: TriCalibration, t: np.ndarray, res: np.ndarray, size=(8.27, 5.0), page: bool = False) -> Figure:
     fig = Figure(figsize=size)
     n_ch = res.shape[1]
     axes = fig.subplots(n_ch, 1, sharex=True, squeeze=False)[:, 0]
@@ -239,9 +944,26 @@ def _residual_figure(cal: TriCalibration, t: np.ndarray, res: np.ndarray, size=(
         ax.set_ylabel(f"ch {ch} [um]")
         ax.set_title(f"channel {ch}: rms {rms:.2f} um", fontsize=8, loc="left")
     axes[-1].set_xlabel("t [s]")
-    fig.suptitle(f"Residuals (model - reading), {cal.calibration_id}", fontsize=9)
-    fig.tight_layout()
+    if page:
+        fig.text(_Doc.LEFT, 0.885, "9  Residuals of the fit (model - reading), first calibration scan", fontsize=10.5,
+                 weight="bold")
+        fig.subplots_adjust(left=0.12, right=0.94, top=0.84, bottom=0.1, hspace=0.35)
+    else:
+        fig.suptitle(f"Residuals (model - reading), {cal.calibration_id}", fontsize=9)
+        fig.tight_layout()
     return fig
+
+
+def _pages(cal: TriCalibration, cert: dict, t: np.ndarray, res: np.ndarray) -> list[Figure]:
+    d = _Doc(cert)
+    _page_admin(d)
+    _page_item_conditions(d)
+    _page_results(d)
+    _budget_tables(d)
+    _verification_pages(d)
+    _page_records(d)
+    d.pages.append(_residual_figure(cal, t, res, size=_A4, page=True))
+    return d.finish()
 
 
 def write_certificate(
@@ -255,19 +977,35 @@ def write_certificate(
     raw_files: dict[str, str],
     software_version: str,
     config_hash: str,
+    budget: Budget | None = None,
+    laboratory: dict | None = None,
+    coverage_probability: float = 0.9545,
+    dates: dict | None = None,
+    verifications: list[dict] | None = None,
 ) -> dict[str, Path]:
     """Write ``certificate.json``, ``certificate.pdf`` and ``residuals.png`` into ``out_dir``.
 
     Parameters
     ----------
-    cal : TriCalibration
+    cal : TriCalibration (``cov`` the combined covariance of its budget)
     out_dir : results_root/calibration/<device_id>/<calibration_id>/ (see :func:`certificate_dir`)
-    device : dict, e.g. {"id", "type", "sensors"}
-    artifact : dict with id, certificate, certified_diameter_mm, u_diameter_mm, k
-    conditions : dict with temperature_c, spindle_position, rpm, revolutions
+    device : dict, e.g. {"id", "type", "sensors" (scan.json sensor entries)}
+    artifact : scan.json artifact of the gauge (id, certificate, certified_diameter_mm, u_diameter_mm,
+        k, cte_per_k; certificate_issuer and certificate_valid_until when known)
+    conditions : influence conditions: ``temperature`` {value_c, u_c, U_c, k, source, assumed},
+        ``gauge_cte``, ``gauge_radius_at_temperature_mm``, ``position_accuracy_mm``, ``scans`` (per
+        scan: scan_id, spindle_position, center, rpm, angle_source, revolutions_recorded,
+        revolutions_with_extrema)
     residuals : dict with t_s (n,) [s] and residual_mm (n, c) [mm] (model - reading)
     raw_files : file name -> sha256 hex digest
     software_version, config_hash : str
+    budget : the calibration's GUM budget (default: ``cal.diagnostics["budget"]``)
+    laboratory : the config's ``laboratory`` section (default: its schema defaults, placeholders)
+    coverage_probability : of every U
+    dates : ``begin``, ``end`` (dates of calibration), ``issue``, ``issue_rule``,
+        ``recalibration_due``, ``recalibration_rule`` (ISO dates and the text saying how each was derived)
+    verifications : rows of the night's verifications with this calibration
+        (:func:`borescan.measure.verification_row` plus ``budget``: its budget rows)
 
     Returns
     -------
@@ -279,7 +1017,8 @@ def write_certificate(
     out_dir.mkdir(parents=True, exist_ok=True)
     cert = certificate_dict(
         cal, device=device, artifact=artifact, conditions=conditions, residuals=residuals,
-        raw_files=raw_files, software_version=software_version, config_hash=config_hash,
+        raw_files=raw_files, software_version=software_version, config_hash=config_hash, budget=budget,
+        laboratory=laboratory, coverage_probability=coverage_probability, dates=dates, verifications=verifications,
     )
     t, res = _residual_arrays(residuals)
     paths = {
@@ -300,7 +1039,7 @@ def write_certificate(
         tmp = out_dir / "certificate.pdf.tmp"
         meta = dict(_PDF_METADATA, Title=f"Calibration certificate {cal.calibration_id}")
         with PdfPages(tmp, metadata=meta) as pdf:
-            pdf.savefig(_page1(cert))
-            pdf.savefig(_residual_figure(cal, t, res, size=(8.27, 11.69)))
+            for page in _pages(cal, cert, t, res):
+                pdf.savefig(page)
         tmp.replace(paths["pdf"])
     return paths

@@ -13,16 +13,33 @@ circumcircle), with dW/dbeta = -rho u + s n, dW/drho = n, dW/dd_b = dW/dv = u, s
 Rotating (device on a spindle): wall points in machine coordinates p = S + Rot(phi) W; the
 least-squares circle gives the diameter, the ISO 12181 reference circles the roundness, and
 ``circlefit.harmonic_spectrum`` the undulations per revolution.
+
+GUM budget of a diameter (:func:`diameter_uncertainty`): the calibration's own budget (its
+fit, gauge, temperature, expansion coefficient, positions, sensor linearity; carried in the
+calibration's ``diagnostics["budget"]``) mapped through dD/d(beta, rho, d_b); the readings'
+scatter (Type A); each sensor's linearity and resolution at this measurement (independent of
+those at the calibration: the data sheet bounds the deviation anywhere in the range, not its
+shape); and the temperature correction to 20 degC (ISO 1), D20 = D_T / (1 + alpha (T - 20)),
+with the part's temperature and expansion coefficient. Every diameter is given at the measured
+temperature and at 20 degC. A verification compares D20 with the gauge's certified D20; where
+the gauge is the calibration's own, its certified diameter enters both and its sensitivity is
+the difference (:meth:`borescan.uncertainty.Budget.merged`). The verdict follows the configured
+decision rule (:func:`decide`, ILAC-G8:09/2019).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import json
+import math
+
 import numpy as np
 
+from .artifacts import ArtifactCte, ScanTemperature, artifact_key, diameter_at_20
 from .circlefit import Circle, fit_circle_ls, harmonic_spectrum, reference_circles
 from .geometry import Beams, beam_frame, circumcircle, wall_points_device
+from .uncertainty import Budget, Combined, Input, Term
 
 __all__ = [
     "StaticDiameter",
@@ -39,6 +56,16 @@ __all__ = [
     "mean_reading_u_mm",
     "diameter_row",
     "verification_row",
+    "sensor_terms",
+    "DiameterUncertainty",
+    "diameter_uncertainty",
+    "DECISION_RULES",
+    "decide",
+    "verify_budget",
+    "DiameterModel",
+    "calibration_budget_of",
+    "tri_diameter_with_budget",
+    "verification_for_certificate",
 ]
 
 
@@ -231,6 +258,53 @@ def _rotating_angle(scan, t_s: np.ndarray, v: np.ndarray) -> np.ndarray:
     return estimate_speed_scale(Phi, v) * Phi
 
 
+@dataclass(frozen=True)
+class DiameterModel:
+    """The diameter of one scan as a function of the beams, with the scan's readings fixed.
+
+    ``kind`` ``"static"``: ``readings_mm`` (k, c) the poses' mean readings, D = mean over the poses
+    of :func:`static_diameter`; ``"rotating"``: ``readings_mm`` (n, c), ``phi_rad`` (n,),
+    ``spindle_xy_mm`` (n, 2), D = the least-squares circle of :func:`wall_points_machine`.
+    ``offsets_mm`` (c,) adds a constant to every reading of a channel.
+    """
+
+    kind: str
+    readings_mm: np.ndarray = field(repr=False)
+    phi_rad: np.ndarray | None = field(default=None, repr=False)
+    spindle_xy_mm: np.ndarray | None = field(default=None, repr=False)
+
+    def __call__(self, beams: Beams, offsets_mm=None) -> float:
+        v = self.readings_mm if offsets_mm is None else self.readings_mm + np.asarray(offsets_mm, float)
+        if self.kind == "static":
+            return float(np.mean(static_diameter(v, beams).diameter_mm))
+        P = wall_points_machine(v, self.phi_rad, self.spindle_xy_mm, beams).reshape(-1, 2)
+        P = P[np.all(np.isfinite(P), axis=1)]
+        return fit_circle_ls(P[:, 0], P[:, 1]).diameter_mm
+
+
+def _with_params(beams: Beams, delta: np.ndarray) -> Beams:
+    """Beams moved by ``delta`` (3c,), per channel (beta, rho, d_b)."""
+    d = np.asarray(delta, dtype=float)
+    return Beams(beams.channels, beams.beta_rad + d[0::3], beams.rho_mm + d[1::3], beams.d_b_mm + d[2::3])
+
+
+def _rotating_sensitivities(model: DiameterModel, beams: Beams) -> tuple[np.ndarray, np.ndarray]:
+    """dD/d(beta, rho, d_b) (3c,) and dD/d(constant reading error of channel c) (c,) of the LS
+    circle of a rotating scan, by central differences (h = 1e-6 rad, 1e-5 mm)."""
+    c = len(beams.channels)
+    jp = np.zeros(3 * c)
+    for i in range(3 * c):
+        e = np.zeros(3 * c)
+        e[i] = 1e-6 if i % 3 == 0 else 1e-5
+        jp[i] = (model(_with_params(beams, e)) - model(_with_params(beams, -e))) / (2 * e[i])
+    jv = np.zeros(c)
+    for j in range(c):
+        e = np.zeros(c)
+        e[j] = 1e-5
+        jv[j] = (model(beams, e) - model(beams, -e)) / 2e-5
+    return jp, jv
+
+
 def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
     """Diameter of one ``tri_lds`` raw scan (``rawio.RawScan``) with calibrated ``beams``.
 
@@ -245,8 +319,15 @@ def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
     Returns
     -------
     dict with diameter_mm, u_diameter_mm, method; rotating: ront_mm per circle; static: poses
-    (list of dicts pose, diameter_mm, u_diameter_mm).
+    (list of dicts pose, diameter_mm, u_diameter_mm). For the GUM budget
+    (:func:`diameter_uncertainty`): ``jac_params`` (3c,) dD/d(beta, rho, d_b) and
+    ``jac_readings`` (c,) dD/d(a constant error of every reading of a channel) (means over the
+    poses; rotating: central differences of the LS circle), ``u_readings_mm`` and
+    ``dof_readings`` (the readings' part of u: Type A, or the sensors' repeatability where that
+    is larger than the scatter, nu = inf), ``noise_mm`` (c,) the readings' scatter per channel and
+    ``model`` (:class:`DiameterModel`, D as a function of the beams with these readings).
     """
+    from .noise import noise_floor_mm
     from .rawio import lds_matrix
 
     m = lds_matrix(scan)
@@ -258,21 +339,36 @@ def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
         phi = _rotating_angle(scan, m.t_s, v)
         S = np.column_stack([np.interp(m.t_s, t_sp, sp["x_mm"].to_numpy()), np.interp(m.t_s, t_sp, sp["y_mm"].to_numpy())])
         res = measure_rotating(v, phi, S, beams)
+        model = DiameterModel("rotating", v, phi, S)
+        jp, jv = _rotating_sensitivities(model, beams)
+        u_cal = float(np.sqrt(max(jp @ np.asarray(cov_beams, float) @ jp, 0.0))) if cov_beams is not None else 0.0
         return {
             "diameter_mm": res.diameter_mm,
-            "u_diameter_mm": res.u_diameter_mm,
+            "u_diameter_mm": float(np.hypot(res.u_diameter_mm, u_cal)),
             "method": "rotating LS circle",
             "ront_mm": res.ront_mm,
+            "jac_params": jp,
+            "jac_readings": jv,
+            "u_readings_mm": res.u_diameter_mm,
+            "dof_readings": float(max(res.x_mm.size - 3, 1)),
+            "noise_mm": noise_floor_mm(v, order=4),
+            "model": model,
         }
     sensors = {int(s["channel"]): s for s in scan.meta["sensors"]}
     rep = np.array([float(sensors.get(ch, {}).get("repeatability_mm", 0.0) or 0.0) for ch in beams.channels])
-    poses = []
+    poses, jps, jvs, sds, ns, means = [], [], [], [], [], []
     for p in np.unique(m.pose):
         vv = v[(m.pose == p) & np.all(np.isfinite(v), axis=1)]
         if vv.shape[0] == 0:
             continue
         sd = vv.std(axis=0, ddof=1) if vv.shape[0] > 1 else np.zeros(vv.shape[1])
         res = static_diameter(vv.mean(axis=0), beams, cov_beams, np.maximum(sd, rep) / np.sqrt(vv.shape[0]))
+        _, jp, jv, _ = static_diameter_jacobian(vv.mean(axis=0)[None, :], beams)
+        jps.append(jp[0])
+        jvs.append(jv[0])
+        means.append(vv.mean(axis=0))
+        sds.append(sd)
+        ns.append(vv.shape[0])
         poses.append({"pose": int(p), "diameter_mm": res.diameter_mm, "u_diameter_mm": res.u_diameter_mm,
                       "u_calibration_mm": res.u_calibration_mm, "u_readings_mm": res.u_readings_mm})
     if not poses:
@@ -281,10 +377,23 @@ def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
     u_cal = float(np.mean([q["u_calibration_mm"] for q in poses]))
     u_rd = np.array([q["u_readings_mm"] for q in poses])
     k = D.size
-    var_mean = max(float(np.var(D, ddof=1)) if k > 1 else 0.0, float(np.mean(u_rd**2))) / k
+    between = float(np.var(D, ddof=1)) / k if k > 1 else 0.0
+    within = float(np.mean(u_rd**2)) / k
+    var_mean = max(between, within)
+    sd_all = np.array(sds)
+    n_all = np.array(ns)
+    if between >= within:
+        dof = float(k - 1)
+    elif np.all(sd_all >= rep[None, :]):
+        dof = float(np.sum(n_all - 1))
+    else:
+        dof = float("inf")  # the data sheet's repeatability, larger than the scatter (Type B)
+    pooled = np.sqrt(np.sum((n_all[:, None] - 1) * sd_all**2, axis=0) / max(int(np.sum(n_all - 1)), 1))
     return {"diameter_mm": float(D.mean()), "u_diameter_mm": float(np.sqrt(u_cal**2 + var_mean)),
             "method": f"static {'circumcircle' if len(beams.channels) == 3 else 'least-squares circle'}, mean of {k} poses",
-            "poses": poses}
+            "poses": poses, "jac_params": np.mean(jps, axis=0), "jac_readings": np.mean(jvs, axis=0),
+            "u_readings_mm": float(np.sqrt(var_mean)), "dof_readings": dof, "noise_mm": pooled,
+            "model": DiameterModel("static", np.array(means))}
 
 
 # --------------------------------------------------------------------------- readings per pose (rod)
@@ -337,12 +446,314 @@ def mean_reading_u_mm(u_one_mm, counts) -> float | None:
     return float(np.max(u / np.sqrt(np.maximum(np.asarray(counts).min(axis=0), 1))))
 
 
+# --------------------------------------------------------------------------- GUM budget of a diameter
+
+
+def sensor_terms(sensors: dict, channels, sensitivity: np.ndarray, key: str, noise_mm, default_resolution_mm: float,
+                 what: str) -> list[Term]:
+    """Linearity and resolution terms of the sensors of one set of readings (Type B, rectangular).
+
+    Parameters
+    ----------
+    sensors : channel -> scan.json sensor entry (``linearity_fs``, ``range_mm``, optional ``resolution_mm``)
+    channels : channel numbers, in the order of ``sensitivity``'s columns
+    sensitivity : (m, c) d outputs / d (a constant error of every reading of channel c)
+    key : identity of this set of readings (a scan or calibration id): an error here is
+        independent of the same sensor's error elsewhere in its range
+    noise_mm : (c,) the readings' own scatter (dithering check), or None
+    default_resolution_mm : ``uncertainty.sensor_resolution_mm``
+    what : text naming the readings (``"calibration"``, ``"measurement"``)
+
+    Notes
+    -----
+    Linearity: the data sheet's +-linearity_fs x range_mm, u = a / sqrt 3 (GUM 4.3.7). Resolution
+    delta: u = delta / sqrt 12, counted only where the readings' noise is below delta / 2; with more
+    noise the quantisation error is dithered, varies from reading to reading and is part of the
+    Type A scatter (GUM F.2.2.1), so its term has sensitivity 0 and says so.
+    """
+    sens = np.atleast_2d(np.asarray(sensitivity, dtype=float))
+    noise = None if noise_mm is None else np.broadcast_to(np.asarray(noise_mm, float), (len(channels),))
+    terms = []
+    for j, ch in enumerate(channels):
+        s = sensors.get(int(ch), {}) or {}
+        rng_mm = float(s.get("range_mm") or 0.0)
+        lin = float(s.get("linearity_fs") or 0.0) * rng_mm
+        label = f"{s.get('model', 'sensor')} {s.get('serial', '')}".strip()
+        terms.append(Term(Input(
+            f"linearity:{key}:ch{int(ch)}", f"linearity deviation, channel {int(ch)} ({what})", f"e_lin,{int(ch)}", "mm",
+            0.0, lin / math.sqrt(3.0), "rectangular", source=f"data sheet of {label}: +-{s.get('linearity_fs')} x "
+            f"{rng_mm:g} mm full scale (scan.json sensors)"), sens[:, j]))
+        res = s.get("resolution_mm")
+        src = "scan.json sensors resolution_mm" if res is not None else "uncertainty.sensor_resolution_mm"
+        delta = float(res if res is not None else default_resolution_mm)
+        dithered = noise is not None and np.isfinite(noise[j]) and noise[j] >= 0.5 * delta
+        terms.append(Term(
+            Input(f"resolution:{key}:ch{int(ch)}", f"resolution, channel {int(ch)} ({what})", f"e_res,{int(ch)}", "mm",
+                  0.0, delta / math.sqrt(12.0), "rectangular", source=f"{delta:g} mm ({src})"),
+            np.zeros(sens.shape[0]) if dithered else sens[:, j],
+            note=(f"dithered by the readings' noise ({noise[j] * 1e3:.2f} um >= half the resolution): "
+                  "part of the Type A scatter (GUM F.2.2.1)") if dithered else ""))
+    return terms
+
+
+@dataclass(frozen=True)
+class DiameterUncertainty:
+    """A diameter at the measured temperature and at 20 degC with its GUM budget.
+
+    diameter_mm, combined_t : D at the scan's temperature and its Combined (u, nu_eff, k, U);
+    diameter_20_mm, combined_20 : D20 = D_T / (1 + alpha (T - 20)) (ISO 1) and its Combined;
+    temperature : ScanTemperature; cte : ArtifactCte; thermal_correction_mm = D20 - D_T and
+    u_thermal_correction_mm (from the temperature and expansion coefficient);
+    budget : outputs (D_T, D20); rows_20 / rows_t : budget tables.
+    """
+
+    diameter_mm: float
+    combined_t: Combined
+    diameter_20_mm: float
+    combined_20: Combined
+    temperature: ScanTemperature
+    cte: ArtifactCte
+    thermal_correction_mm: float
+    u_thermal_correction_mm: float
+    budget: Budget
+
+    @property
+    def rows_20(self) -> list[dict]:
+        return self.budget.rows(1)
+
+    @property
+    def rows_t(self) -> list[dict]:
+        return self.budget.rows(0)
+
+    def columns(self) -> dict:
+        """The extra ``diameters`` columns (tables.py) of this result."""
+        c20, ct = self.combined_20, self.combined_t
+        return {
+            "temperature_c": self.temperature.temperature_c,
+            "u_temperature_c": self.temperature.u_c,
+            "temperature_assumed": self.temperature.assumed,
+            "cte_per_k": self.cte.cte_per_k,
+            "cte_assumed": self.cte.assumed,
+            "diameter_20_mm": self.diameter_20_mm,
+            "u_diameter_20_mm": c20.u,
+            "expanded_u_diameter_20_mm": c20.U,
+            "expanded_u_diameter_mm": ct.U,
+            "k": c20.k,
+            "k_at_t": ct.k,
+            "coverage_probability": c20.p,
+            "nu_eff": c20.nu_eff if np.isfinite(c20.nu_eff) else None,
+            "coverage_method": c20.method,
+            "thermal_correction_mm": self.thermal_correction_mm,
+            "u_thermal_correction_mm": self.u_thermal_correction_mm,
+            "budget_json": json.dumps(_json_rows(self.rows_20), sort_keys=True),
+        }
+
+
+def _json_rows(rows: list[dict]) -> list[dict]:
+    def fix(v):
+        if isinstance(v, float) and not np.isfinite(v):
+            return None
+        return v
+
+    return [{k: fix(v) for k, v in r.items()} for r in rows]
+
+
+def _second_order_variance(model: DiameterModel, beams: Beams, cov_second: np.ndarray, R_mm: float) -> float:
+    """Variance of D from the calibration's second-order term (:func:`diameter_uncertainty`).
+
+    The fit estimates psi = beta + asin(rho/R) and g = d_b + rho^2/(2R) linearly and rho with
+    error delta; the calibration's second-order term of d_b is 3 u(rho)^4 / (4 R^2) (the fit's).
+    Along that path (psi, g fixed) D moves by q delta^2 at second order; its contribution is
+    q^2 3 u^4 (variance and squared bias of q delta^2, as the fit counts them), q from a central
+    second difference over +-u(rho).
+    """
+    c = len(beams.channels)
+    d0 = model(beams)
+    var = 0.0
+    for j in range(c):
+        s2 = float(cov_second[3 * j + 2, 3 * j + 2])
+        if s2 <= 0.0:
+            continue
+        u = (s2 * 4.0 * R_mm**2 / 3.0) ** 0.25
+        rho = float(beams.rho_mm[j])
+        vals = []
+        for h in (u, -u):
+            dl = np.zeros(3 * c)
+            dl[3 * j] = -(np.arcsin(np.clip((rho + h) / R_mm, -1, 1)) - np.arcsin(np.clip(rho / R_mm, -1, 1)))
+            dl[3 * j + 1] = h
+            dl[3 * j + 2] = -(2.0 * rho * h + h * h) / (2.0 * R_mm)
+            vals.append(model(_with_params(beams, dl)))
+        q = (vals[0] - 2.0 * d0 + vals[1]) / (2.0 * u * u)
+        var += 3.0 * q * q * u**4
+    return var
+
+
+def _gauge_radius_of(calibration_budget: Budget) -> float | None:
+    for t in calibration_budget.terms:
+        if t.input.key.startswith("gauge:") and t.input.key.endswith(":D20") and t.input.estimate:
+            return 0.5 * float(t.input.estimate)
+    return None
+
+
+def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_budget: Budget | None = None,
+                         jac_readings=None, u_readings_mm: float, dof_readings: float, sensors: dict | None = None,
+                         channels=(), noise_mm=None, temperature: ScanTemperature, cte: ArtifactCte, artifact: dict,
+                         scan_id: str, p: float, default_resolution_mm: float, readings_what: str = "readings",
+                         calibration_id: str | None = None, model: DiameterModel | None = None,
+                         beams: Beams | None = None) -> DiameterUncertainty:
+    """GUM budget of a measured diameter, at the scan's temperature and at 20 degC.
+
+    D_T = f(readings, beams); D20 = D_T / (1 + alpha (T - 20)). Terms:
+
+    - every term of ``calibration_budget`` (outputs: the calibration's (beta, rho, d_b) per channel)
+      mapped by ``jac_params`` (3c,) = dD/d(beta, rho, d_b); with the scan's ``model`` and the
+      calibrated ``beams``, the fit's two non-linear terms are mapped by D itself: an unresolved
+      mirror solution by the secant D(p + d) - D(p), and the second-order term of d_b by D's own
+      curvature along the fit's path (:func:`_second_order_variance`): for a bore of about the
+      gauge's size the rho^2 terms of d_b and of the wall points cancel, and D carries little of it;
+    - the readings: u = ``u_readings_mm`` with ``dof_readings`` (Type A; nu = inf: the data sheet's
+      repeatability, Type B);
+    - each sensor's linearity and resolution at this measurement (:func:`sensor_terms`, sensitivity
+      ``jac_readings`` (c,));
+    - the scan's temperature T and the artifact's alpha, which only D20 depends on:
+      dD20/dT = -D_T alpha / f^2, dD20/dalpha = -D_T (T - 20) / f^2, f = 1 + alpha (T - 20);
+      every other sensitivity of D20 is that of D_T times 1 / f.
+
+    Parameters
+    ----------
+    diameter_mm : D_T [mm]
+    p : coverage probability; default_resolution_mm : ``uncertainty.sensor_resolution_mm``
+    artifact : scan.json ``artifact`` (its key names the expansion coefficient: the same gauge's
+        alpha in a calibration and a verification is one input)
+
+    Returns
+    -------
+    DiameterUncertainty
+    """
+    d20, f, dT_sens, da_sens = diameter_at_20(diameter_mm, cte.cte_per_k, temperature.temperature_c)
+    to_both = np.array([[1.0], [f]])
+    b = Budget(("D_T", "D_20"), ("mm", "mm"), np.array([diameter_mm, d20]))
+    if calibration_budget is not None and jac_params is not None:
+        jp = np.asarray(jac_params, dtype=float)
+        R_g = _gauge_radius_of(calibration_budget)
+        both = np.array([1.0, f])
+        for t in calibration_budget.terms:
+            key = t.input.key
+            if model is not None and beams is not None:
+                if key.endswith(":second_order") and t.cov is not None and R_g:
+                    var = _second_order_variance(model, beams, t.cov, R_g)
+                    b.add(Term(t.input, cov=np.outer(both, both) * var,
+                               note="D's own curvature along the fit's path (psi, g fixed), not d_b's"))
+                    continue
+                if ":mirror" in key and t.sensitivity is not None:
+                    dD = model(_with_params(beams, t.sensitivity)) - model(beams)
+                    b.add(Term(t.input, both * dD, note="secant: D with the mirror solution's beams minus D"))
+                    continue
+            b.add(t.mapped(to_both @ jp[None, :]))
+    dof = float(dof_readings)
+    b.add(Term(Input(f"readings:{scan_id}", f"scatter of the readings of {scan_id}", "D_rd", "mm", None,
+                     float(u_readings_mm), "normal", dof, "A" if np.isfinite(dof) else "B",
+                     "between/within the poses' diameters" if np.isfinite(dof)
+                     else "sensors' repeatability (data sheet), larger than the scatter"),
+               np.array([1.0, f])))
+    if jac_readings is not None and sensors is not None:
+        jv = np.asarray(jac_readings, dtype=float)
+        for t in sensor_terms(sensors, channels, to_both @ jv[None, :], scan_id, noise_mm, default_resolution_mm,
+                              readings_what):
+            b.add(t)
+    b.add(Term(Input(f"temperature:{scan_id}", f"temperature of {artifact.get('id') or 'the artifact'} during {scan_id}",
+                     "T", "degC", temperature.temperature_c, temperature.u_c, "rectangular", source=temperature.source),
+               np.array([0.0, dT_sens])))
+    b.add(Term(Input(f"cte:{artifact_key(artifact)}", f"expansion coefficient of {artifact.get('id') or 'the artifact'}",
+                     "alpha", "1/K", cte.cte_per_k, cte.u_per_k, "rectangular", source=cte.source),
+               np.array([0.0, da_sens])))
+    b = b.merged()
+    ct, c20 = b.combined(0, p), b.combined(1, p)
+    corr = b.combined(np.array([-1.0, 1.0]), p)
+    return DiameterUncertainty(float(diameter_mm), ct, d20, c20, temperature, cte, d20 - float(diameter_mm), corr.u, b)
+
+
+def calibration_budget_of(cal) -> Budget:
+    """The GUM budget a calibration carries (``diagnostics["budget"]``, written by the calibrate
+    stage); for a calibration without one, its covariance as a single term, said so in the source."""
+    d = (cal.diagnostics or {}).get("budget")
+    if d:
+        return Budget.from_dict(d)
+    names = [f"{n}[{ch}]" for ch in cal.beams.channels for n in ("beta_rad", "rho_mm", "d_b_mm")]
+    units = ["rad", "mm", "mm"] * len(cal.beams.channels)
+    return Budget(tuple(names), tuple(units), cal.params, [Term(Input(
+        f"calibration:{cal.calibration_id}", f"calibration {cal.calibration_id} (covariance only, no budget recorded)",
+        "p", "-", None, 0.0, "normal", source="TriCalibration.cov"), cov=cal.cov)])
+
+
+def tri_diameter_with_budget(scan, cal, unc_cfg: dict) -> tuple[dict, DiameterUncertainty]:
+    """Diameter of a three-sensor scan (:func:`measure_scan`) with its GUM budget
+    (:func:`diameter_uncertainty`): the calibration's budget, the readings, the sensors, the
+    scan's temperature (``uncertainty`` policy) and the artifact's expansion coefficient.
+
+    Raises :class:`borescan.artifacts.MissingTemperature` when the scan has no temperature and
+    the config refuses such scans.
+    """
+    from .artifacts import artifact_cte, scan_temperature
+
+    temp = scan_temperature(scan.meta, unc_cfg)
+    cte = artifact_cte(scan.meta, unc_cfg)
+    res = measure_scan(scan, cal.beams, cal.cov)
+    sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
+    du = diameter_uncertainty(
+        res["diameter_mm"], jac_params=res["jac_params"], calibration_budget=calibration_budget_of(cal),
+        jac_readings=res["jac_readings"], u_readings_mm=res["u_readings_mm"], dof_readings=res["dof_readings"],
+        sensors=sensors, channels=cal.beams.channels, noise_mm=res["noise_mm"], temperature=temp, cte=cte,
+        artifact=dict(scan.meta.get("artifact") or {}), scan_id=scan.scan_id,
+        p=float(unc_cfg["coverage_probability"]), default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
+        readings_what="measurement", calibration_id=cal.calibration_id, model=res["model"], beams=cal.beams)
+    return res, du
+
+
 # --------------------------------------------------------------------------- verification
+
+#: decision rules of a verification (ILAC-G8:09/2019 §4.2)
+DECISION_RULES = ("simple_acceptance", "guard_band")
+
+
+def decide(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "simple_acceptance",
+           guard_band_factor: float = 1.0) -> tuple[bool, float, str]:
+    """Verdict on |error| <= tolerance by a decision rule (ISO/IEC 17025 7.8.6, ILAC-G8:09/2019).
+
+    ``simple_acceptance`` (ILAC-G8 4.2.1): acceptance limit A = T (guard band w = 0); the risk of
+    a false accept reaches 50 % at the limit. ``guard_band`` (4.2.2): A = T - w, w =
+    ``guard_band_factor`` U; with w = U the probability of a false accept is at most about 2.5 %
+    (normal error, k = 2). Binary: pass iff |error| <= A.
+
+    Returns
+    -------
+    (passed, acceptance limit A [mm], conformity statement)
+    """
+    if rule not in DECISION_RULES:
+        raise ValueError(f"unknown decision rule {rule!r}; valid: {list(DECISION_RULES)}")
+    w = 0.0 if rule == "simple_acceptance" else float(guard_band_factor) * float(U_mm)
+    A = float(tolerance_mm) - w
+    passed = bool(A > 0 and abs(error_mm) <= A)
+    how = ("simple acceptance (ILAC-G8:09/2019 4.2.1, guard band w = 0)" if rule == "simple_acceptance"
+           else f"guard-banded acceptance (ILAC-G8:09/2019 4.2.2, w = {guard_band_factor:g} U = {w * 1e3:.2f} um)")
+    verdict = "PASS" if passed else "FAIL"
+    text = (f"{verdict}: |E| = {abs(error_mm) * 1e3:.2f} um {'<=' if passed else '>'} acceptance limit "
+            f"{A * 1e3:.2f} um (tolerance {tolerance_mm * 1e3:.2f} um, U(E) = {U_mm * 1e3:.2f} um); rule: {how}")
+    if A <= 0:
+        text += "; the guard band exceeds the tolerance, no result can pass"
+    elif U_mm >= tolerance_mm:
+        text += "; U(E) is not smaller than the tolerance: the verdict carries a large risk of a false decision"
+    return passed, A, text
 
 
 @dataclass(frozen=True)
 class Verification:
-    """Result of :func:`verify` (all lengths in mm)."""
+    """Result of :func:`verify` / :func:`verify_budget` (all lengths in mm).
+
+    measured_mm : the measured diameter brought to 20 degC (ISO 1), comparable with the
+    certificate; measured_at_t_mm : as measured at the scan's temperature; expected_at_t_mm :
+    the gauge's size at that temperature; error_mm = measured_mm - certified_mm.
+    """
 
     measured_mm: float
     u_measured_mm: float
@@ -353,45 +764,104 @@ class Verification:
     tolerance_mm: float
     passed: bool
     en: float
+    measured_at_t_mm: float = float("nan")
+    temperature_c: float = float("nan")
+    U_error_mm: float = float("nan")
+    k: float = float("nan")
+    acceptance_limit_mm: float = float("nan")
+    decision_rule: str = "simple_acceptance"
+    conformity: str = ""
+    budget_rows: tuple = ()
 
 
-def verify(measured_mm, u_measured_mm, certified_diameter_mm, u_cert_mm, cte_per_k, temperature_c, tolerance_mm) -> Verification:
+def verify(measured_mm, u_measured_mm, certified_diameter_mm, u_cert_mm, cte_per_k, temperature_c, tolerance_mm,
+           decision_rule: str = "simple_acceptance", guard_band_factor: float = 1.0, k: float = 2.0) -> Verification:
     """Error of a measured diameter against a gauge's certified diameter, pass/fail.
 
     The certificate gives D20 at 20 degC. At temperature T the gauge has expanded to
-    D_T = D20 (1 + cte (T - 20)) and a device reading at T measures D_T, so
-    error = measured - D_T (a gauge warmer than 20 degC reads larger; without the correction
-    that would show as a positive error). Equivalently, to first order, the measured value
-    corrected to 20 degC, measured / (1 + cte (T - 20)), minus D20.
+    D_T = D20 (1 + cte (T - 20)) and a device reading at T measures D_T. The measured value is
+    brought to 20 degC, measured_20 = measured / (1 + cte (T - 20)) (ISO 1), and
+    error = measured_20 - D20, equal to (measured - D_T) / (1 + cte (T - 20)) (a gauge warmer than
+    20 degC reads larger; without the correction that would show as a positive error).
 
     Parameters
     ----------
     u_cert_mm : standard (k = 1) uncertainty of the certified diameter; a certificate's
         expanded U with k = 2 must be divided by 2 by the caller.
+    decision_rule, guard_band_factor : :func:`decide`, with U = k u_error.
 
     Returns
     -------
-    Verification; passed = |error| <= tolerance; en = error / (2 u_error) (E_n number, k = 2).
+    Verification; en = error / (2 u_error) (E_n number, k = 2).
     """
-    D_T = float(certified_diameter_mm) * (1.0 + float(cte_per_k) * (float(temperature_c) - 20.0))
-    err = float(measured_mm) - D_T
-    u_err = float(np.hypot(u_measured_mm, u_cert_mm * (1.0 + cte_per_k * (temperature_c - 20.0))))
+    f = 1.0 + float(cte_per_k) * (float(temperature_c) - 20.0)
+    D_T = float(certified_diameter_mm) * f
+    m20 = float(measured_mm) / f
+    err = m20 - float(certified_diameter_mm)
+    u_m20 = float(u_measured_mm) / f
+    u_err = float(np.hypot(u_m20, u_cert_mm))
+    passed, A, text = decide(err, k * u_err, tolerance_mm, decision_rule, guard_band_factor)
     return Verification(
-        measured_mm=float(measured_mm),
-        u_measured_mm=float(u_measured_mm),
+        measured_mm=m20,
+        u_measured_mm=u_m20,
         certified_mm=float(certified_diameter_mm),
         expected_at_t_mm=D_T,
         error_mm=err,
         u_error_mm=u_err,
         tolerance_mm=float(tolerance_mm),
-        passed=bool(abs(err) <= tolerance_mm),
+        passed=passed,
         en=err / (2.0 * u_err) if u_err > 0 else float("inf") * np.sign(err),
+        measured_at_t_mm=float(measured_mm),
+        temperature_c=float(temperature_c),
+        U_error_mm=k * u_err,
+        k=k,
+        acceptance_limit_mm=A,
+        decision_rule=decision_rule,
+        conformity=text,
     )
 
 
-def diameter_row(scan_id, device_id, artifact_id, feature, diameter_mm, u_diameter_mm, calibration_id, method) -> dict:
-    """One row of the catalog's ``diameters`` table (outputs.md column names)."""
-    return {
+def verify_budget(d: DiameterUncertainty, artifact: dict, tolerance_mm: float, p: float,
+                  decision_rule: str = "simple_acceptance", guard_band_factor: float = 1.0) -> Verification:
+    """Verification of a budgeted diameter against a ring gauge: E = D20 - D20_certified.
+
+    The budget of E is that of D20 plus the gauge's certified diameter (sensitivity -1, normal,
+    u = U / k of its certificate). Where the gauge is the one the calibration used (same id and
+    certificate), its certified diameter and expansion coefficient are the same inputs and their
+    sensitivities add (:meth:`Budget.merged`): the calibration transfers the gauge's size to the
+    device, so the gauge's own uncertainty largely cancels in E. Verdict by :func:`decide` with
+    U(E) = k u(E).
+    """
+    cert = float(artifact["certified_diameter_mm"])
+    k_cert = float(artifact.get("k") or 2.0)
+    u_cert = float(artifact.get("u_diameter_mm") or 0.0) / k_cert
+    b = d.budget.mapped(np.array([[0.0, 1.0]]), ("E",), ("mm",), [d.diameter_20_mm - cert])
+    b.add(Term(Input(f"gauge:{artifact_key(artifact)}:D20",
+                     f"certified diameter of ring gauge {artifact.get('id')} at 20 degC", "D_g", "mm", cert, u_cert,
+                     "normal", source=f"certificate {artifact.get('certificate')}: U = {artifact.get('u_diameter_mm')} "
+                                      f"mm (k = {k_cert:g})"),
+               np.array([-1.0])))
+    b = b.merged()
+    comb = b.combined(0, p)
+    err = d.diameter_20_mm - cert
+    passed, A, text = decide(err, comb.U, tolerance_mm, decision_rule, guard_band_factor)
+    f = 1.0 + d.cte.cte_per_k * (d.temperature.temperature_c - 20.0)
+    return Verification(
+        measured_mm=d.diameter_20_mm, u_measured_mm=d.combined_20.u, certified_mm=cert, expected_at_t_mm=cert * f,
+        error_mm=err, u_error_mm=comb.u, tolerance_mm=float(tolerance_mm), passed=passed,
+        en=err / comb.U if comb.U > 0 else float("inf") * np.sign(err), measured_at_t_mm=d.diameter_mm,
+        temperature_c=d.temperature.temperature_c, U_error_mm=comb.U, k=comb.k, acceptance_limit_mm=A,
+        decision_rule=decision_rule, conformity=text, budget_rows=tuple(_json_rows(b.rows(0))))
+
+
+def diameter_row(scan_id, device_id, artifact_id, feature, diameter_mm, u_diameter_mm, calibration_id, method,
+                 uncertainty: DiameterUncertainty | None = None) -> dict:
+    """One row of the catalog's ``diameters`` table (outputs.md column names).
+
+    ``diameter_mm`` is at the scan's temperature (``temperature_c``); with ``uncertainty`` the row
+    also has the diameter at 20 degC, the correction, U, k and the budget (tables.py).
+    """
+    row = {
         "scan_id": str(scan_id),
         "device_id": str(device_id),
         "artifact_id": None if artifact_id is None else str(artifact_id),
@@ -401,10 +871,19 @@ def diameter_row(scan_id, device_id, artifact_id, feature, diameter_mm, u_diamet
         "calibration_id": None if calibration_id is None else str(calibration_id),
         "method": str(method),
     }
+    if uncertainty is not None:
+        row["u_diameter_mm"] = float(uncertainty.combined_t.u)
+        row.update(uncertainty.columns())
+    return row
 
 
 def verification_row(scan_id, device_id, artifact_id, v: Verification) -> dict:
-    """One row of the catalog's ``verifications`` table (outputs.md; extra columns allowed)."""
+    """One row of the catalog's ``verifications`` table (outputs.md; extra columns allowed).
+
+    ``measured_mm`` is the measured diameter at 20 degC, so measured_mm - certified_mm = error_mm;
+    ``measured_at_t_mm`` is as measured at ``temperature_c``, where the gauge measured
+    ``expected_at_t_mm``.
+    """
     return {
         "scan_id": str(scan_id),
         "device_id": str(device_id),
@@ -417,4 +896,30 @@ def verification_row(scan_id, device_id, artifact_id, v: Verification) -> dict:
         "u_measured_mm": v.u_measured_mm,
         "expected_at_t_mm": v.expected_at_t_mm,
         "u_error_mm": v.u_error_mm,
+        "measured_at_t_mm": v.measured_at_t_mm,
+        "temperature_c": v.temperature_c,
+        "expanded_u_error_mm": v.U_error_mm,
+        "k": v.k,
+        "acceptance_limit_mm": v.acceptance_limit_mm,
+        "decision_rule": v.decision_rule,
+        "conformity": v.conformity,
+        "budget_json": json.dumps(list(v.budget_rows), sort_keys=True) if v.budget_rows else None,
     }
+
+
+def verification_for_certificate(scan, cal, unc_cfg: dict, lab_cfg: dict, tolerance_mm: float) -> dict | None:
+    """A ring-gauge verification scan measured with ``cal`` and verified (:func:`verify_budget`),
+    as a row for the calibration's certificate: the ``verifications`` columns plus the budget rows
+    (``budget``), the gauge's ``certificate`` and the scan's ``raw_files`` (name -> SHA-256).
+    None when the scan's artifact is not a certified ring gauge."""
+    art = scan.meta.get("artifact") or {}
+    if art.get("type") != "ring_gauge" or art.get("certified_diameter_mm") is None:
+        return None
+    _, du = tri_diameter_with_budget(scan, cal, unc_cfg)
+    v = verify_budget(du, art, tolerance_mm, float(unc_cfg["coverage_probability"]), lab_cfg["decision_rule"],
+                      float(lab_cfg["guard_band_factor"]))
+    row = verification_row(scan.scan_id, cal.device_id, art.get("id"), v)
+    row.pop("budget_json", None)
+    row.update(temperature_assumed=du.temperature.assumed, budget=list(v.budget_rows), certificate=art.get("certificate"),
+               raw_files={f"{scan.scan_id}/{k}": h for k, h in sorted(scan.sha256.items())})
+    return row

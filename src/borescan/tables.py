@@ -98,14 +98,27 @@ _T = [
         "rho_mm:float d_b_mm:float beta_rad:float u_rho_mm:float u_d_b_mm:float u_beta_rad:float "
         "l0_mm:float h_mm:float phi_rad:float d_mm:float gamma_rad:float "
         "u_l0_mm:float u_h_mm:float u_phi_rad:float u_d_mm:float u_gamma_rad:float "
-        "method:text certificate_path:text certificate_sha256:text night:date valid_from:date status:text raw_sha256:text"),
+        "method:text certificate_path:text certificate_sha256:text night:date valid_from:date status:text raw_sha256:text "
+        # GUM budget (issue 19): expanded uncertainties (not U_*: DuckDB names ignore case), k, gauge temperature
+        "expanded_u_beta_rad:float expanded_u_rho_mm:float expanded_u_d_b_mm:float k_beta:float k_rho:float k_d_b:float "
+        "coverage_probability:float temperature_c:float temperature_assumed:bool recalibration_due:date"),
           ("calibration_id", "channel"), primary=True),
     Table("calibration_scans", _cols("calibration_id:text scan_id:text"), ("calibration_id", "scan_id"), primary=True),
     Table("diameters", _cols("diameter_id:text scan_id:text night:date device_id:text artifact_id:text feature:text "
-                             "diameter_mm:float u_diameter_mm:float calibration_id:text method:text raw_sha256:text"),
+                             "diameter_mm:float u_diameter_mm:float calibration_id:text method:text raw_sha256:text "
+                             # diameter_mm is at temperature_c; diameter_20_mm at 20 degC (ISO 1), with the budget
+                             "temperature_c:float u_temperature_c:float temperature_assumed:bool cte_per_k:float "
+                             "cte_assumed:bool diameter_20_mm:float u_diameter_20_mm:float expanded_u_diameter_20_mm:float "
+                             "expanded_u_diameter_mm:float k:float k_at_t:float coverage_probability:float nu_eff:float "
+                             "coverage_method:text thermal_correction_mm:float u_thermal_correction_mm:float "
+                             "budget_json:text"),
           ("diameter_id", "method")),
     Table("verifications", _cols("scan_id:text night:date device_id:text artifact_id:text measured_mm:float "
-                                 "certified_mm:float error_mm:float tolerance_mm:float passed:bool calibration_id:text"),
+                                 "certified_mm:float error_mm:float tolerance_mm:float passed:bool calibration_id:text "
+                                 # measured_mm is at 20 degC (= certified_mm + error_mm); as measured at temperature_c
+                                 "measured_at_t_mm:float temperature_c:float temperature_assumed:bool "
+                                 "expected_at_t_mm:float u_measured_mm:float u_error_mm:float expanded_u_error_mm:float "
+                                 "k:float acceptance_limit_mm:float decision_rule:text conformity:text budget_json:text"),
           ("scan_id", "calibration_id")),
     Table("findings", _cols("scan_id:text night:date! verdict:text effect:text channel:channel parameters:text "
                             "gap_before_mm:float gap_after_mm:float noise_floor_mm:float"),

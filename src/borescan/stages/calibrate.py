@@ -1,4 +1,10 @@
-"""Stage ``calibrate_night``: calibrate each device from the night's ring-gauge scans; write certificates."""
+"""Stage ``calibrate_night``: calibrate each device from the night's ring-gauge scans; write certificates.
+
+Each calibration carries its GUM budget (:mod:`borescan.calibration_budget`), its covariance the
+budget's combined one. The certificate (ISO/IEC 17025 7.8) also reports the night's verifications
+of the device made with the new calibration (the measure stage makes the same for the catalog),
+the decision rule and the conformity; its dates come from the data (:func:`certificate.certificate_dates`).
+"""
 
 from __future__ import annotations
 
@@ -9,11 +15,14 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from borescan import __version__, calibration, certificate, rawio
+from borescan import __version__, calibration, certificate, measure, rawio
+from borescan.artifacts import MissingTemperature
+from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows, rod_nominal_calibration_rows
+from borescan.config import schema_defaults
 from borescan.geometry import Beams
 from borescan.stages._common import night_scans, quarantine
-from borescan.stages.calibration_fit import fit_device_calibration, spindle_inputs, yang_from_summary
+from borescan.stages.calibration_fit import budget_of, fit_device_calibration, spindle_inputs, yang_from_summary
 
 __all__ = ["stage_calibrate", "config_hash"]
 
@@ -23,8 +32,11 @@ def config_hash(cfg: dict) -> str:
     return hashlib.sha256(json.dumps(cfg, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_table, cfg: dict, log=print):
+def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_table, cfg: dict, log=print, *,
+                    uncertainty: dict | None = None, laboratory: dict | None = None, verification: dict | None = None):
     """Calibrate every tri_lds device from its calibration scans of the night; write certificates.
+
+    ``uncertainty``, ``laboratory``, ``verification``: those config sections (schema defaults if None).
 
     ``cfg["method"]``: ``full_lsq`` (every sample, exact forward model, all calibration scans of
     the device together) or ``yang2017`` (the paper's extrema method, one calibration per scan).
@@ -33,6 +45,9 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     quarantined with the reason; the other devices and nights go on.
     """
     method, min_rev = cfg["method"], int(cfg["min_revolutions"])
+    dflt = schema_defaults()
+    ctx = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
+           "verification": verification or dflt["verification"], "raw_root": raw_root, "scans_table": scans_table}
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
     cal_rows, link_rows, bad = [], [], []
     by_device: dict[str, list] = {}
@@ -47,7 +62,7 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
                 continue  # set aside by the signal stage already
             if problem is None:
                 try:
-                    inputs.append(spindle_inputs(scan))
+                    inputs.append(spindle_inputs(scan, ctx["uncertainty"]))
                     scans.append(scan)
                     continue
                 except ValueError as err:
@@ -61,7 +76,7 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
         groups = [(scans, inputs)] if method != "yang2017" else [([s], [x]) for s, x in zip(scans, inputs)]
         for group_scans, group_inputs in groups:
             _calibrate_group(group_scans, group_inputs, method, nominal, summary, night, results_root, cfg, bad,
-                            cal_rows, link_rows, log)
+                             cal_rows, link_rows, log, ctx)
     for row, d in night_scans(raw_root, night, scans_table, device_type="rod"):
         rows = rod_nominal_calibration_rows(rawio.read_scan_meta(d, raw_root=Path(raw_root)), night, row["scan_id"])
         if rows and rows[0]["calibration_id"] not in {r["calibration_id"] for r in cal_rows}:
@@ -94,47 +109,90 @@ def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple
 
 
 
-def _calibrate_group(scans, inputs, method, nominal, summary, night, results_root, cfg, bad, cal_rows, link_rows, log):
-    """Calibrate one device from ``scans`` (already checked), write the certificate, add rows.
+def _calibrate_group(scans, inputs, method, nominal, summary, night, results_root, cfg, bad, cal_rows, link_rows, log,
+                     ctx):
+    """Calibrate one device from ``scans`` (already checked), budget it, write the certificate, add rows.
 
-    A calibration that fails (no convergence, rank deficiency, no real solution) quarantines
-    the scans it was made from, with the reason.
+    A calibration that fails (no convergence, rank deficiency, no real solution, no budget)
+    quarantines the scans it was made from, with the reason.
     """
-    device_id = scans[0].meta["device"]["id"]
-    ids = [s.scan_id for s in scans]
+    device_id, ids = scans[0].meta["device"]["id"], [s.scan_id for s in scans]
     raw_files = {f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}
+    unc, lab = ctx["uncertainty"], ctx["laboratory"]
+    p = float(unc["coverage_probability"])
     try:
         if method == "yang2017":
-            cal = yang_from_summary(scans[0], inputs[0], summary, nominal, night, log=log)
+            fit = yang_from_summary(scans[0], inputs[0], summary, nominal, night, log=log)
         else:
-            cal = fit_device_calibration(scans, inputs, nominal, cfg, night=night)
+            fit = fit_device_calibration(scans, inputs, nominal, cfg, night=night)
+        budget = budget_of(fit, scans, inputs, unc, summary=summary, nominal=nominal, night=night,
+                           position_accuracy_mm=float(cfg["position_accuracy_mm"]))
     except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
         for s in scans:
             quarantine(results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}")
         return
+    cal = with_budget(fit, budget)
     out_dir = certificate.certificate_dir(results_root, cal)
-    scan0, first = scans[0], inputs[0]
-    art = scan0.meta.get("artifact") or {}
+    first = inputs[0]
+    residuals = {"t_s": np.zeros(0), "residual_mm": np.zeros((0, len(cal.beams.channels)))}
     if cal.method == "full_lsq":
-        residual_mm = calibration.full_residuals(cal, first["t_s"], first["readings"], first["R"], scan0.scan_id,
-                                                 angle_model=first["angle_model"])
-        residuals = {"t_s": first["t_s"], "residual_mm": residual_mm}
-    else:
-        residuals = {"t_s": np.zeros(0), "residual_mm": np.zeros((0, len(cal.beams.channels)))}
-    revolutions = int(summary.filter(pl.col("scan_id") == scan0.scan_id)["n_revolutions_min"].min())
+        residuals = {"t_s": first["t_s"], "residual_mm": calibration.full_residuals(
+            fit, first["t_s"], first["readings"], first["R"], ids[0], angle_model=first["angle_model"])}
+    ver_rows, ver_metas = _night_verifications(cal, night, ctx, log)
+    conditions = certificate.calibration_conditions(
+        first["temperature"], first["cte"], first["R"], float(cfg["position_accuracy_mm"]), p,
+        [_scan_conditions(s, x, summary) for s, x in zip(scans, inputs)])
+    dates = certificate.certificate_dates([s.meta for s in scans], ver_metas, night, int(cfg["validity_days"]))
+    art = scans[0].meta.get("artifact") or {}
     certificate.write_certificate(
-        cal, out_dir,
-        device={"id": device_id, "type": "tri_lds", "sensors": scan0.meta.get("sensors", [])},
-        artifact={"id": art.get("id"), "certificate": art.get("certificate"),
-                  "certified_diameter_mm": art.get("certified_diameter_mm"),
-                  "u_diameter_mm": art.get("u_diameter_mm"), "k": art.get("k", 2)},
-        conditions={"temperature_c": (scan0.meta.get("environment") or {}).get("temperature_c"),
-                    "spindle_position": (scan0.meta.get("spindle") or {}).get("position"),
-                    "rpm": first["rpm"], "revolutions": revolutions, "gauge_radius_at_temperature_mm": first["R"]},
-        residuals=residuals, raw_files=raw_files, software_version=__version__, config_hash=config_hash(cfg),
-    )
+        cal, out_dir, device={"id": device_id, "type": "tri_lds", "sensors": scans[0].meta.get("sensors", [])},
+        artifact=dict(art, k=art.get("k", 2)), conditions=conditions, residuals=residuals, raw_files=raw_files,
+        software_version=__version__, budget=budget, laboratory=lab, coverage_probability=p, dates=dates,
+        config_hash=config_hash({"calibration": cfg, "uncertainty": unc, "laboratory": lab,
+                                 "verification": ctx["verification"]}), verifications=ver_rows)
     rel_cert = str((Path(out_dir) / "certificate.pdf").relative_to(Path(results_root)))
-    cal_rows += calibration_rows(cal, "tri_lds", night, rel_cert, rawio.combined_sha256(raw_files))
+    rows = calibration_rows(cal, "tri_lds", night, rel_cert, rawio.combined_sha256(raw_files))
+    for row in rows:
+        j = list(cal.beams.channels).index(row["channel"])
+        for k, name in enumerate(("beta_rad", "rho_mm", "d_b_mm")):
+            comb = budget.combined(3 * j + k, p)
+            row[f"expanded_u_{name}"], row[f"k_{name.rsplit('_', 1)[0]}"] = comb.U, comb.k
+        row.update(coverage_probability=p, temperature_c=first["temperature"].temperature_c,
+                   temperature_assumed=first["temperature"].assumed, recalibration_due=dates["recalibration_due"])
+    cal_rows += rows
     link_rows += [{"calibration_id": cal.calibration_id, "scan_id": sid} for sid in ids]
-    log(f"{device_id}: {cal.calibration_id} ({cal.method}) from {', '.join(ids)}; "
-        f"residual rms {cal.residual_rms_mm * 1e3:.2f} um")
+    log(f"{device_id}: {cal.calibration_id} ({cal.method}) from {', '.join(ids)}; residual rms "
+        f"{cal.residual_rms_mm * 1e3:.2f} um; U(d_b) " + ", ".join(
+            f"{budget.combined(3 * j + 2, p).U * 1e3:.1f}" for j in range(len(cal.beams.channels)))
+        + f" um; {len(ver_rows)} verification(s) in the certificate"
+        + (" [gauge temperature ASSUMED 20 degC]" if first["temperature"].assumed else ""))
+
+
+def _scan_conditions(scan: rawio.RawScan, x: dict, summary: pl.DataFrame) -> dict:
+    """Per-scan conditions of the certificate: positions, speed, revolutions (recorded and with extrema)."""
+    s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
+    spr = float(s["period_samples_per_rev"][0]) if s.height else 0.0
+    recorded = float(s["n_samples_recorded"][0]) / spr if spr > 0 and "n_samples_recorded" in s.columns else None
+    return {"scan_id": scan.scan_id, "started_at": scan.meta.get("started_at"),
+            "spindle_position": (scan.meta.get("spindle") or {}).get("position"), "center": scan.meta.get("center"),
+            "rpm": x["rpm"], "angle_source": x["angle_model"].source, "revolutions_recorded": recorded,
+            "revolutions_with_extrema": int(s["n_revolutions_min"].min()) if s.height else None}
+
+
+def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
+    """The night's ring-gauge verifications of the calibration's device, made with it
+    (:func:`borescan.measure.verification_for_certificate`): (rows, their scan.json). A scan that
+    cannot be measured is left out with a log line (the measure stage quarantines it)."""
+    rows, metas = [], []
+    for _row, d in night_scans(ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id):
+        scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
+        try:
+            row = measure.verification_for_certificate(scan, cal, ctx["uncertainty"], ctx["laboratory"],
+                                                       float(ctx["verification"]["tolerance_mm"]))
+        except (MissingTemperature, ValueError, np.linalg.LinAlgError) as err:
+            log(f"{scan.scan_id}: verification left out of the certificate of {cal.calibration_id}: {err}")
+            continue
+        if row is not None:
+            rows.append(row)
+            metas.append(scan.meta)
+    return rows, metas

@@ -2,7 +2,9 @@
 spindle scans, and Yang 2017 (Eq. 8-15) from the signal stage's per-channel extrema summary.
 
 Used by the calibrate stage (:mod:`borescan.stages.calibrate`) and by benchmarks that calibrate
-raw scans the way a night does (:func:`calibrate_raw_scans`).
+raw scans the way a night does (:func:`calibrate_raw_scans`). :func:`budget_of` gives a
+calibration its GUM budget (:mod:`borescan.calibration_budget`); for Yang 2017 with the
+sensitivities of :func:`yang_sensitivities`.
 """
 
 from __future__ import annotations
@@ -11,16 +13,26 @@ import numpy as np
 import polars as pl
 
 from borescan import calibration, kinematics, rawio, signal
-from borescan.artifacts import gauge_radius_mm
+from borescan.artifacts import artifact_cte, gauge_radius_mm, scan_temperature
+from borescan.calibration_budget import calibration_budget, with_budget
+from borescan.config import schema_defaults
 from borescan.geometry import Beams
+from borescan.uncertainty import Budget
 
-__all__ = ["spindle_inputs", "acceptance_rule", "fit_device_calibration", "calibrate_raw_scans", "yang_from_summary"]
+__all__ = ["spindle_inputs", "acceptance_rule", "fit_device_calibration", "calibrate_raw_scans", "yang_from_summary",
+           "yang_sensitivities", "budget_of"]
 
 
-def spindle_inputs(scan: rawio.RawScan) -> dict:
-    """Times, despiked readings, rotation angle model and positions of a spindle scan for the full fit.
+def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None) -> dict:
+    """Times, despiked readings, rotation angle model, positions, temperature and gauge of a spindle scan.
 
-    Raises ``ValueError`` naming ``spindle.parquet`` when its angle/rpm columns give no angle.
+    ``uncertainty`` is the config's ``uncertainty`` section (schema defaults when None): the
+    scan's temperature follows its ``missing_temperature`` policy
+    (:func:`borescan.artifacts.scan_temperature`), never a silent 20 degC.
+
+    Raises ``ValueError`` naming ``spindle.parquet`` when its angle/rpm columns give no angle, and
+    :class:`borescan.artifacts.MissingTemperature` (a ValueError naming scan.json) when the scan
+    has no temperature and the policy refuses it.
     """
     mat = rawio.lds_matrix(scan)
     clean, _ = signal.remove_spikes(np.asarray(mat.values_mm, dtype=float))
@@ -37,13 +49,17 @@ def spindle_inputs(scan: rawio.RawScan) -> dict:
     except ValueError as err:
         raise ValueError(f"{scan.scan_id}: spindle.parquet: {err}") from None
     sensors = {int(s["channel"]): s for s in meta.get("sensors", [])}
+    unc = uncertainty or schema_defaults()["uncertainty"]
+    temp = scan_temperature(meta, unc)
+    cte = artifact_cte(meta, unc)
     return {
         "t_s": np.asarray(mat.t_s, dtype=float), "readings": clean, "channels": tuple(mat.channels),
         "spindle_xy": spindle_xy, "center_xy": None if not center else (float(center["x_mm"]), float(center["y_mm"])),
         "rpm": float(abs(angle_model.mean_omega_rad_s()) * 60.0 / (2.0 * np.pi)),
         "direction": sp_meta.get("direction", "ccw"), "angle_model": angle_model,
         "range_mm": [float((sensors.get(ch) or {}).get("range_mm") or 10.0) for ch in mat.channels],
-        "R": gauge_radius_mm(meta),
+        "R": gauge_radius_mm(meta, temp.temperature_c, cte.cte_per_k),
+        "temperature": temp, "cte": cte, "artifact": dict(meta.get("artifact") or {}), "sensors": sensors,
     }
 
 
@@ -71,15 +87,20 @@ def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: 
     )
 
 
-def calibrate_raw_scans(scans, cal_cfg: dict, night: str | None = None):
+def calibrate_raw_scans(scans, cal_cfg: dict, night: str | None = None, uncertainty: dict | None = None):
     """Full-data calibration of the calibration scans ``scans`` (``rawio.RawScan``, one device).
 
     The same path as the night's calibrate stage; ``cal_cfg`` is the config's ``calibration``
-    section with its schema defaults. Raises ``calibration.CalibrationError``.
+    section with its schema defaults. Without ``uncertainty`` the fit's own result (covariance of
+    the fit alone); with the config's ``uncertainty`` section, the calibration with its GUM budget
+    (:func:`with_budget`), as the stage certifies it. Raises ``calibration.CalibrationError``.
     """
-    inputs = [spindle_inputs(s) for s in scans]
+    inputs = [spindle_inputs(s, uncertainty) for s in scans]
     nominal = Beams.from_nominal(scans[0].meta["device"]["nominal"]["beams"])
-    return fit_device_calibration(scans, inputs, nominal, cal_cfg, night=night or scans[0].night)
+    cal = fit_device_calibration(scans, inputs, nominal, cal_cfg, night=night or scans[0].night)
+    if uncertainty is None:
+        return cal
+    return with_budget(cal, budget_of(cal, scans, inputs, uncertainty))
 
 
 def yang_from_summary(scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, nominal: Beams, night: str, log=print):
@@ -109,3 +130,41 @@ def yang_from_summary(scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, 
         direction=inputs["direction"], u_d_max_mm=s["u_d_max_mm"].to_numpy(), u_d_min_mm=s["u_d_min_mm"].to_numpy(),
         u_feature_sample=s["u_feature_sample"].to_numpy(), night=night,
     )
+
+
+# --------------------------------------------------------------------------- GUM budget
+
+
+def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, night: str) -> dict:
+    """Central-difference sensitivities (3c,) of Yang 2017's closed forms (:func:`yang_from_summary`):
+    to R (h = 1e-4 mm), to each coordinate of the reported offset S - C (through oe = |S - C|) and to
+    a constant error of every reading of a channel (its d_max and d_min move together)."""
+    def params(R=None, dS=(0.0, 0.0), shift=None) -> np.ndarray:
+        xi = dict(x, R=x["R"] if R is None else R,
+                  spindle_xy=(x["spindle_xy"][0] + dS[0], x["spindle_xy"][1] + dS[1]))
+        su = summary
+        if shift is not None:
+            add = pl.Series("add", np.asarray(shift, float))
+            su = summary.filter(pl.col("scan_id") == scan.scan_id).sort("channel").with_columns(
+                (pl.col("d_max_mm") + add).alias("d_max_mm"), (pl.col("d_min_mm") + add).alias("d_min_mm"))
+        return yang_from_summary(scan, xi, su, nominal, night, log=lambda *a: None).params
+
+    h, c = 1e-4, len(nominal.channels)
+    return {"dR": (params(R=x["R"] + h) - params(R=x["R"] - h)) / (2 * h),
+            "offset_prior": {scan.scan_id: np.column_stack([(params(dS=e * h) - params(dS=-e * h)) / (2 * h)
+                                                            for e in np.eye(2)])},
+            "reading_offset": np.column_stack([(params(shift=e * h) - params(shift=-e * h)) / (2 * h) for e in np.eye(c)])}
+
+
+def budget_of(cal, scans, inputs: list[dict], uncertainty: dict, *, summary: pl.DataFrame | None = None,
+              nominal: Beams | None = None, night: str | None = None, position_accuracy_mm: float | None = None) -> Budget:
+    """The GUM budget of a calibration from its scans (:func:`borescan.calibration_budget.calibration_budget`);
+    a ``yang2017`` one also needs the signal ``summary``, ``nominal``, ``night`` and ``position_accuracy_mm``."""
+    ids = [s.scan_id for s in scans]
+    if cal.method == "full_lsq":
+        return calibration_budget(cal, inputs, uncertainty, scan_ids=ids)
+    first = summary.filter(pl.col("scan_id") == ids[0])
+    n_rev = int(first["n_revolutions_min"].min()) if first.height else 2
+    sens = yang_sensitivities(scans[0], inputs[0], summary, nominal, night or scans[0].night)
+    return calibration_budget(cal, inputs, uncertainty, scan_ids=ids, extrema_dof=float(max(n_rev - 1, 1)),
+                              sensitivities=sens, position_accuracy_mm=position_accuracy_mm)

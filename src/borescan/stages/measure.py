@@ -3,6 +3,12 @@
 Each scan uses the calibration :func:`borescan.calibrations.choose_calibration` allows; a scan
 without one is quarantined with the reason. Verifications run first and in order (a failed one
 bars its calibration from the rest of the night); measurements are spread over processes.
+
+Every diameter carries its GUM budget (:func:`borescan.measure.tri_diameter_with_budget`) and
+is given at the scan's temperature (``diameter_mm``) and at 20 degC (``diameter_20_mm``, ISO 1);
+a scan without a temperature is refused or flagged ``temperature_assumed`` as the
+``uncertainty`` section says. A verification compares the diameter at 20 degC with the gauge's
+certificate and decides by the ``laboratory`` section's decision rule.
 """
 
 from __future__ import annotations
@@ -13,13 +19,19 @@ import numpy as np
 import polars as pl
 
 from borescan import measure, rawio, rod
-from borescan.artifacts import artifact_row
+from borescan.artifacts import MissingTemperature, artifact_cte, artifact_row, scan_temperature
 from borescan.calibration import CalibrationError
 from borescan.calibrations import choose_calibration, failed_calibration_ids, rod_layers, tri_calibration
+from borescan.config import schema_defaults
 from borescan.parallel import map_in_order, workers_for
 from borescan.stages._common import night_scans, quarantine, read_tables
 
-__all__ = ["stage_measure", "measure_rod_scan", "measure_one"]
+__all__ = ["stage_measure", "measure_rod_scan", "measure_one", "section"]
+
+
+def section(cfg: dict, name: str) -> dict:
+    """Config section ``name`` from ``cfg``, else its schema defaults (callers that pass only some sections)."""
+    return cfg[name] if cfg.get(name) is not None else schema_defaults()[name]
 
 
 def measure_rod_scan(scan: rawio.RawScan, layer_rows: pl.DataFrame) -> list[dict]:
@@ -41,13 +53,15 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
                   cfg: dict, log=print, workers: int = 1):
     """Verification scans first, then measurements, each with the calibration it may use.
 
-    ``cfg`` holds the config's ``verification``, ``measurement`` and ``calibration`` sections.
+    ``cfg`` holds the config's ``verification``, ``measurement`` and ``calibration`` sections, and
+    ``uncertainty`` and ``laboratory`` (their schema defaults where absent).
     Returns (diameters, verifications, artifacts, quarantined). ``verification_tables_before``
     are the verifications of earlier nights (a calibration that failed one is refused).
     """
     tol = float(cfg["verification"]["tolerance_mm"])
     allow = bool(cfg["measurement"]["allow_unverified_calibration"])
     validity = int(cfg["calibration"]["validity_days"])
+    unc, lab = section(cfg, "uncertainty"), section(cfg, "laboratory")
     cals = read_tables(calibration_tables)
     failed = failed_calibration_ids(read_tables(verification_tables_before))
     diam, ver, arts, bad = [], [], {}, []
@@ -56,7 +70,7 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     def job(row, d):
         cal_id, why = choose_calibration(cals, failed, row["device_id"], night, validity, allow)
         cal = cals.filter(pl.col("calibration_id") == cal_id) if cal_id is not None else None
-        return (raw_root, night, results_root, row, d, cal_id, why, cal, tol)
+        return (raw_root, night, results_root, row, d, cal_id, why, cal, tol, unc, lab)
 
     def take(out):
         diam.extend(out["diameters"])
@@ -91,7 +105,7 @@ def measure_one(job) -> dict:
 
     Returns {"diameters", "verifications", "quarantined": lists, "artifact": row or None, "log": str}.
     """
-    raw_root, night, results_root, row, d, cal_id, why, cals, tol = job
+    raw_root, night, results_root, row, d, cal_id, why, cals, tol, unc, lab = job
     out = {"diameters": [], "verifications": [], "quarantined": [], "artifact": None, "log": None}
     bad = out["quarantined"]
     scan = rawio.read_scan(d, raw_root=Path(raw_root))
@@ -103,34 +117,46 @@ def measure_one(job) -> dict:
     try:
         if row["device_type"] == "rod":
             res = measure_rod_scan(scan, cals)
+            temp, cte = scan_temperature(meta, unc), artifact_cte(meta, unc)
             for r in res:
+                du = measure.diameter_uncertainty(
+                    r["diameter_mm"], u_readings_mm=r["u_diameter_mm"], dof_readings=float("inf"), temperature=temp,
+                    cte=cte, artifact=dict(meta.get("artifact") or {}), scan_id=f"{sid}/{r['feature']}",
+                    p=float(unc["coverage_probability"]), default_resolution_mm=float(unc["sensor_resolution_mm"]))
                 out["diameters"].append(measure.diameter_row(sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"],
-                                                             r["u_diameter_mm"], cal_id, ROD_METHOD))
+                                                             r["u_diameter_mm"], cal_id, ROD_METHOD, du))
             out["log"] = f"{sid}: " + ", ".join(f"{r['feature']} {r['diameter_mm']:.4f} +- {r['u_diameter_mm'] * 1e3:.1f} um"
-                                                for r in res)
+                                                for r in res) + _temperature_note(temp)
             return out
         cal = tri_calibration(cals, cal_id)
-        res = measure.measure_scan(scan, cal.beams, cal.cov)
+        res, du = measure.tri_diameter_with_budget(scan, cal, unc)
+    except MissingTemperature as err:
+        quarantine(results_root, bad, sid, night, "measure", "scan.json", str(err))
+        return out
     except (rod.RodSolveError, CalibrationError, ValueError, np.linalg.LinAlgError) as err:
         quarantine(results_root, bad, sid, night, "measure", "lds.parquet", f"measurement failed: {err}")
         return out
     out["diameters"].append(measure.diameter_row(sid, dev, row["artifact_id"], None, res["diameter_mm"],
-                                                 res["u_diameter_mm"], cal_id, res["method"]))
-    msg = f"{sid}: D = {res['diameter_mm']:.4f} mm +- {res['u_diameter_mm'] * 1e3:.2f} um ({res['method']}, {cal_id})"
+                                                 du.combined_t.u, cal_id, res["method"], du))
+    msg = (f"{sid}: D = {res['diameter_mm']:.4f} mm at {du.temperature.temperature_c:g} degC, "
+           f"D20 = {du.diameter_20_mm:.4f} mm +- {du.combined_20.U * 1e3:.2f} um (k = {du.combined_20.k:.2f}) "
+           f"({res['method']}, {cal_id})" + _temperature_note(du.temperature))
     if row["kind"] == "verification":
         a = meta.get("artifact") or {}
         if a.get("type") != "ring_gauge" or a.get("certified_diameter_mm") is None:
             quarantine(results_root, bad, sid, night, "measure", "scan.json",
                        "verification scan needs a ring_gauge artifact with certified_diameter_mm")
             return out
-        k = float(a.get("k") or 2.0)
-        temp_c = float((meta.get("environment") or {}).get("temperature_c", 20.0))
-        v = measure.verify(res["diameter_mm"], res["u_diameter_mm"], a["certified_diameter_mm"],
-                           float(a.get("u_diameter_mm") or 0.0) / k, float(a.get("cte_per_k") or 0.0), temp_c, tol)
+        v = measure.verify_budget(du, a, tol, float(unc["coverage_probability"]), lab["decision_rule"],
+                                  float(lab["guard_band_factor"]))
         vrow = measure.verification_row(sid, dev, a["id"], v)
         vrow["calibration_id"] = cal_id
+        vrow["temperature_assumed"] = du.temperature.assumed
         out["verifications"].append(vrow)
-        msg += (f"; error {v.error_mm * 1e3:+.2f} um vs {a['certified_diameter_mm']} at {temp_c} degC: "
-                f"{'PASS' if v.passed else 'FAIL'}")
+        msg += f"; error at 20 degC {v.error_mm * 1e3:+.2f} um vs {a['certified_diameter_mm']}: {v.conformity}"
     out["log"] = msg
     return out
+
+
+def _temperature_note(temp) -> str:
+    return " [temperature ASSUMED 20 degC: none in scan.json]" if temp.assumed else ""
