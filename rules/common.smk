@@ -34,6 +34,11 @@ def calibrations_up_to_night(wildcards):
     return [f"{RES}/stage/calibrations/night={n}.parquet" for n in NIGHTS if n <= wildcards.night]
 
 
+def scans_before_night(wildcards):
+    """Scans tables of earlier nights (an artifact certificate must keep the value it was first recorded with)."""
+    return [f"{RES}/stage/scans/night={n}.parquet" for n in NIGHTS if n < wildcards.night]
+
+
 def verifications_before_night(wildcards):
     """Verification tables of earlier nights (a calibration that failed one is refused)."""
     return [f"{RES}/stage/verifications/night={n}.parquet" for n in NIGHTS if n < wildcards.night]

@@ -3,6 +3,7 @@ rule ingest_night:
         "Validating and registering the scans of night {wildcards.night}"
     input:
         raw=raw_files_of_night,
+        earlier_scans=scans_before_night,
     output:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",
         files=f"{RES}/stage/scan_files/night={{night}}.parquet",
@@ -11,6 +12,7 @@ rule ingest_night:
         raw_root=RAW,
         results_root=results_root_for,
         duplicates=duplicate_ids_of_night,
+        on_conflict=config["artifacts"]["on_conflict"],
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/ingest_night/{{night}}.log",

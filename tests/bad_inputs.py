@@ -250,9 +250,12 @@ def make_stage_cases(raw_root: Path, truth_root: Path, night: str) -> tuple[list
                                 kind="measurement", seed=14, started_at=started))
     cases.append(BadCase("BAD-FEW-ROD-POSES", "lds.parquet", r"pose|equations|unknowns", stage="measure"))
 
-    # A ring gauge labelled with the wrong certified diameter: the verification fails (a result,
-    # not bad input), and the same night's measurement with that calibration must be refused.
-    wrong = dict(ring, certified_diameter_mm=ring["certified_diameter_mm"] + 0.05)
+    # A ring gauge labelled with another gauge's certificate (its id and its diameter): the verification
+    # fails (a result, not bad input), and the same night's measurement with that calibration must be
+    # refused. (The same certificate id with another value is a certificate conflict, set aside at
+    # ingest: tests/test_artifacts.py.)
+    wrong = dict(ring, certified_diameter_mm=ring["certified_diameter_mm"] + 0.05,
+                 certificate=f"{ring.get('certificate')}-OTHER-GAUGE")
     scene = replace(base, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=ring["certified_diameter_mm"] / 2)
     write(simulate.simulate_tri_static(scene, xy, [0.1, 1.0, 2.0], artifact=wrong, nominal_beams=demo.NOMINAL_BEAMS,
                                        scan_id="VER-MISLABELLED-GAUGE", night=night, kind="verification", seed=15,

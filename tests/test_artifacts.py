@@ -36,3 +36,69 @@ def test_artifact_row():
     row = artifact_row(meta)
     assert row["artifact_id"] == "RG-275" and row["certified_diameter_mm"] == 275.029 and row["cte_per_k"] is None
     assert artifact_row({"artifact": {"type": "part"}}) is None and artifact_row({}) is None
+
+
+# --- a certificate keeps the value it was first recorded with (history cannot be rewritten) ---
+
+def _rec(sid, night, value, cert="RG-275/2026-03", u=0.0015, started="2026-11-20T01:00:00Z", status="ok"):
+    return {"scan_id": sid, "night": night, "status": status, "started_at": started, "artifact_id": "RG-275",
+            "artifact_certificate": cert, "artifact_certified_diameter_mm": value, "artifact_u_diameter_mm": u}
+
+
+def test_certificate_conflicts_name_both_values_and_the_first_scan():
+    from borescan.artifacts import certificate_conflicts
+
+    earlier = [_rec("A", "2026-11-20", 275.029)]
+    tonight = [_rec("B", "2026-11-21", 276.5, started="2026-11-21T01:00:00Z"),       # typo under the same certificate
+               _rec("C", "2026-11-21", 276.5, cert="RG-275/2027-01"),               # recertified: a new certificate id
+               _rec("D", "2026-11-21", 275.029, u=0.003),                           # same value, other uncertainty
+               _rec("E", "2026-11-21", 275.029)]                                    # agrees
+    out = certificate_conflicts(earlier, tonight)
+    assert set(out) == {"B", "D"}
+    assert "276.5 here, 275.029 in scan A (night 2026-11-20)" in out["B"]
+    assert "certificate RG-275/2026-03" in out["B"] and "new certificate id" in out["B"]
+    assert "u_diameter_mm 0.003 here, 0.0015 in scan A" in out["D"]
+    # within one night the earlier scan (started_at, then scan_id) is the record; a quarantined row is none
+    out = certificate_conflicts([_rec("Q", "2026-11-19", 1.0, status="quarantined")],
+                                [_rec("Y", "n", 276.5, started="2026-11-21T02:00:00Z"),
+                                 _rec("X", "n", 275.029, started="2026-11-21T01:00:00Z")])
+    assert set(out) == {"Y"} and "in scan X" in out["Y"]
+    # rows without a certificate id or a certified value are not checked
+    assert certificate_conflicts(earlier, [_rec("F", "n", None), _rec("G", "n", 1.0, cert=None)]) == {}
+
+
+def _gauge_scan(raw, truth, sid, night, diameter_mm, cert):
+    from borescan import simulate
+
+    scene = simulate.default_tri_scene()
+    art = {"id": "RG-275", "type": "ring_gauge", "nominal_diameter_mm": 275.0, "certified_diameter_mm": diameter_mm,
+           "u_diameter_mm": 0.0015, "k": 2, "certificate": cert, "cte_per_k": scene.cte_per_k}
+    sim = simulate.simulate_tri_spindle(scene, scan_id=sid, night=night, n_rev=3, seed=1, artifact=art)
+    simulate.write_simulated(sim, raw, truth)
+
+
+def test_ingest_and_validate_set_aside_a_scan_that_rewrites_a_certificate(tmp_path):
+    from borescan import validation
+    from borescan.stages.ingest import stage_ingest
+
+    raw, truth, res = tmp_path / "raw", tmp_path / "truth", tmp_path / "results"
+    _gauge_scan(raw, truth, "N1-CAL", "2026-11-20", 275.029, "RG-275/2026-03")
+    _gauge_scan(raw, truth, "N2-CAL-TYPO", "2026-11-21", 276.5, "RG-275/2026-03")
+    _gauge_scan(raw, truth, "N2-CAL-RECERT", "2026-11-21", 275.031, "RG-275/2027-01")
+    s1, _, bad1 = stage_ingest(raw, "2026-11-20", res)
+    assert bad1 == [] and s1["artifact_certified_diameter_mm"].to_list() == [275.029]
+    s2, _, bad2 = stage_ingest(raw, "2026-11-21", res, earlier_scans=[s1])
+    status = dict(zip(s2["scan_id"], s2["status"]))
+    assert status == {"N2-CAL-TYPO": "quarantined", "N2-CAL-RECERT": "ok"}
+    assert [q.scan_id for q in bad2] == ["N2-CAL-TYPO"] and bad2[0].file == "scan.json"
+    assert "276.5 here, 275.029 in scan N1-CAL (night 2026-11-20)" in bad2[0].reason
+    assert (res / "quarantine" / "N2-CAL-TYPO.json").exists()
+    # 'flag' keeps the scan (the conflict is logged)
+    lines = []
+    s2f, _, bad2f = stage_ingest(raw, "2026-11-21", tmp_path / "r2", earlier_scans=[s1], on_conflict="flag",
+                                 log=lines.append)
+    assert bad2f == [] and set(s2f["status"]) == {"ok"} and any("N2-CAL-TYPO" in x for x in lines)
+    # borescan validate gives the same verdict
+    rep = validation.validate_tree(raw)
+    assert rep.bad_scan_ids == {"N2-CAL-TYPO"}
+    assert [p.file for p in rep.problems] == ["scan.json"] and "276.5 here" in rep.problems[0].problem

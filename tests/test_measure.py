@@ -393,3 +393,37 @@ def test_second_order_term_of_the_calibration_hardly_moves_a_diameter_of_the_gau
         second = np.array(second)
         assert np.sqrt(np.mean(second**2)) == pytest.approx(np.sqrt(var), rel=0.1)
         assert np.sqrt(var) < 0.02 * abs(j[2]) * np.sqrt(cov[2, 2])
+
+
+def test_part_feature_picks_the_named_feature_else_the_only_one_else_the_artifact():
+    from borescan.measure import part_feature
+
+    art = {"id": "HSG", "nominal_diameter_mm": 300.0, "tolerance_mm": 0.05,
+           "features": [{"id": "H1", "nominal_diameter_mm": 150.0, "tolerance_mm": 0.01},
+                        {"id": "H2", "nominal_diameter_mm": 180.0}]}
+    assert part_feature(art, "H1") == {"nominal_diameter_mm": 150.0, "tolerance_mm": 0.01}
+    # H2 has no tolerance of its own: the artifact's applies
+    assert part_feature(art, "H2") == {"nominal_diameter_mm": 180.0, "tolerance_mm": 0.05}
+    # no feature named and two features: the artifact's own nominal
+    assert part_feature(art, None) == {"nominal_diameter_mm": 300.0, "tolerance_mm": 0.05}
+    one = {"features": [{"id": "B", "nominal_diameter_mm": 250.0}]}
+    assert part_feature(one, None) == {"nominal_diameter_mm": 250.0, "tolerance_mm": None}
+    assert part_feature(one, "X") == {"nominal_diameter_mm": None, "tolerance_mm": None}
+    assert part_feature({}, None) == {"nominal_diameter_mm": None, "tolerance_mm": None}
+
+
+@pytest.mark.parametrize("dev_um, U_um, tol_um, rule, verdict", [
+    (+9.0, 4.0, 10.0, "simple_acceptance", "PASS"),   # |9| <= 10
+    (-11.0, 4.0, 10.0, "simple_acceptance", "FAIL"),  # |-11| > 10
+    (+9.0, 4.0, 10.0, "guard_band", "FAIL"),          # A = 10 - 4 = 6 < 9
+    (-5.5, 4.0, 10.0, "guard_band", "PASS"),          # 5.5 <= 6
+])
+def test_part_conformity_applies_the_decision_rule_to_the_deviation_at_20c(dev_um, U_um, tol_um, rule, verdict):
+    from borescan.measure import part_conformity
+
+    r = part_conformity(150.0 + dev_um * 1e-3, U_um * 1e-3, 150.0, tol_um * 1e-3, rule, 1.0)
+    assert r["deviation_mm"] == pytest.approx(dev_um * 1e-3, abs=1e-12)
+    assert r["conformity"] == verdict
+    assert part_conformity(150.0, 0.004, None, 0.01)["conformity"] is None      # no nominal: no verdict
+    assert part_conformity(150.0, 0.004, 150.0, None)["deviation_mm"] == 0.0   # no tolerance: deviation only
+    assert part_conformity(150.0, 0.004, 150.0, None)["conformity"] is None

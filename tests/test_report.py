@@ -1,7 +1,11 @@
-"""report.html: sections, relative links that resolve, control-chart limits, pure plot functions."""
+"""report.html: sections, relative links that resolve, control-chart limits and run rules, pure plot
+functions, the summary of what needs attention, self-contained pages, the papers' own page."""
 
 from __future__ import annotations
 
+import base64
+import json
+import re
 import shutil
 from html.parser import HTMLParser
 from pathlib import Path
@@ -9,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from test_catalog import make_history
 
@@ -42,6 +47,9 @@ def _check_links_resolve(root: Path, page: str = "report.html") -> list[str]:
     here = (root / page).parent
     files = []
     for link in parsed.links:
+        if link.startswith("data:image/png;base64,"):  # an embedded plot: a real PNG
+            assert base64.b64decode(link.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
+            continue
         if link.startswith("#"):
             assert link[1:] in parsed.ids, link
             continue
@@ -135,16 +143,23 @@ def test_report_written_with_sections_and_existing_links(results):
     page = report.write_report(results)
     assert page == results / "report.html"
     text = page.read_text()
-    for sid in ("calibration", "verification", "diameters", "discrepancy", "papers", "quarantine"):
+    for sid in ("summary", "calibration", "verification", "diameters", "discrepancy", "papers", "quarantine"):
         assert f'<section id="{sid}">' in text
     files = _check_links_resolve(results)
-    # the plots, certificates, gap plots and paper outputs are all linked
+    # the plots, certificates, gap plots and the papers' page are all linked
     for expect in ("report/2026-11/control_TRI-01.png", "report/2026-11/calibration_TRI-01.png",
                    "report/2026-11/calibration_ROD-01.png", "report/2026-11/index.html",
                    "calibration/TRI-01/CAL-A/certificate.pdf",
                    "calibration/TRI-01/CAL-A/certificate.json", "discrepancy/PART-7/gap.png",
-                   "papers/wang_fig7.png", "papers/yang_table1.csv", "quarantine/BAD-1.json"):
+                   "report/papers.html", "quarantine/BAD-1.json"):
         assert expect in files, expect
+    # the papers are on their own page, not inline
+    assert "papers/wang_fig7.png" not in files and "rho_1_mm" not in text
+    papers = _check_links_resolve(results, "report/papers.html")
+    assert {"../papers/wang_fig7.png", "../papers/yang_table1.csv", "../report.html"} <= set(papers)
+    papers_text = (results / "report" / "papers.html").read_text()
+    assert "rho_1_mm" in papers_text  # the paper CSV as a table
+    assert "data:image/png;base64," in papers_text  # the paper's plot embedded
     # the month's own page: the same sections (papers aside), its links relative to report/2026-11/
     month = _check_links_resolve(results, "report/2026-11/index.html")
     for expect in ("control_TRI-01.png", "../../calibration/TRI-01/CAL-A/certificate.pdf",
@@ -158,7 +173,7 @@ def test_report_written_with_sections_and_existing_links(results):
     assert "calibration/ROD-01/ROD-CAL-1/certificate.pdf (missing)" in text
     assert "lds.parquet: non-monotonic sample" in text
     assert "missing_effect" in text and "channel_delay" in text
-    assert "rho_1_mm" in text  # the paper CSV as a table
+    assert "tau_s = 1.2 ms" in text  # the finding's parameter in words, with its unit
     assert "VER-21" in text and "FAILED" in text
     # the suspect measurement (PART-7 used CAL-A, which failed on the 21st) is listed
     suspect = text.split("Measurements put in doubt")[1].split("</table>")[0]
@@ -230,3 +245,289 @@ def test_report_from_given_frames_without_catalog(tmp_path):
     assert f"{0.003 + 2.66 * 0.007 / 3:.6g}" in text
     assert f"{3.267 * 0.007 / 3:.6g}" in text
     assert (res / "report" / "2026-11" / "control_TRI-02.png").is_file()
+
+
+# --------------------------------------------------------------------------- what needs attention
+
+
+def _rich_tables(res: Path) -> dict[str, pl.DataFrame]:
+    """The constructed history plus: a scan quarantined by the measure stage (no calibration), the
+    GUM columns of the diameters (PART-8 at 20 °C assumed, out of its ±8 µm tolerance of nominal
+    150.000 mm), an ambiguous finding for PART-9 (its findings.json with uncertainties) and ROD-CAL-1
+    due for recalibration on the 22nd."""
+    t = make_history(res)
+    scans = t["scans"]
+    extra = scans.filter(pl.col("scan_id") == "PART-8").with_columns(
+        pl.lit("MEAS-X").alias("scan_id"), pl.lit("TRI-09").alias("device_id"), pl.lit("quarantined").alias("status"),
+        pl.lit("scan.json: no calibration of device TRI-09 on or before night 2026-11-22").alias("reason"))
+    t["scans"] = pl.concat([scans, extra])
+    t["quarantine"] = pl.concat([t["quarantine"], pl.DataFrame({
+        "scan_id": ["MEAS-X"], "night": ["2026-11-22"], "stage": ["measure"], "file": ["scan.json"],
+        "reason": ["no calibration of device TRI-09 on or before night 2026-11-22"]})])
+    t["diameters"] = t["diameters"].with_columns(
+        pl.Series("temperature_c", [20.4, 20.0, 21.0]), pl.Series("temperature_assumed", [False, True, False]),
+        pl.Series("diameter_20_mm", [150.0121123456789, 150.0101, 80.0030]),
+        pl.Series("u_diameter_20_mm", [0.0022, 0.0021, 0.0041]),
+        pl.Series("expanded_u_diameter_20_mm", [0.0045, 0.0043, 0.0083]), pl.Series("k", [2.05, 2.03, 2.02]),
+        pl.Series("coverage_probability", [0.95, 0.95, 0.95]), pl.Series("tolerance_mm", [None, 0.008, None]))
+    t["artifacts"] = pl.concat([t["artifacts"], pl.DataFrame({
+        "artifact_id": ["P-8"], "type": ["part"], "nominal_diameter_mm": [150.0]})], how="diagonal_relaxed")
+    t["calibrations"] = t["calibrations"].with_columns(
+        pl.when(pl.col("calibration_id") == "ROD-CAL-1").then(pl.lit("2026-11-22")).otherwise(pl.lit("2026-12-20"))
+        .alias("recalibration_due"))
+    named = [{"effect": "sensor_offset", "channel": 1, "parameters": {"b_mm": 0.0031234567},
+              "uncertainties": {"u_b_mm": 0.00041}},
+             {"effect": "sensor_nonlinearity", "channel": 1, "parameters": {"a_mm": 0.0052},
+              "uncertainties": {"u_a_mm": 0.0007}}]
+    (res / "discrepancy" / "PART-9").mkdir(parents=True)
+    (res / "discrepancy" / "PART-9" / "findings.json").write_text(json.dumps({
+        "scan_id": "PART-9", "verdict": "ambiguous", "named": named, "gap_before": {"rms_mm": 0.0050123456789},
+        "gap_after": {"rms_mm": 0.0021}, "noise_floor_mm": 0.0020}))
+    t["findings"] = pl.concat([t["findings"], pl.DataFrame({
+        "scan_id": ["PART-9", "PART-9"], "verdict": ["ambiguous", "ambiguous"],
+        "effect": ["sensor_offset", "sensor_nonlinearity"], "channel": [1, 1],
+        "parameters": ['{"b_mm": 0.0031234567}', '{"a_mm": 0.0052}'], "gap_before_mm": [0.0050123456789] * 2,
+        "gap_after_mm": [0.0021] * 2})], how="diagonal_relaxed")
+    return t
+
+
+@pytest.fixture()
+def rich(tmp_path):
+    res = tmp_path / "results"
+    tables = _rich_tables(res)
+    catalog.build_catalog(res, tables)
+    return res, tables
+
+
+def _section(text: str, sid: str) -> str:
+    return text.split(f'<section id="{sid}">')[1].split("</section>")[0]
+
+
+def _without_images(text: str) -> str:
+    return re.sub(r"data:image/png;base64,[A-Za-z0-9+/=]+", "data:", text)
+
+
+def test_summary_per_night_lists_what_needs_attention(rich):
+    res, _ = rich
+    text = report.write_report(res).read_text()
+    month_text = (res / "report" / "2026-11" / "index.html").read_text()
+    for page in (text, month_text):
+        summary = _section(page, "summary")
+        # newest night first
+        assert summary.index("2026-11-22") < summary.index("2026-11-21") < summary.index("2026-11-20")
+        # every quarantined scan (scans.status or a quarantine row) is listed with its reason and action
+        con = catalog.open_catalog(res, read_only=True)
+        quarantined = {r[0]: r[1] for r in con.execute(
+            "SELECT scan_id, any_value(reason) FROM (SELECT scan_id, reason FROM scans WHERE status = 'quarantined' "
+            "UNION ALL SELECT scan_id, file || ': ' || reason FROM quarantine) GROUP BY scan_id").fetchall()}
+        con.close()
+        assert set(quarantined) == {"BAD-1", "MEAS-X"}
+        for sid, reason in quarantined.items():
+            assert sid in summary, sid
+            assert html_escape(report.quarantine_action(reason)[1]) in summary, sid
+        assert "Fix the export or rescan" in summary and "Calibrate the device" in summary
+        # the overview row of the 22nd: 4 scans in, 1 quarantined, CAL-B made, ROD-CAL-1 expired,
+        # CAL-A superseded, 1 verification passed, none failed, 1 part out of tolerance, no verdict for a person
+        row = summary.split('href="#night-2026-11-22">2026-11-22</a></td>')[1].split("</tr>")[0]
+        cells = re.findall(r"<td[^>]*>(.*?)</td>", row)
+        assert cells == ["4", "calibration 1, measurement 2, verification 1", "1", "1", "1", "1", "1", "0", "1",
+                         "0"]
+        night22 = summary.split('id="night-2026-11-22"')[1].split("</div>")[0]
+        assert "calibration expired</b> ROD-CAL-1" in night22
+        assert "calibration superseded: CAL-A of TRI-01 by CAL-B" in night22
+        assert "part out of tolerance</b> P-8" in night22 and "deviation 10.1 µm" in night22
+        night21 = summary.split('id="night-2026-11-21"')[1].split("</div>")[0]
+        assert "verification failed</b> VER-21" in night21 and "recalibrate" in night21
+        assert "discrepancy ambiguous</b> PART-9" in night21
+        night20 = summary.split('id="night-2026-11-20"')[1].split("</div>")[0]
+        assert "discrepancy missing_effect</b> PART-7" in night20
+
+
+def html_escape(s: str) -> str:
+    import html
+
+    return html.escape(s)
+
+
+def _cell_texts(page: str) -> list[str]:
+    return [re.sub(r"<[^>]+>", " ", c) for c in re.findall(r"<td[^>]*>(.*?)</td>", _without_images(page), re.S)]
+
+
+def test_pages_have_no_raw_json_and_no_long_floats(rich):
+    res, _ = rich
+    pages = [report.write_report(res).read_text(), (res / "report" / "2026-11" / "index.html").read_text()]
+    for page in pages:
+        plain = _without_images(page)
+        assert '{"' not in plain and "{&quot;" not in plain
+        numbers = [n for cell in _cell_texts(page) for n in re.findall(r"\d+(?:\.\d+)?(?:[eE][-+]?\d+)?", cell)]
+        assert numbers  # the check sees the tables
+        for n in numbers:
+            mantissa = re.split(r"[eE]", n)[0].replace(".", "").lstrip("0")
+            assert len(mantissa) <= 9 or "." not in n, n
+    # the values that had 11 to 13 digits are rounded
+    assert "150.012112" in pages[0] and "150.0121123456789" not in pages[0]
+
+
+def test_parts_show_both_temperatures_uncertainty_and_deviation(rich):
+    res, _ = rich
+    parts = _section(report.write_report(res).read_text(), "diameters")
+    rows = {re.findall(r"<td[^>]*>(.*?)</td>", r)[1]: [re.sub(r"<[^>]+>", "", c) for c in
+                                                       re.findall(r"<td[^>]*>(.*?)</td>", r)]
+            for r in parts.split("<tr")[1:] if "<td" in r and "PART-" in r}
+    # night, scan, part, feature, D at T, T, D at 20, U [µm], k, coverage, nominal, deviation [µm], tolerance, verdict
+    assert rows["PART-8"][4:14] == ["150.0101", "20 (assumed)", "150.0101", "4.30", "2.03", "0.95", "150", "10.1",
+                                    "8.0", "OUT OF TOLERANCE"]
+    assert rows["PART-7"][4:12] == ["150.0123", "20.4", "150.012112", "4.50", "2.05", "0.95", "", ""]
+    assert "temperature" in parts and "(assumed)" in parts
+
+
+def test_discrepancy_in_words_and_ambiguous_explained(rich):
+    res, _ = rich
+    disc = _section(report.write_report(res).read_text(), "discrepancy")
+    part9 = disc.split("<td>PART-9</td>")[1].split("</tr>")[0]
+    assert "<b>sensor_offset</b> on channel 1: b_mm = 3.12 ± 0.41 µm" in part9
+    assert "<b>sensor_nonlinearity</b> on channel 1: a_mm = 5.20 ± 0.70 µm" in part9
+    assert "Ambiguous between sensor_nonlinearity, sensor_offset" in part9 and "equally well" in part9
+    assert "another eccentricity" in part9
+    assert ">5.01<" in part9 and ">2.10<" in part9  # gaps in µm rms, rounded
+
+
+def test_quarantine_actions_follow_the_readme_classes():
+    assert report.quarantine_action("lds.parquet: non-monotonic sample")[0] == "broken file"
+    assert report.quarantine_action("lds.parquet: t_ns clock jumps back")[0] == "broken file"
+    assert report.quarantine_action("scan.json: scan_id already used by a scan of night=2026-11-20 (scan ids "
+                                    "are unique across nights)")[0] == "scan id reused"
+    assert report.quarantine_action("lds.parquet: calibration failed: calibration refused: residual")[0] == \
+        "calibration refused"
+    assert report.quarantine_action("latest calibration CAL-A of device TRI-01 failed its verification; "
+                                    "recalibrate")[0] == "calibration failed verification"
+    assert report.quarantine_action("latest calibration CAL-A of device TRI-01 expired (40 days old, validity "
+                                    "30 days)")[0] == "calibration expired"
+    assert report.quarantine_action("too few revolutions to calibrate: 3 whole revolutions")[0] == \
+        "too few revolutions or poses"
+    assert report.quarantine_action("measurement failed: singular matrix")[0] == "processing error"
+    assert "new scan id" in report.quarantine_action(None)[1]
+
+
+def test_format_quantity_rounds_to_the_uncertainty():
+    assert report.format_quantity(0.0012, 0.00003, "s") == "1.200 ± 0.030 ms"
+    assert report.format_quantity(3e-6, 4e-7, "s") == "3.00 ± 0.40 µs"
+    assert report.format_quantity(150.01234567, 0.0021, "mm") == "150.0123 ± 0.0021 mm"
+    assert report.format_quantity(0.0031234567, None, "mm") == "3.123 µm"
+    assert report.format_quantity(1.0002, 0.00004, "-") == "1.000200 ± 0.000040"
+    assert report.format_quantity(float("nan"), 0.1, "mm") == ""
+
+
+def test_pages_are_self_contained_with_a_print_stylesheet(rich):
+    res, _ = rich
+    for rel in ("report.html", "report/2026-11/index.html"):
+        report.write_report(res)
+        page = (res / rel).read_text()
+        srcs = re.findall(r'<img src="([^"]*)"', page)
+        assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs), rel
+        assert "@media print" in page and "<script" not in page and "http://" not in page.split("</style>")[1]
+        # each embedded plot links to its PNG file, which is kept
+        for href in re.findall(r'<a class="plot" href="([^"]*)"', page):
+            assert ((res / rel).parent / href).is_file()
+
+
+def test_a_later_month_supersedes_a_calibration_without_rewriting_the_earlier_page(rich):
+    res, tables = rich
+    first = report.update_report(res)
+    assert first.rendered == ("2026-11",)
+    assert report.update_report(res).rendered == ()  # the same rows: nothing rewritten
+    dec = tables["scans"].filter(pl.col("scan_id") == "CAL-B").with_columns(
+        pl.lit("CAL-C").alias("scan_id"), pl.lit("2026-12-02").alias("night"),
+        pl.lit("2026-12-02T22:00:00Z").alias("started_at"))
+    tables["scans"] = pl.concat([tables["scans"], dec])
+    tables["calibrations"] = pl.concat([tables["calibrations"], tables["calibrations"].filter(
+        pl.col("calibration_id") == "CAL-B").with_columns(pl.lit("CAL-C").alias("calibration_id"),
+                                                          pl.lit("CAL-C").alias("scan_id"),
+                                                          pl.lit(None, dtype=pl.Utf8).alias("certificate_path"))])
+    tables["calibration_scans"] = pl.concat([tables["calibration_scans"], pl.DataFrame(
+        {"calibration_id": ["CAL-C"], "scan_id": ["CAL-C"]})])
+    catalog.build_catalog(res, tables)
+    second = report.update_report(res)
+    assert second.rendered == ("2026-12",)
+    december = _section((res / "report" / "2026-12" / "index.html").read_text(), "summary")
+    assert "calibration superseded: CAL-B of TRI-01 by CAL-C" in december
+    assert "CAL-B" in _section((res / "report.html").read_text(), "summary")
+
+
+# --------------------------------------------------------------------------- run rules and the chart
+
+
+def test_run_rules_on_constructed_series():
+    # centre 0, sigma 1
+    rule1 = report.run_rules([0.5, -3.2, 1.0, 3.0, 3.01], 0.0, 1.0)
+    assert rule1[1].tolist() == [False, True, False, False, True]  # beyond, not at, 3 sigma
+    # two of three beyond 2 sigma on the same side: indices 1 and 3 (window 1-3); 6 and 7 opposite sides: no
+    rule2 = report.run_rules([0.0, 2.5, 0.1, 2.2, 0.0, 0.0, 2.5, -2.5, 0.0], 0.0, 1.0)[2]
+    assert np.nonzero(rule2)[0].tolist() == [1, 3]
+    # 2 of 3 below -2 sigma
+    assert np.nonzero(report.run_rules([-2.1, -2.1, 0.0], 0.0, 1.0)[2])[0].tolist() == [0, 1]
+    # eight in a row above the centre (values 10.1 around centre 10): 8 points flagged; seven are not enough
+    above = [9.0] + [10.1] * 8 + [9.5] + [10.2] * 7
+    r4 = report.run_rules(above, 10.0, 1.0)[4]
+    assert np.nonzero(r4)[0].tolist() == list(range(1, 9))
+    # a run of 9 below: all nine; a NaN breaks a run
+    assert report.run_rules([-1.0] * 9, 0.0, 1.0)[4].sum() == 9
+    assert report.run_rules([-1.0] * 4 + [np.nan] + [-1.0] * 4, 0.0, 1.0)[4].sum() == 0
+    # no spread: no judgement
+    assert not any(v.any() for v in report.run_rules([1.0, 5.0], 1.0, 0.0).values())
+
+
+def _verifications(n: int, gauges=("RG-275",)) -> pl.DataFrame:
+    import datetime as dt
+
+    rows = []
+    for i in range(n):
+        for g in gauges:
+            rows.append({"scan_id": f"V{i}-{g}", "night": str(dt.date(2026, 1, 1) + dt.timedelta(days=i)),
+                         "device_id": "TRI-01", "artifact_id": g, "error_mm": 0.001 * ((i * 7) % 5) + (0.01 if
+                         g != "RG-275" else 0.0), "tolerance_mm": 0.015, "passed": True, "u_error_mm": 0.0012})
+    return pl.DataFrame(rows)
+
+
+def test_control_chart_is_per_gauge_with_marked_rule_breaks(tmp_path):
+    ver = _verifications(12, ("RG-275", "RG-150"))
+    fig = report.plot_control_chart(ver, "TRI-01", "RG-150")
+    ax_i = fig.axes[0]
+    assert "gauge RG-150" in ax_i.get_title()
+    points = [line for line in ax_i.get_lines() if line.get_label() == "passed"][0]
+    assert len(points.get_xdata()) == 12 and min(points.get_ydata()) >= 10.0  # only RG-150's errors [µm]
+    labels = [t.get_text() for t in ax_i.get_legend().get_texts()]
+    assert "U (k=2)" in labels
+    # a point beyond 3 sigma is ringed and named in the legend
+    jump = ver.with_columns(pl.when(pl.col("scan_id") == "V6-RG-275").then(0.05).otherwise(pl.col("error_mm"))
+                            .alias("error_mm"))
+    jump = pl.concat([jump.filter(pl.col("artifact_id") == "RG-275")] * 3).with_row_index().with_columns(
+        pl.format("S{}", pl.col("index")).alias("scan_id")).drop("index")
+    ax = report.plot_control_chart(jump, "TRI-01", "RG-275").axes[0]
+    assert any(t.get_text().startswith("breaks run rule 1") for t in ax.get_legend().get_texts())
+    # the report draws one chart per gauge
+    res = tmp_path / "results"
+    text = report.write_report(res, {"verifications": ver}).read_text()
+    assert "Device TRI-01 · gauge RG-150" in text and "Device TRI-01 · gauge RG-275" in text
+    assert sorted(p.name for p in (res / "report" / "2026-01").glob("control_*.png")) == [
+        "control_TRI-01_RG-150.png", "control_TRI-01_RG-275.png"]
+
+
+@pytest.mark.parametrize("n", [2, 8, 30, 365])
+def test_control_chart_axis_readable_and_tolerance_label_inside(n):
+    fig = report.plot_control_chart(_verifications(n), "TRI-01", "RG-275")
+    FigureCanvasAgg(fig).draw()
+    ax_i, ax_mr = fig.axes
+    labels = [t for t in ax_mr.get_xticklabels() if t.get_text()]
+    assert 2 <= len(labels) <= report.MAX_TICK_LABELS or len(labels) == n
+    renderer = fig.canvas.get_renderer()
+    boxes = [t.get_window_extent(renderer) for t in labels]
+    assert all(a.x1 <= b.x0 + 1 for a, b in zip(boxes, boxes[1:])), "tick labels overlap"
+    (tol,) = [t for t in ax_i.texts if t.get_text().startswith("tolerance")]
+    assert tol.get_text() == "tolerance ±15 µm"
+    inside = ax_i.get_window_extent(renderer)
+    box = tol.get_window_extent(renderer)
+    assert inside.x0 <= box.x0 and box.x1 <= inside.x1 and inside.y0 <= box.y0 and box.y1 <= inside.y1
+    for text in ax_i.texts:  # the limit labels too
+        b = text.get_window_extent(renderer)
+        assert inside.y0 - 1 <= b.y0 and b.y1 <= inside.y1 + 1, text.get_text()

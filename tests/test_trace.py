@@ -98,3 +98,27 @@ def test_trace_unknown_id_fails_clearly(built, capsys):
     assert captured.err.startswith("borescan trace: unknown id 'NO-SUCH-SCAN': not a diameter, scan, part")
     assert cli_main(["trace", "--results", str(res / "nowhere"), "PART-7"]) == 1
     assert "no history catalog" in capsys.readouterr().err
+
+
+def test_trace_shows_the_certificate_a_scan_used_not_a_later_record(tmp_path):
+    """History that cannot be rewritten: a calibration made against RG-275 at 275.029 mm still traces
+    to 275.029 mm after a later night records the gauge (recertified) at 275.031 mm."""
+    import duckdb
+
+    from borescan.tables import TABLES
+
+    con = duckdb.connect()
+    for name in ("scans", "artifacts", "scan_files"):
+        con.execute(TABLES[name].ddl())
+    con.execute("INSERT INTO scans (scan_id, night, artifact_id, status, artifact_certificate, "
+                "artifact_certified_diameter_mm, artifact_u_diameter_mm) VALUES "
+                "('CAL-1', '2026-11-20', 'RG-275', 'ok', 'RG-275/2026-03', 275.029, 0.0015)")
+    con.execute("INSERT INTO artifacts (artifact_id, type, certificate, certified_diameter_mm, u_diameter_mm, k) "
+                "VALUES ('RG-275', 'ring_gauge', 'RG-275/2027-01', 275.031, 0.0015, 2)")
+    t = trace._Tracer(con, tmp_path)
+    art = t.scan_artifact(t.scan("CAL-1"))
+    assert art["certified_diameter_mm"] == 275.029 and art["certificate"] == "RG-275/2026-03"
+    assert art["latest"]["certified_diameter_mm"] == 275.031
+    lines = trace._scan_lines(dict(t.scan("CAL-1"), artifact=art), "")
+    assert any("certified 275.029 mm" in x and "as this scan used it" in x for x in lines)
+    assert any(x.startswith("  NOTE: the artifact's latest record differs") and "275.031" in x for x in lines)

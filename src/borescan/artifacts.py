@@ -201,3 +201,80 @@ def artifact_row(meta: dict) -> dict | None:
     return {"artifact_id": art["id"], "type": art.get("type"), "certificate": art.get("certificate"),
             "nominal_diameter_mm": art.get("nominal_diameter_mm"), "certified_diameter_mm": art.get("certified_diameter_mm"),
             "u_diameter_mm": art.get("u_diameter_mm"), "k": art.get("k"), "cte_per_k": art.get("cte_per_k")}
+
+
+def certificate_fields(meta: dict) -> dict:
+    """The artifact certificate a scan's ``scan.json`` states, as the ``scans`` table keeps it:
+    ``artifact_certificate``, ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm`` (None where absent)."""
+    art = meta.get("artifact") if isinstance(meta.get("artifact"), dict) else {}
+
+    def num(v):
+        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+    cert = art.get("certificate")
+    return {"artifact_certificate": None if cert is None else str(cert),
+            "artifact_certified_diameter_mm": num(art.get("certified_diameter_mm")),
+            "artifact_u_diameter_mm": num(art.get("u_diameter_mm"))}
+
+
+#: Two certified values of one certificate that differ by more than this are a conflict [mm].
+CONFLICT_TOLERANCE_MM = 1e-9
+
+
+def certificate_conflicts(earlier: list[dict], tonight: list[dict]) -> dict[str, str]:
+    """Scans whose artifact certificate contradicts an earlier record of the same certificate.
+
+    A certificate (``artifact_id``, ``artifact_certificate``) states one certified diameter and
+    one uncertainty for ever: a recertified gauge gets a new certificate id, and a scan that
+    gives another value under a known certificate id is a typo or a mix-up that would rewrite
+    history. The first record of a certificate (earlier nights first, then the night's scans in
+    ``started_at``, ``scan_id`` order) is its value; every later scan that contradicts it is
+    returned with the reason, both values and the scan that recorded the first one named.
+
+    Parameters
+    ----------
+    earlier : ``scans`` rows of earlier nights (only ``ok`` rows are taken as records)
+    tonight : the night's ``scans`` rows (``ok`` ones are checked)
+
+    Rows carry ``scan_id``, ``night``, ``status``, ``artifact_id``, ``artifact_certificate``,
+    ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm``; rows without a certificate
+    id or a certified diameter are not checked.
+
+    Returns
+    -------
+    {scan_id: reason} of the scans to set aside.
+    """
+    first: dict[tuple[str, str], dict] = {}
+
+    def key(r):
+        if r.get("status") != "ok" or not r.get("artifact_id") or not r.get("artifact_certificate") \
+                or r.get("artifact_certified_diameter_mm") is None:
+            return None
+        return str(r["artifact_id"]), str(r["artifact_certificate"])
+
+    for r in sorted(earlier, key=lambda r: (str(r.get("night")), str(r.get("started_at") or ""), str(r["scan_id"]))):
+        k = key(r)
+        if k is not None:
+            first.setdefault(k, r)
+    out: dict[str, str] = {}
+    for r in sorted(tonight, key=lambda r: (str(r.get("started_at") or ""), str(r["scan_id"]))):
+        k = key(r)
+        if k is None:
+            continue
+        f = first.setdefault(k, r)
+        if f is r:
+            continue
+        diffs = [f"{name} {r.get(col)!r} here, {f.get(col)!r} in scan {f['scan_id']} (night {f.get('night')})"
+                 for col, name in (("artifact_certified_diameter_mm", "certified_diameter_mm"),
+                                   ("artifact_u_diameter_mm", "u_diameter_mm"))
+                 if _differ(r.get(col), f.get(col))]
+        if diffs:
+            out[str(r["scan_id"])] = (f"artifact {k[0]}, certificate {k[1]}: " + "; ".join(diffs)
+                                      + ". One certificate states one value: a recertified gauge needs its new "
+                                      "certificate id in scan.json; correct the scan under a new scan id")
+    return out
+
+
+def _differ(a, b) -> bool:
+    if a is None or b is None:
+        return (a is None) != (b is None)
+    return abs(float(a) - float(b)) > CONFLICT_TOLERANCE_MM

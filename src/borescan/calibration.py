@@ -648,10 +648,16 @@ def fit_full_calibration(
     d_b + rho^2 / (2 R) (the quantities the data fix best) are the fitted parameters, which
     straightens the valleys; then every beam's mirror solution (rho of opposite sign at the same
     first harmonic, a second minimum of nearly equal cost) is refitted on every sample and the
-    lower cost kept (``diagnostics["mirror_solutions"]``); where the data cannot reject the mirror
-    (its SSR within 4 s^2), the spread between the two solutions is added to the covariance. u(d_b)
-    includes the second-order term of d_b = g - rho^2 / (2R) (3 u(rho)^4 / (4 R^2)), which
-    dominates where rho is weak. Solved with
+    lower cost kept (``diagnostics["mirror_solutions"]``). rho enters the readings mostly through
+    rho^2 (the first harmonic's amplitude |o| sqrt(1 + rho^2 / R^2)), so its cost valley can be
+    skewed and curved, beta moving non-linearly with it: each rho's profile (every other parameter
+    refitted) is checked at rho +- 2 u; where it is not the linear one it is walked out to
+    Delta chi^2 = 12.5 and the likelihood-weighted spread of every parameter along it enters the
+    covariance (``diagnostics["rho_profiles"]``); a lower cost found on the way is refitted and kept.
+    Distinct minima (mirror starts, dips along a profile) are listed with 2 (cost - cost_kept) / s^2
+    (``diagnostics["minima"]``, ``"n_minima"``, ``"ambiguous_minima"`` when one is within 4 s^2);
+    each adds its spread weighted by exp(-Delta/2) unless a profile spans it. u(d_b) of a linear
+    profile includes the second-order term of d_b = g - rho^2 / (2R) (3 u(rho)^4 / (4 R^2)). Solved with
     ``scipy.optimize.least_squares`` (Levenberg-Marquardt, analytic Jacobian). Covariance
     s^2 (J^T J)^-1, s^2 = SSR / dof.
 
@@ -903,81 +909,164 @@ def fit_full_calibration(
             gtol=1e-10,
         )
 
-    mirrors_tried, alternatives = [], []
+    def solve_fixed(x_start: np.ndarray, i_fix: int, nfev: int = 30):
+        """Minimum of the cost over every internal parameter but ``i_fix`` (held at ``x_start[i_fix]``)."""
+        keep = np.arange(p_free) != i_fix
+        base = np.array(x_start, dtype=float)
+
+        def full(z: np.ndarray) -> np.ndarray:
+            x = base.copy()
+            x[keep] = z
+            return x
+
+        with np.errstate(all="ignore"):
+            res = least_squares(lambda z: model(full(z), False), base[keep],
+                                jac=lambda z: model(full(z), True)[1][:, keep], method="lm", x_scale="jac",
+                                max_nfev=nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+        return full(res.x), float(res.cost), bool(res.success) and bool(np.isfinite(res.cost))
+
+    def mirror_search(sol):
+        """Refit from every beam's mirror (rho_c -> -rho_c at fixed psi and g); keep the lowest cost."""
+        tried, alts = [], []
+        for j in range(c):
+            xf = sol.x.copy()
+            xf[i_rho0 + j] = -xf[i_rho0 + j]
+            with np.errstate(all="ignore"):
+                trial = solve(xf)
+            fine = bool(trial.success) and bool(np.isfinite(trial.cost))
+            better = fine and trial.cost < sol.cost
+            tried.append({"channel": int(channels[j]), "cost_kept": float(sol.cost),
+                          "cost_mirror": float(trial.cost), "mirror_taken": better})
+            alts.append((sol if better else trial) if fine else None)
+            if better:
+                sol = trial
+        return sol, tried, alts
+
+    i_rho0 = c - 1 + ch0_free
     try:
         sol = solve(x0)
+        mirrors_tried, alternatives = [], []
         if bool(sol.success) and np.isfinite(sol.cost):
+            sol, mirrors_tried, alternatives = mirror_search(sol)
+        profiles: list[dict] = []
+        for _round in range(3):
+            r, J = model(sol.x, True)
+            converged = bool(sol.success) and bool(np.all(np.isfinite(r)))
+            if not converged:
+                raise CalibrationError(
+                    scan_ids, f"full_lsq did not converge after {sol.nfev} evaluations ({sol.message})"
+                )
+            fit = fit_result(internal_names, sol.x, r, J, success=converged, message=str(sol.message),
+                             nfev=int(sol.nfev))
+            rank, cond = fit.rank, fit.condition
+            if rank < p_free or cond > cond_max:
+                raise CalibrationError(
+                    scan_ids,
+                    f"full_lsq Jacobian rank {rank} of {p_free}, condition {cond:.3g} (limit {cond_max:.3g}); "
+                    "the data do not determine the parameters (is the spindle offset from the gauge centre?)",
+                )
+            s2 = fit.sigma**2
+            cov_int = fit.cov
+            rho_hat = unpack(sol.x)[0].rho_mm
+            # Jacobian of the public free parameters (beta free, rho, d_b, nuisance) w.r.t. internal ones
+            A = np.eye(p_free)
             for j in range(c):
-                i_rho = c - 1 + ch0_free + j
-                xf = sol.x.copy()
-                xf[i_rho] = -xf[i_rho]
-                with np.errstate(all="ignore"):
-                    trial = solve(xf)
-                better = bool(trial.success) and np.isfinite(trial.cost) and trial.cost < sol.cost
-                mirrors_tried.append({"channel": int(channels[j]), "cost_kept": float(sol.cost),
-                                      "cost_mirror": float(trial.cost), "mirror_taken": better})
-                alternatives.append((sol if better else trial) if trial.success and np.isfinite(trial.cost) else None)
-                if better:
-                    sol = trial
+                A[2 * c - 1 + ch0_free + j, i_rho0 + j] = -rho_hat[j] / R_mm
+                if j > 0 or ch0_free:
+                    A[j - 1 + ch0_free, i_rho0 + j] = -1.0 / np.sqrt(R_mm**2 - rho_hat[j] ** 2)
+            cov_free = A @ cov_int @ A.T
+            # the linearisation, checked along each rho: rho enters the readings mostly through rho^2
+            # (the first harmonic's amplitude |o| sqrt(1 + rho^2/R^2)), so its cost valley can be
+            # skewed and curved (beta and the other rhos move non-linearly with it)
+            profiles, lower = [], None
+            for j in range(c):
+                prof, lower = _rho_profile(j, c, sol.x, float(sol.cost), s2, cov_int, cov_free, solve_fixed, public,
+                                           i_rho0 + j, rule.head_radius_mm)
+                prof["channel"] = int(channels[j])
+                profiles.append(prof)
+                if lower is not None:
+                    break
+            if lower is None:
+                break
+            # a lower cost along a profile: the optimizer had stopped short of the minimum
+            with np.errstate(all="ignore"):
+                trial = solve(lower)
+            if not (bool(trial.success) and np.isfinite(trial.cost) and trial.cost < sol.cost):
+                break
+            sol, more, alts = mirror_search(trial)
+            mirrors_tried, alternatives = mirrors_tried + more, alternatives + alts
     except (ValueError, FloatingPointError) as exc:  # NaN readings from a diverging step
         raise CalibrationError(scan_ids, f"full_lsq fit failed: {exc}") from exc
-    r, J = model(sol.x, True)
-    converged = bool(sol.success) and bool(np.all(np.isfinite(r)))
-    if not converged:
-        raise CalibrationError(
-            scan_ids, f"full_lsq did not converge after {sol.nfev} evaluations ({sol.message})"
-        )
     n_rows = n_obs + n_prior
     dof = n_rows - p_free
-    fit = fit_result(internal_names, sol.x, r, J, success=converged, message=str(sol.message), nfev=int(sol.nfev))
     ssr = fit.rss
     ssr_readings = float(r[:n_obs] @ r[:n_obs])
-    s2 = fit.sigma**2
-    rank, cond = fit.rank, fit.condition
     _, Jf = model(sol.x, True, full=True)
     cf = np.linalg.norm(Jf, axis=0)
     cf[cf == 0] = 1.0
     svf = np.linalg.svd(Jf / cf, compute_uv=False)
     rank_all = int(np.sum(svf > svf[0] * max(Jf.shape) * np.finfo(float).eps * 1e3))
-    if rank < p_free or cond > cond_max:
-        raise CalibrationError(
-            scan_ids,
-            f"full_lsq Jacobian rank {rank} of {p_free}, condition {cond:.3g} (limit {cond_max:.3g}); "
-            "the data do not determine the parameters (is the spindle offset from the gauge centre?)",
-        )
-    cov_int = fit.cov
     beams, nuis = unpack(sol.x)
     rho_hat = beams.rho_mm
-    # Jacobian of the public free parameters (beta free, rho, d_b, nuisance) w.r.t. internal ones
-    A = np.eye(p_free)
-    for j in range(c):
-        i_rho = c - 1 + ch0_free + j
-        i_g = 2 * c - 1 + ch0_free + j
-        A[i_g, i_rho] = -rho_hat[j] / R_mm
-        if j > 0 or ch0_free:
-            A[j - 1 + ch0_free, i_rho] = -1.0 / np.sqrt(R_mm**2 - rho_hat[j] ** 2)
-    cov_free = A @ cov_int @ A.T
-    # d_b = g - rho^2 / (2R) is quadratic in rho: with rho ~ N(rho_hat, u^2) the linear term above
-    # misses var(rho^2) = 2 u^4 and the bias E[rho_hat^2] - rho^2 = u^2, which matter where rho is
-    # weakly determined (u(rho) of mm at small offsets); both are added to u(d_b)^2 as 3 u^4 / (4 R^2)
-    # (the estimate itself stays the least-squares one, consistent with its residuals)
-    u2_rho = np.diag(cov_free)[c - 1 + ch0_free : 2 * c - 1 + ch0_free].copy()
-    for j in range(c):
-        i_g = 2 * c - 1 + ch0_free + j
-        cov_free[i_g, i_g] += 3.0 * u2_rho[j] ** 2 / (4.0 * R_mm**2)
-    # A mirror solution the data cannot reject (its SSR within 4 s^2 of the kept one: less than a
-    # 2-sigma likelihood-ratio difference) is as likely as the one kept: the spread between the two
-    # (rectangular, (p_mirror - p) (p_mirror - p)^T / 3) is added, so either one is covered.
     p_hat = public(sol.x)
+    # Where the profile of a rho is not the linear prediction, the spread of every parameter along
+    # it (likelihood-weighted second moment about the estimate) replaces the linear part along that
+    # rho wherever it is larger (PSD part of the difference: never smaller than the linear covariance)
+    u2_rho = np.diag(cov_free)[i_rho0 : i_rho0 + c].copy()
+    extra = np.zeros_like(cov_free)
+    for j, prof in enumerate(profiles):
+        M = prof.pop("_second_moment", None)
+        if M is None:
+            continue
+        i = i_rho0 + j
+        E = M - np.outer(cov_free[:, i], cov_free[:, i]) / cov_free[i, i]
+        w, V = np.linalg.eigh(0.5 * (E + E.T))
+        extra += (V * np.clip(w, 0.0, None)) @ V.T
+        prof["u_rho_profile_mm"] = float(np.sqrt(M[i, i]))
+    cov_free = cov_free + extra
+    # d_b = g - rho^2 / (2R) is quadratic in rho: with rho ~ N(rho_hat, u^2) the linear term above
+    # misses var(rho^2) = 2 u^4 and the bias E[rho_hat^2] - rho^2 = u^2; both are added to u(d_b)^2
+    # as 3 u^4 / (4 R^2) where the rho profile was linear (else the profile's spread holds them)
+    for j, prof in enumerate(profiles):
+        if prof["linear"]:
+            i_g = 2 * c - 1 + ch0_free + j
+            cov_free[i_g, i_g] += 3.0 * u2_rho[j] ** 2 / (4.0 * R_mm**2)
+    # Distinct minima from the mirror starts (and dips along the profiles): each is weighted by its
+    # likelihood ratio exp(-Delta/2), Delta = 2 (cost - cost_kept) / s^2, and its spread about the
+    # estimate w (p_min - p)(p_min - p)^T is added unless the profile of that rho already spans it.
+    minima, seen = [], [p_hat]
+    u_pub = np.sqrt(np.clip(np.diag(cov_free), 0.0, None))
+    u_pub[u_pub == 0] = 1.0
     for entry, alt in zip(mirrors_tried, alternatives):
         if alt is None:
             continue
-        d_ssr = 2.0 * abs(alt.cost - sol.cost) / s2
-        entry["delta_ssr_over_s2"] = float(d_ssr)
-        entry["within_noise"] = bool(d_ssr < 4.0)
-        if d_ssr < 4.0:
-            d = public(alt.x) - p_hat
-            cov_free += np.outer(d, d) / 3.0
+        d_chi2 = 2.0 * (alt.cost - sol.cost) / s2
+        entry["delta_ssr_over_s2"] = float(d_chi2)
+        entry["within_noise"] = bool(d_chi2 < 4.0)
+        p_alt = public(alt.x)
+        if any(np.max(np.abs(p_alt - q) / u_pub) < 0.1 for q in seen):
+            continue
+        seen.append(p_alt)
+        minima.append({"source": f"mirror start of channel {entry['channel']}",
+                       "rho_mm": [float(x) for x in p_alt[i_rho0 : i_rho0 + c]], "delta_ssr_over_s2": float(d_chi2),
+                       "_p": p_alt})
+    for prof in profiles:
+        for dip in prof.get("profile_minima", []):
+            minima.append({"source": f"profile of rho of channel {prof['channel']}", "rho_mm": dip["rho_mm"],
+                           "delta_ssr_over_s2": dip["delta_ssr_over_s2"], "_p": None})
+    weights = [np.exp(-0.5 * max(m["delta_ssr_over_s2"], 0.0)) for m in minima]
+    total_w = 1.0 + float(sum(weights))
+    for m, wgt in zip(minima, weights):
+        p_alt = m.pop("_p")
+        if p_alt is None:
+            continue
+        spanned = any((not prof["linear"]) and prof["rho_range_mm"][0] <= p_alt[i_rho0 + j] <= prof["rho_range_mm"][1]
+                      for j, prof in enumerate(profiles))
+        m["spanned_by_profile"] = bool(spanned)
+        if not spanned:
+            d = p_alt - p_hat
+            cov_free += (wgt / total_w) * np.outer(d, d)
+    ambiguous = [m for m in minima if m["delta_ssr_over_s2"] < 4.0]
     idx = np.full(3 * c, -1)
     for j in range(c):
         idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
@@ -1067,6 +1156,20 @@ def fit_full_calibration(
             "g_note": "g = d_b + rho^2 / (2 R): the mean level the data fix best (R the gauge radius)",
             "weak_rho_channels": weak,
             "mirror_solutions": mirrors_tried,
+            "n_minima": 1 + len(minima),
+            "minima": minima,
+            "ambiguous_minima": bool(ambiguous),
+            "minima_note": (
+                "distinct minima of SSR + prior besides the one kept (mirror starts, dips along the rho profiles), "
+                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; below 4 the data cannot reject it (ambiguous): "
+                "its spread, weighted by exp(-delta/2), is in the covariance"
+            ),
+            "rho_profiles": profiles,
+            "rho_profile_note": (
+                "per channel the cost profiled along rho (every other parameter refitted): linear when at rho +- 2 u "
+                "it rises by 4 +- 1 s^2 and bends no parameter by more than u / 2; otherwise the likelihood-weighted "
+                "spread of every parameter along the profile enters the covariance"
+            ),
             "weak_rho_note": (
                 "|rho| < 2 u(rho): rho is not distinguished from 0; d_b = g - rho^2/(2R) is then far from "
                 "linear in the data, and u(d_b) carries the second-order term 3 u(rho)^4 / (4 R^2)"
@@ -1081,6 +1184,112 @@ def fit_full_calibration(
             "cov_free": cov_free,
         },
     )
+
+
+#: the linearisation check of a rho: at rho_hat +- 2 u the profile's Delta chi^2 must lie within
+#: 4 +- 1 (its width within ~12 % of the linear one) and every parameter within half its u of the
+#: linear prediction; otherwise the profile is walked out to Delta chi^2 = 12.5 (weights below 0.2 %)
+_PROFILE_CHECK_DCHI2 = 1.0
+_PROFILE_CHECK_BEND = 0.5
+_PROFILE_END_DCHI2 = 12.5
+_PROFILE_MAX_STEPS = 14
+
+
+def _rho_profile(j, c, x_hat, cost0, s2, cov_int, cov_free, solve_fixed, public, i, head_radius_mm):
+    """Profile of the full-data cost along rho of channel index ``j`` (internal and public index ``i``).
+
+    Each point holds rho at a value and minimises the cost over every other parameter
+    (``solve_fixed``, warm-started from the neighbour plus the linear regression on rho);
+    Delta = 2 (cost - cost0) / s^2 is the profile likelihood ratio in chi^2 units.
+
+    Returns (dict, lower): the dict has ``linear`` (the check at +-2 u passed), the check's Delta
+    values, and when not linear the walked ``rho_range_mm``, ``n_points``, ``profile_minima``
+    (local minima along the walk other than the estimate) and ``_second_moment``, the
+    likelihood-weighted second moment of the public parameters about the estimate (trapezoid
+    rule in rho, weights exp(-Delta/2)). ``lower`` is an internal vector of lower cost than
+    ``x_hat`` when the profile found one (the fit had not reached the minimum), else None.
+    """
+    u = float(np.sqrt(cov_free[i, i]))
+    p0 = public(x_hat)
+    u_pub = np.sqrt(np.clip(np.diag(cov_free), 0.0, None))
+    b_int = cov_int[:, i] / cov_int[i, i]
+    b_pub = cov_free[:, i] / cov_free[i, i]
+    rho0 = float(x_hat[i])
+    tol = -0.01  # a profile point lower than the estimate by more than 0.01 s^2 is a lower minimum
+
+    def at(delta: float, x_from: np.ndarray):
+        xs = x_from + b_int * (delta - (x_from[i] - rho0))
+        xs[i] = rho0 + delta
+        x, cost, ok = solve_fixed(xs, i)
+        return x, 2.0 * (cost - cost0) / s2, ok
+
+    out: dict = {"u_rho_linear_mm": u, "linear": True}
+    pts = {0.0: (x_hat, 0.0)}
+    checks = []
+    for k in (-2.0, 2.0):
+        if abs(rho0 + k * u) >= head_radius_mm:
+            out["linear"] = False
+            continue
+        x, d, ok = at(k * u, x_hat)
+        if not ok:
+            out["linear"] = False
+            continue
+        if d < tol:
+            return out, x
+        pts[k * u] = (x, d)
+        checks.append(d)
+        dev = public(x) - p0 - b_pub * k * u
+        bend = np.abs(dev) / np.where(u_pub > 0, u_pub, np.inf)
+        if abs(d - 4.0) > _PROFILE_CHECK_DCHI2 or float(np.max(bend)) > _PROFILE_CHECK_BEND:
+            out["linear"] = False
+    out["check_delta_ssr_over_s2"] = [float(d) for d in checks]
+    if out["linear"]:
+        return out, None
+    for sgn in (-1.0, 1.0):
+        side = sorted((dl for dl in pts if dl * sgn > 0), key=abs)
+        delta = side[-1] if side else 0.0
+        x_prev, d_prev = pts[delta]
+        step = u
+        for _ in range(_PROFILE_MAX_STEPS):
+            if d_prev > _PROFILE_END_DCHI2:
+                break
+            new = delta + sgn * step
+            if abs(rho0 + new) >= head_radius_mm:
+                break
+            x, d, ok = at(new, x_prev)
+            if not ok:
+                break
+            if d < tol:
+                return out, x
+            pts[new] = (x, d)
+            if d - d_prev < 1.0:  # a flat stretch: widen the step
+                step *= 2.0
+            delta, x_prev, d_prev = new, x, d
+    deltas = np.array(sorted(pts))
+    dchi = np.array([pts[dl][1] for dl in deltas])
+    out["rho_range_mm"] = [float(rho0 + deltas[0]), float(rho0 + deltas[-1])]
+    out["n_points"] = int(deltas.size)
+    if deltas.size < 3 or deltas[0] >= 0.0 or deltas[-1] <= 0.0:
+        # no refit converged on one side: the linear covariance stays, and the diagnostics say so
+        out["profile_failed"] = True
+        return out, None
+    P = np.array([public(pts[dl][0]) - p0 for dl in deltas])
+    wts = np.exp(-0.5 * np.clip(dchi, 0.0, None))
+    # trapezoid weights in rho
+    h = np.diff(deltas)
+    tw = np.zeros(deltas.size)
+    tw[:-1] += h / 2.0
+    tw[1:] += h / 2.0
+    wts = wts * tw
+    out["_second_moment"] = (P * wts[:, None]).T @ P / wts.sum()
+    out["delta_ssr_over_s2_at_ends"] = [float(dchi[0]), float(dchi[-1])]
+    out["profile_minima"] = [
+        {"rho_mm": [float(v) for v in public(pts[deltas[k]][0])[i - j : i - j + c]],
+         "delta_ssr_over_s2": float(dchi[k])}
+        for k in range(1, deltas.size - 1)
+        if deltas[k] != 0.0 and dchi[k] < dchi[k - 1] and dchi[k] < dchi[k + 1]
+    ]
+    return out, None
 
 
 def _per_scan_xy(xy, K: int) -> list:
@@ -1186,8 +1395,9 @@ def full_lsq_sensitivities(
     - a constant error e_c of every reading of channel c: dp/de_c = H^-1 J^T 1_c;
     - the reported offset of scan k (prior mean): dp/do_k = H^-1 Jp_k^T w;
     - covariance of the fit: s^2 H^-1 = s^2 H^-1 J^T J H^-1 (readings) + s^2 H^-1 Jp^T Jp H^-1
-      (priors). The calibration's ``cov`` adds to s^2 H^-1 the second-order term of d_b in rho
-      and any unresolved mirror solution; ``cov_extra`` is that difference.
+      (priors). The calibration's ``cov`` adds to s^2 H^-1 the second-order term of d_b in rho,
+      the spread along a non-linear rho profile and any unresolved minimum; ``cov_extra`` is that
+      difference.
 
     Parameters
     ----------

@@ -584,11 +584,18 @@ def _create_views(con: duckdb.DuckDBPyConnection, queries_dir: str | os.PathLike
     for (view,) in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'"
                                ).fetchall():
         con.execute(f"DROP VIEW {_q(view)}")
-    for qname, (_desc, sql) in saved_queries(queries_dir).items():
-        try:
-            con.execute(f"CREATE VIEW {_q(qname)} AS {_view_sql(sql)}")
-        except duckdb.Error as err:
-            raise ValueError(f"saved query {qname}: {err}") from err
+    pending = dict(saved_queries(queries_dir))
+    while pending:  # a saved query may read another one: create each once what it reads exists
+        before, errors = len(pending), {}
+        for qname, (_desc, sql) in list(pending.items()):
+            try:
+                con.execute(f"CREATE VIEW {_q(qname)} AS {_view_sql(sql)}")
+                del pending[qname]
+            except duckdb.Error as err:
+                errors[qname] = err
+        if len(pending) == before:  # no view created in this pass: a real error
+            qname, err = next(iter(errors.items()))
+            raise ValueError("; ".join(f"saved query {q}: {e}" for q, e in errors.items())) from err
 
 
 def _discard(tmp: Path) -> None:

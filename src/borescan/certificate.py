@@ -227,8 +227,11 @@ def certificate_dict(
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(res**2, axis=0)) if res.size else np.array([])
     keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free",
-            "weak_rho_channels", "g_mm", "u_g_mm")
+            "weak_rho_channels", "g_mm", "u_g_mm", "n_minima", "ambiguous_minima")
     diag = {k: cal.diagnostics[k] for k in keys if k in cal.diagnostics}
+    if cal.diagnostics.get("rho_profiles"):  # where the cost along a rho is not the linear one
+        diag["rho_profiled_channels"] = [int(p["channel"]) for p in cal.diagnostics["rho_profiles"]
+                                         if not p.get("linear", True)]
     lab = _laboratory(laboratory)
     budget = _budget_of(cal, budget)
     p = float(coverage_probability)
@@ -737,6 +740,13 @@ def _page_results(d: _Doc) -> None:
     if fit.get("weak_rho_channels"):
         d.para(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho), rho is not distinguished from 0; U(d_b) of "
                "these channels includes the second-order term of d_b = g - rho^2/(2R).")
+    if fit.get("rho_profiled_channels"):
+        d.para(f"Channels {fit['rho_profiled_channels']}: the cost along rho is not the linear one (rho enters the "
+               "readings mostly through rho^2); their uncertainties come from the profile of the cost along rho, "
+               "every other parameter refitted, not from the linearisation alone.")
+    if fit.get("ambiguous_minima"):
+        d.para(f"The fit found {fit.get('n_minima')} distinct minima, one within 4 s^2 of the one kept: the data "
+               "cannot reject it; its spread is included in the uncertainties.")
 
 
 def _dominant_label(key: str) -> str:

@@ -23,7 +23,7 @@ def _defaults(node: dict) -> Any:
         out = dict(node.get("default") or {})
         for key, sub in node["properties"].items():
             d = _defaults(sub)
-            if d is not None:
+            if d is not None or "default" in sub:  # a stated null default is a value (no tolerance, ...)
                 out[key] = d
         return out
     return node.get("default")

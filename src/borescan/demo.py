@@ -76,7 +76,11 @@ PARTS = {
                    ("HSG-1106", 280.5931, 280.6, 0.0)],
 }
 #: Two-hole part for the rod (Wang 2017: 500 mm rod, two 150 mm holes), true diameters [mm].
-ROD_PART = {"id": "CYL-2H-0042", "d_mm": {"H1": 150.0082, "H2": 149.9941}, "z_mm": {"H1": 100.0, "H2": 400.0}}
+ROD_PART = {"id": "CYL-2H-0042", "d_mm": {"H1": 150.0082, "H2": 149.9941}, "z_mm": {"H1": 100.0, "H2": 400.0},
+            "tolerance_mm": 0.020}
+#: Drawing tolerance of the housings' bores, +- [mm] (scan.json features[].tolerance_mm): HSG-1101 is
+#: made 12.3 um over its nominal, out of tolerance, so the report has a part to flag.
+PART_TOLERANCE_MM = 0.010
 ROD_LAYERS = (
     RodLayer(channel=1, h_mm=100.0, l0_mm=71.0, phi_rad=0.0, d_mm=0.31, gamma_rad=math.radians(0.27)),
     RodLayer(channel=2, h_mm=400.0, l0_mm=71.0, phi_rad=0.04, d_mm=-0.22, gamma_rad=math.radians(-0.18)),
@@ -91,7 +95,7 @@ def _static_poses(rng: np.random.Generator, n: int, r_max_mm: float) -> tuple[np
 
 def _part_artifact(part_id: str, d_nom_mm: float) -> dict:
     return {"id": part_id, "type": "part", "nominal_diameter_mm": d_nom_mm, "cte_per_k": CTE_STEEL_PER_K,
-            "features": [{"id": "B1", "z_mm": 0.0, "nominal_diameter_mm": d_nom_mm}]}
+            "features": [{"id": "B1", "z_mm": 0.0, "nominal_diameter_mm": d_nom_mm, "tolerance_mm": PART_TOLERANCE_MM}]}
 
 
 def _rod_scene(rng: np.random.Generator, temp_c: float) -> RodScene:
@@ -156,7 +160,8 @@ def demo_scans(seed: int = DEMO_SEED) -> list[SimulatedScan]:
         # measuring rod on the two-hole part
         artifact = {"id": ROD_PART["id"], "type": "part", "nominal_diameter_mm": 150.0,
                     "cte_per_k": CTE_STEEL_PER_K,
-                    "features": [{"id": f, "z_mm": ROD_PART["z_mm"][f], "nominal_diameter_mm": 150.0}
+                    "features": [{"id": f, "z_mm": ROD_PART["z_mm"][f], "nominal_diameter_mm": 150.0,
+                                  "tolerance_mm": ROD_PART["tolerance_mm"]}
                                  for f in ("H1", "H2")]}
         scans.append(simulate_rod(_rod_scene(rng, temp_c), n_poses=24, samples_per_pose=5, effects=thermal,
                                   artifact=artifact, features=("H1", "H2"), device_id="ROD-01",

@@ -42,6 +42,8 @@ from .geometry import Beams, beam_frame, circumcircle, wall_points_device
 from .uncertainty import Budget, Combined, Input, Term
 
 __all__ = [
+    "part_feature",
+    "part_conformity",
     "StaticDiameter",
     "RotatingResult",
     "Verification",
@@ -819,6 +821,48 @@ def verify(measured_mm, u_measured_mm, certified_diameter_mm, u_cert_mm, cte_per
         decision_rule=decision_rule,
         conformity=text,
     )
+
+
+def part_feature(artifact: dict, feature: str | None) -> dict:
+    """The scan.json feature a diameter belongs to: ``{"nominal_diameter_mm", "tolerance_mm"}`` (None where unknown).
+
+    ``feature`` names one of ``artifact.features[].id``; a diameter without a feature (a three-sensor
+    scan of one bore) belongs to the artifact's only feature, else to the artifact itself
+    (``artifact.nominal_diameter_mm``). ``tolerance_mm`` is an optional field of a feature (or of the
+    artifact) that this project reads beside the spec's: +- that many mm about the nominal.
+    """
+    feats = [f for f in (artifact.get("features") or []) if isinstance(f, dict)]
+    if feature is not None:
+        match = [f for f in feats if str(f.get("id")) == str(feature)]
+    else:
+        match = feats if len(feats) == 1 else []
+    src = match[0] if match else (artifact if feature is None or not feats else {})
+
+    def num(d, key):
+        v = d.get(key)
+        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+    nominal = num(src, "nominal_diameter_mm")
+    if nominal is None and feature is None:
+        nominal = num(artifact, "nominal_diameter_mm")
+    return {"nominal_diameter_mm": nominal, "tolerance_mm": num(src, "tolerance_mm") or num(artifact, "tolerance_mm")}
+
+
+def part_conformity(diameter_20_mm: float, U_mm: float, nominal_mm: float | None, tolerance_mm: float | None,
+                    rule: str = "simple_acceptance", guard_band_factor: float = 1.0) -> dict:
+    """A part's diameter against its nominal and tolerance: deviation at 20 degC and the verdict.
+
+    deviation = D20 - nominal; the verdict is :func:`decide` on (deviation, U, tolerance) by the
+    laboratory's decision rule ("PASS"/"FAIL"), None without a nominal or a tolerance.
+
+    Returns ``{"nominal_diameter_mm", "tolerance_mm", "deviation_mm", "conformity"}``.
+    """
+    dev = None if nominal_mm is None else float(diameter_20_mm) - float(nominal_mm)
+    verdict = None
+    if dev is not None and tolerance_mm is not None:
+        passed, _A, _text = decide(dev, float(U_mm), float(tolerance_mm), rule, guard_band_factor)
+        verdict = "PASS" if passed else "FAIL"
+    return {"nominal_diameter_mm": nominal_mm, "tolerance_mm": tolerance_mm, "deviation_mm": dev,
+            "conformity": verdict}
 
 
 def verify_budget(d: DiameterUncertainty, artifact: dict, tolerance_mm: float, p: float,

@@ -1,29 +1,42 @@
-"""The browsable report: ``<results_root>/report.html`` and one page per month of nights.
+"""The browsable report: ``<results_root>/report.html``, one page per month of nights, the papers.
 
 :func:`update_report` (:func:`write_report`) reads the history catalog and writes
-self-contained HTML pages (inline CSS, no scripts, no network) whose every link is relative, so
-the results folder can be moved or copied to shared storage and the pages still work. Each month
-of nights has ``report/<YYYY-MM>/index.html`` with its plots beside it; ``report.html`` shows the
-totals of the whole history, the latest month's sections (the same plots), the papers and a
-link to every month. Sections:
+self-contained HTML pages (inline CSS, plots embedded as base64 ``data:`` images, a print
+stylesheet, no scripts, no network) whose every link is relative, so the results folder can be
+moved or copied to shared storage and the pages still work. Each month of nights has
+``report/<YYYY-MM>/index.html`` with its plots beside it (the PNG files are kept and linked from
+each embedded image); ``report.html`` shows the totals of the whole history, the latest month's
+sections and a link to every month; the paper reproductions have their own page,
+``report/papers.html``. Sections:
 
-- **Calibration**: parameter trends per device and channel with error bars (standard
-  uncertainty, k=1), links to each certificate (PDF and JSON).
-- **Verification**: per device an individuals and moving-range control chart of the
-  verification error; limits (Montgomery, *Statistical Quality Control*, §6.4):
-  centre line = mean, UCL/LCL = mean ± 2.66·MR̄, MR chart UCL = 3.267·MR̄, LCL = 0; plus the
-  measurements a failed verification puts in doubt.
-- **Diameters**: certified diameters per part and feature, each scan with its uncertainty.
-- **Discrepancy**: findings with verdicts and links to ``discrepancy/<scan_id>/gap.png``.
-- **Papers** (``report.html`` only): every PNG and CSV under ``papers/``.
-- **Quarantine**: quarantined scans with their reasons.
+- **Summary** (first): one row per night, newest first: scans in, quarantined, calibrations
+  made / expired / superseded, verifications passed / failed, parts out of tolerance, discrepancy
+  verdicts that need a person; below it, night by night, every quarantined scan with its reason
+  and what to do (:func:`quarantine_action`, the README's "When something needs attention"),
+  every failed verification, part out of tolerance and verdict to look at.
+- **Calibration**: parameter trends per device and channel with error bars U (k=2), links to
+  each certificate (PDF and JSON), the date recalibration is due.
+- **Verification**: per device and ring gauge an individuals and moving-range control chart of
+  the verification error; limits (Montgomery, *Statistical Quality Control*, §6.4):
+  centre line = mean, UCL/LCL = mean ± 2.66·MR̄ (= ± 3σ̂, σ̂ = MR̄/1.128), MR chart UCL = 3.267·MR̄,
+  LCL = 0; points that break the Western Electric run rules 1, 2 and 4 (:func:`run_rules`) are
+  marked; plus the measurements a failed verification puts in doubt.
+- **Parts**: every diameter at the measured temperature and at 20 °C, its expanded uncertainty U
+  with k and coverage probability, "temperature assumed" flagged, the deviation from the nominal
+  where the catalog knows one and pass/fail where it knows a tolerance; plots of the parts
+  measured more than once.
+- **Discrepancy**: findings in words: effect, channel, each parameter as value ± u with its unit,
+  verdict, gap before and after; an ambiguous verdict names its candidates and why one scan
+  cannot tell them apart; links to ``discrepancy/<scan_id>/gap.png``.
+- **Quarantine**: quarantined scans with their reasons and what to do.
 
 Incremental: a month's page is rewritten only when a row it shows changed (one aggregate query
-per table tells which months did: :func:`month_fingerprints`, which also covers this module's
+per source tells which months did: :func:`month_fingerprints`, which also covers this module's
 code), and a plot is drawn only when its input rows changed (``report/<month>/plots.json``), so
 a new night costs about one month's page however long the history; ``full=True`` redraws all.
 A failed verification that puts an older month's measurement in doubt changes that month's rows
-(the ``suspect_measurements`` view), so its page is rewritten too. Plots label at most
+(the ``suspect_measurements`` view), so its page is rewritten too; a calibration superseded or
+expiring in a later month is an event of that later month. Plots label at most
 :data:`MAX_TICK_LABELS` ticks per axis.
 
 Every plot function is pure: polars frames in, a :class:`matplotlib.figure.Figure` out (Agg,
@@ -33,8 +46,10 @@ same bytes.
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import functools
+import math
 import hashlib
 import html
 import io
@@ -53,12 +68,17 @@ from matplotlib.figure import Figure
 
 from borescan import catalog
 from borescan.atomic import atomic_write_bytes, atomic_write_text
+from borescan.effects import EFFECTS
 from borescan.tables import TABLES
 
 __all__ = [
     "MR_D2_FACTOR",
     "MR_D4",
     "control_limits",
+    "run_rules",
+    "RUN_RULES",
+    "quarantine_action",
+    "format_quantity",
     "plot_calibration_trends",
     "plot_control_chart",
     "plot_diameters",
@@ -74,6 +94,8 @@ __all__ = [
 MR_D2_FACTOR = 2.66
 #: Moving-range chart: UCL = D4 MR̄ with D4 = 3.267 (n = 2).
 MR_D4 = 3.267
+#: d2 of moving ranges of two (Montgomery, Appendix VI): σ̂ = MR̄ / d2.
+MR_D2 = 1.128
 
 TRI_PARAMS = (("beta_rad", "u_beta_rad"), ("rho_mm", "u_rho_mm"), ("d_b_mm", "u_d_b_mm"))
 ROD_PARAMS = (("l0_mm", "u_l0_mm"), ("h_mm", "u_h_mm"), ("phi_rad", "u_phi_rad"), ("d_mm", "u_d_mm"),
@@ -116,6 +138,128 @@ def control_limits(values: np.ndarray | list[float]) -> dict[str, Any]:
     }
 
 
+#: The Western Electric run rules this report applies (Western Electric, *Statistical Quality
+#: Control Handbook*, 1956; Montgomery §5.3.6): rule number -> what breaks it.
+RUN_RULES = {
+    1: "a point beyond 3σ",
+    2: "2 of 3 in a row beyond 2σ on one side",
+    4: "8 in a row on one side of the centre line",
+}
+
+
+def run_rules(values: np.ndarray | list[float], centre: float, sigma: float) -> dict[int, np.ndarray]:
+    """The points of a series that break Western Electric run rules 1, 2 and 4.
+
+    Parameters
+    ----------
+    values
+        The individual values in time order [any unit]. NaN never counts and breaks a run.
+    centre
+        Centre line [same unit] (the chart's mean).
+    sigma
+        Standard deviation of one value [same unit]; for an individuals chart σ̂ = MR̄ / 1.128.
+
+    Returns
+    -------
+    dict
+        Rule number -> boolean array (one per value), True where the value takes part in a
+        breach: rule 1, ``|x - centre| > 3 sigma``; rule 2, two of three consecutive values beyond
+        ``2 sigma`` on the same side (the values beyond, in every such window); rule 4, eight or
+        more consecutive values strictly on one side of the centre line (every value of the run).
+        All False when ``sigma`` or ``centre`` is not finite or ``sigma`` <= 0.
+    """
+    x = np.asarray(values, dtype=float)
+    n = x.size
+    out = {r: np.zeros(n, dtype=bool) for r in RUN_RULES}
+    if not (np.isfinite(centre) and np.isfinite(sigma) and sigma > 0):
+        return out
+    z = (x - centre) / sigma
+    fin = np.isfinite(z)
+    out[1] = fin & (np.abs(z) > 3.0)
+    for sign in (1.0, -1.0):
+        beyond = fin & (sign * z > 2.0)
+        for i in range(max(n - 2, 0)):
+            if beyond[i:i + 3].sum() >= 2:
+                out[2][i:i + 3] |= beyond[i:i + 3]
+        side = fin & (sign * z > 0.0)
+        run = 0
+        for i in range(n):
+            run = run + 1 if side[i] else 0
+            if run >= 8:
+                out[4][i - run + 1:i + 1] = True
+    return out
+
+
+#: Quarantine reasons by class (first match of a lower-case fragment of the reason wins):
+#: (class, fragments, what an operator does), after the README's "When something needs attention".
+QUARANTINE_ACTIONS = (
+    ("scan id reused", ("already used", "unique across nights"),
+     "Write the scan under a new scan id (ids are unique across nights) and rerun."),
+    ("calibration refused", ("calibration refused",),
+     "Read discrepancy/<scan>/findings.json of these scans: it names what the model misses. Check that "
+     "sensor or its cabling, recalibrate. Measurements keep the last valid calibration until it expires."),
+    ("calibration failed verification", ("failed its verification",),
+     "Recalibrate the device; its measurements are refused until a new calibration passes verification."),
+    ("calibration expired", ("expired",), "Recalibrate the device, then rerun the night."),
+    ("no calibration", ("no calibration",),
+     "Calibrate the device (a calibration scan on or before the night), then rerun the night."),
+    ("too few revolutions or poses", ("too few", "revolutions", "poses"),
+     "Rescan with more whole revolutions (or poses), the spindle at the gauge centre, under a new scan id."),
+    ("scan metadata", ("needs a ring_gauge",),
+     "Correct scan.json (kind, artifact, certificate) in a new scan id and rerun; never edit the raw folder in place."),
+    ("processing error", ("stage failed", "measurement failed", "examination failed", "calibration failed"),
+     "Read the stage's log under logs/ and quarantine/<scan>.json; if borescan validate passes on the scan, "
+     "report it with the record."),
+)
+#: A reason that matches no class: the raw file itself is broken.
+BROKEN_FILE_ACTION = ("broken file",
+                      "Fix the export or rescan under a new scan id (never edit the raw folder in place); "
+                      "borescan validate RAW_ROOT shows the same verdict before a run.")
+
+
+def quarantine_action(reason: str | None) -> tuple[str, str]:
+    """(class, what to do) of a quarantine reason (README "When something needs attention").
+
+    Reasons that name no processing class (truncated file, wrong types, clock jump, readings
+    out of range, non-monotonic samples, ...) are a broken raw file.
+    """
+    text = (reason or "").lower()
+    for cls, fragments, action in QUARANTINE_ACTIONS:
+        if any(f in text for f in fragments):
+            return cls, action
+    return BROKEN_FILE_ACTION
+
+
+#: Display units: SI unit -> (smaller unit, factor) used when the value is small.
+_SMALLER = {"mm": ("µm", 1e3), "s": ("ms", 1e3), "rad": ("mrad", 1e3), "mm/s": ("µm/s", 1e3)}
+
+
+def format_quantity(value: float | None, u: float | None = None, unit: str = "") -> str:
+    """A value with its uncertainty for people: ``1.200 ± 0.030 ms``.
+
+    The uncertainty is rounded to two significant digits and the value to the same decimal
+    place (GUM 7.2.6); without an uncertainty the value keeps four significant digits. Values
+    below 0.1 of a unit in :data:`_SMALLER` are shown in the smaller unit (mm -> µm, s -> ms
+    (and µs), rad -> mrad). Dimensionless (``"-"``) values carry no unit. "" for a missing value.
+    """
+    if value is None or not np.isfinite(value):
+        return ""
+    v = float(value)
+    uu = float(u) if u is not None and np.isfinite(u) and u > 0 else None
+    unit = "" if unit in ("-", None) else unit
+    big = max(abs(v), uu or 0.0)
+    if unit in _SMALLER and big < 0.1:
+        unit, f = _SMALLER[unit]
+        v, uu = v * f, (uu * f if uu else None)
+        if unit == "ms" and max(abs(v), uu or 0.0) < 0.1:
+            unit, v, uu = "µs", v * 1e3, (uu * 1e3 if uu else None)
+    tail = f" {unit}" if unit else ""
+    if uu is None:
+        return f"{v:.4g}{tail}"
+    dec = max(0, 1 - int(math.floor(math.log10(uu))))
+    return f"{v:.{dec}f} ± {uu:.{dec}f}{tail}"
+
+
 def _labels(df: pl.DataFrame, id_col: str = "scan_id") -> list[str]:
     nights = df["night"].to_list() if "night" in df.columns else [None] * df.height
     ids = df[id_col].to_list()
@@ -144,7 +288,7 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
     """Calibration parameters of one device over its calibrations, one panel per parameter and channel.
 
     ``cal`` has the ``calibrations`` columns; rows of other devices are ignored. Error bars are
-    the standard uncertainties (k=1) where present. The x axis lists the calibrations in
+    U (k=2) = 2·u of the standard uncertainties where present. The x axis lists the calibrations in
     ``valid_from`` order, labelled with night and calibration scan.
     """
     df = cal.filter(pl.col("device_id") == device_id).sort("valid_from", "calibration_id", "channel")
@@ -170,7 +314,7 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
         sub = df.filter(pl.col("channel") == ch).drop_nulls(p)
         x = [pos[c] for c in sub["calibration_id"].to_list()]
         y = sub[p].to_numpy()
-        err = sub[up].fill_null(0.0).to_numpy() if up in sub.columns else None
+        err = 2.0 * sub[up].fill_null(0.0).to_numpy() if up in sub.columns else None
         ax.errorbar(x, y, yerr=err, fmt="o-", ms=4, capsize=3, color="C0")
         ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         ax.grid(alpha=0.3)
@@ -188,67 +332,134 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
             else:
                 _xticks(axes[i][j], labels, most=4)  # a 3.2 in panel holds a few two-line labels
                 axes[i][j].tick_params(axis="x", labelbottom=i == nr - 1 or (i + 1, j) not in used)
-    fig.suptitle(f"{device_id}: calibration parameters (error bars: u, k=1)", fontsize=10)
+    fig.suptitle(f"{device_id}: calibration parameters (error bars: U (k=2))", fontsize=10)
     return fig
 
 
-def plot_control_chart(ver: pl.DataFrame, device_id: str) -> Figure:
-    """Individuals and moving-range chart of one device's verification errors.
+#: A label drawn over data stays legible.
+_LABEL_BOX = {"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.75}
+
+
+def _night_ticks(ax, nights: list, ids: list, most: int = MAX_TICK_LABELS) -> None:
+    """Label points 0..n-1 by night: every point as "night / scan" when there are at most ``most``,
+    else at most ``most`` nights (the first point of every k-th night), a minor tick per night."""
+    n = len(nights)
+    if n <= most:
+        _xticks(ax, [f"{'' if d is None else d}\n{i}" for d, i in zip(nights, ids, strict=True)], most)
+        return
+    firsts = [i for i in range(n) if i == 0 or nights[i] != nights[i - 1]]
+    step = -(-len(firsts) // most)
+    pos = firsts[::step]
+    ax.set_xticks(pos)
+    ax.set_xticklabels([str(nights[i]) for i in pos], rotation=30, ha="right", fontsize=7)
+    if len(firsts) <= 120:  # a minor tick per night while they stay apart
+        ax.set_xticks(firsts, minor=True)
+
+
+def plot_control_chart(ver: pl.DataFrame, device_id: str, artifact_id: str | None = None) -> Figure:
+    """Individuals and moving-range chart of one device's verification errors on one ring gauge.
 
     ``ver`` has the ``verifications`` columns (``night``, ``scan_id``, ``error_mm``, ``passed``,
-    ``tolerance_mm``) in time order; other devices are ignored. Limits from
-    :func:`control_limits`; failed verifications are drawn in red; ± tolerance dotted.
+    ``tolerance_mm``, optionally ``u_error_mm``) in time order; rows of other devices are ignored,
+    and of other gauges when ``artifact_id`` is given (a chart pools one gauge only: two gauges
+    differ by their certificates' errors). Limits from :func:`control_limits`; points that break
+    the run rules (:func:`run_rules`, σ̂ = MR̄/1.128) are ringed and numbered; failed verifications
+    red squares; ± tolerance dotted; error bars U (k=2) = 2·u_error_mm where given. The x axis is
+    the verification order, labelled by night (thinned to :data:`MAX_TICK_LABELS`).
     """
     df = ver.filter(pl.col("device_id") == device_id)
+    if artifact_id is not None and "artifact_id" in df.columns:
+        df = df.filter(pl.col("artifact_id") == artifact_id)
     lim = control_limits(df["error_mm"].to_numpy())
     x = np.arange(df.height)
-    y = df["error_mm"].to_numpy() * 1e3
+    y = df["error_mm"].cast(pl.Float64).to_numpy() * 1e3
     passed = df["passed"].fill_null(True).to_numpy().astype(bool)
-    fig = Figure(figsize=(8.0, 5.5), layout="constrained")
-    ax_i, ax_mr = fig.subplots(2, 1, sharex=True)
-    ax_i.plot(x, y, "-", color="0.5", lw=1)
-    ax_i.plot(x[passed], y[passed], "o", color="C0", label="passed")
+    rules = run_rules(y, lim["mean"] * 1e3, lim["mr_bar"] * 1e3 / MR_D2)
+    small = df.height > 60
+    ms = 2.5 if small else 4.5
+    fig = Figure(figsize=(8.0, 5.8), layout="constrained")
+    ax_i, ax_mr = fig.subplots(2, 1, sharex=True, height_ratios=(3, 2))
+    ax_i.plot(x, y, "-", color="0.6", lw=0.8 if small else 1)
+    if "u_error_mm" in df.columns and df["u_error_mm"].drop_nulls().len():
+        big_u = 2.0 * df["u_error_mm"].cast(pl.Float64).fill_null(float("nan")).to_numpy() * 1e3
+        ax_i.errorbar(x, y, yerr=big_u, fmt="none", ecolor="C0", alpha=0.5, lw=0.8, capsize=0 if small else 2,
+                      label="U (k=2)")
+    ax_i.plot(x[passed], y[passed], "o", color="C0", ms=ms, label="passed")
     if (~passed).any():
-        ax_i.plot(x[~passed], y[~passed], "s", color="C3", label="failed")
+        ax_i.plot(x[~passed], y[~passed], "s", color="C3", ms=ms + 1, label="failed")
+    broken = rules[1] | rules[2] | rules[4]
+    if broken.any():
+        ax_i.plot(x[broken], y[broken], "o", mfc="none", mec="C1", mew=1.5, ms=ms + 5,
+                  label="breaks run rule " + ", ".join(str(r) for r in RUN_RULES if rules[r].any()))
+        if broken.sum() <= 40:  # numbers stay legible
+            for i in np.nonzero(broken)[0]:
+                ax_i.annotate(",".join(str(r) for r in RUN_RULES if rules[r][i]), (x[i], y[i]), fontsize=7,
+                              color="C1", fontweight="bold", xytext=(3 + ms, 3 + ms), textcoords="offset points",
+                              ha="left", va="bottom")
+    lo, hi = (float(np.nanmin(y)), float(np.nanmax(y))) if np.isfinite(y).any() else (-1.0, 1.0)
     for val, style, name in ((lim["mean"], "-", "mean"), (lim["ucl"], "--", "UCL"), (lim["lcl"], "--", "LCL")):
         if np.isfinite(val):
             ax_i.axhline(val * 1e3, ls=style, color="k" if name == "mean" else "C1", lw=1)
-            ax_i.annotate(f"{name} {val * 1e3:.2f}", (1.0, val * 1e3), xycoords=("axes fraction", "data"),
-                          fontsize=7, va="bottom", ha="right")
-    tol = df["tolerance_mm"].drop_nulls()
+            ax_i.annotate(f"{name} {val * 1e3:.2f}", (0.995, val * 1e3), xycoords=("axes fraction", "data"),
+                          fontsize=7, va="bottom", ha="right", bbox=_LABEL_BOX)
+            lo, hi = min(lo, val * 1e3), max(hi, val * 1e3)
+    tol = df["tolerance_mm"].drop_nulls() if "tolerance_mm" in df.columns else pl.Series([], dtype=pl.Float64)
     if tol.len():
         t = float(tol.max()) * 1e3
         for s in (t, -t):
             ax_i.axhline(s, ls=":", color="C3", lw=1)
-        ax_i.annotate(f"tolerance ±{t:g}", (0.0, t), xycoords=("axes fraction", "data"), fontsize=7, va="bottom",
-                      color="C3")
+        # inside the axes: a little right of the left edge, just above the line
+        ax_i.annotate(f"tolerance ±{t:g} µm", (0.01, t), xycoords=("axes fraction", "data"), fontsize=7,
+                      va="bottom", ha="left", color="C3", bbox=_LABEL_BOX)
+        lo, hi = min(lo, -t), max(hi, t)
+    span = hi - lo or 1.0
+    ax_i.set_ylim(lo - 0.2 * span, hi + 0.12 * span)  # below: room for the legend, above: for the labels
     ax_i.set_ylabel("error [µm]")
-    ax_i.set_title(f"{device_id}: verification error, individuals chart", fontsize=10)
-    ax_i.legend(fontsize=7, loc="best")
+    gauge = f", gauge {artifact_id}" if artifact_id else ""
+    ax_i.set_title(f"{device_id}{gauge}: verification error, individuals chart", fontsize=10)
+    ax_i.legend(fontsize=7, loc="lower left", ncols=4, framealpha=0.85)
     ax_i.grid(alpha=0.3)
     mr = lim["mr"] * 1e3
-    ax_mr.plot(x[1:], mr, "o-", color="C0")
+    ax_mr.plot(x[1:], mr, "o-", color="C0", ms=ms - 1, lw=0.8 if small else 1)
     if np.isfinite(lim["mr_bar"]):
         ax_mr.axhline(lim["mr_bar"] * 1e3, color="k", lw=1)
         ax_mr.axhline(lim["mr_ucl"] * 1e3, ls="--", color="C1", lw=1)
-        ax_mr.annotate(f"MR̄ {lim['mr_bar'] * 1e3:.2f}", (1.0, lim["mr_bar"] * 1e3),
-                       xycoords=("axes fraction", "data"), fontsize=7, va="bottom", ha="right")
-        ax_mr.annotate(f"UCL {lim['mr_ucl'] * 1e3:.2f}", (1.0, lim["mr_ucl"] * 1e3),
-                       xycoords=("axes fraction", "data"), fontsize=7, va="bottom", ha="right")
+        ax_mr.annotate(f"MR̄ {lim['mr_bar'] * 1e3:.2f}", (0.995, lim["mr_bar"] * 1e3),
+                       xycoords=("axes fraction", "data"), fontsize=7, va="bottom", ha="right", bbox=_LABEL_BOX)
+        ax_mr.annotate(f"UCL {lim['mr_ucl'] * 1e3:.2f}", (0.995, lim["mr_ucl"] * 1e3),
+                       xycoords=("axes fraction", "data"), fontsize=7, va="bottom", ha="right", bbox=_LABEL_BOX)
+        ax_mr.set_ylim(0.0, max(float(np.nanmax(mr)) if mr.size else 0.0, lim["mr_ucl"] * 1e3) * 1.15 or 1.0)
     ax_mr.axhline(0.0, color="0.7", lw=0.8)
     ax_mr.set_ylabel("moving range [µm]")
     ax_mr.set_title("moving range chart", fontsize=10)
     ax_mr.grid(alpha=0.3)
     ax_mr.set_xlim(-0.5, max(df.height - 0.5, 0.5))
-    _xticks(ax_mr, _labels(df))
+    _night_ticks(ax_mr, df["night"].cast(pl.Utf8).to_list() if "night" in df.columns else [None] * df.height,
+                 df["scan_id"].to_list())
     return fig
 
 
-def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
-    """Diameters of one part, one panel per feature: each scan with ± 2u error bars, mean line.
+def _part_values(df: pl.DataFrame) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(diameter [mm], U (k=2) = 2u [mm], at 20 degC?) of diameter rows: at 20 °C where the row has it."""
+    d = df["diameter_mm"].cast(pl.Float64)
+    u = df["u_diameter_mm"].cast(pl.Float64) if "u_diameter_mm" in df.columns else pl.Series([None] * df.height,
+                                                                                             dtype=pl.Float64)
+    at20 = "diameter_20_mm" in df.columns and df["diameter_20_mm"].drop_nulls().len() == df.height > 0
+    if at20:
+        d = df["diameter_20_mm"].cast(pl.Float64)
+        if "u_diameter_20_mm" in df.columns:
+            u = df["u_diameter_20_mm"].cast(pl.Float64)
+    return d.fill_null(float("nan")).to_numpy(), 2.0 * u.fill_null(0.0).to_numpy(), at20
 
-    ``dia`` has the ``diameters`` columns; rows of other parts are ignored. The x axis is the
-    measurement order, labelled with night and scan.
+
+def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
+    """Diameters of one part, one panel per feature: each scan with U (k=2) error bars, mean line.
+
+    ``dia`` has the ``diameters`` columns; rows of other parts are ignored. Diameters at 20 °C
+    (``diameter_20_mm``, ``u_diameter_20_mm``) where every row has them, else as measured; error
+    bars U = 2u. The nominal (``nominal_mm``, see :func:`update_report`) is a dashed line and the
+    tolerance band (``tolerance_mm``) shaded where known. The x axis is the measurement order,
+    labelled with night and scan.
     """
     df = dia.filter(pl.col("artifact_id") == artifact_id)
     features = sorted(df["feature"].fill_null("").unique().to_list())
@@ -258,25 +469,34 @@ def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
     panel_w = min(max(3.8, 0.42 * most), 12.0 / nc)
     fig = Figure(figsize=(panel_w * nc + 0.8, 3.2 * nr + 0.8), layout="constrained")
     axes = fig.subplots(nr, nc, squeeze=False)
+    where = "as measured"
     for k, feat in enumerate(features):
         ax = axes[k // nc][k % nc]
         sub = df.filter(pl.col("feature").fill_null("") == feat)
-        y = sub["diameter_mm"].to_numpy()
-        u = sub["u_diameter_mm"].fill_null(0.0).to_numpy()
+        y, big_u, at20 = _part_values(sub)
+        where = "at 20 °C" if at20 else where
         x = np.arange(sub.height)
-        ax.errorbar(x, y, yerr=2 * u, fmt="o", ms=4, capsize=3, color="C0")
+        ax.errorbar(x, y, yerr=big_u, fmt="o", ms=4, capsize=3, color="C0", label="U (k=2)")
         if sub.height:
-            ax.axhline(float(np.nanmean(y)), color="k", lw=0.8)
+            ax.axhline(float(np.nanmean(y)), color="k", lw=0.8, label="mean")
+        nom = sub["nominal_mm"].drop_nulls() if "nominal_mm" in sub.columns else pl.Series([], dtype=pl.Float64)
+        if nom.len():
+            n0 = float(nom[0])
+            ax.axhline(n0, color="C2", ls="--", lw=1, label="nominal")
+            tol = sub["tolerance_mm"].drop_nulls() if "tolerance_mm" in sub.columns else nom.clear()
+            if tol.len():
+                ax.axhspan(n0 - float(tol[0]), n0 + float(tol[0]), color="C2", alpha=0.12, label="tolerance")
         ax.set_title(f"feature {feat or '?'} (n={sub.height})", fontsize=9)
-        ax.set_ylabel("diameter [mm]", fontsize=8)
+        ax.set_ylabel(f"diameter {where} [mm]", fontsize=8)
         ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         ax.tick_params(axis="y", labelsize=7)
         ax.grid(alpha=0.3)
+        ax.legend(fontsize=6, loc="best")
         ax.set_xlim(-0.5, max(sub.height - 0.5, 0.5))
         _xticks(ax, _labels(sub))
     for k in range(len(features), nr * nc):
         axes[k // nc][k % nc].set_visible(False)
-    fig.suptitle(f"part {artifact_id}: diameters (error bars: 2u)", fontsize=10)
+    fig.suptitle(f"part {artifact_id}: diameters {where} (error bars: U (k=2))", fontsize=10)
     return fig
 
 
@@ -328,6 +548,19 @@ tr.fail td{background:#fde8e8} .pass{color:#1a7f37;font-weight:600} .fail{color:
 img{max-width:100%;border:1px solid #dde;background:#fff;margin:6px 0}
 .empty{color:#777;font-style:italic} .note{font-size:13px;color:#444}
 code{background:#eef;padding:0 3px}
+tr.warn td{background:#fff6dd} .warn{color:#8a5a00;font-weight:600}
+.night{background:#fff;border:1px solid #ccd;border-left:4px solid #c62828;padding:4px 14px 8px;margin:10px 0}
+.night.quiet{border-left-color:#1a7f37} .night h3{margin:6px 0} .night ul{margin:4px 0 6px;padding-left:20px}
+.night li{margin:3px 0;font-size:13px} .action{color:#444;font-size:12px}
+a.plot{display:inline-block}
+@media print{
+ body{background:#fff;color:#000;font-size:10pt} nav{display:none}
+ header{background:none;color:#000;border-bottom:2px solid #000;padding:0 0 6px}
+ main{padding:0;max-width:none} section{break-before:auto} h2,h3{break-after:avoid}
+ table{font-size:8pt;break-inside:auto} tr,img,.night{break-inside:avoid}
+ img{max-width:100%;border:none} a{color:#000;text-decoration:none}
+ tr.fail td{background:#fde8e8 !important;-webkit-print-color-adjust:exact;print-color-adjust:exact}
+}
 """
 
 
@@ -341,6 +574,21 @@ def _num(v: Any, digits: int = 6) -> str:
     if isinstance(v, float):
         return f"{v:.{digits}g}"
     return str(v)
+
+
+def _um(v_mm: Any, decimals: int = 1) -> str:
+    """A length in mm shown in µm with ``decimals`` decimals ("" when missing)."""
+    if v_mm is None or not np.isfinite(float(v_mm)):
+        return ""
+    return f"{float(v_mm) * 1e3:.{decimals}f}"
+
+
+def _temperature(t_c: Any, assumed: Any) -> str:
+    """A temperature cell; an assumed one says so ("20 (assumed)")."""
+    if assumed:
+        base = "20" if t_c is None else _num(t_c, 4)
+        return f'<span class="warn" title="no temperature recorded: 20 °C assumed">{base} (assumed)</span>'
+    return _num(t_c, 4)
 
 
 def _link(href: str | None, text: str) -> str:
@@ -360,6 +608,13 @@ def _table(headers: list[str], rows: list[list[str]], row_classes: list[str] | N
         out.append(f"<tr{cls}>{cells}</tr>")
     out.append("</tbody></table>")
     return "".join(out)
+
+
+def _img(href: str, png: bytes, alt: str) -> str:
+    """A PNG embedded as a base64 ``data:`` image (the page stands alone), linked to its file."""
+    data = base64.b64encode(png).decode("ascii")
+    return (f'<a class="plot" href="{html.escape(href, quote=True)}">'
+            f'<img src="data:image/png;base64,{data}" alt="{_e(alt)}"></a>')
 
 
 def _rel(results_root: Path, path: str | None) -> str | None:
@@ -420,7 +675,13 @@ _MONTH_ROWS = {
                           "FROM calibrations c) c USING (calibration_id) LEFT JOIN (SELECT scan_id, min({ms}) AS _sm "
                           "FROM scans s GROUP BY scan_id) s USING (scan_id) WHERE s._sm IS NULL OR s._sm = c._m"),
     "verifications": "SELECT {m} AS _m, t.* FROM verifications t",
-    "diameters": "SELECT {m} AS _m, t.* FROM diameters t",
+    # with the part's nominal (artifacts.nominal_diameter_mm) when the part has one feature:
+    # the catalog does not hold feature nominals
+    "diameters": ("SELECT {m} AS _m, t.*, a.nominal_mm AS artifact_nominal_mm FROM diameters t LEFT JOIN "
+                  "(SELECT artifact_id, any_value(nominal_diameter_mm) AS nominal_mm FROM artifacts "
+                  "WHERE artifact_id IN (SELECT artifact_id FROM diameters GROUP BY artifact_id "
+                  "HAVING count(DISTINCT feature) <= 1) GROUP BY artifact_id) a ON a.artifact_id = t.artifact_id"),
+    "calibration_events": "SELECT {m} AS _m, t.* FROM ({events}) t",
     "findings": "SELECT {m} AS _m, t.* FROM findings t",
     "quarantine": "SELECT {m} AS _m, t.* FROM quarantine t",
     "suspect_measurements": "SELECT {m} AS _m, t.* FROM suspect_measurements t",
@@ -429,6 +690,7 @@ _MONTH_ROWS = {
 #: Row order of each table on a page.
 _ORDER = {
     "scans": "night, started_at, scan_id",
+    "calibration_events": "night, device_id, event, calibration_id",
     "calibrations": "device_id, valid_from, calibration_id, channel",
     "calibration_scans": "calibration_id, scan_id",
     "diameters": "artifact_id, feature, night, scan_id",
@@ -441,11 +703,36 @@ _ORDER = {
 }
 
 
-def _sources(con) -> list[str]:
+#: A calibration's events, each on its night: ``made`` (valid_from), ``superseded`` (by the
+#: device's next calibration, named in other_id) and ``expired`` (recalibration_due, unless
+#: superseded before); design records (method ``nominal``) left out; only up to the last night.
+_EVENTS_SQL = (
+    "WITH c AS (SELECT calibration_id, any_value(device_id) AS device_id, min(valid_from) AS valid_from, "
+    "min({due}) AS due FROM calibrations WHERE coalesce(method, '') <> 'nominal' AND valid_from IS NOT NULL "
+    "GROUP BY calibration_id), "
+    "n AS (SELECT *, lead(valid_from) OVER w AS next_from, lead(calibration_id) OVER w AS next_id FROM c "
+    "WINDOW w AS (PARTITION BY device_id ORDER BY valid_from, calibration_id)) "
+    "SELECT night, event, calibration_id, device_id, other_id FROM ("
+    "SELECT valid_from AS night, 'made' AS event, calibration_id, device_id, NULL::VARCHAR AS other_id FROM n "
+    "UNION ALL SELECT next_from, 'superseded', calibration_id, device_id, next_id FROM n WHERE next_from IS NOT NULL "
+    "UNION ALL SELECT due, 'expired', calibration_id, device_id, NULL FROM n "
+    "WHERE due IS NOT NULL AND (next_from IS NULL OR next_from > due)) e "
+    "WHERE night <= (SELECT max(night) FROM scans)"
+)
+
+
+def _sources(con) -> dict[str, str]:
+    """Source name -> SQL of its rows with a ``_m`` month column, for the sources the catalog has."""
     have = {r[0] for r in con.execute(
         "SELECT table_name FROM duckdb_tables() WHERE schema_name = 'main' UNION "
         "SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'").fetchall()}
-    return [name for name in _MONTH_ROWS if name in have]
+    cal_cols = {r[0] for r in con.execute(
+        "SELECT column_name FROM duckdb_columns() WHERE table_name = 'calibrations' AND schema_name = 'main'").fetchall()}
+    due = "CAST(recalibration_due AS DATE)" if "recalibration_due" in cal_cols else "CAST(NULL AS DATE)"
+    needs = {"calibration_events": {"calibrations", "scans"}, "diameters": {"diameters", "artifacts"}}
+    return {name: sql.format(m=_month_sql("t"), mc=_month_sql("c"), ms=_month_sql("s"),
+                             events=_EVENTS_SQL.format(due=due))
+            for name, sql in _MONTH_ROWS.items() if needs.get(name, {name}) <= have}
 
 
 def month_fingerprints(con) -> dict[str, str]:
@@ -455,8 +742,7 @@ def month_fingerprints(con) -> dict[str, str]:
     finding which months changed costs milliseconds even for years of nights.
     """
     parts: dict[str, list] = {}
-    for name in _sources(con):
-        sql = _MONTH_ROWS[name].format(m=_month_sql("t"), mc=_month_sql("c"), ms=_month_sql("s"))
+    for name, sql in _sources(con).items():
         for m, n, h in con.execute(f"SELECT _m, count(*), sum(hash(q)::HUGEINT) FROM ({sql}) q GROUP BY _m").fetchall():
             parts.setdefault(m, []).append((name, n, str(h)))
     code = _code_fingerprint()
@@ -467,8 +753,7 @@ def _month_tables(con, month: str) -> dict[str, pl.DataFrame]:
     """The rows of one month, per table, in page order (verifications with their scan's start)."""
     out = {}
     srcs = _sources(con)
-    for name in srcs:
-        sql = _MONTH_ROWS[name].format(m=_month_sql("t"), mc=_month_sql("c"), ms=_month_sql("s"))
+    for name, sql in srcs.items():
         order, drop = _ORDER[name], "_m"
         if name == "verifications" and "scans" in srcs:  # time order within a night: by the scan's start
             sql = ("SELECT " + _month_sql("t") + " AS _m, t.*, s.started_at AS _start FROM verifications t LEFT JOIN "
@@ -556,11 +841,16 @@ class _PlotCache:
         self.new: dict[str, str] = {}
         self.drawn = 0
 
-    def get(self, fname: str, key: str, draw) -> None:
+    def get(self, fname: str, key: str, draw) -> bytes:
+        """The PNG ``fname``: drawn when its key changed or the file is gone, else read back."""
         if self.old.get(fname) != key or not (self.folder / fname).is_file():
-            atomic_write_bytes(self.folder / fname, _png_bytes(draw()))
+            png = _png_bytes(draw())
+            atomic_write_bytes(self.folder / fname, png)
             self.drawn += 1
+        else:
+            png = (self.folder / fname).read_bytes()
         self.new[fname] = key
+        return png
 
     def save(self) -> None:
         """Record the plots of the page just written and remove the ones it no longer shows."""
@@ -590,12 +880,14 @@ class _Builder:
         rel = _rel(self.root, path)
         return None if rel is None else self.up + rel
 
-    def figure(self, plot, data: pl.DataFrame, key: str, name: str, alt: str) -> str:
-        """``plot(data, key)`` as ``<month>/<name>.png``, drawn only when its input changed."""
+    def figure(self, plot, data: pl.DataFrame, key: str, name: str, alt: str, *args) -> str:
+        """``plot(data, key, *args)`` as ``<month>/<name>.png``, drawn only when its input changed;
+        embedded in the page as a ``data:`` image that links to the PNG file."""
         fname = _safe(name) + ".png"
-        fp = hashlib.sha256(f"{self.code} {plot.__name__} {key} {frame_fingerprint(data)}".encode()).hexdigest()[:16]
-        self.cache.get(fname, fp, lambda: plot(data, key))
-        return f'<img src="{html.escape(self.plots + fname, quote=True)}" alt="{_e(alt)}">'
+        fp = hashlib.sha256(f"{self.code} {plot.__name__} {key} {args} {frame_fingerprint(data)}".encode()
+                            ).hexdigest()[:16]
+        png = self.cache.get(fname, fp, lambda: plot(data, key, *args))
+        return _img(self.plots + fname, png, alt)
 
     # ---------------------------------------------------------------- sections
     def calibration(self) -> str:
@@ -624,11 +916,11 @@ class _Builder:
                     _link(pdf, "certificate") if pdf else (_e(cert) + " (missing)" if cert else ""),
                     _link(json_link, "json") if json_link else "",
                 ) if x)
-                rows.append([_e(r["calibration_id"]), _e(r.get("valid_from")), _e(r.get("method")),
-                             _e(", ".join(scans)), _e(r.get("status")), links,
+                rows.append([_e(r["calibration_id"]), _e(r.get("valid_from")), _e(r.get("recalibration_due")),
+                             _e(r.get("method")), _e(", ".join(scans)), _e(r.get("status")), links,
                              f"<code>{_e((r.get('certificate_sha256') or '')[:16])}</code>"])
-            out.append(_table(["calibration", "valid from", "method", "scans", "status", "certificate",
-                               "certificate.json sha256"], rows))
+            out.append(_table(["calibration", "valid from", "recalibration due", "method", "scans", "status",
+                               "certificate", "certificate.json sha256"], rows))
         return "".join(out)
 
     def verification(self) -> str:
@@ -637,27 +929,51 @@ class _Builder:
             return _EMPTY["verification"]
         out = [
             '<p class="note">Individuals chart of the verification error (measured − certified ring-gauge '
-            "diameter) with limits mean ± 2.66·MR̄; moving-range chart with UCL = 3.267·MR̄.</p>"
+            "diameter), one per device and gauge, with limits mean ± 2.66·MR̄ (± 3σ̂, σ̂ = MR̄/1.128); "
+            "moving-range chart with UCL = 3.267·MR̄. Ringed points break a Western Electric run rule: "
+            + "; ".join(f"rule {k}, {v}" for k, v in RUN_RULES.items()) + ". Error bars U (k=2).</p>"
         ]
+        if "artifact_id" not in ver.columns:
+            ver = ver.with_columns(pl.lit(None, dtype=pl.Utf8).alias("artifact_id"))
         for dev in sorted(ver["device_id"].drop_nulls().unique().to_list()):
-            sub = ver.filter(pl.col("device_id") == dev)
-            lim = control_limits(sub["error_mm"].to_numpy())
-            out.append(f"<h3>Device {_e(dev)}</h3>")
-            out.append(self.figure(plot_control_chart, sub, dev, f"control_{dev}", f"control chart of {dev}"))
-            out.append(_table(
-                ["n", "mean [mm]", "MR̄ [mm]", "UCL [mm]", "LCL [mm]", "MR UCL [mm]"],
-                [[str(sub.height), _num(lim["mean"]), _num(lim["mr_bar"]), _num(lim["ucl"]), _num(lim["lcl"]),
-                  _num(lim["mr_ucl"])]], num_cols={0, 1, 2, 3, 4, 5}))
-            rows, classes = [], []
-            for r in sub.iter_rows(named=True):
-                ok = r.get("passed")
-                rows.append([_e(r.get("night")), _e(r["scan_id"]), _e(r.get("calibration_id")),
-                             _num(r.get("measured_mm"), 9), _num(r.get("certified_mm"), 9), _num(r.get("error_mm")),
-                             _num(r.get("tolerance_mm")),
-                             '<span class="pass">passed</span>' if ok else '<span class="fail">FAILED</span>'])
-                classes.append("" if ok else "fail")
-            out.append(_table(["night", "scan", "calibration", "measured [mm]", "certified [mm]", "error [mm]",
-                               "tolerance [mm]", "verdict"], rows, classes, num_cols={3, 4, 5, 6}))
+            mine = ver.filter(pl.col("device_id") == dev)
+            gauges = sorted(mine["artifact_id"].fill_null("").unique().to_list())
+            for gauge in gauges:
+                sub = mine.filter(pl.col("artifact_id").fill_null("") == gauge)
+                out.append(self._gauge_chart(dev, gauge or None, sub, several=len(gauges) > 1))
+        return "".join(out) + self._suspect()
+
+    def _gauge_chart(self, dev: str, gauge: str | None, sub: pl.DataFrame, several: bool) -> str:
+        lim = control_limits(sub["error_mm"].to_numpy())
+        out = [f"<h3>Device {_e(dev)}" + (f" · gauge {_e(gauge)}" if gauge else "") + "</h3>"]
+        name = f"control_{dev}_{gauge}" if several and gauge else f"control_{dev}"
+        if gauge:
+            out.append(self.figure(plot_control_chart, sub, dev, name, f"control chart of {dev} on {gauge}", gauge))
+        else:
+            out.append(self.figure(plot_control_chart, sub, dev, name, f"control chart of {dev}"))
+        out.append(_table(
+            ["n", "mean [mm]", "MR̄ [mm]", "UCL [mm]", "LCL [mm]", "MR UCL [mm]"],
+            [[str(sub.height), _num(lim["mean"]), _num(lim["mr_bar"]), _num(lim["ucl"]), _num(lim["lcl"]),
+              _num(lim["mr_ucl"])]], num_cols={0, 1, 2, 3, 4, 5}))
+        rules = run_rules(sub["error_mm"].to_numpy(), lim["mean"], lim["mr_bar"] / MR_D2)
+        rows, classes = [], []
+        for i, r in enumerate(sub.iter_rows(named=True)):
+            ok = r.get("passed")
+            broke = ", ".join(str(k) for k in RUN_RULES if rules[k][i])
+            u = r.get("u_error_mm")
+            rows.append([_e(r.get("night")), _e(r["scan_id"]), _e(r.get("calibration_id")),
+                         _num(r.get("measured_mm"), 9), _num(r.get("certified_mm"), 9), _um(r.get("error_mm")),
+                         _um(2.0 * u if u is not None else None), _um(r.get("tolerance_mm")),
+                         _temperature(r.get("temperature_c"), r.get("temperature_assumed")), _e(broke),
+                         '<span class="pass">passed</span>' if ok else '<span class="fail">FAILED</span>'])
+            classes.append("fail" if not ok else ("warn" if broke else ""))
+        out.append(_table(["night", "scan", "calibration", "measured at 20 °C [mm]", "certified [mm]", "error [µm]",
+                           "U (k=2) [µm]", "tolerance ± [µm]", "temperature [°C]", "run rules broken", "verdict"],
+                          rows, classes, num_cols={3, 4, 5, 6, 7, 8}))
+        return "".join(out)
+
+    def _suspect(self) -> str:
+        out = []
         sus = self.t.get("suspect_measurements")
         out.append("<h3>Measurements put in doubt by a failed verification</h3>")
         if sus is None or sus.height == 0:
@@ -671,56 +987,128 @@ class _Builder:
                               num_cols={4, 8}))
         return "".join(out)
 
+    def parts(self) -> pl.DataFrame:
+        """The month's diameter rows with ``nominal_mm`` (the row's ``nominal_diameter_mm``, else the
+        part's from ``artifacts``), ``tolerance_mm`` (the row's, when the measure stage records one),
+        ``deviation_mm`` (at 20 °C where known, else as measured, minus the nominal) and
+        ``in_tolerance`` (|deviation| <= tolerance; null without a tolerance)."""
+        dia = self.t["diameters"]
+        cols = set(dia.columns)
+        nominal = [pl.col(c).cast(pl.Float64) for c in ("nominal_diameter_mm", "artifact_nominal_mm") if c in cols]
+        value = pl.col("diameter_mm").cast(pl.Float64)
+        if "diameter_20_mm" in cols:
+            value = pl.coalesce(pl.col("diameter_20_mm").cast(pl.Float64), value)
+        dia = dia.with_columns(
+            (pl.coalesce(nominal) if nominal else pl.lit(None, dtype=pl.Float64)).alias("nominal_mm"),
+            (pl.col("tolerance_mm").cast(pl.Float64) if "tolerance_mm" in cols else pl.lit(None, dtype=pl.Float64)
+             ).alias("tolerance_mm"),
+            value.alias("_value_mm"))
+        return dia.with_columns((pl.col("_value_mm") - pl.col("nominal_mm")).alias("deviation_mm")).with_columns(
+            (pl.col("deviation_mm").abs() <= pl.col("tolerance_mm")).alias("in_tolerance"))
+
+    def _parts_table(self, df: pl.DataFrame) -> str:
+        rows, classes = [], []
+        for r in df.iter_rows(named=True):
+            big_u, k = r.get("expanded_u_diameter_20_mm"), r.get("k")
+            if big_u is None and r.get("u_diameter_mm") is not None:
+                big_u, k = 2.0 * r["u_diameter_mm"], 2.0
+            ok = r.get("in_tolerance")
+            verdict = ("" if ok is None else '<span class="pass">in tolerance</span>' if ok
+                       else '<span class="fail">OUT OF TOLERANCE</span>')
+            rows.append([_e(r.get("night")), _e(r.get("scan_id")), _e(r["artifact_id"]), _e(r.get("feature")),
+                         _num(r.get("diameter_mm"), 9), _temperature(r.get("temperature_c"), r.get("temperature_assumed")),
+                         _num(r.get("diameter_20_mm"), 9), _um(big_u, 2), _num(k, 3),
+                         _num(r.get("coverage_probability"), 4), _num(r.get("nominal_mm"), 9),
+                         _um(r.get("deviation_mm")), _um(r.get("tolerance_mm")), verdict, _e(r.get("calibration_id"))])
+            classes.append("fail" if ok is False else ("warn" if r.get("temperature_assumed") else ""))
+        return _table(["night", "scan", "part", "feature", "diameter at T [mm]", "T [°C]", "diameter at 20 °C [mm]",
+                       "U [µm]", "k", "coverage", "nominal [mm]", "deviation [µm]", "tolerance ± [µm]", "verdict",
+                       "calibration"], rows, classes, num_cols={4, 5, 6, 7, 8, 9, 10, 11, 12})
+
     def diameters(self) -> str:
         dia = self.t["diameters"]
         if dia.height == 0:
             return _EMPTY["diameters"]
-        out = []
-        dia = dia.with_columns(pl.col("artifact_id").fill_null("?"))
+        dia = self.parts().with_columns(pl.col("artifact_id").fill_null("?"))
+        out = ['<p class="note">Diameters as measured at the temperature T and brought to 20 °C (ISO 1); U is the '
+               "expanded uncertainty of the diameter at 20 °C with its coverage factor k and coverage probability "
+               "(U = 2u, k = 2 where the catalog has no budget). \"(assumed)\": no temperature was recorded, "
+               "20 °C assumed. Deviation = diameter at 20 °C − nominal; the verdict needs a part tolerance.</p>"]
+        if dia["nominal_mm"].drop_nulls().len() == 0:
+            out.append('<p class="note">No nominal diameter in the catalog for these parts (feature nominals of '
+                       "scan.json are not recorded in the diameters table).</p>")
         counts = dia.group_by("artifact_id", "feature").len().group_by("artifact_id").agg(pl.col("len").max())
         once = set(counts.filter(pl.col("len") < 2)["artifact_id"].to_list())
         if once:  # a single value per feature has no distribution: one table for all such parts
             single = dia.filter(pl.col("artifact_id").is_in(sorted(once))).sort("artifact_id", "feature", "scan_id")
             out.append(f"<h3>Parts measured once ({len(once)})</h3>")
-            rows = [[_e(r["artifact_id"]), _e(r.get("feature")), _num(r["diameter_mm"], 9), _num(r.get("u_diameter_mm"), 3),
-                     _e(r.get("scan_id")), _e(r.get("calibration_id"))] for r in single.iter_rows(named=True)]
-            out.append(_table(["part", "feature", "diameter [mm]", "u [mm]", "scan", "calibration"], rows,
-                              num_cols={2, 3}))
+            out.append(self._parts_table(single))
         for part in sorted(set(dia["artifact_id"].unique().to_list()) - once):
             sub = dia.filter(pl.col("artifact_id") == part)
             out.append(f"<h3>Part {_e(part)}</h3>")
             out.append(self.figure(plot_diameters, sub, part, f"diameters_{part}", f"diameters of {part}"))
-            stats = (sub.group_by("feature").agg(pl.len().alias("n"), pl.col("diameter_mm").mean().alias("mean"),
-                                                 pl.col("diameter_mm").std().alias("sd"),
-                                                 pl.col("diameter_mm").min().alias("min"),
-                                                 pl.col("diameter_mm").max().alias("max"),
-                                                 pl.col("u_diameter_mm").mean().alias("u"))
+            stats = (sub.group_by("feature").agg(pl.len().alias("n"), pl.col("_value_mm").mean().alias("mean"),
+                                                 pl.col("_value_mm").std().alias("sd"),
+                                                 pl.col("_value_mm").min().alias("min"),
+                                                 pl.col("_value_mm").max().alias("max"))
                      .sort("feature"))
-            rows = [[_e(r["feature"]), str(r["n"]), _num(r["mean"], 9), _num(r["sd"], 3), _num(r["min"], 9),
-                     _num(r["max"], 9), _num(r["u"], 3)] for r in stats.iter_rows(named=True)]
-            out.append(_table(["feature", "n", "mean [mm]", "sd [mm]", "min [mm]", "max [mm]", "mean u [mm]"], rows,
-                              num_cols={1, 2, 3, 4, 5, 6}))
+            rows = [[_e(r["feature"]), str(r["n"]), _num(r["mean"], 9), _um(r["sd"], 2), _num(r["min"], 9),
+                     _num(r["max"], 9)] for r in stats.iter_rows(named=True)]
+            out.append(_table(["feature", "n", "mean [mm]", "sd [µm]", "min [mm]", "max [mm]"], rows,
+                              num_cols={1, 2, 3, 4, 5}))
+            out.append(self._parts_table(sub))
         return "".join(out)
 
     def discrepancy(self) -> str:
         fnd = self.t["findings"]
         if fnd.height == 0:
             return _EMPTY["discrepancy"]
-        rows, classes, links_of = [], [], {}
-        for r in fnd.iter_rows(named=True):
-            sid = r["scan_id"]
-            if sid not in links_of:  # a scan has one row per candidate effect
-                gap = self.link(f"discrepancy/{sid}/gap.png")
-                fj = self.link(f"discrepancy/{sid}/findings.json")
-                links_of[sid] = " ".join(x for x in (_link(gap, "gap.png") if gap else "",
-                                                     _link(fj, "findings.json") if fj else "") if x)
-            links = links_of[sid]
-            rows.append([_e(sid), _e(r.get("night")), _e(r["verdict"]), _e(r.get("effect")), _e(r.get("channel")),
-                         f"<code>{_e(r.get('parameters'))}</code>" if r.get("parameters") else "",
-                         _num(r.get("gap_before_mm"), 4), _num(r.get("gap_after_mm"), 4), links])
-            classes.append("fail" if r["verdict"] == "missing_effect" else "")
-        return _table(["scan", "night", "verdict", "effect", "channel", "parameters", "gap before [mm rms]",
-                       "gap after [mm rms]", "plots"], rows, classes, num_cols={6, 7})
+        out = ['<p class="note">Parameters: value ± u (standard uncertainty, k=1) in the effect\'s unit; gaps: rms '
+               "of the residual before and after adding the named effect, against the readings' noise floor. "
+               "<b>missing_effect</b>: the model misses the named effect (service the device if it persists); "
+               "<b>ambiguous</b>: several named effects explain the data equally well, all listed; "
+               "<b>no_missing_effect</b>: the residual is at the noise floor.</p>"]
+        rows, classes = [], []
+        for (sid,), grp in fnd.group_by("scan_id", maintain_order=True):
+            recs = grp.to_dicts()
+            first = recs[0]
+            uncertainties = self._finding_uncertainties(sid)
+            gap = self.link(f"discrepancy/{sid}/gap.png")
+            fj = self.link(f"discrepancy/{sid}/findings.json")
+            links = " ".join(x for x in (_link(gap, "gap.png") if gap else "",
+                                         _link(fj, "findings.json") if fj else "") if x)
+            verdict = first["verdict"]
+            effects = []
+            for r in recs:
+                if not r.get("effect"):
+                    continue
+                where = f" on channel {r['channel']}" if r.get("channel") is not None else ""
+                pars = _parameters_text(r["effect"], r.get("parameters"),
+                                        uncertainties.get((r["effect"], r.get("channel")), {}))
+                effects.append(f"<b>{_e(r['effect'])}</b>{_e(where)}" + (f": {pars}" if pars else ""))
+            note = _verdict_note(verdict, [r["effect"] for r in recs if r.get("effect")])
+            rows.append([_e(sid), _e(first.get("night")), f"<b>{_e(verdict)}</b>" + (f"<br>{note}" if note else ""),
+                         "<br>".join(effects), _um(first.get("gap_before_mm"), 2), _um(first.get("gap_after_mm"), 2),
+                         _um(first.get("noise_floor_mm"), 2), links])
+            classes.append("fail" if verdict == "missing_effect" else "warn" if verdict == "ambiguous" else "")
+        out.append(_table(["scan", "night", "verdict", "named effect, channel, parameters", "gap before [µm rms]",
+                           "gap after [µm rms]", "noise floor [µm]", "plots"], rows, classes, num_cols={4, 5, 6}))
+        return "".join(out)
+
+    def _finding_uncertainties(self, scan_id: str) -> dict[tuple, dict[str, float]]:
+        """(effect, channel) -> {parameter: u} from ``discrepancy/<scan>/findings.json`` when it is there
+        (the findings table records the values only)."""
+        path = self.root / "discrepancy" / scan_id / "findings.json"
+        try:
+            named = json.loads(path.read_text()).get("named") or []
+        except (OSError, ValueError, AttributeError):
+            return {}
+        out = {}
+        for n in named:
+            if isinstance(n, dict) and isinstance(n.get("uncertainties"), dict):
+                out[(n.get("effect"), n.get("channel"))] = {k.removeprefix("u_"): v for k, v in n["uncertainties"].items()
+                                                           if isinstance(v, int | float)}
+        return out
 
     def papers(self) -> str:
         pdir = self.root / "papers"
@@ -733,7 +1121,7 @@ class _Builder:
             rel = self.up + f.relative_to(self.root).as_posix()
             out.append(f"<h3>{_link(rel, f.relative_to(pdir).as_posix())}</h3>")
             if f.suffix.lower() == ".png":
-                out.append(f'<img src="{html.escape(rel, quote=True)}" alt="{_e(f.name)}">')
+                out.append(_img(rel, f.read_bytes(), f.name))
             else:
                 try:
                     df = pl.read_csv(f, infer_schema_length=0)
@@ -747,27 +1135,182 @@ class _Builder:
                     out.append(f'<p class="note">first {shown.height} of {df.height} rows</p>')
         return "".join(out)
 
-    def quarantine(self) -> str:
+    def quarantined(self) -> list[dict[str, Any]]:
+        """Every quarantined scan of the page (``scans`` status or ``quarantine`` rows): scan_id,
+        night, device_id, kind, stages, reasons, class and action, in night and scan order."""
         sc = self.t["scans"].filter(pl.col("status") == "quarantined")
         q = self.t["quarantine"]
-        if sc.height == 0 and q.height == 0:
-            return _EMPTY["quarantine"]
-        scan_row = {r["scan_id"]: r for r in sc.iter_rows(named=True)}
-        q_rows: dict[str, list[dict]] = {}
+        scan_row = {(r["scan_id"], str(r["night"])): r for r in sc.iter_rows(named=True)}
+        q_rows: dict[tuple, list[dict]] = {}
         for r in q.iter_rows(named=True):
-            q_rows.setdefault(r["scan_id"], []).append(r)
-        rows = []
-        for sid in sorted(set(scan_row) | set(q_rows)):
-            srow = scan_row.get(sid, {})
-            qq = q_rows.get(sid, [])
-            stages = ", ".join(sorted({r["stage"] for r in qq if r["stage"] is not None}))
-            reasons = [srow.get("reason")] if srow.get("reason") else []
+            q_rows.setdefault((r["scan_id"], str(r["night"])), []).append(r)
+        out = []
+        for key in sorted(set(scan_row) | set(q_rows), key=lambda k: (k[1], k[0])):
+            srow, qq = scan_row.get(key, {}), q_rows.get(key, [])
+            reasons = [srow["reason"]] if srow.get("reason") else []
             reasons += [f"{r['file']}: {r['reason']}" for r in qq if f"{r['file']}: {r['reason']}" not in reasons]
-            rec = self.link(f"quarantine/{sid}.json")
-            rows.append([_e(sid), _e(srow.get("night") or (qq[0]["night"] if qq else None)),
-                         _e(srow.get("device_id")), _e(srow.get("kind")), _e(stages),
-                         "<br>".join(_e(r) for r in reasons), _link(rec, "record") if rec else ""])
-        return _table(["scan", "night", "device", "kind", "stage", "reason", "record"], rows)
+            cls, action = quarantine_action(" ".join(reasons))
+            out.append({"scan_id": key[0], "night": None if key[1] == "None" else key[1],
+                        "device_id": srow.get("device_id"), "kind": srow.get("kind"),
+                        "stages": ", ".join(sorted({r["stage"] for r in qq if r["stage"] is not None})),
+                        "reasons": reasons, "class": cls, "action": action})
+        return out
+
+    def quarantine(self) -> str:
+        items = self.quarantined()
+        if not items:
+            return _EMPTY["quarantine"]
+        rows = []
+        for it in items:
+            rec = self.link(f"quarantine/{it['scan_id']}.json")
+            rows.append([_e(it["scan_id"]), _e(it["night"]), _e(it["device_id"]), _e(it["kind"]), _e(it["stages"]),
+                         "<br>".join(_e(r) for r in it["reasons"]), _e(it["class"]), _e(it["action"]),
+                         _link(rec, "record") if rec else ""])
+        return _table(["scan", "night", "device", "kind", "stage", "reason", "class", "what to do", "record"], rows)
+
+    def summary(self) -> str:
+        """Night by night, newest first: what came in and what needs a person."""
+        t = self.t
+        sc, ver, fnd = t["scans"], t["verifications"], t["findings"]
+        ev = t.get("calibration_events")
+        ev = ev if ev is not None else pl.DataFrame(schema={"night": pl.Utf8, "event": pl.Utf8,
+                                                             "calibration_id": pl.Utf8, "device_id": pl.Utf8,
+                                                             "other_id": pl.Utf8})
+        parts = self.parts() if t["diameters"].height else None
+        quarantined = self.quarantined()
+
+        def of(df, night):
+            return df.filter(pl.col("night").cast(pl.Utf8) == night) if df is not None and df.height else df
+
+        nights = set()
+        for df in (sc, ver, fnd, ev, parts):
+            if df is not None and df.height and "night" in df.columns:
+                nights |= {str(n) for n in df["night"].drop_nulls().to_list()}
+        nights |= {q["night"] for q in quarantined if q["night"]}
+        if not nights:
+            return '<p class="empty">No nights in the catalog.</p>'
+        rows, classes, details = [], [], []
+        for night in sorted(nights, reverse=True):
+            s_n, v_n, f_n, e_n = of(sc, night), of(ver, night), of(fnd, night), of(ev, night)
+            p_n = of(parts, night)
+            q_n = [q for q in quarantined if q["night"] == night]
+            kinds = s_n.group_by("kind").len().sort("kind").rows() if s_n.height else []
+            made, superseded, expired = (e_n.filter(pl.col("event") == k) if e_n.height else e_n
+                                         for k in ("made", "superseded", "expired"))
+            failed = v_n.filter(~pl.col("passed").fill_null(True)) if v_n.height else v_n
+            out_tol = p_n.filter(~pl.col("in_tolerance")) if p_n is not None and p_n.height else None
+            person = f_n.filter(pl.col("verdict").is_in(["missing_effect", "ambiguous"])) if f_n.height else f_n
+            person_scans = person["scan_id"].unique(maintain_order=True).to_list() if person.height else []
+            n_out = 0 if out_tol is None else out_tol.height
+            known_tol = p_n is not None and p_n.height and p_n["tolerance_mm"].drop_nulls().len() > 0
+            attention = bool(q_n) or failed.height > 0 or n_out > 0 or bool(person_scans) or expired.height > 0
+            rows.append([f'<a href="#night-{night}">{_e(night)}</a>', str(s_n.height),
+                         _e(", ".join(f"{k} {n}" for k, n in kinds)), str(len(q_n)), str(made.height),
+                         str(expired.height), str(superseded.height), str(v_n.height - failed.height),
+                         str(failed.height), str(n_out) if known_tol else "–", str(len(person_scans))])
+            classes.append("fail" if attention else "")
+            details.append(self._night_detail(night, q_n, made, superseded, expired, failed, out_tol,
+                                              person, attention))
+        head = ["night", "scans in", "by kind", "quarantined", "calibrations made", "expired", "superseded",
+                "verifications passed", "failed", "parts out of tolerance", "verdicts for a person"]
+        return ('<p class="note">Newest night first. A red row needs attention; its details follow the table. '
+                "“–”: no part tolerance recorded.</p>" + _table(head, rows, classes, num_cols=set(range(3, 11)) | {1})
+                + "".join(details))
+
+    def _night_detail(self, night, q_n, made, superseded, expired, failed, out_tol, person, attention) -> str:
+        items = []
+        for q in q_n:
+            rec = self.link(f"quarantine/{q['scan_id']}.json")
+            items.append(f"<li><b>quarantined</b> {_link(rec, q['scan_id']) if rec else _e(q['scan_id'])}"
+                         f" ({_e(q['device_id'] or '?')}, {_e(q['kind'] or '?')}): {_e('; '.join(q['reasons']))}"
+                         f'<br><span class="action">{_e(q["class"])} — what to do: {_e(q["action"])}</span></li>')
+        for r in failed.iter_rows(named=True):
+            items.append(f"<li><b>verification failed</b> {_e(r['scan_id'])} ({_e(r['device_id'])}"
+                         f"{', gauge ' + _e(r['artifact_id']) if r.get('artifact_id') else ''}): error "
+                         f"{_um(r.get('error_mm'))} µm, tolerance ±{_um(r.get('tolerance_mm'))} µm, calibration "
+                         f"{_e(r.get('calibration_id'))}"
+                         '<br><span class="action">what to do: recalibrate; the calibration is refused for later '
+                         "measurements, and the measurements made with it are listed under Verification as put in "
+                         "doubt.</span></li>")
+        for r in expired.iter_rows(named=True):
+            items.append(f"<li><b>calibration expired</b> {_e(r['calibration_id'])} of {_e(r['device_id'])}"
+                         '<br><span class="action">what to do: recalibrate before the next measurement.</span></li>')
+        for r in (out_tol.iter_rows(named=True) if out_tol is not None else []):
+            items.append(f"<li><b>part out of tolerance</b> {_e(r['artifact_id'])} {_e(r.get('feature') or '')} "
+                         f"(scan {_e(r['scan_id'])}): deviation {_um(r['deviation_mm'])} µm, tolerance "
+                         f"±{_um(r['tolerance_mm'])} µm</li>")
+        for (sid,), grp in (person.group_by("scan_id", maintain_order=True) if person.height else []):
+            verdict = grp["verdict"][0]
+            named = ", ".join(f"{e}" + (f" (channel {c})" if c is not None else "")
+                              for e, c in grp.select("effect", "channel").rows() if e)
+            gap = self.link(f"discrepancy/{sid}/gap.png")
+            items.append(f"<li><b>discrepancy {_e(verdict)}</b> {_e(sid)}: {_e(named)}"
+                         + (f" ({_link(gap, 'gap.png')})" if gap else "")
+                         + f'<br><span class="action">{_verdict_note(verdict, grp["effect"].drop_nulls().to_list())}'
+                         "</span></li>")
+        for r in made.iter_rows(named=True):
+            items.append(f"<li>calibration made: {_e(r['calibration_id'])} of {_e(r['device_id'])}</li>")
+        for r in superseded.iter_rows(named=True):
+            items.append(f"<li>calibration superseded: {_e(r['calibration_id'])} of {_e(r['device_id'])} by "
+                         f"{_e(r['other_id'])}</li>")
+        if not items:
+            return ""
+        cls = "night" if attention else "night quiet"
+        return f'<div class="{cls}" id="night-{_e(night)}"><h3>{_e(night)}</h3><ul>{"".join(items)}</ul></div>'
+
+
+def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -> str:
+    """A finding's parameters (JSON text of the findings table) in words: ``tau_s = 1.200 ± 0.030 ms``."""
+    if not parameters:
+        return ""
+    try:
+        values = json.loads(parameters)
+    except ValueError:
+        return _e(parameters)
+    if not isinstance(values, dict):
+        return _e(parameters)
+    units = dict(getattr(EFFECTS.get(effect), "params", {}) or {})
+    out = []
+    for name, v in sorted(values.items()):
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            unit = units.get(name) or _unit_of(name)
+            out.append(f"{_e(name)} = {_e(format_quantity(float(v), u.get(name), unit))}")
+        elif isinstance(v, dict):  # per-scan values (pooled findings): how many, not all of them
+            out.append(f"{_e(name)}: {len(v)} values")
+        else:
+            out.append(f"{_e(name)} = {_e(v)}")
+    return "; ".join(out)
+
+
+def _unit_of(name: str) -> str:
+    """The unit a parameter's name ends in (``_mm``, ``_s``, ``_rad``, ``_hz``), "-" otherwise."""
+    for suffix, unit in (("_mm_per_s", "mm/s"), ("_mm", "mm"), ("_s", "s"), ("_rad", "rad"), ("_hz", "Hz"),
+                         ("_c", "degC")):
+        if name.endswith(suffix):
+            return unit
+    return "-"
+
+
+#: How a scan separates candidates that one scan cannot (README "When something needs attention").
+_SEPARATES = {
+    "channel_delay": "another spindle speed", "speed_error": "another spindle speed",
+    "sensor_nonlinearity": "another eccentricity", "sensor_offset": "another eccentricity",
+}
+
+
+def _verdict_note(verdict: str, effects: list[str]) -> str:
+    """What a verdict means for the person reading it (HTML)."""
+    if verdict == "ambiguous":
+        names = ", ".join(dict.fromkeys(effects))
+        hints = sorted({_SEPARATES[e] for e in effects if e in _SEPARATES})
+        how = (" A scan at " + " or ".join(hints) + " separates them." if hints
+               else " A scan that differs in what separates them does.")
+        return _e(f"Ambiguous between {names}: they explain this scan's data equally well (outputs.md lists every "
+                  "such candidate); one scan cannot tell them apart, nothing is wrong with the software." + how)
+    if verdict == "missing_effect":
+        return _e("The model misses this effect; if it persists over scans, service the device (sensor, cabling, "
+                  "spindle).")
+    return ""
 
 
 #: What a section says when the catalog holds no rows for it.
@@ -777,13 +1320,17 @@ _EMPTY = {
     "diameters": '<p class="empty">No diameters in the catalog.</p>',
     "discrepancy": '<p class="empty">No findings in the catalog.</p>',
     "quarantine": '<p class="empty">No quarantined scans.</p>',
+    "summary": '<p class="empty">No nights in the catalog.</p>',
 }
 
-SECTIONS = (("calibration", "Calibration"), ("verification", "Verification"), ("diameters", "Diameters"),
-            ("discrepancy", "Discrepancy"), ("papers", "Papers"), ("quarantine", "Quarantine"))
+SECTIONS = (("summary", "Summary"), ("calibration", "Calibration"), ("verification", "Verification"),
+            ("diameters", "Parts"), ("discrepancy", "Discrepancy"), ("papers", "Papers"), ("quarantine", "Quarantine"))
 
-#: A month page has every section but the papers (they do not depend on the nights).
+#: A month page has every section but the papers (they do not depend on the nights; their own page).
 MONTH_SECTIONS = tuple(s for s in SECTIONS if s[0] != "papers")
+
+#: The papers' page, under the report folder.
+PAPERS_PAGE = "papers.html"
 
 
 def _page(title: str, header: str, nav: str, body: str, footer: str = "") -> str:
@@ -862,7 +1409,7 @@ def _update(root: Path, con, full: bool) -> ReportUpdate:
     report_dir = root / REPORT_DIR
     report_dir.mkdir(parents=True, exist_ok=True)
     for stray in report_dir.iterdir():  # plots of the single-page layout, month folders of gone months
-        if stray.is_file():
+        if stray.is_file() and stray.name != PAPERS_PAGE:
             stray.unlink()
     prints = month_fingerprints(con)
     for d in report_dir.iterdir():
@@ -893,11 +1440,20 @@ def _update(root: Path, con, full: bool) -> ReportUpdate:
     month = dated[-1] if dated else None
     if month is not None and month not in parts:
         parts[month] = json.loads((report_dir / month / "sections.json").read_text())
-    papers = _Builder(root, {}, _PlotCache(report_dir), up="").papers()
+    papers = _Builder(root, {}, _PlotCache(report_dir), up="../").papers()
+    atomic_write_text(report_dir / PAPERS_PAGE, _page(
+        "borescan report · papers", "<header><h1>borescan report · papers</h1><p>published results reproduced, "
+        "beside the printed values (papers/)</p></header>", '<a href="../report.html">← report</a>',
+        f'<section id="papers"><h2>Papers</h2>{papers}</section>'))
+    n_papers = papers.count("<h3>")
     body = []
     for sid, title in SECTIONS:
         if sid == "papers":
-            body.append(f'<section id="{sid}"><h2>{title}</h2>{papers}</section>')
+            body.append(f'<section id="{sid}"><h2>{title}</h2><p>'
+                        + (f'{_link(f"{REPORT_DIR}/{PAPERS_PAGE}", "The reproduced papers")} ({n_papers} tables '
+                           "and plots beside the published values) are on a page of their own."
+                           if n_papers else '<span class="empty">No paper reproductions under papers/.</span>')
+                        + "</p></section>")
         elif month is None:
             body.append(f'<section id="{sid}"><h2>{title}</h2>{_EMPTY[sid]}</section>')
         else:

@@ -335,7 +335,7 @@ def draw_tri_calibration(
     d_nom = round(2 * R)
     artifact = {"id": f"RG-{d_nom}", "type": "ring_gauge", "nominal_diameter_mm": float(d_nom),
                 "certified_diameter_mm": 2 * R, "u_diameter_mm": contract["gauge_u_diameter_mm"], "k": 2,
-                "certificate": f"RG-{d_nom}/{night[:4]}", "cte_per_k": contract["cte_per_k"]}
+                "certificate": f"RG-{d_nom}/{night[:4]}/{2 * R:.6f}", "cte_per_k": contract["cte_per_k"]}
     sim = simulate.simulate_tri_spindle(
         scene, scan_id=scan_id, night=night, kind="calibration", n_rev=float(n_rev), effects=effects,
         noise_mm=noise_mm, seed=sim_seed, device_id=device_id or f"TRI-{scan_id}"[:64], nominal_beams=nominal,

@@ -511,9 +511,17 @@ def _base_meta(scan_id, night, kind, started_at, device, sample_rate_hz, sensors
 
 
 def _default_artifact(diameter_mm: float, cte_per_k: float) -> dict:
-    return {"id": "RG-275", "type": "ring_gauge", "nominal_diameter_mm": diameter_mm,
+    """A ring gauge of the scene's diameter: RG-275 (certificate RG-275/2026-03) for the default
+    275.029 mm, else one gauge per diameter (its certificate id names the value, so two simulated
+    gauges never share a certificate with different values: ingest quarantines that)."""
+    if abs(diameter_mm - 275.029) < 1e-9:
+        ident, cert = "RG-275", "RG-275/2026-03"
+    else:
+        ident = f"RG-{round(diameter_mm)}"
+        cert = f"{ident}/{diameter_mm:.6f}"
+    return {"id": ident, "type": "ring_gauge", "nominal_diameter_mm": diameter_mm,
             "certified_diameter_mm": diameter_mm, "u_diameter_mm": 0.0015, "k": 2,
-            "certificate": "RG-275/2026-03", "cte_per_k": cte_per_k}
+            "certificate": cert, "cte_per_k": cte_per_k}
 
 
 def _tri_device(device_id: str, nominal_beams: Beams | None, truth_beams: Beams) -> dict:

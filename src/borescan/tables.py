@@ -86,7 +86,10 @@ def _cols(spec: str) -> tuple[Column, ...]:
 _T = [
     # (scan_id, night): a scan id reused in a later night is quarantined but still recorded.
     Table("scans", _cols("scan_id:text night:date device_id:text device_type:text kind:text artifact_id:text "
-                         "started_at:timestamp status:text reason:text raw_sha256:text raw_path:text simulated:bool"),
+                         "started_at:timestamp status:text reason:text raw_sha256:text raw_path:text simulated:bool "
+                         # the artifact's certificate as this scan's scan.json gives it (kept per scan: history
+                         # that a later scan naming the artifact cannot rewrite)
+                         "artifact_certificate:text artifact_certified_diameter_mm:float artifact_u_diameter_mm:float"),
           ("scan_id", "night"), primary=True),
     Table("scan_files", _cols("scan_id:text file:text sha256:text bytes:int night:date"),
           ("scan_id", "night", "file"), primary=True),
@@ -106,6 +109,8 @@ _T = [
     Table("calibration_scans", _cols("calibration_id:text scan_id:text"), ("calibration_id", "scan_id"), primary=True),
     Table("diameters", _cols("diameter_id:text scan_id:text night:date device_id:text artifact_id:text feature:text "
                              "diameter_mm:float u_diameter_mm:float calibration_id:text method:text raw_sha256:text "
+                             # the part's nominal and tolerance (scan.json / config) and the verdict at 20 degC
+                             "nominal_diameter_mm:float tolerance_mm:float deviation_mm:float conformity:text "
                              # diameter_mm is at temperature_c; diameter_20_mm at 20 degC (ISO 1), with the budget
                              "temperature_c:float u_temperature_c:float temperature_assumed:bool cte_per_k:float "
                              "cte_assumed:bool diameter_20_mm:float u_diameter_20_mm:float expanded_u_diameter_20_mm:float "

@@ -51,7 +51,9 @@ class _Tracer:
             return node
         s = rows[0]
         node.update({k: s.get(k) for k in ("night", "kind", "device_id", "device_type", "artifact_id",
-                                           "started_at", "status", "reason", "raw_path", "raw_sha256")})
+                                           "started_at", "status", "reason", "raw_path", "raw_sha256",
+                                           "artifact_certificate", "artifact_certified_diameter_mm",
+                                           "artifact_u_diameter_mm")})
         node["files"] = _rows(self.con, "SELECT file, sha256, bytes FROM scan_files WHERE scan_id = ? ORDER BY file",
                               [scan_id])
         return node
@@ -61,6 +63,21 @@ class _Tracer:
             return None
         rows = _rows(self.con, "SELECT * FROM artifacts WHERE artifact_id = ?", [artifact_id])
         return rows[0] if rows else {"artifact_id": artifact_id, "missing": True}
+
+    def scan_artifact(self, sn: dict[str, Any]) -> dict[str, Any] | None:
+        """The artifact as the scan used it: its own certificate id and certified value (kept in
+        ``scans`` per scan, so a later scan naming the artifact cannot rewrite them); ``latest``
+        holds the artifacts table's record when that differs (a recertified gauge)."""
+        art = self.artifact(sn.get("artifact_id"))
+        keys = ("certificate", "certified_diameter_mm", "u_diameter_mm")
+        own = {k: sn.get(f"artifact_{k}") for k in keys}
+        if art is None or all(v is None for v in own.values()):
+            return art  # a catalog written before scans kept the certificate
+        out = dict(art, **own, as_used=True)
+        latest = {k: art.get(k) for k in keys}
+        if not art.get("missing") and latest != own:
+            out["latest"] = latest
+        return out
 
     def certificate(self, cal: dict[str, Any]) -> dict[str, Any] | None:
         path = cal.get("certificate_path")
@@ -80,6 +97,14 @@ class _Tracer:
         first = rows[0]
         node: dict[str, Any] = {k: first.get(k) for k in ("calibration_id", "device_id", "method", "valid_from",
                                                           "status")}
+        try:  # the lifecycle as of the newest night (saved query calibration_lifecycle), when the catalog has it
+            life = _rows(self.con, "SELECT status, valid_until, status_night, reason FROM calibration_lifecycle "
+                                   "WHERE calibration_id = ?", [calibration_id])
+        except duckdb.Error:
+            life = []
+        if life:
+            node.update(status=life[0]["status"], valid_until=life[0]["valid_until"],
+                        status_reason=life[0]["reason"] if life[0]["status"] != "valid" else None)
         node["channels"] = [r["channel"] for r in rows]
         node["certificate"] = self.certificate(first)
         scan_ids = [r["scan_id"] for r in _rows(
@@ -90,7 +115,7 @@ class _Tracer:
         scans = []
         for sid in scan_ids:
             sn = self.scan(sid)
-            sn["artifact"] = self.artifact(sn.get("artifact_id"))
+            sn["artifact"] = self.scan_artifact(sn)
             scans.append(sn)
         node["scans"] = scans
         node["verifications"] = _rows(
@@ -209,7 +234,12 @@ def _scan_lines(s: dict[str, Any], ind: str, label: str = "scan") -> list[str]:
             lines.append(
                 f"{ind}  artifact {art['artifact_id']} ({_fmt(art.get('type'))}), certificate {_fmt(art.get('certificate'))}, "
                 f"certified {_fmt(art.get('certified_diameter_mm'), ' mm')} "
-                f"(u {_fmt(art.get('u_diameter_mm'), ' mm')}, k={_fmt(art.get('k'))})")
+                f"(u {_fmt(art.get('u_diameter_mm'), ' mm')}, k={_fmt(art.get('k'))})"
+                + (" as this scan used it" if art.get("as_used") else ""))
+            if art.get("latest"):
+                lt = art["latest"]
+                lines.append(f"{ind}  NOTE: the artifact's latest record differs: certificate {_fmt(lt.get('certificate'))}, "
+                             f"certified {_fmt(lt.get('certified_diameter_mm'), ' mm')}")
     lines.append(f"{ind}  raw {_fmt(s.get('raw_path'))}")
     lines.append(f"{ind}  raw_sha256 {_fmt(s.get('raw_sha256'))}")
     for f in s.get("files", []):
@@ -237,7 +267,10 @@ def _cal_lines(c: dict[str, Any] | None, ind: str) -> list[str]:
     if c.get("missing"):
         return [f"{ind}calibration {c['calibration_id']}  (NOT IN CATALOG)"]
     lines = [f"{ind}calibration {c['calibration_id']}  device {_fmt(c['device_id'])}, method {_fmt(c['method'])}, "
-             f"valid from {_fmt(c['valid_from'])}, status {_fmt(c['status'])}, channels {c['channels']}"]
+             f"valid from {_fmt(c['valid_from'])}"
+             + (f" until {_fmt(c['valid_until'])}" if c.get("valid_until") else "")
+             + f", status {_fmt(c['status'])}" + (f" ({c['status_reason']})" if c.get("status_reason") else "")
+             + f", channels {c['channels']}"]
     lines += _cert_lines(c["certificate"], ind + "  ")
     for s in c["scans"]:
         lines += _scan_lines(s, ind + "  ", "calibration scan")

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from borescan import rawio
+from borescan.artifacts import certificate_conflicts, certificate_fields
 from borescan.rawio import ScanError
 
 __all__ = ["DUPLICATE_REASON", "OUT_OF_RANGE_NOTE", "RATE_TOLERANCE", "RawRootError", "require_raw_root",
@@ -196,4 +197,25 @@ def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | N
         if progress is not None:
             progress(i + 1, len(jobs))
     report.n_scans = len(jobs)
+    # a certificate that changes its value (ingest quarantines the later scan; artifacts.on_conflict)
+    records = []
+    for d, _ in jobs:
+        if d.name[5:] in report.bad_scan_ids:
+            continue
+        try:
+            meta = rawio.read_scan_meta(d)
+        except rawio.ScanError:
+            continue
+        records.append({"scan_id": d.name[5:], "night": d.parent.name[6:], "status": "ok",
+                        "started_at": meta.get("started_at"),
+                        "artifact_id": (meta.get("artifact") or {}).get("id"), **certificate_fields(meta)})
+    by_night: dict[str, list[dict]] = {}
+    for r in records:
+        by_night.setdefault(r["night"], []).append(r)
+    earlier: list[dict] = []
+    for night in sorted(by_night):
+        for sid, why in certificate_conflicts(earlier, by_night[night]).items():
+            report.problems.append(ScanError(sid, "scan.json", why))
+            report.bad_scan_ids.add(sid)
+        earlier += [r for r in by_night[night] if r["scan_id"] not in report.bad_scan_ids]
     return report

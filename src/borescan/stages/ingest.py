@@ -8,7 +8,8 @@ import polars as pl
 
 from borescan import rawio, tables, validation
 from borescan.parallel import map_in_order
-from borescan.stages._common import Quarantined, write_quarantine_record
+from borescan.artifacts import certificate_conflicts, certificate_fields
+from borescan.stages._common import Quarantined, frames_or_empty, write_quarantine_record
 
 __all__ = ["stage_ingest", "scan_row"]
 
@@ -16,7 +17,8 @@ DUPLICATE_REASON = validation.DUPLICATE_REASON
 
 
 def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, duplicate_ids: list[str] = (),
-                 workers: int = 1) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
+                 workers: int = 1, earlier_scans=(), on_conflict: str = "quarantine",
+                 log=None) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
     """Validate and register every scan of one night (spread over ``workers`` processes).
 
     A scan is quarantined for the first problem :func:`borescan.validation.scan_problems` finds
@@ -27,6 +29,11 @@ def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, dup
     ``scan_files`` rows (SHA-256 and size of every raw file, bad scans included) and the
     quarantine records (also written as ``quarantine/<scan_id>.json``). ``duplicate_ids``
     (:func:`borescan.rawio.earlier_duplicate_ids`) are quarantined: an earlier night has them.
+
+    ``earlier_scans``: the ``scans`` tables (paths or frames) of earlier nights. A scan whose
+    artifact certificate contradicts an earlier record of the same certificate
+    (:func:`borescan.artifacts.certificate_conflicts`) is quarantined (``on_conflict:
+    quarantine``) or kept with a log line (``flag``); the conflict is named either way.
     """
     dup = set(duplicate_ids)
     jobs = [(raw_root, night, results_root, d, d.name[5:] in dup) for d in rawio.night_scan_dirs(raw_root, night)]
@@ -35,6 +42,20 @@ def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, dup
         rows.append(row)
         file_rows += files
         if problem is not None:
+            bad.append(problem)
+    before = frames_or_empty([e if isinstance(e, pl.DataFrame) else pl.read_parquet(e) for e in earlier_scans])
+    conflicts = certificate_conflicts(before.to_dicts() if before.height and "artifact_certificate" in before.columns
+                                      else [], rows)
+    for row in rows:
+        why = conflicts.get(row["scan_id"])
+        if why is None:
+            continue
+        if log is not None:
+            log(f"CERTIFICATE CONFLICT {row['scan_id']}: {why}")
+        if on_conflict == "quarantine":
+            problem = Quarantined(row["scan_id"], night, "ingest", "scan.json", why)
+            write_quarantine_record(results_root, problem)
+            row.update(status="quarantined", reason=f"scan.json: {why}")
             bad.append(problem)
     return tables.frame("scans", rows), tables.frame("scan_files", file_rows), bad
 
@@ -65,6 +86,7 @@ def scan_row(scan_id: str, night: str, scan_dir: Path, meta: dict, hashes: dict[
         "raw_sha256": rawio.combined_sha256(hashes),
         "raw_path": str(scan_dir),
         "simulated": bool(acq.get("simulated", False)) if isinstance(acq, dict) else False,
+        **certificate_fields(meta),
     }
 
 

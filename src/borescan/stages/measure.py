@@ -62,6 +62,8 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     allow = bool(cfg["measurement"]["allow_unverified_calibration"])
     validity = int(cfg["calibration"]["validity_days"])
     unc, lab = section(cfg, "uncertainty"), section(cfg, "laboratory")
+    part = {"default_tolerance_mm": cfg["measurement"].get("part_tolerance_mm"), "rule": lab["decision_rule"],
+            "guard_band_factor": float(lab["guard_band_factor"])}
     cals = read_tables(calibration_tables)
     failed = failed_calibration_ids(read_tables(verification_tables_before))
     diam, ver, arts, bad = [], [], {}, []
@@ -70,7 +72,7 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     def job(row, d):
         cal_id, why = choose_calibration(cals, failed, row["device_id"], night, validity, allow)
         cal = cals.filter(pl.col("calibration_id") == cal_id) if cal_id is not None else None
-        return (raw_root, night, results_root, row, d, cal_id, why, cal, tol, unc, lab)
+        return (raw_root, night, results_root, row, d, cal_id, why, cal, tol, unc, lab, part)
 
     def take(out):
         diam.extend(out["diameters"])
@@ -105,7 +107,7 @@ def measure_one(job) -> dict:
 
     Returns {"diameters", "verifications", "quarantined": lists, "artifact": row or None, "log": str}.
     """
-    raw_root, night, results_root, row, d, cal_id, why, cals, tol, unc, lab = job
+    raw_root, night, results_root, row, d, cal_id, why, cals, tol, unc, lab, part = job
     out = {"diameters": [], "verifications": [], "quarantined": [], "artifact": None, "log": None}
     bad = out["quarantined"]
     scan = rawio.read_scan(d, raw_root=Path(raw_root))
@@ -123,8 +125,9 @@ def measure_one(job) -> dict:
                     r["diameter_mm"], u_readings_mm=r["u_diameter_mm"], dof_readings=float("inf"), temperature=temp,
                     cte=cte, artifact=dict(meta.get("artifact") or {}), scan_id=f"{sid}/{r['feature']}",
                     p=float(unc["coverage_probability"]), default_resolution_mm=float(unc["sensor_resolution_mm"]))
-                out["diameters"].append(measure.diameter_row(sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"],
-                                                             r["u_diameter_mm"], cal_id, ROD_METHOD, du))
+                out["diameters"].append(_with_part(measure.diameter_row(
+                    sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"], r["u_diameter_mm"], cal_id, ROD_METHOD,
+                    du), meta, r["feature"], du, part))
             out["log"] = f"{sid}: " + ", ".join(f"{r['feature']} {r['diameter_mm']:.4f} +- {r['u_diameter_mm'] * 1e3:.1f} um"
                                                 for r in res) + _temperature_note(temp)
             return out
@@ -136,8 +139,9 @@ def measure_one(job) -> dict:
     except (rod.RodSolveError, CalibrationError, ValueError, np.linalg.LinAlgError) as err:
         quarantine(results_root, bad, sid, night, "measure", "lds.parquet", f"measurement failed: {err}")
         return out
-    out["diameters"].append(measure.diameter_row(sid, dev, row["artifact_id"], None, res["diameter_mm"],
-                                                 du.combined_t.u, cal_id, res["method"], du))
+    out["diameters"].append(_with_part(measure.diameter_row(sid, dev, row["artifact_id"], None, res["diameter_mm"],
+                                                            du.combined_t.u, cal_id, res["method"], du),
+                                       meta, None, du, part))
     msg = (f"{sid}: D = {res['diameter_mm']:.4f} mm at {du.temperature.temperature_c:g} degC, "
            f"D20 = {du.diameter_20_mm:.4f} mm +- {du.combined_20.U * 1e3:.2f} um (k = {du.combined_20.k:.2f}) "
            f"({res['method']}, {cal_id})" + _temperature_note(du.temperature))
@@ -156,6 +160,16 @@ def measure_one(job) -> dict:
         msg += f"; error at 20 degC {v.error_mm * 1e3:+.2f} um vs {a['certified_diameter_mm']}: {v.conformity}"
     out["log"] = msg
     return out
+
+
+def _with_part(row: dict, meta: dict, feature, du, part: dict) -> dict:
+    """The diameter row with its part's nominal, tolerance (scan.json, else ``measurement.part_tolerance_mm``),
+    deviation at 20 degC and verdict by the laboratory's decision rule (:func:`borescan.measure.part_conformity`)."""
+    f = measure.part_feature(dict(meta.get("artifact") or {}), feature)
+    tol = f["tolerance_mm"] if f["tolerance_mm"] is not None else part["default_tolerance_mm"]
+    row.update(measure.part_conformity(du.diameter_20_mm, du.combined_20.U, f["nominal_diameter_mm"],
+                                       None if tol is None else float(tol), part["rule"], part["guard_band_factor"]))
+    return row
 
 
 def _temperature_note(temp) -> str:

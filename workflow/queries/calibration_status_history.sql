@@ -1,0 +1,57 @@
+-- Every change of status of every calibration: the lifecycle kept as history.
+-- Answers: "When did this calibration become valid, and when and why did it stop being so?"
+-- One row per calibration and event, in time order:
+--   status    valid                (from valid_from; the calibration's certificate was issued)
+--             failed_verification  (a ring-gauge verification made with it failed: refused from then on)
+--             superseded           (a later calibration of the same device became valid)
+--             expired              (its recalibration_due passed; the catalog's newest night is later)
+--             refused              (a calibration of the device was refused: no certificate; calibration_id null)
+--   night     the night the status began
+--   reason    what caused it (the verification scan and its error, the superseding calibration, ...)
+-- A calibration's current status is its latest event (see calibration_lifecycle).
+-- Run: borescan sql --query calibration_status_history
+WITH cal AS (
+    SELECT calibration_id, any_value(device_id) AS device_id, any_value(method) AS method,
+           min(valid_from) AS valid_from, min(recalibration_due) AS recalibration_due
+    FROM calibrations
+    GROUP BY calibration_id
+),
+latest AS (SELECT max(night) AS night FROM scans),
+failed AS (
+    SELECT v.calibration_id, v.night, v.scan_id, v.error_mm, v.tolerance_mm,
+           row_number() OVER (PARTITION BY v.calibration_id ORDER BY v.night, s.started_at, v.scan_id) AS k
+    FROM verifications v LEFT JOIN scans s ON s.scan_id = v.scan_id
+    WHERE NOT v.passed AND v.calibration_id IS NOT NULL
+),
+nxt AS (
+    SELECT calibration_id, device_id,
+           lead(valid_from) OVER (PARTITION BY device_id ORDER BY valid_from, calibration_id) AS next_from,
+           lead(calibration_id) OVER (PARTITION BY device_id ORDER BY valid_from, calibration_id) AS next_id
+    FROM cal
+),
+events AS (
+    SELECT calibration_id, device_id, 'valid' AS status, valid_from AS night,
+           'calibration ' || method || ' issued' AS reason
+    FROM cal
+    UNION ALL
+    SELECT f.calibration_id, c.device_id, 'failed_verification', f.night,
+           'verification ' || f.scan_id || ' error ' || CAST(round(f.error_mm * 1000, 2) AS VARCHAR)
+           || ' um outside +-' || CAST(round(f.tolerance_mm * 1000, 2) AS VARCHAR) || ' um'
+    FROM failed f JOIN cal c USING (calibration_id) WHERE f.k = 1
+    UNION ALL
+    SELECT calibration_id, device_id, 'superseded', next_from, 'superseded by ' || next_id
+    FROM nxt WHERE next_from IS NOT NULL
+    UNION ALL
+    SELECT c.calibration_id, c.device_id, 'expired', c.recalibration_due,
+           'recalibration due ' || CAST(c.recalibration_due AS VARCHAR)
+    FROM cal c, latest l WHERE c.recalibration_due IS NOT NULL AND c.recalibration_due < l.night
+    UNION ALL
+    SELECT DISTINCT NULL, s.device_id, 'refused', q.night, q.reason
+    FROM quarantine q JOIN scans s ON s.scan_id = q.scan_id AND s.night = q.night
+    WHERE q.stage = 'calibrate'
+)
+SELECT calibration_id, device_id, status, night, reason
+FROM events
+ORDER BY device_id, night, calibration_id NULLS FIRST,
+         CASE status WHEN 'refused' THEN 0 WHEN 'valid' THEN 1 WHEN 'superseded' THEN 2
+                     WHEN 'failed_verification' THEN 3 ELSE 4 END;
