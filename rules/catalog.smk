@@ -16,6 +16,8 @@ rule build_catalog:
         measure_quarantine=stage_table("quarantine/stage=measure"),
         findings=stage_table("findings"),
         discrepancy_quarantine=stage_table("quarantine/stage=discrepancy"),
+        pooled_findings=stage_table("pooled_findings"),
+        calibration_drift=stage_table("calibration_drift"),
     output:
         # update(): Snakemake must not delete the catalog before the job, which extends it by
         # the new nights (borescan.catalog.update_catalog); a failed job restores the old one

@@ -42,3 +42,10 @@ def scans_before_night(wildcards):
 def verifications_before_night(wildcards):
     """Verification tables of earlier nights (a calibration that failed one is refused)."""
     return [f"{RES}/stage/verifications/night={n}.parquet" for n in NIGHTS if n < wildcards.night]
+
+
+def scans_of_pooled_window(wildcards):
+    """Scans tables of the night and of the discrepancy.pooled_window_nights - 1 nights before it."""
+    upto = [n for n in NIGHTS if n <= wildcards.night]
+    window = upto[-int(config["discrepancy"]["pooled_window_nights"]):]
+    return [f"{RES}/stage/scans/night={n}.parquet" for n in window]

@@ -26,3 +26,34 @@ rule discrepancy_night:
 rule discrepancy:
     input:
         stage_table("findings"),
+        stage_table("pooled_findings"),
+        stage_table("calibration_drift"),
+
+
+
+rule pooled_night:
+    message:
+        "Examining each device's spindle scans up to night {wildcards.night} together; calibration drift"
+    input:
+        scans=scans_of_pooled_window,
+        calibrations=calibrations_up_to_night,
+        raw=raw_files_of_night,
+    output:
+        pooled_findings=f"{RES}/stage/pooled_findings/night={{night}}.parquet",
+        calibration_drift=f"{RES}/stage/calibration_drift/night={{night}}.parquet",
+        # one <device_id>.json per device with two or more spindle scans (the set is the data's)
+        json=directory(f"{RES}/discrepancy/pooled/night={{night}}"),
+    params:
+        raw_root=RAW,
+        results_root=results_root_for,
+        discrepancy=config["discrepancy"],
+        devices=config["devices"],
+    threads: config["stage_workers"]
+    log:
+        f"{RES}/logs/pooled_night/{{night}}.log",
+    benchmark:
+        f"{RES}/benchmarks/pooled_night/{{night}}.tsv"
+    conda:
+        "../workflow/envs/borescan.yaml"
+    script:
+        "../workflow/scripts/pooled_night.py"

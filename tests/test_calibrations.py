@@ -9,6 +9,7 @@ import pytest
 
 from borescan.calibration import TriCalibration
 from borescan.calibrations import (
+    calibration_drift,
     calibration_rows,
     choose_calibration,
     days_between,
@@ -117,3 +118,64 @@ def test_rod_layers_from_rows_default_missing_geometry_to_zero():
     assert [l.channel for l in lays] == [2, 1]
     assert lays[0].phi_rad == 0.0 and lays[0].l0_mm == 40.0
     assert lays[1].phi_rad == 0.1 and lays[1].d_mm == 0.02 and lays[1].gamma_rad == 0.003
+
+
+def _drift_rows():
+    """Hand-made calibrations: TRI-01 channel 2 three times (beta moves 4 mrad between A and B),
+    TRI-02 channel 1 twice with beta across 2 pi, a rod's nominal record (no beta)."""
+    def row(cid, dev, ch, valid, beta, u_beta, rho, u_rho, d_b, u_d_b, method="full_lsq"):
+        return {"calibration_id": cid, "device_id": dev, "channel": ch, "valid_from": valid, "method": method,
+                "beta_rad": beta, "u_beta_rad": u_beta, "rho_mm": rho, "u_rho_mm": u_rho, "d_b_mm": d_b, "u_d_b_mm": u_d_b}
+    return pl.DataFrame([
+        row("C", "TRI-01", 2, "2026-11-25", 2.1041, 0.0006, -2.005, 0.01, 121.001, 0.002),
+        row("A", "TRI-01", 2, "2026-11-20", 2.1000, 0.0005, -2.000, 0.01, 121.000, 0.002),
+        row("B", "TRI-01", 2, "2026-11-21", 2.1040, 0.0006, -2.005, 0.01, 121.001, 0.002),
+        row("Y", "TRI-02", 1, "2026-11-20", 0.002, 0.001, 1.0, 0.01, 120.0, 0.002),
+        row("X", "TRI-02", 1, "2026-11-20", 6.28, 0.001, 1.0, 0.01, 120.0, 0.002),
+        row("ROD-01-nominal-1", "ROD-01", 1, "2026-11-20", None, None, None, None, None, None, method="nominal"),
+    ])
+
+
+def test_calibration_drift_against_hand_computed_changes():
+    d = calibration_drift(_drift_rows(), 3.0)
+    beta = d.filter((pl.col("device_id") == "TRI-01") & (pl.col("parameter") == "beta_rad"))
+    assert beta["calibration_id_before"].to_list() == ["A", "B"] and beta["calibration_id_after"].to_list() == ["B", "C"]
+    # A -> B: 0.004 rad over sqrt(0.0005^2 + 0.0006^2) = 7.8102e-4 rad: 5.1215 combined u, a finding
+    assert beta["change"][0] == pytest.approx(0.004, abs=1e-12)
+    assert beta["u_combined"][0] == pytest.approx(7.810250e-4, rel=1e-6)
+    assert beta["change_over_u"][0] == pytest.approx(5.121475, rel=1e-6)
+    # B -> C: 1e-4 rad over sqrt(2) 6e-4 = 8.4853e-4: 0.1179, not one
+    assert beta["change_over_u"][1] == pytest.approx(0.117851, rel=1e-5)
+    assert beta["flagged"].to_list() == [True, False]
+    rho = d.filter((pl.col("device_id") == "TRI-01") & (pl.col("parameter") == "rho_mm"))
+    assert rho["change"][0] == pytest.approx(-0.005, abs=1e-12) and rho["change_over_u"][0] == pytest.approx(-0.353553, rel=1e-5)
+    assert not d.filter(pl.col("parameter") != "beta_rad")["flagged"].any()
+    # same night: ordered by calibration id (X before Y); beta wrapped: 0.002 - 6.28 + 2 pi = 0.0051853 rad
+    w = d.filter((pl.col("device_id") == "TRI-02") & (pl.col("parameter") == "beta_rad"))
+    assert w["calibration_id_before"][0] == "X" and w["change"][0] == pytest.approx(0.002 - 6.28 + 2 * math.pi, abs=1e-12)
+    assert w["change_over_u"][0] == pytest.approx((0.002 - 6.28 + 2 * math.pi) / math.sqrt(2e-6), rel=1e-9)  # 3.6666
+    assert w["flagged"][0] and not calibration_drift(_drift_rows(), 4.0).filter(
+        (pl.col("device_id") == "TRI-02") & (pl.col("parameter") == "beta_rad"))["flagged"][0]
+    assert "ROD-01" not in d["device_id"].to_list()
+    assert d.height == 3 * 2 + 3 * 1  # three parameters: two pairs of TRI-01, one of TRI-02
+
+
+def test_calibration_drift_without_pairs_or_uncertainty_and_bad_input():
+    one = _drift_rows().filter(pl.col("calibration_id") == "A")
+    empty = calibration_drift(one, 3.0)
+    assert empty.height == 0 and "flagged" in empty.columns and "change_over_u" in empty.columns
+    assert calibration_drift(pl.DataFrame(), 3.0).height == 0
+    no_u = _drift_rows().with_columns(pl.when(pl.col("calibration_id") == "B").then(None)
+                                      .otherwise(pl.col("u_beta_rad")).alias("u_beta_rad"))
+    b = calibration_drift(no_u, 3.0).filter((pl.col("device_id") == "TRI-01") & (pl.col("parameter") == "beta_rad"))
+    assert math.isnan(b["change_over_u"][0]) and not b["flagged"].any()  # no uncertainty, no judgement
+    with pytest.raises(ValueError, match="positive"):
+        calibration_drift(_drift_rows(), 0.0)
+    with pytest.raises(ValueError, match=r"lacks the columns \['u_d_b_mm'\]"):
+        calibration_drift(_drift_rows().drop("u_d_b_mm"), 3.0)
+
+
+def test_drift_multiple_default_comes_from_the_schema():
+    from borescan.config import schema_defaults
+
+    assert schema_defaults()["discrepancy"]["drift_multiple"] == 3.0

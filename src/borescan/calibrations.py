@@ -10,6 +10,11 @@ Which calibration applies (README "A measurement never uses a calibration that f
 verification or has expired"): the device's latest calibration made on or before the night,
 refused when it is older than the validity or has failed a verification, unless the config
 allows unverified calibrations.
+
+Drift (:func:`calibration_drift`): a change of a beam parameter between two consecutive
+calibrations of a device larger than a multiple of their combined standard uncertainty is a
+finding; whether a named effect explains it is the pooled examination's
+(:func:`borescan.discrepancy.pooled.drift_explanations`).
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from borescan.calibration import TriCalibration
 from borescan.geometry import RodLayer
 
 __all__ = ["choose_calibration", "failed_calibration_ids", "days_between", "calibration_rows",
-           "rod_nominal_calibration_rows", "tri_calibration", "rod_layers"]
+           "rod_nominal_calibration_rows", "tri_calibration", "rod_layers", "calibration_drift", "DRIFT_PARAMS"]
 
 
 def days_between(first_night: str, night: str) -> int:
@@ -125,3 +130,85 @@ def rod_layers(layer_rows: pl.DataFrame, channels) -> list[RodLayer]:
 
     return [RodLayer(int(ch), num(rows[int(ch)], "h_mm"), float(rows[int(ch)]["l0_mm"]), num(rows[int(ch)], "phi_rad"),
                      num(rows[int(ch)], "d_mm"), num(rows[int(ch)], "gamma_rad")) for ch in channels]
+
+
+#: Beam parameters compared by :func:`calibration_drift`: (value column, standard uncertainty column).
+DRIFT_PARAMS = (("beta_rad", "u_beta_rad"), ("rho_mm", "u_rho_mm"), ("d_b_mm", "u_d_b_mm"))
+_DRIFT_SCHEMA = {
+    "device_id": pl.String, "channel": pl.Int64, "parameter": pl.String,
+    "calibration_id_before": pl.String, "calibration_id_after": pl.String,
+    "valid_from_before": pl.String, "valid_from_after": pl.String,
+    "value_before": pl.Float64, "value_after": pl.Float64, "change": pl.Float64,
+    "u_before": pl.Float64, "u_after": pl.Float64, "u_combined": pl.Float64,
+    "change_over_u": pl.Float64, "multiple": pl.Float64, "flagged": pl.Boolean,
+}
+
+
+def calibration_drift(calibrations: pl.DataFrame, multiple: float) -> pl.DataFrame:
+    """Changes of each beam parameter between consecutive calibrations of a three-sensor device.
+
+    For every device and channel the calibrations (rows of the ``calibrations`` table with a
+    ``beta_rad``; ``nominal`` records left out) are ordered as :func:`choose_calibration` orders
+    them (``valid_from``, then ``calibration_id``); for each consecutive pair and each parameter
+    of :data:`DRIFT_PARAMS`
+
+        change = value_after - value_before   (beta wrapped to (-pi, pi]),
+        u_combined = sqrt(u_before^2 + u_after^2)   (two calibrations from different scans: independent),
+
+    and the pair is ``flagged`` when |change| > ``multiple`` u_combined (strictly). The standard
+    uncertainties are the table's ``u_*`` columns (k = 1).
+
+    Parameters
+    ----------
+    calibrations : rows of the ``calibrations`` table (any device types; polars frame)
+    multiple : how many combined standard uncertainties a change must exceed [-] (> 0)
+
+    Returns
+    -------
+    polars frame, one row per device, channel, parameter and consecutive pair, ordered by device,
+    channel, parameter and time; columns device_id, channel, parameter, calibration_id_before,
+    calibration_id_after, valid_from_before, valid_from_after, value_before, value_after, change,
+    u_before, u_after, u_combined, change_over_u (change / u_combined, signed), multiple, flagged.
+    Empty (with these columns) when no device has two calibrations.
+    """
+    if not (multiple > 0 and math.isfinite(multiple)):
+        raise ValueError(f"drift multiple must be a positive number, got {multiple!r}")
+    need = {"calibration_id", "device_id", "channel", "valid_from"} | {c for pair in DRIFT_PARAMS for c in pair}
+    if calibrations.height == 0 or not need <= set(calibrations.columns):
+        missing = sorted(need - set(calibrations.columns))
+        if calibrations.height and missing:
+            raise ValueError(f"calibrations table lacks the columns {missing} that calibration_drift reads")
+        return pl.DataFrame(schema=_DRIFT_SCHEMA)
+    c = calibrations.filter(pl.col("beta_rad").is_not_null())
+    if "method" in c.columns:
+        c = c.filter(pl.col("method").fill_null("") != "nominal")
+    c = c.with_columns(pl.col("valid_from").cast(pl.String)).sort("device_id", "channel", "valid_from",
+                                                                   "calibration_id")
+    rows = []
+    for (device, channel), g in c.group_by(["device_id", "channel"], maintain_order=True):
+        recs = g.rows(named=True)
+        for par, upar in DRIFT_PARAMS:
+            for a, b in zip(recs, recs[1:]):
+                va, vb, ua, ub = (float(x) if x is not None else math.nan
+                                  for x in (a[par], b[par], a[upar], b[upar]))
+                d = vb - va
+                if par == "beta_rad":
+                    d = math.remainder(d, 2.0 * math.pi)
+                uc = math.hypot(ua, ub)
+                if not (math.isfinite(d) and math.isfinite(uc)):
+                    ratio = math.nan  # a missing value or uncertainty: no judgement
+                elif uc > 0:
+                    ratio = d / uc
+                else:
+                    ratio = math.copysign(math.inf, d) if d else 0.0
+                rows.append({
+                    "device_id": device, "channel": int(channel), "parameter": par,
+                    "calibration_id_before": a["calibration_id"], "calibration_id_after": b["calibration_id"],
+                    "valid_from_before": a["valid_from"], "valid_from_after": b["valid_from"],
+                    "value_before": va, "value_after": vb, "change": d, "u_before": ua, "u_after": ub,
+                    "u_combined": uc, "change_over_u": ratio, "multiple": float(multiple),
+                    "flagged": (not math.isnan(ratio)) and abs(d) > multiple * uc,
+                })
+    if not rows:
+        return pl.DataFrame(schema=_DRIFT_SCHEMA)
+    return pl.DataFrame(rows, schema=_DRIFT_SCHEMA, orient="row")

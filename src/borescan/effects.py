@@ -48,7 +48,18 @@ parameters, e.g. ``sensor_gain@2.g``). Each spec carries
   ``needs``: what a scan must have for the term to be tried (``"commanded_angle"``: no
   encoder, ``"vibration_line"``: a residual line off the rotation harmonics, ``"cte"``: the
   artifact's expansion coefficient); ``common``: a per-channel effect also tried as one
-  value on every channel.
+  value on every channel;
+- ``scope``: what the effect belongs to when several scans are examined together
+  (:mod:`borescan.discrepancy.pooled`): ``"device"`` (the sensors, the electronics: one value in
+  every scan of the device), ``"night"`` (the environment of one night), ``"artifact"`` (one
+  artifact: its form, its tilt) or ``"scan"`` (one run of the spindle);
+- ``absorbed_unless``: per scan kind, base parameter -> the condition of a set of scans under
+  which that parameter no longer absorbs the effect (``"speeds_differ"``: a delay is a change
+  of beta only at one signed speed; ``"radii_differ"``: a thermal change of the radius is a
+  common offset only for one gauge radius); the conditions are evaluated by the pooled examination;
+- ``orientation``: for an effect fixed in the machine frame (a gauge's form, its tilt), the spec
+  parameter that turns with it (``phase``, ``azimuth``): scans whose angle origins differ see it
+  turned by the difference.
 
 Adding a reading effect is one :class:`EffectSpec` here (plus its row in the spec).
 """
@@ -67,6 +78,7 @@ from borescan.geometry import Bore, RodLayer
 __all__ = [
     "STAGES",
     "SCAN_KINDS",
+    "SCOPES",
     "FitParam",
     "EffectSpec",
     "Effect",
@@ -85,6 +97,8 @@ TRI = "tri_lds"
 ROD = "rod"
 #: Scan kinds the registry describes absorption and candidacy for.
 SCAN_KINDS: tuple[str, ...] = ("tri_spindle", "tri_static", "rod")
+#: What an effect belongs to when scans are examined together (``EffectSpec.scope``).
+SCOPES: tuple[str, ...] = ("device", "night", "artifact", "scan")
 
 
 @dataclass(frozen=True)
@@ -127,6 +141,9 @@ class EffectSpec:
     candidate : scan kind -> ``"screen"``, ``"start"`` or ``"evidence"`` (module doc).
     needs : conditions a scan must meet for the term to be tried (module doc).
     common : a per-channel effect is also tried as one value on every channel.
+    scope : ``"device"``, ``"night"``, ``"artifact"`` or ``"scan"`` (module doc).
+    absorbed_unless : scan kind -> {base parameter: condition that breaks the absorption} (module doc).
+    orientation : the spec parameter that turns with the artifact (module doc), or None.
     example : sensible parameter values (spec names; channel 2 for channel effects), for tests,
         demos and docs.
     """
@@ -145,6 +162,9 @@ class EffectSpec:
     needs: tuple[str, ...] = ()
     common: bool = False
     example: Mapping[str, Any] = field(default_factory=dict)
+    scope: str = "device"
+    absorbed_unless: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
+    orientation: str | None = None
 
     @property
     def per_channel(self) -> bool:
@@ -463,6 +483,7 @@ EFFECTS: dict[str, EffectSpec] = {
                    {TRI: _channel_delay}, "channel c at time t shows the reading of time t - tau",
                    fit=(FitParam("tau_s", "s", 1e-4),), candidate={"tri_spindle": "screen"},
                    absorbed_by={"tri_spindle": {"beta": "beta_rad of the channel (at constant speed)"}},
+                   absorbed_unless={"tri_spindle": {"beta": "speeds_differ"}},
                    example={"channel": 2, "tau_s": 0.0012}),
         EffectSpec("quantization", (TRI, ROD), {"channel": "channel", "lsb_mm": "mm"}, "output",
                    _reading(_quantization), "v' = lsb round(v / lsb)", candidate=_EVIDENCE,
@@ -474,36 +495,36 @@ EFFECTS: dict[str, EffectSpec] = {
                    {TRI: _vibration}, "v' = v + a sin(2 pi f t + phase)",
                    fit=(FitParam("f_hz", "Hz", 1e-2), FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
                    to_internal=_VIBRATION[0], from_internal=_VIBRATION[1],
-                   candidate={"tri_spindle": "screen"}, needs=("vibration_line",),
+                   candidate={"tri_spindle": "screen"}, needs=("vibration_line",), scope="scan",
                    example={"f_hz": 7.3, "a_mm": 0.004, "phase": 0.4}),
         EffectSpec("speed_error", (TRI,), {"eps": "-"}, "kinematics",
                    {TRI: _speed_error}, "the spindle turns at (1 + eps) times the commanded profile",
                    fit=(FitParam("eps", "-", 1e-4),), candidate={"tri_spindle": "screen"},
-                   needs=("commanded_angle",),
+                   needs=("commanded_angle",), scope="scan",
                    example={"eps": 0.002}),
         EffectSpec("speed_ripple", (TRI,), {"a_rad": "rad", "phase": "rad"}, "kinematics",
                    {TRI: _speed_ripple}, "phi(t) = omega t + a sin(omega t + phase)",
                    fit=(FitParam("A", "rad", 1e-3), FitParam("B", "rad", 1e-3)),
                    to_internal=_RIPPLE[0], from_internal=_RIPPLE[1],
-                   candidate={"tri_spindle": "screen"}, needs=("commanded_angle",),
+                   candidate={"tri_spindle": "screen"}, needs=("commanded_angle",), scope="scan",
                    example={"a_rad": 0.006, "phase": 1.0}),
         EffectSpec("spindle_error_motion", (TRI,), {"k": "-", "rho_mm": "mm", "phase": "rad"},
                    "spindle_position", {TRI: _spindle_error_motion},
                    "S(phi) = S0 + rho (cos(k phi + phase), sin(k phi + phase))",
                    fit=(FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
                    to_internal=_MOTION[0], from_internal=_MOTION[1], candidate={"tri_spindle": "screen"},
-                   example={"k": 3, "rho_mm": 0.006, "phase": 0.5}),
+                   scope="scan", example={"k": 3, "rho_mm": 0.006, "phase": 0.5}),
         EffectSpec("axis_tilt", (TRI,), {"beta_rad": "rad", "azimuth": "rad"}, "bore",
                    {TRI: _axis_tilt}, "bore is an ellipse R / cos(beta) along azimuth, R across",
                    fit=(FitParam("p", "rad^2", 1e-4), FitParam("q", "rad^2", 1e-4)),
                    to_internal=_axis_tilt_to_internal, from_internal=_axis_tilt_from_internal,
-                   candidate={"tri_spindle": "start"},
+                   candidate={"tri_spindle": "start"}, scope="artifact", orientation="azimuth",
                    example={"beta_rad": 0.02, "azimuth": 0.6}),
         EffectSpec("bore_lobing", (TRI,), {"k": "-", "a_mm": "mm", "phase": "rad"}, "bore",
                    {TRI: _bore_lobing}, "R(theta) = R + a cos(k (theta - phase))",
                    fit=(FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
                    to_internal=_LOBING[0], from_internal=_LOBING[1], candidate={"tri_spindle": "screen"},
-                   example={"k": 3, "a_mm": 0.005, "phase": 0.4}),
+                   scope="artifact", orientation="phase", example={"k": 3, "a_mm": 0.005, "phase": 0.4}),
         EffectSpec("thermal_expansion", (TRI, ROD), {"temperature_c": "degC"}, "bore",
                    {TRI: _thermal_expansion, ROD: _thermal_expansion}, "R = R20 (1 + cte (T - 20))",
                    fit=(FitParam("dT", "K", 1.0),), to_internal=_thermal_to_internal,
@@ -511,6 +532,7 @@ EFFECTS: dict[str, EffectSpec] = {
                    absorbed_by={"tri_spindle": {"d_b": "every d_b_mm (a common offset)", "R": "the bore radius"},
                                 "tri_static": {"d_b": "every d_b_mm (a common offset)", "R": "the bore radius"},
                                 "rod": {"R": "the hole radius, when free"}},
+                   absorbed_unless={"tri_spindle": {"d_b": "radii_differ"}}, scope="night",
                    example={"temperature_c": 24.0}),
         EffectSpec("beam_tilt", (TRI, ROD), {"channel": "channel", "gamma_rad": "rad"}, "beam",
                    {TRI: _beam_tilt_tri, ROD: _beam_tilt_rod}, "reading = in-plane distance / cos(gamma)",

@@ -130,6 +130,20 @@ _T = [
           ("scan_id", "effect", "channel")),
     Table("quarantine", _cols("scan_id:text night:date stage:text file:text reason:text"),
           ("scan_id", "night", "stage", "file")),
+    # issue 22: pooled examination of a device's spindle scans of a window of nights (one row per named
+    # effect, per device-model term, or one row with a null effect); nights and scan_ids comma-separated
+    Table("pooled_findings", _cols(
+        "night:date device_id:text nights:text scan_ids:text verdict:text effect:text channel:channel term:text "
+        "group:text parameters:text uncertainties:text evidence_scans:text in_device_model:bool device_model:text "
+        "absorbed:text gap_before_mm:float gap_after_mm:float noise_floor_mm:float findings_path:text reason:text"),
+          ("night", "device_id", "term")),
+    # issue 22: change of a beam parameter between consecutive calibrations (the later one valid from the night)
+    Table("calibration_drift", _cols(
+        "night:date device_id:text channel:channel parameter:text calibration_id_before:text "
+        "calibration_id_after:text valid_from_before:date valid_from_after:date value_before:float "
+        "value_after:float change:float u_before:float u_after:float u_combined:float change_over_u:float "
+        "multiple:float flagged:bool explained_by:text explanation:text"),
+          ("device_id", "channel", "parameter", "calibration_id_after")),
 ]
 
 #: every history table by name, in catalog order
