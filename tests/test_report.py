@@ -531,3 +531,50 @@ def test_control_chart_axis_readable_and_tolerance_label_inside(n):
     for text in ax_i.texts:  # the limit labels too
         b = text.get_window_extent(renderer)
         assert inside.y0 - 1 <= b.y0 and b.y1 <= inside.y1 + 1, text.get_text()
+
+
+def test_device_model_section_shows_pooled_verdicts_device_effects_and_flagged_drift(tmp_path):
+    """The pooled examination and calibration drift in words: value ± u, evidence scans, the device
+    model's effects apart from named ones, the gap against the noise floor, flagged drifts only."""
+    res = tmp_path / "results"
+    t = _rich_tables(res)
+    night = t["scans"]["night"].cast(pl.String).max()
+    t["pooled_findings"] = pl.DataFrame({
+        "night": [night] * 2, "device_id": ["TRI-01"] * 2, "verdict": ["missing_effect"] * 2,
+        "effect": ["channel_delay", "sensor_gain"], "channel": [2, 1], "term": ["channel_delay@2", "sensor_gain@1"],
+        "parameters": ['{"tau_s": 0.0012}', '{"g": 0.0011}'],
+        "uncertainties": ['{"u_tau_s": 0.00003}', '{"u_g": 0.0002}'], "evidence_scans": ["CAL-A,CAL-B", None],
+        "in_device_model": [False, True], "absorbed": [None, None], "gap_before_mm": [0.0061] * 2,
+        "gap_after_mm": [0.0021] * 2, "noise_floor_mm": [0.0020] * 2, "reason": [None, None]})
+    t["calibration_drift"] = pl.DataFrame({
+        "night": [night] * 2, "device_id": ["TRI-01"] * 2, "channel": [2, 3], "parameter": ["beta_rad", "rho_mm"],
+        "calibration_id_after": ["CAL-2"] * 2, "change": [0.0040, 0.0001], "u_combined": [0.00085, 0.001],
+        "change_over_u": [4.7, 0.1], "flagged": [True, False], "explained_by": ["channel_delay@2", None]})
+    catalog.build_catalog(res, t)
+    sec = _section(report.write_report(res).read_text(), "pooled")
+    row = sec.split("<td>TRI-01</td>")[1].split("</tr>")[0]
+    assert "<b>channel_delay</b> on channel 2: tau_s = 1.200 ± 0.030 ms (evidence: CAL-A,CAL-B)" in row
+    assert "<b>sensor_gain</b> on channel 1" in row.split("</td><td>")[2]  # the device-model column
+    assert ">6.10<" in row and ">2.10<" in row and ">2.00<" in row
+    drift = sec.split("Calibration drift (1 flagged of 2 changes)")[1]
+    assert "+4 mrad" in drift and "0.85 mrad" in drift and "channel_delay@2" in drift and "rho_mm" not in drift
+
+
+def test_findings_rows_carry_the_uncertainties_the_report_shows(tmp_path):
+    """A finding's uncertainties travel in the findings table (no findings.json needed to show value ± u)."""
+    from borescan.stages.discrepancy import findings_rows
+
+    rows = findings_rows({"scan_id": "S-1", "verdict": "missing_effect", "gap_before": {"rms_mm": 0.0061},
+                          "gap_after": {"rms_mm": 0.0021}, "noise_floor_mm": 0.002,
+                          "named": [{"effect": "channel_delay", "channel": 2, "parameters": {"tau_s": 0.0012},
+                                     "uncertainties": {"u_tau_s": 0.00003}}]})
+    assert json.loads(rows[0]["uncertainties"]) == {"u_tau_s": 0.00003}
+    assert findings_rows({"scan_id": "S-2", "verdict": "no_missing_effect"})[0]["uncertainties"] is None
+    res = tmp_path / "results"
+    t = _rich_tables(res)
+    night = t["scans"]["night"].cast(pl.String).max()
+    t["findings"] = pl.concat([t["findings"], pl.DataFrame([dict(r, night=night) for r in rows])],
+                              how="diagonal_relaxed")
+    catalog.build_catalog(res, t)
+    disc = _section(report.write_report(res).read_text(), "discrepancy")
+    assert "<b>channel_delay</b> on channel 2: tau_s = 1.200 ± 0.030 ms" in disc

@@ -675,6 +675,8 @@ _MONTH_ROWS = {
                           "FROM calibrations c) c USING (calibration_id) LEFT JOIN (SELECT scan_id, min({ms}) AS _sm "
                           "FROM scans s GROUP BY scan_id) s USING (scan_id) WHERE s._sm IS NULL OR s._sm = c._m"),
     "verifications": "SELECT {m} AS _m, t.* FROM verifications t",
+    "pooled_findings": "SELECT {m} AS _m, t.* FROM pooled_findings t",
+    "calibration_drift": "SELECT {m} AS _m, t.* FROM calibration_drift t",
     # with the part's nominal (artifacts.nominal_diameter_mm) when the part has one feature:
     # the catalog does not hold feature nominals
     "diameters": ("SELECT {m} AS _m, t.*, a.nominal_mm AS artifact_nominal_mm FROM diameters t LEFT JOIN "
@@ -696,6 +698,8 @@ _ORDER = {
     "diameters": "artifact_id, feature, night, scan_id",
     "verifications": "device_id, night, scan_id",
     "findings": "scan_id, effect, channel",
+    "pooled_findings": "device_id, night, term",
+    "calibration_drift": "device_id, night, channel, parameter",
     "quarantine": "scan_id, stage",
     "suspect_measurements": "device_id, night, scan_id, feature",
     "artifacts": "artifact_id",
@@ -1072,7 +1076,7 @@ class _Builder:
         for (sid,), grp in fnd.group_by("scan_id", maintain_order=True):
             recs = grp.to_dicts()
             first = recs[0]
-            uncertainties = self._finding_uncertainties(sid)
+            uncertainties = self._finding_uncertainties(sid, recs)
             gap = self.link(f"discrepancy/{sid}/gap.png")
             fj = self.link(f"discrepancy/{sid}/findings.json")
             links = " ".join(x for x in (_link(gap, "gap.png") if gap else "",
@@ -1095,9 +1099,83 @@ class _Builder:
                            "gap after [µm rms]", "noise floor [µm]", "plots"], rows, classes, num_cols={4, 5, 6}))
         return "".join(out)
 
-    def _finding_uncertainties(self, scan_id: str) -> dict[tuple, dict[str, float]]:
-        """(effect, channel) -> {parameter: u} from ``discrepancy/<scan>/findings.json`` when it is there
-        (the findings table records the values only)."""
+    def pooled(self) -> str:
+        """Per device and night: the spindle scans examined together (borescan.discrepancy.pooled), the
+        device model's effects, the gap against the noise floor, and the calibration drifts flagged."""
+        pf = self.t.get("pooled_findings")
+        dr = self.t.get("calibration_drift")
+        if (pf is None or pf.height == 0) and (dr is None or dr.height == 0):
+            return _EMPTY["pooled"]
+        out = ['<p class="note">Each device\'s spindle scans of the night examined together: an effect one scan '
+               "cannot separate (a delay at two speeds, an offset at two eccentricities) is named with the scans "
+               "that carry it; effects of the device model (config <code>devices:</code>) are fitted with the base. "
+               "Gap: rms residual before and after the named effects, against the noise floor. Parameters: value "
+               "± u (k=1).</p>"]
+        if pf is not None and pf.height:
+            rows, classes = [], []
+            for (dev, night), grp in pf.group_by("device_id", "night", maintain_order=True):
+                recs = grp.to_dicts()
+                first = recs[0]
+                named, model = [], []
+                for r in recs:
+                    if not r.get("effect"):
+                        continue
+                    u = {}
+                    try:
+                        u = {k.removeprefix("u_"): v for k, v in json.loads(r.get("uncertainties") or "{}").items()
+                             if isinstance(v, int | float)}
+                    except (ValueError, AttributeError):
+                        u = {}
+                    where = f" on channel {r['channel']}" if r.get("channel") is not None else ""
+                    pars = _parameters_text(r["effect"], r.get("parameters"), u)
+                    ev = f" (evidence: {_e(r['evidence_scans'])})" if r.get("evidence_scans") else ""
+                    text = f"<b>{_e(r['effect'])}</b>{_e(where)}" + (f": {pars}" if pars else "")
+                    (model if r.get("in_device_model") else named).append(text + ("" if r.get("in_device_model") else ev))
+                verdict = first.get("verdict") or ""
+                absorbed = first.get("absorbed")
+                note = (f"<br>{_e(first['reason'])}" if verdict == "failed" and first.get("reason") else "")
+                rows.append([_e(night), _e(dev), f"<b>{_e(verdict)}</b>{note}", "<br>".join(named) or "–",
+                             "<br>".join(model) or "–", _e(absorbed) if absorbed else "",
+                             _um(first.get("gap_before_mm"), 2), _um(first.get("gap_after_mm"), 2),
+                             _um(first.get("noise_floor_mm"), 2)])
+                classes.append("fail" if verdict in ("missing_effect", "failed") else
+                               "warn" if verdict == "ambiguous" else "")
+            out.append(_table(["night", "device", "verdict", "named (value ± u)", "in the device model",
+                               "what these scans cannot separate", "gap before [µm rms]", "gap after [µm rms]",
+                               "noise floor [µm]"], rows, classes, num_cols={6, 7, 8}))
+        if dr is not None and dr.height:
+            flagged = dr.filter(pl.col("flagged").fill_null(False))
+            out.append(f"<h3>Calibration drift ({flagged.height} flagged of {dr.height} changes)</h3>")
+            if flagged.height:
+                unit = {"beta_rad": ("mrad", 1e3), "rho_mm": ("µm", 1e3), "d_b_mm": ("µm", 1e3)}
+                rows = []
+                for r in flagged.iter_rows(named=True):
+                    name, f = unit.get(r["parameter"], ("", 1.0))
+                    rows.append([_e(r.get("night")), _e(r["device_id"]), _e(r["channel"]), _e(r["parameter"]),
+                                 f"{r['change'] * f:+.3g} {name}", f"{r['u_combined'] * f:.2g} {name}",
+                                 _num(r.get("change_over_u"), 3), _e(r.get("explained_by") or "not explained"),
+                                 _e(r.get("calibration_id_after"))])
+                out.append(_table(["night", "device", "channel", "parameter", "change", "u (combined)",
+                                   "change / u", "explained by", "calibration"], rows, ["warn"] * len(rows),
+                                  num_cols={4, 5, 6}))
+            else:
+                out.append('<p class="empty">No change between consecutive calibrations beyond its limit.</p>')
+        return "".join(out)
+
+    def _finding_uncertainties(self, scan_id: str, recs: list[dict] = ()) -> dict[tuple, dict[str, float]]:
+        """(effect, channel) -> {parameter: u}: the findings table's ``uncertainties`` column, else
+        ``discrepancy/<scan>/findings.json`` (catalogs written before the column existed)."""
+        out: dict[tuple, dict[str, float]] = {}
+        for r in recs:
+            try:
+                u = json.loads(r.get("uncertainties") or "null")
+            except (ValueError, TypeError):
+                u = None
+            if isinstance(u, dict) and u:
+                out[(r.get("effect"), r.get("channel"))] = {k.removeprefix("u_"): v for k, v in u.items()
+                                                            if isinstance(v, int | float)}
+        if out:
+            return out
         path = self.root / "discrepancy" / scan_id / "findings.json"
         try:
             named = json.loads(path.read_text()).get("named") or []
@@ -1319,12 +1397,13 @@ _EMPTY = {
     "verification": '<p class="empty">No verifications in the catalog.</p>',
     "diameters": '<p class="empty">No diameters in the catalog.</p>',
     "discrepancy": '<p class="empty">No findings in the catalog.</p>',
+    "pooled": '<p class="empty">No pooled examination in the catalog.</p>',
     "quarantine": '<p class="empty">No quarantined scans.</p>',
     "summary": '<p class="empty">No nights in the catalog.</p>',
 }
 
 SECTIONS = (("summary", "Summary"), ("calibration", "Calibration"), ("verification", "Verification"),
-            ("diameters", "Parts"), ("discrepancy", "Discrepancy"), ("papers", "Papers"), ("quarantine", "Quarantine"))
+            ("diameters", "Parts"), ("discrepancy", "Discrepancy"), ("pooled", "Device model"), ("papers", "Papers"), ("quarantine", "Quarantine"))
 
 #: A month page has every section but the papers (they do not depend on the nights; their own page).
 MONTH_SECTIONS = tuple(s for s in SECTIONS if s[0] != "papers")

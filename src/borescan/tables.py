@@ -126,7 +126,7 @@ _T = [
                                  "k:float acceptance_limit_mm:float decision_rule:text conformity:text budget_json:text"),
           ("scan_id", "calibration_id")),
     Table("findings", _cols("scan_id:text night:date! verdict:text effect:text channel:channel parameters:text "
-                            "gap_before_mm:float gap_after_mm:float noise_floor_mm:float"),
+                            "gap_before_mm:float gap_after_mm:float noise_floor_mm:float uncertainties:text"),
           ("scan_id", "effect", "channel")),
     Table("quarantine", _cols("scan_id:text night:date stage:text file:text reason:text"),
           ("scan_id", "night", "stage", "file")),

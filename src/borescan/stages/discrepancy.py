@@ -24,9 +24,10 @@ def findings_rows(findings: dict) -> list[dict]:
             "noise_floor_mm": findings.get("noise_floor_mm")}
     named = findings.get("named") or []
     if not named:
-        return [dict(base, effect=None, channel=None, parameters=None)]
+        return [dict(base, effect=None, channel=None, parameters=None, uncertainties=None)]
     return [dict(base, effect=n.get("effect"), channel=n.get("channel"),
-                 parameters=json.dumps(n.get("parameters") or {}, sort_keys=True)) for n in named]
+                 parameters=json.dumps(n.get("parameters") or {}, sort_keys=True),
+                 uncertainties=json.dumps(n.get("uncertainties") or {}, sort_keys=True)) for n in named]
 
 
 def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibration_tables, cfg: dict,
