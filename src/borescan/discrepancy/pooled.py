@@ -65,7 +65,7 @@ from typing import Any
 
 import numpy as np
 
-from borescan.discrepancy.examine import Examination, _clean, _named_entry, examine_model, scan_arrays
+from borescan.discrepancy.examine import Examination, _clean, _lstsq, _named_entry, examine_model, scan_arrays
 from borescan.discrepancy.fitting import FitResult, dead_zone, fit_least_squares, noise_floor_mm, spike_mask
 from borescan.discrepancy.tri import (
     ABSORBED_BY,
@@ -235,16 +235,6 @@ class Condition:
     holds: Callable[["PooledModel", Sequence[int]], bool]
     design: Callable[["PooledModel", Sequence[int]], str]
     separated_by: str
-
-
-def _lstsq_or_none(J: np.ndarray, r: np.ndarray) -> np.ndarray | None:
-    """Least-squares coefficients, None where the columns or residual are not finite."""
-    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
-        return None
-    try:
-        return np.linalg.lstsq(J, r, rcond=None)[0]
-    except np.linalg.LinAlgError:
-        return None
 
 
 def _spread(x: np.ndarray) -> float:
@@ -804,7 +794,7 @@ class PooledModel:
                 qq[n] += BASE_SCALE[n]
                 cols.append(((self.models[k].predict(qq, own) - f0) / BASE_SCALE[n] * w)[ok])
             J = np.stack(cols, axis=1)
-            coef = _lstsq_or_none(J, r0)
+            coef = _lstsq(J, r0)
             if coef is None:
                 return None, 0.0
             res = r0 - J @ coef
