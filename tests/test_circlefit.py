@@ -488,3 +488,36 @@ def test_max_gap_deg_argument():
     for name, circ in reference_circles(x, y, max_gap_deg=170.0).items():
         assert np.allclose(circ.center_xy_mm, [1, 2], atol=1e-9), name
         assert circ.radius_mm == pytest.approx(30, abs=1e-9), name
+
+
+@pytest.mark.parametrize("case", ["lobed", "two_maxima", "inner_outlier"])
+def test_mic_on_the_reduced_set_equals_the_full_triangulation(case, monkeypatch):
+    """The MICI of a large profile is found on the inner envelope (one point per angular bin) with a
+    certificate; it must equal the MICI computed by triangulating every point (MIC_BINS raised so that
+    the full path runs), centre and radius to 1e-12 mm."""
+    from borescan import circlefit
+
+    rng = np.random.default_rng(7)
+    n = 40_000
+    th = np.sort(rng.uniform(0.0, 2 * np.pi, n))
+    R = 137.5
+    if case == "lobed":
+        r = R + 0.004 * np.cos(3 * th + 0.4) + 0.0015 * rng.standard_normal(n)
+    elif case == "two_maxima":  # two flats on opposite sides: two local maxima of f of nearly equal size
+        r = R + 0.002 * rng.standard_normal(n)
+        r = np.where(np.abs(np.cos(th)) > 0.995, R - 0.02 + 0.002 * np.abs(np.sin(th)), r)
+    else:  # a few points well inside the bore (debris): not on the inner envelope of their bins' neighbours
+        r = R + 0.002 * rng.standard_normal(n)
+        r[rng.choice(n, 5, replace=False)] = R - 0.3
+    x, y = 0.4 + r * np.cos(th), -0.2 + r * np.sin(th)
+    sizes, triangulate = [], circlefit._local_max_vertices
+    monkeypatch.setattr(circlefit, "_local_max_vertices", lambda P: (sizes.append(P.shape[0]), triangulate(P))[1])
+    reduced = circlefit.max_inscribed_circle(x, y)
+    assert max(sizes) < n / 4  # certified on the reduced set, never all points
+    monkeypatch.setattr(circlefit, "MIC_BINS", 10 * n)  # n <= 4 MIC_BINS: every point is triangulated
+    full = circlefit.max_inscribed_circle(x, y)
+    assert np.allclose(reduced.center_xy_mm, full.center_xy_mm, rtol=0, atol=1e-12)
+    assert abs(reduced.radius_mm - full.radius_mm) < 1e-12
+    # and it is the largest empty circle: no point inside it
+    d = np.hypot(x - reduced.center_xy_mm[0], y - reduced.center_xy_mm[1])
+    assert d.min() >= reduced.radius_mm - 1e-12

@@ -562,6 +562,66 @@ def _inside_star_polygon(q: np.ndarray, V: np.ndarray, th: np.ndarray, c) -> np.
     return cross > 0.0
 
 
+#: Angular bins of the reduced point set the MICI triangulates first (see :func:`_mic_centre`).
+MIC_BINS = 2048
+
+
+def _mic_centre(P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0) -> tuple[np.ndarray, int]:
+    """The centre of the largest empty circle centred in the profile polygon, and the number of
+    candidate vertices examined (:func:`max_inscribed_circle`), computed on a reduced point set
+    with a certificate that the answer is the one of all points.
+
+    S = the point of smallest radius about ``c0`` in each of :data:`MIC_BINS` angular bins (the
+    inner envelope that bounds an inscribed circle). With f_S(c) = min over S of |p - c| >= f(c),
+    let c_S be the best Voronoi vertex of S inside the polygon (the full profile's). If no point
+    of P lies closer to c_S than f_S(c_S), then f(c_S) = f_S(c_S) = max f_S >= max f, so c_S is the
+    global maximum of f, exactly as with every point triangulated. That needs max f_S over the
+    polygon to be at an S vertex, not on the polygon's boundary: on an edge (p, q) f_S is at most
+    |edge| / 2 + |p - s(p)| (s(p) the kept point of p's bin), checked against f_S(c_S). Points
+    closer than f_S(c_S) are added to S and the search repeats; a profile with fewer points than
+    bins, or one where the checks keep failing, is triangulated whole.
+    """
+    n = P.shape[0]
+    if n > 4 * MIC_BINS:
+        d0 = np.hypot(P[:, 0] - c0[0], P[:, 1] - c0[1])
+        th = np.arctan2(P[:, 1] - c0[1], P[:, 0] - c0[0])
+        b = np.minimum(((th + np.pi) / (2 * np.pi) * MIC_BINS).astype(np.int64), MIC_BINS - 1)
+        o = np.lexsort((d0, b))  # by bin, then radius: the first of each bin is its innermost point
+        first = np.ones(n, dtype=bool)
+        first[1:] = b[o][1:] != b[o][:-1]
+        keep = np.zeros(n, dtype=bool)
+        keep[o[first]] = True
+        kept_of_bin = np.full(MIC_BINS, -1, dtype=np.int64)
+        kept_of_bin[b[o[first]]] = o[first]
+        s_of_p = kept_of_bin[b]
+        V = P[order]
+        edge = np.hypot(*(np.roll(V, -1, axis=0) - V).T)
+        near = np.hypot(*(P - P[s_of_p]).T)
+        boundary_bound = float(np.max(0.5 * edge + np.maximum(near[order], np.roll(near[order], -1))))
+        for _ in range(8):
+            S = P[keep]
+            cand, bound = _local_max_vertices(S)
+            inside = _inside_star_polygon(cand, V, ths, c0)
+            cand, bound = cand[inside], bound[inside]
+            if cand.shape[0] == 0:
+                break
+            c_s = _best_empty_centre(cand, bound, S[:, 0], S[:, 1])
+            f_s = float(np.min(np.hypot(S[:, 0] - c_s[0], S[:, 1] - c_s[1])))
+            d_all = np.hypot(P[:, 0] - c_s[0], P[:, 1] - c_s[1])
+            closer = (d_all < f_s) & ~keep
+            if not closer.any() and f_s > boundary_bound:
+                return c_s, int(cand.shape[0])
+            if not closer.any():
+                break  # the boundary check failed: triangulate every point
+            keep |= closer
+    cand, bound = _local_max_vertices(P)
+    inside = _inside_star_polygon(cand, P[order], ths, c0)
+    cand, bound = cand[inside], bound[inside]
+    if cand.shape[0] == 0:
+        raise CircleFitError(f"MICI: no Voronoi vertex of the {n} points lies inside the profile")
+    return _best_empty_centre(cand, bound, P[:, 0], P[:, 1]), int(cand.shape[0])
+
+
 def max_inscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
                          max_gap_deg: float = CLOSED_MAX_GAP_DEG) -> Circle:
     """Maximum inscribed circle (ISO 12181 MICI) of a closed profile: the global maximum.
@@ -606,12 +666,8 @@ def max_inscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
     c0 = _ls_center(x, y, shift, ls_center_xy_mm)
     order, ths = _check_closed(x, y, c0, max_gap_deg, "MICI")
     P = np.column_stack([x, y])
-    cand, bound = _local_max_vertices(P)
-    inside = _inside_star_polygon(cand, P[order], ths, c0)
-    cand, bound = cand[inside], bound[inside]
-    if cand.shape[0] == 0:
-        raise CircleFitError(f"MICI: no Voronoi vertex of the {x.size} points lies inside the profile")
-    c = _polish(x, y, _best_empty_centre(cand, bound, x, y), "MICI")
+    c_best, n_cand = _mic_centre(P, order, ths, c0)
+    c = _polish(x, y, c_best, "MICI")
     r = float(np.min(np.hypot(x - c[0], y - c[1])))
     V = P[order]
     edge_mm = float(np.max(np.hypot(*(np.roll(V, -1, axis=0) - V).T)))
@@ -620,7 +676,7 @@ def max_inscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
             f"MICI: profile too sparse: an edge of the profile polygon ({edge_mm:.6g} mm) is longer than "
             f"the inscribed diameter found ({2.0 * r:.6g} mm), the circle could be centred on that edge"
         )
-    return _make("MICI", x, y, shift, c, r, n_iter=int(cand.shape[0]))
+    return _make("MICI", x, y, shift, c, r, n_iter=n_cand)
 
 
 def min_zone_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
