@@ -427,3 +427,30 @@ def test_part_conformity_applies_the_decision_rule_to_the_deviation_at_20c(dev_u
     assert part_conformity(150.0, 0.004, None, 0.01)["conformity"] is None      # no nominal: no verdict
     assert part_conformity(150.0, 0.004, 150.0, None)["deviation_mm"] == 0.0   # no tolerance: deviation only
     assert part_conformity(150.0, 0.004, 150.0, None)["conformity"] is None
+
+
+def test_rotating_sensitivities_equal_central_differences_of_the_circle_fit(tmp_path):
+    """The rotating diameter's sensitivities (one circle fit and the points' derivatives) against central
+    differences of the whole diameter model (a circle fit per step): to 1e-6 relative, or 1e-7 absolute (the
+    differences divide the fit's last digits, about 1e-12 mm, by steps of 1e-5)."""
+    from borescan import rawio, simulate
+    from borescan.measure import _with_params, measure_scan
+
+    scene = simulate.default_tri_scene()
+    sim = simulate.simulate_tri_spindle(scene, n_rev=3, scan_id="SENS", kind="measurement", seed=4,
+                                        artifact={"id": "B", "type": "part", "nominal_diameter_mm": 275.0})
+    scan = rawio.read_scan(simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth"))
+    beams = scene.beams
+    res = measure_scan(scan, beams)
+    model, jp, jv = res["model"], res["jac_params"], res["jac_readings"]
+    assert model.kind == "rotating"
+    c = len(beams.channels)
+    for i in range(3 * c):
+        e = np.zeros(3 * c)
+        e[i] = 1e-6 if i % 3 == 0 else 1e-5
+        fd = (model(_with_params(beams, e)) - model(_with_params(beams, -e))) / (2 * e[i])
+        assert jp[i] == pytest.approx(fd, rel=1e-6, abs=1e-7)
+    for j in range(c):
+        e = np.zeros(c)
+        e[j] = 1e-5
+        assert jv[j] == pytest.approx((model(beams, e) - model(beams, -e)) / 2e-5, rel=1e-6, abs=1e-7)

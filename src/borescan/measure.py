@@ -292,18 +292,41 @@ def _with_params(beams: Beams, delta: np.ndarray) -> Beams:
 
 def _rotating_sensitivities(model: DiameterModel, beams: Beams) -> tuple[np.ndarray, np.ndarray]:
     """dD/d(beta, rho, d_b) (3c,) and dD/d(constant reading error of channel c) (c,) of the LS
-    circle of a rotating scan, by central differences (h = 1e-6 rad, 1e-5 mm)."""
+    circle of a rotating scan.
+
+    The circle (a, b, r) minimises sum_i (|P_i - c| - r)^2; moving the wall points by dP moves it
+    by -(J^T J)^-1 J^T (u_i . dP_i) (J the residuals' Jacobian [-u_x, -u_y, -1], u_i the unit
+    vector from the centre to P_i; Gauss-Newton, exact up to the residuals over R, about 1e-8
+    here), so one circle fit and the points' derivatives (central differences of
+    :func:`wall_points_machine`, h = 1e-6 rad, 1e-5 mm) give every sensitivity; D = 2 r.
+    """
     c = len(beams.channels)
+
+    def points(b: Beams, offsets=None) -> np.ndarray:
+        v = model.readings_mm if offsets is None else model.readings_mm + np.asarray(offsets, float)
+        return wall_points_machine(v, model.phi_rad, model.spindle_xy_mm, b).reshape(-1, 2)
+
+    P0 = points(beams)
+    ok = np.all(np.isfinite(P0), axis=1)
+    circ = fit_circle_ls(P0[ok, 0], P0[ok, 1])
+    d = P0[ok] - np.asarray(circ.center_xy_mm)
+    u = d / np.hypot(d[:, 0], d[:, 1])[:, None]
+    J = np.column_stack([-u, -np.ones(u.shape[0])])
+    dr_row = -np.linalg.solve(J.T @ J, J.T)[2]  # d r / d (u . dP), per point
+
+    def d_diameter(dP: np.ndarray) -> float:
+        return 2.0 * float(dr_row @ np.einsum("ij,ij->i", u, dP[ok]))
+
     jp = np.zeros(3 * c)
     for i in range(3 * c):
         e = np.zeros(3 * c)
         e[i] = 1e-6 if i % 3 == 0 else 1e-5
-        jp[i] = (model(_with_params(beams, e)) - model(_with_params(beams, -e))) / (2 * e[i])
+        jp[i] = d_diameter((points(_with_params(beams, e)) - points(_with_params(beams, -e))) / (2 * e[i]))
     jv = np.zeros(c)
     for j in range(c):
         e = np.zeros(c)
         e[j] = 1e-5
-        jv[j] = (model(beams, e) - model(beams, -e)) / 2e-5
+        jv[j] = d_diameter((points(beams, e) - points(beams, -e)) / 2e-5)
     return jp, jv
 
 
