@@ -36,7 +36,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing as mp
 import os
 import sys
 import tempfile
@@ -45,6 +44,8 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+
+from borescan.parallel import map_in_order
 
 N_SCANS = 200
 SEED = 20270611
@@ -266,11 +267,6 @@ def evaluate_scan(job: tuple) -> dict:
     return row
 
 
-def _pool_init() -> None:
-    for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[v] = "1"
-
-
 def run(n: int = N_SCANS, seed: int = SEED, workers: int | None = None, out_dir: Path | None = None,
         only: list[int] | None = None) -> list[dict]:
     """Write the battery (temp folder unless ``out_dir``; only the scan indices ``only`` if given),
@@ -288,26 +284,10 @@ def run(n: int = N_SCANS, seed: int = SEED, workers: int | None = None, out_dir:
         jobs = [(str(p), str(base / "truth"), cal_cfg) for p in paths]
         t0 = time.perf_counter()
         rows: list[dict] = []
-        if workers > 1:
-            saved = {v: os.environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-            _pool_init()  # spawned children read the thread limits at numpy import
-            try:
-                with mp.get_context("spawn").Pool(workers) as pool:
-                    for i, row in enumerate(pool.imap(evaluate_scan, jobs, chunksize=1)):
-                        rows.append(row)
-                        if (i + 1) % 25 == 0:
-                            print(f"  {i + 1}/{n} calibrated ({time.perf_counter() - t0:.0f} s)", flush=True)
-            finally:
-                for v, val in saved.items():
-                    if val is None:
-                        os.environ.pop(v, None)
-                    else:
-                        os.environ[v] = val
-        else:
-            for i, job in enumerate(jobs):
-                rows.append(evaluate_scan(job))
-                if (i + 1) % 25 == 0:
-                    print(f"  {i + 1}/{n} calibrated ({time.perf_counter() - t0:.0f} s)", flush=True)
+        for i, row in enumerate(map_in_order(evaluate_scan, jobs, workers)):  # one BLAS thread per worker
+            rows.append(row)
+            if (i + 1) % 25 == 0:
+                print(f"  {i + 1}/{n} calibrated ({time.perf_counter() - t0:.0f} s)", flush=True)
         print(f"calibrated in {time.perf_counter() - t0:.1f} s with {workers} worker(s)", flush=True)
     return rows
 

@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing as mp
 import os
 import sys
 import tempfile
@@ -44,6 +43,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+
+from borescan.parallel import map_in_order
 
 N_CHAINS = 200
 SEED = 20270619
@@ -198,11 +199,6 @@ def evaluate_chain(job: tuple) -> dict:
     return row
 
 
-def _pool_init() -> None:
-    for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[v] = "1"
-
-
 def run(n: int = N_CHAINS, seed: int = SEED, workers: int | None = None, rows_path: Path | None = None) -> list[dict]:
     """Draw, write, calibrate and measure ``n`` chains; per-chain rows (also appended to ``rows_path``
     as JSON lines as they come, when given)."""
@@ -226,26 +222,10 @@ def run(n: int = N_CHAINS, seed: int = SEED, workers: int | None = None, rows_pa
                 sink.flush()
 
         t0 = time.perf_counter()
-        if workers > 1:
-            saved = {v: os.environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-            _pool_init()
-            try:
-                with mp.get_context("spawn").Pool(workers) as pool:
-                    for i, row in enumerate(pool.imap(evaluate_chain, jobs, chunksize=1)):
-                        keep(row)
-                        if (i + 1) % 25 == 0:
-                            print(f"  {i + 1}/{n} chains ({time.perf_counter() - t0:.0f} s)", flush=True)
-            finally:
-                for v, val in saved.items():
-                    if val is None:
-                        os.environ.pop(v, None)
-                    else:
-                        os.environ[v] = val
-        else:
-            for i, job in enumerate(jobs):
-                keep(evaluate_chain(job))
-                if (i + 1) % 25 == 0:
-                    print(f"  {i + 1}/{n} chains ({time.perf_counter() - t0:.0f} s)", flush=True)
+        for i, row in enumerate(map_in_order(evaluate_chain, jobs, workers)):  # one BLAS thread per worker
+            keep(row)
+            if (i + 1) % 25 == 0:
+                print(f"  {i + 1}/{n} chains ({time.perf_counter() - t0:.0f} s)", flush=True)
         if sink is not None:
             sink.close()
         print(f"evaluated in {time.perf_counter() - t0:.0f} s with {workers} worker(s)", flush=True)
