@@ -203,17 +203,19 @@ def artifact_row(meta: dict) -> dict | None:
             "u_diameter_mm": art.get("u_diameter_mm"), "k": art.get("k"), "cte_per_k": art.get("cte_per_k")}
 
 
+def number_or_none(v) -> float | None:
+    """A scan.json number as float; None for a missing value or anything that is not a number (a bool is not)."""
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+
 def certificate_fields(meta: dict) -> dict:
     """The artifact certificate a scan's ``scan.json`` states, as the ``scans`` table keeps it:
     ``artifact_certificate``, ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm`` (None where absent)."""
     art = meta.get("artifact") if isinstance(meta.get("artifact"), dict) else {}
-
-    def num(v):
-        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
     cert = art.get("certificate")
     return {"artifact_certificate": None if cert is None else str(cert),
-            "artifact_certified_diameter_mm": num(art.get("certified_diameter_mm")),
-            "artifact_u_diameter_mm": num(art.get("u_diameter_mm"))}
+            "artifact_certified_diameter_mm": number_or_none(art.get("certified_diameter_mm")),
+            "artifact_u_diameter_mm": number_or_none(art.get("u_diameter_mm"))}
 
 
 #: Two certified values of one certificate that differ by more than this are a conflict [mm].

@@ -36,7 +36,7 @@ import math
 
 import numpy as np
 
-from .artifacts import ArtifactCte, ScanTemperature, artifact_key, diameter_at_20
+from .artifacts import ArtifactCte, ScanTemperature, artifact_key, diameter_at_20, number_or_none
 from .circlefit import Circle, fit_circle_ls, harmonic_spectrum, reference_circles
 from .geometry import Beams, beam_frame, circumcircle, wall_points_device
 from .uncertainty import Budget, Combined, Input, Term
@@ -861,13 +861,11 @@ def part_feature(artifact: dict, feature: str | None) -> dict:
         match = feats if len(feats) == 1 else []
     src = match[0] if match else (artifact if feature is None or not feats else {})
 
-    def num(d, key):
-        v = d.get(key)
-        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
-    nominal = num(src, "nominal_diameter_mm")
+    nominal = number_or_none(src.get("nominal_diameter_mm"))
     if nominal is None and feature is None:
-        nominal = num(artifact, "nominal_diameter_mm")
-    return {"nominal_diameter_mm": nominal, "tolerance_mm": num(src, "tolerance_mm") or num(artifact, "tolerance_mm")}
+        nominal = number_or_none(artifact.get("nominal_diameter_mm"))
+    return {"nominal_diameter_mm": nominal,
+            "tolerance_mm": number_or_none(src.get("tolerance_mm")) or number_or_none(artifact.get("tolerance_mm"))}
 
 
 def part_conformity(diameter_20_mm: float, U_mm: float, nominal_mm: float | None, tolerance_mm: float | None,

@@ -1120,12 +1120,7 @@ class _Builder:
                 for r in recs:
                     if not r.get("effect"):
                         continue
-                    u = {}
-                    try:
-                        u = {k.removeprefix("u_"): v for k, v in json.loads(r.get("uncertainties") or "{}").items()
-                             if isinstance(v, int | float)}
-                    except (ValueError, AttributeError):
-                        u = {}
+                    u = _uncertainties(r.get("uncertainties"))
                     where = f" on channel {r['channel']}" if r.get("channel") is not None else ""
                     pars = _parameters_text(r["effect"], r.get("parameters"), u)
                     ev = f" (evidence: {_e(r['evidence_scans'])})" if r.get("evidence_scans") else ""
@@ -1165,15 +1160,7 @@ class _Builder:
     def _finding_uncertainties(self, scan_id: str, recs: list[dict] = ()) -> dict[tuple, dict[str, float]]:
         """(effect, channel) -> {parameter: u}: the findings table's ``uncertainties`` column, else
         ``discrepancy/<scan>/findings.json`` (catalogs written before the column existed)."""
-        out: dict[tuple, dict[str, float]] = {}
-        for r in recs:
-            try:
-                u = json.loads(r.get("uncertainties") or "null")
-            except (ValueError, TypeError):
-                u = None
-            if isinstance(u, dict) and u:
-                out[(r.get("effect"), r.get("channel"))] = {k.removeprefix("u_"): v for k, v in u.items()
-                                                            if isinstance(v, int | float)}
+        out = {(r.get("effect"), r.get("channel")): u for r in recs if (u := _uncertainties(r.get("uncertainties")))}
         if out:
             return out
         path = self.root / "discrepancy" / scan_id / "findings.json"
@@ -1181,12 +1168,8 @@ class _Builder:
             named = json.loads(path.read_text()).get("named") or []
         except (OSError, ValueError, AttributeError):
             return {}
-        out = {}
-        for n in named:
-            if isinstance(n, dict) and isinstance(n.get("uncertainties"), dict):
-                out[(n.get("effect"), n.get("channel"))] = {k.removeprefix("u_"): v for k, v in n["uncertainties"].items()
-                                                           if isinstance(v, int | float)}
-        return out
+        return {(n.get("effect"), n.get("channel")): _uncertainties(n["uncertainties"]) for n in named
+                if isinstance(n, dict) and isinstance(n.get("uncertainties"), dict)}
 
     def papers(self) -> str:
         pdir = self.root / "papers"
@@ -1335,6 +1318,19 @@ class _Builder:
             return ""
         cls = "night" if attention else "night quiet"
         return f'<div class="{cls}" id="night-{_e(night)}"><h3>{_e(night)}</h3><ul>{"".join(items)}</ul></div>'
+
+
+def _uncertainties(u: Any) -> dict[str, float]:
+    """A finding's uncertainties (a dict, or its JSON text) as {parameter: u}: ``u_`` prefixes dropped,
+    non-numbers left out; {} for nothing readable."""
+    if isinstance(u, str):
+        try:
+            u = json.loads(u)
+        except ValueError:
+            return {}
+    if not isinstance(u, dict):
+        return {}
+    return {k.removeprefix("u_"): v for k, v in u.items() if isinstance(v, int | float)}
 
 
 def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -> str:

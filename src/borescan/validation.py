@@ -189,29 +189,21 @@ def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | N
     for d in stray:  # e.g. an empty "scan=" folder: the pipeline skips it, say why
         report.problems += rawio.inspect_scan(d, root)[1] or [
             ScanError("-", f"{d.parent.name}/{d.name}", "not a scan=<scan_id> folder; the pipeline skips it")]
+    by_night: dict[str, list[dict]] = {}  # the accepted scans' artifact certificates, for the check below
     for i, (d, earlier) in enumerate(jobs):
-        _, problems = scan_problems(d, root, earlier_night=earlier)
+        scan, problems = scan_problems(d, root, earlier_night=earlier)
         report.problems += problems
         if problems:
             report.bad_scan_ids.add(d.name[5:])
+        else:
+            by_night.setdefault(d.parent.name[6:], []).append({
+                "scan_id": d.name[5:], "night": d.parent.name[6:], "status": "ok",
+                "started_at": scan.meta.get("started_at"), "artifact_id": (scan.meta.get("artifact") or {}).get("id"),
+                **certificate_fields(scan.meta)})
         if progress is not None:
             progress(i + 1, len(jobs))
     report.n_scans = len(jobs)
     # a certificate that changes its value (ingest quarantines the later scan; artifacts.on_conflict)
-    records = []
-    for d, _ in jobs:
-        if d.name[5:] in report.bad_scan_ids:
-            continue
-        try:
-            meta = rawio.read_scan_meta(d)
-        except rawio.ScanError:
-            continue
-        records.append({"scan_id": d.name[5:], "night": d.parent.name[6:], "status": "ok",
-                        "started_at": meta.get("started_at"),
-                        "artifact_id": (meta.get("artifact") or {}).get("id"), **certificate_fields(meta)})
-    by_night: dict[str, list[dict]] = {}
-    for r in records:
-        by_night.setdefault(r["night"], []).append(r)
     earlier: list[dict] = []
     for night in sorted(by_night):
         for sid, why in certificate_conflicts(earlier, by_night[night]).items():
