@@ -9,9 +9,12 @@ NIGHTS = rawio.nights(RAW)
 def results_root_for(wildcards):
     """results_root for scripts that also write beside their declared outputs.
 
-    Quarantine records (quarantine/<scan_id>.json), certificates (calibration/...), findings and
-    gap plots (discrepancy/...) depend on what the data holds, so they cannot be declared
-    up front; they go under results_root, which must be on a shared filesystem on a cluster.
+    Quarantine records (quarantine/<scan_id>.json) and certificates
+    (calibration/<device_id>/<calibration_id>/) depend on what the data holds and lie in no
+    per-night folder, so they cannot be declared up front; they go under results_root, which must
+    be on a shared filesystem on a cluster. Findings and gap plots (discrepancy/night=<night>/,
+    linked as discrepancy/<scan_id>/), pooled findings and the report's month pages are declared
+    as folders (`snakemake --report` lists their files by pattern).
     """
     return RES
 
@@ -49,3 +52,33 @@ def scans_of_pooled_window(wildcards):
     upto = [n for n in NIGHTS if n <= wildcards.night]
     window = upto[-int(config["discrepancy"]["pooled_window_nights"]):]
     return [f"{RES}/stage/scans/night={n}.parquet" for n in window]
+
+
+#: month plots of results/report/<YYYY-MM>/ (named by borescan.report) -> category of `snakemake --report`
+MONTH_PLOT_CATEGORY = {"calibration": "Calibration", "control": "Verification", "diameters": "Diameters"}
+
+
+def report_page_category(wildcards):
+    """Category of a file of results/report/: a month plot by what it shows, the papers' page under
+    Papers, a month page beside report.html (Diameters: the parts are what the pages are read for)."""
+    if wildcards.get("kind"):
+        return MONTH_PLOT_CATEGORY[wildcards.kind]
+    return "Papers" if wildcards.get("page") == "papers" else "Diameters"
+
+
+def report_page_subcategory(wildcards):
+    """Subcategory: the month of a month plot; "Report pages" beside report.html; the papers' page
+    on its own."""
+    if wildcards.get("kind"):
+        return wildcards.month
+    return "All papers (page)" if wildcards.get("page") == "papers" else "Report pages"
+
+
+def report_page_labels(wildcards):
+    """Columns of the report's table: what a file shows and of which device, gauge or part."""
+    if wildcards.get("kind"):
+        return {"plot": {"calibration": "calibration history", "control": "control chart",
+                         "diameters": "diameters"}[wildcards.kind], "of": wildcards.subject}
+    if wildcards.get("page") == "papers":
+        return {"page": "papers.html (every reproduced table and figure)"}
+    return {"page": f"month {wildcards.month} (report/{wildcards.month}/index.html)"}

@@ -8,6 +8,13 @@ rule discrepancy_night:
     output:
         findings=f"{RES}/stage/findings/night={{night}}.parquet",
         quarantine=f"{RES}/stage/quarantine/stage=discrepancy/night={{night}}.parquet",
+        # <scan_id>/findings.json and gap.png per scan examined (the set is the data's); read as
+        # discrepancy/<scan_id>/, a link into this folder (borescan.stages.discrepancy)
+        scans=report(directory(f"{RES}/discrepancy/night={{night}}"),
+                     caption="../workflow/report/discrepancy_scan.rst",
+                     category="Discrepancy", subcategory="{night}",
+                     labels={"scan or device": "{scan_id}", "file": "{file}"},
+                     patterns=[r"{scan_id,[^/]+}/{file,findings\.json|gap\.png}"]),
     params:
         raw_root=RAW,
         results_root=results_root_for,
@@ -42,7 +49,11 @@ rule pooled_night:
         pooled_findings=f"{RES}/stage/pooled_findings/night={{night}}.parquet",
         calibration_drift=f"{RES}/stage/calibration_drift/night={{night}}.parquet",
         # one <device_id>.json per device with two or more spindle scans (the set is the data's)
-        json=directory(f"{RES}/discrepancy/pooled/night={{night}}"),
+        json=report(directory(f"{RES}/discrepancy/pooled/night={{night}}"),
+                    caption="../workflow/report/discrepancy_pooled.rst",
+                    category="Discrepancy", subcategory="{night}",
+                    labels={"scan or device": "{device} (pooled)", "file": "{device}.json"},
+                    patterns=[r"{device,[^/]+}.json"]),
     params:
         raw_root=RAW,
         results_root=results_root_for,

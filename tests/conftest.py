@@ -46,7 +46,7 @@ def pipeline_run(tmp_path_factory):
     raw = base / "demo" / "raw"
     first_night = sorted(raw.iterdir())[0]
     good_tri = next(p for p in sorted(first_night.iterdir()) if "CAL-P1-A" in p.name)
-    good_rod = next(p for p in sorted(first_night.iterdir()) if "ROD" in p.name)
+    good_rod = next(p for p in sorted(first_night.iterdir()) if "ROD01-MEAS" in p.name)
     good_ids = sorted(p.name.removeprefix("scan=") for p in raw.glob("night=*/scan=*"))
     cases = make_bad_scans(raw, BAD_NIGHT, good_tri, good_rod, good_tri.name.removeprefix("scan="))
     stage_cases, special = make_stage_cases(raw, base / "demo" / "truth", BAD_NIGHT)

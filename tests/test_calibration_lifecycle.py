@@ -29,7 +29,7 @@ def con():
     _insert(con, "calibrations", [
         cal("A1", "TRI-A", "2026-01-01", "2026-01-31"),   # superseded by A2 on 01-10
         cal("A2", "TRI-A", "2026-01-10", "2026-02-09"),   # fails a verification on 01-12
-        cal("B1", "TRI-B", "2026-01-01", "2026-01-05"),   # expires on 01-05 (newest night 01-20)
+        cal("B1", "TRI-B", "2026-01-01", "2026-01-05"),   # last usable 01-05: expired from 01-06 (newest night 01-20)
         cal("C1", "TRI-C", "2026-01-15", "2026-02-14"),   # still valid
         cal("R1", "ROD-1", "2026-01-01", None),           # nominal rod geometry: never expires
     ])
@@ -60,7 +60,7 @@ def test_status_history_has_every_transition(con):
         ("A2", "TRI-A", "valid", "2026-01-10"),
         ("A2", "TRI-A", "failed_verification", "2026-01-12"),   # the first failure only; due 02-09 not yet passed
         ("B1", "TRI-B", "valid", "2026-01-01"),
-        ("B1", "TRI-B", "expired", "2026-01-05"),
+        ("B1", "TRI-B", "expired", "2026-01-06"),
         (None, "TRI-B", "refused", "2026-01-20"),
         ("C1", "TRI-C", "valid", "2026-01-15"),
     ]
@@ -77,7 +77,7 @@ def test_lifecycle_gives_the_current_status_and_validity_window(con):
     assert rows == {
         "A1": ("superseded", "2026-01-10", "2026-01-10"),
         "A2": ("failed_verification", "2026-01-12", "2026-01-12"),
-        "B1": ("expired", "2026-01-05", "2026-01-05"),
+        "B1": ("expired", "2026-01-06", "2026-01-06"),
         "C1": ("valid", None, "2026-01-15"),
         "R1": ("valid", None, "2026-01-01"),
     }
@@ -91,3 +91,32 @@ def test_trace_shows_the_lifecycle_status(con, tmp_path):
     line = trace._cal_lines(node, "")[0]
     assert "until 2026-01-12, status failed_verification (verification VA2 error 21.0 um" in line
     assert trace._Tracer(con, tmp_path).calibration("C1")["status"] == "valid"
+
+
+def test_superseded_before_due_never_expires_and_a_rod_design_geometry_is_superseded_by_its_gauge_calibration():
+    con = duckdb.connect()
+    for t in TABLES.values():
+        con.execute(t.ddl())
+    d = dt.date.fromisoformat
+    rows = [("T1", "TRI-A", "full_lsq", "2026-01-01", "2026-01-31"),   # superseded 01-10, due 01-31 passes later
+            ("T2", "TRI-A", "full_lsq", "2026-01-10", "2026-02-09"),
+            ("ROD-1-nominal-x", "ROD-1", "nominal", "2026-01-01", None),
+            ("ROD-1-cal", "ROD-1", "rod_gauge", "2026-01-03", "2026-02-02")]
+    _insert(con, "calibrations", [{"calibration_id": c, "device_id": dev, "channel": 1, "method": m,
+                                   "valid_from": d(f), "night": d(f), "recalibration_due": due and d(due)}
+                                  for c, dev, m, f, due in rows])
+    _insert(con, "scans", [{"scan_id": "S", "night": d("2026-03-01"), "device_id": "TRI-A", "kind": "measurement",
+                            "status": "ok"}])
+    catalog._create_views(con, None)
+    got = con.execute("SELECT calibration_id, status, CAST(night AS VARCHAR), other_id, method "
+                      "FROM calibration_status_history").fetchall()
+    assert got == [
+        ("ROD-1-nominal-x", "valid", "2026-01-01", None, "nominal"),
+        ("ROD-1-cal", "valid", "2026-01-03", None, "rod_gauge"),
+        ("ROD-1-nominal-x", "superseded", "2026-01-03", "ROD-1-cal", "nominal"),
+        ("ROD-1-cal", "expired", "2026-02-03", None, "rod_gauge"),
+        ("T1", "valid", "2026-01-01", None, "full_lsq"),
+        ("T1", "superseded", "2026-01-10", "T2", "full_lsq"),   # and no 'expired' on 02-01
+        ("T2", "valid", "2026-01-10", None, "full_lsq"),
+        ("T2", "expired", "2026-02-10", None, "full_lsq"),
+    ]

@@ -36,5 +36,16 @@ def test_uncalibrated_device_is_compared_with_its_design_geometry_freed():
     assert discrepancy_reference(pl.DataFrame(), "TRI-01", "tri_lds", "2026-11-21") == expected
 
 
-def test_rod_is_compared_with_its_design_geometry():
+def test_rod_is_compared_with_its_design_geometry_until_it_is_calibrated_on_gauges():
     assert discrepancy_reference(CALS, "ROD-01", "rod", "2026-11-21") == ({}, "device.nominal")
+    rod = pl.DataFrame([{"calibration_id": cid, "device_id": "ROD-01", "valid_from": v, "method": m, "channel": ch,
+                         "l0_mm": l0 + ch * 1e-3, "h_mm": 100.0 * ch, "phi_rad": 0.01, "d_mm": None, "gamma_rad": 0.002}
+                        for cid, v, m, l0 in (("ROD-nominal", "2026-11-01", "nominal", 71.0),
+                                              ("ROD-G1", "2026-11-10", "rod_gauge", 71.012),
+                                              ("ROD-G2", "2026-11-30", "rod_gauge", 71.020)) for ch in (2, 1)])
+    cals = pl.concat([CALS, rod], how="diagonal_relaxed")
+    assert discrepancy_reference(cals, "ROD-01", "rod", "2026-11-05") == ({}, "device.nominal")
+    kw, ref = discrepancy_reference(cals, "ROD-01", "rod", "2026-11-21")
+    assert ref == "calibration ROD-G1"
+    assert kw == {"layers": [{"channel": 1, "l0": 71.013, "h": 100.0, "phi": 0.01, "d": 0.0, "gamma": 0.002},
+                             {"channel": 2, "l0": 71.014, "h": 200.0, "phi": 0.01, "d": 0.0, "gamma": 0.002}]}

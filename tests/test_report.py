@@ -254,7 +254,7 @@ def _rich_tables(res: Path) -> dict[str, pl.DataFrame]:
     """The constructed history plus: a scan quarantined by the measure stage (no calibration), the
     GUM columns of the diameters (PART-8 at 20 °C assumed, out of its ±8 µm tolerance of nominal
     150.000 mm), an ambiguous finding for PART-9 (its findings.json with uncertainties) and ROD-CAL-1
-    due for recalibration on the 22nd."""
+    due for recalibration on the 21st (its last usable night), so expired from the 22nd."""
     t = make_history(res)
     scans = t["scans"]
     extra = scans.filter(pl.col("scan_id") == "PART-8").with_columns(
@@ -273,7 +273,7 @@ def _rich_tables(res: Path) -> dict[str, pl.DataFrame]:
     t["artifacts"] = pl.concat([t["artifacts"], pl.DataFrame({
         "artifact_id": ["P-8"], "type": ["part"], "nominal_diameter_mm": [150.0]})], how="diagonal_relaxed")
     t["calibrations"] = t["calibrations"].with_columns(
-        pl.when(pl.col("calibration_id") == "ROD-CAL-1").then(pl.lit("2026-11-22")).otherwise(pl.lit("2026-12-20"))
+        pl.when(pl.col("calibration_id") == "ROD-CAL-1").then(pl.lit("2026-11-21")).otherwise(pl.lit("2026-12-20"))
         .alias("recalibration_due"))
     named = [{"effect": "sensor_offset", "channel": 1, "parameters": {"b_mm": 0.0031234567},
               "uncertainties": {"u_b_mm": 0.00041}},
@@ -578,3 +578,20 @@ def test_findings_rows_carry_the_uncertainties_the_report_shows(tmp_path):
     catalog.build_catalog(res, t)
     disc = _section(report.write_report(res).read_text(), "discrepancy")
     assert "<b>channel_delay</b> on channel 2: tau_s = 1.200 ± 0.030 ms" in disc
+
+
+def test_rod_diameters_without_a_gauge_calibration_need_attention(tmp_path):
+    """A rod hole measured with the design base lengths (no ring-gauge calibration yet) is flagged
+    in the night's summary with what to do."""
+    from borescan.stages.measure import ROD_METHOD_NOMINAL
+
+    res = tmp_path / "results"
+    tables = _rich_tables(res)
+    rod_scan = tables["diameters"].filter(pl.col("calibration_id") == "ROD-CAL-1")["scan_id"][0]
+    tables["diameters"] = tables["diameters"].with_columns(
+        pl.when(pl.col("calibration_id") == "ROD-CAL-1").then(pl.lit(ROD_METHOD_NOMINAL)).otherwise(pl.col("method"))
+        .alias("method"))
+    catalog.build_catalog(res, tables)
+    summary = _section(report.write_report(res).read_text(), "summary")
+    assert f"not traceable</b> {rod_scan} (ROD-01)" in summary
+    assert "calibrate the rod in its certified ring gauges" in summary

@@ -224,16 +224,17 @@ def test_demo_writes_the_listed_scans(tmp_path):
     for night in DEMO_NIGHTS:
         tag = "N" + night.replace("-", "")
         for name in ("TRI01-CEN", "TRI01-CAL-P1-A", "TRI01-CAL-P1-B", "TRI01-VER-RG275", "TRI01-VER-RG280",
-                     "ROD01-MEAS-CYL2H"):
+                     "ROD01-MEAS-CYL2H", "ROD01-VER-RGS150"):
             assert f"{tag}-{name}" in ids
         assert sum(i.startswith(f"{tag}-TRI01-MEAS-") for i in ids) == 3
+    assert "N20261120-ROD01-CAL-RGS150" in ids  # the rod is calibrated on its ring gauges on the first night
     kinds = {}
     for p in paths:
         meta = json.loads((p / "scan.json").read_text())
         kinds.setdefault(meta["kind"], 0)
         kinds[meta["kind"]] += 1
         assert (tmp_path / "truth" / f"{meta['scan_id']}.truth.json").exists()
-    assert kinds == {"centering": 2, "calibration": 4, "verification": 4, "measurement": 8}
+    assert kinds == {"centering": 2, "calibration": 5, "verification": 6, "measurement": 8}
     cal = json.loads((raw / "night=2026-11-20" / "scan=N20261120-TRI01-CAL-P1-A" / "scan.json").read_text())
     assert cal["spindle"]["position"] == {"label": "P1", "x_mm": 262.955, "y_mm": -275.502}
     nominal = Beams.from_nominal(cal["device"]["nominal"]["beams"])

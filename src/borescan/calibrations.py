@@ -29,7 +29,7 @@ import polars as pl
 from borescan.calibration import TriCalibration
 from borescan.geometry import RodLayer
 
-__all__ = ["choose_calibration", "failed_calibration_ids", "days_between", "calibration_rows",
+__all__ = ["choose_calibration", "choose_rod_calibration", "failed_calibration_ids", "days_between", "calibration_rows",
            "rod_nominal_calibration_rows", "tri_calibration", "rod_layers", "calibration_drift", "DRIFT_PARAMS"]
 
 
@@ -74,6 +74,32 @@ def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_
     if age > validity_days:
         return None, f"latest calibration {cal_id} of device {device_id} expired ({age} days old, validity {validity_days} days)"
     return cal_id, None
+
+
+def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_id: str, night: str,
+                           validity_days: int, allow_unverified: bool, without_calibration: str = "measure_nominal"
+                           ) -> tuple[str | None, str | None]:
+    """The calibration a rod's result of ``night`` must use, or the reason there is none.
+
+    The rod's ring-gauge calibrations (method ``rod_gauge``) are chosen as a three-sensor device's
+    (:func:`choose_calibration`: latest, refused when expired or failed unless ``allow_unverified``).
+    A rod never calibrated on gauges on or before the night uses its design geometry (the latest
+    ``nominal`` record) when ``without_calibration`` is ``measure_nominal``, else is refused
+    (``measurement.rod_without_calibration``).
+    """
+    if without_calibration not in ("measure_nominal", "refuse"):
+        raise ValueError(f"measurement.rod_without_calibration must be measure_nominal or refuse, got {without_calibration!r}")
+    has_method = calibrations.height > 0 and "method" in calibrations.columns
+    method = pl.col("method").fill_null("") if has_method else pl.lit("")
+    gauge = calibrations.filter(method != "nominal") if has_method else calibrations.clear()
+    cal_id, why = choose_calibration(gauge, failed_ids, device_id, night, validity_days, allow_unverified)
+    if cal_id is not None or not why.startswith("no calibration"):
+        return cal_id, why
+    if without_calibration == "refuse":
+        return None, (f"rod {device_id} has no calibration on certified ring gauges on or before night {night} "
+                      "(measurement.rod_without_calibration: refuse); its design geometry is not traceable")
+    nominal = calibrations.filter(method == "nominal") if has_method else calibrations.clear()
+    return choose_calibration(nominal, set(), device_id, night, 10**9, True)
 
 
 def calibration_rows(cal: TriCalibration, device_type: str, night: str, certificate_path: str | None,

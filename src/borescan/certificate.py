@@ -30,6 +30,7 @@ which a scan of the calibration or of its verifications was taken), and the cert
 from __future__ import annotations
 
 import datetime as _dt
+import io
 import json
 import math
 import textwrap
@@ -41,11 +42,12 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
+from borescan.atomic import atomic_write_bytes, atomic_write_text
 from borescan.calibration import TriCalibration
 from borescan.uncertainty import Budget, Combined, combine, round_uncertainty
 
 __all__ = ["CERTIFICATE_FORMAT", "certificate_dir", "certificate_dict", "write_certificate", "PLACEHOLDER",
-           "certificate_dates", "calibration_conditions"]
+           "certificate_dates", "calibration_conditions", "write_rod_certificate"]
 
 CERTIFICATE_FORMAT = "borescan-certificate/2"
 #: text that marks a laboratory setting left at its default
@@ -68,6 +70,15 @@ _METHOD_TEXT = {
         "Yang 2017 extrema method (Eq. 8-15): base length and offset of each beam from the mean extreme readings, "
         "beam angles from the feature points' timing. Uncertainty evaluated by the GUM (JCGM 100:2008) with "
         "sensitivities by central differences of the closed forms."),
+    "rod_gauge": (
+        "Rod calibration on certified ring gauges (borescan.rod_calibration): the rod is turned by hand in ring "
+        "gauges of certified diameter, one per layer; the joint rod solve (Wang 2017 Eq. 16 generalised: exact "
+        "ray-cylinder readings, pose angles, hole centres and the rod axis deflection free) is repeated with each "
+        "layer's base length l0 corrected by the gauge radius at its temperature minus the solved radius until "
+        "they agree to 1e-7 mm or a thousandth of the radius uncertainty. Beam angle, offset and tilt of each layer stay at their design values (to first "
+        "order a constant reading offset, which l0 absorbs). Uncertainty by the GUM (JCGM 100:2008) law of "
+        "propagation: the solve's covariance, the gauges' certificates, temperature, expansion coefficient and "
+        "the sensors' linearity and resolution."),
 }
 
 
@@ -574,8 +585,8 @@ def _page_admin(d: _Doc) -> None:
         ("Issuing laboratory", f"{lab.get('name')}, {lab.get('address')}"),
         ("Accreditation", str(lab.get("accreditation"))),
         ("Customer", str(lab.get("customer"))),
-        ("Item calibrated", f"three-sensor bore measuring device {dev.get('id', c['device_id'])} (type "
-                            f"{dev.get('type', 'tri_lds')}) with {len(sensors)} laser displacement sensors "
+        ("Item calibrated", f"{c.get('item', 'three-sensor bore measuring device')} {dev.get('id', c['device_id'])} "
+                            f"(type {dev.get('type', 'tri_lds')}) with {len(sensors)} laser displacement sensors "
                             "(table on page 2)"),
         ("Place of calibration", str(lab.get("performance_location"))),
         ("Date(s) of calibration", _date_range(dates)),
@@ -584,8 +595,8 @@ def _page_admin(d: _Doc) -> None:
         ("Method", _METHOD_TEXT.get(c["method"], c["method"])),
         ("Calibration scans", ", ".join(c["scan_ids"])),
         ("Deviations from the method", "; ".join(flags) if flags else "none"),
-        ("Traceability", f"reference ring gauge {c['artifact'].get('id')}, certificate {c['artifact'].get('certificate')} "
-                         "(section 4)"),
+        ("Traceability", c.get("traceability_summary") or f"reference ring gauge {c['artifact'].get('id')}, certificate "
+                         f"{c['artifact'].get('certificate')} (section 4)"),
         ("Decision rule", _decision_rule_text(lab) + " (section 7)"),
         ("Conformity", c["conformity"]["text"]),
         ("Measurement uncertainty", f"Expanded uncertainties U = k u_c with a coverage probability of "
@@ -626,10 +637,16 @@ def _date_range(dates: dict) -> str:
 
 def _page_item_conditions(d: _Doc) -> None:
     c = d.cert
-    dev, art, cond = c["device"], c["artifact"], c["conditions"]
+    dev = c["device"]
     d.new_page()
     d.heading("1  Item calibrated")
-    d.para(f"Device {dev.get('id', c['device_id'])}, type {dev.get('type', 'tri_lds')}; sensors as recorded in scan.json:")
+    _sensor_table(d, dev, c["device_id"])
+    _page_conditions_traceability(d)
+
+
+def _sensor_table(d: _Doc, dev: dict, device_id: str) -> None:
+    """The device's sensors as recorded in scan.json, as a table."""
+    d.para(f"Device {dev.get('id', device_id)}, type {dev.get('type', 'tri_lds')}; sensors as recorded in scan.json:")
     cols = ["channel", "model", "serial", "range [mm]", "linearity [% FS]", "linearity +- [um]", "repeatab. [um]",
             "resolution [um]"]
     cells = []
@@ -644,6 +661,11 @@ def _page_item_conditions(d: _Doc) -> None:
                            none="not stated")])
     if cells:
         d.table(cols, cells, widths=[0.08, 0.13, 0.15, 0.1, 0.13, 0.14, 0.12, 0.15], size=6.8)
+
+
+def _page_conditions_traceability(d: _Doc) -> None:
+    c = d.cert
+    art, cond = c["artifact"], c["conditions"]
     d.heading("2  Method")
     d.para(_METHOD_TEXT.get(c["method"], c["method"]))
     fit = c["fit"]
@@ -894,7 +916,7 @@ def _verification_pages(d: _Doc) -> None:
         d.para("T: recorded temperature; D(T): as measured at T; D20: brought to 20 degC; cert.: certified D20; "
                "E = D20 - cert.; T_ol: tolerance; A: acceptance limit (T_ol minus the guard band).", size=6.8)
         for v in ver:
-            d.para(f"{v.get('scan_id')}: {v.get('conformity', '')}", size=7)
+            d.para(f"{_ver_name(v)}: {v.get('conformity', '')}", size=7)
         d.para("Conformity statement: " + c["conformity"]["text"], size=8)
         for v in ver:
             rows = v.get("budget") or []
@@ -911,9 +933,14 @@ def _verification_pages(d: _Doc) -> None:
                           f"{1e3 * rest:.3g}"])
             cells.append(["combined standard uncertainty u_c(E)", "", "", "", "", "", f"{1e3 * uc:.3g}"])
             d.room(0.013 * (len(cells) + 1) + 0.03)
-            d.para(f"Budget of E, {v.get('scan_id')} (contributions in um):", size=7.5)
+            d.para(f"Budget of E, {_ver_name(v)} (contributions in um):", size=7.5)
             d.table(["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c_i", "u_i [um]"], cells,
                     widths=[0.42, 0.12, 0.1, 0.1, 0.06, 0.1, 0.1], size=6, row_h=0.013, bold_last=True)
+
+
+def _ver_name(v: dict) -> str:
+    """A verification's name in the certificate: its scan, and the layer's feature for a rod."""
+    return f"{v.get('scan_id')}" + (f" layer {v['feature']} ({v.get('artifact_id')})" if v.get("feature") else "")
 
 
 def _page_records(d: _Doc) -> None:
@@ -1036,20 +1063,212 @@ def write_certificate(
         "pdf": out_dir / "certificate.pdf",
         "png": out_dir / "residuals.png",
     }
-    text = json.dumps(cert, sort_keys=True, indent=2, allow_nan=False) + "\n"
-    tmp = paths["json"].with_suffix(".json.tmp")
-    tmp.write_text(text)
-    tmp.replace(paths["json"])
+    # unique temporary names (atomic.py): two runs writing the same certificate never meet
+    atomic_write_text(paths["json"], json.dumps(cert, sort_keys=True, indent=2, allow_nan=False) + "\n")
     with matplotlib.rc_context(_RC):
         fig = _residual_figure(cal, t, res)
         FigureCanvasAgg(fig)
-        tmp = out_dir / "residuals.png.tmp"
-        fig.savefig(tmp, dpi=110, format="png", metadata={"Software": None})
-        tmp.replace(paths["png"])
-        tmp = out_dir / "certificate.pdf.tmp"
-        meta = dict(_PDF_METADATA, Title=f"Calibration certificate {cal.calibration_id}")
-        with PdfPages(tmp, metadata=meta) as pdf:
-            for page in _pages(cal, cert, t, res):
-                pdf.savefig(page)
-        tmp.replace(paths["pdf"])
+        buf = io.BytesIO()
+        fig.savefig(buf, dpi=110, format="png", metadata={"Software": None})
+        atomic_write_bytes(paths["png"], buf.getvalue())
+        atomic_write_bytes(paths["pdf"], _pdf_bytes(_pages(cal, cert, t, res),
+                                                    f"Calibration certificate {cal.calibration_id}"))
+    return paths
+
+
+def _pdf_bytes(pages: list[Figure], title: str) -> bytes:
+    buf = io.BytesIO()
+    with PdfPages(buf, metadata=dict(_PDF_METADATA, Title=title)) as pdf:
+        for page in pages:
+            pdf.savefig(page)
+    return buf.getvalue()
+
+
+# --------------------------------------------------------------------------- rod certificates
+
+
+def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte, raw_files: dict[str, str],
+                         software_version: str, config_hash: str, laboratory: dict | None = None,
+                         coverage_probability: float = 0.9545, dates: dict | None = None,
+                         verifications: list[dict] | None = None) -> dict:
+    """``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
+    the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
+    the budget per layer, each layer's gauge and the solve's diagnostics."""
+    lab = _laboratory(laboratory)
+    p = float(coverage_probability)
+    dates = dict(dates or {})
+    ver = list(verifications or [])
+    results, budgets, params = [], {}, []
+    for j, lay in enumerate(cal.layers):
+        name = f"l0_mm[{int(lay.channel)}]"
+        comb = cal.budget.combined(j, p)
+        results.append({"name": name, "refType": "borescan_rodBaseLength", "held_at_design_value": False,
+                        "real": {"value": float(lay.l0_mm), "unit": _UNITS_DSI["mm"], "expandedUnc": _expanded(comb)}})
+        budgets[name] = {"unit": "mm", "rows": cal.budget.rows(j), "combined": comb.to_dict()}
+        g = cal.gauges[j]
+        params.append({"channel": int(lay.channel), "feature": g.get("feature"), "l0_mm": float(lay.l0_mm),
+                       "l0_nominal_mm": float(cal.l0_nominal_mm[j]), "u_l0_mm": float(cal.u_l0_mm[j]),
+                       "h_mm": float(lay.h_mm), "phi_rad": float(lay.phi_rad), "d_mm": float(lay.d_mm),
+                       "gamma_rad": float(lay.gamma_rad), "gauge_id": g.get("id"), "gauge_certificate": g.get("certificate"),
+                       "gauge_certified_diameter_mm": g.get("certified_diameter_mm"),
+                       "gauge_radius_at_temperature_mm": g.get("radius_at_t_mm")})
+    sol = cal.solution
+    conformity = _conformity(ver)
+    conditions = calibration_conditions(temperature, cte, None, None, p, [])
+    conditions["gauge_radius_at_temperature_mm"] = None
+    gauges_text = "; ".join(f"layer {g['channel']}: ring gauge {g['id']}, certificate {g.get('certificate')}"
+                            for g in cal.gauges)
+    placeholders = sorted(k for k, v in lab.items() if isinstance(v, str) and PLACEHOLDER in v)
+    statements = [
+        {"norm": "ISO/IEC 17025:2017", "reference": "7.8.2.1 m",
+         "declaration": "The results relate only to the item calibrated. This certificate shall not be reproduced "
+                        "except in full without the written approval of the issuing laboratory."},
+        {"refType": "basic_traceability", "declaration": " ".join(_traceability_text(g) for g in _unique_gauges(cal))},
+        {"refType": "basic_decisionRule", "declaration": _decision_rule_text(lab)},
+        {"refType": "basic_conformity", "conformity": conformity["conformity"], "declaration": conformity["text"]},
+        {"refType": "basic_recalibration", "date": dates.get("recalibration_due"),
+         "declaration": dates.get("recalibration_rule", "")},
+        {"refType": "borescan_issueDate", "declaration": dates.get("issue_rule", "")},
+    ]
+    return _fixed({
+        "format": CERTIFICATE_FORMAT, "calibration_id": cal.calibration_id, "device_id": cal.device_id,
+        "method": cal.method, "scan_ids": list(cal.scan_ids), "coverage_probability": p,
+        "item": "measuring rod", "traceability_summary": gauges_text + " (section 4)",
+        "administrativeData": {
+            "dccSoftware": {"software": [{"name": "borescan", "release": software_version}]},
+            "coreData": {"countryCodeISO3166_1": lab.get("country_code"), "usedLangCodeISO639_1": ["en"],
+                         "mandatoryLangCodeISO639_1": ["en"], "uniqueIdentifier": cal.calibration_id,
+                         "beginPerformanceDate": dates.get("begin"), "endPerformanceDate": dates.get("end"),
+                         "issueDate": dates.get("issue"), "performanceLocation": lab.get("performance_location")},
+            "items": [{"name": "measuring rod (rod)", "identifications": [{"issuer": "customer", "value": device.get("id")}],
+                       "sensors": device.get("sensors", [])}],
+            "calibrationLaboratory": {"contact": {"name": lab.get("name"), "location": {"further": lab.get("address")}},
+                                      "accreditation": lab.get("accreditation")},
+            "respPersons": [{"person": {"name": lab.get("signatory")}, "role": lab.get("signatory_function"),
+                             "mainSigner": True}],
+            "customer": {"name": lab.get("customer")}, "statements": statements, "placeholders": placeholders,
+        },
+        "measurementResults": [{
+            "name": "calibrated rod base lengths",
+            "usedMethods": [{"name": cal.method, "description": _METHOD_TEXT[cal.method]},
+                            {"name": "uncertainty", "norm": "JCGM 100:2008 (GUM)"}],
+            "measuringEquipments": [dict(g, refType="basic_normalUsed", name="ring gauge") for g in cal.gauges],
+            "influenceConditions": conditions, "results": results, "uncertaintyBudget": budgets,
+        }],
+        "parameters": params,
+        "covariance": cal.budget.covariance(),
+        "fit": {"residual_rms_mm": cal.residual_rms_mm, "iterations": cal.iterations,
+                "solve_method": None if sol is None else sol.method, "rank": None if sol is None else sol.rank,
+                "condition": None if sol is None else sol.condition,
+                "n_poses": None if sol is None else int(np.size(sol.alpha_rad)),
+                "deflection_rad": None if sol is None else sol.deflection_rad,
+                "eccentricity_mm": None if sol is None or sol.eccentricity_mm is None else sol.eccentricity_mm},
+        "device": device, "artifact": artifact, "gauges": list(cal.gauges), "conditions": conditions,
+        "verifications": ver, "conformity": conformity, "dates": dates, "laboratory": lab,
+        "raw_files": dict(sorted(raw_files.items())), "software_version": software_version, "config_hash": config_hash,
+    })
+
+
+def _unique_gauges(cal) -> list[dict]:
+    seen, out = set(), []
+    for g in cal.gauges:
+        key = (g.get("id"), g.get("certificate"))
+        if key not in seen:
+            seen.add(key)
+            out.append(g)
+    return out
+
+
+def _rod_pages(cert: dict) -> list[Figure]:
+    d = _Doc(cert)
+    _page_admin(d)
+    c = d.cert
+    d.new_page()
+    d.heading("1  Item calibrated")
+    _sensor_table(d, c["device"], c["device_id"])
+    d.heading("2  Method")
+    d.para(_METHOD_TEXT.get(c["method"], c["method"]))
+    d.heading("3  Conditions of calibration")
+    temp = c["conditions"].get("temperature") or {}
+    cte = c["conditions"].get("gauge_cte") or {}
+    d.kv([("Gauge temperature", f"{_num(temp.get('value_c'), '.2f')} degC, standard uncertainty "
+                                f"{_num(temp.get('u_c'), '.3f')} K (rectangular); {temp.get('source', 'not stated')}"),
+          ("Gauge expansion coeff.", f"{_ppm(cte.get('value_per_k'))} +- {_ppm(cte.get('halfwidth_per_k'))} "
+                                     f"(rectangular); {cte.get('source', '')}"),
+          ("Calibration scans", ", ".join(c["scan_ids"])),
+          ("Other conditions", "humidity, pressure and vibration are not recorded in scan.json; they enter no result")],
+         key_w=0.21, width=96)
+    d.heading("4  Traceability")
+    cells = [[str(g["channel"]), str(g.get("feature")), str(g.get("id")), str(g.get("certificate")),
+              _num(g.get("certified_diameter_mm"), ".4f"), _num(_scaled(g.get("u_diameter_mm"), 1e3), "g"),
+              str(g.get("k")), _num(g.get("radius_at_t_mm"), ".5f")] for g in c["gauges"]]
+    d.table(["layer", "feature", "ring gauge", "certificate", "D20 [mm]", "U [um]", "k", "R at T [mm]"], cells,
+            widths=[0.07, 0.09, 0.17, 0.2, 0.12, 0.08, 0.06, 0.13], size=6.8)
+    for st in c["administrativeData"]["statements"]:
+        if st.get("refType") == "basic_traceability":
+            d.para(st["declaration"])
+    d.new_page()
+    d.heading("5  Results")
+    p = c["coverage_probability"]
+    d.para("Calibrated base length l0 of each layer (axis foot to the sensor's measuring start), at which the rod solve "
+           "returns the gauge's radius at its temperature. Expanded uncertainty U = k u_c for a coverage probability of "
+           f"{100 * p:.2f} %. A rod diameter measured with this calibration moves by 2 (l0 - l0 true): its budget takes "
+           "this one with sensitivity 2.")
+    res = {r["name"]: r for r in c["measurementResults"][0]["results"]}
+    budgets = c["measurementResults"][0]["uncertaintyBudget"]
+    cells = []
+    for prow in c["parameters"]:
+        key = f"l0_mm[{prow['channel']}]"
+        eu = res[key]["real"]["expandedUnc"]
+        v, U = _vu(prow["l0_mm"], eu["uncertainty"])
+        dom = (budgets.get(key, {}).get("combined") or {}).get("dominant_input", "")
+        cells.append([str(prow["channel"]), _num(prow["l0_nominal_mm"], ".4f"), v, U,
+                      _num(1e3 * (prow["l0_mm"] - prow["l0_nominal_mm"]), "+.2f"), _num(eu["coverageFactor"], ".2f"),
+                      _dominant_label(dom)])
+    d.table(["layer", "design l0 [mm]", "l0 [mm]", "U [mm]", "l0 - design [um]", "k", "dominant input"], cells,
+            widths=[0.07, 0.13, 0.14, 0.1, 0.13, 0.06, 0.37], size=7)
+    fit = c["fit"]
+    d.para(f"Rod solve at the calibrated l0 ({fit.get('solve_method')}): residual rms "
+           f"{_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um over {fit.get('n_poses')} poses, Jacobian rank "
+           f"{fit.get('rank')}, condition {_num(fit.get('condition'), '.3g')}; rod axis deflection "
+           f"{_num(_scaled(fit.get('deflection_rad'), 180 / math.pi), '.3f')} deg; {fit.get('iterations')} solves to "
+           "settle l0.")
+    d.heading("6  Uncertainty budget")
+    for prow in c["parameters"]:
+        key = f"l0_mm[{prow['channel']}]"
+        rows, comb = budgets[key]["rows"], budgets[key]["combined"]
+        tab = []
+        for r in rows:
+            if _tiny(r, comb["standard_uncertainty"]):
+                continue
+            tab.append([_label(r), _est_text(r["estimate"], r["unit"]),
+                        "-" if not r["standard_uncertainty"] else _u_text(r["standard_uncertainty"], r["unit"]),
+                        _DIST.get(r["distribution"], r["distribution"]), _dof_text(r["degrees_of_freedom"]),
+                        "-" if r["sensitivity_coefficient"] is None else f"{r['sensitivity_coefficient']:.3g}",
+                        f"{1e3 * r['contribution']:.3g}"])
+        tab.append(["combined standard uncertainty u_c", "", "", "", _dof_text(comb.get("effective_degrees_of_freedom")),
+                    "", f"{1e3 * comb['standard_uncertainty']:.3g}"])
+        tab.append([f"expanded uncertainty U (k = {comb['coverage_factor']:.2f})", "", "", "", "", "",
+                    f"{1e3 * comb['expanded_uncertainty']:.3g}"])
+        d.room(0.013 * (len(tab) + 1) + 0.03)
+        d.para(f"Layer {prow['channel']} (contributions in um; inputs below 1e-5 u_c left out):", size=7.5)
+        d.table(["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c_i", "u_i [um]"], tab,
+                widths=[0.4, 0.13, 0.1, 0.1, 0.07, 0.09, 0.11], size=6.2, row_h=0.013, bold_last=True)
+    _verification_pages(d)
+    _page_records(d)
+    return d.finish()
+
+
+def write_rod_certificate(cal, out_dir: Path | str, **kw) -> dict[str, Path]:
+    """Write ``certificate.json`` and ``certificate.pdf`` of a rod calibration into ``out_dir``
+    (arguments of :func:`rod_certificate_dict`). Same inputs give byte-identical files."""
+    import matplotlib
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cert = rod_certificate_dict(cal, **kw)
+    paths = {"json": out_dir / "certificate.json", "pdf": out_dir / "certificate.pdf"}
+    atomic_write_text(paths["json"], json.dumps(cert, sort_keys=True, indent=2, allow_nan=False) + "\n")
+    with matplotlib.rc_context(_RC):
+        atomic_write_bytes(paths["pdf"], _pdf_bytes(_rod_pages(cert), f"Calibration certificate {cal.calibration_id}"))
     return paths

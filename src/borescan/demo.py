@@ -81,10 +81,22 @@ ROD_PART = {"id": "CYL-2H-0042", "d_mm": {"H1": 150.0082, "H2": 149.9941}, "z_mm
 #: Drawing tolerance of the housings' bores, +- [mm] (scan.json features[].tolerance_mm): HSG-1101 is
 #: made 12.3 um over its nominal, out of tolerance, so the report has a part to flag.
 PART_TOLERANCE_MM = 0.010
+#: The rod's true layers. Its scan.json gives the design base length 71.0 mm for both: layer 1's is
+#: really 12.3 um longer, layer 2's 8.7 um shorter, so only a calibration on ring gauges makes its
+#: diameters right (and traceable).
 ROD_LAYERS = (
-    RodLayer(channel=1, h_mm=100.0, l0_mm=71.0, phi_rad=0.0, d_mm=0.31, gamma_rad=math.radians(0.27)),
-    RodLayer(channel=2, h_mm=400.0, l0_mm=71.0, phi_rad=0.04, d_mm=-0.22, gamma_rad=math.radians(-0.18)),
+    RodLayer(channel=1, h_mm=100.0, l0_mm=71.0123, phi_rad=0.0, d_mm=0.31, gamma_rad=math.radians(0.27)),
+    RodLayer(channel=2, h_mm=400.0, l0_mm=70.9913, phi_rad=0.04, d_mm=-0.22, gamma_rad=math.radians(-0.18)),
 )
+#: The design layers of ROD-01's scan.json (device.nominal): l0 = 71.0 mm, beams on the axis.
+ROD_NOMINAL_LAYERS = tuple(replace(lay, l0_mm=71.0, d_mm=0.0, gamma_rad=0.0, phi_rad=0.0) for lay in ROD_LAYERS)
+#: Ring-gauge set for the rod: two certified rings stacked at the layers' heights (features H1, H2).
+RGS150 = {"id": "RGS-150", "type": "ring_gauge", "nominal_diameter_mm": 150.0, "u_diameter_mm": 0.0012, "k": 2,
+          "certificate": "RGS-150/2026-02", "cte_per_k": CTE_STEEL_PER_K,
+          "features": [{"id": "H1", "z_mm": 100.0, "nominal_diameter_mm": 150.0, "certified_diameter_mm": 150.0021,
+                        "gauge_id": "RG-150A"},
+                       {"id": "H2", "z_mm": 400.0, "nominal_diameter_mm": 150.0, "certified_diameter_mm": 149.9987,
+                        "gauge_id": "RG-150B"}]}
 
 
 def _static_poses(rng: np.random.Generator, n: int, r_max_mm: float) -> tuple[np.ndarray, np.ndarray]:
@@ -98,10 +110,13 @@ def _part_artifact(part_id: str, d_nom_mm: float) -> dict:
             "features": [{"id": "B1", "z_mm": 0.0, "nominal_diameter_mm": d_nom_mm, "tolerance_mm": PART_TOLERANCE_MM}]}
 
 
-def _rod_scene(rng: np.random.Generator, temp_c: float) -> RodScene:
-    d = ROD_PART["d_mm"]
+def _rod_scene(rng: np.random.Generator, temp_c: float, d: dict | None = None, min_omega_deg: float = 0.0) -> RodScene:
+    """The rod in the two holes ``d`` (feature -> true diameter at 20 degC; default the part's). A
+    gauge calibration holds the rod visibly skew to the holes (``min_omega_deg``): with the rod
+    parallel to them the offsets of the layers are collinear and the radii undetermined (rod.py)."""
+    d = d or ROD_PART["d_mm"]
     axis = RodAxis(dx_mm=float(rng.uniform(-1.5, 1.5)), dy_mm=float(rng.uniform(-1.5, 1.5)),
-                   omega_rad=math.radians(float(rng.uniform(0.0, 0.2))),
+                   omega_rad=math.radians(float(rng.uniform(min_omega_deg, 0.2))),
                    omega_az_rad=float(rng.uniform(0.0, 2 * np.pi)))
     holes = (Hole((0.0, 0.0), d["H1"] / 2), Hole((0.012, -0.021), d["H2"] / 2))
     return RodScene(layers=ROD_LAYERS, holes=holes,
@@ -165,7 +180,18 @@ def demo_scans(seed: int = DEMO_SEED) -> list[SimulatedScan]:
                                  for f in ("H1", "H2")]}
         scans.append(simulate_rod(_rod_scene(rng, temp_c), n_poses=24, samples_per_pose=5, effects=thermal,
                                   artifact=artifact, features=("H1", "H2"), device_id="ROD-01",
-                                  **kw("ROD01-MEAS-CYL2H", "measurement")))
+                                  nominal_layers=ROD_NOMINAL_LAYERS, **kw("ROD01-MEAS-CYL2H", "measurement")))
+        # the rod in its ring-gauge set: calibrated on the first night, verified on each (drawn from
+        # their own generator so that the scans above stay as they were)
+        rod_rng = np.random.default_rng([seed, i_night, 150])
+        gauge_d = {f["id"]: f["certified_diameter_mm"] for f in RGS150["features"]}
+        rod_kinds = (("CAL", "calibration"), ("VER", "verification")) if i_night == 0 else (("VER", "verification"),)
+        for tag_kind, kind in rod_kinds:
+            scans.append(simulate_rod(
+                _rod_scene(rod_rng, temp_c, gauge_d, min_omega_deg=0.12), n_poses=24, samples_per_pose=5, effects=thermal, artifact=RGS150,
+                features=("H1", "H2"), device_id="ROD-01", nominal_layers=ROD_NOMINAL_LAYERS,
+                scan_id=f"{tag}-ROD01-{tag_kind}-RGS150", night=night, kind=kind, seed=int(rod_rng.integers(2**31)),
+                started_at=started_at_plus(night, 22, 6 * next(slot))))
     return scans
 
 

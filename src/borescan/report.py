@@ -683,7 +683,12 @@ _MONTH_ROWS = {
                   "(SELECT artifact_id, any_value(nominal_diameter_mm) AS nominal_mm FROM artifacts "
                   "WHERE artifact_id IN (SELECT artifact_id FROM diameters GROUP BY artifact_id "
                   "HAVING count(DISTINCT feature) <= 1) GROUP BY artifact_id) a ON a.artifact_id = t.artifact_id"),
-    "calibration_events": "SELECT {m} AS _m, t.* FROM ({events}) t",
+    # the lifecycle's events of measured calibrations (saved query calibration_status_history: one
+    # definition for the report, `borescan trace` and the user's queries); valid -> "made"
+    "calibration_events": ("SELECT {m} AS _m, t.night, CASE t.status WHEN 'valid' THEN 'made' ELSE t.status END AS event, "
+                           "t.calibration_id, t.device_id, t.other_id FROM calibration_status_history t "
+                           "WHERE t.calibration_id IS NOT NULL AND coalesce(t.method, '') <> 'nominal' "
+                           "AND t.status IN ('valid', 'superseded', 'expired')"),
     "findings": "SELECT {m} AS _m, t.* FROM findings t",
     "quarantine": "SELECT {m} AS _m, t.* FROM quarantine t",
     "suspect_measurements": "SELECT {m} AS _m, t.* FROM suspect_measurements t",
@@ -707,35 +712,13 @@ _ORDER = {
 }
 
 
-#: A calibration's events, each on its night: ``made`` (valid_from), ``superseded`` (by the
-#: device's next calibration, named in other_id) and ``expired`` (recalibration_due, unless
-#: superseded before); design records (method ``nominal``) left out; only up to the last night.
-_EVENTS_SQL = (
-    "WITH c AS (SELECT calibration_id, any_value(device_id) AS device_id, min(valid_from) AS valid_from, "
-    "min({due}) AS due FROM calibrations WHERE coalesce(method, '') <> 'nominal' AND valid_from IS NOT NULL "
-    "GROUP BY calibration_id), "
-    "n AS (SELECT *, lead(valid_from) OVER w AS next_from, lead(calibration_id) OVER w AS next_id FROM c "
-    "WINDOW w AS (PARTITION BY device_id ORDER BY valid_from, calibration_id)) "
-    "SELECT night, event, calibration_id, device_id, other_id FROM ("
-    "SELECT valid_from AS night, 'made' AS event, calibration_id, device_id, NULL::VARCHAR AS other_id FROM n "
-    "UNION ALL SELECT next_from, 'superseded', calibration_id, device_id, next_id FROM n WHERE next_from IS NOT NULL "
-    "UNION ALL SELECT due, 'expired', calibration_id, device_id, NULL FROM n "
-    "WHERE due IS NOT NULL AND (next_from IS NULL OR next_from > due)) e "
-    "WHERE night <= (SELECT max(night) FROM scans)"
-)
-
-
 def _sources(con) -> dict[str, str]:
     """Source name -> SQL of its rows with a ``_m`` month column, for the sources the catalog has."""
     have = {r[0] for r in con.execute(
         "SELECT table_name FROM duckdb_tables() WHERE schema_name = 'main' UNION "
         "SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'").fetchall()}
-    cal_cols = {r[0] for r in con.execute(
-        "SELECT column_name FROM duckdb_columns() WHERE table_name = 'calibrations' AND schema_name = 'main'").fetchall()}
-    due = "CAST(recalibration_due AS DATE)" if "recalibration_due" in cal_cols else "CAST(NULL AS DATE)"
-    needs = {"calibration_events": {"calibrations", "scans"}, "diameters": {"diameters", "artifacts"}}
-    return {name: sql.format(m=_month_sql("t"), mc=_month_sql("c"), ms=_month_sql("s"),
-                             events=_EVENTS_SQL.format(due=due))
+    needs = {"calibration_events": {"calibration_status_history"}, "diameters": {"diameters", "artifacts"}}
+    return {name: sql.format(m=_month_sql("t"), mc=_month_sql("c"), ms=_month_sql("s"))
             for name, sql in _MONTH_ROWS.items() if needs.get(name, {name}) <= have}
 
 
@@ -1262,23 +1245,27 @@ class _Builder:
             out_tol = p_n.filter(~pl.col("in_tolerance")) if p_n is not None and p_n.height else None
             person = f_n.filter(pl.col("verdict").is_in(["missing_effect", "ambiguous"])) if f_n.height else f_n
             person_scans = person["scan_id"].unique(maintain_order=True).to_list() if person.height else []
+            untraceable = (p_n.filter(pl.col("method").fill_null("").str.contains("NOT TRACEABLE"))
+                           if p_n is not None and p_n.height and "method" in p_n.columns else None)
             n_out = 0 if out_tol is None else out_tol.height
             known_tol = p_n is not None and p_n.height and p_n["tolerance_mm"].drop_nulls().len() > 0
-            attention = bool(q_n) or failed.height > 0 or n_out > 0 or bool(person_scans) or expired.height > 0
+            attention = (bool(q_n) or failed.height > 0 or n_out > 0 or bool(person_scans) or expired.height > 0
+                         or (untraceable is not None and untraceable.height > 0))
             rows.append([f'<a href="#night-{night}">{_e(night)}</a>', str(s_n.height),
                          _e(", ".join(f"{k} {n}" for k, n in kinds)), str(len(q_n)), str(made.height),
                          str(expired.height), str(superseded.height), str(v_n.height - failed.height),
                          str(failed.height), str(n_out) if known_tol else "–", str(len(person_scans))])
             classes.append("fail" if attention else "")
             details.append(self._night_detail(night, q_n, made, superseded, expired, failed, out_tol,
-                                              person, attention))
+                                              person, attention, untraceable))
         head = ["night", "scans in", "by kind", "quarantined", "calibrations made", "expired", "superseded",
                 "verifications passed", "failed", "parts out of tolerance", "verdicts for a person"]
         return ('<p class="note">Newest night first. A red row needs attention; its details follow the table. '
                 "“–”: no part tolerance recorded.</p>" + _table(head, rows, classes, num_cols=set(range(3, 11)) | {1})
                 + "".join(details))
 
-    def _night_detail(self, night, q_n, made, superseded, expired, failed, out_tol, person, attention) -> str:
+    def _night_detail(self, night, q_n, made, superseded, expired, failed, out_tol, person, attention,
+                      untraceable=None) -> str:
         items = []
         for q in q_n:
             rec = self.link(f"quarantine/{q['scan_id']}.json")
@@ -1300,6 +1287,14 @@ class _Builder:
             items.append(f"<li><b>part out of tolerance</b> {_e(r['artifact_id'])} {_e(r.get('feature') or '')} "
                          f"(scan {_e(r['scan_id'])}): deviation {_um(r['deviation_mm'])} µm, tolerance "
                          f"±{_um(r['tolerance_mm'])} µm</li>")
+        for (sid,), grp in (untraceable.group_by("scan_id", maintain_order=True)
+                            if untraceable is not None and untraceable.height else []):
+            items.append(f"<li><b>not traceable</b> {_e(sid)} ({_e(grp['device_id'][0])}): "
+                         f"{_e(', '.join(str(f) for f in grp['feature'].to_list()))} measured with the rod's design "
+                         "base lengths"
+                         '<br><span class="action">what to do: calibrate the rod in its certified ring gauges '
+                         "(a rod calibration scan); until then these diameters carry no traceability "
+                         "(measurement.rod_without_calibration: refuse sets such scans aside).</span></li>")
         for (sid,), grp in (person.group_by("scan_id", maintain_order=True) if person.height else []):
             verdict = grp["verdict"][0]
             named = ", ".join(f"{e}" + (f" (channel {c})" if c is not None else "")

@@ -123,8 +123,10 @@ _T = [
                                  # measured_mm is at 20 degC (= certified_mm + error_mm); as measured at temperature_c
                                  "measured_at_t_mm:float temperature_c:float temperature_assumed:bool "
                                  "expected_at_t_mm:float u_measured_mm:float u_error_mm:float expanded_u_error_mm:float "
-                                 "k:float acceptance_limit_mm:float decision_rule:text conformity:text budget_json:text"),
-          ("scan_id", "calibration_id")),
+                                 "k:float acceptance_limit_mm:float decision_rule:text conformity:text budget_json:text "
+                                 # a rod verifies each layer in its own gauge: one row per layer (null for tri_lds)
+                                 "feature:text"),
+          ("scan_id", "calibration_id", "feature")),
     Table("findings", _cols("scan_id:text night:date! verdict:text effect:text channel:channel parameters:text "
                             "gap_before_mm:float gap_after_mm:float noise_floor_mm:float uncertainties:text"),
           ("scan_id", "effect", "channel")),

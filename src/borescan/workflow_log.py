@@ -73,3 +73,29 @@ def rule_job(namespace: dict, script: str | Path, argv: list[str] | None = None)
             Path(f).parent.mkdir(parents=True, exist_ok=True)
         return Snakemake(job.input, job.output, job.params, job.wildcards, 1, job.resources, job.log,
                          workflow.config, rule_name, None, scriptdir=str(script.parent))
+
+
+def restore_stale_backups(snakemake_dir: str | Path, folders, log=print) -> list[Path]:
+    """Put back the copies Snakemake keeps of ``update()`` folders while their job runs.
+
+    Before a job that updates a folder in place (``update(directory(...))``), Snakemake copies it
+    to ``.snakemake/backups/<absolute path>`` and restores it if the job fails. A run killed hard
+    (power cut, ``kill -9``) leaves the copy behind, and the next run's copy then fails with
+    FileExistsError. Called when a run starts (it holds the lock, so no job of another run is
+    writing): the folder goes back to its state before the killed job, which is then rerun.
+    Returns the folders restored.
+    """
+    restored = []
+    root = Path(snakemake_dir) / "backups"
+    for folder in folders:
+        folder = Path(folder).resolve()
+        backup = root / str(folder).lstrip("/")
+        if not backup.is_dir():
+            continue
+        import shutil
+
+        shutil.rmtree(folder, ignore_errors=True)
+        shutil.move(str(backup), str(folder))
+        log(f"{folder}: restored from the copy a killed run left in {backup}")
+        restored.append(folder)
+    return restored

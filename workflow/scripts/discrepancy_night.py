@@ -1,12 +1,17 @@
 """Rule discrepancy_night: name the physical effect missing from the model, per scan."""
 
+from pathlib import Path
+
 from borescan.stages._common import write_stage_outputs
-from borescan.stages.discrepancy import stage_discrepancy
+from borescan.stages.discrepancy import findings_night_dir, stage_discrepancy
 from borescan.workflow_log import log_to, rule_job
 
 
 def main(smk) -> None:
     with log_to(smk.log[0]) as log:
+        night_dir = findings_night_dir(smk.params.results_root, smk.wildcards.night)
+        if Path(smk.output.scans).resolve() != night_dir.resolve():
+            raise ValueError(f"rule output {smk.output.scans} is not the stage's folder {night_dir}")
         findings, bad = stage_discrepancy(
             smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
             smk.input.scans, list(smk.input.calibrations), smk.params.discrepancy, log=log, workers=smk.threads,

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from borescan.atomic import atomic_write_text
 from borescan.config import schema_defaults
 from borescan.discrepancy.fitting import FitResult, fit_least_squares
 from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays
@@ -616,8 +617,5 @@ def write_findings(findings: dict, out_dir: str | Path) -> Path:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "findings.json"
-    text = json.dumps(_clean(findings), sort_keys=True, indent=2) + "\n"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    atomic_write_text(path, json.dumps(_clean(findings), sort_keys=True, indent=2) + "\n")
     return path

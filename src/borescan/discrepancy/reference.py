@@ -19,7 +19,9 @@ def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_typ
     calibration for calibration scans; ``nominal`` records excluded) -> ``{"beams": ...}``, and a
     device without one against ``device.nominal`` with its whole beam geometry freed (the design
     is off by mm in rho as well) -> ``{"free_beams": ("d_b", "beta", "rho")}``: the examination
-    then asks what a calibration of this scan could not absorb. Rods are always examined against ``device.nominal`` -> ``{}``.
+    then asks what a calibration of this scan could not absorb. A rod is examined against its
+    latest calibration on certified ring gauges (its layers' base lengths) -> ``{"layers": ...}``,
+    else against ``device.nominal`` -> ``{}``.
     Unlike a measurement, the examination uses expired or failed calibrations too: it asks what
     the model misses, not whether a result may be certified.
     """
@@ -31,4 +33,18 @@ def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_typ
             return {"beams": tri_calibration(calibrations, cal_id).beams}, f"calibration {cal_id}"
     if device_type == "tri_lds":
         return {"free_beams": ("d_b", "beta", "rho")}, "device.nominal (beam geometry free)"
+    if device_type == "rod" and calibrations.height and {"device_id", "l0_mm"} <= set(calibrations.columns):
+        c = calibrations.filter((pl.col("device_id") == device_id) & (pl.col("valid_from") <= night)
+                                & (pl.col("method") != "nominal") & pl.col("l0_mm").is_not_null())
+        if c.height:
+            cal_id = c.sort("valid_from", "calibration_id")["calibration_id"][-1]
+            rows = c.filter(pl.col("calibration_id") == cal_id).sort("channel").rows(named=True)
+            layers = [{"channel": int(r["channel"]), "l0": float(r["l0_mm"]), "h": _num(r.get("h_mm")),
+                       "phi": _num(r.get("phi_rad")), "d": _num(r.get("d_mm")), "gamma": _num(r.get("gamma_rad"))}
+                      for r in rows]
+            return {"layers": layers}, f"calibration {cal_id}"
     return {}, "device.nominal"
+
+
+def _num(v) -> float:
+    return float(v) if v is not None and v == v else 0.0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -9,10 +11,15 @@ from pathlib import Path
 import polars as pl
 
 from borescan import rawio, tables
-from borescan.atomic import atomic_write_text
+from borescan.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "write_table",
-           "write_stage_outputs", "ok_scans", "night_scans", "read_tables", "frames_or_empty"]
+           "write_stage_outputs", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash"]
+
+
+def config_hash(cfg: dict) -> str:
+    """SHA-256 (hex, 16 chars) of config sections, for certificates and provenance."""
+    return hashlib.sha256(json.dumps(cfg, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 @dataclass(frozen=True)
@@ -53,11 +60,9 @@ def quarantine_frame(records: list[Quarantined]) -> pl.DataFrame:
 
 def write_table(df: pl.DataFrame, path: str | Path) -> None:
     """Write a stage table as Parquet atomically (temp file + rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    df.write_parquet(tmp, statistics=False)
-    tmp.replace(path)
+    buf = io.BytesIO()
+    df.write_parquet(buf, statistics=False)
+    atomic_write_bytes(path, buf.getvalue())  # a unique temporary name: two runs never meet
 
 
 def write_stage_outputs(output, quarantined: list[Quarantined] | None = None, **frames: pl.DataFrame) -> None:

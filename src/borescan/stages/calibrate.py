@@ -8,8 +8,6 @@ the decision rule and the conformity; its dates come from the data (:func:`certi
 
 from __future__ import annotations
 
-import hashlib
-import json
 from pathlib import Path
 
 import numpy as np
@@ -21,15 +19,11 @@ from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows, rod_nominal_calibration_rows
 from borescan.config import schema_defaults
 from borescan.geometry import Beams
-from borescan.stages._common import night_scans, quarantine
+from borescan.stages._common import config_hash, night_scans, quarantine
+from borescan.stages.calibrate_rod import calibrate_rod_scan
 from borescan.stages.calibration_fit import budget_of, fit_device_calibration, spindle_inputs, yang_from_summary
 
 __all__ = ["stage_calibrate", "config_hash"]
-
-
-def config_hash(cfg: dict) -> str:
-    """SHA-256 (hex, 16 chars) of a config section, for certificates and provenance."""
-    return hashlib.sha256(json.dumps(cfg, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_table, cfg: dict, log=print, *,
@@ -40,7 +34,8 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
 
     ``cfg["method"]``: ``full_lsq`` (every sample, exact forward model, all calibration scans of
     the device together) or ``yang2017`` (the paper's extrema method, one calibration per scan).
-    Rods record their nominal layer geometry. Returns (calibrations rows, calibration_scans rows,
+    Rods record their nominal layer geometry; a rod's ring-gauge calibration scan calibrates its
+    layers' base lengths (:mod:`borescan.rod_calibration`, certificate beside). Returns (calibrations rows, calibration_scans rows,
     quarantined). A scan with too few revolutions, or a calibration that does not converge, is
     quarantined with the reason; the other devices and nights go on.
     """
@@ -82,6 +77,9 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
         if rows and rows[0]["calibration_id"] not in {r["calibration_id"] for r in cal_rows}:
             cal_rows += rows
             link_rows.append({"calibration_id": rows[0]["calibration_id"], "scan_id": row["scan_id"]})
+    for row, d in night_scans(raw_root, night, scans_table, kind="calibration", device_type="rod"):
+        calibrate_rod_scan(rawio.read_scan(d, raw_root=Path(raw_root)), night, results_root, bad, cal_rows, link_rows,
+                           log, ctx, cfg)
     cals = pl.DataFrame(cal_rows, infer_schema_length=None) if cal_rows else pl.DataFrame()
     links = pl.DataFrame(link_rows) if link_rows else pl.DataFrame()
     return cals, links, bad

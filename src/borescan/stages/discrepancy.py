@@ -1,8 +1,16 @@
-"""Stage ``discrepancy_night``: name the physical effect missing from the model, per scan of a night."""
+"""Stage ``discrepancy_night``: name the physical effect missing from the model, per scan of a night.
+
+Each scan's ``findings.json`` and ``gap.png`` go to ``discrepancy/night=<night>/<scan_id>/``, one
+folder per night that the rule declares (so ``snakemake --report`` shows them);
+``discrepancy/<scan_id>`` is a relative symbolic link to the scan's folder, the path the report
+page, the README and people use (a copy where the filesystem has no symbolic links).
+"""
 
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from pathlib import Path
 
 import polars as pl
@@ -13,7 +21,50 @@ from borescan.discrepancy.reference import discrepancy_reference
 from borescan.parallel import map_in_order, workers_for
 from borescan.stages._common import Quarantined, night_scans, quarantine, read_tables
 
-__all__ = ["stage_discrepancy", "findings_rows", "discrepancy_one"]
+__all__ = ["stage_discrepancy", "findings_rows", "discrepancy_one", "findings_night_dir", "findings_dir"]
+
+
+def findings_night_dir(results_root, night: str) -> Path:
+    """The night's folder of per-scan findings (the rule's declared output)."""
+    return Path(results_root) / "discrepancy" / f"night={night}"
+
+
+def findings_dir(results_root, scan_id: str) -> Path:
+    """``discrepancy/<scan_id>``: where a scan's findings.json and gap.png are read (a link into its
+    night's folder)."""
+    return Path(results_root) / "discrepancy" / scan_id
+
+
+def _link_target(night: str, scan_id: str) -> str:
+    return f"night={night}/{scan_id}"
+
+
+def _clear_night(results_root, night: str) -> Path:
+    """Empty the night's folder and drop the links into it (Snakemake empties it before the job; by hand
+    nothing does): a scan examined no more, or set aside this time, keeps no findings of an earlier run."""
+    night_dir = findings_night_dir(results_root, night)
+    shutil.rmtree(night_dir, ignore_errors=True)
+    night_dir.mkdir(parents=True, exist_ok=True)
+    prefix = _link_target(night, "")
+    with os.scandir(night_dir.parent) as entries:
+        for e in entries:
+            if e.is_symlink() and os.readlink(e.path).startswith(prefix):
+                os.unlink(e.path)
+    return night_dir
+
+
+def _link_scan(results_root, night: str, scan_id: str) -> None:
+    """Point ``discrepancy/<scan_id>`` at ``night=<night>/<scan_id>`` (replacing a folder of the
+    older layout)."""
+    link = findings_dir(results_root, scan_id)
+    if link.is_symlink() or link.is_file():
+        link.unlink()
+    elif link.is_dir():
+        shutil.rmtree(link)  # written before the findings moved into night folders
+    try:
+        os.symlink(_link_target(night, scan_id), link, target_is_directory=True)
+    except OSError:  # no symbolic links here: a copy
+        shutil.copytree(findings_night_dir(results_root, night) / scan_id, link)
 
 
 def findings_rows(findings: dict) -> list[dict]:
@@ -32,7 +83,8 @@ def findings_rows(findings: dict) -> list[dict]:
 
 def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibration_tables, cfg: dict,
                       log=print, workers: int = 1) -> tuple[pl.DataFrame, list[Quarantined]]:
-    """Model-discrepancy examination of every scan of a night (``discrepancy/<scan_id>/``).
+    """Model-discrepancy examination of every scan of a night (``discrepancy/night=<night>/<scan_id>/``,
+    read as ``discrepancy/<scan_id>/``).
 
     Each scan is compared with its device as :func:`borescan.discrepancy.reference.discrepancy_reference`
     says; the named missing effect, the gap before and after and the noise floor go to
@@ -41,6 +93,7 @@ def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibrati
     ``workers`` processes.
     """
     settings = discrepancy_settings(cfg)
+    _clear_night(results_root, night)
     cals = read_tables(calibration_tables) if calibration_tables else pl.DataFrame()
     jobs = []
     for row, d in night_scans(raw_root, night, scans_table):
@@ -60,14 +113,16 @@ def discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
     raw_root, night, results_root, d, settings, ref_kw, ref = job
     bad: list[Quarantined] = []
     scan = rawio.read_scan(d, raw_root=Path(raw_root))
-    out_dir = Path(results_root) / "discrepancy" / scan.scan_id
+    out_dir = findings_night_dir(results_root, night) / scan.scan_id
     try:
         ex = discrepancy.analyse_scan(scan, **settings, **ref_kw)
         findings = ex.findings
         findings["reference"] = ref
         discrepancy.write_findings(findings, out_dir)
         discrepancy.plot_gap(ex, out_dir / "gap.png")
+        _link_scan(results_root, night, scan.scan_id)
     except (ValueError, KeyError, ArithmeticError) as err:
+        shutil.rmtree(out_dir, ignore_errors=True)  # no half-written findings of a scan set aside
         quarantine(results_root, bad, scan.scan_id, night, "discrepancy", "lds.parquet",
                    f"model-discrepancy examination failed: {err}")
         return [], bad, f"{scan.scan_id}: quarantined ({err})"

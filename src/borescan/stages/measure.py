@@ -18,35 +18,20 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from borescan import measure, rawio, rod
-from borescan.artifacts import MissingTemperature, artifact_cte, artifact_row, scan_temperature
+from borescan import measure, rawio, rod, rod_calibration
+from borescan.artifacts import MissingTemperature, artifact_row
 from borescan.calibration import CalibrationError
-from borescan.calibrations import choose_calibration, failed_calibration_ids, rod_layers, tri_calibration
+from borescan.calibrations import choose_calibration, choose_rod_calibration, failed_calibration_ids, tri_calibration
 from borescan.config import schema_defaults
 from borescan.parallel import map_in_order, workers_for
 from borescan.stages._common import night_scans, quarantine, read_tables
 
-__all__ = ["stage_measure", "measure_rod_scan", "measure_one", "section"]
+__all__ = ["stage_measure", "measure_one", "section"]
 
 
 def section(cfg: dict, name: str) -> dict:
     """Config section ``name`` from ``cfg``, else its schema defaults (callers that pass only some sections)."""
     return cfg[name] if cfg.get(name) is not None else schema_defaults()[name]
-
-
-def measure_rod_scan(scan: rawio.RawScan, layer_rows: pl.DataFrame) -> list[dict]:
-    """Hole diameters of a rod scan: mean reading per pose and layer, then the joint rod solve
-    (Wang Eq. 16 generalised: layer geometry phi, d, gamma, l0 and the axis deflection; ``rod.solve_rod``)
-    with each mean's uncertainty from the sensors' data sheet (:func:`borescan.measure.mean_reading_u_mm`)."""
-    mat = rawio.lds_matrix(scan)
-    poses, means, counts = measure.pose_means(mat.values_mm, mat.pose)
-    sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
-    u_mean = measure.mean_reading_u_mm(measure.reading_u_mm(sensors, mat.channels), counts)
-    sol = rod.solve_rod(means, layers=rod_layers(layer_rows, mat.channels), u_reading_mm=u_mean)
-    feat = {int(l["channel"]): l.get("feature") for l in (scan.meta.get("rod") or {}).get("layers", [])}
-    return [{"channel": int(ch), "feature": feat.get(int(ch)) or f"layer{ch}", "diameter_mm": float(sol.diameter_mm[j]),
-             "u_diameter_mm": float(sol.u_diameter_mm[j]), "poses": int(len(poses)), "condition": float(sol.condition)}
-            for j, ch in enumerate(mat.channels)]
 
 
 def stage_measure(raw_root, night: str, results_root, scans_table, calibration_tables, verification_tables_before,
@@ -69,8 +54,13 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     diam, ver, arts, bad = [], [], {}, []
     items = night_scans(raw_root, night, scans_table)
 
+    rod_policy = cfg["measurement"].get("rod_without_calibration") or "measure_nominal"
+
     def job(row, d):
-        cal_id, why = choose_calibration(cals, failed, row["device_id"], night, validity, allow)
+        if row["device_type"] == "rod":
+            cal_id, why = choose_rod_calibration(cals, failed, row["device_id"], night, validity, allow, rod_policy)
+        else:
+            cal_id, why = choose_calibration(cals, failed, row["device_id"], night, validity, allow)
         cal = cals.filter(pl.col("calibration_id") == cal_id) if cal_id is not None else None
         return (raw_root, night, results_root, row, d, cal_id, why, cal, tol, unc, lab, part)
 
@@ -118,19 +108,7 @@ def measure_one(job) -> dict:
         return out
     try:
         if row["device_type"] == "rod":
-            res = measure_rod_scan(scan, cals)
-            temp, cte = scan_temperature(meta, unc), artifact_cte(meta, unc)
-            for r in res:
-                du = measure.diameter_uncertainty(
-                    r["diameter_mm"], u_readings_mm=r["u_diameter_mm"], dof_readings=float("inf"), temperature=temp,
-                    cte=cte, artifact=dict(meta.get("artifact") or {}), scan_id=f"{sid}/{r['feature']}",
-                    p=float(unc["coverage_probability"]), default_resolution_mm=float(unc["sensor_resolution_mm"]))
-                out["diameters"].append(_with_part(measure.diameter_row(
-                    sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"], r["u_diameter_mm"], cal_id, ROD_METHOD,
-                    du), meta, r["feature"], du, part))
-            out["log"] = f"{sid}: " + ", ".join(f"{r['feature']} {r['diameter_mm']:.4f} +- {r['u_diameter_mm'] * 1e3:.1f} um"
-                                                for r in res) + _temperature_note(temp)
-            return out
+            return _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root, night)
         cal = tri_calibration(cals, cal_id)
         res, du = measure.tri_diameter_with_budget(scan, cal, unc)
     except MissingTemperature as err:
@@ -162,6 +140,42 @@ def measure_one(job) -> dict:
     return out
 
 
+#: ``diameters.method`` of a rod hole measured with the design geometry (no gauge calibration)
+ROD_METHOD_NOMINAL = ROD_METHOD + " with the design base lengths: NOT TRACEABLE (rod never calibrated on ring gauges)"
+
+
+def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root, night) -> dict:
+    """Diameters of a rod scan with their GUM budgets (:func:`borescan.rod_calibration.rod_diameters_with_budget`);
+    for a verification scan, each layer's error against its certified gauge."""
+    meta, sid, dev = scan.meta, scan.scan_id, row["device_id"]
+    res = rod_calibration.rod_diameters_with_budget(scan, cals.rows(named=True), unc, cal_id)
+    vers = {}
+    if row["kind"] == "verification":
+        try:
+            vers = {v["feature"]: v for v in rod_calibration.rod_verifications(scan, res, cal_id, unc, lab, tol)}
+        except ValueError as err:
+            quarantine(results_root, out["quarantined"], sid, night, "measure", "scan.json", f"rod verification: {err}")
+            return out
+    notes = []
+    for r in res:
+        du = r["du"]
+        out["diameters"].append(_with_part(measure.diameter_row(
+            sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"], du.combined_t.u, cal_id,
+            ROD_METHOD if r["traceable"] else ROD_METHOD_NOMINAL, du), meta, r["feature"], du, part))
+        note = f"{r['feature']} {r['diameter_mm']:.4f} +- {du.combined_t.u * 1e3:.1f} um"
+        v = vers.get(r["feature"])
+        if v is not None:
+            for k in ("budget", "certificate", "raw_files"):
+                v.pop(k, None)
+            out["verifications"].append(v)
+            note += f" (error at 20 degC {v['error_mm'] * 1e3:+.2f} um: {'PASS' if v['passed'] else 'FAIL'})"
+        notes.append(note)
+    traceable = all(r["traceable"] for r in res)
+    out["log"] = (f"{sid}: " + ", ".join(notes) + (f" ({cal_id})" if traceable else " [design geometry, not traceable]")
+                  + _temperature_note(res[0]["du"].temperature if res else None))
+    return out
+
+
 def _with_part(row: dict, meta: dict, feature, du, part: dict) -> dict:
     """The diameter row with its part's nominal, tolerance (scan.json, else ``measurement.part_tolerance_mm``),
     deviation at 20 degC and verdict by the laboratory's decision rule (:func:`borescan.measure.part_conformity`)."""
@@ -173,4 +187,4 @@ def _with_part(row: dict, meta: dict, feature, du, part: dict) -> dict:
 
 
 def _temperature_note(temp) -> str:
-    return " [temperature ASSUMED 20 degC: none in scan.json]" if temp.assumed else ""
+    return " [temperature ASSUMED 20 degC: none in scan.json]" if temp is not None and temp.assumed else ""

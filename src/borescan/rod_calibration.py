@@ -1,0 +1,349 @@
+"""Rod calibration: each layer's base length l0 from certified ring gauges (traceable rod diameters).
+
+The rod solve (:func:`borescan.rod.solve_rod`) gives each hole radius from readings l = l0 + v,
+so an error in a layer's base length l0 moves that hole's radius by the same amount (exactly for
+a centred rod; for an eccentric one dr/dl0 = 1 + O(e^2 / r^2)). Wang 2017 takes l0 from the
+design; nothing in the readings of a part can separate it from the radius. A calibration scan
+turns the rod in ring gauges of certified diameter, one per layer (a gauge set: the artifact's
+``features`` each with ``certified_diameter_mm``; or one ring gauge for every layer: the
+artifact's own ``certified_diameter_mm``), and finds the l0 at which the solve returns the
+gauges' radii at their temperature:
+
+    l0_m  <-  l0_m + (R_m(T) - r_m(l0)),    R_m(T) = D_m,20 / 2 (1 + alpha (T - 20 degC)),
+
+iterated until the step is below 1e-7 mm or u(r) / 1000 (a fixed point with contraction O(e^2 / r^2); two or three solves). The other
+layer constants (phi, d, gamma, h) stay at their nominal values: to first order a beam offset or
+tilt changes every reading of a layer by a constant, which l0 absorbs.
+
+GUM budget of l0 (outputs l0 of every layer; :class:`borescan.uncertainty.Budget`): the solve's
+radius uncertainty (readings; sensitivity -1), each gauge's certified diameter (f / 2; a gauge
+used by several layers is one input), the gauges' temperature (R20 alpha) and expansion
+coefficient (R20 (T - 20)), and each sensor's linearity and resolution in the calibration
+(sensitivity -1: l0 takes up a constant reading error, which then reappears, independently, in a
+measurement at another point of the range). A rod diameter measured with the calibration takes
+the whole budget with sensitivity 2 on its layer's l0 (:func:`borescan.measure.diameter_uncertainty`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .artifacts import artifact_key
+from .geometry import RodLayer
+from .rod import RodSolution, solve_rod
+from .uncertainty import Budget, Input, Term
+
+__all__ = ["ROD_CALIBRATION_METHOD", "RodCalibration", "layer_gauges", "calibrate_l0", "rod_calibration_budget",
+           "rod_calibration_id", "rod_calibration_rows", "rod_calibration_from_rows", "layer_jacobian",
+           "pose_means_of_scan", "rod_diameters_with_budget", "rod_verifications"]
+
+#: ``calibrations.method`` of a rod calibrated on certified ring gauges
+ROD_CALIBRATION_METHOD = "rod_gauge"
+
+
+@dataclass(frozen=True)
+class RodCalibration:
+    """A rod's layer geometry with base lengths calibrated on certified gauges.
+
+    layers : calibrated RodLayer per channel (l0 calibrated; phi, d, gamma, h nominal)
+    l0_nominal_mm : (m,) the design base lengths the calibration started from
+    u_l0_mm : (m,) combined standard uncertainty of l0 (the budget's)
+    budget : outputs ``l0_mm[<channel>]``
+    gauges : per layer the gauge it was calibrated in (artifact-shaped dict, with ``radius_at_t_mm``)
+    solution : the rod solve at the calibrated l0 (radii equal to the gauges' within 1e-9 mm)
+    iterations : solves of the fixed point; residual_rms_mm : of that solve
+    """
+
+    calibration_id: str
+    device_id: str
+    scan_ids: tuple[str, ...]
+    layers: tuple[RodLayer, ...]
+    l0_nominal_mm: np.ndarray
+    u_l0_mm: np.ndarray
+    budget: Budget
+    gauges: tuple[dict, ...]
+    solution: RodSolution | None
+    iterations: int
+    residual_rms_mm: float
+    method: str = ROD_CALIBRATION_METHOD
+    diagnostics: dict = field(default_factory=dict)
+
+    @property
+    def channels(self) -> tuple[int, ...]:
+        return tuple(int(lay.channel) for lay in self.layers)
+
+    @property
+    def l0_mm(self) -> np.ndarray:
+        return np.array([lay.l0_mm for lay in self.layers], dtype=float)
+
+
+def layer_gauges(meta: dict, channels) -> list[dict]:
+    """The certified gauge each rod layer of a calibration or verification scan turns in.
+
+    A layer names its feature in ``rod.layers``; the artifact's feature of that id with
+    ``certified_diameter_mm`` is the layer's gauge (a gauge set; its ``id``, ``certificate``,
+    ``u_diameter_mm`` (expanded, with ``k``) and ``cte_per_k`` fall back to the artifact's), else
+    the artifact itself when it is a ``ring_gauge`` with ``certified_diameter_mm`` (one gauge for
+    every layer). Returns one artifact-shaped dict per channel with ``channel`` and ``feature``.
+
+    Raises
+    ------
+    ValueError naming the layer when it has no certified diameter.
+    """
+    art = dict(meta.get("artifact") or {})
+    feats = {str(f.get("id")): f for f in art.get("features") or [] if f.get("id") is not None}
+    layer_feature = {int(l["channel"]): l.get("feature") for l in (meta.get("rod") or {}).get("layers") or []}
+    out = []
+    for ch in channels:
+        feat = layer_feature.get(int(ch))
+        f = feats.get(str(feat)) if feat is not None else None
+        if f is not None and f.get("certified_diameter_mm") is not None:
+            g = {"id": f.get("gauge_id") or (f"{art.get('id')}/{feat}" if art.get("id") else str(feat)),
+                 "type": "ring_gauge", "certified_diameter_mm": float(f["certified_diameter_mm"]),
+                 "u_diameter_mm": f.get("u_diameter_mm", art.get("u_diameter_mm")), "k": f.get("k", art.get("k", 2)),
+                 "certificate": f.get("certificate", art.get("certificate")),
+                 "cte_per_k": f.get("cte_per_k", art.get("cte_per_k"))}
+        elif art.get("type") == "ring_gauge" and art.get("certified_diameter_mm") is not None:
+            g = {k: art.get(k) for k in ("id", "type", "certified_diameter_mm", "u_diameter_mm", "k", "certificate",
+                                         "cte_per_k")}
+            g["k"] = g["k"] if g["k"] is not None else 2
+        else:
+            raise ValueError(
+                f"rod layer {int(ch)} (feature {feat!r}) has no certified diameter: a rod calibration or verification "
+                "needs artifact.features[].certified_diameter_mm for the layer's feature, or a ring_gauge artifact "
+                "with certified_diameter_mm")
+        if g["u_diameter_mm"] is None:
+            raise ValueError(f"rod layer {int(ch)}: gauge {g['id']} states no u_diameter_mm (its certificate's U)")
+        # the expansion coefficient is the artifact's (artifacts.artifact_cte): one input under its key
+        g.update(channel=int(ch), feature=feat, cte_key=artifact_key(art))
+        out.append(g)
+    return out
+
+
+def calibrate_l0(means_mm, layers, u_reading_mm, radius_at_t_mm, *, tol_mm: float = 1e-7, max_iter: int = 10
+                 ) -> tuple[tuple[RodLayer, ...], RodSolution, int]:
+    """Base lengths at which the rod solve returns the gauges' radii (fixed point of the module doc).
+
+    Parameters
+    ----------
+    means_mm : (n, m) mean reading per pose and layer [mm]
+    layers : RodLayer per column (start: the nominal geometry)
+    u_reading_mm : standard uncertainty of one mean [mm] (None: from the residuals)
+    radius_at_t_mm : (m,) each gauge's radius at the scan's temperature [mm]
+
+    Returns
+    -------
+    (calibrated layers, the solve at them, number of solves)
+
+    Raises
+    ------
+    borescan.rod.RodSolveError from the solve; ValueError when the iteration does not settle.
+    """
+    target = np.asarray(radius_at_t_mm, dtype=float)
+    lays = tuple(layers)
+    for it in range(1, max_iter + 1):
+        sol = solve_rod(means_mm, layers=lays, u_reading_mm=u_reading_mm)
+        step = target - sol.radius_mm
+        # settled when the step is below tol_mm or a thousandth of the radius' own uncertainty (the
+        # solve's optimiser tolerance and its deflection average make r(l0) rough at the nm level)
+        if np.all(np.abs(step) <= np.maximum(tol_mm, 1e-3 * sol.u_radius_mm)):
+            return lays, sol, it
+        lays = tuple(replace(lay, l0_mm=float(lay.l0_mm + s)) for lay, s in zip(lays, step))
+    raise ValueError(f"rod calibration did not settle in {max_iter} solves: radius - gauge "
+                     f"{np.array2string(step * 1e3, precision=4)} um")
+
+
+def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list[dict], temperature, cte,
+                           sensors: dict, scan_id: str, default_resolution_mm: float) -> Budget:
+    """GUM budget of the calibrated base lengths (outputs ``l0_mm[<channel>]``; module doc).
+
+    ``temperature`` (:class:`borescan.artifacts.ScanTemperature`) and ``cte``
+    (:class:`borescan.artifacts.ArtifactCte`) of the gauges; ``sensors`` channel -> scan.json entry.
+    """
+    from .measure import sensor_terms
+
+    chans = [int(g["channel"]) for g in gauges]
+    m = len(chans)
+    b = Budget(tuple(f"l0_mm[{ch}]" for ch in chans), ("mm",) * m, np.asarray(calibrated_l0_mm, float))
+    u_r = np.asarray(solution.u_radius_mm, dtype=float)
+    b.add(Term(Input(f"fit:{scan_id}:readings", f"rod solve of the readings of {scan_id} (radius of each layer's gauge)",
+                     "r", "mm", None, float(solution.sigma_mm), "normal",
+                     source="rod.solve_rod covariance; u(x_i): standard uncertainty of one mean reading"),
+               cov=np.diag(u_r**2), note="l0 = l0 + R(T) - r: sensitivity -1 on each layer's radius"))
+    dT = temperature.temperature_c - 20.0
+    f = 1.0 + cte.cte_per_k * dT
+    by_gauge: dict[str, list[int]] = {}
+    for j, g in enumerate(gauges):
+        by_gauge.setdefault(f"gauge:{artifact_key(g)}:D20", []).append(j)
+    for key, js in by_gauge.items():
+        g = gauges[js[0]]
+        k_cert = float(g.get("k") or 2.0)
+        s = np.zeros(m)
+        s[js] = 0.5 * f
+        b.add(Term(Input(key, f"certified diameter of ring gauge {g['id']} at 20 degC", "D_g", "mm",
+                         float(g["certified_diameter_mm"]), float(g["u_diameter_mm"]) / k_cert, "normal",
+                         source=f"certificate {g.get('certificate')}: U = {g['u_diameter_mm']} mm (k = {k_cert:g})"), s))
+    r20 = np.array([0.5 * float(g["certified_diameter_mm"]) for g in gauges])
+    b.add(Term(Input(f"temperature:{scan_id}", f"temperature of the gauges during {scan_id}", "T", "degC",
+                     temperature.temperature_c, temperature.u_c, "rectangular", source=temperature.source),
+               r20 * cte.cte_per_k))
+    b.add(Term(Input(f"cte:{gauges[0].get('cte_key') or artifact_key(gauges[0])}", "expansion coefficient of the gauges",
+                     "alpha", "1/K",
+                     cte.cte_per_k, cte.u_per_k, "rectangular", source=cte.source), r20 * dT))
+    for t in sensor_terms(sensors, chans, -np.eye(m), f"rodcal:{scan_id}", None, default_resolution_mm, "calibration"):
+        b.add(t)
+    return b.merged()
+
+
+def rod_calibration_id(device_id: str, scan_ids, night: str) -> str:
+    """Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>`` (as the three-sensor calibrations')."""
+    key = json.dumps({"device_id": device_id, "scan_ids": sorted(scan_ids), "method": ROD_CALIBRATION_METHOD},
+                     sort_keys=True)
+    return f"{device_id}-{night.replace('-', '')}-{ROD_CALIBRATION_METHOD}-{hashlib.sha256(key.encode()).hexdigest()[:8]}"
+
+
+def layer_jacobian(channels, channel: int) -> np.ndarray:
+    """d D_channel / d l0 of every layer (2 on its own layer, 0 elsewhere): a diameter's sensitivity
+    to the calibration's outputs."""
+    return np.array([2.0 if int(c) == int(channel) else 0.0 for c in channels])
+
+
+def rod_calibration_rows(cal: RodCalibration, night: str, certificate_path: str | None, raw_sha256: str,
+                         p: float) -> list[dict]:
+    """The ``calibrations`` rows of a rod calibration (one per layer; l0 with u, U and k)."""
+    blob = json.dumps(_to_dict(cal), sort_keys=True, allow_nan=False)
+    rows = []
+    for j, lay in enumerate(cal.layers):
+        comb = cal.budget.combined(j, p)
+        rows.append({
+            "calibration_id": cal.calibration_id, "device_id": cal.device_id, "device_type": "rod",
+            "scan_id": cal.scan_ids[0], "channel": int(lay.channel), "l0_mm": float(lay.l0_mm), "h_mm": float(lay.h_mm),
+            "phi_rad": float(lay.phi_rad), "d_mm": float(lay.d_mm), "gamma_rad": float(lay.gamma_rad),
+            "u_l0_mm": float(cal.u_l0_mm[j]), "method": cal.method, "certificate_path": certificate_path,
+            "night": night, "valid_from": night, "status": "valid", "raw_sha256": raw_sha256,
+            "residual_rms_mm": float(cal.residual_rms_mm), "coverage_probability": float(p),
+            "calibration_json": blob,
+        })
+    return rows
+
+
+def _to_dict(cal: RodCalibration) -> dict[str, Any]:
+    return {"calibration_id": cal.calibration_id, "device_id": cal.device_id, "scan_ids": list(cal.scan_ids),
+            "method": cal.method, "l0_nominal_mm": [float(x) for x in cal.l0_nominal_mm],
+            "u_l0_mm": [float(x) for x in cal.u_l0_mm], "budget": _json_safe(cal.budget.to_dict()),
+            "gauges": [_json_safe(g) for g in cal.gauges], "iterations": cal.iterations,
+            "residual_rms_mm": float(cal.residual_rms_mm)}
+
+
+def _json_safe(x):
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, np.generic):
+        return _json_safe(x.item())
+    return x
+
+
+def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget | None]:
+    """Layers and budget of a recorded rod calibration (``calibrations`` rows of one id); the
+    budget is None for the ``nominal`` record (design geometry, nothing calibrated)."""
+    rows = sorted(rows, key=lambda r: int(r["channel"]))
+
+    def num(r, k):
+        v = r.get(k)
+        return float(v) if v is not None and math.isfinite(float(v)) else 0.0
+
+    layers = [RodLayer(int(r["channel"]), num(r, "h_mm"), float(r["l0_mm"]), num(r, "phi_rad"), num(r, "d_mm"),
+                       num(r, "gamma_rad")) for r in rows]
+    blob = rows[0].get("calibration_json") if rows else None
+    if not blob:
+        return layers, None
+    return layers, Budget.from_dict(json.loads(blob)["budget"])
+
+
+def pose_means_of_scan(scan) -> tuple[list[int], np.ndarray, float | None, dict]:
+    """(channels, mean reading per pose and layer (n, m), u of one mean from the data sheet, sensors)
+    of a rod scan (:func:`borescan.measure.pose_means`, :func:`borescan.measure.mean_reading_u_mm`)."""
+    from . import measure, rawio
+
+    mat = rawio.lds_matrix(scan)
+    _poses, means, counts = measure.pose_means(mat.values_mm, mat.pose)
+    sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
+    u_mean = measure.mean_reading_u_mm(measure.reading_u_mm(sensors, mat.channels), counts)
+    return [int(c) for c in mat.channels], means, u_mean, sensors
+
+
+def rod_diameters_with_budget(scan, layer_rows: list[dict], unc_cfg: dict, calibration_id: str | None = None
+                              ) -> list[dict]:
+    """Hole diameters of a rod scan with their GUM budgets.
+
+    The joint rod solve with the calibration's layers (``layer_rows``: its ``calibrations`` rows,
+    a ring-gauge calibration or the design geometry), each mean reading's uncertainty from the
+    sensors' data sheet; the budget (:func:`borescan.measure.diameter_uncertainty`) adds the
+    calibration's budget with sensitivity 2 on the layer's l0 (none for the design geometry), the
+    scan's temperature and the artifact's expansion coefficient.
+
+    Returns one dict per layer: channel, feature, diameter_mm (at the scan's temperature), du
+    (:class:`borescan.measure.DiameterUncertainty`), poses, condition, traceable (a gauge calibration).
+
+    Raises :class:`borescan.artifacts.MissingTemperature`, :class:`borescan.rod.RodSolveError`,
+    ValueError (a channel the calibration has no layer for).
+    """
+    from .artifacts import artifact_cte, scan_temperature
+    from .measure import diameter_uncertainty
+
+    channels, means, u_mean, _sensors = pose_means_of_scan(scan)
+    layers, cal_budget = rod_calibration_from_rows(layer_rows)
+    by_ch = {int(lay.channel): lay for lay in layers}
+    missing = sorted(set(channels) - set(by_ch))
+    if missing:
+        raise ValueError(f"calibration {calibration_id} has no rod layer for channel(s) {missing}")
+    temp, cte = scan_temperature(scan.meta, unc_cfg), artifact_cte(scan.meta, unc_cfg)
+    sol = solve_rod(means, layers=[by_ch[c] for c in channels], u_reading_mm=u_mean)
+    feat = {int(l["channel"]): l.get("feature") for l in (scan.meta.get("rod") or {}).get("layers", [])}
+    cal_chans = sorted(by_ch)
+    out = []
+    for j, ch in enumerate(channels):
+        f = feat.get(ch) or f"layer{ch}"
+        du = diameter_uncertainty(
+            float(sol.diameter_mm[j]), jac_params=None if cal_budget is None else layer_jacobian(cal_chans, ch),
+            calibration_budget=cal_budget, u_readings_mm=float(sol.u_diameter_mm[j]), dof_readings=float("inf"),
+            temperature=temp, cte=cte, artifact=dict(scan.meta.get("artifact") or {}), scan_id=f"{scan.scan_id}/{f}",
+            p=float(unc_cfg["coverage_probability"]), default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
+            calibration_id=calibration_id)
+        out.append({"channel": ch, "feature": f, "diameter_mm": float(sol.diameter_mm[j]), "du": du,
+                    "poses": int(means.shape[0]), "condition": float(sol.condition), "traceable": cal_budget is not None})
+    return out
+
+
+def rod_verifications(scan, diameters: list[dict], calibration_id: str, unc_cfg: dict, lab_cfg: dict,
+                      tolerance_mm: float) -> list[dict]:
+    """``verifications`` rows of a rod scan in certified gauges: each layer's diameter at 20 degC
+    against its gauge (:func:`layer_gauges`, :func:`borescan.measure.verify_budget`), one row per
+    layer with ``feature``, the budget rows (``budget``) and the scan's raw files.
+
+    Raises ValueError when a layer has no certified gauge.
+    """
+    from .measure import verification_row, verify_budget
+
+    gauges = {g["channel"]: g for g in layer_gauges(scan.meta, [d["channel"] for d in diameters])}
+    rows = []
+    for d in diameters:
+        g = gauges[d["channel"]]
+        v = verify_budget(d["du"], g, tolerance_mm, float(unc_cfg["coverage_probability"]), lab_cfg["decision_rule"],
+                          float(lab_cfg["guard_band_factor"]))
+        row = verification_row(scan.scan_id, scan.meta["device"]["id"], g["id"], v)
+        row.update(calibration_id=calibration_id, temperature_assumed=d["du"].temperature.assumed,
+                   feature=d["feature"], budget=list(v.budget_rows), certificate=g.get("certificate"),
+                   raw_files={f"{scan.scan_id}/{k}": h for k, h in sorted(scan.sha256.items())})
+        rows.append(row)
+    return rows

@@ -1,0 +1,94 @@
+"""Stage ``calibrate_night``, rods: a rod's base lengths from its ring-gauge scan, with certificate.
+
+Each rod calibration scan (kind ``calibration``, device type ``rod``, in certified ring gauges)
+gives one calibration (:mod:`borescan.rod_calibration`); its certificate reports the night's gauge
+verifications of the rod made with it, as a three-sensor certificate does.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from borescan import __version__, certificate, rawio, rod_calibration
+from borescan.artifacts import MissingTemperature, artifact_cte, scan_temperature
+from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
+from borescan.stages._common import config_hash, night_scans, quarantine
+
+__all__ = ["calibrate_rod_scan"]
+
+
+def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log, ctx, cfg) -> None:
+    """Calibrate a rod's base lengths from one ring-gauge scan (:mod:`borescan.rod_calibration`), write
+    its certificate, add its rows; a scan that cannot give a calibration is quarantined with the reason."""
+    unc, lab = ctx["uncertainty"], ctx["laboratory"]
+    p = float(unc["coverage_probability"])
+    meta, sid = scan.meta, scan.scan_id
+    try:
+        nominal = pl.DataFrame(rod_nominal_calibration_rows(meta, night, sid))
+        if nominal.height == 0:
+            raise ValueError("device.nominal lists no rod layers to calibrate")
+        channels, means, u_mean, sensors = rod_calibration.pose_means_of_scan(scan)
+        layers = rod_layers(nominal, channels)
+        gauges = rod_calibration.layer_gauges(meta, channels)
+        temp, cte = scan_temperature(meta, unc), artifact_cte(meta, unc)
+        radius_t = [0.5 * g["certified_diameter_mm"] * (1.0 + cte.cte_per_k * (temp.temperature_c - 20.0))
+                    for g in gauges]
+        cal_layers, sol, n_iter = rod_calibration.calibrate_l0(means, layers, u_mean, radius_t)
+        l0 = np.array([lay.l0_mm for lay in cal_layers])
+        budget = rod_calibration.rod_calibration_budget(l0, sol, gauges, temp, cte, sensors, sid,
+                                                        float(unc["sensor_resolution_mm"]))
+    except MissingTemperature as err:
+        quarantine(results_root, bad, sid, night, "calibrate", "scan.json", str(err))
+        return
+    except ValueError as err:  # RodSolveError is a ValueError
+        file = "scan.json" if "certified diameter" in str(err) or "u_diameter_mm" in str(err) else "lds.parquet"
+        quarantine(results_root, bad, sid, night, "calibrate", file, f"rod calibration failed: {err}")
+        return
+    cal = rod_calibration.RodCalibration(
+        calibration_id=rod_calibration.rod_calibration_id(meta["device"]["id"], [sid], night),
+        device_id=meta["device"]["id"], scan_ids=(sid,), layers=tuple(cal_layers),
+        l0_nominal_mm=np.array([lay.l0_mm for lay in layers]), u_l0_mm=budget.u(), budget=budget,
+        gauges=tuple(dict(g, radius_at_t_mm=r) for g, r in zip(gauges, radius_t)), solution=sol, iterations=n_iter,
+        residual_rms_mm=float(sol.residual_rms_mm))
+    out_dir = Path(results_root) / "calibration" / cal.device_id / cal.calibration_id
+    rel_cert = str((out_dir / "certificate.pdf").relative_to(Path(results_root)))
+    raw_files = {f"{sid}/{k}": v for k, v in sorted(scan.sha256.items())}
+    rows = rod_calibration.rod_calibration_rows(cal, night, rel_cert, rawio.combined_sha256(raw_files), p)
+    ver_rows, ver_metas = _night_rod_verifications(cal, rows, night, ctx, log)
+    dates = certificate.certificate_dates([meta], ver_metas, night, int(cfg["validity_days"]))
+    for row in rows:
+        row.update(temperature_c=temp.temperature_c, temperature_assumed=temp.assumed,
+                   recalibration_due=dates["recalibration_due"])
+    certificate.write_rod_certificate(
+        cal, out_dir, device={"id": cal.device_id, "type": "rod", "sensors": meta.get("sensors", [])},
+        artifact=dict(meta.get("artifact") or {}), temperature=temp, cte=cte, raw_files=raw_files,
+        software_version=__version__, laboratory=lab, coverage_probability=p, dates=dates, verifications=ver_rows,
+        config_hash=config_hash({"calibration": cfg, "uncertainty": unc, "laboratory": lab,
+                                 "verification": ctx["verification"]}))
+    cal_rows += rows
+    link_rows.append({"calibration_id": cal.calibration_id, "scan_id": sid})
+    log(f"{cal.device_id}: {cal.calibration_id} (rod on ring gauges) from {sid}; l0 - nominal "
+        + ", ".join(f"ch {ch} {1e3 * (a - b):+.2f} um" for ch, a, b in zip(cal.channels, cal.l0_mm, cal.l0_nominal_mm))
+        + "; U(l0) " + ", ".join(f"{budget.combined(j, p).U * 1e3:.2f}" for j in range(len(cal.channels))) + " um"
+        + f"; {len(ver_rows)} layer verification(s) in the certificate"
+        + (" [gauge temperature ASSUMED 20 degC]" if temp.assumed else ""))
+
+
+def _night_rod_verifications(cal, rows: list[dict], night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
+    """The night's gauge verifications of the rod made with the new calibration (one row per layer,
+    :func:`borescan.rod_calibration.rod_verifications`) and their scan.json; a scan that cannot be
+    measured is left out with a log line (the measure stage quarantines it)."""
+    out, metas = [], []
+    for _row, d in night_scans(ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id):
+        scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
+        try:
+            res = rod_calibration.rod_diameters_with_budget(scan, rows, ctx["uncertainty"], cal.calibration_id)
+            out += rod_calibration.rod_verifications(scan, res, cal.calibration_id, ctx["uncertainty"], ctx["laboratory"],
+                                                     float(ctx["verification"]["tolerance_mm"]))
+            metas.append(scan.meta)
+        except (MissingTemperature, ValueError, np.linalg.LinAlgError) as err:
+            log(f"{scan.scan_id}: verification left out of the certificate of {cal.calibration_id}: {err}")
+    return out, metas
