@@ -143,6 +143,19 @@ def test_discrepancy_findings_for_every_examined_scan(pipeline_run):
     assert ("channel_delay", 2) in named
 
 
+def test_trace_follows_a_rod_diameter_to_its_gauge_calibration(pipeline_run):
+    """A rod hole -> the rod's ring-gauge calibration -> its certificate, each layer's certified gauge
+    and the layer-by-layer verifications."""
+    from borescan import trace
+
+    chain = trace.format_trace(trace.trace(pipeline_run["results"], "N20261121-ROD01-MEAS-CYL2H/H1"))
+    for needle in ("-rod_gauge-", "method rod_gauge", "certificate.json sha256", "(matches catalog)",
+                   "calibration scan N20261120-ROD01-CAL-RGS150",
+                   "layer 1 (H1): ring gauge RG-150A, certificate RGS-150/2026-02, certified 150.0021 mm",
+                   "verified by N20261121-ROD01-VER-RGS150 layer H1 (RG-150A)"):
+        assert needle in chain, needle
+
+
 def test_trace_follows_a_part_diameter_to_raw_files(pipeline_run):
     from borescan import trace
 

@@ -15,6 +15,7 @@ An id found nowhere raises :class:`UnknownId`.
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -118,10 +119,11 @@ class _Tracer:
             sn["artifact"] = self.scan_artifact(sn)
             scans.append(sn)
         node["scans"] = scans
+        node["gauges"] = _layer_gauges(first)
         node["verifications"] = _rows(
             self.con,
-            "SELECT v.scan_id, v.night, v.error_mm, v.tolerance_mm, v.passed FROM verifications v "
-            "LEFT JOIN scans s USING (scan_id) WHERE v.calibration_id = ? ORDER BY v.night, s.started_at, v.scan_id",
+            "SELECT v.scan_id, v.night, v.error_mm, v.tolerance_mm, v.passed, v.feature, v.artifact_id FROM verifications v "
+            "LEFT JOIN scans s USING (scan_id) WHERE v.calibration_id = ? ORDER BY v.night, s.started_at, v.scan_id, v.feature",
             [calibration_id])
         return node
 
@@ -274,11 +276,27 @@ def _cal_lines(c: dict[str, Any] | None, ind: str) -> list[str]:
     lines += _cert_lines(c["certificate"], ind + "  ")
     for s in c["scans"]:
         lines += _scan_lines(s, ind + "  ", "calibration scan")
+    for g in c.get("gauges") or []:
+        lines.append(f"{ind}  layer {g.get('channel')} ({_fmt(g.get('feature'))}): ring gauge {_fmt(g.get('id'))}, certificate "
+                     f"{_fmt(g.get('certificate'))}, certified {_fmt(g.get('certified_diameter_mm'), ' mm')} "
+                     f"(U {_fmt(g.get('u_diameter_mm'), ' mm')}, k={_fmt(g.get('k'))})")
     for v in c["verifications"]:
         verdict = "passed" if v["passed"] else "FAILED"
-        lines.append(f"{ind}  verified by {v['scan_id']} on {_fmt(v['night'])}: error {_fmt(v['error_mm'], ' mm')} "
+        layer = f" layer {v['feature']} ({_fmt(v.get('artifact_id'))})" if v.get("feature") else ""
+        lines.append(f"{ind}  verified by {v['scan_id']}{layer} on {_fmt(v['night'])}: error {_fmt(v['error_mm'], ' mm')} "
                      f"(tolerance {_fmt(v['tolerance_mm'], ' mm')}) {verdict}")
     return lines
+
+
+def _layer_gauges(row: dict[str, Any]) -> list[dict[str, Any]]:
+    """The certified gauge each layer of a rod calibration was calibrated in (its calibration_json); []
+    for other calibrations."""
+    if row.get("method") != "rod_gauge" or not row.get("calibration_json"):
+        return []
+    try:
+        return list(json.loads(row["calibration_json"]).get("gauges") or [])
+    except (ValueError, TypeError):
+        return []
 
 
 def _dia_lines(d: dict[str, Any], ind: str) -> list[str]:
