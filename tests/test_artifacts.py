@@ -67,6 +67,32 @@ def test_certificate_conflicts_name_both_values_and_the_first_scan():
     assert certificate_conflicts(earlier, [_rec("F", "n", None), _rec("G", "n", 1.0, cert=None)]) == {}
 
 
+def test_a_gauge_set_keeps_each_rings_certified_value():
+    """A rod's gauge set states a certified diameter per feature: another value for one ring under
+    the same certificate is a conflict too, named with the feature."""
+    import json
+
+    from borescan.artifacts import certificate_conflicts, certificate_fields
+
+    def meta(h1, h2):
+        return {"artifact": {"id": "RGS-150", "type": "ring_gauge", "certificate": "RGS-150/2026-02",
+                             "u_diameter_mm": 0.0012, "features": [{"id": "H1", "certified_diameter_mm": h1},
+                                                                   {"id": "H2", "certified_diameter_mm": h2}]}}
+
+    f = certificate_fields(meta(150.0021, 149.9987))
+    assert f["artifact_certified_diameter_mm"] is None
+    assert json.loads(f["artifact_features_certified"]) == {"H1": 150.0021, "H2": 149.9987}
+
+    def rec(sid, night, h1, h2):
+        return dict(certificate_fields(meta(h1, h2)), scan_id=sid, night=night, status="ok", artifact_id="RGS-150",
+                    started_at=f"{night}T01:00:00Z")
+
+    out = certificate_conflicts([rec("A", "2026-11-20", 150.0021, 149.9987)],
+                                [rec("B", "2026-11-21", 150.0021, 149.9897), rec("C", "2026-11-21", 150.0021, 149.9987)])
+    assert set(out) == {"B"}
+    assert "feature H2 certified_diameter_mm 149.9897 here, 149.9987 in scan A (night 2026-11-20)" in out["B"]
+
+
 def _gauge_scan(raw, truth, sid, night, diameter_mm, cert):
     from borescan import simulate
 

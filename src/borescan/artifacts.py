@@ -15,6 +15,7 @@ bound and a flag (:func:`artifact_cte`).
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 
@@ -213,9 +214,14 @@ def certificate_fields(meta: dict) -> dict:
     ``artifact_certificate``, ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm`` (None where absent)."""
     art = meta.get("artifact") if isinstance(meta.get("artifact"), dict) else {}
     cert = art.get("certificate")
+    feats = {str(f.get("id")): number_or_none(f.get("certified_diameter_mm"))
+             for f in (art.get("features") or []) if isinstance(f, dict) and f.get("id") is not None}
+    feats = {k: v for k, v in sorted(feats.items()) if v is not None}
     return {"artifact_certificate": None if cert is None else str(cert),
             "artifact_certified_diameter_mm": number_or_none(art.get("certified_diameter_mm")),
-            "artifact_u_diameter_mm": number_or_none(art.get("u_diameter_mm"))}
+            "artifact_u_diameter_mm": number_or_none(art.get("u_diameter_mm")),
+            # a gauge set (a rod's rings): each feature's certified diameter, {feature: D20} as JSON
+            "artifact_features_certified": json.dumps(feats, sort_keys=True) if feats else None}
 
 
 #: Two certified values of one certificate that differ by more than this are a conflict [mm].
@@ -249,7 +255,7 @@ def certificate_conflicts(earlier: list[dict], tonight: list[dict]) -> dict[str,
 
     def key(r):
         if r.get("status") != "ok" or not r.get("artifact_id") or not r.get("artifact_certificate") \
-                or r.get("artifact_certified_diameter_mm") is None:
+                or (r.get("artifact_certified_diameter_mm") is None and not r.get("artifact_features_certified")):
             return None
         return str(r["artifact_id"]), str(r["artifact_certificate"])
 
@@ -269,11 +275,24 @@ def certificate_conflicts(earlier: list[dict], tonight: list[dict]) -> dict[str,
                  for col, name in (("artifact_certified_diameter_mm", "certified_diameter_mm"),
                                    ("artifact_u_diameter_mm", "u_diameter_mm"))
                  if _differ(r.get(col), f.get(col))]
+        mine, theirs = _features(r), _features(f)
+        diffs += [f"feature {feat} certified_diameter_mm {mine[feat]!r} here, {theirs[feat]!r} in scan {f['scan_id']} "
+                  f"(night {f.get('night')})" for feat in sorted(set(mine) & set(theirs))
+                  if _differ(mine[feat], theirs[feat])]
         if diffs:
             out[str(r["scan_id"])] = (f"artifact {k[0]}, certificate {k[1]}: " + "; ".join(diffs)
                                       + ". One certificate states one value: a recertified gauge needs its new "
                                       "certificate id in scan.json; correct the scan under a new scan id")
     return out
+
+
+def _features(r: dict) -> dict[str, float]:
+    """{feature: certified D20} a scans row keeps for a gauge set ({} for none)."""
+    text = r.get("artifact_features_certified")
+    try:
+        return {str(k): float(v) for k, v in json.loads(text).items()} if text else {}
+    except (ValueError, TypeError, AttributeError):
+        return {}
 
 
 def _differ(a, b) -> bool:

@@ -89,7 +89,8 @@ _T = [
                          "started_at:timestamp status:text reason:text raw_sha256:text raw_path:text simulated:bool "
                          # the artifact's certificate as this scan's scan.json gives it (kept per scan: history
                          # that a later scan naming the artifact cannot rewrite)
-                         "artifact_certificate:text artifact_certified_diameter_mm:float artifact_u_diameter_mm:float"),
+                         "artifact_certificate:text artifact_certified_diameter_mm:float artifact_u_diameter_mm:float "
+                         "artifact_features_certified:text"),
           ("scan_id", "night"), primary=True),
     Table("scan_files", _cols("scan_id:text file:text sha256:text bytes:int night:date"),
           ("scan_id", "night", "file"), primary=True),
