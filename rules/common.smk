@@ -9,10 +9,10 @@ NIGHTS = rawio.nights(RAW)
 def results_root_for(wildcards):
     """results_root for scripts that also write beside their declared outputs.
 
-    Quarantine records (quarantine/<scan_id>.json) and certificates
-    (calibration/<device_id>/<calibration_id>/) depend on what the data holds and lie in no
-    per-night folder, so they cannot be declared up front; they go under results_root, which must
-    be on a shared filesystem on a cluster. Findings and gap plots (discrepancy/night=<night>/,
+    Quarantine records (quarantine/<scan_id>.json) depend on what the data holds and lie in no
+    per-night folder, so they are not declared; they go under results_root, which must be on a
+    shared filesystem on a cluster. Certificates (calibration/night=<night>/, linked as
+    calibration/<device_id>/<calibration_id>/), findings and gap plots (discrepancy/night=<night>/,
     linked as discrepancy/<scan_id>/), pooled findings and the report's month pages are declared
     as folders (`snakemake --report` lists their files by pattern).
     """

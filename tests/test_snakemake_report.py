@@ -184,7 +184,8 @@ def test_discrepancy_findings_of_every_scan_per_night(pipeline_run, snakemake_re
 def test_categories_and_captions(pipeline_run, snakemake_report):
     items = declared_report_items()
     literal = {i["category"] for i in items if i["category"] in CATEGORIES}
-    assert literal == {"Papers", "Discrepancy", "Diameters"}  # the others come from report_page_category
+    # the others come from report_page_category; Calibration both ways (certificates, month plots)
+    assert literal == {"Papers", "Discrepancy", "Diameters", "Calibration"}
     cats = snakemake_report["categories"]
     assert set(cats) == CATEGORIES
     res = pipeline_run["results"]
@@ -198,8 +199,20 @@ def test_categories_and_captions(pipeline_run, snakemake_report):
         assert str(p) in cats[MONTH_PLOT_CATEGORY[kind]][month], p
         cap = results[str(p)]["caption"]
         assert subject in cap and f"month {month}" in cap, cap
+    plot_months = {p.parent.name for p in plots}
     for cat, prefix in (("Calibration", "calibration_"), ("Verification", "control_")):
-        assert sum(len(v) for v in cats[cat].values()) == len([p for p in plots if p.stem.startswith(prefix)])
+        assert sum(len(v) for m, v in cats[cat].items() if m in plot_months) == len(
+            [p for p in plots if p.stem.startswith(prefix)])
+    # the certificates: every file of every calibration of a night, under Calibration / the night,
+    # read where outputs.md puts them (a link into the night's folder)
+    certs = sorted(res.glob("calibration/night=*/*/*/certificate.pdf"))
+    assert len(certs) == 2  # demo: TRI-01 and ROD-01 calibrated on the first night (the second refused)
+    for pdf in certs:
+        night = pdf.parts[-4].removeprefix("night=")
+        device, cal_id = pdf.parts[-3], pdf.parts[-2]
+        assert str(pdf) in cats["Calibration"][night] and str(pdf.with_suffix(".json")) in cats["Calibration"][night]
+        assert cal_id in results[str(pdf)]["caption"] and "What to do" in results[str(pdf)]["caption"]
+        assert (res / "calibration" / device / cal_id / "certificate.pdf").read_bytes() == pdf.read_bytes()
     months = sorted(p.parent.name for p in res.glob("report/*/index.html"))
     assert months == ["2026-11"]
     assert sorted(cats["Diameters"]["Report pages"]) == sorted(

@@ -46,7 +46,7 @@ from borescan.atomic import atomic_write_bytes, atomic_write_text
 from borescan.calibration import TriCalibration
 from borescan.uncertainty import Budget, Combined, combine, round_uncertainty
 
-__all__ = ["CERTIFICATE_FORMAT", "certificate_dir", "certificate_dict", "write_certificate", "PLACEHOLDER",
+__all__ = ["CERTIFICATE_FORMAT", "certificate_dir", "certificate_night_dir", "certificate_dict", "write_certificate", "PLACEHOLDER",
            "certificate_dates", "calibration_conditions", "write_rod_certificate"]
 
 CERTIFICATE_FORMAT = "borescan-certificate/2"
@@ -82,9 +82,16 @@ _METHOD_TEXT = {
 }
 
 
-def certificate_dir(results_root: Path | str, cal: TriCalibration) -> Path:
-    """``results_root/calibration/<device_id>/<calibration_id>`` (``outputs.md``)."""
+def certificate_dir(results_root: Path | str, cal) -> Path:
+    """``results_root/calibration/<device_id>/<calibration_id>`` (``outputs.md``): where a certificate
+    is read (a link into the folder of the calibration's night, :func:`certificate_night_dir`)."""
     return Path(results_root) / "calibration" / cal.device_id / cal.calibration_id
+
+
+def certificate_night_dir(results_root: Path | str, cal, night: str) -> Path:
+    """``results_root/calibration/night=<night>/<device_id>/<calibration_id>``: where the calibrate
+    stage writes a certificate (the night's folder is the rule's declared output)."""
+    return Path(results_root) / "calibration" / f"night={night}" / cal.device_id / cal.calibration_id
 
 
 def certificate_dates(scan_metas: list[dict], verification_metas: list[dict], night: str, validity_days: int) -> dict:

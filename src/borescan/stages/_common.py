@@ -5,6 +5,8 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
+import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -14,7 +16,8 @@ from borescan import rawio, tables
 from borescan.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "write_table",
-           "write_stage_outputs", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash"]
+           "write_stage_outputs", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash",
+           "night_folder", "clear_night_folder", "link_into_night"]
 
 
 def config_hash(cfg: dict) -> str:
@@ -99,3 +102,53 @@ def read_tables(paths) -> pl.DataFrame:
     """Stage table files (one path or a list) stacked, see :func:`frames_or_empty`."""
     frames = [pl.read_parquet(p) for p in (paths if isinstance(paths, (list, tuple)) else [paths])]
     return frames_or_empty([f for f in frames if f.width])
+
+
+# --------------------------------------------------------------------------- per-night folders
+# Files whose set depends on the data (certificates, findings and gap plots) are written into one
+# folder per night, ``<area>/night=<night>/...``, which the rule declares (so Snakemake empties it
+# before a rerun and `snakemake --report` lists its files); the path people and the catalog use
+# (``calibration/<device>/<id>/``, ``discrepancy/<scan_id>/``, outputs.md) is a relative symbolic
+# link into it (a copy where the filesystem has none).
+
+
+def night_folder(results_root, area: str, night: str) -> Path:
+    """``<results_root>/<area>/night=<night>``: the night's declared folder of ``area``."""
+    return Path(results_root) / area / f"night={night}"
+
+
+def clear_night_folder(results_root, area: str, night: str) -> Path:
+    """Empty the night's folder of ``area`` and drop the links into it (up to two levels below
+    ``area``): what a rerun no longer writes leaves nothing behind. Returns the (empty) folder."""
+    folder = night_folder(results_root, area, night)
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True, exist_ok=True)
+    mark = f"night={night}"
+
+    def drop_links(d: Path, depth: int) -> None:
+        with os.scandir(d) as entries:
+            for e in entries:
+                if e.is_symlink():
+                    if mark in Path(os.readlink(e.path)).parts:
+                        os.unlink(e.path)
+                elif depth > 1 and e.is_dir() and not e.name.startswith("night="):
+                    drop_links(Path(e.path), depth - 1)
+
+    drop_links(folder.parent, 2)
+    return folder
+
+
+def link_into_night(link: Path, target: Path) -> None:
+    """Make ``link`` a relative symbolic link to ``target`` (a folder inside a night folder),
+    replacing what was there (a link, or a folder of the layout before night folders); a copy
+    where symbolic links cannot be made."""
+    link = Path(link)
+    link.parent.mkdir(parents=True, exist_ok=True)
+    if link.is_symlink() or link.is_file():
+        link.unlink()
+    elif link.is_dir():
+        shutil.rmtree(link)
+    try:
+        os.symlink(os.path.relpath(target, link.parent), link, target_is_directory=True)
+    except OSError:
+        shutil.copytree(target, link)

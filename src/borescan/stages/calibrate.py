@@ -19,7 +19,7 @@ from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows, rod_nominal_calibration_rows
 from borescan.config import schema_defaults
 from borescan.geometry import Beams
-from borescan.stages._common import config_hash, night_scans, quarantine
+from borescan.stages._common import clear_night_folder, config_hash, link_into_night, night_scans, quarantine
 from borescan.stages.calibrate_rod import calibrate_rod_scan
 from borescan.stages.calibration_fit import budget_of, fit_device_calibration, spindle_inputs, yang_from_summary
 
@@ -44,6 +44,7 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     ctx = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
            "verification": verification or dflt["verification"], "raw_root": raw_root, "scans_table": scans_table}
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
+    clear_night_folder(results_root, "calibration", night)  # certificates of a rerun replace the night's
     cal_rows, link_rows, bad = [], [], []
     by_device: dict[str, list] = {}
     for row, d in night_scans(raw_root, night, scans_table, kind="calibration", device_type="tri_lds"):
@@ -130,7 +131,7 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
             quarantine(results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}")
         return
     cal = with_budget(fit, budget)
-    out_dir = certificate.certificate_dir(results_root, cal)
+    out_dir = certificate.certificate_night_dir(results_root, cal, night)
     first = inputs[0]
     residuals = {"t_s": np.zeros(0), "residual_mm": np.zeros((0, len(cal.beams.channels)))}
     if cal.method == "full_lsq":
@@ -148,7 +149,9 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
         software_version=__version__, budget=budget, laboratory=lab, coverage_probability=p, dates=dates,
         config_hash=config_hash({"calibration": cfg, "uncertainty": unc, "laboratory": lab,
                                  "verification": ctx["verification"]}), verifications=ver_rows)
-    rel_cert = str((Path(out_dir) / "certificate.pdf").relative_to(Path(results_root)))
+    link = certificate.certificate_dir(results_root, cal)
+    link_into_night(link, out_dir)
+    rel_cert = str((link / "certificate.pdf").relative_to(Path(results_root)))
     rows = calibration_rows(cal, "tri_lds", night, rel_cert, rawio.combined_sha256(raw_files))
     for row in rows:
         j = list(cal.beams.channels).index(row["channel"])

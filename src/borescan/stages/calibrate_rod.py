@@ -15,7 +15,7 @@ import polars as pl
 from borescan import __version__, certificate, rawio, rod_calibration
 from borescan.artifacts import MissingTemperature, artifact_cte, scan_temperature
 from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
-from borescan.stages._common import config_hash, night_scans, quarantine
+from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
 
 __all__ = ["calibrate_rod_scan"]
 
@@ -53,8 +53,9 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         l0_nominal_mm=np.array([lay.l0_mm for lay in layers]), u_l0_mm=budget.u(), budget=budget,
         gauges=tuple(dict(g, radius_at_t_mm=r) for g, r in zip(gauges, radius_t)), solution=sol, iterations=n_iter,
         residual_rms_mm=float(sol.residual_rms_mm))
-    out_dir = Path(results_root) / "calibration" / cal.device_id / cal.calibration_id
-    rel_cert = str((out_dir / "certificate.pdf").relative_to(Path(results_root)))
+    out_dir = certificate.certificate_night_dir(results_root, cal, night)
+    link = certificate.certificate_dir(results_root, cal)
+    rel_cert = str((link / "certificate.pdf").relative_to(Path(results_root)))
     raw_files = {f"{sid}/{k}": v for k, v in sorted(scan.sha256.items())}
     rows = rod_calibration.rod_calibration_rows(cal, night, rel_cert, rawio.combined_sha256(raw_files), p)
     ver_rows, ver_metas = _night_rod_verifications(cal, rows, night, ctx, log)
@@ -68,6 +69,7 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         software_version=__version__, laboratory=lab, coverage_probability=p, dates=dates, verifications=ver_rows,
         config_hash=config_hash({"calibration": cfg, "uncertainty": unc, "laboratory": lab,
                                  "verification": ctx["verification"]}))
+    link_into_night(link, out_dir)
     cal_rows += rows
     link_rows.append({"calibration_id": cal.calibration_id, "scan_id": sid})
     log(f"{cal.device_id}: {cal.calibration_id} (rod on ring gauges) from {sid}; l0 - nominal "

@@ -9,7 +9,6 @@ page, the README and people use (a copy where the filesystem has no symbolic lin
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from pathlib import Path
 
@@ -19,52 +18,21 @@ from borescan import discrepancy, rawio, tables
 from borescan.discrepancy.examine import discrepancy_settings
 from borescan.discrepancy.reference import discrepancy_reference
 from borescan.parallel import map_in_order, workers_for
-from borescan.stages._common import Quarantined, night_scans, quarantine, read_tables
+from borescan.stages._common import (Quarantined, clear_night_folder, link_into_night, night_folder, night_scans,
+                                    quarantine, read_tables)
 
 __all__ = ["stage_discrepancy", "findings_rows", "discrepancy_one", "findings_night_dir", "findings_dir"]
 
 
 def findings_night_dir(results_root, night: str) -> Path:
     """The night's folder of per-scan findings (the rule's declared output)."""
-    return Path(results_root) / "discrepancy" / f"night={night}"
+    return night_folder(results_root, "discrepancy", night)
 
 
 def findings_dir(results_root, scan_id: str) -> Path:
     """``discrepancy/<scan_id>``: where a scan's findings.json and gap.png are read (a link into its
     night's folder)."""
     return Path(results_root) / "discrepancy" / scan_id
-
-
-def _link_target(night: str, scan_id: str) -> str:
-    return f"night={night}/{scan_id}"
-
-
-def _clear_night(results_root, night: str) -> Path:
-    """Empty the night's folder and drop the links into it (Snakemake empties it before the job; by hand
-    nothing does): a scan examined no more, or set aside this time, keeps no findings of an earlier run."""
-    night_dir = findings_night_dir(results_root, night)
-    shutil.rmtree(night_dir, ignore_errors=True)
-    night_dir.mkdir(parents=True, exist_ok=True)
-    prefix = _link_target(night, "")
-    with os.scandir(night_dir.parent) as entries:
-        for e in entries:
-            if e.is_symlink() and os.readlink(e.path).startswith(prefix):
-                os.unlink(e.path)
-    return night_dir
-
-
-def _link_scan(results_root, night: str, scan_id: str) -> None:
-    """Point ``discrepancy/<scan_id>`` at ``night=<night>/<scan_id>`` (replacing a folder of the
-    older layout)."""
-    link = findings_dir(results_root, scan_id)
-    if link.is_symlink() or link.is_file():
-        link.unlink()
-    elif link.is_dir():
-        shutil.rmtree(link)  # written before the findings moved into night folders
-    try:
-        os.symlink(_link_target(night, scan_id), link, target_is_directory=True)
-    except OSError:  # no symbolic links here: a copy
-        shutil.copytree(findings_night_dir(results_root, night) / scan_id, link)
 
 
 def findings_rows(findings: dict) -> list[dict]:
@@ -93,7 +61,7 @@ def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibrati
     ``workers`` processes.
     """
     settings = discrepancy_settings(cfg)
-    _clear_night(results_root, night)
+    clear_night_folder(results_root, "discrepancy", night)
     cals = read_tables(calibration_tables) if calibration_tables else pl.DataFrame()
     jobs = []
     for row, d in night_scans(raw_root, night, scans_table):
@@ -120,7 +88,7 @@ def discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
         findings["reference"] = ref
         discrepancy.write_findings(findings, out_dir)
         discrepancy.plot_gap(ex, out_dir / "gap.png")
-        _link_scan(results_root, night, scan.scan_id)
+        link_into_night(findings_dir(results_root, scan.scan_id), out_dir)
     except (ValueError, KeyError, ArithmeticError) as err:
         shutil.rmtree(out_dir, ignore_errors=True)  # no half-written findings of a scan set aside
         quarantine(results_root, bad, scan.scan_id, night, "discrepancy", "lds.parquet",
