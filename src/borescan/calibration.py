@@ -661,6 +661,13 @@ def fit_full_calibration(
     ``scipy.optimize.least_squares`` (Levenberg-Marquardt, analytic Jacobian). Covariance
     s^2 (J^T J)^-1, s^2 = SSR / dof.
 
+    Censoring at the sensor range: the sensor nulls a reading whose noisy value leaves [0, range], so
+    near a limit the valid readings are a truncated, biased sample. After the first solution, the
+    valid readings whose fitted value lies within ``CENSOR_GUARD_SIGMA`` noise sigmas of a limit (or
+    beyond it) are set aside and the fit is redone without them (:func:`_censoring_keep`,
+    ``diagnostics["censoring_guard"]``); a limit beyond which the channel has valid readings is not
+    treated as one.
+
     Acceptance (:class:`AcceptanceRule`): each channel's residual rms within
     ``max_residual_to_noise`` of its readings' own noise floor, |rho| within the head radius,
     d_b within what the gauge and the sensor range allow; otherwise ``CalibrationError`` with
@@ -943,10 +950,32 @@ def fit_full_calibration(
         return sol, tried, alts
 
     i_rho0 = c - 1 + ch0_free
+    censored: dict[str, list[int]] = {}
     try:
         sol = solve(x0)
         mirrors_tried, alternatives = [], []
         if bool(sol.success) and np.isfinite(sol.cost):
+            # A sensor nulls a reading whose *noisy* value leaves its range, so a valid reading whose
+            # true value lies within a few sigma of a range limit is a censored draw: its noise is biased
+            # away from the limit (E[e | kept] = sigma phi(a) / Phi(a), a = distance / sigma), which biases
+            # every beam parameter the flank near the limit informs. Readings whose fitted value lies within
+            # CENSOR_GUARD_SIGMA of a limit (or beyond it) are set aside: a selection on the model, not on
+            # the noise, so the rest is an unbiased sample; then the fit is redone on the rest.
+            beams_1, nuis_1 = unpack(sol.x)
+            for k in range(K):
+                off, ph, sc = nuis_1[k]
+                v_k = tri_spindle_readings(phi_of(k, ph, sc), off, beams_1, Bore((0.0, 0.0), R_mm))
+                keep, _ = _censoring_keep(v_k, ys[k], range_arr, _guard_sigma(floors[k], sigma))
+                drop = masks[k] & ~keep
+                censored[scan_ids[k]] = [int(x) for x in drop.sum(axis=0)]
+                masks[k] = masks[k] & keep
+            if any(sum(v) for v in censored.values()):
+                n_obs = int(sum(m.sum() for m in masks))
+                if n_obs + n_prior <= p_free:
+                    raise CalibrationError(scan_ids, f"{n_obs} valid samples (away from the sensor range limits) "
+                                                     f"for {p_free} parameters")
+                with np.errstate(all="ignore"):
+                    sol = solve(sol.x)
             sol, mirrors_tried, alternatives = mirror_search(sol)
         profiles: list[dict] = []
         for _round in range(3):
@@ -1182,6 +1211,14 @@ def fit_full_calibration(
             },
             "param_names": _param_names(channels, scan_ids, ch0_free, nuis_cols),
             "cov_free": cov_free,
+            "censoring_guard": {
+                "k_sigma": CENSOR_GUARD_SIGMA,
+                "range_mm": [float(x) for x in range_arr],
+                "set_aside": censored,
+                "note": ("valid readings whose fitted value lies within k_sigma noise sigmas of a sensor range limit "
+                         "(0 or range_mm) or beyond it, per scan and channel: the sensor nulls a reading on its noisy "
+                         "value, so near a limit the valid ones are a truncated (biased) sample; not fitted"),
+            },
         },
     )
 
@@ -1290,6 +1327,53 @@ def _rho_profile(j, c, x_hat, cost0, s2, cov_int, cov_free, solve_fixed, public,
         if deltas[k] != 0.0 and dchi[k] < dchi[k - 1] and dchi[k] < dchi[k + 1]
     ]
     return out, None
+
+
+#: readings whose fitted value lies within this many noise sigmas of a sensor range limit are set aside
+#: (censoring at the range limits, :func:`_censoring_keep`); beyond 4 sigma the bias sigma phi(4) / Phi(4)
+#: is 1.3e-4 sigma
+CENSOR_GUARD_SIGMA = 4.0
+
+
+def _guard_sigma(floors_k: np.ndarray, sigma: float) -> np.ndarray:
+    """Noise sigma per channel for the censoring guard: the channel's own floor, else the pooled one."""
+    f = np.asarray(floors_k, dtype=float)
+    return np.where(np.isfinite(f) & (f > 0), f, sigma)
+
+
+def _censoring_keep(v_model: np.ndarray, y: np.ndarray, range_mm: np.ndarray, sigma_c: np.ndarray):
+    """Readings (n, c) not censored by a sensor range limit: True where the model value ``v_model``
+    lies more than ``CENSOR_GUARD_SIGMA`` sigma inside [0, range].
+
+    The raw format nulls a reading when the sensor reports no valid value (out of range), which
+    the sensor decides on the noisy value; so near a limit the valid readings are a truncated
+    sample (biased by up to ~0.8 sigma) and beyond it a few noisy ones stay valid. The selection
+    here is on the model, which the noise does not move (to within the fit's own small
+    uncertainty), so the kept readings are unbiased. A limit is taken as a censoring limit only
+    where no valid reading of the channel lies beyond it (a sensor reporting negative values or
+    values above its stated range is not censored there).
+
+    Returns (keep (n, c) bool, limits {"lower": [bool] * c, "upper": [bool] * c}).
+    """
+    v = np.asarray(v_model, dtype=float)
+    yy = np.asarray(y, dtype=float)
+    c = v.shape[1]
+    rng = np.broadcast_to(np.asarray(range_mm, dtype=float), (c,))
+    g = CENSOR_GUARD_SIGMA * np.broadcast_to(np.asarray(sigma_c, dtype=float), (c,))
+    keep = np.ones(v.shape, dtype=bool)
+    lower, upper = [], []
+    with np.errstate(invalid="ignore"):
+        for j in range(c):
+            ok = np.isfinite(yy[:, j])
+            lo = not bool(np.any(yy[ok, j] < 0.0))
+            hi = not bool(np.any(yy[ok, j] > rng[j]))
+            if lo:
+                keep[:, j] &= v[:, j] > g[j]
+            if hi:
+                keep[:, j] &= v[:, j] < rng[j] - g[j]
+            lower.append(lo)
+            upper.append(hi)
+    return keep, {"lower": lower, "upper": upper}
 
 
 def _per_scan_xy(xy, K: int) -> list:
@@ -1446,6 +1530,8 @@ def full_lsq_sensitivities(
     a = float(cal.diagnostics.get("acceptance", {}).get("position_accuracy_mm", AcceptanceRule().position_accuracy_mm))
     prior_sigma = a * np.sqrt(2.0 / 3.0)
     w = (sigma if sigma > 0 else 1e-3) / prior_sigma
+    guard = cal.diagnostics.get("censoring_guard")
+    guard_range = np.asarray(guard["range_mm"], dtype=float) if guard else None
 
     J_parts, dR_parts, chan_parts = [], [], []
     for k, sid in enumerate(cal.scan_ids):
@@ -1453,7 +1539,7 @@ def full_lsq_sensitivities(
         Phi = am.commanded_rad(ts[k])
         phi = float(nu["phase0_rad"]) + float(nu.get("speed_scale", 1.0)) * Phi if am.fits_speed_and_phase else Phi
         off = np.array([nu["offset_x_mm"], nu["offset_y_mm"]], dtype=float)
-        _, jac = _readings_and_jacobian(phi, beams, off, R_mm)
+        v_k, jac = _readings_and_jacobian(phi, beams, off, R_mm)
         n = ts[k].size
         Jk = np.zeros((n, c, p))
         for j in range(c):
@@ -1468,6 +1554,8 @@ def full_lsq_sensitivities(
         if "scale" in cols[k]:
             Jk[:, :, cols[k]["scale"]] = jac["phi"] * Phi[:, None]
         m = np.isfinite(ys[k])
+        if guard is not None:  # the readings the fit set aside near the sensor range limits
+            m &= _censoring_keep(v_k, ys[k], guard_range, _guard_sigma(floors[k], sigma))[0]
         J_parts.append(Jk[m])
         dR_parts.append(np.hypot(jac["ox"], jac["oy"])[m])
         chan_parts.append(np.broadcast_to(np.arange(c), (n, c))[m])
