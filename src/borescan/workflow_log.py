@@ -88,8 +88,9 @@ def restore_stale_backups(snakemake_dir: str | Path, folders, log=print) -> list
     restored = []
     root = Path(snakemake_dir) / "backups"
     for folder in folders:
-        folder = Path(folder).resolve()
-        backup = root / str(folder).lstrip("/")
+        folder = Path(folder)
+        # where Snakemake keeps it: the output path as the rule names it, an absolute one without its root
+        backup = root / (folder.relative_to(folder.parents[-1]) if folder.is_absolute() else folder)
         if not backup.is_dir():
             continue
         import shutil
