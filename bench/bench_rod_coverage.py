@@ -91,7 +91,7 @@ def run_chain(job) -> dict:
     """One calibrate-then-measure-then-verify chain: its z-scores and coverage flags."""
     i, seed, cfg = job
     from borescan import rod_calibration, scenarios
-    from borescan.artifacts import artifact_cte, scan_temperature
+    from borescan.artifacts import artifact_cte, radius_at_temperature_mm, scan_temperature
 
     unc = cfg["uncertainty"]
     rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(i),)))
@@ -120,7 +120,8 @@ def run_chain(job) -> dict:
             channels, means, u_mean, sens = rod_calibration.pose_means_of_scan(cal)
             gauges = rod_calibration.layer_gauges(cal.meta, channels)
             temp, cte = scan_temperature(cal.meta, unc), artifact_cte(cal.meta, unc)
-            r_t = [0.5 * gg["certified_diameter_mm"] * (1 + cte.cte_per_k * (temp.temperature_c - 20)) for gg in gauges]
+            r_t = [radius_at_temperature_mm(0.5 * gg["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
+                   for gg in gauges]
             layers, sol, _n = rod_calibration.calibrate_l0(means, design, u_mean, r_t)
             budget = rod_calibration.rod_calibration_budget([lay.l0_mm for lay in layers], sol, gauges, temp, cte,
                                                             sens, cal.scan_id, float(unc["sensor_resolution_mm"]))

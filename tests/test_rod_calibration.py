@@ -162,3 +162,33 @@ def test_a_rod_uses_its_gauge_calibration_else_its_design_geometry_by_policy():
     assert choose_rod_calibration(cals, {"ROD-01-cal"}, "ROD-01", "2026-11-12", 30, True) == ("ROD-01-cal", None)
     with pytest.raises(ValueError, match="rod_without_calibration"):
         choose_rod_calibration(cals, set(), "ROD-01", "2026-11-12", 30, False, "maybe")
+
+
+def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan_json(tmp_path):
+    """Bad input: the scan is quarantined with the file (scan.json) and the layer named, no
+    calibration row is made, its raw files are untouched; a good scan beside it is calibrated."""
+    import hashlib
+    import json as _json
+
+    from borescan.stages.calibrate_rod import calibrate_rod_scan
+
+    dflt = schema_defaults()
+    ctx = {"uncertainty": UNC, "laboratory": dflt["laboratory"], "verification": dflt["verification"],
+           "raw_root": tmp_path / "raw", "scans_table": None}
+    part = {"id": "CYL", "type": "part", "features": [{"id": "H1", "nominal_diameter_mm": 150.0},
+                                                     {"id": "H2", "nominal_diameter_mm": 150.0}]}
+    bad_scan = _raw(_sim(GAUGE_D, 5, "calibration", part, scan_id="CAL-NO-CERT"), tmp_path)
+    good_scan = _raw(_sim(GAUGE_D, 6, "calibration", GAUGE_SET, scan_id="CAL-OK"), tmp_path)
+    before = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (tmp_path / "raw").rglob("*") if p.is_file()}
+    ctx["scans_table"] = pl.DataFrame(schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8,
+                                              "device_id": pl.Utf8})  # no verification scans that night
+    bad, rows, links = [], [], []
+    for scan in (bad_scan, good_scan):
+        calibrate_rod_scan(scan, "2026-11-20", tmp_path / "results", bad, rows, links, lambda _m: None, ctx,
+                           dflt["calibration"])
+    assert [(q.scan_id, q.file) for q in bad] == [("CAL-NO-CERT", "scan.json")]
+    assert "rod layer 1 (feature 'H1') has no certified diameter" in bad[0].reason
+    rec = _json.loads((tmp_path / "results" / "quarantine" / "CAL-NO-CERT.json").read_text())
+    assert rec["file"] == "scan.json" and rec["scan_id"] == "CAL-NO-CERT"
+    assert {r["scan_id"] for r in rows} == {"CAL-OK"} and len(rows) == 2  # one row per layer of the good scan
+    assert before == {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (tmp_path / "raw").rglob("*") if p.is_file()}

@@ -26,15 +26,15 @@ the whole budget with sensitivity 2 on its layer's l0 (:func:`borescan.measure.d
 
 from __future__ import annotations
 
-import hashlib
 import json
-import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from .artifacts import artifact_key
+from .calibration import _json_safe, make_calibration_id
+from .calibrations import rod_layers
 from .geometry import RodLayer
 from .rod import RodSolution, solve_rod
 from .uncertainty import Budget, Input, Term
@@ -202,10 +202,8 @@ def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list
 
 
 def rod_calibration_id(device_id: str, scan_ids, night: str) -> str:
-    """Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>`` (as the three-sensor calibrations')."""
-    key = json.dumps({"device_id": device_id, "scan_ids": sorted(scan_ids), "method": ROD_CALIBRATION_METHOD},
-                     sort_keys=True)
-    return f"{device_id}-{night.replace('-', '')}-{ROD_CALIBRATION_METHOD}-{hashlib.sha256(key.encode()).hexdigest()[:8]}"
+    """Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>`` (:func:`borescan.calibration.make_calibration_id`)."""
+    return make_calibration_id(device_id, scan_ids, ROD_CALIBRATION_METHOD, night)
 
 
 def layer_jacobian(channels, channel: int) -> np.ndarray:
@@ -241,29 +239,11 @@ def _to_dict(cal: RodCalibration) -> dict[str, Any]:
             "residual_rms_mm": float(cal.residual_rms_mm)}
 
 
-def _json_safe(x):
-    if isinstance(x, dict):
-        return {k: _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, np.generic):
-        return _json_safe(x.item())
-    return x
-
-
 def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget | None]:
     """Layers and budget of a recorded rod calibration (``calibrations`` rows of one id); the
     budget is None for the ``nominal`` record (design geometry, nothing calibrated)."""
     rows = sorted(rows, key=lambda r: int(r["channel"]))
-
-    def num(r, k):
-        v = r.get(k)
-        return float(v) if v is not None and math.isfinite(float(v)) else 0.0
-
-    layers = [RodLayer(int(r["channel"]), num(r, "h_mm"), float(r["l0_mm"]), num(r, "phi_rad"), num(r, "d_mm"),
-                       num(r, "gamma_rad")) for r in rows]
+    layers = rod_layers(rows, [int(r["channel"]) for r in rows])
     blob = rows[0].get("calibration_json") if rows else None
     if not blob:
         return layers, None

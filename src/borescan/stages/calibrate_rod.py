@@ -13,7 +13,7 @@ import numpy as np
 import polars as pl
 
 from borescan import __version__, certificate, rawio, rod_calibration
-from borescan.artifacts import MissingTemperature, artifact_cte, scan_temperature
+from borescan.artifacts import MissingTemperature, artifact_cte, radius_at_temperature_mm, scan_temperature
 from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
 from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
 
@@ -26,7 +26,7 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
     unc, lab = ctx["uncertainty"], ctx["laboratory"]
     p = float(unc["coverage_probability"])
     meta, sid = scan.meta, scan.scan_id
-    try:
+    try:  # what scan.json must give: the design layers, a certified gauge per layer, the temperature
         nominal = pl.DataFrame(rod_nominal_calibration_rows(meta, night, sid))
         if nominal.height == 0:
             raise ValueError("device.nominal lists no rod layers to calibrate")
@@ -34,19 +34,18 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         layers = rod_layers(nominal, channels)
         gauges = rod_calibration.layer_gauges(meta, channels)
         temp, cte = scan_temperature(meta, unc), artifact_cte(meta, unc)
-        radius_t = [0.5 * g["certified_diameter_mm"] * (1.0 + cte.cte_per_k * (temp.temperature_c - 20.0))
-                    for g in gauges]
+    except ValueError as err:  # MissingTemperature is one
+        quarantine(results_root, bad, sid, night, "calibrate", "scan.json", f"rod calibration: {err}")
+        return
+    radius_t = [radius_at_temperature_mm(0.5 * g["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
+                for g in gauges]
+    try:  # what the readings must give: a solve (RodSolveError is a ValueError) that settles
         cal_layers, sol, n_iter = rod_calibration.calibrate_l0(means, layers, u_mean, radius_t)
-        l0 = np.array([lay.l0_mm for lay in cal_layers])
-        budget = rod_calibration.rod_calibration_budget(l0, sol, gauges, temp, cte, sensors, sid,
-                                                        float(unc["sensor_resolution_mm"]))
-    except MissingTemperature as err:
-        quarantine(results_root, bad, sid, night, "calibrate", "scan.json", str(err))
+    except ValueError as err:
+        quarantine(results_root, bad, sid, night, "calibrate", "lds.parquet", f"rod calibration failed: {err}")
         return
-    except ValueError as err:  # RodSolveError is a ValueError
-        file = "scan.json" if "certified diameter" in str(err) or "u_diameter_mm" in str(err) else "lds.parquet"
-        quarantine(results_root, bad, sid, night, "calibrate", file, f"rod calibration failed: {err}")
-        return
+    budget = rod_calibration.rod_calibration_budget([lay.l0_mm for lay in cal_layers], sol, gauges, temp, cte, sensors,
+                                                    sid, float(unc["sensor_resolution_mm"]))
     cal = rod_calibration.RodCalibration(
         calibration_id=rod_calibration.rod_calibration_id(meta["device"]["id"], [sid], night),
         device_id=meta["device"]["id"], scan_ids=(sid,), layers=tuple(cal_layers),

@@ -54,7 +54,7 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     diam, ver, arts, bad = [], [], {}, []
     items = night_scans(raw_root, night, scans_table)
 
-    rod_policy = cfg["measurement"].get("rod_without_calibration") or "measure_nominal"
+    rod_policy = cfg["measurement"]["rod_without_calibration"]
 
     def job(row, d):
         if row["device_type"] == "rod":
