@@ -111,3 +111,58 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(tmp
         assert not prof["linear"] and lo <= rho_true <= hi
         assert cal.u_rho_mm[1] > 1.2 * prof["u_rho_linear_mm"]
 
+
+
+@pytest.mark.slow
+def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_sensitivities(tmp_path):
+    """Seed 20270619 #8 (every rho profile non-linear). The calibration's covariance is its budget's
+    fit terms summed (readings, positions, second order, profiles, mirrors: nothing lost or counted
+    twice). A bore of about the gauge's size measured with it: along a profile (every other parameter
+    refitted) the beams move together and D hardly moves, so the diameter's profile term is D's own
+    weighted spread at the profile's points beyond its linear part, computed here independently by
+    the static solve at each point's beams; mapped by the linear sensitivities instead, the same term
+    is hundreds of times larger (the over-coverage of issue 19's coverage study: z SD 0.28 on such
+    chains)."""
+    from borescan.calibration_budget import calibration_budget
+    from borescan.artifacts import artifact_cte, scan_temperature
+    from borescan.geometry import Bore, tri_static_readings
+    from borescan.measure import DiameterModel, _with_params, diameter_uncertainty, static_diameter, \
+        static_diameter_jacobian
+
+    scan, truth, cfg, x, cal = _calibrate(tmp_path, 20270619, 9, 8)
+    unc = schema_defaults()["uncertainty"]
+    b = calibration_budget(cal, [x], unc, scan_ids=[scan.scan_id])
+    fit_cov = sum(t.covariance() for t in b.terms if t.input.key.startswith(("fit:", "position:")))
+    scale = np.sqrt(np.diag(cal.cov))
+    scale[scale == 0] = 1.0  # the gauge-fixed beta
+    # to 1e-3 of each variance: the fit's covariance and the budget's linear part (implicit
+    # differentiation of the normal equations) come by two computations that agree to about 3e-4
+    assert np.max(np.abs(fit_cov - cal.cov) / np.outer(scale, scale)) < 1e-3
+    profiles = [p for p in cal.diagnostics["rho_profiles"] if "points" in p]
+    assert len(profiles) == 3 and all(f"fit:{cal.calibration_id}:profile{p['channel']}" in {t.input.key for t in b.terms} for p in profiles)
+
+    R = float(x["R"])
+    xy = np.array([[0.4, -0.3], [-0.6, 0.2], [0.1, 0.7], [-0.2, -0.5]])
+    ang = np.array([0.3, 1.9, 3.4, 5.0])
+    v = tri_static_readings(xy, ang, cal.beams, Bore((0.0, 0.0), R + 0.05))
+    model = DiameterModel("static", v)
+    _, jp, jv, _ = static_diameter_jacobian(v, cal.beams)
+    j = jp.mean(axis=0)
+    du = diameter_uncertainty(
+        model(cal.beams), jac_params=j, calibration_budget=b, jac_readings=jv.mean(axis=0), u_readings_mm=1e-4,
+        dof_readings=float("inf"), temperature=scan_temperature(scan.meta, unc), cte=artifact_cte(scan.meta, unc),
+        artifact=dict(scan.meta["artifact"]), scan_id="PART", p=0.9545, default_resolution_mm=1e-4,
+        calibration_id=cal.calibration_id, model=model, beams=cal.beams, rho_profiles=cal.diagnostics["rho_profiles"])
+    rows = {r["key"]: r for r in du.rows_t}
+    d0 = float(np.mean(static_diameter(v, cal.beams).diameter_mm))  # the mean of the poses, as the measure stage
+    for p in profiles:
+        key = f"fit:{cal.calibration_id}:profile{p['channel']}"
+        pts = np.asarray(p["points"]["delta_params"])
+        w = np.asarray(p["points"]["weight"])
+        dD = np.array([np.mean(static_diameter(v, _with_params(cal.beams, d)).diameter_mm) - d0 for d in pts])
+        lin = (j @ np.asarray(p["linear_cov_column"])) ** 2 / p["u_rho_linear_mm"] ** 2
+        expected = math.sqrt(max(float(np.sum(w * dD**2)) - lin, 0.0))
+        assert rows[key]["contribution"] == pytest.approx(expected, rel=1e-6, abs=1e-9)
+        assert expected < 1e-3  # under a micrometre along a walk of several mm in rho
+        linear_mapping = math.sqrt(float(j @ np.asarray(p["extra_cov_params"]) @ j))
+        assert linear_mapping > 100 * max(expected, 1e-6)

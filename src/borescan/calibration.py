@@ -1042,16 +1042,36 @@ def fit_full_calibration(
     # it (likelihood-weighted second moment about the estimate) replaces the linear part along that
     # rho wherever it is larger (PSD part of the difference: never smaller than the linear covariance)
     u2_rho = np.diag(cov_free)[i_rho0 : i_rho0 + c].copy()
+    idx = np.full(3 * c, -1)  # the public (beta, rho, d_b) per channel in the free vector (-1: gauge-fixed beta)
+    for j in range(c):
+        idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
+        idx[3 * j + 1] = c - 1 + ch0_free + j
+        idx[3 * j + 2] = 2 * c - 1 + ch0_free + j
+    ok = idx >= 0
+
+    def params_of(v: np.ndarray) -> np.ndarray:
+        out = np.zeros(v.shape[:-1] + (3 * c,))
+        out[..., ok] = v[..., idx[ok]]
+        return out
+
     extra = np.zeros_like(cov_free)
     for j, prof in enumerate(profiles):
         M = prof.pop("_second_moment", None)
+        P, wts = prof.pop("_points", (None, None))
         if M is None:
             continue
         i = i_rho0 + j
         E = M - np.outer(cov_free[:, i], cov_free[:, i]) / cov_free[i, i]
         w, V = np.linalg.eigh(0.5 * (E + E.T))
-        extra += (V * np.clip(w, 0.0, None)) @ V.T
+        E_psd = (V * np.clip(w, 0.0, None)) @ V.T
+        extra += E_psd
         prof["u_rho_profile_mm"] = float(np.sqrt(M[i, i]))
+        # what a quantity computed from the beams needs to map this spread by itself (a secant per
+        # point, not the linear sensitivities): the points, their weights, the linear covariance's column
+        # of this rho and the extra covariance this profile adds, all in the calibration's parameter order
+        prof["points"] = {"delta_params": params_of(P).tolist(), "weight": [float(x) for x in wts / wts.sum()]}
+        prof["linear_cov_column"] = params_of(cov_free[:, i]).tolist()
+        prof["extra_cov_params"] = params_of(params_of(E_psd).T).tolist()
     cov_free = cov_free + extra
     # d_b = g - rho^2 / (2R) is quadratic in rho: with rho ~ N(rho_hat, u^2) the linear term above
     # misses var(rho^2) = 2 u^4 and the bias E[rho_hat^2] - rho^2 = u^2; both are added to u(d_b)^2
@@ -1096,13 +1116,7 @@ def fit_full_calibration(
             d = p_alt - p_hat
             cov_free += (wgt / total_w) * np.outer(d, d)
     ambiguous = [m for m in minima if m["delta_ssr_over_s2"] < 4.0]
-    idx = np.full(3 * c, -1)
-    for j in range(c):
-        idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
-        idx[3 * j + 1] = c - 1 + ch0_free + j
-        idx[3 * j + 2] = 2 * c - 1 + ch0_free + j
     cov = np.zeros((3 * c, 3 * c))
-    ok = idx >= 0
     cov[np.ix_(ok, ok)] = cov_free[np.ix_(idx[ok], idx[ok])]
     u_rho = np.sqrt(np.diag(cov_free)[c - 1 + ch0_free : 2 * c - 1 + ch0_free])
     g_hat = sol.x[2 * c - 1 + ch0_free : n_beam]
@@ -1319,6 +1333,7 @@ def _rho_profile(j, c, x_hat, cost0, s2, cov_int, cov_free, solve_fixed, public,
     tw[1:] += h / 2.0
     wts = wts * tw
     out["_second_moment"] = (P * wts[:, None]).T @ P / wts.sum()
+    out["_points"] = (P, wts)
     out["delta_ssr_over_s2_at_ends"] = [float(dchi[0]), float(dchi[-1])]
     out["profile_minima"] = [
         {"rho_mm": [float(v) for v in public(pts[deltas[k]][0])[i - j : i - j + c]],

@@ -52,8 +52,10 @@ def calibration_budget(cal, inputs: list[dict], uncertainty: dict, *, scan_ids, 
     """GUM budget of a calibration's parameters (per channel beta, rho, d_b; the calibration's order).
 
     Terms: the fit's Type A covariance (readings); for ``full_lsq`` the second-order term of d_b in
-    rho and any unresolved mirror solution (eigen-directions of the rest of the fit's covariance,
-    each a rectangular between the two solutions); the reported offset S - C of each scan with
+    rho (where its profile was linear), the spread along each non-linear rho profile beyond the linear
+    covariance (``profile<channel>``; a diameter maps it by its own secants along the profile's points,
+    :func:`borescan.measure.diameter_uncertainty`) and any unresolved mirror solution (eigen-directions
+    of the rest of the fit's covariance, each a rectangular between the two solutions); the reported offset S - C of each scan with
     positions (triangular: centre and spindle each within +-a per coordinate,
     ``calibration.position_accuracy_mm``; the same reported positions in several scans are one
     input); the gauge's certified diameter (normal, U / k); the first scan's temperature and the
@@ -87,14 +89,30 @@ def calibration_budget(cal, inputs: list[dict], uncertainty: dict, *, scan_ids, 
                          "v", "mm", None, math.sqrt(sens["s2"]), "normal", float(cal.dof), "A",
                          f"{n_obs} readings of {', '.join(cal.scan_ids)}; u is the residual standard deviation "
                          "s = sqrt(SSR / dof)"), cov=sens["cov_readings"]))
+        profiles = list(cal.diagnostics.get("rho_profiles") or [])
+        linear = np.ones(c, dtype=bool)  # where a rho's profile was linear, its second-order term of d_b
+        for prof in profiles:
+            linear[list(cal.beams.channels).index(int(prof["channel"]))] = bool(prof.get("linear", True))
         second = np.zeros((3 * c, 3 * c))
-        second[2::3, 2::3] = np.diag(sens["second_order_d_b_mm2"])
+        second[2::3, 2::3] = np.diag(np.where(linear, sens["second_order_d_b_mm2"], 0.0))
         if np.any(second > 0):
             b.add(Term(Input(f"fit:{cal.calibration_id}:second_order", "second-order term of d_b = g - rho^2 / (2R) in rho",
                              "rho^2", "mm^2", None, 0.0, "normal", source="3 u(rho)^4 / (4 R^2), fit_full_calibration"),
                        cov=second))
+        rest = sens["cov_extra"] - second
+        for prof in profiles:
+            if "extra_cov_params" not in prof:
+                continue
+            E = np.asarray(prof["extra_cov_params"], dtype=float)
+            rest = rest - E
+            b.add(Term(Input(f"fit:{cal.calibration_id}:profile{prof['channel']}",
+                             f"spread along the non-linear profile of rho of channel {prof['channel']} beyond the "
+                             "linear covariance", "rho", "mm", None, 0.0, "normal",
+                             source="fit_full_calibration: likelihood-weighted second moment along the profile "
+                                    f"(rho {prof['rho_range_mm'][0]:.4f} .. {prof['rho_range_mm'][1]:.4f} mm)"),
+                       cov=E))
         scale = np.sqrt(np.clip(np.diag(cal.cov), 0.0, None))
-        for i, part in enumerate(_rank_one_parts(sens["cov_extra"] - second, scale)):
+        for i, part in enumerate(_rank_one_parts(rest, scale)):
             b.add(Term(Input(f"fit:{cal.calibration_id}:mirror{i + 1}", "unresolved mirror solution (the data do not "
                              "reject it): position between the two solutions", "lambda", "-", 0.0, 1.0 / math.sqrt(3.0),
                              "rectangular", source="fit_full_calibration: mirror solution within 4 s^2 of the kept one"),

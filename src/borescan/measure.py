@@ -613,6 +613,29 @@ def _second_order_variance(model: DiameterModel, beams: Beams, cov_second: np.nd
     return var
 
 
+def _profile_variance(model: DiameterModel, beams: Beams, prof: dict, jac_params) -> float:
+    """Variance of D from a non-linear rho profile of the calibration, beyond its linear part.
+
+    The calibration walks the cost along one rho, every other parameter refitted, and weighs each
+    point by its likelihood ratio (:func:`borescan.calibration.fit_full_calibration`); the parameters'
+    second moment there replaces their linear covariance along that rho where it is larger. D is
+    evaluated at each point, M_D = sum w (D(p_k) - D(p))^2; the linear covariance already gives D
+    (J . c)^2 / u_lin^2 along that rho (c the linear covariance's column of rho, J = dD/dp); the
+    term is the excess max(M_D - (J . c)^2 / u_lin^2, 0). Along a profile the beams' rho^2 terms
+    move together (beta and d_b follow rho), so D can move far less than its linear sensitivities
+    to each parameter say.
+    """
+    pts = np.asarray(prof["points"]["delta_params"], dtype=float)
+    w = np.asarray(prof["points"]["weight"], dtype=float)
+    d0 = model(beams)
+    dD = np.array([model(_with_params(beams, d)) - d0 for d in pts])
+    m_d = float(np.sum(w * dD**2) / np.sum(w))
+    col = np.asarray(prof["linear_cov_column"], dtype=float)
+    u_lin = float(prof["u_rho_linear_mm"])
+    lin = float(np.asarray(jac_params, dtype=float) @ col) ** 2 / u_lin**2 if u_lin > 0 else 0.0
+    return max(m_d - lin, 0.0)
+
+
 def _gauge_radius_of(calibration_budget: Budget) -> float | None:
     for t in calibration_budget.terms:
         if t.input.key.startswith("gauge:") and t.input.key.endswith(":D20") and t.input.estimate:
@@ -625,7 +648,7 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
                          channels=(), noise_mm=None, temperature: ScanTemperature, cte: ArtifactCte, artifact: dict,
                          scan_id: str, p: float, default_resolution_mm: float, readings_what: str = "readings",
                          calibration_id: str | None = None, model: DiameterModel | None = None,
-                         beams: Beams | None = None) -> DiameterUncertainty:
+                         beams: Beams | None = None, rho_profiles: list[dict] | None = None) -> DiameterUncertainty:
     """GUM budget of a measured diameter, at the scan's temperature and at 20 degC.
 
     D_T = f(readings, beams); D20 = D_T / (1 + alpha (T - 20)). Terms:
@@ -636,6 +659,9 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
       mirror solution by the secant D(p + d) - D(p), and the second-order term of d_b by D's own
       curvature along the fit's path (:func:`_second_order_variance`): for a bore of about the
       gauge's size the rho^2 terms of d_b and of the wall points cancel, and D carries little of it;
+      the spread along a non-linear rho profile (``rho_profiles``, the calibration's
+      ``diagnostics["rho_profiles"]``) by D at the profile's points (:func:`_profile_variance`), for
+      the same reason;
     - the readings: u = ``u_readings_mm`` with ``dof_readings`` (Type A; nu = inf: the data sheet's
       repeatability, Type B);
     - each sensor's linearity and resolution at this measurement (:func:`sensor_terms`, sensitivity
@@ -662,6 +688,7 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
         jp = np.asarray(jac_params, dtype=float)
         R_g = _gauge_radius_of(calibration_budget)
         both = np.array([1.0, f])
+        profile_of = {f":profile{p['channel']}": p for p in (rho_profiles or ()) if "points" in p}
         for t in calibration_budget.terms:
             key = t.input.key
             if model is not None and beams is not None:
@@ -669,6 +696,13 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
                     var = _second_order_variance(model, beams, t.cov, R_g)
                     b.add(Term(t.input, cov=np.outer(both, both) * var,
                                note="D's own curvature along the fit's path (psi, g fixed), not d_b's"))
+                    continue
+                prof = profile_of.get(key[key.rfind(":"):]) if key.startswith("fit:") else None
+                if prof is not None and t.cov is not None:
+                    var = _profile_variance(model, beams, prof, jp)
+                    b.add(Term(t.input, cov=np.outer(both, both) * var,
+                               note="D's own spread along the rho profile's points beyond its linear part, not the "
+                                    "parameters' spread mapped linearly"))
                     continue
                 if ":mirror" in key and t.sensitivity is not None:
                     dD = model(_with_params(beams, t.sensitivity)) - model(beams)
@@ -731,7 +765,8 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict) -> tuple[dict, DiameterUn
         sensors=sensors, channels=cal.beams.channels, noise_mm=res["noise_mm"], temperature=temp, cte=cte,
         artifact=dict(scan.meta.get("artifact") or {}), scan_id=scan.scan_id,
         p=float(unc_cfg["coverage_probability"]), default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
-        readings_what="measurement", calibration_id=cal.calibration_id, model=res["model"], beams=cal.beams)
+        readings_what="measurement", calibration_id=cal.calibration_id, model=res["model"], beams=cal.beams,
+        rho_profiles=(cal.diagnostics or {}).get("rho_profiles"))
     return res, du
 
 
