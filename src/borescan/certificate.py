@@ -221,6 +221,148 @@ def _expanded(comb: Combined, distribution: str = "normal") -> dict:
             "standardUncertainty": comb.u, "effectiveDegreesOfFreedom": comb.nu_eff, "coverageMethod": comb.method}
 
 
+def _result(name: str, ref_type: str, held: bool, value: float, unit: str, comb: Combined) -> dict:
+    """One DCC result: ``value`` in ``unit`` (a key of ``_UNITS_DSI``: mm, rad, ...) with its D-SI expandedUnc."""
+    return {"name": name, "refType": ref_type, "held_at_design_value": held,
+            "real": {"value": value, "unit": _UNITS_DSI[unit], "expandedUnc": _expanded(comb)}}
+
+
+def _budget_entry(unit: str, rows: list[dict], comb: Combined) -> dict:
+    """One result's uncertainty budget: its ``unit``, the budget rows (contributions in that unit)
+    and their combination (u_c, k, U)."""
+    return {"unit": unit, "rows": rows, "combined": comb.to_dict()}
+
+
+def _statements(lab: dict, dates: dict, conformity: dict, traceability: str) -> list[dict]:
+    """DCC statements of every certificate: reproduction clause (ISO/IEC 17025 7.8.2.1 m), ``traceability``
+    text, decision rule, conformity, recalibration due date (ISO date) and how the issue date was derived."""
+    return [
+        {"norm": "ISO/IEC 17025:2017", "reference": "7.8.2.1 m",
+         "declaration": "The results relate only to the item calibrated. This certificate shall not be reproduced "
+                        "except in full without the written approval of the issuing laboratory."},
+        {"refType": "basic_traceability", "declaration": traceability},
+        {"refType": "basic_decisionRule", "declaration": _decision_rule_text(lab)},
+        {"refType": "basic_conformity", "conformity": conformity["conformity"], "declaration": conformity["text"]},
+        {"refType": "basic_recalibration", "date": dates.get("recalibration_due"),
+         "declaration": dates.get("recalibration_rule", "")},
+        {"refType": "borescan_issueDate", "declaration": dates.get("issue_rule", "")},
+    ]
+
+
+def _administrative_data(cal, lab: dict, dates: dict, conformity: dict, item: dict, traceability: str,
+                         software_version: str) -> dict:
+    """DCC ``administrativeData``: software, core data (ISO dates of calibration and issue), the ``item``,
+    laboratory, signatory, customer, statements and the laboratory settings left at their placeholders."""
+    return {
+        "dccSoftware": {"software": [{"name": "borescan", "release": software_version}]},
+        "coreData": {"countryCodeISO3166_1": lab.get("country_code"), "usedLangCodeISO639_1": ["en"],
+                     "mandatoryLangCodeISO639_1": ["en"], "uniqueIdentifier": cal.calibration_id,
+                     "beginPerformanceDate": dates.get("begin"), "endPerformanceDate": dates.get("end"),
+                     "issueDate": dates.get("issue"), "performanceLocation": lab.get("performance_location")},
+        "items": [item],
+        "calibrationLaboratory": {"contact": {"name": lab.get("name"), "location": {"further": lab.get("address")}},
+                                  "accreditation": lab.get("accreditation")},
+        "respPersons": [{"person": {"name": lab.get("signatory")}, "role": lab.get("signatory_function"),
+                         "mainSigner": True}],
+        "customer": {"name": lab.get("customer")},
+        "statements": _statements(lab, dates, conformity, traceability),
+        "placeholders": sorted(k for k, v in lab.items() if isinstance(v, str) and PLACEHOLDER in v),
+    }
+
+
+def _shared_part(cal, *, item_name: str, item_id: Any, traceability: str, device: dict, artifact: dict,
+                 conditions: dict, raw_files: dict[str, str], software_version: str, config_hash: str,
+                 laboratory: dict | None, coverage_probability: float, dates: dict | None,
+                 verifications: list[dict] | None) -> dict:
+    """The top-level keys every certificate has (three-sensor and rod): identification, coverage
+    probability, ``administrativeData`` (the item ``item_name`` identified by ``item_id``, the
+    ``traceability`` statement), device, artifact, conditions, verifications with the conformity,
+    dates (ISO), laboratory, raw file digests (sha256 hex), software version and config hash.
+    Not yet JSON-safe (:func:`_fixed`)."""
+    lab = _laboratory(laboratory)
+    dates = dict(dates or {})
+    ver = list(verifications or [])
+    conformity = _conformity(ver)
+    item = {"name": item_name, "identifications": [{"issuer": "customer", "value": item_id}],
+            "sensors": device.get("sensors", [])}
+    return {
+        "format": CERTIFICATE_FORMAT, "calibration_id": cal.calibration_id, "device_id": cal.device_id,
+        "method": cal.method, "scan_ids": list(cal.scan_ids), "coverage_probability": float(coverage_probability),
+        "administrativeData": _administrative_data(cal, lab, dates, conformity, item, traceability, software_version),
+        "device": device, "artifact": artifact, "conditions": conditions, "verifications": ver,
+        "conformity": conformity, "dates": dates, "laboratory": lab, "raw_files": dict(sorted(raw_files.items())),
+        "software_version": software_version, "config_hash": config_hash,
+    }
+
+
+def _measurement_results(name: str, method: str, description: str, uncertainty_norm: str, equipment: list[dict],
+                         conditions: dict, results: list[dict], budgets: dict) -> list[dict]:
+    """DCC ``measurementResults``: one result set ``name`` with its method (``description``), the
+    uncertainty evaluation's norm, the standards used, the influence conditions, results and budgets."""
+    return [{"name": name,
+             "usedMethods": [{"name": method, "description": description},
+                             {"name": "uncertainty", "norm": uncertainty_norm}],
+             "measuringEquipments": equipment, "influenceConditions": conditions, "results": results,
+             "uncertaintyBudget": budgets}]
+
+
+def _beam_results(cal: TriCalibration, budget: Budget | None, p: float) -> tuple[list[dict], dict]:
+    """DCC results (beta [rad], rho and d_b [mm] per channel, U for coverage probability ``p``) and,
+    with a budget, each one's uncertainty budget."""
+    names = [f"{n}[{ch}]" for ch in cal.beams.channels for n in ("beta_rad", "rho_mm", "d_b_mm")]
+    units = ["rad", "mm", "mm"] * len(cal.beams.channels)
+    results, budgets = [], {}
+    for i, (name, unit) in enumerate(zip(names, units)):
+        comb = _combined(cal, budget, i, p)
+        results.append(_result(name, "borescan_beamParameter", _held(cal, i), cal.params[i], unit, comb))
+        if budget is not None:
+            budgets[name] = _budget_entry(unit, budget.rows(i), comb)
+    return results, budgets
+
+
+def _effective_base_lengths(cal: TriCalibration, budget: Budget | None, conditions: dict, p: float) -> list[dict]:
+    """Per channel g = d_b + rho^2/(2R) [mm] (R the gauge radius at its temperature [mm]) with U for
+    coverage probability ``p``; empty without a budget or a radius."""
+    R = conditions.get("gauge_radius_at_temperature_mm") if isinstance(conditions, dict) else None
+    if budget is None or not R:
+        return []
+    rows = []
+    for j, ch in enumerate(cal.beams.channels):
+        vec = np.zeros(3 * len(cal.beams.channels))
+        rho = float(cal.beams.rho_mm[j])
+        vec[3 * j + 1], vec[3 * j + 2] = rho / float(R), 1.0
+        rows.append({"channel": int(ch), "value_mm": float(cal.beams.d_b_mm[j]) + rho**2 / (2.0 * float(R)),
+                     "expandedUnc": _expanded(budget.combined(vec, p))})
+    return rows
+
+
+def _gauge_equipment(artifact: dict) -> dict:
+    """The reference ring gauge as DCC measuring equipment (certified diameter [mm] with U and k)."""
+    return {
+        "refType": "basic_normalUsed", "name": "ring gauge",
+        "id": artifact.get("id"), "certificate": artifact.get("certificate"),
+        "issuer": artifact.get("certificate_issuer"), "validUntil": artifact.get("certificate_valid_until"),
+        "certifiedDiameter": {"value": artifact.get("certified_diameter_mm"), "unit": _UNITS_DSI["mm"],
+                              "expandedUnc": {"uncertainty": artifact.get("u_diameter_mm"),
+                                              "coverageFactor": artifact.get("k"), "coverageProbability": None,
+                                              "distribution": "normal"}},
+        "cte_per_k": artifact.get("cte_per_k"),
+    }
+
+
+def _fit_part(cal: TriCalibration) -> dict:
+    """The fit's summary (residual rms [mm], dof, rank, condition, convergence, nuisance) and the
+    diagnostics a certificate reports."""
+    keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free",
+            "weak_rho_channels", "g_mm", "u_g_mm", "n_minima", "ambiguous_minima")
+    diag = {k: cal.diagnostics[k] for k in keys if k in cal.diagnostics}
+    if cal.diagnostics.get("rho_profiles"):  # where the cost along a rho is not the linear one
+        diag["rho_profiled_channels"] = [int(p["channel"]) for p in cal.diagnostics["rho_profiles"]
+                                         if not p.get("linear", True)]
+    return {"residual_rms_mm": cal.residual_rms_mm, "dof": cal.dof, "rank": cal.rank, "condition": cal.condition,
+            "converged": cal.converged, "nuisance": cal.nuisance, **diag}
+
+
 def certificate_dict(
     cal: TriCalibration,
     *,
@@ -244,128 +386,29 @@ def certificate_dict(
     t, res = _residual_arrays(residuals)
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(res**2, axis=0)) if res.size else np.array([])
-    keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free",
-            "weak_rho_channels", "g_mm", "u_g_mm", "n_minima", "ambiguous_minima")
-    diag = {k: cal.diagnostics[k] for k in keys if k in cal.diagnostics}
-    if cal.diagnostics.get("rho_profiles"):  # where the cost along a rho is not the linear one
-        diag["rho_profiled_channels"] = [int(p["channel"]) for p in cal.diagnostics["rho_profiles"]
-                                         if not p.get("linear", True)]
-    lab = _laboratory(laboratory)
     budget = _budget_of(cal, budget)
     p = float(coverage_probability)
-    dates = dict(dates or {})
-    ver = list(verifications or [])
-    params = _parameter_rows(cal, budget, p)
-    names = [f"{n}[{ch}]" for ch in cal.beams.channels for n in ("beta_rad", "rho_mm", "d_b_mm")]
-    units = ["rad", "mm", "mm"] * len(cal.beams.channels)
-    results = []
-    budgets = {}
-    for i, (name, unit) in enumerate(zip(names, units)):
-        comb = _combined(cal, budget, i, p)
-        results.append({"name": name, "refType": "borescan_beamParameter", "held_at_design_value": _held(cal, i),
-                        "real": {"value": cal.params[i], "unit": _UNITS_DSI[unit], "expandedUnc": _expanded(comb)}})
-        if budget is not None:
-            budgets[name] = {"unit": unit, "rows": budget.rows(i), "combined": comb.to_dict()}
-    g_rows = []
-    R = conditions.get("gauge_radius_at_temperature_mm") if isinstance(conditions, dict) else None
-    if budget is not None and R:
-        for j, ch in enumerate(cal.beams.channels):
-            vec = np.zeros(3 * len(cal.beams.channels))
-            rho = float(cal.beams.rho_mm[j])
-            vec[3 * j + 1], vec[3 * j + 2] = rho / float(R), 1.0
-            comb = budget.combined(vec, p)
-            g_rows.append({"channel": int(ch), "value_mm": float(cal.beams.d_b_mm[j]) + rho**2 / (2.0 * float(R)),
-                           "expandedUnc": _expanded(comb)})
-    conformity = _conformity(ver)
-    placeholders = sorted(k for k, v in lab.items() if isinstance(v, str) and PLACEHOLDER in v)
-    gauge = {
-        "id": artifact.get("id"), "certificate": artifact.get("certificate"),
-        "issuer": artifact.get("certificate_issuer"), "validUntil": artifact.get("certificate_valid_until"),
-        "certifiedDiameter": {"value": artifact.get("certified_diameter_mm"), "unit": _UNITS_DSI["mm"],
-                              "expandedUnc": {"uncertainty": artifact.get("u_diameter_mm"),
-                                              "coverageFactor": artifact.get("k"), "coverageProbability": None,
-                                              "distribution": "normal"}},
-        "cte_per_k": artifact.get("cte_per_k"),
-    }
-    statements = [
-        {"norm": "ISO/IEC 17025:2017", "reference": "7.8.2.1 m",
-         "declaration": "The results relate only to the item calibrated. This certificate shall not be reproduced "
-                        "except in full without the written approval of the issuing laboratory."},
-        {"refType": "basic_traceability", "declaration": _traceability_text(artifact)},
-        {"refType": "basic_decisionRule", "declaration": _decision_rule_text(lab)},
-        {"refType": "basic_conformity", "conformity": conformity["conformity"], "declaration": conformity["text"]},
-        {"refType": "basic_recalibration", "date": dates.get("recalibration_due"),
-         "declaration": dates.get("recalibration_rule", "")},
-        {"refType": "borescan_issueDate", "declaration": dates.get("issue_rule", "")},
-    ]
-    return _fixed(
-        {
-            "format": CERTIFICATE_FORMAT,
-            "calibration_id": cal.calibration_id,
-            "device_id": cal.device_id,
-            "method": cal.method,
-            "scan_ids": list(cal.scan_ids),
-            "coverage_probability": p,
-            "administrativeData": {
-                "dccSoftware": {"software": [{"name": "borescan", "release": software_version}]},
-                "coreData": {
-                    "countryCodeISO3166_1": lab.get("country_code"),
-                    "usedLangCodeISO639_1": ["en"],
-                    "mandatoryLangCodeISO639_1": ["en"],
-                    "uniqueIdentifier": cal.calibration_id,
-                    "beginPerformanceDate": dates.get("begin"),
-                    "endPerformanceDate": dates.get("end"),
-                    "issueDate": dates.get("issue"),
-                    "performanceLocation": lab.get("performance_location"),
-                },
-                "items": [{"name": f"three-sensor bore measuring device ({device.get('type', 'tri_lds')})",
-                           "identifications": [{"issuer": "customer", "value": device.get("id", cal.device_id)}],
-                           "sensors": device.get("sensors", [])}],
-                "calibrationLaboratory": {"contact": {"name": lab.get("name"), "location": {"further": lab.get("address")}},
-                                          "accreditation": lab.get("accreditation")},
-                "respPersons": [{"person": {"name": lab.get("signatory")}, "role": lab.get("signatory_function"),
-                                 "mainSigner": True}],
-                "customer": {"name": lab.get("customer")},
-                "statements": statements,
-                "placeholders": placeholders,
-            },
-            "measurementResults": [{
-                "name": "calibrated beam geometry",
-                "usedMethods": [{"name": cal.method, "description": _METHOD_TEXT.get(cal.method, cal.method)},
-                                {"name": "uncertainty", "norm": "JCGM 100:2008 (GUM); JCGM 101:2008 (GUM S1)"}],
-                "measuringEquipments": [{"refType": "basic_normalUsed", "name": "ring gauge", **gauge}],
-                "influenceConditions": conditions,
-                "results": results,
-                "uncertaintyBudget": budgets,
-            }],
-            "parameters": params,
-            "effective_base_length": g_rows,
-            "covariance": cal.cov,
-            "covariance_fit": cal.diagnostics.get("cov_fit", cal.cov),
-            "correlation": cal.correlation,
-            "fit": {
-                "residual_rms_mm": cal.residual_rms_mm,
-                "dof": cal.dof,
-                "rank": cal.rank,
-                "condition": cal.condition,
-                "converged": cal.converged,
-                "nuisance": cal.nuisance,
-                **diag,
-            },
-            "residuals": {"n_samples": int(t.size), "rms_mm_per_channel": rms},
-            "device": device,
-            "artifact": artifact,
-            "conditions": conditions,
-            "verifications": ver,
-            "conformity": conformity,
-            "dates": dates,
-            "laboratory": lab,
-            "raw_files": dict(sorted(raw_files.items())),
-            "raw_sha256": dict(sorted(cal.raw_sha256.items())),
-            "software_version": software_version,
-            "config_hash": config_hash,
-        }
-    )
+    results, budgets = _beam_results(cal, budget, p)
+    shared = _shared_part(
+        cal, item_name=f"three-sensor bore measuring device ({device.get('type', 'tri_lds')})",
+        item_id=device.get("id", cal.device_id), traceability=_traceability_text(artifact), device=device,
+        artifact=artifact, conditions=conditions, raw_files=raw_files, software_version=software_version,
+        config_hash=config_hash, laboratory=laboratory, coverage_probability=p, dates=dates,
+        verifications=verifications)
+    return _fixed({
+        **shared,
+        "measurementResults": _measurement_results(
+            "calibrated beam geometry", cal.method, _METHOD_TEXT.get(cal.method, cal.method),
+            "JCGM 100:2008 (GUM); JCGM 101:2008 (GUM S1)", [_gauge_equipment(artifact)], conditions, results, budgets),
+        "parameters": _parameter_rows(cal, budget, p),
+        "effective_base_length": _effective_base_lengths(cal, budget, conditions, p),
+        "covariance": cal.cov,
+        "covariance_fit": cal.diagnostics.get("cov_fit", cal.cov),
+        "correlation": cal.correlation,
+        "fit": _fit_part(cal),
+        "residuals": {"n_samples": int(t.size), "rms_mm_per_channel": rms},
+        "raw_sha256": dict(sorted(cal.raw_sha256.items())),
+    })
 
 
 def _traceability_text(art: dict) -> str:
@@ -926,23 +969,67 @@ def _verification_pages(d: _Doc) -> None:
             d.para(f"{_ver_name(v)}: {v.get('conformity', '')}", size=7)
         d.para("Conformity statement: " + c["conformity"]["text"], size=8)
         for v in ver:
-            rows = v.get("budget") or []
-            if not rows:
-                continue
-            uc = math.sqrt(sum((r.get("contribution") or 0.0) ** 2 for r in rows))
-            big = [r for r in rows if (r.get("contribution") or 0.0) >= 0.05 * uc]
-            rest = math.sqrt(max(sum((r.get("contribution") or 0.0) ** 2 for r in rows if r not in big), 0.0))
-            cells = [[_label(r), _est_text(r["estimate"], r["unit"]), _u_text(r["standard_uncertainty"], r["unit"]),
-                      _DIST.get(r["distribution"], r["distribution"]), _dof_text(r["degrees_of_freedom"]),
-                      "-" if r["sensitivity_coefficient"] is None else f"{r['sensitivity_coefficient']:.3g}",
-                      f"{1e3 * r['contribution']:.3g}"] for r in big]
-            cells.append([f"{len(rows) - len(big)} further inputs (each < 5 % of u_c), combined", "", "", "", "", "",
-                          f"{1e3 * rest:.3g}"])
-            cells.append(["combined standard uncertainty u_c(E)", "", "", "", "", "", f"{1e3 * uc:.3g}"])
-            d.room(0.013 * (len(cells) + 1) + 0.03)
-            d.para(f"Budget of E, {_ver_name(v)} (contributions in um):", size=7.5)
-            d.table(["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c_i", "u_i [um]"], cells,
-                    widths=[0.42, 0.12, 0.1, 0.1, 0.06, 0.1, 0.1], size=6, row_h=0.013, bold_last=True)
+            _verification_budget(d, v)
+
+
+#: columns of a one-result budget table (a rod layer's l0, a verification's E); contributions in um
+_CONTRIBUTION_COLS = ["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c_i", "u_i [um]"]
+#: layout of those tables: (column widths as fractions of the text width, font size [pt])
+_ROD_LAYER_LAYOUT = ([0.4, 0.13, 0.1, 0.1, 0.07, 0.09, 0.11], 6.2)
+_VERIFICATION_LAYOUT = ([0.42, 0.12, 0.1, 0.1, 0.06, 0.1, 0.1], 6)
+
+
+def _input_cells(r: dict, dash_zero_u: bool) -> list[str]:
+    """One budget row as table cells: label, estimate, u(x_i), distribution, nu_i, c_i, u_i [um]
+    (``contribution`` [mm] times 1e3). ``dash_zero_u``: a zero or missing u(x_i) shows as "-"."""
+    u_x = r["standard_uncertainty"]
+    return [_label(r), _est_text(r["estimate"], r["unit"]), "-" if dash_zero_u and not u_x else _u_text(u_x, r["unit"]),
+            _DIST.get(r["distribution"], r["distribution"]), _dof_text(r["degrees_of_freedom"]),
+            "-" if r["sensitivity_coefficient"] is None else f"{r['sensitivity_coefficient']:.3g}",
+            f"{1e3 * r['contribution']:.3g}"]
+
+
+def _sum_row(label: str, value_mm: float, dof: str = "") -> list[str]:
+    """A summary line of a budget table: ``label``, ``dof`` in the nu_i column, ``value_mm`` [mm] in um."""
+    return [label, "", "", "", dof, "", f"{1e3 * value_mm:.3g}"]
+
+
+def _contribution_table(d: _Doc, title: str, rows: list[dict], sums: list[list[str]], layout: tuple[list[float], float],
+                        dash_zero_u: bool) -> None:
+    """The budget of one result: ``title``, one line per input row (:func:`_input_cells`), then the
+    ``sums`` lines (:func:`_sum_row`, the last one bold); ``layout``: (column widths, font size)."""
+    cells = [_input_cells(r, dash_zero_u) for r in rows] + sums
+    widths, size = layout
+    d.room(0.013 * (len(cells) + 1) + 0.03)
+    d.para(title, size=7.5)
+    d.table(_CONTRIBUTION_COLS, cells, widths=widths, size=size, row_h=0.013, bold_last=True)
+
+
+def _verification_budget(d: _Doc, v: dict) -> None:
+    """The budget of a verification's error E: inputs of at least 5 % of u_c(E) one by one, the
+    others folded into one line (root sum of squares), then u_c(E) (contributions in um)."""
+    rows = v.get("budget") or []
+    if not rows:
+        return
+    uc = math.sqrt(sum((r.get("contribution") or 0.0) ** 2 for r in rows))
+    big = [r for r in rows if (r.get("contribution") or 0.0) >= 0.05 * uc]
+    rest = math.sqrt(max(sum((r.get("contribution") or 0.0) ** 2 for r in rows if r not in big), 0.0))
+    sums = [_sum_row(f"{len(rows) - len(big)} further inputs (each < 5 % of u_c), combined", rest),
+            _sum_row("combined standard uncertainty u_c(E)", uc)]
+    _contribution_table(d, f"Budget of E, {_ver_name(v)} (contributions in um):", big, sums, _VERIFICATION_LAYOUT,
+                        dash_zero_u=False)
+
+
+def _rod_layer_budget(d: _Doc, channel: int, budget: dict) -> None:
+    """The budget of one layer's l0 (``budget``: rows and combined of certificate.json): inputs
+    below 1e-5 u_c left out, then u_c with nu_eff and U with k (contributions in um)."""
+    comb = budget["combined"]
+    rows = [r for r in budget["rows"] if not _tiny(r, comb["standard_uncertainty"])]
+    sums = [_sum_row("combined standard uncertainty u_c", comb["standard_uncertainty"],
+                     _dof_text(comb.get("effective_degrees_of_freedom"))),
+            _sum_row(f"expanded uncertainty U (k = {comb['coverage_factor']:.2f})", comb["expanded_uncertainty"])]
+    _contribution_table(d, f"Layer {channel} (contributions in um; inputs below 1e-5 u_c left out):", rows, sums,
+                        _ROD_LAYER_LAYOUT, dash_zero_u=True)
 
 
 def _ver_name(v: dict) -> str:
@@ -1094,24 +1181,22 @@ def _pdf_bytes(pages: list[Figure], title: str) -> bytes:
 # --------------------------------------------------------------------------- rod certificates
 
 
-def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte, raw_files: dict[str, str],
-                         software_version: str, config_hash: str, laboratory: dict | None = None,
-                         coverage_probability: float = 0.9545, dates: dict | None = None,
-                         verifications: list[dict] | None = None) -> dict:
-    """``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
-    the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
-    the budget per layer, each layer's gauge and the solve's diagnostics."""
-    lab = _laboratory(laboratory)
-    p = float(coverage_probability)
-    dates = dict(dates or {})
-    ver = list(verifications or [])
-    results, budgets, params = [], {}, []
+def _rod_results(cal, p: float) -> tuple[list[dict], dict]:
+    """DCC results (l0 [mm] per layer, U for coverage probability ``p``) and each one's budget."""
+    results, budgets = [], {}
     for j, lay in enumerate(cal.layers):
         name = f"l0_mm[{int(lay.channel)}]"
         comb = cal.budget.combined(j, p)
-        results.append({"name": name, "refType": "borescan_rodBaseLength", "held_at_design_value": False,
-                        "real": {"value": float(lay.l0_mm), "unit": _UNITS_DSI["mm"], "expandedUnc": _expanded(comb)}})
-        budgets[name] = {"unit": "mm", "rows": cal.budget.rows(j), "combined": comb.to_dict()}
+        results.append(_result(name, "borescan_rodBaseLength", False, float(lay.l0_mm), "mm", comb))
+        budgets[name] = _budget_entry("mm", cal.budget.rows(j), comb)
+    return results, budgets
+
+
+def _rod_parameters(cal) -> list[dict]:
+    """Per layer: l0 (calibrated and design) and u(l0) [mm], the layer's fixed geometry (h, d [mm],
+    phi, gamma [rad]) and its ring gauge (certified D20, radius at temperature [mm])."""
+    params = []
+    for j, lay in enumerate(cal.layers):
         g = cal.gauges[j]
         params.append({"channel": int(lay.channel), "feature": g.get("feature"), "l0_mm": float(lay.l0_mm),
                        "l0_nominal_mm": float(cal.l0_nominal_mm[j]), "u_l0_mm": float(cal.u_l0_mm[j]),
@@ -1119,60 +1204,49 @@ def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte,
                        "gamma_rad": float(lay.gamma_rad), "gauge_id": g.get("id"), "gauge_certificate": g.get("certificate"),
                        "gauge_certified_diameter_mm": g.get("certified_diameter_mm"),
                        "gauge_radius_at_temperature_mm": g.get("radius_at_t_mm")})
+    return params
+
+
+def _rod_fit(cal) -> dict:
+    """The rod solve at the calibrated l0: residual rms [mm], solves to settle l0, method, rank,
+    condition, number of poses, axis deflection [rad] and eccentricity [mm] (None without a solve)."""
     sol = cal.solution
-    conformity = _conformity(ver)
+    return {"residual_rms_mm": cal.residual_rms_mm, "iterations": cal.iterations,
+            "solve_method": None if sol is None else sol.method, "rank": None if sol is None else sol.rank,
+            "condition": None if sol is None else sol.condition,
+            "n_poses": None if sol is None else int(np.size(sol.alpha_rad)),
+            "deflection_rad": None if sol is None else sol.deflection_rad,
+            "eccentricity_mm": None if sol is None or sol.eccentricity_mm is None else sol.eccentricity_mm}
+
+
+def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte, raw_files: dict[str, str],
+                         software_version: str, config_hash: str, laboratory: dict | None = None,
+                         coverage_probability: float = 0.9545, dates: dict | None = None,
+                         verifications: list[dict] | None = None) -> dict:
+    """``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
+    the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
+    the budget per layer, each layer's gauge and the solve's diagnostics."""
+    p = float(coverage_probability)
+    results, budgets = _rod_results(cal, p)
     conditions = calibration_conditions(temperature, cte, None, None, p, [])
-    conditions["gauge_radius_at_temperature_mm"] = None
     gauges_text = "; ".join(f"layer {g['channel']}: ring gauge {g['id']}, certificate {g.get('certificate')}"
                             for g in cal.gauges)
-    placeholders = sorted(k for k, v in lab.items() if isinstance(v, str) and PLACEHOLDER in v)
-    statements = [
-        {"norm": "ISO/IEC 17025:2017", "reference": "7.8.2.1 m",
-         "declaration": "The results relate only to the item calibrated. This certificate shall not be reproduced "
-                        "except in full without the written approval of the issuing laboratory."},
-        {"refType": "basic_traceability", "declaration": " ".join(_traceability_text(g) for g in _unique_gauges(cal))},
-        {"refType": "basic_decisionRule", "declaration": _decision_rule_text(lab)},
-        {"refType": "basic_conformity", "conformity": conformity["conformity"], "declaration": conformity["text"]},
-        {"refType": "basic_recalibration", "date": dates.get("recalibration_due"),
-         "declaration": dates.get("recalibration_rule", "")},
-        {"refType": "borescan_issueDate", "declaration": dates.get("issue_rule", "")},
-    ]
+    shared = _shared_part(
+        cal, item_name="measuring rod (rod)", item_id=device.get("id"),
+        traceability=" ".join(_traceability_text(g) for g in _unique_gauges(cal)), device=device, artifact=artifact,
+        conditions=conditions, raw_files=raw_files, software_version=software_version, config_hash=config_hash,
+        laboratory=laboratory, coverage_probability=p, dates=dates, verifications=verifications)
     return _fixed({
-        "format": CERTIFICATE_FORMAT, "calibration_id": cal.calibration_id, "device_id": cal.device_id,
-        "method": cal.method, "scan_ids": list(cal.scan_ids), "coverage_probability": p,
+        **shared,
         "item": "measuring rod", "traceability_summary": gauges_text + " (section 4)",
-        "administrativeData": {
-            "dccSoftware": {"software": [{"name": "borescan", "release": software_version}]},
-            "coreData": {"countryCodeISO3166_1": lab.get("country_code"), "usedLangCodeISO639_1": ["en"],
-                         "mandatoryLangCodeISO639_1": ["en"], "uniqueIdentifier": cal.calibration_id,
-                         "beginPerformanceDate": dates.get("begin"), "endPerformanceDate": dates.get("end"),
-                         "issueDate": dates.get("issue"), "performanceLocation": lab.get("performance_location")},
-            "items": [{"name": "measuring rod (rod)", "identifications": [{"issuer": "customer", "value": device.get("id")}],
-                       "sensors": device.get("sensors", [])}],
-            "calibrationLaboratory": {"contact": {"name": lab.get("name"), "location": {"further": lab.get("address")}},
-                                      "accreditation": lab.get("accreditation")},
-            "respPersons": [{"person": {"name": lab.get("signatory")}, "role": lab.get("signatory_function"),
-                             "mainSigner": True}],
-            "customer": {"name": lab.get("customer")}, "statements": statements, "placeholders": placeholders,
-        },
-        "measurementResults": [{
-            "name": "calibrated rod base lengths",
-            "usedMethods": [{"name": cal.method, "description": _METHOD_TEXT[cal.method]},
-                            {"name": "uncertainty", "norm": "JCGM 100:2008 (GUM)"}],
-            "measuringEquipments": [dict(g, refType="basic_normalUsed", name="ring gauge") for g in cal.gauges],
-            "influenceConditions": conditions, "results": results, "uncertaintyBudget": budgets,
-        }],
-        "parameters": params,
+        "measurementResults": _measurement_results(
+            "calibrated rod base lengths", cal.method, _METHOD_TEXT[cal.method], "JCGM 100:2008 (GUM)",
+            [dict(g, refType="basic_normalUsed", name="ring gauge") for g in cal.gauges], conditions, results,
+            budgets),
+        "parameters": _rod_parameters(cal),
         "covariance": cal.budget.covariance(),
-        "fit": {"residual_rms_mm": cal.residual_rms_mm, "iterations": cal.iterations,
-                "solve_method": None if sol is None else sol.method, "rank": None if sol is None else sol.rank,
-                "condition": None if sol is None else sol.condition,
-                "n_poses": None if sol is None else int(np.size(sol.alpha_rad)),
-                "deflection_rad": None if sol is None else sol.deflection_rad,
-                "eccentricity_mm": None if sol is None or sol.eccentricity_mm is None else sol.eccentricity_mm},
-        "device": device, "artifact": artifact, "gauges": list(cal.gauges), "conditions": conditions,
-        "verifications": ver, "conformity": conformity, "dates": dates, "laboratory": lab,
-        "raw_files": dict(sorted(raw_files.items())), "software_version": software_version, "config_hash": config_hash,
+        "fit": _rod_fit(cal),
+        "gauges": list(cal.gauges),
     })
 
 
@@ -1186,9 +1260,9 @@ def _unique_gauges(cal) -> list[dict]:
     return out
 
 
-def _rod_pages(cert: dict) -> list[Figure]:
-    d = _Doc(cert)
-    _page_admin(d)
+def _rod_page_item_conditions(d: _Doc) -> None:
+    """Sections 1-4 of a rod certificate: item, method, conditions (temperature [degC], expansion
+    coefficient [1/K]) and traceability (each layer's ring gauge)."""
     c = d.cert
     d.new_page()
     d.heading("1  Item calibrated")
@@ -1214,6 +1288,12 @@ def _rod_pages(cert: dict) -> list[Figure]:
     for st in c["administrativeData"]["statements"]:
         if st.get("refType") == "basic_traceability":
             d.para(st["declaration"])
+
+
+def _rod_page_results(d: _Doc) -> None:
+    """Section 5 of a rod certificate: l0 per layer [mm] with U and k, its change from the design
+    value [um], and the rod solve's summary."""
+    c = d.cert
     d.new_page()
     d.heading("5  Results")
     p = c["coverage_probability"]
@@ -1240,27 +1320,18 @@ def _rod_pages(cert: dict) -> list[Figure]:
            f"{fit.get('rank')}, condition {_num(fit.get('condition'), '.3g')}; rod axis deflection "
            f"{_num(_scaled(fit.get('deflection_rad'), 180 / math.pi), '.3f')} deg; {fit.get('iterations')} solves to "
            "settle l0.")
+
+
+def _rod_pages(cert: dict) -> list[Figure]:
+    """The pages of a rod certificate's PDF (content: ``cert``, see :func:`rod_certificate_dict`)."""
+    d = _Doc(cert)
+    _page_admin(d)
+    _rod_page_item_conditions(d)
+    _rod_page_results(d)
     d.heading("6  Uncertainty budget")
-    for prow in c["parameters"]:
-        key = f"l0_mm[{prow['channel']}]"
-        rows, comb = budgets[key]["rows"], budgets[key]["combined"]
-        tab = []
-        for r in rows:
-            if _tiny(r, comb["standard_uncertainty"]):
-                continue
-            tab.append([_label(r), _est_text(r["estimate"], r["unit"]),
-                        "-" if not r["standard_uncertainty"] else _u_text(r["standard_uncertainty"], r["unit"]),
-                        _DIST.get(r["distribution"], r["distribution"]), _dof_text(r["degrees_of_freedom"]),
-                        "-" if r["sensitivity_coefficient"] is None else f"{r['sensitivity_coefficient']:.3g}",
-                        f"{1e3 * r['contribution']:.3g}"])
-        tab.append(["combined standard uncertainty u_c", "", "", "", _dof_text(comb.get("effective_degrees_of_freedom")),
-                    "", f"{1e3 * comb['standard_uncertainty']:.3g}"])
-        tab.append([f"expanded uncertainty U (k = {comb['coverage_factor']:.2f})", "", "", "", "", "",
-                    f"{1e3 * comb['expanded_uncertainty']:.3g}"])
-        d.room(0.013 * (len(tab) + 1) + 0.03)
-        d.para(f"Layer {prow['channel']} (contributions in um; inputs below 1e-5 u_c left out):", size=7.5)
-        d.table(["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c_i", "u_i [um]"], tab,
-                widths=[0.4, 0.13, 0.1, 0.1, 0.07, 0.09, 0.11], size=6.2, row_h=0.013, bold_last=True)
+    budgets = cert["measurementResults"][0]["uncertaintyBudget"]
+    for prow in cert["parameters"]:
+        _rod_layer_budget(d, prow["channel"], budgets[f"l0_mm[{prow['channel']}]"])
     _verification_pages(d)
     _page_records(d)
     return d.finish()

@@ -51,6 +51,7 @@ __all__ = [
     "ROD_NOISE_MM",
     "TriScene",
     "RodScene",
+    "layer_dict",
     "SimulatedScan",
     "tri_base",
     "tri_phi",
@@ -224,7 +225,7 @@ class RodScene:
 
     def to_dict(self) -> dict:
         return {
-            "layers": [_layer_dict(lay) for lay in self.layers],
+            "layers": [layer_dict(lay) for lay in self.layers],
             "holes": [{"center_xy_mm": list(h.center_xy_mm), "radius_mm": h.radius_mm} for h in self.holes],
             "axis": {"dx_mm": self.axis.dx_mm, "dy_mm": self.axis.dy_mm,
                      "omega_rad": self.axis.omega_rad, "omega_az_rad": self.axis.omega_az_rad},
@@ -247,8 +248,9 @@ class RodScene:
                    cte_per_k=d["cte_per_k"], temperature_c=d["temperature_c"])
 
 
-def _layer_dict(lay: RodLayer) -> dict:
-    """Layer in the spec's names (channel, h, phi, d, gamma, l0)."""
+def layer_dict(lay: RodLayer) -> dict:
+    """A rod layer in the spec's names, as ``device.nominal.layers`` of scan.json lists it: channel,
+    h [mm], phi [rad], d [mm], gamma [rad], l0 [mm] (inverse of :meth:`RodScene.from_dict`'s layers)."""
     return {"channel": int(lay.channel), "h": float(lay.h_mm), "phi": float(lay.phi_rad),
             "d": float(lay.d_mm), "gamma": float(lay.gamma_rad), "l0": float(lay.l0_mm)}
 
@@ -743,7 +745,7 @@ def simulate_rod(
                     "features": [{"id": f, "z_mm": float(lay.h_mm), "nominal_diameter_mm": 150.0}
                                  for f, lay in zip(features, scene.layers)]}
     device = {"id": device_id, "type": "rod",
-              "nominal": {"layers": [_layer_dict(lay) for lay in nominal_layers]}}
+              "nominal": {"layers": [layer_dict(lay) for lay in nominal_layers]}}
     extra = {"rod": {"layers": [{"channel": int(lay.channel), "feature": f, "h_mm": float(lay.h_mm)}
                                 for f, lay in zip(features, scene.layers)]}}
     extra.update(extra_meta or {})

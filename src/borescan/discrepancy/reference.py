@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import polars as pl
 
-from borescan.calibrations import tri_calibration
+from borescan.calibrations import rod_layers, tri_calibration
+from borescan.simulate import layer_dict
 
 __all__ = ["discrepancy_reference"]
 
@@ -20,8 +21,10 @@ def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_typ
     device without one against ``device.nominal`` with its whole beam geometry freed (the design
     is off by mm in rho as well) -> ``{"free_beams": ("d_b", "beta", "rho")}``: the examination
     then asks what a calibration of this scan could not absorb. A rod is examined against its
-    latest calibration on certified ring gauges (its layers' base lengths) -> ``{"layers": ...}``,
-    else against ``device.nominal`` -> ``{}``.
+    latest calibration on certified ring gauges -> ``{"layers": ...}`` (its layers as
+    :func:`borescan.calibrations.rod_layers` reads them for a measurement, in the ``device.nominal``
+    format of :func:`borescan.simulate.layer_dict`: l0, h, d [mm], phi, gamma [rad]), else against
+    ``device.nominal`` -> ``{}``.
     Unlike a measurement, the examination uses expired or failed calibrations too: it asks what
     the model misses, not whether a result may be certified.
     """
@@ -38,13 +41,7 @@ def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_typ
                                 & (pl.col("method") != "nominal") & pl.col("l0_mm").is_not_null())
         if c.height:
             cal_id = c.sort("valid_from", "calibration_id")["calibration_id"][-1]
-            rows = c.filter(pl.col("calibration_id") == cal_id).sort("channel").rows(named=True)
-            layers = [{"channel": int(r["channel"]), "l0": float(r["l0_mm"]), "h": _num(r.get("h_mm")),
-                       "phi": _num(r.get("phi_rad")), "d": _num(r.get("d_mm")), "gamma": _num(r.get("gamma_rad"))}
-                      for r in rows]
-            return {"layers": layers}, f"calibration {cal_id}"
+            rows = c.filter(pl.col("calibration_id") == cal_id)
+            channels = sorted(int(ch) for ch in rows["channel"])
+            return {"layers": [layer_dict(lay) for lay in rod_layers(rows, channels)]}, f"calibration {cal_id}"
     return {}, "device.nominal"
-
-
-def _num(v) -> float:
-    return float(v) if v is not None and v == v else 0.0
