@@ -5,6 +5,7 @@ rule calibrate_night:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",
         summary=f"{RES}/stage/signal_summary/night={{night}}.parquet",
         raw=raw_files_of_night,
+        pooled=pooled_findings_before_night,
     output:
         calibrations=f"{RES}/stage/calibrations/night={{night}}.parquet",
         calibration_scans=f"{RES}/stage/calibration_scans/night={{night}}.parquet",
@@ -24,6 +25,7 @@ rule calibrate_night:
         uncertainty=config["uncertainty"],
         laboratory=config["laboratory"],
         verification=config["verification"],
+        devices=config["devices"],
     log:
         f"{RES}/logs/calibrate_night/{{night}}.log",
     benchmark:

@@ -47,6 +47,14 @@ def verifications_before_night(wildcards):
     return [f"{RES}/stage/verifications/night={n}.parquet" for n in NIGHTS if n < wildcards.night]
 
 
+def pooled_findings_before_night(wildcards):
+    """Pooled findings of earlier nights when a device has a device model (config devices): a night's
+    calibration carries each of its effects at the latest earlier estimate; none otherwise."""
+    if not any((entry or {}).get("effects") for entry in (config.get("devices") or {}).values()):
+        return []
+    return [f"{RES}/stage/pooled_findings/night={n}.parquet" for n in NIGHTS if n < wildcards.night]
+
+
 def scans_of_pooled_window(wildcards):
     """Scans tables of the night and of the discrepancy.pooled_window_nights - 1 nights before it."""
     upto = [n for n in NIGHTS if n <= wildcards.night]

@@ -42,7 +42,7 @@ import hashlib
 import json
 import re
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -516,20 +516,31 @@ def yang_calibration(
 # --------------------------------------------------------------------------- full-data fit
 
 
+def _channel_offsets(tau_s, c: int) -> np.ndarray | None:
+    """Per channel time offsets (c,) [s], None when absent or all zero."""
+    if tau_s is None:
+        return None
+    tau = np.broadcast_to(np.asarray(tau_s, dtype=float), (c,)).copy()
+    return None if not np.any(tau) else tau
+
+
 def _readings_and_jacobian(
     phi: np.ndarray, beams: Beams, offset: np.ndarray, R: float
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Exact readings (n, c) at device angles ``phi`` (n,) and their analytic derivatives.
+    """Exact readings (n, c) at device angles ``phi`` (n,) (or per channel, (n, c) / (n, 1)) and
+    their analytic derivatives.
 
     The wall point is P = o + Rot(phi)(F + s u) with the gauge centre at the origin; implicit
     differentiation of |P|^2 = R^2 gives ds/dp = -(P . dP/dp) / (P . Rot(phi) u).
     ``jac["phi"]`` is dv/dphi (the chain rule gives phase and speed-scale columns).
     """
+    phi = np.asarray(phi, dtype=float)
+    phi = phi[:, None] if phi.ndim == 1 else phi
     v = tri_spindle_readings(phi, offset, beams, Bore((0.0, 0.0), R))
     s = v + beams.d_b_mm
     F, u = beam_frame(beams.beta_rad, beams.rho_mm)  # (c, 2)
     n_vec = np.stack([-u[:, 1], u[:, 0]], axis=-1)
-    cph, sph = np.cos(phi)[:, None], np.sin(phi)[:, None]
+    cph, sph = np.cos(phi), np.sin(phi)
 
     def rot(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return cph * a[:, 0] - sph * a[:, 1], sph * a[:, 0] + cph * a[:, 1]
@@ -621,6 +632,7 @@ def fit_full_calibration(
     night: str | None = None,
     max_nfev: int = 1000,
     cond_max: float = 1e10,
+    channel_time_offsets_s=None,
 ) -> TriCalibration:
     """Least-squares calibration on every sample of one or more ring-gauge spindle scans.
 
@@ -684,6 +696,9 @@ def fit_full_calibration(
     angle_models : per scan :class:`~borescan.kinematics.AngleModel` (overrides rpm/direction)
     range_mm : sensor range per channel (d_b plausibility), default 10 mm
     max_nfev, cond_max : iteration limit; largest acceptable condition number
+    channel_time_offsets_s : (c,) per channel tau: its reading at stamp t is the geometry of time
+        t - tau (a device model's carried ``channel_delay``); the angle of channel c is evaluated
+        there. None: every channel at its stamp.
 
     Returns
     -------
@@ -724,6 +739,10 @@ def fit_full_calibration(
     masks = [np.isfinite(y) for y in ys]
     n_obs = int(sum(m.sum() for m in masks))
     Phis = [am.commanded_rad(t) for am, t in zip(angle_models, ts)]
+    tau_c = _channel_offsets(channel_time_offsets_s, c)
+    # the angle each reading belongs to: (n, 1) for every channel, (n, c) with carried channel delays
+    Phis_c = [P[:, None] if tau_c is None else am.commanded_rad(t[:, None] - tau_c[None, :])
+              for P, am, t in zip(Phis, angle_models, ts)]
     commanded = [am.fits_speed_and_phase for am in angle_models]
     free_phase = [commanded[k] and priors[k] is not None for k in range(K)]
     absolute = any(am.source == "encoder" and priors[k] is not None for k, am in enumerate(angle_models))
@@ -769,7 +788,7 @@ def fit_full_calibration(
         kconst += kc / K
 
     def phi_of(k: int, phase: float, scale: float) -> np.ndarray:
-        return phase + scale * Phis[k] if commanded[k] else Phis[k]
+        return phase + scale * Phis_c[k] if commanded[k] else Phis_c[k]
 
     # ---- internal parameters: per channel psi = beta + asin(rho/R), rho, g = d_b + rho^2/(2R);
     # psi of the first channel only when the beams are absolute; per scan ox, oy, [phase], [scale]
@@ -862,7 +881,7 @@ def fit_full_calibration(
             m = masks[k][sel]
             res_parts.append((v - ys[k][sel])[m])
             if with_jac:
-                nk = t_phi.size
+                nk = t_phi.shape[0]
                 Jk = np.zeros((nk, c, ncols))
                 for j in range(c):
                     if j > 0 or ch0_free:
@@ -879,7 +898,7 @@ def fit_full_calibration(
                 if "phase" in cols:
                     Jk[:, :, cols["phase"]] = jac["phi"]
                 if "scale" in cols:
-                    Jk[:, :, cols["scale"]] = jac["phi"] * Phis[k][sel][:, None]
+                    Jk[:, :, cols["scale"]] = jac["phi"] * Phis_c[k][sel]
                 if full:
                     if not ch0_free:
                         Jk[:, 0, p_free] = jac["beta"][:, 0]
@@ -1184,6 +1203,7 @@ def fit_full_calibration(
         nuisance=nuisance,
         fit=fit,
         diagnostics={
+            **({} if tau_c is None else {"channel_time_offsets_s": [float(x) for x in tau_c]}),
             "gauge": gauge,
             "beta_reference": ref,
             "n_obs": n_obs,
@@ -1455,6 +1475,8 @@ def full_residuals(
     scan_id = scan_id if scan_id is not None else cal.scan_ids[0]
     nu = cal.nuisance[scan_id]
     t = np.asarray(t_s, dtype=float)
+    tau_c = _channel_offsets(cal.diagnostics.get("channel_time_offsets_s"), len(cal.beams.channels))
+    t = t if tau_c is None else t[:, None] - tau_c[None, :]
     if angle_model is None:
         phi = nu["phase0_rad"] + nu["omega_rad_s"] * t
     else:
@@ -1476,6 +1498,7 @@ def full_lsq_sensitivities(
     *,
     spindle_xy_mm=None,
     center_xy_mm=None,
+    reading_perturbations: Mapping[str, Sequence[np.ndarray]] | None = None,
 ) -> dict[str, Any]:
     """Linear sensitivities of a ``full_lsq`` calibration to what it takes as known, and the split
     of its covariance into the readings' part and the position priors' part.
@@ -1505,6 +1528,8 @@ def full_lsq_sensitivities(
     R_mm : the gauge radius the fit used [mm]
     angle_models : per scan AngleModel, as given to the fit
     spindle_xy_mm, center_xy_mm : per scan reported positions (None where unknown), as given to the fit
+    reading_perturbations : name -> per scan dy (n, c): readings that move by dy per unit of a
+        quantity (e.g. a carried device-model parameter); dp = H^-1 J^T dy for each
 
     Returns
     -------
@@ -1512,7 +1537,10 @@ def full_lsq_sensitivities(
     ``dR`` (3c,) [per mm], ``reading_offset`` (3c, c) [-], ``offset_prior`` {scan_id: (3c, 2)} [-],
     ``cov_readings``, ``cov_priors``, ``cov_linear`` (= their sum), ``cov_extra`` (3c, 3c),
     ``s2`` [mm^2], ``prior_sigma_mm`` (u of each reported offset coordinate) and
-    ``second_order_d_b_mm2`` (c,) (the d_b variance term 3 u(rho)^4 / (4 R^2)).
+    ``second_order_d_b_mm2`` (c,) (the d_b variance term 3 u(rho)^4 / (4 R^2)),
+    ``reading_perturbation`` {name: (3c,)} (per ``reading_perturbations``) and
+    ``channel_time_offset`` (3c, c) [per s] (dp / d tau_c: the time at which channel c's readings are
+    taken, as a carried ``channel_delay``).
     """
     if cal.method != "full_lsq":
         raise ValueError(f"full_lsq_sensitivities needs a full_lsq calibration, got {cal.method!r}")
@@ -1548,13 +1576,23 @@ def full_lsq_sensitivities(
     guard = cal.diagnostics.get("censoring_guard")
     guard_range = np.asarray(guard["range_mm"], dtype=float) if guard else None
 
-    J_parts, dR_parts, chan_parts = [], [], []
+    tau_c = _channel_offsets(cal.diagnostics.get("channel_time_offsets_s"), c)
+    J_parts, dR_parts, chan_parts, mask_parts, dtau_parts = [], [], [], [], []
     for k, sid in enumerate(cal.scan_ids):
         nu, am = cal.nuisance[sid], angle_models[k]
-        Phi = am.commanded_rad(ts[k])
-        phi = float(nu["phase0_rad"]) + float(nu.get("speed_scale", 1.0)) * Phi if am.fits_speed_and_phase else Phi
+
+        def phi_at(tt, nu=nu, am=am):
+            P = am.commanded_rad(tt)
+            return float(nu["phase0_rad"]) + float(nu.get("speed_scale", 1.0)) * P if am.fits_speed_and_phase else P
+
+        tc = np.repeat(ts[k][:, None], c, axis=1) - (0.0 if tau_c is None else tau_c[None, :])
+        Phi = am.commanded_rad(tc)
+        phi = phi_at(tc)
         off = np.array([nu["offset_x_mm"], nu["offset_y_mm"]], dtype=float)
         v_k, jac = _readings_and_jacobian(phi, beams, off, R_mm)
+        # the model's readings per unit of a channel's time offset: phi of channel c at t - tau_c
+        h = 1e-6
+        dtau_parts.append(jac["phi"] * (phi_at(tc - h) - phi_at(tc + h)) / (2.0 * h))
         n = ts[k].size
         Jk = np.zeros((n, c, p))
         for j in range(c):
@@ -1567,11 +1605,12 @@ def full_lsq_sensitivities(
         if "phase" in cols[k]:
             Jk[:, :, cols[k]["phase"]] = jac["phi"]
         if "scale" in cols[k]:
-            Jk[:, :, cols[k]["scale"]] = jac["phi"] * Phi[:, None]
+            Jk[:, :, cols[k]["scale"]] = jac["phi"] * Phi
         m = np.isfinite(ys[k])
         if guard is not None:  # the readings the fit set aside near the sensor range limits
             m &= _censoring_keep(v_k, ys[k], guard_range, _guard_sigma(floors[k], sigma))[0]
         J_parts.append(Jk[m])
+        mask_parts.append(m)
         dR_parts.append(np.hypot(jac["ox"], jac["oy"])[m])
         chan_parts.append(np.broadcast_to(np.arange(c), (n, c))[m])
     J = np.vstack(J_parts)
@@ -1613,6 +1652,13 @@ def full_lsq_sensitivities(
 
     dR = vec(-Hinv @ (J.T @ dv_dR))
     reading_offset = np.column_stack([vec(Hinv @ J[chan == j].sum(axis=0)) for j in range(c)])
+    def response(dys) -> np.ndarray:  # dp = H^-1 J^T dy: readings that move by dy (per scan (n, c))
+        return vec(Hinv @ (J.T @ np.concatenate([np.asarray(d, float)[m] for d, m in zip(dys, mask_parts)])))
+
+    perturbation = {name: response(dys) for name, dys in (reading_perturbations or {}).items()}
+    # a channel's time offset moves the model's readings by df; the fit answers as to readings moved by -df
+    time_offset = np.column_stack([response([-np.where(np.arange(c)[None, :] == j, d, 0.0) for d in dtau_parts])
+                                   for j in range(c)])
     offset_prior = {}
     for sid, r0 in prior_cols.items():
         rows = Jp[2 * r0 : 2 * r0 + 2]
@@ -1635,4 +1681,6 @@ def full_lsq_sensitivities(
         "s2": s2,
         "prior_sigma_mm": float(prior_sigma),
         "second_order_d_b_mm2": second,
+        "reading_perturbation": perturbation,
+        "channel_time_offset": time_offset,
     }

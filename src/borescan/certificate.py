@@ -359,8 +359,26 @@ def _fit_part(cal: TriCalibration) -> dict:
     if cal.diagnostics.get("rho_profiles"):  # where the cost along a rho is not the linear one
         diag["rho_profiled_channels"] = [int(p["channel"]) for p in cal.diagnostics["rho_profiles"]
                                          if not p.get("linear", True)]
+    if cal.diagnostics.get("device_model"):  # the effects of the device's model the calibration carried
+        diag["device_model"] = [{k: m.get(k) for k in ("key", "estimated", "values", "u", "night", "evidence_scans")}
+                                for m in cal.diagnostics["device_model"]]
     return {"residual_rms_mm": cal.residual_rms_mm, "dof": cal.dof, "rank": cal.rank, "condition": cal.condition,
             "converged": cal.converged, "nuisance": cal.nuisance, **diag}
+
+
+def device_model_text(entries: list[dict]) -> str:
+    """The device model a calibration carried, in words (certificate section 2, the report)."""
+    parts = []
+    for m in entries:
+        if not m.get("estimated"):
+            parts.append(f"{m['key']}: listed in the device model, not estimated by any earlier pooled examination "
+                         "(not corrected)")
+            continue
+        vals = ", ".join(f"{k} = {v:.6g} (u {m['u'].get(k, 0.0):.2g})" for k, v in m["values"].items())
+        parts.append(f"{m['key']}: {vals}, from the pooled examination of {m['night']} "
+                     f"({', '.join(m.get('evidence_scans') or []) or 'its scans'})")
+    return ("Device model: the readings (a channel delay: the channel's angle) were corrected for " + "; ".join(parts)
+            + ". Each value's uncertainty is an input of the budget.")
 
 
 def certificate_dict(
@@ -721,6 +739,8 @@ def _page_conditions_traceability(d: _Doc) -> None:
     fit = c["fit"]
     if fit.get("gauge"):
         d.para("Reference direction: " + fit["gauge"] + ".")
+    if fit.get("device_model"):
+        d.para(device_model_text(fit["device_model"]))
     d.heading("3  Conditions of calibration")
     temp = cond.get("temperature") or {}
     cte = cond.get("gauge_cte") or {}

@@ -29,13 +29,14 @@ decision rule (:func:`decide`, ILAC-G8:09/2019).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import json
 import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import device_model
 from .artifacts import ArtifactCte, ScanTemperature, artifact_key, diameter_at_20, number_or_none
 from .circlefit import Circle, fit_circle_ls, harmonic_spectrum, reference_circles
 from .geometry import Beams, beam_frame, circumcircle, wall_points_device
@@ -247,17 +248,18 @@ def measure_rotating(readings_mm, phi_rad, spindle_xy_mm, beams: Beams, *, max_u
     )
 
 
-def _rotating_angle(scan, t_s: np.ndarray, v: np.ndarray) -> np.ndarray:
+def _rotating_angle(scan, t_s: np.ndarray, v: np.ndarray, tau_s: np.ndarray | None = None) -> np.ndarray:
     """Device angle at the readings (:mod:`borescan.kinematics`): the encoder angle, else the
     commanded profile with its speed scale found from the readings (the phase of a closed
-    profile does not change a circle's diameter or roundness)."""
+    profile does not change a circle's diameter or roundness). With per channel time offsets
+    ``tau_s`` (c,) (a carried ``channel_delay``) the angle of channel c at t - tau_c, (n, c)."""
     from .kinematics import angle_model_of_scan, estimate_speed_scale
 
     am = angle_model_of_scan(scan.meta, scan.spindle)
+    tc = t_s if tau_s is None else t_s[:, None] - np.asarray(tau_s, float)[None, :]
     if not am.fits_speed_and_phase:
-        return am.phi_rad(t_s)
-    Phi = am.commanded_rad(t_s)
-    return estimate_speed_scale(Phi, v) * Phi
+        return am.phi_rad(tc)
+    return estimate_speed_scale(am.commanded_rad(t_s), v) * am.commanded_rad(tc)
 
 
 @dataclass(frozen=True)
@@ -330,7 +332,7 @@ def _rotating_sensitivities(model: DiameterModel, beams: Beams) -> tuple[np.ndar
     return jp, jv
 
 
-def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
+def measure_scan(scan, beams: Beams, cov_beams=None, device_model=()) -> dict:
     """Diameter of one ``tri_lds`` raw scan (``rawio.RawScan``) with calibrated ``beams``.
 
     With a spindle stream: rotating scan (angle from :mod:`borescan.kinematics`: the encoder
@@ -351,7 +353,10 @@ def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
     ``dof_readings`` (the readings' part of u: Type A, or the sensors' repeatability where that
     is larger than the scatter, nu = inf), ``noise_mm`` (c,) the readings' scatter per channel and
     ``model`` (:class:`DiameterModel`, D as a function of the beams with these readings).
+    ``device_model``: the calibration's carried device-model effects
+    (:class:`borescan.device_model.DeviceEffect`); the readings are corrected for them first.
     """
+    from .device_model import channel_time_offsets, correct
     from .noise import noise_floor_mm
     from .rawio import lds_matrix
 
@@ -359,9 +364,13 @@ def measure_scan(scan, beams: Beams, cov_beams=None) -> dict:
     idx = [m.channels.index(ch) for ch in beams.channels]
     v = m.values_mm[:, idx]
     sp = scan.spindle
+    if device_model:
+        sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
+        rng = [float((sensors.get(ch) or {}).get("range_mm") or 10.0) for ch in beams.channels]
+        v = correct(m.t_s, v, beams.channels, device_model, rng)
     if sp is not None and sp.height > 1:
         t_sp = sp["t_ns"].to_numpy() * 1e-9
-        phi = _rotating_angle(scan, m.t_s, v)
+        phi = _rotating_angle(scan, m.t_s, v, channel_time_offsets(device_model, beams.channels))
         S = np.column_stack([np.interp(m.t_s, t_sp, sp["x_mm"].to_numpy()), np.interp(m.t_s, t_sp, sp["y_mm"].to_numpy())])
         res = measure_rotating(v, phi, S, beams)
         model = DiameterModel("rotating", v, phi, S)
@@ -648,7 +657,8 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
                          channels=(), noise_mm=None, temperature: ScanTemperature, cte: ArtifactCte, artifact: dict,
                          scan_id: str, p: float, default_resolution_mm: float, readings_what: str = "readings",
                          calibration_id: str | None = None, model: DiameterModel | None = None,
-                         beams: Beams | None = None, rho_profiles: list[dict] | None = None) -> DiameterUncertainty:
+                         beams: Beams | None = None, rho_profiles: list[dict] | None = None,
+                         extra_terms: Sequence[tuple[Input, float]] = ()) -> DiameterUncertainty:
     """GUM budget of a measured diameter, at the scan's temperature and at 20 degC.
 
     D_T = f(readings, beams); D20 = D_T / (1 + alpha (T - 20)). Terms:
@@ -662,6 +672,8 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
       the spread along a non-linear rho profile (``rho_profiles``, the calibration's
       ``diagnostics["rho_profiles"]``) by D at the profile's points (:func:`_profile_variance`), for
       the same reason;
+    - ``extra_terms``: (input, dD_T / d input) of inputs the readings depend on directly (a carried
+      device-model parameter: the same key as in the calibration's budget, so the two add);
     - the readings: u = ``u_readings_mm`` with ``dof_readings`` (Type A; nu = inf: the data sheet's
       repeatability, Type B);
     - each sensor's linearity and resolution at this measurement (:func:`sensor_terms`, sensitivity
@@ -709,6 +721,8 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
                     b.add(Term(t.input, both * dD, note="secant: D with the mirror solution's beams minus D"))
                     continue
             b.add(t.mapped(to_both @ jp[None, :]))
+    for inp, dD in extra_terms:
+        b.add(Term(inp, np.array([1.0, f]) * float(dD)))
     dof = float(dof_readings)
     b.add(Term(Input(f"readings:{scan_id}", f"scatter of the readings of {scan_id}", "D_rd", "mm", None,
                      float(u_readings_mm), "normal", dof, "A" if np.isfinite(dof) else "B",
@@ -757,7 +771,8 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict) -> tuple[dict, DiameterUn
 
     temp = scan_temperature(scan.meta, unc_cfg)
     cte = artifact_cte(scan.meta, unc_cfg)
-    res = measure_scan(scan, cal.beams, cal.cov)
+    dm = device_model.from_dicts((cal.diagnostics or {}).get("device_model"))
+    res = measure_scan(scan, cal.beams, cal.cov, device_model=dm)
     sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
     du = diameter_uncertainty(
         res["diameter_mm"], jac_params=res["jac_params"], calibration_budget=calibration_budget_of(cal),
@@ -766,8 +781,27 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict) -> tuple[dict, DiameterUn
         artifact=dict(scan.meta.get("artifact") or {}), scan_id=scan.scan_id,
         p=float(unc_cfg["coverage_probability"]), default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
         readings_what="measurement", calibration_id=cal.calibration_id, model=res["model"], beams=cal.beams,
-        rho_profiles=(cal.diagnostics or {}).get("rho_profiles"))
+        rho_profiles=(cal.diagnostics or {}).get("rho_profiles"),
+        extra_terms=_device_model_inputs(scan, cal, dm))
     return res, du
+
+
+def _device_model_inputs(scan, cal, dm) -> list[tuple[Input, float]]:
+    """(input, dD/d parameter) of each carried device-model parameter through this scan's own readings
+    (central differences of :func:`measure_scan` with the parameter moved by +-1e-3 of its size or u)."""
+    from .calibration_budget import device_model_term
+
+    out = []
+    for i, entry in enumerate(dm):
+        for name, u in entry.u.items():
+            if not entry.estimated or not (u > 0):
+                continue
+            v0 = entry.values()[name]
+            h = max(abs(v0), u) * 1e-3
+            d = [measure_scan(scan, cal.beams, None, [e if j != i else e.with_value(name, v0 + s * h)
+                                                      for j, e in enumerate(dm)])["diameter_mm"] for s in (1.0, -1.0)]
+            out.append((device_model_term(cal.device_id, entry, name, 0.0).input, (d[0] - d[1]) / (2 * h)))
+    return out
 
 
 # --------------------------------------------------------------------------- verification

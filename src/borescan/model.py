@@ -43,6 +43,8 @@ __all__ = [
     "tri_geometry",
     "tri_reading_stage",
     "tri_forward",
+    "CORRECTABLE_STAGES",
+    "tri_correct_readings",
 ]
 
 TRI = "tri_lds"
@@ -188,3 +190,57 @@ def tri_forward(base: TriBase, t_s: np.ndarray, effects: Iterable[Effect] = ()) 
     st = sort_effects(effects, TRI, base.channels)
     v, tc = tri_geometry(base, t_s, st)
     return tri_reading_stage(v, tc, st, base.channels, base.range_mm)
+
+
+#: Stages whose effects recorded readings can be corrected for pointwise, without the scene: what a
+#: channel's sensor makes of its distance (beam, reading). A time-base effect (``channel_delay``) is
+#: carried by the time each channel's angle is taken at, never by resampling the readings (that would
+#: average neighbouring noise: a smaller, correlated scatter the fit would take for the noise).
+CORRECTABLE_STAGES: tuple[str, ...] = ("beam", "reading")
+
+
+def tri_correct_readings(
+    t_s: np.ndarray, readings_mm: np.ndarray, channels: Sequence[int], effects: Iterable[Effect],
+    range_mm: Sequence[float] | float = 10.0, *, tol_mm: float = 1e-12, max_iter: int = 50,
+) -> np.ndarray:
+    """Readings corrected for beam and reading effects: the inverse of steps 6-7 of :func:`tri_forward`
+    (a device model's effects, carried).
+
+    v_obs = f(v), f the composed forward functions of the registry at each reading's channel time,
+    is inverted by the fixed point v <- v_obs - (f(v) - v) (f is the identity plus an effect far
+    smaller than v; stops at ``tol_mm``). Each reading is corrected on its own: the noise stays white.
+
+    Parameters
+    ----------
+    t_s : ndarray (n,) sample times [s] (``sensor_drift``)
+    readings_mm : ndarray (n, c) recorded readings [mm], NaN for nulls (they stay null)
+    channels : the channels of the columns
+    effects : :class:`~borescan.effects.Effect` of the beam and reading stages (others raise)
+    range_mm : sensor range per channel, for ``sensor_nonlinearity`` [mm]
+
+    Returns
+    -------
+    ndarray (n, c) [mm]: readings as the base model (without these effects) would give them.
+
+    Raises
+    ------
+    ValueError for an effect of another stage (it changes the scene or the time a channel sees, not
+    what its sensor makes of a distance) or a fixed point that does not converge.
+    """
+    effects = list(effects)
+    st = sort_effects(effects, TRI, channels)
+    other = [e.name for stage, es in st.items() if stage not in CORRECTABLE_STAGES for e in es]
+    if other:
+        raise ValueError(f"effects {other} are not corrected in the readings: they change the scene or the time a "
+                         "channel sees (a channel delay is carried by the channel's angle)")
+    v_obs = np.asarray(readings_mm, dtype=float)
+    tc = np.asarray(t_s, dtype=float)[:, None]
+    v = v_obs.copy()
+    for _ in range(max_iter):
+        v_new = v_obs - (tri_reading_stage(v, tc, st, channels, range_mm) - v)
+        done = np.nanmax(np.abs(v_new - v), initial=0.0) <= tol_mm
+        v = v_new
+        if done:
+            return v
+    raise ValueError(f"correcting the readings for {[e.name for e in effects]} did not converge in {max_iter} "
+                     "iterations (is an effect as large as the readings?)")

@@ -11,7 +11,7 @@ def main(smk) -> None:
             smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
             smk.input.scans, smk.input.summary, smk.params.calibration, log=log,
             uncertainty=smk.params.uncertainty, laboratory=smk.params.laboratory,
-            verification=smk.params.verification,
+            verification=smk.params.verification, devices=smk.params.devices, pooled_tables=list(smk.input.pooled),
         )
         write_stage_outputs(smk.output, bad, calibrations=cals, calibration_scans=links)
         log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans quarantined")

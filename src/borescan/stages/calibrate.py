@@ -13,24 +13,28 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from borescan import __version__, calibration, certificate, measure, rawio
+from borescan import __version__, calibration, certificate, device_model, measure, rawio
 from borescan.artifacts import MissingTemperature
 from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows, rod_nominal_calibration_rows
 from borescan.config import schema_defaults
+from borescan.discrepancy.pooled import device_model_effects
 from borescan.geometry import Beams
 from borescan.stages._common import clear_night_folder, config_hash, link_into_night, night_scans, quarantine
 from borescan.stages.calibrate_rod import calibrate_rod_scan
-from borescan.stages.calibration_fit import budget_of, fit_device_calibration, spindle_inputs, yang_from_summary
+from borescan.stages.calibration_fit import (budget_of, fit_device_calibration, scan_conditions, spindle_inputs,
+                                             yang_from_summary)
 
 __all__ = ["stage_calibrate", "config_hash"]
 
 
 def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_table, cfg: dict, log=print, *,
-                    uncertainty: dict | None = None, laboratory: dict | None = None, verification: dict | None = None):
+                    uncertainty: dict | None = None, laboratory: dict | None = None, verification: dict | None = None,
+                    devices: dict | None = None, pooled_tables=()):
     """Calibrate every tri_lds device from its calibration scans of the night; write certificates.
 
-    ``uncertainty``, ``laboratory``, ``verification``: those config sections (schema defaults if None).
+    ``uncertainty``, ``laboratory``, ``verification``, ``devices``: those config sections (schema
+    defaults if None); ``pooled_tables``: earlier nights' pooled findings (a device model's values).
 
     ``cfg["method"]``: ``full_lsq`` (every sample, exact forward model, all calibration scans of
     the device together) or ``yang2017`` (the paper's extrema method, one calibration per scan).
@@ -42,7 +46,9 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     method, min_rev = cfg["method"], int(cfg["min_revolutions"])
     dflt = schema_defaults()
     ctx = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
-           "verification": verification or dflt["verification"], "raw_root": raw_root, "scans_table": scans_table}
+           "verification": verification or dflt["verification"], "raw_root": raw_root, "scans_table": scans_table,
+           "device_model": device_model.lookup(lambda dev: device_model_effects(devices, dev), [
+               r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()], night)}
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
     clear_night_folder(results_root, "calibration", night)  # certificates of a rerun replace the night's
     cal_rows, link_rows, bad = [], [], []
@@ -123,7 +129,9 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
         if method == "yang2017":
             fit = yang_from_summary(scans[0], inputs[0], summary, nominal, night, log=log)
         else:
-            fit = fit_device_calibration(scans, inputs, nominal, cfg, night=night)
+            model = ctx["device_model"](device_id, inputs[0]["channels"])
+            inputs = device_model.carry(model, device_id, inputs, log)
+            fit = fit_device_calibration(scans, inputs, nominal, cfg, night=night, model=model)
         budget = budget_of(fit, scans, inputs, unc, summary=summary, nominal=nominal, night=night,
                            position_accuracy_mm=float(cfg["position_accuracy_mm"]))
     except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
@@ -140,7 +148,7 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
     ver_rows, ver_metas = _night_verifications(cal, night, ctx, log)
     conditions = certificate.calibration_conditions(
         first["temperature"], first["cte"], first["R"], float(cfg["position_accuracy_mm"]), p,
-        [_scan_conditions(s, x, summary) for s, x in zip(scans, inputs)])
+        [scan_conditions(s, x, summary) for s, x in zip(scans, inputs)])
     dates = certificate.certificate_dates([s.meta for s in scans], ver_metas, night, int(cfg["validity_days"]))
     art = scans[0].meta.get("artifact") or {}
     certificate.write_certificate(
@@ -167,17 +175,6 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
             f"{budget.combined(3 * j + 2, p).U * 1e3:.1f}" for j in range(len(cal.beams.channels)))
         + f" um; {len(ver_rows)} verification(s) in the certificate"
         + (" [gauge temperature ASSUMED 20 degC]" if first["temperature"].assumed else ""))
-
-
-def _scan_conditions(scan: rawio.RawScan, x: dict, summary: pl.DataFrame) -> dict:
-    """Per-scan conditions of the certificate: positions, speed, revolutions (recorded and with extrema)."""
-    s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
-    spr = float(s["period_samples_per_rev"][0]) if s.height else 0.0
-    recorded = float(s["n_samples_recorded"][0]) / spr if spr > 0 and "n_samples_recorded" in s.columns else None
-    return {"scan_id": scan.scan_id, "started_at": scan.meta.get("started_at"),
-            "spindle_position": (scan.meta.get("spindle") or {}).get("position"), "center": scan.meta.get("center"),
-            "rpm": x["rpm"], "angle_source": x["angle_model"].source, "revolutions_recorded": recorded,
-            "revolutions_with_extrema": int(s["n_revolutions_min"].min()) if s.height else None}
 
 
 def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:

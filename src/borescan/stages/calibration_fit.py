@@ -9,18 +9,20 @@ sensitivities of :func:`yang_sensitivities`.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import polars as pl
 
-from borescan import calibration, kinematics, rawio, signal
+from borescan import calibration, device_model, kinematics, rawio, signal
 from borescan.artifacts import artifact_cte, gauge_radius_mm, scan_temperature
 from borescan.calibration_budget import calibration_budget, with_budget
 from borescan.config import schema_defaults
 from borescan.geometry import Beams
 from borescan.uncertainty import Budget
 
-__all__ = ["spindle_inputs", "acceptance_rule", "fit_device_calibration", "calibrate_raw_scans", "yang_from_summary",
-           "yang_sensitivities", "budget_of"]
+__all__ = ["spindle_inputs", "scan_conditions", "acceptance_rule", "fit_device_calibration", "calibrate_raw_scans",
+           "yang_from_summary", "yang_sensitivities", "budget_of"]
 
 
 def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None) -> dict:
@@ -63,6 +65,17 @@ def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None) -> dict
     }
 
 
+def scan_conditions(scan: rawio.RawScan, x: dict, summary: pl.DataFrame) -> dict:
+    """Per-scan conditions of the certificate: positions, speed, revolutions (recorded and with extrema)."""
+    s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
+    spr = float(s["period_samples_per_rev"][0]) if s.height else 0.0
+    recorded = float(s["n_samples_recorded"][0]) / spr if spr > 0 and "n_samples_recorded" in s.columns else None
+    return {"scan_id": scan.scan_id, "started_at": scan.meta.get("started_at"),
+            "spindle_position": (scan.meta.get("spindle") or {}).get("position"), "center": scan.meta.get("center"),
+            "rpm": x["rpm"], "angle_source": x["angle_model"].source, "revolutions_recorded": recorded,
+            "revolutions_with_extrema": int(s["n_revolutions_min"].min()) if s.height else None}
+
+
 def acceptance_rule(cal_cfg: dict) -> calibration.AcceptanceRule:
     """The calibration section's acceptance settings as a :class:`calibration.AcceptanceRule`."""
     return calibration.AcceptanceRule(
@@ -72,32 +85,43 @@ def acceptance_rule(cal_cfg: dict) -> calibration.AcceptanceRule:
     )
 
 
-def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: str | None = None):
-    """Full-data calibration of one device from its spindle scans (:func:`spindle_inputs` of each).
+def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: str | None = None, model=()):
+    """Full-data calibration of one device from its spindle scans (:func:`spindle_inputs` of each,
+    corrected by :func:`borescan.device_model.correct_inputs` for the device ``model``, recorded in the calibration's
+    ``diagnostics["device_model"]``).
 
     Raises ``calibration.CalibrationError`` (naming the scans and the reason) when the fit fails or is refused.
     """
     raw_files = {f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}
+    cal = _fit(scans, inputs, nominal, cal_cfg, night, raw_files,
+               device_model.channel_time_offsets(model, inputs[0]["channels"]))
+    if model:
+        cal = replace(cal, diagnostics={**cal.diagnostics, "device_model": [m.to_dict() for m in model]})
+    return cal
+
+
+def _fit(scans, inputs, nominal: Beams, cal_cfg: dict, night, raw_files, tau_s):
     return calibration.fit_full_calibration(
         [x["t_s"] for x in inputs], [x["readings"] for x in inputs], inputs[0]["channels"], nominal,
         inputs[0]["R"], [x["spindle_xy"] for x in inputs], center_xy_mm=[x["center_xy"] for x in inputs],
         angle_models=[x["angle_model"] for x in inputs], range_mm=inputs[0]["range_mm"],
         rule=acceptance_rule(cal_cfg), scan_ids=[s.scan_id for s in scans],
-        device_id=scans[0].meta["device"]["id"], raw_sha256=raw_files, night=night,
+        device_id=scans[0].meta["device"]["id"], raw_sha256=raw_files, night=night, channel_time_offsets_s=tau_s,
     )
 
 
-def calibrate_raw_scans(scans, cal_cfg: dict, night: str | None = None, uncertainty: dict | None = None):
+def calibrate_raw_scans(scans, cal_cfg: dict, night: str | None = None, uncertainty: dict | None = None, model=()):
     """Full-data calibration of the calibration scans ``scans`` (``rawio.RawScan``, one device).
 
     The same path as the night's calibrate stage; ``cal_cfg`` is the config's ``calibration``
     section with its schema defaults. Without ``uncertainty`` the fit's own result (covariance of
     the fit alone); with the config's ``uncertainty`` section, the calibration with its GUM budget
-    (:func:`with_budget`), as the stage certifies it. Raises ``calibration.CalibrationError``.
+    (:func:`with_budget`), as the stage certifies it; ``model``: the device model carried
+    (:func:`borescan.device_model.device_model_at`). Raises ``calibration.CalibrationError``.
     """
-    inputs = [spindle_inputs(s, uncertainty) for s in scans]
+    inputs = device_model.correct_inputs([spindle_inputs(s, uncertainty) for s in scans], model)
     nominal = Beams.from_nominal(scans[0].meta["device"]["nominal"]["beams"])
-    cal = fit_device_calibration(scans, inputs, nominal, cal_cfg, night=night or scans[0].night)
+    cal = fit_device_calibration(scans, inputs, nominal, cal_cfg, night=night or scans[0].night, model=model)
     if uncertainty is None:
         return cal
     return with_budget(cal, budget_of(cal, scans, inputs, uncertainty))
