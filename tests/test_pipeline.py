@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import duckdb
+import pytest
 
 from conftest import checksums, run_snakemake
 
@@ -296,3 +297,48 @@ def test_every_file_the_papers_rule_writes_is_declared(pipeline_run):
     smk = (ROOT / "rules" / "papers.smk").read_text()
     declared = set(re.findall(r'f"\{RES\}/papers/([^"]+)"', smk))
     assert declared == written
+
+
+def test_a_device_model_is_carried_by_a_night_calibration(pipeline_run, tmp_path):
+    """The calibrate stage of the first demo night with a device model in the config (devices: TRI-01:
+    effects: [...]) and an earlier night's pooled findings: a sensor gain of channel 2 estimated there as 0 +- 2e-4 is carried
+    (the readings are corrected by a factor 1: the beams are the run's own to rounding), the budget
+    gains its input (u(d_b) grows), the certificate names it; an effect listed without an estimate is
+    said so and changes nothing."""
+    import json
+
+    import polars as pl
+
+    from borescan.config import schema_defaults
+    from borescan.stages.calibrate import stage_calibrate
+    from borescan.uncertainty import Budget
+
+    raw, res = pipeline_run["raw"], pipeline_run["results"]
+    n2 = sorted(p.name.removeprefix("night=") for p in raw.glob("night=*"))[0]  # the first demo night
+    n1 = "2026-11-19"  # a pooled examination of the night before
+    pooled = tmp_path / "pooled.parquet"
+    pl.DataFrame([{"night": n1, "device_id": "TRI-01", "effect": "sensor_gain", "channel": 2,
+                   "parameters": json.dumps({"g": 0.0}), "uncertainties": json.dumps({"u_g": 2e-4}),
+                   "evidence_scans": "A,B", "in_device_model": False}]).write_parquet(pooled)
+    cfg = schema_defaults()
+    lines = []
+    cals, _, bad = stage_calibrate(
+        raw, n2, tmp_path, res / "stage" / "scans" / f"night={n2}.parquet",
+        res / "stage" / "signal_summary" / f"night={n2}.parquet", cfg["calibration"], log=lines.append,
+        devices={"TRI-01": {"effects": ["sensor_gain@2", "sensor_offset@3"]}}, pooled_tables=[pooled])
+    assert not bad
+    run = pl.read_parquet(res / "stage" / "calibrations" / f"night={n2}.parquet").filter(pl.col("device_id") == "TRI-01")
+    mine = cals.filter(pl.col("device_id") == "TRI-01")
+    assert mine["beta_rad"].to_list() == pytest.approx(run["beta_rad"].to_list(), abs=1e-12)
+    assert mine["d_b_mm"].to_list() == pytest.approx(run["d_b_mm"].to_list(), abs=1e-9)
+    assert mine["u_d_b_mm"][1] > run["u_d_b_mm"][1]  # channel 2's gain is uncertain by 2e-4 of its reading
+    cal = json.loads(mine["calibration_json"][0])
+    (gain, offset) = cal["diagnostics"]["device_model"]
+    assert gain["key"] == "sensor_gain@2" and gain["night"] == n1 and gain["u"] == {"g": 2e-4}
+    assert offset["key"] == "sensor_offset@3" and not offset["estimated"]
+    b = Budget.from_dict(cal["diagnostics"]["budget"])
+    assert [t.input.key for t in b.terms if t.input.key.startswith("device_model:")] == [
+        f"device_model:TRI-01:sensor_gain@2:g@{n1}"]
+    cert = json.loads(next((tmp_path / "calibration").glob(f"night={n2}/TRI-01/*/certificate.json")).read_text())
+    assert [m["key"] for m in cert["fit"]["device_model"]] == ["sensor_gain@2", "sensor_offset@3"]
+    assert any("sensor_offset@3 not estimated yet" in x for x in lines)
