@@ -166,3 +166,15 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     assert "channel_delay@2: tau_s = 0.00119 (u 2e-05), from the pooled examination of 2026-11-20 (A, B)" in \
         device_model_text([entry])
     assert "device_model" not in _fit_part(plain)
+
+    # the scan's own examination against that calibration: with the device model in its base the delay is
+    # fitted (near its carried value), not named; against the same beams without it, it is what is missing
+    from borescan.device_model import carried_effects, from_dicts
+    from borescan.discrepancy import analyse_scan
+
+    carried = carried_effects(from_dicts(cal.diagnostics["device_model"]))
+    with_model = analyse_scan(scan, beams=cal.beams, device_effects=carried).findings
+    without = analyse_scan(scan, beams=cal.beams).findings
+    assert with_model["verdict"] == "no_missing_effect", with_model["named"]
+    assert without["verdict"] != "no_missing_effect"
+    assert any(n["effect"] == "channel_delay" and n.get("channel") == 2 for n in without["named"])

@@ -49,3 +49,21 @@ def test_rod_is_compared_with_its_design_geometry_until_it_is_calibrated_on_gaug
     assert ref == "calibration ROD-G1"
     assert kw == {"layers": [{"channel": 1, "l0": 71.013, "h": 100.0, "phi": 0.01, "d": 0.0, "gamma": 0.002},
                              {"channel": 2, "l0": 71.014, "h": 200.0, "phi": 0.01, "d": 0.0, "gamma": 0.002}]}
+
+
+def test_a_calibration_that_carried_a_device_model_brings_its_effects_into_the_base():
+    from dataclasses import replace
+
+    from borescan.device_model import DeviceEffect
+    from borescan.effects import Effect
+
+    row = _row("D", "2026-11-22", 1.0)
+    cal = TriCalibration.from_dict(json.loads(row["calibration_json"]))
+    delay = Effect("channel_delay", {"channel": 2, "tau_s": 1.2e-3})
+    model = [DeviceEffect("channel_delay@2", (delay,), {"tau_s": 2e-5}, "2026-11-21", ("S",)),
+             DeviceEffect("sensor_offset@3")]  # listed, not estimated: nothing to carry
+    cal = replace(cal, diagnostics={"device_model": [m.to_dict() for m in model]})
+    cals = pl.DataFrame([dict(row, calibration_json=json.dumps(cal.to_dict()))])
+    kw, ref = discrepancy_reference(cals, "TRI-01", "tri_lds", "2026-11-22")
+    assert kw["device_effects"] == [delay] and kw["beams"].rho_mm[0] == 1.0
+    assert ref == "calibration D with its device model (channel_delay:channel=2,tau_s=0.0012)"

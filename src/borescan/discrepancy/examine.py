@@ -141,7 +141,9 @@ def examine_scan(scan, **cfg) -> dict:
     **cfg : overrides of :data:`DEFAULTS` (``threshold`` in BIC units, ``free_beams``,
         ``max_samples``, ...), and ``beams`` (a :class:`~borescan.geometry.Beams` or the
         ``device.nominal.beams`` list) / ``layers`` (rod) to examine the scan against a
-        calibrated device instead of ``device.nominal``.
+        calibrated device instead of ``device.nominal``; ``device_effects`` (spindle scans):
+        the effects of the device model its calibration carried, fitted with the base from their
+        carried values and never named as missing.
 
     Returns
     -------
@@ -252,7 +254,8 @@ def _quantization_evidence(r_mm: np.ndarray, lsb_mm: float, v_mm: np.ndarray) ->
 
 def examine_tri(data: TriData, **cfg) -> Examination:
     """Examine a three-sensor spindle scan given as :class:`TriData` (see :func:`examine_scan`)."""
-    return examine_model(TriModel(data, free_beams=tuple(cfg.get("free_beams", ()))), **cfg)
+    return examine_model(TriModel(data, free_beams=tuple(cfg.get("free_beams", ())),
+                                  device_effects=tuple(cfg.get("device_effects", ()))), **cfg)
 
 
 def examine_model(model, **cfg) -> Examination:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import polars as pl
 
 from borescan.calibrations import rod_layers, tri_calibration
+from borescan.device_model import carried_effects, from_dicts
 from borescan.simulate import layer_dict
 
 __all__ = ["discrepancy_reference"]
@@ -17,7 +18,9 @@ def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_typ
     degrees and tens of um; compared with it, every scan would "miss" offsets and gains that are
     the calibration's business. So a calibrated device is examined against its latest
     calibration made on or before the night (ties broken by calibration id; the scan's own
-    calibration for calibration scans; ``nominal`` records excluded) -> ``{"beams": ...}``, and a
+    calibration for calibration scans; ``nominal`` records excluded) -> ``{"beams": ...}`` (and
+    ``"device_effects"``: the effects of the device model that calibration carried, fitted with
+    the base of a spindle scan), and a
     device without one against ``device.nominal`` with its whole beam geometry freed (the design
     is off by mm in rho as well) -> ``{"free_beams": ("d_b", "beta", "rho")}``: the examination
     then asks what a calibration of this scan could not absorb. A rod is examined against its
@@ -33,7 +36,12 @@ def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_typ
                                 & (pl.col("method") != "nominal"))
         if c.height:
             cal_id = c.sort("valid_from", "calibration_id")["calibration_id"][-1]
-            return {"beams": tri_calibration(calibrations, cal_id).beams}, f"calibration {cal_id}"
+            cal = tri_calibration(calibrations, cal_id)
+            carried = carried_effects(from_dicts((cal.diagnostics or {}).get("device_model")))
+            if carried:
+                return ({"beams": cal.beams, "device_effects": carried},
+                        f"calibration {cal_id} with its device model ({', '.join(str(e) for e in carried)})")
+            return {"beams": cal.beams}, f"calibration {cal_id}"
     if device_type == "tri_lds":
         return {"free_beams": ("d_b", "beta", "rho")}, "device.nominal (beam geometry free)"
     if device_type == "rod" and calibrations.height and {"device_id", "l0_mm"} <= set(calibrations.columns):

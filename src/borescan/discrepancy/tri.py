@@ -268,10 +268,17 @@ class TriModel:
     (beam_tilt), reading (offset, gain, nonlinearity, drift, vibration).
     """
 
-    def __init__(self, data: TriData, weights: np.ndarray | None = None, free_beams: tuple[str, ...] = ()):
+    def __init__(self, data: TriData, weights: np.ndarray | None = None, free_beams: tuple[str, ...] = (),
+                 device_effects=()):
         bad = set(free_beams) - {"beta", "d_b", "rho"}
         if bad:
             raise ValueError(f"free_beams takes 'beta', 'd_b' and/or 'rho', got {sorted(bad)}")
+        #: the device model's effects (:mod:`borescan.device_model`) in the base: fitted with it from their
+        #: carried values, never candidates
+        self.device_terms = tuple(Term(e.name, e.channel) for e in device_effects)
+        self._device_start: dict[str, float] = {}
+        for t, e in zip(self.device_terms, device_effects):
+            self._device_start.update(term_values(t, e))
         #: beam parameters freed in the base model (their effects are then absorbed, not named)
         self.free_beams = tuple(free_beams)
         self.data = data
@@ -315,6 +322,9 @@ class TriModel:
         beam- or reading-stage parameter (offset, gain, ...) leaves it as it was.
         """
         d = self.data
+        if self.device_terms:
+            keys = {t.key for t in self.device_terms}
+            terms = list(self.device_terms) + [t for t in terms if t.key not in keys]
         st = sort_effects([e for t in terms for e in term_effects(t, p, d.channels)], "tri_lds", d.channels)
         key = (tuple(e for stage in GEOMETRY_STAGES for e in st[stage]),
                tuple(sorted((k, v) for k, v in p.items() if "." not in k)))
@@ -345,7 +355,7 @@ class TriModel:
             names += [f"dd_b[{j}]" for j in range(c)]
         if "rho" in self.free_beams:  # a device never calibrated: its design offsets are off by up to mm
             names += [f"drho[{j}]" for j in range(c)]
-        return names
+        return names + [n for t in self.device_terms for n in t.names()]
 
     # ------------------------------------------------------------------ engine interface
     device_type = "tri_lds"
@@ -358,11 +368,12 @@ class TriModel:
         return self.data.rev_hz
 
     def base_scales(self) -> list[float]:
-        return [BASE_SCALE.get(n.split("[")[0], 1e-3) for n in self.base_names()]
+        own = dict(zip((n for t in self.device_terms for n in t.names()), (s for t in self.device_terms for s in t.scales())))
+        return [own.get(n, BASE_SCALE.get(n.split("[")[0], 1e-3)) for n in self.base_names()]
 
     def base_start(self) -> dict[str, float]:
         C0 = self.initial_center()
-        out = {"cx": float(C0[0]), "cy": float(C0[1])}
+        out = {"cx": float(C0[0]), "cy": float(C0[1]), **self._device_start}
         if self.data.free_phase:
             out["phase"] = self.data.phase_rad
         return out
@@ -378,6 +389,8 @@ class TriModel:
             out["d_b_minus_nominal_mm"] = [float(p.get(f"dd_b[{j}]", 0.0)) for j in range(c)]
         if "rho" in self.free_beams:
             out["rho_minus_nominal_mm"] = [float(p.get(f"drho[{j}]", 0.0)) for j in range(c)]
+        if self.device_terms:
+            out["device_model"] = {n: float(p[n]) for t in self.device_terms for n in t.names()}
         return out
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
@@ -400,7 +413,9 @@ class TriModel:
         freed: dict[str, set | str] = {b: chans for b in self.free_beams}
         if self.data.radius_free:  # a part's radius is the measurand: it absorbs what every channel shares
             freed["R"] = "shared"
-        return candidate_terms(self.data, k_max=k_max, vibration_f_hz=vibration_f_hz, freed=freed)
+        keys = {t.key for t in self.device_terms}
+        return [t for t in candidate_terms(self.data, k_max=k_max, vibration_f_hz=vibration_f_hz, freed=freed)
+                if t.key not in keys]
 
     def extra_starts(self, screen: list, keys: set, t1: Term | None) -> list:
         """Starts the linear screen cannot give.
