@@ -26,6 +26,7 @@ rule calibrate_night:
         laboratory=config["laboratory"],
         verification=config["verification"],
         devices=config["devices"],
+        device_model_auto_nights=config["discrepancy"]["device_model_auto_nights"],
     log:
         f"{RES}/logs/calibrate_night/{{night}}.log",
     benchmark:

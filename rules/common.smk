@@ -48,9 +48,11 @@ def verifications_before_night(wildcards):
 
 
 def pooled_findings_before_night(wildcards):
-    """Pooled findings of earlier nights when a device has a device model (config devices): a night's
-    calibration carries each of its effects at the latest earlier estimate; none otherwise."""
-    if not any((entry or {}).get("effects") for entry in (config.get("devices") or {}).values()):
+    """Pooled findings of earlier nights when a device has a device model (config devices) or effects
+    may enter one automatically (discrepancy.device_model_auto_nights): a night's calibration carries
+    each at the latest earlier estimate; none otherwise."""
+    listed = any((entry or {}).get("effects") for entry in (config.get("devices") or {}).values())
+    if not listed and not int(config["discrepancy"]["device_model_auto_nights"]):
         return []
     return [f"{RES}/stage/pooled_findings/night={n}.parquet" for n in NIGHTS if n < wildcards.night]
 

@@ -178,3 +178,24 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     assert with_model["verdict"] == "no_missing_effect", with_model["named"]
     assert without["verdict"] != "no_missing_effect"
     assert any(n["effect"] == "channel_delay" and n.get("channel") == 2 for n in without["named"])
+
+
+def test_an_effect_named_night_after_night_enters_automatically_and_leaves_when_a_night_does_not_name_it():
+    from borescan.device_model import auto_keys, device_model_at
+
+    def row(night, effect=None, channel=None, model=False, tau=1e-3):
+        return {"device_id": "TRI-01", "night": night, "effect": effect, "channel": channel, "in_device_model": model,
+                "parameters": json.dumps({"tau_s": tau}) if effect else None,
+                "uncertainties": json.dumps({"u_tau_s": 1e-5}) if effect else None, "evidence_scans": "A,B"}
+
+    rows = [row("2026-11-01", "channel_delay", 2), row("2026-11-02", "channel_delay", 2, tau=1.1e-3),
+            row("2026-11-02", "bore_lobing"), row("2026-11-03"), row("2026-11-04", "channel_delay", 2, tau=1.2e-3),
+            row("2026-11-05", "channel_delay", 2, tau=1.3e-3), row("2026-11-05", "sensor_gain", 1, model=True)]
+    assert auto_keys("TRI-01", rows, "2026-11-03", 2) == ["channel_delay@2"]  # 1st and 2nd (lobing: the gauge's)
+    assert auto_keys("TRI-01", rows, "2026-11-04", 2) == []  # the 3rd named nothing: it leaves
+    assert auto_keys("TRI-01", rows, "2026-11-06", 2) == ["channel_delay@2"]
+    assert auto_keys("TRI-01", rows, "2026-11-06", 0) == [] and auto_keys("TRI-01", rows, "2026-11-02", 2) == []
+    (m,) = device_model_at("TRI-01", [], rows, "2026-11-06", (1, 2, 3), auto=["channel_delay@2"])
+    assert m.source == "automatic" and m.values() == {"tau_s": 1.3e-3} and m.night == "2026-11-05"
+    (m,) = device_model_at("TRI-01", ["channel_delay@2"], rows, "2026-11-06", (1, 2, 3), auto=["channel_delay@2"])
+    assert m.source == "config"

@@ -360,8 +360,8 @@ def _fit_part(cal: TriCalibration) -> dict:
         diag["rho_profiled_channels"] = [int(p["channel"]) for p in cal.diagnostics["rho_profiles"]
                                          if not p.get("linear", True)]
     if cal.diagnostics.get("device_model"):  # the effects of the device's model the calibration carried
-        diag["device_model"] = [{k: m.get(k) for k in ("key", "estimated", "values", "u", "night", "evidence_scans")}
-                                for m in cal.diagnostics["device_model"]]
+        diag["device_model"] = [{k: m.get(k) for k in ("key", "estimated", "values", "u", "night", "evidence_scans",
+                                                       "source")} for m in cal.diagnostics["device_model"]]
     return {"residual_rms_mm": cal.residual_rms_mm, "dof": cal.dof, "rank": cal.rank, "condition": cal.condition,
             "converged": cal.converged, "nuisance": cal.nuisance, **diag}
 
@@ -375,8 +375,9 @@ def device_model_text(entries: list[dict]) -> str:
                          "(not corrected)")
             continue
         vals = ", ".join(f"{k} = {v:.6g} (u {m['u'].get(k, 0.0):.2g})" for k, v in m["values"].items())
+        how = " (entered automatically: named night after night)" if m.get("source") == "automatic" else ""
         parts.append(f"{m['key']}: {vals}, from the pooled examination of {m['night']} "
-                     f"({', '.join(m.get('evidence_scans') or []) or 'its scans'})")
+                     f"({', '.join(m.get('evidence_scans') or []) or 'its scans'}){how}")
     return ("Device model: the readings (a channel delay: the channel's angle) were corrected for " + "; ".join(parts)
             + ". Each value's uncertainty is an input of the budget.")
 

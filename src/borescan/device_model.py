@@ -24,7 +24,7 @@ from borescan.effects import EFFECTS, Effect
 from borescan.model import CORRECTABLE_STAGES, tri_correct_readings
 
 __all__ = ["CORRECTABLE_STAGES", "DeviceEffect", "device_model_at", "carried_effects", "correct", "channel_time_offsets",
-           "reading_sensitivities", "from_dicts", "input_key", "correct_inputs", "carry", "lookup"]
+           "reading_sensitivities", "from_dicts", "input_key", "correct_inputs", "carry", "lookup", "auto_keys"]
 
 #: relative step of the central differences of the corrected readings in a carried parameter
 _STEP = 1e-3
@@ -40,6 +40,7 @@ class DeviceEffect:
     u : standard uncertainty per parameter name (the registry's names, e.g. ``tau_s``)
     night : night of the pooled examination that gave the values (None: not estimated)
     evidence_scans : the scans that examination fitted
+    source : ``"config"`` (the user's decision) or ``"automatic"`` (:func:`auto_keys`)
     """
 
     key: str
@@ -47,6 +48,7 @@ class DeviceEffect:
     u: Mapping[str, float] = field(default_factory=dict)
     night: str | None = None
     evidence_scans: tuple[str, ...] = ()
+    source: str = "config"
 
     @property
     def estimated(self) -> bool:
@@ -61,17 +63,18 @@ class DeviceEffect:
     def to_dict(self) -> dict:
         return {"key": self.key, "effect": self.key.split("@")[0], "estimated": self.estimated,
                 "values": self.values(), "u": {k: float(v) for k, v in self.u.items()}, "night": self.night,
-                "evidence_scans": list(self.evidence_scans), "effects": [e.to_dict() for e in self.effects]}
+                "evidence_scans": list(self.evidence_scans), "effects": [e.to_dict() for e in self.effects],
+                "source": self.source}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "DeviceEffect":
         return cls(d["key"], tuple(Effect.from_dict(e) for e in d.get("effects") or ()), dict(d.get("u") or {}),
-                   d.get("night"), tuple(d.get("evidence_scans") or ()))
+                   d.get("night"), tuple(d.get("evidence_scans") or ()), d.get("source", "config"))
 
     def with_value(self, name: str, value: float) -> "DeviceEffect":
         """The same entry with parameter ``name`` at ``value`` (every channel of an ``@all`` entry)."""
         return DeviceEffect(self.key, tuple(Effect(e.name, {**e.params, name: value}) for e in self.effects),
-                            self.u, self.night, self.evidence_scans)
+                            self.u, self.night, self.evidence_scans, self.source)
 
 
 def from_dicts(items: Iterable[Mapping] | None) -> list[DeviceEffect]:
@@ -96,7 +99,7 @@ def _matches(row: Mapping, name: str, channel: str | None) -> bool:
 
 
 def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[Mapping], night: str,
-                    channels: Sequence[int]) -> list[DeviceEffect]:
+                    channels: Sequence[int], auto: Sequence[str] = ()) -> list[DeviceEffect]:
     """The device model of ``device_id`` as a calibration on ``night`` carries it.
 
     Parameters
@@ -105,6 +108,7 @@ def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[M
     pooled_rows : ``pooled_findings`` rows (any nights, any devices); only this device's rows of
         nights before ``night`` that give the effect's parameters are used, the latest night's
     channels : the device's channels (an ``@all`` entry acts on each)
+    auto : keys that entered automatically (:func:`auto_keys`), after ``keys`` unless listed there
 
     Returns
     -------
@@ -113,7 +117,8 @@ def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[M
     rows = sorted((r for r in pooled_rows if r.get("device_id") == device_id and str(r.get("night")) < str(night)
                    and r.get("parameters")), key=lambda r: str(r["night"]))
     out = []
-    for key in keys:
+    listed = [(k, "config") for k in keys] + [(k, "automatic") for k in auto if k not in set(keys)]
+    for key, source in listed:
         name, _, ch = str(key).partition("@")
         ch = ch or None
         spec = EFFECTS[name]
@@ -124,7 +129,7 @@ def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[M
             if _matches(r, name, ch) and all(k in p for k in wanted):
                 hit = (r, p)
         if hit is None:
-            out.append(DeviceEffect(key))
+            out.append(DeviceEffect(key, source=source))
             continue
         r, p = hit
         u_all = json.loads(r.get("uncertainties") or "{}")
@@ -132,15 +137,43 @@ def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[M
         chans = [int(ch)] if ch not in (None, "all") else (list(channels) if ch == "all" else [None])
         effs = tuple(Effect(name, vals if c is None else {**vals, "channel": c}) for c in chans)
         u = {k: float(u_all.get(f"u_{k}", 0.0) or 0.0) for k in wanted}
-        out.append(DeviceEffect(key, effs, u, str(r["night"]), tuple(s for s in (r.get("evidence_scans") or "").split(",") if s)))
+        out.append(DeviceEffect(key, effs, u, str(r["night"]),
+                                tuple(s for s in (r.get("evidence_scans") or "").split(",") if s), source))
     return out
 
 
-def lookup(keys_of, pooled_rows: Iterable[Mapping], night: str):
+def auto_keys(device_id: str, pooled_rows: Iterable[Mapping], night: str, n_nights: int) -> list[str]:
+    """Device effects that enter a device model automatically on ``night``: named (not as part of the
+    model) by the device's pooled examinations of each of its ``n_nights`` latest nights before
+    ``night`` (same effect and channel; device-scope effects of the registry only). [] when
+    ``n_nights`` is 0 (off) or the device has fewer pooled nights; an effect leaves as soon as one of
+    those nights does not name it."""
+    if n_nights <= 0:
+        return []
+    by_night: dict[str, set[str]] = {}
+    for r in pooled_rows:
+        if r.get("device_id") != device_id or str(r.get("night")) >= str(night):
+            continue
+        named = by_night.setdefault(str(r["night"]), set())
+        spec = EFFECTS.get(r.get("effect") or "")
+        if spec is None or spec.scope != "device" or r.get("in_device_model") or not spec.fit:
+            continue
+        ch = r.get("channel")
+        named.add(r["effect"] + ("" if ch is None else "@all" if int(ch) == 0 else f"@{int(ch)}"))
+    nights = sorted(by_night)[-n_nights:]
+    if len(nights) < n_nights:
+        return []
+    keys = set.intersection(*(by_night[n] for n in nights))
+    return sorted(keys)
+
+
+def lookup(keys_of, pooled_rows: Iterable[Mapping], night: str, auto_nights: int = 0):
     """(device id, channels) -> the device model a calibration on ``night`` carries
-    (:func:`device_model_at`); ``keys_of(device id)`` gives the config's effects of the device."""
+    (:func:`device_model_at`); ``keys_of(device id)`` gives the config's effects of the device, and
+    with ``auto_nights`` > 0 :func:`auto_keys` adds those named night after night."""
     rows = list(pooled_rows)
-    return lambda device_id, channels: device_model_at(device_id, keys_of(device_id), rows, night, channels)
+    return lambda device_id, channels: device_model_at(device_id, keys_of(device_id), rows, night, channels,
+                                                       auto_keys(device_id, rows, night, auto_nights))
 
 
 def carried_effects(model: Iterable[DeviceEffect]) -> list[Effect]:
@@ -209,6 +242,6 @@ def carry(model: Sequence[DeviceEffect], device_id: str, inputs: list[dict], log
     """Say in the log what a calibration of ``device_id`` carries of its ``model`` and return its inputs
     corrected for it (:func:`correct_inputs`)."""
     for m in model:
-        log(f"{device_id}: device model {m.key} " + (f"carried at {m.values()} +- {dict(m.u)} (pooled examination "
+        log(f"{device_id}: device model {m.key} ({m.source}) " + (f"carried at {m.values()} +- {dict(m.u)} (pooled examination "
                                                     f"of {m.night})" if m.estimated else "not estimated yet: not corrected"))
     return correct_inputs(inputs, model)

@@ -30,11 +30,12 @@ __all__ = ["stage_calibrate", "config_hash"]
 
 def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_table, cfg: dict, log=print, *,
                     uncertainty: dict | None = None, laboratory: dict | None = None, verification: dict | None = None,
-                    devices: dict | None = None, pooled_tables=()):
+                    devices: dict | None = None, pooled_tables=(), auto_nights: int = 0):
     """Calibrate every tri_lds device from its calibration scans of the night; write certificates.
 
     ``uncertainty``, ``laboratory``, ``verification``, ``devices``: those config sections (schema
-    defaults if None); ``pooled_tables``: earlier nights' pooled findings (a device model's values).
+    defaults if None); ``pooled_tables``: earlier nights' pooled findings (a device model's values);
+    ``auto_nights``: ``discrepancy.device_model_auto_nights``.
 
     ``cfg["method"]``: ``full_lsq`` (every sample, exact forward model, all calibration scans of
     the device together) or ``yang2017`` (the paper's extrema method, one calibration per scan).
@@ -48,7 +49,7 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     ctx = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
            "verification": verification or dflt["verification"], "raw_root": raw_root, "scans_table": scans_table,
            "device_model": device_model.lookup(lambda dev: device_model_effects(devices, dev), [
-               r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()], night)}
+               r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()], night, auto_nights)}
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
     clear_night_folder(results_root, "calibration", night)  # certificates of a rerun replace the night's
     cal_rows, link_rows, bad = [], [], []
