@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.bench_pooled import MAX_SAMPLES, _designs, _device, label, _like
+from bench.bench_pooled import MAX_SAMPLES, _designs, _device, _like, gauge_artifact, label, spindle_scans
 
 RUN_BY_DEFAULT = False
 N = 40
@@ -53,28 +53,6 @@ SEED = 7
 CASES = (("channel_delay", "speeds"), ("sensor_gain", "*"), ("sensor_nonlinearity", "eccentricities"),
          ("sensor_drift", "*"), ("beam_tilt", "*"), ("channel_delay", "speeds"))
 NIGHTS = ("2027-04-01", "2027-04-02")
-
-
-def _scans(rng, beams, R, range_mm, nominal, design_rows, effect, noise, spr, encoder, C, device_id, night, tag):
-    from borescan.simulate import TriScene, simulate_tri_spindle
-
-    art = {"id": f"RG-{round(2 * R)}", "type": "ring_gauge", "nominal_diameter_mm": float(round(2 * R)),
-           "certified_diameter_mm": 2 * R, "u_diameter_mm": 0.0015, "k": 2, "certificate": "RG/2027",
-           "cte_per_k": 11.5e-6}
-    sims = []
-    for k, s in enumerate(design_rows):
-        a = float(rng.uniform(0, 2 * math.pi))
-        S = C + s["ecc_mm"] * np.array([math.cos(a), math.sin(a)])
-        scene = TriScene(beams=beams, bore_center_xy_mm=(float(C[0]), float(C[1])), bore_radius_20_mm=R,
-                         spindle_xy_mm=(float(S[0]), float(S[1])), rpm_nominal=s["rpm"],
-                         phase_rad=float(rng.uniform(0, 2 * math.pi)), direction=s["direction"],
-                         sample_rate_hz=spr * s["rpm"] / 60.0, range_mm=tuple(float(x) for x in range_mm),
-                         cte_per_k=11.5e-6, temperature_c=20.0)
-        sims.append(simulate_tri_spindle(
-            scene, scan_id=f"{tag}-{k}", night=night, n_rev=12.0, effects=[] if effect is None else [effect],
-            noise_mm=noise, seed=int(rng.integers(0, 2**31 - 1)), device_id=device_id, nominal_beams=nominal,
-            artifact=art, center_xy_mm=(float(C[0]), float(C[1])), encoder=encoder, spindle_rate_hz=200.0))
-    return sims, art
 
 
 def draw(seed: int, i: int) -> dict:
@@ -100,9 +78,11 @@ def draw(seed: int, i: int) -> dict:
     effect = None if name is None else random_effect(name, rng, beams.channels, rows[0]["rpm"] / 60.0,
                                                      spr * rows[0]["rpm"] / 60.0)
     device_id = f"TRI-L{seed}-{i:04d}"
-    common = (beams, R, range_mm, nominal, rows, effect, noise, spr, encoder, C, device_id)
-    night1, art = _scans(rng, *common, NIGHTS[0], f"L{seed}-{i:04d}-N1")
-    night2, _ = _scans(rng, *common, NIGHTS[1], f"L{seed}-{i:04d}-N2")
+    common = dict(beams=beams, R=R, range_mm=range_mm, C=C, spr=spr, noise=noise, nominal=nominal, encoder=encoder,
+                  effect=effect, run_scan=None, device_id=device_id)
+    night1 = spindle_scans(rng, rows, nights=[NIGHTS[0]], tag=f"L{seed}-{i:04d}-N1", **common)
+    night2 = spindle_scans(rng, rows, nights=[NIGHTS[1]], tag=f"L{seed}-{i:04d}-N2", **common)
+    art = gauge_artifact(R)
     # the verification: the certified gauge measured statically (10 poses within 1.5 mm of its centre)
     r = 1.5 * np.sqrt(rng.uniform(0, 1, 10))
     ang = rng.uniform(0, 2 * math.pi, 10)

@@ -109,11 +109,42 @@ def _designs(rng, design: str) -> list[dict]:
     return [{"night": n, "rpm": r, "direction": d, "ecc_mm": float(e)} for n, r, d, e in zip(nights, rpms, dirs, ecc)]
 
 
+def gauge_artifact(R: float) -> dict:
+    """The certified ring gauge of radius ``R`` [mm] a scenario's device turns in."""
+    return {"id": f"RG-{round(2 * R)}", "type": "ring_gauge", "nominal_diameter_mm": float(round(2 * R)),
+            "certified_diameter_mm": 2 * R, "u_diameter_mm": 0.0015, "k": 2, "certificate": "RG/2027",
+            "cte_per_k": 11.5e-6}
+
+
+def spindle_scans(rng, rows: list[dict], *, beams, R, range_mm, C, spr, noise, nominal, encoder, effect, run_scan,
+                  device_id, nights, tag) -> list:
+    """The ring-gauge spindle scans of one design (:func:`_designs` rows, 12 revolutions each, scan
+    ``<tag>-<k>``); the hidden ``effect`` in every scan, or only in scan ``run_scan`` when given."""
+    from borescan.simulate import TriScene, simulate_tri_spindle
+
+    art = gauge_artifact(R)
+    sims = []
+    for k, s in enumerate(rows):
+        a = float(rng.uniform(0, 2 * math.pi))
+        S = C + s["ecc_mm"] * np.array([math.cos(a), math.sin(a)])
+        scene = TriScene(beams=beams, bore_center_xy_mm=(float(C[0]), float(C[1])), bore_radius_20_mm=R,
+                         spindle_xy_mm=(float(S[0]), float(S[1])), rpm_nominal=s["rpm"],
+                         phase_rad=float(rng.uniform(0, 2 * math.pi)), direction=s["direction"],
+                         sample_rate_hz=spr * s["rpm"] / 60.0, range_mm=tuple(float(x) for x in range_mm),
+                         cte_per_k=11.5e-6, temperature_c=20.0)
+        effects = [] if effect is None or (run_scan is not None and k != run_scan) else [effect]
+        sims.append(simulate_tri_spindle(
+            scene, scan_id=f"{tag}-{k}", night=nights[s["night"]], n_rev=12.0, effects=effects,
+            noise_mm=noise, seed=int(rng.integers(0, 2**31 - 1)), device_id=device_id,
+            nominal_beams=nominal, artifact=art, center_xy_mm=(float(C[0]), float(C[1])), encoder=encoder,
+            spindle_rate_hz=200.0))
+    return sims
+
+
 def draw_scenario(seed: int, i: int) -> dict:
     """Scenario ``i`` of battery ``seed``: the simulated scans, the hidden effect, the design."""
     from borescan.discrepancy.battery import random_effect
     from borescan.scenarios import battery_rng
-    from borescan.simulate import TriScene, simulate_tri_spindle
     from borescan.geometry import Beams
 
     rng = battery_rng(seed + 500_000, i)
@@ -134,24 +165,9 @@ def draw_scenario(seed: int, i: int) -> dict:
         effect = random_effect(name, rng, beams.channels, scans[0]["rpm"] / 60.0, spr * scans[0]["rpm"] / 60.0)
     run_scan = int(rng.integers(0, len(scans))) if name in RUN_EFFECTS else None
     nights = ["2027-03-01", "2027-03-02"]
-    art = {"id": f"RG-{round(2 * R)}", "type": "ring_gauge", "nominal_diameter_mm": float(round(2 * R)),
-           "certified_diameter_mm": 2 * R, "u_diameter_mm": 0.0015, "k": 2, "certificate": "RG/2027",
-           "cte_per_k": 11.5e-6}
-    sims = []
-    for k, s in enumerate(scans):
-        a = float(rng.uniform(0, 2 * math.pi))
-        S = C + s["ecc_mm"] * np.array([math.cos(a), math.sin(a)])
-        scene = TriScene(beams=beams, bore_center_xy_mm=(float(C[0]), float(C[1])), bore_radius_20_mm=R,
-                         spindle_xy_mm=(float(S[0]), float(S[1])), rpm_nominal=s["rpm"],
-                         phase_rad=float(rng.uniform(0, 2 * math.pi)), direction=s["direction"],
-                         sample_rate_hz=spr * s["rpm"] / 60.0, range_mm=tuple(float(x) for x in range_mm),
-                         cte_per_k=11.5e-6, temperature_c=20.0)
-        effects = [] if effect is None or (run_scan is not None and k != run_scan) else [effect]
-        sims.append(simulate_tri_spindle(
-            scene, scan_id=f"P{seed}-{i:04d}-{k}", night=nights[s["night"]], n_rev=12.0, effects=effects,
-            noise_mm=noise, seed=int(rng.integers(0, 2**31 - 1)), device_id=f"TRI-P{seed}-{i:04d}",
-            nominal_beams=nominal, artifact=art, center_xy_mm=(float(C[0]), float(C[1])), encoder=encoder,
-            spindle_rate_hz=200.0))
+    sims = spindle_scans(rng, scans, beams=beams, R=R, range_mm=range_mm, C=C, spr=spr, noise=noise, nominal=nominal,
+                         encoder=encoder, effect=effect, run_scan=run_scan, device_id=f"TRI-P{seed}-{i:04d}",
+                         nights=nights, tag=f"P{seed}-{i:04d}")
     return {"sims": sims, "effect": effect, "name": name, "design": design, "run_scan": run_scan,
             "nights": [nights[s["night"]] for s in scans], "beams": beams, "noise_mm": noise, "encoder": encoder}
 

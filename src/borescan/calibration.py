@@ -516,6 +516,17 @@ def yang_calibration(
 # --------------------------------------------------------------------------- full-data fit
 
 
+def _public_index(c: int, ch0_free: int) -> np.ndarray:
+    """Where the calibration's (3c,) parameters (beta, rho, d_b per channel) sit in the full fit's free
+    public vector (betas of the free channels, rhos, d_bs, nuisance); -1 for a gauge-fixed beta."""
+    idx = np.full(3 * c, -1)
+    for j in range(c):
+        idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
+        idx[3 * j + 1] = c - 1 + ch0_free + j
+        idx[3 * j + 2] = 2 * c - 1 + ch0_free + j
+    return idx
+
+
 def _channel_offsets(tau_s, c: int) -> np.ndarray | None:
     """Per channel time offsets (c,) [s], None when absent or all zero."""
     if tau_s is None:
@@ -1061,11 +1072,7 @@ def fit_full_calibration(
     # it (likelihood-weighted second moment about the estimate) replaces the linear part along that
     # rho wherever it is larger (PSD part of the difference: never smaller than the linear covariance)
     u2_rho = np.diag(cov_free)[i_rho0 : i_rho0 + c].copy()
-    idx = np.full(3 * c, -1)  # the public (beta, rho, d_b) per channel in the free vector (-1: gauge-fixed beta)
-    for j in range(c):
-        idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
-        idx[3 * j + 1] = c - 1 + ch0_free + j
-        idx[3 * j + 2] = 2 * c - 1 + ch0_free + j
+    idx = _public_index(c, ch0_free)
     ok = idx >= 0
 
     def params_of(v: np.ndarray) -> np.ndarray:
@@ -1633,11 +1640,7 @@ def full_lsq_sensitivities(
     s2 = 2.0 * float(cal.diagnostics["cost"]) / float(cal.dof)
 
     # public free parameters -> the calibration's (3c,) order
-    idx = np.full(3 * c, -1)
-    for j in range(c):
-        idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
-        idx[3 * j + 1] = c - 1 + ch0_free + j
-        idx[3 * j + 2] = 2 * c - 1 + ch0_free + j
+    idx = _public_index(c, ch0_free)
     ok = idx >= 0
 
     def vec(x: np.ndarray) -> np.ndarray:
