@@ -163,7 +163,9 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
 
     (entry,) = _fit_part(cal)["device_model"]
     assert entry["key"] == "channel_delay@2" and entry["values"] == {"tau_s": tau_est} and entry["night"] == "2026-11-20"
-    assert "channel_delay@2: tau_s = 0.00119 (u 2e-05), from the pooled examination of 2026-11-20 (A, B)" in \
+    assert "carried (the readings corrected for it, a channel delay taken in the channel's angle; each value's " \
+        "uncertainty is an input of the budget): channel_delay@2: tau_s = 0.00119 (u 2e-05), from the pooled " \
+        "examination of 2026-11-20 (A, B)." in \
         device_model_text([entry])
     assert "device_model" not in _fit_part(plain)
 

@@ -367,20 +367,24 @@ def _fit_part(cal: TriCalibration) -> dict:
 
 
 def device_model_text(entries: list[dict]) -> str:
-    """The device model a calibration carried, in words (certificate section 2, the report)."""
-    parts = []
+    """The device model a calibration carried, in words (certificate section 2)."""
+    carried, listed = [], []
     for m in entries:
         if not m.get("estimated"):
-            parts.append(f"{m['key']}: listed in the device model, not estimated by any earlier pooled examination "
-                         "(not corrected)")
+            listed.append(m["key"])
             continue
         vals = ", ".join(f"{k} = {v:.6g} (u {m['u'].get(k, 0.0):.2g})" for k, v in m["values"].items())
         how = " (entered automatically: named night after night)" if m.get("source") == "automatic" else ""
-        parts.append(f"{m['key']}: {vals}, from the pooled examination of {m['night']} "
-                     f"({', '.join(m.get('evidence_scans') or []) or 'its scans'}){how}")
-    return ("Device model: the readings (a channel delay: the channel's angle) were corrected for " + "; ".join(parts)
-            + ". Each value's uncertainty is an input of the budget.")
-
+        carried.append(f"{m['key']}: {vals}, from the pooled examination of {m['night']} "
+                       f"({', '.join(m.get('evidence_scans') or []) or 'its scans'}){how}")
+    out = []
+    if carried:
+        out.append("Device model carried (the readings corrected for it, a channel delay taken in the channel's "
+                   "angle; each value's uncertainty is an input of the budget): " + "; ".join(carried) + ".")
+    if listed:
+        out.append("Listed in the device model but not estimated by any earlier pooled examination, so not corrected: "
+                   + ", ".join(listed) + ".")
+    return " ".join(out)
 
 def certificate_dict(
     cal: TriCalibration,
@@ -865,7 +869,12 @@ def _label(row: dict) -> str:
     if kind == "fit":
         names = {"readings": "fit to the readings (scatter)", "second_order": "2nd-order term of d_b in rho",
                  "extrema": "extreme readings (scatter)"}
+        if tail.startswith("profile"):
+            return f"rho profile, ch {tail.removeprefix('profile')} (non-linear)"
         return names.get(tail, "unresolved mirror solution " + tail.removeprefix("mirror"))
+    if kind == "device_model":  # device_model:<device>:<effect key>:<parameter>@<night>
+        parts = rest.split(":")
+        return f"device model {parts[1]} {parts[2].split('@')[0]}" if len(parts) >= 3 else _short_quantity(row)
     if kind == "position":
         return f"offset S-C, {tail} (reported positions)"
     if kind == "gauge":
