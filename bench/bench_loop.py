@@ -115,7 +115,8 @@ def _model_from(findings: dict, device_id: str, channels) -> tuple[str | None, l
 
 
 def _residual_ratio(scans, cfg: dict, model) -> tuple[float, bool, object]:
-    """Night-2 calibration (pipeline path, budget): (max residual / noise floor, accepted, calibration or None)."""
+    """A night's calibration (pipeline path, budget): (max residual / noise floor, accepted, calibration or None);
+    NaN when the fit does not converge even without the acceptance rule."""
     from borescan.calibration import CalibrationError
     from borescan.stages.calibration_fit import calibrate_raw_scans
 
@@ -125,8 +126,11 @@ def _residual_ratio(scans, cfg: dict, model) -> tuple[float, bool, object]:
         accepted = True
     except CalibrationError:
         cal, accepted = None, False
-    fit = cal if cal is not None else calibrate_raw_scans(
-        scans, {**cfg["calibration"], "max_residual_to_noise": 1e9}, model=model)
+    try:
+        fit = cal if cal is not None else calibrate_raw_scans(
+            scans, {**cfg["calibration"], "max_residual_to_noise": 1e9}, model=model)
+    except CalibrationError:  # not even fitted (no convergence): no residual to show
+        return math.nan, False, None
     ratio = max(max(float(x) for x in nu["residual_to_noise"]) for nu in fit.nuisance.values())
     return ratio, accepted, cal
 
@@ -146,6 +150,7 @@ def run_one(job: tuple) -> dict:
     from borescan.config import schema_defaults
     from borescan.discrepancy.examine import discrepancy_settings
     from borescan.discrepancy.pooled import examine_pooled, pooled_scan
+    from borescan.calibration import CalibrationError
     from borescan.discrepancy.battery import effect_label
     from borescan.stages.calibration_fit import calibrate_raw_scans
 
@@ -161,9 +166,13 @@ def run_one(job: tuple) -> dict:
             n1, n2, (ver,) = written(sc["night1"]), written(sc["night2"]), written([sc["ver"]])
             _, ok1, cal1 = _residual_ratio(n1, cfg, [])
             if cal1 is None:  # refused for its residual: examined from the fit as it came out (as bench_pooled)
-                cal1 = calibrate_raw_scans(n1, {**cfg["calibration"], "max_residual_to_noise": 1e9})
+                try:
+                    cal1 = calibrate_raw_scans(n1, {**cfg["calibration"], "max_residual_to_noise": 1e9})
+                except CalibrationError:  # not even fitted: examined as an uncalibrated device (design geometry)
+                    cal1 = None
             settings = {**discrepancy_settings(), "max_samples": MAX_SAMPLES}
-            pf = examine_pooled([pooled_scan(s, MAX_SAMPLES) for s in sc["night1"]], cal1.beams, **settings).findings
+            pf = examine_pooled([pooled_scan(s, MAX_SAMPLES) for s in sc["night1"]],
+                                None if cal1 is None else cal1.beams, **settings).findings
             key, model = _model_from(pf, sc["device_id"], tuple(int(x["channel"]) for x in n1[0].meta["sensors"]))
             before, acc_before, cal_before = _residual_ratio(n2, cfg, [])
             after, acc_after, cal_after = _residual_ratio(n2, cfg, model) if model else (before, acc_before, cal_before)
@@ -192,7 +201,7 @@ def summarise(rows: list[dict]) -> str:
            f"{'after':>6s} {'<=1.2':>6s} {'|E|/U before':>13s} {'after':>6s} {'<=1':>5s}"]
 
     def med(xs):
-        xs = [x for x in xs if x is not None]
+        xs = [x for x in xs if x is not None and math.isfinite(x)]
         return f"{np.median(xs):.2f}" if xs else "-"
 
     for name in sorted(by):
