@@ -341,4 +341,4 @@ def test_a_device_model_is_carried_by_a_night_calibration(pipeline_run, tmp_path
         f"device_model:TRI-01:sensor_gain@2:g@{n1}"]
     cert = json.loads(next((tmp_path / "calibration").glob(f"night={n2}/TRI-01/*/certificate.json")).read_text())
     assert [m["key"] for m in cert["fit"]["device_model"]] == ["sensor_gain@2", "sensor_offset@3"]
-    assert any("sensor_offset@3 not estimated yet" in x for x in lines)
+    assert any("sensor_offset@3 (config) not estimated yet" in x for x in lines)
