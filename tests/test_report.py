@@ -550,11 +550,24 @@ def test_device_model_section_shows_pooled_verdicts_device_effects_and_flagged_d
         "night": [night] * 2, "device_id": ["TRI-01"] * 2, "channel": [2, 3], "parameter": ["beta_rad", "rho_mm"],
         "calibration_id_after": ["CAL-2"] * 2, "change": [0.0040, 0.0001], "u_combined": [0.00085, 0.001],
         "change_over_u": [4.7, 0.1], "flagged": [True, False], "explained_by": ["channel_delay@2", None]})
+    # the night's calibration of TRI-01 carried channel_delay@2 (from the night before) and listed an offset
+    base = t["calibrations"].filter(pl.col("device_id") == "TRI-01").head(1)
+    carried = {"diagnostics": {"device_model": [
+        {"key": "channel_delay@2", "estimated": True, "values": {"tau_s": 0.00119}, "u": {"tau_s": 0.00002},
+         "night": "2026-11-19", "source": "config"},
+        {"key": "sensor_offset@3", "estimated": False, "values": {}, "u": {}, "night": None, "source": "automatic"}]},
+        "nuisance": {"CAL-A": {"residual_to_noise": [1.01, 1.03, 0.99]}}}
+    t["calibrations"] = pl.concat([t["calibrations"], base.with_columns(
+        pl.lit("CAL-DM").alias("calibration_id"), pl.lit(night).alias("night"), pl.lit(night).alias("valid_from"),
+        pl.lit(json.dumps(carried)).alias("calibration_json"))], how="diagonal_relaxed")
     catalog.build_catalog(res, t)
     sec = _section(report.write_report(res).read_text(), "pooled")
     row = sec.split("<td>TRI-01</td>")[1].split("</tr>")[0]
     assert "<b>channel_delay</b> on channel 2: tau_s = 1.200 ± 0.030 ms (evidence: CAL-A,CAL-B)" in row
     assert "<b>sensor_gain</b> on channel 1" in row.split("</td><td>")[2]  # the device-model column
+    cell = row.split("</td><td>")[3]  # what the night's calibration carried, and its residual
+    assert "<b>channel_delay@2</b>: tau_s = 1.190 ± 0.020 ms (from 2026-11-19)" in cell
+    assert "<b>sensor_offset@3</b>: not estimated yet" in cell and "residual 1.03 × noise floor" in cell
     assert ">6.10<" in row and ">2.10<" in row and ">2.00<" in row
     drift = sec.split("Calibration drift (1 flagged of 2 changes)")[1]
     assert "+4 mrad" in drift and "0.85 mrad" in drift and "channel_delay@2" in drift and "rho_mm" not in drift

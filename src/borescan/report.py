@@ -1084,7 +1084,8 @@ class _Builder:
 
     def pooled(self) -> str:
         """Per device and night: the spindle scans examined together (borescan.discrepancy.pooled), the
-        device model's effects, the gap against the noise floor, and the calibration drifts flagged."""
+        device model's effects, what the night's calibration carried of it with its residual against the
+        noise floor, the gap against the noise floor, and the calibration drifts flagged."""
         pf = self.t.get("pooled_findings")
         dr = self.t.get("calibration_drift")
         if (pf is None or pf.height == 0) and (dr is None or dr.height == 0):
@@ -1096,6 +1097,7 @@ class _Builder:
                "± u (k=1).</p>"]
         if pf is not None and pf.height:
             rows, classes = [], []
+            carried = _carried_by_calibrations(self.t.get("calibrations"))
             for (dev, night), grp in pf.group_by("device_id", "night", maintain_order=True):
                 recs = grp.to_dicts()
                 first = recs[0]
@@ -1113,14 +1115,15 @@ class _Builder:
                 absorbed = first.get("absorbed")
                 note = (f"<br>{_e(first['reason'])}" if verdict == "failed" and first.get("reason") else "")
                 rows.append([_e(night), _e(dev), f"<b>{_e(verdict)}</b>{note}", "<br>".join(named) or "–",
-                             "<br>".join(model) or "–", _e(absorbed) if absorbed else "",
-                             _um(first.get("gap_before_mm"), 2), _um(first.get("gap_after_mm"), 2),
+                             "<br>".join(model) or "–", carried.get((dev, str(night)), "–"),
+                             _e(absorbed) if absorbed else "", _um(first.get("gap_before_mm"), 2), _um(first.get("gap_after_mm"), 2),
                              _um(first.get("noise_floor_mm"), 2)])
                 classes.append("fail" if verdict in ("missing_effect", "failed") else
                                "warn" if verdict == "ambiguous" else "")
             out.append(_table(["night", "device", "verdict", "named (value ± u)", "in the device model",
-                               "what these scans cannot separate", "gap before [µm rms]", "gap after [µm rms]",
-                               "noise floor [µm]"], rows, classes, num_cols={6, 7, 8}))
+                               "the night's calibration carried", "what these scans cannot separate",
+                               "gap before [µm rms]", "gap after [µm rms]", "noise floor [µm]"], rows, classes,
+                              num_cols={7, 8, 9}))
         if dr is not None and dr.height:
             flagged = dr.filter(pl.col("flagged").fill_null(False))
             out.append(f"<h3>Calibration drift ({flagged.height} flagged of {dr.height} changes)</h3>")
@@ -1326,6 +1329,37 @@ def _uncertainties(u: Any) -> dict[str, float]:
     if not isinstance(u, dict):
         return {}
     return {k.removeprefix("u_"): v for k, v in u.items() if isinstance(v, int | float)}
+
+
+def _carried_by_calibrations(cal: pl.DataFrame | None) -> dict[tuple[str, str], str]:
+    """(device, night) -> what the night's calibration carried of its device model (calibration_json
+    diagnostics: each entry with value ± u and the night it came from, or "not estimated") and its
+    residual against the readings' noise floor: when an effect entered the model and what it did to the
+    calibration's gap."""
+    out: dict[tuple[str, str], str] = {}
+    if cal is None or cal.height == 0 or "calibration_json" not in cal.columns:
+        return out
+    for r in cal.unique("calibration_id", keep="first").iter_rows(named=True):
+        try:
+            d = json.loads(r["calibration_json"] or "{}")
+        except ValueError:
+            continue
+        model = (d.get("diagnostics") or {}).get("device_model") or []
+        if not model:
+            continue
+        parts = []
+        for m in model:
+            if m.get("estimated"):
+                vals = _parameters_text(m["key"].split("@")[0], json.dumps(m.get("values") or {}), m.get("u") or {})
+                parts.append(f"<b>{_e(m['key'])}</b>: {vals} (from {_e(m.get('night'))}"
+                             + (", automatic" if m.get("source") == "automatic" else "") + ")")
+            else:
+                parts.append(f"<b>{_e(m['key'])}</b>: not estimated yet")
+        ratios = [max(x for x in (nu.get("residual_to_noise") or [0.0]) if x is not None)
+                  for nu in (d.get("nuisance") or {}).values()]
+        tail = f"<br>residual {max(ratios):.2f} × noise floor" if ratios else ""
+        out[(r["device_id"], str(r["valid_from"]))] = "<br>".join(parts) + tail
+    return out
 
 
 def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -> str:
