@@ -21,12 +21,11 @@ import numpy as np
 
 from borescan import calibration, device_model
 from borescan.artifacts import artifact_key
-from borescan.effects import EFFECTS
 from borescan.measure import sensor_terms
 from borescan.noise import noise_floor_mm
 from borescan.uncertainty import Budget, Input, Term
 
-__all__ = ["calibration_budget", "with_budget", "parameter_labels", "device_model_term"]
+__all__ = ["calibration_budget", "with_budget", "parameter_labels"]
 
 
 def parameter_labels(cal) -> tuple[list[str], list[str]]:
@@ -49,26 +48,19 @@ def _rank_one_parts(C: np.ndarray, scale: np.ndarray, rel: float = 1e-6) -> list
     return [sc * V[:, i] * math.sqrt(w[i]) for i in range(w.size) if w[i] > rel]
 
 
-def _device_model_perturbations(model, inputs: list[dict]) -> dict[str, list[np.ndarray]]:
-    """Per carried parameter (``"<entry index>:<name>"``) and scan, d(corrected readings)/d(parameter)."""
-    out: dict[str, list[np.ndarray]] = {}
+def _device_model_derivatives(model, inputs: list[dict], channels) -> tuple[dict, dict]:
+    """Per carried parameter (``"<entry index>:<name>"``): d(corrected readings)/d(parameter) per scan
+    (beam and reading effects) and d(channel time offsets)/d(parameter) (c,) (a channel delay);
+    each is zero for the other kind (:func:`borescan.device_model.derivatives`)."""
+    dys: dict[str, list[np.ndarray]] = {}
     for x in inputs:
-        d = device_model.reading_sensitivities(x["t_s"], x.get("readings_recorded", x["readings"]), x["channels"],
-                                               model, x["range_mm"])
-        for (i, name), dy in d.items():
-            out.setdefault(f"{i}:{name}", []).append(dy)
-    return out
-
-
-def device_model_term(device_id: str, entry, name: str, sensitivity) -> Term:
-    """The GUM term of one parameter of a device-model effect the readings were corrected for (its value
-    and u from the pooled examination of ``entry.night``; normal, the fit's standard uncertainty)."""
-    unit = EFFECTS[entry.key.split("@")[0]].params.get(name, "-")
-    return Term(Input(device_model.input_key(device_id, entry, name),
-                      f"{entry.key} {name} (device model, readings corrected for it)", name, unit,
-                      entry.values()[name], float(entry.u[name]), "normal",
-                      source=f"pooled examination of {device_id} on {entry.night} "
-                             f"({', '.join(entry.evidence_scans) or 'its scans'})"), np.asarray(sensitivity, dtype=float))
+        y = x.get("readings_recorded", x["readings"])
+        for (i, name), dy in device_model.derivatives(
+                model, lambda m: device_model.correct(x["t_s"], y, x["channels"], m, x["range_mm"])).items():
+            dys.setdefault(f"{i}:{name}", []).append(np.nan_to_num(dy))
+    dtau = {f"{i}:{name}": d for (i, name), d in device_model.derivatives(
+        model, lambda m: device_model.channel_time_offsets(m, channels, zeros=True)).items()}
+    return dys, dtau
 
 
 def calibration_budget(cal, inputs: list[dict], uncertainty: dict, *, scan_ids, sensitivities: dict | None = None,
@@ -106,19 +98,15 @@ def calibration_budget(cal, inputs: list[dict], uncertainty: dict, *, scan_ids, 
     dT = temp.temperature_c - 20.0
     if cal.method == "full_lsq":
         model = device_model.from_dicts(cal.diagnostics.get("device_model"))
-        carried = _device_model_perturbations(model, inputs)
+        dys, dtau = _device_model_derivatives(model, inputs, cal.beams.channels)
         sens = calibration.full_lsq_sensitivities(
             cal, [x["t_s"] for x in inputs], [x["readings"] for x in inputs], x0["R"], [x["angle_model"] for x in inputs],
             spindle_xy_mm=[x["spindle_xy"] for x in inputs], center_xy_mm=[x["center_xy"] for x in inputs],
-            reading_perturbations=carried)
-        for key in carried:
+            reading_perturbations=dys)
+        for key, d in dtau.items():  # each carried parameter: through the readings and the channels' times
             i, name = key.split(":", 1)
-            b.add(device_model_term(cal.device_id, model[int(i)], name, sens["reading_perturbation"][key]))
-        for entry in model:  # a carried channel delay: the time channel c's angle is taken at
-            for e in entry.effects:
-                if e.spec.stage == "time_base" and entry.u.get("tau_s", 0.0) > 0:
-                    j = list(cal.beams.channels).index(e.channel)
-                    b.add(device_model_term(cal.device_id, entry, "tau_s", sens["channel_time_offset"][:, j]))
+            b.add(Term(device_model.gum_input(cal.device_id, model[int(i)], name),
+                       sens["reading_perturbation"][key] + sens["channel_time_offset"] @ d))
         n_obs = int(cal.diagnostics.get("n_obs", 0))
         b.add(Term(Input(f"fit:{cal.calibration_id}:readings", "least-squares fit to the readings (their scatter)",
                          "v", "mm", None, math.sqrt(sens["s2"]), "normal", float(cal.dof), "A",

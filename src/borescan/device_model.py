@@ -22,9 +22,10 @@ import numpy as np
 
 from borescan.effects import EFFECTS, Effect
 from borescan.model import CORRECTABLE_STAGES, tri_correct_readings
+from borescan.uncertainty import Input
 
 __all__ = ["CORRECTABLE_STAGES", "DeviceEffect", "device_model_at", "carried_effects", "correct", "channel_time_offsets",
-           "reading_sensitivities", "from_dicts", "input_key", "correct_inputs", "carry", "lookup", "auto_keys"]
+           "derivatives", "gum_input", "from_dicts", "input_key", "correct_inputs", "carry", "lookup", "auto_keys"]
 
 #: relative step of the central differences of the corrected readings in a carried parameter
 _STEP = 1e-3
@@ -191,39 +192,50 @@ def correct(t_s, readings_mm, channels, model: Iterable[DeviceEffect], range_mm)
     return tri_correct_readings(t_s, readings_mm, channels, effs, range_mm)
 
 
-def channel_time_offsets(model: Iterable[DeviceEffect], channels: Sequence[int]) -> np.ndarray | None:
+def channel_time_offsets(model: Iterable[DeviceEffect], channels: Sequence[int], *,
+                         zeros: bool = False) -> np.ndarray | None:
     """Per channel tau (c,) [s] of the carried time-base effects: channel c's reading at stamp t is the
     geometry of time t - tau_c (``channel_delay``; the registry's forward t' = t - tau at t = 0).
-    None without any (a still scene ignores them: static poses need none)."""
+    None without any (a still scene ignores them: static poses need none), zeros when ``zeros``."""
     tau = np.zeros(len(channels))
     for e in carried_effects(model):
         if e.spec.stage == "time_base":
             tau[list(channels).index(e.channel)] += -float(e.spec.forward["tri_lds"](np.zeros(1), e.params)[0])
-    return tau if np.any(tau) else None
+    return tau if zeros or np.any(tau) else None
 
 
-def reading_sensitivities(t_s, readings_mm, channels, model: Sequence[DeviceEffect], range_mm
-                          ) -> dict[tuple[int, str], np.ndarray]:
-    """d(corrected readings) / d(each carried parameter of a beam or reading effect), central differences.
+def derivatives(model: Sequence[DeviceEffect], f) -> dict[tuple[int, str], np.ndarray]:
+    """d f(model) / d(each carried parameter) by central differences, the parameter moved by
+    +-``_STEP`` of its size or its u, whichever is larger.
 
-    Returns {(index of the entry in ``model``, parameter name): ndarray like ``readings_mm``}
-    [mm per parameter unit]; entries without an estimate, without uncertainty or of the time base
-    (carried by the channel's angle, not the readings) are skipped.
+    ``f`` maps a device model to an array or a number (corrected readings, channel time offsets, a
+    diameter). Returns {(index of the entry in ``model``, parameter name): derivative [f's unit per
+    parameter unit]}; entries without an estimate or without uncertainty are skipped.
     """
-    out = {}
     model = list(model)
+    out = {}
     for i, entry in enumerate(model):
+        if not entry.estimated:
+            continue
         for name, u in entry.u.items():
-            if not entry.estimated or not (u > 0) or entry.effects[0].spec.stage not in CORRECTABLE_STAGES:
+            if not (u > 0):
                 continue
             v0 = entry.values()[name]
             h = max(abs(v0), u) * _STEP
-            up = [m if j != i else entry.with_value(name, v0 + h) for j, m in enumerate(model)]
-            dn = [m if j != i else entry.with_value(name, v0 - h) for j, m in enumerate(model)]
-            d = (correct(t_s, readings_mm, channels, up, range_mm)
-                 - correct(t_s, readings_mm, channels, dn, range_mm)) / (2 * h)
-            out[(i, name)] = np.nan_to_num(d)
+            up, dn = ([m if j != i else entry.with_value(name, v0 + s * h) for j, m in enumerate(model)]
+                      for s in (1.0, -1.0))
+            out[(i, name)] = (np.asarray(f(up), dtype=float) - np.asarray(f(dn), dtype=float)) / (2 * h)
     return out
+
+
+def gum_input(device_id: str, entry: DeviceEffect, name: str) -> Input:
+    """The GUM input of one carried parameter (normal, the pooled fit's standard uncertainty); the same
+    key (:func:`input_key`) in a calibration's budget and in a diameter's, so the two add."""
+    return Input(input_key(device_id, entry, name), f"{entry.key} {name} (device model, readings corrected for it)",
+                 name, EFFECTS[entry.key.split("@")[0]].params.get(name, "-"), entry.values()[name],
+                 float(entry.u[name]), "normal",
+                 source=f"pooled examination of {device_id} on {entry.night} "
+                        f"({', '.join(entry.evidence_scans) or 'its scans'})")
 
 
 def correct_inputs(inputs: list[dict], model) -> list[dict]:
@@ -231,7 +243,7 @@ def correct_inputs(inputs: list[dict], model) -> list[dict]:
     :func:`borescan.stages.calibration_fit.spindle_inputs`) with the readings corrected for the model's
     beam and reading effects (:func:`correct`; a channel delay is carried by the fit's angles); the
     recorded readings are kept as ``readings_recorded`` (the budget differentiates the correction
-    there). Unchanged without such effects."""
+    there, :func:`derivatives`). Unchanged without such effects."""
     if not any(e.spec.stage in CORRECTABLE_STAGES for e in carried_effects(model)):
         return inputs
     return [dict(x, readings_recorded=x["readings"], readings=correct(x["t_s"], x["readings"], x["channels"], model,

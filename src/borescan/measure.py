@@ -366,8 +366,7 @@ def measure_scan(scan, beams: Beams, cov_beams=None, device_model=()) -> dict:
     sp = scan.spindle
     if device_model:
         sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
-        rng = [float((sensors.get(ch) or {}).get("range_mm") or 10.0) for ch in beams.channels]
-        v = correct(m.t_s, v, beams.channels, device_model, rng)
+        v = correct(m.t_s, v, beams.channels, device_model, sensor_ranges_mm(sensors, beams.channels))
     if sp is not None and sp.height > 1:
         t_sp = sp["t_ns"].to_numpy() * 1e-9
         phi = _rotating_angle(scan, m.t_s, v, channel_time_offsets(device_model, beams.channels))
@@ -481,6 +480,12 @@ def mean_reading_u_mm(u_one_mm, counts) -> float | None:
 
 
 # --------------------------------------------------------------------------- GUM budget of a diameter
+
+
+def sensor_ranges_mm(sensors: dict, channels) -> list[float]:
+    """Each channel's measuring range [mm] from scan.json ``sensors`` (channel -> entry); 10 mm where
+    a sensor does not state one."""
+    return [float((sensors.get(int(ch)) or {}).get("range_mm") or 10.0) for ch in channels]
 
 
 def sensor_terms(sensors: dict, channels, sensitivity: np.ndarray, key: str, noise_mm, default_resolution_mm: float,
@@ -788,20 +793,9 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict) -> tuple[dict, DiameterUn
 
 def _device_model_inputs(scan, cal, dm) -> list[tuple[Input, float]]:
     """(input, dD/d parameter) of each carried device-model parameter through this scan's own readings
-    (central differences of :func:`measure_scan` with the parameter moved by +-1e-3 of its size or u)."""
-    from .calibration_budget import device_model_term
-
-    out = []
-    for i, entry in enumerate(dm):
-        for name, u in entry.u.items():
-            if not entry.estimated or not (u > 0):
-                continue
-            v0 = entry.values()[name]
-            h = max(abs(v0), u) * 1e-3
-            d = [measure_scan(scan, cal.beams, None, [e if j != i else e.with_value(name, v0 + s * h)
-                                                      for j, e in enumerate(dm)])["diameter_mm"] for s in (1.0, -1.0)]
-            out.append((device_model_term(cal.device_id, entry, name, 0.0).input, (d[0] - d[1]) / (2 * h)))
-    return out
+    (:func:`borescan.device_model.derivatives` of :func:`measure_scan`'s diameter)."""
+    d = device_model.derivatives(dm, lambda m: measure_scan(scan, cal.beams, None, m)["diameter_mm"])
+    return [(device_model.gum_input(cal.device_id, dm[i], name), float(v)) for (i, name), v in d.items()]
 
 
 # --------------------------------------------------------------------------- verification

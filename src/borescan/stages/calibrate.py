@@ -128,6 +128,8 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
     p = float(unc["coverage_probability"])
     try:
         if method == "yang2017":
+            if ctx["device_model"](device_id, inputs[0]["channels"]):
+                log(f"{device_id}: its device model is not carried by yang2017 (extrema of the recorded readings)")
             fit = yang_from_summary(scans[0], inputs[0], summary, nominal, night, log=log)
         else:
             model = ctx["device_model"](device_id, inputs[0]["channels"])

@@ -19,6 +19,7 @@ from borescan.artifacts import artifact_cte, gauge_radius_mm, scan_temperature
 from borescan.calibration_budget import calibration_budget, with_budget
 from borescan.config import schema_defaults
 from borescan.geometry import Beams
+from borescan.measure import sensor_ranges_mm
 from borescan.uncertainty import Budget
 
 __all__ = ["spindle_inputs", "scan_conditions", "acceptance_rule", "fit_device_calibration", "calibrate_raw_scans",
@@ -59,7 +60,7 @@ def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None) -> dict
         "spindle_xy": spindle_xy, "center_xy": None if not center else (float(center["x_mm"]), float(center["y_mm"])),
         "rpm": float(abs(angle_model.mean_omega_rad_s()) * 60.0 / (2.0 * np.pi)),
         "direction": sp_meta.get("direction", "ccw"), "angle_model": angle_model,
-        "range_mm": [float((sensors.get(ch) or {}).get("range_mm") or 10.0) for ch in mat.channels],
+        "range_mm": sensor_ranges_mm(sensors, mat.channels),
         "R": gauge_radius_mm(meta, temp.temperature_c, cte.cte_per_k),
         "temperature": temp, "cte": cte, "artifact": dict(meta.get("artifact") or {}), "sensors": sensors,
     }
