@@ -27,6 +27,7 @@ rule calibrate_night:
         verification=config["verification"],
         devices=config["devices"],
         device_model_auto_nights=config["discrepancy"]["device_model_auto_nights"],
+        signal=config["signal"],
     log:
         f"{RES}/logs/calibrate_night/{{night}}.log",
     benchmark:

@@ -19,6 +19,7 @@ rule measure_night:
         calibration=config["calibration"],
         uncertainty=config["uncertainty"],
         laboratory=config["laboratory"],
+        signal=config["signal"],
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/measure_night/{{night}}.log",

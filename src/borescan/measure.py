@@ -332,7 +332,7 @@ def _rotating_sensitivities(model: DiameterModel, beams: Beams) -> tuple[np.ndar
     return jp, jv
 
 
-def measure_scan(scan, beams: Beams, cov_beams=None, device_model=()) -> dict:
+def measure_scan(scan, beams: Beams, cov_beams=None, device_model=(), cleaning=None) -> dict:
     """Diameter of one ``tri_lds`` raw scan (``rawio.RawScan``) with calibrated ``beams``.
 
     With a spindle stream: rotating scan (angle from :mod:`borescan.kinematics`: the encoder
@@ -355,12 +355,14 @@ def measure_scan(scan, beams: Beams, cov_beams=None, device_model=()) -> dict:
     ``model`` (:class:`DiameterModel`, D as a function of the beams with these readings).
     ``device_model``: the calibration's carried device-model effects
     (:class:`borescan.device_model.DeviceEffect`); the readings are corrected for them first.
+    ``cleaning``: the spike policy (:func:`borescan.readings.cleaning_policy`; schema defaults
+    when None); the readings are :func:`borescan.readings.prepared_matrix`.
     """
     from .device_model import channel_time_offsets, correct
     from .noise import noise_floor_mm
-    from .rawio import lds_matrix
+    from .readings import prepared_matrix
 
-    m = lds_matrix(scan)
+    m = prepared_matrix(scan, cleaning)
     idx = [m.channels.index(ch) for ch in beams.channels]
     v = m.values_mm[:, idx]
     sp = scan.spindle
@@ -764,10 +766,11 @@ def calibration_budget_of(cal) -> Budget:
         "p", "-", None, 0.0, "normal", source="TriCalibration.cov"), cov=cal.cov)])
 
 
-def tri_diameter_with_budget(scan, cal, unc_cfg: dict) -> tuple[dict, DiameterUncertainty]:
+def tri_diameter_with_budget(scan, cal, unc_cfg: dict, cleaning=None) -> tuple[dict, DiameterUncertainty]:
     """Diameter of a three-sensor scan (:func:`measure_scan`) with its GUM budget
     (:func:`diameter_uncertainty`): the calibration's budget, the readings, the sensors, the
     scan's temperature (``uncertainty`` policy) and the artifact's expansion coefficient.
+    ``cleaning``: the spike policy of :func:`measure_scan`.
 
     Raises :class:`borescan.artifacts.MissingTemperature` when the scan has no temperature and
     the config refuses such scans.
@@ -777,7 +780,7 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict) -> tuple[dict, DiameterUn
     temp = scan_temperature(scan.meta, unc_cfg)
     cte = artifact_cte(scan.meta, unc_cfg)
     dm = device_model.from_dicts((cal.diagnostics or {}).get("device_model"))
-    res = measure_scan(scan, cal.beams, cal.cov, device_model=dm)
+    res = measure_scan(scan, cal.beams, cal.cov, device_model=dm, cleaning=cleaning)
     sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
     du = diameter_uncertainty(
         res["diameter_mm"], jac_params=res["jac_params"], calibration_budget=calibration_budget_of(cal),
@@ -787,14 +790,14 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict) -> tuple[dict, DiameterUn
         p=float(unc_cfg["coverage_probability"]), default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
         readings_what="measurement", calibration_id=cal.calibration_id, model=res["model"], beams=cal.beams,
         rho_profiles=(cal.diagnostics or {}).get("rho_profiles"),
-        extra_terms=_device_model_inputs(scan, cal, dm))
+        extra_terms=_device_model_inputs(scan, cal, dm, cleaning))
     return res, du
 
 
-def _device_model_inputs(scan, cal, dm) -> list[tuple[Input, float]]:
+def _device_model_inputs(scan, cal, dm, cleaning=None) -> list[tuple[Input, float]]:
     """(input, dD/d parameter) of each carried device-model parameter through this scan's own readings
     (:func:`borescan.device_model.derivatives` of :func:`measure_scan`'s diameter)."""
-    d = device_model.derivatives(dm, lambda m: measure_scan(scan, cal.beams, None, m)["diameter_mm"])
+    d = device_model.derivatives(dm, lambda m: measure_scan(scan, cal.beams, None, m, cleaning)["diameter_mm"])
     return [(device_model.gum_input(cal.device_id, dm[i], name), float(v)) for (i, name), v in d.items()]
 
 
@@ -1035,15 +1038,16 @@ def verification_row(scan_id, device_id, artifact_id, v: Verification) -> dict:
     }
 
 
-def verification_for_certificate(scan, cal, unc_cfg: dict, lab_cfg: dict, tolerance_mm: float) -> dict | None:
+def verification_for_certificate(scan, cal, unc_cfg: dict, lab_cfg: dict, tolerance_mm: float,
+                                 cleaning=None) -> dict | None:
     """A ring-gauge verification scan measured with ``cal`` and verified (:func:`verify_budget`),
     as a row for the calibration's certificate: the ``verifications`` columns plus the budget rows
     (``budget``), the gauge's ``certificate`` and the scan's ``raw_files`` (name -> SHA-256).
-    None when the scan's artifact is not a certified ring gauge."""
+    None when the scan's artifact is not a certified ring gauge. ``cleaning``: the spike policy."""
     art = scan.meta.get("artifact") or {}
     if art.get("type") != "ring_gauge" or art.get("certified_diameter_mm") is None:
         return None
-    _, du = tri_diameter_with_budget(scan, cal, unc_cfg)
+    _, du = tri_diameter_with_budget(scan, cal, unc_cfg, cleaning)
     v = verify_budget(du, art, tolerance_mm, float(unc_cfg["coverage_probability"]), lab_cfg["decision_rule"],
                       float(lab_cfg["guard_band_factor"]))
     row = verification_row(scan.scan_id, cal.device_id, art.get("id"), v)

@@ -250,27 +250,29 @@ def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget 
     return layers, Budget.from_dict(json.loads(blob)["budget"])
 
 
-def pose_means_of_scan(scan) -> tuple[list[int], np.ndarray, float | None, dict]:
+def pose_means_of_scan(scan, cleaning=None) -> tuple[list[int], np.ndarray, float | None, dict]:
     """(channels, mean reading per pose and layer (n, m), u of one mean from the data sheet, sensors)
-    of a rod scan (:func:`borescan.measure.pose_means`, :func:`borescan.measure.mean_reading_u_mm`)."""
-    from . import measure, rawio
+    of a rod scan (:func:`borescan.measure.pose_means`, :func:`borescan.measure.mean_reading_u_mm`)
+    over its readings cleaned by the spike policy ``cleaning`` (:func:`borescan.readings.prepared_matrix`)."""
+    from . import measure, readings
 
-    mat = rawio.lds_matrix(scan)
+    mat = readings.prepared_matrix(scan, cleaning)
     _poses, means, counts = measure.pose_means(mat.values_mm, mat.pose)
     sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
     u_mean = measure.mean_reading_u_mm(measure.reading_u_mm(sensors, mat.channels), counts)
     return [int(c) for c in mat.channels], means, u_mean, sensors
 
 
-def rod_diameters_with_budget(scan, layer_rows: list[dict], unc_cfg: dict, calibration_id: str | None = None
-                              ) -> list[dict]:
+def rod_diameters_with_budget(scan, layer_rows: list[dict], unc_cfg: dict, calibration_id: str | None = None,
+                              cleaning=None) -> list[dict]:
     """Hole diameters of a rod scan with their GUM budgets.
 
     The joint rod solve with the calibration's layers (``layer_rows``: its ``calibrations`` rows,
     a ring-gauge calibration or the design geometry), each mean reading's uncertainty from the
     sensors' data sheet; the budget (:func:`borescan.measure.diameter_uncertainty`) adds the
     calibration's budget with sensitivity 2 on the layer's l0 (none for the design geometry), the
-    scan's temperature and the artifact's expansion coefficient.
+    scan's temperature and the artifact's expansion coefficient. ``cleaning``: the spike policy
+    (:func:`pose_means_of_scan`).
 
     Returns one dict per layer: channel, feature, diameter_mm (at the scan's temperature), du
     (:class:`borescan.measure.DiameterUncertainty`), poses, condition, traceable (a gauge calibration).
@@ -281,7 +283,7 @@ def rod_diameters_with_budget(scan, layer_rows: list[dict], unc_cfg: dict, calib
     from .artifacts import artifact_cte, scan_temperature
     from .measure import diameter_uncertainty
 
-    channels, means, u_mean, _sensors = pose_means_of_scan(scan)
+    channels, means, u_mean, _sensors = pose_means_of_scan(scan, cleaning)
     layers, cal_budget = rod_calibration_from_rows(layer_rows)
     by_ch = {int(lay.channel): lay for lay in layers}
     missing = sorted(set(channels) - set(by_ch))

@@ -12,7 +12,7 @@ def main(smk) -> None:
             smk.input.scans, smk.input.summary, smk.params.calibration, log=log,
             uncertainty=smk.params.uncertainty, laboratory=smk.params.laboratory,
             verification=smk.params.verification, devices=smk.params.devices, pooled_tables=list(smk.input.pooled),
-            auto_nights=smk.params.device_model_auto_nights,
+            auto_nights=smk.params.device_model_auto_nights, signal=smk.params.signal,
         )
         write_stage_outputs(smk.output, bad, calibrations=cals, calibration_scans=links)
         log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans quarantined")

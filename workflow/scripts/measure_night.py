@@ -10,7 +10,7 @@ def main(smk) -> None:
         diameters, verifications, artifacts, bad = stage_measure(
             smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
             smk.input.scans, list(smk.input.calibrations), list(smk.input.verifications_before),
-            {k: smk.params[k] for k in ("verification", "measurement", "calibration", "uncertainty", "laboratory")}, log=log, workers=smk.threads,
+            {k: smk.params[k] for k in ("verification", "measurement", "calibration", "uncertainty", "laboratory", "signal")}, log=log, workers=smk.threads,
         )
         write_stage_outputs(smk.output, bad, diameters=diameters, verifications=verifications, artifacts=artifacts)
         log(f"{diameters.height} diameters, {verifications.height} verifications, {len(bad)} quarantined")

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from borescan import __version__, calibration, certificate, device_model, measure, rawio
+from borescan import __version__, calibration, certificate, device_model, measure, rawio, readings
 from borescan.artifacts import MissingTemperature
 from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows, rod_nominal_calibration_rows
@@ -30,17 +30,16 @@ __all__ = ["stage_calibrate", "config_hash"]
 
 def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_table, cfg: dict, log=print, *,
                     uncertainty: dict | None = None, laboratory: dict | None = None, verification: dict | None = None,
-                    devices: dict | None = None, pooled_tables=(), auto_nights: int = 0):
+                    devices: dict | None = None, pooled_tables=(), auto_nights: int = 0, signal: dict | None = None):
     """Calibrate every tri_lds device from its calibration scans of the night; write certificates.
 
-    ``uncertainty``, ``laboratory``, ``verification``, ``devices``: those config sections (schema
-    defaults if None); ``pooled_tables``: earlier nights' pooled findings (a device model's values);
-    ``auto_nights``: ``discrepancy.device_model_auto_nights``.
-
-    ``cfg["method"]``: ``full_lsq`` (every sample, exact forward model, all calibration scans of
-    the device together) or ``yang2017`` (the paper's extrema method, one calibration per scan).
-    Rods record their nominal layer geometry; a rod's ring-gauge calibration scan calibrates its
-    layers' base lengths (:mod:`borescan.rod_calibration`, certificate beside). Returns (calibrations rows, calibration_scans rows,
+    ``uncertainty``, ``laboratory``, ``verification``, ``devices``, ``signal`` (the readings' spike
+    policy, :mod:`borescan.readings`): those config sections (schema defaults if None);
+    ``pooled_tables``: earlier nights' pooled findings (a device model's values); ``auto_nights``:
+    ``discrepancy.device_model_auto_nights``. ``cfg["method"]``: ``full_lsq`` (every sample, exact
+    forward model, all calibration scans of the device together) or ``yang2017`` (the paper's
+    extrema method, one calibration per scan). A rod's ring-gauge calibration scan calibrates its
+    layers' base lengths (:mod:`borescan.rod_calibration`). Returns (calibrations rows, calibration_scans rows,
     quarantined). A scan with too few revolutions, or a calibration that does not converge, is
     quarantined with the reason; the other devices and nights go on.
     """
@@ -48,6 +47,7 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     dflt = schema_defaults()
     ctx = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
            "verification": verification or dflt["verification"], "raw_root": raw_root, "scans_table": scans_table,
+           "cleaning": readings.cleaning_policy(signal or dflt["signal"]),
            "device_model": device_model.lookup(lambda dev: device_model_effects(devices, dev), [
                r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()], night, auto_nights)}
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
@@ -65,7 +65,7 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
                 continue  # set aside by the signal stage already
             if problem is None:
                 try:
-                    inputs.append(spindle_inputs(scan, ctx["uncertainty"]))
+                    inputs.append(spindle_inputs(scan, ctx["uncertainty"], ctx["cleaning"]))
                     scans.append(scan)
                     continue
                 except ValueError as err:
@@ -189,7 +189,7 @@ def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], l
         scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
         try:
             row = measure.verification_for_certificate(scan, cal, ctx["uncertainty"], ctx["laboratory"],
-                                                       float(ctx["verification"]["tolerance_mm"]))
+                                                       float(ctx["verification"]["tolerance_mm"]), ctx["cleaning"])
         except (MissingTemperature, ValueError, np.linalg.LinAlgError) as err:
             log(f"{scan.scan_id}: verification left out of the certificate of {cal.calibration_id}: {err}")
             continue

@@ -30,7 +30,7 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         nominal = pl.DataFrame(rod_nominal_calibration_rows(meta, night, sid))
         if nominal.height == 0:
             raise ValueError("device.nominal lists no rod layers to calibrate")
-        channels, means, u_mean, sensors = rod_calibration.pose_means_of_scan(scan)
+        channels, means, u_mean, sensors = rod_calibration.pose_means_of_scan(scan, ctx.get("cleaning"))
         layers = rod_layers(nominal, channels)
         gauges = rod_calibration.layer_gauges(meta, channels)
         temp, cte = scan_temperature(meta, unc), artifact_cte(meta, unc)
@@ -86,7 +86,8 @@ def _night_rod_verifications(cal, rows: list[dict], night: str, ctx: dict, log) 
     for _row, d in night_scans(ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id):
         scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
         try:
-            res = rod_calibration.rod_diameters_with_budget(scan, rows, ctx["uncertainty"], cal.calibration_id)
+            res = rod_calibration.rod_diameters_with_budget(scan, rows, ctx["uncertainty"], cal.calibration_id,
+                                                            ctx.get("cleaning"))
             out += rod_calibration.rod_verifications(scan, res, cal.calibration_id, ctx["uncertainty"], ctx["laboratory"],
                                                      float(ctx["verification"]["tolerance_mm"]))
             metas.append(scan.meta)

@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 import polars as pl
 
-from borescan import calibration, device_model, kinematics, rawio, signal
+from borescan import calibration, device_model, kinematics, rawio, readings
 from borescan.artifacts import artifact_cte, gauge_radius_mm, scan_temperature
 from borescan.calibration_budget import calibration_budget, with_budget
 from borescan.config import schema_defaults
@@ -26,19 +26,21 @@ __all__ = ["spindle_inputs", "scan_conditions", "acceptance_rule", "fit_device_c
            "yang_from_summary", "yang_sensitivities", "budget_of"]
 
 
-def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None) -> dict:
+def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None,
+                   cleaning: readings.CleaningPolicy | None = None) -> dict:
     """Times, despiked readings, rotation angle model, positions, temperature and gauge of a spindle scan.
 
     ``uncertainty`` is the config's ``uncertainty`` section (schema defaults when None): the
     scan's temperature follows its ``missing_temperature`` policy
-    (:func:`borescan.artifacts.scan_temperature`), never a silent 20 degC.
+    (:func:`borescan.artifacts.scan_temperature`), never a silent 20 degC. ``cleaning``: the
+    config's spike policy (:func:`borescan.readings.cleaning_policy`; schema defaults when None).
 
     Raises ``ValueError`` naming ``spindle.parquet`` when its angle/rpm columns give no angle, and
     :class:`borescan.artifacts.MissingTemperature` (a ValueError naming scan.json) when the scan
     has no temperature and the policy refuses it.
     """
-    mat = rawio.lds_matrix(scan)
-    clean, _ = signal.remove_spikes(np.asarray(mat.values_mm, dtype=float))
+    mat = readings.prepared_matrix(scan, cleaning)
+    clean = np.asarray(mat.values_mm, dtype=float)
     meta, sp = scan.meta, scan.spindle
     sp_meta = meta.get("spindle") or {}
     pos = sp_meta.get("position") or {}

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from borescan import measure, rawio, rod, rod_calibration
+from borescan import measure, rawio, readings, rod, rod_calibration
 from borescan.artifacts import MissingTemperature, artifact_row
 from borescan.calibration import CalibrationError
 from borescan.calibrations import choose_calibration, choose_rod_calibration, failed_calibration_ids, tri_calibration
@@ -39,14 +39,15 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     """Verification scans first, then measurements, each with the calibration it may use.
 
     ``cfg`` holds the config's ``verification``, ``measurement`` and ``calibration`` sections, and
-    ``uncertainty`` and ``laboratory`` (their schema defaults where absent).
+    ``uncertainty``, ``laboratory`` and ``signal`` (the readings' spike policy; their schema
+    defaults where absent).
     Returns (diameters, verifications, artifacts, quarantined). ``verification_tables_before``
     are the verifications of earlier nights (a calibration that failed one is refused).
     """
     tol = float(cfg["verification"]["tolerance_mm"])
     allow = bool(cfg["measurement"]["allow_unverified_calibration"])
     validity = int(cfg["calibration"]["validity_days"])
-    unc, lab = section(cfg, "uncertainty"), section(cfg, "laboratory")
+    unc, lab, clean = section(cfg, "uncertainty"), section(cfg, "laboratory"), readings.cleaning_policy(section(cfg, "signal"))
     part = {"default_tolerance_mm": cfg["measurement"].get("part_tolerance_mm"), "rule": lab["decision_rule"],
             "guard_band_factor": float(lab["guard_band_factor"])}
     cals = read_tables(calibration_tables)
@@ -62,7 +63,7 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
         else:
             cal_id, why = choose_calibration(cals, failed, row["device_id"], night, validity, allow)
         cal = cals.filter(pl.col("calibration_id") == cal_id) if cal_id is not None else None
-        return (raw_root, night, results_root, row, d, cal_id, why, cal, tol, unc, lab, part)
+        return (raw_root, night, results_root, row, d, cal_id, why, cal, tol, unc, lab, part, clean)
 
     def take(out):
         diam.extend(out["diameters"])
@@ -97,7 +98,7 @@ def measure_one(job) -> dict:
 
     Returns {"diameters", "verifications", "quarantined": lists, "artifact": row or None, "log": str}.
     """
-    raw_root, night, results_root, row, d, cal_id, why, cals, tol, unc, lab, part = job
+    raw_root, night, results_root, row, d, cal_id, why, cals, tol, unc, lab, part, clean = job
     out = {"diameters": [], "verifications": [], "quarantined": [], "artifact": None, "log": None}
     bad = out["quarantined"]
     scan = rawio.read_scan(d, raw_root=Path(raw_root))
@@ -108,9 +109,9 @@ def measure_one(job) -> dict:
         return out
     try:
         if row["device_type"] == "rod":
-            return _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root, night)
+            return _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root, night, clean)
         cal = tri_calibration(cals, cal_id)
-        res, du = measure.tri_diameter_with_budget(scan, cal, unc)
+        res, du = measure.tri_diameter_with_budget(scan, cal, unc, clean)
     except MissingTemperature as err:
         quarantine(results_root, bad, sid, night, "measure", "scan.json", str(err))
         return out
@@ -144,11 +145,11 @@ def measure_one(job) -> dict:
 ROD_METHOD_NOMINAL = ROD_METHOD + " with the design base lengths: NOT TRACEABLE (rod never calibrated on ring gauges)"
 
 
-def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root, night) -> dict:
+def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root, night, clean) -> dict:
     """Diameters of a rod scan with their GUM budgets (:func:`borescan.rod_calibration.rod_diameters_with_budget`);
     for a verification scan, each layer's error against its certified gauge."""
     meta, sid, dev = scan.meta, scan.scan_id, row["device_id"]
-    res = rod_calibration.rod_diameters_with_budget(scan, cals.rows(named=True), unc, cal_id)
+    res = rod_calibration.rod_diameters_with_budget(scan, cals.rows(named=True), unc, cal_id, clean)
     vers = {}
     if row["kind"] == "verification":
         try:

@@ -23,7 +23,7 @@ def signal_options(cfg: dict) -> dict:
     elif method == "gaussian":
         params["cutoff_upr"] = float(cfg["gaussian_cutoff_upr"])
     return {"filter": method, "filter_params": params, "spike_threshold": float(cfg["spike_threshold_mad"]),
-            "extrema_on": cfg["extrema_on"]}
+            "spike_window_samples": int(cfg["spike_window_samples"]), "extrema_on": cfg["extrema_on"]}
 
 
 def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log=print,
