@@ -1135,8 +1135,13 @@ def fit_full_calibration(
         p_alt = m.pop("_p")
         if p_alt is None:
             continue
-        spanned = any((not prof["linear"]) and prof["rho_range_mm"][0] <= p_alt[i_rho0 + j] <= prof["rho_range_mm"][1]
-                      for j, prof in enumerate(profiles))
+        # spanned: every rho in which the minimum differs from the estimate (by more than 2 u) lies on its
+        # own channel's walked profile, whose spread the covariance holds already (a profile of another
+        # channel that merely contains this minimum's value of its own rho says nothing about it)
+        moved = [j for j in range(c) if abs(p_alt[i_rho0 + j] - p_hat[i_rho0 + j]) > 2.0 * u_pub[i_rho0 + j]]
+        spanned = bool(moved) and all(
+            (not profiles[j]["linear"]) and profiles[j]["rho_range_mm"][0] <= p_alt[i_rho0 + j] <= profiles[j]["rho_range_mm"][1]
+            for j in moved)
         m["spanned_by_profile"] = bool(spanned)
         if not spanned:
             d = p_alt - p_hat
