@@ -6,6 +6,7 @@ min_version("8.0")
 
 
 configfile: "config/config.yaml"
+configfile: "config/devices.yaml"  # the device model: a user's decisions per device
 
 
 validate(config, "workflow/schemas/config.schema.yaml")

@@ -1,9 +1,12 @@
 # Names the rules use: roots from the config and the nights found under raw_root.
 from borescan import rawio, validation
+from borescan.discrepancy.pooled import device_model_effects
 
 RAW = str(validation.require_raw_root(config["raw_root"]))
 RES = config["results_root"]
 NIGHTS = rawio.nights(RAW)
+for _device in config["devices"] or {}:  # a mistyped device-model entry stops the run here, named
+    device_model_effects(config["devices"], _device)
 
 
 def results_root_for(wildcards):

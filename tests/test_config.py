@@ -61,3 +61,16 @@ def test_unknown_or_removed_keys_are_refused():
     # measurement.sensor_noise_mm was never read; it is gone from the schema (README migration note)
     with pytest.raises(Exception, match="sensor_noise_mm"):
         validate({"measurement": {"sensor_noise_mm": 0.003}}, str(SCHEMA_PATH))
+
+
+def test_shipped_device_model_validates_and_its_entries_parse():
+    """config/devices.yaml (read by the Snakefile after config.yaml) holds only the devices section,
+    valid against the schema, each entry a registry key the device model accepts."""
+    from borescan.discrepancy.pooled import device_model_effects
+
+    devices = yaml.safe_load((SHIPPED.parent / "devices.yaml").read_text())
+    assert set(devices) == {"devices"}
+    validate(copy.deepcopy({**yaml.safe_load(SHIPPED.read_text()), **devices}), str(SCHEMA_PATH))
+    assert device_model_effects(devices["devices"], "TRI-01", "2026-11-23") == ()
+    assert device_model_effects(devices["devices"], "TRI-01", "2026-11-24") == ("channel_delay@2",)
+    assert "configfile: \"config/devices.yaml\"" in (SHIPPED.parent.parent / "Snakefile").read_text()

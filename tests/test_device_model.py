@@ -178,6 +178,12 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     with_model = analyse_scan(scan, beams=cal.beams, device_effects=carried).findings
     without = analyse_scan(scan, beams=cal.beams).findings
     assert with_model["verdict"] == "no_missing_effect", with_model["named"]
+    # the findings name the device model they were examined with, and are written as JSON (the night's
+    # discrepancy job failed on an Effect in them before)
+    assert with_model["device_effects"] == [e.to_dict() for e in carried]
+    from borescan.discrepancy import write_findings
+    assert json.loads(write_findings(with_model, tmp_path / "findings").read_text())["device_effects"][0]["name"] == (
+        "channel_delay")
     assert without["verdict"] != "no_missing_effect"
     assert any(n["effect"] == "channel_delay" and n.get("channel") == 2 for n in without["named"])
 

@@ -122,6 +122,20 @@ def test_device_model_entries_are_checked_against_the_registry():
         device_model_effects({"TRI-S": {"effects": ["sensor_gain@1", "sensor_gain@1"]}}, "TRI-S")
 
 
+def test_a_device_model_entry_applies_from_its_night_on():
+    """A user's decision dated in the config: before that night the effect is not in the model."""
+    devices = {"TRI-S": {"effects": ["sensor_gain@1", {"effect": "channel_delay@2", "from": "2026-11-24"}]}}
+    assert device_model_effects(devices, "TRI-S", "2026-11-23") == ("sensor_gain@1",)
+    assert device_model_effects(devices, "TRI-S", "2026-11-24") == ("sensor_gain@1", "channel_delay@2")
+    assert device_model_effects(devices, "TRI-S") == ("sensor_gain@1", "channel_delay@2")
+    with pytest.raises(ValueError, match=r"'channel_delay@2': from '24\.11\.2026' is not a night"):
+        device_model_effects({"TRI-S": {"effects": [{"effect": "channel_delay@2", "from": "24.11.2026"}]}}, "TRI-S")
+    with pytest.raises(ValueError, match="an entry is an effect key or"):
+        device_model_effects({"TRI-S": {"effects": [{"key": "channel_delay@2"}]}}, "TRI-S")
+    with pytest.raises(ValueError, match="unknown effect 'channel_dealy'"):
+        device_model_effects({"TRI-S": {"effects": [{"effect": "channel_dealy@2", "from": "2026-11-24"}]}}, "TRI-S")
+
+
 def _cal(cal_id, night, beta2, u_beta=1e-4, d_b1=130.0, u_d_b=1e-3):
     """Calibration rows of device TRI-S: channel 1 and 2 (beta, rho, d_b with their u)."""
     return [{"calibration_id": cal_id, "device_id": "TRI-S", "channel": ch, "valid_from": night, "method": "full",

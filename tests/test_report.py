@@ -608,3 +608,44 @@ def test_rod_diameters_without_a_gauge_calibration_need_attention(tmp_path):
     summary = _section(report.write_report(res).read_text(), "summary")
     assert f"not traceable</b> {rod_scan} (ROD-01)" in summary
     assert "calibrate the rod in its certified ring gauges" in summary
+
+
+def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
+    """Three nights of one device: the gaps per night from the pooled findings, the calibrations'
+    residuals and the verifications' |E| / U (independent arithmetic on the rows), and a dashed line
+    with what was carried where the carried model changes."""
+    nights = ["2026-11-21", "2026-11-23", "2026-11-24"]
+    pf = pl.DataFrame({"night": nights + ["2026-11-24"], "device_id": ["TRI-01"] * 3 + ["TRI-02"],
+                       "gap_before_mm": [0.0041, 0.0180, 0.0042, 0.009], "noise_floor_mm": [0.004, 0.004, 0.0040, 0.003]})
+    dm = [{"key": "channel_delay@2", "estimated": True, "values": {"tau_s": 0.00119}, "u": {"tau_s": 0.00002},
+           "night": "2026-11-23"}]
+
+    def cal(cid, night, model, ratios):
+        return {"calibration_id": cid, "device_id": "TRI-01", "valid_from": night, "calibration_json": json.dumps(
+            {"diagnostics": {"device_model": model}, "nuisance": {"A": {"residual_to_noise": ratios}}})}
+
+    cals = pl.DataFrame([cal("C1", nights[0], [], [1.0, 1.02, 0.99]),
+                         cal("C2", nights[1], [dict(dm[0], estimated=False)], [1.0, 4.5, 1.1]),
+                         cal("C3", nights[2], dm, [1.01, 1.03, 1.0])])
+    ver = pl.DataFrame({"night": [nights[1], nights[1], nights[2]], "device_id": ["TRI-01"] * 3,
+                        "error_mm": [-0.004, 0.001, 0.0005], "expanded_u_error_mm": [0.0025, 0.0025, 0.0026]})
+    hist = report.device_model_history(pf, cals, ver, "TRI-01")
+    assert hist["night"].to_list() == nights
+    assert hist["pooled_gap_to_noise"].to_list() == pytest.approx([1.025, 4.5, 1.05])
+    assert hist["calibration_residual_to_noise"].to_list() == pytest.approx([1.02, 4.5, 1.03])
+    assert hist["verification_e_over_u"].to_list()[0] is None
+    assert hist["verification_e_over_u"].to_list()[1:] == pytest.approx([1.6, 0.5 / 2.6])
+    assert hist["verification_error_um"].to_list()[1:] == pytest.approx([-4.0, 0.5])  # the worst of the night
+    assert hist["carried"].to_list() == ["", "", "channel_delay@2 tau_s = 1.190 ± 0.020 ms (2026-11-23)"]
+    fig = report.plot_device_model_gap(hist, "TRI-01")
+    FigureCanvasAgg(fig).draw()
+    ax_g, ax_v = fig.axes
+    marks = [ln.get_xdata()[0] for ln in ax_g.get_lines() if ln.get_linestyle() == "--"]
+    assert marks == [1.5]  # between the night the delay was estimated and the first that carried it
+    (note,) = [t.get_text() for t in ax_g.texts]
+    assert note == "device model from here:\nchannel_delay@2\ntau_s = 1.190 ± 0.020 ms\n(estimated 2026-11-23)"
+    assert sorted(t.get_text() for t in ax_v.texts) == ["+0.50 µm", "-4.00 µm"]
+    renderer = fig.canvas.get_renderer()
+    box, axes = ax_g.texts[0].get_window_extent(renderer), ax_g.get_window_extent(renderer)
+    assert axes.x0 <= box.x0 and box.x1 <= axes.x1  # the label stays inside the axes
+    assert [t.get_text() for t in ax_v.get_xticklabels() if t.get_text()] == nights

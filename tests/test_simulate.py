@@ -9,7 +9,7 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from borescan import rawio
-from borescan.demo import DEMO_NIGHTS, NOMINAL_BEAMS, demo_scans, make_demo
+from borescan.demo import DEMO_NIGHTS, LOOP_NIGHTS, NOMINAL_BEAMS, demo_scans, make_demo
 from borescan.effects import Effect, effects_from_dicts
 from borescan.geometry import (
     Beams,
@@ -221,20 +221,32 @@ def test_demo_writes_the_listed_scans(tmp_path):
     assert (tmp_path / ".complete").exists()
     assert rawio.validate_root(raw) == []
     ids = {p.name.removeprefix("scan=") for p in paths}
-    for night in DEMO_NIGHTS:
+    assert DEMO_NIGHTS == ("2026-11-20", "2026-11-21") + LOOP_NIGHTS
+    for night in DEMO_NIGHTS[:2]:
         tag = "N" + night.replace("-", "")
         for name in ("TRI01-CEN", "TRI01-CAL-P1-A", "TRI01-CAL-P1-B", "TRI01-VER-RG275", "TRI01-VER-RG280",
                      "ROD01-MEAS-CYL2H", "ROD01-VER-RGS150"):
             assert f"{tag}-{name}" in ids
         assert sum(i.startswith(f"{tag}-TRI01-MEAS-") for i in ids) == 3
     assert "N20261120-ROD01-CAL-RGS150" in ids  # the rod is calibrated on its ring gauges on the first night
+    # the loop nights: TRI-01 calibrated at 60 and 30 rpm with the 1.2 ms delay on channel 2 in every scan
+    assert {i for i in ids if i.startswith(("N20261123", "N20261124"))} == {
+        "N20261123-TRI01-CAL-P1-A", "N20261123-TRI01-CAL-P1-B", "N20261123-TRI01-VER-RG275",
+        "N20261124-TRI01-CAL-P1-A", "N20261124-TRI01-CAL-P1-B", "N20261124-TRI01-VER-RG275", "N20261124-TRI01-VER-RG280"}
+    for night in LOOP_NIGHTS:
+        tag = "N" + night.replace("-", "")
+        speeds = [json.loads((raw / f"night={night}" / f"scan={tag}-TRI01-CAL-P1-{x}" / "scan.json").read_text())
+                  ["spindle"]["rpm_nominal"] for x in "AB"]
+        assert speeds == [60.0, 30.0]
+        truth = json.loads((tmp_path / "truth" / f"{tag}-TRI01-CAL-P1-B.truth.json").read_text())
+        assert truth["effects"] == [{"name": "channel_delay", "params": {"channel": 2, "tau_s": 0.0012}}]
     kinds = {}
     for p in paths:
         meta = json.loads((p / "scan.json").read_text())
         kinds.setdefault(meta["kind"], 0)
         kinds[meta["kind"]] += 1
         assert (tmp_path / "truth" / f"{meta['scan_id']}.truth.json").exists()
-    assert kinds == {"centering": 2, "calibration": 5, "verification": 6, "measurement": 8}
+    assert kinds == {"centering": 2, "calibration": 9, "verification": 9, "measurement": 8}
     cal = json.loads((raw / "night=2026-11-20" / "scan=N20261120-TRI01-CAL-P1-A" / "scan.json").read_text())
     assert cal["spindle"]["position"] == {"label": "P1", "x_mm": 262.955, "y_mm": -275.502}
     nominal = Beams.from_nominal(cal["device"]["nominal"]["beams"])

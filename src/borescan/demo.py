@@ -1,6 +1,6 @@
 """The embedded demo nights (``borescan simulate demo --out DIR``).
 
-Two nights (2026-11-20, 2026-11-21), deterministic for a seed, written to ``DIR/raw`` (scans in
+Four nights (2026-11-20, -21, -23, -24), deterministic for a seed, written to ``DIR/raw`` (scans in
 ``borescan-raw/1``) and ``DIR/truth`` (``<scan_id>.truth.json`` plus ``manifest.json``);
 ``DIR/.complete`` is written last.
 
@@ -21,6 +21,16 @@ by manufacturing deviations (beta 1 deg on channels 2, 3; rho <= 0.05 mm; d_b <=
 
 Night 2 is at 20.6 degC (``thermal_expansion``), its second calibration scan has
 ``channel_delay`` on channel 2 (1.2 ms), and one housing has 3-lobing (4 um).
+
+**The loop** (nights 3 and 4, :data:`LOOP_NIGHTS`): the delay stays (channel 2's cable was
+changed between the two calibration scans of night 2). At one speed a delay is a shift of beta
+(omega tau), so no scan of nights 1-2 can estimate it. Night 3 (2026-11-23) calibrates TRI-01
+at two speeds (``N20261123-TRI01-CAL-P1-A`` at 60 rpm, ``-B`` at 30 rpm, 1320 samples/rev) and
+verifies on RG-275: its pooled examination estimates the delay from the two speeds. The shipped
+config lists ``devices: TRI-01: effects: [channel_delay@2]`` (a user's decision after reading
+that night's report), so night 4 (2026-11-24, the same two speeds, verifications on RG-275 and
+RG-280) calibrates with the delay carried at night 3's estimate; the report shows the
+calibration's residual fall to the noise floor. The loop nights have no rod and no parts.
 """
 
 from __future__ import annotations
@@ -48,9 +58,13 @@ from borescan.simulate import (
     write_simulated,
 )
 
-__all__ = ["DEMO_NIGHTS", "DEMO_SEED", "NOMINAL_BEAMS", "make_demo", "demo_scans"]
+__all__ = ["DEMO_NIGHTS", "LOOP_NIGHTS", "DEMO_SEED", "NOMINAL_BEAMS", "make_demo", "demo_scans"]
 
-DEMO_NIGHTS = ("2026-11-20", "2026-11-21")
+#: nights of the loop (see the module docstring): TRI-01 calibrated at two speeds, the delay in every scan
+LOOP_NIGHTS = ("2026-11-23", "2026-11-24")
+DEMO_NIGHTS = ("2026-11-20", "2026-11-21") + LOOP_NIGHTS
+#: the hidden channel delay of TRI-01 from night 2 on [s]
+DEMO_DELAY = Effect("channel_delay", {"channel": 2, "tau_s": 0.0012})
 DEMO_SEED = 20261120
 CTE_STEEL_PER_K = 11.5e-6
 
@@ -130,6 +144,9 @@ def demo_scans(seed: int = DEMO_SEED) -> list[SimulatedScan]:
     scans: list[SimulatedScan] = []
     gauge_center = tuple(YANG_P0_XY_MM)
     for i_night, night in enumerate(DEMO_NIGHTS):
+        if night in LOOP_NIGHTS:
+            scans += _loop_night(seed, i_night, night)
+            continue
         tag = "N" + night.replace("-", "")
         temp_c = 20.0 if i_night == 0 else 20.6
         thermal = [] if temp_c == 20.0 else [Effect("thermal_expansion", {"temperature_c": temp_c})]
@@ -149,7 +166,7 @@ def demo_scans(seed: int = DEMO_SEED) -> list[SimulatedScan]:
         for label in ("A", "B"):
             effects = list(thermal)
             if i_night == 1 and label == "B":
-                effects.append(Effect("channel_delay", {"channel": 2, "tau_s": 0.0012}))
+                effects.append(DEMO_DELAY)
             scene = replace(base, spindle_xy_mm=YANG_P1_XY_MM, phase_rad=float(rng.uniform(0, 2 * np.pi)))
             scans.append(simulate_tri_spindle(scene, n_rev=60, effects=effects, artifact=RG275,
                                               spindle_label="P1", center_xy_mm=gauge_center,
@@ -192,6 +209,32 @@ def demo_scans(seed: int = DEMO_SEED) -> list[SimulatedScan]:
                 features=("H1", "H2"), device_id="ROD-01", nominal_layers=ROD_NOMINAL_LAYERS,
                 scan_id=f"{tag}-ROD01-{tag_kind}-RGS150", night=night, kind=kind, seed=int(rod_rng.integers(2**31)),
                 started_at=started_at_plus(night, 22, 6 * next(slot))))
+    return scans
+
+
+def _loop_night(seed: int, i_night: int, night: str) -> list[SimulatedScan]:
+    """A loop night of TRI-01 (module docstring): calibration in RG-275 at 60 and 30 rpm with the
+    delay, then static verifications (RG-275; RG-280 too on the last night). Its own generator,
+    so the nights before stay as they were."""
+    rng = np.random.default_rng([seed, i_night, 300])
+    tag = "N" + night.replace("-", "")
+    slot = iter(range(100))
+
+    def kw(name: str, kind: str) -> dict:
+        return {"scan_id": f"{tag}-{name}", "night": night, "kind": kind, "seed": int(rng.integers(2**31)),
+                "started_at": started_at_plus(night, 22, 6 * next(slot)), "nominal_beams": NOMINAL_BEAMS}
+
+    base = default_tri_scene(temperature_c=20.0, cte_per_k=CTE_STEEL_PER_K)
+    scans = []
+    for label, rpm, n_rev in (("A", 60.0, 30.0), ("B", 30.0, 15.0)):
+        scene = replace(base, spindle_xy_mm=YANG_P1_XY_MM, rpm_nominal=rpm, phase_rad=float(rng.uniform(0, 2 * np.pi)))
+        scans.append(simulate_tri_spindle(scene, n_rev=n_rev, effects=[DEMO_DELAY], artifact=RG275, spindle_label="P1",
+                                          center_xy_mm=tuple(YANG_P0_XY_MM), **kw(f"TRI01-CAL-P1-{label}", "calibration")))
+    for gauge in (RG275, RG280) if night == LOOP_NIGHTS[-1] else (RG275,):
+        scene = replace(base, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=gauge["certified_diameter_mm"] / 2)
+        xy, ang = _static_poses(rng, 10, 1.5)
+        scans.append(simulate_tri_static(scene, xy, ang, effects=[DEMO_DELAY], artifact=gauge,
+                                         **kw(f"TRI01-VER-{gauge['id'].replace('-', '')}", "verification")))
     return scans
 
 

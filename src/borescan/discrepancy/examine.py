@@ -529,8 +529,11 @@ def examine_model(model, **cfg) -> Examination:
         "noise_floor_by_channel_mm": {str(ch): float(s) for ch, s in zip(data.channels, sigma)},
         "threshold_delta_bic": T,
         "config": {
-            k: (list(v) if isinstance(v, tuple) else v) for k, v in c.items() if k not in ("beams", "layers")
+            k: (list(v) if isinstance(v, tuple) else v) for k, v in c.items()
+            if k not in ("beams", "layers", "device_effects")
         },
+        # the device model the reference calibration carried, fitted with the base (Effect.to_dict)
+        "device_effects": [e.to_dict() for e in c.get("device_effects", ())],
         "examined_against": "calibration given to the workflow"
         if c.get("beams") is not None or c.get("layers") is not None
         else "device.nominal",

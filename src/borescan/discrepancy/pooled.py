@@ -206,17 +206,36 @@ def parse_device_effect(key: str, channels: Sequence[int] | None = None, device:
     return PooledTerm(name, int(ch))
 
 
-def device_model_effects(devices: dict | None, device_id: str) -> tuple[str, ...]:
-    """The device model of ``device_id`` from the config's ``devices`` section (its ``effects``),
-    each entry checked by :func:`parse_device_effect` (channels not checked here); () when the
-    device has none."""
+def device_model_effects(devices: dict | None, device_id: str, night: str | None = None) -> tuple[str, ...]:
+    """The device model of ``device_id`` on ``night`` from the config's ``devices`` section (its
+    ``effects``), each entry checked by :func:`parse_device_effect` (channels not checked here); ()
+    when the device has none.
+
+    An entry is a registry key (the device has the effect on every night) or a mapping
+    ``{effect: <key>, from: YYYY-MM-DD}``: the user's decision takes effect from that night on;
+    before it the effect is a candidate like any other. ``night`` None: every entry.
+    """
     entry = (devices or {}).get(device_id) or {}
-    keys = tuple(str(k) for k in entry.get("effects") or ())
-    for key in keys:
+    where = f"devices.{device_id}.effects"
+    keys, since = [], {}
+    for item in entry.get("effects") or ():
+        if isinstance(item, dict):
+            if set(item) - {"effect", "from"} or "effect" not in item:
+                raise ValueError(f"{where}: {item!r}: an entry is an effect key or {{effect: <key>, from: YYYY-MM-DD}}")
+            key, frm = str(item["effect"]), str(item.get("from") or "")
+            if frm and not _NIGHT.fullmatch(frm):
+                raise ValueError(f"{where}: {key!r}: from {frm!r} is not a night (YYYY-MM-DD)")
+        else:
+            key, frm = str(item), ""
         parse_device_effect(key, None, device_id)
+        keys.append(key)
+        since[key] = frm
     if len(set(keys)) != len(keys):
-        raise ValueError(f"devices.{device_id}.effects: an effect is listed twice: {list(keys)}")
-    return keys
+        raise ValueError(f"{where}: an effect is listed twice: {keys}")
+    return tuple(k for k in keys if night is None or not since[k] or since[k] <= str(night))
+
+
+_NIGHT = re.compile(r"\d{4}-\d{2}-\d{2}")
 
 
 # ----------------------------------------------------------------------------------- conditions

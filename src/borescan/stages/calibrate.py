@@ -48,7 +48,7 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     ctx = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
            "verification": verification or dflt["verification"], "raw_root": raw_root, "scans_table": scans_table,
            "cleaning": readings.cleaning_policy(signal or dflt["signal"]),
-           "device_model": device_model.lookup(lambda dev: device_model_effects(devices, dev), [
+           "device_model": device_model.lookup(lambda dev: device_model_effects(devices, dev, night), [
                r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()], night, auto_nights)}
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
     clear_night_folder(results_root, "calibration", night)  # certificates of a rerun replace the night's

@@ -105,7 +105,7 @@ def stage_pooled(raw_root, night: str, results_root, scans_tables, calibration_t
     for (device,), g in scans.sort("night", "scan_id").group_by(["device_id"], maintain_order=True):
         dirs = [Path(raw_root) / f"night={r['night']}" / f"scan={r['scan_id']}" for r in g.iter_rows(named=True)]
         ref_kw, ref = discrepancy_reference(cals, device, "tri_lds", night)
-        effects = device_model_effects(devices, device)
+        effects = device_model_effects(devices, device, night)
         jobs.append((raw_root, night, str(pooled_dir(results_root, night)), device, dirs, ref_kw, ref, effects,
                      settings))
     log(f"{len(jobs)} device(s) on {workers_for(len(jobs), workers)} process(es)")
