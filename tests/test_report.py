@@ -624,19 +624,21 @@ def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
         return {"calibration_id": cid, "device_id": "TRI-01", "valid_from": night, "calibration_json": json.dumps(
             {"diagnostics": {"device_model": model}, "nuisance": {"A": {"residual_to_noise": ratios}}})}
 
+    newer = [dict(dm[0], values={"tau_s": 0.00121}, night="2026-11-24")]  # the next night's estimate: no new mark
     cals = pl.DataFrame([cal("C1", nights[0], [], [1.0, 1.02, 0.99]),
                          cal("C2", nights[1], [dict(dm[0], estimated=False)], [1.0, 4.5, 1.1]),
-                         cal("C3", nights[2], dm, [1.01, 1.03, 1.0])])
+                         cal("C3", nights[2], dm, [1.01, 1.03, 1.0]), cal("C4", "2026-11-25", newer, [1.0, 1.0, 1.0])])
     ver = pl.DataFrame({"night": [nights[1], nights[1], nights[2]], "device_id": ["TRI-01"] * 3,
                         "error_mm": [-0.004, 0.001, 0.0005], "expanded_u_error_mm": [0.0025, 0.0025, 0.0026]})
     hist = report.device_model_history(pf, cals, ver, "TRI-01")
-    assert hist["night"].to_list() == nights
-    assert hist["pooled_gap_to_noise"].to_list() == pytest.approx([1.025, 4.5, 1.05])
-    assert hist["calibration_residual_to_noise"].to_list() == pytest.approx([1.02, 4.5, 1.03])
+    assert hist["night"].to_list() == nights + ["2026-11-25"]
+    assert hist["pooled_gap_to_noise"].to_list()[:3] == pytest.approx([1.025, 4.5, 1.05])
+    assert hist["calibration_residual_to_noise"].to_list() == pytest.approx([1.02, 4.5, 1.03, 1.0])
     assert hist["verification_e_over_u"].to_list()[0] is None
-    assert hist["verification_e_over_u"].to_list()[1:] == pytest.approx([1.6, 0.5 / 2.6])
-    assert hist["verification_error_um"].to_list()[1:] == pytest.approx([-4.0, 0.5])  # the worst of the night
-    assert hist["carried"].to_list() == ["", "", "channel_delay@2 tau_s = 1.190 ± 0.020 ms (2026-11-23)"]
+    assert hist["verification_e_over_u"].to_list()[1:3] == pytest.approx([1.6, 0.5 / 2.6])
+    assert hist["verification_error_um"].to_list()[1:3] == pytest.approx([-4.0, 0.5])  # the worst of the night
+    assert hist["carried"].to_list()[:3] == ["", "", "channel_delay@2 tau_s = 1.190 ± 0.020 ms (2026-11-23)"]
+    assert hist["carried_keys"].to_list() == ["", "", "channel_delay@2", "channel_delay@2"]
     fig = report.plot_device_model_gap(hist, "TRI-01")
     FigureCanvasAgg(fig).draw()
     ax_g, ax_v = fig.axes
@@ -648,4 +650,4 @@ def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
     renderer = fig.canvas.get_renderer()
     box, axes = ax_g.texts[0].get_window_extent(renderer), ax_g.get_window_extent(renderer)
     assert axes.x0 <= box.x0 and box.x1 <= axes.x1  # the label stays inside the axes
-    assert [t.get_text() for t in ax_v.get_xticklabels() if t.get_text()] == nights
+    assert [t.get_text() for t in ax_v.get_xticklabels() if t.get_text()] == nights + ["2026-11-25"]

@@ -449,15 +449,16 @@ def device_model_history(pooled: pl.DataFrame | None, cal: pl.DataFrame | None, 
     ``verification_e_over_u`` (the night's largest |error| / U of a ring-gauge verification) and
     ``verification_error_um`` (that verification's error at 20 degC);
     ``carried`` (what the night's calibration carried of the device model with an estimate, e.g.
-    ``channel_delay@2 tau_s = 1.19 ± 0.02 ms (2026-11-23)``; "" when nothing). A night without a
-    figure has null there.
+    ``channel_delay@2 tau_s = 1.19 ± 0.02 ms (2026-11-23)``; "" when nothing) and ``carried_keys``
+    (its effects, ``channel_delay@2``: the model's composition, which changes only by a decision,
+    while the estimates follow each night). A night without a figure has null there.
     """
     rows: dict[str, dict[str, Any]] = {}
 
     def row(night) -> dict[str, Any]:
         return rows.setdefault(str(night), {"night": str(night), "pooled_gap_to_noise": None,
                                             "calibration_residual_to_noise": None, "verification_e_over_u": None,
-                                            "verification_error_um": None, "carried": ""})
+                                            "verification_error_um": None, "carried": "", "carried_keys": ""})
 
     if pooled is not None and pooled.height:
         for r in pooled.filter(pl.col("device_id") == device_id).unique(["night"], keep="first").iter_rows(named=True):
@@ -467,14 +468,17 @@ def device_model_history(pooled: pl.DataFrame | None, cal: pl.DataFrame | None, 
         if dev == device_id:
             x = row(night)
             x["calibration_residual_to_noise"] = ratio
-            x["carried"] = "; ".join(f"{m['key']} {_text_of(m)} ({m.get('night')})" for m in entries if m.get("estimated"))
+            est = [m for m in entries if m.get("estimated")]
+            x["carried"] = "; ".join(f"{m['key']} {_text_of(m)} ({m.get('night')})" for m in est)
+            x["carried_keys"] = ", ".join(m["key"] for m in est)
     if ver is not None and ver.height and "expanded_u_error_mm" in ver.columns:
         v = ver.filter((pl.col("device_id") == device_id) & (pl.col("expanded_u_error_mm") > 0)).with_columns(
             e=pl.col("error_mm").abs() / pl.col("expanded_u_error_mm")).sort("e", descending=True)
         for r in v.unique("night", keep="first").iter_rows(named=True):
             row(r["night"]).update(verification_e_over_u=float(r["e"]), verification_error_um=float(r["error_mm"]) * 1e3)
     schema = {"night": pl.Utf8, "pooled_gap_to_noise": pl.Float64, "calibration_residual_to_noise": pl.Float64,
-              "verification_e_over_u": pl.Float64, "verification_error_um": pl.Float64, "carried": pl.Utf8}
+              "verification_e_over_u": pl.Float64, "verification_error_um": pl.Float64, "carried": pl.Utf8,
+              "carried_keys": pl.Utf8}
     return pl.DataFrame([rows[k] for k in sorted(rows)], schema=schema)
 
 
@@ -493,7 +497,8 @@ def _wrap_carried(entry: str) -> str:
 
 def plot_device_model_gap(hist: pl.DataFrame, device_id: str) -> Figure:
     """The gaps of one device over its nights (:func:`device_model_history`), the nights from which
-    its calibrations carried another device model marked by a dashed line and what they carried.
+    its calibrations carried other effects marked by a dashed line and what they carried there (a
+    new estimate of the same effects is no change of the model).
 
     Top: the pooled examination's gap and the calibration's residual, each over its noise floor
     (1 = the noise). Bottom: the largest |verification error| / U of the night (1 = at the limit
@@ -522,9 +527,9 @@ def plot_device_model_gap(hist: pl.DataFrame, device_id: str) -> Figure:
     ax_v.set_ylabel("|E| / U")
     ax_v.set_ylim(bottom=0.0, top=max(1.3, float(np.nanmax(e)) * 1.15 if np.isfinite(e).any() else 1.3))
     ax_v.grid(alpha=0.3)
-    carried = hist["carried"].fill_null("").to_list()
+    carried, keys = hist["carried"].fill_null("").to_list(), hist["carried_keys"].fill_null("").to_list()
     for i in range(len(nights)):
-        if carried[i] != (carried[i - 1] if i else ""):
+        if keys[i] != (keys[i - 1] if i else ""):
             for ax in (ax_g, ax_v):
                 ax.axvline(i - 0.5, color="C1", ls="--", lw=1.2)
             right = i >= len(nights) / 2  # the label on the side with room
