@@ -436,3 +436,33 @@ def test_quantised_rod_readings_are_named_even_below_the_noise():
     assert f["verdict"] == "missing_effect" and len(q) == 1 and q[0]["channel"] == 2
     assert q[0]["parameters"]["lsb_mm"] == pytest.approx(0.005, rel=1e-6)
     assert q[0]["evidence"]["rounding_noise_mm"] == pytest.approx(0.005 / np.sqrt(12), rel=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["tri", "rod"])
+def test_candidate_term_at_zero_is_the_base_model_bit_for_bit(kind):
+    """The linear screen takes a candidate's forward-difference columns from the base residual
+    (``_jacobian_columns(..., f0=...)``): that holds only if every candidate term at zero
+    reproduces the residual without it exactly, on every channel and sample."""
+    from borescan.discrepancy.examine import scan_arrays
+    from borescan.discrepancy.poses import RodModel, pose_data_from_arrays
+    from borescan.discrepancy.tri import TriModel, tri_data_from_arrays
+    from borescan.simulate import default_rod_scene, simulate_rod
+
+    if kind == "tri":
+        scan = _scan([], seed=11)
+        t_s, ch, vals, _, sp = scan_arrays(scan)
+        model = TriModel(tri_data_from_arrays(scan.meta["scan_id"], scan.meta, t_s, vals, ch, sp))
+        vib = {"vibration.f_hz": 7.3}
+    else:
+        scan = simulate_rod(default_rod_scene(), n_poses=12, samples_per_pose=5, seed=3, scan_id="ROD-Z")
+        t_s, ch, vals, pose, _ = scan_arrays(scan)
+        model = RodModel(pose_data_from_arrays(scan.meta["scan_id"], scan.meta, t_s, vals, ch, pose))
+        vib = {}
+    p0 = model.base_start()
+    p0 = {n: p0.get(n, 0.0) for n in model.base_names()}
+    base = model.residual(p0, [])
+    terms = model.candidate_terms(k_max=8, vibration_f_hz=7.3 if vib else None)
+    assert terms
+    for t in terms:
+        r = model.residual({**p0, **{n: 0.0 for n in t.names()}, **vib}, [t])
+        assert np.array_equal(r, base, equal_nan=True), t.key

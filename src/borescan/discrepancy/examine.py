@@ -156,9 +156,15 @@ def examine_scan(scan, **cfg) -> dict:
 # ---------------------------------------------------------------------------- tri spindle
 
 
-def _jacobian_columns(model, p: dict, terms: list[Term], names: list[str], scales: list[float]) -> np.ndarray:
-    """Forward-difference columns of the weighted model over the unmasked samples, per unit scale."""
-    f0 = model.residual(p, terms)
+def _jacobian_columns(model, p: dict, terms: list[Term], names: list[str], scales: list[float],
+                      f0: np.ndarray | None = None) -> np.ndarray:
+    """Forward-difference columns of the weighted model over the unmasked samples, per unit scale.
+
+    ``f0``: the residual at ``p`` when the caller has it (a candidate term at zero adds nothing:
+    its residual is the one without it, bit for bit), else it is evaluated here.
+    """
+    if f0 is None:
+        f0 = model.residual(p, terms)
     cols = []
     for n, s in zip(names, scales):
         q = dict(p)
@@ -392,7 +398,7 @@ def examine_model(model, **cfg) -> Examination:
     p0 = base.values()
     vib_start = {"vibration.f_hz": f_vib} if f_vib is not None else {}
     rvec = model.residual(p0, [])
-    Jb = _jacobian_columns(model, p0, [], base_names, base_scales)
+    Jb = _jacobian_columns(model, p0, [], base_names, base_scales, f0=rvec)
     screen = []
     for t in terms:
         if t.channel == 0 and len(model.data.channels) == 1:  # a common term is the channel's own
@@ -400,7 +406,7 @@ def examine_model(model, **cfg) -> Examination:
         pt = {**p0, **{n: 0.0 for n in t.names()}, **vib_start}
         tn = [n for n in t.names() if not n.endswith("f_hz")]
         ts = [s for n, s in zip(t.names(), t.scales()) if not n.endswith("f_hz")]
-        Jt = _jacobian_columns(model, pt, [t], tn, ts)
+        Jt = _jacobian_columns(model, pt, [t], tn, ts, f0=rvec)
         J = np.hstack([Jb, Jt])
         coef = _lstsq(J, rvec)
         if coef is None:  # the term's start leaves the model undefined (a ray missing the bore)
@@ -445,7 +451,7 @@ def examine_model(model, **cfg) -> Examination:
     for fr, (t1,) in exact[: int(c["n_pair_seeds"])]:
         p1 = fr.values()
         r1 = model.residual(p1, [t1])
-        Jb1 = _jacobian_columns(model, p1, [t1], base_names + t1.names(), base_scales + t1.scales())
+        Jb1 = _jacobian_columns(model, p1, [t1], base_names + t1.names(), base_scales + t1.scales(), f0=r1)
         ext = []
         for t2 in terms:
             if t2.key == t1.key or t2.effect == t1.effect and t2.channel == t1.channel:
@@ -453,7 +459,7 @@ def examine_model(model, **cfg) -> Examination:
             pt = {**p1, **{n: 0.0 for n in t2.names()}, **(vib_start if t2.effect == "vibration" else {})}
             tn = [n for n in t2.names() if not n.endswith("f_hz")]
             ts = [s for n, s in zip(t2.names(), t2.scales()) if not n.endswith("f_hz")]
-            Jt = _jacobian_columns(model, pt, [t1, t2], tn, ts)
+            Jt = _jacobian_columns(model, pt, [t1, t2], tn, ts, f0=r1)
             J = np.hstack([Jb1, Jt])
             coef = _lstsq(J, r1)
             if coef is None:
