@@ -154,6 +154,27 @@ def test_findings_file_is_deterministic_and_in_the_spec_format(tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
 
 
+def test_gap_plot_of_a_reused_figure_is_the_fresh_one(tmp_path):
+    """plot_gap fills one figure per layout and process (plot._FIGURES): a scan drawn after scans of
+    the same and other layouts gives the same file, byte for byte, as drawn in a fresh figure."""
+    from borescan.discrepancy import plot as plot_mod
+
+    exs = [analyse_scan(_scan([Effect("channel_delay", {"channel": 2, "tau_s": 0.0012})])),  # two panels
+           analyse_scan(_scan([], seed=3, n_rev=4)), analyse_scan(_scan([], seed=4, n_rev=8, noise_mm=0.004))]
+    fresh = []
+    for k, ex in enumerate(exs):
+        plot_mod._FIGURES.clear()
+        fresh.append(plot_gap(ex, tmp_path / f"fresh{k}.png").read_bytes())
+    for k in (2, 0, 1, 2, 1):
+        assert plot_gap(exs[k], tmp_path / "again.png").read_bytes() == fresh[k], k
+        axes = plot_mod._figure(1, tuple(exs[k].channels), True, exs[k].angle_label)[1]
+        if k:  # the limits are this scan's data's (autoscaled), not the figure's previous ones
+            r_um = exs[k].residual_before_mm * 1e3
+            lo, hi = axes[0, 0].get_ylim()
+            span = np.nanmax(r_um) - np.nanmin(r_um)
+            assert lo < np.nanmin(r_um) and hi > np.nanmax(r_um) and hi - lo < 1.3 * span, (lo, hi, span)
+
+
 def test_examine_to_dir_writes_both_files(tmp_path):
     from borescan.discrepancy import examine_to_dir
 
