@@ -68,7 +68,8 @@ def scans_of_pooled_window(wildcards):
 
 
 #: month plots of results/report/<YYYY-MM>/ (named by borescan.report) -> category of `snakemake --report`
-MONTH_PLOT_CATEGORY = {"calibration": "Calibration", "control": "Verification", "diameters": "Diameters"}
+MONTH_PLOT_CATEGORY = {"calibration": "Calibration", "control": "Verification", "diameters": "Diameters",
+                       "devicemodel": "Calibration"}
 
 
 def report_page_category(wildcards):
@@ -91,7 +92,8 @@ def report_page_labels(wildcards):
     """Columns of the report's table: what a file shows and of which device, gauge or part."""
     if wildcards.get("kind"):
         return {"plot": {"calibration": "calibration history", "control": "control chart",
-                         "diameters": "diameters"}[wildcards.kind], "of": wildcards.subject}
+                         "diameters": "diameters", "devicemodel": "device model and gaps over the nights"}[wildcards.kind],
+                "of": wildcards.subject}
     if wildcards.get("page") == "papers":
         return {"page": "papers.html (every reproduced table and figure)"}
     return {"page": f"month {wildcards.month} (report/{wildcards.month}/index.html)"}

@@ -21,7 +21,7 @@ rule write_report:
                      category=report_page_category, subcategory=report_page_subcategory,
                      labels=report_page_labels,
                      patterns=[
-                         r"{month,\d{4}-\d{2}|undated}/{kind,calibration|control|diameters}_{subject,[^/]+}.png",
+                         r"{month,\d{4}-\d{2}|undated}/{kind,calibration|control|diameters|devicemodel}_{subject,[^/]+}.png",
                          r"{month,\d{4}-\d{2}|undated}/{page,index}.html",
                          r"{page,papers}.html",
                      ]),

@@ -387,4 +387,4 @@ def test_the_demo_closes_the_loop(pipeline_run):
     assert after < before and after <= 1.05
     verdicts = con.execute("SELECT DISTINCT verdict FROM findings WHERE night = ?", [carrying]).fetchall()
     assert verdicts == [("no_missing_effect",)]
-    assert (res / "report" / carrying[:7] / "device_model_TRI-01.png").is_file()
+    assert (res / "report" / carrying[:7] / "devicemodel_TRI-01.png").is_file()

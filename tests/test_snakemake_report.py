@@ -18,7 +18,8 @@ from snakemake.io import regex_from_filepattern
 from conftest import ROOT, run_snakemake
 
 CATEGORIES = {"Calibration", "Verification", "Diameters", "Discrepancy", "Papers"}
-MONTH_PLOT_CATEGORY = {"calibration": "Calibration", "control": "Verification", "diameters": "Diameters"}
+MONTH_PLOT_CATEGORY = {"calibration": "Calibration", "control": "Verification", "diameters": "Diameters",
+                       "devicemodel": "Calibration"}
 
 
 # ------------------------------------------------------------------ what the rules declare
@@ -200,13 +201,15 @@ def test_categories_and_captions(pipeline_run, snakemake_report):
         cap = results[str(p)]["caption"]
         assert subject in cap and f"month {month}" in cap, cap
     plot_months = {p.parent.name for p in plots}
-    for cat, prefix in (("Calibration", "calibration_"), ("Verification", "control_")):
+    for cat, prefix in (("Calibration", ("calibration_", "devicemodel_")), ("Verification", ("control_",))):
         assert sum(len(v) for m, v in cats[cat].items() if m in plot_months) == len(
             [p for p in plots if p.stem.startswith(prefix)])
+    assert any(p.stem == "devicemodel_TRI-01" for p in plots)  # the device model's nights (demo loop)
     # the certificates: every file of every calibration of a night, under Calibration / the night,
     # read where outputs.md puts them (a link into the night's folder)
     certs = sorted(res.glob("calibration/night=*/*/*/certificate.pdf"))
-    assert len(certs) == 2  # demo: TRI-01 and ROD-01 calibrated on the first night (the second refused)
+    # demo: TRI-01 and ROD-01 calibrated on the first night (the second refused), TRI-01 on both loop nights
+    assert len(certs) == 4
     for pdf in certs:
         night = pdf.parts[-4].removeprefix("night=")
         device, cal_id = pdf.parts[-3], pdf.parts[-2]

@@ -1232,7 +1232,7 @@ class _Builder:
             for dev in sorted(pf["device_id"].drop_nulls().unique().to_list()):
                 hist = device_model_history(pf, self.t.get("calibrations"), self.t.get("verifications"), dev)
                 if hist.height >= 2:
-                    out.append(self.figure(plot_device_model_gap, hist, dev, f"device_model_{dev}",
+                    out.append(self.figure(plot_device_model_gap, hist, dev, f"devicemodel_{dev}",
                                            f"gaps of {dev} against the noise and its device model over the nights"))
         if dr is not None and dr.height:
             flagged = dr.filter(pl.col("flagged").fill_null(False))
