@@ -254,6 +254,7 @@ def carry(model: Sequence[DeviceEffect], device_id: str, inputs: list[dict], log
     """Say in the log what a calibration of ``device_id`` carries of its ``model`` and return its inputs
     corrected for it (:func:`correct_inputs`)."""
     for m in model:
-        log(f"{device_id}: device model {m.key} ({m.source}) " + (f"carried at {m.values()} +- {dict(m.u)} (pooled examination "
-                                                    f"of {m.night})" if m.estimated else "not estimated yet: not corrected"))
+        values = ", ".join(f"{k} = {v:.6g} +- {m.u.get(k, float('nan')):.2g}" for k, v in m.values().items())
+        log(f"{device_id}: device model {m.key} ({m.source}) " + (f"carried at {values} (pooled examination of {m.night})"
+                                                                  if m.estimated else "not estimated yet: not corrected"))
     return correct_inputs(inputs, model)
