@@ -108,8 +108,7 @@ def clean_matrix(mat: rawio.LdsMatrix, policy: CleaningPolicy, *, spindle: bool)
                                       threshold=policy.spike_threshold_mad)
     else:
         pose = np.asarray(mat.pose)
-        spikes = static_spikes(v, np.where(pose >= 0, pose, 0) if np.all(pose < 0) else pose,
-                               policy.spike_threshold_mad)
+        spikes = static_spikes(v, np.zeros_like(pose) if np.all(pose < 0) else pose, policy.spike_threshold_mad)
         clean = np.where(spikes, np.nan, v)
     return replace(mat, values_mm=clean), spikes
 
