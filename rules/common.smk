@@ -1,6 +1,6 @@
 # Names the rules use: roots from the config and the nights found under raw_root.
 from borescan import rawio, validation
-from borescan.discrepancy.pooled import device_model_effects
+from borescan.effects import device_model_effects
 
 RAW = str(validation.require_raw_root(config["raw_root"]))
 RES = config["results_root"]

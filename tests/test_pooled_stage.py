@@ -13,7 +13,8 @@ import polars as pl
 import pytest
 
 from borescan.catalog import STAGE_TABLES, open_catalog, update_catalog
-from borescan.discrepancy.pooled import device_model_effects, parse_device_effect
+from borescan.discrepancy.pooled import parse_device_effect
+from borescan.effects import device_model_effects
 from borescan.effects import Effect
 from borescan.simulate import default_tri_scene, simulate_tri_spindle, simulate_tri_static, write_simulated
 from borescan.stages._common import write_table

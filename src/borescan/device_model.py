@@ -1,7 +1,7 @@
 """A device's model: the effects a user decided it has, with the values the evidence gives them.
 
 The config names the effects (``devices: TRI-01: effects: [channel_delay@2]``, checked by
-:func:`borescan.discrepancy.pooled.device_model_effects`); their values and standard uncertainties
+:func:`borescan.effects.device_model_effects`); their values and standard uncertainties
 come from the device's pooled examinations (``pooled_findings`` rows: the effect fitted across the
 device's scans, named as a finding or fitted as part of the model). A night's calibration carries
 each effect at the latest estimate from an earlier night (the pooled examination of a night comes

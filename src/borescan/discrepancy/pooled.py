@@ -57,7 +57,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from types import SimpleNamespace
@@ -80,12 +79,12 @@ from borescan.discrepancy.tri import (
     term_values,
     tri_data_from_arrays,
 )
-from borescan.effects import EFFECTS, SCOPES, Effect
+from borescan.effects import EFFECTS, SCOPES, Effect, device_effect_key
 from borescan.geometry import Beams
 
 __all__ = ["PooledScan", "PooledTerm", "PooledData", "PooledModel", "PooledExamination", "CONDITIONS",
            "pooled_scan", "examine_pooled", "calibration_equivalent", "drift_explanations", "separation",
-           "CARRIER_SHARE", "parse_device_effect", "device_model_effects"]
+           "CARRIER_SHARE", "parse_device_effect"]
 
 #: Share of the total chi-square decrease that the scans named as carrying the evidence hold.
 CARRIER_SHARE = 0.9
@@ -159,83 +158,11 @@ class PooledTerm(Term):
 
 _SPEED = Term("speed_error")  # the per-scan speed scale of a commanded angle (parameter <scan>:eps)
 
-_KEY = re.compile(r"^(?P<effect>[a-z_]+)(?:@(?P<channel>all|\d+))?(?:\[k=(?P<k>\d+)\])?$")
-
 
 def parse_device_effect(key: str, channels: Sequence[int] | None = None, device: str = "") -> PooledTerm:
-    """The term of a device-model entry (a registry key as the findings write it: ``channel_delay@2``,
-    ``sensor_offset@all``, ``sensor_nonlinearity@1``).
-
-    The effect must be in the registry, act on three-sensor spindle scans and belong to the
-    device (``scope`` ``"device"``: a night's temperature or a gauge's form is not a property of
-    the device); a per-channel effect names a channel of ``channels`` (or ``all`` where the
-    registry tries it as one value on every channel), any other names none.
-
-    Raises
-    ------
-    ValueError naming the device, the entry and what is wrong (unknown effects list the valid ones).
-    """
-    where = f"devices.{device}.effects: " if device else "device model: "
-    m = _KEY.match(str(key).strip())
-    if m is None:
-        raise ValueError(f"{where}{key!r} is not an effect key (effect, effect@<channel> or effect@all)")
-    name, ch, k = m["effect"], m["channel"], m["k"]
-    valid = sorted(n for n, e in EFFECTS.items() if e.scope == "device" and SCAN_KIND in e.candidate and e.fit)
-    if name not in EFFECTS:
-        raise ValueError(f"{where}unknown effect {name!r} in {key!r}; valid: {valid}")
-    spec = EFFECTS[name]
-    if name not in valid:
-        why = (f"belongs to the {spec.scope}, not to the device" if spec.scope != "device" else
-               "is not a fitted effect of three-sensor spindle scans")
-        raise ValueError(f"{where}{name!r} {why}; a device model lists: {valid}")
-    if k is not None:
-        raise ValueError(f"{where}{key!r}: a device effect has no harmonic [k=...]")
-    if not spec.per_channel:
-        if ch is not None:
-            raise ValueError(f"{where}{key!r}: {name} acts on every channel at once; write {name!r}")
-        return PooledTerm(name)
-    if ch is None:
-        raise ValueError(f"{where}{key!r}: {name} acts on one channel; write {name}@<channel>"
-                         + (" or {name}@all".format(name=name) if spec.common else ""))
-    if ch == "all":
-        if not spec.common:
-            raise ValueError(f"{where}{key!r}: {name} is not tried as one value on every channel; name a channel")
-        return PooledTerm(name, 0)
-    if channels is not None and int(ch) not in channels:
-        raise ValueError(f"{where}{key!r}: channel {ch} is not one of the scans' channels {tuple(channels)}")
-    return PooledTerm(name, int(ch))
-
-
-def device_model_effects(devices: dict | None, device_id: str, night: str | None = None) -> tuple[str, ...]:
-    """The device model of ``device_id`` on ``night`` from the config's ``devices`` section (its
-    ``effects``), each entry checked by :func:`parse_device_effect` (channels not checked here); ()
-    when the device has none.
-
-    An entry is a registry key (the device has the effect on every night) or a mapping
-    ``{effect: <key>, from: YYYY-MM-DD}``: the user's decision takes effect from that night on;
-    before it the effect is a candidate like any other. ``night`` None: every entry.
-    """
-    entry = (devices or {}).get(device_id) or {}
-    where = f"devices.{device_id}.effects"
-    keys, since = [], {}
-    for item in entry.get("effects") or ():
-        if isinstance(item, dict):
-            if set(item) - {"effect", "from"} or "effect" not in item:
-                raise ValueError(f"{where}: {item!r}: an entry is an effect key or {{effect: <key>, from: YYYY-MM-DD}}")
-            key, frm = str(item["effect"]), str(item.get("from") or "")
-            if frm and not _NIGHT.fullmatch(frm):
-                raise ValueError(f"{where}: {key!r}: from {frm!r} is not a night (YYYY-MM-DD)")
-        else:
-            key, frm = str(item), ""
-        parse_device_effect(key, None, device_id)
-        keys.append(key)
-        since[key] = frm
-    if len(set(keys)) != len(keys):
-        raise ValueError(f"{where}: an effect is listed twice: {keys}")
-    return tuple(k for k in keys if night is None or not since[k] or since[k] <= str(night))
-
-
-_NIGHT = re.compile(r"\d{4}-\d{2}-\d{2}")
+    """The term of a device-model entry (checked by :func:`borescan.effects.device_effect_key`)."""
+    name, ch = device_effect_key(key, channels, device)
+    return PooledTerm(name) if ch is None else PooledTerm(name, ch)
 
 
 # ----------------------------------------------------------------------------------- conditions
@@ -320,7 +247,7 @@ class PooledModel:
     free_beams : beam parameters that are free and shared (``beta``, ``rho``, ``d_b``)
     label : name of the set in messages (default the device id)
     device_effects : registry keys of the device model (``channel_delay@2``,
-        :func:`device_model_effects`): terms of the base model, shared by every scan and fitted
+        :func:`borescan.effects.device_model_effects`): terms of the base model, shared by every scan and fitted
         with it, never candidates
     """
 
@@ -1194,7 +1121,7 @@ def examine_pooled(scans: Sequence[PooledScan], beams: Beams | None = None, *,
         of the first scan)
     free_beams : shared beam parameters that are free
     label : name of the set (default the device id)
-    device_effects : the device model (registry keys, :func:`device_model_effects`): fitted as part
+    device_effects : the device model (registry keys, :func:`borescan.effects.device_model_effects`): fitted as part
         of the base model, never candidates; reported under ``device_model``
     **cfg : the settings of :func:`~borescan.discrepancy.examine.examine_model`
         (:func:`~borescan.discrepancy.examine.discrepancy_settings` of the config's section)

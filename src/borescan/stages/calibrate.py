@@ -18,7 +18,7 @@ from borescan.artifacts import MissingTemperature
 from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows, rod_nominal_calibration_rows
 from borescan.config import schema_defaults
-from borescan.discrepancy.pooled import device_model_effects
+from borescan.effects import device_model_effects
 from borescan.geometry import Beams
 from borescan.stages._common import clear_night_folder, config_hash, link_into_night, night_scans, quarantine
 from borescan.stages.calibrate_rod import calibrate_rod_scan

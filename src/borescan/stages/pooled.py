@@ -28,7 +28,8 @@ from borescan.atomic import atomic_write_text
 from borescan.calibrations import calibration_drift
 from borescan.config import schema_defaults
 from borescan.discrepancy.examine import _clean, discrepancy_settings
-from borescan.discrepancy.pooled import device_model_effects, drift_explanations, examine_pooled, pooled_scan
+from borescan.discrepancy.pooled import drift_explanations, examine_pooled, pooled_scan
+from borescan.effects import device_model_effects
 from borescan.discrepancy.reference import discrepancy_reference
 from borescan.parallel import map_in_order, workers_for
 from borescan.stages._common import ok_scans, read_tables
