@@ -27,6 +27,15 @@ def test_policy_from_config_defaults():
     assert DEFAULT == CleaningPolicy(6.0, 7)
 
 
+def test_the_signal_stage_takes_the_same_policy():
+    from borescan.stages.signal import signal_options
+
+    cfg = {**schema_defaults()["signal"], "spike_threshold_mad": 4.5, "spike_window_samples": 9}
+    opts = signal_options(cfg)
+    assert (opts["spike_threshold"], opts["spike_window_samples"]) == (4.5, 9)
+    assert cleaning_policy(cfg) == CleaningPolicy(4.5, 9)
+
+
 @pytest.mark.parametrize("n", range(2, 13))
 def test_median_of_others_brute_force(n):
     rng = np.random.default_rng(n)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from borescan import rawio, signal
+from borescan import rawio, readings, signal
 from borescan.parallel import map_in_order, workers_for
 from borescan.stages._common import Quarantined, frames_or_empty, night_scans, quarantine
 
@@ -22,8 +22,9 @@ def signal_options(cfg: dict) -> dict:
         params["window_samples"] = int(cfg["window_samples"])
     elif method == "gaussian":
         params["cutoff_upr"] = float(cfg["gaussian_cutoff_upr"])
-    return {"filter": method, "filter_params": params, "spike_threshold": float(cfg["spike_threshold_mad"]),
-            "spike_window_samples": int(cfg["spike_window_samples"]), "extrema_on": cfg["extrema_on"]}
+    spikes = readings.cleaning_policy(cfg)  # the one spike policy of every stage that fits readings
+    return {"filter": method, "filter_params": params, "spike_threshold": spikes.spike_threshold_mad,
+            "spike_window_samples": spikes.spike_window_samples, "extrema_on": cfg["extrema_on"]}
 
 
 def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log=print,
