@@ -27,9 +27,9 @@ changed between the two calibration scans of night 2). At one speed a delay is a
 (omega tau), so no scan of nights 1-2 can estimate it. Night 3 (2026-11-23) calibrates TRI-01
 at two speeds (``N20261123-TRI01-CAL-P1-A`` at 60 rpm, ``-B`` at 30 rpm, 1320 samples/rev) and
 verifies on RG-275: its pooled examination estimates the delay from the two speeds. The shipped
-config lists ``devices: TRI-01: effects: [channel_delay@2]`` (a user's decision after reading
-that night's report), so night 4 (2026-11-24, the same two speeds, verifications on RG-275 and
-RG-280) calibrates with the delay carried at night 3's estimate; the report shows the
+``config/devices.yaml`` lists ``{effect: channel_delay@2, from: 2026-11-24}`` (a user's decision
+after reading that night's report), so night 4 (2026-11-24, the same two speeds, verifications on
+RG-275 and RG-280) calibrates with the delay carried at night 3's estimate; the report shows the
 calibration's residual fall to the noise floor. The loop nights have no rod and no parts.
 """
 
