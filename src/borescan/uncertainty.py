@@ -43,8 +43,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
-from scipy import signal as _signal
-from scipy import stats
+from scipy import special  # the distribution functions themselves: scipy.stats and scipy.signal cost ~1.3 s of
+# imports in every process that loads this module (each stage job and worker), for nothing these need
 
 __all__ = [
     "DISTRIBUTIONS",
@@ -144,9 +144,9 @@ def coverage_factor(p: float, nu_eff: float = float("inf"), *, truncate: bool = 
         raise ValueError(f"coverage probability must lie in (0, 1), got {p}")
     q = 0.5 * (1.0 + p)
     if not np.isfinite(nu_eff) or nu_eff > NU_NORMAL:
-        return float(stats.norm.ppf(q))
+        return float(special.ndtri(q))
     nu = max(1.0, math.floor(nu_eff)) if truncate else float(nu_eff)
-    return float(stats.t.ppf(q, nu))
+    return float(special.stdtrit(nu, q))
 
 
 def numerical_tolerance(u: float, n_dig: int = 2) -> float:
@@ -165,9 +165,9 @@ def _cell_masses(dist: str, scale: float, nu: float, edges: np.ndarray) -> np.nd
     """Probability of each cell [edges[i], edges[i+1]) of a zero-mean term with standard uncertainty ``scale``."""
     if dist == "normal":
         if np.isfinite(nu) and nu <= NU_NORMAL:
-            cdf = stats.t.cdf(edges / scale, nu)
+            cdf = special.stdtr(nu, edges / scale)
         else:
-            cdf = stats.norm.cdf(edges / scale)
+            cdf = special.ndtr(edges / scale)
     elif dist == "rectangular":
         a = scale * math.sqrt(3.0)
         cdf = np.clip((edges + a) / (2 * a), 0.0, 1.0)
@@ -183,11 +183,33 @@ def _cell_masses(dist: str, scale: float, nu: float, edges: np.ndarray) -> np.nd
     return np.diff(cdf)
 
 
+def _fast_length(n: int) -> int:
+    """Smallest 5-smooth integer >= n (2^a 3^b 5^c: a fast real FFT length)."""
+    best, p5 = 2 * n, 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            m = p35
+            while m < n:
+                m *= 2
+            best = min(best, m)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def _fft_convolve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Full linear convolution of two 1-D arrays by real FFT (zero-padded to a fast length)."""
+    n = a.size + b.size - 1
+    nfft = _fast_length(n)
+    return np.fft.irfft(np.fft.rfft(a, nfft) * np.fft.rfft(b, nfft), nfft)[:n]
+
+
 def _half_span(dist: str, scale: float, nu: float, tail: float = 1e-9) -> float:
     if dist == "normal":
         if np.isfinite(nu) and nu <= NU_NORMAL:
-            return float(scale * stats.t.isf(tail, nu))
-        return float(scale * stats.norm.isf(tail))
+            return float(-scale * special.stdtrit(nu, tail))
+        return float(-scale * special.ndtri(tail))
     return float(scale * DISTRIBUTIONS[dist])
 
 
@@ -225,7 +247,7 @@ def linear_coverage_interval(terms: Sequence[tuple[str, float, float]], p: float
     if not rest:
         return 0.0
     if len(rest) == 1 and rest[0][0] == "normal" and not np.isfinite(rest[0][2]):
-        return float(rest[0][1] * stats.norm.ppf(0.5 * (1 + p)))
+        return float(rest[0][1] * special.ndtri(0.5 * (1 + p)))
     uc = math.sqrt(sum(u * u for _, u, _ in rest))
     h = uc / cells_per_u
     pmf = np.array([1.0])
@@ -233,7 +255,7 @@ def linear_coverage_interval(terms: Sequence[tuple[str, float, float]], p: float
         n = int(math.ceil(_half_span(dist, u, nu) / h)) + 1
         edges = (np.arange(-n, n + 2) - 0.5) * h
         mass = _cell_masses(dist, u, nu, edges)
-        pmf = _signal.fftconvolve(pmf, mass)
+        pmf = _fft_convolve(pmf, mass)
         pmf = np.clip(pmf, 0.0, None)
     pmf /= pmf.sum()
     n = (pmf.size - 1) // 2
