@@ -882,49 +882,64 @@ def fit_full_calibration(
         beams, nuis = unpack(x)
         rho = beams.rho_mm
         dbeta_drho = -1.0 / np.sqrt(np.maximum(R_mm**2 - rho**2, 1e-300))
-        res_parts, jac_parts = [], []
         ncols = p_free + (1 + K if full else 0)
+        res_parts, blocks = [], []
         for k in range(K):
             off, ph, sc = nuis[k]
             sel = slice(None) if rows is None else rows[k]
             t_phi = phi_of(k, ph, sc)[sel]
-            v, jac = _readings_and_jacobian(t_phi, beams, off, R_mm)
-            m = masks[k][sel]
-            res_parts.append((v - ys[k][sel])[m])
             if with_jac:
-                nk = t_phi.shape[0]
-                Jk = np.zeros((nk, c, ncols))
-                for j in range(c):
-                    if j > 0 or ch0_free:
-                        Jk[:, j, j - 1 + ch0_free] = jac["beta"][:, j]
-                    # d/drho at fixed psi and g: beta moves by -drho/sqrt(R^2-rho^2), d_b by -rho/R drho
-                    drho = jac["rho"][:, j] + rho[j] / R_mm
-                    if j > 0 or ch0_free:
-                        drho = drho + jac["beta"][:, j] * dbeta_drho[j]
-                    Jk[:, j, c - 1 + ch0_free + j] = drho
-                    Jk[:, j, 2 * c - 1 + ch0_free + j] = -1.0
-                cols = nuis_cols[k]
-                Jk[:, :, cols["ox"]] = jac["ox"]
-                Jk[:, :, cols["oy"]] = jac["oy"]
-                if "phase" in cols:
-                    Jk[:, :, cols["phase"]] = jac["phi"]
-                if "scale" in cols:
-                    Jk[:, :, cols["scale"]] = jac["phi"] * Phis_c[k][sel]
-                if full:
-                    if not ch0_free:
-                        Jk[:, 0, p_free] = jac["beta"][:, 0]
-                    Jk[:, :, p_free + 1 + k] = jac["phi"]
-                jac_parts.append(Jk[m])
+                v, jac = _readings_and_jacobian(t_phi, beams, off, R_mm)
+                blocks.append((k, sel, jac))
+            else:  # the readings alone (the same call _readings_and_jacobian makes)
+                v = tri_spindle_readings(t_phi, off, beams, Bore((0.0, 0.0), R_mm))
+            res_parts.append((v - ys[k][sel])[masks[k][sel]])
         for k in range(K):
             if priors[k] is not None:
                 res_parts.append(prior_w * (nuis[k][0] - priors[k]))
-                if with_jac:
-                    Jp = np.zeros((2, ncols))
-                    Jp[0, nuis_cols[k]["ox"]] = prior_w
-                    Jp[1, nuis_cols[k]["oy"]] = prior_w
-                    jac_parts.append(Jp)
         r = np.concatenate(res_parts)
-        return (r, np.vstack(jac_parts)) if with_jac else r
+        if not with_jac:
+            return r
+        # the Jacobian is filled column by column into its transpose (ncols, rows): returned as
+        # J = JT.T, Fortran-ordered, the layout MINPACK works in (no reordering copy); rows in the
+        # order of r (per scan the valid readings sample by sample, channel by channel; then priors)
+        JT = np.zeros((ncols, r.size))
+        b0 = 0
+        for k, sel, jac in blocks:
+            m = masks[k][sel]
+            n_k = int(m.sum())
+            at = (np.cumsum(m.ravel()) - 1).reshape(m.shape)  # row of each valid reading in the block
+            rows_of = [b0 + at[m[:, j], j] for j in range(c)]
+            for j in range(c):
+                mj, rj = m[:, j], rows_of[j]
+                if j > 0 or ch0_free:
+                    JT[j - 1 + ch0_free, rj] = jac["beta"][mj, j]
+                # d/drho at fixed psi and g: beta moves by -drho/sqrt(R^2-rho^2), d_b by -rho/R drho
+                drho = jac["rho"][mj, j] + rho[j] / R_mm
+                if j > 0 or ch0_free:
+                    drho = drho + jac["beta"][mj, j] * dbeta_drho[j]
+                JT[c - 1 + ch0_free + j, rj] = drho
+                JT[2 * c - 1 + ch0_free + j, rj] = -1.0
+            blk = slice(b0, b0 + n_k)
+            cols = nuis_cols[k]
+            JT[cols["ox"], blk] = jac["ox"][m]
+            JT[cols["oy"], blk] = jac["oy"][m]
+            dphi = jac["phi"][m]
+            if "phase" in cols:
+                JT[cols["phase"], blk] = dphi
+            if "scale" in cols:
+                JT[cols["scale"], blk] = (jac["phi"] * Phis_c[k][sel])[m]
+            if full:
+                if not ch0_free:
+                    JT[p_free, rows_of[0]] = jac["beta"][m[:, 0], 0]
+                JT[p_free + 1 + k, blk] = dphi
+            b0 += n_k
+        for k in range(K):
+            if priors[k] is not None:
+                JT[nuis_cols[k]["ox"], b0] = prior_w
+                JT[nuis_cols[k]["oy"], b0 + 1] = prior_w
+                b0 += 2
+        return r, JT.T
 
     # ---- start from the design geometry, then the mirror solutions: rho_c -> -rho_c at fixed psi and g
     # keeps the first harmonic and the mean level, so each beam has two minima of nearly equal cost
@@ -958,18 +973,57 @@ def fit_full_calibration(
 
         with np.errstate(all="ignore"):
             res = least_squares(lambda z: model(full(z), False), base[keep],
-                                jac=lambda z: model(full(z), True)[1][:, keep], method="lm", x_scale="jac",
+                                jac=lambda z: model(full(z), True)[1].T[keep].T, method="lm", x_scale="jac",
                                 max_nfev=nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
         return full(res.x), float(res.cost), bool(res.success) and bool(np.isfinite(res.cost))
+
+    # long scans: each mirror start is first fitted on every step-th sample of each scan (the cost's
+    # shape is the same, about 1/step of it); only a mirror the screen cannot set aside is refitted
+    # on every sample (:data:`MIRROR_SCREEN_READINGS`, :data:`MIRROR_SCREEN_DCHI2`)
+    step = max(1, n_obs // MIRROR_SCREEN_READINGS)
+    screen = [slice(None, None, step)] * K if step > 1 else None
 
     def mirror_search(sol):
         """Refit from every beam's mirror (rho_c -> -rho_c at fixed psi and g); keep the lowest cost."""
         tried, alts = [], []
+        kept = None  # the kept solution refitted on the screen's samples, its s^2 and u of its rhos
         for j in range(c):
             xf = sol.x.copy()
             xf[i_rho0 + j] = -xf[i_rho0 + j]
+            start = xf
+            if screen is not None:
+                if kept is None:
+                    with np.errstate(all="ignore"):
+                        k_sub = solve(sol.x, rows=screen)
+                    s2_full = 2.0 * float(sol.cost) / max(n_obs + n_prior - p_free, 1)
+                    u_int = np.sqrt(np.clip(np.diag(np.linalg.pinv(sol.jac.T @ sol.jac)), 0.0, None) * s2_full)
+                    kept = (k_sub, s2_full, u_int)
+                k_sub, s2_full, u_int = kept
+                with np.errstate(all="ignore"):
+                    t_sub = solve(xf, rows=screen)
+                if bool(t_sub.success) and np.isfinite(t_sub.cost) and np.isfinite(k_sub.cost):
+                    # the mirror's cost above the kept one, scaled to every sample, in chi^2 units
+                    d_est = 2.0 * step * float(t_sub.cost - k_sub.cost) / s2_full
+                    u_sub = np.sqrt(np.clip(np.diag(np.linalg.pinv(t_sub.jac.T @ t_sub.jac)), 0.0, None)
+                                    * 2.0 * float(t_sub.cost) / max(n_obs // step + n_prior - p_free, 1))
+                    same = bool(np.all(np.abs(t_sub.x - k_sub.x) <= 0.01 * u_sub))
+                    rho_clear = abs(sol.x[i_rho0 + j]) > MIRROR_SCREEN_RHO_U * u_int[i_rho0 + j]
+                    if d_est > MIRROR_SCREEN_DCHI2 or (same and rho_clear):
+                        entry = {"channel": int(channels[j]), "cost_kept": float(sol.cost),
+                                 "mirror_taken": False, "screened_every": int(step)}
+                        if same:
+                            entry.update(cost_mirror=float(sol.cost), screen="returned to the kept minimum")
+                            alts.append(None)
+                        else:  # its cost on every sample estimated from the screen's (d_est chi^2 above)
+                            cost_est = float(sol.cost) + 0.5 * d_est * s2_full
+                            entry.update(cost_mirror=cost_est, screen=f"{d_est:.0f} s^2 above the kept minimum")
+                            alts.append(_Screened(x=t_sub.x, cost=cost_est))
+                        tried.append(entry)
+                        continue
+                    if not same:
+                        start = t_sub.x  # near the mirror's minimum: the full fit starts there
             with np.errstate(all="ignore"):
-                trial = solve(xf)
+                trial = solve(start)
             fine = bool(trial.success) and bool(np.isfinite(trial.cost))
             better = fine and trial.cost < sol.cost
             tried.append({"channel": int(channels[j]), "cost_kept": float(sol.cost),
@@ -977,6 +1031,7 @@ def fit_full_calibration(
             alts.append((sol if better else trial) if fine else None)
             if better:
                 sol = trial
+                kept = None
         return sol, tried, alts
 
     i_rho0 = c - 1 + ch0_free
@@ -1009,7 +1064,7 @@ def fit_full_calibration(
             sol, mirrors_tried, alternatives = mirror_search(sol)
         profiles: list[dict] = []
         for _round in range(3):
-            r, J = model(sol.x, True)
+            r, J = np.asarray(sol.fun), np.asarray(sol.jac)  # at sol.x (least_squares returns both)
             converged = bool(sol.success) and bool(np.all(np.isfinite(r)))
             if not converged:
                 raise CalibrationError(
@@ -1267,6 +1322,25 @@ def fit_full_calibration(
             },
         },
     )
+
+
+#: the mirror search on long scans (:func:`fit_full_calibration`): with more than twice this many valid
+#: readings each mirror start is first fitted on every step-th sample (step = n_obs // this); a mirror
+#: whose screened cost, scaled to every sample, lies more than MIRROR_SCREEN_DCHI2 s^2 above the kept
+#: minimum's (its weight exp(-Delta/2) is nil; the scaled estimate's standard deviation is
+#: sqrt(4 step Delta), 20 s^2 at Delta = 12.5, step 8), or that returns to the kept minimum while that
+#: beam's rho lies more than MIRROR_SCREEN_RHO_U of its u from 0, is not refitted on every sample
+MIRROR_SCREEN_READINGS = 50_000
+MIRROR_SCREEN_DCHI2 = 200.0
+MIRROR_SCREEN_RHO_U = 10.0
+
+
+@dataclass(frozen=True)
+class _Screened:
+    """A mirror minimum set aside by the screen: its parameters there and its estimated full cost."""
+
+    x: np.ndarray
+    cost: float
 
 
 #: the linearisation check of a rho: at rho_hat +- 2 u the profile's Delta chi^2 must lie within
