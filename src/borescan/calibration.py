@@ -671,7 +671,9 @@ def fit_full_calibration(
     d_b + rho^2 / (2 R) (the quantities the data fix best) are the fitted parameters, which
     straightens the valleys; then every beam's mirror solution (rho of opposite sign at the same
     first harmonic, a second minimum of nearly equal cost) is refitted on every sample and the
-    lower cost kept (``diagnostics["mirror_solutions"]``). rho enters the readings mostly through
+    lower cost kept (``diagnostics["mirror_solutions"]``; on long scans a screen on every step-th
+    sample first sets aside the mirrors far above the kept cost or returning to it,
+    :data:`MIRROR_SCREEN_READINGS`). rho enters the readings mostly through
     rho^2 (the first harmonic's amplitude |o| sqrt(1 + rho^2 / R^2)), so its cost valley can be
     skewed and curved, beta moving non-linearly with it: each rho's profile (every other parameter
     refitted) is checked at rho +- 2 u; where it is not the linear one it is walked out to
@@ -943,8 +945,7 @@ def fit_full_calibration(
 
     # ---- start from the design geometry, then the mirror solutions: rho_c -> -rho_c at fixed psi and g
     # keeps the first harmonic and the mean level, so each beam has two minima of nearly equal cost
-    # that only the second harmonic's phase tells apart. Each flip is refined on a subsample and
-    # kept when it lowers the cost there; the final fit uses every sample.
+    # that only the second harmonic's phase tells apart (mirror_search below).
     d_b0 = np.sqrt(np.maximum(R_mm**2 - nominal.rho_mm**2, 0.0)) - kconst
     start_beams = Beams(channels, nominal.beta_rad.copy(), nominal.rho_mm.copy(), d_b0)
     x0 = pack(start_beams, [(offsets0[k], phase_start[k], scales0[k]) for k in range(K)])
