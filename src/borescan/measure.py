@@ -297,39 +297,48 @@ def _rotating_sensitivities(model: DiameterModel, beams: Beams) -> tuple[np.ndar
     circle of a rotating scan.
 
     The circle (a, b, r) minimises sum_i (|P_i - c| - r)^2; moving the wall points by dP moves it
-    by -(J^T J)^-1 J^T (u_i . dP_i) (J the residuals' Jacobian [-u_x, -u_y, -1], u_i the unit
+    by -(J^T J)^-1 J^T (e_i . dP_i) (J the residuals' Jacobian [-e_x, -e_y, -1], e_i the unit
     vector from the centre to P_i; Gauss-Newton, exact up to the residuals over R, about 1e-8
-    here), so one circle fit and the points' derivatives (central differences of
-    :func:`wall_points_machine`, h = 1e-6 rad, 1e-5 mm) give every sensitivity; D = 2 r.
+    here), so one circle fit and the points' derivatives give every sensitivity; D = 2 r.
+
+    The points' derivatives are exact: P = S + Rot(phi) W, W = F + s u, s = d_b + v, with
+    (:func:`borescan.geometry.beam_frame`) u = (cos beta, sin beta), n = (-sin beta, cos beta),
+    F = rho n, so dF/dbeta = -rho u, dF/drho = n, du/dbeta = n and
+
+        dP/dbeta = Rot(phi) (s n - rho u),  dP/drho = Rot(phi) n,  dP/dd_b = dP/dv = Rot(phi) u,
+
+    for the points of the beam's own channel only. With g_i = dr / d(e_i . dP_i) and
+    w_i = Rot(-phi_i) e_i (e_i in the device frame), per channel A = sum_i g_i w_i [-] and
+    B = sum_i g_i s_i w_i [mm] over its finite points:
+
+        dD/dbeta = 2 (B . n - rho A . u) [mm/rad],  dD/drho = 2 A . n,  dD/dd_b = dD/dv = 2 A . u [-].
     """
-    c = len(beams.channels)
-
-    def points(b: Beams, offsets=None) -> np.ndarray:
-        v = model.readings_mm if offsets is None else model.readings_mm + np.asarray(offsets, float)
-        return wall_points_machine(v, model.phi_rad, model.spindle_xy_mm, b).reshape(-1, 2)
-
-    P0 = points(beams)
-    ok = np.all(np.isfinite(P0), axis=1)
-    circ = fit_circle_ls(P0[ok, 0], P0[ok, 1])
-    d = P0[ok] - np.asarray(circ.center_xy_mm)
-    u = d / np.hypot(d[:, 0], d[:, 1])[:, None]
-    J = np.column_stack([-u, -np.ones(u.shape[0])])
-    dr_row = -np.linalg.solve(J.T @ J, J.T)[2]  # d r / d (u . dP), per point
-
-    def d_diameter(dP: np.ndarray) -> float:
-        return 2.0 * float(dr_row @ np.einsum("ij,ij->i", u, dP[ok]))
-
-    jp = np.zeros(3 * c)
-    for i in range(3 * c):
-        e = np.zeros(3 * c)
-        e[i] = 1e-6 if i % 3 == 0 else 1e-5
-        jp[i] = d_diameter((points(_with_params(beams, e)) - points(_with_params(beams, -e))) / (2 * e[i]))
-    jv = np.zeros(c)
-    for j in range(c):
-        e = np.zeros(c)
-        e[j] = 1e-5
-        jv[j] = d_diameter((points(beams, e) - points(beams, -e)) / 2e-5)
-    return jp, jv
+    v = np.asarray(model.readings_mm, dtype=float)
+    P = wall_points_machine(v, model.phi_rad, model.spindle_xy_mm, beams)  # (n, c, 2)
+    ok = np.all(np.isfinite(P), axis=-1)  # (n, c)
+    Pk = P[ok]  # the points in the order of P.reshape(-1, 2)
+    circ = fit_circle_ls(Pk[:, 0], Pk[:, 1])
+    d = Pk - np.asarray(circ.center_xy_mm)
+    e = d / np.hypot(d[:, 0], d[:, 1])[:, None]
+    J = np.column_stack([-e, -np.ones(e.shape[0])])
+    g = np.zeros(ok.shape)
+    g[ok] = -np.linalg.solve(J.T @ J, J.T)[2]  # d r / d (e . dP), per point; 0 where no point
+    ex, ey = np.zeros(ok.shape), np.zeros(ok.shape)
+    ex[ok], ey[ok] = e[:, 0], e[:, 1]
+    phi = np.broadcast_to(np.asarray(model.phi_rad, dtype=float).reshape(v.shape[0], -1), v.shape)
+    cph, sph = np.cos(phi), np.sin(phi)
+    w = np.stack([cph * ex + sph * ey, cph * ey - sph * ex], axis=-1)  # Rot(-phi) e, (n, c, 2)
+    s = np.where(ok, beams.d_b_mm + v, 0.0)
+    A = np.einsum("kc,kci->ci", g, w)
+    B = np.einsum("kc,kci->ci", g * s, w)
+    _, u = beam_frame(beams.beta_rad, beams.rho_mm)
+    n = np.stack([-np.sin(beams.beta_rad), np.cos(beams.beta_rad)], axis=-1)
+    Au, An, Bn = np.sum(A * u, axis=1), np.sum(A * n, axis=1), np.sum(B * n, axis=1)
+    jp = np.empty(3 * len(beams.channels))
+    jp[0::3] = 2.0 * (Bn - beams.rho_mm * Au)
+    jp[1::3] = 2.0 * An
+    jp[2::3] = 2.0 * Au
+    return jp, 2.0 * Au
 
 
 def measure_scan(scan, beams: Beams, cov_beams=None, device_model=(), cleaning=None) -> dict:
@@ -349,9 +358,10 @@ def measure_scan(scan, beams: Beams, cov_beams=None, device_model=(), cleaning=N
     (list of dicts pose, diameter_mm, u_diameter_mm). For the GUM budget
     (:func:`diameter_uncertainty`): ``jac_params`` (3c,) dD/d(beta, rho, d_b) and
     ``jac_readings`` (c,) dD/d(a constant error of every reading of a channel) (means over the
-    poses; rotating: central differences of the LS circle), ``u_readings_mm`` and
-    ``dof_readings`` (the readings' part of u: Type A, or the sensors' repeatability where that
-    is larger than the scatter, nu = inf), ``noise_mm`` (c,) the readings' scatter per channel and
+    poses; rotating: the LS circle moved by the points' exact derivatives,
+    :func:`_rotating_sensitivities`), ``u_readings_mm`` and ``dof_readings`` (the readings' part
+    of u: Type A, or the sensors' repeatability where that is larger than the scatter, nu = inf),
+    ``noise_mm`` (c,) the readings' scatter per channel and
     ``model`` (:class:`DiameterModel`, D as a function of the beams with these readings).
     ``device_model``: the calibration's carried device-model effects
     (:class:`borescan.device_model.DeviceEffect`); the readings are corrected for them first.
