@@ -609,6 +609,77 @@ def _json_rows(rows: list[dict]) -> list[dict]:
     return [{k: fix(v) for k, v in r.items()} for r in rows]
 
 
+def _ls_radius_change(d: np.ndarray, r0: float, max_iter: int = 50) -> float | None:
+    """Radius change dr [mm] of the least-squares circle of points given relative to a nearby circle.
+
+    ``d`` (2, m): the points' x and y minus the start circle's centre [mm]; ``r0`` its radius [mm].
+    Gauss-Newton on (dc, dr), residuals e_i = |d_i - dc| - (r0 + dr), step -(J^T J)^-1 J^T e with
+    J = [-n_x, -n_y, -1] (n_i the unit vector from the centre to the point), until a step is below
+    tol = 1e-13 r0 as in :func:`borescan.circlefit.fit_circle_ls`: the same minimum. Near it each
+    step is the previous one times a rate (about that step and the residuals over r0), which the
+    ratio of the last two steps bounds: it also stops when the last step times that ratio is below
+    tol, from a circle a small move away after two steps. The increments are kept apart from r0 so
+    that differences of such changes carry no rounding of the radius itself. None when the sum of
+    squares grows by more than its rounding (1e-9 relative) or no step converges.
+    """
+    tol = 1e-13 * max(1.0, r0)
+    dc = np.zeros(2)
+    dr = 0.0
+    f_prev, last = np.inf, 0.0  # last: the previous step's size (none yet)
+    for _ in range(max_iter):
+        dx, dy = d[0] - dc[0], d[1] - dc[1]
+        rr = np.hypot(dx, dy)
+        nx, ny = dx / rr, dy / rr
+        e = (rr - r0) - dr
+        f = float(e @ e)
+        if not np.isfinite(f) or f > f_prev * (1.0 + 1e-9):
+            return None
+        f_prev = f
+        sx, sy = float(nx.sum()), float(ny.sum())
+        JTJ = np.array([[nx @ nx, nx @ ny, sx], [nx @ ny, ny @ ny, sy], [sx, sy, float(e.size)]])
+        step = np.linalg.solve(JTJ, np.array([nx @ e, ny @ e, e.sum()]))
+        dc += step[:2]
+        dr += step[2]
+        size = float(np.max(np.abs(step)))
+        if size <= tol or size * size <= tol * last:
+            return dr
+        last = size
+    return None
+
+
+def _rotating_diameter_changes(model: DiameterModel, beams: Beams, moves) -> list[float]:
+    """D(beams moved by dl) - D(beams) [mm] of a rotating scan, for moves ``(j, dl)`` of channel j's
+    parameters (``dl`` (3c,) per channel (beta, rho, d_b), zero but for channel j).
+
+    The scan's least-squares circle (c0, r0) is fitted once; for each move only channel j's wall
+    points are recomputed (:func:`wall_points_machine`), and the moved points' circle is found by
+    Gauss-Newton from (c0, r0) (:func:`_ls_radius_change`): D' - D = 2 (dr' - dr_0), dr_0 the same
+    iteration on the unmoved points (the base circle's own last digits). A fresh fit
+    (:class:`DiameterModel`) where the iteration does not converge.
+    """
+    v = np.asarray(model.readings_mm, dtype=float)
+    n, c = v.shape
+    P = wall_points_machine(v, model.phi_rad, model.spindle_xy_mm, beams)  # (n, c, 2)
+    ok = np.all(np.isfinite(P), axis=-1)
+    Pk = P[ok]
+    circ = fit_circle_ls(Pk[:, 0], Pk[:, 1])
+    c0, r0 = np.asarray(circ.center_xy_mm), circ.radius_mm
+    blocks = [(P[ok[:, j], j] - c0).T for j in range(c)]  # per channel (2, m_j), relative to c0
+    dr0 = _ls_radius_change(np.concatenate(blocks, axis=1), r0)
+    phi = np.broadcast_to(np.asarray(model.phi_rad, dtype=float).reshape(n, -1), (n, c))
+    S = np.broadcast_to(np.asarray(model.spindle_xy_mm, dtype=float), (n, 2))
+    out = []
+    for j, dl in moves:
+        b = _with_params(beams, dl)
+        one = Beams((b.channels[j],), b.beta_rad[j:j + 1], b.rho_mm[j:j + 1], b.d_b_mm[j:j + 1])
+        k = ok[:, j]
+        moved = list(blocks)
+        moved[j] = (wall_points_machine(v[k, j:j + 1], phi[k, j], S[k], one)[:, 0] - c0).T
+        dr = None if dr0 is None else _ls_radius_change(np.concatenate(moved, axis=1), r0)
+        out.append(2.0 * (dr - dr0) if dr is not None else model(b) - circ.diameter_mm)
+    return out
+
+
 def _second_order_variance(model: DiameterModel, beams: Beams, cov_second: np.ndarray, R_mm: float) -> float:
     """Variance of D from the calibration's second-order term (:func:`diameter_uncertainty`).
 
@@ -616,25 +687,37 @@ def _second_order_variance(model: DiameterModel, beams: Beams, cov_second: np.nd
     error delta; the calibration's second-order term of d_b is 3 u(rho)^4 / (4 R^2) (the fit's).
     Along that path (psi, g fixed) D moves by q delta^2 at second order; its contribution is
     q^2 3 u^4 (variance and squared bias of q delta^2, as the fit counts them), q from a central
-    second difference over +-u(rho).
+    second difference over +-u(rho). For a rotating scan the differences D(+-u) - D come from
+    Gauss-Newton steps from the scan's own circle (:func:`_rotating_diameter_changes`), the same
+    minima as fresh fits.
     """
     c = len(beams.channels)
-    d0 = model(beams)
-    var = 0.0
+    moves, us = [], []
     for j in range(c):
         s2 = float(cov_second[3 * j + 2, 3 * j + 2])
         if s2 <= 0.0:
             continue
         u = (s2 * 4.0 * R_mm**2 / 3.0) ** 0.25
         rho = float(beams.rho_mm[j])
-        vals = []
         for h in (u, -u):
             dl = np.zeros(3 * c)
             dl[3 * j] = -(np.arcsin(np.clip((rho + h) / R_mm, -1, 1)) - np.arcsin(np.clip(rho / R_mm, -1, 1)))
             dl[3 * j + 1] = h
             dl[3 * j + 2] = -(2.0 * rho * h + h * h) / (2.0 * R_mm)
-            vals.append(model(_with_params(beams, dl)))
-        q = (vals[0] - 2.0 * d0 + vals[1]) / (2.0 * u * u)
+            moves.append((j, dl))
+        us.append(u)
+    if not moves:
+        return 0.0
+    if model.kind == "rotating":
+        dd = _rotating_diameter_changes(model, beams, moves)
+        second = [dd[2 * k] + dd[2 * k + 1] for k in range(len(us))]
+    else:
+        d0 = model(beams)
+        vals = [model(_with_params(beams, dl)) for _, dl in moves]
+        second = [vals[2 * k] - 2.0 * d0 + vals[2 * k + 1] for k in range(len(us))]
+    var = 0.0
+    for u, s in zip(us, second):
+        q = s / (2.0 * u * u)
         var += 3.0 * q * q * u**4
     return var
 
