@@ -50,3 +50,34 @@ def test_quarantine_record_file_and_row(tmp_path):
                                             "reason": "clock jump", "message": "S1: lds.parquet: clock jump"}
     assert quarantine_frame([q]).row(0) == ("S1", "2026-11-20", "signal", "lds.parquet", "clock jump")
     assert quarantine_frame([]).columns == ["scan_id", "night", "stage", "file", "reason"]
+
+
+def test_a_worker_reading_and_measuring_scans_does_not_load_pandas_scipy_stats_or_signal(tmp_path):
+    """Each stage job and each worker process is a new interpreter: what it imports it pays on every
+    night (pandas ~0.35 s, loaded by pyarrow's own numpy conversions; scipy.stats and scipy.signal
+    ~1.3 s). None is used: the stage modules, reading the demo's first scans (three-sensor and rod) and a
+    contract scan with null readings, with every check, and their readings' matrix, the examination's outlier threshold and the
+    coverage factors load none of them."""
+    code = f"""
+import sys
+from pathlib import Path
+from borescan import demo, rawio, scenarios, simulate
+from borescan.stages import calibrate, discrepancy, measure, signal  # noqa: F401 (their imports)
+from borescan.discrepancy.examine import outlier_threshold_sigma
+from borescan.uncertainty import coverage_factor, linear_coverage_interval
+raw, truth = Path({str(tmp_path)!r}) / "raw", Path({str(tmp_path)!r}) / "truth"
+for s in demo.demo_scans()[:11]:
+    simulate.write_simulated(s, raw, truth)
+battery = Path({str(tmp_path)!r}) / "battery"
+scenarios.write_battery(battery, 2, 20270611, only=[1])  # channels out of range: null readings
+for d in rawio.discover_scans(raw) + rawio.discover_scans(battery / "raw"):
+    scan = rawio.read_scan(d)
+    rawio.lds_matrix(scan)
+outlier_threshold_sigma(6000)
+coverage_factor(0.9545, 7.0)
+linear_coverage_interval([("normal", 1.0, 5.0), ("rectangular", 2.0, float("inf"))], 0.95)
+print(sorted(m for m in sys.modules if m.split(".")[0] == "pandas" or m in ("scipy.stats", "scipy.signal")))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout[-500:]

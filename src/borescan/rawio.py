@@ -475,13 +475,40 @@ def _check_schema(
     return ok
 
 
+#: numpy dtype of the primitive Arrow types a raw column may have. Their values are read straight from
+#: the Arrow buffers (:func:`_arrow_numpy`): pyarrow's own ``to_numpy`` and ``fill_null`` import pandas on
+#: first use, ~0.35 s in every process that reads a scan (each stage job and worker), for nothing we use.
+_NUMPY_DTYPE = {pa.int8(): np.int8, pa.int16(): np.int16, pa.int32(): np.int32, pa.int64(): np.int64,
+                pa.uint8(): np.uint8, pa.uint16(): np.uint16, pa.uint32(): np.uint32, pa.uint64(): np.uint64,
+                pa.float32(): np.float32, pa.float64(): np.float64}
+
+
+def _arrow_numpy(arr: pa.Array, fill=None) -> np.ndarray:
+    """One Arrow array as numpy: a view of its value buffer (a copy with ``fill`` where null, in the
+    array's dtype) for the types of :data:`_NUMPY_DTYPE`; any other type, or nulls without ``fill``, by
+    pyarrow's conversion."""
+    dtype = _NUMPY_DTYPE.get(arr.type)
+    n = len(arr)
+    if dtype is None or (arr.null_count and fill is None):
+        if arr.null_count and fill is not None:
+            arr = arr.fill_null(fill)
+        return arr.to_numpy(zero_copy_only=False)
+    if n == 0:
+        return np.zeros(0, dtype=dtype)
+    vals = np.frombuffer(arr.buffers()[1], dtype=dtype, count=arr.offset + n)[arr.offset:]
+    if not arr.null_count:
+        return vals
+    valid = np.unpackbits(np.frombuffer(arr.buffers()[0], dtype=np.uint8), bitorder="little")
+    out = vals.copy()
+    out[valid[arr.offset: arr.offset + n] == 0] = fill
+    return out
+
+
 def _np(col: pa.ChunkedArray | pa.Array, fill) -> np.ndarray:
     """Column as numpy, nulls replaced by ``fill``."""
     if isinstance(col, pa.ChunkedArray):
         col = col.combine_chunks()
-    if col.null_count:
-        col = col.fill_null(fill)
-    return col.to_numpy(zero_copy_only=False)
+    return _arrow_numpy(col, fill)
 
 
 def _check_nonnull(table: pa.Table, nullable: frozenset, p: _Problems, file: str) -> bool:
@@ -531,11 +558,8 @@ def _aligned_chunks(table: pa.Table, names: tuple[str, ...]) -> list[tuple[np.nd
 
 
 def _chunk_numpy(arr: pa.Array) -> np.ndarray:
-    """One chunk as numpy: zero-copy without nulls; nulls of a float chunk as NaN (``fill_null``
-    first: ``to_numpy`` on a chunk with nulls takes a path ~10x slower)."""
-    if arr.null_count and pa.types.is_floating(arr.type):
-        arr = arr.fill_null(np.nan)
-    return arr.to_numpy(zero_copy_only=False)
+    """One chunk as numpy: zero-copy without nulls; nulls of a float chunk as NaN."""
+    return _arrow_numpy(arr, np.nan if pa.types.is_floating(arr.type) else None)
 
 
 def _lds_fast_check(table: pa.Table, meta: dict | None, has_spindle: bool, file: str, *, layout: bool = True
@@ -606,8 +630,8 @@ def _pose_ok(table: pa.Table, meta: dict | None, has_spindle: bool) -> bool:
     if dtype == "rod":
         if pcol.null_count:
             return False
-        sample = table.column("sample").combine_chunks().to_numpy()
-        pose = pcol.combine_chunks().to_numpy()
+        sample = _arrow_numpy(table.column("sample").combine_chunks())
+        pose = _arrow_numpy(pcol.combine_chunks())
         return not (pose.min() < 0 or ((sample[1:] == sample[:-1]) & (pose[1:] != pose[:-1])).any())
     return not (dtype == "tri_lds" and has_spindle and pcol.null_count != table.num_rows)
 
@@ -652,7 +676,7 @@ def _lds_chunk_warnings(table: pa.Table, listed: dict[int, dict] | None, file: s
     if per_ch.sum() != n:
         return None  # an unlisted channel
     if vcol.null_count:  # readings per channel less its nulls (few): every listed channel needs one
-        sensor_all = table.column("sensor").filter(vcol.is_null()).to_numpy()
+        sensor_all = _arrow_numpy(table.column("sensor").filter(vcol.is_null()).combine_chunks())
         per_ch = per_ch - np.array([np.count_nonzero(sensor_all == ch) for ch in chans], dtype=np.int64)
     if not (per_ch > 0).all():
         return None  # a listed channel without valid readings
@@ -1364,7 +1388,7 @@ def _chunk_views(col: pa.ChunkedArray) -> list[np.ndarray] | None:
     """Zero-copy numpy views of the chunks of a null-free primitive column; None if it has nulls."""
     if col.null_count:
         return None
-    return [ch.to_numpy(zero_copy_only=True) for ch in col.chunks if len(ch)]
+    return [_arrow_numpy(ch) for ch in col.chunks if len(ch)]
 
 
 def _residue_views(views: list[np.ndarray], k: int, c: int):
@@ -1436,7 +1460,7 @@ def _regular_matrix(tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
     if pose.null_count == rows:
         pose_s = np.full(n, -1, dtype=np.int64)
     else:
-        P = pose.fill_null(-1).to_numpy().astype(np.int64).reshape(-1, c)
+        P = _arrow_numpy(pose.combine_chunks(), -1).astype(np.int64).reshape(-1, c)
         first = np.argmax(P >= 0, axis=1)
         pose_s = P[np.arange(n), first]  # -1 where the whole sample has no pose
     return LdsMatrix(sample=s0, t_s=t0 / 1e9, channels=listed, values_mm=_wide_values(tab.column("value_mm"), c, n),
@@ -1464,7 +1488,7 @@ def lds_matrix(scan: RawScan) -> LdsMatrix:
         return fast
     sample = t["sample"].to_numpy()
     sensor16 = t["sensor"].to_numpy()
-    value = t["value_mm"].cast(pl.Float64).to_arrow().to_numpy(zero_copy_only=False)
+    value = _arrow_numpy(t["value_mm"].cast(pl.Float64).to_arrow(), np.nan)
     t_ns = t["t_ns"].to_numpy()
     sensor = sensor16.astype(np.int64)
     pose = t["pose"].fill_null(-1).to_numpy().astype(np.int64)
