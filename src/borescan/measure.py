@@ -276,14 +276,32 @@ class DiameterModel:
     readings_mm: np.ndarray = field(repr=False)
     phi_rad: np.ndarray | None = field(default=None, repr=False)
     spindle_xy_mm: np.ndarray | None = field(default=None, repr=False)
+    #: least-squares circles of the wall points already fitted, by beams (:meth:`ls_circle`)
+    _circles: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __call__(self, beams: Beams, offsets_mm=None) -> float:
         v = self.readings_mm if offsets_mm is None else self.readings_mm + np.asarray(offsets_mm, float)
         if self.kind == "static":
             return float(np.mean(static_diameter(v, beams).diameter_mm))
+        if offsets_mm is None:
+            return self.ls_circle(beams).diameter_mm
         P = wall_points_machine(v, self.phi_rad, self.spindle_xy_mm, beams).reshape(-1, 2)
         P = P[np.all(np.isfinite(P), axis=1)]
         return fit_circle_ls(P[:, 0], P[:, 1]).diameter_mm
+
+    def ls_circle(self, beams: Beams, points_mm: np.ndarray | None = None, circle: Circle | None = None) -> Circle:
+        """The least-squares circle of a rotating scan's finite wall points with ``beams``, fitted once
+        per beams: ``points_mm`` (m, 2) those points when the caller has them; ``circle`` one the
+        caller has fitted to them (:func:`measure_rotating`'s LSCI), remembered as it is."""
+        key = (beams.channels, beams.beta_rad.tobytes(), beams.rho_mm.tobytes(), beams.d_b_mm.tobytes())
+        if circle is not None:
+            self._circles[key] = circle
+        if key not in self._circles:
+            if points_mm is None:
+                P = wall_points_machine(self.readings_mm, self.phi_rad, self.spindle_xy_mm, beams).reshape(-1, 2)
+                points_mm = P[np.all(np.isfinite(P), axis=1)]
+            self._circles[key] = fit_circle_ls(points_mm[:, 0], points_mm[:, 1])
+        return self._circles[key]
 
 
 def _with_params(beams: Beams, delta: np.ndarray) -> Beams:
@@ -317,7 +335,7 @@ def _rotating_sensitivities(model: DiameterModel, beams: Beams) -> tuple[np.ndar
     P = wall_points_machine(v, model.phi_rad, model.spindle_xy_mm, beams)  # (n, c, 2)
     ok = np.all(np.isfinite(P), axis=-1)  # (n, c)
     Pk = P[ok]  # the points in the order of P.reshape(-1, 2)
-    circ = fit_circle_ls(Pk[:, 0], Pk[:, 1])
+    circ = model.ls_circle(beams, Pk)
     d = Pk - np.asarray(circ.center_xy_mm)
     e = d / np.hypot(d[:, 0], d[:, 1])[:, None]
     J = np.column_stack([-e, -np.ones(e.shape[0])])
@@ -385,6 +403,7 @@ def measure_scan(scan, beams: Beams, cov_beams=None, device_model=(), cleaning=N
         S = np.column_stack([np.interp(m.t_s, t_sp, sp["x_mm"].to_numpy()), np.interp(m.t_s, t_sp, sp["y_mm"].to_numpy())])
         res = measure_rotating(v, phi, S, beams)
         model = DiameterModel("rotating", v, phi, S)
+        model.ls_circle(beams, circle=res.circles["LSCI"])  # the same points: fitted once for the budget too
         jp, jv = _rotating_sensitivities(model, beams)
         u_cal = float(np.sqrt(max(jp @ np.asarray(cov_beams, float) @ jp, 0.0))) if cov_beams is not None else 0.0
         return {
@@ -662,7 +681,7 @@ def _rotating_diameter_changes(model: DiameterModel, beams: Beams, moves) -> lis
     P = wall_points_machine(v, model.phi_rad, model.spindle_xy_mm, beams)  # (n, c, 2)
     ok = np.all(np.isfinite(P), axis=-1)
     Pk = P[ok]
-    circ = fit_circle_ls(Pk[:, 0], Pk[:, 1])
+    circ = model.ls_circle(beams, Pk)
     c0, r0 = np.asarray(circ.center_xy_mm), circ.radius_mm
     blocks = [(P[ok[:, j], j] - c0).T for j in range(c)]  # per channel (2, m_j), relative to c0
     dr0 = _ls_radius_change(np.concatenate(blocks, axis=1), r0)
