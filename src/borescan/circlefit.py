@@ -273,30 +273,40 @@ def _circle3(a, b, c):
     return a + np.array([ux, uy]), float(np.hypot(ux, uy))
 
 
+def _first_outside(P: np.ndarray, lo: int, hi: int, c: np.ndarray, r: float, tol: float) -> int:
+    """Index of the first point of P[lo:hi] farther than r + tol from c, else hi (one vectorised scan)."""
+    if hi <= lo:
+        return hi
+    out = np.flatnonzero(np.hypot(P[lo:hi, 0] - c[0], P[lo:hi, 1] - c[1]) > r + tol)
+    return lo + int(out[0]) if out.size else hi
+
+
 def _welzl(P: np.ndarray, tol: float) -> tuple[np.ndarray, float]:
-    """Iterative move-to-front Welzl: smallest enclosing circle of points P (n, 2)."""
+    """Iterative Welzl: smallest enclosing circle of points P (n, 2).
 
-    def inside(c, r, p):
-        return np.hypot(*(p - c)) <= r + tol
-
+    The classic three nested loops over the points in order; each loop jumps to its next point
+    outside the current circle by a vectorised scan (:func:`_first_outside`), so the Python work
+    is per circle update, not per point (the same circles in the same order as point by point).
+    """
+    n = len(P)
     c, r = P[0].copy(), 0.0
-    for i in range(1, len(P)):
-        if inside(c, r, P[i]):
-            continue
+    i = _first_outside(P, 1, n, c, r, tol)
+    while i < n:
         c, r = P[i].copy(), 0.0
-        for j in range(i):
-            if inside(c, r, P[j]):
-                continue
+        j = _first_outside(P, 0, i, c, r, tol)
+        while j < i:
             c, r = _circle2(P[i], P[j])
-            for k in range(j):
-                if inside(c, r, P[k]):
-                    continue
+            k = _first_outside(P, 0, j, c, r, tol)
+            while k < j:
                 res = _circle3(P[i], P[j], P[k])
                 if res is None:  # collinear: the farthest pair spans it
                     pairs = [(P[i], P[j]), (P[i], P[k]), (P[j], P[k])]
                     c, r = max((_circle2(a, b) for a, b in pairs), key=lambda t: t[1])
                 else:
                     c, r = res
+                k = _first_outside(P, k + 1, j, c, r, tol)
+            j = _first_outside(P, j + 1, i, c, r, tol)
+        i = _first_outside(P, i + 1, n, c, r, tol)
     return c, r
 
 
