@@ -34,6 +34,20 @@ def _calibrate(tmp_path, seed: int, n: int, index: int):
     return scan, truth, cfg, x, cal
 
 
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    """``_calibrate`` once per (seed, n, index) in this module: seed 20270619 #8 takes about 90 s and two
+    tests examine its calibration."""
+    done = {}
+
+    def get(seed: int, n: int, index: int):
+        if (seed, n, index) not in done:
+            done[seed, n, index] = _calibrate(tmp_path_factory.mktemp(f"cal{seed}-{index}"), seed, n, index)
+        return done[seed, n, index]
+
+    return get
+
+
 def _cost_at_truth(truth, cfg, x) -> tuple[float, float, float]:
     """(SSR + prior penalty at the truth, its SSR, the fit's sigma^2) on the readings the fit saw.
 
@@ -74,8 +88,8 @@ def _z(cal, truth_beams: Beams) -> np.ndarray:
 # above; that minimum was taken as spanned by channel 2's profile and left out of u: z 9.2
 @pytest.mark.slow
 @pytest.mark.parametrize("seed,n,index", [(20270619, 9, 8), (20270611, 200, 3), (20270611, 200, 167)])
-def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(tmp_path, seed, n, index):
-    scan, truth, cfg, x, cal = _calibrate(tmp_path, seed, n, index)
+def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(calibrated, seed, n, index):
+    scan, truth, cfg, x, cal = calibrated(seed, n, index)
     d = cal.diagnostics
     cost_truth, ssr_truth, sigma2 = _cost_at_truth(truth, cfg, x)
     cost_fit = 2.0 * d["cost"]  # SSR + prior penalty at the accepted solution (least_squares' cost is half)
@@ -122,7 +136,7 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(tmp
 
 
 @pytest.mark.slow
-def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_sensitivities(tmp_path):
+def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_sensitivities(calibrated):
     """Seed 20270619 #8 (every rho profile non-linear). The calibration's covariance is its budget's
     fit terms summed (readings, positions, second order, profiles, mirrors: nothing lost or counted
     twice). A bore of about the gauge's size measured with it: along a profile (every other parameter
@@ -137,7 +151,7 @@ def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_se
     from borescan.measure import DiameterModel, _with_params, diameter_uncertainty, static_diameter, \
         static_diameter_jacobian
 
-    scan, truth, cfg, x, cal = _calibrate(tmp_path, 20270619, 9, 8)
+    scan, truth, cfg, x, cal = calibrated(20270619, 9, 8)
     unc = schema_defaults()["uncertainty"]
     b = calibration_budget(cal, [x], unc, scan_ids=[scan.scan_id])
     fit_cov = sum(t.covariance() for t in b.terms if t.input.key.startswith(("fit:", "position:")))
@@ -184,7 +198,7 @@ def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_se
 def test_the_mirror_screen_of_a_long_scan_keeps_what_the_full_search_finds(tmp_path, monkeypatch, index):
     """The screen fits each mirror start on every step-th sample and refits on every sample only what it
     cannot set aside. Against the search without a screen (every mirror refitted on every sample): the
-    same solution (each parameter within 1e-4 of its u), the same u (1e-4 where no mirror is within the noise, 2e-3 where one is), every minimum within
+    same solution (each parameter within 1e-4 of its u), the same u (1e-4), every minimum within
     Delta chi^2 < 12.5 found by one found by the other (within 0.05 u(rho), from any mirror start) , and a screened minimum's Delta within 5
     standard deviations of the estimate's (sqrt(4 step Delta)) of the refitted one."""
     from borescan import calibration
@@ -204,9 +218,9 @@ def test_the_mirror_screen_of_a_long_scan_keeps_what_the_full_search_finds(tmp_p
     p_f = np.r_[full.beams.beta_rad, full.beams.rho_mm, full.beams.d_b_mm]
     held = u_f == 0  # the gauge-fixed beta
     assert np.all(np.abs(p_s - p_f)[~held] <= 1e-4 * u_f[~held])
-    # a mirror refitted from the screen's solution, not from the flipped start, ends within the optimizer's
-    # tolerance of the same minimum: the spread its weight adds to a weak rho's u moves by a few 1e-4
-    assert np.allclose(u_s, u_f, rtol=2e-3, atol=0.0)
+    # a mirror the screen does not set aside is refitted exactly as without it; one it sets aside is far above
+    # (its weight nil) or the kept minimum itself: u moves by the optimizer's tolerance at most (2e-5 seen)
+    assert np.allclose(u_s, u_f, rtol=1e-4, atol=0.0), np.max(np.abs(u_s / np.where(u_f > 0, u_f, 1) - 1))
 
     def near(ms):
         return [m for m in ms if m["delta_ssr_over_s2"] < 12.5]

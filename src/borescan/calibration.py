@@ -991,7 +991,6 @@ def fit_full_calibration(
         for j in range(c):
             xf = sol.x.copy()
             xf[i_rho0 + j] = -xf[i_rho0 + j]
-            start = xf
             if screen is not None:
                 if kept is None:
                     with np.errstate(all="ignore"):
@@ -1021,10 +1020,9 @@ def fit_full_calibration(
                             alts.append(_Screened(x=t_sub.x, cost=cost_est))
                         tried.append(entry)
                         continue
-                    if not same:
-                        start = t_sub.x  # near the mirror's minimum: the full fit starts there
             with np.errstate(all="ignore"):
-                trial = solve(start)
+                trial = solve(xf)  # from the flipped start, as without a screen (the screen's solution can
+                # sit in a flat valley of a weak rho where LM on every sample crawls: 1000 evaluations seen)
             fine = bool(trial.success) and bool(np.isfinite(trial.cost))
             better = fine and trial.cost < sol.cost
             tried.append({"channel": int(channels[j]), "cost_kept": float(sol.cost),
