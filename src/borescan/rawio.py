@@ -1417,10 +1417,7 @@ def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
         m = len(ch)
         if not m:
             continue
-        out[r0: r0 + m] = np.frombuffer(ch.buffers()[1], dtype=np.float64, count=ch.offset + m)[ch.offset:]
-        if ch.null_count:
-            bits = np.unpackbits(np.frombuffer(ch.buffers()[0], dtype=np.uint8), bitorder="little")
-            out[r0 + np.flatnonzero(bits[ch.offset: ch.offset + m] == 0)] = np.nan
+        out[r0: r0 + m] = _arrow_numpy(ch, np.nan)
         r0 += m
     return out.reshape(n, c)
 
