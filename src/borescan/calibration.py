@@ -47,7 +47,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-from borescan.fit import FitResult, fit_result
+from borescan.fit import FitResult, fit_result, jacobian_summary
 from borescan.geometry import Beams, Bore, beam_frame, tri_spindle_readings
 from borescan.kinematics import AngleModel, angle_model_from_arrays, estimate_speed_scale
 from borescan.noise import noise_floor_mm
@@ -996,7 +996,7 @@ def fit_full_calibration(
                     with np.errstate(all="ignore"):
                         k_sub = solve(sol.x, rows=screen)
                     s2_full = 2.0 * float(sol.cost) / max(n_obs + n_prior - p_free, 1)
-                    u_int = np.sqrt(np.clip(np.diag(np.linalg.pinv(sol.jac.T @ sol.jac)), 0.0, None) * s2_full)
+                    u_int = np.sqrt(np.diag(jacobian_summary(sol.jac).cov_unit) * s2_full)
                     kept = (k_sub, s2_full, u_int)
                 k_sub, s2_full, u_int = kept
                 with np.errstate(all="ignore"):
@@ -1004,7 +1004,7 @@ def fit_full_calibration(
                 if bool(t_sub.success) and np.isfinite(t_sub.cost) and np.isfinite(k_sub.cost):
                     # the mirror's cost above the kept one, scaled to every sample, in chi^2 units
                     d_est = 2.0 * step * float(t_sub.cost - k_sub.cost) / s2_full
-                    u_sub = np.sqrt(np.clip(np.diag(np.linalg.pinv(t_sub.jac.T @ t_sub.jac)), 0.0, None)
+                    u_sub = np.sqrt(np.diag(jacobian_summary(t_sub.jac).cov_unit)
                                     * 2.0 * float(t_sub.cost) / max(n_obs // step + n_prior - p_free, 1))
                     same = bool(np.all(np.abs(t_sub.x - k_sub.x) <= 0.01 * u_sub))
                     rho_clear = abs(sol.x[i_rho0 + j]) > MIRROR_SCREEN_RHO_U * u_int[i_rho0 + j]
