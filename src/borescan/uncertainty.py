@@ -184,7 +184,8 @@ def _cell_masses(dist: str, scale: float, nu: float, edges: np.ndarray) -> np.nd
 
 
 def _fast_length(n: int) -> int:
-    """Smallest 5-smooth integer >= n (2^a 3^b 5^c: a fast real FFT length)."""
+    """Smallest 5-smooth integer >= n (2^a 3^b 5^c: a fast real FFT length; scipy.fft.next_fast_len(n,
+    real=True), without importing scipy.fft)."""
     best, p5 = 2 * n, 1
     while p5 < best:
         p35 = p5
