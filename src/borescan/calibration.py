@@ -45,11 +45,11 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from borescan.fit import FitResult, fit_result, jacobian_summary
 from borescan.geometry import Beams, Bore, beam_frame, tri_spindle_readings
 from borescan.kinematics import AngleModel, angle_model_from_arrays, estimate_speed_scale
+from borescan.levmar import levenberg_marquardt
 from borescan.noise import noise_floor_mm
 
 __all__ = [
@@ -683,7 +683,8 @@ def fit_full_calibration(
     (``diagnostics["minima"]``, ``"n_minima"``, ``"ambiguous_minima"`` when one is within 4 s^2);
     each adds its spread weighted by exp(-Delta/2) unless a profile spans it. u(d_b) of a linear
     profile includes the second-order term of d_b = g - rho^2 / (2R) (3 u(rho)^4 / (4 R^2)). Solved with
-    ``scipy.optimize.least_squares`` (Levenberg-Marquardt, analytic Jacobian). Covariance
+    :func:`borescan.levmar.levenberg_marquardt` (MINPACK's Levenberg-Marquardt on a LAPACK QR,
+    analytic Jacobian). Covariance
     s^2 (J^T J)^-1, s^2 = SSR / dof.
 
     Censoring at the sensor range: the sensor nulls a reading whose noisy value leaves [0, range], so
@@ -950,12 +951,10 @@ def fit_full_calibration(
     start_beams = Beams(channels, nominal.beta_rad.copy(), nominal.rho_mm.copy(), d_b0)
     x0 = pack(start_beams, [(offsets0[k], phase_start[k], scales0[k]) for k in range(K)])
     def solve(x_start: np.ndarray, rows=None, nfev: int = max_nfev):
-        return least_squares(
+        return levenberg_marquardt(
             lambda x: model(x, False, rows=rows),
             x_start,
-            jac=lambda x: model(x, True, rows=rows)[1],
-            method="lm",
-            x_scale="jac",
+            lambda x: model(x, True, rows=rows)[1],
             max_nfev=nfev,
             xtol=1e-10,
             ftol=1e-10,
@@ -973,9 +972,9 @@ def fit_full_calibration(
             return x
 
         with np.errstate(all="ignore"):
-            res = least_squares(lambda z: model(full(z), False), base[keep],
-                                jac=lambda z: model(full(z), True)[1].T[keep].T, method="lm", x_scale="jac",
-                                max_nfev=nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+            res = levenberg_marquardt(lambda z: model(full(z), False), base[keep],
+                                      lambda z: model(full(z), True)[1].T[keep].T,
+                                      max_nfev=nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10, jac_at_solution=False)
         return full(res.x), float(res.cost), bool(res.success) and bool(np.isfinite(res.cost))
 
     # long scans: each mirror start is first fitted on every step-th sample of each scan (the cost's

@@ -1,0 +1,129 @@
+"""borescan.levmar: MINPACK's lmder on a LAPACK QR, checked against scipy's least_squares(method="lm").
+
+The iteration is a line-for-line port, so on well-posed problems the evaluation counts are MINPACK's
+(within the one step that rounding decides at a minimum reached to machine precision) and the
+solution is the same far below its standard uncertainty.
+"""
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from borescan.levmar import MESSAGES, levenberg_marquardt, qr_of_stacked
+
+
+def _problems():
+    rng = np.random.default_rng(20261124)
+    t = np.linspace(0.0, 4.0, 2000)
+    y = 2.0 * np.exp(-1.3 * t) + 0.5 * np.exp(-0.2 * t) + rng.normal(0, 0.01, t.size)
+
+    def exp_f(p):
+        return p[0] * np.exp(-p[1] * t) + p[2] * np.exp(-p[3] * t) - y
+
+    def exp_j(p):
+        e1, e3 = np.exp(-p[1] * t), np.exp(-p[3] * t)
+        return np.column_stack([e1, -p[0] * t * e1, e3, -p[2] * t * e3])
+
+    yield "two exponentials", exp_f, exp_j, np.array([1.0, 1.0, 1.0, 0.1])
+    th = rng.uniform(0, 2 * np.pi, 500)
+    xy = np.c_[3 + 10 * np.cos(th), -2 + 10 * np.sin(th)] + rng.normal(0, 0.05, (500, 2))
+
+    def circ_f(p):
+        return np.hypot(xy[:, 0] - p[0], xy[:, 1] - p[1]) - p[2]
+
+    def circ_j(p):
+        d = np.hypot(xy[:, 0] - p[0], xy[:, 1] - p[1])
+        return np.column_stack([-(xy[:, 0] - p[0]) / d, -(xy[:, 1] - p[1]) / d, -np.ones_like(d)])
+
+    yield "circle from far", circ_f, circ_j, np.array([0.0, 0.0, 1.0])
+    yield ("Rosenbrock", lambda p: np.array([10 * (p[1] - p[0] ** 2), 1 - p[0]]),
+           lambda p: np.array([[-20 * p[0], 10.0], [-1.0, 0.0]]), np.array([-1.2, 1.0]))
+    tt = np.linspace(0, 1, 50)
+    yy = 1e3 * np.sin(3 * tt) + 1e-3 * tt
+    yield ("badly scaled", lambda p: p[0] * np.sin(p[1] * tt) + p[2] * tt - yy,
+           lambda p: np.column_stack([np.sin(p[1] * tt), p[0] * tt * np.cos(p[1] * tt), tt]),
+           np.array([900.0, 2.9, 0.0]))
+    # a tall harmonic fit like the calibration's: 60 000 readings, 9 parameters, Fortran-ordered J
+    phi = np.linspace(0, 40 * np.pi, 60_000)
+    truth = np.array([0.3, -0.2, 0.05, 0.01, -0.02, 1.001, 0.4, 5.0, 0.002])
+
+    def harm(p):
+        a = p[5] * phi + p[6]
+        return (p[7] + p[0] * np.cos(a) + p[1] * np.sin(a) + p[2] * np.cos(2 * a) + p[3] * np.sin(2 * a)
+                + p[4] * np.cos(3 * a) + p[8] * phi)
+
+    yh = harm(truth) + rng.normal(0, 1e-3, phi.size)
+
+    def harm_j(p):
+        a = p[5] * phi + p[6]
+        da = (-p[0] * np.sin(a) + p[1] * np.cos(a) - 2 * p[2] * np.sin(2 * a) + 2 * p[3] * np.cos(2 * a)
+              - 3 * p[4] * np.sin(3 * a))
+        J = np.empty((phi.size, 9), order="F")
+        J[:, 0], J[:, 1], J[:, 2], J[:, 3], J[:, 4] = np.cos(a), np.sin(a), np.cos(2 * a), np.sin(2 * a), np.cos(3 * a)
+        J[:, 5], J[:, 6], J[:, 7], J[:, 8] = da * phi, da, 1.0, phi
+        return J
+
+    yield "tall harmonic", (lambda p: harm(p) - yh), harm_j, truth + np.array([0.02, 0.02, 0, 0, 0, 2e-5, 0.01, 0.01, 0])
+
+
+@pytest.mark.parametrize("tol", [1e-8, 1e-10, 1e-12])
+def test_the_iteration_is_minpacks(tol):
+    for name, f, j, x0 in _problems():
+        a = least_squares(f, x0, jac=j, method="lm", x_scale="jac", xtol=tol, ftol=tol, gtol=tol)
+        b = levenberg_marquardt(f, x0, j, xtol=tol, ftol=tol, gtol=tol)
+        # at a minimum reached to machine precision, actred and prered are rounding noise, so whether
+        # the ftol test or one more Jacobian (gtol) ends the iteration is decided by rounding
+        assert a.success and b.success, name
+        assert abs(b.nfev - a.nfev) <= 1 and abs(b.njev - a.njev) <= 1, name
+        assert b.message == MESSAGES[b.status]
+        assert b.cost == pytest.approx(a.cost, rel=1e-12, abs=1e-30), name
+        # the same minimum, far below the parameters' standard uncertainty (or exactly, for a zero residual)
+        s2 = 2 * a.cost / max(a.fun.size - a.x.size, 1)
+        u = np.sqrt(np.diag(np.linalg.inv(a.jac.T @ a.jac)) * s2)
+        assert np.all(np.abs(b.x - a.x) <= 1e-5 * u + 1e-12 * np.abs(a.x)), name
+        np.testing.assert_allclose(b.fun, f(b.x), rtol=0, atol=0)
+        np.testing.assert_allclose(b.jac, j(b.x), rtol=0, atol=0)
+
+
+def test_an_evaluation_limit_stops_it_as_minpack_does():
+    name, f, j, x0 = next(p for p in _problems() if p[0] == "Rosenbrock")
+    for k in (3, 5, 8):
+        a = least_squares(f, x0, jac=j, method="lm", x_scale="jac", max_nfev=k)
+        b = levenberg_marquardt(f, x0, j, max_nfev=k)
+        assert (b.status, b.success, b.nfev) == (a.status, a.success, a.nfev) == (0, False, k)
+        np.testing.assert_allclose(b.x, a.x, rtol=1e-9)
+
+
+def test_the_triangular_factor_of_the_stacked_matrix():
+    rng = np.random.default_rng(7)
+    J = np.asfortranarray(rng.normal(size=(5000, 6)) * np.array([1, 10, 1e-3, 1e3, 1, 1]))
+    f = rng.normal(size=5000)
+    R = qr_of_stacked(J, f)
+    A = np.column_stack([J, f])
+    assert R.shape == (7, 7) and np.allclose(np.tril(R, -1), 0.0)
+    np.testing.assert_allclose(R.T @ R, A.T @ A, rtol=1e-11, atol=1e-9)
+    # the corner is the least-squares residual norm
+    x, *_ = np.linalg.lstsq(J, f, rcond=None)
+    assert abs(R[6, 6]) == pytest.approx(np.linalg.norm(J @ x - f), rel=1e-10)
+    # fewer rows than columns + 1: padded with zero rows
+    Rs = qr_of_stacked(J[:3], f[:3])
+    assert Rs.shape == (7, 7)
+    np.testing.assert_allclose(Rs.T @ Rs, A[:3].T @ A[:3], atol=1e-6)
+
+
+def test_non_finite_start_is_refused():
+    with pytest.raises(ValueError, match="not finite"):
+        levenberg_marquardt(lambda p: np.array([np.nan, 1.0, p[0]]), np.array([1.0]), lambda p: np.ones((3, 1)))
+
+
+def test_without_the_jacobian_at_the_solution_the_solution_is_the_same():
+    name, f, j, x0 = next(p for p in _problems() if p[0] == "two exponentials")
+    calls = []
+
+    def jc(p):
+        calls.append(p.copy())
+        return j(p)
+
+    a = levenberg_marquardt(f, x0, j)
+    b = levenberg_marquardt(f, x0, jc, jac_at_solution=False)
+    assert np.array_equal(a.x, b.x) and a.cost == b.cost and len(calls) == b.njev
