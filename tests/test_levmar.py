@@ -127,3 +127,16 @@ def test_without_the_jacobian_at_the_solution_the_solution_is_the_same():
     a = levenberg_marquardt(f, x0, j)
     b = levenberg_marquardt(f, x0, jc, jac_at_solution=False)
     assert np.array_equal(a.x, b.x) and a.cost == b.cost and len(calls) == b.njev
+
+
+def test_a_rank_deficient_jacobian_reaches_the_least_squares_cost():
+    """Two identical columns: the minimiser is not unique, the minimum cost is (MINPACK's
+    truncated back-substitution from the first zero diagonal, as lmpar.f does)."""
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(300, 3))
+    X = np.c_[X, X[:, 0]]
+    b = rng.normal(size=300)
+    res = levenberg_marquardt(lambda p: X @ p - b, np.zeros(4), lambda p: X)
+    x_ls, *_ = np.linalg.lstsq(X, b, rcond=None)
+    assert res.success
+    assert res.cost == pytest.approx(0.5 * np.sum((X @ x_ls - b) ** 2), rel=1e-12)

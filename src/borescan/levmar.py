@@ -89,32 +89,28 @@ def _qrsolv(R: np.ndarray, perm: np.ndarray, d: np.ndarray, qtb: np.ndarray):
     n = R.shape[1]
     Q2, S = np.linalg.qr(np.vstack([R, np.diag(d[perm])]), mode="reduced")
     w = Q2.T[:, :n] @ qtb
-    sdiag = np.diag(S)
-    nsing = n
-    zero = np.flatnonzero(sdiag == 0.0)
-    if zero.size:
-        nsing = int(zero[0])
+    return _back_substitute(S, w, perm), S
+
+
+def _back_substitute(T: np.ndarray, b: np.ndarray, perm: np.ndarray) -> np.ndarray:
+    """x with x[perm] = T^-1 b for upper triangular T; from the first zero diagonal on, the
+    components are 0 (MINPACK's least-squares solution of a singular triangle)."""
+    n = T.shape[1]
+    zero = np.flatnonzero(np.diag(T) == 0.0)
+    nsing = int(zero[0]) if zero.size else n
     z = np.zeros(n)
     if nsing:
-        z[:nsing] = solve_triangular(S[:nsing, :nsing], w[:nsing], lower=False, check_finite=False)
+        z[:nsing] = solve_triangular(T[:nsing, :nsing], b[:nsing], lower=False, check_finite=False)
     x = np.empty(n)
     x[perm] = z
-    return x, S
+    return x
 
 
 def _lmpar(R, perm, diag, qtb, delta, par):
     """The Levenberg-Marquardt parameter and step for trust radius ``delta`` (``lmpar.f``)."""
     n = R.shape[1]
-    rdiag = np.diag(R)
-    nsing = n
-    zero = np.flatnonzero(rdiag == 0.0)
-    if zero.size:
-        nsing = int(zero[0])
-    w = np.zeros(n)
-    if nsing:
-        w[:nsing] = solve_triangular(R[:nsing, :nsing], qtb[:nsing], lower=False, check_finite=False)
-    x = np.empty(n)
-    x[perm] = w
+    nsing = int(np.count_nonzero(np.cumprod(np.diag(R) != 0.0)))  # columns before the first zero diagonal
+    x = _back_substitute(R, qtb, perm)  # the Gauss-Newton step
     it = 0
     dx = diag * x
     dxnorm = _enorm(dx)
