@@ -539,31 +539,32 @@ def _readings_and_jacobian(
     phi: np.ndarray, beams: Beams, offset: np.ndarray, R: float
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Exact readings (n, c) at device angles ``phi`` (n,) (or per channel, (n, c) / (n, 1)) and
-    their analytic derivatives.
+    their analytic derivatives, channel-major: each ``jac[...]`` is (c, n) (``.T`` is the (n, c) view).
 
     The wall point is P = o + Rot(phi)(F + s u) with the gauge centre at the origin; implicit
     differentiation of |P|^2 = R^2 gives ds/dp = -(P . dP/dp) / (P . Rot(phi) u).
-    ``jac["phi"]`` is dv/dphi (the chain rule gives phase and speed-scale columns).
+    ``jac["phi"]`` is dv/dphi (the chain rule gives phase and speed-scale columns). Computed
+    channel-major for numpy's long inner loops, as :func:`borescan.geometry.tri_spindle_readings`.
     """
     phi = np.asarray(phi, dtype=float)
     phi = phi[:, None] if phi.ndim == 1 else phi
     v = tri_spindle_readings(phi, offset, beams, Bore((0.0, 0.0), R))
-    s = v + beams.d_b_mm
+    s = np.ascontiguousarray(v.T) + np.asarray(beams.d_b_mm, dtype=float)[:, None]  # (c, n)
     F, u = beam_frame(beams.beta_rad, beams.rho_mm)  # (c, 2)
     n_vec = np.stack([-u[:, 1], u[:, 0]], axis=-1)
-    cph, sph = np.cos(phi), np.sin(phi)
+    cph, sph = np.ascontiguousarray(np.cos(phi).T), np.ascontiguousarray(np.sin(phi).T)  # (1 or c, n)
 
     def rot(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return cph * a[:, 0] - sph * a[:, 1], sph * a[:, 0] + cph * a[:, 1]
+        return cph * a[:, 0:1] - sph * a[:, 1:2], sph * a[:, 0:1] + cph * a[:, 1:2]
 
-    dev = F + s[..., None] * u  # (n, c, 2) device-frame wall points
-    wx = cph * dev[..., 0] - sph * dev[..., 1]
-    wy = sph * dev[..., 0] + cph * dev[..., 1]
+    dev_x, dev_y = F[:, 0:1] + s * u[:, 0:1], F[:, 1:2] + s * u[:, 1:2]  # device-frame wall points
+    wx = cph * dev_x - sph * dev_y
+    wy = sph * dev_x + cph * dev_y
     Px, Py = offset[0] + wx, offset[1] + wy
     ux, uy = rot(u)
     den = Px * ux + Py * uy
     nx, ny = rot(n_vec)
-    rho = beams.rho_mm
+    rho = np.asarray(beams.rho_mm, dtype=float)[:, None]
     # dP/dbeta = Rot(phi)(-rho u + s n)
     dbx, dby = -rho * ux + s * nx, -rho * uy + s * ny
     jac = {
@@ -916,25 +917,25 @@ def fit_full_calibration(
             for j in range(c):
                 mj, rj = m[:, j], rows_of[j]
                 if j > 0 or ch0_free:
-                    JT[j - 1 + ch0_free, rj] = jac["beta"][mj, j]
+                    JT[j - 1 + ch0_free, rj] = jac["beta"][j, mj]
                 # d/drho at fixed psi and g: beta moves by -drho/sqrt(R^2-rho^2), d_b by -rho/R drho
-                drho = jac["rho"][mj, j] + rho[j] / R_mm
+                drho = jac["rho"][j, mj] + rho[j] / R_mm
                 if j > 0 or ch0_free:
-                    drho = drho + jac["beta"][mj, j] * dbeta_drho[j]
+                    drho = drho + jac["beta"][j, mj] * dbeta_drho[j]
                 JT[c - 1 + ch0_free + j, rj] = drho
                 JT[2 * c - 1 + ch0_free + j, rj] = -1.0
             blk = slice(b0, b0 + n_k)
             cols = nuis_cols[k]
-            JT[cols["ox"], blk] = jac["ox"][m]
-            JT[cols["oy"], blk] = jac["oy"][m]
-            dphi = jac["phi"][m]
+            JT[cols["ox"], blk] = jac["ox"].T[m]
+            JT[cols["oy"], blk] = jac["oy"].T[m]
+            dphi = jac["phi"].T[m]
             if "phase" in cols:
                 JT[cols["phase"], blk] = dphi
             if "scale" in cols:
-                JT[cols["scale"], blk] = (jac["phi"] * Phis_c[k][sel])[m]
+                JT[cols["scale"], blk] = (jac["phi"].T * Phis_c[k][sel])[m]
             if full:
                 if not ch0_free:
-                    JT[p_free, rows_of[0]] = jac["beta"][m[:, 0], 0]
+                    JT[p_free, rows_of[0]] = jac["beta"][0, m[:, 0]]
                 JT[p_free + 1 + k, blk] = dphi
             b0 += n_k
         for k in range(K):
@@ -1674,6 +1675,7 @@ def full_lsq_sensitivities(
         phi = phi_at(tc)
         off = np.array([nu["offset_x_mm"], nu["offset_y_mm"]], dtype=float)
         v_k, jac = _readings_and_jacobian(phi, beams, off, R_mm)
+        jac = {name: a.T for name, a in jac.items()}  # (n, c) views
         # the model's readings per unit of a channel's time offset: phi of channel c at t - tau_c
         h = 1e-6
         dtau_parts.append(jac["phi"] * (phi_at(tc - h) - phi_at(tc + h)) / (2.0 * h))
