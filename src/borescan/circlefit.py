@@ -253,6 +253,28 @@ def _check_closed(x, y, c, max_gap_deg: float, method: str) -> tuple[np.ndarray,
     return order, ths
 
 
+@dataclass(frozen=True)
+class _ClosedProfile:
+    """Finite points shifted to their mean, the least-squares centre in that frame and the angular
+    order about it (checked closed): what MZCI, MICI and MCCI start from, prepared once for all
+    three by :func:`reference_circles`."""
+
+    x: np.ndarray
+    y: np.ndarray
+    shift: np.ndarray
+    c: np.ndarray
+    order: np.ndarray
+    ths: np.ndarray
+
+
+def _closed_profile(x_mm, y_mm, ls_center_xy_mm, max_gap_deg: float, method: str,
+                    min_points: int = 3) -> _ClosedProfile:
+    x, y, shift = _prep(x_mm, y_mm, min_points=min_points)
+    c = _ls_center(x, y, shift, ls_center_xy_mm)
+    order, ths = _check_closed(x, y, c, max_gap_deg, method)
+    return _ClosedProfile(x, y, shift, c, order, ths)
+
+
 # --------------------------------------------------------------------------- MCCI (Welzl)
 
 
@@ -329,8 +351,11 @@ def min_circumscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *, seed: int = 0,
     CircleFitError
         "profile is not closed (largest gap X deg)" for an open arc.
     """
-    x, y, shift = _prep(x_mm, y_mm)
-    _check_closed(x, y, _ls_center(x, y, shift, ls_center_xy_mm), max_gap_deg, "MCCI")
+    return _mcci(_closed_profile(x_mm, y_mm, ls_center_xy_mm, max_gap_deg, "MCCI"), seed)
+
+
+def _mcci(prof: _ClosedProfile, seed: int = 0) -> Circle:
+    x, y, shift = prof.x, prof.y, prof.shift
     P = np.column_stack([x, y])
     if P.shape[0] > 50:  # the enclosing circle of a set is that of its convex hull
         from scipy.spatial import ConvexHull
@@ -672,9 +697,11 @@ def max_inscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
     centre, radius varying by much less than R) does not have; such a profile raises
     CircleFitError "profile too sparse".
     """
-    x, y, shift = _prep(x_mm, y_mm)
-    c0 = _ls_center(x, y, shift, ls_center_xy_mm)
-    order, ths = _check_closed(x, y, c0, max_gap_deg, "MICI")
+    return _mici(_closed_profile(x_mm, y_mm, ls_center_xy_mm, max_gap_deg, "MICI"))
+
+
+def _mici(prof: _ClosedProfile) -> Circle:
+    x, y, shift, c0, order, ths = prof.x, prof.y, prof.shift, prof.c, prof.order, prof.ths
     P = np.column_stack([x, y])
     c_best, n_cand = _mic_centre(P, order, ths, c0)
     c = _polish(x, y, c_best, "MICI")
@@ -712,10 +739,12 @@ def min_zone_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
     CircleFitError
         "profile is not closed (largest gap X deg)" for an open arc.
     """
-    x, y, shift = _prep(x_mm, y_mm, min_points=4)
-    c0 = _ls_center(x, y, shift, ls_center_xy_mm)
-    _check_closed(x, y, c0, max_gap_deg, "MZCI")
-    c, it = _slp(x, y, c0)
+    return _mzci(_closed_profile(x_mm, y_mm, ls_center_xy_mm, max_gap_deg, "MZCI", min_points=4))
+
+
+def _mzci(prof: _ClosedProfile) -> Circle:
+    x, y, shift = prof.x, prof.y, prof.shift
+    c, it = _slp(x, y, prof.c)
     c = _polish(x, y, c, "MZCI")
     d = np.hypot(x - c[0], y - c[1])
     return _make("MZCI", x, y, shift, c, 0.5 * (d.min() + d.max()), n_iter=it)
@@ -736,13 +765,10 @@ def reference_circles(x_mm, y_mm, *, max_gap_deg: float = CLOSED_MAX_GAP_DEG) ->
     gap about the least-squares centre exceeds ``max_gap_deg`` [deg].
     """
     ls = fit_circle_ls(x_mm, y_mm)
-    c = ls.center_xy_mm
-    return {
-        "LSCI": ls,
-        "MZCI": min_zone_circle(x_mm, y_mm, c, max_gap_deg=max_gap_deg),
-        "MICI": max_inscribed_circle(x_mm, y_mm, c, max_gap_deg=max_gap_deg),
-        "MCCI": min_circumscribed_circle(x_mm, y_mm, c, max_gap_deg=max_gap_deg),
-    }
+    # one preparation (finite points, shift, closed-profile check and angular order about the LS
+    # centre) for all three: the same as each function's own, checked as min_zone_circle would
+    prof = _closed_profile(x_mm, y_mm, ls.center_xy_mm, max_gap_deg, "MZCI", min_points=4)
+    return {"LSCI": ls, "MZCI": _mzci(prof), "MICI": _mici(prof), "MCCI": _mcci(prof)}
 
 
 def _fourier_lsq(th: np.ndarray, r: np.ndarray, K: int) -> np.ndarray:
