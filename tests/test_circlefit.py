@@ -521,3 +521,32 @@ def test_mic_on_the_reduced_set_equals_the_full_triangulation(case, monkeypatch)
     # and it is the largest empty circle: no point inside it
     d = np.hypot(x - reduced.center_xy_mm[0], y - reduced.center_xy_mm[1])
     assert d.min() >= reduced.radius_mm - 1e-12
+
+
+@pytest.mark.parametrize("farthest", [8, 64, 2048])
+def test_mcci_from_the_farthest_points_is_the_mcci_of_all(monkeypatch, farthest):
+    """A long profile's MCCI is found from its points farthest from the LS centre, widened 8-fold
+    while a point is left outside: the same circle (to 1e-12 mm) as Welzl on the hull of every
+    point, on profiles whose farthest points from the LS centre are not the MCCI's (lobes, an
+    off-centre bump, outward spikes), and every point inside it."""
+    import borescan.circlefit as cf
+
+    rng = np.random.default_rng(20261124)
+    for kind in range(4):
+        n = 30_000
+        th = rng.uniform(0, 2 * np.pi, n)
+        r = 120.0 + rng.normal(0, 0.001, n)
+        if kind == 1:
+            r += 0.02 * np.cos(2 * th) + 0.01 * np.cos(5 * th + 1)
+        elif kind == 2:  # a bump on one side pulls the LS centre away from the MCC centre
+            r += 0.05 * np.exp(-((th - 1.0) ** 2) / 0.05)
+        elif kind == 3:
+            r += 0.03 * (rng.random(n) < 0.002)
+        x, y = 0.7 + r * np.cos(th), -0.4 + r * np.sin(th)
+        monkeypatch.setattr(cf, "MCCI_FARTHEST", farthest)
+        fast = cf.min_circumscribed_circle(x, y)
+        monkeypatch.setattr(cf, "MCCI_FARTHEST", 10 * n)  # every point: the hull of all
+        full = cf.min_circumscribed_circle(x, y)
+        assert np.max(np.abs(fast.center_xy_mm - full.center_xy_mm)) < 1e-12
+        assert abs(fast.radius_mm - full.radius_mm) < 1e-12
+        assert np.max(np.hypot(x - fast.center_xy_mm[0], y - fast.center_xy_mm[1])) <= fast.radius_mm

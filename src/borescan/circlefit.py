@@ -354,19 +354,36 @@ def min_circumscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *, seed: int = 0,
     return _mcci(_closed_profile(x_mm, y_mm, ls_center_xy_mm, max_gap_deg, "MCCI"), seed)
 
 
-def _mcci(prof: _ClosedProfile, seed: int = 0) -> Circle:
-    x, y, shift = prof.x, prof.y, prof.shift
-    P = np.column_stack([x, y])
-    if P.shape[0] > 50:  # the enclosing circle of a set is that of its convex hull
-        from scipy.spatial import ConvexHull
+#: MCCI of a long profile: first the circle of this many points farthest from the LS centre
+MCCI_FARTHEST = 2048
 
-        try:
-            P = P[ConvexHull(P).vertices]
-        except Exception:  # noqa: BLE001 - degenerate hull (collinear): Welzl copes with all points
-            pass
-    order = np.random.default_rng(seed).permutation(len(P))
-    scale = float(np.max(np.abs(P))) or 1.0
-    c, r = _welzl(P[order], tol=1e-12 * scale)
+
+def _mcci(prof: _ClosedProfile, seed: int = 0) -> Circle:
+    """Welzl's circle of the profile's convex hull. A long profile's circle is first found from its
+    :data:`MCCI_FARTHEST` points farthest from the least-squares centre (8 times more while it
+    leaves a point outside): a circle that is the smallest around a subset and encloses every point
+    is the smallest around them all (the hull of 120 000 points costs ~50 ms, a subset's ~1 ms)."""
+    x, y, shift = prof.x, prof.y, prof.shift
+    n = x.size
+    scale = float(max(np.max(np.abs(x)), np.max(np.abs(y)))) or 1.0
+    tol = 1e-12 * scale
+    d2 = (x - prof.c[0]) ** 2 + (y - prof.c[1]) ** 2
+    k = MCCI_FARTHEST
+    while True:
+        idx = np.argpartition(d2, n - k)[n - k:] if k < n else np.arange(n)
+        P = np.column_stack([x[idx], y[idx]])
+        if P.shape[0] > 50:  # the enclosing circle of a set is that of its convex hull
+            from scipy.spatial import ConvexHull
+
+            try:
+                P = P[ConvexHull(P).vertices]
+            except Exception:  # noqa: BLE001 - degenerate hull (collinear): Welzl copes with all points
+                pass
+        order = np.random.default_rng(seed).permutation(len(P))
+        c, r = _welzl(P[order], tol=tol)
+        if k >= n or np.all(np.hypot(x - c[0], y - c[1]) <= r + tol):
+            break
+        k *= 8
     # the enclosing radius is the farthest point from c (removes the tolerance slack)
     r = float(np.max(np.hypot(x - c[0], y - c[1])))
     return _make("MCCI", x, y, shift, c, r)
