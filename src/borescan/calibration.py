@@ -1063,7 +1063,7 @@ def fit_full_calibration(
             sol, mirrors_tried, alternatives = mirror_search(sol)
         profiles: list[dict] = []
         for _round in range(3):
-            r, J = np.asarray(sol.fun), np.asarray(sol.jac)  # at sol.x (least_squares returns both)
+            r, J = np.asarray(sol.fun), np.asarray(sol.jac)  # at sol.x (levenberg_marquardt returns both)
             converged = bool(sol.success) and bool(np.all(np.isfinite(r)))
             if not converged:
                 raise CalibrationError(
