@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linprog
-from scipy.spatial import Delaunay, QhullError
+from scipy.spatial import ConvexHull, Delaunay, QhullError
 
 __all__ = [
     "Circle",
@@ -373,8 +373,6 @@ def _mcci(prof: _ClosedProfile, seed: int = 0) -> Circle:
         idx = np.argpartition(d2, n - k)[n - k:] if k < n else np.arange(n)
         P = np.column_stack([x[idx], y[idx]])
         if P.shape[0] > 50:  # the enclosing circle of a set is that of its convex hull
-            from scipy.spatial import ConvexHull
-
             try:
                 P = P[ConvexHull(P).vertices]
             except Exception:  # noqa: BLE001 - degenerate hull (collinear): Welzl copes with all points

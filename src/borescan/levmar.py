@@ -108,8 +108,6 @@ def _back_substitute(T: np.ndarray, b: np.ndarray, perm: np.ndarray) -> np.ndarr
 
 def _lmpar(R, perm, diag, qtb, delta, par):
     """The Levenberg-Marquardt parameter and step for trust radius ``delta`` (``lmpar.f``)."""
-    n = R.shape[1]
-    nsing = int(np.count_nonzero(np.cumprod(np.diag(R) != 0.0)))  # columns before the first zero diagonal
     x = _back_substitute(R, qtb, perm)  # the Gauss-Newton step
     it = 0
     dx = diag * x
@@ -118,7 +116,7 @@ def _lmpar(R, perm, diag, qtb, delta, par):
     if fp <= 0.1 * delta:
         return 0.0, x
     parl = 0.0
-    if nsing >= n:
+    if np.all(np.diag(R) != 0.0):  # full rank: the lower bound of lmpar.f
         w = diag[perm] * (dx[perm] / dxnorm)
         w = solve_triangular(R, w, trans="T", lower=False, check_finite=False)
         t = _enorm(w)
