@@ -155,8 +155,9 @@ def test_findings_file_is_deterministic_and_in_the_spec_format(tmp_path):
 
 
 def test_gap_plot_of_a_reused_figure_is_the_fresh_one(tmp_path):
-    """plot_gap fills one figure per layout and process (plot._FIGURES): a scan drawn after scans of
-    the same and other layouts gives the same file, byte for byte, as drawn in a fresh figure."""
+    """plot_gap fills one figure per layout and process (plot._FIGURES) over a background drawn once
+    per set of limits (plot._BACKGROUNDS): a scan drawn after scans of the same and other layouts
+    gives the same file, byte for byte, as drawn in a fresh figure."""
     from borescan.discrepancy import plot as plot_mod
 
     exs = [analyse_scan(_scan([Effect("channel_delay", {"channel": 2, "tau_s": 0.0012})])),  # two panels
@@ -164,15 +165,33 @@ def test_gap_plot_of_a_reused_figure_is_the_fresh_one(tmp_path):
     fresh = []
     for k, ex in enumerate(exs):
         plot_mod._FIGURES.clear()
+        plot_mod._BACKGROUNDS.clear()
         fresh.append(plot_gap(ex, tmp_path / f"fresh{k}.png").read_bytes())
     for k in (2, 0, 1, 2, 1):
         assert plot_gap(exs[k], tmp_path / "again.png").read_bytes() == fresh[k], k
-        axes = plot_mod._figure(1, tuple(exs[k].channels), True, exs[k].angle_label)[1]
-        if k:  # the limits are this scan's data's (autoscaled), not the figure's previous ones
-            r_um = exs[k].residual_before_mm * 1e3
-            lo, hi = axes[0, 0].get_ylim()
-            span = np.nanmax(r_um) - np.nanmin(r_um)
-            assert lo < np.nanmin(r_um) and hi > np.nanmax(r_um) and hi - lo < 1.3 * span, (lo, hi, span)
+        axes = plot_mod._figure(1 if k else 2, tuple(exs[k].channels), True, exs[k].angle_label)["axes"]
+        # the residual axes are this scan's: +-L, L = 1.05 x the largest |residual| (or 1.5 noise
+        # floors) rounded up to the series, at most 4/3 above it (the series' largest step)
+        r_um = np.concatenate([exs[k].residual_before_mm, exs[k].residual_after_mm]) * 1e3
+        need = 1.05 * max(np.nanmax(np.abs(r_um)), 1.5 * exs[k].findings["noise_floor_mm"] * 1e3)
+        for row in (0, 1):
+            lo, hi = axes[row, 0].get_ylim()
+            assert lo == -hi and need <= hi <= need * 4 / 3, (row, lo, hi, need)
+        assert axes[1, 0].get_xlim()[1] >= exs[k].t_s.max()
+
+
+def test_nice_ceiling_is_the_next_value_of_the_series():
+    """nice_ceiling(v): the smallest s x 10^k (s in NICE_STEPS) at or above v, for v over 24 decades."""
+    from borescan.discrepancy.plot import NICE_STEPS, nice_ceiling
+
+    rng = np.random.default_rng(7)
+    series = np.array(sorted({float(f"{s}e{k}") for s in NICE_STEPS if s < 10 for k in range(-13, 14)}))
+    for v in np.concatenate([10.0 ** rng.uniform(-12, 12, 2000), series[5:-5]]):
+        c = nice_ceiling(float(v))
+        i = np.argmin(np.abs(series - c))
+        assert abs(series[i] - c) <= 1e-12 * c, (v, c)  # a value of the series
+        assert c >= v and series[i - 1] < v * (1 - 1e-12), (v, c)  # the next one at or above v
+    assert nice_ceiling(0.0) == nice_ceiling(float("nan")) == nice_ceiling(-3.0) == 1.0
 
 
 def test_examine_to_dir_writes_both_files(tmp_path):

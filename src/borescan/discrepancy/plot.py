@@ -9,7 +9,32 @@ import numpy as np
 
 from borescan.discrepancy.fitting import leading_block
 
-__all__ = ["plot_gap"]
+__all__ = ["plot_gap", "nice_ceiling"]
+
+#: Axis limits are rounded up to a value of this series (times a power of ten), so that the scans
+#: of a night share a few sets of limits, and the axes, ticks and labels of a set are drawn once
+#: (:func:`_background`). The headroom above the data is at most 25 % (1.2 / 1.0 ... 10 / 8).
+NICE_STEPS = (1.0, 1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0)
+
+#: Extra room above the largest value before rounding up, so no marker sits on the frame.
+HEADROOM = 1.05
+#: Room left of 0 on the time and sample axes, as a share of the axis (the first marker whole).
+MARGIN = 0.02
+
+
+def nice_ceiling(value: float) -> float:
+    """The smallest value of :data:`NICE_STEPS` x 10^k at or above ``value`` (> 0); 1.0 for
+    anything not positive and finite."""
+    if not (math.isfinite(value) and value > 0.0):
+        return 1.0
+    k = math.floor(math.log10(value))
+    for _ in range(2):  # log10 may round to the decade below or above
+        for s in NICE_STEPS:
+            v = float(f"{s}e{k}")
+            if v >= value:
+                return v
+        k += 1
+    return float(f"1e{k}")
 
 
 def _spectrum(r: np.ndarray, dt: float, rev_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -22,18 +47,22 @@ def _spectrum(r: np.ndarray, dt: float, rev_hz: float) -> tuple[np.ndarray, np.n
     return np.fft.rfftfreq(nfft, dt) / rev_hz, amp
 
 
-#: Blank figures of this process by layout (panels, channels, spectrum or pose rows, angle label):
-#: a night's scans share a few layouts, and filling a drawn figure with the next scan's residuals
-#: costs about half of building one (axes, ticks and legend are made once).
-_FIGURES: dict[tuple, tuple] = {}
+#: Figures of this process by layout (panels, channels, spectrum or pose rows, angle label): a
+#: night's scans share a few layouts; axes, ticks and legend are made once per layout.
+_FIGURES: dict[tuple, dict] = {}
+
+#: Rendered static parts (frame, ticks, tick labels, axis labels) by (layout, limits): the pixels
+#: every scan of that layout and those limits starts from (:func:`_background`). A few MB each.
+_BACKGROUNDS: dict[tuple, object] = {}
+MAX_BACKGROUNDS = 32
 
 
-def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_label: str):
-    """The figure of a layout, its axes (3, n_panels) and lines, built on first use (see :data:`_FIGURES`).
+def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_label: str) -> dict:
+    """The figure of a layout, built on first use (see :data:`_FIGURES`).
 
-    Returns
-    -------
-    fig, axes, lines[(row, col, channel index)] -> Line2D, floor[(row, col, sign)] -> Line2D
+    Returns a dict: ``fig``, ``axes`` (3, n_panels), ``lines[(row, col, channel index)]``,
+    ``floor[(row, col, sign)]`` (the dashed noise-floor lines), ``legend`` and ``dynamic``: every
+    artist that changes from scan to scan (drawn over the background).
     """
     from matplotlib import rcParams
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -66,15 +95,41 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
                 floor[row, col, s] = axes[row, col].axhline(0.0, ls="--", lw=0.8, color="0.4")
         axes[0, col].set_xlabel(angle_label)
         axes[1, col].set_xlabel("time [s]")
+        axes[0, col].set_title(" ", fontsize=10, y=1.0)  # y given: not moved by the (hidden) title's own layout
     axes[0, 0].set_ylabel("residual [um]")
     axes[1, 0].set_ylabel("residual [um]")
     axes[2, 0].set_ylabel("amplitude [um]" if spectrum else "residual [um]")
-    axes[0, 0].legend(loc="upper right", fontsize=8, markerscale=5)
+    legend = axes[0, 0].legend(loc="upper right", fontsize=8, markerscale=5)
+    fig.suptitle(" ", fontsize=11)
     # fixed margins: tight_layout measures every tick label and costs about as much as the drawing
     fig.subplots_adjust(left=0.07 if n_panels == 2 else 0.11, right=0.98, bottom=0.06, top=0.92, hspace=0.32,
                         wspace=0.06)
-    _FIGURES[key] = fig, axes, lines, floor
+    dynamic = [*lines.values(), *floor.values(), *(axes[0, c].title for c in range(n_panels)), legend, fig._suptitle]
+    _FIGURES[key] = {"fig": fig, "axes": axes, "lines": lines, "floor": floor, "legend": legend, "dynamic": dynamic,
+                     "key": key}
     return _FIGURES[key]
+
+
+def _background(layout: dict, limits: tuple):
+    """The rendered static part of ``layout`` with its axes at ``limits`` (already set on the
+    axes): everything but :func:`_figure`'s ``dynamic`` artists, drawn once per (layout, limits)."""
+    key = (layout["key"], limits)
+    if key not in _BACKGROUNDS:
+        fig = layout["fig"]
+        for a in layout["dynamic"]:
+            a.set_visible(False)
+        fig.canvas.draw()
+        for a in layout["dynamic"]:
+            a.set_visible(True)
+        if len(_BACKGROUNDS) >= MAX_BACKGROUNDS:
+            _BACKGROUNDS.pop(next(iter(_BACKGROUNDS)))
+        _BACKGROUNDS[key] = fig.canvas.copy_from_bbox(fig.bbox)
+    return _BACKGROUNDS[key]
+
+
+def _abs_max(*arrays: np.ndarray) -> float:
+    vals = [np.nanmax(np.abs(a)) for a in arrays if a.size and np.isfinite(a).any()]
+    return float(max(vals)) if vals else 0.0
 
 
 def plot_gap(examination, out_path: str | Path) -> Path:
@@ -83,7 +138,12 @@ def plot_gap(examination, out_path: str | Path) -> Path:
     Rows: residual against device angle, against time, spectrum in undulations per revolution
     (UPR; pose scans: residual per sample); left column before (base model), right column after
     adding the named effect(s).
-    Dashed lines mark +-1.5 noise floor. The figure of the layout is reused (:func:`_figure`).
+    Dashed lines mark +-1.5 noise floor. Residual axes are symmetric, +-L with L the largest
+    residual (or 1.5 noise floors) rounded up by :func:`nice_ceiling`; time, sample and
+    amplitude axes run from 0 to their largest value rounded up alike. So scans of a night
+    share limits, the figure of a layout is reused (:func:`_figure`), and its frame, ticks and
+    labels are drawn once per set of limits (:func:`_background`); only the scan's own lines and
+    titles are drawn for each scan. The file depends on the scan only.
     """
     ex = examination
     f = ex.findings
@@ -103,13 +163,14 @@ def plot_gap(examination, out_path: str | Path) -> Path:
         ]
     else:  # nothing added: "after" would repeat "before"
         panels = [(ex.residual_before_mm, "base model (nothing added)", f["gap_before"]["rms_mm"])]
-    fig, axes, lines, floor = _figure(len(panels), tuple(ex.channels), bool(ex.rev_hz), ex.angle_label)
+    layout = _figure(len(panels), tuple(ex.channels), bool(ex.rev_hz), ex.angle_label)
+    fig, axes, lines, floor = layout["fig"], layout["axes"], layout["lines"], layout["floor"]
     # examined blocks of a long scan are separated in time: break the line there
     dt = np.diff(ex.t_s)
     cut = np.flatnonzero(dt > 5.0 * np.median(dt)) + 1 if dt.size else np.zeros(0, dtype=int)
     t_line = np.insert(ex.t_s, cut, np.nan)
     angle_deg = np.degrees(ex.angle_rad)
-    upr_max = []
+    upr_max, amp_max = 30.0, 0.0
     for col, (r, label, gap) in enumerate(panels):
         for j in range(len(ex.channels)):
             y = r[:, j] * 1e3
@@ -120,25 +181,39 @@ def plot_gap(examination, out_path: str | Path) -> Path:
             upr, amp = _spectrum(r[:nb], float(np.median(np.diff(ex.t_s[:nb]))), ex.rev_hz)
             for j in range(len(ex.channels)):
                 lines[2, col, j].set_data(upr, amp[:, j] * 1e3)
-            upr_max.append(min(30.0, float(upr.max()) if upr.size else 30.0))
+            upr_max = min(upr_max, float(upr.max()) if upr.size else 30.0)
+            amp_max = max(amp_max, _abs_max(amp[upr <= 30.0] * 1e3))
         else:
             for j in range(len(ex.channels)):
                 lines[2, col, j].set_data(np.arange(r.shape[0]), r[:, j] * 1e3)
         for row in (0, 1):
             for s in (-1.5, 1.5):
                 floor[row, col, s].set_ydata([s * floor_um, s * floor_um])
-        axes[0, col].set_title(f"{label}: rms {gap * 1e3:.2f} um" if gap is not None else label, fontsize=10)
-    for ax in axes.flat:  # limits from this scan's data, as a new figure's would be
-        ax.relim()
-        ax.autoscale(True)
+        axes[0, col].title.set_text(f"{label}: rms {gap * 1e3:.2f} um" if gap is not None else label)
+    res_lim = nice_ceiling(HEADROOM * max(_abs_max(*(r * 1e3 for r, _, _ in panels)), 1.5 * floor_um))
+    t_lim = nice_ceiling(HEADROOM * float(np.nanmax(ex.t_s))) if ex.t_s.size else 1.0
+    if ex.rev_hz:
+        row2 = ((0.0, upr_max), (0.0, nice_ceiling(HEADROOM * amp_max)))
+    else:
+        n_lim = nice_ceiling(HEADROOM * max(panels[0][0].shape[0] - 1, 1))
+        row2 = ((-MARGIN * n_lim, n_lim), (-res_lim, res_lim))
+    limits = ((-res_lim, res_lim), (-MARGIN * t_lim, t_lim), *row2)
     for col in range(len(panels)):
         axes[0, col].set_xlim(0, 360)
-        if ex.rev_hz:
-            axes[2, col].set_xlim(0, upr_max[col])
-    fig.suptitle(
-        f"{f['scan_id']}: {f['verdict']} ({names}); noise floor {floor_um:.2f} um (dashed: +-1.5x)",
-        fontsize=11,
-    )
+        axes[0, col].set_ylim(*limits[0])
+        axes[1, col].set_xlim(*limits[1])
+        axes[1, col].set_ylim(*limits[0])
+        axes[2, col].set_xlim(*limits[2])
+        axes[2, col].set_ylim(*limits[3])
+    fig._suptitle.set_text(f"{f['scan_id']}: {f['verdict']} ({names}); noise floor {floor_um:.2f} um (dashed: +-1.5x)")
+    canvas = fig.canvas
+    canvas.restore_region(_background(layout, limits))
+    renderer = canvas.get_renderer()
+    for a in layout["dynamic"]:
+        a.draw(renderer)
     # fast zlib level: one gap plot per scan; encoding at level 1 is ~3x faster, files ~10 % larger
-    fig.savefig(out, dpi=100, metadata={"Software": None, "CreationDate": None}, pil_kwargs={"compress_level": 1})
+    from matplotlib.image import imsave
+
+    imsave(out, np.asarray(canvas.buffer_rgba()), format="png", dpi=fig.dpi, metadata={"Software": None},
+           pil_kwargs={"compress_level": 1})
     return out
