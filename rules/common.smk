@@ -1,6 +1,9 @@
 # Names the rules use: roots from the config and the nights found under raw_root.
 from borescan import rawio, validation
 from borescan.effects import device_model_effects
+from borescan.parallel import set_job_environment
+
+set_job_environment()  # glibc malloc settings every job inherits (borescan.parallel.JOB_MALLOC_ENVIRONMENT)
 
 RAW = str(validation.require_raw_root(config["raw_root"]))
 RES = config["results_root"]
