@@ -550,3 +550,41 @@ def test_mcci_from_the_farthest_points_is_the_mcci_of_all(monkeypatch, farthest)
         assert np.max(np.abs(fast.center_xy_mm - full.center_xy_mm)) < 1e-12
         assert abs(fast.radius_mm - full.radius_mm) < 1e-12
         assert np.max(np.hypot(x - fast.center_xy_mm[0], y - fast.center_xy_mm[1])) <= fast.radius_mm
+
+
+@pytest.mark.parametrize("bins", [16, 256, 2048])
+def test_mzci_on_the_radial_extremes_is_the_mzci_of_all(monkeypatch, bins):
+    """A long profile's MZCI is found by the sequential LP on the innermost and outermost point of
+    each angular bin, with the check that every point lies in that zone (points outside are added):
+    the same centre and zone width (to 1e-12 mm) as the LP on every point, on profiles whose zone
+    is set by points that are not their bin's extremes about the LS centre (lobes, a bump that
+    pulls the LS centre, inward and outward spikes, a flat). With 16 bins the first zone leaves
+    points outside, so the widening runs."""
+    import borescan.circlefit as cf
+
+    rng = np.random.default_rng(20261125)
+    slp = cf._slp
+    for kind in range(5):
+        n = 40_000
+        th = rng.uniform(0, 2 * np.pi, n)
+        r = 140.0 + rng.normal(0, 0.002, n)
+        if kind == 1:
+            r += 0.02 * np.cos(2 * th) + 0.01 * np.cos(5 * th + 1)
+        elif kind == 2:
+            r += 0.05 * np.exp(-((th - 1.0) ** 2) / 0.05)
+        elif kind == 3:
+            r += np.where(rng.random(n) < 0.001, rng.normal(0, 0.03, n), 0.0)
+        elif kind == 4:
+            r = np.where(np.abs(np.cos(th)) > 0.99, 139.97, r)
+        x, y = -0.3 + r * np.cos(th), 0.6 + r * np.sin(th)
+        sizes = []
+        monkeypatch.setattr(cf, "_slp", lambda xs, ys, c0, **kw: (sizes.append(xs.size), slp(xs, ys, c0, **kw))[1])
+        monkeypatch.setattr(cf, "MZ_BINS", bins)
+        fast = cf.min_zone_circle(x, y)
+        assert max(sizes) < n / 4  # certified on the reduced set, never all points
+        monkeypatch.setattr(cf, "MZ_BINS", 10 * n)  # n <= 4 MZ_BINS: the LP on every point
+        full = cf.min_zone_circle(x, y)
+        assert np.max(np.abs(fast.center_xy_mm - full.center_xy_mm)) < 1e-12, kind
+        assert abs(fast.ront_mm - full.ront_mm) < 1e-12 and abs(fast.radius_mm - full.radius_mm) < 1e-12, kind
+        d = np.hypot(x - fast.center_xy_mm[0], y - fast.center_xy_mm[1])
+        assert d.max() - d.min() == pytest.approx(fast.ront_mm, abs=1e-12)

@@ -612,6 +612,14 @@ def _inside_star_polygon(q: np.ndarray, V: np.ndarray, th: np.ndarray, c) -> np.
     return cross > 0.0
 
 
+def _bin_segments(ths: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """The non-empty ones of ``bins`` equal angular bins over [-pi, pi) as runs of a profile's
+    angular order: start positions and lengths along ``ths`` (increasing angles [rad])."""
+    b = np.minimum(((ths + np.pi) / (2 * np.pi) * bins).astype(np.int64), bins - 1)  # non-decreasing
+    starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
+    return starts, np.diff(np.r_[starts, b.size])
+
+
 #: Angular bins of the reduced point set the MICI triangulates first (see :func:`_mic_centre`).
 MIC_BINS = 2048
 
@@ -634,20 +642,17 @@ def _mic_centre(P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0) -> tuple[
     n = P.shape[0]
     if n > 4 * MIC_BINS:
         d0 = np.hypot(P[:, 0] - c0[0], P[:, 1] - c0[1])
-        th = np.arctan2(P[:, 1] - c0[1], P[:, 0] - c0[0])
-        b = np.minimum(((th + np.pi) / (2 * np.pi) * MIC_BINS).astype(np.int64), MIC_BINS - 1)
-        o = np.lexsort((d0, b))  # by bin, then radius: the first of each bin is its innermost point
-        first = np.ones(n, dtype=bool)
-        first[1:] = b[o][1:] != b[o][:-1]
+        starts, counts = _bin_segments(ths, MIC_BINS)
+        ds = d0[order]
+        inner = np.flatnonzero(ds == np.repeat(np.minimum.reduceat(ds, starts), counts))
+        seg = np.searchsorted(starts, inner, side="right") - 1
+        first = inner[np.r_[True, seg[1:] != seg[:-1]]]  # sorted position of each bin's innermost point
         keep = np.zeros(n, dtype=bool)
-        keep[o[first]] = True
-        kept_of_bin = np.full(MIC_BINS, -1, dtype=np.int64)
-        kept_of_bin[b[o[first]]] = o[first]
-        s_of_p = kept_of_bin[b]
+        keep[order[first]] = True
         V = P[order]
+        near_sorted = np.hypot(*(V - P[np.repeat(order[first], counts)]).T)  # |p - s(p)|, angular order
         edge = np.hypot(*(np.roll(V, -1, axis=0) - V).T)
-        near = np.hypot(*(P - P[s_of_p]).T)
-        boundary_bound = float(np.max(0.5 * edge + np.maximum(near[order], np.roll(near[order], -1))))
+        boundary_bound = float(np.max(0.5 * edge + np.maximum(near_sorted, np.roll(near_sorted, -1))))
         for _ in range(8):
             S = P[keep]
             cand, bound = _local_max_vertices(S)
@@ -757,9 +762,46 @@ def min_zone_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
     return _mzci(_closed_profile(x_mm, y_mm, ls_center_xy_mm, max_gap_deg, "MZCI", min_points=4))
 
 
+#: Angular bins of the reduced point set the MZCI's sequential LP runs on first (see :func:`_mzci`).
+MZ_BINS = 2048
+
+
+def _mz_centre(prof: _ClosedProfile) -> tuple[np.ndarray, int]:
+    """The minimum zone centre of a profile by :func:`_slp`, run on a reduced point set with a
+    certificate that the answer is the one of all points.
+
+    S = the innermost and the outermost point about the LS centre in each of :data:`MZ_BINS`
+    angular bins. The zone width of S at any centre is at most that of all points, so a centre
+    c_S where S's width is least and every point lies within S's zone (between its inner and
+    outer circle) has the least width of all points too: it is their minimum zone centre, as the
+    LP on every point would find. Points outside that zone are added to S and the LP repeats; a
+    profile with fewer points than 4 x MZ_BINS, or where the check keeps failing, is solved whole.
+    """
+    x, y = prof.x, prof.y
+    n = x.size
+    if n > 4 * MZ_BINS:
+        d = np.hypot(x - prof.c[0], y - prof.c[1])
+        starts, counts = _bin_segments(prof.ths, MZ_BINS)
+        ds = d[prof.order]
+        ext = ((ds == np.repeat(np.minimum.reduceat(ds, starts), counts))
+               | (ds == np.repeat(np.maximum.reduceat(ds, starts), counts)))
+        keep = np.zeros(n, dtype=bool)
+        keep[prof.order[ext]] = True
+        tol = 1e-12 * float(d.max())  # rounding of the distances, far below any zone width
+        for _ in range(8):
+            c, it = _slp(x[keep], y[keep], prof.c)
+            da = np.hypot(x - c[0], y - c[1])
+            dk = da[keep]
+            outside = (da < dk.min() - tol) | (da > dk.max() + tol)
+            if not outside.any():
+                return c, it
+            keep |= outside
+    return _slp(x, y, prof.c)
+
+
 def _mzci(prof: _ClosedProfile) -> Circle:
     x, y, shift = prof.x, prof.y, prof.shift
-    c, it = _slp(x, y, prof.c)
+    c, it = _mz_centre(prof)
     c = _polish(x, y, c, "MZCI")
     d = np.hypot(x - c[0], y - c[1])
     return _make("MZCI", x, y, shift, c, 0.5 * (d.min() + d.max()), n_iter=it)
