@@ -23,3 +23,17 @@ def test_map_in_order_spreads_over_workers_and_keeps_order():
 def test_few_items_run_in_the_calling_process():
     out = list(map_in_order(_square_and_pid, range(MIN_ITEMS_PER_WORKER + 1), workers=2))
     assert {p for _, p in out} == {os.getpid()}
+
+
+def test_job_environment_sets_the_malloc_settings_and_keeps_the_users():
+    """set_job_environment puts glibc's heap settings into the environment the jobs inherit
+    (32 MB mmap threshold, 256 MB trim threshold), and leaves a value the user has set alone."""
+    from borescan.parallel import JOB_MALLOC_ENVIRONMENT, set_job_environment
+
+    env = {"MALLOC_TRIM_THRESHOLD_": "131072", "PATH": "/bin"}
+    got = set_job_environment(env)
+    assert got == {"MALLOC_MMAP_THRESHOLD_": str(32 * 2**20), "MALLOC_TRIM_THRESHOLD_": "131072"}
+    assert env["PATH"] == "/bin" and set(JOB_MALLOC_ENVIRONMENT) <= set(env)
+    assert set_job_environment({}) == JOB_MALLOC_ENVIRONMENT == {
+        "MALLOC_MMAP_THRESHOLD_": "33554432", "MALLOC_TRIM_THRESHOLD_": "268435456"}
+
