@@ -13,7 +13,7 @@ __all__ = ["plot_gap", "nice_ceiling"]
 
 #: Axis limits are rounded up to a value of this series (times a power of ten), so that the scans
 #: of a night share a few sets of limits, and the axes, ticks and labels of a set are drawn once
-#: (:func:`_background`). The headroom above the data is at most 25 % (1.2 / 1.0 ... 10 / 8).
+#: (:func:`_background`). A limit is at most 4/3 of the value rounded (the step from 3 to 4).
 NICE_STEPS = (1.0, 1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0)
 
 #: Extra room above the largest value before rounding up, so no marker sits on the frame.
@@ -61,7 +61,7 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
     """The figure of a layout, built on first use (see :data:`_FIGURES`).
 
     Returns a dict: ``fig``, ``axes`` (3, n_panels), ``lines[(row, col, channel index)]``,
-    ``floor[(row, col, sign)]`` (the dashed noise-floor lines), ``legend`` and ``dynamic``: every
+    ``floor[(row, col, sign)]`` (the dashed noise-floor lines), ``suptitle`` and ``dynamic``: every
     artist that changes from scan to scan (drawn over the background).
     """
     from matplotlib import rcParams
@@ -100,13 +100,13 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
     axes[1, 0].set_ylabel("residual [um]")
     axes[2, 0].set_ylabel("amplitude [um]" if spectrum else "residual [um]")
     legend = axes[0, 0].legend(loc="upper right", fontsize=8, markerscale=5)
-    fig.suptitle(" ", fontsize=11)
+    suptitle = fig.suptitle(" ", fontsize=11)
     # fixed margins: tight_layout measures every tick label and costs about as much as the drawing
     fig.subplots_adjust(left=0.07 if n_panels == 2 else 0.11, right=0.98, bottom=0.06, top=0.92, hspace=0.32,
                         wspace=0.06)
-    dynamic = [*lines.values(), *floor.values(), *(axes[0, c].title for c in range(n_panels)), legend, fig._suptitle]
-    _FIGURES[key] = {"fig": fig, "axes": axes, "lines": lines, "floor": floor, "legend": legend, "dynamic": dynamic,
-                     "key": key}
+    dynamic = [*lines.values(), *floor.values(), *(axes[0, c].title for c in range(n_panels)), legend, suptitle]
+    _FIGURES[key] = {"fig": fig, "axes": axes, "lines": lines, "floor": floor, "suptitle": suptitle,
+                     "dynamic": dynamic, "key": key}
     return _FIGURES[key]
 
 
@@ -205,7 +205,7 @@ def plot_gap(examination, out_path: str | Path) -> Path:
         axes[1, col].set_ylim(*limits[0])
         axes[2, col].set_xlim(*limits[2])
         axes[2, col].set_ylim(*limits[3])
-    fig._suptitle.set_text(f"{f['scan_id']}: {f['verdict']} ({names}); noise floor {floor_um:.2f} um (dashed: +-1.5x)")
+    layout["suptitle"].set_text(f"{f['scan_id']}: {f['verdict']} ({names}); noise floor {floor_um:.2f} um (dashed: +-1.5x)")
     canvas = fig.canvas
     canvas.restore_region(_background(layout, limits))
     renderer = canvas.get_renderer()
