@@ -523,6 +523,26 @@ def test_mic_on_the_reduced_set_equals_the_full_triangulation(case, monkeypatch)
     assert d.min() >= reduced.radius_mm - 1e-12
 
 
+def _awkward_profile(rng, kind: str, n: int, radius_mm: float, noise_mm: float, centre_mm) -> tuple:
+    """n points at random angles on a circle with noise, and a shape whose reference circles are
+    not set by each angle's extreme points about the LS centre: "noise" (none), "lobes" (2 and 5
+    UPR), "bump" (one side, pulls the LS centre away), "outward_spikes" (0.2 % of the points
+    30 um out), "spikes" (0.1 % of the points 30 um in or out), "flat" (two opposite flats)."""
+    th = rng.uniform(0, 2 * np.pi, n)
+    r = radius_mm + rng.normal(0, noise_mm, n)
+    if kind == "lobes":
+        r += 0.02 * np.cos(2 * th) + 0.01 * np.cos(5 * th + 1)
+    elif kind == "bump":
+        r += 0.05 * np.exp(-((th - 1.0) ** 2) / 0.05)
+    elif kind == "outward_spikes":
+        r += 0.03 * (rng.random(n) < 0.002)
+    elif kind == "spikes":
+        r += np.where(rng.random(n) < 0.001, rng.normal(0, 0.03, n), 0.0)
+    elif kind == "flat":
+        r = np.where(np.abs(np.cos(th)) > 0.99, radius_mm - 0.03, r)
+    return centre_mm[0] + r * np.cos(th), centre_mm[1] + r * np.sin(th)
+
+
 @pytest.mark.parametrize("farthest", [8, 64, 2048])
 def test_mcci_from_the_farthest_points_is_the_mcci_of_all(monkeypatch, farthest):
     """A long profile's MCCI is found from its points farthest from the LS centre, widened 8-fold
@@ -532,17 +552,9 @@ def test_mcci_from_the_farthest_points_is_the_mcci_of_all(monkeypatch, farthest)
     import borescan.circlefit as cf
 
     rng = np.random.default_rng(20261124)
-    for kind in range(4):
+    for kind in ("noise", "lobes", "bump", "outward_spikes"):
         n = 30_000
-        th = rng.uniform(0, 2 * np.pi, n)
-        r = 120.0 + rng.normal(0, 0.001, n)
-        if kind == 1:
-            r += 0.02 * np.cos(2 * th) + 0.01 * np.cos(5 * th + 1)
-        elif kind == 2:  # a bump on one side pulls the LS centre away from the MCC centre
-            r += 0.05 * np.exp(-((th - 1.0) ** 2) / 0.05)
-        elif kind == 3:
-            r += 0.03 * (rng.random(n) < 0.002)
-        x, y = 0.7 + r * np.cos(th), -0.4 + r * np.sin(th)
+        x, y = _awkward_profile(rng, kind, n, 120.0, 0.001, (0.7, -0.4))
         monkeypatch.setattr(cf, "MCCI_FARTHEST", farthest)
         fast = cf.min_circumscribed_circle(x, y)
         monkeypatch.setattr(cf, "MCCI_FARTHEST", 10 * n)  # every point: the hull of all
@@ -564,19 +576,9 @@ def test_mzci_on_the_radial_extremes_is_the_mzci_of_all(monkeypatch, bins):
 
     rng = np.random.default_rng(20261125)
     slp = cf._slp
-    for kind in range(5):
+    for kind in ("noise", "lobes", "bump", "spikes", "flat"):
         n = 40_000
-        th = rng.uniform(0, 2 * np.pi, n)
-        r = 140.0 + rng.normal(0, 0.002, n)
-        if kind == 1:
-            r += 0.02 * np.cos(2 * th) + 0.01 * np.cos(5 * th + 1)
-        elif kind == 2:
-            r += 0.05 * np.exp(-((th - 1.0) ** 2) / 0.05)
-        elif kind == 3:
-            r += np.where(rng.random(n) < 0.001, rng.normal(0, 0.03, n), 0.0)
-        elif kind == 4:
-            r = np.where(np.abs(np.cos(th)) > 0.99, 139.97, r)
-        x, y = -0.3 + r * np.cos(th), 0.6 + r * np.sin(th)
+        x, y = _awkward_profile(rng, kind, n, 140.0, 0.002, (-0.3, 0.6))
         sizes = []
         monkeypatch.setattr(cf, "_slp", lambda xs, ys, c0, **kw: (sizes.append(xs.size), slp(xs, ys, c0, **kw))[1])
         monkeypatch.setattr(cf, "MZ_BINS", bins)
