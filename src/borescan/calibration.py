@@ -47,7 +47,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from borescan.fit import FitResult, fit_result, jacobian_summary
-from borescan.geometry import Beams, Bore, beam_frame, tri_spindle_readings
+from borescan.geometry import Beams, Bore, beam_frame, tri_spindle_readings, tri_spindle_readings_channel_major
 from borescan.kinematics import AngleModel, angle_model_from_arrays, estimate_speed_scale
 from borescan.levmar import levenberg_marquardt
 from borescan.noise import noise_floor_mm
@@ -548,8 +548,8 @@ def _readings_and_jacobian(
     """
     phi = np.asarray(phi, dtype=float)
     phi = phi[:, None] if phi.ndim == 1 else phi
-    v = tri_spindle_readings(phi, offset, beams, Bore((0.0, 0.0), R))
-    s = np.ascontiguousarray(v.T) + np.asarray(beams.d_b_mm, dtype=float)[:, None]  # (c, n)
+    v_cn = tri_spindle_readings_channel_major(phi, offset, beams, Bore((0.0, 0.0), R))  # (c, n)
+    s = v_cn + np.asarray(beams.d_b_mm, dtype=float)[:, None]
     F, u = beam_frame(beams.beta_rad, beams.rho_mm)  # (c, 2)
     n_vec = np.stack([-u[:, 1], u[:, 0]], axis=-1)
     cph, sph = np.ascontiguousarray(np.cos(phi).T), np.ascontiguousarray(np.sin(phi).T)  # (1 or c, n)
@@ -575,7 +575,7 @@ def _readings_and_jacobian(
         # dP/dphi = perp(Rot(phi)(F + s u)) = (-wy, wx)
         "phi": -(Px * (-wy) + Py * wx) / den,
     }
-    return v, jac
+    return v_cn.T, jac
 
 
 def _linear_start(phi: np.ndarray, y: np.ndarray, mask: np.ndarray, beta: np.ndarray):

@@ -35,6 +35,7 @@ __all__ = [
     "ray_bore_distance",
     "bore_wall_radius",
     "tri_spindle_readings",
+    "tri_spindle_readings_channel_major",
     "tri_static_readings",
     "circumcircle",
     "rod_axis_rotation",
@@ -286,6 +287,16 @@ def tri_spindle_readings(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: 
     -------
     ndarray (n, c) readings v [mm]; NaN where a beam misses the wall.
     """
+    return np.ascontiguousarray(tri_spindle_readings_channel_major(phi_rad, spindle_xy_mm, beams, bore).T)
+
+
+def tri_spindle_readings_channel_major(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams,
+                                       bore: Bore) -> np.ndarray:
+    """:func:`tri_spindle_readings` as computed, channel-major: (c, n) (its transpose).
+
+    For callers that go on computing per channel (the calibration's Jacobian), without
+    transposing the readings there and back.
+    """
     phi = np.asarray(phi_rad, dtype=float)
     if phi.ndim == 1:
         phi = phi[:, None]
@@ -309,7 +320,7 @@ def tri_spindle_readings(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: 
     dx = cp * cb - sp * sb
     dy = sp * cb + cp * sb
     s = _wall_distance(ox, oy, dx, dy, bore)
-    return np.ascontiguousarray((s - np.asarray(beams.d_b_mm, dtype=float)[:, None]).T)
+    return s - np.asarray(beams.d_b_mm, dtype=float)[:, None]
 
 
 def tri_static_readings(device_xy_mm: np.ndarray, device_angle_rad: np.ndarray, beams: Beams, bore: Bore) -> np.ndarray:
