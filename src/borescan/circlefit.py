@@ -255,14 +255,15 @@ def _check_closed(x, y, c, max_gap_deg: float, method: str) -> tuple[np.ndarray,
 
 @dataclass(frozen=True)
 class _ClosedProfile:
-    """Finite points shifted to their mean, the least-squares centre in that frame and the angular
-    order about it (checked closed): what MZCI, MICI and MCCI start from, prepared once for all
-    three by :func:`reference_circles`."""
+    """Finite points shifted to their mean, the least-squares centre in that frame, the points'
+    distances from it and their angular order about it (checked closed): what MZCI, MICI and MCCI
+    start from, prepared once for all three by :func:`reference_circles`."""
 
     x: np.ndarray
     y: np.ndarray
     shift: np.ndarray
     c: np.ndarray
+    r: np.ndarray
     order: np.ndarray
     ths: np.ndarray
 
@@ -272,7 +273,7 @@ def _closed_profile(x_mm, y_mm, ls_center_xy_mm, max_gap_deg: float, method: str
     x, y, shift = _prep(x_mm, y_mm, min_points=min_points)
     c = _ls_center(x, y, shift, ls_center_xy_mm)
     order, ths = _check_closed(x, y, c, max_gap_deg, method)
-    return _ClosedProfile(x, y, shift, c, order, ths)
+    return _ClosedProfile(x, y, shift, c, np.hypot(x - c[0], y - c[1]), order, ths)
 
 
 # --------------------------------------------------------------------------- MCCI (Welzl)
@@ -367,10 +368,9 @@ def _mcci(prof: _ClosedProfile, seed: int = 0) -> Circle:
     n = x.size
     scale = float(max(np.max(np.abs(x)), np.max(np.abs(y)))) or 1.0
     tol = 1e-12 * scale
-    d2 = (x - prof.c[0]) ** 2 + (y - prof.c[1]) ** 2
     k = MCCI_FARTHEST
     while True:
-        idx = np.argpartition(d2, n - k)[n - k:] if k < n else np.arange(n)
+        idx = np.argpartition(prof.r, n - k)[n - k:] if k < n else np.arange(n)
         P = np.column_stack([x[idx], y[idx]])
         if P.shape[0] > 50:  # the enclosing circle of a set is that of its convex hull
             try:
@@ -624,10 +624,12 @@ def _bin_segments(ths: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
 MIC_BINS = 2048
 
 
-def _mic_centre(P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0) -> tuple[np.ndarray, int]:
+def _mic_centre(P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0, d0: np.ndarray) -> tuple[np.ndarray, int]:
     """The centre of the largest empty circle centred in the profile polygon, and the number of
     candidate vertices examined (:func:`max_inscribed_circle`), computed on a reduced point set
     with a certificate that the answer is the one of all points.
+
+    ``d0`` (n,): the points' distances from ``c0`` [mm].
 
     S = the point of smallest radius about ``c0`` in each of :data:`MIC_BINS` angular bins (the
     inner envelope that bounds an inscribed circle). With f_S(c) = min over S of |p - c| >= f(c),
@@ -641,7 +643,6 @@ def _mic_centre(P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0) -> tuple[
     """
     n = P.shape[0]
     if n > 4 * MIC_BINS:
-        d0 = np.hypot(P[:, 0] - c0[0], P[:, 1] - c0[1])
         starts, counts = _bin_segments(ths, MIC_BINS)
         ds = d0[order]
         inner = np.flatnonzero(ds == np.repeat(np.minimum.reduceat(ds, starts), counts))
@@ -723,7 +724,7 @@ def max_inscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
 def _mici(prof: _ClosedProfile) -> Circle:
     x, y, shift, c0, order, ths = prof.x, prof.y, prof.shift, prof.c, prof.order, prof.ths
     P = np.column_stack([x, y])
-    c_best, n_cand = _mic_centre(P, order, ths, c0)
+    c_best, n_cand = _mic_centre(P, order, ths, c0, prof.r)
     c = _polish(x, y, c_best, "MICI")
     r = float(np.min(np.hypot(x - c[0], y - c[1])))
     V = P[order]
@@ -780,14 +781,13 @@ def _mz_centre(prof: _ClosedProfile) -> tuple[np.ndarray, int]:
     x, y = prof.x, prof.y
     n = x.size
     if n > 4 * MZ_BINS:
-        d = np.hypot(x - prof.c[0], y - prof.c[1])
         starts, counts = _bin_segments(prof.ths, MZ_BINS)
-        ds = d[prof.order]
+        ds = prof.r[prof.order]
         ext = ((ds == np.repeat(np.minimum.reduceat(ds, starts), counts))
                | (ds == np.repeat(np.maximum.reduceat(ds, starts), counts)))
         keep = np.zeros(n, dtype=bool)
         keep[prof.order[ext]] = True
-        tol = 1e-12 * float(d.max())  # rounding of the distances, far below any zone width
+        tol = 1e-12 * float(prof.r.max())  # rounding of the distances, far below any zone width
         for _ in range(8):
             c, it = _slp(x[keep], y[keep], prof.c)
             da = np.hypot(x - c[0], y - c[1])
