@@ -37,3 +37,64 @@ def test_job_environment_sets_the_malloc_settings_and_keeps_the_users():
     assert set_job_environment({}) == JOB_MALLOC_ENVIRONMENT == {
         "MALLOC_MMAP_THRESHOLD_": "33554432", "MALLOC_TRIM_THRESHOLD_": "268435456"}
 
+
+
+_JOB_SCRIPT = '''
+import os, sys
+class _Job:
+    threads = 2
+snakemake = _Job()  # what Snakemake puts into a script job's namespace
+from borescan.parallel import start_job_workers
+started = start_job_workers(globals())
+import numpy  # after: the BLAS threads of this process are fixed here
+from borescan.parallel import map_in_order
+
+def square_pid_threads(x):
+    return x * x, os.getpid(), os.environ.get("OPENBLAS_NUM_THREADS"), os.environ.get("POLARS_MAX_THREADS")
+
+if __name__ == "__main__":
+    out = list(map_in_order(square_pid_threads, range(40), workers=2))
+    print(started, os.getpid(), repr(out))
+'''
+
+
+def test_a_job_started_early_computes_in_its_own_process_and_one_worker(tmp_path):
+    """start_job_workers at the top of a job's script (threads = 2): one worker is spawned at once,
+    the job's process is the other; both run with one BLAS and polars thread (so a scan's result
+    does not depend on the process that took it), and the results come back in order."""
+    import ast
+    import subprocess
+    import sys
+
+    script = tmp_path / "job.py"
+    script.write_text(_JOB_SCRIPT)
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    started, parent, out = proc.stdout.strip().split(" ", 2)
+    out = ast.literal_eval(out)
+    assert int(started) == 2
+    assert [v for v, *_ in out] == [x * x for x in range(40)]
+    pids = {p for _, p, _, _ in out}
+    assert int(parent) in pids and len(pids) == 2  # the caller took items too, and one spawned worker
+    assert {(b, p) for _, _, b, p in out} == {("1", "1")}
+
+
+def test_start_job_workers_only_in_a_workflow_job_before_numpy():
+    """Not in a worker (``__mp_main__``), nor when run by hand (no ``snakemake``) or with one
+    thread; and never once numpy is loaded in the process (its BLAS threads could no longer be set)."""
+    import pytest
+
+    from borescan.parallel import start_job_workers
+
+    class Job:
+        threads = 2
+
+    assert start_job_workers({"__name__": "__mp_main__", "snakemake": Job()}) == 1
+    assert start_job_workers({"__name__": "__main__"}) == 1
+    Job.threads = 1
+    assert start_job_workers({"__name__": "__main__", "snakemake": Job()}) == 1
+    Job.threads = 2
+    env_before = dict(os.environ)
+    with pytest.raises(RuntimeError, match="before numpy"):
+        start_job_workers({"__name__": "__main__", "snakemake": Job()})  # pytest has numpy loaded
+    assert dict(os.environ) == env_before

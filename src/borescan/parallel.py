@@ -2,18 +2,22 @@
 
 A night is one Snakemake job per stage (per-job overhead would otherwise dominate), so the job
 itself spreads its scans over the cores Snakemake gave it (``threads:``). Results come back in
-input order, so outputs do not depend on the number of workers.
+input order, so outputs do not depend on the number of workers. A job whose script calls
+:func:`start_job_workers` first spawns its workers while it imports, and computes on its own
+process too.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any, TypeVar
 
-__all__ = ["map_in_order", "workers_for", "MIN_ITEMS_PER_WORKER", "JOB_MALLOC_ENVIRONMENT", "set_job_environment"]
+__all__ = ["map_in_order", "workers_for", "MIN_ITEMS_PER_WORKER", "JOB_MALLOC_ENVIRONMENT", "set_job_environment",
+           "start_job_workers"]
 
 T = TypeVar("T")
 
@@ -53,6 +57,11 @@ def map_in_order(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1)
     (polars and BLAS keep thread pools that a fork would copy in an unknown state); a spawned
     worker imports the parent's main script as ``__mp_main__``, so scripts that call this keep
     their work under ``if __name__ == "__main__":``.
+
+    In a job that called :func:`start_job_workers` the calling process is one of the workers (it
+    runs with one BLAS and polars thread, as they do, so an item's result does not depend on the
+    process that computed it) and the others were spawned when the job started; otherwise
+    ``workers`` processes are spawned now and the calling process waits for them.
     """
     items = list(items)
     workers = workers_for(len(items), workers)
@@ -60,16 +69,85 @@ def map_in_order(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1)
         for it in items:
             yield fn(it)
         return
-    ctx = multiprocessing.get_context("spawn")
+    if _JOB_POOL and _JOB_POOL["workers"] >= workers:
+        yield from _map_with_caller(fn, items, _JOB_POOL["pool"], workers - 1)
+        return
     saved = {k: os.environ.get(k) for k in _ONE_THREAD}
     os.environ.update(_ONE_THREAD)  # each worker one BLAS thread: the workers already fill the cores
     try:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with _spawn_pool(workers) as pool:
             results = pool.map(fn, items, chunksize=1)  # submits every item (spawns the workers) now
             _restore(saved)
             yield from results
     finally:
         _restore(saved)
+
+
+#: items handed to each spawned worker ahead of the one it is working on, in
+#: :func:`_map_with_caller`: it never waits for the calling process, and the night's last items
+#: are shared out within about one item
+AHEAD_PER_WORKER = 1
+
+
+def _map_with_caller(fn, items: list, pool: ProcessPoolExecutor, n_spawned: int) -> Iterator:
+    """:func:`map_in_order` on ``n_spawned`` workers of ``pool`` and the calling process: the
+    workers are kept busy, the caller takes the next item whenever it is free, and results are
+    yielded in input order as soon as they are complete from the first item on."""
+    results: dict[int, Any] = {}
+    running: dict[Future, int] = {}
+    nxt = first = 0
+    try:
+        while first < len(items):
+            while nxt < len(items) and len(running) < (1 + AHEAD_PER_WORKER) * n_spawned:
+                running[pool.submit(fn, items[nxt])] = nxt
+                nxt += 1
+            if nxt < len(items):
+                results[nxt] = fn(items[nxt])
+                nxt += 1
+            elif first not in results:
+                wait(running, return_when=FIRST_COMPLETED)
+            for fut in [f for f in running if f.done()]:
+                results[running.pop(fut)] = fut.result()
+            while first in results:
+                yield results.pop(first)
+                first += 1
+    finally:
+        for fut in running:
+            fut.cancel()
+
+
+def start_job_workers(namespace: dict) -> int:
+    """Start a workflow job's worker processes at the top of its script, before numpy loads.
+
+    ``namespace`` is the script's ``globals()``. When Snakemake runs the script as a job of
+    ``threads`` >= 2 (its ``snakemake`` object is in ``namespace``; not in the workers, which
+    import the script as ``__mp_main__``, nor when a person runs it by hand), ``threads - 1``
+    workers are spawned now, so that their imports (about 0.7 s each) overlap this process's
+    own, and this process becomes the last worker of :func:`map_in_order`: it gets one BLAS and
+    polars thread, as the spawned ones. Returns the number of processes the job computes on.
+    """
+    smk = namespace.get("snakemake")
+    if namespace.get("__name__") != "__main__" or smk is None or _JOB_POOL:
+        return 1
+    workers = int(getattr(smk, "threads", 1) or 1)
+    if workers < 2:
+        return 1
+    if "numpy" in sys.modules:
+        raise RuntimeError("start_job_workers must run before numpy is imported (its BLAS threads are fixed then)")
+    os.environ.update(_ONE_THREAD)  # this process and the workers alike (read when numpy and polars load)
+    pool = _spawn_pool(workers - 1)
+    for _ in range(workers - 1):
+        pool.submit(int)  # spawns a worker now: it imports the job's script while this process does
+    _JOB_POOL.update(pool=pool, workers=workers)
+    return workers
+
+
+#: the job's pool from :func:`start_job_workers`: {"pool": ProcessPoolExecutor, "workers": int}
+_JOB_POOL: dict[str, Any] = {}
+
+
+def _spawn_pool(n: int) -> ProcessPoolExecutor:
+    return ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"))
 
 
 _ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "POLARS_MAX_THREADS": "1"}

@@ -1,6 +1,10 @@
 """Rule discrepancy_night: name the physical effect missing from the model, per scan."""
 
-from pathlib import Path
+from borescan.parallel import start_job_workers
+
+start_job_workers(globals())  # first, before numpy loads: the job's workers import while this process does
+
+from pathlib import Path  # noqa: E402
 
 from borescan.stages._common import write_stage_outputs
 from borescan.stages.discrepancy import findings_night_dir, stage_discrepancy

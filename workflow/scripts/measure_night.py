@@ -1,8 +1,12 @@
 """Rule measure_night: verify calibrations on certified gauges, then measure the night's parts."""
 
-from borescan.stages._common import write_stage_outputs
-from borescan.stages.measure import stage_measure
-from borescan.workflow_log import log_to, rule_job
+from borescan.parallel import start_job_workers
+
+start_job_workers(globals())  # first, before numpy loads: the job's workers import while this process does
+
+from borescan.stages._common import write_stage_outputs  # noqa: E402
+from borescan.stages.measure import stage_measure  # noqa: E402
+from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
 
 def main(smk) -> None:
