@@ -37,3 +37,16 @@ onstart:
     from borescan.workflow_log import restore_stale_backups
 
     restore_stale_backups(".snakemake", [f"{RES}/report"])
+
+
+onsuccess:
+    # the scheduler's last re-evaluation timer would hold the exit up by about a second
+    from borescan.workflow_log import cancel_idle_timers
+
+    cancel_idle_timers()
+
+
+onerror:
+    from borescan.workflow_log import cancel_idle_timers
+
+    cancel_idle_timers()

@@ -34,3 +34,26 @@ def test_the_backup_of_a_relative_results_folder_is_found(tmp_path, monkeypatch)
     (backup / "index.html").write_text("before the job")
     assert restore_stale_backups(".snakemake", ["results/report"], log=lambda _m: None) == [Path("results/report")]
     assert (tmp_path / "results" / "report" / "index.html").read_text() == "before the job" and not backup.exists()
+
+
+def test_idle_timers_are_cancelled_so_the_run_exits_at_once():
+    """A waiting threading.Timer (Snakemake's scheduler leaves one armed for 1 s) is cancelled: its
+    thread ends without running its action; other threads are left alone."""
+    import threading
+
+    from borescan.workflow_log import cancel_idle_timers
+
+    fired = []
+    timer = threading.Timer(60.0, lambda: fired.append(1))
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait, args=(60.0,))
+    timer.start()
+    other.start()
+    try:
+        assert cancel_idle_timers() == 1
+        timer.join(5.0)
+        assert not timer.is_alive() and fired == []
+        assert other.is_alive()
+    finally:
+        stop.set()
+        other.join()
