@@ -13,8 +13,8 @@ Then ``snakemake --profile profiles/slurm --dry-run`` shows the SLURM jobs the n
     BENCH_DEVICES_CORES=2 python -m bench devices  # only one run
 
 A night job spreads its scans over its threads (``stage_workers``), so ingest, signal, measure
-and discrepancy use both cores; calibrate_night calibrates the night's devices one after the
-other in one process, so it does not get faster with cores.
+and discrepancy use both cores, and calibrate_night its devices (one three-sensor device or one
+rod calibration scan per process at a time).
 """
 
 from __future__ import annotations

@@ -28,6 +28,7 @@ rule calibrate_night:
         devices=config["devices"],
         device_model_auto_nights=config["discrepancy"]["device_model_auto_nights"],
         signal=config["signal"],
+    threads: config["stage_workers"]
     log:
         f"{RES}/logs/calibrate_night/{{night}}.log",
     benchmark:

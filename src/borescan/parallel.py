@@ -46,8 +46,10 @@ def set_job_environment(environ=os.environ) -> dict[str, str]:
 
 
 def workers_for(n_items: int, workers: int) -> int:
-    """Processes :func:`map_in_order` uses for ``n_items`` items with ``workers`` allowed."""
-    return max(1, min(int(workers), n_items // MIN_ITEMS_PER_WORKER))
+    """Processes :func:`map_in_order` uses for ``n_items`` items with ``workers`` allowed (in a job
+    whose workers :func:`start_job_workers` started, one item is enough for a worker)."""
+    per_worker = 1 if _JOB_POOL else MIN_ITEMS_PER_WORKER
+    return max(1, min(int(workers), n_items // per_worker))
 
 
 def map_in_order(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1) -> Iterator[T]:

@@ -1,8 +1,12 @@
 """Rule calibrate_night: calibrate each device from the night's ring-gauge scans; certificates."""
 
-from borescan.stages._common import write_stage_outputs
-from borescan.stages.calibrate import stage_calibrate
-from borescan.workflow_log import log_to, rule_job
+from borescan.parallel import start_job_workers
+
+start_job_workers(globals())  # first, before numpy loads: the job's workers import while this process does
+
+from borescan.stages._common import write_stage_outputs  # noqa: E402
+from borescan.stages.calibrate import stage_calibrate  # noqa: E402
+from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
 
 def main(smk) -> None:
@@ -12,11 +16,11 @@ def main(smk) -> None:
             smk.input.scans, smk.input.summary, smk.params.calibration, log=log,
             uncertainty=smk.params.uncertainty, laboratory=smk.params.laboratory,
             verification=smk.params.verification, devices=smk.params.devices, pooled_tables=list(smk.input.pooled),
-            auto_nights=smk.params.device_model_auto_nights, signal=smk.params.signal,
+            auto_nights=smk.params.device_model_auto_nights, signal=smk.params.signal, workers=smk.threads,
         )
         write_stage_outputs(smk.output, bad, calibrations=cals, calibration_scans=links)
         log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans quarantined")
 
 
-if __name__ == "__main__":
+if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage
     main(rule_job(globals(), __file__))  # Snakemake's job, or by hand: python <this script> night=YYYY-MM-DD

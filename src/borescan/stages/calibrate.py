@@ -1,36 +1,33 @@
 """Stage ``calibrate_night``: calibrate each device from the night's ring-gauge scans; write certificates.
 
-Each calibration carries its GUM budget (:mod:`borescan.calibration_budget`), its covariance the
-budget's combined one. The certificate (ISO/IEC 17025 7.8) also reports the night's verifications
-of the device made with the new calibration (the measure stage makes the same for the catalog),
-the decision rule and the conformity; its dates come from the data (:func:`certificate.certificate_dates`).
+Each three-sensor device (:mod:`borescan.stages.calibrate_tri`) and each rod calibration scan
+(:mod:`borescan.stages.calibrate_rod`) is one job: the jobs are spread over the rule's processes and
+their rows come back in the order of the device ids, so the tables do not depend on the number of
+processes.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import polars as pl
 
-from borescan import __version__, calibration, certificate, device_model, measure, rawio, readings
-from borescan.artifacts import MissingTemperature
-from borescan.calibration_budget import with_budget
-from borescan.calibrations import calibration_rows, rod_nominal_calibration_rows
+from borescan import device_model, rawio, readings
+from borescan.calibrations import rod_nominal_calibration_rows
 from borescan.config import schema_defaults
 from borescan.effects import device_model_effects
-from borescan.geometry import Beams
-from borescan.stages._common import clear_night_folder, config_hash, link_into_night, night_scans, quarantine
+from borescan.parallel import map_in_order, workers_for
+from borescan.stages._common import clear_night_folder, config_hash, night_scans
 from borescan.stages.calibrate_rod import calibrate_rod_scan
-from borescan.stages.calibration_fit import (budget_of, fit_device_calibration, scan_conditions, spindle_inputs,
-                                             yang_from_summary)
+from borescan.stages.calibrate_tri import calibrate_tri_device
 
-__all__ = ["stage_calibrate", "config_hash"]
+__all__ = ["stage_calibrate", "calibrate_device", "config_hash"]
 
 
 def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_table, cfg: dict, log=print, *,
                     uncertainty: dict | None = None, laboratory: dict | None = None, verification: dict | None = None,
-                    devices: dict | None = None, pooled_tables=(), auto_nights: int = 0, signal: dict | None = None):
+                    devices: dict | None = None, pooled_tables=(), auto_nights: int = 0, signal: dict | None = None,
+                    workers: int = 1):
     """Calibrate every tri_lds device from its calibration scans of the night; write certificates.
 
     ``uncertainty``, ``laboratory``, ``verification``, ``devices``, ``signal`` (the readings' spike
@@ -39,161 +36,71 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     ``discrepancy.device_model_auto_nights``. ``cfg["method"]``: ``full_lsq`` (every sample, exact
     forward model, all calibration scans of the device together) or ``yang2017`` (the paper's
     extrema method, one calibration per scan). A rod's ring-gauge calibration scan calibrates its
-    layers' base lengths (:mod:`borescan.rod_calibration`). Returns (calibrations rows, calibration_scans rows,
-    quarantined). A scan with too few revolutions, or a calibration that does not converge, is
-    quarantined with the reason; the other devices and nights go on.
+    layers' base lengths (:mod:`borescan.rod_calibration`). Devices are calibrated on up to
+    ``workers`` processes. Returns (calibrations rows, calibration_scans rows, quarantined). A scan
+    with too few revolutions, or a calibration that does not converge, is quarantined with the
+    reason; the other devices and nights go on.
     """
-    method, min_rev = cfg["method"], int(cfg["min_revolutions"])
     dflt = schema_defaults()
-    ctx = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
-           "verification": verification or dflt["verification"], "raw_root": raw_root, "scans_table": scans_table,
-           "cleaning": readings.cleaning_policy(signal or dflt["signal"]),
-           "device_model": device_model.lookup(lambda dev: device_model_effects(devices, dev, night), [
-               r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()], night, auto_nights)}
+    ctx_args = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
+                "verification": verification or dflt["verification"], "raw_root": raw_root,
+                "scans_table": scans_table, "signal": signal or dflt["signal"], "devices": devices, "night": night,
+                "pooled_rows": [r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()],
+                "auto_nights": auto_nights}
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
     clear_night_folder(results_root, "calibration", night)  # certificates of a rerun replace the night's
-    cal_rows, link_rows, bad = [], [], []
     by_device: dict[str, list] = {}
     for row, d in night_scans(raw_root, night, scans_table, kind="calibration", device_type="tri_lds"):
         by_device.setdefault(row["device_id"], []).append((row, d))
-    for _device_id, items in sorted(by_device.items()):
-        scans, inputs = [], []
-        for _row, d in items:
-            scan = rawio.read_scan(d, raw_root=Path(raw_root))
-            problem = _unusable(scan, summary, min_rev)
-            if problem == "":
-                continue  # set aside by the signal stage already
-            if problem is None:
-                try:
-                    inputs.append(spindle_inputs(scan, ctx["uncertainty"], ctx["cleaning"]))
-                    scans.append(scan)
-                    continue
-                except ValueError as err:
-                    problem = ("scan.json", str(err))
-            quarantine(results_root, bad, scan.scan_id, night, "calibrate", *problem)
-        if not scans:
-            continue
-        nominal = Beams.from_nominal(scans[0].meta["device"]["nominal"]["beams"])
-        # full_lsq fits all calibration scans of the device together; the paper's method
-        # calibrates from one scan's extrema, so each scan gives its own calibration.
-        groups = [(scans, inputs)] if method != "yang2017" else [([s], [x]) for s, x in zip(scans, inputs)]
-        for group_scans, group_inputs in groups:
-            _calibrate_group(group_scans, group_inputs, method, nominal, summary, night, results_root, cfg, bad,
-                             cal_rows, link_rows, log, ctx)
+    jobs = [("tri", items) for _, items in sorted(by_device.items())]
+    jobs += [("rod", [item]) for item in night_scans(raw_root, night, scans_table, kind="calibration",
+                                                     device_type="rod")]
+    if jobs:
+        log(f"{len(jobs)} calibration job(s) on {workers_for(len(jobs), workers)} process(es)")
+    common = (night, results_root, summary, cfg, ctx_args)
+    cal_rows, link_rows, bad, rod_rows, rod_links = [], [], [], [], []
+    for kind, rows, links, q, lines in map_in_order(calibrate_device, [(k, it, common) for k, it in jobs], workers):
+        cal_rows += rows if kind == "tri" else []
+        link_rows += links if kind == "tri" else []
+        rod_rows += rows if kind == "rod" else []
+        rod_links += links if kind == "rod" else []
+        bad += q
+        for line in lines:
+            log(line)
     for row, d in night_scans(raw_root, night, scans_table, device_type="rod"):
         rows = rod_nominal_calibration_rows(rawio.read_scan_meta(d, raw_root=Path(raw_root)), night, row["scan_id"])
         if rows and rows[0]["calibration_id"] not in {r["calibration_id"] for r in cal_rows}:
             cal_rows += rows
             link_rows.append({"calibration_id": rows[0]["calibration_id"], "scan_id": row["scan_id"]})
-    for row, d in night_scans(raw_root, night, scans_table, kind="calibration", device_type="rod"):
-        calibrate_rod_scan(rawio.read_scan(d, raw_root=Path(raw_root)), night, results_root, bad, cal_rows, link_rows,
-                           log, ctx, cfg)
+    cal_rows += rod_rows
+    link_rows += rod_links
     cals = pl.DataFrame(cal_rows, infer_schema_length=None) if cal_rows else pl.DataFrame()
     links = pl.DataFrame(link_rows) if link_rows else pl.DataFrame()
     return cals, links, bad
 
 
-def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple[str, str] | str | None:
-    """Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None if usable."""
-    s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
-    if scan.spindle is None:
-        return ("spindle.parquet", "calibration scan has no spindle stream (a ring-gauge calibration turns on a spindle)")
-    if s.height == 0:
-        return ""
-    spr = float(s["period_samples_per_rev"][0])
-    recorded = int(s["n_samples_recorded"][0] // spr) if "n_samples_recorded" in s.columns else None
-    with_extrema = int(s["n_revolutions_min"].min())
-    if recorded is not None and recorded < min_rev:
-        return ("lds.parquet", f"too few revolutions to calibrate: {recorded} whole revolutions recorded, "
-                               f"at least {min_rev} needed")
-    if with_extrema < min_rev:
-        return ("lds.parquet", f"calibration failed: a once-per-revolution extremum was found in only {with_extrema} "
-                               f"revolutions (at least {min_rev} needed); the readings barely vary with rotation, "
-                               "is the spindle at the gauge centre?")
-    return None
+def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str]]:
+    """One job of :func:`stage_calibrate`: a three-sensor device's calibration scans of the night
+    (``"tri"``) or one rod calibration scan (``"rod"``). Returns (kind, calibrations rows,
+    calibration_scans rows, quarantined, log lines)."""
+    kind, items, (night, results_root, summary, cfg, ctx_args) = job
+    ctx = _context(ctx_args)
+    cal_rows, link_rows, bad, lines = [], [], [], []
+    if kind == "tri":
+        calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows, link_rows, lines.append, ctx)
+    else:
+        (_row, d), = items
+        calibrate_rod_scan(rawio.read_scan(d, raw_root=Path(ctx["raw_root"])), night, results_root, bad, cal_rows,
+                           link_rows, lines.append, ctx, cfg)
+    return kind, cal_rows, link_rows, bad, lines
 
 
-
-
-def _calibrate_group(scans, inputs, method, nominal, summary, night, results_root, cfg, bad, cal_rows, link_rows, log,
-                     ctx):
-    """Calibrate one device from ``scans`` (already checked), budget it, write the certificate, add rows.
-
-    A calibration that fails (no convergence, rank deficiency, no real solution, no budget)
-    quarantines the scans it was made from, with the reason.
-    """
-    device_id, ids = scans[0].meta["device"]["id"], [s.scan_id for s in scans]
-    raw_files = {f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}
-    unc, lab = ctx["uncertainty"], ctx["laboratory"]
-    p = float(unc["coverage_probability"])
-    try:
-        if method == "yang2017":
-            if ctx["device_model"](device_id, inputs[0]["channels"]):
-                log(f"{device_id}: its device model is not carried by yang2017 (extrema of the recorded readings)")
-            fit = yang_from_summary(scans[0], inputs[0], summary, nominal, night, log=log)
-        else:
-            model = ctx["device_model"](device_id, inputs[0]["channels"])
-            inputs = device_model.carry(model, device_id, inputs, log)
-            fit = fit_device_calibration(scans, inputs, nominal, cfg, night=night, model=model)
-        budget = budget_of(fit, scans, inputs, unc, summary=summary, nominal=nominal, night=night,
-                           position_accuracy_mm=float(cfg["position_accuracy_mm"]))
-    except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
-        for s in scans:
-            quarantine(results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}")
-        return
-    cal = with_budget(fit, budget)
-    out_dir = certificate.certificate_night_dir(results_root, cal, night)
-    first = inputs[0]
-    residuals = {"t_s": np.zeros(0), "residual_mm": np.zeros((0, len(cal.beams.channels)))}
-    if cal.method == "full_lsq":
-        residuals = {"t_s": first["t_s"], "residual_mm": calibration.full_residuals(
-            fit, first["t_s"], first["readings"], first["R"], ids[0], angle_model=first["angle_model"])}
-    ver_rows, ver_metas = _night_verifications(cal, night, ctx, log)
-    conditions = certificate.calibration_conditions(
-        first["temperature"], first["cte"], first["R"], float(cfg["position_accuracy_mm"]), p,
-        [scan_conditions(s, x, summary) for s, x in zip(scans, inputs)])
-    dates = certificate.certificate_dates([s.meta for s in scans], ver_metas, night, int(cfg["validity_days"]))
-    art = scans[0].meta.get("artifact") or {}
-    certificate.write_certificate(
-        cal, out_dir, device={"id": device_id, "type": "tri_lds", "sensors": scans[0].meta.get("sensors", [])},
-        artifact=dict(art, k=art.get("k", 2)), conditions=conditions, residuals=residuals, raw_files=raw_files,
-        software_version=__version__, budget=budget, laboratory=lab, coverage_probability=p, dates=dates,
-        config_hash=config_hash({"calibration": cfg, "uncertainty": unc, "laboratory": lab,
-                                 "verification": ctx["verification"]}), verifications=ver_rows)
-    link = certificate.certificate_dir(results_root, cal)
-    link_into_night(link, out_dir)
-    rel_cert = str((link / "certificate.pdf").relative_to(Path(results_root)))
-    rows = calibration_rows(cal, "tri_lds", night, rel_cert, rawio.combined_sha256(raw_files))
-    for row in rows:
-        j = list(cal.beams.channels).index(row["channel"])
-        for k, name in enumerate(("beta_rad", "rho_mm", "d_b_mm")):
-            comb = budget.combined(3 * j + k, p)
-            row[f"expanded_u_{name}"], row[f"k_{name.rsplit('_', 1)[0]}"] = comb.U, comb.k
-        row.update(coverage_probability=p, temperature_c=first["temperature"].temperature_c,
-                   temperature_assumed=first["temperature"].assumed, recalibration_due=dates["recalibration_due"])
-    cal_rows += rows
-    link_rows += [{"calibration_id": cal.calibration_id, "scan_id": sid} for sid in ids]
-    log(f"{device_id}: {cal.calibration_id} ({cal.method}) from {', '.join(ids)}; residual rms "
-        f"{cal.residual_rms_mm * 1e3:.2f} um; U(d_b) " + ", ".join(
-            f"{budget.combined(3 * j + 2, p).U * 1e3:.1f}" for j in range(len(cal.beams.channels)))
-        + f" um; {len(ver_rows)} verification(s) in the certificate"
-        + (" [gauge temperature ASSUMED 20 degC]" if first["temperature"].assumed else ""))
-
-
-def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
-    """The night's ring-gauge verifications of the calibration's device, made with it
-    (:func:`borescan.measure.verification_for_certificate`): (rows, their scan.json). A scan that
-    cannot be measured is left out with a log line (the measure stage quarantines it)."""
-    rows, metas = [], []
-    for _row, d in night_scans(ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id):
-        scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
-        try:
-            row = measure.verification_for_certificate(scan, cal, ctx["uncertainty"], ctx["laboratory"],
-                                                       float(ctx["verification"]["tolerance_mm"]), ctx["cleaning"])
-        except (MissingTemperature, ValueError, np.linalg.LinAlgError) as err:
-            log(f"{scan.scan_id}: verification left out of the certificate of {cal.calibration_id}: {err}")
-            continue
-        if row is not None:
-            rows.append(row)
-            metas.append(scan.meta)
-    return rows, metas
+def _context(a: dict) -> dict:
+    """What a calibration job reads besides its scans: the config sections, the readings' cleaning
+    policy, and the device model each device carries (:func:`borescan.device_model.lookup`)."""
+    devices, night = a["devices"], a["night"]
+    return {"uncertainty": a["uncertainty"], "laboratory": a["laboratory"], "verification": a["verification"],
+            "raw_root": a["raw_root"], "scans_table": a["scans_table"],
+            "cleaning": readings.cleaning_policy(a["signal"]),
+            "device_model": device_model.lookup(lambda dev: device_model_effects(devices, dev, night),
+                                                a["pooled_rows"], night, a["auto_nights"])}
