@@ -98,3 +98,25 @@ def test_start_job_workers_only_in_a_workflow_job_before_numpy():
     with pytest.raises(RuntimeError, match="before numpy"):
         start_job_workers({"__name__": "__main__", "snakemake": Job()})  # pytest has numpy loaded
     assert dict(os.environ) == env_before
+
+
+def test_every_job_of_several_processes_starts_its_workers_before_numpy():
+    """A rule with ``threads:`` spreads its items over processes; its script calls
+    start_job_workers before anything imports numpy (else the job's own process would keep its BLAS
+    threads and could give other last digits than its workers for the same scan)."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    checked = []
+    for smk in sorted((root / "rules").glob("*.smk")):
+        for block in re.split(r"\n(?=rule )", smk.read_text()):
+            script = re.search(r'script:\s*\n\s*"\.\./(workflow/scripts/[\w.]+)"', block)
+            if "threads:" not in block or script is None:
+                continue
+            lines = [ln for ln in (root / script.group(1)).read_text().splitlines()
+                     if ln.startswith(("import ", "from ", "start_job_workers("))]
+            assert lines[0] == "from borescan.parallel import start_job_workers", script.group(1)
+            assert lines[1].startswith("start_job_workers(globals())"), script.group(1)
+            checked.append(script.group(1))
+    assert len(checked) >= 6, checked  # ingest, signal, calibrate, measure, discrepancy, pooled

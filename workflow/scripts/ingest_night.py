@@ -1,8 +1,12 @@
 """Rule ingest_night: validate every scan of a night, record checksums, quarantine bad ones."""
 
-from borescan.stages._common import write_stage_outputs
-from borescan.stages.ingest import stage_ingest
-from borescan.workflow_log import log_to, rule_job
+from borescan.parallel import start_job_workers
+
+start_job_workers(globals())  # first, before numpy loads: the job's workers import while this process does
+
+from borescan.stages._common import write_stage_outputs  # noqa: E402
+from borescan.stages.ingest import stage_ingest  # noqa: E402
+from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
 
 def main(smk) -> None:

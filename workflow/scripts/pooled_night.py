@@ -1,8 +1,12 @@
 """Rule pooled_night: examine each device's spindle scans of the window together; calibration drift."""
 
-from borescan.stages._common import write_stage_outputs
-from borescan.stages.pooled import pooled_dir, stage_pooled
-from borescan.workflow_log import log_to, rule_job
+from borescan.parallel import start_job_workers
+
+start_job_workers(globals())  # first, before numpy loads: the job's workers import while this process does
+
+from borescan.stages._common import write_stage_outputs  # noqa: E402
+from borescan.stages.pooled import pooled_dir, stage_pooled  # noqa: E402
+from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
 
 def main(smk) -> None:
