@@ -628,7 +628,15 @@ def _json_rows(rows: list[dict]) -> list[dict]:
     return [{k: fix(v) for k, v in r.items()} for r in rows]
 
 
-def _ls_radius_change(d: np.ndarray, r0: float, max_iter: int = 50) -> float | None:
+def _unit_polar(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distances and unit vectors (rr, n_x, n_y) of points ``d`` (2, m) from the origin: the first
+    step of :func:`_ls_radius_change` (the start circle's centre), kept per block of points."""
+    rr = np.hypot(d[0], d[1])
+    return rr, d[0] / rr, d[1] / rr
+
+
+def _ls_radius_change(d: np.ndarray, r0: float, max_iter: int = 50,
+                      first: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> float | None:
     """Radius change dr [mm] of the least-squares circle of points given relative to a nearby circle.
 
     ``d`` (2, m): the points' x and y minus the start circle's centre [mm]; ``r0`` its radius [mm].
@@ -639,16 +647,20 @@ def _ls_radius_change(d: np.ndarray, r0: float, max_iter: int = 50) -> float | N
     ratio of the last two steps bounds: it also stops when the last step times that ratio is below
     tol, from a circle a small move away after two steps. The increments are kept apart from r0 so
     that differences of such changes carry no rounding of the radius itself. None when the sum of
-    squares grows by more than its rounding (1e-9 relative) or no step converges.
+    squares grows by more than its rounding (1e-9 relative) or no step converges. ``first``: the
+    points' :func:`_unit_polar` when the caller has it (the same numbers as the first step's own).
     """
     tol = 1e-13 * max(1.0, r0)
     dc = np.zeros(2)
     dr = 0.0
     f_prev, last = np.inf, 0.0  # last: the previous step's size (none yet)
-    for _ in range(max_iter):
-        dx, dy = d[0] - dc[0], d[1] - dc[1]
-        rr = np.hypot(dx, dy)
-        nx, ny = dx / rr, dy / rr
+    for it in range(max_iter):
+        if it == 0 and first is not None:
+            rr, nx, ny = first
+        else:
+            dx, dy = d[0] - dc[0], d[1] - dc[1]
+            rr = np.hypot(dx, dy)
+            nx, ny = dx / rr, dy / rr
         e = (rr - r0) - dr
         f = float(e @ e)
         if not np.isfinite(f) or f > f_prev * (1.0 + 1e-9):
@@ -684,7 +696,12 @@ def _rotating_diameter_changes(model: DiameterModel, beams: Beams, moves) -> lis
     circ = model.ls_circle(beams, Pk)
     c0, r0 = np.asarray(circ.center_xy_mm), circ.radius_mm
     blocks = [(P[ok[:, j], j] - c0).T for j in range(c)]  # per channel (2, m_j), relative to c0
-    dr0 = _ls_radius_change(np.concatenate(blocks, axis=1), r0)
+    polar = [_unit_polar(b) for b in blocks]  # a move changes one channel's: the others' are kept
+
+    def first_step(parts):
+        return tuple(np.concatenate(x) for x in zip(*parts))
+
+    dr0 = _ls_radius_change(np.concatenate(blocks, axis=1), r0, first=first_step(polar))
     phi = np.broadcast_to(np.asarray(model.phi_rad, dtype=float).reshape(n, -1), (n, c))
     S = np.broadcast_to(np.asarray(model.spindle_xy_mm, dtype=float), (n, 2))
     out = []
@@ -694,7 +711,10 @@ def _rotating_diameter_changes(model: DiameterModel, beams: Beams, moves) -> lis
         k = ok[:, j]
         moved = list(blocks)
         moved[j] = (wall_points_machine(v[k, j:j + 1], phi[k, j], S[k], one)[:, 0] - c0).T
-        dr = None if dr0 is None else _ls_radius_change(np.concatenate(moved, axis=1), r0)
+        moved_polar = list(polar)
+        moved_polar[j] = _unit_polar(moved[j])
+        dr = None if dr0 is None else _ls_radius_change(np.concatenate(moved, axis=1), r0,
+                                                        first=first_step(moved_polar))
         out.append(2.0 * (dr - dr0) if dr is not None else model(b) - circ.diameter_mm)
     return out
 
