@@ -126,16 +126,17 @@ def start_job_workers(namespace: dict) -> int:
     import the script as ``__mp_main__``, nor when a person runs it by hand), ``threads - 1``
     workers are spawned now, so that their imports (about 0.7 s each) overlap this process's
     own, and this process becomes the last worker of :func:`map_in_order`: it gets one BLAS and
-    polars thread, as the spawned ones. Returns the number of processes the job computes on.
+    polars thread, as the spawned ones. Once numpy is loaded its BLAS threads are fixed: then
+    nothing is started and :func:`map_in_order` spawns its workers itself, as without this call.
+    Returns the number of processes that will compute items in this process's job, itself included
+    (1: none started here).
     """
     smk = namespace.get("snakemake")
-    if namespace.get("__name__") != "__main__" or smk is None or _JOB_POOL:
+    if namespace.get("__name__") != "__main__" or smk is None or _JOB_POOL or "numpy" in sys.modules:
         return 1
     workers = int(getattr(smk, "threads", 1) or 1)
     if workers < 2:
         return 1
-    if "numpy" in sys.modules:
-        raise RuntimeError("start_job_workers must run before numpy is imported (its BLAS threads are fixed then)")
     os.environ.update(_ONE_THREAD)  # this process and the workers alike (read when numpy and polars load)
     pool = _spawn_pool(workers - 1)
     for _ in range(workers - 1):

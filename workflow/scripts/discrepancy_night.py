@@ -6,9 +6,9 @@ start_job_workers(globals())  # first, before numpy loads: the job's workers imp
 
 from pathlib import Path  # noqa: E402
 
-from borescan.stages._common import write_stage_outputs
-from borescan.stages.discrepancy import findings_night_dir, stage_discrepancy
-from borescan.workflow_log import log_to, rule_job
+from borescan.stages._common import write_stage_outputs  # noqa: E402
+from borescan.stages.discrepancy import findings_night_dir, stage_discrepancy  # noqa: E402
+from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
 
 def main(smk) -> None:
