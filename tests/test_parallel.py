@@ -42,8 +42,9 @@ def test_job_environment_sets_the_malloc_settings_and_keeps_the_users():
 _JOB_SCRIPT = '''
 import os, sys
 class _Job:
-    threads = 2
-snakemake = _Job()  # what Snakemake puts into a script job's namespace
+    threads = int(sys.argv[1])
+if _Job.threads:
+    snakemake = _Job()  # what Snakemake puts into a script job's namespace (none when run by hand)
 from borescan.parallel import start_job_workers
 started = start_job_workers(globals())
 import numpy  # after: the BLAS threads of this process are fixed here
@@ -53,47 +54,57 @@ def square_pid_threads(x):
     return x * x, os.getpid(), os.environ.get("OPENBLAS_NUM_THREADS"), os.environ.get("POLARS_MAX_THREADS")
 
 if __name__ == "__main__":
-    out = list(map_in_order(square_pid_threads, range(40), workers=2))
+    out = list(map_in_order(square_pid_threads, range(40), workers=max(_Job.threads, 1)))  # smk.threads
     print(started, os.getpid(), repr(out))
 '''
 
 
-def test_a_job_started_early_computes_in_its_own_process_and_one_worker(tmp_path):
-    """start_job_workers at the top of a job's script (threads = 2): one worker is spawned at once,
-    the job's process is the other; both run with one BLAS and polars thread (so a scan's result
-    does not depend on the process that took it), and the results come back in order."""
+def _run_job_script(tmp_path, threads: int):
     import ast
     import subprocess
     import sys
 
     script = tmp_path / "job.py"
     script.write_text(_JOB_SCRIPT)
-    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run([sys.executable, str(script), str(threads)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     started, parent, out = proc.stdout.strip().split(" ", 2)
-    out = ast.literal_eval(out)
-    assert int(started) == 2
+    return int(started), int(parent), ast.literal_eval(out)
+
+
+def test_a_job_started_early_computes_in_its_own_process_and_one_worker(tmp_path):
+    """start_job_workers at the top of a job's script (threads = 2): one worker is spawned at once,
+    the job's process is the other; both run with one BLAS and polars thread (so a scan's result
+    does not depend on the process that took it), and the results come back in order."""
+    started, parent, out = _run_job_script(tmp_path, threads=2)
+    assert started == 2
     assert [v for v, *_ in out] == [x * x for x in range(40)]
     pids = {p for _, p, _, _ in out}
-    assert int(parent) in pids and len(pids) == 2  # the caller took items too, and one spawned worker
+    assert parent in pids and len(pids) == 2  # the caller took items too, and one spawned worker
     assert {(b, p) for _, _, b, p in out} == {("1", "1")}
 
 
-def test_start_job_workers_only_in_a_workflow_job_before_numpy():
-    """Not in a worker (``__mp_main__``), nor when run by hand (no ``snakemake``) or with one
-    thread; and never once numpy is loaded in the process (its BLAS threads could no longer be
-    set): then nothing is started and the environment is left as it was."""
+def test_a_job_of_one_thread_or_by_hand_computes_alone_with_one_blas_thread(tmp_path):
+    """threads = 1 (``--cores 1``) or no Snakemake (a person runs the script): no worker, and the
+    same one BLAS and polars thread as a job of several processes, so results are the same."""
+    for threads in (1, 0):
+        started, parent, out = _run_job_script(tmp_path, threads=threads)
+        assert started == 1
+        assert [v for v, *_ in out] == [x * x for x in range(40)]
+        assert {p for _, p, _, _ in out} == {parent}
+        assert {(b, p) for _, _, b, p in out} == {("1", "1")}
+
+
+def test_start_job_workers_does_nothing_in_a_worker_or_after_numpy():
+    """Not in a worker (``__mp_main__``), and never once numpy is loaded in the process (its BLAS
+    threads could no longer be set): nothing is started and the environment is left as it was."""
     from borescan.parallel import _JOB_POOL, start_job_workers
 
     class Job:
         threads = 2
 
-    assert start_job_workers({"__name__": "__mp_main__", "snakemake": Job()}) == 1
-    assert start_job_workers({"__name__": "__main__"}) == 1
-    Job.threads = 1
-    assert start_job_workers({"__name__": "__main__", "snakemake": Job()}) == 1
-    Job.threads = 2
     env_before = dict(os.environ)
+    assert start_job_workers({"__name__": "__mp_main__", "snakemake": Job()}) == 1
     assert start_job_workers({"__name__": "__main__", "snakemake": Job()}) == 1  # pytest has numpy loaded
     assert dict(os.environ) == env_before and not _JOB_POOL
 

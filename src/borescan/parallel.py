@@ -121,23 +121,24 @@ def _map_with_caller(fn, items: list, pool: ProcessPoolExecutor, n_spawned: int)
 def start_job_workers(namespace: dict) -> int:
     """Start a workflow job's worker processes at the top of its script, before numpy loads.
 
-    ``namespace`` is the script's ``globals()``. When Snakemake runs the script as a job of
-    ``threads`` >= 2 (its ``snakemake`` object is in ``namespace``; not in the workers, which
-    import the script as ``__mp_main__``, nor when a person runs it by hand), ``threads - 1``
-    workers are spawned now, so that their imports (about 0.7 s each) overlap this process's
-    own, and this process becomes the last worker of :func:`map_in_order`: it gets one BLAS and
-    polars thread, as the spawned ones. Once numpy is loaded its BLAS threads are fixed: then
-    nothing is started and :func:`map_in_order` spawns its workers itself, as without this call.
-    Returns the number of processes that will compute items in this process's job, itself included
-    (1: none started here).
+    ``namespace`` is the script's ``globals()``. In the script's own process (``__main__``: a
+    Snakemake job, or a person running the script by hand) every process that will compute the
+    stage's items gets one BLAS and one polars thread, so a scan's result does not depend on the
+    process that took it, the job's ``threads`` or the machine's cores (OpenBLAS on two threads
+    sums a dot product in another order). When Snakemake runs the script as a job of ``threads``
+    >= 2 (its ``snakemake`` object is in ``namespace``), ``threads - 1`` workers are spawned now,
+    so that their imports (about 0.7 s each) overlap this process's own, and this process becomes
+    the last worker of :func:`map_in_order`. Nothing is done in a worker (which imports the script
+    as ``__mp_main__``) or once numpy is loaded (its BLAS threads are fixed then). Returns the
+    number of processes that will compute items, this one included.
     """
-    smk = namespace.get("snakemake")
-    if namespace.get("__name__") != "__main__" or smk is None or _JOB_POOL or "numpy" in sys.modules:
+    if namespace.get("__name__") != "__main__" or _JOB_POOL or "numpy" in sys.modules:
         return 1
-    workers = int(getattr(smk, "threads", 1) or 1)
+    os.environ.update(_ONE_THREAD)  # this process and its workers alike (read when numpy and polars load)
+    smk = namespace.get("snakemake")
+    workers = int(getattr(smk, "threads", 1) or 1) if smk is not None else 1
     if workers < 2:
         return 1
-    os.environ.update(_ONE_THREAD)  # this process and the workers alike (read when numpy and polars load)
     pool = _spawn_pool(workers - 1)
     for _ in range(workers - 1):
         pool.submit(int)  # spawns a worker now: it imports the job's script while this process does
