@@ -655,12 +655,7 @@ def _ls_radius_change(d: np.ndarray, r0: float, max_iter: int = 50,
     dr = 0.0
     f_prev, last = np.inf, 0.0  # last: the previous step's size (none yet)
     for it in range(max_iter):
-        if it == 0 and first is not None:
-            rr, nx, ny = first
-        else:
-            dx, dy = d[0] - dc[0], d[1] - dc[1]
-            rr = np.hypot(dx, dy)
-            nx, ny = dx / rr, dy / rr
+        rr, nx, ny = first if it == 0 and first is not None else _unit_polar(d - dc[:, None])
         e = (rr - r0) - dr
         f = float(e @ e)
         if not np.isfinite(f) or f > f_prev * (1.0 + 1e-9):

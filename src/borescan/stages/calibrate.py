@@ -58,22 +58,22 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     if jobs:
         log(f"{len(jobs)} calibration job(s) on {workers_for(len(jobs), workers)} process(es)")
     common = (night, results_root, summary, cfg, ctx_args)
-    cal_rows, link_rows, bad, rod_rows, rod_links = [], [], [], [], []
+    made = {"tri": ([], []), "rod": ([], [])}  # kind -> (calibrations rows, calibration_scans rows)
+    bad = []
     for kind, rows, links, q, lines in map_in_order(calibrate_device, [(k, it, common) for k, it in jobs], workers):
-        cal_rows += rows if kind == "tri" else []
-        link_rows += links if kind == "tri" else []
-        rod_rows += rows if kind == "rod" else []
-        rod_links += links if kind == "rod" else []
+        made[kind][0].extend(rows)
+        made[kind][1].extend(links)
         bad += q
         for line in lines:
             log(line)
+    cal_rows, link_rows = made["tri"]
     for row, d in night_scans(raw_root, night, scans_table, device_type="rod"):
         rows = rod_nominal_calibration_rows(rawio.read_scan_meta(d, raw_root=Path(raw_root)), night, row["scan_id"])
         if rows and rows[0]["calibration_id"] not in {r["calibration_id"] for r in cal_rows}:
             cal_rows += rows
             link_rows.append({"calibration_id": rows[0]["calibration_id"], "scan_id": row["scan_id"]})
-    cal_rows += rod_rows
-    link_rows += rod_links
+    cal_rows += made["rod"][0]
+    link_rows += made["rod"][1]
     cals = pl.DataFrame(cal_rows, infer_schema_length=None) if cal_rows else pl.DataFrame()
     links = pl.DataFrame(link_rows) if link_rows else pl.DataFrame()
     return cals, links, bad
