@@ -66,6 +66,16 @@ def _problems():
     yield "tall harmonic", (lambda p: harm(p) - yh), harm_j, truth + np.array([0.02, 0.02, 0, 0, 0, 2e-5, 0.01, 0.01, 0])
 
 
+def _rounding_floor_cost(jac, x, ulps=16):
+    """The cost that a change of ``ulps`` units in the last place of one parameter gives a zero residual.
+
+    Two minima whose costs differ by less than this are the same minimum: the residuals' last digits, and so
+    costs of about 1e-25, depend on the order in which the CPU's BLAS and libm sum, not on the algorithm.
+    """
+    step = ulps * np.spacing(np.abs(x))
+    return float(np.max(0.5 * np.sum((jac * step) ** 2, axis=0)))
+
+
 @pytest.mark.parametrize("tol", [1e-8, 1e-10, 1e-12])
 def test_the_iteration_is_minpacks(tol):
     for name, f, j, x0 in _problems():
@@ -76,11 +86,16 @@ def test_the_iteration_is_minpacks(tol):
         assert a.success and b.success, name
         assert abs(b.nfev - a.nfev) <= 1 and abs(b.njev - a.njev) <= 1, name
         assert b.message == MESSAGES[b.status]
-        assert b.cost == pytest.approx(a.cost, rel=1e-12, abs=1e-30), name
-        # the same minimum, far below the parameters' standard uncertainty (or exactly, for a zero residual)
-        s2 = 2 * a.cost / max(a.fun.size - a.x.size, 1)
+        # the same minimum: costs equal far below a change of chi-square of one (relative 1e-9), or both at the
+        # rounding floor of a zero residual, which decides the last digits differently on another CPU or BLAS
+        floor = _rounding_floor_cost(a.jac, a.x)
+        assert abs(b.cost - a.cost) <= 1e-9 * a.cost + floor, name
+        # and the same parameters: far below their standard uncertainty where the residual is real; within the
+        # uncertainty that the rounding floor leaves where the residual is zero (any point there is the minimum)
+        zero_residual = a.cost <= floor
+        s2 = 2 * max(a.cost, floor) / max(a.fun.size - a.x.size, 1)
         u = np.sqrt(np.diag(np.linalg.inv(a.jac.T @ a.jac)) * s2)
-        assert np.all(np.abs(b.x - a.x) <= 1e-5 * u + 1e-12 * np.abs(a.x)), name
+        assert np.all(np.abs(b.x - a.x) <= (1.0 if zero_residual else 1e-5) * u + 1e-12 * np.abs(a.x)), name
         np.testing.assert_allclose(b.fun, f(b.x), rtol=0, atol=0)
         np.testing.assert_allclose(b.jac, j(b.x), rtol=0, atol=0)
 
