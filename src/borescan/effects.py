@@ -28,7 +28,7 @@ Stages, in the order the digital twin (:mod:`borescan.simulate`) composes them:
 
 Within a stage, effects act in the order of the spec's table (the order of :data:`EFFECTS`)
 and effects of the same name in the order given. Effects compose freely, including several
-of the same name on different channels. :mod:`borescan.model` composes them into the one
+of the same name on different channels. :mod:`borescan.physics.tri` composes them into the one
 forward model of a spindle scan that the digital twin and the discrepancy workflow share.
 
 The registry is also the vocabulary of the fits (lmfit style: an effect adds prefixed

@@ -7,7 +7,7 @@ eccentricities or in other gauges, can. This module examines K scans together wi
 single-scan workflow's own search (:func:`borescan.discrepancy.examine.examine_model`: base fit,
 outliers, quantisation, linear screen, exact refits, pairs, BIC with the same threshold), on a
 model composed of K single-scan models (:class:`~borescan.discrepancy.tri.TriModel`, so the one
-forward model :func:`borescan.model.tri_forward` of the twin), lmfit style:
+forward model :func:`borescan.physics.tri.tri_forward` of the twin), lmfit style:
 
 - device parameters, shared by every scan and unprefixed: the beam geometry as offsets from a
   start (a calibration) in the calibration's straightened form (the quantities the data fix best,

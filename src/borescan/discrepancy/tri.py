@@ -19,7 +19,7 @@ fitted parameters. The registry (:data:`borescan.effects.EFFECTS`) is the vocabu
 each term its fitted parameters (phase-type effects in Cartesian form (A, B), linear near
 zero amplitude), their conversion to the spec's parameters, which base parameters absorb it
 and whether it is a candidate of a spindle scan. :meth:`TriModel.predict` converts the fitted
-values to the spec's parameters and evaluates :func:`borescan.model.tri_forward`'s composition,
+values to the spec's parameters and evaluates :func:`borescan.physics.tri.tri_forward`'s composition,
 the forward model the digital twin uses.
 """
 
@@ -32,10 +32,10 @@ from typing import Any
 import numpy as np
 
 from borescan.discrepancy.fitting import block_indices, dead_zone, leading_block, noise_floor_mm, spike_mask
-from borescan.effects import EFFECTS, Effect, apply_effects, sort_effects
+from borescan.effects import EFFECTS, Effect, sort_effects
 from borescan.geometry import Beams, Bore, tri_spindle_readings
 from borescan.kinematics import AngleModel, angle_model_from_arrays
-from borescan.model import GEOMETRY_STAGES, TriBase, tri_geometry, tri_reading_stage
+from borescan.physics.tri import GEOMETRY_STAGES, TriBase, tri_geometry, tri_reading_stage
 
 __all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_terms", "registry_terms", "term_parameters",
            "term_effects", "term_values"]
@@ -235,27 +235,6 @@ def term_values(term: Term, effect: Effect) -> dict[str, float]:
     return {f"{term.key}.{n}": v for n, v in effect.spec.internal(effect.params).items()}
 
 
-def apply_reading_terms(
-    v: np.ndarray,
-    t: np.ndarray,
-    by: dict[str, list[Term]],
-    p: dict[str, float],
-    channels,
-    range_mm,
-    beam_tilt: bool = True,
-) -> np.ndarray:
-    """Beam (``beam_tilt``, unless ``beam_tilt`` is False) and reading-stage terms on readings
-    ``v`` (n, c) at times ``t`` (n, c) [s], through the registry's forward functions
-    (:func:`borescan.effects.apply_effects`), in its composition order."""
-    stages = ("beam", "reading") if beam_tilt else ("reading",)
-    effects = [e for terms in by.values() for term in terms if EFFECTS[term.effect].stage in stages
-               for e in term_effects(term, p, channels)]
-    if not effects:
-        return np.array(v, dtype=float, copy=True)
-    return apply_effects(v, t, channels, effects, device_type="tri_lds" if beam_tilt else "rod",
-                         range_mm=range_mm, stages=stages)
-
-
 #: The ray-to-bore readings (one implementation: :func:`borescan.geometry.tri_spindle_readings`).
 fast_readings = tri_spindle_readings
 
@@ -317,7 +296,7 @@ class TriModel:
         """Readings (n, c) [mm] for full parameters ``p`` (base + every term's fitted names).
 
         The terms' fitted values become the spec's effects (:func:`term_effects`) and the
-        readings come from the composition of :mod:`borescan.model` (the digital twin's). The
+        readings come from the composition of :mod:`borescan.physics.tri` (the digital twin's). The
         ray geometry is remembered for the last geometric state: a finite-difference step in a
         beam- or reading-stage parameter (offset, gain, ...) leaves it as it was.
         """
