@@ -549,7 +549,6 @@ EFFECTS: dict[str, EffectSpec] = {
                    example={"channel": 2, "d_mm": 0.3}),
     ]
 }
-_ORDER = {name: i for i, name in enumerate(EFFECTS)}
 
 
 def get_effect(name: str) -> EffectSpec:
@@ -600,7 +599,8 @@ def sort_effects(
             raise ValueError(
                 f"effect {e.name!r} names channel {e.channel}, device has channels {tuple(channels)}"
             )
-    for e in sorted(effects, key=lambda e: _ORDER[e.name]):  # stable: same name keeps given order
+    order = {name: i for i, name in enumerate(EFFECTS)}  # the registry as it is now (an entry added later counts)
+    for e in sorted(effects, key=lambda e: order[e.name]):  # stable: same name keeps given order
         out[e.spec.stage].append(e)
     return out
 

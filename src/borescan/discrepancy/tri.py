@@ -42,11 +42,6 @@ __all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_ter
 
 #: Scan kind of this model in the registry's ``absorbed_by`` / ``candidate``.
 SCAN_KIND = "tri_spindle"
-#: Fitted parameters of each effect and their typical scale, derived from the registry's
-#: :class:`~borescan.effects.FitParam` (the source; kept under this name for the pose models).
-INTERNAL: dict[str, tuple[tuple[str, float], ...]] = {
-    name: tuple((q.name, q.scale) for q in spec.fit) for name, spec in EFFECTS.items() if spec.fit
-}
 BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dbeta": 1e-4, "dd_b": 1e-3, "drho": 1e-2, "dR": 1e-3}
 #: Calibration parameter that would absorb an effect (reported with the finding), from the
 #: registry (the bore radius "R" is the measurand, not a calibration parameter).
@@ -80,11 +75,11 @@ class Term:
 
     def names(self) -> list[str]:
         """Prefixed fitted parameter names, e.g. ``bore_lobing[k=3].A`` (registry ``fit``)."""
-        return [f"{self.key}.{n}" for n, _ in INTERNAL[self.effect]]
+        return [f"{self.key}.{q.name}" for q in EFFECTS[self.effect].fit]
 
     def scales(self) -> list[float]:
         """Typical magnitudes of :meth:`names` (registry ``fit``)."""
-        return [s for _, s in INTERNAL[self.effect]]
+        return [q.scale for q in EFFECTS[self.effect].fit]
 
 
 @dataclass
