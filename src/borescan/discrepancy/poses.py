@@ -32,8 +32,10 @@ import math
 
 import numpy as np
 
-from borescan.discrepancy.fitting import dead_zone, robust_sigma
+from borescan.discrepancy.fitting import dead_zone
+from borescan.noise import noise_floor_mm
 from borescan.discrepancy.tri import Term, registry_terms, term_effects, term_parameters
+from borescan.effects import calibration_absorbers
 from borescan.geometry import Beams, Bore, RodLayer
 from borescan.physics.rod import RodDevice, RodState
 from borescan.physics.tri import TriDevice, TriStaticState
@@ -89,17 +91,9 @@ class _PoseModel:
         return self.data.values_mm - self.predict(p, terms)
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
-        """1.4826 MAD of sample-to-sample differences within poses / sqrt(2), per channel."""
-        same = self.data.pose_index[1:] == self.data.pose_index[:-1]
-        out = np.zeros(r.shape[1])
-        for j in range(r.shape[1]):
-            d = (r[1:, j] - r[:-1, j])[same]
-            s = robust_sigma(d)
-            if s == 0.0:
-                d = d[np.isfinite(d)]
-                s = float(np.std(d)) if d.size > 2 else 0.0
-            out[j] = s / math.sqrt(2.0)
-        return out
+        """The white-noise floor of sample-to-sample differences within poses, per channel
+        (:func:`borescan.noise.noise_floor_mm`, first differences)."""
+        return noise_floor_mm(r, order=1, keep=self.data.pose_index[1:] == self.data.pose_index[:-1])
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
         """Readings further than ``k_sigma`` noise levels from their pose median."""
@@ -143,6 +137,11 @@ class _PoseModel:
     def vibration_f(self, r):
         return None
 
+    @property
+    def absorbed_by(self) -> dict[str, str]:
+        """Effect -> the calibration parameters that absorb it (the registry's, for :attr:`scan_kind`)."""
+        return calibration_absorbers(self.scan_kind)
+
     def base_scales(self):
         return [self._scale(n) for n in self.base_names()]
 
@@ -163,11 +162,7 @@ class RodModel(_PoseModel):
 
     device_type = "rod"
     base_description = "device.nominal layers (l0, phi, d, gamma), feature nominal radii"
-    absorbed_by = {
-        "sensor_offset": "l0_mm of the layer",
-        "beam_offset": "l0_mm of the layer (acts as a constant -d^2 / (2 r))",
-        "beam_tilt": "l0_mm of the layer (to first order)",
-    }
+    scan_kind = "rod"
 
     def __init__(self, data: PoseData):
         super().__init__(data)
@@ -280,10 +275,10 @@ class RodModel(_PoseModel):
         with np.errstate(invalid="ignore", divide="ignore"):  # NaN where a start puts the beam outside the hole
             return self.device.predict(self.state(p), d.pose_index, d.t_s, effects)
 
-    def candidate_terms(self, *, k_max=8, vibration_f_hz=None):
+    def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
         """The registry's rod candidates; what a layer's free hole radius absorbs is left out."""
         free = {c for c, f in zip(self.data.channels, self.radius_free) if f}
-        return registry_terms("rod", self.data.channels, have={"cte": bool(self.data.cte_per_k)},
+        return registry_terms(self.scan_kind, self.data.channels, have={"cte": bool(self.data.cte_per_k)},
                               k_max=k_max, freed={"R": free})
 
     def extra_starts(self, screen, keys, t1):
@@ -311,10 +306,7 @@ class StaticModel(_PoseModel):
 
     device_type = "tri_lds"
     base_description = "device.nominal beams, artifact R20; device position per pose free"
-    absorbed_by = {
-        "sensor_offset": "d_b_mm of the channel",
-        "thermal_expansion": "every d_b_mm (a common offset)",
-    }
+    scan_kind = "tri_static"
 
     def __init__(self, data: PoseData):
         super().__init__(data)
@@ -368,9 +360,9 @@ class StaticModel(_PoseModel):
         effects = [e for t in terms for e in term_effects(t, p, d.channels)]
         return self.device.predict(state, d.pose_index, d.t_s, effects)
 
-    def candidate_terms(self, *, k_max=8, vibration_f_hz=None):
+    def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
         """The registry's static candidates; a free bore radius absorbs what every channel shares."""
-        return registry_terms("tri_static", self.data.channels, have={"cte": bool(self.data.cte_per_k)},
+        return registry_terms(self.scan_kind, self.data.channels, have={"cte": bool(self.data.cte_per_k)},
                               k_max=k_max, freed={"R": "shared" if self.radius_free else set()})
 
     def extra_starts(self, screen, keys, t1):

@@ -32,10 +32,11 @@ from typing import Any
 import numpy as np
 
 from borescan.discrepancy.fitting import block_indices, dead_zone, leading_block, noise_floor_mm, spike_mask
-from borescan.effects import EFFECTS, Effect, sort_effects
+from borescan.config import schema_default
+from borescan.effects import EFFECTS, Effect, calibration_absorbers, sort_effects
 from borescan.geometry import Beams, Bore, tri_spindle_readings
 from borescan.kinematics import AngleModel, angle_model_from_arrays
-from borescan.physics.tri import GEOMETRY_STAGES, TriBase, tri_geometry, tri_reading_stage
+from borescan.physics.tri import GEOMETRY_STAGES, TriBase, first_harmonic_start, tri_geometry, tri_reading_stage
 
 __all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_terms", "registry_terms", "term_parameters",
            "term_effects", "term_values"]
@@ -43,13 +44,6 @@ __all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_ter
 #: Scan kind of this model in the registry's ``absorbed_by`` / ``candidate``.
 SCAN_KIND = "tri_spindle"
 BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dbeta": 1e-4, "dd_b": 1e-3, "drho": 1e-2, "dR": 1e-3}
-#: Calibration parameter that would absorb an effect (reported with the finding), from the
-#: registry (the bore radius "R" is the measurand, not a calibration parameter).
-ABSORBED_BY = {
-    name: "; ".join(text for par, text in spec.absorbers(SCAN_KIND).items() if par != "R")
-    for name, spec in EFFECTS.items()
-    if any(par != "R" for par in spec.absorbers(SCAN_KIND))
-}
 
 
 @dataclass(frozen=True)
@@ -334,7 +328,12 @@ class TriModel:
     # ------------------------------------------------------------------ engine interface
     device_type = "tri_lds"
     angle_label = "device angle [deg]"
-    absorbed_by = ABSORBED_BY
+    scan_kind = SCAN_KIND
+
+    @property
+    def absorbed_by(self) -> dict[str, str]:
+        """Effect -> the calibration parameters that absorb it (the registry's, :func:`calibration_absorbers`)."""
+        return calibration_absorbers(self.scan_kind)
     base_description = "device.nominal beams, artifact R20, spindle position, rpm_nominal"
 
     @property
@@ -379,7 +378,7 @@ class TriModel:
     def vibration_f(self, r: np.ndarray) -> float | None:
         return _vibration_peak(self, r)[0]
 
-    def candidate_terms(self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[Term]:
+    def candidate_terms(self, *, k_max: int | None = None, vibration_f_hz: float | None = None) -> list[Term]:
         """Every applicable term (:func:`candidate_terms`), less those a freed base parameter
         absorbs (the registry's ``absorbed_by``: d_b offsets and thermal expansion, beta channel
         delay, a free radius R the common offset and thermal expansion)."""
@@ -430,22 +429,11 @@ class TriModel:
         phi = d.phase_rad + d.direction * (1.0 + eps) * d.turned_rad(d.t_s)
         S = np.asarray(d.spindle_xy_mm, dtype=float)
         S0 = S.mean(axis=0) if S.ndim == 2 else S
-        rows, rhs = [], []
-        c = len(d.channels)
-        for j in range(c):
-            ok = self.valid[:, j]
-            a = phi[ok] + d.beams.beta_rad[j]
-            X = np.zeros((ok.sum(), 2 + c))
-            X[:, 0], X[:, 1] = -np.cos(a), -np.sin(a)
-            X[:, 2 + j] = 1.0
-            rows.append(X)
-            rhs.append(d.values_mm[ok, j])
-        X, y = np.vstack(rows), np.concatenate(rhs)
-        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
-        return S0 - coef[:2]
+        offset, _, _ = first_harmonic_start(phi, d.values_mm, self.valid, d.beams.beta_rad)
+        return S0 - offset
 
 
-def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: int = 8,
+def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: int | None = None,
                    freed: dict[str, set | str] | None = None) -> list[Term]:
     """The registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
     ``"tri_static"``, ``"rod"``): the only list of candidates the workflow has.
@@ -458,9 +446,11 @@ def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: in
     channels whose own copy of it is free (a per-channel term is absorbed when its channel is in
     the set, a common term when the set is not empty), or to ``"shared"`` for one parameter of
     every channel (absorbs only the common terms: a bore radius absorbs a common offset, not one
-    channel's).
+    channel's). ``k_max`` None: the schema's ``discrepancy.max_harmonic``.
     """
     freed = {k: v for k, v in (freed or {}).items() if v}
+    if k_max is None:
+        k_max = int(schema_default("discrepancy", "max_harmonic"))
     specs = [s for s in EFFECTS.values()
              if s.candidate.get(scan_kind) == "screen" and all(have.get(n, False) for n in s.needs)]
     terms = [Term(s.name, c) for s in specs if s.per_channel for c in channels]
@@ -482,7 +472,7 @@ def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: in
     return [t for t in terms if not absorbed(t)]
 
 
-def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | None = None,
+def candidate_terms(data: TriData, *, k_max: int | None = None, vibration_f_hz: float | None = None,
                     freed: dict[str, set | str] | None = None) -> list[Term]:
     """The registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
     when the scan has no encoder, ``vibration_line`` when ``vibration_f_hz`` was found, ``cte``

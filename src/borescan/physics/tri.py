@@ -50,6 +50,7 @@ __all__ = [
     "tri_forward",
     "CORRECTABLE_STAGES",
     "tri_correct_readings",
+    "first_harmonic_start",
     "TriStaticState",
     "TriStaticJacobian",
     "TriDevice",
@@ -199,6 +200,42 @@ def tri_forward(base: TriBase, t_s: np.ndarray, effects: Iterable[Effect] = ()) 
     st = sort_effects(effects, TRI, base.channels)
     v, tc = tri_geometry(base, t_s, st)
     return tri_reading_stage(v, tc, st, base.channels, base.range_mm)
+
+
+def first_harmonic_start(phi_rad: np.ndarray, readings_mm: np.ndarray, mask: np.ndarray,
+                         beta_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The spindle's offset from the bore centre from the readings' first harmonic: a linear start.
+
+    To first order in the offset o = S - C (the geometry expanded about a centred spindle), channel c
+    reads v_c = k_c - o . u(phi + beta_c); o and the levels k_c by linear least squares over the
+    readings ``mask`` keeps. The start of the calibration and of the discrepancy fit's bore centre.
+
+    Parameters
+    ----------
+    phi_rad : ndarray (n,) device angle [rad]
+    readings_mm : ndarray (n, c) [mm]; mask : ndarray (n, c) bool, the readings to use
+    beta_rad : ndarray (c,) beam directions [rad]
+
+    Returns
+    -------
+    offset (2,) [mm], levels k (c,) [mm], the sum of squared residuals [mm^2]
+    """
+    c = readings_mm.shape[1]
+    rows, rhs = [], []
+    for j in range(c):
+        m = mask[:, j]
+        ang = phi_rad[m] + beta_rad[j]
+        A = np.zeros((m.sum(), 2 + c))
+        A[:, 0] = -np.cos(ang)
+        A[:, 1] = -np.sin(ang)
+        A[:, 2 + j] = 1.0
+        rows.append(A)
+        rhs.append(readings_mm[m, j])
+    A = np.vstack(rows)
+    b = np.concatenate(rhs)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    sse = float(np.sum((A @ sol - b) ** 2))
+    return sol[:2], sol[2:], sse
 
 
 #: Stages whose effects recorded readings can be corrected for pointwise, without the scene: what a
