@@ -27,20 +27,24 @@ H = 1e-6
 
 TRI_EFFECTS = {
     "none": [],
-    "shaped": [Effect("axis_tilt", {"beta_rad": 0.02, "azimuth": 0.6}),
-               Effect("bore_lobing", {"k": 3, "a_mm": 0.005, "phase": 0.4}),
-               Effect("thermal_expansion", {"temperature_c": 24.0}),
-               Effect("beam_tilt", {"channel": 2, "gamma_rad": 0.06}),
-               Effect("sensor_gain", {"channel": 1, "g": 0.003}),
-               Effect("sensor_nonlinearity", {"channel": 3, "a_mm": 0.004})],
+    "shaped": [
+        Effect("axis_tilt", {"beta_rad": 0.02, "azimuth": 0.6}),
+        Effect("bore_lobing", {"k": 3, "a_mm": 0.005, "phase": 0.4}),
+        Effect("thermal_expansion", {"temperature_c": 24.0}),
+        Effect("beam_tilt", {"channel": 2, "gamma_rad": 0.06}),
+        Effect("sensor_gain", {"channel": 1, "g": 0.003}),
+        Effect("sensor_nonlinearity", {"channel": 3, "a_mm": 0.004}),
+    ],
 }
 ROD_EFFECTS = {
     "none": [],
-    "beam_and_reading": [Effect("beam_offset", {"channel": 1, "d_mm": 0.3}),
-                         Effect("beam_tilt", {"channel": 2, "gamma_rad": 0.06}),
-                         Effect("thermal_expansion", {"temperature_c": 24.0}),
-                         Effect("sensor_gain", {"channel": 1, "g": 0.003}),
-                         Effect("sensor_nonlinearity", {"channel": 2, "a_mm": 0.004})],
+    "beam_and_reading": [
+        Effect("beam_offset", {"channel": 1, "d_mm": 0.3}),
+        Effect("beam_tilt", {"channel": 2, "gamma_rad": 0.06}),
+        Effect("thermal_expansion", {"temperature_c": 24.0}),
+        Effect("sensor_gain", {"channel": 1, "g": 0.003}),
+        Effect("sensor_nonlinearity", {"channel": 2, "a_mm": 0.004}),
+    ],
 }
 
 
@@ -65,17 +69,29 @@ def test_tri_static_jacobian_is_the_derivative_of_predict(case):
     J = device.jacobian(state, pose, t, effects)
 
     def diff(make):
-        return (device.predict(make(H), pose, t, effects) - device.predict(make(-H), pose, t, effects)) / (2 * H)
+        return (device.predict(make(H), pose, t, effects) - device.predict(make(-H), pose, t, effects)) / (
+            2 * H
+        )
 
     for i in range(2):
         e = np.zeros(2)
         e[i] = 1.0
-        _close(J.d_device_xy[..., i], diff(lambda h: replace(state, device_xy_mm=state.device_xy_mm + h * e)))
+        _close(
+            J.d_device_xy[..., i],
+            diff(lambda h, e=e: replace(state, device_xy_mm=state.device_xy_mm + h * e)),
+        )
         c0 = np.asarray(state.bore.center_xy_mm)
-        _close(J.d_center[..., i],
-               diff(lambda h: replace(state, bore=replace(state.bore, center_xy_mm=tuple(c0 + h * e)))))
+        _close(
+            J.d_center[..., i],
+            diff(
+                lambda h, e=e, c0=c0: replace(state, bore=replace(state.bore, center_xy_mm=tuple(c0 + h * e)))
+            ),
+        )
     _close(J.d_device_angle, diff(lambda h: replace(state, device_angle_rad=state.device_angle_rad + h)))
-    _close(J.d_radius, diff(lambda h: replace(state, bore=replace(state.bore, radius_mm=state.bore.radius_mm + h))))
+    _close(
+        J.d_radius,
+        diff(lambda h: replace(state, bore=replace(state.bore, radius_mm=state.bore.radius_mm + h))),
+    )
 
 
 def test_tri_static_device_refuses_effects_of_a_turning_spindle():
@@ -87,9 +103,12 @@ def test_tri_static_device_refuses_effects_of_a_turning_spindle():
 def _rod_case():
     sc = default_rod_scene()
     device = RodDevice(sc.layers, sc.cte_per_k, sc.range_mm)
-    state = RodState(alpha_rad=np.array([0.0, 1.1, 2.3, 3.0, 4.2, 5.5]),
-                     center_xy_mm=np.array([[-1.2, 0.8], [-1.18, 0.79]]), radius_mm=np.array([75.004, 74.997]),
-                     deflection_xy_rad=math.radians(0.1) * np.array([math.cos(0.7), math.sin(0.7)]))
+    state = RodState(
+        alpha_rad=np.array([0.0, 1.1, 2.3, 3.0, 4.2, 5.5]),
+        center_xy_mm=np.array([[-1.2, 0.8], [-1.18, 0.79]]),
+        radius_mm=np.array([75.004, 74.997]),
+        deflection_xy_rad=math.radians(0.1) * np.array([math.cos(0.7), math.sin(0.7)]),
+    )
     pose = np.repeat(np.arange(6), 2)
     return device, state, pose, np.arange(pose.size) * 0.5
 
@@ -101,19 +120,21 @@ def test_rod_jacobian_is_the_derivative_of_predict(case):
     J = device.jacobian(state, pose, t, effects)
 
     def diff(make):
-        return (device.predict(make(H), pose, t, effects) - device.predict(make(-H), pose, t, effects)) / (2 * H)
+        return (device.predict(make(H), pose, t, effects) - device.predict(make(-H), pose, t, effects)) / (
+            2 * H
+        )
 
     _close(J.d_alpha, diff(lambda h: replace(state, alpha_rad=state.alpha_rad + h)))
     for j in range(2):  # a layer's centre and radius move its column only
         for i in range(2):
             e = np.zeros((2, 2))
             e[j, i] = 1.0
-            num = diff(lambda h: replace(state, center_xy_mm=state.center_xy_mm + h * e))
+            num = diff(lambda h, e=e: replace(state, center_xy_mm=state.center_xy_mm + h * e))
             _close(J.d_center[:, j, i], num[:, j])
             assert np.all(num[:, 1 - j] == 0.0)
         e = np.zeros(2)
         e[j] = 1.0
-        _close(J.d_radius[:, j], diff(lambda h: replace(state, radius_mm=state.radius_mm + h * e))[:, j])
+        _close(J.d_radius[:, j], diff(lambda h, e=e: replace(state, radius_mm=state.radius_mm + h * e))[:, j])
     # the deflection's columns are central differences of predict by construction (not checked here)
     assert J.d_deflection.shape == J.d_alpha.shape + (2,)
 

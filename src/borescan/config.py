@@ -1,6 +1,7 @@
 """The pipeline's configuration: ``config/config.yaml`` completed from its schema.
 
-Defaults live in one place, ``workflow/schemas/config.schema.yaml``; this module reads them
+Defaults live in one place, the schema the package ships (``workflow/schemas/config.schema.yaml`` in
+a checkout, :func:`borescan.resources.shipped`); this module reads them
 from there (as the Snakefile's ``validate`` does) so that library callers outside Snakemake
 (benchmarks, scripts run by hand) see exactly the settings a night job sees.
 """
@@ -14,10 +15,12 @@ from typing import Any
 
 import yaml
 
+from borescan.resources import shipped
+
 __all__ = ["SCHEMA_PATH", "schema_defaults", "schema_default", "load_config"]
 
-#: the config schema of the checkout this package is installed from (editable install)
-SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
+#: the config schema the package ships (``workflow/schemas/config.schema.yaml`` of a checkout links to it)
+SCHEMA_PATH = shipped("config.schema.yaml")
 
 
 def _defaults(node: dict) -> Any:

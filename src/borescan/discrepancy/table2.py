@@ -21,6 +21,7 @@ import numpy as np
 
 from borescan.discrepancy.fitting import bic
 from borescan.noise import mad_sigma
+from borescan.resources import shipped
 
 __all__ = ["NOMINAL_SAMPLES_PER_REV", "TABLE2_NUMBERS", "load_table2", "examine_table2"]
 
@@ -57,7 +58,7 @@ TABLE2_NUMBERS: dict[tuple[int, str], list[int]] = {
 
 
 def _default_csv() -> Path:
-    return Path(__file__).resolve().parents[3] / "data" / "papers" / "yang2017_table2.csv"
+    return shipped("papers", "yang2017_table2.csv")
 
 
 def load_table2(path: str | Path | None = None) -> dict[tuple[int, str], list[tuple[int, float]]]:

@@ -88,7 +88,9 @@ def rod_layers_with_effects(layers: Sequence[RodLayer], beam_effects: Iterable[E
     return out
 
 
-def rod_holes_with_effects(holes: Sequence[Hole], bore_effects: Sequence[Effect], cte_per_k: float) -> list[Hole]:
+def rod_holes_with_effects(
+    holes: Sequence[Hole], bore_effects: Sequence[Effect], cte_per_k: float
+) -> list[Hole]:
     """The holes after the bore-stage effects (step 1), in composition order.
 
     Raises
@@ -101,22 +103,32 @@ def rod_holes_with_effects(holes: Sequence[Hole], bore_effects: Sequence[Effect]
     for h in holes:
         b = bore_with_effects(Bore(h.center_xy_mm, h.radius_mm), bore_effects, cte_per_k, device=ROD)
         if not b.is_circle:
-            raise ValueError(f"effects {[e.name for e in bore_effects]} make a rod's hole other than a circle")
+            raise ValueError(
+                f"effects {[e.name for e in bore_effects]} make a rod's hole other than a circle"
+            )
         out.append(Hole(tuple(b.center_xy_mm), b.radius_mm))
     return out
 
 
-def rod_reading_stage(v_mm: np.ndarray, t_s: np.ndarray | None, st: dict[str, list[Effect]],
-                      channels: Sequence[int], range_mm: Sequence[float] | float) -> np.ndarray:
+def rod_reading_stage(
+    v_mm: np.ndarray,
+    t_s: np.ndarray | None,
+    st: dict[str, list[Effect]],
+    channels: Sequence[int],
+    range_mm: Sequence[float] | float,
+) -> np.ndarray:
     """Step 4: reading effects on readings ``v_mm`` (n, m) at times ``t_s`` (n,) [s] (zeros when None)."""
     if not st["reading"]:
         return v_mm
     t = np.zeros(v_mm.shape[0]) if t_s is None else np.asarray(t_s, dtype=float)
-    return apply_effects(v_mm, t, channels, st["reading"], device_type=ROD, range_mm=range_mm, stages=("reading",))
+    return apply_effects(
+        v_mm, t, channels, st["reading"], device_type=ROD, range_mm=range_mm, stages=("reading",)
+    )
 
 
-def rod_forward(base: RodBase, alpha_rad: np.ndarray, t_s: np.ndarray | None = None,
-                effects: Iterable[Effect] = ()) -> np.ndarray:
+def rod_forward(
+    base: RodBase, alpha_rad: np.ndarray, t_s: np.ndarray | None = None, effects: Iterable[Effect] = ()
+) -> np.ndarray:
     """Noise-free readings of a rod scan with effects (steps 1-4 of the module doc).
 
     Parameters
@@ -137,7 +149,9 @@ def rod_forward(base: RodBase, alpha_rad: np.ndarray, t_s: np.ndarray | None = N
     return rod_reading_stage(v, t_s, st, base.channels, base.range_mm)
 
 
-def rod_section_geometry(layers: Sequence[RodLayer], center_xy_mm, radius_mm, deflection_xy_rad) -> tuple[list[Hole], RodAxis]:
+def rod_section_geometry(
+    layers: Sequence[RodLayer], center_xy_mm, radius_mm, deflection_xy_rad
+) -> tuple[list[Hole], RodAxis]:
     """Holes and rod axis of :func:`borescan.geometry.rod_readings` from a fit's unknowns.
 
     Gauge: the rod axis passes through the part origin at z = 0 (dx = dy = 0); the deflection
@@ -160,7 +174,9 @@ def rod_section_geometry(layers: Sequence[RodLayer], center_xy_mm, radius_mm, de
     g = np.array([lay.gamma_rad for lay in layers])
     z = h + r * np.tan(g)
     ctr = c + (z * np.sinc(om / np.pi))[:, None] * w[None, :]
-    return [Hole((float(x), float(y)), float(rr)) for (x, y), rr in zip(ctr, r)], RodAxis(0.0, 0.0, om, az)
+    return [Hole((float(x), float(y)), float(rr)) for (x, y), rr in zip(ctr, r, strict=True)], RodAxis(
+        0.0, 0.0, om, az
+    )
 
 
 @dataclass(frozen=True)
@@ -215,18 +231,31 @@ class RodDevice:
 
     def base(self, state: RodState) -> RodBase:
         """The base geometry of the fit's unknowns (:func:`rod_section_geometry` on these layers)."""
-        holes, axis = rod_section_geometry(self.layers, state.center_xy_mm, state.radius_mm,
-                                           state.deflection_xy_rad)
+        holes, axis = rod_section_geometry(
+            self.layers, state.center_xy_mm, state.radius_mm, state.deflection_xy_rad
+        )
         return RodBase(tuple(self.layers), tuple(holes), axis, self.cte_per_k, self.range_mm)
 
-    def predict(self, state: RodState, pose_index: np.ndarray, t_s: np.ndarray | None = None,
-                effects: Iterable[Effect] = ()) -> np.ndarray:
-        """Noise-free readings (n, m) [mm] of the readings' poses ``pose_index`` (n,) at times ``t_s`` (n,)."""
+    def predict(
+        self,
+        state: RodState,
+        pose_index: np.ndarray,
+        t_s: np.ndarray | None = None,
+        effects: Iterable[Effect] = (),
+    ) -> np.ndarray:
+        """Noise-free readings (n, m) [mm] of the poses ``pose_index`` (n,) at times ``t_s`` (n,)."""
         alpha = np.asarray(state.alpha_rad, dtype=float)[np.asarray(pose_index)]
         return rod_forward(self.base(state), alpha, t_s, effects)
 
-    def jacobian(self, state: RodState, pose_index: np.ndarray, t_s: np.ndarray | None = None,
-                 effects: Iterable[Effect] = (), step_rad: float = 1e-6, radius_step_mm: float = 1e-3) -> RodJacobian:
+    def jacobian(
+        self,
+        state: RodState,
+        pose_index: np.ndarray,
+        t_s: np.ndarray | None = None,
+        effects: Iterable[Effect] = (),
+        step_rad: float = 1e-6,
+        radius_step_mm: float = 1e-3,
+    ) -> RodJacobian:
         """Derivatives of :meth:`predict` with respect to the base unknowns.
 
         The spot P = O + s E (O = Rm (d n(a) + h z), E = Rm (cos(gamma) u(a) + sin(gamma) z), the layers
@@ -250,7 +279,7 @@ class RodDevice:
         r20 = np.asarray(state.radius_mm, dtype=float)
         n, m = v.shape
         d_alpha, d_radius, d_center = np.empty((n, m)), np.empty((n, m)), np.empty((n, m, 2))
-        for j, (lay, hole) in enumerate(zip(layers, holes)):
+        for j, (lay, hole) in enumerate(zip(layers, holes, strict=True)):
             a = alpha + lay.phi_rad
             u = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)
             nn = np.stack([-np.sin(a), np.cos(a), np.zeros_like(a)], axis=-1)
@@ -262,15 +291,19 @@ class RodDevice:
             dO, dE = -lay.d_mm * (u @ Rm.T), np.cos(lay.gamma_rad) * (nn @ Rm.T)
             d_alpha[:, j] = -np.einsum("ij,ij->i", q, dO + s[:, None] * dE) / den
             d_center[:, j] = q / den[:, None]
-            hi, lo = (rod_holes_with_effects([Hole(hole.center_xy_mm, r20[j] + h)], st["bore"], self.cte_per_k)[0]
-                      for h in (radius_step_mm, -radius_step_mm))
+            hi, lo = (
+                rod_holes_with_effects([Hole(hole.center_xy_mm, r20[j] + h)], st["bore"], self.cte_per_k)[0]
+                for h in (radius_step_mm, -radius_step_mm)
+            )
             dr_eff = (hi.radius_mm - lo.radius_mm) / (2.0 * radius_step_mm)
             dc_dr = np.tan(base.layers[j].gamma_rad) * sinc * w
             d_radius[:, j] = (hole.radius_mm * dr_eff + q @ dc_dr) / den
         k = np.ones_like(v)
         if st["reading"]:
-            k = (rod_reading_stage(v + 1e-4, t_s, st, self.channels, self.range_mm)
-                 - rod_reading_stage(v - 1e-4, t_s, st, self.channels, self.range_mm)) / 2e-4
+            k = (
+                rod_reading_stage(v + 1e-4, t_s, st, self.channels, self.range_mm)
+                - rod_reading_stage(v - 1e-4, t_s, st, self.channels, self.range_mm)
+            ) / 2e-4
         d_deflection = np.empty((n, m, 2))
         for i in range(2):
             e = np.zeros(2)
