@@ -29,6 +29,7 @@ import numpy as np
 import polars as pl
 
 from borescan import __version__, rawio
+from borescan.atomic import json_ready
 from borescan.effects import Effect, apply_effects, effects_to_dicts, sort_effects
 from borescan.kinematics import RPM_TO_RAD_S, profile_angle_rad
 from borescan.geometry import (
@@ -761,14 +762,6 @@ def _truth(meta: dict, scene: dict, effects: list[Effect], noise_mm: float, seed
 # --------------------------------------------------------------------------- writing
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o)}")
-
-
 def write_simulated(sim: SimulatedScan, raw_root: Path | str, truth_root: Path | str) -> Path:
     """Write the scan in ``borescan-raw/1`` under ``raw_root`` and its truth outside it.
 
@@ -783,7 +776,7 @@ def write_simulated(sim: SimulatedScan, raw_root: Path | str, truth_root: Path |
     path = rawio.write_scan(raw_root, sim.meta, sim.lds, sim.spindle)
     truth_root.mkdir(parents=True, exist_ok=True)
     tmp = truth_root / f".{sim.scan_id}.truth.json.tmp"
-    tmp.write_text(json.dumps(sim.truth, indent=2, sort_keys=True, default=_json_default) + "\n")
+    tmp.write_text(json.dumps(json_ready(sim.truth), indent=2, sort_keys=True) + "\n")
     os.replace(tmp, truth_root / f"{sim.scan_id}.truth.json")
     return Path(path)
 
