@@ -6,7 +6,8 @@ converted to the fit's by the registry) give the same readings:
 
 - spindle scans: :func:`borescan.simulate.tri_readings` and
   :meth:`borescan.discrepancy.tri.TriModel.predict` (beams, centre, radius, spindle position,
-  phase) to 1e-12 mm;
+  phase), and the pooled examination's model of the scan
+  (:meth:`borescan.discrepancy.pooled.PooledModel.predict_scan`) to 1e-12 mm;
 - static three-sensor sets: :func:`borescan.simulate.tri_static_readings_with_effects` and
   :meth:`borescan.discrepancy.poses.StaticModel.predict` (device position per pose) to 1e-9 mm;
 - rod scans: :func:`borescan.simulate.rod_readings_with_effects` and
@@ -198,6 +199,30 @@ def test_registry_effect_is_recovered_by_the_fitting_model(name):
         else:
             d = par[k] - v
         assert abs(d) <= 4 * unc[k], (k, par[k], v, unc[k])
+
+
+@pytest.mark.parametrize("name", TRI_EFFECTS)
+def test_twin_and_pooled_model_give_the_same_readings(name):
+    """The pooled examination's model of one scan (shared beams at their start, the scan's nuisance at the
+    scene's centre) gives the twin's readings; a speed error is the scan's own speed scale there."""
+    from borescan.discrepancy.pooled import PooledModel, PooledScan, PooledTerm
+
+    sc = SCENES["ccw"]
+    data = _data(sc)
+    model = PooledModel([PooledScan(data, "2026-11-20", "RG-275")])
+    sid = data.scan_id
+    p = {n: 0.0 for n in model._shared_names()} | {f"{sid}:{n}": 0.0 for n in model._nuisance(0)}
+    p[f"{sid}:cx"], p[f"{sid}:cy"] = (float(x) for x in sc.bore_center_xy_mm)
+    effect = Effect(name, VALUES[name])
+    terms = []
+    if name == "speed_error":
+        p[f"{sid}:eps"] = effect.params["eps"]
+    else:
+        t = _term(effect)
+        terms = [PooledTerm(t.effect, t.channel, t.k)]
+        p.update(term_values(terms[0], effect))
+    twin = tri_readings(sc, data.t_s, [effect])
+    assert np.max(np.abs(model.predict_scan(0, p, terms) - twin)) < TOL_MM
 
 
 # --------------------------------------------------------------------------- static sets and rods
