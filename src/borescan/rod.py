@@ -222,12 +222,8 @@ def rod_start(L: np.ndarray, mask: np.ndarray, fix: int = 0) -> tuple[np.ndarray
     if alpha is None:
         alpha = np.linspace(0, 2 * np.pi, n, endpoint=False)
     alpha = np.mod(alpha - alpha[fix] + np.pi, 2 * np.pi) - np.pi
-    r, x, y = np.empty(m), np.empty(m), np.empty(m)
-    A = np.column_stack([np.ones(n), -np.cos(alpha), -np.sin(alpha)])
-    for j in range(m):
-        ok = mask[:, j]
-        (r[j], x[j], y[j]), *_ = np.linalg.lstsq(A[ok], L[ok, j], rcond=None)
-    return np.concatenate([r, x, y, np.delete(alpha, fix)]), S
+    r, p = _first_harmonic(L, mask, [alpha] * m)
+    return np.concatenate([r, p[:, 0], p[:, 1], np.delete(alpha, fix)]), S
 
 
 def _prepare(readings_mm, l0_mm, n_extra: int = 0):
@@ -376,17 +372,22 @@ def _w_of_beta(b, w_ref):
     return np.array([z.real, z.imag])
 
 
-def _linear_start(L, mask, alpha, layers):
-    """Per layer, l = r - p . u(alpha + phi) by linear least squares; centre = -p (Eq. 16 to first order)."""
+def _first_harmonic(L, mask, angles):
+    """Per layer j, l = r_j - p_j . u(a_j) by linear least squares (Eq. 16 to first order in the
+    eccentricity), a_j = ``angles[j]`` (n,): the one linear start of the rod. Returns r (m,), p (m, 2)."""
     n, m = L.shape
-    r, c = np.empty(m), np.empty((m, 2))
-    for j, lay in enumerate(layers):
-        a = alpha + lay.phi_rad
-        A = np.column_stack([np.ones(n), -np.cos(a), -np.sin(a)])
+    r, p = np.empty(m), np.empty((m, 2))
+    for j in range(m):
+        A = np.column_stack([np.ones(n), -np.cos(angles[j]), -np.sin(angles[j])])
         ok = mask[:, j]
-        (r[j], px, py), *_ = np.linalg.lstsq(A[ok], L[ok, j], rcond=None)
-        c[j] = -px, -py
-    return r, c
+        (r[j], p[j, 0], p[j, 1]), *_ = np.linalg.lstsq(A[ok], L[ok, j], rcond=None)
+    return r, p
+
+
+def _linear_start(L, mask, alpha, layers):
+    """Per layer, l = r - p . u(alpha + phi) (:func:`_first_harmonic`); centre = -p."""
+    r, p = _first_harmonic(L, mask, [alpha + lay.phi_rad for lay in layers])
+    return r, -p
 
 
 def _lm(prob, p0, n_par):
