@@ -2,6 +2,8 @@
 # Table of contents only; each stage lives in rules/<stage>.smk and calls src/borescan.
 from snakemake.utils import min_version, validate
 
+from borescan.config import SCHEMA_PATH
+
 min_version("8.0")
 
 
@@ -9,7 +11,7 @@ configfile: "config/config.yaml"
 configfile: "config/devices.yaml"  # the device model: a user's decisions per device
 
 
-validate(config, "workflow/schemas/config.schema.yaml")
+validate(config, str(SCHEMA_PATH))  # the schema borescan ships (workflow/schemas/ links to it)
 
 
 include: "rules/common.smk"

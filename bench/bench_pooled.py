@@ -201,7 +201,7 @@ def calibrate(sims) -> tuple:
     except CalibrationError:
         pass
     try:
-        return fit_full_calibration(ts, ys, ch, nominal, R, S, rule=AcceptanceRule(max_residual_to_noise=1e9),
+        return fit_full_calibration(ts, ys, ch, nominal, R, S, rule=AcceptanceRule.defaults(max_residual_to_noise=1e9),
                                     **kw), False
     except CalibrationError:
         return None, False

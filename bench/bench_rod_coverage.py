@@ -92,6 +92,7 @@ def run_chain(job) -> dict:
     i, seed, cfg = job
     from borescan import rod_calibration, scenarios
     from borescan.artifacts import artifact_cte, radius_at_temperature_mm, scan_temperature
+    from borescan.atomic import json_ready
 
     unc = cfg["uncertainty"]
     rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(i),)))
@@ -125,7 +126,7 @@ def run_chain(job) -> dict:
             layers, sol, _n = rod_calibration.calibrate_l0(means, design, u_mean, r_t)
             budget = rod_calibration.rod_calibration_budget([lay.l0_mm for lay in layers], sol, gauges, temp, cte,
                                                             sens, cal.scan_id, float(unc["sensor_resolution_mm"]))
-            blob = json.dumps({"budget": rod_calibration._json_safe(budget.to_dict())})
+            blob = json.dumps({"budget": json_ready(budget.to_dict())})
             rows = [{"channel": lay.channel, "l0_mm": lay.l0_mm, "h_mm": lay.h_mm, "phi_rad": 0.0, "d_mm": 0.0,
                      "gamma_rad": 0.0, "calibration_json": blob} for lay in layers]
             p20 = g20 + rng.uniform(-0.05, 0.05, m)

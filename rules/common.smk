@@ -2,12 +2,15 @@
 from borescan import rawio, validation
 from borescan.effects import device_model_effects
 from borescan.parallel import set_job_environment
+from borescan.resources import shipped
 
 set_job_environment()  # glibc malloc settings every job inherits (borescan.parallel.JOB_MALLOC_ENVIRONMENT)
 
 RAW = str(validation.require_raw_root(config["raw_root"]))
 RES = config["results_root"]
 NIGHTS = rawio.nights(RAW)
+#: the papers' transcribed tables, shipped with borescan (data/papers/ links to them)
+PAPER_TRANSCRIPTIONS = [str(shipped("papers", f"yang2017_table{i}.csv")) for i in (1, 2, 3)]
 for _device in config["devices"] or {}:  # a mistyped device-model entry stops the run here, named
     device_model_effects(config["devices"], _device)
 

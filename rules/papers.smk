@@ -2,11 +2,7 @@ rule reproduce_papers:
     message:
         "Reproducing Yang 2017 Tables 1-3 and Wang 2017 Eq. 7, Eq. 15, Figs. 9 and 11"
     input:
-        transcriptions=[
-            "data/papers/yang2017_table1.csv",
-            "data/papers/yang2017_table2.csv",
-            "data/papers/yang2017_table3.csv",
-        ],
+        transcriptions=PAPER_TRANSCRIPTIONS,
     output:
         # every file the reproduction writes; the ones a person reads go into `snakemake --report`
         index=f"{RES}/papers/index.csv",

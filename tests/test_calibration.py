@@ -459,4 +459,4 @@ def test_impossible_geometry_is_refused():
     with pytest.raises(CalibrationError, match=r"channel 1: \|rho\| = 7\.\d{3} mm exceeds the head radius 5 mm"):
         fit_full_calibration(t, v, scene.beams.channels, scene.beams, scene.bore_radius_20_mm, scene.spindle_xy_mm,
                              center_xy_mm=scene.bore_center_xy_mm, angle_models=[am], scan_ids=["H"],
-                             rule=AcceptanceRule(head_radius_mm=5.0))
+                             rule=AcceptanceRule.defaults(head_radius_mm=5.0))

@@ -74,3 +74,20 @@ def test_shipped_device_model_validates_and_its_entries_parse():
     assert device_model_effects(devices["devices"], "TRI-01", "2026-11-23") == ()
     assert device_model_effects(devices["devices"], "TRI-01", "2026-11-24") == ("channel_delay@2",)
     assert "configfile: \"config/devices.yaml\"" in (SHIPPED.parent.parent / "Snakefile").read_text()
+
+
+def test_library_defaults_are_the_schemas():
+    """A keyword a caller leaves unset takes the schema's default (no copy of it in the code)."""
+    from borescan.calibration import AcceptanceRule
+    from borescan.config import load_config, schema_default
+    from borescan.discrepancy.tri import registry_terms
+
+    cfg = load_config()
+    assert AcceptanceRule.defaults() == AcceptanceRule.from_config(cfg["calibration"])
+    assert AcceptanceRule.defaults(head_radius_mm=5.0).head_radius_mm == 5.0
+    assert schema_default("uncertainty", "coverage_probability") == cfg["uncertainty"]["coverage_probability"]
+    k_max = cfg["discrepancy"]["max_harmonic"]
+    lobes = {t.k for t in registry_terms("tri_spindle", (1, 2, 3), have={}) if t.effect == "bore_lobing"}
+    assert lobes == set(range(2, k_max + 1))
+    with pytest.raises(KeyError, match="uncertainty.no_such_key"):
+        schema_default("uncertainty", "no_such_key")

@@ -1,6 +1,6 @@
 """A device model's effects carried into calibration and measurement (issue 22).
 
-Beam and reading effects are undone reading by reading (:func:`borescan.model.tri_correct_readings`,
+Beam and reading effects are undone reading by reading (:func:`borescan.physics.tri.tri_correct_readings`,
 the inverse of the one forward model's steps 6-7): for every such effect of the registry (its
 ``example`` values; a new one is checked here without touching this file) the twin's readings with
 the effect, corrected, are the twin's readings without it. A channel delay is carried by the time
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from borescan.effects import EFFECTS, Effect
-from borescan.model import CORRECTABLE_STAGES, tri_correct_readings
+from borescan.physics.tri import CORRECTABLE_STAGES, tri_correct_readings
 from borescan.simulate import default_tri_scene, tri_readings
 
 TRI = "tri_lds"

@@ -8,6 +8,7 @@ import polars as pl
 import pytest
 
 from borescan import rawio, rod_calibration
+from borescan.atomic import json_ready
 from borescan.artifacts import artifact_cte, scan_temperature
 from borescan.calibrations import choose_rod_calibration
 from borescan.config import schema_defaults
@@ -106,7 +107,7 @@ def test_calibrate_then_measure_removes_the_base_length_error(tmp_path):
         meas = _raw(_sim(d_part, 200 + seed, "measurement", part, scan_id=f"MEAS{seed}"), tmp_path / f"m{seed}")
         # with the budget: the rows of a recorded calibration
         import json
-        blob = json.dumps({"budget": rod_calibration._json_safe(budget.to_dict())})
+        blob = json.dumps({"budget": json_ready(budget.to_dict())})
         res = rod_calibration.rod_diameters_with_budget(meas, [dict(r, calibration_json=blob) for r in cal_rows], UNC, "C")
         nominal = rod_calibration.rod_diameters_with_budget(
             meas, [dict(r, l0_mm=71.0) for r in cal_rows], UNC, "N")

@@ -19,7 +19,7 @@ import json
 import math
 from dataclasses import dataclass
 
-from borescan.effects import EFFECTS
+from borescan.effects import EFFECTS, REFERENCE_TEMPERATURE_C, thermal_expansion_factor
 from borescan.geometry import Bore
 
 __all__ = [
@@ -37,7 +37,6 @@ __all__ = [
 ]
 
 #: temperature at which artifacts are certified and results reported [degC] (ISO 1)
-REFERENCE_TEMPERATURE_C = 20.0
 #: ``uncertainty.missing_temperature`` values
 MISSING_TEMPERATURE = ("refuse", "assume_20c")
 
@@ -189,7 +188,7 @@ def diameter_at_20(diameter_mm: float, cte_per_k: float, temperature_c: float) -
     (D20 [mm], dD20/dD_T [-], dD20/dT [mm/K], dD20/dalpha [mm K])
     """
     dT = float(temperature_c) - REFERENCE_TEMPERATURE_C
-    f = 1.0 + float(cte_per_k) * dT
+    f = thermal_expansion_factor(float(cte_per_k), float(temperature_c))
     d20 = float(diameter_mm) / f
     return d20, 1.0 / f, -float(diameter_mm) * float(cte_per_k) / f**2, -float(diameter_mm) * dT / f**2
 

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
+    "json_ready",
     "atomic_write_bytes",
     "atomic_write_text",
     "atomic_write_json",
@@ -73,8 +74,8 @@ def atomic_write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8
     return atomic_write_bytes(path, text.encode(encoding))
 
 
-def _stable(obj: Any) -> Any:
-    """Make an object JSON-ready with a stable representation.
+def json_ready(obj: Any) -> Any:
+    """Make an object JSON-ready with a stable representation (the one JSON sanitiser of borescan).
 
     Non-finite floats become ``null`` (JSON has no NaN), tuples become lists, numpy scalars and
     arrays become Python numbers and lists, paths become strings.
@@ -84,13 +85,13 @@ def _stable(obj: Any) -> Any:
     if isinstance(obj, (str, int, bool)) or obj is None:
         return obj
     if isinstance(obj, dict):
-        return {str(k): _stable(v) for k, v in obj.items()}
+        return {str(k): json_ready(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_stable(v) for v in obj]
+        return [json_ready(v) for v in obj]
     if isinstance(obj, os.PathLike):
         return os.fspath(obj)
     if hasattr(obj, "tolist"):  # numpy arrays and scalars
-        return _stable(obj.tolist())
+        return json_ready(obj.tolist())
     if hasattr(obj, "isoformat"):  # date / datetime
         return obj.isoformat()
     raise TypeError(f"cannot write {type(obj).__name__} to JSON: {obj!r}")
@@ -102,7 +103,7 @@ def dumps_json(obj: Any) -> str:
     Floats use Python's shortest round-trip repr (``repr(0.1) == '0.1'``), so equal data always
     gives equal text; NaN and infinities are written as ``null``.
     """
-    return json.dumps(_stable(obj), sort_keys=True, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+    return json.dumps(json_ready(obj), sort_keys=True, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
 
 
 def atomic_write_json(path: str | os.PathLike, obj: Any) -> Path:

@@ -41,16 +41,19 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from borescan.atomic import json_ready
+from borescan.config import schema_default
 from borescan.fit import FitResult, fit_result, jacobian_summary
 from borescan.geometry import Beams, Bore, beam_frame, tri_spindle_readings, tri_spindle_readings_channel_major
 from borescan.kinematics import AngleModel, angle_model_from_arrays, estimate_speed_scale
 from borescan.levmar import levenberg_marquardt
 from borescan.noise import noise_floor_mm
+from borescan.physics.tri import first_harmonic_start
 
 __all__ = [
     "CalibrationError",
@@ -108,24 +111,6 @@ def make_calibration_id(
                 break
     parts = [device_id] + ([date] if date else []) + [method, digest]
     return "-".join(parts)
-
-
-def _json_safe(x: Any) -> Any:
-    """Recursively convert numpy scalars/arrays to JSON-safe Python (NaN/inf -> None)."""
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json_safe(x.tolist())
-    if isinstance(x, (np.bool_, bool)):
-        return bool(x)
-    if isinstance(x, (np.integer, int)):
-        return int(x)
-    if isinstance(x, (np.floating, float)):
-        x = float(x)
-        return x if np.isfinite(x) else None
-    return x
 
 
 @dataclass
@@ -209,7 +194,7 @@ class TriCalibration:
 
     def to_dict(self) -> dict:
         """JSON-safe dict (inverse: :meth:`from_dict`)."""
-        return _json_safe(
+        return json_ready(
             {
                 "calibration_id": self.calibration_id,
                 "device_id": self.device_id,
@@ -578,30 +563,6 @@ def _readings_and_jacobian(
     return v_cn.T, jac
 
 
-def _linear_start(phi: np.ndarray, y: np.ndarray, mask: np.ndarray, beta: np.ndarray):
-    """Offset (S - C) and constant per channel from v ~ k_c - ox cos(phi + beta_c) - oy sin(phi + beta_c).
-
-    First order in the offset (spec geometry expanded about a centred spindle); returns
-    (offset (2,), k (c,), SSE).
-    """
-    n, c = y.shape
-    rows, rhs = [], []
-    for j in range(c):
-        m = mask[:, j]
-        ang = phi[m] + beta[j]
-        A = np.zeros((m.sum(), 2 + c))
-        A[:, 0] = -np.cos(ang)
-        A[:, 1] = -np.sin(ang)
-        A[:, 2 + j] = 1.0
-        rows.append(A)
-        rhs.append(y[m, j])
-    A = np.vstack(rows)
-    b = np.concatenate(rhs)
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    sse = float(np.sum((A @ sol - b) ** 2))
-    return sol[:2], sol[2:], sse
-
-
 @dataclass(frozen=True)
 class AcceptanceRule:
     """When a full-data calibration is trusted (``calibration`` section of the config).
@@ -615,12 +576,27 @@ class AcceptanceRule:
         ``center`` and ``spindle.position``, a half-width (rectangular: standard uncertainty
         a / sqrt(3), GUM 4.3.7) [mm]; they enter the fit as priors.
     speed_scale_range : speeds the search considers, as multiples of the commanded profile.
+
+    The defaults are the schema's (``calibration`` section): :meth:`from_config`, :meth:`defaults`.
     """
 
-    max_residual_to_noise: float = 1.25
-    head_radius_mm: float = 40.0
-    position_accuracy_mm: float = 0.002
-    speed_scale_range: tuple[float, float] = (0.25, 4.0)
+    max_residual_to_noise: float
+    head_radius_mm: float
+    position_accuracy_mm: float
+    speed_scale_range: tuple[float, float]
+
+    @classmethod
+    def from_config(cls, cal_cfg: Mapping[str, Any]) -> "AcceptanceRule":
+        """The rule of a config's ``calibration`` section."""
+        return cls(max_residual_to_noise=float(cal_cfg["max_residual_to_noise"]),
+                   head_radius_mm=float(cal_cfg["head_radius_mm"]),
+                   position_accuracy_mm=float(cal_cfg["position_accuracy_mm"]),
+                   speed_scale_range=(float(cal_cfg["speed_scale_min"]), float(cal_cfg["speed_scale_max"])))
+
+    @classmethod
+    def defaults(cls, **overrides: Any) -> "AcceptanceRule":
+        """The rule of the schema's defaults, with ``overrides``."""
+        return replace(cls.from_config(schema_default("calibration")), **overrides)
 
 
 def fit_full_calibration(
@@ -725,7 +701,7 @@ def fit_full_calibration(
     deficient or worse conditioned than ``cond_max``, there are fewer samples than parameters,
     or the result fails the acceptance rule.
     """
-    rule = rule or AcceptanceRule()
+    rule = rule or AcceptanceRule.defaults()
     multi = isinstance(t_s, (list, tuple))
     ts = [np.asarray(x, dtype=float) for x in (t_s if multi else [t_s])]
     ys = [np.asarray(x, dtype=float) for x in (readings_mm if multi else [readings_mm])]
@@ -787,7 +763,7 @@ def fit_full_calibration(
         else:
             g = 1.0
             phi_k = Phis[k]
-        off, kc, _ = _linear_start(phi_k, ys[k], masks[k], nominal.beta_rad)
+        off, kc, _ = first_harmonic_start(phi_k, ys[k], masks[k], nominal.beta_rad)
         ph = phases0[k] if commanded[k] else 0.0
         if priors[k] is not None:
             if free_phase[k]:
@@ -1655,7 +1631,7 @@ def full_lsq_sensitivities(
     p = col
     floors = np.array([noise_floor_mm(y, order=4) for y in ys])
     sigma = float(np.sqrt(np.mean(floors**2))) if np.all(np.isfinite(floors)) else 0.0
-    a = float(cal.diagnostics.get("acceptance", {}).get("position_accuracy_mm", AcceptanceRule().position_accuracy_mm))
+    a = float(cal.diagnostics.get("acceptance", {}).get("position_accuracy_mm", AcceptanceRule.defaults().position_accuracy_mm))
     prior_sigma = a * np.sqrt(2.0 / 3.0)
     w = (sigma if sigma > 0 else 1e-3) / prior_sigma
     guard = cal.diagnostics.get("censoring_guard")

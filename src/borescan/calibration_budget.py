@@ -21,6 +21,7 @@ import numpy as np
 
 from borescan import calibration, device_model
 from borescan.artifacts import artifact_key
+from borescan.effects import thermal_expansion_factor
 from borescan.measure import sensor_terms
 from borescan.noise import noise_floor_mm
 from borescan.uncertainty import Budget, Input, Term
@@ -164,7 +165,7 @@ def calibration_budget(cal, inputs: list[dict], uncertainty: dict, *, scan_ids, 
     gkey = f"gauge:{artifact_key(art)}"
     k_cert = float(art.get("k") or 2.0)
     u_d20 = float(art.get("u_diameter_mm") or 0.0) / k_cert
-    f = 1.0 + cte.cte_per_k * dT
+    f = thermal_expansion_factor(cte.cte_per_k, temp.temperature_c)
     dR = sens["dR"]
     b.add(Term(Input(f"{gkey}:D20", f"certified diameter of ring gauge {art.get('id')} at 20 degC", "D_g", "mm", d20, u_d20,
                      "normal", source=f"certificate {art.get('certificate')}: U = {art.get('u_diameter_mm')} mm "

@@ -53,6 +53,7 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
+from borescan.resources import shipped
 from borescan.rawio import combined_sha256, sha256_file
 from borescan.tables import TABLES, polars_schema
 
@@ -85,7 +86,7 @@ __all__ = [
 CATALOG_NAME = "catalog.duckdb"
 
 #: Saved queries shipped with the project (``workflow/queries/*.sql``), one view each.
-DEFAULT_QUERIES_DIR = Path(__file__).resolve().parents[2] / "workflow" / "queries"
+DEFAULT_QUERIES_DIR = shipped("queries")
 
 #: Column name -> DuckDB type of every catalog table, in column order (from :mod:`borescan.tables`,
 #: the one definition of the history tables). Input frames may carry more columns: they are kept

@@ -44,6 +44,7 @@ from matplotlib.figure import Figure
 
 from borescan.atomic import atomic_write_bytes, atomic_write_text
 from borescan.calibration import TriCalibration
+from borescan.config import schema_default
 from borescan.uncertainty import Budget, Combined, combine, round_uncertainty
 
 __all__ = ["CERTIFICATE_FORMAT", "certificate_dir", "certificate_night_dir", "certificate_dict", "write_certificate", "PLACEHOLDER",
@@ -398,7 +399,7 @@ def certificate_dict(
     config_hash: str,
     budget: Budget | None = None,
     laboratory: dict | None = None,
-    coverage_probability: float = 0.9545,
+    coverage_probability: float | None = None,
     dates: dict | None = None,
     verifications: list[dict] | None = None,
 ) -> dict:
@@ -410,7 +411,8 @@ def certificate_dict(
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(res**2, axis=0)) if res.size else np.array([])
     budget = _budget_of(cal, budget)
-    p = float(coverage_probability)
+    p = float(schema_default("uncertainty", "coverage_probability") if coverage_probability is None
+              else coverage_probability)
     results, budgets = _beam_results(cal, budget, p)
     shared = _shared_part(
         cal, item_name=f"three-sensor bore measuring device ({device.get('type', 'tri_lds')})",
@@ -1140,7 +1142,7 @@ def write_certificate(
     config_hash: str,
     budget: Budget | None = None,
     laboratory: dict | None = None,
-    coverage_probability: float = 0.9545,
+    coverage_probability: float | None = None,
     dates: dict | None = None,
     verifications: list[dict] | None = None,
 ) -> dict[str, Path]:
@@ -1162,7 +1164,7 @@ def write_certificate(
     software_version, config_hash : str
     budget : the calibration's GUM budget (default: ``cal.diagnostics["budget"]``)
     laboratory : the config's ``laboratory`` section (default: its schema defaults, placeholders)
-    coverage_probability : of every U
+    coverage_probability : of every U (None: the schema's uncertainty.coverage_probability)
     dates : ``begin``, ``end`` (dates of calibration), ``issue``, ``issue_rule``,
         ``recalibration_due``, ``recalibration_rule`` (ISO dates and the text saying how each was derived)
     verifications : rows of the night's verifications with this calibration
@@ -1251,12 +1253,13 @@ def _rod_fit(cal) -> dict:
 
 def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte, raw_files: dict[str, str],
                          software_version: str, config_hash: str, laboratory: dict | None = None,
-                         coverage_probability: float = 0.9545, dates: dict | None = None,
+                         coverage_probability: float | None = None, dates: dict | None = None,
                          verifications: list[dict] | None = None) -> dict:
     """``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
     the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
     the budget per layer, each layer's gauge and the solve's diagnostics."""
-    p = float(coverage_probability)
+    p = float(schema_default("uncertainty", "coverage_probability") if coverage_probability is None
+              else coverage_probability)
     results, budgets = _rod_results(cal, p)
     conditions = calibration_conditions(temperature, cte, None, None, p, [])
     gauges_text = "; ".join(f"layer {g['channel']}: ring gauge {g['id']}, certificate {g.get('certificate')}"

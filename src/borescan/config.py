@@ -1,21 +1,26 @@
 """The pipeline's configuration: ``config/config.yaml`` completed from its schema.
 
-Defaults live in one place, ``workflow/schemas/config.schema.yaml``; this module reads them
+Defaults live in one place, the schema the package ships (``workflow/schemas/config.schema.yaml`` in
+a checkout, :func:`borescan.resources.shipped`); this module reads them
 from there (as the Snakefile's ``validate`` does) so that library callers outside Snakemake
 (benchmarks, scripts run by hand) see exactly the settings a night job sees.
 """
 
 from __future__ import annotations
 
+import copy
+import functools
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-__all__ = ["SCHEMA_PATH", "schema_defaults", "load_config"]
+from borescan.resources import shipped
 
-#: the config schema of the checkout this package is installed from (editable install)
-SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
+__all__ = ["SCHEMA_PATH", "schema_defaults", "schema_default", "load_config"]
+
+#: the config schema the package ships (``workflow/schemas/config.schema.yaml`` of a checkout links to it)
+SCHEMA_PATH = shipped("config.schema.yaml")
 
 
 def _defaults(node: dict) -> Any:
@@ -32,6 +37,28 @@ def _defaults(node: dict) -> Any:
 def schema_defaults(schema_path: Path | str = SCHEMA_PATH) -> dict:
     """Every key's default from the schema, nested as the config is."""
     return _defaults(yaml.safe_load(Path(schema_path).read_text()))
+
+
+@functools.lru_cache(maxsize=4)
+def _defaults_of(schema_path: str) -> dict:
+    return schema_defaults(schema_path)
+
+
+def schema_default(*keys: str) -> Any:
+    """The schema's default of one setting, e.g. ``schema_default("uncertainty", "coverage_probability")``:
+    what a library function uses for a keyword its caller leaves unset, so that the default lives in
+    the schema only (read once per process).
+
+    Raises
+    ------
+    KeyError naming the path when the schema has no such setting.
+    """
+    node: Any = _defaults_of(str(SCHEMA_PATH))
+    for i, k in enumerate(keys):
+        if not isinstance(node, dict) or k not in node:
+            raise KeyError(f"the config schema has no default for {'.'.join(keys[: i + 1])}")
+        node = node[k]
+    return copy.deepcopy(node)
 
 
 def _merge(base: dict, over: dict) -> dict:

@@ -6,7 +6,7 @@ come from the device's pooled examinations (``pooled_findings`` rows: the effect
 device's scans, named as a finding or fitted as part of the model). A night's calibration carries
 each effect at the latest estimate from an earlier night (the pooled examination of a night comes
 after its calibration): the readings are corrected for a beam or reading effect
-(:func:`borescan.model.tri_correct_readings`), a channel delay is carried by the time the channel's
+(:func:`borescan.physics.tri.tri_correct_readings`), a channel delay is carried by the time the channel's
 angle is taken at (:func:`channel_time_offsets`), and its parameters' uncertainties enter the GUM budgets of the calibration and of every diameter
 measured with it (one input per parameter, the same key in both). An effect listed without an
 estimate yet is recorded as such and not corrected.
@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from borescan.effects import EFFECTS, Effect
-from borescan.model import CORRECTABLE_STAGES, tri_correct_readings
+from borescan.physics.tri import CORRECTABLE_STAGES, tri_correct_readings
 from borescan.uncertainty import Input
 
 __all__ = ["CORRECTABLE_STAGES", "DeviceEffect", "device_model_at", "carried_effects", "correct", "channel_time_offsets",
@@ -184,7 +184,7 @@ def carried_effects(model: Iterable[DeviceEffect]) -> list[Effect]:
 
 def correct(t_s, readings_mm, channels, model: Iterable[DeviceEffect], range_mm) -> np.ndarray:
     """Readings corrected for the device model's beam and reading effects
-    (:func:`borescan.model.tri_correct_readings`); time-base effects are carried by
+    (:func:`borescan.physics.tri.tri_correct_readings`); time-base effects are carried by
     :func:`channel_time_offsets`. Unchanged when there are none."""
     effs = [e for e in carried_effects(model) if e.spec.stage in CORRECTABLE_STAGES]
     if not effs:

@@ -28,7 +28,7 @@ Stages, in the order the digital twin (:mod:`borescan.simulate`) composes them:
 
 Within a stage, effects act in the order of the spec's table (the order of :data:`EFFECTS`)
 and effects of the same name in the order given. Effects compose freely, including several
-of the same name on different channels. :mod:`borescan.model` composes them into the one
+of the same name on different channels. :mod:`borescan.physics.tri` composes them into the one
 forward model of a spindle scan that the digital twin and the discrepancy workflow share.
 
 The registry is also the vocabulary of the fits (lmfit style: an effect adds prefixed
@@ -85,6 +85,7 @@ __all__ = [
     "Effect",
     "EFFECTS",
     "get_effect",
+    "calibration_absorbers",
     "parse_effect",
     "effects_from_dicts",
     "effects_to_dicts",
@@ -93,6 +94,8 @@ __all__ = [
     "device_model_effects",
     "apply_effects",
     "nonlinearity_bow",
+    "REFERENCE_TEMPERATURE_C",
+    "thermal_expansion_factor",
 ]
 
 STAGES: tuple[str, ...] = ("time_base", "kinematics", "spindle_position", "bore", "beam", "reading", "output")
@@ -147,6 +150,8 @@ class EffectSpec:
     scope : ``"device"``, ``"night"``, ``"artifact"`` or ``"scan"`` (module doc).
     absorbed_unless : scan kind -> {base parameter: condition that breaks the absorption} (module doc).
     orientation : the spec parameter that turns with the artifact (module doc), or None.
+    separated_by : what another scan must differ in to tell the effect from its look-alikes, as the
+        report advises it (README "When something needs attention"); "" when no such advice.
     example : sensible parameter values (spec names; channel 2 for channel effects), for tests,
         demos and docs.
     """
@@ -168,6 +173,7 @@ class EffectSpec:
     scope: str = "device"
     absorbed_unless: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
     orientation: str | None = None
+    separated_by: str = ""
 
     @property
     def per_channel(self) -> bool:
@@ -283,9 +289,29 @@ def _spindle_error_motion(S_xy_mm: np.ndarray, phi_rad: np.ndarray, p: Mapping) 
     return np.asarray(S_xy_mm, dtype=float) + p["rho_mm"] * np.stack([np.cos(arg), np.sin(arg)], axis=-1)
 
 
+#: The reference temperature of dimensional measurements (ISO 1) [degC].
+REFERENCE_TEMPERATURE_C = 20.0
+
+
+def thermal_expansion_factor(cte_per_k, temperature_c):
+    """f = 1 + cte (T - 20): a length certified at 20 degC is f times itself at T (ISO 1); the one
+    place of this formula (the ``thermal_expansion`` effect, a gauge at its temperature, a diameter
+    brought to 20 degC, the budgets' sensitivities).
+
+    Parameters
+    ----------
+    cte_per_k : linear expansion coefficient [1/K]; temperature_c : temperature [degC] (arrays broadcast).
+
+    Returns
+    -------
+    f [-]
+    """
+    return 1.0 + cte_per_k * (temperature_c - REFERENCE_TEMPERATURE_C)
+
+
 def _thermal_expansion(bore: Bore, p: Mapping, cte_per_k: float) -> Bore:
-    """R = R20 (1 + cte (T - 20))."""
-    return replace(bore, radius_mm=bore.radius_mm * (1.0 + cte_per_k * (p["temperature_c"] - 20.0)))
+    """R = R20 (1 + cte (T - 20)) (:func:`thermal_expansion_factor`)."""
+    return replace(bore, radius_mm=bore.radius_mm * thermal_expansion_factor(cte_per_k, p["temperature_c"]))
 
 
 def _axis_tilt(bore: Bore, p: Mapping, cte_per_k: float = 0.0) -> Bore:
@@ -444,11 +470,11 @@ def _axis_tilt_from_internal(x: Mapping, u: Mapping | None, k=None) -> tuple[dic
 
 def _thermal_to_internal(p: Mapping) -> dict:
     """dT = T - 20 degC."""
-    return {"dT": p["temperature_c"] - 20.0}
+    return {"dT": p["temperature_c"] - REFERENCE_TEMPERATURE_C}
 
 
 def _thermal_from_internal(x: Mapping, u: Mapping | None, k=None) -> tuple[dict, dict]:
-    return {"temperature_c": 20.0 + x["dT"]}, {"temperature_c": _u(u, "dT")}
+    return {"temperature_c": REFERENCE_TEMPERATURE_C + x["dT"]}, {"temperature_c": _u(u, "dT")}
 
 
 _RIPPLE = _phase_type("a_rad")
@@ -465,10 +491,11 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("sensor_offset", (TRI, ROD), {"channel": "channel", "b_mm": "mm"}, "reading",
                    _reading(_sensor_offset), "v' = v + b",
                    fit=(FitParam("b_mm", "mm", 1e-3),), candidate=_ALL_KINDS, common=True,
+                   separated_by="another eccentricity",
                    absorbed_by={"tri_spindle": {"d_b": "d_b_mm of the channel (every d_b when common)",
                                                 "R": "the bore radius (when common)"},
                                 "tri_static": {"d_b": "d_b_mm of the channel", "R": "the bore radius (when common)"},
-                                "rod": {"R": "the hole radius, when free"}},
+                                "rod": {"l0": "l0_mm of the layer", "R": "the hole radius, when free"}},
                    example={"channel": 2, "b_mm": 0.012}),
         EffectSpec("sensor_gain", (TRI, ROD), {"channel": "channel", "g": "-"}, "reading",
                    _reading(_sensor_gain), "v' = v (1 + g)",
@@ -477,7 +504,7 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("sensor_nonlinearity", (TRI, ROD), {"channel": "channel", "a_mm": "mm"}, "reading",
                    _reading(_sensor_nonlinearity), "v' = v + a 4u(1 - u), u = v / range_mm",
                    fit=(FitParam("a_mm", "mm", 1e-3),), candidate=_ALL_KINDS,
-                   example={"channel": 2, "a_mm": 0.01}),
+                   separated_by="another eccentricity", example={"channel": 2, "a_mm": 0.01}),
         EffectSpec("sensor_drift", (TRI, ROD), {"channel": "channel", "k_mm_per_s": "mm/s"}, "reading",
                    _reading(_sensor_drift), "v' = v + k t",
                    fit=(FitParam("k_mm_per_s", "mm/s", 1e-5),), candidate=_ALL_KINDS,
@@ -487,7 +514,7 @@ EFFECTS: dict[str, EffectSpec] = {
                    fit=(FitParam("tau_s", "s", 1e-4),), candidate={"tri_spindle": "screen"},
                    absorbed_by={"tri_spindle": {"beta": "beta_rad of the channel (at constant speed)"}},
                    absorbed_unless={"tri_spindle": {"beta": "speeds_differ"}},
-                   example={"channel": 2, "tau_s": 0.0012}),
+                   separated_by="another spindle speed", example={"channel": 2, "tau_s": 0.0012}),
         EffectSpec("quantization", (TRI, ROD), {"channel": "channel", "lsb_mm": "mm"}, "output",
                    _reading(_quantization), "v' = lsb round(v / lsb)", candidate=_EVIDENCE,
                    example={"channel": 2, "lsb_mm": 0.002}),
@@ -503,7 +530,7 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("speed_error", (TRI,), {"eps": "-"}, "kinematics",
                    {TRI: _speed_error}, "the spindle turns at (1 + eps) times the commanded profile",
                    fit=(FitParam("eps", "-", 1e-4),), candidate={"tri_spindle": "screen"},
-                   needs=("commanded_angle",), scope="scan",
+                   needs=("commanded_angle",), scope="scan", separated_by="another spindle speed",
                    example={"eps": 0.002}),
         EffectSpec("speed_ripple", (TRI,), {"a_rad": "rad", "phase": "rad"}, "kinematics",
                    {TRI: _speed_ripple}, "phi(t) = omega t + a sin(omega t + phase)",
@@ -541,15 +568,24 @@ EFFECTS: dict[str, EffectSpec] = {
                    {TRI: _beam_tilt_tri, ROD: _beam_tilt_rod}, "reading = in-plane distance / cos(gamma)",
                    fit=(FitParam("h", "-", 1e-4, 0.0),), to_internal=_beam_tilt_to_internal,
                    from_internal=_beam_tilt_from_internal, candidate=_ALL_KINDS,
+                   absorbed_by={"rod": {"l0": "l0_mm of the layer (to first order)"}},
                    example={"channel": 2, "gamma_rad": 0.06}),
         EffectSpec("beam_offset", (ROD,), {"channel": "channel", "d_mm": "mm"}, "beam",
                    {ROD: _beam_offset_rod}, "rod: layer c's beam misses the axis by d (Wang 2017 Eq. 5)",
                    fit=(FitParam("d_mm", "mm", 1e-2),), candidate={"rod": "start"},
-                   absorbed_by={"rod": {"R": "the hole radius, when free"}},
+                   absorbed_by={"rod": {"l0": "l0_mm of the layer (acts as a constant -d^2 / (2 r))",
+                                        "R": "the hole radius, when free"}},
                    example={"channel": 2, "d_mm": 0.3}),
     ]
 }
-_ORDER = {name: i for i, name in enumerate(EFFECTS)}
+
+
+def calibration_absorbers(scan_kind: str) -> dict[str, str]:
+    """Effect -> the calibration parameters that absorb it in scans of ``scan_kind``, as a finding
+    reports them (the registry's ``absorbed_by`` less the bore radius ``"R"``, a measurand), for the
+    effects some calibration parameter absorbs; read from the registry as it is now."""
+    return {name: "; ".join(text for par, text in spec.absorbers(scan_kind).items() if par != "R")
+            for name, spec in EFFECTS.items() if any(par != "R" for par in spec.absorbers(scan_kind))}
 
 
 def get_effect(name: str) -> EffectSpec:
@@ -600,7 +636,8 @@ def sort_effects(
             raise ValueError(
                 f"effect {e.name!r} names channel {e.channel}, device has channels {tuple(channels)}"
             )
-    for e in sorted(effects, key=lambda e: _ORDER[e.name]):  # stable: same name keeps given order
+    order = {name: i for i, name in enumerate(EFFECTS)}  # the registry as it is now (an entry added later counts)
+    for e in sorted(effects, key=lambda e: order[e.name]):  # stable: same name keeps given order
         out[e.spec.stage].append(e)
     return out
 

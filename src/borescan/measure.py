@@ -38,6 +38,8 @@ import numpy as np
 
 from . import device_model
 from .artifacts import ArtifactCte, ScanTemperature, artifact_key, diameter_at_20, number_or_none
+from .atomic import json_ready
+from .effects import thermal_expansion_factor
 from .circlefit import Circle, fit_circle_ls, harmonic_spectrum, reference_circles
 from .geometry import Beams, beam_frame, circumcircle, wall_points_device
 from .uncertainty import Budget, Combined, Input, Term
@@ -615,17 +617,8 @@ class DiameterUncertainty:
             "coverage_method": c20.method,
             "thermal_correction_mm": self.thermal_correction_mm,
             "u_thermal_correction_mm": self.u_thermal_correction_mm,
-            "budget_json": json.dumps(_json_rows(self.rows_20), sort_keys=True),
+            "budget_json": json.dumps(json_ready(self.rows_20), sort_keys=True),
         }
-
-
-def _json_rows(rows: list[dict]) -> list[dict]:
-    def fix(v):
-        if isinstance(v, float) and not np.isfinite(v):
-            return None
-        return v
-
-    return [{k: fix(v) for k, v in r.items()} for r in rows]
 
 
 def _unit_polar(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1012,7 +1005,7 @@ def verify(measured_mm, u_measured_mm, certified_diameter_mm, u_cert_mm, cte_per
     -------
     Verification; en = error / (2 u_error) (E_n number, k = 2).
     """
-    f = 1.0 + float(cte_per_k) * (float(temperature_c) - 20.0)
+    f = thermal_expansion_factor(float(cte_per_k), float(temperature_c))
     D_T = float(certified_diameter_mm) * f
     m20 = float(measured_mm) / f
     err = m20 - float(certified_diameter_mm)
@@ -1103,13 +1096,13 @@ def verify_budget(d: DiameterUncertainty, artifact: dict, tolerance_mm: float, p
     comb = b.combined(0, p)
     err = d.diameter_20_mm - cert
     passed, A, text = decide(err, comb.U, tolerance_mm, decision_rule, guard_band_factor)
-    f = 1.0 + d.cte.cte_per_k * (d.temperature.temperature_c - 20.0)
+    f = thermal_expansion_factor(d.cte.cte_per_k, d.temperature.temperature_c)
     return Verification(
         measured_mm=d.diameter_20_mm, u_measured_mm=d.combined_20.u, certified_mm=cert, expected_at_t_mm=cert * f,
         error_mm=err, u_error_mm=comb.u, tolerance_mm=float(tolerance_mm), passed=passed,
         en=err / comb.U if comb.U > 0 else float("inf") * np.sign(err), measured_at_t_mm=d.diameter_mm,
         temperature_c=d.temperature.temperature_c, U_error_mm=comb.U, k=comb.k, acceptance_limit_mm=A,
-        decision_rule=decision_rule, conformity=text, budget_rows=tuple(_json_rows(b.rows(0))))
+        decision_rule=decision_rule, conformity=text, budget_rows=tuple(json_ready(b.rows(0))))
 
 
 def diameter_row(scan_id, device_id, artifact_id, feature, diameter_mm, u_diameter_mm, calibration_id, method,

@@ -27,12 +27,11 @@ import numpy as np
 
 from borescan import rawio
 from borescan.config import schema_defaults
+from borescan.noise import mad_sigma
 from borescan.signal import remove_spikes
 
 __all__ = ["CleaningPolicy", "cleaning_policy", "static_spikes", "clean_matrix", "prepared_matrix"]
 
-#: 1 / Phi^-1(3/4): MAD -> standard deviation of a normal sample
-MAD_TO_SD = 1.482602218505602
 #: fewest readings of a channel in a pose for its readings to be tested
 MIN_POSE_READINGS = 3
 
@@ -75,7 +74,7 @@ def static_spikes(values_mm: np.ndarray, pose: np.ndarray, threshold_mad: float)
         tested = np.isfinite(r)
         if not tested.any():
             continue
-        scale = MAD_TO_SD * float(np.median(np.abs(r[tested])))
+        scale = mad_sigma(r[tested], center=0.0)
         if scale > 0:
             spikes[tested, j] = np.abs(r[tested]) > threshold_mad * scale
     return spikes

@@ -1515,18 +1515,11 @@ def _unit_of(name: str) -> str:
     return "-"
 
 
-#: How a scan separates candidates that one scan cannot (README "When something needs attention").
-_SEPARATES = {
-    "channel_delay": "another spindle speed", "speed_error": "another spindle speed",
-    "sensor_nonlinearity": "another eccentricity", "sensor_offset": "another eccentricity",
-}
-
-
 def _verdict_note(verdict: str, effects: list[str]) -> str:
     """What a verdict means for the person reading it (HTML)."""
     if verdict == "ambiguous":
         names = ", ".join(dict.fromkeys(effects))
-        hints = sorted({_SEPARATES[e] for e in effects if e in _SEPARATES})
+        hints = sorted({EFFECTS[e].separated_by for e in effects if e in EFFECTS and EFFECTS[e].separated_by})
         how = (" A scan at " + " or ".join(hints) + " separates them." if hints
                else " A scan that differs in what separates them does.")
         return _e(f"Ambiguous between {names}: they explain this scan's data equally well (outputs.md lists every "

@@ -70,6 +70,7 @@ from scipy.optimize import least_squares
 
 from borescan.fit import FitResult, fit_result, jacobian_summary
 from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
+from borescan.physics.rod import rod_section_geometry
 
 __all__ = [
     "RodSolveError", "RodSolution", "rod_residuals", "rod_jacobian", "rod_start", "solve_rod", "solve_rod_pso", "rod_crb",
@@ -221,12 +222,8 @@ def rod_start(L: np.ndarray, mask: np.ndarray, fix: int = 0) -> tuple[np.ndarray
     if alpha is None:
         alpha = np.linspace(0, 2 * np.pi, n, endpoint=False)
     alpha = np.mod(alpha - alpha[fix] + np.pi, 2 * np.pi) - np.pi
-    r, x, y = np.empty(m), np.empty(m), np.empty(m)
-    A = np.column_stack([np.ones(n), -np.cos(alpha), -np.sin(alpha)])
-    for j in range(m):
-        ok = mask[:, j]
-        (r[j], x[j], y[j]), *_ = np.linalg.lstsq(A[ok], L[ok, j], rcond=None)
-    return np.concatenate([r, x, y, np.delete(alpha, fix)]), S
+    r, p = _first_harmonic(L, mask, [alpha] * m)
+    return np.concatenate([r, p[:, 0], p[:, 1], np.delete(alpha, fix)]), S
 
 
 def _prepare(readings_mm, l0_mm, n_extra: int = 0):
@@ -289,32 +286,6 @@ def rod_layers(l0_mm=None, layers: Sequence[RodLayer] | None = None, m: int | No
         l0 = np.broadcast_to(np.asarray(l0_mm, dtype=float), (len(out),))
         out = tuple(replace(lay, l0_mm=float(x)) for lay, x in zip(out, l0))
     return out
-
-
-def rod_section_geometry(layers: Sequence[RodLayer], center_xy_mm, radius_mm, deflection_xy_rad) -> tuple[list[Hole], RodAxis]:
-    """Holes and rod axis of :func:`borescan.geometry.rod_readings` from the solver's unknowns.
-
-    Gauge: the rod axis passes through the part origin at z = 0 (dx = dy = 0); the deflection
-    vector w = omega (cos omega_az, sin omega_az) [rad]. ``center_xy_mm`` (m, 2) is hole m's
-    centre relative to the point where the tilted axis crosses the height of layer m's spot,
-    z_m = h_m + r_m tan(gamma_m): the shift z_m sin(omega) (cos omega_az, sin omega_az) (first
-    order in omega, not identifiable beside a free centre) is moved out of the unknowns, so that
-    the readings depend on w only through the section's ellipse (second order).
-
-    Returns
-    -------
-    holes : list of Hole (m); axis : RodAxis
-    """
-    c = np.asarray(center_xy_mm, dtype=float).reshape(-1, 2)
-    r = np.asarray(radius_mm, dtype=float).reshape(-1)
-    w = np.asarray(deflection_xy_rad, dtype=float)
-    om = float(np.hypot(w[0], w[1]))
-    az = float(np.arctan2(w[1], w[0])) if om > 0 else 0.0
-    h = np.array([lay.h_mm for lay in layers])
-    g = np.array([lay.gamma_rad for lay in layers])
-    z = h + r * np.tan(g)
-    ctr = c + (z * np.sinc(om / np.pi))[:, None] * w[None, :]
-    return [Hole((float(x), float(y)), float(rr)) for (x, y), rr in zip(ctr, r)], RodAxis(0.0, 0.0, om, az)
 
 
 class _RodProblem:
@@ -401,17 +372,22 @@ def _w_of_beta(b, w_ref):
     return np.array([z.real, z.imag])
 
 
-def _linear_start(L, mask, alpha, layers):
-    """Per layer, l = r - p . u(alpha + phi) by linear least squares; centre = -p (Eq. 16 to first order)."""
+def _first_harmonic(L, mask, angles):
+    """Per layer j, l = r_j - p_j . u(a_j) by linear least squares (Eq. 16 to first order in the
+    eccentricity), a_j = ``angles[j]`` (n,): the one linear start of the rod. Returns r (m,), p (m, 2)."""
     n, m = L.shape
-    r, c = np.empty(m), np.empty((m, 2))
-    for j, lay in enumerate(layers):
-        a = alpha + lay.phi_rad
-        A = np.column_stack([np.ones(n), -np.cos(a), -np.sin(a)])
+    r, p = np.empty(m), np.empty((m, 2))
+    for j in range(m):
+        A = np.column_stack([np.ones(n), -np.cos(angles[j]), -np.sin(angles[j])])
         ok = mask[:, j]
-        (r[j], px, py), *_ = np.linalg.lstsq(A[ok], L[ok, j], rcond=None)
-        c[j] = -px, -py
-    return r, c
+        (r[j], p[j, 0], p[j, 1]), *_ = np.linalg.lstsq(A[ok], L[ok, j], rcond=None)
+    return r, p
+
+
+def _linear_start(L, mask, alpha, layers):
+    """Per layer, l = r - p . u(alpha + phi) (:func:`_first_harmonic`); centre = -p."""
+    r, p = _first_harmonic(L, mask, [alpha + lay.phi_rad for lay in layers])
+    return r, -p
 
 
 def _lm(prob, p0, n_par):

@@ -33,7 +33,9 @@ from typing import Any
 import numpy as np
 
 from .artifacts import artifact_key
-from .calibration import _json_safe, make_calibration_id
+from .effects import thermal_expansion_factor
+from .atomic import json_ready
+from .calibration import make_calibration_id
 from .calibrations import rod_layers
 from .geometry import RodLayer
 from .rod import RodSolution, solve_rod
@@ -177,7 +179,7 @@ def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list
                      source="rod.solve_rod covariance; u(x_i): standard uncertainty of one mean reading"),
                cov=np.diag(u_r**2), note="l0 = l0 + R(T) - r: sensitivity -1 on each layer's radius"))
     dT = temperature.temperature_c - 20.0
-    f = 1.0 + cte.cte_per_k * dT
+    f = thermal_expansion_factor(cte.cte_per_k, temperature.temperature_c)
     by_gauge: dict[str, list[int]] = {}
     for j, g in enumerate(gauges):
         by_gauge.setdefault(f"gauge:{artifact_key(g)}:D20", []).append(j)
@@ -234,8 +236,8 @@ def rod_calibration_rows(cal: RodCalibration, night: str, certificate_path: str 
 def _to_dict(cal: RodCalibration) -> dict[str, Any]:
     return {"calibration_id": cal.calibration_id, "device_id": cal.device_id, "scan_ids": list(cal.scan_ids),
             "method": cal.method, "l0_nominal_mm": [float(x) for x in cal.l0_nominal_mm],
-            "u_l0_mm": [float(x) for x in cal.u_l0_mm], "budget": _json_safe(cal.budget.to_dict()),
-            "gauges": [_json_safe(g) for g in cal.gauges], "iterations": cal.iterations,
+            "u_l0_mm": [float(x) for x in cal.u_l0_mm], "budget": json_ready(cal.budget.to_dict()),
+            "gauges": [json_ready(g) for g in cal.gauges], "iterations": cal.iterations,
             "residual_rms_mm": float(cal.residual_rms_mm)}
 
 

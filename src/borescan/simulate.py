@@ -1,10 +1,11 @@
 """Digital twin: forward models with the named effects and scan generators (``borescan-raw/1``).
 
-Forward models: :func:`tri_readings` is :func:`borescan.model.tri_forward` (the one forward
+Forward models: :func:`tri_readings` is :func:`borescan.physics.tri.tri_forward` (the one forward
 model of a spindle scan, shared with the discrepancy workflow; composition order in its
 module doc) on the scene's true geometry; the generators add noise, then ``quantization``,
-``outliers``, and null the readings outside [0, range_mm]. Fitting code calls the same
-:func:`borescan.model.tri_forward` and :func:`rod_readings_with_effects` inside least squares.
+``outliers``, and null the readings outside [0, range_mm]. Static sets and rod scans are
+:class:`borescan.physics.tri.TriDevice` and :func:`borescan.physics.rod.rod_forward`. Every fit
+calls the same device models inside least squares.
 
 What the simulated machine reports (``spindle.parquet``): ``angle_rad`` is the true device
 angle phi(t) (the spec: the device frame is the machine frame at encoder angle 0; it shows
@@ -28,7 +29,7 @@ import numpy as np
 import polars as pl
 
 from borescan import __version__, rawio
-from borescan import model
+from borescan.atomic import json_ready
 from borescan.effects import Effect, apply_effects, effects_to_dicts, sort_effects
 from borescan.kinematics import RPM_TO_RAD_S, profile_angle_rad
 from borescan.geometry import (
@@ -37,10 +38,9 @@ from borescan.geometry import (
     Hole,
     RodAxis,
     RodLayer,
-    rod_readings,
-    tri_spindle_readings,
 )
-from borescan.model import TriBase, bore_with_effects, tri_forward
+from borescan.physics.rod import RodBase, rod_forward, rod_holes_with_effects
+from borescan.physics.tri import TriBase, TriDevice, TriStaticState, bore_with_effects, device_angle, tri_forward
 
 __all__ = [
     "YANG_RING_GAUGE_DIAMETER_MM",
@@ -57,6 +57,7 @@ __all__ = [
     "tri_phi",
     "tri_readings",
     "tri_static_readings_with_effects",
+    "rod_base",
     "rod_readings_with_effects",
     "default_tri_scene",
     "default_rod_scene",
@@ -263,7 +264,7 @@ def _as_effects(effects: Iterable[Effect | dict] | None) -> list[Effect]:
 
 
 def tri_base(scene: TriScene) -> TriBase:
-    """The scene's true base geometry for :mod:`borescan.model` (effect-free bore C, R20;
+    """The scene's true base geometry for :mod:`borescan.physics.tri` (effect-free bore C, R20;
     turned angle the commanded profile; phase and direction of the scene)."""
     return TriBase(
         beams=scene.beams,
@@ -278,7 +279,7 @@ def tri_base(scene: TriScene) -> TriBase:
 
 
 def tri_phi(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
-    """Device angle phi(t) with the kinematic effects (:func:`borescan.model.device_angle`).
+    """Device angle phi(t) with the kinematic effects (:func:`borescan.physics.tri.device_angle`).
 
     phi = phase + sgn x, x = Phi(t) the commanded angle (``scene.commanded_angle_rad``: omega t,
     or the integral of the rpm profile), then x <- x (1 + eps) (``speed_error``) and
@@ -293,11 +294,11 @@ def tri_phi(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) ->
     ndarray (...) [rad]
     """
     st = sort_effects(_as_effects(effects), "tri_lds", scene.beams.channels)
-    return model.device_angle(tri_base(scene), np.asarray(t_s, dtype=float), st["kinematics"])
+    return device_angle(tri_base(scene), np.asarray(t_s, dtype=float), st["kinematics"])
 
 
 def tri_readings(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
-    """Noise-free readings of a spindle scan with effects: :func:`borescan.model.tri_forward`
+    """Noise-free readings of a spindle scan with effects: :func:`borescan.physics.tri.tri_forward`
     on the scene's true geometry (:func:`tri_base`).
 
     v = s - d_b, s > 0 the root of |S(phi) + Rot(phi)(F + s u) - C| = r_wall, phi = phi(t_c),
@@ -325,39 +326,38 @@ def tri_static_readings_with_effects(
     t_s: np.ndarray,
     effects: Iterable[Effect] = (),
 ) -> np.ndarray:
-    """Noise-free readings of a static device at poses (xy (n, 2), angle (n,)) with effects.
+    """Noise-free readings of a static device at poses (xy (n, 2), angle (n,)) with effects:
+    :meth:`borescan.physics.tri.TriDevice.predict` on the scene's beams and bore, one pose a reading.
 
-    Same composition as :func:`tri_readings` with phi and S given per sample; kinematic and
-    spindle effects do not apply (``ValueError``); ``channel_delay`` shifts the time that
-    drift and vibration see.
+    Kinematic and spindle effects do not apply (``ValueError``); ``channel_delay`` shifts the time
+    that drift and vibration see.
 
     Returns
     -------
     ndarray (n, c) [mm]
     """
-    effects = _as_effects(effects)
-    channels = scene.beams.channels
-    st = sort_effects(effects, "tri_lds", channels)
-    if st["kinematics"] or st["spindle_position"]:
-        bad = [e.name for e in st["kinematics"] + st["spindle_position"]]
-        raise ValueError(f"effects {bad} do not apply to a static tri_lds measurement")
-    tc = model.channel_times(t_s, channels, st["time_base"])
-    bore = bore_with_effects(scene.bore(), st["bore"], scene.cte_per_k)
-    phi = np.asarray(device_angle_rad, dtype=float)
-    xy = np.asarray(device_xy_mm, dtype=float)
-    v = tri_spindle_readings(phi[:, None], xy[:, None, :], scene.beams, bore)
-    return model.tri_reading_stage(v, tc, st, channels, scene.range_mm)
+    xy = np.atleast_2d(np.asarray(device_xy_mm, dtype=float))
+    state = TriStaticState(xy, np.asarray(device_angle_rad, dtype=float), scene.bore())
+    device = TriDevice(scene.beams, float(scene.cte_per_k), tuple(scene.range_mm))
+    return device.predict(state, np.arange(xy.shape[0]), t_s, _as_effects(effects))
+
+
+def rod_base(scene: RodScene) -> RodBase:
+    """The scene's true base geometry for :mod:`borescan.physics.rod` (layers, effect-free holes, axis)."""
+    return RodBase(tuple(scene.layers), tuple(scene.holes), scene.axis, float(scene.cte_per_k),
+                   tuple(scene.range_mm))
 
 
 def rod_readings_with_effects(
     scene: RodScene, alpha_rad: np.ndarray, effects: Iterable[Effect] = (), t_s: np.ndarray | None = None
 ) -> np.ndarray:
-    """Noise-free rod readings with effects.
+    """Noise-free rod readings with effects: :func:`borescan.physics.rod.rod_forward` on the scene's
+    true geometry (:func:`rod_base`).
 
     Beam effects change the layer (``beam_offset``: d += d_mm, Wang 2017 Eq. 5; ``beam_tilt``:
-    gamma += gamma_rad, Eq. 6), ``thermal_expansion`` scales every hole radius by
-    1 + cte (T - 20), then the exact ray-cylinder readings (:func:`borescan.geometry.rod_readings`;
-    Wang Eq. 16 when gamma = d = omega = 0) and the reading effects at times ``t_s``.
+    gamma += gamma_rad, Eq. 6), bore effects the holes (``thermal_expansion``), then the exact
+    ray-cylinder readings (:func:`borescan.geometry.rod_readings`; Wang Eq. 16 when
+    gamma = d = omega = 0) and the reading effects at times ``t_s``.
 
     Parameters
     ----------
@@ -368,27 +368,7 @@ def rod_readings_with_effects(
     -------
     ndarray (n, m) [mm]
     """
-    effects = _as_effects(effects)
-    channels = scene.channels
-    st = sort_effects(effects, "rod", channels)
-    layers = list(scene.layers)
-    for e in st["beam"]:
-        j = channels.index(e.channel)
-        layers[j] = e.spec.forward["rod"](layers[j], e.params)
-    holes = list(scene.holes)
-    for e in st["bore"]:
-        f = e.spec.forward["rod"]
-        holes = [
-            Hole(h.center_xy_mm, f(Bore(h.center_xy_mm, h.radius_mm), e.params, scene.cte_per_k).radius_mm)
-            for h in holes
-        ]
-    alpha = np.atleast_1d(np.asarray(alpha_rad, dtype=float))
-    v = rod_readings(alpha, layers, holes, scene.axis)
-    if st["reading"]:
-        t = np.zeros(alpha.shape) if t_s is None else np.asarray(t_s, dtype=float)
-        v = apply_effects(v, t, channels, st["reading"], device_type="rod", range_mm=scene.range_mm,
-                          stages=("reading",))
-    return v
+    return rod_forward(rod_base(scene), alpha_rad, t_s, _as_effects(effects))
 
 
 # --------------------------------------------------------------------------- default scenes
@@ -754,9 +734,8 @@ def simulate_rod(
         _sensors_meta(device_id, channels, scene.range_mm, "OD2-P30W04", 0.0025, 0.020),
         artifact, _temperature(scene.temperature_c, effects), seed, extra,
     )
-    radii = [h.radius_mm for h in scene.holes]
-    for e in sort_effects(effects, "rod", channels)["bore"]:
-        radii = [r * (1.0 + scene.cte_per_k * (e.params["temperature_c"] - 20.0)) for r in radii]
+    radii = [h.radius_mm for h in rod_holes_with_effects(scene.holes, sort_effects(effects, "rod", channels)["bore"],
+                                                         scene.cte_per_k)]
     truth = _truth(meta, scene.to_dict(), effects, noise_mm, seed, n_samples=len(sample),
                    extra={"alpha_rad": alpha.tolist(),
                           "diameters_mm": {f: 2 * r for f, r in zip(features, radii)}})
@@ -783,14 +762,6 @@ def _truth(meta: dict, scene: dict, effects: list[Effect], noise_mm: float, seed
 # --------------------------------------------------------------------------- writing
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o)}")
-
-
 def write_simulated(sim: SimulatedScan, raw_root: Path | str, truth_root: Path | str) -> Path:
     """Write the scan in ``borescan-raw/1`` under ``raw_root`` and its truth outside it.
 
@@ -805,7 +776,7 @@ def write_simulated(sim: SimulatedScan, raw_root: Path | str, truth_root: Path |
     path = rawio.write_scan(raw_root, sim.meta, sim.lds, sim.spindle)
     truth_root.mkdir(parents=True, exist_ok=True)
     tmp = truth_root / f".{sim.scan_id}.truth.json.tmp"
-    tmp.write_text(json.dumps(sim.truth, indent=2, sort_keys=True, default=_json_default) + "\n")
+    tmp.write_text(json.dumps(json_ready(sim.truth), indent=2, sort_keys=True) + "\n")
     os.replace(tmp, truth_root / f"{sim.scan_id}.truth.json")
     return Path(path)
 

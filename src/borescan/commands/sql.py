@@ -16,6 +16,7 @@ import math
 import sys
 from decimal import Decimal
 
+from borescan.atomic import json_ready
 from borescan.commands._common import CommandFailed, UsageError, int_at_least, nonnegative_int, utc_text
 
 NAME = "sql"
@@ -61,8 +62,8 @@ def _text(v: object) -> str:
 
 
 def _jsonable(v: object) -> object:
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
+    """A query result's value for JSON: times as the CLI prints them, decimals as floats, the rest through
+    :func:`borescan.atomic.json_ready` (non-finite floats null), anything else as text."""
     if isinstance(v, _dt.datetime):
         return utc_text(v)
     if isinstance(v, (_dt.date, _dt.time)):
@@ -73,9 +74,10 @@ def _jsonable(v: object) -> object:
         return [_jsonable(x) for x in v]
     if isinstance(v, dict):
         return {str(k): _jsonable(x) for k, x in v.items()}
-    if v is None or isinstance(v, (str, int, bool)):
-        return v
-    return str(v)
+    try:
+        return json_ready(v)
+    except TypeError:
+        return str(v)
 
 
 def _is_number(v: object) -> bool:

@@ -7,7 +7,7 @@ eccentricities or in other gauges, can. This module examines K scans together wi
 single-scan workflow's own search (:func:`borescan.discrepancy.examine.examine_model`: base fit,
 outliers, quantisation, linear screen, exact refits, pairs, BIC with the same threshold), on a
 model composed of K single-scan models (:class:`~borescan.discrepancy.tri.TriModel`, so the one
-forward model :func:`borescan.model.tri_forward` of the twin), lmfit style:
+forward model :func:`borescan.physics.tri.tri_forward` of the twin), lmfit style:
 
 - device parameters, shared by every scan and unprefixed: the beam geometry as offsets from a
   start (a calibration) in the calibration's straightened form (the quantities the data fix best,
@@ -67,7 +67,6 @@ import numpy as np
 from borescan.discrepancy.examine import Examination, _clean, _lstsq, _named_entry, examine_model, scan_arrays
 from borescan.discrepancy.fitting import FitResult, dead_zone, fit_least_squares, noise_floor_mm, spike_mask
 from borescan.discrepancy.tri import (
-    ABSORBED_BY,
     SCAN_KIND,
     Term,
     TriData,
@@ -79,7 +78,7 @@ from borescan.discrepancy.tri import (
     term_values,
     tri_data_from_arrays,
 )
-from borescan.effects import EFFECTS, SCOPES, Effect, device_effect_key
+from borescan.effects import EFFECTS, SCOPES, Effect, calibration_absorbers, device_effect_key
 from borescan.geometry import Beams
 
 __all__ = ["PooledScan", "PooledTerm", "PooledData", "PooledModel", "PooledExamination", "CONDITIONS",
@@ -253,7 +252,12 @@ class PooledModel:
 
     device_type = "tri_lds"
     angle_label = "device angle [deg]"
-    absorbed_by = ABSORBED_BY
+    scan_kind = SCAN_KIND
+
+    @property
+    def absorbed_by(self) -> dict[str, str]:
+        """Effect -> the calibration parameters that absorb it (the registry's)."""
+        return calibration_absorbers(self.scan_kind)
 
     def __init__(self, scans: Sequence[PooledScan], beams: Beams | None = None,
                  free_beams: tuple[str, ...] = ("beta", "rho", "d_b"), label: str | None = None,
@@ -547,7 +551,7 @@ class PooledModel:
         """None: a vibration line belongs to one run (scope ``scan``) and is named per scan."""
         return None
 
-    def candidate_terms(self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[PooledTerm]:
+    def candidate_terms(self, *, k_max: int | None = None, vibration_f_hz: float | None = None) -> list[PooledTerm]:
         """The registry's candidates for every group of scans their scope defines, less those the
         pooled base absorbs (recorded in :attr:`absorbed`). ``speed_error`` is the base's per-scan
         speed scale; ``vibration`` is left to the single-scan examination."""

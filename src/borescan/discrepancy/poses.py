@@ -6,8 +6,8 @@ and the base model has per-pose nuisance parameters.
 
 Rod (Wang 2017, spec "Measuring rod"): layer m at pose angle alpha_p sees hole m, a cylinder
 of nominal radius r_m (feature ``nominal_diameter_mm``); the readings are the shared exact
-forward model :func:`borescan.geometry.rod_readings` with the rod solve's unknowns
-(:func:`borescan.rod.rod_section_geometry`): centre c_m relative to the axis at the spot height
+forward model :class:`borescan.physics.rod.RodDevice` (the twin's) with the rod solve's unknowns
+(:func:`borescan.physics.rod.rod_section_geometry`): centre c_m relative to the axis at the spot height
 and the axis deflection w = omega (cos omega_az, sin omega_az) (a hand-held rod is never
 aligned: base geometry, not an effect). Base: nominal layers (l0, phi, d, gamma) fixed; free the
 pose angles (alpha_0 = 0: a common rotation is the centres' business), the centres (2 per
@@ -32,16 +32,13 @@ import math
 
 import numpy as np
 
-from borescan.discrepancy.fitting import dead_zone, robust_sigma
-from borescan.discrepancy.tri import (
-    Term,
-    apply_reading_terms,
-    fast_readings,
-    registry_terms,
-    term_parameters,
-)
-from borescan.geometry import Beams, Bore, RodLayer, rod_readings
-from borescan.rod import rod_section_geometry
+from borescan.discrepancy.fitting import dead_zone
+from borescan.noise import noise_floor_mm
+from borescan.discrepancy.tri import Term, registry_terms, term_effects, term_parameters
+from borescan.effects import calibration_absorbers
+from borescan.geometry import Beams, Bore, RodLayer
+from borescan.physics.rod import RodDevice, RodState
+from borescan.physics.tri import TriDevice, TriStaticState
 
 __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
 
@@ -94,17 +91,9 @@ class _PoseModel:
         return self.data.values_mm - self.predict(p, terms)
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
-        """1.4826 MAD of sample-to-sample differences within poses / sqrt(2), per channel."""
-        same = self.data.pose_index[1:] == self.data.pose_index[:-1]
-        out = np.zeros(r.shape[1])
-        for j in range(r.shape[1]):
-            d = (r[1:, j] - r[:-1, j])[same]
-            s = robust_sigma(d)
-            if s == 0.0:
-                d = d[np.isfinite(d)]
-                s = float(np.std(d)) if d.size > 2 else 0.0
-            out[j] = s / math.sqrt(2.0)
-        return out
+        """The white-noise floor of sample-to-sample differences within poses, per channel
+        (:func:`borescan.noise.noise_floor_mm`, first differences)."""
+        return noise_floor_mm(r, order=1, keep=self.data.pose_index[1:] == self.data.pose_index[:-1])
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
         """Readings further than ``k_sigma`` noise levels from their pose median."""
@@ -148,6 +137,11 @@ class _PoseModel:
     def vibration_f(self, r):
         return None
 
+    @property
+    def absorbed_by(self) -> dict[str, str]:
+        """Effect -> the calibration parameters that absorb it (the registry's, for :attr:`scan_kind`)."""
+        return calibration_absorbers(self.scan_kind)
+
     def base_scales(self):
         return [self._scale(n) for n in self.base_names()]
 
@@ -168,11 +162,7 @@ class RodModel(_PoseModel):
 
     device_type = "rod"
     base_description = "device.nominal layers (l0, phi, d, gamma), feature nominal radii"
-    absorbed_by = {
-        "sensor_offset": "l0_mm of the layer",
-        "beam_offset": "l0_mm of the layer (acts as a constant -d^2 / (2 r))",
-        "beam_tilt": "l0_mm of the layer (to first order)",
-    }
+    scan_kind = "rod"
 
     def __init__(self, data: PoseData):
         super().__init__(data)
@@ -201,6 +191,8 @@ class RodModel(_PoseModel):
         #: layers whose hole radius is a free base parameter (no certified diameter: it is the measurand)
         self.radius_free = np.array(free)
         self.n_pose = len(data.poses)
+        #: the rod's model (:mod:`borescan.physics.rod`), the digital twin's
+        self.device = RodDevice(tuple(self.layers()), data.cte_per_k or 0.0, tuple(data.range_mm))
 
     def base_names(self):
         m = len(self.data.channels)
@@ -215,11 +207,10 @@ class RodModel(_PoseModel):
     def _scale(self, n):
         return 1e-3 if n.startswith(("alpha", "dr", "w")) else 1e-2
 
-    def layers(self, d_mm=None) -> list[RodLayer]:
-        """Nominal layer geometry (h, l0, phi, d, gamma) of the channels, ``d_mm`` overriding d."""
-        d_mm = self.d if d_mm is None else d_mm
+    def layers(self) -> list[RodLayer]:
+        """Nominal layer geometry (h, l0, phi, d, gamma) of the channels."""
         return [RodLayer(int(c), float(h), float(l0), float(ph), float(dd), float(g))
-                for c, h, l0, ph, dd, g in zip(self.data.channels, self.h, self.l0, self.phi, d_mm, self.gamma)]
+                for c, h, l0, ph, dd, g in zip(self.data.channels, self.h, self.l0, self.phi, self.d, self.gamma)]
 
     def base_start(self):
         """Pose means solved by ``rod.solve_rod`` (deflection free, maximum likelihood); on refusal
@@ -265,37 +256,29 @@ class RodModel(_PoseModel):
                 "deflection_az_rad": float(np.arctan2(p.get("wy", 0.0), p.get("wx", 0.0))),
                 "pose_angle_rad": [float(a) for a in alpha]}
 
-    def predict(self, p, terms):
-        d = self.data
-        by: dict[str, list[Term]] = {}
-        for t in terms:
-            by.setdefault(t.effect, []).append(t)
-        m = len(d.channels)
-        alpha = np.array([0.0] + [p[f"alpha[{k}]"] for k in range(1, self.n_pose)])[d.pose_index]
-        dd = self.d.copy()
-        r = self.radius + np.array([p.get(f"dr[{j}]", 0.0) for j in range(m)])
-        h = np.zeros(m)
-        for t in by.get("beam_offset", []):
-            dd[d.channels.index(t.channel)] += p[f"{t.key}.d_mm"]
-        for t in by.get("beam_tilt", []):
-            h[d.channels.index(t.channel)] += p[f"{t.key}.h"]
-        for t in by.get("thermal_expansion", []):
-            r = r * (1.0 + (d.cte_per_k or 0.0) * p[f"{t.key}.dT"])
-        cx = np.array([p[f"cx[{j}]"] for j in range(m)])
-        cy = np.array([p[f"cy[{j}]"] for j in range(m)])
-        w = np.array([p.get("wx", 0.0), p.get("wy", 0.0)])
-        lays = self.layers(dd)
-        holes, axis = rod_section_geometry(lays, np.column_stack([cx, cy]), r, w)
-        with np.errstate(invalid="ignore", divide="ignore"):  # NaN where a start puts the beam outside the hole
-            s = rod_readings(alpha, lays, holes, axis) + self.l0
-        v = s * (1.0 + h) - self.l0
-        t_s = np.broadcast_to(d.t_s[:, None], v.shape)
-        return apply_reading_terms(v, t_s, by, p, d.channels, d.range_mm, beam_tilt=False)
+    def state(self, p) -> RodState:
+        """The device's base unknowns at base parameters ``p`` (pose 0 at alpha = 0)."""
+        m = len(self.data.channels)
+        return RodState(
+            alpha_rad=np.array([0.0] + [p[f"alpha[{k}]"] for k in range(1, self.n_pose)]),
+            center_xy_mm=np.array([[p[f"cx[{j}]"], p[f"cy[{j}]"]] for j in range(m)]),
+            radius_mm=self.radius + np.array([p.get(f"dr[{j}]", 0.0) for j in range(m)]),
+            deflection_xy_rad=np.array([p.get("wx", 0.0), p.get("wy", 0.0)]),
+        )
 
-    def candidate_terms(self, *, k_max=8, vibration_f_hz=None):
+    def predict(self, p, terms):
+        """Readings (n, m) [mm]: the terms' fitted values become the spec's effects
+        (:func:`~borescan.discrepancy.tri.term_effects`) on :meth:`borescan.physics.rod.RodDevice.predict`
+        (the digital twin's model)."""
+        d = self.data
+        effects = [e for t in terms for e in term_effects(t, p, d.channels)]
+        with np.errstate(invalid="ignore", divide="ignore"):  # NaN where a start puts the beam outside the hole
+            return self.device.predict(self.state(p), d.pose_index, d.t_s, effects)
+
+    def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
         """The registry's rod candidates; what a layer's free hole radius absorbs is left out."""
         free = {c for c, f in zip(self.data.channels, self.radius_free) if f}
-        return registry_terms("rod", self.data.channels, have={"cte": bool(self.data.cte_per_k)},
+        return registry_terms(self.scan_kind, self.data.channels, have={"cte": bool(self.data.cte_per_k)},
                               k_max=k_max, freed={"R": free})
 
     def extra_starts(self, screen, keys, t1):
@@ -323,10 +306,7 @@ class StaticModel(_PoseModel):
 
     device_type = "tri_lds"
     base_description = "device.nominal beams, artifact R20; device position per pose free"
-    absorbed_by = {
-        "sensor_offset": "d_b_mm of the channel",
-        "thermal_expansion": "every d_b_mm (a common offset)",
-    }
+    scan_kind = "tri_static"
 
     def __init__(self, data: PoseData):
         super().__init__(data)
@@ -342,6 +322,8 @@ class StaticModel(_PoseModel):
         #: no certified diameter (a part): the radius is the measurand and a free base parameter
         self.radius_free = art.get("certified_diameter_mm") is None
         self.n_pose = len(data.poses)
+        #: the static case of the three-sensor device's model (:mod:`borescan.physics.tri`), the twin's
+        self.device = TriDevice(self.beams, data.cte_per_k or 0.0, tuple(data.range_mm))
 
     def base_names(self):
         names = [f"sx[{k}]" for k in range(self.n_pose)] + [f"sy[{k}]" for k in range(self.n_pose)]
@@ -369,22 +351,18 @@ class StaticModel(_PoseModel):
                 "radius_mm": float(self.R + p.get("dR", 0.0)), "radius_free": bool(self.radius_free)}
 
     def predict(self, p, terms):
+        """Readings (n, c) [mm]: the terms' fitted values become the spec's effects
+        (:func:`~borescan.discrepancy.tri.term_effects`) on :meth:`borescan.physics.tri.TriDevice.predict`
+        (the digital twin's model), the device at S_p and angle 0 in a bore centred at the origin."""
         d = self.data
-        by: dict[str, list[Term]] = {}
-        for t in terms:
-            by.setdefault(t.effect, []).append(t)
-        R = self.R + p.get("dR", 0.0)
-        for t in by.get("thermal_expansion", []):
-            R = R * (1.0 + (d.cte_per_k or 0.0) * p[f"{t.key}.dT"])
-        sx = np.array([p[f"sx[{k}]"] for k in range(self.n_pose)])[d.pose_index]
-        sy = np.array([p[f"sy[{k}]"] for k in range(self.n_pose)])[d.pose_index]
-        v = fast_readings(np.zeros(d.t_s.size), np.stack([sx, sy], axis=-1), self.beams, Bore((0.0, 0.0), R))
-        t_s = np.broadcast_to(d.t_s[:, None], v.shape)
-        return apply_reading_terms(v, t_s, by, p, d.channels, d.range_mm)
+        xy = np.array([[p[f"sx[{k}]"], p[f"sy[{k}]"]] for k in range(self.n_pose)])
+        state = TriStaticState(xy, np.zeros(self.n_pose), Bore((0.0, 0.0), self.R + p.get("dR", 0.0)))
+        effects = [e for t in terms for e in term_effects(t, p, d.channels)]
+        return self.device.predict(state, d.pose_index, d.t_s, effects)
 
-    def candidate_terms(self, *, k_max=8, vibration_f_hz=None):
+    def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
         """The registry's static candidates; a free bore radius absorbs what every channel shares."""
-        return registry_terms("tri_static", self.data.channels, have={"cte": bool(self.data.cte_per_k)},
+        return registry_terms(self.scan_kind, self.data.channels, have={"cte": bool(self.data.cte_per_k)},
                               k_max=k_max, freed={"R": "shared" if self.radius_free else set()})
 
     def extra_starts(self, screen, keys, t1):

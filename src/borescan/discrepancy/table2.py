@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from borescan.discrepancy.fitting import bic
+from borescan.noise import mad_sigma
+from borescan.resources import shipped
 
 __all__ = ["NOMINAL_SAMPLES_PER_REV", "TABLE2_NUMBERS", "load_table2", "examine_table2"]
 
@@ -56,7 +58,7 @@ TABLE2_NUMBERS: dict[tuple[int, str], list[int]] = {
 
 
 def _default_csv() -> Path:
-    return Path(__file__).resolve().parents[3] / "data" / "papers" / "yang2017_table2.csv"
+    return shipped("papers", "yang2017_table2.csv")
 
 
 def load_table2(path: str | Path | None = None) -> dict[tuple[int, str], list[tuple[int, float]]]:
@@ -136,7 +138,7 @@ def examine_table2(path: str | Path | None = None, *, threshold: float = 10.0) -
     u_eps = NOMINAL_SAMPLES_PER_REV / N**2 * uN
     # jitter floor from second differences of each sequence (robust), in samples
     d2 = np.concatenate([np.diff([v for _, v in s], 2) for s in seqs.values() if len(s) > 2])
-    floor = float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+    floor = float(mad_sigma(d2) / math.sqrt(6.0))
     per_seq = {f"{c}-{k}": _fit({(c, k): s}, None)[:2] for (c, k), s in sorted(seqs.items())}
     named = []
     verdict = "no_missing_effect"

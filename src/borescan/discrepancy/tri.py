@@ -19,7 +19,7 @@ fitted parameters. The registry (:data:`borescan.effects.EFFECTS`) is the vocabu
 each term its fitted parameters (phase-type effects in Cartesian form (A, B), linear near
 zero amplitude), their conversion to the spec's parameters, which base parameters absorb it
 and whether it is a candidate of a spindle scan. :meth:`TriModel.predict` converts the fitted
-values to the spec's parameters and evaluates :func:`borescan.model.tri_forward`'s composition,
+values to the spec's parameters and evaluates :func:`borescan.physics.tri.tri_forward`'s composition,
 the forward model the digital twin uses.
 """
 
@@ -32,29 +32,18 @@ from typing import Any
 import numpy as np
 
 from borescan.discrepancy.fitting import block_indices, dead_zone, leading_block, noise_floor_mm, spike_mask
-from borescan.effects import EFFECTS, Effect, apply_effects, sort_effects
+from borescan.config import schema_default
+from borescan.effects import EFFECTS, Effect, calibration_absorbers, sort_effects
 from borescan.geometry import Beams, Bore, tri_spindle_readings
 from borescan.kinematics import AngleModel, angle_model_from_arrays
-from borescan.model import GEOMETRY_STAGES, TriBase, tri_geometry, tri_reading_stage
+from borescan.physics.tri import GEOMETRY_STAGES, TriBase, first_harmonic_start, tri_geometry, tri_reading_stage
 
 __all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_terms", "registry_terms", "term_parameters",
            "term_effects", "term_values"]
 
 #: Scan kind of this model in the registry's ``absorbed_by`` / ``candidate``.
 SCAN_KIND = "tri_spindle"
-#: Fitted parameters of each effect and their typical scale, derived from the registry's
-#: :class:`~borescan.effects.FitParam` (the source; kept under this name for the pose models).
-INTERNAL: dict[str, tuple[tuple[str, float], ...]] = {
-    name: tuple((q.name, q.scale) for q in spec.fit) for name, spec in EFFECTS.items() if spec.fit
-}
 BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dbeta": 1e-4, "dd_b": 1e-3, "drho": 1e-2, "dR": 1e-3}
-#: Calibration parameter that would absorb an effect (reported with the finding), from the
-#: registry (the bore radius "R" is the measurand, not a calibration parameter).
-ABSORBED_BY = {
-    name: "; ".join(text for par, text in spec.absorbers(SCAN_KIND).items() if par != "R")
-    for name, spec in EFFECTS.items()
-    if any(par != "R" for par in spec.absorbers(SCAN_KIND))
-}
 
 
 @dataclass(frozen=True)
@@ -80,11 +69,11 @@ class Term:
 
     def names(self) -> list[str]:
         """Prefixed fitted parameter names, e.g. ``bore_lobing[k=3].A`` (registry ``fit``)."""
-        return [f"{self.key}.{n}" for n, _ in INTERNAL[self.effect]]
+        return [f"{self.key}.{q.name}" for q in EFFECTS[self.effect].fit]
 
     def scales(self) -> list[float]:
         """Typical magnitudes of :meth:`names` (registry ``fit``)."""
-        return [s for _, s in INTERNAL[self.effect]]
+        return [q.scale for q in EFFECTS[self.effect].fit]
 
 
 @dataclass
@@ -235,27 +224,6 @@ def term_values(term: Term, effect: Effect) -> dict[str, float]:
     return {f"{term.key}.{n}": v for n, v in effect.spec.internal(effect.params).items()}
 
 
-def apply_reading_terms(
-    v: np.ndarray,
-    t: np.ndarray,
-    by: dict[str, list[Term]],
-    p: dict[str, float],
-    channels,
-    range_mm,
-    beam_tilt: bool = True,
-) -> np.ndarray:
-    """Beam (``beam_tilt``, unless ``beam_tilt`` is False) and reading-stage terms on readings
-    ``v`` (n, c) at times ``t`` (n, c) [s], through the registry's forward functions
-    (:func:`borescan.effects.apply_effects`), in its composition order."""
-    stages = ("beam", "reading") if beam_tilt else ("reading",)
-    effects = [e for terms in by.values() for term in terms if EFFECTS[term.effect].stage in stages
-               for e in term_effects(term, p, channels)]
-    if not effects:
-        return np.array(v, dtype=float, copy=True)
-    return apply_effects(v, t, channels, effects, device_type="tri_lds" if beam_tilt else "rod",
-                         range_mm=range_mm, stages=stages)
-
-
 #: The ray-to-bore readings (one implementation: :func:`borescan.geometry.tri_spindle_readings`).
 fast_readings = tri_spindle_readings
 
@@ -317,7 +285,7 @@ class TriModel:
         """Readings (n, c) [mm] for full parameters ``p`` (base + every term's fitted names).
 
         The terms' fitted values become the spec's effects (:func:`term_effects`) and the
-        readings come from the composition of :mod:`borescan.model` (the digital twin's). The
+        readings come from the composition of :mod:`borescan.physics.tri` (the digital twin's). The
         ray geometry is remembered for the last geometric state: a finite-difference step in a
         beam- or reading-stage parameter (offset, gain, ...) leaves it as it was.
         """
@@ -360,7 +328,12 @@ class TriModel:
     # ------------------------------------------------------------------ engine interface
     device_type = "tri_lds"
     angle_label = "device angle [deg]"
-    absorbed_by = ABSORBED_BY
+    scan_kind = SCAN_KIND
+
+    @property
+    def absorbed_by(self) -> dict[str, str]:
+        """Effect -> the calibration parameters that absorb it (the registry's, :func:`calibration_absorbers`)."""
+        return calibration_absorbers(self.scan_kind)
     base_description = "device.nominal beams, artifact R20, spindle position, rpm_nominal"
 
     @property
@@ -405,7 +378,7 @@ class TriModel:
     def vibration_f(self, r: np.ndarray) -> float | None:
         return _vibration_peak(self, r)[0]
 
-    def candidate_terms(self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[Term]:
+    def candidate_terms(self, *, k_max: int | None = None, vibration_f_hz: float | None = None) -> list[Term]:
         """Every applicable term (:func:`candidate_terms`), less those a freed base parameter
         absorbs (the registry's ``absorbed_by``: d_b offsets and thermal expansion, beta channel
         delay, a free radius R the common offset and thermal expansion)."""
@@ -456,22 +429,11 @@ class TriModel:
         phi = d.phase_rad + d.direction * (1.0 + eps) * d.turned_rad(d.t_s)
         S = np.asarray(d.spindle_xy_mm, dtype=float)
         S0 = S.mean(axis=0) if S.ndim == 2 else S
-        rows, rhs = [], []
-        c = len(d.channels)
-        for j in range(c):
-            ok = self.valid[:, j]
-            a = phi[ok] + d.beams.beta_rad[j]
-            X = np.zeros((ok.sum(), 2 + c))
-            X[:, 0], X[:, 1] = -np.cos(a), -np.sin(a)
-            X[:, 2 + j] = 1.0
-            rows.append(X)
-            rhs.append(d.values_mm[ok, j])
-        X, y = np.vstack(rows), np.concatenate(rhs)
-        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
-        return S0 - coef[:2]
+        offset, _, _ = first_harmonic_start(phi, d.values_mm, self.valid, d.beams.beta_rad)
+        return S0 - offset
 
 
-def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: int = 8,
+def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: int | None = None,
                    freed: dict[str, set | str] | None = None) -> list[Term]:
     """The registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
     ``"tri_static"``, ``"rod"``): the only list of candidates the workflow has.
@@ -484,9 +446,11 @@ def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: in
     channels whose own copy of it is free (a per-channel term is absorbed when its channel is in
     the set, a common term when the set is not empty), or to ``"shared"`` for one parameter of
     every channel (absorbs only the common terms: a bore radius absorbs a common offset, not one
-    channel's).
+    channel's). ``k_max`` None: the schema's ``discrepancy.max_harmonic``.
     """
     freed = {k: v for k, v in (freed or {}).items() if v}
+    if k_max is None:
+        k_max = int(schema_default("discrepancy", "max_harmonic"))
     specs = [s for s in EFFECTS.values()
              if s.candidate.get(scan_kind) == "screen" and all(have.get(n, False) for n in s.needs)]
     terms = [Term(s.name, c) for s in specs if s.per_channel for c in channels]
@@ -508,7 +472,7 @@ def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: in
     return [t for t in terms if not absorbed(t)]
 
 
-def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | None = None,
+def candidate_terms(data: TriData, *, k_max: int | None = None, vibration_f_hz: float | None = None,
                     freed: dict[str, set | str] | None = None) -> list[Term]:
     """The registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
     when the scan has no encoder, ``vibration_line`` when ``vibration_f_hz`` was found, ``cte``

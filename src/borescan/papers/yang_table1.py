@@ -18,12 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from borescan.calibration import yang_d_b_r, yang_oe, yang_sensitivities
+from borescan.resources import shipped
 
 __all__ = [
     "TABLE1_CSV", "P1_XY_MM", "P0_XY_MM", "R_MM", "OE_PRINTED_MM", "load_table1", "reproduce", "write_reproduction",
 ]
 
-TABLE1_CSV = Path(__file__).resolve().parents[3] / "data" / "papers" / "yang2017_table1.csv"
+TABLE1_CSV = shipped("papers", "yang2017_table1.csv")
 P1_XY_MM = (262.955, -275.502)
 P0_XY_MM = (262.833, -273.182)
 R_MM = 275.029 / 2.0

@@ -32,13 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
+from borescan.resources import shipped
 from borescan.signal import beam_status, n_m_counts, theta_t_rad
 
 __all__ = ["TABLE2_CSV", "TABLE1_CSV", "SAMPLES_PER_REV_PRINTED", "SPACINGS_PRINTED", "STATUS_PRINTED",
            "load_table2", "reproduce", "write_reproduction"]
 
-TABLE2_CSV = Path(__file__).resolve().parents[3] / "data" / "papers" / "yang2017_table2.csv"
-TABLE1_CSV = Path(__file__).resolve().parents[3] / "data" / "papers" / "yang2017_table1.csv"
+TABLE2_CSV = shipped("papers", "yang2017_table2.csv")
+TABLE1_CSV = shipped("papers", "yang2017_table1.csv")
 SAMPLES_PER_REV_PRINTED = 625.0  # §3.2: "the number of sampling points per circle is 625"
 # §3.2 text below Table 2: (from sensor, to sensor) -> printed mean spacing of the minima
 SPACINGS_PRINTED = {(2, 1): 222.0, (1, 3): 220.0, (3, 2): 219.0}

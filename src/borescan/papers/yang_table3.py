@@ -30,6 +30,7 @@ from scipy.optimize import least_squares
 
 from borescan.geometry import Beams
 from borescan.measure import static_diameter
+from borescan.resources import shipped
 
 __all__ = ["TABLE1", "SPACINGS", "TABLE2_MINIMA", "load_table3", "table2_period", "beams_for", "reproduce", "write_reproduction"]
 
@@ -47,7 +48,7 @@ TABLE2_MINIMA = {
 
 
 def _data_dir() -> Path:
-    return Path(__file__).resolve().parents[3] / "data" / "papers"
+    return shipped("papers")
 
 
 def load_table3(path: Path | None = None) -> dict[str, np.ndarray]:

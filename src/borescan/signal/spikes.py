@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from borescan.noise import mad_sigma
 from borescan.signal._common import _as_2d, _back, _nanmedian_rows
 from borescan.sortnet import median_columns
 
@@ -58,15 +59,6 @@ def _median_rows_full(a: np.ndarray) -> np.ndarray:
     return median_columns([a[:, k] for k in range(m)])
 
 
-def _median(x: np.ndarray) -> float:
-    """Median of a NaN-free 1-D array by partition (np.median's checks cost ~5x here)."""
-    m = x.size
-    if m % 2:
-        return float(np.partition(x, m // 2)[m // 2])
-    p = np.partition(x, (m // 2 - 1, m // 2))
-    return 0.5 * float(p[m // 2 - 1] + p[m // 2])
-
-
 def _mad_scale(r: np.ndarray, max_n: int = 20_000) -> float:
     """1.4826 x median absolute deviation of the non-NaN values, on a uniform stride of at most
     ``max_n`` of them (relative standard uncertainty of the scale about 1 / sqrt(0.74 max_n))."""
@@ -75,7 +67,7 @@ def _mad_scale(r: np.ndarray, max_n: int = 20_000) -> float:
     r = r[~np.isnan(r)]
     if r.size == 0:
         return float("inf")
-    sc = 1.4826 * _median(np.abs(r - _median(r)))
+    sc = mad_sigma(r)
     return sc if sc > 0 else float(np.finfo(float).tiny)
 
 

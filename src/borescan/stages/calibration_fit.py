@@ -81,11 +81,7 @@ def scan_conditions(scan: rawio.RawScan, x: dict, summary: pl.DataFrame) -> dict
 
 def acceptance_rule(cal_cfg: dict) -> calibration.AcceptanceRule:
     """The calibration section's acceptance settings as a :class:`calibration.AcceptanceRule`."""
-    return calibration.AcceptanceRule(
-        max_residual_to_noise=float(cal_cfg["max_residual_to_noise"]), head_radius_mm=float(cal_cfg["head_radius_mm"]),
-        position_accuracy_mm=float(cal_cfg["position_accuracy_mm"]),
-        speed_scale_range=(float(cal_cfg["speed_scale_min"]), float(cal_cfg["speed_scale_max"])),
-    )
+    return calibration.AcceptanceRule.from_config(cal_cfg)
 
 
 def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: str | None = None, model=()):

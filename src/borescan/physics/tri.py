@@ -21,17 +21,22 @@ Composition order (``shared/spec/geometry-and-effects.md``; stages of :mod:`bore
 
 Output-stage effects (noise, ``quantization``, ``outliers``) are the generators' business
 (:func:`borescan.simulate.simulate_tri_spindle`). Steps 1-7 are noise-free and deterministic.
+
+A static set (no spindle stream) is the same model with one device position and angle per pose
+(:class:`TriDevice`): steps 2-3 are then given, not computed, so kinematic and spindle-position
+effects do not apply; :func:`borescan.simulate.simulate_tri_static` and the static discrepancy
+model (:class:`borescan.discrepancy.poses.StaticModel`) both call :meth:`TriDevice.predict`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from borescan.effects import Effect, apply_effects, sort_effects
-from borescan.geometry import Beams, Bore, tri_spindle_readings
+from borescan.geometry import Beams, Bore, bore_wall_radius, tri_spindle_readings
 
 __all__ = [
     "TriBase",
@@ -45,6 +50,11 @@ __all__ = [
     "tri_forward",
     "CORRECTABLE_STAGES",
     "tri_correct_readings",
+    "first_harmonic_start",
+    "TriStaticState",
+    "TriStaticJacobian",
+    "TriDevice",
+    "reading_stage_slope",
 ]
 
 TRI = "tri_lds"
@@ -192,6 +202,42 @@ def tri_forward(base: TriBase, t_s: np.ndarray, effects: Iterable[Effect] = ()) 
     return tri_reading_stage(v, tc, st, base.channels, base.range_mm)
 
 
+def first_harmonic_start(phi_rad: np.ndarray, readings_mm: np.ndarray, mask: np.ndarray,
+                         beta_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The spindle's offset from the bore centre from the readings' first harmonic: a linear start.
+
+    To first order in the offset o = S - C (the geometry expanded about a centred spindle), channel c
+    reads v_c = k_c - o . u(phi + beta_c); o and the levels k_c by linear least squares over the
+    readings ``mask`` keeps. The start of the calibration and of the discrepancy fit's bore centre.
+
+    Parameters
+    ----------
+    phi_rad : ndarray (n,) device angle [rad]
+    readings_mm : ndarray (n, c) [mm]; mask : ndarray (n, c) bool, the readings to use
+    beta_rad : ndarray (c,) beam directions [rad]
+
+    Returns
+    -------
+    offset (2,) [mm], levels k (c,) [mm], the sum of squared residuals [mm^2]
+    """
+    c = readings_mm.shape[1]
+    rows, rhs = [], []
+    for j in range(c):
+        m = mask[:, j]
+        ang = phi_rad[m] + beta_rad[j]
+        A = np.zeros((m.sum(), 2 + c))
+        A[:, 0] = -np.cos(ang)
+        A[:, 1] = -np.sin(ang)
+        A[:, 2 + j] = 1.0
+        rows.append(A)
+        rhs.append(readings_mm[m, j])
+    A = np.vstack(rows)
+    b = np.concatenate(rhs)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    sse = float(np.sum((A @ sol - b) ** 2))
+    return sol[:2], sol[2:], sse
+
+
 #: Stages whose effects recorded readings can be corrected for pointwise, without the scene: what a
 #: channel's sensor makes of its distance (beam, reading). A time-base effect (``channel_delay``) is
 #: carried by the time each channel's angle is taken at, never by resampling the readings (that would
@@ -244,3 +290,169 @@ def tri_correct_readings(
             return v
     raise ValueError(f"correcting the readings for {[e.name for e in effects]} did not converge in {max_iter} "
                      "iterations (is an effect as large as the readings?)")
+
+
+# --------------------------------------------------------------------------- static sets
+
+
+def reading_stage_slope(
+    v_mm: np.ndarray, tc_s: np.ndarray, st: dict[str, list[Effect]], channels: Sequence[int],
+    range_mm: Sequence[float] | float, step_mm: float = 1e-4,
+) -> np.ndarray:
+    """d(steps 6-7)/dv at each reading: how a change of the geometric reading shows in the recorded one.
+
+    The beam and reading effects act reading by reading, so the slope is the central difference of
+    that pointwise map (exact for the registry's effects, which are at most quadratic in v).
+
+    Returns
+    -------
+    ndarray like ``v_mm`` [-]; ones without beam and reading effects.
+    """
+    if not (st["beam"] or st["reading"]):
+        return np.ones_like(v_mm)
+    up = tri_reading_stage(v_mm + step_mm, tc_s, st, channels, range_mm)
+    down = tri_reading_stage(v_mm - step_mm, tc_s, st, channels, range_mm)
+    return (up - down) / (2.0 * step_mm)
+
+
+@dataclass(frozen=True)
+class TriStaticState:
+    """Base geometry of a static set: the device's rotation axis and angle per pose, the bore.
+
+    Attributes
+    ----------
+    device_xy_mm : ndarray (P, 2), the device's rotation axis per pose, machine frame [mm].
+    device_angle_rad : ndarray (P,), the device's angle per pose [rad].
+    bore : the effect-free bore (centre C, radius R20) [mm].
+    """
+
+    device_xy_mm: np.ndarray
+    device_angle_rad: np.ndarray
+    bore: Bore
+
+
+@dataclass(frozen=True)
+class TriStaticJacobian:
+    """Derivatives of each reading (n, c) of :meth:`TriDevice.predict` with respect to its pose's
+    base geometry and the bore's; the effects held at their values.
+
+    Attributes
+    ----------
+    d_device_xy : ndarray (n, c, 2), d v / d (x, y) of the reading's pose [-].
+    d_device_angle : ndarray (n, c), d v / d angle of the reading's pose [mm/rad].
+    d_center : ndarray (n, c, 2), d v / d C [-].
+    d_radius : ndarray (n, c), d v / d R20 [-].
+    """
+
+    d_device_xy: np.ndarray
+    d_device_angle: np.ndarray
+    d_center: np.ndarray
+    d_radius: np.ndarray
+
+
+def _perp(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vector turned by +90 degrees, J (x, y) = (-y, x)."""
+    return -y, x
+
+
+@dataclass(frozen=True)
+class TriDevice:
+    """The three-sensor device's model of a static set: one position and angle per pose.
+
+    The same composition as a spindle scan (:func:`tri_forward`, module doc) with steps 2-3 given
+    per pose: time base, bore effects, the exact ray-to-bore readings, beam and reading effects.
+
+    Attributes
+    ----------
+    beams : beam geometry (beta [rad], rho [mm], d_b [mm] per channel).
+    cte_per_k : artifact expansion coefficient for ``thermal_expansion`` [1/K].
+    range_mm : sensor range per channel, for ``sensor_nonlinearity`` [mm].
+    """
+
+    beams: Beams
+    cte_per_k: float = 0.0
+    range_mm: Sequence[float] | float = 10.0
+
+    @property
+    def channels(self) -> tuple[int, ...]:
+        return self.beams.channels
+
+    def _stages(self, effects: Iterable[Effect]) -> dict[str, list[Effect]]:
+        st = sort_effects(effects, TRI, self.channels)
+        bad = [e.name for e in st["kinematics"] + st["spindle_position"]]
+        if bad:
+            raise ValueError(f"effects {bad} do not apply to a static tri_lds measurement (no spindle turns)")
+        return st
+
+    def _geometry(self, state: TriStaticState, pose_index: np.ndarray, st: dict[str, list[Effect]]):
+        """Steps 4-5 per pose, then indexed per reading: (v (n, c), the bore with its effects)."""
+        bore = bore_with_effects(state.bore, st["bore"], self.cte_per_k)
+        ang = np.atleast_1d(np.asarray(state.device_angle_rad, dtype=float))
+        xy = np.atleast_2d(np.asarray(state.device_xy_mm, dtype=float))
+        return tri_spindle_readings(ang, xy, self.beams, bore)[np.asarray(pose_index)], bore
+
+    def predict(self, state: TriStaticState, pose_index: np.ndarray, t_s: np.ndarray,
+                effects: Iterable[Effect] = ()) -> np.ndarray:
+        """Noise-free readings of a static set with effects.
+
+        Parameters
+        ----------
+        state : TriStaticState (P poses)
+        pose_index : ndarray (n,) int, each reading's pose (0..P-1)
+        t_s : ndarray (n,) times since scan start [s] (drift, vibration, channel delay)
+        effects : :class:`~borescan.effects.Effect`; kinematic and spindle-position effects raise
+            ``ValueError``, output-stage effects are ignored (the generators' business)
+
+        Returns
+        -------
+        ndarray (n, c) [mm]; NaN where a beam misses.
+        """
+        st = self._stages(effects)
+        v, _ = self._geometry(state, pose_index, st)
+        tc = channel_times(t_s, self.channels, st["time_base"])
+        return tri_reading_stage(v, tc, st, self.channels, self.range_mm)
+
+    def jacobian(self, state: TriStaticState, pose_index: np.ndarray, t_s: np.ndarray,
+                 effects: Iterable[Effect] = (), radius_step_mm: float = 1e-3) -> TriStaticJacobian:
+        """Analytic derivatives of :meth:`predict` with respect to the base geometry.
+
+        The wall point q = o + s d (o = S - C + Rot(a) F, d = Rot(a) u, relative to the bore's
+        centre) solves |q| = r_wall(theta(q)); implicitly, with g = q / |q| - r'(theta) J q / |q|^2
+        (J the +90 degree turn): ds = (dr_wall - g . (dS - dC + J (Rot(a) F + s d) da)) / (g . d).
+        r' is the wall's slope (:func:`borescan.geometry.bore_wall_radius`: ellipse, lobes), dr_wall /
+        dR20 the central difference over the bore effects (linear in R20 for the registry's), and the
+        beam and reading effects enter through their pointwise slope (:func:`reading_stage_slope`).
+        """
+        st = self._stages(effects)
+        pose_index = np.asarray(pose_index)
+        v, bore = self._geometry(state, pose_index, st)
+        ang = np.atleast_1d(np.asarray(state.device_angle_rad, dtype=float))[pose_index][:, None]
+        xy = np.atleast_2d(np.asarray(state.device_xy_mm, dtype=float))[pose_index]
+        b = np.asarray(self.beams.beta_rad, dtype=float)[None, :]
+        rho = np.asarray(self.beams.rho_mm, dtype=float)[None, :]
+        s = v + np.asarray(self.beams.d_b_mm, dtype=float)[None, :]
+        a = ang + b
+        dx, dy = np.cos(a), np.sin(a)
+        fx, fy = -rho * dy, rho * dx  # Rot(angle) F, F = rho n(beta)
+        qx = xy[:, 0:1] - bore.center_xy_mm[0] + fx + s * dx
+        qy = xy[:, 1:2] - bore.center_xy_mm[1] + fy + s * dy
+        nq = np.hypot(qx, qy)
+        theta = np.arctan2(qy, qx)
+        _, slope = bore_wall_radius(theta, bore)
+        jx, jy = _perp(qx, qy)
+        gx, gy = qx / nq - slope * jx / nq**2, qy / nq - slope * jy / nq**2
+        den = gx * dx + gy * dy
+        R = state.bore.radius_mm
+        hi, lo = (bore_with_effects(replace(state.bore, radius_mm=R + h), st["bore"], self.cte_per_k)
+                  for h in (radius_step_mm, -radius_step_mm))
+        dwall = (bore_wall_radius(theta, hi)[0] - bore_wall_radius(theta, lo)[0]) / (2.0 * radius_step_mm)
+        px, py = _perp(fx + s * dx, fy + s * dy)
+        tc = channel_times(t_s, self.channels, st["time_base"])
+        k = reading_stage_slope(v, tc, st, self.channels, self.range_mm)
+        d_xy = np.stack([-gx / den, -gy / den], axis=-1) * k[..., None]
+        return TriStaticJacobian(
+            d_device_xy=d_xy,
+            d_device_angle=-(gx * px + gy * py) / den * k,
+            d_center=-d_xy,
+            d_radius=dwall / den * k,
+        )
