@@ -1166,6 +1166,12 @@ def fit_full_calibration(
         if j in flagged:  # a flagged beam's profile walks into its mirror's valley: the two solutions carry it
             prof["not_used"] = "the sign of this rho is not resolved: two solutions instead of one spread"
             continue
+        crossed = [int(channels[f]) for f in sorted(flagged)
+                   if np.any(np.sign(p_hat[i_rho0 + f] + P[:, i_rho0 + f]) != np.sign(p_hat[i_rho0 + f]))]
+        if crossed:  # refitted along this rho, a flagged beam went over to its mirror: that is its two
+            # solutions' spread, not this beam's own curvature
+            prof["not_used"] = f"along this profile the flagged rho of channel(s) {crossed} changed sign"
+            continue
         i = i_rho0 + j
         E = M - np.outer(cov_free[:, i], cov_free[:, i]) / cov_free[i, i]
         w, V = np.linalg.eigh(0.5 * (E + E.T))
