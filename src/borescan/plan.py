@@ -72,7 +72,8 @@ class ScanDesign:
 
 @dataclass(frozen=True)
 class PlanPrediction:
-    """What :func:`predict` says of one scan: standard uncertainties per channel (Cramer-Rao bound),
+    """What :func:`predict` says of one scan: standard uncertainties per channel (Cramer-Rao bound;
+    ``u_dbeta_rad`` of beta_c - beta_first, what a diameter depends on: a common rotation moves none),
     each beam's mirror (possible, depth, the offset that would resolve it), whether every beam's
     readings stay inside its sensor's range, and the beta reference the calibration will use."""
 
@@ -81,6 +82,7 @@ class PlanPrediction:
     u_beta_rad: tuple[float, ...]
     u_rho_mm: tuple[float, ...]
     u_d_b_mm: tuple[float, ...]
+    u_dbeta_rad: tuple[float, ...]
     beta_reference: str
     mirror_possible: tuple[bool, ...]
     mirror_depth: tuple[float, ...]
@@ -166,6 +168,7 @@ def predict(device: DeviceDesign, radius_mm: float, scan: ScanDesign) -> PlanPre
     i_db = np.arange(2, 3 * c, 3)
     cov[i_db, i_db] += 3.0 * np.diag(cov)[i_db - 1] ** 2 / (4.0 * radius_mm**2)
     u = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    u_rel = [math.sqrt(max(cov[3 * j, 3 * j] + cov[0, 0] - 2 * cov[0, 3 * j], 0.0)) for j in range(c)]
     n = scan.n_samples
     depth = tuple(predicted_depth([n], [scan.offset_mm], float(r), [s], radius_mm) for r, s in zip(beams.rho_mm, sig))
     fix = tuple(offset_to_resolve_mm(radius_mm, float(s), n, float(r)) for r, s in zip(beams.rho_mm, sig))
@@ -173,19 +176,20 @@ def predict(device: DeviceDesign, radius_mm: float, scan: ScanDesign) -> PlanPre
     in_range = bool(np.all(v.min(axis=0) > 0.0) and np.all(v.max(axis=0) < rng))
     return PlanPrediction(
         scan=scan, channels=tuple(beams.channels), u_beta_rad=tuple(u[0::3]), u_rho_mm=tuple(u[1::3]),
-        u_d_b_mm=tuple(u[2::3]), beta_reference="absolute" if absolute else f"channel {beams.channels[0]} fixed",
+        u_d_b_mm=tuple(u[2::3]), u_dbeta_rad=tuple(u_rel), beta_reference="absolute" if absolute else f"channel {beams.channels[0]} fixed",
         mirror_possible=tuple(mirror_exists(float(r), scan.offset_mm) for r in beams.rho_mm), mirror_depth=depth,
         offset_to_resolve_mm=fix, in_range=in_range, cov=cov)
 
 
 def _meets(p: PlanPrediction, target_u_beta_rad: float) -> bool:
-    u_b = [u for u in p.u_beta_rad if u > 0]
+    u_b = [u for u in p.u_dbeta_rad if u > 0]
     return p.in_range and all(p.resolved) and all(u <= target_u_beta_rad for u in u_b)
 
 
 def recommend(device: DeviceDesign, radius_mm: float, base: ScanDesign, target_u_beta_rad: float,
               offsets_mm: Sequence[float], revolutions: Sequence[float]) -> PlanPrediction | None:
-    """The smallest scan like ``base`` that reaches the target: every u(beta) <= ``target_u_beta_rad``,
+    """The smallest scan like ``base`` that reaches the target: every u(beta_c - beta_1) <= ``target_u_beta_rad``
+    (the beams' directions relative to each other; an absolute beta is limited by the known positions too),
     every rho's sign resolved, every reading inside its sensor's range. Smallest: fewest revolutions,
     then the smallest offset (candidates ``revolutions`` x ``offsets_mm``). None when none does."""
     for rev in sorted(revolutions):
