@@ -45,6 +45,10 @@ __all__ = [
     "valid_bore_radius_range_mm",
     "mixture_components",
     "mirror_checks_of",
+    "MixtureDiameter",
+    "mixture_diameter",
+    "mixture_seed",
+    "refusal",
 ]
 
 #: a mirror at least this far (in chi^2 units) above the kept minimum is resolved: its weight
@@ -241,3 +245,94 @@ def mixture_components(params: np.ndarray, cov: np.ndarray,
     out = [(float(w[0]), np.asarray(params, float), np.asarray(cov, float))]
     out += [(float(wk), a.params_array, a.cov_array) for wk, a in zip(w[1:], alts)]
     return out
+
+
+@dataclass(frozen=True)
+class MixtureDiameter:
+    """A diameter measured with a flagged calibration: the two-solution mixture propagated by Monte Carlo
+    (JCGM 101:2008). Per component (the kept solution, each flagged beam's mirror): weight, D_T with that
+    solution's beams and its standard uncertainty; of the mixture: the estimate (the mean), u (the standard
+    deviation), the probabilistically symmetric coverage interval for ``p`` (JCGM 101 7.7), at the scan's
+    temperature and at 20 degC; ``draws`` and ``seed`` (deterministic: from the scan and calibration ids)."""
+
+    weights: tuple[float, ...]
+    diameters_mm: tuple[float, ...]
+    u_components_mm: tuple[float, ...]
+    diameter_mm: float
+    u_mm: float
+    interval_mm: tuple[float, float]
+    diameter_20_mm: float
+    u_20_mm: float
+    interval_20_mm: tuple[float, float]
+    p: float
+    draws: int
+    seed: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+#: Monte Carlo trials of a mixture diameter (JCGM 101 7.2: 10^6 for a 95 % interval to about 2 digits)
+MIXTURE_DRAWS = 1_000_000
+
+
+def mixture_diameter(components: Sequence[tuple[float, float, float]], factor_20: float, u_20_main_mm: float,
+                     u_t_main_mm: float, p: float, seed: int, draws: int = MIXTURE_DRAWS) -> MixtureDiameter:
+    """Monte Carlo of a diameter whose calibration has several weighted solutions (JCGM 101:2008).
+
+    Parameters
+    ----------
+    components : (weight, D_T [mm], extra variance [mm^2]) per solution, the kept one first; the extra
+        variance is what that solution's own fit covariance adds over the kept one's (0 for the kept one)
+    factor_20 : D20 / D_T (ISO 1 thermal correction)
+    u_20_main_mm, u_t_main_mm : the GUM budget's u of D20 and D_T with the kept solution
+    p : coverage probability; seed : the generator's seed; draws : trials
+
+    Each trial picks a solution by its weight and draws D_T ~ N(D_k, u_T^2 + extra_k) and, with the same
+    normal deviate, D20 = f D_k + z sqrt(u_20^2 + f^2 extra_k) (the budget's inputs are common to every
+    solution). The estimate is the mean, u the standard deviation, the interval the p-quantiles' symmetric
+    pair (JCGM 101 7.7).
+    """
+    w = np.array([c[0] for c in components], dtype=float)
+    w = w / w.sum()
+    d = np.array([c[1] for c in components], dtype=float)
+    extra = np.array([max(c[2], 0.0) for c in components], dtype=float)
+    rng = np.random.default_rng(seed)
+    k = rng.choice(w.size, size=draws, p=w)
+    z = rng.standard_normal(draws)
+    u_t = np.sqrt(u_t_main_mm**2 + extra)
+    u_20 = np.sqrt(u_20_main_mm**2 + factor_20**2 * extra)
+    x_t = d[k] + z * u_t[k]
+    x_20 = factor_20 * d[k] + z * u_20[k]
+    q = [(1.0 - p) / 2.0, (1.0 + p) / 2.0]
+    lo_t, hi_t = np.quantile(x_t, q)
+    lo_20, hi_20 = np.quantile(x_20, q)
+    return MixtureDiameter(
+        weights=tuple(float(x) for x in w), diameters_mm=tuple(float(x) for x in d),
+        u_components_mm=tuple(float(x) for x in u_t), diameter_mm=float(x_t.mean()), u_mm=float(x_t.std(ddof=1)),
+        interval_mm=(float(lo_t), float(hi_t)), diameter_20_mm=float(x_20.mean()), u_20_mm=float(x_20.std(ddof=1)),
+        interval_20_mm=(float(lo_20), float(hi_20)), p=float(p), draws=int(draws), seed=int(seed))
+
+
+def mixture_seed(*ids: str) -> int:
+    """A deterministic seed from ids (sha256, first 8 bytes)."""
+    import hashlib
+
+    return int.from_bytes(hashlib.sha256("\x1f".join(ids).encode()).digest()[:8], "little")
+
+
+def refusal(scan_id: str, calibration_id: str, diameter_mm: float, checks: Sequence[BeamMirror]) -> str | None:
+    """The reason a diameter of ``diameter_mm`` may not be measured with this calibration (a flagged beam
+    whose valid bore range excludes it), else None."""
+    for m in checks:
+        if m.resolved or m.valid_bore_diameter_mm is None:
+            continue
+        lo, hi = m.valid_bore_diameter_mm
+        if not lo <= diameter_mm <= hi:
+            hi_s = "no upper limit" if not math.isfinite(hi) else f"{hi:.1f} mm"
+            return (f"{scan_id}: bore diameter {diameter_mm:.3f} mm outside {lo:.1f} mm to {hi_s}, the range where "
+                    f"calibration {calibration_id} may be used: the sign of rho of channel {m.channel} is not "
+                    f"determined by its scan (probability of the wrong sign {m.p_wrong_sign:.3f}), and away from the "
+                    f"gauge its two solutions place the wall points apart; recalibrate with the spindle at least "
+                    f"{m.offset_to_resolve_mm:.2f} mm from the gauge centre")
+    return None
