@@ -181,3 +181,29 @@ def test_a_bore_outside_the_valid_range_is_refused_with_the_reason(flagged_fit):
     why = refusal("S1", cal.calibration_id, 0.5 * lo, checks)
     assert why.startswith(f"S1: bore diameter {0.5 * lo:.3f} mm outside {lo:.1f} mm to ")
     assert "the sign of rho of channel 2 is not determined by its scan" in why
+
+
+def test_calibration_rows_carry_each_beams_mirror_check(flagged_fit):
+    from borescan.calibrations import calibration_rows
+
+    scene, cal = flagged_fit
+    rows = {r["channel"]: r for r in calibration_rows(cal, "tri_lds", "2026-11-20", None, "f" * 64)}
+    m = {x.channel: x for x in mirror_checks_of(cal.diagnostics)}
+    assert rows[2]["rho_sign_resolved"] is False and rows[2]["p_wrong_sign"] == m[2].p_wrong_sign > 0
+    assert rows[2]["valid_bore_min_mm"] <= 2 * R_MM
+    assert rows[1]["rho_sign_resolved"] is True and rows[1]["p_wrong_sign"] == 0.0
+    assert rows[1]["mirror_delta_chi2"] == m[1].refit_delta_chi2 and rows[3]["mirror_delta_chi2"] is None
+
+
+def test_certificate_json_states_the_undetermined_sign_with_both_solutions(flagged_fit):
+    from borescan.certificate import rho_sign_part
+
+    scene, cal = flagged_fit
+    part = rho_sign_part(cal)
+    b = {m["channel"]: m for m in part["beams"]}
+    assert b[2]["statement"].startswith("the sign of rho of channel 2 is not determined by this scan: two solutions")
+    alt = b[2]["alternative"]
+    assert np.sign(alt["rho_mm"]) == -np.sign(b[2]["u_main"]["rho_mm"])
+    assert alt["weight"] + b[2]["weight_main"] == pytest.approx(1.0, abs=1e-12)
+    assert np.asarray(alt["covariance"]).shape == (9, 9) and "offset_to_resolve_mm" in b[2]
+    assert b[1]["resolved"] and "alternative" not in b[1]
