@@ -207,3 +207,16 @@ def test_certificate_json_states_the_undetermined_sign_with_both_solutions(flagg
     assert alt["weight"] + b[2]["weight_main"] == pytest.approx(1.0, abs=1e-12)
     assert np.asarray(alt["covariance"]).shape == (9, 9) and "offset_to_resolve_mm" in b[2]
     assert b[1]["resolved"] and "alternative" not in b[1]
+
+
+def test_report_lists_a_flagged_beam_with_what_to_do(flagged_fit):
+    import polars as pl
+
+    from borescan.calibrations import calibration_rows
+    from borescan.report import _rho_sign_notes
+
+    scene, cal = flagged_fit
+    html = _rho_sign_notes(pl.DataFrame(calibration_rows(cal, "tri_lds", "2026-11-20", None, "f" * 64)))
+    m2 = mirror_checks_of(cal.diagnostics)[1]
+    assert html.count("<li>") == 1 and "the sign of rho of channel 2 is not determined by its scan" in html
+    assert f"at least {m2.offset_to_resolve_mm:.2f} mm from the gauge centre" in html
