@@ -1378,17 +1378,30 @@ def _mirror_checks(sol, s2, tried, alternatives, cov_free, p_hat, rho_hat, nuis,
                    i_rho0, refit, public, params_of, public_cov) -> list[BeamMirror]:
     """One :class:`borescan.mirror.BeamMirror` per channel (:func:`fit_full_calibration`).
 
-    The mirror search's last refit of each beam gives its delta chi^2 = 2 (cost - cost_kept) / s^2; no
-    mirror when it returned to the kept solution (within 0.1 u of every parameter, or rho of the same
-    sign). A beam whose mirror lies within :data:`borescan.mirror.RESOLVED_DCHI2` is refitted once more
-    from the final solution's mirror (``refit(j)``): that refit is its second solution, with covariance
-    from its own Jacobian. Weights exp(-delta chi^2 / 2) over the kept solution and this beam's mirror.
+    Every minimum of the mirror search (from any beam's start; delta chi^2 = 2 (cost - cost_kept) / s^2)
+    is a candidate mirror of each beam whose rho it has of the other sign; the lowest is the beam's. No
+    mirror: no such minimum (the refits returned to the kept solution, within 0.1 u of every parameter,
+    or kept the sign). A beam whose mirror lies within :data:`borescan.mirror.RESOLVED_DCHI2` is refitted
+    once more from the final solution's mirror (``refit(j)``); that refit, or the candidate where it is
+    lower, is its second solution, with covariance from its own Jacobian. Weights exp(-delta chi^2 / 2)
+    over the kept solution and this beam's mirror. (``tried`` is the search's log, aligned with
+    ``alternatives``.)
     """
     u_pub = np.sqrt(np.clip(np.diag(cov_free), 0.0, None))
     u_pub[u_pub == 0] = 1.0
-    last = {}
-    for entry, alt in zip(tried, alternatives):
-        last[int(entry["channel"])] = alt
+    # every minimum the search found (from any beam's mirror start) counts for each beam whose rho sign it
+    # flips: the lowest of them is that beam's mirror candidate
+    best: dict[int, tuple[float, Any]] = {}
+    for alt in alternatives:
+        if alt is None or not np.isfinite(alt.cost):
+            continue
+        p_alt = public(alt.x)
+        if bool(np.max(np.abs(p_alt - p_hat) / u_pub) < 0.1):
+            continue
+        d_alt = max(2.0 * (float(alt.cost) - float(sol.cost)) / s2, 0.0)
+        for j in range(len(channels)):
+            if np.sign(p_alt[i_rho0 + j]) != np.sign(rho_hat[j]) and d_alt < best.get(j, (np.inf, None))[0]:
+                best[j] = (d_alt, alt)
     e_k = np.array([float(np.hypot(*n[0])) for n in nuis])
     out = []
     for j, ch in enumerate(channels):
@@ -1398,19 +1411,16 @@ def _mirror_checks(sol, s2, tried, alternatives, cov_free, p_hat, rho_hat, nuis,
         pred = predicted_depth(n_k, e_k, rho, sig_k, R_mm)
         sigma = float(np.sqrt(np.sum(n_k * sig_k**2) / max(n_k.sum(), 1)))
         x_fix = offset_to_resolve_mm(R_mm, sigma, float(n_k.sum()), rho)
-        alt = last.get(int(ch))
-        d_chi2 = None
-        if alt is not None and np.isfinite(alt.cost):
-            p_alt = public(alt.x)
-            same = bool(np.max(np.abs(p_alt - p_hat) / u_pub) < 0.1) or np.sign(p_alt[i_rho0 + j]) == np.sign(rho)
-            if not same:
-                d_chi2 = max(2.0 * (float(alt.cost) - float(sol.cost)) / s2, 0.0)
+        d_chi2, cand = best.get(j, (None, None))
         common = dict(channel=int(ch), rho_mm=rho, offset_mm=float(np.max(e_k)),
                       mirror_possible=mirror_exists(rho, e_k), predicted_delta_chi2=pred, offset_to_resolve_mm=x_fix)
         if d_chi2 is not None and d_chi2 < RESOLVED_DCHI2:
             with np.errstate(all="ignore"):
                 trial = refit(j)
-            p_alt = public(trial.x) if bool(trial.success) and np.isfinite(trial.cost) else None
+            ok = bool(trial.success) and np.isfinite(trial.cost) and np.sign(public(trial.x)[i_rho0 + j]) != np.sign(rho)
+            if not ok or (hasattr(cand, "jac") and cand.cost < trial.cost):
+                trial = cand  # another start found this beam's other sign lower than its own refit
+            p_alt = public(trial.x) if hasattr(trial, "jac") else None
             if p_alt is not None and np.sign(p_alt[i_rho0 + j]) != np.sign(rho):
                 d_chi2 = max(2.0 * (float(trial.cost) - float(sol.cost)) / s2, 0.0)
                 fr = fit_result([f"p{i}" for i in range(trial.x.size)], trial.x, np.asarray(trial.fun),
