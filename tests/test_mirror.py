@@ -13,9 +13,15 @@ import pytest
 from borescan import simulate
 from borescan.calibration import fit_full_calibration
 from borescan.geometry import Beams
-from borescan.mirror import (RESOLVED_DCHI2, BeamMirror, mirror_checks_of, mixture_components, offset_to_resolve_mm,
-                             predicted_depth, valid_bore_radius_range_mm)
-from borescan.plan import DeviceDesign, ScanDesign, predict
+from borescan.mirror import (
+    RESOLVED_DCHI2,
+    BeamMirror,
+    mirror_checks_of,
+    mixture_components,
+    offset_to_resolve_mm,
+    predicted_depth,
+    valid_bore_radius_range_mm,
+)
 
 R_MM = 137.5
 
@@ -69,7 +75,7 @@ def test_valid_bore_range_is_where_the_solutions_turn_apart_by_two_u():
 
 
 def test_mixture_weights_are_normalised_likelihood_ratios():
-    alt = dict(params=tuple(range(9)), cov=tuple(tuple(0.0 for _ in range(9)) for _ in range(9)))
+    alt = {"params": tuple(range(9)), "cov": tuple(tuple(0.0 for _ in range(9)) for _ in range(9))}
     from borescan.mirror import MirrorSolution
 
     checks = [BeamMirror(1, 5.0, 1.0, True, 3.0, 2.0, False, 0.0, 0.0, 1.0, MirrorSolution(**alt, delta_chi2=2.0, weight=0)),
@@ -123,7 +129,7 @@ def test_resolved_beams_keep_their_own_curvature(flagged_fit):
     beam 2's mirror (whose parameters shift the offset and beta_2 by many u)."""
     from borescan.calibration import _public_cov, _public_index
 
-    scene, cal = flagged_fit
+    _, cal = flagged_fit
     c = 3
     idx = _public_index(c, 0)
     ok = idx >= 0
@@ -174,9 +180,9 @@ def test_mixture_diameter_against_the_mixture_in_closed_form():
 def test_a_bore_outside_the_valid_range_is_refused_with_the_reason(flagged_fit):
     from borescan.mirror import refusal
 
-    scene, cal = flagged_fit
+    _, cal = flagged_fit
     checks = mirror_checks_of(cal.diagnostics)
-    lo, hi = checks[1].valid_bore_diameter_mm
+    lo = checks[1].valid_bore_diameter_mm[0]
     assert refusal("S1", cal.calibration_id, 2 * R_MM, checks) is None
     why = refusal("S1", cal.calibration_id, 0.5 * lo, checks)
     assert why.startswith(f"S1: bore diameter {0.5 * lo:.3f} mm outside {lo:.1f} mm to ")
@@ -186,7 +192,7 @@ def test_a_bore_outside_the_valid_range_is_refused_with_the_reason(flagged_fit):
 def test_calibration_rows_carry_each_beams_mirror_check(flagged_fit):
     from borescan.calibrations import calibration_rows
 
-    scene, cal = flagged_fit
+    _, cal = flagged_fit
     rows = {r["channel"]: r for r in calibration_rows(cal, "tri_lds", "2026-11-20", None, "f" * 64)}
     m = {x.channel: x for x in mirror_checks_of(cal.diagnostics)}
     assert rows[2]["rho_sign_resolved"] is False and rows[2]["p_wrong_sign"] == m[2].p_wrong_sign > 0
@@ -198,7 +204,7 @@ def test_calibration_rows_carry_each_beams_mirror_check(flagged_fit):
 def test_certificate_json_states_the_undetermined_sign_with_both_solutions(flagged_fit):
     from borescan.certificate import rho_sign_part
 
-    scene, cal = flagged_fit
+    _, cal = flagged_fit
     part = rho_sign_part(cal)
     b = {m["channel"]: m for m in part["beams"]}
     assert b[2]["statement"].startswith("the sign of rho of channel 2 is not determined by this scan: two solutions")
@@ -215,7 +221,7 @@ def test_report_lists_a_flagged_beam_with_what_to_do(flagged_fit):
     from borescan.calibrations import calibration_rows
     from borescan.report import _rho_sign_notes
 
-    scene, cal = flagged_fit
+    _, cal = flagged_fit
     html = _rho_sign_notes(pl.DataFrame(calibration_rows(cal, "tri_lds", "2026-11-20", None, "f" * 64)))
     m2 = mirror_checks_of(cal.diagnostics)[1]
     assert html.count("<li>") == 1 and "the sign of rho of channel 2 is not determined by its scan" in html

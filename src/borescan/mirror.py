@@ -30,25 +30,26 @@ would resolve it, (1) solved for e at delta_chi2_m = K (:func:`offset_to_resolve
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 __all__ = [
     "RESOLVED_DCHI2",
-    "MirrorSolution",
     "BeamMirror",
-    "predicted_depth",
-    "mirror_exists",
-    "offset_to_resolve_mm",
-    "valid_bore_radius_range_mm",
-    "mixture_components",
-    "mirror_checks_of",
+    "MirrorSolution",
     "MixtureDiameter",
+    "mirror_checks_of",
+    "mirror_exists",
+    "mixture_components",
     "mixture_diameter",
     "mixture_seed",
+    "offset_to_resolve_mm",
+    "predicted_depth",
     "refusal",
+    "valid_bore_radius_range_mm",
 ]
 
 #: a mirror at least this far (in chi^2 units) above the kept minimum is resolved: its weight
@@ -192,7 +193,7 @@ class BeamMirror:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "BeamMirror":
+    def from_dict(cls, d: dict) -> BeamMirror:
         def f(x):
             return float("inf") if x == "inf" else float("nan") if x is None else float(x)
 

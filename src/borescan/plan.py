@@ -19,8 +19,8 @@ the fit's second-order term 3 u(rho)^4 / (4 R^2) (d_b = g - rho^2 / (2R)).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Sequence
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from borescan.calibration import _readings_and_jacobian
 from borescan.geometry import Beams
 from borescan.mirror import RESOLVED_DCHI2, mirror_exists, offset_to_resolve_mm, predicted_depth
 
-__all__ = ["DeviceDesign", "ScanDesign", "PlanPrediction", "predict", "recommend", "scan_angles_rad"]
+__all__ = ["DeviceDesign", "PlanPrediction", "ScanDesign", "predict", "recommend", "scan_angles_rad"]
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ class ScanDesign:
         """Samples of each channel over the whole scan."""
         rate_hz = self.samples_per_rev * self.rpm[0] / 60.0
         seg_s = [self.revolutions / len(self.rpm) * 60.0 / r for r in self.rpm]
-        return int(round(rate_hz * sum(seg_s)))
+        return round(rate_hz * sum(seg_s))
 
 
 @dataclass(frozen=True)
@@ -104,7 +104,7 @@ def scan_angles_rad(scan: ScanDesign) -> tuple[np.ndarray, np.ndarray]:
     parts, start = [], 0.0
     for r in scan.rpm:
         dur = scan.revolutions / len(scan.rpm) * 60.0 / r
-        t = np.arange(int(round(dur * rate_hz))) / rate_hz
+        t = np.arange(round(dur * rate_hz)) / rate_hz
         parts.append(start + 2.0 * math.pi * r / 60.0 * t)
         start = parts[-1][-1] + 2.0 * math.pi * r / 60.0 / rate_hz if t.size else start
     Phi = np.concatenate(parts)
