@@ -226,3 +226,37 @@ def test_report_lists_a_flagged_beam_with_what_to_do(flagged_fit):
     m2 = mirror_checks_of(cal.diagnostics)[1]
     assert html.count("<li>") == 1 and "the sign of rho of channel 2 is not determined by its scan" in html
     assert f"at least {m2.offset_to_resolve_mm:.2f} mm from the gauge centre" in html
+
+
+@pytest.mark.parametrize("where", ["gauge", "beyond"])
+def test_a_diameter_with_a_flagged_calibration_is_the_mixture_or_refused(flagged_fit, tmp_path, where):
+    """A static scan (10 poses, sigma 2 um) of a bore measured with the flagged calibration: at the gauge's size
+    the diameter is the two-solution Monte Carlo (JCGM 101) and its interval holds the true diameter; 10 % beyond
+    the valid range's upper end (sensors of a range that reaches it) the measurement is refused with the reason."""
+    from borescan import rawio
+    from borescan.config import schema_defaults
+    from borescan.measure import tri_diameter_with_budget
+
+    scene, cal = flagged_fit
+    lo, hi = mirror_checks_of(cal.diagnostics)[1].valid_bore_diameter_mm
+    assert math.isfinite(hi)
+    R = R_MM if where == "gauge" else 0.55 * hi
+    reach = float(R - min(scene.beams.d_b_mm) + 10.0)
+    st = replace(scene, bore_radius_20_mm=R, bore_center_xy_mm=(0.0, 0.0), range_mm=(reach,) * 3)
+    art = {"id": "RG", "type": "ring_gauge", "nominal_diameter_mm": 2 * R, "certified_diameter_mm": 2 * R,
+           "u_diameter_mm": 0.0, "k": 2, "cte_per_k": 0.0}
+    sim = simulate.simulate_tri_static(st, noise_mm=0.002, seed=3, artifact=art, scan_id="STAT1",
+                                       extra_meta=None)
+    scan = rawio.read_scan(simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth"))
+    unc = schema_defaults()["uncertainty"]
+    if lo <= 2 * R <= hi:
+        res, du = tri_diameter_with_budget(scan, cal, unc)
+        mix = res["mirror_mixture"]
+        assert du.combined_t.method.startswith("Monte Carlo (JCGM 101), 2-solution mixture")
+        assert mix.weights[1] == pytest.approx(mirror_checks_of(cal.diagnostics)[1].p_wrong_sign, rel=1e-12)
+        assert mix.interval_mm[0] <= 2 * R <= mix.interval_mm[1]
+        assert du.combined_t.U >= du.combined_t.u * 1.9
+    else:
+        with pytest.raises(ValueError, match=r"^STAT1: bore diameter .* outside .* the sign of rho of channel 2 is "
+                                             r"not determined"):
+            tri_diameter_with_budget(scan, cal, unc)
