@@ -362,7 +362,7 @@ def mirror_summary(rows: list[dict]) -> dict:
     """Issue 36's figures: resolved beams' z (SD, 95 % coverage, u / CRB in [0.9, 1.2]), the flagged count
     against Eq. (1)'s at the truth, and among flagged beams the observed wrong-sign rate against the stated
     probabilities (their mean)."""
-    z, ratio, n_beams, n_flag, n_formula, p_stated, wrong, sign_err_resolved = [], [], 0, 0, 0, [], [], 0
+    z, ratio, e_crb, n_beams, n_flag, n_formula, p_stated, wrong, sign_err_resolved = [], [], [], 0, 0, 0, [], [], 0
     for r in rows:
         if not r.get("accepted") or "mirror" not in r:
             continue
@@ -385,12 +385,14 @@ def mirror_summary(rows: list[dict]) -> dict:
             z.append(r["err"][k] / r["u"][k])
             if r.get("u_crb") and r["u_crb"][k] > 0:
                 ratio.append(r["u"][k] / r["u_crb"][k])
-    z, ratio = np.array(z), np.array(ratio)
+                e_crb.append(r["err"][k] / r["u_crb"][k])
+    z, ratio, e_crb = np.array(z), np.array(ratio), np.array(e_crb)
     return {"beams": n_beams, "flagged": n_flag, "formula_flagged": n_formula,
             "resolved_z_sd": float(np.std(z)) if z.size else float("nan"),
             "resolved_cover95": float(np.mean(np.abs(z) <= 1.959964)) if z.size else float("nan"),
             "resolved_u_crb_in_0.9_1.2": float(np.mean((ratio >= 0.9) & (ratio <= 1.2))) if ratio.size else float("nan"),
             "resolved_sign_errors": sign_err_resolved,
+            "resolved_err_over_crb_rms": float(np.sqrt(np.mean(e_crb**2))) if e_crb.size else float("nan"),
             "flagged_wrong_sign_observed": float(np.mean(wrong)) if wrong else float("nan"),
             "flagged_wrong_sign_stated": float(np.mean(p_stated)) if p_stated else float("nan")}
 
@@ -458,7 +460,8 @@ def print_table(rows: list[dict]) -> dict:
     ms = mirror_summary(rows)
     print(f"mirror check (issue 36): {ms['flagged']} of {ms['beams']} beams flagged (Eq. (1) at the truth: "
           f"{ms['formula_flagged']}); resolved beams: z SD {ms['resolved_z_sd']:.3f}, cover95 "
-          f"{ms['resolved_cover95']:.1%}, u/CRB in [0.9, 1.2] {ms['resolved_u_crb_in_0.9_1.2']:.1%}, sign errors "
+          f"{ms['resolved_cover95']:.1%}, u/CRB in [0.9, 1.2] {ms['resolved_u_crb_in_0.9_1.2']:.1%}, errors/CRB rms "
+          f"{ms['resolved_err_over_crb_rms']:.3f}, sign errors "
           f"{ms['resolved_sign_errors']}; flagged beams: wrong sign kept {ms['flagged_wrong_sign_observed']:.3f} "
           f"observed vs {ms['flagged_wrong_sign_stated']:.3f} stated")
     print(f"calibration time: {s['seconds']['total']:.0f} s summed over scans, slowest {s['seconds']['max']:.1f} s")
