@@ -683,8 +683,13 @@ def fit_full_calibration(
     Delta chi^2 = 12.5 and the likelihood-weighted spread of every parameter along it enters the
     covariance (``diagnostics["rho_profiles"]``); a lower cost found on the way is refitted and kept.
     Distinct minima (mirror starts, dips along a profile) are listed with 2 (cost - cost_kept) / s^2
-    (``diagnostics["minima"]``, ``"n_minima"``, ``"ambiguous_minima"`` when one is within 4 s^2);
-    each adds its spread weighted by exp(-Delta/2) unless a profile spans it. u(d_b) of a linear
+    (``diagnostics["minima"]``, ``"n_minima"``, ``"ambiguous_minima"`` when one is within 4 s^2).
+    Each beam's mirror check (``diagnostics["mirror_check"]``, :mod:`borescan.mirror`, issue 36): the
+    depth N e^4 rho^2 / (2 sigma^2 R^4) next to the lowest minimum found with that beam's rho of the
+    other sign; resolved (none, or >= 25 in chi^2): one value with u from its own curvature; flagged:
+    two weighted solutions (refitted from the final solution's mirror, covariance from their own
+    Jacobians), never folded into one u, and a non-linear profile of another beam along which the
+    flagged rho changes sign adds nothing to that beam. u(d_b) of a linear
     profile includes the second-order term of d_b = g - rho^2 / (2R) (3 u(rho)^4 / (4 R^2)). Solved with
     :func:`borescan.levmar.levenberg_marquardt` (MINPACK's Levenberg-Marquardt on a LAPACK QR,
     analytic Jacobian). Covariance
@@ -1328,8 +1333,9 @@ def fit_full_calibration(
             "ambiguous_minima": bool(ambiguous),
             "minima_note": (
                 "distinct minima of SSR + prior besides the one kept (mirror starts, dips along the rho profiles), "
-                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; below 4 the data cannot reject it (ambiguous): "
-                "its spread, weighted by exp(-delta/2), is in the covariance"
+                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; below 4 the data cannot reject it (ambiguous); "
+                "not in the covariance: a beam whose rho sign such a minimum flips is flagged in mirror_check and "
+                "carried as two weighted solutions"
             ),
             "rho_profiles": profiles,
             "rho_profile_note": (
