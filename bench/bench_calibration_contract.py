@@ -229,6 +229,22 @@ def evaluate_scan(job: tuple) -> dict:
     row.update(beta_reference=ref, families=fam, err=err.tolist(), u=u.tolist(), rho_true_mm=tb.rho_mm.tolist(),
                weak_rho=list(cal.diagnostics.get("weak_rho_channels", [])),
                residual_to_noise=float(cal.residual_rms_mm / ct["noise_mm"]))
+    # the mirror check of each beam (issue 36): resolved or flagged, its delta chi^2, the stated probability of
+    # the wrong sign, whether the kept sign is the truth's; and Eq. (1) at the truth (|rho| > sqrt(2) e)
+    from borescan.mirror import mirror_checks_of, mirror_exists, predicted_depth
+
+    checks = {m.channel: m for m in mirror_checks_of(cal.diagnostics)}
+    e_true = float(np.hypot(*np.subtract(ct["spindle_xy_mm"], ct["center_xy_mm"])))
+    n_ch = np.isfinite(np.asarray(rawio.lds_matrix(scan).values_mm, dtype=float)).sum(axis=0)
+    row["mirror"] = [{
+        "channel": int(ch), "resolved": bool(checks[ch].resolved) if ch in checks else True,
+        "refit_delta_chi2": checks[ch].refit_delta_chi2 if ch in checks else None,
+        "p_wrong_sign": float(checks[ch].p_wrong_sign) if ch in checks else 0.0,
+        "sign_right": bool(np.sign(cal.beams.rho_mm[j]) == np.sign(tb.rho_mm[j])),
+        "formula_flagged": bool(mirror_exists(float(tb.rho_mm[j]), e_true)
+                                and predicted_depth([int(n_ch[j])], [e_true], float(tb.rho_mm[j]), [ct["noise_mm"]],
+                                                    float(scene.bore_radius_20_mm)) < 25.0),
+    } for j, ch in enumerate(cal.beams.channels)]
     # Cramer-Rao bound in the calibration's gauge
     mat = rawio.lds_matrix(scan)
     t_s = np.asarray(mat.t_s, dtype=float)
@@ -334,6 +350,55 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
+def _channel_of_row(k: int, families: list[str], c: int, f: int | None) -> int:
+    """Channel index of row k of :func:`_compared` (betas of the non-fixed channels, rhos, d_bs)."""
+    nb = sum(1 for x in families if x == "beta")
+    if k < nb:
+        return k + (1 if f is not None and k >= f else 0)
+    return (k - nb) % c
+
+
+def mirror_summary(rows: list[dict]) -> dict:
+    """Issue 36's figures: resolved beams' z (SD, 95 % coverage, u / CRB in [0.9, 1.2]), the flagged count
+    against Eq. (1)'s at the truth, and among flagged beams the observed wrong-sign rate against the stated
+    probabilities (their mean)."""
+    z, ratio, e_crb, n_beams, n_flag, n_formula, p_stated, wrong, sign_err_resolved = [], [], [], 0, 0, 0, [], [], 0
+    for r in rows:
+        if not r.get("accepted") or "mirror" not in r:
+            continue
+        fam, c = r["families"], len(r["mirror"])
+        f = _fixed_channel(r["beta_reference"], [m["channel"] for m in r["mirror"]])
+        flagged = {j for j, m in enumerate(r["mirror"]) if not m["resolved"]}
+        for j, m in enumerate(r["mirror"]):
+            n_beams += 1
+            n_formula += int(m["formula_flagged"])
+            k_rho = sum(1 for x in fam if x == "beta") + j
+            u_crb_rho = (r.get("u_crb") or [0.0] * len(fam))[k_rho]
+            if m["resolved"]:  # a gross error only where the sign means something: |rho| > 2 CRB
+                sign_err_resolved += int(not m["sign_right"] and abs(r["rho_true_mm"][j]) > 2.0 * u_crb_rho)
+            else:
+                n_flag += 1
+                p_stated.append(m["p_wrong_sign"])
+                wrong.append(0.0 if m["sign_right"] else 1.0)
+        for k in range(len(fam)):
+            j = _channel_of_row(k, fam, c, f)
+            if j in flagged or (fam[k] == "beta" and f is not None and f in flagged) or r["u"][k] <= 0:
+                continue
+            z.append(r["err"][k] / r["u"][k])
+            if r.get("u_crb") and r["u_crb"][k] > 0:
+                ratio.append(r["u"][k] / r["u_crb"][k])
+                e_crb.append(r["err"][k] / r["u_crb"][k])
+    z, ratio, e_crb = np.array(z), np.array(ratio), np.array(e_crb)
+    return {"beams": n_beams, "flagged": n_flag, "formula_flagged": n_formula,
+            "resolved_z_sd": float(np.std(z)) if z.size else float("nan"),
+            "resolved_cover95": float(np.mean(np.abs(z) <= 1.959964)) if z.size else float("nan"),
+            "resolved_u_crb_in_0.9_1.2": float(np.mean((ratio >= 0.9) & (ratio <= 1.2))) if ratio.size else float("nan"),
+            "resolved_sign_errors": sign_err_resolved,
+            "resolved_err_over_crb_rms": float(np.sqrt(np.mean(e_crb**2))) if e_crb.size else float("nan"),
+            "flagged_wrong_sign_observed": float(np.mean(wrong)) if wrong else float("nan"),
+            "flagged_wrong_sign_stated": float(np.mean(p_stated)) if p_stated else float("nan")}
+
+
 def _subset(rows, **want):
     return [r for r in rows if all(r.get(k) == v for k, v in want.items())]
 
@@ -394,6 +459,13 @@ def print_table(rows: list[dict]) -> dict:
         zz = [e / u if u > 0 else float("nan") for e, u in zip(r["err"], r["u"])]
         print(f"  largest |z|: {r['scan_id']} ({r['angle_source']}, positions {'known' if r['position_known'] else 'unknown'}, "
               f"{r['beta_reference']}, weak rho {r['weak_rho']}): z = {np.round(zz, 2).tolist()}")
+    ms = mirror_summary(rows)
+    print(f"mirror check (issue 36): {ms['flagged']} of {ms['beams']} beams flagged (Eq. (1) at the truth: "
+          f"{ms['formula_flagged']}); resolved beams: z SD {ms['resolved_z_sd']:.3f}, cover95 "
+          f"{ms['resolved_cover95']:.1%}, u/CRB in [0.9, 1.2] {ms['resolved_u_crb_in_0.9_1.2']:.1%}, errors/CRB rms "
+          f"{ms['resolved_err_over_crb_rms']:.3f}, sign errors where |rho| > 2 CRB "
+          f"{ms['resolved_sign_errors']}; flagged beams: wrong sign kept {ms['flagged_wrong_sign_observed']:.3f} "
+          f"observed vs {ms['flagged_wrong_sign_stated']:.3f} stated")
     print(f"calibration time: {s['seconds']['total']:.0f} s summed over scans, slowest {s['seconds']['max']:.1f} s")
     return s
 

@@ -184,6 +184,9 @@ def evaluate_chain(job: tuple) -> dict:
                            "dominant": comb.dominant.split(":", 1)[0]})
     row["params"] = params
     row["weak_rho"] = list(cal.diagnostics.get("weak_rho_channels", []))
+    from borescan.mirror import mirror_checks_of
+
+    row["flagged"] = any(not m.resolved for m in mirror_checks_of(cal.diagnostics))
     if truth.get("meas_path"):
         pscan = rawio.read_scan(Path(truth["meas_path"]))
         try:
@@ -272,6 +275,13 @@ def print_table(rows: list[dict]) -> dict:
         ok = "yes" if 0.93 <= d["cover"] <= 0.97 else "NO"
         print(f"{fam:16s} {d['n']:5d} {d['cover']:8.1%} {d['se']:6.1%} {d['z_sd']:6.3f} {d['z_max']:7.2f} "
               f"{d['k_mean']:7.3f}  {ok}")
+    # issue 36: diameters measured with a calibration whose sign of some rho its scan did not determine
+    # (the two-solution mixture by Monte Carlo, or refused outside the valid bore range)
+    acc = [r for r in rows if r.get("accepted") and r.get("flagged")]
+    for fam in ("D at 20 degC", "D at T"):
+        d = _stats([x for r in acc for x in r.get("diameters", []) if x["family"] == fam])
+        print(f"flagged calibrations, {fam}: n {d['n']}, cover95 {d['cover']:.1%} +- {d['se']:.1%}, z SD {d['z_sd']:.3f}")
+    print(f"flagged calibrations: {len(acc)}, measurements refused {sum(1 for r in acc if r.get('measure_error'))}")
     print("by the budget's dominant input:")
     for fam, by in s["by_dominant"].items():
         for dom, d in by.items():

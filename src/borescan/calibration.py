@@ -52,6 +52,8 @@ from borescan.fit import FitResult, fit_result, jacobian_summary
 from borescan.geometry import Beams, Bore, beam_frame, tri_spindle_readings, tri_spindle_readings_channel_major
 from borescan.kinematics import AngleModel, angle_model_from_arrays, estimate_speed_scale
 from borescan.levmar import levenberg_marquardt
+from borescan.mirror import (RESOLVED_DCHI2, BeamMirror, MirrorSolution, mirror_exists, offset_to_resolve_mm,
+                             predicted_depth, valid_bore_radius_range_mm)
 from borescan.noise import noise_floor_mm
 from borescan.physics.tri import first_harmonic_start
 
@@ -657,8 +659,13 @@ def fit_full_calibration(
     Delta chi^2 = 12.5 and the likelihood-weighted spread of every parameter along it enters the
     covariance (``diagnostics["rho_profiles"]``); a lower cost found on the way is refitted and kept.
     Distinct minima (mirror starts, dips along a profile) are listed with 2 (cost - cost_kept) / s^2
-    (``diagnostics["minima"]``, ``"n_minima"``, ``"ambiguous_minima"`` when one is within 4 s^2);
-    each adds its spread weighted by exp(-Delta/2) unless a profile spans it. u(d_b) of a linear
+    (``diagnostics["minima"]``, ``"n_minima"``, ``"ambiguous_minima"`` when one is within 4 s^2).
+    Each beam's mirror check (``diagnostics["mirror_check"]``, :mod:`borescan.mirror`, issue 36): the
+    depth N e^4 rho^2 / (2 sigma^2 R^4) next to the lowest minimum found with that beam's rho of the
+    other sign; resolved (none, or >= 25 in chi^2): one value with u from its own curvature; flagged:
+    two weighted solutions (refitted from the final solution's mirror, covariance from their own
+    Jacobians), never folded into one u, and a non-linear profile of another beam along which the
+    flagged rho changes sign adds nothing to that beam. u(d_b) of a linear
     profile includes the second-order term of d_b = g - rho^2 / (2R) (3 u(rho)^4 / (4 R^2)). Solved with
     :func:`borescan.levmar.levenberg_marquardt` (MINPACK's Levenberg-Marquardt on a LAPACK QR,
     analytic Jacobian). Covariance
@@ -960,13 +967,32 @@ def fit_full_calibration(
     step = max(1, n_obs // MIRROR_SCREEN_READINGS)
     screen = [slice(None, None, step)] * K if step > 1 else None
 
+    def mirror_start(x: np.ndarray, j: int) -> np.ndarray:
+        """The mirror of beam ``j`` (rho -> -rho at fixed psi and g). The gauge-fixed first beam's psi is
+        not free: flipping its rho moves psi_1 by delta = -2 asin(rho_1 / R), and the readings depend on
+        psi_c + phase - angle(o), so every other psi moves by delta too and each scan's frame turns by
+        delta (its offset without a prior, else its free phase back by delta)."""
+        xf = np.array(x, dtype=float, copy=True)
+        xf[i_rho0 + j] = -xf[i_rho0 + j]
+        if j == 0 and not ch0_free:
+            delta = -2.0 * float(np.arcsin(np.clip(x[i_rho0] / R_mm, -1.0, 1.0)))
+            xf[: c - 1] += delta
+            cd, sd = np.cos(delta), np.sin(delta)
+            for k in range(K):
+                cols = nuis_cols[k]
+                if priors[k] is None:
+                    ox, oy = x[cols["ox"]], x[cols["oy"]]
+                    xf[cols["ox"]], xf[cols["oy"]] = cd * ox - sd * oy, sd * ox + cd * oy
+                elif "phase" in cols:
+                    xf[cols["phase"]] -= delta
+        return xf
+
     def mirror_search(sol):
-        """Refit from every beam's mirror (rho_c -> -rho_c at fixed psi and g); keep the lowest cost."""
+        """Refit from every beam's mirror (:func:`mirror_start`); keep the lowest cost."""
         tried, alts = [], []
         kept = None  # the kept solution refitted on the screen's samples, its s^2 and u of its rhos
         for j in range(c):
-            xf = sol.x.copy()
-            xf[i_rho0 + j] = -xf[i_rho0 + j]
+            xf = mirror_start(sol.x, j)
             if screen is not None:
                 if kept is None:
                     with np.errstate(all="ignore"):
@@ -1058,12 +1084,7 @@ def fit_full_calibration(
             cov_int = fit.cov
             rho_hat = unpack(sol.x)[0].rho_mm
             # Jacobian of the public free parameters (beta free, rho, d_b, nuisance) w.r.t. internal ones
-            A = np.eye(p_free)
-            for j in range(c):
-                A[2 * c - 1 + ch0_free + j, i_rho0 + j] = -rho_hat[j] / R_mm
-                if j > 0 or ch0_free:
-                    A[j - 1 + ch0_free, i_rho0 + j] = -1.0 / np.sqrt(R_mm**2 - rho_hat[j] ** 2)
-            cov_free = A @ cov_int @ A.T
+            cov_free = _public_cov(sol.x, cov_int, c, ch0_free, R_mm)
             # the linearisation, checked along each rho: rho enters the readings mostly through rho^2
             # (the first harmonic's amplitude |o| sqrt(1 + rho^2/R^2)), so its cost valley can be
             # skewed and curved (beta and the other rhos move non-linearly with it)
@@ -1110,11 +1131,27 @@ def fit_full_calibration(
         out[..., ok] = v[..., idx[ok]]
         return out
 
+    # ---- the mirror check of every beam (issue 36): Eq. (1) of borescan.mirror next to the explicit refit
+    # from -rho; a flagged beam (a mirror within RESOLVED_DCHI2) is carried as two weighted solutions
+    checks = _mirror_checks(
+        sol, s2, mirrors_tried, alternatives, cov_free, p_hat, rho_hat, nuis, masks, floors, channels, R_mm,
+        i_rho0=i_rho0, refit=lambda j: solve(mirror_start(sol.x, j)),
+        public=public, params_of=params_of, public_cov=lambda x, C: _public_cov(x, C, c, ch0_free, R_mm))
+    flagged = {j for j, m in enumerate(checks) if not m.resolved}
     extra = np.zeros_like(cov_free)
     for j, prof in enumerate(profiles):
         M = prof.pop("_second_moment", None)
         P, wts = prof.pop("_points", (None, None))
         if M is None:
+            continue
+        if j in flagged:  # a flagged beam's profile walks into its mirror's valley: the two solutions carry it
+            prof["not_used"] = "the sign of this rho is not resolved: two solutions instead of one spread"
+            continue
+        crossed = [int(channels[f]) for f in sorted(flagged)
+                   if np.any(np.sign(p_hat[i_rho0 + f] + P[:, i_rho0 + f]) != np.sign(p_hat[i_rho0 + f]))]
+        if crossed:  # refitted along this rho, a flagged beam went over to its mirror: that is its two
+            # solutions' spread, not this beam's own curvature
+            prof["not_used"] = f"along this profile the flagged rho of channel(s) {crossed} changed sign"
             continue
         i = i_rho0 + j
         E = M - np.outer(cov_free[:, i], cov_free[:, i]) / cov_free[i, i]
@@ -1173,9 +1210,8 @@ def fit_full_calibration(
             (not profiles[j]["linear"]) and profiles[j]["rho_range_mm"][0] <= p_alt[i_rho0 + j] <= profiles[j]["rho_range_mm"][1]
             for j in moved)
         m["spanned_by_profile"] = bool(spanned)
-        if not spanned:
-            d = p_alt - p_hat
-            cov_free += (wgt / total_w) * np.outer(d, d)
+        # not added to the covariance: a mirror within RESOLVED_DCHI2 is the flagged beam's second solution
+        # (diagnostics["mirror_check"]), one further away weighs less than exp(-12.5)
     ambiguous = [m for m in minima if m["delta_ssr_over_s2"] < 4.0]
     cov = np.zeros((3 * c, 3 * c))
     cov[np.ix_(ok, ok)] = cov_free[np.ix_(idx[ok], idx[ok])]
@@ -1261,13 +1297,21 @@ def fit_full_calibration(
             "g_note": "g = d_b + rho^2 / (2 R): the mean level the data fix best (R the gauge radius)",
             "weak_rho_channels": weak,
             "mirror_solutions": mirrors_tried,
+            "mirror_check": [m.to_dict() for m in checks],
+            "mirror_note": (
+                "per beam: the mirror's depth predicted by N e^4 rho^2 / (2 sigma^2 R^4) and refitted from -rho; "
+                f"resolved (no mirror, or delta chi^2 >= {RESOLVED_DCHI2:g}): one value, u from its own curvature; "
+                "flagged: two solutions with covariance, delta chi^2 and weight, the probability of the wrong sign, "
+                "the bore range where the calibration may be used and the spindle offset that would resolve it"
+            ),
             "n_minima": 1 + len(minima),
             "minima": minima,
             "ambiguous_minima": bool(ambiguous),
             "minima_note": (
                 "distinct minima of SSR + prior besides the one kept (mirror starts, dips along the rho profiles), "
-                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; below 4 the data cannot reject it (ambiguous): "
-                "its spread, weighted by exp(-delta/2), is in the covariance"
+                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; below 4 the data cannot reject it (ambiguous); "
+                "not in the covariance: a beam whose rho sign such a minimum flips is flagged in mirror_check and "
+                "carried as two weighted solutions"
             ),
             "rho_profiles": profiles,
             "rho_profile_note": (
@@ -1297,6 +1341,90 @@ def fit_full_calibration(
             },
         },
     )
+
+
+def _public_cov(x: np.ndarray, cov_int: np.ndarray, c: int, ch0_free: int, R_mm: float) -> np.ndarray:
+    """Covariance of the public free parameters (beta, rho, d_b, nuisance) from the internal one (psi, rho,
+    g, nuisance) at the internal vector ``x``: beta = psi - asin(rho / R), d_b = g - rho^2 / (2R)."""
+    i_rho0 = c - 1 + ch0_free
+    rho = np.asarray(x[i_rho0 : i_rho0 + c], dtype=float)
+    A = np.eye(cov_int.shape[0])
+    for j in range(c):
+        A[2 * c - 1 + ch0_free + j, i_rho0 + j] = -rho[j] / R_mm
+        if j > 0 or ch0_free:
+            A[j - 1 + ch0_free, i_rho0 + j] = -1.0 / np.sqrt(R_mm**2 - rho[j] ** 2)
+    return A @ cov_int @ A.T
+
+
+def _mirror_checks(sol, s2, tried, alternatives, cov_free, p_hat, rho_hat, nuis, masks, floors, channels, R_mm, *,
+                   i_rho0, refit, public, params_of, public_cov) -> list[BeamMirror]:
+    """One :class:`borescan.mirror.BeamMirror` per channel (:func:`fit_full_calibration`).
+
+    Every minimum of the mirror search (from any beam's start; delta chi^2 = 2 (cost - cost_kept) / s^2)
+    is a candidate mirror of each beam whose rho it has of the other sign; the lowest is the beam's. No
+    mirror: no such minimum (the refits returned to the kept solution, within 0.1 u of every parameter,
+    or kept the sign). A beam whose mirror lies within :data:`borescan.mirror.RESOLVED_DCHI2` is refitted
+    once more from the final solution's mirror (``refit(j)``); that refit, or the candidate where it is
+    lower, is its second solution, with covariance from its own Jacobian. Weights exp(-delta chi^2 / 2)
+    over the kept solution and this beam's mirror. (``tried`` is the search's log, aligned with
+    ``alternatives``.)
+    """
+    u_pub = np.sqrt(np.clip(np.diag(cov_free), 0.0, None))
+    u_pub[u_pub == 0] = 1.0
+    # every minimum the search found (from any beam's mirror start) counts for each beam whose rho sign it
+    # flips: the lowest of them is that beam's mirror candidate
+    best: dict[int, tuple[float, Any]] = {}
+    for alt in alternatives:
+        if alt is None or not np.isfinite(alt.cost):
+            continue
+        p_alt = public(alt.x)
+        if bool(np.max(np.abs(p_alt - p_hat) / u_pub) < 0.1):
+            continue
+        d_alt = max(2.0 * (float(alt.cost) - float(sol.cost)) / s2, 0.0)
+        for j in range(len(channels)):
+            if np.sign(p_alt[i_rho0 + j]) != np.sign(rho_hat[j]) and d_alt < best.get(j, (np.inf, None))[0]:
+                best[j] = (d_alt, alt)
+    e_k = np.array([float(np.hypot(*n[0])) for n in nuis])
+    out = []
+    for j, ch in enumerate(channels):
+        n_k = np.array([int(m[:, j].sum()) for m in masks])
+        sig_k = np.asarray(floors, float)[:, j]
+        rho = float(rho_hat[j])
+        pred = predicted_depth(n_k, e_k, rho, sig_k, R_mm)
+        sigma = float(np.sqrt(np.sum(n_k * sig_k**2) / max(n_k.sum(), 1)))
+        x_fix = offset_to_resolve_mm(R_mm, sigma, float(n_k.sum()), rho)
+        d_chi2, cand = best.get(j, (None, None))
+        common = dict(channel=int(ch), rho_mm=rho, offset_mm=float(np.max(e_k)),
+                      mirror_possible=mirror_exists(rho, e_k), predicted_delta_chi2=pred, offset_to_resolve_mm=x_fix)
+        if d_chi2 is not None and d_chi2 < RESOLVED_DCHI2:
+            with np.errstate(all="ignore"):
+                trial = refit(j)
+            ok = bool(trial.success) and np.isfinite(trial.cost) and np.sign(public(trial.x)[i_rho0 + j]) != np.sign(rho)
+            if not ok or (hasattr(cand, "jac") and cand.cost < trial.cost):
+                trial = cand  # another start found this beam's other sign lower than its own refit
+            p_alt = public(trial.x) if hasattr(trial, "jac") else None
+            if p_alt is not None and np.sign(p_alt[i_rho0 + j]) != np.sign(rho):
+                d_chi2 = max(2.0 * (float(trial.cost) - float(sol.cost)) / s2, 0.0)
+                fr = fit_result([f"p{i}" for i in range(trial.x.size)], trial.x, np.asarray(trial.fun),
+                                np.asarray(trial.jac), success=True)
+                cov_alt = params_of(params_of(public_cov(trial.x, fr.cov)).T)
+                w_alt = float(np.exp(-0.5 * d_chi2))
+                w_main = 1.0 / (1.0 + w_alt)
+                pa, pm = params_of(p_alt), params_of(p_hat)
+                # the beam's direction uncertainty (a gauge-fixed beta: the smallest of the other beams')
+                u_b = np.sqrt(np.clip(np.diag(params_of(params_of(cov_free).T))[0::3], 0.0, None))
+                u_beta = float(u_b[j]) if u_b[j] > 0 else float(np.min(u_b[u_b > 0], initial=np.inf))
+                lo, hi = valid_bore_radius_range_mm(R_mm, pm, pa, u_beta)
+                out.append(BeamMirror(
+                    **common, refit_delta_chi2=d_chi2, resolved=False, weight_main=w_main, p_wrong_sign=1.0 - w_main,
+                    alternative=MirrorSolution(tuple(float(v) for v in pa), tuple(tuple(float(v) for v in row)
+                                                                               for row in cov_alt),
+                                               d_chi2, 1.0 - w_main),
+                    rho_alt_mm=float(pa[3 * j + 1]), valid_bore_diameter_mm=(2.0 * lo, 2.0 * hi)))
+                continue
+            d_chi2 = None if p_alt is None or np.sign(p_alt[i_rho0 + j]) == np.sign(rho) else d_chi2
+        out.append(BeamMirror(**common, refit_delta_chi2=d_chi2, resolved=True, weight_main=1.0, p_wrong_sign=0.0))
+    return out
 
 
 #: the mirror search on long scans (:func:`fit_full_calibration`): with more than twice this many valid

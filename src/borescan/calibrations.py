@@ -28,6 +28,7 @@ import polars as pl
 
 from borescan.calibration import TriCalibration
 from borescan.geometry import RodLayer
+from borescan.mirror import mirror_checks_of
 
 __all__ = ["choose_calibration", "choose_rod_calibration", "failed_calibration_ids", "days_between", "calibration_rows",
            "rod_nominal_calibration_rows", "tri_calibration", "rod_layers", "calibration_drift", "DRIFT_PARAMS"]
@@ -108,6 +109,7 @@ def calibration_rows(cal: TriCalibration, device_type: str, night: str, certific
     rows = []
     u_beta, u_rho, u_db = cal.u_beta_rad, cal.u_rho_mm, cal.u_d_b_mm
     cal_json = json.dumps(cal.to_dict(), sort_keys=True)
+    checks = {m.channel: m for m in mirror_checks_of(cal.diagnostics)}
     for i, ch in enumerate(cal.beams.channels):
         rows.append({
             "calibration_id": cal.calibration_id, "device_id": cal.device_id, "device_type": device_type,
@@ -117,8 +119,23 @@ def calibration_rows(cal: TriCalibration, device_type: str, night: str, certific
             "method": cal.method, "certificate_path": certificate_path, "night": night, "valid_from": night,
             "status": "valid", "raw_sha256": raw_sha256, "residual_rms_mm": float(cal.residual_rms_mm),
             "calibration_json": cal_json,
+            **_mirror_columns(checks.get(int(ch))),
         })
     return rows
+
+
+def _mirror_columns(m) -> dict:
+    """The ``calibrations`` columns of one beam's mirror check (:class:`borescan.mirror.BeamMirror`; a
+    calibration without one, e.g. yang2017: nulls). A resolved beam has p_wrong_sign 0 and no valid range
+    (every bore); ``valid_bore_max_mm`` null also where the range has no upper limit."""
+    if m is None:
+        return {}
+    lo, hi = m.valid_bore_diameter_mm or (None, None)
+    return {"rho_sign_resolved": bool(m.resolved), "mirror_delta_chi2": m.refit_delta_chi2,
+            "mirror_depth_predicted": m.predicted_delta_chi2 if math.isfinite(m.predicted_delta_chi2) else None,
+            "p_wrong_sign": float(m.p_wrong_sign), "valid_bore_min_mm": lo,
+            "valid_bore_max_mm": hi if hi is not None and math.isfinite(hi) else None,
+            "offset_to_resolve_mm": m.offset_to_resolve_mm if math.isfinite(m.offset_to_resolve_mm) else None}
 
 
 def rod_nominal_calibration_rows(meta: dict, night: str, scan_id: str) -> list[dict]:

@@ -431,6 +431,7 @@ def certificate_dict(
         "covariance_fit": cal.diagnostics.get("cov_fit", cal.cov),
         "correlation": cal.correlation,
         "fit": _fit_part(cal),
+        "rho_sign": rho_sign_part(cal),
         "residuals": {"n_samples": int(t.size), "rms_mm_per_channel": rms},
         "raw_sha256": dict(sorted(cal.raw_sha256.items())),
     })
@@ -843,9 +844,55 @@ def _page_results(d: _Doc) -> None:
         d.para(f"Channels {fit['rho_profiled_channels']}: the cost along rho is not the linear one (rho enters the "
                "readings mostly through rho^2); their uncertainties come from the profile of the cost along rho, "
                "every other parameter refitted, not from the linearisation alone.")
-    if fit.get("ambiguous_minima"):
-        d.para(f"The fit found {fit.get('n_minima')} distinct minima, one within 4 s^2 of the one kept: the data "
-               "cannot reject it; its spread is included in the uncertainties.")
+    _rho_sign_paragraphs(d, c)
+
+
+def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
+    """Section 5: each beam's mirror check (certificate.json ``rho_sign``): the flagged beams' statement,
+    both solutions, the bore range and the fix; one line for the resolved ones."""
+    rs = c.get("rho_sign") or {}
+    checks = rs.get("beams") or []
+    if not checks:
+        return
+    flagged = [m for m in checks if not m["resolved"]]
+    resolved = [str(m["channel"]) for m in checks if m["resolved"]]
+    if resolved:
+        d.para(f"Sign of rho resolved for channel(s) {', '.join(resolved)} (no mirror solution, or one at least "
+               f"{rs['resolved_delta_chi2']:g} in chi^2 above the solution): their uncertainties are the fit's own.")
+    for m in flagged:
+        d.para(m["statement"].replace("the sign", "The sign", 1) + ".")
+        alt = m["alternative"]
+        u_main = m["u_main"]
+        d.para(f"Channel {m['channel']}, solution 1 (weight {m['weight_main']:.4f}): beta {u_main['beta_rad']:.6f} rad, "
+               f"rho {u_main['rho_mm']:+.4f} mm, d_b {u_main['d_b_mm']:.4f} mm; solution 2 (weight {alt['weight']:.4f}, "
+               f"delta chi^2 {alt['delta_chi2']:.2f}): beta {alt['beta_rad']:.6f} rad, rho {alt['rho_mm']:+.4f} mm, "
+               f"d_b {alt['d_b_mm']:.4f} mm. Both solutions' covariances are in certificate.json (rho_sign). "
+               "A diameter measured with this calibration carries both (Monte Carlo, JCGM 101) and is refused "
+               "outside the bore range above.")
+
+
+def rho_sign_part(cal: TriCalibration) -> dict:
+    """certificate.json ``rho_sign``: per beam the mirror check (:class:`borescan.mirror.BeamMirror`) with its
+    statement; a flagged beam's two solutions (parameters of its own channel, the full (3c,) vectors and
+    covariances)."""
+    from borescan.mirror import RESOLVED_DCHI2, mirror_checks_of
+
+    beams = []
+    for m in mirror_checks_of(cal.diagnostics):
+        j = list(cal.beams.channels).index(m.channel)
+        e = {**m.to_dict(), "statement": m.statement()}
+        e.pop("alternative", None)
+        if m.alternative is not None:
+            pa = m.alternative.params_array
+            e["u_main"] = {"beta_rad": float(cal.beams.beta_rad[j]), "rho_mm": float(cal.beams.rho_mm[j]),
+                           "d_b_mm": float(cal.beams.d_b_mm[j])}
+            e["alternative"] = {"beta_rad": float(pa[3 * j]), "rho_mm": float(pa[3 * j + 1]), "d_b_mm": float(pa[3 * j + 2]),
+                                "delta_chi2": m.alternative.delta_chi2, "weight": m.alternative.weight,
+                                "params": list(m.alternative.params), "covariance": m.alternative.cov}
+            e["main"] = {"params": cal.params.tolist(), "covariance": cal.cov.tolist()}
+        beams.append(e)
+    return {"resolved_delta_chi2": RESOLVED_DCHI2, "beams": beams,
+            "note": (cal.diagnostics or {}).get("mirror_note", "")}
 
 
 def _dominant_label(key: str) -> str:

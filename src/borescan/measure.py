@@ -911,7 +911,48 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict, cleaning=None) -> tuple[d
         readings_what="measurement", calibration_id=cal.calibration_id, model=res["model"], beams=cal.beams,
         rho_profiles=(cal.diagnostics or {}).get("rho_profiles"),
         extra_terms=_device_model_inputs(scan, cal, dm, cleaning))
-    return res, du
+    return _with_mirror_mixture(scan.scan_id, cal, res, du)
+
+
+def _with_mirror_mixture(scan_id: str, cal, res: dict, du: DiameterUncertainty) -> tuple[dict, DiameterUncertainty]:
+    """A calibration with a flagged beam (:mod:`borescan.mirror`): the diameter refused outside the bore range
+    where the calibration may be used (ValueError with the reason), else the two-solution mixture by Monte
+    Carlo (:func:`borescan.mirror.mixture_diameter`): the estimate, u and interval replace the GUM ones,
+    ``res["mirror_mixture"]`` holds the components. A calibration without a flagged beam: unchanged."""
+    from dataclasses import replace as _replace
+
+    from .mirror import mirror_checks_of, mixture_components, mixture_diameter, mixture_seed, refusal
+
+    checks = mirror_checks_of(cal.diagnostics)
+    if all(m.resolved for m in checks):
+        return res, du
+    why = refusal(scan_id, cal.calibration_id, float(res["diameter_mm"]), checks)
+    if why is not None:
+        raise ValueError(why)
+    jp = np.asarray(res["jac_params"], dtype=float)
+    cov_fit = np.asarray((cal.diagnostics or {}).get("cov_fit", cal.cov), dtype=float)
+    var_main = float(jp @ cov_fit @ jp)
+    comps = []
+    for k, (w, params, cov) in enumerate(mixture_components(cal.params, cov_fit, checks)):
+        p3 = np.asarray(params, dtype=float)
+        beams = Beams(cal.beams.channels, p3[0::3], p3[1::3], p3[2::3])
+        d_k = float(res["diameter_mm"]) if k == 0 else float(res["model"](beams))
+        comps.append((w, d_k, 0.0 if k == 0 else float(jp @ cov @ jp) - var_main))
+    f = du.diameter_20_mm / du.diameter_mm
+    p = du.combined_20.p
+    mix = mixture_diameter(comps, f, du.combined_20.u, du.combined_t.u, p, mixture_seed(scan_id, cal.calibration_id))
+    method = f"Monte Carlo (JCGM 101), {len(comps)}-solution mixture of calibration {cal.calibration_id}"
+
+    def combined(c, est, u, lo, hi):
+        U = max(est - lo, hi - est)
+        return _replace(c, u=u, U=U, k=U / u if u > 0 else float("nan"), method=method)
+
+    du2 = _replace(du, diameter_mm=mix.diameter_mm, diameter_20_mm=mix.diameter_20_mm,
+                   combined_t=combined(du.combined_t, mix.diameter_mm, mix.u_mm, *mix.interval_mm),
+                   combined_20=combined(du.combined_20, mix.diameter_20_mm, mix.u_20_mm, *mix.interval_20_mm),
+                   thermal_correction_mm=mix.diameter_20_mm - mix.diameter_mm)
+    res2 = dict(res, diameter_mm=mix.diameter_mm, u_diameter_mm=mix.u_mm, mirror_mixture=mix)
+    return res2, du2
 
 
 def _device_model_inputs(scan, cal, dm, cleaning=None) -> list[tuple[Input, float]]:

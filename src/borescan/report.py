@@ -1013,6 +1013,7 @@ class _Builder:
                              f"<code>{_e((r.get('certificate_sha256') or '')[:16])}</code>"])
             out.append(_table(["calibration", "valid from", "recalibration due", "method", "scans", "status",
                                "certificate", "certificate.json sha256"], rows))
+            out.append(_rho_sign_notes(mine))
         return "".join(out)
 
     def verification(self) -> str:
@@ -1439,6 +1440,30 @@ def _uncertainties(u: Any) -> dict[str, float]:
     if not isinstance(u, dict):
         return {}
     return {k.removeprefix("u_"): v for k, v in u.items() if isinstance(v, int | float)}
+
+
+def _rho_sign_notes(cal: pl.DataFrame) -> str:
+    """The beams of a device's calibrations whose sign of rho their scan did not determine (the
+    ``calibrations`` columns of the mirror check, issue 36): both solutions' weight, the bore range
+    where the calibration may be used and the scan that would fix it (HTML; "" when none)."""
+    if "rho_sign_resolved" not in cal.columns:
+        return ""
+    flagged = cal.filter(pl.col("rho_sign_resolved").fill_null(True).not_()).sort("valid_from", "calibration_id",
+                                                                                 "channel")
+    items = []
+    for r in flagged.iter_rows(named=True):
+        hi = r.get("valid_bore_max_mm")
+        rng = (f"{r['valid_bore_min_mm']:.1f} mm to " + ("no upper limit" if hi is None else f"{hi:.1f} mm")
+               if r.get("valid_bore_min_mm") is not None else "n/a")
+        fix = r.get("offset_to_resolve_mm")
+        items.append(f"<li><b>{_e(r['calibration_id'])}</b>: the sign of rho of channel {r['channel']} is not "
+                     f"determined by its scan (two solutions, probability of the wrong sign "
+                     f"{r['p_wrong_sign']:.3f}, the mirror {r['mirror_delta_chi2']:.2f} in chi² above); diameters "
+                     f"carry both solutions and are measured only for bores of {rng}"
+                     f'<br><span class="action">what to do: recalibrate with the spindle at least '
+                     f"{'n/a' if fix is None else f'{fix:.2f}'} mm from the gauge centre (borescan plan predicts "
+                     "the scan)</span></li>")
+    return f'<ul class="notes">{"".join(items)}</ul>' if items else ""
 
 
 def _calibration_models(cal: pl.DataFrame | None) -> dict[tuple[str, str], tuple[list[dict], float | None]]:
