@@ -11,7 +11,7 @@ DEMO   := data/demo
 help:
 	@echo "make run    - install, generate the demo nights, run the pipeline (results/)"
 	@echo "make test   - install, run the test suite"
-	@echo "make bench  - run the benchmarks (ratios measured side by side)"
+	@echo "make bench  - run the benchmarks, a contract night first (ratios measured side by side)"
 
 $(STAMP): requirements.lock pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (Python 3.11) on PATH"; exit 1; }

@@ -129,3 +129,19 @@ def test_every_job_of_several_processes_starts_its_workers_before_numpy():
             assert lines[1].startswith("start_job_workers(globals())"), script.group(1)
             checked.append(script.group(1))
     assert len(checked) >= 6, checked  # ingest, signal, calibrate, measure, discrepancy, pooled
+
+
+def test_map_timed_keeps_order_and_gives_each_items_cpu_seconds():
+    """The compute time of each item, as the log line the benchmark reads back."""
+    import re
+
+    from borescan.parallel import map_timed
+    from borescan.workflow_log import COMPUTE_RE, compute_line
+
+    items = list(range(2 * MIN_ITEMS_PER_WORKER + 3))
+    out = list(map_timed(_square_and_pid, items, workers=2))
+    assert [v for (v, _), _ in out] == [x * x for x in items]
+    assert all(s >= 0.0 for _, s in out)
+    m = COMPUTE_RE.search("[  1.00 s] " + compute_line("CT5-00001", 1.23456))
+    assert m and m["item"] == "CT5-00001" and float(m["seconds"]) == 1.235
+    assert re.fullmatch(r"compute \S+ [0-9.]+ s", compute_line("TRI-01", 0.5))

@@ -333,3 +333,51 @@ def test_rod_scans_over_the_contract_and_a_mixed_battery(tmp_path):
     assert json.loads((tmp_path / "b" / "battery.json").read_text())["kinds"] == ["calibration", "static", "rod"]
     with pytest.raises(ValueError, match="kinds must be among"):
         scenarios.write_battery(tmp_path / "d", 1, 1, kinds=("spindle",))
+
+
+def test_scale_effect_scales_sizes_only():
+    """Amplitudes, gains, delays scale by the factor, a temperature by its departure from 20 degC;
+    channel, harmonic, phase and frequency stay."""
+    from borescan.discrepancy.battery import scale_effect
+    from borescan.effects import Effect
+
+    e = scale_effect(Effect("spindle_error_motion", {"k": 3, "rho_mm": 0.004, "phase": 0.5}), 2.5)
+    assert e.params == {"k": 3, "rho_mm": 0.01, "phase": 0.5}
+    e = scale_effect(Effect("channel_delay", {"channel": 2, "tau_s": 0.001}), 0.3)
+    assert e.params["channel"] == 2 and math.isclose(e.params["tau_s"], 3e-4, rel_tol=1e-15)
+    e = scale_effect(Effect("thermal_expansion", {"temperature_c": 24.0}), 0.5)
+    assert e.params["temperature_c"] == 22.0
+    e = scale_effect(Effect("vibration", {"f_hz": 7.3, "a_mm": 0.004, "phase": 0.4}), 2.0)
+    assert e.params == {"f_hz": 7.3, "a_mm": 0.008, "phase": 0.4}
+
+
+def test_night_battery_measurements_on_calibrated_devices_and_rod_calibrations(tmp_path):
+    """A contract night: rotating measurements on the device of calibration scan i (same id,
+    beams, kinematics; a part of the gauge's size), rod calibration scans in ring-gauge sets, every
+    scan on one night, effects on a share of the scans decided from a stream of their own (the
+    scans' other draws unchanged), every scan valid for ingest."""
+    kinds = ("calibration", "measurement", "rod_calibration")
+    paths = scenarios.write_battery(tmp_path / "n", 2, 5, kinds=kinds, effect_share=1.0,
+                                    effect_scale_range=(0.3, 3.0), per_night=100)
+    assert [p.name for p in paths] == ["scan=CT5-00000", "scan=CT5-00001", "scan=CM5-00000", "scan=CM5-00001",
+                                       "scan=CK5-00000", "scan=CK5-00001"]
+    assert {p.parent.name for p in paths} == {"night=2027-01-01"}
+    scans = {p.name[5:]: rawio.read_scan(p) for p in paths}
+    truth = {sid: json.loads((tmp_path / "n" / "truth" / f"{sid}.truth.json").read_text()) for sid in scans}
+    assert all(len(t["effects"]) == 1 for t in truth.values())
+    for i in (0, 1):
+        cal, mea = scans[f"CT5-{i:05d}"].meta, scans[f"CM5-{i:05d}"].meta
+        assert mea["kind"] == "measurement" and mea["device"] == cal["device"]
+        assert mea["artifact"]["type"] == "part" and "certified_diameter_mm" not in mea["artifact"]
+        assert abs(mea["artifact"]["nominal_diameter_mm"] - cal["artifact"]["certified_diameter_mm"]) < 0.2
+        assert mea["started_at"] > cal["started_at"]
+        rc = scans[f"CK5-{i:05d}"].meta
+        assert rc["kind"] == "calibration" and rc["device"]["type"] == "rod"
+        assert all("certified_diameter_mm" in f for f in rc["artifact"]["features"])
+    free = scenarios.write_battery(tmp_path / "f", 2, 5, kinds=("calibration",), effect_share=0.0, per_night=100)
+    assert all(not json.loads(p.read_text())["effects"] for p in (tmp_path / "f" / "truth").glob("*.json"))
+    # the effect-free scan of the same index is the one the plain battery writes (its draws are untouched)
+    plain = scenarios.write_battery(tmp_path / "p", 2, 5, per_night=100)
+    assert (plain[0] / "lds.parquet").read_bytes() == (free[0] / "lds.parquet").read_bytes()
+    with pytest.raises(ValueError, match="effect share"):
+        scenarios.write_battery(tmp_path / "x", 1, 5, effect_share=1.5)

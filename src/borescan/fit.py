@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["FitResult", "JacobianSummary", "aic", "bic", "fit_result", "jacobian_summary", "least_squares_fit"]
+__all__ = ["FitResult", "JacobianSummary", "aic", "bic", "difference_groups", "fit_result", "jacobian_summary",
+           "least_squares_fit"]
 
 
 def bic(rss: float, n: int, p: int) -> float:
@@ -197,13 +198,17 @@ def least_squares_fit(
     xtol: float = 1e-10,
     ftol: float = 1e-12,
     gtol: float = 1e-8,
+    sparsity: np.ndarray | None = None,
 ) -> FitResult:
     """Minimise ``sum(fun(x)**2)`` (Levenberg-Marquardt) and return its :class:`FitResult`.
 
     With ``jac`` None the Jacobian is taken by forward differences of ``diff_step`` in the
     scaled variables ``x / scale`` (``scale``: typical magnitudes of the parameters), accurate
-    when the model is smooth on that scale. A failed optimisation is reported in ``success`` and
-    ``message``, not raised.
+    when the model is smooth on that scale. ``sparsity`` (bool, residuals x parameters; True
+    where a residual may depend on the parameter) lets parameters whose residuals do not overlap
+    share one step (:func:`difference_groups`): the same Jacobian, bit for bit, from fewer
+    evaluations of ``fun`` when it is right (e.g. one angle per pose, one beam per channel).
+    A failed optimisation is reported in ``success`` and ``message``, not raised.
     """
     names = tuple(names)
     s = np.ones(len(names)) if scale is None else np.asarray(scale, dtype=float)
@@ -213,13 +218,21 @@ def least_squares_fit(
         return fun(z * s)
 
     if jac is None:
+        groups = difference_groups(sparsity) if sparsity is not None else [[i] for i in range(z0.size)]
+
         def jz(z: np.ndarray) -> np.ndarray:
             f0 = f(z)
             J = np.empty((f0.size, z.size))
-            for i in range(z.size):
+            for g in groups:
                 zz = z.copy()
-                zz[i] += diff_step
-                J[:, i] = (f(zz) - f0) / diff_step
+                zz[g] += diff_step
+                col = (f(zz) - f0) / diff_step
+                if len(g) == 1:
+                    J[:, g[0]] = col
+                else:  # each parameter of the group moves only its own residuals (elsewhere: the
+                    # column a step of it alone gives, (f0 - f0) / step: 0, NaN where f0 is NaN)
+                    for i in g:
+                        J[:, i] = np.where(sparsity[:, i], col, (f0 - f0) / diff_step)
             return J
     else:
         def jz(z: np.ndarray) -> np.ndarray:
@@ -231,3 +244,26 @@ def least_squares_fit(
     else:
         z, r, Jz, ok, msg, nfev = z0, f(z0), np.zeros((0, 0)), True, "nothing to fit", 1
     return fit_result(names, z * s, r, Jz / s if z.size else Jz, sigma=sigma, success=ok, message=msg, nfev=nfev)
+
+
+def difference_groups(sparsity: np.ndarray) -> list[list[int]]:
+    """Columns of a Jacobian that one finite-difference step can share (Curtis, Powell & Reid 1974).
+
+    ``sparsity`` (m, p) bool: True where residual i may depend on parameter j. Greedy, in column
+    order: a column joins the first group none of whose columns touches its residuals; a column
+    that touches every residual stays alone. Returns the groups, each a list of column indices.
+    """
+    S = np.asarray(sparsity, dtype=bool)
+    groups: list[list[int]] = []
+    used: list[np.ndarray] = []
+    for j in range(S.shape[1]):
+        col = S[:, j]
+        for g, u in zip(groups, used):
+            if not np.any(u & col):
+                g.append(j)
+                u |= col
+                break
+        else:
+            groups.append([j])
+            used.append(col.copy())
+    return groups

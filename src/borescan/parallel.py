@@ -12,11 +12,13 @@ from __future__ import annotations
 import multiprocessing
 import os
 import sys
+import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from functools import partial
 from typing import Any, TypeVar
 
-__all__ = ["map_in_order", "workers_for", "MIN_ITEMS_PER_WORKER", "JOB_MALLOC_ENVIRONMENT", "set_job_environment",
+__all__ = ["map_in_order", "map_timed", "workers_for", "MIN_ITEMS_PER_WORKER", "JOB_MALLOC_ENVIRONMENT", "set_job_environment",
            "start_job_workers"]
 
 T = TypeVar("T")
@@ -50,6 +52,18 @@ def workers_for(n_items: int, workers: int) -> int:
     whose workers :func:`start_job_workers` started, one item is enough for a worker)."""
     per_worker = 1 if _JOB_POOL else MIN_ITEMS_PER_WORKER
     return max(1, min(int(workers), n_items // per_worker))
+
+
+def map_timed(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1) -> Iterator[tuple[T, float]]:
+    """:func:`map_in_order` with each item's compute time: ``(fn(item), CPU seconds)`` of the
+    process that computed it (a job's log line, never a result: see ``workflow_log.compute_line``)."""
+    yield from map_in_order(partial(_timed_call, fn), items, workers)
+
+
+def _timed_call(fn: Callable[[Any], T], item: Any) -> tuple[T, float]:
+    t0 = time.process_time()
+    out = fn(item)
+    return out, time.process_time() - t0
 
 
 def map_in_order(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1) -> Iterator[T]:

@@ -72,6 +72,7 @@ __all__ = [
     "spindle_tick_s",
     "reading_span_mm",
     "draw_tri_calibration",
+    "draw_tri_measurement",
     "STATIC_CONTRACT",
     "ROD_CONTRACT",
     "draw_tri_static",
@@ -248,6 +249,7 @@ def draw_tri_calibration(
     effect_free: bool = True,
     device_id: str | None = None,
     contract: dict = TRI_CONTRACT,
+    effect_scale: float = 1.0,
 ):
     """A ring-gauge calibration spindle scan drawn over the contract (module doc).
 
@@ -260,6 +262,7 @@ def draw_tri_calibration(
     device_id : device id in scan.json (default ``TRI-<scan_id>``, one device per scan: each
         scan has its own beams)
     contract : ranges, :data:`TRI_CONTRACT` by default
+    effect_scale : the effect's magnitude times this (:func:`borescan.discrepancy.battery.scale_effect`)
 
     Returns
     -------
@@ -320,10 +323,11 @@ def draw_tri_calibration(
     null_fraction = float(rng.uniform(*contract["null_fraction"]))
     effects = []
     if not effect_free:
-        from borescan.discrepancy.battery import TRI_EFFECTS, random_effect
+        from borescan.discrepancy.battery import TRI_EFFECTS, random_effect, scale_effect
 
         name = str(rng.choice(TRI_EFFECTS))
-        effects = [random_effect(name, rng, channels, speed["rpm_nominal"] / 60.0, speed["sample_rate_hz"])]
+        effects = [scale_effect(random_effect(name, rng, channels, speed["rpm_nominal"] / 60.0, speed["sample_rate_hz"]),
+                                effect_scale)]
     sim_seed = int(rng.integers(0, 2**31 - 1))
 
     scene = simulate.TriScene(
@@ -401,6 +405,46 @@ def draw_tri_calibration(
     return replace(sim, meta=meta, lds=lds, spindle=spindle, truth=truth)
 
 
+def draw_tri_measurement(rng: np.random.Generator, *, scan_id: str, night: str, calibration, effect_free: bool = True,
+                         effect_scale: float = 1.0):
+    """A rotating measurement of a part on the device of a calibration scan drawn by
+    :func:`draw_tri_calibration` (``calibration``: that SimulatedScan): the same device id,
+    beams, design geometry, spindle, kinematics, encoder and noise, a part whose diameter is
+    the gauge's within +-0.1 mm (so the readings stay in range), a new phase; measured later
+    that night. ``effect_free`` False adds one named effect as the calibration draw does.
+
+    Returns
+    -------
+    borescan.simulate.SimulatedScan; ``truth["contract"]`` holds the draw.
+    """
+    from borescan import simulate
+    from borescan.discrepancy.battery import TRI_EFFECTS, random_effect, scale_effect
+
+    c = calibration.truth["contract"]
+    R = float(c["bore_radius_mm"]) + float(rng.uniform(-0.05, 0.05))
+    scene = replace(simulate.TriScene.from_dict(calibration.truth["scene"]), bore_radius_20_mm=R,
+                    phase_rad=float(rng.uniform(0.0, 2 * math.pi)))
+    effects = []
+    if not effect_free:
+        name = str(rng.choice(TRI_EFFECTS))
+        effects = [scale_effect(random_effect(name, rng, (1, 2, 3), scene.rpm_nominal / 60.0, scene.sample_rate_hz),
+                                effect_scale)]
+    art = {"id": f"P-{scan_id}"[:40], "type": "part", "nominal_diameter_mm": float(round(2 * R, 1)),
+           "cte_per_k": TRI_CONTRACT["cte_per_k"]}
+    sim = simulate.simulate_tri_spindle(
+        scene, scan_id=scan_id, night=night, kind="measurement", n_rev=float(c["n_rev"]), effects=effects,
+        noise_mm=float(c["noise_mm"]), seed=int(rng.integers(0, 2**31 - 1)), device_id=calibration.meta["device"]["id"],
+        nominal_beams=Beams.from_nominal(c["nominal_beams"]), artifact=art, spindle_label="BORE",
+        encoder=bool(c["encoder"]), spindle_rate_hz=float(c["spindle_rate_hz"]),
+        started_at=simulate.started_at_plus(night, 23, 0))
+    truth = dict(sim.truth)
+    truth["contract"] = {"generator": "borescan.scenarios.draw_tri_measurement", "effect_free": not effects,
+                         "calibration_scan_id": calibration.meta["scan_id"], "bore_radius_mm": R,
+                         "beams": c["beams"], "nominal_beams": c["nominal_beams"], "encoder": c["encoder"],
+                         "speed_change": c["speed_change"], "noise_mm": c["noise_mm"]}
+    return replace(sim, truth=truth)
+
+
 # --------------------------------------------------------------------------- static sets and rods
 
 #: Ranges of the static three-sensor sets (ring gauges with certified diameters, parts with
@@ -445,7 +489,7 @@ def _artifact(kind: str, ident: str, diameters_mm, z_mm, cte_per_k: float, u_mm:
 
 
 def draw_tri_static(rng: np.random.Generator, *, scan_id: str, night: str, beams: Beams | None = None,
-                    effect_free: bool = True, contract: dict = STATIC_CONTRACT):
+                    effect_free: bool = True, contract: dict = STATIC_CONTRACT, effect_scale: float = 1.0):
     """A static three-sensor set drawn over the contract: a ring gauge with a certified diameter
     (a verification) or a part with a nominal one (a measurement), 3-12 device poses within
     3 mm of the bore centre at random angles, 5-30 samples per pose, noise 1-5 um. ``beams``
@@ -480,10 +524,10 @@ def draw_tri_static(rng: np.random.Generator, *, scan_id: str, night: str, beams
     art = _artifact(kind, f"{'RG' if kind == 'ring_gauge' else 'P'}-{round(2 * R)}", [2 * R], [0.0], 11.5e-6)
     effects = []
     if not effect_free:
-        from borescan.discrepancy.battery import random_effect
+        from borescan.discrepancy.battery import random_effect, scale_effect
 
         name = str(rng.choice(("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift")))
-        effects = [random_effect(name, rng, (1, 2, 3), 1.0, 1000.0)]
+        effects = [scale_effect(random_effect(name, rng, (1, 2, 3), 1.0, 1000.0), effect_scale)]
     scene = simulate.TriScene(beams=dev, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=R,
                               range_mm=tuple(float(x) for x in range_mm))
     sim = simulate.simulate_tri_static(
@@ -532,10 +576,13 @@ def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -
 
 
 def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_free: bool = True,
-                  contract: dict = ROD_CONTRACT):
+                  contract: dict = ROD_CONTRACT, effect_scale: float = 1.0, calibration: bool = False):
     """A rod scan over the contract (:func:`draw_rod_geometry`) in a ring-gauge set with certified
     diameters (half of the scans: what a rod is verified on) or in a part with nominal ones. Each
     layer's sensor (range 30 mm) sits mid-range so that eccentricity and deflection stay inside it.
+
+    ``calibration``: a rod calibration scan instead (kind ``calibration``, always in a ring-gauge
+    set; the same draws otherwise).
 
     Returns
     -------
@@ -546,22 +593,23 @@ def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_
     g = draw_rod_geometry(rng, contract)
     layers = [replace(lay, l0_mm=float(hh.radius_mm - contract["range_mm"] / 2))
               for lay, hh in zip(g["layers"], g["holes"])]
-    kind = "ring_gauge" if rng.random() < contract["p_ring_gauge"] else "part"
+    kind = "ring_gauge" if rng.random() < contract["p_ring_gauge"] or calibration else "part"
     art = _artifact(kind, f"{'RGS' if kind == 'ring_gauge' else 'CYL'}-{scan_id}"[:40],
                     [2 * hh.radius_mm for hh in g["holes"]], [lay.h_mm for lay in layers], 11.5e-6)
     scene = simulate.RodScene(layers=tuple(layers), holes=tuple(g["holes"]), axis=g["axis"],
                               range_mm=(contract["range_mm"],) * g["m"])
     effects = []
     if not effect_free:
-        from borescan.discrepancy.battery import random_effect
+        from borescan.discrepancy.battery import random_effect, scale_effect
 
         name = str(rng.choice(("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift", "quantization",
                                "outliers", "thermal_expansion", "beam_tilt")))
-        effects = [random_effect(name, rng, scene.channels, 0.1, scene.sample_rate_hz)]
+        effects = [scale_effect(random_effect(name, rng, scene.channels, 0.1, scene.sample_rate_hz), effect_scale)]
     sim = simulate.simulate_rod(scene, g["alpha"], samples_per_pose=g["k"], noise_mm=g["noise"],
                                 seed=int(rng.integers(0, 2**31 - 1)), artifact=art, nominal_layers=layers,
                                 effects=effects, scan_id=scan_id, night=night, device_id=f"ROD-{scan_id}"[:64],
-                                kind="verification" if kind == "ring_gauge" else "measurement")
+                                kind="calibration" if calibration else "verification" if kind == "ring_gauge"
+                                else "measurement")
     meta = json.loads(json.dumps(sim.meta))
     for sensor in meta.get("sensors", []):  # the data sheet states the repeatability the scan has
         sensor["repeatability_mm"] = g["noise"]
@@ -587,12 +635,13 @@ def battery_rng(seed: int, index: int) -> np.random.Generator:
 
 
 #: battery scan kinds -> (id prefix, child-seed stream): calibration scans keep the stream they always had
-BATTERY_KINDS = {"calibration": ("CT", 0), "static": ("CS", 1), "rod": ("CR", 2)}
+BATTERY_KINDS = {"calibration": ("CT", 0), "static": ("CS", 1), "rod": ("CR", 2), "measurement": ("CM", 3),
+                 "rod_calibration": ("CK", 4)}
 
 
 def battery_scan_id(seed: int, index: int, kind: str = "calibration") -> str:
     """Scan id of scan ``index`` of battery ``seed``: ``CT<seed>-<index:05d>`` (calibration),
-    ``CS...`` (static sets), ``CR...`` (rods)."""
+    ``CS...`` (static sets), ``CR...`` (rods), ``CM...`` (rotating measurements), ``CK...`` (rod calibrations)."""
     return f"{BATTERY_KINDS[kind][0]}{int(seed)}-{int(index):05d}"
 
 
@@ -604,6 +653,7 @@ def _kind_rng(seed: int, index: int, kind: str) -> np.random.Generator:
 
 
 def _battery_night(index: int, per_night: int = 25) -> str:
+    """Night of scan ``index``: ``per_night`` scans a night from 2027-01-01."""
     from datetime import date, timedelta
 
     return (date(2027, 1, 1) + timedelta(days=index // per_night)).isoformat()
@@ -618,6 +668,9 @@ def write_battery(
     only: Sequence[int] | None = None,
     progress: Callable[[int, int, Path], None] | None = None,
     kinds: Sequence[str] = ("calibration",),
+    effect_share: float | None = None,
+    effect_scale_range: tuple[float, float] = (1.0, 1.0),
+    per_night: int = 25,
 ) -> list[Path]:
     """Write ``n`` contract calibration scans: raw tree under ``out_dir/raw``, truth under ``out_dir/truth``.
 
@@ -637,7 +690,14 @@ def write_battery(
     progress : called as progress(k, total, scan_folder) after each scan (k counts from 0)
     kinds : which scans, ``n`` of each: ``"calibration"`` (:func:`draw_tri_calibration`),
         ``"static"`` (:func:`draw_tri_static`: ring gauges with certified diameters and parts
-        with nominal ones), ``"rod"`` (:func:`draw_rod_scan`); each kind from its own seed stream
+        with nominal ones), ``"rod"`` (:func:`draw_rod_scan`), ``"measurement"``
+        (:func:`draw_tri_measurement` on the device of calibration scan i, the same night),
+        ``"rod_calibration"`` (:func:`draw_rod_scan` as a calibration scan); each kind from its own seed stream
+    effect_share : None: ``effect_free`` for every scan; else each scan has an effect with this
+        probability, drawn with its size factor (log-uniform in ``effect_scale_range``) from the
+        scan's own stream ``SeedSequence(seed, spawn_key=(i, 10 + kind stream))``, so the scans'
+        other draws are those of the effect-free battery
+    per_night : scans a night (index // per_night nights after 2027-01-01)
 
     Returns
     -------
@@ -657,19 +717,44 @@ def write_battery(
     unknown = [k for k in kinds if k not in BATTERY_KINDS]
     if unknown or not kinds:
         raise ValueError(f"kinds must be among {sorted(BATTERY_KINDS)}, got {list(kinds)}")
-    draw = {"calibration": draw_tri_calibration, "static": draw_tri_static, "rod": draw_rod_scan}
     jobs = [(kind, i) for kind in kinds for i in indices]
     paths = []
     for k, (kind, i) in enumerate(jobs):
-        sim = draw[kind](_kind_rng(seed, i, kind), scan_id=battery_scan_id(seed, i, kind), night=_battery_night(i),
-                         effect_free=effect_free)
+        free, factor = _effect_draw(seed, i, kind, effect_free, effect_share, effect_scale_range)
+        night, sid = _battery_night(i, per_night), battery_scan_id(seed, i, kind)
+        rng = _kind_rng(seed, i, kind)
+        if kind == "measurement":
+            cal = draw_tri_calibration(_kind_rng(seed, i, "calibration"), scan_id=battery_scan_id(seed, i), night=night)
+            sim = draw_tri_measurement(rng, scan_id=sid, night=night, calibration=cal, effect_free=free,
+                                       effect_scale=factor)
+        elif kind == "rod_calibration":
+            sim = draw_rod_scan(rng, scan_id=sid, night=night, effect_free=free, effect_scale=factor, calibration=True)
+        else:
+            draw = {"calibration": draw_tri_calibration, "static": draw_tri_static, "rod": draw_rod_scan}[kind]
+            sim = draw(rng, scan_id=sid, night=night, effect_free=free, effect_scale=factor)
         paths.append(simulate.write_simulated(sim, raw, truth))
         if progress is not None:
             progress(k, len(jobs), paths[-1])
     index = {"generator": "borescan.scenarios.write_battery", "seed": int(seed), "n": int(n),
-             "effect_free": bool(effect_free), "kinds": list(kinds),
+             "effect_free": bool(effect_free), "kinds": list(kinds), "effect_share": effect_share,
+             "effect_scale_range": list(effect_scale_range), "per_night": int(per_night),
              "scan_ids": [battery_scan_id(seed, i, kind) for kind, i in jobs]}
     tmp = out_dir / ".battery.json.tmp"
     tmp.write_text(json.dumps(index, indent=2) + "\n")
     os.replace(tmp, out_dir / "battery.json")
     return paths
+
+
+def _effect_draw(seed: int, index: int, kind: str, effect_free: bool, share: float | None,
+                 scale_range: tuple[float, float]) -> tuple[bool, float]:
+    """(effect_free, size factor) of scan ``index`` of ``kind`` (see :func:`write_battery`)."""
+    if share is None:
+        return effect_free, 1.0
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"effect share must lie in 0..1, got {share}")
+    lo, hi = (float(x) for x in scale_range)
+    if not 0.0 < lo <= hi:
+        raise ValueError(f"effect size factors must satisfy 0 < low <= high, got {scale_range}")
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(index), 10 + BATTERY_KINDS[kind][1])))
+    free = bool(rng.random() >= share)
+    return free, float(math.exp(rng.uniform(math.log(lo), math.log(hi))))

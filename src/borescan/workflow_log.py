@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import re
 import sys
 import threading
 import time
@@ -116,3 +117,13 @@ def cancel_idle_timers() -> int:
     for t in timers:
         t.cancel()
     return len(timers)
+
+
+#: a job's log line of one item's compute time (:func:`compute_line`); ``python -m bench contract_night`` reads them
+COMPUTE_RE = re.compile(r"compute (?P<item>\S+) (?P<seconds>[0-9.]+) s$")
+
+
+def compute_line(item: str, seconds: float) -> str:
+    """The log line of one item's (a scan's, a device's) CPU seconds in a stage. Timings go to the
+    log only: never into a stage table, the catalog or a certificate (reruns stay byte-identical)."""
+    return f"compute {item} {seconds:.3f} s"

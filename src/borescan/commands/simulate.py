@@ -5,7 +5,9 @@
 ``--effect NAME:key=value,...`` (repeatable) for the named effects of the spec;
 ``borescan simulate contract --n N --seed S --out DIR`` writes the contract battery
 (:func:`borescan.scenarios.write_battery`: ring-gauge calibration scans drawn over every range
-the raw format and the geometry page allow; DIR/raw, DIR/truth, DIR/battery.json).
+the raw format and the geometry page allow, ``--kinds`` for static sets, rods, rotating
+measurements and rod calibrations, ``--effect-share`` / ``--effect-scale`` for effects on a share
+of the scans at sizes from just visible to large, ``--per-night``; DIR/raw, DIR/truth, DIR/battery.json).
 """
 
 from __future__ import annotations
@@ -130,7 +132,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--kinds", default="calibration",
                    help="comma-separated kinds, N scans of each: calibration (spindle scans in ring gauges), "
                         "static (static three-sensor sets: ring gauges and parts), rod (rod scans in ring-gauge "
-                        "sets and parts); default calibration")
+                        "sets and parts), measurement (rotating measurements of parts on the device of calibration "
+                        "scan i), rod_calibration (rod calibration scans in ring-gauge sets); default calibration")
+    p.add_argument("--effect-share", type=finite_float, default=None, metavar="P",
+                   help="each scan has one named effect with probability P in 0..1 (instead of --with-effects)")
+    p.add_argument("--effect-scale", type=positive_float, nargs=2, default=(1.0, 1.0), metavar=("LOW", "HIGH"),
+                   help="effect sizes times a factor log-uniform in LOW..HIGH (default 1 1: the battery's sizes)")
+    p.add_argument("--per-night", type=positive_int, default=25, help="scans a night from 2027-01-01 (default 25)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -206,7 +214,8 @@ def _run_contract(args: argparse.Namespace) -> int:
     print(f"contract battery: {args.n} scans of each of {', '.join(kinds)}, seed {args.seed} -> {args.out}", flush=True)
     try:
         paths = scenarios.write_battery(args.out, args.n, args.seed, effect_free=not args.with_effects,
-                                        progress=progress, kinds=kinds)
+                                        progress=progress, kinds=kinds, effect_share=args.effect_share,
+                                        effect_scale_range=tuple(args.effect_scale), per_night=args.per_night)
     except (FileExistsError, ValueError, rawio.ScanError) as e:
         raise UsageError(str(e)) from None
     print(f"{len(paths)} scans written under {args.out / 'raw'}; truth in {args.out / 'truth'}; "

@@ -296,3 +296,23 @@ def run_battery(
         if progress:
             progress(row)
     return res
+
+
+#: parameters of each effect that set its size (scaled by :func:`scale_effect`); temperature_c
+#: scales its departure from 20 degC
+_MAGNITUDES = ("b_mm", "g", "a_mm", "k_mm_per_s", "tau_s", "lsb_mm", "size_mm", "eps", "a_rad", "rho_mm",
+               "beta_rad", "gamma_rad", "d_mm", "h")
+
+
+def scale_effect(effect: Effect, factor: float) -> Effect:
+    """``effect`` with its size times ``factor`` (amplitudes, gains, delays, lsb; a temperature's
+    departure from 20 degC); channel, harmonic, phase, frequency and rate unchanged."""
+    if factor == 1.0:
+        return effect
+    par = dict(effect.params)
+    for k in _MAGNITUDES:
+        if k in par:
+            par[k] = float(par[k]) * float(factor)
+    if "temperature_c" in par:
+        par["temperature_c"] = 20.0 + (float(par["temperature_c"]) - 20.0) * float(factor)
+    return Effect(effect.name, par)

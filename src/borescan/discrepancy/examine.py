@@ -21,7 +21,7 @@ import numpy as np
 
 from borescan.atomic import atomic_write_text
 from borescan.config import schema_defaults
-from borescan.discrepancy.fitting import FitResult, fit_least_squares
+from borescan.discrepancy.fitting import FitResult, fit_least_squares, residual_sparsity
 from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays
 from borescan.discrepancy.tri import Term, TriData, TriModel, tri_data_from_arrays
 from borescan.effects import EFFECTS
@@ -288,7 +288,9 @@ def examine_model(model, **cfg) -> Examination:
         for st in (start, {**fallback, **{k: v for k, v in start.items() if k.endswith("f_hz")}}):
             xs = [st.get(n, 0.0) for n in names]
             try:
-                fr = fit_least_squares(lambda p: model.residual(p, terms), names, xs, scales)
+                fr = fit_least_squares(lambda p: model.residual(p, terms), names, xs, scales,
+                                       sparsity=residual_sparsity(names, model.mask, data.channels,
+                                                                  getattr(data, "pose_index", None)))
             except ValueError:
                 continue
             if np.isfinite(fr.rss):

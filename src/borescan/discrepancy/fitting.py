@@ -7,6 +7,7 @@ criterion ``BIC = n ln(RSS / n) + p ln(n)`` (Gaussian likelihood with the varian
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -23,6 +24,7 @@ __all__ = [
     "noise_floor_mm",
     "robust_sigma",
     "spike_mask",
+    "residual_sparsity",
 ]
 
 
@@ -34,11 +36,13 @@ def fit_least_squares(
     *,
     fixed: dict[str, float] | None = None,
     max_nfev: int = 60,
+    sparsity: np.ndarray | None = None,
 ) -> FitResult:
     """Minimise ``sum(residual_fn(params)**2)`` over ``names`` (others from ``fixed``).
 
     Parameters are scaled by ``scale`` (typical magnitudes) so that forward differences with a
-    relative step of 1e-4 of the scale give accurate Jacobians (:func:`borescan.fit.least_squares_fit`).
+    relative step of 1e-4 of the scale give accurate Jacobians (:func:`borescan.fit.least_squares_fit`);
+    ``sparsity`` (:func:`residual_sparsity`) lets parameters of different poses or channels share a step.
     """
     names = tuple(names)
     fixed = dict(fixed or {})
@@ -48,7 +52,45 @@ def fit_least_squares(
         p.update(zip(names, x))
         return residual_fn(p)
 
-    return least_squares_fit(fun, x0, names, scale=scale, max_nfev=max_nfev)
+    return least_squares_fit(fun, x0, names, scale=scale, max_nfev=max_nfev, sparsity=sparsity)
+
+
+#: base parameters of one pose (rod pose angle, static device position) and of one channel
+#: (three-sensor beam geometry, a rod layer's hole centre and radius), by name
+_POSE_PARAM = re.compile(r"^(?:alpha|sx|sy)\[(\d+)\]$")
+_CHANNEL_PARAM = re.compile(r"^(?:dbeta|dd_b|drho|cx|cy|dr)\[(\d+)\]$")
+#: a term on one channel: ``<effect>@<channel>[k=..].<name>``
+_CHANNEL_TERM = re.compile(r"^[A-Za-z_]+@(\d+)(?:\[k=\d+\])?\.")
+
+
+def residual_sparsity(names: Sequence[str], mask: np.ndarray, channels: Sequence[int],
+                      pose_index: np.ndarray | None = None) -> np.ndarray:
+    """Which residuals each parameter of the discrepancy models can move: (residuals, parameters) bool.
+
+    The residual vector is a model's (samples, channels) residual over ``mask`` (row-major, as
+    ``model.residual`` returns it). A pose's parameters (``alpha[k]``, ``sx[k]``, ``sy[k]``) move
+    the samples of pose k (``pose_index``), a channel's (``dbeta[j]``, ``dd_b[j]``, ``drho[j]``;
+    a rod layer's ``cx[j]``, ``cy[j]``, ``dr[j]``: j the channel's position) and a term on one
+    channel (``sensor_gain@2.h``) that channel's; every other parameter every residual.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    n, c = mask.shape
+    out = np.ones((int(mask.sum()), len(names)), dtype=bool)
+    chans = [int(ch) for ch in channels]
+    for i, name in enumerate(names):
+        support = None
+        m = _POSE_PARAM.match(name)
+        if m and pose_index is not None:
+            support = np.broadcast_to((np.asarray(pose_index) == int(m.group(1)))[:, None], (n, c))
+        elif (m := _CHANNEL_PARAM.match(name)) is not None:
+            support = np.zeros((n, c), dtype=bool)
+            support[:, int(m.group(1))] = True
+        elif (m := _CHANNEL_TERM.match(name)) is not None and int(m.group(1)) in chans:
+            support = np.zeros((n, c), dtype=bool)
+            support[:, chans.index(int(m.group(1)))] = True
+        if support is not None:
+            out[:, i] = support[mask]
+    return out
 
 
 def dead_zone(r: np.ndarray, half_mm: np.ndarray | None) -> np.ndarray:

@@ -16,7 +16,8 @@ from borescan import device_model, rawio, readings
 from borescan.calibrations import rod_nominal_calibration_rows
 from borescan.config import schema_defaults
 from borescan.effects import device_model_effects
-from borescan.parallel import map_in_order, workers_for
+from borescan.parallel import map_timed, workers_for
+from borescan.workflow_log import compute_line
 from borescan.stages._common import clear_night_folder, config_hash, night_scans
 from borescan.stages.calibrate_rod import calibrate_rod_scan
 from borescan.stages.calibrate_tri import calibrate_tri_device
@@ -60,12 +61,14 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     common = (night, results_root, summary, cfg, ctx_args)
     made = {"tri": ([], []), "rod": ([], [])}  # kind -> (calibrations rows, calibration_scans rows)
     bad = []
-    for kind, rows, links, q, lines in map_in_order(calibrate_device, [(k, it, common) for k, it in jobs], workers):
+    timed = map_timed(calibrate_device, [(k, it, common) for k, it in jobs], workers)
+    for ((kind, rows, links, q, lines), cpu_s), (_, items) in zip(timed, jobs):
         made[kind][0].extend(rows)
         made[kind][1].extend(links)
         bad += q
         for line in lines:
             log(line)
+        log(compute_line(items[0][0]["device_id"] if kind == "tri" else items[0][0]["scan_id"], cpu_s))
     cal_rows, link_rows = made["tri"]
     for row, d in night_scans(raw_root, night, scans_table, device_type="rod"):
         rows = rod_nominal_calibration_rows(rawio.read_scan_meta(d, raw_root=Path(raw_root)), night, row["scan_id"])

@@ -17,7 +17,8 @@ import polars as pl
 from borescan import discrepancy, rawio, tables
 from borescan.discrepancy.examine import discrepancy_settings
 from borescan.discrepancy.reference import discrepancy_reference
-from borescan.parallel import map_in_order, workers_for
+from borescan.parallel import map_timed, workers_for
+from borescan.workflow_log import compute_line
 from borescan.stages._common import (Quarantined, clear_night_folder, link_into_night, night_folder, night_scans,
                                     quarantine, read_tables)
 
@@ -69,10 +70,11 @@ def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibrati
         jobs.append((raw_root, night, results_root, d, settings, ref_kw, ref))
     log(f"{len(jobs)} scans on {workers_for(len(jobs), workers)} process(es)")
     rows, bad = [], []
-    for r, q, msg in map_in_order(discrepancy_one, jobs, workers):
+    for (r, q, msg), cpu_s in map_timed(discrepancy_one, jobs, workers):
         rows += r
         bad += q
         log(msg)
+        log(compute_line(msg.split(" ", 1)[0].rstrip(":"), cpu_s))
     return tables.frame("findings", rows), bad
 
 

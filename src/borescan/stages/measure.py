@@ -23,7 +23,8 @@ from borescan.artifacts import MissingTemperature, artifact_row
 from borescan.calibration import CalibrationError
 from borescan.calibrations import choose_calibration, choose_rod_calibration, failed_calibration_ids, tri_calibration
 from borescan.config import schema_defaults
-from borescan.parallel import map_in_order, workers_for
+from borescan.parallel import map_timed, workers_for
+from borescan.workflow_log import compute_line
 from borescan.stages._common import night_scans, quarantine, read_tables
 
 __all__ = ["stage_measure", "measure_one", "section"]
@@ -78,12 +79,15 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
         return sorted((it for it in items if it[0]["kind"] == kind), key=lambda it: it[0]["scan_id"])
 
     for row, d in of_kind("verification"):
-        out = measure_one(job(row, d))
+        (out, cpu_s), = map_timed(measure_one, [job(row, d)])
+        log(compute_line(row["scan_id"], cpu_s))
         take(out)
         failed.update(v["calibration_id"] for v in out["verifications"] if not v["passed"])
     jobs = [job(row, d) for row, d in of_kind("measurement")]
     log(f"{len(jobs)} measurements on {workers_for(len(jobs), workers)} process(es)")
-    for out in map_in_order(measure_one, jobs, workers):
+    ids = [row["scan_id"] for row, _ in of_kind("measurement")]
+    for (out, cpu_s), scan_id in zip(map_timed(measure_one, jobs, workers), ids):
+        log(compute_line(scan_id, cpu_s))
         take(out)
     frame = lambda rows: pl.DataFrame(rows, infer_schema_length=None) if rows else pl.DataFrame()  # noqa: E731
     return frame(diam), frame(ver), frame(list(arts.values())), bad

@@ -31,7 +31,8 @@ from borescan.discrepancy.examine import _clean, discrepancy_settings
 from borescan.discrepancy.pooled import drift_explanations, examine_pooled, pooled_scan
 from borescan.effects import device_model_effects
 from borescan.discrepancy.reference import discrepancy_reference
-from borescan.parallel import map_in_order, workers_for
+from borescan.parallel import map_timed, workers_for
+from borescan.workflow_log import compute_line
 from borescan.stages._common import ok_scans, read_tables
 
 __all__ = ["POOLED_KINDS", "stage_pooled", "pooled_rows", "drift_rows", "pooled_device", "pooled_dir"]
@@ -111,8 +112,9 @@ def stage_pooled(raw_root, night: str, results_root, scans_tables, calibration_t
                      settings))
     log(f"{len(jobs)} device(s) on {workers_for(len(jobs), workers)} process(es)")
     rows, findings = [], {}
-    for device, f, msg in map_in_order(pooled_device, jobs, workers):
+    for (device, f, msg), cpu_s in map_timed(pooled_device, jobs, workers):
         log(msg)
+        log(compute_line(device, cpu_s))
         if f is not None and "reason" in f:
             rows.append({"night": night, "device_id": device, "verdict": "failed", "reason": f["reason"],
                          "scan_ids": ",".join(f["scan_ids"])})

@@ -8,7 +8,8 @@ import numpy as np
 import polars as pl
 
 from borescan import rawio, readings, signal
-from borescan.parallel import map_in_order, workers_for
+from borescan.parallel import map_timed, workers_for
+from borescan.workflow_log import compute_line
 from borescan.stages._common import Quarantined, frames_or_empty, night_scans, quarantine
 
 __all__ = ["signal_options", "stage_signal", "signal_one"]
@@ -42,7 +43,8 @@ def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log
             for _, d in night_scans(raw_root, night, scans_table, device_type="tri_lds")]
     log(f"{len(jobs)} three-sensor scans on {workers_for(len(jobs), workers)} process(es)")
     extrema, summaries, bad = [], [], []
-    for ext, summ, q, msg in map_in_order(signal_one, jobs, workers):
+    for ((ext, summ, q, msg), cpu_s), job in zip(map_timed(signal_one, jobs, workers), jobs):
+        log(compute_line(Path(job[3]).name.removeprefix("scan="), cpu_s))
         bad += q
         if ext is not None:
             extrema.append(ext)

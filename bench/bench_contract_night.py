@@ -1,0 +1,153 @@
+"""A night drawn over the whole contract, raw to report with ``snakemake --cores 2`` (issue 38).
+
+The night is written by ``borescan simulate contract`` (:func:`borescan.scenarios.write_battery`):
+N scans of each kind (default N = 24, 120 scans) on one night: three-sensor ring-gauge
+calibrations (one device each; one or two speeds, encoder or not, a channel leaving its range,
+nulls), rotating measurements of parts on those devices, static three-sensor sets (ring gauges
+and parts), rod scans (ring-gauge sets and parts) and rod calibrations. About half the scans
+carry one named effect of the registry, its size times a factor log-uniform in 0.3-3 of the
+battery's realistic size (just visible to large), so that some calibrations are refused and
+their devices are examined against the design geometry with the beams free.
+
+The reproduction of the papers runs first into the same results folder, untimed (not part of a
+night). Then the night is timed: wall time, each rule's job time (Snakemake's benchmark files),
+and per stage the percentiles (50, 95, max) of the CPU seconds of each scan's (calibration:
+each device's; pooled: each device's) work, read from the ``compute <item> <s> s`` lines the
+stages write to their logs (:func:`borescan.workflow_log.compute_line`; never into a table).
+
+    python -m bench contract_night                      # N = 24 per kind, --cores 2
+    python -m bench.bench_contract_night --cores 1 2    # the same night on 1 and 2 cores, side by side
+    BENCH_CONTRACT_N=8 python -m bench contract_night   # scaled down
+
+Targets (issue 38, benchmark not test): <= 60 s wall on 2 cores, no scan's stage work over 10 s,
+95th percentile under 2 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench.bench_pipeline import job_times, union_seconds
+
+ROOT = Path(__file__).resolve().parents[1]
+KINDS = "calibration,measurement,static,rod,rod_calibration"
+NIGHT = "2027-01-01"
+STAGES = ("signal_night", "calibrate_night", "measure_night", "discrepancy_night", "pooled_night")
+
+
+def write_night(out: Path, n: int, seed: int) -> None:
+    """``borescan simulate contract``: N scans of each kind on one night, half with an effect."""
+    borescan = Path(sys.executable).with_name("borescan")
+    cmd = [str(borescan), "simulate", "contract", "--n", str(n), "--seed", str(seed), "--out", str(out),
+           "--kinds", KINDS, "--effect-share", "0.5", "--effect-scale", "0.3", "3", "--per-night", str(10 * n)]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"simulate contract failed: {proc.stderr[-2000:]}")
+
+
+def compute_seconds(results: Path) -> dict[str, list[tuple[str, float]]]:
+    """Per rule, (item, CPU seconds) of every ``compute`` line of its logs."""
+    from borescan.workflow_log import COMPUTE_RE
+
+    out: dict[str, list[tuple[str, float]]] = {}
+    for log in sorted((results / "logs").rglob("*.log")):
+        for line in log.read_text().splitlines():
+            m = COMPUTE_RE.search(line)
+            if m:
+                out.setdefault(log.parent.name, []).append((m["item"], float(m["seconds"])))
+    return out
+
+
+def run_night(raw: Path, results: Path, cores: int) -> dict:
+    """One timed run of the night into ``results`` (which already holds the papers)."""
+    snakemake = Path(sys.executable).with_name("snakemake")
+    for f in (results / "benchmarks").rglob("*.tsv"):
+        f.unlink()  # the night's job times only
+    cmd = [str(snakemake), "--cores", str(cores), "--quiet", "all", "--config", f"raw_root={raw}",
+           f"results_root={results}"]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        print(proc.stderr[-3000:])
+        raise SystemExit("pipeline failed")
+    jobs = job_times(results)
+    busy = union_seconds([x for iv in jobs.values() for x in iv])
+    return {"wall": wall, "jobs": {r: sum(b - a for a, b in iv) for r, iv in jobs.items()},
+            "busy": busy, "compute": compute_seconds(results)}
+
+
+def percentiles(items: list[tuple[str, float]]) -> tuple[float, float, float, str]:
+    s = np.array([x for _, x in items])
+    worst = max(items, key=lambda z: z[1])
+    return float(np.percentile(s, 50)), float(np.percentile(s, 95)), float(s.max()), worst[0]
+
+
+def report(runs: dict[int, dict], n_scans: int) -> None:
+    cores = sorted(runs)
+    head = "".join(f"{f'--cores {c}':>14}" for c in cores)
+    print(f"{'':34}{head}")
+    print(f"{'wall time [s]':34}" + "".join(f"{runs[c]['wall']:14.1f}" for c in cores)
+          + "   (target <= 60 s on 2 cores)")
+    print(f"{'some job running [s]':34}" + "".join(f"{runs[c]['busy']:14.1f}" for c in cores))
+    rules = sorted({r for c in cores for r in runs[c]["jobs"]}, key=lambda r: -runs[cores[-1]]["jobs"].get(r, 0.0))
+    print("job time per rule [s]")
+    for r in rules:
+        print(f"  {r:32}" + "".join(f"{runs[c]['jobs'].get(r, float('nan')):14.1f}" for c in cores))
+    print("per-item compute [CPU s]: items  p50  p95  max (slowest item)   (targets: p95 < 2 s, max <= 10 s)")
+    for stage in STAGES:
+        for c in cores:
+            items = runs[c]["compute"].get(stage)
+            if not items:
+                continue
+            p50, p95, mx, worst = percentiles(items)
+            print(f"  {stage:22} cores {c}  {len(items):4d} {p50:6.2f} {p95:6.2f} {mx:7.2f}  ({worst})")
+    print(f"{n_scans} scans")
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=int(os.environ.get("BENCH_CONTRACT_N", "24")), help="scans of each kind")
+    ap.add_argument("--seed", type=int, default=38)
+    ap.add_argument("--cores", type=int, nargs="+", default=[2], help="run the night once per value, side by side")
+    ap.add_argument("--keep", type=Path, default=None, help="keep the night and its results in this folder")
+    a, _ = ap.parse_known_args(argv if argv is not None else sys.argv[1:])
+    with tempfile.TemporaryDirectory() as tmp:
+        work = a.keep or Path(tmp)
+        night = work / "night"
+        t0 = time.perf_counter()
+        write_night(night, a.n, a.seed)
+        n_scans = len(list((night / "raw").glob("night=*/scan=*")))
+        print(f"contract night: {n_scans} scans ({a.n} of each of {KINDS}), seed {a.seed}, half with an effect "
+              f"(written in {time.perf_counter() - t0:.0f} s, not timed)", flush=True)
+        snakemake = Path(sys.executable).with_name("snakemake")
+        papers = work / "papers_only"
+        t0 = time.perf_counter()
+        proc = subprocess.run([str(snakemake), "papers", "--cores", "2", "--quiet", "all", "--config",
+                               f"raw_root={night / 'raw'}", f"results_root={papers}"], cwd=ROOT, capture_output=True,
+                              text=True)
+        if proc.returncode != 0:
+            print(proc.stderr[-3000:])
+            raise SystemExit("papers failed")
+        print(f"papers reproduced first in {time.perf_counter() - t0:.0f} s (not part of a night, not timed)", flush=True)
+        runs = {}
+        for c in a.cores:
+            results = work / f"results_cores{c}"
+            shutil.rmtree(results, ignore_errors=True)
+            shutil.copytree(papers, results, symlinks=True)
+            runs[c] = run_night(night / "raw", results, c)
+            print(f"  --cores {c}: {runs[c]['wall']:.1f} s wall", flush=True)
+        report(runs, n_scans)
+
+
+if __name__ == "__main__":
+    main()
