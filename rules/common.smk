@@ -2,12 +2,16 @@
 from borescan import rawio, validation
 from borescan.effects import device_model_effects
 from borescan.parallel import set_job_environment
+from borescan.stages._common import raw_index_path, refresh_raw_index
 
 set_job_environment()  # glibc malloc settings every job inherits (borescan.parallel.JOB_MALLOC_ENVIRONMENT)
 
 RAW = str(validation.require_raw_root(config["raw_root"]))
 RES = config["results_root"]
 NIGHTS = rawio.nights(RAW)
+# each night's manifest (its scan folders, files, sizes, times) rewritten when it changed: an input
+# of ingest_night, so the raw root decides what runs whatever the files' times and the checkout
+refresh_raw_index(RAW, RES, NIGHTS)
 for _device in config["devices"] or {}:  # a mistyped device-model entry stops the run here, named
     device_model_effects(config["devices"], _device)
 
@@ -28,6 +32,10 @@ def results_root_for(wildcards):
 def stage_table(table):
     """Paths of one stage table for every night."""
     return expand(f"{RES}/stage/{table}/night={{night}}.parquet", night=NIGHTS)
+
+
+def raw_index_of_night(wildcards):
+    return str(raw_index_path(RES, wildcards.night))
 
 
 def raw_files_of_night(wildcards):

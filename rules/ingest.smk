@@ -3,6 +3,7 @@ rule ingest_night:
         "Validating and registering the scans of night {wildcards.night}"
     input:
         raw=raw_files_of_night,
+        raw_index=raw_index_of_night,  # rewritten when the night's scans change (rules/common.smk)
         earlier_scans=scans_before_night,
     output:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",

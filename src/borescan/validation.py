@@ -181,11 +181,10 @@ def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | N
         for d in rawio.night_scan_dirs(root, night):
             jobs.append((d, first_night.get(d.name[5:])))
             first_night.setdefault(d.name[5:], night)
-    # entries the pipeline never ingests; a night it does ingest is reported through its scans
-    ingested_nights = {f"night={n}" for n in nights}
-    report = TreeReport(problems=[e for e in rawio.tree_problems(root) if e.file not in ingested_nights])
+    # entries the pipeline never ingests (a folder night=2026-02-30, a stray file) or cannot list
+    report = TreeReport(problems=rawio.tree_problems(root))
     listed = {d for d, _ in jobs}
-    stray = [d for d in rawio.discover_scans(root) if d not in listed and rawio.NIGHT_RE.fullmatch(d.parent.name[6:])]
+    stray = [d for d in rawio.discover_scans(root) if d not in listed and d.parent.name[6:] in nights]
     for d in stray:  # e.g. an empty "scan=" folder: the pipeline skips it, say why
         report.problems += rawio.inspect_scan(d, root)[1] or [
             ScanError("-", f"{d.parent.name}/{d.name}", "not a scan=<scan_id> folder; the pipeline skips it")]

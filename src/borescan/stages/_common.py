@@ -17,7 +17,7 @@ from borescan.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "write_table",
            "write_stage_outputs", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash",
-           "night_folder", "clear_night_folder", "link_into_night"]
+           "night_folder", "clear_night_folder", "link_into_night", "raw_index_path", "refresh_raw_index"]
 
 
 def config_hash(cfg: dict) -> str:
@@ -74,13 +74,13 @@ def write_stage_outputs(output, quarantined: list[Quarantined] | None = None, **
     if quarantined is not None:
         frames["quarantine"] = quarantine_frame(quarantined)
     for name, df in frames.items():
-        write_table(df, getattr(output, name))
+        write_table(tables.conform(name, df) if name in tables.TABLES else df, getattr(output, name))
 
 
 def ok_scans(scans_table: str | Path | pl.DataFrame) -> pl.DataFrame:
     """The rows of a ``scans`` stage table whose status is ``ok``, by scan id."""
     df = scans_table if isinstance(scans_table, pl.DataFrame) else pl.read_parquet(scans_table)
-    return df.filter(pl.col("status") == "ok").sort("scan_id")
+    return tables.conform("scans", df).filter(pl.col("status") == "ok").sort("scan_id")
 
 
 def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame,
@@ -98,10 +98,13 @@ def frames_or_empty(frames: list[pl.DataFrame]) -> pl.DataFrame:
     return pl.concat(frames, how="diagonal_relaxed") if frames else pl.DataFrame()
 
 
-def read_tables(paths) -> pl.DataFrame:
-    """Stage table files (one path or a list) stacked, see :func:`frames_or_empty`."""
+def read_tables(paths, table: str | None = None) -> pl.DataFrame:
+    """Stage table files (one path or a list) stacked, see :func:`frames_or_empty`; with every
+    column of history table ``table`` when named (:func:`borescan.tables.conform`: no rows, or rows
+    of one kind only, still give the table's columns)."""
     frames = [pl.read_parquet(p) for p in (paths if isinstance(paths, (list, tuple)) else [paths])]
-    return frames_or_empty([f for f in frames if f.width])
+    df = frames_or_empty([f for f in frames if f.width])
+    return tables.conform(table, df) if table is not None else df
 
 
 # --------------------------------------------------------------------------- per-night folders
@@ -152,3 +155,45 @@ def link_into_night(link: Path, target: Path) -> None:
         os.symlink(os.path.relpath(target, link.parent), link, target_is_directory=True)
     except OSError:
         shutil.copytree(target, link)
+
+
+# --------------------------------------------------------------------------- what the raw root holds
+
+
+def raw_index_path(results_root, night: str) -> Path:
+    """``<results_root>/raw_index/night=<night>.txt``: the night's :func:`borescan.rawio.night_manifest`."""
+    return Path(results_root) / "raw_index" / f"night={night}.txt"
+
+
+def refresh_raw_index(raw_root, results_root, nights: list[str]) -> list[str]:
+    """Write each night's manifest where it differs from the one written before; return those nights.
+
+    The workflow calls this when it reads the raw root (every run, dry runs too) and makes the
+    file an input of the night's jobs. Snakemake decides what is out of date from file times, and
+    from its own records of inputs and parameters only when the checkout that runs has them (a
+    second checkout, a fresh ``.snakemake/``, has none); a scan added with its old times
+    (``cp -a``, ``rsync -a``) would look older than the night's results. The manifest is rewritten
+    only when the night's scans changed, so its new time makes the night's jobs rerun, whatever
+    the raw files' times and whichever checkout runs. A manifest written for the first time takes
+    the time of the night's newest raw file, so it reruns nothing the raw files' times would not
+    (results made before the manifest existed stay as they are). A results root that cannot be
+    written is left alone (the run then stops at its first output, naming it).
+    """
+    changed = []
+    for night in nights:
+        path = raw_index_path(results_root, night)
+        text = rawio.night_manifest(raw_root, night)
+        try:
+            existed = path.is_file()
+            if existed and path.read_text() == text:
+                continue
+            atomic_write_text(path, text)
+            if not existed:
+                times = [int(t) for line in text.splitlines() for t in line.split()[2:3]]
+                if times:
+                    os.utime(path, ns=(max(times), max(times)))
+                continue
+        except OSError:
+            continue
+        changed.append(night)
+    return changed

@@ -96,11 +96,20 @@ def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
     scan_id = d.name[5:]
     hashes, file_rows = {}, []
     inside = not d.is_symlink() and d.resolve().is_relative_to(Path(raw_root).resolve())
-    for f in sorted(d.iterdir()) if inside else []:
-        if f.is_file() and not f.is_symlink():
-            digest = rawio.sha256_file(f)
-            hashes[f.name] = digest
-            file_rows.append({"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": f.stat().st_size})
+    try:
+        entries = sorted(d.iterdir()) if inside else []
+    except OSError:  # an unreadable folder: scan_problems below names it, the scan is quarantined
+        entries = []
+    for f in entries:
+        try:
+            if f.is_file() and not f.is_symlink():
+                digest, size = rawio.sha256_file(f), f.stat().st_size
+            else:
+                continue
+        except OSError:  # an unreadable file (e.g. umask 077 of another user): named by scan_problems
+            continue
+        hashes[f.name] = digest
+        file_rows.append({"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": size})
     meta: dict = {}
     try:
         meta = rawio.read_scan_meta(d)

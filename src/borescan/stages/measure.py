@@ -50,8 +50,8 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     unc, lab, clean = section(cfg, "uncertainty"), section(cfg, "laboratory"), readings.cleaning_policy(section(cfg, "signal"))
     part = {"default_tolerance_mm": cfg["measurement"].get("part_tolerance_mm"), "rule": lab["decision_rule"],
             "guard_band_factor": float(lab["guard_band_factor"])}
-    cals = read_tables(calibration_tables)
-    failed = failed_calibration_ids(read_tables(verification_tables_before))
+    cals = read_tables(calibration_tables, "calibrations")
+    failed = failed_calibration_ids(read_tables(verification_tables_before, "verifications"))
     diam, ver, arts, bad = [], [], {}, []
     items = night_scans(raw_root, night, scans_table)
 
