@@ -13,7 +13,7 @@ rule ingest_night:
         raw_root=RAW,
         results_root=results_root_for,
         duplicates=duplicate_ids_of_night,
-        on_conflict=config["artifacts"]["on_conflict"],
+        on_conflict=night_setting("artifacts", "on_conflict"),
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/ingest_night/{{night}}.log",

@@ -13,6 +13,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import duckdb
@@ -155,7 +156,8 @@ def test_catalog_step_fails_naming_scans_of_the_raw_root_the_history_lacks(tmp_p
 def _python_for(user_cmd) -> list[str]:
     """A Python the user of ``user_cmd`` may execute with this venv's packages: this one, else the
     system's of the same version with this venv's site-packages on PYTHONPATH."""
-    if subprocess.run(user_cmd([sys.executable, "-c", "pass"]), capture_output=True).returncode == 0:
+    # through a shell, as Snakemake starts a job's script (setpriv itself may exec what a shell may not)
+    if subprocess.run(user_cmd(["/bin/sh", "-c", f"'{sys.executable}' -c pass"]), capture_output=True).returncode == 0:
         return [sys.executable], []
     system = shutil.which(f"python{sys.version_info.major}.{sys.version_info.minor}", path="/usr/bin:/bin")
     assert system, "no Python the unprivileged user can run"
@@ -166,16 +168,25 @@ def _workflow(checkout: Path, raw: Path, res: Path, home: Path, *extra: str, use
     python, site = _python_for(user)
     env = {"PATH": f"{Path(python[0]).parent}:/usr/bin:/bin", "HOME": str(home), "MPLBACKEND": "Agg",
            "PYTHONPATH": ":".join([str(checkout / "src"), *site])}
-    cmd = user([*python, "-m", "snakemake", "--cores", "2", "--config", f"raw_root={raw}", f"results_root={res}",
-                *extra])
+    cmd = user([*python, "-m", "snakemake", "--cores", "2", *extra, "--config", f"raw_root={raw}",
+                f"results_root={res}"])
     return subprocess.run(cmd, cwd=checkout, capture_output=True, text=True, env=env, timeout=1500)
 
 
+@pytest.fixture
+def open_tmp():
+    """A temporary folder every user can reach (pytest's are private to their user)."""
+    path = Path(tempfile.mkdtemp(prefix="borescan-faults-"))
+    path.chmod(0o755)
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
 @pytest.mark.slow
-def test_crash_root_workflow_as_a_user_who_is_not_root(tmp_path, demo_raw):
+def test_crash_root_workflow_as_a_user_who_is_not_root(open_tmp, demo_raw):
     """Issue 40 items 5-8 through Snakemake: every night gets its tables and the catalog, each bad scan
     is quarantined naming its file or folder, the folders never processed are named, raw is untouched."""
-    tmp_path.chmod(0o755)
+    tmp_path = open_tmp
     root = make_crash_root(demo_raw, tmp_path / "raw")
     co = checkout_copy(ROOT, tmp_path / "checkout")
     res, home = tmp_path / "results", tmp_path / "home"
@@ -248,3 +259,57 @@ def test_a_night_added_with_old_times_runs_from_a_checkout_without_records(tmp_p
     con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
     assert con.execute("SELECT count(*) FROM scans WHERE night = '2026-11-21'").fetchone()[0] == 2
     assert "every one of the 5 scans of the raw root is in the history" in (res / "logs" / "build_catalog.log").read_text()
+
+
+def _verification_tolerances(res: Path) -> dict[str, set[float]]:
+    v = pl.read_parquet(list((res / "stage" / "verifications").glob("night=*.parquet")))
+    return {n: set(g["tolerance_mm"].to_list()) for (n,), g in v.group_by(["night"])}
+
+
+@pytest.mark.slow
+def test_a_config_edit_applies_from_the_next_night_and_recompute_is_explicit(tmp_path, demo_raw):
+    """Issue 40 item 2: after an edit of verification.tolerance_mm the past night is neither rerun nor
+    rewritten (its stage tables byte-identical), the next night uses the new tolerance, each night's
+    config hash is in the catalog; `borescan recompute --from` keeps the old results beside the new
+    and records the change, and only then does the workflow recompute the past night."""
+    raw, res, home = tmp_path / "raw", tmp_path / "results", tmp_path / "home"
+    home.mkdir()
+    a = checkout_copy(ROOT, tmp_path / "A")
+    _rod_night(demo_raw, raw, "2026-11-20")
+    _planned(_workflow(a, raw, res, home, "catalog"))
+    past = checksums(res / "stage")
+    cfg = a / "config" / "config.yaml"
+    text = cfg.read_text()
+    assert "  tolerance_mm: 0.015\n" in text
+    cfg.write_text(text.replace("  tolerance_mm: 0.015\n", "  tolerance_mm: 0.002\n"))
+    out = _planned(_workflow(a, raw, res, home, "catalog", "--dry-run"))
+    assert "Nothing to be done" in out  # before the fix: calibrate and measure of the past night reran
+    assert "the config differs from the one nights 2026-11-20..2026-11-20 (1) were processed with " \
+           "(verification.tolerance_mm)" in out
+    _rod_night(demo_raw, raw, "2026-11-21")
+    _planned(_workflow(a, raw, res, home, "catalog"))
+    assert {k: v for k, v in checksums(res / "stage").items() if "2026-11-20" in k} == past
+    assert _verification_tolerances(res) == {"2026-11-20": {0.015}, "2026-11-21": {0.002}}
+    con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
+    hashes = dict(con.execute("SELECT strftime(night, '%Y-%m-%d'), config_hash FROM night_config").fetchall())
+    con.close()
+    assert sorted(hashes) == ["2026-11-20", "2026-11-21"] and hashes["2026-11-20"] != hashes["2026-11-21"]
+
+    env = {**os.environ, "PYTHONPATH": str(a / "src")}
+    proc = subprocess.run([sys.executable, "-m", "borescan.cli", "recompute", "--from", "2026-11-20", "--results",
+                           str(res)], cwd=a, capture_output=True, text=True, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("change-0001: 1 night(s) (2026-11-20..2026-11-20) will be recomputed with config "
+                                  f"{hashes['2026-11-21']} (changed: verification.tolerance_mm)")
+    kept = res / "versions" / "change-0001"
+    assert {k: v for k, v in checksums(kept / "stage").items()} == {k: v for k, v in past.items() if "2026-11-20" in k}
+    out = _planned(_workflow(a, raw, res, home, "catalog", "--dry-run"))
+    assert f"{res}/stage/verifications/night=2026-11-20.parquet" in out
+    assert f"{res}/stage/verifications/night=2026-11-21.parquet" not in out
+    _planned(_workflow(a, raw, res, home, "catalog"))
+    assert _verification_tolerances(res) == {"2026-11-20": {0.002}, "2026-11-21": {0.002}}
+    con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
+    assert con.execute("SELECT change_id, nights, new_hash, changed_keys, archive FROM config_changes").fetchall() == [
+        ("change-0001", "2026-11-20", hashes["2026-11-21"], "verification.tolerance_mm", "versions/change-0001")]
+    assert con.execute("SELECT recorded_by FROM night_config ORDER BY night").fetchall() == [
+        ("recompute change-0001",), ("first run",)]

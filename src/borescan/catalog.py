@@ -204,7 +204,7 @@ def _q(name: str) -> str:
 
 #: History tables the catalog is built from, each the union of ``stage/<table>/night=*.parquet``.
 STAGE_TABLES = ("scans", "scan_files", "calibrations", "calibration_scans", "diameters", "verifications", "findings",
-                "artifacts", "pooled_findings", "calibration_drift")
+                "artifacts", "pooled_findings", "calibration_drift", "night_config", "config_changes")
 
 #: The stages in the order a night runs them: a scan's reason in ``scans`` is its earliest stage's.
 STAGE_ORDER = ("ingest", "signal", "calibrate", "measure", "discrepancy")

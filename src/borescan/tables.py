@@ -147,6 +147,13 @@ _T = [
         "value_after:float change:float u_before:float u_after:float u_combined:float change_over_u:float "
         "multiple:float flagged:bool explained_by:text explanation:text"),
           ("device_id", "channel", "parameter", "calibration_id_after")),
+    # issue 40: the settings each night was processed with (borescan.night_config), and each
+    # recomputation of past nights with other settings (night: the first night recomputed)
+    Table("night_config", _cols("night:date config_hash:text config_json:text recorded_by:text"),
+          ("night",), primary=True),
+    Table("config_changes", _cols("night:date change_id:text nights:text old_hashes:text new_hash:text "
+                                  "changed_keys:text archive:text"),
+          ("change_id",), primary=True),
 ]
 
 #: every history table by name, in catalog order
