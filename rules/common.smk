@@ -4,7 +4,7 @@ import sys
 from borescan import night_config, rawio, validation
 from borescan.effects import device_model_effects
 from borescan.parallel import set_job_environment
-from borescan.stages._common import raw_index_path, refresh_raw_index
+from borescan.raw_index import raw_index_path, refresh_raw_index
 
 set_job_environment()  # glibc malloc settings every job inherits (borescan.parallel.JOB_MALLOC_ENVIRONMENT)
 

@@ -23,7 +23,7 @@ import pytest
 from conftest import ROOT, SNAKEMAKE, checksums
 from fault_roots import as_nobody, can_drop_to_nobody, checkout_copy, copy_scan, give_to_nobody, make_crash_root
 
-from borescan import demo, rawio, tables, validation
+from borescan import demo, raw_index, rawio, tables, validation
 from borescan.stages import _common
 from borescan.stages.catalog import HistoryGapError, raw_coverage, stage_catalog
 from borescan.stages.ingest import stage_ingest
@@ -118,13 +118,13 @@ def test_raw_index_changes_with_the_scans_not_with_a_rerun(tmp_path, demo_raw):
     old_ns = 1_700_000_000 * 10**9
     for p in (raw / "night=2026-11-20").rglob("*"):
         os.utime(p, ns=(old_ns, old_ns))
-    assert _common.refresh_raw_index(raw, res, ["2026-11-20"]) == []  # first manifest: the raw files' time
-    index = _common.raw_index_path(res, "2026-11-20")
+    assert raw_index.refresh_raw_index(raw, res, ["2026-11-20"]) == []  # first manifest: the raw files' time
+    index = raw_index.raw_index_path(res, "2026-11-20")
     assert index.stat().st_mtime_ns == old_ns
-    assert _common.refresh_raw_index(raw, res, ["2026-11-20"]) == []  # unchanged: not rewritten
+    assert raw_index.refresh_raw_index(raw, res, ["2026-11-20"]) == []  # unchanged: not rewritten
     subprocess.run(["cp", "-a", str(src / "scan=N20261120-ROD01-MEAS-CYL2H"), str(raw / "night=2026-11-20")],
                    check=True)
-    assert _common.refresh_raw_index(raw, res, ["2026-11-20"]) == ["2026-11-20"]
+    assert raw_index.refresh_raw_index(raw, res, ["2026-11-20"]) == ["2026-11-20"]
     assert index.stat().st_mtime_ns > old_ns
     assert "scan=N20261120-ROD01-MEAS-CYL2H/lds.parquet" in index.read_text()
 
@@ -148,6 +148,29 @@ def test_catalog_step_fails_naming_scans_of_the_raw_root_the_history_lacks(tmp_p
     assert cov.missing == ("night=2026-11-21/scan=N20261121-ROD01-VER-RGS150",) and cov.n_scans == 4
     with pytest.raises(HistoryGapError, match=r"lacks 1 of the 4 scans .*night=2026-11-21/scan=N20261121-ROD01-VER"):
         stage_catalog(res, raw_root=raw, log=lines.append)
+
+
+def test_quarantine_records_follow_the_catalog_with_names_that_never_collide(tmp_path, demo_raw):
+    """Issue 40 item 3: a stale record is removed; folder ids longer than 64 characters, ``..`` and ``-``
+    each get their own visible record."""
+    raw, res = tmp_path / "raw", tmp_path / "res"
+    rod = demo_raw / "night=2026-11-20" / "scan=N20261120-ROD01-MEAS-CYL2H"
+    odd = ["L" * 70 + "A", "L" * 70 + "B", "..", "-"]
+    for sid in ["N20261120-ROD01-MEAS-CYL2H", *odd]:
+        copy_scan(rod, raw, "2026-11-20", sid)
+    meta = raw / "night=2026-11-20" / "scan=-" / "scan.json"
+    meta.write_text(meta.read_text().replace('"kind"', '"kind_typo"'))  # "-" is a valid id: make it bad
+    scans, files, bad = stage_ingest(raw, "2026-11-20", res)
+    assert sorted(q.scan_id for q in bad) == sorted(odd)
+    for name, df in (("scans", scans), ("scan_files", files), ("quarantine/stage=ingest", _common.quarantine_frame(bad))):
+        _common.write_table(df, res / "stage" / name / "night=2026-11-20.parquet")
+    (res / "quarantine" / "STALE-FROM-A-REVERTED-EDIT.json").write_text("{}")
+    stage_catalog(res, raw_root=raw, log=lambda _: None)
+    records = sorted((res / "quarantine").iterdir())
+    assert len(records) == 4 and not any(p.name.startswith((".", "-")) for p in records)
+    by_id = {__import__("json").loads(p.read_text())["scan_id"]: p.name for p in records}
+    assert sorted(by_id) == sorted(odd)
+    assert by_id[".."] == _common.quarantine_record_name("..", "2026-11-20") and by_id[".."].startswith("scan-")
 
 
 # ------------------------------------------------------------------------- slow: the real workflow
@@ -216,7 +239,7 @@ def test_crash_root_workflow_as_a_user_who_is_not_root(open_tmp, demo_raw):
     assert con.execute("SELECT count(*) FROM diameters WHERE scan_id = 'N20261120-ROD01-MEAS-CYL2H'").fetchone()[0] > 0
     log = (res / "logs" / "build_catalog.log").read_text()
     assert "SKIPPED night=2026-02-30: folder night is not a date YYYY-MM-DD; its scans are not processed" in log
-    assert "every one of the 9 scans of the raw root is in the history" in log
+    assert "every one of the 8 scans of the raw root is in the history" in log
     if before is not None:
         assert checksums(root.raw) == before
 

@@ -8,7 +8,8 @@ import polars as pl
 
 from borescan import night_config, tables
 from borescan.config import load_config
-from borescan.stages._common import raw_index_path, write_table
+from borescan.raw_index import raw_index_path
+from borescan.stages._common import write_table
 
 
 def _config(tolerance_mm: float) -> dict:

@@ -17,6 +17,8 @@ the keys that differ), and marks the nights' raw manifests so that the next run 
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 import os
 import shutil
@@ -26,6 +28,8 @@ from pathlib import Path
 import polars as pl
 
 from borescan import tables
+from borescan.atomic import atomic_write_bytes
+from borescan.raw_index import raw_index_path
 
 __all__ = ["RUN_KEYS", "NightConfig", "ConfigChange", "night_settings", "settings_hash", "changed_keys",
            "record_path", "read_record", "settle", "recompute"]
@@ -63,10 +67,14 @@ def night_settings(config: dict) -> dict:
 
 
 def settings_hash(settings: dict) -> str:
-    """16 hex digits of SHA-256 over the settings' canonical JSON (the hash certificates carry)."""
-    from borescan.stages._common import config_hash
+    """16 hex digits of SHA-256 over the settings' canonical JSON (as ``stages._common.config_hash``)."""
+    return hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
-    return config_hash(settings)
+
+def _write_parquet(df: pl.DataFrame, path: Path) -> None:
+    buf = io.BytesIO()
+    df.write_parquet(buf, statistics=False)
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def changed_keys(old: dict, new: dict, prefix: str = "") -> list[str]:
@@ -95,9 +103,7 @@ def read_record(results_root, night: str) -> NightConfig | None:
 
 
 def _write_record(results_root, rec: NightConfig) -> None:
-    from borescan.stages._common import write_table
-
-    write_table(tables.frame("night_config", [{"night": rec.night, "config_hash": rec.config_hash,
+    _write_parquet(tables.frame("night_config", [{"night": rec.night, "config_hash": rec.config_hash,
                                                "config_json": json.dumps(rec.settings, sort_keys=True),
                                                "recorded_by": rec.recorded_by}]), record_path(results_root, rec.night))
 
@@ -148,8 +154,6 @@ def recompute(results_root, from_night: str, config: dict) -> ConfigChange | Non
     (``raw_index/night=<night>.txt``, an input of its jobs) is given the current time, so that the
     next workflow run recomputes these nights and what depends on them.
     """
-    from borescan.stages._common import raw_index_path, write_table
-
     root = Path(results_root)
     current = night_settings(config)
     h = settings_hash(current)
@@ -170,7 +174,7 @@ def recompute(results_root, from_night: str, config: dict) -> ConfigChange | Non
            "old_hashes": ",".join(change.old_hashes), "new_hash": h, "changed_keys": ",".join(keys),
            "archive": change.archive}
     before = pl.read_parquet(changes_file) if changes_file.is_file() else tables.frame("config_changes", [])
-    write_table(pl.concat([before, tables.frame("config_changes", [row])], how="diagonal_relaxed"), changes_file)
+    _write_parquet(pl.concat([before, tables.frame("config_changes", [row])], how="diagonal_relaxed"), changes_file)
     for r in todo:
         _write_record(root, NightConfig(r.night, h, current, f"recompute {change_id}"))
         index = raw_index_path(root, r.night)

@@ -6,6 +6,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -16,8 +17,8 @@ from borescan import rawio, tables
 from borescan.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "write_table",
-           "write_stage_outputs", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash",
-           "night_folder", "clear_night_folder", "link_into_night", "raw_index_path", "refresh_raw_index"]
+           "write_stage_outputs", "quarantine_record_name", "sync_quarantine_records", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash",
+           "night_folder", "clear_night_folder", "link_into_night"]
 
 
 def config_hash(cfg: dict) -> str:
@@ -40,12 +41,53 @@ class Quarantined:
         return cls(err.scan_id, night, stage, err.file, err.problem)
 
 
+_RECORD_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,63}")
+
+
+def quarantine_record_name(scan_id: str, night: str) -> str:
+    """File name of a scan's quarantine record: ``<scan_id>.json`` for a valid id that cannot be
+    mistaken for anything else; otherwise (a folder id longer than 64 characters, ``..``, ``-``, ...)
+    ``scan-<16 hex of SHA-256 of night/scan_id>.json``, so two folders never share a record, no
+    record is hidden and none is named like the ``-`` of problems that name no scan."""
+    if _RECORD_NAME.fullmatch(scan_id):
+        return f"{scan_id}.json"
+    return f"scan-{hashlib.sha256(f'{night}/{scan_id}'.encode()).hexdigest()[:16]}.json"
+
+
+def _record_bytes(q: Quarantined) -> str:  # the record's text (deterministic)
+    return json.dumps(dict(asdict(q), message=f"{q.scan_id}: {q.file}: {q.reason}"), indent=2, sort_keys=True) + "\n"
+
+
 def write_quarantine_record(results_root: str | Path, q: Quarantined) -> Path:
-    """Write ``<results_root>/quarantine/<scan_id>.json`` (atomic, deterministic bytes)."""
-    path = Path(results_root) / "quarantine" / f"{q.scan_id}.json"
-    payload = dict(asdict(q), message=f"{q.scan_id}: {q.file}: {q.reason}")
-    atomic_write_text(path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
+    """Write ``<results_root>/quarantine/<name>.json`` (:func:`quarantine_record_name`; atomic,
+    deterministic bytes). The catalog step rewrites the folder from the catalog
+    (:func:`sync_quarantine_records`), so a record outlives neither a rerun nor a recompute."""
+    path = Path(results_root) / "quarantine" / quarantine_record_name(q.scan_id, q.night)
+    atomic_write_text(path, _record_bytes(q))
     return path
+
+
+def sync_quarantine_records(results_root: str | Path, records: list[Quarantined]) -> tuple[int, int]:
+    """Make ``<results_root>/quarantine/`` hold exactly ``records`` (the catalog's, one per scan; a scan id
+    quarantined on two nights: ``<scan_id>.night=<night>.json`` for the later). Returns (written, removed)."""
+    folder = Path(results_root) / "quarantine"
+    want: dict[str, str] = {}
+    for q in records:
+        name = quarantine_record_name(q.scan_id, q.night)
+        if name in want:
+            name = f"{name[:-5]}.night={q.night}.json"
+        want[name] = _record_bytes(q)
+    written = removed = 0
+    for name, text in want.items():
+        if not ((folder / name).is_file() and (folder / name).read_text() == text):
+            atomic_write_text(folder / name, text)
+            written += 1
+    if folder.is_dir():
+        for path in folder.iterdir():
+            if path.name not in want and path.suffix == ".json" and path.is_file():
+                path.unlink()
+                removed += 1
+    return written, removed
 
 
 def quarantine(results_root, records: list[Quarantined], scan_id: str, night: str, stage: str, file: str,
@@ -155,45 +197,3 @@ def link_into_night(link: Path, target: Path) -> None:
         os.symlink(os.path.relpath(target, link.parent), link, target_is_directory=True)
     except OSError:
         shutil.copytree(target, link)
-
-
-# --------------------------------------------------------------------------- what the raw root holds
-
-
-def raw_index_path(results_root, night: str) -> Path:
-    """``<results_root>/raw_index/night=<night>.txt``: the night's :func:`borescan.rawio.night_manifest`."""
-    return Path(results_root) / "raw_index" / f"night={night}.txt"
-
-
-def refresh_raw_index(raw_root, results_root, nights: list[str]) -> list[str]:
-    """Write each night's manifest where it differs from the one written before; return those nights.
-
-    The workflow calls this when it reads the raw root (every run, dry runs too) and makes the
-    file an input of the night's jobs. Snakemake decides what is out of date from file times, and
-    from its own records of inputs and parameters only when the checkout that runs has them (a
-    second checkout, a fresh ``.snakemake/``, has none); a scan added with its old times
-    (``cp -a``, ``rsync -a``) would look older than the night's results. The manifest is rewritten
-    only when the night's scans changed, so its new time makes the night's jobs rerun, whatever
-    the raw files' times and whichever checkout runs. A manifest written for the first time takes
-    the time of the night's newest raw file, so it reruns nothing the raw files' times would not
-    (results made before the manifest existed stay as they are). A results root that cannot be
-    written is left alone (the run then stops at its first output, naming it).
-    """
-    changed = []
-    for night in nights:
-        path = raw_index_path(results_root, night)
-        text = rawio.night_manifest(raw_root, night)
-        try:
-            existed = path.is_file()
-            if existed and path.read_text() == text:
-                continue
-            atomic_write_text(path, text)
-            if not existed:
-                times = [int(t) for line in text.splitlines() for t in line.split()[2:3]]
-                if times:
-                    os.utime(path, ns=(max(times), max(times)))
-                continue
-        except OSError:
-            continue
-        changed.append(night)
-    return changed

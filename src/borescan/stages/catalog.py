@@ -9,8 +9,9 @@ from pathlib import Path
 import duckdb
 
 from borescan import catalog, rawio
+from borescan.stages._common import Quarantined, sync_quarantine_records
 
-__all__ = ["HistoryGapError", "Coverage", "raw_coverage", "stage_catalog"]
+__all__ = ["HistoryGapError", "Coverage", "raw_coverage", "catalog_quarantine", "stage_catalog"]
 
 #: scans named in full in a gap message; the rest are counted
 _NAMED = 12
@@ -63,6 +64,20 @@ def raw_coverage(raw_root: str | Path, catalog_file: str | Path) -> Coverage:
     return Coverage(missing, skipped, len(expected))
 
 
+def catalog_quarantine(catalog_file: str | Path) -> list[Quarantined]:
+    """One record per quarantined scan of the catalog: its earliest stage's (the ``scans`` reason)."""
+    order = " ".join(f"WHEN '{s}' THEN {i}" for i, s in enumerate(catalog.STAGE_ORDER))
+    con = duckdb.connect(str(catalog_file), read_only=True)
+    try:
+        rows = con.execute(
+            "SELECT scan_id, strftime(night, '%Y-%m-%d'), stage, file, reason FROM quarantine "
+            f"QUALIFY row_number() OVER (PARTITION BY scan_id, night ORDER BY CASE stage {order} ELSE 9 END, file) = 1 "
+            "ORDER BY night, scan_id").fetchall()
+    finally:
+        con.close()
+    return [Quarantined(*r) for r in rows]
+
+
 def stage_catalog(results_root: str | Path, catalog_file: str | Path | None = None,
                   full: bool = False, raw_root: str | Path | None = None,
                   log=print) -> catalog.CatalogUpdate:
@@ -77,6 +92,9 @@ def stage_catalog(results_root: str | Path, catalog_file: str | Path | None = No
     update = catalog.update_catalog(results_root, full=full)
     if catalog_file is not None and Path(catalog_file).resolve() != Path(update.path).resolve():
         raise RuntimeError(f"catalog written to {update.path}, rule expected {catalog_file}")
+    written, removed = sync_quarantine_records(results_root, catalog_quarantine(update.path))
+    if written or removed:
+        log(f"quarantine records: {written} written, {removed} removed (they follow the catalog)")
     if raw_root is not None:
         cov = raw_coverage(raw_root, update.path)
         for s in cov.skipped:

@@ -118,7 +118,8 @@ def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
     # the one validator, shared with `borescan validate`: the first problem is the reason
     earlier = validation.earlier_night_of(raw_root, night, scan_id) if duplicate else None
     _, problems = validation.scan_problems(d, raw_root, duplicate=duplicate, earlier_night=earlier)
-    problem = Quarantined.from_error(problems[0], night, "ingest") if problems else None
+    # the folder's own id (a ScanError shortens an id that is no valid id to name it)
+    problem = Quarantined(scan_id, night, "ingest", problems[0].file, problems[0].problem) if problems else None
     if problem is not None:
         write_quarantine_record(results_root, problem)
     return scan_row(scan_id, night, d, meta, hashes, problem), file_rows, problem
