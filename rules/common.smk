@@ -28,12 +28,13 @@ for _device in config["devices"] or {}:  # a mistyped device-model entry stops t
 
 
 def night_setting(*keys):
-    """A rule parameter: the setting ``keys`` (e.g. "verification") of the job's night (NIGHT_SETTINGS)."""
+    """A rule parameter: the setting ``keys`` (e.g. "verification") of the job's night (NIGHT_SETTINGS);
+    None where the night's record has no such key (recorded before the setting existed)."""
 
     def of_night(wildcards):
         value = NIGHT_SETTINGS[wildcards.night]
         for k in keys:
-            value = value[k]
+            value = value.get(k) if isinstance(value, dict) else None
         return value
 
     return of_night

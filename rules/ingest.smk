@@ -14,6 +14,7 @@ rule ingest_night:
         results_root=results_root_for,
         duplicates=duplicate_ids_of_night,
         on_conflict=night_setting("artifacts", "on_conflict"),
+        plausibility=night_setting("plausibility"),  # None for a night recorded before it existed
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/ingest_night/{{night}}.log",
