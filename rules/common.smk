@@ -2,6 +2,7 @@
 import sys
 
 from borescan import night_config, rawio, validation
+from borescan.catalog import set_aside_damaged
 from borescan.effects import device_model_effects
 from borescan.parallel import set_job_environment
 from borescan.raw_index import raw_index_path, refresh_raw_index
@@ -14,6 +15,10 @@ NIGHTS = rawio.nights(RAW)
 # each night's manifest (its scan folders, files, sizes, times) rewritten when it changed: an input
 # of ingest_night, so the raw root decides what runs whatever the files' times and the checkout
 refresh_raw_index(RAW, RES, NIGHTS)
+# a catalog cut off (a full disk, a copy interrupted) is set aside: build_catalog rebuilds it, the report follows
+_damaged = set_aside_damaged(RES, dry_run=workflow.dryrun)
+if _damaged:
+    print(f"borescan: {_damaged}", file=sys.stderr)
 # the settings each night is processed with: its record (borescan.night_config), else the current
 # config (recorded now); an edit of the config applies to nights not yet in the history
 NIGHT_SETTINGS, _differ = night_config.settle(RES, NIGHTS, config)

@@ -10,6 +10,7 @@ is added with its old file times (``cp -a``), and on a copied results root.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -276,8 +277,9 @@ def test_a_night_added_with_old_times_runs_from_a_checkout_without_records(tmp_p
     for name, checkout, results in (("second checkout", b, res), ("copied results root", a, copied)):
         out = _planned(_workflow(checkout, raw, results, home, "catalog", "--dry-run"))
         assert "Nothing to be done" not in out, name
-        assert f"{results}/stage/scans/night=2026-11-21.parquet" in out, name
-        assert f"{results}/stage/scans/night=2026-11-20.parquet" not in out, name  # the old night stays
+        assert "registering the scans of night 2026-11-21" in out, name
+        assert "registering the scans of night 2026-11-20" not in out, name  # the old night stays
+        assert re.search(r"^ingest_night\s+1$", out, re.M), name
     out = _planned(_workflow(b, raw, res, home, "catalog"))
     con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
     assert con.execute("SELECT count(*) FROM scans WHERE night = '2026-11-21'").fetchone()[0] == 2
@@ -285,8 +287,8 @@ def test_a_night_added_with_old_times_runs_from_a_checkout_without_records(tmp_p
 
 
 def _verification_tolerances(res: Path) -> dict[str, set[float]]:
-    v = pl.read_parquet(list((res / "stage" / "verifications").glob("night=*.parquet")))
-    return {n: set(g["tolerance_mm"].to_list()) for (n,), g in v.group_by(["night"])}
+    return {f.name[6:16]: set(pl.read_parquet(f)["tolerance_mm"].to_list())
+            for f in sorted((res / "stage" / "verifications").glob("night=*.parquet"))}
 
 
 @pytest.mark.slow
@@ -327,8 +329,8 @@ def test_a_config_edit_applies_from_the_next_night_and_recompute_is_explicit(tmp
     kept = res / "versions" / "change-0001"
     assert {k: v for k, v in checksums(kept / "stage").items()} == {k: v for k, v in past.items() if "2026-11-20" in k}
     out = _planned(_workflow(a, raw, res, home, "catalog", "--dry-run"))
-    assert f"{res}/stage/verifications/night=2026-11-20.parquet" in out
-    assert f"{res}/stage/verifications/night=2026-11-21.parquet" not in out
+    assert "Verifying calibrations and measuring parts of night 2026-11-20" in out
+    assert "Verifying calibrations and measuring parts of night 2026-11-21" not in out
     _planned(_workflow(a, raw, res, home, "catalog"))
     assert _verification_tolerances(res) == {"2026-11-20": {0.002}, "2026-11-21": {0.002}}
     con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
@@ -336,3 +338,36 @@ def test_a_config_edit_applies_from_the_next_night_and_recompute_is_explicit(tmp
         ("change-0001", "2026-11-20", hashes["2026-11-21"], "verification.tolerance_mm", "versions/change-0001")]
     assert con.execute("SELECT recorded_by FROM night_config ORDER BY night").fetchall() == [
         ("recompute change-0001",), ("first run",)]
+
+
+def test_a_damaged_catalog_is_named_by_every_reader_and_rebuilt(tmp_path, demo_raw, capsys):
+    """Issue 40 item 10: a catalog cut short is refused by open_catalog (sql, status, trace, report read
+    through it) with the command that rebuilds it; the catalog step and the workflow rebuild it."""
+    from borescan import catalog
+    from borescan.cli import main
+
+    raw, res = tmp_path / "raw", tmp_path / "res"
+    for d in sorted((demo_raw / "night=2026-11-20").glob("scan=*ROD01*")):
+        copy_scan(d, raw, "2026-11-20", d.name[5:])
+    scans, files, _ = stage_ingest(raw, "2026-11-20", res)
+    _common.write_table(scans, res / "stage" / "scans" / "night=2026-11-20.parquet")
+    _common.write_table(files, res / "stage" / "scan_files" / "night=2026-11-20.parquet")
+    stage_catalog(res, raw_root=raw, log=lambda _: None)
+    final = res / "catalog.duckdb"
+    intact = catalog.table_rows(catalog.open_catalog(res), "scans")
+    data = final.read_bytes()
+    final.write_bytes(data[: len(data) // 2])
+    assert catalog.catalog_damage(final) == f"it has {len(data) // 2} bytes, {len(data)} were written " \
+                                            "(truncated or cut off by a full disk?)"
+    with pytest.raises(catalog.CatalogDamaged, match=r"is damaged: .* borescan rebuild-catalog --results"):
+        catalog.open_catalog(res)
+    assert main(["sql", "--results", str(res), "SELECT count(*) FROM scans"]) != 0
+    assert "is damaged: it has" in capsys.readouterr().err  # never an answer from half a file
+    assert catalog.set_aside_damaged(res, dry_run=True).endswith("a run rebuilds it from the stage tables")
+    assert final.is_file()
+    update = stage_catalog(res, raw_root=raw, log=lambda _: None)  # what build_catalog runs
+    assert update.mode == "full" and update.reason.startswith("the catalog is damaged")
+    assert catalog.table_rows(catalog.open_catalog(res), "scans") == intact
+    final.write_bytes(data[:4096])
+    assert "kept as catalog.duckdb.damaged" in catalog.set_aside_damaged(res)  # what the workflow does first
+    assert not final.exists() and (res / "catalog.duckdb.damaged").is_file()
