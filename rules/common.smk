@@ -6,6 +6,7 @@ from borescan.catalog import set_aside_damaged
 from borescan.effects import device_model_effects
 from borescan.parallel import set_job_environment
 from borescan.raw_index import raw_index_path, refresh_raw_index
+from borescan.workflow_log import release_stale_locks
 
 set_job_environment()  # glibc malloc settings every job inherits (borescan.parallel.JOB_MALLOC_ENVIRONMENT)
 
@@ -15,6 +16,10 @@ NIGHTS = rawio.nights(RAW)
 # each night's manifest (its scan folders, files, sizes, times) rewritten when it changed: an input
 # of ingest_night, so the raw root decides what runs whatever the files' times and the checkout
 refresh_raw_index(RAW, RES, NIGHTS)
+# the locks a run killed with SIGKILL left behind (its process is gone) are released; others stay
+for _pid in release_stale_locks(".snakemake"):
+    print(f"borescan: released the lock of run {_pid}, which was killed before it finished; its jobs rerun",
+          file=sys.stderr)
 # a catalog cut off (a full disk, a copy interrupted) is set aside: build_catalog rebuilds it, the report follows
 _damaged = set_aside_damaged(RES, dry_run=workflow.dryrun)
 if _damaged:

@@ -13,44 +13,10 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from fault_roots import copy_scan  # noqa: E402
+from fault_roots import PLAUSIBILITY_CASES as CASES, ROD, ROD_MEAS, copy_scan  # noqa: E402
 
 from borescan import demo, measure, validation  # noqa: E402
 from borescan.stages.ingest import stage_ingest  # noqa: E402
-
-ROD = "scan=N20261120-ROD01-VER-RGS150"  # a rod verification: sensors, temperature, a gauge with features
-ROD_MEAS = "scan=N20261120-ROD01-MEAS-CYL2H"  # a part with toleranced features
-
-
-def _set(path: str, value):
-    def edit(meta: dict) -> None:
-        node, keys = meta, path.split(".")
-        for k in keys[:-1]:
-            node = node[int(k)] if k.isdigit() else node[k]
-        node[int(keys[-1]) if keys[-1].isdigit() else keys[-1]] = value
-    return edit
-
-
-#: (case, scan, edit, the problem's text): the issue's findings and their neighbours
-CASES = [
-    ("range 1e200", ROD, _set("sensors.0.range_mm", 1e200), "key 'sensors[0].range_mm' 1e+200 mm exceeds plausibility.max_sensor_range_mm 1000 mm"),
-    ("zero linearity", ROD, _set("sensors.1.linearity_fs", 0), "key 'sensors[1].linearity_fs' must be a positive number (a data-sheet uncertainty), got 0"),
-    ("zero repeatability", ROD, _set("sensors.0.repeatability_mm", 0.0), "key 'sensors[0].repeatability_mm' must be a positive number"),
-    ("Fahrenheit", ROD, _set("environment.temperature_c", 68.0), "key 'environment.temperature_c' 68 degC is outside the workshop's range [10, 35] degC"),
-    ("below absolute zero", ROD, _set("environment.temperature_c", -300), "key 'environment.temperature_c' -300 degC is outside"),
-    ("zero gauge uncertainty", ROD, _set("artifact.u_diameter_mm", 0), "key 'artifact.u_diameter_mm' must be a positive number, got 0"),
-    ("k zero", ROD, _set("artifact.k", 0), "key 'artifact.k' must be a positive number"),
-    ("CTE in ppm", ROD, _set("artifact.cte_per_k", 11.5), "key 'artifact.cte_per_k' 11.5 /K is no metal's"),
-    ("negative certified", ROD, _set("artifact.features.0.certified_diameter_mm", -150.0021),
-     "key 'artifact.features[0].certified_diameter_mm' must be a positive number, got -150.0021"),
-    ("far-off certified", ROD, _set("artifact.features.1.certified_diameter_mm", 159.9987),
-     "key 'artifact.features[1].certified_diameter_mm' 159.999 mm is 9.999 mm from 'artifact.features[1].nominal_diameter_mm' 150 mm"),
-    ("tolerance as text", ROD_MEAS, _set("artifact.features.0.tolerance_mm", "0.02"), "key 'artifact.features[0].tolerance_mm' must be a positive number, got '0.02'"),
-    ("tolerance zero", ROD_MEAS, _set("artifact.features.1.tolerance_mm", 0), "key 'artifact.features[1].tolerance_mm' must be a positive number, got 0"),
-    ("started in 9999", ROD_MEAS, _set("started_at", "9999-12-31T23:00:00Z"), "key 'started_at' 9999-12-31T23:00:00Z is not within night 2026-11-20"),
-    ("started the day before", ROD_MEAS, _set("started_at", "2026-11-19T23:00:00Z"), "key 'started_at' 2026-11-19T23:00:00Z is not within night"),
-]
-
 
 @pytest.fixture(scope="module")
 def demo_raw(tmp_path_factory):
