@@ -36,9 +36,11 @@ rule all:
 
 onstart:
     # a run killed hard inside write_report leaves Snakemake's copy of results/report behind: put it back
-    from borescan.workflow_log import restore_stale_backups
+    from borescan.workflow_log import record_lock_owner, restore_stale_backups
 
     restore_stale_backups(".snakemake", [f"{RES}/report"])
+    # which lock files are this run's: a later run releases them if this process is killed (SIGKILL)
+    record_lock_owner(".snakemake", getattr(workflow.persistence, "_lockfile", {}).values())
 
 
 onsuccess:

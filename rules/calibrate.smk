@@ -21,13 +21,13 @@ rule calibrate_night:
     params:
         raw_root=RAW,
         results_root=results_root_for,
-        calibration=config["calibration"],
-        uncertainty=config["uncertainty"],
-        laboratory=config["laboratory"],
-        verification=config["verification"],
-        devices=config["devices"],
-        device_model_auto_nights=config["discrepancy"]["device_model_auto_nights"],
-        signal=config["signal"],
+        calibration=night_setting("calibration"),
+        uncertainty=night_setting("uncertainty"),
+        laboratory=night_setting("laboratory"),
+        verification=night_setting("verification"),
+        devices=night_setting("devices"),
+        device_model_auto_nights=night_setting("discrepancy", "device_model_auto_nights"),
+        signal=night_setting("signal"),
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/calibrate_night/{{night}}.log",

@@ -24,6 +24,7 @@ rule build_catalog:
         catalog=update(f"{RES}/catalog.duckdb"),
     params:
         results_root=results_root_for,
+        raw_root=RAW,  # the history is checked against it: every scan in, or the job fails naming it
     log:
         f"{RES}/logs/build_catalog.log",
     benchmark:
@@ -37,3 +38,10 @@ rule build_catalog:
 rule catalog:
     input:
         rules.build_catalog.output,
+        # every night's stage tables as well: Snakemake (9.27) does not run a job whose input is
+        # missing unless a target needs that file, and it tells a changed set of inputs only from
+        # .snakemake/metadata, which another checkout, or a copied results root, does not have.
+        # Without these a night added to the raw root would be "Nothing to be done" from such a
+        # checkout (the catalog exists, the new night's tables are not asked for); with them a
+        # missing table of any night of the raw root is asked for, and the catalog is rebuilt after it.
+        rules.build_catalog.input,

@@ -1,8 +1,13 @@
 # Names the rules use: roots from the config and the nights found under raw_root.
-from borescan import rawio, validation
+import sys
+
+from borescan import night_config, rawio, validation
+from borescan.catalog import set_aside_damaged
 from borescan.effects import device_model_effects
 from borescan.parallel import set_job_environment
 from borescan.resources import shipped
+from borescan.raw_index import raw_index_path, refresh_raw_index
+from borescan.workflow_log import release_stale_locks
 
 set_job_environment()  # glibc malloc settings every job inherits (borescan.parallel.JOB_MALLOC_ENVIRONMENT)
 
@@ -11,8 +16,41 @@ RES = config["results_root"]
 NIGHTS = rawio.nights(RAW)
 #: the papers' transcribed tables, shipped with borescan (data/papers/ links to them)
 PAPER_TRANSCRIPTIONS = [str(shipped("papers", f"yang2017_table{i}.csv")) for i in (1, 2, 3)]
+# each night's manifest (its scan folders, files, sizes, times) rewritten when it changed: an input
+# of ingest_night, so the raw root decides what runs whatever the files' times and the checkout
+refresh_raw_index(RAW, RES, NIGHTS)
+# the locks a run killed with SIGKILL left behind (its process is gone) are released; others stay
+for _pid in release_stale_locks(".snakemake"):
+    print(f"borescan: released the lock of run {_pid}, which was killed before it finished; its jobs rerun",
+          file=sys.stderr)
+# a catalog cut off (a full disk, a copy interrupted) is set aside: build_catalog rebuilds it, the report follows
+_damaged = set_aside_damaged(RES, dry_run=workflow.dryrun)
+if _damaged:
+    print(f"borescan: {_damaged}", file=sys.stderr)
+# the settings each night is processed with: its record (borescan.night_config), else the current
+# config (recorded now); an edit of the config applies to nights not yet in the history
+NIGHT_SETTINGS, _differ = night_config.settle(RES, NIGHTS, config)
+if _differ:
+    _keys = sorted({k for n in _differ for k in night_config.changed_keys(NIGHT_SETTINGS[n], night_config.night_settings(config))})
+    print(f"borescan: the config differs from the one nights {_differ[0]}..{_differ[-1]} ({len(_differ)}) were "
+          f"processed with ({', '.join(_keys[:6])}{' ...' if len(_keys) > 6 else ''}); it applies to nights not yet in "
+          f"the history. To recompute earlier nights with it: borescan recompute --from NIGHT --results {RES}",
+          file=sys.stderr)
 for _device in config["devices"] or {}:  # a mistyped device-model entry stops the run here, named
     device_model_effects(config["devices"], _device)
+
+
+def night_setting(*keys):
+    """A rule parameter: the setting ``keys`` (e.g. "verification") of the job's night (NIGHT_SETTINGS);
+    None where the night's record has no such key (recorded before the setting existed)."""
+
+    def of_night(wildcards):
+        value = NIGHT_SETTINGS[wildcards.night]
+        for k in keys:
+            value = value.get(k) if isinstance(value, dict) else None
+        return value
+
+    return of_night
 
 
 def results_root_for(wildcards):
@@ -31,6 +69,10 @@ def results_root_for(wildcards):
 def stage_table(table):
     """Paths of one stage table for every night."""
     return expand(f"{RES}/stage/{table}/night={{night}}.parquet", night=NIGHTS)
+
+
+def raw_index_of_night(wildcards):
+    return str(raw_index_path(RES, wildcards.night))
 
 
 def raw_files_of_night(wildcards):
@@ -60,8 +102,9 @@ def pooled_findings_before_night(wildcards):
     """Pooled findings of earlier nights when a device has a device model (config devices) or effects
     may enter one automatically (discrepancy.device_model_auto_nights): a night's calibration carries
     each at the latest earlier estimate; none otherwise."""
-    listed = any((entry or {}).get("effects") for entry in (config.get("devices") or {}).values())
-    if not listed and not int(config["discrepancy"]["device_model_auto_nights"]):
+    cfg = NIGHT_SETTINGS[wildcards.night]
+    listed = any((entry or {}).get("effects") for entry in (cfg.get("devices") or {}).values())
+    if not listed and not int(cfg["discrepancy"]["device_model_auto_nights"]):
         return []
     return [f"{RES}/stage/pooled_findings/night={n}.parquet" for n in NIGHTS if n < wildcards.night]
 
@@ -69,7 +112,7 @@ def pooled_findings_before_night(wildcards):
 def scans_of_pooled_window(wildcards):
     """Scans tables of the night and of the discrepancy.pooled_window_nights - 1 nights before it."""
     upto = [n for n in NIGHTS if n <= wildcards.night]
-    window = upto[-int(config["discrepancy"]["pooled_window_nights"]):]
+    window = upto[-int(NIGHT_SETTINGS[wildcards.night]["discrepancy"]["pooled_window_nights"]):]
     return [f"{RES}/stage/scans/night={n}.parquet" for n in window]
 
 

@@ -18,7 +18,7 @@ rule discrepancy_night:
     params:
         raw_root=RAW,
         results_root=results_root_for,
-        discrepancy=config["discrepancy"],
+        discrepancy=night_setting("discrepancy"),
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/discrepancy_night/{{night}}.log",
@@ -57,8 +57,8 @@ rule pooled_night:
     params:
         raw_root=RAW,
         results_root=results_root_for,
-        discrepancy=config["discrepancy"],
-        devices=config["devices"],
+        discrepancy=night_setting("discrepancy"),
+        devices=night_setting("devices"),
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/pooled_night/{{night}}.log",

@@ -3,6 +3,7 @@ rule ingest_night:
         "Validating and registering the scans of night {wildcards.night}"
     input:
         raw=raw_files_of_night,
+        raw_index=raw_index_of_night,  # rewritten when the night's scans change (rules/common.smk)
         earlier_scans=scans_before_night,
     output:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",
@@ -12,7 +13,8 @@ rule ingest_night:
         raw_root=RAW,
         results_root=results_root_for,
         duplicates=duplicate_ids_of_night,
-        on_conflict=config["artifacts"]["on_conflict"],
+        on_conflict=night_setting("artifacts", "on_conflict"),
+        plausibility=night_setting("plausibility"),  # None for a night recorded before it existed
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/ingest_night/{{night}}.log",

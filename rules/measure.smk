@@ -14,12 +14,12 @@ rule measure_night:
     params:
         raw_root=RAW,
         results_root=results_root_for,
-        verification=config["verification"],
-        measurement=config["measurement"],
-        calibration=config["calibration"],
-        uncertainty=config["uncertainty"],
-        laboratory=config["laboratory"],
-        signal=config["signal"],
+        verification=night_setting("verification"),
+        measurement=night_setting("measurement"),
+        calibration=night_setting("calibration"),
+        uncertainty=night_setting("uncertainty"),
+        laboratory=night_setting("laboratory"),
+        signal=night_setting("signal"),
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/measure_night/{{night}}.log",

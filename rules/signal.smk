@@ -11,7 +11,7 @@ rule signal_night:
     params:
         raw_root=RAW,
         results_root=results_root_for,
-        signal=config["signal"],
+        signal=night_setting("signal"),
     threads: config["stage_workers"]
     log:
         f"{RES}/logs/signal_night/{{night}}.log",

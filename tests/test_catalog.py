@@ -209,7 +209,7 @@ def test_rebuild_is_idempotent_and_atomic(tmp_path):
     assert first == second
     assert first["scans"] and first["diameters"]
     assert not path.with_name("catalog.duckdb.tmp").exists()
-    assert sorted(p.name for p in res.iterdir() if p.name.startswith("catalog")) == ["catalog.duckdb"]
+    assert sorted(p.name for p in res.iterdir() if p.name.startswith("catalog")) == ["catalog.duckdb", "catalog.duckdb.sha256"]  # the catalog and its seal
 
 
 def test_build_from_stage_parquet_files(tmp_path):

@@ -593,7 +593,7 @@ def test_validate_collects_every_problem_and_cli_prints_them(root, capsys):
     rewrite_parquet(a1 / "spindle.parquet", lambda df: df.drop("x_mm"))
     # same scan id again under another night
     shutil.copytree(root / "night=2026-11-22" / "scan=B1", root / "night=2026-11-23" / "scan=B1")
-    rewrite_json(root / "night=2026-11-23" / "scan=B1", lambda m: m.update(night="2026-11-23"))
+    rewrite_json(root / "night=2026-11-23" / "scan=B1", lambda m: m.update(night="2026-11-23", started_at="2026-11-23T22:14:03Z"))
     (root / "notes").mkdir()
     (root / f"night={NIGHT}" / "tmp-export").mkdir()
     (root / "night=yesterday").mkdir()
@@ -602,7 +602,7 @@ def test_validate_collects_every_problem_and_cli_prints_them(root, capsys):
     lines = [str(e) for e in errors]
     assert lines == [
         "-: night=2026-11-21/tmp-export: not a scan=<scan_id> folder",
-        "-: night=yesterday: folder night is not a date YYYY-MM-DD",
+        "-: night=yesterday: folder night is not a date YYYY-MM-DD; its scans are not processed",
         "-: notes: not a night=<YYYY-MM-DD> folder",
         "A1: scan.json: kind 'bogus' not one of calibration, centering, verification, measurement",
         "A1: scan.json: sample_rate_hz must be > 0, got -1",

@@ -14,6 +14,7 @@ def tree(tmp_path):
             d.mkdir(parents=True)
             (d / "scan.json").write_text("{}")
     (tmp_path / "night=garbage" / "scan=X").mkdir(parents=True)
+    (tmp_path / "night=2026-02-30" / "scan=Y").mkdir(parents=True)  # the date pattern, no such date
     (tmp_path / "night=2026-11-20" / "scan=").mkdir()
     (tmp_path / "night=2026-11-20" / "notes").mkdir()
     (tmp_path / "night=2026-11-23").write_text("a file, not a night")

@@ -171,7 +171,7 @@ def test_validate_reports_what_the_pipeline_would_skip(tmp_path, capsys):
     assert code == 1
     assert lines == [
         "-: README.txt: not a night=<YYYY-MM-DD> folder",
-        "-: night=someday: folder night is not a date YYYY-MM-DD",
+        "-: night=someday: folder night is not a date YYYY-MM-DD; its scans are not processed",
         "-: night=2026-11-20/scan=: folder scan_id '' does not match [A-Za-z0-9_-]{1,64}",
     ]
     assert validation.validate_tree(raw).bad_scan_ids == set()

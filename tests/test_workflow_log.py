@@ -57,3 +57,27 @@ def test_idle_timers_are_cancelled_so_the_run_exits_at_once():
     finally:
         stop.set()
         other.join()
+
+
+def test_locks_of_a_killed_run_are_released_and_a_live_run_keeps_its_own(tmp_path):
+    """Issue 40 item 9: a run killed with SIGKILL leaves its lock files; the next run releases them when
+    the process that wrote them is gone (same boot), never while it lives."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from borescan.workflow_log import record_lock_owner, release_stale_locks
+
+    locks = tmp_path / ".snakemake" / "locks"
+    locks.mkdir(parents=True)
+    mine, theirs = locks / "0.input.lock", locks / "1.output.lock"
+    mine.write_text("a\n"), theirs.write_text("b\n")
+    record_lock_owner(tmp_path / ".snakemake", [mine])  # this (live) process
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    pid = int(dead.stdout)  # finished: no such process any more
+    owner = json.loads((locks / f"borescan-owner-{os.getpid()}.json").read_text())
+    (locks / f"borescan-owner-{pid}.json").write_text(json.dumps(dict(owner, pid=pid, locks=[str(theirs)])))
+    assert release_stale_locks(tmp_path / ".snakemake") == [pid]
+    assert mine.is_file() and not theirs.exists()
+    assert release_stale_locks(tmp_path / ".snakemake") == []

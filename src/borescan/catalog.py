@@ -54,6 +54,7 @@ import duckdb
 import polars as pl
 
 from borescan.resources import shipped
+from borescan.atomic import atomic_write_text
 from borescan.rawio import combined_sha256, sha256_file
 from borescan.tables import TABLES, polars_schema
 
@@ -77,6 +78,9 @@ __all__ = [
     "read_quarantine",
     "read_stage_table",
     "catalog_path",
+    "catalog_damage",
+    "set_aside_damaged",
+    "CatalogDamaged",
     "combined_sha256",
     "saved_queries",
     "upsert_rows",
@@ -205,7 +209,7 @@ def _q(name: str) -> str:
 
 #: History tables the catalog is built from, each the union of ``stage/<table>/night=*.parquet``.
 STAGE_TABLES = ("scans", "scan_files", "calibrations", "calibration_scans", "diameters", "verifications", "findings",
-                "artifacts", "pooled_findings", "calibration_drift")
+                "artifacts", "pooled_findings", "calibration_drift", "night_config", "config_changes")
 
 #: The stages in the order a night runs them: a scan's reason in ``scans`` is its earliest stage's.
 STAGE_ORDER = ("ingest", "signal", "calibrate", "measure", "discrepancy")
@@ -652,7 +656,55 @@ def _write_catalog(final: Path, work, queries_dir, plan=None) -> dict[str, int]:
         _discard(tmp)
         raise
     os.replace(tmp, final)
+    _write_seal(final)
     return rows
+
+
+# --------------------------------------------------------------------------- damage
+
+
+class CatalogDamaged(FileNotFoundError):
+    """``catalog.duckdb`` is not the file the pipeline wrote (truncated, overwritten): no intact
+    catalog is there. A ``FileNotFoundError`` so every command reports it as a missing catalog."""
+
+
+def _seal_path(final: Path) -> Path:
+    return final.with_name(final.name + ".sha256")
+
+
+def _write_seal(final: Path) -> None:
+    """``catalog.duckdb.sha256``: the digest and size of the catalog as written."""
+    atomic_write_text(_seal_path(final), f"{sha256_file(final)} {final.stat().st_size}\n")
+
+
+def set_aside_damaged(results_root: str | os.PathLike, dry_run: bool = False) -> str | None:
+    """Move a damaged ``catalog.duckdb`` to ``catalog.duckdb.damaged`` (the workflow then rebuilds the
+    catalog from the stage tables, and the report after it); return the message, None when intact."""
+    final = catalog_path(results_root)
+    why = catalog_damage(final)
+    if why is None:
+        return None
+    if dry_run:
+        return f"the history catalog {final} is damaged ({why}); a run rebuilds it from the stage tables"
+    os.replace(final, final.with_name(final.name + ".damaged"))
+    return (f"the history catalog {final} is damaged ({why}): kept as {final.name}.damaged, rebuilt from the "
+            "stage tables by this run")
+
+
+def catalog_damage(path: str | os.PathLike) -> str | None:
+    """Why ``path`` (a ``catalog.duckdb``) is not the catalog the pipeline wrote, or None when it is
+    (or when there is no catalog, or it was written before catalogs were sealed)."""
+    final = Path(path)
+    seal = _seal_path(final)
+    if not final.is_file() or not seal.is_file():
+        return None
+    digest, _, size = seal.read_text().strip().partition(" ")
+    now = final.stat().st_size
+    if str(now) != size:
+        return f"it has {now} bytes, {size} were written (truncated or cut off by a full disk?)"
+    if sha256_file(final) != digest:
+        return "its content differs from what was written"
+    return None
 
 
 def _set_info(con: duckdb.DuckDBPyConnection, source: str) -> None:
@@ -694,6 +746,9 @@ def update_catalog(
     now = {n: {v[1]: (v[2], v[3]) for v in d.values()} for n, d in scan.items()}
     why = {"reason": "full rebuild requested" if full else
            "no catalog to extend" if not final.exists() else "the catalog could not be opened"}
+    damage = catalog_damage(final)
+    if damage is not None:
+        full, why["reason"] = True, f"the catalog is damaged ({damage}): rebuilt from the stage tables"
 
     def plan(con):
         """(nights to take out, nights to read) on the existing catalog, or None to rebuild."""
@@ -798,6 +853,11 @@ def open_catalog(results_root: str | os.PathLike, read_only: bool = True) -> duc
         raise FileNotFoundError(
             f"no history catalog at {path}; run `snakemake catalog` (or pass --results DIR)"
         )
+    why = catalog_damage(path)
+    if why is not None:
+        raise CatalogDamaged(f"the history catalog {path} is damaged: {why}. Rebuild it from the stage tables: "
+                             f"borescan rebuild-catalog --results {Path(results_root)} (the next snakemake run "
+                             "rebuilds it too)")
     con = duckdb.connect(str(path), read_only=read_only)
     con.execute("SET TimeZone = 'UTC'")
     return con

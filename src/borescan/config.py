@@ -17,7 +17,7 @@ import yaml
 
 from borescan.resources import shipped
 
-__all__ = ["SCHEMA_PATH", "schema_defaults", "schema_default", "load_config"]
+__all__ = ["SCHEMA_PATH", "schema_defaults", "schema_default", "load_config", "load_configs"]
 
 #: the config schema the package ships (``workflow/schemas/config.schema.yaml`` of a checkout links to it)
 SCHEMA_PATH = shipped("config.schema.yaml")
@@ -72,3 +72,11 @@ def load_config(path: Path | str | None = None, schema_path: Path | str = SCHEMA
     """The config at ``path`` (none: the schema's defaults alone) with every missing key defaulted."""
     user = yaml.safe_load(Path(path).read_text()) if path is not None else {}
     return _merge(schema_defaults(schema_path), user or {})
+
+
+def load_configs(paths, schema_path: Path | str = SCHEMA_PATH) -> dict:
+    """Config files merged in order over the schema's defaults, as the Snakefile's ``configfile:`` lines are."""
+    out = schema_defaults(schema_path)
+    for path in paths:
+        out = _merge(out, yaml.safe_load(Path(path).read_text()) or {})
+    return out

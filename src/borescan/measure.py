@@ -980,9 +980,15 @@ def decide(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "simpl
     Returns
     -------
     (passed, acceptance limit A [mm], conformity statement)
+
+    Raises ValueError when a number is not finite or the tolerance not positive: no NaN or inf
+    ever becomes a verdict.
     """
     if rule not in DECISION_RULES:
         raise ValueError(f"unknown decision rule {rule!r}; valid: {list(DECISION_RULES)}")
+    if not all(math.isfinite(float(x)) for x in (error_mm, U_mm, tolerance_mm)) or not tolerance_mm > 0:
+        raise ValueError(f"no verdict: the error ({error_mm!r} mm), its expanded uncertainty ({U_mm!r} mm) and the "
+                         f"tolerance ({tolerance_mm!r} mm) must be finite numbers, the tolerance positive")
     w = 0.0 if rule == "simple_acceptance" else float(guard_band_factor) * float(U_mm)
     A = float(tolerance_mm) - w
     passed = bool(A > 0 and abs(error_mm) <= A)

@@ -61,6 +61,7 @@ __all__ = [
     "nights",
     "night_scan_dirs",
     "night_raw_files",
+    "night_manifest",
     "earlier_duplicate_ids",
     "clock_jump",
     "validate_root",
@@ -938,6 +939,11 @@ def _check_folder(scan_dir: Path, raw_root: Path | None, p: _Problems) -> tuple[
         p.add(rel, f"folder resolves to {real}, outside the raw root {real_root}")
     elif not real.is_dir():
         p.add(rel, "not a directory")
+    else:
+        try:
+            os.listdir(real)
+        except OSError as e:  # e.g. written with umask 077 by another user
+            p.add(rel, f"cannot list the scan folder: {e.strerror or e}")
     return sid, night
 
 
@@ -945,11 +951,11 @@ def _open_file(
     scan_dir: Path, fname: str, real_root: Path | None, p: _Problems, required: bool
 ) -> Path | None:
     path = scan_dir / fname
-    if not path.exists() and not path.is_symlink():
-        if required:
-            p.add(fname, "missing (required)")
-        return None
     try:
+        if not os.path.lexists(path):
+            if required:
+                p.add(fname, "missing (required)")
+            return None
         real = path.resolve(strict=True)
     except (OSError, RuntimeError) as e:
         p.add(fname, f"cannot resolve: {e}")
@@ -1039,7 +1045,7 @@ def _inspect(
         meta_ok = len(p.errors) == n0
     if meta_only:
         return (meta if not p else None), p.errors
-    has_spindle_file = (scan_dir / SPINDLE_FILE).exists() or (scan_dir / SPINDLE_FILE).is_symlink()
+    has_spindle_file = os.path.lexists(scan_dir / SPINDLE_FILE)
     lds_tab = _read_parquet(lds_path, LDS_FILE, LDS_SCHEMA, p) if lds_path is not None else None
     sp_tab = _read_parquet(sp_path, SPINDLE_FILE, SPINDLE_SCHEMA, p) if sp_path is not None else None
     warnings: list[str] = []
@@ -1118,6 +1124,22 @@ def read_scan_meta(scan_dir: Path, raw_root: Path | None = None) -> dict:
     return meta
 
 
+def _listing(folder: Path) -> list[Path]:
+    """Entries of ``folder``; [] when it cannot be listed (unreadable, e.g. written with umask 077 by
+    another user): the scan's own check (:func:`_check_folder`) or :func:`tree_problems` names it."""
+    try:
+        return list(Path(folder).iterdir())
+    except OSError:
+        return []
+
+
+def _is_dir(path: Path) -> bool:
+    try:
+        return path.is_dir()
+    except OSError:
+        return False
+
+
 def _sort_key(scan_dir: Path) -> tuple[str, str]:
     return (scan_dir.parent.name[6:], scan_dir.name[5:])
 
@@ -1132,11 +1154,11 @@ def discover_scans(raw_root: Path) -> list[Path]:
     out = []
     if not raw_root.is_dir():
         return out
-    for night_dir in raw_root.iterdir():
-        if not night_dir.name.startswith("night=") or not night_dir.is_dir():
+    for night_dir in _listing(raw_root):
+        if not night_dir.name.startswith("night=") or not _is_dir(night_dir):
             continue
-        for scan_dir in night_dir.iterdir():
-            if scan_dir.name.startswith("scan=") and scan_dir.is_dir():
+        for scan_dir in _listing(night_dir):
+            if scan_dir.name.startswith("scan=") and _is_dir(scan_dir):
                 out.append(scan_dir)
     return sorted(out, key=_sort_key)
 
@@ -1145,26 +1167,63 @@ def nights(raw_root: str | Path) -> list[str]:
     """Nights (``YYYY-MM-DD``) with a ``night=<date>`` folder under ``raw_root``, sorted; [] when it does not exist.
 
     The unit of work of the pipeline: each stage runs once per night. Folders whose name is not
-    ``night=`` + a date pattern are never processed (:func:`validate_root` reports them).
+    ``night=`` + a calendar date (``night=2026-02-30`` is not one) are never processed
+    (:func:`tree_problems` names them, and the catalog step reports them as skipped).
     """
     root = Path(raw_root)
     if not root.is_dir():
         return []
-    return sorted(p.name[6:] for p in root.iterdir()
-                  if p.name.startswith("night=") and NIGHT_RE.fullmatch(p.name[6:]) and p.is_dir())
+    return sorted(p.name[6:] for p in _listing(root)
+                  if p.name.startswith("night=") and _valid_night(p.name[6:]) and _is_dir(p))
 
 
 def night_scan_dirs(raw_root: str | Path, night: str) -> list[Path]:
     """Scan folders ``scan=<scan_id>`` (non-empty id) of one night, sorted by folder name; listed, not validated."""
     night_dir = Path(raw_root) / f"night={night}"
-    if not night_dir.is_dir():
-        return []
-    return sorted(p for p in night_dir.iterdir() if p.name.startswith("scan=") and len(p.name) > 5 and p.is_dir())
+    return sorted(p for p in _listing(night_dir) if p.name.startswith("scan=") and len(p.name) > 5 and _is_dir(p))
 
 
 def night_raw_files(raw_root: str | Path, night: str) -> list[str]:
-    """Every regular file of a night's scan folders (the inputs whose change must rerun that night)."""
-    return [str(f) for d in night_scan_dirs(raw_root, night) for f in sorted(d.iterdir()) if f.is_file()]
+    """Every regular file of a night's scan folders (the inputs whose change must rerun that night).
+
+    Files this user cannot read are left out, and a scan folder that cannot be listed contributes
+    none (Snakemake hashes a job's inputs; ingest quarantines the scan, naming the file or folder).
+    """
+    return [str(f) for d in night_scan_dirs(raw_root, night) for f in sorted(_listing(d))
+            if _is_file(f) and os.access(f, os.R_OK)]
+
+
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except OSError:
+        return False
+
+
+def night_manifest(raw_root: str | Path, night: str) -> str:
+    """What a night of the raw root holds, as text: one line per scan folder and per file in it
+    (``scan=<id>/<file> <bytes> <mtime_ns>``; a folder that cannot be listed: ``scan=<id>/ unlistable``).
+
+    Equal text means the night's scans are the ones last processed, whatever the files' times
+    say about their order: a scan added with old times (``cp -a``, ``rsync -a``), removed, or a
+    file replaced changes the text (the workflow's ``raw_index``, an input of every night job).
+    """
+    lines = []
+    for d in night_scan_dirs(raw_root, night):
+        try:
+            entries = sorted(d.iterdir())
+        except OSError:
+            lines.append(f"{d.name}/ unlistable")
+            continue
+        for f in entries:
+            try:
+                st = f.stat()
+            except OSError:
+                lines.append(f"{d.name}/{f.name} unreadable")
+                continue
+            if f.is_file():
+                lines.append(f"{d.name}/{f.name} {st.st_size} {st.st_mtime_ns}")
+    return "".join(line + "\n" for line in lines)
 
 
 def earlier_duplicate_ids(raw_root: str | Path, night: str) -> list[str]:
@@ -1254,18 +1313,24 @@ def tree_problems(raw_root: Path) -> list[ScanError]:
     its scans are not checked further.
     """
     errors: list[ScanError] = []
-    for entry in sorted(Path(raw_root).iterdir()):
+    for entry in sorted(_listing(raw_root)):
         if entry.name.startswith("."):
             continue
-        if not (entry.name.startswith("night=") and entry.is_dir()):
+        if not (entry.name.startswith("night=") and _is_dir(entry)):
             errors.append(ScanError(_NO_SCAN, entry.name, "not a night=<YYYY-MM-DD> folder"))
             continue
         if not _valid_night(entry.name[6:]):
-            errors.append(ScanError(_NO_SCAN, entry.name, "folder night is not a date YYYY-MM-DD"))
-        for sub in sorted(entry.iterdir()):
+            errors.append(ScanError(_NO_SCAN, entry.name, "folder night is not a date YYYY-MM-DD; "
+                                    "its scans are not processed"))
+        try:
+            subs = sorted(entry.iterdir())
+        except OSError as e:
+            errors.append(ScanError(_NO_SCAN, entry.name, f"cannot list the night folder: {e.strerror or e}"))
+            continue
+        for sub in subs:
             if sub.name.startswith("."):
                 continue
-            if not (sub.name.startswith("scan=") and sub.is_dir()):
+            if not (sub.name.startswith("scan=") and _is_dir(sub)):
                 errors.append(
                     ScanError(_NO_SCAN, f"{entry.name}/{sub.name}", "not a scan=<scan_id> folder")
                 )

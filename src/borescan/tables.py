@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import polars as pl
 
-__all__ = ["TYPES", "Column", "Table", "TABLES", "polars_schema", "frame"]
+__all__ = ["TYPES", "Column", "Table", "TABLES", "polars_schema", "frame", "conform"]
 
 #: logical type -> (polars dtype of the stage table, DuckDB type of the catalog)
 TYPES: dict[str, tuple[pl.DataType, str]] = {
@@ -150,6 +150,13 @@ _T = [
         "value_after:float change:float u_before:float u_after:float u_combined:float change_over_u:float "
         "multiple:float flagged:bool explained_by:text explanation:text"),
           ("device_id", "channel", "parameter", "calibration_id_after")),
+    # issue 40: the settings each night was processed with (borescan.night_config), and each
+    # recomputation of past nights with other settings (night: the first night recomputed)
+    Table("night_config", _cols("night:date config_hash:text config_json:text recorded_by:text"),
+          ("night",), primary=True),
+    Table("config_changes", _cols("night:date change_id:text nights:text old_hashes:text new_hash:text "
+                                  "changed_keys:text archive:text"),
+          ("change_id",), primary=True),
 ]
 
 #: every history table by name, in catalog order
@@ -174,3 +181,20 @@ def frame(name: str, rows: Iterable[Mapping]) -> pl.DataFrame:
     schema = polars_schema(name)
     rows = list(rows)
     return pl.DataFrame(rows, schema=schema, orient="row") if rows else pl.DataFrame(schema=schema)
+
+
+def conform(name: str, df: pl.DataFrame) -> pl.DataFrame:
+    """``df`` with every stage column of table ``name``: a missing one added as nulls of its type,
+    the table's columns first and cast to their types, other columns kept after them.
+
+    A stage whose rows happen to lack a kind of column (a rod-only night's calibrations have no
+    ``beta_rad``; an empty night has no rows at all) still writes and reads the table's columns.
+    """
+    schema = polars_schema(name)
+    missing = [pl.lit(None, dtype=t).alias(c) for c, t in schema.items() if c not in df.columns]
+    if missing:
+        df = df.with_columns(missing) if df.width else pl.DataFrame(schema=schema)
+    casts = [pl.col(c).cast(t) for c, t in schema.items() if df.schema[c] != t]
+    if casts:
+        df = df.with_columns(casts)
+    return df.select([*schema, *(c for c in df.columns if c not in schema)])

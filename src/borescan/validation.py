@@ -12,7 +12,9 @@ scan when it returns a problem (the first one becomes the quarantine reason), an
 4. on spindle scans (a ``spindle.parquet`` is present; one clock drives every channel), the
    sample clock: the ``t_ns`` step per sample must match ``sample_rate_hz`` (median step within
    :data:`RATE_TOLERANCE`, :func:`rate_mismatch`), and no single step may be off by more than
-   half a period (:func:`borescan.rawio.clock_jump`).
+   half a period (:func:`borescan.rawio.clock_jump`);
+5. the numbers of ``scan.json`` that feed a result against what a gauge room can produce
+   (:func:`plausibility_problems`, bounds from the config's ``plausibility`` section).
 
 :func:`validate_tree` runs it over the scans the pipeline would ingest (``rawio.nights`` and
 ``rawio.night_scan_dirs``, in night order, so the later of two scans sharing an id is the
@@ -21,6 +23,8 @@ duplicate) and adds the entries of the tree the pipeline would silently skip.
 
 from __future__ import annotations
 
+import datetime as _dt
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,11 +33,12 @@ import numpy as np
 
 from borescan import rawio
 from borescan.artifacts import certificate_conflicts, certificate_fields
+from borescan.config import schema_defaults
 from borescan.rawio import ScanError
 
 __all__ = ["DUPLICATE_REASON", "OUT_OF_RANGE_NOTE", "RATE_TOLERANCE", "RawRootError", "require_raw_root",
            "duplicate_reason", "earlier_night_of", "rate_mismatch", "clock_problem", "scan_problems",
-           "TreeReport", "validate_tree"]
+           "TreeReport", "validate_tree", "Plausibility", "plausibility_problems"]
 
 DUPLICATE_REASON = "scan_id already used by a scan of an earlier night (scan ids are unique across nights)"
 OUT_OF_RANGE_NOTE = "(a sensor reports null when out of range)"
@@ -114,7 +119,8 @@ def clock_problem(scan: rawio.RawScan) -> str | None:
 
 
 def scan_problems(scan_dir: str | Path, raw_root: str | Path, *, duplicate: bool = False,
-                  earlier_night: str | None = None) -> tuple[rawio.RawScan | None, list[ScanError]]:
+                  earlier_night: str | None = None,
+                  limits: Plausibility | None = None) -> tuple[rawio.RawScan | None, list[ScanError]]:
     """Every reason the ingest stage sets this scan aside, in the order above ([] = accepted).
 
     Parameters
@@ -124,6 +130,7 @@ def scan_problems(scan_dir: str | Path, raw_root: str | Path, *, duplicate: bool
     duplicate : the scan id is used by a scan of an earlier night
         (:func:`borescan.rawio.earlier_duplicate_ids`)
     earlier_night : that night, when known (named in the problem; implies ``duplicate``)
+    limits : the config's plausibility bounds (:func:`plausibility_problems`; None: the schema's)
 
     Returns
     -------
@@ -145,6 +152,7 @@ def scan_problems(scan_dir: str | Path, raw_root: str | Path, *, duplicate: bool
     clock = clock_problem(scan)
     if clock:
         problems.append(ScanError(scan.scan_id, rawio.LDS_FILE, clock))
+    problems += plausibility_problems(scan.meta, scan.scan_id, limits)
     return scan, problems
 
 
@@ -167,7 +175,8 @@ class TreeReport:
     bad_scan_ids: set[str] = field(default_factory=set)
 
 
-def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | None = None) -> TreeReport:
+def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | None = None,
+                  limits: Plausibility | None = None) -> TreeReport:
     """Check a raw tree as the pipeline would ingest it (see the module docstring).
 
     ``progress(i, n)`` is called after each scan. Raises :class:`RawRootError` when ``raw_root``
@@ -181,17 +190,16 @@ def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | N
         for d in rawio.night_scan_dirs(root, night):
             jobs.append((d, first_night.get(d.name[5:])))
             first_night.setdefault(d.name[5:], night)
-    # entries the pipeline never ingests; a night it does ingest is reported through its scans
-    ingested_nights = {f"night={n}" for n in nights}
-    report = TreeReport(problems=[e for e in rawio.tree_problems(root) if e.file not in ingested_nights])
+    # entries the pipeline never ingests (a folder night=2026-02-30, a stray file) or cannot list
+    report = TreeReport(problems=rawio.tree_problems(root))
     listed = {d for d, _ in jobs}
-    stray = [d for d in rawio.discover_scans(root) if d not in listed and rawio.NIGHT_RE.fullmatch(d.parent.name[6:])]
+    stray = [d for d in rawio.discover_scans(root) if d not in listed and d.parent.name[6:] in nights]
     for d in stray:  # e.g. an empty "scan=" folder: the pipeline skips it, say why
         report.problems += rawio.inspect_scan(d, root)[1] or [
             ScanError("-", f"{d.parent.name}/{d.name}", "not a scan=<scan_id> folder; the pipeline skips it")]
     by_night: dict[str, list[dict]] = {}  # the accepted scans' artifact certificates, for the check below
     for i, (d, earlier) in enumerate(jobs):
-        scan, problems = scan_problems(d, root, earlier_night=earlier)
+        scan, problems = scan_problems(d, root, earlier_night=earlier, limits=limits)
         report.problems += problems
         if problems:
             report.bad_scan_ids.add(d.name[5:])
@@ -211,3 +219,91 @@ def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | N
             report.bad_scan_ids.add(sid)
         earlier += [r for r in by_night[night] if r["scan_id"] not in report.bad_scan_ids]
     return report
+
+
+# --------------------------------------------------------------------------- plausibility (issue 40)
+
+
+@dataclass(frozen=True)
+class Plausibility:
+    """The config's ``plausibility`` bounds (``workflow/schemas/config.schema.yaml``)."""
+
+    temperature_min_c: float
+    temperature_max_c: float
+    max_sensor_range_mm: float
+    certified_vs_nominal_max_mm: float
+
+    @classmethod
+    def from_config(cls, section: dict | None) -> Plausibility:
+        """From the config's section; missing keys (a night recorded before the section existed) from the schema."""
+        return cls(**{**schema_defaults()["plausibility"], **(section or {})})
+
+
+def _positive(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0
+
+
+def _gauge_problems(node: dict, where: str, limits: Plausibility) -> list[str]:
+    """Diameters, uncertainty, coverage factor, expansion coefficient and tolerance of an artifact or feature."""
+    out = []
+    for key in ("nominal_diameter_mm", "certified_diameter_mm", "u_diameter_mm", "k", "cte_per_k", "tolerance_mm"):
+        if key in node and node[key] is not None and not _positive(node[key]):
+            out.append(f"key '{where}.{key}' must be a positive number, got {node[key]!r:.40}")
+    cert, nom = node.get("certified_diameter_mm"), node.get("nominal_diameter_mm")
+    if _positive(cert) and _positive(nom) and abs(cert - nom) > limits.certified_vs_nominal_max_mm:
+        out.append(f"key '{where}.certified_diameter_mm' {cert:g} mm is {abs(cert - nom):.4g} mm from "
+                   f"'{where}.nominal_diameter_mm' {nom:g} mm (plausibility.certified_vs_nominal_max_mm "
+                   f"{limits.certified_vs_nominal_max_mm:g} mm): a typo?")
+    if _positive(node.get("cte_per_k")) and node["cte_per_k"] > 1e-4:
+        out.append(f"key '{where}.cte_per_k' {node['cte_per_k']:g} /K is no metal's (1e-4 /K at most): a unit slip?")
+    return out
+
+
+def plausibility_problems(meta: dict, scan_id: str, limits: Plausibility | None = None) -> list[ScanError]:
+    """The numbers of ``scan.json`` that feed a result, against what a gauge room can produce.
+
+    Sensor range (0, ``max_sensor_range_mm``], data-sheet linearity and repeatability > 0 (a zero would
+    shrink every uncertainty), ``environment.temperature_c`` within the workshop's range, the artifact's
+    and its features' diameters, uncertainty, coverage factor, CTE and tolerance positive numbers, a
+    certified diameter within ``certified_vs_nominal_max_mm`` of the nominal, ``started_at`` on the
+    night's date or the next day. One :class:`ScanError` per problem, naming the key.
+    """
+    limits = limits or Plausibility.from_config(None)
+    out: list[str] = []
+    for i, s in enumerate(meta.get("sensors") or []):
+        if not isinstance(s, dict):
+            continue
+        rng = s.get("range_mm")
+        if _positive(rng) and rng > limits.max_sensor_range_mm:
+            out.append(f"key 'sensors[{i}].range_mm' {rng:g} mm exceeds plausibility.max_sensor_range_mm "
+                       f"{limits.max_sensor_range_mm:g} mm")
+        for key in ("linearity_fs", "repeatability_mm"):
+            if key in s and not _positive(s[key]):
+                out.append(f"key 'sensors[{i}].{key}' must be a positive number (a data-sheet uncertainty), "
+                           f"got {s[key]!r:.40}")
+    env = meta.get("environment")
+    t = env.get("temperature_c") if isinstance(env, dict) else None
+    if isinstance(t, (int, float)) and not isinstance(t, bool) and not (
+            limits.temperature_min_c <= t <= limits.temperature_max_c):
+        out.append(f"key 'environment.temperature_c' {t:g} degC is outside the workshop's range "
+                   f"[{limits.temperature_min_c:g}, {limits.temperature_max_c:g}] degC (plausibility.temperature_*_c)")
+    art = meta.get("artifact")
+    if isinstance(art, dict):
+        out += _gauge_problems(art, "artifact", limits)
+        for i, f in enumerate(art.get("features") or []):
+            if isinstance(f, dict):
+                out += _gauge_problems(f, f"artifact.features[{i}]", limits)
+    out += _started_problem(meta)
+    return [ScanError(scan_id, rawio.SCAN_JSON, p) for p in out]
+
+
+def _started_problem(meta: dict) -> list[str]:
+    night, started = meta.get("night"), meta.get("started_at")
+    try:
+        day = _dt.date.fromisoformat(night)
+        ts = _dt.datetime.fromisoformat(started)
+    except (TypeError, ValueError):
+        return []  # the format check names these
+    if ts.date() not in (day, day + _dt.timedelta(days=1)):
+        return [f"key 'started_at' {started} is not within night {night} (its date or the next day)"]
+    return []

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import re
+import json
+import os
 import sys
 import threading
 import time
@@ -127,3 +129,50 @@ def compute_line(item: str, seconds: float) -> str:
     """The log line of one item's (a scan's, a device's) CPU seconds in a stage. Timings go to the
     log only: never into a stage table, the catalog or a certificate (reruns stay byte-identical)."""
     return f"compute {item} {seconds:.3f} s"
+
+
+# ------------------------------------------------------------------------ locks of a killed run
+
+
+def _boot_id() -> str:
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return ""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def record_lock_owner(snakemake_dir: str | Path, lock_files) -> Path:
+    """At a run's start (it holds its locks): note which lock files are this process's, on this boot."""
+    path = Path(snakemake_dir) / "locks" / f"borescan-owner-{os.getpid()}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"pid": os.getpid(), "boot_id": _boot_id(), "locks": sorted(map(str, lock_files))}))
+    return path
+
+
+def release_stale_locks(snakemake_dir: str | Path) -> list[int]:
+    """Remove the locks of runs on this machine whose process is gone (killed with SIGKILL, a crash);
+    return their process ids. A lock whose owner is alive, on another boot, or unknown is left to
+    Snakemake, which names it and the command that releases it (``snakemake --unlock``)."""
+    gone = []
+    for owner in sorted((Path(snakemake_dir) / "locks").glob("borescan-owner-*.json")):
+        try:
+            rec = json.loads(owner.read_text())
+        except (OSError, ValueError):
+            continue
+        if rec.get("boot_id") != _boot_id() or _alive(int(rec["pid"])):
+            continue
+        for lock in rec.get("locks", []):
+            Path(lock).unlink(missing_ok=True)
+        owner.unlink(missing_ok=True)
+        gone.append(int(rec["pid"]))
+    return gone

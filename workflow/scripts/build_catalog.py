@@ -6,7 +6,7 @@ from borescan.workflow_log import log_to, rule_job
 
 def main(smk) -> None:
     with log_to(smk.log[0]) as log:
-        update = stage_catalog(smk.params.results_root, smk.output.catalog)
+        update = stage_catalog(smk.params.results_root, smk.output.catalog, raw_root=smk.params.raw_root, log=log)
         log(f"{update.mode}: {update.reason}")
         if update.added or update.removed:
             log(f"nights read: {', '.join(update.added) or 'none'}; "

@@ -28,6 +28,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "scans), the summary to stderr. Exit 0: all valid; 1: problems; 2: RAW_ROOT missing.")
 
 
+def _plausibility():
+    """The plausibility bounds of the project's config/config.yaml (run from the project folder), else the schema's."""
+    from borescan import validation
+    from borescan.config import load_configs
+
+    cfg = Path("config/config.yaml")
+    return validation.Plausibility.from_config(load_configs([cfg])["plausibility"] if cfg.is_file() else None)
+
+
 def run(args: argparse.Namespace) -> int:
     """Print ``scan_id: file: problem`` lines; exit 1 if any, else a summary and exit 0."""
     from borescan import validation
@@ -42,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
             bar[0].update(i)
 
     try:
-        report = validation.validate_tree(args.raw_root, progress=progress)
+        report = validation.validate_tree(args.raw_root, progress=progress, limits=_plausibility())
     except validation.RawRootError as err:
         raise UsageError(str(err)) from None
     for e in report.problems:

@@ -6,6 +6,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -16,7 +17,7 @@ from borescan import rawio, tables
 from borescan.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "write_table",
-           "write_stage_outputs", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash",
+           "write_stage_outputs", "quarantine_record_name", "sync_quarantine_records", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash",
            "night_folder", "clear_night_folder", "link_into_night"]
 
 
@@ -40,12 +41,53 @@ class Quarantined:
         return cls(err.scan_id, night, stage, err.file, err.problem)
 
 
+_RECORD_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,63}")
+
+
+def quarantine_record_name(scan_id: str, night: str) -> str:
+    """File name of a scan's quarantine record: ``<scan_id>.json`` for a valid id that cannot be
+    mistaken for anything else; otherwise (a folder id longer than 64 characters, ``..``, ``-``, ...)
+    ``scan-<16 hex of SHA-256 of night/scan_id>.json``, so two folders never share a record, no
+    record is hidden and none is named like the ``-`` of problems that name no scan."""
+    if _RECORD_NAME.fullmatch(scan_id):
+        return f"{scan_id}.json"
+    return f"scan-{hashlib.sha256(f'{night}/{scan_id}'.encode()).hexdigest()[:16]}.json"
+
+
+def _record_bytes(q: Quarantined) -> str:  # the record's text (deterministic)
+    return json.dumps(dict(asdict(q), message=f"{q.scan_id}: {q.file}: {q.reason}"), indent=2, sort_keys=True) + "\n"
+
+
 def write_quarantine_record(results_root: str | Path, q: Quarantined) -> Path:
-    """Write ``<results_root>/quarantine/<scan_id>.json`` (atomic, deterministic bytes)."""
-    path = Path(results_root) / "quarantine" / f"{q.scan_id}.json"
-    payload = dict(asdict(q), message=f"{q.scan_id}: {q.file}: {q.reason}")
-    atomic_write_text(path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
+    """Write ``<results_root>/quarantine/<name>.json`` (:func:`quarantine_record_name`; atomic,
+    deterministic bytes). The catalog step rewrites the folder from the catalog
+    (:func:`sync_quarantine_records`), so a record outlives neither a rerun nor a recompute."""
+    path = Path(results_root) / "quarantine" / quarantine_record_name(q.scan_id, q.night)
+    atomic_write_text(path, _record_bytes(q))
     return path
+
+
+def sync_quarantine_records(results_root: str | Path, records: list[Quarantined]) -> tuple[int, int]:
+    """Make ``<results_root>/quarantine/`` hold exactly ``records`` (the catalog's, one per scan; a scan id
+    quarantined on two nights: ``<scan_id>.night=<night>.json`` for the later). Returns (written, removed)."""
+    folder = Path(results_root) / "quarantine"
+    want: dict[str, str] = {}
+    for q in records:
+        name = quarantine_record_name(q.scan_id, q.night)
+        if name in want:
+            name = f"{name[:-5]}.night={q.night}.json"
+        want[name] = _record_bytes(q)
+    written = removed = 0
+    for name, text in want.items():
+        if not ((folder / name).is_file() and (folder / name).read_text() == text):
+            atomic_write_text(folder / name, text)
+            written += 1
+    if folder.is_dir():
+        for path in folder.iterdir():
+            if path.name not in want and path.suffix == ".json" and path.is_file():
+                path.unlink()
+                removed += 1
+    return written, removed
 
 
 def quarantine(results_root, records: list[Quarantined], scan_id: str, night: str, stage: str, file: str,
@@ -74,13 +116,13 @@ def write_stage_outputs(output, quarantined: list[Quarantined] | None = None, **
     if quarantined is not None:
         frames["quarantine"] = quarantine_frame(quarantined)
     for name, df in frames.items():
-        write_table(df, getattr(output, name))
+        write_table(tables.conform(name, df) if name in tables.TABLES else df, getattr(output, name))
 
 
 def ok_scans(scans_table: str | Path | pl.DataFrame) -> pl.DataFrame:
     """The rows of a ``scans`` stage table whose status is ``ok``, by scan id."""
     df = scans_table if isinstance(scans_table, pl.DataFrame) else pl.read_parquet(scans_table)
-    return df.filter(pl.col("status") == "ok").sort("scan_id")
+    return tables.conform("scans", df).filter(pl.col("status") == "ok").sort("scan_id")
 
 
 def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame,
@@ -98,10 +140,13 @@ def frames_or_empty(frames: list[pl.DataFrame]) -> pl.DataFrame:
     return pl.concat(frames, how="diagonal_relaxed") if frames else pl.DataFrame()
 
 
-def read_tables(paths) -> pl.DataFrame:
-    """Stage table files (one path or a list) stacked, see :func:`frames_or_empty`."""
+def read_tables(paths, table: str | None = None) -> pl.DataFrame:
+    """Stage table files (one path or a list) stacked, see :func:`frames_or_empty`; with every
+    column of history table ``table`` when named (:func:`borescan.tables.conform`: no rows, or rows
+    of one kind only, still give the table's columns)."""
     frames = [pl.read_parquet(p) for p in (paths if isinstance(paths, (list, tuple)) else [paths])]
-    return frames_or_empty([f for f in frames if f.width])
+    df = frames_or_empty([f for f in frames if f.width])
+    return tables.conform(table, df) if table is not None else df
 
 
 # --------------------------------------------------------------------------- per-night folders

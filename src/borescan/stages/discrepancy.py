@@ -63,7 +63,7 @@ def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibrati
     """
     settings = discrepancy_settings(cfg)
     clear_night_folder(results_root, "discrepancy", night)
-    cals = read_tables(calibration_tables) if calibration_tables else pl.DataFrame()
+    cals = read_tables(calibration_tables or [], "calibrations")
     jobs = []
     for row, d in night_scans(raw_root, night, scans_table):
         ref_kw, ref = discrepancy_reference(cals, row["device_id"], row["device_type"], night)

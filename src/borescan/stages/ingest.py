@@ -18,7 +18,7 @@ DUPLICATE_REASON = validation.DUPLICATE_REASON
 
 def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, duplicate_ids: list[str] = (),
                  workers: int = 1, earlier_scans=(), on_conflict: str = "quarantine",
-                 log=None) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
+                 log=None, plausibility: dict | None = None) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
     """Validate and register every scan of one night (spread over ``workers`` processes).
 
     A scan is quarantined for the first problem :func:`borescan.validation.scan_problems` finds
@@ -34,9 +34,11 @@ def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, dup
     artifact certificate contradicts an earlier record of the same certificate
     (:func:`borescan.artifacts.certificate_conflicts`) is quarantined (``on_conflict:
     quarantine``) or kept with a log line (``flag``); the conflict is named either way.
+    ``plausibility``: the config's section of that name (:class:`borescan.validation.Plausibility`).
     """
     dup = set(duplicate_ids)
-    jobs = [(raw_root, night, results_root, d, d.name[5:] in dup) for d in rawio.night_scan_dirs(raw_root, night)]
+    limits = validation.Plausibility.from_config(plausibility)
+    jobs = [(raw_root, night, results_root, d, d.name[5:] in dup, limits) for d in rawio.night_scan_dirs(raw_root, night)]
     rows, file_rows, bad = [], [], []
     for row, files, problem in map_in_order(_ingest_one, jobs, workers):
         rows.append(row)
@@ -92,15 +94,24 @@ def scan_row(scan_id: str, night: str, scan_dir: Path, meta: dict, hashes: dict[
 
 def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
     """Hash, validate and describe one scan folder: (scans row, scan_files rows, quarantine or None)."""
-    raw_root, night, results_root, d, duplicate = job
+    raw_root, night, results_root, d, duplicate, limits = job
     scan_id = d.name[5:]
     hashes, file_rows = {}, []
     inside = not d.is_symlink() and d.resolve().is_relative_to(Path(raw_root).resolve())
-    for f in sorted(d.iterdir()) if inside else []:
-        if f.is_file() and not f.is_symlink():
-            digest = rawio.sha256_file(f)
-            hashes[f.name] = digest
-            file_rows.append({"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": f.stat().st_size})
+    try:
+        entries = sorted(d.iterdir()) if inside else []
+    except OSError:  # an unreadable folder: scan_problems below names it, the scan is quarantined
+        entries = []
+    for f in entries:
+        try:
+            if f.is_file() and not f.is_symlink():
+                digest, size = rawio.sha256_file(f), f.stat().st_size
+            else:
+                continue
+        except OSError:  # an unreadable file (e.g. umask 077 of another user): named by scan_problems
+            continue
+        hashes[f.name] = digest
+        file_rows.append({"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": size})
     meta: dict = {}
     try:
         meta = rawio.read_scan_meta(d)
@@ -108,8 +119,9 @@ def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
         pass
     # the one validator, shared with `borescan validate`: the first problem is the reason
     earlier = validation.earlier_night_of(raw_root, night, scan_id) if duplicate else None
-    _, problems = validation.scan_problems(d, raw_root, duplicate=duplicate, earlier_night=earlier)
-    problem = Quarantined.from_error(problems[0], night, "ingest") if problems else None
+    _, problems = validation.scan_problems(d, raw_root, duplicate=duplicate, earlier_night=earlier, limits=limits)
+    # the folder's own id (a ScanError shortens an id that is no valid id to name it)
+    problem = Quarantined(scan_id, night, "ingest", problems[0].file, problems[0].problem) if problems else None
     if problem is not None:
         write_quarantine_record(results_root, problem)
     return scan_row(scan_id, night, d, meta, hashes, problem), file_rows, problem

@@ -51,11 +51,10 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     unc, lab, clean = section(cfg, "uncertainty"), section(cfg, "laboratory"), readings.cleaning_policy(section(cfg, "signal"))
     part = {"default_tolerance_mm": cfg["measurement"].get("part_tolerance_mm"), "rule": lab["decision_rule"],
             "guard_band_factor": float(lab["guard_band_factor"])}
-    cals = read_tables(calibration_tables)
-    failed = failed_calibration_ids(read_tables(verification_tables_before))
+    cals = read_tables(calibration_tables, "calibrations")
+    failed = failed_calibration_ids(read_tables(verification_tables_before, "verifications"))
     diam, ver, arts, bad = [], [], {}, []
     items = night_scans(raw_root, night, scans_table)
-
     rod_policy = cfg["measurement"]["rod_without_calibration"]
 
     def job(row, d):
@@ -122,6 +121,15 @@ def measure_one(job) -> dict:
     except (rod.RodSolveError, CalibrationError, ValueError, np.linalg.LinAlgError) as err:
         quarantine(results_root, bad, sid, night, "measure", "lds.parquet", f"measurement failed: {err}")
         return out
+    try:
+        return _verdicts(out, meta, row, sid, dev, cal_id, res, du, tol, unc, lab, part, results_root, night)
+    except ValueError as err:  # no NaN or inf verdict (measure.decide): the scan is set aside, named
+        quarantine(results_root, bad, sid, night, "measure", "scan.json", str(err))
+        return dict(out, diameters=[], verifications=[])
+
+
+def _verdicts(out, meta, row, sid, dev, cal_id, res, du, tol, unc, lab, part, results_root, night) -> dict:
+    bad = out["quarantined"]  # the diameter with its part verdict, and a gauge scan's verification
     out["diameters"].append(_with_part(measure.diameter_row(sid, dev, row["artifact_id"], None, res["diameter_mm"],
                                                             du.combined_t.u, cal_id, res["method"], du),
                                        meta, None, du, part))

@@ -99,8 +99,8 @@ def stage_pooled(raw_root, night: str, results_root, scans_tables, calibration_t
     """
     section = {**schema_defaults()["discrepancy"], **(cfg or {})}
     settings = {**discrepancy_settings(cfg), "max_samples": int(section["pooled_max_samples"])}
-    cals = read_tables(calibration_tables) if calibration_tables else pl.DataFrame()
-    scans = ok_scans(read_tables(scans_tables))
+    cals = read_tables(calibration_tables or [], "calibrations")
+    scans = ok_scans(read_tables(scans_tables or [], "scans"))
     if scans.height:
         scans = scans.filter((pl.col("device_type") == "tri_lds") & pl.col("kind").is_in(POOLED_KINDS))
     jobs = []
