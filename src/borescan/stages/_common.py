@@ -14,6 +14,7 @@ import polars as pl
 
 from borescan import rawio, tables
 from borescan.atomic import atomic_write_bytes, atomic_write_text
+from borescan.catalog import STAGE_ORDER
 
 __all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "write_table",
            "write_stage_outputs", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash",
@@ -41,11 +42,26 @@ class Quarantined:
 
 
 def write_quarantine_record(results_root: str | Path, q: Quarantined) -> Path:
-    """Write ``<results_root>/quarantine/<scan_id>.json`` (atomic, deterministic bytes)."""
+    """Write ``<results_root>/quarantine/<scan_id>.json`` (atomic, deterministic bytes).
+
+    The first stage that set the scan aside keeps the file: a record of an earlier stage
+    (:data:`borescan.catalog.STAGE_ORDER`) of the same night is left as it is, as the catalog's
+    ``scans.reason`` keeps the first stage's reason; the same or a later stage (a rerun) replaces it.
+    """
     path = Path(results_root) / "quarantine" / f"{q.scan_id}.json"
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        old = None
+    if isinstance(old, dict) and old.get("night") == q.night and _stage_rank(old.get("stage")) < _stage_rank(q.stage):
+        return path
     payload = dict(asdict(q), message=f"{q.scan_id}: {q.file}: {q.reason}")
     atomic_write_text(path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
     return path
+
+
+def _stage_rank(stage) -> int:
+    return STAGE_ORDER.index(stage) if stage in STAGE_ORDER else len(STAGE_ORDER)
 
 
 def quarantine(results_root, records: list[Quarantined], scan_id: str, night: str, stage: str, file: str,
