@@ -9,6 +9,10 @@ configfile: "config/config.yaml"
 configfile: "config/devices.yaml"  # the device model: a user's decisions per device
 
 
+from borescan.config import check_config  # noqa: E402
+
+# a mistyped key or a wrong value: one line naming it (Snakemake's own message prints the schema)
+check_config(config, "config (config/config.yaml, config/devices.yaml, --config)")
 validate(config, "workflow/schemas/config.schema.yaml")
 
 

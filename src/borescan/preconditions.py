@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from borescan.geometry import Beams
 
 __all__ = ["MissingScanKey", "MissingDesignGeometry", "design_beams", "design_layers", "has_design_geometry",
-           "summary_revolutions", "calibration_revolutions_problem", "StageOutcome", "expected_outcomes"]
+           "missing_geometry_reason", "NO_SPINDLE_REASON", "summary_revolutions", "calibration_revolutions_problem", "StageOutcome", "expected_outcomes"]
 
 SCAN_JSON = "scan.json"
 
@@ -52,12 +52,21 @@ def has_design_geometry(meta: dict) -> bool:
     return bool(_nominal(meta).get(key))
 
 
+def missing_geometry_reason(key: str, why: str) -> str:
+    """The reason given for a scan without ``device.nominal.<key>`` that a stage needs (``why``)."""
+    return f"device.nominal.{key} missing (optional in the raw format, but {why})"
+
+
+#: Why a three-sensor calibration scan without a spindle stream is set aside.
+NO_SPINDLE_REASON = "calibration scan has no spindle stream (a ring-gauge calibration turns on a spindle)"
+
+
 def design_beams(meta: dict, why: str) -> Beams:
     """``device.nominal.beams`` of a three-sensor scan; :class:`MissingDesignGeometry` naming
     ``why`` (what needs them) when the scan has none."""
     beams = _nominal(meta).get("beams")
     if not beams:
-        raise MissingDesignGeometry(f"device.nominal.beams missing (optional in the raw format, but {why})")
+        raise MissingDesignGeometry(missing_geometry_reason("beams", why))
     return Beams.from_nominal(beams)
 
 
@@ -65,7 +74,7 @@ def design_layers(meta: dict, why: str) -> list[dict]:
     """``device.nominal.layers`` of a rod scan, by channel; :class:`MissingDesignGeometry` when none."""
     layers = _nominal(meta).get("layers")
     if not layers:
-        raise MissingDesignGeometry(f"device.nominal.layers missing (optional in the raw format, but {why})")
+        raise MissingDesignGeometry(missing_geometry_reason("layers", why))
     return sorted(layers, key=lambda lay: int(lay["channel"]))
 
 
@@ -133,18 +142,17 @@ def expected_outcomes(meta: dict, *, has_spindle: bool, revolutions: tuple[int |
     geometry = has_design_geometry(meta)
     if kind == "calibration" and dev.get("type") == "tri_lds":
         if not has_spindle:
-            out.append(StageOutcome(sid, "calibrate", "spindle.parquet", "calibration scan has no spindle stream "
-                                    "(a ring-gauge calibration turns on a spindle)", True))
-        elif not geometry:
-            out.append(StageOutcome(sid, "calibrate", SCAN_JSON, f"device.nominal.beams missing (optional in the raw "
-                                    f"format, but {CALIBRATION_NEEDS_BEAMS})", True))
-        elif revolutions is not None:
-            problem = calibration_revolutions_problem(revolutions[0], revolutions[1], min_rev)
+            out.append(StageOutcome(sid, "calibrate", "spindle.parquet", NO_SPINDLE_REASON, True))
+        else:  # in the stage's order: the revolutions, then the design geometry
+            problem = None if revolutions is None else calibration_revolutions_problem(*revolutions, min_rev)
             if problem:
                 out.append(StageOutcome(sid, "calibrate", "lds.parquet", problem, True))
+            elif not geometry:
+                out.append(StageOutcome(sid, "calibrate", SCAN_JSON,
+                                        missing_geometry_reason("beams", CALIBRATION_NEEDS_BEAMS), True))
     if kind == "calibration" and dev.get("type") == "rod" and not geometry:
-        out.append(StageOutcome(sid, "calibrate", SCAN_JSON, f"device.nominal.layers missing (optional in the raw "
-                                f"format, but {ROD_CALIBRATION_NEEDS_LAYERS})", True))
+        out.append(StageOutcome(sid, "calibrate", SCAN_JSON,
+                                f"rod calibration: {missing_geometry_reason('layers', ROD_CALIBRATION_NEEDS_LAYERS)}", True))
     if not geometry and not any(o.quarantined for o in out):
         out.append(StageOutcome(sid, "discrepancy", SCAN_JSON, "no device.nominal: examined against the device's "
                                 "calibration only; quarantined at this stage if the device has none", False))

@@ -41,20 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _validity_days(args: argparse.Namespace) -> tuple[int, str]:
     """calibration.validity_days and where it came from."""
-    from borescan.config import load_config
-
     if args.validity_days is not None:
         return args.validity_days, "--validity-days"
-    path = args.config
-    if path is None and Path("config/config.yaml").is_file():
-        path = Path("config/config.yaml")
-    if path is not None and not path.is_file():
-        raise UsageError(f"config file {path} does not exist")
-    try:
-        cfg = load_config(path)
-    except Exception as err:  # noqa: BLE001 - an unreadable config is the user's to fix
-        raise UsageError(f"config {path}: {err}") from None
-    return int(cfg["calibration"]["validity_days"]), str(path) if path is not None else "schema default"
+    cfg, source = command_config(args.config)
+    return int(cfg["calibration"]["validity_days"]), source
 
 
 def _rows(con, sql: str, params: list | None = None) -> list[dict]:

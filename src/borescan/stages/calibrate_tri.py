@@ -17,7 +17,7 @@ from borescan import __version__, calibration, certificate, device_model, measur
 from borescan.artifacts import MissingTemperature
 from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows
-from borescan.preconditions import (CALIBRATION_NEEDS_BEAMS, calibration_revolutions_problem, design_beams,
+from borescan.preconditions import (CALIBRATION_NEEDS_BEAMS, NO_SPINDLE_REASON, calibration_revolutions_problem, design_beams,
                                     summary_revolutions)
 from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
 from borescan.stages.calibration_fit import (budget_of, fit_device_calibration, scan_conditions, spindle_inputs,
@@ -61,7 +61,7 @@ def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple
     """Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None if usable."""
     s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
     if scan.spindle is None:
-        return ("spindle.parquet", "calibration scan has no spindle stream (a ring-gauge calibration turns on a spindle)")
+        return ("spindle.parquet", NO_SPINDLE_REASON)
     if s.height == 0:
         return ""
     problem = calibration_revolutions_problem(*summary_revolutions(s), min_rev)
