@@ -36,11 +36,11 @@ def key_name(path: tuple[str, ...]) -> str:
     return ".".join(path).replace(".[]", "[]")
 
 
-def _has(meta, path) -> bool:
+def has_key(meta, path) -> bool:
     node = meta
     for i, k in enumerate(path):
         if k == "[]":
-            return isinstance(node, list) and bool(node) and all(_has(e, path[i + 1:]) for e in node)
+            return isinstance(node, list) and bool(node) and all(has_key(e, path[i + 1:]) for e in node)
         if not isinstance(node, dict) or k not in node:
             return False
         node = node[k]
@@ -101,6 +101,17 @@ def base_scans() -> list[simulate.SimulatedScan]:
                                      features=("H1", "H2"), device_id="ROD-01", nominal_layers=demo.ROD_NOMINAL_LAYERS,
                                      scan_id="OPT-ROD-MEAS", night=NIGHT, kind="measurement", seed=9,
                                      started_at=next(started)))
+    # the example of docs/import-csv.md: too short to calibrate and without device.nominal, on a
+    # device with no calibration, then a part measured with that device
+    short = simulate.simulate_tri_spindle(scene, n_rev=3, artifact=demo.RG275, spindle_label="P1",
+                                          center_xy_mm=tuple(simulate.YANG_P0_XY_MM), nominal_beams=demo.NOMINAL_BEAMS,
+                                          scan_id="OPT-SHORT-NO-NOMINAL", night=NIGHT, kind="calibration", seed=10,
+                                          started_at=next(started), device_id="TRI-SHORT")
+    orphan = simulate.simulate_tri_static(bore, xy, ang, artifact=part, nominal_beams=demo.NOMINAL_BEAMS,
+                                          scan_id="OPT-UNCALIBRATED-NO-NOMINAL", night=NIGHT, kind="measurement", seed=11,
+                                          started_at=next(started), device_id="TRI-SHORT")
+    for sim in (short, orphan):
+        out.append(replace(sim, meta=without(sim.meta, ("device", "nominal"))))
     return out
 
 
@@ -119,8 +130,11 @@ def write_night(raw_root: Path, truth_root: Path) -> dict[str, tuple[str, tuple[
     for sim in base_scans():
         simulate.write_simulated(sim, raw_root, truth_root)
         written[sim.scan_id] = (sim.scan_id, None)
+        if not has_key(sim.meta, ("device", "nominal")):
+            written[sim.scan_id] = (sim.scan_id, ("device", "nominal"))
+            continue  # the import-csv example: itself a scan without a key
         for i, path in enumerate(OPTIONAL_KEYS):
-            if not _has(sim.meta, path):
+            if not has_key(sim.meta, path):
                 continue
             sid = variant_id(sim.scan_id, path)
             meta = dict(without(sim.meta, path), scan_id=sid)

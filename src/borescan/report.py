@@ -68,6 +68,7 @@ from matplotlib.figure import Figure
 
 from borescan import catalog
 from borescan.atomic import atomic_write_bytes, atomic_write_text
+from borescan.calibrations import calibration_roles, failed_calibration_ids, order_calibrations
 from borescan.effects import EFFECTS
 from borescan.tables import TABLES
 
@@ -990,6 +991,12 @@ class _Builder:
         cs = self.t["calibration_scans"]
         scans_of = {} if cs.height == 0 else dict(
             cs.group_by("calibration_id", maintain_order=True).agg(pl.col("scan_id")).iter_rows())
+        scans = self.t.get("scans")
+        if scans is not None and {"scan_id", "started_at"} <= set(scans.columns) and "started_at" not in cal.columns:
+            cal = cal.join(scans.select("scan_id", "started_at").unique("scan_id", keep="first"), on="scan_id", how="left")
+        ver = self.t.get("verifications")
+        failed = failed_calibration_ids(ver) if ver is not None and "passed" in ver.columns else set()
+        roles = calibration_roles(cal, failed)  # the same order as the measure stage and `borescan status`
         for dev in sorted(cal["device_id"].drop_nulls().unique().to_list()):
             out.append(f"<h3>Device {_e(dev)}</h3>")
             mine = cal.filter(pl.col("device_id") == dev)
@@ -997,7 +1004,7 @@ class _Builder:
                 out.append(self.figure(plot_calibration_trends, mine, dev, f"calibration_{dev}",
                                        f"calibration parameters of {dev}"))
             rows = []
-            per = mine.unique("calibration_id", keep="first").sort("valid_from", "calibration_id")
+            per = order_calibrations(mine.unique("calibration_id", keep="first", maintain_order=True))
             for r in per.iter_rows(named=True):
                 scans = scans_of.get(r["calibration_id"], [])
                 cert = r.get("certificate_path")
@@ -1009,9 +1016,9 @@ class _Builder:
                     _link(json_link, "json") if json_link else "",
                 ) if x)
                 rows.append([_e(r["calibration_id"]), _e(r.get("valid_from")), _e(r.get("recalibration_due")),
-                             _e(r.get("method")), _e(", ".join(scans)), _e(r.get("status")), links,
+                             _e(r.get("method")), _e(", ".join(scans)), _e(roles.get(r["calibration_id"], "")), links,
                              f"<code>{_e((r.get('certificate_sha256') or '')[:16])}</code>"])
-            out.append(_table(["calibration", "valid from", "recalibration due", "method", "scans", "status",
+            out.append(_table(["calibration", "valid from", "recalibration due", "method", "scans", "in the history",
                                "certificate", "certificate.json sha256"], rows))
         return "".join(out)
 
