@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-from borescan.commands._common import CommandFailed, UsageError, night_date, positive_int, utc_text
+from borescan.commands._common import CommandFailed, UsageError, command_config, night_date, positive_int, utc_text
 
 NAME = "status"
 HELP = "list the devices, their current calibration, its validity and their last verification (from the catalog)"
