@@ -69,6 +69,7 @@ from matplotlib.figure import Figure
 from borescan import catalog
 from borescan.atomic import atomic_write_bytes, atomic_write_text
 from borescan.calibrations import calibration_roles, failed_calibration_ids, order_calibrations
+from borescan.decision import CANNOT_DECIDE, CONFORMS, DOES_NOT_CONFORM, split_verdict
 from borescan.effects import EFFECTS
 from borescan.tables import TABLES
 
@@ -953,6 +954,20 @@ class _PlotCache:
         atomic_write_text(self.file, json.dumps(self.new, indent=1, sort_keys=True) + "\n")
 
 
+def _verdict_cell(conformity: str | None, passed: bool | None) -> tuple[str, str]:
+    """(HTML, row class) of a verdict: the stage's statement under the decision rule (``conformity``:
+    "conforms", "does not conform" or "cannot decide", then U, T, the rule and its guard band);
+    an older row without one falls back to its pass/fail."""
+    verdict, detail = split_verdict(conformity)
+    if verdict is None:
+        if passed is None:
+            return "", ""
+        return ('<span class="pass">passed</span>', "") if passed else ('<span class="fail">FAILED</span>', "fail")
+    cls = {CONFORMS: "pass", DOES_NOT_CONFORM: "fail", CANNOT_DECIDE: "warn"}[verdict]
+    html = f'<span class="{cls}">{_e(verdict.upper() if cls != "pass" else verdict)}</span>'
+    return html + (f'<br><small>{_e(detail)}</small>' if detail else ""), ("" if cls == "pass" else cls)
+
+
 class _Builder:
     """The sections of one page over ``tables`` (a month's rows).
 
@@ -1058,14 +1073,14 @@ class _Builder:
         rows, classes = [], []
         for i, r in enumerate(sub.iter_rows(named=True)):
             ok = r.get("passed")
+            verdict_html, verdict_class = _verdict_cell(r.get("conformity"), ok)
             broke = ", ".join(str(k) for k in RUN_RULES if rules[k][i])
             u = r.get("u_error_mm")
             rows.append([_e(r.get("night")), _e(r["scan_id"]), _e(r.get("calibration_id")),
                          _num(r.get("measured_mm"), 9), _num(r.get("certified_mm"), 9), _um(r.get("error_mm")),
                          _um(2.0 * u if u is not None else None), _um(r.get("tolerance_mm")),
-                         _temperature(r.get("temperature_c"), r.get("temperature_assumed")), _e(broke),
-                         '<span class="pass">passed</span>' if ok else '<span class="fail">FAILED</span>'])
-            classes.append("fail" if not ok else ("warn" if broke else ""))
+                         _temperature(r.get("temperature_c"), r.get("temperature_assumed")), _e(broke), verdict_html])
+            classes.append(verdict_class or ("warn" if broke else ""))
         out.append(_table(["night", "scan", "calibration", "measured at 20 °C [mm]", "certified [mm]", "error [µm]",
                            "U (k=2) [µm]", "tolerance ± [µm]", "temperature [°C]", "run rules broken", "verdict"],
                           rows, classes, num_cols={3, 4, 5, 6, 7, 8}))
@@ -1112,14 +1127,13 @@ class _Builder:
             if big_u is None and r.get("u_diameter_mm") is not None:
                 big_u, k = 2.0 * r["u_diameter_mm"], 2.0
             ok = r.get("in_tolerance")
-            verdict = ("" if ok is None else '<span class="pass">in tolerance</span>' if ok
-                       else '<span class="fail">OUT OF TOLERANCE</span>')
+            verdict, verdict_class = _verdict_cell(r.get("conformity"), ok)
             rows.append([_e(r.get("night")), _e(r.get("scan_id")), _e(r["artifact_id"]), _e(r.get("feature")),
                          _num(r.get("diameter_mm"), 9), _temperature(r.get("temperature_c"), r.get("temperature_assumed")),
                          _num(r.get("diameter_20_mm"), 9), _um(big_u, 2), _num(k, 3),
                          _num(r.get("coverage_probability"), 4), _num(r.get("nominal_mm"), 9),
                          _um(r.get("deviation_mm")), _um(r.get("tolerance_mm")), verdict, _e(r.get("calibration_id"))])
-            classes.append("fail" if ok is False else ("warn" if r.get("temperature_assumed") else ""))
+            classes.append(verdict_class or ("warn" if r.get("temperature_assumed") else ""))
         return _table(["night", "scan", "part", "feature", "diameter at T [mm]", "T [°C]", "diameter at 20 °C [mm]",
                        "U [µm]", "k", "coverage", "nominal [mm]", "deviation [µm]", "tolerance ± [µm]", "verdict",
                        "calibration"], rows, classes, num_cols={4, 5, 6, 7, 8, 9, 10, 11, 12})
