@@ -48,3 +48,27 @@ def test_unknown_rule_or_negative_band_is_refused():
         decision(0.0, U, T, "strict")
     with pytest.raises(ValueError, match="guard_band_factor must be >= 0"):
         decision(0.0, U, T, "guarded_acceptance", -1.0)
+
+
+def test_trace_and_report_show_the_verdict_with_its_rule(tmp_path, capsys):
+    """The stage's statement (verdict, U, T, rule, guard band) is what `borescan trace` and the
+    report's verification table show, not a bare passed/FAILED."""
+    import polars as pl
+    from test_catalog import make_history
+
+    from borescan import catalog, report
+    from borescan.cli import main
+
+    res = tmp_path / "results"
+    t = make_history(res)
+    d = decision(0.020, 0.018, 0.015, "guarded_rejection", 1.0)  # 15 < 20 <= 33 um: cannot decide, not rejected
+    t["verifications"] = t["verifications"].with_columns(
+        pl.when(pl.col("scan_id") == "VER-21").then(pl.lit(d.statement)).otherwise(None).alias("conformity"))
+    catalog.build_catalog(res, t)
+    assert main(["trace", "VER-21", "--results", str(res)]) == 0
+    out = capsys.readouterr().out
+    assert "CANNOT DECIDE: |E| = 20.00 um, U(E) = 18.00 um, tolerance T = 15.00 um; rule: guarded rejection" in out
+    assert "w = 18.0 um" in out
+    html = report.write_report(res).read_text() + "".join(
+        p.read_text() for p in sorted((res / "report").glob("*/index.html")))
+    assert '<span class="warn">CANNOT DECIDE</span><br><small>|E| = 20.00 um, U(E) = 18.00 um' in html
