@@ -954,15 +954,17 @@ class _PlotCache:
         atomic_write_text(self.file, json.dumps(self.new, indent=1, sort_keys=True) + "\n")
 
 
-def _verdict_cell(conformity: str | None, passed: bool | None) -> tuple[str, str]:
+def _verdict_cell(conformity: str | None, passed: bool | None,
+                  labels: tuple[str, str] = ("passed", "FAILED")) -> tuple[str, str]:
     """(HTML, row class) of a verdict: the stage's statement under the decision rule (``conformity``:
     "conforms", "does not conform" or "cannot decide", then U, T, the rule and its guard band);
-    an older row without one falls back to its pass/fail."""
+    a row without one (an older catalog) falls back to its pass/fail, shown as ``labels``."""
     verdict, detail = split_verdict(conformity)
     if verdict is None:
         if passed is None:
             return "", ""
-        return ('<span class="pass">passed</span>', "") if passed else ('<span class="fail">FAILED</span>', "fail")
+        return (f'<span class="pass">{labels[0]}</span>', "") if passed else (f'<span class="fail">{labels[1]}</span>',
+                                                                            "fail")
     cls = {CONFORMS: "pass", DOES_NOT_CONFORM: "fail", CANNOT_DECIDE: "warn"}[verdict]
     html = f'<span class="{cls}">{_e(verdict.upper() if cls != "pass" else verdict)}</span>'
     return html + (f'<br><small>{_e(detail)}</small>' if detail else ""), ("" if cls == "pass" else cls)
@@ -1127,7 +1129,7 @@ class _Builder:
             if big_u is None and r.get("u_diameter_mm") is not None:
                 big_u, k = 2.0 * r["u_diameter_mm"], 2.0
             ok = r.get("in_tolerance")
-            verdict, verdict_class = _verdict_cell(r.get("conformity"), ok)
+            verdict, verdict_class = _verdict_cell(r.get("conformity"), ok, ("in tolerance", "OUT OF TOLERANCE"))
             rows.append([_e(r.get("night")), _e(r.get("scan_id")), _e(r["artifact_id"]), _e(r.get("feature")),
                          _num(r.get("diameter_mm"), 9), _temperature(r.get("temperature_c"), r.get("temperature_assumed")),
                          _num(r.get("diameter_20_mm"), 9), _um(big_u, 2), _num(k, 3),
