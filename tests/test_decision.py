@@ -72,3 +72,5 @@ def test_trace_and_report_show_the_verdict_with_its_rule(tmp_path, capsys):
     html = report.write_report(res).read_text() + "".join(
         p.read_text() for p in sorted((res / "report").glob("*/index.html")))
     assert '<span class="warn">CANNOT DECIDE</span><br><small>|E| = 20.00 um, U(E) = 18.00 um' in html
+    # the night's summary counts it and says what to do
+    assert "<li><b>cannot decide</b> verification VER-21 (TRI-01, gauge RG-275): |E| = 20.00 um" in html

@@ -954,6 +954,11 @@ class _PlotCache:
         atomic_write_text(self.file, json.dumps(self.new, indent=1, sort_keys=True) + "\n")
 
 
+def _verdict_is(verdict: str) -> pl.Expr:
+    """Rows whose ``conformity`` statement starts with ``verdict`` (:func:`borescan.decision.split_verdict`)."""
+    return pl.col("conformity").fill_null("").str.to_lowercase().str.starts_with(verdict)
+
+
 def _verdict_cell(conformity: str | None, passed: bool | None,
                   labels: tuple[str, str] = ("passed", "FAILED")) -> tuple[str, str]:
     """(HTML, row class) of a verdict: the stage's statement under the decision rule (``conformity``:
@@ -1379,6 +1384,11 @@ class _Builder:
                                          for k in ("made", "superseded", "expired"))
             failed = v_n.filter(~pl.col("passed").fill_null(True)) if v_n.height else v_n
             out_tol = p_n.filter(~pl.col("in_tolerance")) if p_n is not None and p_n.height else None
+            if out_tol is not None and "conformity" in p_n.columns:  # the stage's verdict under the rule
+                out_tol = p_n.filter(_verdict_is(DOES_NOT_CONFORM) | (~pl.col("in_tolerance").fill_null(True)
+                                                                            & pl.col("conformity").is_null()))
+            undecided = ([r for df in (v_n, p_n) if df is not None and df.height and "conformity" in df.columns
+                          for r in df.filter(_verdict_is(CANNOT_DECIDE)).iter_rows(named=True)])
             person = f_n.filter(pl.col("verdict").is_in(["missing_effect", "ambiguous"])) if f_n.height else f_n
             person_scans = person["scan_id"].unique(maintain_order=True).to_list() if person.height else []
             untraceable = (p_n.filter(pl.col("method").fill_null("").str.contains("NOT TRACEABLE"))
@@ -1386,22 +1396,26 @@ class _Builder:
             n_out = 0 if out_tol is None else out_tol.height
             known_tol = p_n is not None and p_n.height and p_n["tolerance_mm"].drop_nulls().len() > 0
             attention = (bool(q_n) or failed.height > 0 or n_out > 0 or bool(person_scans) or expired.height > 0
-                         or (untraceable is not None and untraceable.height > 0))
+                         or (untraceable is not None and untraceable.height > 0) or bool(undecided))
             rows.append([f'<a href="#night-{night}">{_e(night)}</a>', str(s_n.height),
                          _e(", ".join(f"{k} {n}" for k, n in kinds)), str(len(q_n)), str(made.height),
                          str(expired.height), str(superseded.height), str(v_n.height - failed.height),
-                         str(failed.height), str(n_out) if known_tol else "–", str(len(person_scans))])
+                         str(failed.height), str(n_out) if known_tol else "–", str(len(undecided)),
+                         str(len(person_scans))])
             classes.append("fail" if attention else "")
             details.append(self._night_detail(night, q_n, made, superseded, expired, failed, out_tol,
-                                              person, attention, untraceable))
+                                              person, attention, untraceable, undecided))
         head = ["night", "scans in", "by kind", "quarantined", "calibrations made", "expired", "superseded",
-                "verifications passed", "failed", "parts out of tolerance", "verdicts for a person"]
+                "verifications passed", "failed", "parts out of tolerance", "cannot decide (U too large)",
+                "verdicts for a person"]
         return ('<p class="note">Newest night first. A red row needs attention; its details follow the table. '
-                "“–”: no part tolerance recorded.</p>" + _table(head, rows, classes, num_cols=set(range(3, 11)) | {1})
-                + "".join(details))
+                "“–”: no part tolerance recorded. Verdicts under the decision rule of the laboratory "
+                "(laboratory.decision_rule); “cannot decide”: the expanded uncertainty is not below the "
+                "tolerance, or the result lies in the guard band.</p>"
+                + _table(head, rows, classes, num_cols=set(range(3, 12)) | {1}) + "".join(details))
 
     def _night_detail(self, night, q_n, made, superseded, expired, failed, out_tol, person, attention,
-                      untraceable=None) -> str:
+                      untraceable=None, undecided=()) -> str:
         items = []
         for q in q_n:
             rec = self.link(f"quarantine/{q['scan_id']}.json")
@@ -1423,6 +1437,15 @@ class _Builder:
             items.append(f"<li><b>part out of tolerance</b> {_e(r['artifact_id'])} {_e(r.get('feature') or '')} "
                          f"(scan {_e(r['scan_id'])}): deviation {_um(r['deviation_mm'])} µm, tolerance "
                          f"±{_um(r['tolerance_mm'])} µm</li>")
+        for r in undecided:
+            what = (f"verification {_e(r['scan_id'])} ({_e(r.get('device_id'))}, gauge {_e(r.get('artifact_id'))})"
+                    if "certified_mm" in r else
+                    f"part {_e(r.get('artifact_id'))} {_e(r.get('feature') or '')} (scan {_e(r['scan_id'])})")
+            items.append(f"<li><b>cannot decide</b> {what}: {_e(split_verdict(r.get('conformity'))[1])}"
+                         '<br><span class="action">what to do: the uncertainty is too large for the tolerance or '
+                         "the result lies in the guard band: lower U (more poses, a better sensor, a recent "
+                         "calibration) or remeasure; a wider tolerance or another decision rule is the "
+                         "customer's decision, not the report's.</span></li>")
         for (sid,), grp in (untraceable.group_by("scan_id", maintain_order=True)
                             if untraceable is not None and untraceable.height else []):
             items.append(f"<li><b>not traceable</b> {_e(sid)} ({_e(grp['device_id'][0])}): "
