@@ -2,7 +2,7 @@
 # Table of contents only; each stage lives in rules/<stage>.smk and calls src/borescan.
 from snakemake.utils import min_version, validate
 
-from borescan.config import SCHEMA_PATH
+from borescan.config import SCHEMA_PATH, check_config
 
 min_version("8.0")
 
@@ -11,6 +11,8 @@ configfile: "config/config.yaml"
 configfile: "config/devices.yaml"  # the device model: a user's decisions per device
 
 
+# a mistyped key or a wrong value: one line naming it (Snakemake's own message prints the schema)
+check_config(config, "config (config/config.yaml, config/devices.yaml, --config)")
 validate(config, str(SCHEMA_PATH))  # the schema borescan ships (workflow/schemas/ links to it)
 
 

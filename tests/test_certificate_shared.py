@@ -70,8 +70,9 @@ def test_rod_and_three_sensor_certificates_share_their_administrative_data():
     trace = rod["statements"][1]["declaration"]
     assert trace == C._traceability_text(GAUGE) and "C-150 (issued by DKD; valid until 2027-01-01)" in trace
     assert rod["statements"][3] == {"refType": "basic_conformity", "conformity": "fail", "declaration":
-                                    "The device does NOT conform to the verification tolerance: 1 of 2 "
-                                    "verifications on certified ring gauges passed under the stated decision rule."}
+                                    "The device does NOT conform to the verification tolerance under the stated "
+                                    "decision rule: of 2 verifications on certified ring gauges 1 conforms, 1 does "
+                                    "not conform (1 accepted by the rule)."}
     assert rod["statements"][4]["date"] == "2026-12-20"
     assert rod["coreData"]["issueDate"] == "2026-11-21" and rod["coreData"]["uniqueIdentifier"].startswith("ROD-01")
     assert rod["placeholders"] == [] and rod["respPersons"][0]["person"]["name"] == "A. Example"

@@ -249,11 +249,11 @@ def test_decision_rules():
     from borescan.measure import decide
 
     ok, A, text = decide(0.010, 0.008, 0.015, "simple_acceptance")
-    assert ok and A == 0.015 and text.startswith("PASS")
-    ok, A, text = decide(0.010, 0.008, 0.015, "guard_band", 1.0)  # A = 15 - 8 um
-    assert not ok and A == pytest.approx(0.007) and text.startswith("FAIL")
-    ok, A, text = decide(0.0, 0.020, 0.015, "guard_band")
-    assert not ok and "no result can pass" in text
+    assert ok and A == 0.015 and text.startswith("CONFORMS")
+    ok, A, text = decide(0.010, 0.008, 0.015, "guard_band", 1.0)  # A = 15 - 8 um < 10 <= 15: in the guard band
+    assert not ok and A == pytest.approx(0.007) and text.startswith("CANNOT DECIDE") and "w = 8.0 um" in text
+    ok, A, text = decide(0.0, 0.020, 0.015, "guard_band")  # U > T: nothing can be shown to conform
+    assert not ok and text.startswith("CANNOT DECIDE") and "not smaller than the tolerance" in text
     with pytest.raises(ValueError, match="unknown decision rule"):
         decide(0.0, 0.001, 0.015, "shared_risk")
     v = verify(275.040, 0.002, 275.029, 0.00075, 0.0, 20.0, 0.015, decision_rule="guard_band", k=2.0)
@@ -413,17 +413,18 @@ def test_part_feature_picks_the_named_feature_else_the_only_one_else_the_artifac
 
 
 @pytest.mark.parametrize("dev_um, U_um, tol_um, rule, verdict", [
-    (+9.0, 4.0, 10.0, "simple_acceptance", "PASS"),   # |9| <= 10
-    (-11.0, 4.0, 10.0, "simple_acceptance", "FAIL"),  # |-11| > 10
-    (+9.0, 4.0, 10.0, "guard_band", "FAIL"),          # A = 10 - 4 = 6 < 9
-    (-5.5, 4.0, 10.0, "guard_band", "PASS"),          # 5.5 <= 6
+    (+9.0, 4.0, 10.0, "simple_acceptance", "conforms"),          # |9| <= 10
+    (-11.0, 4.0, 10.0, "simple_acceptance", "does not conform"),  # |-11| > 10
+    (+9.0, 4.0, 10.0, "guarded_acceptance", "cannot decide"),     # 10 - 4 = 6 < 9 <= 10
+    (-5.5, 4.0, 10.0, "guarded_acceptance", "conforms"),          # 5.5 <= 6
+    (+9.0, 12.0, 10.0, "simple_acceptance", "cannot decide"),     # U = 12 >= T = 10
 ])
 def test_part_conformity_applies_the_decision_rule_to_the_deviation_at_20c(dev_um, U_um, tol_um, rule, verdict):
     from borescan.measure import part_conformity
 
     r = part_conformity(150.0 + dev_um * 1e-3, U_um * 1e-3, 150.0, tol_um * 1e-3, rule, 1.0)
     assert r["deviation_mm"] == pytest.approx(dev_um * 1e-3, abs=1e-12)
-    assert r["conformity"] == verdict
+    assert r["conformity"].split(" (")[0] == verdict and f"U {U_um:.1f} um, T {tol_um:.1f} um" in r["conformity"]
     assert part_conformity(150.0, 0.004, None, 0.01)["conformity"] is None      # no nominal: no verdict
     assert part_conformity(150.0, 0.004, 150.0, None)["deviation_mm"] == 0.0   # no tolerance: deviation only
     assert part_conformity(150.0, 0.004, 150.0, None)["conformity"] is None

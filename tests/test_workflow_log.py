@@ -81,3 +81,24 @@ def test_locks_of_a_killed_run_are_released_and_a_live_run_keeps_its_own(tmp_pat
     assert release_stale_locks(tmp_path / ".snakemake") == [pid]
     assert mine.is_file() and not theirs.exists()
     assert release_stale_locks(tmp_path / ".snakemake") == []
+def test_a_run_log_is_quiet_and_readable(tmp_path):
+    """Issue 37 item 8: the default profile prints the rules' messages, not "Shell command: None" (the
+    rules run scripts) nor "reason:" lines listing every input of a night job; a mistyped config key
+    is one line naming it, not the schema."""
+    from conftest import run_snakemake
+
+    from borescan import simulate
+
+    raw = tmp_path / "raw"
+    for i in range(3):
+        sim = simulate.simulate_rod(None, n_poses=6, samples_per_pose=2, scan_id=f"R{i}", seed=i)
+        simulate.write_simulated(sim, raw, tmp_path / "truth")
+    proc = run_snakemake(raw, tmp_path / "results", "--dry-run")
+    log = proc.stdout + proc.stderr
+    assert proc.returncode == 0, log[-2000:]
+    assert "Validating and registering the scans of night 2026-11-20" in log
+    assert "Shell command" not in log and "reason:" not in log.lower()
+    proc = run_snakemake(raw, tmp_path / "results", "calibraton={}", "--dry-run")  # a --config value
+    log = proc.stdout + proc.stderr
+    assert proc.returncode != 0 and len(log.splitlines()) < 15, log[-3000:]
+    assert "calibraton: unknown key (known here: artifacts, calibration," in log

@@ -31,7 +31,7 @@ from borescan.geometry import RodLayer
 from borescan.mirror import mirror_checks_of
 
 __all__ = ["choose_calibration", "choose_rod_calibration", "failed_calibration_ids", "days_between", "calibration_rows",
-           "rod_nominal_calibration_rows", "tri_calibration", "rod_layers", "calibration_drift", "DRIFT_PARAMS"]
+           "rod_nominal_calibration_rows", "tri_calibration", "order_calibrations", "calibration_roles", "rod_layers", "calibration_drift", "DRIFT_PARAMS"]
 
 
 def days_between(first_night: str, night: str) -> int:
@@ -46,12 +46,54 @@ def failed_calibration_ids(verifications: pl.DataFrame) -> set[str]:
     return set(verifications.filter(~pl.col("passed"))["calibration_id"].drop_nulls())
 
 
+def order_calibrations(calibrations: pl.DataFrame) -> pl.DataFrame:
+    """Calibrations in the order of their validity, the current one last: by ``valid_from``; of two
+    valid from the same night, a calibration on certified gauges after the design geometry (method
+    ``nominal``: a rod's drawing values, used only while it has nothing better), then the later made
+    (``started_at`` of its scan, when the frame has that column), then the calibration id."""
+    if calibrations.height == 0:
+        return calibrations
+    keys = [pl.col("valid_from").cast(pl.Utf8)]
+    if "method" in calibrations.columns:
+        keys.append((pl.col("method").fill_null("") != "nominal").cast(pl.Int8))
+    if "started_at" in calibrations.columns:
+        keys.append(pl.col("started_at"))
+    return calibrations.sort([*keys, pl.col("calibration_id")], nulls_last=False, maintain_order=True)
+
+
+def calibration_roles(calibrations: pl.DataFrame, failed_ids: set[str]) -> dict[str, str]:
+    """What each calibration of ``calibrations`` (rows of any devices) is in the history they make,
+    in :func:`order_calibrations`' order per device: ``failed verification``; ``superseded by <id>``
+    (a later calibration, of a rod a later gauge calibration); a rod's design geometry that a gauge
+    calibration replaces, ``design geometry, replaced by <id>``; the device's last one ``latest``
+    (whether it is still valid depends on the date: ``recalibration_due``, ``borescan status``)."""
+    out: dict[str, str] = {}
+    if calibrations.height == 0:
+        return out
+    per = order_calibrations(calibrations.unique("calibration_id", keep="first", maintain_order=True))
+    for _dev, g in per.group_by("device_id", maintain_order=True):
+        ids = g["calibration_id"].to_list()
+        methods = g["method"].fill_null("").to_list() if "method" in g.columns else [""] * len(ids)
+        gauge = [i for i, m in zip(ids, methods) if m != "nominal"]
+        for k, (cal_id, method) in enumerate(zip(ids, methods)):
+            later = [i for i in ids[k + 1:] if i in gauge] if method != "nominal" else [i for i in ids if i in gauge]
+            if cal_id in failed_ids:
+                out[cal_id] = "failed verification"
+            elif method == "nominal" and gauge:
+                out[cal_id] = f"design geometry, replaced by {gauge[0]}" if later else "design geometry"
+            elif later or (method == "nominal" and k < len(ids) - 1):
+                out[cal_id] = f"superseded by {(later or ids[k + 1:])[0]}"
+            else:
+                out[cal_id] = "latest"
+    return out
+
+
 def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_id: str, night: str,
                        validity_days: int, allow_unverified: bool) -> tuple[str | None, str | None]:
     """The calibration a device's result of ``night`` must use, or the reason there is none.
 
     The latest calibration of the device made on or before the night (same night included;
-    ties broken by calibration id), if it is at most ``validity_days`` old and has not failed a
+    ties broken as :func:`order_calibrations` breaks them), if it is at most ``validity_days`` old and has not failed a
     verification. A failed or expired latest calibration is refused (never silently replaced by
     an older one) unless ``allow_unverified``.
 
@@ -65,8 +107,8 @@ def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_
     c = calibrations.filter((pl.col("device_id") == device_id) & (pl.col("valid_from") <= night))
     if c.height == 0:
         return None, none
-    c = c.sort("valid_from", "calibration_id")
-    cal_id, valid_from = c["calibration_id"][-1], c["valid_from"][-1]
+    c = order_calibrations(c)
+    cal_id, valid_from = c["calibration_id"][-1], str(c["valid_from"][-1])
     if allow_unverified:
         return cal_id, None
     if cal_id in failed_ids:

@@ -45,6 +45,7 @@ from matplotlib.figure import Figure
 from borescan.atomic import atomic_write_bytes, atomic_write_text
 from borescan.calibration import TriCalibration
 from borescan.config import schema_default
+from borescan.decision import CANNOT_DECIDE, CONFORMS, DOES_NOT_CONFORM, split_verdict
 from borescan.uncertainty import Budget, Combined, combine, round_uncertainty
 
 __all__ = ["CERTIFICATE_FORMAT", "certificate_dir", "certificate_night_dir", "certificate_dict", "write_certificate", "PLACEHOLDER",
@@ -449,23 +450,44 @@ def _traceability_text(art: dict) -> str:
 
 
 def _decision_rule_text(lab: dict) -> str:
-    if lab.get("decision_rule") == "guard_band":
-        return (f"Guarded acceptance (ILAC-G8:09/2019 4.2.2): a verification passes when |E| <= T - w, w = "
-                f"{lab.get('guard_band_factor')} U(E); E the error of the diameter at 20 degC, T the tolerance.")
-    return ("Simple acceptance (ILAC-G8:09/2019 4.2.1): a verification passes when |E| <= T (guard band w = 0), E the "
-            "error of the diameter at 20 degC, T the tolerance; at the limit the probability of a false accept "
-            "reaches 50 %.")
+    """The laboratory's decision rule (:mod:`borescan.decision`) in words; E the error of the diameter
+    at 20 degC, T the tolerance, w the guard band."""
+    f = lab.get("guard_band_factor")
+    tail = ("E the error of the diameter at 20 degC, U(E) its expanded uncertainty, T the tolerance. A result whose "
+            "U(E) is not below T is never stated to conform.")
+    if lab.get("decision_rule") in ("guard_band", "guarded_acceptance"):
+        return (f"Guarded acceptance (ILAC-G8:09/2019 4.2.2, ISO 14253-1): conforms when |E| <= T - w, w = {f} U(E); "
+                f"does not conform when |E| > T; between, cannot decide (not accepted). " + tail)
+    if lab.get("decision_rule") == "guarded_rejection":
+        return (f"Guarded rejection (ILAC-G8:09/2019 4.2.3, ISO 14253-1): does not conform when |E| > T + w, w = {f} "
+                f"U(E); conforms when |E| <= T; between, cannot decide (not rejected). " + tail)
+    return ("Simple acceptance (ILAC-G8:09/2019 4.2.1): conforms when |E| <= T (guard band w = 0), else does not "
+            "conform; at the limit the probability of a false accept reaches 50 %. " + tail)
 
 
 def _conformity(ver: list[dict]) -> dict:
     if not ver:
         return {"conformity": "noStatement",
                 "text": "No verification scan of this device was taken in the calibration night: conformity is not stated."}
+    verdicts = [split_verdict(v.get("conformity"))[0] or (CONFORMS if v.get("passed") else DOES_NOT_CONFORM)
+                for v in ver]
     ok = all(bool(v.get("passed")) for v in ver)
     n_pass = sum(bool(v.get("passed")) for v in ver)
-    text = (f"The device {'conforms' if ok else 'does NOT conform'} to the verification tolerance: {n_pass} of "
-            f"{len(ver)} verifications on certified ring gauges passed under the stated decision rule.")
-    return {"conformity": "pass" if ok else "fail", "text": text}
+    counts = ", ".join(f"{verdicts.count(x)} {x}" for x in (CONFORMS, CANNOT_DECIDE, DOES_NOT_CONFORM) if x in verdicts)
+    guard = sorted({f"{_ver_name(v)}: U(E) {1e3 * v['expanded_u_error_mm']:.1f} um against T "
+                    f"{1e3 * v['tolerance_mm']:.1f} um" for v in ver
+                    if v.get("expanded_u_error_mm") is not None and v["expanded_u_error_mm"] >= v["tolerance_mm"]})
+    overall = DOES_NOT_CONFORM if DOES_NOT_CONFORM in verdicts else CANNOT_DECIDE if CANNOT_DECIDE in verdicts \
+        else CONFORMS
+    text = (f"The device {overall.replace('does not', 'does NOT')} to the verification tolerance under the stated "
+            f"decision rule: of {len(ver)} verifications on certified ring gauges {counts} ({n_pass} accepted by the "
+            f"rule).")
+    if guard:
+        text += " The expanded uncertainty is not below the tolerance (" + "; ".join(guard) + \
+                "): these verifications cannot show conformity."
+    # DCC conformity: a verdict that cannot decide is conditional, passed or not by the rule
+    dcc = {CONFORMS: "pass", DOES_NOT_CONFORM: "fail"}.get(overall, "conditionalPass" if ok else "conditionalFail")
+    return {"conformity": dcc, "text": text}
 
 
 # --------------------------------------------------------------------------- PDF layout
@@ -1040,7 +1062,8 @@ def _verification_pages(d: _Doc) -> None:
                           _num(_scaled(v.get("expanded_u_error_mm"), 1e3), ".2f"),
                           _num(v.get("k"), ".2f"), _num(1e3 * v["tolerance_mm"], ".1f"),
                           _num(1e3 * v["acceptance_limit_mm"] if v.get("acceptance_limit_mm") is not None else None, ".2f"),
-                          "PASS" if v.get("passed") else "FAIL"])
+                          (split_verdict(v.get("conformity"))[0] or ("conforms" if v.get("passed") else
+                                                                     "does not conform"))])
         d.table(cols, cells, widths=[0.2, 0.07, 0.08, 0.09, 0.1, 0.08, 0.06, 0.065, 0.04, 0.065, 0.06, 0.05], size=6)
         d.para("T: recorded temperature; D(T): as measured at T; D20: brought to 20 degC; cert.: certified D20; "
                "E = D20 - cert.; T_ol: tolerance; A: acceptance limit (T_ol minus the guard band).", size=6.8)

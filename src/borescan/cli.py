@@ -108,7 +108,20 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(err, _scan_error()):
             print(f"{name}: {err}", file=sys.stderr)
             return 2
+        if _is_duckdb_error(err):  # a catalog that is empty, cut short or not a catalog at all
+            first = str(err).splitlines()[0] if str(err) else type(err).__name__
+            results = getattr(args, "results", "results")
+            print(f"{name}: the history catalog under {results} cannot be read ({first}); rebuild it from the "
+                  f"stage tables with `borescan rebuild-catalog --results {results}`, or rerun the pipeline",
+                  file=sys.stderr)
+            return 1
         raise
+
+
+def _is_duckdb_error(err: BaseException) -> bool:
+    """A DuckDB error (the module is imported only by the commands that open the catalog)."""
+    duckdb = sys.modules.get("duckdb")
+    return duckdb is not None and isinstance(err, duckdb.Error)
 
 
 def _os_message(err: OSError) -> str:

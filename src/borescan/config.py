@@ -17,7 +17,8 @@ import yaml
 
 from borescan.resources import shipped
 
-__all__ = ["SCHEMA_PATH", "schema_defaults", "schema_default", "load_config", "load_configs"]
+__all__ = ["SCHEMA_PATH", "ConfigError", "schema_defaults", "schema_default", "check_config", "load_config",
+           "load_configs"]
 
 #: the config schema the package ships (``workflow/schemas/config.schema.yaml`` of a checkout links to it)
 SCHEMA_PATH = shipped("config.schema.yaml")
@@ -68,10 +69,54 @@ def _merge(base: dict, over: dict) -> dict:
     return out
 
 
+class ConfigError(ValueError):
+    """A config that is not YAML or breaks the schema; ``str()`` names the file, the key and the problem
+    in one line (a mistyped key, a wrong type, a value out of range), never the schema itself."""
+
+
+def _key_path(err) -> str:
+    return ".".join(str(p) for p in err.absolute_path) or "(top level)"
+
+
+def _one_line(err) -> str:
+    """A jsonschema error as ``key: problem``, the schema left out."""
+    if err.validator == "additionalProperties":
+        allowed = sorted((err.schema.get("properties") or {}).keys())
+        extra = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []
+        where = _key_path(err)
+        names = ", ".join(f"{where}.{k}" if where != "(top level)" else k for k in extra)
+        return f"{names}: unknown key" + (f" (known here: {', '.join(allowed)})" if allowed else "")
+    if err.validator in ("type", "minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "enum", "pattern"):
+        return f"{_key_path(err)}: {err.instance!r} is not allowed ({err.validator} {err.validator_value!r})"
+    return f"{_key_path(err)}: {err.message[:200]}"
+
+
+def check_config(config: dict, source: str = "config", schema_path: Path | str = SCHEMA_PATH) -> None:
+    """Check ``config`` against the schema; :class:`ConfigError` listing each problem in one line."""
+    import jsonschema
+
+    schema = yaml.safe_load(Path(schema_path).read_text())
+    validator = jsonschema.Draft202012Validator(schema)
+    errors = sorted(validator.iter_errors(config), key=lambda e: [str(p) for p in e.absolute_path])
+    if errors:
+        lines = "; ".join(_one_line(e) for e in errors[:10])
+        more = f" (and {len(errors) - 10} more)" if len(errors) > 10 else ""
+        raise ConfigError(f"{source}: {lines}{more} (every key is described in workflow/schemas/config.schema.yaml)")
+
+
 def load_config(path: Path | str | None = None, schema_path: Path | str = SCHEMA_PATH) -> dict:
-    """The config at ``path`` (none: the schema's defaults alone) with every missing key defaulted."""
-    user = yaml.safe_load(Path(path).read_text()) if path is not None else {}
-    return _merge(schema_defaults(schema_path), user or {})
+    """The config at ``path`` (none: the schema's defaults alone) with every missing key defaulted,
+    checked against the schema (:class:`ConfigError` when it is not YAML or breaks it)."""
+    source = str(path) if path is not None else "schema defaults"
+    try:
+        user = yaml.safe_load(Path(path).read_text()) if path is not None else {}
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{source}: not YAML: {str(err).splitlines()[0]}") from None
+    if user is not None and not isinstance(user, dict):
+        raise ConfigError(f"{source}: a config is a mapping of keys, got {type(user).__name__}")
+    cfg = _merge(schema_defaults(schema_path), user or {})
+    check_config(cfg, source, schema_path)
+    return cfg
 
 
 def load_configs(paths, schema_path: Path | str = SCHEMA_PATH) -> dict:

@@ -41,6 +41,8 @@ from .artifacts import ArtifactCte, ScanTemperature, artifact_key, diameter_at_2
 from .atomic import json_ready
 from .effects import thermal_expansion_factor
 from .circlefit import Circle, fit_circle_ls, harmonic_spectrum, reference_circles
+from .decision import DECISION_RULES as _DECISION_RULES
+from .decision import decision
 from .geometry import Beams, beam_frame, circumcircle, wall_points_device
 from .uncertainty import Budget, Combined, Input, Term
 
@@ -964,44 +966,21 @@ def _device_model_inputs(scan, cal, dm, cleaning=None) -> list[tuple[Input, floa
 
 # --------------------------------------------------------------------------- verification
 
-#: decision rules of a verification (ILAC-G8:09/2019 §4.2)
-DECISION_RULES = ("simple_acceptance", "guard_band")
+#: decision rules of a verification or a part (ILAC-G8:09/2019 §4.2; :mod:`borescan.decision`)
+DECISION_RULES = tuple(_DECISION_RULES)
 
 
 def decide(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "simple_acceptance",
            guard_band_factor: float = 1.0) -> tuple[bool, float, str]:
-    """Verdict on |error| <= tolerance by a decision rule (ISO/IEC 17025 7.8.6, ILAC-G8:09/2019).
-
-    ``simple_acceptance`` (ILAC-G8 4.2.1): acceptance limit A = T (guard band w = 0); the risk of
-    a false accept reaches 50 % at the limit. ``guard_band`` (4.2.2): A = T - w, w =
-    ``guard_band_factor`` U; with w = U the probability of a false accept is at most about 2.5 %
-    (normal error, k = 2). Binary: pass iff |error| <= A.
+    """Verdict on |error| against the tolerance by a decision rule (ISO/IEC 17025 7.8.6, ILAC-G8:09/2019):
+    :func:`borescan.decision.decision`, the one place of the rules.
 
     Returns
     -------
-    (passed, acceptance limit A [mm], conformity statement)
-
-    Raises ValueError when a number is not finite or the tolerance not positive: no NaN or inf
-    ever becomes a verdict.
+    (passed: the rule's binary decision, acceptance limit [mm], statement: verdict, numbers, rule and guard band)
     """
-    if rule not in DECISION_RULES:
-        raise ValueError(f"unknown decision rule {rule!r}; valid: {list(DECISION_RULES)}")
-    if not all(math.isfinite(float(x)) for x in (error_mm, U_mm, tolerance_mm)) or not tolerance_mm > 0:
-        raise ValueError(f"no verdict: the error ({error_mm!r} mm), its expanded uncertainty ({U_mm!r} mm) and the "
-                         f"tolerance ({tolerance_mm!r} mm) must be finite numbers, the tolerance positive")
-    w = 0.0 if rule == "simple_acceptance" else float(guard_band_factor) * float(U_mm)
-    A = float(tolerance_mm) - w
-    passed = bool(A > 0 and abs(error_mm) <= A)
-    how = ("simple acceptance (ILAC-G8:09/2019 4.2.1, guard band w = 0)" if rule == "simple_acceptance"
-           else f"guard-banded acceptance (ILAC-G8:09/2019 4.2.2, w = {guard_band_factor:g} U = {w * 1e3:.2f} um)")
-    verdict = "PASS" if passed else "FAIL"
-    text = (f"{verdict}: |E| = {abs(error_mm) * 1e3:.2f} um {'<=' if passed else '>'} acceptance limit "
-            f"{A * 1e3:.2f} um (tolerance {tolerance_mm * 1e3:.2f} um, U(E) = {U_mm * 1e3:.2f} um); rule: {how}")
-    if A <= 0:
-        text += "; the guard band exceeds the tolerance, no result can pass"
-    elif U_mm >= tolerance_mm:
-        text += "; U(E) is not smaller than the tolerance: the verdict carries a large risk of a false decision"
-    return passed, A, text
+    d = decision(error_mm, U_mm, tolerance_mm, rule, guard_band_factor)
+    return d.passed, d.acceptance_limit_mm, d.statement
 
 
 @dataclass(frozen=True)
@@ -1105,16 +1084,17 @@ def part_conformity(diameter_20_mm: float, U_mm: float, nominal_mm: float | None
                     rule: str = "simple_acceptance", guard_band_factor: float = 1.0) -> dict:
     """A part's diameter against its nominal and tolerance: deviation at 20 degC and the verdict.
 
-    deviation = D20 - nominal; the verdict is :func:`decide` on (deviation, U, tolerance) by the
-    laboratory's decision rule ("PASS"/"FAIL"), None without a nominal or a tolerance.
+    deviation = D20 - nominal; the verdict is :func:`borescan.decision.decision` on (deviation, U,
+    tolerance) by the laboratory's decision rule: its short text, which starts with "conforms",
+    "does not conform" or "cannot decide" and names U, T, the rule and its guard band; None without
+    a nominal or a tolerance.
 
     Returns ``{"nominal_diameter_mm", "tolerance_mm", "deviation_mm", "conformity"}``.
     """
     dev = None if nominal_mm is None else float(diameter_20_mm) - float(nominal_mm)
     verdict = None
     if dev is not None and tolerance_mm is not None:
-        passed, _A, _text = decide(dev, float(U_mm), float(tolerance_mm), rule, guard_band_factor)
-        verdict = "PASS" if passed else "FAIL"
+        verdict = decision(dev, float(U_mm), float(tolerance_mm), rule, guard_band_factor).short
     return {"nominal_diameter_mm": nominal_mm, "tolerance_mm": tolerance_mm, "deviation_mm": dev,
             "conformity": verdict}
 

@@ -68,6 +68,8 @@ from matplotlib.figure import Figure
 
 from borescan import catalog
 from borescan.atomic import atomic_write_bytes, atomic_write_text
+from borescan.calibrations import calibration_roles, failed_calibration_ids, order_calibrations
+from borescan.decision import CANNOT_DECIDE, CONFORMS, DOES_NOT_CONFORM, split_verdict
 from borescan.effects import EFFECTS
 from borescan.tables import TABLES
 
@@ -952,6 +954,27 @@ class _PlotCache:
         atomic_write_text(self.file, json.dumps(self.new, indent=1, sort_keys=True) + "\n")
 
 
+def _verdict_is(verdict: str) -> pl.Expr:
+    """Rows whose ``conformity`` statement starts with ``verdict`` (:func:`borescan.decision.split_verdict`)."""
+    return pl.col("conformity").fill_null("").str.to_lowercase().str.starts_with(verdict)
+
+
+def _verdict_cell(conformity: str | None, passed: bool | None,
+                  labels: tuple[str, str] = ("passed", "FAILED")) -> tuple[str, str]:
+    """(HTML, row class) of a verdict: the stage's statement under the decision rule (``conformity``:
+    "conforms", "does not conform" or "cannot decide", then U, T, the rule and its guard band);
+    a row without one (an older catalog) falls back to its pass/fail, shown as ``labels``."""
+    verdict, detail = split_verdict(conformity)
+    if verdict is None:
+        if passed is None:
+            return "", ""
+        return (f'<span class="pass">{labels[0]}</span>', "") if passed else (f'<span class="fail">{labels[1]}</span>',
+                                                                            "fail")
+    cls = {CONFORMS: "pass", DOES_NOT_CONFORM: "fail", CANNOT_DECIDE: "warn"}[verdict]
+    html = f'<span class="{cls}">{_e(verdict.upper() if cls != "pass" else verdict)}</span>'
+    return html + (f'<br><small>{_e(detail)}</small>' if detail else ""), ("" if cls == "pass" else cls)
+
+
 class _Builder:
     """The sections of one page over ``tables`` (a month's rows).
 
@@ -990,6 +1013,12 @@ class _Builder:
         cs = self.t["calibration_scans"]
         scans_of = {} if cs.height == 0 else dict(
             cs.group_by("calibration_id", maintain_order=True).agg(pl.col("scan_id")).iter_rows())
+        scans = self.t.get("scans")
+        if scans is not None and {"scan_id", "started_at"} <= set(scans.columns) and "started_at" not in cal.columns:
+            cal = cal.join(scans.select("scan_id", "started_at").unique("scan_id", keep="first"), on="scan_id", how="left")
+        ver = self.t.get("verifications")
+        failed = failed_calibration_ids(ver) if ver is not None and "passed" in ver.columns else set()
+        roles = calibration_roles(cal, failed)  # the same order as the measure stage and `borescan status`
         for dev in sorted(cal["device_id"].drop_nulls().unique().to_list()):
             out.append(f"<h3>Device {_e(dev)}</h3>")
             mine = cal.filter(pl.col("device_id") == dev)
@@ -997,7 +1026,7 @@ class _Builder:
                 out.append(self.figure(plot_calibration_trends, mine, dev, f"calibration_{dev}",
                                        f"calibration parameters of {dev}"))
             rows = []
-            per = mine.unique("calibration_id", keep="first").sort("valid_from", "calibration_id")
+            per = order_calibrations(mine.unique("calibration_id", keep="first", maintain_order=True))
             for r in per.iter_rows(named=True):
                 scans = scans_of.get(r["calibration_id"], [])
                 cert = r.get("certificate_path")
@@ -1009,9 +1038,9 @@ class _Builder:
                     _link(json_link, "json") if json_link else "",
                 ) if x)
                 rows.append([_e(r["calibration_id"]), _e(r.get("valid_from")), _e(r.get("recalibration_due")),
-                             _e(r.get("method")), _e(", ".join(scans)), _e(r.get("status")), links,
+                             _e(r.get("method")), _e(", ".join(scans)), _e(roles.get(r["calibration_id"], "")), links,
                              f"<code>{_e((r.get('certificate_sha256') or '')[:16])}</code>"])
-            out.append(_table(["calibration", "valid from", "recalibration due", "method", "scans", "status",
+            out.append(_table(["calibration", "valid from", "recalibration due", "method", "scans", "in the history",
                                "certificate", "certificate.json sha256"], rows))
             out.append(_rho_sign_notes(mine))
         return "".join(out)
@@ -1052,14 +1081,14 @@ class _Builder:
         rows, classes = [], []
         for i, r in enumerate(sub.iter_rows(named=True)):
             ok = r.get("passed")
+            verdict_html, verdict_class = _verdict_cell(r.get("conformity"), ok)
             broke = ", ".join(str(k) for k in RUN_RULES if rules[k][i])
             u = r.get("u_error_mm")
             rows.append([_e(r.get("night")), _e(r["scan_id"]), _e(r.get("calibration_id")),
                          _num(r.get("measured_mm"), 9), _num(r.get("certified_mm"), 9), _um(r.get("error_mm")),
                          _um(2.0 * u if u is not None else None), _um(r.get("tolerance_mm")),
-                         _temperature(r.get("temperature_c"), r.get("temperature_assumed")), _e(broke),
-                         '<span class="pass">passed</span>' if ok else '<span class="fail">FAILED</span>'])
-            classes.append("fail" if not ok else ("warn" if broke else ""))
+                         _temperature(r.get("temperature_c"), r.get("temperature_assumed")), _e(broke), verdict_html])
+            classes.append(verdict_class or ("warn" if broke else ""))
         out.append(_table(["night", "scan", "calibration", "measured at 20 °C [mm]", "certified [mm]", "error [µm]",
                            "U (k=2) [µm]", "tolerance ± [µm]", "temperature [°C]", "run rules broken", "verdict"],
                           rows, classes, num_cols={3, 4, 5, 6, 7, 8}))
@@ -1106,14 +1135,13 @@ class _Builder:
             if big_u is None and r.get("u_diameter_mm") is not None:
                 big_u, k = 2.0 * r["u_diameter_mm"], 2.0
             ok = r.get("in_tolerance")
-            verdict = ("" if ok is None else '<span class="pass">in tolerance</span>' if ok
-                       else '<span class="fail">OUT OF TOLERANCE</span>')
+            verdict, verdict_class = _verdict_cell(r.get("conformity"), ok, ("in tolerance", "OUT OF TOLERANCE"))
             rows.append([_e(r.get("night")), _e(r.get("scan_id")), _e(r["artifact_id"]), _e(r.get("feature")),
                          _num(r.get("diameter_mm"), 9), _temperature(r.get("temperature_c"), r.get("temperature_assumed")),
                          _num(r.get("diameter_20_mm"), 9), _um(big_u, 2), _num(k, 3),
                          _num(r.get("coverage_probability"), 4), _num(r.get("nominal_mm"), 9),
                          _um(r.get("deviation_mm")), _um(r.get("tolerance_mm")), verdict, _e(r.get("calibration_id"))])
-            classes.append("fail" if ok is False else ("warn" if r.get("temperature_assumed") else ""))
+            classes.append(verdict_class or ("warn" if r.get("temperature_assumed") else ""))
         return _table(["night", "scan", "part", "feature", "diameter at T [mm]", "T [°C]", "diameter at 20 °C [mm]",
                        "U [µm]", "k", "coverage", "nominal [mm]", "deviation [µm]", "tolerance ± [µm]", "verdict",
                        "calibration"], rows, classes, num_cols={4, 5, 6, 7, 8, 9, 10, 11, 12})
@@ -1357,6 +1385,11 @@ class _Builder:
                                          for k in ("made", "superseded", "expired"))
             failed = v_n.filter(~pl.col("passed").fill_null(True)) if v_n.height else v_n
             out_tol = p_n.filter(~pl.col("in_tolerance")) if p_n is not None and p_n.height else None
+            if out_tol is not None and "conformity" in p_n.columns:  # the stage's verdict under the rule
+                out_tol = p_n.filter(_verdict_is(DOES_NOT_CONFORM) | (~pl.col("in_tolerance").fill_null(True)
+                                                                            & pl.col("conformity").is_null()))
+            undecided = ([r for df in (v_n, p_n) if df is not None and df.height and "conformity" in df.columns
+                          for r in df.filter(_verdict_is(CANNOT_DECIDE)).iter_rows(named=True)])
             person = f_n.filter(pl.col("verdict").is_in(["missing_effect", "ambiguous"])) if f_n.height else f_n
             person_scans = person["scan_id"].unique(maintain_order=True).to_list() if person.height else []
             untraceable = (p_n.filter(pl.col("method").fill_null("").str.contains("NOT TRACEABLE"))
@@ -1364,22 +1397,26 @@ class _Builder:
             n_out = 0 if out_tol is None else out_tol.height
             known_tol = p_n is not None and p_n.height and p_n["tolerance_mm"].drop_nulls().len() > 0
             attention = (bool(q_n) or failed.height > 0 or n_out > 0 or bool(person_scans) or expired.height > 0
-                         or (untraceable is not None and untraceable.height > 0))
+                         or (untraceable is not None and untraceable.height > 0) or bool(undecided))
             rows.append([f'<a href="#night-{night}">{_e(night)}</a>', str(s_n.height),
                          _e(", ".join(f"{k} {n}" for k, n in kinds)), str(len(q_n)), str(made.height),
                          str(expired.height), str(superseded.height), str(v_n.height - failed.height),
-                         str(failed.height), str(n_out) if known_tol else "–", str(len(person_scans))])
+                         str(failed.height), str(n_out) if known_tol else "–", str(len(undecided)),
+                         str(len(person_scans))])
             classes.append("fail" if attention else "")
             details.append(self._night_detail(night, q_n, made, superseded, expired, failed, out_tol,
-                                              person, attention, untraceable))
+                                              person, attention, untraceable, undecided))
         head = ["night", "scans in", "by kind", "quarantined", "calibrations made", "expired", "superseded",
-                "verifications passed", "failed", "parts out of tolerance", "verdicts for a person"]
+                "verifications passed", "failed", "parts out of tolerance", "cannot decide (U too large)",
+                "verdicts for a person"]
         return ('<p class="note">Newest night first. A red row needs attention; its details follow the table. '
-                "“–”: no part tolerance recorded.</p>" + _table(head, rows, classes, num_cols=set(range(3, 11)) | {1})
-                + "".join(details))
+                "“–”: no part tolerance recorded. Verdicts under the decision rule of the laboratory "
+                "(laboratory.decision_rule); “cannot decide”: the expanded uncertainty is not below the "
+                "tolerance, or the result lies in the guard band.</p>"
+                + _table(head, rows, classes, num_cols=set(range(3, 12)) | {1}) + "".join(details))
 
     def _night_detail(self, night, q_n, made, superseded, expired, failed, out_tol, person, attention,
-                      untraceable=None) -> str:
+                      untraceable=None, undecided=()) -> str:
         items = []
         for q in q_n:
             rec = self.link(f"quarantine/{q['scan_id']}.json")
@@ -1401,6 +1438,15 @@ class _Builder:
             items.append(f"<li><b>part out of tolerance</b> {_e(r['artifact_id'])} {_e(r.get('feature') or '')} "
                          f"(scan {_e(r['scan_id'])}): deviation {_um(r['deviation_mm'])} µm, tolerance "
                          f"±{_um(r['tolerance_mm'])} µm</li>")
+        for r in undecided:
+            what = (f"verification {_e(r['scan_id'])} ({_e(r.get('device_id'))}, gauge {_e(r.get('artifact_id'))})"
+                    if "certified_mm" in r else
+                    f"part {_e(r.get('artifact_id'))} {_e(r.get('feature') or '')} (scan {_e(r['scan_id'])})")
+            items.append(f"<li><b>cannot decide</b> {what}: {_e(split_verdict(r.get('conformity'))[1])}"
+                         '<br><span class="action">what to do: the uncertainty is too large for the tolerance or '
+                         "the result lies in the guard band: lower U (more poses, a better sensor, a recent "
+                         "calibration) or remeasure; a wider tolerance or another decision rule is the "
+                         "customer's decision, not the report's.</span></li>")
         for (sid,), grp in (untraceable.group_by("scan_id", maintain_order=True)
                             if untraceable is not None and untraceable.height else []):
             items.append(f"<li><b>not traceable</b> {_e(sid)} ({_e(grp['device_id'][0])}): "

@@ -122,14 +122,16 @@ class _Tracer:
         node["gauges"] = _layer_gauges(first)
         node["verifications"] = _rows(
             self.con,
-            "SELECT v.scan_id, v.night, v.error_mm, v.tolerance_mm, v.passed, v.feature, v.artifact_id FROM verifications v "
+            "SELECT v.scan_id, v.night, v.error_mm, v.tolerance_mm, v.passed, v.feature, v.artifact_id, v.conformity "
+            "FROM verifications v "
             "LEFT JOIN scans s USING (scan_id) WHERE v.calibration_id = ? ORDER BY v.night, s.started_at, v.scan_id, v.feature",
             [calibration_id])
         return node
 
     def diameter(self, d: dict[str, Any]) -> dict[str, Any]:
         node = {k: d.get(k) for k in ("diameter_id", "feature", "diameter_mm", "u_diameter_mm", "method",
-                                      "calibration_id")}
+                                      "calibration_id", "temperature_c", "diameter_20_mm", "expanded_u_diameter_20_mm",
+                                      "k", "nominal_diameter_mm", "tolerance_mm", "conformity")}
         node["scan"] = self.scan(d["scan_id"])
         node["calibration"] = self.calibration(d["calibration_id"]) if d.get("calibration_id") else None
         return node
@@ -281,7 +283,7 @@ def _cal_lines(c: dict[str, Any] | None, ind: str) -> list[str]:
                      f"{_fmt(g.get('certificate'))}, certified {_fmt(g.get('certified_diameter_mm'), ' mm')} "
                      f"(U {_fmt(g.get('u_diameter_mm'), ' mm')}, k={_fmt(g.get('k'))})")
     for v in c["verifications"]:
-        verdict = "passed" if v["passed"] else "FAILED"
+        verdict = _verdict(v)
         layer = f" layer {v['feature']} ({_fmt(v.get('artifact_id'))})" if v.get("feature") else ""
         lines.append(f"{ind}  verified by {v['scan_id']}{layer} on {_fmt(v['night'])}: error {_fmt(v['error_mm'], ' mm')} "
                      f"(tolerance {_fmt(v['tolerance_mm'], ' mm')}) {verdict}")
@@ -299,9 +301,23 @@ def _layer_gauges(row: dict[str, Any]) -> list[dict[str, Any]]:
         return []
 
 
+def _verdict(v: dict[str, Any]) -> str:
+    """A verification's verdict under the decision rule (its statement), else its pass/fail."""
+    if v.get("conformity"):
+        return v["conformity"]
+    return "passed" if v.get("passed") else "FAILED"
+
+
 def _dia_lines(d: dict[str, Any], ind: str) -> list[str]:
-    lines = [f"{ind}diameter {d['diameter_id']}  {_fmt(d['diameter_mm'], ' mm')} "
-             f"(u {_fmt(d['u_diameter_mm'], ' mm')}, k=1), feature {_fmt(d['feature'])}, method {_fmt(d['method'])}"]
+    if d.get("diameter_20_mm") is not None:  # the certified value: at 20 degC with U (ISO 1)
+        value = (f"D20 {_fmt(d['diameter_20_mm'], ' mm')} (U {_fmt(d.get('expanded_u_diameter_20_mm'), ' mm')}, "
+                 f"k={_fmt(d.get('k'))}); at {_fmt(d.get('temperature_c'))} degC {_fmt(d['diameter_mm'], ' mm')}")
+    else:
+        value = f"{_fmt(d['diameter_mm'], ' mm')} (u {_fmt(d['u_diameter_mm'], ' mm')}, k=1)"
+    lines = [f"{ind}diameter {d['diameter_id']}  {value}, feature {_fmt(d['feature'])}, method {_fmt(d['method'])}"]
+    if d.get("conformity"):
+        lines.append(f"{ind}  against nominal {_fmt(d.get('nominal_diameter_mm'), ' mm')} +- "
+                     f"{_fmt(d.get('tolerance_mm'), ' mm')}: {d['conformity']}")
     lines += _scan_lines(d["scan"], ind + "  ")
     lines += _cal_lines(d["calibration"], ind + "  ")
     return lines
@@ -320,7 +336,7 @@ def format_trace(chain: dict[str, Any]) -> str:
             lines += _dia_lines(d, "  ")
         v = chain.get("verification")
         if v:
-            verdict = "passed" if v["passed"] else "FAILED"
+            verdict = _verdict(v)
             lines.append(f"  verification: measured {_fmt(v['measured_mm'], ' mm')}, certified "
                          f"{_fmt(v['certified_mm'], ' mm')}, error {_fmt(v['error_mm'], ' mm')} {verdict}, "
                          f"calibration {_fmt(v.get('calibration_id'))}")

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TextIO
 
 __all__ = ["UsageError", "CommandFailed", "int_at_least", "positive_int", "nonnegative_int", "probability",
-           "positive_float", "finite_float", "night_date", "Progress", "utc_text"]
+           "positive_float", "finite_float", "night_date", "Progress", "utc_text", "command_config"]
 
 
 class UsageError(Exception):
@@ -145,3 +145,19 @@ def existing_path(path: Path, what: str) -> Path:
     if not Path(path).exists():
         raise UsageError(f"{what} {path} does not exist")
     return Path(path)
+
+
+def command_config(path: Path | None) -> tuple[dict, str]:
+    """The pipeline config a command judges by: ``path``, else ``config/config.yaml`` when present,
+    else the schema's defaults (:func:`borescan.config.load_config`, checked against the schema);
+    with where it came from. A missing or invalid file is a :class:`UsageError` naming it."""
+    from borescan.config import ConfigError, load_config
+
+    if path is None and Path("config/config.yaml").is_file():
+        path = Path("config/config.yaml")
+    if path is not None and not Path(path).is_file():
+        raise UsageError(f"config file {path} does not exist")
+    try:
+        return load_config(path), str(path) if path is not None else "schema default"
+    except ConfigError as err:
+        raise UsageError(str(err)) from None

@@ -37,7 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-width", type=nonnegative_int, default=40,
                         help="cut text cells of the table longer than this, 0 = never (default 40)")
     parser.epilog = (
-        "The catalog is opened read-only. Saved queries are also views: "
+        "The catalog is opened read-only, and queries cannot read or write other files (COPY, ATTACH, "
+        "read_csv) or load extensions: export with --format csv > file.csv. Saved queries are also views: "
         "SELECT * FROM verification_drift WHERE device_id = 'TRI-01'. "
         "Times are UTC and shown with a Z."
     )
@@ -154,11 +155,33 @@ def format_table(columns: list[str], rows: list[tuple], digits: int = 7, max_wid
 # --------------------------------------------------------------------------- queries
 
 
-def run_query(results: str, sql: str) -> tuple[list[str], list[tuple]]:
-    """Run ``sql`` on the read-only catalog under ``results``; return (column names, rows)."""
+#: DuckDB settings of the query connection: no file but the catalog is read or written (COPY ... TO,
+#: ATTACH, EXPORT DATABASE, read_csv/read_parquet/glob of any path), no extension installed or loaded,
+#: and the settings locked after the time zone is set, so a query cannot undo them.
+SANDBOX = {"enable_external_access": False, "autoinstall_known_extensions": False,
+           "autoload_known_extensions": False, "allow_community_extensions": False}
+
+
+def query_connection(results: str):
+    """A connection to ``<results>/catalog.duckdb`` that can only read the catalog (:data:`SANDBOX`,
+    read-only, configuration locked). FileNotFoundError when there is no catalog."""
+    import duckdb
+
     from borescan import catalog
 
-    con = catalog.open_catalog(results, read_only=True)
+    path = catalog.catalog_path(results)
+    if not path.is_file():
+        catalog.open_catalog(results)  # its FileNotFoundError names the file and what to run
+    con = duckdb.connect(str(path), read_only=True, config=dict(SANDBOX))
+    con.execute("SET TimeZone = 'UTC'")
+    con.execute("SET lock_configuration = true")
+    return con
+
+
+def run_query(results: str, sql: str) -> tuple[list[str], list[tuple]]:
+    """Run ``sql`` on the catalog under ``results`` through :func:`query_connection`; return
+    (column names, rows)."""
+    con = query_connection(results)
     try:
         cur = con.execute(sql)
         if cur.description is None:
@@ -171,11 +194,11 @@ def run_query(results: str, sql: str) -> tuple[list[str], list[tuple]]:
 
 def _catalog_views(results: str) -> set[str]:
     """Names of the saved-query views inside the catalog (empty when there is no catalog)."""
-    from borescan import catalog
+    import duckdb
 
     try:
-        con = catalog.open_catalog(results, read_only=True)
-    except FileNotFoundError:
+        con = query_connection(results)
+    except (FileNotFoundError, duckdb.Error):
         return set()
     try:
         return {r[0] for r in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()}
@@ -212,6 +235,8 @@ def run(args: argparse.Namespace) -> int:
         columns, rows = run_query(args.results, sql)
     except FileNotFoundError as err:
         raise CommandFailed(str(err)) from None
+    except duckdb.PermissionException as err:
+        raise CommandFailed(f"borescan sql reads the catalog only (no files, ATTACH or extensions): {err}") from None
     except duckdb.Error as err:
         raise CommandFailed(str(err)) from None
     if args.format == "csv":

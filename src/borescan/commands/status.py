@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-from borescan.commands._common import CommandFailed, UsageError, night_date, positive_int, utc_text
+from borescan.commands._common import CommandFailed, UsageError, command_config, night_date, positive_int, utc_text
 
 NAME = "status"
 HELP = "list the devices, their current calibration, its validity and their last verification (from the catalog)"
@@ -41,20 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _validity_days(args: argparse.Namespace) -> tuple[int, str]:
     """calibration.validity_days and where it came from."""
-    from borescan.config import load_config
-
     if args.validity_days is not None:
         return args.validity_days, "--validity-days"
-    path = args.config
-    if path is None and Path("config/config.yaml").is_file():
-        path = Path("config/config.yaml")
-    if path is not None and not path.is_file():
-        raise UsageError(f"config file {path} does not exist")
-    try:
-        cfg = load_config(path)
-    except Exception as err:  # noqa: BLE001 - an unreadable config is the user's to fix
-        raise UsageError(f"config {path}: {err}") from None
-    return int(cfg["calibration"]["validity_days"]), str(path) if path is not None else "schema default"
+    cfg, source = command_config(args.config)
+    return int(cfg["calibration"]["validity_days"]), source
 
 
 def _rows(con, sql: str, params: list | None = None) -> list[dict]:
@@ -73,7 +63,7 @@ def device_status(results: str | Path, as_of: str, validity_days: int) -> list[d
     import polars as pl
 
     from borescan import catalog
-    from borescan.calibrations import choose_calibration, failed_calibration_ids
+    from borescan.calibrations import choose_calibration, choose_rod_calibration, failed_calibration_ids, order_calibrations
 
     con = catalog.open_catalog(results, read_only=True)
     try:
@@ -82,10 +72,12 @@ def device_status(results: str | Path, as_of: str, validity_days: int) -> list[d
                    max(started_at) AS last_scan_at, count(*) AS n_scans
             FROM scans WHERE device_id IS NOT NULL AND night <= ?::DATE GROUP BY device_id""", [as_of])
         cals = _rows(con, """
-            SELECT calibration_id, any_value(device_id) AS device_id, any_value(device_type) AS device_type,
-                   any_value(method) AS method, min(valid_from) AS valid_from,
-                   any_value(certificate_path) AS certificate_path, count(*) AS n_channels
-            FROM calibrations WHERE valid_from <= ?::DATE GROUP BY calibration_id""", [as_of])
+            SELECT c.calibration_id, any_value(c.device_id) AS device_id, any_value(c.device_type) AS device_type,
+                   any_value(c.method) AS method, min(c.valid_from) AS valid_from,
+                   any_value(c.certificate_path) AS certificate_path, count(*) AS n_channels,
+                   max(s.started_at) AS started_at
+            FROM calibrations c LEFT JOIN scans s ON s.scan_id = c.scan_id AND s.night = c.night
+            WHERE c.valid_from <= ?::DATE GROUP BY c.calibration_id""", [as_of])
         vers = _rows(con, """
             SELECT v.scan_id, v.night, v.device_id, v.calibration_id, v.error_mm, v.tolerance_mm, v.passed
             FROM verifications v LEFT JOIN scans s ON s.scan_id = v.scan_id AND s.night = v.night
@@ -96,8 +88,9 @@ def device_status(results: str | Path, as_of: str, validity_days: int) -> list[d
         c["valid_from"] = _day(c["valid_from"])
     for v in vers:
         v["night"] = _day(v["night"])
-    keys = ("calibration_id", "device_id", "valid_from")
+    keys = ("calibration_id", "device_id", "valid_from", "method")
     cal_df = pl.DataFrame({k: [c[k] for c in cals] for k in keys}, schema={k: pl.Utf8 for k in keys})
+    cal_df = cal_df.with_columns(pl.Series("started_at", [c["started_at"] for c in cals], dtype=pl.Datetime("us", "UTC")))
     ver_df = pl.DataFrame({"calibration_id": [v["calibration_id"] for v in vers],
                            "passed": [v["passed"] for v in vers]},
                           schema={"calibration_id": pl.Utf8, "passed": pl.Boolean})
@@ -109,9 +102,15 @@ def device_status(results: str | Path, as_of: str, validity_days: int) -> list[d
     out = []
     for dev_id in sorted(by_dev):
         d = by_dev[dev_id]
-        mine = sorted((c for c in cals if c["device_id"] == dev_id), key=lambda c: (c["valid_from"], c["calibration_id"]))
-        latest = mine[-1] if mine else None
-        cal_id, why = choose_calibration(cal_df, failed, dev_id, as_of, validity_days, allow_unverified=False)
+        by_id = {c["calibration_id"]: c for c in cals if c["device_id"] == dev_id}
+        order = order_calibrations(cal_df.filter(pl.col("device_id") == dev_id))["calibration_id"].to_list()
+        if d["device_type"] == "rod":  # as the measure stage chooses: gauge calibrations, else the design
+            cal_id, why = choose_rod_calibration(cal_df, failed, dev_id, as_of, validity_days, allow_unverified=False)
+            gauge = [i for i in order if by_id[i]["method"] != "nominal"]
+            order = gauge or order
+        else:
+            cal_id, why = choose_calibration(cal_df, failed, dev_id, as_of, validity_days, allow_unverified=False)
+        latest = by_id[cal_id] if cal_id else by_id[order[-1]] if order else None
         state = VALID if cal_id else NONE if latest is None else FAILED if latest["calibration_id"] in failed else EXPIRED
         until = (_dt.date.fromisoformat(latest["valid_from"]) + _dt.timedelta(days=validity_days)).isoformat() \
             if latest else None

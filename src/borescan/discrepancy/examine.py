@@ -26,7 +26,8 @@ from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arr
 from borescan.discrepancy.tri import Term, TriData, TriModel, tri_data_from_arrays
 from borescan.effects import EFFECTS
 
-__all__ = ["Examination", "discrepancy_settings", "examine_scan", "examine_tri", "analyse_scan", "write_findings", "scan_arrays"]
+__all__ = ["Examination", "discrepancy_settings", "examine_scan", "examine_tri", "analyse_scan", "against_reference",
+           "write_findings", "scan_arrays"]
 
 #: config key (``discrepancy:`` section of the schema) -> keyword of :func:`examine_model`
 SETTINGS = {"delta_bic_threshold": "threshold", "max_harmonic": "k_max", "exact_refits": "n_exact",
@@ -104,18 +105,25 @@ def scan_arrays(scan) -> tuple[np.ndarray, tuple[int, ...], np.ndarray, np.ndarr
     return t_s, channels, vals, pose, spindle
 
 
+def against_reference(meta: dict, beams=None, layers=None) -> dict:
+    """``scan.json`` with its ``device.nominal`` replaced by a calibrated device's ``beams`` (a
+    :class:`~borescan.geometry.Beams` or the nominal-format list) or rod ``layers``: the geometry
+    an examination starts from (``meta`` itself when neither is given)."""
+    if beams is None and layers is None:
+        return meta
+    meta = copy.deepcopy(meta)
+    nominal = meta["device"].get("nominal") or {}
+    meta["device"]["nominal"] = nominal
+    if beams is not None:
+        nominal["beams"] = beams.to_nominal() if hasattr(beams, "to_nominal") else [dict(x) for x in beams]
+    if layers is not None:
+        nominal["layers"] = [dict(x) for x in layers]
+    return meta
+
+
 def analyse_scan(scan, **cfg) -> Examination:
     """Examine a ``RawScan`` (any ``borescan-raw/1`` scan): see :func:`examine_scan`."""
-    meta = scan.meta
-    if cfg.get("beams") is not None or cfg.get("layers") is not None:
-        # examine against a calibrated device instead of device.nominal
-        meta = copy.deepcopy(meta)
-        nominal = meta["device"].setdefault("nominal", {})
-        if cfg.get("beams") is not None:
-            b = cfg["beams"]
-            nominal["beams"] = b.to_nominal() if hasattr(b, "to_nominal") else [dict(x) for x in b]
-        if cfg.get("layers") is not None:
-            nominal["layers"] = [dict(x) for x in cfg["layers"]]
+    meta = against_reference(scan.meta, cfg.get("beams"), cfg.get("layers"))  # a calibrated device, if given
     dtype = meta["device"]["type"]
     t_s, channels, vals, pose, spindle = scan_arrays(scan)
     if dtype == "tri_lds" and pose is None:

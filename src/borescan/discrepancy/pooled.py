@@ -64,7 +64,8 @@ from typing import Any
 
 import numpy as np
 
-from borescan.discrepancy.examine import Examination, _clean, _lstsq, _named_entry, examine_model, scan_arrays
+from borescan.discrepancy.examine import (Examination, _clean, _lstsq, _named_entry, against_reference, examine_model,
+                                         scan_arrays)
 from borescan.discrepancy.fitting import FitResult, dead_zone, fit_least_squares, noise_floor_mm, spike_mask
 from borescan.discrepancy.tri import (
     SCAN_KIND,
@@ -111,10 +112,11 @@ class PooledScan:
         return self.data.scan_id
 
 
-def pooled_scan(scan, max_samples: int | None = None) -> PooledScan:
+def pooled_scan(scan, max_samples: int | None = None, beams=None) -> PooledScan:
     """A ``RawScan``-like object (``.meta``, ``.lds``, ``.spindle``) of a three-sensor spindle scan
-    as :class:`PooledScan` (scans longer than ``max_samples`` cut to four blocks, as one scan is)."""
-    meta = scan.meta
+    as :class:`PooledScan` (scans longer than ``max_samples`` cut to four blocks, as one scan is);
+    ``beams``: the reference calibration's, in place of ``device.nominal`` (which may be missing)."""
+    meta = against_reference(scan.meta, beams)
     sid = meta["scan_id"]
     if meta["device"]["type"] != "tri_lds":
         raise ValueError(f"{sid}: scan.json: the pooled examination takes tri_lds spindle scans, "

@@ -39,6 +39,7 @@ from borescan.effects import calibration_absorbers
 from borescan.geometry import Beams, Bore, RodLayer
 from borescan.physics.rod import RodDevice, RodState
 from borescan.physics.tri import TriDevice, TriStaticState
+from borescan.preconditions import EXAMINATION_NEEDS_GEOMETRY, MissingScanKey, design_beams, design_layers
 
 __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
 
@@ -167,7 +168,7 @@ class RodModel(_PoseModel):
     def __init__(self, data: PoseData):
         super().__init__(data)
         meta = data.meta
-        layers = {int(lay["channel"]): lay for lay in meta["device"]["nominal"]["layers"]}
+        layers = {int(lay["channel"]): lay for lay in design_layers(meta, EXAMINATION_NEEDS_GEOMETRY)}
         get = lambda c, k, dflt=0.0: float(layers[c].get(k, dflt) or dflt)  # noqa: E731
         self.l0 = np.array([get(c, "l0") for c in data.channels])
         self.phi = np.array([get(c, "phi") for c in data.channels])
@@ -184,7 +185,7 @@ class RodModel(_PoseModel):
             cert = (f or {}).get("certified_diameter_mm") if f else art.get("certified_diameter_mm")
             dia = cert or (f or {}).get("nominal_diameter_mm") or default_dia
             if dia is None:
-                raise ValueError(f"{data.scan_id}: scan.json: no nominal diameter for rod layer {c}")
+                raise MissingScanKey(f"no certified or nominal diameter for rod layer {c} (artifact.features)")
             radii.append(float(dia) / 2.0)
             free.append(cert is None)
         self.radius = np.array(radii)
@@ -311,13 +312,13 @@ class StaticModel(_PoseModel):
     def __init__(self, data: PoseData):
         super().__init__(data)
         meta = data.meta
-        allb = Beams.from_nominal(meta["device"]["nominal"]["beams"])
+        allb = design_beams(meta, EXAMINATION_NEEDS_GEOMETRY)
         idx = [allb.channels.index(c) for c in data.channels]
         self.beams = Beams(data.channels, allb.beta_rad[idx], allb.rho_mm[idx], allb.d_b_mm[idx])
         art = meta.get("artifact", {}) or {}
         dia = art.get("certified_diameter_mm") or art.get("nominal_diameter_mm")
         if dia is None:
-            raise ValueError(f"{data.scan_id}: scan.json: artifact has no certified or nominal diameter")
+            raise MissingScanKey("artifact has neither certified_diameter_mm nor nominal_diameter_mm")
         self.R = float(dia) / 2.0
         #: no certified diameter (a part): the radius is the measurand and a free base parameter
         self.radius_free = art.get("certified_diameter_mm") is None

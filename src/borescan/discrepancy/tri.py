@@ -37,6 +37,7 @@ from borescan.effects import EFFECTS, Effect, calibration_absorbers, sort_effect
 from borescan.geometry import Beams, Bore, tri_spindle_readings
 from borescan.kinematics import AngleModel, angle_model_from_arrays
 from borescan.physics.tri import GEOMETRY_STAGES, TriBase, first_harmonic_start, tri_geometry, tri_reading_stage
+from borescan.preconditions import EXAMINATION_NEEDS_GEOMETRY, MissingScanKey, design_beams
 
 __all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_terms", "registry_terms", "term_parameters",
            "term_effects", "term_values"]
@@ -141,14 +142,13 @@ def tri_data_from_arrays(
         keep = block_indices(n_total, int(max_samples))
         t_s, values_mm = np.asarray(t_s)[keep], np.asarray(values_mm)[keep]
     channels = tuple(int(c) for c in channels)
-    nominal = meta["device"]["nominal"]["beams"]
-    beams_all = Beams.from_nominal(nominal)
+    beams_all = design_beams(meta, EXAMINATION_NEEDS_GEOMETRY)
     idx = [beams_all.channels.index(c) for c in channels]
     beams = Beams(channels, beams_all.beta_rad[idx], beams_all.rho_mm[idx], beams_all.d_b_mm[idx])
     art = meta.get("artifact", {}) or {}
     dia = art.get("certified_diameter_mm") or art.get("nominal_diameter_mm")
     if dia is None:
-        raise ValueError(f"{scan_id}: scan.json: artifact has no certified or nominal diameter")
+        raise MissingScanKey("artifact has neither certified_diameter_mm nor nominal_diameter_mm")
     sp = meta.get("spindle", {}) or {}
     rpm = float(sp.get("rpm_nominal", 60.0))
     direction = -1.0 if str(sp.get("direction", "ccw")).lower() == "cw" else 1.0

@@ -15,6 +15,7 @@ import polars as pl
 
 from borescan import rawio, tables
 from borescan.atomic import atomic_write_bytes, atomic_write_text
+from borescan.catalog import STAGE_ORDER
 
 __all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "write_table",
            "write_stage_outputs", "quarantine_record_name", "sync_quarantine_records", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash",
@@ -61,10 +62,25 @@ def _record_bytes(q: Quarantined) -> str:  # the record's text (deterministic)
 def write_quarantine_record(results_root: str | Path, q: Quarantined) -> Path:
     """Write ``<results_root>/quarantine/<name>.json`` (:func:`quarantine_record_name`; atomic,
     deterministic bytes). The catalog step rewrites the folder from the catalog
-    (:func:`sync_quarantine_records`), so a record outlives neither a rerun nor a recompute."""
+    (:func:`sync_quarantine_records`), so a record outlives neither a rerun nor a recompute.
+
+    The first stage that set the scan aside keeps the file: a record of an earlier stage
+    (:data:`borescan.catalog.STAGE_ORDER`) of the same night is left as it is, as the catalog's
+    ``scans.reason`` keeps the first stage's reason; the same or a later stage (a rerun) replaces it.
+    """
     path = Path(results_root) / "quarantine" / quarantine_record_name(q.scan_id, q.night)
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        old = None
+    if isinstance(old, dict) and old.get("night") == q.night and _stage_rank(old.get("stage")) < _stage_rank(q.stage):
+        return path
     atomic_write_text(path, _record_bytes(q))
     return path
+
+
+def _stage_rank(stage) -> int:
+    return STAGE_ORDER.index(stage) if stage in STAGE_ORDER else len(STAGE_ORDER)
 
 
 def sync_quarantine_records(results_root: str | Path, records: list[Quarantined]) -> tuple[int, int]:

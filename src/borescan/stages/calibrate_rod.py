@@ -15,6 +15,7 @@ import polars as pl
 from borescan import __version__, certificate, rawio, rod_calibration
 from borescan.artifacts import MissingTemperature, artifact_cte, radius_at_temperature_mm, scan_temperature
 from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
+from borescan.preconditions import ROD_CALIBRATION_NEEDS_LAYERS, design_layers
 from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
 
 __all__ = ["calibrate_rod_scan"]
@@ -27,9 +28,8 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
     p = float(unc["coverage_probability"])
     meta, sid = scan.meta, scan.scan_id
     try:  # what scan.json must give: the design layers, a certified gauge per layer, the temperature
+        design_layers(meta, ROD_CALIBRATION_NEEDS_LAYERS)  # MissingDesignGeometry names what is missing
         nominal = pl.DataFrame(rod_nominal_calibration_rows(meta, night, sid))
-        if nominal.height == 0:
-            raise ValueError("device.nominal lists no rod layers to calibrate")
         channels, means, u_mean, sensors = rod_calibration.pose_means_of_scan(scan, ctx.get("cleaning"))
         layers = rod_layers(nominal, channels)
         gauges = rod_calibration.layer_gauges(meta, channels)

@@ -17,7 +17,8 @@ from borescan import __version__, calibration, certificate, device_model, measur
 from borescan.artifacts import MissingTemperature
 from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows
-from borescan.geometry import Beams
+from borescan.preconditions import (CALIBRATION_NEEDS_BEAMS, NO_SPINDLE_REASON, calibration_revolutions_problem, design_beams,
+                                    summary_revolutions)
 from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
 from borescan.stages.calibration_fit import (budget_of, fit_device_calibration, scan_conditions, spindle_inputs,
                                              yang_from_summary)
@@ -30,7 +31,7 @@ def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows
     row, raw folder) each), write the certificates, add the rows; a scan that cannot be used, or a
     calibration that fails, is quarantined with the reason."""
     method, min_rev = cfg["method"], int(cfg["min_revolutions"])
-    scans, inputs = [], []
+    scans, inputs, nominal = [], [], None
     for _row, d in items:
         scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
         problem = _unusable(scan, summary, min_rev)
@@ -38,15 +39,16 @@ def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows
             continue  # set aside by the signal stage already
         if problem is None:
             try:
+                beams = design_beams(scan.meta, CALIBRATION_NEEDS_BEAMS)
                 inputs.append(spindle_inputs(scan, ctx["uncertainty"], ctx["cleaning"]))
                 scans.append(scan)
+                nominal = nominal or beams  # the first scan's design geometry starts the device's fit
                 continue
-            except ValueError as err:
+            except ValueError as err:  # MissingDesignGeometry is one
                 problem = ("scan.json", str(err))
         quarantine(results_root, bad, scan.scan_id, night, "calibrate", *problem)
     if not scans:
         return
-    nominal = Beams.from_nominal(scans[0].meta["device"]["nominal"]["beams"])
     # full_lsq fits all calibration scans of the device together; the paper's method
     # calibrates from one scan's extrema, so each scan gives its own calibration.
     groups = [(scans, inputs)] if method != "yang2017" else [([s], [x]) for s, x in zip(scans, inputs)]
@@ -59,20 +61,11 @@ def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple
     """Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None if usable."""
     s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
     if scan.spindle is None:
-        return ("spindle.parquet", "calibration scan has no spindle stream (a ring-gauge calibration turns on a spindle)")
+        return ("spindle.parquet", NO_SPINDLE_REASON)
     if s.height == 0:
         return ""
-    spr = float(s["period_samples_per_rev"][0])
-    recorded = int(s["n_samples_recorded"][0] // spr) if "n_samples_recorded" in s.columns else None
-    with_extrema = int(s["n_revolutions_min"].min())
-    if recorded is not None and recorded < min_rev:
-        return ("lds.parquet", f"too few revolutions to calibrate: {recorded} whole revolutions recorded, "
-                               f"at least {min_rev} needed")
-    if with_extrema < min_rev:
-        return ("lds.parquet", f"calibration failed: a once-per-revolution extremum was found in only {with_extrema} "
-                               f"revolutions (at least {min_rev} needed); the readings barely vary with rotation, "
-                               "is the spindle at the gauge centre?")
-    return None
+    problem = calibration_revolutions_problem(*summary_revolutions(s), min_rev)
+    return None if problem is None else ("lds.parquet", problem)
 
 
 def _calibrate_group(scans, inputs, method, nominal, summary, night, results_root, cfg, bad, cal_rows, link_rows, log,

@@ -20,6 +20,7 @@ from borescan.calibration_budget import calibration_budget, with_budget
 from borescan.config import schema_defaults
 from borescan.geometry import Beams
 from borescan.measure import sensor_ranges_mm
+from borescan.preconditions import CALIBRATION_NEEDS_BEAMS, design_beams
 from borescan.uncertainty import Budget
 
 __all__ = ["spindle_inputs", "scan_conditions", "acceptance_rule", "fit_device_calibration", "calibrate_raw_scans",
@@ -119,7 +120,7 @@ def calibrate_raw_scans(scans, cal_cfg: dict, night: str | None = None, uncertai
     (:func:`borescan.device_model.device_model_at`). Raises ``calibration.CalibrationError``.
     """
     inputs = device_model.correct_inputs([spindle_inputs(s, uncertainty) for s in scans], model)
-    nominal = Beams.from_nominal(scans[0].meta["device"]["nominal"]["beams"])
+    nominal = design_beams(scans[0].meta, CALIBRATION_NEEDS_BEAMS)
     cal = fit_device_calibration(scans, inputs, nominal, cal_cfg, night=night or scans[0].night, model=model)
     if uncertainty is None:
         return cal

@@ -93,7 +93,7 @@ def discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
         link_into_night(findings_dir(results_root, scan.scan_id), out_dir)
     except (ValueError, KeyError, ArithmeticError) as err:
         shutil.rmtree(out_dir, ignore_errors=True)  # no half-written findings of a scan set aside
-        quarantine(results_root, bad, scan.scan_id, night, "discrepancy", "lds.parquet",
+        quarantine(results_root, bad, scan.scan_id, night, "discrepancy", getattr(err, "file", "lds.parquet"),
                    f"model-discrepancy examination failed: {err}")
         return [], bad, f"{scan.scan_id}: quarantined ({err})"
     named = ", ".join(f"{n['effect']}" + (f" ch{n['channel']}" if n.get("channel") else "") for n in findings.get("named", []))

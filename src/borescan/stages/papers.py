@@ -34,7 +34,7 @@ def stage_papers(out_dir: str | Path, log=print) -> pl.DataFrame:
     add("Yang 2017 Table 1", yang_table1.write_reproduction(out_dir))
     add("Yang 2017 Table 2", yang_table2.write_reproduction(out_dir))
     add("Yang 2017 Table 3", yang_table3.write_reproduction(out_dir))
-    add("Wang 2017 Eq. 7, Eq. 15, Figs. 9 and 11", wang.write_reproduction(out_dir))
+    add("Wang 2017 Eq. 7, Eq. 15, Figs. 9 and 11", wang.write_reproduction(out_dir, progress=log))
     path = atomic_write_json(out_dir / "yang2017_table2_findings.json", examine_table2())
     add("Yang 2017 Table 2 model discrepancy", [path])
     index = pl.DataFrame(rows)

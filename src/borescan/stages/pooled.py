@@ -137,7 +137,7 @@ def pooled_device(job) -> tuple[str, dict | None, str]:
         return device, None, f"{device}: {len(spindle)} spindle scan(s) of a certified gauge: nothing to pool"
     ids = [s.scan_id for s in spindle]
     try:
-        pooled = [pooled_scan(s, settings["max_samples"]) for s in spindle]
+        pooled = [pooled_scan(s, settings["max_samples"], ref_kw.get("beams")) for s in spindle]
         ex = examine_pooled(pooled, ref_kw.get("beams"), device_effects=effects, **settings)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as err:  # the night goes on; the row says why
         reason = f"pooled examination of {', '.join(ids)} failed: {err}"

@@ -10,9 +10,10 @@ import polars as pl
 from borescan import rawio, readings, signal
 from borescan.parallel import map_timed, workers_for
 from borescan.workflow_log import compute_line
+from borescan.preconditions import summary_revolutions
 from borescan.stages._common import Quarantined, frames_or_empty, night_scans, quarantine
 
-__all__ = ["signal_options", "stage_signal", "signal_one"]
+__all__ = ["signal_options", "stage_signal", "signal_one", "scan_summary"]
 
 
 def signal_options(cfg: dict) -> dict:
@@ -68,16 +69,26 @@ def signal_one(job) -> tuple[pl.DataFrame | None, pl.DataFrame | None, list[Quar
         quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", jump)
         return None, None, bad, None
     try:
-        res = signal.process_scan(scan, mat, **opts)
+        extrema, summary, res = scan_summary(scan, mat, opts)
     except (ValueError, np.linalg.LinAlgError, IndexError) as err:
         quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", f"signal stage failed: {err}")
         return None, None, bad, None
+    recorded, with_extrema = summary_revolutions(summary)
+    msg = (f"{scan.scan_id}: {recorded} whole revolutions recorded, {with_extrema} with every channel's "
+           f"extremum, {res.period.samples_per_rev:.3f} samples/rev ({res.period.source})")
+    return extrema, summary, bad, msg
+
+
+def scan_summary(scan: rawio.RawScan, mat, opts: dict) -> tuple[pl.DataFrame, pl.DataFrame, signal.SignalResult]:
+    """The signal stage of one spindle scan (``mat``: its :func:`borescan.rawio.lds_matrix`,
+    ``opts``: :func:`signal_options`): (extrema, summary rows per channel, the result); the
+    summary also has ``n_samples_recorded`` and the ``period_*`` columns. Raises ValueError,
+    LinAlgError or IndexError when the readings give no period or extrema."""
+    res = signal.process_scan(scan, mat, **opts)
     frames = res.to_frames()
     period = {(k if k.startswith("period_") else f"period_{k}"): v for k, v in res.period.to_dict().items()}
     feats = signal.feature_points(frames["extrema"], res.period.samples_per_rev).select(
         "channel", "feature_sample", "u_feature_sample")
     summary = frames["summary"].join(feats, on="channel", how="left").with_columns(
         n_samples_recorded=pl.lit(mat.values_mm.shape[0]), **{k: pl.lit(v) for k, v in period.items()})
-    msg = (f"{scan.scan_id}: {frames['revolutions'].height} revolutions, "
-           f"{res.period.samples_per_rev:.3f} samples/rev ({res.period.source})")
-    return frames["extrema"], summary, bad, msg
+    return frames["extrema"], summary, res
