@@ -547,7 +547,7 @@ class _Doc:
             fig.text(self.LEFT, 0.948, str(lab.get("address")), fontsize=7)
             fig.text(self.LEFT, 0.936, str(lab.get("accreditation")), fontsize=6.5, style="italic")
             fig.text(self.RIGHT, 0.962, "Calibration certificate", fontsize=10, weight="bold", ha="right")
-            fig.text(self.RIGHT, 0.948, f"No. {c['calibration_id']}", fontsize=7.5, ha="right")
+            fig.text(self.RIGHT, 0.948, f"No. {c['administrativeData']['coreData']['uniqueIdentifier']}", fontsize=7.5, ha="right")
             fig.text(self.RIGHT, 0.936, f"Page {i + 1} of {n}", fontsize=7.5, ha="right", weight="bold")
             fig.add_artist(_hline(fig, 0.928))
             fig.add_artist(_hline(fig, 0.058))

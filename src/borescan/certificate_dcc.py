@@ -570,7 +570,7 @@ def _verification(parent: ET.Element, v: dict) -> None:
 
 #: certificate.json keys the DCC states in its own elements; every other key goes into the record
 _STATED = ("administrativeData", "measurementResults", "covariance", "verifications", "conformity", "conditions",
-           "dates", "reissue")
+           "dates")
 
 
 def _measurement_results(root: ET.Element, cert: dict) -> None:
