@@ -86,7 +86,7 @@ def test_layout_metadata_and_page_x_of_y(calibrated, tmp_path):
     assert n_pdf >= 7
     cert = json.loads(paths["json"].read_text())
     t, res = np.asarray(kw["residuals"]["t_s"]), np.asarray(kw["residuals"]["residual_mm"])
-    pages = _pages(cal, cert, t, res)
+    pages = _pages(cert, t, res)
     assert len(pages) == n_pdf
     for i, fig in enumerate(pages):
         texts = [x.get_text() for x in fig.texts]
