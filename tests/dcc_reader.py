@@ -34,7 +34,7 @@ def json_units(value: float, unit: str) -> float:
     return value * 10.0 ** (3 * metre_power(unit))
 
 
-def same(read: float, printed: float | int) -> bool:
+def same(read: float, printed: float) -> bool:
     """The read-back value equals the JSON's to its last printed digit (12 significant digits)."""
     return float(f"{read:.12g}") == float(printed)
 

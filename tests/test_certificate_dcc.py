@@ -13,9 +13,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-import dcc_reader as rd  # noqa: E402
+import dcc_reader as rd
 
-from borescan.certificate_dcc import DCC_FILE, decimal_text, dsi_unit, validate_dcc  # noqa: E402
+from borescan.certificate_dcc import DCC_FILE, decimal_text, dsi_unit, validate_dcc
 
 
 def test_decimal_text_moves_the_exponent_and_keeps_every_digit():

@@ -16,10 +16,10 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-import dcc_reader as rd  # noqa: E402
+import dcc_reader as rd
 
-from borescan.certificate_dcc import DCC_FILE  # noqa: E402
-from borescan.cli import main  # noqa: E402
+from borescan.certificate_dcc import DCC_FILE
+from borescan.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "config.yaml"  # the pipeline_run fixture's laboratory section

@@ -36,8 +36,19 @@ import polars as pl
 from borescan import certificate
 from borescan.rawio import sha256_file
 
-__all__ = ["CertificateIssue", "Reissued", "FORMATS", "issue_row", "issue_frame", "read_issues", "issues_of", "reissue",
-           "laboratory_sha256", "ISSUE_TABLE", "REISSUE_DIR"]
+__all__ = [
+    "FORMATS",
+    "ISSUE_TABLE",
+    "REISSUE_DIR",
+    "CertificateIssue",
+    "Reissued",
+    "issue_frame",
+    "issue_row",
+    "issues_of",
+    "laboratory_sha256",
+    "read_issues",
+    "reissue",
+]
 
 ISSUE_TABLE = "stage/certificate_issues"
 REISSUE_DIR = "certificates"
@@ -212,7 +223,7 @@ def reissue(results_root: Path | str, ident: str, laboratory: dict, *, fmt: str 
     latest = issues[-1]
     new_doc = laboratory_sha256(laboratory) != latest.laboratory_sha256
     if new_doc:
-        content = _relabelled(latest, laboratory, issue_date or _dt.datetime.now(_dt.timezone.utc).date().isoformat())
+        content = _relabelled(latest, laboratory, issue_date or _dt.datetime.now(_dt.UTC).date().isoformat())
         doc_id = content["reissue"]["document_id"]
         folder = Path(REISSUE_DIR) / latest.calibration_id / doc_id
     else:
