@@ -31,6 +31,7 @@ only on the certificate's content: no clock, attributes and children in a fixed 
 
 from __future__ import annotations
 
+import copy
 import math
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable
@@ -148,7 +149,7 @@ def _statements(cert: dict) -> list[dict]:
     """The certificate's statements plus those the DCC states in its own words: date of issue,
     accreditation, place of calibration, weak or two-solution parameters, device-model effects."""
     adm, lab, fit = cert["administrativeData"], cert.get("laboratory") or {}, cert.get("fit") or {}
-    out = list(adm.get("statements") or [])
+    out = [dict(st) for st in adm.get("statements") or []]  # copies: the content is not changed
     for st in out:  # the issue date of the certificate (DCC 3.1.2 has no coreData element for it)
         if st.get("refType") == "borescan_issueDate":
             st.setdefault("date", adm["coreData"].get("issueDate"))
@@ -453,6 +454,7 @@ def _record_unit(key: str, cert: dict):
 
 def dcc_bytes(cert: dict) -> bytes:
     """The DCC of the certificate whose ``certificate.json`` content is ``cert`` (UTF-8 XML bytes)."""
+    cert = copy.deepcopy(cert)  # the caller's content stays as it is (it is also written as certificate.json)
     root = ET.Element(_d("digitalCalibrationCertificate"), {"schemaVersion": DCC_SCHEMA_VERSION})
     _administrative(root, cert)
     _measurement_results(root, cert)
