@@ -189,3 +189,12 @@ def test_trace_lists_every_issue_and_finds_a_reissue_by_its_number(built, capsys
     assert main(["trace", "--results", str(res), "CAL-A-R1"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("trace CAL-A-R1 (certificate)") and "calibration CAL-A " in out
+
+
+def test_an_unknown_certificate_and_bad_arguments_are_messages(tmp_path, capsys):
+    assert main(["certificate", "NOPE", "--results", str(tmp_path), "--config", str(CONFIG)]) == 1
+    assert "certificate 'NOPE': no issue recorded in" in capsys.readouterr().err
+    assert main(["certificate", "--results", str(tmp_path), "--config", str(CONFIG)]) == 2
+    assert "give a calibration id or certificate number, or --all" in capsys.readouterr().err
+    assert main(["certificate", "X", "--results", str(tmp_path), "--config", str(tmp_path / "none.yaml")]) == 2
+    assert "none.yaml: no such file" in capsys.readouterr().err
