@@ -163,13 +163,20 @@ def _statements(cert: dict) -> list[dict]:
         out.append({"refType": "borescan_weakParameters", "declaration": "; ".join(weak)})
     model = fit.get("device_model") or []
     out.append({"refType": "borescan_deviceModel", "declaration": "device-model effects carried: " + (
-        "; ".join(f"{m.get('key')} (estimated {_plain(m.get('estimated'))}, night {m.get('night')})" for m in model)
-        if model else "none")})
+        "; ".join(_model_text(m) for m in model) if model else "none")})
     reissue = cert.get("reissue")
     if reissue and reissue.get("replaces"):
         out.append({"refType": "borescan_reissue", "norm": "ISO/IEC 17025:2017", "reference": "7.8.8.2",
                     "date": adm["coreData"].get("issueDate"), "declaration": reissue.get("declaration", "")})
     return out
+
+
+def _model_text(m: dict) -> str:
+    """One device-model effect in words: its values with their standard uncertainties, the pooled night."""
+    if not m.get("estimated"):
+        return f"{m.get('key')} listed, not estimated by any earlier pooled examination (not corrected)"
+    vals = ", ".join(f"{k} = {v} (u {(m.get('u') or {}).get(k)})" for k, v in sorted((m.get("values") or {}).items()))
+    return f"{m.get('key')}: {vals}, from the pooled examination of {m.get('night')}"
 
 
 def _administrative(root: ET.Element, cert: dict) -> None:
