@@ -10,14 +10,16 @@ rule calibrate_night:
         calibrations=f"{RES}/stage/calibrations/night={{night}}.parquet",
         calibration_scans=f"{RES}/stage/calibration_scans/night={{night}}.parquet",
         quarantine=f"{RES}/stage/quarantine/stage=calibrate/night={{night}}.parquet",
-        # <device_id>/<calibration_id>/certificate.{pdf,json} (+ residuals.png) per calibration made (the
+        # one row per certificate written: its digests and content, from which `borescan certificate` reissues it
+        certificate_issues=f"{RES}/stage/certificate_issues/night={{night}}.parquet",
+        # <device_id>/<calibration_id>/certificate.{pdf,json,dcc.xml} (+ residuals.png) per calibration made (the
         # set is the data's); read as calibration/<device_id>/<calibration_id>/, a link into this folder
         certificates=report(directory(f"{RES}/calibration/night={{night}}"),
                             caption="../workflow/report/certificate.rst",
                             category="Calibration", subcategory="{night}",
                             labels={"device": "{device_id}", "calibration": "{calibration_id}", "file": "{file}"},
                             patterns=[r"{device_id,[^/]+}/{calibration_id,[^/]+}/"
-                                      r"{file,certificate\.pdf|certificate\.json|residuals\.png}"]),
+                                      r"{file,certificate\.pdf|certificate\.json|certificate\.dcc\.xml|residuals\.png}"]),
     params:
         raw_root=RAW,
         results_root=results_root_for,

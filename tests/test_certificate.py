@@ -66,10 +66,11 @@ def test_regeneration_is_byte_identical(calibrated, tmp_path):
     first = {k: p.read_bytes() for k, p in a.items()}
     b = write_certificate(cal, certificate_dir(tmp_path / "b", cal), **kw)
     again = write_certificate(cal, certificate_dir(tmp_path / "a", cal), **kw)  # overwrite in place
-    for k in ("json", "pdf", "png"):
+    for k in ("json", "dcc", "pdf", "png"):
         assert b[k].read_bytes() == first[k], k
         assert again[k].read_bytes() == first[k], k
-    assert sorted(p.name for p in a["json"].parent.iterdir()) == ["certificate.json", "certificate.pdf", "residuals.png"]
+    assert sorted(p.name for p in a["json"].parent.iterdir()) == [
+        "certificate.dcc.xml", "certificate.json", "certificate.pdf", "residuals.png"]
 
 
 def test_layout_metadata_and_page_x_of_y(calibrated, tmp_path):
@@ -85,7 +86,7 @@ def test_layout_metadata_and_page_x_of_y(calibrated, tmp_path):
     assert n_pdf >= 7
     cert = json.loads(paths["json"].read_text())
     t, res = np.asarray(kw["residuals"]["t_s"]), np.asarray(kw["residuals"]["residual_mm"])
-    pages = _pages(cal, cert, t, res)
+    pages = _pages(cert, t, res)
     assert len(pages) == n_pdf
     for i, fig in enumerate(pages):
         texts = [x.get_text() for x in fig.texts]

@@ -1,4 +1,4 @@
-"""Calibration certificates: ``certificate.json``, ``certificate.pdf`` and ``residuals.png``.
+"""Calibration certificates: ``certificate.json``, ``certificate.pdf``, ``certificate.dcc.xml`` and ``residuals.png``.
 
 Written into ``results_root/calibration/<device_id>/<calibration_id>/`` (``outputs.md``).
 
@@ -46,10 +46,11 @@ from borescan.atomic import atomic_write_bytes, atomic_write_text
 from borescan.calibration import TriCalibration
 from borescan.config import schema_default
 from borescan.decision import CANNOT_DECIDE, CONFORMS, DOES_NOT_CONFORM, split_verdict
+from borescan.certificate_dcc import write_dcc
 from borescan.uncertainty import Budget, Combined, combine, round_uncertainty
 
 __all__ = ["CERTIFICATE_FORMAT", "certificate_dir", "certificate_night_dir", "certificate_dict", "write_certificate", "PLACEHOLDER",
-           "certificate_dates", "calibration_conditions", "write_rod_certificate"]
+           "certificate_dates", "calibration_conditions", "write_rod_certificate", "write_certificate_files"]
 
 CERTIFICATE_FORMAT = "borescan-certificate/2"
 #: text that marks a laboratory setting left at its default
@@ -571,7 +572,7 @@ class _Doc:
             fig.text(self.LEFT, 0.948, str(lab.get("address")), fontsize=7)
             fig.text(self.LEFT, 0.936, str(lab.get("accreditation")), fontsize=6.5, style="italic")
             fig.text(self.RIGHT, 0.962, "Calibration certificate", fontsize=10, weight="bold", ha="right")
-            fig.text(self.RIGHT, 0.948, f"No. {c['calibration_id']}", fontsize=7.5, ha="right")
+            fig.text(self.RIGHT, 0.948, f"No. {c['administrativeData']['coreData']['uniqueIdentifier']}", fontsize=7.5, ha="right")
             fig.text(self.RIGHT, 0.936, f"Page {i + 1} of {n}", fontsize=7.5, ha="right", weight="bold")
             fig.add_artist(_hline(fig, 0.928))
             fig.add_artist(_hline(fig, 0.058))
@@ -664,7 +665,7 @@ def _page_admin(d: _Doc) -> None:
     lab, dates, dev = c["laboratory"], c["dates"], c["device"]
     d.fig.text(d.LEFT, d.y - 0.01, "Calibration certificate", fontsize=18, weight="bold")
     d.y -= 0.035
-    d.fig.text(d.LEFT, d.y, f"Certificate number {c['calibration_id']}", fontsize=10)
+    d.fig.text(d.LEFT, d.y, f"Certificate number {c['administrativeData']['coreData']['uniqueIdentifier']}", fontsize=10)
     d.y -= 0.03
     if c["administrativeData"]["placeholders"]:
         d.para("NOTE: the laboratory settings " + ", ".join(c["administrativeData"]["placeholders"]) + " are the "
@@ -689,6 +690,7 @@ def _page_admin(d: _Doc) -> None:
         ("Place of calibration", str(lab.get("performance_location"))),
         ("Date(s) of calibration", _date_range(dates)),
         ("Date of issue", f"{dates.get('issue') or 'n/a'} ({dates.get('issue_rule', 'not stated')})"),
+        *([("Replaces", c["reissue"]["declaration"])] if (c.get("reissue") or {}).get("replaces") else []),
         ("Recalibration due", f"{dates.get('recalibration_due') or 'n/a'} ({dates.get('recalibration_rule', '')})"),
         ("Method", _METHOD_TEXT.get(c["method"], c["method"])),
         ("Calibration scans", ", ".join(c["scan_ids"])),
@@ -1164,11 +1166,12 @@ def _page_records(d: _Doc) -> None:
     d.para("Residuals of the fit: residuals.png beside this certificate, and the last page.")
 
 
-def _residual_figure(cal: TriCalibration, t: np.ndarray, res: np.ndarray, size=(8.27, 5.0), page: bool = False) -> Figure:
+def _residual_figure(cert: dict, t: np.ndarray, res: np.ndarray, size=(8.27, 5.0), page: bool = False) -> Figure:
     fig = Figure(figsize=size)
     n_ch = res.shape[1]
     axes = fig.subplots(n_ch, 1, sharex=True, squeeze=False)[:, 0]
-    chans = list(cal.beams.channels) if len(cal.beams.channels) == n_ch else list(range(1, n_ch + 1))
+    channels = [int(r["channel"]) for r in cert["parameters"]]
+    chans = channels if len(channels) == n_ch else list(range(1, n_ch + 1))
     for ax, j, ch in zip(axes, range(n_ch), chans):
         ax.plot(t, res[:, j] * 1e3, lw=0.5, color=f"C{j}")
         ax.axhline(0.0, color="k", lw=0.5)
@@ -1182,12 +1185,12 @@ def _residual_figure(cal: TriCalibration, t: np.ndarray, res: np.ndarray, size=(
                  weight="bold")
         fig.subplots_adjust(left=0.12, right=0.94, top=0.84, bottom=0.1, hspace=0.35)
     else:
-        fig.suptitle(f"Residuals (model - reading), {cal.calibration_id}", fontsize=9)
+        fig.suptitle(f"Residuals (model - reading), {cert['calibration_id']}", fontsize=9)
         fig.tight_layout()
     return fig
 
 
-def _pages(cal: TriCalibration, cert: dict, t: np.ndarray, res: np.ndarray) -> list[Figure]:
+def _pages(cert: dict, t: np.ndarray, res: np.ndarray) -> list[Figure]:
     d = _Doc(cert)
     _page_admin(d)
     _page_item_conditions(d)
@@ -1195,7 +1198,7 @@ def _pages(cal: TriCalibration, cert: dict, t: np.ndarray, res: np.ndarray) -> l
     _budget_tables(d)
     _verification_pages(d)
     _page_records(d)
-    d.pages.append(_residual_figure(cal, t, res, size=_A4, page=True))
+    d.pages.append(_residual_figure(cert, t, res, size=_A4, page=True))
     return d.finish()
 
 
@@ -1242,33 +1245,42 @@ def write_certificate(
 
     Returns
     -------
-    dict with keys json, pdf, png -> paths. Same inputs give byte-identical files.
+    dict with keys json, dcc, pdf, png -> paths. Same inputs give byte-identical files.
     """
-    import matplotlib
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     cert = certificate_dict(
         cal, device=device, artifact=artifact, conditions=conditions, residuals=residuals,
         raw_files=raw_files, software_version=software_version, config_hash=config_hash, budget=budget,
         laboratory=laboratory, coverage_probability=coverage_probability, dates=dates, verifications=verifications,
     )
-    t, res = _residual_arrays(residuals)
-    paths = {
-        "json": out_dir / "certificate.json",
-        "pdf": out_dir / "certificate.pdf",
-        "png": out_dir / "residuals.png",
-    }
+    return write_certificate_files(cert, out_dir, residuals)
+
+
+def write_certificate_files(cert: dict, out_dir: Path | str, residuals: dict | None = None) -> dict[str, Path]:
+    """Write the documents of the certificate whose content is ``cert`` into ``out_dir``:
+    ``certificate.json``, ``certificate.dcc.xml`` (:mod:`borescan.certificate_dcc`), ``certificate.pdf``
+    and, for a three-sensor certificate, ``residuals.png`` (``residuals``: t_s [s], residual_mm [mm]).
+    Returns the paths by key (json, dcc, pdf, png); the same content gives the same bytes."""
+    import matplotlib
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    title = f"Calibration certificate {cert['administrativeData']['coreData']['uniqueIdentifier']}"
+    paths = {"json": out_dir / "certificate.json", "pdf": out_dir / "certificate.pdf"}
     # unique temporary names (atomic.py): two runs writing the same certificate never meet
     atomic_write_text(paths["json"], json.dumps(cert, sort_keys=True, indent=2, allow_nan=False) + "\n")
+    paths["dcc"] = write_dcc(cert, out_dir)
     with matplotlib.rc_context(_RC):
-        fig = _residual_figure(cal, t, res)
+        if (cert.get("device") or {}).get("type") == "rod":
+            atomic_write_bytes(paths["pdf"], _pdf_bytes(_rod_pages(cert), title))
+            return paths
+        t, res = _residual_arrays(residuals)
+        paths["png"] = out_dir / "residuals.png"
+        fig = _residual_figure(cert, t, res)
         FigureCanvasAgg(fig)
         buf = io.BytesIO()
         fig.savefig(buf, dpi=110, format="png", metadata={"Software": None})
         atomic_write_bytes(paths["png"], buf.getvalue())
-        atomic_write_bytes(paths["pdf"], _pdf_bytes(_pages(cal, cert, t, res),
-                                                    f"Calibration certificate {cal.calibration_id}"))
+        atomic_write_bytes(paths["pdf"], _pdf_bytes(_pages(cert, t, res), title))
     return paths
 
 
@@ -1441,15 +1453,6 @@ def _rod_pages(cert: dict) -> list[Figure]:
 
 
 def write_rod_certificate(cal, out_dir: Path | str, **kw) -> dict[str, Path]:
-    """Write ``certificate.json`` and ``certificate.pdf`` of a rod calibration into ``out_dir``
+    """Write ``certificate.json``, ``certificate.dcc.xml`` and ``certificate.pdf`` of a rod calibration into ``out_dir``
     (arguments of :func:`rod_certificate_dict`). Same inputs give byte-identical files."""
-    import matplotlib
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    cert = rod_certificate_dict(cal, **kw)
-    paths = {"json": out_dir / "certificate.json", "pdf": out_dir / "certificate.pdf"}
-    atomic_write_text(paths["json"], json.dumps(cert, sort_keys=True, indent=2, allow_nan=False) + "\n")
-    with matplotlib.rc_context(_RC):
-        atomic_write_bytes(paths["pdf"], _pdf_bytes(_rod_pages(cert), f"Calibration certificate {cal.calibration_id}"))
-    return paths
+    return write_certificate_files(rod_certificate_dict(cal, **kw), out_dir)

@@ -88,7 +88,23 @@ class _Tracer:
         node: dict[str, Any] = {"path": path, "json_path": os.path.relpath(cj, self.root),
                                 "catalog_sha256": cal.get("certificate_sha256")}
         node["json_sha256"] = rawio.sha256_file(cj) if cj.is_file() else None
+        node["issues"] = self.issues(cal["calibration_id"])
         return node
+
+    def issues(self, calibration_id: str) -> list[dict[str, Any]]:
+        """Every issue of the calibration's certificate (:mod:`borescan.certificate_issue`): document id,
+        issue number and date, the document it replaces, its folder and certificate.json's SHA-256
+        as recorded and as on disk."""
+        from borescan.certificate_issue import issues_of
+
+        out = []
+        for i in issues_of(self.root, calibration_id):
+            cj = self.root / i.folder / "certificate.json"
+            out.append({"document_id": i.document_id, "issue": i.issue, "issue_date": i.issue_date,
+                        "replaces": i.replaces, "folder": i.folder,
+                        "recorded_sha256": i.files_sha256.get("certificate.json"),
+                        "json_sha256": rawio.sha256_file(cj) if cj.is_file() else None})
+        return out
 
     def calibration(self, calibration_id: str) -> dict[str, Any]:
         rows = _rows(self.con, "SELECT * FROM calibrations WHERE calibration_id = ? ORDER BY channel",
@@ -146,7 +162,7 @@ class _Tracer:
             return self.scan_chain(ident)
         if _rows(con, "SELECT 1 FROM calibrations WHERE calibration_id = ?", [ident]):
             return {"kind": "calibration", "id": ident, "calibration": self.calibration(ident)}
-        cert = self.certificate_match(ident)
+        cert = self.certificate_match(ident) or self.document_match(ident)
         if cert:
             return {"kind": "certificate", "id": ident, "calibrations": [self.calibration(c) for c in cert]}
         dia = _rows(con, "SELECT d.* FROM diameters d LEFT JOIN scans s USING (scan_id) WHERE d.artifact_id = ? "
@@ -178,6 +194,12 @@ class _Tracer:
             out["verification_calibration"] = self.calibration(ver[0]["calibration_id"])
         out["calibrations"] = [self.calibration(c) for c in cal_ids]
         return out
+
+    def document_match(self, ident: str) -> list[str]:
+        """The calibration of a certificate number (a reissue's ``<calibration_id>-R<n>``)."""
+        from borescan.certificate_issue import issues_of
+
+        return sorted({i.calibration_id for i in issues_of(self.root, ident) if i.document_id == ident})
 
     def certificate_match(self, ident: str) -> list[str]:
         p = Path(ident)
@@ -262,6 +284,12 @@ def _cert_lines(c: dict[str, Any] | None, ind: str) -> list[str]:
                   else "not in catalog" if c["catalog_sha256"] is None else
                   f"DIFFERS from catalog {c['catalog_sha256']}")
         lines.append(f"{ind}  {c['json_path']} sha256 {c['json_sha256']} ({status})")
+    for i in c.get("issues") or []:
+        state = ("MISSING on disk" if i["json_sha256"] is None else "matches its record"
+                 if i["json_sha256"] == i["recorded_sha256"] else f"DIFFERS from its record {i['recorded_sha256']}")
+        replaces = f", replaces {i['replaces']}" if i["replaces"] else ""
+        lines.append(f"{ind}  issue {i['issue']}: {i['document_id']} of {_fmt(i['issue_date'])}{replaces}; "
+                     f"{i['folder']}/certificate.json {state}")
     return lines
 
 

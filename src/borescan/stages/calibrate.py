@@ -28,7 +28,7 @@ __all__ = ["stage_calibrate", "calibrate_device", "config_hash"]
 def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_table, cfg: dict, log=print, *,
                     uncertainty: dict | None = None, laboratory: dict | None = None, verification: dict | None = None,
                     devices: dict | None = None, pooled_tables=(), auto_nights: int = 0, signal: dict | None = None,
-                    workers: int = 1):
+                    workers: int = 1, certificates: list | None = None):
     """Calibrate every tri_lds device from its calibration scans of the night; write certificates.
 
     ``uncertainty``, ``laboratory``, ``verification``, ``devices``, ``signal`` (the readings' spike
@@ -40,7 +40,8 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     layers' base lengths (:mod:`borescan.rod_calibration`). Devices are calibrated on up to
     ``workers`` processes. Returns (calibrations rows, calibration_scans rows, quarantined). A scan
     with too few revolutions, or a calibration that does not converge, is quarantined with the
-    reason; the other devices and nights go on.
+    reason; the other devices and nights go on. ``certificates``, when given, receives the
+    ``stage/certificate_issues`` rows of the certificates written (:func:`borescan.certificate_issue.issue_row`).
     """
     dflt = schema_defaults()
     ctx_args = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
@@ -62,7 +63,9 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     made = {"tri": ([], []), "rod": ([], [])}  # kind -> (calibrations rows, calibration_scans rows)
     bad = []
     timed = map_timed(calibrate_device, [(k, it, common) for k, it in jobs], workers)
-    for ((kind, rows, links, q, lines), cpu_s), (_, items) in zip(timed, jobs):
+    for ((kind, rows, links, q, lines, issued), cpu_s), (_, items) in zip(timed, jobs):
+        if certificates is not None:
+            certificates.extend(issued)
         made[kind][0].extend(rows)
         made[kind][1].extend(links)
         bad += q
@@ -82,10 +85,10 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     return cals, links, bad
 
 
-def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str]]:
+def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str], list[dict]]:
     """One job of :func:`stage_calibrate`: a three-sensor device's calibration scans of the night
     (``"tri"``) or one rod calibration scan (``"rod"``). Returns (kind, calibrations rows,
-    calibration_scans rows, quarantined, log lines)."""
+    calibration_scans rows, quarantined, log lines, certificate issue rows)."""
     kind, items, (night, results_root, summary, cfg, ctx_args) = job
     ctx = _context(ctx_args)
     cal_rows, link_rows, bad, lines = [], [], [], []
@@ -95,7 +98,7 @@ def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str]]
         (_row, d), = items
         calibrate_rod_scan(rawio.read_scan(d, raw_root=Path(ctx["raw_root"])), night, results_root, bad, cal_rows,
                            link_rows, lines.append, ctx, cfg)
-    return kind, cal_rows, link_rows, bad, lines
+    return kind, cal_rows, link_rows, bad, lines, ctx.get("certificate_rows", [])
 
 
 def _context(a: dict) -> dict:

@@ -7,12 +7,13 @@ verifications of the rod made with it, as a three-sensor certificate does.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import polars as pl
 
-from borescan import __version__, certificate, rawio, rod_calibration
+from borescan import __version__, certificate, certificate_issue, rawio, rod_calibration
 from borescan.artifacts import MissingTemperature, artifact_cte, radius_at_temperature_mm, scan_temperature
 from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
 from borescan.preconditions import ROD_CALIBRATION_NEEDS_LAYERS, design_layers
@@ -62,13 +63,17 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
     for row in rows:
         row.update(temperature_c=temp.temperature_c, temperature_assumed=temp.assumed,
                    recalibration_due=dates["recalibration_due"])
-    certificate.write_rod_certificate(
+    cert_paths = certificate.write_rod_certificate(
         cal, out_dir, device={"id": cal.device_id, "type": "rod", "sensors": meta.get("sensors", [])},
         artifact=dict(meta.get("artifact") or {}), temperature=temp, cte=cte, raw_files=raw_files,
         software_version=__version__, laboratory=lab, coverage_probability=p, dates=dates, verifications=ver_rows,
         config_hash=config_hash({"calibration": cfg, "uncertainty": unc, "laboratory": lab,
                                  "verification": ctx["verification"]}))
     link_into_night(link, out_dir)
+    issue = certificate_issue.issue_row(cert_paths, results_root, night)
+    ctx.setdefault("certificate_rows", []).append(issue)
+    for row in rows:
+        row["certificate_sha256"] = json.loads(issue["files_sha256"])["certificate.json"]
     cal_rows += rows
     link_rows.append({"calibration_id": cal.calibration_id, "scan_id": sid})
     log(f"{cal.device_id}: {cal.calibration_id} (rod on ring gauges) from {sid}; l0 - nominal "

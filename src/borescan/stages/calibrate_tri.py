@@ -8,12 +8,13 @@ of the device made with it; its dates come from the data (:func:`certificate.cer
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import polars as pl
 
-from borescan import __version__, calibration, certificate, device_model, measure, rawio
+from borescan import __version__, calibration, certificate, certificate_issue, device_model, measure, rawio
 from borescan.artifacts import MissingTemperature
 from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows
@@ -107,7 +108,7 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
         [scan_conditions(s, x, summary) for s, x in zip(scans, inputs)])
     dates = certificate.certificate_dates([s.meta for s in scans], ver_metas, night, int(cfg["validity_days"]))
     art = scans[0].meta.get("artifact") or {}
-    certificate.write_certificate(
+    cert_paths = certificate.write_certificate(
         cal, out_dir, device={"id": device_id, "type": "tri_lds", "sensors": scans[0].meta.get("sensors", [])},
         artifact=dict(art, k=art.get("k", 2)), conditions=conditions, residuals=residuals, raw_files=raw_files,
         software_version=__version__, budget=budget, laboratory=lab, coverage_probability=p, dates=dates,
@@ -117,12 +118,15 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
     link_into_night(link, out_dir)
     rel_cert = str((link / "certificate.pdf").relative_to(Path(results_root)))
     rows = calibration_rows(cal, "tri_lds", night, rel_cert, rawio.combined_sha256(raw_files))
+    issue = certificate_issue.issue_row(cert_paths, results_root, night, residuals)
+    ctx.setdefault("certificate_rows", []).append(issue)
     for row in rows:
         j = list(cal.beams.channels).index(row["channel"])
         for k, name in enumerate(("beta_rad", "rho_mm", "d_b_mm")):
             comb = budget.combined(3 * j + k, p)
             row[f"expanded_u_{name}"], row[f"k_{name.rsplit('_', 1)[0]}"] = comb.U, comb.k
         row.update(coverage_probability=p, temperature_c=first["temperature"].temperature_c,
+                   certificate_sha256=json.loads(issue["files_sha256"])["certificate.json"],
                    temperature_assumed=first["temperature"].assumed, recalibration_due=dates["recalibration_due"])
     cal_rows += rows
     link_rows += [{"calibration_id": cal.calibration_id, "scan_id": sid} for sid in ids]
