@@ -23,7 +23,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["DECISION_RULES", "CONFORMS", "DOES_NOT_CONFORM", "CANNOT_DECIDE", "Decision", "decision", "split_verdict"]
+__all__ = ["DECISION_RULES", "CONFORMS", "DOES_NOT_CONFORM", "CANNOT_DECIDE", "Decision", "decision",
+           "split_verdict"]
 
 CONFORMS, DOES_NOT_CONFORM, CANNOT_DECIDE = "conforms", "does not conform", "cannot decide"
 
