@@ -4,7 +4,7 @@ from borescan.parallel import start_job_workers
 
 start_job_workers(globals())  # first, before numpy loads: the job's workers import while this process does
 
-from borescan.stages._common import write_stage_outputs  # noqa: E402
+from borescan.stages._common import quarantined_text, write_stage_outputs  # noqa: E402
 from borescan.stages.calibrate import stage_calibrate  # noqa: E402
 from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
@@ -19,7 +19,7 @@ def main(smk) -> None:
             auto_nights=smk.params.device_model_auto_nights, signal=smk.params.signal, workers=smk.threads,
         )
         write_stage_outputs(smk.output, bad, calibrations=cals, calibration_scans=links)
-        log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans quarantined")
+        log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {quarantined_text(bad)}")
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage
