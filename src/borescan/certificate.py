@@ -487,9 +487,10 @@ def _conformity(ver: list[dict]) -> dict:
                     if v.get("expanded_u_error_mm") is not None and v["expanded_u_error_mm"] >= v["tolerance_mm"]})
     overall = DOES_NOT_CONFORM if DOES_NOT_CONFORM in verdicts else CANNOT_DECIDE if CANNOT_DECIDE in verdicts \
         else CONFORMS
-    text = (f"The device {overall.replace('does not', 'does NOT')} to the verification tolerance under the stated "
-            f"decision rule: of {len(ver)} verifications on certified ring gauges {counts} ({n_pass} accepted by the "
-            f"rule).")
+    head = ("Whether the device conforms to the verification tolerance cannot be decided" if overall == CANNOT_DECIDE
+            else f"The device {overall.replace('does not', 'does NOT')} to the verification tolerance")
+    text = (f"{head} under the stated decision rule: of {len(ver)} verifications on certified ring gauges {counts} "
+            f"({n_pass} accepted by the rule).")
     if guard:
         text += " The expanded uncertainty is not below the tolerance (" + "; ".join(guard) + \
                 "): these verifications cannot show conformity."
