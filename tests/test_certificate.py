@@ -198,3 +198,15 @@ def test_yang_certificate_without_fit_diagnostics(tmp_path):
     assert cert["parameters"][2]["rho_mm"] == pytest.approx(1.5627026, abs=1e-6)
     # no budget recorded: U from the covariance alone, k for a normal output
     assert cert["parameters"][2]["U_rho_mm"] == pytest.approx(2.0 * np.sqrt(cal.cov[7, 7]), rel=1e-4)
+
+
+def test_no_iso_17025_claim_without_an_accreditation():
+    """Issue 37 item 10: "issued in accordance with ISO/IEC 17025" only under a stated accreditation."""
+    from borescan.certificate import _standard_statement
+    from borescan.config import schema_defaults
+
+    placeholder = schema_defaults()["laboratory"]
+    assert "claims no accreditation" in _standard_statement(placeholder)
+    assert "in accordance" not in _standard_statement(placeholder)
+    text = _standard_statement({"accreditation": "DAkkS D-K-12345-01-00"})
+    assert text == "This certificate is issued in accordance with ISO/IEC 17025:2017 7.8 (DAkkS D-K-12345-01-00)."

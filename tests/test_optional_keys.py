@@ -144,3 +144,13 @@ def test_validate_predicts_what_the_stages_did(night, capsys):
         if "device.nominal" in reason and q[sid]["stage"] == "calibrate" or "too few revolutions" in reason:
             assert sid in predicted, (sid, reason)
     assert "to be set aside by a later stage" in err
+
+
+def test_a_nights_log_line_names_the_scans_set_aside_and_why():
+    from borescan.stages._common import quarantined_text
+
+    long = "x" * 300
+    text = quarantined_text([Quarantined("S1", "2026-11-20", "calibrate", "lds.parquet", "too few revolutions"),
+                             Quarantined("S2", "2026-11-20", "calibrate", "scan.json", long)])
+    assert text == f"2 quarantined: S1 (lds.parquet: too few revolutions); S2 (scan.json: {'x' * 157}...)"
+    assert quarantined_text([]) == "0 quarantined"

@@ -327,11 +327,12 @@ def test_summary_per_night_lists_what_needs_attention(rich):
             assert html_escape(report.quarantine_action(reason)[1]) in summary, sid
         assert "Fix the export or rescan" in summary and "Calibrate the device" in summary
         # the overview row of the 22nd: 4 scans in, 1 quarantined, CAL-B made, ROD-CAL-1 expired,
-        # CAL-A superseded, 1 verification passed, none failed, 1 part out of tolerance, no verdict for a person
+        # CAL-A superseded, 1 verification passed, none failed, 1 part out of tolerance, none that cannot
+        # decide (the history has no verdict statements), no verdict for a person
         row = summary.split('href="#night-2026-11-22">2026-11-22</a></td>')[1].split("</tr>")[0]
         cells = re.findall(r"<td[^>]*>(.*?)</td>", row)
         assert cells == ["4", "calibration 1, measurement 2, verification 1", "1", "1", "1", "1", "1", "0", "1",
-                         "0"]
+                         "0", "0"]
         night22 = summary.split('id="night-2026-11-22"')[1].split("</div>")[0]
         assert "calibration expired</b> ROD-CAL-1" in night22
         assert "calibration superseded: CAL-A of TRI-01 by CAL-B" in night22
@@ -406,6 +407,9 @@ def test_quarantine_actions_follow_the_readme_classes():
     assert report.quarantine_action("too few revolutions to calibrate: 3 whole revolutions")[0] == \
         "too few revolutions or poses"
     assert report.quarantine_action("measurement failed: singular matrix")[0] == "processing error"
+    assert report.quarantine_action("scan.json: device.nominal.beams missing (optional in the raw format, but a "
+                                    "three-sensor calibration starts its fit from the design beam geometry)")[0] == \
+        "design geometry missing"
     assert "new scan id" in report.quarantine_action(None)[1]
 
 

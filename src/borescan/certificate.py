@@ -450,6 +450,17 @@ def _traceability_text(art: dict) -> str:
             f"(k = {art.get('k')}).")
 
 
+def _standard_statement(lab: dict) -> str:
+    """What the certificate says of ISO/IEC 17025: "issued in accordance with" only under an
+    accreditation the config states (laboratory.accreditation); else its content follows 7.8 and no
+    accreditation is claimed."""
+    acc = str(lab.get("accreditation") or "")
+    if not acc or acc.upper().startswith("PLACEHOLDER") or "no accreditation" in acc.lower():
+        return ("The content of this certificate follows ISO/IEC 17025:2017 7.8; the laboratory claims no "
+                "accreditation for it.")
+    return f"This certificate is issued in accordance with ISO/IEC 17025:2017 7.8 ({acc})."
+
+
 def _decision_rule_text(lab: dict) -> str:
     """The laboratory's decision rule (:mod:`borescan.decision`) in words; E the error of the diameter
     at 20 degC, T the tolerance, w the guard band."""
@@ -480,9 +491,10 @@ def _conformity(ver: list[dict]) -> dict:
                     if v.get("expanded_u_error_mm") is not None and v["expanded_u_error_mm"] >= v["tolerance_mm"]})
     overall = DOES_NOT_CONFORM if DOES_NOT_CONFORM in verdicts else CANNOT_DECIDE if CANNOT_DECIDE in verdicts \
         else CONFORMS
-    text = (f"The device {overall.replace('does not', 'does NOT')} to the verification tolerance under the stated "
-            f"decision rule: of {len(ver)} verifications on certified ring gauges {counts} ({n_pass} accepted by the "
-            f"rule).")
+    head = ("Whether the device conforms to the verification tolerance cannot be decided" if overall == CANNOT_DECIDE
+            else f"The device {overall.replace('does not', 'does NOT')} to the verification tolerance")
+    text = (f"{head} under the stated decision rule: of {len(ver)} verifications on certified ring gauges {counts} "
+            f"({n_pass} accepted by the rule).")
     if guard:
         text += " The expanded uncertainty is not below the tolerance (" + "; ".join(guard) + \
                 "): these verifications cannot show conformity."
@@ -705,8 +717,8 @@ def _page_admin(d: _Doc) -> None:
                                     "budget is on the following pages and in certificate.json."),
     ])
     d.y -= 0.01
-    d.para("This certificate is issued in accordance with ISO/IEC 17025:2017 7.8. The results relate only to the item "
-           "calibrated, at the time of calibration. The user is responsible for arranging recalibration in due time.")
+    d.para(_standard_statement(lab) + " The results relate only to the item calibrated, at the time of calibration. "
+           "The user is responsible for arranging recalibration in due time.")
     d.y -= 0.03
     d.room(0.09)
     d.fig.text(d.LEFT, d.y, "Authorised signatory", fontsize=8, weight="bold")

@@ -25,7 +25,8 @@ import math
 
 from dataclasses import dataclass
 
-__all__ = ["DECISION_RULES", "CONFORMS", "DOES_NOT_CONFORM", "CANNOT_DECIDE", "Decision", "decision", "split_verdict"]
+__all__ = ["DECISION_RULES", "CONFORMS", "DOES_NOT_CONFORM", "CANNOT_DECIDE", "Decision", "decision",
+           "split_verdict"]
 
 CONFORMS, DOES_NOT_CONFORM, CANNOT_DECIDE = "conforms", "does not conform", "cannot decide"
 

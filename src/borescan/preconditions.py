@@ -27,7 +27,8 @@ from dataclasses import dataclass
 from borescan.geometry import Beams
 
 __all__ = ["MissingScanKey", "MissingDesignGeometry", "design_beams", "design_layers", "has_design_geometry",
-           "missing_geometry_reason", "NO_SPINDLE_REASON", "summary_revolutions", "calibration_revolutions_problem", "StageOutcome", "expected_outcomes"]
+           "missing_geometry_reason", "NO_SPINDLE_REASON", "summary_revolutions", "calibration_revolutions_problem",
+           "StageOutcome", "expected_outcomes"]
 
 SCAN_JSON = "scan.json"
 

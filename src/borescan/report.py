@@ -203,6 +203,10 @@ QUARANTINE_ACTIONS = (
     ("calibration failed verification", ("failed its verification",),
      "Recalibrate the device; its measurements are refused until a new calibration passes verification."),
     ("calibration expired", ("expired",), "Recalibrate the device, then rerun the night."),
+    ("design geometry missing", ("device.nominal",),
+     "Write the scan again under a new scan id with device.nominal (the design beams of a three-sensor device, the "
+     "layers of a rod; optional in the raw format) or calibrate the device from a scan that has it: scans of a "
+     "calibrated device are measured and examined against its calibration."),
     ("no calibration", ("no calibration",),
      "Calibrate the device (a calibration scan on or before the night), then rerun the night."),
     ("too few revolutions or poses", ("too few", "revolutions", "poses"),
@@ -1335,7 +1339,7 @@ class _Builder:
             srow, qq = scan_row.get(key, {}), q_rows.get(key, [])
             reasons = [srow["reason"]] if srow.get("reason") else []
             reasons += [f"{r['file']}: {r['reason']}" for r in qq if f"{r['file']}: {r['reason']}" not in reasons]
-            cls, action = quarantine_action(" ".join(reasons))
+            cls, action = quarantine_action(reasons[0] if reasons else None)  # the stage that set it aside
             out.append({"scan_id": key[0], "night": None if key[1] == "None" else key[1],
                         "device_id": srow.get("device_id"), "kind": srow.get("kind"),
                         "stages": ", ".join(sorted({r["stage"] for r in qq if r["stage"] is not None})),

@@ -5,7 +5,7 @@ from borescan.parallel import start_job_workers
 start_job_workers(globals())  # first, before numpy loads: the job's workers import while this process does
 
 from borescan.certificate_issue import issue_frame  # noqa: E402
-from borescan.stages._common import write_stage_outputs  # noqa: E402
+from borescan.stages._common import quarantined_text, write_stage_outputs  # noqa: E402
 from borescan.stages.calibrate import stage_calibrate  # noqa: E402
 from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
@@ -23,7 +23,7 @@ def main(smk) -> None:
         )
         write_stage_outputs(smk.output, bad, calibrations=cals, calibration_scans=links,
                             certificate_issues=issue_frame(issued))
-        log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans quarantined")
+        log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {quarantined_text(bad)}")
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage

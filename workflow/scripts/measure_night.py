@@ -4,7 +4,7 @@ from borescan.parallel import start_job_workers
 
 start_job_workers(globals())  # first, before numpy loads: the job's workers import while this process does
 
-from borescan.stages._common import write_stage_outputs  # noqa: E402
+from borescan.stages._common import quarantined_text, write_stage_outputs  # noqa: E402
 from borescan.stages.measure import stage_measure  # noqa: E402
 from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
@@ -17,7 +17,7 @@ def main(smk) -> None:
             {k: smk.params[k] for k in ("verification", "measurement", "calibration", "uncertainty", "laboratory", "signal")}, log=log, workers=smk.threads,
         )
         write_stage_outputs(smk.output, bad, diameters=diameters, verifications=verifications, artifacts=artifacts)
-        log(f"{diameters.height} diameters, {verifications.height} verifications, {len(bad)} quarantined")
+        log(f"{diameters.height} diameters, {verifications.height} verifications, {quarantined_text(bad)}")
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage

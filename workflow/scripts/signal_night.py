@@ -4,7 +4,7 @@ from borescan.parallel import start_job_workers
 
 start_job_workers(globals())  # first, before numpy loads: the job's workers import while this process does
 
-from borescan.stages._common import write_stage_outputs  # noqa: E402
+from borescan.stages._common import quarantined_text, write_stage_outputs  # noqa: E402
 from borescan.stages.signal import stage_signal  # noqa: E402
 from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
@@ -16,7 +16,7 @@ def main(smk) -> None:
             smk.params.results_root, smk.input.scans, smk.params.signal, log=log, workers=smk.threads,
         )
         write_stage_outputs(smk.output, bad, extrema=extrema, summary=summary)
-        log(f"{summary['scan_id'].n_unique() if summary.height else 0} scans processed, {len(bad)} quarantined")
+        log(f"{summary['scan_id'].n_unique() if summary.height else 0} scans processed, {quarantined_text(bad)}")
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage

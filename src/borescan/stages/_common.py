@@ -17,8 +17,9 @@ from borescan import rawio, tables
 from borescan.atomic import atomic_write_bytes, atomic_write_text
 from borescan.catalog import STAGE_ORDER
 
-__all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "write_table",
-           "write_stage_outputs", "quarantine_record_name", "sync_quarantine_records", "ok_scans", "night_scans", "read_tables", "frames_or_empty", "config_hash",
+__all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "quarantined_text", "write_table",
+           "write_stage_outputs", "quarantine_record_name", "sync_quarantine_records", "ok_scans", "night_scans",
+           "read_tables", "frames_or_empty", "config_hash",
            "night_folder", "clear_night_folder", "link_into_night"]
 
 
@@ -112,6 +113,18 @@ def quarantine(results_root, records: list[Quarantined], scan_id: str, night: st
     q = Quarantined(scan_id, night, stage, file, reason)
     records.append(q)
     write_quarantine_record(results_root, q)
+
+
+def quarantined_text(records: list[Quarantined], width: int = 160) -> str:
+    """``n quarantined`` and, per scan, ``scan_id (file: reason)`` with the reason cut at ``width``
+    characters: a night's log line says who was set aside and why (the full reason is in the record)."""
+    if not records:
+        return "0 quarantined"
+    items = []
+    for q in records:
+        reason = q.reason if len(q.reason) <= width else q.reason[: width - 3] + "..."
+        items.append(f"{q.scan_id} ({q.file}: {reason})")
+    return f"{len(records)} quarantined: " + "; ".join(items)
 
 
 def quarantine_frame(records: list[Quarantined]) -> pl.DataFrame:
