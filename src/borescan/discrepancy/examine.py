@@ -448,9 +448,11 @@ def examine_model(model, **cfg) -> Examination:
     # gain. The nonlinear starts (extra_starts, rss 0) are always refitted.
     best_gain = -math.inf
     singles_skipped = 0
+    skipped_bic: list[float] = []  # their BIC as the screen estimates it (a runner-up of the singles)
     for rss, t, start in chosen:
         if rss > 0.0 and lin_dbic(rss, t) < min(best_gain - 2.0 * T, 0.5 * best_gain):
             singles_skipped += 1
+            skipped_bic.append(base.bic - lin_dbic(rss, t))
             continue
         fr = fit([t], start)
         if fr is not None:
@@ -536,7 +538,8 @@ def examine_model(model, **cfg) -> Examination:
         if not tied:
             tied = [level[0]]
         after, after_terms = tied[0]
-        runner = next((z[0].bic for z in level if z[0].bic - top >= T), None)
+        runner = min([z[0].bic for z in level if z[0].bic - top >= T]
+                     + ([b for b in skipped_bic if b - top >= T] if level is exact else []), default=None)
         seen_terms = set()
         for fr, ts in tied:
             for t in ts:
