@@ -240,6 +240,30 @@ def summarise(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def profile_one(kind: str, seed: int, i: int, reference: str, top: int = 12) -> None:
+    """cProfile (CPU clock) of one scan's examination: exact fits, model evaluations, top functions."""
+    import cProfile
+    import pstats
+
+    import borescan.discrepancy.examine as ex
+
+    sim, cfg, info = _tri_case(seed, i, False, reference) if kind == "tri" else _rod_case(seed, i, False)
+    prof = cProfile.Profile(time.process_time)
+    prof.enable()
+    f = ex.examine_scan(sim, **cfg)
+    prof.disable()
+    st = pstats.Stats(prof)
+
+    def total(fn: str, col: int) -> float:
+        return sum(v[col] for k, v in st.stats.items() if k[2] == fn)
+
+    print(f"{kind} {i} {info}: {total('examine_scan', 3):.2f} CPU s (profiled); exact fits "
+          f"{int(total('fit_least_squares', 1))}, model evaluations {int(total('residual', 1))} "
+          f"({total('residual', 3):.2f} s), forward-difference Jacobians {total('jz', 3):.2f} s; "
+          f"{f['verdict']} {[n['effect'] for n in f['named']]}; screen {f['screen']}")
+    st.sort_stats("cumulative").print_stats(top)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=60, help="three-sensor scans")
@@ -249,7 +273,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--p-free", type=float, default=0.2)
     ap.add_argument("--reference", choices=("truth", "nominal"), default="truth")
     ap.add_argument("--verbose", action="store_true", help="print every wrong scan")
+    ap.add_argument("--profile", default=None, metavar="KIND:I",
+                    help="profile the examination of one scan (e.g. tri:4, rod:2) on the CPU clock and stop")
     a, _ = ap.parse_known_args(argv)  # `python -m bench discrepancy` passes its own names
+    if a.profile:
+        kind, _, i = a.profile.partition(":")
+        profile_one(kind, a.seed, int(i), a.reference)
+        return
     n_rod = a.n // 4 if a.n_rod is None else a.n_rod
     sel = np.random.default_rng([a.seed, 7])
     jobs = [("tri", a.seed, i, bool(sel.random() < a.p_free), a.reference) for i in range(a.n)]
@@ -263,7 +293,10 @@ def main(argv: list[str] | None = None) -> None:
     wall = time.perf_counter() - t0
     print(f"reference: {'true beams/layers (stand-in for a perfect calibration)' if a.reference == 'truth' else 'device.nominal, d_b and beta free'}")
     print(summarise(rows))
-    print(f"{wall:.0f} s wall, {np.mean([r['cpu_s'] for r in rows]):.1f} s CPU per scan ({a.workers} workers)")
+    cpu = np.array([r["cpu_s"] for r in rows])
+    print(f"{wall:.0f} s wall, {cpu.mean():.1f} s CPU per scan ({a.workers} workers); examination CPU s per scan "
+          f"p50 {np.percentile(cpu, 50):.2f}, p95 {np.percentile(cpu, 95):.2f}, max {cpu.max():.2f} "
+          f"({max(rows, key=lambda r: r['cpu_s'])['kind']} {max(rows, key=lambda r: r['cpu_s'])['i']})")
     if a.verbose:
         for r in rows:
             if not r["correct"]:

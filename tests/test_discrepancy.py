@@ -110,6 +110,22 @@ def test_two_hidden_effects_are_both_named():
     assert f["verdict"] == "missing_effect"
     assert sorted(named_label(n) for n in f["named"]) == sorted(["channel_delay@3", "bore_lobing[k=4]"])
     assert f["gap_after"]["rms_mm"] <= 1.5 * f["noise_floor_mm"]
+    assert f["screen"]["pairs_refitted"] > 0  # each single leaves the other's gap: its pairs are refitted
+
+
+def test_pairs_are_not_refitted_where_the_single_reaches_the_floor():
+    """One hidden effect: its single fit leaves the gap at the noise floor and no second term gains
+    half the threshold at that fit (linearised), so no pair is refitted exactly; the verdict is
+    the single, and every exact pair refit, done anyway, would not beat it by the threshold."""
+    e = Effect("bore_lobing", {"k": 3, "a_mm": 0.005, "phase": 0.4})
+    scan = _scan([e])
+    f = examine_scan(scan)
+    assert f["verdict"] == "missing_effect" and [named_label(n) for n in f["named"]] == ["bore_lobing[k=3]"]
+    assert f["screen"]["pairs_refitted"] == 0
+    assert f["gap_after"]["rms_mm"] <= 1.5 * f["noise_floor_mm"]
+    forced = examine_scan(scan, screen_gate=-1e9)  # a gate every linearised gain passes: every pair refitted
+    assert forced["screen"]["pairs_refitted"] > 0
+    assert forced["verdict"] == f["verdict"] and forced["named"] == f["named"]
 
 
 def test_unknown_device_from_nominal_clockwise_and_slow():

@@ -449,15 +449,29 @@ def examine_model(model, **cfg) -> Examination:
     chosen = [] if gated else screen[: int(c["n_exact"])]
     keys = {t.key for _, t, _ in chosen}
     chosen = chosen + ([] if gated else model.extra_starts(screen, keys, None))
-    for _, t, start in chosen:
+    # exact refits only where the screen cannot decide: a candidate whose linearised gain falls more
+    # than twice the threshold short of the best exact single so far can be neither named (within
+    # the threshold of the best) nor the seed of a pair that counts; one threshold is left for the
+    # linearisation, and for large effects (whose linearisation errs in proportion) half the best
+    # gain. The nonlinear starts (extra_starts, rss 0) are always refitted.
+    best_gain = -math.inf
+    singles_skipped = 0
+    skipped_bic: list[float] = []  # their BIC as the screen estimates it (a runner-up of the singles)
+    for rss, t, start in chosen:
+        if rss > 0.0 and lin_dbic(rss, t) < min(best_gain - 2.0 * T, 0.5 * best_gain):
+            singles_skipped += 1
+            skipped_bic.append(base.bic - lin_dbic(rss, t))
+            continue
         fr = fit([t], start)
         if fr is not None:
             exact.append((fr, [t]))
+            best_gain = max(best_gain, base.bic - fr.bic)
     exact.sort(key=lambda z: z[0].bic)
     exact = [z for i, z in enumerate(exact) if z[1][0].key not in {y[1][0].key for y in exact[:i]}]
     # --- pairs: extend the best singles by a second term (screened linearly at the single's fit)
     pairs: list[tuple[FitResult, list[Term]]] = []
     seen = set()
+    pairs_refitted = 0
     for fr, (t1,) in exact[: int(c["n_pair_seeds"])]:
         p1 = fr.values()
         r1 = model.residual(p1, [t1])
@@ -479,6 +493,22 @@ def examine_model(model, **cfg) -> Examination:
                 start[n] = start[n] + a * s
             ext.append((float(np.sum((r1 - J @ coef) ** 2)), t2, start))
         ext.sort(key=lambda z: z[0])
+        # the single's gate: where the single leaves the gap at the noise floor and no second term
+        # gains half the threshold at its fit (linearised), no pair can beat the single by the
+        # threshold: its exact refits are skipped (as a scan's singles are, above)
+        rss1 = float(np.sum(r1**2))
+        gain = max((n_scr * math.log(rss1 / max(rss, 1e-300))
+                    - len([n for n in t2.names() if not n.endswith("f_hz")]) * math.log(n_scr)
+                    for rss, t2, _ in ext), default=-math.inf)
+        if (gain < float(c["screen_gate"]) * T
+                and _rms(model.residual_matrix(p1, [t1]), model.mask) <= 1.5 * float(np.sqrt(np.mean(sigma**2)))):
+            continue
+        # a pair counts only if it beats the best single by the threshold (or, with no single
+        # passing, the base by it): a seed whose own gain plus its best second term's (linearised)
+        # falls short of the best single's gain cannot get there, with a threshold to spare for
+        # the linearisation
+        if (base.bic - fr.bic) + max(gain, 0.0) < max(base.bic - exact[0][0].bic, 0.0):
+            continue
         more = model.extra_starts(ext, {z[1].key for z in ext[: int(c["n_pair_ext"])]} | {"*"}, t1)
         ext = ext[: int(c["n_pair_ext"])] + more
         for _, t2, start in ext:
@@ -487,6 +517,7 @@ def examine_model(model, **cfg) -> Examination:
                 continue
             seen.add(key)
             fr = fit([t1, t2], start)
+            pairs_refitted += 1
             if fr is not None:
                 pairs.append((fr, [t1, t2]))
     pairs.sort(key=lambda z: z[0].bic)
@@ -515,7 +546,8 @@ def examine_model(model, **cfg) -> Examination:
         if not tied:
             tied = [level[0]]
         after, after_terms = tied[0]
-        runner = next((z[0].bic for z in level if z[0].bic - top >= T), None)
+        runner = min([z[0].bic for z in level if z[0].bic - top >= T]
+                     + ([b for b in skipped_bic if b - top >= T] if level is exact else []), default=None)
         seen_terms = set()
         for fr, ts in tied:
             for t in ts:
@@ -566,6 +598,8 @@ def examine_model(model, **cfg) -> Examination:
         "candidates": cand_report[:12],
         "screen": {
             "exact_refits": not gated,
+            "pairs_refitted": pairs_refitted,
+            "singles_not_refitted": singles_skipped,
             "max_linearised_delta_bic": float(max(screen_dbic)) if screen_dbic else None,
             "best_linearised": [
                 {"terms": [t.key], "delta_bic": float(d)} for d, (_, t, _) in list(zip(screen_dbic, screen))[:3]
