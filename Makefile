@@ -12,6 +12,7 @@ help:
 	@echo "make run    - install, generate the demo nights, run the pipeline (results/)"
 	@echo "make test   - install, run the test suite"
 	@echo "make bench  - run the benchmarks (ratios measured side by side)"
+	@echo "make lint   - ruff check and snakemake --lint"
 
 $(STAMP): requirements.lock pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (Python 3.11) on PATH"; exit 1; }
@@ -38,7 +39,9 @@ bench: $(STAMP)
 	PATH=$(abspath $(BIN)):$$PATH $(BIN)/python -m bench
 
 lint: $(STAMP)
-	PATH=$(abspath $(BIN)):$$PATH $(BIN)/snakemake --lint
+	$(BIN)/ruff check
+	tmp=$$(mktemp -d) && trap 'rm -rf "$$tmp"' EXIT && \
+	  PATH=$(abspath $(BIN)):$$PATH $(BIN)/snakemake --lint --config raw_root=$$tmp results_root=$$tmp/results
 
 clean-results:
 	rm -rf results

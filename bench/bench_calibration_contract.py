@@ -54,7 +54,8 @@ FAMILIES = ("beta", "rho", "d_b")
 
 
 def default_calibration_config() -> dict:
-    """``calibration`` section of config/config.yaml validated against the workflow schema (defaults filled)."""
+    """``calibration`` section of config/config.yaml validated against the workflow schema (defaults
+    filled)."""
     import yaml
     from snakemake.utils import validate
 
@@ -101,7 +102,8 @@ def _compared(params: np.ndarray, f: int | None, c: int):
     return np.array(rows), fam
 
 
-def crb_cov(scene, t_s: np.ndarray, mask: np.ndarray, sigma_mm: float, *, free_beta: list[bool],
+def crb_cov(  # noqa: C901 (one block per parameter kind of the CRB's Jacobian)
+        scene, t_s: np.ndarray, mask: np.ndarray, sigma_mm: float, *, free_beta: list[bool],
             free_phase: bool, free_scale: bool, prior_sigma_mm: float | None) -> np.ndarray:
     """Cramer-Rao covariance (3c, 3c) of (beta, rho, d_b) per channel at the truth ``scene``.
 
@@ -338,7 +340,8 @@ def _subset(rows, **want):
     return [r for r in rows if all(r.get(k) == v for k, v in want.items())]
 
 
-def print_table(rows: list[dict]) -> dict:
+def print_table(  # noqa: C901 (one line per table of the bench's printout)
+        rows: list[dict]) -> dict:
     s = summarize(rows)
     print(f"scans {s['scans']}   accepted {s['accepted']}   refused {s['refused']}")
     for reason, k in s["reasons"].most_common():
@@ -352,7 +355,8 @@ def print_table(rows: list[dict]) -> dict:
             f"{'':7s} {d['sd']:6.3f} {d['max_abs']:7.2f} {'':6s} {d['cover95']:8.1%}"
         print(f"{fam:8s} {d['n']:5d} {extra}")
     w = s["wrong_minimum"]
-    print(f"wrong-minimum check: {w['failed']} of {w['checked']} fits with SSR_fit > SSR_truth + sigma^2 sqrt(2N); "
+    print(f"wrong-minimum check: {w['failed']} of {w['checked']} fits with SSR_fit > SSR_truth + sigma^2 "
+          "sqrt(2N); "
           f"largest (SSR_fit - SSR_truth) = {w['max_excess_in_spreads']:+.3f} spreads")
     print(f"sharp check: {len(w['sharp_failed'])} fits with SSR_fit - SSR_truth > sigma^2 (P_truth + 3) "
           f"{w['sharp_failed'][:10]}; largest SSR_fit - SSR_truth = {w['max_excess_sigma2']:+.1f} sigma^2")
@@ -361,7 +365,8 @@ def print_table(rows: list[dict]) -> dict:
     acc = [r for r in rows if r["accepted"]]
     ss = summarize([r for r in acc if not r.get("weak_rho")])
     print(f"without scans the calibration flags weak rho ({len(acc) - ss['accepted']} flagged): pooled z SD "
-          f"{ss['pooled']['sd']:.3f}, max |z| {ss['pooled']['max_abs']:.2f}, cover95 {ss['pooled']['cover95']:.1%}")
+          f"{ss['pooled']['sd']:.3f}, max |z| {ss['pooled']['max_abs']:.2f}, cover95 "
+          f"{ss['pooled']['cover95']:.1%}")
     amb = []
     for r in acc:
         if not r.get("u_crb"):
@@ -370,7 +375,8 @@ def print_table(rows: list[dict]) -> dict:
         if any(r["u_crb"][k] > abs(rt) / 2 for k, rt in zip(k_rho, r["rho_true_mm"])):
             amb.append(r)
     ss = summarize([r for r in acc if r not in amb])
-    print(f"scans where the truth's CRB of some rho exceeds |rho| / 2 (sign not fixed by the data): {len(amb)}; "
+    print("scans where the truth's CRB of some rho exceeds |rho| / 2 (sign not fixed by the data): "
+          f"{len(amb)}; "
           f"without them: pooled z SD {ss['pooled']['sd']:.3f}, max |z| {ss['pooled']['max_abs']:.2f}, "
           f"cover95 {ss['pooled']['cover95']:.1%}")
     # where the z-scores come from: by angle source and position knowledge
@@ -381,7 +387,8 @@ def print_table(rows: list[dict]) -> dict:
             if not sub:
                 continue
             ss = summarize(sub)
-            print(f"  {src:8s} positions {'known  ' if known else 'unknown'}: {ss['accepted']:3d}/{ss['scans']:3d}  "
+            print(f"  {src:8s} positions {'known  ' if known else 'unknown'}: "
+                  f"{ss['accepted']:3d}/{ss['scans']:3d}  "
                   f"pooled SD {ss['pooled']['sd']:.3f}  beta SD {ss['beta']['sd']:.3f}  "
                   f"beta u/CRB max {ss['beta']['u_crb_max']:.3f}  rho u/CRB max {ss['rho']['u_crb_max']:.3f}")
     for label, key in (("speed change", "speed_change"), ("out of range", "out_of_range")):
@@ -392,9 +399,11 @@ def print_table(rows: list[dict]) -> dict:
                                                                            for e, u in zip(r["err"], r["u"])))[:3]
     for r in worst:
         zz = [e / u if u > 0 else float("nan") for e, u in zip(r["err"], r["u"])]
-        print(f"  largest |z|: {r['scan_id']} ({r['angle_source']}, positions {'known' if r['position_known'] else 'unknown'}, "
+        print(f"  largest |z|: {r['scan_id']} ({r['angle_source']}, positions "
+              f"{'known' if r['position_known'] else 'unknown'}, "
               f"{r['beta_reference']}, weak rho {r['weak_rho']}): z = {np.round(zz, 2).tolist()}")
-    print(f"calibration time: {s['seconds']['total']:.0f} s summed over scans, slowest {s['seconds']['max']:.1f} s")
+    print(f"calibration time: {s['seconds']['total']:.0f} s summed over scans, slowest "
+          f"{s['seconds']['max']:.1f} s")
     return s
 
 

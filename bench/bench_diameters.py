@@ -62,7 +62,8 @@ def rotating_part(sigma=0.002, n_pts=3000, n_mc=300, seed=2):
     R = [fit_circle_ls(*((137.5 + sigma * rng.standard_normal(n_pts)) * np.stack([np.cos(th), np.sin(th)]))).radius_mm
          for _ in range(n_mc)]
     crb = sigma / np.sqrt(n_pts)
-    print(f"rotating LS circle, N = {n_pts}, sigma = {sigma * 1e3:.1f} um: scatter(R) {np.std(R) * 1e6:.2f} nm, "
+    print(f"rotating LS circle, N = {n_pts}, sigma = {sigma * 1e3:.1f} um: scatter(R) "
+          f"{np.std(R) * 1e6:.2f} nm, "
           f"CRB {crb * 1e6:.2f} nm, ratio {np.std(R) / crb:.3f}")
 
 

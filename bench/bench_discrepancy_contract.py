@@ -6,14 +6,16 @@ its range; ~20 % effect-free, the rest with one named effect from
 :func:`borescan.discrepancy.battery.random_effect`). Rod scans come from
 :func:`borescan.scenarios.draw_rod_scan` (2-3 holes of 100-200 mm, 8-40 poses, 5-30 readings per
 pose, noise 2-20 um, eccentricity up to 2.5 mm, deflection up to 1 deg; half in ring-gauge sets
-with certified diameters, half in parts with nominal ones, whose radii are then free), ~20 % effect-free, the rest with one rod-applicable
+with certified diameters, half in parts with nominal ones, whose radii are then free), ~20 % effect-free, the
+rest with one rod-applicable
 effect that ``random_effect`` draws (``beam_offset`` has no random magnitude there and is left out).
 
 Reference (what the scan is examined against). The pipeline examines a calibrated device
 against its latest calibration (``discrepancy.reference``). The bench's stand-in for a perfect
 calibration is the scan's true beam geometry (three-sensor: ``truth["contract"]["beams"]``
 passed as ``beams=``; rod: the true layers as ``device.nominal`` and certified hole diameters,
-as a setting master would give, or nominal ones of a part). ``--reference nominal`` instead examines three-sensor scans
+as a setting master would give, or nominal ones of a part). ``--reference nominal`` instead examines
+three-sensor scans
 the way the pipeline treats an uncalibrated device: ``device.nominal`` (the design geometry,
 off by up to 30 mrad / 1 mm) with beam lengths and angles freed; the effects a calibration
 absorbs (offsets, delays, thermal expansion) cannot then be named, and are scored as such.
@@ -141,7 +143,7 @@ def data_lookalikes(clean, truth: str, others: list[str], sigma_mm: float, thres
         for d0 in ((0.0,) if t.effect != "beam_offset" else (0.3, -0.3, 1.0, -1.0)):
             x0 = [base.values()[n] for n in names] + [d0 if t.effect == "beam_offset" else 0.0 for _ in t.names()]
             try:
-                fr = fit_least_squares(lambda p: model.residual(p, [t]), names + t.names(), x0,
+                fr = fit_least_squares(lambda p, t=t: model.residual(p, [t]), names + t.names(), x0,
                                        scales + t.scales(), max_nfev=200)
             except ValueError:
                 continue
@@ -261,14 +263,18 @@ def main(argv: list[str] | None = None) -> None:
     else:
         rows = [run_one(j) for j in jobs]
     wall = time.perf_counter() - t0
-    print(f"reference: {'true beams/layers (stand-in for a perfect calibration)' if a.reference == 'truth' else 'device.nominal, d_b and beta free'}")
+    reference = ("true beams/layers (stand-in for a perfect calibration)" if a.reference == "truth"
+                 else "device.nominal, d_b and beta free")
+    print(f"reference: {reference}")
     print(summarise(rows))
     print(f"{wall:.0f} s wall, {np.mean([r['cpu_s'] for r in rows]):.1f} s CPU per scan ({a.workers} workers)")
     if a.verbose:
         for r in rows:
             if not r["correct"]:
-                print(f"  WRONG {r['kind']} {r['i']}: truth {r['truth']} {r['params']} -> {r['verdict']} {r['named']} "
-                      f"{r.get('info')} gap {r.get('gap_before_mm', 0) * 1e3:.2f}->{r.get('gap_after_mm', 0) * 1e3:.2f} um "
+                print(f"  WRONG {r['kind']} {r['i']}: truth {r['truth']} {r['params']} -> {r['verdict']} "
+                      f"{r['named']} "
+                      f"{r.get('info')} gap "
+                      f"{r.get('gap_before_mm', 0) * 1e3:.2f}->{r.get('gap_after_mm', 0) * 1e3:.2f} um "
                       f"floor {r.get('noise_floor_mm', 0) * 1e3:.2f} um {r.get('error', '')} "
                       f"{ {k: round(v, 2) for k, v in r.get('lookalike_rss_over_s2', {}).items()} or ''}")
                 if r.get("tb"):

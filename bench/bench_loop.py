@@ -39,7 +39,6 @@ import tempfile
 import time
 import traceback
 from collections import defaultdict
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -115,7 +114,8 @@ def _model_from(findings: dict, device_id: str, channels) -> tuple[str | None, l
 
 
 def _residual_ratio(scans, cfg: dict, model) -> tuple[float, bool, object]:
-    """A night's calibration (pipeline path, budget): (max residual / noise floor, accepted, calibration or None);
+    """A night's calibration (pipeline path, budget): (max residual / noise floor, accepted, calibration or
+    None);
     NaN when the fit does not converge even without the acceptance rule."""
     from borescan.calibration import CalibrationError
     from borescan.stages.calibration_fit import calibrate_raw_scans

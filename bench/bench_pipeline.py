@@ -98,7 +98,8 @@ def main() -> None:
         tmp = Path(tmp)
         t0 = time.perf_counter()
         readings = make_night(tmp / "raw", tmp / "truth", n_tri, n_rod)
-        print(f"reference night: {n_tri} tri scans (60 rev x 660 x 3) + {n_rod} rod scans, {readings:,} readings "
+        print(f"reference night: {n_tri} tri scans (60 rev x 660 x 3) + {n_rod} rod scans, {readings:,} "
+              "readings "
               f"(generated in {time.perf_counter() - t0:.1f} s, not timed)", flush=True)
         snakemake = Path(sys.executable).with_name("snakemake")
         config = ["--config", f"raw_root={tmp / 'raw'}", f"results_root={tmp / 'results'}"]

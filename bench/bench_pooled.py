@@ -343,7 +343,8 @@ def summarise(rows: list[dict]) -> str:
     ran = [r for r in rows if r["verdict"] != "error"]
     lines.append(f"scenarios {len(rows)} ({len(eff)} with a hidden effect, {len(free)} effect-free, {n_err} errors); "
                  f"calibrations refused by the acceptance rule: {sum(not r['calibration_accepted'] for r in ran)} "
-                 f"(used as fitted; {sum(not r.get('calibrated', True) for r in ran)} diverged: design geometry instead)")
+                 f"(used as fitted; {sum(not r.get('calibrated', True) for r in ran)} diverged: design geometry "
+                 "instead)")
     ok_f = sum(r["correct"] for r in failed)
     lines.append(f"pooled correct where single scans were ambiguous or wrong: {ok_f}/{len(failed)} = "
                  f"{ok_f / max(len(failed), 1):.1%}")
@@ -351,7 +352,8 @@ def summarise(rows: list[dict]) -> str:
                  f"single scans all correct: {sum(not r['singles_failed'] for r in eff)}/{len(eff)}")
     fa = [r for r in free if not r["correct"]]
     fa1 = [r for r in free if r["singles_failed"]]
-    lines.append(f"false alarms on effect-free scenarios: pooled {len(fa)}/{len(free)} = {len(fa) / max(len(free), 1):.1%}; "
+    lines.append(f"false alarms on effect-free scenarios: pooled {len(fa)}/{len(free)} = "
+                 f"{len(fa) / max(len(free), 1):.1%}; "
                  f"some single scan {len(fa1)}/{len(free)}")
     table: dict[str, Counter] = defaultdict(Counter)
     for r in rows:
@@ -361,7 +363,8 @@ def summarise(rows: list[dict]) -> str:
         table[key]["pooled_ok"] += r["correct"]
         table[key]["pooled_ok_where_failed"] += r["correct"] and r["singles_failed"]
     lines.append("")
-    lines.append(f"{'hidden effect / design':<40}{'n':>4}{'singles failed':>16}{'pooled ok':>11}{'ok where failed':>17}")
+    lines.append(f"{'hidden effect / design':<40}{'n':>4}{'singles failed':>16}"
+                 f"{'pooled ok':>11}{'ok where failed':>17}")
     for k in sorted(table):
         c = table[k]
         lines.append(f"{k:<40}{c['n']:>4}{c['single_failed']:>16}{c['pooled_ok']:>11}"
@@ -408,7 +411,8 @@ def main(argv: list[str] | None = None) -> None:
     ok = [r for r in rows if r["verdict"] != "error"]
     print(f"{wall:.0f} s wall ({a.workers} workers); CPU per scenario: single scans "
           f"{np.mean([r['cpu_single_s'] for r in ok]) if ok else 0:.1f} s, pooled "
-          f"{np.mean([r['cpu_pooled_s'] for r in ok]) if ok else 0:.1f} s, all {np.mean([r['cpu_s'] for r in rows]):.1f} s")
+          f"{np.mean([r['cpu_pooled_s'] for r in ok]) if ok else 0:.1f} s, all "
+          f"{np.mean([r['cpu_s'] for r in rows]):.1f} s")
     _print_wrong(rows, a.verbose)
 
 
@@ -416,7 +420,8 @@ def _print_wrong(rows: list[dict], verbose: bool) -> None:
     if verbose:
         for r in rows:
             if not r["correct"] or r["verdict"] == "error":
-                print(f"  WRONG {r['i']} {r['name']} / {r['design']}: truth {r['truth']} -> {r['verdict']} {r['named']} "
+                print(f"  WRONG {r['i']} {r['name']} / {r['design']}: truth {r['truth']} -> "
+                      f"{r['verdict']} {r['named']} "
                       f"absorbed {r['absorbed']}; singles {[(s['verdict'], s['named']) for s in r['singles']]} "
                       f"{r.get('error', '')}")
                 if r.get("tb"):

@@ -90,13 +90,16 @@ def run_discrepancy(n_scans: int = 20, seed: int = 7) -> Counter:
 def main() -> None:
     res = run_contract()
     z = res["z"]
-    print(f"effect-free rod scans: {res['n']} drawn, {res['solved']} solved, {res['n'] - res['solved']} refused "
+    print(f"effect-free rod scans: {res['n']} drawn, {res['solved']} solved, {res['n'] - res['solved']} "
+          "refused "
           f"({res['seconds']:.1f} s)")
     for why, k in res["refused"].most_common():
         print(f"  refused {k:3d}: {why}")
-    print(f"diameters: {z.size}; z-scores SD {z.std():.3f}, RMS {np.sqrt(np.mean(z**2)):.3f}, mean {z.mean():+.3f}, "
+    print(f"diameters: {z.size}; z-scores SD {z.std():.3f}, RMS {np.sqrt(np.mean(z**2)):.3f}, mean "
+          f"{z.mean():+.3f}, "
           f"max |z| {np.abs(z).max():.2f}; 95 % coverage {np.mean(np.abs(z) < 1.959964):.3f}")
-    print(f"u / CRB: max {res['u_crb'].max():.3f}, median {np.median(res['u_crb']):.3f}; wrong minima: {res['wrong']}")
+    print(f"u / CRB: max {res['u_crb'].max():.3f}, median {np.median(res['u_crb']):.3f}; wrong minima: "
+          f"{res['wrong']}")
     t = time.perf_counter()
     verdicts = run_discrepancy()
     n = sum(verdicts.values())

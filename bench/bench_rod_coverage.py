@@ -25,7 +25,8 @@ chains whose poses cannot determine the radii are refused by the solve, with the
 base length itself has no truth to score: l0 takes up the beam offset and tilt and the solve's
 deflection average, which is its purpose.
 
-Run: ``python -m bench rod_coverage`` or ``python -m bench.bench_rod_coverage [--n 200] [--seed 20270701] [--workers 2]``.
+Run: ``python -m bench rod_coverage`` or
+``python -m bench.bench_rod_coverage [--n 200] [--seed 20270701] [--workers 2]``.
 """
 
 from __future__ import annotations

@@ -157,15 +157,19 @@ def main() -> dict:
            "samples_per_rev": res.period.samples_per_rev, "extrema": ext.height,
            **{f"{k.strip()}_s": t for k, t in steps.items()}}
     print(f"signal stage: {rows} readings ({N_REV} rev x {SPR} x 3 channels), best of 6, interleaved")
-    print(f"  plain read (polars / pyarrow)  : {times['read_polars'] * 1e3:6.1f} / {times['read_arrow'] * 1e3:6.1f} ms"
+    print(f"  plain read (polars / pyarrow)  : {times['read_polars'] * 1e3:6.1f} / "
+          f"{times['read_arrow'] * 1e3:6.1f} ms"
           f"  -> {rows / t_read / 1e6:6.2f} M readings/s (the faster)")
-    print(f"  whole stage (read_scan ... summary): {t_stage * 1e3:6.1f} ms  {rows / t_stage / 1e6:6.2f} M readings/s")
+    print(f"  whole stage (read_scan ... summary): {t_stage * 1e3:6.1f} ms  {rows / t_stage / 1e6:6.2f} M "
+          "readings/s")
     print(f"  processing only (lds_matrix + process_arrays): {t_proc * 1e3:6.1f} ms")
     for name, t in steps.items():
         print(f"    {name:26s}: {t * 1e3:7.1f} ms")
-    print(f"  stage less the plain read       : {(t_stage - t_read) * 1e3:6.1f} ms (one thread); at 0.5x it may take"
+    print(f"  stage less the plain read       : {(t_stage - t_read) * 1e3:6.1f} ms (one thread); at 0.5x "
+          "it may take"
           f" {t_read * 1e3:.1f} ms, the read's own time")
-    print(f"  pyarrow read on one thread      : {t_read_one * 1e3:6.1f} ms (the threaded read keeps both cores busy)")
+    print(f"  pyarrow read on one thread      : {t_read_one * 1e3:6.1f} ms (the threaded read keeps both "
+          "cores busy)")
     print(f"  ratio whole stage / read        : {out['ratio']:.3f}  (target >= 0.5)")
     print(f"  ratio read + processing / read  : {out['ratio_processing']:.3f}  (no validation)")
     print(f"  period {res.period.samples_per_rev:.5f} +- {res.period.u_samples_per_rev:.1e} samples/rev "

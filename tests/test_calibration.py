@@ -118,7 +118,7 @@ def _exact_extremes(direction: str, N: int = 625):
             return tri_spindle_readings(np.array([sgn * 2 * np.pi * k / N]), OFFSET, TRUE, bore)[0, j]
 
         for key, sign, idx in (("min", 1, np.argmin(v[:, j])), ("max", -1, np.argmax(v[:, j]))):
-            res = minimize_scalar(lambda k: sign * f(k), bounds=(idx - 1.5, idx + 1.5), method="bounded",
+            res = minimize_scalar(lambda k, sign=sign: sign * f(k), bounds=(idx - 1.5, idx + 1.5), method="bounded",
                                   options={"xatol": 1e-10})
             out["d_" + key].append(sign * res.fun)
             out["n_" + key].append(res.x)
@@ -187,7 +187,8 @@ def test_yang_calibration_raises_when_eq8_has_no_real_r():
 
 
 def test_yang_uncertainty_propagation_matches_sensitivities():
-    """u(r) from the propagated covariance equals |dr/dd_max| u(d_max) (+) |dr/dd_min| u(d_min) (+) |dr/doe| u(oe)."""
+    """u(r) from the propagated covariance equals |dr/dd_max| u(d_max) (+) |dr/dd_min| u(d_min) (+) |dr/doe|
+    u(oe)."""
     d_max, d_min, oe = np.array([7.0549, 6.9256, 5.7177]), np.array([2.4067, 2.2804, 1.073]), 2.3222
     u_dmax, u_dmin, u_oe = 1e-4, 2e-4, 1e-4
     cal = yang_calibration(d_max, d_min, ["backward", "backward", "advanced"], [312.0, 88.0, 199.0], 660.0, R_MM, oe,

@@ -93,7 +93,7 @@ def test_trace_shows_the_lifecycle_status(con, tmp_path):
     assert trace._Tracer(con, tmp_path).calibration("C1")["status"] == "valid"
 
 
-def test_superseded_before_due_never_expires_and_a_rod_design_geometry_is_superseded_by_its_gauge_calibration():
+def test_superseded_before_due_never_expires_and_a_rod_design_is_superseded_by_its_gauge_calibration():
     con = duckdb.connect()
     for t in TABLES.values():
         con.execute(t.ddl())

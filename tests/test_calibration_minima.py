@@ -82,7 +82,8 @@ def _z(cal, truth_beams: Beams) -> np.ndarray:
 
 
 # seed 20270619 #8: a skewed rho valley (channel 2 comes out +5.2 mm against -6.07 mm, Delta chi^2 6.8 at the
-# truth's rho on the profile): before the profile its beta z was -10.8 (u(beta) a third of the bound at the truth)
+# truth's rho on the profile): before the profile its beta z was -10.8 (u(beta) a third of the bound at
+# the truth)
 # seed 20270611 #3: encoder and positions known (absolute beta), one of the scans whose beta read low
 # seed 20270611 #167: channel 3 comes out on its mirror (rho +7.30 mm, truth -7.29 mm), the other sign 3.9 s^2
 # above; that minimum was taken as spanned by channel 2's profile and left out of u: z 9.2
@@ -113,7 +114,8 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(cal
     # the truth's z larger than its profile-likelihood distance: sqrt(6.8) = 2.6 for seed 20270619 #8)
     z = _z(cal, Beams.from_nominal(truth["contract"]["beams"]))
     assert np.all(np.abs(z) < 4.5), np.round(z, 2)
-    # every rho's profile was checked at +-2 u, and a non-linear one was walked past the estimate on both sides
+    # every rho's profile was checked at +-2 u, and a non-linear one was walked past the estimate on both
+    # sides
     for prof, rho in zip(d["rho_profiles"], cal.beams.rho_mm):
         if not prof["linear"]:
             lo, hi = prof["rho_range_mm"]
@@ -199,7 +201,8 @@ def test_the_mirror_screen_of_a_long_scan_keeps_what_the_full_search_finds(tmp_p
     """The screen fits each mirror start on every step-th sample and refits on every sample only what it
     cannot set aside. Against the search without a screen (every mirror refitted on every sample): the
     same solution (each parameter within 1e-4 of its u), the same u (1e-4), every minimum within
-    Delta chi^2 < 12.5 found by one found by the other (within 0.05 u(rho), from any mirror start) , and a screened minimum's Delta within 5
+    Delta chi^2 < 12.5 found by one found by the other (within 0.05 u(rho), from any mirror start) , and a
+    screened minimum's Delta within 5
     standard deviations of the estimate's (sqrt(4 step Delta)) of the refitted one."""
     from borescan import calibration
 

@@ -130,7 +130,7 @@ def built(tmp_path):
     return res, tables
 
 
-# --------------------------------------------------------------------------- schema
+# ------------------------------------------------------------ schema
 
 
 def _columns(con, table):
@@ -277,7 +277,7 @@ def test_upsert_rows_replaces_by_key(built):
     con.close()
 
 
-# --------------------------------------------------------------------------- saved queries
+# ------------------------------------------------------------ saved queries
 
 
 def test_saved_queries_have_header_comments():
@@ -364,14 +364,14 @@ def test_sql_command_lists_saved_queries(built, capsys):
     assert "verification_drift" in out and "suspect_measurements" in out and "calibration_history" in out
 
 
-# --------------------------------------------------------------------------- atomic writes
+# ------------------------------------------------------------ atomic writes
 
 
 def test_atomic_json_is_canonical(tmp_path):
     p = tmp_path / "a" / "x.json"
     atomic.atomic_write_json(p, {"b": 0.1, "a": [1, 2.5e-7], "c": float("nan"), "d": (1, 2), "e": Path("q")})
     text = p.read_text()
-    assert text == '{\n  "a": [\n    1,\n    2.5e-07\n  ],\n  "b": 0.1,\n  "c": null,\n  "d": [\n    1,\n    2\n  ],\n  "e": "q"\n}\n'
+    assert text == '{\n  "a": [\n    1,\n    2.5e-07\n  ],\n  "b": 0.1,\n  "c": null,\n  "d": [\n    1,\n    ' '2\n  ],\n  "e": "q"\n}\n'
     before = p.read_bytes()
     atomic.atomic_write_json(p, {"d": [1, 2], "c": None, "b": 0.1, "a": [1, 2.5e-7], "e": "q"})
     assert p.read_bytes() == before
@@ -410,7 +410,7 @@ def test_atomic_dir_replaces_or_leaves_untouched(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cert"]
 
 
-# --------------------------------------------------------------------------- SLURM profile (history on shared storage)
+# ------------------------------------------------------------ SLURM profile (history on shared storage)
 
 PROFILE = Path(__file__).resolve().parents[1] / "profiles" / "slurm"
 

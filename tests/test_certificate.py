@@ -1,4 +1,5 @@
-"""Certificates: ISO/IEC 17025 7.8 content, GUM budget, DCC-like JSON, layout and byte-identical regeneration."""
+"""Certificates: ISO/IEC 17025 7.8 content, GUM budget, DCC-like JSON, layout and byte-identical
+regeneration."""
 
 import json
 import re
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 
 from borescan.calibration import full_residuals, yang_calibration
-from borescan.certificate import PLACEHOLDER, _pages, certificate_dict, certificate_dir, write_certificate
+from borescan.certificate import PLACEHOLDER, _pages, certificate_dir, write_certificate
 from borescan.config import schema_defaults
 from borescan.uncertainty import Budget
 

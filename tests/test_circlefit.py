@@ -580,7 +580,7 @@ def test_mzci_on_the_radial_extremes_is_the_mzci_of_all(monkeypatch, bins):
         n = 40_000
         x, y = _awkward_profile(rng, kind, n, 140.0, 0.002, (-0.3, 0.6))
         sizes = []
-        monkeypatch.setattr(cf, "_slp", lambda xs, ys, c0, **kw: (sizes.append(xs.size), slp(xs, ys, c0, **kw))[1])
+        monkeypatch.setattr(cf, "_slp", lambda xs, ys, c0, sizes=sizes, **kw: (sizes.append(xs.size), slp(xs, ys, c0, **kw))[1])
         monkeypatch.setattr(cf, "MZ_BINS", bins)
         fast = cf.min_zone_circle(x, y)
         assert max(sizes) < n / 4  # certified on the reduced set, never all points

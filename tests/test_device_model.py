@@ -97,7 +97,6 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     from borescan import rawio, simulate
     from borescan.config import schema_defaults
     from borescan.device_model import device_model_at
-    from borescan.geometry import Bore, tri_static_readings
     from borescan.measure import tri_diameter_with_budget
     from borescan.stages.calibration_fit import calibrate_raw_scans
 

@@ -198,7 +198,7 @@ def test_reimport_is_idempotent_and_write_once(tmp_path):
         import_csv(csv2, meta, tmp_path / "raw")
 
 
-# --------------------------------------------------------------------------- issue 20: zones, decimal commas, ingest checks
+# ------------------------------------------------------------ issue 20: zones, decimal commas, ingest checks
 
 
 def test_started_at_with_an_offset_is_stored_in_utc(tmp_path):

@@ -89,7 +89,8 @@ def test_speed_scale_without_rotation_is_an_error():
 
 
 def test_angle_model_of_a_simulated_scan_matches_the_twin():
-    """The raw scan's spindle stream gives back the twin's angle: encoder -> phi, profile -> Phi (cw signed)."""
+    """The raw scan's spindle stream gives back the twin's angle: encoder -> phi, profile -> Phi (cw
+    signed)."""
     from dataclasses import replace
 
     from borescan import simulate

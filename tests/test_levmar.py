@@ -86,12 +86,14 @@ def test_the_iteration_is_minpacks(tol):
         assert a.success and b.success, name
         assert abs(b.nfev - a.nfev) <= 1 and abs(b.njev - a.njev) <= 1, name
         assert b.message == MESSAGES[b.status]
-        # the same minimum: costs equal far below a change of chi-square of one (relative 1e-9), or both at the
-        # rounding floor of a zero residual, which decides the last digits differently on another CPU or BLAS
+        # the same minimum: costs equal far below a change of chi-square of one (relative 1e-9), or both at
+        # the rounding floor of a zero residual, which decides the last digits differently on another CPU
+        # or BLAS
         floor = _rounding_floor_cost(a.jac, a.x)
         assert abs(b.cost - a.cost) <= 1e-9 * a.cost + floor, name
-        # and the same parameters: far below their standard uncertainty where the residual is real; within the
-        # uncertainty that the rounding floor leaves where the residual is zero (any point there is the minimum)
+        # and the same parameters: far below their standard uncertainty where the residual is real; within
+        # the uncertainty that the rounding floor leaves where the residual is zero (any point there is the
+        # minimum)
         zero_residual = a.cost <= floor
         s2 = 2 * max(a.cost, floor) / max(a.fun.size - a.x.size, 1)
         u = np.sqrt(np.diag(np.linalg.inv(a.jac.T @ a.jac)) * s2)

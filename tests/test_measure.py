@@ -157,7 +157,7 @@ def test_measure_scan_on_simulated_raw_scans(tmp_path):
     assert res["ront_mm"]["MZCI"] < 1e-6
 
 
-# --------------------------------------------------------------------------- readings per pose (rod)
+# ------------------------------------------------------------ readings per pose (rod)
 
 
 def test_pose_means_and_counts():
@@ -185,7 +185,7 @@ def test_reading_u_from_linearity_and_repeatability():
     assert mean_reading_u_mm([0.002], np.array([[0]])) == pytest.approx(0.002)  # no reading: counted as one
 
 
-# --------------------------------------------------------------------------- GUM budget, temperature, decision rule
+# ------------------------------------------------------------ GUM budget, temperature, decision rule
 
 
 def _centred():

@@ -43,7 +43,8 @@ def test_catalog_has_every_scan_with_checksums(pipeline_run):
                          r"noise floor \(limit 1\.25\): the model misses an effect", reason), reason
     assert all(len(r[3]) == 64 for r in rows)
     for scan_id, night, file, sha in con.execute(
-        "SELECT f.scan_id, s.night, f.file, f.sha256 FROM scan_files f JOIN scans s USING (scan_id, night) WHERE s.status = 'ok'"
+        "SELECT f.scan_id, s.night, f.file, f.sha256 FROM scan_files f JOIN scans s USING (scan_id, "
+        "night) WHERE s.status = 'ok'"
     ).fetchall():
         assert rawio.sha256_file(pipeline_run["raw"] / f"night={night}" / f"scan={scan_id}" / file) == sha
 
@@ -100,7 +101,8 @@ def test_diameters_agree_with_simulated_truth_within_their_uncertainty(pipeline_
             tri_err.append(d - truth)
         else:
             # the rod's base lengths are 12.3 / -8.7 um off its design: only its ring-gauge calibration
-            # (night 1) brings the holes within 12 um (about 4 sigma of the chain's scatter, test_rod_calibration)
+            # (night 1) brings the holes within 12 um (about 4 sigma of the chain's scatter,
+            # test_rod_calibration)
             assert "-rod_gauge-" in cal_id, (scan_id, cal_id)
             assert abs(d - truth) <= 0.012, (scan_id, feature, d - truth)
     # three-sensor target of issue 5: <= 2 um RMS after the full-data calibration
@@ -109,7 +111,8 @@ def test_diameters_agree_with_simulated_truth_within_their_uncertainty(pipeline_
 
 def test_verifications_pass_on_the_demo_nights(pipeline_run):
     rows = _con(pipeline_run).execute(
-        "SELECT scan_id, error_mm, passed, feature FROM verifications WHERE night IN ('2026-11-20', '2026-11-21')"
+        "SELECT scan_id, error_mm, passed, feature FROM verifications WHERE night IN "
+        "('2026-11-20', '2026-11-21')"
     ).fetchall()
     assert len(rows) == 8 and all(r[2] for r in rows)  # 2 ring gauges of TRI-01 + 2 layers of ROD-01 per night
     assert all(abs(r[1]) < 0.002 for r in rows if r[3] is None)
@@ -304,7 +307,8 @@ def test_every_file_the_papers_rule_writes_is_declared(pipeline_run):
 
 def test_a_device_model_is_carried_by_a_night_calibration(pipeline_run, tmp_path):
     """The calibrate stage of the first demo night with a device model in the config (devices: TRI-01:
-    effects: [...]) and an earlier night's pooled findings: a sensor gain of channel 2 estimated there as 0 +- 2e-4 is carried
+    effects: [...]) and an earlier night's pooled findings: a sensor gain of channel 2 estimated there as 0 +-
+    2e-4 is carried
     (the readings are corrected by a factor 1: the beams are the run's own to rounding), the budget
     gains its input (u(d_b) grows), the certificate names it; an effect listed without an estimate is
     said so and changes nothing."""

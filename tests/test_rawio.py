@@ -607,13 +607,15 @@ def test_validate_collects_every_problem_and_cli_prints_them(root, capsys):
         "A1: scan.json: kind 'bogus' not one of calibration, centering, verification, measurement",
         "A1: scan.json: sample_rate_hz must be > 0, got -1",
         "A1: spindle.parquet: missing column 'x_mm' (double)",
-        "B1: night=2026-11-23/scan=B1: scan_id also used in night=2026-11-22 (scan ids are unique across nights)",
+        "B1: night=2026-11-23/scan=B1: scan_id also used in night=2026-11-22 (scan ids are unique "
+        "across nights)",
     ]
     # the command runs the ingest checks (borescan.validation): the duplicate is named as ingest names it
     assert main(["validate", str(root)]) == 1
     out = capsys.readouterr()
     assert out.out.splitlines() == lines[:-1] + [
-        "B1: scan.json: scan_id already used by a scan of night=2026-11-22 (scan ids are unique across nights)"
+        "B1: scan.json: scan_id already used by a scan of night=2026-11-22 (scan ids are unique across "
+        "nights)"
     ]
     assert "7 problems; 2 of 3 scans invalid" in out.err
 
@@ -636,7 +638,8 @@ def test_validate_cli_out_of_range_readings_are_problems(root, capsys):
     assert main(["validate", str(root), "--warnings"]) == 1  # the old flag is still accepted
     out = capsys.readouterr()
     assert out.out.splitlines() == [
-        f"S1: lds.parquet: channel {c}: 2 readings outside [0, 10] mm (a sensor reports null when out of range)"
+        f"S1: lds.parquet: channel {c}: 2 readings outside [0, 10] mm (a sensor reports null when out "
+        "of range)"
         for c in (1, 2, 3)
     ]
     assert out.err == "3 problems; 1 of 1 scans invalid\n"

@@ -318,7 +318,8 @@ def test_summary_per_night_lists_what_needs_attention(rich):
         # every quarantined scan (scans.status or a quarantine row) is listed with its reason and action
         con = catalog.open_catalog(res, read_only=True)
         quarantined = {r[0]: r[1] for r in con.execute(
-            "SELECT scan_id, any_value(reason) FROM (SELECT scan_id, reason FROM scans WHERE status = 'quarantined' "
+            "SELECT scan_id, any_value(reason) FROM (SELECT scan_id, reason FROM scans WHERE "
+            "status = 'quarantined' "
             "UNION ALL SELECT scan_id, file || ': ' || reason FROM quarantine) GROUP BY scan_id").fetchall()}
         con.close()
         assert set(quarantined) == {"BAD-1", "MEAS-X"}
@@ -327,7 +328,8 @@ def test_summary_per_night_lists_what_needs_attention(rich):
             assert html_escape(report.quarantine_action(reason)[1]) in summary, sid
         assert "Fix the export or rescan" in summary and "Calibrate the device" in summary
         # the overview row of the 22nd: 4 scans in, 1 quarantined, CAL-B made, ROD-CAL-1 expired,
-        # CAL-A superseded, 1 verification passed, none failed, 1 part out of tolerance, no verdict for a person
+        # CAL-A superseded, 1 verification passed, none failed, 1 part out of tolerance, no verdict for a
+        # person
         row = summary.split('href="#night-2026-11-22">2026-11-22</a></td>')[1].split("</tr>")[0]
         cells = re.findall(r"<td[^>]*>(.*?)</td>", row)
         assert cells == ["4", "calibration 1, measurement 2, verification 1", "1", "1", "1", "1", "1", "0", "1",
@@ -374,7 +376,8 @@ def test_parts_show_both_temperatures_uncertainty_and_deviation(rich):
     rows = {re.findall(r"<td[^>]*>(.*?)</td>", r)[1]: [re.sub(r"<[^>]+>", "", c) for c in
                                                        re.findall(r"<td[^>]*>(.*?)</td>", r)]
             for r in parts.split("<tr")[1:] if "<td" in r and "PART-" in r}
-    # night, scan, part, feature, D at T, T, D at 20, U [µm], k, coverage, nominal, deviation [µm], tolerance, verdict
+    # night, scan, part, feature, D at T, T, D at 20, U [µm], k, coverage, nominal, deviation [µm],
+    # tolerance, verdict
     assert rows["PART-8"][4:14] == ["150.0101", "20 (assumed)", "150.0101", "4.30", "2.03", "0.95", "150", "10.1",
                                     "8.0", "OUT OF TOLERANCE"]
     assert rows["PART-7"][4:12] == ["150.0123", "20.4", "150.012112", "4.50", "2.05", "0.95", "", ""]

@@ -201,7 +201,8 @@ def test_refuses_poses_that_cannot_separate_the_deflection():
     axis = RodAxis(1.5, 0.5, np.deg2rad(0.5), np.deg2rad(120.0))
     alpha = np.deg2rad(np.linspace(0, 150, 8))
     v = rod_readings(alpha, GEOM, HOLES, axis) + 0.002 * np.random.default_rng(1).standard_normal((8, 2))
-    with pytest.raises(RodSolveError, match=r"deflection not separable from the radii: freeing the rod axis deflection multiplies u\(r\) by \d"):
+    with pytest.raises(RodSolveError, match=r"deflection not separable from the radii: freeing the rod axis deflection multiplies "
+                                            r"u\(r\) by \d"):
         solve_rod(v, layers=GEOM, u_reading_mm=0.002)
     sol = solve_rod(v, layers=GEOM, u_reading_mm=0.002, max_deflection_ratio=np.inf)  # the caller may accept it
     assert sol.deflection_ratio > 10.0

@@ -123,7 +123,8 @@ def test_calibrate_then_measure_removes_the_base_length_error(tmp_path):
 
 
 def test_budget_sensitivities_are_the_closed_forms(tmp_path):
-    """l0 = l0_start + R20 (1 + alpha (T - 20)) - r: dl0/dD_g = f/2 on the gauge's own layer, dl0/dT = R20 alpha,
+    """l0 = l0_start + R20 (1 + alpha (T - 20)) - r: dl0/dD_g = f/2 on the gauge's own layer, dl0/dT = R20
+    alpha,
     dl0/dalpha = R20 (T - 20), -1 on each sensor's linearity; one ring for both layers correlates them."""
     ring = {"id": "RG-150", "type": "ring_gauge", "certified_diameter_mm": 150.0021, "u_diameter_mm": 0.0012, "k": 2,
             "certificate": "C1", "cte_per_k": CTE}

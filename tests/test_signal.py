@@ -566,7 +566,7 @@ def test_filter_runs_only_where_it_shapes_a_result(monkeypatch):
     expect = real(res.despiked_mm, method="median", window_samples=25)
     np.testing.assert_array_equal(res.filtered_mm, expect)
     assert calls == ["median"]
-    res.filtered_mm  # cached: computed once
+    _ = res.filtered_mm  # cached: computed once
     assert calls == ["median"]
     filt = process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="median",
                           filter_params={"window_samples": 25}, extrema_on="filtered")

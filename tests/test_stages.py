@@ -56,7 +56,8 @@ def test_a_worker_reading_and_measuring_scans_does_not_load_pandas_scipy_stats_o
     """Each stage job and each worker process is a new interpreter: what it imports it pays on every
     night (pandas ~0.35 s, loaded by pyarrow's own numpy conversions; scipy.stats and scipy.signal
     ~1.3 s). None is used: the stage modules, reading the demo's first scans (three-sensor and rod) and a
-    contract scan with null readings, with every check, and their readings' matrix, the examination's outlier threshold and the
+    contract scan with null readings, with every check, and their readings' matrix, the examination's outlier
+    threshold and the
     coverage factors load none of them."""
     code = f"""
 import sys

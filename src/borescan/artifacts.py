@@ -1,4 +1,5 @@
-"""Certified artifacts (ring gauges, parts) of a scan's ``scan.json``: temperature, size at temperature, catalog row.
+"""Certified artifacts (ring gauges, parts) of a scan's ``scan.json``: temperature, size at temperature,
+catalog row.
 
 A gauge is certified at 20 degC (ISO 1, the reference temperature of dimensional
 specifications); at the scan's temperature its radius is the certified one expanded by the
@@ -205,13 +206,15 @@ def artifact_row(meta: dict) -> dict | None:
 
 
 def number_or_none(v) -> float | None:
-    """A scan.json number as float; None for a missing value or anything that is not a number (a bool is not)."""
+    """A scan.json number as float; None for a missing value or anything that is not a number (a bool is
+    not)."""
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
 
 
 def certificate_fields(meta: dict) -> dict:
     """The artifact certificate a scan's ``scan.json`` states, as the ``scans`` table keeps it:
-    ``artifact_certificate``, ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm`` (None where absent)."""
+    ``artifact_certificate``, ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm`` (None where
+    absent)."""
     art = meta.get("artifact") if isinstance(meta.get("artifact"), dict) else {}
     cert = art.get("certificate")
     feats = {str(f.get("id")): number_or_none(f.get("certified_diameter_mm"))
@@ -276,7 +279,8 @@ def certificate_conflicts(earlier: list[dict], tonight: list[dict]) -> dict[str,
                                    ("artifact_u_diameter_mm", "u_diameter_mm"))
                  if _differ(r.get(col), f.get(col))]
         mine, theirs = _features(r), _features(f)
-        diffs += [f"feature {feat} certified_diameter_mm {mine[feat]!r} here, {theirs[feat]!r} in scan {f['scan_id']} "
+        diffs += [f"feature {feat} certified_diameter_mm {mine[feat]!r} here, {theirs[feat]!r} in scan "
+                  f"{f['scan_id']} "
                   f"(night {f.get('night')})" for feat in sorted(set(mine) & set(theirs))
                   if _differ(mine[feat], theirs[feat])]
         if diffs:

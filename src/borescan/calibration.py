@@ -343,7 +343,7 @@ def yang_theta_c(r1_mm: float, r2_mm: float, X_mm: float, status1: str, status2:
     float [rad]
     """
     s1 = 1.0 if _check_status(status1) == "backward" else -1.0
-    s2 = 1.0 if _check_status(status2) == "backward" else -1.0
+    _check_status(status2)  # beam 2's sign follows from s1 and whether the two agree (the four cases)
     a1 = float(np.arcsin(r1_mm / X_mm))
     a2 = float(np.arcsin(r2_mm / X_mm))
     if status1 == status2:
@@ -623,7 +623,7 @@ class AcceptanceRule:
     speed_scale_range: tuple[float, float] = (0.25, 4.0)
 
 
-def fit_full_calibration(
+def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a problem object of small functions)
     t_s,
     readings_mm,
     channels: Sequence[int],
@@ -830,7 +830,6 @@ def fit_full_calibration(
     if n_obs + n_prior <= p_free:
         raise CalibrationError(scan_ids, f"{n_obs} valid samples for {p_free} parameters")
     beta1_fixed = float(nominal.beta_rad[0])
-    psi1_fixed = beta1_fixed + np.arcsin(np.clip(nominal.rho_mm[0] / R_mm, -1, 1))
 
     def split(x: np.ndarray):
         psi = x[: c - 1 + ch0_free]
@@ -882,7 +881,8 @@ def fit_full_calibration(
             out[2 * c - 1 + ch0_free + j] = g[j] - rho[j] ** 2 / (2.0 * R_mm)
         return out
 
-    def model(x: np.ndarray, with_jac: bool, full: bool = False, rows: list | None = None):
+    def model(  # noqa: C901 (part of the full_lsq fit, to be split into small functions)
+            x: np.ndarray, with_jac: bool, full: bool = False, rows: list | None = None):
         beams, nuis = unpack(x)
         rho = beams.rho_mm
         dbeta_drho = -1.0 / np.sqrt(np.maximum(R_mm**2 - rho**2, 1e-300))
@@ -1075,7 +1075,8 @@ def fit_full_calibration(
             if rank < p_free or cond > cond_max:
                 raise CalibrationError(
                     scan_ids,
-                    f"full_lsq Jacobian rank {rank} of {p_free}, condition {cond:.3g} (limit {cond_max:.3g}); "
+                    f"full_lsq Jacobian rank {rank} of {p_free}, condition {cond:.3g} (limit "
+                    f"{cond_max:.3g}); "
                     "the data do not determine the parameters (is the spindle offset from the gauge centre?)",
                 )
             s2 = fit.sigma**2
@@ -1112,7 +1113,6 @@ def fit_full_calibration(
         raise CalibrationError(scan_ids, f"full_lsq fit failed: {exc}") from exc
     n_rows = n_obs + n_prior
     dof = n_rows - p_free
-    ssr = fit.rss
     ssr_readings = float(r[:n_obs] @ r[:n_obs])
     _, Jf = model(sol.x, True, full=True)
     cf = np.linalg.norm(Jf, axis=0)
@@ -1249,8 +1249,10 @@ def fit_full_calibration(
     gauge = (
         "beams absolute in the encoder frame: the scan's centre and spindle position fix the offset direction"
         if absolute else
-        f"beta of channel {channels[0]} held at the design value {beta1_fixed!r} rad: a ring gauge fixes only "
-        "beta_c - beta_1, |offset| and beta_1 + phase - angle(offset) per scan, and no scan has both an encoder "
+        f"beta of channel {channels[0]} held at the design value {beta1_fixed!r} rad: a ring gauge "
+        "fixes only "
+        "beta_c - beta_1, |offset| and beta_1 + phase - angle(offset) per scan, and no scan has both "
+        "an encoder "
         "angle and a known centre and spindle position"
     )
     return TriCalibration(
@@ -1289,14 +1291,18 @@ def fit_full_calibration(
             "minima": minima,
             "ambiguous_minima": bool(ambiguous),
             "minima_note": (
-                "distinct minima of SSR + prior besides the one kept (mirror starts, dips along the rho profiles), "
-                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; below 4 the data cannot reject it (ambiguous): "
+                "distinct minima of SSR + prior besides the one kept (mirror starts, dips along the "
+                "rho profiles), "
+                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; below 4 the data cannot reject it "
+                "(ambiguous): "
                 "its spread, weighted by exp(-delta/2), is in the covariance"
             ),
             "rho_profiles": profiles,
             "rho_profile_note": (
-                "per channel the cost profiled along rho (every other parameter refitted): linear when at rho +- 2 u "
-                "it rises by 4 +- 1 s^2 and bends no parameter by more than u / 2; otherwise the likelihood-weighted "
+                "per channel the cost profiled along rho (every other parameter refitted): linear when "
+                "at rho +- 2 u "
+                "it rises by 4 +- 1 s^2 and bends no parameter by more than u / 2; otherwise the "
+                "likelihood-weighted "
                 "spread of every parameter along the profile enters the covariance"
             ),
             "weak_rho_note": (
@@ -1315,8 +1321,10 @@ def fit_full_calibration(
                 "k_sigma": CENSOR_GUARD_SIGMA,
                 "range_mm": [float(x) for x in range_arr],
                 "set_aside": censored,
-                "note": ("valid readings whose fitted value lies within k_sigma noise sigmas of a sensor range limit "
-                         "(0 or range_mm) or beyond it, per scan and channel: the sensor nulls a reading on its noisy "
+                "note": ("valid readings whose fitted value lies within k_sigma noise sigmas of a sensor "
+                         "range limit "
+                         "(0 or range_mm) or beyond it, per scan and channel: the sensor nulls a reading on "
+                         "its noisy "
                          "value, so near a limit the valid ones are a truncated (biased) sample; not fitted"),
             },
         },
@@ -1351,7 +1359,8 @@ _PROFILE_END_DCHI2 = 12.5
 _PROFILE_MAX_STEPS = 14
 
 
-def _rho_profile(j, c, x_hat, cost0, s2, cov_int, cov_free, solve_fixed, public, i, head_radius_mm):
+def _rho_profile(  # noqa: C901 (part of the full_lsq fit, to be split into small functions)
+        j, c, x_hat, cost0, s2, cov_int, cov_free, solve_fixed, public, i, head_radius_mm):
     """Profile of the full-data cost along rho of channel index ``j`` (internal and public index ``i``).
 
     Each point holds rho at a value and minimises the cost over every other parameter
@@ -1515,7 +1524,8 @@ def _acceptance_problems(beams, nuis, ratios, scan_ids, channels, R_mm, range_ar
         for j, ch in enumerate(channels):
             if not ratios[k, j] <= rule.max_residual_to_noise:
                 out.append(
-                    f"{sid} channel {ch}: residual rms is {ratios[k, j]:.2f} times the readings' own noise floor "
+                    f"{sid} channel {ch}: residual rms is {ratios[k, j]:.2f} times the readings' own "
+                    "noise floor "
                     f"(limit {rule.max_residual_to_noise:g}): the model misses an effect"
                 )
     for j, ch in enumerate(channels):
@@ -1574,7 +1584,7 @@ def full_residuals(
 # --------------------------------------------------------------------------- sensitivities (GUM budget)
 
 
-def full_lsq_sensitivities(
+def full_lsq_sensitivities(  # noqa: C901 (part of the full_lsq fit, to be split into small functions)
     cal: TriCalibration,
     t_s,
     readings_mm,

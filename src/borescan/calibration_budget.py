@@ -1,4 +1,5 @@
-"""GUM budget of a three-sensor calibration (:mod:`borescan.uncertainty` applied to a :class:`TriCalibration`).
+"""GUM budget of a three-sensor calibration (:mod:`borescan.uncertainty` applied to a
+:class:`TriCalibration`).
 
 The fit's own covariance is split into its Type A part (the readings' scatter) and the position
 priors, and what the fit takes as known is added: the gauge's certified diameter (U, k of its
@@ -56,14 +57,15 @@ def _device_model_derivatives(model, inputs: list[dict], channels) -> tuple[dict
     for x in inputs:
         y = x.get("readings_recorded", x["readings"])
         for (i, name), dy in device_model.derivatives(
-                model, lambda m: device_model.correct(x["t_s"], y, x["channels"], m, x["range_mm"])).items():
+                model, lambda m, x=x, y=y: device_model.correct(x["t_s"], y, x["channels"], m, x["range_mm"])).items():
             dys.setdefault(f"{i}:{name}", []).append(np.nan_to_num(dy))
     dtau = {f"{i}:{name}": d for (i, name), d in device_model.derivatives(
         model, lambda m: device_model.channel_time_offsets(m, channels, zeros=True)).items()}
     return dys, dtau
 
 
-def calibration_budget(cal, inputs: list[dict], uncertainty: dict, *, scan_ids, sensitivities: dict | None = None,
+def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budget)
+        cal, inputs: list[dict], uncertainty: dict, *, scan_ids, sensitivities: dict | None = None,
                        extrema_dof: float | None = None, position_accuracy_mm: float | None = None) -> Budget:
     """GUM budget of a calibration's parameters (per channel beta, rho, d_b; the calibration's order).
 
@@ -71,7 +73,8 @@ def calibration_budget(cal, inputs: list[dict], uncertainty: dict, *, scan_ids, 
     rho (where its profile was linear), the spread along each non-linear rho profile beyond the linear
     covariance (``profile<channel>``; a diameter maps it by its own secants along the profile's points,
     :func:`borescan.measure.diameter_uncertainty`) and any unresolved mirror solution (eigen-directions
-    of the rest of the fit's covariance, each a rectangular between the two solutions); the reported offset S - C of each scan with
+    of the rest of the fit's covariance, each a rectangular between the two solutions); the reported offset
+    S - C of each scan with
     positions (triangular: centre and spindle each within +-a per coordinate,
     ``calibration.position_accuracy_mm``; the same reported positions in several scans are one
     input); the gauge's certified diameter (normal, U / k); the first scan's temperature and the

@@ -72,7 +72,7 @@ def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_
         return None, f"latest calibration {cal_id} of device {device_id} failed its verification; recalibrate"
     age = days_between(valid_from, night)
     if age > validity_days:
-        return None, f"latest calibration {cal_id} of device {device_id} expired ({age} days old, validity {validity_days} days)"
+        return None, f"latest calibration {cal_id} of device {device_id} expired ({age} days old, validity " f"{validity_days} days)"
     return cal_id, None
 
 
@@ -88,7 +88,8 @@ def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], dev
     (``measurement.rod_without_calibration``).
     """
     if without_calibration not in ("measure_nominal", "refuse"):
-        raise ValueError(f"measurement.rod_without_calibration must be measure_nominal or refuse, got {without_calibration!r}")
+        raise ValueError("measurement.rod_without_calibration must be measure_nominal or refuse, got "
+                         f"{without_calibration!r}")
     has_method = calibrations.height > 0 and "method" in calibrations.columns
     method = pl.col("method").fill_null("") if has_method else pl.lit("")
     gauge = calibrations.filter(method != "nominal") if has_method else calibrations.clear()
@@ -172,7 +173,8 @@ _DRIFT_SCHEMA = {
 }
 
 
-def calibration_drift(calibrations: pl.DataFrame, multiple: float) -> pl.DataFrame:
+def calibration_drift(  # noqa: C901 (input checks, then per device, channel, parameter and pair)
+        calibrations: pl.DataFrame, multiple: float) -> pl.DataFrame:
     """Changes of each beam parameter between consecutive calibrations of a three-sensor device.
 
     For every device and channel the calibrations (rows of the ``calibrations`` table with a

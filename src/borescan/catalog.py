@@ -384,8 +384,10 @@ _FILL_SQL = [
                         AND ({verifications}.night IS NULL OR s.night = {verifications}.night)""",
     "UPDATE {verifications} SET error_mm = measured_mm - certified_mm WHERE error_mm IS NULL",
     "UPDATE {verifications} SET passed = abs(error_mm) <= tolerance_mm WHERE passed IS NULL",
-    "UPDATE {findings} SET night = s.night FROM {scans} s WHERE s.scan_id = {findings}.scan_id AND {findings}.night IS NULL",
-    "UPDATE {quarantine} SET night = s.night FROM {scans} s WHERE s.scan_id = {quarantine}.scan_id AND {quarantine}.night IS NULL",
+    "UPDATE {findings} SET night = s.night FROM {scans} s WHERE s.scan_id = {findings}.scan_id AND "
+    "{findings}.night IS NULL",
+    "UPDATE {quarantine} SET night = s.night FROM {scans} s WHERE s.scan_id = {quarantine}.scan_id AND "
+    "{quarantine}.night IS NULL",
 ]
 
 _STAGING = {name: f"_new_{name}" for name in SCHEMA}
@@ -397,14 +399,15 @@ def _columns(con: duckdb.DuckDBPyConnection, table: str) -> dict[str, str]:
 
 def _create_tables(con: duckdb.DuckDBPyConnection) -> None:
     """The empty catalog tables and the bookkeeping tables (a new catalog)."""
-    for name, t in TABLES.items():
+    for t in TABLES.values():
         con.execute(t.ddl())
     b = BUILD_SCHEMA
     con.execute(f"CREATE SCHEMA {b}")
     con.execute(f"CREATE TABLE {b}.info (key VARCHAR PRIMARY KEY, value VARCHAR)")
     con.execute(f"CREATE TABLE {b}.sources (night VARCHAR, file VARCHAR, bytes BIGINT, mtime_ns BIGINT)")
     con.execute(f"CREATE TABLE {b}.calibration_scan_nights (calibration_id VARCHAR, scan_id VARCHAR, night VARCHAR)")
-    con.execute(f"CREATE TABLE {b}.artifact_records AS SELECT CAST(NULL AS VARCHAR) AS night, * FROM artifacts LIMIT 0")
+    con.execute(f"CREATE TABLE {b}.artifact_records AS SELECT CAST(NULL AS VARCHAR) AS night, * FROM artifacts "
+                "LIMIT 0")
 
 
 def _schema_fingerprint() -> str:
@@ -492,7 +495,8 @@ def _append(con: duckdb.DuckDBPyConnection, tables: Mapping[str, pl.DataFrame | 
             _merge(con, name)
     # calibrations: the first night's row of a (calibration_id, channel) wins
     new_only = "" if direct else """WHERE NOT EXISTS (SELECT 1 FROM calibrations c
-        WHERE c.calibration_id IS NOT DISTINCT FROM n.calibration_id AND c.channel IS NOT DISTINCT FROM n.channel)"""
+        WHERE c.calibration_id IS NOT DISTINCT FROM n.calibration_id
+          AND c.channel IS NOT DISTINCT FROM n.channel)"""
     con.execute(f"CREATE OR REPLACE TEMP TABLE _kept AS SELECT * FROM _new_calibrations n {new_only}")
     _merge(con, "calibrations", "_kept")
     # calibration_scans: the stage's links and each kept calibration's own scan, each night's on record
@@ -513,7 +517,8 @@ def _append(con: duckdb.DuckDBPyConnection, tables: Mapping[str, pl.DataFrame | 
         _merge(con, "artifacts")
     else:
         con.execute(f"""CREATE OR REPLACE TEMP TABLE _latest AS SELECT * FROM _new_artifacts
-                        QUALIFY row_number() OVER (PARTITION BY artifact_id ORDER BY {_NIGHT_COL} DESC) = 1""")
+                        QUALIFY row_number()
+                                OVER (PARTITION BY artifact_id ORDER BY {_NIGHT_COL} DESC) = 1""")
         con.execute("DELETE FROM artifacts WHERE artifact_id IN (SELECT artifact_id FROM _latest)")
         _merge(con, "artifacts", "_latest")
     for tmp in [*_STAGING.values(), "_kept", "_latest"]:
@@ -531,7 +536,8 @@ def _remove_nights(con: duckdb.DuckDBPyConnection, nights: list[str]) -> None:
                     FROM {b}.calibration_scan_nights WHERE night IN (SELECT night FROM _gone_nights)""")
     con.execute(f"DELETE FROM {b}.calibration_scan_nights WHERE night IN (SELECT night FROM _gone_nights)")
     con.execute(f"""DELETE FROM calibration_scans c
-                    WHERE EXISTS (SELECT 1 FROM _gone g WHERE g.calibration_id = c.calibration_id AND g.scan_id = c.scan_id)
+                    WHERE EXISTS (SELECT 1 FROM _gone g
+                                  WHERE g.calibration_id = c.calibration_id AND g.scan_id = c.scan_id)
                       AND NOT EXISTS (SELECT 1 FROM {b}.calibration_scan_nights k
                                       WHERE k.calibration_id = c.calibration_id AND k.scan_id = c.scan_id)""")
     con.execute(f"""CREATE OR REPLACE TEMP TABLE _ids AS SELECT DISTINCT artifact_id FROM {b}.artifact_records
@@ -672,7 +678,7 @@ def _record_sources(con: duckdb.DuckDBPyConnection, sig: Mapping[str, Mapping[st
             con.unregister("_sources")
 
 
-def update_catalog(
+def update_catalog(  # noqa: C901 (one branch per way the catalog is brought up to date (new, incremental, rebuilt))
     results_root: str | os.PathLike,
     queries_dir: str | os.PathLike | None = None,
     full: bool = False,

@@ -59,25 +59,37 @@ _UNITS_DSI = {"mm": "\\milli\\metre", "rad": "\\radian", "degC": "\\degreecelsiu
               "1/K": "\\kelvin\\tothe{-1}", "-": "\\one", "um": "\\micro\\metre"}
 _METHOD_TEXT = {
     "full_lsq": (
-        "Full-data least-squares calibration (borescan fit_full_calibration): every reading of the ring-gauge "
-        "spindle scans is fitted to the exact three-sensor forward model (Yang 2017 geometry; rotation angle from "
-        "the spindle stream); free per beam: direction beta, offset rho and base length d_b; per scan the spindle "
-        "offset, phase and speed; the reported centre and spindle position enter as priors within the machine's "
-        "stated accuracy. Uncertainty evaluated by the GUM (JCGM 100:2008) law of propagation with sensitivities "
+        "Full-data least-squares calibration (borescan fit_full_calibration): every reading of the "
+        "ring-gauge "
+        "spindle scans is fitted to the exact three-sensor forward model (Yang 2017 geometry; rotation "
+        "angle from "
+        "the spindle stream); free per beam: direction beta, offset rho and base length d_b; per scan "
+        "the spindle "
+        "offset, phase and speed; the reported centre and spindle position enter as priors within the "
+        "machine's "
+        "stated accuracy. Uncertainty evaluated by the GUM (JCGM 100:2008) law of propagation with "
+        "sensitivities "
         "of the least-squares optimum; coverage factor from Welch-Satterthwaite where JCGM 101:2008 (GUM S1) "
         "validates it, else from the propagated distribution."),
     "yang2017": (
-        "Yang 2017 extrema method (Eq. 8-15): base length and offset of each beam from the mean extreme readings, "
+        "Yang 2017 extrema method (Eq. 8-15): base length and offset of each beam from the mean "
+        "extreme readings, "
         "beam angles from the feature points' timing. Uncertainty evaluated by the GUM (JCGM 100:2008) with "
         "sensitivities by central differences of the closed forms."),
     "rod_gauge": (
-        "Rod calibration on certified ring gauges (borescan.rod_calibration): the rod is turned by hand in ring "
-        "gauges of certified diameter, one per layer; the joint rod solve (Wang 2017 Eq. 16 generalised: exact "
-        "ray-cylinder readings, pose angles, hole centres and the rod axis deflection free) is repeated with each "
-        "layer's base length l0 corrected by the gauge radius at its temperature minus the solved radius until "
-        "they agree to 1e-7 mm or a thousandth of the radius uncertainty. Beam angle, offset and tilt of each layer stay at their design values (to first "
+        "Rod calibration on certified ring gauges (borescan.rod_calibration): the rod is turned by "
+        "hand in ring "
+        "gauges of certified diameter, one per layer; the joint rod solve (Wang 2017 Eq. 16 "
+        "generalised: exact "
+        "ray-cylinder readings, pose angles, hole centres and the rod axis deflection free) is "
+        "repeated with each "
+        "layer's base length l0 corrected by the gauge radius at its temperature minus the solved "
+        "radius until "
+        "they agree to 1e-7 mm or a thousandth of the radius uncertainty. Beam angle, offset and tilt "
+        "of each layer stay at their design values (to first "
         "order a constant reading offset, which l0 absorbs). Uncertainty by the GUM (JCGM 100:2008) law of "
-        "propagation: the solve's covariance, the gauges' certificates, temperature, expansion coefficient and "
+        "propagation: the solve's covariance, the gauges' certificates, temperature, expansion "
+        "coefficient and "
         "the sensors' linearity and resolution."),
 }
 
@@ -116,10 +128,12 @@ def certificate_dates(scan_metas: list[dict], verification_metas: list[dict], ni
     due = (_dt.date.fromisoformat(night) + _dt.timedelta(days=int(validity_days))).isoformat()
     return {
         "begin": cal_days[0], "end": cal_days[-1], "issue": all_days[-1], "night": night,
-        "issue_rule": "derived from the data, not the clock: the last UTC date on which a scan reported here was "
+        "issue_rule": "derived from the data, not the clock: the last UTC date on which a scan "
+                      "reported here was "
                       "taken (scan.json started_at), so that regenerating the certificate gives the same bytes",
         "recalibration_due": due,
-        "recalibration_rule": f"night {night} + calibration.validity_days = {int(validity_days)} days; after it the "
+        "recalibration_rule": f"night {night} + calibration.validity_days = {int(validity_days)} days; "
+                              "after it the "
                               "pipeline refuses the calibration for measurements",
     }
 
@@ -202,7 +216,7 @@ def _parameter_rows(cal: TriCalibration, budget: Budget | None, p: float) -> lis
     rows = []
     for j, ch in enumerate(b.channels):
         row: dict[str, Any] = {"channel": int(ch)}
-        for k, (name, unit) in enumerate((("beta_rad", "rad"), ("rho_mm", "mm"), ("d_b_mm", "mm"))):
+        for k, name in enumerate(("beta_rad", "rho_mm", "d_b_mm")):
             i = 3 * j + k
             comb = _combined(cal, budget, i, p)
             short = name.rsplit("_", 1)[0]
@@ -222,7 +236,8 @@ def _expanded(comb: Combined, distribution: str = "normal") -> dict:
 
 
 def _result(name: str, ref_type: str, held: bool, value: float, unit: str, comb: Combined) -> dict:
-    """One DCC result: ``value`` in ``unit`` (a key of ``_UNITS_DSI``: mm, rad, ...) with its D-SI expandedUnc."""
+    """One DCC result: ``value`` in ``unit`` (a key of ``_UNITS_DSI``: mm, rad, ...) with its D-SI
+    expandedUnc."""
     return {"name": name, "refType": ref_type, "held_at_design_value": held,
             "real": {"value": value, "unit": _UNITS_DSI[unit], "expandedUnc": _expanded(comb)}}
 
@@ -238,7 +253,8 @@ def _statements(lab: dict, dates: dict, conformity: dict, traceability: str) -> 
     text, decision rule, conformity, recalibration due date (ISO date) and how the issue date was derived."""
     return [
         {"norm": "ISO/IEC 17025:2017", "reference": "7.8.2.1 m",
-         "declaration": "The results relate only to the item calibrated. This certificate shall not be reproduced "
+         "declaration": "The results relate only to the item calibrated. This certificate shall not "
+                        "be reproduced "
                         "except in full without the written approval of the issuing laboratory."},
         {"refType": "basic_traceability", "declaration": traceability},
         {"refType": "basic_decisionRule", "declaration": _decision_rule_text(lab)},
@@ -382,7 +398,8 @@ def device_model_text(entries: list[dict]) -> str:
         out.append("Device model carried (the readings corrected for it, a channel delay taken in the channel's "
                    "angle; each value's uncertainty is an input of the budget): " + "; ".join(carried) + ".")
     if listed:
-        out.append("Listed in the device model but not estimated by any earlier pooled examination, so not corrected: "
+        out.append("Listed in the device model but not estimated by any earlier pooled examination, so not "
+                   "corrected: "
                    + ", ".join(listed) + ".")
     return " ".join(out)
 
@@ -449,7 +466,8 @@ def _decision_rule_text(lab: dict) -> str:
     if lab.get("decision_rule") == "guard_band":
         return (f"Guarded acceptance (ILAC-G8:09/2019 4.2.2): a verification passes when |E| <= T - w, w = "
                 f"{lab.get('guard_band_factor')} U(E); E the error of the diameter at 20 degC, T the tolerance.")
-    return ("Simple acceptance (ILAC-G8:09/2019 4.2.1): a verification passes when |E| <= T (guard band w = 0), E the "
+    return ("Simple acceptance (ILAC-G8:09/2019 4.2.1): a verification passes when |E| <= T (guard band w "
+            "= 0), E the "
             "error of the diameter at 20 degC, T the tolerance; at the limit the probability of a false accept "
             "reaches 50 %.")
 
@@ -457,7 +475,8 @@ def _decision_rule_text(lab: dict) -> str:
 def _conformity(ver: list[dict]) -> dict:
     if not ver:
         return {"conformity": "noStatement",
-                "text": "No verification scan of this device was taken in the calibration night: conformity is not stated."}
+                "text": "No verification scan of this device was taken in the calibration night: "
+                        "conformity is not stated."}
     ok = all(bool(v.get("passed")) for v in ver)
     n_pass = sum(bool(v.get("passed")) for v in ver)
     text = (f"The device {'conforms' if ok else 'does NOT conform'} to the verification tolerance: {n_pass} of "
@@ -643,7 +662,8 @@ def _page_admin(d: _Doc) -> None:
     d.y -= 0.03
     if c["administrativeData"]["placeholders"]:
         d.para("NOTE: the laboratory settings " + ", ".join(c["administrativeData"]["placeholders"]) + " are the "
-               "defaults of workflow/schemas/config.schema.yaml, placeholders that name no real laboratory. Set the "
+               "defaults of workflow/schemas/config.schema.yaml, placeholders that name no real "
+               "laboratory. Set the "
                "laboratory section of config/config.yaml before issuing this certificate to anyone.", color="firebrick",
                size=7.5)
     sensors = dev.get("sensors") or []
@@ -678,8 +698,10 @@ def _page_admin(d: _Doc) -> None:
                                     "budget is on the following pages and in certificate.json."),
     ])
     d.y -= 0.01
-    d.para("This certificate is issued in accordance with ISO/IEC 17025:2017 7.8. The results relate only to the item "
-           "calibrated, at the time of calibration. The user is responsible for arranging recalibration in due time.")
+    d.para("This certificate is issued in accordance with ISO/IEC 17025:2017 7.8. The results relate only "
+           "to the item "
+           "calibrated, at the time of calibration. The user is responsible for arranging recalibration "
+           "in due time.")
     d.y -= 0.03
     d.room(0.09)
     d.fig.text(d.LEFT, d.y, "Authorised signatory", fontsize=8, weight="bold")
@@ -719,7 +741,8 @@ def _page_item_conditions(d: _Doc) -> None:
 
 def _sensor_table(d: _Doc, dev: dict, device_id: str) -> None:
     """The device's sensors as recorded in scan.json, as a table."""
-    d.para(f"Device {dev.get('id', device_id)}, type {dev.get('type', 'tri_lds')}; sensors as recorded in scan.json:")
+    d.para(f"Device {dev.get('id', device_id)}, type {dev.get('type', 'tri_lds')}; sensors as recorded in "
+           "scan.json:")
     cols = ["channel", "model", "serial", "range [mm]", "linearity [% FS]", "linearity +- [um]", "repeatab. [um]",
             "resolution [um]"]
     cells = []
@@ -795,10 +818,14 @@ def _page_results(d: _Doc) -> None:
     p = c["coverage_probability"]
     d.new_page()
     d.heading("5  Results")
-    d.para("Calibrated beam geometry per channel: direction beta of the beam, its offset rho from the rotation axis "
-           "and its base length d_b (the distance from the foot point to the sensor's measuring start). Expanded "
-           f"uncertainty U = k u_c for a coverage probability of {100 * p:.2f} %; k from the effective degrees of "
-           "freedom (Welch-Satterthwaite) where the GUM S1 check validates it, else from the propagated distribution.")
+    d.para("Calibrated beam geometry per channel: direction beta of the beam, its offset rho from the "
+           "rotation axis "
+           "and its base length d_b (the distance from the foot point to the sensor's measuring start). "
+           "Expanded "
+           f"uncertainty U = k u_c for a coverage probability of {100 * p:.2f} %; k from the effective "
+           "degrees of "
+           "freedom (Welch-Satterthwaite) where the GUM S1 check validates it, else from the propagated "
+           "distribution.")
     cols = ["channel", "quantity", "value", "U", "unit", "k", "nu_eff", "dominant input"]
     cells = []
     results = {r["name"]: r for r in c["measurementResults"][0]["results"]}
@@ -822,27 +849,35 @@ def _page_results(d: _Doc) -> None:
     if c.get("effective_base_length"):
         g = "; ".join(f"channel {r['channel']}: " + " +- ".join(_vu(r["value_mm"], r["expandedUnc"]["uncertainty"])) + " mm"
                       f" (k = {r['expandedUnc']['coverageFactor']:.2f})" for r in c["effective_base_length"])
-        d.para(f"Effective base length g = d_b + rho^2/(2R) (R the gauge radius at its temperature), the combination the "
-               f"data fix best, with U: {g}. rho and d_b of a channel are correlated; certificate.json gives the full "
+        d.para("Effective base length g = d_b + rho^2/(2R) (R the gauge radius at its temperature), the "
+               "combination the "
+               f"data fix best, with U: {g}. rho and d_b of a channel are correlated; certificate.json "
+               "gives the full "
                "covariance (combined and of the fit alone) and the correlation matrix.")
     acc = fit.get("acceptance")
     d.para(f"Fit: residual rms {_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um, "
-           f"{_num(fit.get('n_obs'), 'g')} readings, {fit.get('dof')} degrees of freedom, Jacobian rank {fit.get('rank')}, "
+           f"{_num(fit.get('n_obs'), 'g')} readings, {fit.get('dof')} degrees of freedom, Jacobian rank "
+           f"{fit.get('rank')}, "
            f"condition {_num(fit.get('condition'), '.3g')}; the optimiser "
            f"{'converged' if fit.get('converged') else 'did NOT converge'}.")
     if acc:
         d.para(f"Acceptance: largest ratio of a channel's residual rms to its readings' own noise floor "
-               f"{_num(acc.get('residual_to_noise_max'), '.3f')} (limit {_num(acc.get('max_residual_to_noise'), 'g')}); "
+               f"{_num(acc.get('residual_to_noise_max'), '.3f')} (limit "
+               f"{_num(acc.get('max_residual_to_noise'), 'g')}); "
                f"|rho| within the head radius {_num(acc.get('head_radius_mm'), 'g')} mm.")
     if fit.get("weak_rho_channels"):
-        d.para(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho), rho is not distinguished from 0; U(d_b) of "
+        d.para(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho), rho is not distinguished from 0; "
+               "U(d_b) of "
                "these channels includes the second-order term of d_b = g - rho^2/(2R).")
     if fit.get("rho_profiled_channels"):
-        d.para(f"Channels {fit['rho_profiled_channels']}: the cost along rho is not the linear one (rho enters the "
-               "readings mostly through rho^2); their uncertainties come from the profile of the cost along rho, "
+        d.para(f"Channels {fit['rho_profiled_channels']}: the cost along rho is not the linear one (rho "
+               "enters the "
+               "readings mostly through rho^2); their uncertainties come from the profile of the cost "
+               "along rho, "
                "every other parameter refitted, not from the linearisation alone.")
     if fit.get("ambiguous_minima"):
-        d.para(f"The fit found {fit.get('n_minima')} distinct minima, one within 4 s^2 of the one kept: the data "
+        d.para(f"The fit found {fit.get('n_minima')} distinct minima, one within 4 s^2 of the one kept: "
+               "the data "
                "cannot reject it; its spread is included in the uncertainties.")
 
 
@@ -896,7 +931,8 @@ def _tiny(r: dict, uc: float) -> bool:
     return uc > 0 and c < 1e-5 * uc
 
 
-def _budget_tables(d: _Doc) -> None:
+def _budget_tables(  # noqa: C901 (one cell per budget row, parameter kind and held or tiny term)
+        d: _Doc) -> None:
     c = d.cert
     budgets = c["measurementResults"][0]["uncertaintyBudget"]
     if not budgets:
@@ -906,8 +942,10 @@ def _budget_tables(d: _Doc) -> None:
     d.para("Per channel, every input x_i of the calibration with its estimate, standard uncertainty u(x_i), "
            "distribution and degrees of freedom nu_i, and for each result its sensitivity coefficient c_i and "
            "contribution u_i = |c_i| u(x_i) (GUM 5.1.3). The fit to the readings is a vector input (u(x_i): the "
-           "residual standard deviation per reading); its contribution comes from its covariance. c: for beta in rad, "
-           "for rho and d_b in mm, per unit of the input; contributions in urad (beta) and um (rho, d_b); 0: below "
+           "residual standard deviation per reading); its contribution comes from its covariance. c: for "
+           "beta in rad, "
+           "for rho and d_b in mm, per unit of the input; contributions in urad (beta) and um (rho, d_b); "
+           "0: below "
            "1e-5 u_c; 'in Type A': a resolution dithered by the readings' noise (GUM F.2.2.1).")
     fams = ("beta", "rho", "d_b")
     for prow in c["parameters"]:
@@ -960,10 +998,14 @@ def _budget_tables(d: _Doc) -> None:
         d.para(f"Channel {ch}", size=8.5)
         d.table(cols, cells, widths=[0.22, 0.09, 0.07, 0.06, 0.05, 0.065, 0.08, 0.065, 0.08, 0.065, 0.08], size=5.8,
                 row_h=0.0128)
-    d.para("k marked (S1): the t-based factor was not validated by GUM S1 (one rectangular input dominates); k is that "
-           "of the propagated distribution. The gauge's expansion coefficient has no first-order effect at 20 degC. "
-           "Sensor linearity is an error of every reading of a channel within the data sheet's bound, independent "
-           "between the calibration and each later measurement. Reported positions that are the same for several "
+    d.para("k marked (S1): the t-based factor was not validated by GUM S1 (one rectangular input "
+           "dominates); k is that "
+           "of the propagated distribution. The gauge's expansion coefficient has no first-order effect "
+           "at 20 degC. "
+           "Sensor linearity is an error of every reading of a channel within the data sheet's bound, "
+           "independent "
+           "between the calibration and each later measurement. Reported positions that are the same for "
+           "several "
            "scans are one input.", size=6.8)
 
 
@@ -976,9 +1018,11 @@ def _verification_pages(d: _Doc) -> None:
     if not ver:
         d.para(c["conformity"]["text"])
     else:
-        d.para("Each verification measures a certified ring gauge with this calibration in the same night. The measured "
+        d.para("Each verification measures a certified ring gauge with this calibration in the same "
+               "night. The measured "
                "diameter is brought to 20 degC (ISO 1) with the gauge's expansion coefficient and the recorded "
-               "temperature; E = D20 (measured) - D20 (certified). Where the gauge is the calibration's own, its "
+               "temperature; E = D20 (measured) - D20 (certified). Where the gauge is the calibration's "
+               "own, its "
                "certified diameter enters both and largely cancels in U(E).")
         cols = ["scan", "gauge", "T [degC]", "D(T) [mm]", "D20 [mm]", "cert. [mm]", "E [um]", "U(E) [um]",
                 "k", "T_ol [um]", "A [um]", "verdict"]
@@ -1327,9 +1371,12 @@ def _rod_page_results(d: _Doc) -> None:
     d.new_page()
     d.heading("5  Results")
     p = c["coverage_probability"]
-    d.para("Calibrated base length l0 of each layer (axis foot to the sensor's measuring start), at which the rod solve "
-           "returns the gauge's radius at its temperature. Expanded uncertainty U = k u_c for a coverage probability of "
-           f"{100 * p:.2f} %. A rod diameter measured with this calibration moves by 2 (l0 - l0 true): its budget takes "
+    d.para("Calibrated base length l0 of each layer (axis foot to the sensor's measuring start), at which "
+           "the rod solve "
+           "returns the gauge's radius at its temperature. Expanded uncertainty U = k u_c for a coverage "
+           "probability of "
+           f"{100 * p:.2f} %. A rod diameter measured with this calibration moves by 2 (l0 - l0 true): its "
+           "budget takes "
            "this one with sensitivity 2.")
     res = {r["name"]: r for r in c["measurementResults"][0]["results"]}
     budgets = c["measurementResults"][0]["uncertaintyBudget"]
@@ -1346,9 +1393,11 @@ def _rod_page_results(d: _Doc) -> None:
             widths=[0.07, 0.13, 0.14, 0.1, 0.13, 0.06, 0.37], size=7)
     fit = c["fit"]
     d.para(f"Rod solve at the calibrated l0 ({fit.get('solve_method')}): residual rms "
-           f"{_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um over {fit.get('n_poses')} poses, Jacobian rank "
+           f"{_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um over {fit.get('n_poses')} poses, "
+           "Jacobian rank "
            f"{fit.get('rank')}, condition {_num(fit.get('condition'), '.3g')}; rod axis deflection "
-           f"{_num(_scaled(fit.get('deflection_rad'), 180 / math.pi), '.3f')} deg; {fit.get('iterations')} solves to "
+           f"{_num(_scaled(fit.get('deflection_rad'), 180 / math.pi), '.3f')} deg; {fit.get('iterations')} "
+           "solves to "
            "settle l0.")
 
 

@@ -175,7 +175,7 @@ def fit_circle_ls(x_mm, y_mm, *, max_iter: int = 200) -> Circle:
     f = e @ e
     lam = 0.0
     it = 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 (it, the iterations done, is returned)
         if lam == 0.0:
             step, *_ = np.linalg.lstsq(J, -e, rcond=None)
         else:
@@ -407,7 +407,7 @@ def _slp(x, y, c0, max_iter: int = 100) -> tuple[np.ndarray, int]:
     f = objective(c)
     it = 0
     opts = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 (it, the iterations done, is returned)
         dx, dy = x - c[0], y - c[1]
         d = np.hypot(dx, dy)
         nx, ny = dx / d, dy / d
@@ -470,7 +470,8 @@ def _lp_step(nx: np.ndarray, ny: np.ndarray, b: np.ndarray, lim: float, opts: di
         active = np.union1d(active, add)
 
 
-def _polish(x, y, c, kind: str) -> np.ndarray:
+def _polish(  # noqa: C901 (the active-set Newton iteration with its exits)
+        x, y, c, kind: str) -> np.ndarray:
     """Solve the active-set equations exactly (Newton) from a vertex.
 
     MICI: three nearest points equidistant; with more than three (cocircular points, e.g. a

@@ -41,7 +41,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     imported and added, so a command never pays for what the others import."""
     parser = argparse.ArgumentParser(
         prog="borescan",
-        description="Bore scans from laser displacement sensors: simulate, import, validate, trace, query, status.",
+        description="Bore scans from laser displacement sensors: simulate, import, validate, trace, "
+                    "query, status.",
         epilog="Exit codes: 0 done; 1 the answer is no (problems found, unknown id, query failed); "
                "2 cannot run as asked (bad arguments, missing files).",
     )

@@ -152,7 +152,8 @@ def demo_scans(seed: int = DEMO_SEED) -> list[SimulatedScan]:
         thermal = [] if temp_c == 20.0 else [Effect("thermal_expansion", {"temperature_c": temp_c})]
         slot = iter(range(100))
 
-        def kw(name: str, kind: str) -> dict:
+        def kw(name: str, kind: str, tag: str = tag, night: str = night, slot=slot) -> dict:
+            """One scan's id, night, kind, seed and start (the night's values bound here)."""
             return {"scan_id": f"{tag}-{name}", "night": night, "kind": kind,
                     "seed": int(rng.integers(2**31)), "started_at": started_at_plus(night, 22, 6 * next(slot))}
 

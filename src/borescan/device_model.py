@@ -7,7 +7,8 @@ device's scans, named as a finding or fitted as part of the model). A night's ca
 each effect at the latest estimate from an earlier night (the pooled examination of a night comes
 after its calibration): the readings are corrected for a beam or reading effect
 (:func:`borescan.model.tri_correct_readings`), a channel delay is carried by the time the channel's
-angle is taken at (:func:`channel_time_offsets`), and its parameters' uncertainties enter the GUM budgets of the calibration and of every diameter
+angle is taken at (:func:`channel_time_offsets`), and its parameters' uncertainties enter the GUM budgets of
+the calibration and of every diameter
 measured with it (one input per parameter, the same key in both). An effect listed without an
 estimate yet is recorded as such and not corrected.
 """

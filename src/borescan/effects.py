@@ -265,7 +265,8 @@ def _channel_delay(t_s: np.ndarray, p: Mapping) -> np.ndarray:
 
 
 def _speed_error(x_rad: np.ndarray, p: Mapping) -> np.ndarray:
-    """Spindle turns at (1 + eps) times the commanded profile: x' = (1 + eps) x, x = Phi(t) the commanded angle."""
+    """Spindle turns at (1 + eps) times the commanded profile: x' = (1 + eps) x, x = Phi(t) the commanded
+    angle."""
     return np.asarray(x_rad, dtype=float) * (1.0 + p["eps"])
 
 
@@ -668,7 +669,8 @@ _KEY = re.compile(r"^(?P<effect>[a-z_]+)(?:@(?P<channel>all|\d+))?(?:\[k=(?P<k>\
 _NIGHT = re.compile(r"\d{4}-\d{2}-\d{2}")
 
 
-def device_effect_key(key: str, channels: Sequence[int] | None = None, device: str = "") -> tuple[str, int | None]:
+def device_effect_key(  # noqa: C901 (checks every part of a device-model key, each with its message)
+        key: str, channels: Sequence[int] | None = None, device: str = "") -> tuple[str, int | None]:
     """(effect name, channel) of a device-model entry (a registry key as the findings write it:
     ``channel_delay@2``, ``sensor_offset@all``, ``sensor_nonlinearity@1``); channel 0 for ``@all``,
     None for an effect that acts on every channel at once.

@@ -151,7 +151,7 @@ def _lmpar(R, perm, diag, qtb, delta, par):
         par = max(parl, par + parc)
 
 
-def levenberg_marquardt(
+def levenberg_marquardt(  # noqa: C901 (MINPACK lmder's iteration, kept step for step)
     fun: Callable[[np.ndarray], np.ndarray],
     x0: np.ndarray,
     jac: Callable[[np.ndarray], np.ndarray],

@@ -454,7 +454,8 @@ def measure_scan(scan, beams: Beams, cov_beams=None, device_model=(), cleaning=N
         dof = float("inf")  # the data sheet's repeatability, larger than the scatter (Type B)
     pooled = np.sqrt(np.sum((n_all[:, None] - 1) * sd_all**2, axis=0) / max(int(np.sum(n_all - 1)), 1))
     return {"diameter_mm": float(D.mean()), "u_diameter_mm": float(np.sqrt(u_cal**2 + var_mean)),
-            "method": f"static {'circumcircle' if len(beams.channels) == 3 else 'least-squares circle'}, mean of {k} poses",
+            "method": f"static {'circumcircle' if len(beams.channels) == 3 else 'least-squares circle'}, "
+                      f"mean of {k} poses",
             "poses": poses, "jac_params": np.mean(jps, axis=0), "jac_readings": np.mean(jvs, axis=0),
             "u_readings_mm": float(np.sqrt(var_mean)), "dof_readings": dof, "noise_mm": pooled,
             "model": DiameterModel("static", np.array(means))}
@@ -847,7 +848,8 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
                 if prof is not None and t.cov is not None:
                     var = _profile_variance(model, beams, prof, jp)
                     b.add(Term(t.input, cov=np.outer(both, both) * var,
-                               note="D's own spread along the rho profile's points beyond its linear part, not the "
+                               note="D's own spread along the rho profile's points beyond its linear "
+                                    "part, not the "
                                     "parameters' spread mapped linearly"))
                     continue
                 if ":mirror" in key and t.sensitivity is not None:
@@ -953,7 +955,8 @@ def decide(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "simpl
     A = float(tolerance_mm) - w
     passed = bool(A > 0 and abs(error_mm) <= A)
     how = ("simple acceptance (ILAC-G8:09/2019 4.2.1, guard band w = 0)" if rule == "simple_acceptance"
-           else f"guard-banded acceptance (ILAC-G8:09/2019 4.2.2, w = {guard_band_factor:g} U = {w * 1e3:.2f} um)")
+           else f"guard-banded acceptance (ILAC-G8:09/2019 4.2.2, w = {guard_band_factor:g} U = "
+                f"{w * 1e3:.2f} um)")
     verdict = "PASS" if passed else "FAIL"
     text = (f"{verdict}: |E| = {abs(error_mm) * 1e3:.2f} um {'<=' if passed else '>'} acceptance limit "
             f"{A * 1e3:.2f} um (tolerance {tolerance_mm * 1e3:.2f} um, U(E) = {U_mm * 1e3:.2f} um); rule: {how}")
@@ -1040,7 +1043,8 @@ def verify(measured_mm, u_measured_mm, certified_diameter_mm, u_cert_mm, cte_per
 
 
 def part_feature(artifact: dict, feature: str | None) -> dict:
-    """The scan.json feature a diameter belongs to: ``{"nominal_diameter_mm", "tolerance_mm"}`` (None where unknown).
+    """The scan.json feature a diameter belongs to: ``{"nominal_diameter_mm", "tolerance_mm"}`` (None where
+    unknown).
 
     ``feature`` names one of ``artifact.features[].id``; a diameter without a feature (a three-sensor
     scan of one bore) belongs to the artifact's only feature, else to the artifact itself

@@ -361,7 +361,8 @@ def _type_ok(x: Any, want: str) -> bool:
     raise AssertionError(want)  # pragma: no cover
 
 
-def _check_meta(meta: Any, p: _Problems, file: str) -> None:
+def _check_meta(  # noqa: C901 (one branch per checked field of scan.json)
+        meta: Any, p: _Problems, file: str) -> None:
     """Append every ``scan.json`` problem of ``meta`` to ``p`` (no folder checks)."""
     if not isinstance(meta, dict):
         p.add(file, f"top level must be a JSON object, not {_jtype(meta)}")
@@ -636,7 +637,8 @@ def _pose_ok(table: pa.Table, meta: dict | None, has_spindle: bool) -> bool:
     return not (dtype == "tri_lds" and has_spindle and pcol.null_count != table.num_rows)
 
 
-def _lds_chunk_warnings(table: pa.Table, listed: dict[int, dict] | None, file: str) -> list[str] | None:
+def _lds_chunk_warnings(  # noqa: C901 (one branch per checked rule of the raw format)
+        table: pa.Table, listed: dict[int, dict] | None, file: str) -> list[str] | None:
     """Ordering, finiteness, channel and range checks of any table without nulls where they are not
     allowed, on the Arrow chunks as they were read (no concatenation): sorting is tested by
     comparing neighbours (no int64 differences), readings per channel by one comparison per listed
@@ -658,7 +660,8 @@ def _lds_chunk_warnings(table: pa.Table, listed: dict[int, dict] | None, file: s
         if not (same | (sample[1:] > sample[:-1])).all():
             return None  # decreasing sample
         if not np.where(same, (sensor[1:] > sensor[:-1]) & (t_ns[1:] == t_ns[:-1]), t_ns[1:] > t_ns[:-1]).all():
-            return None  # unsorted or duplicate (sample, sensor), t_ns differing within a sample or not increasing
+            # unsorted or duplicate (sample, sensor), t_ns differing within a sample or not increasing
+            return None
         prev = (sample[-1], t_ns[-1], sensor[-1])
         finite = np.isfinite(value)
         k_fin = int(np.count_nonzero(finite))
@@ -693,7 +696,7 @@ def _check_lds(
     return fast if fast is not None else (_check_lds_full(table, meta, has_spindle, p, file), None)
 
 
-def _check_lds_full(
+def _check_lds_full(  # noqa: C901 (one branch per checked rule of the raw format)
     table: pa.Table, meta: dict | None, has_spindle: bool, p: _Problems, file: str
 ) -> list[str]:
     """Every check of :func:`_check_lds` with its message (the path for tables with problems)."""
@@ -1014,7 +1017,7 @@ def _meta_folder_checks(meta: dict, sid: str | None, night: str | None, p: _Prob
         p.add(SCAN_JSON, f"night {mnight!r:.40} differs from the folder name night={night}")
 
 
-def _inspect(
+def _inspect(  # noqa: C901 (one branch per raw file and problem of a scan folder)
     scan_dir: Path, raw_root: Path | None = None, meta_only: bool = False
 ) -> tuple[RawScan | dict | None, list[ScanError]]:
     scan_dir = Path(scan_dir)
@@ -1142,7 +1145,8 @@ def discover_scans(raw_root: Path) -> list[Path]:
 
 
 def nights(raw_root: str | Path) -> list[str]:
-    """Nights (``YYYY-MM-DD``) with a ``night=<date>`` folder under ``raw_root``, sorted; [] when it does not exist.
+    """Nights (``YYYY-MM-DD``) with a ``night=<date>`` folder under ``raw_root``, sorted; [] when it does not
+    exist.
 
     The unit of work of the pipeline: each stage runs once per night. Folders whose name is not
     ``night=`` + a date pattern are never processed (:func:`validate_root` reports them).
@@ -1155,7 +1159,8 @@ def nights(raw_root: str | Path) -> list[str]:
 
 
 def night_scan_dirs(raw_root: str | Path, night: str) -> list[Path]:
-    """Scan folders ``scan=<scan_id>`` (non-empty id) of one night, sorted by folder name; listed, not validated."""
+    """Scan folders ``scan=<scan_id>`` (non-empty id) of one night, sorted by folder name; listed, not
+    validated."""
     night_dir = Path(raw_root) / f"night={night}"
     if not night_dir.is_dir():
         return []
@@ -1298,7 +1303,7 @@ def _same_content(a: Path, b: Path) -> bool:
     return fa == fb and all(sha256_file(a / n) == sha256_file(b / n) for n in fa)
 
 
-def write_scan(
+def write_scan(  # noqa: C901 (checks, staging and atomic rename of a scan's raw files)
     raw_root: Path, meta: dict, lds: pl.DataFrame, spindle: pl.DataFrame | None = None
 ) -> Path:
     """Write one scan as ``<raw_root>/night=<night>/scan=<scan_id>/`` (atomic, write-once).
@@ -1422,7 +1427,8 @@ def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
     return out.reshape(n, c)
 
 
-def _regular_matrix(tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
+def _regular_matrix(  # noqa: C901 (one exit per layout that is not the usual one)
+        tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
     """The wide matrix of an ``lds`` Arrow table in the usual layout, straight from its chunks; None
     when the layout does not apply.
 
@@ -1445,7 +1451,7 @@ def _regular_matrix(tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
     if not ((s0[1:] > s0[:-1]).all() and (t0[1:] > t0[:-1]).all()):
         return None
     for k in range(c):
-        for v, g in _residue_views(sensor, k, c):
+        for v, _ in _residue_views(sensor, k, c):
             if not (v == listed[k]).all():
                 return None
         if k:

@@ -204,11 +204,14 @@ QUARANTINE_ACTIONS = (
     ("no calibration", ("no calibration",),
      "Calibrate the device (a calibration scan on or before the night), then rerun the night."),
     ("too few revolutions or poses", ("too few", "revolutions", "poses"),
-     "Rescan with more whole revolutions (or poses), the spindle at the gauge centre, under a new scan id."),
+     "Rescan with more whole revolutions (or poses), the spindle at the gauge centre, under a new "
+     "scan id."),
     ("scan metadata", ("needs a ring_gauge",),
-     "Correct scan.json (kind, artifact, certificate) in a new scan id and rerun; never edit the raw folder in place."),
+     "Correct scan.json (kind, artifact, certificate) in a new scan id and rerun; never edit the "
+     "raw folder in place."),
     ("processing error", ("stage failed", "measurement failed", "examination failed", "calibration failed"),
-     "Read the stage's log under logs/ and quarantine/<scan>.json; if borescan validate passes on the scan, "
+     "Read the stage's log under logs/ and quarantine/<scan>.json; if borescan validate passes on "
+     "the scan, "
      "report it with the record."),
 )
 #: A reason that matches no class: the raw file itself is broken.
@@ -356,7 +359,8 @@ def _night_ticks(ax, nights: list, ids: list, most: int = MAX_TICK_LABELS) -> No
         ax.set_xticks(firsts, minor=True)
 
 
-def plot_control_chart(ver: pl.DataFrame, device_id: str, artifact_id: str | None = None) -> Figure:
+def plot_control_chart(  # noqa: C901 (one branch per optional element of the chart)
+        ver: pl.DataFrame, device_id: str, artifact_id: str | None = None) -> Figure:
     """Individuals and moving-range chart of one device's verification errors on one ring gauge.
 
     ``ver`` has the ``verifications`` columns (``night``, ``scan_id``, ``error_mm``, ``passed``,
@@ -639,10 +643,12 @@ def load_tables(results_root: str | os.PathLike) -> dict[str, pl.DataFrame]:
 # --------------------------------------------------------------------------- HTML
 
 CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:0;color:#222;background:#fafafa}
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;
+     margin:0;color:#222;background:#fafafa}
 header{background:#1f3b57;color:#fff;padding:14px 24px}
 header h1{margin:0;font-size:22px} header p{margin:4px 0 0;font-size:13px;opacity:.85}
-nav{position:sticky;top:0;background:#e9eef3;padding:8px 24px;border-bottom:1px solid #ccd;font-size:14px;z-index:2}
+nav{position:sticky;top:0;background:#e9eef3;padding:8px 24px;border-bottom:1px solid #ccd;
+    font-size:14px;z-index:2}
 nav a{margin-right:16px;color:#1f3b57;text-decoration:none;font-weight:600}
 main{padding:0 24px 40px;max-width:1300px}
 section{margin-top:28px} h2{border-bottom:2px solid #1f3b57;padding-bottom:4px} h3{margin-bottom:6px}
@@ -883,7 +889,8 @@ def _counts(t: dict[str, pl.DataFrame]) -> dict[str, Any]:
 def _month_summary(con) -> list[tuple[str, int, int, int]]:
     """(month, nights, scans, quarantined) of every month with scans."""
     return con.execute(
-        f"SELECT {_month_sql()} AS m, count(DISTINCT night), count(*), count(*) FILTER (status = 'quarantined') "
+        f"SELECT {_month_sql()} AS m, count(DISTINCT night), count(*), count(*) FILTER (status = "
+        "'quarantined') "
         "FROM scans GROUP BY m ORDER BY m").fetchall()
 
 
@@ -1122,8 +1129,10 @@ class _Builder:
         if dia.height == 0:
             return _EMPTY["diameters"]
         dia = self.parts().with_columns(pl.col("artifact_id").fill_null("?"))
-        out = ['<p class="note">Diameters as measured at the temperature T and brought to 20 °C (ISO 1); U is the '
-               "expanded uncertainty of the diameter at 20 °C with its coverage factor k and coverage probability "
+        out = ['<p class="note">Diameters as measured at the temperature T and brought to 20 °C (ISO 1); '
+               'U is the '
+               "expanded uncertainty of the diameter at 20 °C with its coverage factor k and coverage "
+               "probability "
                "(U = 2u, k = 2 where the catalog has no budget). \"(assumed)\": no temperature was recorded, "
                "20 °C assumed. Deviation = diameter at 20 °C − nominal; the verdict needs a part tolerance.</p>"]
         if dia["nominal_mm"].drop_nulls().len() == 0:
@@ -1155,7 +1164,8 @@ class _Builder:
         fnd = self.t["findings"]
         if fnd.height == 0:
             return _EMPTY["discrepancy"]
-        out = ['<p class="note">Parameters: value ± u (standard uncertainty, k=1) in the effect\'s unit; gaps: rms '
+        out = ['<p class="note">Parameters: value ± u (standard uncertainty, k=1) in the effect\'s unit; '
+               'gaps: rms '
                "of the residual before and after adding the named effect, against the readings' noise floor. "
                "<b>missing_effect</b>: the model misses the named effect (service the device if it persists); "
                "<b>ambiguous</b>: several named effects explain the data equally well, all listed; "
@@ -1187,7 +1197,8 @@ class _Builder:
                            "gap after [µm rms]", "noise floor [µm]", "plots"], rows, classes, num_cols={4, 5, 6}))
         return "".join(out)
 
-    def pooled(self) -> str:
+    def pooled(  # noqa: C901 (one branch per optional column of the report's pooled table)
+            self) -> str:
         """Per device and night: the spindle scans examined together (borescan.discrepancy.pooled), the
         device model's effects, what the night's calibration carried of it with its residual against the
         noise floor, the gap against the noise floor, and the calibration drifts flagged."""
@@ -1196,9 +1207,12 @@ class _Builder:
         if (pf is None or pf.height == 0) and (dr is None or dr.height == 0):
             return _EMPTY["pooled"]
         out = ['<p class="note">Each device\'s spindle scans of the night examined together: an effect one scan '
-               "cannot separate (a delay at two speeds, an offset at two eccentricities) is named with the scans "
-               "that carry it; effects of the device model (config <code>devices:</code>) are fitted with the base. "
-               "Gap: rms residual before and after the named effects, against the noise floor. Parameters: value "
+               "cannot separate (a delay at two speeds, an offset at two eccentricities) is named with "
+               "the scans "
+               "that carry it; effects of the device model (config <code>devices:</code>) are fitted with "
+               "the base. "
+               "Gap: rms residual before and after the named effects, against the noise floor. "
+               "Parameters: value "
                "± u (k=1).</p>"]
         if pf is not None and pf.height:
             rows, classes = [], []
@@ -1630,7 +1644,8 @@ def update_report(results_root: str | os.PathLike, tables: dict[str, pl.DataFram
         con.close()
 
 
-def _update(root: Path, con, full: bool) -> ReportUpdate:
+def _update(  # noqa: C901 (one branch per page, month and section of the report)
+        root: Path, con, full: bool) -> ReportUpdate:
     report_dir = root / REPORT_DIR
     report_dir.mkdir(parents=True, exist_ok=True)
     for stray in report_dir.iterdir():  # plots of the single-page layout, month folders of gone months
@@ -1692,7 +1707,8 @@ def _update(root: Path, con, full: bool) -> ReportUpdate:
                    if rows else '<p class="empty">No nights in the catalog.</p>') + "</section>")
     nav = "".join(f'<a href="#{sid}">{title}</a>' for sid, title in SECTIONS) + '<a href="#months">Months</a>'
     footer = ('<p class="note">History: <code>borescan sql "SELECT * FROM scans"</code> or '
-              "<code>duckdb -readonly catalog.duckdb</code>; chain behind any number: <code>borescan trace ID</code>.</p>")
+              "<code>duckdb -readonly catalog.duckdb</code>; chain behind any number: <code>borescan trace "
+              "ID</code>.</p>")
     page = atomic_write_text(root / "report.html", _page("borescan report", _header(totals), nav, "".join(body), footer))
     return ReportUpdate(page, tuple(prints), tuple(rendered), drawn)
 

@@ -438,7 +438,8 @@ def _deflected_radii(rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD
     "free": the readings are linear in beta near 0, so the likelihood of beta (the other unknowns
     profiled) is N(beta_hat, Sigma_beta) and, given beta, rho_m(beta) = rho_hat_m - K_m (beta_hat - beta)
     (K = Sigma_rho,beta Sigma_beta^-1) with variance Sigma_rho|beta. r is averaged over the posterior
-    of w under the prior omega ~ U(0, ``max_deflection_rad``) (widened when the data demand), azimuth uniform (importance sampling
+    of w under the prior omega ~ U(0, ``max_deflection_rad``) (widened when the data demand), azimuth uniform
+    (importance sampling
     from a fixed-seed mixture of the prior and the likelihood): r_m = E[rho_m(beta) / k(|beta|)],
     u^2 = Var[rho_m(beta) / k] + Sigma_rho|beta / k^2, s = E[omega^2], u(s) its posterior SD.
     The direction of a deflection that the data barely see is averaged over instead of fixed at
@@ -531,11 +532,11 @@ def _repair_poses(prob, p, max_rounds: int = 3):
     return p, cost, nfev
 
 
-def _solve_core(prob, L, mask, starts_alpha, deflection):
+def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and repairs)
+        prob, L, mask, starts_alpha, deflection):
     """Multi-start LM: every start (both reflections) first without deflection, then from the
     closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0); the
     lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`)."""
-    n, m = prob.n, prob.m
     best, nfev = None, 0
     flat = _RodProblem(prob.V, mask, prob.layers, prob.fix, False)
     for alpha0 in starts_alpha:
@@ -582,7 +583,7 @@ def _solve_core(prob, L, mask, starts_alpha, deflection):
     return p, cost, nfev
 
 
-def solve_rod(
+def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     readings_mm,
     l0_mm=None,
     *,
@@ -701,8 +702,10 @@ def solve_rod(
     ratio = u_fixed / ref
     if np.any(ratio > max_u_ratio):
         raise RodSolveError(
-            f"degenerate geometry: radii ill-determined, u(r) = {np.array2string(u_fixed, precision=4)} mm is up to "
-            f"{ratio.max():.0f} x sigma/sqrt(n) (condition {cond:.3g}); the offsets (x_m, y_m) are nearly collinear "
+            f"degenerate geometry: radii ill-determined, u(r) = {np.array2string(u_fixed, precision=4)} "
+            "mm is up to "
+            f"{ratio.max():.0f} x sigma/sqrt(n) (condition {cond:.3g}); the offsets (x_m, y_m) are "
+            "nearly collinear "
             "with the axis (rod parallel to, or intersecting, the holes' axis) or the poses are bunched"
         )
     b = _beta(w)
@@ -719,8 +722,10 @@ def solve_rod(
             dratio = float(np.nanmax(u_lin / u_fixed))
         if dratio > max_deflection_ratio:
             raise RodSolveError(
-                f"deflection not separable from the radii: freeing the rod axis deflection multiplies u(r) by "
-                f"{dratio:.1f} (> {max_deflection_ratio:g}); the poses do not span the second harmonic of the "
+                "deflection not separable from the radii: freeing the rod axis deflection multiplies "
+                "u(r) by "
+                f"{dratio:.1f} (> {max_deflection_ratio:g}); the poses do not span the second harmonic "
+                "of the "
                 f"tilted section (u(omega^2) = {u_s:.3g} rad^2) - add poses spread around the circle"
             )
     else:
@@ -790,7 +795,8 @@ def rod_crb(alpha_rad, l_mm=None, xy_mm=None, radius_mm=None, sigma_mm: float | 
         n, m = V.shape
         w = ax.omega_rad * np.array([np.cos(ax.omega_az_rad), np.sin(ax.omega_az_rad)])
         r = np.array([h.radius_mm for h in holes])
-        # the solver's gauge: axis through the origin at z = 0, centres relative to the axis at the spot height
+        # the solver's gauge: axis through the origin at z = 0, centres relative to the axis at the
+        # spot height
         z = np.array([lay.h_mm for lay in lays]) + r * np.tan([lay.gamma_rad for lay in lays])
         c = (np.array([h.center_xy_mm for h in holes]) - [ax.dx_mm, ax.dy_mm]
              - (z * np.sinc(ax.omega_rad / np.pi))[:, None] * w[None, :])

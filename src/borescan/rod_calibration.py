@@ -11,7 +11,8 @@ gauges' radii at their temperature:
 
     l0_m  <-  l0_m + (R_m(T) - r_m(l0)),    R_m(T) = D_m,20 / 2 (1 + alpha (T - 20 degC)),
 
-iterated until the step is below 1e-7 mm or u(r) / 1000 (a fixed point with contraction O(e^2 / r^2); two or three solves). The other
+iterated until the step is below 1e-7 mm or u(r) / 1000 (a fixed point with contraction O(e^2 / r^2); two or
+three solves). The other
 layer constants (phi, d, gamma, h) stay at their nominal values: to first order a beam offset or
 tilt changes every reading of a layer by a constant, which l0 absorbs.
 
@@ -115,8 +116,10 @@ def layer_gauges(meta: dict, channels) -> list[dict]:
             g["k"] = g["k"] if g["k"] is not None else 2
         else:
             raise ValueError(
-                f"rod layer {int(ch)} (feature {feat!r}) has no certified diameter: a rod calibration or verification "
-                "needs artifact.features[].certified_diameter_mm for the layer's feature, or a ring_gauge artifact "
+                f"rod layer {int(ch)} (feature {feat!r}) has no certified diameter: a rod calibration "
+                "or verification "
+                "needs artifact.features[].certified_diameter_mm for the layer's feature, or a "
+                "ring_gauge artifact "
                 "with certified_diameter_mm")
         if g["u_diameter_mm"] is None:
             raise ValueError(f"rod layer {int(ch)}: gauge {g['id']} states no u_diameter_mm (its certificate's U)")
@@ -188,7 +191,8 @@ def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list
         s[js] = 0.5 * f
         b.add(Term(Input(key, f"certified diameter of ring gauge {g['id']} at 20 degC", "D_g", "mm",
                          float(g["certified_diameter_mm"]), float(g["u_diameter_mm"]) / k_cert, "normal",
-                         source=f"certificate {g.get('certificate')}: U = {g['u_diameter_mm']} mm (k = {k_cert:g})"), s))
+                         source=f"certificate {g.get('certificate')}: U = {g['u_diameter_mm']} mm (k = "
+                                f"{k_cert:g})"), s))
     r20 = np.array([0.5 * float(g["certified_diameter_mm"]) for g in gauges])
     b.add(Term(Input(f"temperature:{scan_id}", f"temperature of the gauges during {scan_id}", "T", "degC",
                      temperature.temperature_c, temperature.u_c, "rectangular", source=temperature.source),
@@ -202,7 +206,8 @@ def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list
 
 
 def rod_calibration_id(device_id: str, scan_ids, night: str) -> str:
-    """Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>`` (:func:`borescan.calibration.make_calibration_id`)."""
+    """Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>``
+    (:func:`borescan.calibration.make_calibration_id`)."""
     return make_calibration_id(device_id, scan_ids, ROD_CALIBRATION_METHOD, night)
 
 
@@ -214,11 +219,10 @@ def layer_jacobian(channels, channel: int) -> np.ndarray:
 
 def rod_calibration_rows(cal: RodCalibration, night: str, certificate_path: str | None, raw_sha256: str,
                          p: float) -> list[dict]:
-    """The ``calibrations`` rows of a rod calibration (one per layer; l0 with u, U and k)."""
+    """The ``calibrations`` rows of a rod calibration (one per layer; l0 with its standard uncertainty u)."""
     blob = json.dumps(_to_dict(cal), sort_keys=True, allow_nan=False)
     rows = []
     for j, lay in enumerate(cal.layers):
-        comb = cal.budget.combined(j, p)
         rows.append({
             "calibration_id": cal.calibration_id, "device_id": cal.device_id, "device_type": "rod",
             "scan_id": cal.scan_ids[0], "channel": int(lay.channel), "l0_mm": float(lay.l0_mm), "h_mm": float(lay.h_mm),

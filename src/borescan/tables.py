@@ -102,9 +102,12 @@ _T = [
         "rho_mm:float d_b_mm:float beta_rad:float u_rho_mm:float u_d_b_mm:float u_beta_rad:float "
         "l0_mm:float h_mm:float phi_rad:float d_mm:float gamma_rad:float "
         "u_l0_mm:float u_h_mm:float u_phi_rad:float u_d_mm:float u_gamma_rad:float "
-        "method:text certificate_path:text certificate_sha256:text night:date valid_from:date status:text raw_sha256:text "
-        # GUM budget (issue 19): expanded uncertainties (not U_*: DuckDB names ignore case), k, gauge temperature
-        "expanded_u_beta_rad:float expanded_u_rho_mm:float expanded_u_d_b_mm:float k_beta:float k_rho:float k_d_b:float "
+        "method:text certificate_path:text certificate_sha256:text night:date valid_from:date "
+        "status:text raw_sha256:text "
+        # GUM budget (issue 19): expanded uncertainties (not U_*: DuckDB names ignore case), k, gauge
+        # temperature
+        "expanded_u_beta_rad:float expanded_u_rho_mm:float expanded_u_d_b_mm:float k_beta:float "
+        "k_rho:float k_d_b:float "
         "coverage_probability:float temperature_c:float temperature_assumed:bool recalibration_due:date"),
           ("calibration_id", "channel"), primary=True),
     Table("calibration_scans", _cols("calibration_id:text scan_id:text"), ("calibration_id", "scan_id"), primary=True),
@@ -136,15 +139,20 @@ _T = [
     # issue 22: pooled examination of a device's spindle scans of a window of nights (one row per named
     # effect, per device-model term, or one row with a null effect); nights and scan_ids comma-separated
     Table("pooled_findings", _cols(
-        "night:date device_id:text nights:text scan_ids:text verdict:text effect:text channel:channel term:text "
-        "group:text parameters:text uncertainties:text evidence_scans:text in_device_model:bool device_model:text "
-        "absorbed:text gap_before_mm:float gap_after_mm:float noise_floor_mm:float findings_path:text reason:text"),
+        "night:date device_id:text nights:text scan_ids:text verdict:text effect:text "
+        "channel:channel term:text "
+        "group:text parameters:text uncertainties:text evidence_scans:text in_device_model:bool "
+        "device_model:text "
+        "absorbed:text gap_before_mm:float gap_after_mm:float noise_floor_mm:float "
+        "findings_path:text reason:text"),
           ("night", "device_id", "term")),
-    # issue 22: change of a beam parameter between consecutive calibrations (the later one valid from the night)
+    # issue 22: change of a beam parameter between consecutive calibrations (the later one valid from
+    # the night)
     Table("calibration_drift", _cols(
         "night:date device_id:text channel:channel parameter:text calibration_id_before:text "
         "calibration_id_after:text valid_from_before:date valid_from_after:date value_before:float "
-        "value_after:float change:float u_before:float u_after:float u_combined:float change_over_u:float "
+        "value_after:float change:float u_before:float u_after:float u_combined:float "
+        "change_over_u:float "
         "multiple:float flagged:bool explained_by:text explanation:text"),
           ("device_id", "channel", "parameter", "calibration_id_after")),
 ]

@@ -98,7 +98,8 @@ class _Tracer:
         first = rows[0]
         node: dict[str, Any] = {k: first.get(k) for k in ("calibration_id", "device_id", "method", "valid_from",
                                                           "status")}
-        try:  # the lifecycle as of the newest night (saved query calibration_lifecycle), when the catalog has it
+        # the lifecycle as of the newest night (saved query calibration_lifecycle), when the catalog has it
+        try:
             life = _rows(self.con, "SELECT status, valid_until, status_night, reason FROM calibration_lifecycle "
                                    "WHERE calibration_id = ?", [calibration_id])
         except duckdb.Error:
@@ -122,8 +123,10 @@ class _Tracer:
         node["gauges"] = _layer_gauges(first)
         node["verifications"] = _rows(
             self.con,
-            "SELECT v.scan_id, v.night, v.error_mm, v.tolerance_mm, v.passed, v.feature, v.artifact_id FROM verifications v "
-            "LEFT JOIN scans s USING (scan_id) WHERE v.calibration_id = ? ORDER BY v.night, s.started_at, v.scan_id, v.feature",
+            "SELECT v.scan_id, v.night, v.error_mm, v.tolerance_mm, v.passed, v.feature, v.artifact_id "
+            "FROM verifications v "
+            "LEFT JOIN scans s USING (scan_id) WHERE v.calibration_id = ? ORDER BY v.night, "
+            "s.started_at, v.scan_id, v.feature",
             [calibration_id])
         return node
 
@@ -234,13 +237,15 @@ def _scan_lines(s: dict[str, Any], ind: str, label: str = "scan") -> list[str]:
             lines.append(f"{ind}  artifact {art['artifact_id']}  (no artifacts row)")
         else:
             lines.append(
-                f"{ind}  artifact {art['artifact_id']} ({_fmt(art.get('type'))}), certificate {_fmt(art.get('certificate'))}, "
+                f"{ind}  artifact {art['artifact_id']} ({_fmt(art.get('type'))}), certificate "
+                f"{_fmt(art.get('certificate'))}, "
                 f"certified {_fmt(art.get('certified_diameter_mm'), ' mm')} "
                 f"(u {_fmt(art.get('u_diameter_mm'), ' mm')}, k={_fmt(art.get('k'))})"
                 + (" as this scan used it" if art.get("as_used") else ""))
             if art.get("latest"):
                 lt = art["latest"]
-                lines.append(f"{ind}  NOTE: the artifact's latest record differs: certificate {_fmt(lt.get('certificate'))}, "
+                lines.append(f"{ind}  NOTE: the artifact's latest record differs: certificate "
+                             f"{_fmt(lt.get('certificate'))}, "
                              f"certified {_fmt(lt.get('certified_diameter_mm'), ' mm')}")
     lines.append(f"{ind}  raw {_fmt(s.get('raw_path'))}")
     lines.append(f"{ind}  raw_sha256 {_fmt(s.get('raw_sha256'))}")
@@ -277,13 +282,15 @@ def _cal_lines(c: dict[str, Any] | None, ind: str) -> list[str]:
     for s in c["scans"]:
         lines += _scan_lines(s, ind + "  ", "calibration scan")
     for g in c.get("gauges") or []:
-        lines.append(f"{ind}  layer {g.get('channel')} ({_fmt(g.get('feature'))}): ring gauge {_fmt(g.get('id'))}, certificate "
+        lines.append(f"{ind}  layer {g.get('channel')} ({_fmt(g.get('feature'))}): ring gauge "
+                     f"{_fmt(g.get('id'))}, certificate "
                      f"{_fmt(g.get('certificate'))}, certified {_fmt(g.get('certified_diameter_mm'), ' mm')} "
                      f"(U {_fmt(g.get('u_diameter_mm'), ' mm')}, k={_fmt(g.get('k'))})")
     for v in c["verifications"]:
         verdict = "passed" if v["passed"] else "FAILED"
         layer = f" layer {v['feature']} ({_fmt(v.get('artifact_id'))})" if v.get("feature") else ""
-        lines.append(f"{ind}  verified by {v['scan_id']}{layer} on {_fmt(v['night'])}: error {_fmt(v['error_mm'], ' mm')} "
+        lines.append(f"{ind}  verified by {v['scan_id']}{layer} on {_fmt(v['night'])}: error "
+                     f"{_fmt(v['error_mm'], ' mm')} "
                      f"(tolerance {_fmt(v['tolerance_mm'], ' mm')}) {verdict}")
     return lines
 
@@ -301,13 +308,15 @@ def _layer_gauges(row: dict[str, Any]) -> list[dict[str, Any]]:
 
 def _dia_lines(d: dict[str, Any], ind: str) -> list[str]:
     lines = [f"{ind}diameter {d['diameter_id']}  {_fmt(d['diameter_mm'], ' mm')} "
-             f"(u {_fmt(d['u_diameter_mm'], ' mm')}, k=1), feature {_fmt(d['feature'])}, method {_fmt(d['method'])}"]
+             f"(u {_fmt(d['u_diameter_mm'], ' mm')}, k=1), feature {_fmt(d['feature'])}, method "
+             f"{_fmt(d['method'])}"]
     lines += _scan_lines(d["scan"], ind + "  ")
     lines += _cal_lines(d["calibration"], ind + "  ")
     return lines
 
 
-def format_trace(chain: dict[str, Any]) -> str:
+def format_trace(  # noqa: C901 (one branch per kind of fact of the trace)
+        chain: dict[str, Any]) -> str:
     """Indented text of a :func:`trace` result, one fact per line."""
     kind = chain["kind"]
     lines = [f"trace {chain['id']} ({kind})"]
@@ -335,7 +344,8 @@ def format_trace(chain: dict[str, Any]) -> str:
             lines += _cal_lines(c, "  ")
     elif kind == "artifact":
         for a in chain["artifacts"]:
-            lines.append(f"  artifact {a['artifact_id']} ({_fmt(a.get('type'))}), certificate {_fmt(a.get('certificate'))}")
+            lines.append(f"  artifact {a['artifact_id']} ({_fmt(a.get('type'))}), certificate "
+                         f"{_fmt(a.get('certificate'))}")
         for c in chain["calibrations"]:
             lines += _cal_lines(c, "  ")
     return "\n".join(lines) + "\n"

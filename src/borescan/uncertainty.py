@@ -162,7 +162,8 @@ def numerical_tolerance(u: float, n_dig: int = 2) -> float:
 
 
 def _cell_masses(dist: str, scale: float, nu: float, edges: np.ndarray) -> np.ndarray:
-    """Probability of each cell [edges[i], edges[i+1]) of a zero-mean term with standard uncertainty ``scale``."""
+    """Probability of each cell [edges[i], edges[i+1]) of a zero-mean term with standard uncertainty
+    ``scale``."""
     if dist == "normal":
         if np.isfinite(nu) and nu <= NU_NORMAL:
             cdf = special.stdtr(nu, edges / scale)

@@ -1,4 +1,5 @@
-"""The one validator: every reason the pipeline sets a raw scan aside at ingest (ingest and ``borescan validate``).
+"""The one validator: every reason the pipeline sets a raw scan aside at ingest (ingest and
+``borescan validate``).
 
 :func:`scan_problems` is the single check of one scan folder. The ingest stage quarantines a
 scan when it returns a problem (the first one becomes the quarantine reason), and

@@ -19,7 +19,8 @@ def main(smk) -> None:
             auto_nights=smk.params.device_model_auto_nights, signal=smk.params.signal, workers=smk.threads,
         )
         write_stage_outputs(smk.output, bad, calibrations=cals, calibration_scans=links)
-        log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans quarantined")
+        log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {len(bad)} scans "
+            "quarantined")
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage

@@ -1,4 +1,5 @@
-"""Rule write_report: results_root/report.html, the month pages (redrawn where rows changed), report/papers.html."""
+"""Rule write_report: results_root/report.html, the month pages (redrawn where rows changed),
+report/papers.html."""
 
 from borescan import report
 from borescan.workflow_log import log_to, rule_job
@@ -9,7 +10,8 @@ def main(smk) -> None:
         update = report.update_report(smk.params.results_root)
         log(f"{len(update.months)} month(s); pages written: {', '.join(update.rendered) or 'none'}; "
             f"{update.plots_drawn} plot(s) drawn")
-        log(f"report written to {update.path} (papers: {update.path.parent / report.REPORT_DIR / report.PAPERS_PAGE})")
+        log(f"report written to {update.path} (papers: "
+            f"{update.path.parent / report.REPORT_DIR / report.PAPERS_PAGE})")
 
 
 if __name__ == "__main__":

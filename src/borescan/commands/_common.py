@@ -1,4 +1,5 @@
-"""What the subcommands share: the user-error exception, argument types, progress lines, times with their zone.
+"""What the subcommands share: the user-error exception, argument types, progress lines, times with their
+zone.
 
 Exit codes of every ``borescan`` command: 0 done; 1 the command ran and its answer is "no"
 (``validate`` found problems, ``import-csv`` refused the data, ``trace`` knows no such id, a
@@ -22,7 +23,8 @@ __all__ = ["UsageError", "CommandFailed", "int_at_least", "positive_int", "nonne
 
 
 class UsageError(Exception):
-    """The command cannot run as asked (exit 2); ``str()`` is the message shown after ``borescan <command>:``."""
+    """The command cannot run as asked (exit 2); ``str()`` is the message shown after
+    ``borescan <command>:``."""
 
     exit_code = 2
 

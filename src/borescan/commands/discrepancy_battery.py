@@ -66,8 +66,10 @@ def run(args: argparse.Namespace) -> int:
           "(counting also ambiguous verdicts listing the truth)")
     print(f"false-alarm rate    {_pct(res.false_alarm_rate, no_free)} "
           "(effect-free scans called anything but no_missing_effect)")
-    print(f"median gap shrink   {_times(res.median_shrink, no_eff)} (gap_before / gap_after, scans with effects)")
-    print(f"median gap_before / noise floor {_times(res.median_shrink_ceiling, no_eff)} (the ceiling of the shrink)")
+    print(f"median gap shrink   {_times(res.median_shrink, no_eff)} (gap_before / gap_after, scans with "
+          "effects)")
+    print(f"median gap_before / noise floor {_times(res.median_shrink_ceiling, no_eff)} (the ceiling of "
+          "the shrink)")
     print(f"gap_after <= 1.5 noise floor on {_pct(res.share_at_floor, no_eff)} of the scans with effects")
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -42,7 +42,7 @@ def _sign(rng) -> float:
     return 1.0 if rng.random() < 0.5 else -1.0
 
 
-def random_effect(
+def random_effect(  # noqa: C901 (one branch per effect of the registry)
     name: str, rng: np.random.Generator, channels: tuple[int, ...], rev_hz: float, rate_hz: float
 ) -> Effect:
     """One effect of ``name`` at a realistic random magnitude (ranges in the code, mm / s / rad)."""

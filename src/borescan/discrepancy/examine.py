@@ -264,7 +264,8 @@ def examine_tri(data: TriData, **cfg) -> Examination:
                                   device_effects=tuple(cfg.get("device_effects", ()))), **cfg)
 
 
-def examine_model(model, **cfg) -> Examination:
+def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split into small functions)
+        model, **cfg) -> Examination:
     """The workflow on any model object (:class:`TriModel`, rod and static models).
 
     The model provides the data, the base parameters and their start, the forward model with

@@ -87,7 +87,7 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
                 lines[2, col, j], = axes[2, col].plot([], [], lw=0.8, color=colors[j % 10], label=f"ch {ch}")
             axes[2, col].set_xlabel("undulations per revolution [UPR]")
         else:  # pose scans: no revolution; residual per sample index instead
-            for j, ch in enumerate(channels):
+            for j in range(len(channels)):
                 lines[2, col, j], = axes[2, col].plot([], [], ".", ms=2, color=colors[j % 10])
             axes[2, col].set_xlabel("sample (poses in order)")
         for row in (0, 1):
@@ -132,7 +132,8 @@ def _abs_max(*arrays: np.ndarray) -> float:
     return float(max(vals)) if vals else 0.0
 
 
-def plot_gap(examination, out_path: str | Path) -> Path:
+def plot_gap(  # noqa: C901 (one branch per scan kind and panel of the plot)
+        examination, out_path: str | Path) -> Path:
     """Write gap.png for one :class:`~borescan.discrepancy.examine.Examination`.
 
     Rows: residual against device angle, against time, spectrum in undulations per revolution

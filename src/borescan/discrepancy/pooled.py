@@ -208,7 +208,8 @@ CONDITIONS: dict[str, Condition] = {
 
 
 class _ScanModel(TriModel):
-    """One scan's :class:`TriModel` whose beams move by ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` (every channel)."""
+    """One scan's :class:`TriModel` whose beams move by ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` (every
+    channel)."""
 
     def base(self, p: dict[str, float]):
         b = super().base(p)
@@ -247,7 +248,8 @@ class PooledModel:
     free_beams : beam parameters that are free and shared (``beta``, ``rho``, ``d_b``)
     label : name of the set in messages (default the device id)
     device_effects : registry keys of the device model (``channel_delay@2``,
-        :func:`borescan.effects.device_model_effects`): terms of the base model, shared by every scan and fitted
+        :func:`borescan.effects.device_model_effects`): terms of the base model, shared by every scan and
+        fitted
         with it, never candidates
     """
 
@@ -255,7 +257,8 @@ class PooledModel:
     angle_label = "device angle [deg]"
     absorbed_by = ABSORBED_BY
 
-    def __init__(self, scans: Sequence[PooledScan], beams: Beams | None = None,
+    def __init__(  # noqa: C901 (checks every input of the pooled set; pooled is to become an adapter of the device models)
+            self, scans: Sequence[PooledScan], beams: Beams | None = None,
                  free_beams: tuple[str, ...] = ("beta", "rho", "d_b"), label: str | None = None,
                  device_effects: Sequence[str] = ()):
         scans = list(scans)
@@ -373,7 +376,7 @@ class PooledModel:
                 if len(tries) > 1:
                     names = [f"{sid}:{n}" for n in self._nuisance(k)]
                     try:
-                        fr = fit_least_squares(lambda q: self._scan_residual(k, {**out, **q}), names,
+                        fr = fit_least_squares(lambda q, k=k: self._scan_residual(k, {**out, **q}), names,
                                                [st[n] for n in names], [BASE_SCALE[n.rsplit(":", 1)[-1]] for n in names],
                                                max_nfev=30)
                     except ValueError:
@@ -509,7 +512,8 @@ class PooledModel:
     # ------------------------------------------------------------------ engine interface
     @property
     def base_description(self) -> str:
-        return (f"{len(self.scans)} scans of one device: beams ({', '.join(self.free_beams)}) shared and free from "
+        return (f"{len(self.scans)} scans of one device: beams ({', '.join(self.free_beams)}) shared and "
+                "free from "
                 "the start geometry; per scan bore centre, phase (moving spindle), radius (uncertified "
                 "artifact), speed scale (commanded angle)")
 
@@ -547,7 +551,8 @@ class PooledModel:
         """None: a vibration line belongs to one run (scope ``scan``) and is named per scan."""
         return None
 
-    def candidate_terms(self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[PooledTerm]:
+    def candidate_terms(  # noqa: C901 (one branch per scope of the registry's effects; pooled is to become an adapter of the device models)
+            self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[PooledTerm]:
         """The registry's candidates for every group of scans their scope defines, less those the
         pooled base absorbs (recorded in :attr:`absorbed`). ``speed_error`` is the base's per-scan
         speed scale; ``vibration`` is left to the single-scan examination."""
@@ -614,7 +619,8 @@ class PooledModel:
             return entry
         return None
 
-    def extra_starts(self, screen: list, keys: set, t1: Term | None) -> list:
+    def extra_starts(  # noqa: C901 (one branch per effect's extra starts; pooled is to become an adapter of the device models)
+            self, screen: list, keys: set, t1: Term | None) -> list:
         """Starts the linear screen cannot give.
 
         An oriented effect turned in some scans (:attr:`PooledTerm.turns`) is not linear in the
@@ -665,7 +671,7 @@ class PooledModel:
                         for j in combo:
                             st = self._mirrored(st, j)
                         try:
-                            fr = fit_least_squares(lambda q: self.residual(q, [t]), names,
+                            fr = fit_least_squares(lambda q, t=t: self.residual(q, [t]), names,
                                                    [st.get(n, 0.0) for n in names], scales, max_nfev=15)
                         except ValueError:
                             continue
@@ -674,7 +680,7 @@ class PooledModel:
                 if best is not None:
                     v = best.values()
                     try:
-                        fr = fit_least_squares(lambda q: self.residual(q, [t]), names, [v[n] for n in names], scales,
+                        fr = fit_least_squares(lambda q, t=t: self.residual(q, [t]), names, [v[n] for n in names], scales,
                                                max_nfev=100)
                         v = fr.values() if np.isfinite(fr.rss) and fr.rss <= best.rss else v
                     except ValueError:
@@ -1109,7 +1115,8 @@ def _check_pair(model: PooledModel, f: dict, terms: list[Term], entries: list[di
     return {"term": t1, "fit": fr1, "pair": pair}
 
 
-def examine_pooled(scans: Sequence[PooledScan], beams: Beams | None = None, *,
+def examine_pooled(  # noqa: C901 (pooled is to become an adapter of the device models)
+        scans: Sequence[PooledScan], beams: Beams | None = None, *,
                    free_beams: tuple[str, ...] = ("beta", "rho", "d_b"), label: str | None = None,
                    device_effects: Sequence[str] = (), **cfg) -> PooledExamination:
     """Examine the spindle scans of one device together (module doc).
@@ -1121,7 +1128,8 @@ def examine_pooled(scans: Sequence[PooledScan], beams: Beams | None = None, *,
         of the first scan)
     free_beams : shared beam parameters that are free
     label : name of the set (default the device id)
-    device_effects : the device model (registry keys, :func:`borescan.effects.device_model_effects`): fitted as part
+    device_effects : the device model (registry keys, :func:`borescan.effects.device_model_effects`): fitted
+        as part
         of the base model, never candidates; reported under ``device_model``
     **cfg : the settings of :func:`~borescan.discrepancy.examine.examine_model`
         (:func:`~borescan.discrepancy.examine.discrepancy_settings` of the config's section)

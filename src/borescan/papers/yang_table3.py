@@ -135,7 +135,8 @@ def _diameters(readings, beams) -> np.ndarray:
     return np.asarray(static_diameter(readings, beams).diameter_mm)
 
 
-def reproduce() -> dict:
+def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang's Table 3)
+        ) -> dict:
     """Compute Table 3 under every alternative and fit the angles that explain it.
 
     Returns

@@ -92,7 +92,7 @@ def moving_average(values_mm: np.ndarray, window_samples: int = 15, *, causal: b
     return _back(out, one)
 
 
-def kalman_filter(
+def kalman_filter(  # noqa: C901 (two state models, each filtered and smoothed)
     values_mm: np.ndarray,
     *,
     model: str = "random_walk",

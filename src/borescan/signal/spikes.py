@@ -16,7 +16,8 @@ def _ll_reference(col_x: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
 
     ``col_x`` is the column with excluded samples (nulls, candidates) set to NaN and padded with
     ``w // 2`` NaN at both ends (``idx`` indexes windows of ``w`` samples, i.e. the padded
-    position of each window's first sample). Uses the neighbours j = -h..h, j != 0, that are not NaN: Theil-Sen slope s (median of pairwise
+    position of each window's first sample). Uses the neighbours j = -h..h, j != 0, that are not NaN:
+    Theil-Sen slope s (median of pairwise
     slopes), reference = median_j (v_{k+j} - j s). NaN when fewer than two neighbours are usable.
     """
     h = w // 2

@@ -85,7 +85,8 @@ def ok_scans(scans_table: str | Path | pl.DataFrame) -> pl.DataFrame:
 
 def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame,
                 **where: str) -> list[tuple[dict, Path]]:
-    """The ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their folders."""
+    """The ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their
+    folders."""
     df = ok_scans(scans_table)
     for col, value in where.items():
         df = df.filter(pl.col(col) == value)

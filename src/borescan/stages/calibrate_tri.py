@@ -56,7 +56,8 @@ def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows
 
 
 def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple[str, str] | str | None:
-    """Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None if usable."""
+    """Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None
+    if usable."""
     s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
     if scan.spindle is None:
         return ("spindle.parquet", "calibration scan has no spindle stream (a ring-gauge calibration turns on a spindle)")
@@ -89,7 +90,8 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
     try:
         if method == "yang2017":
             if ctx["device_model"](device_id, inputs[0]["channels"]):
-                log(f"{device_id}: its device model is not carried by yang2017 (extrema of the recorded readings)")
+                log(f"{device_id}: its device model is not carried by yang2017 (extrema of the recorded "
+                    "readings)")
             fit = yang_from_summary(scans[0], inputs[0], summary, nominal, night, log=log)
         else:
             model = ctx["device_model"](device_id, inputs[0]["channels"])

@@ -90,10 +90,12 @@ def acceptance_rule(cal_cfg: dict) -> calibration.AcceptanceRule:
 
 def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: str | None = None, model=()):
     """Full-data calibration of one device from its spindle scans (:func:`spindle_inputs` of each,
-    corrected by :func:`borescan.device_model.correct_inputs` for the device ``model``, recorded in the calibration's
+    corrected by :func:`borescan.device_model.correct_inputs` for the device ``model``, recorded in the
+    calibration's
     ``diagnostics["device_model"]``).
 
-    Raises ``calibration.CalibrationError`` (naming the scans and the reason) when the fit fails or is refused.
+    Raises ``calibration.CalibrationError`` (naming the scans and the reason) when the fit fails or is
+    refused.
     """
     raw_files = {f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}
     cal = _fit(scans, inputs, nominal, cal_cfg, night, raw_files,
@@ -145,7 +147,8 @@ def yang_from_summary(scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, 
             if not ok:
                 statuses[i] = "advanced" if sgn * nominal.rho_mm[i] > 0 else "backward"
                 log(f"{scan.scan_id}: channel {ch}: status not significant (|n - m| within its uncertainty); "
-                    f"side of the beam taken from device.nominal (rho {nominal.rho_mm[i]:+.3f} mm): {statuses[i]}")
+                    f"side of the beam taken from device.nominal (rho {nominal.rho_mm[i]:+.3f} mm): "
+                    f"{statuses[i]}")
     if inputs["center_xy"] is None:
         raise ValueError("yang2017 needs scan.json center (the gauge centre from a centring scan) for oe (Eq. 9)")
     oe = calibration.yang_oe(inputs["spindle_xy"], inputs["center_xy"])
@@ -185,8 +188,10 @@ def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, nig
 
 def budget_of(cal, scans, inputs: list[dict], uncertainty: dict, *, summary: pl.DataFrame | None = None,
               nominal: Beams | None = None, night: str | None = None, position_accuracy_mm: float | None = None) -> Budget:
-    """The GUM budget of a calibration from its scans (:func:`borescan.calibration_budget.calibration_budget`);
-    a ``yang2017`` one also needs the signal ``summary``, ``nominal``, ``night`` and ``position_accuracy_mm``."""
+    """The GUM budget of a calibration from its scans
+    (:func:`borescan.calibration_budget.calibration_budget`);
+    a ``yang2017`` one also needs the signal ``summary``, ``nominal``, ``night`` and
+    ``position_accuracy_mm``."""
     ids = [s.scan_id for s in scans]
     if cal.method == "full_lsq":
         return calibration_budget(cal, inputs, uncertainty, scan_ids=ids)

@@ -36,7 +36,8 @@ def findings_dir(results_root, scan_id: str) -> Path:
 
 
 def findings_rows(findings: dict) -> list[dict]:
-    """The ``findings`` rows of one scan's findings.json: one per named effect (one row with null effect if none)."""
+    """The ``findings`` rows of one scan's findings.json: one per named effect (one row with null effect if
+    none)."""
     base = {"scan_id": findings["scan_id"], "verdict": findings["verdict"],
             "gap_before_mm": (findings.get("gap_before") or {}).get("rms_mm"),
             "gap_after_mm": (findings.get("gap_after") or {}).get("rms_mm"),
@@ -96,6 +97,7 @@ def discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
         return [], bad, f"{scan.scan_id}: quarantined ({err})"
     named = ", ".join(f"{n['effect']}" + (f" ch{n['channel']}" if n.get("channel") else "") for n in findings.get("named", []))
     msg = (f"{scan.scan_id} vs {ref}: {findings['verdict']}{': ' + named if named else ''} "
-           f"(gap {findings['gap_before']['rms_mm'] * 1e3:.2f} -> {findings['gap_after']['rms_mm'] * 1e3:.2f} um, "
+           f"(gap {findings['gap_before']['rms_mm'] * 1e3:.2f} -> "
+           f"{findings['gap_after']['rms_mm'] * 1e3:.2f} um, "
            f"noise floor {findings['noise_floor_mm'] * 1e3:.2f} um)")
     return findings_rows(findings), bad, msg

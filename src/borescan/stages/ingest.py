@@ -1,4 +1,5 @@
-"""Stage ``ingest_night``: validate and register every scan of a night, record checksums, quarantine bad ones."""
+"""Stage ``ingest_night``: validate and register every scan of a night, record checksums, quarantine bad
+ones."""
 
 from __future__ import annotations
 

@@ -78,7 +78,8 @@ def drift_rows(calibrations: pl.DataFrame, night: str, multiple: float, findings
         e = why.get((r["device_id"], r["channel"], r["parameter"], r["calibration_id_after"]))
         if r["flagged"] and e is None:
             e = {"explained_by": [], "explanation": (
-                f"{r['parameter']} of channel {r['channel']} moved by {r['change']:+.4g} ({r['change_over_u']:+.1f} "
+                f"{r['parameter']} of channel {r['channel']} moved by {r['change']:+.4g} "
+                f"({r['change_over_u']:+.1f} "
                 f"combined u); device {r['device_id']} has no pooled examination on night {night} "
                 "(fewer than two spindle scans of a certified gauge)")}
         rows.append(dict(r, night=night, explained_by=",".join(e["explained_by"]) if e else None,
@@ -127,7 +128,8 @@ def stage_pooled(raw_root, night: str, results_root, scans_tables, calibration_t
 
 
 def pooled_device(job) -> tuple[str, dict | None, str]:
-    """Examine one device's pooled spindle scans and write its JSON: (device id, findings or None, log line)."""
+    """Examine one device's pooled spindle scans and write its JSON: (device id, findings or None, log
+    line)."""
     raw_root, night, out_dir, device, dirs, ref_kw, ref, effects, settings = job
     scans = [rawio.read_scan(d, raw_root=Path(raw_root)) for d in dirs]
     spindle = [s for s in scans if "pose" not in s.lds.columns or s.lds["pose"].null_count() == s.lds.height]

@@ -1,4 +1,5 @@
-"""Stage ``signal_night``: revolutions, sub-sample extrema and per-channel summaries of a night's spindle scans."""
+"""Stage ``signal_night``: revolutions, sub-sample extrema and per-channel summaries of a night's spindle
+scans."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ __all__ = ["signal_options", "stage_signal", "signal_one"]
 
 
 def signal_options(cfg: dict) -> dict:
-    """The config's ``signal`` section (schema defaults filled) as :func:`borescan.signal.process_scan` keywords."""
+    """The config's ``signal`` section (schema defaults filled) as :func:`borescan.signal.process_scan`
+    keywords."""
     method = cfg["filter"]
     params: dict = {}
     if method in ("median", "moving_average"):
