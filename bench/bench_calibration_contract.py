@@ -55,7 +55,8 @@ FAMILIES = ("beta", "rho", "d_b")
 
 def default_calibration_config() -> dict:
     """``calibration`` section of config/config.yaml validated against the workflow schema (defaults
-    filled)."""
+    filled).
+    """
     import yaml
     from snakemake.utils import validate
 
@@ -272,7 +273,8 @@ def evaluate_scan(job: tuple) -> dict:
 def run(n: int = N_SCANS, seed: int = SEED, workers: int | None = None, out_dir: Path | None = None,
         only: list[int] | None = None) -> list[dict]:
     """Write the battery (temp folder unless ``out_dir``; only the scan indices ``only`` if given),
-    calibrate every scan; per-scan rows."""
+    calibrate every scan; per-scan rows.
+    """
     from borescan import scenarios
 
     workers = workers or min(2, os.cpu_count() or 1)

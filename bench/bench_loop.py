@@ -116,7 +116,8 @@ def _model_from(findings: dict, device_id: str, channels) -> tuple[str | None, l
 def _residual_ratio(scans, cfg: dict, model) -> tuple[float, bool, object]:
     """A night's calibration (pipeline path, budget): (max residual / noise floor, accepted, calibration or
     None);
-    NaN when the fit does not converge even without the acceptance rule."""
+    NaN when the fit does not converge even without the acceptance rule.
+    """
     from borescan.calibration import CalibrationError
     from borescan.stages.calibration_fit import calibrate_raw_scans
 

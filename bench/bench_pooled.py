@@ -119,7 +119,8 @@ def gauge_artifact(R: float) -> dict:
 def spindle_scans(rng, rows: list[dict], *, beams, R, range_mm, C, spr, noise, nominal, encoder, effect, run_scan,
                   device_id, nights, tag) -> list:
     """The ring-gauge spindle scans of one design (:func:`_designs` rows, 12 revolutions each, scan
-    ``<tag>-<k>``); the hidden ``effect`` in every scan, or only in scan ``run_scan`` when given."""
+    ``<tag>-<k>``); the hidden ``effect`` in every scan, or only in scan ``run_scan`` when given.
+    """
     from borescan.simulate import TriScene, simulate_tri_spindle
 
     art = gauge_artifact(R)
@@ -176,7 +177,8 @@ def calibrate(sims) -> tuple:
     """Full-data calibration of the scans of one night (the night's method): (calibration or None,
     accepted). A calibration the acceptance rule refuses only for its residual is used as fitted;
     one that fails otherwise (a diverged fit) is None: the scans are then examined as the pipeline
-    examines an uncalibrated device (``device.nominal``, beam lengths and angles free)."""
+    examines an uncalibrated device (``device.nominal``, beam lengths and angles free).
+    """
     from borescan.calibration import AcceptanceRule, CalibrationError, fit_full_calibration
     from borescan.discrepancy.examine import scan_arrays
     from borescan.geometry import Beams
@@ -248,7 +250,8 @@ def value_ok(entry: dict | None, effect) -> bool:
 
 def correct(verdict: str, named: list[dict], absorbed: list[str] | None, effect, expect_absorbed_: bool) -> bool:
     """The bench's rule (module doc): right names and, for the hidden effect, its value.
-    ``absorbed``: the effects the verdict lists as absorbed (None: a single scan)."""
+    ``absorbed``: the effects the verdict lists as absorbed (None: a single scan).
+    """
     labels = [label(n) for n in named]
     if effect is None:
         return verdict == "no_missing_effect" and not labels

@@ -26,7 +26,8 @@ from borescan.scenarios import draw_rod_geometry
 
 def draw_scan(rng: np.random.Generator) -> dict:
     """One effect-free rod scan over the contract (:func:`borescan.scenarios.draw_rod_geometry`);
-    pose-mean readings."""
+    pose-mean readings.
+    """
     g = draw_rod_geometry(rng)
     v0 = rod_readings(g["alpha"], g["layers"], g["holes"], g["axis"])
     v = v0 + g["noise"] * rng.standard_normal((g["k"],) + v0.shape).mean(axis=0)

@@ -21,7 +21,8 @@ BAD_NIGHT = "2026-11-22"
 
 def workflow_env(home: Path) -> dict[str, str]:
     """Environment of a workflow run by the tests: this venv's tools, and the package of this
-    checkout (the one the tests import) for every job."""
+    checkout (the one the tests import) for every job.
+    """
     return {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(home), "MPLBACKEND": "Agg",
             "PYTHONPATH": str(ROOT / "src")}
 

@@ -1,5 +1,6 @@
 """Calibration lifecycle kept as history: the saved queries calibration_status_history and
-calibration_lifecycle on a hand-made catalog whose every transition is known."""
+calibration_lifecycle on a hand-made catalog whose every transition is known.
+"""
 
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
 """Certificates: ISO/IEC 17025 7.8 content, GUM budget, DCC-like JSON, layout and byte-identical
-regeneration."""
+regeneration.
+"""
 
 import json
 import re

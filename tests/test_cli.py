@@ -1,6 +1,7 @@
 """The command line without rough edges (issue 20 item 4): user errors give a message and exit 2 (1 where
 the answer is "no"), never a traceback; argument checks; progress; sql output; closed pipes; paths;
-times with their zone; `borescan status`."""
+times with their zone; `borescan status`.
+"""
 
 from __future__ import annotations
 

@@ -148,7 +148,8 @@ def test_without_the_jacobian_at_the_solution_the_solution_is_the_same():
 
 def test_a_rank_deficient_jacobian_reaches_the_least_squares_cost():
     """Two identical columns: the minimiser is not unique, the minimum cost is (MINPACK's
-    truncated back-substitution from the first zero diagonal, as lmpar.f does)."""
+    truncated back-substitution from the first zero diagonal, as lmpar.f does).
+    """
     rng = np.random.default_rng(3)
     X = rng.normal(size=(300, 3))
     X = np.c_[X, X[:, 0]]

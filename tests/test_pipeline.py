@@ -149,7 +149,8 @@ def test_discrepancy_findings_for_every_examined_scan(pipeline_run):
 
 def test_trace_follows_a_rod_diameter_to_its_gauge_calibration(pipeline_run):
     """A rod hole -> the rod's ring-gauge calibration -> its certificate, each layer's certified gauge
-    and the layer-by-layer verifications."""
+    and the layer-by-layer verifications.
+    """
     from borescan import trace
 
     chain = trace.format_trace(trace.trace(pipeline_run["results"], "N20261121-ROD01-MEAS-CYL2H/H1"))
@@ -249,7 +250,8 @@ def test_interrupted_run_resumes(pipeline_run, tmp_path):
 
 def test_night_jobs_spread_scans_over_two_processes(pipeline_run):
     """A demo night (11 scans) is examined on 2 worker processes inside one job, every scan once,
-    in scan order (the findings table does not depend on the number of workers)."""
+    in scan order (the findings table does not depend on the number of workers).
+    """
     import polars as pl
 
     res = pipeline_run["results"]
@@ -265,7 +267,8 @@ def test_a_stage_script_runs_by_hand_and_gives_the_rules_output(pipeline_run, tm
     """`python workflow/scripts/<rule>.py night=... raw_root=... results_root=...` builds the rule's
     job from the Snakefile (for debugging one stage of one night) and writes what the rule wrote:
     to the last bit, though by hand a stage runs in one process and in the workflow on two (the
-    first demo night's two calibrations, a three-sensor device and a rod, each on its own)."""
+    first demo night's two calibrations, a three-sensor device and a rod, each on its own).
+    """
     import polars as pl
     from polars.testing import assert_frame_equal
 
@@ -292,7 +295,8 @@ def test_a_stage_script_runs_by_hand_and_gives_the_rules_output(pipeline_run, tm
 
 def test_every_file_the_papers_rule_writes_is_declared(pipeline_run):
     """The reproduction's files are the rule's declared outputs (index.csv lists what it wrote):
-    deleting one and rerunning regenerates it, and `snakemake --report` can show them."""
+    deleting one and rerunning regenerates it, and `snakemake --report` can show them.
+    """
     import polars as pl
 
     from conftest import ROOT
@@ -311,7 +315,8 @@ def test_a_device_model_is_carried_by_a_night_calibration(pipeline_run, tmp_path
     2e-4 is carried
     (the readings are corrected by a factor 1: the beams are the run's own to rounding), the budget
     gains its input (u(d_b) grows), the certificate names it; an effect listed without an estimate is
-    said so and changes nothing."""
+    said so and changes nothing.
+    """
     import json
 
     import polars as pl
@@ -356,7 +361,8 @@ def test_the_demo_closes_the_loop(pipeline_run):
     2026-11-24): the pooled examination of 2026-11-23 (60 and 30 rpm) names the 1.2 ms delay of the
     truth within 4 u, the single scans did not get it (their values are absorbed by that night's
     beta); the calibration of 2026-11-24 carries that estimate and its residual falls to the noise,
-    that night's scans have nothing missing, and the report draws the gaps with the change marked."""
+    that night's scans have nothing missing, and the report draws the gaps with the change marked.
+    """
     import json
 
     import duckdb

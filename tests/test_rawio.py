@@ -180,7 +180,8 @@ def test_lds_matrix_wide_nan_and_channel_order(root):
 
 def test_lds_matrix_reshape_path_equals_general_path():
     """The usual layout (every channel on every sample, sorted) takes a reshape; it must give
-    what the general scatter gives, poses (first non-null of a sample) included."""
+    what the general scatter gives, poses (first non-null of a sample) included.
+    """
     from types import SimpleNamespace
 
     rng = np.random.default_rng(3)
@@ -207,7 +208,8 @@ def test_lds_matrix_reshape_path_equals_general_path():
 def test_lds_matrix_from_chunks_not_aligned_to_samples():
     """The reshape path copies straight from the Arrow chunks; chunks that split a sample's rows,
     chunks that start at an offset and nulls in several chunks must give the general path's result,
-    and a group whose rows disagree on the sample must fall back to the general path."""
+    and a group whose rows disagree on the sample must fall back to the general path.
+    """
     from types import SimpleNamespace
 
     rng = np.random.default_rng(8)
@@ -647,7 +649,8 @@ def test_validate_cli_out_of_range_readings_are_problems(root, capsys):
 
 def test_lds_fast_check_on_columns_chunked_differently():
     """Columns whose Arrow chunks do not line up are checked as one chunk each: same warnings as the
-    full check (a reading above the range), and a decreasing sample is still declined."""
+    full check (a reading above the range), and a decreasing sample is still declined.
+    """
     lds = make_lds(n=40)
     vals = lds["value_mm"].to_list()
     vals[5] = 12.5  # above the 10 mm range: a warning, not a problem
@@ -678,7 +681,8 @@ def test_lds_fast_check_on_columns_chunked_differently():
 def test_read_scan_keeps_the_matrix_its_check_built(root):
     """read_scan's check builds the wide matrix of a usual-layout table; lds_matrix(scan) returns
     that one (read-only, the same object every call), equal to the general long -> wide scatter;
-    a scan whose lds frame was replaced gets a matrix of its own frame, not the stored one."""
+    a scan whose lds frame was replaced gets a matrix of its own frame, not the stored one.
+    """
     import dataclasses
     from types import SimpleNamespace
 

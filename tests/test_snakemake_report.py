@@ -1,5 +1,6 @@
 """`snakemake --report` on the demo run: every item the rules declare with report(...) is in it,
-under the issue's categories, with its caption rendered (issue "The shop floor's morning", item 2)."""
+under the issue's categories, with its caption rendered (issue "The shop floor's morning", item 2).
+"""
 
 from __future__ import annotations
 
@@ -53,7 +54,8 @@ def _template(src: str, node: ast.expr) -> str:
 
 def declared_report_items() -> list[dict]:
     """Every ``report(...)`` of rules/*.smk: rule, output name, path template, directory or not,
-    patterns, caption, category/subcategory (a string, or the name of the function giving it)."""
+    patterns, caption, category/subcategory (a string, or the name of the function giving it).
+    """
     items = []
     for smk in sorted((ROOT / "rules").glob("*.smk")):
         text = smk.read_text()

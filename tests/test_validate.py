@@ -1,5 +1,6 @@
 """One validator (issue 20 item 3): `borescan validate` and the ingest stage give the same verdict on
-every bad input, and `validate` exits 0 on a good tree every time, in fresh processes."""
+every bad input, and `validate` exits 0 on a good tree every time, in fresh processes.
+"""
 
 from __future__ import annotations
 

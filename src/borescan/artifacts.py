@@ -66,7 +66,8 @@ class ScanTemperature:
 @dataclass(frozen=True)
 class ArtifactCte:
     """An artifact's linear expansion coefficient alpha [1/K], its stated bound (rectangular
-    half-width) and standard uncertainty [1/K], whether it was assumed, and the source."""
+    half-width) and standard uncertainty [1/K], whether it was assumed, and the source.
+    """
 
     cte_per_k: float
     halfwidth_per_k: float
@@ -131,7 +132,8 @@ def artifact_cte(meta: dict, unc_cfg: dict) -> ArtifactCte:
 
 def artifact_key(art: dict | None) -> str:
     """Identity of a scan.json ``artifact`` for an uncertainty budget: ``<id>`` plus ``@<certificate>``
-    if any (the same gauge under the same certificate is one physical quantity)."""
+    if any (the same gauge under the same certificate is one physical quantity).
+    """
     art = art or {}
     return f"{art.get('id')}" + (f"@{art['certificate']}" if art.get("certificate") else "")
 
@@ -207,14 +209,16 @@ def artifact_row(meta: dict) -> dict | None:
 
 def number_or_none(v) -> float | None:
     """A scan.json number as float; None for a missing value or anything that is not a number (a bool is
-    not)."""
+    not).
+    """
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
 
 
 def certificate_fields(meta: dict) -> dict:
     """The artifact certificate a scan's ``scan.json`` states, as the ``scans`` table keeps it:
     ``artifact_certificate``, ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm`` (None where
-    absent)."""
+    absent).
+    """
     art = meta.get("artifact") if isinstance(meta.get("artifact"), dict) else {}
     cert = art.get("certificate")
     feats = {str(f.get("id")): number_or_none(f.get("certified_diameter_mm"))

@@ -518,7 +518,8 @@ def yang_calibration(
 
 def _public_index(c: int, ch0_free: int) -> np.ndarray:
     """Where the calibration's (3c,) parameters (beta, rho, d_b per channel) sit in the full fit's free
-    public vector (betas of the free channels, rhos, d_bs, nuisance); -1 for a gauge-fixed beta."""
+    public vector (betas of the free channels, rhos, d_bs, nuisance); -1 for a gauge-fixed beta.
+    """
     idx = np.full(3 * c, -1)
     for j in range(c):
         idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1

@@ -52,7 +52,8 @@ def _rank_one_parts(C: np.ndarray, scale: np.ndarray, rel: float = 1e-6) -> list
 def _device_model_derivatives(model, inputs: list[dict], channels) -> tuple[dict, dict]:
     """Per carried parameter (``"<entry index>:<name>"``): d(corrected readings)/d(parameter) per scan
     (beam and reading effects) and d(channel time offsets)/d(parameter) (c,) (a channel delay);
-    each is zero for the other kind (:func:`borescan.device_model.derivatives`)."""
+    each is zero for the other kind (:func:`borescan.device_model.derivatives`).
+    """
     dys: dict[str, list[np.ndarray]] = {}
     for x in inputs:
         y = x.get("readings_recorded", x["readings"])
@@ -186,7 +187,8 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
 
 def with_budget(cal, budget: Budget):
     """The calibration with the budget's combined covariance as ``cov``; the fit's own covariance
-    is kept as ``diagnostics["cov_fit"]`` and the budget as ``diagnostics["budget"]``."""
+    is kept as ``diagnostics["cov_fit"]`` and the budget as ``diagnostics["budget"]``.
+    """
     diag = dict(cal.diagnostics)
     diag["cov_fit"] = np.asarray(cal.cov).tolist()
     diag["budget"] = budget.to_dict()

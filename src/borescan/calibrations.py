@@ -149,7 +149,8 @@ def tri_calibration(calibrations: pl.DataFrame, cal_id: str) -> TriCalibration:
 
 def rod_layers(layer_rows, channels) -> list[RodLayer]:
     """The rod layers of ``channels`` from a rod calibration's rows (a polars frame or row dicts;
-    missing or NaN phi, d, gamma, h: 0)."""
+    missing or NaN phi, d, gamma, h: 0).
+    """
     it = layer_rows.iter_rows(named=True) if isinstance(layer_rows, pl.DataFrame) else layer_rows
     rows = {int(r["channel"]): r for r in it}
 

@@ -527,7 +527,8 @@ def _append(con: duckdb.DuckDBPyConnection, tables: Mapping[str, pl.DataFrame | 
 
 def _remove_nights(con: duckdb.DuckDBPyConnection, nights: list[str]) -> None:
     """Take the rows of ``nights`` (the newest in the catalog) out; artifacts fall back to their
-    latest earlier record, links stay while another night still has them."""
+    latest earlier record, links stay while another night still has them.
+    """
     b = BUILD_SCHEMA
     con.execute("CREATE OR REPLACE TEMP TABLE _gone_nights AS SELECT unnest(?::VARCHAR[]) AS night", [nights])
     for name in NIGHT_TABLES:
@@ -810,7 +811,8 @@ def open_catalog(results_root: str | os.PathLike, read_only: bool = True) -> duc
 
 def table_rows(con: duckdb.DuckDBPyConnection, table: str) -> list[tuple]:
     """All rows of a catalog table in key order, ties broken by every other column (handy for
-    comparisons and tests: the same rows give the same list)."""
+    comparisons and tests: the same rows give the same list).
+    """
     if table not in SCHEMA:
         raise ValueError(f"unknown catalog table {table!r}; valid: {sorted(SCHEMA)}")
     cols = list(KEYS[table]) + [c for c in _columns(con, table) if c not in KEYS[table]]

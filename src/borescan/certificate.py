@@ -96,13 +96,15 @@ _METHOD_TEXT = {
 
 def certificate_dir(results_root: Path | str, cal) -> Path:
     """``results_root/calibration/<device_id>/<calibration_id>`` (``outputs.md``): where a certificate
-    is read (a link into the folder of the calibration's night, :func:`certificate_night_dir`)."""
+    is read (a link into the folder of the calibration's night, :func:`certificate_night_dir`).
+    """
     return Path(results_root) / "calibration" / cal.device_id / cal.calibration_id
 
 
 def certificate_night_dir(results_root: Path | str, cal, night: str) -> Path:
     """``results_root/calibration/night=<night>/<device_id>/<calibration_id>``: where the calibrate
-    stage writes a certificate (the night's folder is the rule's declared output)."""
+    stage writes a certificate (the night's folder is the rule's declared output).
+    """
     return Path(results_root) / "calibration" / f"night={night}" / cal.device_id / cal.calibration_id
 
 
@@ -143,7 +145,8 @@ def calibration_conditions(temperature, cte, radius_mm: float, position_accuracy
     """The influence conditions of a certificate: the gauge's temperature with its uncertainty (U
     for the coverage probability ``p``) and source, its expansion coefficient, its radius at that
     temperature, the machine's stated position accuracy and per scan ``scans`` (positions, speed,
-    revolutions). ``temperature``/``cte``: :class:`borescan.artifacts.ScanTemperature` / ``ArtifactCte``."""
+    revolutions). ``temperature``/``cte``: :class:`borescan.artifacts.ScanTemperature` / ``ArtifactCte``.
+    """
     t_comb = combine([(temperature.u_c, float("inf"), "rectangular")], p)
     return {
         "temperature": {"value_c": temperature.temperature_c, "u_c": temperature.u_c, "U_c": t_comb.U, "k": t_comb.k,
@@ -237,20 +240,23 @@ def _expanded(comb: Combined, distribution: str = "normal") -> dict:
 
 def _result(name: str, ref_type: str, held: bool, value: float, unit: str, comb: Combined) -> dict:
     """One DCC result: ``value`` in ``unit`` (a key of ``_UNITS_DSI``: mm, rad, ...) with its D-SI
-    expandedUnc."""
+    expandedUnc.
+    """
     return {"name": name, "refType": ref_type, "held_at_design_value": held,
             "real": {"value": value, "unit": _UNITS_DSI[unit], "expandedUnc": _expanded(comb)}}
 
 
 def _budget_entry(unit: str, rows: list[dict], comb: Combined) -> dict:
     """One result's uncertainty budget: its ``unit``, the budget rows (contributions in that unit)
-    and their combination (u_c, k, U)."""
+    and their combination (u_c, k, U).
+    """
     return {"unit": unit, "rows": rows, "combined": comb.to_dict()}
 
 
 def _statements(lab: dict, dates: dict, conformity: dict, traceability: str) -> list[dict]:
     """DCC statements of every certificate: reproduction clause (ISO/IEC 17025 7.8.2.1 m), ``traceability``
-    text, decision rule, conformity, recalibration due date (ISO date) and how the issue date was derived."""
+    text, decision rule, conformity, recalibration due date (ISO date) and how the issue date was derived.
+    """
     return [
         {"norm": "ISO/IEC 17025:2017", "reference": "7.8.2.1 m",
          "declaration": "The results relate only to the item calibrated. This certificate shall not "
@@ -268,7 +274,8 @@ def _statements(lab: dict, dates: dict, conformity: dict, traceability: str) -> 
 def _administrative_data(cal, lab: dict, dates: dict, conformity: dict, item: dict, traceability: str,
                          software_version: str) -> dict:
     """DCC ``administrativeData``: software, core data (ISO dates of calibration and issue), the ``item``,
-    laboratory, signatory, customer, statements and the laboratory settings left at their placeholders."""
+    laboratory, signatory, customer, statements and the laboratory settings left at their placeholders.
+    """
     return {
         "dccSoftware": {"software": [{"name": "borescan", "release": software_version}]},
         "coreData": {"countryCodeISO3166_1": lab.get("country_code"), "usedLangCodeISO639_1": ["en"],
@@ -294,7 +301,8 @@ def _shared_part(cal, *, item_name: str, item_id: Any, traceability: str, device
     probability, ``administrativeData`` (the item ``item_name`` identified by ``item_id``, the
     ``traceability`` statement), device, artifact, conditions, verifications with the conformity,
     dates (ISO), laboratory, raw file digests (sha256 hex), software version and config hash.
-    Not yet JSON-safe (:func:`_fixed`)."""
+    Not yet JSON-safe (:func:`_fixed`).
+    """
     lab = _laboratory(laboratory)
     dates = dict(dates or {})
     ver = list(verifications or [])
@@ -314,7 +322,8 @@ def _shared_part(cal, *, item_name: str, item_id: Any, traceability: str, device
 def _measurement_results(name: str, method: str, description: str, uncertainty_norm: str, equipment: list[dict],
                          conditions: dict, results: list[dict], budgets: dict) -> list[dict]:
     """DCC ``measurementResults``: one result set ``name`` with its method (``description``), the
-    uncertainty evaluation's norm, the standards used, the influence conditions, results and budgets."""
+    uncertainty evaluation's norm, the standards used, the influence conditions, results and budgets.
+    """
     return [{"name": name,
              "usedMethods": [{"name": method, "description": description},
                              {"name": "uncertainty", "norm": uncertainty_norm}],
@@ -324,7 +333,8 @@ def _measurement_results(name: str, method: str, description: str, uncertainty_n
 
 def _beam_results(cal: TriCalibration, budget: Budget | None, p: float) -> tuple[list[dict], dict]:
     """DCC results (beta [rad], rho and d_b [mm] per channel, U for coverage probability ``p``) and,
-    with a budget, each one's uncertainty budget."""
+    with a budget, each one's uncertainty budget.
+    """
     names = [f"{n}[{ch}]" for ch in cal.beams.channels for n in ("beta_rad", "rho_mm", "d_b_mm")]
     units = ["rad", "mm", "mm"] * len(cal.beams.channels)
     results, budgets = [], {}
@@ -338,7 +348,8 @@ def _beam_results(cal: TriCalibration, budget: Budget | None, p: float) -> tuple
 
 def _effective_base_lengths(cal: TriCalibration, budget: Budget | None, conditions: dict, p: float) -> list[dict]:
     """Per channel g = d_b + rho^2/(2R) [mm] (R the gauge radius at its temperature [mm]) with U for
-    coverage probability ``p``; empty without a budget or a radius."""
+    coverage probability ``p``; empty without a budget or a radius.
+    """
     R = conditions.get("gauge_radius_at_temperature_mm") if isinstance(conditions, dict) else None
     if budget is None or not R:
         return []
@@ -368,7 +379,8 @@ def _gauge_equipment(artifact: dict) -> dict:
 
 def _fit_part(cal: TriCalibration) -> dict:
     """The fit's summary (residual rms [mm], dof, rank, condition, convergence, nuisance) and the
-    diagnostics a certificate reports."""
+    diagnostics a certificate reports.
+    """
     keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free",
             "weak_rho_channels", "g_mm", "u_g_mm", "n_minima", "ambiguous_minima")
     diag = {k: cal.diagnostics[k] for k in keys if k in cal.diagnostics}
@@ -1055,7 +1067,8 @@ _VERIFICATION_LAYOUT = ([0.42, 0.12, 0.1, 0.1, 0.06, 0.1, 0.1], 6)
 
 def _input_cells(r: dict, dash_zero_u: bool) -> list[str]:
     """One budget row as table cells: label, estimate, u(x_i), distribution, nu_i, c_i, u_i [um]
-    (``contribution`` [mm] times 1e3). ``dash_zero_u``: a zero or missing u(x_i) shows as "-"."""
+    (``contribution`` [mm] times 1e3). ``dash_zero_u``: a zero or missing u(x_i) shows as "-".
+    """
     u_x = r["standard_uncertainty"]
     return [_label(r), _est_text(r["estimate"], r["unit"]), "-" if dash_zero_u and not u_x else _u_text(u_x, r["unit"]),
             _DIST.get(r["distribution"], r["distribution"]), _dof_text(r["degrees_of_freedom"]),
@@ -1071,7 +1084,8 @@ def _sum_row(label: str, value_mm: float, dof: str = "") -> list[str]:
 def _contribution_table(d: _Doc, title: str, rows: list[dict], sums: list[list[str]], layout: tuple[list[float], float],
                         dash_zero_u: bool) -> None:
     """The budget of one result: ``title``, one line per input row (:func:`_input_cells`), then the
-    ``sums`` lines (:func:`_sum_row`, the last one bold); ``layout``: (column widths, font size)."""
+    ``sums`` lines (:func:`_sum_row`, the last one bold); ``layout``: (column widths, font size).
+    """
     cells = [_input_cells(r, dash_zero_u) for r in rows] + sums
     widths, size = layout
     d.room(0.013 * (len(cells) + 1) + 0.03)
@@ -1081,7 +1095,8 @@ def _contribution_table(d: _Doc, title: str, rows: list[dict], sums: list[list[s
 
 def _verification_budget(d: _Doc, v: dict) -> None:
     """The budget of a verification's error E: inputs of at least 5 % of u_c(E) one by one, the
-    others folded into one line (root sum of squares), then u_c(E) (contributions in um)."""
+    others folded into one line (root sum of squares), then u_c(E) (contributions in um).
+    """
     rows = v.get("budget") or []
     if not rows:
         return
@@ -1096,7 +1111,8 @@ def _verification_budget(d: _Doc, v: dict) -> None:
 
 def _rod_layer_budget(d: _Doc, channel: int, budget: dict) -> None:
     """The budget of one layer's l0 (``budget``: rows and combined of certificate.json): inputs
-    below 1e-5 u_c left out, then u_c with nu_eff and U with k (contributions in um)."""
+    below 1e-5 u_c left out, then u_c with nu_eff and U with k (contributions in um).
+    """
     comb = budget["combined"]
     rows = [r for r in budget["rows"] if not _tiny(r, comb["standard_uncertainty"])]
     sums = [_sum_row("combined standard uncertainty u_c", comb["standard_uncertainty"],
@@ -1268,7 +1284,8 @@ def _rod_results(cal, p: float) -> tuple[list[dict], dict]:
 
 def _rod_parameters(cal) -> list[dict]:
     """Per layer: l0 (calibrated and design) and u(l0) [mm], the layer's fixed geometry (h, d [mm],
-    phi, gamma [rad]) and its ring gauge (certified D20, radius at temperature [mm])."""
+    phi, gamma [rad]) and its ring gauge (certified D20, radius at temperature [mm]).
+    """
     params = []
     for j, lay in enumerate(cal.layers):
         g = cal.gauges[j]
@@ -1283,7 +1300,8 @@ def _rod_parameters(cal) -> list[dict]:
 
 def _rod_fit(cal) -> dict:
     """The rod solve at the calibrated l0: residual rms [mm], solves to settle l0, method, rank,
-    condition, number of poses, axis deflection [rad] and eccentricity [mm] (None without a solve)."""
+    condition, number of poses, axis deflection [rad] and eccentricity [mm] (None without a solve).
+    """
     sol = cal.solution
     return {"residual_rms_mm": cal.residual_rms_mm, "iterations": cal.iterations,
             "solve_method": None if sol is None else sol.method, "rank": None if sol is None else sol.rank,
@@ -1299,7 +1317,8 @@ def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte,
                          verifications: list[dict] | None = None) -> dict:
     """``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
     the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
-    the budget per layer, each layer's gauge and the solve's diagnostics."""
+    the budget per layer, each layer's gauge and the solve's diagnostics.
+    """
     p = float(coverage_probability)
     results, budgets = _rod_results(cal, p)
     conditions = calibration_conditions(temperature, cte, None, None, p, [])
@@ -1336,7 +1355,8 @@ def _unique_gauges(cal) -> list[dict]:
 
 def _rod_page_item_conditions(d: _Doc) -> None:
     """Sections 1-4 of a rod certificate: item, method, conditions (temperature [degC], expansion
-    coefficient [1/K]) and traceability (each layer's ring gauge)."""
+    coefficient [1/K]) and traceability (each layer's ring gauge).
+    """
     c = d.cert
     d.new_page()
     d.heading("1  Item calibrated")
@@ -1366,7 +1386,8 @@ def _rod_page_item_conditions(d: _Doc) -> None:
 
 def _rod_page_results(d: _Doc) -> None:
     """Section 5 of a rod certificate: l0 per layer [mm] with U and k, its change from the design
-    value [um], and the rod solve's summary."""
+    value [um], and the rod solve's summary.
+    """
     c = d.cert
     d.new_page()
     d.heading("5  Results")
@@ -1418,7 +1439,8 @@ def _rod_pages(cert: dict) -> list[Figure]:
 
 def write_rod_certificate(cal, out_dir: Path | str, **kw) -> dict[str, Path]:
     """Write ``certificate.json`` and ``certificate.pdf`` of a rod calibration into ``out_dir``
-    (arguments of :func:`rod_certificate_dict`). Same inputs give byte-identical files."""
+    (arguments of :func:`rod_certificate_dict`). Same inputs give byte-identical files.
+    """
     import matplotlib
 
     out_dir = Path(out_dir)

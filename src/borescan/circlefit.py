@@ -209,7 +209,8 @@ def fit_circle_ls(x_mm, y_mm, *, max_iter: int = 200) -> Circle:
 
 def _angular_order(x: np.ndarray, y: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, float]:
     """Indices of the points in increasing angle about ``c``, those angles [rad] and the
-    largest gap between angularly consecutive points (the wrap-around gap included) [deg]."""
+    largest gap between angularly consecutive points (the wrap-around gap included) [deg].
+    """
     th = np.arctan2(y - c[1], x - c[0])
     order = np.argsort(th, kind="stable")
     ths = th[order]
@@ -243,7 +244,8 @@ def _ls_center(x: np.ndarray, y: np.ndarray, shift: np.ndarray, ls_center_xy_mm)
 
 def _check_closed(x, y, c, max_gap_deg: float, method: str) -> tuple[np.ndarray, np.ndarray]:
     """Angular order about ``c`` (see :func:`_angular_order`), or CircleFitError when the
-    largest gap exceeds ``max_gap_deg``."""
+    largest gap exceeds ``max_gap_deg``.
+    """
     order, ths, gap = _angular_order(x, y, c)
     if not gap <= max_gap_deg:
         raise CircleFitError(
@@ -257,7 +259,8 @@ def _check_closed(x, y, c, max_gap_deg: float, method: str) -> tuple[np.ndarray,
 class _ClosedProfile:
     """Finite points shifted to their mean, the least-squares centre in that frame, the points'
     distances from it and their angular order about it (checked closed): what MZCI, MICI and MCCI
-    start from, prepared once for all three by :func:`reference_circles`."""
+    start from, prepared once for all three by :func:`reference_circles`.
+    """
 
     x: np.ndarray
     y: np.ndarray
@@ -363,7 +366,8 @@ def _mcci(prof: _ClosedProfile, seed: int = 0) -> Circle:
     """Welzl's circle of the profile's convex hull. A long profile's circle is first found from its
     :data:`MCCI_FARTHEST` points farthest from the least-squares centre (8 times more while it
     leaves a point outside): a circle that is the smallest around a subset and encloses every point
-    is the smallest around them all (the hull of 120 000 points costs ~50 ms, a subset's ~1 ms)."""
+    is the smallest around them all (the hull of 120 000 points costs ~50 ms, a subset's ~1 ms).
+    """
     x, y, shift = prof.x, prof.y, prof.shift
     n = x.size
     scale = float(max(np.max(np.abs(x)), np.max(np.abs(y)))) or 1.0
@@ -559,7 +563,8 @@ def _local_max_vertices(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _circumcentres_non_obtuse(P: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Circumcentres (m, 2) and circumradii (m,) of the triangles ``P[tri]`` with no obtuse
-    angle (cos >= -1e-9 allowed for rounding), computed relative to a corner."""
+    angle (cos >= -1e-9 allowed for rounding), computed relative to a corner.
+    """
     a = P[tri[:, 0]]
     b = P[tri[:, 1]] - a
     c = P[tri[:, 2]] - a
@@ -584,7 +589,8 @@ def _best_empty_centre(cand: np.ndarray, bound: np.ndarray, x: np.ndarray, y: np
     """The candidate centre (m, 2) with the largest f(c) = min_i |p_i - c|, f evaluated exactly
     (distances to all points; near a ring's centre every point is about as far, so a tree search
     would visit them all anyway), in order of decreasing upper bound ``bound`` >= f, stopping
-    once no remaining bound can beat the best f found."""
+    once no remaining bound can beat the best f found.
+    """
     order = np.argsort(-bound, kind="stable")
     slack = 1e-12 * float(np.max(np.abs(bound)))  # rounding of the bounds
     step = max(1, (1 << 22) // max(x.size, 1))
@@ -604,7 +610,8 @@ def _best_empty_centre(cand: np.ndarray, bound: np.ndarray, x: np.ndarray, y: np
 def _inside_star_polygon(q: np.ndarray, V: np.ndarray, th: np.ndarray, c) -> np.ndarray:
     """Which points ``q`` (m, 2) lie strictly inside the polygon ``V`` (n, 2), whose vertices
     are in increasing angle ``th`` [rad] about ``c`` with every gap < 180 deg (star-shaped
-    about c): q is inside when it lies on c's side of the edge spanning its own angle."""
+    about c): q is inside when it lies on c's side of the edge spanning its own angle.
+    """
     n = V.shape[0]
     phi = np.arctan2(q[:, 1] - c[1], q[:, 0] - c[0])
     k = np.searchsorted(th, phi, side="right") - 1  # -1: the wrap-around edge V[n-1] -> V[0]
@@ -615,7 +622,8 @@ def _inside_star_polygon(q: np.ndarray, V: np.ndarray, th: np.ndarray, c) -> np.
 
 def _bin_segments(ths: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
     """The non-empty ones of ``bins`` equal angular bins over [-pi, pi) as runs of a profile's
-    angular order: start positions and lengths along ``ths`` (increasing angles [rad])."""
+    angular order: start positions and lengths along ``ths`` (increasing angles [rad]).
+    """
     b = np.minimum(((ths + np.pi) / (2 * np.pi) * bins).astype(np.int64), bins - 1)  # non-decreasing
     starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
     return starts, np.diff(np.r_[starts, b.size])

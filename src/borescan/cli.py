@@ -38,7 +38,8 @@ def _command_modules(names: list[str] | None = None) -> list:
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The ``borescan`` parser. With ``only`` (a command module's name) only that command is
-    imported and added, so a command never pays for what the others import."""
+    imported and added, so a command never pays for what the others import.
+    """
     parser = argparse.ArgumentParser(
         prog="borescan",
         description="Bore scans from laser displacement sensors: simulate, import, validate, trace, "
@@ -57,7 +58,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 def _command_in(argv: list[str]) -> str | None:
     """The module of the subcommand ``argv`` names (its first word that is not an option; module
-    names are command names with '_' for '-'), if there is one."""
+    names are command names with '_' for '-'), if there is one.
+    """
     first = next((a for a in argv if not a.startswith("-")), None)
     if first is None or first.replace("-", "_") not in _module_names():
         return None

@@ -149,7 +149,8 @@ def auto_keys(device_id: str, pooled_rows: Iterable[Mapping], night: str, n_nigh
     model) by the device's pooled examinations of each of its ``n_nights`` latest nights before
     ``night`` (same effect and channel; device-scope effects of the registry only). [] when
     ``n_nights`` is 0 (off) or the device has fewer pooled nights; an effect leaves as soon as one of
-    those nights does not name it."""
+    those nights does not name it.
+    """
     if n_nights <= 0:
         return []
     by_night: dict[str, set[str]] = {}
@@ -172,7 +173,8 @@ def auto_keys(device_id: str, pooled_rows: Iterable[Mapping], night: str, n_nigh
 def lookup(keys_of, pooled_rows: Iterable[Mapping], night: str, auto_nights: int = 0):
     """(device id, channels) -> the device model a calibration on ``night`` carries
     (:func:`device_model_at`); ``keys_of(device id)`` gives the config's effects of the device, and
-    with ``auto_nights`` > 0 :func:`auto_keys` adds those named night after night."""
+    with ``auto_nights`` > 0 :func:`auto_keys` adds those named night after night.
+    """
     rows = list(pooled_rows)
     return lambda device_id, channels: device_model_at(device_id, keys_of(device_id), rows, night, channels,
                                                        auto_keys(device_id, rows, night, auto_nights))
@@ -186,7 +188,8 @@ def carried_effects(model: Iterable[DeviceEffect]) -> list[Effect]:
 def correct(t_s, readings_mm, channels, model: Iterable[DeviceEffect], range_mm) -> np.ndarray:
     """Readings corrected for the device model's beam and reading effects
     (:func:`borescan.model.tri_correct_readings`); time-base effects are carried by
-    :func:`channel_time_offsets`. Unchanged when there are none."""
+    :func:`channel_time_offsets`. Unchanged when there are none.
+    """
     effs = [e for e in carried_effects(model) if e.spec.stage in CORRECTABLE_STAGES]
     if not effs:
         return np.asarray(readings_mm, dtype=float)
@@ -197,7 +200,8 @@ def channel_time_offsets(model: Iterable[DeviceEffect], channels: Sequence[int],
                          zeros: bool = False) -> np.ndarray | None:
     """Per channel tau (c,) [s] of the carried time-base effects: channel c's reading at stamp t is the
     geometry of time t - tau_c (``channel_delay``; the registry's forward t' = t - tau at t = 0).
-    None without any (a still scene ignores them: static poses need none), zeros when ``zeros``."""
+    None without any (a still scene ignores them: static poses need none), zeros when ``zeros``.
+    """
     tau = np.zeros(len(channels))
     for e in carried_effects(model):
         if e.spec.stage == "time_base":
@@ -231,7 +235,8 @@ def derivatives(model: Sequence[DeviceEffect], f) -> dict[tuple[int, str], np.nd
 
 def gum_input(device_id: str, entry: DeviceEffect, name: str) -> Input:
     """The GUM input of one carried parameter (normal, the pooled fit's standard uncertainty); the same
-    key (:func:`input_key`) in a calibration's budget and in a diameter's, so the two add."""
+    key (:func:`input_key`) in a calibration's budget and in a diameter's, so the two add.
+    """
     return Input(input_key(device_id, entry, name), f"{entry.key} {name} (device model, readings corrected for it)",
                  name, EFFECTS[entry.key.split("@")[0]].params.get(name, "-"), entry.values()[name],
                  float(entry.u[name]), "normal",
@@ -244,7 +249,8 @@ def correct_inputs(inputs: list[dict], model) -> list[dict]:
     :func:`borescan.stages.calibration_fit.spindle_inputs`) with the readings corrected for the model's
     beam and reading effects (:func:`correct`; a channel delay is carried by the fit's angles); the
     recorded readings are kept as ``readings_recorded`` (the budget differentiates the correction
-    there, :func:`derivatives`). Unchanged without such effects."""
+    there, :func:`derivatives`). Unchanged without such effects.
+    """
     if not any(e.spec.stage in CORRECTABLE_STAGES for e in carried_effects(model)):
         return inputs
     return [dict(x, readings_recorded=x["readings"], readings=correct(x["t_s"], x["readings"], x["channels"], model,
@@ -253,7 +259,8 @@ def correct_inputs(inputs: list[dict], model) -> list[dict]:
 
 def carry(model: Sequence[DeviceEffect], device_id: str, inputs: list[dict], log=print) -> list[dict]:
     """Say in the log what a calibration of ``device_id`` carries of its ``model`` and return its inputs
-    corrected for it (:func:`correct_inputs`)."""
+    corrected for it (:func:`correct_inputs`).
+    """
     for m in model:
         values = ", ".join(f"{k} = {v:.6g} +- {m.u.get(k, float('nan')):.2g}" for k, v in m.values().items())
         log(f"{device_id}: device model {m.key} ({m.source}) " + (f"carried at {values} (pooled examination of {m.night})"

@@ -190,7 +190,8 @@ class EffectSpec:
     ) -> tuple[dict[str, Any], dict[str, float]]:
         """The spec's parameters (and their standard uncertainties when ``u`` is given) of
         fitted values ``x`` (``{fit name: value}``), clipped to the fit's bounds first;
-        ``channel`` is not included, ``k`` is for harmonic effects."""
+        ``channel`` is not included, ``k`` is for harmonic effects.
+        """
         x = {q.name: min(max(float(x[q.name]), q.lower), q.upper) for q in self.fit}
         if self.from_internal is not None:
             par, unc = self.from_internal(x, u, k)
@@ -266,7 +267,8 @@ def _channel_delay(t_s: np.ndarray, p: Mapping) -> np.ndarray:
 
 def _speed_error(x_rad: np.ndarray, p: Mapping) -> np.ndarray:
     """Spindle turns at (1 + eps) times the commanded profile: x' = (1 + eps) x, x = Phi(t) the commanded
-    angle."""
+    angle.
+    """
     return np.asarray(x_rad, dtype=float) * (1.0 + p["eps"])
 
 
@@ -395,7 +397,8 @@ def _u(u: Mapping | None, name: str) -> float:
 def _phase_type(amp: str, k_divides: bool = False):
     """(to_internal, from_internal) of an amplitude ``amp`` and ``phase`` fitted as
     A = amp cos(k phase), B = amp sin(k phase) (k = 1 unless ``k_divides``: ``bore_lobing``
-    has cos(k (theta - phase)) = cos(k theta - k phase))."""
+    has cos(k (theta - phase)) = cos(k theta - k phase)).
+    """
 
     def to_internal(p: Mapping) -> dict:
         arg = (p["k"] if k_divides else 1) * p["phase"]

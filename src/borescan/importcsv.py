@@ -538,7 +538,8 @@ def import_csv(
 
 def _ingest_problems(meta: dict, lds: pl.DataFrame, spindle: pl.DataFrame | None, csv_label: str) -> list:
     """What the pipeline's ingest would quarantine this scan for, from a staged copy (the one
-    validator reads a folder); files named after the CSV."""
+    validator reads a folder); files named after the CSV.
+    """
     with tempfile.TemporaryDirectory(prefix="borescan-import-") as tmp:
         root = Path(tmp)
         scan_dir = rawio.write_scan(root, meta, lds, spindle)

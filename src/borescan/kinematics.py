@@ -165,7 +165,8 @@ class AngleModel:
 
 def _readonly_key(t) -> tuple | None:
     """Identity of a read-only float array's values (memory, shape, strides), None otherwise:
-    evaluations on such an array (fits evaluate one set of times again and again) are cached."""
+    evaluations on such an array (fits evaluate one set of times again and again) are cached.
+    """
     if not isinstance(t, np.ndarray) or t.dtype != np.float64 or t.flags.writeable:
         return None
     base = t
@@ -245,7 +246,8 @@ def angle_model_from_arrays(
 
 def angle_model_of_scan(meta: dict, spindle) -> AngleModel:
     """:func:`angle_model_from_arrays` of one raw scan: ``scan.json`` (``meta``) and its spindle
-    stream (a polars frame with the raw format's columns, or None); nulls become NaN."""
+    stream (a polars frame with the raw format's columns, or None); nulls become NaN.
+    """
     sp_meta = meta.get("spindle") or {}
     kw = {}
     if spindle is not None and spindle.height:

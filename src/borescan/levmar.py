@@ -94,7 +94,8 @@ def _qrsolv(R: np.ndarray, perm: np.ndarray, d: np.ndarray, qtb: np.ndarray):
 
 def _back_substitute(T: np.ndarray, b: np.ndarray, perm: np.ndarray) -> np.ndarray:
     """x with x[perm] = T^-1 b for upper triangular T; from the first zero diagonal on, the
-    components are 0 (MINPACK's least-squares solution of a singular triangle)."""
+    components are 0 (MINPACK's least-squares solution of a singular triangle).
+    """
     n = T.shape[1]
     zero = np.flatnonzero(np.diag(T) == 0.0)
     nsing = int(zero[0]) if zero.size else n

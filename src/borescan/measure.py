@@ -252,7 +252,8 @@ def _rotating_angle(scan, t_s: np.ndarray, v: np.ndarray, tau_s: np.ndarray | No
     """Device angle at the readings (:mod:`borescan.kinematics`): the encoder angle, else the
     commanded profile with its speed scale found from the readings (the phase of a closed
     profile does not change a circle's diameter or roundness). With per channel time offsets
-    ``tau_s`` (c,) (a carried ``channel_delay``) the angle of channel c at t - tau_c, (n, c)."""
+    ``tau_s`` (c,) (a carried ``channel_delay``) the angle of channel c at t - tau_c, (n, c).
+    """
     from .kinematics import angle_model_of_scan, estimate_speed_scale
 
     am = angle_model_of_scan(scan.meta, scan.spindle)
@@ -292,7 +293,8 @@ class DiameterModel:
     def ls_circle(self, beams: Beams, points_mm: np.ndarray | None = None, circle: Circle | None = None) -> Circle:
         """The least-squares circle of a rotating scan's finite wall points with ``beams``, fitted once
         per beams: ``points_mm`` (m, 2) those points when the caller has them; ``circle`` one the
-        caller has fitted to them (:func:`measure_rotating`'s LSCI), remembered as it is."""
+        caller has fitted to them (:func:`measure_rotating`'s LSCI), remembered as it is.
+        """
         key = (beams.channels, beams.beta_rad.tobytes(), beams.rho_mm.tobytes(), beams.d_b_mm.tobytes())
         if circle is not None:
             self._circles[key] = circle
@@ -516,7 +518,8 @@ def mean_reading_u_mm(u_one_mm, counts) -> float | None:
 
 def sensor_ranges_mm(sensors: dict, channels) -> list[float]:
     """Each channel's measuring range [mm] from scan.json ``sensors`` (channel -> entry); 10 mm where
-    a sensor does not state one."""
+    a sensor does not state one.
+    """
     return [float((sensors.get(int(ch)) or {}).get("range_mm") or 10.0) for ch in channels]
 
 
@@ -631,7 +634,8 @@ def _json_rows(rows: list[dict]) -> list[dict]:
 
 def _unit_polar(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Distances and unit vectors (rr, n_x, n_y) of points ``d`` (2, m) from the origin: the first
-    step of :func:`_ls_radius_change` (the start circle's centre), kept per block of points."""
+    step of :func:`_ls_radius_change` (the start circle's centre), kept per block of points.
+    """
     rr = np.hypot(d[0], d[1])
     return rr, d[0] / rr, d[1] / rr
 
@@ -884,7 +888,8 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
 
 def calibration_budget_of(cal) -> Budget:
     """The GUM budget a calibration carries (``diagnostics["budget"]``, written by the calibrate
-    stage); for a calibration without one, its covariance as a single term, said so in the source."""
+    stage); for a calibration without one, its covariance as a single term, said so in the source.
+    """
     d = (cal.diagnostics or {}).get("budget")
     if d:
         return Budget.from_dict(d)
@@ -925,7 +930,8 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict, cleaning=None) -> tuple[d
 
 def _device_model_inputs(scan, cal, dm, cleaning=None) -> list[tuple[Input, float]]:
     """(input, dD/d parameter) of each carried device-model parameter through this scan's own readings
-    (:func:`borescan.device_model.derivatives` of :func:`measure_scan`'s diameter)."""
+    (:func:`borescan.device_model.derivatives` of :func:`measure_scan`'s diameter).
+    """
     d = device_model.derivatives(dm, lambda m: measure_scan(scan, cal.beams, None, m, cleaning)["diameter_mm"])
     return [(device_model.gum_input(cal.device_id, dm[i], name), float(v)) for (i, name), v in d.items()]
 
@@ -1174,7 +1180,8 @@ def verification_for_certificate(scan, cal, unc_cfg: dict, lab_cfg: dict, tolera
     """A ring-gauge verification scan measured with ``cal`` and verified (:func:`verify_budget`),
     as a row for the calibration's certificate: the ``verifications`` columns plus the budget rows
     (``budget``), the gauge's ``certificate`` and the scan's ``raw_files`` (name -> SHA-256).
-    None when the scan's artifact is not a certified ring gauge. ``cleaning``: the spike policy."""
+    None when the scan's artifact is not a certified ring gauge. ``cleaning``: the spike policy.
+    """
     art = scan.meta.get("artifact") or {}
     if art.get("type") != "ring_gauge" or art.get("certified_diameter_mm") is None:
         return None

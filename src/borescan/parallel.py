@@ -39,7 +39,8 @@ JOB_MALLOC_ENVIRONMENT = {"MALLOC_MMAP_THRESHOLD_": str(32 << 20), "MALLOC_TRIM_
 
 def set_job_environment(environ=os.environ) -> dict[str, str]:
     """Put :data:`JOB_MALLOC_ENVIRONMENT` into ``environ`` (this process's environment, which the
-    jobs it starts inherit), keeping any value already set; returns the values in effect."""
+    jobs it starts inherit), keeping any value already set; returns the values in effect.
+    """
     for k, v in JOB_MALLOC_ENVIRONMENT.items():
         environ.setdefault(k, v)
     return {k: environ[k] for k in JOB_MALLOC_ENVIRONMENT}
@@ -47,7 +48,8 @@ def set_job_environment(environ=os.environ) -> dict[str, str]:
 
 def workers_for(n_items: int, workers: int) -> int:
     """Processes :func:`map_in_order` uses for ``n_items`` items with ``workers`` allowed (in a job
-    whose workers :func:`start_job_workers` started, one item is enough for a worker)."""
+    whose workers :func:`start_job_workers` started, one item is enough for a worker).
+    """
     per_worker = 1 if _JOB_POOL else MIN_ITEMS_PER_WORKER
     return max(1, min(int(workers), n_items // per_worker))
 
@@ -94,7 +96,8 @@ AHEAD_PER_WORKER = 1
 def _map_with_caller(fn, items: list, pool: ProcessPoolExecutor, n_spawned: int) -> Iterator:
     """:func:`map_in_order` on ``n_spawned`` workers of ``pool`` and the calling process: the
     workers are kept busy, the caller takes the next item whenever it is free, and results are
-    yielded in input order as soon as they are complete from the first item on."""
+    yielded in input order as soon as they are complete from the first item on.
+    """
     results: dict[int, Any] = {}
     running: dict[Future, int] = {}
     nxt = first = 0

@@ -487,7 +487,8 @@ _NUMPY_DTYPE = {pa.int8(): np.int8, pa.int16(): np.int16, pa.int32(): np.int32, 
 def _arrow_numpy(arr: pa.Array, fill=None) -> np.ndarray:
     """One Arrow array as numpy: a view of its value buffer (a copy with ``fill`` where null, in the
     array's dtype) for the types of :data:`_NUMPY_DTYPE`; any other type, or nulls without ``fill``, by
-    pyarrow's conversion."""
+    pyarrow's conversion.
+    """
     dtype = _NUMPY_DTYPE.get(arr.type)
     n = len(arr)
     if dtype is None or (arr.null_count and fill is None):
@@ -550,7 +551,8 @@ def _range_of(sensor: dict) -> float | None:
 def _aligned_chunks(table: pa.Table, names: tuple[str, ...]) -> list[tuple[np.ndarray, ...]]:
     """Numpy arrays of the columns ``names``, chunk by chunk: zero-copy views of the chunks as read
     (nulls of a float column as NaN, which costs a copy of that chunk), or one combined chunk per
-    column when the columns are chunked differently."""
+    column when the columns are chunked differently.
+    """
     cols = [table.column(k) for k in names]
     lengths = [[len(ch) for ch in c.chunks] for c in cols]
     if any(ln != lengths[0] for ln in lengths[1:]):
@@ -591,7 +593,8 @@ def _lds_fast_check(table: pa.Table, meta: dict | None, has_spindle: bool, file:
 def _matrix_warnings(mat: LdsMatrix, nulls: int, listed: dict[int, dict], file: str) -> list[str] | None:
     """Range warnings of a table in the usual layout from its wide matrix (NaN = null); None when
     something might be a problem: a negative first sample or time, NaN or infinite readings, a
-    listed channel without valid readings."""
+    listed channel without valid readings.
+    """
     if mat.sample[0] < 0 or mat.t_s[0] < 0:
         return None
     vals = mat.values_mm.reshape(-1)
@@ -610,7 +613,8 @@ def _matrix_warnings(mat: LdsMatrix, nulls: int, listed: dict[int, dict], file: 
 
 def _range_warnings(lo: float, hi: float, listed: dict[int, dict], file: str, count_out) -> list[str]:
     """Warnings for readings outside [0, range] per listed channel, counted (``count_out(j, range)``
-    for the j-th channel ascending) only when the extreme readings ``lo``, ``hi`` leave [0, range]."""
+    for the j-th channel ascending) only when the extreme readings ``lo``, ``hi`` leave [0, range].
+    """
     chans = sorted(listed)
     ranges = [_range_of(listed[ch]) for ch in chans]
     limit = min((r for r in ranges if r is not None), default=np.inf)
@@ -625,7 +629,8 @@ def _range_warnings(lo: float, hi: float, listed: dict[int, dict], file: str, co
 
 def _pose_ok(table: pa.Table, meta: dict | None, has_spindle: bool) -> bool:
     """The pose checks of :func:`_check_lds_full` pass (rod: every pose set, >= 0, one per sample;
-    tri_lds with a spindle stream: no pose)."""
+    tri_lds with a spindle stream: no pose).
+    """
     pcol = table.column("pose")
     dtype = _device_type(meta)
     if dtype == "rod":
@@ -642,7 +647,8 @@ def _lds_chunk_warnings(  # noqa: C901 (one branch per checked rule of the raw f
     """Ordering, finiteness, channel and range checks of any table without nulls where they are not
     allowed, on the Arrow chunks as they were read (no concatenation): sorting is tested by
     comparing neighbours (no int64 differences), readings per channel by one comparison per listed
-    channel. Returns the range warnings, None when something might be a problem."""
+    channel. Returns the range warnings, None when something might be a problem.
+    """
     n = table.num_rows
     chunks = _aligned_chunks(table, ("sample", "t_ns", "sensor", "value_mm"))
     chans = sorted(listed) if listed is not None else []
@@ -691,7 +697,8 @@ def _check_lds(
     table: pa.Table, meta: dict | None, has_spindle: bool, p: _Problems, file: str
 ) -> tuple[list[str], LdsMatrix | None]:
     """Check the data of an ``lds.parquet`` table with the right schema; return (warnings, the wide
-    matrix when the fast check built it on the way, else None)."""
+    matrix when the fast check built it on the way, else None).
+    """
     fast = _lds_fast_check(table, meta, has_spindle, file)
     return fast if fast is not None else (_check_lds_full(table, meta, has_spindle, p, file), None)
 
@@ -1103,7 +1110,8 @@ def read_scan(scan_dir: Path, raw_root: Path | None = None) -> RawScan:
 
 def inspect_scan(scan_dir: Path, raw_root: Path | None = None) -> tuple[RawScan | None, list[ScanError]]:
     """Read and validate one scan folder like :func:`read_scan`, returning every problem instead of
-    raising the first: ``(scan, [])`` when valid, ``(None, problems)`` otherwise."""
+    raising the first: ``(scan, [])`` when valid, ``(None, problems)`` otherwise.
+    """
     return _inspect(scan_dir, raw_root)
 
 
@@ -1160,7 +1168,8 @@ def nights(raw_root: str | Path) -> list[str]:
 
 def night_scan_dirs(raw_root: str | Path, night: str) -> list[Path]:
     """Scan folders ``scan=<scan_id>`` (non-empty id) of one night, sorted by folder name; listed, not
-    validated."""
+    validated.
+    """
     night_dir = Path(raw_root) / f"night={night}"
     if not night_dir.is_dir():
         return []
@@ -1415,7 +1424,8 @@ def _residue_column(views: list[np.ndarray], k: int, c: int, n: int, dtype) -> n
 
 def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
     """Float column of a long table, c rows per sample -> (n, c) (row r -> [r // c, r % c], i.e. the
-    flat index r of a C-ordered array: one copy of the value buffers); nulls NaN."""
+    flat index r of a C-ordered array: one copy of the value buffers); nulls NaN.
+    """
     out = np.empty(n * c)
     r0 = 0
     for ch in col.chunks:

@@ -116,7 +116,8 @@ def clean_matrix(mat: rawio.LdsMatrix, policy: CleaningPolicy, *, spindle: bool)
 def prepared_matrix(scan: rawio.RawScan, policy: CleaningPolicy | None = None) -> rawio.LdsMatrix:
     """The reading matrix of ``scan`` (:func:`borescan.rawio.lds_matrix`) cleaned by ``policy``
     (the schema's defaults when None): a scan with a spindle stream by the spindle rule, any
-    other by the static rule."""
+    other by the static rule.
+    """
     spindle = scan.spindle is not None and scan.spindle.height > 1
     policy = policy or cleaning_policy(schema_defaults()["signal"])
     return clean_matrix(rawio.lds_matrix(scan), policy, spindle=spindle)[0]

@@ -345,7 +345,8 @@ _LABEL_BOX = {"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha"
 
 def _night_ticks(ax, nights: list, ids: list, most: int = MAX_TICK_LABELS) -> None:
     """Label points 0..n-1 by night: every point as "night / scan" when there are at most ``most``,
-    else at most ``most`` nights (the first point of every k-th night), a minor tick per night."""
+    else at most ``most`` nights (the first point of every k-th night), a minor tick per night.
+    """
     n = len(nights)
     if n <= most:
         _xticks(ax, [f"{'' if d is None else d}\n{i}" for d, i in zip(nights, ids, strict=True)], most)
@@ -981,7 +982,8 @@ class _Builder:
 
     def figure(self, plot, data: pl.DataFrame, key: str, name: str, alt: str, *args) -> str:
         """``plot(data, key, *args)`` as ``<month>/<name>.png``, drawn only when its input changed;
-        embedded in the page as a ``data:`` image that links to the PNG file."""
+        embedded in the page as a ``data:`` image that links to the PNG file.
+        """
         fname = _safe(name) + ".png"
         fp = hashlib.sha256(f"{self.code} {plot.__name__} {key} {args} {frame_fingerprint(data)}".encode()
                             ).hexdigest()[:16]
@@ -1090,7 +1092,8 @@ class _Builder:
         """The month's diameter rows with ``nominal_mm`` (the row's ``nominal_diameter_mm``, else the
         part's from ``artifacts``), ``tolerance_mm`` (the row's, when the measure stage records one),
         ``deviation_mm`` (at 20 °C where known, else as measured, minus the nominal) and
-        ``in_tolerance`` (|deviation| <= tolerance; null without a tolerance)."""
+        ``in_tolerance`` (|deviation| <= tolerance; null without a tolerance).
+        """
         dia = self.t["diameters"]
         cols = set(dia.columns)
         nominal = [pl.col(c).cast(pl.Float64) for c in ("nominal_diameter_mm", "artifact_nominal_mm") if c in cols]
@@ -1201,7 +1204,8 @@ class _Builder:
             self) -> str:
         """Per device and night: the spindle scans examined together (borescan.discrepancy.pooled), the
         device model's effects, what the night's calibration carried of it with its residual against the
-        noise floor, the gap against the noise floor, and the calibration drifts flagged."""
+        noise floor, the gap against the noise floor, and the calibration drifts flagged.
+        """
         pf = self.t.get("pooled_findings")
         dr = self.t.get("calibration_drift")
         if (pf is None or pf.height == 0) and (dr is None or dr.height == 0):
@@ -1269,7 +1273,8 @@ class _Builder:
 
     def _finding_uncertainties(self, scan_id: str, recs: list[dict] = ()) -> dict[tuple, dict[str, float]]:
         """(effect, channel) -> {parameter: u}: the findings table's ``uncertainties`` column, else
-        ``discrepancy/<scan>/findings.json`` (catalogs written before the column existed)."""
+        ``discrepancy/<scan>/findings.json`` (catalogs written before the column existed).
+        """
         out = {(r.get("effect"), r.get("channel")): u for r in recs if (u := _uncertainties(r.get("uncertainties")))}
         if out:
             return out
@@ -1308,7 +1313,8 @@ class _Builder:
 
     def quarantined(self) -> list[dict[str, Any]]:
         """Every quarantined scan of the page (``scans`` status or ``quarantine`` rows): scan_id,
-        night, device_id, kind, stages, reasons, class and action, in night and scan order."""
+        night, device_id, kind, stages, reasons, class and action, in night and scan order.
+        """
         sc = self.t["scans"].filter(pl.col("status") == "quarantined")
         q = self.t["quarantine"]
         scan_row = {(r["scan_id"], str(r["night"])): r for r in sc.iter_rows(named=True)}
@@ -1444,7 +1450,8 @@ class _Builder:
 
 def _uncertainties(u: Any) -> dict[str, float]:
     """A finding's uncertainties (a dict, or its JSON text) as {parameter: u}: ``u_`` prefixes dropped,
-    non-numbers left out; {} for nothing readable."""
+    non-numbers left out; {} for nothing readable.
+    """
     if isinstance(u, str):
         try:
             u = json.loads(u)
@@ -1458,7 +1465,8 @@ def _uncertainties(u: Any) -> dict[str, float]:
 def _calibration_models(cal: pl.DataFrame | None) -> dict[tuple[str, str], tuple[list[dict], float | None]]:
     """(device, night) -> (the device-model entries the night's calibration carried, from its
     calibration_json diagnostics; its worst residual over the noise floor, None if not stated).
-    Of several calibrations of a device in a night, one that carried a device model."""
+    Of several calibrations of a device in a night, one that carried a device model.
+    """
     out: dict[tuple[str, str], tuple[list[dict], float | None]] = {}
     if cal is None or cal.height == 0 or "calibration_json" not in cal.columns:
         return out
@@ -1479,7 +1487,8 @@ def _calibration_models(cal: pl.DataFrame | None) -> dict[tuple[str, str], tuple
 def _carried_by_calibrations(cal: pl.DataFrame | None) -> dict[tuple[str, str], str]:
     """(device, night) -> what the night's calibration carried of its device model (each entry with
     value ± u and the night it came from, or "not estimated") and its residual against the readings'
-    noise floor: when an effect entered the model and what it did to the calibration's gap (HTML)."""
+    noise floor: when an effect entered the model and what it did to the calibration's gap (HTML).
+    """
     out: dict[tuple[str, str], str] = {}
     for key, (model, ratio) in _calibration_models(cal).items():
         if not model:

@@ -232,7 +232,8 @@ def rod_start(L: np.ndarray, mask: np.ndarray, fix: int = 0) -> tuple[np.ndarray
 def _prepare(readings_mm, l0_mm, n_extra: int = 0):
     """l = l0 + v, the observation mask and the poses kept (those with >= 2 readings: a pose
     seen by one layer only determines its own angle and nothing else, so it is dropped).
-    ``n_extra`` unknowns beyond Wang's 3m + n - 1 (2 for the deflection)."""
+    ``n_extra`` unknowns beyond Wang's 3m + n - 1 (2 for the deflection).
+    """
     v = np.asarray(readings_mm, dtype=float)
     if v.ndim != 2:
         raise RodSolveError(f"readings must be (poses, holes), got shape {v.shape}")
@@ -268,7 +269,8 @@ def _prepare(readings_mm, l0_mm, n_extra: int = 0):
 def _k(s):
     """Mean-radius factor of the tilted section, s = omega^2 [rad^2]: (1 + 1/cos omega) / 2 to O(s^2).
 
-    Analytic in s, so a negative s (the debiased estimate of a small omega^2) is allowed."""
+    Analytic in s, so a negative s (the debiased estimate of a small omega^2) is allowed.
+    """
     return 1.0 + s / 4.0 + 5.0 * s * s / 48.0
 
 
@@ -278,7 +280,8 @@ def _dk(s):
 
 def rod_layers(l0_mm=None, layers: Sequence[RodLayer] | None = None, m: int | None = None) -> tuple[RodLayer, ...]:
     """Layer geometry for the solve: ``layers`` (device nominal or a rod calibration), their l0
-    replaced by ``l0_mm`` when both are given; l0 alone gives phi = d = gamma = 0 (Wang Eq. 16)."""
+    replaced by ``l0_mm`` when both are given; l0 alone gives phi = d = gamma = 0 (Wang Eq. 16).
+    """
     if layers is None:
         if l0_mm is None:
             raise ValueError("rod_layers needs l0_mm or layers")
@@ -357,7 +360,8 @@ class _RodProblem:
     def jac(self, p, beta_step=None):
         """d(model)/dp by central differences in blocks (a pose angle moves its row only, a hole's
         unknowns its column only: 12 model evaluations). With ``beta_step`` the last two columns
-        are secants in beta = w^2 (complex square) instead: the statistics' coordinates."""
+        are secants in beta = w^2 (complex square) instead: the statistics' coordinates.
+        """
         rho, c, alpha, w = self.unpack(p)
         n, m = self.n, self.m
         J = np.zeros((n, m, self.n_par))
@@ -443,7 +447,8 @@ def _deflected_radii(rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD
     from a fixed-seed mixture of the prior and the likelihood): r_m = E[rho_m(beta) / k(|beta|)],
     u^2 = Var[rho_m(beta) / k] + Sigma_rho|beta / k^2, s = E[omega^2], u(s) its posterior SD.
     The direction of a deflection that the data barely see is averaged over instead of fixed at
-    its noisy estimate. "mle": s = |beta_hat|, u by the delta method along beta_hat."""
+    its noisy estimate. "mle": s = |beta_hat|, u by the delta method along beta_hat.
+    """
     idx = np.r_[np.arange(m), cov.shape[0] - 2, cov.shape[0] - 1]
     C = cov[np.ix_(idx, idx)]
     Sb = C[-2:, -2:]
@@ -501,7 +506,8 @@ def _repair_poses(prob, p, max_rounds: int = 3):
     """Per-pose angle profile: with the holes and the axis held, each pose angle is searched on a
     grid over the whole circle; a pose whose grid minimum is clearly below its current cost is
     moved there and the joint LM re-run. A single pose angle can sit in a local minimum of its
-    own (its readings are periodic in alpha_n) which LM cannot leave; this finds it."""
+    own (its readings are periodic in alpha_n) which LM cannot leave; this finds it.
+    """
     cost = float(prob.residual(p) @ prob.residual(p))
     nfev = 0
     for _ in range(max_rounds):
@@ -536,7 +542,8 @@ def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and r
         prob, L, mask, starts_alpha, deflection):
     """Multi-start LM: every start (both reflections) first without deflection, then from the
     closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0); the
-    lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`)."""
+    lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`).
+    """
     best, nfev = None, 0
     flat = _RodProblem(prob.V, mask, prob.layers, prob.fix, False)
     for alpha0 in starts_alpha:
@@ -762,7 +769,8 @@ def _expand(a, keep):
 
 def rod_cost_mm2(readings_mm, alpha_rad, layers, holes, axis) -> float:
     """Sum of squared residuals of ``readings_mm`` (n, m; NaN skipped) against the exact forward
-    model at the given geometry (e.g. the truth of a simulated scan) [mm^2]."""
+    model at the given geometry (e.g. the truth of a simulated scan) [mm^2].
+    """
     v = np.asarray(readings_mm, dtype=float)
     e = v - rod_readings(alpha_rad, list(layers), list(holes), axis)
     e = e[np.isfinite(e)]

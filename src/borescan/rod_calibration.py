@@ -207,13 +207,15 @@ def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list
 
 def rod_calibration_id(device_id: str, scan_ids, night: str) -> str:
     """Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>``
-    (:func:`borescan.calibration.make_calibration_id`)."""
+    (:func:`borescan.calibration.make_calibration_id`).
+    """
     return make_calibration_id(device_id, scan_ids, ROD_CALIBRATION_METHOD, night)
 
 
 def layer_jacobian(channels, channel: int) -> np.ndarray:
     """d D_channel / d l0 of every layer (2 on its own layer, 0 elsewhere): a diameter's sensitivity
-    to the calibration's outputs."""
+    to the calibration's outputs.
+    """
     return np.array([2.0 if int(c) == int(channel) else 0.0 for c in channels])
 
 
@@ -245,7 +247,8 @@ def _to_dict(cal: RodCalibration) -> dict[str, Any]:
 
 def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget | None]:
     """Layers and budget of a recorded rod calibration (``calibrations`` rows of one id); the
-    budget is None for the ``nominal`` record (design geometry, nothing calibrated)."""
+    budget is None for the ``nominal`` record (design geometry, nothing calibrated).
+    """
     rows = sorted(rows, key=lambda r: int(r["channel"]))
     layers = rod_layers(rows, [int(r["channel"]) for r in rows])
     blob = rows[0].get("calibration_json") if rows else None
@@ -257,7 +260,8 @@ def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget 
 def pose_means_of_scan(scan, cleaning=None) -> tuple[list[int], np.ndarray, float | None, dict]:
     """(channels, mean reading per pose and layer (n, m), u of one mean from the data sheet, sensors)
     of a rod scan (:func:`borescan.measure.pose_means`, :func:`borescan.measure.mean_reading_u_mm`)
-    over its readings cleaned by the spike policy ``cleaning`` (:func:`borescan.readings.prepared_matrix`)."""
+    over its readings cleaned by the spike policy ``cleaning`` (:func:`borescan.readings.prepared_matrix`).
+    """
     from . import measure, readings
 
     mat = readings.prepared_matrix(scan, cleaning)

@@ -145,7 +145,8 @@ class TriScene:
     def commanded_angle_rad(self, t_s: np.ndarray) -> np.ndarray:
         """Unsigned commanded angle Phi(t) since t = 0: the integral of the profile
         (:func:`borescan.kinematics.profile_angle_rad`, the function the pipeline reads scans with),
-        omega_nominal t without a profile [rad]."""
+        omega_nominal t without a profile [rad].
+        """
         if not self.rpm_profile:
             return self.omega_rad_per_s * np.asarray(t_s, dtype=float)
         kt = np.array([float(k[0]) for k in self.rpm_profile])
@@ -250,7 +251,8 @@ class RodScene:
 
 def layer_dict(lay: RodLayer) -> dict:
     """A rod layer in the spec's names, as ``device.nominal.layers`` of scan.json lists it: channel,
-    h [mm], phi [rad], d [mm], gamma [rad], l0 [mm] (inverse of :meth:`RodScene.from_dict`'s layers)."""
+    h [mm], phi [rad], d [mm], gamma [rad], l0 [mm] (inverse of :meth:`RodScene.from_dict`'s layers).
+    """
     return {"channel": int(lay.channel), "h": float(lay.h_mm), "phi": float(lay.phi_rad),
             "d": float(lay.d_mm), "gamma": float(lay.gamma_rad), "l0": float(lay.l0_mm)}
 
@@ -264,7 +266,8 @@ def _as_effects(effects: Iterable[Effect | dict] | None) -> list[Effect]:
 
 def tri_base(scene: TriScene) -> TriBase:
     """The scene's true base geometry for :mod:`borescan.model` (effect-free bore C, R20;
-    turned angle the commanded profile; phase and direction of the scene)."""
+    turned angle the commanded profile; phase and direction of the scene).
+    """
     return TriBase(
         beams=scene.beams,
         bore=scene.bore(),
@@ -426,7 +429,8 @@ def default_rod_scene(**overrides: Any) -> RodScene:
 @dataclass
 class SimulatedScan:
     """A simulated scan: ``meta`` (scan.json), ``lds`` and ``spindle`` frames per
-    ``raw-scan-format.md``, and the ground ``truth`` (written outside the raw tree)."""
+    ``raw-scan-format.md``, and the ground ``truth`` (written outside the raw tree).
+    """
 
     meta: dict
     lds: pl.DataFrame
@@ -515,7 +519,8 @@ def _base_meta(scan_id, night, kind, started_at, device, sample_rate_hz, sensors
 def _default_artifact(diameter_mm: float, cte_per_k: float) -> dict:
     """A ring gauge of the scene's diameter: RG-275 (certificate RG-275/2026-03) for the default
     275.029 mm, else one gauge per diameter (its certificate id names the value, so two simulated
-    gauges never share a certificate with different values: ingest quarantines that)."""
+    gauges never share a certificate with different values: ingest quarantines that).
+    """
     if abs(diameter_mm - 275.029) < 1e-9:
         ident, cert = "RG-275", "RG-275/2026-03"
     else:

@@ -66,7 +66,8 @@ def selection_ops(n: int, ranks: tuple[int, ...]) -> tuple[tuple[int, int, bool,
 def select_ranks(cols: list[np.ndarray], ranks: tuple[int, ...]) -> list[np.ndarray]:
     """Element-wise order statistics of k equally shaped NaN-free arrays: one array per rank in
     ``ranks`` (0-based, ascending), by the pruned network; the inputs are not modified (a rank
-    no comparator touches comes back as the input array itself)."""
+    no comparator touches comes back as the input array itself).
+    """
     v = list(cols)
     for i, j, keep_min, keep_max in selection_ops(len(v), tuple(ranks)):
         a, b = v[i], v[j]
@@ -79,7 +80,8 @@ def select_ranks(cols: list[np.ndarray], ranks: tuple[int, ...]) -> list[np.ndar
 
 def median_columns(cols: list[np.ndarray]) -> np.ndarray:
     """Element-wise median of k equally shaped NaN-free arrays (mean of the two middle ranks for
-    even k), by a selection network; the inputs are not modified."""
+    even k), by a selection network; the inputs are not modified.
+    """
     k = len(cols)
     if k == 0:
         raise ValueError("median of no values")

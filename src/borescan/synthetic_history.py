@@ -82,7 +82,8 @@ def _compact(iso: str) -> str:
 
 class _Renamer:
     """The id map of one (source night, copy) in a synthetic night: source dates -> its date,
-    devices, scans and parts suffixed."""
+    devices, scans and parts suffixed.
+    """
 
     def __init__(self, src: SourceNights, block_dates: dict[str, str], copy: int, night: str, tag: str = ""):
         self.suffix = f"-K{copy}" if copy else ""

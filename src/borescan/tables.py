@@ -46,7 +46,8 @@ class Column:
 @dataclass(frozen=True)
 class Table:
     """One history table: columns in order, key columns (rows are inserted in key order;
-    unique when ``primary``)."""
+    unique when ``primary``).
+    """
 
     name: str
     columns: tuple[Column, ...]
@@ -175,7 +176,8 @@ def polars_schema(name: str) -> dict[str, pl.DataType]:
 
 def frame(name: str, rows: Iterable[Mapping]) -> pl.DataFrame:
     """Rows (dicts keyed by column name) as a frame with table ``name``'s stage schema; empty frame
-    with the schema when there are none."""
+    with the schema when there are none.
+    """
     schema = polars_schema(name)
     rows = list(rows)
     return pl.DataFrame(rows, schema=schema, orient="row") if rows else pl.DataFrame(schema=schema)

@@ -68,7 +68,8 @@ class _Tracer:
     def scan_artifact(self, sn: dict[str, Any]) -> dict[str, Any] | None:
         """The artifact as the scan used it: its own certificate id and certified value (kept in
         ``scans`` per scan, so a later scan naming the artifact cannot rewrite them); ``latest``
-        holds the artifacts table's record when that differs (a recertified gauge)."""
+        holds the artifacts table's record when that differs (a recertified gauge).
+        """
         art = self.artifact(sn.get("artifact_id"))
         keys = ("certificate", "certified_diameter_mm", "u_diameter_mm")
         own = {k: sn.get(f"artifact_{k}") for k in keys}
@@ -297,7 +298,8 @@ def _cal_lines(c: dict[str, Any] | None, ind: str) -> list[str]:
 
 def _layer_gauges(row: dict[str, Any]) -> list[dict[str, Any]]:
     """The certified gauge each layer of a rod calibration was calibrated in (its calibration_json); []
-    for other calibrations."""
+    for other calibrations.
+    """
     if row.get("method") != "rod_gauge" or not row.get("calibration_json"):
         return []
     try:

@@ -1,5 +1,6 @@
 """Rule write_report: results_root/report.html, the month pages (redrawn where rows changed),
-report/papers.html."""
+report/papers.html.
+"""
 
 from borescan import report
 from borescan.workflow_log import log_to, rule_job

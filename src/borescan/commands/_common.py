@@ -24,7 +24,8 @@ __all__ = ["UsageError", "CommandFailed", "int_at_least", "positive_int", "nonne
 
 class UsageError(Exception):
     """The command cannot run as asked (exit 2); ``str()`` is the message shown after
-    ``borescan <command>:``."""
+    ``borescan <command>:``.
+    """
 
     exit_code = 2
 

@@ -26,7 +26,8 @@ def _ident(text: str, results: str) -> str:
     """A path from the current folder into the results folder, made absolute (``borescan.trace``
     relates absolute paths to the results folder; the catalog's are relative to it), so that
     ``results/calibration/.../certificate.pdf`` works as well as ``calibration/.../certificate.pdf``
-    and an absolute path; any other id as given."""
+    and an absolute path; any other id as given.
+    """
     p = Path(text.strip())
     if p.is_absolute() or len(p.parts) < 2:
         return text

@@ -36,7 +36,8 @@ SETTINGS = {"delta_bic_threshold": "threshold", "max_harmonic": "k_max", "exact_
 
 def discrepancy_settings(section: dict | None = None) -> dict[str, Any]:
     """Keywords of :func:`examine_scan` from the config's ``discrepancy`` section; the defaults
-    (and any key the section leaves out) come from the schema, the one place defaults live."""
+    (and any key the section leaves out) come from the schema, the one place defaults live.
+    """
     merged = {**schema_defaults()["discrepancy"], **(section or {})}
     return {kw: merged[key] for key, kw in SETTINGS.items()}
 
@@ -175,7 +176,8 @@ def _jacobian_columns(model, p: dict, terms: list[Term], names: list[str], scale
 
 def _lstsq(J: np.ndarray, r: np.ndarray) -> np.ndarray | None:
     """Linearised least squares of the screen; None when the Jacobian or the residual is not
-    finite (a finite-difference step left the model undefined) or the solver fails."""
+    finite (a finite-difference step left the model undefined) or the solver fails.
+    """
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
         return None
     try:
@@ -196,7 +198,8 @@ def outlier_threshold_sigma(n: int, false_rate: float = 1e-3) -> float:
     """Outlier threshold in noise levels for ``n`` samples of a channel: the two-sided Gaussian
     quantile that ``n`` independent residuals pass with probability ``false_rate`` in all
     (Bonferroni), at least 4. About 5.2 for 6000 samples, 4.9 for 1000 (a fixed 7 missed
-    outliers of 5-6 noise levels, which a channel of 1000 readings shows plainly)."""
+    outliers of 5-6 noise levels, which a channel of 1000 readings shows plainly).
+    """
     from scipy.special import ndtri  # the normal quantile (scipy.stats would add ~0.6 s of imports per worker)
 
     return max(4.0, float(-ndtri(false_rate / (2.0 * max(n, 1)))))
@@ -283,7 +286,8 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
 
     def fit(terms: list[Term], start: dict[str, float]) -> FitResult | None:
         """Fit base + terms from ``start``; if the model is undefined there (a ray missing the
-        bore), from the base fit with zero effects; None when that fails too."""
+        bore), from the base fit with zero effects; None when that fails too.
+        """
         names = base_names + [n for t in terms for n in t.names()]
         scales = base_scales + [s for t in terms for s in t.scales()]
         for st in (start, {**fallback, **{k: v for k, v in start.items() if k.endswith("f_hz")}}):
@@ -577,7 +581,8 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
 
 def _physical(z: tuple[FitResult, list[Term]]) -> bool:
     """False for fits that need a physically impossible value: a fitted parameter more than two
-    standard uncertainties outside its registry bounds (e.g. ``beam_tilt`` shortening the reading)."""
+    standard uncertainties outside its registry bounds (e.g. ``beam_tilt`` shortening the reading).
+    """
     fr, ts = z
     v, u = fr.values(), fr.uncertainties()
     for t in ts:

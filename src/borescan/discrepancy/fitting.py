@@ -53,7 +53,8 @@ def fit_least_squares(
 
 def dead_zone(r: np.ndarray, half_mm: np.ndarray | None) -> np.ndarray:
     """Residuals of cell-valued (quantised) readings: 0 inside the cell +-half, else the distance
-    to its edge. ``half_mm`` broadcasts against ``r`` (per channel); None leaves ``r`` unchanged."""
+    to its edge. ``half_mm`` broadcasts against ``r`` (per channel); None leaves ``r`` unchanged.
+    """
     if half_mm is None:
         return r
     return np.sign(r) * np.maximum(np.abs(r) - half_mm, 0.0)

@@ -24,7 +24,8 @@ MARGIN = 0.02
 
 def nice_ceiling(value: float) -> float:
     """The smallest value of :data:`NICE_STEPS` x 10^k at or above ``value`` (> 0); 1.0 for
-    anything not positive and finite."""
+    anything not positive and finite.
+    """
     if not (math.isfinite(value) and value > 0.0):
         return 1.0
     k = math.floor(math.log10(value))
@@ -112,7 +113,8 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
 
 def _background(layout: dict, limits: tuple):
     """The rendered static part of ``layout`` with its axes at ``limits`` (already set on the
-    axes): everything but :func:`_figure`'s ``dynamic`` artists, drawn once per (layout, limits)."""
+    axes): everything but :func:`_figure`'s ``dynamic`` artists, drawn once per (layout, limits).
+    """
     key = (layout["key"], limits)
     if key not in _BACKGROUNDS:
         fig = layout["fig"]

@@ -114,7 +114,8 @@ class PooledScan:
 
 def pooled_scan(scan, max_samples: int | None = None) -> PooledScan:
     """A ``RawScan``-like object (``.meta``, ``.lds``, ``.spindle``) of a three-sensor spindle scan
-    as :class:`PooledScan` (scans longer than ``max_samples`` cut to four blocks, as one scan is)."""
+    as :class:`PooledScan` (scans longer than ``max_samples`` cut to four blocks, as one scan is).
+    """
     meta = scan.meta
     sid = meta["scan_id"]
     if meta["device"]["type"] != "tri_lds":
@@ -209,7 +210,8 @@ CONDITIONS: dict[str, Condition] = {
 
 class _ScanModel(TriModel):
     """One scan's :class:`TriModel` whose beams move by ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` (every
-    channel)."""
+    channel).
+    """
 
     def base(self, p: dict[str, float]):
         b = super().base(p)
@@ -362,7 +364,8 @@ class PooledModel:
         """Shared beams at the start geometry; per scan the centre from the first harmonic and, for a
         commanded angle, the speed scale: of 0 and the readings' spectral estimate (used when it says
         more than 0.2 %; a weak once-per-revolution line can mislead it), the one whose fit of that
-        scan's nuisance alone (beams held) leaves the smaller residual."""
+        scan's nuisance alone (beams held) leaves the smaller residual.
+        """
         out = {n: 0.0 for n in self._shared_names() + self._device_term_names()}
         for k, (m, sid) in enumerate(zip(self.models, self.scan_ids)):
             tries = [0.0]
@@ -408,7 +411,8 @@ class PooledModel:
 
     def groups(self, scope: str) -> list[tuple[str | None, list[int]]]:
         """The groups of scans of a registry ``scope``: (label, scan indices); the label is None
-        for a group of every scan."""
+        for a group of every scan.
+        """
         if scope not in SCOPES:
             raise ValueError(f"unknown scope {scope!r}; valid: {SCOPES}")
         K = len(self.scans)
@@ -429,19 +433,22 @@ class PooledModel:
         """Scan ``k``'s device angle has the machine's origin: an encoder, or a moving spindle (whose
         phase the stream fixes). A commanded angle on a fixed spindle has its own origin (for a
         round bore the phase is the direction of the centre offset), so an effect fixed in the
-        machine frame (a gauge's lobing, its tilt) appears turned by an angle of its own there."""
+        machine frame (a gauge's lobing, its tilt) appears turned by an angle of its own there.
+        """
         d = self.scans[k].data
         return d.encoder or d.free_phase
 
     def frame_of(self, k: int) -> str:
         """The frame in which scan ``k`` sees an artifact's orientation: its night (the artifact as
         mounted that night, in the machine's angle origin), or the scan itself when its angle has
-        its own origin (:meth:`frame_shared`)."""
+        its own origin (:meth:`frame_shared`).
+        """
         return self.scans[k].night if self.frame_shared(k) else self.scan_ids[k]
 
     def turns_of(self, ks: Sequence[int]) -> tuple[str, ...]:
         """Frames of a group's scans that see an oriented effect turned: every frame but the
-        reference (the first frame with the machine's angle origin, else the first frame)."""
+        reference (the first frame with the machine's angle origin, else the first frame).
+        """
         frames = list(dict.fromkeys(self.frame_of(k) for k in ks))
         absolute = [self.frame_of(k) for k in ks if self.frame_shared(k)]
         ref = absolute[0] if absolute else frames[0]
@@ -523,7 +530,8 @@ class PooledModel:
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
         """Per-channel floor of the pooled residual (the scans' floors, root mean square by samples);
-        also sets the per-scan weights (pooled floor / scan floor)."""
+        also sets the per-scan weights (pooled floor / scan floor).
+        """
         K, c = len(self.scans), len(self.data.channels)
         sig = np.zeros((K, c))
         cnt = np.zeros((K, c))
@@ -555,7 +563,8 @@ class PooledModel:
             self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[PooledTerm]:
         """The registry's candidates for every group of scans their scope defines, less those the
         pooled base absorbs (recorded in :attr:`absorbed`). ``speed_error`` is the base's per-scan
-        speed scale; ``vibration`` is left to the single-scan examination."""
+        speed scale; ``vibration`` is left to the single-scan examination.
+        """
         terms: list[PooledTerm] = []
         self.absorbed = []
         every = list(range(len(self.scans)))
@@ -704,7 +713,8 @@ class PooledModel:
 
     def _form_leads(self, screen: list, t: PooledTerm, gain: float | None) -> bool:
         """The k = 2 lobing ``t`` leads: first in the screen, or (turned) its per-scan estimates
-        explain more than those of the screen's first candidate."""
+        explain more than those of the screen's first candidate.
+        """
         top = screen[0][1]
         if top.key == t.key:
             return True
@@ -716,7 +726,8 @@ class PooledModel:
 
     def _mirrored(self, start: dict[str, float], j: int) -> dict[str, float]:
         """``start`` with channel j's rho of the other sign at the same psi and g (the calibration's
-        mirror solution of that beam)."""
+        mirror solution of that beam).
+        """
         out = dict(start)
         rho = self.start_beams.rho_mm[j] + start.get(f"drho[{j}]", 0.0)
         out[f"drho[{j}]"] = -rho - self.start_beams.rho_mm[j]
@@ -725,7 +736,8 @@ class PooledModel:
     def _per_scan_estimates(self, t: Term, start: dict[str, float], t1: Term | None) -> tuple[dict | None, float]:
         """Term ``t`` fitted linearly to each scan alone (with that scan's centre, at ``start`` with
         ``t1``): the values of each frame's first scan (:meth:`frame_of`), and the chi-square the
-        per-scan estimates explain in all (None, 0 where the model is undefined)."""
+        per-scan estimates explain in all (None, 0 where the model is undefined).
+        """
         spec = EFFECTS[t.effect]
         fit_names = [f"{t.key}.{q.name}" for q in spec.fit]
         fit_scales = [q.scale for q in spec.fit]
@@ -757,7 +769,8 @@ class PooledModel:
     def _oriented_start(self, t: PooledTerm, start: dict[str, float], t1: Term | None) -> tuple[dict | None, float]:
         """Start of a turned term from each scan's own linear estimate of it (at ``start``, with ``t1``):
         the reference frame's values and each turned frame's orientation difference (a frame's first
-        scan); and the chi-square the per-scan estimates explain."""
+        scan); and the chi-square the per-scan estimates explain.
+        """
         spec = EFFECTS[t.effect]
         est, gain = self._per_scan_estimates(t, start, t1)
         if est is None:
@@ -776,7 +789,8 @@ class PooledModel:
 
     def term_parameters(self, term: Term, x: dict, u: dict) -> tuple[dict, dict]:
         """The spec's parameters of a fitted term (the examination asks once per named entry, in
-        the entries' order: the terms are kept in :attr:`reported`)."""
+        the entries' order: the terms are kept in :attr:`reported`).
+        """
         self.reported.append(term)
         par, unc = term_parameters(term, x, u)
         turns = getattr(term, "turns", ())
@@ -814,7 +828,8 @@ class PooledModel:
 
     def beam_covariance(self, p: dict[str, float], names: Sequence[str], cov: np.ndarray) -> np.ndarray:
         """Covariance (3c, 3c) of (beta, rho, d_b) per channel (the calibration's order) from the
-        covariance ``cov`` of the fitted parameters ``names`` (linear propagation)."""
+        covariance ``cov`` of the fitted parameters ``names`` (linear propagation).
+        """
         idx = [i for i, n in enumerate(names) if n in set(self._shared_names())]
         c = len(self.data.channels)
 
@@ -834,7 +849,8 @@ class PooledModel:
 
     def base_summary(self, p: dict[str, float]) -> dict:
         """The base fit's beams and per-scan nuisance (the examination asks once, at its base fit:
-        the values are kept in :attr:`base_values`)."""
+        the values are kept in :attr:`base_values`).
+        """
         self.base_values = dict(p)
         b = self.beams_at(p)
         out = {"beams": b.to_nominal(),
@@ -853,7 +869,8 @@ class PooledModel:
 
     def design(self, p: dict[str, float] | None = None) -> dict:
         """What distinguishes the scans: night, artifact, radius, signed speed, angle source and,
-        with parameters ``p``, the eccentricity |S - C| of the fit."""
+        with parameters ``p``, the eccentricity |S - C| of the fit.
+        """
         out = {}
         for k, s in enumerate(self.scans):
             d = s.data
@@ -875,7 +892,8 @@ class PooledModel:
 @dataclass
 class PooledExamination:
     """The pooled findings and the examination behind them (arrays stacked over the scans); ``fit``
-    is the verdict's fit (base and ``terms``; the base alone when nothing is named)."""
+    is the verdict's fit (base and ``terms``; the base alone when nothing is named).
+    """
 
     findings: dict
     examination: Examination
@@ -910,7 +928,8 @@ def _carriers(model: PooledModel, gain: np.ndarray, ks: Sequence[int] | None = N
 
 def _absorbed_summary(model: PooledModel) -> list[dict]:
     """The absorbed terms grouped by effect and absorbing parameter (one line each; for an
-    effect of several groups, its part common to every group)."""
+    effect of several groups, its part common to every group).
+    """
     out: dict[tuple, dict] = {}
     for a in model.absorbed:
         key = (a["effect"], a["parameter"])
@@ -1047,7 +1066,8 @@ _SCOPE_CHANGE = {"scan": "another scan", "night": "a scan on another night", "ar
 def separation(a: Term, b: Term) -> str | None:
     """The measurement that separates two tied terms, from the registry: effects of different
     ``scope`` part when the narrower one's unit changes (another run, night or artifact) and the
-    other's does not; None when the registry knows none (the same scope: a spec look-alike)."""
+    other's does not; None when the registry knows none (the same scope: a spec look-alike).
+    """
     sa, sb = EFFECTS[a.effect].scope, EFFECTS[b.effect].scope
     if sa == sb:
         return None

@@ -223,7 +223,8 @@ class RodModel(_PoseModel):
 
     def base_start(self):
         """Pose means solved by ``rod.solve_rod`` (deflection free, maximum likelihood); on refusal
-        the closed-form Eq. 16 start with w = 0."""
+        the closed-form Eq. 16 start with w = 0.
+        """
         from borescan.rod import RodSolveError, rod_start, solve_rod
 
         d = self.data

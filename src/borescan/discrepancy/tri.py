@@ -128,7 +128,8 @@ class TriData:
     def turned_rad(self, t_s: np.ndarray) -> np.ndarray:
         """Unsigned turned angle x(t) since t = 0 that the model assumes (phi = phase + direction x):
         the commanded profile's angle (:mod:`borescan.kinematics`), omega t without one; with an
-        encoder the measured angle less its value at t = 0."""
+        encoder the measured angle less its value at t = 0.
+        """
         if self.angle_model is None:
             return self.omega_rad_s * np.asarray(t_s, dtype=float)
         x = self.angle_model.commanded_rad(t_s)
@@ -219,7 +220,8 @@ def tri_data_from_arrays(
 def term_effects(term: Term, p: dict[str, float], channels) -> list[Effect]:
     """The spec's effects of a fitted term: its fitted values ``p[f"{term.key}.{name}"]``
     converted by the registry (:meth:`~borescan.effects.EffectSpec.spec_params`); a
-    per-channel term with ``channel`` 0 (or None) is one effect per channel."""
+    per-channel term with ``channel`` 0 (or None) is one effect per channel.
+    """
     spec = EFFECTS[term.effect]
     x = {q.name: p[f"{term.key}.{q.name}"] for q in spec.fit}
     par, _ = spec.spec_params(x, None, term.k)
@@ -231,7 +233,8 @@ def term_effects(term: Term, p: dict[str, float], channels) -> list[Effect]:
 
 def term_values(term: Term, effect: Effect) -> dict[str, float]:
     """Inverse of :func:`term_effects`: the term's fitted values ``{f"{term.key}.{name}": value}``
-    of a spec effect (:meth:`~borescan.effects.EffectSpec.internal`)."""
+    of a spec effect (:meth:`~borescan.effects.EffectSpec.internal`).
+    """
     return {f"{term.key}.{n}": v for n, v in effect.spec.internal(effect.params).items()}
 
 
@@ -246,7 +249,8 @@ def apply_reading_terms(
 ) -> np.ndarray:
     """Beam (``beam_tilt``, unless ``beam_tilt`` is False) and reading-stage terms on readings
     ``v`` (n, c) at times ``t`` (n, c) [s], through the registry's forward functions
-    (:func:`borescan.effects.apply_effects`), in its composition order."""
+    (:func:`borescan.effects.apply_effects`), in its composition order.
+    """
     stages = ("beam", "reading") if beam_tilt else ("reading",)
     effects = [e for terms in by.values() for term in terms if EFFECTS[term.effect].stage in stages
                for e in term_effects(term, p, channels)]
@@ -408,7 +412,8 @@ class TriModel:
     def candidate_terms(self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[Term]:
         """Every applicable term (:func:`candidate_terms`), less those a freed base parameter
         absorbs (the registry's ``absorbed_by``: d_b offsets and thermal expansion, beta channel
-        delay, a free radius R the common offset and thermal expansion)."""
+        delay, a free radius R the common offset and thermal expansion).
+        """
         chans = set(self.data.channels)
         freed: dict[str, set | str] = {b: chans for b in self.free_beams}
         if self.data.radius_free:  # a part's radius is the measurand: it absorbs what every channel shares
@@ -512,7 +517,8 @@ def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | No
                     freed: dict[str, set | str] | None = None) -> list[Term]:
     """The registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
     when the scan has no encoder, ``vibration_line`` when ``vibration_f_hz`` was found, ``cte``
-    when the artifact's CTE is known."""
+    when the artifact's CTE is known.
+    """
     have = {"commanded_angle": not data.encoder, "vibration_line": vibration_f_hz is not None,
             "cte": bool(data.cte_per_k)}
     return registry_terms(SCAN_KIND, data.channels, have=have, k_max=k_max, freed=freed)
@@ -520,7 +526,8 @@ def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | No
 
 def term_parameters(term: Term, x: dict[str, float], u: dict[str, float], data: TriData | None = None) -> tuple[dict, dict]:
     """The spec's parameters of a fitted term and their standard uncertainties (the registry's
-    :meth:`~borescan.effects.EffectSpec.spec_params`)."""
+    :meth:`~borescan.effects.EffectSpec.spec_params`).
+    """
     spec = EFFECTS[term.effect]
     if not spec.fit:
         raise ValueError(f"no parameter conversion for {term.effect!r}")
@@ -626,7 +633,8 @@ def _tilt_start(lobing_start: dict, data: "TriData") -> dict:
 
 def _rotation_eps(model: TriModel) -> float | None:
     """Relative speed error from the strongest line of the readings within +-30 % of the nominal
-    rotation frequency (the eccentricity undulates once per revolution); None without one."""
+    rotation frequency (the eccentricity undulates once per revolution); None without one.
+    """
     d = model.data
     n = leading_block(d.t_s)
     if n < 32:

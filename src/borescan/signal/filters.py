@@ -1,5 +1,6 @@
 """Reading filters of Yang 2017 §4 (median, moving average, Kalman) and the ISO 16610-21 Gaussian
-in undulations per revolution; all NaN-aware (a missing reading stays missing), zero-phase by default."""
+in undulations per revolution; all NaN-aware (a missing reading stays missing), zero-phase by default.
+"""
 
 from __future__ import annotations
 

@@ -52,7 +52,8 @@ def _ll_reference(col_x: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
 
 def _median_rows_full(a: np.ndarray) -> np.ndarray:
     """Median of each row of a NaN-free 2-D array (exact: partition for an odd number of columns, a
-    selection network on the columns for an even one, where partition needs two ranks)."""
+    selection network on the columns for an even one, where partition needs two ranks).
+    """
     m = a.shape[1]
     if m % 2:
         return np.partition(a, m // 2, axis=1)[:, m // 2]
@@ -70,7 +71,8 @@ def _median(x: np.ndarray) -> float:
 
 def _mad_scale(r: np.ndarray, max_n: int = 20_000) -> float:
     """1.4826 x median absolute deviation of the non-NaN values, on a uniform stride of at most
-    ``max_n`` of them (relative standard uncertainty of the scale about 1 / sqrt(0.74 max_n))."""
+    ``max_n`` of them (relative standard uncertainty of the scale about 1 / sqrt(0.74 max_n)).
+    """
     if r.size > max_n:
         r = r[:: -(-r.size // max_n)]  # ceil: at most max_n values
     r = r[~np.isnan(r)]

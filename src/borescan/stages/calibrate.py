@@ -82,7 +82,8 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
 def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str]]:
     """One job of :func:`stage_calibrate`: a three-sensor device's calibration scans of the night
     (``"tri"``) or one rod calibration scan (``"rod"``). Returns (kind, calibrations rows,
-    calibration_scans rows, quarantined, log lines)."""
+    calibration_scans rows, quarantined, log lines).
+    """
     kind, items, (night, results_root, summary, cfg, ctx_args) = job
     ctx = _context(ctx_args)
     cal_rows, link_rows, bad, lines = [], [], [], []
@@ -97,7 +98,8 @@ def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str]]
 
 def _context(a: dict) -> dict:
     """What a calibration job reads besides its scans: the config sections, the readings' cleaning
-    policy, and the device model each device carries (:func:`borescan.device_model.lookup`)."""
+    policy, and the device model each device carries (:func:`borescan.device_model.lookup`).
+    """
     devices, night = a["devices"], a["night"]
     return {"uncertainty": a["uncertainty"], "laboratory": a["laboratory"], "verification": a["verification"],
             "raw_root": a["raw_root"], "scans_table": a["scans_table"],

@@ -28,7 +28,8 @@ __all__ = ["calibrate_tri_device"]
 def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows, link_rows, log, ctx) -> None:
     """Calibrate one three-sensor device from its calibration scans of the night (``items``: (scans
     row, raw folder) each), write the certificates, add the rows; a scan that cannot be used, or a
-    calibration that fails, is quarantined with the reason."""
+    calibration that fails, is quarantined with the reason.
+    """
     method, min_rev = cfg["method"], int(cfg["min_revolutions"])
     scans, inputs = [], []
     for _row, d in items:
@@ -57,7 +58,8 @@ def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows
 
 def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple[str, str] | str | None:
     """Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None
-    if usable."""
+    if usable.
+    """
     s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
     if scan.spindle is None:
         return ("spindle.parquet", "calibration scan has no spindle stream (a ring-gauge calibration turns on a spindle)")
@@ -145,7 +147,8 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
 def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
     """The night's ring-gauge verifications of the calibration's device, made with it
     (:func:`borescan.measure.verification_for_certificate`): (rows, their scan.json). A scan that
-    cannot be measured is left out with a log line (the measure stage quarantines it)."""
+    cannot be measured is left out with a log line (the measure stage quarantines it).
+    """
     rows, metas = [], []
     for _row, d in night_scans(ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id):
         scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))

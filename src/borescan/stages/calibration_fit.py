@@ -168,7 +168,8 @@ def yang_from_summary(scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, 
 def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, night: str) -> dict:
     """Central-difference sensitivities (3c,) of Yang 2017's closed forms (:func:`yang_from_summary`):
     to R (h = 1e-4 mm), to each coordinate of the reported offset S - C (through oe = |S - C|) and to
-    a constant error of every reading of a channel (its d_max and d_min move together)."""
+    a constant error of every reading of a channel (its d_max and d_min move together).
+    """
     def params(R=None, dS=(0.0, 0.0), shift=None) -> np.ndarray:
         xi = dict(x, R=x["R"] if R is None else R,
                   spindle_xy=(x["spindle_xy"][0] + dS[0], x["spindle_xy"][1] + dS[1]))
@@ -191,7 +192,8 @@ def budget_of(cal, scans, inputs: list[dict], uncertainty: dict, *, summary: pl.
     """The GUM budget of a calibration from its scans
     (:func:`borescan.calibration_budget.calibration_budget`);
     a ``yang2017`` one also needs the signal ``summary``, ``nominal``, ``night`` and
-    ``position_accuracy_mm``."""
+    ``position_accuracy_mm``.
+    """
     ids = [s.scan_id for s in scans]
     if cal.method == "full_lsq":
         return calibration_budget(cal, inputs, uncertainty, scan_ids=ids)

@@ -31,13 +31,15 @@ def findings_night_dir(results_root, night: str) -> Path:
 
 def findings_dir(results_root, scan_id: str) -> Path:
     """``discrepancy/<scan_id>``: where a scan's findings.json and gap.png are read (a link into its
-    night's folder)."""
+    night's folder).
+    """
     return Path(results_root) / "discrepancy" / scan_id
 
 
 def findings_rows(findings: dict) -> list[dict]:
     """The ``findings`` rows of one scan's findings.json: one per named effect (one row with null effect if
-    none)."""
+    none).
+    """
     base = {"scan_id": findings["scan_id"], "verdict": findings["verdict"],
             "gap_before_mm": (findings.get("gap_before") or {}).get("rms_mm"),
             "gap_after_mm": (findings.get("gap_after") or {}).get("rms_mm"),

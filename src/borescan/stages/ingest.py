@@ -1,5 +1,6 @@
 """Stage ``ingest_night``: validate and register every scan of a night, record checksums, quarantine bad
-ones."""
+ones.
+"""
 
 from __future__ import annotations
 

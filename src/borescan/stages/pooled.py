@@ -47,7 +47,8 @@ def pooled_dir(results_root, night: str) -> Path:
 
 def pooled_rows(findings: dict, night: str, path: str) -> list[dict]:
     """The ``pooled_findings`` rows of one device's findings: one per named entry and one per term
-    of the device model (``in_device_model``); one row with a null effect when there is neither."""
+    of the device model (``in_device_model``); one row with a null effect when there is neither.
+    """
     absorbed = "; ".join(a["advice"] for a in findings.get("absorbed") or []) or None
     base = {"night": night, "device_id": findings["device_id"], "nights": ",".join(findings["nights"]),
             "scan_ids": ",".join(findings["scan_ids"]), "verdict": findings["verdict"],
@@ -67,7 +68,8 @@ def pooled_rows(findings: dict, night: str, path: str) -> list[dict]:
 
 def drift_rows(calibrations: pl.DataFrame, night: str, multiple: float, findings: dict[str, dict]) -> list[dict]:
     """The ``calibration_drift`` rows of ``night`` (pairs whose later calibration is valid from
-    it), each flagged one explained by its device's pooled ``findings`` (device id -> findings)."""
+    it), each flagged one explained by its device's pooled ``findings`` (device id -> findings).
+    """
     drift = calibration_drift(calibrations, multiple).filter(pl.col("valid_from_after") == night)
     why = {}
     for f in findings.values():
@@ -129,7 +131,8 @@ def stage_pooled(raw_root, night: str, results_root, scans_tables, calibration_t
 
 def pooled_device(job) -> tuple[str, dict | None, str]:
     """Examine one device's pooled spindle scans and write its JSON: (device id, findings or None, log
-    line)."""
+    line).
+    """
     raw_root, night, out_dir, device, dirs, ref_kw, ref, effects, settings = job
     scans = [rawio.read_scan(d, raw_root=Path(raw_root)) for d in dirs]
     spindle = [s for s in scans if "pose" not in s.lds.columns or s.lds["pose"].null_count() == s.lds.height]
