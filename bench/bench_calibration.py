@@ -36,7 +36,7 @@ def simulate_scan(beams: Beams, offset_mm, n_rev: int, samples_per_rev: int, noi
 
 
 def perturbed_nominal(rng, beams: Beams = TRUE) -> Beams:
-    """A design geometry a little off the truth (starting point of the fit)."""
+    """Return a design geometry a little off the truth (starting point of the fit)."""
     c = len(beams.channels)
     return Beams(
         beams.channels,

@@ -174,7 +174,8 @@ def crb_cov(  # noqa: C901 (one block per parameter kind of the CRB's Jacobian)
 
 
 def fitted_readings(cal, scan, t_s: np.ndarray, R_mm: float) -> np.ndarray:
-    """Readings (n, c) of the accepted fit: its beams, offset, and angle (encoder, or phase + scale Phi)."""
+    """Return readings (n, c) of the accepted fit: its beams, offset, and angle (encoder, or phase + scale
+    Phi)."""
     from borescan import kinematics
     from borescan.geometry import Bore, tri_spindle_readings
 
@@ -297,7 +298,7 @@ def run(n: int = N_SCANS, seed: int = SEED, workers: int | None = None, out_dir:
 
 
 def summarize(rows: list[dict]) -> dict:
-    """The acceptance figures of the rows (see the module doc); also printed by :func:`print_table`."""
+    """Return the acceptance figures of the rows (see the module doc); also printed by :func:`print_table`."""
     acc = [r for r in rows if r["accepted"]]
     out = {"scans": len(rows), "accepted": len(acc), "refused": len(rows) - len(acc),
            "reasons": Counter(r["reason"].split(";")[0][:160] for r in rows if not r["accepted"])}

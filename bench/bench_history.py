@@ -40,7 +40,7 @@ TARGET_QUERY_S = 1.0
 
 
 def demo_results(tmp: Path) -> Path:
-    """The demo's two nights processed up to the catalog (stage tables, certificates, findings)."""
+    """Return the demo's two nights processed up to the catalog (stage tables, certificates, findings)."""
     from borescan import demo
 
     demo.make_demo(tmp / "demo")

@@ -97,7 +97,7 @@ def draw(seed: int, i: int) -> dict:
 
 
 def _model_from(findings: dict, device_id: str, channels) -> tuple[str | None, list]:
-    """The user's decision: the first device-scope effect the pooled verdict names enters the model."""
+    """Return the user's decision: the first device-scope effect the pooled verdict names enters the model."""
     from borescan.device_model import device_model_at
     from borescan.effects import EFFECTS
 
@@ -114,7 +114,8 @@ def _model_from(findings: dict, device_id: str, channels) -> tuple[str | None, l
 
 
 def _residual_ratio(scans, cfg: dict, model) -> tuple[float, bool, object]:
-    """A night's calibration (pipeline path, budget): (max residual / noise floor, accepted, calibration or
+    """Return a night's calibration (pipeline path, budget): (max residual / noise floor, accepted,
+    calibration or
     None);
     NaN when the fit does not converge even without the acceptance rule.
     """

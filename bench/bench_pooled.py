@@ -110,7 +110,7 @@ def _designs(rng, design: str) -> list[dict]:
 
 
 def gauge_artifact(R: float) -> dict:
-    """The certified ring gauge of radius ``R`` [mm] a scenario's device turns in."""
+    """Return the certified ring gauge of radius ``R`` [mm] a scenario's device turns in."""
     return {"id": f"RG-{round(2 * R)}", "type": "ring_gauge", "nominal_diameter_mm": float(round(2 * R)),
             "certified_diameter_mm": 2 * R, "u_diameter_mm": 0.0015, "k": 2, "certificate": "RG/2027",
             "cte_per_k": 11.5e-6}
@@ -118,7 +118,7 @@ def gauge_artifact(R: float) -> dict:
 
 def spindle_scans(rng, rows: list[dict], *, beams, R, range_mm, C, spr, noise, nominal, encoder, effect, run_scan,
                   device_id, nights, tag) -> list:
-    """The ring-gauge spindle scans of one design (:func:`_designs` rows, 12 revolutions each, scan
+    """Return the ring-gauge spindle scans of one design (:func:`_designs` rows, 12 revolutions each, scan
     ``<tag>-<k>``); the hidden ``effect`` in every scan, or only in scan ``run_scan`` when given.
     """
     from borescan.simulate import TriScene, simulate_tri_spindle
@@ -234,7 +234,8 @@ def _like(a: str, b: str) -> bool:
 
 
 def value_ok(entry: dict | None, effect) -> bool:
-    """The named value of the hidden effect's magnitude within max(3 u, 20 %) of the truth (sign included)."""
+    """Return the named value of the hidden effect's magnitude within max(3 u, 20 %) of the truth (sign
+    included)."""
     from borescan.discrepancy.battery import MAGNITUDE
 
     if entry is None or effect is None or effect.name not in MAGNITUDE:
@@ -249,7 +250,7 @@ def value_ok(entry: dict | None, effect) -> bool:
 
 
 def correct(verdict: str, named: list[dict], absorbed: list[str] | None, effect, expect_absorbed_: bool) -> bool:
-    """The bench's rule (module doc): right names and, for the hidden effect, its value.
+    """Return the bench's rule (module doc): right names and, for the hidden effect, its value.
     ``absorbed``: the effects the verdict lists as absorbed (None: a single scan).
     """
     labels = [label(n) for n in named]

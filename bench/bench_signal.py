@@ -52,7 +52,7 @@ NIGHT = "2026-11-30"
 
 
 def _write_scan(raw: Path, seed: int = 0) -> tuple[Path, int]:
-    """The reference scan folder under ``raw``; returns (folder, readings)."""
+    """Return the reference scan folder under ``raw``; returns (folder, readings)."""
     beams = Beams((1, 2, 3), np.array([0.3, 2.4, 4.5]), np.array([5.5484, -2.5295, 1.5262]),
                   np.array([132.6718, 132.8883, 134.1108]))
     n = N_REV * SPR

@@ -41,7 +41,7 @@ def checksums(root: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="session")
 def pipeline_run(tmp_path_factory):
-    """The demo nights + the bad-input battery (a third night), processed by Snakemake once."""
+    """Return the demo nights + the bad-input battery (a third night), processed by Snakemake once."""
     base = tmp_path_factory.mktemp("pipeline")
     demo.make_demo(base / "demo")
     raw = base / "demo" / "raw"

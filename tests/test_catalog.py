@@ -24,7 +24,7 @@ def _sha(text: str) -> str:
 
 
 def make_history(results_root: Path) -> dict[str, pl.DataFrame]:
-    """A small constructed history in the shapes of the stage tables.
+    """Return a small constructed history in the shapes of the stage tables.
 
     Device TRI-01 (tri_lds, 3 channels): calibrated on 2026-11-20 (CAL-A, two scans), verified
     on the 20th (pass) and the 21st (FAIL, error 0.020 > 0.015), recalibrated on the 22nd (CAL-B)

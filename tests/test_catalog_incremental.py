@@ -30,7 +30,7 @@ def _snapshot(path: Path) -> dict:
 
 
 def _rebuilt(res: Path, tmp: Path) -> dict:
-    """The catalog a full rebuild gives from the same stage files (built in a copy of the folder)."""
+    """Return the catalog a full rebuild gives from the same stage files (built in a copy of the folder)."""
     copy = tmp / f"rebuild-{time.monotonic_ns()}"
     shutil.copytree(res, copy, copy_function=os.link, ignore=shutil.ignore_patterns("catalog.duckdb*", "report*"))
     update = catalog.rebuild_catalog(copy)
@@ -44,7 +44,7 @@ NIGHT_OF_OCTOBER = {"2026-11-20": "2026-10-30"}  # the first night moved to anot
 
 
 def _write_stage(res: Path, tables: dict[str, pl.DataFrame], nights: list[str], remap: dict[str, str]) -> None:
-    """The constructed history as the stage files of ``nights``, each night's rows in its own file
+    """Write the constructed history as the stage files of ``nights``, each night's rows in its own file
     (nights renamed by ``remap``; rows without a night follow their scan, artifacts the first night).
     """
     moved = pl.col("night").replace(remap)

@@ -224,7 +224,7 @@ def _chunked(fun, C, P):
 
 
 def _angular_polygon(P):
-    """The profile polygon: the points in angular order about their least-squares centre."""
+    """Return the profile polygon: the points in angular order about their least-squares centre."""
     from matplotlib.path import Path as MPath
 
     c = fit_circle_ls(P[:, 0], P[:, 1]).center_xy_mm

@@ -67,7 +67,8 @@ def _problems():
 
 
 def _rounding_floor_cost(jac, x, ulps=16):
-    """The cost that a change of ``ulps`` units in the last place of one parameter gives a zero residual.
+    """Return the cost that a change of ``ulps`` units in the last place of one parameter gives a zero
+    residual.
 
     Two minima whose costs differ by less than this are the same minimum: the residuals' last digits, and so
     costs of about 1e-25, depend on the order in which the CPU's BLAS and libm sum, not on the algorithm.

@@ -464,7 +464,8 @@ def test_rotating_sensitivities_equal_central_differences_of_the_circle_fit(tmp_
 
 
 def _contract_rotating_model(seed, n=6600):
-    """A rotating scan drawn over the contract: bore radius 75-200 mm (lobed, 1 um noise), spindle 0.5-3 mm
+    """Return a rotating scan drawn over the contract: bore radius 75-200 mm (lobed, 1 um noise), spindle
+    0.5-3 mm
     off the bore's centre, any beam directions, rho up to +-30 mm, the angle per channel (n, c) as with
     channel delays on even seeds, 1 % of the readings null.
     """

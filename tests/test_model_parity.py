@@ -48,7 +48,7 @@ SCENES = {
 
 
 def _data(scene) -> TriData:
-    """The discrepancy model's data at the scene's true geometry (readings are not used)."""
+    """Return the discrepancy model's data at the scene's true geometry (readings are not used)."""
     t = np.arange(int(3 * scene.sample_rate_hz)) / scene.sample_rate_hz
     c = len(scene.beams.channels)
     return TriData(

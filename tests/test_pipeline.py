@@ -73,7 +73,7 @@ def test_slurm_profile_dry_run(tmp_path):
 
 
 def _truth_diameter(truth_root, scan_id, feature):
-    """True diameter at the scan's temperature from the simulator's ground truth [mm]."""
+    """Return True diameter at the scan's temperature from the simulator's ground truth [mm]."""
     import json
 
     t = json.loads((truth_root / f"{scan_id}.truth.json").read_text())

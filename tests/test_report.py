@@ -252,7 +252,7 @@ def test_report_from_given_frames_without_catalog(tmp_path):
 
 
 def _rich_tables(res: Path) -> dict[str, pl.DataFrame]:
-    """The constructed history plus: a scan quarantined by the measure stage (no calibration), the
+    """Return the constructed history plus: a scan quarantined by the measure stage (no calibration), the
     GUM columns of the diameters (PART-8 at 20 °C assumed, out of its ±8 µm tolerance of nominal
     150.000 mm), an ambiguous finding for PART-9 (its findings.json with uncertainties) and ROD-CAL-1
     due for recalibration on the 21st (its last usable night), so expired from the 22nd.

@@ -30,7 +30,7 @@ GAUGE_SET = {"id": "RGS-150", "type": "ring_gauge", "u_diameter_mm": 0.0012, "k"
 
 
 def _scene(d_mm, rng, temp_c=20.0):
-    """The rod held skew to the holes as the procedure asks: deflected across its eccentricity, so
+    """Return the rod held skew to the holes as the procedure asks: deflected across its eccentricity, so
     the layers' offsets are not collinear with the axis (along it the radii are barely determined,
     rod.py, and the solve says so with a large u).
     """

@@ -46,7 +46,7 @@ def _beams(rho=(5.5484, -2.5295, 1.5262)):
 
 def _simulate(n_rev=40, spr=N_REV, eps=0.0, noise_mm=0.0025, seed=0, rho=(5.5484, -2.5295, 1.5262),
               lobes=(), direction=+1, phi0=0.4):
-    """Readings (n, 3), the device angle per sample and the scene."""
+    """Return readings (n, 3), the device angle per sample and the scene."""
     beams = _beams(rho)
     bore = Bore(CENTER, R_GAUGE, lobes=tuple(lobes))
     k = np.arange(int(n_rev * spr))

@@ -46,7 +46,7 @@ def _call_end(text: str, start: int) -> int:
 
 
 def _template(src: str, node: ast.expr) -> str:
-    """The path of an output, ``{RES}`` and ``{night}`` left as such (f-string braces undone)."""
+    """Return the path of an output, ``{RES}`` and ``{night}`` left as such (f-string braces undone)."""
     seg = ast.get_source_segment(src, node)
     m = re.fullmatch(r'[rf]*"(.*)"', seg, re.S)
     return m.group(1).replace("{{", "{").replace("}}", "}")
@@ -83,7 +83,7 @@ def declared_report_items() -> list[dict]:
 
 
 def expected_files(item: dict, results: Path, nights: list[str]) -> set[str]:
-    """The files ``snakemake --report`` must show for one declared item, found here on disk."""
+    """Return the files ``snakemake --report`` must show for one declared item, found here on disk."""
     paths = {item["template"].replace("{RES}", str(results)).replace("{night}", n) for n in nights}
     if not item["directory"]:
         assert all(Path(p).is_file() for p in paths), paths

@@ -43,7 +43,7 @@ def _set(t: pa.Table, col: str, values) -> pa.Table:
 
 
 def _issue_cases(raw: Path, truth: Path, night: str) -> list[BadCase]:
-    """The issue's two examples and the rate tolerance on both sides, as scans of ``night``."""
+    """Return the issue's two examples and the rate tolerance on both sides, as scans of ``night``."""
     cases = []
 
     def tri(scan_id: str, rate_hz: float) -> Path:
@@ -72,7 +72,7 @@ def _issue_cases(raw: Path, truth: Path, night: str) -> list[BadCase]:
 
 @pytest.fixture(scope="module")
 def tree(tmp_path_factory):
-    """The demo nights + the bad-input battery of tests/bad_inputs.py + the issue's cases."""
+    """Return the demo nights + the bad-input battery of tests/bad_inputs.py + the issue's cases."""
     base = tmp_path_factory.mktemp("one_validator")
     demo.make_demo(base / "demo")
     raw, truth = base / "demo" / "raw", base / "demo" / "truth"

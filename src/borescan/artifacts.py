@@ -77,7 +77,7 @@ class ArtifactCte:
 
 
 def scan_temperature(meta: dict, unc_cfg: dict) -> ScanTemperature:
-    """The temperature of a scan with its uncertainty, by the config's policy.
+    """Return the temperature of a scan with its uncertainty, by the config's policy.
 
     Parameters
     ----------
@@ -112,7 +112,7 @@ def scan_temperature(meta: dict, unc_cfg: dict) -> ScanTemperature:
 
 
 def artifact_cte(meta: dict, unc_cfg: dict) -> ArtifactCte:
-    """The expansion coefficient of a scan's artifact with its uncertainty.
+    """Return the expansion coefficient of a scan's artifact with its uncertainty.
 
     ``artifact.cte_per_k`` of scan.json within +-``uncertainty.cte_accuracy_per_k``; without it,
     ``uncertainty.assumed_cte_per_k`` within +-``uncertainty.assumed_cte_accuracy_per_k`` (flagged).
@@ -183,7 +183,7 @@ def gauge_radius_mm(meta: dict, temperature_c: float | None = None, cte_per_k: f
 
 
 def diameter_at_20(diameter_mm: float, cte_per_k: float, temperature_c: float) -> tuple[float, float, float, float]:
-    """A diameter measured at ``temperature_c`` brought to 20 degC, with its first derivatives.
+    """Return a diameter measured at ``temperature_c`` brought to 20 degC, with its first derivatives.
 
     D20 = D_T / (1 + alpha (T - 20)) (the inverse of :func:`radius_at_temperature_mm`).
 
@@ -198,7 +198,7 @@ def diameter_at_20(diameter_mm: float, cte_per_k: float, temperature_c: float) -
 
 
 def artifact_row(meta: dict) -> dict | None:
-    """The ``artifacts`` row of a scan's artifact; None when it has no id."""
+    """Return the ``artifacts`` row of a scan's artifact; None when it has no id."""
     art = meta.get("artifact") or {}
     if not art.get("id"):
         return None
@@ -208,14 +208,15 @@ def artifact_row(meta: dict) -> dict | None:
 
 
 def number_or_none(v) -> float | None:
-    """A scan.json number as float; None for a missing value or anything that is not a number (a bool is
+    """Return a scan.json number as float; None for a missing value or anything that is not a number (a bool
+    is
     not).
     """
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
 
 
 def certificate_fields(meta: dict) -> dict:
-    """The artifact certificate a scan's ``scan.json`` states, as the ``scans`` table keeps it:
+    """Return the artifact certificate a scan's ``scan.json`` states, as the ``scans`` table keeps it:
     ``artifact_certificate``, ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm`` (None where
     absent).
     """
@@ -236,7 +237,7 @@ CONFLICT_TOLERANCE_MM = 1e-9
 
 
 def certificate_conflicts(earlier: list[dict], tonight: list[dict]) -> dict[str, str]:
-    """Scans whose artifact certificate contradicts an earlier record of the same certificate.
+    """Return scans whose artifact certificate contradicts an earlier record of the same certificate.
 
     A certificate (``artifact_id``, ``artifact_certificate``) states one certified diameter and
     one uncertainty for ever: a recertified gauge gets a new certificate id, and a scan that

@@ -264,7 +264,8 @@ def yang_oe(p1_xy: Sequence[float], p0_xy: Sequence[float]) -> float:
 
 
 def yang_d_b_r(d_max_mm, d_min_mm, R_mm, oe_mm) -> tuple[np.ndarray, np.ndarray]:
-    """Base length d_b and tangential radius r = |rho| from the extreme readings (Yang 2017, Eqs. 8, 10, 11).
+    """Return base length d_b and tangential radius r = |rho| from the extreme readings (Yang 2017, Eqs. 8,
+    10, 11).
 
     Eq. 8: (d_b + d_min)^2 + r^2 = (R - oe)^2 and (d_b + d_max)^2 + r^2 = (R + oe)^2.
     Subtracting: (d_max - d_min)(2 d_b + d_max + d_min) = 4 R oe, so
@@ -873,7 +874,7 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         return x
 
     def public(x: np.ndarray) -> np.ndarray:
-        """Internal free parameters -> public ones (beta for psi, d_b for g; the rest as they are)."""
+        """Return internal free parameters -> public ones (beta for psi, d_b for g; the rest as they are)."""
         out = np.array(x, dtype=float, copy=True)
         psi, rho, g = split(x)
         for j in range(c):
@@ -1472,7 +1473,7 @@ def _guard_sigma(floors_k: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def _censoring_keep(v_model: np.ndarray, y: np.ndarray, range_mm: np.ndarray, sigma_c: np.ndarray):
-    """Readings (n, c) not censored by a sensor range limit: True where the model value ``v_model``
+    """Return readings (n, c) not censored by a sensor range limit: True where the model value ``v_model``
     lies more than ``CENSOR_GUARD_SIGMA`` sigma inside [0, range].
 
     The raw format nulls a reading when the sensor reports no valid value (out of range), which

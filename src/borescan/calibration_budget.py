@@ -186,7 +186,7 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
 
 
 def with_budget(cal, budget: Budget):
-    """The calibration with the budget's combined covariance as ``cov``; the fit's own covariance
+    """Return the calibration with the budget's combined covariance as ``cov``; the fit's own covariance
     is kept as ``diagnostics["cov_fit"]`` and the budget as ``diagnostics["budget"]``.
     """
     diag = dict(cal.diagnostics)

@@ -47,7 +47,7 @@ def failed_calibration_ids(verifications: pl.DataFrame) -> set[str]:
 
 def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_id: str, night: str,
                        validity_days: int, allow_unverified: bool) -> tuple[str | None, str | None]:
-    """The calibration a device's result of ``night`` must use, or the reason there is none.
+    """Return the calibration a device's result of ``night`` must use, or the reason there is none.
 
     The latest calibration of the device made on or before the night (same night included;
     ties broken by calibration id), if it is at most ``validity_days`` old and has not failed a
@@ -79,7 +79,7 @@ def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_
 def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_id: str, night: str,
                            validity_days: int, allow_unverified: bool, without_calibration: str = "measure_nominal"
                            ) -> tuple[str | None, str | None]:
-    """The calibration a rod's result of ``night`` must use, or the reason there is none.
+    """Return the calibration a rod's result of ``night`` must use, or the reason there is none.
 
     The rod's ring-gauge calibrations (method ``rod_gauge``) are chosen as a three-sensor device's
     (:func:`choose_calibration`: latest, refused when expired or failed unless ``allow_unverified``).
@@ -105,7 +105,8 @@ def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], dev
 
 def calibration_rows(cal: TriCalibration, device_type: str, night: str, certificate_path: str | None,
                      raw_sha256: str) -> list[dict]:
-    """The ``calibrations`` rows of a three-sensor calibration: one per channel, valid from ``night``."""
+    """Return the ``calibrations`` rows of a three-sensor calibration: one per channel, valid from
+    ``night``."""
     rows = []
     u_beta, u_rho, u_db = cal.u_beta_rad, cal.u_rho_mm, cal.u_d_b_mm
     cal_json = json.dumps(cal.to_dict(), sort_keys=True)
@@ -123,7 +124,7 @@ def calibration_rows(cal: TriCalibration, device_type: str, night: str, certific
 
 
 def rod_nominal_calibration_rows(meta: dict, night: str, scan_id: str) -> list[dict]:
-    """The rod's layer geometry from ``device.nominal`` as a calibration record (method ``nominal``).
+    """Return the rod's layer geometry from ``device.nominal`` as a calibration record (method ``nominal``).
 
     The id is ``<device>-nominal-<8 hex of the layers' SHA-256>``, so the same geometry on
     another night is the same calibration. [] when the device lists no layers.
@@ -142,13 +143,13 @@ def rod_nominal_calibration_rows(meta: dict, night: str, scan_id: str) -> list[d
 
 
 def tri_calibration(calibrations: pl.DataFrame, cal_id: str) -> TriCalibration:
-    """The :class:`TriCalibration` recorded as ``cal_id`` in ``calibrations`` rows."""
+    """Return the :class:`TriCalibration` recorded as ``cal_id`` in ``calibrations`` rows."""
     row = calibrations.filter(pl.col("calibration_id") == cal_id).row(0, named=True)
     return TriCalibration.from_dict(json.loads(row["calibration_json"]))
 
 
 def rod_layers(layer_rows, channels) -> list[RodLayer]:
-    """The rod layers of ``channels`` from a rod calibration's rows (a polars frame or row dicts;
+    """Return the rod layers of ``channels`` from a rod calibration's rows (a polars frame or row dicts;
     missing or NaN phi, d, gamma, h: 0).
     """
     it = layer_rows.iter_rows(named=True) if isinstance(layer_rows, pl.DataFrame) else layer_rows
@@ -176,7 +177,7 @@ _DRIFT_SCHEMA = {
 
 def calibration_drift(  # noqa: C901 (input checks, then per device, channel, parameter and pair)
         calibrations: pl.DataFrame, multiple: float) -> pl.DataFrame:
-    """Changes of each beam parameter between consecutive calibrations of a three-sensor device.
+    """Return the changes of each beam parameter between consecutive calibrations of a three-sensor device.
 
     For every device and channel the calibrations (rows of the ``calibrations`` table with a
     ``beta_rad``; ``nominal`` records left out) are ordered as :func:`choose_calibration` orders

@@ -104,7 +104,7 @@ def catalog_path(results_root: str | os.PathLike) -> Path:
 
 
 def certificate_json_path(results_root: str | os.PathLike, certificate_path: str) -> Path:
-    """The ``certificate.json`` belonging to a ``certificate_path`` (a certificate file or its folder).
+    """Return the ``certificate.json`` belonging to a ``certificate_path`` (a certificate file or its folder).
 
     Relative paths are relative to ``results_root``.
     """
@@ -165,7 +165,7 @@ def _prepare(name: str, df: pl.DataFrame, results_root: Path) -> pl.DataFrame:
 
 
 def saved_queries(queries_dir: str | os.PathLike | None = None) -> dict[str, tuple[str, str]]:
-    """Saved queries: name -> (description, SQL text).
+    """Return saved queries: name -> (description, SQL text).
 
     The description is the leading ``--`` comment block of ``<name>.sql`` (comment markers
     stripped). Names are the file stems, which must be SQL identifiers.
@@ -252,7 +252,7 @@ def stage_files(results_root: str | os.PathLike) -> dict[str, dict[str, Path]]:
 
 
 def _read_nights(results_root: Path, files: Mapping[str, Mapping[str, Path]]) -> dict[str, pl.DataFrame]:
-    """The stage rows of the given nights, per table (quarantine: every stage), in night order.
+    """Return the stage rows of the given nights, per table (quarantine: every stage), in night order.
 
     Each row keeps its source night in ``_night``; a table with a ``night`` column gets the
     file's night where the stage left it out, and a row of another night is an error.
@@ -290,7 +290,7 @@ def _read_nights(results_root: Path, files: Mapping[str, Mapping[str, Path]]) ->
 
 
 def _assemble(tables: dict[str, pl.DataFrame]) -> dict[str, pl.DataFrame]:
-    """The history rules within a batch of nights (rows keep their source night in ``_night``).
+    """Return the history rules within a batch of nights (rows keep their source night in ``_night``).
 
     The ``scans`` reason is the first stage's reason (:data:`STAGE_ORDER`), prefixed with the
     file, so ``SELECT reason FROM scans`` answers "why" without a join. A calibration's first
@@ -341,7 +341,7 @@ def read_quarantine(results_root: str | os.PathLike) -> pl.DataFrame:
 
 
 def assemble_history(results_root: str | os.PathLike, nights: list[str] | None = None) -> dict[str, pl.DataFrame]:
-    """The catalog's tables from the stage tables of ``nights`` (default: every night).
+    """Return the catalog's tables from the stage tables of ``nights`` (default: every night).
 
     A scan any stage set aside is ``quarantined`` (first stage's reason); a row's night comes
     from its stage file where the stage leaves it out; a calibration's first night's row wins
@@ -398,7 +398,7 @@ def _columns(con: duckdb.DuckDBPyConnection, table: str) -> dict[str, str]:
 
 
 def _create_tables(con: duckdb.DuckDBPyConnection) -> None:
-    """The empty catalog tables and the bookkeeping tables (a new catalog)."""
+    """Create the empty catalog tables and the bookkeeping tables (a new catalog)."""
     for t in TABLES.values():
         con.execute(t.ddl())
     b = BUILD_SCHEMA
@@ -612,7 +612,8 @@ def _discard(tmp: Path) -> None:
 
 
 def _drop_views(con: duckdb.DuckDBPyConnection) -> None:
-    """Views bind their columns: out of the way while tables change (created again at the end)."""
+    """Drop the views: they bind their columns, so out of the way while tables change (created again at the
+    end)."""
     for (view,) in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'"
                                ).fetchall():
         con.execute(f"DROP VIEW {_q(view)}")

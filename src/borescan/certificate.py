@@ -142,7 +142,7 @@ def certificate_dates(scan_metas: list[dict], verification_metas: list[dict], ni
 
 def calibration_conditions(temperature, cte, radius_mm: float, position_accuracy_mm: float, p: float,
                            scans: list[dict]) -> dict:
-    """The influence conditions of a certificate: the gauge's temperature with its uncertainty (U
+    """Return the influence conditions of a certificate: the gauge's temperature with its uncertainty (U
     for the coverage probability ``p``) and source, its expansion coefficient, its radius at that
     temperature, the machine's stated position accuracy and per scan ``scans`` (positions, speed,
     revolutions). ``temperature``/``cte``: :class:`borescan.artifacts.ScanTemperature` / ``ArtifactCte``.
@@ -297,7 +297,7 @@ def _shared_part(cal, *, item_name: str, item_id: Any, traceability: str, device
                  conditions: dict, raw_files: dict[str, str], software_version: str, config_hash: str,
                  laboratory: dict | None, coverage_probability: float, dates: dict | None,
                  verifications: list[dict] | None) -> dict:
-    """The top-level keys every certificate has (three-sensor and rod): identification, coverage
+    """Return the top-level keys every certificate has (three-sensor and rod): identification, coverage
     probability, ``administrativeData`` (the item ``item_name`` identified by ``item_id``, the
     ``traceability`` statement), device, artifact, conditions, verifications with the conformity,
     dates (ISO), laboratory, raw file digests (sha256 hex), software version and config hash.
@@ -364,7 +364,7 @@ def _effective_base_lengths(cal: TriCalibration, budget: Budget | None, conditio
 
 
 def _gauge_equipment(artifact: dict) -> dict:
-    """The reference ring gauge as DCC measuring equipment (certified diameter [mm] with U and k)."""
+    """Return the reference ring gauge as DCC measuring equipment (certified diameter [mm] with U and k)."""
     return {
         "refType": "basic_normalUsed", "name": "ring gauge",
         "id": artifact.get("id"), "certificate": artifact.get("certificate"),
@@ -378,7 +378,7 @@ def _gauge_equipment(artifact: dict) -> dict:
 
 
 def _fit_part(cal: TriCalibration) -> dict:
-    """The fit's summary (residual rms [mm], dof, rank, condition, convergence, nuisance) and the
+    """Return the fit's summary (residual rms [mm], dof, rank, condition, convergence, nuisance) and the
     diagnostics a certificate reports.
     """
     keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free",
@@ -395,7 +395,7 @@ def _fit_part(cal: TriCalibration) -> dict:
 
 
 def device_model_text(entries: list[dict]) -> str:
-    """The device model a calibration carried, in words (certificate section 2)."""
+    """Return the device model a calibration carried, in words (certificate section 2)."""
     carried, listed = [], []
     for m in entries:
         if not m.get("estimated"):
@@ -431,7 +431,7 @@ def certificate_dict(
     dates: dict | None = None,
     verifications: list[dict] | None = None,
 ) -> dict:
-    """The content of ``certificate.json`` (JSON-safe, floats rounded to 12 significant digits).
+    """Return the content of ``certificate.json`` (JSON-safe, floats rounded to 12 significant digits).
 
     See :func:`write_certificate` for the arguments.
     """
@@ -752,7 +752,7 @@ def _page_item_conditions(d: _Doc) -> None:
 
 
 def _sensor_table(d: _Doc, dev: dict, device_id: str) -> None:
-    """The device's sensors as recorded in scan.json, as a table."""
+    """Write the device's sensors as recorded in scan.json, as a table."""
     d.para(f"Device {dev.get('id', device_id)}, type {dev.get('type', 'tri_lds')}; sensors as recorded in "
            "scan.json:")
     cols = ["channel", "model", "serial", "range [mm]", "linearity [% FS]", "linearity +- [um]", "repeatab. [um]",
@@ -1077,13 +1077,14 @@ def _input_cells(r: dict, dash_zero_u: bool) -> list[str]:
 
 
 def _sum_row(label: str, value_mm: float, dof: str = "") -> list[str]:
-    """A summary line of a budget table: ``label``, ``dof`` in the nu_i column, ``value_mm`` [mm] in um."""
+    """Return a summary line of a budget table: ``label``, ``dof`` in the nu_i column, ``value_mm`` [mm] in
+    um."""
     return [label, "", "", "", dof, "", f"{1e3 * value_mm:.3g}"]
 
 
 def _contribution_table(d: _Doc, title: str, rows: list[dict], sums: list[list[str]], layout: tuple[list[float], float],
                         dash_zero_u: bool) -> None:
-    """The budget of one result: ``title``, one line per input row (:func:`_input_cells`), then the
+    """Write the budget of one result: ``title``, one line per input row (:func:`_input_cells`), then the
     ``sums`` lines (:func:`_sum_row`, the last one bold); ``layout``: (column widths, font size).
     """
     cells = [_input_cells(r, dash_zero_u) for r in rows] + sums
@@ -1094,7 +1095,7 @@ def _contribution_table(d: _Doc, title: str, rows: list[dict], sums: list[list[s
 
 
 def _verification_budget(d: _Doc, v: dict) -> None:
-    """The budget of a verification's error E: inputs of at least 5 % of u_c(E) one by one, the
+    """Write the budget of a verification's error E: inputs of at least 5 % of u_c(E) one by one, the
     others folded into one line (root sum of squares), then u_c(E) (contributions in um).
     """
     rows = v.get("budget") or []
@@ -1110,7 +1111,7 @@ def _verification_budget(d: _Doc, v: dict) -> None:
 
 
 def _rod_layer_budget(d: _Doc, channel: int, budget: dict) -> None:
-    """The budget of one layer's l0 (``budget``: rows and combined of certificate.json): inputs
+    """Write the budget of one layer's l0 (``budget``: rows and combined of certificate.json): inputs
     below 1e-5 u_c left out, then u_c with nu_eff and U with k (contributions in um).
     """
     comb = budget["combined"]
@@ -1123,7 +1124,7 @@ def _rod_layer_budget(d: _Doc, channel: int, budget: dict) -> None:
 
 
 def _ver_name(v: dict) -> str:
-    """A verification's name in the certificate: its scan, and the layer's feature for a rod."""
+    """Return a verification's name in the certificate: its scan, and the layer's feature for a rod."""
     return f"{v.get('scan_id')}" + (f" layer {v['feature']} ({v.get('artifact_id')})" if v.get("feature") else "")
 
 
@@ -1299,7 +1300,7 @@ def _rod_parameters(cal) -> list[dict]:
 
 
 def _rod_fit(cal) -> dict:
-    """The rod solve at the calibrated l0: residual rms [mm], solves to settle l0, method, rank,
+    """Return the rod solve at the calibrated l0: residual rms [mm], solves to settle l0, method, rank,
     condition, number of poses, axis deflection [rad] and eccentricity [mm] (None without a solve).
     """
     sol = cal.solution
@@ -1423,7 +1424,7 @@ def _rod_page_results(d: _Doc) -> None:
 
 
 def _rod_pages(cert: dict) -> list[Figure]:
-    """The pages of a rod certificate's PDF (content: ``cert``, see :func:`rod_certificate_dict`)."""
+    """Return the pages of a rod certificate's PDF (content: ``cert``, see :func:`rod_certificate_dict`)."""
     d = _Doc(cert)
     _page_admin(d)
     _rod_page_item_conditions(d)

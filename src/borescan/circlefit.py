@@ -208,7 +208,7 @@ def fit_circle_ls(x_mm, y_mm, *, max_iter: int = 200) -> Circle:
 
 
 def _angular_order(x: np.ndarray, y: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, float]:
-    """Indices of the points in increasing angle about ``c``, those angles [rad] and the
+    """Return indices of the points in increasing angle about ``c``, those angles [rad] and the
     largest gap between angularly consecutive points (the wrap-around gap included) [deg].
     """
     th = np.arctan2(y - c[1], x - c[0])
@@ -236,7 +236,7 @@ def largest_gap_deg(x_mm, y_mm, center_xy_mm=None) -> float:
 
 
 def _ls_center(x: np.ndarray, y: np.ndarray, shift: np.ndarray, ls_center_xy_mm) -> np.ndarray:
-    """The least-squares centre in the shifted frame (fitted unless the caller has it)."""
+    """Return the least-squares centre in the shifted frame (fitted unless the caller has it)."""
     if ls_center_xy_mm is None:
         return fit_circle_ls(x, y).center_xy_mm
     return np.asarray(ls_center_xy_mm, dtype=float) - shift
@@ -308,7 +308,7 @@ def _first_outside(P: np.ndarray, lo: int, hi: int, c: np.ndarray, r: float, tol
 
 
 def _welzl(P: np.ndarray, tol: float) -> tuple[np.ndarray, float]:
-    """Iterative Welzl: smallest enclosing circle of points P (n, 2).
+    """Return iterative Welzl: smallest enclosing circle of points P (n, 2).
 
     The classic three nested loops over the points in order; each loop jumps to its next point
     outside the current circle by a vectorised scan (:func:`_first_outside`), so the Python work
@@ -586,7 +586,7 @@ def _circumcentres_non_obtuse(P: np.ndarray, tri: np.ndarray) -> tuple[np.ndarra
 
 
 def _best_empty_centre(cand: np.ndarray, bound: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The candidate centre (m, 2) with the largest f(c) = min_i |p_i - c|, f evaluated exactly
+    """Return the candidate centre (m, 2) with the largest f(c) = min_i |p_i - c|, f evaluated exactly
     (distances to all points; near a ring's centre every point is about as far, so a tree search
     would visit them all anyway), in order of decreasing upper bound ``bound`` >= f, stopping
     once no remaining bound can beat the best f found.
@@ -621,7 +621,7 @@ def _inside_star_polygon(q: np.ndarray, V: np.ndarray, th: np.ndarray, c) -> np.
 
 
 def _bin_segments(ths: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
-    """The non-empty ones of ``bins`` equal angular bins over [-pi, pi) as runs of a profile's
+    """Return the non-empty ones of ``bins`` equal angular bins over [-pi, pi) as runs of a profile's
     angular order: start positions and lengths along ``ths`` (increasing angles [rad]).
     """
     b = np.minimum(((ths + np.pi) / (2 * np.pi) * bins).astype(np.int64), bins - 1)  # non-decreasing
@@ -634,7 +634,7 @@ MIC_BINS = 2048
 
 
 def _mic_centre(P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0, d0: np.ndarray) -> tuple[np.ndarray, int]:
-    """The centre of the largest empty circle centred in the profile polygon, and the number of
+    """Return the centre of the largest empty circle centred in the profile polygon, and the number of
     candidate vertices examined (:func:`max_inscribed_circle`), computed on a reduced point set
     with a certificate that the answer is the one of all points.
 
@@ -777,7 +777,7 @@ MZ_BINS = 2048
 
 
 def _mz_centre(prof: _ClosedProfile) -> tuple[np.ndarray, int]:
-    """The minimum zone centre of a profile by :func:`_slp`, run on a reduced point set with a
+    """Return the minimum zone centre of a profile by :func:`_slp`, run on a reduced point set with a
     certificate that the answer is the one of all points.
 
     S = the innermost and the outermost point about the LS centre in each of :data:`MZ_BINS`

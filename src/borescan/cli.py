@@ -28,7 +28,7 @@ _USER_ERRORS: tuple[type[BaseException], ...] = (
 
 
 def _module_names() -> list[str]:
-    """The command modules of :mod:`borescan.commands`, by name, without importing them."""
+    """Return the command modules of :mod:`borescan.commands`, by name, without importing them."""
     return sorted(i.name for i in pkgutil.iter_modules(commands.__path__) if not i.name.startswith("_"))
 
 
@@ -37,7 +37,7 @@ def _command_modules(names: list[str] | None = None) -> list:
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    """The ``borescan`` parser. With ``only`` (a command module's name) only that command is
+    """Return the ``borescan`` parser. With ``only`` (a command module's name) only that command is
     imported and added, so a command never pays for what the others import.
     """
     parser = argparse.ArgumentParser(
@@ -57,7 +57,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 
 def _command_in(argv: list[str]) -> str | None:
-    """The module of the subcommand ``argv`` names (its first word that is not an option; module
+    """Return the module of the subcommand ``argv`` names (its first word that is not an option; module
     names are command names with '_' for '-'), if there is one.
     """
     first = next((a for a in argv if not a.startswith("-")), None)

@@ -42,6 +42,6 @@ def _merge(base: dict, over: dict) -> dict:
 
 
 def load_config(path: Path | str | None = None, schema_path: Path | str = SCHEMA_PATH) -> dict:
-    """The config at ``path`` (none: the schema's defaults alone) with every missing key defaulted."""
+    """Return the config at ``path`` (none: the schema's defaults alone) with every missing key defaulted."""
     user = yaml.safe_load(Path(path).read_text()) if path is not None else {}
     return _merge(schema_defaults(schema_path), user or {})

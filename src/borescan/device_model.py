@@ -57,7 +57,7 @@ class DeviceEffect:
         return bool(self.effects)
 
     def values(self) -> dict[str, float]:
-        """The carried parameter values (the registry's names, without the channel)."""
+        """Return the carried parameter values (the registry's names, without the channel)."""
         if not self.effects:
             return {}
         return {k: float(v) for k, v in self.effects[0].params.items() if k not in ("channel", "k")}
@@ -74,13 +74,13 @@ class DeviceEffect:
                    d.get("night"), tuple(d.get("evidence_scans") or ()), d.get("source", "config"))
 
     def with_value(self, name: str, value: float) -> "DeviceEffect":
-        """The same entry with parameter ``name`` at ``value`` (every channel of an ``@all`` entry)."""
+        """Return the same entry with parameter ``name`` at ``value`` (every channel of an ``@all`` entry)."""
         return DeviceEffect(self.key, tuple(Effect(e.name, {**e.params, name: value}) for e in self.effects),
                             self.u, self.night, self.evidence_scans, self.source)
 
 
 def from_dicts(items: Iterable[Mapping] | None) -> list[DeviceEffect]:
-    """A calibration's recorded device model (``diagnostics["device_model"]``) as entries."""
+    """Return a calibration's recorded device model (``diagnostics["device_model"]``) as entries."""
     return [DeviceEffect.from_dict(d) for d in items or ()]
 
 
@@ -102,7 +102,7 @@ def _matches(row: Mapping, name: str, channel: str | None) -> bool:
 
 def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[Mapping], night: str,
                     channels: Sequence[int], auto: Sequence[str] = ()) -> list[DeviceEffect]:
-    """The device model of ``device_id`` as a calibration on ``night`` carries it.
+    """Return the device model of ``device_id`` as a calibration on ``night`` carries it.
 
     Parameters
     ----------
@@ -181,12 +181,12 @@ def lookup(keys_of, pooled_rows: Iterable[Mapping], night: str, auto_nights: int
 
 
 def carried_effects(model: Iterable[DeviceEffect]) -> list[Effect]:
-    """The effects of the device model with an estimate (every stage)."""
+    """Return the effects of the device model with an estimate (every stage)."""
     return [e for entry in model for e in entry.effects]
 
 
 def correct(t_s, readings_mm, channels, model: Iterable[DeviceEffect], range_mm) -> np.ndarray:
-    """Readings corrected for the device model's beam and reading effects
+    """Return readings corrected for the device model's beam and reading effects
     (:func:`borescan.model.tri_correct_readings`); time-base effects are carried by
     :func:`channel_time_offsets`. Unchanged when there are none.
     """
@@ -234,7 +234,7 @@ def derivatives(model: Sequence[DeviceEffect], f) -> dict[tuple[int, str], np.nd
 
 
 def gum_input(device_id: str, entry: DeviceEffect, name: str) -> Input:
-    """The GUM input of one carried parameter (normal, the pooled fit's standard uncertainty); the same
+    """Return the GUM input of one carried parameter (normal, the pooled fit's standard uncertainty); the same
     key (:func:`input_key`) in a calibration's budget and in a diameter's, so the two add.
     """
     return Input(input_key(device_id, entry, name), f"{entry.key} {name} (device model, readings corrected for it)",

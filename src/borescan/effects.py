@@ -180,7 +180,7 @@ class EffectSpec:
         return "k" in self.params
 
     def internal(self, params: Mapping[str, float]) -> dict[str, float]:
-        """The fit's values ``{fit name: value}`` of the spec's ``params`` (``to_internal``)."""
+        """Return the fit's values ``{fit name: value}`` of the spec's ``params`` (``to_internal``)."""
         if self.to_internal is not None:
             return self.to_internal(params)
         return {q.name: float(params[q.name]) for q in self.fit}
@@ -188,7 +188,7 @@ class EffectSpec:
     def spec_params(
         self, x: Mapping[str, float], u: Mapping[str, float] | None = None, k: int | None = None
     ) -> tuple[dict[str, Any], dict[str, float]]:
-        """The spec's parameters (and their standard uncertainties when ``u`` is given) of
+        """Return the spec's parameters (and their standard uncertainties when ``u`` is given) of
         fitted values ``x`` (``{fit name: value}``), clipped to the fit's bounds first;
         ``channel`` is not included, ``k`` is for harmonic effects.
         """
@@ -203,7 +203,7 @@ class EffectSpec:
         return par, unc
 
     def absorbers(self, scan_kind: str) -> Mapping[str, str]:
-        """Base parameters that absorb the effect in scans of ``scan_kind`` (may be empty)."""
+        """Return base parameters that absorb the effect in scans of ``scan_kind`` (may be empty)."""
         return self.absorbed_by.get(scan_kind, {})
 
 
@@ -306,7 +306,7 @@ def _bore_lobing(bore: Bore, p: Mapping, cte_per_k: float = 0.0) -> Bore:
 
 
 def _beam_tilt_tri(v_mm: np.ndarray, p: Mapping) -> np.ndarray:
-    """Reading = in-plane distance / cos(gamma): v' = v / cos(gamma)."""
+    """Return reading = in-plane distance / cos(gamma): v' = v / cos(gamma)."""
     return np.asarray(v_mm, dtype=float) / math.cos(p["gamma_rad"])
 
 
@@ -331,7 +331,7 @@ def _sensor_gain(v_mm, t_s, p, range_mm):
 
 
 def nonlinearity_bow(v_mm: np.ndarray, range_mm: float) -> np.ndarray:
-    """The bow 4 u (1 - u), u = v / range_mm (1 at mid-range, 0 at both ends)."""
+    """Return the bow 4 u (1 - u), u = v / range_mm (1 at mid-range, 0 at both ends)."""
     u = np.asarray(v_mm, dtype=float) / range_mm
     return 4.0 * u * (1.0 - u)
 
@@ -360,7 +360,7 @@ def _quantization(v_mm, p, rng=None):
 
 
 def _outliers(v_mm, p, rng: np.random.Generator):
-    """A fraction ``rate`` of samples jumps by +-size (sign random, magnitude size * U(0.75, 1.25))."""
+    """Return a fraction ``rate`` of samples jumps by +-size (sign random, magnitude size * U(0.75, 1.25))."""
     v = np.array(v_mm, dtype=float, copy=True)
     hit = rng.random(v.shape) < p["rate"]
     sign = np.where(rng.random(v.shape) < 0.5, -1.0, 1.0)
@@ -557,7 +557,8 @@ _ORDER = {name: i for i, name in enumerate(EFFECTS)}
 
 
 def get_effect(name: str) -> EffectSpec:
-    """The :class:`EffectSpec` of ``name``; unknown names raise ``ValueError`` listing the valid ones."""
+    """Return the :class:`EffectSpec` of ``name``; unknown names raise ``ValueError`` listing the valid
+    ones."""
     try:
         return EFFECTS[name]
     except KeyError:
@@ -720,7 +721,7 @@ def device_effect_key(  # noqa: C901 (checks every part of a device-model key, e
 
 
 def device_model_effects(devices: dict | None, device_id: str, night: str | None = None) -> tuple[str, ...]:
-    """The device model of ``device_id`` on ``night`` from the config's ``devices`` section (its
+    """Return the device model of ``device_id`` on ``night`` from the config's ``devices`` section (its
     ``effects``), each entry checked by :func:`device_effect_key` (channels not checked here); ()
     when the device has none. Light on purpose: the workflow checks the section when it starts.
 

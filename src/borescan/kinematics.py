@@ -212,7 +212,7 @@ def angle_model_from_arrays(
     spindle_angle_rad: np.ndarray | None = None,
     spindle_rpm: np.ndarray | None = None,
 ) -> AngleModel:
-    """The :class:`AngleModel` of a scan, in the spec's order of preference.
+    """Return the :class:`AngleModel` of a scan, in the spec's order of preference.
 
     Parameters
     ----------

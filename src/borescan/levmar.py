@@ -62,7 +62,8 @@ class LMResult:
 
 
 def qr_of_stacked(J: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """The (n+1) x (n+1) triangular factor of [J f] (LAPACK ``geqrf``): R of J, Q^T f and |residual|."""
+    """Return the (n+1) x (n+1) triangular factor of [J f] (LAPACK ``geqrf``): R of J, Q^T f and
+    |residual|."""
     m, n = J.shape
     A = np.empty((m, n + 1), order="F")
     A[:, :n] = J
@@ -108,7 +109,7 @@ def _back_substitute(T: np.ndarray, b: np.ndarray, perm: np.ndarray) -> np.ndarr
 
 
 def _lmpar(R, perm, diag, qtb, delta, par):
-    """The Levenberg-Marquardt parameter and step for trust radius ``delta`` (``lmpar.f``)."""
+    """Return the Levenberg-Marquardt parameter and step for trust radius ``delta`` (``lmpar.f``)."""
     x = _back_substitute(R, qtb, perm)  # the Gauss-Newton step
     it = 0
     dx = diag * x

@@ -133,7 +133,7 @@ def static_diameter_jacobian(readings_mm, beams: Beams) -> tuple[np.ndarray, np.
 
 
 def static_diameter(readings_mm, beams: Beams, cov_beams=None, u_reading_mm=0.0) -> StaticDiameter:
-    """Static diameter from one or k sets of readings, with its standard uncertainty.
+    """Return static diameter from one or k sets of readings, with its standard uncertainty.
 
     D = 2 R, R the circumradius of the wall points (Yang 2017, Eq. 3 with Eqs. 4-7 in
     coordinate form; the least-squares circle for c > 3 channels). Uncertainty:
@@ -291,7 +291,7 @@ class DiameterModel:
         return fit_circle_ls(P[:, 0], P[:, 1]).diameter_mm
 
     def ls_circle(self, beams: Beams, points_mm: np.ndarray | None = None, circle: Circle | None = None) -> Circle:
-        """The least-squares circle of a rotating scan's finite wall points with ``beams``, fitted once
+        """Return the least-squares circle of a rotating scan's finite wall points with ``beams``, fitted once
         per beams: ``points_mm`` (m, 2) those points when the caller has them; ``circle`` one the
         caller has fitted to them (:func:`measure_rotating`'s LSCI), remembered as it is.
         """
@@ -487,7 +487,7 @@ def pose_means(values_mm, pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def reading_u_mm(sensors: dict, channels) -> np.ndarray:
-    """Standard uncertainty of one reading per channel from the sensors' data sheet [mm].
+    """Return standard uncertainty of one reading per channel from the sensors' data sheet [mm].
 
     u = hypot(linearity_fs * range_mm / sqrt(3), repeatability_mm): the stated linearity is a
     rectangular +-a (GUM 4.3.7), the repeatability a standard deviation. Missing values count 0.
@@ -600,7 +600,7 @@ class DiameterUncertainty:
         return self.budget.rows(0)
 
     def columns(self) -> dict:
-        """The extra ``diameters`` columns (tables.py) of this result."""
+        """Return the extra ``diameters`` columns (tables.py) of this result."""
         c20, ct = self.combined_20, self.combined_t
         return {
             "temperature_c": self.temperature.temperature_c,
@@ -887,7 +887,7 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
 
 
 def calibration_budget_of(cal) -> Budget:
-    """The GUM budget a calibration carries (``diagnostics["budget"]``, written by the calibrate
+    """Return the GUM budget a calibration carries (``diagnostics["budget"]``, written by the calibrate
     stage); for a calibration without one, its covariance as a single term, said so in the source.
     """
     d = (cal.diagnostics or {}).get("budget")
@@ -1049,7 +1049,8 @@ def verify(measured_mm, u_measured_mm, certified_diameter_mm, u_cert_mm, cte_per
 
 
 def part_feature(artifact: dict, feature: str | None) -> dict:
-    """The scan.json feature a diameter belongs to: ``{"nominal_diameter_mm", "tolerance_mm"}`` (None where
+    """Return the scan.json feature a diameter belongs to: ``{"nominal_diameter_mm", "tolerance_mm"}`` (None
+    where
     unknown).
 
     ``feature`` names one of ``artifact.features[].id``; a diameter without a feature (a three-sensor
@@ -1073,7 +1074,7 @@ def part_feature(artifact: dict, feature: str | None) -> dict:
 
 def part_conformity(diameter_20_mm: float, U_mm: float, nominal_mm: float | None, tolerance_mm: float | None,
                     rule: str = "simple_acceptance", guard_band_factor: float = 1.0) -> dict:
-    """A part's diameter against its nominal and tolerance: deviation at 20 degC and the verdict.
+    """Return a part's diameter against its nominal and tolerance: deviation at 20 degC and the verdict.
 
     deviation = D20 - nominal; the verdict is :func:`decide` on (deviation, U, tolerance) by the
     laboratory's decision rule ("PASS"/"FAIL"), None without a nominal or a tolerance.
@@ -1177,7 +1178,7 @@ def verification_row(scan_id, device_id, artifact_id, v: Verification) -> dict:
 
 def verification_for_certificate(scan, cal, unc_cfg: dict, lab_cfg: dict, tolerance_mm: float,
                                  cleaning=None) -> dict | None:
-    """A ring-gauge verification scan measured with ``cal`` and verified (:func:`verify_budget`),
+    """Return a ring-gauge verification scan measured with ``cal`` and verified (:func:`verify_budget`),
     as a row for the calibration's certificate: the ``verifications`` columns plus the budget rows
     (``budget``), the gauge's ``certificate`` and the scan's ``raw_files`` (name -> SHA-256).
     None when the scan's artifact is not a certified ring gauge. ``cleaning``: the spike policy.

@@ -47,7 +47,7 @@ def set_job_environment(environ=os.environ) -> dict[str, str]:
 
 
 def workers_for(n_items: int, workers: int) -> int:
-    """Processes :func:`map_in_order` uses for ``n_items`` items with ``workers`` allowed (in a job
+    """Return the processes :func:`map_in_order` uses for ``n_items`` items with ``workers`` allowed (in a job
     whose workers :func:`start_job_workers` started, one item is enough for a worker).
     """
     per_worker = 1 if _JOB_POOL else MIN_ITEMS_PER_WORKER

@@ -212,7 +212,7 @@ class LdsMatrix:
     pose: np.ndarray
 
     def channel(self, ch: int) -> np.ndarray:
-        """Readings [mm] of channel ``ch`` (1-based)."""
+        """Return readings [mm] of channel ``ch`` (1-based)."""
         return self.values_mm[:, self.channels.index(ch)]
 
 
@@ -628,7 +628,7 @@ def _range_warnings(lo: float, hi: float, listed: dict[int, dict], file: str, co
 
 
 def _pose_ok(table: pa.Table, meta: dict | None, has_spindle: bool) -> bool:
-    """The pose checks of :func:`_check_lds_full` pass (rod: every pose set, >= 0, one per sample;
+    """Return the pose checks of :func:`_check_lds_full` pass (rod: every pose set, >= 0, one per sample;
     tri_lds with a spindle stream: no pose).
     """
     pcol = table.column("pose")
@@ -1439,7 +1439,7 @@ def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
 
 def _regular_matrix(  # noqa: C901 (one exit per layout that is not the usual one)
         tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
-    """The wide matrix of an ``lds`` Arrow table in the usual layout, straight from its chunks; None
+    """Return the wide matrix of an ``lds`` Arrow table in the usual layout, straight from its chunks; None
     when the layout does not apply.
 
     The usual layout: every sample has one row per listed channel (``listed`` ascending) in channel

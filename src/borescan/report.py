@@ -148,7 +148,7 @@ RUN_RULES = {
 
 
 def run_rules(values: np.ndarray | list[float], centre: float, sigma: float) -> dict[int, np.ndarray]:
-    """The points of a series that break Western Electric run rules 1, 2 and 4.
+    """Return the points of a series that break Western Electric run rules 1, 2 and 4.
 
     Parameters
     ----------
@@ -238,7 +238,7 @@ _SMALLER = {"mm": ("µm", 1e3), "s": ("ms", 1e3), "rad": ("mrad", 1e3), "mm/s": 
 
 
 def format_quantity(value: float | None, u: float | None = None, unit: str = "") -> str:
-    """A value with its uncertainty for people: ``1.200 ± 0.030 ms``.
+    """Return a value with its uncertainty for people: ``1.200 ± 0.030 ms``.
 
     The uncertainty is rounded to two significant digits and the value to the same decimal
     place (GUM 7.2.6); without an uncertainty the value keeps four significant digits. Values
@@ -488,7 +488,7 @@ def device_model_history(pooled: pl.DataFrame | None, cal: pl.DataFrame | None, 
 
 
 def _text_of(entry: dict) -> str:
-    """A carried device-model entry's values in plain words: ``tau_s = 1.19 ± 0.02 ms``."""
+    """Return a carried device-model entry's values in plain words: ``tau_s = 1.19 ± 0.02 ms``."""
     return html.unescape(_parameters_text(entry["key"].split("@")[0], json.dumps(entry.get("values") or {}),
                                           entry.get("u") or {}))
 
@@ -501,7 +501,7 @@ def _wrap_carried(entry: str) -> str:
 
 
 def plot_device_model_gap(hist: pl.DataFrame, device_id: str) -> Figure:
-    """The gaps of one device over its nights (:func:`device_model_history`), the nights from which
+    """Return the gaps of one device over its nights (:func:`device_model_history`), the nights from which
     its calibrations carried other effects marked by a dashed line and what they carried there (a
     new estimate of the same effects is no change of the model).
 
@@ -621,7 +621,7 @@ def _png_bytes(fig: Figure) -> bytes:
 
 
 def load_tables(results_root: str | os.PathLike) -> dict[str, pl.DataFrame]:
-    """The catalog tables (and the ``suspect_measurements`` view when present) as polars frames."""
+    """Return the catalog tables (and the ``suspect_measurements`` view when present) as polars frames."""
     con = catalog.open_catalog(results_root, read_only=True)
     try:
         out = {}
@@ -689,14 +689,14 @@ def _num(v: Any, digits: int = 6) -> str:
 
 
 def _um(v_mm: Any, decimals: int = 1) -> str:
-    """A length in mm shown in µm with ``decimals`` decimals ("" when missing)."""
+    """Return a length in mm shown in µm with ``decimals`` decimals ("" when missing)."""
     if v_mm is None or not np.isfinite(float(v_mm)):
         return ""
     return f"{float(v_mm) * 1e3:.{decimals}f}"
 
 
 def _temperature(t_c: Any, assumed: Any) -> str:
-    """A temperature cell; an assumed one says so ("20 (assumed)")."""
+    """Return a temperature cell; an assumed one says so ("20 (assumed)")."""
     if assumed:
         base = "20" if t_c is None else _num(t_c, 4)
         return f'<span class="warn" title="no temperature recorded: 20 °C assumed">{base} (assumed)</span>'
@@ -711,7 +711,7 @@ def _link(href: str | None, text: str) -> str:
 
 def _table(headers: list[str], rows: list[list[str]], row_classes: list[str] | None = None,
            num_cols: set[int] | None = None) -> str:
-    """An HTML table; cells are already-escaped HTML."""
+    """Return an HTML table; cells are already-escaped HTML."""
     num_cols = num_cols or set()
     out = ["<table><thead><tr>", *(f"<th>{_e(h)}</th>" for h in headers), "</tr></thead><tbody>"]
     for i, r in enumerate(rows):
@@ -723,14 +723,14 @@ def _table(headers: list[str], rows: list[list[str]], row_classes: list[str] | N
 
 
 def _img(href: str, png: bytes, alt: str) -> str:
-    """A PNG embedded as a base64 ``data:`` image (the page stands alone), linked to its file."""
+    """Return a PNG embedded as a base64 ``data:`` image (the page stands alone), linked to its file."""
     data = base64.b64encode(png).decode("ascii")
     return (f'<a class="plot" href="{html.escape(href, quote=True)}">'
             f'<img src="data:image/png;base64,{data}" alt="{_e(alt)}"></a>')
 
 
 def _rel(results_root: Path, path: str | None) -> str | None:
-    """A relative link to ``path`` (relative to results_root, or absolute inside it) if it exists."""
+    """Return a relative link to ``path`` (relative to results_root, or absolute inside it) if it exists."""
     if not path:
         return None
     if not os.path.isabs(path) and ".." not in path and "\\" not in path:  # the usual case, without pathlib
@@ -754,7 +754,8 @@ def _safe(name: str) -> str:
 
 @functools.lru_cache(maxsize=1)
 def _code_fingerprint() -> str:
-    """This module's source and the plotting libraries: a change re-renders every page and plot."""
+    """Return the digest of this module's source and the plotting libraries (a change re-renders every
+    page)."""
     import matplotlib
 
     h = hashlib.sha256(Path(__file__).read_bytes())
@@ -849,7 +850,7 @@ def month_fingerprints(con) -> dict[str, str]:
 
 
 def _month_tables(con, month: str) -> dict[str, pl.DataFrame]:
-    """The rows of one month, per table, in page order (verifications with their scan's start)."""
+    """Return the rows of one month, per table, in page order (verifications with their scan's start)."""
     out = {}
     srcs = _sources(con)
     for name, sql in srcs.items():
@@ -865,7 +866,7 @@ def _month_tables(con, month: str) -> dict[str, pl.DataFrame]:
 
 
 def _totals(con) -> dict[str, Any]:
-    """Counts over the whole history for the page header."""
+    """Return counts over the whole history for the page header."""
     first, last, n_scans, n_q = con.execute(
         "SELECT min(night)::VARCHAR, max(night)::VARCHAR, count(*), count(*) FILTER (status = 'quarantined') "
         "FROM scans").fetchone()
@@ -878,7 +879,7 @@ def _totals(con) -> dict[str, Any]:
 
 
 def _counts(t: dict[str, pl.DataFrame]) -> dict[str, Any]:
-    """The header's counts over one page's rows."""
+    """Return the header's counts over one page's rows."""
     sc = t["scans"]
     nights = sorted({str(n) for n in sc["night"].drop_nulls().to_list()})
     return {"first": nights[0] if nights else None, "last": nights[-1] if nights else None, "scans": sc.height,
@@ -896,7 +897,7 @@ def _month_summary(con) -> list[tuple[str, int, int, int]]:
 
 
 def _memory_catalog(tables: dict[str, pl.DataFrame]):
-    """An in-memory DuckDB with the given frames as catalog tables (missing ones empty, typed)."""
+    """Return an in-memory DuckDB with the given frames as catalog tables (missing ones empty, typed)."""
     con = duckdb.connect()
     con.execute("SET TimeZone = 'UTC'")
     for name, cols in catalog.SCHEMA.items():
@@ -942,7 +943,7 @@ class _PlotCache:
         self.drawn = 0
 
     def get(self, fname: str, key: str, draw) -> bytes:
-        """The PNG ``fname``: drawn when its key changed or the file is gone, else read back."""
+        """Return the PNG ``fname``: drawn when its key changed or the file is gone, else read back."""
         if self.old.get(fname) != key or not (self.folder / fname).is_file():
             png = _png_bytes(draw())
             atomic_write_bytes(self.folder / fname, png)
@@ -1089,7 +1090,7 @@ class _Builder:
         return "".join(out)
 
     def parts(self) -> pl.DataFrame:
-        """The month's diameter rows with ``nominal_mm`` (the row's ``nominal_diameter_mm``, else the
+        """Return the month's diameter rows with ``nominal_mm`` (the row's ``nominal_diameter_mm``, else the
         part's from ``artifacts``), ``tolerance_mm`` (the row's, when the measure stage records one),
         ``deviation_mm`` (at 20 °C where known, else as measured, minus the nominal) and
         ``in_tolerance`` (|deviation| <= tolerance; null without a tolerance).
@@ -1449,7 +1450,7 @@ class _Builder:
 
 
 def _uncertainties(u: Any) -> dict[str, float]:
-    """A finding's uncertainties (a dict, or its JSON text) as {parameter: u}: ``u_`` prefixes dropped,
+    """Return a finding's uncertainties (a dict, or its JSON text) as {parameter: u}: ``u_`` prefixes dropped,
     non-numbers left out; {} for nothing readable.
     """
     if isinstance(u, str):
@@ -1507,7 +1508,8 @@ def _carried_by_calibrations(cal: pl.DataFrame | None) -> dict[tuple[str, str], 
 
 
 def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -> str:
-    """A finding's parameters (JSON text of the findings table) in words: ``tau_s = 1.200 ± 0.030 ms``."""
+    """Return a finding's parameters (JSON text of the findings table) in words:
+    ``tau_s = 1.200 ± 0.030 ms``."""
     if not parameters:
         return ""
     try:
@@ -1530,7 +1532,7 @@ def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -
 
 
 def _unit_of(name: str) -> str:
-    """The unit a parameter's name ends in (``_mm``, ``_s``, ``_rad``, ``_hz``), "-" otherwise."""
+    """Return the unit a parameter's name ends in (``_mm``, ``_s``, ``_rad``, ``_hz``), "-" otherwise."""
     for suffix, unit in (("_mm_per_s", "mm/s"), ("_mm", "mm"), ("_s", "s"), ("_rad", "rad"), ("_hz", "Hz"),
                          ("_c", "degC")):
         if name.endswith(suffix):
@@ -1546,7 +1548,7 @@ _SEPARATES = {
 
 
 def _verdict_note(verdict: str, effects: list[str]) -> str:
-    """What a verdict means for the person reading it (HTML)."""
+    """Return what a verdict means for the person reading it (HTML)."""
     if verdict == "ambiguous":
         names = ", ".join(dict.fromkeys(effects))
         hints = sorted({_SEPARATES[e] for e in effects if e in _SEPARATES})
@@ -1603,7 +1605,7 @@ _UP, _PLOTS = "@@UP@@", "@@PLOTS@@"
 
 
 def _month_sections(root: Path, month: str, tables: dict[str, pl.DataFrame], cache: _PlotCache) -> dict[str, Any]:
-    """A month's header counts and section bodies, with the link placeholders."""
+    """Return a month's header counts and section bodies, with the link placeholders."""
     b = _Builder(root, tables, cache, up=_UP, plots=_PLOTS)
     return {"counts": _counts(tables), "sections": {sid: getattr(b, sid)() for sid, _title in MONTH_SECTIONS}}
 

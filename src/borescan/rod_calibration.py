@@ -85,7 +85,7 @@ class RodCalibration:
 
 
 def layer_gauges(meta: dict, channels) -> list[dict]:
-    """The certified gauge each rod layer of a calibration or verification scan turns in.
+    """Return the certified gauge each rod layer of a calibration or verification scan turns in.
 
     A layer names its feature in ``rod.layers``; the artifact's feature of that id with
     ``certified_diameter_mm`` is the layer's gauge (a gauge set; its ``id``, ``certificate``,
@@ -131,7 +131,7 @@ def layer_gauges(meta: dict, channels) -> list[dict]:
 
 def calibrate_l0(means_mm, layers, u_reading_mm, radius_at_t_mm, *, tol_mm: float = 1e-7, max_iter: int = 10
                  ) -> tuple[tuple[RodLayer, ...], RodSolution, int]:
-    """Base lengths at which the rod solve returns the gauges' radii (fixed point of the module doc).
+    """Return base lengths at which the rod solve returns the gauges' radii (fixed point of the module doc).
 
     Parameters
     ----------
@@ -221,7 +221,8 @@ def layer_jacobian(channels, channel: int) -> np.ndarray:
 
 def rod_calibration_rows(cal: RodCalibration, night: str, certificate_path: str | None, raw_sha256: str,
                          p: float) -> list[dict]:
-    """The ``calibrations`` rows of a rod calibration (one per layer; l0 with its standard uncertainty u)."""
+    """Return the ``calibrations`` rows of a rod calibration (one per layer; l0 with its standard uncertainty
+    u)."""
     blob = json.dumps(_to_dict(cal), sort_keys=True, allow_nan=False)
     rows = []
     for j, lay in enumerate(cal.layers):

@@ -249,7 +249,7 @@ def draw_tri_calibration(
     device_id: str | None = None,
     contract: dict = TRI_CONTRACT,
 ):
-    """A ring-gauge calibration spindle scan drawn over the contract (module doc).
+    """Return a ring-gauge calibration spindle scan drawn over the contract (module doc).
 
     Parameters
     ----------
@@ -427,7 +427,7 @@ ROD_CONTRACT: dict = {
 
 
 def _artifact(kind: str, ident: str, diameters_mm, z_mm, cte_per_k: float, u_mm: float = 0.0015) -> dict:
-    """A ring-gauge set (certified diameters, u, k = 2) or a part (nominal diameters only)."""
+    """Return a ring-gauge set (certified diameters, u, k = 2) or a part (nominal diameters only)."""
     d = [float(x) for x in diameters_mm]
     feats = [{"id": f"H{j + 1}", "z_mm": float(z), "nominal_diameter_mm": float(round(x, 1))}
              for j, (x, z) in enumerate(zip(d, z_mm))]
@@ -446,7 +446,7 @@ def _artifact(kind: str, ident: str, diameters_mm, z_mm, cte_per_k: float, u_mm:
 
 def draw_tri_static(rng: np.random.Generator, *, scan_id: str, night: str, beams: Beams | None = None,
                     effect_free: bool = True, contract: dict = STATIC_CONTRACT):
-    """A static three-sensor set drawn over the contract: a ring gauge with a certified diameter
+    """Return a static three-sensor set drawn over the contract: a ring gauge with a certified diameter
     (a verification) or a part with a nominal one (a measurement), 3-12 device poses within
     3 mm of the bore centre at random angles, 5-30 samples per pose, noise 1-5 um. ``beams``
     (default: drawn as for :func:`draw_tri_calibration`) is the device; d_b and the ranges keep
@@ -533,7 +533,7 @@ def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -
 
 def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_free: bool = True,
                   contract: dict = ROD_CONTRACT):
-    """A rod scan over the contract (:func:`draw_rod_geometry`) in a ring-gauge set with certified
+    """Return a rod scan over the contract (:func:`draw_rod_geometry`) in a ring-gauge set with certified
     diameters (half of the scans: what a rod is verified on) or in a part with nominal ones. Each
     layer's sensor (range 30 mm) sits mid-range so that eccentricity and deflection stay inside it.
 
@@ -578,7 +578,8 @@ def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_
 
 
 def battery_rng(seed: int, index: int) -> np.random.Generator:
-    """Generator of scan ``index`` of the battery ``seed``: ``SeedSequence(seed, spawn_key=(index,))``.
+    """Return the generator of scan ``index`` of the battery ``seed``:
+    ``SeedSequence(seed, spawn_key=(index,))``.
 
     The same as ``SeedSequence(seed).spawn(n)[index]`` for any n > index, so a longer battery
     starts with the scans of a shorter one.

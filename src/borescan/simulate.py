@@ -161,7 +161,7 @@ class TriScene:
         return np.interp(t, [float(k[0]) for k in self.rpm_profile], [float(k[1]) for k in self.rpm_profile])
 
     def bore(self) -> Bore:
-        """The effect-free bore: circle C, R20."""
+        """Return the effect-free bore: circle C, R20."""
         return Bore(tuple(map(float, self.bore_center_xy_mm)), float(self.bore_radius_20_mm))
 
     def to_dict(self) -> dict:
@@ -250,7 +250,7 @@ class RodScene:
 
 
 def layer_dict(lay: RodLayer) -> dict:
-    """A rod layer in the spec's names, as ``device.nominal.layers`` of scan.json lists it: channel,
+    """Return a rod layer in the spec's names, as ``device.nominal.layers`` of scan.json lists it: channel,
     h [mm], phi [rad], d [mm], gamma [rad], l0 [mm] (inverse of :meth:`RodScene.from_dict`'s layers).
     """
     return {"channel": int(lay.channel), "h": float(lay.h_mm), "phi": float(lay.phi_rad),
@@ -265,7 +265,7 @@ def _as_effects(effects: Iterable[Effect | dict] | None) -> list[Effect]:
 
 
 def tri_base(scene: TriScene) -> TriBase:
-    """The scene's true base geometry for :mod:`borescan.model` (effect-free bore C, R20;
+    """Return the scene's true base geometry for :mod:`borescan.model` (effect-free bore C, R20;
     turned angle the commanded profile; phase and direction of the scene).
     """
     return TriBase(
@@ -517,7 +517,7 @@ def _base_meta(scan_id, night, kind, started_at, device, sample_rate_hz, sensors
 
 
 def _default_artifact(diameter_mm: float, cte_per_k: float) -> dict:
-    """A ring gauge of the scene's diameter: RG-275 (certificate RG-275/2026-03) for the default
+    """Return a ring gauge of the scene's diameter: RG-275 (certificate RG-275/2026-03) for the default
     275.029 mm, else one gauge per diameter (its certificate id names the value, so two simulated
     gauges never share a certificate with different values: ingest quarantines that).
     """

@@ -24,7 +24,7 @@ __all__ = ["batcher_pairs", "selection_ops", "select_ranks", "median_columns"]
 
 
 def batcher_pairs(n: int) -> tuple[tuple[int, int], ...]:
-    """Comparators (i, j), i < j, of Batcher's odd-even merge sort of ``n`` elements, in order.
+    """Return comparators (i, j), i < j, of Batcher's odd-even merge sort of ``n`` elements, in order.
 
     After all comparators (each puts the smaller value at i, the larger at j) the values are
     sorted ascending.

@@ -72,7 +72,7 @@ def read_source(results_root: str | os.PathLike) -> SourceNights:
 
 
 def synthetic_night(start: str, index: int) -> str:
-    """The ISO date of synthetic night ``index`` (0-based) counted from ``start``."""
+    """Return the ISO date of synthetic night ``index`` (0-based) counted from ``start``."""
     return (_dt.date.fromisoformat(start) + _dt.timedelta(days=index)).isoformat()
 
 
@@ -157,7 +157,7 @@ def _alternation(keys: Iterable[str]) -> re.Pattern:
 
 
 def _shift_time(s: str | None, days: int) -> str | None:
-    """An ISO 8601 time stamp moved by whole days (its text after the date kept as written)."""
+    """Return an ISO 8601 time stamp moved by whole days (its text after the date kept as written)."""
     if s is None or len(s) < 10:
         return s
     try:

@@ -170,7 +170,7 @@ def _table(name: str) -> Table:
 
 
 def polars_schema(name: str) -> dict[str, pl.DataType]:
-    """The stage table's polars schema of history table ``name``."""
+    """Return the stage table's polars schema of history table ``name``."""
     return _table(name).polars_schema()
 
 

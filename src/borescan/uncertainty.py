@@ -85,7 +85,7 @@ def _check_dist(distribution: str) -> str:
 
 def standard_uncertainty(*, halfwidth: float | None = None, expanded: float | None = None, k: float | None = None,
                          distribution: str = "rectangular") -> float:
-    """Standard uncertainty from a stated bound or an expanded uncertainty.
+    """Return standard uncertainty from a stated bound or an expanded uncertainty.
 
     Parameters
     ----------
@@ -329,7 +329,7 @@ class Input:
 
 
 def _array(x) -> np.ndarray | None:
-    """A JSON list (nested for a matrix; None for NaN) as a float array; None stays None."""
+    """Return a JSON list (nested for a matrix; None for NaN) as a float array; None stays None."""
     if x is None:
         return None
 
@@ -382,7 +382,7 @@ class Term:
         return None, float(math.sqrt(max(float(j @ self.cov @ j), 0.0)))
 
     def mapped(self, A) -> "Term":
-        """The term for outputs y' = A y (A (m', m))."""
+        """Return the term for outputs y' = A y (A (m', m))."""
         A = np.atleast_2d(np.asarray(A, dtype=float))
         if self.sensitivity is not None:
             return replace(self, sensitivity=A @ self.sensitivity)
@@ -490,18 +490,18 @@ class Budget:
         return self
 
     def covariance(self) -> np.ndarray:
-        """Combined covariance (m, m) of the outputs: the sum of every term's."""
+        """Return combined covariance (m, m) of the outputs: the sum of every term's."""
         out = np.zeros((self.m, self.m))
         for t in self.terms:
             out += t.covariance()
         return out
 
     def u(self) -> np.ndarray:
-        """Combined standard uncertainty of each output (m,)."""
+        """Return combined standard uncertainty of each output (m,)."""
         return np.sqrt(np.clip(np.diag(self.covariance()), 0.0, None))
 
     def mapped(self, A, outputs: Sequence[str], units: Sequence[str], estimates) -> "Budget":
-        """The budget of y' = A y (+ a constant): every term mapped by A (m', m)."""
+        """Return the budget of y' = A y (+ a constant): every term mapped by A (m', m)."""
         return Budget(tuple(outputs), tuple(units), np.asarray(estimates, float), [t.mapped(A) for t in self.terms])
 
     def merged(self) -> "Budget":

@@ -94,7 +94,7 @@ def night_date(text: str) -> str:
 
 
 def utc_text(value: _dt.datetime) -> str:
-    """A time with its zone, ISO 8601 in UTC: ``2026-11-21T22:14:03Z`` (fraction kept when present).
+    """Return a time with its zone, ISO 8601 in UTC: ``2026-11-21T22:14:03Z`` (fraction kept when present).
 
     The catalog stores TIMESTAMP values as naive UTC (:mod:`borescan.catalog`); a naive value is
     read as UTC, an aware one converted to it.

@@ -96,7 +96,7 @@ def _round(x: float, digits: int) -> str:
 
 
 def _number_cells(values: list[object], digits: int) -> list[str]:
-    """A numeric column's cells: floats to ``digits`` significant digits, decimal points aligned."""
+    """Return a numeric column's cells: floats to ``digits`` significant digits, decimal points aligned."""
     raw = []
     for v in values:
         if v is None or (isinstance(v, float) and math.isnan(v)):

@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _ident(text: str, results: str) -> str:
-    """A path from the current folder into the results folder, made absolute (``borescan.trace``
+    """Return a path from the current folder into the results folder, made absolute (``borescan.trace``
     relates absolute paths to the results folder; the catalog's are relative to it), so that
     ``results/calibration/.../certificate.pdf`` works as well as ``calibration/.../certificate.pdf``
     and an absolute path; any other id as given.
@@ -36,7 +36,7 @@ def _ident(text: str, results: str) -> str:
 
 
 def _zoned(node: object) -> object:
-    """The chain with every time as ISO 8601 UTC with its zone (the catalog's TIMESTAMPs are UTC)."""
+    """Return the chain with every time as ISO 8601 UTC with its zone (the catalog's TIMESTAMPs are UTC)."""
     if isinstance(node, dict):
         return {k: _zoned(v) for k, v in node.items()}
     if isinstance(node, list):

@@ -108,7 +108,7 @@ def _scaled(e: Effect, scale: float) -> Effect:
 def random_tri_case(
     rng: np.random.Generator, n_effects: int, *, scan_id: str = "BAT", scale: float = 1.0
 ) -> tuple:
-    """A random spindle scan with ``n_effects`` hidden effects (magnitudes times ``scale``; tilts,
+    """Return a random spindle scan with ``n_effects`` hidden effects (magnitudes times ``scale``; tilts,
     whose readings go with the square of the angle, times sqrt(scale)).
 
     Returns
@@ -179,7 +179,7 @@ def _lookalike(a: str, b: str) -> bool:
 
 
 def score_case(findings: dict, effects: list[Effect]) -> bool:
-    """True when the verdict names the hidden effects (see the module doc)."""
+    """Return True when the verdict names the hidden effects (see the module doc)."""
     truth = {effect_label(e) for e in effects}
     named = {named_label(n) for n in findings["named"]}
     if not truth:

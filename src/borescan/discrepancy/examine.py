@@ -68,7 +68,7 @@ class Examination:
 
 
 def scan_arrays(scan) -> tuple[np.ndarray, tuple[int, ...], np.ndarray, np.ndarray | None, dict | None]:
-    """Reading matrix of a ``RawScan``-like object (``.meta``, ``.lds`` polars, ``.spindle``).
+    """Return reading matrix of a ``RawScan``-like object (``.meta``, ``.lds`` polars, ``.spindle``).
 
     Returns
     -------
@@ -206,7 +206,7 @@ def outlier_threshold_sigma(n: int, false_rate: float = 1e-3) -> float:
 
 
 def _lattice_lsb(v: np.ndarray) -> float | None:
-    """The step of a lattice that every reading lies on (quantised sensor), else None."""
+    """Return the step of a lattice that every reading lies on (quantised sensor), else None."""
     v = v[np.isfinite(v)]
     if v.size < 20:
         return None
@@ -269,7 +269,7 @@ def examine_tri(data: TriData, **cfg) -> Examination:
 
 def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split into small functions)
         model, **cfg) -> Examination:
-    """The workflow on any model object (:class:`TriModel`, rod and static models).
+    """Return the workflow on any model object (:class:`TriModel`, rod and static models).
 
     The model provides the data, the base parameters and their start, the forward model with
     terms, the candidate terms, the noise floor and the localisation (see ``TriModel``).
@@ -580,7 +580,7 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
 
 
 def _physical(z: tuple[FitResult, list[Term]]) -> bool:
-    """False for fits that need a physically impossible value: a fitted parameter more than two
+    """Return False for fits that need a physically impossible value: a fitted parameter more than two
     standard uncertainties outside its registry bounds (e.g. ``beam_tilt`` shortening the reading).
     """
     fr, ts = z

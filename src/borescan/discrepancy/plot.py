@@ -23,7 +23,7 @@ MARGIN = 0.02
 
 
 def nice_ceiling(value: float) -> float:
-    """The smallest value of :data:`NICE_STEPS` x 10^k at or above ``value`` (> 0); 1.0 for
+    """Return the smallest value of :data:`NICE_STEPS` x 10^k at or above ``value`` (> 0); 1.0 for
     anything not positive and finite.
     """
     if not (math.isfinite(value) and value > 0.0):
@@ -59,7 +59,7 @@ MAX_BACKGROUNDS = 32
 
 
 def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_label: str) -> dict:
-    """The figure of a layout, built on first use (see :data:`_FIGURES`).
+    """Return the figure of a layout, built on first use (see :data:`_FIGURES`).
 
     Returns a dict: ``fig``, ``axes`` (3, n_panels), ``lines[(row, col, channel index)]``,
     ``floor[(row, col, sign)]`` (the dashed noise-floor lines), ``suptitle`` and ``dynamic``: every
@@ -112,7 +112,7 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
 
 
 def _background(layout: dict, limits: tuple):
-    """The rendered static part of ``layout`` with its axes at ``limits`` (already set on the
+    """Return the rendered static part of ``layout`` with its axes at ``limits`` (already set on the
     axes): everything but :func:`_figure`'s ``dynamic`` artists, drawn once per (layout, limits).
     """
     key = (layout["key"], limits)

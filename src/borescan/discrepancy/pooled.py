@@ -113,7 +113,7 @@ class PooledScan:
 
 
 def pooled_scan(scan, max_samples: int | None = None) -> PooledScan:
-    """A ``RawScan``-like object (``.meta``, ``.lds``, ``.spindle``) of a three-sensor spindle scan
+    """Return a ``RawScan``-like object (``.meta``, ``.lds``, ``.spindle``) of a three-sensor spindle scan
     as :class:`PooledScan` (scans longer than ``max_samples`` cut to four blocks, as one scan is).
     """
     meta = scan.meta
@@ -161,7 +161,7 @@ _SPEED = Term("speed_error")  # the per-scan speed scale of a commanded angle (p
 
 
 def parse_device_effect(key: str, channels: Sequence[int] | None = None, device: str = "") -> PooledTerm:
-    """The term of a device-model entry (checked by :func:`borescan.effects.device_effect_key`)."""
+    """Return the term of a device-model entry (checked by :func:`borescan.effects.device_effect_key`)."""
     name, ch = device_effect_key(key, channels, device)
     return PooledTerm(name) if ch is None else PooledTerm(name, ch)
 
@@ -410,7 +410,7 @@ class PooledModel:
         return (self.scans[k].data.values_mm - self.predict_scan(k, p, []))[self.valid[self._rows(k)]]
 
     def groups(self, scope: str) -> list[tuple[str | None, list[int]]]:
-        """The groups of scans of a registry ``scope``: (label, scan indices); the label is None
+        """Return the groups of scans of a registry ``scope``: (label, scan indices); the label is None
         for a group of every scan.
         """
         if scope not in SCOPES:
@@ -439,7 +439,7 @@ class PooledModel:
         return d.encoder or d.free_phase
 
     def frame_of(self, k: int) -> str:
-        """The frame in which scan ``k`` sees an artifact's orientation: its night (the artifact as
+        """Return the frame in which scan ``k`` sees an artifact's orientation: its night (the artifact as
         mounted that night, in the machine's angle origin), or the scan itself when its angle has
         its own origin (:meth:`frame_shared`).
         """
@@ -455,7 +455,7 @@ class PooledModel:
         return tuple(fr for fr in frames if fr != ref)
 
     def members(self, t: Term) -> list[int]:
-        """Indices of the scans a term acts on."""
+        """Return indices of the scans a term acts on."""
         g = getattr(t, "group", None)
         if g is None:
             return list(range(len(self.scans)))
@@ -495,14 +495,14 @@ class PooledModel:
 
     @staticmethod
     def _turned(t: Term, p: dict[str, float], angle_rad: float) -> dict[str, float]:
-        """The fitted values of term ``t`` with its orientation (registry) turned by ``angle_rad``."""
+        """Return the fitted values of term ``t`` with its orientation (registry) turned by ``angle_rad``."""
         spec = EFFECTS[t.effect]
         par, _ = spec.spec_params({q.name: p[f"{t.key}.{q.name}"] for q in spec.fit}, None, t.k)
         par[spec.orientation] = par[spec.orientation] + angle_rad
         return {f"{t.key}.{n}": v for n, v in spec.internal(par).items()}
 
     def predict_scan(self, k: int, p: dict[str, float], terms: list[Term]) -> np.ndarray:
-        """Readings (n_k, c) of scan ``k`` at pooled parameters ``p`` [mm]."""
+        """Return readings (n_k, c) of scan ``k`` at pooled parameters ``p`` [mm]."""
         q, own = self._scan_params(k, p, terms)
         return self.models[k].predict(q, own)
 
@@ -551,7 +551,7 @@ class PooledModel:
                           for k in range(len(self.scans))])
 
     def localise(self, r: np.ndarray, sigma: np.ndarray) -> dict:
-        """The single-scan localisation of each scan (its own noise floor)."""
+        """Return the single-scan localisation of each scan (its own noise floor)."""
         return {"scans": {sid: m.localise(r[self._rows(k)], self.scan_sigma[k])
                           for k, (m, sid) in enumerate(zip(self.models, self.scan_ids))}}
 
@@ -561,7 +561,7 @@ class PooledModel:
 
     def candidate_terms(  # noqa: C901 (one branch per scope of the registry's effects; pooled is to become an adapter of the device models)
             self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[PooledTerm]:
-        """The registry's candidates for every group of scans their scope defines, less those the
+        """Return the registry's candidates for every group of scans their scope defines, less those the
         pooled base absorbs (recorded in :attr:`absorbed`). ``speed_error`` is the base's per-scan
         speed scale; ``vibration`` is left to the single-scan examination.
         """
@@ -630,7 +630,7 @@ class PooledModel:
 
     def extra_starts(  # noqa: C901 (one branch per effect's extra starts; pooled is to become an adapter of the device models)
             self, screen: list, keys: set, t1: Term | None) -> list:
-        """Starts the linear screen cannot give.
+        """Return the starts the linear screen cannot give.
 
         An oriented effect turned in some scans (:attr:`PooledTerm.turns`) is not linear in the
         turns at zero amplitude: each scan's own estimate (a linear fit of that scan alone) gives
@@ -712,7 +712,7 @@ class PooledModel:
         return tilt, st
 
     def _form_leads(self, screen: list, t: PooledTerm, gain: float | None) -> bool:
-        """The k = 2 lobing ``t`` leads: first in the screen, or (turned) its per-scan estimates
+        """Return the k = 2 lobing ``t`` leads: first in the screen, or (turned) its per-scan estimates
         explain more than those of the screen's first candidate.
         """
         top = screen[0][1]
@@ -788,7 +788,7 @@ class PooledModel:
         return out, gain
 
     def term_parameters(self, term: Term, x: dict, u: dict) -> tuple[dict, dict]:
-        """The spec's parameters of a fitted term (the examination asks once per named entry, in
+        """Return the spec's parameters of a fitted term (the examination asks once per named entry, in
         the entries' order: the terms are kept in :attr:`reported`).
         """
         self.reported.append(term)
@@ -803,7 +803,7 @@ class PooledModel:
         return np.concatenate([m.plot_angle() for m in self.models])
 
     def beams_at(self, p: dict[str, float]) -> Beams:
-        """The shared beam geometry at pooled parameters ``p`` (module doc: psi, rho, g)."""
+        """Return the shared beam geometry at pooled parameters ``p`` (module doc: psi, rho, g)."""
         c = len(self.data.channels)
         b = self.start_beams
         R = self.R_mm
@@ -817,7 +817,7 @@ class PooledModel:
         return Beams(b.channels, beta, rho, d_b)
 
     def _beam_deltas(self, p: dict[str, float]) -> dict[str, float]:
-        """The single-scan models' beam offsets ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` at ``p``."""
+        """Return the single-scan models' beam offsets ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` at ``p``."""
         b, s = self.beams_at(p), self.start_beams
         out = {}
         for j in range(len(self.data.channels)):
@@ -848,7 +848,7 @@ class PooledModel:
         return A @ C @ A.T
 
     def base_summary(self, p: dict[str, float]) -> dict:
-        """The base fit's beams and per-scan nuisance (the examination asks once, at its base fit:
+        """Return the base fit's beams and per-scan nuisance (the examination asks once, at its base fit:
         the values are kept in :attr:`base_values`).
         """
         self.base_values = dict(p)
@@ -868,7 +868,7 @@ class PooledModel:
         return out
 
     def design(self, p: dict[str, float] | None = None) -> dict:
-        """What distinguishes the scans: night, artifact, radius, signed speed, angle source and,
+        """Return what distinguishes the scans: night, artifact, radius, signed speed, angle source and,
         with parameters ``p``, the eccentricity |S - C| of the fit.
         """
         out = {}
@@ -912,7 +912,8 @@ def _chi2_by_scan(model: PooledModel, r_mm: np.ndarray) -> np.ndarray:
 
 
 def _carriers(model: PooledModel, gain: np.ndarray, ks: Sequence[int] | None = None) -> list[str]:
-    """The fewest scans (largest chi-square decrease first) holding :data:`CARRIER_SHARE` of the decrease."""
+    """Return the fewest scans (largest chi-square decrease first) holding :data:`CARRIER_SHARE` of the
+    decrease."""
     ks = list(range(len(model.scans))) if ks is None else list(ks)
     pos = [(float(gain[k]), k) for k in ks if gain[k] > 0]
     pos.sort(reverse=True)
@@ -927,7 +928,7 @@ def _carriers(model: PooledModel, gain: np.ndarray, ks: Sequence[int] | None = N
 
 
 def _absorbed_summary(model: PooledModel) -> list[dict]:
-    """The absorbed terms grouped by effect and absorbing parameter (one line each; for an
+    """Return the absorbed terms grouped by effect and absorbing parameter (one line each; for an
     effect of several groups, its part common to every group).
     """
     out: dict[tuple, dict] = {}
@@ -947,7 +948,7 @@ _CAL_COLUMN = {"beta": "beta_rad", "rho": "rho_mm", "d_b": "d_b_mm"}
 
 
 def calibration_equivalent(model: PooledModel, p: dict[str, float], terms: list[Term], t: Term) -> dict:
-    """What a calibration that ignores term ``t`` would put into the beams, scan by scan.
+    """Return what a calibration that ignores term ``t`` would put into the beams, scan by scan.
 
     For each scan the term acts on, the term's signature (readings with every term less readings
     without ``t``) is fitted, linearised and weighted by the scan's noise floor, by changes of the
@@ -1054,7 +1055,7 @@ def drift_explanations(drift, findings: dict) -> list[dict]:
 
 
 def spec_text(effect: str, par: str) -> str:
-    """The registry's words for the base parameter ``par`` absorbing ``effect`` in a spindle scan."""
+    """Return the registry's words for the base parameter ``par`` absorbing ``effect`` in a spindle scan."""
     return EFFECTS[effect].absorbers(SCAN_KIND).get(par, par)
 
 
@@ -1064,7 +1065,7 @@ _SCOPE_CHANGE = {"scan": "another scan", "night": "a scan on another night", "ar
 
 
 def separation(a: Term, b: Term) -> str | None:
-    """The measurement that separates two tied terms, from the registry: effects of different
+    """Return the measurement that separates two tied terms, from the registry: effects of different
     ``scope`` part when the narrower one's unit changes (another run, night or artifact) and the
     other's does not; None when the registry knows none (the same scope: a spec look-alike).
     """
@@ -1081,7 +1082,7 @@ POLISH_NFEV = 200
 
 
 def _entry_start(model: PooledModel, t: Term, n: dict) -> dict[str, float]:
-    """The fitted values of term ``t`` from its named entry ``n`` (spec parameters, turns)."""
+    """Return the fitted values of term ``t`` from its named entry ``n`` (spec parameters, turns)."""
     spec = EFFECTS[t.effect]
     par = {k: v for k, v in n["parameters"].items() if k in spec.params}
     if spec.per_channel:
@@ -1104,7 +1105,7 @@ def _fit_terms(model: PooledModel, terms: list[Term], start: dict[str, float], m
 
 
 def _check_pair(model: PooledModel, f: dict, terms: list[Term], entries: list[dict]) -> dict | None:
-    """A pair verdict checked with fits run to convergence (:data:`POLISH_NFEV` evaluations).
+    """Return a pair verdict checked with fits run to convergence (:data:`POLISH_NFEV` evaluations).
 
     The search prefers a pair to the best single only when it beats it by more than the
     threshold; but the pair's fit starts where the single's stopped, so a single that its

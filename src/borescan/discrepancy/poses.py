@@ -107,7 +107,7 @@ class _PoseModel:
         return out
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
-        """Readings further than ``k_sigma`` noise levels from their pose median."""
+        """Return readings further than ``k_sigma`` noise levels from their pose median."""
         out = np.zeros(r.shape, dtype=bool)
         idx = self.data.pose_index
         for j in range(r.shape[1]):
@@ -294,7 +294,7 @@ class RodModel(_PoseModel):
         return apply_reading_terms(v, t_s, by, p, d.channels, d.range_mm, beam_tilt=False)
 
     def candidate_terms(self, *, k_max=8, vibration_f_hz=None):
-        """The registry's rod candidates; what a layer's free hole radius absorbs is left out."""
+        """Return the registry's rod candidates; what a layer's free hole radius absorbs is left out."""
         free = {c for c, f in zip(self.data.channels, self.radius_free) if f}
         return registry_terms("rod", self.data.channels, have={"cte": bool(self.data.cte_per_k)},
                               k_max=k_max, freed={"R": free})
@@ -384,7 +384,7 @@ class StaticModel(_PoseModel):
         return apply_reading_terms(v, t_s, by, p, d.channels, d.range_mm)
 
     def candidate_terms(self, *, k_max=8, vibration_f_hz=None):
-        """The registry's static candidates; a free bore radius absorbs what every channel shares."""
+        """Return the registry's static candidates; a free bore radius absorbs what every channel shares."""
         return registry_terms("tri_static", self.data.channels, have={"cte": bool(self.data.cte_per_k)},
                               k_max=k_max, freed={"R": "shared" if self.radius_free else set()})
 

@@ -218,7 +218,7 @@ def tri_data_from_arrays(
 
 
 def term_effects(term: Term, p: dict[str, float], channels) -> list[Effect]:
-    """The spec's effects of a fitted term: its fitted values ``p[f"{term.key}.{name}"]``
+    """Return the spec's effects of a fitted term: its fitted values ``p[f"{term.key}.{name}"]``
     converted by the registry (:meth:`~borescan.effects.EffectSpec.spec_params`); a
     per-channel term with ``channel`` 0 (or None) is one effect per channel.
     """
@@ -295,7 +295,7 @@ class TriModel:
 
     # ------------------------------------------------------------------ forward
     def base(self, p: dict[str, float]) -> TriBase:
-        """The base geometry at base parameters ``p`` (centre, phase, radius, freed beams)."""
+        """Return the base geometry at base parameters ``p`` (centre, phase, radius, freed beams)."""
         d = self.data
         beams = d.beams
         if self.free_beams:
@@ -318,7 +318,7 @@ class TriModel:
         )
 
     def predict(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
-        """Readings (n, c) [mm] for full parameters ``p`` (base + every term's fitted names).
+        """Return readings (n, c) [mm] for full parameters ``p`` (base + every term's fitted names).
 
         The terms' fitted values become the spec's effects (:func:`term_effects`) and the
         readings come from the composition of :mod:`borescan.model` (the digital twin's). The
@@ -423,7 +423,7 @@ class TriModel:
                 if t.key not in keys]
 
     def extra_starts(self, screen: list, keys: set, t1: Term | None) -> list:
-        """Starts the linear screen cannot give.
+        """Return the starts the linear screen cannot give.
 
         axis_tilt is not linear at zero tilt: start it from the k = 2 lobing of the screen.
         A large speed error winds the phase by many radians: start it from the rotation
@@ -478,7 +478,7 @@ class TriModel:
 
 def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: int = 8,
                    freed: dict[str, set | str] | None = None) -> list[Term]:
-    """The registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
+    """Return the registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
     ``"tri_static"``, ``"rod"``): the only list of candidates the workflow has.
 
     Every effect whose ``candidate[scan_kind]`` is ``"screen"`` and whose ``needs`` the scan meets
@@ -515,7 +515,7 @@ def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: in
 
 def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | None = None,
                     freed: dict[str, set | str] | None = None) -> list[Term]:
-    """The registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
+    """Return the registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
     when the scan has no encoder, ``vibration_line`` when ``vibration_f_hz`` was found, ``cte``
     when the artifact's CTE is known.
     """
@@ -525,7 +525,7 @@ def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | No
 
 
 def term_parameters(term: Term, x: dict[str, float], u: dict[str, float], data: TriData | None = None) -> tuple[dict, dict]:
-    """The spec's parameters of a fitted term and their standard uncertainties (the registry's
+    """Return the spec's parameters of a fitted term and their standard uncertainties (the registry's
     :meth:`~borescan.effects.EffectSpec.spec_params`).
     """
     spec = EFFECTS[term.effect]

@@ -74,7 +74,7 @@ def load_table2(path: Path | str = TABLE2_CSV) -> dict:
 
 
 def _slope(pos: list[np.ndarray]) -> tuple[float, float]:
-    """Common slope (samples/rev) of several position sequences vs their index, own intercepts.
+    """Return common slope (samples/rev) of several position sequences vs their index, own intercepts.
 
     u from the residual scatter (s^2 / sum (i - mean_i)^2).
     """

@@ -63,7 +63,7 @@ def load_table3(path: Path | None = None) -> dict[str, np.ndarray]:
 
 
 def table2_period() -> float:
-    """Samples per revolution implied by Table 2: least-squares slope of minimum sample vs
+    """Return samples per revolution implied by Table 2: least-squares slope of minimum sample vs
     revolution, pooled over the three sensors (``papers.yang_table2`` if available).
     """
     try:  # another module owns Table 2; prefer its number when it exists

@@ -65,7 +65,8 @@ def fit_extremum_cubic(y_mm: np.ndarray, *, kind: str, sigma_mm: float | None = 
 
 
 def _masked_xtx(X: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """Normal matrices X^T diag(m_r) X of the design ``X`` (k, 4) for each row of the 0/1 masks ``m`` (R,
+    """Return normal matrices X^T diag(m_r) X of the design ``X`` (k, 4) for each row of the 0/1 masks ``m``
+    (R,
     k).
     """
     return np.einsum("ki,kj,rk->rij", X, X, m)

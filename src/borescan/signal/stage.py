@@ -96,7 +96,7 @@ def process_arrays(
     extrema_on: str = "despiked",
     n_harmonics: int = 3,
 ) -> SignalResult:
-    """The whole signal stage on plain arrays.
+    """Return the whole signal stage on plain arrays.
 
     nulls counted -> spikes set aside (:func:`remove_spikes`) -> period (encoder when given,
     else :func:`period_from_readings`) and revolution coordinate -> extrema
@@ -201,7 +201,7 @@ def process_arrays(
 
 
 def _speed_changes(commanded_rad: np.ndarray) -> bool:
-    """True when the commanded angle is not a straight line in the sample index (a speed change)."""
+    """Return True when the commanded angle is not a straight line in the sample index (a speed change)."""
     x = np.asarray(commanded_rad, dtype=float)
     if x.size < 3:
         return False

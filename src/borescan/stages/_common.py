@@ -79,14 +79,14 @@ def write_stage_outputs(output, quarantined: list[Quarantined] | None = None, **
 
 
 def ok_scans(scans_table: str | Path | pl.DataFrame) -> pl.DataFrame:
-    """The rows of a ``scans`` stage table whose status is ``ok``, by scan id."""
+    """Return the rows of a ``scans`` stage table whose status is ``ok``, by scan id."""
     df = scans_table if isinstance(scans_table, pl.DataFrame) else pl.read_parquet(scans_table)
     return df.filter(pl.col("status") == "ok").sort("scan_id")
 
 
 def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame,
                 **where: str) -> list[tuple[dict, Path]]:
-    """The ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their
+    """Return the ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their
     folders.
     """
     df = ok_scans(scans_table)
@@ -96,7 +96,7 @@ def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.D
 
 
 def frames_or_empty(frames: list[pl.DataFrame]) -> pl.DataFrame:
-    """The non-empty frames stacked (columns united by name); an empty frame when there are none."""
+    """Return the non-empty frames stacked (columns united by name); an empty frame when there are none."""
     frames = [f for f in frames if f.height]
     return pl.concat(frames, how="diagonal_relaxed") if frames else pl.DataFrame()
 

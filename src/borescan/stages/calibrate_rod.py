@@ -80,7 +80,7 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
 
 
 def _night_rod_verifications(cal, rows: list[dict], night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
-    """The night's gauge verifications of the rod made with the new calibration (one row per layer,
+    """Return the night's gauge verifications of the rod made with the new calibration (one row per layer,
     :func:`borescan.rod_calibration.rod_verifications`) and their scan.json; a scan that cannot be
     measured is left out with a log line (the measure stage quarantines it).
     """

@@ -145,7 +145,7 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
 
 
 def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
-    """The night's ring-gauge verifications of the calibration's device, made with it
+    """Return the night's ring-gauge verifications of the calibration's device, made with it
     (:func:`borescan.measure.verification_for_certificate`): (rows, their scan.json). A scan that
     cannot be measured is left out with a log line (the measure stage quarantines it).
     """

@@ -28,7 +28,8 @@ __all__ = ["spindle_inputs", "scan_conditions", "acceptance_rule", "fit_device_c
 
 def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None,
                    cleaning: readings.CleaningPolicy | None = None) -> dict:
-    """Times, despiked readings, rotation angle model, positions, temperature and gauge of a spindle scan.
+    """Return times, despiked readings, rotation angle model, positions, temperature and gauge of a spindle
+    scan.
 
     ``uncertainty`` is the config's ``uncertainty`` section (schema defaults when None): the
     scan's temperature follows its ``missing_temperature`` policy
@@ -80,7 +81,7 @@ def scan_conditions(scan: rawio.RawScan, x: dict, summary: pl.DataFrame) -> dict
 
 
 def acceptance_rule(cal_cfg: dict) -> calibration.AcceptanceRule:
-    """The calibration section's acceptance settings as a :class:`calibration.AcceptanceRule`."""
+    """Return the calibration section's acceptance settings as a :class:`calibration.AcceptanceRule`."""
     return calibration.AcceptanceRule(
         max_residual_to_noise=float(cal_cfg["max_residual_to_noise"]), head_radius_mm=float(cal_cfg["head_radius_mm"]),
         position_accuracy_mm=float(cal_cfg["position_accuracy_mm"]),
@@ -189,7 +190,7 @@ def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, nig
 
 def budget_of(cal, scans, inputs: list[dict], uncertainty: dict, *, summary: pl.DataFrame | None = None,
               nominal: Beams | None = None, night: str | None = None, position_accuracy_mm: float | None = None) -> Budget:
-    """The GUM budget of a calibration from its scans
+    """Return the GUM budget of a calibration from its scans
     (:func:`borescan.calibration_budget.calibration_budget`);
     a ``yang2017`` one also needs the signal ``summary``, ``nominal``, ``night`` and
     ``position_accuracy_mm``.

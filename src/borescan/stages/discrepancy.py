@@ -25,7 +25,7 @@ __all__ = ["stage_discrepancy", "findings_rows", "discrepancy_one", "findings_ni
 
 
 def findings_night_dir(results_root, night: str) -> Path:
-    """The night's folder of per-scan findings (the rule's declared output)."""
+    """Return the night's folder of per-scan findings (the rule's declared output)."""
     return night_folder(results_root, "discrepancy", night)
 
 
@@ -37,7 +37,8 @@ def findings_dir(results_root, scan_id: str) -> Path:
 
 
 def findings_rows(findings: dict) -> list[dict]:
-    """The ``findings`` rows of one scan's findings.json: one per named effect (one row with null effect if
+    """Return the ``findings`` rows of one scan's findings.json: one per named effect (one row with null
+    effect if
     none).
     """
     base = {"scan_id": findings["scan_id"], "verdict": findings["verdict"],

@@ -182,7 +182,7 @@ def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root
 
 
 def _with_part(row: dict, meta: dict, feature, du, part: dict) -> dict:
-    """The diameter row with its part's nominal, tolerance (scan.json, else
+    """Return the diameter row with its part's nominal, tolerance (scan.json, else
     ``measurement.part_tolerance_mm``),
     deviation at 20 degC and verdict by the laboratory's decision rule
     (:func:`borescan.measure.part_conformity`).

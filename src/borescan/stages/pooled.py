@@ -46,7 +46,7 @@ def pooled_dir(results_root, night: str) -> Path:
 
 
 def pooled_rows(findings: dict, night: str, path: str) -> list[dict]:
-    """The ``pooled_findings`` rows of one device's findings: one per named entry and one per term
+    """Return the ``pooled_findings`` rows of one device's findings: one per named entry and one per term
     of the device model (``in_device_model``); one row with a null effect when there is neither.
     """
     absorbed = "; ".join(a["advice"] for a in findings.get("absorbed") or []) or None
@@ -67,7 +67,7 @@ def pooled_rows(findings: dict, night: str, path: str) -> list[dict]:
 
 
 def drift_rows(calibrations: pl.DataFrame, night: str, multiple: float, findings: dict[str, dict]) -> list[dict]:
-    """The ``calibration_drift`` rows of ``night`` (pairs whose later calibration is valid from
+    """Return the ``calibration_drift`` rows of ``night`` (pairs whose later calibration is valid from
     it), each flagged one explained by its device's pooled ``findings`` (device id -> findings).
     """
     drift = calibration_drift(calibrations, multiple).filter(pl.col("valid_from_after") == night)

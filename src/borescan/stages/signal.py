@@ -17,7 +17,7 @@ __all__ = ["signal_options", "stage_signal", "signal_one"]
 
 
 def signal_options(cfg: dict) -> dict:
-    """The config's ``signal`` section (schema defaults filled) as :func:`borescan.signal.process_scan`
+    """Return the config's ``signal`` section (schema defaults filled) as :func:`borescan.signal.process_scan`
     keywords.
     """
     method = cfg["filter"]
