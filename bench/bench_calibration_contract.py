@@ -345,6 +345,7 @@ def _subset(rows, **want):
 
 def print_table(  # noqa: C901 (one line per table of the bench's printout)
         rows: list[dict]) -> dict:
+    """Print the acceptance table of the rows; return :func:`summarize` of them."""
     s = summarize(rows)
     print(f"scans {s['scans']}   accepted {s['accepted']}   refused {s['refused']}")
     for reason, k in s["reasons"].most_common():
@@ -411,6 +412,7 @@ def print_table(  # noqa: C901 (one line per table of the bench's printout)
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Draw the battery, calibrate it and print the contract's table (options: ``--help``)."""
     p = argparse.ArgumentParser(prog="python -m bench.bench_calibration_contract", description=__doc__.splitlines()[0])
     p.add_argument("--n", type=int, default=N_SCANS, help=f"scans (default {N_SCANS})")
     p.add_argument("--seed", type=int, default=SEED, help=f"battery seed (default {SEED})")

@@ -35,6 +35,7 @@ def _best_of(fun, repeat: int = 3) -> tuple[float, object]:
 
 
 def main() -> None:
+    """Print the best-of times of the four circle fits and their RONt for growing point counts."""
     head = ("n", "LSCI s", "MZCI s", "MICI s", "MCCI s", "MIC cand", "RONt MZ/MI/MC um")
     print(f"{head[0]:>7} " + " ".join(f"{h:>8}" for h in head[1:5]) + f" {head[5]:>9} {head[6]:>20}")
     for n in (1000, 5000, 20000, 100000):

@@ -247,6 +247,7 @@ def _stats(items: list[dict]) -> dict:
 
 
 def summarize(rows: list[dict]) -> dict:
+    """Return the coverage figures of the chains' rows per quantity family."""
     acc = [r for r in rows if r.get("accepted")]
     groups: dict[str, list] = {}
     for r in acc:
@@ -262,6 +263,7 @@ def summarize(rows: list[dict]) -> dict:
 
 
 def print_table(rows: list[dict]) -> dict:
+    """Print the coverage table of the rows; return :func:`summarize` of them."""
     s = summarize(rows)
     print(f"chains {s['chains']}, calibrations accepted {s['accepted']}, parts measured {s['measured']}")
     for reason in s["refused"]:
@@ -285,6 +287,7 @@ def print_table(rows: list[dict]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Draw, calibrate and measure the chains and print the coverage table (options: ``--help``)."""
     ap = argparse.ArgumentParser(prog="python -m bench.bench_coverage", description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=N_CHAINS, help=f"chains (default {N_CHAINS})")
     ap.add_argument("--seed", type=int, default=SEED, help=f"seed (default {SEED})")

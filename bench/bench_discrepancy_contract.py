@@ -58,6 +58,7 @@ def lookalike(a: str, b: str, kind: str = "tri", strict: bool = False) -> bool:
 
 
 def score(verdict: str, named: list[str], truth: list[str], kind: str = "tri", strict: bool = False) -> bool:
+    """Return whether a verdict and its named effects are right for the scan's true effects."""
     if not truth:
         return verdict == "no_missing_effect"
     if verdict == "no_missing_effect":
@@ -199,6 +200,7 @@ def run_one(job: tuple) -> dict:
 
 
 def summarise(rows: list[dict]) -> str:
+    """Return the contract's summary lines for the rows."""
     lines = []
     eff = [r for r in rows if r["truth"]]
     free = [r for r in rows if r["effect_free"]]
@@ -244,6 +246,7 @@ def summarise(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Draw the scans, examine them and print the summary (options: ``--help``)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=60, help="three-sensor scans")
     ap.add_argument("--n-rod", type=int, default=None, help="rod scans (default n / 4)")

@@ -97,6 +97,7 @@ def add_night(results: Path, pool: Path, night: str) -> tuple[float, float, floa
 
 
 def main() -> None:
+    """Time the catalog's queries and the report on a synthetic history of many nights."""
     from borescan import catalog, report
     from borescan import synthetic_history as sh
 

@@ -148,6 +148,7 @@ def _verification(ver_scan, cal, cfg: dict) -> float | None:
 
 
 def run_one(job: tuple) -> dict:
+    """Run one closed loop (hidden effect, pooled finding, device model, calibration); return its row."""
     from borescan import rawio, simulate
     from borescan.config import schema_defaults
     from borescan.discrepancy.examine import discrepancy_settings
@@ -196,6 +197,7 @@ def run_one(job: tuple) -> dict:
 
 
 def summarise(rows: list[dict]) -> str:
+    """Return the table of the rows per hidden effect."""
     by = defaultdict(list)
     for r in rows:
         by[r["name"]].append(r)
@@ -233,6 +235,7 @@ def summarise(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Run the loops and print their table (options: ``--help``)."""
     from borescan.parallel import map_in_order
 
     ap = argparse.ArgumentParser(prog="python -m bench.bench_loop", description=__doc__.splitlines()[0])

@@ -92,6 +92,7 @@ def union_seconds(intervals: list[tuple[float, float]]) -> float:
 
 
 def main() -> None:
+    """Time the workflow on a generated reference night."""
     n_tri = int(os.environ.get("BENCH_PIPELINE_SCANS", "100"))
     n_rod = max(1, n_tri // 5)
     with tempfile.TemporaryDirectory() as tmp:

@@ -220,6 +220,7 @@ def label(n: dict) -> str:
 
 
 def truth_label(effect) -> str:
+    """Return the label of a hidden effect as the findings write it."""
     from borescan.discrepancy.battery import effect_label
 
     return effect_label(effect)
@@ -267,6 +268,7 @@ def correct(verdict: str, named: list[dict], absorbed: list[str] | None, effect,
 
 
 def expect_absorbed(name: str | None, design: str) -> bool:
+    """Return whether the base model absorbs the hidden effect ``name`` under ``design``."""
     if name == "sensor_offset":
         return True
     if name == "channel_delay":
@@ -278,6 +280,7 @@ def expect_absorbed(name: str | None, design: str) -> bool:
 
 
 def run_one(job: tuple) -> dict:
+    """Examine one scenario scan by scan and pooled; return its row."""
     from borescan.discrepancy.examine import analyse_scan, discrepancy_settings
     from borescan.discrepancy.pooled import examine_pooled, pooled_scan
 
@@ -339,6 +342,7 @@ def run_one(job: tuple) -> dict:
 
 
 def summarise(rows: list[dict]) -> str:
+    """Return the summary lines of the scenarios' rows."""
     lines = []
     eff = [r for r in rows if r["truth"] is not None]
     free = [r for r in rows if r["truth"] is None and r["verdict"] != "error"]
@@ -383,6 +387,7 @@ def summarise(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Run the scenarios and print the summary (options: ``--help``)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=40, help="scenarios")
     ap.add_argument("--seed", type=int, default=1)

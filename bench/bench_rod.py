@@ -24,6 +24,7 @@ SIG = 0.02 / np.sqrt(3)
 
 
 def scans(n_scans: int = 12, n_poses: int = 12, seed: int = 0):
+    """Yield ``n_scans`` noisy rod scans of ``n_poses`` random poses each."""
     rng = np.random.default_rng(seed)
     for _ in range(n_scans):
         alpha = np.sort(rng.uniform(0, 2 * np.pi, n_poses))
@@ -32,6 +33,7 @@ def scans(n_scans: int = 12, n_poses: int = 12, seed: int = 0):
 
 
 def main() -> None:
+    """Print the errors and times of the rod solver on the scans."""
     err_a, err_p, t_a, t_p = [], [], [], []
     for k, v in enumerate(scans()):
         t0 = time.perf_counter()

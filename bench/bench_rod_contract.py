@@ -51,6 +51,7 @@ def evaluate(scan: dict) -> dict:
 
 
 def run_contract(n_scans: int = 240, seed: int = 2017) -> dict:
+    """Solve ``n_scans`` effect-free rod scans; return their z scores, CRB ratios and refusals."""
     rng = np.random.default_rng(seed)
     z, ucrb, wrong, refused, t = [], [], 0, Counter(), time.perf_counter()
     for _ in range(n_scans):
@@ -89,6 +90,7 @@ def run_discrepancy(n_scans: int = 20, seed: int = 7) -> Counter:
 
 
 def main() -> None:
+    """Run the rod contract and print its figures."""
     res = run_contract()
     z = res["z"]
     print(f"effect-free rod scans: {res['n']} drawn, {res['solved']} solved, {res['n'] - res['solved']} "

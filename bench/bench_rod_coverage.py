@@ -157,6 +157,7 @@ def run_chain(job) -> dict:
 
 
 def main(argv=None) -> int:
+    """Run the rod chains and print the coverage table (options: ``--help``); return 0."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--n", type=int, default=N_CHAINS, help="chains (default %(default)s)")
     ap.add_argument("--seed", type=int, default=SEED)

@@ -98,6 +98,7 @@ def _best(fn, repeats: int = 5) -> float:
 
 
 def main() -> dict:
+    """Time the signal stage on one written scan; return the timings."""
     with tempfile.TemporaryDirectory() as tmp:
         raw = Path(tmp) / "raw"
         folder, rows = _write_scan(raw)

@@ -91,6 +91,7 @@ class Circle:
 
     @property
     def diameter_mm(self) -> float:
+        """Diameter [mm], twice the radius."""
         return 2.0 * self.radius_mm
 
     @property

@@ -54,6 +54,7 @@ class DeviceEffect:
 
     @property
     def estimated(self) -> bool:
+        """Whether the entry carries an estimate (an effect with values)."""
         return bool(self.effects)
 
     def values(self) -> dict[str, float]:
@@ -63,6 +64,7 @@ class DeviceEffect:
         return {k: float(v) for k, v in self.effects[0].params.items() if k not in ("channel", "k")}
 
     def to_dict(self) -> dict:
+        """Return the entry as JSON-ready data (:meth:`from_dict` reads it back)."""
         return {"key": self.key, "effect": self.key.split("@")[0], "estimated": self.estimated,
                 "values": self.values(), "u": {k: float(v) for k, v in self.u.items()}, "night": self.night,
                 "evidence_scans": list(self.evidence_scans), "effects": [e.to_dict() for e in self.effects],
@@ -70,6 +72,7 @@ class DeviceEffect:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "DeviceEffect":
+        """Return the entry written by :meth:`to_dict`."""
         return cls(d["key"], tuple(Effect.from_dict(e) for e in d.get("effects") or ()), dict(d.get("u") or {}),
                    d.get("night"), tuple(d.get("evidence_scans") or ()), d.get("source", "config"))
 

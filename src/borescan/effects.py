@@ -239,10 +239,12 @@ class Effect:
 
     @property
     def spec(self) -> EffectSpec:
+        """The effect's registry entry."""
         return EFFECTS[self.name]
 
     @property
     def channel(self) -> int | None:
+        """The channel the effect applies to, or None for all."""
         return self.params.get("channel")
 
     def to_dict(self) -> dict:
@@ -251,6 +253,7 @@ class Effect:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "Effect":
+        """Return the effect written by :meth:`to_dict`."""
         return cls(d["name"], dict(d["params"]))
 
     def __str__(self) -> str:
@@ -578,10 +581,12 @@ def parse_effect(text: str) -> Effect:
 
 
 def effects_to_dicts(effects: Iterable[Effect]) -> list[dict]:
+    """Return the effects as JSON-ready data (:func:`effects_from_dicts` reads them back)."""
     return [e.to_dict() for e in effects]
 
 
 def effects_from_dicts(items: Iterable[Mapping]) -> list[Effect]:
+    """Return the effects written by :func:`effects_to_dicts`."""
     return [Effect.from_dict(d) for d in items]
 
 

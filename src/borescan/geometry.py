@@ -118,6 +118,7 @@ class Bore:
 
     @property
     def is_circle(self) -> bool:
+        """Whether the bore is a circle (no tilt, no lobes)."""
         return self.tilt_rad == 0.0 and not any(a != 0.0 for _, a, _ in self.lobes)
 
 

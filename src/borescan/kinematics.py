@@ -158,6 +158,7 @@ class AngleModel:
         return float((self.commanded_rad(self.knot_t_s[-1]) - self.commanded_rad(self.knot_t_s[0])) / span)
 
     def describe(self) -> str:
+        """Return a sentence saying where the angle comes from."""
         return {"encoder": "encoder angle interpolated at each reading (absolute frame)",
                 "profile": "integral of the rpm profile, phase and speed scale fitted",
                 "nominal": "rpm_nominal * t, phase and speed scale fitted"}[self.source]

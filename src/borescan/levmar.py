@@ -58,6 +58,7 @@ class LMResult:
 
     @property
     def success(self) -> bool:
+        """Whether the iteration converged (a positive status)."""
         return self.status > 0
 
 

@@ -281,6 +281,7 @@ class DiameterModel:
     _circles: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __call__(self, beams: Beams, offsets_mm=None) -> float:
+        """Return the diameter [mm] with ``beams`` and readings moved by ``offsets_mm``."""
         v = self.readings_mm if offsets_mm is None else self.readings_mm + np.asarray(offsets_mm, float)
         if self.kind == "static":
             return float(np.mean(static_diameter(v, beams).diameter_mm))
@@ -593,10 +594,12 @@ class DiameterUncertainty:
 
     @property
     def rows_20(self) -> list[dict]:
+        """Budget rows of the diameter at 20 degC."""
         return self.budget.rows(1)
 
     @property
     def rows_t(self) -> list[dict]:
+        """Budget rows of the diameter at the measuring temperature."""
         return self.budget.rows(0)
 
     def columns(self) -> dict:

@@ -79,6 +79,7 @@ class TriBase:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """The beams' channels."""
         return self.beams.channels
 
 

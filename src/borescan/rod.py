@@ -134,10 +134,12 @@ class RodSolution:
 
     @property
     def diameter_mm(self) -> np.ndarray:
+        """Diameters [mm] of the holes."""
         return 2.0 * self.radius_mm
 
     @property
     def u_diameter_mm(self) -> np.ndarray:
+        """Standard uncertainties [mm] of the diameters."""
         return 2.0 * self.u_radius_mm
 
 

@@ -77,10 +77,12 @@ class RodCalibration:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """The layers' channels."""
         return tuple(int(lay.channel) for lay in self.layers)
 
     @property
     def l0_mm(self) -> np.ndarray:
+        """Base lengths l0 [mm] of the layers."""
         return np.array([lay.l0_mm for lay in self.layers], dtype=float)
 
 

@@ -165,6 +165,7 @@ class TriScene:
         return Bore(tuple(map(float, self.bore_center_xy_mm)), float(self.bore_radius_20_mm))
 
     def to_dict(self) -> dict:
+        """Return the scene as JSON-ready data (:meth:`from_dict` reads it back)."""
         return {
             "beams": self.beams.to_nominal(),
             "bore_center_xy_mm": list(map(float, self.bore_center_xy_mm)),
@@ -222,9 +223,11 @@ class RodScene:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """The layers' channels."""
         return tuple(int(lay.channel) for lay in self.layers)
 
     def to_dict(self) -> dict:
+        """Return the scene as JSON-ready data."""
         return {
             "layers": [layer_dict(lay) for lay in self.layers],
             "holes": [{"center_xy_mm": list(h.center_xy_mm), "radius_mm": h.radius_mm} for h in self.holes],
@@ -439,6 +442,7 @@ class SimulatedScan:
 
     @property
     def scan_id(self) -> str:
+        """The scan's id."""
         return self.meta["scan_id"]
 
 

@@ -315,6 +315,7 @@ class Input:
             raise ValueError(f"{self.key}: standard uncertainty must be >= 0, got {self.u}")
 
     def to_dict(self) -> dict:
+        """Return the input as JSON-ready data (:meth:`from_dict` reads it back)."""
         return {"key": self.key, "quantity": self.quantity, "symbol": self.symbol, "unit": self.unit,
                 "estimate": self.estimate, "standard_uncertainty": self.u, "distribution": self.distribution,
                 "degrees_of_freedom": None if not np.isfinite(self.dof) else float(self.dof), "type": self.type,
@@ -322,6 +323,7 @@ class Input:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Input":
+        """Return the input written by :meth:`to_dict`."""
         dof = d.get("degrees_of_freedom")
         return cls(d["key"], d["quantity"], d["symbol"], d["unit"], d.get("estimate"), float(d["standard_uncertainty"]),
                    d["distribution"], float("inf") if dof is None else float(dof), d.get("type", "B"),
@@ -364,6 +366,7 @@ class Term:
 
     @property
     def m(self) -> int:
+        """Number of outputs the term reaches."""
         return int(self.sensitivity.size if self.sensitivity is not None else self.cov.shape[0])
 
     def covariance(self) -> np.ndarray:
@@ -389,12 +392,14 @@ class Term:
         return replace(self, cov=A @ self.cov @ A.T)
 
     def to_dict(self) -> dict:
+        """Return the term as JSON-ready data (:meth:`from_dict` reads it back)."""
         return {"input": self.input.to_dict(),
                 "sensitivity": None if self.sensitivity is None else self.sensitivity.tolist(),
                 "cov": None if self.cov is None else self.cov.tolist(), "note": self.note}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Term":
+        """Return the term written by :meth:`to_dict`."""
         return cls(Input.from_dict(d["input"]), _array(d.get("sensitivity")), _array(d.get("cov")), d.get("note", ""))
 
 
@@ -419,6 +424,7 @@ class Combined:
     dominant: str = ""
 
     def to_dict(self) -> dict:
+        """Return the combined uncertainty as JSON-ready data."""
         return {"standard_uncertainty": self.u,
                 "effective_degrees_of_freedom": None if not np.isfinite(self.nu_eff) else self.nu_eff,
                 "coverage_probability": self.p, "coverage_factor_guf": self.k_guf,
@@ -481,9 +487,11 @@ class Budget:
 
     @property
     def m(self) -> int:
+        """Number of outputs."""
         return len(self.outputs)
 
     def add(self, term: Term) -> "Budget":
+        """Return the budget with ``term`` added (its outputs must be the budget's)."""
         if term.m != self.m:
             raise ValueError(f"term {term.input.key} has {term.m} outputs, the budget {self.m}")
         self.terms.append(term)
@@ -555,11 +563,13 @@ class Budget:
         return j
 
     def to_dict(self) -> dict:
+        """Return the budget as JSON-ready data (:meth:`from_dict` reads it back)."""
         return {"outputs": list(self.outputs), "units": list(self.units), "estimates": self.estimates.tolist(),
                 "terms": [t.to_dict() for t in self.terms]}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Budget":
+        """Return the budget written by :meth:`to_dict`."""
         return cls(tuple(d["outputs"]), tuple(d["units"]), np.array(d["estimates"], dtype=float),
                    [Term.from_dict(t) for t in d["terms"]])
 

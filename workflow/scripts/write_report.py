@@ -7,6 +7,7 @@ from borescan.workflow_log import log_to, rule_job
 
 
 def main(smk) -> None:
+    """Run the rule's stage with Snakemake's ``smk`` (inputs, outputs, params, log)."""
     with log_to(smk.log[0]) as log:
         update = report.update_report(smk.params.results_root)
         log(f"{len(update.months)} month(s); pages written: {', '.join(update.rendered) or 'none'}; "

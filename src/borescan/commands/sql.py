@@ -23,6 +23,7 @@ HELP = "run SQL on the history catalog (results/catalog.duckdb), read-only"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
     parser.add_argument("query", nargs="?", help='SQL text, e.g. "SELECT * FROM scans"')
     parser.add_argument("--results", default="results",
                         help="results folder holding catalog.duckdb, relative or absolute (default: results)")
@@ -186,6 +187,7 @@ def _catalog_views(results: str) -> set[str]:
 
 def run(  # noqa: C901 (one branch per option of the sql command)
         args: argparse.Namespace) -> int:
+    """Run a query (given or saved) on the catalog, or list the saved ones; return the exit status."""
     import duckdb
 
     from borescan import catalog

@@ -25,6 +25,7 @@ VALID, EXPIRED, FAILED, NONE = "valid", "expired", "failed verification", "no ca
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
     parser.add_argument("--results", default="results",
                         help="results folder holding catalog.duckdb, relative or absolute (default: results)")
     parser.add_argument("--as-of", type=night_date, default=None, metavar="YYYY-MM-DD",
@@ -176,6 +177,7 @@ def format_status(status: list[dict], as_of: str, validity_days: int, source: st
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print each device's calibration status as of a date; return the exit status."""
     as_of = args.as_of or _dt.datetime.now(_dt.timezone.utc).date().isoformat()
     validity_days, source = _validity_days(args)
     try:

@@ -15,6 +15,7 @@ HELP = "show the chain behind a diameter, scan, part, calibration or certificate
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
     parser.add_argument("id", help="diameter id (SCAN/FEATURE), scan id, part id, calibration id or certificate "
                                    "path (relative to the current folder or the results folder, or absolute)")
     parser.add_argument("--results", default="results",
@@ -49,6 +50,7 @@ def _zoned(node: object) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print the chain from an id down to the raw files; return the exit status."""
     from borescan import trace as _trace
 
     ident = _ident(args.id, args.results)

@@ -204,6 +204,7 @@ class BatteryResult:
 
     @property
     def accuracy(self) -> float:
+        """Share of scans whose verdict is correct (NaN for no scans)."""
         return float(np.mean([r["correct"] for r in self.rows])) if self.rows else float("nan")
 
     @property
@@ -215,11 +216,13 @@ class BatteryResult:
 
     @property
     def false_alarm_rate(self) -> float:
+        """Share of effect-free scans given a missing effect (NaN for none)."""
         free = [r for r in self.rows if not r["truth"]]
         return float(np.mean([r["verdict"] != "no_missing_effect" for r in free])) if free else float("nan")
 
     @property
     def median_shrink(self) -> float:
+        """Median ratio of the gap before to the gap after, over scans with an effect."""
         s = [r["gap_before_mm"] / r["gap_after_mm"] for r in self.rows if r["truth"] and r["gap_after_mm"]]
         return float(np.median(s)) if s else float("nan")
 

@@ -109,6 +109,7 @@ class PooledScan:
 
     @property
     def scan_id(self) -> str:
+        """The scan's id."""
         return self.data.scan_id
 
 
@@ -147,13 +148,16 @@ class PooledTerm(Term):
 
     @property
     def key(self) -> str:
+        """The term's key, with ``#group`` for a term of one group of scans."""
         k = super().key
         return k if self.group is None else f"{k}#{self.group}"
 
     def names(self) -> list[str]:
+        """Return the term's parameter names, then one turn per scan of ``turns``."""
         return super().names() + [f"{self.key}.turn@{sid}" for sid in self.turns]
 
     def scales(self) -> list[float]:
+        """Return the typical sizes of :meth:`names`' parameters."""
         return super().scales() + [1e-2] * len(self.turns)
 
 
@@ -351,12 +355,14 @@ class PooledModel:
         return [n for t in self.device_terms for n in t.names()]
 
     def base_names(self) -> list[str]:
+        """Return the base model's parameter names: shared, device terms, then per scan."""
         out = self._shared_names() + self._device_term_names()
         for k, sid in enumerate(self.scan_ids):
             out += [f"{sid}:{n}" for n in self._nuisance(k)]
         return out
 
     def base_scales(self) -> list[float]:
+        """Return the typical sizes of :meth:`base_names`' parameters."""
         dev = dict(zip(self._device_term_names(), [s for t in self.device_terms for s in t.scales()]))
         return [dev[n] if n in dev else BASE_SCALE[n.rsplit(":", 1)[-1].split("[")[0]] for n in self.base_names()]
 
@@ -519,6 +525,7 @@ class PooledModel:
     # ------------------------------------------------------------------ engine interface
     @property
     def base_description(self) -> str:
+        """Return a sentence saying what the base model fits."""
         return (f"{len(self.scans)} scans of one device: beams ({', '.join(self.free_beams)}) shared and "
                 "free from "
                 "the start geometry; per scan bore centre, phase (moving spindle), radius (uncertified "
@@ -526,6 +533,7 @@ class PooledModel:
 
     @property
     def rev_hz(self) -> float:
+        """Revolution frequency [Hz] of the first scan."""
         return self.models[0].rev_hz
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
@@ -547,6 +555,7 @@ class PooledModel:
         return pooled
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
+        """Return the spike mask of the residuals ``r``, scan by scan with each scan's noise level."""
         return np.vstack([spike_mask(r[self._rows(k)], self.scan_sigma[k], k_sigma=k_sigma)
                           for k in range(len(self.scans))])
 
@@ -800,6 +809,7 @@ class PooledModel:
         return par, unc
 
     def plot_angle(self) -> np.ndarray:
+        """Return the plotting angle [rad] of every sample, the scans one after the other."""
         return np.concatenate([m.plot_angle() for m in self.models])
 
     def beams_at(self, p: dict[str, float]) -> Beams:

@@ -203,6 +203,7 @@ class RodModel(_PoseModel):
         self.n_pose = len(data.poses)
 
     def base_names(self):
+        """Return the base model's parameter names (per layer, per pose, the deflection)."""
         m = len(self.data.channels)
         return (
             [f"alpha[{k}]" for k in range(1, self.n_pose)]
@@ -256,6 +257,7 @@ class RodModel(_PoseModel):
         return out
 
     def base_summary(self, p):
+        """Return the base fit's geometry at ``p`` (pose angles, deflection); keep the angles to plot."""
         alpha = np.array([0.0] + [p[f"alpha[{k}]"] for k in range(1, self.n_pose)])
         self._last = np.mod(alpha[self.data.pose_index], 2 * np.pi)
         m = len(self.data.channels)
@@ -267,6 +269,7 @@ class RodModel(_PoseModel):
                 "pose_angle_rad": [float(a) for a in alpha]}
 
     def predict(self, p, terms):
+        """Return the readings [mm] the base model with ``terms`` predicts at ``p``."""
         d = self.data
         by: dict[str, list[Term]] = {}
         for t in terms:
@@ -345,6 +348,7 @@ class StaticModel(_PoseModel):
         self.n_pose = len(data.poses)
 
     def base_names(self):
+        """Return the base model's parameter names (device position per pose, radius change)."""
         names = [f"sx[{k}]" for k in range(self.n_pose)] + [f"sy[{k}]" for k in range(self.n_pose)]
         return names + (["dR"] if self.radius_free else [])
 
@@ -365,11 +369,13 @@ class StaticModel(_PoseModel):
         return out
 
     def base_summary(self, p):
+        """Return the base fit's device positions at ``p``."""
         self._last = np.zeros(self.data.t_s.size)
         return {"device_xy_mm": [[float(p[f"sx[{k}]"]), float(p[f"sy[{k}]"])] for k in range(self.n_pose)],
                 "radius_mm": float(self.R + p.get("dR", 0.0)), "radius_free": bool(self.radius_free)}
 
     def predict(self, p, terms):
+        """Return the readings [mm] the base model with ``terms`` predicts at ``p``."""
         d = self.data
         by: dict[str, list[Term]] = {}
         for t in terms:
@@ -389,4 +395,5 @@ class StaticModel(_PoseModel):
                               k_max=k_max, freed={"R": "shared" if self.radius_free else set()})
 
     def extra_starts(self, screen, keys, t1):
+        """Return no extra starts (the linear screen's start is enough for static scans)."""
         return []

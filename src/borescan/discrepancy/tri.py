@@ -71,6 +71,7 @@ class Term:
 
     @property
     def key(self) -> str:
+        """The term's key: the effect, ``@channel`` and ``k`` where they apply."""
         s = self.effect
         if self.channel is not None:
             s += "@" + ("all" if self.channel == 0 else str(self.channel))
@@ -118,6 +119,7 @@ class TriData:
 
     @property
     def rev_hz(self) -> float:
+        """Revolution frequency [Hz]."""
         return self.omega_rad_s / (2.0 * np.pi)
 
     @property
@@ -350,6 +352,7 @@ class TriModel:
 
     # ------------------------------------------------------------------ helpers
     def base_names(self) -> list[str]:
+        """Return the base model's parameter names (centre, phase, beams, device terms)."""
         c = len(self.data.channels)
         names = ["cx", "cy"] + (["phase"] if self.data.free_phase else [])
         names += ["dR"] if self.data.radius_free else []
@@ -369,13 +372,16 @@ class TriModel:
 
     @property
     def rev_hz(self) -> float:
+        """Revolution frequency [Hz] of the scan."""
         return self.data.rev_hz
 
     def base_scales(self) -> list[float]:
+        """Return the typical sizes of :meth:`base_names`' parameters."""
         own = dict(zip((n for t in self.device_terms for n in t.names()), (s for t in self.device_terms for s in t.scales())))
         return [own.get(n, BASE_SCALE.get(n.split("[")[0], 1e-3)) for n in self.base_names()]
 
     def base_start(self) -> dict[str, float]:
+        """Return the base fit's start (centre from the readings, device terms' own starts)."""
         C0 = self.initial_center()
         out = {"cx": float(C0[0]), "cy": float(C0[1]), **self._device_start}
         if self.data.free_phase:
@@ -383,6 +389,7 @@ class TriModel:
         return out
 
     def base_summary(self, p: dict[str, float]) -> dict:
+        """Return the base fit's geometry at ``p`` (centre, radius, beams)."""
         out = {"center_xy_mm": [float(p["cx"]), float(p["cy"])],
                "radius_mm": float(self.data.radius_mm + p.get("dR", 0.0)),
                "radius_free": bool(self.data.radius_free)}
@@ -398,15 +405,19 @@ class TriModel:
         return out
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
+        """Return the noise floor [mm] of the residuals ``r`` per channel."""
         return noise_floor_mm(r)
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
+        """Return the mask of residuals further than ``k_sigma`` noise levels out."""
         return spike_mask(r, sigma, k_sigma=k_sigma)
 
     def localise(self, r: np.ndarray, sigma: np.ndarray) -> dict:
+        """Return where in the scan the residuals ``r`` concentrate."""
         return _localise(self, r, sigma)
 
     def vibration_f(self, r: np.ndarray) -> float | None:
+        """Return the frequency [Hz] of the residuals' vibration peak, or None."""
         return _vibration_peak(self, r)[0]
 
     def candidate_terms(self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[Term]:
@@ -445,9 +456,11 @@ class TriModel:
         return out
 
     def term_parameters(self, term: Term, x: dict, u: dict) -> tuple[dict, dict]:
+        """Return a term's parameters and their uncertainties from the fit's ``x`` and ``u``."""
         return term_parameters(term, x, u, self.data)
 
     def plot_angle(self) -> np.ndarray:
+        """Return the spindle angle [rad] of every sample, for the plots."""
         d = self.data
         return np.mod(d.phase_rad + d.direction * d.turned_rad(d.t_s), 2 * np.pi)
 
