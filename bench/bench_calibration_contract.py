@@ -175,7 +175,8 @@ def crb_cov(  # noqa: C901 (one block per parameter kind of the CRB's Jacobian)
 
 def fitted_readings(cal, scan, t_s: np.ndarray, R_mm: float) -> np.ndarray:
     """Return readings (n, c) of the accepted fit: its beams, offset, and angle (encoder, or phase + scale
-    Phi)."""
+    Phi).
+    """
     from borescan import kinematics
     from borescan.geometry import Bore, tri_spindle_readings
 

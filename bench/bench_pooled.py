@@ -236,7 +236,8 @@ def _like(a: str, b: str) -> bool:
 
 def value_ok(entry: dict | None, effect) -> bool:
     """Return the named value of the hidden effect's magnitude within max(3 u, 20 %) of the truth (sign
-    included)."""
+    included).
+    """
     from borescan.discrepancy.battery import MAGNITUDE
 
     if entry is None or effect is None or effect.name not in MAGNITUDE:

@@ -348,7 +348,8 @@ def test_uncertainties_are_honest_over_200_calibrations():
 
 def _twin_scan(scene, *, encoder, n_rev=20, seed=0, effects=(), noise_mm=0.003, spindle_stream=True):
     """Return a scan drawn by the digital twin, reduced to what the fit reads (times, readings, angle
-    model)."""
+    model).
+    """
     import polars as pl
 
     from borescan import kinematics, simulate

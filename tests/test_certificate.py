@@ -23,7 +23,8 @@ LAB = {"name": "Metrology Lab Example GmbH", "address": "Example Street 1, 12345
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
     """Return a simulated calibration scan through the pipeline's own path: fit, GUM budget, certificate
-    inputs."""
+    inputs.
+    """
     from borescan import rawio, simulate
     from borescan.stages.calibration_fit import calibrate_raw_scans, spindle_inputs
     from borescan.certificate import certificate_dates

@@ -106,7 +106,8 @@ def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], dev
 def calibration_rows(cal: TriCalibration, device_type: str, night: str, certificate_path: str | None,
                      raw_sha256: str) -> list[dict]:
     """Return the ``calibrations`` rows of a three-sensor calibration: one per channel, valid from
-    ``night``."""
+    ``night``.
+    """
     rows = []
     u_beta, u_rho, u_db = cal.u_beta_rad, cal.u_rho_mm, cal.u_d_b_mm
     cal_json = json.dumps(cal.to_dict(), sort_keys=True)

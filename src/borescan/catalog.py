@@ -613,7 +613,8 @@ def _discard(tmp: Path) -> None:
 
 def _drop_views(con: duckdb.DuckDBPyConnection) -> None:
     """Drop the views: they bind their columns, so out of the way while tables change (created again at the
-    end)."""
+    end).
+    """
     for (view,) in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'"
                                ).fetchall():
         con.execute(f"DROP VIEW {_q(view)}")

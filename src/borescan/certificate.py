@@ -1078,7 +1078,8 @@ def _input_cells(r: dict, dash_zero_u: bool) -> list[str]:
 
 def _sum_row(label: str, value_mm: float, dof: str = "") -> list[str]:
     """Return a summary line of a budget table: ``label``, ``dof`` in the nu_i column, ``value_mm`` [mm] in
-    um."""
+    um.
+    """
     return [label, "", "", "", dof, "", f"{1e3 * value_mm:.3g}"]
 
 

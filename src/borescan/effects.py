@@ -561,7 +561,8 @@ _ORDER = {name: i for i, name in enumerate(EFFECTS)}
 
 def get_effect(name: str) -> EffectSpec:
     """Return the :class:`EffectSpec` of ``name``; unknown names raise ``ValueError`` listing the valid
-    ones."""
+    ones.
+    """
     try:
         return EFFECTS[name]
     except KeyError:

@@ -64,7 +64,8 @@ class LMResult:
 
 def qr_of_stacked(J: np.ndarray, f: np.ndarray) -> np.ndarray:
     """Return the (n+1) x (n+1) triangular factor of [J f] (LAPACK ``geqrf``): R of J, Q^T f and
-    |residual|."""
+    |residual|.
+    """
     m, n = J.shape
     A = np.empty((m, n + 1), order="F")
     A[:, :n] = J

@@ -227,7 +227,7 @@ def sha256_file(path: Path) -> str:
 
 
 def combined_sha256(file_hashes: dict[str, str]) -> str:
-    """One digest for a scan: SHA-256 over the sorted ``"name:sha256\\n"`` lines of its raw files."""
+    r"""One digest for a scan: SHA-256 over the sorted ``"name:sha256\n"`` lines of its raw files."""
     lines = "".join(f"{name}:{digest}\n" for name, digest in sorted(file_hashes.items()))
     return hashlib.sha256(lines.encode()).hexdigest()
 

@@ -755,7 +755,8 @@ def _safe(name: str) -> str:
 @functools.lru_cache(maxsize=1)
 def _code_fingerprint() -> str:
     """Return the digest of this module's source and the plotting libraries (a change re-renders every
-    page)."""
+    page).
+    """
     import matplotlib
 
     h = hashlib.sha256(Path(__file__).read_bytes())
@@ -1509,7 +1510,8 @@ def _carried_by_calibrations(cal: pl.DataFrame | None) -> dict[tuple[str, str], 
 
 def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -> str:
     """Return a finding's parameters (JSON text of the findings table) in words:
-    ``tau_s = 1.200 ± 0.030 ms``."""
+    ``tau_s = 1.200 ± 0.030 ms``.
+    """
     if not parameters:
         return ""
     try:

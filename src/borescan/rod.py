@@ -150,7 +150,7 @@ def _unpack(p, m, n, fix):
 
 
 def rod_residuals(p, L, mask, fix=0):
-    """Residuals e_nm (Wang Eq. 16) of the observed entries, parameter order [r, x, y, alpha\\fix].
+    r"""Residuals e_nm (Wang Eq. 16) of the observed entries, parameter order [r, x, y, alpha\fix].
 
     L : (n, m) l = l0 + v [mm] (any value where ``mask`` is False).
     """
@@ -206,7 +206,7 @@ def _ellipse_angles(Q: np.ndarray) -> np.ndarray | None:
 
 
 def rod_start(L: np.ndarray, mask: np.ndarray, fix: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Start values [r, x, y, alpha\\fix] from the rank-2 structure of the readings (module doc).
+    r"""Start values [r, x, y, alpha\fix] from the rank-2 structure of the readings (module doc).
 
     Returns
     -------
@@ -323,7 +323,7 @@ def rod_section_geometry(layers: Sequence[RodLayer], center_xy_mm, radius_mm, de
 
 
 class _RodProblem:
-    """Exact forward model in the solver's unknowns p = [rho (m), cx (m), cy (m), alpha\\fix (n-1), w (2)].
+    r"""Exact forward model in the solver's unknowns p = [rho (m), cx (m), cy (m), alpha\fix (n-1), w (2)].
 
     rho_m = r_m k(omega^2) is the mean radius of section m; w the deflection vector (omitted when
     ``deflection`` is False). Readings from :func:`borescan.geometry.rod_readings` only.
@@ -606,7 +606,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     max_deflection_rad: float = MAX_DEFLECTION_RAD,
     centred: str = "refuse",
 ) -> RodSolution:
-    """Solve the exact rod model (spec "Measuring rod"; Wang 2017 Eq. 16 generalised) jointly.
+    r"""Solve the exact rod model (spec "Measuring rod"; Wang 2017 Eq. 16 generalised) jointly.
 
     Parameters
     ----------
@@ -633,7 +633,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
 
     Returns
     -------
-    RodSolution (covariance sigma^2 (J^T J)^-1 in [rho, cx, cy, alpha\\fix, beta]; u(diameter) = 2 u(r))
+    RodSolution (covariance sigma^2 (J^T J)^-1 in [rho, cx, cy, alpha\fix, beta]; u(diameter) = 2 u(r))
 
     Raises
     ------
@@ -782,10 +782,10 @@ def rod_cost_mm2(readings_mm, alpha_rad, layers, holes, axis) -> float:
 def rod_crb(alpha_rad, l_mm=None, xy_mm=None, radius_mm=None, sigma_mm: float | None = None, fix_pose: int = 0, *,
             layers: Sequence[RodLayer] | None = None, holes: Sequence[Hole] | None = None, axis: RodAxis | None = None,
             deflection: bool = True) -> np.ndarray:
-    """Cramér-Rao bound on the radii for Gaussian reading noise sigma.
+    r"""Cramér-Rao bound on the radii for Gaussian reading noise sigma.
 
     Exact model (``layers``, ``holes``, ``axis`` given): Fisher information sigma^-2 J^T J of the
-    readings in the solver's unknowns [rho, cx, cy, alpha\\fix, beta] at the truth, then
+    readings in the solver's unknowns [rho, cx, cy, alpha\fix, beta] at the truth, then
     r = rho / k(|beta|) by the delta method along the true beta direction (the bound of the
     deflection-free unknowns with ``deflection=False``). The bound is the same in any
     parameterisation and tends to a finite limit as omega -> 0.
@@ -849,9 +849,9 @@ def solve_rod_pso(
     c_cognitive: float = 1.49618,
     c_social: float = 1.49618,
 ) -> RodSolution:
-    """Global-best particle swarm on Wang Eq. 16 (the paper's solver; benchmark baseline only).
+    r"""Global-best particle swarm on Wang Eq. 16 (the paper's solver; benchmark baseline only).
 
-    Minimises sum e_nm^2 over [r, x, y, alpha\\0] in the box r in [min l - 1, max l + 1],
+    Minimises sum e_nm^2 over [r, x, y, alpha\0] in the box r in [min l - 1, max l + 1],
     |x|, |y| <= ``xy_bound_mm``, alpha in [-pi, pi]; Clerc-Kennedy constriction weights;
     vectorised over particles. No covariance (u = NaN).
     """

@@ -224,7 +224,8 @@ def layer_jacobian(channels, channel: int) -> np.ndarray:
 def rod_calibration_rows(cal: RodCalibration, night: str, certificate_path: str | None, raw_sha256: str,
                          p: float) -> list[dict]:
     """Return the ``calibrations`` rows of a rod calibration (one per layer; l0 with its standard uncertainty
-    u)."""
+    u).
+    """
     blob = json.dumps(_to_dict(cal), sort_keys=True, allow_nan=False)
     rows = []
     for j, lay in enumerate(cal.layers):

@@ -642,7 +642,7 @@ def monte_carlo(model: Callable[[dict[str, np.ndarray]], np.ndarray], inputs: Ma
 
 
 def s1_validate(y: float, U: float, u: float, mc: MonteCarloResult, n_dig: int = 2) -> tuple[bool, float, float, float]:
-    """GUM S1 §8: is the GUF interval y +- U validated by the Monte Carlo interval?
+    """Validate the GUF interval y +- U by the Monte Carlo interval (GUM S1 §8).
 
     d_low = |y - U - y_low|, d_high = |y + U - y_high|; validated when both are at most the
     numerical tolerance delta of u at ``n_dig`` significant digits (:func:`numerical_tolerance`).

@@ -107,7 +107,8 @@ def rate_mismatch(sample: np.ndarray, t_s: np.ndarray, sample_rate_hz: float) ->
 
 def clock_problem(scan: rawio.RawScan) -> str | None:
     """Return the sample-clock problem of a spindle scan (rate, then jumps); None when fine or not a spindle
-    scan."""
+    scan.
+    """
     if scan.spindle is None:
         return None
     mat = rawio.lds_matrix(scan)

@@ -923,7 +923,8 @@ def _chi2_by_scan(model: PooledModel, r_mm: np.ndarray) -> np.ndarray:
 
 def _carriers(model: PooledModel, gain: np.ndarray, ks: Sequence[int] | None = None) -> list[str]:
     """Return the fewest scans (largest chi-square decrease first) holding :data:`CARRIER_SHARE` of the
-    decrease."""
+    decrease.
+    """
     ks = list(range(len(model.scans))) if ks is None else list(ks)
     pos = [(float(gain[k]), k) for k in ks if gain[k] > 0]
     pos.sort(reverse=True)
