@@ -54,7 +54,9 @@ FAMILIES = ("beta", "rho", "d_b")
 
 
 def default_calibration_config() -> dict:
-    """``calibration`` section of config/config.yaml validated against the workflow schema (defaults
+    """Return the config's ``calibration`` section validated against the schema.
+
+    ``calibration`` section of config/config.yaml validated against the workflow schema (defaults
     filled).
     """
     import yaml
@@ -174,7 +176,9 @@ def crb_cov(  # noqa: C901 (one block per parameter kind of the CRB's Jacobian)
 
 
 def fitted_readings(cal, scan, t_s: np.ndarray, R_mm: float) -> np.ndarray:
-    """Return readings (n, c) of the accepted fit: its beams, offset, and angle (encoder, or phase + scale
+    """Return the readings (n, c) of the accepted fit.
+
+    Return readings (n, c) of the accepted fit: its beams, offset, and angle (encoder, or phase + scale
     Phi).
     """
     from borescan import kinematics
@@ -274,7 +278,9 @@ def evaluate_scan(job: tuple) -> dict:
 
 def run(n: int = N_SCANS, seed: int = SEED, workers: int | None = None, out_dir: Path | None = None,
         only: list[int] | None = None) -> list[dict]:
-    """Write the battery (temp folder unless ``out_dir``; only the scan indices ``only`` if given),
+    """Write the battery and calibrate every scan; return per-scan rows.
+
+    Write the battery (temp folder unless ``out_dir``; only the scan indices ``only`` if given),
     calibrate every scan; per-scan rows.
     """
     from borescan import scenarios

@@ -143,7 +143,9 @@ def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
 
 
 def evaluate_chain(job: tuple) -> dict:
-    """Calibrate and measure one chain by the pipeline's path; errors against the truth in units of u and
+    """Calibrate and measure one chain by the pipeline's path; return its errors.
+
+    Calibrate and measure one chain by the pipeline's path; errors against the truth in units of u and
     U.
     """
     truth, cfg = job
@@ -202,7 +204,9 @@ def evaluate_chain(job: tuple) -> dict:
 
 
 def run(n: int = N_CHAINS, seed: int = SEED, workers: int | None = None, rows_path: Path | None = None) -> list[dict]:
-    """Draw, write, calibrate and measure ``n`` chains; per-chain rows (also appended to ``rows_path``
+    """Draw, write, calibrate and measure ``n`` chains; return per-chain rows.
+
+    Draw, write, calibrate and measure ``n`` chains; per-chain rows (also appended to ``rows_path``
     as JSON lines as they come, when given).
     """
     workers = workers or min(2, os.cpu_count() or 1)

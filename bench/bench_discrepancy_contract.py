@@ -47,7 +47,9 @@ SPEC_LOOKALIKES = [({"axis_tilt"}, {"bore_lobing[k=2]"}), ({"thermal_expansion"}
 
 
 def lookalike(a: str, b: str, kind: str = "tri", strict: bool = False) -> bool:
-    """Spec look-alikes; unless ``strict``, also the three-sensor ``beam_tilt`` and ``sensor_gain``
+    """Return the spec's look-alike effects.
+
+    Spec look-alikes; unless ``strict``, also the three-sensor ``beam_tilt`` and ``sensor_gain``
     on one channel, which the registry defines identically (v' = v / cos(gamma) = v (1 + h), h >= 0).
     """
     if any((a in g1 and b in g2) or (a in g2 and b in g1) for g1, g2 in SPEC_LOOKALIKES):

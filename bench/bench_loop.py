@@ -1,4 +1,6 @@
-"""Closing the loop (issue 22): an effect named from pooled scans enters the device model; the
+"""Closing the loop (issue 22): a pooled finding enters the device model.
+
+Closing the loop (issue 22): an effect named from pooled scans enters the device model; the
 next calibrations and verifications carry it.
 
 Each scenario draws a three-sensor device over the contract (:func:`bench.bench_pooled._device`)
@@ -114,7 +116,9 @@ def _model_from(findings: dict, device_id: str, channels) -> tuple[str | None, l
 
 
 def _residual_ratio(scans, cfg: dict, model) -> tuple[float, bool, object]:
-    """Return a night's calibration (pipeline path, budget): (max residual / noise floor, accepted,
+    """Return a night's calibration with its residual ratio and acceptance.
+
+    Return a night's calibration (pipeline path, budget): (max residual / noise floor, accepted,
     calibration or
     None);
     NaN when the fit does not converge even without the acceptance rule.

@@ -118,7 +118,9 @@ def gauge_artifact(R: float) -> dict:
 
 def spindle_scans(rng, rows: list[dict], *, beams, R, range_mm, C, spr, noise, nominal, encoder, effect, run_scan,
                   device_id, nights, tag) -> list:
-    """Return the ring-gauge spindle scans of one design (:func:`_designs` rows, 12 revolutions each, scan
+    """Return the ring-gauge spindle scans of one design.
+
+    Return the ring-gauge spindle scans of one design (:func:`_designs` rows, 12 revolutions each, scan
     ``<tag>-<k>``); the hidden ``effect`` in every scan, or only in scan ``run_scan`` when given.
     """
     from borescan.simulate import TriScene, simulate_tri_spindle
@@ -174,7 +176,9 @@ def draw_scenario(seed: int, i: int) -> dict:
 
 
 def calibrate(sims) -> tuple:
-    """Full-data calibration of the scans of one night (the night's method): (calibration or None,
+    """Calibrate the scans of one night by the night's method.
+
+    Full-data calibration of the scans of one night (the night's method): (calibration or None,
     accepted). A calibration the acceptance rule refuses only for its residual is used as fitted;
     one that fails otherwise (a diverged fit) is None: the scans are then examined as the pipeline
     examines an uncalibrated device (``device.nominal``, beam lengths and angles free).
@@ -235,7 +239,9 @@ def _like(a: str, b: str) -> bool:
 
 
 def value_ok(entry: dict | None, effect) -> bool:
-    """Return the named value of the hidden effect's magnitude within max(3 u, 20 %) of the truth (sign
+    """Return whether the named value of the hidden effect is near the truth.
+
+    Return the named value of the hidden effect's magnitude within max(3 u, 20 %) of the truth (sign
     included).
     """
     from borescan.discrepancy.battery import MAGNITUDE
@@ -252,7 +258,9 @@ def value_ok(entry: dict | None, effect) -> bool:
 
 
 def correct(verdict: str, named: list[dict], absorbed: list[str] | None, effect, expect_absorbed_: bool) -> bool:
-    """Return the bench's rule (module doc): right names and, for the hidden effect, its value.
+    """Return whether a verdict is right by the bench's rule (module doc).
+
+    Return the bench's rule (module doc): right names and, for the hidden effect, its value.
     ``absorbed``: the effects the verdict lists as absorbed (None: a single scan).
     """
     labels = [label(n) for n in named]

@@ -25,7 +25,9 @@ from borescan.scenarios import draw_rod_geometry
 
 
 def draw_scan(rng: np.random.Generator) -> dict:
-    """One effect-free rod scan over the contract (:func:`borescan.scenarios.draw_rod_geometry`);
+    """Return one effect-free rod scan over the contract.
+
+    One effect-free rod scan over the contract (:func:`borescan.scenarios.draw_rod_geometry`);
     pose-mean readings.
     """
     g = draw_rod_geometry(rng)

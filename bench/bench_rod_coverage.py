@@ -59,7 +59,9 @@ def _config() -> dict:
 
 
 def _hold(rng, layers, d20_mm, T_c, kind, scan_id, artifact, design, sensors, base: Path):
-    """Write one hold of the rod (a fresh draw of axis, poses and readings per pose) with the stated
+    """Write one hold of the rod and read it back.
+
+    Write one hold of the rod (a fresh draw of axis, poses and readings per pose) with the stated
     temperature and expansion coefficient and a linearity error per layer; read it back.
     """
     import polars as pl

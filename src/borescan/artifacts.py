@@ -1,4 +1,6 @@
-"""Certified artifacts (ring gauges, parts) of a scan's ``scan.json``: temperature, size at temperature,
+"""Certified artifacts (ring gauges, parts) of a scan's ``scan.json``.
+
+Certified artifacts (ring gauges, parts) of a scan's ``scan.json``: temperature, size at temperature,
 catalog row.
 
 A gauge is certified at 20 degC (ISO 1, the reference temperature of dimensional
@@ -65,7 +67,9 @@ class ScanTemperature:
 
 @dataclass(frozen=True)
 class ArtifactCte:
-    """An artifact's linear expansion coefficient alpha [1/K], its stated bound (rectangular
+    """An artifact's linear expansion coefficient with its uncertainty and source.
+
+    An artifact's linear expansion coefficient alpha [1/K], its stated bound (rectangular
     half-width) and standard uncertainty [1/K], whether it was assumed, and the source.
     """
 
@@ -131,7 +135,9 @@ def artifact_cte(meta: dict, unc_cfg: dict) -> ArtifactCte:
 
 
 def artifact_key(art: dict | None) -> str:
-    """Identity of a scan.json ``artifact`` for an uncertainty budget: ``<id>`` plus ``@<certificate>``
+    """Return the identity of a scan.json ``artifact`` for an uncertainty budget.
+
+    Identity of a scan.json ``artifact`` for an uncertainty budget: ``<id>`` plus ``@<certificate>``
     if any (the same gauge under the same certificate is one physical quantity).
     """
     art = art or {}
@@ -208,7 +214,9 @@ def artifact_row(meta: dict) -> dict | None:
 
 
 def number_or_none(v) -> float | None:
-    """Return a scan.json number as float; None for a missing value or anything that is not a number (a bool
+    """Return a scan.json number as float, or None.
+
+    Return a scan.json number as float; None for a missing value or anything that is not a number (a bool
     is
     not).
     """
@@ -216,7 +224,9 @@ def number_or_none(v) -> float | None:
 
 
 def certificate_fields(meta: dict) -> dict:
-    """Return the artifact certificate a scan's ``scan.json`` states, as the ``scans`` table keeps it:
+    """Return the artifact certificate a scan's ``scan.json`` states.
+
+    Return the artifact certificate a scan's ``scan.json`` states, as the ``scans`` table keeps it:
     ``artifact_certificate``, ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm`` (None where
     absent).
     """

@@ -264,7 +264,9 @@ def yang_oe(p1_xy: Sequence[float], p0_xy: Sequence[float]) -> float:
 
 
 def yang_d_b_r(d_max_mm, d_min_mm, R_mm, oe_mm) -> tuple[np.ndarray, np.ndarray]:
-    """Return base length d_b and tangential radius r = |rho| from the extreme readings (Yang 2017, Eqs. 8,
+    """Return base length d_b and tangential radius r (Yang 2017, Eqs. 8, 10, 11).
+
+    Return base length d_b and tangential radius r = |rho| from the extreme readings (Yang 2017, Eqs. 8,
     10, 11).
 
     Eq. 8: (d_b + d_min)^2 + r^2 = (R - oe)^2 and (d_b + d_max)^2 + r^2 = (R + oe)^2.
@@ -518,7 +520,9 @@ def yang_calibration(
 
 
 def _public_index(c: int, ch0_free: int) -> np.ndarray:
-    """Where the calibration's (3c,) parameters (beta, rho, d_b per channel) sit in the full fit's free
+    """Return where the calibration's parameters sit in the full fit's public vector.
+
+    Where the calibration's (3c,) parameters (beta, rho, d_b per channel) sit in the full fit's free
     public vector (betas of the free channels, rhos, d_bs, nuisance); -1 for a gauge-fixed beta.
     """
     idx = np.full(3 * c, -1)
@@ -540,7 +544,9 @@ def _channel_offsets(tau_s, c: int) -> np.ndarray | None:
 def _readings_and_jacobian(
     phi: np.ndarray, beams: Beams, offset: np.ndarray, R: float
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Exact readings (n, c) at device angles ``phi`` (n,) (or per channel, (n, c) / (n, 1)) and
+    """Return the exact readings at device angles ``phi`` and their derivatives.
+
+    Exact readings (n, c) at device angles ``phi`` (n,) (or per channel, (n, c) / (n, 1)) and
     their analytic derivatives, channel-major: each ``jac[...]`` is (c, n) (``.T`` is the (n, c) view).
 
     The wall point is P = o + Rot(phi)(F + s u) with the gauge centre at the origin; implicit
@@ -1473,7 +1479,9 @@ def _guard_sigma(floors_k: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def _censoring_keep(v_model: np.ndarray, y: np.ndarray, range_mm: np.ndarray, sigma_c: np.ndarray):
-    """Return readings (n, c) not censored by a sensor range limit: True where the model value ``v_model``
+    """Return the mask of readings not censored by a sensor range limit.
+
+    Return readings (n, c) not censored by a sensor range limit: True where the model value ``v_model``
     lies more than ``CENSOR_GUARD_SIGMA`` sigma inside [0, range].
 
     The raw format nulls a reading when the sensor reports no valid value (out of range), which
@@ -1597,7 +1605,9 @@ def full_lsq_sensitivities(  # noqa: C901 (part of the full_lsq fit, to be split
     center_xy_mm=None,
     reading_perturbations: Mapping[str, Sequence[np.ndarray]] | None = None,
 ) -> dict[str, Any]:
-    """Linear sensitivities of a ``full_lsq`` calibration to what it takes as known, and the split
+    """Return a ``full_lsq`` calibration's sensitivities and covariance split.
+
+    Linear sensitivities of a ``full_lsq`` calibration to what it takes as known, and the split
     of its covariance into the readings' part and the position priors' part.
 
     At the solution, J is the Jacobian of the readings' residuals with respect to the free public

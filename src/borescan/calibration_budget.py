@@ -1,4 +1,6 @@
-"""GUM budget of a three-sensor calibration (:mod:`borescan.uncertainty` applied to a
+"""GUM budget of a three-sensor calibration.
+
+GUM budget of a three-sensor calibration (:mod:`borescan.uncertainty` applied to a
 :class:`TriCalibration`).
 
 The fit's own covariance is split into its Type A part (the readings' scatter) and the position
@@ -50,7 +52,9 @@ def _rank_one_parts(C: np.ndarray, scale: np.ndarray, rel: float = 1e-6) -> list
 
 
 def _device_model_derivatives(model, inputs: list[dict], channels) -> tuple[dict, dict]:
-    """Per carried parameter (``"<entry index>:<name>"``): d(corrected readings)/d(parameter) per scan
+    """Return the derivatives of the corrected readings and time offsets per carried parameter.
+
+    Per carried parameter (``"<entry index>:<name>"``): d(corrected readings)/d(parameter) per scan
     (beam and reading effects) and d(channel time offsets)/d(parameter) (c,) (a channel delay);
     each is zero for the other kind (:func:`borescan.device_model.derivatives`).
     """
@@ -186,7 +190,9 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
 
 
 def with_budget(cal, budget: Budget):
-    """Return the calibration with the budget's combined covariance as ``cov``; the fit's own covariance
+    """Return the calibration with the budget's combined covariance as ``cov``.
+
+    Return the calibration with the budget's combined covariance as ``cov``; the fit's own covariance
     is kept as ``diagnostics["cov_fit"]`` and the budget as ``diagnostics["budget"]``.
     """
     diag = dict(cal.diagnostics)

@@ -105,7 +105,9 @@ def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], dev
 
 def calibration_rows(cal: TriCalibration, device_type: str, night: str, certificate_path: str | None,
                      raw_sha256: str) -> list[dict]:
-    """Return the ``calibrations`` rows of a three-sensor calibration: one per channel, valid from
+    """Return the ``calibrations`` rows of a three-sensor calibration.
+
+    Return the ``calibrations`` rows of a three-sensor calibration: one per channel, valid from
     ``night``.
     """
     rows = []
@@ -150,7 +152,9 @@ def tri_calibration(calibrations: pl.DataFrame, cal_id: str) -> TriCalibration:
 
 
 def rod_layers(layer_rows, channels) -> list[RodLayer]:
-    """Return the rod layers of ``channels`` from a rod calibration's rows (a polars frame or row dicts;
+    """Return the rod layers of ``channels`` from a rod calibration's rows.
+
+    Return the rod layers of ``channels`` from a rod calibration's rows (a polars frame or row dicts;
     missing or NaN phi, d, gamma, h: 0).
     """
     it = layer_rows.iter_rows(named=True) if isinstance(layer_rows, pl.DataFrame) else layer_rows

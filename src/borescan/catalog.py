@@ -526,7 +526,9 @@ def _append(con: duckdb.DuckDBPyConnection, tables: Mapping[str, pl.DataFrame | 
 
 
 def _remove_nights(con: duckdb.DuckDBPyConnection, nights: list[str]) -> None:
-    """Take the rows of ``nights`` (the newest in the catalog) out; artifacts fall back to their
+    """Take the rows of the newest ``nights`` out of the catalog.
+
+    Take the rows of ``nights`` (the newest in the catalog) out; artifacts fall back to their
     latest earlier record, links stay while another night still has them.
     """
     b = BUILD_SCHEMA
@@ -612,7 +614,9 @@ def _discard(tmp: Path) -> None:
 
 
 def _drop_views(con: duckdb.DuckDBPyConnection) -> None:
-    """Drop the views: they bind their columns, so out of the way while tables change (created again at the
+    """Drop the views while tables change (created again at the end).
+
+    Drop the views: they bind their columns, so out of the way while tables change (created again at the
     end).
     """
     for (view,) in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'"
@@ -812,7 +816,9 @@ def open_catalog(results_root: str | os.PathLike, read_only: bool = True) -> duc
 
 
 def table_rows(con: duckdb.DuckDBPyConnection, table: str) -> list[tuple]:
-    """All rows of a catalog table in key order, ties broken by every other column (handy for
+    """Return all rows of a catalog table in key order.
+
+    All rows of a catalog table in key order, ties broken by every other column (handy for
     comparisons and tests: the same rows give the same list).
     """
     if table not in SCHEMA:

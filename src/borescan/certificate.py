@@ -95,14 +95,18 @@ _METHOD_TEXT = {
 
 
 def certificate_dir(results_root: Path | str, cal) -> Path:
-    """``results_root/calibration/<device_id>/<calibration_id>`` (``outputs.md``): where a certificate
+    """Return the folder a certificate is read from.
+
+    ``results_root/calibration/<device_id>/<calibration_id>`` (``outputs.md``): where a certificate
     is read (a link into the folder of the calibration's night, :func:`certificate_night_dir`).
     """
     return Path(results_root) / "calibration" / cal.device_id / cal.calibration_id
 
 
 def certificate_night_dir(results_root: Path | str, cal, night: str) -> Path:
-    """``results_root/calibration/night=<night>/<device_id>/<calibration_id>``: where the calibrate
+    """Return the folder the calibrate stage writes a certificate into.
+
+    ``results_root/calibration/night=<night>/<device_id>/<calibration_id>``: where the calibrate
     stage writes a certificate (the night's folder is the rule's declared output).
     """
     return Path(results_root) / "calibration" / f"night={night}" / cal.device_id / cal.calibration_id
@@ -142,7 +146,9 @@ def certificate_dates(scan_metas: list[dict], verification_metas: list[dict], ni
 
 def calibration_conditions(temperature, cte, radius_mm: float, position_accuracy_mm: float, p: float,
                            scans: list[dict]) -> dict:
-    """Return the influence conditions of a certificate: the gauge's temperature with its uncertainty (U
+    """Return the influence conditions of a certificate.
+
+    Return the influence conditions of a certificate: the gauge's temperature with its uncertainty (U
     for the coverage probability ``p``) and source, its expansion coefficient, its radius at that
     temperature, the machine's stated position accuracy and per scan ``scans`` (positions, speed,
     revolutions). ``temperature``/``cte``: :class:`borescan.artifacts.ScanTemperature` / ``ArtifactCte``.
@@ -239,7 +245,9 @@ def _expanded(comb: Combined, distribution: str = "normal") -> dict:
 
 
 def _result(name: str, ref_type: str, held: bool, value: float, unit: str, comb: Combined) -> dict:
-    """One DCC result: ``value`` in ``unit`` (a key of ``_UNITS_DSI``: mm, rad, ...) with its D-SI
+    """Return one DCC result with its expanded uncertainty.
+
+    One DCC result: ``value`` in ``unit`` (a key of ``_UNITS_DSI``: mm, rad, ...) with its D-SI
     expandedUnc.
     """
     return {"name": name, "refType": ref_type, "held_at_design_value": held,
@@ -247,14 +255,18 @@ def _result(name: str, ref_type: str, held: bool, value: float, unit: str, comb:
 
 
 def _budget_entry(unit: str, rows: list[dict], comb: Combined) -> dict:
-    """One result's uncertainty budget: its ``unit``, the budget rows (contributions in that unit)
+    """Return one result's uncertainty budget.
+
+    One result's uncertainty budget: its ``unit``, the budget rows (contributions in that unit)
     and their combination (u_c, k, U).
     """
     return {"unit": unit, "rows": rows, "combined": comb.to_dict()}
 
 
 def _statements(lab: dict, dates: dict, conformity: dict, traceability: str) -> list[dict]:
-    """DCC statements of every certificate: reproduction clause (ISO/IEC 17025 7.8.2.1 m), ``traceability``
+    """Return the DCC statements of every certificate.
+
+    DCC statements of every certificate: reproduction clause (ISO/IEC 17025 7.8.2.1 m), ``traceability``
     text, decision rule, conformity, recalibration due date (ISO date) and how the issue date was derived.
     """
     return [
@@ -273,7 +285,9 @@ def _statements(lab: dict, dates: dict, conformity: dict, traceability: str) -> 
 
 def _administrative_data(cal, lab: dict, dates: dict, conformity: dict, item: dict, traceability: str,
                          software_version: str) -> dict:
-    """DCC ``administrativeData``: software, core data (ISO dates of calibration and issue), the ``item``,
+    """Return the DCC ``administrativeData``.
+
+    DCC ``administrativeData``: software, core data (ISO dates of calibration and issue), the ``item``,
     laboratory, signatory, customer, statements and the laboratory settings left at their placeholders.
     """
     return {
@@ -297,7 +311,9 @@ def _shared_part(cal, *, item_name: str, item_id: Any, traceability: str, device
                  conditions: dict, raw_files: dict[str, str], software_version: str, config_hash: str,
                  laboratory: dict | None, coverage_probability: float, dates: dict | None,
                  verifications: list[dict] | None) -> dict:
-    """Return the top-level keys every certificate has (three-sensor and rod): identification, coverage
+    """Return the top-level keys every certificate has.
+
+    Return the top-level keys every certificate has (three-sensor and rod): identification, coverage
     probability, ``administrativeData`` (the item ``item_name`` identified by ``item_id``, the
     ``traceability`` statement), device, artifact, conditions, verifications with the conformity,
     dates (ISO), laboratory, raw file digests (sha256 hex), software version and config hash.
@@ -321,7 +337,9 @@ def _shared_part(cal, *, item_name: str, item_id: Any, traceability: str, device
 
 def _measurement_results(name: str, method: str, description: str, uncertainty_norm: str, equipment: list[dict],
                          conditions: dict, results: list[dict], budgets: dict) -> list[dict]:
-    """DCC ``measurementResults``: one result set ``name`` with its method (``description``), the
+    """Return the DCC ``measurementResults``.
+
+    DCC ``measurementResults``: one result set ``name`` with its method (``description``), the
     uncertainty evaluation's norm, the standards used, the influence conditions, results and budgets.
     """
     return [{"name": name,
@@ -332,7 +350,9 @@ def _measurement_results(name: str, method: str, description: str, uncertainty_n
 
 
 def _beam_results(cal: TriCalibration, budget: Budget | None, p: float) -> tuple[list[dict], dict]:
-    """DCC results (beta [rad], rho and d_b [mm] per channel, U for coverage probability ``p``) and,
+    """Return the DCC results of the beams and their budgets.
+
+    DCC results (beta [rad], rho and d_b [mm] per channel, U for coverage probability ``p``) and,
     with a budget, each one's uncertainty budget.
     """
     names = [f"{n}[{ch}]" for ch in cal.beams.channels for n in ("beta_rad", "rho_mm", "d_b_mm")]
@@ -347,7 +367,9 @@ def _beam_results(cal: TriCalibration, budget: Budget | None, p: float) -> tuple
 
 
 def _effective_base_lengths(cal: TriCalibration, budget: Budget | None, conditions: dict, p: float) -> list[dict]:
-    """Per channel g = d_b + rho^2/(2R) [mm] (R the gauge radius at its temperature [mm]) with U for
+    """Return the effective base lengths g per channel with U.
+
+    Per channel g = d_b + rho^2/(2R) [mm] (R the gauge radius at its temperature [mm]) with U for
     coverage probability ``p``; empty without a budget or a radius.
     """
     R = conditions.get("gauge_radius_at_temperature_mm") if isinstance(conditions, dict) else None
@@ -378,7 +400,9 @@ def _gauge_equipment(artifact: dict) -> dict:
 
 
 def _fit_part(cal: TriCalibration) -> dict:
-    """Return the fit's summary (residual rms [mm], dof, rank, condition, convergence, nuisance) and the
+    """Return the fit's summary and the diagnostics a certificate reports.
+
+    Return the fit's summary (residual rms [mm], dof, rank, condition, convergence, nuisance) and the
     diagnostics a certificate reports.
     """
     keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free",
@@ -1066,7 +1090,9 @@ _VERIFICATION_LAYOUT = ([0.42, 0.12, 0.1, 0.1, 0.06, 0.1, 0.1], 6)
 
 
 def _input_cells(r: dict, dash_zero_u: bool) -> list[str]:
-    """One budget row as table cells: label, estimate, u(x_i), distribution, nu_i, c_i, u_i [um]
+    """Return one budget row as table cells.
+
+    One budget row as table cells: label, estimate, u(x_i), distribution, nu_i, c_i, u_i [um]
     (``contribution`` [mm] times 1e3). ``dash_zero_u``: a zero or missing u(x_i) shows as "-".
     """
     u_x = r["standard_uncertainty"]
@@ -1077,7 +1103,9 @@ def _input_cells(r: dict, dash_zero_u: bool) -> list[str]:
 
 
 def _sum_row(label: str, value_mm: float, dof: str = "") -> list[str]:
-    """Return a summary line of a budget table: ``label``, ``dof`` in the nu_i column, ``value_mm`` [mm] in
+    """Return a summary line of a budget table.
+
+    Return a summary line of a budget table: ``label``, ``dof`` in the nu_i column, ``value_mm`` [mm] in
     um.
     """
     return [label, "", "", "", dof, "", f"{1e3 * value_mm:.3g}"]
@@ -1085,7 +1113,9 @@ def _sum_row(label: str, value_mm: float, dof: str = "") -> list[str]:
 
 def _contribution_table(d: _Doc, title: str, rows: list[dict], sums: list[list[str]], layout: tuple[list[float], float],
                         dash_zero_u: bool) -> None:
-    """Write the budget of one result: ``title``, one line per input row (:func:`_input_cells`), then the
+    """Write the budget table of one result.
+
+    Write the budget of one result: ``title``, one line per input row (:func:`_input_cells`), then the
     ``sums`` lines (:func:`_sum_row`, the last one bold); ``layout``: (column widths, font size).
     """
     cells = [_input_cells(r, dash_zero_u) for r in rows] + sums
@@ -1096,7 +1126,9 @@ def _contribution_table(d: _Doc, title: str, rows: list[dict], sums: list[list[s
 
 
 def _verification_budget(d: _Doc, v: dict) -> None:
-    """Write the budget of a verification's error E: inputs of at least 5 % of u_c(E) one by one, the
+    """Write the budget of a verification's error E.
+
+    Write the budget of a verification's error E: inputs of at least 5 % of u_c(E) one by one, the
     others folded into one line (root sum of squares), then u_c(E) (contributions in um).
     """
     rows = v.get("budget") or []
@@ -1112,7 +1144,9 @@ def _verification_budget(d: _Doc, v: dict) -> None:
 
 
 def _rod_layer_budget(d: _Doc, channel: int, budget: dict) -> None:
-    """Write the budget of one layer's l0 (``budget``: rows and combined of certificate.json): inputs
+    """Write the budget of one layer's l0.
+
+    Write the budget of one layer's l0 (``budget``: rows and combined of certificate.json): inputs
     below 1e-5 u_c left out, then u_c with nu_eff and U with k (contributions in um).
     """
     comb = budget["combined"]
@@ -1285,7 +1319,9 @@ def _rod_results(cal, p: float) -> tuple[list[dict], dict]:
 
 
 def _rod_parameters(cal) -> list[dict]:
-    """Per layer: l0 (calibrated and design) and u(l0) [mm], the layer's fixed geometry (h, d [mm],
+    """Return the calibrated and design parameters of each layer.
+
+    Per layer: l0 (calibrated and design) and u(l0) [mm], the layer's fixed geometry (h, d [mm],
     phi, gamma [rad]) and its ring gauge (certified D20, radius at temperature [mm]).
     """
     params = []
@@ -1301,7 +1337,9 @@ def _rod_parameters(cal) -> list[dict]:
 
 
 def _rod_fit(cal) -> dict:
-    """Return the rod solve at the calibrated l0: residual rms [mm], solves to settle l0, method, rank,
+    """Return the summary of the rod solve at the calibrated l0.
+
+    Return the rod solve at the calibrated l0: residual rms [mm], solves to settle l0, method, rank,
     condition, number of poses, axis deflection [rad] and eccentricity [mm] (None without a solve).
     """
     sol = cal.solution
@@ -1317,7 +1355,9 @@ def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte,
                          software_version: str, config_hash: str, laboratory: dict | None = None,
                          coverage_probability: float = 0.9545, dates: dict | None = None,
                          verifications: list[dict] | None = None) -> dict:
-    """``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
+    """Return the ``certificate.json`` of a rod calibration.
+
+    ``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
     the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
     the budget per layer, each layer's gauge and the solve's diagnostics.
     """
@@ -1356,7 +1396,9 @@ def _unique_gauges(cal) -> list[dict]:
 
 
 def _rod_page_item_conditions(d: _Doc) -> None:
-    """Sections 1-4 of a rod certificate: item, method, conditions (temperature [degC], expansion
+    """Write sections 1-4 of a rod certificate.
+
+    Sections 1-4 of a rod certificate: item, method, conditions (temperature [degC], expansion
     coefficient [1/K]) and traceability (each layer's ring gauge).
     """
     c = d.cert
@@ -1387,7 +1429,9 @@ def _rod_page_item_conditions(d: _Doc) -> None:
 
 
 def _rod_page_results(d: _Doc) -> None:
-    """Section 5 of a rod certificate: l0 per layer [mm] with U and k, its change from the design
+    """Write section 5 of a rod certificate.
+
+    Section 5 of a rod certificate: l0 per layer [mm] with U and k, its change from the design
     value [um], and the rod solve's summary.
     """
     c = d.cert
@@ -1440,7 +1484,9 @@ def _rod_pages(cert: dict) -> list[Figure]:
 
 
 def write_rod_certificate(cal, out_dir: Path | str, **kw) -> dict[str, Path]:
-    """Write ``certificate.json`` and ``certificate.pdf`` of a rod calibration into ``out_dir``
+    """Write ``certificate.json`` and ``certificate.pdf`` of a rod calibration.
+
+    Write ``certificate.json`` and ``certificate.pdf`` of a rod calibration into ``out_dir``
     (arguments of :func:`rod_certificate_dict`). Same inputs give byte-identical files.
     """
     import matplotlib

@@ -209,7 +209,9 @@ def fit_circle_ls(x_mm, y_mm, *, max_iter: int = 200) -> Circle:
 
 
 def _angular_order(x: np.ndarray, y: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, float]:
-    """Return indices of the points in increasing angle about ``c``, those angles [rad] and the
+    """Return the points' angular order about ``c``, their angles and the largest gap.
+
+    Return indices of the points in increasing angle about ``c``, those angles [rad] and the
     largest gap between angularly consecutive points (the wrap-around gap included) [deg].
     """
     th = np.arctan2(y - c[1], x - c[0])
@@ -244,7 +246,9 @@ def _ls_center(x: np.ndarray, y: np.ndarray, shift: np.ndarray, ls_center_xy_mm)
 
 
 def _check_closed(x, y, c, max_gap_deg: float, method: str) -> tuple[np.ndarray, np.ndarray]:
-    """Angular order about ``c`` (see :func:`_angular_order`), or CircleFitError when the
+    """Return the angular order about ``c``, or raise when the profile is not closed.
+
+    Angular order about ``c`` (see :func:`_angular_order`), or CircleFitError when the
     largest gap exceeds ``max_gap_deg``.
     """
     order, ths, gap = _angular_order(x, y, c)
@@ -258,7 +262,9 @@ def _check_closed(x, y, c, max_gap_deg: float, method: str) -> tuple[np.ndarray,
 
 @dataclass(frozen=True)
 class _ClosedProfile:
-    """Finite points shifted to their mean, the least-squares centre in that frame, the points'
+    """A closed profile prepared once for the reference circles.
+
+    Finite points shifted to their mean, the least-squares centre in that frame, the points'
     distances from it and their angular order about it (checked closed): what MZCI, MICI and MCCI
     start from, prepared once for all three by :func:`reference_circles`.
     """
@@ -364,7 +370,9 @@ MCCI_FARTHEST = 2048
 
 
 def _mcci(prof: _ClosedProfile, seed: int = 0) -> Circle:
-    """Welzl's circle of the profile's convex hull. A long profile's circle is first found from its
+    """Return Welzl's circle of the profile's convex hull.
+
+    Welzl's circle of the profile's convex hull. A long profile's circle is first found from its
     :data:`MCCI_FARTHEST` points farthest from the least-squares centre (8 times more while it
     leaves a point outside): a circle that is the smallest around a subset and encloses every point
     is the smallest around them all (the hull of 120 000 points costs ~50 ms, a subset's ~1 ms).
@@ -535,7 +543,9 @@ def _polish(  # noqa: C901 (the active-set Newton iteration with its exits)
 
 
 def _local_max_vertices(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Voronoi vertices of the points ``P`` (n, 2) that can be local maxima of
+    """Return the Voronoi vertices that can be local maxima of the distance to the points.
+
+    Voronoi vertices of the points ``P`` (n, 2) that can be local maxima of
     f(c) = min_i |p_i - c|: circumcentres (m, 2) of the Delaunay triangles with no obtuse angle,
     and their circumradii (m,) (>= f there, = f up to rounding: the circle is empty).
 
@@ -563,7 +573,9 @@ def _local_max_vertices(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _circumcentres_non_obtuse(P: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Circumcentres (m, 2) and circumradii (m,) of the triangles ``P[tri]`` with no obtuse
+    """Return circumcentres and circumradii of the triangles with no obtuse angle.
+
+    Circumcentres (m, 2) and circumradii (m,) of the triangles ``P[tri]`` with no obtuse
     angle (cos >= -1e-9 allowed for rounding), computed relative to a corner.
     """
     a = P[tri[:, 0]]
@@ -587,7 +599,9 @@ def _circumcentres_non_obtuse(P: np.ndarray, tri: np.ndarray) -> tuple[np.ndarra
 
 
 def _best_empty_centre(cand: np.ndarray, bound: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Return the candidate centre (m, 2) with the largest f(c) = min_i |p_i - c|, f evaluated exactly
+    """Return the candidate centre with the largest empty circle.
+
+    Return the candidate centre (m, 2) with the largest f(c) = min_i |p_i - c|, f evaluated exactly
     (distances to all points; near a ring's centre every point is about as far, so a tree search
     would visit them all anyway), in order of decreasing upper bound ``bound`` >= f, stopping
     once no remaining bound can beat the best f found.
@@ -609,7 +623,9 @@ def _best_empty_centre(cand: np.ndarray, bound: np.ndarray, x: np.ndarray, y: np
 
 
 def _inside_star_polygon(q: np.ndarray, V: np.ndarray, th: np.ndarray, c) -> np.ndarray:
-    """Which points ``q`` (m, 2) lie strictly inside the polygon ``V`` (n, 2), whose vertices
+    """Return which points lie strictly inside a star-shaped polygon.
+
+    Which points ``q`` (m, 2) lie strictly inside the polygon ``V`` (n, 2), whose vertices
     are in increasing angle ``th`` [rad] about ``c`` with every gap < 180 deg (star-shaped
     about c): q is inside when it lies on c's side of the edge spanning its own angle.
     """
@@ -622,7 +638,9 @@ def _inside_star_polygon(q: np.ndarray, V: np.ndarray, th: np.ndarray, c) -> np.
 
 
 def _bin_segments(ths: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
-    """Return the non-empty ones of ``bins`` equal angular bins over [-pi, pi) as runs of a profile's
+    """Return the non-empty angular bins as runs of a profile's angular order.
+
+    Return the non-empty ones of ``bins`` equal angular bins over [-pi, pi) as runs of a profile's
     angular order: start positions and lengths along ``ths`` (increasing angles [rad]).
     """
     b = np.minimum(((ths + np.pi) / (2 * np.pi) * bins).astype(np.int64), bins - 1)  # non-decreasing
@@ -635,7 +653,9 @@ MIC_BINS = 2048
 
 
 def _mic_centre(P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0, d0: np.ndarray) -> tuple[np.ndarray, int]:
-    """Return the centre of the largest empty circle centred in the profile polygon, and the number of
+    """Return the centre of the largest empty circle in the profile polygon.
+
+    Return the centre of the largest empty circle centred in the profile polygon, and the number of
     candidate vertices examined (:func:`max_inscribed_circle`), computed on a reduced point set
     with a certificate that the answer is the one of all points.
 
@@ -778,7 +798,9 @@ MZ_BINS = 2048
 
 
 def _mz_centre(prof: _ClosedProfile) -> tuple[np.ndarray, int]:
-    """Return the minimum zone centre of a profile by :func:`_slp`, run on a reduced point set with a
+    """Return the minimum zone centre of a profile.
+
+    Return the minimum zone centre of a profile by :func:`_slp`, run on a reduced point set with a
     certificate that the answer is the one of all points.
 
     S = the innermost and the outermost point about the LS centre in each of :data:`MZ_BINS`

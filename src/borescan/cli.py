@@ -37,7 +37,9 @@ def _command_modules(names: list[str] | None = None) -> list:
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    """Return the ``borescan`` parser. With ``only`` (a command module's name) only that command is
+    """Return the ``borescan`` parser.
+
+    Return the ``borescan`` parser. With ``only`` (a command module's name) only that command is
     imported and added, so a command never pays for what the others import.
     """
     parser = argparse.ArgumentParser(
@@ -57,7 +59,9 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 
 def _command_in(argv: list[str]) -> str | None:
-    """Return the module of the subcommand ``argv`` names (its first word that is not an option; module
+    """Return the module of the subcommand ``argv`` names, if any.
+
+    Return the module of the subcommand ``argv`` names (its first word that is not an option; module
     names are command names with '_' for '-'), if there is one.
     """
     first = next((a for a in argv if not a.startswith("-")), None)

@@ -125,7 +125,9 @@ def _part_artifact(part_id: str, d_nom_mm: float) -> dict:
 
 
 def _rod_scene(rng: np.random.Generator, temp_c: float, d: dict | None = None, min_omega_deg: float = 0.0) -> RodScene:
-    """Return the rod in the two holes ``d`` (feature -> true diameter at 20 degC; default the part's). A
+    """Return the rod in the two holes ``d``.
+
+    Return the rod in the two holes ``d`` (feature -> true diameter at 20 degC; default the part's). A
     gauge calibration holds the rod visibly skew to the holes (``min_omega_deg``): with the rod
     parallel to them the offsets of the layers are collinear and the radii undetermined (rod.py).
     """
@@ -215,7 +217,9 @@ def demo_scans(seed: int = DEMO_SEED) -> list[SimulatedScan]:
 
 
 def _loop_night(seed: int, i_night: int, night: str) -> list[SimulatedScan]:
-    """Return a loop night of TRI-01 (module docstring): calibration in RG-275 at 60 and 30 rpm with the
+    """Return a loop night of TRI-01 (module docstring).
+
+    Return a loop night of TRI-01 (module docstring): calibration in RG-275 at 60 and 30 rpm with the
     delay, then static verifications (RG-275; RG-280 too on the last night). Its own generator,
     so the nights before stay as they were.
     """

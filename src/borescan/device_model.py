@@ -148,7 +148,9 @@ def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[M
 
 
 def auto_keys(device_id: str, pooled_rows: Iterable[Mapping], night: str, n_nights: int) -> list[str]:
-    """Device effects that enter a device model automatically on ``night``: named (not as part of the
+    """Return the device effects that enter a device model automatically on ``night``.
+
+    Device effects that enter a device model automatically on ``night``: named (not as part of the
     model) by the device's pooled examinations of each of its ``n_nights`` latest nights before
     ``night`` (same effect and channel; device-scope effects of the registry only). [] when
     ``n_nights`` is 0 (off) or the device has fewer pooled nights; an effect leaves as soon as one of
@@ -174,7 +176,9 @@ def auto_keys(device_id: str, pooled_rows: Iterable[Mapping], night: str, n_nigh
 
 
 def lookup(keys_of, pooled_rows: Iterable[Mapping], night: str, auto_nights: int = 0):
-    """(device id, channels) -> the device model a calibration on ``night`` carries
+    """Return the device model a calibration on ``night`` carries, per device.
+
+    (device id, channels) -> the device model a calibration on ``night`` carries
     (:func:`device_model_at`); ``keys_of(device id)`` gives the config's effects of the device, and
     with ``auto_nights`` > 0 :func:`auto_keys` adds those named night after night.
     """
@@ -189,7 +193,9 @@ def carried_effects(model: Iterable[DeviceEffect]) -> list[Effect]:
 
 
 def correct(t_s, readings_mm, channels, model: Iterable[DeviceEffect], range_mm) -> np.ndarray:
-    """Return readings corrected for the device model's beam and reading effects
+    """Return readings corrected for the device model's beam and reading effects.
+
+    Return readings corrected for the device model's beam and reading effects
     (:func:`borescan.model.tri_correct_readings`); time-base effects are carried by
     :func:`channel_time_offsets`. Unchanged when there are none.
     """
@@ -201,7 +207,9 @@ def correct(t_s, readings_mm, channels, model: Iterable[DeviceEffect], range_mm)
 
 def channel_time_offsets(model: Iterable[DeviceEffect], channels: Sequence[int], *,
                          zeros: bool = False) -> np.ndarray | None:
-    """Per channel tau (c,) [s] of the carried time-base effects: channel c's reading at stamp t is the
+    """Return the per-channel time offsets of the carried time-base effects.
+
+    Per channel tau (c,) [s] of the carried time-base effects: channel c's reading at stamp t is the
     geometry of time t - tau_c (``channel_delay``; the registry's forward t' = t - tau at t = 0).
     None without any (a still scene ignores them: static poses need none), zeros when ``zeros``.
     """
@@ -213,7 +221,9 @@ def channel_time_offsets(model: Iterable[DeviceEffect], channels: Sequence[int],
 
 
 def derivatives(model: Sequence[DeviceEffect], f) -> dict[tuple[int, str], np.ndarray]:
-    """d f(model) / d(each carried parameter) by central differences, the parameter moved by
+    """Return d f(model) / d(each carried parameter) by central differences.
+
+    d f(model) / d(each carried parameter) by central differences, the parameter moved by
     +-``_STEP`` of its size or its u, whichever is larger.
 
     ``f`` maps a device model to an array or a number (corrected readings, channel time offsets, a
@@ -237,7 +247,9 @@ def derivatives(model: Sequence[DeviceEffect], f) -> dict[tuple[int, str], np.nd
 
 
 def gum_input(device_id: str, entry: DeviceEffect, name: str) -> Input:
-    """Return the GUM input of one carried parameter (normal, the pooled fit's standard uncertainty); the same
+    """Return the GUM input of one carried parameter.
+
+    Return the GUM input of one carried parameter (normal, the pooled fit's standard uncertainty); the same
     key (:func:`input_key`) in a calibration's budget and in a diameter's, so the two add.
     """
     return Input(input_key(device_id, entry, name), f"{entry.key} {name} (device model, readings corrected for it)",
@@ -248,7 +260,9 @@ def gum_input(device_id: str, entry: DeviceEffect, name: str) -> Input:
 
 
 def correct_inputs(inputs: list[dict], model) -> list[dict]:
-    """Per scan inputs of a calibration (``t_s``, ``readings``, ``channels``, ``range_mm``:
+    """Return a calibration's per-scan inputs with corrected readings.
+
+    Per scan inputs of a calibration (``t_s``, ``readings``, ``channels``, ``range_mm``:
     :func:`borescan.stages.calibration_fit.spindle_inputs`) with the readings corrected for the model's
     beam and reading effects (:func:`correct`; a channel delay is carried by the fit's angles); the
     recorded readings are kept as ``readings_recorded`` (the budget differentiates the correction
@@ -261,7 +275,9 @@ def correct_inputs(inputs: list[dict], model) -> list[dict]:
 
 
 def carry(model: Sequence[DeviceEffect], device_id: str, inputs: list[dict], log=print) -> list[dict]:
-    """Say in the log what a calibration of ``device_id`` carries of its ``model`` and return its inputs
+    """Log what a calibration carries of its device model; return corrected inputs.
+
+    Say in the log what a calibration of ``device_id`` carries of its ``model`` and return its inputs
     corrected for it (:func:`correct_inputs`).
     """
     for m in model:

@@ -188,7 +188,9 @@ class EffectSpec:
     def spec_params(
         self, x: Mapping[str, float], u: Mapping[str, float] | None = None, k: int | None = None
     ) -> tuple[dict[str, Any], dict[str, float]]:
-        """Return the spec's parameters (and their standard uncertainties when ``u`` is given) of
+        """Return the spec's parameters of fitted values ``x``.
+
+        Return the spec's parameters (and their standard uncertainties when ``u`` is given) of
         fitted values ``x`` (``{fit name: value}``), clipped to the fit's bounds first;
         ``channel`` is not included, ``k`` is for harmonic effects.
         """
@@ -269,7 +271,9 @@ def _channel_delay(t_s: np.ndarray, p: Mapping) -> np.ndarray:
 
 
 def _speed_error(x_rad: np.ndarray, p: Mapping) -> np.ndarray:
-    """Spindle turns at (1 + eps) times the commanded profile: x' = (1 + eps) x, x = Phi(t) the commanded
+    """Turn the spindle at (1 + eps) times the commanded profile.
+
+    Spindle turns at (1 + eps) times the commanded profile: x' = (1 + eps) x, x = Phi(t) the commanded
     angle.
     """
     return np.asarray(x_rad, dtype=float) * (1.0 + p["eps"])
@@ -398,7 +402,9 @@ def _u(u: Mapping | None, name: str) -> float:
 
 
 def _phase_type(amp: str, k_divides: bool = False):
-    """(to_internal, from_internal) of an amplitude ``amp`` and ``phase`` fitted as
+    """Return the conversions of an amplitude and phase fitted as A, B.
+
+    (to_internal, from_internal) of an amplitude ``amp`` and ``phase`` fitted as
     A = amp cos(k phase), B = amp sin(k phase) (k = 1 unless ``k_divides``: ``bore_lobing``
     has cos(k (theta - phase)) = cos(k theta - k phase)).
     """
@@ -560,7 +566,9 @@ _ORDER = {name: i for i, name in enumerate(EFFECTS)}
 
 
 def get_effect(name: str) -> EffectSpec:
-    """Return the :class:`EffectSpec` of ``name``; unknown names raise ``ValueError`` listing the valid
+    """Return the :class:`EffectSpec` of ``name``.
+
+    Return the :class:`EffectSpec` of ``name``; unknown names raise ``ValueError`` listing the valid
     ones.
     """
     try:
@@ -681,7 +689,9 @@ _NIGHT = re.compile(r"\d{4}-\d{2}-\d{2}")
 
 def device_effect_key(  # noqa: C901 (checks every part of a device-model key, each with its message)
         key: str, channels: Sequence[int] | None = None, device: str = "") -> tuple[str, int | None]:
-    """(effect name, channel) of a device-model entry (a registry key as the findings write it:
+    """Return (effect name, channel) of a device-model entry.
+
+    (effect name, channel) of a device-model entry (a registry key as the findings write it:
     ``channel_delay@2``, ``sensor_offset@all``, ``sensor_nonlinearity@1``); channel 0 for ``@all``,
     None for an effect that acts on every channel at once.
 
@@ -727,7 +737,9 @@ def device_effect_key(  # noqa: C901 (checks every part of a device-model key, e
 
 
 def device_model_effects(devices: dict | None, device_id: str, night: str | None = None) -> tuple[str, ...]:
-    """Return the device model of ``device_id`` on ``night`` from the config's ``devices`` section (its
+    """Return the device model of ``device_id`` on ``night`` from the config.
+
+    Return the device model of ``device_id`` on ``night`` from the config's ``devices`` section (its
     ``effects``), each entry checked by :func:`device_effect_key` (channels not checked here); ()
     when the device has none. Light on purpose: the workflow checks the section when it starts.
 

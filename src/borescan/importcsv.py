@@ -537,7 +537,9 @@ def import_csv(
 
 
 def _ingest_problems(meta: dict, lds: pl.DataFrame, spindle: pl.DataFrame | None, csv_label: str) -> list:
-    """Return what the pipeline's ingest would quarantine this scan for, from a staged copy (the one
+    """Return what the pipeline's ingest would quarantine this scan for.
+
+    Return what the pipeline's ingest would quarantine this scan for, from a staged copy (the one
     validator reads a folder); files named after the CSV.
     """
     with tempfile.TemporaryDirectory(prefix="borescan-import-") as tmp:

@@ -165,7 +165,9 @@ class AngleModel:
 
 
 def _readonly_key(t) -> tuple | None:
-    """Identity of a read-only float array's values (memory, shape, strides), None otherwise:
+    """Return the identity of a read-only float array's values, or None.
+
+    Identity of a read-only float array's values (memory, shape, strides), None otherwise:
     evaluations on such an array (fits evaluate one set of times again and again) are cached.
     """
     if not isinstance(t, np.ndarray) or t.dtype != np.float64 or t.flags.writeable:
@@ -246,7 +248,9 @@ def angle_model_from_arrays(
 
 
 def angle_model_of_scan(meta: dict, spindle) -> AngleModel:
-    """:func:`angle_model_from_arrays` of one raw scan: ``scan.json`` (``meta``) and its spindle
+    """Return the angle model of one raw scan.
+
+    :func:`angle_model_from_arrays` of one raw scan: ``scan.json`` (``meta``) and its spindle
     stream (a polars frame with the raw format's columns, or None); nulls become NaN.
     """
     sp_meta = meta.get("spindle") or {}

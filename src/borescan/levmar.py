@@ -63,7 +63,9 @@ class LMResult:
 
 
 def qr_of_stacked(J: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """Return the (n+1) x (n+1) triangular factor of [J f] (LAPACK ``geqrf``): R of J, Q^T f and
+    """Return the triangular factor of [J f].
+
+    Return the (n+1) x (n+1) triangular factor of [J f] (LAPACK ``geqrf``): R of J, Q^T f and
     |residual|.
     """
     m, n = J.shape
@@ -96,7 +98,9 @@ def _qrsolv(R: np.ndarray, perm: np.ndarray, d: np.ndarray, qtb: np.ndarray):
 
 
 def _back_substitute(T: np.ndarray, b: np.ndarray, perm: np.ndarray) -> np.ndarray:
-    """x with x[perm] = T^-1 b for upper triangular T; from the first zero diagonal on, the
+    """Return x with x[perm] = T^-1 b for upper triangular T.
+
+    x with x[perm] = T^-1 b for upper triangular T; from the first zero diagonal on, the
     components are 0 (MINPACK's least-squares solution of a singular triangle).
     """
     n = T.shape[1]

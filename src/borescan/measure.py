@@ -249,7 +249,9 @@ def measure_rotating(readings_mm, phi_rad, spindle_xy_mm, beams: Beams, *, max_u
 
 
 def _rotating_angle(scan, t_s: np.ndarray, v: np.ndarray, tau_s: np.ndarray | None = None) -> np.ndarray:
-    """Device angle at the readings (:mod:`borescan.kinematics`): the encoder angle, else the
+    """Return the device angle at the readings.
+
+    Device angle at the readings (:mod:`borescan.kinematics`): the encoder angle, else the
     commanded profile with its speed scale found from the readings (the phase of a closed
     profile does not change a circle's diameter or roundness). With per channel time offsets
     ``tau_s`` (c,) (a carried ``channel_delay``) the angle of channel c at t - tau_c, (n, c).
@@ -292,7 +294,9 @@ class DiameterModel:
         return fit_circle_ls(P[:, 0], P[:, 1]).diameter_mm
 
     def ls_circle(self, beams: Beams, points_mm: np.ndarray | None = None, circle: Circle | None = None) -> Circle:
-        """Return the least-squares circle of a rotating scan's finite wall points with ``beams``, fitted once
+        """Return the least-squares circle of a rotating scan's wall points.
+
+        Return the least-squares circle of a rotating scan's finite wall points with ``beams``, fitted once
         per beams: ``points_mm`` (m, 2) those points when the caller has them; ``circle`` one the
         caller has fitted to them (:func:`measure_rotating`'s LSCI), remembered as it is.
         """
@@ -314,7 +318,9 @@ def _with_params(beams: Beams, delta: np.ndarray) -> Beams:
 
 
 def _rotating_sensitivities(model: DiameterModel, beams: Beams) -> tuple[np.ndarray, np.ndarray]:
-    """dD/d(beta, rho, d_b) (3c,) and dD/d(constant reading error of channel c) (c,) of the LS
+    """Return the LS circle's diameter sensitivities of a rotating scan.
+
+    dD/d(beta, rho, d_b) (3c,) and dD/d(constant reading error of channel c) (c,) of the LS
     circle of a rotating scan.
 
     The circle (a, b, r) minimises sum_i (|P_i - c| - r)^2; moving the wall points by dP moves it
@@ -518,7 +524,9 @@ def mean_reading_u_mm(u_one_mm, counts) -> float | None:
 
 
 def sensor_ranges_mm(sensors: dict, channels) -> list[float]:
-    """Each channel's measuring range [mm] from scan.json ``sensors`` (channel -> entry); 10 mm where
+    """Return each channel's measuring range [mm] from scan.json.
+
+    Each channel's measuring range [mm] from scan.json ``sensors`` (channel -> entry); 10 mm where
     a sensor does not state one.
     """
     return [float((sensors.get(int(ch)) or {}).get("range_mm") or 10.0) for ch in channels]
@@ -636,7 +644,9 @@ def _json_rows(rows: list[dict]) -> list[dict]:
 
 
 def _unit_polar(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distances and unit vectors (rr, n_x, n_y) of points ``d`` (2, m) from the origin: the first
+    """Return distances and unit vectors of points ``d`` from the origin.
+
+    Distances and unit vectors (rr, n_x, n_y) of points ``d`` (2, m) from the origin: the first
     step of :func:`_ls_radius_change` (the start circle's centre), kept per block of points.
     """
     rr = np.hypot(d[0], d[1])
@@ -682,7 +692,9 @@ def _ls_radius_change(d: np.ndarray, r0: float, max_iter: int = 50,
 
 
 def _rotating_diameter_changes(model: DiameterModel, beams: Beams, moves) -> list[float]:
-    """D(beams moved by dl) - D(beams) [mm] of a rotating scan, for moves ``(j, dl)`` of channel j's
+    """Return the diameter changes of a rotating scan for moved beams.
+
+    D(beams moved by dl) - D(beams) [mm] of a rotating scan, for moves ``(j, dl)`` of channel j's
     parameters (``dl`` (3c,) per channel (beta, rho, d_b), zero but for channel j).
 
     The scan's least-squares circle (c0, r0) is fitted once; for each move only channel j's wall
@@ -890,7 +902,9 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
 
 
 def calibration_budget_of(cal) -> Budget:
-    """Return the GUM budget a calibration carries (``diagnostics["budget"]``, written by the calibrate
+    """Return the GUM budget a calibration carries.
+
+    Return the GUM budget a calibration carries (``diagnostics["budget"]``, written by the calibrate
     stage); for a calibration without one, its covariance as a single term, said so in the source.
     """
     d = (cal.diagnostics or {}).get("budget")
@@ -904,7 +918,9 @@ def calibration_budget_of(cal) -> Budget:
 
 
 def tri_diameter_with_budget(scan, cal, unc_cfg: dict, cleaning=None) -> tuple[dict, DiameterUncertainty]:
-    """Diameter of a three-sensor scan (:func:`measure_scan`) with its GUM budget
+    """Return the diameter of a three-sensor scan with its GUM budget.
+
+    Diameter of a three-sensor scan (:func:`measure_scan`) with its GUM budget
     (:func:`diameter_uncertainty`): the calibration's budget, the readings, the sensors, the
     scan's temperature (``uncertainty`` policy) and the artifact's expansion coefficient.
     ``cleaning``: the spike policy of :func:`measure_scan`.
@@ -932,7 +948,9 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict, cleaning=None) -> tuple[d
 
 
 def _device_model_inputs(scan, cal, dm, cleaning=None) -> list[tuple[Input, float]]:
-    """(input, dD/d parameter) of each carried device-model parameter through this scan's own readings
+    """Return the GUM inputs of the carried device-model parameters.
+
+    (input, dD/d parameter) of each carried device-model parameter through this scan's own readings
     (:func:`borescan.device_model.derivatives` of :func:`measure_scan`'s diameter).
     """
     d = device_model.derivatives(dm, lambda m: measure_scan(scan, cal.beams, None, m, cleaning)["diameter_mm"])
@@ -1052,7 +1070,9 @@ def verify(measured_mm, u_measured_mm, certified_diameter_mm, u_cert_mm, cte_per
 
 
 def part_feature(artifact: dict, feature: str | None) -> dict:
-    """Return the scan.json feature a diameter belongs to: ``{"nominal_diameter_mm", "tolerance_mm"}`` (None
+    """Return the scan.json feature a diameter belongs to.
+
+    Return the scan.json feature a diameter belongs to: ``{"nominal_diameter_mm", "tolerance_mm"}`` (None
     where
     unknown).
 
@@ -1181,7 +1201,9 @@ def verification_row(scan_id, device_id, artifact_id, v: Verification) -> dict:
 
 def verification_for_certificate(scan, cal, unc_cfg: dict, lab_cfg: dict, tolerance_mm: float,
                                  cleaning=None) -> dict | None:
-    """Return a ring-gauge verification scan measured with ``cal`` and verified (:func:`verify_budget`),
+    """Return a verification scan measured with ``cal`` as a certificate row.
+
+    Return a ring-gauge verification scan measured with ``cal`` and verified (:func:`verify_budget`),
     as a row for the calibration's certificate: the ``verifications`` columns plus the budget rows
     (``budget``), the gauge's ``certificate`` and the scan's ``raw_files`` (name -> SHA-256).
     None when the scan's artifact is not a certified ring gauge. ``cleaning``: the spike policy.

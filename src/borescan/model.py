@@ -204,7 +204,9 @@ def tri_correct_readings(
     t_s: np.ndarray, readings_mm: np.ndarray, channels: Sequence[int], effects: Iterable[Effect],
     range_mm: Sequence[float] | float = 10.0, *, tol_mm: float = 1e-12, max_iter: int = 50,
 ) -> np.ndarray:
-    """Return readings corrected for beam and reading effects: the inverse of steps 6-7 of :func:`tri_forward`
+    """Return readings corrected for beam and reading effects.
+
+    Return readings corrected for beam and reading effects: the inverse of steps 6-7 of :func:`tri_forward`
     (a device model's effects, carried).
 
     v_obs = f(v), f the composed forward functions of the registry at each reading's channel time,

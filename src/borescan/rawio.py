@@ -485,7 +485,9 @@ _NUMPY_DTYPE = {pa.int8(): np.int8, pa.int16(): np.int16, pa.int32(): np.int32, 
 
 
 def _arrow_numpy(arr: pa.Array, fill=None) -> np.ndarray:
-    """One Arrow array as numpy: a view of its value buffer (a copy with ``fill`` where null, in the
+    """Return one Arrow array as numpy.
+
+    One Arrow array as numpy: a view of its value buffer (a copy with ``fill`` where null, in the
     array's dtype) for the types of :data:`_NUMPY_DTYPE`; any other type, or nulls without ``fill``, by
     pyarrow's conversion.
     """
@@ -549,7 +551,9 @@ def _range_of(sensor: dict) -> float | None:
 
 
 def _aligned_chunks(table: pa.Table, names: tuple[str, ...]) -> list[tuple[np.ndarray, ...]]:
-    """Numpy arrays of the columns ``names``, chunk by chunk: zero-copy views of the chunks as read
+    """Return numpy arrays of the columns ``names``, chunk by chunk.
+
+    Numpy arrays of the columns ``names``, chunk by chunk: zero-copy views of the chunks as read
     (nulls of a float column as NaN, which costs a copy of that chunk), or one combined chunk per
     column when the columns are chunked differently.
     """
@@ -591,7 +595,9 @@ def _lds_fast_check(table: pa.Table, meta: dict | None, has_spindle: bool, file:
 
 
 def _matrix_warnings(mat: LdsMatrix, nulls: int, listed: dict[int, dict], file: str) -> list[str] | None:
-    """Range warnings of a table in the usual layout from its wide matrix (NaN = null); None when
+    """Return the range warnings of a usual-layout table, or None.
+
+    Range warnings of a table in the usual layout from its wide matrix (NaN = null); None when
     something might be a problem: a negative first sample or time, NaN or infinite readings, a
     listed channel without valid readings.
     """
@@ -612,7 +618,9 @@ def _matrix_warnings(mat: LdsMatrix, nulls: int, listed: dict[int, dict], file: 
 
 
 def _range_warnings(lo: float, hi: float, listed: dict[int, dict], file: str, count_out) -> list[str]:
-    """Warnings for readings outside [0, range] per listed channel, counted (``count_out(j, range)``
+    """Return warnings for readings outside [0, range] per listed channel.
+
+    Warnings for readings outside [0, range] per listed channel, counted (``count_out(j, range)``
     for the j-th channel ascending) only when the extreme readings ``lo``, ``hi`` leave [0, range].
     """
     chans = sorted(listed)
@@ -628,7 +636,9 @@ def _range_warnings(lo: float, hi: float, listed: dict[int, dict], file: str, co
 
 
 def _pose_ok(table: pa.Table, meta: dict | None, has_spindle: bool) -> bool:
-    """Return the pose checks of :func:`_check_lds_full` pass (rod: every pose set, >= 0, one per sample;
+    """Return whether the pose checks of :func:`_check_lds_full` pass.
+
+    Return the pose checks of :func:`_check_lds_full` pass (rod: every pose set, >= 0, one per sample;
     tri_lds with a spindle stream: no pose).
     """
     pcol = table.column("pose")
@@ -644,7 +654,9 @@ def _pose_ok(table: pa.Table, meta: dict | None, has_spindle: bool) -> bool:
 
 def _lds_chunk_warnings(  # noqa: C901 (one branch per checked rule of the raw format)
         table: pa.Table, listed: dict[int, dict] | None, file: str) -> list[str] | None:
-    """Ordering, finiteness, channel and range checks of any table without nulls where they are not
+    """Return the checks' warnings on the Arrow chunks as read, or None.
+
+    Ordering, finiteness, channel and range checks of any table without nulls where they are not
     allowed, on the Arrow chunks as they were read (no concatenation): sorting is tested by
     comparing neighbours (no int64 differences), readings per channel by one comparison per listed
     channel. Returns the range warnings, None when something might be a problem.
@@ -696,7 +708,9 @@ def _lds_chunk_warnings(  # noqa: C901 (one branch per checked rule of the raw f
 def _check_lds(
     table: pa.Table, meta: dict | None, has_spindle: bool, p: _Problems, file: str
 ) -> tuple[list[str], LdsMatrix | None]:
-    """Check the data of an ``lds.parquet`` table with the right schema; return (warnings, the wide
+    """Check the data of an ``lds.parquet`` table with the right schema.
+
+    Check the data of an ``lds.parquet`` table with the right schema; return (warnings, the wide
     matrix when the fast check built it on the way, else None).
     """
     fast = _lds_fast_check(table, meta, has_spindle, file)
@@ -1109,7 +1123,9 @@ def read_scan(scan_dir: Path, raw_root: Path | None = None) -> RawScan:
 
 
 def inspect_scan(scan_dir: Path, raw_root: Path | None = None) -> tuple[RawScan | None, list[ScanError]]:
-    """Read and validate one scan folder like :func:`read_scan`, returning every problem instead of
+    """Read and validate one scan folder, returning every problem.
+
+    Read and validate one scan folder like :func:`read_scan`, returning every problem instead of
     raising the first: ``(scan, [])`` when valid, ``(None, problems)`` otherwise.
     """
     return _inspect(scan_dir, raw_root)
@@ -1153,7 +1169,9 @@ def discover_scans(raw_root: Path) -> list[Path]:
 
 
 def nights(raw_root: str | Path) -> list[str]:
-    """Nights (``YYYY-MM-DD``) with a ``night=<date>`` folder under ``raw_root``, sorted; [] when it does not
+    """Return the nights with a ``night=<date>`` folder under ``raw_root``.
+
+    Nights (``YYYY-MM-DD``) with a ``night=<date>`` folder under ``raw_root``, sorted; [] when it does not
     exist.
 
     The unit of work of the pipeline: each stage runs once per night. Folders whose name is not
@@ -1167,7 +1185,9 @@ def nights(raw_root: str | Path) -> list[str]:
 
 
 def night_scan_dirs(raw_root: str | Path, night: str) -> list[Path]:
-    """Scan folders ``scan=<scan_id>`` (non-empty id) of one night, sorted by folder name; listed, not
+    """Return the scan folders of one night, sorted.
+
+    Scan folders ``scan=<scan_id>`` (non-empty id) of one night, sorted by folder name; listed, not
     validated.
     """
     night_dir = Path(raw_root) / f"night={night}"
@@ -1423,7 +1443,9 @@ def _residue_column(views: list[np.ndarray], k: int, c: int, n: int, dtype) -> n
 
 
 def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
-    """Float column of a long table, c rows per sample -> (n, c) (row r -> [r // c, r % c], i.e. the
+    """Return a float column of a long table as an (n, c) matrix.
+
+    Float column of a long table, c rows per sample -> (n, c) (row r -> [r // c, r % c], i.e. the
     flat index r of a C-ordered array: one copy of the value buffers); nulls NaN.
     """
     out = np.empty(n * c)
@@ -1439,7 +1461,9 @@ def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
 
 def _regular_matrix(  # noqa: C901 (one exit per layout that is not the usual one)
         tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
-    """Return the wide matrix of an ``lds`` Arrow table in the usual layout, straight from its chunks; None
+    """Return the wide matrix of an ``lds`` table in the usual layout, or None.
+
+    Return the wide matrix of an ``lds`` Arrow table in the usual layout, straight from its chunks; None
     when the layout does not apply.
 
     The usual layout: every sample has one row per listed channel (``listed`` ascending) in channel

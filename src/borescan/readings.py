@@ -114,7 +114,9 @@ def clean_matrix(mat: rawio.LdsMatrix, policy: CleaningPolicy, *, spindle: bool)
 
 
 def prepared_matrix(scan: rawio.RawScan, policy: CleaningPolicy | None = None) -> rawio.LdsMatrix:
-    """Return the reading matrix of ``scan`` (:func:`borescan.rawio.lds_matrix`) cleaned by ``policy``
+    """Return the reading matrix of ``scan`` cleaned by ``policy``.
+
+    Return the reading matrix of ``scan`` (:func:`borescan.rawio.lds_matrix`) cleaned by ``policy``
     (the schema's defaults when None): a scan with a spindle stream by the spindle rule, any
     other by the static rule.
     """

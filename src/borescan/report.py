@@ -344,7 +344,9 @@ _LABEL_BOX = {"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha"
 
 
 def _night_ticks(ax, nights: list, ids: list, most: int = MAX_TICK_LABELS) -> None:
-    """Label points 0..n-1 by night: every point as "night / scan" when there are at most ``most``,
+    """Return the axis ticks that label points by night.
+
+    Label points 0..n-1 by night: every point as "night / scan" when there are at most ``most``,
     else at most ``most`` nights (the first point of every k-th night), a minor tick per night.
     """
     n = len(nights)
@@ -501,7 +503,9 @@ def _wrap_carried(entry: str) -> str:
 
 
 def plot_device_model_gap(hist: pl.DataFrame, device_id: str) -> Figure:
-    """Return the gaps of one device over its nights (:func:`device_model_history`), the nights from which
+    """Plot the gaps of one device over its nights.
+
+    Return the gaps of one device over its nights (:func:`device_model_history`), the nights from which
     its calibrations carried other effects marked by a dashed line and what they carried there (a
     new estimate of the same effects is no change of the model).
 
@@ -754,7 +758,9 @@ def _safe(name: str) -> str:
 
 @functools.lru_cache(maxsize=1)
 def _code_fingerprint() -> str:
-    """Return the digest of this module's source and the plotting libraries (a change re-renders every
+    """Return the digest of this module's source and the plotting libraries.
+
+    Return the digest of this module's source and the plotting libraries (a change re-renders every
     page).
     """
     import matplotlib
@@ -983,7 +989,9 @@ class _Builder:
         return None if rel is None else self.up + rel
 
     def figure(self, plot, data: pl.DataFrame, key: str, name: str, alt: str, *args) -> str:
-        """``plot(data, key, *args)`` as ``<month>/<name>.png``, drawn only when its input changed;
+        """Draw ``plot(data, key, *args)`` as ``<month>/<name>.png`` when its input changed.
+
+        ``plot(data, key, *args)`` as ``<month>/<name>.png``, drawn only when its input changed;
         embedded in the page as a ``data:`` image that links to the PNG file.
         """
         fname = _safe(name) + ".png"
@@ -1091,7 +1099,9 @@ class _Builder:
         return "".join(out)
 
     def parts(self) -> pl.DataFrame:
-        """Return the month's diameter rows with ``nominal_mm`` (the row's ``nominal_diameter_mm``, else the
+        """Return the month's diameter rows with nominal, tolerance and verdict.
+
+        Return the month's diameter rows with ``nominal_mm`` (the row's ``nominal_diameter_mm``, else the
         part's from ``artifacts``), ``tolerance_mm`` (the row's, when the measure stage records one),
         ``deviation_mm`` (at 20 °C where known, else as measured, minus the nominal) and
         ``in_tolerance`` (|deviation| <= tolerance; null without a tolerance).
@@ -1204,7 +1214,9 @@ class _Builder:
 
     def pooled(  # noqa: C901 (one branch per optional column of the report's pooled table)
             self) -> str:
-        """Per device and night: the spindle scans examined together (borescan.discrepancy.pooled), the
+        """Return the pooled examinations per device and night.
+
+        Per device and night: the spindle scans examined together (borescan.discrepancy.pooled), the
         device model's effects, what the night's calibration carried of it with its residual against the
         noise floor, the gap against the noise floor, and the calibration drifts flagged.
         """
@@ -1274,7 +1286,9 @@ class _Builder:
         return "".join(out)
 
     def _finding_uncertainties(self, scan_id: str, recs: list[dict] = ()) -> dict[tuple, dict[str, float]]:
-        """(effect, channel) -> {parameter: u}: the findings table's ``uncertainties`` column, else
+        """Return the findings' uncertainties per (effect, channel).
+
+        (effect, channel) -> {parameter: u}: the findings table's ``uncertainties`` column, else
         ``discrepancy/<scan>/findings.json`` (catalogs written before the column existed).
         """
         out = {(r.get("effect"), r.get("channel")): u for r in recs if (u := _uncertainties(r.get("uncertainties")))}
@@ -1314,7 +1328,9 @@ class _Builder:
         return "".join(out)
 
     def quarantined(self) -> list[dict[str, Any]]:
-        """Every quarantined scan of the page (``scans`` status or ``quarantine`` rows): scan_id,
+        """Return every quarantined scan of the page.
+
+        Every quarantined scan of the page (``scans`` status or ``quarantine`` rows): scan_id,
         night, device_id, kind, stages, reasons, class and action, in night and scan order.
         """
         sc = self.t["scans"].filter(pl.col("status") == "quarantined")
@@ -1451,7 +1467,9 @@ class _Builder:
 
 
 def _uncertainties(u: Any) -> dict[str, float]:
-    """Return a finding's uncertainties (a dict, or its JSON text) as {parameter: u}: ``u_`` prefixes dropped,
+    """Return a finding's uncertainties as {parameter: u}.
+
+    Return a finding's uncertainties (a dict, or its JSON text) as {parameter: u}: ``u_`` prefixes dropped,
     non-numbers left out; {} for nothing readable.
     """
     if isinstance(u, str):
@@ -1465,7 +1483,9 @@ def _uncertainties(u: Any) -> dict[str, float]:
 
 
 def _calibration_models(cal: pl.DataFrame | None) -> dict[tuple[str, str], tuple[list[dict], float | None]]:
-    """(device, night) -> (the device-model entries the night's calibration carried, from its
+    """Return what each night's calibration carried per device.
+
+    (device, night) -> (the device-model entries the night's calibration carried, from its
     calibration_json diagnostics; its worst residual over the noise floor, None if not stated).
     Of several calibrations of a device in a night, one that carried a device model.
     """
@@ -1487,7 +1507,9 @@ def _calibration_models(cal: pl.DataFrame | None) -> dict[tuple[str, str], tuple
 
 
 def _carried_by_calibrations(cal: pl.DataFrame | None) -> dict[tuple[str, str], str]:
-    """(device, night) -> what the night's calibration carried of its device model (each entry with
+    """Return what each night's calibration carried and its residual.
+
+    (device, night) -> what the night's calibration carried of its device model (each entry with
     value ± u and the night it came from, or "not estimated") and its residual against the readings'
     noise floor: when an effect entered the model and what it did to the calibration's gap (HTML).
     """
@@ -1509,7 +1531,9 @@ def _carried_by_calibrations(cal: pl.DataFrame | None) -> dict[tuple[str, str], 
 
 
 def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -> str:
-    """Return a finding's parameters (JSON text of the findings table) in words:
+    """Return a finding's parameters in words.
+
+    Return a finding's parameters (JSON text of the findings table) in words:
     ``tau_s = 1.200 ± 0.030 ms``.
     """
     if not parameters:

@@ -232,7 +232,9 @@ def rod_start(L: np.ndarray, mask: np.ndarray, fix: int = 0) -> tuple[np.ndarray
 
 
 def _prepare(readings_mm, l0_mm, n_extra: int = 0):
-    """l = l0 + v, the observation mask and the poses kept (those with >= 2 readings: a pose
+    """Return l = l0 + v, the observation mask and the poses kept.
+
+    l = l0 + v, the observation mask and the poses kept (those with >= 2 readings: a pose
     seen by one layer only determines its own angle and nothing else, so it is dropped).
     ``n_extra`` unknowns beyond Wang's 3m + n - 1 (2 for the deflection).
     """
@@ -281,7 +283,9 @@ def _dk(s):
 
 
 def rod_layers(l0_mm=None, layers: Sequence[RodLayer] | None = None, m: int | None = None) -> tuple[RodLayer, ...]:
-    """Layer geometry for the solve: ``layers`` (device nominal or a rod calibration), their l0
+    """Return the layer geometry for the solve.
+
+    Layer geometry for the solve: ``layers`` (device nominal or a rod calibration), their l0
     replaced by ``l0_mm`` when both are given; l0 alone gives phi = d = gamma = 0 (Wang Eq. 16).
     """
     if layers is None:
@@ -360,7 +364,9 @@ class _RodProblem:
         return e[self.mask]
 
     def jac(self, p, beta_step=None):
-        """d(model)/dp by central differences in blocks (a pose angle moves its row only, a hole's
+        """Return d(model)/dp by central differences in blocks.
+
+        d(model)/dp by central differences in blocks (a pose angle moves its row only, a hole's
         unknowns its column only: 12 model evaluations). With ``beta_step`` the last two columns
         are secants in beta = w^2 (complex square) instead: the statistics' coordinates.
         """
@@ -505,7 +511,9 @@ _POSE_GRID = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 
 
 def _repair_poses(prob, p, max_rounds: int = 3):
-    """Per-pose angle profile: with the holes and the axis held, each pose angle is searched on a
+    """Repair the pose angles by a per-pose profile.
+
+    Per-pose angle profile: with the holes and the axis held, each pose angle is searched on a
     grid over the whole circle; a pose whose grid minimum is clearly below its current cost is
     moved there and the joint LM re-run. A single pose angle can sit in a local minimum of its
     own (its readings are periodic in alpha_n) which LM cannot leave; this finds it.
@@ -542,7 +550,9 @@ def _repair_poses(prob, p, max_rounds: int = 3):
 
 def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and repairs)
         prob, L, mask, starts_alpha, deflection):
-    """Multi-start LM: every start (both reflections) first without deflection, then from the
+    """Run the multi-start LM of the rod solve.
+
+    Multi-start LM: every start (both reflections) first without deflection, then from the
     closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0); the
     lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`).
     """
@@ -770,7 +780,9 @@ def _expand(a, keep):
 
 
 def rod_cost_mm2(readings_mm, alpha_rad, layers, holes, axis) -> float:
-    """Sum of squared residuals of ``readings_mm`` (n, m; NaN skipped) against the exact forward
+    """Return the sum of squared residuals against the exact forward model.
+
+    Sum of squared residuals of ``readings_mm`` (n, m; NaN skipped) against the exact forward
     model at the given geometry (e.g. the truth of a simulated scan) [mm^2].
     """
     v = np.asarray(readings_mm, dtype=float)

@@ -208,14 +208,18 @@ def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list
 
 
 def rod_calibration_id(device_id: str, scan_ids, night: str) -> str:
-    """Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>``
+    """Return the deterministic id of a rod calibration.
+
+    Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>``
     (:func:`borescan.calibration.make_calibration_id`).
     """
     return make_calibration_id(device_id, scan_ids, ROD_CALIBRATION_METHOD, night)
 
 
 def layer_jacobian(channels, channel: int) -> np.ndarray:
-    """d D_channel / d l0 of every layer (2 on its own layer, 0 elsewhere): a diameter's sensitivity
+    """Return d D_channel / d l0 of every layer.
+
+    d D_channel / d l0 of every layer (2 on its own layer, 0 elsewhere): a diameter's sensitivity
     to the calibration's outputs.
     """
     return np.array([2.0 if int(c) == int(channel) else 0.0 for c in channels])
@@ -223,7 +227,9 @@ def layer_jacobian(channels, channel: int) -> np.ndarray:
 
 def rod_calibration_rows(cal: RodCalibration, night: str, certificate_path: str | None, raw_sha256: str,
                          p: float) -> list[dict]:
-    """Return the ``calibrations`` rows of a rod calibration (one per layer; l0 with its standard uncertainty
+    """Return the ``calibrations`` rows of a rod calibration.
+
+    Return the ``calibrations`` rows of a rod calibration (one per layer; l0 with its standard uncertainty
     u).
     """
     blob = json.dumps(_to_dict(cal), sort_keys=True, allow_nan=False)
@@ -250,7 +256,9 @@ def _to_dict(cal: RodCalibration) -> dict[str, Any]:
 
 
 def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget | None]:
-    """Layers and budget of a recorded rod calibration (``calibrations`` rows of one id); the
+    """Return the layers and budget of a recorded rod calibration.
+
+    Layers and budget of a recorded rod calibration (``calibrations`` rows of one id); the
     budget is None for the ``nominal`` record (design geometry, nothing calibrated).
     """
     rows = sorted(rows, key=lambda r: int(r["channel"]))
@@ -262,7 +270,9 @@ def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget 
 
 
 def pose_means_of_scan(scan, cleaning=None) -> tuple[list[int], np.ndarray, float | None, dict]:
-    """(channels, mean reading per pose and layer (n, m), u of one mean from the data sheet, sensors)
+    """Return the pose means of a rod scan with their uncertainty.
+
+    (channels, mean reading per pose and layer (n, m), u of one mean from the data sheet, sensors)
     of a rod scan (:func:`borescan.measure.pose_means`, :func:`borescan.measure.mean_reading_u_mm`)
     over its readings cleaned by the spike policy ``cleaning`` (:func:`borescan.readings.prepared_matrix`).
     """
@@ -321,7 +331,9 @@ def rod_diameters_with_budget(scan, layer_rows: list[dict], unc_cfg: dict, calib
 
 def rod_verifications(scan, diameters: list[dict], calibration_id: str, unc_cfg: dict, lab_cfg: dict,
                       tolerance_mm: float) -> list[dict]:
-    """``verifications`` rows of a rod scan in certified gauges: each layer's diameter at 20 degC
+    """Return the ``verifications`` rows of a rod scan in certified gauges.
+
+    ``verifications`` rows of a rod scan in certified gauges: each layer's diameter at 20 degC
     against its gauge (:func:`layer_gauges`, :func:`borescan.measure.verify_budget`), one row per
     layer with ``feature``, the budget rows (``budget``) and the scan's raw files.
 

@@ -446,7 +446,9 @@ def _artifact(kind: str, ident: str, diameters_mm, z_mm, cte_per_k: float, u_mm:
 
 def draw_tri_static(rng: np.random.Generator, *, scan_id: str, night: str, beams: Beams | None = None,
                     effect_free: bool = True, contract: dict = STATIC_CONTRACT):
-    """Return a static three-sensor set drawn over the contract: a ring gauge with a certified diameter
+    """Return a static three-sensor set drawn over the contract.
+
+    Return a static three-sensor set drawn over the contract: a ring gauge with a certified diameter
     (a verification) or a part with a nominal one (a measurement), 3-12 device poses within
     3 mm of the bore centre at random angles, 5-30 samples per pose, noise 1-5 um. ``beams``
     (default: drawn as for :func:`draw_tri_calibration`) is the device; d_b and the ranges keep
@@ -502,7 +504,9 @@ def draw_tri_static(rng: np.random.Generator, *, scan_id: str, night: str, beams
 
 
 def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -> dict:
-    """Rod geometry over the contract: 2-3 coaxial holes of radius 50-100 mm 100-300 mm apart,
+    """Return a rod geometry drawn over the contract.
+
+    Rod geometry over the contract: 2-3 coaxial holes of radius 50-100 mm 100-300 mm apart,
     layer geometry (l0, phi, d, gamma) of a real rod, eccentricity up to 2.5 mm and deflection up
     to 1 deg, 8-40 poses at random angles, 5-30 readings per pose, noise 2-20 um.
 
@@ -533,7 +537,9 @@ def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -
 
 def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_free: bool = True,
                   contract: dict = ROD_CONTRACT):
-    """Return a rod scan over the contract (:func:`draw_rod_geometry`) in a ring-gauge set with certified
+    """Return a rod scan over the contract.
+
+    Return a rod scan over the contract (:func:`draw_rod_geometry`) in a ring-gauge set with certified
     diameters (half of the scans: what a rod is verified on) or in a part with nominal ones. Each
     layer's sensor (range 30 mm) sits mid-range so that eccentricity and deflection stay inside it.
 
@@ -578,7 +584,9 @@ def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_
 
 
 def battery_rng(seed: int, index: int) -> np.random.Generator:
-    """Return the generator of scan ``index`` of the battery ``seed``:
+    """Return the generator of scan ``index`` of the battery ``seed``.
+
+    Return the generator of scan ``index`` of the battery ``seed``:
     ``SeedSequence(seed, spawn_key=(index,))``.
 
     The same as ``SeedSequence(seed).spawn(n)[index]`` for any n > index, so a longer battery
@@ -592,7 +600,9 @@ BATTERY_KINDS = {"calibration": ("CT", 0), "static": ("CS", 1), "rod": ("CR", 2)
 
 
 def battery_scan_id(seed: int, index: int, kind: str = "calibration") -> str:
-    """Scan id of scan ``index`` of battery ``seed``: ``CT<seed>-<index:05d>`` (calibration),
+    """Return the scan id of scan ``index`` of battery ``seed``.
+
+    Scan id of scan ``index`` of battery ``seed``: ``CT<seed>-<index:05d>`` (calibration),
     ``CS...`` (static sets), ``CR...`` (rods).
     """
     return f"{BATTERY_KINDS[kind][0]}{int(seed)}-{int(index):05d}"

@@ -143,7 +143,9 @@ class TriScene:
         return 2.0 * math.pi * self.rpm_nominal / 60.0
 
     def commanded_angle_rad(self, t_s: np.ndarray) -> np.ndarray:
-        """Unsigned commanded angle Phi(t) since t = 0: the integral of the profile
+        """Return the unsigned commanded angle Phi(t) since t = 0 [rad].
+
+        Unsigned commanded angle Phi(t) since t = 0: the integral of the profile
         (:func:`borescan.kinematics.profile_angle_rad`, the function the pipeline reads scans with),
         omega_nominal t without a profile [rad].
         """
@@ -253,7 +255,9 @@ class RodScene:
 
 
 def layer_dict(lay: RodLayer) -> dict:
-    """Return a rod layer in the spec's names, as ``device.nominal.layers`` of scan.json lists it: channel,
+    """Return a rod layer in the spec's names.
+
+    Return a rod layer in the spec's names, as ``device.nominal.layers`` of scan.json lists it: channel,
     h [mm], phi [rad], d [mm], gamma [rad], l0 [mm] (inverse of :meth:`RodScene.from_dict`'s layers).
     """
     return {"channel": int(lay.channel), "h": float(lay.h_mm), "phi": float(lay.phi_rad),
@@ -268,7 +272,9 @@ def _as_effects(effects: Iterable[Effect | dict] | None) -> list[Effect]:
 
 
 def tri_base(scene: TriScene) -> TriBase:
-    """Return the scene's true base geometry for :mod:`borescan.model` (effect-free bore C, R20;
+    """Return the scene's true base geometry.
+
+    Return the scene's true base geometry for :mod:`borescan.model` (effect-free bore C, R20;
     turned angle the commanded profile; phase and direction of the scene).
     """
     return TriBase(
@@ -303,7 +309,9 @@ def tri_phi(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) ->
 
 
 def tri_readings(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
-    """Noise-free readings of a spindle scan with effects: :func:`borescan.model.tri_forward`
+    """Return the noise-free readings of a spindle scan with effects.
+
+    Noise-free readings of a spindle scan with effects: :func:`borescan.model.tri_forward`
     on the scene's true geometry (:func:`tri_base`).
 
     v = s - d_b, s > 0 the root of |S(phi) + Rot(phi)(F + s u) - C| = r_wall, phi = phi(t_c),
@@ -431,7 +439,9 @@ def default_rod_scene(**overrides: Any) -> RodScene:
 
 @dataclass
 class SimulatedScan:
-    """A simulated scan: ``meta`` (scan.json), ``lds`` and ``spindle`` frames per
+    """A simulated scan: meta, readings, spindle stream and truth.
+
+    A simulated scan: ``meta`` (scan.json), ``lds`` and ``spindle`` frames per
     ``raw-scan-format.md``, and the ground ``truth`` (written outside the raw tree).
     """
 
@@ -521,7 +531,9 @@ def _base_meta(scan_id, night, kind, started_at, device, sample_rate_hz, sensors
 
 
 def _default_artifact(diameter_mm: float, cte_per_k: float) -> dict:
-    """Return a ring gauge of the scene's diameter: RG-275 (certificate RG-275/2026-03) for the default
+    """Return a ring gauge of the scene's diameter.
+
+    Return a ring gauge of the scene's diameter: RG-275 (certificate RG-275/2026-03) for the default
     275.029 mm, else one gauge per diameter (its certificate id names the value, so two simulated
     gauges never share a certificate with different values: ingest quarantines that).
     """

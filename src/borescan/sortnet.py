@@ -64,7 +64,9 @@ def selection_ops(n: int, ranks: tuple[int, ...]) -> tuple[tuple[int, int, bool,
 
 
 def select_ranks(cols: list[np.ndarray], ranks: tuple[int, ...]) -> list[np.ndarray]:
-    """Element-wise order statistics of k equally shaped NaN-free arrays: one array per rank in
+    """Return element-wise order statistics of k arrays.
+
+    Element-wise order statistics of k equally shaped NaN-free arrays: one array per rank in
     ``ranks`` (0-based, ascending), by the pruned network; the inputs are not modified (a rank
     no comparator touches comes back as the input array itself).
     """
@@ -79,7 +81,9 @@ def select_ranks(cols: list[np.ndarray], ranks: tuple[int, ...]) -> list[np.ndar
 
 
 def median_columns(cols: list[np.ndarray]) -> np.ndarray:
-    """Element-wise median of k equally shaped NaN-free arrays (mean of the two middle ranks for
+    """Return the element-wise median of k arrays.
+
+    Element-wise median of k equally shaped NaN-free arrays (mean of the two middle ranks for
     even k), by a selection network; the inputs are not modified.
     """
     k = len(cols)

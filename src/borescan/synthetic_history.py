@@ -81,7 +81,9 @@ def _compact(iso: str) -> str:
 
 
 class _Renamer:
-    """The id map of one (source night, copy) in a synthetic night: source dates -> its date,
+    """The id map of one (source night, copy) in a synthetic night.
+
+    The id map of one (source night, copy) in a synthetic night: source dates -> its date,
     devices, scans and parts suffixed.
     """
 

@@ -46,7 +46,9 @@ class Column:
 
 @dataclass(frozen=True)
 class Table:
-    """One history table: columns in order, key columns (rows are inserted in key order;
+    """One history table.
+
+    One history table: columns in order, key columns (rows are inserted in key order;
     unique when ``primary``).
     """
 
@@ -176,7 +178,9 @@ def polars_schema(name: str) -> dict[str, pl.DataType]:
 
 
 def frame(name: str, rows: Iterable[Mapping]) -> pl.DataFrame:
-    """Rows (dicts keyed by column name) as a frame with table ``name``'s stage schema; empty frame
+    """Return rows as a frame with table ``name``'s stage schema.
+
+    Rows (dicts keyed by column name) as a frame with table ``name``'s stage schema; empty frame
     with the schema when there are none.
     """
     schema = polars_schema(name)

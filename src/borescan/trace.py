@@ -66,7 +66,9 @@ class _Tracer:
         return rows[0] if rows else {"artifact_id": artifact_id, "missing": True}
 
     def scan_artifact(self, sn: dict[str, Any]) -> dict[str, Any] | None:
-        """Return the artifact as the scan used it: its own certificate id and certified value (kept in
+        """Return the artifact as the scan used it.
+
+        Return the artifact as the scan used it: its own certificate id and certified value (kept in
         ``scans`` per scan, so a later scan naming the artifact cannot rewrite them); ``latest``
         holds the artifacts table's record when that differs (a recertified gauge).
         """
@@ -297,7 +299,9 @@ def _cal_lines(c: dict[str, Any] | None, ind: str) -> list[str]:
 
 
 def _layer_gauges(row: dict[str, Any]) -> list[dict[str, Any]]:
-    """Return the certified gauge each layer of a rod calibration was calibrated in (its calibration_json); []
+    """Return the certified gauge each layer of a rod calibration was calibrated in.
+
+    Return the certified gauge each layer of a rod calibration was calibrated in (its calibration_json); []
     for other calibrations.
     """
     if row.get("method") != "rod_gauge" or not row.get("calibration_json"):

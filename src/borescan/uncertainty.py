@@ -162,7 +162,9 @@ def numerical_tolerance(u: float, n_dig: int = 2) -> float:
 
 
 def _cell_masses(dist: str, scale: float, nu: float, edges: np.ndarray) -> np.ndarray:
-    """Probability of each cell [edges[i], edges[i+1]) of a zero-mean term with standard uncertainty
+    """Return the probability of each cell of a zero-mean term.
+
+    Probability of each cell [edges[i], edges[i+1]) of a zero-mean term with standard uncertainty
     ``scale``.
     """
     if dist == "normal":
@@ -186,7 +188,9 @@ def _cell_masses(dist: str, scale: float, nu: float, edges: np.ndarray) -> np.nd
 
 
 def _fast_length(n: int) -> int:
-    """Smallest 5-smooth integer >= n (2^a 3^b 5^c: a fast real FFT length; scipy.fft.next_fast_len(n,
+    """Return the smallest 5-smooth integer >= n.
+
+    Smallest 5-smooth integer >= n (2^a 3^b 5^c: a fast real FFT length; scipy.fft.next_fast_len(n,
     real=True), without importing scipy.fft).
     """
     best, p5 = 2 * n, 1
@@ -597,7 +601,9 @@ def draw(distribution: str, estimate: float, u: float, size: int, rng: np.random
 
 @dataclass(frozen=True)
 class MonteCarloResult:
-    """GUM S1 Monte Carlo result: estimate (mean), standard uncertainty (sample SD), the
+    """GUM S1 Monte Carlo result.
+
+    GUM S1 Monte Carlo result: estimate (mean), standard uncertainty (sample SD), the
     probabilistically symmetric coverage interval [low, high] for p, and the number of trials.
     """
 
@@ -661,7 +667,9 @@ def s1_validate(y: float, U: float, u: float, mc: MonteCarloResult, n_dig: int =
 
 
 def round_uncertainty(U: float, digits: int = 2) -> tuple[float, int]:
-    """U rounded up to ``digits`` significant digits (GUM 7.2.6: round up rather than down) and the
+    """Return U rounded up to ``digits`` significant digits.
+
+    U rounded up to ``digits`` significant digits (GUM 7.2.6: round up rather than down) and the
     number of decimals it has (negative: tens, hundreds, ...).
     """
     U = abs(float(U))

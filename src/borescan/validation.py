@@ -1,4 +1,6 @@
-"""The one validator: every reason the pipeline sets a raw scan aside at ingest (ingest and
+"""The one validator of raw scans.
+
+The one validator: every reason the pipeline sets a raw scan aside at ingest (ingest and
 ``borescan validate``).
 
 :func:`scan_problems` is the single check of one scan folder. The ingest stage quarantines a
@@ -106,7 +108,9 @@ def rate_mismatch(sample: np.ndarray, t_s: np.ndarray, sample_rate_hz: float) ->
 
 
 def clock_problem(scan: rawio.RawScan) -> str | None:
-    """Return the sample-clock problem of a spindle scan (rate, then jumps); None when fine or not a spindle
+    """Return the sample-clock problem of a spindle scan, or None.
+
+    Return the sample-clock problem of a spindle scan (rate, then jumps); None when fine or not a spindle
     scan.
     """
     if scan.spindle is None:

@@ -1,4 +1,6 @@
-"""Rule write_report: results_root/report.html, the month pages (redrawn where rows changed),
+"""Rule write_report: the report, its month pages and the papers' page.
+
+Rule write_report: results_root/report.html, the month pages (redrawn where rows changed),
 report/papers.html.
 """
 

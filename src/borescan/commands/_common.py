@@ -1,4 +1,6 @@
-"""What the subcommands share: the user-error exception, argument types, progress lines, times with their
+"""What the subcommands share.
+
+What the subcommands share: the user-error exception, argument types, progress lines, times with their
 zone.
 
 Exit codes of every ``borescan`` command: 0 done; 1 the command ran and its answer is "no"
@@ -23,7 +25,9 @@ __all__ = ["UsageError", "CommandFailed", "int_at_least", "positive_int", "nonne
 
 
 class UsageError(Exception):
-    """The command cannot run as asked (exit 2); ``str()`` is the message shown after
+    """The command cannot run as asked (exit 2).
+
+    The command cannot run as asked (exit 2); ``str()`` is the message shown after
     ``borescan <command>:``.
     """
 

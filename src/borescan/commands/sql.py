@@ -84,7 +84,9 @@ def _is_number(v: object) -> bool:
 
 
 def _round(x: float, digits: int) -> str:
-    """``x`` to ``digits`` significant digits, positional (``0.0004214``, not ``4.214e-04``) unless tiny
+    """Return ``x`` rounded to ``digits`` significant digits as text.
+
+    ``x`` to ``digits`` significant digits, positional (``0.0004214``, not ``4.214e-04``) unless tiny
     or huge; trailing zeros dropped.
     """
     if x == 0 or not math.isfinite(x):
@@ -118,7 +120,9 @@ def _number_cells(values: list[object], digits: int) -> list[str]:
 
 
 def _cut(text: str, width: int) -> str:
-    """``text`` on one line, at most ``width`` characters (0: any): the middle gives way to an
+    """Return ``text`` on one line, cut to ``width`` characters.
+
+    ``text`` on one line, at most ``width`` characters (0: any): the middle gives way to an
     ellipsis, so a path keeps its file name and a digest both ends.
     """
     text = text.replace("\n", " ")
@@ -129,7 +133,9 @@ def _cut(text: str, width: int) -> str:
 
 
 def format_table(columns: list[str], rows: list[tuple], digits: int = 7, max_width: int = 40) -> str:
-    """Aligned text table: header, a rule, one line per row; numbers rounded and right-aligned on
+    """Return an aligned text table.
+
+    Aligned text table: header, a rule, one line per row; numbers rounded and right-aligned on
     their decimal point, text left-aligned and cut at ``max_width`` characters (0: never).
     """
     numeric = [any(r[i] is not None for r in rows) and all(_is_number(r[i]) for r in rows if r[i] is not None)

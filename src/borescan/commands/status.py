@@ -69,7 +69,9 @@ def _day(v) -> str | None:
 
 
 def device_status(results: str | Path, as_of: str, validity_days: int) -> list[dict]:
-    """One dict per device (sorted by id): its type, last scan night, current calibration and state,
+    """Return each device's status as of the date ``as_of``.
+
+    One dict per device (sorted by id): its type, last scan night, current calibration and state,
     validity end, and last verification, as of the date ``as_of`` (``YYYY-MM-DD``).
     """
     import polars as pl

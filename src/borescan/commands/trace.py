@@ -24,7 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _ident(text: str, results: str) -> str:
-    """Return a path from the current folder into the results folder, made absolute (``borescan.trace``
+    """Return an id that is a path, made absolute.
+
+    Return a path from the current folder into the results folder, made absolute (``borescan.trace``
     relates absolute paths to the results folder; the catalog's are relative to it), so that
     ``results/calibration/.../certificate.pdf`` works as well as ``calibration/.../certificate.pdf``
     and an absolute path; any other id as given.

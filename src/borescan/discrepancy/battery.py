@@ -108,7 +108,9 @@ def _scaled(e: Effect, scale: float) -> Effect:
 def random_tri_case(
     rng: np.random.Generator, n_effects: int, *, scan_id: str = "BAT", scale: float = 1.0
 ) -> tuple:
-    """Return a random spindle scan with ``n_effects`` hidden effects (magnitudes times ``scale``; tilts,
+    """Return a random spindle scan with ``n_effects`` hidden effects.
+
+    Return a random spindle scan with ``n_effects`` hidden effects (magnitudes times ``scale``; tilts,
     whose readings go with the square of the angle, times sqrt(scale)).
 
     Returns

@@ -35,7 +35,9 @@ SETTINGS = {"delta_bic_threshold": "threshold", "max_harmonic": "k_max", "exact_
 
 
 def discrepancy_settings(section: dict | None = None) -> dict[str, Any]:
-    """Keywords of :func:`examine_scan` from the config's ``discrepancy`` section; the defaults
+    """Return the keywords of :func:`examine_scan` from the config.
+
+    Keywords of :func:`examine_scan` from the config's ``discrepancy`` section; the defaults
     (and any key the section leaves out) come from the schema, the one place defaults live.
     """
     merged = {**schema_defaults()["discrepancy"], **(section or {})}
@@ -175,7 +177,9 @@ def _jacobian_columns(model, p: dict, terms: list[Term], names: list[str], scale
 
 
 def _lstsq(J: np.ndarray, r: np.ndarray) -> np.ndarray | None:
-    """Linearised least squares of the screen; None when the Jacobian or the residual is not
+    """Return the linearised least-squares step of the screen, or None.
+
+    Linearised least squares of the screen; None when the Jacobian or the residual is not
     finite (a finite-difference step left the model undefined) or the solver fails.
     """
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
@@ -195,7 +199,9 @@ LATTICE_TOL = 1e-5  # readings within this many lsb of the lattice count as on i
 
 
 def outlier_threshold_sigma(n: int, false_rate: float = 1e-3) -> float:
-    """Outlier threshold in noise levels for ``n`` samples of a channel: the two-sided Gaussian
+    """Return the outlier threshold in noise levels for ``n`` samples.
+
+    Outlier threshold in noise levels for ``n`` samples of a channel: the two-sided Gaussian
     quantile that ``n`` independent residuals pass with probability ``false_rate`` in all
     (Bonferroni), at least 4. About 5.2 for 6000 samples, 4.9 for 1000 (a fixed 7 missed
     outliers of 5-6 noise levels, which a channel of 1000 readings shows plainly).
@@ -285,7 +291,9 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
     fallback: dict[str, float] = {}
 
     def fit(terms: list[Term], start: dict[str, float]) -> FitResult | None:
-        """Fit base + terms from ``start``; if the model is undefined there (a ray missing the
+        """Fit base + terms from ``start``; None when the model cannot be fitted.
+
+        Fit base + terms from ``start``; if the model is undefined there (a ray missing the
         bore), from the base fit with zero effects; None when that fails too.
         """
         names = base_names + [n for t in terms for n in t.names()]
@@ -580,7 +588,9 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
 
 
 def _physical(z: tuple[FitResult, list[Term]]) -> bool:
-    """Return False for fits that need a physically impossible value: a fitted parameter more than two
+    """Return False for fits that need a physically impossible value.
+
+    Return False for fits that need a physically impossible value: a fitted parameter more than two
     standard uncertainties outside its registry bounds (e.g. ``beam_tilt`` shortening the reading).
     """
     fr, ts = z

@@ -52,7 +52,9 @@ def fit_least_squares(
 
 
 def dead_zone(r: np.ndarray, half_mm: np.ndarray | None) -> np.ndarray:
-    """Residuals of cell-valued (quantised) readings: 0 inside the cell +-half, else the distance
+    """Return the residuals of cell-valued (quantised) readings.
+
+    Residuals of cell-valued (quantised) readings: 0 inside the cell +-half, else the distance
     to its edge. ``half_mm`` broadcasts against ``r`` (per channel); None leaves ``r`` unchanged.
     """
     if half_mm is None:
@@ -101,7 +103,9 @@ def leading_block(t_s: np.ndarray) -> int:
 
 
 def block_indices(n: int, max_samples: int, n_blocks: int = 4) -> np.ndarray:
-    """Return indices of ``n_blocks`` contiguous blocks spread evenly over ``n`` samples, ``max_samples`` in
+    """Return indices of ``n_blocks`` contiguous blocks spread over ``n`` samples.
+
+    Return indices of ``n_blocks`` contiguous blocks spread evenly over ``n`` samples, ``max_samples`` in
     all.
 
     Long scans are examined on these blocks: each keeps the sample-to-sample structure (noise

@@ -23,7 +23,9 @@ MARGIN = 0.02
 
 
 def nice_ceiling(value: float) -> float:
-    """Return the smallest value of :data:`NICE_STEPS` x 10^k at or above ``value`` (> 0); 1.0 for
+    """Return the smallest nice value at or above ``value``.
+
+    Return the smallest value of :data:`NICE_STEPS` x 10^k at or above ``value`` (> 0); 1.0 for
     anything not positive and finite.
     """
     if not (math.isfinite(value) and value > 0.0):
@@ -112,7 +114,9 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
 
 
 def _background(layout: dict, limits: tuple):
-    """Return the rendered static part of ``layout`` with its axes at ``limits`` (already set on the
+    """Return the rendered static part of ``layout``.
+
+    Return the rendered static part of ``layout`` with its axes at ``limits`` (already set on the
     axes): everything but :func:`_figure`'s ``dynamic`` artists, drawn once per (layout, limits).
     """
     key = (layout["key"], limits)

@@ -114,7 +114,9 @@ class PooledScan:
 
 
 def pooled_scan(scan, max_samples: int | None = None) -> PooledScan:
-    """Return a ``RawScan``-like object (``.meta``, ``.lds``, ``.spindle``) of a three-sensor spindle scan
+    """Return a three-sensor spindle scan as :class:`PooledScan`.
+
+    Return a ``RawScan``-like object (``.meta``, ``.lds``, ``.spindle``) of a three-sensor spindle scan
     as :class:`PooledScan` (scans longer than ``max_samples`` cut to four blocks, as one scan is).
     """
     meta = scan.meta
@@ -175,7 +177,9 @@ def parse_device_effect(key: str, channels: Sequence[int] | None = None, device:
 
 @dataclass(frozen=True)
 class Condition:
-    """A condition of a set of scans under which a base parameter stops absorbing an effect
+    """A condition under which a base parameter stops absorbing an effect.
+
+    A condition of a set of scans under which a base parameter stops absorbing an effect
     (named by the registry's ``absorbed_unless``).
 
     holds : (model, scan indices) -> bool
@@ -213,7 +217,9 @@ CONDITIONS: dict[str, Condition] = {
 
 
 class _ScanModel(TriModel):
-    """One scan's :class:`TriModel` whose beams move by ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` (every
+    """One scan's :class:`TriModel` with moved beams.
+
+    One scan's :class:`TriModel` whose beams move by ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` (every
     channel).
     """
 
@@ -367,7 +373,9 @@ class PooledModel:
         return [dev[n] if n in dev else BASE_SCALE[n.rsplit(":", 1)[-1].split("[")[0]] for n in self.base_names()]
 
     def base_start(self) -> dict[str, float]:
-        """Shared beams at the start geometry; per scan the centre from the first harmonic and, for a
+        """Return the pooled fit's start.
+
+        Shared beams at the start geometry; per scan the centre from the first harmonic and, for a
         commanded angle, the speed scale: of 0 and the readings' spectral estimate (used when it says
         more than 0.2 %; a weak once-per-revolution line can mislead it), the one whose fit of that
         scan's nuisance alone (beams held) leaves the smaller residual.
@@ -416,7 +424,9 @@ class PooledModel:
         return (self.scans[k].data.values_mm - self.predict_scan(k, p, []))[self.valid[self._rows(k)]]
 
     def groups(self, scope: str) -> list[tuple[str | None, list[int]]]:
-        """Return the groups of scans of a registry ``scope``: (label, scan indices); the label is None
+        """Return the groups of scans of a registry ``scope``.
+
+        Return the groups of scans of a registry ``scope``: (label, scan indices); the label is None
         for a group of every scan.
         """
         if scope not in SCOPES:
@@ -436,7 +446,9 @@ class PooledModel:
         return [(None if len(ks) == K else key, ks) for key, ks in out.items()]
 
     def frame_shared(self, k: int) -> bool:
-        """Scan ``k``'s device angle has the machine's origin: an encoder, or a moving spindle (whose
+        """Return whether scan ``k``'s device angle has the machine's origin.
+
+        Scan ``k``'s device angle has the machine's origin: an encoder, or a moving spindle (whose
         phase the stream fixes). A commanded angle on a fixed spindle has its own origin (for a
         round bore the phase is the direction of the centre offset), so an effect fixed in the
         machine frame (a gauge's lobing, its tilt) appears turned by an angle of its own there.
@@ -445,14 +457,18 @@ class PooledModel:
         return d.encoder or d.free_phase
 
     def frame_of(self, k: int) -> str:
-        """Return the frame in which scan ``k`` sees an artifact's orientation: its night (the artifact as
+        """Return the frame in which scan ``k`` sees an artifact's orientation.
+
+        Return the frame in which scan ``k`` sees an artifact's orientation: its night (the artifact as
         mounted that night, in the machine's angle origin), or the scan itself when its angle has
         its own origin (:meth:`frame_shared`).
         """
         return self.scans[k].night if self.frame_shared(k) else self.scan_ids[k]
 
     def turns_of(self, ks: Sequence[int]) -> tuple[str, ...]:
-        """Frames of a group's scans that see an oriented effect turned: every frame but the
+        """Return the frames of a group's scans that see an oriented effect turned.
+
+        Frames of a group's scans that see an oriented effect turned: every frame but the
         reference (the first frame with the machine's angle origin, else the first frame).
         """
         frames = list(dict.fromkeys(self.frame_of(k) for k in ks))
@@ -537,7 +553,9 @@ class PooledModel:
         return self.models[0].rev_hz
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
-        """Per-channel floor of the pooled residual (the scans' floors, root mean square by samples);
+        """Return the per-channel floor of the pooled residual.
+
+        Per-channel floor of the pooled residual (the scans' floors, root mean square by samples);
         also sets the per-scan weights (pooled floor / scan floor).
         """
         K, c = len(self.scans), len(self.data.channels)
@@ -570,7 +588,9 @@ class PooledModel:
 
     def candidate_terms(  # noqa: C901 (one branch per scope of the registry's effects; pooled is to become an adapter of the device models)
             self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[PooledTerm]:
-        """Return the registry's candidates for every group of scans their scope defines, less those the
+        """Return the registry's candidates for every group of scans.
+
+        Return the registry's candidates for every group of scans their scope defines, less those the
         pooled base absorbs (recorded in :attr:`absorbed`). ``speed_error`` is the base's per-scan
         speed scale; ``vibration`` is left to the single-scan examination.
         """
@@ -721,7 +741,9 @@ class PooledModel:
         return tilt, st
 
     def _form_leads(self, screen: list, t: PooledTerm, gain: float | None) -> bool:
-        """Return the k = 2 lobing ``t`` leads: first in the screen, or (turned) its per-scan estimates
+        """Return whether the k = 2 lobing ``t`` leads.
+
+        Return the k = 2 lobing ``t`` leads: first in the screen, or (turned) its per-scan estimates
         explain more than those of the screen's first candidate.
         """
         top = screen[0][1]
@@ -734,7 +756,9 @@ class PooledModel:
         return gain > g_top
 
     def _mirrored(self, start: dict[str, float], j: int) -> dict[str, float]:
-        """``start`` with channel j's rho of the other sign at the same psi and g (the calibration's
+        """Return ``start`` with channel j's rho mirrored.
+
+        ``start`` with channel j's rho of the other sign at the same psi and g (the calibration's
         mirror solution of that beam).
         """
         out = dict(start)
@@ -743,7 +767,9 @@ class PooledModel:
         return out
 
     def _per_scan_estimates(self, t: Term, start: dict[str, float], t1: Term | None) -> tuple[dict | None, float]:
-        """Term ``t`` fitted linearly to each scan alone (with that scan's centre, at ``start`` with
+        """Return term ``t`` fitted linearly to each scan alone.
+
+        Term ``t`` fitted linearly to each scan alone (with that scan's centre, at ``start`` with
         ``t1``): the values of each frame's first scan (:meth:`frame_of`), and the chi-square the
         per-scan estimates explain in all (None, 0 where the model is undefined).
         """
@@ -776,7 +802,9 @@ class PooledModel:
         return est, gain
 
     def _oriented_start(self, t: PooledTerm, start: dict[str, float], t1: Term | None) -> tuple[dict | None, float]:
-        """Start of a turned term from each scan's own linear estimate of it (at ``start``, with ``t1``):
+        """Return the start of a turned term from each scan's own estimate.
+
+        Start of a turned term from each scan's own linear estimate of it (at ``start``, with ``t1``):
         the reference frame's values and each turned frame's orientation difference (a frame's first
         scan); and the chi-square the per-scan estimates explain.
         """
@@ -797,7 +825,9 @@ class PooledModel:
         return out, gain
 
     def term_parameters(self, term: Term, x: dict, u: dict) -> tuple[dict, dict]:
-        """Return the spec's parameters of a fitted term (the examination asks once per named entry, in
+        """Return the spec's parameters of a fitted term.
+
+        Return the spec's parameters of a fitted term (the examination asks once per named entry, in
         the entries' order: the terms are kept in :attr:`reported`).
         """
         self.reported.append(term)
@@ -837,7 +867,9 @@ class PooledModel:
         return out
 
     def beam_covariance(self, p: dict[str, float], names: Sequence[str], cov: np.ndarray) -> np.ndarray:
-        """Covariance (3c, 3c) of (beta, rho, d_b) per channel (the calibration's order) from the
+        """Return the covariance of (beta, rho, d_b) per channel.
+
+        Covariance (3c, 3c) of (beta, rho, d_b) per channel (the calibration's order) from the
         covariance ``cov`` of the fitted parameters ``names`` (linear propagation).
         """
         idx = [i for i, n in enumerate(names) if n in set(self._shared_names())]
@@ -858,7 +890,9 @@ class PooledModel:
         return A @ C @ A.T
 
     def base_summary(self, p: dict[str, float]) -> dict:
-        """Return the base fit's beams and per-scan nuisance (the examination asks once, at its base fit:
+        """Return the base fit's beams and per-scan nuisance.
+
+        Return the base fit's beams and per-scan nuisance (the examination asks once, at its base fit:
         the values are kept in :attr:`base_values`).
         """
         self.base_values = dict(p)
@@ -878,7 +912,9 @@ class PooledModel:
         return out
 
     def design(self, p: dict[str, float] | None = None) -> dict:
-        """Return what distinguishes the scans: night, artifact, radius, signed speed, angle source and,
+        """Return what distinguishes the scans.
+
+        Return what distinguishes the scans: night, artifact, radius, signed speed, angle source and,
         with parameters ``p``, the eccentricity |S - C| of the fit.
         """
         out = {}
@@ -901,7 +937,9 @@ class PooledModel:
 
 @dataclass
 class PooledExamination:
-    """The pooled findings and the examination behind them (arrays stacked over the scans); ``fit``
+    """The pooled findings and the examination behind them.
+
+    The pooled findings and the examination behind them (arrays stacked over the scans); ``fit``
     is the verdict's fit (base and ``terms``; the base alone when nothing is named).
     """
 
@@ -922,7 +960,9 @@ def _chi2_by_scan(model: PooledModel, r_mm: np.ndarray) -> np.ndarray:
 
 
 def _carriers(model: PooledModel, gain: np.ndarray, ks: Sequence[int] | None = None) -> list[str]:
-    """Return the fewest scans (largest chi-square decrease first) holding :data:`CARRIER_SHARE` of the
+    """Return the fewest scans holding most of the chi-square decrease.
+
+    Return the fewest scans (largest chi-square decrease first) holding :data:`CARRIER_SHARE` of the
     decrease.
     """
     ks = list(range(len(model.scans))) if ks is None else list(ks)
@@ -939,7 +979,9 @@ def _carriers(model: PooledModel, gain: np.ndarray, ks: Sequence[int] | None = N
 
 
 def _absorbed_summary(model: PooledModel) -> list[dict]:
-    """Return the absorbed terms grouped by effect and absorbing parameter (one line each; for an
+    """Return the absorbed terms grouped by effect and absorbing parameter.
+
+    Return the absorbed terms grouped by effect and absorbing parameter (one line each; for an
     effect of several groups, its part common to every group).
     """
     out: dict[tuple, dict] = {}
@@ -1076,7 +1118,9 @@ _SCOPE_CHANGE = {"scan": "another scan", "night": "a scan on another night", "ar
 
 
 def separation(a: Term, b: Term) -> str | None:
-    """Return the measurement that separates two tied terms, from the registry: effects of different
+    """Return the measurement that separates two tied terms, from the registry.
+
+    Return the measurement that separates two tied terms, from the registry: effects of different
     ``scope`` part when the narrower one's unit changes (another run, night or artifact) and the
     other's does not; None when the registry knows none (the same scope: a spec look-alike).
     """

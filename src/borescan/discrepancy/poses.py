@@ -223,7 +223,9 @@ class RodModel(_PoseModel):
                 for c, h, l0, ph, dd, g in zip(self.data.channels, self.h, self.l0, self.phi, d_mm, self.gamma)]
 
     def base_start(self):
-        """Pose means solved by ``rod.solve_rod`` (deflection free, maximum likelihood); on refusal
+        """Return the rod model's start from the pose means.
+
+        Pose means solved by ``rod.solve_rod`` (deflection free, maximum likelihood); on refusal
         the closed-form Eq. 16 start with w = 0.
         """
         from borescan.rod import RodSolveError, rod_start, solve_rod

@@ -128,7 +128,9 @@ class TriData:
         return self.angle_model is not None and self.angle_model.source == "encoder"
 
     def turned_rad(self, t_s: np.ndarray) -> np.ndarray:
-        """Unsigned turned angle x(t) since t = 0 that the model assumes (phi = phase + direction x):
+        """Return the unsigned turned angle x(t) the model assumes.
+
+        Unsigned turned angle x(t) since t = 0 that the model assumes (phi = phase + direction x):
         the commanded profile's angle (:mod:`borescan.kinematics`), omega t without one; with an
         encoder the measured angle less its value at t = 0.
         """
@@ -220,7 +222,9 @@ def tri_data_from_arrays(
 
 
 def term_effects(term: Term, p: dict[str, float], channels) -> list[Effect]:
-    """Return the spec's effects of a fitted term: its fitted values ``p[f"{term.key}.{name}"]``
+    """Return the spec's effects of a fitted term.
+
+    Return the spec's effects of a fitted term: its fitted values ``p[f"{term.key}.{name}"]``
     converted by the registry (:meth:`~borescan.effects.EffectSpec.spec_params`); a
     per-channel term with ``channel`` 0 (or None) is one effect per channel.
     """
@@ -234,7 +238,9 @@ def term_effects(term: Term, p: dict[str, float], channels) -> list[Effect]:
 
 
 def term_values(term: Term, effect: Effect) -> dict[str, float]:
-    """Inverse of :func:`term_effects`: the term's fitted values ``{f"{term.key}.{name}": value}``
+    """Return the term's fitted values of a spec effect.
+
+    Inverse of :func:`term_effects`: the term's fitted values ``{f"{term.key}.{name}": value}``
     of a spec effect (:meth:`~borescan.effects.EffectSpec.internal`).
     """
     return {f"{term.key}.{n}": v for n, v in effect.spec.internal(effect.params).items()}
@@ -249,7 +255,9 @@ def apply_reading_terms(
     range_mm,
     beam_tilt: bool = True,
 ) -> np.ndarray:
-    """Beam (``beam_tilt``, unless ``beam_tilt`` is False) and reading-stage terms on readings
+    """Apply beam and reading-stage terms to readings ``v``.
+
+    Beam (``beam_tilt``, unless ``beam_tilt`` is False) and reading-stage terms on readings
     ``v`` (n, c) at times ``t`` (n, c) [s], through the registry's forward functions
     (:func:`borescan.effects.apply_effects`), in its composition order.
     """
@@ -421,7 +429,9 @@ class TriModel:
         return _vibration_peak(self, r)[0]
 
     def candidate_terms(self, *, k_max: int = 8, vibration_f_hz: float | None = None) -> list[Term]:
-        """Every applicable term (:func:`candidate_terms`), less those a freed base parameter
+        """Return every applicable term less those a freed base parameter absorbs.
+
+        Every applicable term (:func:`candidate_terms`), less those a freed base parameter
         absorbs (the registry's ``absorbed_by``: d_b offsets and thermal expansion, beta channel
         delay, a free radius R the common offset and thermal expansion).
         """
@@ -491,7 +501,9 @@ class TriModel:
 
 def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: int = 8,
                    freed: dict[str, set | str] | None = None) -> list[Term]:
-    """Return the registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
+    """Return the registry's candidate terms for a scan of ``scan_kind``.
+
+    Return the registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
     ``"tri_static"``, ``"rod"``): the only list of candidates the workflow has.
 
     Every effect whose ``candidate[scan_kind]`` is ``"screen"`` and whose ``needs`` the scan meets
@@ -528,7 +540,9 @@ def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: in
 
 def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | None = None,
                     freed: dict[str, set | str] | None = None) -> list[Term]:
-    """Return the registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
+    """Return the registry's candidates of a spindle scan.
+
+    Return the registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
     when the scan has no encoder, ``vibration_line`` when ``vibration_f_hz`` was found, ``cte``
     when the artifact's CTE is known.
     """
@@ -538,7 +552,9 @@ def candidate_terms(data: TriData, *, k_max: int = 8, vibration_f_hz: float | No
 
 
 def term_parameters(term: Term, x: dict[str, float], u: dict[str, float], data: TriData | None = None) -> tuple[dict, dict]:
-    """Return the spec's parameters of a fitted term and their standard uncertainties (the registry's
+    """Return the spec's parameters of a fitted term and their uncertainties.
+
+    Return the spec's parameters of a fitted term and their standard uncertainties (the registry's
     :meth:`~borescan.effects.EffectSpec.spec_params`).
     """
     spec = EFFECTS[term.effect]
@@ -645,7 +661,9 @@ def _tilt_start(lobing_start: dict, data: "TriData") -> dict:
 
 
 def _rotation_eps(model: TriModel) -> float | None:
-    """Relative speed error from the strongest line of the readings within +-30 % of the nominal
+    """Return the relative speed error from the readings' rotation line, or None.
+
+    Relative speed error from the strongest line of the readings within +-30 % of the nominal
     rotation frequency (the eccentricity undulates once per revolution); None without one.
     """
     d = model.data

@@ -47,7 +47,9 @@ def eq7_manufacturing_error_um(l_mm, d_mm=0.5, gamma_rad=np.deg2rad(0.5)):
 
 
 def eq7_simulated_error_um(r_mm, d_mm=0.5, gamma_rad=np.deg2rad(0.5)):
-    """Return reading error of a centred rod with beam offset d and tilt gamma (exact forward model):
+    """Return the reading error [um] of a centred rod with beam offset and tilt.
+
+    Return reading error of a centred rod with beam offset d and tilt gamma (exact forward model):
     (l0 + v) - r, where the nominal model reads l = r [um]; to first order equal to -Eq. 7.
     """
     r = np.atleast_1d(np.asarray(r_mm, dtype=float))

@@ -221,7 +221,9 @@ def _fmt(x) -> str:
 
 
 def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> list[Path]:
-    """Write ``yang2017_table2.csv`` (quantity, printed, computed, u, difference) and
+    """Write the reproduction of Yang 2017 Table 2; return the paths.
+
+    Write ``yang2017_table2.csv`` (quantity, printed, computed, u, difference) and
     ``yang2017_table2.png`` (computed next to printed) into ``out_dir``; returns the paths.
     """
     import matplotlib

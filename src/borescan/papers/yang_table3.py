@@ -63,7 +63,9 @@ def load_table3(path: Path | None = None) -> dict[str, np.ndarray]:
 
 
 def table2_period() -> float:
-    """Return samples per revolution implied by Table 2: least-squares slope of minimum sample vs
+    """Return the samples per revolution implied by Table 2.
+
+    Return samples per revolution implied by Table 2: least-squares slope of minimum sample vs
     revolution, pooled over the three sensors (``papers.yang_table2`` if available).
     """
     try:  # another module owns Table 2; prefer its number when it exists
@@ -248,7 +250,9 @@ def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang
 
 
 def write_reproduction(out_dir) -> dict[str, Path]:
-    """Write ``yang_table3.csv`` (row by row), ``yang_table3_alternatives.csv`` and
+    """Write the reproduction of Yang 2017 Table 3; return the paths.
+
+    Write ``yang_table3.csv`` (row by row), ``yang_table3_alternatives.csv`` and
     ``yang_table3.png`` into ``out_dir``; returns the paths.
     """
     import matplotlib

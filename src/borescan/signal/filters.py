@@ -1,4 +1,6 @@
-"""Reading filters of Yang 2017 §4 (median, moving average, Kalman) and the ISO 16610-21 Gaussian
+"""Reading filters of Yang 2017 §4 and the ISO 16610-21 Gaussian.
+
+Reading filters of Yang 2017 §4 (median, moving average, Kalman) and the ISO 16610-21 Gaussian
 in undulations per revolution; all NaN-aware (a missing reading stays missing), zero-phase by default.
 """
 

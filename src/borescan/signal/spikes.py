@@ -51,7 +51,9 @@ def _ll_reference(col_x: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
 
 
 def _median_rows_full(a: np.ndarray) -> np.ndarray:
-    """Median of each row of a NaN-free 2-D array (exact: partition for an odd number of columns, a
+    """Return the median of each row of a NaN-free 2-D array.
+
+    Median of each row of a NaN-free 2-D array (exact: partition for an odd number of columns, a
     selection network on the columns for an even one, where partition needs two ranks).
     """
     m = a.shape[1]
@@ -70,7 +72,9 @@ def _median(x: np.ndarray) -> float:
 
 
 def _mad_scale(r: np.ndarray, max_n: int = 20_000) -> float:
-    """1.4826 x median absolute deviation of the non-NaN values, on a uniform stride of at most
+    """Return 1.4826 x the median absolute deviation of the non-NaN values.
+
+    1.4826 x median absolute deviation of the non-NaN values, on a uniform stride of at most
     ``max_n`` of them (relative standard uncertainty of the scale about 1 / sqrt(0.74 max_n)).
     """
     if r.size > max_n:
@@ -131,7 +135,9 @@ def _padded_rows(v: np.ndarray, h: int) -> np.ndarray:
 
 def _despike_rows(vp: np.ndarray, h: int, threshold: float, candidate_threshold: float
                   ) -> tuple[list[np.ndarray], np.ndarray]:
-    """:func:`remove_spikes` in place on rows padded by :func:`_padded_rows` (c, n + 2h); ``h`` is
+    """Remove spikes in place on padded rows.
+
+    :func:`remove_spikes` in place on rows padded by :func:`_padded_rows` (c, n + 2h); ``h`` is
     the half window from :func:`_check_spike_window`.
 
     Returns the spike indices (into the unpadded row) and the null count of each row.

@@ -1,4 +1,6 @@
-"""The signal stage of one scan: despike, period, revolutions, extrema, statuses and spacings
+"""The signal stage of one scan.
+
+The signal stage of one scan: despike, period, revolutions, extrema, statuses and spacings
 (:func:`process_arrays` on arrays, :func:`process_scan` on a raw scan).
 """
 

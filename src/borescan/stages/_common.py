@@ -69,7 +69,9 @@ def write_table(df: pl.DataFrame, path: str | Path) -> None:
 
 
 def write_stage_outputs(output, quarantined: list[Quarantined] | None = None, **frames: pl.DataFrame) -> None:
-    """Write a stage's tables to the rule's outputs of the same names (``output.<name>``), and
+    """Write a stage's tables to the rule's outputs.
+
+    Write a stage's tables to the rule's outputs of the same names (``output.<name>``), and
     its quarantine records as ``output.quarantine`` when given.
     """
     if quarantined is not None:
@@ -86,7 +88,9 @@ def ok_scans(scans_table: str | Path | pl.DataFrame) -> pl.DataFrame:
 
 def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame,
                 **where: str) -> list[tuple[dict, Path]]:
-    """Return the ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their
+    """Return the ``ok`` rows of a night's ``scans`` table.
+
+    Return the ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their
     folders.
     """
     df = ok_scans(scans_table)
@@ -121,7 +125,9 @@ def night_folder(results_root, area: str, night: str) -> Path:
 
 
 def clear_night_folder(results_root, area: str, night: str) -> Path:
-    """Empty the night's folder of ``area`` and drop the links into it (up to two levels below
+    """Empty the night's folder of ``area`` and drop the links into it.
+
+    Empty the night's folder of ``area`` and drop the links into it (up to two levels below
     ``area``): what a rerun no longer writes leaves nothing behind. Returns the (empty) folder.
     """
     folder = night_folder(results_root, area, night)
@@ -143,7 +149,9 @@ def clear_night_folder(results_root, area: str, night: str) -> Path:
 
 
 def link_into_night(link: Path, target: Path) -> None:
-    """Make ``link`` a relative symbolic link to ``target`` (a folder inside a night folder),
+    """Make ``link`` a relative symbolic link to ``target``.
+
+    Make ``link`` a relative symbolic link to ``target`` (a folder inside a night folder),
     replacing what was there (a link, or a folder of the layout before night folders); a copy
     where symbolic links cannot be made.
     """

@@ -80,7 +80,9 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
 
 
 def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str]]:
-    """One job of :func:`stage_calibrate`: a three-sensor device's calibration scans of the night
+    """Run one calibration job of :func:`stage_calibrate`.
+
+    One job of :func:`stage_calibrate`: a three-sensor device's calibration scans of the night
     (``"tri"``) or one rod calibration scan (``"rod"``). Returns (kind, calibrations rows,
     calibration_scans rows, quarantined, log lines).
     """
@@ -97,7 +99,9 @@ def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str]]
 
 
 def _context(a: dict) -> dict:
-    """Return what a calibration job reads besides its scans: the config sections, the readings' cleaning
+    """Return what a calibration job reads besides its scans.
+
+    Return what a calibration job reads besides its scans: the config sections, the readings' cleaning
     policy, and the device model each device carries (:func:`borescan.device_model.lookup`).
     """
     devices, night = a["devices"], a["night"]

@@ -26,7 +26,9 @@ __all__ = ["calibrate_tri_device"]
 
 
 def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows, link_rows, log, ctx) -> None:
-    """Calibrate one three-sensor device from its calibration scans of the night (``items``: (scans
+    """Calibrate one three-sensor device from its calibration scans of the night.
+
+    Calibrate one three-sensor device from its calibration scans of the night (``items``: (scans
     row, raw folder) each), write the certificates, add the rows; a scan that cannot be used, or a
     calibration that fails, is quarantined with the reason.
     """
@@ -57,7 +59,9 @@ def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows
 
 
 def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple[str, str] | str | None:
-    """Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None
+    """Return why a calibration scan cannot be used, or None.
+
+    Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None
     if usable.
     """
     s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
@@ -145,7 +149,9 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
 
 
 def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
-    """Return the night's ring-gauge verifications of the calibration's device, made with it
+    """Return the night's ring-gauge verifications of the calibration's device.
+
+    Return the night's ring-gauge verifications of the calibration's device, made with it
     (:func:`borescan.measure.verification_for_certificate`): (rows, their scan.json). A scan that
     cannot be measured is left out with a log line (the measure stage quarantines it).
     """

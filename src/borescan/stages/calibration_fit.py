@@ -1,4 +1,6 @@
-"""How a three-sensor device is calibrated from a night's scans: the full-data fit from raw
+"""How a three-sensor device is calibrated from a night's scans.
+
+How a three-sensor device is calibrated from a night's scans: the full-data fit from raw
 spindle scans, and Yang 2017 (Eq. 8-15) from the signal stage's per-channel extrema summary.
 
 Used by the calibrate stage (:mod:`borescan.stages.calibrate`) and by benchmarks that calibrate
@@ -28,7 +30,9 @@ __all__ = ["spindle_inputs", "scan_conditions", "acceptance_rule", "fit_device_c
 
 def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None,
                    cleaning: readings.CleaningPolicy | None = None) -> dict:
-    """Return times, despiked readings, rotation angle model, positions, temperature and gauge of a spindle
+    """Return the fit inputs of a spindle scan.
+
+    Return times, despiked readings, rotation angle model, positions, temperature and gauge of a spindle
     scan.
 
     ``uncertainty`` is the config's ``uncertainty`` section (schema defaults when None): the
@@ -90,7 +94,9 @@ def acceptance_rule(cal_cfg: dict) -> calibration.AcceptanceRule:
 
 
 def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: str | None = None, model=()):
-    """Full-data calibration of one device from its spindle scans (:func:`spindle_inputs` of each,
+    """Calibrate one device from its spindle scans with the full-data fit.
+
+    Full-data calibration of one device from its spindle scans (:func:`spindle_inputs` of each,
     corrected by :func:`borescan.device_model.correct_inputs` for the device ``model``, recorded in the
     calibration's
     ``diagnostics["device_model"]``).
@@ -167,7 +173,9 @@ def yang_from_summary(scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, 
 
 
 def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, night: str) -> dict:
-    """Central-difference sensitivities (3c,) of Yang 2017's closed forms (:func:`yang_from_summary`):
+    """Return the sensitivities of Yang 2017's closed forms.
+
+    Central-difference sensitivities (3c,) of Yang 2017's closed forms (:func:`yang_from_summary`):
     to R (h = 1e-4 mm), to each coordinate of the reported offset S - C (through oe = |S - C|) and to
     a constant error of every reading of a channel (its d_max and d_min move together).
     """
@@ -190,7 +198,9 @@ def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, nig
 
 def budget_of(cal, scans, inputs: list[dict], uncertainty: dict, *, summary: pl.DataFrame | None = None,
               nominal: Beams | None = None, night: str | None = None, position_accuracy_mm: float | None = None) -> Budget:
-    """Return the GUM budget of a calibration from its scans
+    """Return the GUM budget of a calibration from its scans.
+
+    Return the GUM budget of a calibration from its scans
     (:func:`borescan.calibration_budget.calibration_budget`);
     a ``yang2017`` one also needs the signal ``summary``, ``nominal``, ``night`` and
     ``position_accuracy_mm``.

@@ -30,14 +30,18 @@ def findings_night_dir(results_root, night: str) -> Path:
 
 
 def findings_dir(results_root, scan_id: str) -> Path:
-    """``discrepancy/<scan_id>``: where a scan's findings.json and gap.png are read (a link into its
+    """Return the folder a scan's findings are read from.
+
+    ``discrepancy/<scan_id>``: where a scan's findings.json and gap.png are read (a link into its
     night's folder).
     """
     return Path(results_root) / "discrepancy" / scan_id
 
 
 def findings_rows(findings: dict) -> list[dict]:
-    """Return the ``findings`` rows of one scan's findings.json: one per named effect (one row with null
+    """Return the ``findings`` rows of one scan's findings.json.
+
+    Return the ``findings`` rows of one scan's findings.json: one per named effect (one row with null
     effect if
     none).
     """
@@ -55,7 +59,9 @@ def findings_rows(findings: dict) -> list[dict]:
 
 def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibration_tables, cfg: dict,
                       log=print, workers: int = 1) -> tuple[pl.DataFrame, list[Quarantined]]:
-    """Model-discrepancy examination of every scan of a night (``discrepancy/night=<night>/<scan_id>/``,
+    """Examine every scan of a night for model discrepancy.
+
+    Model-discrepancy examination of every scan of a night (``discrepancy/night=<night>/<scan_id>/``,
     read as ``discrepancy/<scan_id>/``).
 
     Each scan is compared with its device as :func:`borescan.discrepancy.reference.discrepancy_reference`

@@ -1,4 +1,6 @@
-"""Stage ``ingest_night``: validate and register every scan of a night, record checksums, quarantine bad
+"""Stage ``ingest_night``: validate and register every scan of a night.
+
+Stage ``ingest_night``: validate and register every scan of a night, record checksums, quarantine bad
 ones.
 """
 

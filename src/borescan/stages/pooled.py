@@ -1,4 +1,6 @@
-"""Stage ``pooled_night``: examine each three-sensor device's spindle scans of a window of nights
+"""Stage ``pooled_night``: examine each device's scans of a window together.
+
+Stage ``pooled_night``: examine each three-sensor device's spindle scans of a window of nights
 together, and flag the drift of its calibrations (issue 22).
 
 Per device with at least two spindle scans of kind ``calibration`` or ``verification`` that
@@ -46,7 +48,9 @@ def pooled_dir(results_root, night: str) -> Path:
 
 
 def pooled_rows(findings: dict, night: str, path: str) -> list[dict]:
-    """Return the ``pooled_findings`` rows of one device's findings: one per named entry and one per term
+    """Return the ``pooled_findings`` rows of one device's findings.
+
+    Return the ``pooled_findings`` rows of one device's findings: one per named entry and one per term
     of the device model (``in_device_model``); one row with a null effect when there is neither.
     """
     absorbed = "; ".join(a["advice"] for a in findings.get("absorbed") or []) or None
@@ -67,7 +71,9 @@ def pooled_rows(findings: dict, night: str, path: str) -> list[dict]:
 
 
 def drift_rows(calibrations: pl.DataFrame, night: str, multiple: float, findings: dict[str, dict]) -> list[dict]:
-    """Return the ``calibration_drift`` rows of ``night`` (pairs whose later calibration is valid from
+    """Return the ``calibration_drift`` rows of ``night``.
+
+    Return the ``calibration_drift`` rows of ``night`` (pairs whose later calibration is valid from
     it), each flagged one explained by its device's pooled ``findings`` (device id -> findings).
     """
     drift = calibration_drift(calibrations, multiple).filter(pl.col("valid_from_after") == night)
@@ -130,7 +136,9 @@ def stage_pooled(raw_root, night: str, results_root, scans_tables, calibration_t
 
 
 def pooled_device(job) -> tuple[str, dict | None, str]:
-    """Examine one device's pooled spindle scans and write its JSON: (device id, findings or None, log
+    """Examine one device's pooled spindle scans and write its JSON.
+
+    Examine one device's pooled spindle scans and write its JSON: (device id, findings or None, log
     line).
     """
     raw_root, night, out_dir, device, dirs, ref_kw, ref, effects, settings = job

@@ -1,4 +1,6 @@
-"""Stage ``signal_night``: revolutions, sub-sample extrema and per-channel summaries of a night's spindle
+"""Stage ``signal_night``: revolutions, extrema and summaries of a night.
+
+Stage ``signal_night``: revolutions, sub-sample extrema and per-channel summaries of a night's spindle
 scans.
 """
 
@@ -17,7 +19,9 @@ __all__ = ["signal_options", "stage_signal", "signal_one"]
 
 
 def signal_options(cfg: dict) -> dict:
-    """Return the config's ``signal`` section (schema defaults filled) as :func:`borescan.signal.process_scan`
+    """Return the config's ``signal`` section as processing keywords.
+
+    Return the config's ``signal`` section (schema defaults filled) as :func:`borescan.signal.process_scan`
     keywords.
     """
     method = cfg["filter"]
@@ -57,7 +61,9 @@ def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log
 
 
 def signal_one(job) -> tuple[pl.DataFrame | None, pl.DataFrame | None, list[Quarantined], str | None]:
-    """Signal stage of one scan ``(raw_root, night, results_root, scan_dir, options)``:
+    """Run the signal stage of one scan.
+
+    Signal stage of one scan ``(raw_root, night, results_root, scan_dir, options)``:
     (extrema, summary, quarantined, log line); None frames when skipped (static scans).
     """
     raw_root, night, results_root, d, opts = job
