@@ -40,8 +40,8 @@ bench: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check
-	tmp=$$(mktemp -d) && trap 'rm -rf "$$tmp"' EXIT && \
-	  PATH=$(abspath $(BIN)):$$PATH $(BIN)/snakemake --lint --config raw_root=$$tmp results_root=$$tmp/results
+	tmp=$$(mktemp -d) && trap 'rm -rf "$$tmp"' EXIT && mkdir "$$tmp/raw" && \
+	  PATH=$(abspath $(BIN)):$$PATH $(BIN)/snakemake --lint --config raw_root=$$tmp/raw results_root=$$tmp/results
 
 clean-results:
 	rm -rf results
