@@ -165,7 +165,7 @@ def _prepare(name: str, df: pl.DataFrame, results_root: Path) -> pl.DataFrame:
 
 
 def saved_queries(queries_dir: str | os.PathLike | None = None) -> dict[str, tuple[str, str]]:
-    """Return saved queries: name -> (description, SQL text).
+    """Return the saved queries: name -> (description, SQL text).
 
     The description is the leading ``--`` comment block of ``<name>.sql`` (comment markers
     stripped). Names are the file stems, which must be SQL identifiers.

@@ -275,7 +275,7 @@ def examine_tri(data: TriData, **cfg) -> Examination:
 
 def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split into small functions)
         model, **cfg) -> Examination:
-    """Return the workflow on any model object (:class:`TriModel`, rod and static models).
+    """Run the examination workflow on any model object (:class:`TriModel`, rod and static models).
 
     The model provides the data, the base parameters and their start, the forward model with
     terms, the candidate terms, the noise floor and the localisation (see ``TriModel``).
