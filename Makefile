@@ -38,7 +38,9 @@ bench: $(STAMP)
 	PATH=$(abspath $(BIN)):$$PATH $(BIN)/python -m bench
 
 lint: $(STAMP)
-	PATH=$(abspath $(BIN)):$$PATH $(BIN)/snakemake --lint
+	$(BIN)/ruff check
+	tmp=$$(mktemp -d) && trap 'rm -rf "$$tmp"' EXIT && mkdir "$$tmp/raw" && \
+	  PATH=$(abspath $(BIN)):$$PATH $(BIN)/snakemake --lint --config raw_root=$$tmp/raw results_root=$$tmp/results
 
 clean-results:
 	rm -rf results

@@ -16,6 +16,7 @@ HEADLINE = "bench_contract_night"
 
 
 def main(argv: list[str]) -> int:
+    """Run the benchmarks whose names contain one of ``argv`` (all run by default when empty); return 0."""
     here = Path(__file__).parent
     names = sorted((m.name for m in pkgutil.iter_modules([str(here)]) if m.name.startswith("bench_")),
                    key=lambda n: (n != HEADLINE, n))

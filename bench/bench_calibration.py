@@ -36,7 +36,7 @@ def simulate_scan(beams: Beams, offset_mm, n_rev: int, samples_per_rev: int, noi
 
 
 def perturbed_nominal(rng, beams: Beams = TRUE) -> Beams:
-    """A design geometry a little off the truth (starting point of the fit)."""
+    """Return a design geometry a little off the truth (starting point of the fit)."""
     c = len(beams.channels)
     return Beams(
         beams.channels,
@@ -169,9 +169,12 @@ def _row(label, res_list, key):
     dia_other = np.array([np.r_[verification_error_mm(c.beams, R_ring_mm=136.0),
                                 verification_error_mm(c.beams, R_ring_mm=139.0)] for c in fits]) * 1e3
     return (
-        f"{label:>22s} {key:>5s}  beta(urad) {beta[0]:8.1f} {beta[1]:8.1f}  rho(um) {rho[0]:8.1f} {rho[1]:8.1f} {rho[2]:8.1f}"
-        f"  d_b(um) {d_b[0]:7.2f} {d_b[1]:7.2f} {d_b[2]:7.2f}  |dD| rms/max(um) {np.sqrt(np.mean(dia**2)):7.2f} "
-        f"{np.max(np.abs(dia)):7.2f}  272/278mm {np.sqrt(np.mean(dia_other**2)):7.2f} {np.max(np.abs(dia_other)):7.2f}"
+        f"{label:>22s} {key:>5s}  beta(urad) {beta[0]:8.1f} {beta[1]:8.1f}  rho(um) {rho[0]:8.1f} "
+        f"{rho[1]:8.1f} {rho[2]:8.1f}"
+        f"  d_b(um) {d_b[0]:7.2f} {d_b[1]:7.2f} {d_b[2]:7.2f}  |dD| rms/max(um) "
+        f"{np.sqrt(np.mean(dia**2)):7.2f} "
+        f"{np.max(np.abs(dia)):7.2f}  272/278mm {np.sqrt(np.mean(dia_other**2)):7.2f} "
+        f"{np.max(np.abs(dia_other)):7.2f}"
         f"  fail {nfail}"
     )
 

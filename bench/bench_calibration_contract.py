@@ -54,7 +54,11 @@ FAMILIES = ("beta", "rho", "d_b")
 
 
 def default_calibration_config() -> dict:
-    """``calibration`` section of config/config.yaml validated against the workflow schema (defaults filled)."""
+    """Return the config's ``calibration`` section validated against the schema.
+
+    ``calibration`` section of config/config.yaml validated against the workflow schema (defaults
+    filled).
+    """
     import yaml
     from snakemake.utils import validate
 
@@ -101,7 +105,8 @@ def _compared(params: np.ndarray, f: int | None, c: int):
     return np.array(rows), fam
 
 
-def crb_cov(scene, t_s: np.ndarray, mask: np.ndarray, sigma_mm: float, *, free_beta: list[bool],
+def crb_cov(  # noqa: C901 (one block per parameter kind of the CRB's Jacobian)
+        scene, t_s: np.ndarray, mask: np.ndarray, sigma_mm: float, *, free_beta: list[bool],
             free_phase: bool, free_scale: bool, prior_sigma_mm: float | None) -> np.ndarray:
     """Cramer-Rao covariance (3c, 3c) of (beta, rho, d_b) per channel at the truth ``scene``.
 
@@ -171,7 +176,11 @@ def crb_cov(scene, t_s: np.ndarray, mask: np.ndarray, sigma_mm: float, *, free_b
 
 
 def fitted_readings(cal, scan, t_s: np.ndarray, R_mm: float) -> np.ndarray:
-    """Readings (n, c) of the accepted fit: its beams, offset, and angle (encoder, or phase + scale Phi)."""
+    """Return the readings (n, c) of the accepted fit.
+
+    Return readings (n, c) of the accepted fit: its beams, offset, and angle (encoder, or phase + scale
+    Phi).
+    """
     from borescan import kinematics
     from borescan.geometry import Bore, tri_spindle_readings
 
@@ -285,8 +294,11 @@ def evaluate_scan(job: tuple) -> dict:
 
 def run(n: int = N_SCANS, seed: int = SEED, workers: int | None = None, out_dir: Path | None = None,
         only: list[int] | None = None) -> list[dict]:
-    """Write the battery (temp folder unless ``out_dir``; only the scan indices ``only`` if given),
-    calibrate every scan; per-scan rows."""
+    """Write the battery and calibrate every scan; return per-scan rows.
+
+    Write the battery (temp folder unless ``out_dir``; only the scan indices ``only`` if given),
+    calibrate every scan; per-scan rows.
+    """
     from borescan import scenarios
 
     workers = workers or min(2, os.cpu_count() or 1)
@@ -309,7 +321,7 @@ def run(n: int = N_SCANS, seed: int = SEED, workers: int | None = None, out_dir:
 
 
 def summarize(rows: list[dict]) -> dict:
-    """The acceptance figures of the rows (see the module doc); also printed by :func:`print_table`."""
+    """Return the acceptance figures of the rows (see the module doc); also printed by :func:`print_table`."""
     acc = [r for r in rows if r["accepted"]]
     out = {"scans": len(rows), "accepted": len(acc), "refused": len(rows) - len(acc),
            "reasons": Counter(r["reason"].split(";")[0][:160] for r in rows if not r["accepted"])}
@@ -403,7 +415,9 @@ def _subset(rows, **want):
     return [r for r in rows if all(r.get(k) == v for k, v in want.items())]
 
 
-def print_table(rows: list[dict]) -> dict:
+def print_table(  # noqa: C901 (one line per table of the bench's printout)
+        rows: list[dict]) -> dict:
+    """Print the acceptance table of the rows; return :func:`summarize` of them."""
     s = summarize(rows)
     print(f"scans {s['scans']}   accepted {s['accepted']}   refused {s['refused']}")
     for reason, k in s["reasons"].most_common():
@@ -417,7 +431,8 @@ def print_table(rows: list[dict]) -> dict:
             f"{'':7s} {d['sd']:6.3f} {d['max_abs']:7.2f} {'':6s} {d['cover95']:8.1%}"
         print(f"{fam:8s} {d['n']:5d} {extra}")
     w = s["wrong_minimum"]
-    print(f"wrong-minimum check: {w['failed']} of {w['checked']} fits with SSR_fit > SSR_truth + sigma^2 sqrt(2N); "
+    print(f"wrong-minimum check: {w['failed']} of {w['checked']} fits with SSR_fit > SSR_truth + sigma^2 "
+          "sqrt(2N); "
           f"largest (SSR_fit - SSR_truth) = {w['max_excess_in_spreads']:+.3f} spreads")
     print(f"sharp check: {len(w['sharp_failed'])} fits with SSR_fit - SSR_truth > sigma^2 (P_truth + 3) "
           f"{w['sharp_failed'][:10]}; largest SSR_fit - SSR_truth = {w['max_excess_sigma2']:+.1f} sigma^2")
@@ -426,7 +441,8 @@ def print_table(rows: list[dict]) -> dict:
     acc = [r for r in rows if r["accepted"]]
     ss = summarize([r for r in acc if not r.get("weak_rho")])
     print(f"without scans the calibration flags weak rho ({len(acc) - ss['accepted']} flagged): pooled z SD "
-          f"{ss['pooled']['sd']:.3f}, max |z| {ss['pooled']['max_abs']:.2f}, cover95 {ss['pooled']['cover95']:.1%}")
+          f"{ss['pooled']['sd']:.3f}, max |z| {ss['pooled']['max_abs']:.2f}, cover95 "
+          f"{ss['pooled']['cover95']:.1%}")
     amb = []
     for r in acc:
         if not r.get("u_crb"):
@@ -435,7 +451,8 @@ def print_table(rows: list[dict]) -> dict:
         if any(r["u_crb"][k] > abs(rt) / 2 for k, rt in zip(k_rho, r["rho_true_mm"])):
             amb.append(r)
     ss = summarize([r for r in acc if r not in amb])
-    print(f"scans where the truth's CRB of some rho exceeds |rho| / 2 (sign not fixed by the data): {len(amb)}; "
+    print("scans where the truth's CRB of some rho exceeds |rho| / 2 (sign not fixed by the data): "
+          f"{len(amb)}; "
           f"without them: pooled z SD {ss['pooled']['sd']:.3f}, max |z| {ss['pooled']['max_abs']:.2f}, "
           f"cover95 {ss['pooled']['cover95']:.1%}")
     # where the z-scores come from: by angle source and position knowledge
@@ -446,7 +463,8 @@ def print_table(rows: list[dict]) -> dict:
             if not sub:
                 continue
             ss = summarize(sub)
-            print(f"  {src:8s} positions {'known  ' if known else 'unknown'}: {ss['accepted']:3d}/{ss['scans']:3d}  "
+            print(f"  {src:8s} positions {'known  ' if known else 'unknown'}: "
+                  f"{ss['accepted']:3d}/{ss['scans']:3d}  "
                   f"pooled SD {ss['pooled']['sd']:.3f}  beta SD {ss['beta']['sd']:.3f}  "
                   f"beta u/CRB max {ss['beta']['u_crb_max']:.3f}  rho u/CRB max {ss['rho']['u_crb_max']:.3f}")
     for label, key in (("speed change", "speed_change"), ("out of range", "out_of_range")):
@@ -457,7 +475,8 @@ def print_table(rows: list[dict]) -> dict:
                                                                            for e, u in zip(r["err"], r["u"])))[:3]
     for r in worst:
         zz = [e / u if u > 0 else float("nan") for e, u in zip(r["err"], r["u"])]
-        print(f"  largest |z|: {r['scan_id']} ({r['angle_source']}, positions {'known' if r['position_known'] else 'unknown'}, "
+        print(f"  largest |z|: {r['scan_id']} ({r['angle_source']}, positions "
+              f"{'known' if r['position_known'] else 'unknown'}, "
               f"{r['beta_reference']}, weak rho {r['weak_rho']}): z = {np.round(zz, 2).tolist()}")
     ms = mirror_summary(rows)
     print(f"mirror check (issue 36): {ms['flagged']} of {ms['beams']} beams flagged (Eq. (1) at the truth: "
@@ -471,6 +490,7 @@ def print_table(rows: list[dict]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Draw the battery, calibrate it and print the contract's table (options: ``--help``)."""
     p = argparse.ArgumentParser(prog="python -m bench.bench_calibration_contract", description=__doc__.splitlines()[0])
     p.add_argument("--n", type=int, default=N_SCANS, help=f"scans (default {N_SCANS})")
     p.add_argument("--seed", type=int, default=SEED, help=f"battery seed (default {SEED})")

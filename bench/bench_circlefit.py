@@ -11,6 +11,7 @@ Run: .venv/bin/python -m bench circlefit
 from __future__ import annotations
 
 import time
+from functools import partial
 
 import numpy as np
 
@@ -34,15 +35,16 @@ def _best_of(fun, repeat: int = 3) -> tuple[float, object]:
 
 
 def main() -> None:
+    """Print the best-of times of the four circle fits and their RONt for growing point counts."""
     head = ("n", "LSCI s", "MZCI s", "MICI s", "MCCI s", "MIC cand", "RONt MZ/MI/MC um")
     print(f"{head[0]:>7} " + " ".join(f"{h:>8}" for h in head[1:5]) + f" {head[5]:>9} {head[6]:>20}")
     for n in (1000, 5000, 20000, 100000):
         x, y = _profile(n)
-        t_ls, ls = _best_of(lambda: fit_circle_ls(x, y))
+        t_ls, ls = _best_of(partial(fit_circle_ls, x, y))
         c = ls.center_xy_mm
-        t_mz, mz = _best_of(lambda: min_zone_circle(x, y, c))
-        t_mi, mi = _best_of(lambda: max_inscribed_circle(x, y, c))
-        t_mc, mc = _best_of(lambda: min_circumscribed_circle(x, y, c))
+        t_mz, mz = _best_of(partial(min_zone_circle, x, y, c))
+        t_mi, mi = _best_of(partial(max_inscribed_circle, x, y, c))
+        t_mc, mc = _best_of(partial(min_circumscribed_circle, x, y, c))
         ront = f"{mz.ront_mm * 1e3:.2f}/{mi.ront_mm * 1e3:.2f}/{mc.ront_mm * 1e3:.2f}"
         print(f"{n:7d} {t_ls:8.3f} {t_mz:8.3f} {t_mi:8.3f} {t_mc:8.3f} {mi.n_iter:9d} {ront:>20}")
 

@@ -27,7 +27,8 @@ share of 95.45 % intervals (k from the budget) that cover the truth, with its bi
 error, the z-score SD, and the same split by the budget's dominant input. Acceptance (issue 19):
 93-97 % for every row of the first table.
 
-Run: ``python -m bench coverage`` or ``python -m bench.bench_coverage [--n 200] [--seed 20270619] [--workers 2]``.
+Run: ``python -m bench coverage`` or
+``python -m bench.bench_coverage [--n 200] [--seed 20270619] [--workers 2]``.
 """
 
 from __future__ import annotations
@@ -74,7 +75,7 @@ def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
     """Write chain i's calibration and measurement scans (raw) and return its truth."""
     from borescan import geometry, scenarios, simulate
 
-    unc, cal_cfg = cfg["uncertainty"], cfg["calibration"]
+    unc = cfg["uncertainty"]
     rng = scenarios.battery_rng(seed, i)
     sid = scenarios.battery_scan_id(seed, i)
     night = "2027-02-01"
@@ -82,7 +83,6 @@ def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
     ct = sim.truth["contract"]
     scene = simulate.TriScene.from_dict(sim.truth["scene"])
     beams = scene.beams
-    c = len(beams.channels)
     rng2 = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(i), 1)))
     a_T, a_a = float(unc["temperature_accuracy_c"]), float(unc["cte_accuracy_per_k"])
     k_g, U_g = 2.0, 0.0015
@@ -143,7 +143,11 @@ def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
 
 
 def evaluate_chain(job: tuple) -> dict:
-    """Calibrate and measure one chain by the pipeline's path; errors against the truth in units of u and U."""
+    """Calibrate and measure one chain by the pipeline's path; return its errors.
+
+    Calibrate and measure one chain by the pipeline's path; errors against the truth in units of u and
+    U.
+    """
     truth, cfg = job
     from borescan import calibration, measure, rawio
     from borescan.geometry import Beams
@@ -203,8 +207,11 @@ def evaluate_chain(job: tuple) -> dict:
 
 
 def run(n: int = N_CHAINS, seed: int = SEED, workers: int | None = None, rows_path: Path | None = None) -> list[dict]:
-    """Draw, write, calibrate and measure ``n`` chains; per-chain rows (also appended to ``rows_path``
-    as JSON lines as they come, when given)."""
+    """Draw, write, calibrate and measure ``n`` chains; return per-chain rows.
+
+    Draw, write, calibrate and measure ``n`` chains; per-chain rows (also appended to ``rows_path``
+    as JSON lines as they come, when given).
+    """
     workers = workers or min(2, os.cpu_count() or 1)
     cfg = _config()
     with tempfile.TemporaryDirectory(prefix="coverage-") as tmp:
@@ -247,6 +254,7 @@ def _stats(items: list[dict]) -> dict:
 
 
 def summarize(rows: list[dict]) -> dict:
+    """Return the coverage figures of the chains' rows per quantity family."""
     acc = [r for r in rows if r.get("accepted")]
     groups: dict[str, list] = {}
     for r in acc:
@@ -262,11 +270,13 @@ def summarize(rows: list[dict]) -> dict:
 
 
 def print_table(rows: list[dict]) -> dict:
+    """Print the coverage table of the rows; return :func:`summarize` of them."""
     s = summarize(rows)
     print(f"chains {s['chains']}, calibrations accepted {s['accepted']}, parts measured {s['measured']}")
     for reason in s["refused"]:
         print(f"  refused: {reason}")
-    print(f"{'quantity':16s} {'n':>5s} {'cover95':>8s} {'+-se':>6s} {'z SD':>6s} {'max|z|':>7s} {'mean k':>7s}  "
+    print(f"{'quantity':16s} {'n':>5s} {'cover95':>8s} {'+-se':>6s} {'z SD':>6s} {'max|z|':>7s} "
+          f"{'mean k':>7s}  "
           "accept 93-97 %")
     for fam in ("beta", "rho", "d_b", "D at 20 degC", "D at T"):
         d = s["families"].get(fam)
@@ -291,6 +301,7 @@ def print_table(rows: list[dict]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Draw, calibrate and measure the chains and print the coverage table (options: ``--help``)."""
     ap = argparse.ArgumentParser(prog="python -m bench.bench_coverage", description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=N_CHAINS, help=f"chains (default {N_CHAINS})")
     ap.add_argument("--seed", type=int, default=SEED, help=f"seed (default {SEED})")

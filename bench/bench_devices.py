@@ -63,12 +63,14 @@ def make_night(src_night: Path, raw: Path, n_devices: int) -> int:
 
 
 def run(raw: Path, results: Path, *args: str) -> subprocess.CompletedProcess:
+    """Run Snakemake with ``args`` on the raw and results folders; return the finished process."""
     snakemake = Path(sys.executable).with_name("snakemake")
     cmd = [str(snakemake), *args, "--config", f"raw_root={raw}", f"results_root={results}"]
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
 
 
 def main() -> None:
+    """Time a night of many devices through the workflow on each number of cores."""
     from bench.bench_pipeline import job_times, union_seconds
     from borescan import demo
 

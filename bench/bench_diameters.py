@@ -24,6 +24,7 @@ BORE = Bore((0.0, 0.0), 275.029 / 2)
 
 
 def static_part(sigma=0.003, n_mc=4000, seed=0):
+    """Print the scatter of static diameters against their CRB at three device positions."""
     rng = np.random.default_rng(seed)
     print(f"static 3-sensor, sigma = {sigma * 1e3:.1f} um per reading, {n_mc} draws per position")
     for pos in ([0.0, 0.0], [1.5, -1.0], [-2.5, 2.0]):
@@ -35,6 +36,7 @@ def static_part(sigma=0.003, n_mc=4000, seed=0):
 
 
 def rod_part(sigma=0.02 / np.sqrt(3), n_mc=300, seed=1):
+    """Print the scatter of rod diameters against their reported uncertainty."""
     layers = [RodLayer(1, 150.0, 71.0), RodLayer(2, 450.0, 71.0)]
     holes = [Hole((0.0, 0.0), 75.0), Hole((0.01, -0.02), 75.012)]
     axis = RodAxis(1.0, 0.5, np.deg2rad(0.3), np.deg2rad(120.0))
@@ -57,16 +59,19 @@ def rod_part(sigma=0.02 / np.sqrt(3), n_mc=300, seed=1):
 
 
 def rotating_part(sigma=0.002, n_pts=3000, n_mc=300, seed=2):
+    """Print the scatter of the LS circle's radius against its CRB for one rotating scan."""
     rng = np.random.default_rng(seed)
     th = np.linspace(0, 2 * np.pi, n_pts, endpoint=False)
     R = [fit_circle_ls(*((137.5 + sigma * rng.standard_normal(n_pts)) * np.stack([np.cos(th), np.sin(th)]))).radius_mm
          for _ in range(n_mc)]
     crb = sigma / np.sqrt(n_pts)
-    print(f"rotating LS circle, N = {n_pts}, sigma = {sigma * 1e3:.1f} um: scatter(R) {np.std(R) * 1e6:.2f} nm, "
+    print(f"rotating LS circle, N = {n_pts}, sigma = {sigma * 1e3:.1f} um: scatter(R) "
+          f"{np.std(R) * 1e6:.2f} nm, "
           f"CRB {crb * 1e6:.2f} nm, ratio {np.std(R) / crb:.3f}")
 
 
 def main() -> None:
+    """Run the static, rod and rotating parts."""
     static_part()
     rod_part()
     rotating_part()

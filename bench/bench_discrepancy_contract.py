@@ -6,14 +6,16 @@ its range; ~20 % effect-free, the rest with one named effect from
 :func:`borescan.discrepancy.battery.random_effect`). Rod scans come from
 :func:`borescan.scenarios.draw_rod_scan` (2-3 holes of 100-200 mm, 8-40 poses, 5-30 readings per
 pose, noise 2-20 um, eccentricity up to 2.5 mm, deflection up to 1 deg; half in ring-gauge sets
-with certified diameters, half in parts with nominal ones, whose radii are then free), ~20 % effect-free, the rest with one rod-applicable
+with certified diameters, half in parts with nominal ones, whose radii are then free), ~20 % effect-free, the
+rest with one rod-applicable
 effect that ``random_effect`` draws (``beam_offset`` has no random magnitude there and is left out).
 
 Reference (what the scan is examined against). The pipeline examines a calibrated device
 against its latest calibration (``discrepancy.reference``). The bench's stand-in for a perfect
 calibration is the scan's true beam geometry (three-sensor: ``truth["contract"]["beams"]``
 passed as ``beams=``; rod: the true layers as ``device.nominal`` and certified hole diameters,
-as a setting master would give, or nominal ones of a part). ``--reference nominal`` instead examines three-sensor scans
+as a setting master would give, or nominal ones of a part). ``--reference nominal`` instead examines
+three-sensor scans
 the way the pipeline treats an uncalibrated device: ``device.nominal`` (the design geometry,
 off by up to 30 mrad / 1 mm) with beam lengths and angles freed; the effects a calibration
 absorbs (offsets, delays, thermal expansion) cannot then be named, and are scored as such.
@@ -45,8 +47,11 @@ SPEC_LOOKALIKES = [({"axis_tilt"}, {"bore_lobing[k=2]"}), ({"thermal_expansion"}
 
 
 def lookalike(a: str, b: str, kind: str = "tri", strict: bool = False) -> bool:
-    """Spec look-alikes; unless ``strict``, also the three-sensor ``beam_tilt`` and ``sensor_gain``
-    on one channel, which the registry defines identically (v' = v / cos(gamma) = v (1 + h), h >= 0)."""
+    """Return the spec's look-alike effects.
+
+    Spec look-alikes; unless ``strict``, also the three-sensor ``beam_tilt`` and ``sensor_gain``
+    on one channel, which the registry defines identically (v' = v / cos(gamma) = v (1 + h), h >= 0).
+    """
     if any((a in g1 and b in g2) or (a in g2 and b in g1) for g1, g2 in SPEC_LOOKALIKES):
         return True
     ea, _, ca = a.partition("@")
@@ -55,6 +60,7 @@ def lookalike(a: str, b: str, kind: str = "tri", strict: bool = False) -> bool:
 
 
 def score(verdict: str, named: list[str], truth: list[str], kind: str = "tri", strict: bool = False) -> bool:
+    """Return whether a verdict and its named effects are right for the scan's true effects."""
     if not truth:
         return verdict == "no_missing_effect"
     if verdict == "no_missing_effect":
@@ -141,7 +147,7 @@ def data_lookalikes(clean, truth: str, others: list[str], sigma_mm: float, thres
         for d0 in ((0.0,) if t.effect != "beam_offset" else (0.3, -0.3, 1.0, -1.0)):
             x0 = [base.values()[n] for n in names] + [d0 if t.effect == "beam_offset" else 0.0 for _ in t.names()]
             try:
-                fr = fit_least_squares(lambda p: model.residual(p, [t]), names + t.names(), x0,
+                fr = fit_least_squares(lambda p, t=t: model.residual(p, [t]), names + t.names(), x0,
                                        scales + t.scales(), max_nfev=200)
             except ValueError:
                 continue
@@ -196,6 +202,7 @@ def run_one(job: tuple) -> dict:
 
 
 def summarise(rows: list[dict]) -> str:
+    """Return the contract's summary lines for the rows."""
     lines = []
     eff = [r for r in rows if r["truth"]]
     free = [r for r in rows if r["effect_free"]]
@@ -265,6 +272,7 @@ def profile_one(kind: str, seed: int, i: int, reference: str, top: int = 12) -> 
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Draw the scans, examine them and print the summary (options: ``--help``)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=60, help="three-sensor scans")
     ap.add_argument("--n-rod", type=int, default=None, help="rod scans (default n / 4)")
@@ -291,7 +299,9 @@ def main(argv: list[str] | None = None) -> None:
     else:
         rows = [run_one(j) for j in jobs]
     wall = time.perf_counter() - t0
-    print(f"reference: {'true beams/layers (stand-in for a perfect calibration)' if a.reference == 'truth' else 'device.nominal, d_b and beta free'}")
+    reference = ("true beams/layers (stand-in for a perfect calibration)" if a.reference == "truth"
+                 else "device.nominal, d_b and beta free")
+    print(f"reference: {reference}")
     print(summarise(rows))
     cpu = np.array([r["cpu_s"] for r in rows])
     print(f"{wall:.0f} s wall, {cpu.mean():.1f} s CPU per scan ({a.workers} workers); examination CPU s per scan "
@@ -300,8 +310,10 @@ def main(argv: list[str] | None = None) -> None:
     if a.verbose:
         for r in rows:
             if not r["correct"]:
-                print(f"  WRONG {r['kind']} {r['i']}: truth {r['truth']} {r['params']} -> {r['verdict']} {r['named']} "
-                      f"{r.get('info')} gap {r.get('gap_before_mm', 0) * 1e3:.2f}->{r.get('gap_after_mm', 0) * 1e3:.2f} um "
+                print(f"  WRONG {r['kind']} {r['i']}: truth {r['truth']} {r['params']} -> {r['verdict']} "
+                      f"{r['named']} "
+                      f"{r.get('info')} gap "
+                      f"{r.get('gap_before_mm', 0) * 1e3:.2f}->{r.get('gap_after_mm', 0) * 1e3:.2f} um "
                       f"floor {r.get('noise_floor_mm', 0) * 1e3:.2f} um {r.get('error', '')} "
                       f"{ {k: round(v, 2) for k, v in r.get('lookalike_rss_over_s2', {}).items()} or ''}")
                 if r.get("tb"):

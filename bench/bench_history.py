@@ -40,7 +40,7 @@ TARGET_QUERY_S = 1.0
 
 
 def demo_results(tmp: Path) -> Path:
-    """The demo's two nights processed up to the catalog (stage tables, certificates, findings)."""
+    """Return the demo's two nights processed up to the catalog (stage tables, certificates, findings)."""
     from borescan import demo
 
     demo.make_demo(tmp / "demo")
@@ -97,6 +97,7 @@ def add_night(results: Path, pool: Path, night: str) -> tuple[float, float, floa
 
 
 def main() -> None:
+    """Time the catalog's queries and the report on a synthetic history of many nights."""
     from borescan import catalog, report
     from borescan import synthetic_history as sh
 

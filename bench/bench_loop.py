@@ -1,4 +1,6 @@
-"""Closing the loop (issue 22): an effect named from pooled scans enters the device model; the
+"""Closing the loop (issue 22): a pooled finding enters the device model.
+
+Closing the loop (issue 22): an effect named from pooled scans enters the device model; the
 next calibrations and verifications carry it.
 
 Each scenario draws a three-sensor device over the contract (:func:`bench.bench_pooled._device`)
@@ -39,7 +41,6 @@ import tempfile
 import time
 import traceback
 from collections import defaultdict
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -98,7 +99,7 @@ def draw(seed: int, i: int) -> dict:
 
 
 def _model_from(findings: dict, device_id: str, channels) -> tuple[str | None, list]:
-    """The user's decision: the first device-scope effect the pooled verdict names enters the model."""
+    """Return the user's decision: the first device-scope effect the pooled verdict names enters the model."""
     from borescan.device_model import device_model_at
     from borescan.effects import EFFECTS
 
@@ -115,8 +116,13 @@ def _model_from(findings: dict, device_id: str, channels) -> tuple[str | None, l
 
 
 def _residual_ratio(scans, cfg: dict, model) -> tuple[float, bool, object]:
-    """A night's calibration (pipeline path, budget): (max residual / noise floor, accepted, calibration or None);
-    NaN when the fit does not converge even without the acceptance rule."""
+    """Return a night's calibration with its residual ratio and acceptance.
+
+    Return a night's calibration (pipeline path, budget): (max residual / noise floor, accepted,
+    calibration or
+    None);
+    NaN when the fit does not converge even without the acceptance rule.
+    """
     from borescan.calibration import CalibrationError
     from borescan.stages.calibration_fit import calibrate_raw_scans
 
@@ -146,6 +152,7 @@ def _verification(ver_scan, cal, cfg: dict) -> float | None:
 
 
 def run_one(job: tuple) -> dict:
+    """Run one closed loop (hidden effect, pooled finding, device model, calibration); return its row."""
     from borescan import rawio, simulate
     from borescan.config import schema_defaults
     from borescan.discrepancy.examine import discrepancy_settings
@@ -194,6 +201,7 @@ def run_one(job: tuple) -> dict:
 
 
 def summarise(rows: list[dict]) -> str:
+    """Return the table of the rows per hidden effect."""
     by = defaultdict(list)
     for r in rows:
         by[r["name"]].append(r)
@@ -231,6 +239,7 @@ def summarise(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Run the loops and print their table (options: ``--help``)."""
     from borescan.parallel import map_in_order
 
     ap = argparse.ArgumentParser(prog="python -m bench.bench_loop", description=__doc__.splitlines()[0])

@@ -92,13 +92,15 @@ def union_seconds(intervals: list[tuple[float, float]]) -> float:
 
 
 def main() -> None:
+    """Time the workflow on a generated reference night."""
     n_tri = int(os.environ.get("BENCH_PIPELINE_SCANS", "100"))
     n_rod = max(1, n_tri // 5)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         t0 = time.perf_counter()
         readings = make_night(tmp / "raw", tmp / "truth", n_tri, n_rod)
-        print(f"reference night: {n_tri} tri scans (60 rev x 660 x 3) + {n_rod} rod scans, {readings:,} readings "
+        print(f"reference night: {n_tri} tri scans (60 rev x 660 x 3) + {n_rod} rod scans, {readings:,} "
+              "readings "
               f"(generated in {time.perf_counter() - t0:.1f} s, not timed)", flush=True)
         snakemake = Path(sys.executable).with_name("snakemake")
         config = ["--config", f"raw_root={tmp / 'raw'}", f"results_root={tmp / 'results'}"]

@@ -110,7 +110,7 @@ def _designs(rng, design: str) -> list[dict]:
 
 
 def gauge_artifact(R: float) -> dict:
-    """The certified ring gauge of radius ``R`` [mm] a scenario's device turns in."""
+    """Return the certified ring gauge of radius ``R`` [mm] a scenario's device turns in."""
     return {"id": f"RG-{round(2 * R)}", "type": "ring_gauge", "nominal_diameter_mm": float(round(2 * R)),
             "certified_diameter_mm": 2 * R, "u_diameter_mm": 0.0015, "k": 2, "certificate": "RG/2027",
             "cte_per_k": 11.5e-6}
@@ -118,8 +118,11 @@ def gauge_artifact(R: float) -> dict:
 
 def spindle_scans(rng, rows: list[dict], *, beams, R, range_mm, C, spr, noise, nominal, encoder, effect, run_scan,
                   device_id, nights, tag) -> list:
-    """The ring-gauge spindle scans of one design (:func:`_designs` rows, 12 revolutions each, scan
-    ``<tag>-<k>``); the hidden ``effect`` in every scan, or only in scan ``run_scan`` when given."""
+    """Return the ring-gauge spindle scans of one design.
+
+    Return the ring-gauge spindle scans of one design (:func:`_designs` rows, 12 revolutions each, scan
+    ``<tag>-<k>``); the hidden ``effect`` in every scan, or only in scan ``run_scan`` when given.
+    """
     from borescan.simulate import TriScene, simulate_tri_spindle
 
     art = gauge_artifact(R)
@@ -173,10 +176,13 @@ def draw_scenario(seed: int, i: int) -> dict:
 
 
 def calibrate(sims) -> tuple:
-    """Full-data calibration of the scans of one night (the night's method): (calibration or None,
+    """Calibrate the scans of one night by the night's method.
+
+    Full-data calibration of the scans of one night (the night's method): (calibration or None,
     accepted). A calibration the acceptance rule refuses only for its residual is used as fitted;
     one that fails otherwise (a diverged fit) is None: the scans are then examined as the pipeline
-    examines an uncalibrated device (``device.nominal``, beam lengths and angles free)."""
+    examines an uncalibrated device (``device.nominal``, beam lengths and angles free).
+    """
     from borescan.calibration import AcceptanceRule, CalibrationError, fit_full_calibration
     from borescan.discrepancy.examine import scan_arrays
     from borescan.geometry import Beams
@@ -218,6 +224,7 @@ def label(n: dict) -> str:
 
 
 def truth_label(effect) -> str:
+    """Return the label of a hidden effect as the findings write it."""
     from borescan.discrepancy.battery import effect_label
 
     return effect_label(effect)
@@ -232,7 +239,11 @@ def _like(a: str, b: str) -> bool:
 
 
 def value_ok(entry: dict | None, effect) -> bool:
-    """The named value of the hidden effect's magnitude within max(3 u, 20 %) of the truth (sign included)."""
+    """Return whether the named value of the hidden effect is near the truth.
+
+    Return the named value of the hidden effect's magnitude within max(3 u, 20 %) of the truth (sign
+    included).
+    """
     from borescan.discrepancy.battery import MAGNITUDE
 
     if entry is None or effect is None or effect.name not in MAGNITUDE:
@@ -247,8 +258,11 @@ def value_ok(entry: dict | None, effect) -> bool:
 
 
 def correct(verdict: str, named: list[dict], absorbed: list[str] | None, effect, expect_absorbed_: bool) -> bool:
-    """The bench's rule (module doc): right names and, for the hidden effect, its value.
-    ``absorbed``: the effects the verdict lists as absorbed (None: a single scan)."""
+    """Return whether a verdict is right by the bench's rule (module doc).
+
+    Return the bench's rule (module doc): right names and, for the hidden effect, its value.
+    ``absorbed``: the effects the verdict lists as absorbed (None: a single scan).
+    """
     labels = [label(n) for n in named]
     if effect is None:
         return verdict == "no_missing_effect" and not labels
@@ -263,6 +277,7 @@ def correct(verdict: str, named: list[dict], absorbed: list[str] | None, effect,
 
 
 def expect_absorbed(name: str | None, design: str) -> bool:
+    """Return whether the base model absorbs the hidden effect ``name`` under ``design``."""
     if name == "sensor_offset":
         return True
     if name == "channel_delay":
@@ -274,6 +289,7 @@ def expect_absorbed(name: str | None, design: str) -> bool:
 
 
 def run_one(job: tuple) -> dict:
+    """Examine one scenario scan by scan and pooled; return its row."""
     from borescan.discrepancy.examine import analyse_scan, discrepancy_settings
     from borescan.discrepancy.pooled import examine_pooled, pooled_scan
 
@@ -335,6 +351,7 @@ def run_one(job: tuple) -> dict:
 
 
 def summarise(rows: list[dict]) -> str:
+    """Return the summary lines of the scenarios' rows."""
     lines = []
     eff = [r for r in rows if r["truth"] is not None]
     free = [r for r in rows if r["truth"] is None and r["verdict"] != "error"]
@@ -343,7 +360,8 @@ def summarise(rows: list[dict]) -> str:
     ran = [r for r in rows if r["verdict"] != "error"]
     lines.append(f"scenarios {len(rows)} ({len(eff)} with a hidden effect, {len(free)} effect-free, {n_err} errors); "
                  f"calibrations refused by the acceptance rule: {sum(not r['calibration_accepted'] for r in ran)} "
-                 f"(used as fitted; {sum(not r.get('calibrated', True) for r in ran)} diverged: design geometry instead)")
+                 f"(used as fitted; {sum(not r.get('calibrated', True) for r in ran)} diverged: design geometry "
+                 "instead)")
     ok_f = sum(r["correct"] for r in failed)
     lines.append(f"pooled correct where single scans were ambiguous or wrong: {ok_f}/{len(failed)} = "
                  f"{ok_f / max(len(failed), 1):.1%}")
@@ -351,7 +369,8 @@ def summarise(rows: list[dict]) -> str:
                  f"single scans all correct: {sum(not r['singles_failed'] for r in eff)}/{len(eff)}")
     fa = [r for r in free if not r["correct"]]
     fa1 = [r for r in free if r["singles_failed"]]
-    lines.append(f"false alarms on effect-free scenarios: pooled {len(fa)}/{len(free)} = {len(fa) / max(len(free), 1):.1%}; "
+    lines.append(f"false alarms on effect-free scenarios: pooled {len(fa)}/{len(free)} = "
+                 f"{len(fa) / max(len(free), 1):.1%}; "
                  f"some single scan {len(fa1)}/{len(free)}")
     table: dict[str, Counter] = defaultdict(Counter)
     for r in rows:
@@ -361,7 +380,8 @@ def summarise(rows: list[dict]) -> str:
         table[key]["pooled_ok"] += r["correct"]
         table[key]["pooled_ok_where_failed"] += r["correct"] and r["singles_failed"]
     lines.append("")
-    lines.append(f"{'hidden effect / design':<40}{'n':>4}{'singles failed':>16}{'pooled ok':>11}{'ok where failed':>17}")
+    lines.append(f"{'hidden effect / design':<40}{'n':>4}{'singles failed':>16}"
+                 f"{'pooled ok':>11}{'ok where failed':>17}")
     for k in sorted(table):
         c = table[k]
         lines.append(f"{k:<40}{c['n']:>4}{c['single_failed']:>16}{c['pooled_ok']:>11}"
@@ -376,6 +396,7 @@ def summarise(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Run the scenarios and print the summary (options: ``--help``)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=40, help="scenarios")
     ap.add_argument("--seed", type=int, default=1)
@@ -408,7 +429,8 @@ def main(argv: list[str] | None = None) -> None:
     ok = [r for r in rows if r["verdict"] != "error"]
     print(f"{wall:.0f} s wall ({a.workers} workers); CPU per scenario: single scans "
           f"{np.mean([r['cpu_single_s'] for r in ok]) if ok else 0:.1f} s, pooled "
-          f"{np.mean([r['cpu_pooled_s'] for r in ok]) if ok else 0:.1f} s, all {np.mean([r['cpu_s'] for r in rows]):.1f} s")
+          f"{np.mean([r['cpu_pooled_s'] for r in ok]) if ok else 0:.1f} s, all "
+          f"{np.mean([r['cpu_s'] for r in rows]):.1f} s")
     _print_wrong(rows, a.verbose)
 
 
@@ -416,7 +438,8 @@ def _print_wrong(rows: list[dict], verbose: bool) -> None:
     if verbose:
         for r in rows:
             if not r["correct"] or r["verdict"] == "error":
-                print(f"  WRONG {r['i']} {r['name']} / {r['design']}: truth {r['truth']} -> {r['verdict']} {r['named']} "
+                print(f"  WRONG {r['i']} {r['name']} / {r['design']}: truth {r['truth']} -> "
+                      f"{r['verdict']} {r['named']} "
                       f"absorbed {r['absorbed']}; singles {[(s['verdict'], s['named']) for s in r['singles']]} "
                       f"{r.get('error', '')}")
                 if r.get("tb"):

@@ -25,8 +25,11 @@ from borescan.scenarios import draw_rod_geometry
 
 
 def draw_scan(rng: np.random.Generator) -> dict:
-    """One effect-free rod scan over the contract (:func:`borescan.scenarios.draw_rod_geometry`);
-    pose-mean readings."""
+    """Return one effect-free rod scan over the contract.
+
+    One effect-free rod scan over the contract (:func:`borescan.scenarios.draw_rod_geometry`);
+    pose-mean readings.
+    """
     g = draw_rod_geometry(rng)
     v0 = rod_readings(g["alpha"], g["layers"], g["holes"], g["axis"])
     v = v0 + g["noise"] * rng.standard_normal((g["k"],) + v0.shape).mean(axis=0)
@@ -50,6 +53,7 @@ def evaluate(scan: dict) -> dict:
 
 
 def run_contract(n_scans: int = 240, seed: int = 2017) -> dict:
+    """Solve ``n_scans`` effect-free rod scans; return their z scores, CRB ratios and refusals."""
     rng = np.random.default_rng(seed)
     z, ucrb, wrong, refused, t = [], [], 0, Counter(), time.perf_counter()
     for _ in range(n_scans):
@@ -88,15 +92,19 @@ def run_discrepancy(n_scans: int = 20, seed: int = 7) -> Counter:
 
 
 def main() -> None:
+    """Run the rod contract and print its figures."""
     res = run_contract()
     z = res["z"]
-    print(f"effect-free rod scans: {res['n']} drawn, {res['solved']} solved, {res['n'] - res['solved']} refused "
+    print(f"effect-free rod scans: {res['n']} drawn, {res['solved']} solved, {res['n'] - res['solved']} "
+          "refused "
           f"({res['seconds']:.1f} s)")
     for why, k in res["refused"].most_common():
         print(f"  refused {k:3d}: {why}")
-    print(f"diameters: {z.size}; z-scores SD {z.std():.3f}, RMS {np.sqrt(np.mean(z**2)):.3f}, mean {z.mean():+.3f}, "
+    print(f"diameters: {z.size}; z-scores SD {z.std():.3f}, RMS {np.sqrt(np.mean(z**2)):.3f}, mean "
+          f"{z.mean():+.3f}, "
           f"max |z| {np.abs(z).max():.2f}; 95 % coverage {np.mean(np.abs(z) < 1.959964):.3f}")
-    print(f"u / CRB: max {res['u_crb'].max():.3f}, median {np.median(res['u_crb']):.3f}; wrong minima: {res['wrong']}")
+    print(f"u / CRB: max {res['u_crb'].max():.3f}, median {np.median(res['u_crb']):.3f}; wrong minima: "
+          f"{res['wrong']}")
     t = time.perf_counter()
     verdicts = run_discrepancy()
     n = sum(verdicts.values())

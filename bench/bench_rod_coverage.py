@@ -25,7 +25,8 @@ chains whose poses cannot determine the radii are refused by the solve, with the
 base length itself has no truth to score: l0 takes up the beam offset and tilt and the solve's
 deflection average, which is its purpose.
 
-Run: ``python -m bench rod_coverage`` or ``python -m bench.bench_rod_coverage [--n 200] [--seed 20270701] [--workers 2]``.
+Run: ``python -m bench rod_coverage`` or
+``python -m bench.bench_rod_coverage [--n 200] [--seed 20270701] [--workers 2]``.
 """
 
 from __future__ import annotations
@@ -58,8 +59,11 @@ def _config() -> dict:
 
 
 def _hold(rng, layers, d20_mm, T_c, kind, scan_id, artifact, design, sensors, base: Path):
-    """Write one hold of the rod (a fresh draw of axis, poses and readings per pose) with the stated
-    temperature and expansion coefficient and a linearity error per layer; read it back."""
+    """Write one hold of the rod and read it back.
+
+    Write one hold of the rod (a fresh draw of axis, poses and readings per pose) with the stated
+    temperature and expansion coefficient and a linearity error per layer; read it back.
+    """
     import polars as pl
 
     from borescan import rawio, scenarios, simulate
@@ -156,6 +160,7 @@ def run_chain(job) -> dict:
 
 
 def main(argv=None) -> int:
+    """Run the rod chains and print the coverage table (options: ``--help``); return 0."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--n", type=int, default=N_CHAINS, help="chains (default %(default)s)")
     ap.add_argument("--seed", type=int, default=SEED)

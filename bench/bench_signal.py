@@ -52,7 +52,7 @@ NIGHT = "2026-11-30"
 
 
 def _write_scan(raw: Path, seed: int = 0) -> tuple[Path, int]:
-    """The reference scan folder under ``raw``; returns (folder, readings)."""
+    """Return the reference scan folder under ``raw``; returns (folder, readings)."""
     beams = Beams((1, 2, 3), np.array([0.3, 2.4, 4.5]), np.array([5.5484, -2.5295, 1.5262]),
                   np.array([132.6718, 132.8883, 134.1108]))
     n = N_REV * SPR
@@ -98,6 +98,7 @@ def _best(fn, repeats: int = 5) -> float:
 
 
 def main() -> dict:
+    """Time the signal stage on one written scan; return the timings."""
     with tempfile.TemporaryDirectory() as tmp:
         raw = Path(tmp) / "raw"
         folder, rows = _write_scan(raw)
@@ -157,15 +158,19 @@ def main() -> dict:
            "samples_per_rev": res.period.samples_per_rev, "extrema": ext.height,
            **{f"{k.strip()}_s": t for k, t in steps.items()}}
     print(f"signal stage: {rows} readings ({N_REV} rev x {SPR} x 3 channels), best of 6, interleaved")
-    print(f"  plain read (polars / pyarrow)  : {times['read_polars'] * 1e3:6.1f} / {times['read_arrow'] * 1e3:6.1f} ms"
+    print(f"  plain read (polars / pyarrow)  : {times['read_polars'] * 1e3:6.1f} / "
+          f"{times['read_arrow'] * 1e3:6.1f} ms"
           f"  -> {rows / t_read / 1e6:6.2f} M readings/s (the faster)")
-    print(f"  whole stage (read_scan ... summary): {t_stage * 1e3:6.1f} ms  {rows / t_stage / 1e6:6.2f} M readings/s")
+    print(f"  whole stage (read_scan ... summary): {t_stage * 1e3:6.1f} ms  {rows / t_stage / 1e6:6.2f} M "
+          "readings/s")
     print(f"  processing only (lds_matrix + process_arrays): {t_proc * 1e3:6.1f} ms")
     for name, t in steps.items():
         print(f"    {name:26s}: {t * 1e3:7.1f} ms")
-    print(f"  stage less the plain read       : {(t_stage - t_read) * 1e3:6.1f} ms (one thread); at 0.5x it may take"
+    print(f"  stage less the plain read       : {(t_stage - t_read) * 1e3:6.1f} ms (one thread); at 0.5x "
+          "it may take"
           f" {t_read * 1e3:.1f} ms, the read's own time")
-    print(f"  pyarrow read on one thread      : {t_read_one * 1e3:6.1f} ms (the threaded read keeps both cores busy)")
+    print(f"  pyarrow read on one thread      : {t_read_one * 1e3:6.1f} ms (the threaded read keeps both "
+          "cores busy)")
     print(f"  ratio whole stage / read        : {out['ratio']:.3f}  (target >= 0.5)")
     print(f"  ratio read + processing / read  : {out['ratio_processing']:.3f}  (no validation)")
     print(f"  period {res.period.samples_per_rev:.5f} +- {res.period.u_samples_per_rev:.1e} samples/rev "

@@ -203,7 +203,7 @@ def make_bad_scans(raw_root: Path, night: str, good_tri: Path, good_rod: Path, e
 
 
 def make_stage_cases(raw_root: Path, truth_root: Path, night: str) -> tuple[list[BadCase], dict]:
-    """Scans that are valid raw data but cannot be calibrated or measured (issue 8).
+    """Return scans that are valid raw data but cannot be calibrated or measured (issue 8).
 
     Returns the cases and the ids of the verification that must fail and of the measurement
     that must then be refused.

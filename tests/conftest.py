@@ -21,7 +21,8 @@ BAD_NIGHT = "2026-11-22"
 
 def workflow_env(home: Path) -> dict[str, str]:
     """Environment of a workflow run by the tests: this venv's tools, and the package of this
-    checkout (the one the tests import) for every job."""
+    checkout (the one the tests import) for every job.
+    """
     return {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(home), "MPLBACKEND": "Agg",
             "PYTHONPATH": str(ROOT / "src")}
 
@@ -40,7 +41,7 @@ def checksums(root: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="session")
 def pipeline_run(tmp_path_factory):
-    """The demo nights + the bad-input battery (a third night), processed by Snakemake once."""
+    """Return the demo nights + the bad-input battery (a third night), processed by Snakemake once."""
     base = tmp_path_factory.mktemp("pipeline")
     demo.make_demo(base / "demo")
     raw = base / "demo" / "raw"

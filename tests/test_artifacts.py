@@ -69,7 +69,8 @@ def test_certificate_conflicts_name_both_values_and_the_first_scan():
 
 def test_a_gauge_set_keeps_each_rings_certified_value():
     """A rod's gauge set states a certified diameter per feature: another value for one ring under
-    the same certificate is a conflict too, named with the feature."""
+    the same certificate is a conflict too, named with the feature.
+    """
     import json
 
     from borescan.artifacts import certificate_conflicts, certificate_fields

@@ -59,7 +59,8 @@ def test_very_large_scan_is_read_with_bounded_memory(tmp_path):
     code = (
         "open('/proc/self/clear_refs', 'w').write('5'); from borescan import rawio; "
         f"s = rawio.read_scan(__import__('pathlib').Path({str(d)!r})); m = rawio.lds_matrix(s); "
-        "print(m.values_mm.shape[0], next(int(x.split()[1]) for x in open('/proc/self/status') if x.startswith('VmHWM')))"
+        "print(m.values_mm.shape[0], next(int(x.split()[1]) for x in open('/proc/self/status') if "
+        "x.startswith('VmHWM')))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert int(out[0]) == 600 * 660

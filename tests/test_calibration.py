@@ -118,7 +118,7 @@ def _exact_extremes(direction: str, N: int = 625):
             return tri_spindle_readings(np.array([sgn * 2 * np.pi * k / N]), OFFSET, TRUE, bore)[0, j]
 
         for key, sign, idx in (("min", 1, np.argmin(v[:, j])), ("max", -1, np.argmax(v[:, j]))):
-            res = minimize_scalar(lambda k: sign * f(k), bounds=(idx - 1.5, idx + 1.5), method="bounded",
+            res = minimize_scalar(lambda k, sign=sign: sign * f(k), bounds=(idx - 1.5, idx + 1.5), method="bounded",
                                   options={"xatol": 1e-10})
             out["d_" + key].append(sign * res.fun)
             out["n_" + key].append(res.x)
@@ -128,7 +128,8 @@ def _exact_extremes(direction: str, N: int = 625):
 @pytest.mark.parametrize("direction", ["ccw", "cw"])
 def test_yang_recovers_noise_free_simulation(direction):
     """Extremes of the exact forward model -> r, d_b to 1e-6 mm; statuses fix the sign of rho;
-    Eqs. 12-15 (in the spec's frame) give beta_c - beta_1 to 2e-6 rad."""
+    Eqs. 12-15 (in the spec's frame) give beta_c - beta_1 to 2e-6 rad.
+    """
     N = 625
     ex = _exact_extremes(direction, N)
     oe = np.hypot(*OFFSET)
@@ -153,7 +154,8 @@ def test_printed_eq14_has_the_opposite_sign(direction):
     """With angles measured in the sense of rotation (theta_t > 0 from line 2's feature point to
     line 1's, theta from line 1 to line 2) and statuses from the §2.3 sampling rule, the exact beam
     angle is theta_t - theta_c with theta_c of Eq. 14 as printed, not Eq. 12's theta_t + theta_c;
-    the two differ by 2 theta_c (0.02-0.12 rad here)."""
+    the two differ by 2 theta_c (0.02-0.12 rad here).
+    """
     N = 625
     ex = _exact_extremes(direction, N)
     oe = np.hypot(*OFFSET)
@@ -187,7 +189,9 @@ def test_yang_calibration_raises_when_eq8_has_no_real_r():
 
 
 def test_yang_uncertainty_propagation_matches_sensitivities():
-    """u(r) from the propagated covariance equals |dr/dd_max| u(d_max) (+) |dr/dd_min| u(d_min) (+) |dr/doe| u(oe)."""
+    """u(r) from the propagated covariance equals |dr/dd_max| u(d_max) (+) |dr/dd_min| u(d_min) (+) |dr/doe|
+    u(oe).
+    """
     d_max, d_min, oe = np.array([7.0549, 6.9256, 5.7177]), np.array([2.4067, 2.2804, 1.073]), 2.3222
     u_dmax, u_dmin, u_oe = 1e-4, 2e-4, 1e-4
     cal = yang_calibration(d_max, d_min, ["backward", "backward", "advanced"], [312.0, 88.0, 199.0], 660.0, R_MM, oe,
@@ -343,7 +347,9 @@ def test_uncertainties_are_honest_over_200_calibrations():
 
 
 def _twin_scan(scene, *, encoder, n_rev=20, seed=0, effects=(), noise_mm=0.003, spindle_stream=True):
-    """A scan drawn by the digital twin, reduced to what the fit reads (times, readings, angle model)."""
+    """Return a scan drawn by the digital twin, reduced to what the fit reads (times, readings, angle
+    model).
+    """
     import polars as pl
 
     from borescan import kinematics, simulate

@@ -20,7 +20,8 @@ RANGE_MM = 10.0
 
 def _censored_scene(n_rev=30, N=500):
     """Channel 1's lowest reading exactly at the lower limit 0, channel 2's highest at the upper
-    limit (10 mm): both dwell near a limit around their extremes (the slowest crossing)."""
+    limit (10 mm): both dwell near a limit around their extremes (the slowest crossing).
+    """
     t = np.arange(n_rev * N) / N  # 60 rpm, N samples per revolution
     v0 = tri_spindle_readings(2 * np.pi * t, OFFSET, TRUE, Bore((0.0, 0.0), R_MM))
     d_b = TRUE.d_b_mm + np.array([v0[:, 0].min(), v0[:, 1].max() - RANGE_MM, v0[:, 2].min() - 3.0])
@@ -55,7 +56,8 @@ def test_censored_readings_do_not_bias_the_calibration():
     more than 4 sigma inside the range, every other one kept as read, also the negative ones), the
     calibration of the censored readings (null where the noisy value leaves [0, 10 mm]) agrees within
     0.15 u in every parameter; without the guard it is off by ~0.3-0.7 u (channel 1's rho and d_b,
-    channel 2's). Both are within 3.5 u of the simulated truth."""
+    channel 2's). Both are within 3.5 u of the simulated truth.
+    """
     t, beams, v = _censored_scene()
     sigma = 0.004
     rng = np.random.default_rng(0)

@@ -1,5 +1,6 @@
 """Calibration lifecycle kept as history: the saved queries calibration_status_history and
-calibration_lifecycle on a hand-made catalog whose every transition is known."""
+calibration_lifecycle on a hand-made catalog whose every transition is known.
+"""
 
 from __future__ import annotations
 
@@ -93,7 +94,7 @@ def test_trace_shows_the_lifecycle_status(con, tmp_path):
     assert trace._Tracer(con, tmp_path).calibration("C1")["status"] == "valid"
 
 
-def test_superseded_before_due_never_expires_and_a_rod_design_geometry_is_superseded_by_its_gauge_calibration():
+def test_superseded_before_due_never_expires_and_a_rod_design_is_superseded_by_its_gauge_calibration():
     con = duckdb.connect()
     for t in TABLES.values():
         con.execute(t.ddl())

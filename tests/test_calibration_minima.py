@@ -37,7 +37,8 @@ def _calibrate(tmp_path, seed: int, n: int, index: int):
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
     """``_calibrate`` once per (seed, n, index) in this module: seed 20270619 #8 takes about 90 s and two
-    tests examine its calibration."""
+    tests examine its calibration.
+    """
     done = {}
 
     def get(seed: int, n: int, index: int):
@@ -90,7 +91,8 @@ def _z(cal, truth_beams: Beams) -> np.ndarray:
 
 
 # seed 20270619 #8: a skewed rho valley (channel 2 comes out +5.2 mm against -6.07 mm, Delta chi^2 6.8 at the
-# truth's rho on the profile): before the profile its beta z was -10.8 (u(beta) a third of the bound at the truth)
+# truth's rho on the profile): before the profile its beta z was -10.8 (u(beta) a third of the bound at
+# the truth)
 # seed 20270611 #3: encoder and positions known (absolute beta), one of the scans whose beta read low
 # seed 20270611 #167: channel 3 comes out on its mirror (rho +7.30 mm, truth -7.29 mm), the other sign 3.9 s^2
 # above; that minimum was taken as spanned by channel 2's profile and left out of u: z 9.2
@@ -168,7 +170,8 @@ def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_se
     weighted spread at the profile's points beyond its linear part, computed here independently by
     the static solve at each point's beams; mapped by the linear sensitivities instead, the same term
     is hundreds of times larger (the over-coverage of issue 19's coverage study: z SD 0.28 on such
-    chains)."""
+    chains).
+    """
     from borescan.calibration_budget import calibration_budget
     from borescan.artifacts import artifact_cte, scan_temperature
     from borescan.geometry import Bore, tri_static_readings
@@ -223,8 +226,10 @@ def test_the_mirror_screen_of_a_long_scan_keeps_what_the_full_search_finds(tmp_p
     """The screen fits each mirror start on every step-th sample and refits on every sample only what it
     cannot set aside. Against the search without a screen (every mirror refitted on every sample): the
     same solution (each parameter within 1e-4 of its u), the same u (1e-4), every minimum within
-    Delta chi^2 < 12.5 found by one found by the other (within 0.05 u(rho), from any mirror start) , and a screened minimum's Delta within 5
-    standard deviations of the estimate's (sqrt(4 step Delta)) of the refitted one."""
+    Delta chi^2 < 12.5 found by one found by the other (within 0.05 u(rho), from any mirror start) , and a
+    screened minimum's Delta within 5
+    standard deviations of the estimate's (sqrt(4 step Delta)) of the refitted one.
+    """
     from borescan import calibration
 
     scan, truth, cfg, x, screened = _calibrate(tmp_path / "a", 20270611, 200, index)

@@ -122,7 +122,8 @@ def test_rod_layers_from_rows_default_missing_geometry_to_zero():
 
 def _drift_rows():
     """Hand-made calibrations: TRI-01 channel 2 three times (beta moves 4 mrad between A and B),
-    TRI-02 channel 1 twice with beta across 2 pi, a rod's nominal record (no beta)."""
+    TRI-02 channel 1 twice with beta across 2 pi, a rod's nominal record (no beta).
+    """
     def row(cid, dev, ch, valid, beta, u_beta, rho, u_rho, d_b, u_d_b, method="full_lsq"):
         return {"calibration_id": cid, "device_id": dev, "channel": ch, "valid_from": valid, "method": method,
                 "beta_rad": beta, "u_beta_rad": u_beta, "rho_mm": rho, "u_rho_mm": u_rho, "d_b_mm": d_b, "u_d_b_mm": u_d_b}

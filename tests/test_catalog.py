@@ -24,7 +24,7 @@ def _sha(text: str) -> str:
 
 
 def make_history(results_root: Path) -> dict[str, pl.DataFrame]:
-    """A small constructed history in the shapes of the stage tables.
+    """Return a small constructed history in the shapes of the stage tables.
 
     Device TRI-01 (tri_lds, 3 channels): calibrated on 2026-11-20 (CAL-A, two scans), verified
     on the 20th (pass) and the 21st (FAIL, error 0.020 > 0.015), recalibrated on the 22nd (CAL-B)
@@ -130,7 +130,7 @@ def built(tmp_path):
     return res, tables
 
 
-# --------------------------------------------------------------------------- schema
+# ------------------------------------------------------------ schema
 
 
 def _columns(con, table):
@@ -277,7 +277,7 @@ def test_upsert_rows_replaces_by_key(built):
     con.close()
 
 
-# --------------------------------------------------------------------------- saved queries
+# ------------------------------------------------------------ saved queries
 
 
 def test_saved_queries_have_header_comments():
@@ -364,14 +364,14 @@ def test_sql_command_lists_saved_queries(built, capsys):
     assert "verification_drift" in out and "suspect_measurements" in out and "calibration_history" in out
 
 
-# --------------------------------------------------------------------------- atomic writes
+# ------------------------------------------------------------ atomic writes
 
 
 def test_atomic_json_is_canonical(tmp_path):
     p = tmp_path / "a" / "x.json"
     atomic.atomic_write_json(p, {"b": 0.1, "a": [1, 2.5e-7], "c": float("nan"), "d": (1, 2), "e": Path("q")})
     text = p.read_text()
-    assert text == '{\n  "a": [\n    1,\n    2.5e-07\n  ],\n  "b": 0.1,\n  "c": null,\n  "d": [\n    1,\n    2\n  ],\n  "e": "q"\n}\n'
+    assert text == '{\n  "a": [\n    1,\n    2.5e-07\n  ],\n  "b": 0.1,\n  "c": null,\n  "d": [\n    1,\n    ' '2\n  ],\n  "e": "q"\n}\n'
     before = p.read_bytes()
     atomic.atomic_write_json(p, {"d": [1, 2], "c": None, "b": 0.1, "a": [1, 2.5e-7], "e": "q"})
     assert p.read_bytes() == before
@@ -410,7 +410,7 @@ def test_atomic_dir_replaces_or_leaves_untouched(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cert"]
 
 
-# --------------------------------------------------------------------------- SLURM profile (history on shared storage)
+# ------------------------------------------------------------ SLURM profile (history on shared storage)
 
 PROFILE = Path(__file__).resolve().parents[1] / "profiles" / "slurm"
 

@@ -30,7 +30,7 @@ def _snapshot(path: Path) -> dict:
 
 
 def _rebuilt(res: Path, tmp: Path) -> dict:
-    """The catalog a full rebuild gives from the same stage files (built in a copy of the folder)."""
+    """Return the catalog a full rebuild gives from the same stage files (built in a copy of the folder)."""
     copy = tmp / f"rebuild-{time.monotonic_ns()}"
     shutil.copytree(res, copy, copy_function=os.link, ignore=shutil.ignore_patterns("catalog.duckdb*", "report*"))
     update = catalog.rebuild_catalog(copy)
@@ -44,8 +44,9 @@ NIGHT_OF_OCTOBER = {"2026-11-20": "2026-10-30"}  # the first night moved to anot
 
 
 def _write_stage(res: Path, tables: dict[str, pl.DataFrame], nights: list[str], remap: dict[str, str]) -> None:
-    """The constructed history as the stage files of ``nights``, each night's rows in its own file
-    (nights renamed by ``remap``; rows without a night follow their scan, artifacts the first night)."""
+    """Write the constructed history as the stage files of ``nights``, each night's rows in its own file
+    (nights renamed by ``remap``; rows without a night follow their scan, artifacts the first night).
+    """
     moved = pl.col("night").replace(remap)
     scans = tables["scans"].with_columns(
         pl.coalesce([pl.when(pl.col("night") == old).then(pl.col("started_at").str.replace(old, new))
@@ -188,7 +189,8 @@ def test_rebuild_catalog_command(staged, capsys):
 
 def test_a_failed_verification_updates_the_earlier_month_page(staged):
     """PART-7 (October) used CAL-A; CAL-A fails its verification in November: October's page is
-    rendered again and lists PART-7 as in doubt, without drawing October's plots again."""
+    rendered again and lists PART-7 as in doubt, without drawing October's plots again.
+    """
     res, tables = staged
     _write_stage(res, tables, ["2026-10-30"], NIGHT_OF_OCTOBER)
     catalog.update_catalog(res)
@@ -219,7 +221,8 @@ def test_a_failed_verification_updates_the_earlier_month_page(staged):
 def test_demo_plus_added_nights_incremental_equals_rebuild(pipeline_run, tmp_path):
     """The demo nights and the bad-input night processed by Snakemake, then six synthetic nights
     across a month boundary: night-by-night catalog and report equal a full rebuild and a full
-    re-render, and a new December night leaves November's page and plots alone."""
+    re-render, and a new December night leaves November's page and plots alone.
+    """
     src_res = pipeline_run["results"]
     assert pipeline_run["proc"].returncode == 0
     res = tmp_path / "results"
@@ -276,7 +279,8 @@ def test_demo_plus_added_nights_incremental_equals_rebuild(pipeline_run, tmp_pat
 @pytest.mark.slow
 def test_the_workflow_extends_the_catalog_it_keeps(pipeline_run, tmp_path):
     """build_catalog's output is update()-flagged: Snakemake does not delete the catalog before
-    the job, so a forced rerun finds it and has nothing to add (a deleted one is rebuilt in full)."""
+    the job, so a forced rerun finds it and has nothing to add (a deleted one is rebuilt in full).
+    """
     from conftest import run_snakemake
 
     res = tmp_path / "results"

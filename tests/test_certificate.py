@@ -1,4 +1,6 @@
-"""Certificates: ISO/IEC 17025 7.8 content, GUM budget, DCC-like JSON, layout and byte-identical regeneration."""
+"""Certificates: ISO/IEC 17025 7.8 content, GUM budget, DCC-like JSON, layout and byte-identical
+regeneration.
+"""
 
 import json
 import re
@@ -7,7 +9,7 @@ import numpy as np
 import pytest
 
 from borescan.calibration import full_residuals, yang_calibration
-from borescan.certificate import PLACEHOLDER, _pages, certificate_dict, certificate_dir, write_certificate
+from borescan.certificate import PLACEHOLDER, _pages, certificate_dir, write_certificate
 from borescan.config import schema_defaults
 from borescan.uncertainty import Budget
 
@@ -20,7 +22,9 @@ LAB = {"name": "Metrology Lab Example GmbH", "address": "Example Street 1, 12345
 
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
-    """A simulated calibration scan through the pipeline's own path: fit, GUM budget, certificate inputs."""
+    """Return a simulated calibration scan through the pipeline's own path: fit, GUM budget, certificate
+    inputs.
+    """
     from borescan import rawio, simulate
     from borescan.stages.calibration_fit import calibrate_raw_scans, spindle_inputs
     from borescan.certificate import certificate_dates

@@ -1,5 +1,6 @@
 """Parts shared by three-sensor and rod certificates: administrative data, one-result budget tables,
-and the rod layers the discrepancy examination compares a scan with."""
+and the rod layers the discrepancy examination compares a scan with.
+"""
 
 import json
 import math
@@ -28,7 +29,9 @@ GAUGE = {"id": "RGS-150", "certificate": "C-150", "certificate_issuer": "DKD", "
 
 
 def _rod_cal() -> RodCalibration:
-    """Two layers calibrated in one ring gauge: l0 with u from two inputs (gauge 0.3 um, resolution 0.1 um)."""
+    """Two layers calibrated in one ring gauge: l0 with u from two inputs (gauge 0.3 um, resolution 0.1
+    um).
+    """
     budget = Budget(("l0_mm[1]", "l0_mm[2]"), ("mm", "mm"), [71.0012, 70.9991])
     budget.add(Term(Input("gauge:RGS-150", "gauge diameter", "D", "mm", 150.002, 0.0003, "normal"), [-0.5, -0.5]))
     budget.add(Term(Input("resolution:ch1", "resolution ch 1", "r", "mm", 0.0, 1e-4, "rectangular"), [1.0, 0.0]))

@@ -53,7 +53,8 @@ def _lobed(n=720, R=50.0, a=0.004, k=3, c=(3.0, -2.0), phase=0.3, noise=0.0, see
 @pytest.mark.parametrize("n, regular", [(200, False), (20000, True)])
 def test_perfect_circle_all_reference_circles_coincide(n, regular):
     """Points exactly on a circle (random angles, or a regular 20000-gon: every point cocircular,
-    diametrically opposite pairs): all four circles are that circle."""
+    diametrically opposite pairs): all four circles are that circle.
+    """
     rng = np.random.default_rng(3)
     th = np.linspace(0, 2 * np.pi, n, endpoint=False) if regular else rng.uniform(0, 2 * np.pi, n)
     x, y = 700.0 + 137.5 * np.cos(th), -275.0 + 137.5 * np.sin(th)
@@ -65,7 +66,8 @@ def test_perfect_circle_all_reference_circles_coincide(n, regular):
 
 def test_three_lobe_profile_known_peak_to_valley():
     """r = R + a cos 3(theta - phase): every centre is the true one, RONt = 2a exactly
-    (the odd-lobed profile has no eccentricity the reference circles could trade for)."""
+    (the odd-lobed profile has no eccentricity the reference circles could trade for).
+    """
     a = 0.004
     x, y, _ = _lobed(a=a, phase=np.deg2rad(10.0))  # peaks and valleys on samples
     circ = reference_circles(x, y)
@@ -168,7 +170,8 @@ def test_harmonic_spectrum_recovers_lobes():
 @pytest.mark.parametrize("arc_rad", [2 * np.pi, 0.5])
 def test_harmonic_spectrum_equals_design_matrix_least_squares(arc_rad):
     """Power-sum normal equations give the same coefficients as lstsq on the full design matrix,
-    for noisy non-uniform data over a full turn and (ill-conditioned: fallback path) a short arc."""
+    for noisy non-uniform data over a full turn and (ill-conditioned: fallback path) a short arc.
+    """
     rng = np.random.default_rng(11)
     th = rng.uniform(0, arc_rad, 3000)
     r = 138.0 + 0.003 * np.cos(2 * th) + 0.001 * rng.standard_normal(th.size)
@@ -221,7 +224,7 @@ def _chunked(fun, C, P):
 
 
 def _angular_polygon(P):
-    """The profile polygon: the points in angular order about their least-squares centre."""
+    """Return the profile polygon: the points in angular order about their least-squares centre."""
     from matplotlib.path import Path as MPath
 
     c = fit_circle_ls(P[:, 0], P[:, 1]).center_xy_mm
@@ -246,7 +249,8 @@ def _branch_and_bound(P, value, lipschitz, poly=None, tol_mm=1e-10):
     polygon ``poly``, inside it), independent of circlefit: squares of half-diagonal a are
     dropped when value(centre) + lipschitz * a cannot reach the best value found at a centre
     (inside ``poly``) or when they lie wholly outside ``poly``; the rest are split in four,
-    until lipschitz * a < tol_mm. Returns (best, its centre, bound on the maximum)."""
+    until lipschitz * a < tol_mm. Returns (best, its centre, bound on the maximum).
+    """
     lo, size = P.min(axis=0), float(np.max(np.ptp(P, axis=0)))
     n0 = 32
     h = size / n0  # side
@@ -304,7 +308,8 @@ def _peanut(R1=50.0, R2=49.99, s=3.0, n1=720, n2=2881):
     """Points on the outline of two overlapping disks, centres (-s, 0) (radius R1, n1 points)
     and (s, 0) (R2, n2 points): each outer arc spans more than 180 deg about its own centre
     when |R1^2 - R2^2| < 4 s^2, so f(c) = min_i |p_i - c| has a local maximum R_k at each
-    centre (a two-lobed bore with a waist). Returns x, y (the two waist points included)."""
+    centre (a two-lobed bore with a waist). Returns x, y (the two waist points included).
+    """
     x0 = (R1**2 - R2**2) / (4 * s)  # abscissa of the waist (radical line)
     y0 = np.sqrt(R1**2 - (x0 + s) ** 2)
     a1, a2 = np.arctan2(y0, x0 + s), np.arctan2(y0, x0 - s)
@@ -319,7 +324,8 @@ def _peanut(R1=50.0, R2=49.99, s=3.0, n1=720, n2=2881):
 def test_mici_is_the_largest_of_two_local_maxima(n1, n2):
     """Two-lobed bore (disks R1 = 50 mm at (-3, 0), R2 = 49.99 mm at (3, 0)): f has a local
     maximum in each lobe; the MIC is the larger one, centre (-3, 0), radius 50 mm exactly,
-    although the denser sampling of the smaller lobe puts the least-squares centre there."""
+    although the denser sampling of the smaller lobe puts the least-squares centre there.
+    """
     R1, R2, s = 50.0, 49.99, 3.0
     x, y = _peanut(R1, R2, s, n1, n2)
     P = np.column_stack([x, y])
@@ -344,7 +350,8 @@ def _lobed_bore(kind, noise_mm=0.0, dent_mm=0.0, dent_deg=0.0, seed=0):
     """Lobed bores about (40, -25) mm, radial noise and an off-centre inward dent (Gaussian,
     8 deg wide about the origin) added: "peanut" (:func:`_peanut`, the smaller lobe sampled 4x
     denser), "clover" (outline of three disks of radius 50, 49.97, 49.94 mm centred 30 mm out at
-    90, 210, 330 deg, 1500 random angles), "trefoil" (r = 50 + 0.05 cos 3 theta, 3000 points)."""
+    90, 210, 330 deg, 1500 random angles), "trefoil" (r = 50 + 0.05 cos 3 theta, 3000 points).
+    """
     rng = np.random.default_rng(seed)
     if kind == "peanut":
         x, y = _peanut(50.0, 49.99, 3.0, 720, 2881)
@@ -375,7 +382,8 @@ def test_mici_equals_branch_and_bound_on_lobed_profiles(kind, noise_mm, dent_mm,
     """Lobed bores with noise and a dent: MICI radius = the global maximum found by branch and
     bound over centres within 1e-9 mm (its bound), centre within 1e-6 mm, RONt about it within
     twice that distance. The peanut has a local maximum in each lobe (checked: f near each lobe centre
-    exceeds f on a 1 mm circle around it) and its least-squares centre in the smaller one."""
+    exceeds f on a 1 mm circle around it) and its least-squares centre in the smaller one.
+    """
     x, y = _lobed_bore(kind, noise_mm, dent_mm, dent_deg, seed)
     P = np.column_stack([x, y])
     if kind == "peanut":
@@ -401,7 +409,8 @@ NIST_OPEN = [2, 3, 5, 7, 14, 15, 20, 21, 24, 26, 28, 30]
 
 def test_nist_sets_closed_and_open():
     """The sets that sample the whole circle (3 to 360 points) have gaps <= 120 deg about the
-    LS centre, the partial arcs >= 179.9 deg: the 150 deg default tells them apart."""
+    LS centre, the partial arcs >= 179.9 deg: the 150 deg default tells them apart.
+    """
     gaps = {i: largest_gap_deg(*_nist(i)[:2]) for i in range(1, 31)}
     assert max(gaps[i] for i in NIST_CLOSED) < 120.01 < 179.9 < min(gaps[i] for i in NIST_OPEN)
     assert max(gaps[i] for i in NIST_CLOSED) < CLOSED_MAX_GAP_DEG < min(gaps[i] for i in NIST_OPEN)
@@ -411,7 +420,8 @@ def test_nist_sets_closed_and_open():
 def test_nist_reference_circles_equal_branch_and_bound(i):
     """Every closed NIST circle2d set: MICI, MCCI and MZCI equal the global optimum found by
     branch and bound over centres to 1e-9 mm, and RONt about the MIC centre matches (within
-    twice the distance of the two centres)."""
+    twice the distance of the two centres).
+    """
     x, y, _, _ = _nist(i)
     shift = np.array([x.mean(), y.mean()])
     P = np.column_stack([x, y]) - shift  # NIST parts sit up to 1000 mm out
@@ -433,7 +443,8 @@ def test_nist_reference_circles_equal_branch_and_bound(i):
 def test_nist_cir2d19_mici_is_the_global_maximum():
     """cir2d19 (20 points): the inscribed circle nearest the LS centre is 1 nm smaller and
     12.3 um away from the largest; RONt about the largest one's centre is 35.393 um. Exhaustive
-    check: every circle through 3 of the 20 points that is empty and centred inside."""
+    check: every circle through 3 of the 20 points that is empty and centred inside.
+    """
     from borescan.geometry import circumcircle
 
     x, y, _, _ = _nist(19)
@@ -457,7 +468,8 @@ def test_nist_cir2d19_mici_is_the_global_maximum():
 @pytest.mark.parametrize("i", NIST_OPEN)
 def test_nist_open_arcs_refused(i):
     """The partial-arc NIST sets: a clear 'not closed' error from MICI, MZCI, MCCI and
-    reference_circles, not an LP status."""
+    reference_circles, not an LP status.
+    """
     x, y, _, _ = _nist(i)
     msg = r"profile is not closed \(largest gap (179\.9|18[01]\.\d|2[67]\d\.\d) deg\)"
     for f in (max_inscribed_circle, min_zone_circle, min_circumscribed_circle, reference_circles):
@@ -480,7 +492,8 @@ def test_open_arc_reports_its_gap(arc_deg):
 
 def test_max_gap_deg_argument():
     """A full circle missing a 160 deg sector is refused by default and accepted at 170 deg,
-    where the reference circles of points exactly on a circle are that circle."""
+    where the reference circles of points exactly on a circle are that circle.
+    """
     th = np.deg2rad(np.linspace(0.0, 200.0, 201))
     x, y = 1 + 30 * np.cos(th), 2 + 30 * np.sin(th)
     with pytest.raises(CircleFitError, match=r"largest gap 160\.0 deg"):
@@ -494,7 +507,8 @@ def test_max_gap_deg_argument():
 def test_mic_on_the_reduced_set_equals_the_full_triangulation(case, monkeypatch):
     """The MICI of a large profile is found on the inner envelope (one point per angular bin) with a
     certificate; it must equal the MICI computed by triangulating every point (MIC_BINS raised so that
-    the full path runs), centre and radius to 1e-12 mm."""
+    the full path runs), centre and radius to 1e-12 mm.
+    """
     from borescan import circlefit
 
     rng = np.random.default_rng(7)
@@ -527,7 +541,8 @@ def _awkward_profile(rng, kind: str, n: int, radius_mm: float, noise_mm: float, 
     """n points at random angles on a circle with noise, and a shape whose reference circles are
     not set by each angle's extreme points about the LS centre: "noise" (none), "lobes" (2 and 5
     UPR), "bump" (one side, pulls the LS centre away), "outward_spikes" (0.2 % of the points
-    30 um out), "spikes" (0.1 % of the points 30 um in or out), "flat" (two opposite flats)."""
+    30 um out), "spikes" (0.1 % of the points 30 um in or out), "flat" (two opposite flats).
+    """
     th = rng.uniform(0, 2 * np.pi, n)
     r = radius_mm + rng.normal(0, noise_mm, n)
     if kind == "lobes":
@@ -548,7 +563,8 @@ def test_mcci_from_the_farthest_points_is_the_mcci_of_all(monkeypatch, farthest)
     """A long profile's MCCI is found from its points farthest from the LS centre, widened 8-fold
     while a point is left outside: the same circle (to 1e-12 mm) as Welzl on the hull of every
     point, on profiles whose farthest points from the LS centre are not the MCCI's (lobes, an
-    off-centre bump, outward spikes), and every point inside it."""
+    off-centre bump, outward spikes), and every point inside it.
+    """
     import borescan.circlefit as cf
 
     rng = np.random.default_rng(20261124)
@@ -571,7 +587,8 @@ def test_mzci_on_the_radial_extremes_is_the_mzci_of_all(monkeypatch, bins):
     the same centre and zone width (to 1e-12 mm) as the LP on every point, on profiles whose zone
     is set by points that are not their bin's extremes about the LS centre (lobes, a bump that
     pulls the LS centre, inward and outward spikes, a flat). With 16 bins the first zone leaves
-    points outside, so the widening runs."""
+    points outside, so the widening runs.
+    """
     import borescan.circlefit as cf
 
     rng = np.random.default_rng(20261125)
@@ -580,7 +597,7 @@ def test_mzci_on_the_radial_extremes_is_the_mzci_of_all(monkeypatch, bins):
         n = 40_000
         x, y = _awkward_profile(rng, kind, n, 140.0, 0.002, (-0.3, 0.6))
         sizes = []
-        monkeypatch.setattr(cf, "_slp", lambda xs, ys, c0, **kw: (sizes.append(xs.size), slp(xs, ys, c0, **kw))[1])
+        monkeypatch.setattr(cf, "_slp", lambda xs, ys, c0, sizes=sizes, **kw: (sizes.append(xs.size), slp(xs, ys, c0, **kw))[1])
         monkeypatch.setattr(cf, "MZ_BINS", bins)
         fast = cf.min_zone_circle(x, y)
         assert max(sizes) < n / 4  # certified on the reduced set, never all points

@@ -1,6 +1,7 @@
 """The command line without rough edges (issue 20 item 4): user errors give a message and exit 2 (1 where
 the answer is "no"), never a traceback; argument checks; progress; sql output; closed pipes; paths;
-times with their zone; `borescan status`."""
+times with their zone; `borescan status`.
+"""
 
 from __future__ import annotations
 
@@ -117,7 +118,7 @@ def test_battery_argument_checks(capsys, args, message):
 def test_battery_shares_must_add_up(capsys):
     code, out, err = _run(capsys, "discrepancy-battery", "--p-free", "0.7", "--p-pair", "0.5")
     assert (code, out) == (2, "")
-    assert err == "borescan discrepancy-battery: --p-free 0.7 + --p-pair 0.5 exceed 1 (they are shares of the scans)\n"
+    assert err == "borescan discrepancy-battery: --p-free 0.7 + --p-pair 0.5 exceed 1 (they are shares of the " "scans)\n"
 
 
 @pytest.mark.slow

@@ -65,7 +65,8 @@ def test_unknown_or_removed_keys_are_refused():
 
 def test_shipped_device_model_validates_and_its_entries_parse():
     """config/devices.yaml (read by the Snakefile after config.yaml) holds only the devices section,
-    valid against the schema, each entry a registry key the device model accepts."""
+    valid against the schema, each entry a registry key the device model accepts.
+    """
     from borescan.effects import device_model_effects
 
     devices = yaml.safe_load((SHIPPED.parent / "devices.yaml").read_text())

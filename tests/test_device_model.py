@@ -93,11 +93,11 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     delay into beta_2 (omega tau = 7.5 mrad at 60 rpm, ten times its U). Carried from a pooled
     estimate (1.19 ms, u 20 us), the calibration's beta_2 is the truth's within U, and the budget's
     device-model term of beta_2 is omega u(tau) (closed form); a static bore measured with it is
-    within its U of the truth, the same input in its budget."""
+    within its U of the truth, the same input in its budget.
+    """
     from borescan import rawio, simulate
     from borescan.config import schema_defaults
     from borescan.device_model import device_model_at
-    from borescan.geometry import Bore, tri_static_readings
     from borescan.measure import tri_diameter_with_budget
     from borescan.stages.calibration_fit import calibrate_raw_scans
 

@@ -173,7 +173,8 @@ def test_findings_file_is_deterministic_and_in_the_spec_format(tmp_path):
 def test_gap_plot_of_a_reused_figure_is_the_fresh_one(tmp_path):
     """plot_gap fills one figure per layout and process (plot._FIGURES) over a background drawn once
     per set of limits (plot._BACKGROUNDS): a scan drawn after scans of the same and other layouts
-    gives the same file, byte for byte, as drawn in a fresh figure."""
+    gives the same file, byte for byte, as drawn in a fresh figure.
+    """
     from borescan.discrepancy import plot as plot_mod
 
     exs = [analyse_scan(_scan([Effect("channel_delay", {"channel": 2, "tau_s": 0.0012})])),  # two panels
@@ -345,7 +346,8 @@ def test_static_set_thermal_expansion_is_listed_among_lookalikes():
 def test_free_beams_absorb_calibration_offsets():
     """Nominal beams off the truth: with fixed beams the workflow names the d_b differences as
     sensor offsets (a calibration matter); with d_b and beta free the base model absorbs them and
-    a real effect is still named."""
+    a real effect is still named.
+    """
     from borescan.geometry import Beams
 
     nominal = Beams((1, 2, 3), YANG_BEAMS.beta_rad + [0.0, 0.002, -0.003], YANG_BEAMS.rho_mm,
@@ -366,7 +368,8 @@ def test_free_beams_absorb_calibration_offsets():
 def test_free_rho_examines_a_device_never_calibrated():
     """A design geometry off by 0.4 mm in rho (as a device never calibrated is): with beta and d_b
     free the rho error is left as a misfit the workflow must explain with something; with rho
-    free too the base model recovers the offsets and the hidden lobing alone is named."""
+    free too the base model recovers the offsets and the hidden lobing alone is named.
+    """
     from borescan.geometry import Beams
 
     drho = np.array([0.4, -0.3, 0.25])
@@ -439,7 +442,8 @@ def test_static_set_on_a_part_is_quiet():
 
 def test_screen_skips_undefined_jacobians():
     """A screen column that leaves the model undefined (NaN: a ray missing the bore, a pose with
-    no reading) skips that candidate instead of failing the examination (SVD did not converge)."""
+    no reading) skips that candidate instead of failing the examination (SVD did not converge).
+    """
     from borescan.discrepancy.examine import _lstsq
 
     J = np.eye(3)
@@ -451,7 +455,8 @@ def test_screen_skips_undefined_jacobians():
 
 def test_outlier_threshold_is_the_bonferroni_quantile():
     """Threshold for n samples: the Gaussian two-sided quantile at false_rate / n (closed form),
-    never below 4; the settings come from the schema's discrepancy section."""
+    never below 4; the settings come from the schema's discrepancy section.
+    """
     from scipy.stats import norm
 
     from borescan.config import schema_defaults
@@ -473,7 +478,8 @@ def test_outlier_threshold_is_the_bonferroni_quantile():
 
 def test_quantised_rod_readings_are_named_even_below_the_noise():
     """Readings all on a lattice are conclusive evidence of quantisation whatever the lsb: a rod
-    scan with lsb 5 um under 10 um noise gets it named, with the rounding noise it adds."""
+    scan with lsb 5 um under 10 um noise gets it named, with the rounding noise it adds.
+    """
     from borescan.effects import Effect
     from borescan.geometry import Hole, RodAxis, RodLayer
     from borescan.simulate import RodScene, simulate_rod
@@ -498,7 +504,8 @@ def test_quantised_rod_readings_are_named_even_below_the_noise():
 def test_candidate_term_at_zero_is_the_base_model_bit_for_bit(kind):
     """The linear screen takes a candidate's forward-difference columns from the base residual
     (``_jacobian_columns(..., f0=...)``): that holds only if every candidate term at zero
-    reproduces the residual without it exactly, on every channel and sample."""
+    reproduces the residual without it exactly, on every channel and sample.
+    """
     from borescan.discrepancy.examine import scan_arrays
     from borescan.discrepancy.poses import RodModel, pose_data_from_arrays
     from borescan.discrepancy.tri import TriModel, tri_data_from_arrays

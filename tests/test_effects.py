@@ -272,7 +272,8 @@ def test_effects_are_pure():
 def test_candidates_of_every_scan_kind_come_from_the_registry():
     """The discrepancy candidates are the registry's "screen" entries of the scan kind, less what a
     freed base parameter absorbs: a rod layer's free hole radius its own offset (and everything
-    common), a free bore radius only what every channel shares."""
+    common), a free bore radius only what every channel shares.
+    """
     from borescan.discrepancy.tri import registry_terms
     from borescan.effects import EFFECTS
 

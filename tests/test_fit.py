@@ -56,7 +56,8 @@ def test_known_noise_scale_is_used_as_given():
 
 def test_rank_deficiency_and_condition_are_reported():
     """Two identical columns: rank 1, infinite condition (or beyond 1e15); the pseudo-inverse splits
-    the variance equally between them."""
+    the variance equally between them.
+    """
     t = np.linspace(0, 1, 20)
     J = np.column_stack([t, t])
     js = jacobian_summary(J)

@@ -45,7 +45,7 @@ def test_extreme_readings_satisfy_yang_eq8(ch):
     rho, d_b = BEAMS.rho_mm[ch], BEAMS.d_b_mm[ch]
     for sign, idx in ((+1, np.argmin(v)), (-1, np.argmax(v))):
         res = minimize_scalar(
-            lambda p: sign * _reading(p, ch),
+            lambda p, sign=sign: sign * _reading(p, ch),
             bounds=(phis[idx] - 0.01, phis[idx] + 0.01),
             method="bounded",
             options={"xatol": 1e-12},

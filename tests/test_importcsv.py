@@ -201,7 +201,7 @@ def test_reimport_is_idempotent_and_write_once(tmp_path):
         import_csv(csv2, meta, tmp_path / "raw")
 
 
-# --------------------------------------------------------------------------- issue 20: zones, decimal commas, ingest checks
+# ------------------------------------------------------------ issue 20: zones, decimal commas, ingest checks
 
 
 def test_started_at_with_an_offset_is_stored_in_utc(tmp_path):
@@ -275,7 +275,8 @@ def _spindle_rows(n: int, rate_hz: float, value=lambda i: "5.0") -> list[list[st
 
 def test_import_runs_the_ingest_checks_before_writing(tmp_path, capsys):
     """A 1 kHz export declared as 625 Hz, and a 250 mm reading on a 10 mm sensor, are refused: the
-    pipeline would quarantine them (borescan.validation), and raw folders are write-once."""
+    pipeline would quarantine them (borescan.validation), and raw folders are write-once.
+    """
     header = ["time_s", "ch1", "ch2", "ch3", "encoder_deg", "rpm"]
     fast = write_csv(tmp_path / "fast.csv", header, _spindle_rows(50, 1000.0))
     with pytest.raises(CsvImportError) as ei:

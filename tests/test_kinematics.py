@@ -89,7 +89,9 @@ def test_speed_scale_without_rotation_is_an_error():
 
 
 def test_angle_model_of_a_simulated_scan_matches_the_twin():
-    """The raw scan's spindle stream gives back the twin's angle: encoder -> phi, profile -> Phi (cw signed)."""
+    """The raw scan's spindle stream gives back the twin's angle: encoder -> phi, profile -> Phi (cw
+    signed).
+    """
     from dataclasses import replace
 
     from borescan import simulate
@@ -111,7 +113,8 @@ def test_angle_model_of_a_simulated_scan_matches_the_twin():
 
 def test_repeated_evaluation_on_fixed_times_is_cached_and_exact():
     """Fits evaluate Phi(t) on one read-only time array again and again: the second call returns
-    the first result (the same values), views of it hit the cache too, writable arrays never do."""
+    the first result (the same values), views of it hit the cache too, writable arrays never do.
+    """
     tk = np.linspace(0.0, 2.0, 400)
     model = AngleModel("encoder", tk, 2 * np.pi * tk + 0.1 * np.sin(3 * tk))
     t = np.array(np.linspace(0.01, 1.99, 5000))  # owns its memory (linspace returns a view)

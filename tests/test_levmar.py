@@ -67,7 +67,8 @@ def _problems():
 
 
 def _rounding_floor_cost(jac, x, ulps=16):
-    """The cost that a change of ``ulps`` units in the last place of one parameter gives a zero residual.
+    """Return the cost that a change of ``ulps`` units in the last place of one parameter gives a zero
+    residual.
 
     Two minima whose costs differ by less than this are the same minimum: the residuals' last digits, and so
     costs of about 1e-25, depend on the order in which the CPU's BLAS and libm sum, not on the algorithm.
@@ -86,12 +87,14 @@ def test_the_iteration_is_minpacks(tol):
         assert a.success and b.success, name
         assert abs(b.nfev - a.nfev) <= 1 and abs(b.njev - a.njev) <= 1, name
         assert b.message == MESSAGES[b.status]
-        # the same minimum: costs equal far below a change of chi-square of one (relative 1e-9), or both at the
-        # rounding floor of a zero residual, which decides the last digits differently on another CPU or BLAS
+        # the same minimum: costs equal far below a change of chi-square of one (relative 1e-9), or both at
+        # the rounding floor of a zero residual, which decides the last digits differently on another CPU
+        # or BLAS
         floor = _rounding_floor_cost(a.jac, a.x)
         assert abs(b.cost - a.cost) <= 1e-9 * a.cost + floor, name
-        # and the same parameters: far below their standard uncertainty where the residual is real; within the
-        # uncertainty that the rounding floor leaves where the residual is zero (any point there is the minimum)
+        # and the same parameters: far below their standard uncertainty where the residual is real; within
+        # the uncertainty that the rounding floor leaves where the residual is zero (any point there is the
+        # minimum)
         zero_residual = a.cost <= floor
         s2 = 2 * max(a.cost, floor) / max(a.fun.size - a.x.size, 1)
         u = np.sqrt(np.diag(np.linalg.inv(a.jac.T @ a.jac)) * s2)
@@ -146,7 +149,8 @@ def test_without_the_jacobian_at_the_solution_the_solution_is_the_same():
 
 def test_a_rank_deficient_jacobian_reaches_the_least_squares_cost():
     """Two identical columns: the minimiser is not unique, the minimum cost is (MINPACK's
-    truncated back-substitution from the first zero diagonal, as lmpar.f does)."""
+    truncated back-substitution from the first zero diagonal, as lmpar.f does).
+    """
     rng = np.random.default_rng(3)
     X = rng.normal(size=(300, 3))
     X = np.c_[X, X[:, 0]]

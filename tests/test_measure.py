@@ -72,7 +72,8 @@ def test_jacobian_matches_finite_differences():
 
 def test_uncertainty_is_honest_monte_carlo():
     """True beams fixed; calibrated beams = truth + N(0, cov); readings + N(0, u_v^2).
-    The z-scores (D - D_true) / u have unit standard deviation (2000 draws, +-8 %)."""
+    The z-scores (D - D_true) / u have unit standard deviation (2000 draws, +-8 %).
+    """
     rng = np.random.default_rng(7)
     sd = np.tile([2e-4, 0.02, 0.01], 3)  # beta [rad], rho [mm], d_b [mm]
     C = np.diag(sd**2)
@@ -157,7 +158,7 @@ def test_measure_scan_on_simulated_raw_scans(tmp_path):
     assert res["ront_mm"]["MZCI"] < 1e-6
 
 
-# --------------------------------------------------------------------------- readings per pose (rod)
+# ------------------------------------------------------------ readings per pose (rod)
 
 
 def test_pose_means_and_counts():
@@ -185,13 +186,14 @@ def test_reading_u_from_linearity_and_repeatability():
     assert mean_reading_u_mm([0.002], np.array([[0]])) == pytest.approx(0.002)  # no reading: counted as one
 
 
-# --------------------------------------------------------------------------- GUM budget, temperature, decision rule
+# ------------------------------------------------------------ GUM budget, temperature, decision rule
 
 
 def _centred():
     """Three beams 120 deg apart through the axis (rho = 0), d_b = 130 mm, in a centred 270 mm bore:
     every reading is 5 mm and dD/dv_c = dD/dd_b,c = 2/3 exactly (the circumcircle of three
-    symmetric points moves by a third of one point's radial shift)."""
+    symmetric points moves by a third of one point's radial shift).
+    """
     beams = Beams((1, 2, 3), np.array([0.0, 2 * np.pi / 3, 4 * np.pi / 3]), np.zeros(3), np.full(3, 130.0))
     return beams, np.full(3, 5.0)
 
@@ -199,7 +201,8 @@ def _centred():
 def test_diameter_budget_against_a_hand_computed_gum_budget():
     """u_c(D_T)^2 = 3 (2/3)^2 u_db^2 + u_rd^2 + 3 (2/3)^2 a^2 / 3 ; D20 = D_T / f, f = 1 + alpha (T - 20):
     u_c(D20)^2 = u_c(D_T)^2 / f^2 + (D alpha / f^2)^2 u_T^2 + (D (T - 20) / f^2)^2 u_alpha^2, and
-    Welch-Satterthwaite with the calibration's Type A (nu 12) and the readings (nu 9), by hand."""
+    Welch-Satterthwaite with the calibration's Type A (nu 12) and the readings (nu 9), by hand.
+    """
     from borescan.artifacts import ArtifactCte, ScanTemperature
     from borescan.measure import diameter_uncertainty
     from borescan.uncertainty import Budget, Input, Term, coverage_factor
@@ -281,7 +284,8 @@ def _static_scan(tmp_path, temperature_c=20.6, scan_id="T-STATIC", noise_mm=0.00
 
 def test_temperature_explicit_at_t_and_at_20(tmp_path):
     """A 20.6 degC static verification: D at T is the expanded gauge, D20 the certified one; the
-    verification row adds up (measured_mm at 20 degC - certified = error)."""
+    verification row adds up (measured_mm at 20 degC - certified = error).
+    """
     from borescan.config import schema_defaults
     from borescan.measure import tri_diameter_with_budget, verification_row, verify_budget
 
@@ -346,7 +350,8 @@ def test_missing_temperature_refused_in_calibration_inputs(tmp_path):
 
 def test_sensitivity_to_every_base_length_sums_to_two(tmp_path):
     """Moving every d_b (or every reading) by delta moves every wall point outwards by delta cos(asin(rho/r)):
-    D grows by about 2 delta, in the static and the rotating evaluation alike."""
+    D grows by about 2 delta, in the static and the rotating evaluation alike.
+    """
     from borescan.rawio import read_scan
     from borescan.simulate import TriScene, simulate_tri_spindle, write_simulated
 
@@ -367,7 +372,8 @@ def test_second_order_term_of_the_calibration_hardly_moves_a_diameter_of_the_gau
     A diameter of about the gauge's size moves along the fit's path (psi, g fixed) by q delta^2 only,
     with q from D's own curvature. Monte Carlo over delta ~ N(0, u^2) (u = 1 mm, one channel):
     the rms of D's second-order part (D - its linear part) is sqrt(3) |q| u^2 as the budget says
-    (within 10 %), and a hundred times smaller than the d_b term mapped linearly (7 um)."""
+    (within 10 %), and a hundred times smaller than the d_b term mapped linearly (7 um).
+    """
     from borescan.measure import DiameterModel, _second_order_variance, _with_params
 
     beams = Beams((1, 2, 3), np.array([0.35, 2.46, 4.56]), np.array([-5.5, -2.5, 1.5]), np.array([132.67, 132.89, 134.11]))
@@ -433,7 +439,8 @@ def test_part_conformity_applies_the_decision_rule_to_the_deviation_at_20c(dev_u
 def test_rotating_sensitivities_equal_central_differences_of_the_circle_fit(tmp_path):
     """The rotating diameter's sensitivities (one circle fit and the points' derivatives) against central
     differences of the whole diameter model (a circle fit per step): to 1e-6 relative, or 1e-7 absolute (the
-    differences divide the fit's last digits, about 1e-12 mm, by steps of 1e-5)."""
+    differences divide the fit's last digits, about 1e-12 mm, by steps of 1e-5).
+    """
     from borescan import rawio, simulate
     from borescan.measure import _with_params, measure_scan
 
@@ -458,9 +465,11 @@ def test_rotating_sensitivities_equal_central_differences_of_the_circle_fit(tmp_
 
 
 def _contract_rotating_model(seed, n=6600):
-    """A rotating scan drawn over the contract: bore radius 75-200 mm (lobed, 1 um noise), spindle 0.5-3 mm
+    """Return a rotating scan drawn over the contract: bore radius 75-200 mm (lobed, 1 um noise), spindle
+    0.5-3 mm
     off the bore's centre, any beam directions, rho up to +-30 mm, the angle per channel (n, c) as with
-    channel delays on even seeds, 1 % of the readings null."""
+    channel delays on even seeds, 1 % of the readings null.
+    """
     from borescan.measure import DiameterModel
 
     rng = np.random.default_rng(seed)
@@ -486,7 +495,8 @@ def test_rotating_sensitivities_against_refits_over_the_contract(seed):
     differences of D through full circle refits (h = 1e-4 rad, 1e-3 mm), on scans drawn over the contract.
     Tolerance 1e-6 relative plus 1e-8 of the family's scale (R mm/rad for beta, 1 for rho, d_b and the
     readings): the linearised circle response neglects the residuals' curvature (residuals over R), which
-    leaves about 1e-9 of that scale (at most 1.1e-9 measured on twelve such scans)."""
+    leaves about 1e-9 of that scale (at most 1.1e-9 measured on twelve such scans).
+    """
     from borescan.measure import _rotating_sensitivities, _with_params
 
     model, beams, R = _contract_rotating_model(seed)
@@ -511,7 +521,8 @@ def test_second_order_variance_of_a_rotating_scan_equals_fresh_circle_fits(seed,
     it equals the central second difference of fresh fits (Kasa start, :class:`DiameterModel`) to 1e-6
     relative, without falling back on them. Measured: at most 4e-8 on sixteen such scans, 2e-7 on the
     reference night's scans where the term is a million times smaller (the fresh fits' own last digits
-    over q u^2)."""
+    over q u^2).
+    """
     from borescan.measure import DiameterModel, _second_order_variance, _with_params
 
     model, beams, R = _contract_rotating_model(seed)

@@ -76,7 +76,7 @@ SCENES = {
 
 
 def _data(scene) -> TriData:
-    """The discrepancy model's data at the scene's true geometry (readings are not used)."""
+    """Return the discrepancy model's data at the scene's true geometry (readings are not used)."""
     t = np.arange(int(3 * scene.sample_rate_hz)) / scene.sample_rate_hz
     c = len(scene.beams.channels)
     return TriData(
@@ -158,7 +158,8 @@ def test_fit_parameters_convert_back_to_the_spec(name):
 
 def test_candidates_come_from_the_registry():
     """Every screened candidate of a spindle scan is a registry effect marked for it, and
-    every such effect is tried (given the scan's conditions)."""
+    every such effect is tried (given the scan's conditions).
+    """
     data = _data(SCENES["ccw"])
     terms = candidate_terms(data, k_max=4, vibration_f_hz=7.3)
     names = {t.effect for t in terms}
@@ -175,7 +176,8 @@ def test_candidates_come_from_the_registry():
 @pytest.mark.parametrize("name", [n for n in TRI_EFFECTS if EFFECTS[n].fit])
 def test_registry_effect_is_recovered_by_the_fitting_model(name):
     """Simulate with the effect (noise 2 um), fit base + its term from a start off the truth,
-    recover the spec's parameters within 4 standard uncertainties."""
+    recover the spec's parameters within 4 standard uncertainties.
+    """
     from borescan.discrepancy.fitting import fit_least_squares
 
     sc = SCENES["ccw"]

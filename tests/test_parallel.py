@@ -27,7 +27,8 @@ def test_few_items_run_in_the_calling_process():
 
 def test_job_environment_sets_the_malloc_settings_and_keeps_the_users():
     """set_job_environment puts glibc's heap settings into the environment the jobs inherit
-    (32 MB mmap threshold, 256 MB trim threshold), and leaves a value the user has set alone."""
+    (32 MB mmap threshold, 256 MB trim threshold), and leaves a value the user has set alone.
+    """
     from borescan.parallel import JOB_MALLOC_ENVIRONMENT, set_job_environment
 
     env = {"MALLOC_TRIM_THRESHOLD_": "131072", "PATH": "/bin"}
@@ -75,7 +76,8 @@ def _run_job_script(tmp_path, threads: int):
 def test_a_job_started_early_computes_in_its_own_process_and_one_worker(tmp_path):
     """start_job_workers at the top of a job's script (threads = 2): one worker is spawned at once,
     the job's process is the other; both run with one BLAS and polars thread (so a scan's result
-    does not depend on the process that took it), and the results come back in order."""
+    does not depend on the process that took it), and the results come back in order.
+    """
     started, parent, out = _run_job_script(tmp_path, threads=2)
     assert started == 2
     assert [v for v, *_ in out] == [x * x for x in range(40)]
@@ -86,7 +88,8 @@ def test_a_job_started_early_computes_in_its_own_process_and_one_worker(tmp_path
 
 def test_a_job_of_one_thread_or_by_hand_computes_alone_with_one_blas_thread(tmp_path):
     """threads = 1 (``--cores 1``) or no Snakemake (a person runs the script): no worker, and the
-    same one BLAS and polars thread as a job of several processes, so results are the same."""
+    same one BLAS and polars thread as a job of several processes, so results are the same.
+    """
     for threads in (1, 0):
         started, parent, out = _run_job_script(tmp_path, threads=threads)
         assert started == 1
@@ -97,7 +100,8 @@ def test_a_job_of_one_thread_or_by_hand_computes_alone_with_one_blas_thread(tmp_
 
 def test_start_job_workers_does_nothing_in_a_worker_or_after_numpy():
     """Not in a worker (``__mp_main__``), and never once numpy is loaded in the process (its BLAS
-    threads could no longer be set): nothing is started and the environment is left as it was."""
+    threads could no longer be set): nothing is started and the environment is left as it was.
+    """
     from borescan.parallel import _JOB_POOL, start_job_workers
 
     class Job:
@@ -112,7 +116,8 @@ def test_start_job_workers_does_nothing_in_a_worker_or_after_numpy():
 def test_every_job_of_several_processes_starts_its_workers_before_numpy():
     """A rule with ``threads:`` spreads its items over processes; its script calls
     start_job_workers before anything imports numpy (else the job's own process would keep its BLAS
-    threads and could give other last digits than its workers for the same scan)."""
+    threads and could give other last digits than its workers for the same scan).
+    """
     import re
     from pathlib import Path
 

@@ -43,7 +43,8 @@ def test_catalog_has_every_scan_with_checksums(pipeline_run):
                          r"noise floor \(limit 1\.25\): the model misses an effect", reason), reason
     assert all(len(r[3]) == 64 for r in rows)
     for scan_id, night, file, sha in con.execute(
-        "SELECT f.scan_id, s.night, f.file, f.sha256 FROM scan_files f JOIN scans s USING (scan_id, night) WHERE s.status = 'ok'"
+        "SELECT f.scan_id, s.night, f.file, f.sha256 FROM scan_files f JOIN scans s USING (scan_id, "
+        "night) WHERE s.status = 'ok'"
     ).fetchall():
         assert rawio.sha256_file(pipeline_run["raw"] / f"night={night}" / f"scan={scan_id}" / file) == sha
 
@@ -72,7 +73,7 @@ def test_slurm_profile_dry_run(tmp_path):
 
 
 def _truth_diameter(truth_root, scan_id, feature):
-    """True diameter at the scan's temperature from the simulator's ground truth [mm]."""
+    """Return True diameter at the scan's temperature from the simulator's ground truth [mm]."""
     import json
 
     t = json.loads((truth_root / f"{scan_id}.truth.json").read_text())
@@ -100,7 +101,8 @@ def test_diameters_agree_with_simulated_truth_within_their_uncertainty(pipeline_
             tri_err.append(d - truth)
         else:
             # the rod's base lengths are 12.3 / -8.7 um off its design: only its ring-gauge calibration
-            # (night 1) brings the holes within 12 um (about 4 sigma of the chain's scatter, test_rod_calibration)
+            # (night 1) brings the holes within 12 um (about 4 sigma of the chain's scatter,
+            # test_rod_calibration)
             assert "-rod_gauge-" in cal_id, (scan_id, cal_id)
             assert abs(d - truth) <= 0.012, (scan_id, feature, d - truth)
     # three-sensor target of issue 5: <= 2 um RMS after the full-data calibration
@@ -109,7 +111,8 @@ def test_diameters_agree_with_simulated_truth_within_their_uncertainty(pipeline_
 
 def test_verifications_pass_on_the_demo_nights(pipeline_run):
     rows = _con(pipeline_run).execute(
-        "SELECT scan_id, error_mm, passed, feature FROM verifications WHERE night IN ('2026-11-20', '2026-11-21')"
+        "SELECT scan_id, error_mm, passed, feature FROM verifications WHERE night IN "
+        "('2026-11-20', '2026-11-21')"
     ).fetchall()
     assert len(rows) == 8 and all(r[2] for r in rows)  # 2 ring gauges of TRI-01 + 2 layers of ROD-01 per night
     assert all(abs(r[1]) < 0.002 for r in rows if r[3] is None)
@@ -146,7 +149,8 @@ def test_discrepancy_findings_for_every_examined_scan(pipeline_run):
 
 def test_trace_follows_a_rod_diameter_to_its_gauge_calibration(pipeline_run):
     """A rod hole -> the rod's ring-gauge calibration -> its certificate, each layer's certified gauge
-    and the layer-by-layer verifications."""
+    and the layer-by-layer verifications.
+    """
     from borescan import trace
 
     chain = trace.format_trace(trace.trace(pipeline_run["results"], "N20261121-ROD01-MEAS-CYL2H/H1"))
@@ -246,7 +250,8 @@ def test_interrupted_run_resumes(pipeline_run, tmp_path):
 
 def test_night_jobs_spread_scans_over_two_processes(pipeline_run):
     """A demo night (11 scans) is examined on 2 worker processes inside one job, every scan once,
-    in scan order (the findings table does not depend on the number of workers)."""
+    in scan order (the findings table does not depend on the number of workers).
+    """
     import polars as pl
 
     res = pipeline_run["results"]
@@ -262,7 +267,8 @@ def test_a_stage_script_runs_by_hand_and_gives_the_rules_output(pipeline_run, tm
     """`python workflow/scripts/<rule>.py night=... raw_root=... results_root=...` builds the rule's
     job from the Snakefile (for debugging one stage of one night) and writes what the rule wrote:
     to the last bit, though by hand a stage runs in one process and in the workflow on two (the
-    first demo night's two calibrations, a three-sensor device and a rod, each on its own)."""
+    first demo night's two calibrations, a three-sensor device and a rod, each on its own).
+    """
     import polars as pl
 
     from conftest import ROOT
@@ -290,7 +296,8 @@ def test_a_stage_script_runs_by_hand_and_gives_the_rules_output(pipeline_run, tm
 
 def test_every_file_the_papers_rule_writes_is_declared(pipeline_run):
     """The reproduction's files are the rule's declared outputs (index.csv lists what it wrote):
-    deleting one and rerunning regenerates it, and `snakemake --report` can show them."""
+    deleting one and rerunning regenerates it, and `snakemake --report` can show them.
+    """
     import polars as pl
 
     from conftest import ROOT
@@ -305,10 +312,12 @@ def test_every_file_the_papers_rule_writes_is_declared(pipeline_run):
 
 def test_a_device_model_is_carried_by_a_night_calibration(pipeline_run, tmp_path):
     """The calibrate stage of the first demo night with a device model in the config (devices: TRI-01:
-    effects: [...]) and an earlier night's pooled findings: a sensor gain of channel 2 estimated there as 0 +- 2e-4 is carried
+    effects: [...]) and an earlier night's pooled findings: a sensor gain of channel 2 estimated there as 0 +-
+    2e-4 is carried
     (the readings are corrected by a factor 1: the beams are the run's own to rounding), the budget
     gains its input (u(d_b) grows), the certificate names it; an effect listed without an estimate is
-    said so and changes nothing."""
+    said so and changes nothing.
+    """
     import json
 
     import polars as pl
@@ -353,7 +362,8 @@ def test_the_demo_closes_the_loop(pipeline_run):
     2026-11-24): the pooled examination of 2026-11-23 (60 and 30 rpm) names the 1.2 ms delay of the
     truth within 4 u, the single scans did not get it (their values are absorbed by that night's
     beta); the calibration of 2026-11-24 carries that estimate and its residual falls to the noise,
-    that night's scans have nothing missing, and the report draws the gaps with the change marked."""
+    that night's scans have nothing missing, and the report draws the gaps with the change marked.
+    """
     import json
 
     import duckdb

@@ -64,7 +64,8 @@ def test_registry_scopes_and_absorption_conditions_are_known():
 def test_pooled_residual_vanishes_at_the_truth():
     """Noise-free scans at two speeds with a gain on channel 2: the pooled model at the true
     parameters reproduces every reading (the composition routes shared, per-scan and term
-    parameters to the twin's forward model)."""
+    parameters to the twin's forward model).
+    """
     eff = [Effect("sensor_gain", {"channel": 2, "g": 0.004})]
     scans = [pooled_scan(_scan("A", effects=eff, noise_mm=0.0, encoder=True)),
              pooled_scan(_scan("B", rpm=90.0, ecc=(0.0, -2.0), effects=eff, noise_mm=0.0, encoder=False, seed=1))]
@@ -168,7 +169,8 @@ def test_delay_at_two_speeds_is_named_with_its_value():
     """A 1.2 ms delay on channel 2 in scans at 60 and 120 rpm, examined from a calibration that
     absorbed it at 60 rpm (beta_2 - omega tau): named, tau within 4 u and 3 % of the truth, beta_2
     back at the truth; both scans carry the evidence; the calibration equivalent of the delay in
-    each scan is the closed form -omega tau."""
+    each scan is the closed form -omega tau.
+    """
     tau = 0.0012
     eff = [Effect("channel_delay", {"channel": 2, "tau_s": tau})]
     scans = [pooled_scan(_scan("A", effects=eff), 2000),
@@ -207,7 +209,8 @@ def test_effect_free_scans_name_nothing():
 @pytest.mark.slow
 def test_nonlinearity_is_told_from_an_offset_across_eccentricities():
     """A 15 um bow on channel 1: a centred scan sees an offset (a d_b), an eccentric one the bow
-    (which carries most of the evidence: the centred scan adds only the difference of offsets)."""
+    (which carries most of the evidence: the centred scan adds only the difference of offsets).
+    """
     eff = [Effect("sensor_nonlinearity", {"channel": 1, "a_mm": 0.015})]
     scans = [pooled_scan(_scan("A", ecc=(0.15, 0.0), effects=eff), 2000),
              pooled_scan(_scan("B", ecc=(0.0, 2.8), effects=eff, seed=1), 2000)]
@@ -255,7 +258,8 @@ def test_separation_advice_comes_from_the_registry_scopes():
 def test_device_model_terms_join_the_base_unless_the_scans_cannot_separate_them():
     """A device model of a delay on channel 2, a gain on channel 1 and an offset on every channel:
     at one signed speed the delay is beta_2 and the offset every d_b (registry), so both stay out of
-    the fit (noted); at two speeds the delay joins the base. A term of the base is never a candidate."""
+    the fit (noted); at two speeds the delay joins the base. A term of the base is never a candidate.
+    """
     model = ["channel_delay@2", "sensor_gain@1", "sensor_offset@all"]
     one = [pooled_scan(_scan("A"), 500), pooled_scan(_scan("B", ecc=(0.0, 2.0), seed=1), 500)]
     m = PooledModel(one, YANG_BEAMS, device_effects=model)

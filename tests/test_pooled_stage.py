@@ -56,7 +56,8 @@ def night(tmp_path_factory):
 @pytest.mark.slow
 def test_pooled_night_names_the_delay_with_its_value_and_writes_json(night):
     """Three speeds of one device: channel_delay@2 named, tau within max(4 u, 5 %) of 1.0 ms; the
-    static verification scan left out; the JSON beside the rows; nothing to drift (no calibrations)."""
+    static verification scan left out; the JSON beside the rows; nothing to drift (no calibrations).
+    """
     raw, res, scans = night
     findings, drift = stage_pooled(raw, NIGHT, res, [scans], [], CFG, {}, log=lambda m: None)
     assert drift.height == 0
@@ -79,7 +80,8 @@ def test_pooled_night_names_the_delay_with_its_value_and_writes_json(night):
 @pytest.mark.slow
 def test_an_effect_in_the_device_model_is_fitted_with_the_base_not_named(night):
     """The user has decided TRI-S has channel_delay@2: the pooled examination fits it with the base
-    model (tau within max(4 u, 5 %) of the truth), names nothing and reports it as in the device model."""
+    model (tau within max(4 u, 5 %) of the truth), names nothing and reports it as in the device model.
+    """
     raw, res, scans = night
     devices = {"TRI-S": {"effects": ["channel_delay@2"]}}
     findings, _ = stage_pooled(raw, NIGHT, res, [scans], [], CFG, devices, log=lambda m: None)
@@ -96,7 +98,8 @@ def test_an_effect_in_the_device_model_is_fitted_with_the_base_not_named(night):
 
 def test_a_device_that_cannot_be_examined_gets_a_failed_row_naming_why(night):
     """A device model naming channel 4 of a three-channel device: the night goes on, the device's
-    row says failed, with the scans and the problem."""
+    row says failed, with the scans and the problem.
+    """
     raw, res, scans = night
     logged = []
     findings, _ = stage_pooled(raw, NIGHT, res, [scans], [], CFG, {"TRI-S": {"effects": ["sensor_gain@4"]}},
@@ -147,7 +150,8 @@ def _cal(cal_id, night, beta2, u_beta=1e-4, d_b1=130.0, u_d_b=1e-3):
 def test_drift_rows_of_the_night_with_the_pooled_explanation():
     """beta_2 moves by -7.5e-4 rad between two calibrations of u 1e-4: |change| / sqrt(2) u = 5.3 > 3,
     flagged and explained by a named channel_delay@2; d_b_1 moves 2e-3 mm with u 1e-3: 1.41, not
-    flagged. Only pairs whose later calibration is the night's are the night's rows."""
+    flagged. Only pairs whose later calibration is the night's are the night's rows.
+    """
     cals = pl.DataFrame(_cal("C0", "2027-05-20", 2.44) + _cal("C1", "2027-05-30", 2.44, d_b1=130.002)
                         + _cal("C2", NIGHT, 2.44 - 7.5e-4, d_b1=130.002))
     findings = {"TRI-S": {"device_id": "TRI-S", "scan_ids": ["S0", "S1"], "named": [
@@ -172,7 +176,8 @@ def test_drift_rows_of_the_night_with_the_pooled_explanation():
 
 def test_the_catalog_holds_the_pooled_tables_night_by_night(tmp_path):
     """Two nights of pooled_findings and calibration_drift stage files: the catalog has both
-    tables with every row and its night; adding the second night appends it."""
+    tables with every row and its night; adding the second night appends it.
+    """
     assert {"pooled_findings", "calibration_drift"} <= set(STAGE_TABLES)
     cals = pl.DataFrame(_cal("C0", "2027-05-31", 2.44) + _cal("C1", NIGHT, 2.44 - 7.5e-4))
     for n in ("2027-05-31", NIGHT):

@@ -180,7 +180,8 @@ def test_lds_matrix_wide_nan_and_channel_order(root):
 
 def test_lds_matrix_reshape_path_equals_general_path():
     """The usual layout (every channel on every sample, sorted) takes a reshape; it must give
-    what the general scatter gives, poses (first non-null of a sample) included."""
+    what the general scatter gives, poses (first non-null of a sample) included.
+    """
     from types import SimpleNamespace
 
     rng = np.random.default_rng(3)
@@ -207,7 +208,8 @@ def test_lds_matrix_reshape_path_equals_general_path():
 def test_lds_matrix_from_chunks_not_aligned_to_samples():
     """The reshape path copies straight from the Arrow chunks; chunks that split a sample's rows,
     chunks that start at an offset and nulls in several chunks must give the general path's result,
-    and a group whose rows disagree on the sample must fall back to the general path."""
+    and a group whose rows disagree on the sample must fall back to the general path.
+    """
     from types import SimpleNamespace
 
     rng = np.random.default_rng(8)
@@ -607,13 +609,15 @@ def test_validate_collects_every_problem_and_cli_prints_them(root, capsys):
         "A1: scan.json: kind 'bogus' not one of calibration, centering, verification, measurement",
         "A1: scan.json: sample_rate_hz must be > 0, got -1",
         "A1: spindle.parquet: missing column 'x_mm' (double)",
-        "B1: night=2026-11-23/scan=B1: scan_id also used in night=2026-11-22 (scan ids are unique across nights)",
+        "B1: night=2026-11-23/scan=B1: scan_id also used in night=2026-11-22 (scan ids are unique "
+        "across nights)",
     ]
     # the command runs the ingest checks (borescan.validation): the duplicate is named as ingest names it
     assert main(["validate", str(root)]) == 1
     out = capsys.readouterr()
     assert out.out.splitlines() == lines[:-1] + [
-        "B1: scan.json: scan_id already used by a scan of night=2026-11-22 (scan ids are unique across nights)"
+        "B1: scan.json: scan_id already used by a scan of night=2026-11-22 (scan ids are unique across "
+        "nights)"
     ]
     assert "7 problems; 2 of 3 scans invalid" in out.err
 
@@ -636,7 +640,8 @@ def test_validate_cli_out_of_range_readings_are_problems(root, capsys):
     assert main(["validate", str(root), "--warnings"]) == 1  # the old flag is still accepted
     out = capsys.readouterr()
     assert out.out.splitlines() == [
-        f"S1: lds.parquet: channel {c}: 2 readings outside [0, 10] mm (a sensor reports null when out of range)"
+        f"S1: lds.parquet: channel {c}: 2 readings outside [0, 10] mm (a sensor reports null when out "
+        "of range)"
         for c in (1, 2, 3)
     ]
     assert out.err == "3 problems; 1 of 1 scans invalid\n"
@@ -644,7 +649,8 @@ def test_validate_cli_out_of_range_readings_are_problems(root, capsys):
 
 def test_lds_fast_check_on_columns_chunked_differently():
     """Columns whose Arrow chunks do not line up are checked as one chunk each: same warnings as the
-    full check (a reading above the range), and a decreasing sample is still declined."""
+    full check (a reading above the range), and a decreasing sample is still declined.
+    """
     lds = make_lds(n=40)
     vals = lds["value_mm"].to_list()
     vals[5] = 12.5  # above the 10 mm range: a warning, not a problem
@@ -675,7 +681,8 @@ def test_lds_fast_check_on_columns_chunked_differently():
 def test_read_scan_keeps_the_matrix_its_check_built(root):
     """read_scan's check builds the wide matrix of a usual-layout table; lds_matrix(scan) returns
     that one (read-only, the same object every call), equal to the general long -> wide scatter;
-    a scan whose lds frame was replaced gets a matrix of its own frame, not the stored one."""
+    a scan whose lds frame was replaced gets a matrix of its own frame, not the stored one.
+    """
     import dataclasses
     from types import SimpleNamespace
 

@@ -1,5 +1,6 @@
 """Property test of the reader (issue 8): mutate a valid scan; read_scan either accepts a scan that
-re-validates or raises ScanError, never another exception, and never accepts an invalid mutation."""
+re-validates or raises ScanError, never another exception, and never accepts an invalid mutation.
+"""
 
 from __future__ import annotations
 
@@ -125,7 +126,8 @@ mutation = st.one_of(
 )
 
 
-def _apply(scan_dir: Path, muts) -> tuple[bool, set[str]]:
+def _apply(  # noqa: C901 (one branch per kind of mutation of the property test)
+        scan_dir: Path, muts) -> tuple[bool, set[str]]:
     """Apply mutations; return (still valid, files whose content is invalid now)."""
     meta = json.loads((scan_dir / "scan.json").read_text())
     tables = {f: pl.from_arrow(pq.read_table(scan_dir / f)) for f in ("lds.parquet", "spindle.parquet")}
@@ -249,7 +251,8 @@ def test_fast_lds_check_agrees_with_the_full_check(base, muts, rod, spindle, cut
     """The fast path of the lds check returns exactly the full check's warnings when the table
     has no problem, and declines (None) whenever the full check finds one, both on the wide matrix
     (tables in the usual layout) and chunk by chunk; the table is cut into chunks at random rows
-    (both paths work on the chunks as read, pairs across a cut included)."""
+    (both paths work on the chunks as read, pairs across a cut included).
+    """
     from borescan import rawio
 
     base_dir, _ = base

@@ -46,7 +46,8 @@ def test_median_of_others_brute_force(n):
 
 def test_static_rule_finds_spikes_not_pose_steps():
     """30 poses x 5 readings whose levels jump by mm from pose to pose: the 10-sigma spikes are
-    found, nothing else (a Hampel test along time would see the steps)."""
+    found, nothing else (a Hampel test along time would see the steps).
+    """
     rng = np.random.default_rng(3)
     sigma, k, n = 0.003, 30, 5
     pose = np.repeat(np.arange(k), n)
@@ -67,7 +68,8 @@ def _outliers(channel, rate=0.01, size_mm=0.05):
 
 def test_static_measurement_ignores_spikes(tmp_path):
     """A static three-sensor scan with 1 % spikes of 50 um on channel 2 measures as the same scan
-    without them (same seed, same noise) to well within its u; with the policy off it does not."""
+    without them (same seed, same noise) to well within its u; with the policy off it does not.
+    """
     scene = default_tri_scene()
     kw = dict(samples_per_pose=40, noise_mm=0.002, seed=11)
     clean = read_scan(write_simulated(simulate_tri_static(scene, scan_id="S0", **kw), tmp_path / "raw", tmp_path / "t"))
@@ -84,7 +86,8 @@ def test_static_measurement_ignores_spikes(tmp_path):
 
 def test_spindle_stages_share_the_policy(tmp_path):
     """Calibration inputs and the rotating measurement take the same cleaned readings: the
-    configured threshold reaches both (off: every spike kept)."""
+    configured threshold reaches both (off: every spike kept).
+    """
     scene = default_tri_scene()
     sim = simulate_tri_spindle(scene, n_rev=3, scan_id="R1", seed=5, effects=[_outliers(1)])
     scan = read_scan(write_simulated(sim, tmp_path / "raw", tmp_path / "t"))
@@ -100,7 +103,8 @@ def test_spindle_stages_share_the_policy(tmp_path):
 
 def test_rod_pose_means_ignore_spikes(tmp_path):
     """Rod poses (20 um noise) with 5 % spikes of 0.3 mm on layer 1: the pose means equal those of
-    the same scan without them to within the noise of a mean; with the policy off they do not."""
+    the same scan without them to within the noise of a mean; with the policy off they do not.
+    """
     sim_kw = dict(n_poses=12, samples_per_pose=9, seed=4)
     clean = read_scan(write_simulated(simulate_rod(scan_id="ROD0", **sim_kw), tmp_path / "raw", tmp_path / "t"))
     dirty = read_scan(write_simulated(simulate_rod(scan_id="ROD1", effects=[_outliers(1, 0.05, 0.3)], **sim_kw),

@@ -1,5 +1,6 @@
 """report.html: sections, relative links that resolve, control-chart limits and run rules, pure plot
-functions, the summary of what needs attention, self-contained pages, the papers' own page."""
+functions, the summary of what needs attention, self-contained pages, the papers' own page.
+"""
 
 from __future__ import annotations
 
@@ -251,10 +252,11 @@ def test_report_from_given_frames_without_catalog(tmp_path):
 
 
 def _rich_tables(res: Path) -> dict[str, pl.DataFrame]:
-    """The constructed history plus: a scan quarantined by the measure stage (no calibration), the
+    """Return the constructed history plus: a scan quarantined by the measure stage (no calibration), the
     GUM columns of the diameters (PART-8 at 20 °C assumed, out of its ±8 µm tolerance of nominal
     150.000 mm), an ambiguous finding for PART-9 (its findings.json with uncertainties) and ROD-CAL-1
-    due for recalibration on the 21st (its last usable night), so expired from the 22nd."""
+    due for recalibration on the 21st (its last usable night), so expired from the 22nd.
+    """
     t = make_history(res)
     scans = t["scans"]
     extra = scans.filter(pl.col("scan_id") == "PART-8").with_columns(
@@ -318,7 +320,8 @@ def test_summary_per_night_lists_what_needs_attention(rich):
         # every quarantined scan (scans.status or a quarantine row) is listed with its reason and action
         con = catalog.open_catalog(res, read_only=True)
         quarantined = {r[0]: r[1] for r in con.execute(
-            "SELECT scan_id, any_value(reason) FROM (SELECT scan_id, reason FROM scans WHERE status = 'quarantined' "
+            "SELECT scan_id, any_value(reason) FROM (SELECT scan_id, reason FROM scans WHERE "
+            "status = 'quarantined' "
             "UNION ALL SELECT scan_id, file || ': ' || reason FROM quarantine) GROUP BY scan_id").fetchall()}
         con.close()
         assert set(quarantined) == {"BAD-1", "MEAS-X"}
@@ -375,7 +378,8 @@ def test_parts_show_both_temperatures_uncertainty_and_deviation(rich):
     rows = {re.findall(r"<td[^>]*>(.*?)</td>", r)[1]: [re.sub(r"<[^>]+>", "", c) for c in
                                                        re.findall(r"<td[^>]*>(.*?)</td>", r)]
             for r in parts.split("<tr")[1:] if "<td" in r and "PART-" in r}
-    # night, scan, part, feature, D at T, T, D at 20, U [µm], k, coverage, nominal, deviation [µm], tolerance, verdict
+    # night, scan, part, feature, D at T, T, D at 20, U [µm], k, coverage, nominal, deviation [µm],
+    # tolerance, verdict
     assert rows["PART-8"][4:14] == ["150.0101", "20 (assumed)", "150.0101", "4.30", "2.03", "0.95", "150", "10.1",
                                     "8.0", "OUT OF TOLERANCE"]
     assert rows["PART-7"][4:12] == ["150.0123", "20.4", "150.012112", "4.50", "2.05", "0.95", "", ""]
@@ -539,7 +543,8 @@ def test_control_chart_axis_readable_and_tolerance_label_inside(n):
 
 def test_device_model_section_shows_pooled_verdicts_device_effects_and_flagged_drift(tmp_path):
     """The pooled examination and calibration drift in words: value ± u, evidence scans, the device
-    model's effects apart from named ones, the gap against the noise floor, flagged drifts only."""
+    model's effects apart from named ones, the gap against the noise floor, flagged drifts only.
+    """
     res = tmp_path / "results"
     t = _rich_tables(res)
     night = t["scans"]["night"].cast(pl.String).max()
@@ -599,7 +604,8 @@ def test_findings_rows_carry_the_uncertainties_the_report_shows(tmp_path):
 
 def test_rod_diameters_without_a_gauge_calibration_need_attention(tmp_path):
     """A rod hole measured with the design base lengths (no ring-gauge calibration yet) is flagged
-    in the night's summary with what to do."""
+    in the night's summary with what to do.
+    """
     from borescan.stages.measure import ROD_METHOD_NOMINAL
 
     res = tmp_path / "results"
@@ -617,7 +623,8 @@ def test_rod_diameters_without_a_gauge_calibration_need_attention(tmp_path):
 def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
     """Three nights of one device: the gaps per night from the pooled findings, the calibrations'
     residuals and the verifications' |E| / U (independent arithmetic on the rows), and a dashed line
-    with what was carried where the carried model changes."""
+    with what was carried where the carried model changes.
+    """
     nights = ["2026-11-21", "2026-11-23", "2026-11-24"]
     pf = pl.DataFrame({"night": nights + ["2026-11-24"], "device_id": ["TRI-01"] * 3 + ["TRI-02"],
                        "gap_before_mm": [0.0041, 0.0180, 0.0042, 0.009], "noise_floor_mm": [0.004, 0.004, 0.0040, 0.003]})

@@ -1,5 +1,6 @@
 """Rod solve (Wang 2017 Eq. 16 generalised to the spec's layer geometry and axis deflection):
-forward-model parity, recovery over the contract's ranges, honest u at small omega, refusals."""
+forward-model parity, recovery over the contract's ranges, honest u at small omega, refusals.
+"""
 
 import numpy as np
 import pytest
@@ -43,7 +44,8 @@ def _scan(axis=SKEW, n=12, seed=0, noise=True, spread=2 * np.pi, layers=LAYERS):
 def draw_contract_scan(rng):
     """Effect-free scan over the contract's ranges (as bench/bench_rod_contract.py): 2-3 holes of
     100-200 mm, 8-40 poses at random angles, 5-30 readings per pose (means), noise 2-20 um,
-    eccentricity <= 2.5 mm, deflection <= 1 deg, |d| <= 0.5 mm, |gamma| <= 0.5 deg."""
+    eccentricity <= 2.5 mm, deflection <= 1 deg, |d| <= 0.5 mm, |gamma| <= 0.5 deg.
+    """
     m = int(rng.integers(2, 4))
     r = rng.uniform(50.0, 100.0, m)
     h = rng.uniform(50.0, 150.0) + np.concatenate([[0.0], np.cumsum(rng.uniform(100.0, 300.0, m - 1))])
@@ -62,7 +64,8 @@ def draw_contract_scan(rng):
 
 def test_solver_model_equals_the_forward_model():
     """The solver's unknowns (gauge: axis through the origin, centres relative to the axis at the
-    spot height, rho = r k(omega^2)) reproduce geometry.rod_readings to 1e-12 mm."""
+    spot height, rho = r k(omega^2)) reproduce geometry.rod_readings to 1e-12 mm.
+    """
     axis = RodAxis(1.7, -0.9, np.deg2rad(0.8), 2.1)
     alpha = np.linspace(0.0, 2 * np.pi, 17)
     v = rod_readings(alpha, GEOM, HOLES, axis)
@@ -96,7 +99,8 @@ def test_noise_free_recovery_exact_with_layer_geometry_and_deflection():
 
 def test_deflection_free_solve_removes_the_eq16_bias():
     """omega = 1 deg, r = 75 mm: Eq. 16 (omega held) is biased by ~ r omega^2 / 4 = 5.7 um in r,
-    many standard uncertainties at 2 um noise; the joint solve recovers r within 3 u."""
+    many standard uncertainties at 2 um noise; the joint solve recovers r within 3 u.
+    """
     axis = RodAxis(1.2, -0.8, np.deg2rad(1.0), 0.7)
     rng = np.random.default_rng(3)
     alpha = rng.uniform(0, 2 * np.pi, 30)
@@ -117,7 +121,8 @@ def test_deflection_free_solve_removes_the_eq16_bias():
 def test_recovery_over_the_contract_ranges():
     """30 effect-free scans over the contract's ranges (fixed seed): every solved diameter within
     4 u, no wrong minimum (cost <= cost at the truth + sqrt(2 N) sigma^2), refusals only with
-    their named reasons and rare."""
+    their named reasons and rare.
+    """
     rng = np.random.default_rng(20170)
     z, solved = [], 0
     for _ in range(30):
@@ -142,7 +147,8 @@ def test_small_deflection_few_poses_large_noise_is_honest():
     """omega = 0.05 deg (signal far below the noise), 16 poses, 8 um pose means: the data cannot
     see the deflection, so its direction and size are averaged over the prior (omega <= 2 deg)
     instead of taken at the noisy maximum-likelihood beta (a Rice magnitude, biased up, radii low).
-    The prior's mean omega^2 pulls the radii low by a fraction of u only; the z spread stays near 1."""
+    The prior's mean omega^2 pulls the radii low by a fraction of u only; the z spread stays near 1.
+    """
     axis = RodAxis(1.5, 0.4, np.deg2rad(0.05), 1.0)
     rng = np.random.default_rng(8)
     alpha = rng.uniform(0, 2 * np.pi, 16)
@@ -201,7 +207,8 @@ def test_refuses_poses_that_cannot_separate_the_deflection():
     axis = RodAxis(1.5, 0.5, np.deg2rad(0.5), np.deg2rad(120.0))
     alpha = np.deg2rad(np.linspace(0, 150, 8))
     v = rod_readings(alpha, GEOM, HOLES, axis) + 0.002 * np.random.default_rng(1).standard_normal((8, 2))
-    with pytest.raises(RodSolveError, match=r"deflection not separable from the radii: freeing the rod axis deflection multiplies u\(r\) by \d"):
+    with pytest.raises(RodSolveError, match=r"deflection not separable from the radii: freeing the rod axis deflection multiplies "
+                                            r"u\(r\) by \d"):
         solve_rod(v, layers=GEOM, u_reading_mm=0.002)
     sol = solve_rod(v, layers=GEOM, u_reading_mm=0.002, max_deflection_ratio=np.inf)  # the caller may accept it
     assert sol.deflection_ratio > 10.0

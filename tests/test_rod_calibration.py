@@ -31,9 +31,10 @@ GAUGE_SET = {"id": "RGS-150", "type": "ring_gauge", "u_diameter_mm": 0.0012, "k"
 
 
 def _scene(d_mm, rng, temp_c=20.0):
-    """The rod held skew to the holes as the procedure asks: deflected across its eccentricity, so
+    """Return the rod held skew to the holes as the procedure asks: deflected across its eccentricity, so
     the layers' offsets are not collinear with the axis (along it the radii are barely determined,
-    rod.py, and the solve says so with a large u)."""
+    rod.py, and the solve says so with a large u).
+    """
     e = float(rng.uniform(0.5, 1.5))
     az = float(rng.uniform(0, 2 * np.pi))
     axis = RodAxis(e * math.cos(az), e * math.sin(az), math.radians(float(rng.uniform(0.12, 0.2))),
@@ -93,7 +94,8 @@ def test_calibrated_base_lengths_make_the_solve_return_the_gauges(tmp_path):
 def test_calibrate_then_measure_removes_the_base_length_error(tmp_path):
     """Closed loop over seeds: a part measured with the design l0 is off by about 2 dl0 (+-25 um on
     layer 1); with the gauge calibration every diameter is within 4 sigma of the chain's scatter
-    (2 sqrt 2 x 1.5 um in radius -> 12 um) of the truth and within 3 u of its own budget."""
+    (2 sqrt 2 x 1.5 um in radius -> 12 um) of the truth and within 3 u of its own budget.
+    """
     part = {"id": "CYL", "type": "part", "cte_per_k": CTE,
             "features": [{"id": "H1", "z_mm": 100.0, "nominal_diameter_mm": 150.0},
                          {"id": "H2", "z_mm": 400.0, "nominal_diameter_mm": 150.0}]}
@@ -124,8 +126,10 @@ def test_calibrate_then_measure_removes_the_base_length_error(tmp_path):
 
 
 def test_budget_sensitivities_are_the_closed_forms(tmp_path):
-    """l0 = l0_start + R20 (1 + alpha (T - 20)) - r: dl0/dD_g = f/2 on the gauge's own layer, dl0/dT = R20 alpha,
-    dl0/dalpha = R20 (T - 20), -1 on each sensor's linearity; one ring for both layers correlates them."""
+    """l0 = l0_start + R20 (1 + alpha (T - 20)) - r: dl0/dD_g = f/2 on the gauge's own layer, dl0/dT = R20
+    alpha,
+    dl0/dalpha = R20 (T - 20), -1 on each sensor's linearity; one ring for both layers correlates them.
+    """
     ring = {"id": "RG-150", "type": "ring_gauge", "certified_diameter_mm": 150.0021, "u_diameter_mm": 0.0012, "k": 2,
             "certificate": "C1", "cte_per_k": CTE}
     scan = _raw(_sim((150.0021, 150.0021), 7, "calibration", ring, temp_c=21.5), tmp_path)
@@ -167,7 +171,8 @@ def test_a_rod_uses_its_gauge_calibration_else_its_design_geometry_by_policy():
 
 def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan_json(tmp_path):
     """Bad input: the scan is quarantined with the file (scan.json) and the layer named, no
-    calibration row is made, its raw files are untouched; a good scan beside it is calibrated."""
+    calibration row is made, its raw files are untouched; a good scan beside it is calibrated.
+    """
     import hashlib
     import json as _json
 

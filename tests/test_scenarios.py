@@ -1,5 +1,6 @@
 """Contract scenarios (borescan.scenarios): valid scans over the whole contract, deterministic, and
-the angle and readings written agree with the truth."""
+the angle and readings written agree with the truth.
+"""
 
 from __future__ import annotations
 
@@ -210,7 +211,8 @@ def test_cli_simulate_contract(tmp_path, capsys):
 def test_encoder_angle_equals_tri_phi(draws):
     """Constant speed: the encoder spline is phi itself to 1e-6 rad. A ramp bends the angle
     (an acceleration step at each knot) and a cubic spline through a 50-500 Hz encoder misses
-    it by up to ~ (rate^-2) * jump / 8 there; bound 1e-4 rad (< 0.3 um of reading at 3 mm offset)."""
+    it by up to ~ (rate^-2) * jump / 8 there; bound 1e-4 rad (< 0.3 um of reading at 3 mm offset).
+    """
     n_const = n_ramp = 0
     for sim in draws:
         c = sim.truth["contract"]
@@ -280,7 +282,8 @@ def test_effects_can_be_drawn_on_request():
 def test_static_sets_over_the_contract_measure_to_their_truth(tmp_path):
     """Static three-sensor sets (ring gauges and parts, 3-12 poses, noise 1-5 um) written and read
     back like any scan, measured with the true beams: every diameter within 4 u of the truth, the
-    z-scores' SD near 1 (the scan's repeatability is the drawn noise)."""
+    z-scores' SD near 1 (the scan's repeatability is the drawn noise).
+    """
     from borescan.geometry import Beams
     from borescan.measure import measure_scan
 
@@ -301,7 +304,8 @@ def test_static_sets_over_the_contract_measure_to_their_truth(tmp_path):
 def test_rod_scans_over_the_contract_and_a_mixed_battery(tmp_path):
     """Rod scans in ring-gauge sets (certified) and parts (nominal), ranges of the contract; the
     rod solve recovers every hole within 4 u; write_battery writes every kind from its own
-    stream (calibration scans unchanged by adding the others)."""
+    stream (calibration scans unchanged by adding the others).
+    """
     from borescan.geometry import RodLayer
     from borescan.rod import solve_rod
 

@@ -46,7 +46,7 @@ def _beams(rho=(5.5484, -2.5295, 1.5262)):
 
 def _simulate(n_rev=40, spr=N_REV, eps=0.0, noise_mm=0.0025, seed=0, rho=(5.5484, -2.5295, 1.5262),
               lobes=(), direction=+1, phi0=0.4):
-    """Readings (n, 3), the device angle per sample and the scene."""
+    """Return readings (n, 3), the device angle per sample and the scene."""
     beams = _beams(rho)
     bore = Bore(CENTER, R_GAUGE, lobes=tuple(lobes))
     k = np.arange(int(n_rev * spr))
@@ -128,7 +128,8 @@ def test_filters_never_bridge_gaps(method, params):
 @pytest.mark.parametrize("w", [5, 7])
 def test_median_filter_near_nulls_is_the_median_of_the_valid_neighbours(w):
     """Windows that touch a null take the median of their valid samples only (even count: mean of
-    the middle two), the ends padded with the edge sample; checked against np.nanmedian per window."""
+    the middle two), the ends padded with the edge sample; checked against np.nanmedian per window.
+    """
     rng = np.random.default_rng(11)
     y = rng.normal(5.0, 0.01, (400, 2))
     y[[0, 3, 4, 50, 51, 52, 53, 54, 55, 56, 200, 399], 0] = np.nan  # runs longer than a window too
@@ -218,7 +219,8 @@ def test_spike_removal_counts_exactly_the_injected_spikes_and_nulls():
 def _spikes_by_definition(y, w=7, threshold=6.0, cand=2.5):
     """remove_spikes' documented rule, one sample at a time (independent of the vectorised code).
 
-    Short records only (fewer than 5000 samples, so every MAD runs over all samples it names)."""
+    Short records only (fewer than 5000 samples, so every MAD runs over all samples it names).
+    """
     n = y.size
     h = w // 2
 
@@ -251,7 +253,8 @@ def _spikes_by_definition(y, w=7, threshold=6.0, cand=2.5):
 
 def test_spike_removal_equals_its_definition_sample_by_sample():
     """Near-threshold spikes, runs of two, nulls and spikes beside nulls: the vectorised test must
-    flag exactly what the rule says, sample by sample."""
+    flag exactly what the rule says, sample by sample.
+    """
     y, *_ = _simulate(n_rev=4, seed=21)
     rng = np.random.default_rng(22)
     n = y.shape[0]
@@ -287,7 +290,8 @@ def test_period_from_readings_recovers_a_speed_error_and_flags_it():
 def test_period_from_readings_with_few_samples_per_revolution_on_a_long_record():
     """20 samples/rev over 60 000 revolutions (1.2 M samples): the coarse FFT must not decimate the
     fundamental above Nyquist (its stride is limited to an eighth of the nominal period; a stride
-    of n / 65 536 = 18 samples used to alias it and find no peak near the guess)."""
+    of n / 65 536 = 18 samples used to alias it and find no peak near the guess).
+    """
     spr = 20
     y, *_ = _simulate(n_rev=60_000, spr=spr, eps=0.002, seed=13)
     est = period_from_readings(y, samples_per_rev_guess=spr, rpm_nominal=60.0, sample_rate_hz=20.0)
@@ -298,7 +302,8 @@ def test_period_from_readings_with_few_samples_per_revolution_on_a_long_record()
 
 def test_find_revolutions_bisection_equals_floor_rule():
     """Monotonic coordinates take a bisection path; it must equal revolution = floor(u) row by row,
-    exact integer hits and a non-monotonic (general path) coordinate included."""
+    exact integer hits and a non-monotonic (general path) coordinate included.
+    """
     def by_floor(u, sample0):  # one row per run of equal floor(u), sample by sample
         rows = []
         for k, r in enumerate(np.floor(u).astype(int).tolist()):
@@ -477,7 +482,8 @@ def test_extrema_windows_with_gaps_are_dropped_not_bridged():
 
 def test_extrema_equal_for_every_memory_layout_of_the_readings():
     """Channel rows laid in one buffer (process_arrays' padded rows: windows gathered from one flat
-    view) and row-major (n, c) readings (a 3-D window view) give the same extrema, gaps included."""
+    view) and row-major (n, c) readings (a 3-D window view) give the same extrema, gaps included.
+    """
     y, *_ = _simulate(n_rev=6, seed=81)
     y[[100, 101, 2000], [0, 0, 2]] = np.nan
     u = np.arange(y.shape[0]) / N_REV
@@ -551,7 +557,8 @@ def test_process_scan_on_a_raw_scan(tmp_path, with_angle):
 def test_filter_runs_only_where_it_shapes_a_result(monkeypatch):
     """extrema_on="despiked" (default): the extrema are the unfiltered fit and the filter is computed
     only when filtered_mm is read (then equal to filter_readings of the despiked readings);
-    extrema_on="filtered": the extrema come from the filtered readings."""
+    extrema_on="filtered": the extrema come from the filtered readings.
+    """
     import borescan.signal.stage as sig
 
     y, *_ = _simulate(n_rev=8, seed=71)
@@ -566,7 +573,7 @@ def test_filter_runs_only_where_it_shapes_a_result(monkeypatch):
     expect = real(res.despiked_mm, method="median", window_samples=25)
     np.testing.assert_array_equal(res.filtered_mm, expect)
     assert calls == ["median"]
-    res.filtered_mm  # cached: computed once
+    _ = res.filtered_mm  # cached: computed once
     assert calls == ["median"]
     filt = process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="median",
                           filter_params={"window_samples": 25}, extrema_on="filtered")

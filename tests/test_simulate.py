@@ -55,7 +55,7 @@ def test_ideal_spindle_scan_extremes_satisfy_yang_eq8(ch):
     v = tri_readings(SCENE, t)[:, ch]
     rho, d_b = YANG_BEAMS.rho_mm[ch], YANG_BEAMS.d_b_mm[ch]
     for sign, idx, target in ((1, np.argmin(v), R - oe), (-1, np.argmax(v), R + oe)):
-        res = minimize_scalar(lambda s: sign * tri_readings(SCENE, np.array([s]))[0, ch],
+        res = minimize_scalar(lambda s, sign=sign: sign * tri_readings(SCENE, np.array([s]))[0, ch],
                               bounds=(t[idx] - 2 / 660, t[idx] + 2 / 660), method="bounded", options={"xatol": 1e-12})
         assert math.hypot(d_b + sign * res.fun, rho) == pytest.approx(target, abs=1e-9)
     # the Yang set-up keeps every reading inside the 10 mm range (Table 1: d_min, d_max)

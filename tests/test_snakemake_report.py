@@ -1,5 +1,6 @@
 """`snakemake --report` on the demo run: every item the rules declare with report(...) is in it,
-under the issue's categories, with its caption rendered (issue "The shop floor's morning", item 2)."""
+under the issue's categories, with its caption rendered (issue "The shop floor's morning", item 2).
+"""
 
 from __future__ import annotations
 
@@ -45,7 +46,7 @@ def _call_end(text: str, start: int) -> int:
 
 
 def _template(src: str, node: ast.expr) -> str:
-    """The path of an output, ``{RES}`` and ``{night}`` left as such (f-string braces undone)."""
+    """Return the path of an output, ``{RES}`` and ``{night}`` left as such (f-string braces undone)."""
     seg = ast.get_source_segment(src, node)
     m = re.fullmatch(r'[rf]*"(.*)"', seg, re.S)
     return m.group(1).replace("{{", "{").replace("}}", "}")
@@ -53,7 +54,8 @@ def _template(src: str, node: ast.expr) -> str:
 
 def declared_report_items() -> list[dict]:
     """Every ``report(...)`` of rules/*.smk: rule, output name, path template, directory or not,
-    patterns, caption, category/subcategory (a string, or the name of the function giving it)."""
+    patterns, caption, category/subcategory (a string, or the name of the function giving it).
+    """
     items = []
     for smk in sorted((ROOT / "rules").glob("*.smk")):
         text = smk.read_text()
@@ -81,7 +83,7 @@ def declared_report_items() -> list[dict]:
 
 
 def expected_files(item: dict, results: Path, nights: list[str]) -> set[str]:
-    """The files ``snakemake --report`` must show for one declared item, found here on disk."""
+    """Return the files ``snakemake --report`` must show for one declared item, found here on disk."""
     paths = {item["template"].replace("{RES}", str(results)).replace("{night}", n) for n in nights}
     if not item["directory"]:
         assert all(Path(p).is_file() for p in paths), paths

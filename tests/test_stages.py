@@ -37,7 +37,8 @@ def test_library_modules_do_not_import_the_stages(module, never):
 
 def test_the_former_glue_module_is_gone():
     """Every stage lives in borescan.stages; the forwarding module borescan.pipeline was removed
-    (README migration note), so nothing can grow a second glue library there again."""
+    (README migration note), so nothing can grow a second glue library there again.
+    """
     with pytest.raises(ModuleNotFoundError):
         __import__("borescan.pipeline")
 
@@ -56,8 +57,10 @@ def test_a_worker_reading_and_measuring_scans_does_not_load_pandas_scipy_stats_o
     """Each stage job and each worker process is a new interpreter: what it imports it pays on every
     night (pandas ~0.35 s, loaded by pyarrow's own numpy conversions; scipy.stats and scipy.signal
     ~1.3 s). None is used: the stage modules, reading the demo's first scans (three-sensor and rod) and a
-    contract scan with null readings, with every check, and their readings' matrix, the examination's outlier threshold and the
-    coverage factors load none of them."""
+    contract scan with null readings, with every check, and their readings' matrix, the examination's outlier
+    threshold and the
+    coverage factors load none of them.
+    """
     code = f"""
 import sys
 from pathlib import Path

@@ -102,7 +102,8 @@ def test_trace_unknown_id_fails_clearly(built, capsys):
 
 def test_trace_shows_the_certificate_a_scan_used_not_a_later_record(tmp_path):
     """History that cannot be rewritten: a calibration made against RG-275 at 275.029 mm still traces
-    to 275.029 mm after a later night records the gauge (recertified) at 275.031 mm."""
+    to 275.029 mm after a later night records the gauge (recertified) at 275.031 mm.
+    """
     import duckdb
 
     from borescan.tables import TABLES

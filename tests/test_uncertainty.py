@@ -1,6 +1,7 @@
 """GUM budgets (borescan.uncertainty): the GUM's own worked example, published t factors, closed-form
 coverage intervals, merging of a quantity used twice, and GUM S1 Monte Carlo checks of the
-propagation through a calibration (refits) and through a diameter (the non-linear circumcircle)."""
+propagation through a calibration (refits) and through a diameter (the non-linear circumcircle).
+"""
 
 import math
 
@@ -38,7 +39,8 @@ def test_gum_h1_end_gauge_calibration():
     nu_eff = 16 (16.7 truncated), k = t_95(16) = 2.12, U_95 = 68 nm (2.12 x 32 nm; 67 nm from the
     unrounded u_c). Inputs as printed: l_s (u 25 nm, nu 18, c 1), d (u 9.7 nm, nu 25.6, c 1),
     alpha_s and theta (c = 0 at first order), delta-alpha (u 0.58e-6 /degC, c = -l_s theta =
-    50 mm x 0.1 degC), delta-theta (u 0.029 degC, nu 2, c = -l_s alpha_s = -50 mm x 11.5e-6 /degC)."""
+    50 mm x 0.1 degC), delta-theta (u 0.029 degC, nu 2, c = -l_s alpha_s = -50 mm x 11.5e-6 /degC).
+    """
     l_s_nm, theta, alpha_s = 50.000623e6, -0.1, 11.5e-6
     b = Budget(("l",), ("nm",), [50.000838e6])
     b.add(Term(_inp("l_s", 25.0, dof=18), [1.0]))
@@ -107,7 +109,8 @@ def test_linear_coverage_interval_closed_forms():
 
 def test_dominant_rectangular_is_not_given_k2():
     """One rectangular input dominating: the GUF k = 2 would cover 100 %; GUM S1 does not validate it
-    and the propagated k is used (1.65 for a rectangular alone at 95.45 %)."""
+    and the propagated k is used (1.65 for a rectangular alone at 95.45 %).
+    """
     c = combine([(1.0, np.inf, "rectangular"), (0.05, np.inf, "normal")], 0.9545)
     assert c.method == "propagation of distributions"
     assert c.k == pytest.approx(1.65, abs=0.01) and c.k_guf == pytest.approx(2.0, abs=1e-4)
@@ -117,7 +120,8 @@ def test_dominant_rectangular_is_not_given_k2():
 
 def test_merged_terms_add_sensitivities():
     """The calibration's gauge and the verified gauge as one input: D transfers the gauge to the
-    device (c = +1), the error E = D - D_g subtracts it (c = -1): it cancels."""
+    device (c = +1), the error E = D - D_g subtracts it (c = -1): it cancels.
+    """
     g = _inp("gauge:RG-275@C1:D20", 0.75, unit="um")
     b = Budget(("E",), ("um",), [0.0], [Term(g, [1.0]), Term(_inp("readings", 1.0, unit="um"), [1.0]), Term(g, [-1.0])])
     m = b.merged()
@@ -269,7 +273,8 @@ def test_calibration_sensitivities_against_gum_s1_refits():
     stated distributions (the readings' noise fixed). The spread of the refitted parameters is the
     Type B part of the linearised budget (:func:`borescan.stages.calibration_fit.calibration_budget`):
     the sample SD within +-20 % (its sampling error at 150 draws is about 6 %) wherever the Type B
-    part is more than a tenth of the parameter's u, and below a fifth of u elsewhere."""
+    part is more than a tenth of the parameter's u, and below a fifth of u elsewhere.
+    """
     from borescan.calibration import fit_full_calibration, full_lsq_sensitivities
     from borescan.geometry import Beams, Bore, tri_spindle_readings
     from borescan.kinematics import angle_model_from_arrays

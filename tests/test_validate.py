@@ -1,5 +1,6 @@
 """One validator (issue 20 item 3): `borescan validate` and the ingest stage give the same verdict on
-every bad input, and `validate` exits 0 on a good tree every time, in fresh processes."""
+every bad input, and `validate` exits 0 on a good tree every time, in fresh processes.
+"""
 
 from __future__ import annotations
 
@@ -42,7 +43,7 @@ def _set(t: pa.Table, col: str, values) -> pa.Table:
 
 
 def _issue_cases(raw: Path, truth: Path, night: str) -> list[BadCase]:
-    """The issue's two examples and the rate tolerance on both sides, as scans of ``night``."""
+    """Return the issue's two examples and the rate tolerance on both sides, as scans of ``night``."""
     cases = []
 
     def tri(scan_id: str, rate_hz: float) -> Path:
@@ -71,7 +72,7 @@ def _issue_cases(raw: Path, truth: Path, night: str) -> list[BadCase]:
 
 @pytest.fixture(scope="module")
 def tree(tmp_path_factory):
-    """The demo nights + the bad-input battery of tests/bad_inputs.py + the issue's cases."""
+    """Return the demo nights + the bad-input battery of tests/bad_inputs.py + the issue's cases."""
     base = tmp_path_factory.mktemp("one_validator")
     demo.make_demo(base / "demo")
     raw, truth = base / "demo" / "raw", base / "demo" / "truth"

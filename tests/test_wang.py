@@ -21,7 +21,8 @@ def test_eq15_total_matches_printed_24_8_um():
 def test_eq7_bound_and_forward_model():
     """|dl| < 1.5 um only for 40.9 < l <= 80 mm: the paper's "r < 80 mm -> < 1.5 um" fails for
     short beams (d^2/(2l) grows: +1.60 um at 40 mm, +12 um at 10 mm). First order
-    dl = d^2/(2l) - l gamma^2/2. The exact forward model's reading error is -dl to < 1 nm."""
+    dl = d^2/(2l) - l gamma^2/2. The exact forward model's reading error is -dl to < 1 nm.
+    """
     d, g = 0.5, np.deg2rad(0.5)
     assert eq7_manufacturing_error_um(80.0) == pytest.approx(-1.4836, abs=1e-4)
     l = np.linspace(41.5, 80, 9)

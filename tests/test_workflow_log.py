@@ -5,7 +5,8 @@ from pathlib import Path
 
 def test_a_backup_left_by_a_killed_run_is_put_back(tmp_path):
     """Snakemake's copy of an update() folder, left by a run killed inside the job, replaces the
-    half-written folder when the next run starts (else that run's own copy fails: FileExistsError)."""
+    half-written folder when the next run starts (else that run's own copy fails: FileExistsError).
+    """
     from borescan.workflow_log import restore_stale_backups
 
     folder = tmp_path / "results" / "report"
@@ -23,7 +24,8 @@ def test_a_backup_left_by_a_killed_run_is_put_back(tmp_path):
 
 def test_the_backup_of_a_relative_results_folder_is_found(tmp_path, monkeypatch):
     """results_root is relative by default ("results"): Snakemake keeps the copy under
-    .snakemake/backups/results/report, and that is where it is looked for."""
+    .snakemake/backups/results/report, and that is where it is looked for.
+    """
     from borescan.workflow_log import restore_stale_backups
 
     monkeypatch.chdir(tmp_path)
@@ -38,7 +40,8 @@ def test_the_backup_of_a_relative_results_folder_is_found(tmp_path, monkeypatch)
 
 def test_idle_timers_are_cancelled_so_the_run_exits_at_once():
     """A waiting threading.Timer (Snakemake's scheduler leaves one armed for 1 s) is cancelled: its
-    thread ends without running its action; other threads are left alone."""
+    thread ends without running its action; other threads are left alone.
+    """
     import threading
 
     from borescan.workflow_log import cancel_idle_timers

@@ -41,7 +41,8 @@ def test_table1_within_rounding_bounds_with_printed_oe(rep):
 
 def test_printed_d_b_imply_one_unrounded_oe(rep):
     """All three printed d_b come from oe = 2.322209 mm (not 2.3222): spread < 2 nm, which is the
-    effect of d_b's own rounding (0.05 um / (dd_b/doe = 59)) = 0.85 nm per sensor."""
+    effect of d_b's own rounding (0.05 um / (dd_b/doe = 59)) = 0.85 nm per sensor.
+    """
     oe = np.array(rep["oe_from_printed_d_b_mm"])
     assert np.ptp(oe) < 2e-6
     assert oe.mean() == pytest.approx(2.322209, abs=1e-6)
@@ -49,7 +50,8 @@ def test_printed_d_b_imply_one_unrounded_oe(rep):
 
 def test_computed_oe_breaks_r(rep):
     """With oe from Eq. 9 (2.3232 mm, 1.0 um more) d_b moves by 59 um and r has no real value for
-    sensors 2 and 3; sensor 1's r drops from 5.55 to 3.81 mm."""
+    sensors 2 and 3; sensor 1's r drops from 5.55 to 3.81 mm.
+    """
     assert rep["oe_computed_mm"] - rep["oe_printed_mm"] == pytest.approx(1.0055e-3, abs=1e-7)
     r1, r2, r3 = rep["rows"]
     assert r1["r_oe_computed_mm"] == pytest.approx(3.8143, abs=1e-4)

@@ -26,7 +26,8 @@ def test_table2_period_differs_from_printed_625():
 
 def test_closure_without_theta_c_reproduces_table3(rep):
     """theta = theta_t only, N = 222 + 220 + 219 = 661, rho signs from the statuses (B, B, A ->
-    -, -, +): all ten printed diameters within 0.5 um (RMS 0.2 um)."""
+    -, -, +): all ten printed diameters within 0.5 um (RMS 0.2 um).
+    """
     best = rep["best"]
     assert best["signs"] == (-1, -1, 1) and best["theta_c"] == "none" and best["N"] == 661.0
     assert best["rms_um"] < 0.25 and np.max(np.abs(best["diff_um"])) < 0.5

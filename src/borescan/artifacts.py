@@ -1,4 +1,7 @@
-"""Certified artifacts (ring gauges, parts) of a scan's ``scan.json``: temperature, size at temperature, catalog row.
+"""Certified artifacts (ring gauges, parts) of a scan's ``scan.json``.
+
+Certified artifacts (ring gauges, parts) of a scan's ``scan.json``: temperature, size at temperature,
+catalog row.
 
 A gauge is certified at 20 degC (ISO 1, the reference temperature of dimensional
 specifications); at the scan's temperature its radius is the certified one expanded by the
@@ -63,8 +66,11 @@ class ScanTemperature:
 
 @dataclass(frozen=True)
 class ArtifactCte:
-    """An artifact's linear expansion coefficient alpha [1/K], its stated bound (rectangular
-    half-width) and standard uncertainty [1/K], whether it was assumed, and the source."""
+    """An artifact's linear expansion coefficient with its uncertainty and source.
+
+    An artifact's linear expansion coefficient alpha [1/K], its stated bound (rectangular
+    half-width) and standard uncertainty [1/K], whether it was assumed, and the source.
+    """
 
     cte_per_k: float
     halfwidth_per_k: float
@@ -74,7 +80,7 @@ class ArtifactCte:
 
 
 def scan_temperature(meta: dict, unc_cfg: dict) -> ScanTemperature:
-    """The temperature of a scan with its uncertainty, by the config's policy.
+    """Return the temperature of a scan with its uncertainty, by the config's policy.
 
     Parameters
     ----------
@@ -109,7 +115,7 @@ def scan_temperature(meta: dict, unc_cfg: dict) -> ScanTemperature:
 
 
 def artifact_cte(meta: dict, unc_cfg: dict) -> ArtifactCte:
-    """The expansion coefficient of a scan's artifact with its uncertainty.
+    """Return the expansion coefficient of a scan's artifact with its uncertainty.
 
     ``artifact.cte_per_k`` of scan.json within +-``uncertainty.cte_accuracy_per_k``; without it,
     ``uncertainty.assumed_cte_per_k`` within +-``uncertainty.assumed_cte_accuracy_per_k`` (flagged).
@@ -128,8 +134,11 @@ def artifact_cte(meta: dict, unc_cfg: dict) -> ArtifactCte:
 
 
 def artifact_key(art: dict | None) -> str:
-    """Identity of a scan.json ``artifact`` for an uncertainty budget: ``<id>`` plus ``@<certificate>``
-    if any (the same gauge under the same certificate is one physical quantity)."""
+    """Return the identity of a scan.json ``artifact`` for an uncertainty budget.
+
+    Identity of a scan.json ``artifact`` for an uncertainty budget: ``<id>`` plus ``@<certificate>``
+    if any (the same gauge under the same certificate is one physical quantity).
+    """
     art = art or {}
     return f"{art.get('id')}" + (f"@{art['certificate']}" if art.get("certificate") else "")
 
@@ -179,7 +188,7 @@ def gauge_radius_mm(meta: dict, temperature_c: float | None = None, cte_per_k: f
 
 
 def diameter_at_20(diameter_mm: float, cte_per_k: float, temperature_c: float) -> tuple[float, float, float, float]:
-    """A diameter measured at ``temperature_c`` brought to 20 degC, with its first derivatives.
+    """Return a diameter measured at ``temperature_c`` brought to 20 degC, with its first derivatives.
 
     D20 = D_T / (1 + alpha (T - 20)) (the inverse of :func:`radius_at_temperature_mm`).
 
@@ -194,7 +203,7 @@ def diameter_at_20(diameter_mm: float, cte_per_k: float, temperature_c: float) -
 
 
 def artifact_row(meta: dict) -> dict | None:
-    """The ``artifacts`` row of a scan's artifact; None when it has no id."""
+    """Return the ``artifacts`` row of a scan's artifact; None when it has no id."""
     art = meta.get("artifact") or {}
     if not art.get("id"):
         return None
@@ -204,13 +213,22 @@ def artifact_row(meta: dict) -> dict | None:
 
 
 def number_or_none(v) -> float | None:
-    """A scan.json number as float; None for a missing value or anything that is not a number (a bool is not)."""
+    """Return a scan.json number as float, or None.
+
+    Return a scan.json number as float; None for a missing value or anything that is not a number (a bool
+    is
+    not).
+    """
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
 
 
 def certificate_fields(meta: dict) -> dict:
-    """The artifact certificate a scan's ``scan.json`` states, as the ``scans`` table keeps it:
-    ``artifact_certificate``, ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm`` (None where absent)."""
+    """Return the artifact certificate a scan's ``scan.json`` states.
+
+    Return the artifact certificate a scan's ``scan.json`` states, as the ``scans`` table keeps it:
+    ``artifact_certificate``, ``artifact_certified_diameter_mm``, ``artifact_u_diameter_mm`` (None where
+    absent).
+    """
     art = meta.get("artifact") if isinstance(meta.get("artifact"), dict) else {}
     cert = art.get("certificate")
     feats = {str(f.get("id")): number_or_none(f.get("certified_diameter_mm"))
@@ -228,7 +246,7 @@ CONFLICT_TOLERANCE_MM = 1e-9
 
 
 def certificate_conflicts(earlier: list[dict], tonight: list[dict]) -> dict[str, str]:
-    """Scans whose artifact certificate contradicts an earlier record of the same certificate.
+    """Return scans whose artifact certificate contradicts an earlier record of the same certificate.
 
     A certificate (``artifact_id``, ``artifact_certificate``) states one certified diameter and
     one uncertainty for ever: a recertified gauge gets a new certificate id, and a scan that
@@ -275,7 +293,8 @@ def certificate_conflicts(earlier: list[dict], tonight: list[dict]) -> dict[str,
                                    ("artifact_u_diameter_mm", "u_diameter_mm"))
                  if _differ(r.get(col), f.get(col))]
         mine, theirs = _features(r), _features(f)
-        diffs += [f"feature {feat} certified_diameter_mm {mine[feat]!r} here, {theirs[feat]!r} in scan {f['scan_id']} "
+        diffs += [f"feature {feat} certified_diameter_mm {mine[feat]!r} here, {theirs[feat]!r} in scan "
+                  f"{f['scan_id']} "
                   f"(night {f.get('night')})" for feat in sorted(set(mine) & set(theirs))
                   if _differ(mine[feat], theirs[feat])]
         if diffs:

@@ -251,7 +251,10 @@ def yang_oe(p1_xy: Sequence[float], p0_xy: Sequence[float]) -> float:
 
 
 def yang_d_b_r(d_max_mm, d_min_mm, R_mm, oe_mm) -> tuple[np.ndarray, np.ndarray]:
-    """Base length d_b and tangential radius r = |rho| from the extreme readings (Yang 2017, Eqs. 8, 10, 11).
+    """Return base length d_b and tangential radius r (Yang 2017, Eqs. 8, 10, 11).
+
+    Return base length d_b and tangential radius r = |rho| from the extreme readings (Yang 2017, Eqs. 8,
+    10, 11).
 
     Eq. 8: (d_b + d_min)^2 + r^2 = (R - oe)^2 and (d_b + d_max)^2 + r^2 = (R + oe)^2.
     Subtracting: (d_max - d_min)(2 d_b + d_max + d_min) = 4 R oe, so
@@ -330,7 +333,7 @@ def yang_theta_c(r1_mm: float, r2_mm: float, X_mm: float, status1: str, status2:
     float [rad]
     """
     s1 = 1.0 if _check_status(status1) == "backward" else -1.0
-    s2 = 1.0 if _check_status(status2) == "backward" else -1.0
+    _check_status(status2)  # beam 2's sign follows from s1 and whether the two agree (the four cases)
     a1 = float(np.arcsin(r1_mm / X_mm))
     a2 = float(np.arcsin(r2_mm / X_mm))
     if status1 == status2:
@@ -504,8 +507,11 @@ def yang_calibration(
 
 
 def _public_index(c: int, ch0_free: int) -> np.ndarray:
-    """Where the calibration's (3c,) parameters (beta, rho, d_b per channel) sit in the full fit's free
-    public vector (betas of the free channels, rhos, d_bs, nuisance); -1 for a gauge-fixed beta."""
+    """Return where the calibration's parameters sit in the full fit's public vector.
+
+    Where the calibration's (3c,) parameters (beta, rho, d_b per channel) sit in the full fit's free
+    public vector (betas of the free channels, rhos, d_bs, nuisance); -1 for a gauge-fixed beta.
+    """
     idx = np.full(3 * c, -1)
     for j in range(c):
         idx[3 * j] = j - 1 + ch0_free if (j > 0 or ch0_free) else -1
@@ -525,7 +531,9 @@ def _channel_offsets(tau_s, c: int) -> np.ndarray | None:
 def _readings_and_jacobian(
     phi: np.ndarray, beams: Beams, offset: np.ndarray, R: float
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Exact readings (n, c) at device angles ``phi`` (n,) (or per channel, (n, c) / (n, 1)) and
+    """Return the exact readings at device angles ``phi`` and their derivatives.
+
+    Exact readings (n, c) at device angles ``phi`` (n,) (or per channel, (n, c) / (n, 1)) and
     their analytic derivatives, channel-major: each ``jac[...]`` is (c, n) (``.T`` is the (n, c) view).
 
     The wall point is P = o + Rot(phi)(F + s u) with the gauge centre at the origin; implicit
@@ -601,7 +609,7 @@ class AcceptanceRule:
         return replace(cls.from_config(schema_default("calibration")), **overrides)
 
 
-def fit_full_calibration(
+def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a problem object of small functions)
     t_s,
     readings_mm,
     channels: Sequence[int],
@@ -813,7 +821,6 @@ def fit_full_calibration(
     if n_obs + n_prior <= p_free:
         raise CalibrationError(scan_ids, f"{n_obs} valid samples for {p_free} parameters")
     beta1_fixed = float(nominal.beta_rad[0])
-    psi1_fixed = beta1_fixed + np.arcsin(np.clip(nominal.rho_mm[0] / R_mm, -1, 1))
 
     def split(x: np.ndarray):
         psi = x[: c - 1 + ch0_free]
@@ -856,7 +863,7 @@ def fit_full_calibration(
         return x
 
     def public(x: np.ndarray) -> np.ndarray:
-        """Internal free parameters -> public ones (beta for psi, d_b for g; the rest as they are)."""
+        """Return internal free parameters -> public ones (beta for psi, d_b for g; the rest as they are)."""
         out = np.array(x, dtype=float, copy=True)
         psi, rho, g = split(x)
         for j in range(c):
@@ -865,7 +872,8 @@ def fit_full_calibration(
             out[2 * c - 1 + ch0_free + j] = g[j] - rho[j] ** 2 / (2.0 * R_mm)
         return out
 
-    def model(x: np.ndarray, with_jac: bool, full: bool = False, rows: list | None = None):
+    def model(  # noqa: C901 (part of the full_lsq fit, to be split into small functions)
+            x: np.ndarray, with_jac: bool, full: bool = False, rows: list | None = None):
         beams, nuis = unpack(x)
         rho = beams.rho_mm
         dbeta_drho = -1.0 / np.sqrt(np.maximum(R_mm**2 - rho**2, 1e-300))
@@ -1077,7 +1085,8 @@ def fit_full_calibration(
             if rank < p_free or cond > cond_max:
                 raise CalibrationError(
                     scan_ids,
-                    f"full_lsq Jacobian rank {rank} of {p_free}, condition {cond:.3g} (limit {cond_max:.3g}); "
+                    f"full_lsq Jacobian rank {rank} of {p_free}, condition {cond:.3g} (limit "
+                    f"{cond_max:.3g}); "
                     "the data do not determine the parameters (is the spindle offset from the gauge centre?)",
                 )
             s2 = fit.sigma**2
@@ -1109,7 +1118,6 @@ def fit_full_calibration(
         raise CalibrationError(scan_ids, f"full_lsq fit failed: {exc}") from exc
     n_rows = n_obs + n_prior
     dof = n_rows - p_free
-    ssr = fit.rss
     ssr_readings = float(r[:n_obs] @ r[:n_obs])
     _, Jf = model(sol.x, True, full=True)
     cf = np.linalg.norm(Jf, axis=0)
@@ -1261,8 +1269,10 @@ def fit_full_calibration(
     gauge = (
         "beams absolute in the encoder frame: the scan's centre and spindle position fix the offset direction"
         if absolute else
-        f"beta of channel {channels[0]} held at the design value {beta1_fixed!r} rad: a ring gauge fixes only "
-        "beta_c - beta_1, |offset| and beta_1 + phase - angle(offset) per scan, and no scan has both an encoder "
+        f"beta of channel {channels[0]} held at the design value {beta1_fixed!r} rad: a ring gauge "
+        "fixes only "
+        "beta_c - beta_1, |offset| and beta_1 + phase - angle(offset) per scan, and no scan has both "
+        "an encoder "
         "angle and a known centre and spindle position"
     )
     return TriCalibration(
@@ -1315,8 +1325,10 @@ def fit_full_calibration(
             ),
             "rho_profiles": profiles,
             "rho_profile_note": (
-                "per channel the cost profiled along rho (every other parameter refitted): linear when at rho +- 2 u "
-                "it rises by 4 +- 1 s^2 and bends no parameter by more than u / 2; otherwise the likelihood-weighted "
+                "per channel the cost profiled along rho (every other parameter refitted): linear when "
+                "at rho +- 2 u "
+                "it rises by 4 +- 1 s^2 and bends no parameter by more than u / 2; otherwise the "
+                "likelihood-weighted "
                 "spread of every parameter along the profile enters the covariance"
             ),
             "weak_rho_note": (
@@ -1335,8 +1347,10 @@ def fit_full_calibration(
                 "k_sigma": CENSOR_GUARD_SIGMA,
                 "range_mm": [float(x) for x in range_arr],
                 "set_aside": censored,
-                "note": ("valid readings whose fitted value lies within k_sigma noise sigmas of a sensor range limit "
-                         "(0 or range_mm) or beyond it, per scan and channel: the sensor nulls a reading on its noisy "
+                "note": ("valid readings whose fitted value lies within k_sigma noise sigmas of a sensor "
+                         "range limit "
+                         "(0 or range_mm) or beyond it, per scan and channel: the sensor nulls a reading on "
+                         "its noisy "
                          "value, so near a limit the valid ones are a truncated (biased) sample; not fitted"),
             },
         },
@@ -1455,7 +1469,8 @@ _PROFILE_END_DCHI2 = 12.5
 _PROFILE_MAX_STEPS = 14
 
 
-def _rho_profile(j, c, x_hat, cost0, s2, cov_int, cov_free, solve_fixed, public, i, head_radius_mm):
+def _rho_profile(  # noqa: C901 (part of the full_lsq fit, to be split into small functions)
+        j, c, x_hat, cost0, s2, cov_int, cov_free, solve_fixed, public, i, head_radius_mm):
     """Profile of the full-data cost along rho of channel index ``j`` (internal and public index ``i``).
 
     Each point holds rho at a value and minimises the cost over every other parameter
@@ -1566,7 +1581,9 @@ def _guard_sigma(floors_k: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def _censoring_keep(v_model: np.ndarray, y: np.ndarray, range_mm: np.ndarray, sigma_c: np.ndarray):
-    """Readings (n, c) not censored by a sensor range limit: True where the model value ``v_model``
+    """Return the mask of readings not censored by a sensor range limit.
+
+    Return readings (n, c) not censored by a sensor range limit: True where the model value ``v_model``
     lies more than ``CENSOR_GUARD_SIGMA`` sigma inside [0, range].
 
     The raw format nulls a reading when the sensor reports no valid value (out of range), which
@@ -1619,7 +1636,8 @@ def _acceptance_problems(beams, nuis, ratios, scan_ids, channels, R_mm, range_ar
         for j, ch in enumerate(channels):
             if not ratios[k, j] <= rule.max_residual_to_noise:
                 out.append(
-                    f"{sid} channel {ch}: residual rms is {ratios[k, j]:.2f} times the readings' own noise floor "
+                    f"{sid} channel {ch}: residual rms is {ratios[k, j]:.2f} times the readings' own "
+                    "noise floor "
                     f"(limit {rule.max_residual_to_noise:g}): the model misses an effect"
                 )
     for j, ch in enumerate(channels):
@@ -1678,7 +1696,7 @@ def full_residuals(
 # --------------------------------------------------------------------------- sensitivities (GUM budget)
 
 
-def full_lsq_sensitivities(
+def full_lsq_sensitivities(  # noqa: C901 (part of the full_lsq fit, to be split into small functions)
     cal: TriCalibration,
     t_s,
     readings_mm,
@@ -1689,7 +1707,9 @@ def full_lsq_sensitivities(
     center_xy_mm=None,
     reading_perturbations: Mapping[str, Sequence[np.ndarray]] | None = None,
 ) -> dict[str, Any]:
-    """Linear sensitivities of a ``full_lsq`` calibration to what it takes as known, and the split
+    """Return a ``full_lsq`` calibration's sensitivities and covariance split.
+
+    Linear sensitivities of a ``full_lsq`` calibration to what it takes as known, and the split
     of its covariance into the readings' part and the position priors' part.
 
     At the solution, J is the Jacobian of the readings' residuals with respect to the free public

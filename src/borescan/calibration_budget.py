@@ -1,4 +1,7 @@
-"""GUM budget of a three-sensor calibration (:mod:`borescan.uncertainty` applied to a :class:`TriCalibration`).
+"""GUM budget of a three-sensor calibration.
+
+GUM budget of a three-sensor calibration (:mod:`borescan.uncertainty` applied to a
+:class:`TriCalibration`).
 
 The fit's own covariance is split into its Type A part (the readings' scatter) and the position
 priors, and what the fit takes as known is added: the gauge's certified diameter (U, k of its
@@ -50,21 +53,25 @@ def _rank_one_parts(C: np.ndarray, scale: np.ndarray, rel: float = 1e-6) -> list
 
 
 def _device_model_derivatives(model, inputs: list[dict], channels) -> tuple[dict, dict]:
-    """Per carried parameter (``"<entry index>:<name>"``): d(corrected readings)/d(parameter) per scan
+    """Return the derivatives of the corrected readings and time offsets per carried parameter.
+
+    Per carried parameter (``"<entry index>:<name>"``): d(corrected readings)/d(parameter) per scan
     (beam and reading effects) and d(channel time offsets)/d(parameter) (c,) (a channel delay);
-    each is zero for the other kind (:func:`borescan.device_model.derivatives`)."""
+    each is zero for the other kind (:func:`borescan.device_model.derivatives`).
+    """
     dys: dict[str, list[np.ndarray]] = {}
     for x in inputs:
         y = x.get("readings_recorded", x["readings"])
         for (i, name), dy in device_model.derivatives(
-                model, lambda m: device_model.correct(x["t_s"], y, x["channels"], m, x["range_mm"])).items():
+                model, lambda m, x=x, y=y: device_model.correct(x["t_s"], y, x["channels"], m, x["range_mm"])).items():
             dys.setdefault(f"{i}:{name}", []).append(np.nan_to_num(dy))
     dtau = {f"{i}:{name}": d for (i, name), d in device_model.derivatives(
         model, lambda m: device_model.channel_time_offsets(m, channels, zeros=True)).items()}
     return dys, dtau
 
 
-def calibration_budget(cal, inputs: list[dict], uncertainty: dict, *, scan_ids, sensitivities: dict | None = None,
+def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budget)
+        cal, inputs: list[dict], uncertainty: dict, *, scan_ids, sensitivities: dict | None = None,
                        extrema_dof: float | None = None, position_accuracy_mm: float | None = None) -> Budget:
     """GUM budget of a calibration's parameters (per channel beta, rho, d_b; the calibration's order).
 
@@ -72,7 +79,8 @@ def calibration_budget(cal, inputs: list[dict], uncertainty: dict, *, scan_ids, 
     rho (where its profile was linear), the spread along each non-linear rho profile beyond the linear
     covariance (``profile<channel>``; a diameter maps it by its own secants along the profile's points,
     :func:`borescan.measure.diameter_uncertainty`) and any unresolved mirror solution (eigen-directions
-    of the rest of the fit's covariance, each a rectangular between the two solutions); the reported offset S - C of each scan with
+    of the rest of the fit's covariance, each a rectangular between the two solutions); the reported offset
+    S - C of each scan with
     positions (triangular: centre and spindle each within +-a per coordinate,
     ``calibration.position_accuracy_mm``; the same reported positions in several scans are one
     input); the gauge's certified diameter (normal, U / k); the first scan's temperature and the
@@ -183,8 +191,11 @@ def calibration_budget(cal, inputs: list[dict], uncertainty: dict, *, scan_ids, 
 
 
 def with_budget(cal, budget: Budget):
-    """The calibration with the budget's combined covariance as ``cov``; the fit's own covariance
-    is kept as ``diagnostics["cov_fit"]`` and the budget as ``diagnostics["budget"]``."""
+    """Return the calibration with the budget's combined covariance as ``cov``.
+
+    Return the calibration with the budget's combined covariance as ``cov``; the fit's own covariance
+    is kept as ``diagnostics["cov_fit"]`` and the budget as ``diagnostics["budget"]``.
+    """
     diag = dict(cal.diagnostics)
     diag["cov_fit"] = np.asarray(cal.cov).tolist()
     diag["budget"] = budget.to_dict()

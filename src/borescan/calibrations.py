@@ -90,7 +90,7 @@ def calibration_roles(calibrations: pl.DataFrame, failed_ids: set[str]) -> dict[
 
 def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_id: str, night: str,
                        validity_days: int, allow_unverified: bool) -> tuple[str | None, str | None]:
-    """The calibration a device's result of ``night`` must use, or the reason there is none.
+    """Return the calibration a device's result of ``night`` must use, or the reason there is none.
 
     The latest calibration of the device made on or before the night (same night included;
     ties broken as :func:`order_calibrations` breaks them), if it is at most ``validity_days`` old and has not failed a
@@ -115,14 +115,14 @@ def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_
         return None, f"latest calibration {cal_id} of device {device_id} failed its verification; recalibrate"
     age = days_between(valid_from, night)
     if age > validity_days:
-        return None, f"latest calibration {cal_id} of device {device_id} expired ({age} days old, validity {validity_days} days)"
+        return None, f"latest calibration {cal_id} of device {device_id} expired ({age} days old, validity " f"{validity_days} days)"
     return cal_id, None
 
 
 def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_id: str, night: str,
                            validity_days: int, allow_unverified: bool, without_calibration: str = "measure_nominal"
                            ) -> tuple[str | None, str | None]:
-    """The calibration a rod's result of ``night`` must use, or the reason there is none.
+    """Return the calibration a rod's result of ``night`` must use, or the reason there is none.
 
     The rod's ring-gauge calibrations (method ``rod_gauge``) are chosen as a three-sensor device's
     (:func:`choose_calibration`: latest, refused when expired or failed unless ``allow_unverified``).
@@ -131,7 +131,8 @@ def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], dev
     (``measurement.rod_without_calibration``).
     """
     if without_calibration not in ("measure_nominal", "refuse"):
-        raise ValueError(f"measurement.rod_without_calibration must be measure_nominal or refuse, got {without_calibration!r}")
+        raise ValueError("measurement.rod_without_calibration must be measure_nominal or refuse, got "
+                         f"{without_calibration!r}")
     has_method = calibrations.height > 0 and "method" in calibrations.columns
     method = pl.col("method").fill_null("") if has_method else pl.lit("")
     gauge = calibrations.filter(method != "nominal") if has_method else calibrations.clear()
@@ -147,7 +148,11 @@ def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], dev
 
 def calibration_rows(cal: TriCalibration, device_type: str, night: str, certificate_path: str | None,
                      raw_sha256: str) -> list[dict]:
-    """The ``calibrations`` rows of a three-sensor calibration: one per channel, valid from ``night``."""
+    """Return the ``calibrations`` rows of a three-sensor calibration.
+
+    Return the ``calibrations`` rows of a three-sensor calibration: one per channel, valid from
+    ``night``.
+    """
     rows = []
     u_beta, u_rho, u_db = cal.u_beta_rad, cal.u_rho_mm, cal.u_d_b_mm
     cal_json = json.dumps(cal.to_dict(), sort_keys=True)
@@ -181,7 +186,7 @@ def _mirror_columns(m) -> dict:
 
 
 def rod_nominal_calibration_rows(meta: dict, night: str, scan_id: str) -> list[dict]:
-    """The rod's layer geometry from ``device.nominal`` as a calibration record (method ``nominal``).
+    """Return the rod's layer geometry from ``device.nominal`` as a calibration record (method ``nominal``).
 
     The id is ``<device>-nominal-<8 hex of the layers' SHA-256>``, so the same geometry on
     another night is the same calibration. [] when the device lists no layers.
@@ -200,14 +205,17 @@ def rod_nominal_calibration_rows(meta: dict, night: str, scan_id: str) -> list[d
 
 
 def tri_calibration(calibrations: pl.DataFrame, cal_id: str) -> TriCalibration:
-    """The :class:`TriCalibration` recorded as ``cal_id`` in ``calibrations`` rows."""
+    """Return the :class:`TriCalibration` recorded as ``cal_id`` in ``calibrations`` rows."""
     row = calibrations.filter(pl.col("calibration_id") == cal_id).row(0, named=True)
     return TriCalibration.from_dict(json.loads(row["calibration_json"]))
 
 
 def rod_layers(layer_rows, channels) -> list[RodLayer]:
-    """The rod layers of ``channels`` from a rod calibration's rows (a polars frame or row dicts;
-    missing or NaN phi, d, gamma, h: 0)."""
+    """Return the rod layers of ``channels`` from a rod calibration's rows.
+
+    Return the rod layers of ``channels`` from a rod calibration's rows (a polars frame or row dicts;
+    missing or NaN phi, d, gamma, h: 0).
+    """
     it = layer_rows.iter_rows(named=True) if isinstance(layer_rows, pl.DataFrame) else layer_rows
     rows = {int(r["channel"]): r for r in it}
 
@@ -231,8 +239,9 @@ _DRIFT_SCHEMA = {
 }
 
 
-def calibration_drift(calibrations: pl.DataFrame, multiple: float) -> pl.DataFrame:
-    """Changes of each beam parameter between consecutive calibrations of a three-sensor device.
+def calibration_drift(  # noqa: C901 (input checks, then per device, channel, parameter and pair)
+        calibrations: pl.DataFrame, multiple: float) -> pl.DataFrame:
+    """Return the changes of each beam parameter between consecutive calibrations of a three-sensor device.
 
     For every device and channel the calibrations (rows of the ``calibrations`` table with a
     ``beta_rad``; ``nominal`` records left out) are ordered as :func:`choose_calibration` orders

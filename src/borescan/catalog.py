@@ -109,7 +109,7 @@ def catalog_path(results_root: str | os.PathLike) -> Path:
 
 
 def certificate_json_path(results_root: str | os.PathLike, certificate_path: str) -> Path:
-    """The ``certificate.json`` belonging to a ``certificate_path`` (a certificate file or its folder).
+    """Return the ``certificate.json`` belonging to a ``certificate_path`` (a certificate file or its folder).
 
     Relative paths are relative to ``results_root``.
     """
@@ -170,7 +170,7 @@ def _prepare(name: str, df: pl.DataFrame, results_root: Path) -> pl.DataFrame:
 
 
 def saved_queries(queries_dir: str | os.PathLike | None = None) -> dict[str, tuple[str, str]]:
-    """Saved queries: name -> (description, SQL text).
+    """Return the saved queries: name -> (description, SQL text).
 
     The description is the leading ``--`` comment block of ``<name>.sql`` (comment markers
     stripped). Names are the file stems, which must be SQL identifiers.
@@ -257,7 +257,7 @@ def stage_files(results_root: str | os.PathLike) -> dict[str, dict[str, Path]]:
 
 
 def _read_nights(results_root: Path, files: Mapping[str, Mapping[str, Path]]) -> dict[str, pl.DataFrame]:
-    """The stage rows of the given nights, per table (quarantine: every stage), in night order.
+    """Return the stage rows of the given nights, per table (quarantine: every stage), in night order.
 
     Each row keeps its source night in ``_night``; a table with a ``night`` column gets the
     file's night where the stage left it out, and a row of another night is an error.
@@ -295,7 +295,7 @@ def _read_nights(results_root: Path, files: Mapping[str, Mapping[str, Path]]) ->
 
 
 def _assemble(tables: dict[str, pl.DataFrame]) -> dict[str, pl.DataFrame]:
-    """The history rules within a batch of nights (rows keep their source night in ``_night``).
+    """Return the history rules within a batch of nights (rows keep their source night in ``_night``).
 
     The ``scans`` reason is the first stage's reason (:data:`STAGE_ORDER`), prefixed with the
     file, so ``SELECT reason FROM scans`` answers "why" without a join. A calibration's first
@@ -346,7 +346,7 @@ def read_quarantine(results_root: str | os.PathLike) -> pl.DataFrame:
 
 
 def assemble_history(results_root: str | os.PathLike, nights: list[str] | None = None) -> dict[str, pl.DataFrame]:
-    """The catalog's tables from the stage tables of ``nights`` (default: every night).
+    """Return the catalog's tables from the stage tables of ``nights`` (default: every night).
 
     A scan any stage set aside is ``quarantined`` (first stage's reason); a row's night comes
     from its stage file where the stage leaves it out; a calibration's first night's row wins
@@ -389,8 +389,10 @@ _FILL_SQL = [
                         AND ({verifications}.night IS NULL OR s.night = {verifications}.night)""",
     "UPDATE {verifications} SET error_mm = measured_mm - certified_mm WHERE error_mm IS NULL",
     "UPDATE {verifications} SET passed = abs(error_mm) <= tolerance_mm WHERE passed IS NULL",
-    "UPDATE {findings} SET night = s.night FROM {scans} s WHERE s.scan_id = {findings}.scan_id AND {findings}.night IS NULL",
-    "UPDATE {quarantine} SET night = s.night FROM {scans} s WHERE s.scan_id = {quarantine}.scan_id AND {quarantine}.night IS NULL",
+    "UPDATE {findings} SET night = s.night FROM {scans} s WHERE s.scan_id = {findings}.scan_id AND "
+    "{findings}.night IS NULL",
+    "UPDATE {quarantine} SET night = s.night FROM {scans} s WHERE s.scan_id = {quarantine}.scan_id AND "
+    "{quarantine}.night IS NULL",
 ]
 
 _STAGING = {name: f"_new_{name}" for name in SCHEMA}
@@ -401,15 +403,16 @@ def _columns(con: duckdb.DuckDBPyConnection, table: str) -> dict[str, str]:
 
 
 def _create_tables(con: duckdb.DuckDBPyConnection) -> None:
-    """The empty catalog tables and the bookkeeping tables (a new catalog)."""
-    for name, t in TABLES.items():
+    """Create the empty catalog tables and the bookkeeping tables (a new catalog)."""
+    for t in TABLES.values():
         con.execute(t.ddl())
     b = BUILD_SCHEMA
     con.execute(f"CREATE SCHEMA {b}")
     con.execute(f"CREATE TABLE {b}.info (key VARCHAR PRIMARY KEY, value VARCHAR)")
     con.execute(f"CREATE TABLE {b}.sources (night VARCHAR, file VARCHAR, bytes BIGINT, mtime_ns BIGINT)")
     con.execute(f"CREATE TABLE {b}.calibration_scan_nights (calibration_id VARCHAR, scan_id VARCHAR, night VARCHAR)")
-    con.execute(f"CREATE TABLE {b}.artifact_records AS SELECT CAST(NULL AS VARCHAR) AS night, * FROM artifacts LIMIT 0")
+    con.execute(f"CREATE TABLE {b}.artifact_records AS SELECT CAST(NULL AS VARCHAR) AS night, * FROM artifacts "
+                "LIMIT 0")
 
 
 def _schema_fingerprint() -> str:
@@ -497,7 +500,8 @@ def _append(con: duckdb.DuckDBPyConnection, tables: Mapping[str, pl.DataFrame | 
             _merge(con, name)
     # calibrations: the first night's row of a (calibration_id, channel) wins
     new_only = "" if direct else """WHERE NOT EXISTS (SELECT 1 FROM calibrations c
-        WHERE c.calibration_id IS NOT DISTINCT FROM n.calibration_id AND c.channel IS NOT DISTINCT FROM n.channel)"""
+        WHERE c.calibration_id IS NOT DISTINCT FROM n.calibration_id
+          AND c.channel IS NOT DISTINCT FROM n.channel)"""
     con.execute(f"CREATE OR REPLACE TEMP TABLE _kept AS SELECT * FROM _new_calibrations n {new_only}")
     _merge(con, "calibrations", "_kept")
     # calibration_scans: the stage's links and each kept calibration's own scan, each night's on record
@@ -518,7 +522,8 @@ def _append(con: duckdb.DuckDBPyConnection, tables: Mapping[str, pl.DataFrame | 
         _merge(con, "artifacts")
     else:
         con.execute(f"""CREATE OR REPLACE TEMP TABLE _latest AS SELECT * FROM _new_artifacts
-                        QUALIFY row_number() OVER (PARTITION BY artifact_id ORDER BY {_NIGHT_COL} DESC) = 1""")
+                        QUALIFY row_number()
+                                OVER (PARTITION BY artifact_id ORDER BY {_NIGHT_COL} DESC) = 1""")
         con.execute("DELETE FROM artifacts WHERE artifact_id IN (SELECT artifact_id FROM _latest)")
         _merge(con, "artifacts", "_latest")
     for tmp in [*_STAGING.values(), "_kept", "_latest"]:
@@ -526,8 +531,11 @@ def _append(con: duckdb.DuckDBPyConnection, tables: Mapping[str, pl.DataFrame | 
 
 
 def _remove_nights(con: duckdb.DuckDBPyConnection, nights: list[str]) -> None:
-    """Take the rows of ``nights`` (the newest in the catalog) out; artifacts fall back to their
-    latest earlier record, links stay while another night still has them."""
+    """Take the rows of the newest ``nights`` out of the catalog.
+
+    Take the rows of ``nights`` (the newest in the catalog) out; artifacts fall back to their
+    latest earlier record, links stay while another night still has them.
+    """
     b = BUILD_SCHEMA
     con.execute("CREATE OR REPLACE TEMP TABLE _gone_nights AS SELECT unnest(?::VARCHAR[]) AS night", [nights])
     for name in NIGHT_TABLES:
@@ -536,7 +544,8 @@ def _remove_nights(con: duckdb.DuckDBPyConnection, nights: list[str]) -> None:
                     FROM {b}.calibration_scan_nights WHERE night IN (SELECT night FROM _gone_nights)""")
     con.execute(f"DELETE FROM {b}.calibration_scan_nights WHERE night IN (SELECT night FROM _gone_nights)")
     con.execute(f"""DELETE FROM calibration_scans c
-                    WHERE EXISTS (SELECT 1 FROM _gone g WHERE g.calibration_id = c.calibration_id AND g.scan_id = c.scan_id)
+                    WHERE EXISTS (SELECT 1 FROM _gone g
+                                  WHERE g.calibration_id = c.calibration_id AND g.scan_id = c.scan_id)
                       AND NOT EXISTS (SELECT 1 FROM {b}.calibration_scan_nights k
                                       WHERE k.calibration_id = c.calibration_id AND k.scan_id = c.scan_id)""")
     con.execute(f"""CREATE OR REPLACE TEMP TABLE _ids AS SELECT DISTINCT artifact_id FROM {b}.artifact_records
@@ -610,7 +619,11 @@ def _discard(tmp: Path) -> None:
 
 
 def _drop_views(con: duckdb.DuckDBPyConnection) -> None:
-    """Views bind their columns: out of the way while tables change (created again at the end)."""
+    """Drop the views while tables change (created again at the end).
+
+    Drop the views: they bind their columns, so out of the way while tables change (created again at the
+    end).
+    """
     for (view,) in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'"
                                ).fetchall():
         con.execute(f"DROP VIEW {_q(view)}")
@@ -725,7 +738,7 @@ def _record_sources(con: duckdb.DuckDBPyConnection, sig: Mapping[str, Mapping[st
             con.unregister("_sources")
 
 
-def update_catalog(
+def update_catalog(  # noqa: C901 (one branch per way the catalog is brought up to date (new, incremental, rebuilt))
     results_root: str | os.PathLike,
     queries_dir: str | os.PathLike | None = None,
     full: bool = False,
@@ -864,8 +877,11 @@ def open_catalog(results_root: str | os.PathLike, read_only: bool = True) -> duc
 
 
 def table_rows(con: duckdb.DuckDBPyConnection, table: str) -> list[tuple]:
-    """All rows of a catalog table in key order, ties broken by every other column (handy for
-    comparisons and tests: the same rows give the same list)."""
+    """Return all rows of a catalog table in key order.
+
+    All rows of a catalog table in key order, ties broken by every other column (handy for
+    comparisons and tests: the same rows give the same list).
+    """
     if table not in SCHEMA:
         raise ValueError(f"unknown catalog table {table!r}; valid: {sorted(SCHEMA)}")
     cols = list(KEYS[table]) + [c for c in _columns(con, table) if c not in KEYS[table]]

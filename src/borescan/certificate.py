@@ -62,38 +62,56 @@ _UNITS_DSI = {"mm": "\\milli\\metre", "rad": "\\radian", "degC": "\\degreecelsiu
               "1/K": "\\kelvin\\tothe{-1}", "-": "\\one", "um": "\\micro\\metre"}
 _METHOD_TEXT = {
     "full_lsq": (
-        "Full-data least-squares calibration (borescan fit_full_calibration): every reading of the ring-gauge "
-        "spindle scans is fitted to the exact three-sensor forward model (Yang 2017 geometry; rotation angle from "
-        "the spindle stream); free per beam: direction beta, offset rho and base length d_b; per scan the spindle "
-        "offset, phase and speed; the reported centre and spindle position enter as priors within the machine's "
-        "stated accuracy. Uncertainty evaluated by the GUM (JCGM 100:2008) law of propagation with sensitivities "
+        "Full-data least-squares calibration (borescan fit_full_calibration): every reading of the "
+        "ring-gauge "
+        "spindle scans is fitted to the exact three-sensor forward model (Yang 2017 geometry; rotation "
+        "angle from "
+        "the spindle stream); free per beam: direction beta, offset rho and base length d_b; per scan "
+        "the spindle "
+        "offset, phase and speed; the reported centre and spindle position enter as priors within the "
+        "machine's "
+        "stated accuracy. Uncertainty evaluated by the GUM (JCGM 100:2008) law of propagation with "
+        "sensitivities "
         "of the least-squares optimum; coverage factor from Welch-Satterthwaite where JCGM 101:2008 (GUM S1) "
         "validates it, else from the propagated distribution."),
     "yang2017": (
-        "Yang 2017 extrema method (Eq. 8-15): base length and offset of each beam from the mean extreme readings, "
+        "Yang 2017 extrema method (Eq. 8-15): base length and offset of each beam from the mean "
+        "extreme readings, "
         "beam angles from the feature points' timing. Uncertainty evaluated by the GUM (JCGM 100:2008) with "
         "sensitivities by central differences of the closed forms."),
     "rod_gauge": (
-        "Rod calibration on certified ring gauges (borescan.rod_calibration): the rod is turned by hand in ring "
-        "gauges of certified diameter, one per layer; the joint rod solve (Wang 2017 Eq. 16 generalised: exact "
-        "ray-cylinder readings, pose angles, hole centres and the rod axis deflection free) is repeated with each "
-        "layer's base length l0 corrected by the gauge radius at its temperature minus the solved radius until "
-        "they agree to 1e-7 mm or a thousandth of the radius uncertainty. Beam angle, offset and tilt of each layer stay at their design values (to first "
+        "Rod calibration on certified ring gauges (borescan.rod_calibration): the rod is turned by "
+        "hand in ring "
+        "gauges of certified diameter, one per layer; the joint rod solve (Wang 2017 Eq. 16 "
+        "generalised: exact "
+        "ray-cylinder readings, pose angles, hole centres and the rod axis deflection free) is "
+        "repeated with each "
+        "layer's base length l0 corrected by the gauge radius at its temperature minus the solved "
+        "radius until "
+        "they agree to 1e-7 mm or a thousandth of the radius uncertainty. Beam angle, offset and tilt "
+        "of each layer stay at their design values (to first "
         "order a constant reading offset, which l0 absorbs). Uncertainty by the GUM (JCGM 100:2008) law of "
-        "propagation: the solve's covariance, the gauges' certificates, temperature, expansion coefficient and "
+        "propagation: the solve's covariance, the gauges' certificates, temperature, expansion "
+        "coefficient and "
         "the sensors' linearity and resolution."),
 }
 
 
 def certificate_dir(results_root: Path | str, cal) -> Path:
-    """``results_root/calibration/<device_id>/<calibration_id>`` (``outputs.md``): where a certificate
-    is read (a link into the folder of the calibration's night, :func:`certificate_night_dir`)."""
+    """Return the folder a certificate is read from.
+
+    ``results_root/calibration/<device_id>/<calibration_id>`` (``outputs.md``): where a certificate
+    is read (a link into the folder of the calibration's night, :func:`certificate_night_dir`).
+    """
     return Path(results_root) / "calibration" / cal.device_id / cal.calibration_id
 
 
 def certificate_night_dir(results_root: Path | str, cal, night: str) -> Path:
-    """``results_root/calibration/night=<night>/<device_id>/<calibration_id>``: where the calibrate
-    stage writes a certificate (the night's folder is the rule's declared output)."""
+    """Return the folder the calibrate stage writes a certificate into.
+
+    ``results_root/calibration/night=<night>/<device_id>/<calibration_id>``: where the calibrate
+    stage writes a certificate (the night's folder is the rule's declared output).
+    """
     return Path(results_root) / "calibration" / f"night={night}" / cal.device_id / cal.calibration_id
 
 
@@ -119,20 +137,25 @@ def certificate_dates(scan_metas: list[dict], verification_metas: list[dict], ni
     due = (_dt.date.fromisoformat(night) + _dt.timedelta(days=int(validity_days))).isoformat()
     return {
         "begin": cal_days[0], "end": cal_days[-1], "issue": all_days[-1], "night": night,
-        "issue_rule": "derived from the data, not the clock: the last UTC date on which a scan reported here was "
+        "issue_rule": "derived from the data, not the clock: the last UTC date on which a scan "
+                      "reported here was "
                       "taken (scan.json started_at), so that regenerating the certificate gives the same bytes",
         "recalibration_due": due,
-        "recalibration_rule": f"night {night} + calibration.validity_days = {int(validity_days)} days; after it the "
+        "recalibration_rule": f"night {night} + calibration.validity_days = {int(validity_days)} days; "
+                              "after it the "
                               "pipeline refuses the calibration for measurements",
     }
 
 
 def calibration_conditions(temperature, cte, radius_mm: float, position_accuracy_mm: float, p: float,
                            scans: list[dict]) -> dict:
-    """The influence conditions of a certificate: the gauge's temperature with its uncertainty (U
+    """Return the influence conditions of a certificate.
+
+    Return the influence conditions of a certificate: the gauge's temperature with its uncertainty (U
     for the coverage probability ``p``) and source, its expansion coefficient, its radius at that
     temperature, the machine's stated position accuracy and per scan ``scans`` (positions, speed,
-    revolutions). ``temperature``/``cte``: :class:`borescan.artifacts.ScanTemperature` / ``ArtifactCte``."""
+    revolutions). ``temperature``/``cte``: :class:`borescan.artifacts.ScanTemperature` / ``ArtifactCte``.
+    """
     t_comb = combine([(temperature.u_c, float("inf"), "rectangular")], p)
     return {
         "temperature": {"value_c": temperature.temperature_c, "u_c": temperature.u_c, "U_c": t_comb.U, "k": t_comb.k,
@@ -205,7 +228,7 @@ def _parameter_rows(cal: TriCalibration, budget: Budget | None, p: float) -> lis
     rows = []
     for j, ch in enumerate(b.channels):
         row: dict[str, Any] = {"channel": int(ch)}
-        for k, (name, unit) in enumerate((("beta_rad", "rad"), ("rho_mm", "mm"), ("d_b_mm", "mm"))):
+        for k, name in enumerate(("beta_rad", "rho_mm", "d_b_mm")):
             i = 3 * j + k
             comb = _combined(cal, budget, i, p)
             short = name.rsplit("_", 1)[0]
@@ -225,23 +248,34 @@ def _expanded(comb: Combined, distribution: str = "normal") -> dict:
 
 
 def _result(name: str, ref_type: str, held: bool, value: float, unit: str, comb: Combined) -> dict:
-    """One DCC result: ``value`` in ``unit`` (a key of ``_UNITS_DSI``: mm, rad, ...) with its D-SI expandedUnc."""
+    """Return one DCC result with its expanded uncertainty.
+
+    One DCC result: ``value`` in ``unit`` (a key of ``_UNITS_DSI``: mm, rad, ...) with its D-SI
+    expandedUnc.
+    """
     return {"name": name, "refType": ref_type, "held_at_design_value": held,
             "real": {"value": value, "unit": _UNITS_DSI[unit], "expandedUnc": _expanded(comb)}}
 
 
 def _budget_entry(unit: str, rows: list[dict], comb: Combined) -> dict:
-    """One result's uncertainty budget: its ``unit``, the budget rows (contributions in that unit)
-    and their combination (u_c, k, U)."""
+    """Return one result's uncertainty budget.
+
+    One result's uncertainty budget: its ``unit``, the budget rows (contributions in that unit)
+    and their combination (u_c, k, U).
+    """
     return {"unit": unit, "rows": rows, "combined": comb.to_dict()}
 
 
 def _statements(lab: dict, dates: dict, conformity: dict, traceability: str) -> list[dict]:
-    """DCC statements of every certificate: reproduction clause (ISO/IEC 17025 7.8.2.1 m), ``traceability``
-    text, decision rule, conformity, recalibration due date (ISO date) and how the issue date was derived."""
+    """Return the DCC statements of every certificate.
+
+    DCC statements of every certificate: reproduction clause (ISO/IEC 17025 7.8.2.1 m), ``traceability``
+    text, decision rule, conformity, recalibration due date (ISO date) and how the issue date was derived.
+    """
     return [
         {"norm": "ISO/IEC 17025:2017", "reference": "7.8.2.1 m",
-         "declaration": "The results relate only to the item calibrated. This certificate shall not be reproduced "
+         "declaration": "The results relate only to the item calibrated. This certificate shall not "
+                        "be reproduced "
                         "except in full without the written approval of the issuing laboratory."},
         {"refType": "basic_traceability", "declaration": traceability},
         {"refType": "basic_decisionRule", "declaration": _decision_rule_text(lab)},
@@ -254,8 +288,11 @@ def _statements(lab: dict, dates: dict, conformity: dict, traceability: str) -> 
 
 def _administrative_data(cal, lab: dict, dates: dict, conformity: dict, item: dict, traceability: str,
                          software_version: str) -> dict:
-    """DCC ``administrativeData``: software, core data (ISO dates of calibration and issue), the ``item``,
-    laboratory, signatory, customer, statements and the laboratory settings left at their placeholders."""
+    """Return the DCC ``administrativeData``.
+
+    DCC ``administrativeData``: software, core data (ISO dates of calibration and issue), the ``item``,
+    laboratory, signatory, customer, statements and the laboratory settings left at their placeholders.
+    """
     return {
         "dccSoftware": {"software": [{"name": "borescan", "release": software_version}]},
         "coreData": {"countryCodeISO3166_1": lab.get("country_code"), "usedLangCodeISO639_1": ["en"],
@@ -277,11 +314,14 @@ def _shared_part(cal, *, item_name: str, item_id: Any, traceability: str, device
                  conditions: dict, raw_files: dict[str, str], software_version: str, config_hash: str,
                  laboratory: dict | None, coverage_probability: float, dates: dict | None,
                  verifications: list[dict] | None) -> dict:
-    """The top-level keys every certificate has (three-sensor and rod): identification, coverage
+    """Return the top-level keys every certificate has.
+
+    Return the top-level keys every certificate has (three-sensor and rod): identification, coverage
     probability, ``administrativeData`` (the item ``item_name`` identified by ``item_id``, the
     ``traceability`` statement), device, artifact, conditions, verifications with the conformity,
     dates (ISO), laboratory, raw file digests (sha256 hex), software version and config hash.
-    Not yet JSON-safe (:func:`_fixed`)."""
+    Not yet JSON-safe (:func:`_fixed`).
+    """
     lab = _laboratory(laboratory)
     dates = dict(dates or {})
     ver = list(verifications or [])
@@ -300,8 +340,11 @@ def _shared_part(cal, *, item_name: str, item_id: Any, traceability: str, device
 
 def _measurement_results(name: str, method: str, description: str, uncertainty_norm: str, equipment: list[dict],
                          conditions: dict, results: list[dict], budgets: dict) -> list[dict]:
-    """DCC ``measurementResults``: one result set ``name`` with its method (``description``), the
-    uncertainty evaluation's norm, the standards used, the influence conditions, results and budgets."""
+    """Return the DCC ``measurementResults``.
+
+    DCC ``measurementResults``: one result set ``name`` with its method (``description``), the
+    uncertainty evaluation's norm, the standards used, the influence conditions, results and budgets.
+    """
     return [{"name": name,
              "usedMethods": [{"name": method, "description": description},
                              {"name": "uncertainty", "norm": uncertainty_norm}],
@@ -310,8 +353,11 @@ def _measurement_results(name: str, method: str, description: str, uncertainty_n
 
 
 def _beam_results(cal: TriCalibration, budget: Budget | None, p: float) -> tuple[list[dict], dict]:
-    """DCC results (beta [rad], rho and d_b [mm] per channel, U for coverage probability ``p``) and,
-    with a budget, each one's uncertainty budget."""
+    """Return the DCC results of the beams and their budgets.
+
+    DCC results (beta [rad], rho and d_b [mm] per channel, U for coverage probability ``p``) and,
+    with a budget, each one's uncertainty budget.
+    """
     names = [f"{n}[{ch}]" for ch in cal.beams.channels for n in ("beta_rad", "rho_mm", "d_b_mm")]
     units = ["rad", "mm", "mm"] * len(cal.beams.channels)
     results, budgets = [], {}
@@ -324,8 +370,11 @@ def _beam_results(cal: TriCalibration, budget: Budget | None, p: float) -> tuple
 
 
 def _effective_base_lengths(cal: TriCalibration, budget: Budget | None, conditions: dict, p: float) -> list[dict]:
-    """Per channel g = d_b + rho^2/(2R) [mm] (R the gauge radius at its temperature [mm]) with U for
-    coverage probability ``p``; empty without a budget or a radius."""
+    """Return the effective base lengths g per channel with U.
+
+    Per channel g = d_b + rho^2/(2R) [mm] (R the gauge radius at its temperature [mm]) with U for
+    coverage probability ``p``; empty without a budget or a radius.
+    """
     R = conditions.get("gauge_radius_at_temperature_mm") if isinstance(conditions, dict) else None
     if budget is None or not R:
         return []
@@ -340,7 +389,7 @@ def _effective_base_lengths(cal: TriCalibration, budget: Budget | None, conditio
 
 
 def _gauge_equipment(artifact: dict) -> dict:
-    """The reference ring gauge as DCC measuring equipment (certified diameter [mm] with U and k)."""
+    """Return the reference ring gauge as DCC measuring equipment (certified diameter [mm] with U and k)."""
     return {
         "refType": "basic_normalUsed", "name": "ring gauge",
         "id": artifact.get("id"), "certificate": artifact.get("certificate"),
@@ -354,8 +403,11 @@ def _gauge_equipment(artifact: dict) -> dict:
 
 
 def _fit_part(cal: TriCalibration) -> dict:
-    """The fit's summary (residual rms [mm], dof, rank, condition, convergence, nuisance) and the
-    diagnostics a certificate reports."""
+    """Return the fit's summary and the diagnostics a certificate reports.
+
+    Return the fit's summary (residual rms [mm], dof, rank, condition, convergence, nuisance) and the
+    diagnostics a certificate reports.
+    """
     keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free",
             "weak_rho_channels", "g_mm", "u_g_mm", "n_minima", "ambiguous_minima")
     diag = {k: cal.diagnostics[k] for k in keys if k in cal.diagnostics}
@@ -370,7 +422,7 @@ def _fit_part(cal: TriCalibration) -> dict:
 
 
 def device_model_text(entries: list[dict]) -> str:
-    """The device model a calibration carried, in words (certificate section 2)."""
+    """Return the device model a calibration carried, in words (certificate section 2)."""
     carried, listed = [], []
     for m in entries:
         if not m.get("estimated"):
@@ -385,7 +437,8 @@ def device_model_text(entries: list[dict]) -> str:
         out.append("Device model carried (the readings corrected for it, a channel delay taken in the channel's "
                    "angle; each value's uncertainty is an input of the budget): " + "; ".join(carried) + ".")
     if listed:
-        out.append("Listed in the device model but not estimated by any earlier pooled examination, so not corrected: "
+        out.append("Listed in the device model but not estimated by any earlier pooled examination, so not "
+                   "corrected: "
                    + ", ".join(listed) + ".")
     return " ".join(out)
 
@@ -405,7 +458,7 @@ def certificate_dict(
     dates: dict | None = None,
     verifications: list[dict] | None = None,
 ) -> dict:
-    """The content of ``certificate.json`` (JSON-safe, floats rounded to 12 significant digits).
+    """Return the content of ``certificate.json`` (JSON-safe, floats rounded to 12 significant digits).
 
     See :func:`write_certificate` for the arguments.
     """
@@ -681,7 +734,8 @@ def _page_admin(d: _Doc) -> None:
     d.y -= 0.03
     if c["administrativeData"]["placeholders"]:
         d.para("NOTE: the laboratory settings " + ", ".join(c["administrativeData"]["placeholders"]) + " are the "
-               "defaults of workflow/schemas/config.schema.yaml, placeholders that name no real laboratory. Set the "
+               "defaults of workflow/schemas/config.schema.yaml, placeholders that name no real "
+               "laboratory. Set the "
                "laboratory section of config/config.yaml before issuing this certificate to anyone.", color="firebrick",
                size=7.5)
     sensors = dev.get("sensors") or []
@@ -757,8 +811,9 @@ def _page_item_conditions(d: _Doc) -> None:
 
 
 def _sensor_table(d: _Doc, dev: dict, device_id: str) -> None:
-    """The device's sensors as recorded in scan.json, as a table."""
-    d.para(f"Device {dev.get('id', device_id)}, type {dev.get('type', 'tri_lds')}; sensors as recorded in scan.json:")
+    """Write the device's sensors as recorded in scan.json, as a table."""
+    d.para(f"Device {dev.get('id', device_id)}, type {dev.get('type', 'tri_lds')}; sensors as recorded in "
+           "scan.json:")
     cols = ["channel", "model", "serial", "range [mm]", "linearity [% FS]", "linearity +- [um]", "repeatab. [um]",
             "resolution [um]"]
     cells = []
@@ -834,10 +889,14 @@ def _page_results(d: _Doc) -> None:
     p = c["coverage_probability"]
     d.new_page()
     d.heading("5  Results")
-    d.para("Calibrated beam geometry per channel: direction beta of the beam, its offset rho from the rotation axis "
-           "and its base length d_b (the distance from the foot point to the sensor's measuring start). Expanded "
-           f"uncertainty U = k u_c for a coverage probability of {100 * p:.2f} %; k from the effective degrees of "
-           "freedom (Welch-Satterthwaite) where the GUM S1 check validates it, else from the propagated distribution.")
+    d.para("Calibrated beam geometry per channel: direction beta of the beam, its offset rho from the "
+           "rotation axis "
+           "and its base length d_b (the distance from the foot point to the sensor's measuring start). "
+           "Expanded "
+           f"uncertainty U = k u_c for a coverage probability of {100 * p:.2f} %; k from the effective "
+           "degrees of "
+           "freedom (Welch-Satterthwaite) where the GUM S1 check validates it, else from the propagated "
+           "distribution.")
     cols = ["channel", "quantity", "value", "U", "unit", "k", "nu_eff", "dominant input"]
     cells = []
     results = {r["name"]: r for r in c["measurementResults"][0]["results"]}
@@ -861,24 +920,31 @@ def _page_results(d: _Doc) -> None:
     if c.get("effective_base_length"):
         g = "; ".join(f"channel {r['channel']}: " + " +- ".join(_vu(r["value_mm"], r["expandedUnc"]["uncertainty"])) + " mm"
                       f" (k = {r['expandedUnc']['coverageFactor']:.2f})" for r in c["effective_base_length"])
-        d.para(f"Effective base length g = d_b + rho^2/(2R) (R the gauge radius at its temperature), the combination the "
-               f"data fix best, with U: {g}. rho and d_b of a channel are correlated; certificate.json gives the full "
+        d.para("Effective base length g = d_b + rho^2/(2R) (R the gauge radius at its temperature), the "
+               "combination the "
+               f"data fix best, with U: {g}. rho and d_b of a channel are correlated; certificate.json "
+               "gives the full "
                "covariance (combined and of the fit alone) and the correlation matrix.")
     acc = fit.get("acceptance")
     d.para(f"Fit: residual rms {_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um, "
-           f"{_num(fit.get('n_obs'), 'g')} readings, {fit.get('dof')} degrees of freedom, Jacobian rank {fit.get('rank')}, "
+           f"{_num(fit.get('n_obs'), 'g')} readings, {fit.get('dof')} degrees of freedom, Jacobian rank "
+           f"{fit.get('rank')}, "
            f"condition {_num(fit.get('condition'), '.3g')}; the optimiser "
            f"{'converged' if fit.get('converged') else 'did NOT converge'}.")
     if acc:
         d.para(f"Acceptance: largest ratio of a channel's residual rms to its readings' own noise floor "
-               f"{_num(acc.get('residual_to_noise_max'), '.3f')} (limit {_num(acc.get('max_residual_to_noise'), 'g')}); "
+               f"{_num(acc.get('residual_to_noise_max'), '.3f')} (limit "
+               f"{_num(acc.get('max_residual_to_noise'), 'g')}); "
                f"|rho| within the head radius {_num(acc.get('head_radius_mm'), 'g')} mm.")
     if fit.get("weak_rho_channels"):
-        d.para(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho), rho is not distinguished from 0; U(d_b) of "
+        d.para(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho), rho is not distinguished from 0; "
+               "U(d_b) of "
                "these channels includes the second-order term of d_b = g - rho^2/(2R).")
     if fit.get("rho_profiled_channels"):
-        d.para(f"Channels {fit['rho_profiled_channels']}: the cost along rho is not the linear one (rho enters the "
-               "readings mostly through rho^2); their uncertainties come from the profile of the cost along rho, "
+        d.para(f"Channels {fit['rho_profiled_channels']}: the cost along rho is not the linear one (rho "
+               "enters the "
+               "readings mostly through rho^2); their uncertainties come from the profile of the cost "
+               "along rho, "
                "every other parameter refitted, not from the linearisation alone.")
     _rho_sign_paragraphs(d, c)
 
@@ -981,7 +1047,8 @@ def _tiny(r: dict, uc: float) -> bool:
     return uc > 0 and c < 1e-5 * uc
 
 
-def _budget_tables(d: _Doc) -> None:
+def _budget_tables(  # noqa: C901 (one cell per budget row, parameter kind and held or tiny term)
+        d: _Doc) -> None:
     c = d.cert
     budgets = c["measurementResults"][0]["uncertaintyBudget"]
     if not budgets:
@@ -991,8 +1058,10 @@ def _budget_tables(d: _Doc) -> None:
     d.para("Per channel, every input x_i of the calibration with its estimate, standard uncertainty u(x_i), "
            "distribution and degrees of freedom nu_i, and for each result its sensitivity coefficient c_i and "
            "contribution u_i = |c_i| u(x_i) (GUM 5.1.3). The fit to the readings is a vector input (u(x_i): the "
-           "residual standard deviation per reading); its contribution comes from its covariance. c: for beta in rad, "
-           "for rho and d_b in mm, per unit of the input; contributions in urad (beta) and um (rho, d_b); 0: below "
+           "residual standard deviation per reading); its contribution comes from its covariance. c: for "
+           "beta in rad, "
+           "for rho and d_b in mm, per unit of the input; contributions in urad (beta) and um (rho, d_b); "
+           "0: below "
            "1e-5 u_c; 'in Type A': a resolution dithered by the readings' noise (GUM F.2.2.1).")
     fams = ("beta", "rho", "d_b")
     for prow in c["parameters"]:
@@ -1045,10 +1114,14 @@ def _budget_tables(d: _Doc) -> None:
         d.para(f"Channel {ch}", size=8.5)
         d.table(cols, cells, widths=[0.22, 0.09, 0.07, 0.06, 0.05, 0.065, 0.08, 0.065, 0.08, 0.065, 0.08], size=5.8,
                 row_h=0.0128)
-    d.para("k marked (S1): the t-based factor was not validated by GUM S1 (one rectangular input dominates); k is that "
-           "of the propagated distribution. The gauge's expansion coefficient has no first-order effect at 20 degC. "
-           "Sensor linearity is an error of every reading of a channel within the data sheet's bound, independent "
-           "between the calibration and each later measurement. Reported positions that are the same for several "
+    d.para("k marked (S1): the t-based factor was not validated by GUM S1 (one rectangular input "
+           "dominates); k is that "
+           "of the propagated distribution. The gauge's expansion coefficient has no first-order effect "
+           "at 20 degC. "
+           "Sensor linearity is an error of every reading of a channel within the data sheet's bound, "
+           "independent "
+           "between the calibration and each later measurement. Reported positions that are the same for "
+           "several "
            "scans are one input.", size=6.8)
 
 
@@ -1061,9 +1134,11 @@ def _verification_pages(d: _Doc) -> None:
     if not ver:
         d.para(c["conformity"]["text"])
     else:
-        d.para("Each verification measures a certified ring gauge with this calibration in the same night. The measured "
+        d.para("Each verification measures a certified ring gauge with this calibration in the same "
+               "night. The measured "
                "diameter is brought to 20 degC (ISO 1) with the gauge's expansion coefficient and the recorded "
-               "temperature; E = D20 (measured) - D20 (certified). Where the gauge is the calibration's own, its "
+               "temperature; E = D20 (measured) - D20 (certified). Where the gauge is the calibration's "
+               "own, its "
                "certified diameter enters both and largely cancels in U(E).")
         cols = ["scan", "gauge", "T [degC]", "D(T) [mm]", "D20 [mm]", "cert. [mm]", "E [um]", "U(E) [um]",
                 "k", "T_ol [um]", "A [um]", "verdict"]
@@ -1096,8 +1171,11 @@ _VERIFICATION_LAYOUT = ([0.42, 0.12, 0.1, 0.1, 0.06, 0.1, 0.1], 6)
 
 
 def _input_cells(r: dict, dash_zero_u: bool) -> list[str]:
-    """One budget row as table cells: label, estimate, u(x_i), distribution, nu_i, c_i, u_i [um]
-    (``contribution`` [mm] times 1e3). ``dash_zero_u``: a zero or missing u(x_i) shows as "-"."""
+    """Return one budget row as table cells.
+
+    One budget row as table cells: label, estimate, u(x_i), distribution, nu_i, c_i, u_i [um]
+    (``contribution`` [mm] times 1e3). ``dash_zero_u``: a zero or missing u(x_i) shows as "-".
+    """
     u_x = r["standard_uncertainty"]
     return [_label(r), _est_text(r["estimate"], r["unit"]), "-" if dash_zero_u and not u_x else _u_text(u_x, r["unit"]),
             _DIST.get(r["distribution"], r["distribution"]), _dof_text(r["degrees_of_freedom"]),
@@ -1106,14 +1184,21 @@ def _input_cells(r: dict, dash_zero_u: bool) -> list[str]:
 
 
 def _sum_row(label: str, value_mm: float, dof: str = "") -> list[str]:
-    """A summary line of a budget table: ``label``, ``dof`` in the nu_i column, ``value_mm`` [mm] in um."""
+    """Return a summary line of a budget table.
+
+    Return a summary line of a budget table: ``label``, ``dof`` in the nu_i column, ``value_mm`` [mm] in
+    um.
+    """
     return [label, "", "", "", dof, "", f"{1e3 * value_mm:.3g}"]
 
 
 def _contribution_table(d: _Doc, title: str, rows: list[dict], sums: list[list[str]], layout: tuple[list[float], float],
                         dash_zero_u: bool) -> None:
-    """The budget of one result: ``title``, one line per input row (:func:`_input_cells`), then the
-    ``sums`` lines (:func:`_sum_row`, the last one bold); ``layout``: (column widths, font size)."""
+    """Write the budget table of one result.
+
+    Write the budget of one result: ``title``, one line per input row (:func:`_input_cells`), then the
+    ``sums`` lines (:func:`_sum_row`, the last one bold); ``layout``: (column widths, font size).
+    """
     cells = [_input_cells(r, dash_zero_u) for r in rows] + sums
     widths, size = layout
     d.room(0.013 * (len(cells) + 1) + 0.03)
@@ -1122,8 +1207,11 @@ def _contribution_table(d: _Doc, title: str, rows: list[dict], sums: list[list[s
 
 
 def _verification_budget(d: _Doc, v: dict) -> None:
-    """The budget of a verification's error E: inputs of at least 5 % of u_c(E) one by one, the
-    others folded into one line (root sum of squares), then u_c(E) (contributions in um)."""
+    """Write the budget of a verification's error E.
+
+    Write the budget of a verification's error E: inputs of at least 5 % of u_c(E) one by one, the
+    others folded into one line (root sum of squares), then u_c(E) (contributions in um).
+    """
     rows = v.get("budget") or []
     if not rows:
         return
@@ -1137,8 +1225,11 @@ def _verification_budget(d: _Doc, v: dict) -> None:
 
 
 def _rod_layer_budget(d: _Doc, channel: int, budget: dict) -> None:
-    """The budget of one layer's l0 (``budget``: rows and combined of certificate.json): inputs
-    below 1e-5 u_c left out, then u_c with nu_eff and U with k (contributions in um)."""
+    """Write the budget of one layer's l0.
+
+    Write the budget of one layer's l0 (``budget``: rows and combined of certificate.json): inputs
+    below 1e-5 u_c left out, then u_c with nu_eff and U with k (contributions in um).
+    """
     comb = budget["combined"]
     rows = [r for r in budget["rows"] if not _tiny(r, comb["standard_uncertainty"])]
     sums = [_sum_row("combined standard uncertainty u_c", comb["standard_uncertainty"],
@@ -1149,7 +1240,7 @@ def _rod_layer_budget(d: _Doc, channel: int, budget: dict) -> None:
 
 
 def _ver_name(v: dict) -> str:
-    """A verification's name in the certificate: its scan, and the layer's feature for a rod."""
+    """Return a verification's name in the certificate: its scan, and the layer's feature for a rod."""
     return f"{v.get('scan_id')}" + (f" layer {v['feature']} ({v.get('artifact_id')})" if v.get("feature") else "")
 
 
@@ -1319,8 +1410,11 @@ def _rod_results(cal, p: float) -> tuple[list[dict], dict]:
 
 
 def _rod_parameters(cal) -> list[dict]:
-    """Per layer: l0 (calibrated and design) and u(l0) [mm], the layer's fixed geometry (h, d [mm],
-    phi, gamma [rad]) and its ring gauge (certified D20, radius at temperature [mm])."""
+    """Return the calibrated and design parameters of each layer.
+
+    Per layer: l0 (calibrated and design) and u(l0) [mm], the layer's fixed geometry (h, d [mm],
+    phi, gamma [rad]) and its ring gauge (certified D20, radius at temperature [mm]).
+    """
     params = []
     for j, lay in enumerate(cal.layers):
         g = cal.gauges[j]
@@ -1334,8 +1428,11 @@ def _rod_parameters(cal) -> list[dict]:
 
 
 def _rod_fit(cal) -> dict:
-    """The rod solve at the calibrated l0: residual rms [mm], solves to settle l0, method, rank,
-    condition, number of poses, axis deflection [rad] and eccentricity [mm] (None without a solve)."""
+    """Return the summary of the rod solve at the calibrated l0.
+
+    Return the rod solve at the calibrated l0: residual rms [mm], solves to settle l0, method, rank,
+    condition, number of poses, axis deflection [rad] and eccentricity [mm] (None without a solve).
+    """
     sol = cal.solution
     return {"residual_rms_mm": cal.residual_rms_mm, "iterations": cal.iterations,
             "solve_method": None if sol is None else sol.method, "rank": None if sol is None else sol.rank,
@@ -1349,7 +1446,9 @@ def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte,
                          software_version: str, config_hash: str, laboratory: dict | None = None,
                          coverage_probability: float | None = None, dates: dict | None = None,
                          verifications: list[dict] | None = None) -> dict:
-    """``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
+    """Return the ``certificate.json`` of a rod calibration.
+
+    ``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
     the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
     the budget per layer, each layer's gauge and the solve's diagnostics."""
     p = float(schema_default("uncertainty", "coverage_probability") if coverage_probability is None
@@ -1388,8 +1487,11 @@ def _unique_gauges(cal) -> list[dict]:
 
 
 def _rod_page_item_conditions(d: _Doc) -> None:
-    """Sections 1-4 of a rod certificate: item, method, conditions (temperature [degC], expansion
-    coefficient [1/K]) and traceability (each layer's ring gauge)."""
+    """Write sections 1-4 of a rod certificate.
+
+    Sections 1-4 of a rod certificate: item, method, conditions (temperature [degC], expansion
+    coefficient [1/K]) and traceability (each layer's ring gauge).
+    """
     c = d.cert
     d.new_page()
     d.heading("1  Item calibrated")
@@ -1418,15 +1520,21 @@ def _rod_page_item_conditions(d: _Doc) -> None:
 
 
 def _rod_page_results(d: _Doc) -> None:
-    """Section 5 of a rod certificate: l0 per layer [mm] with U and k, its change from the design
-    value [um], and the rod solve's summary."""
+    """Write section 5 of a rod certificate.
+
+    Section 5 of a rod certificate: l0 per layer [mm] with U and k, its change from the design
+    value [um], and the rod solve's summary.
+    """
     c = d.cert
     d.new_page()
     d.heading("5  Results")
     p = c["coverage_probability"]
-    d.para("Calibrated base length l0 of each layer (axis foot to the sensor's measuring start), at which the rod solve "
-           "returns the gauge's radius at its temperature. Expanded uncertainty U = k u_c for a coverage probability of "
-           f"{100 * p:.2f} %. A rod diameter measured with this calibration moves by 2 (l0 - l0 true): its budget takes "
+    d.para("Calibrated base length l0 of each layer (axis foot to the sensor's measuring start), at which "
+           "the rod solve "
+           "returns the gauge's radius at its temperature. Expanded uncertainty U = k u_c for a coverage "
+           "probability of "
+           f"{100 * p:.2f} %. A rod diameter measured with this calibration moves by 2 (l0 - l0 true): its "
+           "budget takes "
            "this one with sensitivity 2.")
     res = {r["name"]: r for r in c["measurementResults"][0]["results"]}
     budgets = c["measurementResults"][0]["uncertaintyBudget"]
@@ -1443,14 +1551,16 @@ def _rod_page_results(d: _Doc) -> None:
             widths=[0.07, 0.13, 0.14, 0.1, 0.13, 0.06, 0.37], size=7)
     fit = c["fit"]
     d.para(f"Rod solve at the calibrated l0 ({fit.get('solve_method')}): residual rms "
-           f"{_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um over {fit.get('n_poses')} poses, Jacobian rank "
+           f"{_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um over {fit.get('n_poses')} poses, "
+           "Jacobian rank "
            f"{fit.get('rank')}, condition {_num(fit.get('condition'), '.3g')}; rod axis deflection "
-           f"{_num(_scaled(fit.get('deflection_rad'), 180 / math.pi), '.3f')} deg; {fit.get('iterations')} solves to "
+           f"{_num(_scaled(fit.get('deflection_rad'), 180 / math.pi), '.3f')} deg; {fit.get('iterations')} "
+           "solves to "
            "settle l0.")
 
 
 def _rod_pages(cert: dict) -> list[Figure]:
-    """The pages of a rod certificate's PDF (content: ``cert``, see :func:`rod_certificate_dict`)."""
+    """Return the pages of a rod certificate's PDF (content: ``cert``, see :func:`rod_certificate_dict`)."""
     d = _Doc(cert)
     _page_admin(d)
     _rod_page_item_conditions(d)

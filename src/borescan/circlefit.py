@@ -91,6 +91,7 @@ class Circle:
 
     @property
     def diameter_mm(self) -> float:
+        """Diameter [mm], twice the radius."""
         return 2.0 * self.radius_mm
 
     @property
@@ -175,7 +176,7 @@ def fit_circle_ls(x_mm, y_mm, *, max_iter: int = 200) -> Circle:
     f = e @ e
     lam = 0.0
     it = 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 (it, the iterations done, is returned)
         if lam == 0.0:
             step, *_ = np.linalg.lstsq(J, -e, rcond=None)
         else:
@@ -208,8 +209,11 @@ def fit_circle_ls(x_mm, y_mm, *, max_iter: int = 200) -> Circle:
 
 
 def _angular_order(x: np.ndarray, y: np.ndarray, c) -> tuple[np.ndarray, np.ndarray, float]:
-    """Indices of the points in increasing angle about ``c``, those angles [rad] and the
-    largest gap between angularly consecutive points (the wrap-around gap included) [deg]."""
+    """Return the points' angular order about ``c``, their angles and the largest gap.
+
+    Return indices of the points in increasing angle about ``c``, those angles [rad] and the
+    largest gap between angularly consecutive points (the wrap-around gap included) [deg].
+    """
     th = np.arctan2(y - c[1], x - c[0])
     order = np.argsort(th, kind="stable")
     ths = th[order]
@@ -235,15 +239,18 @@ def largest_gap_deg(x_mm, y_mm, center_xy_mm=None) -> float:
 
 
 def _ls_center(x: np.ndarray, y: np.ndarray, shift: np.ndarray, ls_center_xy_mm) -> np.ndarray:
-    """The least-squares centre in the shifted frame (fitted unless the caller has it)."""
+    """Return the least-squares centre in the shifted frame (fitted unless the caller has it)."""
     if ls_center_xy_mm is None:
         return fit_circle_ls(x, y).center_xy_mm
     return np.asarray(ls_center_xy_mm, dtype=float) - shift
 
 
 def _check_closed(x, y, c, max_gap_deg: float, method: str) -> tuple[np.ndarray, np.ndarray]:
-    """Angular order about ``c`` (see :func:`_angular_order`), or CircleFitError when the
-    largest gap exceeds ``max_gap_deg``."""
+    """Return the angular order about ``c``, or raise when the profile is not closed.
+
+    Angular order about ``c`` (see :func:`_angular_order`), or CircleFitError when the
+    largest gap exceeds ``max_gap_deg``.
+    """
     order, ths, gap = _angular_order(x, y, c)
     if not gap <= max_gap_deg:
         raise CircleFitError(
@@ -255,9 +262,12 @@ def _check_closed(x, y, c, max_gap_deg: float, method: str) -> tuple[np.ndarray,
 
 @dataclass(frozen=True)
 class _ClosedProfile:
-    """Finite points shifted to their mean, the least-squares centre in that frame, the points'
+    """A closed profile prepared once for the reference circles.
+
+    Finite points shifted to their mean, the least-squares centre in that frame, the points'
     distances from it and their angular order about it (checked closed): what MZCI, MICI and MCCI
-    start from, prepared once for all three by :func:`reference_circles`."""
+    start from, prepared once for all three by :func:`reference_circles`.
+    """
 
     x: np.ndarray
     y: np.ndarray
@@ -305,7 +315,7 @@ def _first_outside(P: np.ndarray, lo: int, hi: int, c: np.ndarray, r: float, tol
 
 
 def _welzl(P: np.ndarray, tol: float) -> tuple[np.ndarray, float]:
-    """Iterative Welzl: smallest enclosing circle of points P (n, 2).
+    """Return iterative Welzl: smallest enclosing circle of points P (n, 2).
 
     The classic three nested loops over the points in order; each loop jumps to its next point
     outside the current circle by a vectorised scan (:func:`_first_outside`), so the Python work
@@ -360,10 +370,13 @@ MCCI_FARTHEST = 2048
 
 
 def _mcci(prof: _ClosedProfile, seed: int = 0) -> Circle:
-    """Welzl's circle of the profile's convex hull. A long profile's circle is first found from its
+    """Return Welzl's circle of the profile's convex hull.
+
+    Welzl's circle of the profile's convex hull. A long profile's circle is first found from its
     :data:`MCCI_FARTHEST` points farthest from the least-squares centre (8 times more while it
     leaves a point outside): a circle that is the smallest around a subset and encloses every point
-    is the smallest around them all (the hull of 120 000 points costs ~50 ms, a subset's ~1 ms)."""
+    is the smallest around them all (the hull of 120 000 points costs ~50 ms, a subset's ~1 ms).
+    """
     x, y, shift = prof.x, prof.y, prof.shift
     n = x.size
     scale = float(max(np.max(np.abs(x)), np.max(np.abs(y)))) or 1.0
@@ -407,7 +420,7 @@ def _slp(x, y, c0, max_iter: int = 100) -> tuple[np.ndarray, int]:
     f = objective(c)
     it = 0
     opts = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 (it, the iterations done, is returned)
         dx, dy = x - c[0], y - c[1]
         d = np.hypot(dx, dy)
         nx, ny = dx / d, dy / d
@@ -470,7 +483,8 @@ def _lp_step(nx: np.ndarray, ny: np.ndarray, b: np.ndarray, lim: float, opts: di
         active = np.union1d(active, add)
 
 
-def _polish(x, y, c, kind: str) -> np.ndarray:
+def _polish(  # noqa: C901 (the active-set Newton iteration with its exits)
+        x, y, c, kind: str) -> np.ndarray:
     """Solve the active-set equations exactly (Newton) from a vertex.
 
     MICI: three nearest points equidistant; with more than three (cocircular points, e.g. a
@@ -529,7 +543,9 @@ def _polish(x, y, c, kind: str) -> np.ndarray:
 
 
 def _local_max_vertices(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Voronoi vertices of the points ``P`` (n, 2) that can be local maxima of
+    """Return the Voronoi vertices that can be local maxima of the distance to the points.
+
+    Voronoi vertices of the points ``P`` (n, 2) that can be local maxima of
     f(c) = min_i |p_i - c|: circumcentres (m, 2) of the Delaunay triangles with no obtuse angle,
     and their circumradii (m,) (>= f there, = f up to rounding: the circle is empty).
 
@@ -557,8 +573,11 @@ def _local_max_vertices(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _circumcentres_non_obtuse(P: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Circumcentres (m, 2) and circumradii (m,) of the triangles ``P[tri]`` with no obtuse
-    angle (cos >= -1e-9 allowed for rounding), computed relative to a corner."""
+    """Return circumcentres and circumradii of the triangles with no obtuse angle.
+
+    Circumcentres (m, 2) and circumradii (m,) of the triangles ``P[tri]`` with no obtuse
+    angle (cos >= -1e-9 allowed for rounding), computed relative to a corner.
+    """
     a = P[tri[:, 0]]
     b = P[tri[:, 1]] - a
     c = P[tri[:, 2]] - a
@@ -580,10 +599,13 @@ def _circumcentres_non_obtuse(P: np.ndarray, tri: np.ndarray) -> tuple[np.ndarra
 
 
 def _best_empty_centre(cand: np.ndarray, bound: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The candidate centre (m, 2) with the largest f(c) = min_i |p_i - c|, f evaluated exactly
+    """Return the candidate centre with the largest empty circle.
+
+    Return the candidate centre (m, 2) with the largest f(c) = min_i |p_i - c|, f evaluated exactly
     (distances to all points; near a ring's centre every point is about as far, so a tree search
     would visit them all anyway), in order of decreasing upper bound ``bound`` >= f, stopping
-    once no remaining bound can beat the best f found."""
+    once no remaining bound can beat the best f found.
+    """
     order = np.argsort(-bound, kind="stable")
     slack = 1e-12 * float(np.max(np.abs(bound)))  # rounding of the bounds
     step = max(1, (1 << 22) // max(x.size, 1))
@@ -601,9 +623,12 @@ def _best_empty_centre(cand: np.ndarray, bound: np.ndarray, x: np.ndarray, y: np
 
 
 def _inside_star_polygon(q: np.ndarray, V: np.ndarray, th: np.ndarray, c) -> np.ndarray:
-    """Which points ``q`` (m, 2) lie strictly inside the polygon ``V`` (n, 2), whose vertices
+    """Return which points lie strictly inside a star-shaped polygon.
+
+    Which points ``q`` (m, 2) lie strictly inside the polygon ``V`` (n, 2), whose vertices
     are in increasing angle ``th`` [rad] about ``c`` with every gap < 180 deg (star-shaped
-    about c): q is inside when it lies on c's side of the edge spanning its own angle."""
+    about c): q is inside when it lies on c's side of the edge spanning its own angle.
+    """
     n = V.shape[0]
     phi = np.arctan2(q[:, 1] - c[1], q[:, 0] - c[0])
     k = np.searchsorted(th, phi, side="right") - 1  # -1: the wrap-around edge V[n-1] -> V[0]
@@ -613,8 +638,11 @@ def _inside_star_polygon(q: np.ndarray, V: np.ndarray, th: np.ndarray, c) -> np.
 
 
 def _bin_segments(ths: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
-    """The non-empty ones of ``bins`` equal angular bins over [-pi, pi) as runs of a profile's
-    angular order: start positions and lengths along ``ths`` (increasing angles [rad])."""
+    """Return the non-empty angular bins as runs of a profile's angular order.
+
+    Return the non-empty ones of ``bins`` equal angular bins over [-pi, pi) as runs of a profile's
+    angular order: start positions and lengths along ``ths`` (increasing angles [rad]).
+    """
     b = np.minimum(((ths + np.pi) / (2 * np.pi) * bins).astype(np.int64), bins - 1)  # non-decreasing
     starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
     return starts, np.diff(np.r_[starts, b.size])
@@ -625,7 +653,9 @@ MIC_BINS = 2048
 
 
 def _mic_centre(P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0, d0: np.ndarray) -> tuple[np.ndarray, int]:
-    """The centre of the largest empty circle centred in the profile polygon, and the number of
+    """Return the centre of the largest empty circle in the profile polygon.
+
+    Return the centre of the largest empty circle centred in the profile polygon, and the number of
     candidate vertices examined (:func:`max_inscribed_circle`), computed on a reduced point set
     with a certificate that the answer is the one of all points.
 
@@ -768,7 +798,9 @@ MZ_BINS = 2048
 
 
 def _mz_centre(prof: _ClosedProfile) -> tuple[np.ndarray, int]:
-    """The minimum zone centre of a profile by :func:`_slp`, run on a reduced point set with a
+    """Return the minimum zone centre of a profile.
+
+    Return the minimum zone centre of a profile by :func:`_slp`, run on a reduced point set with a
     certificate that the answer is the one of all points.
 
     S = the innermost and the outermost point about the LS centre in each of :data:`MZ_BINS`

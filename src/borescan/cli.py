@@ -28,7 +28,7 @@ _USER_ERRORS: tuple[type[BaseException], ...] = (
 
 
 def _module_names() -> list[str]:
-    """The command modules of :mod:`borescan.commands`, by name, without importing them."""
+    """Return the command modules of :mod:`borescan.commands`, by name, without importing them."""
     return sorted(i.name for i in pkgutil.iter_modules(commands.__path__) if not i.name.startswith("_"))
 
 
@@ -37,11 +37,15 @@ def _command_modules(names: list[str] | None = None) -> list:
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    """The ``borescan`` parser. With ``only`` (a command module's name) only that command is
-    imported and added, so a command never pays for what the others import."""
+    """Return the ``borescan`` parser.
+
+    Return the ``borescan`` parser. With ``only`` (a command module's name) only that command is
+    imported and added, so a command never pays for what the others import.
+    """
     parser = argparse.ArgumentParser(
         prog="borescan",
-        description="Bore scans from laser displacement sensors: simulate, import, validate, trace, query, status.",
+        description="Bore scans from laser displacement sensors: simulate, import, validate, trace, "
+                    "query, status.",
         epilog="Exit codes: 0 done; 1 the answer is no (problems found, unknown id, query failed); "
                "2 cannot run as asked (bad arguments, missing files).",
     )
@@ -55,8 +59,11 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 
 def _command_in(argv: list[str]) -> str | None:
-    """The module of the subcommand ``argv`` names (its first word that is not an option; module
-    names are command names with '_' for '-'), if there is one."""
+    """Return the module of the subcommand ``argv`` names, if any.
+
+    Return the module of the subcommand ``argv`` names (its first word that is not an option; module
+    names are command names with '_' for '-'), if there is one.
+    """
     first = next((a for a in argv if not a.startswith("-")), None)
     if first is None or first.replace("-", "_") not in _module_names():
         return None
@@ -81,6 +88,7 @@ def _silence_stdout() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the ``borescan`` command line with ``argv``; return the exit status."""
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(only=_command_in(argv))
     args = parser.parse_args(argv)

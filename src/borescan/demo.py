@@ -125,9 +125,12 @@ def _part_artifact(part_id: str, d_nom_mm: float) -> dict:
 
 
 def _rod_scene(rng: np.random.Generator, temp_c: float, d: dict | None = None, min_omega_deg: float = 0.0) -> RodScene:
-    """The rod in the two holes ``d`` (feature -> true diameter at 20 degC; default the part's). A
+    """Return the rod in the two holes ``d``.
+
+    Return the rod in the two holes ``d`` (feature -> true diameter at 20 degC; default the part's). A
     gauge calibration holds the rod visibly skew to the holes (``min_omega_deg``): with the rod
-    parallel to them the offsets of the layers are collinear and the radii undetermined (rod.py)."""
+    parallel to them the offsets of the layers are collinear and the radii undetermined (rod.py).
+    """
     d = d or ROD_PART["d_mm"]
     axis = RodAxis(dx_mm=float(rng.uniform(-1.5, 1.5)), dy_mm=float(rng.uniform(-1.5, 1.5)),
                    omega_rad=math.radians(float(rng.uniform(min_omega_deg, 0.2))),
@@ -152,7 +155,8 @@ def demo_scans(seed: int = DEMO_SEED) -> list[SimulatedScan]:
         thermal = [] if temp_c == 20.0 else [Effect("thermal_expansion", {"temperature_c": temp_c})]
         slot = iter(range(100))
 
-        def kw(name: str, kind: str) -> dict:
+        def kw(name: str, kind: str, tag: str = tag, night: str = night, slot=slot) -> dict:
+            """One scan's id, night, kind, seed and start (the night's values bound here)."""
             return {"scan_id": f"{tag}-{name}", "night": night, "kind": kind,
                     "seed": int(rng.integers(2**31)), "started_at": started_at_plus(night, 22, 6 * next(slot))}
 
@@ -213,9 +217,12 @@ def demo_scans(seed: int = DEMO_SEED) -> list[SimulatedScan]:
 
 
 def _loop_night(seed: int, i_night: int, night: str) -> list[SimulatedScan]:
-    """A loop night of TRI-01 (module docstring): calibration in RG-275 at 60 and 30 rpm with the
+    """Return a loop night of TRI-01 (module docstring).
+
+    Return a loop night of TRI-01 (module docstring): calibration in RG-275 at 60 and 30 rpm with the
     delay, then static verifications (RG-275; RG-280 too on the last night). Its own generator,
-    so the nights before stay as they were."""
+    so the nights before stay as they were.
+    """
     rng = np.random.default_rng([seed, i_night, 300])
     tag = "N" + night.replace("-", "")
     slot = iter(range(100))

@@ -53,15 +53,17 @@ class DeviceEffect:
 
     @property
     def estimated(self) -> bool:
+        """Whether the entry carries an estimate (an effect with values)."""
         return bool(self.effects)
 
     def values(self) -> dict[str, float]:
-        """The carried parameter values (the registry's names, without the channel)."""
+        """Return the carried parameter values (the registry's names, without the channel)."""
         if not self.effects:
             return {}
         return {k: float(v) for k, v in self.effects[0].params.items() if k not in ("channel", "k")}
 
     def to_dict(self) -> dict:
+        """Return the entry as JSON-ready data (:meth:`from_dict` reads it back)."""
         return {"key": self.key, "effect": self.key.split("@")[0], "estimated": self.estimated,
                 "values": self.values(), "u": {k: float(v) for k, v in self.u.items()}, "night": self.night,
                 "evidence_scans": list(self.evidence_scans), "effects": [e.to_dict() for e in self.effects],
@@ -69,17 +71,18 @@ class DeviceEffect:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "DeviceEffect":
+        """Return the entry written by :meth:`to_dict`."""
         return cls(d["key"], tuple(Effect.from_dict(e) for e in d.get("effects") or ()), dict(d.get("u") or {}),
                    d.get("night"), tuple(d.get("evidence_scans") or ()), d.get("source", "config"))
 
     def with_value(self, name: str, value: float) -> "DeviceEffect":
-        """The same entry with parameter ``name`` at ``value`` (every channel of an ``@all`` entry)."""
+        """Return the same entry with parameter ``name`` at ``value`` (every channel of an ``@all`` entry)."""
         return DeviceEffect(self.key, tuple(Effect(e.name, {**e.params, name: value}) for e in self.effects),
                             self.u, self.night, self.evidence_scans, self.source)
 
 
 def from_dicts(items: Iterable[Mapping] | None) -> list[DeviceEffect]:
-    """A calibration's recorded device model (``diagnostics["device_model"]``) as entries."""
+    """Return a calibration's recorded device model (``diagnostics["device_model"]``) as entries."""
     return [DeviceEffect.from_dict(d) for d in items or ()]
 
 
@@ -101,7 +104,7 @@ def _matches(row: Mapping, name: str, channel: str | None) -> bool:
 
 def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[Mapping], night: str,
                     channels: Sequence[int], auto: Sequence[str] = ()) -> list[DeviceEffect]:
-    """The device model of ``device_id`` as a calibration on ``night`` carries it.
+    """Return the device model of ``device_id`` as a calibration on ``night`` carries it.
 
     Parameters
     ----------
@@ -144,11 +147,14 @@ def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[M
 
 
 def auto_keys(device_id: str, pooled_rows: Iterable[Mapping], night: str, n_nights: int) -> list[str]:
-    """Device effects that enter a device model automatically on ``night``: named (not as part of the
+    """Return the device effects that enter a device model automatically on ``night``.
+
+    Device effects that enter a device model automatically on ``night``: named (not as part of the
     model) by the device's pooled examinations of each of its ``n_nights`` latest nights before
     ``night`` (same effect and channel; device-scope effects of the registry only). [] when
     ``n_nights`` is 0 (off) or the device has fewer pooled nights; an effect leaves as soon as one of
-    those nights does not name it."""
+    those nights does not name it.
+    """
     if n_nights <= 0:
         return []
     by_night: dict[str, set[str]] = {}
@@ -169,16 +175,19 @@ def auto_keys(device_id: str, pooled_rows: Iterable[Mapping], night: str, n_nigh
 
 
 def lookup(keys_of, pooled_rows: Iterable[Mapping], night: str, auto_nights: int = 0):
-    """(device id, channels) -> the device model a calibration on ``night`` carries
+    """Return the device model a calibration on ``night`` carries, per device.
+
+    (device id, channels) -> the device model a calibration on ``night`` carries
     (:func:`device_model_at`); ``keys_of(device id)`` gives the config's effects of the device, and
-    with ``auto_nights`` > 0 :func:`auto_keys` adds those named night after night."""
+    with ``auto_nights`` > 0 :func:`auto_keys` adds those named night after night.
+    """
     rows = list(pooled_rows)
     return lambda device_id, channels: device_model_at(device_id, keys_of(device_id), rows, night, channels,
                                                        auto_keys(device_id, rows, night, auto_nights))
 
 
 def carried_effects(model: Iterable[DeviceEffect]) -> list[Effect]:
-    """The effects of the device model with an estimate (every stage)."""
+    """Return the effects of the device model with an estimate (every stage)."""
     return [e for entry in model for e in entry.effects]
 
 
@@ -194,9 +203,12 @@ def correct(t_s, readings_mm, channels, model: Iterable[DeviceEffect], range_mm)
 
 def channel_time_offsets(model: Iterable[DeviceEffect], channels: Sequence[int], *,
                          zeros: bool = False) -> np.ndarray | None:
-    """Per channel tau (c,) [s] of the carried time-base effects: channel c's reading at stamp t is the
+    """Return the per-channel time offsets of the carried time-base effects.
+
+    Per channel tau (c,) [s] of the carried time-base effects: channel c's reading at stamp t is the
     geometry of time t - tau_c (``channel_delay``; the registry's forward t' = t - tau at t = 0).
-    None without any (a still scene ignores them: static poses need none), zeros when ``zeros``."""
+    None without any (a still scene ignores them: static poses need none), zeros when ``zeros``.
+    """
     tau = np.zeros(len(channels))
     for e in carried_effects(model):
         if e.spec.stage == "time_base":
@@ -205,7 +217,9 @@ def channel_time_offsets(model: Iterable[DeviceEffect], channels: Sequence[int],
 
 
 def derivatives(model: Sequence[DeviceEffect], f) -> dict[tuple[int, str], np.ndarray]:
-    """d f(model) / d(each carried parameter) by central differences, the parameter moved by
+    """Return d f(model) / d(each carried parameter) by central differences.
+
+    d f(model) / d(each carried parameter) by central differences, the parameter moved by
     +-``_STEP`` of its size or its u, whichever is larger.
 
     ``f`` maps a device model to an array or a number (corrected readings, channel time offsets, a
@@ -229,8 +243,11 @@ def derivatives(model: Sequence[DeviceEffect], f) -> dict[tuple[int, str], np.nd
 
 
 def gum_input(device_id: str, entry: DeviceEffect, name: str) -> Input:
-    """The GUM input of one carried parameter (normal, the pooled fit's standard uncertainty); the same
-    key (:func:`input_key`) in a calibration's budget and in a diameter's, so the two add."""
+    """Return the GUM input of one carried parameter.
+
+    Return the GUM input of one carried parameter (normal, the pooled fit's standard uncertainty); the same
+    key (:func:`input_key`) in a calibration's budget and in a diameter's, so the two add.
+    """
     return Input(input_key(device_id, entry, name), f"{entry.key} {name} (device model, readings corrected for it)",
                  name, EFFECTS[entry.key.split("@")[0]].params.get(name, "-"), entry.values()[name],
                  float(entry.u[name]), "normal",
@@ -239,11 +256,14 @@ def gum_input(device_id: str, entry: DeviceEffect, name: str) -> Input:
 
 
 def correct_inputs(inputs: list[dict], model) -> list[dict]:
-    """Per scan inputs of a calibration (``t_s``, ``readings``, ``channels``, ``range_mm``:
+    """Return a calibration's per-scan inputs with corrected readings.
+
+    Per scan inputs of a calibration (``t_s``, ``readings``, ``channels``, ``range_mm``:
     :func:`borescan.stages.calibration_fit.spindle_inputs`) with the readings corrected for the model's
     beam and reading effects (:func:`correct`; a channel delay is carried by the fit's angles); the
     recorded readings are kept as ``readings_recorded`` (the budget differentiates the correction
-    there, :func:`derivatives`). Unchanged without such effects."""
+    there, :func:`derivatives`). Unchanged without such effects.
+    """
     if not any(e.spec.stage in CORRECTABLE_STAGES for e in carried_effects(model)):
         return inputs
     return [dict(x, readings_recorded=x["readings"], readings=correct(x["t_s"], x["readings"], x["channels"], model,
@@ -251,8 +271,11 @@ def correct_inputs(inputs: list[dict], model) -> list[dict]:
 
 
 def carry(model: Sequence[DeviceEffect], device_id: str, inputs: list[dict], log=print) -> list[dict]:
-    """Say in the log what a calibration of ``device_id`` carries of its ``model`` and return its inputs
-    corrected for it (:func:`correct_inputs`)."""
+    """Log what a calibration carries of its device model; return corrected inputs.
+
+    Say in the log what a calibration of ``device_id`` carries of its ``model`` and return its inputs
+    corrected for it (:func:`correct_inputs`).
+    """
     for m in model:
         values = ", ".join(f"{k} = {v:.6g} +- {m.u.get(k, float('nan')):.2g}" for k, v in m.values().items())
         log(f"{device_id}: device model {m.key} ({m.source}) " + (f"carried at {values} (pooled examination of {m.night})"

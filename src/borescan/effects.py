@@ -186,7 +186,7 @@ class EffectSpec:
         return "k" in self.params
 
     def internal(self, params: Mapping[str, float]) -> dict[str, float]:
-        """The fit's values ``{fit name: value}`` of the spec's ``params`` (``to_internal``)."""
+        """Return the fit's values ``{fit name: value}`` of the spec's ``params`` (``to_internal``)."""
         if self.to_internal is not None:
             return self.to_internal(params)
         return {q.name: float(params[q.name]) for q in self.fit}
@@ -194,9 +194,12 @@ class EffectSpec:
     def spec_params(
         self, x: Mapping[str, float], u: Mapping[str, float] | None = None, k: int | None = None
     ) -> tuple[dict[str, Any], dict[str, float]]:
-        """The spec's parameters (and their standard uncertainties when ``u`` is given) of
+        """Return the spec's parameters of fitted values ``x``.
+
+        Return the spec's parameters (and their standard uncertainties when ``u`` is given) of
         fitted values ``x`` (``{fit name: value}``), clipped to the fit's bounds first;
-        ``channel`` is not included, ``k`` is for harmonic effects."""
+        ``channel`` is not included, ``k`` is for harmonic effects.
+        """
         x = {q.name: min(max(float(x[q.name]), q.lower), q.upper) for q in self.fit}
         if self.from_internal is not None:
             par, unc = self.from_internal(x, u, k)
@@ -208,7 +211,7 @@ class EffectSpec:
         return par, unc
 
     def absorbers(self, scan_kind: str) -> Mapping[str, str]:
-        """Base parameters that absorb the effect in scans of ``scan_kind`` (may be empty)."""
+        """Return base parameters that absorb the effect in scans of ``scan_kind`` (may be empty)."""
         return self.absorbed_by.get(scan_kind, {})
 
 
@@ -244,10 +247,12 @@ class Effect:
 
     @property
     def spec(self) -> EffectSpec:
+        """The effect's registry entry."""
         return EFFECTS[self.name]
 
     @property
     def channel(self) -> int | None:
+        """The channel the effect applies to, or None for all."""
         return self.params.get("channel")
 
     def to_dict(self) -> dict:
@@ -256,6 +261,7 @@ class Effect:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "Effect":
+        """Return the effect written by :meth:`to_dict`."""
         return cls(d["name"], dict(d["params"]))
 
     def __str__(self) -> str:
@@ -271,7 +277,11 @@ def _channel_delay(t_s: np.ndarray, p: Mapping) -> np.ndarray:
 
 
 def _speed_error(x_rad: np.ndarray, p: Mapping) -> np.ndarray:
-    """Spindle turns at (1 + eps) times the commanded profile: x' = (1 + eps) x, x = Phi(t) the commanded angle."""
+    """Turn the spindle at (1 + eps) times the commanded profile.
+
+    Spindle turns at (1 + eps) times the commanded profile: x' = (1 + eps) x, x = Phi(t) the commanded
+    angle.
+    """
     return np.asarray(x_rad, dtype=float) * (1.0 + p["eps"])
 
 
@@ -329,7 +339,7 @@ def _bore_lobing(bore: Bore, p: Mapping, cte_per_k: float = 0.0) -> Bore:
 
 
 def _beam_tilt_tri(v_mm: np.ndarray, p: Mapping) -> np.ndarray:
-    """Reading = in-plane distance / cos(gamma): v' = v / cos(gamma)."""
+    """Return reading = in-plane distance / cos(gamma): v' = v / cos(gamma)."""
     return np.asarray(v_mm, dtype=float) / math.cos(p["gamma_rad"])
 
 
@@ -354,7 +364,7 @@ def _sensor_gain(v_mm, t_s, p, range_mm):
 
 
 def nonlinearity_bow(v_mm: np.ndarray, range_mm: float) -> np.ndarray:
-    """The bow 4 u (1 - u), u = v / range_mm (1 at mid-range, 0 at both ends)."""
+    """Return the bow 4 u (1 - u), u = v / range_mm (1 at mid-range, 0 at both ends)."""
     u = np.asarray(v_mm, dtype=float) / range_mm
     return 4.0 * u * (1.0 - u)
 
@@ -383,7 +393,7 @@ def _quantization(v_mm, p, rng=None):
 
 
 def _outliers(v_mm, p, rng: np.random.Generator):
-    """A fraction ``rate`` of samples jumps by +-size (sign random, magnitude size * U(0.75, 1.25))."""
+    """Return a fraction ``rate`` of samples jumps by +-size (sign random, magnitude size * U(0.75, 1.25))."""
     v = np.array(v_mm, dtype=float, copy=True)
     hit = rng.random(v.shape) < p["rate"]
     sign = np.where(rng.random(v.shape) < 0.5, -1.0, 1.0)
@@ -418,9 +428,12 @@ def _u(u: Mapping | None, name: str) -> float:
 
 
 def _phase_type(amp: str, k_divides: bool = False):
-    """(to_internal, from_internal) of an amplitude ``amp`` and ``phase`` fitted as
+    """Return the conversions of an amplitude and phase fitted as A, B.
+
+    (to_internal, from_internal) of an amplitude ``amp`` and ``phase`` fitted as
     A = amp cos(k phase), B = amp sin(k phase) (k = 1 unless ``k_divides``: ``bore_lobing``
-    has cos(k (theta - phase)) = cos(k theta - k phase))."""
+    has cos(k (theta - phase)) = cos(k theta - k phase)).
+    """
 
     def to_internal(p: Mapping) -> dict:
         arg = (p["k"] if k_divides else 1) * p["phase"]
@@ -589,7 +602,11 @@ def calibration_absorbers(scan_kind: str) -> dict[str, str]:
 
 
 def get_effect(name: str) -> EffectSpec:
-    """The :class:`EffectSpec` of ``name``; unknown names raise ``ValueError`` listing the valid ones."""
+    """Return the :class:`EffectSpec` of ``name``.
+
+    Return the :class:`EffectSpec` of ``name``; unknown names raise ``ValueError`` listing the valid
+    ones.
+    """
     try:
         return EFFECTS[name]
     except KeyError:
@@ -609,10 +626,12 @@ def parse_effect(text: str) -> Effect:
 
 
 def effects_to_dicts(effects: Iterable[Effect]) -> list[dict]:
+    """Return the effects as JSON-ready data (:func:`effects_from_dicts` reads them back)."""
     return [e.to_dict() for e in effects]
 
 
 def effects_from_dicts(items: Iterable[Mapping]) -> list[Effect]:
+    """Return the effects written by :func:`effects_to_dicts`."""
     return [Effect.from_dict(d) for d in items]
 
 
@@ -705,8 +724,11 @@ _KEY = re.compile(r"^(?P<effect>[a-z_]+)(?:@(?P<channel>all|\d+))?(?:\[k=(?P<k>\
 _NIGHT = re.compile(r"\d{4}-\d{2}-\d{2}")
 
 
-def device_effect_key(key: str, channels: Sequence[int] | None = None, device: str = "") -> tuple[str, int | None]:
-    """(effect name, channel) of a device-model entry (a registry key as the findings write it:
+def device_effect_key(  # noqa: C901 (checks every part of a device-model key, each with its message)
+        key: str, channels: Sequence[int] | None = None, device: str = "") -> tuple[str, int | None]:
+    """Return (effect name, channel) of a device-model entry.
+
+    (effect name, channel) of a device-model entry (a registry key as the findings write it:
     ``channel_delay@2``, ``sensor_offset@all``, ``sensor_nonlinearity@1``); channel 0 for ``@all``,
     None for an effect that acts on every channel at once.
 
@@ -752,7 +774,9 @@ def device_effect_key(key: str, channels: Sequence[int] | None = None, device: s
 
 
 def device_model_effects(devices: dict | None, device_id: str, night: str | None = None) -> tuple[str, ...]:
-    """The device model of ``device_id`` on ``night`` from the config's ``devices`` section (its
+    """Return the device model of ``device_id`` on ``night`` from the config.
+
+    Return the device model of ``device_id`` on ``night`` from the config's ``devices`` section (its
     ``effects``), each entry checked by :func:`device_effect_key` (channels not checked here); ()
     when the device has none. Light on purpose: the workflow checks the section when it starts.
 

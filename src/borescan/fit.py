@@ -160,7 +160,7 @@ class FitResult:
 
 def fit_result(names: Sequence[str], x, residual, J, *, sigma: float | None = None, success: bool = True,
                message: str = "", nfev: int = 0, rtol: float | None = None, extra: dict | None = None) -> FitResult:
-    """The :class:`FitResult` at an optimum ``x`` with residual vector ``residual`` and Jacobian ``J``.
+    """Return the :class:`FitResult` at an optimum ``x`` with residual vector ``residual`` and Jacobian ``J``.
 
     ``sigma`` is the noise scale of the residuals (None: estimated as sqrt(RSS / (n - p)));
     ``rtol`` as in :func:`jacobian_summary`.

@@ -118,6 +118,7 @@ class Bore:
 
     @property
     def is_circle(self) -> bool:
+        """Whether the bore is a circle (no tilt, no lobes)."""
         return self.tilt_rad == 0.0 and not any(a != 0.0 for _, a, _ in self.lobes)
 
 
@@ -266,7 +267,7 @@ def ray_bore_distance(origin: np.ndarray, direction: np.ndarray, bore: Bore, *, 
 
 
 def tri_spindle_readings(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore) -> np.ndarray:
-    """Readings of a device turning on a spindle inside a bore (exact; the one implementation).
+    """Return readings of a device turning on a spindle inside a bore (exact; the one implementation).
 
     p_machine = S + Rot(phi) p_device; the reading is v = s - d_b with s > 0 the root of
     |S + Rot(phi)(F + s u) - C| = r_wall (spec, "Spindle scan"; Yang 2017 Eq. 8 at the extrema).
@@ -324,7 +325,7 @@ def tri_spindle_readings_channel_major(phi_rad: np.ndarray, spindle_xy_mm: np.nd
 
 
 def tri_static_readings(device_xy_mm: np.ndarray, device_angle_rad: np.ndarray, beams: Beams, bore: Bore) -> np.ndarray:
-    """Readings of a static device at position(s) ``device_xy_mm`` (…, 2) and angle(s) (…).
+    """Return readings of a static device at position(s) ``device_xy_mm`` (…, 2) and angle(s) (…).
 
     Returns ndarray (…, c) [mm].
     """
@@ -412,7 +413,7 @@ def rod_axis_rotation(axis: RodAxis) -> np.ndarray:
 
 
 def rod_readings(alpha_rad: np.ndarray, layers: list[RodLayer], holes: list[Hole], axis: RodAxis = RodAxis()) -> np.ndarray:
-    """Readings of the measuring rod at rotations ``alpha_rad`` (exact ray-cylinder).
+    """Return readings of the measuring rod at rotations ``alpha_rad`` (exact ray-cylinder).
 
     The beam of layer m starts at o = d n(a) + h z and travels along
     e = cos(gamma) u(a) + sin(gamma) z, a = alpha + phi (rod frame); it is moved into the

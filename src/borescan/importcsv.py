@@ -121,7 +121,7 @@ def _fail(path: Path, problem: str) -> CsvImportError:
 
 
 def _cells(df: pl.DataFrame, col: str, decimal: str = ".") -> pl.Series:
-    """Stripped strings with the null tokens as null; a decimal comma becomes a point."""
+    """Return stripped strings with the null tokens as null; a decimal comma becomes a point."""
     s = df[col].str.strip_chars()
     if decimal == ",":
         s = s.str.replace_all(",", ".", literal=True)
@@ -258,7 +258,8 @@ def utc_started_at(value: object, label: str) -> tuple[str, bool]:
     return text, text != value
 
 
-def read_vendor_csv(csv_path: Path, *, separator: str = ",", decimal: str = ".") -> VendorCsv:
+def read_vendor_csv(  # noqa: C901 (one branch per checked column and format rule of the vendor CSV)
+        csv_path: Path, *, separator: str = ",", decimal: str = ".") -> VendorCsv:
     """Parse a vendor CSV export (see module docstring for the accepted columns).
 
     Lines starting with ``#`` are comments. Row numbers in errors count data rows from 1.
@@ -362,7 +363,7 @@ def read_vendor_csv(csv_path: Path, *, separator: str = ",", decimal: str = ".")
 
 
 def _first_data_line(path: Path) -> str:
-    """The first line that is not a comment (for hints); '' when unreadable."""
+    """Return the first line that is not a comment (for hints); '' when unreadable."""
     try:
         with open(path, encoding="utf-8", errors="replace") as fh:
             return next((line for line in fh if not line.startswith("#")), "")
@@ -536,8 +537,11 @@ def import_csv(
 
 
 def _ingest_problems(meta: dict, lds: pl.DataFrame, spindle: pl.DataFrame | None, csv_label: str) -> list:
-    """What the pipeline's ingest would quarantine this scan for, from a staged copy (the one
-    validator reads a folder); files named after the CSV."""
+    """Return what the pipeline's ingest would quarantine this scan for.
+
+    Return what the pipeline's ingest would quarantine this scan for, from a staged copy (the one
+    validator reads a folder); files named after the CSV.
+    """
     with tempfile.TemporaryDirectory(prefix="borescan-import-") as tmp:
         root = Path(tmp)
         scan_dir = rawio.write_scan(root, meta, lds, spindle)

@@ -158,14 +158,18 @@ class AngleModel:
         return float((self.commanded_rad(self.knot_t_s[-1]) - self.commanded_rad(self.knot_t_s[0])) / span)
 
     def describe(self) -> str:
+        """Return a sentence saying where the angle comes from."""
         return {"encoder": "encoder angle interpolated at each reading (absolute frame)",
                 "profile": "integral of the rpm profile, phase and speed scale fitted",
                 "nominal": "rpm_nominal * t, phase and speed scale fitted"}[self.source]
 
 
 def _readonly_key(t) -> tuple | None:
-    """Identity of a read-only float array's values (memory, shape, strides), None otherwise:
-    evaluations on such an array (fits evaluate one set of times again and again) are cached."""
+    """Return the identity of a read-only float array's values, or None.
+
+    Identity of a read-only float array's values (memory, shape, strides), None otherwise:
+    evaluations on such an array (fits evaluate one set of times again and again) are cached.
+    """
     if not isinstance(t, np.ndarray) or t.dtype != np.float64 or t.flags.writeable:
         return None
     base = t
@@ -211,7 +215,7 @@ def angle_model_from_arrays(
     spindle_angle_rad: np.ndarray | None = None,
     spindle_rpm: np.ndarray | None = None,
 ) -> AngleModel:
-    """The :class:`AngleModel` of a scan, in the spec's order of preference.
+    """Return the :class:`AngleModel` of a scan, in the spec's order of preference.
 
     Parameters
     ----------
@@ -244,8 +248,11 @@ def angle_model_from_arrays(
 
 
 def angle_model_of_scan(meta: dict, spindle) -> AngleModel:
-    """:func:`angle_model_from_arrays` of one raw scan: ``scan.json`` (``meta``) and its spindle
-    stream (a polars frame with the raw format's columns, or None); nulls become NaN."""
+    """Return the angle model of one raw scan.
+
+    :func:`angle_model_from_arrays` of one raw scan: ``scan.json`` (``meta``) and its spindle
+    stream (a polars frame with the raw format's columns, or None); nulls become NaN.
+    """
     sp_meta = meta.get("spindle") or {}
     kw = {}
     if spindle is not None and spindle.height:

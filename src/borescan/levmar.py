@@ -58,11 +58,16 @@ class LMResult:
 
     @property
     def success(self) -> bool:
+        """Whether the iteration converged (a positive status)."""
         return self.status > 0
 
 
 def qr_of_stacked(J: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """The (n+1) x (n+1) triangular factor of [J f] (LAPACK ``geqrf``): R of J, Q^T f and |residual|."""
+    """Return the triangular factor of [J f].
+
+    Return the (n+1) x (n+1) triangular factor of [J f] (LAPACK ``geqrf``): R of J, Q^T f and
+    |residual|.
+    """
     m, n = J.shape
     A = np.empty((m, n + 1), order="F")
     A[:, :n] = J
@@ -93,8 +98,11 @@ def _qrsolv(R: np.ndarray, perm: np.ndarray, d: np.ndarray, qtb: np.ndarray):
 
 
 def _back_substitute(T: np.ndarray, b: np.ndarray, perm: np.ndarray) -> np.ndarray:
-    """x with x[perm] = T^-1 b for upper triangular T; from the first zero diagonal on, the
-    components are 0 (MINPACK's least-squares solution of a singular triangle)."""
+    """Return x with x[perm] = T^-1 b for upper triangular T.
+
+    x with x[perm] = T^-1 b for upper triangular T; from the first zero diagonal on, the
+    components are 0 (MINPACK's least-squares solution of a singular triangle).
+    """
     n = T.shape[1]
     zero = np.flatnonzero(np.diag(T) == 0.0)
     nsing = int(zero[0]) if zero.size else n
@@ -107,7 +115,7 @@ def _back_substitute(T: np.ndarray, b: np.ndarray, perm: np.ndarray) -> np.ndarr
 
 
 def _lmpar(R, perm, diag, qtb, delta, par):
-    """The Levenberg-Marquardt parameter and step for trust radius ``delta`` (``lmpar.f``)."""
+    """Return the Levenberg-Marquardt parameter and step for trust radius ``delta`` (``lmpar.f``)."""
     x = _back_substitute(R, qtb, perm)  # the Gauss-Newton step
     it = 0
     dx = diag * x
@@ -151,7 +159,7 @@ def _lmpar(R, perm, diag, qtb, delta, par):
         par = max(parl, par + parc)
 
 
-def levenberg_marquardt(
+def levenberg_marquardt(  # noqa: C901 (MINPACK lmder's iteration, kept step for step)
     fun: Callable[[np.ndarray], np.ndarray],
     x0: np.ndarray,
     jac: Callable[[np.ndarray], np.ndarray],

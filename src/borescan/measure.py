@@ -137,7 +137,7 @@ def static_diameter_jacobian(readings_mm, beams: Beams) -> tuple[np.ndarray, np.
 
 
 def static_diameter(readings_mm, beams: Beams, cov_beams=None, u_reading_mm=0.0) -> StaticDiameter:
-    """Static diameter from one or k sets of readings, with its standard uncertainty.
+    """Return static diameter from one or k sets of readings, with its standard uncertainty.
 
     D = 2 R, R the circumradius of the wall points (Yang 2017, Eq. 3 with Eqs. 4-7 in
     coordinate form; the least-squares circle for c > 3 channels). Uncertainty:
@@ -253,10 +253,13 @@ def measure_rotating(readings_mm, phi_rad, spindle_xy_mm, beams: Beams, *, max_u
 
 
 def _rotating_angle(scan, t_s: np.ndarray, v: np.ndarray, tau_s: np.ndarray | None = None) -> np.ndarray:
-    """Device angle at the readings (:mod:`borescan.kinematics`): the encoder angle, else the
+    """Return the device angle at the readings.
+
+    Device angle at the readings (:mod:`borescan.kinematics`): the encoder angle, else the
     commanded profile with its speed scale found from the readings (the phase of a closed
     profile does not change a circle's diameter or roundness). With per channel time offsets
-    ``tau_s`` (c,) (a carried ``channel_delay``) the angle of channel c at t - tau_c, (n, c)."""
+    ``tau_s`` (c,) (a carried ``channel_delay``) the angle of channel c at t - tau_c, (n, c).
+    """
     from .kinematics import angle_model_of_scan, estimate_speed_scale
 
     am = angle_model_of_scan(scan.meta, scan.spindle)
@@ -284,6 +287,7 @@ class DiameterModel:
     _circles: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __call__(self, beams: Beams, offsets_mm=None) -> float:
+        """Return the diameter [mm] with ``beams`` and readings moved by ``offsets_mm``."""
         v = self.readings_mm if offsets_mm is None else self.readings_mm + np.asarray(offsets_mm, float)
         if self.kind == "static":
             return float(np.mean(static_diameter(v, beams).diameter_mm))
@@ -294,9 +298,12 @@ class DiameterModel:
         return fit_circle_ls(P[:, 0], P[:, 1]).diameter_mm
 
     def ls_circle(self, beams: Beams, points_mm: np.ndarray | None = None, circle: Circle | None = None) -> Circle:
-        """The least-squares circle of a rotating scan's finite wall points with ``beams``, fitted once
+        """Return the least-squares circle of a rotating scan's wall points.
+
+        Return the least-squares circle of a rotating scan's finite wall points with ``beams``, fitted once
         per beams: ``points_mm`` (m, 2) those points when the caller has them; ``circle`` one the
-        caller has fitted to them (:func:`measure_rotating`'s LSCI), remembered as it is."""
+        caller has fitted to them (:func:`measure_rotating`'s LSCI), remembered as it is.
+        """
         key = (beams.channels, beams.beta_rad.tobytes(), beams.rho_mm.tobytes(), beams.d_b_mm.tobytes())
         if circle is not None:
             self._circles[key] = circle
@@ -315,7 +322,9 @@ def _with_params(beams: Beams, delta: np.ndarray) -> Beams:
 
 
 def _rotating_sensitivities(model: DiameterModel, beams: Beams) -> tuple[np.ndarray, np.ndarray]:
-    """dD/d(beta, rho, d_b) (3c,) and dD/d(constant reading error of channel c) (c,) of the LS
+    """Return the LS circle's diameter sensitivities of a rotating scan.
+
+    dD/d(beta, rho, d_b) (3c,) and dD/d(constant reading error of channel c) (c,) of the LS
     circle of a rotating scan.
 
     The circle (a, b, r) minimises sum_i (|P_i - c| - r)^2; moving the wall points by dP moves it
@@ -458,7 +467,8 @@ def measure_scan(scan, beams: Beams, cov_beams=None, device_model=(), cleaning=N
         dof = float("inf")  # the data sheet's repeatability, larger than the scatter (Type B)
     pooled = np.sqrt(np.sum((n_all[:, None] - 1) * sd_all**2, axis=0) / max(int(np.sum(n_all - 1)), 1))
     return {"diameter_mm": float(D.mean()), "u_diameter_mm": float(np.sqrt(u_cal**2 + var_mean)),
-            "method": f"static {'circumcircle' if len(beams.channels) == 3 else 'least-squares circle'}, mean of {k} poses",
+            "method": f"static {'circumcircle' if len(beams.channels) == 3 else 'least-squares circle'}, "
+                      f"mean of {k} poses",
             "poses": poses, "jac_params": np.mean(jps, axis=0), "jac_readings": np.mean(jvs, axis=0),
             "u_readings_mm": float(np.sqrt(var_mean)), "dof_readings": dof, "noise_mm": pooled,
             "model": DiameterModel("static", np.array(means))}
@@ -488,7 +498,7 @@ def pose_means(values_mm, pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def reading_u_mm(sensors: dict, channels) -> np.ndarray:
-    """Standard uncertainty of one reading per channel from the sensors' data sheet [mm].
+    """Return standard uncertainty of one reading per channel from the sensors' data sheet [mm].
 
     u = hypot(linearity_fs * range_mm / sqrt(3), repeatability_mm): the stated linearity is a
     rectangular +-a (GUM 4.3.7), the repeatability a standard deviation. Missing values count 0.
@@ -518,8 +528,11 @@ def mean_reading_u_mm(u_one_mm, counts) -> float | None:
 
 
 def sensor_ranges_mm(sensors: dict, channels) -> list[float]:
-    """Each channel's measuring range [mm] from scan.json ``sensors`` (channel -> entry); 10 mm where
-    a sensor does not state one."""
+    """Return each channel's measuring range [mm] from scan.json.
+
+    Each channel's measuring range [mm] from scan.json ``sensors`` (channel -> entry); 10 mm where
+    a sensor does not state one.
+    """
     return [float((sensors.get(int(ch)) or {}).get("range_mm") or 10.0) for ch in channels]
 
 
@@ -593,14 +606,16 @@ class DiameterUncertainty:
 
     @property
     def rows_20(self) -> list[dict]:
+        """Budget rows of the diameter at 20 degC."""
         return self.budget.rows(1)
 
     @property
     def rows_t(self) -> list[dict]:
+        """Budget rows of the diameter at the measuring temperature."""
         return self.budget.rows(0)
 
     def columns(self) -> dict:
-        """The extra ``diameters`` columns (tables.py) of this result."""
+        """Return the extra ``diameters`` columns (tables.py) of this result."""
         c20, ct = self.combined_20, self.combined_t
         return {
             "temperature_c": self.temperature.temperature_c,
@@ -624,8 +639,11 @@ class DiameterUncertainty:
 
 
 def _unit_polar(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distances and unit vectors (rr, n_x, n_y) of points ``d`` (2, m) from the origin: the first
-    step of :func:`_ls_radius_change` (the start circle's centre), kept per block of points."""
+    """Return distances and unit vectors of points ``d`` from the origin.
+
+    Distances and unit vectors (rr, n_x, n_y) of points ``d`` (2, m) from the origin: the first
+    step of :func:`_ls_radius_change` (the start circle's centre), kept per block of points.
+    """
     rr = np.hypot(d[0], d[1])
     return rr, d[0] / rr, d[1] / rr
 
@@ -669,7 +687,9 @@ def _ls_radius_change(d: np.ndarray, r0: float, max_iter: int = 50,
 
 
 def _rotating_diameter_changes(model: DiameterModel, beams: Beams, moves) -> list[float]:
-    """D(beams moved by dl) - D(beams) [mm] of a rotating scan, for moves ``(j, dl)`` of channel j's
+    """Return the diameter changes of a rotating scan for moved beams.
+
+    D(beams moved by dl) - D(beams) [mm] of a rotating scan, for moves ``(j, dl)`` of channel j's
     parameters (``dl`` (3c,) per channel (beta, rho, d_b), zero but for channel j).
 
     The scan's least-squares circle (c0, r0) is fitted once; for each move only channel j's wall
@@ -842,7 +862,8 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
                 if prof is not None and t.cov is not None:
                     var = _profile_variance(model, beams, prof, jp)
                     b.add(Term(t.input, cov=np.outer(both, both) * var,
-                               note="D's own spread along the rho profile's points beyond its linear part, not the "
+                               note="D's own spread along the rho profile's points beyond its linear "
+                                    "part, not the "
                                     "parameters' spread mapped linearly"))
                     continue
                 if ":mirror" in key and t.sensitivity is not None:
@@ -876,8 +897,11 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
 
 
 def calibration_budget_of(cal) -> Budget:
-    """The GUM budget a calibration carries (``diagnostics["budget"]``, written by the calibrate
-    stage); for a calibration without one, its covariance as a single term, said so in the source."""
+    """Return the GUM budget a calibration carries.
+
+    Return the GUM budget a calibration carries (``diagnostics["budget"]``, written by the calibrate
+    stage); for a calibration without one, its covariance as a single term, said so in the source.
+    """
     d = (cal.diagnostics or {}).get("budget")
     if d:
         return Budget.from_dict(d)
@@ -889,7 +913,9 @@ def calibration_budget_of(cal) -> Budget:
 
 
 def tri_diameter_with_budget(scan, cal, unc_cfg: dict, cleaning=None) -> tuple[dict, DiameterUncertainty]:
-    """Diameter of a three-sensor scan (:func:`measure_scan`) with its GUM budget
+    """Return the diameter of a three-sensor scan with its GUM budget.
+
+    Diameter of a three-sensor scan (:func:`measure_scan`) with its GUM budget
     (:func:`diameter_uncertainty`): the calibration's budget, the readings, the sensors, the
     scan's temperature (``uncertainty`` policy) and the artifact's expansion coefficient.
     ``cleaning``: the spike policy of :func:`measure_scan`.
@@ -958,8 +984,11 @@ def _with_mirror_mixture(scan_id: str, cal, res: dict, du: DiameterUncertainty) 
 
 
 def _device_model_inputs(scan, cal, dm, cleaning=None) -> list[tuple[Input, float]]:
-    """(input, dD/d parameter) of each carried device-model parameter through this scan's own readings
-    (:func:`borescan.device_model.derivatives` of :func:`measure_scan`'s diameter)."""
+    """Return the GUM inputs of the carried device-model parameters.
+
+    (input, dD/d parameter) of each carried device-model parameter through this scan's own readings
+    (:func:`borescan.device_model.derivatives` of :func:`measure_scan`'s diameter).
+    """
     d = device_model.derivatives(dm, lambda m: measure_scan(scan, cal.beams, None, m, cleaning)["diameter_mm"])
     return [(device_model.gum_input(cal.device_id, dm[i], name), float(v)) for (i, name), v in d.items()]
 
@@ -1059,7 +1088,11 @@ def verify(measured_mm, u_measured_mm, certified_diameter_mm, u_cert_mm, cte_per
 
 
 def part_feature(artifact: dict, feature: str | None) -> dict:
-    """The scan.json feature a diameter belongs to: ``{"nominal_diameter_mm", "tolerance_mm"}`` (None where unknown).
+    """Return the scan.json feature a diameter belongs to.
+
+    Return the scan.json feature a diameter belongs to: ``{"nominal_diameter_mm", "tolerance_mm"}`` (None
+    where
+    unknown).
 
     ``feature`` names one of ``artifact.features[].id``; a diameter without a feature (a three-sensor
     scan of one bore) belongs to the artifact's only feature, else to the artifact itself
@@ -1082,7 +1115,7 @@ def part_feature(artifact: dict, feature: str | None) -> dict:
 
 def part_conformity(diameter_20_mm: float, U_mm: float, nominal_mm: float | None, tolerance_mm: float | None,
                     rule: str = "simple_acceptance", guard_band_factor: float = 1.0) -> dict:
-    """A part's diameter against its nominal and tolerance: deviation at 20 degC and the verdict.
+    """Return a part's diameter against its nominal and tolerance: deviation at 20 degC and the verdict.
 
     deviation = D20 - nominal; the verdict is :func:`borescan.decision.decision` on (deviation, U,
     tolerance) by the laboratory's decision rule: its short text, which starts with "conforms",
@@ -1187,10 +1220,13 @@ def verification_row(scan_id, device_id, artifact_id, v: Verification) -> dict:
 
 def verification_for_certificate(scan, cal, unc_cfg: dict, lab_cfg: dict, tolerance_mm: float,
                                  cleaning=None) -> dict | None:
-    """A ring-gauge verification scan measured with ``cal`` and verified (:func:`verify_budget`),
+    """Return a verification scan measured with ``cal`` as a certificate row.
+
+    Return a ring-gauge verification scan measured with ``cal`` and verified (:func:`verify_budget`),
     as a row for the calibration's certificate: the ``verifications`` columns plus the budget rows
     (``budget``), the gauge's ``certificate`` and the scan's ``raw_files`` (name -> SHA-256).
-    None when the scan's artifact is not a certified ring gauge. ``cleaning``: the spike policy."""
+    None when the scan's artifact is not a certified ring gauge. ``cleaning``: the spike policy.
+    """
     art = scan.meta.get("artifact") or {}
     if art.get("type") != "ring_gauge" or art.get("certified_diameter_mm") is None:
         return None

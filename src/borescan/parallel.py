@@ -40,16 +40,22 @@ JOB_MALLOC_ENVIRONMENT = {"MALLOC_MMAP_THRESHOLD_": str(32 << 20), "MALLOC_TRIM_
 
 
 def set_job_environment(environ=os.environ) -> dict[str, str]:
-    """Put :data:`JOB_MALLOC_ENVIRONMENT` into ``environ`` (this process's environment, which the
-    jobs it starts inherit), keeping any value already set; returns the values in effect."""
+    """Put the job malloc settings into ``environ``; return the values in effect.
+
+    Put :data:`JOB_MALLOC_ENVIRONMENT` into ``environ`` (this process's environment, which the
+    jobs it starts inherit), keeping any value already set; returns the values in effect.
+    """
     for k, v in JOB_MALLOC_ENVIRONMENT.items():
         environ.setdefault(k, v)
     return {k: environ[k] for k in JOB_MALLOC_ENVIRONMENT}
 
 
 def workers_for(n_items: int, workers: int) -> int:
-    """Processes :func:`map_in_order` uses for ``n_items`` items with ``workers`` allowed (in a job
-    whose workers :func:`start_job_workers` started, one item is enough for a worker)."""
+    """Return the processes :func:`map_in_order` uses.
+
+    Return the processes :func:`map_in_order` uses for ``n_items`` items with ``workers`` allowed (in a job
+    whose workers :func:`start_job_workers` started, one item is enough for a worker).
+    """
     per_worker = 1 if _JOB_POOL else MIN_ITEMS_PER_WORKER
     return max(1, min(int(workers), n_items // per_worker))
 
@@ -106,9 +112,12 @@ AHEAD_PER_WORKER = 1
 
 
 def _map_with_caller(fn, items: list, pool: ProcessPoolExecutor, n_spawned: int) -> Iterator:
-    """:func:`map_in_order` on ``n_spawned`` workers of ``pool`` and the calling process: the
+    """Map in order on spawned workers and the calling process.
+
+    :func:`map_in_order` on ``n_spawned`` workers of ``pool`` and the calling process: the
     workers are kept busy, the caller takes the next item whenever it is free, and results are
-    yielded in input order as soon as they are complete from the first item on."""
+    yielded in input order as soon as they are complete from the first item on.
+    """
     results: dict[int, Any] = {}
     running: dict[Future, int] = {}
     nxt = first = 0

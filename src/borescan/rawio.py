@@ -213,7 +213,7 @@ class LdsMatrix:
     pose: np.ndarray
 
     def channel(self, ch: int) -> np.ndarray:
-        """Readings [mm] of channel ``ch`` (1-based)."""
+        """Return readings [mm] of channel ``ch`` (1-based)."""
         return self.values_mm[:, self.channels.index(ch)]
 
 
@@ -228,7 +228,7 @@ def sha256_file(path: Path) -> str:
 
 
 def combined_sha256(file_hashes: dict[str, str]) -> str:
-    """One digest for a scan: SHA-256 over the sorted ``"name:sha256\\n"`` lines of its raw files."""
+    r"""One digest for a scan: SHA-256 over the sorted ``"name:sha256\n"`` lines of its raw files."""
     lines = "".join(f"{name}:{digest}\n" for name, digest in sorted(file_hashes.items()))
     return hashlib.sha256(lines.encode()).hexdigest()
 
@@ -362,7 +362,8 @@ def _type_ok(x: Any, want: str) -> bool:
     raise AssertionError(want)  # pragma: no cover
 
 
-def _check_meta(meta: Any, p: _Problems, file: str) -> None:
+def _check_meta(  # noqa: C901 (one branch per checked field of scan.json)
+        meta: Any, p: _Problems, file: str) -> None:
     """Append every ``scan.json`` problem of ``meta`` to ``p`` (no folder checks)."""
     if not isinstance(meta, dict):
         p.add(file, f"top level must be a JSON object, not {_jtype(meta)}")
@@ -485,9 +486,12 @@ _NUMPY_DTYPE = {pa.int8(): np.int8, pa.int16(): np.int16, pa.int32(): np.int32, 
 
 
 def _arrow_numpy(arr: pa.Array, fill=None) -> np.ndarray:
-    """One Arrow array as numpy: a view of its value buffer (a copy with ``fill`` where null, in the
+    """Return one Arrow array as numpy.
+
+    One Arrow array as numpy: a view of its value buffer (a copy with ``fill`` where null, in the
     array's dtype) for the types of :data:`_NUMPY_DTYPE`; any other type, or nulls without ``fill``, by
-    pyarrow's conversion."""
+    pyarrow's conversion.
+    """
     dtype = _NUMPY_DTYPE.get(arr.type)
     n = len(arr)
     if dtype is None or (arr.null_count and fill is None):
@@ -548,9 +552,12 @@ def _range_of(sensor: dict) -> float | None:
 
 
 def _aligned_chunks(table: pa.Table, names: tuple[str, ...]) -> list[tuple[np.ndarray, ...]]:
-    """Numpy arrays of the columns ``names``, chunk by chunk: zero-copy views of the chunks as read
+    """Return numpy arrays of the columns ``names``, chunk by chunk.
+
+    Numpy arrays of the columns ``names``, chunk by chunk: zero-copy views of the chunks as read
     (nulls of a float column as NaN, which costs a copy of that chunk), or one combined chunk per
-    column when the columns are chunked differently."""
+    column when the columns are chunked differently.
+    """
     cols = [table.column(k) for k in names]
     lengths = [[len(ch) for ch in c.chunks] for c in cols]
     if any(ln != lengths[0] for ln in lengths[1:]):
@@ -589,9 +596,12 @@ def _lds_fast_check(table: pa.Table, meta: dict | None, has_spindle: bool, file:
 
 
 def _matrix_warnings(mat: LdsMatrix, nulls: int, listed: dict[int, dict], file: str) -> list[str] | None:
-    """Range warnings of a table in the usual layout from its wide matrix (NaN = null); None when
+    """Return the range warnings of a usual-layout table, or None.
+
+    Range warnings of a table in the usual layout from its wide matrix (NaN = null); None when
     something might be a problem: a negative first sample or time, NaN or infinite readings, a
-    listed channel without valid readings."""
+    listed channel without valid readings.
+    """
     if mat.sample[0] < 0 or mat.t_s[0] < 0:
         return None
     vals = mat.values_mm.reshape(-1)
@@ -609,8 +619,11 @@ def _matrix_warnings(mat: LdsMatrix, nulls: int, listed: dict[int, dict], file: 
 
 
 def _range_warnings(lo: float, hi: float, listed: dict[int, dict], file: str, count_out) -> list[str]:
-    """Warnings for readings outside [0, range] per listed channel, counted (``count_out(j, range)``
-    for the j-th channel ascending) only when the extreme readings ``lo``, ``hi`` leave [0, range]."""
+    """Return warnings for readings outside [0, range] per listed channel.
+
+    Warnings for readings outside [0, range] per listed channel, counted (``count_out(j, range)``
+    for the j-th channel ascending) only when the extreme readings ``lo``, ``hi`` leave [0, range].
+    """
     chans = sorted(listed)
     ranges = [_range_of(listed[ch]) for ch in chans]
     limit = min((r for r in ranges if r is not None), default=np.inf)
@@ -624,8 +637,11 @@ def _range_warnings(lo: float, hi: float, listed: dict[int, dict], file: str, co
 
 
 def _pose_ok(table: pa.Table, meta: dict | None, has_spindle: bool) -> bool:
-    """The pose checks of :func:`_check_lds_full` pass (rod: every pose set, >= 0, one per sample;
-    tri_lds with a spindle stream: no pose)."""
+    """Return whether the pose checks of :func:`_check_lds_full` pass.
+
+    Return the pose checks of :func:`_check_lds_full` pass (rod: every pose set, >= 0, one per sample;
+    tri_lds with a spindle stream: no pose).
+    """
     pcol = table.column("pose")
     dtype = _device_type(meta)
     if dtype == "rod":
@@ -637,11 +653,15 @@ def _pose_ok(table: pa.Table, meta: dict | None, has_spindle: bool) -> bool:
     return not (dtype == "tri_lds" and has_spindle and pcol.null_count != table.num_rows)
 
 
-def _lds_chunk_warnings(table: pa.Table, listed: dict[int, dict] | None, file: str) -> list[str] | None:
-    """Ordering, finiteness, channel and range checks of any table without nulls where they are not
+def _lds_chunk_warnings(  # noqa: C901 (one branch per checked rule of the raw format)
+        table: pa.Table, listed: dict[int, dict] | None, file: str) -> list[str] | None:
+    """Return the checks' warnings on the Arrow chunks as read, or None.
+
+    Ordering, finiteness, channel and range checks of any table without nulls where they are not
     allowed, on the Arrow chunks as they were read (no concatenation): sorting is tested by
     comparing neighbours (no int64 differences), readings per channel by one comparison per listed
-    channel. Returns the range warnings, None when something might be a problem."""
+    channel. Returns the range warnings, None when something might be a problem.
+    """
     n = table.num_rows
     chunks = _aligned_chunks(table, ("sample", "t_ns", "sensor", "value_mm"))
     chans = sorted(listed) if listed is not None else []
@@ -659,7 +679,8 @@ def _lds_chunk_warnings(table: pa.Table, listed: dict[int, dict] | None, file: s
         if not (same | (sample[1:] > sample[:-1])).all():
             return None  # decreasing sample
         if not np.where(same, (sensor[1:] > sensor[:-1]) & (t_ns[1:] == t_ns[:-1]), t_ns[1:] > t_ns[:-1]).all():
-            return None  # unsorted or duplicate (sample, sensor), t_ns differing within a sample or not increasing
+            # unsorted or duplicate (sample, sensor), t_ns differing within a sample or not increasing
+            return None
         prev = (sample[-1], t_ns[-1], sensor[-1])
         finite = np.isfinite(value)
         k_fin = int(np.count_nonzero(finite))
@@ -688,13 +709,16 @@ def _lds_chunk_warnings(table: pa.Table, listed: dict[int, dict] | None, file: s
 def _check_lds(
     table: pa.Table, meta: dict | None, has_spindle: bool, p: _Problems, file: str
 ) -> tuple[list[str], LdsMatrix | None]:
-    """Check the data of an ``lds.parquet`` table with the right schema; return (warnings, the wide
-    matrix when the fast check built it on the way, else None)."""
+    """Check the data of an ``lds.parquet`` table with the right schema.
+
+    Check the data of an ``lds.parquet`` table with the right schema; return (warnings, the wide
+    matrix when the fast check built it on the way, else None).
+    """
     fast = _lds_fast_check(table, meta, has_spindle, file)
     return fast if fast is not None else (_check_lds_full(table, meta, has_spindle, p, file), None)
 
 
-def _check_lds_full(
+def _check_lds_full(  # noqa: C901 (one branch per checked rule of the raw format)
     table: pa.Table, meta: dict | None, has_spindle: bool, p: _Problems, file: str
 ) -> list[str]:
     """Every check of :func:`_check_lds` with its message (the path for tables with problems)."""
@@ -1020,7 +1044,7 @@ def _meta_folder_checks(meta: dict, sid: str | None, night: str | None, p: _Prob
         p.add(SCAN_JSON, f"night {mnight!r:.40} differs from the folder name night={night}")
 
 
-def _inspect(
+def _inspect(  # noqa: C901 (one branch per raw file and problem of a scan folder)
     scan_dir: Path, raw_root: Path | None = None, meta_only: bool = False
 ) -> tuple[RawScan | dict | None, list[ScanError]]:
     scan_dir = Path(scan_dir)
@@ -1105,8 +1129,11 @@ def read_scan(scan_dir: Path, raw_root: Path | None = None) -> RawScan:
 
 
 def inspect_scan(scan_dir: Path, raw_root: Path | None = None) -> tuple[RawScan | None, list[ScanError]]:
-    """Read and validate one scan folder like :func:`read_scan`, returning every problem instead of
-    raising the first: ``(scan, [])`` when valid, ``(None, problems)`` otherwise."""
+    """Read and validate one scan folder, returning every problem.
+
+    Read and validate one scan folder like :func:`read_scan`, returning every problem instead of
+    raising the first: ``(scan, [])`` when valid, ``(None, problems)`` otherwise.
+    """
     return _inspect(scan_dir, raw_root)
 
 
@@ -1164,7 +1191,10 @@ def discover_scans(raw_root: Path) -> list[Path]:
 
 
 def nights(raw_root: str | Path) -> list[str]:
-    """Nights (``YYYY-MM-DD``) with a ``night=<date>`` folder under ``raw_root``, sorted; [] when it does not exist.
+    """Return the nights with a ``night=<date>`` folder under ``raw_root``.
+
+    Nights (``YYYY-MM-DD``) with a ``night=<date>`` folder under ``raw_root``, sorted; [] when it does not
+    exist.
 
     The unit of work of the pipeline: each stage runs once per night. Folders whose name is not
     ``night=`` + a calendar date (``night=2026-02-30`` is not one) are never processed
@@ -1178,7 +1208,11 @@ def nights(raw_root: str | Path) -> list[str]:
 
 
 def night_scan_dirs(raw_root: str | Path, night: str) -> list[Path]:
-    """Scan folders ``scan=<scan_id>`` (non-empty id) of one night, sorted by folder name; listed, not validated."""
+    """Return the scan folders of one night, sorted.
+
+    Scan folders ``scan=<scan_id>`` (non-empty id) of one night, sorted by folder name; listed, not
+    validated.
+    """
     night_dir = Path(raw_root) / f"night={night}"
     return sorted(p for p in _listing(night_dir) if p.name.startswith("scan=") and len(p.name) > 5 and _is_dir(p))
 
@@ -1363,7 +1397,7 @@ def _same_content(a: Path, b: Path) -> bool:
     return fa == fb and all(sha256_file(a / n) == sha256_file(b / n) for n in fa)
 
 
-def write_scan(
+def write_scan(  # noqa: C901 (checks, staging and atomic rename of a scan's raw files)
     raw_root: Path, meta: dict, lds: pl.DataFrame, spindle: pl.DataFrame | None = None
 ) -> Path:
     """Write one scan as ``<raw_root>/night=<night>/scan=<scan_id>/`` (atomic, write-once).
@@ -1474,8 +1508,11 @@ def _residue_column(views: list[np.ndarray], k: int, c: int, n: int, dtype) -> n
 
 
 def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
-    """Float column of a long table, c rows per sample -> (n, c) (row r -> [r // c, r % c], i.e. the
-    flat index r of a C-ordered array: one copy of the value buffers); nulls NaN."""
+    """Return a float column of a long table as an (n, c) matrix.
+
+    Float column of a long table, c rows per sample -> (n, c) (row r -> [r // c, r % c], i.e. the
+    flat index r of a C-ordered array: one copy of the value buffers); nulls NaN.
+    """
     out = np.empty(n * c)
     r0 = 0
     for ch in col.chunks:
@@ -1487,8 +1524,11 @@ def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
     return out.reshape(n, c)
 
 
-def _regular_matrix(tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
-    """The wide matrix of an ``lds`` Arrow table in the usual layout, straight from its chunks; None
+def _regular_matrix(  # noqa: C901 (one exit per layout that is not the usual one)
+        tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
+    """Return the wide matrix of an ``lds`` table in the usual layout, or None.
+
+    Return the wide matrix of an ``lds`` Arrow table in the usual layout, straight from its chunks; None
     when the layout does not apply.
 
     The usual layout: every sample has one row per listed channel (``listed`` ascending) in channel
@@ -1510,7 +1550,7 @@ def _regular_matrix(tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
     if not ((s0[1:] > s0[:-1]).all() and (t0[1:] > t0[:-1]).all()):
         return None
     for k in range(c):
-        for v, g in _residue_views(sensor, k, c):
+        for v, _ in _residue_views(sensor, k, c):
             if not (v == listed[k]).all():
                 return None
         if k:

@@ -49,7 +49,7 @@ class CleaningPolicy:
 
 
 def cleaning_policy(signal_cfg: dict) -> CleaningPolicy:
-    """The policy of the config's ``signal`` section (schema defaults filled by the caller)."""
+    """Return the policy of the config's ``signal`` section (schema defaults filled by the caller)."""
     return CleaningPolicy(float(signal_cfg["spike_threshold_mad"]), int(signal_cfg["spike_window_samples"]))
 
 
@@ -113,9 +113,12 @@ def clean_matrix(mat: rawio.LdsMatrix, policy: CleaningPolicy, *, spindle: bool)
 
 
 def prepared_matrix(scan: rawio.RawScan, policy: CleaningPolicy | None = None) -> rawio.LdsMatrix:
-    """The reading matrix of ``scan`` (:func:`borescan.rawio.lds_matrix`) cleaned by ``policy``
+    """Return the reading matrix of ``scan`` cleaned by ``policy``.
+
+    Return the reading matrix of ``scan`` (:func:`borescan.rawio.lds_matrix`) cleaned by ``policy``
     (the schema's defaults when None): a scan with a spindle stream by the spindle rule, any
-    other by the static rule."""
+    other by the static rule.
+    """
     spindle = scan.spindle is not None and scan.spindle.height > 1
     policy = policy or cleaning_policy(schema_defaults()["signal"])
     return clean_matrix(rawio.lds_matrix(scan), policy, spindle=spindle)[0]

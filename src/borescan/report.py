@@ -150,7 +150,7 @@ RUN_RULES = {
 
 
 def run_rules(values: np.ndarray | list[float], centre: float, sigma: float) -> dict[int, np.ndarray]:
-    """The points of a series that break Western Electric run rules 1, 2 and 4.
+    """Return the points of a series that break Western Electric run rules 1, 2 and 4.
 
     Parameters
     ----------
@@ -210,11 +210,14 @@ QUARANTINE_ACTIONS = (
     ("no calibration", ("no calibration",),
      "Calibrate the device (a calibration scan on or before the night), then rerun the night."),
     ("too few revolutions or poses", ("too few", "revolutions", "poses"),
-     "Rescan with more whole revolutions (or poses), the spindle at the gauge centre, under a new scan id."),
+     "Rescan with more whole revolutions (or poses), the spindle at the gauge centre, under a new "
+     "scan id."),
     ("scan metadata", ("needs a ring_gauge",),
-     "Correct scan.json (kind, artifact, certificate) in a new scan id and rerun; never edit the raw folder in place."),
+     "Correct scan.json (kind, artifact, certificate) in a new scan id and rerun; never edit the "
+     "raw folder in place."),
     ("processing error", ("stage failed", "measurement failed", "examination failed", "calibration failed"),
-     "Read the stage's log under logs/ and quarantine/<scan>.json; if borescan validate passes on the scan, "
+     "Read the stage's log under logs/ and quarantine/<scan>.json; if borescan validate passes on "
+     "the scan, "
      "report it with the record."),
 )
 #: A reason that matches no class: the raw file itself is broken.
@@ -241,7 +244,7 @@ _SMALLER = {"mm": ("µm", 1e3), "s": ("ms", 1e3), "rad": ("mrad", 1e3), "mm/s": 
 
 
 def format_quantity(value: float | None, u: float | None = None, unit: str = "") -> str:
-    """A value with its uncertainty for people: ``1.200 ± 0.030 ms``.
+    """Return a value with its uncertainty for people: ``1.200 ± 0.030 ms``.
 
     The uncertainty is rounded to two significant digits and the value to the same decimal
     place (GUM 7.2.6); without an uncertainty the value keeps four significant digits. Values
@@ -347,8 +350,11 @@ _LABEL_BOX = {"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha"
 
 
 def _night_ticks(ax, nights: list, ids: list, most: int = MAX_TICK_LABELS) -> None:
-    """Label points 0..n-1 by night: every point as "night / scan" when there are at most ``most``,
-    else at most ``most`` nights (the first point of every k-th night), a minor tick per night."""
+    """Return the axis ticks that label points by night.
+
+    Label points 0..n-1 by night: every point as "night / scan" when there are at most ``most``,
+    else at most ``most`` nights (the first point of every k-th night), a minor tick per night.
+    """
     n = len(nights)
     if n <= most:
         _xticks(ax, [f"{'' if d is None else d}\n{i}" for d, i in zip(nights, ids, strict=True)], most)
@@ -362,7 +368,8 @@ def _night_ticks(ax, nights: list, ids: list, most: int = MAX_TICK_LABELS) -> No
         ax.set_xticks(firsts, minor=True)
 
 
-def plot_control_chart(ver: pl.DataFrame, device_id: str, artifact_id: str | None = None) -> Figure:
+def plot_control_chart(  # noqa: C901 (one branch per optional element of the chart)
+        ver: pl.DataFrame, device_id: str, artifact_id: str | None = None) -> Figure:
     """Individuals and moving-range chart of one device's verification errors on one ring gauge.
 
     ``ver`` has the ``verifications`` columns (``night``, ``scan_id``, ``error_mm``, ``passed``,
@@ -489,7 +496,7 @@ def device_model_history(pooled: pl.DataFrame | None, cal: pl.DataFrame | None, 
 
 
 def _text_of(entry: dict) -> str:
-    """A carried device-model entry's values in plain words: ``tau_s = 1.19 ± 0.02 ms``."""
+    """Return a carried device-model entry's values in plain words: ``tau_s = 1.19 ± 0.02 ms``."""
     return html.unescape(_parameters_text(entry["key"].split("@")[0], json.dumps(entry.get("values") or {}),
                                           entry.get("u") or {}))
 
@@ -502,7 +509,9 @@ def _wrap_carried(entry: str) -> str:
 
 
 def plot_device_model_gap(hist: pl.DataFrame, device_id: str) -> Figure:
-    """The gaps of one device over its nights (:func:`device_model_history`), the nights from which
+    """Plot the gaps of one device over its nights.
+
+    Return the gaps of one device over its nights (:func:`device_model_history`), the nights from which
     its calibrations carried other effects marked by a dashed line and what they carried there (a
     new estimate of the same effects is no change of the model).
 
@@ -622,7 +631,7 @@ def _png_bytes(fig: Figure) -> bytes:
 
 
 def load_tables(results_root: str | os.PathLike) -> dict[str, pl.DataFrame]:
-    """The catalog tables (and the ``suspect_measurements`` view when present) as polars frames."""
+    """Return the catalog tables (and the ``suspect_measurements`` view when present) as polars frames."""
     con = catalog.open_catalog(results_root, read_only=True)
     try:
         out = {}
@@ -645,10 +654,12 @@ def load_tables(results_root: str | os.PathLike) -> dict[str, pl.DataFrame]:
 # --------------------------------------------------------------------------- HTML
 
 CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:0;color:#222;background:#fafafa}
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;
+     margin:0;color:#222;background:#fafafa}
 header{background:#1f3b57;color:#fff;padding:14px 24px}
 header h1{margin:0;font-size:22px} header p{margin:4px 0 0;font-size:13px;opacity:.85}
-nav{position:sticky;top:0;background:#e9eef3;padding:8px 24px;border-bottom:1px solid #ccd;font-size:14px;z-index:2}
+nav{position:sticky;top:0;background:#e9eef3;padding:8px 24px;border-bottom:1px solid #ccd;
+    font-size:14px;z-index:2}
 nav a{margin-right:16px;color:#1f3b57;text-decoration:none;font-weight:600}
 main{padding:0 24px 40px;max-width:1300px}
 section{margin-top:28px} h2{border-bottom:2px solid #1f3b57;padding-bottom:4px} h3{margin-bottom:6px}
@@ -688,14 +699,14 @@ def _num(v: Any, digits: int = 6) -> str:
 
 
 def _um(v_mm: Any, decimals: int = 1) -> str:
-    """A length in mm shown in µm with ``decimals`` decimals ("" when missing)."""
+    """Return a length in mm shown in µm with ``decimals`` decimals ("" when missing)."""
     if v_mm is None or not np.isfinite(float(v_mm)):
         return ""
     return f"{float(v_mm) * 1e3:.{decimals}f}"
 
 
 def _temperature(t_c: Any, assumed: Any) -> str:
-    """A temperature cell; an assumed one says so ("20 (assumed)")."""
+    """Return a temperature cell; an assumed one says so ("20 (assumed)")."""
     if assumed:
         base = "20" if t_c is None else _num(t_c, 4)
         return f'<span class="warn" title="no temperature recorded: 20 °C assumed">{base} (assumed)</span>'
@@ -710,7 +721,7 @@ def _link(href: str | None, text: str) -> str:
 
 def _table(headers: list[str], rows: list[list[str]], row_classes: list[str] | None = None,
            num_cols: set[int] | None = None) -> str:
-    """An HTML table; cells are already-escaped HTML."""
+    """Return an HTML table; cells are already-escaped HTML."""
     num_cols = num_cols or set()
     out = ["<table><thead><tr>", *(f"<th>{_e(h)}</th>" for h in headers), "</tr></thead><tbody>"]
     for i, r in enumerate(rows):
@@ -722,14 +733,14 @@ def _table(headers: list[str], rows: list[list[str]], row_classes: list[str] | N
 
 
 def _img(href: str, png: bytes, alt: str) -> str:
-    """A PNG embedded as a base64 ``data:`` image (the page stands alone), linked to its file."""
+    """Return a PNG embedded as a base64 ``data:`` image (the page stands alone), linked to its file."""
     data = base64.b64encode(png).decode("ascii")
     return (f'<a class="plot" href="{html.escape(href, quote=True)}">'
             f'<img src="data:image/png;base64,{data}" alt="{_e(alt)}"></a>')
 
 
 def _rel(results_root: Path, path: str | None) -> str | None:
-    """A relative link to ``path`` (relative to results_root, or absolute inside it) if it exists."""
+    """Return a relative link to ``path`` (relative to results_root, or absolute inside it) if it exists."""
     if not path:
         return None
     if not os.path.isabs(path) and ".." not in path and "\\" not in path:  # the usual case, without pathlib
@@ -753,7 +764,11 @@ def _safe(name: str) -> str:
 
 @functools.lru_cache(maxsize=1)
 def _code_fingerprint() -> str:
-    """This module's source and the plotting libraries: a change re-renders every page and plot."""
+    """Return the digest of this module's source and the plotting libraries.
+
+    Return the digest of this module's source and the plotting libraries (a change re-renders every
+    page).
+    """
     import matplotlib
 
     h = hashlib.sha256(Path(__file__).read_bytes())
@@ -848,7 +863,7 @@ def month_fingerprints(con) -> dict[str, str]:
 
 
 def _month_tables(con, month: str) -> dict[str, pl.DataFrame]:
-    """The rows of one month, per table, in page order (verifications with their scan's start)."""
+    """Return the rows of one month, per table, in page order (verifications with their scan's start)."""
     out = {}
     srcs = _sources(con)
     for name, sql in srcs.items():
@@ -864,7 +879,7 @@ def _month_tables(con, month: str) -> dict[str, pl.DataFrame]:
 
 
 def _totals(con) -> dict[str, Any]:
-    """Counts over the whole history for the page header."""
+    """Return counts over the whole history for the page header."""
     first, last, n_scans, n_q = con.execute(
         "SELECT min(night)::VARCHAR, max(night)::VARCHAR, count(*), count(*) FILTER (status = 'quarantined') "
         "FROM scans").fetchone()
@@ -877,7 +892,7 @@ def _totals(con) -> dict[str, Any]:
 
 
 def _counts(t: dict[str, pl.DataFrame]) -> dict[str, Any]:
-    """The header's counts over one page's rows."""
+    """Return the header's counts over one page's rows."""
     sc = t["scans"]
     nights = sorted({str(n) for n in sc["night"].drop_nulls().to_list()})
     return {"first": nights[0] if nights else None, "last": nights[-1] if nights else None, "scans": sc.height,
@@ -889,12 +904,13 @@ def _counts(t: dict[str, pl.DataFrame]) -> dict[str, Any]:
 def _month_summary(con) -> list[tuple[str, int, int, int]]:
     """(month, nights, scans, quarantined) of every month with scans."""
     return con.execute(
-        f"SELECT {_month_sql()} AS m, count(DISTINCT night), count(*), count(*) FILTER (status = 'quarantined') "
+        f"SELECT {_month_sql()} AS m, count(DISTINCT night), count(*), count(*) FILTER (status = "
+        "'quarantined') "
         "FROM scans GROUP BY m ORDER BY m").fetchall()
 
 
 def _memory_catalog(tables: dict[str, pl.DataFrame]):
-    """An in-memory DuckDB with the given frames as catalog tables (missing ones empty, typed)."""
+    """Return an in-memory DuckDB with the given frames as catalog tables (missing ones empty, typed)."""
     con = duckdb.connect()
     con.execute("SET TimeZone = 'UTC'")
     for name, cols in catalog.SCHEMA.items():
@@ -940,7 +956,7 @@ class _PlotCache:
         self.drawn = 0
 
     def get(self, fname: str, key: str, draw) -> bytes:
-        """The PNG ``fname``: drawn when its key changed or the file is gone, else read back."""
+        """Return the PNG ``fname``: drawn when its key changed or the file is gone, else read back."""
         if self.old.get(fname) != key or not (self.folder / fname).is_file():
             png = _png_bytes(draw())
             atomic_write_bytes(self.folder / fname, png)
@@ -1000,8 +1016,11 @@ class _Builder:
         return None if rel is None else self.up + rel
 
     def figure(self, plot, data: pl.DataFrame, key: str, name: str, alt: str, *args) -> str:
-        """``plot(data, key, *args)`` as ``<month>/<name>.png``, drawn only when its input changed;
-        embedded in the page as a ``data:`` image that links to the PNG file."""
+        """Draw ``plot(data, key, *args)`` as ``<month>/<name>.png`` when its input changed.
+
+        ``plot(data, key, *args)`` as ``<month>/<name>.png``, drawn only when its input changed;
+        embedded in the page as a ``data:`` image that links to the PNG file.
+        """
         fname = _safe(name) + ".png"
         fp = hashlib.sha256(f"{self.code} {plot.__name__} {key} {args} {frame_fingerprint(data)}".encode()
                             ).hexdigest()[:16]
@@ -1114,10 +1133,13 @@ class _Builder:
         return "".join(out)
 
     def parts(self) -> pl.DataFrame:
-        """The month's diameter rows with ``nominal_mm`` (the row's ``nominal_diameter_mm``, else the
+        """Return the month's diameter rows with nominal, tolerance and verdict.
+
+        Return the month's diameter rows with ``nominal_mm`` (the row's ``nominal_diameter_mm``, else the
         part's from ``artifacts``), ``tolerance_mm`` (the row's, when the measure stage records one),
         ``deviation_mm`` (at 20 °C where known, else as measured, minus the nominal) and
-        ``in_tolerance`` (|deviation| <= tolerance; null without a tolerance)."""
+        ``in_tolerance`` (|deviation| <= tolerance; null without a tolerance).
+        """
         dia = self.t["diameters"]
         cols = set(dia.columns)
         nominal = [pl.col(c).cast(pl.Float64) for c in ("nominal_diameter_mm", "artifact_nominal_mm") if c in cols]
@@ -1155,8 +1177,10 @@ class _Builder:
         if dia.height == 0:
             return _EMPTY["diameters"]
         dia = self.parts().with_columns(pl.col("artifact_id").fill_null("?"))
-        out = ['<p class="note">Diameters as measured at the temperature T and brought to 20 °C (ISO 1); U is the '
-               "expanded uncertainty of the diameter at 20 °C with its coverage factor k and coverage probability "
+        out = ['<p class="note">Diameters as measured at the temperature T and brought to 20 °C (ISO 1); '
+               'U is the '
+               "expanded uncertainty of the diameter at 20 °C with its coverage factor k and coverage "
+               "probability "
                "(U = 2u, k = 2 where the catalog has no budget). \"(assumed)\": no temperature was recorded, "
                "20 °C assumed. Deviation = diameter at 20 °C − nominal; the verdict needs a part tolerance.</p>"]
         if dia["nominal_mm"].drop_nulls().len() == 0:
@@ -1188,7 +1212,8 @@ class _Builder:
         fnd = self.t["findings"]
         if fnd.height == 0:
             return _EMPTY["discrepancy"]
-        out = ['<p class="note">Parameters: value ± u (standard uncertainty, k=1) in the effect\'s unit; gaps: rms '
+        out = ['<p class="note">Parameters: value ± u (standard uncertainty, k=1) in the effect\'s unit; '
+               'gaps: rms '
                "of the residual before and after adding the named effect, against the readings' noise floor. "
                "<b>missing_effect</b>: the model misses the named effect (service the device if it persists); "
                "<b>ambiguous</b>: several named effects explain the data equally well, all listed; "
@@ -1220,18 +1245,25 @@ class _Builder:
                            "gap after [µm rms]", "noise floor [µm]", "plots"], rows, classes, num_cols={4, 5, 6}))
         return "".join(out)
 
-    def pooled(self) -> str:
-        """Per device and night: the spindle scans examined together (borescan.discrepancy.pooled), the
+    def pooled(  # noqa: C901 (one branch per optional column of the report's pooled table)
+            self) -> str:
+        """Return the pooled examinations per device and night.
+
+        Per device and night: the spindle scans examined together (borescan.discrepancy.pooled), the
         device model's effects, what the night's calibration carried of it with its residual against the
-        noise floor, the gap against the noise floor, and the calibration drifts flagged."""
+        noise floor, the gap against the noise floor, and the calibration drifts flagged.
+        """
         pf = self.t.get("pooled_findings")
         dr = self.t.get("calibration_drift")
         if (pf is None or pf.height == 0) and (dr is None or dr.height == 0):
             return _EMPTY["pooled"]
         out = ['<p class="note">Each device\'s spindle scans of the night examined together: an effect one scan '
-               "cannot separate (a delay at two speeds, an offset at two eccentricities) is named with the scans "
-               "that carry it; effects of the device model (config <code>devices:</code>) are fitted with the base. "
-               "Gap: rms residual before and after the named effects, against the noise floor. Parameters: value "
+               "cannot separate (a delay at two speeds, an offset at two eccentricities) is named with "
+               "the scans "
+               "that carry it; effects of the device model (config <code>devices:</code>) are fitted with "
+               "the base. "
+               "Gap: rms residual before and after the named effects, against the noise floor. "
+               "Parameters: value "
                "± u (k=1).</p>"]
         if pf is not None and pf.height:
             rows, classes = [], []
@@ -1287,8 +1319,11 @@ class _Builder:
         return "".join(out)
 
     def _finding_uncertainties(self, scan_id: str, recs: list[dict] = ()) -> dict[tuple, dict[str, float]]:
-        """(effect, channel) -> {parameter: u}: the findings table's ``uncertainties`` column, else
-        ``discrepancy/<scan>/findings.json`` (catalogs written before the column existed)."""
+        """Return the findings' uncertainties per (effect, channel).
+
+        (effect, channel) -> {parameter: u}: the findings table's ``uncertainties`` column, else
+        ``discrepancy/<scan>/findings.json`` (catalogs written before the column existed).
+        """
         out = {(r.get("effect"), r.get("channel")): u for r in recs if (u := _uncertainties(r.get("uncertainties")))}
         if out:
             return out
@@ -1326,8 +1361,11 @@ class _Builder:
         return "".join(out)
 
     def quarantined(self) -> list[dict[str, Any]]:
-        """Every quarantined scan of the page (``scans`` status or ``quarantine`` rows): scan_id,
-        night, device_id, kind, stages, reasons, class and action, in night and scan order."""
+        """Return every quarantined scan of the page.
+
+        Every quarantined scan of the page (``scans`` status or ``quarantine`` rows): scan_id,
+        night, device_id, kind, stages, reasons, class and action, in night and scan order.
+        """
         sc = self.t["scans"].filter(pl.col("status") == "quarantined")
         q = self.t["quarantine"]
         scan_row = {(r["scan_id"], str(r["night"])): r for r in sc.iter_rows(named=True)}
@@ -1480,8 +1518,11 @@ class _Builder:
 
 
 def _uncertainties(u: Any) -> dict[str, float]:
-    """A finding's uncertainties (a dict, or its JSON text) as {parameter: u}: ``u_`` prefixes dropped,
-    non-numbers left out; {} for nothing readable."""
+    """Return a finding's uncertainties as {parameter: u}.
+
+    Return a finding's uncertainties (a dict, or its JSON text) as {parameter: u}: ``u_`` prefixes dropped,
+    non-numbers left out; {} for nothing readable.
+    """
     if isinstance(u, str):
         try:
             u = json.loads(u)
@@ -1517,9 +1558,12 @@ def _rho_sign_notes(cal: pl.DataFrame) -> str:
 
 
 def _calibration_models(cal: pl.DataFrame | None) -> dict[tuple[str, str], tuple[list[dict], float | None]]:
-    """(device, night) -> (the device-model entries the night's calibration carried, from its
+    """Return what each night's calibration carried per device.
+
+    (device, night) -> (the device-model entries the night's calibration carried, from its
     calibration_json diagnostics; its worst residual over the noise floor, None if not stated).
-    Of several calibrations of a device in a night, one that carried a device model."""
+    Of several calibrations of a device in a night, one that carried a device model.
+    """
     out: dict[tuple[str, str], tuple[list[dict], float | None]] = {}
     if cal is None or cal.height == 0 or "calibration_json" not in cal.columns:
         return out
@@ -1538,9 +1582,12 @@ def _calibration_models(cal: pl.DataFrame | None) -> dict[tuple[str, str], tuple
 
 
 def _carried_by_calibrations(cal: pl.DataFrame | None) -> dict[tuple[str, str], str]:
-    """(device, night) -> what the night's calibration carried of its device model (each entry with
+    """Return what each night's calibration carried and its residual.
+
+    (device, night) -> what the night's calibration carried of its device model (each entry with
     value ± u and the night it came from, or "not estimated") and its residual against the readings'
-    noise floor: when an effect entered the model and what it did to the calibration's gap (HTML)."""
+    noise floor: when an effect entered the model and what it did to the calibration's gap (HTML).
+    """
     out: dict[tuple[str, str], str] = {}
     for key, (model, ratio) in _calibration_models(cal).items():
         if not model:
@@ -1559,7 +1606,11 @@ def _carried_by_calibrations(cal: pl.DataFrame | None) -> dict[tuple[str, str], 
 
 
 def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -> str:
-    """A finding's parameters (JSON text of the findings table) in words: ``tau_s = 1.200 ± 0.030 ms``."""
+    """Return a finding's parameters in words.
+
+    Return a finding's parameters (JSON text of the findings table) in words:
+    ``tau_s = 1.200 ± 0.030 ms``.
+    """
     if not parameters:
         return ""
     try:
@@ -1582,7 +1633,7 @@ def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -
 
 
 def _unit_of(name: str) -> str:
-    """The unit a parameter's name ends in (``_mm``, ``_s``, ``_rad``, ``_hz``), "-" otherwise."""
+    """Return the unit a parameter's name ends in (``_mm``, ``_s``, ``_rad``, ``_hz``), "-" otherwise."""
     for suffix, unit in (("_mm_per_s", "mm/s"), ("_mm", "mm"), ("_s", "s"), ("_rad", "rad"), ("_hz", "Hz"),
                          ("_c", "degC")):
         if name.endswith(suffix):
@@ -1591,7 +1642,7 @@ def _unit_of(name: str) -> str:
 
 
 def _verdict_note(verdict: str, effects: list[str]) -> str:
-    """What a verdict means for the person reading it (HTML)."""
+    """Return what a verdict means for the person reading it (HTML)."""
     if verdict == "ambiguous":
         names = ", ".join(dict.fromkeys(effects))
         hints = sorted({EFFECTS[e].separated_by for e in effects if e in EFFECTS and EFFECTS[e].separated_by})
@@ -1648,7 +1699,7 @@ _UP, _PLOTS = "@@UP@@", "@@PLOTS@@"
 
 
 def _month_sections(root: Path, month: str, tables: dict[str, pl.DataFrame], cache: _PlotCache) -> dict[str, Any]:
-    """A month's header counts and section bodies, with the link placeholders."""
+    """Return a month's header counts and section bodies, with the link placeholders."""
     b = _Builder(root, tables, cache, up=_UP, plots=_PLOTS)
     return {"counts": _counts(tables), "sections": {sid: getattr(b, sid)() for sid, _title in MONTH_SECTIONS}}
 
@@ -1698,7 +1749,8 @@ def update_report(results_root: str | os.PathLike, tables: dict[str, pl.DataFram
         con.close()
 
 
-def _update(root: Path, con, full: bool) -> ReportUpdate:
+def _update(  # noqa: C901 (one branch per page, month and section of the report)
+        root: Path, con, full: bool) -> ReportUpdate:
     report_dir = root / REPORT_DIR
     report_dir.mkdir(parents=True, exist_ok=True)
     for stray in report_dir.iterdir():  # plots of the single-page layout, month folders of gone months
@@ -1760,7 +1812,8 @@ def _update(root: Path, con, full: bool) -> ReportUpdate:
                    if rows else '<p class="empty">No nights in the catalog.</p>') + "</section>")
     nav = "".join(f'<a href="#{sid}">{title}</a>' for sid, title in SECTIONS) + '<a href="#months">Months</a>'
     footer = ('<p class="note">History: <code>borescan sql "SELECT * FROM scans"</code> or '
-              "<code>duckdb -readonly catalog.duckdb</code>; chain behind any number: <code>borescan trace ID</code>.</p>")
+              "<code>duckdb -readonly catalog.duckdb</code>; chain behind any number: <code>borescan trace "
+              "ID</code>.</p>")
     page = atomic_write_text(root / "report.html", _page("borescan report", _header(totals), nav, "".join(body), footer))
     return ReportUpdate(page, tuple(prints), tuple(rendered), drawn)
 

@@ -135,10 +135,12 @@ class RodSolution:
 
     @property
     def diameter_mm(self) -> np.ndarray:
+        """Diameters [mm] of the holes."""
         return 2.0 * self.radius_mm
 
     @property
     def u_diameter_mm(self) -> np.ndarray:
+        """Standard uncertainties [mm] of the diameters."""
         return 2.0 * self.u_radius_mm
 
 
@@ -149,7 +151,7 @@ def _unpack(p, m, n, fix):
 
 
 def rod_residuals(p, L, mask, fix=0):
-    """Residuals e_nm (Wang Eq. 16) of the observed entries, parameter order [r, x, y, alpha\\fix].
+    r"""Residuals e_nm (Wang Eq. 16) of the observed entries, parameter order [r, x, y, alpha\fix].
 
     L : (n, m) l = l0 + v [mm] (any value where ``mask`` is False).
     """
@@ -205,7 +207,7 @@ def _ellipse_angles(Q: np.ndarray) -> np.ndarray | None:
 
 
 def rod_start(L: np.ndarray, mask: np.ndarray, fix: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Start values [r, x, y, alpha\\fix] from the rank-2 structure of the readings (module doc).
+    r"""Start values [r, x, y, alpha\fix] from the rank-2 structure of the readings (module doc).
 
     Returns
     -------
@@ -227,9 +229,12 @@ def rod_start(L: np.ndarray, mask: np.ndarray, fix: int = 0) -> tuple[np.ndarray
 
 
 def _prepare(readings_mm, l0_mm, n_extra: int = 0):
-    """l = l0 + v, the observation mask and the poses kept (those with >= 2 readings: a pose
+    """Return l = l0 + v, the observation mask and the poses kept.
+
+    l = l0 + v, the observation mask and the poses kept (those with >= 2 readings: a pose
     seen by one layer only determines its own angle and nothing else, so it is dropped).
-    ``n_extra`` unknowns beyond Wang's 3m + n - 1 (2 for the deflection)."""
+    ``n_extra`` unknowns beyond Wang's 3m + n - 1 (2 for the deflection).
+    """
     v = np.asarray(readings_mm, dtype=float)
     if v.ndim != 2:
         raise RodSolveError(f"readings must be (poses, holes), got shape {v.shape}")
@@ -265,7 +270,8 @@ def _prepare(readings_mm, l0_mm, n_extra: int = 0):
 def _k(s):
     """Mean-radius factor of the tilted section, s = omega^2 [rad^2]: (1 + 1/cos omega) / 2 to O(s^2).
 
-    Analytic in s, so a negative s (the debiased estimate of a small omega^2) is allowed."""
+    Analytic in s, so a negative s (the debiased estimate of a small omega^2) is allowed.
+    """
     return 1.0 + s / 4.0 + 5.0 * s * s / 48.0
 
 
@@ -274,8 +280,11 @@ def _dk(s):
 
 
 def rod_layers(l0_mm=None, layers: Sequence[RodLayer] | None = None, m: int | None = None) -> tuple[RodLayer, ...]:
-    """Layer geometry for the solve: ``layers`` (device nominal or a rod calibration), their l0
-    replaced by ``l0_mm`` when both are given; l0 alone gives phi = d = gamma = 0 (Wang Eq. 16)."""
+    """Return the layer geometry for the solve.
+
+    Layer geometry for the solve: ``layers`` (device nominal or a rod calibration), their l0
+    replaced by ``l0_mm`` when both are given; l0 alone gives phi = d = gamma = 0 (Wang Eq. 16).
+    """
     if layers is None:
         if l0_mm is None:
             raise ValueError("rod_layers needs l0_mm or layers")
@@ -289,7 +298,7 @@ def rod_layers(l0_mm=None, layers: Sequence[RodLayer] | None = None, m: int | No
 
 
 class _RodProblem:
-    """Exact forward model in the solver's unknowns p = [rho (m), cx (m), cy (m), alpha\\fix (n-1), w (2)].
+    r"""Exact forward model in the solver's unknowns p = [rho (m), cx (m), cy (m), alpha\fix (n-1), w (2)].
 
     rho_m = r_m k(omega^2) is the mean radius of section m; w the deflection vector (omitted when
     ``deflection`` is False). Readings from :func:`borescan.geometry.rod_readings` only.
@@ -326,9 +335,12 @@ class _RodProblem:
         return e[self.mask]
 
     def jac(self, p, beta_step=None):
-        """d(model)/dp by central differences in blocks (a pose angle moves its row only, a hole's
+        """Return d(model)/dp by central differences in blocks.
+
+        d(model)/dp by central differences in blocks (a pose angle moves its row only, a hole's
         unknowns its column only: 12 model evaluations). With ``beta_step`` the last two columns
-        are secants in beta = w^2 (complex square) instead: the statistics' coordinates."""
+        are secants in beta = w^2 (complex square) instead: the statistics' coordinates.
+        """
         rho, c, alpha, w = self.unpack(p)
         n, m = self.n, self.m
         J = np.zeros((n, m, self.n_par))
@@ -414,11 +426,13 @@ def _deflected_radii(rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD
     "free": the readings are linear in beta near 0, so the likelihood of beta (the other unknowns
     profiled) is N(beta_hat, Sigma_beta) and, given beta, rho_m(beta) = rho_hat_m - K_m (beta_hat - beta)
     (K = Sigma_rho,beta Sigma_beta^-1) with variance Sigma_rho|beta. r is averaged over the posterior
-    of w under the prior omega ~ U(0, ``max_deflection_rad``) (widened when the data demand), azimuth uniform (importance sampling
+    of w under the prior omega ~ U(0, ``max_deflection_rad``) (widened when the data demand), azimuth uniform
+    (importance sampling
     from a fixed-seed mixture of the prior and the likelihood): r_m = E[rho_m(beta) / k(|beta|)],
     u^2 = Var[rho_m(beta) / k] + Sigma_rho|beta / k^2, s = E[omega^2], u(s) its posterior SD.
     The direction of a deflection that the data barely see is averaged over instead of fixed at
-    its noisy estimate. "mle": s = |beta_hat|, u by the delta method along beta_hat."""
+    its noisy estimate. "mle": s = |beta_hat|, u by the delta method along beta_hat.
+    """
     idx = np.r_[np.arange(m), cov.shape[0] - 2, cov.shape[0] - 1]
     C = cov[np.ix_(idx, idx)]
     Sb = C[-2:, -2:]
@@ -473,10 +487,13 @@ _POSE_GRID = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 
 
 def _repair_poses(prob, p, max_rounds: int = 3):
-    """Per-pose angle profile: with the holes and the axis held, each pose angle is searched on a
+    """Repair the pose angles by a per-pose profile.
+
+    Per-pose angle profile: with the holes and the axis held, each pose angle is searched on a
     grid over the whole circle; a pose whose grid minimum is clearly below its current cost is
     moved there and the joint LM re-run. A single pose angle can sit in a local minimum of its
-    own (its readings are periodic in alpha_n) which LM cannot leave; this finds it."""
+    own (its readings are periodic in alpha_n) which LM cannot leave; this finds it.
+    """
     cost = float(prob.residual(p) @ prob.residual(p))
     nfev = 0
     for _ in range(max_rounds):
@@ -507,11 +524,14 @@ def _repair_poses(prob, p, max_rounds: int = 3):
     return p, cost, nfev
 
 
-def _solve_core(prob, L, mask, starts_alpha, deflection):
-    """Multi-start LM: every start (both reflections) first without deflection, then from the
+def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and repairs)
+        prob, L, mask, starts_alpha, deflection):
+    """Run the multi-start LM of the rod solve.
+
+    Multi-start LM: every start (both reflections) first without deflection, then from the
     closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0); the
-    lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`)."""
-    n, m = prob.n, prob.m
+    lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`).
+    """
     best, nfev = None, 0
     flat = _RodProblem(prob.V, mask, prob.layers, prob.fix, False)
     for alpha0 in starts_alpha:
@@ -558,7 +578,7 @@ def _solve_core(prob, L, mask, starts_alpha, deflection):
     return p, cost, nfev
 
 
-def solve_rod(
+def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     readings_mm,
     l0_mm=None,
     *,
@@ -572,7 +592,7 @@ def solve_rod(
     max_deflection_rad: float = MAX_DEFLECTION_RAD,
     centred: str = "refuse",
 ) -> RodSolution:
-    """Solve the exact rod model (spec "Measuring rod"; Wang 2017 Eq. 16 generalised) jointly.
+    r"""Solve the exact rod model (spec "Measuring rod"; Wang 2017 Eq. 16 generalised) jointly.
 
     Parameters
     ----------
@@ -599,7 +619,7 @@ def solve_rod(
 
     Returns
     -------
-    RodSolution (covariance sigma^2 (J^T J)^-1 in [rho, cx, cy, alpha\\fix, beta]; u(diameter) = 2 u(r))
+    RodSolution (covariance sigma^2 (J^T J)^-1 in [rho, cx, cy, alpha\fix, beta]; u(diameter) = 2 u(r))
 
     Raises
     ------
@@ -677,8 +697,10 @@ def solve_rod(
     ratio = u_fixed / ref
     if np.any(ratio > max_u_ratio):
         raise RodSolveError(
-            f"degenerate geometry: radii ill-determined, u(r) = {np.array2string(u_fixed, precision=4)} mm is up to "
-            f"{ratio.max():.0f} x sigma/sqrt(n) (condition {cond:.3g}); the offsets (x_m, y_m) are nearly collinear "
+            f"degenerate geometry: radii ill-determined, u(r) = {np.array2string(u_fixed, precision=4)} "
+            "mm is up to "
+            f"{ratio.max():.0f} x sigma/sqrt(n) (condition {cond:.3g}); the offsets (x_m, y_m) are "
+            "nearly collinear "
             "with the axis (rod parallel to, or intersecting, the holes' axis) or the poses are bunched"
         )
     b = _beta(w)
@@ -695,8 +717,10 @@ def solve_rod(
             dratio = float(np.nanmax(u_lin / u_fixed))
         if dratio > max_deflection_ratio:
             raise RodSolveError(
-                f"deflection not separable from the radii: freeing the rod axis deflection multiplies u(r) by "
-                f"{dratio:.1f} (> {max_deflection_ratio:g}); the poses do not span the second harmonic of the "
+                "deflection not separable from the radii: freeing the rod axis deflection multiplies "
+                "u(r) by "
+                f"{dratio:.1f} (> {max_deflection_ratio:g}); the poses do not span the second harmonic "
+                "of the "
                 f"tilted section (u(omega^2) = {u_s:.3g} rad^2) - add poses spread around the circle"
             )
     else:
@@ -732,8 +756,11 @@ def _expand(a, keep):
 
 
 def rod_cost_mm2(readings_mm, alpha_rad, layers, holes, axis) -> float:
-    """Sum of squared residuals of ``readings_mm`` (n, m; NaN skipped) against the exact forward
-    model at the given geometry (e.g. the truth of a simulated scan) [mm^2]."""
+    """Return the sum of squared residuals against the exact forward model.
+
+    Sum of squared residuals of ``readings_mm`` (n, m; NaN skipped) against the exact forward
+    model at the given geometry (e.g. the truth of a simulated scan) [mm^2].
+    """
     v = np.asarray(readings_mm, dtype=float)
     e = v - rod_readings(alpha_rad, list(layers), list(holes), axis)
     e = e[np.isfinite(e)]
@@ -743,10 +770,10 @@ def rod_cost_mm2(readings_mm, alpha_rad, layers, holes, axis) -> float:
 def rod_crb(alpha_rad, l_mm=None, xy_mm=None, radius_mm=None, sigma_mm: float | None = None, fix_pose: int = 0, *,
             layers: Sequence[RodLayer] | None = None, holes: Sequence[Hole] | None = None, axis: RodAxis | None = None,
             deflection: bool = True) -> np.ndarray:
-    """Cramér-Rao bound on the radii for Gaussian reading noise sigma.
+    r"""Cramér-Rao bound on the radii for Gaussian reading noise sigma.
 
     Exact model (``layers``, ``holes``, ``axis`` given): Fisher information sigma^-2 J^T J of the
-    readings in the solver's unknowns [rho, cx, cy, alpha\\fix, beta] at the truth, then
+    readings in the solver's unknowns [rho, cx, cy, alpha\fix, beta] at the truth, then
     r = rho / k(|beta|) by the delta method along the true beta direction (the bound of the
     deflection-free unknowns with ``deflection=False``). The bound is the same in any
     parameterisation and tends to a finite limit as omega -> 0.
@@ -766,7 +793,8 @@ def rod_crb(alpha_rad, l_mm=None, xy_mm=None, radius_mm=None, sigma_mm: float | 
         n, m = V.shape
         w = ax.omega_rad * np.array([np.cos(ax.omega_az_rad), np.sin(ax.omega_az_rad)])
         r = np.array([h.radius_mm for h in holes])
-        # the solver's gauge: axis through the origin at z = 0, centres relative to the axis at the spot height
+        # the solver's gauge: axis through the origin at z = 0, centres relative to the axis at the
+        # spot height
         z = np.array([lay.h_mm for lay in lays]) + r * np.tan([lay.gamma_rad for lay in lays])
         c = (np.array([h.center_xy_mm for h in holes]) - [ax.dx_mm, ax.dy_mm]
              - (z * np.sinc(ax.omega_rad / np.pi))[:, None] * w[None, :])
@@ -809,9 +837,9 @@ def solve_rod_pso(
     c_cognitive: float = 1.49618,
     c_social: float = 1.49618,
 ) -> RodSolution:
-    """Global-best particle swarm on Wang Eq. 16 (the paper's solver; benchmark baseline only).
+    r"""Global-best particle swarm on Wang Eq. 16 (the paper's solver; benchmark baseline only).
 
-    Minimises sum e_nm^2 over [r, x, y, alpha\\0] in the box r in [min l - 1, max l + 1],
+    Minimises sum e_nm^2 over [r, x, y, alpha\0] in the box r in [min l - 1, max l + 1],
     |x|, |y| <= ``xy_bound_mm``, alpha in [-pi, pi]; Clerc-Kennedy constriction weights;
     vectorised over particles. No covariance (u = NaN).
     """

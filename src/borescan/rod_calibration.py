@@ -11,7 +11,8 @@ gauges' radii at their temperature:
 
     l0_m  <-  l0_m + (R_m(T) - r_m(l0)),    R_m(T) = D_m,20 / 2 (1 + alpha (T - 20 degC)),
 
-iterated until the step is below 1e-7 mm or u(r) / 1000 (a fixed point with contraction O(e^2 / r^2); two or three solves). The other
+iterated until the step is below 1e-7 mm or u(r) / 1000 (a fixed point with contraction O(e^2 / r^2); two or
+three solves). The other
 layer constants (phi, d, gamma, h) stay at their nominal values: to first order a beam offset or
 tilt changes every reading of a layer by a constant, which l0 absorbs.
 
@@ -78,15 +79,17 @@ class RodCalibration:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """The layers' channels."""
         return tuple(int(lay.channel) for lay in self.layers)
 
     @property
     def l0_mm(self) -> np.ndarray:
+        """Base lengths l0 [mm] of the layers."""
         return np.array([lay.l0_mm for lay in self.layers], dtype=float)
 
 
 def layer_gauges(meta: dict, channels) -> list[dict]:
-    """The certified gauge each rod layer of a calibration or verification scan turns in.
+    """Return the certified gauge each rod layer of a calibration or verification scan turns in.
 
     A layer names its feature in ``rod.layers``; the artifact's feature of that id with
     ``certified_diameter_mm`` is the layer's gauge (a gauge set; its ``id``, ``certificate``,
@@ -117,8 +120,10 @@ def layer_gauges(meta: dict, channels) -> list[dict]:
             g["k"] = g["k"] if g["k"] is not None else 2
         else:
             raise ValueError(
-                f"rod layer {int(ch)} (feature {feat!r}) has no certified diameter: a rod calibration or verification "
-                "needs artifact.features[].certified_diameter_mm for the layer's feature, or a ring_gauge artifact "
+                f"rod layer {int(ch)} (feature {feat!r}) has no certified diameter: a rod calibration "
+                "or verification "
+                "needs artifact.features[].certified_diameter_mm for the layer's feature, or a "
+                "ring_gauge artifact "
                 "with certified_diameter_mm")
         if g["u_diameter_mm"] is None:
             raise ValueError(f"rod layer {int(ch)}: gauge {g['id']} states no u_diameter_mm (its certificate's U)")
@@ -130,7 +135,7 @@ def layer_gauges(meta: dict, channels) -> list[dict]:
 
 def calibrate_l0(means_mm, layers, u_reading_mm, radius_at_t_mm, *, tol_mm: float = 1e-7, max_iter: int = 10
                  ) -> tuple[tuple[RodLayer, ...], RodSolution, int]:
-    """Base lengths at which the rod solve returns the gauges' radii (fixed point of the module doc).
+    """Return base lengths at which the rod solve returns the gauges' radii (fixed point of the module doc).
 
     Parameters
     ----------
@@ -190,7 +195,8 @@ def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list
         s[js] = 0.5 * f
         b.add(Term(Input(key, f"certified diameter of ring gauge {g['id']} at 20 degC", "D_g", "mm",
                          float(g["certified_diameter_mm"]), float(g["u_diameter_mm"]) / k_cert, "normal",
-                         source=f"certificate {g.get('certificate')}: U = {g['u_diameter_mm']} mm (k = {k_cert:g})"), s))
+                         source=f"certificate {g.get('certificate')}: U = {g['u_diameter_mm']} mm (k = "
+                                f"{k_cert:g})"), s))
     r20 = np.array([0.5 * float(g["certified_diameter_mm"]) for g in gauges])
     b.add(Term(Input(f"temperature:{scan_id}", f"temperature of the gauges during {scan_id}", "T", "degC",
                      temperature.temperature_c, temperature.u_c, "rectangular", source=temperature.source),
@@ -204,23 +210,33 @@ def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list
 
 
 def rod_calibration_id(device_id: str, scan_ids, night: str) -> str:
-    """Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>`` (:func:`borescan.calibration.make_calibration_id`)."""
+    """Return the deterministic id of a rod calibration.
+
+    Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>``
+    (:func:`borescan.calibration.make_calibration_id`).
+    """
     return make_calibration_id(device_id, scan_ids, ROD_CALIBRATION_METHOD, night)
 
 
 def layer_jacobian(channels, channel: int) -> np.ndarray:
-    """d D_channel / d l0 of every layer (2 on its own layer, 0 elsewhere): a diameter's sensitivity
-    to the calibration's outputs."""
+    """Return d D_channel / d l0 of every layer.
+
+    d D_channel / d l0 of every layer (2 on its own layer, 0 elsewhere): a diameter's sensitivity
+    to the calibration's outputs.
+    """
     return np.array([2.0 if int(c) == int(channel) else 0.0 for c in channels])
 
 
 def rod_calibration_rows(cal: RodCalibration, night: str, certificate_path: str | None, raw_sha256: str,
                          p: float) -> list[dict]:
-    """The ``calibrations`` rows of a rod calibration (one per layer; l0 with u, U and k)."""
+    """Return the ``calibrations`` rows of a rod calibration.
+
+    Return the ``calibrations`` rows of a rod calibration (one per layer; l0 with its standard uncertainty
+    u).
+    """
     blob = json.dumps(_to_dict(cal), sort_keys=True, allow_nan=False)
     rows = []
     for j, lay in enumerate(cal.layers):
-        comb = cal.budget.combined(j, p)
         rows.append({
             "calibration_id": cal.calibration_id, "device_id": cal.device_id, "device_type": "rod",
             "scan_id": cal.scan_ids[0], "channel": int(lay.channel), "l0_mm": float(lay.l0_mm), "h_mm": float(lay.h_mm),
@@ -242,8 +258,11 @@ def _to_dict(cal: RodCalibration) -> dict[str, Any]:
 
 
 def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget | None]:
-    """Layers and budget of a recorded rod calibration (``calibrations`` rows of one id); the
-    budget is None for the ``nominal`` record (design geometry, nothing calibrated)."""
+    """Return the layers and budget of a recorded rod calibration.
+
+    Layers and budget of a recorded rod calibration (``calibrations`` rows of one id); the
+    budget is None for the ``nominal`` record (design geometry, nothing calibrated).
+    """
     rows = sorted(rows, key=lambda r: int(r["channel"]))
     layers = rod_layers(rows, [int(r["channel"]) for r in rows])
     blob = rows[0].get("calibration_json") if rows else None
@@ -253,9 +272,12 @@ def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget 
 
 
 def pose_means_of_scan(scan, cleaning=None) -> tuple[list[int], np.ndarray, float | None, dict]:
-    """(channels, mean reading per pose and layer (n, m), u of one mean from the data sheet, sensors)
+    """Return the pose means of a rod scan with their uncertainty.
+
+    (channels, mean reading per pose and layer (n, m), u of one mean from the data sheet, sensors)
     of a rod scan (:func:`borescan.measure.pose_means`, :func:`borescan.measure.mean_reading_u_mm`)
-    over its readings cleaned by the spike policy ``cleaning`` (:func:`borescan.readings.prepared_matrix`)."""
+    over its readings cleaned by the spike policy ``cleaning`` (:func:`borescan.readings.prepared_matrix`).
+    """
     from . import measure, readings
 
     mat = readings.prepared_matrix(scan, cleaning)
@@ -311,7 +333,9 @@ def rod_diameters_with_budget(scan, layer_rows: list[dict], unc_cfg: dict, calib
 
 def rod_verifications(scan, diameters: list[dict], calibration_id: str, unc_cfg: dict, lab_cfg: dict,
                       tolerance_mm: float) -> list[dict]:
-    """``verifications`` rows of a rod scan in certified gauges: each layer's diameter at 20 degC
+    """Return the ``verifications`` rows of a rod scan in certified gauges.
+
+    ``verifications`` rows of a rod scan in certified gauges: each layer's diameter at 20 degC
     against its gauge (:func:`layer_gauges`, :func:`borescan.measure.verify_budget`), one row per
     layer with ``feature``, the budget rows (``budget``) and the scan's raw files.
 

@@ -251,7 +251,7 @@ def draw_tri_calibration(
     contract: dict = TRI_CONTRACT,
     effect_scale: float = 1.0,
 ):
-    """A ring-gauge calibration spindle scan drawn over the contract (module doc).
+    """Return a ring-gauge calibration spindle scan drawn over the contract (module doc).
 
     Parameters
     ----------
@@ -471,7 +471,7 @@ ROD_CONTRACT: dict = {
 
 
 def _artifact(kind: str, ident: str, diameters_mm, z_mm, cte_per_k: float, u_mm: float = 0.0015) -> dict:
-    """A ring-gauge set (certified diameters, u, k = 2) or a part (nominal diameters only)."""
+    """Return a ring-gauge set (certified diameters, u, k = 2) or a part (nominal diameters only)."""
     d = [float(x) for x in diameters_mm]
     feats = [{"id": f"H{j + 1}", "z_mm": float(z), "nominal_diameter_mm": float(round(x, 1))}
              for j, (x, z) in enumerate(zip(d, z_mm))]
@@ -546,7 +546,9 @@ def draw_tri_static(rng: np.random.Generator, *, scan_id: str, night: str, beams
 
 
 def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -> dict:
-    """Rod geometry over the contract: 2-3 coaxial holes of radius 50-100 mm 100-300 mm apart,
+    """Return a rod geometry drawn over the contract.
+
+    Rod geometry over the contract: 2-3 coaxial holes of radius 50-100 mm 100-300 mm apart,
     layer geometry (l0, phi, d, gamma) of a real rod, eccentricity up to 2.5 mm and deflection up
     to 1 deg, 8-40 poses at random angles, 5-30 readings per pose, noise 2-20 um.
 
@@ -626,7 +628,10 @@ def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_
 
 
 def battery_rng(seed: int, index: int) -> np.random.Generator:
-    """Generator of scan ``index`` of the battery ``seed``: ``SeedSequence(seed, spawn_key=(index,))``.
+    """Return the generator of scan ``index`` of the battery ``seed``.
+
+    Return the generator of scan ``index`` of the battery ``seed``:
+    ``SeedSequence(seed, spawn_key=(index,))``.
 
     The same as ``SeedSequence(seed).spawn(n)[index]`` for any n > index, so a longer battery
     starts with the scans of a shorter one.

@@ -144,9 +144,12 @@ class TriScene:
         return 2.0 * math.pi * self.rpm_nominal / 60.0
 
     def commanded_angle_rad(self, t_s: np.ndarray) -> np.ndarray:
-        """Unsigned commanded angle Phi(t) since t = 0: the integral of the profile
+        """Return the unsigned commanded angle Phi(t) since t = 0 [rad].
+
+        Unsigned commanded angle Phi(t) since t = 0: the integral of the profile
         (:func:`borescan.kinematics.profile_angle_rad`, the function the pipeline reads scans with),
-        omega_nominal t without a profile [rad]."""
+        omega_nominal t without a profile [rad].
+        """
         if not self.rpm_profile:
             return self.omega_rad_per_s * np.asarray(t_s, dtype=float)
         kt = np.array([float(k[0]) for k in self.rpm_profile])
@@ -161,10 +164,11 @@ class TriScene:
         return np.interp(t, [float(k[0]) for k in self.rpm_profile], [float(k[1]) for k in self.rpm_profile])
 
     def bore(self) -> Bore:
-        """The effect-free bore: circle C, R20."""
+        """Return the effect-free bore: circle C, R20."""
         return Bore(tuple(map(float, self.bore_center_xy_mm)), float(self.bore_radius_20_mm))
 
     def to_dict(self) -> dict:
+        """Return the scene as JSON-ready data (:meth:`from_dict` reads it back)."""
         return {
             "beams": self.beams.to_nominal(),
             "bore_center_xy_mm": list(map(float, self.bore_center_xy_mm)),
@@ -222,9 +226,11 @@ class RodScene:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """The layers' channels."""
         return tuple(int(lay.channel) for lay in self.layers)
 
     def to_dict(self) -> dict:
+        """Return the scene as JSON-ready data."""
         return {
             "layers": [layer_dict(lay) for lay in self.layers],
             "holes": [{"center_xy_mm": list(h.center_xy_mm), "radius_mm": h.radius_mm} for h in self.holes],
@@ -250,8 +256,11 @@ class RodScene:
 
 
 def layer_dict(lay: RodLayer) -> dict:
-    """A rod layer in the spec's names, as ``device.nominal.layers`` of scan.json lists it: channel,
-    h [mm], phi [rad], d [mm], gamma [rad], l0 [mm] (inverse of :meth:`RodScene.from_dict`'s layers)."""
+    """Return a rod layer in the spec's names.
+
+    Return a rod layer in the spec's names, as ``device.nominal.layers`` of scan.json lists it: channel,
+    h [mm], phi [rad], d [mm], gamma [rad], l0 [mm] (inverse of :meth:`RodScene.from_dict`'s layers).
+    """
     return {"channel": int(lay.channel), "h": float(lay.h_mm), "phi": float(lay.phi_rad),
             "d": float(lay.d_mm), "gamma": float(lay.gamma_rad), "l0": float(lay.l0_mm)}
 
@@ -405,8 +414,11 @@ def default_rod_scene(**overrides: Any) -> RodScene:
 
 @dataclass
 class SimulatedScan:
-    """A simulated scan: ``meta`` (scan.json), ``lds`` and ``spindle`` frames per
-    ``raw-scan-format.md``, and the ground ``truth`` (written outside the raw tree)."""
+    """A simulated scan: meta, readings, spindle stream and truth.
+
+    A simulated scan: ``meta`` (scan.json), ``lds`` and ``spindle`` frames per
+    ``raw-scan-format.md``, and the ground ``truth`` (written outside the raw tree).
+    """
 
     meta: dict
     lds: pl.DataFrame
@@ -415,6 +427,7 @@ class SimulatedScan:
 
     @property
     def scan_id(self) -> str:
+        """The scan's id."""
         return self.meta["scan_id"]
 
 
@@ -493,9 +506,12 @@ def _base_meta(scan_id, night, kind, started_at, device, sample_rate_hz, sensors
 
 
 def _default_artifact(diameter_mm: float, cte_per_k: float) -> dict:
-    """A ring gauge of the scene's diameter: RG-275 (certificate RG-275/2026-03) for the default
+    """Return a ring gauge of the scene's diameter.
+
+    Return a ring gauge of the scene's diameter: RG-275 (certificate RG-275/2026-03) for the default
     275.029 mm, else one gauge per diameter (its certificate id names the value, so two simulated
-    gauges never share a certificate with different values: ingest quarantines that)."""
+    gauges never share a certificate with different values: ingest quarantines that).
+    """
     if abs(diameter_mm - 275.029) < 1e-9:
         ident, cert = "RG-275", "RG-275/2026-03"
     else:

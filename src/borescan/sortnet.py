@@ -24,7 +24,7 @@ __all__ = ["batcher_pairs", "selection_ops", "select_ranks", "median_columns"]
 
 
 def batcher_pairs(n: int) -> tuple[tuple[int, int], ...]:
-    """Comparators (i, j), i < j, of Batcher's odd-even merge sort of ``n`` elements, in order.
+    """Return comparators (i, j), i < j, of Batcher's odd-even merge sort of ``n`` elements, in order.
 
     After all comparators (each puts the smaller value at i, the larger at j) the values are
     sorted ascending.
@@ -64,9 +64,12 @@ def selection_ops(n: int, ranks: tuple[int, ...]) -> tuple[tuple[int, int, bool,
 
 
 def select_ranks(cols: list[np.ndarray], ranks: tuple[int, ...]) -> list[np.ndarray]:
-    """Element-wise order statistics of k equally shaped NaN-free arrays: one array per rank in
+    """Return element-wise order statistics of k arrays.
+
+    Element-wise order statistics of k equally shaped NaN-free arrays: one array per rank in
     ``ranks`` (0-based, ascending), by the pruned network; the inputs are not modified (a rank
-    no comparator touches comes back as the input array itself)."""
+    no comparator touches comes back as the input array itself).
+    """
     v = list(cols)
     for i, j, keep_min, keep_max in selection_ops(len(v), tuple(ranks)):
         a, b = v[i], v[j]
@@ -78,8 +81,11 @@ def select_ranks(cols: list[np.ndarray], ranks: tuple[int, ...]) -> list[np.ndar
 
 
 def median_columns(cols: list[np.ndarray]) -> np.ndarray:
-    """Element-wise median of k equally shaped NaN-free arrays (mean of the two middle ranks for
-    even k), by a selection network; the inputs are not modified."""
+    """Return the element-wise median of k arrays.
+
+    Element-wise median of k equally shaped NaN-free arrays (mean of the two middle ranks for
+    even k), by a selection network; the inputs are not modified.
+    """
     k = len(cols)
     if k == 0:
         raise ValueError("median of no values")

@@ -72,7 +72,7 @@ def read_source(results_root: str | os.PathLike) -> SourceNights:
 
 
 def synthetic_night(start: str, index: int) -> str:
-    """The ISO date of synthetic night ``index`` (0-based) counted from ``start``."""
+    """Return the ISO date of synthetic night ``index`` (0-based) counted from ``start``."""
     return (_dt.date.fromisoformat(start) + _dt.timedelta(days=index)).isoformat()
 
 
@@ -81,8 +81,11 @@ def _compact(iso: str) -> str:
 
 
 class _Renamer:
-    """The id map of one (source night, copy) in a synthetic night: source dates -> its date,
-    devices, scans and parts suffixed."""
+    """The id map of one (source night, copy) in a synthetic night.
+
+    The id map of one (source night, copy) in a synthetic night: source dates -> its date,
+    devices, scans and parts suffixed.
+    """
 
     def __init__(self, src: SourceNights, block_dates: dict[str, str], copy: int, night: str, tag: str = ""):
         self.suffix = f"-K{copy}" if copy else ""
@@ -156,7 +159,7 @@ def _alternation(keys: Iterable[str]) -> re.Pattern:
 
 
 def _shift_time(s: str | None, days: int) -> str | None:
-    """An ISO 8601 time stamp moved by whole days (its text after the date kept as written)."""
+    """Return an ISO 8601 time stamp moved by whole days (its text after the date kept as written)."""
     if s is None or len(s) < 10:
         return s
     try:

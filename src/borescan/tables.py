@@ -34,6 +34,7 @@ TYPES: dict[str, tuple[pl.DataType, str]] = {
 
 @dataclass(frozen=True)
 class Column:
+    """One column of a history table: name, type (a key of :data:`TYPES`), in the stage files or not."""
     name: str
     type: str
     stage: bool = True
@@ -45,8 +46,11 @@ class Column:
 
 @dataclass(frozen=True)
 class Table:
-    """One history table: columns in order, key columns (rows are inserted in key order;
-    unique when ``primary``)."""
+    """One history table.
+
+    One history table: columns in order, key columns (rows are inserted in key order;
+    unique when ``primary``).
+    """
 
     name: str
     columns: tuple[Column, ...]
@@ -139,15 +143,20 @@ _T = [
     # issue 22: pooled examination of a device's spindle scans of a window of nights (one row per named
     # effect, per device-model term, or one row with a null effect); nights and scan_ids comma-separated
     Table("pooled_findings", _cols(
-        "night:date device_id:text nights:text scan_ids:text verdict:text effect:text channel:channel term:text "
-        "group:text parameters:text uncertainties:text evidence_scans:text in_device_model:bool device_model:text "
-        "absorbed:text gap_before_mm:float gap_after_mm:float noise_floor_mm:float findings_path:text reason:text"),
+        "night:date device_id:text nights:text scan_ids:text verdict:text effect:text "
+        "channel:channel term:text "
+        "group:text parameters:text uncertainties:text evidence_scans:text in_device_model:bool "
+        "device_model:text "
+        "absorbed:text gap_before_mm:float gap_after_mm:float noise_floor_mm:float "
+        "findings_path:text reason:text"),
           ("night", "device_id", "term")),
-    # issue 22: change of a beam parameter between consecutive calibrations (the later one valid from the night)
+    # issue 22: change of a beam parameter between consecutive calibrations (the later one valid from
+    # the night)
     Table("calibration_drift", _cols(
         "night:date device_id:text channel:channel parameter:text calibration_id_before:text "
         "calibration_id_after:text valid_from_before:date valid_from_after:date value_before:float "
-        "value_after:float change:float u_before:float u_after:float u_combined:float change_over_u:float "
+        "value_after:float change:float u_before:float u_after:float u_combined:float "
+        "change_over_u:float "
         "multiple:float flagged:bool explained_by:text explanation:text"),
           ("device_id", "channel", "parameter", "calibration_id_after")),
     # issue 40: the settings each night was processed with (borescan.night_config), and each
@@ -171,13 +180,16 @@ def _table(name: str) -> Table:
 
 
 def polars_schema(name: str) -> dict[str, pl.DataType]:
-    """The stage table's polars schema of history table ``name``."""
+    """Return the stage table's polars schema of history table ``name``."""
     return _table(name).polars_schema()
 
 
 def frame(name: str, rows: Iterable[Mapping]) -> pl.DataFrame:
-    """Rows (dicts keyed by column name) as a frame with table ``name``'s stage schema; empty frame
-    with the schema when there are none."""
+    """Return rows as a frame with table ``name``'s stage schema.
+
+    Rows (dicts keyed by column name) as a frame with table ``name``'s stage schema; empty frame
+    with the schema when there are none.
+    """
     schema = polars_schema(name)
     rows = list(rows)
     return pl.DataFrame(rows, schema=schema, orient="row") if rows else pl.DataFrame(schema=schema)

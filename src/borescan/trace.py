@@ -66,9 +66,12 @@ class _Tracer:
         return rows[0] if rows else {"artifact_id": artifact_id, "missing": True}
 
     def scan_artifact(self, sn: dict[str, Any]) -> dict[str, Any] | None:
-        """The artifact as the scan used it: its own certificate id and certified value (kept in
+        """Return the artifact as the scan used it.
+
+        Return the artifact as the scan used it: its own certificate id and certified value (kept in
         ``scans`` per scan, so a later scan naming the artifact cannot rewrite them); ``latest``
-        holds the artifacts table's record when that differs (a recertified gauge)."""
+        holds the artifacts table's record when that differs (a recertified gauge).
+        """
         art = self.artifact(sn.get("artifact_id"))
         keys = ("certificate", "certified_diameter_mm", "u_diameter_mm")
         own = {k: sn.get(f"artifact_{k}") for k in keys}
@@ -114,7 +117,8 @@ class _Tracer:
         first = rows[0]
         node: dict[str, Any] = {k: first.get(k) for k in ("calibration_id", "device_id", "method", "valid_from",
                                                           "status")}
-        try:  # the lifecycle as of the newest night (saved query calibration_lifecycle), when the catalog has it
+        # the lifecycle as of the newest night (saved query calibration_lifecycle), when the catalog has it
+        try:
             life = _rows(self.con, "SELECT status, valid_until, status_night, reason FROM calibration_lifecycle "
                                    "WHERE calibration_id = ?", [calibration_id])
         except duckdb.Error:
@@ -220,7 +224,7 @@ class _Tracer:
 
 
 def trace(results_root: str | os.PathLike, ident: str) -> dict[str, Any]:
-    """The chain behind ``ident`` as nested dictionaries (see the module docstring).
+    """Return the chain behind ``ident`` as nested dictionaries (see the module docstring).
 
     Raises :class:`UnknownId` when the id is nowhere in the catalog and ``FileNotFoundError``
     when the catalog has not been built.
@@ -258,13 +262,15 @@ def _scan_lines(s: dict[str, Any], ind: str, label: str = "scan") -> list[str]:
             lines.append(f"{ind}  artifact {art['artifact_id']}  (no artifacts row)")
         else:
             lines.append(
-                f"{ind}  artifact {art['artifact_id']} ({_fmt(art.get('type'))}), certificate {_fmt(art.get('certificate'))}, "
+                f"{ind}  artifact {art['artifact_id']} ({_fmt(art.get('type'))}), certificate "
+                f"{_fmt(art.get('certificate'))}, "
                 f"certified {_fmt(art.get('certified_diameter_mm'), ' mm')} "
                 f"(u {_fmt(art.get('u_diameter_mm'), ' mm')}, k={_fmt(art.get('k'))})"
                 + (" as this scan used it" if art.get("as_used") else ""))
             if art.get("latest"):
                 lt = art["latest"]
-                lines.append(f"{ind}  NOTE: the artifact's latest record differs: certificate {_fmt(lt.get('certificate'))}, "
+                lines.append(f"{ind}  NOTE: the artifact's latest record differs: certificate "
+                             f"{_fmt(lt.get('certificate'))}, "
                              f"certified {_fmt(lt.get('certified_diameter_mm'), ' mm')}")
     lines.append(f"{ind}  raw {_fmt(s.get('raw_path'))}")
     lines.append(f"{ind}  raw_sha256 {_fmt(s.get('raw_sha256'))}")
@@ -307,20 +313,25 @@ def _cal_lines(c: dict[str, Any] | None, ind: str) -> list[str]:
     for s in c["scans"]:
         lines += _scan_lines(s, ind + "  ", "calibration scan")
     for g in c.get("gauges") or []:
-        lines.append(f"{ind}  layer {g.get('channel')} ({_fmt(g.get('feature'))}): ring gauge {_fmt(g.get('id'))}, certificate "
+        lines.append(f"{ind}  layer {g.get('channel')} ({_fmt(g.get('feature'))}): ring gauge "
+                     f"{_fmt(g.get('id'))}, certificate "
                      f"{_fmt(g.get('certificate'))}, certified {_fmt(g.get('certified_diameter_mm'), ' mm')} "
                      f"(U {_fmt(g.get('u_diameter_mm'), ' mm')}, k={_fmt(g.get('k'))})")
     for v in c["verifications"]:
         verdict = _verdict(v)
         layer = f" layer {v['feature']} ({_fmt(v.get('artifact_id'))})" if v.get("feature") else ""
-        lines.append(f"{ind}  verified by {v['scan_id']}{layer} on {_fmt(v['night'])}: error {_fmt(v['error_mm'], ' mm')} "
+        lines.append(f"{ind}  verified by {v['scan_id']}{layer} on {_fmt(v['night'])}: error "
+                     f"{_fmt(v['error_mm'], ' mm')} "
                      f"(tolerance {_fmt(v['tolerance_mm'], ' mm')}) {verdict}")
     return lines
 
 
 def _layer_gauges(row: dict[str, Any]) -> list[dict[str, Any]]:
-    """The certified gauge each layer of a rod calibration was calibrated in (its calibration_json); []
-    for other calibrations."""
+    """Return the certified gauge each layer of a rod calibration was calibrated in.
+
+    Return the certified gauge each layer of a rod calibration was calibrated in (its calibration_json); []
+    for other calibrations.
+    """
     if row.get("method") != "rod_gauge" or not row.get("calibration_json"):
         return []
     try:
@@ -351,7 +362,8 @@ def _dia_lines(d: dict[str, Any], ind: str) -> list[str]:
     return lines
 
 
-def format_trace(chain: dict[str, Any]) -> str:
+def format_trace(  # noqa: C901 (one branch per kind of fact of the trace)
+        chain: dict[str, Any]) -> str:
     """Indented text of a :func:`trace` result, one fact per line."""
     kind = chain["kind"]
     lines = [f"trace {chain['id']} ({kind})"]
@@ -379,7 +391,8 @@ def format_trace(chain: dict[str, Any]) -> str:
             lines += _cal_lines(c, "  ")
     elif kind == "artifact":
         for a in chain["artifacts"]:
-            lines.append(f"  artifact {a['artifact_id']} ({_fmt(a.get('type'))}), certificate {_fmt(a.get('certificate'))}")
+            lines.append(f"  artifact {a['artifact_id']} ({_fmt(a.get('type'))}), certificate "
+                         f"{_fmt(a.get('certificate'))}")
         for c in chain["calibrations"]:
             lines += _cal_lines(c, "  ")
     return "\n".join(lines) + "\n"

@@ -85,7 +85,7 @@ def _check_dist(distribution: str) -> str:
 
 def standard_uncertainty(*, halfwidth: float | None = None, expanded: float | None = None, k: float | None = None,
                          distribution: str = "rectangular") -> float:
-    """Standard uncertainty from a stated bound or an expanded uncertainty.
+    """Return standard uncertainty from a stated bound or an expanded uncertainty.
 
     Parameters
     ----------
@@ -162,7 +162,11 @@ def numerical_tolerance(u: float, n_dig: int = 2) -> float:
 
 
 def _cell_masses(dist: str, scale: float, nu: float, edges: np.ndarray) -> np.ndarray:
-    """Probability of each cell [edges[i], edges[i+1]) of a zero-mean term with standard uncertainty ``scale``."""
+    """Return the probability of each cell of a zero-mean term.
+
+    Probability of each cell [edges[i], edges[i+1]) of a zero-mean term with standard uncertainty
+    ``scale``.
+    """
     if dist == "normal":
         if np.isfinite(nu) and nu <= NU_NORMAL:
             cdf = special.stdtr(nu, edges / scale)
@@ -184,8 +188,11 @@ def _cell_masses(dist: str, scale: float, nu: float, edges: np.ndarray) -> np.nd
 
 
 def _fast_length(n: int) -> int:
-    """Smallest 5-smooth integer >= n (2^a 3^b 5^c: a fast real FFT length; scipy.fft.next_fast_len(n,
-    real=True), without importing scipy.fft)."""
+    """Return the smallest 5-smooth integer >= n.
+
+    Smallest 5-smooth integer >= n (2^a 3^b 5^c: a fast real FFT length; scipy.fft.next_fast_len(n,
+    real=True), without importing scipy.fft).
+    """
     best, p5 = 2 * n, 1
     while p5 < best:
         p35 = p5
@@ -312,6 +319,7 @@ class Input:
             raise ValueError(f"{self.key}: standard uncertainty must be >= 0, got {self.u}")
 
     def to_dict(self) -> dict:
+        """Return the input as JSON-ready data (:meth:`from_dict` reads it back)."""
         return {"key": self.key, "quantity": self.quantity, "symbol": self.symbol, "unit": self.unit,
                 "estimate": self.estimate, "standard_uncertainty": self.u, "distribution": self.distribution,
                 "degrees_of_freedom": None if not np.isfinite(self.dof) else float(self.dof), "type": self.type,
@@ -319,6 +327,7 @@ class Input:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Input":
+        """Return the input written by :meth:`to_dict`."""
         dof = d.get("degrees_of_freedom")
         return cls(d["key"], d["quantity"], d["symbol"], d["unit"], d.get("estimate"), float(d["standard_uncertainty"]),
                    d["distribution"], float("inf") if dof is None else float(dof), d.get("type", "B"),
@@ -326,7 +335,7 @@ class Input:
 
 
 def _array(x) -> np.ndarray | None:
-    """A JSON list (nested for a matrix; None for NaN) as a float array; None stays None."""
+    """Return a JSON list (nested for a matrix; None for NaN) as a float array; None stays None."""
     if x is None:
         return None
 
@@ -361,6 +370,7 @@ class Term:
 
     @property
     def m(self) -> int:
+        """Number of outputs the term reaches."""
         return int(self.sensitivity.size if self.sensitivity is not None else self.cov.shape[0])
 
     def covariance(self) -> np.ndarray:
@@ -379,19 +389,21 @@ class Term:
         return None, float(math.sqrt(max(float(j @ self.cov @ j), 0.0)))
 
     def mapped(self, A) -> "Term":
-        """The term for outputs y' = A y (A (m', m))."""
+        """Return the term for outputs y' = A y (A (m', m))."""
         A = np.atleast_2d(np.asarray(A, dtype=float))
         if self.sensitivity is not None:
             return replace(self, sensitivity=A @ self.sensitivity)
         return replace(self, cov=A @ self.cov @ A.T)
 
     def to_dict(self) -> dict:
+        """Return the term as JSON-ready data (:meth:`from_dict` reads it back)."""
         return {"input": self.input.to_dict(),
                 "sensitivity": None if self.sensitivity is None else self.sensitivity.tolist(),
                 "cov": None if self.cov is None else self.cov.tolist(), "note": self.note}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Term":
+        """Return the term written by :meth:`to_dict`."""
         return cls(Input.from_dict(d["input"]), _array(d.get("sensitivity")), _array(d.get("cov")), d.get("note", ""))
 
 
@@ -416,6 +428,7 @@ class Combined:
     dominant: str = ""
 
     def to_dict(self) -> dict:
+        """Return the combined uncertainty as JSON-ready data."""
         return {"standard_uncertainty": self.u,
                 "effective_degrees_of_freedom": None if not np.isfinite(self.nu_eff) else self.nu_eff,
                 "coverage_probability": self.p, "coverage_factor_guf": self.k_guf,
@@ -478,27 +491,29 @@ class Budget:
 
     @property
     def m(self) -> int:
+        """Number of outputs."""
         return len(self.outputs)
 
     def add(self, term: Term) -> "Budget":
+        """Return the budget with ``term`` added (its outputs must be the budget's)."""
         if term.m != self.m:
             raise ValueError(f"term {term.input.key} has {term.m} outputs, the budget {self.m}")
         self.terms.append(term)
         return self
 
     def covariance(self) -> np.ndarray:
-        """Combined covariance (m, m) of the outputs: the sum of every term's."""
+        """Return combined covariance (m, m) of the outputs: the sum of every term's."""
         out = np.zeros((self.m, self.m))
         for t in self.terms:
             out += t.covariance()
         return out
 
     def u(self) -> np.ndarray:
-        """Combined standard uncertainty of each output (m,)."""
+        """Return combined standard uncertainty of each output (m,)."""
         return np.sqrt(np.clip(np.diag(self.covariance()), 0.0, None))
 
     def mapped(self, A, outputs: Sequence[str], units: Sequence[str], estimates) -> "Budget":
-        """The budget of y' = A y (+ a constant): every term mapped by A (m', m)."""
+        """Return the budget of y' = A y (+ a constant): every term mapped by A (m', m)."""
         return Budget(tuple(outputs), tuple(units), np.asarray(estimates, float), [t.mapped(A) for t in self.terms])
 
     def merged(self) -> "Budget":
@@ -552,11 +567,13 @@ class Budget:
         return j
 
     def to_dict(self) -> dict:
+        """Return the budget as JSON-ready data (:meth:`from_dict` reads it back)."""
         return {"outputs": list(self.outputs), "units": list(self.units), "estimates": self.estimates.tolist(),
                 "terms": [t.to_dict() for t in self.terms]}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Budget":
+        """Return the budget written by :meth:`to_dict`."""
         return cls(tuple(d["outputs"]), tuple(d["units"]), np.array(d["estimates"], dtype=float),
                    [Term.from_dict(t) for t in d["terms"]])
 
@@ -584,8 +601,11 @@ def draw(distribution: str, estimate: float, u: float, size: int, rng: np.random
 
 @dataclass(frozen=True)
 class MonteCarloResult:
-    """GUM S1 Monte Carlo result: estimate (mean), standard uncertainty (sample SD), the
-    probabilistically symmetric coverage interval [low, high] for p, and the number of trials."""
+    """GUM S1 Monte Carlo result.
+
+    GUM S1 Monte Carlo result: estimate (mean), standard uncertainty (sample SD), the
+    probabilistically symmetric coverage interval [low, high] for p, and the number of trials.
+    """
 
     y: float
     u: float
@@ -628,7 +648,7 @@ def monte_carlo(model: Callable[[dict[str, np.ndarray]], np.ndarray], inputs: Ma
 
 
 def s1_validate(y: float, U: float, u: float, mc: MonteCarloResult, n_dig: int = 2) -> tuple[bool, float, float, float]:
-    """GUM S1 §8: is the GUF interval y +- U validated by the Monte Carlo interval?
+    """Validate the GUF interval y +- U by the Monte Carlo interval (GUM S1 §8).
 
     d_low = |y - U - y_low|, d_high = |y + U - y_high|; validated when both are at most the
     numerical tolerance delta of u at ``n_dig`` significant digits (:func:`numerical_tolerance`).
@@ -647,8 +667,11 @@ def s1_validate(y: float, U: float, u: float, mc: MonteCarloResult, n_dig: int =
 
 
 def round_uncertainty(U: float, digits: int = 2) -> tuple[float, int]:
-    """U rounded up to ``digits`` significant digits (GUM 7.2.6: round up rather than down) and the
-    number of decimals it has (negative: tens, hundreds, ...)."""
+    """Return U rounded up to ``digits`` significant digits.
+
+    U rounded up to ``digits`` significant digits (GUM 7.2.6: round up rather than down) and the
+    number of decimals it has (negative: tens, hundreds, ...).
+    """
     U = abs(float(U))
     if U == 0.0 or not np.isfinite(U):
         return U, 0

@@ -1,4 +1,7 @@
-"""The one validator: every reason the pipeline sets a raw scan aside at ingest (ingest and ``borescan validate``).
+"""The one validator of raw scans.
+
+The one validator: every reason the pipeline sets a raw scan aside at ingest (ingest and
+``borescan validate``).
 
 :func:`scan_problems` is the single check of one scan folder. The ingest stage quarantines a
 scan when it returns a problem (the first one becomes the quarantine reason), and
@@ -68,14 +71,14 @@ def require_raw_root(raw_root: str | Path) -> Path:
 
 
 def duplicate_reason(earlier_night: str | None) -> str:
-    """The problem of a scan whose id an earlier night has (that night named when known)."""
+    """Return the problem of a scan whose id an earlier night has (that night named when known)."""
     if earlier_night is None:
         return DUPLICATE_REASON
     return f"scan_id already used by a scan of night={earlier_night} (scan ids are unique across nights)"
 
 
 def earlier_night_of(raw_root: str | Path, night: str, scan_id: str) -> str | None:
-    """The first night before ``night`` with a folder ``scan=<scan_id>``; None when there is none."""
+    """Return the first night before ``night`` with a folder ``scan=<scan_id>``; None when there is none."""
     for n in rawio.nights(raw_root):
         if n >= night:
             return None
@@ -110,7 +113,11 @@ def rate_mismatch(sample: np.ndarray, t_s: np.ndarray, sample_rate_hz: float) ->
 
 
 def clock_problem(scan: rawio.RawScan) -> str | None:
-    """The sample-clock problem of a spindle scan (rate, then jumps); None when fine or not a spindle scan."""
+    """Return the sample-clock problem of a spindle scan, or None.
+
+    Return the sample-clock problem of a spindle scan (rate, then jumps); None when fine or not a spindle
+    scan.
+    """
     if scan.spindle is None:
         return None
     mat = rawio.lds_matrix(scan)

@@ -31,9 +31,10 @@ def log_to(path: str | Path) -> Iterator[Callable[[str], None]]:
 
 
 def rule_job(namespace: dict, script: str | Path, argv: list[str] | None = None):
-    """The job a workflow script runs: Snakemake's ``snakemake`` object when Snakemake runs the
-    script, else the same job built from the Snakefile, so a person can run (and debug) one
-    stage of one night by hand::
+    """Return the job a workflow script runs, from Snakemake or built from the Snakefile.
+
+    Snakemake's ``snakemake`` object when Snakemake runs the script, else the same job built from
+    the Snakefile, so a person can run (and debug) one stage of one night by hand::
 
         python workflow/scripts/calibrate_night.py night=2026-11-20 [raw_root=DIR results_root=DIR]
 

@@ -5,6 +5,7 @@ from borescan.workflow_log import log_to, rule_job
 
 
 def main(smk) -> None:
+    """Run the rule's stage with Snakemake's ``smk`` (inputs, outputs, params, log)."""
     with log_to(smk.log[0]) as log:
         update = stage_catalog(smk.params.results_root, smk.output.catalog, raw_root=smk.params.raw_root, log=log)
         log(f"{update.mode}: {update.reason}")

@@ -12,6 +12,7 @@ from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
 
 def main(smk) -> None:
+    """Run the rule's stage with Snakemake's ``smk`` (inputs, outputs, params, log)."""
     with log_to(smk.log[0]) as log:
         night_dir = findings_night_dir(smk.params.results_root, smk.wildcards.night)
         if Path(smk.output.scans).resolve() != night_dir.resolve():

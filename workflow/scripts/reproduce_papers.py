@@ -7,6 +7,7 @@ from borescan.workflow_log import log_to, rule_job
 
 
 def main(smk) -> None:
+    """Run the rule's stage with Snakemake's ``smk`` (inputs, outputs, params, log)."""
     with log_to(smk.log[0]) as log:
         index = stage_papers(Path(smk.output.index).parent, log=log)
         log(f"{index.height} files written")

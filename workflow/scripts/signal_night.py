@@ -10,6 +10,7 @@ from borescan.workflow_log import log_to, rule_job  # noqa: E402
 
 
 def main(smk) -> None:
+    """Run the rule's stage with Snakemake's ``smk`` (inputs, outputs, params, log)."""
     with log_to(smk.log[0]) as log:
         extrema, summary, bad = stage_signal(
             smk.params.raw_root, smk.wildcards.night,

@@ -1,4 +1,7 @@
-"""What the subcommands share: the user-error exception, argument types, progress lines, times with their zone.
+"""What the subcommands share.
+
+What the subcommands share: the user-error exception, argument types, progress lines, times with their
+zone.
 
 Exit codes of every ``borescan`` command: 0 done; 1 the command ran and its answer is "no"
 (``validate`` found problems, ``import-csv`` refused the data, ``trace`` knows no such id, a
@@ -22,7 +25,11 @@ __all__ = ["UsageError", "CommandFailed", "int_at_least", "positive_int", "nonne
 
 
 class UsageError(Exception):
-    """The command cannot run as asked (exit 2); ``str()`` is the message shown after ``borescan <command>:``."""
+    """The command cannot run as asked (exit 2).
+
+    The command cannot run as asked (exit 2); ``str()`` is the message shown after
+    ``borescan <command>:``.
+    """
 
     exit_code = 2
 
@@ -91,7 +98,7 @@ def night_date(text: str) -> str:
 
 
 def utc_text(value: _dt.datetime) -> str:
-    """A time with its zone, ISO 8601 in UTC: ``2026-11-21T22:14:03Z`` (fraction kept when present).
+    """Return a time with its zone, ISO 8601 in UTC: ``2026-11-21T22:14:03Z`` (fraction kept when present).
 
     The catalog stores TIMESTAMP values as naive UTC (:mod:`borescan.catalog`); a naive value is
     read as UTC, an aware one converted to it.

@@ -14,6 +14,7 @@ HELP = "Examine a seeded battery of simulated spindle scans with hidden effects;
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
     parser.add_argument("--n", type=positive_int, default=100, help="number of scans, >= 1 (default 100)")
     parser.add_argument("--seed", type=nonnegative_int, default=1, help="seed of the battery, >= 0 (default 1)")
     parser.add_argument("--threshold", type=positive_float, default=10.0, help="Delta BIC threshold, > 0 (default 10)")
@@ -37,6 +38,7 @@ def _times(x: float, why: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the battery with the options ``args``; return the exit status."""
     from borescan.discrepancy.battery import run_battery
 
     if args.p_free + args.p_pair > 1.0:
@@ -66,8 +68,10 @@ def run(args: argparse.Namespace) -> int:
           "(counting also ambiguous verdicts listing the truth)")
     print(f"false-alarm rate    {_pct(res.false_alarm_rate, no_free)} "
           "(effect-free scans called anything but no_missing_effect)")
-    print(f"median gap shrink   {_times(res.median_shrink, no_eff)} (gap_before / gap_after, scans with effects)")
-    print(f"median gap_before / noise floor {_times(res.median_shrink_ceiling, no_eff)} (the ceiling of the shrink)")
+    print(f"median gap shrink   {_times(res.median_shrink, no_eff)} (gap_before / gap_after, scans with "
+          "effects)")
+    print(f"median gap_before / noise floor {_times(res.median_shrink_ceiling, no_eff)} (the ceiling of "
+          "the shrink)")
     print(f"gap_after <= 1.5 noise floor on {_pct(res.share_at_floor, no_eff)} of the scans with effects")
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -13,6 +13,7 @@ HELP = "rebuild results/catalog.duckdb from every night's stage tables (the nigh
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
     parser.add_argument("--results", default="results",
                         help="results folder holding stage/ and catalog.duckdb (default: results)")
     parser.epilog = (
@@ -23,6 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Rebuild the catalog from every night's stage tables; return the exit status."""
     nights = catalog.stage_files(args.results)
     if not nights:
         print(f"borescan rebuild-catalog: no stage tables under {args.results}/stage (run the pipeline first)",

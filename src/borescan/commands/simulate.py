@@ -28,7 +28,7 @@ from borescan.commands._common import (
 )
 
 NAME = "simulate"
-HELP = "write simulated scans in borescan-raw/1 plus ground truth (demo nights, one scan, or the contract battery)"
+HELP = "write simulated scans in borescan-raw/1 plus ground truth (demo nights, one scan, or the " "contract battery)"
 
 _SCAN_ID_RE = re.compile(r"[A-Za-z0-9_-]{1,64}")  # raw-scan-format.md
 

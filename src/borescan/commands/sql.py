@@ -24,6 +24,7 @@ HELP = "run SQL on the history catalog (results/catalog.duckdb), read-only"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
     parser.add_argument("query", nargs="?", help='SQL text, e.g. "SELECT * FROM scans"')
     parser.add_argument("--results", default="results",
                         help="results folder holding catalog.duckdb, relative or absolute (default: results)")
@@ -86,8 +87,11 @@ def _is_number(v: object) -> bool:
 
 
 def _round(x: float, digits: int) -> str:
-    """``x`` to ``digits`` significant digits, positional (``0.0004214``, not ``4.214e-04``) unless tiny
-    or huge; trailing zeros dropped."""
+    """Return ``x`` rounded to ``digits`` significant digits as text.
+
+    ``x`` to ``digits`` significant digits, positional (``0.0004214``, not ``4.214e-04``) unless tiny
+    or huge; trailing zeros dropped.
+    """
     if x == 0 or not math.isfinite(x):
         return f"{x:g}"
     if not 1e-9 <= abs(x) < 1e15:
@@ -98,7 +102,7 @@ def _round(x: float, digits: int) -> str:
 
 
 def _number_cells(values: list[object], digits: int) -> list[str]:
-    """A numeric column's cells: floats to ``digits`` significant digits, decimal points aligned."""
+    """Return a numeric column's cells: floats to ``digits`` significant digits, decimal points aligned."""
     raw = []
     for v in values:
         if v is None or (isinstance(v, float) and math.isnan(v)):
@@ -119,8 +123,11 @@ def _number_cells(values: list[object], digits: int) -> list[str]:
 
 
 def _cut(text: str, width: int) -> str:
-    """``text`` on one line, at most ``width`` characters (0: any): the middle gives way to an
-    ellipsis, so a path keeps its file name and a digest both ends."""
+    """Return ``text`` on one line, cut to ``width`` characters.
+
+    ``text`` on one line, at most ``width`` characters (0: any): the middle gives way to an
+    ellipsis, so a path keeps its file name and a digest both ends.
+    """
     text = text.replace("\n", " ")
     if width <= 0 or len(text) <= width:
         return text
@@ -129,8 +136,11 @@ def _cut(text: str, width: int) -> str:
 
 
 def format_table(columns: list[str], rows: list[tuple], digits: int = 7, max_width: int = 40) -> str:
-    """Aligned text table: header, a rule, one line per row; numbers rounded and right-aligned on
-    their decimal point, text left-aligned and cut at ``max_width`` characters (0: never)."""
+    """Return an aligned text table.
+
+    Aligned text table: header, a rule, one line per row; numbers rounded and right-aligned on
+    their decimal point, text left-aligned and cut at ``max_width`` characters (0: never).
+    """
     numeric = [any(r[i] is not None for r in rows) and all(_is_number(r[i]) for r in rows if r[i] is not None)
                for i in range(len(columns))]
     cols = []
@@ -206,7 +216,9 @@ def _catalog_views(results: str) -> set[str]:
         con.close()
 
 
-def run(args: argparse.Namespace) -> int:
+def run(  # noqa: C901 (one branch per option of the sql command)
+        args: argparse.Namespace) -> int:
+    """Run a query (given or saved) on the catalog, or list the saved ones; return the exit status."""
     import duckdb
 
     from borescan import catalog

@@ -25,6 +25,7 @@ VALID, EXPIRED, FAILED, NONE = "valid", "expired", "failed verification", "no ca
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
     parser.add_argument("--results", default="results",
                         help="results folder holding catalog.duckdb, relative or absolute (default: results)")
     parser.add_argument("--as-of", type=night_date, default=None, metavar="YYYY-MM-DD",
@@ -58,8 +59,11 @@ def _day(v) -> str | None:
 
 
 def device_status(results: str | Path, as_of: str, validity_days: int) -> list[dict]:
-    """One dict per device (sorted by id): its type, last scan night, current calibration and state,
-    validity end, and last verification, as of the date ``as_of`` (``YYYY-MM-DD``)."""
+    """Return each device's status as of the date ``as_of``.
+
+    One dict per device (sorted by id): its type, last scan night, current calibration and state,
+    validity end, and last verification, as of the date ``as_of`` (``YYYY-MM-DD``).
+    """
     import polars as pl
 
     from borescan import catalog
@@ -174,6 +178,7 @@ def format_status(status: list[dict], as_of: str, validity_days: int, source: st
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print each device's calibration status as of a date; return the exit status."""
     as_of = args.as_of or _dt.datetime.now(_dt.timezone.utc).date().isoformat()
     validity_days, source = _validity_days(args)
     try:

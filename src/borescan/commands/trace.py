@@ -15,6 +15,7 @@ HELP = "show the chain behind a diameter, scan, part, calibration or certificate
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
     parser.add_argument("id", help="diameter id (SCAN/FEATURE), scan id, part id, calibration id or certificate "
                                    "path (relative to the current folder or the results folder, or absolute)")
     parser.add_argument("--results", default="results",
@@ -23,10 +24,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _ident(text: str, results: str) -> str:
-    """A path from the current folder into the results folder, made absolute (``borescan.trace``
+    """Return an id that is a path, made absolute.
+
+    Return a path from the current folder into the results folder, made absolute (``borescan.trace``
     relates absolute paths to the results folder; the catalog's are relative to it), so that
     ``results/calibration/.../certificate.pdf`` works as well as ``calibration/.../certificate.pdf``
-    and an absolute path; any other id as given."""
+    and an absolute path; any other id as given.
+    """
     p = Path(text.strip())
     if p.is_absolute() or len(p.parts) < 2:
         return text
@@ -35,7 +39,7 @@ def _ident(text: str, results: str) -> str:
 
 
 def _zoned(node: object) -> object:
-    """The chain with every time as ISO 8601 UTC with its zone (the catalog's TIMESTAMPs are UTC)."""
+    """Return the chain with every time as ISO 8601 UTC with its zone (the catalog's TIMESTAMPs are UTC)."""
     if isinstance(node, dict):
         return {k: _zoned(v) for k, v in node.items()}
     if isinstance(node, list):
@@ -48,6 +52,7 @@ def _zoned(node: object) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print the chain from an id down to the raw files; return the exit status."""
     from borescan import trace as _trace
 
     ident = _ident(args.id, args.results)

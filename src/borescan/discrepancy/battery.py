@@ -42,7 +42,7 @@ def _sign(rng) -> float:
     return 1.0 if rng.random() < 0.5 else -1.0
 
 
-def random_effect(
+def random_effect(  # noqa: C901 (one branch per effect of the registry)
     name: str, rng: np.random.Generator, channels: tuple[int, ...], rev_hz: float, rate_hz: float
 ) -> Effect:
     """One effect of ``name`` at a realistic random magnitude (ranges in the code, mm / s / rad)."""
@@ -108,7 +108,9 @@ def _scaled(e: Effect, scale: float) -> Effect:
 def random_tri_case(
     rng: np.random.Generator, n_effects: int, *, scan_id: str = "BAT", scale: float = 1.0
 ) -> tuple:
-    """A random spindle scan with ``n_effects`` hidden effects (magnitudes times ``scale``; tilts,
+    """Return a random spindle scan with ``n_effects`` hidden effects.
+
+    Return a random spindle scan with ``n_effects`` hidden effects (magnitudes times ``scale``; tilts,
     whose readings go with the square of the angle, times sqrt(scale)).
 
     Returns
@@ -179,7 +181,7 @@ def _lookalike(a: str, b: str) -> bool:
 
 
 def score_case(findings: dict, effects: list[Effect]) -> bool:
-    """True when the verdict names the hidden effects (see the module doc)."""
+    """Return True when the verdict names the hidden effects (see the module doc)."""
     truth = {effect_label(e) for e in effects}
     named = {named_label(n) for n in findings["named"]}
     if not truth:
@@ -204,6 +206,7 @@ class BatteryResult:
 
     @property
     def accuracy(self) -> float:
+        """Share of scans whose verdict is correct (NaN for no scans)."""
         return float(np.mean([r["correct"] for r in self.rows])) if self.rows else float("nan")
 
     @property
@@ -215,11 +218,13 @@ class BatteryResult:
 
     @property
     def false_alarm_rate(self) -> float:
+        """Share of effect-free scans given a missing effect (NaN for none)."""
         free = [r for r in self.rows if not r["truth"]]
         return float(np.mean([r["verdict"] != "no_missing_effect" for r in free])) if free else float("nan")
 
     @property
     def median_shrink(self) -> float:
+        """Median ratio of the gap before to the gap after, over scans with an effect."""
         s = [r["gap_before_mm"] / r["gap_after_mm"] for r in self.rows if r["truth"] and r["gap_after_mm"]]
         return float(np.median(s)) if s else float("nan")
 

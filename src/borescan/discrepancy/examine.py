@@ -36,8 +36,11 @@ SETTINGS = {"delta_bic_threshold": "threshold", "max_harmonic": "k_max", "exact_
 
 
 def discrepancy_settings(section: dict | None = None) -> dict[str, Any]:
-    """Keywords of :func:`examine_scan` from the config's ``discrepancy`` section; the defaults
-    (and any key the section leaves out) come from the schema, the one place defaults live."""
+    """Return the keywords of :func:`examine_scan` from the config.
+
+    Keywords of :func:`examine_scan` from the config's ``discrepancy`` section; the defaults
+    (and any key the section leaves out) come from the schema, the one place defaults live.
+    """
     merged = {**schema_defaults()["discrepancy"], **(section or {})}
     return {kw: merged[key] for key, kw in SETTINGS.items()}
 
@@ -68,7 +71,7 @@ class Examination:
 
 
 def scan_arrays(scan) -> tuple[np.ndarray, tuple[int, ...], np.ndarray, np.ndarray | None, dict | None]:
-    """Reading matrix of a ``RawScan``-like object (``.meta``, ``.lds`` polars, ``.spindle``).
+    """Return reading matrix of a ``RawScan``-like object (``.meta``, ``.lds`` polars, ``.spindle``).
 
     Returns
     -------
@@ -182,8 +185,11 @@ def _jacobian_columns(model, p: dict, terms: list[Term], names: list[str], scale
 
 
 def _lstsq(J: np.ndarray, r: np.ndarray) -> np.ndarray | None:
-    """Linearised least squares of the screen; None when the Jacobian or the residual is not
-    finite (a finite-difference step left the model undefined) or the solver fails."""
+    """Return the linearised least-squares step of the screen, or None.
+
+    Linearised least squares of the screen; None when the Jacobian or the residual is not
+    finite (a finite-difference step left the model undefined) or the solver fails.
+    """
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
         return None
     try:
@@ -201,17 +207,20 @@ LATTICE_TOL = 1e-5  # readings within this many lsb of the lattice count as on i
 
 
 def outlier_threshold_sigma(n: int, false_rate: float = 1e-3) -> float:
-    """Outlier threshold in noise levels for ``n`` samples of a channel: the two-sided Gaussian
+    """Return the outlier threshold in noise levels for ``n`` samples.
+
+    Outlier threshold in noise levels for ``n`` samples of a channel: the two-sided Gaussian
     quantile that ``n`` independent residuals pass with probability ``false_rate`` in all
     (Bonferroni), at least 4. About 5.2 for 6000 samples, 4.9 for 1000 (a fixed 7 missed
-    outliers of 5-6 noise levels, which a channel of 1000 readings shows plainly)."""
+    outliers of 5-6 noise levels, which a channel of 1000 readings shows plainly).
+    """
     from scipy.special import ndtri  # the normal quantile (scipy.stats would add ~0.6 s of imports per worker)
 
     return max(4.0, float(-ndtri(false_rate / (2.0 * max(n, 1)))))
 
 
 def _lattice_lsb(v: np.ndarray) -> float | None:
-    """The step of a lattice that every reading lies on (quantised sensor), else None."""
+    """Return the step of a lattice that every reading lies on (quantised sensor), else None."""
     v = v[np.isfinite(v)]
     if v.size < 20:
         return None
@@ -272,8 +281,9 @@ def examine_tri(data: TriData, **cfg) -> Examination:
                                   device_effects=tuple(cfg.get("device_effects", ()))), **cfg)
 
 
-def examine_model(model, **cfg) -> Examination:
-    """The workflow on any model object (:class:`TriModel`, rod and static models).
+def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split into small functions)
+        model, **cfg) -> Examination:
+    """Run the examination workflow on any model object (:class:`TriModel`, rod and static models).
 
     The model provides the data, the base parameters and their start, the forward model with
     terms, the candidate terms, the noise floor and the localisation (see ``TriModel``).
@@ -289,8 +299,11 @@ def examine_model(model, **cfg) -> Examination:
     fallback: dict[str, float] = {}
 
     def fit(terms: list[Term], start: dict[str, float]) -> FitResult | None:
-        """Fit base + terms from ``start``; if the model is undefined there (a ray missing the
-        bore), from the base fit with zero effects; None when that fails too."""
+        """Fit base + terms from ``start``; None when the model cannot be fitted.
+
+        Fit base + terms from ``start``; if the model is undefined there (a ray missing the
+        bore), from the base fit with zero effects; None when that fails too.
+        """
         names = base_names + [n for t in terms for n in t.names()]
         scales = base_scales + [s for t in terms for s in t.scales()]
         for st in (start, {**fallback, **{k: v for k, v in start.items() if k.endswith("f_hz")}}):
@@ -619,8 +632,11 @@ def examine_model(model, **cfg) -> Examination:
 
 
 def _physical(z: tuple[FitResult, list[Term]]) -> bool:
-    """False for fits that need a physically impossible value: a fitted parameter more than two
-    standard uncertainties outside its registry bounds (e.g. ``beam_tilt`` shortening the reading)."""
+    """Return False for fits that need a physically impossible value.
+
+    Return False for fits that need a physically impossible value: a fitted parameter more than two
+    standard uncertainties outside its registry bounds (e.g. ``beam_tilt`` shortening the reading).
+    """
     fr, ts = z
     v, u = fr.values(), fr.uncertainties()
     for t in ts:

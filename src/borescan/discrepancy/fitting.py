@@ -94,8 +94,11 @@ def residual_sparsity(names: Sequence[str], mask: np.ndarray, channels: Sequence
 
 
 def dead_zone(r: np.ndarray, half_mm: np.ndarray | None) -> np.ndarray:
-    """Residuals of cell-valued (quantised) readings: 0 inside the cell +-half, else the distance
-    to its edge. ``half_mm`` broadcasts against ``r`` (per channel); None leaves ``r`` unchanged."""
+    """Return the residuals of cell-valued (quantised) readings.
+
+    Residuals of cell-valued (quantised) readings: 0 inside the cell +-half, else the distance
+    to its edge. ``half_mm`` broadcasts against ``r`` (per channel); None leaves ``r`` unchanged.
+    """
     if half_mm is None:
         return r
     return np.sign(r) * np.maximum(np.abs(r) - half_mm, 0.0)
@@ -104,7 +107,7 @@ def dead_zone(r: np.ndarray, half_mm: np.ndarray | None) -> np.ndarray:
 def spike_mask(
     residual_mm: np.ndarray, sigma_mm: np.ndarray, *, k_sigma: float = 7.0, window: int = 7
 ) -> np.ndarray:
-    """Samples that jump away from their neighbours by more than ``k_sigma`` noise levels.
+    """Return samples that jump away from their neighbours by more than ``k_sigma`` noise levels.
 
     The residual minus its running median (``window`` samples) keeps isolated jumps and removes
     smooth misfit, so a model error is not taken for an outlier.
@@ -131,7 +134,7 @@ def spike_mask(
 
 
 def leading_block(t_s: np.ndarray) -> int:
-    """Number of leading samples on an even time grid (spectra need uniform sampling)."""
+    """Return the number of leading samples on an even time grid (spectra need uniform sampling)."""
     t = np.asarray(t_s, dtype=float)
     if t.size < 3:
         return t.size
@@ -142,7 +145,10 @@ def leading_block(t_s: np.ndarray) -> int:
 
 
 def block_indices(n: int, max_samples: int, n_blocks: int = 4) -> np.ndarray:
-    """Indices of ``n_blocks`` contiguous blocks spread evenly over ``n`` samples, ``max_samples`` in all.
+    """Return indices of ``n_blocks`` contiguous blocks spread over ``n`` samples.
+
+    Return indices of ``n_blocks`` contiguous blocks spread evenly over ``n`` samples, ``max_samples`` in
+    all.
 
     Long scans are examined on these blocks: each keeps the sample-to-sample structure (noise
     floor, vibration lines), their spread keeps the time baseline (drift, speed error).

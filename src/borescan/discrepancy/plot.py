@@ -23,8 +23,11 @@ MARGIN = 0.02
 
 
 def nice_ceiling(value: float) -> float:
-    """The smallest value of :data:`NICE_STEPS` x 10^k at or above ``value`` (> 0); 1.0 for
-    anything not positive and finite."""
+    """Return the smallest nice value at or above ``value``.
+
+    Return the smallest value of :data:`NICE_STEPS` x 10^k at or above ``value`` (> 0); 1.0 for
+    anything not positive and finite.
+    """
     if not (math.isfinite(value) and value > 0.0):
         return 1.0
     k = math.floor(math.log10(value))
@@ -58,7 +61,7 @@ MAX_BACKGROUNDS = 32
 
 
 def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_label: str) -> dict:
-    """The figure of a layout, built on first use (see :data:`_FIGURES`).
+    """Return the figure of a layout, built on first use (see :data:`_FIGURES`).
 
     Returns a dict: ``fig``, ``axes`` (3, n_panels), ``lines[(row, col, channel index)]``,
     ``floor[(row, col, sign)]`` (the dashed noise-floor lines), ``suptitle`` and ``dynamic``: every
@@ -87,7 +90,7 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
                 lines[2, col, j], = axes[2, col].plot([], [], lw=0.8, color=colors[j % 10], label=f"ch {ch}")
             axes[2, col].set_xlabel("undulations per revolution [UPR]")
         else:  # pose scans: no revolution; residual per sample index instead
-            for j, ch in enumerate(channels):
+            for j in range(len(channels)):
                 lines[2, col, j], = axes[2, col].plot([], [], ".", ms=2, color=colors[j % 10])
             axes[2, col].set_xlabel("sample (poses in order)")
         for row in (0, 1):
@@ -111,8 +114,11 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
 
 
 def _background(layout: dict, limits: tuple):
-    """The rendered static part of ``layout`` with its axes at ``limits`` (already set on the
-    axes): everything but :func:`_figure`'s ``dynamic`` artists, drawn once per (layout, limits)."""
+    """Return the rendered static part of ``layout``.
+
+    Return the rendered static part of ``layout`` with its axes at ``limits`` (already set on the
+    axes): everything but :func:`_figure`'s ``dynamic`` artists, drawn once per (layout, limits).
+    """
     key = (layout["key"], limits)
     if key not in _BACKGROUNDS:
         fig = layout["fig"]
@@ -132,7 +138,8 @@ def _abs_max(*arrays: np.ndarray) -> float:
     return float(max(vals)) if vals else 0.0
 
 
-def plot_gap(examination, out_path: str | Path) -> Path:
+def plot_gap(  # noqa: C901 (one branch per scan kind and panel of the plot)
+        examination, out_path: str | Path) -> Path:
     """Write gap.png for one :class:`~borescan.discrepancy.examine.Examination`.
 
     Rows: residual against device angle, against time, spectrum in undulations per revolution

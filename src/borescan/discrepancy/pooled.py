@@ -109,6 +109,7 @@ class PooledScan:
 
     @property
     def scan_id(self) -> str:
+        """The scan's id."""
         return self.data.scan_id
 
 
@@ -147,13 +148,16 @@ class PooledTerm(Term):
 
     @property
     def key(self) -> str:
+        """The term's key, with ``#group`` for a term of one group of scans."""
         k = super().key
         return k if self.group is None else f"{k}#{self.group}"
 
     def names(self) -> list[str]:
+        """Return the term's parameter names, then one turn per scan of ``turns``."""
         return super().names() + [f"{self.key}.turn@{sid}" for sid in self.turns]
 
     def scales(self) -> list[float]:
+        """Return the typical sizes of :meth:`names`' parameters."""
         return super().scales() + [1e-2] * len(self.turns)
 
 
@@ -161,7 +165,7 @@ _SPEED = Term("speed_error")  # the per-scan speed scale of a commanded angle (p
 
 
 def parse_device_effect(key: str, channels: Sequence[int] | None = None, device: str = "") -> PooledTerm:
-    """The term of a device-model entry (checked by :func:`borescan.effects.device_effect_key`)."""
+    """Return the term of a device-model entry (checked by :func:`borescan.effects.device_effect_key`)."""
     name, ch = device_effect_key(key, channels, device)
     return PooledTerm(name) if ch is None else PooledTerm(name, ch)
 
@@ -171,7 +175,9 @@ def parse_device_effect(key: str, channels: Sequence[int] | None = None, device:
 
 @dataclass(frozen=True)
 class Condition:
-    """A condition of a set of scans under which a base parameter stops absorbing an effect
+    """A condition under which a base parameter stops absorbing an effect.
+
+    A condition of a set of scans under which a base parameter stops absorbing an effect
     (named by the registry's ``absorbed_unless``).
 
     holds : (model, scan indices) -> bool
@@ -209,7 +215,11 @@ CONDITIONS: dict[str, Condition] = {
 
 
 class _ScanModel(TriModel):
-    """One scan's :class:`TriModel` whose beams move by ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` (every channel)."""
+    """One scan's :class:`TriModel` with moved beams.
+
+    One scan's :class:`TriModel` whose beams move by ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` (every
+    channel).
+    """
 
     def base(self, p: dict[str, float]):
         b = super().base(p)
@@ -248,7 +258,8 @@ class PooledModel:
     free_beams : beam parameters that are free and shared (``beta``, ``rho``, ``d_b``)
     label : name of the set in messages (default the device id)
     device_effects : registry keys of the device model (``channel_delay@2``,
-        :func:`borescan.effects.device_model_effects`): terms of the base model, shared by every scan and fitted
+        :func:`borescan.effects.device_model_effects`): terms of the base model, shared by every scan and
+        fitted
         with it, never candidates
     """
 
@@ -261,7 +272,8 @@ class PooledModel:
         """Effect -> the calibration parameters that absorb it (the registry's)."""
         return calibration_absorbers(self.scan_kind)
 
-    def __init__(self, scans: Sequence[PooledScan], beams: Beams | None = None,
+    def __init__(  # noqa: C901 (checks every input of the pooled set; pooled is to become an adapter of the device models)
+            self, scans: Sequence[PooledScan], beams: Beams | None = None,
                  free_beams: tuple[str, ...] = ("beta", "rho", "d_b"), label: str | None = None,
                  device_effects: Sequence[str] = ()):
         scans = list(scans)
@@ -352,20 +364,25 @@ class PooledModel:
         return [n for t in self.device_terms for n in t.names()]
 
     def base_names(self) -> list[str]:
+        """Return the base model's parameter names: shared, device terms, then per scan."""
         out = self._shared_names() + self._device_term_names()
         for k, sid in enumerate(self.scan_ids):
             out += [f"{sid}:{n}" for n in self._nuisance(k)]
         return out
 
     def base_scales(self) -> list[float]:
+        """Return the typical sizes of :meth:`base_names`' parameters."""
         dev = dict(zip(self._device_term_names(), [s for t in self.device_terms for s in t.scales()]))
         return [dev[n] if n in dev else BASE_SCALE[n.rsplit(":", 1)[-1].split("[")[0]] for n in self.base_names()]
 
     def base_start(self) -> dict[str, float]:
-        """Shared beams at the start geometry; per scan the centre from the first harmonic and, for a
+        """Return the pooled fit's start.
+
+        Shared beams at the start geometry; per scan the centre from the first harmonic and, for a
         commanded angle, the speed scale: of 0 and the readings' spectral estimate (used when it says
         more than 0.2 %; a weak once-per-revolution line can mislead it), the one whose fit of that
-        scan's nuisance alone (beams held) leaves the smaller residual."""
+        scan's nuisance alone (beams held) leaves the smaller residual.
+        """
         out = {n: 0.0 for n in self._shared_names() + self._device_term_names()}
         for k, (m, sid) in enumerate(zip(self.models, self.scan_ids)):
             tries = [0.0]
@@ -379,7 +396,7 @@ class PooledModel:
                 if len(tries) > 1:
                     names = [f"{sid}:{n}" for n in self._nuisance(k)]
                     try:
-                        fr = fit_least_squares(lambda q: self._scan_residual(k, {**out, **q}), names,
+                        fr = fit_least_squares(lambda q, k=k: self._scan_residual(k, {**out, **q}), names,
                                                [st[n] for n in names], [BASE_SCALE[n.rsplit(":", 1)[-1]] for n in names],
                                                max_nfev=30)
                     except ValueError:
@@ -410,8 +427,11 @@ class PooledModel:
         return (self.scans[k].data.values_mm - self.predict_scan(k, p, []))[self.valid[self._rows(k)]]
 
     def groups(self, scope: str) -> list[tuple[str | None, list[int]]]:
-        """The groups of scans of a registry ``scope``: (label, scan indices); the label is None
-        for a group of every scan."""
+        """Return the groups of scans of a registry ``scope``.
+
+        Return the groups of scans of a registry ``scope``: (label, scan indices); the label is None
+        for a group of every scan.
+        """
         if scope not in SCOPES:
             raise ValueError(f"unknown scope {scope!r}; valid: {SCOPES}")
         K = len(self.scans)
@@ -429,29 +449,38 @@ class PooledModel:
         return [(None if len(ks) == K else key, ks) for key, ks in out.items()]
 
     def frame_shared(self, k: int) -> bool:
-        """Scan ``k``'s device angle has the machine's origin: an encoder, or a moving spindle (whose
+        """Return whether scan ``k``'s device angle has the machine's origin.
+
+        Scan ``k``'s device angle has the machine's origin: an encoder, or a moving spindle (whose
         phase the stream fixes). A commanded angle on a fixed spindle has its own origin (for a
         round bore the phase is the direction of the centre offset), so an effect fixed in the
-        machine frame (a gauge's lobing, its tilt) appears turned by an angle of its own there."""
+        machine frame (a gauge's lobing, its tilt) appears turned by an angle of its own there.
+        """
         d = self.scans[k].data
         return d.encoder or d.free_phase
 
     def frame_of(self, k: int) -> str:
-        """The frame in which scan ``k`` sees an artifact's orientation: its night (the artifact as
+        """Return the frame in which scan ``k`` sees an artifact's orientation.
+
+        Return the frame in which scan ``k`` sees an artifact's orientation: its night (the artifact as
         mounted that night, in the machine's angle origin), or the scan itself when its angle has
-        its own origin (:meth:`frame_shared`)."""
+        its own origin (:meth:`frame_shared`).
+        """
         return self.scans[k].night if self.frame_shared(k) else self.scan_ids[k]
 
     def turns_of(self, ks: Sequence[int]) -> tuple[str, ...]:
-        """Frames of a group's scans that see an oriented effect turned: every frame but the
-        reference (the first frame with the machine's angle origin, else the first frame)."""
+        """Return the frames of a group's scans that see an oriented effect turned.
+
+        Frames of a group's scans that see an oriented effect turned: every frame but the
+        reference (the first frame with the machine's angle origin, else the first frame).
+        """
         frames = list(dict.fromkeys(self.frame_of(k) for k in ks))
         absolute = [self.frame_of(k) for k in ks if self.frame_shared(k)]
         ref = absolute[0] if absolute else frames[0]
         return tuple(fr for fr in frames if fr != ref)
 
     def members(self, t: Term) -> list[int]:
-        """Indices of the scans a term acts on."""
+        """Return indices of the scans a term acts on."""
         g = getattr(t, "group", None)
         if g is None:
             return list(range(len(self.scans)))
@@ -491,14 +520,14 @@ class PooledModel:
 
     @staticmethod
     def _turned(t: Term, p: dict[str, float], angle_rad: float) -> dict[str, float]:
-        """The fitted values of term ``t`` with its orientation (registry) turned by ``angle_rad``."""
+        """Return the fitted values of term ``t`` with its orientation (registry) turned by ``angle_rad``."""
         spec = EFFECTS[t.effect]
         par, _ = spec.spec_params({q.name: p[f"{t.key}.{q.name}"] for q in spec.fit}, None, t.k)
         par[spec.orientation] = par[spec.orientation] + angle_rad
         return {f"{t.key}.{n}": v for n, v in spec.internal(par).items()}
 
     def predict_scan(self, k: int, p: dict[str, float], terms: list[Term]) -> np.ndarray:
-        """Readings (n_k, c) of scan ``k`` at pooled parameters ``p`` [mm]."""
+        """Return readings (n_k, c) of scan ``k`` at pooled parameters ``p`` [mm]."""
         q, own = self._scan_params(k, p, terms)
         return self.models[k].predict(q, own)
 
@@ -515,17 +544,23 @@ class PooledModel:
     # ------------------------------------------------------------------ engine interface
     @property
     def base_description(self) -> str:
-        return (f"{len(self.scans)} scans of one device: beams ({', '.join(self.free_beams)}) shared and free from "
+        """Return a sentence saying what the base model fits."""
+        return (f"{len(self.scans)} scans of one device: beams ({', '.join(self.free_beams)}) shared and "
+                "free from "
                 "the start geometry; per scan bore centre, phase (moving spindle), radius (uncertified "
                 "artifact), speed scale (commanded angle)")
 
     @property
     def rev_hz(self) -> float:
+        """Revolution frequency [Hz] of the first scan."""
         return self.models[0].rev_hz
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
-        """Per-channel floor of the pooled residual (the scans' floors, root mean square by samples);
-        also sets the per-scan weights (pooled floor / scan floor)."""
+        """Return the per-channel floor of the pooled residual.
+
+        Per-channel floor of the pooled residual (the scans' floors, root mean square by samples);
+        also sets the per-scan weights (pooled floor / scan floor).
+        """
         K, c = len(self.scans), len(self.data.channels)
         sig = np.zeros((K, c))
         cnt = np.zeros((K, c))
@@ -541,11 +576,12 @@ class PooledModel:
         return pooled
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
+        """Return the spike mask of the residuals ``r``, scan by scan with each scan's noise level."""
         return np.vstack([spike_mask(r[self._rows(k)], self.scan_sigma[k], k_sigma=k_sigma)
                           for k in range(len(self.scans))])
 
     def localise(self, r: np.ndarray, sigma: np.ndarray) -> dict:
-        """The single-scan localisation of each scan (its own noise floor)."""
+        """Return the single-scan localisation of each scan (its own noise floor)."""
         return {"scans": {sid: m.localise(r[self._rows(k)], self.scan_sigma[k])
                           for k, (m, sid) in enumerate(zip(self.models, self.scan_ids))}}
 
@@ -556,7 +592,8 @@ class PooledModel:
     def candidate_terms(self, *, k_max: int | None = None, vibration_f_hz: float | None = None) -> list[PooledTerm]:
         """The registry's candidates for every group of scans their scope defines, less those the
         pooled base absorbs (recorded in :attr:`absorbed`). ``speed_error`` is the base's per-scan
-        speed scale; ``vibration`` is left to the single-scan examination."""
+        speed scale; ``vibration`` is left to the single-scan examination.
+        """
         terms: list[PooledTerm] = []
         self.absorbed = []
         every = list(range(len(self.scans)))
@@ -620,8 +657,9 @@ class PooledModel:
             return entry
         return None
 
-    def extra_starts(self, screen: list, keys: set, t1: Term | None) -> list:
-        """Starts the linear screen cannot give.
+    def extra_starts(  # noqa: C901 (one branch per effect's extra starts; pooled is to become an adapter of the device models)
+            self, screen: list, keys: set, t1: Term | None) -> list:
+        """Return the starts the linear screen cannot give.
 
         An oriented effect turned in some scans (:attr:`PooledTerm.turns`) is not linear in the
         turns at zero amplitude: each scan's own estimate (a linear fit of that scan alone) gives
@@ -671,7 +709,7 @@ class PooledModel:
                         for j in combo:
                             st = self._mirrored(st, j)
                         try:
-                            fr = fit_least_squares(lambda q: self.residual(q, [t]), names,
+                            fr = fit_least_squares(lambda q, t=t: self.residual(q, [t]), names,
                                                    [st.get(n, 0.0) for n in names], scales, max_nfev=15)
                         except ValueError:
                             continue
@@ -680,7 +718,7 @@ class PooledModel:
                 if best is not None:
                     v = best.values()
                     try:
-                        fr = fit_least_squares(lambda q: self.residual(q, [t]), names, [v[n] for n in names], scales,
+                        fr = fit_least_squares(lambda q, t=t: self.residual(q, [t]), names, [v[n] for n in names], scales,
                                                max_nfev=100)
                         v = fr.values() if np.isfinite(fr.rss) and fr.rss <= best.rss else v
                     except ValueError:
@@ -703,8 +741,11 @@ class PooledModel:
         return tilt, st
 
     def _form_leads(self, screen: list, t: PooledTerm, gain: float | None) -> bool:
-        """The k = 2 lobing ``t`` leads: first in the screen, or (turned) its per-scan estimates
-        explain more than those of the screen's first candidate."""
+        """Return whether the k = 2 lobing ``t`` leads.
+
+        Return the k = 2 lobing ``t`` leads: first in the screen, or (turned) its per-scan estimates
+        explain more than those of the screen's first candidate.
+        """
         top = screen[0][1]
         if top.key == t.key:
             return True
@@ -715,17 +756,23 @@ class PooledModel:
         return gain > g_top
 
     def _mirrored(self, start: dict[str, float], j: int) -> dict[str, float]:
-        """``start`` with channel j's rho of the other sign at the same psi and g (the calibration's
-        mirror solution of that beam)."""
+        """Return ``start`` with channel j's rho mirrored.
+
+        ``start`` with channel j's rho of the other sign at the same psi and g (the calibration's
+        mirror solution of that beam).
+        """
         out = dict(start)
         rho = self.start_beams.rho_mm[j] + start.get(f"drho[{j}]", 0.0)
         out[f"drho[{j}]"] = -rho - self.start_beams.rho_mm[j]
         return out
 
     def _per_scan_estimates(self, t: Term, start: dict[str, float], t1: Term | None) -> tuple[dict | None, float]:
-        """Term ``t`` fitted linearly to each scan alone (with that scan's centre, at ``start`` with
+        """Return term ``t`` fitted linearly to each scan alone.
+
+        Term ``t`` fitted linearly to each scan alone (with that scan's centre, at ``start`` with
         ``t1``): the values of each frame's first scan (:meth:`frame_of`), and the chi-square the
-        per-scan estimates explain in all (None, 0 where the model is undefined)."""
+        per-scan estimates explain in all (None, 0 where the model is undefined).
+        """
         spec = EFFECTS[t.effect]
         fit_names = [f"{t.key}.{q.name}" for q in spec.fit]
         fit_scales = [q.scale for q in spec.fit]
@@ -755,9 +802,12 @@ class PooledModel:
         return est, gain
 
     def _oriented_start(self, t: PooledTerm, start: dict[str, float], t1: Term | None) -> tuple[dict | None, float]:
-        """Start of a turned term from each scan's own linear estimate of it (at ``start``, with ``t1``):
+        """Return the start of a turned term from each scan's own estimate.
+
+        Start of a turned term from each scan's own linear estimate of it (at ``start``, with ``t1``):
         the reference frame's values and each turned frame's orientation difference (a frame's first
-        scan); and the chi-square the per-scan estimates explain."""
+        scan); and the chi-square the per-scan estimates explain.
+        """
         spec = EFFECTS[t.effect]
         est, gain = self._per_scan_estimates(t, start, t1)
         if est is None:
@@ -775,8 +825,11 @@ class PooledModel:
         return out, gain
 
     def term_parameters(self, term: Term, x: dict, u: dict) -> tuple[dict, dict]:
-        """The spec's parameters of a fitted term (the examination asks once per named entry, in
-        the entries' order: the terms are kept in :attr:`reported`)."""
+        """Return the spec's parameters of a fitted term.
+
+        Return the spec's parameters of a fitted term (the examination asks once per named entry, in
+        the entries' order: the terms are kept in :attr:`reported`).
+        """
         self.reported.append(term)
         par, unc = term_parameters(term, x, u)
         turns = getattr(term, "turns", ())
@@ -786,10 +839,11 @@ class PooledModel:
         return par, unc
 
     def plot_angle(self) -> np.ndarray:
+        """Return the plotting angle [rad] of every sample, the scans one after the other."""
         return np.concatenate([m.plot_angle() for m in self.models])
 
     def beams_at(self, p: dict[str, float]) -> Beams:
-        """The shared beam geometry at pooled parameters ``p`` (module doc: psi, rho, g)."""
+        """Return the shared beam geometry at pooled parameters ``p`` (module doc: psi, rho, g)."""
         c = len(self.data.channels)
         b = self.start_beams
         R = self.R_mm
@@ -803,7 +857,7 @@ class PooledModel:
         return Beams(b.channels, beta, rho, d_b)
 
     def _beam_deltas(self, p: dict[str, float]) -> dict[str, float]:
-        """The single-scan models' beam offsets ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` at ``p``."""
+        """Return the single-scan models' beam offsets ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` at ``p``."""
         b, s = self.beams_at(p), self.start_beams
         out = {}
         for j in range(len(self.data.channels)):
@@ -813,8 +867,11 @@ class PooledModel:
         return out
 
     def beam_covariance(self, p: dict[str, float], names: Sequence[str], cov: np.ndarray) -> np.ndarray:
-        """Covariance (3c, 3c) of (beta, rho, d_b) per channel (the calibration's order) from the
-        covariance ``cov`` of the fitted parameters ``names`` (linear propagation)."""
+        """Return the covariance of (beta, rho, d_b) per channel.
+
+        Covariance (3c, 3c) of (beta, rho, d_b) per channel (the calibration's order) from the
+        covariance ``cov`` of the fitted parameters ``names`` (linear propagation).
+        """
         idx = [i for i, n in enumerate(names) if n in set(self._shared_names())]
         c = len(self.data.channels)
 
@@ -833,8 +890,11 @@ class PooledModel:
         return A @ C @ A.T
 
     def base_summary(self, p: dict[str, float]) -> dict:
-        """The base fit's beams and per-scan nuisance (the examination asks once, at its base fit:
-        the values are kept in :attr:`base_values`)."""
+        """Return the base fit's beams and per-scan nuisance.
+
+        Return the base fit's beams and per-scan nuisance (the examination asks once, at its base fit:
+        the values are kept in :attr:`base_values`).
+        """
         self.base_values = dict(p)
         b = self.beams_at(p)
         out = {"beams": b.to_nominal(),
@@ -852,8 +912,11 @@ class PooledModel:
         return out
 
     def design(self, p: dict[str, float] | None = None) -> dict:
-        """What distinguishes the scans: night, artifact, radius, signed speed, angle source and,
-        with parameters ``p``, the eccentricity |S - C| of the fit."""
+        """Return what distinguishes the scans.
+
+        Return what distinguishes the scans: night, artifact, radius, signed speed, angle source and,
+        with parameters ``p``, the eccentricity |S - C| of the fit.
+        """
         out = {}
         for k, s in enumerate(self.scans):
             d = s.data
@@ -874,8 +937,11 @@ class PooledModel:
 
 @dataclass
 class PooledExamination:
-    """The pooled findings and the examination behind them (arrays stacked over the scans); ``fit``
-    is the verdict's fit (base and ``terms``; the base alone when nothing is named)."""
+    """The pooled findings and the examination behind them.
+
+    The pooled findings and the examination behind them (arrays stacked over the scans); ``fit``
+    is the verdict's fit (base and ``terms``; the base alone when nothing is named).
+    """
 
     findings: dict
     examination: Examination
@@ -894,7 +960,11 @@ def _chi2_by_scan(model: PooledModel, r_mm: np.ndarray) -> np.ndarray:
 
 
 def _carriers(model: PooledModel, gain: np.ndarray, ks: Sequence[int] | None = None) -> list[str]:
-    """The fewest scans (largest chi-square decrease first) holding :data:`CARRIER_SHARE` of the decrease."""
+    """Return the fewest scans holding most of the chi-square decrease.
+
+    Return the fewest scans (largest chi-square decrease first) holding :data:`CARRIER_SHARE` of the
+    decrease.
+    """
     ks = list(range(len(model.scans))) if ks is None else list(ks)
     pos = [(float(gain[k]), k) for k in ks if gain[k] > 0]
     pos.sort(reverse=True)
@@ -909,8 +979,11 @@ def _carriers(model: PooledModel, gain: np.ndarray, ks: Sequence[int] | None = N
 
 
 def _absorbed_summary(model: PooledModel) -> list[dict]:
-    """The absorbed terms grouped by effect and absorbing parameter (one line each; for an
-    effect of several groups, its part common to every group)."""
+    """Return the absorbed terms grouped by effect and absorbing parameter.
+
+    Return the absorbed terms grouped by effect and absorbing parameter (one line each; for an
+    effect of several groups, its part common to every group).
+    """
     out: dict[tuple, dict] = {}
     for a in model.absorbed:
         key = (a["effect"], a["parameter"])
@@ -928,7 +1001,7 @@ _CAL_COLUMN = {"beta": "beta_rad", "rho": "rho_mm", "d_b": "d_b_mm"}
 
 
 def calibration_equivalent(model: PooledModel, p: dict[str, float], terms: list[Term], t: Term) -> dict:
-    """What a calibration that ignores term ``t`` would put into the beams, scan by scan.
+    """Return what a calibration that ignores term ``t`` would put into the beams, scan by scan.
 
     For each scan the term acts on, the term's signature (readings with every term less readings
     without ``t``) is fitted, linearised and weighted by the scan's noise floor, by changes of the
@@ -1035,7 +1108,7 @@ def drift_explanations(drift, findings: dict) -> list[dict]:
 
 
 def spec_text(effect: str, par: str) -> str:
-    """The registry's words for the base parameter ``par`` absorbing ``effect`` in a spindle scan."""
+    """Return the registry's words for the base parameter ``par`` absorbing ``effect`` in a spindle scan."""
     return EFFECTS[effect].absorbers(SCAN_KIND).get(par, par)
 
 
@@ -1045,9 +1118,12 @@ _SCOPE_CHANGE = {"scan": "another scan", "night": "a scan on another night", "ar
 
 
 def separation(a: Term, b: Term) -> str | None:
-    """The measurement that separates two tied terms, from the registry: effects of different
+    """Return the measurement that separates two tied terms, from the registry.
+
+    Return the measurement that separates two tied terms, from the registry: effects of different
     ``scope`` part when the narrower one's unit changes (another run, night or artifact) and the
-    other's does not; None when the registry knows none (the same scope: a spec look-alike)."""
+    other's does not; None when the registry knows none (the same scope: a spec look-alike).
+    """
     sa, sb = EFFECTS[a.effect].scope, EFFECTS[b.effect].scope
     if sa == sb:
         return None
@@ -1061,7 +1137,7 @@ POLISH_NFEV = 200
 
 
 def _entry_start(model: PooledModel, t: Term, n: dict) -> dict[str, float]:
-    """The fitted values of term ``t`` from its named entry ``n`` (spec parameters, turns)."""
+    """Return the fitted values of term ``t`` from its named entry ``n`` (spec parameters, turns)."""
     spec = EFFECTS[t.effect]
     par = {k: v for k, v in n["parameters"].items() if k in spec.params}
     if spec.per_channel:
@@ -1084,7 +1160,7 @@ def _fit_terms(model: PooledModel, terms: list[Term], start: dict[str, float], m
 
 
 def _check_pair(model: PooledModel, f: dict, terms: list[Term], entries: list[dict]) -> dict | None:
-    """A pair verdict checked with fits run to convergence (:data:`POLISH_NFEV` evaluations).
+    """Return a pair verdict checked with fits run to convergence (:data:`POLISH_NFEV` evaluations).
 
     The search prefers a pair to the best single only when it beats it by more than the
     threshold; but the pair's fit starts where the single's stopped, so a single that its
@@ -1115,7 +1191,8 @@ def _check_pair(model: PooledModel, f: dict, terms: list[Term], entries: list[di
     return {"term": t1, "fit": fr1, "pair": pair}
 
 
-def examine_pooled(scans: Sequence[PooledScan], beams: Beams | None = None, *,
+def examine_pooled(  # noqa: C901 (pooled is to become an adapter of the device models)
+        scans: Sequence[PooledScan], beams: Beams | None = None, *,
                    free_beams: tuple[str, ...] = ("beta", "rho", "d_b"), label: str | None = None,
                    device_effects: Sequence[str] = (), **cfg) -> PooledExamination:
     """Examine the spindle scans of one device together (module doc).
@@ -1127,7 +1204,8 @@ def examine_pooled(scans: Sequence[PooledScan], beams: Beams | None = None, *,
         of the first scan)
     free_beams : shared beam parameters that are free
     label : name of the set (default the device id)
-    device_effects : the device model (registry keys, :func:`borescan.effects.device_model_effects`): fitted as part
+    device_effects : the device model (registry keys, :func:`borescan.effects.device_model_effects`): fitted
+        as part
         of the base model, never candidates; reported under ``device_model``
     **cfg : the settings of :func:`~borescan.discrepancy.examine.examine_model`
         (:func:`~borescan.discrepancy.examine.discrepancy_settings` of the config's section)

@@ -97,7 +97,7 @@ class _PoseModel:
         return noise_floor_mm(r, order=1, keep=self.data.pose_index[1:] == self.data.pose_index[:-1])
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
-        """Readings further than ``k_sigma`` noise levels from their pose median."""
+        """Return readings further than ``k_sigma`` noise levels from their pose median."""
         out = np.zeros(r.shape, dtype=bool)
         idx = self.data.pose_index
         for j in range(r.shape[1]):
@@ -196,6 +196,7 @@ class RodModel(_PoseModel):
         self.device = RodDevice(tuple(self.layers()), data.cte_per_k or 0.0, tuple(data.range_mm))
 
     def base_names(self):
+        """Return the base model's parameter names (per layer, per pose, the deflection)."""
         m = len(self.data.channels)
         return (
             [f"alpha[{k}]" for k in range(1, self.n_pose)]
@@ -214,8 +215,11 @@ class RodModel(_PoseModel):
                 for c, h, l0, ph, dd, g in zip(self.data.channels, self.h, self.l0, self.phi, self.d, self.gamma)]
 
     def base_start(self):
-        """Pose means solved by ``rod.solve_rod`` (deflection free, maximum likelihood); on refusal
-        the closed-form Eq. 16 start with w = 0."""
+        """Return the rod model's start from the pose means.
+
+        Pose means solved by ``rod.solve_rod`` (deflection free, maximum likelihood); on refusal
+        the closed-form Eq. 16 start with w = 0.
+        """
         from borescan.rod import RodSolveError, rod_start, solve_rod
 
         d = self.data
@@ -247,6 +251,7 @@ class RodModel(_PoseModel):
         return out
 
     def base_summary(self, p):
+        """Return the base fit's geometry at ``p`` (pose angles, deflection); keep the angles to plot."""
         alpha = np.array([0.0] + [p[f"alpha[{k}]"] for k in range(1, self.n_pose)])
         self._last = np.mod(alpha[self.data.pose_index], 2 * np.pi)
         m = len(self.data.channels)
@@ -327,6 +332,7 @@ class StaticModel(_PoseModel):
         self.device = TriDevice(self.beams, data.cte_per_k or 0.0, tuple(data.range_mm))
 
     def base_names(self):
+        """Return the base model's parameter names (device position per pose, radius change)."""
         names = [f"sx[{k}]" for k in range(self.n_pose)] + [f"sy[{k}]" for k in range(self.n_pose)]
         return names + (["dR"] if self.radius_free else [])
 
@@ -347,6 +353,7 @@ class StaticModel(_PoseModel):
         return out
 
     def base_summary(self, p):
+        """Return the base fit's device positions at ``p``."""
         self._last = np.zeros(self.data.t_s.size)
         return {"device_xy_mm": [[float(p[f"sx[{k}]"]), float(p[f"sy[{k}]"])] for k in range(self.n_pose)],
                 "radius_mm": float(self.R + p.get("dR", 0.0)), "radius_free": bool(self.radius_free)}
@@ -367,4 +374,5 @@ class StaticModel(_PoseModel):
                               k_max=k_max, freed={"R": "shared" if self.radius_free else set()})
 
     def extra_starts(self, screen, keys, t1):
+        """Return no extra starts (the linear screen's start is enough for static scans)."""
         return []

@@ -12,7 +12,10 @@ __all__ = ["discrepancy_reference"]
 
 
 def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_type: str, night: str) -> tuple[dict, str]:
-    """The keywords of :func:`borescan.discrepancy.analyse_scan` that fix the reference, and its description.
+    """Return the keywords that fix the reference, and its description.
+
+    Return the keywords of :func:`borescan.discrepancy.analyse_scan` that fix the reference, and its
+    description.
 
     A three-sensor device's design geometry (``device.nominal``) is off the real device by
     degrees and tens of um; compared with it, every scan would "miss" offsets and gains that are

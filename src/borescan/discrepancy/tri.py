@@ -61,6 +61,7 @@ class Term:
 
     @property
     def key(self) -> str:
+        """The term's key: the effect, ``@channel`` and ``k`` where they apply."""
         s = self.effect
         if self.channel is not None:
             s += "@" + ("all" if self.channel == 0 else str(self.channel))
@@ -108,6 +109,7 @@ class TriData:
 
     @property
     def rev_hz(self) -> float:
+        """Revolution frequency [Hz]."""
         return self.omega_rad_s / (2.0 * np.pi)
 
     @property
@@ -116,9 +118,12 @@ class TriData:
         return self.angle_model is not None and self.angle_model.source == "encoder"
 
     def turned_rad(self, t_s: np.ndarray) -> np.ndarray:
-        """Unsigned turned angle x(t) since t = 0 that the model assumes (phi = phase + direction x):
+        """Return the unsigned turned angle x(t) the model assumes.
+
+        Unsigned turned angle x(t) since t = 0 that the model assumes (phi = phase + direction x):
         the commanded profile's angle (:mod:`borescan.kinematics`), omega t without one; with an
-        encoder the measured angle less its value at t = 0."""
+        encoder the measured angle less its value at t = 0.
+        """
         if self.angle_model is None:
             return self.omega_rad_s * np.asarray(t_s, dtype=float)
         x = self.angle_model.commanded_rad(t_s)
@@ -206,9 +211,12 @@ def tri_data_from_arrays(
 
 
 def term_effects(term: Term, p: dict[str, float], channels) -> list[Effect]:
-    """The spec's effects of a fitted term: its fitted values ``p[f"{term.key}.{name}"]``
+    """Return the spec's effects of a fitted term.
+
+    Return the spec's effects of a fitted term: its fitted values ``p[f"{term.key}.{name}"]``
     converted by the registry (:meth:`~borescan.effects.EffectSpec.spec_params`); a
-    per-channel term with ``channel`` 0 (or None) is one effect per channel."""
+    per-channel term with ``channel`` 0 (or None) is one effect per channel.
+    """
     spec = EFFECTS[term.effect]
     x = {q.name: p[f"{term.key}.{q.name}"] for q in spec.fit}
     par, _ = spec.spec_params(x, None, term.k)
@@ -219,8 +227,11 @@ def term_effects(term: Term, p: dict[str, float], channels) -> list[Effect]:
 
 
 def term_values(term: Term, effect: Effect) -> dict[str, float]:
-    """Inverse of :func:`term_effects`: the term's fitted values ``{f"{term.key}.{name}": value}``
-    of a spec effect (:meth:`~borescan.effects.EffectSpec.internal`)."""
+    """Return the term's fitted values of a spec effect.
+
+    Inverse of :func:`term_effects`: the term's fitted values ``{f"{term.key}.{name}": value}``
+    of a spec effect (:meth:`~borescan.effects.EffectSpec.internal`).
+    """
     return {f"{term.key}.{n}": v for n, v in effect.spec.internal(effect.params).items()}
 
 
@@ -259,7 +270,7 @@ class TriModel:
 
     # ------------------------------------------------------------------ forward
     def base(self, p: dict[str, float]) -> TriBase:
-        """The base geometry at base parameters ``p`` (centre, phase, radius, freed beams)."""
+        """Return the base geometry at base parameters ``p`` (centre, phase, radius, freed beams)."""
         d = self.data
         beams = d.beams
         if self.free_beams:
@@ -282,7 +293,7 @@ class TriModel:
         )
 
     def predict(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
-        """Readings (n, c) [mm] for full parameters ``p`` (base + every term's fitted names).
+        """Return readings (n, c) [mm] for full parameters ``p`` (base + every term's fitted names).
 
         The terms' fitted values become the spec's effects (:func:`term_effects`) and the
         readings come from the composition of :mod:`borescan.physics.tri` (the digital twin's). The
@@ -314,6 +325,7 @@ class TriModel:
 
     # ------------------------------------------------------------------ helpers
     def base_names(self) -> list[str]:
+        """Return the base model's parameter names (centre, phase, beams, device terms)."""
         c = len(self.data.channels)
         names = ["cx", "cy"] + (["phase"] if self.data.free_phase else [])
         names += ["dR"] if self.data.radius_free else []
@@ -338,13 +350,16 @@ class TriModel:
 
     @property
     def rev_hz(self) -> float:
+        """Revolution frequency [Hz] of the scan."""
         return self.data.rev_hz
 
     def base_scales(self) -> list[float]:
+        """Return the typical sizes of :meth:`base_names`' parameters."""
         own = dict(zip((n for t in self.device_terms for n in t.names()), (s for t in self.device_terms for s in t.scales())))
         return [own.get(n, BASE_SCALE.get(n.split("[")[0], 1e-3)) for n in self.base_names()]
 
     def base_start(self) -> dict[str, float]:
+        """Return the base fit's start (centre from the readings, device terms' own starts)."""
         C0 = self.initial_center()
         out = {"cx": float(C0[0]), "cy": float(C0[1]), **self._device_start}
         if self.data.free_phase:
@@ -352,6 +367,7 @@ class TriModel:
         return out
 
     def base_summary(self, p: dict[str, float]) -> dict:
+        """Return the base fit's geometry at ``p`` (centre, radius, beams)."""
         out = {"center_xy_mm": [float(p["cx"]), float(p["cy"])],
                "radius_mm": float(self.data.radius_mm + p.get("dR", 0.0)),
                "radius_free": bool(self.data.radius_free)}
@@ -367,21 +383,26 @@ class TriModel:
         return out
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
+        """Return the noise floor [mm] of the residuals ``r`` per channel."""
         return noise_floor_mm(r)
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
+        """Return the mask of residuals further than ``k_sigma`` noise levels out."""
         return spike_mask(r, sigma, k_sigma=k_sigma)
 
     def localise(self, r: np.ndarray, sigma: np.ndarray) -> dict:
+        """Return where in the scan the residuals ``r`` concentrate."""
         return _localise(self, r, sigma)
 
     def vibration_f(self, r: np.ndarray) -> float | None:
+        """Return the frequency [Hz] of the residuals' vibration peak, or None."""
         return _vibration_peak(self, r)[0]
 
     def candidate_terms(self, *, k_max: int | None = None, vibration_f_hz: float | None = None) -> list[Term]:
         """Every applicable term (:func:`candidate_terms`), less those a freed base parameter
         absorbs (the registry's ``absorbed_by``: d_b offsets and thermal expansion, beta channel
-        delay, a free radius R the common offset and thermal expansion)."""
+        delay, a free radius R the common offset and thermal expansion).
+        """
         chans = set(self.data.channels)
         freed: dict[str, set | str] = {b: chans for b in self.free_beams}
         if self.data.radius_free:  # a part's radius is the measurand: it absorbs what every channel shares
@@ -391,7 +412,7 @@ class TriModel:
                 if t.key not in keys]
 
     def extra_starts(self, screen: list, keys: set, t1: Term | None) -> list:
-        """Starts the linear screen cannot give.
+        """Return the starts the linear screen cannot give.
 
         axis_tilt is not linear at zero tilt: start it from the k = 2 lobing of the screen.
         A large speed error winds the phase by many radians: start it from the rotation
@@ -413,9 +434,11 @@ class TriModel:
         return out
 
     def term_parameters(self, term: Term, x: dict, u: dict) -> tuple[dict, dict]:
+        """Return a term's parameters and their uncertainties from the fit's ``x`` and ``u``."""
         return term_parameters(term, x, u, self.data)
 
     def plot_angle(self) -> np.ndarray:
+        """Return the spindle angle [rad] of every sample, for the plots."""
         d = self.data
         return np.mod(d.phase_rad + d.direction * d.turned_rad(d.t_s), 2 * np.pi)
 
@@ -435,7 +458,9 @@ class TriModel:
 
 def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: int | None = None,
                    freed: dict[str, set | str] | None = None) -> list[Term]:
-    """The registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
+    """Return the registry's candidate terms for a scan of ``scan_kind``.
+
+    Return the registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
     ``"tri_static"``, ``"rod"``): the only list of candidates the workflow has.
 
     Every effect whose ``candidate[scan_kind]`` is ``"screen"`` and whose ``needs`` the scan meets
@@ -474,17 +499,23 @@ def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: in
 
 def candidate_terms(data: TriData, *, k_max: int | None = None, vibration_f_hz: float | None = None,
                     freed: dict[str, set | str] | None = None) -> list[Term]:
-    """The registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
+    """Return the registry's candidates of a spindle scan.
+
+    Return the registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
     when the scan has no encoder, ``vibration_line`` when ``vibration_f_hz`` was found, ``cte``
-    when the artifact's CTE is known."""
+    when the artifact's CTE is known.
+    """
     have = {"commanded_angle": not data.encoder, "vibration_line": vibration_f_hz is not None,
             "cte": bool(data.cte_per_k)}
     return registry_terms(SCAN_KIND, data.channels, have=have, k_max=k_max, freed=freed)
 
 
 def term_parameters(term: Term, x: dict[str, float], u: dict[str, float], data: TriData | None = None) -> tuple[dict, dict]:
-    """The spec's parameters of a fitted term and their standard uncertainties (the registry's
-    :meth:`~borescan.effects.EffectSpec.spec_params`)."""
+    """Return the spec's parameters of a fitted term and their uncertainties.
+
+    Return the spec's parameters of a fitted term and their standard uncertainties (the registry's
+    :meth:`~borescan.effects.EffectSpec.spec_params`).
+    """
     spec = EFFECTS[term.effect]
     if not spec.fit:
         raise ValueError(f"no parameter conversion for {term.effect!r}")
@@ -589,8 +620,11 @@ def _tilt_start(lobing_start: dict, data: "TriData") -> dict:
 
 
 def _rotation_eps(model: TriModel) -> float | None:
-    """Relative speed error from the strongest line of the readings within +-30 % of the nominal
-    rotation frequency (the eccentricity undulates once per revolution); None without one."""
+    """Return the relative speed error from the readings' rotation line, or None.
+
+    Relative speed error from the strongest line of the readings within +-30 % of the nominal
+    rotation frequency (the eccentricity undulates once per revolution); None without one.
+    """
     d = model.data
     n = leading_block(d.t_s)
     if n < 32:

@@ -64,8 +64,11 @@ def eq7_manufacturing_error_um(l_mm, d_mm=0.5, gamma_rad=np.deg2rad(0.5)):
 
 
 def eq7_simulated_error_um(r_mm, d_mm=0.5, gamma_rad=np.deg2rad(0.5)):
-    """Reading error of a centred rod with beam offset d and tilt gamma (exact forward model):
-    (l0 + v) - r, where the nominal model reads l = r [um]; to first order equal to -Eq. 7."""
+    """Return the reading error [um] of a centred rod with beam offset and tilt.
+
+    Return reading error of a centred rod with beam offset d and tilt gamma (exact forward model):
+    (l0 + v) - r, where the nominal model reads l = r [um]; to first order equal to -Eq. 7.
+    """
     r = np.atleast_1d(np.asarray(r_mm, dtype=float))
     out = np.empty_like(r)
     for i, rr in enumerate(r):
@@ -225,12 +228,15 @@ def write_reproduction(out_dir, fig11_trials: int = FIG11_TRIALS, progress=None)
         w = csv.writer(fh)
         w.writerow(["item", "paper", "reproduced", "note"])
         e7, e15, f9, f11 = rep["eq7"], rep["eq15"], rep["fig9"], rep["fig11"]
-        w.writerow(["Eq. 7 |dl| for l < 80 mm (d 0.5 mm, gamma 0.5 deg)", "< 1.5 um", f"{e7['max_abs_70_80_um']:.3f} um for 70 <= l <= 80 mm; exceeds 1.5 um for l < {e7['exceeds_1_5_below_mm']:.1f} mm",
-                    f"dl(80) = {e7['at_80_um']:.3f} um; exact forward model r=75: {e7['simulated_r75_um']:+.3f} um, "
+        w.writerow(["Eq. 7 |dl| for l < 80 mm (d 0.5 mm, gamma 0.5 deg)", "< 1.5 um", f"{e7['max_abs_70_80_um']:.3f} um for 70 <= l <= 80 mm; exceeds 1.5 um for l < "
+                                                                                      f"{e7['exceeds_1_5_below_mm']:.1f} mm",
+                    f"dl(80) = {e7['at_80_um']:.3f} um; exact forward model r=75: "
+                    f"{e7['simulated_r75_um']:+.3f} um, "
                     f"r=80: {e7['simulated_r80_um']:+.3f} um; dl(10 mm) = {e7['at_10_um']:+.2f} um"])
         w.writerow(["Eq. 15 total", "24.8 um", f"{e15['computed_um']:.3f} um", "sqrt(20^2+10.2^2+1.5^2+10^2+3^2)"])
         w.writerow(["Fig. 9 max radius error, ecc <= 3 mm, omega <= 1.5 deg", "< 10 um",
-                    f"paper procedure {np.max(f9['paper_um']):.2f} um; Eq. 16 fit {np.max(np.abs(f9['model_um'])):.2f} um",
+                    f"paper procedure {np.max(f9['paper_um']):.2f} um; Eq. 16 fit "
+                    f"{np.max(np.abs(f9['model_um'])):.2f} um",
                     "front hole h = 450 mm, ecc along x, deflection towards y"])
         i18 = list(f11["n"]).index(18) if 18 in list(f11["n"]) else -1
         w.writerow(["Fig. 11 diameter error after >= 18 rotations", "~28 um",

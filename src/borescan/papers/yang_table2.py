@@ -75,7 +75,7 @@ def load_table2(path: Path | str = TABLE2_CSV) -> dict:
 
 
 def _slope(pos: list[np.ndarray]) -> tuple[float, float]:
-    """Common slope (samples/rev) of several position sequences vs their index, own intercepts.
+    """Return common slope (samples/rev) of several position sequences vs their index, own intercepts.
 
     u from the residual scatter (s^2 / sum (i - mean_i)^2).
     """
@@ -222,8 +222,11 @@ def _fmt(x) -> str:
 
 
 def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> list[Path]:
-    """Write ``yang2017_table2.csv`` (quantity, printed, computed, u, difference) and
-    ``yang2017_table2.png`` (computed next to printed) into ``out_dir``; returns the paths."""
+    """Write the reproduction of Yang 2017 Table 2; return the paths.
+
+    Write ``yang2017_table2.csv`` (quantity, printed, computed, u, difference) and
+    ``yang2017_table2.png`` (computed next to printed) into ``out_dir``; returns the paths.
+    """
     import matplotlib
 
     matplotlib.use("Agg")

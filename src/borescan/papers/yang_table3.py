@@ -64,8 +64,11 @@ def load_table3(path: Path | None = None) -> dict[str, np.ndarray]:
 
 
 def table2_period() -> float:
-    """Samples per revolution implied by Table 2: least-squares slope of minimum sample vs
-    revolution, pooled over the three sensors (``papers.yang_table2`` if available)."""
+    """Return the samples per revolution implied by Table 2.
+
+    Return samples per revolution implied by Table 2: least-squares slope of minimum sample vs
+    revolution, pooled over the three sensors (``papers.yang_table2`` if available).
+    """
     try:  # another module owns Table 2; prefer its number when it exists
         from borescan.papers import yang_table2  # type: ignore
 
@@ -136,7 +139,8 @@ def _diameters(readings, beams) -> np.ndarray:
     return np.asarray(static_diameter(readings, beams).diameter_mm)
 
 
-def reproduce() -> dict:
+def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang's Table 3)
+        ) -> dict:
     """Compute Table 3 under every alternative and fit the angles that explain it.
 
     Returns
@@ -247,8 +251,11 @@ def reproduce() -> dict:
 
 
 def write_reproduction(out_dir) -> dict[str, Path]:
-    """Write ``yang_table3.csv`` (row by row), ``yang_table3_alternatives.csv`` and
-    ``yang_table3.png`` into ``out_dir``; returns the paths."""
+    """Write the reproduction of Yang 2017 Table 3; return the paths.
+
+    Write ``yang_table3.csv`` (row by row), ``yang_table3_alternatives.csv`` and
+    ``yang_table3.png`` into ``out_dir``; returns the paths.
+    """
     import matplotlib
 
     matplotlib.use("Agg")

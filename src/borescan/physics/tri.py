@@ -89,11 +89,12 @@ class TriBase:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """The beams' channels."""
         return self.beams.channels
 
 
 def channel_times(t_s: np.ndarray, channels: Sequence[int], time_effects: Sequence[Effect]) -> np.ndarray:
-    """Times each channel's reading belongs to (step 1): t_c = t - tau_c.
+    """Return times each channel's reading belongs to (step 1): t_c = t - tau_c.
 
     Returns
     -------
@@ -144,14 +145,14 @@ def spindle_positions(base: TriBase, phi_rad: np.ndarray, position_effects: Sequ
 
 
 def bore_with_effects(bore: Bore, bore_effects: Iterable[Effect], cte_per_k: float, device: str = TRI) -> Bore:
-    """The bore after the bore-stage effects (step 4), in composition order."""
+    """Return the bore after the bore-stage effects (step 4), in composition order."""
     for e in bore_effects:
         bore = e.spec.forward[device](bore, e.params, cte_per_k)
     return bore
 
 
 def tri_geometry(base: TriBase, t_s: np.ndarray, st: dict[str, list[Effect]]) -> tuple[np.ndarray, np.ndarray]:
-    """Steps 1-5: exact readings of the ray geometry with the geometric effects.
+    """Compute steps 1-5: exact readings of the ray geometry with the geometric effects.
 
     Parameters
     ----------
@@ -174,7 +175,7 @@ def tri_reading_stage(
     v_mm: np.ndarray, tc_s: np.ndarray, st: dict[str, list[Effect]], channels: Sequence[int],
     range_mm: Sequence[float] | float,
 ) -> np.ndarray:
-    """Steps 6-7: beam and reading effects on readings ``v_mm`` (n, c) at channel times ``tc_s``."""
+    """Apply steps 6-7: beam and reading effects on readings ``v_mm`` (n, c) at channel times ``tc_s``."""
     if not (st["beam"] or st["reading"]):
         return v_mm
     return apply_effects(v_mm, tc_s, channels, st["beam"] + st["reading"], range_mm=range_mm,
@@ -249,7 +250,9 @@ def tri_correct_readings(
     t_s: np.ndarray, readings_mm: np.ndarray, channels: Sequence[int], effects: Iterable[Effect],
     range_mm: Sequence[float] | float = 10.0, *, tol_mm: float = 1e-12, max_iter: int = 50,
 ) -> np.ndarray:
-    """Readings corrected for beam and reading effects: the inverse of steps 6-7 of :func:`tri_forward`
+    """Return readings corrected for beam and reading effects.
+
+    Return readings corrected for beam and reading effects: the inverse of steps 6-7 of :func:`tri_forward`
     (a device model's effects, carried).
 
     v_obs = f(v), f the composed forward functions of the registry at each reading's channel time,

@@ -1,5 +1,8 @@
-"""Array helpers shared by the signal modules: (n,) or (n, c) readings, NaN = missing; the NaN-aware
-median of rows that the running median and the spike reference both use."""
+"""Array helpers shared by the signal modules.
+
+Array helpers shared by the signal modules: (n,) or (n, c) readings, NaN = missing; the NaN-aware
+median of rows that the running median and the spike reference both use.
+"""
 
 from __future__ import annotations
 

@@ -65,7 +65,12 @@ def fit_extremum_cubic(y_mm: np.ndarray, *, kind: str, sigma_mm: float | None = 
 
 
 def _masked_xtx(X: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """Normal matrices X^T diag(m_r) X of the design ``X`` (k, 4) for each row of the 0/1 masks ``m`` (R, k)."""
+    """Return the normal matrices of ``X`` for each row of the masks ``m``.
+
+    Return normal matrices X^T diag(m_r) X of the design ``X`` (k, 4) for each row of the 0/1 masks ``m``
+    (R,
+    k).
+    """
     return np.einsum("ki,kj,rk->rij", X, X, m)
 
 
@@ -136,7 +141,9 @@ def _u_at(u: np.ndarray, pos: np.ndarray) -> np.ndarray:
 
 def _predicted_centers(vt: np.ndarray, u: np.ndarray, w: int, n_harmonics: int
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Step 1 of :func:`find_extrema`: per channel row of ``vt`` (c, n), the sample nearest each
+    """Return the samples nearest each predicted minimum and maximum.
+
+    Step 1 of :func:`find_extrema`: per channel row of ``vt`` (c, n), the sample nearest each
     predicted minimum and maximum (windows of 2w+1 inside the record).
 
     Returns (channel row, centre, is_min) of every window and a bool per channel row: True where

@@ -1,5 +1,8 @@
-"""Yang 2017 §2.3 n/m counts and advanced/backward status, feature points, their spacings and
-theta_t (Eq. 15)."""
+"""Yang 2017 §2.3 n/m counts, statuses, feature points and theta_t.
+
+Yang 2017 §2.3 n/m counts and advanced/backward status, feature points, their spacings and
+theta_t (Eq. 15).
+"""
 
 from __future__ import annotations
 
@@ -10,8 +13,11 @@ import polars as pl
 
 
 def n_m_counts(min_pos: np.ndarray, max_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Yang §2.3 counts: n_i = samples from each minimum to the next maximum, m_i = from each
-    maximum to the next minimum (positions in samples, any order)."""
+    """Return Yang's §2.3 n/m counts.
+
+    Yang §2.3 counts: n_i = samples from each minimum to the next maximum, m_i = from each
+    maximum to the next minimum (positions in samples, any order).
+    """
     mn = np.sort(np.asarray(min_pos, dtype=float))
     mx = np.sort(np.asarray(max_pos, dtype=float))
     i = np.searchsorted(mx, mn, side="right")

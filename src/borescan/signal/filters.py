@@ -1,5 +1,8 @@
-"""Reading filters of Yang 2017 §4 (median, moving average, Kalman) and the ISO 16610-21 Gaussian
-in undulations per revolution; all NaN-aware (a missing reading stays missing), zero-phase by default."""
+"""Reading filters of Yang 2017 §4 and the ISO 16610-21 Gaussian.
+
+Reading filters of Yang 2017 §4 (median, moving average, Kalman) and the ISO 16610-21 Gaussian
+in undulations per revolution; all NaN-aware (a missing reading stays missing), zero-phase by default.
+"""
 
 from __future__ import annotations
 
@@ -16,7 +19,7 @@ _ALPHA_GAUSS = math.sqrt(math.log(2.0) / math.pi)  # ISO 16610-21: 50 % transmis
 
 
 def median_filter(values_mm: np.ndarray, window_samples: int = 5, *, causal: bool = False) -> np.ndarray:
-    """Running median over ``window_samples`` (odd) samples, NaN-aware.
+    """Return the running median over ``window_samples`` (odd) samples, NaN-aware.
 
     Centred (zero-phase) by default; ``causal=True`` uses the trailing window (delay
     (w - 1) / 2 samples). NaN inputs stay NaN; NaN neighbours are left out of the median.
@@ -64,7 +67,7 @@ def _running_median(v: np.ndarray, w: int) -> np.ndarray:
 
 
 def moving_average(values_mm: np.ndarray, window_samples: int = 15, *, causal: bool = False) -> np.ndarray:
-    """Moving average over ``window_samples`` samples, NaN-aware (mean of the valid ones).
+    """Return the moving average over ``window_samples`` samples, NaN-aware (mean of the valid ones).
 
     Centred (zero-phase, odd window) by default. Gain on a sinusoid of period N samples:
     H = sin(pi w / N) / (w sin(pi / N)); a causal (trailing) window adds a delay of
@@ -92,7 +95,7 @@ def moving_average(values_mm: np.ndarray, window_samples: int = 15, *, causal: b
     return _back(out, one)
 
 
-def kalman_filter(
+def kalman_filter(  # noqa: C901 (two state models, each filtered and smoothed)
     values_mm: np.ndarray,
     *,
     model: str = "random_walk",

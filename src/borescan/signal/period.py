@@ -27,6 +27,7 @@ class PeriodEstimate:
     direction: str  # "ccw" | "cw"
 
     def to_dict(self) -> dict:
+        """Return the estimate as a dict of its fields."""
         return asdict(self)
 
 

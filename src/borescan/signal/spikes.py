@@ -17,7 +17,8 @@ def _ll_reference(col_x: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
 
     ``col_x`` is the column with excluded samples (nulls, candidates) set to NaN and padded with
     ``w // 2`` NaN at both ends (``idx`` indexes windows of ``w`` samples, i.e. the padded
-    position of each window's first sample). Uses the neighbours j = -h..h, j != 0, that are not NaN: Theil-Sen slope s (median of pairwise
+    position of each window's first sample). Uses the neighbours j = -h..h, j != 0, that are not NaN:
+    Theil-Sen slope s (median of pairwise
     slopes), reference = median_j (v_{k+j} - j s). NaN when fewer than two neighbours are usable.
     """
     h = w // 2
@@ -51,8 +52,11 @@ def _ll_reference(col_x: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
 
 
 def _median_rows_full(a: np.ndarray) -> np.ndarray:
-    """Median of each row of a NaN-free 2-D array (exact: partition for an odd number of columns, a
-    selection network on the columns for an even one, where partition needs two ranks)."""
+    """Return the median of each row of a NaN-free 2-D array.
+
+    Median of each row of a NaN-free 2-D array (exact: partition for an odd number of columns, a
+    selection network on the columns for an even one, where partition needs two ranks).
+    """
     m = a.shape[1]
     if m % 2:
         return np.partition(a, m // 2, axis=1)[:, m // 2]
@@ -60,8 +64,11 @@ def _median_rows_full(a: np.ndarray) -> np.ndarray:
 
 
 def _mad_scale(r: np.ndarray, max_n: int = 20_000) -> float:
-    """1.4826 x median absolute deviation of the non-NaN values, on a uniform stride of at most
-    ``max_n`` of them (relative standard uncertainty of the scale about 1 / sqrt(0.74 max_n))."""
+    """Return 1.4826 x the median absolute deviation of the non-NaN values.
+
+    1.4826 x median absolute deviation of the non-NaN values, on a uniform stride of at most
+    ``max_n`` of them (relative standard uncertainty of the scale about 1 / sqrt(0.74 max_n)).
+    """
     if r.size > max_n:
         r = r[:: -(-r.size // max_n)]  # ceil: at most max_n values
     r = r[~np.isnan(r)]
@@ -120,7 +127,9 @@ def _padded_rows(v: np.ndarray, h: int) -> np.ndarray:
 
 def _despike_rows(vp: np.ndarray, h: int, threshold: float, candidate_threshold: float
                   ) -> tuple[list[np.ndarray], np.ndarray]:
-    """:func:`remove_spikes` in place on rows padded by :func:`_padded_rows` (c, n + 2h); ``h`` is
+    """Remove spikes in place on padded rows.
+
+    :func:`remove_spikes` in place on rows padded by :func:`_padded_rows` (c, n + 2h); ``h`` is
     the half window from :func:`_check_spike_window`.
 
     Returns the spike indices (into the unpadded row) and the null count of each row.

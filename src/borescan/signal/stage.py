@@ -1,5 +1,8 @@
-"""The signal stage of one scan: despike, period, revolutions, extrema, statuses and spacings
-(:func:`process_arrays` on arrays, :func:`process_scan` on a raw scan)."""
+"""The signal stage of one scan.
+
+The signal stage of one scan: despike, period, revolutions, extrema, statuses and spacings
+(:func:`process_arrays` on arrays, :func:`process_scan` on a raw scan).
+"""
 
 from __future__ import annotations
 
@@ -95,7 +98,7 @@ def process_arrays(
     extrema_on: str = "despiked",
     n_harmonics: int = 3,
 ) -> SignalResult:
-    """The whole signal stage on plain arrays.
+    """Return the whole signal stage on plain arrays.
 
     nulls counted -> spikes set aside (:func:`remove_spikes`) -> period (encoder when given,
     else :func:`period_from_readings`) and revolution coordinate -> extrema
@@ -200,7 +203,7 @@ def process_arrays(
 
 
 def _speed_changes(commanded_rad: np.ndarray) -> bool:
-    """True when the commanded angle is not a straight line in the sample index (a speed change)."""
+    """Return True when the commanded angle is not a straight line in the sample index (a speed change)."""
     x = np.asarray(commanded_rad, dtype=float)
     if x.size < 3:
         return False

@@ -140,8 +140,11 @@ def write_table(df: pl.DataFrame, path: str | Path) -> None:
 
 
 def write_stage_outputs(output, quarantined: list[Quarantined] | None = None, **frames: pl.DataFrame) -> None:
-    """Write a stage's tables to the rule's outputs of the same names (``output.<name>``), and
-    its quarantine records as ``output.quarantine`` when given."""
+    """Write a stage's tables to the rule's outputs.
+
+    Write a stage's tables to the rule's outputs of the same names (``output.<name>``), and
+    its quarantine records as ``output.quarantine`` when given.
+    """
     if quarantined is not None:
         frames["quarantine"] = quarantine_frame(quarantined)
     for name, df in frames.items():
@@ -149,14 +152,18 @@ def write_stage_outputs(output, quarantined: list[Quarantined] | None = None, **
 
 
 def ok_scans(scans_table: str | Path | pl.DataFrame) -> pl.DataFrame:
-    """The rows of a ``scans`` stage table whose status is ``ok``, by scan id."""
+    """Return the rows of a ``scans`` stage table whose status is ``ok``, by scan id."""
     df = scans_table if isinstance(scans_table, pl.DataFrame) else pl.read_parquet(scans_table)
     return tables.conform("scans", df).filter(pl.col("status") == "ok").sort("scan_id")
 
 
 def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame,
                 **where: str) -> list[tuple[dict, Path]]:
-    """The ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their folders."""
+    """Return the ``ok`` rows of a night's ``scans`` table.
+
+    Return the ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their
+    folders.
+    """
     df = ok_scans(scans_table)
     for col, value in where.items():
         df = df.filter(pl.col(col) == value)
@@ -164,7 +171,7 @@ def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.D
 
 
 def frames_or_empty(frames: list[pl.DataFrame]) -> pl.DataFrame:
-    """The non-empty frames stacked (columns united by name); an empty frame when there are none."""
+    """Return the non-empty frames stacked (columns united by name); an empty frame when there are none."""
     frames = [f for f in frames if f.height]
     return pl.concat(frames, how="diagonal_relaxed") if frames else pl.DataFrame()
 
@@ -192,8 +199,11 @@ def night_folder(results_root, area: str, night: str) -> Path:
 
 
 def clear_night_folder(results_root, area: str, night: str) -> Path:
-    """Empty the night's folder of ``area`` and drop the links into it (up to two levels below
-    ``area``): what a rerun no longer writes leaves nothing behind. Returns the (empty) folder."""
+    """Empty the night's folder of ``area`` and drop the links into it.
+
+    Empty the night's folder of ``area`` and drop the links into it (up to two levels below
+    ``area``): what a rerun no longer writes leaves nothing behind. Returns the (empty) folder.
+    """
     folder = night_folder(results_root, area, night)
     shutil.rmtree(folder, ignore_errors=True)
     folder.mkdir(parents=True, exist_ok=True)
@@ -213,9 +223,12 @@ def clear_night_folder(results_root, area: str, night: str) -> Path:
 
 
 def link_into_night(link: Path, target: Path) -> None:
-    """Make ``link`` a relative symbolic link to ``target`` (a folder inside a night folder),
+    """Make ``link`` a relative symbolic link to ``target``.
+
+    Make ``link`` a relative symbolic link to ``target`` (a folder inside a night folder),
     replacing what was there (a link, or a folder of the layout before night folders); a copy
-    where symbolic links cannot be made."""
+    where symbolic links cannot be made.
+    """
     link = Path(link)
     link.parent.mkdir(parents=True, exist_ok=True)
     if link.is_symlink() or link.is_file():

@@ -102,8 +102,11 @@ def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str],
 
 
 def _context(a: dict) -> dict:
-    """What a calibration job reads besides its scans: the config sections, the readings' cleaning
-    policy, and the device model each device carries (:func:`borescan.device_model.lookup`)."""
+    """Return what a calibration job reads besides its scans.
+
+    Return what a calibration job reads besides its scans: the config sections, the readings' cleaning
+    policy, and the device model each device carries (:func:`borescan.device_model.lookup`).
+    """
     devices, night = a["devices"], a["night"]
     return {"uncertainty": a["uncertainty"], "laboratory": a["laboratory"], "verification": a["verification"],
             "raw_root": a["raw_root"], "scans_table": a["scans_table"],

@@ -23,8 +23,11 @@ __all__ = ["calibrate_rod_scan"]
 
 
 def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log, ctx, cfg) -> None:
-    """Calibrate a rod's base lengths from one ring-gauge scan (:mod:`borescan.rod_calibration`), write
-    its certificate, add its rows; a scan that cannot give a calibration is quarantined with the reason."""
+    """Calibrate a rod's base lengths from one ring-gauge scan.
+
+    Calibrate a rod's base lengths from one ring-gauge scan (:mod:`borescan.rod_calibration`), write
+    its certificate, add its rows; a scan that cannot give a calibration is quarantined with the reason.
+    """
     unc, lab = ctx["uncertainty"], ctx["laboratory"]
     p = float(unc["coverage_probability"])
     meta, sid = scan.meta, scan.scan_id
@@ -84,9 +87,12 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
 
 
 def _night_rod_verifications(cal, rows: list[dict], night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
-    """The night's gauge verifications of the rod made with the new calibration (one row per layer,
+    """Return the night's gauge verifications of the rod.
+
+    Return the night's gauge verifications of the rod made with the new calibration (one row per layer,
     :func:`borescan.rod_calibration.rod_verifications`) and their scan.json; a scan that cannot be
-    measured is left out with a log line (the measure stage quarantines it)."""
+    measured is left out with a log line (the measure stage quarantines it).
+    """
     out, metas = [], []
     for _row, d in night_scans(ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id):
         scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))

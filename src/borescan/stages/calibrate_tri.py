@@ -28,9 +28,12 @@ __all__ = ["calibrate_tri_device"]
 
 
 def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows, link_rows, log, ctx) -> None:
-    """Calibrate one three-sensor device from its calibration scans of the night (``items``: (scans
+    """Calibrate one three-sensor device from its calibration scans of the night.
+
+    Calibrate one three-sensor device from its calibration scans of the night (``items``: (scans
     row, raw folder) each), write the certificates, add the rows; a scan that cannot be used, or a
-    calibration that fails, is quarantined with the reason."""
+    calibration that fails, is quarantined with the reason.
+    """
     method, min_rev = cfg["method"], int(cfg["min_revolutions"])
     scans, inputs, nominal = [], [], None
     for _row, d in items:
@@ -59,7 +62,11 @@ def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows
 
 
 def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple[str, str] | str | None:
-    """Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None if usable."""
+    """Return why a calibration scan cannot be used, or None.
+
+    Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None
+    if usable.
+    """
     s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
     if scan.spindle is None:
         return ("spindle.parquet", NO_SPINDLE_REASON)
@@ -83,7 +90,8 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
     try:
         if method == "yang2017":
             if ctx["device_model"](device_id, inputs[0]["channels"]):
-                log(f"{device_id}: its device model is not carried by yang2017 (extrema of the recorded readings)")
+                log(f"{device_id}: its device model is not carried by yang2017 (extrema of the recorded "
+                    "readings)")
             fit = yang_from_summary(scans[0], inputs[0], summary, nominal, night, log=log)
         else:
             model = ctx["device_model"](device_id, inputs[0]["channels"])
@@ -138,9 +146,12 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
 
 
 def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
-    """The night's ring-gauge verifications of the calibration's device, made with it
+    """Return the night's ring-gauge verifications of the calibration's device.
+
+    Return the night's ring-gauge verifications of the calibration's device, made with it
     (:func:`borescan.measure.verification_for_certificate`): (rows, their scan.json). A scan that
-    cannot be measured is left out with a log line (the measure stage quarantines it)."""
+    cannot be measured is left out with a log line (the measure stage quarantines it).
+    """
     rows, metas = [], []
     for _row, d in night_scans(ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id):
         scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))

@@ -1,4 +1,6 @@
-"""How a three-sensor device is calibrated from a night's scans: the full-data fit from raw
+"""How a three-sensor device is calibrated from a night's scans.
+
+How a three-sensor device is calibrated from a night's scans: the full-data fit from raw
 spindle scans, and Yang 2017 (Eq. 8-15) from the signal stage's per-channel extrema summary.
 
 Used by the calibrate stage (:mod:`borescan.stages.calibrate`) and by benchmarks that calibrate
@@ -29,7 +31,10 @@ __all__ = ["spindle_inputs", "scan_conditions", "acceptance_rule", "fit_device_c
 
 def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None,
                    cleaning: readings.CleaningPolicy | None = None) -> dict:
-    """Times, despiked readings, rotation angle model, positions, temperature and gauge of a spindle scan.
+    """Return the fit inputs of a spindle scan.
+
+    Return times, despiked readings, rotation angle model, positions, temperature and gauge of a spindle
+    scan.
 
     ``uncertainty`` is the config's ``uncertainty`` section (schema defaults when None): the
     scan's temperature follows its ``missing_temperature`` policy
@@ -86,11 +91,15 @@ def acceptance_rule(cal_cfg: dict) -> calibration.AcceptanceRule:
 
 
 def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: str | None = None, model=()):
-    """Full-data calibration of one device from its spindle scans (:func:`spindle_inputs` of each,
-    corrected by :func:`borescan.device_model.correct_inputs` for the device ``model``, recorded in the calibration's
+    """Calibrate one device from its spindle scans with the full-data fit.
+
+    Full-data calibration of one device from its spindle scans (:func:`spindle_inputs` of each,
+    corrected by :func:`borescan.device_model.correct_inputs` for the device ``model``, recorded in the
+    calibration's
     ``diagnostics["device_model"]``).
 
-    Raises ``calibration.CalibrationError`` (naming the scans and the reason) when the fit fails or is refused.
+    Raises ``calibration.CalibrationError`` (naming the scans and the reason) when the fit fails or is
+    refused.
     """
     raw_files = {f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}
     cal = _fit(scans, inputs, nominal, cal_cfg, night, raw_files,
@@ -142,7 +151,8 @@ def yang_from_summary(scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, 
             if not ok:
                 statuses[i] = "advanced" if sgn * nominal.rho_mm[i] > 0 else "backward"
                 log(f"{scan.scan_id}: channel {ch}: status not significant (|n - m| within its uncertainty); "
-                    f"side of the beam taken from device.nominal (rho {nominal.rho_mm[i]:+.3f} mm): {statuses[i]}")
+                    f"side of the beam taken from device.nominal (rho {nominal.rho_mm[i]:+.3f} mm): "
+                    f"{statuses[i]}")
     if inputs["center_xy"] is None:
         raise ValueError("yang2017 needs scan.json center (the gauge centre from a centring scan) for oe (Eq. 9)")
     oe = calibration.yang_oe(inputs["spindle_xy"], inputs["center_xy"])
@@ -160,9 +170,12 @@ def yang_from_summary(scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, 
 
 
 def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, night: str) -> dict:
-    """Central-difference sensitivities (3c,) of Yang 2017's closed forms (:func:`yang_from_summary`):
+    """Return the sensitivities of Yang 2017's closed forms.
+
+    Central-difference sensitivities (3c,) of Yang 2017's closed forms (:func:`yang_from_summary`):
     to R (h = 1e-4 mm), to each coordinate of the reported offset S - C (through oe = |S - C|) and to
-    a constant error of every reading of a channel (its d_max and d_min move together)."""
+    a constant error of every reading of a channel (its d_max and d_min move together).
+    """
     def params(R=None, dS=(0.0, 0.0), shift=None) -> np.ndarray:
         xi = dict(x, R=x["R"] if R is None else R,
                   spindle_xy=(x["spindle_xy"][0] + dS[0], x["spindle_xy"][1] + dS[1]))
@@ -182,8 +195,13 @@ def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, nig
 
 def budget_of(cal, scans, inputs: list[dict], uncertainty: dict, *, summary: pl.DataFrame | None = None,
               nominal: Beams | None = None, night: str | None = None, position_accuracy_mm: float | None = None) -> Budget:
-    """The GUM budget of a calibration from its scans (:func:`borescan.calibration_budget.calibration_budget`);
-    a ``yang2017`` one also needs the signal ``summary``, ``nominal``, ``night`` and ``position_accuracy_mm``."""
+    """Return the GUM budget of a calibration from its scans.
+
+    Return the GUM budget of a calibration from its scans
+    (:func:`borescan.calibration_budget.calibration_budget`);
+    a ``yang2017`` one also needs the signal ``summary``, ``nominal``, ``night`` and
+    ``position_accuracy_mm``.
+    """
     ids = [s.scan_id for s in scans]
     if cal.method == "full_lsq":
         return calibration_budget(cal, inputs, uncertainty, scan_ids=ids)

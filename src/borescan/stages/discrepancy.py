@@ -26,18 +26,26 @@ __all__ = ["stage_discrepancy", "findings_rows", "discrepancy_one", "findings_ni
 
 
 def findings_night_dir(results_root, night: str) -> Path:
-    """The night's folder of per-scan findings (the rule's declared output)."""
+    """Return the night's folder of per-scan findings (the rule's declared output)."""
     return night_folder(results_root, "discrepancy", night)
 
 
 def findings_dir(results_root, scan_id: str) -> Path:
-    """``discrepancy/<scan_id>``: where a scan's findings.json and gap.png are read (a link into its
-    night's folder)."""
+    """Return the folder a scan's findings are read from.
+
+    ``discrepancy/<scan_id>``: where a scan's findings.json and gap.png are read (a link into its
+    night's folder).
+    """
     return Path(results_root) / "discrepancy" / scan_id
 
 
 def findings_rows(findings: dict) -> list[dict]:
-    """The ``findings`` rows of one scan's findings.json: one per named effect (one row with null effect if none)."""
+    """Return the ``findings`` rows of one scan's findings.json.
+
+    Return the ``findings`` rows of one scan's findings.json: one per named effect (one row with null
+    effect if
+    none).
+    """
     base = {"scan_id": findings["scan_id"], "verdict": findings["verdict"],
             "gap_before_mm": (findings.get("gap_before") or {}).get("rms_mm"),
             "gap_after_mm": (findings.get("gap_after") or {}).get("rms_mm"),
@@ -52,7 +60,9 @@ def findings_rows(findings: dict) -> list[dict]:
 
 def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibration_tables, cfg: dict,
                       log=print, workers: int = 1) -> tuple[pl.DataFrame, list[Quarantined]]:
-    """Model-discrepancy examination of every scan of a night (``discrepancy/night=<night>/<scan_id>/``,
+    """Examine every scan of a night for model discrepancy.
+
+    Model-discrepancy examination of every scan of a night (``discrepancy/night=<night>/<scan_id>/``,
     read as ``discrepancy/<scan_id>/``).
 
     Each scan is compared with its device as :func:`borescan.discrepancy.reference.discrepancy_reference`
@@ -98,6 +108,7 @@ def discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
         return [], bad, f"{scan.scan_id}: quarantined ({err})"
     named = ", ".join(f"{n['effect']}" + (f" ch{n['channel']}" if n.get("channel") else "") for n in findings.get("named", []))
     msg = (f"{scan.scan_id} vs {ref}: {findings['verdict']}{': ' + named if named else ''} "
-           f"(gap {findings['gap_before']['rms_mm'] * 1e3:.2f} -> {findings['gap_after']['rms_mm'] * 1e3:.2f} um, "
+           f"(gap {findings['gap_before']['rms_mm'] * 1e3:.2f} -> "
+           f"{findings['gap_after']['rms_mm'] * 1e3:.2f} um, "
            f"noise floor {findings['noise_floor_mm'] * 1e3:.2f} um)")
     return findings_rows(findings), bad, msg

@@ -1,4 +1,8 @@
-"""Stage ``ingest_night``: validate and register every scan of a night, record checksums, quarantine bad ones."""
+"""Stage ``ingest_night``: validate and register every scan of a night.
+
+Stage ``ingest_night``: validate and register every scan of a night, record checksums, quarantine bad
+ones.
+"""
 
 from __future__ import annotations
 
@@ -73,7 +77,7 @@ def _meta_field(meta: dict, *keys: str) -> str | None:
 
 def scan_row(scan_id: str, night: str, scan_dir: Path, meta: dict, hashes: dict[str, str],
              problem: Quarantined | None) -> dict:
-    """The ``scans`` row of one scan folder (whatever of ``scan.json`` could be read, else nulls)."""
+    """Return the ``scans`` row of one scan folder (whatever of ``scan.json`` could be read, else nulls)."""
     acq = meta.get("acquisition")
     return {
         "scan_id": scan_id,

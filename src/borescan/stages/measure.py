@@ -31,7 +31,11 @@ __all__ = ["stage_measure", "measure_one", "section"]
 
 
 def section(cfg: dict, name: str) -> dict:
-    """Config section ``name`` from ``cfg``, else its schema defaults (callers that pass only some sections)."""
+    """Return config section ``name``, else its schema defaults.
+
+    Config section ``name`` from ``cfg``, else its schema defaults (callers that pass only some
+    sections).
+    """
     return cfg[name] if cfg.get(name) is not None else schema_defaults()[name]
 
 
@@ -158,8 +162,12 @@ ROD_METHOD_NOMINAL = ROD_METHOD + " with the design base lengths: NOT TRACEABLE 
 
 
 def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root, night, clean) -> dict:
-    """Diameters of a rod scan with their GUM budgets (:func:`borescan.rod_calibration.rod_diameters_with_budget`);
-    for a verification scan, each layer's error against its certified gauge."""
+    """Return the diameters of a rod scan with their GUM budgets.
+
+    Diameters of a rod scan with their GUM budgets
+    (:func:`borescan.rod_calibration.rod_diameters_with_budget`);
+    for a verification scan, each layer's error against its certified gauge.
+    """
     meta, sid, dev = scan.meta, scan.scan_id, row["device_id"]
     res = rod_calibration.rod_diameters_with_budget(scan, cals.rows(named=True), unc, cal_id, clean)
     vers = {}
@@ -190,8 +198,13 @@ def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root
 
 
 def _with_part(row: dict, meta: dict, feature, du, part: dict) -> dict:
-    """The diameter row with its part's nominal, tolerance (scan.json, else ``measurement.part_tolerance_mm``),
-    deviation at 20 degC and verdict by the laboratory's decision rule (:func:`borescan.measure.part_conformity`)."""
+    """Return the diameter row with its part's nominal, tolerance and verdict.
+
+    Return the diameter row with its part's nominal, tolerance (scan.json, else
+    ``measurement.part_tolerance_mm``),
+    deviation at 20 degC and verdict by the laboratory's decision rule
+    (:func:`borescan.measure.part_conformity`).
+    """
     f = measure.part_feature(dict(meta.get("artifact") or {}), feature)
     tol = f["tolerance_mm"] if f["tolerance_mm"] is not None else part["default_tolerance_mm"]
     row.update(measure.part_conformity(du.diameter_20_mm, du.combined_20.U, f["nominal_diameter_mm"],

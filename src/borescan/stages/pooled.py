@@ -1,4 +1,6 @@
-"""Stage ``pooled_night``: examine each three-sensor device's spindle scans of a window of nights
+"""Stage ``pooled_night``: examine each device's scans of a window together.
+
+Stage ``pooled_night``: examine each three-sensor device's spindle scans of a window of nights
 together, and flag the drift of its calibrations (issue 22).
 
 Per device with at least two spindle scans of kind ``calibration`` or ``verification`` that
@@ -47,8 +49,11 @@ def pooled_dir(results_root, night: str) -> Path:
 
 
 def pooled_rows(findings: dict, night: str, path: str) -> list[dict]:
-    """The ``pooled_findings`` rows of one device's findings: one per named entry and one per term
-    of the device model (``in_device_model``); one row with a null effect when there is neither."""
+    """Return the ``pooled_findings`` rows of one device's findings.
+
+    Return the ``pooled_findings`` rows of one device's findings: one per named entry and one per term
+    of the device model (``in_device_model``); one row with a null effect when there is neither.
+    """
     absorbed = "; ".join(a["advice"] for a in findings.get("absorbed") or []) or None
     base = {"night": night, "device_id": findings["device_id"], "nights": ",".join(findings["nights"]),
             "scan_ids": ",".join(findings["scan_ids"]), "verdict": findings["verdict"],
@@ -67,8 +72,11 @@ def pooled_rows(findings: dict, night: str, path: str) -> list[dict]:
 
 
 def drift_rows(calibrations: pl.DataFrame, night: str, multiple: float, findings: dict[str, dict]) -> list[dict]:
-    """The ``calibration_drift`` rows of ``night`` (pairs whose later calibration is valid from
-    it), each flagged one explained by its device's pooled ``findings`` (device id -> findings)."""
+    """Return the ``calibration_drift`` rows of ``night``.
+
+    Return the ``calibration_drift`` rows of ``night`` (pairs whose later calibration is valid from
+    it), each flagged one explained by its device's pooled ``findings`` (device id -> findings).
+    """
     drift = calibration_drift(calibrations, multiple).filter(pl.col("valid_from_after") == night)
     why = {}
     for f in findings.values():
@@ -79,7 +87,8 @@ def drift_rows(calibrations: pl.DataFrame, night: str, multiple: float, findings
         e = why.get((r["device_id"], r["channel"], r["parameter"], r["calibration_id_after"]))
         if r["flagged"] and e is None:
             e = {"explained_by": [], "explanation": (
-                f"{r['parameter']} of channel {r['channel']} moved by {r['change']:+.4g} ({r['change_over_u']:+.1f} "
+                f"{r['parameter']} of channel {r['channel']} moved by {r['change']:+.4g} "
+                f"({r['change_over_u']:+.1f} "
                 f"combined u); device {r['device_id']} has no pooled examination on night {night} "
                 "(fewer than two spindle scans of a certified gauge)")}
         rows.append(dict(r, night=night, explained_by=",".join(e["explained_by"]) if e else None,
@@ -129,7 +138,11 @@ def stage_pooled(raw_root, night: str, results_root, scans_tables, calibration_t
 
 
 def pooled_device(job) -> tuple[str, dict | None, str]:
-    """Examine one device's pooled spindle scans and write its JSON: (device id, findings or None, log line)."""
+    """Examine one device's pooled spindle scans and write its JSON.
+
+    Examine one device's pooled spindle scans and write its JSON: (device id, findings or None, log
+    line).
+    """
     raw_root, night, out_dir, device, dirs, ref_kw, ref, effects, settings = job
     scans = [rawio.read_scan(d, raw_root=Path(raw_root)) for d in dirs]
     spindle = [s for s in scans if "pose" not in s.lds.columns or s.lds["pose"].null_count() == s.lds.height]

@@ -1,4 +1,8 @@
-"""Stage ``signal_night``: revolutions, sub-sample extrema and per-channel summaries of a night's spindle scans."""
+"""Stage ``signal_night``: revolutions, extrema and summaries of a night.
+
+Stage ``signal_night``: revolutions, sub-sample extrema and per-channel summaries of a night's spindle
+scans.
+"""
 
 from __future__ import annotations
 
@@ -17,7 +21,11 @@ __all__ = ["signal_options", "stage_signal", "signal_one", "scan_summary"]
 
 
 def signal_options(cfg: dict) -> dict:
-    """The config's ``signal`` section (schema defaults filled) as :func:`borescan.signal.process_scan` keywords."""
+    """Return the config's ``signal`` section as processing keywords.
+
+    Return the config's ``signal`` section (schema defaults filled) as :func:`borescan.signal.process_scan`
+    keywords.
+    """
     method = cfg["filter"]
     params: dict = {}
     if method in ("median", "moving_average"):
@@ -56,8 +64,11 @@ def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log
 
 
 def signal_one(job) -> tuple[pl.DataFrame | None, pl.DataFrame | None, list[Quarantined], str | None]:
-    """Signal stage of one scan ``(raw_root, night, results_root, scan_dir, options)``:
-    (extrema, summary, quarantined, log line); None frames when skipped (static scans)."""
+    """Run the signal stage of one scan.
+
+    Signal stage of one scan ``(raw_root, night, results_root, scan_dir, options)``:
+    (extrema, summary, quarantined, log line); None frames when skipped (static scans).
+    """
     raw_root, night, results_root, d, opts = job
     bad: list[Quarantined] = []
     scan = rawio.read_scan(d, raw_root=Path(raw_root))
