@@ -330,7 +330,10 @@ def test_a_config_edit_applies_from_the_next_night_and_recompute_is_explicit(tmp
     assert {k: v for k, v in checksums(kept / "stage").items()} == {k: v for k, v in past.items() if "2026-11-20" in k}
     out = _planned(_workflow(a, raw, res, home, "catalog", "--dry-run"))
     assert "Verifying calibrations and measuring parts of night 2026-11-20" in out
-    assert "Verifying calibrations and measuring parts of night 2026-11-21" not in out
+    # night 2026-11-21 keeps its scans and settings (not ingested again); its measurements, made with
+    # the recomputed night's calibrations and verifications, follow them (Snakemake: updated inputs)
+    assert "registering the scans of night 2026-11-20" in out
+    assert "registering the scans of night 2026-11-21" not in out
     _planned(_workflow(a, raw, res, home, "catalog"))
     assert _verification_tolerances(res) == {"2026-11-20": {0.002}, "2026-11-21": {0.002}}
     con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
