@@ -49,7 +49,7 @@ def write_night(out: Path, n: int, seed: int) -> None:
     borescan = Path(sys.executable).with_name("borescan")
     cmd = [str(borescan), "simulate", "contract", "--n", str(n), "--seed", str(seed), "--out", str(out),
            "--kinds", KINDS, "--effect-share", "0.5", "--effect-scale", "0.3", "3", "--per-night", str(10 * n)]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         raise SystemExit(f"simulate contract failed: {proc.stderr[-2000:]}")
 
@@ -75,7 +75,7 @@ def run_night(raw: Path, results: Path, cores: int) -> dict:
     cmd = [str(snakemake), "--cores", str(cores), "--quiet", "all", "--config", f"raw_root={raw}",
            f"results_root={results}"]
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         print(proc.stderr[-3000:])
@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> None:
         papers = work / "papers_only"
         t0 = time.perf_counter()
         proc = subprocess.run([str(snakemake), "papers", "--cores", "2", "--quiet", "all", "--config",
-                               f"raw_root={night / 'raw'}", f"results_root={papers}"], cwd=ROOT, capture_output=True,
+                               f"raw_root={night / 'raw'}", f"results_root={papers}"], cwd=ROOT, capture_output=True, check=False,
                               text=True)
         if proc.returncode != 0:
             print(proc.stderr[-3000:])

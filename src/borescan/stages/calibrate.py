@@ -17,10 +17,10 @@ from borescan.calibrations import rod_nominal_calibration_rows
 from borescan.config import schema_defaults
 from borescan.effects import device_model_effects
 from borescan.parallel import map_timed, workers_for
-from borescan.workflow_log import compute_line
 from borescan.stages._common import clear_night_folder, config_hash, night_scans
 from borescan.stages.calibrate_rod import calibrate_rod_scan
 from borescan.stages.calibrate_tri import calibrate_tri_device
+from borescan.workflow_log import compute_line
 
 __all__ = ["stage_calibrate", "calibrate_device", "config_hash"]
 

@@ -18,9 +18,9 @@ from borescan import discrepancy, rawio, tables
 from borescan.discrepancy.examine import discrepancy_settings
 from borescan.discrepancy.reference import discrepancy_reference
 from borescan.parallel import map_timed, workers_for
-from borescan.workflow_log import compute_line
 from borescan.stages._common import (Quarantined, clear_night_folder, link_into_night, night_folder, night_scans,
                                     quarantine, read_tables)
+from borescan.workflow_log import compute_line
 
 __all__ = ["stage_discrepancy", "findings_rows", "discrepancy_one", "findings_night_dir", "findings_dir"]
 

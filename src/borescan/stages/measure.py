@@ -24,8 +24,8 @@ from borescan.calibration import CalibrationError
 from borescan.calibrations import choose_calibration, choose_rod_calibration, failed_calibration_ids, tri_calibration
 from borescan.config import schema_defaults
 from borescan.parallel import map_timed, workers_for
-from borescan.workflow_log import compute_line
 from borescan.stages._common import night_scans, quarantine, read_tables
+from borescan.workflow_log import compute_line
 
 __all__ = ["stage_measure", "measure_one", "section"]
 

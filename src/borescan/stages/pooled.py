@@ -34,8 +34,8 @@ from borescan.discrepancy.pooled import drift_explanations, examine_pooled, pool
 from borescan.effects import device_model_effects
 from borescan.discrepancy.reference import discrepancy_reference
 from borescan.parallel import map_timed, workers_for
-from borescan.workflow_log import compute_line
 from borescan.stages._common import ok_scans, read_tables
+from borescan.workflow_log import compute_line
 
 __all__ = ["POOLED_KINDS", "stage_pooled", "pooled_rows", "drift_rows", "pooled_device", "pooled_dir"]
 

@@ -13,9 +13,9 @@ import polars as pl
 
 from borescan import rawio, readings, signal
 from borescan.parallel import map_timed, workers_for
-from borescan.workflow_log import compute_line
 from borescan.preconditions import summary_revolutions
 from borescan.stages._common import Quarantined, frames_or_empty, night_scans, quarantine
+from borescan.workflow_log import compute_line
 
 __all__ = ["signal_options", "stage_signal", "signal_one", "scan_summary"]
 
