@@ -3,8 +3,9 @@
 The README's fenced ``sh`` blocks are read line by line (comments dropped). Each command must be
 one this test knows (``CHECKED``): a command renamed or added in the README without a check here,
 or a check whose command left the README, fails. Each ``borescan`` command is parsed by the real
-argument parser with the README's own words; ``validate``, ``status``, ``trace`` and ``sql`` are
-also run, on a simulated scan and a constructed catalog; the ``snakemake``
+argument parser with the README's own words; ``import-csv`` (on docs/import-csv.md's example),
+``validate``, ``status``, ``trace`` and ``sql`` are also run, on a simulated scan and a constructed
+catalog; the ``snakemake``
 lines run as a dry run (``--unlock`` for real) on that scan's raw root; the ``make`` targets are
 shown with ``make -n``.
 """
@@ -34,11 +35,13 @@ CHECKED = {
     "make run": "make",
     "make test": "make",
     "export PATH=$PWD/.venv/bin:$PATH": "venv",
-    f"borescan import-csv EXPORT.csv --meta META.yaml --raw-root {RAW}": "parse",
+    # on docs/import-csv.md's example
+    f"borescan import-csv EXPORT.csv --meta META.yaml --raw-root {RAW}": "run",
     f"borescan validate {RAW}": "run",
     f"snakemake --cores 2 --config raw_root={RAW} results_root={RESULTS}": "dry-run",
     f"borescan status --results {RESULTS}": "run",
-    f'borescan sql --results {RESULTS} "SELECT night, scan_id, status, reason FROM scans ORDER BY night"': "run",
+    f'borescan sql --results {RESULTS} "SELECT night, scan_id, status, reason FROM scans '
+    'ORDER BY night"': "run",
     f"borescan sql --results {RESULTS} --query suspect_measurements": "run",
     f"snakemake --unlock --config raw_root={RAW} results_root={RESULTS}": "unlock",
     f"borescan rebuild-catalog --results {RESULTS}": "parse",  # needs stage tables
@@ -48,8 +51,8 @@ CHECKED = {
     "borescan trace N20261121-TRI01-MEAS-HSG1104": "trace",
     "borescan sql --list": "run",
     "borescan sql --query calibration_lifecycle": "run",
-    'borescan sql "SELECT scan_id, feature, diameter_20_mm, expanded_u_diameter_20_mm, conformity FROM diameters" '
-    "--format csv": "run",
+    'borescan sql "SELECT scan_id, feature, diameter_20_mm, expanded_u_diameter_20_mm, conformity '
+    'FROM diameters" --format csv': "run",
     "borescan certificate CALIBRATION_ID": "parse",
 }
 
@@ -89,14 +92,21 @@ def test_every_docs_link_of_the_readme_exists():
 
 @pytest.fixture()
 def places(built, tmp_path, capsys, monkeypatch):  # noqa: F811
-    """A raw root with one simulated spindle scan, and the constructed catalog as ``results/`` of
-    the current folder (the README's default) and as the README's results folder.
+    """Return the README's folders mapped to the test's.
+
+    Return the README's example folders mapped to a raw root with one simulated spindle scan and
+    to the constructed catalog, which is also ``results/`` of the current folder (the README's
+    default); the current folder holds docs/import-csv.md's example as EXPORT.csv and META.yaml.
     """
     res, _ = built
     raw = tmp_path / "readme_raw"  # make_history has its own raw/ here
     assert main(["simulate", "tri", "--raw-root", str(raw), "--truth-root", str(tmp_path / "truth"),
                  "--scan-id", "T1"]) == 0
     monkeypatch.chdir(res.parent)
+    example = (ROOT / "docs" / "import-csv.md").read_text(encoding="utf-8").split("## Example", 1)[1]
+    csv_text, meta_text = re.findall(r"^```(?:yaml)?\n(.*?)^```", example, flags=re.S | re.M)[:2]
+    Path("EXPORT.csv").write_text(csv_text, encoding="utf-8")
+    Path("META.yaml").write_text(meta_text, encoding="utf-8")
     capsys.readouterr()
     return {RAW: str(raw), RESULTS: str(res)}
 
@@ -123,6 +133,8 @@ def test_borescan_commands_parse_and_run(command, places, capsys):
         out = capsys.readouterr()
         assert code == 0, out.err
         assert out.out.strip(), "a README command that prints nothing"
+        if words[0] == "import-csv":
+            assert "scan=N20261121-TRI01-CAL-P1" in out.out
         if words[0] == "validate":
             assert "T1" in out.out or "1 scan" in out.out, out.out
 
@@ -143,7 +155,8 @@ def test_make_targets_and_the_venv_line():
     for command, how in CHECKED.items():
         if how == "make":
             target = command.split()[1]
-            proc = subprocess.run(["make", "-n", target], cwd=ROOT, capture_output=True, text=True, timeout=60)
+            proc = subprocess.run(["make", "-n", target], cwd=ROOT, capture_output=True, text=True,
+                                  timeout=60)
             assert proc.returncode == 0, proc.stderr
             assert ("pytest" in proc.stdout) == (target == "test")
             assert ("snakemake" in proc.stdout) == (target == "run")
