@@ -267,7 +267,7 @@ def test_status_failed_and_expired_calibrations(built, capsys):  # noqa: F811
     assert tri["reason"] == "latest calibration CAL-A of device TRI-01 failed its verification; recalibrate"
     assert tri["last_verification"] == {"scan_id": "VER-21", "night": "2026-11-21", "calibration_id": "CAL-A",
                                         "error_mm": pytest.approx(0.020, abs=1e-9), "tolerance_mm": 0.015,
-                                        "passed": False}
+                                        "passed": False, "verdict": None}  # no statement in this history
     # 31 days after the 22nd: CAL-B expired (a calibration is valid through valid_from + validity_days)
     code, out, _ = _run(capsys, "status", "--results", str(res), "--as-of", "2026-12-23", "--validity-days", "30")
     assert code == 0

@@ -69,6 +69,8 @@ def test_trace_and_report_show_the_verdict_with_its_rule(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "CANNOT DECIDE: |E| = 20.00 um, U(E) = 18.00 um, tolerance T = 15.00 um; rule: guarded rejection" in out
     assert "w = 18.0 um" in out
+    assert main(["status", "--results", str(res), "--as-of", "2026-11-21", "--validity-days", "30"]) == 0
+    assert "VER-21 on 2026-11-21: error +0.0200 mm (tolerance 0.015 mm) CANNOT DECIDE" in capsys.readouterr().out
     html = report.write_report(res).read_text() + "".join(
         p.read_text() for p in sorted((res / "report").glob("*/index.html")))
     assert '<span class="warn">CANNOT DECIDE</span><br><small>|E| = 20.00 um, U(E) = 18.00 um' in html

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from borescan.commands._common import CommandFailed, UsageError, command_config, night_date, positive_int, utc_text
+from borescan.decision import split_verdict
 
 NAME = "status"
 HELP = "list the devices, their current calibration, its validity and their last verification (from the catalog)"
@@ -83,7 +84,8 @@ def device_status(results: str | Path, as_of: str, validity_days: int) -> list[d
             FROM calibrations c LEFT JOIN scans s ON s.scan_id = c.scan_id AND s.night = c.night
             WHERE c.valid_from <= ?::DATE GROUP BY c.calibration_id""", [as_of])
         vers = _rows(con, """
-            SELECT v.scan_id, v.night, v.device_id, v.calibration_id, v.error_mm, v.tolerance_mm, v.passed
+            SELECT v.scan_id, v.night, v.device_id, v.calibration_id, v.error_mm, v.tolerance_mm, v.passed,
+                   v.conformity
             FROM verifications v LEFT JOIN scans s ON s.scan_id = v.scan_id AND s.night = v.night
             WHERE v.night <= ?::DATE ORDER BY v.night, s.started_at NULLS FIRST, v.scan_id""", [as_of])
     finally:
@@ -135,6 +137,7 @@ def device_status(results: str | Path, as_of: str, validity_days: int) -> list[d
                 "scan_id": last_ver["scan_id"], "night": last_ver["night"],
                 "calibration_id": last_ver["calibration_id"], "error_mm": last_ver["error_mm"],
                 "tolerance_mm": last_ver["tolerance_mm"], "passed": last_ver["passed"],
+                "verdict": split_verdict(last_ver["conformity"])[0],
             },
         })
     return out
@@ -170,6 +173,8 @@ def format_status(status: list[dict], as_of: str, validity_days: int, source: st
             lines.append("  verification  none")
         else:
             verdict = "passed" if v["passed"] else "FAILED"
+            if v.get("verdict"):  # the statement under the decision rule
+                verdict = v["verdict"] if v["verdict"] == "conforms" else v["verdict"].upper()
             note = "" if c is None or v["calibration_id"] == c["calibration_id"] else \
                 f" (of {v['calibration_id']}; {c['calibration_id']} not verified yet)"
             lines.append(f"  verification  {v['scan_id']} on {v['night']}: error {_mm(v['error_mm'])} "
