@@ -110,7 +110,9 @@ def test_ingest_and_validate_set_aside_a_scan_that_rewrites_a_certificate(tmp_pa
 
     raw, truth, res = tmp_path / "raw", tmp_path / "truth", tmp_path / "results"
     _gauge_scan(raw, truth, "N1-CAL", "2026-11-20", 275.029, "RG-275/2026-03")
-    _gauge_scan(raw, truth, "N2-CAL-TYPO", "2026-11-21", 276.5, "RG-275/2026-03")
+    # a transposition typo (275.092 for 275.029): plausible against the nominal 275, so only the certificate
+    # recorded by an earlier scan can tell
+    _gauge_scan(raw, truth, "N2-CAL-TYPO", "2026-11-21", 275.092, "RG-275/2026-03")
     _gauge_scan(raw, truth, "N2-CAL-RECERT", "2026-11-21", 275.031, "RG-275/2027-01")
     s1, _, bad1 = stage_ingest(raw, "2026-11-20", res)
     assert bad1 == [] and s1["artifact_certified_diameter_mm"].to_list() == [275.029]
@@ -118,7 +120,7 @@ def test_ingest_and_validate_set_aside_a_scan_that_rewrites_a_certificate(tmp_pa
     status = dict(zip(s2["scan_id"], s2["status"]))
     assert status == {"N2-CAL-TYPO": "quarantined", "N2-CAL-RECERT": "ok"}
     assert [q.scan_id for q in bad2] == ["N2-CAL-TYPO"] and bad2[0].file == "scan.json"
-    assert "276.5 here, 275.029 in scan N1-CAL (night 2026-11-20)" in bad2[0].reason
+    assert "275.092 here, 275.029 in scan N1-CAL (night 2026-11-20)" in bad2[0].reason
     assert (res / "quarantine" / "N2-CAL-TYPO.json").exists()
     # 'flag' keeps the scan (the conflict is logged)
     lines = []
@@ -128,4 +130,4 @@ def test_ingest_and_validate_set_aside_a_scan_that_rewrites_a_certificate(tmp_pa
     # borescan validate gives the same verdict
     rep = validation.validate_tree(raw)
     assert rep.bad_scan_ids == {"N2-CAL-TYPO"}
-    assert [p.file for p in rep.problems] == ["scan.json"] and "276.5 here" in rep.problems[0].problem
+    assert [p.file for p in rep.problems] == ["scan.json"] and "275.092 here" in rep.problems[0].problem

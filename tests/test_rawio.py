@@ -569,8 +569,11 @@ def test_read_scan_meta_reads_only_json(scan_dir):
 
 
 def _tree(root):
-    write_scan(root, make_meta("A1"), make_lds(), make_spindle())
-    write_scan(root, make_meta("B1", night="2026-11-22", device_type="rod"), make_lds(rod=True))
+    # measurements: a calibration scan this short (and a rod calibration without design layers) would be
+    # valid raw data that validate reports as to be set aside by the calibrate stage
+    write_scan(root, {**make_meta("A1"), "kind": "measurement"}, make_lds(), make_spindle())
+    write_scan(root, {**make_meta("B1", night="2026-11-22", device_type="rod"), "kind": "measurement"},
+               make_lds(rod=True))
     return root
 
 
@@ -585,7 +588,11 @@ def test_discover_scans_sorted(root):
 def test_validate_cli_all_valid(root, capsys):
     _tree(root)
     assert main(["validate", str(root)]) == 0
-    assert capsys.readouterr().out == "2 scans, all valid\n"
+    out = capsys.readouterr().out.splitlines()
+    # valid; the notes say what a later stage will do without the optional device.nominal
+    assert out[-1] == "2 scans, all valid (see the notes)"
+    assert [line.split(":")[0] for line in out[:-1]] == ["A1", "B1"]
+    assert all("note: discrepancy: no device.nominal" in line for line in out[:-1])
 
 
 def test_validate_collects_every_problem_and_cli_prints_them(root, capsys):
@@ -619,7 +626,7 @@ def test_validate_collects_every_problem_and_cli_prints_them(root, capsys):
         "B1: scan.json: scan_id already used by a scan of night=2026-11-22 (scan ids are unique across "
         "nights)"
     ]
-    assert "7 problems; 2 of 3 scans invalid" in out.err
+    assert "7 problems; of 3 scans 2 invalid (set aside at ingest)" in out.err
 
 
 def test_validate_missing_root_is_a_usage_error(tmp_path, capsys):
@@ -644,7 +651,7 @@ def test_validate_cli_out_of_range_readings_are_problems(root, capsys):
         "of range)"
         for c in (1, 2, 3)
     ]
-    assert out.err == "3 problems; 1 of 1 scans invalid\n"
+    assert out.err.startswith("3 problems; of 1 scans 1 invalid (set aside at ingest)")
 
 
 def test_lds_fast_check_on_columns_chunked_differently():

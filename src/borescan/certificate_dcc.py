@@ -37,7 +37,6 @@ import xml.etree.ElementTree as ET
 from collections.abc import Iterable
 from pathlib import Path
 
-from scipy.stats import chi2
 
 from borescan.atomic import atomic_write_bytes
 from borescan.dcc_elements import NS_DCC, NS_SI, Unit, decimal_text, dsi_unit
@@ -338,6 +337,8 @@ def _parameter_list(parent: ET.Element, label: str, results: list[dict], idx: li
             c = _sub(col, _s("covariance"))
             _sub(c, _s("value"), decimal_text(cov[ib][ia], u.shift))
             _sub(c, _s("unit"), u.text)
+    from scipy.stats import chi2  # here, not at the top: a worker that measures scans never loads scipy.stats
+
     _sub(reg, _s("coverageFactor"), decimal_text(float(f"{math.sqrt(chi2.ppf(p, len(idx))):.6g}")))
     _sub(reg, _s("coverageProbability"), decimal_text(p))
     _sub(reg, _s("distribution"), "normal")

@@ -180,8 +180,10 @@ def query_connection(results: str):
     from borescan import catalog
 
     path = catalog.catalog_path(results)
-    if not path.is_file():
-        catalog.open_catalog(results)  # its FileNotFoundError names the file and what to run
+    if not path.is_file() or catalog.catalog_damage(path):
+        # its FileNotFoundError (CatalogDamaged for a catalog cut short) names the file and what to run:
+        # never an answer from half a file
+        catalog.open_catalog(results)
     con = duckdb.connect(str(path), read_only=True, config=dict(SANDBOX))
     con.execute("SET TimeZone = 'UTC'")
     con.execute("SET lock_configuration = true")
