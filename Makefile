@@ -15,10 +15,12 @@ help:
 
 $(STAMP): requirements.lock pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (Python 3.11) on PATH"; exit 1; }
+	@date +%s > .install-started
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -r requirements.lock
 	$(BIN)/python -m pip install --quiet --no-deps -e .
+	@echo "install: $$(( $$(date +%s) - $$(cat .install-started) )) s"; rm -f .install-started
 	touch $(STAMP)
 
 $(DEMO)/.complete: $(STAMP)
@@ -27,11 +29,12 @@ $(DEMO)/.complete: $(STAMP)
 demo: $(DEMO)/.complete
 
 run: $(STAMP) $(DEMO)/.complete
-	PATH=$(abspath $(BIN)):$$PATH $(BIN)/snakemake --cores $(CORES)
+	@start=$$(date +%s); PATH=$(abspath $(BIN)):$$PATH $(BIN)/snakemake --cores $(CORES) && \
+	  echo "pipeline: $$(( $$(date +%s) - start )) s on $(CORES) cores"
 	@echo ""
 	@echo "Results are in results/ : open results/report.html; history: $(BIN)/borescan sql \"SELECT * FROM scans\""
 
-test: $(STAMP)
+test: $(STAMP) lint
 	PATH=$(abspath $(BIN)):$$PATH $(BIN)/python -m pytest -q
 
 bench: $(STAMP)
