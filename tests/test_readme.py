@@ -159,7 +159,9 @@ def test_make_targets_and_the_venv_line():
                                   timeout=60)
             assert proc.returncode == 0, proc.stderr
             assert ("pytest" in proc.stdout) == (target == "test")
-            assert ("snakemake" in proc.stdout) == (target == "run")
+            # make run runs the workflow; make test lints it (snakemake --lint) before pytest
+            assert ("snakemake --cores" in proc.stdout) == (target == "run")
+            assert ("snakemake --lint" in proc.stdout) == (target == "test")
     # the README's tools are the venv's: the commands it runs bare are in the venv's bin
     assert CHECKED["export PATH=$PWD/.venv/bin:$PATH"] == "venv"
     assert all((BIN / tool).is_file() for tool in ("borescan", "snakemake", "python"))
