@@ -416,7 +416,9 @@ def _assert_equal_within_uncertainty(a, b, table: str) -> None:
 
     assert a.columns == b.columns and a.height == b.height, table
     floats = [c for c, t in a.schema.items() if t in (pl.Float64, pl.Float32)]
-    assert_frame_equal(a.drop(floats), b.drop(floats), check_exact=True)
+    # certificate.json prints the same floats to their last digit, so its digest differs with them
+    digests_of_floats = [c for c in ("certificate_sha256",) if c in a.columns]
+    assert_frame_equal(a.drop(floats + digests_of_floats), b.drop(floats + digests_of_floats), check_exact=True)
     for col in floats:
         x, y = a[col].to_numpy().astype(float), b[col].to_numpy().astype(float)
         assert np.array_equal(np.isnan(x), np.isnan(y)), (table, col)
