@@ -1,7 +1,8 @@
 """An independent reader of certificate.dcc.xml for the tests: xmlschema's decoder (against the
 schema shipped with the package) into a dict, then the numbers by name, back in the units of
 certificate.json (lengths in mm: the D-SI unit's power of the metre says by how much to scale).
-Nothing here comes from the writer (borescan.certificate_dcc) but the schema's location."""
+Nothing here comes from the writer (borescan.certificate_dcc) but the schema's location.
+"""
 
 from __future__ import annotations
 
@@ -77,7 +78,8 @@ def quantity_value(q: dict):
 
 def tree(node: dict) -> dict:
     """A dcc:list (or dcc:data) as {name: subtree or value}; a list of one quantity of its own name
-    (how the writer keeps lists and quantities apart) read as that quantity."""
+    (how the writer keeps lists and quantities apart) read as that quantity.
+    """
     out: dict = {}
     for q in as_list(node.get("dcc:quantity")):
         out[text(q.get("dcc:name"))] = quantity_value(q)
@@ -99,7 +101,8 @@ def measurement_result(doc: dict) -> dict:
 
 def beam_parameters(doc: dict) -> tuple[dict[str, tuple], dict[tuple[str, str], float]]:
     """Every parameter's (value, U, k, p) by label, and every covariance element by label pair, from
-    the results' si:realList and si:ellipsoidalRegion (certificate.json units)."""
+    the results' si:realList and si:ellipsoidalRegion (certificate.json units).
+    """
     params: dict[str, tuple] = {}
     cov: dict[tuple[str, str], float] = {}
     for res in results(doc):

@@ -115,7 +115,7 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(cal
     assert d["ambiguous_minima"] == any(m["delta_ssr_over_s2"] < 4.0 for m in d["minima"])
     # a mirror minimum the data cannot reject is not folded into one u (issue 36): its beam is flagged and
     # carries the two solutions, the mirror's refit delta chi^2 the one the minima list gives
-    from borescan.mirror import RESOLVED_DCHI2, mirror_checks_of
+    from borescan.mirror import mirror_checks_of
 
     checks = {m.channel: m for m in mirror_checks_of(d)}
     for m in d["minima"]:

@@ -206,7 +206,8 @@ def test_registry_effect_is_recovered_by_the_fitting_model(name):
 @pytest.mark.parametrize("name", TRI_EFFECTS)
 def test_twin_and_pooled_model_give_the_same_readings(name):
     """The pooled examination's model of one scan (shared beams at their start, the scan's nuisance at the
-    scene's centre) gives the twin's readings; a speed error is the scan's own speed scale there."""
+    scene's centre) gives the twin's readings; a speed error is the scan's own speed scale there.
+    """
     from borescan.discrepancy.pooled import PooledModel, PooledScan, PooledTerm
 
     sc = SCENES["ccw"]
@@ -338,7 +339,8 @@ def test_pose_models_agree_with_the_twin_on_composed_effects():
 def test_rod_beam_tilt_was_the_documented_mismatch():
     """The old rod fit scaled the whole reading length by 1 / cos(gamma) on top of the layer's own tilt
     (0.3 deg on layer 1 of ``default_rod_scene``); the twin tilts the layer. At 0.5 deg the old form
-    was 4.6 um off the twin there; the rod fit now calls the twin's model (parity above, 1e-9 mm)."""
+    was 4.6 um off the twin there; the rod fit now calls the twin's model (parity above, 1e-9 mm).
+    """
     sc = default_rod_scene()
     alpha = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
     g = math.radians(0.5)
@@ -360,7 +362,8 @@ def _scale_bore(bore, p, cte_per_k=0.0):
 
 def test_a_new_registry_effect_reaches_the_twin_and_every_fitting_model(monkeypatch):
     """Registering a bore effect (its registry entry, nothing else) changes the twin's readings of
-    every scan kind, and each fitting model gives the twin's readings with it."""
+    every scan kind, and each fitting model gives the twin's readings with it.
+    """
     spec = EffectSpec("bore_scale", (TRI, ROD), {"s": "-"}, "bore", {TRI: _scale_bore, ROD: _scale_bore},
                       "R' = R (1 + s)", fit=(FitParam("s", "-", 1e-5),),
                       candidate={"tri_spindle": "screen", "tri_static": "screen", "rod": "screen"},

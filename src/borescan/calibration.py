@@ -979,7 +979,8 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         """The mirror of beam ``j`` (rho -> -rho at fixed psi and g). The gauge-fixed first beam's psi is
         not free: flipping its rho moves psi_1 by delta = -2 asin(rho_1 / R), and the readings depend on
         psi_c + phase - angle(o), so every other psi moves by delta too and each scan's frame turns by
-        delta (its offset without a prior, else its free phase back by delta)."""
+        delta (its offset without a prior, else its free phase back by delta).
+        """
         xf = np.array(x, dtype=float, copy=True)
         xf[i_rho0 + j] = -xf[i_rho0 + j]
         if j == 0 and not ch0_free:
@@ -1359,7 +1360,8 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
 
 def _public_cov(x: np.ndarray, cov_int: np.ndarray, c: int, ch0_free: int, R_mm: float) -> np.ndarray:
     """Covariance of the public free parameters (beta, rho, d_b, nuisance) from the internal one (psi, rho,
-    g, nuisance) at the internal vector ``x``: beta = psi - asin(rho / R), d_b = g - rho^2 / (2R)."""
+    g, nuisance) at the internal vector ``x``: beta = psi - asin(rho / R), d_b = g - rho^2 / (2R).
+    """
     i_rho0 = c - 1 + ch0_free
     rho = np.asarray(x[i_rho0 : i_rho0 + c], dtype=float)
     A = np.eye(cov_int.shape[0])

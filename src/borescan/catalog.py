@@ -678,7 +678,8 @@ def _write_catalog(final: Path, work, queries_dir, plan=None) -> dict[str, int]:
 
 class CatalogDamaged(FileNotFoundError):
     """``catalog.duckdb`` is not the file the pipeline wrote (truncated, overwritten): no intact
-    catalog is there. A ``FileNotFoundError`` so every command reports it as a missing catalog."""
+    catalog is there. A ``FileNotFoundError`` so every command reports it as a missing catalog.
+    """
 
 
 def _seal_path(final: Path) -> Path:
@@ -692,7 +693,8 @@ def _write_seal(final: Path) -> None:
 
 def set_aside_damaged(results_root: str | os.PathLike, dry_run: bool = False) -> str | None:
     """Move a damaged ``catalog.duckdb`` to ``catalog.duckdb.damaged`` (the workflow then rebuilds the
-    catalog from the stage tables, and the report after it); return the message, None when intact."""
+    catalog from the stage tables, and the report after it); return the message, None when intact.
+    """
     final = catalog_path(results_root)
     why = catalog_damage(final)
     if why is None:
@@ -706,7 +708,8 @@ def set_aside_damaged(results_root: str | os.PathLike, dry_run: bool = False) ->
 
 def catalog_damage(path: str | os.PathLike) -> str | None:
     """Why ``path`` (a ``catalog.duckdb``) is not the catalog the pipeline wrote, or None when it is
-    (or when there is no catalog, or it was written before catalogs were sealed)."""
+    (or when there is no catalog, or it was written before catalogs were sealed).
+    """
     final = Path(path)
     seal = _seal_path(final)
     if not final.is_file() or not seal.is_file():

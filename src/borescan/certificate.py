@@ -506,7 +506,8 @@ def _traceability_text(art: dict) -> str:
 def _standard_statement(lab: dict) -> str:
     """What the certificate says of ISO/IEC 17025: "issued in accordance with" only under an
     accreditation the config states (laboratory.accreditation); else its content follows 7.8 and no
-    accreditation is claimed."""
+    accreditation is claimed.
+    """
     acc = str(lab.get("accreditation") or "")
     if not acc or acc.upper().startswith("PLACEHOLDER") or "no accreditation" in acc.lower():
         return ("The content of this certificate follows ISO/IEC 17025:2017 7.8; the laboratory claims no "
@@ -516,7 +517,8 @@ def _standard_statement(lab: dict) -> str:
 
 def _decision_rule_text(lab: dict) -> str:
     """The laboratory's decision rule (:mod:`borescan.decision`) in words; E the error of the diameter
-    at 20 degC, T the tolerance, w the guard band."""
+    at 20 degC, T the tolerance, w the guard band.
+    """
     f = lab.get("guard_band_factor")
     tail = ("E the error of the diameter at 20 degC, U(E) its expanded uncertainty, T the tolerance. A result whose "
             "U(E) is not below T is never stated to conform.")
@@ -951,7 +953,8 @@ def _page_results(d: _Doc) -> None:
 
 def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
     """Section 5: each beam's mirror check (certificate.json ``rho_sign``): the flagged beams' statement,
-    both solutions, the bore range and the fix; one line for the resolved ones."""
+    both solutions, the bore range and the fix; one line for the resolved ones.
+    """
     rs = c.get("rho_sign") or {}
     checks = rs.get("beams") or []
     if not checks:
@@ -976,7 +979,8 @@ def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
 def rho_sign_part(cal: TriCalibration) -> dict:
     """certificate.json ``rho_sign``: per beam the mirror check (:class:`borescan.mirror.BeamMirror`) with its
     statement; a flagged beam's two solutions (parameters of its own channel, the full (3c,) vectors and
-    covariances)."""
+    covariances).
+    """
     from borescan.mirror import RESOLVED_DCHI2, mirror_checks_of
 
     beams = []
@@ -1362,7 +1366,8 @@ def write_certificate_files(cert: dict, out_dir: Path | str, residuals: dict | N
     """Write the documents of the certificate whose content is ``cert`` into ``out_dir``:
     ``certificate.json``, ``certificate.dcc.xml`` (:mod:`borescan.certificate_dcc`), ``certificate.pdf``
     and, for a three-sensor certificate, ``residuals.png`` (``residuals``: t_s [s], residual_mm [mm]).
-    Returns the paths by key (json, dcc, pdf, png); the same content gives the same bytes."""
+    Returns the paths by key (json, dcc, pdf, png); the same content gives the same bytes.
+    """
     import matplotlib
 
     out_dir = Path(out_dir)
@@ -1450,7 +1455,8 @@ def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte,
 
     ``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
     the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
-    the budget per layer, each layer's gauge and the solve's diagnostics."""
+    the budget per layer, each layer's gauge and the solve's diagnostics.
+    """
     p = float(schema_default("uncertainty", "coverage_probability") if coverage_probability is None
               else coverage_probability)
     results, budgets = _rod_results(cal, p)
@@ -1576,5 +1582,6 @@ def _rod_pages(cert: dict) -> list[Figure]:
 
 def write_rod_certificate(cal, out_dir: Path | str, **kw) -> dict[str, Path]:
     """Write ``certificate.json``, ``certificate.dcc.xml`` and ``certificate.pdf`` of a rod calibration into ``out_dir``
-    (arguments of :func:`rod_certificate_dict`). Same inputs give byte-identical files."""
+    (arguments of :func:`rod_certificate_dict`). Same inputs give byte-identical files.
+    """
     return write_certificate_files(rod_certificate_dict(cal, **kw), out_dir)

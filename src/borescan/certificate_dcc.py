@@ -146,7 +146,8 @@ def _statement(parent: ET.Element, st: dict) -> None:
 
 def _statements(cert: dict) -> list[dict]:
     """The certificate's statements plus those the DCC states in its own words: date of issue,
-    accreditation, place of calibration, weak or two-solution parameters, device-model effects."""
+    accreditation, place of calibration, weak or two-solution parameters, device-model effects.
+    """
     adm, lab, fit = cert["administrativeData"], cert.get("laboratory") or {}, cert.get("fit") or {}
     out = [dict(st) for st in adm.get("statements") or []]  # copies: the content is not changed
     for st in out:  # the issue date of the certificate (DCC 3.1.2 has no coreData element for it)
@@ -250,7 +251,8 @@ def _equipment(mr: ET.Element, m_in: dict, p: float) -> None:
 
 def _gauge_quantities(qs: ET.Element, e: dict) -> None:
     """A reference gauge's certified diameter (U and k of its certificate; the coverage probability
-    of k for a normal distribution when the certificate gives only k) and the rest of its record."""
+    of k for a normal distribution when the certificate gives only k) and the rest of its record.
+    """
     cd = e.get("certifiedDiameter") or {"value": e.get("certified_diameter_mm"), "expandedUnc": {
         "uncertainty": e.get("u_diameter_mm"), "coverageFactor": e.get("k")}}
     if _is_num(cd.get("value")):
@@ -272,7 +274,8 @@ def _gauge_quantities(qs: ET.Element, e: dict) -> None:
 def _conditions(mr: ET.Element, cond: dict, p: float) -> None:
     """The influence conditions: the gauge temperature (U for the certificate's coverage probability
     ``p``), the gauge and machine (expansion coefficient, radius at temperature, position accuracy)
-    and the calibration scans."""
+    and the calibration scans.
+    """
     lst = _sub(mr, _d("influenceConditions"))
     t = cond.get("temperature") or {}
     el = _sub(lst, _d("influenceCondition"), refType="basic_temperature")
@@ -318,7 +321,8 @@ def _result_unit(r: dict) -> Unit:
 def _parameter_list(parent: ET.Element, label: str, results: list[dict], idx: list[int], cov: list[list] | None,
                     p: float) -> None:
     """``si:list`` > ``si:realList`` of the results ``idx`` with their U and, from ``cov``, the
-    ``si:ellipsoidalRegion`` of their joint covariance (SI units, coverage factor of the region)."""
+    ``si:ellipsoidalRegion`` of their joint covariance (SI units, coverage factor of the region).
+    """
     sl = _sub(parent, _s("list"))
     rl = _sub(sl, _s("realList"))
     _sub(rl, _s("label"), label)
@@ -346,7 +350,8 @@ def _parameter_list(parent: ET.Element, label: str, results: list[dict], idx: li
 
 def _budget(parent: ET.Element, name: str, entry: dict) -> None:
     """One result's GUM budget: rows (estimate and u in the input's unit, sensitivity, contribution
-    in the result's unit) and the combination."""
+    in the result's unit) and the combination.
+    """
     lst = _sub(parent, _d("list"), refType="borescan_uncertaintyBudget")
     _text(lst, "name", name)
     out_unit = entry.get("unit") or "-"
@@ -451,7 +456,8 @@ def _measurement_results(root: ET.Element, cert: dict) -> None:
 
 def _record_unit(key: str, cert: dict):
     """Units of a record section whose numbers the key suffix does not name (a covariance by its
-    parameters' units, a correlation dimensionless)."""
+    parameters' units, a correlation dimensionless).
+    """
     if key == "correlation":
         return lambda _k: dsi_unit("-")
     return None
@@ -487,7 +493,8 @@ _SCHEMA = None
 
 def validate_dcc(source: Path | str | bytes) -> None:
     """Validate a DCC (a path or the bytes) against the shipped schema, offline (``xmlschema``);
-    raise ValueError naming the document and the first problem."""
+    raise ValueError naming the document and the first problem.
+    """
     try:
         import xmlschema
     except ImportError:  # the pipeline writes DCCs without it; only validation needs it

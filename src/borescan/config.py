@@ -71,7 +71,8 @@ def _merge(base: dict, over: dict) -> dict:
 
 class ConfigError(ValueError):
     """A config that is not YAML or breaks the schema; ``str()`` names the file, the key and the problem
-    in one line (a mistyped key, a wrong type, a value out of range), never the schema itself."""
+    in one line (a mistyped key, a wrong type, a value out of range), never the schema itself.
+    """
 
 
 def _key_path(err) -> str:
@@ -106,7 +107,8 @@ def check_config(config: dict, source: str = "config", schema_path: Path | str =
 
 def load_config(path: Path | str | None = None, schema_path: Path | str = SCHEMA_PATH) -> dict:
     """The config at ``path`` (none: the schema's defaults alone) with every missing key defaulted,
-    checked against the schema (:class:`ConfigError` when it is not YAML or breaks it)."""
+    checked against the schema (:class:`ConfigError` when it is not YAML or breaks it).
+    """
     source = str(path) if path is not None else "schema defaults"
     try:
         user = yaml.safe_load(Path(path).read_text()) if path is not None else {}

@@ -41,7 +41,8 @@ class Unit:
 def dsi_unit(unit: str, per: str | None = None, times: str | None = None) -> Unit:
     """The D-SI unit of a certificate.json unit (``mm`` -> ``\\metre`` with shift -3), of the ratio
     ``unit / per`` (a sensitivity coefficient) or of the product ``unit * times`` (a covariance);
-    base units in alphabetical order. An unknown unit raises ValueError naming it."""
+    base units in alphabetical order. An unknown unit raises ValueError naming it.
+    """
     powers: dict[str, int] = {}
     shift = 0
     for u, sign in ((unit, 1), (per, -1), (times, 1)):
@@ -76,7 +77,8 @@ def key_unit(key: str) -> str:
 
 def decimal_text(x: float, shift: int = 0) -> str:
     """``x`` as printed by certificate.json (shortest repr of its 12-digit float), times 10**shift by
-    moving the exponent: the D-SI decimal carries exactly the JSON's digits."""
+    moving the exponent: the D-SI decimal carries exactly the JSON's digits.
+    """
     if isinstance(x, bool) or not isinstance(x, (int, float)):
         raise TypeError(f"not a number: {x!r}")
     if isinstance(x, float) and not math.isfinite(x):
@@ -144,7 +146,8 @@ def real(parent: ET.Element, tag: str, value: float, unit: Unit, label: str | No
 def quantity(parent: ET.Element, name: str, value: Any, unit: Unit | None = None, *, ref_type: str | None = None,
               expanded: dict | None = None) -> ET.Element:
     """A ``dcc:quantity`` named ``name``: a number as ``si:real`` (in ``unit``, default by the name's
-    suffix), a list of numbers as ``si:realListXMLList``, anything else as ``dcc:noQuantity`` text."""
+    suffix), a list of numbers as ``si:realListXMLList``, anything else as ``dcc:noQuantity`` text.
+    """
     q = sub(parent, d("quantity"), refType=ref_type)
     text(q, "name", name)
     if is_num(value):
@@ -178,7 +181,8 @@ def nested(value: Any) -> bool:
 def record(parent: ET.Element, name: str, value: Any, unit_of=None, wrap: bool = False) -> None:
     """``value`` (a certificate.json subtree) as nested ``dcc:list`` / ``dcc:quantity`` named by its keys
     (list items ``name[i]``), numbers with the unit their key names (``unit_of(key)`` overrides). A
-    ``dcc:list`` holds lists or quantities, not both: with ``wrap`` a scalar becomes a list of one."""
+    ``dcc:list`` holds lists or quantities, not both: with ``wrap`` a scalar becomes a list of one.
+    """
     if nested(value):
         items = sorted(value.items()) if isinstance(value, dict) else [(f"{name}[{i}]", v) for i, v in enumerate(value)]
         lst = sub(parent, d("list"))

@@ -87,7 +87,8 @@ def decision(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "sim
              guard_band_factor: float = 1.0) -> Decision:
     """The verdict on ``error_mm`` (E) with expanded uncertainty ``U_mm`` against +- ``tolerance_mm``
     under ``rule`` (module docstring); the guard band is ``guard_band_factor * U_mm`` for the guarded
-    rules, 0 for simple acceptance."""
+    rules, 0 for simple acceptance.
+    """
     if rule not in DECISION_RULES:
         raise ValueError(f"unknown decision rule {rule!r}; valid: {sorted(set(DECISION_RULES) - {'guard_band'})}")
     if not guard_band_factor >= 0:
@@ -117,7 +118,8 @@ def decision(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "sim
 
 def split_verdict(text: str | None) -> tuple[str | None, str]:
     """(verdict, the rest) of a stored :attr:`Decision.statement` or :attr:`Decision.short` (the
-    catalog's ``conformity`` columns); (None, text) for text of another form (older catalogs)."""
+    catalog's ``conformity`` columns); (None, text) for text of another form (older catalogs).
+    """
     if not text:
         return None, ""
     low = text.lower()

@@ -596,7 +596,8 @@ EFFECTS: dict[str, EffectSpec] = {
 def calibration_absorbers(scan_kind: str) -> dict[str, str]:
     """Effect -> the calibration parameters that absorb it in scans of ``scan_kind``, as a finding
     reports them (the registry's ``absorbed_by`` less the bore radius ``"R"``, a measurand), for the
-    effects some calibration parameter absorbs; read from the registry as it is now."""
+    effects some calibration parameter absorbs; read from the registry as it is now.
+    """
     return {name: "; ".join(text for par, text in spec.absorbers(scan_kind).items() if par != "R")
             for name, spec in EFFECTS.items() if any(par != "R" for par in spec.absorbers(scan_kind))}
 

@@ -946,7 +946,8 @@ def _with_mirror_mixture(scan_id: str, cal, res: dict, du: DiameterUncertainty) 
     """A calibration with a flagged beam (:mod:`borescan.mirror`): the diameter refused outside the bore range
     where the calibration may be used (ValueError with the reason), else the two-solution mixture by Monte
     Carlo (:func:`borescan.mirror.mixture_diameter`): the estimate, u and interval replace the GUM ones,
-    ``res["mirror_mixture"]`` holds the components. A calibration without a flagged beam: unchanged."""
+    ``res["mirror_mixture"]`` holds the components. A calibration without a flagged beam: unchanged.
+    """
     from dataclasses import replace as _replace
 
     from .mirror import mirror_checks_of, mixture_components, mixture_diameter, mixture_seed, refusal

@@ -90,7 +90,8 @@ def mirror_exists(rho_mm: float, offset_mm) -> bool:
 def offset_to_resolve_mm(radius_mm: float, sigma_mm: float, n_samples: float, rho_mm: float,
                          k: float = RESOLVED_DCHI2) -> float:
     """Spindle offset at which the mirror lies ``k`` above the minimum, Eq. (1) solved for e:
-    X = L (2 k sigma^2 / (N rho^2))^(1/4) [mm]; inf for rho = 0 (no mirror to resolve: any offset)."""
+    X = L (2 k sigma^2 / (N rho^2))^(1/4) [mm]; inf for rho = 0 (no mirror to resolve: any offset).
+    """
     if rho_mm == 0.0 or n_samples <= 0:
         return float("inf")
     return float(radius_mm * (2.0 * k * sigma_mm**2 / (n_samples * rho_mm**2)) ** 0.25)
@@ -141,7 +142,8 @@ def valid_bore_radius_range_mm(radius_cal_mm: float, params_main, params_alt, u_
 class MirrorSolution:
     """The second solution of a flagged beam: the calibration's (3c,) parameters there (per channel
     beta_rad, rho_mm, d_b_mm), their covariance from its own curvature, delta chi2 above the kept
-    minimum and its normalised weight."""
+    minimum and its normalised weight.
+    """
 
     params: tuple[float, ...]
     cov: tuple[tuple[float, ...], ...]
@@ -254,7 +256,8 @@ class MixtureDiameter:
     (JCGM 101:2008). Per component (the kept solution, each flagged beam's mirror): weight, D_T with that
     solution's beams and its standard uncertainty; of the mixture: the estimate (the mean), u (the standard
     deviation), the probabilistically symmetric coverage interval for ``p`` (JCGM 101 7.7), at the scan's
-    temperature and at 20 degC; ``draws`` and ``seed`` (deterministic: from the scan and calibration ids)."""
+    temperature and at 20 degC; ``draws`` and ``seed`` (deterministic: from the scan and calibration ids).
+    """
 
     weights: tuple[float, ...]
     diameters_mm: tuple[float, ...]
@@ -324,7 +327,8 @@ def mixture_seed(*ids: str) -> int:
 
 def refusal(scan_id: str, calibration_id: str, diameter_mm: float, checks: Sequence[BeamMirror]) -> str | None:
     """The reason a diameter of ``diameter_mm`` may not be measured with this calibration (a flagged beam
-    whose valid bore range excludes it), else None."""
+    whose valid bore range excludes it), else None.
+    """
     for m in checks:
         if m.resolved or m.valid_bore_diameter_mm is None:
             continue

@@ -18,7 +18,8 @@ MAD_TO_SD = 1.4826
 
 def median(x: np.ndarray) -> float:
     """Median of a NaN-free 1-D array by partition (the value of ``np.median``, without its checks,
-    which cost ~5x on the short arrays of a spike window)."""
+    which cost ~5x on the short arrays of a spike window).
+    """
     m = x.size
     if m % 2:
         return float(np.partition(x, m // 2)[m // 2])
@@ -28,7 +29,8 @@ def median(x: np.ndarray) -> float:
 
 def mad_sigma(x: np.ndarray, center: float | None = None) -> float:
     """MAD_TO_SD * median |x - center| of a NaN-free 1-D array, ``center`` its median unless given
-    (0 for residuals about a model): the one robust noise scale of borescan."""
+    (0 for residuals about a model): the one robust noise scale of borescan.
+    """
     c = median(x) if center is None else center
     return MAD_TO_SD * median(np.abs(x - c))
 

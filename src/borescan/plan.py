@@ -75,7 +75,8 @@ class PlanPrediction:
     """What :func:`predict` says of one scan: standard uncertainties per channel (Cramer-Rao bound;
     ``u_dbeta_rad`` of beta_c - beta_first, what a diameter depends on: a common rotation moves none),
     each beam's mirror (possible, depth, the offset that would resolve it), whether every beam's
-    readings stay inside its sensor's range, and the beta reference the calibration will use."""
+    readings stay inside its sensor's range, and the beta reference the calibration will use.
+    """
 
     scan: ScanDesign
     channels: tuple[int, ...]
@@ -98,7 +99,8 @@ class PlanPrediction:
 
 def scan_angles_rad(scan: ScanDesign) -> tuple[np.ndarray, np.ndarray]:
     """Device angle phi (n,) of every sample and the commanded angle Phi (n,) it is scaled from (the
-    speed scale's column is dv/dphi Phi); phase 0, each speed segment continuing the previous."""
+    speed scale's column is dv/dphi Phi); phase 0, each speed segment continuing the previous.
+    """
     rate_hz = scan.samples_per_rev * scan.rpm[0] / 60.0
     sgn = 1.0 if scan.direction == "ccw" else -1.0
     parts, start = [], 0.0
@@ -191,7 +193,8 @@ def recommend(device: DeviceDesign, radius_mm: float, base: ScanDesign, target_u
     """The smallest scan like ``base`` that reaches the target: every u(beta_c - beta_1) <= ``target_u_beta_rad``
     (the beams' directions relative to each other; an absolute beta is limited by the known positions too),
     every rho's sign resolved, every reading inside its sensor's range. Smallest: fewest revolutions,
-    then the smallest offset (candidates ``revolutions`` x ``offsets_mm``). None when none does."""
+    then the smallest offset (candidates ``revolutions`` x ``offsets_mm``). None when none does.
+    """
     for rev in sorted(revolutions):
         for off in sorted(offsets_mm):
             p = predict(device, radius_mm, replace(base, revolutions=float(rev), offset_mm=float(off)))

@@ -1153,7 +1153,8 @@ def read_scan_meta(scan_dir: Path, raw_root: Path | None = None) -> dict:
 
 def _listing(folder: Path) -> list[Path]:
     """Entries of ``folder``; [] when it cannot be listed (unreadable, e.g. written with umask 077 by
-    another user): the scan's own check (:func:`_check_folder`) or :func:`tree_problems` names it."""
+    another user): the scan's own check (:func:`_check_folder`) or :func:`tree_problems` names it.
+    """
     try:
         return list(Path(folder).iterdir())
     except OSError:

@@ -646,7 +646,8 @@ BATTERY_KINDS = {"calibration": ("CT", 0), "static": ("CS", 1), "rod": ("CR", 2)
 
 def battery_scan_id(seed: int, index: int, kind: str = "calibration") -> str:
     """Scan id of scan ``index`` of battery ``seed``: ``CT<seed>-<index:05d>`` (calibration),
-    ``CS...`` (static sets), ``CR...`` (rods), ``CM...`` (rotating measurements), ``CK...`` (rod calibrations)."""
+    ``CS...`` (static sets), ``CR...`` (rods), ``CM...`` (rotating measurements), ``CK...`` (rod calibrations).
+    """
     return f"{BATTERY_KINDS[kind][0]}{int(seed)}-{int(index):05d}"
 
 

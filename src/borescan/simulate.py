@@ -274,7 +274,8 @@ def _as_effects(effects: Iterable[Effect | dict] | None) -> list[Effect]:
 
 def tri_base(scene: TriScene) -> TriBase:
     """The scene's true base geometry for :mod:`borescan.physics.tri` (effect-free bore C, R20;
-    turned angle the commanded profile; phase and direction of the scene)."""
+    turned angle the commanded profile; phase and direction of the scene).
+    """
     return TriBase(
         beams=scene.beams,
         bore=scene.bore(),

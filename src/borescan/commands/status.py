@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-from borescan.commands._common import CommandFailed, UsageError, command_config, night_date, positive_int, utc_text
+from borescan.commands._common import CommandFailed, command_config, night_date, positive_int, utc_text
 from borescan.decision import split_verdict
 
 NAME = "status"

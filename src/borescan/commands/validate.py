@@ -82,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
 def stage_outcomes(raw_root: Path, bad_scan_ids: set[str], cfg: dict) -> list:
     """:class:`borescan.preconditions.StageOutcome` of every scan ingest accepts, in night and scan order:
     the signal stage's processing of a three-sensor spindle scan (as ``stages.signal`` runs it,
-    with the config's settings), then :func:`borescan.preconditions.expected_outcomes`."""
+    with the config's settings), then :func:`borescan.preconditions.expected_outcomes`.
+    """
     import numpy as np
 
     from borescan import preconditions, rawio

@@ -116,7 +116,8 @@ class PooledScan:
 def pooled_scan(scan, max_samples: int | None = None, beams=None) -> PooledScan:
     """A ``RawScan``-like object (``.meta``, ``.lds``, ``.spindle``) of a three-sensor spindle scan
     as :class:`PooledScan` (scans longer than ``max_samples`` cut to four blocks, as one scan is);
-    ``beams``: the reference calibration's, in place of ``device.nominal`` (which may be missing)."""
+    ``beams``: the reference calibration's, in place of ``device.nominal`` (which may be missing).
+    """
     meta = against_reference(scan.meta, beams)
     sid = meta["scan_id"]
     if meta["device"]["type"] != "tri_lds":

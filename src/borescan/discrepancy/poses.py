@@ -93,7 +93,8 @@ class _PoseModel:
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
         """The white-noise floor of sample-to-sample differences within poses, per channel
-        (:func:`borescan.noise.noise_floor_mm`, first differences)."""
+        (:func:`borescan.noise.noise_floor_mm`, first differences).
+        """
         return noise_floor_mm(r, order=1, keep=self.data.pose_index[1:] == self.data.pose_index[:-1])
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
@@ -275,7 +276,8 @@ class RodModel(_PoseModel):
     def predict(self, p, terms):
         """Readings (n, m) [mm]: the terms' fitted values become the spec's effects
         (:func:`~borescan.discrepancy.tri.term_effects`) on :meth:`borescan.physics.rod.RodDevice.predict`
-        (the digital twin's model)."""
+        (the digital twin's model).
+        """
         d = self.data
         effects = [e for t in terms for e in term_effects(t, p, d.channels)]
         with np.errstate(invalid="ignore", divide="ignore"):  # NaN where a start puts the beam outside the hole
@@ -361,7 +363,8 @@ class StaticModel(_PoseModel):
     def predict(self, p, terms):
         """Readings (n, c) [mm]: the terms' fitted values become the spec's effects
         (:func:`~borescan.discrepancy.tri.term_effects`) on :meth:`borescan.physics.tri.TriDevice.predict`
-        (the digital twin's model), the device at S_p and angle 0 in a bore centred at the origin."""
+        (the digital twin's model), the device at S_p and angle 0 in a bore centred at the origin.
+        """
         d = self.data
         xy = np.array([[p[f"sx[{k}]"], p[f"sy[{k}]"]] for k in range(self.n_pose)])
         state = TriStaticState(xy, np.zeros(self.n_pose), Bore((0.0, 0.0), self.R + p.get("dR", 0.0)))

@@ -219,7 +219,8 @@ class RodJacobian:
 @dataclass(frozen=True)
 class RodDevice:
     """The measuring rod's model: its layers' geometry (design or calibrated), the artifact's CTE, the
-    sensors' ranges. :meth:`predict` is :func:`rod_forward` at the base of :meth:`base`."""
+    sensors' ranges. :meth:`predict` is :func:`rod_forward` at the base of :meth:`base`.
+    """
 
     layers: tuple[RodLayer, ...]
     cte_per_k: float = 0.0

@@ -40,7 +40,8 @@ def quarantine_record_name(scan_id: str, night: str) -> str:
     """File name of a scan's quarantine record: ``<scan_id>.json`` for a valid id that cannot be
     mistaken for anything else; otherwise (a folder id longer than 64 characters, ``..``, ``-``, ...)
     ``scan-<16 hex of SHA-256 of night/scan_id>.json``, so two folders never share a record, no
-    record is hidden and none is named like the ``-`` of problems that name no scan."""
+    record is hidden and none is named like the ``-`` of problems that name no scan.
+    """
     if _RECORD_NAME.fullmatch(scan_id):
         return f"{scan_id}.json"
     return f"scan-{hashlib.sha256(f'{night}/{scan_id}'.encode()).hexdigest()[:16]}.json"
@@ -76,7 +77,8 @@ def _stage_rank(stage) -> int:
 
 def sync_quarantine_records(results_root: str | Path, records: list[Quarantined]) -> tuple[int, int]:
     """Make ``<results_root>/quarantine/`` hold exactly ``records`` (the catalog's, one per scan; a scan id
-    quarantined on two nights: ``<scan_id>.night=<night>.json`` for the later). Returns (written, removed)."""
+    quarantined on two nights: ``<scan_id>.night=<night>.json`` for the later). Returns (written, removed).
+    """
     folder = Path(results_root) / "quarantine"
     want: dict[str, str] = {}
     for q in records:
@@ -107,7 +109,8 @@ def quarantine(results_root, records: list[Quarantined], scan_id: str, night: st
 
 def quarantined_text(records: list[Quarantined], width: int = 160) -> str:
     """``n quarantined`` and, per scan, ``scan_id (file: reason)`` with the reason cut at ``width``
-    characters: a night's log line says who was set aside and why (the full reason is in the record)."""
+    characters: a night's log line says who was set aside and why (the full reason is in the record).
+    """
     if not records:
         return "0 quarantined"
     items = []
