@@ -36,6 +36,7 @@ RUN_BY_DEFAULT = False  # several workflow runs: minutes
 
 @dataclass(frozen=True)
 class Outcome:
+    """How the pipeline handled one fault case, and whether the raw files stayed unchanged."""
     case: str
     result: str  # processed | quarantined | skipped | crashed
     detail: str
@@ -54,7 +55,9 @@ def _checksums(root: Path) -> dict[str, str]:
     return checksums(root)
 
 
-def input_battery(tmp: Path, demo_raw: Path) -> list[Outcome]:
+def input_battery(  # noqa: C901 (one branch per kind of input fault and its expected outcome)
+    tmp: Path, demo_raw: Path
+) -> list[Outcome]:
     """Every input fault under one raw root, processed by one workflow run."""
     import duckdb
 
@@ -74,7 +77,7 @@ def input_battery(tmp: Path, demo_raw: Path) -> list[Outcome]:
                            "N20261120-TRI01-CAL-P1-A")
     stage_cases, _ = make_stage_cases(raw, tmp / "truth", bad_night)
     expected = {c.scan_id: (c.file, c.problem) for c in cases + stage_cases}
-    for i, (name, src, edit, text) in enumerate(PLAUSIBILITY_CASES):
+    for i, (_name, src, edit, text) in enumerate(PLAUSIBILITY_CASES):
         d = copy_scan(night20 / src, raw, bad_night, f"PLAUS-{i:02d}")
         meta = json.loads((d / "scan.json").read_text())
         meta["started_at"] = meta["started_at"].replace("2026-11-20", bad_night)
@@ -198,6 +201,7 @@ def _killed_run(checkout: Path, demo_raw: Path, tmp: Path) -> Outcome:
 
 
 def main() -> None:
+    """Run the input and processing fault batteries on the demo nights and print one line per case."""
     from borescan import demo
 
     with tempfile.TemporaryDirectory(prefix="bench-faults-") as t:

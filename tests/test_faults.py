@@ -77,8 +77,10 @@ def test_nights_leave_out_an_impossible_date_and_name_it(tmp_path, demo_raw):
 
 
 def test_an_unreadable_raw_file_quarantines_its_scan_and_the_night_goes_on(tmp_path, demo_raw, monkeypatch):
-    """Issue 40 item 8 inside one process: reading or hashing a file raises PermissionError (as for a
-    file another user wrote with umask 077); the scan is quarantined naming the file, the others pass.
+    """Check that a scan whose file cannot be read is quarantined naming the file; the others pass.
+
+    Issue 40 item 8 inside one process: reading or hashing a file raises PermissionError (as for a
+    file another user wrote with umask 077).
     (The workflow as a user who cannot read the file: test_crash_root_workflow_as_a_user_who_is_not_root.)
     """
     raw, res = tmp_path / "raw", tmp_path / "res"

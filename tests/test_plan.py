@@ -57,10 +57,12 @@ def test_prediction_is_the_spread_of_fits_over_simulated_scans():
 
 
 def test_recommendation_is_the_smallest_scan_reaching_the_target():
-    """Yang's ring and beams (sigma 2 um, 660 samples per revolution, 10 mm sensors): the recommended scan
-    resolves every rho and reaches u(beta) <= 1 mrad; fewer revolutions, or the next smaller offset, do not.
-    (50 urad is out of reach: beta is psi - asin(rho / R), and u(rho) / R stays above 400 urad for offsets the
-    10 mm range allows; recommend says None.)
+    """Check that the scan recommended for Yang's ring resolves every rho and reaches u(beta) <= 1 mrad.
+
+    Yang's ring and beams (sigma 2 um, 660 samples per revolution, 10 mm sensors): fewer revolutions than
+    recommended, or the next smaller offset, do not reach it. (50 urad is out of reach: beta is
+    psi - asin(rho / R), and u(rho) / R stays above 400 urad for offsets the 10 mm range allows; recommend
+    says None.)
     """
     dev = DeviceDesign(simulate.YANG_BEAMS, (SIGMA_MM,) * 3, (10.0,) * 3)
     R = simulate.YANG_RING_GAUGE_DIAMETER_MM / 2

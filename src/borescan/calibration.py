@@ -1205,9 +1205,7 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         for dip in prof.get("profile_minima", []):
             minima.append({"source": f"profile of rho of channel {prof['channel']}", "rho_mm": dip["rho_mm"],
                            "delta_ssr_over_s2": dip["delta_ssr_over_s2"], "_p": None})
-    weights = [np.exp(-0.5 * max(m["delta_ssr_over_s2"], 0.0)) for m in minima]
-    total_w = 1.0 + float(sum(weights))
-    for m, wgt in zip(minima, weights):
+    for m in minima:
         p_alt = m.pop("_p")
         if p_alt is None:
             continue

@@ -94,14 +94,17 @@ def decimal_text(x: float, shift: int = 0) -> str:
 
 
 def d(tag: str) -> str:
+    """Return ``tag`` qualified by the DCC namespace."""
     return f"{{{NS_DCC}}}{tag}"
 
 
 def s(tag: str) -> str:
+    """Return ``tag`` qualified by the D-SI namespace."""
     return f"{{{NS_SI}}}{tag}"
 
 
 def sub(parent: ET.Element, tag: str, text: str | None = None, **attrib: str) -> ET.Element:
+    """Append a ``tag`` element to ``parent`` with ``text`` and the attributes that are not None."""
     el = ET.SubElement(parent, tag, {k.replace("_", ""): v for k, v in attrib.items() if v is not None})
     if text is not None:
         el.text = text
@@ -117,6 +120,7 @@ def text(parent: ET.Element, tag: str, *contents: str, ref_type: str | None = No
 
 
 def is_num(x: Any) -> bool:
+    """Return whether ``x`` is a finite int or float (a bool is not a number)."""
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
@@ -133,6 +137,7 @@ def expanded_unc(parent: ET.Element, eu: dict, unit: Unit) -> None:
 
 def real(parent: ET.Element, tag: str, value: float, unit: Unit, label: str | None = None,
           expanded: dict | None = None) -> ET.Element:
+    """Append an ``si:real`` (label, value in ``unit``, optional expanded uncertainty) to ``parent``."""
     el = sub(parent, tag)
     if label is not None:
         sub(el, s("label"), label)
@@ -163,6 +168,7 @@ def quantity(parent: ET.Element, name: str, value: Any, unit: Unit | None = None
 
 
 def plain(value: Any) -> str:
+    """Return ``value`` as the plain text of a ``dcc:noQuantity`` (null, true/false, a list comma-joined)."""
     if value is None:
         return "null"
     if isinstance(value, bool):

@@ -61,6 +61,7 @@ class Decision:
 
     @property
     def rule_text(self) -> str:
+        """Return the decision rule in words, with its ILAC-G8 clause and guard band."""
         clause, what = DECISION_RULES[self.rule]
         w = f", w = {self.guard_band_mm * 1e3:.1f} um" if self.guard_band_mm > 0 else ""
         return f"{what} (ILAC-G8:09/2019 {clause}{w})"

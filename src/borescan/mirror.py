@@ -152,10 +152,12 @@ class MirrorSolution:
 
     @property
     def params_array(self) -> np.ndarray:
+        """Return the parameters as a float array."""
         return np.asarray(self.params, dtype=float)
 
     @property
     def cov_array(self) -> np.ndarray:
+        """Return the covariance as a float array."""
         return np.asarray(self.cov, dtype=float)
 
 
@@ -186,6 +188,7 @@ class BeamMirror:
     valid_bore_diameter_mm: tuple[float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        """Return the fields as a JSON-ready dict (NaN as None, infinities as ``"inf"`` or ``"-inf"``)."""
         d = asdict(self)
         for k, v in d.items():
             if isinstance(v, float) and not math.isfinite(v):
@@ -196,6 +199,7 @@ class BeamMirror:
 
     @classmethod
     def from_dict(cls, d: dict) -> BeamMirror:
+        """Rebuild a BeamMirror from :meth:`to_dict`'s dict."""
         def f(x):
             return float("inf") if x == "inf" else float("nan") if x is None else float(x)
 
@@ -273,6 +277,7 @@ class MixtureDiameter:
     seed: int
 
     def to_dict(self) -> dict:
+        """Return the fields as a JSON-ready dict."""
         return asdict(self)
 
 

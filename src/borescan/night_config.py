@@ -90,6 +90,7 @@ def changed_keys(old: dict, new: dict, prefix: str = "") -> list[str]:
 
 
 def record_path(results_root, night: str) -> Path:
+    """Return the path of ``night``'s config record under ``results_root``."""
     return Path(results_root) / "stage" / "night_config" / f"night={night}.parquet"
 
 

@@ -1458,7 +1458,8 @@ class _Builder:
                 "tolerance, or the result lies in the guard band.</p>"
                 + _table(head, rows, classes, num_cols=set(range(3, 12)) | {1}) + "".join(details))
 
-    def _night_detail(self, night, q_n, made, superseded, expired, failed, out_tol, person, attention,
+    def _night_detail(  # noqa: C901 (one branch per kind of item a night can list)
+        self, night, q_n, made, superseded, expired, failed, out_tol, person, attention,
                       untraceable=None, undecided=()) -> str:
         items = []
         for q in q_n:

@@ -23,6 +23,7 @@ HELP = ("predict a calibration scan's uncertainties (Cramer-Rao) and each beam's
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the ``borescan plan`` options to ``parser``."""
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--device", choices=("yang", "demo"), help="a built-in device design and its ring gauge")
     src.add_argument("--scan", type=Path, metavar="DIR", help="a tri_lds scan folder: its design, sensors, gauge, noise")
@@ -107,6 +108,7 @@ def _print(p, title: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Predict the proposed scan's uncertainties (or recommend a scan) and print them; return the exit status."""
     from borescan.config import schema_defaults
     from borescan.plan import ScanDesign, predict, recommend
 

@@ -21,6 +21,7 @@ HELP = ("apply the current config to the nights from --from NIGHT on (new versio
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the ``borescan recompute`` options to ``parser``."""
     parser.add_argument("--from", dest="from_night", required=True, type=night_date, metavar="NIGHT",
                         help="first night (YYYY-MM-DD) to recompute with the current config")
     parser.add_argument("--results", default="results", type=Path,
@@ -31,6 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Recompute the nights from ``--from`` on with the current config; return the exit status."""
     from borescan import night_config
     from borescan.config import load_configs
 

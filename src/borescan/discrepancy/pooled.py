@@ -590,7 +590,9 @@ class PooledModel:
         """None: a vibration line belongs to one run (scope ``scan``) and is named per scan."""
         return None
 
-    def candidate_terms(self, *, k_max: int | None = None, vibration_f_hz: float | None = None) -> list[PooledTerm]:
+    def candidate_terms(  # noqa: C901 (one branch per term scope and per base absorption)
+        self, *, k_max: int | None = None, vibration_f_hz: float | None = None
+    ) -> list[PooledTerm]:
         """The registry's candidates for every group of scans their scope defines, less those the
         pooled base absorbs (recorded in :attr:`absorbed`). ``speed_error`` is the base's per-scan
         speed scale; ``vibration`` is left to the single-scan examination.

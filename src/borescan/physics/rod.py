@@ -70,6 +70,7 @@ class RodBase:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """Return the layers' channels, in layer order."""
         return tuple(int(lay.channel) for lay in self.layers)
 
 
@@ -228,6 +229,7 @@ class RodDevice:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """Return the layers' channels, in layer order."""
         return tuple(int(lay.channel) for lay in self.layers)
 
     def base(self, state: RodState) -> RodBase:

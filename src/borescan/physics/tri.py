@@ -378,6 +378,7 @@ class TriDevice:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """Return the beams' channels."""
         return self.beams.channels
 
     def _stages(self, effects: Iterable[Effect]) -> dict[str, list[Effect]]:

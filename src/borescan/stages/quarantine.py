@@ -30,6 +30,7 @@ class Quarantined:
 
     @classmethod
     def from_error(cls, err: rawio.ScanError, night: str, stage: str) -> "Quarantined":
+        """Return the quarantine record of ``err`` met in ``stage`` of ``night``."""
         return cls(err.scan_id, night, stage, err.file, err.problem)
 
 
