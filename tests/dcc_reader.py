@@ -21,7 +21,7 @@ def schema() -> xmlschema.XMLSchema:
 
 
 def decode(path: Path) -> dict:
-    """The DCC as a dict; raises xmlschema's validation error when it is not valid."""
+    """Return the DCC as a dict; raises xmlschema's validation error when it is not valid."""
     return schema().to_dict(str(path), validation="strict")
 
 
@@ -31,17 +31,17 @@ def metre_power(unit: str) -> int:
 
 
 def json_units(value: float, unit: str) -> float:
-    """A D-SI value (SI units) in certificate.json's units (mm for lengths)."""
+    """Return a D-SI value (SI units) in certificate.json's units (mm for lengths)."""
     return value * 10.0 ** (3 * metre_power(unit))
 
 
 def same(read: float, printed: float) -> bool:
-    """The read-back value equals the JSON's to its last printed digit (12 significant digits)."""
+    """Return whether the read-back value equals the JSON's to its last printed digit (12 significant digits)."""
     return float(f"{read:.12g}") == float(printed)
 
 
 def text(node) -> str:
-    """The text of a dcc textType / richContentType (contents joined by newlines)."""
+    """Return the text of a dcc textType / richContentType (contents joined by newlines)."""
     if node is None:
         return ""
     contents = node.get("dcc:content", [])
@@ -77,7 +77,7 @@ def quantity_value(q: dict):
 
 
 def tree(node: dict) -> dict:
-    """A dcc:list (or dcc:data) as {name: subtree or value}; a list of one quantity of its own name
+    """Return a dcc:list (or dcc:data) as {name: subtree or value}; a list of one quantity of its own name
     (how the writer keeps lists and quantities apart) read as that quantity.
     """
     out: dict = {}

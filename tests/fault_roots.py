@@ -81,7 +81,7 @@ def as_nobody(cmd: list[str]) -> list[str]:
 
 
 def checkout_copy(root: Path, dst: Path) -> Path:
-    """A second checkout of the project (its tracked workflow, config and package, no .snakemake)."""
+    """Return a second checkout of the project (its tracked workflow, config and package, no .snakemake)."""
     dst.mkdir(parents=True, exist_ok=True)
     skip = shutil.ignore_patterns(".git", ".snakemake", "results", "demo", "__pycache__", ".pytest_cache", "*.egg-info")
     for name in ("Snakefile", "rules", "workflow", "config", "src", "profiles", "data"):

@@ -41,7 +41,7 @@ def _files(folder: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    """A history of two certificates written by the stages' own path, under the laboratory section of
+    """Return a history of two certificates written by the stages' own path, under the laboratory section of
     config/config.yaml: a three-sensor calibration (a simulated ring-gauge scan, fit, GUM budget) and a rod
     calibration (a contract scan of a rod in certified ring gauges, ``calibrate_rod_scan``), each with
     its ``stage/certificate_issues`` row.

@@ -182,7 +182,7 @@ def test_quarantine_records_follow_the_catalog_with_names_that_never_collide(tmp
 
 
 def _python_for(user_cmd) -> list[str]:
-    """A Python the user of ``user_cmd`` may execute with this venv's packages: this one, else the
+    """Return a Python the user of ``user_cmd`` may execute with this venv's packages: this one, else the
     system's of the same version with this venv's site-packages on PYTHONPATH.
     """
     # through a shell, as Snakemake starts a job's script (setpriv itself may exec what a shell may not)
@@ -204,7 +204,7 @@ def _workflow(checkout: Path, raw: Path, res: Path, home: Path, *extra: str, use
 
 @pytest.fixture
 def open_tmp():
-    """A temporary folder every user can reach (pytest's are private to their user)."""
+    """Return a temporary folder every user can reach (pytest's are private to their user)."""
     path = Path(tempfile.mkdtemp(prefix="borescan-faults-"))
     path.chmod(0o755)
     yield path
@@ -252,7 +252,7 @@ def test_crash_root_workflow_as_a_user_who_is_not_root(open_tmp, demo_raw):
 
 
 def _rod_night(demo_raw: Path, raw: Path, night: str) -> None:
-    """A night of the demo's rod scans only (the cheapest night that runs every stage), with its old
+    """Return a night of the demo's rod scans only (the cheapest night that runs every stage), with its old
     file times (``cp -a``, as rsync -a or tar from a gauge PC copy them).
     """
     (raw / f"night={night}").mkdir(parents=True, exist_ok=True)

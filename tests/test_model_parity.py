@@ -245,7 +245,7 @@ def _poses(n_pose: int, per_pose: int, rate_hz: float) -> tuple[np.ndarray, np.n
 
 
 def _static_model() -> tuple[StaticModel, np.ndarray]:
-    """The static fit model of the scene (nominal beams = true beams, certified R20) and the poses."""
+    """Return the static fit model of the scene (nominal beams = true beams, certified R20) and the poses."""
     sim = simulate_tri_static(STATIC_SCENE, STATIC_XY_MM, np.zeros(len(STATIC_XY_MM)), noise_mm=0.0)
     t, pose = _poses(len(STATIC_XY_MM), 20, STATIC_SCENE.sample_rate_hz)
     c = STATIC_SCENE.beams.channels
@@ -260,7 +260,7 @@ def _static_params() -> dict[str, float]:
 
 
 def _rod_model() -> tuple[RodModel, np.ndarray]:
-    """The rod fit model of the scene (nominal layers = true layers, certified hole diameters)."""
+    """Return the rod fit model of the scene (nominal layers = true layers, certified hole diameters)."""
     feats = [{"id": f"H{lay.channel}", "z_mm": lay.h_mm, "certified_diameter_mm": 2 * h.radius_mm}
              for lay, h in zip(ROD_SCENE.layers, ROD_SCENE.holes)]
     artifact = {"id": "GAUGE-2H", "type": "ring_gauge", "cte_per_k": ROD_SCENE.cte_per_k, "features": feats}
@@ -272,7 +272,7 @@ def _rod_model() -> tuple[RodModel, np.ndarray]:
 
 
 def _rod_params() -> dict[str, float]:
-    """The rod fit's base unknowns of the scene: the inverse of ``rod_section_geometry``."""
+    """Return the rod fit's base unknowns of the scene: the inverse of ``rod_section_geometry``."""
     ax = ROD_SCENE.axis
     w = ax.omega_rad * np.array([math.cos(ax.omega_az_rad), math.sin(ax.omega_az_rad)])
     out = {f"alpha[{k}]": float(a) for k, a in enumerate(ROD_ALPHA_RAD) if k > 0}

@@ -33,7 +33,7 @@ def _validate(raw: Path, capsys) -> tuple[int, dict[str, tuple[str, str]], str]:
 
 @pytest.fixture(scope="module")
 def night(tmp_path_factory):
-    """The night of tests/optional_keys.py processed by one Snakemake run up to the catalog."""
+    """Return the night of tests/optional_keys.py processed by one Snakemake run up to the catalog."""
     base = tmp_path_factory.mktemp("optional_keys")
     raw, results = base / "raw", base / "results"
     written = write_night(raw, base / "truth")

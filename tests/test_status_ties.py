@@ -17,7 +17,7 @@ from borescan.cli import main
 
 
 def _tied_history(res):
-    """The history of tests/test_catalog.py plus, on the 21st, ROD-01's design geometry under an id
+    """Return the history of tests/test_catalog.py plus, on the 21st, ROD-01's design geometry under an id
     that sorts after its gauge calibration, and on the 22nd a second TRI-01 calibration CAL-0
     (its id sorts first) made after CAL-B.
     """

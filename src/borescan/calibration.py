@@ -597,7 +597,7 @@ class AcceptanceRule:
 
     @classmethod
     def from_config(cls, cal_cfg: Mapping[str, Any]) -> "AcceptanceRule":
-        """The rule of a config's ``calibration`` section."""
+        """Return the rule of a config's ``calibration`` section."""
         return cls(max_residual_to_noise=float(cal_cfg["max_residual_to_noise"]),
                    head_radius_mm=float(cal_cfg["head_radius_mm"]),
                    position_accuracy_mm=float(cal_cfg["position_accuracy_mm"]),
@@ -605,7 +605,7 @@ class AcceptanceRule:
 
     @classmethod
     def defaults(cls, **overrides: Any) -> "AcceptanceRule":
-        """The rule of the schema's defaults, with ``overrides``."""
+        """Return the rule of the schema's defaults, with ``overrides``."""
         return replace(cls.from_config(schema_default("calibration")), **overrides)
 
 
@@ -976,10 +976,11 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
     screen = [slice(None, None, step)] * K if step > 1 else None
 
     def mirror_start(x: np.ndarray, j: int) -> np.ndarray:
-        """The mirror of beam ``j`` (rho -> -rho at fixed psi and g). The gauge-fixed first beam's psi is
-        not free: flipping its rho moves psi_1 by delta = -2 asin(rho_1 / R), and the readings depend on
-        psi_c + phase - angle(o), so every other psi moves by delta too and each scan's frame turns by
-        delta (its offset without a prior, else its free phase back by delta).
+        """Return the mirror of beam ``j`` (rho -> -rho at fixed psi and g).
+
+        The gauge-fixed first beam's psi is not free: flipping its rho moves psi_1 by delta = -2 asin(rho_1 /
+        R), and the readings depend on psi_c + phase - angle(o), so every other psi moves by delta too and
+        each scan's frame turns by delta (its offset without a prior, else its free phase back by delta).
         """
         xf = np.array(x, dtype=float, copy=True)
         xf[i_rho0 + j] = -xf[i_rho0 + j]

@@ -467,7 +467,7 @@ def _record_unit(key: str, cert: dict):
 
 
 def dcc_bytes(cert: dict) -> bytes:
-    """The DCC of the certificate whose ``certificate.json`` content is ``cert`` (UTF-8 XML bytes)."""
+    """Return the DCC of the certificate whose ``certificate.json`` content is ``cert`` (UTF-8 XML bytes)."""
     cert = copy.deepcopy(cert)  # the caller's content stays as it is (it is also written as certificate.json)
     root = ET.Element(_d("digitalCalibrationCertificate"), {"schemaVersion": DCC_SCHEMA_VERSION})
     _administrative(root, cert)
@@ -484,7 +484,7 @@ def write_dcc(cert: dict, out_dir: Path | str) -> Path:
 
 
 def schema_path() -> Path:
-    """The DCC 3.1.2 schema shipped with the package (it imports the D-SI 2.1.0 schema beside it)."""
+    """Return the DCC 3.1.2 schema shipped with the package (it imports the D-SI 2.1.0 schema beside it)."""
     return Path(__file__).resolve().parent / "schemas" / "dcc" / "dcc-3.1.2.xsd"
 
 

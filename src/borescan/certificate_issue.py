@@ -125,7 +125,7 @@ def issue_row(cert_paths: dict[str, Path], results_root: Path | str, night: str,
 
 
 def issue_frame(rows: list[dict]) -> pl.DataFrame:
-    """The rows as a ``stage/certificate_issues`` table (empty with its schema when there are none)."""
+    """Return the rows as a ``stage/certificate_issues`` table (empty with its schema when there are none)."""
     return pl.DataFrame(rows, schema=_SCHEMA, orient="row") if rows else pl.DataFrame(schema=_SCHEMA)
 
 
@@ -155,7 +155,7 @@ def read_issues(results_root: Path | str) -> list[CertificateIssue]:
 
 
 def issues_of(results_root: Path | str, ident: str) -> list[CertificateIssue]:
-    """The issues of the calibration or document ``ident`` (every issue of its calibration)."""
+    """Return the issues of the calibration or document ``ident`` (every issue of its calibration)."""
     issues = read_issues(results_root)
     cal_ids = {i.calibration_id for i in issues if ident in (i.calibration_id, i.document_id)}
     return [i for i in issues if i.calibration_id in cal_ids]

@@ -80,7 +80,7 @@ def _key_path(err) -> str:
 
 
 def _one_line(err) -> str:
-    """A jsonschema error as ``key: problem``, the schema left out."""
+    """Return a jsonschema error as ``key: problem``, the schema left out."""
     if err.validator == "additionalProperties":
         allowed = sorted((err.schema.get("properties") or {}).keys())
         extra = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []

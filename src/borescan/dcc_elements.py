@@ -112,7 +112,7 @@ def sub(parent: ET.Element, tag: str, text: str | None = None, **attrib: str) ->
 
 
 def text(parent: ET.Element, tag: str, *contents: str, ref_type: str | None = None) -> ET.Element:
-    """A DCC ``textType`` / ``richContentType`` element with one ``content`` (lang en) per text."""
+    """Return a DCC ``textType`` / ``richContentType`` element with one ``content`` (lang en) per text."""
     el = sub(parent, d(tag), refType=ref_type) if ref_type else sub(parent, d(tag))
     for c in contents or ("",):
         sub(el, d("content"), str(c), lang="en")

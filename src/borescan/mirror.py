@@ -235,7 +235,7 @@ class BeamMirror:
 
 
 def mirror_checks_of(diagnostics: dict | None) -> list[BeamMirror]:
-    """The calibration's mirror checks (``diagnostics["mirror_check"]``), typed; [] when absent."""
+    """Return the calibration's mirror checks (``diagnostics["mirror_check"]``), typed; [] when absent."""
     return [BeamMirror.from_dict(d) for d in (diagnostics or {}).get("mirror_check", [])]
 
 
@@ -324,7 +324,7 @@ def mixture_diameter(components: Sequence[tuple[float, float, float]], factor_20
 
 
 def mixture_seed(*ids: str) -> int:
-    """A deterministic seed from ids (sha256, first 8 bytes)."""
+    """Return a deterministic seed from ids (sha256, first 8 bytes)."""
     import hashlib
 
     return int.from_bytes(hashlib.sha256("\x1f".join(ids).encode()).digest()[:8], "little")

@@ -62,7 +62,7 @@ class ConfigChange:
 
 
 def night_settings(config: dict) -> dict:
-    """The settings of ``config`` that a night's results depend on (JSON-normalised)."""
+    """Return the settings of ``config`` that a night's results depend on (JSON-normalised)."""
     return json.loads(json.dumps({k: v for k, v in config.items() if k not in RUN_KEYS}, sort_keys=True, default=str))
 
 
@@ -95,7 +95,7 @@ def record_path(results_root, night: str) -> Path:
 
 
 def read_record(results_root, night: str) -> NightConfig | None:
-    """The night's record, or None when the workflow has not seen the night yet."""
+    """Return the night's record, or None when the workflow has not seen the night yet."""
     path = record_path(results_root, night)
     if not path.is_file():
         return None

@@ -54,7 +54,7 @@ def has_design_geometry(meta: dict) -> bool:
 
 
 def missing_geometry_reason(key: str, why: str) -> str:
-    """The reason given for a scan without ``device.nominal.<key>`` that a stage needs (``why``)."""
+    """Return the reason given for a scan without ``device.nominal.<key>`` that a stage needs (``why``)."""
     return f"device.nominal.{key} missing (optional in the raw format, but {why})"
 
 
@@ -134,7 +134,7 @@ class StageOutcome:
 
 def expected_outcomes(meta: dict, *, has_spindle: bool, revolutions: tuple[int | None, int] | None,
                       min_rev: int) -> list[StageOutcome]:
-    """The preconditions above applied to one accepted scan, in stage order ([] = processed as usual).
+    """Return the preconditions above applied to one accepted scan, in stage order ([] = processed as usual).
 
     ``revolutions``: (recorded, with extrema) of a three-sensor spindle scan from the signal stage's
     processing; None when not computed (static scans, rods). The first ``quarantined`` outcome is

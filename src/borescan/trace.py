@@ -201,7 +201,7 @@ class _Tracer:
         return out
 
     def document_match(self, ident: str) -> list[str]:
-        """The calibration of a certificate number (a reissue's ``<calibration_id>-R<n>``)."""
+        """Return the calibration of a certificate number (a reissue's ``<calibration_id>-R<n>``)."""
         from borescan.certificate_issue import issues_of
 
         return sorted({i.calibration_id for i in issues_of(self.root, ident) if i.document_id == ident})
@@ -342,7 +342,7 @@ def _layer_gauges(row: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def _verdict(v: dict[str, Any]) -> str:
-    """A verification's verdict under the decision rule (its statement), else its pass/fail."""
+    """Return a verification's verdict under the decision rule (its statement), else its pass/fail."""
     if v.get("conformity"):
         return v["conformity"]
     return "passed" if v.get("passed") else "FAILED"

@@ -267,7 +267,7 @@ def _gauge_problems(node: dict, where: str, limits: Plausibility) -> list[str]:
 
 
 def plausibility_problems(meta: dict, scan_id: str, limits: Plausibility | None = None) -> list[ScanError]:
-    """The numbers of ``scan.json`` that feed a result, against what a gauge room can produce.
+    """Return the numbers of ``scan.json`` that feed a result, against what a gauge room can produce.
 
     Sensor range (0, ``max_sensor_range_mm``], data-sheet linearity and repeatability > 0 (a zero would
     shrink every uncertainty), ``environment.temperature_c`` within the workshop's range, the artifact's

@@ -127,8 +127,10 @@ COMPUTE_RE = re.compile(r"compute (?P<item>\S+) (?P<seconds>[0-9.]+) s$")
 
 
 def compute_line(item: str, seconds: float) -> str:
-    """The log line of one item's (a scan's, a device's) CPU seconds in a stage. Timings go to the
-    log only: never into a stage table, the catalog or a certificate (reruns stay byte-identical).
+    """Return the log line of one item's (a scan's, a device's) CPU seconds in a stage.
+
+    Timings go to the log only: never into a stage table, the catalog or a certificate (reruns stay
+    byte-identical).
     """
     return f"compute {item} {seconds:.3f} s"
 

@@ -264,7 +264,7 @@ class RodModel(_PoseModel):
                 "pose_angle_rad": [float(a) for a in alpha]}
 
     def state(self, p) -> RodState:
-        """The device's base unknowns at base parameters ``p`` (pose 0 at alpha = 0)."""
+        """Return the device's base unknowns at base parameters ``p`` (pose 0 at alpha = 0)."""
         m = len(self.data.channels)
         return RodState(
             alpha_rad=np.array([0.0] + [p[f"alpha[{k}]"] for k in range(1, self.n_pose)]),
@@ -284,7 +284,7 @@ class RodModel(_PoseModel):
             return self.device.predict(self.state(p), d.pose_index, d.t_s, effects)
 
     def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
-        """The registry's rod candidates; what a layer's free hole radius absorbs is left out."""
+        """Return the registry's rod candidates; what a layer's free hole radius absorbs is left out."""
         free = {c for c, f in zip(self.data.channels, self.radius_free) if f}
         return registry_terms(self.scan_kind, self.data.channels, have={"cte": bool(self.data.cte_per_k)},
                               k_max=k_max, freed={"R": free})
@@ -372,7 +372,7 @@ class StaticModel(_PoseModel):
         return self.device.predict(state, d.pose_index, d.t_s, effects)
 
     def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
-        """The registry's static candidates; a free bore radius absorbs what every channel shares."""
+        """Return the registry's static candidates; a free bore radius absorbs what every channel shares."""
         return registry_terms(self.scan_kind, self.data.channels, have={"cte": bool(self.data.cte_per_k)},
                               k_max=k_max, freed={"R": "shared" if self.radius_free else set()})
 

@@ -80,7 +80,7 @@ def _stages(effects: Iterable[Effect], channels: Sequence[int]) -> dict[str, lis
 
 
 def rod_layers_with_effects(layers: Sequence[RodLayer], beam_effects: Iterable[Effect]) -> list[RodLayer]:
-    """The layers after the beam-stage effects (step 2), in composition order."""
+    """Return the layers after the beam-stage effects (step 2), in composition order."""
     out = list(layers)
     chans = [lay.channel for lay in out]
     for e in beam_effects:
@@ -92,7 +92,7 @@ def rod_layers_with_effects(layers: Sequence[RodLayer], beam_effects: Iterable[E
 def rod_holes_with_effects(
     holes: Sequence[Hole], bore_effects: Sequence[Effect], cte_per_k: float
 ) -> list[Hole]:
-    """The holes after the bore-stage effects (step 1), in composition order.
+    """Return the holes after the bore-stage effects (step 1), in composition order.
 
     Raises
     ------
@@ -233,7 +233,7 @@ class RodDevice:
         return tuple(int(lay.channel) for lay in self.layers)
 
     def base(self, state: RodState) -> RodBase:
-        """The base geometry of the fit's unknowns (:func:`rod_section_geometry` on these layers)."""
+        """Return the base geometry of the fit's unknowns (:func:`rod_section_geometry` on these layers)."""
         holes, axis = rod_section_geometry(
             self.layers, state.center_xy_mm, state.radius_mm, state.deflection_xy_rad
         )

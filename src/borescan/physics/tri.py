@@ -205,7 +205,7 @@ def tri_forward(base: TriBase, t_s: np.ndarray, effects: Iterable[Effect] = ()) 
 
 def first_harmonic_start(phi_rad: np.ndarray, readings_mm: np.ndarray, mask: np.ndarray,
                          beta_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """The spindle's offset from the bore centre from the readings' first harmonic: a linear start.
+    """Return the spindle's offset from the bore centre from the readings' first harmonic: a linear start.
 
     To first order in the offset o = S - C (the geometry expanded about a centred spindle), channel c
     reads v_c = k_c - o . u(phi + beta_c); o and the levels k_c by linear least squares over the
@@ -354,7 +354,7 @@ class TriStaticJacobian:
 
 
 def _perp(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The vector turned by +90 degrees, J (x, y) = (-y, x)."""
+    """Return the vector turned by +90 degrees, J (x, y) = (-y, x)."""
     return -y, x
 
 
