@@ -36,7 +36,7 @@ def json_units(value: float, unit: str) -> float:
 
 
 def same(read: float, printed: float) -> bool:
-    """Return whether the read-back value equals the JSON's to its last printed digit (12 significant digits)."""
+    """Return whether the read-back value equals the JSON's to its last printed digit (12 significant)."""
     return float(f"{read:.12g}") == float(printed)
 
 
