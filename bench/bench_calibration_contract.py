@@ -371,9 +371,10 @@ def _channel_of_row(k: int, families: list[str], c: int, f: int | None) -> int:
 
 
 def mirror_summary(rows: list[dict]) -> dict:
-    """Issue 36's figures: resolved beams' z (SD, 95 % coverage, u / CRB in [0.9, 1.2]), the flagged count
-    against Eq. (1)'s at the truth, and among flagged beams the observed wrong-sign rate against the stated
-    probabilities (their mean).
+    """Return issue 36's figures for the resolved and the flagged beams.
+
+    Resolved beams' z (SD, 95 % coverage, u / CRB in [0.9, 1.2]), the flagged count against Eq. (1)'s at the
+    truth, and among flagged beams the observed wrong-sign rate against the stated probabilities (their mean).
     """
     z, ratio, e_crb, n_beams, n_flag, n_formula, p_stated, wrong, sign_err_resolved = [], [], [], 0, 0, 0, [], [], 0
     for r in rows:

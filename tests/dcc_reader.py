@@ -64,7 +64,8 @@ def real_value(real: dict) -> tuple[float, float | None, float | None, float | N
 
 
 def quantity_value(q: dict):
-    """A dcc:quantity's content: a number or list of numbers (certificate.json units), else its text."""
+    """Return a dcc:quantity's content: a number or list of numbers (certificate.json units), else its text.
+    """
     if "si:real" in q:
         return real_value(q["si:real"])[0]
     if "si:realListXMLList" in q:

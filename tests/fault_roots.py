@@ -71,7 +71,7 @@ def make_crash_root(demo_raw: Path, raw: Path) -> CrashRoot:
 
 
 def can_drop_to_nobody() -> bool:
-    """Running as root with setpriv available: the test runs the workflow as nobody."""
+    """Return whether the test can run the workflow as nobody (running as root with setpriv available)."""
     return os.geteuid() == 0 and shutil.which("setpriv") is not None
 
 

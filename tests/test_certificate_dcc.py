@@ -72,7 +72,7 @@ class Checked:
     def tree(  # noqa: C901 (one branch per JSON value type walked)
         self, path: tuple, printed, read
     ) -> None:
-        """``printed`` (a certificate.json subtree) against the reader's tree of the same names."""
+        """Compare ``printed`` (a certificate.json subtree) with the reader's tree of the same names."""
         if isinstance(printed, bool) or printed is None or isinstance(printed, str):
             if isinstance(printed, str):
                 assert read == printed, f"{path}: {printed!r} != {read!r}"

@@ -1358,8 +1358,10 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
 
 
 def _public_cov(x: np.ndarray, cov_int: np.ndarray, c: int, ch0_free: int, R_mm: float) -> np.ndarray:
-    """Covariance of the public free parameters (beta, rho, d_b, nuisance) from the internal one (psi, rho,
-    g, nuisance) at the internal vector ``x``: beta = psi - asin(rho / R), d_b = g - rho^2 / (2R).
+    """Return the covariance of the public free parameters from the internal one.
+
+    The public parameters are (beta, rho, d_b, nuisance), the internal ones (psi, rho, g, nuisance) at the
+    internal vector ``x``: beta = psi - asin(rho / R), d_b = g - rho^2 / (2R).
     """
     i_rho0 = c - 1 + ch0_free
     rho = np.asarray(x[i_rho0 : i_rho0 + c], dtype=float)

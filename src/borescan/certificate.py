@@ -504,9 +504,10 @@ def _traceability_text(art: dict) -> str:
 
 
 def _standard_statement(lab: dict) -> str:
-    """What the certificate says of ISO/IEC 17025: "issued in accordance with" only under an
-    accreditation the config states (laboratory.accreditation); else its content follows 7.8 and no
-    accreditation is claimed.
+    """Return what the certificate says of ISO/IEC 17025.
+
+    "issued in accordance with" only under an accreditation the config states (laboratory.accreditation); else
+    its content follows 7.8 and no accreditation is claimed.
     """
     acc = str(lab.get("accreditation") or "")
     if not acc or acc.upper().startswith("PLACEHOLDER") or "no accreditation" in acc.lower():
@@ -516,8 +517,9 @@ def _standard_statement(lab: dict) -> str:
 
 
 def _decision_rule_text(lab: dict) -> str:
-    """The laboratory's decision rule (:mod:`borescan.decision`) in words; E the error of the diameter
-    at 20 degC, T the tolerance, w the guard band.
+    """Return the laboratory's decision rule (:mod:`borescan.decision`) in words.
+
+    E is the error of the diameter at 20 degC, T the tolerance, w the guard band.
     """
     f = lab.get("guard_band_factor")
     tail = ("E the error of the diameter at 20 degC, U(E) its expanded uncertainty, T the tolerance. A result whose "
@@ -952,8 +954,9 @@ def _page_results(d: _Doc) -> None:
 
 
 def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
-    """Section 5: each beam's mirror check (certificate.json ``rho_sign``): the flagged beams' statement,
-    both solutions, the bore range and the fix; one line for the resolved ones.
+    """Return section 5 of the certificate: each beam's mirror check (certificate.json ``rho_sign``).
+
+    The flagged beams' statement, both solutions, the bore range and the fix; one line for the resolved ones.
     """
     rs = c.get("rho_sign") or {}
     checks = rs.get("beams") or []
@@ -977,9 +980,10 @@ def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
 
 
 def rho_sign_part(cal: TriCalibration) -> dict:
-    """certificate.json ``rho_sign``: per beam the mirror check (:class:`borescan.mirror.BeamMirror`) with its
-    statement; a flagged beam's two solutions (parameters of its own channel, the full (3c,) vectors and
-    covariances).
+    """Return certificate.json's ``rho_sign``: per beam the mirror check with its statement.
+
+    Per beam the mirror check (:class:`borescan.mirror.BeamMirror`) with its statement; a flagged beam's two
+    solutions (parameters of its own channel, the full (3c,) vectors and covariances).
     """
     from borescan.mirror import RESOLVED_DCHI2, mirror_checks_of
 
@@ -1363,10 +1367,11 @@ def write_certificate(
 
 
 def write_certificate_files(cert: dict, out_dir: Path | str, residuals: dict | None = None) -> dict[str, Path]:
-    """Write the documents of the certificate whose content is ``cert`` into ``out_dir``:
-    ``certificate.json``, ``certificate.dcc.xml`` (:mod:`borescan.certificate_dcc`), ``certificate.pdf``
-    and, for a three-sensor certificate, ``residuals.png`` (``residuals``: t_s [s], residual_mm [mm]).
-    Returns the paths by key (json, dcc, pdf, png); the same content gives the same bytes.
+    """Write the documents of the certificate whose content is ``cert`` into ``out_dir``.
+
+    ``certificate.json``, ``certificate.dcc.xml`` (:mod:`borescan.certificate_dcc`), ``certificate.pdf`` and,
+    for a three-sensor certificate, ``residuals.png`` (``residuals``: t_s [s], residual_mm [mm]). Returns the
+    paths by key (json, dcc, pdf, png); the same content gives the same bytes.
     """
     import matplotlib
 
@@ -1581,7 +1586,9 @@ def _rod_pages(cert: dict) -> list[Figure]:
 
 
 def write_rod_certificate(cal, out_dir: Path | str, **kw) -> dict[str, Path]:
-    """Write ``certificate.json``, ``certificate.dcc.xml`` and ``certificate.pdf`` of a rod calibration into ``out_dir``
-    (arguments of :func:`rod_certificate_dict`). Same inputs give byte-identical files.
+    """Write ``certificate.json``, ``certificate.dcc.xml`` and ``certificate.pdf`` of a rod calibration.
+
+    Into ``out_dir``, from the arguments of :func:`rod_certificate_dict`. Same inputs give byte-identical
+    files.
     """
     return write_certificate_files(rod_certificate_dict(cal, **kw), out_dir)

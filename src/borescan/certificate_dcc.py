@@ -145,8 +145,9 @@ def _statement(parent: ET.Element, st: dict) -> None:
 
 
 def _statements(cert: dict) -> list[dict]:
-    """The certificate's statements plus those the DCC states in its own words: date of issue,
-    accreditation, place of calibration, weak or two-solution parameters, device-model effects.
+    """Return the certificate's statements plus those the DCC states in its own words.
+
+    Date of issue, accreditation, place of calibration, weak or two-solution parameters, device-model effects.
     """
     adm, lab, fit = cert["administrativeData"], cert.get("laboratory") or {}, cert.get("fit") or {}
     out = [dict(st) for st in adm.get("statements") or []]  # copies: the content is not changed
@@ -250,8 +251,10 @@ def _equipment(mr: ET.Element, m_in: dict, p: float) -> None:
 
 
 def _gauge_quantities(qs: ET.Element, e: dict) -> None:
-    """A reference gauge's certified diameter (U and k of its certificate; the coverage probability
-    of k for a normal distribution when the certificate gives only k) and the rest of its record.
+    """Return a reference gauge's certified diameter and the rest of its record.
+
+    The diameter has the U and k of its certificate; when the certificate gives only k, the coverage
+    probability of k for a normal distribution.
     """
     cd = e.get("certifiedDiameter") or {"value": e.get("certified_diameter_mm"), "expandedUnc": {
         "uncertainty": e.get("u_diameter_mm"), "coverageFactor": e.get("k")}}
@@ -272,9 +275,10 @@ def _gauge_quantities(qs: ET.Element, e: dict) -> None:
 
 
 def _conditions(mr: ET.Element, cond: dict, p: float) -> None:
-    """The influence conditions: the gauge temperature (U for the certificate's coverage probability
-    ``p``), the gauge and machine (expansion coefficient, radius at temperature, position accuracy)
-    and the calibration scans.
+    """Return the influence conditions: gauge temperature, gauge and machine, calibration scans.
+
+    The gauge temperature (U for the certificate's coverage probability ``p``), the gauge and machine
+    (expansion coefficient, radius at temperature, position accuracy) and the calibration scans.
     """
     lst = _sub(mr, _d("influenceConditions"))
     t = cond.get("temperature") or {}
@@ -320,8 +324,10 @@ def _result_unit(r: dict) -> Unit:
 
 def _parameter_list(parent: ET.Element, label: str, results: list[dict], idx: list[int], cov: list[list] | None,
                     p: float) -> None:
-    """``si:list`` > ``si:realList`` of the results ``idx`` with their U and, from ``cov``, the
-    ``si:ellipsoidalRegion`` of their joint covariance (SI units, coverage factor of the region).
+    """Return the ``si:list`` of the results ``idx`` with their U and their joint ellipsoidal region.
+
+    It is ``si:list`` > ``si:realList``; the region, from ``cov``, is a ``si:ellipsoidalRegion`` (SI units,
+    coverage factor of the region).
     """
     sl = _sub(parent, _s("list"))
     rl = _sub(sl, _s("realList"))
@@ -349,8 +355,10 @@ def _parameter_list(parent: ET.Element, label: str, results: list[dict], idx: li
 
 
 def _budget(parent: ET.Element, name: str, entry: dict) -> None:
-    """One result's GUM budget: rows (estimate and u in the input's unit, sensitivity, contribution
-    in the result's unit) and the combination.
+    """Return one result's GUM budget: its rows and their combination.
+
+    Rows (estimate and u in the input's unit, sensitivity, contribution in the result's unit) and the
+    combination.
     """
     lst = _sub(parent, _d("list"), refType="borescan_uncertaintyBudget")
     _text(lst, "name", name)
@@ -404,7 +412,10 @@ def _results(mr: ET.Element, cert: dict, m_in: dict, p: float) -> None:
 
 
 def _verification(parent: ET.Element, v: dict) -> None:
-    """A verification on a certified gauge: its numbers (budget rows in their units) and its conformity."""
+    """Return a verification on a certified gauge: its numbers and its conformity.
+
+    The numbers are the budget rows in their units.
+    """
     res = _sub(parent, _d("result"), refType="basic_verification")
     feat = f" {v['feature']}" if v.get("feature") else ""
     _text(res, "name", f"verification {v.get('scan_id')}{feat} on {v.get('artifact_id')}")
@@ -455,8 +466,9 @@ def _measurement_results(root: ET.Element, cert: dict) -> None:
 
 
 def _record_unit(key: str, cert: dict):
-    """Units of a record section whose numbers the key suffix does not name (a covariance by its
-    parameters' units, a correlation dimensionless).
+    """Return the units of a record section whose numbers the key suffix does not name.
+
+    A covariance has its parameters' units, a correlation is dimensionless.
     """
     if key == "correlation":
         return lambda _k: dsi_unit("-")
@@ -492,8 +504,9 @@ _SCHEMA = None
 
 
 def validate_dcc(source: Path | str | bytes) -> None:
-    """Validate a DCC (a path or the bytes) against the shipped schema, offline (``xmlschema``);
-    raise ValueError naming the document and the first problem.
+    """Validate a DCC (a path or the bytes) against the shipped schema, offline (``xmlschema``).
+
+    Raise ValueError naming the document and the first problem.
     """
     try:
         import xmlschema

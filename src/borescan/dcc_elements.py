@@ -39,9 +39,11 @@ class Unit:
 
 
 def dsi_unit(unit: str, per: str | None = None, times: str | None = None) -> Unit:
-    """The D-SI unit of a certificate.json unit (``mm`` -> ``\\metre`` with shift -3), of the ratio
-    ``unit / per`` (a sensitivity coefficient) or of the product ``unit * times`` (a covariance);
-    base units in alphabetical order. An unknown unit raises ValueError naming it.
+    r"""Return the D-SI unit of a certificate.json unit, of a ratio of units or of a product of units.
+
+    ``mm`` -> ``\metre`` with shift -3; the ratio ``unit / per`` is a sensitivity coefficient, the product
+    ``unit * times`` a covariance; base units in alphabetical order. An unknown unit raises ValueError naming
+    it.
     """
     powers: dict[str, int] = {}
     shift = 0
@@ -59,7 +61,10 @@ def dsi_unit(unit: str, per: str | None = None, times: str | None = None) -> Uni
 
 
 def key_unit(key: str) -> str:
-    """The unit a certificate.json key names by its suffix (``_mm``, ``_rad``, ``_c``, ``_per_k``, ...)."""
+    """Return the unit a certificate.json key names by its suffix.
+
+    The suffixes are ``_mm``, ``_rad``, ``_c``, ``_per_k``, ...
+    """
     tokens = key.lower().split("_")
     if key.endswith("_rad_s"):
         return "rad/s"
@@ -76,8 +81,9 @@ def key_unit(key: str) -> str:
 
 
 def decimal_text(x: float, shift: int = 0) -> str:
-    """``x`` as printed by certificate.json (shortest repr of its 12-digit float), times 10**shift by
-    moving the exponent: the D-SI decimal carries exactly the JSON's digits.
+    """Return ``x`` as printed by certificate.json, times 10**shift by moving the exponent.
+
+    Printed as the shortest repr of its 12-digit float: the D-SI decimal carries exactly the JSON's digits.
     """
     if isinstance(x, bool) or not isinstance(x, (int, float)):
         raise TypeError(f"not a number: {x!r}")
@@ -150,8 +156,10 @@ def real(parent: ET.Element, tag: str, value: float, unit: Unit, label: str | No
 
 def quantity(parent: ET.Element, name: str, value: Any, unit: Unit | None = None, *, ref_type: str | None = None,
               expanded: dict | None = None) -> ET.Element:
-    """A ``dcc:quantity`` named ``name``: a number as ``si:real`` (in ``unit``, default by the name's
-    suffix), a list of numbers as ``si:realListXMLList``, anything else as ``dcc:noQuantity`` text.
+    """Return a ``dcc:quantity`` named ``name`` for a number, a list of numbers or anything else.
+
+    A number as ``si:real`` (in ``unit``, default by the name's suffix), a list of numbers as
+    ``si:realListXMLList``, anything else as ``dcc:noQuantity`` text.
     """
     q = sub(parent, d("quantity"), refType=ref_type)
     text(q, "name", name)
@@ -185,9 +193,11 @@ def nested(value: Any) -> bool:
 
 
 def record(parent: ET.Element, name: str, value: Any, unit_of=None, wrap: bool = False) -> None:
-    """``value`` (a certificate.json subtree) as nested ``dcc:list`` / ``dcc:quantity`` named by its keys
-    (list items ``name[i]``), numbers with the unit their key names (``unit_of(key)`` overrides). A
-    ``dcc:list`` holds lists or quantities, not both: with ``wrap`` a scalar becomes a list of one.
+    """Return ``value`` (a certificate.json subtree) as nested ``dcc:list`` / ``dcc:quantity``.
+
+    Named by its keys (list items ``name[i]``), numbers with the unit their key names (``unit_of(key)``
+    overrides). A ``dcc:list`` holds lists or quantities, not both: with ``wrap`` a scalar becomes a list of
+    one.
     """
     if nested(value):
         items = sorted(value.items()) if isinstance(value, dict) else [(f"{name}[{i}]", v) for i, v in enumerate(value)]

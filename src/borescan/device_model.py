@@ -192,8 +192,9 @@ def carried_effects(model: Iterable[DeviceEffect]) -> list[Effect]:
 
 
 def correct(t_s, readings_mm, channels, model: Iterable[DeviceEffect], range_mm) -> np.ndarray:
-    """Readings corrected for the device model's beam and reading effects
-    (:func:`borescan.physics.tri.tri_correct_readings`); time-base effects are carried by
+    """Return readings corrected for the device model's beam and reading effects.
+
+    See :func:`borescan.physics.tri.tri_correct_readings`; time-base effects are carried by
     :func:`channel_time_offsets`. Unchanged when there are none.
     """
     effs = [e for e in carried_effects(model) if e.spec.stage in CORRECTABLE_STAGES]

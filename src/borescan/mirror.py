@@ -89,8 +89,10 @@ def mirror_exists(rho_mm: float, offset_mm) -> bool:
 
 def offset_to_resolve_mm(radius_mm: float, sigma_mm: float, n_samples: float, rho_mm: float,
                          k: float = RESOLVED_DCHI2) -> float:
-    """Spindle offset at which the mirror lies ``k`` above the minimum, Eq. (1) solved for e:
-    X = L (2 k sigma^2 / (N rho^2))^(1/4) [mm]; inf for rho = 0 (no mirror to resolve: any offset).
+    """Return the spindle offset at which the mirror lies ``k`` above the minimum.
+
+    Eq. (1) solved for e: X = L (2 k sigma^2 / (N rho^2))^(1/4) [mm]; inf for rho = 0 (no mirror to resolve:
+    any offset).
     """
     if rho_mm == 0.0 or n_samples <= 0:
         return float("inf")
@@ -99,8 +101,9 @@ def offset_to_resolve_mm(radius_mm: float, sigma_mm: float, n_samples: float, rh
 
 def valid_bore_radius_range_mm(radius_cal_mm: float, params_main, params_alt, u_beta_rad: float,
                                n_grid: int = 4001) -> tuple[float, float]:
-    """Bore radii L where the two solutions place the wall points alike: every pair of beams' relative
-    direction differs between them by at most 2 u(beta).
+    """Return the bore radii L where the two solutions place the wall points alike.
+
+    Every pair of beams' relative direction differs between them by at most 2 u(beta).
 
     The direction of beam c's wall point in a bore of radius L is beta_c + asin(rho_c / L). Between the
     solutions it moves by Delta_c(L) = (beta_alt - beta)_c + asin(rho_alt_c / L) - asin(rho_c / L); a
@@ -140,9 +143,10 @@ def valid_bore_radius_range_mm(radius_cal_mm: float, params_main, params_alt, u_
 
 @dataclass(frozen=True)
 class MirrorSolution:
-    """The second solution of a flagged beam: the calibration's (3c,) parameters there (per channel
-    beta_rad, rho_mm, d_b_mm), their covariance from its own curvature, delta chi2 above the kept
-    minimum and its normalised weight.
+    """The second solution of a flagged beam.
+
+    The calibration's (3c,) parameters there (per channel beta_rad, rho_mm, d_b_mm), their covariance from its
+    own curvature, delta chi2 above the kept minimum and its normalised weight.
     """
 
     params: tuple[float, ...]
@@ -241,8 +245,10 @@ def mirror_checks_of(diagnostics: dict | None) -> list[BeamMirror]:
 
 def mixture_components(params: np.ndarray, cov: np.ndarray,
                        checks: Sequence[BeamMirror]) -> list[tuple[float, np.ndarray, np.ndarray]]:
-    """(weight, params (3c,), cov (3c, 3c)) of the calibration as a mixture: the kept solution and one
-    component per flagged beam's mirror, weights exp(-delta chi2 / 2) normalised over all of them.
+    """Return the calibration as a mixture: (weight, params (3c,), cov (3c, 3c)) per component.
+
+    The kept solution and one component per flagged beam's mirror, weights exp(-delta chi2 / 2) normalised
+    over all of them.
 
     Joint flips of two flagged beams (weight of order exp(-(d_1 + d_2) / 2)) are not components.
     """
@@ -256,11 +262,13 @@ def mixture_components(params: np.ndarray, cov: np.ndarray,
 
 @dataclass(frozen=True)
 class MixtureDiameter:
-    """A diameter measured with a flagged calibration: the two-solution mixture propagated by Monte Carlo
-    (JCGM 101:2008). Per component (the kept solution, each flagged beam's mirror): weight, D_T with that
-    solution's beams and its standard uncertainty; of the mixture: the estimate (the mean), u (the standard
-    deviation), the probabilistically symmetric coverage interval for ``p`` (JCGM 101 7.7), at the scan's
-    temperature and at 20 degC; ``draws`` and ``seed`` (deterministic: from the scan and calibration ids).
+    """A diameter measured with a flagged calibration, by Monte Carlo over its two solutions.
+
+    The two-solution mixture propagated by Monte Carlo (JCGM 101:2008). Per component (the kept solution, each
+    flagged beam's mirror): weight, D_T with that solution's beams and its standard uncertainty; of the
+    mixture: the estimate (the mean), u (the standard deviation), the probabilistically symmetric coverage
+    interval for ``p`` (JCGM 101 7.7), at the scan's temperature and at 20 degC; ``draws`` and ``seed``
+    (deterministic: from the scan and calibration ids).
     """
 
     weights: tuple[float, ...]
@@ -331,8 +339,9 @@ def mixture_seed(*ids: str) -> int:
 
 
 def refusal(scan_id: str, calibration_id: str, diameter_mm: float, checks: Sequence[BeamMirror]) -> str | None:
-    """The reason a diameter of ``diameter_mm`` may not be measured with this calibration (a flagged beam
-    whose valid bore range excludes it), else None.
+    """Return the reason a diameter of ``diameter_mm`` may not be measured with this calibration, else None.
+
+    That is a flagged beam whose valid bore range excludes it.
     """
     for m in checks:
         if m.resolved or m.valid_bore_diameter_mm is None:

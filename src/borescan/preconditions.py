@@ -63,8 +63,9 @@ NO_SPINDLE_REASON = "calibration scan has no spindle stream (a ring-gauge calibr
 
 
 def design_beams(meta: dict, why: str) -> Beams:
-    """``device.nominal.beams`` of a three-sensor scan; :class:`MissingDesignGeometry` naming
-    ``why`` (what needs them) when the scan has none.
+    """Return ``device.nominal.beams`` of a three-sensor scan.
+
+    Raise :class:`MissingDesignGeometry` naming ``why`` (what needs them) when the scan has none.
     """
     beams = _nominal(meta).get("beams")
     if not beams:
@@ -90,8 +91,9 @@ EXAMINATION_NEEDS_GEOMETRY = ("the device has no calibration to compare the scan
 
 
 def summary_revolutions(summary) -> tuple[int | None, int]:
-    """(whole revolutions recorded, revolutions with every channel's extremum) of one scan from its
-    rows of the signal stage's summary (a polars frame: ``period_samples_per_rev``,
+    """Return (whole revolutions recorded, revolutions with every channel's extremum) of one scan.
+
+    From its rows of the signal stage's summary (a polars frame: ``period_samples_per_rev``,
     ``n_samples_recorded``, ``n_revolutions_min`` per channel).
     """
     spr = float(summary["period_samples_per_rev"][0])
@@ -117,8 +119,9 @@ def calibration_revolutions_problem(recorded: int | None, with_extrema: int, min
 
 @dataclass(frozen=True)
 class StageOutcome:
-    """What a stage will do with a scan that ingest accepts: set it aside (``quarantined``) or
-    process it with a ``note``.
+    """What a stage will do with a scan that ingest accepts.
+
+    Set it aside (``quarantined``) or process it with a ``note``.
     """
 
     scan_id: str

@@ -981,9 +981,11 @@ def _verdict_is(verdict: str) -> pl.Expr:
 
 def _verdict_cell(conformity: str | None, passed: bool | None,
                   labels: tuple[str, str] = ("passed", "FAILED")) -> tuple[str, str]:
-    """(HTML, row class) of a verdict: the stage's statement under the decision rule (``conformity``:
-    "conforms", "does not conform" or "cannot decide", then U, T, the rule and its guard band);
-    a row without one (an older catalog) falls back to its pass/fail, shown as ``labels``.
+    """Return (HTML, row class) of a verdict.
+
+    The stage's statement under the decision rule (``conformity``: "conforms", "does not conform" or "cannot
+    decide", then U, T, the rule and its guard band); a row without one (an older catalog) falls back to its
+    pass/fail, shown as ``labels``.
     """
     verdict, detail = split_verdict(conformity)
     if verdict is None:
@@ -1536,9 +1538,10 @@ def _uncertainties(u: Any) -> dict[str, float]:
 
 
 def _rho_sign_notes(cal: pl.DataFrame) -> str:
-    """The beams of a device's calibrations whose sign of rho their scan did not determine (the
-    ``calibrations`` columns of the mirror check, issue 36): both solutions' weight, the bore range
-    where the calibration may be used and the scan that would fix it (HTML; "" when none).
+    """Return the beams of a device's calibrations whose sign of rho their scan did not determine.
+
+    Read from the ``calibrations`` columns of the mirror check (issue 36): both solutions' weight, the bore
+    range where the calibration may be used and the scan that would fix it (HTML; "" when none).
     """
     if "rho_sign_resolved" not in cal.columns:
         return ""

@@ -196,8 +196,10 @@ def frame(name: str, rows: Iterable[Mapping]) -> pl.DataFrame:
 
 
 def conform(name: str, df: pl.DataFrame) -> pl.DataFrame:
-    """``df`` with every stage column of table ``name``: a missing one added as nulls of its type,
-    the table's columns first and cast to their types, other columns kept after them.
+    """Return ``df`` with every stage column of table ``name``.
+
+    A missing one added as nulls of its type, the table's columns first and cast to their types, other columns
+    kept after them.
 
     A stage whose rows happen to lack a kind of column (a rod-only night's calibrations have no
     ``beta_rad``; an empty night has no rows at all) still writes and reads the table's columns.

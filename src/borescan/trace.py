@@ -95,9 +95,10 @@ class _Tracer:
         return node
 
     def issues(self, calibration_id: str) -> list[dict[str, Any]]:
-        """Every issue of the calibration's certificate (:mod:`borescan.certificate_issue`): document id,
-        issue number and date, the document it replaces, its folder and certificate.json's SHA-256
-        as recorded and as on disk.
+        """Return every issue of the calibration's certificate.
+
+        See :mod:`borescan.certificate_issue`: document id, issue number and date, the document it replaces,
+        its folder and certificate.json's SHA-256 as recorded and as on disk.
         """
         from borescan.certificate_issue import issues_of
 

@@ -164,8 +164,9 @@ def record_lock_owner(snakemake_dir: str | Path, lock_files) -> Path:
 
 
 def release_stale_locks(snakemake_dir: str | Path) -> list[int]:
-    """Remove the locks of runs on this machine whose process is gone (killed with SIGKILL, a crash);
-    return their process ids. A lock whose owner is alive, on another boot, or unknown is left to
+    """Remove the locks of runs on this machine whose process is gone; return their process ids.
+
+    Killed with SIGKILL, or a crash. A lock whose owner is alive, on another boot, or unknown is left to
     Snakemake, which names it and the command that releases it (``snakemake --unlock``).
     """
     gone = []

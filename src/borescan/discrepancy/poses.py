@@ -92,8 +92,9 @@ class _PoseModel:
         return self.data.values_mm - self.predict(p, terms)
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
-        """The white-noise floor of sample-to-sample differences within poses, per channel
-        (:func:`borescan.noise.noise_floor_mm`, first differences).
+        """Return the white-noise floor of sample-to-sample differences within poses, per channel.
+
+        By :func:`borescan.noise.noise_floor_mm` of the first differences.
         """
         return noise_floor_mm(r, order=1, keep=self.data.pose_index[1:] == self.data.pose_index[:-1])
 
@@ -274,9 +275,10 @@ class RodModel(_PoseModel):
         )
 
     def predict(self, p, terms):
-        """Readings (n, m) [mm]: the terms' fitted values become the spec's effects
-        (:func:`~borescan.discrepancy.tri.term_effects`) on :meth:`borescan.physics.rod.RodDevice.predict`
-        (the digital twin's model).
+        """Return the readings (n, m) [mm] the rod model predicts with the terms' fitted values.
+
+        The terms' fitted values become the spec's effects (:func:`~borescan.discrepancy.tri.term_effects`) on
+        :meth:`borescan.physics.rod.RodDevice.predict` (the digital twin's model).
         """
         d = self.data
         effects = [e for t in terms for e in term_effects(t, p, d.channels)]
@@ -361,9 +363,11 @@ class StaticModel(_PoseModel):
                 "radius_mm": float(self.R + p.get("dR", 0.0)), "radius_free": bool(self.radius_free)}
 
     def predict(self, p, terms):
-        """Readings (n, c) [mm]: the terms' fitted values become the spec's effects
-        (:func:`~borescan.discrepancy.tri.term_effects`) on :meth:`borescan.physics.tri.TriDevice.predict`
-        (the digital twin's model), the device at S_p and angle 0 in a bore centred at the origin.
+        """Return the readings (n, c) [mm] the three-sensor model predicts with the terms' fitted values.
+
+        The terms' fitted values become the spec's effects (:func:`~borescan.discrepancy.tri.term_effects`) on
+        :meth:`borescan.physics.tri.TriDevice.predict` (the digital twin's model), the device at S_p and angle
+        0 in a bore centred at the origin.
         """
         d = self.data
         xy = np.array([[p[f"sx[{k}]"], p[f"sy[{k}]"]] for k in range(self.n_pose)])

@@ -1,4 +1,6 @@
-"""The device models: base geometry (:mod:`borescan.geometry`) composed with the registered effects
+"""The device models: base geometry composed with the registered effects.
+
+Base geometry (:mod:`borescan.geometry`) composed with the registered effects
 (:data:`borescan.effects.EFFECTS`), one forward model per device that the digital twin and every fit call.
 
 - :mod:`borescan.physics.tri`: the three-sensor device (``tri_lds``), a spindle scan

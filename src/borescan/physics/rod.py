@@ -200,8 +200,10 @@ class RodState:
 
 @dataclass(frozen=True)
 class RodJacobian:
-    """Derivatives of each reading (n, m) of :meth:`RodDevice.predict` with respect to the base
-    unknowns of its pose and layer; the effects held at their values.
+    """Derivatives of the rod's readings with respect to the base unknowns.
+
+    Each reading (n, m) of :meth:`RodDevice.predict` with respect to the base unknowns of its pose and layer;
+    the effects held at their values.
 
     Attributes
     ----------
@@ -219,8 +221,10 @@ class RodJacobian:
 
 @dataclass(frozen=True)
 class RodDevice:
-    """The measuring rod's model: its layers' geometry (design or calibrated), the artifact's CTE, the
-    sensors' ranges. :meth:`predict` is :func:`rod_forward` at the base of :meth:`base`.
+    """The measuring rod's model.
+
+    Its layers' geometry (design or calibrated), the artifact's CTE, the sensors' ranges. :meth:`predict` is
+    :func:`rod_forward` at the base of :meth:`base`.
     """
 
     layers: tuple[RodLayer, ...]
@@ -259,7 +263,7 @@ class RodDevice:
         step_rad: float = 1e-6,
         radius_step_mm: float = 1e-3,
     ) -> RodJacobian:
-        """Derivatives of :meth:`predict` with respect to the base unknowns.
+        """Return the derivatives of :meth:`predict` with respect to the base unknowns.
 
         The spot P = O + s E (O = Rm (d n(a) + h z), E = Rm (cos(gamma) u(a) + sin(gamma) z), the layers
         after the beam effects) solves |P_xy - c| = r; implicitly, with q = P_xy - c,

@@ -336,8 +336,10 @@ class TriStaticState:
 
 @dataclass(frozen=True)
 class TriStaticJacobian:
-    """Derivatives of each reading (n, c) of :meth:`TriDevice.predict` with respect to its pose's
-    base geometry and the bore's; the effects held at their values.
+    """Derivatives of the three-sensor device's readings with respect to the base geometry.
+
+    Each reading (n, c) of :meth:`TriDevice.predict` with respect to its pose's base geometry and the bore's;
+    the effects held at their values.
 
     Attributes
     ----------
@@ -389,7 +391,7 @@ class TriDevice:
         return st
 
     def _geometry(self, state: TriStaticState, pose_index: np.ndarray, st: dict[str, list[Effect]]):
-        """Steps 4-5 per pose, then indexed per reading: (v (n, c), the bore with its effects)."""
+        """Return steps 4-5 per pose, then indexed per reading: (v (n, c), the bore with its effects)."""
         bore = bore_with_effects(state.bore, st["bore"], self.cte_per_k)
         ang = np.atleast_1d(np.asarray(state.device_angle_rad, dtype=float))
         xy = np.atleast_2d(np.asarray(state.device_xy_mm, dtype=float))

@@ -86,9 +86,11 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
 
 
 def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str], list[dict]]:
-    """One job of :func:`stage_calibrate`: a three-sensor device's calibration scans of the night
-    (``"tri"``) or one rod calibration scan (``"rod"``). Returns (kind, calibrations rows,
-    calibration_scans rows, quarantined, log lines, certificate issue rows).
+    """Run one job of :func:`stage_calibrate`.
+
+    A three-sensor device's calibration scans of the night (``"tri"``) or one rod calibration scan
+    (``"rod"``). Returns (kind, calibrations rows, calibration_scans rows, quarantined, log lines, certificate
+    issue rows).
     """
     kind, items, (night, results_root, summary, cfg, ctx_args) = job
     ctx = _context(ctx_args)

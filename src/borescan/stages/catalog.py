@@ -1,5 +1,7 @@
-"""Stage ``build_catalog``: ``catalog.duckdb`` extended by the nights whose stage tables are new, then
-checked against the raw root: every night and scan of it is in the history (ok or quarantined).
+"""Stage ``build_catalog``: extend ``catalog.duckdb`` and check it against the raw root.
+
+``catalog.duckdb`` extended by the nights whose stage tables are new, then checked against the raw root: every
+night and scan of it is in the history (ok or quarantined).
 """
 
 from __future__ import annotations
