@@ -116,7 +116,8 @@ def input_battery(  # noqa: C901 (one branch per kind of input fault and its exp
     for night in ("2026-11-20", "2026-11-21", crash.empty_night):
         ok = all((res / "stage" / t / f"night={night}.parquet").is_file() for t in ("scans", "pooled_findings"))
         n = con.execute("SELECT count(*) FROM scans WHERE night = ?", [night]).fetchone()[0]
-        out.append(Outcome(f"night {night} ({'rod only, refused calibration' if night == '2026-11-21' else 'empty' if night == crash.empty_night else 'demo + rod + umask 077'})",
+        out.append(Outcome(f"night {night} "
+                           f"({'rod only, refused calibration' if night == '2026-11-21' else 'empty' if night == crash.empty_night else 'demo + rod + umask 077'})",
                            "processed" if ok else "crashed", f"{n} scans in the catalog, every stage table written",
                            raw_same))
     return out
@@ -214,7 +215,8 @@ def main() -> None:
         outcomes = input_battery(tmp / "in", demo_raw) + process_battery(tmp / "proc", demo_raw)
     width = max(len(o.case) for o in outcomes)
     for o in outcomes:
-        print(f"{o.case:<{width}}  {o.result:<11}  raw {'unchanged' if o.raw_unchanged else 'CHANGED'}  {o.detail}")
+        print(f"{o.case:<{width}}  {o.result:<11}  raw "
+              f"{'unchanged' if o.raw_unchanged else 'CHANGED'}  {o.detail}")
     counts = {r: sum(o.result == r for o in outcomes) for r in ("processed", "quarantined", "skipped", "crashed")}
     print(f"{len(outcomes)} cases: " + ", ".join(f"{n} {r}" for r, n in counts.items()) +
           f"; raw changed in {sum(not o.raw_unchanged for o in outcomes)}")

@@ -128,7 +128,8 @@ PLAUSIBILITY_CASES = [
     ("negative certified", ROD, _set("artifact.features.0.certified_diameter_mm", -150.0021),
      "key 'artifact.features[0].certified_diameter_mm' must be a positive number, got -150.0021"),
     ("far-off certified", ROD, _set("artifact.features.1.certified_diameter_mm", 159.9987),
-     "key 'artifact.features[1].certified_diameter_mm' 159.999 mm is 9.999 mm from 'artifact.features[1].nominal_diameter_mm' 150 mm"),
+     "key 'artifact.features[1].certified_diameter_mm' 159.999 mm is "
+     "9.999 mm from 'artifact.features[1].nominal_diameter_mm' 150 mm"),
     ("tolerance as text", ROD_MEAS, _set("artifact.features.0.tolerance_mm", "0.02"), "key 'artifact.features[0].tolerance_mm' must be a positive number, got '0.02'"),
     ("tolerance zero", ROD_MEAS, _set("artifact.features.1.tolerance_mm", 0), "key 'artifact.features[1].tolerance_mm' must be a positive number, got 0"),
     ("started in 9999", ROD_MEAS, _set("started_at", "9999-12-31T23:00:00Z"), "key 'started_at' 9999-12-31T23:00:00Z is not within night 2026-11-20"),

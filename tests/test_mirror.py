@@ -108,8 +108,8 @@ def flagged_fit():
 def test_fit_flags_only_the_beam_whose_mirror_is_shallow(flagged_fit):
     scene, cal = flagged_fit
     m1, m2, m3 = mirror_checks_of(cal.diagnostics)
-    # beam 1: a mirror, refitted from -rho, deep: resolved; the refit within its noise of Eq. (1) (the refit of the
-    # other parameters takes 0-16 % of it, the noise moves it by 2 sqrt(depth) sd)
+    # beam 1: a mirror, refitted from -rho, deep: resolved; the refit within its noise of Eq. (1) (the refit
+    # of the other parameters takes 0-16 % of it, the noise moves it by 2 sqrt(depth) sd)
     assert m1.resolved and m1.refit_delta_chi2 is not None
     assert abs(m1.refit_delta_chi2 - 0.92 * m1.predicted_delta_chi2) < 3 * 2 * math.sqrt(m1.predicted_delta_chi2) \
         + 0.1 * m1.predicted_delta_chi2

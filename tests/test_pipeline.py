@@ -284,10 +284,11 @@ def test_a_stage_script_runs_by_hand_and_gives_the_rules_output(pipeline_run, tm
         assert proc.returncode == 0, proc.stderr[-2000:]
         by_hand = pl.read_parquet(tmp_path / "stage" / table / f"night={night}.parquet")
         by_rule = pl.read_parquet(pipeline_run["results"] / "stage" / table / f"night={night}.parquet")
-        # every process computing a stage's items has one BLAS thread (parallel.start_job_workers), by hand as
-        # in the workflow; yet on an AMD EPYC host the last bits differed between the two (SIMD loops may round
-        # by where an array starts in memory, which differs from process to process), and an iteration that
-        # stops on a tolerance carries such bits further: equal within their uncertainty, never rounding noise
+        # every process computing a stage's items has one BLAS thread (parallel.start_job_workers), by hand
+        # as in the workflow; yet on an AMD EPYC host the last bits differed between the two (SIMD loops may
+        # round by where an array starts in memory, which differs from process to process), and an iteration
+        # that stops on a tolerance carries such bits further: equal within their uncertainty, never
+        # rounding noise
         _assert_equal_within_uncertainty(by_hand, by_rule, table)
     proc = subprocess.run([sys.executable, str(ROOT / "workflow" / "scripts" / "signal_night.py"),
                            f"raw_root={pipeline_run['raw']}"],

@@ -1309,18 +1309,25 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
             "mirror_solutions": mirrors_tried,
             "mirror_check": [m.to_dict() for m in checks],
             "mirror_note": (
-                "per beam: the mirror's depth predicted by N e^4 rho^2 / (2 sigma^2 R^4) and refitted from -rho; "
-                f"resolved (no mirror, or delta chi^2 >= {RESOLVED_DCHI2:g}): one value, u from its own curvature; "
-                "flagged: two solutions with covariance, delta chi^2 and weight, the probability of the wrong sign, "
-                "the bore range where the calibration may be used and the spindle offset that would resolve it"
+                "per beam: the mirror's depth predicted by N e^4 "
+                "rho^2 / (2 sigma^2 R^4) and refitted from -rho; "
+                "resolved (no mirror, or delta chi^2 >= "
+                f"{RESOLVED_DCHI2:g}): one value, u from its own curvature; "
+                "flagged: two solutions with covariance, delta chi^2 "
+                "and weight, the probability of the wrong sign, "
+                "the bore range where the calibration may be used "
+                "and the spindle offset that would resolve it"
             ),
             "n_minima": 1 + len(minima),
             "minima": minima,
             "ambiguous_minima": bool(ambiguous),
             "minima_note": (
-                "distinct minima of SSR + prior besides the one kept (mirror starts, dips along the rho profiles), "
-                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; below 4 the data cannot reject it (ambiguous); "
-                "not in the covariance: a beam whose rho sign such a minimum flips is flagged in mirror_check and "
+                "distinct minima of SSR + prior besides the one kept "
+                "(mirror starts, dips along the rho profiles), "
+                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; "
+                "below 4 the data cannot reject it (ambiguous); "
+                "not in the covariance: a beam whose rho sign such "
+                "a minimum flips is flagged in mirror_check and "
                 "carried as two weighted solutions"
             ),
             "rho_profiles": profiles,

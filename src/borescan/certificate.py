@@ -522,13 +522,16 @@ def _decision_rule_text(lab: dict) -> str:
     E is the error of the diameter at 20 degC, T the tolerance, w the guard band.
     """
     f = lab.get("guard_band_factor")
-    tail = ("E the error of the diameter at 20 degC, U(E) its expanded uncertainty, T the tolerance. A result whose "
+    tail = ("E the error of the diameter at 20 degC, U(E) its "
+            "expanded uncertainty, T the tolerance. A result whose "
             "U(E) is not below T is never stated to conform.")
     if lab.get("decision_rule") in ("guard_band", "guarded_acceptance"):
-        return (f"Guarded acceptance (ILAC-G8:09/2019 4.2.2, ISO 14253-1): conforms when |E| <= T - w, w = {f} U(E); "
+        return ("Guarded acceptance (ILAC-G8:09/2019 4.2.2, ISO "
+                f"14253-1): conforms when |E| <= T - w, w = {f} U(E); "
                 f"does not conform when |E| > T; between, cannot decide (not accepted). " + tail)
     if lab.get("decision_rule") == "guarded_rejection":
-        return (f"Guarded rejection (ILAC-G8:09/2019 4.2.3, ISO 14253-1): does not conform when |E| > T + w, w = {f} "
+        return ("Guarded rejection (ILAC-G8:09/2019 4.2.3, ISO "
+                f"14253-1): does not conform when |E| > T + w, w = {f} "
                 f"U(E); conforms when |E| <= T; between, cannot decide (not rejected). " + tail)
     return ("Simple acceptance (ILAC-G8:09/2019 4.2.1): conforms when |E| <= T (guard band w = 0), else does not "
             "conform; at the limit the probability of a false accept reaches 50 %. " + tail)
@@ -537,7 +540,8 @@ def _decision_rule_text(lab: dict) -> str:
 def _conformity(ver: list[dict]) -> dict:
     if not ver:
         return {"conformity": "noStatement",
-                "text": "No verification scan of this device was taken in the calibration night: conformity is not stated."}
+                "text": "No verification scan of this device was taken in "
+                        "the calibration night: conformity is not stated."}
     verdicts = [split_verdict(v.get("conformity"))[0] or (CONFORMS if v.get("passed") else DOES_NOT_CONFORM)
                 for v in ver]
     ok = all(bool(v.get("passed")) for v in ver)
@@ -550,7 +554,8 @@ def _conformity(ver: list[dict]) -> dict:
         else CONFORMS
     head = ("Whether the device conforms to the verification tolerance cannot be decided" if overall == CANNOT_DECIDE
             else f"The device {overall.replace('does not', 'does NOT')} to the verification tolerance")
-    text = (f"{head} under the stated decision rule: of {len(ver)} verifications on certified ring gauges {counts} "
+    text = (f"{head} under the stated decision rule: of {len(ver)} "
+            f"verifications on certified ring gauges {counts} "
             f"({n_pass} accepted by the rule).")
     if guard:
         text += " The expanded uncertainty is not below the tolerance (" + "; ".join(guard) + \
@@ -966,14 +971,18 @@ def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
     resolved = [str(m["channel"]) for m in checks if m["resolved"]]
     if resolved:
         d.para(f"Sign of rho resolved for channel(s) {', '.join(resolved)} (no mirror solution, or one at least "
-               f"{rs['resolved_delta_chi2']:g} in chi^2 above the solution): their uncertainties are the fit's own.")
+               f"{rs['resolved_delta_chi2']:g} in chi^2 above the "
+               "solution): their uncertainties are the fit's own.")
     for m in flagged:
         d.para(m["statement"].replace("the sign", "The sign", 1) + ".")
         alt = m["alternative"]
         u_main = m["u_main"]
-        d.para(f"Channel {m['channel']}, solution 1 (weight {m['weight_main']:.4f}): beta {u_main['beta_rad']:.6f} rad, "
-               f"rho {u_main['rho_mm']:+.4f} mm, d_b {u_main['d_b_mm']:.4f} mm; solution 2 (weight {alt['weight']:.4f}, "
-               f"delta chi^2 {alt['delta_chi2']:.2f}): beta {alt['beta_rad']:.6f} rad, rho {alt['rho_mm']:+.4f} mm, "
+        d.para(f"Channel {m['channel']}, solution 1 (weight "
+               f"{m['weight_main']:.4f}): beta {u_main['beta_rad']:.6f} rad, "
+               f"rho {u_main['rho_mm']:+.4f} mm, d_b {u_main['d_b_mm']:.4f} "
+               f"mm; solution 2 (weight {alt['weight']:.4f}, "
+               f"delta chi^2 {alt['delta_chi2']:.2f}): beta "
+               f"{alt['beta_rad']:.6f} rad, rho {alt['rho_mm']:+.4f} mm, "
                f"d_b {alt['d_b_mm']:.4f} mm. Both solutions' covariances are in certificate.json (rho_sign). "
                "A diameter measured with this calibration carries both (Monte Carlo, JCGM 101) and is refused "
                "outside the bore range above.")

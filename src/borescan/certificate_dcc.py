@@ -104,8 +104,10 @@ def _item(adm: ET.Element, cert: dict) -> None:
     _text(item, "name", item_in.get("name") or "")
     sensors = item_in.get("sensors") or []
     _text(item, "description", *(
-        [f"channel {s.get('channel')}: laser displacement sensor {s.get('model')}, serial {s.get('serial')}, "
-         f"range {s.get('range_mm')} mm, linearity {s.get('linearity_fs')} of full scale, repeatability "
+        [f"channel {s.get('channel')}: laser displacement "
+         f"sensor {s.get('model')}, serial {s.get('serial')}, "
+         f"range {s.get('range_mm')} mm, linearity "
+         f"{s.get('linearity_fs')} of full scale, repeatability "
          f"{s.get('repeatability_mm')} mm" for s in sensors] or ["no sensors listed in scan.json"]))
     man = _sub(item, _d("manufacturer"))
     models = sorted({str(s.get("model")) for s in sensors if s.get("model")})
@@ -159,7 +161,8 @@ def _statements(cert: dict) -> list[dict]:
     weak = [f"rho of channel {ch} weakly determined" for ch in fit.get("weak_rho_channels") or []]
     weak += [f"rho of channel {ch}: cost along rho not linear (profiled)" for ch in fit.get("rho_profiled_channels") or []]
     if fit.get("n_minima") is not None:
-        weak.append(f"{fit.get('n_minima')} minima of the cost found; ambiguous: {_plain(fit.get('ambiguous_minima'))}")
+        weak.append(f"{fit.get('n_minima')} minima of the cost found; "
+                    f"ambiguous: {_plain(fit.get('ambiguous_minima'))}")
     if weak:
         out.append({"refType": "borescan_weakParameters", "declaration": "; ".join(weak)})
     model = fit.get("device_model") or []

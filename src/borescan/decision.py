@@ -77,7 +77,8 @@ class Decision:
     @property
     def statement(self) -> str:
         """The verdict as a sentence with the rule, the guard band and the numbers it rests on."""
-        text = (f"{self.verdict.upper()}: |E| = {abs(self.error_mm) * 1e3:.2f} um, U(E) = {self.U_mm * 1e3:.2f} um, "
+        text = (f"{self.verdict.upper()}: |E| = {abs(self.error_mm) * 1e3:.2f} "
+                f"um, U(E) = {self.U_mm * 1e3:.2f} um, "
                 f"tolerance T = {self.tolerance_mm * 1e3:.2f} um; rule: {self.rule_text}")
         if self.verdict == CANNOT_DECIDE:
             text += ("; U(E) is not smaller than the tolerance" if self.U_mm >= self.tolerance_mm

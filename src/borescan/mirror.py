@@ -349,9 +349,11 @@ def refusal(scan_id: str, calibration_id: str, diameter_mm: float, checks: Seque
         lo, hi = m.valid_bore_diameter_mm
         if not lo <= diameter_mm <= hi:
             hi_s = "no upper limit" if not math.isfinite(hi) else f"{hi:.1f} mm"
-            return (f"{scan_id}: bore diameter {diameter_mm:.3f} mm outside {lo:.1f} mm to {hi_s}, the range where "
+            return (f"{scan_id}: bore diameter {diameter_mm:.3f} mm "
+                    f"outside {lo:.1f} mm to {hi_s}, the range where "
                     f"calibration {calibration_id} may be used: the sign of rho of channel {m.channel} is not "
-                    f"determined by its scan (probability of the wrong sign {m.p_wrong_sign:.3f}), and away from the "
+                    "determined by its scan (probability of the wrong "
+                    f"sign {m.p_wrong_sign:.3f}), and away from the "
                     f"gauge its two solutions place the wall points apart; recalibrate with the spindle at least "
                     f"{m.offset_to_resolve_mm:.2f} mm from the gauge centre")
     return None

@@ -204,8 +204,10 @@ QUARANTINE_ACTIONS = (
      "Recalibrate the device; its measurements are refused until a new calibration passes verification."),
     ("calibration expired", ("expired",), "Recalibrate the device, then rerun the night."),
     ("design geometry missing", ("device.nominal",),
-     "Write the scan again under a new scan id with device.nominal (the design beams of a three-sensor device, the "
-     "layers of a rod; optional in the raw format) or calibrate the device from a scan that has it: scans of a "
+     "Write the scan again under a new scan id with device.nominal "
+     "(the design beams of a three-sensor device, the "
+     "layers of a rod; optional in the raw format) or calibrate "
+     "the device from a scan that has it: scans of a "
      "calibrated device are measured and examined against its calibration."),
     ("no calibration", ("no calibration",),
      "Calibrate the device (a calibration scan on or before the night), then rerun the night."),
@@ -1485,7 +1487,8 @@ class _Builder:
                          f"(scan {_e(r['scan_id'])}): deviation {_um(r['deviation_mm'])} µm, tolerance "
                          f"±{_um(r['tolerance_mm'])} µm</li>")
         for r in undecided:
-            what = (f"verification {_e(r['scan_id'])} ({_e(r.get('device_id'))}, gauge {_e(r.get('artifact_id'))})"
+            what = (f"verification {_e(r['scan_id'])} ({_e(r.get('device_id'))}, "
+                    f"gauge {_e(r.get('artifact_id'))})"
                     if "certified_mm" in r else
                     f"part {_e(r.get('artifact_id'))} {_e(r.get('feature') or '')} (scan {_e(r['scan_id'])})")
             items.append(f"<li><b>cannot decide</b> {what}: {_e(split_verdict(r.get('conformity'))[1])}"

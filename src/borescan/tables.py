@@ -106,11 +106,15 @@ _T = [
         "rho_mm:float d_b_mm:float beta_rad:float u_rho_mm:float u_d_b_mm:float u_beta_rad:float "
         "l0_mm:float h_mm:float phi_rad:float d_mm:float gamma_rad:float "
         "u_l0_mm:float u_h_mm:float u_phi_rad:float u_d_mm:float u_gamma_rad:float "
-        "method:text certificate_path:text certificate_sha256:text night:date valid_from:date status:text raw_sha256:text "
-        # GUM budget (issue 19): expanded uncertainties (not U_*: DuckDB names ignore case), k, gauge temperature
-        "expanded_u_beta_rad:float expanded_u_rho_mm:float expanded_u_d_b_mm:float k_beta:float k_rho:float k_d_b:float "
+        "method:text certificate_path:text certificate_sha256:text "
+        "night:date valid_from:date status:text raw_sha256:text "
+        # GUM budget (issue 19): expanded uncertainties (not U_*: DuckDB names ignore case), k, gauge
+        # temperature
+        "expanded_u_beta_rad:float expanded_u_rho_mm:float "
+        "expanded_u_d_b_mm:float k_beta:float k_rho:float k_d_b:float "
         "coverage_probability:float temperature_c:float temperature_assumed:bool recalibration_due:date "
-        # the mirror check of each beam (issue 36): resolved, or two solutions with the wrong sign's probability
+        # the mirror check of each beam (issue 36): resolved, or two solutions with the wrong sign's
+        # probability
         "rho_sign_resolved:bool mirror_delta_chi2:float mirror_depth_predicted:float p_wrong_sign:float "
         "valid_bore_min_mm:float valid_bore_max_mm:float offset_to_resolve_mm:float"),
           ("calibration_id", "channel"), primary=True),

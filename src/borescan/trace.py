@@ -144,9 +144,11 @@ class _Tracer:
         node["gauges"] = _layer_gauges(first)
         node["verifications"] = _rows(
             self.con,
-            "SELECT v.scan_id, v.night, v.error_mm, v.tolerance_mm, v.passed, v.feature, v.artifact_id, v.conformity "
+            "SELECT v.scan_id, v.night, v.error_mm, v.tolerance_mm, "
+            "v.passed, v.feature, v.artifact_id, v.conformity "
             "FROM verifications v "
-            "LEFT JOIN scans s USING (scan_id) WHERE v.calibration_id = ? ORDER BY v.night, s.started_at, v.scan_id, v.feature",
+            "LEFT JOIN scans s USING (scan_id) WHERE v.calibration_id "
+            "= ? ORDER BY v.night, s.started_at, v.scan_id, v.feature",
             [calibration_id])
         return node
 

@@ -293,7 +293,8 @@ def plausibility_problems(meta: dict, scan_id: str, limits: Plausibility | None 
     if isinstance(t, (int, float)) and not isinstance(t, bool) and not (
             limits.temperature_min_c <= t <= limits.temperature_max_c):
         out.append(f"key 'environment.temperature_c' {t:g} degC is outside the workshop's range "
-                   f"[{limits.temperature_min_c:g}, {limits.temperature_max_c:g}] degC (plausibility.temperature_*_c)")
+                   f"[{limits.temperature_min_c:g}, {limits.temperature_max_c:g}] "
+                   "degC (plausibility.temperature_*_c)")
     art = meta.get("artifact")
     if isinstance(art, dict):
         out += _gauge_problems(art, "artifact", limits)

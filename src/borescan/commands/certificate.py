@@ -8,7 +8,9 @@ from pathlib import Path
 from borescan.commands._common import CommandFailed, UsageError, night_date
 
 NAME = "certificate"
-HELP = "reissue a calibration's certificate (pdf, json, dcc) from the history; a changed laboratory makes a new one"
+HELP = (
+    "reissue a calibration's certificate (pdf, json, dcc) from the history; a changed laboratory makes a new one"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,9 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="date of issue of a new document (default: today, UTC)")
     parser.epilog = (
         "With the laboratory section the certificate was issued under, the latest issue is written again and "
-        "compared, file by file, with the SHA-256 recorded when it was first written (and certificate.json with "
-        "the catalog's). With a changed one, a new certificate <calibration id>-R<n> is issued (ISO/IEC 17025 "
-        "7.8.8.2): the date of reissue, the new laboratory data and a reference to the certificate it replaces; "
+        "compared, file by file, with the SHA-256 recorded "
+        "when it was first written (and certificate.json with "
+        "the catalog's). With a changed one, a new certificate "
+        "<calibration id>-R<n> is issued (ISO/IEC 17025 "
+        "7.8.8.2): the date of reissue, the new laboratory "
+        "data and a reference to the certificate it replaces; "
         "`borescan trace ID` lists every issue.")
 
 
@@ -65,7 +70,8 @@ def run(  # noqa: C901 (one branch per option and per refusal of the command)
             print(f"{iss.document_id}: NEW certificate issued {iss.issue_date}, replaces {iss.replaces} "
                   f"(laboratory changed) -> {done.out_dir}")
         else:
-            print(f"{iss.document_id}: reissued unchanged (issue {iss.issue} of {iss.issue_date}) -> {done.out_dir}")
+            print(f"{iss.document_id}: reissued unchanged (issue "
+                  f"{iss.issue} of {iss.issue_date}) -> {done.out_dir}")
         for name, sha in sorted(done.files.items()):
             state = {True: "agrees with the recorded SHA-256", False: "DIFFERS from the recorded SHA-256",
                      None: "new"}[done.agree[name] if not done.new_document else None]

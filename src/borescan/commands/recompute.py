@@ -47,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
     if change is None:
         print(f"every night from {args.from_night} on already has the current config: nothing to recompute")
         return 0
-    print(f"{change.change_id}: {len(change.nights)} night(s) ({change.nights[0]}..{change.nights[-1]}) will be "
+    print(f"{change.change_id}: {len(change.nights)} night(s) "
+          f"({change.nights[0]}..{change.nights[-1]}) will be "
           f"recomputed with config {change.new_hash} (changed: {', '.join(change.keys) or 'none'}); their "
           f"present results are kept in {args.results / change.archive}. Run snakemake to recompute them.")
     return 0

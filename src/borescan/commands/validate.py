@@ -77,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{o.scan_id}: {o.file}: will be quarantined at {o.stage}: {o.reason}" if o.quarantined
               else f"{o.scan_id}: {o.file}: note: {o.stage}: {o.reason}")
     if report.problems or later:
-        print(f"{len(report.problems) + len(later)} problems; of {report.n_scans} scans {len(report.bad_scan_ids)} "
+        print(f"{len(report.problems) + len(later)} problems; of "
+              f"{report.n_scans} scans {len(report.bad_scan_ids)} "
               f"invalid (set aside at ingest), {len(later)} to be set aside by a later stage", file=sys.stderr)
         return 1
     print(f"{report.n_scans} scans, all valid" + (" (see the notes)" if outcomes else ""))

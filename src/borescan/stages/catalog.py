@@ -74,7 +74,8 @@ def catalog_quarantine(catalog_file: str | Path) -> list[Quarantined]:
     try:
         rows = con.execute(
             "SELECT scan_id, strftime(night, '%Y-%m-%d'), stage, file, reason FROM quarantine "
-            f"QUALIFY row_number() OVER (PARTITION BY scan_id, night ORDER BY CASE stage {order} ELSE 9 END, file) = 1 "
+            "QUALIFY row_number() OVER (PARTITION BY scan_id, night "
+            f"ORDER BY CASE stage {order} ELSE 9 END, file) = 1 "
             "ORDER BY night, scan_id").fetchall()
     finally:
         con.close()
