@@ -37,6 +37,7 @@ RUN_BY_DEFAULT = False  # several workflow runs: minutes
 @dataclass(frozen=True)
 class Outcome:
     """How the pipeline handled one fault case, and whether the raw files stayed unchanged."""
+
     case: str
     result: str  # processed | quarantined | skipped | crashed
     detail: str
@@ -117,7 +118,7 @@ def input_battery(  # noqa: C901 (one branch per kind of input fault and its exp
         ok = all((res / "stage" / t / f"night={night}.parquet").is_file() for t in ("scans", "pooled_findings"))
         n = con.execute("SELECT count(*) FROM scans WHERE night = ?", [night]).fetchone()[0]
         out.append(Outcome(f"night {night} "
-                           f"({'rod only, refused calibration' if night == '2026-11-21' else 'empty' if night == crash.empty_night else 'demo + rod + umask 077'})",
+                           f"({'rod only, refused calibration' if night == '2026-11-21' else 'empty' if night == crash.empty_night else 'demo + rod + umask 077'})",  # noqa: E501 (one conditional inside the f-string)
                            "processed" if ok else "crashed", f"{n} scans in the catalog, every stage table written",
                            raw_same))
     return out

@@ -64,7 +64,9 @@ def real_value(real: dict) -> tuple[float, float | None, float | None, float | N
 
 
 def quantity_value(q: dict):
-    """Return a dcc:quantity's content: a number or list of numbers (certificate.json units), else its text.
+    """Return a dcc:quantity's content: a number or list of numbers, else its text.
+
+    Numbers are in certificate.json units.
     """
     if "si:real" in q:
         return real_value(q["si:real"])[0]

@@ -100,7 +100,7 @@ def give_to_nobody(*paths: Path) -> None:
             os.lchown(p, NOBODY, NOBODY)
 
 
-# ---------------------------------------------------------------- absurd numbers of scan.json (issue 40 item 4)
+# ------------------------------------------------------ absurd numbers of scan.json (issue 40 item 4)
 
 ROD = "scan=N20261120-ROD01-VER-RGS150"  # a rod verification: sensors, temperature, a gauge with features
 ROD_MEAS = "scan=N20261120-ROD01-MEAS-CYL2H"  # a part with toleranced features

@@ -72,7 +72,9 @@ def _cost_at_truth(truth, cfg, x) -> tuple[float, float, float]:
 
 
 def _z_channel(k: int, c: int, fixed: bool) -> int:
-    """Return the channel index of row ``k`` of :func:`_z` (betas of the free channels, then rho, then d_b).
+    """Return the channel index of row ``k`` of :func:`_z`.
+
+    The rows are the betas of the free channels, then rho, then d_b.
     """
     nb = c - 1 if fixed else c
     if k < nb:

@@ -29,7 +29,10 @@ CONFIG = ROOT / "config" / "config.yaml"  # the pipeline_run fixture's laborator
 
 
 def _files(folder: Path) -> dict[str, str]:
-    """SHA-256 of every file below ``folder``, through its links (calibration/<device>/<id> -> night folder)."""
+    """Return the SHA-256 of every file below ``folder``, through its links.
+
+    The links are calibration/<device>/<id> -> night folder.
+    """
     out = {}
     for d, _dirs, names in os.walk(folder, followlinks=True):
         for n in names:

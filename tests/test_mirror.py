@@ -35,9 +35,9 @@ def _scene(rho_mm, e_mm, rate_hz=660.0):
 
 @pytest.mark.parametrize("rho_mm", [3.0, 5.0, 8.0])
 def test_depth_formula_is_the_mirror_misfit_of_exact_readings(rho_mm):
-    """The mirror (rho -> -rho, beta -> beta + 2 asin(rho / R), d_b kept) of exact readings differs from them by
-    sum (dv)^2 / sigma^2 = N e^4 rho^2 / (2 sigma^2 R^4) to first order in e / R and rho / R: within 1.5 % here
-    (e / R = 0.7 %, rho / R <= 6 %); the refit of the other parameters only lowers it.
+    """The mirror (rho -> -rho, beta -> beta + 2 asin(rho / R), d_b kept) of exact readings differs from
+    them by sum (dv)^2 / sigma^2 = N e^4 rho^2 / (2 sigma^2 R^4) to first order in e / R and rho / R:
+    within 1.5 % here (e / R = 0.7 %, rho / R <= 6 %); the refit of the other parameters only lowers it.
     """
     e, sigma = 1.0, 0.002
     scene = _scene([rho_mm, -3.0, 1.0], e)
@@ -157,9 +157,10 @@ def test_resolved_beams_keep_their_own_curvature(flagged_fit):
 
 
 def test_mixture_diameter_against_the_mixture_in_closed_form():
-    """Two solutions (weights 0.8 / 0.2, D 100.000 / 100.010 mm, u 2 um, the mirror's own fit adding (3 um)^2):
-    mean, variance and the p-quantiles of the Gaussian mixture in closed form, within the Monte Carlo's error
-    (10^6 draws: mean to 0.02 um, quantiles' CDF to 5e-4); the same seed gives the same numbers.
+    """Two solutions (weights 0.8 / 0.2, D 100.000 / 100.010 mm, u 2 um, the mirror's own fit adding
+    (3 um)^2): mean, variance and the p-quantiles of the Gaussian mixture in closed form, within the Monte
+    Carlo's error (10^6 draws: mean to 0.02 um, quantiles' CDF to 5e-4); the same seed gives the same
+    numbers.
     """
     from scipy.optimize import brentq
     from scipy.stats import norm
@@ -237,9 +238,10 @@ def test_report_lists_a_flagged_beam_with_what_to_do(flagged_fit):
 
 @pytest.mark.parametrize("where", ["gauge", "beyond"])
 def test_a_diameter_with_a_flagged_calibration_is_the_mixture_or_refused(flagged_fit, tmp_path, where):
-    """A static scan (10 poses, sigma 2 um) of a bore measured with the flagged calibration: at the gauge's size
-    the diameter is the two-solution Monte Carlo (JCGM 101) and its interval holds the true diameter; 10 % beyond
-    the valid range's upper end (sensors of a range that reaches it) the measurement is refused with the reason.
+    """A static scan (10 poses, sigma 2 um) of a bore measured with the flagged calibration: at the
+    gauge's size the diameter is the two-solution Monte Carlo (JCGM 101) and its interval holds the true
+    diameter; 10 % beyond the valid range's upper end (sensors of a range that reaches it) the measurement
+    is refused with the reason.
     """
     from borescan import rawio
     from borescan.config import schema_defaults

@@ -350,7 +350,7 @@ def test_rod_beam_tilt_was_the_documented_mismatch():
     assert 4.5e-3 < np.max(np.abs(old - twin)) < 4.7e-3
 
 
-# --------------------------------------------------------------------------- a new effect is its registry entry
+# ------------------------------------------------------------------ a new effect is its registry entry
 
 
 def _scale_bore(bore, p, cte_per_k=0.0):

@@ -407,10 +407,11 @@ def test_the_demo_closes_the_loop(pipeline_run):
 
 
 def _assert_equal_within_uncertainty(a, b, table: str) -> None:
-    """Every non-float column equal; a float column X with a column u_X within 1e-6 u_X (a millionth of its
-    standard uncertainty); an uncertainty u_X itself to a relative 1e-6 (a u is known to a few per cent at
-    best); any other float column to a relative 1e-9 (0.1 nm on 100 mm); all of them at least to 1e-12 (a value
-    at zero, such as the period's uncertainty of a scan whose revolutions all have the same length).
+    """Every non-float column equal; a float column X with a column u_X within 1e-6 u_X (a millionth of
+    its standard uncertainty); an uncertainty u_X itself to a relative 1e-6 (a u is known to a few per
+    cent at best); any other float column to a relative 1e-9 (0.1 nm on 100 mm); all of them at least to
+    1e-12 (a value at zero, such as the period's uncertainty of a scan whose revolutions all have the same
+    length).
     """
     import numpy as np
     import polars as pl

@@ -97,10 +97,10 @@ def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_
                        validity_days: int, allow_unverified: bool) -> tuple[str | None, str | None]:
     """Return the calibration a device's result of ``night`` must use, or the reason there is none.
 
-    The latest calibration of the device made on or before the night (same night included;
-    ties broken as :func:`order_calibrations` breaks them), if it is at most ``validity_days`` old and has not failed a
-    verification. A failed or expired latest calibration is refused (never silently replaced by
-    an older one) unless ``allow_unverified``.
+    The latest calibration of the device made on or before the night (same night included; ties broken as
+    :func:`order_calibrations` breaks them), if it is at most ``validity_days`` old and has not failed a
+    verification. A failed or expired latest calibration is refused (never silently replaced by an older
+    one) unless ``allow_unverified``.
 
     Returns
     -------

@@ -1,4 +1,6 @@
-"""Calibration certificates: ``certificate.json``, ``certificate.pdf``, ``certificate.dcc.xml`` and ``residuals.png``.
+"""Calibration certificates.
+
+The documents are ``certificate.json``, ``certificate.pdf``, ``certificate.dcc.xml`` and ``residuals.png``.
 
 Written into ``results_root/calibration/<device_id>/<calibration_id>/`` (``outputs.md``).
 

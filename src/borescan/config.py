@@ -127,7 +127,10 @@ def load_config(path: Path | str | None = None, schema_path: Path | str = SCHEMA
 
 
 def load_configs(paths, schema_path: Path | str = SCHEMA_PATH) -> dict:
-    """Config files merged in order over the schema's defaults, as the Snakefile's ``configfile:`` lines are."""
+    """Return the config files merged in order over the schema's defaults.
+
+    Merged as the Snakefile's ``configfile:`` lines are.
+    """
     out = schema_defaults(schema_path)
     for path in paths:
         out = _merge(out, yaml.safe_load(Path(path).read_text()) or {})

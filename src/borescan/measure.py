@@ -1010,7 +1010,8 @@ def decide(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "simpl
 
     Returns
     -------
-    (passed: the rule's binary decision, acceptance limit [mm], statement: verdict, numbers, rule and guard band)
+    (passed, acceptance limit [mm], statement)
+        passed: the rule's binary decision; statement: verdict, numbers, rule and guard band.
     """
     d = decision(error_mm, U_mm, tolerance_mm, rule, guard_band_factor)
     return d.passed, d.acceptance_limit_mm, d.statement

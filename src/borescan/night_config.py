@@ -1,4 +1,6 @@
-"""The config each night was processed with: results already in the history keep the rules they were made under.
+"""The config each night was processed with.
+
+Results already in the history keep the rules they were made under.
 
 A night's jobs take their settings (every section of the config but the roots and
 ``stage_workers``) from the night's record, ``<results_root>/stage/night_config/night=<night>.parquet``,

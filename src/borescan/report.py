@@ -977,7 +977,10 @@ class _PlotCache:
 
 
 def _verdict_is(verdict: str) -> pl.Expr:
-    """Rows whose ``conformity`` statement starts with ``verdict`` (:func:`borescan.decision.split_verdict`)."""
+    """Return the rows whose ``conformity`` statement starts with ``verdict``.
+
+    The statement is split by :func:`borescan.decision.split_verdict`.
+    """
     return pl.col("conformity").fill_null("").str.to_lowercase().str.starts_with(verdict)
 
 

@@ -704,7 +704,8 @@ def write_battery(
         ``"static"`` (:func:`draw_tri_static`: ring gauges with certified diameters and parts
         with nominal ones), ``"rod"`` (:func:`draw_rod_scan`), ``"measurement"``
         (:func:`draw_tri_measurement` on the device of calibration scan i, the same night),
-        ``"rod_calibration"`` (:func:`draw_rod_scan` as a calibration scan); each kind from its own seed stream
+        ``"rod_calibration"`` (:func:`draw_rod_scan` as a calibration scan); each kind from its own seed
+        stream
     effect_share : None: ``effect_free`` for every scan; else each scan has an effect with this
         probability, drawn with its size factor (log-uniform in ``effect_scale_range``) from the
         scan's own stream ``SeedSequence(seed, spawn_key=(i, 10 + kind stream))``, so the scans'

@@ -35,6 +35,7 @@ TYPES: dict[str, tuple[pl.DataType, str]] = {
 @dataclass(frozen=True)
 class Column:
     """One column of a history table: name, type (a key of :data:`TYPES`), in the stage files or not."""
+
     name: str
     type: str
     stage: bool = True

@@ -242,7 +242,10 @@ class Plausibility:
 
     @classmethod
     def from_config(cls, section: dict | None) -> Plausibility:
-        """From the config's section; missing keys (a night recorded before the section existed) from the schema."""
+        """Return the bounds of the config's section, missing keys from the schema.
+
+        Keys are missing in a night recorded before the section existed.
+        """
         return cls(**{**schema_defaults()["plausibility"], **(section or {})})
 
 
@@ -251,7 +254,7 @@ def _positive(x) -> bool:
 
 
 def _gauge_problems(node: dict, where: str, limits: Plausibility) -> list[str]:
-    """Diameters, uncertainty, coverage factor, expansion coefficient and tolerance of an artifact or feature."""
+    """Return the problems in an artifact's or feature's diameters, uncertainty, k, CTE and tolerance."""
     out = []
     for key in ("nominal_diameter_mm", "certified_diameter_mm", "u_diameter_mm", "k", "cte_per_k", "tolerance_mm"):
         if key in node and node[key] is not None and not _positive(node[key]):

@@ -122,7 +122,8 @@ def cancel_idle_timers() -> int:
     return len(timers)
 
 
-#: a job's log line of one item's compute time (:func:`compute_line`); ``python -m bench contract_night`` reads them
+#: a job's log line of one item's compute time (:func:`compute_line`); ``python -m bench contract_night``
+#: reads them
 COMPUTE_RE = re.compile(r"compute (?P<item>\S+) (?P<seconds>[0-9.]+) s$")
 
 

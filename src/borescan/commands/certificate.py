@@ -9,7 +9,8 @@ from borescan.commands._common import CommandFailed, UsageError, night_date
 
 NAME = "certificate"
 HELP = (
-    "reissue a calibration's certificate (pdf, json, dcc) from the history; a changed laboratory makes a new one"
+    "reissue a calibration's certificate (pdf, json, dcc) from the history; "
+    "a changed laboratory makes a new one"
 )
 
 

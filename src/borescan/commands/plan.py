@@ -1,4 +1,6 @@
-"""``borescan plan``: what a proposed ring-gauge calibration scan will fix, and the smallest scan that fixes enough.
+"""``borescan plan``: what a proposed ring-gauge calibration scan will fix.
+
+And the smallest scan that fixes enough.
 
 The device's design comes from a preset (``--device yang``: Yang 2017's beams, Table 1, on his 275.029 mm
 ring at sigma 2 um; ``--device demo``: TRI-01's design of the embedded demo, sigma 4 um) or from a scan
@@ -111,7 +113,7 @@ def _print(p, title: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Predict the proposed scan's uncertainties (or recommend a scan) and print them; return the exit status."""
+    """Print the proposed scan's predicted uncertainties (or a recommended scan); return the exit status."""
     from borescan.config import schema_defaults
     from borescan.plan import ScanDesign, predict, recommend
 

@@ -82,7 +82,8 @@ def device_status(results: str | Path, as_of: str, validity_days: int) -> list[d
                    any_value(c.certificate_path) AS certificate_path, count(*) AS n_channels,
                    max(s.started_at) AS started_at
             FROM calibrations c LEFT JOIN scans s ON s.scan_id = c.scan_id AND s.night = c.night
-            WHERE c.valid_from <= ?::DATE GROUP BY c.calibration_id""", [as_of])
+            WHERE c.valid_from <= ?::DATE GROUP BY c.calibration_id""",  # noqa: E501 (SQL text)
+                     [as_of])
         vers = _rows(con, """
             SELECT v.scan_id, v.night, v.device_id, v.calibration_id, v.error_mm, v.tolerance_mm, v.passed,
                    v.conformity

@@ -344,7 +344,7 @@ class TriModel:
 
     @property
     def absorbed_by(self) -> dict[str, str]:
-        """Effect -> the calibration parameters that absorb it (the registry's, :func:`calibration_absorbers`)."""
+        """Return effect -> the calibration parameters that absorb it (:func:`calibration_absorbers`)."""
         return calibration_absorbers(self.scan_kind)
     base_description = "device.nominal beams, artifact R20, spindle position, rpm_nominal"
 
