@@ -278,7 +278,7 @@ def _gauge_quantities(qs: ET.Element, e: dict) -> None:
 
 
 def _conditions(mr: ET.Element, cond: dict, p: float) -> None:
-    """Return the influence conditions: gauge temperature, gauge and machine, calibration scans.
+    """Return the influence conditions of the calibration.
 
     The gauge temperature (U for the certificate's coverage probability ``p``), the gauge and machine
     (expansion coefficient, radius at temperature, position accuracy) and the calibration scans.
@@ -358,7 +358,7 @@ def _parameter_list(parent: ET.Element, label: str, results: list[dict], idx: li
 
 
 def _budget(parent: ET.Element, name: str, entry: dict) -> None:
-    """Return one result's GUM budget: its rows and their combination.
+    """Return one result's GUM budget.
 
     Rows (estimate and u in the input's unit, sensitivity, contribution in the result's unit) and the
     combination.

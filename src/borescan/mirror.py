@@ -262,7 +262,7 @@ def mixture_components(params: np.ndarray, cov: np.ndarray,
 
 @dataclass(frozen=True)
 class MixtureDiameter:
-    """A diameter measured with a flagged calibration, by Monte Carlo over its two solutions.
+    """A diameter measured with a flagged calibration, with the components of its mixture.
 
     The two-solution mixture propagated by Monte Carlo (JCGM 101:2008). Per component (the kept solution, each
     flagged beam's mirror): weight, D_T with that solution's beams and its standard uncertainty; of the

@@ -158,7 +158,7 @@ def command_config(path: Path | None) -> tuple[dict, str]:
     """Return the pipeline config a command judges by, with where it came from.
 
     ``path``, else ``config/config.yaml`` when present, else the schema's defaults
-    (:func:`borescan.config.load_config`, checked against the schema); with where it came from. A missing or
+    (:func:`borescan.config.load_config`, checked against the schema). A missing or
     invalid file is a :class:`UsageError` naming it.
     """
     from borescan.config import ConfigError, load_config
