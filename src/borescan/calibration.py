@@ -1183,9 +1183,9 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         if prof["linear"]:
             i_g = 2 * c - 1 + ch0_free + j
             cov_free[i_g, i_g] += 3.0 * u2_rho[j] ** 2 / (4.0 * R_mm**2)
-    # Distinct minima from the mirror starts (and dips along the profiles): each is weighted by its
-    # likelihood ratio exp(-Delta/2), Delta = 2 (cost - cost_kept) / s^2, and its spread about the
-    # estimate w (p_min - p)(p_min - p)^T is added unless the profile of that rho already spans it.
+    # Distinct minima from the mirror starts (and dips along the profiles), each with its
+    # Delta = 2 (cost - cost_kept) / s^2 and whether the profile of every rho it moves already spans it;
+    # they are reported, not added to the covariance (see below).
     minima, seen = [], [p_hat]
     u_pub = np.sqrt(np.clip(np.diag(cov_free), 0.0, None))
     u_pub[u_pub == 0] = 1.0
