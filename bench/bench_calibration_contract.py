@@ -238,8 +238,8 @@ def evaluate_scan(job: tuple) -> dict:
     row.update(beta_reference=ref, families=fam, err=err.tolist(), u=u.tolist(), rho_true_mm=tb.rho_mm.tolist(),
                weak_rho=list(cal.diagnostics.get("weak_rho_channels", [])),
                residual_to_noise=float(cal.residual_rms_mm / ct["noise_mm"]))
-    # the mirror check of each beam (issue 36): resolved or flagged, its delta chi^2, the stated probability of
-    # the wrong sign, whether the kept sign is the truth's; and Eq. (1) at the truth (|rho| > sqrt(2) e)
+    # the mirror check of each beam (issue 36): resolved or flagged, its delta chi^2, the stated probability
+    # of the wrong sign, whether the kept sign is the truth's; and Eq. (1) at the truth (|rho| > sqrt(2) e)
     from borescan.mirror import mirror_checks_of, mirror_exists, predicted_depth
 
     checks = {m.channel: m for m in mirror_checks_of(cal.diagnostics)}
@@ -371,9 +371,11 @@ def _channel_of_row(k: int, families: list[str], c: int, f: int | None) -> int:
 
 
 def mirror_summary(rows: list[dict]) -> dict:
-    """Issue 36's figures: resolved beams' z (SD, 95 % coverage, u / CRB in [0.9, 1.2]), the flagged count
-    against Eq. (1)'s at the truth, and among flagged beams the observed wrong-sign rate against the stated
-    probabilities (their mean)."""
+    """Return issue 36's figures for the resolved and the flagged beams.
+
+    Resolved beams' z (SD, 95 % coverage, u / CRB in [0.9, 1.2]), the flagged count against Eq. (1)'s at the
+    truth, and among flagged beams the observed wrong-sign rate against the stated probabilities (their mean).
+    """
     z, ratio, e_crb, n_beams, n_flag, n_formula, p_stated, wrong, sign_err_resolved = [], [], [], 0, 0, 0, [], [], 0
     for r in rows:
         if not r.get("accepted") or "mirror" not in r:
@@ -481,11 +483,14 @@ def print_table(  # noqa: C901 (one line per table of the bench's printout)
     ms = mirror_summary(rows)
     print(f"mirror check (issue 36): {ms['flagged']} of {ms['beams']} beams flagged (Eq. (1) at the truth: "
           f"{ms['formula_flagged']}); resolved beams: z SD {ms['resolved_z_sd']:.3f}, cover95 "
-          f"{ms['resolved_cover95']:.1%}, u/CRB in [0.9, 1.2] {ms['resolved_u_crb_in_0.9_1.2']:.1%}, errors/CRB rms "
+          f"{ms['resolved_cover95']:.1%}, u/CRB in [0.9, 1.2] "
+          f"{ms['resolved_u_crb_in_0.9_1.2']:.1%}, errors/CRB rms "
           f"{ms['resolved_err_over_crb_rms']:.3f}, sign errors where |rho| > 2 CRB "
-          f"{ms['resolved_sign_errors']}; flagged beams: wrong sign kept {ms['flagged_wrong_sign_observed']:.3f} "
+          f"{ms['resolved_sign_errors']}; flagged beams: wrong "
+          f"sign kept {ms['flagged_wrong_sign_observed']:.3f} "
           f"observed vs {ms['flagged_wrong_sign_stated']:.3f} stated")
-    print(f"calibration time: {s['seconds']['total']:.0f} s summed over scans, slowest {s['seconds']['max']:.1f} s")
+    print(f"calibration time: {s['seconds']['total']:.0f} s summed "
+          f"over scans, slowest {s['seconds']['max']:.1f} s")
     return s
 
 

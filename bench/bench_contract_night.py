@@ -87,12 +87,14 @@ def run_night(raw: Path, results: Path, cores: int) -> dict:
 
 
 def percentiles(items: list[tuple[str, float]]) -> tuple[float, float, float, str]:
+    """Return the median, 95th percentile and maximum of the timings, and the slowest item's name."""
     s = np.array([x for _, x in items])
     worst = max(items, key=lambda z: z[1])
     return float(np.percentile(s, 50)), float(np.percentile(s, 95)), float(s.max()), worst[0]
 
 
 def report(runs: dict[int, dict], n_scans: int) -> None:
+    """Print the timings of each ``--cores`` run side by side, one row per figure."""
     cores = sorted(runs)
     head = "".join(f"{f'--cores {c}':>14}" for c in cores)
     print(f"{'':34}{head}")
@@ -115,6 +117,7 @@ def report(runs: dict[int, dict], n_scans: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Write a contract night, run the workflow on it once per ``--cores`` value and print the timings."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=int(os.environ.get("BENCH_CONTRACT_N", "24")), help="scans of each kind")
     ap.add_argument("--seed", type=int, default=38)

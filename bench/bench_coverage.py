@@ -290,8 +290,10 @@ def print_table(rows: list[dict]) -> dict:
     acc = [r for r in rows if r.get("accepted") and r.get("flagged")]
     for fam in ("D at 20 degC", "D at T"):
         d = _stats([x for r in acc for x in r.get("diameters", []) if x["family"] == fam])
-        print(f"flagged calibrations, {fam}: n {d['n']}, cover95 {d['cover']:.1%} +- {d['se']:.1%}, z SD {d['z_sd']:.3f}")
-    print(f"flagged calibrations: {len(acc)}, measurements refused {sum(1 for r in acc if r.get('measure_error'))}")
+        print(f"flagged calibrations, {fam}: n {d['n']}, cover95 "
+              f"{d['cover']:.1%} +- {d['se']:.1%}, z SD {d['z_sd']:.3f}")
+    print(f"flagged calibrations: {len(acc)}, measurements refused "
+          f"{sum(1 for r in acc if r.get('measure_error'))}")
     print("by the budget's dominant input:")
     for fam, by in s["by_dominant"].items():
         for dom, d in by.items():

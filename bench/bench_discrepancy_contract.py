@@ -304,7 +304,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"reference: {reference}")
     print(summarise(rows))
     cpu = np.array([r["cpu_s"] for r in rows])
-    print(f"{wall:.0f} s wall, {cpu.mean():.1f} s CPU per scan ({a.workers} workers); examination CPU s per scan "
+    print(f"{wall:.0f} s wall, {cpu.mean():.1f} s CPU per scan "
+          f"({a.workers} workers); examination CPU s per scan "
           f"p50 {np.percentile(cpu, 50):.2f}, p95 {np.percentile(cpu, 95):.2f}, max {cpu.max():.2f} "
           f"({max(rows, key=lambda r: r['cpu_s'])['kind']} {max(rows, key=lambda r: r['cpu_s'])['i']})")
     if a.verbose:

@@ -36,6 +36,8 @@ RUN_BY_DEFAULT = False  # several workflow runs: minutes
 
 @dataclass(frozen=True)
 class Outcome:
+    """How the pipeline handled one fault case, and whether the raw files stayed unchanged."""
+
     case: str
     result: str  # processed | quarantined | skipped | crashed
     detail: str
@@ -54,7 +56,9 @@ def _checksums(root: Path) -> dict[str, str]:
     return checksums(root)
 
 
-def input_battery(tmp: Path, demo_raw: Path) -> list[Outcome]:
+def input_battery(  # noqa: C901 (one branch per kind of input fault and its expected outcome)
+    tmp: Path, demo_raw: Path
+) -> list[Outcome]:
     """Every input fault under one raw root, processed by one workflow run."""
     import duckdb
 
@@ -74,7 +78,7 @@ def input_battery(tmp: Path, demo_raw: Path) -> list[Outcome]:
                            "N20261120-TRI01-CAL-P1-A")
     stage_cases, _ = make_stage_cases(raw, tmp / "truth", bad_night)
     expected = {c.scan_id: (c.file, c.problem) for c in cases + stage_cases}
-    for i, (name, src, edit, text) in enumerate(PLAUSIBILITY_CASES):
+    for i, (_name, src, edit, text) in enumerate(PLAUSIBILITY_CASES):
         d = copy_scan(night20 / src, raw, bad_night, f"PLAUS-{i:02d}")
         meta = json.loads((d / "scan.json").read_text())
         meta["started_at"] = meta["started_at"].replace("2026-11-20", bad_night)
@@ -113,7 +117,8 @@ def input_battery(tmp: Path, demo_raw: Path) -> list[Outcome]:
     for night in ("2026-11-20", "2026-11-21", crash.empty_night):
         ok = all((res / "stage" / t / f"night={night}.parquet").is_file() for t in ("scans", "pooled_findings"))
         n = con.execute("SELECT count(*) FROM scans WHERE night = ?", [night]).fetchone()[0]
-        out.append(Outcome(f"night {night} ({'rod only, refused calibration' if night == '2026-11-21' else 'empty' if night == crash.empty_night else 'demo + rod + umask 077'})",
+        out.append(Outcome(f"night {night} "
+                           f"({'rod only, refused calibration' if night == '2026-11-21' else 'empty' if night == crash.empty_night else 'demo + rod + umask 077'})",  # noqa: E501 (one conditional inside the f-string)
                            "processed" if ok else "crashed", f"{n} scans in the catalog, every stage table written",
                            raw_same))
     return out
@@ -198,6 +203,7 @@ def _killed_run(checkout: Path, demo_raw: Path, tmp: Path) -> Outcome:
 
 
 def main() -> None:
+    """Run the input and processing fault batteries on the demo nights and print one line per case."""
     from borescan import demo
 
     with tempfile.TemporaryDirectory(prefix="bench-faults-") as t:
@@ -210,7 +216,8 @@ def main() -> None:
         outcomes = input_battery(tmp / "in", demo_raw) + process_battery(tmp / "proc", demo_raw)
     width = max(len(o.case) for o in outcomes)
     for o in outcomes:
-        print(f"{o.case:<{width}}  {o.result:<11}  raw {'unchanged' if o.raw_unchanged else 'CHANGED'}  {o.detail}")
+        print(f"{o.case:<{width}}  {o.result:<11}  raw "
+              f"{'unchanged' if o.raw_unchanged else 'CHANGED'}  {o.detail}")
     counts = {r: sum(o.result == r for o in outcomes) for r in ("processed", "quarantined", "skipped", "crashed")}
     print(f"{len(outcomes)} cases: " + ", ".join(f"{n} {r}" for r, n in counts.items()) +
           f"; raw changed in {sum(not o.raw_unchanged for o in outcomes)}")

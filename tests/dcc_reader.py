@@ -1,7 +1,8 @@
 """An independent reader of certificate.dcc.xml for the tests: xmlschema's decoder (against the
 schema shipped with the package) into a dict, then the numbers by name, back in the units of
 certificate.json (lengths in mm: the D-SI unit's power of the metre says by how much to scale).
-Nothing here comes from the writer (borescan.certificate_dcc) but the schema's location."""
+Nothing here comes from the writer (borescan.certificate_dcc) but the schema's location.
+"""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ def schema() -> xmlschema.XMLSchema:
 
 
 def decode(path: Path) -> dict:
-    """The DCC as a dict; raises xmlschema's validation error when it is not valid."""
+    """Return the DCC as a dict; raises xmlschema's validation error when it is not valid."""
     return schema().to_dict(str(path), validation="strict")
 
 
@@ -30,17 +31,17 @@ def metre_power(unit: str) -> int:
 
 
 def json_units(value: float, unit: str) -> float:
-    """A D-SI value (SI units) in certificate.json's units (mm for lengths)."""
+    """Return a D-SI value (SI units) in certificate.json's units (mm for lengths)."""
     return value * 10.0 ** (3 * metre_power(unit))
 
 
 def same(read: float, printed: float) -> bool:
-    """The read-back value equals the JSON's to its last printed digit (12 significant digits)."""
+    """Return whether the read-back value equals the JSON's to its last printed digit (12 significant)."""
     return float(f"{read:.12g}") == float(printed)
 
 
 def text(node) -> str:
-    """The text of a dcc textType / richContentType (contents joined by newlines)."""
+    """Return the text of a dcc textType / richContentType (contents joined by newlines)."""
     if node is None:
         return ""
     contents = node.get("dcc:content", [])
@@ -63,7 +64,10 @@ def real_value(real: dict) -> tuple[float, float | None, float | None, float | N
 
 
 def quantity_value(q: dict):
-    """A dcc:quantity's content: a number or list of numbers (certificate.json units), else its text."""
+    """Return a dcc:quantity's content: a number or list of numbers, else its text.
+
+    Numbers are in certificate.json units.
+    """
     if "si:real" in q:
         return real_value(q["si:real"])[0]
     if "si:realListXMLList" in q:
@@ -76,8 +80,9 @@ def quantity_value(q: dict):
 
 
 def tree(node: dict) -> dict:
-    """A dcc:list (or dcc:data) as {name: subtree or value}; a list of one quantity of its own name
-    (how the writer keeps lists and quantities apart) read as that quantity."""
+    """Return a dcc:list (or dcc:data) as {name: subtree or value}; a list of one quantity of its own name
+    (how the writer keeps lists and quantities apart) read as that quantity.
+    """
     out: dict = {}
     for q in as_list(node.get("dcc:quantity")):
         out[text(q.get("dcc:name"))] = quantity_value(q)
@@ -99,7 +104,8 @@ def measurement_result(doc: dict) -> dict:
 
 def beam_parameters(doc: dict) -> tuple[dict[str, tuple], dict[tuple[str, str], float]]:
     """Every parameter's (value, U, k, p) by label, and every covariance element by label pair, from
-    the results' si:realList and si:ellipsoidalRegion (certificate.json units)."""
+    the results' si:realList and si:ellipsoidalRegion (certificate.json units).
+    """
     params: dict[str, tuple] = {}
     cov: dict[tuple[str, str], float] = {}
     for res in results(doc):

@@ -71,7 +71,7 @@ def make_crash_root(demo_raw: Path, raw: Path) -> CrashRoot:
 
 
 def can_drop_to_nobody() -> bool:
-    """Running as root with setpriv available: the test runs the workflow as nobody."""
+    """Return whether the test can run the workflow as nobody (running as root with setpriv available)."""
     return os.geteuid() == 0 and shutil.which("setpriv") is not None
 
 
@@ -81,7 +81,7 @@ def as_nobody(cmd: list[str]) -> list[str]:
 
 
 def checkout_copy(root: Path, dst: Path) -> Path:
-    """A second checkout of the project (its tracked workflow, config and package, no .snakemake)."""
+    """Return a second checkout of the project (its tracked workflow, config and package, no .snakemake)."""
     dst.mkdir(parents=True, exist_ok=True)
     skip = shutil.ignore_patterns(".git", ".snakemake", "results", "demo", "__pycache__", ".pytest_cache", "*.egg-info")
     for name in ("Snakefile", "rules", "workflow", "config", "src", "profiles", "data"):
@@ -100,7 +100,7 @@ def give_to_nobody(*paths: Path) -> None:
             os.lchown(p, NOBODY, NOBODY)
 
 
-# ---------------------------------------------------------------- absurd numbers of scan.json (issue 40 item 4)
+# ------------------------------------------------------ absurd numbers of scan.json (issue 40 item 4)
 
 ROD = "scan=N20261120-ROD01-VER-RGS150"  # a rod verification: sensors, temperature, a gauge with features
 ROD_MEAS = "scan=N20261120-ROD01-MEAS-CYL2H"  # a part with toleranced features
@@ -128,7 +128,8 @@ PLAUSIBILITY_CASES = [
     ("negative certified", ROD, _set("artifact.features.0.certified_diameter_mm", -150.0021),
      "key 'artifact.features[0].certified_diameter_mm' must be a positive number, got -150.0021"),
     ("far-off certified", ROD, _set("artifact.features.1.certified_diameter_mm", 159.9987),
-     "key 'artifact.features[1].certified_diameter_mm' 159.999 mm is 9.999 mm from 'artifact.features[1].nominal_diameter_mm' 150 mm"),
+     "key 'artifact.features[1].certified_diameter_mm' 159.999 mm is "
+     "9.999 mm from 'artifact.features[1].nominal_diameter_mm' 150 mm"),
     ("tolerance as text", ROD_MEAS, _set("artifact.features.0.tolerance_mm", "0.02"), "key 'artifact.features[0].tolerance_mm' must be a positive number, got '0.02'"),
     ("tolerance zero", ROD_MEAS, _set("artifact.features.1.tolerance_mm", 0), "key 'artifact.features[1].tolerance_mm' must be a positive number, got 0"),
     ("started in 9999", ROD_MEAS, _set("started_at", "9999-12-31T23:00:00Z"), "key 'started_at' 9999-12-31T23:00:00Z is not within night 2026-11-20"),

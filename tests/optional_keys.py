@@ -48,7 +48,7 @@ def has_key(meta, path) -> bool:
 
 
 def without(meta: dict, path: tuple[str, ...]) -> dict:
-    """A deep copy of ``meta`` without the key at ``path`` (in every list entry for ``[]``)."""
+    """Return a deep copy of ``meta`` without the key at ``path`` (in every list entry for ``[]``)."""
     out = copy.deepcopy(meta)
 
     def drop(node, p):
@@ -65,7 +65,7 @@ def without(meta: dict, path: tuple[str, ...]) -> dict:
 
 
 def base_scans() -> list[simulate.SimulatedScan]:
-    """The night's complete scans: every optional key present where the scan kind has it."""
+    """Return the night's complete scans: every optional key present where the scan kind has it."""
     rng = np.random.default_rng(37)
     started = iter(simulate.started_at_plus(NIGHT, 22, 2 * i) for i in range(1000))
     base = simulate.default_tri_scene(temperature_c=20.0, cte_per_k=demo.CTE_STEEL_PER_K)

@@ -72,7 +72,10 @@ def _cost_at_truth(truth, cfg, x) -> tuple[float, float, float]:
 
 
 def _z_channel(k: int, c: int, fixed: bool) -> int:
-    """The channel index of row ``k`` of :func:`_z` (betas of the free channels, then rho, then d_b)."""
+    """Return the channel index of row ``k`` of :func:`_z`.
+
+    The rows are the betas of the free channels, then rho, then d_b.
+    """
     nb = c - 1 if fixed else c
     if k < nb:
         return k + 1 if fixed else k
@@ -115,7 +118,7 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(cal
     assert d["ambiguous_minima"] == any(m["delta_ssr_over_s2"] < 4.0 for m in d["minima"])
     # a mirror minimum the data cannot reject is not folded into one u (issue 36): its beam is flagged and
     # carries the two solutions, the mirror's refit delta chi^2 the one the minima list gives
-    from borescan.mirror import RESOLVED_DCHI2, mirror_checks_of
+    from borescan.mirror import mirror_checks_of
 
     checks = {m.channel: m for m in mirror_checks_of(d)}
     for m in d["minima"]:
@@ -123,9 +126,9 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(cal
             other = [ch for ch, r, r0 in zip(cal.beams.channels, m["rho_mm"], cal.beams.rho_mm) if np.sign(r) != np.sign(r0)]
             assert other and all(not checks[ch].resolved and checks[ch].refit_delta_chi2 <= m["delta_ssr_over_s2"] + 1e-9
                                  for ch in other)
-    # the uncertainty is honest where the valley is not linear: every z of a resolved beam within 4.5 (a skewed
-    # valley makes the truth's z larger than its profile-likelihood distance: sqrt(6.8) = 2.6 for seed
-    # 20270619 #8); a flagged beam's truth within 4.5 u of one of its two solutions
+    # the uncertainty is honest where the valley is not linear: every z of a resolved beam within 4.5 (a
+    # skewed valley makes the truth's z larger than its profile-likelihood distance: sqrt(6.8) = 2.6 for
+    # seed 20270619 #8); a flagged beam's truth within 4.5 u of one of its two solutions
     truth_beams = Beams.from_nominal(truth["contract"]["beams"])
     z = _z(cal, truth_beams)
     c = len(cal.beams.channels)
@@ -139,7 +142,8 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(cal
         alt = checks[cal.beams.channels[j]].alternative
         z_alt = abs(alt.params[3 * j + 1] - truth_beams.rho_mm[j]) / math.sqrt(alt.cov[3 * j + 1][3 * j + 1])
         assert min(abs(z[(c - 1 if fixed else c) + j]), z_alt) < 4.5
-    # every rho's profile was checked at +-2 u, and a non-linear one was walked past the estimate on both sides
+    # every rho's profile was checked at +-2 u, and a non-linear one was walked past the estimate on both
+    # sides
     for prof, rho in zip(d["rho_profiles"], cal.beams.rho_mm):
         if not prof["linear"]:
             lo, hi = prof["rho_range_mm"]
@@ -153,8 +157,9 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(cal
         assert not prof["linear"] and lo <= rho_true <= hi
         assert cal.u_rho_mm[1] > 1.2 * prof["u_rho_linear_mm"]
     if (seed, index) == (20270611, 167):
-        # channel 3 comes out on its mirror (rho +7.30 mm, truth -7.29 mm), the other sign 3.9 s^2 above: flagged,
-        # the truth's sign is the second solution's, whose weight is the stated probability of the wrong sign
+        # channel 3 comes out on its mirror (rho +7.30 mm, truth -7.29 mm), the other sign 3.9 s^2 above:
+        # flagged, the truth's sign is the second solution's, whose weight is the stated probability of the
+        # wrong sign
         m3 = checks[3]
         assert not m3.resolved and cal.beams.rho_mm[2] > 0 > truth["contract"]["beams"][2]["rho"]
         assert m3.rho_alt_mm < 0 and 0.05 < m3.p_wrong_sign < 0.5

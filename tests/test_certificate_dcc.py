@@ -1,6 +1,7 @@
 """certificate.dcc.xml: valid against PTB's DCC 3.1.2 schema (shipped with the package, offline) and
 read back, by an independent reader (tests/dcc_reader.py: xmlschema's decoder), equal to
-certificate.json to its last printed digit: every number of certificate.json is found."""
+certificate.json to its last printed digit: every number of certificate.json is found.
+"""
 
 from __future__ import annotations
 
@@ -68,8 +69,10 @@ class Checked:
         assert rd.same(read, printed), f"{path}: certificate.json {printed!r}, DCC {read!r}"
         self.paths.add(path)
 
-    def tree(self, path: tuple, printed, read) -> None:
-        """``printed`` (a certificate.json subtree) against the reader's tree of the same names."""
+    def tree(  # noqa: C901 (one branch per JSON value type walked)
+        self, path: tuple, printed, read
+    ) -> None:
+        """Compare ``printed`` (a certificate.json subtree) with the reader's tree of the same names."""
         if isinstance(printed, bool) or printed is None or isinstance(printed, str):
             if isinstance(printed, str):
                 assert read == printed, f"{path}: {printed!r} != {read!r}"
@@ -115,9 +118,12 @@ def _by_ref(items, ref: str) -> list[dict]:
     return [x for x in rd.as_list(items) if ref in refs(x)]
 
 
-def check_read_back(cert_dir: Path) -> int:
+def check_read_back(  # noqa: C901 (one check per element of the DCC read back)
+    cert_dir: Path,
+) -> int:
     """Validate ``cert_dir``'s DCC and find every number of its certificate.json in it; returns how
-    many numbers were compared."""
+    many numbers were compared.
+    """
     cert = json.loads((cert_dir / "certificate.json").read_text())
     doc = rd.decode(cert_dir / DCC_FILE)  # strict: raises when invalid
     seen = Checked()
@@ -235,7 +241,8 @@ def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_ba
     """A 40-scan contract battery of rod scans (borescan simulate contract --kinds rod): each scan of the
     rod in a certified ring-gauge set is calibrated by the stage's own path (its layers' l0 from the
     gauges) and certified. The PDF is not under test here (tests/test_certificate*.py): its rendering
-    is replaced by empty bytes to keep the battery fast."""
+    is replaced by empty bytes to keep the battery fast.
+    """
     import polars as pl
 
     from borescan import certificate, rawio, scenarios

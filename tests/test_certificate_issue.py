@@ -1,6 +1,7 @@
 """Reissue of certificates from the history (``borescan certificate``, :mod:`borescan.certificate_issue`):
 deleted certificates come back byte-identical; a changed laboratory section gives new documents
-(ISO/IEC 17025 7.8.8.2) that name the ones they replace; ``borescan trace`` lists every issue."""
+(ISO/IEC 17025 7.8.8.2) that name the ones they replace; ``borescan trace`` lists every issue.
+"""
 
 from __future__ import annotations
 
@@ -28,7 +29,10 @@ CONFIG = ROOT / "config" / "config.yaml"  # the pipeline_run fixture's laborator
 
 
 def _files(folder: Path) -> dict[str, str]:
-    """SHA-256 of every file below ``folder``, through its links (calibration/<device>/<id> -> night folder)."""
+    """Return the SHA-256 of every file below ``folder``, through its links.
+
+    The links are calibration/<device>/<id> -> night folder.
+    """
     out = {}
     for d, _dirs, names in os.walk(folder, followlinks=True):
         for n in names:
@@ -40,10 +44,11 @@ def _files(folder: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    """A history of two certificates written by the stages' own path, under the laboratory section of
+    """Return a history of two certificates written by the stages' own path, under the laboratory section of
     config/config.yaml: a three-sensor calibration (a simulated ring-gauge scan, fit, GUM budget) and a rod
     calibration (a contract scan of a rod in certified ring gauges, ``calibrate_rod_scan``), each with
-    its ``stage/certificate_issues`` row."""
+    its ``stage/certificate_issues`` row.
+    """
     import polars as pl
 
     from borescan import certificate, rawio, scenarios, simulate
@@ -164,7 +169,8 @@ def test_a_changed_laboratory_gives_new_documents_naming_the_ones_they_replace(r
 
 def test_trace_lists_every_issue_and_finds_a_reissue_by_its_number(built, capsys):  # noqa: F811
     """A catalogued calibration (tests/test_catalog.py's history) with an original certificate and a
-    reissue recorded: ``borescan trace`` lists both, each against its record, and knows the reissue's number."""
+    reissue recorded: ``borescan trace`` lists both, each against its record, and knows the reissue's number.
+    """
     from borescan.certificate_issue import ISSUE_TABLE, issue_frame
 
     res, _ = built

@@ -52,7 +52,8 @@ def test_unknown_rule_or_negative_band_is_refused():
 
 def test_trace_and_report_show_the_verdict_with_its_rule(tmp_path, capsys):
     """The stage's statement (verdict, U, T, rule, guard band) is what `borescan trace` and the
-    report's verification table show, not a bare passed/FAILED."""
+    report's verification table show, not a bare passed/FAILED.
+    """
     import polars as pl
     from test_catalog import make_history
 

@@ -116,7 +116,8 @@ def test_two_hidden_effects_are_both_named():
 def test_pairs_are_not_refitted_where_the_single_reaches_the_floor():
     """One hidden effect: its single fit leaves the gap at the noise floor and no second term gains
     half the threshold at that fit (linearised), so no pair is refitted exactly; the verdict is
-    the single, and every exact pair refit, done anyway, would not beat it by the threshold."""
+    the single, and every exact pair refit, done anyway, would not beat it by the threshold.
+    """
     e = Effect("bore_lobing", {"k": 3, "a_mm": 0.005, "phase": 0.4})
     scan = _scan([e])
     f = examine_scan(scan)
@@ -536,7 +537,8 @@ def test_declared_sparsity_covers_every_dependence(kind):
     """The examination's fits share finite-difference steps between parameters of different poses
     or channels (``residual_sparsity``); that is exact only if no parameter moves a residual
     outside its declared support. Checked on the dense Jacobian of the base and of every
-    candidate term (three-sensor with the whole beam geometry free), at a point off zero."""
+    candidate term (three-sensor with the whole beam geometry free), at a point off zero.
+    """
     from borescan.discrepancy.examine import scan_arrays
     from borescan.discrepancy.fitting import residual_sparsity
     from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays

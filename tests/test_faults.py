@@ -21,7 +21,7 @@ import duckdb
 import polars as pl
 import pytest
 
-from conftest import ROOT, SNAKEMAKE, checksums
+from conftest import ROOT, checksums
 from fault_roots import as_nobody, can_drop_to_nobody, checkout_copy, copy_scan, give_to_nobody, make_crash_root
 
 from borescan import demo, raw_index, rawio, tables, validation
@@ -77,9 +77,12 @@ def test_nights_leave_out_an_impossible_date_and_name_it(tmp_path, demo_raw):
 
 
 def test_an_unreadable_raw_file_quarantines_its_scan_and_the_night_goes_on(tmp_path, demo_raw, monkeypatch):
-    """Issue 40 item 8 inside one process: reading or hashing a file raises PermissionError (as for a
-    file another user wrote with umask 077); the scan is quarantined naming the file, the others pass.
-    (The workflow as a user who cannot read the file: test_crash_root_workflow_as_a_user_who_is_not_root.)"""
+    """Check that a scan whose file cannot be read is quarantined naming the file; the others pass.
+
+    Issue 40 item 8 inside one process: reading or hashing a file raises PermissionError (as for a
+    file another user wrote with umask 077).
+    (The workflow as a user who cannot read the file: test_crash_root_workflow_as_a_user_who_is_not_root.)
+    """
     raw, res = tmp_path / "raw", tmp_path / "res"
     src = demo_raw / "night=2026-11-20"
     for d in sorted(src.glob("scan=*ROD01*")):
@@ -153,7 +156,8 @@ def test_catalog_step_fails_naming_scans_of_the_raw_root_the_history_lacks(tmp_p
 
 def test_quarantine_records_follow_the_catalog_with_names_that_never_collide(tmp_path, demo_raw):
     """Issue 40 item 3: a stale record is removed; folder ids longer than 64 characters, ``..`` and ``-``
-    each get their own visible record."""
+    each get their own visible record.
+    """
     raw, res = tmp_path / "raw", tmp_path / "res"
     rod = demo_raw / "night=2026-11-20" / "scan=N20261120-ROD01-MEAS-CYL2H"
     odd = ["L" * 70 + "A", "L" * 70 + "B", "..", "-"]
@@ -178,8 +182,9 @@ def test_quarantine_records_follow_the_catalog_with_names_that_never_collide(tmp
 
 
 def _python_for(user_cmd) -> list[str]:
-    """A Python the user of ``user_cmd`` may execute with this venv's packages: this one, else the
-    system's of the same version with this venv's site-packages on PYTHONPATH."""
+    """Return a Python the user of ``user_cmd`` may execute with this venv's packages: this one, else the
+    system's of the same version with this venv's site-packages on PYTHONPATH.
+    """
     # through a shell, as Snakemake starts a job's script (setpriv itself may exec what a shell may not)
     if subprocess.run(user_cmd(["/bin/sh", "-c", f"'{sys.executable}' -c pass"]), capture_output=True).returncode == 0:
         return [sys.executable], []
@@ -199,7 +204,7 @@ def _workflow(checkout: Path, raw: Path, res: Path, home: Path, *extra: str, use
 
 @pytest.fixture
 def open_tmp():
-    """A temporary folder every user can reach (pytest's are private to their user)."""
+    """Return a temporary folder every user can reach (pytest's are private to their user)."""
     path = Path(tempfile.mkdtemp(prefix="borescan-faults-"))
     path.chmod(0o755)
     yield path
@@ -209,7 +214,8 @@ def open_tmp():
 @pytest.mark.slow
 def test_crash_root_workflow_as_a_user_who_is_not_root(open_tmp, demo_raw):
     """Issue 40 items 5-8 through Snakemake: every night gets its tables and the catalog, each bad scan
-    is quarantined naming its file or folder, the folders never processed are named, raw is untouched."""
+    is quarantined naming its file or folder, the folders never processed are named, raw is untouched.
+    """
     tmp_path = open_tmp
     root = make_crash_root(demo_raw, tmp_path / "raw")
     co = checkout_copy(ROOT, tmp_path / "checkout")
@@ -246,8 +252,9 @@ def test_crash_root_workflow_as_a_user_who_is_not_root(open_tmp, demo_raw):
 
 
 def _rod_night(demo_raw: Path, raw: Path, night: str) -> None:
-    """A night of the demo's rod scans only (the cheapest night that runs every stage), with its old
-    file times (``cp -a``, as rsync -a or tar from a gauge PC copy them)."""
+    """Return a night of the demo's rod scans only (the cheapest night that runs every stage), with its old
+    file times (``cp -a``, as rsync -a or tar from a gauge PC copy them).
+    """
     (raw / f"night={night}").mkdir(parents=True, exist_ok=True)
     for d in sorted((demo_raw / f"night={night}").glob("scan=*ROD01*")):
         subprocess.run(["cp", "-a", str(d), str(raw / f"night={night}")], check=True)
@@ -265,7 +272,8 @@ def test_a_night_added_with_old_times_runs_from_a_checkout_without_records(tmp_p
     2026-11-21 added with ``cp -a``; checkout B (same code, its file times older than the results, no
     record of this results root in its .snakemake/) plans exactly the new night, and so does A on a
     copy of the results root. Before the fix B said "Nothing to be done" and the night never entered
-    the history."""
+    the history.
+    """
     raw, res, home = tmp_path / "raw", tmp_path / "results", tmp_path / "home"
     home.mkdir()
     a, b = checkout_copy(ROOT, tmp_path / "A"), checkout_copy(ROOT, tmp_path / "B")
@@ -296,7 +304,8 @@ def test_a_config_edit_applies_from_the_next_night_and_recompute_is_explicit(tmp
     """Issue 40 item 2: after an edit of verification.tolerance_mm the past night is neither rerun nor
     rewritten (its stage tables byte-identical), the next night uses the new tolerance, each night's
     config hash is in the catalog; `borescan recompute --from` keeps the old results beside the new
-    and records the change, and only then does the workflow recompute the past night."""
+    and records the change, and only then does the workflow recompute the past night.
+    """
     raw, res, home = tmp_path / "raw", tmp_path / "results", tmp_path / "home"
     home.mkdir()
     a = checkout_copy(ROOT, tmp_path / "A")
@@ -344,7 +353,8 @@ def test_a_config_edit_applies_from_the_next_night_and_recompute_is_explicit(tmp
 
 def test_a_damaged_catalog_is_named_by_every_reader_and_rebuilt(tmp_path, demo_raw, capsys):
     """Issue 40 item 10: a catalog cut short is refused by open_catalog (sql, status, trace, report read
-    through it) with the command that rebuilds it; the catalog step and the workflow rebuild it."""
+    through it) with the command that rebuilds it; the catalog step and the workflow rebuild it.
+    """
     from borescan import catalog
     from borescan.cli import main
 

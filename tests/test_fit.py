@@ -88,7 +88,8 @@ def test_discrepancy_fits_report_through_the_one_type():
 
 def test_difference_groups_share_steps_only_between_disjoint_columns():
     """Curtis-Powell-Reid grouping: columns in one group never touch the same residual, and a
-    dense column stays alone."""
+    dense column stays alone.
+    """
     from borescan.fit import difference_groups
 
     S = np.zeros((6, 5), dtype=bool)
@@ -106,7 +107,8 @@ def test_difference_groups_share_steps_only_between_disjoint_columns():
 
 def test_grouped_differences_give_the_dense_fit_bit_for_bit():
     """Per-block parameters (a line per block, as a pose angle moves only its pose) fitted with the
-    declared sparsity: the same iterates and result as one step per parameter, with fewer calls."""
+    declared sparsity: the same iterates and result as one step per parameter, with fewer calls.
+    """
     rng = np.random.default_rng(5)
     n_blocks, per = 8, 20
     block = np.repeat(np.arange(n_blocks), per)

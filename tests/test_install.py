@@ -1,6 +1,7 @@
 """borescan installed from a wheel (not editable) works without the checkout's ``src/``: the package finds
 its shipped files (config schema, saved queries, the papers' tables) through :mod:`importlib.resources`,
-and Snakemake runs the workflow with that install on a tiny night."""
+and Snakemake runs the workflow with that install on a tiny night.
+"""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """The mirror check of a three-sensor calibration (issue 36): Eq. (1) of borescan.mirror against exact
 readings, the offset that resolves a mirror, the bore range where a flagged calibration may be used, and a
-fit on a simulated scan with one beam resolved by its mirror's depth, one flagged and one without a mirror."""
+fit on a simulated scan with one beam resolved by its mirror's depth, one flagged and one without a mirror.
+"""
 
 from __future__ import annotations
 
@@ -34,9 +35,10 @@ def _scene(rho_mm, e_mm, rate_hz=660.0):
 
 @pytest.mark.parametrize("rho_mm", [3.0, 5.0, 8.0])
 def test_depth_formula_is_the_mirror_misfit_of_exact_readings(rho_mm):
-    """The mirror (rho -> -rho, beta -> beta + 2 asin(rho / R), d_b kept) of exact readings differs from them by
-    sum (dv)^2 / sigma^2 = N e^4 rho^2 / (2 sigma^2 R^4) to first order in e / R and rho / R: within 1.5 % here
-    (e / R = 0.7 %, rho / R <= 6 %); the refit of the other parameters only lowers it."""
+    """The mirror (rho -> -rho, beta -> beta + 2 asin(rho / R), d_b kept) of exact readings differs from
+    them by sum (dv)^2 / sigma^2 = N e^4 rho^2 / (2 sigma^2 R^4) to first order in e / R and rho / R:
+    within 1.5 % here (e / R = 0.7 %, rho / R <= 6 %); the refit of the other parameters only lowers it.
+    """
     e, sigma = 1.0, 0.002
     scene = _scene([rho_mm, -3.0, 1.0], e)
     b = scene.beams
@@ -50,7 +52,8 @@ def test_depth_formula_is_the_mirror_misfit_of_exact_readings(rho_mm):
 def test_offset_to_resolve_puts_the_mirror_at_k():
     """X = L (2 K sigma^2 / (N rho^2))^(1/4) is Eq. (1) solved for e: the depth there is K; Yang's ring
     (R 137.5 mm, sigma 2 um, N 16 000) with its smallest rho, 1.526 mm (Yang Table 1), needs about 1.2 mm (the
-    issue's figure); X scales as rho^(-1/2)."""
+    issue's figure); X scales as rho^(-1/2).
+    """
     x = offset_to_resolve_mm(R_MM, 0.002, 16000, 1.5262)
     assert predicted_depth([16000], [x], 1.5262, [0.002], R_MM) == pytest.approx(RESOLVED_DCHI2, rel=1e-12)
     assert 1.15 < x < 1.25
@@ -60,7 +63,8 @@ def test_offset_to_resolve_puts_the_mirror_at_k():
 
 def test_valid_bore_range_is_where_the_solutions_turn_apart_by_two_u():
     """A mirror of beam 1 (rho 5 mm) agrees with the main solution at the gauge; at the range's ends the
-    relative direction of beam 1 moves by 2 u(beta) between them: 2 rho |1/L - 1/L_cal| = 2 u."""
+    relative direction of beam 1 moves by 2 u(beta) between them: 2 rho |1/L - 1/L_cal| = 2 u.
+    """
     rho, u = 5.0, 0.01
     main = np.array([0.3, rho, 128.0, 2.4, -3.0, 129.0, 4.3, 1.0, 130.0])
     alt = main.copy()
@@ -91,7 +95,8 @@ def test_mixture_weights_are_normalised_likelihood_ratios():
 def flagged_fit():
     """Commanded angle, no positions, 5 revolutions of 660 samples, sigma 2 um, e = 1 mm: beam 1 (rho 20 mm,
     depth ~460) resolved by its mirror's depth, beam 2 (rho -3 mm, depth ~10) flagged, beam 3 (rho 0.5 mm <
-    sqrt(2) e) without a mirror."""
+    sqrt(2) e) without a mirror.
+    """
     scene = _scene([20.0, -3.0, 0.5], 1.0)
     t = np.arange(3300) / 660.0
     v = simulate.tri_readings(scene, t)
@@ -103,8 +108,8 @@ def flagged_fit():
 def test_fit_flags_only_the_beam_whose_mirror_is_shallow(flagged_fit):
     scene, cal = flagged_fit
     m1, m2, m3 = mirror_checks_of(cal.diagnostics)
-    # beam 1: a mirror, refitted from -rho, deep: resolved; the refit within its noise of Eq. (1) (the refit of the
-    # other parameters takes 0-16 % of it, the noise moves it by 2 sqrt(depth) sd)
+    # beam 1: a mirror, refitted from -rho, deep: resolved; the refit within its noise of Eq. (1) (the refit
+    # of the other parameters takes 0-16 % of it, the noise moves it by 2 sqrt(depth) sd)
     assert m1.resolved and m1.refit_delta_chi2 is not None
     assert abs(m1.refit_delta_chi2 - 0.92 * m1.predicted_delta_chi2) < 3 * 2 * math.sqrt(m1.predicted_delta_chi2) \
         + 0.1 * m1.predicted_delta_chi2
@@ -126,7 +131,8 @@ def test_fit_flags_only_the_beam_whose_mirror_is_shallow(flagged_fit):
 def test_resolved_beams_keep_their_own_curvature(flagged_fit):
     """The covariance of the resolved beams 1 and 3 is the fit's own curvature at the solution, s^2 (J^T J)^-1
     mapped to (beta, rho, d_b), plus what their own rho profiles and d_b's second-order term add: nothing from
-    beam 2's mirror (whose parameters shift the offset and beta_2 by many u)."""
+    beam 2's mirror (whose parameters shift the offset and beta_2 by many u).
+    """
     from borescan.calibration import _public_cov, _public_index
 
     _, cal = flagged_fit
@@ -151,9 +157,11 @@ def test_resolved_beams_keep_their_own_curvature(flagged_fit):
 
 
 def test_mixture_diameter_against_the_mixture_in_closed_form():
-    """Two solutions (weights 0.8 / 0.2, D 100.000 / 100.010 mm, u 2 um, the mirror's own fit adding (3 um)^2):
-    mean, variance and the p-quantiles of the Gaussian mixture in closed form, within the Monte Carlo's error
-    (10^6 draws: mean to 0.02 um, quantiles' CDF to 5e-4); the same seed gives the same numbers."""
+    """Two solutions (weights 0.8 / 0.2, D 100.000 / 100.010 mm, u 2 um, the mirror's own fit adding
+    (3 um)^2): mean, variance and the p-quantiles of the Gaussian mixture in closed form, within the Monte
+    Carlo's error (10^6 draws: mean to 0.02 um, quantiles' CDF to 5e-4); the same seed gives the same
+    numbers.
+    """
     from scipy.optimize import brentq
     from scipy.stats import norm
 
@@ -230,9 +238,11 @@ def test_report_lists_a_flagged_beam_with_what_to_do(flagged_fit):
 
 @pytest.mark.parametrize("where", ["gauge", "beyond"])
 def test_a_diameter_with_a_flagged_calibration_is_the_mixture_or_refused(flagged_fit, tmp_path, where):
-    """A static scan (10 poses, sigma 2 um) of a bore measured with the flagged calibration: at the gauge's size
-    the diameter is the two-solution Monte Carlo (JCGM 101) and its interval holds the true diameter; 10 % beyond
-    the valid range's upper end (sensors of a range that reaches it) the measurement is refused with the reason."""
+    """A static scan (10 poses, sigma 2 um) of a bore measured with the flagged calibration: at the
+    gauge's size the diameter is the two-solution Monte Carlo (JCGM 101) and its interval holds the true
+    diameter; 10 % beyond the valid range's upper end (sensors of a range that reaches it) the measurement
+    is refused with the reason.
+    """
     from borescan import rawio
     from borescan.config import schema_defaults
     from borescan.measure import tri_diameter_with_budget

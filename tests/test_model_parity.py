@@ -206,7 +206,8 @@ def test_registry_effect_is_recovered_by_the_fitting_model(name):
 @pytest.mark.parametrize("name", TRI_EFFECTS)
 def test_twin_and_pooled_model_give_the_same_readings(name):
     """The pooled examination's model of one scan (shared beams at their start, the scan's nuisance at the
-    scene's centre) gives the twin's readings; a speed error is the scan's own speed scale there."""
+    scene's centre) gives the twin's readings; a speed error is the scan's own speed scale there.
+    """
     from borescan.discrepancy.pooled import PooledModel, PooledScan, PooledTerm
 
     sc = SCENES["ccw"]
@@ -244,7 +245,7 @@ def _poses(n_pose: int, per_pose: int, rate_hz: float) -> tuple[np.ndarray, np.n
 
 
 def _static_model() -> tuple[StaticModel, np.ndarray]:
-    """The static fit model of the scene (nominal beams = true beams, certified R20) and the poses."""
+    """Return the static fit model of the scene (nominal beams = true beams, certified R20) and the poses."""
     sim = simulate_tri_static(STATIC_SCENE, STATIC_XY_MM, np.zeros(len(STATIC_XY_MM)), noise_mm=0.0)
     t, pose = _poses(len(STATIC_XY_MM), 20, STATIC_SCENE.sample_rate_hz)
     c = STATIC_SCENE.beams.channels
@@ -259,7 +260,7 @@ def _static_params() -> dict[str, float]:
 
 
 def _rod_model() -> tuple[RodModel, np.ndarray]:
-    """The rod fit model of the scene (nominal layers = true layers, certified hole diameters)."""
+    """Return the rod fit model of the scene (nominal layers = true layers, certified hole diameters)."""
     feats = [{"id": f"H{lay.channel}", "z_mm": lay.h_mm, "certified_diameter_mm": 2 * h.radius_mm}
              for lay, h in zip(ROD_SCENE.layers, ROD_SCENE.holes)]
     artifact = {"id": "GAUGE-2H", "type": "ring_gauge", "cte_per_k": ROD_SCENE.cte_per_k, "features": feats}
@@ -271,7 +272,7 @@ def _rod_model() -> tuple[RodModel, np.ndarray]:
 
 
 def _rod_params() -> dict[str, float]:
-    """The rod fit's base unknowns of the scene: the inverse of ``rod_section_geometry``."""
+    """Return the rod fit's base unknowns of the scene: the inverse of ``rod_section_geometry``."""
     ax = ROD_SCENE.axis
     w = ax.omega_rad * np.array([math.cos(ax.omega_az_rad), math.sin(ax.omega_az_rad)])
     out = {f"alpha[{k}]": float(a) for k, a in enumerate(ROD_ALPHA_RAD) if k > 0}
@@ -338,7 +339,8 @@ def test_pose_models_agree_with_the_twin_on_composed_effects():
 def test_rod_beam_tilt_was_the_documented_mismatch():
     """The old rod fit scaled the whole reading length by 1 / cos(gamma) on top of the layer's own tilt
     (0.3 deg on layer 1 of ``default_rod_scene``); the twin tilts the layer. At 0.5 deg the old form
-    was 4.6 um off the twin there; the rod fit now calls the twin's model (parity above, 1e-9 mm)."""
+    was 4.6 um off the twin there; the rod fit now calls the twin's model (parity above, 1e-9 mm).
+    """
     sc = default_rod_scene()
     alpha = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
     g = math.radians(0.5)
@@ -348,7 +350,7 @@ def test_rod_beam_tilt_was_the_documented_mismatch():
     assert 4.5e-3 < np.max(np.abs(old - twin)) < 4.7e-3
 
 
-# --------------------------------------------------------------------------- a new effect is its registry entry
+# ------------------------------------------------------------------ a new effect is its registry entry
 
 
 def _scale_bore(bore, p, cte_per_k=0.0):
@@ -360,7 +362,8 @@ def _scale_bore(bore, p, cte_per_k=0.0):
 
 def test_a_new_registry_effect_reaches_the_twin_and_every_fitting_model(monkeypatch):
     """Registering a bore effect (its registry entry, nothing else) changes the twin's readings of
-    every scan kind, and each fitting model gives the twin's readings with it."""
+    every scan kind, and each fitting model gives the twin's readings with it.
+    """
     spec = EffectSpec("bore_scale", (TRI, ROD), {"s": "-"}, "bore", {TRI: _scale_bore, ROD: _scale_bore},
                       "R' = R (1 + s)", fit=(FitParam("s", "-", 1e-5),),
                       candidate={"tri_spindle": "screen", "tri_static": "screen", "rod": "screen"},

@@ -33,7 +33,8 @@ def test_robust_sigma_ignores_nan_and_needs_three_values():
 
 def test_noise_floor_keeps_only_the_differences_asked_for():
     """Within-pose differences of white noise on pose levels 1 mm apart: the jumps between poses are
-    not noise; the floor is the noise's sigma (first differences, sqrt 2)."""
+    not noise; the floor is the noise's sigma (first differences, sqrt 2).
+    """
     rng = np.random.default_rng(2)
     pose = np.repeat(np.arange(50), 40)
     v = pose[:, None] * 1.0 + rng.normal(0.0, 0.003, (pose.size, 2))

@@ -1,6 +1,7 @@
 """Issue 37 item 1: any scan the raw spec allows is processed or quarantined with its own reason at
 the stage that found it; `borescan validate` predicts what the stages will do; one Snakemake run
-over a night of scans with each optional key of ``scan.json`` removed never fails a job."""
+over a night of scans with each optional key of ``scan.json`` removed never fails a job.
+"""
 
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ def _validate(raw: Path, capsys) -> tuple[int, dict[str, tuple[str, str]], str]:
 
 @pytest.fixture(scope="module")
 def night(tmp_path_factory):
-    """The night of tests/optional_keys.py processed by one Snakemake run up to the catalog."""
+    """Return the night of tests/optional_keys.py processed by one Snakemake run up to the catalog."""
     base = tmp_path_factory.mktemp("optional_keys")
     raw, results = base / "raw", base / "results"
     written = write_night(raw, base / "truth")
@@ -56,7 +57,8 @@ def test_every_optional_key_is_removed_from_some_scan(tmp_path):
 
 def test_a_later_stage_keeps_an_earlier_stages_quarantine_record(tmp_path):
     """The first stage's reason stays in quarantine/<scan>.json (as in the catalog); a rerun of
-    the same stage, or an earlier stage, replaces it."""
+    the same stage, or an earlier stage, replaces it.
+    """
     first = Quarantined("S1", "2026-11-20", "calibrate", "lds.parquet", "too few revolutions to calibrate")
     path = write_quarantine_record(tmp_path, first)
     write_quarantine_record(tmp_path, Quarantined("S1", "2026-11-20", "discrepancy", "scan.json", "later"))

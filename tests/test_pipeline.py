@@ -284,10 +284,11 @@ def test_a_stage_script_runs_by_hand_and_gives_the_rules_output(pipeline_run, tm
         assert proc.returncode == 0, proc.stderr[-2000:]
         by_hand = pl.read_parquet(tmp_path / "stage" / table / f"night={night}.parquet")
         by_rule = pl.read_parquet(pipeline_run["results"] / "stage" / table / f"night={night}.parquet")
-        # every process computing a stage's items has one BLAS thread (parallel.start_job_workers), by hand as
-        # in the workflow; yet on an AMD EPYC host the last bits differed between the two (SIMD loops may round
-        # by where an array starts in memory, which differs from process to process), and an iteration that
-        # stops on a tolerance carries such bits further: equal within their uncertainty, never rounding noise
+        # every process computing a stage's items has one BLAS thread (parallel.start_job_workers), by hand
+        # as in the workflow; yet on an AMD EPYC host the last bits differed between the two (SIMD loops may
+        # round by where an array starts in memory, which differs from process to process), and an iteration
+        # that stops on a tolerance carries such bits further: equal within their uncertainty, never
+        # rounding noise
         _assert_equal_within_uncertainty(by_hand, by_rule, table)
     proc = subprocess.run([sys.executable, str(ROOT / "workflow" / "scripts" / "signal_night.py"),
                            f"raw_root={pipeline_run['raw']}"],
@@ -406,10 +407,12 @@ def test_the_demo_closes_the_loop(pipeline_run):
 
 
 def _assert_equal_within_uncertainty(a, b, table: str) -> None:
-    """Every non-float column equal; a float column X with a column u_X within 1e-6 u_X (a millionth of its
-    standard uncertainty); an uncertainty u_X itself to a relative 1e-6 (a u is known to a few per cent at
-    best); any other float column to a relative 1e-9 (0.1 nm on 100 mm); all of them at least to 1e-12 (a value
-    at zero, such as the period's uncertainty of a scan whose revolutions all have the same length)."""
+    """Every non-float column equal; a float column X with a column u_X within 1e-6 u_X (a millionth of
+    its standard uncertainty); an uncertainty u_X itself to a relative 1e-6 (a u is known to a few per
+    cent at best); any other float column to a relative 1e-9 (0.1 nm on 100 mm); all of them at least to
+    1e-12 (a value at zero, such as the period's uncertainty of a scan whose revolutions all have the same
+    length).
+    """
     import numpy as np
     import polars as pl
     from polars.testing import assert_frame_equal

@@ -1,5 +1,6 @@
 """``borescan plan``: the Cramer-Rao prediction of a calibration scan against fits of simulated scans, the
-recommendation, the command."""
+recommendation, the command.
+"""
 
 from __future__ import annotations
 
@@ -30,7 +31,8 @@ def _fit(seed: int):
 
 def test_prediction_is_the_fits_own_uncertainty():
     """Every beam resolved (depths 1900-7600) and no rho weak: the calibration's u of each parameter on three
-    scans is the prediction within 10 % (its s^2 and its Jacobian at the estimate, not the truth)."""
+    scans is the prediction within 10 % (its s^2 and its Jacobian at the estimate, not the truth).
+    """
     p = predict(DeviceDesign(BEAMS, (SIGMA_MM,) * 3, (20.0,) * 3), R_MM, SCAN)
     assert all(p.resolved) and p.in_range and p.beta_reference == "channel 1 fixed"
     for seed in (1, 2, 3):
@@ -43,7 +45,8 @@ def test_prediction_is_the_fits_own_uncertainty():
 @pytest.mark.slow
 def test_prediction_is_the_spread_of_fits_over_simulated_scans():
     """40 scans (seeds 100-139): the standard deviation of each parameter's error is the prediction within
-    10 %, pooled over the 8 free parameters as the SD of err / u_pred (its own sampling SE ~4 %)."""
+    10 %, pooled over the 8 free parameters as the SD of err / u_pred (its own sampling SE ~4 %).
+    """
     p = predict(DeviceDesign(BEAMS, (SIGMA_MM,) * 3, (20.0,) * 3), R_MM, SCAN)
     truth = np.stack([BEAMS.beta_rad, BEAMS.rho_mm, BEAMS.d_b_mm], axis=1).ravel()
     u = np.sqrt(np.diag(p.cov))
@@ -54,10 +57,13 @@ def test_prediction_is_the_spread_of_fits_over_simulated_scans():
 
 
 def test_recommendation_is_the_smallest_scan_reaching_the_target():
-    """Yang's ring and beams (sigma 2 um, 660 samples per revolution, 10 mm sensors): the recommended scan
-    resolves every rho and reaches u(beta) <= 1 mrad; fewer revolutions, or the next smaller offset, do not.
-    (50 urad is out of reach: beta is psi - asin(rho / R), and u(rho) / R stays above 400 urad for offsets the
-    10 mm range allows; recommend says None.)"""
+    """Check that the scan recommended for Yang's ring resolves every rho and reaches u(beta) <= 1 mrad.
+
+    Yang's ring and beams (sigma 2 um, 660 samples per revolution, 10 mm sensors): fewer revolutions than
+    recommended, or the next smaller offset, do not reach it. (50 urad is out of reach: beta is
+    psi - asin(rho / R), and u(rho) / R stays above 400 urad for offsets the 10 mm range allows; recommend
+    says None.)
+    """
     dev = DeviceDesign(simulate.YANG_BEAMS, (SIGMA_MM,) * 3, (10.0,) * 3)
     R = simulate.YANG_RING_GAUGE_DIAMETER_MM / 2
     base = ScanDesign(offset_mm=1.0, encoder=True, positions_known=True)
@@ -85,7 +91,8 @@ def test_recommendation_is_the_smallest_scan_reaching_the_target():
 
 def test_plan_command_prints_the_prediction_and_the_recommendation(capsys):
     """``borescan plan --device yang``: the proposed scan's table (u(rho) of channel 1 the library's), a
-    recommendation for a reachable target (exit 0), and for 50 urad the best reachable scan (exit 1)."""
+    recommendation for a reachable target (exit 0), and for 50 urad the best reachable scan (exit 1).
+    """
     from borescan.cli import main
 
     assert main(["plan", "--device", "yang", "--target-u-beta-urad", "1000"]) == 0

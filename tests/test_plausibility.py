@@ -1,5 +1,6 @@
 """Plausibility of the numbers of scan.json that feed a result (issue 40 item 4): each absurd value is
-named by its key at ingest and by `borescan validate`; no NaN or inf ever reaches a verdict."""
+named by its key at ingest and by `borescan validate`; no NaN or inf ever reaches a verdict.
+"""
 
 from __future__ import annotations
 

@@ -341,7 +341,8 @@ def test_rod_scans_over_the_contract_and_a_mixed_battery(tmp_path):
 
 def test_scale_effect_scales_sizes_only():
     """Amplitudes, gains, delays scale by the factor, a temperature by its departure from 20 degC;
-    channel, harmonic, phase and frequency stay."""
+    channel, harmonic, phase and frequency stay.
+    """
     from borescan.discrepancy.battery import scale_effect
     from borescan.effects import Effect
 
@@ -359,7 +360,8 @@ def test_night_battery_measurements_on_calibrated_devices_and_rod_calibrations(t
     """A contract night: rotating measurements on the device of calibration scan i (same id,
     beams, kinematics; a part of the gauge's size), rod calibration scans in ring-gauge sets, every
     scan on one night, effects on a share of the scans decided from a stream of their own (the
-    scans' other draws unchanged), every scan valid for ingest."""
+    scans' other draws unchanged), every scan valid for ingest.
+    """
     kinds = ("calibration", "measurement", "rod_calibration")
     paths = scenarios.write_battery(tmp_path / "n", 2, 5, kinds=kinds, effect_share=1.0,
                                     effect_scale_range=(0.3, 3.0), per_night=100)

@@ -1,7 +1,8 @@
 """Issue 37 item 4: two calibrations valid from the same night. `borescan status`, the measure stage
 (:func:`borescan.calibrations.choose_calibration`) and the report's calibration table name the same
 current one: a calibration on certified gauges before a rod's design geometry (method ``nominal``),
-then the later made (its scan's start), never the id string."""
+then the later made (its scan's start), never the id string.
+"""
 
 from __future__ import annotations
 
@@ -16,9 +17,10 @@ from borescan.cli import main
 
 
 def _tied_history(res):
-    """The history of tests/test_catalog.py plus, on the 21st, ROD-01's design geometry under an id
+    """Return the history of tests/test_catalog.py plus, on the 21st, ROD-01's design geometry under an id
     that sorts after its gauge calibration, and on the 22nd a second TRI-01 calibration CAL-0
-    (its id sorts first) made after CAL-B."""
+    (its id sorts first) made after CAL-B.
+    """
     t = make_history(res)
     scans = t["scans"]
     extra = scans.filter(pl.col("scan_id") == "CAL-B").with_columns(

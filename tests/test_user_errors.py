@@ -1,6 +1,7 @@
 """Issue 37 items 6 and 7: `status`, `trace`, `sql` and the config loader answer every user error in a
 line or two (no traceback), and `sql` cannot write files, attach databases, install or load
-extensions, or read files outside the catalog."""
+extensions, or read files outside the catalog.
+"""
 
 from __future__ import annotations
 

@@ -56,7 +56,8 @@ def test_fig11_scatter_follows_the_crb_after_18_rotations():
 
 def test_fig11_conclusions_hold_with_the_pipelines_trial_count():
     """The pipeline's FIG11_TRIALS (80, wang's docstring: the sampling errors) keep Fig. 11's conclusions
-    at 18 rotations: RMS within 25 % of 2 x CRB, the 95th percentile near the paper's ~28 um."""
+    at 18 rotations: RMS within 25 % of 2 x CRB, the 95th percentile near the paper's ~28 um.
+    """
     from borescan.papers.wang import FIG11_TRIALS
 
     f = fig11_error_vs_rotations(n_rot=[18], n_trials=FIG11_TRIALS, seed=10)

@@ -64,7 +64,8 @@ def test_idle_timers_are_cancelled_so_the_run_exits_at_once():
 
 def test_locks_of_a_killed_run_are_released_and_a_live_run_keeps_its_own(tmp_path):
     """Issue 40 item 9: a run killed with SIGKILL leaves its lock files; the next run releases them when
-    the process that wrote them is gone (same boot), never while it lives."""
+    the process that wrote them is gone (same boot), never while it lives.
+    """
     import json
     import os
     import subprocess
@@ -87,7 +88,8 @@ def test_locks_of_a_killed_run_are_released_and_a_live_run_keeps_its_own(tmp_pat
 def test_a_run_log_is_quiet_and_readable(tmp_path):
     """Issue 37 item 8: the default profile prints the rules' messages, not "Shell command: None" (the
     rules run scripts) nor "reason:" lines listing every input of a night job; a mistyped config key
-    is one line naming it, not the schema."""
+    is one line naming it, not the schema.
+    """
     from conftest import run_snakemake
 
     from borescan import simulate

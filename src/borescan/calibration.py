@@ -597,7 +597,7 @@ class AcceptanceRule:
 
     @classmethod
     def from_config(cls, cal_cfg: Mapping[str, Any]) -> "AcceptanceRule":
-        """The rule of a config's ``calibration`` section."""
+        """Return the rule of a config's ``calibration`` section."""
         return cls(max_residual_to_noise=float(cal_cfg["max_residual_to_noise"]),
                    head_radius_mm=float(cal_cfg["head_radius_mm"]),
                    position_accuracy_mm=float(cal_cfg["position_accuracy_mm"]),
@@ -605,7 +605,7 @@ class AcceptanceRule:
 
     @classmethod
     def defaults(cls, **overrides: Any) -> "AcceptanceRule":
-        """The rule of the schema's defaults, with ``overrides``."""
+        """Return the rule of the schema's defaults, with ``overrides``."""
         return replace(cls.from_config(schema_default("calibration")), **overrides)
 
 
@@ -976,10 +976,12 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
     screen = [slice(None, None, step)] * K if step > 1 else None
 
     def mirror_start(x: np.ndarray, j: int) -> np.ndarray:
-        """The mirror of beam ``j`` (rho -> -rho at fixed psi and g). The gauge-fixed first beam's psi is
-        not free: flipping its rho moves psi_1 by delta = -2 asin(rho_1 / R), and the readings depend on
-        psi_c + phase - angle(o), so every other psi moves by delta too and each scan's frame turns by
-        delta (its offset without a prior, else its free phase back by delta)."""
+        """Return the mirror of beam ``j`` (rho -> -rho at fixed psi and g).
+
+        The gauge-fixed first beam's psi is not free: flipping its rho moves psi_1 by delta = -2 asin(rho_1 /
+        R), and the readings depend on psi_c + phase - angle(o), so every other psi moves by delta too and
+        each scan's frame turns by delta (its offset without a prior, else its free phase back by delta).
+        """
         xf = np.array(x, dtype=float, copy=True)
         xf[i_rho0 + j] = -xf[i_rho0 + j]
         if j == 0 and not ch0_free:
@@ -1181,9 +1183,9 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         if prof["linear"]:
             i_g = 2 * c - 1 + ch0_free + j
             cov_free[i_g, i_g] += 3.0 * u2_rho[j] ** 2 / (4.0 * R_mm**2)
-    # Distinct minima from the mirror starts (and dips along the profiles): each is weighted by its
-    # likelihood ratio exp(-Delta/2), Delta = 2 (cost - cost_kept) / s^2, and its spread about the
-    # estimate w (p_min - p)(p_min - p)^T is added unless the profile of that rho already spans it.
+    # Distinct minima from the mirror starts (and dips along the profiles), each with its
+    # Delta = 2 (cost - cost_kept) / s^2 and whether the profile of every rho it moves already spans it;
+    # they are reported, not added to the covariance (see below).
     minima, seen = [], [p_hat]
     u_pub = np.sqrt(np.clip(np.diag(cov_free), 0.0, None))
     u_pub[u_pub == 0] = 1.0
@@ -1204,9 +1206,7 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         for dip in prof.get("profile_minima", []):
             minima.append({"source": f"profile of rho of channel {prof['channel']}", "rho_mm": dip["rho_mm"],
                            "delta_ssr_over_s2": dip["delta_ssr_over_s2"], "_p": None})
-    weights = [np.exp(-0.5 * max(m["delta_ssr_over_s2"], 0.0)) for m in minima]
-    total_w = 1.0 + float(sum(weights))
-    for m, wgt in zip(minima, weights):
+    for m in minima:
         p_alt = m.pop("_p")
         if p_alt is None:
             continue
@@ -1309,18 +1309,25 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
             "mirror_solutions": mirrors_tried,
             "mirror_check": [m.to_dict() for m in checks],
             "mirror_note": (
-                "per beam: the mirror's depth predicted by N e^4 rho^2 / (2 sigma^2 R^4) and refitted from -rho; "
-                f"resolved (no mirror, or delta chi^2 >= {RESOLVED_DCHI2:g}): one value, u from its own curvature; "
-                "flagged: two solutions with covariance, delta chi^2 and weight, the probability of the wrong sign, "
-                "the bore range where the calibration may be used and the spindle offset that would resolve it"
+                "per beam: the mirror's depth predicted by N e^4 "
+                "rho^2 / (2 sigma^2 R^4) and refitted from -rho; "
+                "resolved (no mirror, or delta chi^2 >= "
+                f"{RESOLVED_DCHI2:g}): one value, u from its own curvature; "
+                "flagged: two solutions with covariance, delta chi^2 "
+                "and weight, the probability of the wrong sign, "
+                "the bore range where the calibration may be used "
+                "and the spindle offset that would resolve it"
             ),
             "n_minima": 1 + len(minima),
             "minima": minima,
             "ambiguous_minima": bool(ambiguous),
             "minima_note": (
-                "distinct minima of SSR + prior besides the one kept (mirror starts, dips along the rho profiles), "
-                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; below 4 the data cannot reject it (ambiguous); "
-                "not in the covariance: a beam whose rho sign such a minimum flips is flagged in mirror_check and "
+                "distinct minima of SSR + prior besides the one kept "
+                "(mirror starts, dips along the rho profiles), "
+                "delta_ssr_over_s2 = 2 (cost - cost_kept) / s^2; "
+                "below 4 the data cannot reject it (ambiguous); "
+                "not in the covariance: a beam whose rho sign such "
+                "a minimum flips is flagged in mirror_check and "
                 "carried as two weighted solutions"
             ),
             "rho_profiles": profiles,
@@ -1358,8 +1365,11 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
 
 
 def _public_cov(x: np.ndarray, cov_int: np.ndarray, c: int, ch0_free: int, R_mm: float) -> np.ndarray:
-    """Covariance of the public free parameters (beta, rho, d_b, nuisance) from the internal one (psi, rho,
-    g, nuisance) at the internal vector ``x``: beta = psi - asin(rho / R), d_b = g - rho^2 / (2R)."""
+    """Return the covariance of the public free parameters from the internal one.
+
+    The public parameters are (beta, rho, d_b, nuisance), the internal ones (psi, rho, g, nuisance) at the
+    internal vector ``x``: beta = psi - asin(rho / R), d_b = g - rho^2 / (2R).
+    """
     i_rho0 = c - 1 + ch0_free
     rho = np.asarray(x[i_rho0 : i_rho0 + c], dtype=float)
     A = np.eye(cov_int.shape[0])

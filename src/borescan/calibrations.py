@@ -47,10 +47,12 @@ def failed_calibration_ids(verifications: pl.DataFrame) -> set[str]:
 
 
 def order_calibrations(calibrations: pl.DataFrame) -> pl.DataFrame:
-    """Calibrations in the order of their validity, the current one last: by ``valid_from``; of two
-    valid from the same night, a calibration on certified gauges after the design geometry (method
-    ``nominal``: a rod's drawing values, used only while it has nothing better), then the later made
-    (``started_at`` of its scan, when the frame has that column), then the calibration id."""
+    """Return the calibrations in the order of their validity, the current one last.
+
+    By ``valid_from``; of two valid from the same night, a calibration on certified gauges after the design
+    geometry (method ``nominal``: a rod's drawing values, used only while it has nothing better), then the
+    later made (``started_at`` of its scan, when the frame has that column), then the calibration id.
+    """
     if calibrations.height == 0:
         return calibrations
     keys = [pl.col("valid_from").cast(pl.Utf8)]
@@ -62,11 +64,14 @@ def order_calibrations(calibrations: pl.DataFrame) -> pl.DataFrame:
 
 
 def calibration_roles(calibrations: pl.DataFrame, failed_ids: set[str]) -> dict[str, str]:
-    """What each calibration of ``calibrations`` (rows of any devices) is in the history they make,
-    in :func:`order_calibrations`' order per device: ``failed verification``; ``superseded by <id>``
-    (a later calibration, of a rod a later gauge calibration); a rod's design geometry that a gauge
-    calibration replaces, ``design geometry, replaced by <id>``; the device's last one ``latest``
-    (whether it is still valid depends on the date: ``recalibration_due``, ``borescan status``)."""
+    """Return what each calibration of ``calibrations`` is in the history they make.
+
+    ``calibrations`` holds rows of any devices; the roles come in :func:`order_calibrations`' order per
+    device: ``failed verification``; ``superseded by <id>`` (a later calibration, of a rod a later gauge
+    calibration); a rod's design geometry that a gauge calibration replaces, ``design geometry, replaced by
+    <id>``; the device's last one ``latest`` (whether it is still valid depends on the date:
+    ``recalibration_due``, ``borescan status``).
+    """
     out: dict[str, str] = {}
     if calibrations.height == 0:
         return out
@@ -92,10 +97,10 @@ def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_
                        validity_days: int, allow_unverified: bool) -> tuple[str | None, str | None]:
     """Return the calibration a device's result of ``night`` must use, or the reason there is none.
 
-    The latest calibration of the device made on or before the night (same night included;
-    ties broken as :func:`order_calibrations` breaks them), if it is at most ``validity_days`` old and has not failed a
-    verification. A failed or expired latest calibration is refused (never silently replaced by
-    an older one) unless ``allow_unverified``.
+    The latest calibration of the device made on or before the night (same night included; ties broken as
+    :func:`order_calibrations` breaks them), if it is at most ``validity_days`` old and has not failed a
+    verification. A failed or expired latest calibration is refused (never silently replaced by an older
+    one) unless ``allow_unverified``.
 
     Returns
     -------
@@ -172,9 +177,12 @@ def calibration_rows(cal: TriCalibration, device_type: str, night: str, certific
 
 
 def _mirror_columns(m) -> dict:
-    """The ``calibrations`` columns of one beam's mirror check (:class:`borescan.mirror.BeamMirror`; a
-    calibration without one, e.g. yang2017: nulls). A resolved beam has p_wrong_sign 0 and no valid range
-    (every bore); ``valid_bore_max_mm`` null also where the range has no upper limit."""
+    """Return the ``calibrations`` columns of one beam's mirror check.
+
+    See :class:`borescan.mirror.BeamMirror`; a calibration without one (e.g. yang2017) has nulls. A resolved
+    beam has p_wrong_sign 0 and no valid range (every bore); ``valid_bore_max_mm`` null also where the range
+    has no upper limit.
+    """
     if m is None:
         return {}
     lo, hi = m.valid_bore_diameter_mm or (None, None)

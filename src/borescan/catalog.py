@@ -677,8 +677,10 @@ def _write_catalog(final: Path, work, queries_dir, plan=None) -> dict[str, int]:
 
 
 class CatalogDamaged(FileNotFoundError):
-    """``catalog.duckdb`` is not the file the pipeline wrote (truncated, overwritten): no intact
-    catalog is there. A ``FileNotFoundError`` so every command reports it as a missing catalog."""
+    """Raised when ``catalog.duckdb`` is not the file the pipeline wrote (truncated, overwritten).
+
+    A ``FileNotFoundError`` so every command reports it as a missing catalog.
+    """
 
 
 def _seal_path(final: Path) -> Path:
@@ -691,8 +693,10 @@ def _write_seal(final: Path) -> None:
 
 
 def set_aside_damaged(results_root: str | os.PathLike, dry_run: bool = False) -> str | None:
-    """Move a damaged ``catalog.duckdb`` to ``catalog.duckdb.damaged`` (the workflow then rebuilds the
-    catalog from the stage tables, and the report after it); return the message, None when intact."""
+    """Move a damaged ``catalog.duckdb`` to ``catalog.duckdb.damaged``; return the message, None when intact.
+
+    The workflow then rebuilds the catalog from the stage tables, and the report after it.
+    """
     final = catalog_path(results_root)
     why = catalog_damage(final)
     if why is None:
@@ -705,8 +709,10 @@ def set_aside_damaged(results_root: str | os.PathLike, dry_run: bool = False) ->
 
 
 def catalog_damage(path: str | os.PathLike) -> str | None:
-    """Why ``path`` (a ``catalog.duckdb``) is not the catalog the pipeline wrote, or None when it is
-    (or when there is no catalog, or it was written before catalogs were sealed)."""
+    """Return why ``path`` (a ``catalog.duckdb``) is not the catalog the pipeline wrote, or None.
+
+    None also when there is no catalog, or when it was written before catalogs were sealed.
+    """
     final = Path(path)
     seal = _seal_path(final)
     if not final.is_file() or not seal.is_file():

@@ -1,4 +1,6 @@
-"""Calibration certificates: ``certificate.json``, ``certificate.pdf``, ``certificate.dcc.xml`` and ``residuals.png``.
+"""Calibration certificates.
+
+The documents are ``certificate.json``, ``certificate.pdf``, ``certificate.dcc.xml`` and ``residuals.png``.
 
 Written into ``results_root/calibration/<device_id>/<calibration_id>/`` (``outputs.md``).
 
@@ -504,9 +506,11 @@ def _traceability_text(art: dict) -> str:
 
 
 def _standard_statement(lab: dict) -> str:
-    """What the certificate says of ISO/IEC 17025: "issued in accordance with" only under an
-    accreditation the config states (laboratory.accreditation); else its content follows 7.8 and no
-    accreditation is claimed."""
+    """Return what the certificate says of ISO/IEC 17025.
+
+    "issued in accordance with" only under an accreditation the config states (laboratory.accreditation); else
+    its content follows 7.8 and no accreditation is claimed.
+    """
     acc = str(lab.get("accreditation") or "")
     if not acc or acc.upper().startswith("PLACEHOLDER") or "no accreditation" in acc.lower():
         return ("The content of this certificate follows ISO/IEC 17025:2017 7.8; the laboratory claims no "
@@ -515,16 +519,21 @@ def _standard_statement(lab: dict) -> str:
 
 
 def _decision_rule_text(lab: dict) -> str:
-    """The laboratory's decision rule (:mod:`borescan.decision`) in words; E the error of the diameter
-    at 20 degC, T the tolerance, w the guard band."""
+    """Return the laboratory's decision rule (:mod:`borescan.decision`) in words.
+
+    E is the error of the diameter at 20 degC, T the tolerance, w the guard band.
+    """
     f = lab.get("guard_band_factor")
-    tail = ("E the error of the diameter at 20 degC, U(E) its expanded uncertainty, T the tolerance. A result whose "
+    tail = ("E the error of the diameter at 20 degC, U(E) its "
+            "expanded uncertainty, T the tolerance. A result whose "
             "U(E) is not below T is never stated to conform.")
     if lab.get("decision_rule") in ("guard_band", "guarded_acceptance"):
-        return (f"Guarded acceptance (ILAC-G8:09/2019 4.2.2, ISO 14253-1): conforms when |E| <= T - w, w = {f} U(E); "
+        return ("Guarded acceptance (ILAC-G8:09/2019 4.2.2, ISO "
+                f"14253-1): conforms when |E| <= T - w, w = {f} U(E); "
                 f"does not conform when |E| > T; between, cannot decide (not accepted). " + tail)
     if lab.get("decision_rule") == "guarded_rejection":
-        return (f"Guarded rejection (ILAC-G8:09/2019 4.2.3, ISO 14253-1): does not conform when |E| > T + w, w = {f} "
+        return ("Guarded rejection (ILAC-G8:09/2019 4.2.3, ISO "
+                f"14253-1): does not conform when |E| > T + w, w = {f} "
                 f"U(E); conforms when |E| <= T; between, cannot decide (not rejected). " + tail)
     return ("Simple acceptance (ILAC-G8:09/2019 4.2.1): conforms when |E| <= T (guard band w = 0), else does not "
             "conform; at the limit the probability of a false accept reaches 50 %. " + tail)
@@ -533,7 +542,8 @@ def _decision_rule_text(lab: dict) -> str:
 def _conformity(ver: list[dict]) -> dict:
     if not ver:
         return {"conformity": "noStatement",
-                "text": "No verification scan of this device was taken in the calibration night: conformity is not stated."}
+                "text": "No verification scan of this device was taken in "
+                        "the calibration night: conformity is not stated."}
     verdicts = [split_verdict(v.get("conformity"))[0] or (CONFORMS if v.get("passed") else DOES_NOT_CONFORM)
                 for v in ver]
     ok = all(bool(v.get("passed")) for v in ver)
@@ -546,7 +556,8 @@ def _conformity(ver: list[dict]) -> dict:
         else CONFORMS
     head = ("Whether the device conforms to the verification tolerance cannot be decided" if overall == CANNOT_DECIDE
             else f"The device {overall.replace('does not', 'does NOT')} to the verification tolerance")
-    text = (f"{head} under the stated decision rule: of {len(ver)} verifications on certified ring gauges {counts} "
+    text = (f"{head} under the stated decision rule: of {len(ver)} "
+            f"verifications on certified ring gauges {counts} "
             f"({n_pass} accepted by the rule).")
     if guard:
         text += " The expanded uncertainty is not below the tolerance (" + "; ".join(guard) + \
@@ -950,8 +961,10 @@ def _page_results(d: _Doc) -> None:
 
 
 def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
-    """Section 5: each beam's mirror check (certificate.json ``rho_sign``): the flagged beams' statement,
-    both solutions, the bore range and the fix; one line for the resolved ones."""
+    """Return section 5 of the certificate: each beam's mirror check (certificate.json ``rho_sign``).
+
+    The flagged beams' statement, both solutions, the bore range and the fix; one line for the resolved ones.
+    """
     rs = c.get("rho_sign") or {}
     checks = rs.get("beams") or []
     if not checks:
@@ -960,23 +973,29 @@ def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
     resolved = [str(m["channel"]) for m in checks if m["resolved"]]
     if resolved:
         d.para(f"Sign of rho resolved for channel(s) {', '.join(resolved)} (no mirror solution, or one at least "
-               f"{rs['resolved_delta_chi2']:g} in chi^2 above the solution): their uncertainties are the fit's own.")
+               f"{rs['resolved_delta_chi2']:g} in chi^2 above the "
+               "solution): their uncertainties are the fit's own.")
     for m in flagged:
         d.para(m["statement"].replace("the sign", "The sign", 1) + ".")
         alt = m["alternative"]
         u_main = m["u_main"]
-        d.para(f"Channel {m['channel']}, solution 1 (weight {m['weight_main']:.4f}): beta {u_main['beta_rad']:.6f} rad, "
-               f"rho {u_main['rho_mm']:+.4f} mm, d_b {u_main['d_b_mm']:.4f} mm; solution 2 (weight {alt['weight']:.4f}, "
-               f"delta chi^2 {alt['delta_chi2']:.2f}): beta {alt['beta_rad']:.6f} rad, rho {alt['rho_mm']:+.4f} mm, "
+        d.para(f"Channel {m['channel']}, solution 1 (weight "
+               f"{m['weight_main']:.4f}): beta {u_main['beta_rad']:.6f} rad, "
+               f"rho {u_main['rho_mm']:+.4f} mm, d_b {u_main['d_b_mm']:.4f} "
+               f"mm; solution 2 (weight {alt['weight']:.4f}, "
+               f"delta chi^2 {alt['delta_chi2']:.2f}): beta "
+               f"{alt['beta_rad']:.6f} rad, rho {alt['rho_mm']:+.4f} mm, "
                f"d_b {alt['d_b_mm']:.4f} mm. Both solutions' covariances are in certificate.json (rho_sign). "
                "A diameter measured with this calibration carries both (Monte Carlo, JCGM 101) and is refused "
                "outside the bore range above.")
 
 
 def rho_sign_part(cal: TriCalibration) -> dict:
-    """certificate.json ``rho_sign``: per beam the mirror check (:class:`borescan.mirror.BeamMirror`) with its
-    statement; a flagged beam's two solutions (parameters of its own channel, the full (3c,) vectors and
-    covariances)."""
+    """Return certificate.json's ``rho_sign``: per beam the mirror check with its statement.
+
+    Per beam the mirror check (:class:`borescan.mirror.BeamMirror`) with its statement; a flagged beam's two
+    solutions (parameters of its own channel, the full (3c,) vectors and covariances).
+    """
     from borescan.mirror import RESOLVED_DCHI2, mirror_checks_of
 
     beams = []
@@ -1359,10 +1378,12 @@ def write_certificate(
 
 
 def write_certificate_files(cert: dict, out_dir: Path | str, residuals: dict | None = None) -> dict[str, Path]:
-    """Write the documents of the certificate whose content is ``cert`` into ``out_dir``:
-    ``certificate.json``, ``certificate.dcc.xml`` (:mod:`borescan.certificate_dcc`), ``certificate.pdf``
-    and, for a three-sensor certificate, ``residuals.png`` (``residuals``: t_s [s], residual_mm [mm]).
-    Returns the paths by key (json, dcc, pdf, png); the same content gives the same bytes."""
+    """Write the documents of the certificate whose content is ``cert`` into ``out_dir``.
+
+    ``certificate.json``, ``certificate.dcc.xml`` (:mod:`borescan.certificate_dcc`), ``certificate.pdf`` and,
+    for a three-sensor certificate, ``residuals.png`` (``residuals``: t_s [s], residual_mm [mm]). Returns the
+    paths by key (json, dcc, pdf, png); the same content gives the same bytes.
+    """
     import matplotlib
 
     out_dir = Path(out_dir)
@@ -1450,7 +1471,8 @@ def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte,
 
     ``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
     the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
-    the budget per layer, each layer's gauge and the solve's diagnostics."""
+    the budget per layer, each layer's gauge and the solve's diagnostics.
+    """
     p = float(schema_default("uncertainty", "coverage_probability") if coverage_probability is None
               else coverage_probability)
     results, budgets = _rod_results(cal, p)
@@ -1575,6 +1597,9 @@ def _rod_pages(cert: dict) -> list[Figure]:
 
 
 def write_rod_certificate(cal, out_dir: Path | str, **kw) -> dict[str, Path]:
-    """Write ``certificate.json``, ``certificate.dcc.xml`` and ``certificate.pdf`` of a rod calibration into ``out_dir``
-    (arguments of :func:`rod_certificate_dict`). Same inputs give byte-identical files."""
+    """Write ``certificate.json``, ``certificate.dcc.xml`` and ``certificate.pdf`` of a rod calibration.
+
+    Into ``out_dir``, from the arguments of :func:`rod_certificate_dict`. Same inputs give byte-identical
+    files.
+    """
     return write_certificate_files(rod_certificate_dict(cal, **kw), out_dir)

@@ -104,8 +104,10 @@ def _item(adm: ET.Element, cert: dict) -> None:
     _text(item, "name", item_in.get("name") or "")
     sensors = item_in.get("sensors") or []
     _text(item, "description", *(
-        [f"channel {s.get('channel')}: laser displacement sensor {s.get('model')}, serial {s.get('serial')}, "
-         f"range {s.get('range_mm')} mm, linearity {s.get('linearity_fs')} of full scale, repeatability "
+        [f"channel {s.get('channel')}: laser displacement "
+         f"sensor {s.get('model')}, serial {s.get('serial')}, "
+         f"range {s.get('range_mm')} mm, linearity "
+         f"{s.get('linearity_fs')} of full scale, repeatability "
          f"{s.get('repeatability_mm')} mm" for s in sensors] or ["no sensors listed in scan.json"]))
     man = _sub(item, _d("manufacturer"))
     models = sorted({str(s.get("model")) for s in sensors if s.get("model")})
@@ -145,8 +147,10 @@ def _statement(parent: ET.Element, st: dict) -> None:
 
 
 def _statements(cert: dict) -> list[dict]:
-    """The certificate's statements plus those the DCC states in its own words: date of issue,
-    accreditation, place of calibration, weak or two-solution parameters, device-model effects."""
+    """Return the certificate's statements plus those the DCC states in its own words.
+
+    Date of issue, accreditation, place of calibration, weak or two-solution parameters, device-model effects.
+    """
     adm, lab, fit = cert["administrativeData"], cert.get("laboratory") or {}, cert.get("fit") or {}
     out = [dict(st) for st in adm.get("statements") or []]  # copies: the content is not changed
     for st in out:  # the issue date of the certificate (DCC 3.1.2 has no coreData element for it)
@@ -157,7 +161,8 @@ def _statements(cert: dict) -> list[dict]:
     weak = [f"rho of channel {ch} weakly determined" for ch in fit.get("weak_rho_channels") or []]
     weak += [f"rho of channel {ch}: cost along rho not linear (profiled)" for ch in fit.get("rho_profiled_channels") or []]
     if fit.get("n_minima") is not None:
-        weak.append(f"{fit.get('n_minima')} minima of the cost found; ambiguous: {_plain(fit.get('ambiguous_minima'))}")
+        weak.append(f"{fit.get('n_minima')} minima of the cost found; "
+                    f"ambiguous: {_plain(fit.get('ambiguous_minima'))}")
     if weak:
         out.append({"refType": "borescan_weakParameters", "declaration": "; ".join(weak)})
     model = fit.get("device_model") or []
@@ -249,8 +254,11 @@ def _equipment(mr: ET.Element, m_in: dict, p: float) -> None:
 
 
 def _gauge_quantities(qs: ET.Element, e: dict) -> None:
-    """A reference gauge's certified diameter (U and k of its certificate; the coverage probability
-    of k for a normal distribution when the certificate gives only k) and the rest of its record."""
+    """Return a reference gauge's certified diameter and the rest of its record.
+
+    The diameter has the U and k of its certificate; when the certificate gives only k, the coverage
+    probability of k for a normal distribution.
+    """
     cd = e.get("certifiedDiameter") or {"value": e.get("certified_diameter_mm"), "expandedUnc": {
         "uncertainty": e.get("u_diameter_mm"), "coverageFactor": e.get("k")}}
     if _is_num(cd.get("value")):
@@ -270,9 +278,11 @@ def _gauge_quantities(qs: ET.Element, e: dict) -> None:
 
 
 def _conditions(mr: ET.Element, cond: dict, p: float) -> None:
-    """The influence conditions: the gauge temperature (U for the certificate's coverage probability
-    ``p``), the gauge and machine (expansion coefficient, radius at temperature, position accuracy)
-    and the calibration scans."""
+    """Return the influence conditions of the calibration.
+
+    The gauge temperature (U for the certificate's coverage probability ``p``), the gauge and machine
+    (expansion coefficient, radius at temperature, position accuracy) and the calibration scans.
+    """
     lst = _sub(mr, _d("influenceConditions"))
     t = cond.get("temperature") or {}
     el = _sub(lst, _d("influenceCondition"), refType="basic_temperature")
@@ -317,8 +327,11 @@ def _result_unit(r: dict) -> Unit:
 
 def _parameter_list(parent: ET.Element, label: str, results: list[dict], idx: list[int], cov: list[list] | None,
                     p: float) -> None:
-    """``si:list`` > ``si:realList`` of the results ``idx`` with their U and, from ``cov``, the
-    ``si:ellipsoidalRegion`` of their joint covariance (SI units, coverage factor of the region)."""
+    """Return the ``si:list`` of the results ``idx`` with their U and their joint ellipsoidal region.
+
+    It is ``si:list`` > ``si:realList``; the region, from ``cov``, is a ``si:ellipsoidalRegion`` (SI units,
+    coverage factor of the region).
+    """
     sl = _sub(parent, _s("list"))
     rl = _sub(sl, _s("realList"))
     _sub(rl, _s("label"), label)
@@ -345,8 +358,11 @@ def _parameter_list(parent: ET.Element, label: str, results: list[dict], idx: li
 
 
 def _budget(parent: ET.Element, name: str, entry: dict) -> None:
-    """One result's GUM budget: rows (estimate and u in the input's unit, sensitivity, contribution
-    in the result's unit) and the combination."""
+    """Return one result's GUM budget.
+
+    Rows (estimate and u in the input's unit, sensitivity, contribution in the result's unit) and the
+    combination.
+    """
     lst = _sub(parent, _d("list"), refType="borescan_uncertaintyBudget")
     _text(lst, "name", name)
     out_unit = entry.get("unit") or "-"
@@ -399,7 +415,10 @@ def _results(mr: ET.Element, cert: dict, m_in: dict, p: float) -> None:
 
 
 def _verification(parent: ET.Element, v: dict) -> None:
-    """A verification on a certified gauge: its numbers (budget rows in their units) and its conformity."""
+    """Return a verification on a certified gauge: its numbers and its conformity.
+
+    The numbers are the budget rows in their units.
+    """
     res = _sub(parent, _d("result"), refType="basic_verification")
     feat = f" {v['feature']}" if v.get("feature") else ""
     _text(res, "name", f"verification {v.get('scan_id')}{feat} on {v.get('artifact_id')}")
@@ -450,8 +469,10 @@ def _measurement_results(root: ET.Element, cert: dict) -> None:
 
 
 def _record_unit(key: str, cert: dict):
-    """Units of a record section whose numbers the key suffix does not name (a covariance by its
-    parameters' units, a correlation dimensionless)."""
+    """Return the units of a record section whose numbers the key suffix does not name.
+
+    A covariance has its parameters' units, a correlation is dimensionless.
+    """
     if key == "correlation":
         return lambda _k: dsi_unit("-")
     return None
@@ -461,7 +482,7 @@ def _record_unit(key: str, cert: dict):
 
 
 def dcc_bytes(cert: dict) -> bytes:
-    """The DCC of the certificate whose ``certificate.json`` content is ``cert`` (UTF-8 XML bytes)."""
+    """Return the DCC of the certificate whose ``certificate.json`` content is ``cert`` (UTF-8 XML bytes)."""
     cert = copy.deepcopy(cert)  # the caller's content stays as it is (it is also written as certificate.json)
     root = ET.Element(_d("digitalCalibrationCertificate"), {"schemaVersion": DCC_SCHEMA_VERSION})
     _administrative(root, cert)
@@ -478,7 +499,7 @@ def write_dcc(cert: dict, out_dir: Path | str) -> Path:
 
 
 def schema_path() -> Path:
-    """The DCC 3.1.2 schema shipped with the package (it imports the D-SI 2.1.0 schema beside it)."""
+    """Return the DCC 3.1.2 schema shipped with the package (it imports the D-SI 2.1.0 schema beside it)."""
     return Path(__file__).resolve().parent / "schemas" / "dcc" / "dcc-3.1.2.xsd"
 
 
@@ -486,8 +507,10 @@ _SCHEMA = None
 
 
 def validate_dcc(source: Path | str | bytes) -> None:
-    """Validate a DCC (a path or the bytes) against the shipped schema, offline (``xmlschema``);
-    raise ValueError naming the document and the first problem."""
+    """Validate a DCC (a path or the bytes) against the shipped schema, offline (``xmlschema``).
+
+    Raise ValueError naming the document and the first problem.
+    """
     try:
         import xmlschema
     except ImportError:  # the pipeline writes DCCs without it; only validation needs it

@@ -101,8 +101,11 @@ def laboratory_sha256(lab: dict) -> str:
 
 def issue_row(cert_paths: dict[str, Path], results_root: Path | str, night: str, residuals: dict | None = None,
               ) -> dict:
-    """The ``stage/certificate_issues`` row of a certificate just written (``cert_paths``: the paths
-    :func:`borescan.certificate.write_certificate_files` returned; ``residuals`` the plot's arrays)."""
+    """Return the ``stage/certificate_issues`` row of a certificate just written.
+
+    ``cert_paths``: the paths :func:`borescan.certificate.write_certificate_files` returned; ``residuals`` the
+    plot's arrays.
+    """
     cert = json.loads(Path(cert_paths["json"]).read_text())
     out_dir = Path(cert_paths["json"]).parent
     folder = Path("calibration") / cert["device_id"] / cert["calibration_id"]
@@ -124,7 +127,7 @@ def issue_row(cert_paths: dict[str, Path], results_root: Path | str, night: str,
 
 
 def issue_frame(rows: list[dict]) -> pl.DataFrame:
-    """The rows as a ``stage/certificate_issues`` table (empty with its schema when there are none)."""
+    """Return the rows as a ``stage/certificate_issues`` table (empty with its schema when there are none)."""
     return pl.DataFrame(rows, schema=_SCHEMA, orient="row") if rows else pl.DataFrame(schema=_SCHEMA)
 
 
@@ -141,8 +144,10 @@ def _issue(r: dict) -> CertificateIssue:
 
 
 def read_issues(results_root: Path | str) -> list[CertificateIssue]:
-    """Every recorded issue, ordered by (calibration id, issue); a reissue takes its residuals from
-    the original's record."""
+    """Return every recorded issue, ordered by (calibration id, issue).
+
+    A reissue takes its residuals from the original's record.
+    """
     base = Path(results_root) / ISSUE_TABLE
     files = sorted(base.glob("night=*.parquet")) + sorted((base / "reissues").glob("*.parquet"))
     rows = [r for f in files for r in pl.read_parquet(f).to_dicts()]
@@ -153,7 +158,7 @@ def read_issues(results_root: Path | str) -> list[CertificateIssue]:
 
 
 def issues_of(results_root: Path | str, ident: str) -> list[CertificateIssue]:
-    """The issues of the calibration or document ``ident`` (every issue of its calibration)."""
+    """Return the issues of the calibration or document ``ident`` (every issue of its calibration)."""
     issues = read_issues(results_root)
     cal_ids = {i.calibration_id for i in issues if ident in (i.calibration_id, i.document_id)}
     return [i for i in issues if i.calibration_id in cal_ids]
@@ -176,8 +181,11 @@ def _catalog_sha256(results_root: Path, calibration_id: str) -> str | None:
 
 
 def _relabelled(latest: CertificateIssue, lab: dict, issue_date: str) -> dict:
-    """The content of a new issue of ``latest`` under the laboratory section ``lab``: new document
-    id, date of issue and laboratory data, the reference to the document replaced; results unchanged."""
+    """Return the content of a new issue of ``latest`` under the laboratory section ``lab``.
+
+    New document id, date of issue and laboratory data, the reference to the document replaced; results
+    unchanged.
+    """
     old = latest.content
     changed = sorted(k for k in set(lab) | set(old["laboratory"]) if lab.get(k) != old["laboratory"].get(k))
     verdict = [k for k in changed if k in _VERDICT_KEYS]
@@ -208,11 +216,13 @@ def _relabelled(latest: CertificateIssue, lab: dict, issue_date: str) -> dict:
 
 def reissue(results_root: Path | str, ident: str, laboratory: dict, *, fmt: str = "all", out_dir: Path | str | None = None,
             issue_date: str | None = None) -> Reissued:
-    """Reissue the certificate of calibration (or document) ``ident`` from the history under the
-    config's ``laboratory`` section (see the module docstring). ``fmt``: a key of :data:`FORMATS`;
-    ``out_dir``: where to write (default: the issue's own folder: an original's night folder, whose
-    link ``calibration/<device>/<id>`` the caller restores); ``issue_date``: of a new document
-    (default: today, UTC). Raises ValueError naming the certificate when it cannot."""
+    """Reissue the certificate of calibration (or document) ``ident`` from the history.
+
+    The laboratory data come from the config's ``laboratory`` section (see the module docstring). ``fmt``: a
+    key of :data:`FORMATS`; ``out_dir``: where to write (default: the issue's own folder: an original's night
+    folder, whose link ``calibration/<device>/<id>`` the caller restores); ``issue_date``: of a new document
+    (default: today, UTC). Raises ValueError naming the certificate when it cannot.
+    """
     root = Path(results_root)
     issues = issues_of(root, ident)
     if not issues:
@@ -258,8 +268,10 @@ def reissue(results_root: Path | str, ident: str, laboratory: dict, *, fmt: str 
 
 
 def _default_dir(root: Path, latest: CertificateIssue, folder: Path, new_doc: bool) -> Path:
-    """The folder a reissue writes to by default: an original's night folder (its
-    ``calibration/<device>/<id>`` link is restored), a reissue's own folder."""
+    """Return the folder a reissue writes to by default.
+
+    An original's night folder (its ``calibration/<device>/<id>`` link is restored), a reissue's own folder.
+    """
     if new_doc or latest.issue > 0:
         return root / folder
     return root / "calibration" / f"night={latest.night}" / latest.device_id / latest.calibration_id

@@ -127,7 +127,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _is_duckdb_error(err: BaseException) -> bool:
-    """A DuckDB error (the module is imported only by the commands that open the catalog)."""
+    """Return whether ``err`` is a DuckDB error.
+
+    The module is imported only by the commands that open the catalog.
+    """
     duckdb = sys.modules.get("duckdb")
     return duckdb is not None and isinstance(err, duckdb.Error)
 

@@ -46,9 +46,10 @@ def _defaults_of(schema_path: str) -> dict:
 
 
 def schema_default(*keys: str) -> Any:
-    """The schema's default of one setting, e.g. ``schema_default("uncertainty", "coverage_probability")``:
-    what a library function uses for a keyword its caller leaves unset, so that the default lives in
-    the schema only (read once per process).
+    """Return the schema's default of one setting (read once per process).
+
+    E.g. ``schema_default("uncertainty", "coverage_probability")``: what a library function uses for a keyword
+    its caller leaves unset, so that the default lives in the schema only (read once per process).
 
     Raises
     ------
@@ -70,8 +71,11 @@ def _merge(base: dict, over: dict) -> dict:
 
 
 class ConfigError(ValueError):
-    """A config that is not YAML or breaks the schema; ``str()`` names the file, the key and the problem
-    in one line (a mistyped key, a wrong type, a value out of range), never the schema itself."""
+    """A config that is not YAML or breaks the schema.
+
+    ``str()`` names the file, the key and the problem in one line (a mistyped key, a wrong type, a value out
+    of range), never the schema itself.
+    """
 
 
 def _key_path(err) -> str:
@@ -79,7 +83,7 @@ def _key_path(err) -> str:
 
 
 def _one_line(err) -> str:
-    """A jsonschema error as ``key: problem``, the schema left out."""
+    """Return a jsonschema error as ``key: problem``, the schema left out."""
     if err.validator == "additionalProperties":
         allowed = sorted((err.schema.get("properties") or {}).keys())
         extra = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []
@@ -105,8 +109,11 @@ def check_config(config: dict, source: str = "config", schema_path: Path | str =
 
 
 def load_config(path: Path | str | None = None, schema_path: Path | str = SCHEMA_PATH) -> dict:
-    """The config at ``path`` (none: the schema's defaults alone) with every missing key defaulted,
-    checked against the schema (:class:`ConfigError` when it is not YAML or breaks it)."""
+    """Return the config at ``path`` with every missing key defaulted, checked against the schema.
+
+    No ``path``: the schema's defaults alone. Raise :class:`ConfigError` when it is not YAML or breaks the
+    schema.
+    """
     source = str(path) if path is not None else "schema defaults"
     try:
         user = yaml.safe_load(Path(path).read_text()) if path is not None else {}
@@ -120,7 +127,10 @@ def load_config(path: Path | str | None = None, schema_path: Path | str = SCHEMA
 
 
 def load_configs(paths, schema_path: Path | str = SCHEMA_PATH) -> dict:
-    """Config files merged in order over the schema's defaults, as the Snakefile's ``configfile:`` lines are."""
+    """Return the config files merged in order over the schema's defaults.
+
+    Merged as the Snakefile's ``configfile:`` lines are.
+    """
     out = schema_defaults(schema_path)
     for path in paths:
         out = _merge(out, yaml.safe_load(Path(path).read_text()) or {})

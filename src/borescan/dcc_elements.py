@@ -39,9 +39,12 @@ class Unit:
 
 
 def dsi_unit(unit: str, per: str | None = None, times: str | None = None) -> Unit:
-    """The D-SI unit of a certificate.json unit (``mm`` -> ``\\metre`` with shift -3), of the ratio
-    ``unit / per`` (a sensitivity coefficient) or of the product ``unit * times`` (a covariance);
-    base units in alphabetical order. An unknown unit raises ValueError naming it."""
+    r"""Return the D-SI unit of a certificate.json unit, of a ratio of units or of a product of units.
+
+    ``mm`` -> ``\metre`` with shift -3; the ratio ``unit / per`` is a sensitivity coefficient, the product
+    ``unit * times`` a covariance; base units in alphabetical order. An unknown unit raises ValueError naming
+    it.
+    """
     powers: dict[str, int] = {}
     shift = 0
     for u, sign in ((unit, 1), (per, -1), (times, 1)):
@@ -58,7 +61,10 @@ def dsi_unit(unit: str, per: str | None = None, times: str | None = None) -> Uni
 
 
 def key_unit(key: str) -> str:
-    """The unit a certificate.json key names by its suffix (``_mm``, ``_rad``, ``_c``, ``_per_k``, ...)."""
+    """Return the unit a certificate.json key names by its suffix.
+
+    The suffixes are ``_mm``, ``_rad``, ``_c``, ``_per_k``, ...
+    """
     tokens = key.lower().split("_")
     if key.endswith("_rad_s"):
         return "rad/s"
@@ -75,8 +81,10 @@ def key_unit(key: str) -> str:
 
 
 def decimal_text(x: float, shift: int = 0) -> str:
-    """``x`` as printed by certificate.json (shortest repr of its 12-digit float), times 10**shift by
-    moving the exponent: the D-SI decimal carries exactly the JSON's digits."""
+    """Return ``x`` as printed by certificate.json, times 10**shift by moving the exponent.
+
+    Printed as the shortest repr of its 12-digit float: the D-SI decimal carries exactly the JSON's digits.
+    """
     if isinstance(x, bool) or not isinstance(x, (int, float)):
         raise TypeError(f"not a number: {x!r}")
     if isinstance(x, float) and not math.isfinite(x):
@@ -92,14 +100,17 @@ def decimal_text(x: float, shift: int = 0) -> str:
 
 
 def d(tag: str) -> str:
+    """Return ``tag`` qualified by the DCC namespace."""
     return f"{{{NS_DCC}}}{tag}"
 
 
 def s(tag: str) -> str:
+    """Return ``tag`` qualified by the D-SI namespace."""
     return f"{{{NS_SI}}}{tag}"
 
 
 def sub(parent: ET.Element, tag: str, text: str | None = None, **attrib: str) -> ET.Element:
+    """Append a ``tag`` element to ``parent`` with ``text`` and the attributes that are not None."""
     el = ET.SubElement(parent, tag, {k.replace("_", ""): v for k, v in attrib.items() if v is not None})
     if text is not None:
         el.text = text
@@ -107,7 +118,7 @@ def sub(parent: ET.Element, tag: str, text: str | None = None, **attrib: str) ->
 
 
 def text(parent: ET.Element, tag: str, *contents: str, ref_type: str | None = None) -> ET.Element:
-    """A DCC ``textType`` / ``richContentType`` element with one ``content`` (lang en) per text."""
+    """Return a DCC ``textType`` / ``richContentType`` element with one ``content`` (lang en) per text."""
     el = sub(parent, d(tag), refType=ref_type) if ref_type else sub(parent, d(tag))
     for c in contents or ("",):
         sub(el, d("content"), str(c), lang="en")
@@ -115,6 +126,7 @@ def text(parent: ET.Element, tag: str, *contents: str, ref_type: str | None = No
 
 
 def is_num(x: Any) -> bool:
+    """Return whether ``x`` is a finite int or float (a bool is not a number)."""
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
@@ -131,6 +143,7 @@ def expanded_unc(parent: ET.Element, eu: dict, unit: Unit) -> None:
 
 def real(parent: ET.Element, tag: str, value: float, unit: Unit, label: str | None = None,
           expanded: dict | None = None) -> ET.Element:
+    """Append an ``si:real`` (label, value in ``unit``, optional expanded uncertainty) to ``parent``."""
     el = sub(parent, tag)
     if label is not None:
         sub(el, s("label"), label)
@@ -143,8 +156,11 @@ def real(parent: ET.Element, tag: str, value: float, unit: Unit, label: str | No
 
 def quantity(parent: ET.Element, name: str, value: Any, unit: Unit | None = None, *, ref_type: str | None = None,
               expanded: dict | None = None) -> ET.Element:
-    """A ``dcc:quantity`` named ``name``: a number as ``si:real`` (in ``unit``, default by the name's
-    suffix), a list of numbers as ``si:realListXMLList``, anything else as ``dcc:noQuantity`` text."""
+    """Return a ``dcc:quantity`` named ``name`` for a number, a list of numbers or anything else.
+
+    A number as ``si:real`` (in ``unit``, default by the name's suffix), a list of numbers as
+    ``si:realListXMLList``, anything else as ``dcc:noQuantity`` text.
+    """
     q = sub(parent, d("quantity"), refType=ref_type)
     text(q, "name", name)
     if is_num(value):
@@ -160,6 +176,7 @@ def quantity(parent: ET.Element, name: str, value: Any, unit: Unit | None = None
 
 
 def plain(value: Any) -> str:
+    """Return ``value`` as the plain text of a ``dcc:noQuantity`` (null, true/false, a list comma-joined)."""
     if value is None:
         return "null"
     if isinstance(value, bool):
@@ -176,9 +193,12 @@ def nested(value: Any) -> bool:
 
 
 def record(parent: ET.Element, name: str, value: Any, unit_of=None, wrap: bool = False) -> None:
-    """``value`` (a certificate.json subtree) as nested ``dcc:list`` / ``dcc:quantity`` named by its keys
-    (list items ``name[i]``), numbers with the unit their key names (``unit_of(key)`` overrides). A
-    ``dcc:list`` holds lists or quantities, not both: with ``wrap`` a scalar becomes a list of one."""
+    """Return ``value`` (a certificate.json subtree) as nested ``dcc:list`` / ``dcc:quantity``.
+
+    Named by its keys (list items ``name[i]``), numbers with the unit their key names (``unit_of(key)``
+    overrides). A ``dcc:list`` holds lists or quantities, not both: with ``wrap`` a scalar becomes a list of
+    one.
+    """
     if nested(value):
         items = sorted(value.items()) if isinstance(value, dict) else [(f"{name}[{i}]", v) for i, v in enumerate(value)]
         lst = sub(parent, d("list"))

@@ -1,5 +1,7 @@
-"""Decision rules: a measured error against a tolerance, with its expanded uncertainty (ILAC-G8:09/2019,
-ISO 14253-1:2017), the one place every verdict of the project comes from (verifications, parts).
+"""Decision rules: a measured error against a tolerance, with its expanded uncertainty.
+
+The rules of ILAC-G8:09/2019 and ISO 14253-1:2017, the one place every verdict of the project comes from
+(verifications, parts).
 
 With ``E`` the error (measured - reference, or a part's deviation from its nominal), ``U`` its
 expanded uncertainty, ``T`` the tolerance (+- T) and the guard band ``w = guard_band_factor * U``:
@@ -61,6 +63,7 @@ class Decision:
 
     @property
     def rule_text(self) -> str:
+        """Return the decision rule in words, with its ILAC-G8 clause and guard band."""
         clause, what = DECISION_RULES[self.rule]
         w = f", w = {self.guard_band_mm * 1e3:.1f} um" if self.guard_band_mm > 0 else ""
         return f"{what} (ILAC-G8:09/2019 {clause}{w})"
@@ -74,7 +77,8 @@ class Decision:
     @property
     def statement(self) -> str:
         """The verdict as a sentence with the rule, the guard band and the numbers it rests on."""
-        text = (f"{self.verdict.upper()}: |E| = {abs(self.error_mm) * 1e3:.2f} um, U(E) = {self.U_mm * 1e3:.2f} um, "
+        text = (f"{self.verdict.upper()}: |E| = {abs(self.error_mm) * 1e3:.2f} "
+                f"um, U(E) = {self.U_mm * 1e3:.2f} um, "
                 f"tolerance T = {self.tolerance_mm * 1e3:.2f} um; rule: {self.rule_text}")
         if self.verdict == CANNOT_DECIDE:
             text += ("; U(E) is not smaller than the tolerance" if self.U_mm >= self.tolerance_mm
@@ -85,9 +89,11 @@ class Decision:
 
 def decision(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "simple_acceptance",
              guard_band_factor: float = 1.0) -> Decision:
-    """The verdict on ``error_mm`` (E) with expanded uncertainty ``U_mm`` against +- ``tolerance_mm``
-    under ``rule`` (module docstring); the guard band is ``guard_band_factor * U_mm`` for the guarded
-    rules, 0 for simple acceptance."""
+    """Return the verdict on ``error_mm`` (E) with expanded uncertainty ``U_mm`` against +- ``tolerance_mm``.
+
+    ``rule`` is one of the module docstring's rules; the guard band is ``guard_band_factor * U_mm`` for the
+    guarded rules, 0 for simple acceptance.
+    """
     if rule not in DECISION_RULES:
         raise ValueError(f"unknown decision rule {rule!r}; valid: {sorted(set(DECISION_RULES) - {'guard_band'})}")
     if not guard_band_factor >= 0:
@@ -116,8 +122,10 @@ def decision(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "sim
 
 
 def split_verdict(text: str | None) -> tuple[str | None, str]:
-    """(verdict, the rest) of a stored :attr:`Decision.statement` or :attr:`Decision.short` (the
-    catalog's ``conformity`` columns); (None, text) for text of another form (older catalogs)."""
+    """Return (verdict, the rest) of a stored :attr:`Decision.statement` or :attr:`Decision.short`.
+
+    Those are the catalog's ``conformity`` columns; (None, text) for text of another form (older catalogs).
+    """
     if not text:
         return None, ""
     low = text.lower()

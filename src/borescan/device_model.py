@@ -1,15 +1,15 @@
 """A device's model: the effects a user decided it has, with the values the evidence gives them.
 
 The config names the effects (``devices: TRI-01: effects: [channel_delay@2]``, checked by
-:func:`borescan.effects.device_model_effects`); their values and standard uncertainties
-come from the device's pooled examinations (``pooled_findings`` rows: the effect fitted across the
-device's scans, named as a finding or fitted as part of the model). A night's calibration carries
-each effect at the latest estimate from an earlier night (the pooled examination of a night comes
-after its calibration): the readings are corrected for a beam or reading effect
-(:func:`borescan.physics.tri.tri_correct_readings`), a channel delay is carried by the time the channel's
-angle is taken at (:func:`channel_time_offsets`), and its parameters' uncertainties enter the GUM budgets of the calibration and of every diameter
-measured with it (one input per parameter, the same key in both). An effect listed without an
-estimate yet is recorded as such and not corrected.
+:func:`borescan.effects.device_model_effects`); their values and standard uncertainties come from the
+device's pooled examinations (``pooled_findings`` rows: the effect fitted across the device's scans, named
+as a finding or fitted as part of the model). A night's calibration carries each effect at the latest
+estimate from an earlier night (the pooled examination of a night comes after its calibration): the
+readings are corrected for a beam or reading effect (:func:`borescan.physics.tri.tri_correct_readings`), a
+channel delay is carried by the time the channel's angle is taken at (:func:`channel_time_offsets`), and
+its parameters' uncertainties enter the GUM budgets of the calibration and of every diameter measured with
+it (one input per parameter, the same key in both). An effect listed without an estimate yet is recorded
+as such and not corrected.
 """
 
 from __future__ import annotations
@@ -192,9 +192,11 @@ def carried_effects(model: Iterable[DeviceEffect]) -> list[Effect]:
 
 
 def correct(t_s, readings_mm, channels, model: Iterable[DeviceEffect], range_mm) -> np.ndarray:
-    """Readings corrected for the device model's beam and reading effects
-    (:func:`borescan.physics.tri.tri_correct_readings`); time-base effects are carried by
-    :func:`channel_time_offsets`. Unchanged when there are none."""
+    """Return readings corrected for the device model's beam and reading effects.
+
+    See :func:`borescan.physics.tri.tri_correct_readings`; time-base effects are carried by
+    :func:`channel_time_offsets`. Unchanged when there are none.
+    """
     effs = [e for e in carried_effects(model) if e.spec.stage in CORRECTABLE_STAGES]
     if not effs:
         return np.asarray(readings_mm, dtype=float)

@@ -304,9 +304,11 @@ REFERENCE_TEMPERATURE_C = 20.0
 
 
 def thermal_expansion_factor(cte_per_k, temperature_c):
-    """f = 1 + cte (T - 20): a length certified at 20 degC is f times itself at T (ISO 1); the one
-    place of this formula (the ``thermal_expansion`` effect, a gauge at its temperature, a diameter
-    brought to 20 degC, the budgets' sensitivities).
+    """Return f = 1 + cte (T - 20), the factor of a length certified at 20 degC at temperature T.
+
+    A length certified at 20 degC is f times itself at T (ISO 1); the one place of this formula (the
+    ``thermal_expansion`` effect, a gauge at its temperature, a diameter brought to 20 degC, the budgets'
+    sensitivities).
 
     Parameters
     ----------
@@ -594,9 +596,11 @@ EFFECTS: dict[str, EffectSpec] = {
 
 
 def calibration_absorbers(scan_kind: str) -> dict[str, str]:
-    """Effect -> the calibration parameters that absorb it in scans of ``scan_kind``, as a finding
-    reports them (the registry's ``absorbed_by`` less the bore radius ``"R"``, a measurand), for the
-    effects some calibration parameter absorbs; read from the registry as it is now."""
+    """Return, per effect, the calibration parameters that absorb it in scans of ``scan_kind``.
+
+    As a finding reports them: the registry's ``absorbed_by`` less the bore radius ``"R"`` (a measurand), for
+    the effects some calibration parameter absorbs; read from the registry as it is now.
+    """
     return {name: "; ".join(text for par, text in spec.absorbers(scan_kind).items() if par != "R")
             for name, spec in EFFECTS.items() if any(par != "R" for par in spec.absorbers(scan_kind))}
 

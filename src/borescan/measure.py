@@ -943,10 +943,13 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict, cleaning=None) -> tuple[d
 
 
 def _with_mirror_mixture(scan_id: str, cal, res: dict, du: DiameterUncertainty) -> tuple[dict, DiameterUncertainty]:
-    """A calibration with a flagged beam (:mod:`borescan.mirror`): the diameter refused outside the bore range
-    where the calibration may be used (ValueError with the reason), else the two-solution mixture by Monte
-    Carlo (:func:`borescan.mirror.mixture_diameter`): the estimate, u and interval replace the GUM ones,
-    ``res["mirror_mixture"]`` holds the components. A calibration without a flagged beam: unchanged."""
+    """Return the diameter measured with a calibration that has a flagged beam, or refuse it.
+
+    For a calibration with a flagged beam (:mod:`borescan.mirror`): the diameter refused outside the bore
+    range where the calibration may be used (ValueError with the reason), else the two-solution mixture by
+    Monte Carlo (:func:`borescan.mirror.mixture_diameter`): the estimate, u and interval replace the GUM ones,
+    ``res["mirror_mixture"]`` holds the components. A calibration without a flagged beam: unchanged.
+    """
     from dataclasses import replace as _replace
 
     from .mirror import mirror_checks_of, mixture_components, mixture_diameter, mixture_seed, refusal
@@ -1001,12 +1004,14 @@ DECISION_RULES = tuple(_DECISION_RULES)
 
 def decide(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "simple_acceptance",
            guard_band_factor: float = 1.0) -> tuple[bool, float, str]:
-    """Verdict on |error| against the tolerance by a decision rule (ISO/IEC 17025 7.8.6, ILAC-G8:09/2019):
-    :func:`borescan.decision.decision`, the one place of the rules.
+    """Return the verdict on |error| against the tolerance by a decision rule.
+
+    ISO/IEC 17025 7.8.6, ILAC-G8:09/2019: :func:`borescan.decision.decision`, the one place of the rules.
 
     Returns
     -------
-    (passed: the rule's binary decision, acceptance limit [mm], statement: verdict, numbers, rule and guard band)
+    (passed, acceptance limit [mm], statement)
+        passed: the rule's binary decision; statement: verdict, numbers, rule and guard band.
     """
     d = decision(error_mm, U_mm, tolerance_mm, rule, guard_band_factor)
     return d.passed, d.acceptance_limit_mm, d.statement

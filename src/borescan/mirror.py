@@ -89,8 +89,11 @@ def mirror_exists(rho_mm: float, offset_mm) -> bool:
 
 def offset_to_resolve_mm(radius_mm: float, sigma_mm: float, n_samples: float, rho_mm: float,
                          k: float = RESOLVED_DCHI2) -> float:
-    """Spindle offset at which the mirror lies ``k`` above the minimum, Eq. (1) solved for e:
-    X = L (2 k sigma^2 / (N rho^2))^(1/4) [mm]; inf for rho = 0 (no mirror to resolve: any offset)."""
+    """Return the spindle offset at which the mirror lies ``k`` above the minimum.
+
+    Eq. (1) solved for e: X = L (2 k sigma^2 / (N rho^2))^(1/4) [mm]; inf for rho = 0 (no mirror to resolve:
+    any offset).
+    """
     if rho_mm == 0.0 or n_samples <= 0:
         return float("inf")
     return float(radius_mm * (2.0 * k * sigma_mm**2 / (n_samples * rho_mm**2)) ** 0.25)
@@ -98,8 +101,9 @@ def offset_to_resolve_mm(radius_mm: float, sigma_mm: float, n_samples: float, rh
 
 def valid_bore_radius_range_mm(radius_cal_mm: float, params_main, params_alt, u_beta_rad: float,
                                n_grid: int = 4001) -> tuple[float, float]:
-    """Bore radii L where the two solutions place the wall points alike: every pair of beams' relative
-    direction differs between them by at most 2 u(beta).
+    """Return the bore radii L where the two solutions place the wall points alike.
+
+    Every pair of beams' relative direction differs between them by at most 2 u(beta).
 
     The direction of beam c's wall point in a bore of radius L is beta_c + asin(rho_c / L). Between the
     solutions it moves by Delta_c(L) = (beta_alt - beta)_c + asin(rho_alt_c / L) - asin(rho_c / L); a
@@ -139,9 +143,11 @@ def valid_bore_radius_range_mm(radius_cal_mm: float, params_main, params_alt, u_
 
 @dataclass(frozen=True)
 class MirrorSolution:
-    """The second solution of a flagged beam: the calibration's (3c,) parameters there (per channel
-    beta_rad, rho_mm, d_b_mm), their covariance from its own curvature, delta chi2 above the kept
-    minimum and its normalised weight."""
+    """The second solution of a flagged beam.
+
+    The calibration's (3c,) parameters there (per channel beta_rad, rho_mm, d_b_mm), their covariance from its
+    own curvature, delta chi2 above the kept minimum and its normalised weight.
+    """
 
     params: tuple[float, ...]
     cov: tuple[tuple[float, ...], ...]
@@ -150,10 +156,12 @@ class MirrorSolution:
 
     @property
     def params_array(self) -> np.ndarray:
+        """Return the parameters as a float array."""
         return np.asarray(self.params, dtype=float)
 
     @property
     def cov_array(self) -> np.ndarray:
+        """Return the covariance as a float array."""
         return np.asarray(self.cov, dtype=float)
 
 
@@ -184,6 +192,7 @@ class BeamMirror:
     valid_bore_diameter_mm: tuple[float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        """Return the fields as a JSON-ready dict (NaN as None, infinities as ``"inf"`` or ``"-inf"``)."""
         d = asdict(self)
         for k, v in d.items():
             if isinstance(v, float) and not math.isfinite(v):
@@ -194,6 +203,7 @@ class BeamMirror:
 
     @classmethod
     def from_dict(cls, d: dict) -> BeamMirror:
+        """Rebuild a BeamMirror from :meth:`to_dict`'s dict."""
         def f(x):
             return float("inf") if x == "inf" else float("nan") if x is None else float(x)
 
@@ -229,14 +239,16 @@ class BeamMirror:
 
 
 def mirror_checks_of(diagnostics: dict | None) -> list[BeamMirror]:
-    """The calibration's mirror checks (``diagnostics["mirror_check"]``), typed; [] when absent."""
+    """Return the calibration's mirror checks (``diagnostics["mirror_check"]``), typed; [] when absent."""
     return [BeamMirror.from_dict(d) for d in (diagnostics or {}).get("mirror_check", [])]
 
 
 def mixture_components(params: np.ndarray, cov: np.ndarray,
                        checks: Sequence[BeamMirror]) -> list[tuple[float, np.ndarray, np.ndarray]]:
-    """(weight, params (3c,), cov (3c, 3c)) of the calibration as a mixture: the kept solution and one
-    component per flagged beam's mirror, weights exp(-delta chi2 / 2) normalised over all of them.
+    """Return the calibration as a mixture: (weight, params (3c,), cov (3c, 3c)) per component.
+
+    The kept solution and one component per flagged beam's mirror, weights exp(-delta chi2 / 2) normalised
+    over all of them.
 
     Joint flips of two flagged beams (weight of order exp(-(d_1 + d_2) / 2)) are not components.
     """
@@ -250,11 +262,14 @@ def mixture_components(params: np.ndarray, cov: np.ndarray,
 
 @dataclass(frozen=True)
 class MixtureDiameter:
-    """A diameter measured with a flagged calibration: the two-solution mixture propagated by Monte Carlo
-    (JCGM 101:2008). Per component (the kept solution, each flagged beam's mirror): weight, D_T with that
-    solution's beams and its standard uncertainty; of the mixture: the estimate (the mean), u (the standard
-    deviation), the probabilistically symmetric coverage interval for ``p`` (JCGM 101 7.7), at the scan's
-    temperature and at 20 degC; ``draws`` and ``seed`` (deterministic: from the scan and calibration ids)."""
+    """A diameter measured with a flagged calibration, with the components of its mixture.
+
+    The two-solution mixture propagated by Monte Carlo (JCGM 101:2008). Per component (the kept solution, each
+    flagged beam's mirror): weight, D_T with that solution's beams and its standard uncertainty; of the
+    mixture: the estimate (the mean), u (the standard deviation), the probabilistically symmetric coverage
+    interval for ``p`` (JCGM 101 7.7), at the scan's temperature and at 20 degC; ``draws`` and ``seed``
+    (deterministic: from the scan and calibration ids).
+    """
 
     weights: tuple[float, ...]
     diameters_mm: tuple[float, ...]
@@ -270,6 +285,7 @@ class MixtureDiameter:
     seed: int
 
     def to_dict(self) -> dict:
+        """Return the fields as a JSON-ready dict."""
         return asdict(self)
 
 
@@ -316,24 +332,28 @@ def mixture_diameter(components: Sequence[tuple[float, float, float]], factor_20
 
 
 def mixture_seed(*ids: str) -> int:
-    """A deterministic seed from ids (sha256, first 8 bytes)."""
+    """Return a deterministic seed from ids (sha256, first 8 bytes)."""
     import hashlib
 
     return int.from_bytes(hashlib.sha256("\x1f".join(ids).encode()).digest()[:8], "little")
 
 
 def refusal(scan_id: str, calibration_id: str, diameter_mm: float, checks: Sequence[BeamMirror]) -> str | None:
-    """The reason a diameter of ``diameter_mm`` may not be measured with this calibration (a flagged beam
-    whose valid bore range excludes it), else None."""
+    """Return the reason a diameter of ``diameter_mm`` may not be measured with this calibration, else None.
+
+    That is a flagged beam whose valid bore range excludes it.
+    """
     for m in checks:
         if m.resolved or m.valid_bore_diameter_mm is None:
             continue
         lo, hi = m.valid_bore_diameter_mm
         if not lo <= diameter_mm <= hi:
             hi_s = "no upper limit" if not math.isfinite(hi) else f"{hi:.1f} mm"
-            return (f"{scan_id}: bore diameter {diameter_mm:.3f} mm outside {lo:.1f} mm to {hi_s}, the range where "
+            return (f"{scan_id}: bore diameter {diameter_mm:.3f} mm "
+                    f"outside {lo:.1f} mm to {hi_s}, the range where "
                     f"calibration {calibration_id} may be used: the sign of rho of channel {m.channel} is not "
-                    f"determined by its scan (probability of the wrong sign {m.p_wrong_sign:.3f}), and away from the "
+                    "determined by its scan (probability of the wrong "
+                    f"sign {m.p_wrong_sign:.3f}), and away from the "
                     f"gauge its two solutions place the wall points apart; recalibrate with the spindle at least "
                     f"{m.offset_to_resolve_mm:.2f} mm from the gauge centre")
     return None

@@ -1,4 +1,6 @@
-"""The config each night was processed with: results already in the history keep the rules they were made under.
+"""The config each night was processed with.
+
+Results already in the history keep the rules they were made under.
 
 A night's jobs take their settings (every section of the config but the roots and
 ``stage_workers``) from the night's record, ``<results_root>/stage/night_config/night=<night>.parquet``,
@@ -62,7 +64,7 @@ class ConfigChange:
 
 
 def night_settings(config: dict) -> dict:
-    """The settings of ``config`` that a night's results depend on (JSON-normalised)."""
+    """Return the settings of ``config`` that a night's results depend on (JSON-normalised)."""
     return json.loads(json.dumps({k: v for k, v in config.items() if k not in RUN_KEYS}, sort_keys=True, default=str))
 
 
@@ -90,11 +92,12 @@ def changed_keys(old: dict, new: dict, prefix: str = "") -> list[str]:
 
 
 def record_path(results_root, night: str) -> Path:
+    """Return the path of ``night``'s config record under ``results_root``."""
     return Path(results_root) / "stage" / "night_config" / f"night={night}.parquet"
 
 
 def read_record(results_root, night: str) -> NightConfig | None:
-    """The night's record, or None when the workflow has not seen the night yet."""
+    """Return the night's record, or None when the workflow has not seen the night yet."""
     path = record_path(results_root, night)
     if not path.is_file():
         return None

@@ -17,8 +17,10 @@ MAD_TO_SD = 1.4826
 
 
 def median(x: np.ndarray) -> float:
-    """Median of a NaN-free 1-D array by partition (the value of ``np.median``, without its checks,
-    which cost ~5x on the short arrays of a spike window)."""
+    """Return the median of a NaN-free 1-D array by partition.
+
+    The value of ``np.median``, without its checks, which cost ~5x on the short arrays of a spike window.
+    """
     m = x.size
     if m % 2:
         return float(np.partition(x, m // 2)[m // 2])
@@ -27,8 +29,11 @@ def median(x: np.ndarray) -> float:
 
 
 def mad_sigma(x: np.ndarray, center: float | None = None) -> float:
-    """MAD_TO_SD * median |x - center| of a NaN-free 1-D array, ``center`` its median unless given
-    (0 for residuals about a model): the one robust noise scale of borescan."""
+    """Return MAD_TO_SD * median |x - center| of a NaN-free 1-D array.
+
+    ``center`` is its median unless given (0 for residuals about a model); this is the one robust noise scale
+    of borescan.
+    """
     c = median(x) if center is None else center
     return MAD_TO_SD * median(np.abs(x - c))
 

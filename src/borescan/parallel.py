@@ -61,8 +61,11 @@ def workers_for(n_items: int, workers: int) -> int:
 
 
 def map_timed(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1) -> Iterator[tuple[T, float]]:
-    """:func:`map_in_order` with each item's compute time: ``(fn(item), CPU seconds)`` of the
-    process that computed it (a job's log line, never a result: see ``workflow_log.compute_line``)."""
+    """Return :func:`map_in_order`'s results with each item's compute time.
+
+    ``(fn(item), CPU seconds)`` of the process that computed it (a job's log line, never a result: see
+    ``workflow_log.compute_line``).
+    """
     yield from map_in_order(partial(_timed_call, fn), items, workers)
 
 

@@ -72,10 +72,13 @@ class ScanDesign:
 
 @dataclass(frozen=True)
 class PlanPrediction:
-    """What :func:`predict` says of one scan: standard uncertainties per channel (Cramer-Rao bound;
-    ``u_dbeta_rad`` of beta_c - beta_first, what a diameter depends on: a common rotation moves none),
-    each beam's mirror (possible, depth, the offset that would resolve it), whether every beam's
-    readings stay inside its sensor's range, and the beta reference the calibration will use."""
+    """What :func:`predict` says of one scan.
+
+    Standard uncertainties per channel (Cramer-Rao bound; ``u_dbeta_rad`` of beta_c - beta_first, what a
+    diameter depends on: a common rotation moves none), each beam's mirror (possible, depth, the offset that
+    would resolve it), whether every beam's readings stay inside its sensor's range, and the beta reference
+    the calibration will use.
+    """
 
     scan: ScanDesign
     channels: tuple[int, ...]
@@ -97,8 +100,11 @@ class PlanPrediction:
 
 
 def scan_angles_rad(scan: ScanDesign) -> tuple[np.ndarray, np.ndarray]:
-    """Device angle phi (n,) of every sample and the commanded angle Phi (n,) it is scaled from (the
-    speed scale's column is dv/dphi Phi); phase 0, each speed segment continuing the previous."""
+    """Return the device angle phi (n,) of every sample and the commanded angle Phi (n,).
+
+    Phi is what phi is scaled from (the speed scale's column is dv/dphi Phi); phase 0, each speed segment
+    continuing the previous.
+    """
     rate_hz = scan.samples_per_rev * scan.rpm[0] / 60.0
     sgn = 1.0 if scan.direction == "ccw" else -1.0
     parts, start = [], 0.0
@@ -112,8 +118,9 @@ def scan_angles_rad(scan: ScanDesign) -> tuple[np.ndarray, np.ndarray]:
 
 
 def predict(device: DeviceDesign, radius_mm: float, scan: ScanDesign) -> PlanPrediction:
-    """Cramer-Rao bound of every calibrated parameter and each beam's mirror for ``scan`` on a gauge
-    of radius ``radius_mm`` (module doc).
+    """Return the Cramer-Rao bound of every calibrated parameter and each beam's mirror for ``scan``.
+
+    On a gauge of radius ``radius_mm`` (module doc).
 
     Returns
     -------
@@ -188,10 +195,13 @@ def _meets(p: PlanPrediction, target_u_beta_rad: float) -> bool:
 
 def recommend(device: DeviceDesign, radius_mm: float, base: ScanDesign, target_u_beta_rad: float,
               offsets_mm: Sequence[float], revolutions: Sequence[float]) -> PlanPrediction | None:
-    """The smallest scan like ``base`` that reaches the target: every u(beta_c - beta_1) <= ``target_u_beta_rad``
-    (the beams' directions relative to each other; an absolute beta is limited by the known positions too),
-    every rho's sign resolved, every reading inside its sensor's range. Smallest: fewest revolutions,
-    then the smallest offset (candidates ``revolutions`` x ``offsets_mm``). None when none does."""
+    """Return the smallest scan like ``base`` that reaches the target.
+
+    Every u(beta_c - beta_1) <= ``target_u_beta_rad`` (the beams' directions relative to each other; an
+    absolute beta is limited by the known positions too), every rho's sign resolved, every reading inside its
+    sensor's range. Smallest: fewest revolutions, then the smallest offset (candidates ``revolutions`` x
+    ``offsets_mm``). None when none does.
+    """
     for rev in sorted(revolutions):
         for off in sorted(offsets_mm):
             p = predict(device, radius_mm, replace(base, revolutions=float(rev), offset_mm=float(off)))

@@ -54,7 +54,7 @@ def has_design_geometry(meta: dict) -> bool:
 
 
 def missing_geometry_reason(key: str, why: str) -> str:
-    """The reason given for a scan without ``device.nominal.<key>`` that a stage needs (``why``)."""
+    """Return the reason given for a scan without ``device.nominal.<key>`` that a stage needs (``why``)."""
     return f"device.nominal.{key} missing (optional in the raw format, but {why})"
 
 
@@ -63,8 +63,10 @@ NO_SPINDLE_REASON = "calibration scan has no spindle stream (a ring-gauge calibr
 
 
 def design_beams(meta: dict, why: str) -> Beams:
-    """``device.nominal.beams`` of a three-sensor scan; :class:`MissingDesignGeometry` naming
-    ``why`` (what needs them) when the scan has none."""
+    """Return ``device.nominal.beams`` of a three-sensor scan.
+
+    Raise :class:`MissingDesignGeometry` naming ``why`` (what needs them) when the scan has none.
+    """
     beams = _nominal(meta).get("beams")
     if not beams:
         raise MissingDesignGeometry(missing_geometry_reason("beams", why))
@@ -89,9 +91,11 @@ EXAMINATION_NEEDS_GEOMETRY = ("the device has no calibration to compare the scan
 
 
 def summary_revolutions(summary) -> tuple[int | None, int]:
-    """(whole revolutions recorded, revolutions with every channel's extremum) of one scan from its
-    rows of the signal stage's summary (a polars frame: ``period_samples_per_rev``,
-    ``n_samples_recorded``, ``n_revolutions_min`` per channel)."""
+    """Return (whole revolutions recorded, revolutions with every channel's extremum) of one scan.
+
+    From its rows of the signal stage's summary (a polars frame: ``period_samples_per_rev``,
+    ``n_samples_recorded``, ``n_revolutions_min`` per channel).
+    """
     spr = float(summary["period_samples_per_rev"][0])
     recorded = int(summary["n_samples_recorded"][0] // spr) if "n_samples_recorded" in summary.columns else None
     return recorded, int(summary["n_revolutions_min"].min())
@@ -115,8 +119,10 @@ def calibration_revolutions_problem(recorded: int | None, with_extrema: int, min
 
 @dataclass(frozen=True)
 class StageOutcome:
-    """What a stage will do with a scan that ingest accepts: set it aside (``quarantined``) or
-    process it with a ``note``."""
+    """What a stage will do with a scan that ingest accepts.
+
+    Set it aside (``quarantined``) or process it with a ``note``.
+    """
 
     scan_id: str
     stage: str
@@ -131,7 +137,7 @@ class StageOutcome:
 
 def expected_outcomes(meta: dict, *, has_spindle: bool, revolutions: tuple[int | None, int] | None,
                       min_rev: int) -> list[StageOutcome]:
-    """The preconditions above applied to one accepted scan, in stage order ([] = processed as usual).
+    """Return the preconditions above applied to one accepted scan, in stage order ([] = processed as usual).
 
     ``revolutions``: (recorded, with extrema) of a three-sensor spindle scan from the signal stage's
     processing; None when not computed (static scans, rods). The first ``quarantined`` outcome is

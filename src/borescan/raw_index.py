@@ -1,4 +1,7 @@
-"""What a night of the raw root holds, kept beside the results so that it, not file times, decides what reruns."""
+"""What a night of the raw root holds, kept beside the results.
+
+It, not file times, decides what reruns.
+"""
 
 from __future__ import annotations
 

@@ -1152,8 +1152,11 @@ def read_scan_meta(scan_dir: Path, raw_root: Path | None = None) -> dict:
 
 
 def _listing(folder: Path) -> list[Path]:
-    """Entries of ``folder``; [] when it cannot be listed (unreadable, e.g. written with umask 077 by
-    another user): the scan's own check (:func:`_check_folder`) or :func:`tree_problems` names it."""
+    """Return the entries of ``folder``; [] when it cannot be listed.
+
+    Unlistable means unreadable, e.g. written with umask 077 by another user: the scan's own check
+    (:func:`_check_folder`) or :func:`tree_problems` names it.
+    """
     try:
         return list(Path(folder).iterdir())
     except OSError:
@@ -1235,8 +1238,10 @@ def _is_file(path: Path) -> bool:
 
 
 def night_manifest(raw_root: str | Path, night: str) -> str:
-    """What a night of the raw root holds, as text: one line per scan folder and per file in it
-    (``scan=<id>/<file> <bytes> <mtime_ns>``; a folder that cannot be listed: ``scan=<id>/ unlistable``).
+    """Return what a night of the raw root holds, as text.
+
+    One line per scan folder and per file in it (``scan=<id>/<file> <bytes> <mtime_ns>``; a folder that cannot
+    be listed: ``scan=<id>/ unlistable``).
 
     Equal text means the night's scans are the ones last processed, whatever the files' times
     say about their order: a scan added with old times (``cp -a``, ``rsync -a``), removed, or a

@@ -204,8 +204,10 @@ QUARANTINE_ACTIONS = (
      "Recalibrate the device; its measurements are refused until a new calibration passes verification."),
     ("calibration expired", ("expired",), "Recalibrate the device, then rerun the night."),
     ("design geometry missing", ("device.nominal",),
-     "Write the scan again under a new scan id with device.nominal (the design beams of a three-sensor device, the "
-     "layers of a rod; optional in the raw format) or calibrate the device from a scan that has it: scans of a "
+     "Write the scan again under a new scan id with device.nominal "
+     "(the design beams of a three-sensor device, the "
+     "layers of a rod; optional in the raw format) or calibrate "
+     "the device from a scan that has it: scans of a "
      "calibrated device are measured and examined against its calibration."),
     ("no calibration", ("no calibration",),
      "Calibrate the device (a calibration scan on or before the night), then rerun the night."),
@@ -975,15 +977,21 @@ class _PlotCache:
 
 
 def _verdict_is(verdict: str) -> pl.Expr:
-    """Rows whose ``conformity`` statement starts with ``verdict`` (:func:`borescan.decision.split_verdict`)."""
+    """Return the rows whose ``conformity`` statement starts with ``verdict``.
+
+    The statement is split by :func:`borescan.decision.split_verdict`.
+    """
     return pl.col("conformity").fill_null("").str.to_lowercase().str.starts_with(verdict)
 
 
 def _verdict_cell(conformity: str | None, passed: bool | None,
                   labels: tuple[str, str] = ("passed", "FAILED")) -> tuple[str, str]:
-    """(HTML, row class) of a verdict: the stage's statement under the decision rule (``conformity``:
-    "conforms", "does not conform" or "cannot decide", then U, T, the rule and its guard band);
-    a row without one (an older catalog) falls back to its pass/fail, shown as ``labels``."""
+    """Return (HTML, row class) of a verdict.
+
+    The stage's statement under the decision rule (``conformity``: "conforms", "does not conform" or "cannot
+    decide", then U, T, the rule and its guard band); a row without one (an older catalog) falls back to its
+    pass/fail, shown as ``labels``.
+    """
     verdict, detail = split_verdict(conformity)
     if verdict is None:
         if passed is None:
@@ -1457,7 +1465,8 @@ class _Builder:
                 "tolerance, or the result lies in the guard band.</p>"
                 + _table(head, rows, classes, num_cols=set(range(3, 12)) | {1}) + "".join(details))
 
-    def _night_detail(self, night, q_n, made, superseded, expired, failed, out_tol, person, attention,
+    def _night_detail(  # noqa: C901 (one branch per kind of item a night can list)
+        self, night, q_n, made, superseded, expired, failed, out_tol, person, attention,
                       untraceable=None, undecided=()) -> str:
         items = []
         for q in q_n:
@@ -1481,7 +1490,8 @@ class _Builder:
                          f"(scan {_e(r['scan_id'])}): deviation {_um(r['deviation_mm'])} µm, tolerance "
                          f"±{_um(r['tolerance_mm'])} µm</li>")
         for r in undecided:
-            what = (f"verification {_e(r['scan_id'])} ({_e(r.get('device_id'))}, gauge {_e(r.get('artifact_id'))})"
+            what = (f"verification {_e(r['scan_id'])} ({_e(r.get('device_id'))}, "
+                    f"gauge {_e(r.get('artifact_id'))})"
                     if "certified_mm" in r else
                     f"part {_e(r.get('artifact_id'))} {_e(r.get('feature') or '')} (scan {_e(r['scan_id'])})")
             items.append(f"<li><b>cannot decide</b> {what}: {_e(split_verdict(r.get('conformity'))[1])}"
@@ -1534,9 +1544,11 @@ def _uncertainties(u: Any) -> dict[str, float]:
 
 
 def _rho_sign_notes(cal: pl.DataFrame) -> str:
-    """The beams of a device's calibrations whose sign of rho their scan did not determine (the
-    ``calibrations`` columns of the mirror check, issue 36): both solutions' weight, the bore range
-    where the calibration may be used and the scan that would fix it (HTML; "" when none)."""
+    """Return the beams of a device's calibrations whose sign of rho their scan did not determine.
+
+    Read from the ``calibrations`` columns of the mirror check (issue 36): both solutions' weight, the bore
+    range where the calibration may be used and the scan that would fix it (HTML; "" when none).
+    """
     if "rho_sign_resolved" not in cal.columns:
         return ""
     flagged = cal.filter(pl.col("rho_sign_resolved").fill_null(True).not_()).sort("valid_from", "calibration_id",

@@ -1,5 +1,6 @@
-"""Files the package ships (package data, :mod:`importlib.resources`): the config schema, the catalog's
-saved queries and the papers' transcribed tables.
+"""Files the package ships (package data, :mod:`importlib.resources`).
+
+The config schema, the catalog's saved queries and the papers' transcribed tables.
 
 They live in ``src/borescan/shipped/`` (one copy); the workflow's usual paths
 (``workflow/schemas/config.schema.yaml``, ``workflow/queries/``, ``data/papers/``) are links to them in

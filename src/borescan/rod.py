@@ -385,8 +385,11 @@ def _w_of_beta(b, w_ref):
 
 
 def _first_harmonic(L, mask, angles):
-    """Per layer j, l = r_j - p_j . u(a_j) by linear least squares (Eq. 16 to first order in the
-    eccentricity), a_j = ``angles[j]`` (n,): the one linear start of the rod. Returns r (m,), p (m, 2)."""
+    """Return the rod's linear start, per layer r (m,) and p (m, 2).
+
+    Per layer j, l = r_j - p_j . u(a_j) by linear least squares (Eq. 16 to first order in the eccentricity),
+    a_j = ``angles[j]`` (n,): the one linear start of the rod. Returns r (m,), p (m, 2).
+    """
     n, m = L.shape
     r, p = np.empty(m), np.empty((m, 2))
     for j in range(m):

@@ -407,11 +407,12 @@ def draw_tri_calibration(
 
 def draw_tri_measurement(rng: np.random.Generator, *, scan_id: str, night: str, calibration, effect_free: bool = True,
                          effect_scale: float = 1.0):
-    """A rotating measurement of a part on the device of a calibration scan drawn by
-    :func:`draw_tri_calibration` (``calibration``: that SimulatedScan): the same device id,
-    beams, design geometry, spindle, kinematics, encoder and noise, a part whose diameter is
-    the gauge's within +-0.1 mm (so the readings stay in range), a new phase; measured later
-    that night. ``effect_free`` False adds one named effect as the calibration draw does.
+    """Return a rotating measurement of a part on the device of a calibration scan.
+
+    The calibration scan is drawn by :func:`draw_tri_calibration` (``calibration``: that SimulatedScan): the
+    same device id, beams, design geometry, spindle, kinematics, encoder and noise, a part whose diameter is
+    the gauge's within +-0.1 mm (so the readings stay in range), a new phase; measured later that night.
+    ``effect_free`` False adds one named effect as the calibration draw does.
 
     Returns
     -------
@@ -490,10 +491,11 @@ def _artifact(kind: str, ident: str, diameters_mm, z_mm, cte_per_k: float, u_mm:
 
 def draw_tri_static(rng: np.random.Generator, *, scan_id: str, night: str, beams: Beams | None = None,
                     effect_free: bool = True, contract: dict = STATIC_CONTRACT, effect_scale: float = 1.0):
-    """A static three-sensor set drawn over the contract: a ring gauge with a certified diameter
-    (a verification) or a part with a nominal one (a measurement), 3-12 device poses within
-    3 mm of the bore centre at random angles, 5-30 samples per pose, noise 1-5 um. ``beams``
-    (default: drawn as for :func:`draw_tri_calibration`) is the device; d_b and the ranges keep
+    """Return a static three-sensor set drawn over the contract.
+
+    A ring gauge with a certified diameter (a verification) or a part with a nominal one (a measurement), 3-12
+    device poses within 3 mm of the bore centre at random angles, 5-30 samples per pose, noise 1-5 um.
+    ``beams`` (default: drawn as for :func:`draw_tri_calibration`) is the device; d_b and the ranges keep
     every reading inside its sensor's range.
 
     Returns
@@ -579,9 +581,11 @@ def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -
 
 def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_free: bool = True,
                   contract: dict = ROD_CONTRACT, effect_scale: float = 1.0, calibration: bool = False):
-    """A rod scan over the contract (:func:`draw_rod_geometry`) in a ring-gauge set with certified
-    diameters (half of the scans: what a rod is verified on) or in a part with nominal ones. Each
-    layer's sensor (range 30 mm) sits mid-range so that eccentricity and deflection stay inside it.
+    """Return a rod scan drawn over the contract.
+
+    The geometry is :func:`draw_rod_geometry`'s, in a ring-gauge set with certified diameters (half of the
+    scans: what a rod is verified on) or in a part with nominal ones. Each layer's sensor (range 30 mm) sits
+    mid-range so that eccentricity and deflection stay inside it.
 
     ``calibration``: a rod calibration scan instead (kind ``calibration``, always in a ring-gauge
     set; the same draws otherwise).
@@ -645,8 +649,11 @@ BATTERY_KINDS = {"calibration": ("CT", 0), "static": ("CS", 1), "rod": ("CR", 2)
 
 
 def battery_scan_id(seed: int, index: int, kind: str = "calibration") -> str:
-    """Scan id of scan ``index`` of battery ``seed``: ``CT<seed>-<index:05d>`` (calibration),
-    ``CS...`` (static sets), ``CR...`` (rods), ``CM...`` (rotating measurements), ``CK...`` (rod calibrations)."""
+    """Return the scan id of scan ``index`` of battery ``seed``.
+
+    ``CT<seed>-<index:05d>`` (calibration), ``CS...`` (static sets), ``CR...`` (rods), ``CM...`` (rotating
+    measurements), ``CK...`` (rod calibrations).
+    """
     return f"{BATTERY_KINDS[kind][0]}{int(seed)}-{int(index):05d}"
 
 
@@ -697,7 +704,8 @@ def write_battery(
         ``"static"`` (:func:`draw_tri_static`: ring gauges with certified diameters and parts
         with nominal ones), ``"rod"`` (:func:`draw_rod_scan`), ``"measurement"``
         (:func:`draw_tri_measurement` on the device of calibration scan i, the same night),
-        ``"rod_calibration"`` (:func:`draw_rod_scan` as a calibration scan); each kind from its own seed stream
+        ``"rod_calibration"`` (:func:`draw_rod_scan` as a calibration scan); each kind from its own seed
+        stream
     effect_share : None: ``effect_free`` for every scan; else each scan has an effect with this
         probability, drawn with its size factor (log-uniform in ``effect_scale_range``) from the
         scan's own stream ``SeedSequence(seed, spawn_key=(i, 10 + kind stream))``, so the scans'

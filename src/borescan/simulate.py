@@ -273,8 +273,10 @@ def _as_effects(effects: Iterable[Effect | dict] | None) -> list[Effect]:
 
 
 def tri_base(scene: TriScene) -> TriBase:
-    """The scene's true base geometry for :mod:`borescan.physics.tri` (effect-free bore C, R20;
-    turned angle the commanded profile; phase and direction of the scene)."""
+    """Return the scene's true base geometry for :mod:`borescan.physics.tri`.
+
+    Effect-free bore C, R20; turned angle the commanded profile; phase and direction of the scene.
+    """
     return TriBase(
         beams=scene.beams,
         bore=scene.bore(),
@@ -307,8 +309,9 @@ def tri_phi(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) ->
 
 
 def tri_readings(scene: TriScene, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
-    """Noise-free readings of a spindle scan with effects: :func:`borescan.physics.tri.tri_forward`
-    on the scene's true geometry (:func:`tri_base`).
+    """Return noise-free readings of a spindle scan with effects.
+
+    :func:`borescan.physics.tri.tri_forward` on the scene's true geometry (:func:`tri_base`).
 
     v = s - d_b, s > 0 the root of |S(phi) + Rot(phi)(F + s u) - C| = r_wall, phi = phi(t_c),
     then beam and reading effects.
@@ -335,8 +338,10 @@ def tri_static_readings_with_effects(
     t_s: np.ndarray,
     effects: Iterable[Effect] = (),
 ) -> np.ndarray:
-    """Noise-free readings of a static device at poses (xy (n, 2), angle (n,)) with effects:
-    :meth:`borescan.physics.tri.TriDevice.predict` on the scene's beams and bore, one pose a reading.
+    """Return noise-free readings of a static device at poses with effects.
+
+    Poses are xy (n, 2) and angle (n,): :meth:`borescan.physics.tri.TriDevice.predict` on the scene's beams
+    and bore, one pose a reading.
 
     Kinematic and spindle effects do not apply (``ValueError``); ``channel_delay`` shifts the time
     that drift and vibration see.
@@ -352,7 +357,10 @@ def tri_static_readings_with_effects(
 
 
 def rod_base(scene: RodScene) -> RodBase:
-    """The scene's true base geometry for :mod:`borescan.physics.rod` (layers, effect-free holes, axis)."""
+    """Return the scene's true base geometry for :mod:`borescan.physics.rod`.
+
+    That is the layers, the effect-free holes and the axis.
+    """
     return RodBase(tuple(scene.layers), tuple(scene.holes), scene.axis, float(scene.cte_per_k),
                    tuple(scene.range_mm))
 
@@ -360,8 +368,9 @@ def rod_base(scene: RodScene) -> RodBase:
 def rod_readings_with_effects(
     scene: RodScene, alpha_rad: np.ndarray, effects: Iterable[Effect] = (), t_s: np.ndarray | None = None
 ) -> np.ndarray:
-    """Noise-free rod readings with effects: :func:`borescan.physics.rod.rod_forward` on the scene's
-    true geometry (:func:`rod_base`).
+    """Return noise-free rod readings with effects.
+
+    :func:`borescan.physics.rod.rod_forward` on the scene's true geometry (:func:`rod_base`).
 
     Beam effects change the layer (``beam_offset``: d += d_mm, Wang 2017 Eq. 5; ``beam_tilt``:
     gamma += gamma_rad, Eq. 6), bore effects the holes (``thermal_expansion``), then the exact

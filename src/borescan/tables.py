@@ -35,6 +35,7 @@ TYPES: dict[str, tuple[pl.DataType, str]] = {
 @dataclass(frozen=True)
 class Column:
     """One column of a history table: name, type (a key of :data:`TYPES`), in the stage files or not."""
+
     name: str
     type: str
     stage: bool = True
@@ -106,11 +107,15 @@ _T = [
         "rho_mm:float d_b_mm:float beta_rad:float u_rho_mm:float u_d_b_mm:float u_beta_rad:float "
         "l0_mm:float h_mm:float phi_rad:float d_mm:float gamma_rad:float "
         "u_l0_mm:float u_h_mm:float u_phi_rad:float u_d_mm:float u_gamma_rad:float "
-        "method:text certificate_path:text certificate_sha256:text night:date valid_from:date status:text raw_sha256:text "
-        # GUM budget (issue 19): expanded uncertainties (not U_*: DuckDB names ignore case), k, gauge temperature
-        "expanded_u_beta_rad:float expanded_u_rho_mm:float expanded_u_d_b_mm:float k_beta:float k_rho:float k_d_b:float "
+        "method:text certificate_path:text certificate_sha256:text "
+        "night:date valid_from:date status:text raw_sha256:text "
+        # GUM budget (issue 19): expanded uncertainties (not U_*: DuckDB names ignore case), k, gauge
+        # temperature
+        "expanded_u_beta_rad:float expanded_u_rho_mm:float "
+        "expanded_u_d_b_mm:float k_beta:float k_rho:float k_d_b:float "
         "coverage_probability:float temperature_c:float temperature_assumed:bool recalibration_due:date "
-        # the mirror check of each beam (issue 36): resolved, or two solutions with the wrong sign's probability
+        # the mirror check of each beam (issue 36): resolved, or two solutions with the wrong sign's
+        # probability
         "rho_sign_resolved:bool mirror_delta_chi2:float mirror_depth_predicted:float p_wrong_sign:float "
         "valid_bore_min_mm:float valid_bore_max_mm:float offset_to_resolve_mm:float"),
           ("calibration_id", "channel"), primary=True),
@@ -196,8 +201,10 @@ def frame(name: str, rows: Iterable[Mapping]) -> pl.DataFrame:
 
 
 def conform(name: str, df: pl.DataFrame) -> pl.DataFrame:
-    """``df`` with every stage column of table ``name``: a missing one added as nulls of its type,
-    the table's columns first and cast to their types, other columns kept after them.
+    """Return ``df`` with every stage column of table ``name``.
+
+    A missing one added as nulls of its type, the table's columns first and cast to their types, other columns
+    kept after them.
 
     A stage whose rows happen to lack a kind of column (a rod-only night's calibrations have no
     ``beta_rad``; an empty night has no rows at all) still writes and reads the table's columns.

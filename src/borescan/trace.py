@@ -95,9 +95,11 @@ class _Tracer:
         return node
 
     def issues(self, calibration_id: str) -> list[dict[str, Any]]:
-        """Every issue of the calibration's certificate (:mod:`borescan.certificate_issue`): document id,
-        issue number and date, the document it replaces, its folder and certificate.json's SHA-256
-        as recorded and as on disk."""
+        """Return every issue of the calibration's certificate.
+
+        See :mod:`borescan.certificate_issue`: document id, issue number and date, the document it replaces,
+        its folder and certificate.json's SHA-256 as recorded and as on disk.
+        """
         from borescan.certificate_issue import issues_of
 
         out = []
@@ -142,9 +144,11 @@ class _Tracer:
         node["gauges"] = _layer_gauges(first)
         node["verifications"] = _rows(
             self.con,
-            "SELECT v.scan_id, v.night, v.error_mm, v.tolerance_mm, v.passed, v.feature, v.artifact_id, v.conformity "
+            "SELECT v.scan_id, v.night, v.error_mm, v.tolerance_mm, "
+            "v.passed, v.feature, v.artifact_id, v.conformity "
             "FROM verifications v "
-            "LEFT JOIN scans s USING (scan_id) WHERE v.calibration_id = ? ORDER BY v.night, s.started_at, v.scan_id, v.feature",
+            "LEFT JOIN scans s USING (scan_id) WHERE v.calibration_id "
+            "= ? ORDER BY v.night, s.started_at, v.scan_id, v.feature",
             [calibration_id])
         return node
 
@@ -200,7 +204,7 @@ class _Tracer:
         return out
 
     def document_match(self, ident: str) -> list[str]:
-        """The calibration of a certificate number (a reissue's ``<calibration_id>-R<n>``)."""
+        """Return the calibration of a certificate number (a reissue's ``<calibration_id>-R<n>``)."""
         from borescan.certificate_issue import issues_of
 
         return sorted({i.calibration_id for i in issues_of(self.root, ident) if i.document_id == ident})
@@ -341,7 +345,7 @@ def _layer_gauges(row: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def _verdict(v: dict[str, Any]) -> str:
-    """A verification's verdict under the decision rule (its statement), else its pass/fail."""
+    """Return a verification's verdict under the decision rule (its statement), else its pass/fail."""
     if v.get("conformity"):
         return v["conformity"]
     return "passed" if v.get("passed") else "FAILED"

@@ -242,7 +242,10 @@ class Plausibility:
 
     @classmethod
     def from_config(cls, section: dict | None) -> Plausibility:
-        """From the config's section; missing keys (a night recorded before the section existed) from the schema."""
+        """Return the bounds of the config's section, missing keys from the schema.
+
+        Keys are missing in a night recorded before the section existed.
+        """
         return cls(**{**schema_defaults()["plausibility"], **(section or {})})
 
 
@@ -251,7 +254,7 @@ def _positive(x) -> bool:
 
 
 def _gauge_problems(node: dict, where: str, limits: Plausibility) -> list[str]:
-    """Diameters, uncertainty, coverage factor, expansion coefficient and tolerance of an artifact or feature."""
+    """Return the problems in an artifact's or feature's diameters, uncertainty, k, CTE and tolerance."""
     out = []
     for key in ("nominal_diameter_mm", "certified_diameter_mm", "u_diameter_mm", "k", "cte_per_k", "tolerance_mm"):
         if key in node and node[key] is not None and not _positive(node[key]):
@@ -267,7 +270,7 @@ def _gauge_problems(node: dict, where: str, limits: Plausibility) -> list[str]:
 
 
 def plausibility_problems(meta: dict, scan_id: str, limits: Plausibility | None = None) -> list[ScanError]:
-    """The numbers of ``scan.json`` that feed a result, against what a gauge room can produce.
+    """Return the numbers of ``scan.json`` that feed a result, against what a gauge room can produce.
 
     Sensor range (0, ``max_sensor_range_mm``], data-sheet linearity and repeatability > 0 (a zero would
     shrink every uncertainty), ``environment.temperature_c`` within the workshop's range, the artifact's
@@ -293,7 +296,8 @@ def plausibility_problems(meta: dict, scan_id: str, limits: Plausibility | None 
     if isinstance(t, (int, float)) and not isinstance(t, bool) and not (
             limits.temperature_min_c <= t <= limits.temperature_max_c):
         out.append(f"key 'environment.temperature_c' {t:g} degC is outside the workshop's range "
-                   f"[{limits.temperature_min_c:g}, {limits.temperature_max_c:g}] degC (plausibility.temperature_*_c)")
+                   f"[{limits.temperature_min_c:g}, {limits.temperature_max_c:g}] "
+                   "degC (plausibility.temperature_*_c)")
     art = meta.get("artifact")
     if isinstance(art, dict):
         out += _gauge_problems(art, "artifact", limits)

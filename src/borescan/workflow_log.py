@@ -122,13 +122,17 @@ def cancel_idle_timers() -> int:
     return len(timers)
 
 
-#: a job's log line of one item's compute time (:func:`compute_line`); ``python -m bench contract_night`` reads them
+#: a job's log line of one item's compute time (:func:`compute_line`); ``python -m bench contract_night``
+#: reads them
 COMPUTE_RE = re.compile(r"compute (?P<item>\S+) (?P<seconds>[0-9.]+) s$")
 
 
 def compute_line(item: str, seconds: float) -> str:
-    """The log line of one item's (a scan's, a device's) CPU seconds in a stage. Timings go to the
-    log only: never into a stage table, the catalog or a certificate (reruns stay byte-identical)."""
+    """Return the log line of one item's (a scan's, a device's) CPU seconds in a stage.
+
+    Timings go to the log only: never into a stage table, the catalog or a certificate (reruns stay
+    byte-identical).
+    """
     return f"compute {item} {seconds:.3f} s"
 
 
@@ -161,9 +165,11 @@ def record_lock_owner(snakemake_dir: str | Path, lock_files) -> Path:
 
 
 def release_stale_locks(snakemake_dir: str | Path) -> list[int]:
-    """Remove the locks of runs on this machine whose process is gone (killed with SIGKILL, a crash);
-    return their process ids. A lock whose owner is alive, on another boot, or unknown is left to
-    Snakemake, which names it and the command that releases it (``snakemake --unlock``)."""
+    """Remove the locks of runs on this machine whose process is gone; return their process ids.
+
+    Killed with SIGKILL, or a crash. A lock whose owner is alive, on another boot, or unknown is left to
+    Snakemake, which names it and the command that releases it (``snakemake --unlock``).
+    """
     gone = []
     for owner in sorted((Path(snakemake_dir) / "locks").glob("borescan-owner-*.json")):
         try:

@@ -17,7 +17,8 @@ def main(smk) -> None:
             smk.params.results_root, smk.input.scans, smk.params.signal, log=log, workers=smk.threads,
         )
         write_stage_outputs(smk.output, bad, extrema=extrema, summary=summary)
-        log(f"{summary['scan_id'].n_unique() if summary.height else 0} scans processed, {quarantined_text(bad)}")
+        log(f"{summary['scan_id'].n_unique() if summary.height else 0} "
+            f"scans processed, {quarantined_text(bad)}")
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage

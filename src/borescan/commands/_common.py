@@ -155,9 +155,12 @@ def existing_path(path: Path, what: str) -> Path:
 
 
 def command_config(path: Path | None) -> tuple[dict, str]:
-    """The pipeline config a command judges by: ``path``, else ``config/config.yaml`` when present,
-    else the schema's defaults (:func:`borescan.config.load_config`, checked against the schema);
-    with where it came from. A missing or invalid file is a :class:`UsageError` naming it."""
+    """Return the pipeline config a command judges by, with where it came from.
+
+    ``path``, else ``config/config.yaml`` when present, else the schema's defaults
+    (:func:`borescan.config.load_config`, checked against the schema). A missing or
+    invalid file is a :class:`UsageError` naming it.
+    """
     from borescan.config import ConfigError, load_config
 
     if path is None and Path("config/config.yaml").is_file():

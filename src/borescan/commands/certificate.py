@@ -8,10 +8,14 @@ from pathlib import Path
 from borescan.commands._common import CommandFailed, UsageError, night_date
 
 NAME = "certificate"
-HELP = "reissue a calibration's certificate (pdf, json, dcc) from the history; a changed laboratory makes a new one"
+HELP = (
+    "reissue a calibration's certificate (pdf, json, dcc) from the history; "
+    "a changed laboratory makes a new one"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the ``borescan certificate`` options to ``parser``."""
     parser.add_argument("id", nargs="?", help="calibration id or certificate number (omit with --all)")
     parser.add_argument("--all", action="store_true", help="every calibration's certificate")
     parser.add_argument("--format", default="all", choices=["pdf", "json", "dcc", "all"],
@@ -25,13 +29,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="date of issue of a new document (default: today, UTC)")
     parser.epilog = (
         "With the laboratory section the certificate was issued under, the latest issue is written again and "
-        "compared, file by file, with the SHA-256 recorded when it was first written (and certificate.json with "
-        "the catalog's). With a changed one, a new certificate <calibration id>-R<n> is issued (ISO/IEC 17025 "
-        "7.8.8.2): the date of reissue, the new laboratory data and a reference to the certificate it replaces; "
+        "compared, file by file, with the SHA-256 recorded "
+        "when it was first written (and certificate.json with "
+        "the catalog's). With a changed one, a new certificate "
+        "<calibration id>-R<n> is issued (ISO/IEC 17025 "
+        "7.8.8.2): the date of reissue, the new laboratory "
+        "data and a reference to the certificate it replaces; "
         "`borescan trace ID` lists every issue.")
 
 
-def run(args: argparse.Namespace) -> int:
+def run(  # noqa: C901 (one branch per option and per refusal of the command)
+    args: argparse.Namespace,
+) -> int:
+    """Issue the certificates asked for by ``args``; return the exit status."""
     from borescan import certificate_issue
     from borescan.config import load_config
     from borescan.stages._common import link_into_night
@@ -61,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"{iss.document_id}: NEW certificate issued {iss.issue_date}, replaces {iss.replaces} "
                   f"(laboratory changed) -> {done.out_dir}")
         else:
-            print(f"{iss.document_id}: reissued unchanged (issue {iss.issue} of {iss.issue_date}) -> {done.out_dir}")
+            print(f"{iss.document_id}: reissued unchanged (issue "
+                  f"{iss.issue} of {iss.issue_date}) -> {done.out_dir}")
         for name, sha in sorted(done.files.items()):
             state = {True: "agrees with the recorded SHA-256", False: "DIFFERS from the recorded SHA-256",
                      None: "new"}[done.agree[name] if not done.new_document else None]

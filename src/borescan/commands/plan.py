@@ -1,4 +1,6 @@
-"""``borescan plan``: what a proposed ring-gauge calibration scan will fix, and the smallest scan that fixes enough.
+"""``borescan plan``: what a proposed ring-gauge calibration scan will fix.
+
+And the smallest scan that fixes enough.
 
 The device's design comes from a preset (``--device yang``: Yang 2017's beams, Table 1, on his 275.029 mm
 ring at sigma 2 um; ``--device demo``: TRI-01's design of the embedded demo, sigma 4 um) or from a scan
@@ -23,6 +25,7 @@ HELP = ("predict a calibration scan's uncertainties (Cramer-Rao) and each beam's
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the ``borescan plan`` options to ``parser``."""
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--device", choices=("yang", "demo"), help="a built-in device design and its ring gauge")
     src.add_argument("--scan", type=Path, metavar="DIR", help="a tri_lds scan folder: its design, sensors, gauge, noise")
@@ -95,18 +98,22 @@ def _print(p, title: str) -> None:
     s = p.scan
     print(f"{title}: offset {s.offset_mm:g} mm at {math.degrees(s.offset_direction_rad):g} deg, "
           f"{s.revolutions:g} rev x {s.samples_per_rev} samples/rev ({s.n_samples} samples per channel), "
-          f"rpm {', '.join(f'{r:g}' for r in s.rpm)}, {'encoder' if s.encoder else 'commanded angle'}, positions "
+          f"rpm {', '.join(f'{r:g}' for r in s.rpm)}, "
+          f"{'encoder' if s.encoder else 'commanded angle'}, positions "
           f"{'known' if s.positions_known else 'unknown'}; beams {p.beta_reference}; readings "
           f"{'inside' if p.in_range else 'OUTSIDE'} the sensors' range")
-    print(f"  {'ch':>3s} {'u(beta) urad':>13s} {'u(beta-beta1)':>14s} {'u(rho) um':>10s} {'u(d_b) um':>10s} {'mirror dchi2':>13s} "
+    print(f"  {'ch':>3s} {'u(beta) urad':>13s} {'u(beta-beta1)':>14s} "
+          f"{'u(rho) um':>10s} {'u(d_b) um':>10s} {'mirror dchi2':>13s} "
           f"{'sign':>9s} {'offset to resolve mm':>21s}")
     for j, ch in enumerate(p.channels):
         depth = f"{p.mirror_depth[j]:.1f}" if p.mirror_possible[j] else "no mirror"
-        print(f"  {ch:3d} {p.u_beta_rad[j] * 1e6:13.1f} {p.u_dbeta_rad[j] * 1e6:14.1f} {p.u_rho_mm[j] * 1e3:10.2f} {p.u_d_b_mm[j] * 1e3:10.2f} "
+        print(f"  {ch:3d} {p.u_beta_rad[j] * 1e6:13.1f} {p.u_dbeta_rad[j] * 1e6:14.1f} "
+              f"{p.u_rho_mm[j] * 1e3:10.2f} {p.u_d_b_mm[j] * 1e3:10.2f} "
               f"{depth:>13s} {'resolved' if p.resolved[j] else 'FLAGGED':>9s} {p.offset_to_resolve_mm[j]:21.2f}")
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print the proposed scan's predicted uncertainties (or a recommended scan); return the exit status."""
     from borescan.config import schema_defaults
     from borescan.plan import ScanDesign, predict, recommend
 
@@ -123,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
     rec = recommend(device, R, scan, target, args.offsets_mm, args.revolutions_grid)
     if rec is None:
         print(f"no scan of {max(args.revolutions_grid):g} revolutions or fewer at offsets up to "
-              f"{max(args.offsets_mm):g} mm reaches u(beta_c - beta_1) <= {args.target_u_beta_urad:g} urad with every rho "
+              f"{max(args.offsets_mm):g} mm reaches u(beta_c - beta_1) "
+              f"<= {args.target_u_beta_urad:g} urad with every rho "
               "resolved inside the sensors' range: more samples per revolution, lower noise or a longer-range "
               "sensor (a larger offset) would")
         from dataclasses import replace

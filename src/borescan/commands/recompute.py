@@ -21,6 +21,7 @@ HELP = ("apply the current config to the nights from --from NIGHT on (new versio
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the ``borescan recompute`` options to ``parser``."""
     parser.add_argument("--from", dest="from_night", required=True, type=night_date, metavar="NIGHT",
                         help="first night (YYYY-MM-DD) to recompute with the current config")
     parser.add_argument("--results", default="results", type=Path,
@@ -31,6 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Recompute the nights from ``--from`` on with the current config; return the exit status."""
     from borescan import night_config
     from borescan.config import load_configs
 
@@ -45,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
     if change is None:
         print(f"every night from {args.from_night} on already has the current config: nothing to recompute")
         return 0
-    print(f"{change.change_id}: {len(change.nights)} night(s) ({change.nights[0]}..{change.nights[-1]}) will be "
+    print(f"{change.change_id}: {len(change.nights)} night(s) "
+          f"({change.nights[0]}..{change.nights[-1]}) will be "
           f"recomputed with config {change.new_hash} (changed: {', '.join(change.keys) or 'none'}); their "
           f"present results are kept in {args.results / change.archive}. Run snakemake to recompute them.")
     return 0

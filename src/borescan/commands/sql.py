@@ -64,8 +64,11 @@ def _text(v: object) -> str:
 
 
 def _jsonable(v: object) -> object:
-    """A query result's value for JSON: times as the CLI prints them, decimals as floats, the rest through
-    :func:`borescan.atomic.json_ready` (non-finite floats null), anything else as text."""
+    """Return a query result's value for JSON.
+
+    Times as the CLI prints them, decimals as floats, the rest through :func:`borescan.atomic.json_ready`
+    (non-finite floats null), anything else as text.
+    """
     if isinstance(v, _dt.datetime):
         return utc_text(v)
     if isinstance(v, (_dt.date, _dt.time)):
@@ -173,8 +176,11 @@ SANDBOX = {"enable_external_access": False, "autoinstall_known_extensions": Fals
 
 
 def query_connection(results: str):
-    """A connection to ``<results>/catalog.duckdb`` that can only read the catalog (:data:`SANDBOX`,
-    read-only, configuration locked). FileNotFoundError when there is no catalog."""
+    """Return a connection to ``<results>/catalog.duckdb`` that can only read the catalog.
+
+    The connection is sandboxed (:data:`SANDBOX`), read-only, its configuration locked. FileNotFoundError when
+    there is no catalog.
+    """
     import duckdb
 
     from borescan import catalog
@@ -191,8 +197,10 @@ def query_connection(results: str):
 
 
 def run_query(results: str, sql: str) -> tuple[list[str], list[tuple]]:
-    """Run ``sql`` on the catalog under ``results`` through :func:`query_connection`; return
-    (column names, rows)."""
+    """Run ``sql`` on the catalog under ``results``; return (column names, rows).
+
+    The connection is :func:`query_connection`'s.
+    """
     con = query_connection(results)
     try:
         cur = con.execute(sql)

@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-from borescan.commands._common import CommandFailed, UsageError, command_config, night_date, positive_int, utc_text
+from borescan.commands._common import CommandFailed, command_config, night_date, positive_int, utc_text
 from borescan.decision import split_verdict
 
 NAME = "status"
@@ -82,7 +82,8 @@ def device_status(results: str | Path, as_of: str, validity_days: int) -> list[d
                    any_value(c.certificate_path) AS certificate_path, count(*) AS n_channels,
                    max(s.started_at) AS started_at
             FROM calibrations c LEFT JOIN scans s ON s.scan_id = c.scan_id AND s.night = c.night
-            WHERE c.valid_from <= ?::DATE GROUP BY c.calibration_id""", [as_of])
+            WHERE c.valid_from <= ?::DATE GROUP BY c.calibration_id""",  # noqa: E501 (SQL text)
+                     [as_of])
         vers = _rows(con, """
             SELECT v.scan_id, v.night, v.device_id, v.calibration_id, v.error_mm, v.tolerance_mm, v.passed,
                    v.conformity

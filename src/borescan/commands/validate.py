@@ -1,5 +1,7 @@
-"""``borescan validate RAW_ROOT``: the checks ingest runs, over every scan the pipeline would ingest,
-then what the later stages will do with each accepted scan.
+"""``borescan validate RAW_ROOT``: check a raw root without processing it.
+
+The checks ingest runs, over every scan the pipeline would ingest, then what the later stages will do with
+each accepted scan.
 
 One validator (:func:`borescan.validation.validate_tree`, the function the ingest stage calls
 per scan): a scan this command calls valid is never quarantined at ingest, and the reverse. Then
@@ -38,7 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _plausibility():
-    """The plausibility bounds of the project's config/config.yaml (run from the project folder), else the schema's."""
+    """Return the plausibility bounds of the project's config/config.yaml, else the schema's.
+
+    The project's config is read when the command runs from the project folder.
+    """
     from borescan import validation
     from borescan.config import load_configs
 
@@ -72,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{o.scan_id}: {o.file}: will be quarantined at {o.stage}: {o.reason}" if o.quarantined
               else f"{o.scan_id}: {o.file}: note: {o.stage}: {o.reason}")
     if report.problems or later:
-        print(f"{len(report.problems) + len(later)} problems; of {report.n_scans} scans {len(report.bad_scan_ids)} "
+        print(f"{len(report.problems) + len(later)} problems; of "
+              f"{report.n_scans} scans {len(report.bad_scan_ids)} "
               f"invalid (set aside at ingest), {len(later)} to be set aside by a later stage", file=sys.stderr)
         return 1
     print(f"{report.n_scans} scans, all valid" + (" (see the notes)" if outcomes else ""))
@@ -80,9 +86,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def stage_outcomes(raw_root: Path, bad_scan_ids: set[str], cfg: dict) -> list:
-    """:class:`borescan.preconditions.StageOutcome` of every scan ingest accepts, in night and scan order:
-    the signal stage's processing of a three-sensor spindle scan (as ``stages.signal`` runs it,
-    with the config's settings), then :func:`borescan.preconditions.expected_outcomes`."""
+    """Return the :class:`borescan.preconditions.StageOutcome` of every scan ingest accepts.
+
+    In night and scan order: the signal stage's processing of a three-sensor spindle scan (as
+    ``stages.signal`` runs it, with the config's settings), then
+    :func:`borescan.preconditions.expected_outcomes`.
+    """
     import numpy as np
 
     from borescan import preconditions, rawio

@@ -310,8 +310,11 @@ _MAGNITUDES = ("b_mm", "g", "a_mm", "k_mm_per_s", "tau_s", "lsb_mm", "size_mm", 
 
 
 def scale_effect(effect: Effect, factor: float) -> Effect:
-    """``effect`` with its size times ``factor`` (amplitudes, gains, delays, lsb; a temperature's
-    departure from 20 degC); channel, harmonic, phase, frequency and rate unchanged."""
+    """Return ``effect`` with its size times ``factor``.
+
+    Scaled are amplitudes, gains, delays, lsb and a temperature's departure from 20 degC; channel, harmonic,
+    phase, frequency and rate unchanged.
+    """
     if factor == 1.0:
         return effect
     par = dict(effect.params)

@@ -109,9 +109,11 @@ def scan_arrays(scan) -> tuple[np.ndarray, tuple[int, ...], np.ndarray, np.ndarr
 
 
 def against_reference(meta: dict, beams=None, layers=None) -> dict:
-    """``scan.json`` with its ``device.nominal`` replaced by a calibrated device's ``beams`` (a
-    :class:`~borescan.geometry.Beams` or the nominal-format list) or rod ``layers``: the geometry
-    an examination starts from (``meta`` itself when neither is given)."""
+    """Return ``scan.json`` with its ``device.nominal`` replaced by a calibrated device's geometry.
+
+    The calibrated device's ``beams`` (a :class:`~borescan.geometry.Beams` or the nominal-format list) or rod
+    ``layers``: the geometry an examination starts from (``meta`` itself when neither is given).
+    """
     if beams is None and layers is None:
         return meta
     meta = copy.deepcopy(meta)

@@ -114,9 +114,12 @@ class PooledScan:
 
 
 def pooled_scan(scan, max_samples: int | None = None, beams=None) -> PooledScan:
-    """A ``RawScan``-like object (``.meta``, ``.lds``, ``.spindle``) of a three-sensor spindle scan
-    as :class:`PooledScan` (scans longer than ``max_samples`` cut to four blocks, as one scan is);
-    ``beams``: the reference calibration's, in place of ``device.nominal`` (which may be missing)."""
+    """Return a three-sensor spindle scan as :class:`PooledScan`.
+
+    The scan is a ``RawScan``-like object (``.meta``, ``.lds``, ``.spindle``); scans longer than
+    ``max_samples`` are cut to four blocks, as one scan is. ``beams``: the reference calibration's, in place
+    of ``device.nominal`` (which may be missing).
+    """
     meta = against_reference(scan.meta, beams)
     sid = meta["scan_id"]
     if meta["device"]["type"] != "tri_lds":
@@ -589,10 +592,13 @@ class PooledModel:
         """None: a vibration line belongs to one run (scope ``scan``) and is named per scan."""
         return None
 
-    def candidate_terms(self, *, k_max: int | None = None, vibration_f_hz: float | None = None) -> list[PooledTerm]:
-        """The registry's candidates for every group of scans their scope defines, less those the
-        pooled base absorbs (recorded in :attr:`absorbed`). ``speed_error`` is the base's per-scan
-        speed scale; ``vibration`` is left to the single-scan examination.
+    def candidate_terms(  # noqa: C901 (one branch per term scope and per base absorption)
+        self, *, k_max: int | None = None, vibration_f_hz: float | None = None
+    ) -> list[PooledTerm]:
+        """Return the registry's candidates for every group of scans, less those the pooled base absorbs.
+
+        The absorbed ones are recorded in :attr:`absorbed`. ``speed_error`` is the base's per-scan speed
+        scale; ``vibration`` is left to the single-scan examination.
         """
         terms: list[PooledTerm] = []
         self.absorbed = []

@@ -92,8 +92,10 @@ class _PoseModel:
         return self.data.values_mm - self.predict(p, terms)
 
     def noise_floor(self, r: np.ndarray) -> np.ndarray:
-        """The white-noise floor of sample-to-sample differences within poses, per channel
-        (:func:`borescan.noise.noise_floor_mm`, first differences)."""
+        """Return the white-noise floor of sample-to-sample differences within poses, per channel.
+
+        By :func:`borescan.noise.noise_floor_mm` of the first differences.
+        """
         return noise_floor_mm(r, order=1, keep=self.data.pose_index[1:] == self.data.pose_index[:-1])
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
@@ -263,7 +265,7 @@ class RodModel(_PoseModel):
                 "pose_angle_rad": [float(a) for a in alpha]}
 
     def state(self, p) -> RodState:
-        """The device's base unknowns at base parameters ``p`` (pose 0 at alpha = 0)."""
+        """Return the device's base unknowns at base parameters ``p`` (pose 0 at alpha = 0)."""
         m = len(self.data.channels)
         return RodState(
             alpha_rad=np.array([0.0] + [p[f"alpha[{k}]"] for k in range(1, self.n_pose)]),
@@ -273,16 +275,18 @@ class RodModel(_PoseModel):
         )
 
     def predict(self, p, terms):
-        """Readings (n, m) [mm]: the terms' fitted values become the spec's effects
-        (:func:`~borescan.discrepancy.tri.term_effects`) on :meth:`borescan.physics.rod.RodDevice.predict`
-        (the digital twin's model)."""
+        """Return the readings (n, m) [mm] the rod model predicts with the terms' fitted values.
+
+        The terms' fitted values become the spec's effects (:func:`~borescan.discrepancy.tri.term_effects`) on
+        :meth:`borescan.physics.rod.RodDevice.predict` (the digital twin's model).
+        """
         d = self.data
         effects = [e for t in terms for e in term_effects(t, p, d.channels)]
         with np.errstate(invalid="ignore", divide="ignore"):  # NaN where a start puts the beam outside the hole
             return self.device.predict(self.state(p), d.pose_index, d.t_s, effects)
 
     def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
-        """The registry's rod candidates; what a layer's free hole radius absorbs is left out."""
+        """Return the registry's rod candidates; what a layer's free hole radius absorbs is left out."""
         free = {c for c, f in zip(self.data.channels, self.radius_free) if f}
         return registry_terms(self.scan_kind, self.data.channels, have={"cte": bool(self.data.cte_per_k)},
                               k_max=k_max, freed={"R": free})
@@ -359,9 +363,12 @@ class StaticModel(_PoseModel):
                 "radius_mm": float(self.R + p.get("dR", 0.0)), "radius_free": bool(self.radius_free)}
 
     def predict(self, p, terms):
-        """Readings (n, c) [mm]: the terms' fitted values become the spec's effects
-        (:func:`~borescan.discrepancy.tri.term_effects`) on :meth:`borescan.physics.tri.TriDevice.predict`
-        (the digital twin's model), the device at S_p and angle 0 in a bore centred at the origin."""
+        """Return the readings (n, c) [mm] the three-sensor model predicts with the terms' fitted values.
+
+        The terms' fitted values become the spec's effects (:func:`~borescan.discrepancy.tri.term_effects`) on
+        :meth:`borescan.physics.tri.TriDevice.predict` (the digital twin's model), the device at S_p and angle
+        0 in a bore centred at the origin.
+        """
         d = self.data
         xy = np.array([[p[f"sx[{k}]"], p[f"sy[{k}]"]] for k in range(self.n_pose)])
         state = TriStaticState(xy, np.zeros(self.n_pose), Bore((0.0, 0.0), self.R + p.get("dR", 0.0)))
@@ -369,7 +376,7 @@ class StaticModel(_PoseModel):
         return self.device.predict(state, d.pose_index, d.t_s, effects)
 
     def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
-        """The registry's static candidates; a free bore radius absorbs what every channel shares."""
+        """Return the registry's static candidates; a free bore radius absorbs what every channel shares."""
         return registry_terms(self.scan_kind, self.data.channels, have={"cte": bool(self.data.cte_per_k)},
                               k_max=k_max, freed={"R": "shared" if self.radius_free else set()})
 

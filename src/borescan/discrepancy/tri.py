@@ -344,7 +344,7 @@ class TriModel:
 
     @property
     def absorbed_by(self) -> dict[str, str]:
-        """Effect -> the calibration parameters that absorb it (the registry's, :func:`calibration_absorbers`)."""
+        """Return effect -> the calibration parameters that absorb it (:func:`calibration_absorbers`)."""
         return calibration_absorbers(self.scan_kind)
     base_description = "device.nominal beams, artifact R20, spindle position, rpm_nominal"
 
@@ -399,9 +399,10 @@ class TriModel:
         return _vibration_peak(self, r)[0]
 
     def candidate_terms(self, *, k_max: int | None = None, vibration_f_hz: float | None = None) -> list[Term]:
-        """Every applicable term (:func:`candidate_terms`), less those a freed base parameter
-        absorbs (the registry's ``absorbed_by``: d_b offsets and thermal expansion, beta channel
-        delay, a free radius R the common offset and thermal expansion).
+        """Return every applicable term, less those a freed base parameter absorbs.
+
+        The terms are :func:`candidate_terms`'; absorbed per the registry's ``absorbed_by``: d_b offsets and
+        thermal expansion, beta channel delay, a free radius R the common offset and thermal expansion.
         """
         chans = set(self.data.channels)
         freed: dict[str, set | str] = {b: chans for b in self.free_beams}

@@ -240,9 +240,11 @@ def write_reproduction(out_dir, fig11_trials: int = FIG11_TRIALS, progress=None)
                     "front hole h = 450 mm, ecc along x, deflection towards y"])
         i18 = list(f11["n"]).index(18) if 18 in list(f11["n"]) else -1
         w.writerow(["Fig. 11 diameter error after >= 18 rotations", "~28 um",
-                    f"RMS {f11['rms_um'][i18]:.1f} um, 95% {f11['p95_um'][i18]:.1f} um, max {f11['max_um'][i18]:.1f} um at n = {f11['n'][i18]}",
+                    f"RMS {f11['rms_um'][i18]:.1f} um, 95% {f11['p95_um'][i18]:.1f} "
+                    f"um, max {f11['max_um'][i18]:.1f} um at n = {f11['n'][i18]}",
                     f"sensor noise only (uniform +-20 um); paper includes run-out, install and hole form; "
-                    f"{fig11_trials} trials per n (RMS to about {100 / np.sqrt(4 * fig11_trials):.0f} %, 95% to about "
+                    f"{fig11_trials} trials per n (RMS to about "
+                    f"{100 / np.sqrt(4 * fig11_trials):.0f} %, 95% to about "
                     f"{118 / np.sqrt(2 * fig11_trials):.0f} %)"])
     paths["statements"] = p
     p = out / "wang_fig9.csv"

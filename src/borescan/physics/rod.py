@@ -70,6 +70,7 @@ class RodBase:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """Return the layers' channels, in layer order."""
         return tuple(int(lay.channel) for lay in self.layers)
 
 
@@ -79,7 +80,7 @@ def _stages(effects: Iterable[Effect], channels: Sequence[int]) -> dict[str, lis
 
 
 def rod_layers_with_effects(layers: Sequence[RodLayer], beam_effects: Iterable[Effect]) -> list[RodLayer]:
-    """The layers after the beam-stage effects (step 2), in composition order."""
+    """Return the layers after the beam-stage effects (step 2), in composition order."""
     out = list(layers)
     chans = [lay.channel for lay in out]
     for e in beam_effects:
@@ -91,7 +92,7 @@ def rod_layers_with_effects(layers: Sequence[RodLayer], beam_effects: Iterable[E
 def rod_holes_with_effects(
     holes: Sequence[Hole], bore_effects: Sequence[Effect], cte_per_k: float
 ) -> list[Hole]:
-    """The holes after the bore-stage effects (step 1), in composition order.
+    """Return the holes after the bore-stage effects (step 1), in composition order.
 
     Raises
     ------
@@ -199,8 +200,10 @@ class RodState:
 
 @dataclass(frozen=True)
 class RodJacobian:
-    """Derivatives of each reading (n, m) of :meth:`RodDevice.predict` with respect to the base
-    unknowns of its pose and layer; the effects held at their values.
+    """Derivatives of the rod's readings with respect to the base unknowns.
+
+    Each reading (n, m) of :meth:`RodDevice.predict` with respect to the base unknowns of its pose and layer;
+    the effects held at their values.
 
     Attributes
     ----------
@@ -218,8 +221,11 @@ class RodJacobian:
 
 @dataclass(frozen=True)
 class RodDevice:
-    """The measuring rod's model: its layers' geometry (design or calibrated), the artifact's CTE, the
-    sensors' ranges. :meth:`predict` is :func:`rod_forward` at the base of :meth:`base`."""
+    """The measuring rod's model.
+
+    Its layers' geometry (design or calibrated), the artifact's CTE, the sensors' ranges. :meth:`predict` is
+    :func:`rod_forward` at the base of :meth:`base`.
+    """
 
     layers: tuple[RodLayer, ...]
     cte_per_k: float = 0.0
@@ -227,10 +233,11 @@ class RodDevice:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """Return the layers' channels, in layer order."""
         return tuple(int(lay.channel) for lay in self.layers)
 
     def base(self, state: RodState) -> RodBase:
-        """The base geometry of the fit's unknowns (:func:`rod_section_geometry` on these layers)."""
+        """Return the base geometry of the fit's unknowns (:func:`rod_section_geometry` on these layers)."""
         holes, axis = rod_section_geometry(
             self.layers, state.center_xy_mm, state.radius_mm, state.deflection_xy_rad
         )
@@ -256,7 +263,7 @@ class RodDevice:
         step_rad: float = 1e-6,
         radius_step_mm: float = 1e-3,
     ) -> RodJacobian:
-        """Derivatives of :meth:`predict` with respect to the base unknowns.
+        """Return the derivatives of :meth:`predict` with respect to the base unknowns.
 
         The spot P = O + s E (O = Rm (d n(a) + h z), E = Rm (cos(gamma) u(a) + sin(gamma) z), the layers
         after the beam effects) solves |P_xy - c| = r; implicitly, with q = P_xy - c,

@@ -205,7 +205,7 @@ def tri_forward(base: TriBase, t_s: np.ndarray, effects: Iterable[Effect] = ()) 
 
 def first_harmonic_start(phi_rad: np.ndarray, readings_mm: np.ndarray, mask: np.ndarray,
                          beta_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """The spindle's offset from the bore centre from the readings' first harmonic: a linear start.
+    """Return the spindle's offset from the bore centre from the readings' first harmonic: a linear start.
 
     To first order in the offset o = S - C (the geometry expanded about a centred spindle), channel c
     reads v_c = k_c - o . u(phi + beta_c); o and the levels k_c by linear least squares over the
@@ -336,8 +336,10 @@ class TriStaticState:
 
 @dataclass(frozen=True)
 class TriStaticJacobian:
-    """Derivatives of each reading (n, c) of :meth:`TriDevice.predict` with respect to its pose's
-    base geometry and the bore's; the effects held at their values.
+    """Derivatives of the three-sensor device's readings with respect to the base geometry.
+
+    Each reading (n, c) of :meth:`TriDevice.predict` with respect to its pose's base geometry and the bore's;
+    the effects held at their values.
 
     Attributes
     ----------
@@ -354,7 +356,7 @@ class TriStaticJacobian:
 
 
 def _perp(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The vector turned by +90 degrees, J (x, y) = (-y, x)."""
+    """Return the vector turned by +90 degrees, J (x, y) = (-y, x)."""
     return -y, x
 
 
@@ -378,6 +380,7 @@ class TriDevice:
 
     @property
     def channels(self) -> tuple[int, ...]:
+        """Return the beams' channels."""
         return self.beams.channels
 
     def _stages(self, effects: Iterable[Effect]) -> dict[str, list[Effect]]:
@@ -388,7 +391,7 @@ class TriDevice:
         return st
 
     def _geometry(self, state: TriStaticState, pose_index: np.ndarray, st: dict[str, list[Effect]]):
-        """Steps 4-5 per pose, then indexed per reading: (v (n, c), the bore with its effects)."""
+        """Return steps 4-5 per pose, then indexed per reading: (v (n, c), the bore with its effects)."""
         bore = bore_with_effects(state.bore, st["bore"], self.cte_per_k)
         ang = np.atleast_1d(np.asarray(state.device_angle_rad, dtype=float))
         xy = np.atleast_2d(np.asarray(state.device_xy_mm, dtype=float))

@@ -79,9 +79,11 @@ def frames_or_empty(frames: list[pl.DataFrame]) -> pl.DataFrame:
 
 
 def read_tables(paths, table: str | None = None) -> pl.DataFrame:
-    """Stage table files (one path or a list) stacked, see :func:`frames_or_empty`; with every
-    column of history table ``table`` when named (:func:`borescan.tables.conform`: no rows, or rows
-    of one kind only, still give the table's columns)."""
+    """Return stage table files (one path or a list) stacked.
+
+    Stacked as :func:`frames_or_empty` does; with every column of history table ``table`` when named
+    (:func:`borescan.tables.conform`: no rows, or rows of one kind only, still give the table's columns).
+    """
     frames = [pl.read_parquet(p) for p in (paths if isinstance(paths, (list, tuple)) else [paths])]
     df = frames_or_empty([f for f in frames if f.width])
     return tables.conform(table, df) if table is not None else df

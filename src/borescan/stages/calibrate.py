@@ -32,16 +32,16 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     """Calibrate every tri_lds device from its calibration scans of the night; write certificates.
 
     ``uncertainty``, ``laboratory``, ``verification``, ``devices``, ``signal`` (the readings' spike
-    policy, :mod:`borescan.readings`): those config sections (schema defaults if None);
-    ``pooled_tables``: earlier nights' pooled findings (a device model's values); ``auto_nights``:
-    ``discrepancy.device_model_auto_nights``. ``cfg["method"]``: ``full_lsq`` (every sample, exact
-    forward model, all calibration scans of the device together) or ``yang2017`` (the paper's
-    extrema method, one calibration per scan). A rod's ring-gauge calibration scan calibrates its
-    layers' base lengths (:mod:`borescan.rod_calibration`). Devices are calibrated on up to
-    ``workers`` processes. Returns (calibrations rows, calibration_scans rows, quarantined). A scan
-    with too few revolutions, or a calibration that does not converge, is quarantined with the
-    reason; the other devices and nights go on. ``certificates``, when given, receives the
-    ``stage/certificate_issues`` rows of the certificates written (:func:`borescan.certificate_issue.issue_row`).
+    policy, :mod:`borescan.readings`): those config sections (schema defaults if None); ``pooled_tables``:
+    earlier nights' pooled findings (a device model's values); ``auto_nights``:
+    ``discrepancy.device_model_auto_nights``. ``cfg["method"]``: ``full_lsq`` (every sample, exact forward
+    model, all calibration scans of the device together) or ``yang2017`` (the paper's extrema method, one
+    calibration per scan). A rod's ring-gauge calibration scan calibrates its layers' base lengths
+    (:mod:`borescan.rod_calibration`). Devices are calibrated on up to ``workers`` processes. Returns
+    (calibrations rows, calibration_scans rows, quarantined). A scan with too few revolutions, or a
+    calibration that does not converge, is quarantined with the reason; the other devices and nights go
+    on. ``certificates``, when given, receives the ``stage/certificate_issues`` rows of the certificates
+    written (:func:`borescan.certificate_issue.issue_row`).
     """
     dflt = schema_defaults()
     ctx_args = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
@@ -86,9 +86,12 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
 
 
 def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str], list[dict]]:
-    """One job of :func:`stage_calibrate`: a three-sensor device's calibration scans of the night
-    (``"tri"``) or one rod calibration scan (``"rod"``). Returns (kind, calibrations rows,
-    calibration_scans rows, quarantined, log lines, certificate issue rows)."""
+    """Run one job of :func:`stage_calibrate`.
+
+    A three-sensor device's calibration scans of the night (``"tri"``) or one rod calibration scan
+    (``"rod"``). Returns (kind, calibrations rows, calibration_scans rows, quarantined, log lines, certificate
+    issue rows).
+    """
     kind, items, (night, results_root, summary, cfg, ctx_args) = job
     ctx = _context(ctx_args)
     cal_rows, link_rows, bad, lines = [], [], [], []

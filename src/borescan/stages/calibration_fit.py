@@ -86,7 +86,7 @@ def scan_conditions(scan: rawio.RawScan, x: dict, summary: pl.DataFrame) -> dict
 
 
 def acceptance_rule(cal_cfg: dict) -> calibration.AcceptanceRule:
-    """The calibration section's acceptance settings as a :class:`calibration.AcceptanceRule`."""
+    """Return the calibration section's acceptance settings as a :class:`calibration.AcceptanceRule`."""
     return calibration.AcceptanceRule.from_config(cal_cfg)
 
 

@@ -1,5 +1,8 @@
-"""Stage ``build_catalog``: ``catalog.duckdb`` extended by the nights whose stage tables are new, then
-checked against the raw root: every night and scan of it is in the history (ok or quarantined)."""
+"""Stage ``build_catalog``: extend ``catalog.duckdb`` and check it against the raw root.
+
+``catalog.duckdb`` extended by the nights whose stage tables are new, then checked against the raw root: every
+night and scan of it is in the history (ok or quarantined).
+"""
 
 from __future__ import annotations
 
@@ -71,7 +74,8 @@ def catalog_quarantine(catalog_file: str | Path) -> list[Quarantined]:
     try:
         rows = con.execute(
             "SELECT scan_id, strftime(night, '%Y-%m-%d'), stage, file, reason FROM quarantine "
-            f"QUALIFY row_number() OVER (PARTITION BY scan_id, night ORDER BY CASE stage {order} ELSE 9 END, file) = 1 "
+            "QUALIFY row_number() OVER (PARTITION BY scan_id, night "
+            f"ORDER BY CASE stage {order} ELSE 9 END, file) = 1 "
             "ORDER BY night, scan_id").fetchall()
     finally:
         con.close()

@@ -30,6 +30,7 @@ class Quarantined:
 
     @classmethod
     def from_error(cls, err: rawio.ScanError, night: str, stage: str) -> "Quarantined":
+        """Return the quarantine record of ``err`` met in ``stage`` of ``night``."""
         return cls(err.scan_id, night, stage, err.file, err.problem)
 
 
@@ -37,10 +38,12 @@ _RECORD_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,63}")
 
 
 def quarantine_record_name(scan_id: str, night: str) -> str:
-    """File name of a scan's quarantine record: ``<scan_id>.json`` for a valid id that cannot be
-    mistaken for anything else; otherwise (a folder id longer than 64 characters, ``..``, ``-``, ...)
-    ``scan-<16 hex of SHA-256 of night/scan_id>.json``, so two folders never share a record, no
-    record is hidden and none is named like the ``-`` of problems that name no scan."""
+    """Return the file name of a scan's quarantine record.
+
+    ``<scan_id>.json`` for a valid id that cannot be mistaken for anything else; otherwise (a folder id longer
+    than 64 characters, ``..``, ``-``, ...) ``scan-<16 hex of SHA-256 of night/scan_id>.json``, so two folders
+    never share a record, no record is hidden and none is named like the ``-`` of problems that name no scan.
+    """
     if _RECORD_NAME.fullmatch(scan_id):
         return f"{scan_id}.json"
     return f"scan-{hashlib.sha256(f'{night}/{scan_id}'.encode()).hexdigest()[:16]}.json"
@@ -51,8 +54,9 @@ def _record_bytes(q: Quarantined) -> str:  # the record's text (deterministic)
 
 
 def write_quarantine_record(results_root: str | Path, q: Quarantined) -> Path:
-    """Write ``<results_root>/quarantine/<name>.json`` (:func:`quarantine_record_name`; atomic,
-    deterministic bytes). The catalog step rewrites the folder from the catalog
+    """Write ``<results_root>/quarantine/<name>.json`` (atomic, deterministic bytes).
+
+    The name is :func:`quarantine_record_name`'s. The catalog step rewrites the folder from the catalog
     (:func:`sync_quarantine_records`), so a record outlives neither a rerun nor a recompute.
 
     The first stage that set the scan aside keeps the file: a record of an earlier stage
@@ -75,8 +79,11 @@ def _stage_rank(stage) -> int:
 
 
 def sync_quarantine_records(results_root: str | Path, records: list[Quarantined]) -> tuple[int, int]:
-    """Make ``<results_root>/quarantine/`` hold exactly ``records`` (the catalog's, one per scan; a scan id
-    quarantined on two nights: ``<scan_id>.night=<night>.json`` for the later). Returns (written, removed)."""
+    """Make ``<results_root>/quarantine/`` hold exactly ``records``.
+
+    The records are the catalog's, one per scan; a scan id quarantined on two nights gets
+    ``<scan_id>.night=<night>.json`` for the later. Returns (written, removed).
+    """
     folder = Path(results_root) / "quarantine"
     want: dict[str, str] = {}
     for q in records:
@@ -106,8 +113,11 @@ def quarantine(results_root, records: list[Quarantined], scan_id: str, night: st
 
 
 def quarantined_text(records: list[Quarantined], width: int = 160) -> str:
-    """``n quarantined`` and, per scan, ``scan_id (file: reason)`` with the reason cut at ``width``
-    characters: a night's log line says who was set aside and why (the full reason is in the record)."""
+    """Return a night's log line of who was set aside and why.
+
+    ``n quarantined`` and, per scan, ``scan_id (file: reason)`` with the reason cut at ``width`` characters: a
+    night's log line says who was set aside and why (the full reason is in the record).
+    """
     if not records:
         return "0 quarantined"
     items = []

@@ -91,10 +91,12 @@ def signal_one(job) -> tuple[pl.DataFrame | None, pl.DataFrame | None, list[Quar
 
 
 def scan_summary(scan: rawio.RawScan, mat, opts: dict) -> tuple[pl.DataFrame, pl.DataFrame, signal.SignalResult]:
-    """The signal stage of one spindle scan (``mat``: its :func:`borescan.rawio.lds_matrix`,
-    ``opts``: :func:`signal_options`): (extrema, summary rows per channel, the result); the
-    summary also has ``n_samples_recorded`` and the ``period_*`` columns. Raises ValueError,
-    LinAlgError or IndexError when the readings give no period or extrema."""
+    """Run the signal stage on one spindle scan (extrema, summary rows per channel, the result).
+
+    ``mat`` is its :func:`borescan.rawio.lds_matrix`, ``opts`` :func:`signal_options`. Return (extrema,
+    summary rows per channel, the result); the summary also has ``n_samples_recorded`` and the ``period_*``
+    columns. Raises ValueError, LinAlgError or IndexError when the readings give no period or extrema.
+    """
     res = signal.process_scan(scan, mat, **opts)
     frames = res.to_frames()
     period = {(k if k.startswith("period_") else f"period_{k}"): v for k, v in res.period.to_dict().items()}
