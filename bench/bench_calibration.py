@@ -13,7 +13,14 @@ import sys
 import numpy as np
 
 from borescan.calibration import CalibrationError, fit_full_calibration, yang_calibration, yang_status
-from borescan.geometry import Beams, Bore, circumcircle, tri_spindle_readings, tri_static_readings, wall_points_device
+from borescan.geometry import (
+    Beams,
+    Bore,
+    circumcircle,
+    tri_spindle_readings,
+    tri_static_readings,
+    wall_points_device,
+)
 
 # Truth near Yang 2017 Table 1 (r, d_b), beams about 120 deg apart; gauge and offset as in §3.1.
 TRUE = Beams(
@@ -26,12 +33,23 @@ R_MM = 275.029 / 2
 OFFSET_MM = np.array([0.122, -2.320])  # P1 - P0 of Yang 2017 (oe = 2.3232 mm)
 
 
-def simulate_scan(beams: Beams, offset_mm, n_rev: int, samples_per_rev: int, noise_mm: float, rng,
-                  R_mm: float = R_MM, phase0_rad: float = 0.0, rpm: float = 60.0):
+def simulate_scan(
+    beams: Beams,
+    offset_mm,
+    n_rev: int,
+    samples_per_rev: int,
+    noise_mm: float,
+    rng,
+    R_mm: float = R_MM,
+    phase0_rad: float = 0.0,
+    rpm: float = 60.0,
+):
     """Sample times [s] and noisy readings (n, c) [mm] of a ccw spindle scan of a ring gauge."""
     omega = 2.0 * np.pi * rpm / 60.0
     t = np.arange(n_rev * samples_per_rev) / (samples_per_rev * rpm / 60.0)
-    v = tri_spindle_readings(phase0_rad + omega * t, np.asarray(offset_mm, float), beams, Bore((0.0, 0.0), R_mm))
+    v = tri_spindle_readings(
+        phase0_rad + omega * t, np.asarray(offset_mm, float), beams, Bore((0.0, 0.0), R_mm)
+    )
     return t, v + rng.normal(0.0, noise_mm, v.shape)
 
 
@@ -93,9 +111,19 @@ def run_yang(t, v, samples_per_rev, oe_mm, nominal: Beams, R_mm: float = R_MM):
     """Yang 2017 calibration from a simulated scan (oe as given, gauge beta_1 = nominal)."""
     ex = yang_extremes(v, samples_per_rev)
     return yang_calibration(
-        ex["d_max"], ex["d_min"], ex["statuses"], ex["feature"], samples_per_rev, R_mm, oe_mm,
-        channels=nominal.channels, beta_ref_rad=float(nominal.beta_rad[0]), beta_nominal_rad=nominal.beta_rad,
-        u_d_max_mm=ex["u_d_max"], u_d_min_mm=ex["u_d_min"], scan_ids=("sim",),
+        ex["d_max"],
+        ex["d_min"],
+        ex["statuses"],
+        ex["feature"],
+        samples_per_rev,
+        R_mm,
+        oe_mm,
+        channels=nominal.channels,
+        beta_ref_rad=float(nominal.beta_rad[0]),
+        beta_nominal_rad=nominal.beta_rad,
+        u_d_max_mm=ex["u_d_max"],
+        u_d_min_mm=ex["u_d_min"],
+        scan_ids=("sim",),
     )
 
 
@@ -118,7 +146,11 @@ def verification_error_mm(beams_est: Beams, beams_true: Beams = TRUE, R_ring_mm:
 def param_errors(beams_est: Beams, beams_true: Beams = TRUE) -> dict:
     """Errors of beta_c - beta_1 [rad], rho [mm], d_b [mm]."""
     db = (beams_est.beta_rad - beams_est.beta_rad[0]) - (beams_true.beta_rad - beams_true.beta_rad[0])
-    return {"beta": db[1:], "rho": beams_est.rho_mm - beams_true.rho_mm, "d_b": beams_est.d_b_mm - beams_true.d_b_mm}
+    return {
+        "beta": db[1:],
+        "rho": beams_est.rho_mm - beams_true.rho_mm,
+        "d_b": beams_est.d_b_mm - beams_true.d_b_mm,
+    }
 
 
 def one_trial(rng, n_rev=5, N=200, noise_mm=0.002, offset_mm=OFFSET_MM, oe_error_mm=0.0):
@@ -152,7 +184,12 @@ def coverage(n_cal: int = 200, seed: int = 7, n_rev: int = 5, N: int = 200, nois
         u = np.concatenate([cal.u_beta_rad[1:], cal.u_rho_mm, cal.u_d_b_mm])
         z.append(err / u)
     z = np.array(z)
-    return {"names": names, "within_2u": np.mean(np.abs(z) <= 2.0, axis=0), "mean_z2": np.mean(z**2, axis=0), "n": n_cal}
+    return {
+        "names": names,
+        "within_2u": np.mean(np.abs(z) <= 2.0, axis=0),
+        "mean_z2": np.mean(z**2, axis=0),
+        "n": n_cal,
+    }
 
 
 def _row(label, res_list, key):
@@ -166,8 +203,18 @@ def _row(label, res_list, key):
     rho = rms([x["rho"] for x in e]) * 1e3
     d_b = rms([x["d_b"] for x in e]) * 1e3
     dia = np.array([verification_error_mm(c.beams) for c in fits]) * 1e3
-    dia_other = np.array([np.r_[verification_error_mm(c.beams, R_ring_mm=136.0),
-                                verification_error_mm(c.beams, R_ring_mm=139.0)] for c in fits]) * 1e3
+    dia_other = (
+        np.array(
+            [
+                np.r_[
+                    verification_error_mm(c.beams, R_ring_mm=136.0),
+                    verification_error_mm(c.beams, R_ring_mm=139.0),
+                ]
+                for c in fits
+            ]
+        )
+        * 1e3
+    )
     return (
         f"{label:>22s} {key:>5s}  beta(urad) {beta[0]:8.1f} {beta[1]:8.1f}  rho(um) {rho[0]:8.1f} "
         f"{rho[1]:8.1f} {rho[2]:8.1f}"
@@ -181,9 +228,13 @@ def _row(label, res_list, key):
 
 def main(trials: int = 20) -> None:
     """Print the comparison tables and the coverage (RMS over ``trials`` seeded scans per cell)."""
-    print("RMS errors over", trials, "scans; 200 samples/rev, ccw 60 rpm; beta as beta_c - beta_1; "
-          "|dD| = diameter error on a 275.000 mm verification ring, 5 static poses, "
-          "then on 272 and 278 mm rings (rms, max)")
+    print(
+        "RMS errors over",
+        trials,
+        "scans; 200 samples/rev, ccw 60 rpm; beta as beta_c - beta_1; "
+        "|dD| = diameter error on a 275.000 mm verification ring, 5 static poses, "
+        "then on 272 and 278 mm rings (rms, max)",
+    )
     print("-- revolutions (noise 2 um, oe 2.3232 mm; Yang with exact oe)")
     for n_rev in (1, 2, 5, 10, 20, 50, 100):
         rng = np.random.default_rng(100 + n_rev)

@@ -106,8 +106,16 @@ def _compared(params: np.ndarray, f: int | None, c: int):
 
 
 def crb_cov(  # noqa: C901 (one block per parameter kind of the CRB's Jacobian)
-        scene, t_s: np.ndarray, mask: np.ndarray, sigma_mm: float, *, free_beta: list[bool],
-            free_phase: bool, free_scale: bool, prior_sigma_mm: float | None) -> np.ndarray:
+    scene,
+    t_s: np.ndarray,
+    mask: np.ndarray,
+    sigma_mm: float,
+    *,
+    free_beta: list[bool],
+    free_phase: bool,
+    free_scale: bool,
+    prior_sigma_mm: float | None,
+) -> np.ndarray:
     """Cramer-Rao covariance (3c, 3c) of (beta, rho, d_b) per channel at the truth ``scene``.
 
     Parameters (in this order, the fixed ones left out): beta_c (where ``free_beta``), rho_c,
@@ -128,8 +136,12 @@ def crb_cov(  # noqa: C901 (one block per parameter kind of the CRB's Jacobian)
     base = replace(scene, bore_center_xy_mm=(0.0, 0.0), spindle_xy_mm=tuple(S - C))
 
     def model(beta, rho, o, phase, scale):
-        sc = replace(base, beams=Beams(scene.beams.channels, beta, rho, scene.beams.d_b_mm),
-                     spindle_xy_mm=(float(o[0]), float(o[1])), phase_rad=float(phase))
+        sc = replace(
+            base,
+            beams=Beams(scene.beams.channels, beta, rho, scene.beams.d_b_mm),
+            spindle_xy_mm=(float(o[0]), float(o[1])),
+            phase_rad=float(phase),
+        )
         eff = [] if scale == 1.0 else [Effect("speed_error", {"eps": scale - 1.0})]
         return tri_readings(sc, t_s, eff)[mask]
 
@@ -187,10 +199,12 @@ def fitted_readings(cal, scan, t_s: np.ndarray, R_mm: float) -> np.ndarray:
     nu = cal.nuisance[scan.scan_id]
     sp, sm = scan.spindle, scan.meta.get("spindle") or {}
     am = kinematics.angle_model_from_arrays(
-        rpm_nominal=sm.get("rpm_nominal"), direction=sm.get("direction", "ccw"),
+        rpm_nominal=sm.get("rpm_nominal"),
+        direction=sm.get("direction", "ccw"),
         spindle_t_s=sp["t_ns"].to_numpy() * 1e-9,
         spindle_angle_rad=sp["angle_rad"].to_numpy().astype(float),
-        spindle_rpm=sp["rpm"].to_numpy().astype(float))
+        spindle_rpm=sp["rpm"].to_numpy().astype(float),
+    )
     if am.source == "encoder":
         phi = am.phi_rad(t_s)
     else:
@@ -209,9 +223,15 @@ def evaluate_scan(job: tuple) -> dict:
     scan = rawio.read_scan(Path(path))
     truth = simulate.load_truth(truth_root, scan.scan_id)
     ct = truth["contract"]
-    row = {"scan_id": scan.scan_id, "angle_source": ct["angle_source"], "position_known": ct["position_known"],
-           "speed_change": ct["speed_change"], "out_of_range": ct["out_of_range"] is not None,
-           "n_rev": ct["n_rev"], "noise_mm": ct["noise_mm"]}
+    row = {
+        "scan_id": scan.scan_id,
+        "angle_source": ct["angle_source"],
+        "position_known": ct["position_known"],
+        "speed_change": ct["speed_change"],
+        "out_of_range": ct["out_of_range"] is not None,
+        "n_rev": ct["n_rev"],
+        "noise_mm": ct["noise_mm"],
+    }
     t0 = time.perf_counter()
     try:
         cal = calibrate_raw_scans([scan], cal_cfg)
@@ -235,9 +255,15 @@ def evaluate_scan(job: tuple) -> dict:
     is_beta = np.array([x == "beta" for x in fam])
     err[is_beta] = _wrap(err[is_beta])
     u = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", A, cal.cov, A), 0.0, None))
-    row.update(beta_reference=ref, families=fam, err=err.tolist(), u=u.tolist(), rho_true_mm=tb.rho_mm.tolist(),
-               weak_rho=list(cal.diagnostics.get("weak_rho_channels", [])),
-               residual_to_noise=float(cal.residual_rms_mm / ct["noise_mm"]))
+    row.update(
+        beta_reference=ref,
+        families=fam,
+        err=err.tolist(),
+        u=u.tolist(),
+        rho_true_mm=tb.rho_mm.tolist(),
+        weak_rho=list(cal.diagnostics.get("weak_rho_channels", [])),
+        residual_to_noise=float(cal.residual_rms_mm / ct["noise_mm"]),
+    )
     # the mirror check of each beam (issue 36): resolved or flagged, its delta chi^2, the stated probability
     # of the wrong sign, whether the kept sign is the truth's; and Eq. (1) at the truth (|rho| > sqrt(2) e)
     from borescan.mirror import mirror_checks_of, mirror_exists, predicted_depth
@@ -245,15 +271,27 @@ def evaluate_scan(job: tuple) -> dict:
     checks = {m.channel: m for m in mirror_checks_of(cal.diagnostics)}
     e_true = float(np.hypot(*np.subtract(ct["spindle_xy_mm"], ct["center_xy_mm"])))
     n_ch = np.isfinite(np.asarray(rawio.lds_matrix(scan).values_mm, dtype=float)).sum(axis=0)
-    row["mirror"] = [{
-        "channel": int(ch), "resolved": bool(checks[ch].resolved) if ch in checks else True,
-        "refit_delta_chi2": checks[ch].refit_delta_chi2 if ch in checks else None,
-        "p_wrong_sign": float(checks[ch].p_wrong_sign) if ch in checks else 0.0,
-        "sign_right": bool(np.sign(cal.beams.rho_mm[j]) == np.sign(tb.rho_mm[j])),
-        "formula_flagged": bool(mirror_exists(float(tb.rho_mm[j]), e_true)
-                                and predicted_depth([int(n_ch[j])], [e_true], float(tb.rho_mm[j]), [ct["noise_mm"]],
-                                                    float(scene.bore_radius_20_mm)) < 25.0),
-    } for j, ch in enumerate(cal.beams.channels)]
+    row["mirror"] = [
+        {
+            "channel": int(ch),
+            "resolved": bool(checks[ch].resolved) if ch in checks else True,
+            "refit_delta_chi2": checks[ch].refit_delta_chi2 if ch in checks else None,
+            "p_wrong_sign": float(checks[ch].p_wrong_sign) if ch in checks else 0.0,
+            "sign_right": bool(np.sign(cal.beams.rho_mm[j]) == np.sign(tb.rho_mm[j])),
+            "formula_flagged": bool(
+                mirror_exists(float(tb.rho_mm[j]), e_true)
+                and predicted_depth(
+                    [int(n_ch[j])],
+                    [e_true],
+                    float(tb.rho_mm[j]),
+                    [ct["noise_mm"]],
+                    float(scene.bore_radius_20_mm),
+                )
+                < 25.0
+            ),
+        }
+        for j, ch in enumerate(cal.beams.channels)
+    ]
     # Cramer-Rao bound in the calibration's gauge
     mat = rawio.lds_matrix(scan)
     t_s = np.asarray(mat.t_s, dtype=float)
@@ -263,9 +301,16 @@ def evaluate_scan(job: tuple) -> dict:
     encoder = ct["angle_source"] == "encoder"
     prior = ct["position_error_mm"] * math.sqrt(2.0 / 3.0) if ct["position_known"] else None
     try:
-        crb = crb_cov(scene, t_s, mask, ct["noise_mm"], free_beta=[f is None or j != f for j in range(c)],
-                      free_phase=bool(nu.get("phase_free", (not encoder) and ct["position_known"])),
-                      free_scale=not encoder, prior_sigma_mm=prior)
+        crb = crb_cov(
+            scene,
+            t_s,
+            mask,
+            ct["noise_mm"],
+            free_beta=[f is None or j != f for j in range(c)],
+            free_phase=bool(nu.get("phase_free", (not encoder) and ct["position_known"])),
+            free_scale=not encoder,
+            prior_sigma_mm=prior,
+        )
         row["u_crb"] = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", A, crb, A), 0.0, None)).tolist()
     except np.linalg.LinAlgError as e:
         row["u_crb"] = None
@@ -286,14 +331,28 @@ def evaluate_scan(job: tuple) -> dict:
         o_rep = np.subtract(ct["spindle_reported_xy_mm"], ct["center_reported_xy_mm"])
         o_true = np.subtract(ct["spindle_xy_mm"], ct["center_xy_mm"])
         # the calibration's prior on o: +-a on the centre and on the spindle position, u = a sqrt(2/3)
-        p_true = float(np.sum((o_true - o_rep) ** 2) / (float(cal_cfg["position_accuracy_mm"]) * math.sqrt(2.0 / 3.0)) ** 2)
-    row.update(ssr_fit=ssr_fit, ssr_true=ssr_true, ssr_spread=spread, n_obs=int(mask.sum()),
-               ssr_excess_sigma2=(ssr_fit - ssr_true) / ct["noise_mm"] ** 2, prior_penalty_true=p_true)
+        p_true = float(
+            np.sum((o_true - o_rep) ** 2)
+            / (float(cal_cfg["position_accuracy_mm"]) * math.sqrt(2.0 / 3.0)) ** 2
+        )
+    row.update(
+        ssr_fit=ssr_fit,
+        ssr_true=ssr_true,
+        ssr_spread=spread,
+        n_obs=int(mask.sum()),
+        ssr_excess_sigma2=(ssr_fit - ssr_true) / ct["noise_mm"] ** 2,
+        prior_penalty_true=p_true,
+    )
     return row
 
 
-def run(n: int = N_SCANS, seed: int = SEED, workers: int | None = None, out_dir: Path | None = None,
-        only: list[int] | None = None) -> list[dict]:
+def run(
+    n: int = N_SCANS,
+    seed: int = SEED,
+    workers: int | None = None,
+    out_dir: Path | None = None,
+    only: list[int] | None = None,
+) -> list[dict]:
     """Write the battery and calibrate every scan; return per-scan rows.
 
     Write the battery (temp folder unless ``out_dir``; only the scan indices ``only`` if given),
@@ -323,8 +382,12 @@ def run(n: int = N_SCANS, seed: int = SEED, workers: int | None = None, out_dir:
 def summarize(rows: list[dict]) -> dict:
     """Return the acceptance figures of the rows (see the module doc); also printed by :func:`print_table`."""
     acc = [r for r in rows if r["accepted"]]
-    out = {"scans": len(rows), "accepted": len(acc), "refused": len(rows) - len(acc),
-           "reasons": Counter(r["reason"].split(";")[0][:160] for r in rows if not r["accepted"])}
+    out = {
+        "scans": len(rows),
+        "accepted": len(acc),
+        "refused": len(rows) - len(acc),
+        "reasons": Counter(r["reason"].split(";")[0][:160] for r in rows if not r["accepted"]),
+    }
     z_all = []
     for fam in FAMILIES:
         z, ratio = [], []
@@ -338,27 +401,43 @@ def summarize(rows: list[dict]) -> dict:
                     ratio.append(r["u"][k] / r["u_crb"][k])
         z = np.array(z)
         z_all.append(z)
-        out[fam] = {"n": z.size, "sd": float(np.std(z)) if z.size else float("nan"),
-                    "mean": float(np.mean(z)) if z.size else float("nan"),
-                    "max_abs": float(np.max(np.abs(z))) if z.size else float("nan"),
-                    "cover95": float(np.mean(np.abs(z) <= 1.959964)) if z.size else float("nan"),
-                    "n_over4": int(np.sum(np.abs(z) > 4.0)),
-                    "u_crb_max": float(np.max(ratio)) if ratio else float("nan"),
-                    "u_crb_median": float(np.median(ratio)) if ratio else float("nan"),
-                    "u_crb_min": float(np.min(ratio)) if ratio else float("nan")}
+        out[fam] = {
+            "n": z.size,
+            "sd": float(np.std(z)) if z.size else float("nan"),
+            "mean": float(np.mean(z)) if z.size else float("nan"),
+            "max_abs": float(np.max(np.abs(z))) if z.size else float("nan"),
+            "cover95": float(np.mean(np.abs(z) <= 1.959964)) if z.size else float("nan"),
+            "n_over4": int(np.sum(np.abs(z) > 4.0)),
+            "u_crb_max": float(np.max(ratio)) if ratio else float("nan"),
+            "u_crb_median": float(np.median(ratio)) if ratio else float("nan"),
+            "u_crb_min": float(np.min(ratio)) if ratio else float("nan"),
+        }
     z = np.concatenate(z_all) if z_all else np.zeros(0)
-    out["pooled"] = {"n": z.size, "sd": float(np.std(z)) if z.size else float("nan"),
-                     "cover95": float(np.mean(np.abs(z) <= 1.959964)) if z.size else float("nan"),
-                     "max_abs": float(np.max(np.abs(z))) if z.size else float("nan")}
-    excess = np.array([(r["ssr_fit"] - r["ssr_true"]) / r["ssr_spread"] for r in acc if np.isfinite(r["ssr_fit"])])
-    sharp = [(r["ssr_excess_sigma2"], r["prior_penalty_true"] + 3.0, r["scan_id"]) for r in acc
-             if np.isfinite(r["ssr_fit"])]
-    out["wrong_minimum"] = {"checked": int(excess.size), "failed": int(np.sum(excess > 1.0)),
-                            "max_excess_in_spreads": float(excess.max()) if excess.size else float("nan"),
-                            "sharp_failed": sorted(sid for ex, lim, sid in sharp if ex > lim),
-                            "max_excess_sigma2": float(max(ex for ex, _, _ in sharp)) if sharp else float("nan")}
-    out["seconds"] = {"total": float(sum(r["seconds"] for r in rows)),
-                      "max": float(max(r["seconds"] for r in rows)) if rows else float("nan")}
+    out["pooled"] = {
+        "n": z.size,
+        "sd": float(np.std(z)) if z.size else float("nan"),
+        "cover95": float(np.mean(np.abs(z) <= 1.959964)) if z.size else float("nan"),
+        "max_abs": float(np.max(np.abs(z))) if z.size else float("nan"),
+    }
+    excess = np.array(
+        [(r["ssr_fit"] - r["ssr_true"]) / r["ssr_spread"] for r in acc if np.isfinite(r["ssr_fit"])]
+    )
+    sharp = [
+        (r["ssr_excess_sigma2"], r["prior_penalty_true"] + 3.0, r["scan_id"])
+        for r in acc
+        if np.isfinite(r["ssr_fit"])
+    ]
+    out["wrong_minimum"] = {
+        "checked": int(excess.size),
+        "failed": int(np.sum(excess > 1.0)),
+        "max_excess_in_spreads": float(excess.max()) if excess.size else float("nan"),
+        "sharp_failed": sorted(sid for ex, lim, sid in sharp if ex > lim),
+        "max_excess_sigma2": float(max(ex for ex, _, _ in sharp)) if sharp else float("nan"),
+    }
+    out["seconds"] = {
+        "total": float(sum(r["seconds"] for r in rows)),
+        "max": float(max(r["seconds"] for r in rows)) if rows else float("nan"),
+    }
     return out
 
 
@@ -376,7 +455,17 @@ def mirror_summary(rows: list[dict]) -> dict:
     Resolved beams' z (SD, 95 % coverage, u / CRB in [0.9, 1.2]), the flagged count against Eq. (1)'s at the
     truth, and among flagged beams the observed wrong-sign rate against the stated probabilities (their mean).
     """
-    z, ratio, e_crb, n_beams, n_flag, n_formula, p_stated, wrong, sign_err_resolved = [], [], [], 0, 0, 0, [], [], 0
+    z, ratio, e_crb, n_beams, n_flag, n_formula, p_stated, wrong, sign_err_resolved = (
+        [],
+        [],
+        [],
+        0,
+        0,
+        0,
+        [],
+        [],
+        0,
+    )
     for r in rows:
         if not r.get("accepted") or "mirror" not in r:
             continue
@@ -403,14 +492,20 @@ def mirror_summary(rows: list[dict]) -> dict:
                 ratio.append(r["u"][k] / r["u_crb"][k])
                 e_crb.append(r["err"][k] / r["u_crb"][k])
     z, ratio, e_crb = np.array(z), np.array(ratio), np.array(e_crb)
-    return {"beams": n_beams, "flagged": n_flag, "formula_flagged": n_formula,
-            "resolved_z_sd": float(np.std(z)) if z.size else float("nan"),
-            "resolved_cover95": float(np.mean(np.abs(z) <= 1.959964)) if z.size else float("nan"),
-            "resolved_u_crb_in_0.9_1.2": float(np.mean((ratio >= 0.9) & (ratio <= 1.2))) if ratio.size else float("nan"),
-            "resolved_sign_errors": sign_err_resolved,
-            "resolved_err_over_crb_rms": float(np.sqrt(np.mean(e_crb**2))) if e_crb.size else float("nan"),
-            "flagged_wrong_sign_observed": float(np.mean(wrong)) if wrong else float("nan"),
-            "flagged_wrong_sign_stated": float(np.mean(p_stated)) if p_stated else float("nan")}
+    return {
+        "beams": n_beams,
+        "flagged": n_flag,
+        "formula_flagged": n_formula,
+        "resolved_z_sd": float(np.std(z)) if z.size else float("nan"),
+        "resolved_cover95": float(np.mean(np.abs(z) <= 1.959964)) if z.size else float("nan"),
+        "resolved_u_crb_in_0.9_1.2": float(np.mean((ratio >= 0.9) & (ratio <= 1.2)))
+        if ratio.size
+        else float("nan"),
+        "resolved_sign_errors": sign_err_resolved,
+        "resolved_err_over_crb_rms": float(np.sqrt(np.mean(e_crb**2))) if e_crb.size else float("nan"),
+        "flagged_wrong_sign_observed": float(np.mean(wrong)) if wrong else float("nan"),
+        "flagged_wrong_sign_stated": float(np.mean(p_stated)) if p_stated else float("nan"),
+    }
 
 
 def _subset(rows, **want):
@@ -418,33 +513,47 @@ def _subset(rows, **want):
 
 
 def print_table(  # noqa: C901 (one line per table of the bench's printout)
-        rows: list[dict]) -> dict:
+    rows: list[dict],
+) -> dict:
     """Print the acceptance table of the rows; return :func:`summarize` of them."""
     s = summarize(rows)
     print(f"scans {s['scans']}   accepted {s['accepted']}   refused {s['refused']}")
     for reason, k in s["reasons"].most_common():
         print(f"  refused x{k}: {reason}")
-    print(f"{'family':8s} {'n':>5s} {'z mean':>7s} {'z SD':>6s} {'max|z|':>7s} {'|z|>4':>6s} {'cover95':>8s} "
-          f"{'u/CRB med':>10s} {'u/CRB max':>10s}")
+    print(
+        f"{'family':8s} {'n':>5s} {'z mean':>7s} {'z SD':>6s} {'max|z|':>7s} {'|z|>4':>6s} {'cover95':>8s} "
+        f"{'u/CRB med':>10s} {'u/CRB max':>10s}"
+    )
     for fam in FAMILIES + ("pooled",):
         d = s[fam]
-        extra = (f"{d['mean']:7.2f} {d['sd']:6.3f} {d['max_abs']:7.2f} {d['n_over4']:6d} {d['cover95']:8.1%} "
-                 f"{d['u_crb_median']:10.3f} {d['u_crb_max']:10.3f}") if fam != "pooled" else \
-            f"{'':7s} {d['sd']:6.3f} {d['max_abs']:7.2f} {'':6s} {d['cover95']:8.1%}"
+        extra = (
+            (
+                f"{d['mean']:7.2f} {d['sd']:6.3f} {d['max_abs']:7.2f} {d['n_over4']:6d} {d['cover95']:8.1%} "
+                f"{d['u_crb_median']:10.3f} {d['u_crb_max']:10.3f}"
+            )
+            if fam != "pooled"
+            else f"{'':7s} {d['sd']:6.3f} {d['max_abs']:7.2f} {'':6s} {d['cover95']:8.1%}"
+        )
         print(f"{fam:8s} {d['n']:5d} {extra}")
     w = s["wrong_minimum"]
-    print(f"wrong-minimum check: {w['failed']} of {w['checked']} fits with SSR_fit > SSR_truth + sigma^2 "
-          "sqrt(2N); "
-          f"largest (SSR_fit - SSR_truth) = {w['max_excess_in_spreads']:+.3f} spreads")
-    print(f"sharp check: {len(w['sharp_failed'])} fits with SSR_fit - SSR_truth > sigma^2 (P_truth + 3) "
-          f"{w['sharp_failed'][:10]}; largest SSR_fit - SSR_truth = {w['max_excess_sigma2']:+.1f} sigma^2")
+    print(
+        f"wrong-minimum check: {w['failed']} of {w['checked']} fits with SSR_fit > SSR_truth + sigma^2 "
+        "sqrt(2N); "
+        f"largest (SSR_fit - SSR_truth) = {w['max_excess_in_spreads']:+.3f} spreads"
+    )
+    print(
+        f"sharp check: {len(w['sharp_failed'])} fits with SSR_fit - SSR_truth > sigma^2 (P_truth + 3) "
+        f"{w['sharp_failed'][:10]}; largest SSR_fit - SSR_truth = {w['max_excess_sigma2']:+.1f} sigma^2"
+    )
     # rho is seen only through terms of order |o|^2 / R: where the bound itself exceeds |rho| / 2
     # the data cannot tell rho's sign, a calibration's linearised u does not hold there
     acc = [r for r in rows if r["accepted"]]
     ss = summarize([r for r in acc if not r.get("weak_rho")])
-    print(f"without scans the calibration flags weak rho ({len(acc) - ss['accepted']} flagged): pooled z SD "
-          f"{ss['pooled']['sd']:.3f}, max |z| {ss['pooled']['max_abs']:.2f}, cover95 "
-          f"{ss['pooled']['cover95']:.1%}")
+    print(
+        f"without scans the calibration flags weak rho ({len(acc) - ss['accepted']} flagged): pooled z SD "
+        f"{ss['pooled']['sd']:.3f}, max |z| {ss['pooled']['max_abs']:.2f}, cover95 "
+        f"{ss['pooled']['cover95']:.1%}"
+    )
     amb = []
     for r in acc:
         if not r.get("u_crb"):
@@ -453,10 +562,12 @@ def print_table(  # noqa: C901 (one line per table of the bench's printout)
         if any(r["u_crb"][k] > abs(rt) / 2 for k, rt in zip(k_rho, r["rho_true_mm"])):
             amb.append(r)
     ss = summarize([r for r in acc if r not in amb])
-    print("scans where the truth's CRB of some rho exceeds |rho| / 2 (sign not fixed by the data): "
-          f"{len(amb)}; "
-          f"without them: pooled z SD {ss['pooled']['sd']:.3f}, max |z| {ss['pooled']['max_abs']:.2f}, "
-          f"cover95 {ss['pooled']['cover95']:.1%}")
+    print(
+        "scans where the truth's CRB of some rho exceeds |rho| / 2 (sign not fixed by the data): "
+        f"{len(amb)}; "
+        f"without them: pooled z SD {ss['pooled']['sd']:.3f}, max |z| {ss['pooled']['max_abs']:.2f}, "
+        f"cover95 {ss['pooled']['cover95']:.1%}"
+    )
     # where the z-scores come from: by angle source and position knowledge
     print("by case (scans accepted/total, pooled z SD, beta z SD, beta u/CRB max):")
     for src in ("encoder", "profile"):
@@ -465,44 +576,63 @@ def print_table(  # noqa: C901 (one line per table of the bench's printout)
             if not sub:
                 continue
             ss = summarize(sub)
-            print(f"  {src:8s} positions {'known  ' if known else 'unknown'}: "
-                  f"{ss['accepted']:3d}/{ss['scans']:3d}  "
-                  f"pooled SD {ss['pooled']['sd']:.3f}  beta SD {ss['beta']['sd']:.3f}  "
-                  f"beta u/CRB max {ss['beta']['u_crb_max']:.3f}  rho u/CRB max {ss['rho']['u_crb_max']:.3f}")
+            print(
+                f"  {src:8s} positions {'known  ' if known else 'unknown'}: "
+                f"{ss['accepted']:3d}/{ss['scans']:3d}  "
+                f"pooled SD {ss['pooled']['sd']:.3f}  beta SD {ss['beta']['sd']:.3f}  "
+                f"beta u/CRB max {ss['beta']['u_crb_max']:.3f}  rho u/CRB max {ss['rho']['u_crb_max']:.3f}"
+            )
     for label, key in (("speed change", "speed_change"), ("out of range", "out_of_range")):
         ss = summarize(_subset(rows, **{key: True}))
-        print(f"  {label:12s}: {ss['accepted']:3d}/{ss['scans']:3d}  pooled SD {ss['pooled']['sd']:.3f}  "
-              f"cover95 {ss['pooled']['cover95']:.1%}")
-    worst = sorted((r for r in rows if r["accepted"]), key=lambda r: -max(abs(e / u) if u > 0 else 0
-                                                                           for e, u in zip(r["err"], r["u"])))[:3]
+        print(
+            f"  {label:12s}: {ss['accepted']:3d}/{ss['scans']:3d}  pooled SD {ss['pooled']['sd']:.3f}  "
+            f"cover95 {ss['pooled']['cover95']:.1%}"
+        )
+    worst = sorted(
+        (r for r in rows if r["accepted"]),
+        key=lambda r: -max(abs(e / u) if u > 0 else 0 for e, u in zip(r["err"], r["u"])),
+    )[:3]
     for r in worst:
         zz = [e / u if u > 0 else float("nan") for e, u in zip(r["err"], r["u"])]
-        print(f"  largest |z|: {r['scan_id']} ({r['angle_source']}, positions "
-              f"{'known' if r['position_known'] else 'unknown'}, "
-              f"{r['beta_reference']}, weak rho {r['weak_rho']}): z = {np.round(zz, 2).tolist()}")
+        print(
+            f"  largest |z|: {r['scan_id']} ({r['angle_source']}, positions "
+            f"{'known' if r['position_known'] else 'unknown'}, "
+            f"{r['beta_reference']}, weak rho {r['weak_rho']}): z = {np.round(zz, 2).tolist()}"
+        )
     ms = mirror_summary(rows)
-    print(f"mirror check (issue 36): {ms['flagged']} of {ms['beams']} beams flagged (Eq. (1) at the truth: "
-          f"{ms['formula_flagged']}); resolved beams: z SD {ms['resolved_z_sd']:.3f}, cover95 "
-          f"{ms['resolved_cover95']:.1%}, u/CRB in [0.9, 1.2] "
-          f"{ms['resolved_u_crb_in_0.9_1.2']:.1%}, errors/CRB rms "
-          f"{ms['resolved_err_over_crb_rms']:.3f}, sign errors where |rho| > 2 CRB "
-          f"{ms['resolved_sign_errors']}; flagged beams: wrong "
-          f"sign kept {ms['flagged_wrong_sign_observed']:.3f} "
-          f"observed vs {ms['flagged_wrong_sign_stated']:.3f} stated")
-    print(f"calibration time: {s['seconds']['total']:.0f} s summed "
-          f"over scans, slowest {s['seconds']['max']:.1f} s")
+    print(
+        f"mirror check (issue 36): {ms['flagged']} of {ms['beams']} beams flagged (Eq. (1) at the truth: "
+        f"{ms['formula_flagged']}); resolved beams: z SD {ms['resolved_z_sd']:.3f}, cover95 "
+        f"{ms['resolved_cover95']:.1%}, u/CRB in [0.9, 1.2] "
+        f"{ms['resolved_u_crb_in_0.9_1.2']:.1%}, errors/CRB rms "
+        f"{ms['resolved_err_over_crb_rms']:.3f}, sign errors where |rho| > 2 CRB "
+        f"{ms['resolved_sign_errors']}; flagged beams: wrong "
+        f"sign kept {ms['flagged_wrong_sign_observed']:.3f} "
+        f"observed vs {ms['flagged_wrong_sign_stated']:.3f} stated"
+    )
+    print(
+        f"calibration time: {s['seconds']['total']:.0f} s summed "
+        f"over scans, slowest {s['seconds']['max']:.1f} s"
+    )
     return s
 
 
 def main(argv: list[str] | None = None) -> None:
     """Draw the battery, calibrate it and print the contract's table (options: ``--help``)."""
-    p = argparse.ArgumentParser(prog="python -m bench.bench_calibration_contract", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="python -m bench.bench_calibration_contract", description=__doc__.splitlines()[0]
+    )
     p.add_argument("--n", type=int, default=N_SCANS, help=f"scans (default {N_SCANS})")
     p.add_argument("--seed", type=int, default=SEED, help=f"battery seed (default {SEED})")
     p.add_argument("--workers", type=int, default=None, help="processes (default min(2, cpus))")
     p.add_argument("--out", type=Path, default=None, help="keep the battery here instead of a temp folder")
-    p.add_argument("--only", type=str, default=None, metavar="I,J,...",
-                   help="calibrate only these scan indices of the battery (re-examine a few)")
+    p.add_argument(
+        "--only",
+        type=str,
+        default=None,
+        metavar="I,J,...",
+        help="calibrate only these scan indices of the battery (re-examine a few)",
+    )
     p.add_argument("--rows", type=Path, default=None, help="write the per-scan rows here (JSON lines)")
     args = p.parse_args([] if argv is None else argv)
     if args.n < 1:

@@ -47,8 +47,26 @@ STAGES = ("signal_night", "calibrate_night", "measure_night", "discrepancy_night
 def write_night(out: Path, n: int, seed: int) -> None:
     """``borescan simulate contract``: N scans of each kind on one night, half with an effect."""
     borescan = Path(sys.executable).with_name("borescan")
-    cmd = [str(borescan), "simulate", "contract", "--n", str(n), "--seed", str(seed), "--out", str(out),
-           "--kinds", KINDS, "--effect-share", "0.5", "--effect-scale", "0.3", "3", "--per-night", str(10 * n)]
+    cmd = [
+        str(borescan),
+        "simulate",
+        "contract",
+        "--n",
+        str(n),
+        "--seed",
+        str(seed),
+        "--out",
+        str(out),
+        "--kinds",
+        KINDS,
+        "--effect-share",
+        "0.5",
+        "--effect-scale",
+        "0.3",
+        "3",
+        "--per-night",
+        str(10 * n),
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         raise SystemExit(f"simulate contract failed: {proc.stderr[-2000:]}")
@@ -72,8 +90,16 @@ def run_night(raw: Path, results: Path, cores: int) -> dict:
     snakemake = Path(sys.executable).with_name("snakemake")
     for f in (results / "benchmarks").rglob("*.tsv"):
         f.unlink()  # the night's job times only
-    cmd = [str(snakemake), "--cores", str(cores), "--quiet", "all", "--config", f"raw_root={raw}",
-           f"results_root={results}"]
+    cmd = [
+        str(snakemake),
+        "--cores",
+        str(cores),
+        "--quiet",
+        "all",
+        "--config",
+        f"raw_root={raw}",
+        f"results_root={results}",
+    ]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t0
@@ -82,8 +108,12 @@ def run_night(raw: Path, results: Path, cores: int) -> dict:
         raise SystemExit("pipeline failed")
     jobs = job_times(results)
     busy = union_seconds([x for iv in jobs.values() for x in iv])
-    return {"wall": wall, "jobs": {r: sum(b - a for a, b in iv) for r, iv in jobs.items()},
-            "busy": busy, "compute": compute_seconds(results)}
+    return {
+        "wall": wall,
+        "jobs": {r: sum(b - a for a, b in iv) for r, iv in jobs.items()},
+        "busy": busy,
+        "compute": compute_seconds(results),
+    }
 
 
 def percentiles(items: list[tuple[str, float]]) -> tuple[float, float, float, str]:
@@ -98,10 +128,15 @@ def report(runs: dict[int, dict], n_scans: int) -> None:
     cores = sorted(runs)
     head = "".join(f"{f'--cores {c}':>14}" for c in cores)
     print(f"{'':34}{head}")
-    print(f"{'wall time [s]':34}" + "".join(f"{runs[c]['wall']:14.1f}" for c in cores)
-          + "   (target <= 60 s on 2 cores)")
+    print(
+        f"{'wall time [s]':34}"
+        + "".join(f"{runs[c]['wall']:14.1f}" for c in cores)
+        + "   (target <= 60 s on 2 cores)"
+    )
     print(f"{'some job running [s]':34}" + "".join(f"{runs[c]['busy']:14.1f}" for c in cores))
-    rules = sorted({r for c in cores for r in runs[c]["jobs"]}, key=lambda r: -runs[cores[-1]]["jobs"].get(r, 0.0))
+    rules = sorted(
+        {r for c in cores for r in runs[c]["jobs"]}, key=lambda r: -runs[cores[-1]]["jobs"].get(r, 0.0)
+    )
     print("job time per rule [s]")
     for r in rules:
         print(f"  {r:32}" + "".join(f"{runs[c]['jobs'].get(r, float('nan')):14.1f}" for c in cores))
@@ -119,9 +154,13 @@ def report(runs: dict[int, dict], n_scans: int) -> None:
 def main(argv: list[str] | None = None) -> None:
     """Write a contract night, run the workflow on it once per ``--cores`` value and print the timings."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=int(os.environ.get("BENCH_CONTRACT_N", "24")), help="scans of each kind")
+    ap.add_argument(
+        "--n", type=int, default=int(os.environ.get("BENCH_CONTRACT_N", "24")), help="scans of each kind"
+    )
     ap.add_argument("--seed", type=int, default=38)
-    ap.add_argument("--cores", type=int, nargs="+", default=[2], help="run the night once per value, side by side")
+    ap.add_argument(
+        "--cores", type=int, nargs="+", default=[2], help="run the night once per value, side by side"
+    )
     ap.add_argument("--keep", type=Path, default=None, help="keep the night and its results in this folder")
     a, _ = ap.parse_known_args(argv if argv is not None else sys.argv[1:])
     with tempfile.TemporaryDirectory() as tmp:
@@ -130,18 +169,38 @@ def main(argv: list[str] | None = None) -> None:
         t0 = time.perf_counter()
         write_night(night, a.n, a.seed)
         n_scans = len(list((night / "raw").glob("night=*/scan=*")))
-        print(f"contract night: {n_scans} scans ({a.n} of each of {KINDS}), seed {a.seed}, half with an effect "
-              f"(written in {time.perf_counter() - t0:.0f} s, not timed)", flush=True)
+        print(
+            f"contract night: {n_scans} scans ({a.n} of each of {KINDS}), seed {a.seed}, half with an effect "
+            f"(written in {time.perf_counter() - t0:.0f} s, not timed)",
+            flush=True,
+        )
         snakemake = Path(sys.executable).with_name("snakemake")
         papers = work / "papers_only"
         t0 = time.perf_counter()
-        proc = subprocess.run([str(snakemake), "papers", "--cores", "2", "--quiet", "all", "--config",
-                               f"raw_root={night / 'raw'}", f"results_root={papers}"], cwd=ROOT, capture_output=True, check=False,
-                              text=True)
+        proc = subprocess.run(
+            [
+                str(snakemake),
+                "papers",
+                "--cores",
+                "2",
+                "--quiet",
+                "all",
+                "--config",
+                f"raw_root={night / 'raw'}",
+                f"results_root={papers}",
+            ],
+            cwd=ROOT,
+            capture_output=True,
+            check=False,
+            text=True,
+        )
         if proc.returncode != 0:
             print(proc.stderr[-3000:])
             raise SystemExit("papers failed")
-        print(f"papers reproduced first in {time.perf_counter() - t0:.0f} s (not part of a night, not timed)", flush=True)
+        print(
+            f"papers reproduced first in {time.perf_counter() - t0:.0f} s (not part of a night, not timed)",
+            flush=True,
+        )
         runs = {}
         for c in a.cores:
             results = work / f"results_cores{c}"

@@ -64,11 +64,16 @@ def _with_offsets(lds, channels, offsets_mm):
 
     add = dict(zip((int(c) for c in channels), (float(o) for o in offsets_mm)))
     return lds.with_columns(
-        (pl.col("value_mm") + pl.col("sensor").cast(pl.Int64).replace_strict(add, default=0.0)).alias("value_mm"))
+        (pl.col("value_mm") + pl.col("sensor").cast(pl.Int64).replace_strict(add, default=0.0)).alias(
+            "value_mm"
+        )
+    )
 
 
 def _sensors(meta: dict, lin_fs: float, noise_mm: float) -> list[dict]:
-    return [dict(s, linearity_fs=lin_fs, repeatability_mm=noise_mm, resolution_mm=1e-4) for s in meta["sensors"]]
+    return [
+        dict(s, linearity_fs=lin_fs, repeatability_mm=noise_mm, resolution_mm=1e-4) for s in meta["sensors"]
+    ]
 
 
 def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
@@ -117,28 +122,57 @@ def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
         if np.all(np.isfinite(v)) and np.all(v > lo) and np.all(v < np.asarray(ct["range_mm"]) - lo):
             part = (R_p, xy, dev_ang)
             break
-    out = {"index": i, "scan_id": sid, "cal_path": str(cal_path), "beams": beams.to_nominal(), "lin_fs": lin_fs,
-           "e_cal_mm": e_cal.tolist(), "gauge_T_c": T_g,
-           "noise_mm": ct["noise_mm"], "angle_source": ct["angle_source"], "position_known": ct["position_known"],
-           "gauge_D20_mm": D20_g, "meas_path": None}
+    out = {
+        "index": i,
+        "scan_id": sid,
+        "cal_path": str(cal_path),
+        "beams": beams.to_nominal(),
+        "lin_fs": lin_fs,
+        "e_cal_mm": e_cal.tolist(),
+        "gauge_T_c": T_g,
+        "noise_mm": ct["noise_mm"],
+        "angle_source": ct["angle_source"],
+        "position_known": ct["position_known"],
+        "gauge_D20_mm": D20_g,
+        "meas_path": None,
+    }
     if part is None:
         return out
     R_p, xy, dev_ang = part
     T_p = float(rng2.uniform(18.0, 22.0))
     D20_p = 2 * R_p / (1 + alpha * (T_p - 20))
     pscene = replace(scene, bore_radius_20_mm=R_p, temperature_c=20.0)  # R_p is the bore as it is, at T_p
-    art = {"id": f"PART-{i:05d}", "type": "part", "nominal_diameter_mm": float(round(2 * R_p, 1)),
-           "cte_per_k": alpha + float(rng2.uniform(-a_a, a_a))}
-    psim = simulate.simulate_tri_static(pscene, xy, dev_ang, scan_id=f"{sid}-MEAS", night=night, kind="measurement",
-                                        samples_per_pose=20, noise_mm=ct["noise_mm"], seed=int(rng2.integers(2**31)),
-                                        device_id=sim.meta["device"]["id"], artifact=art)
+    art = {
+        "id": f"PART-{i:05d}",
+        "type": "part",
+        "nominal_diameter_mm": float(round(2 * R_p, 1)),
+        "cte_per_k": alpha + float(rng2.uniform(-a_a, a_a)),
+    }
+    psim = simulate.simulate_tri_static(
+        pscene,
+        xy,
+        dev_ang,
+        scan_id=f"{sid}-MEAS",
+        night=night,
+        kind="measurement",
+        samples_per_pose=20,
+        noise_mm=ct["noise_mm"],
+        seed=int(rng2.integers(2**31)),
+        device_id=sim.meta["device"]["id"],
+        artifact=art,
+    )
     pmeta = json.loads(json.dumps(psim.meta))
     pmeta["environment"] = {"temperature_c": T_p + float(rng2.uniform(-a_T, a_T))}
     pmeta["sensors"] = _sensors(pmeta, lin_fs, ct["noise_mm"])
     e_meas = rng2.uniform(-a_lin, a_lin)
     psim = replace(psim, meta=pmeta, lds=_with_offsets(psim.lds, beams.channels, e_meas))
-    out.update(meas_path=str(simulate.write_simulated(psim, base / "raw", base / "truth")), part_D20_mm=D20_p,
-               part_DT_mm=2 * R_p, e_meas_mm=e_meas.tolist(), part_T_c=T_p)
+    out.update(
+        meas_path=str(simulate.write_simulated(psim, base / "raw", base / "truth")),
+        part_D20_mm=D20_p,
+        part_DT_mm=2 * R_p,
+        e_meas_mm=e_meas.tolist(),
+        part_T_c=T_p,
+    )
     return out
 
 
@@ -184,8 +218,16 @@ def evaluate_chain(job: tuple) -> dict:
             if fam == "beta":
                 err = (err + np.pi) % (2 * np.pi) - np.pi
             comb = b.combined(vec, p)
-            params.append({"family": fam, "err": err, "u": comb.u, "U": comb.U, "k": comb.k,
-                           "dominant": comb.dominant.split(":", 1)[0]})
+            params.append(
+                {
+                    "family": fam,
+                    "err": err,
+                    "u": comb.u,
+                    "U": comb.U,
+                    "k": comb.k,
+                    "dominant": comb.dominant.split(":", 1)[0],
+                }
+            )
     row["params"] = params
     row["weak_rho"] = list(cal.diagnostics.get("weak_rho_channels", []))
     from borescan.mirror import mirror_checks_of
@@ -196,17 +238,32 @@ def evaluate_chain(job: tuple) -> dict:
         try:
             _, du = measure.tri_diameter_with_budget(pscan, cal, unc)
             row["diameters"] = [
-                {"family": "D at 20 degC", "err": du.diameter_20_mm - truth["part_D20_mm"], "u": du.combined_20.u,
-                 "U": du.combined_20.U, "k": du.combined_20.k, "dominant": du.combined_20.dominant.split(":", 1)[0]},
-                {"family": "D at T", "err": du.diameter_mm - truth["part_DT_mm"], "u": du.combined_t.u,
-                 "U": du.combined_t.U, "k": du.combined_t.k, "dominant": du.combined_t.dominant.split(":", 1)[0]}]
+                {
+                    "family": "D at 20 degC",
+                    "err": du.diameter_20_mm - truth["part_D20_mm"],
+                    "u": du.combined_20.u,
+                    "U": du.combined_20.U,
+                    "k": du.combined_20.k,
+                    "dominant": du.combined_20.dominant.split(":", 1)[0],
+                },
+                {
+                    "family": "D at T",
+                    "err": du.diameter_mm - truth["part_DT_mm"],
+                    "u": du.combined_t.u,
+                    "U": du.combined_t.U,
+                    "k": du.combined_t.k,
+                    "dominant": du.combined_t.dominant.split(":", 1)[0],
+                },
+            ]
         except ValueError as e:
             row["measure_error"] = str(e)
     row["seconds"] = time.perf_counter() - t0
     return row
 
 
-def run(n: int = N_CHAINS, seed: int = SEED, workers: int | None = None, rows_path: Path | None = None) -> list[dict]:
+def run(
+    n: int = N_CHAINS, seed: int = SEED, workers: int | None = None, rows_path: Path | None = None
+) -> list[dict]:
     """Draw, write, calibrate and measure ``n`` chains; return per-chain rows.
 
     Draw, write, calibrate and measure ``n`` chains; per-chain rows (also appended to ``rows_path``
@@ -244,13 +301,23 @@ def run(n: int = N_CHAINS, seed: int = SEED, workers: int | None = None, rows_pa
 
 def _stats(items: list[dict]) -> dict:
     if not items:
-        return {"n": 0, "cover": float("nan"), "se": float("nan"), "z_sd": float("nan"), "k_mean": float("nan")}
+        return {
+            "n": 0,
+            "cover": float("nan"),
+            "se": float("nan"),
+            "z_sd": float("nan"),
+            "k_mean": float("nan"),
+        }
     cov = np.array([abs(x["err"]) <= x["U"] for x in items], float)
     z = np.array([x["err"] / x["u"] for x in items if x["u"] > 0])
-    return {"n": len(items), "cover": float(cov.mean()), "se": float(math.sqrt(cov.mean() * (1 - cov.mean()) / len(items))),
-            "z_sd": float(np.std(z)) if z.size else float("nan"),
-            "z_max": float(np.max(np.abs(z))) if z.size else float("nan"),
-            "k_mean": float(np.mean([x["k"] for x in items]))}
+    return {
+        "n": len(items),
+        "cover": float(cov.mean()),
+        "se": float(math.sqrt(cov.mean() * (1 - cov.mean()) / len(items))),
+        "z_sd": float(np.std(z)) if z.size else float("nan"),
+        "z_max": float(np.max(np.abs(z))) if z.size else float("nan"),
+        "k_mean": float(np.mean([x["k"] for x in items])),
+    }
 
 
 def summarize(rows: list[dict]) -> dict:
@@ -260,9 +327,14 @@ def summarize(rows: list[dict]) -> dict:
     for r in acc:
         for x in r["params"] + r.get("diameters", []):
             groups.setdefault(x["family"], []).append(x)
-    out = {"chains": len(rows), "accepted": len(acc), "measured": sum(1 for r in acc if r.get("diameters")),
-           "refused": sorted({r.get("reason", "")[:120] for r in rows if not r.get("accepted")}),
-           "families": {k: _stats(v) for k, v in groups.items()}, "by_dominant": {}}
+    out = {
+        "chains": len(rows),
+        "accepted": len(acc),
+        "measured": sum(1 for r in acc if r.get("diameters")),
+        "refused": sorted({r.get("reason", "")[:120] for r in rows if not r.get("accepted")}),
+        "families": {k: _stats(v) for k, v in groups.items()},
+        "by_dominant": {},
+    }
     for fam, items in groups.items():
         doms = sorted({x["dominant"] for x in items})
         out["by_dominant"][fam] = {d: _stats([x for x in items if x["dominant"] == d]) for d in doms}
@@ -275,30 +347,40 @@ def print_table(rows: list[dict]) -> dict:
     print(f"chains {s['chains']}, calibrations accepted {s['accepted']}, parts measured {s['measured']}")
     for reason in s["refused"]:
         print(f"  refused: {reason}")
-    print(f"{'quantity':16s} {'n':>5s} {'cover95':>8s} {'+-se':>6s} {'z SD':>6s} {'max|z|':>7s} "
-          f"{'mean k':>7s}  "
-          "accept 93-97 %")
+    print(
+        f"{'quantity':16s} {'n':>5s} {'cover95':>8s} {'+-se':>6s} {'z SD':>6s} {'max|z|':>7s} "
+        f"{'mean k':>7s}  "
+        "accept 93-97 %"
+    )
     for fam in ("beta", "rho", "d_b", "D at 20 degC", "D at T"):
         d = s["families"].get(fam)
         if not d:
             continue
         ok = "yes" if 0.93 <= d["cover"] <= 0.97 else "NO"
-        print(f"{fam:16s} {d['n']:5d} {d['cover']:8.1%} {d['se']:6.1%} {d['z_sd']:6.3f} {d['z_max']:7.2f} "
-              f"{d['k_mean']:7.3f}  {ok}")
+        print(
+            f"{fam:16s} {d['n']:5d} {d['cover']:8.1%} {d['se']:6.1%} {d['z_sd']:6.3f} {d['z_max']:7.2f} "
+            f"{d['k_mean']:7.3f}  {ok}"
+        )
     # issue 36: diameters measured with a calibration whose sign of some rho its scan did not determine
     # (the two-solution mixture by Monte Carlo, or refused outside the valid bore range)
     acc = [r for r in rows if r.get("accepted") and r.get("flagged")]
     for fam in ("D at 20 degC", "D at T"):
         d = _stats([x for r in acc for x in r.get("diameters", []) if x["family"] == fam])
-        print(f"flagged calibrations, {fam}: n {d['n']}, cover95 "
-              f"{d['cover']:.1%} +- {d['se']:.1%}, z SD {d['z_sd']:.3f}")
-    print(f"flagged calibrations: {len(acc)}, measurements refused "
-          f"{sum(1 for r in acc if r.get('measure_error'))}")
+        print(
+            f"flagged calibrations, {fam}: n {d['n']}, cover95 "
+            f"{d['cover']:.1%} +- {d['se']:.1%}, z SD {d['z_sd']:.3f}"
+        )
+    print(
+        f"flagged calibrations: {len(acc)}, measurements refused "
+        f"{sum(1 for r in acc if r.get('measure_error'))}"
+    )
     print("by the budget's dominant input:")
     for fam, by in s["by_dominant"].items():
         for dom, d in by.items():
-            print(f"  {fam:14s} {dom:12s} n {d['n']:4d}  cover95 {d['cover']:6.1%}  z SD {d['z_sd']:.3f}  "
-                  f"mean k {d['k_mean']:.3f}")
+            print(
+                f"  {fam:14s} {dom:12s} n {d['n']:4d}  cover95 {d['cover']:6.1%}  z SD {d['z_sd']:.3f}  "
+                f"mean k {d['k_mean']:.3f}"
+            )
     return s
 
 
@@ -309,7 +391,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=SEED, help=f"seed (default {SEED})")
     ap.add_argument("--workers", type=int, default=None, help="processes (default min(2, cpus))")
     ap.add_argument("--rows", type=Path, default=None, help="write the per-chain rows here (JSON lines)")
-    ap.add_argument("--table", type=Path, default=None, help="only print the table of rows written earlier by --rows")
+    ap.add_argument(
+        "--table", type=Path, default=None, help="only print the table of rows written earlier by --rows"
+    )
     args = ap.parse_args([] if argv is None else argv)
     if args.table is not None:
         print_table([json.loads(line) for line in args.table.read_text().splitlines() if line.strip()])

@@ -82,8 +82,11 @@ def main() -> None:
         src_night = sorted((tmp / "demo" / "raw").iterdir())[0]
         raw = tmp / "raw"
         n_scans = make_night(src_night, raw, n_devices)
-        print(f"one night: {n_devices} devices ({n_devices // 2} three-sensor, {n_devices // 2} rods), "
-              f"{n_scans} scans", flush=True)
+        print(
+            f"one night: {n_devices} devices ({n_devices // 2} three-sensor, {n_devices // 2} rods), "
+            f"{n_scans} scans",
+            flush=True,
+        )
         walls, per_rule = {}, {}
         for cores in cores_list:
             results = tmp / f"results-{cores}"
@@ -98,7 +101,10 @@ def main() -> None:
             busy = union_seconds([x for iv in jobs.values() for x in iv])
             print(f"  --cores {cores}: wall {walls[cores]:.1f} s (some job running {busy:.1f} s)", flush=True)
         print()
-        print(f"{'rule (time in its jobs) [s]':32s}" + "".join(f"{'--cores ' + str(c):>12s}" for c in cores_list))
+        print(
+            f"{'rule (time in its jobs) [s]':32s}"
+            + "".join(f"{'--cores ' + str(c):>12s}" for c in cores_list)
+        )
         for rule in sorted(per_rule[cores_list[0]], key=lambda r: -per_rule[cores_list[0]][r]):
             print(f"{rule:32s}" + "".join(f"{per_rule[c].get(rule, float('nan')):12.1f}" for c in cores_list))
         print(f"{'wall time [s]':32s}" + "".join(f"{walls[c]:12.1f}" for c in cores_list))
@@ -111,7 +117,7 @@ def main() -> None:
         if proc.returncode != 0:
             print(out[-3000:])
             raise SystemExit("SLURM profile dry run failed")
-        stats = out[out.index("Job stats:"):].split("\n\n")[0]
+        stats = out[out.index("Job stats:") :].split("\n\n")[0]
         groups = re.findall(r"Group job (\w+)", out)
         print()
         print("snakemake --profile profiles/slurm --dry-run catalog (the SLURM jobs of this night):")
@@ -122,7 +128,7 @@ def main() -> None:
 
 def _submissions(out: str) -> int:
     """Jobs the dry run plans, a group counting once, local rules not at all."""
-    stats = out[out.index("Job stats:"):].split("\n\n")[0]
+    stats = out[out.index("Job stats:") :].split("\n\n")[0]
     counts = dict(re.findall(r"^(\w+)\s+(\d+)$", stats, re.M))
     total = int(counts.pop("total", 0))
     total -= int(counts.get("catalog", 0)) + int(counts.get("all", 0))

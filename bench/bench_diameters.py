@@ -18,8 +18,12 @@ from borescan.geometry import Beams, Bore, Hole, RodAxis, RodLayer, rod_readings
 from borescan.measure import static_diameter
 from borescan.rod import rod_crb, solve_rod, solve_rod_pso
 
-BEAMS = Beams((1, 2, 3), np.deg2rad([0.0, 120.908, 240.182]), np.array([-5.5484, -2.5295, 1.5262]),
-              np.array([132.6718, 132.8883, 134.1108]))
+BEAMS = Beams(
+    (1, 2, 3),
+    np.deg2rad([0.0, 120.908, 240.182]),
+    np.array([-5.5484, -2.5295, 1.5262]),
+    np.array([132.6718, 132.8883, 134.1108]),
+)
 BORE = Bore((0.0, 0.0), 275.029 / 2)
 
 
@@ -31,8 +35,10 @@ def static_part(sigma=0.003, n_mc=4000, seed=0):
         v0 = tri_static_readings(np.array([pos]), np.array([0.4]), BEAMS, BORE)[0]
         crb = static_diameter(v0, BEAMS, None, sigma).u_diameter_mm
         D = static_diameter(v0 + sigma * rng.standard_normal((n_mc, 3)), BEAMS).diameter_mm
-        print(f"  device at {pos} mm: scatter {np.std(D) * 1e3:6.3f} um, CRB {crb * 1e3:6.3f} um, "
-              f"ratio {np.std(D) / crb:5.3f}, bias {np.mean(D - BORE.radius_mm * 2) * 1e3:+.3f} um")
+        print(
+            f"  device at {pos} mm: scatter {np.std(D) * 1e3:6.3f} um, CRB {crb * 1e3:6.3f} um, "
+            f"ratio {np.std(D) / crb:5.3f}, bias {np.mean(D - BORE.radius_mm * 2) * 1e3:+.3f} um"
+        )
 
 
 def rod_part(sigma=0.02 / np.sqrt(3), n_mc=300, seed=1):
@@ -45,15 +51,25 @@ def rod_part(sigma=0.02 / np.sqrt(3), n_mc=300, seed=1):
     v0 = rod_readings(alpha, layers, holes, axis)
     sol0 = solve_rod(v0, [71.0, 71.0], u_reading_mm=sigma)
     crb = rod_crb(sol0.alpha_rad, v0 + 71.0, sol0.xy_mm, sol0.radius_mm, sigma)
-    est = np.array([solve_rod(v0 + sigma * rng.standard_normal(v0.shape), [71.0, 71.0], u_reading_mm=sigma).radius_mm
-                    for _ in range(n_mc)])
+    est = np.array(
+        [
+            solve_rod(v0 + sigma * rng.standard_normal(v0.shape), [71.0, 71.0], u_reading_mm=sigma).radius_mm
+            for _ in range(n_mc)
+        ]
+    )
     r_true = np.array([75.0, 75.012])
     print(f"rod, 2 holes x 12 poses, sigma = {sigma * 1e3:.1f} um, {n_mc} draws")
     print(f"  noise-free solve bias (model: tilt 0.3 deg): {np.round((sol0.radius_mm - r_true) * 1e3, 3)} um")
-    print(f"  solve_rod: scatter {np.round(est.std(0) * 1e3, 2)} um, CRB {np.round(crb * 1e3, 2)} um, "
-          f"ratio {np.round(est.std(0) / crb, 3)}")
-    pso = np.array([solve_rod_pso(v0 + sigma * rng.standard_normal(v0.shape), [71.0, 71.0], seed=k).radius_mm
-                    for k in range(15)])
+    print(
+        f"  solve_rod: scatter {np.round(est.std(0) * 1e3, 2)} um, CRB {np.round(crb * 1e3, 2)} um, "
+        f"ratio {np.round(est.std(0) / crb, 3)}"
+    )
+    pso = np.array(
+        [
+            solve_rod_pso(v0 + sigma * rng.standard_normal(v0.shape), [71.0, 71.0], seed=k).radius_mm
+            for k in range(15)
+        ]
+    )
     rmse = np.sqrt(np.mean((pso - r_true) ** 2, axis=0))
     print(f"  PSO (15 draws): RMS error {np.round(rmse * 1e3, 1)} um = {np.round(rmse / crb, 1)} x CRB")
 
@@ -62,12 +78,18 @@ def rotating_part(sigma=0.002, n_pts=3000, n_mc=300, seed=2):
     """Print the scatter of the LS circle's radius against its CRB for one rotating scan."""
     rng = np.random.default_rng(seed)
     th = np.linspace(0, 2 * np.pi, n_pts, endpoint=False)
-    R = [fit_circle_ls(*((137.5 + sigma * rng.standard_normal(n_pts)) * np.stack([np.cos(th), np.sin(th)]))).radius_mm
-         for _ in range(n_mc)]
+    R = [
+        fit_circle_ls(
+            *((137.5 + sigma * rng.standard_normal(n_pts)) * np.stack([np.cos(th), np.sin(th)]))
+        ).radius_mm
+        for _ in range(n_mc)
+    ]
     crb = sigma / np.sqrt(n_pts)
-    print(f"rotating LS circle, N = {n_pts}, sigma = {sigma * 1e3:.1f} um: scatter(R) "
-          f"{np.std(R) * 1e6:.2f} nm, "
-          f"CRB {crb * 1e6:.2f} nm, ratio {np.std(R) / crb:.3f}")
+    print(
+        f"rotating LS circle, N = {n_pts}, sigma = {sigma * 1e3:.1f} um: scatter(R) "
+        f"{np.std(R) * 1e6:.2f} nm, "
+        f"CRB {crb * 1e6:.2f} nm, ratio {np.std(R) / crb:.3f}"
+    )
 
 
 def main() -> None:

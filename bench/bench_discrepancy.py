@@ -17,9 +17,11 @@ def main() -> None:
     res = run_battery(40, seed=3)
     cpu = (time.process_time() - t0) / len(res.rows)
     print(res.table())
-    print(f"correct naming {res.accuracy:.1%}; false alarms {res.false_alarm_rate:.1%}; "
-          f"median shrink {res.median_shrink:.2f}x (ceiling {res.median_shrink_ceiling:.2f}x); "
-          f"at floor {res.share_at_floor:.1%}; {cpu:.2f} s CPU per scan")
+    print(
+        f"correct naming {res.accuracy:.1%}; false alarms {res.false_alarm_rate:.1%}; "
+        f"median shrink {res.median_shrink:.2f}x (ceiling {res.median_shrink_ceiling:.2f}x); "
+        f"at floor {res.share_at_floor:.1%}; {cpu:.2f} s CPU per scan"
+    )
 
 
 if __name__ == "__main__":

@@ -40,8 +40,16 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 #: Effects of the spec that apply to a rod scan and that ``random_effect`` can draw.
-ROD_EFFECTS = ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift", "quantization",
-               "outliers", "thermal_expansion", "beam_tilt")
+ROD_EFFECTS = (
+    "sensor_offset",
+    "sensor_gain",
+    "sensor_nonlinearity",
+    "sensor_drift",
+    "quantization",
+    "outliers",
+    "thermal_expansion",
+    "beam_tilt",
+)
 #: Spec look-alikes (geometry-and-effects.md, "Some effects look alike in one scan").
 SPEC_LOOKALIKES = [({"axis_tilt"}, {"bore_lobing[k=2]"}), ({"thermal_expansion"}, {"sensor_offset@all"})]
 
@@ -81,14 +89,20 @@ def _tri_case(seed: int, i: int, effect_free: bool, reference: str):
     from borescan.scenarios import battery_rng, battery_scan_id, draw_tri_calibration
 
     rng = battery_rng(seed, i)
-    sim = draw_tri_calibration(rng, scan_id=battery_scan_id(seed, i), night="2027-01-01", effect_free=effect_free)
+    sim = draw_tri_calibration(
+        rng, scan_id=battery_scan_id(seed, i), night="2027-01-01", effect_free=effect_free
+    )
     if reference == "truth":
         cfg = {"beams": Beams.from_nominal(sim.truth["contract"]["beams"])}
     else:
         cfg = {"free_beams": ("d_b", "beta", "rho")}
     c = sim.truth["contract"]
-    info = {"angle": c["angle_source"], "speed_change": bool(c["speed_change"]),
-            "out_of_range": c["out_of_range"] is not None, "R": round(c["bore_radius_mm"], 1)}
+    info = {
+        "angle": c["angle_source"],
+        "speed_change": bool(c["speed_change"]),
+        "out_of_range": c["out_of_range"] is not None,
+        "R": round(c["bore_radius_mm"], 1),
+    }
     return sim, cfg, info
 
 
@@ -97,11 +111,17 @@ def _rod_case(seed: int, i: int, effect_free: bool, noise_free: bool = False):
 
     contract = dict(ROD_CONTRACT, noise_mm=(0.0, 0.0)) if noise_free else ROD_CONTRACT
     rng = battery_rng(seed + 100_000, i)
-    sim = draw_rod_scan(rng, scan_id=f"ROD{seed}-{i:05d}", night="2027-01-01", effect_free=effect_free,
-                        contract=contract)
+    sim = draw_rod_scan(
+        rng, scan_id=f"ROD{seed}-{i:05d}", night="2027-01-01", effect_free=effect_free, contract=contract
+    )
     c = sim.truth["contract"]
-    info = {"poses": c["n_poses"], "per_pose": c["samples_per_pose"], "noise_um": round(c["noise_mm"] * 1e3, 1),
-            "holes": len(c["diameters_mm"]), "artifact": c["artifact"]}
+    info = {
+        "poses": c["n_poses"],
+        "per_pose": c["samples_per_pose"],
+        "noise_um": round(c["noise_mm"] * 1e3, 1),
+        "holes": len(c["diameters_mm"]),
+        "artifact": c["artifact"],
+    }
     return sim, {}, info
 
 
@@ -118,7 +138,9 @@ def _term(label: str):
     return Term(name, channel, k)
 
 
-def data_lookalikes(clean, truth: str, others: list[str], sigma_mm: float, threshold: float = 10.0) -> dict[str, float]:
+def data_lookalikes(
+    clean, truth: str, others: list[str], sigma_mm: float, threshold: float = 10.0
+) -> dict[str, float]:
     """How well each of ``others`` imitates the hidden effect ``truth`` in this very scan.
 
     ``clean`` is the same rod scan simulated without noise (the same geometry, poses and hidden
@@ -144,11 +166,18 @@ def data_lookalikes(clean, truth: str, others: list[str], sigma_mm: float, thres
     for lab in others:
         t = _term(lab)
         best = base.rss
-        for d0 in ((0.0,) if t.effect != "beam_offset" else (0.3, -0.3, 1.0, -1.0)):
-            x0 = [base.values()[n] for n in names] + [d0 if t.effect == "beam_offset" else 0.0 for _ in t.names()]
+        for d0 in (0.0,) if t.effect != "beam_offset" else (0.3, -0.3, 1.0, -1.0):
+            x0 = [base.values()[n] for n in names] + [
+                d0 if t.effect == "beam_offset" else 0.0 for _ in t.names()
+            ]
             try:
-                fr = fit_least_squares(lambda p, t=t: model.residual(p, [t]), names + t.names(), x0,
-                                       scales + t.scales(), max_nfev=200)
+                fr = fit_least_squares(
+                    lambda p, t=t: model.residual(p, [t]),
+                    names + t.names(),
+                    x0,
+                    scales + t.scales(),
+                    max_nfev=200,
+                )
             except ValueError:
                 continue
             if np.isfinite(fr.rss):
@@ -166,35 +195,71 @@ def run_one(job: tuple) -> dict:
     kind, seed, i, effect_free, reference = job
     t0 = time.process_time()
     try:
-        sim, cfg, info = _tri_case(seed, i, effect_free, reference) if kind == "tri" else _rod_case(seed, i, effect_free)
+        sim, cfg, info = (
+            _tri_case(seed, i, effect_free, reference) if kind == "tri" else _rod_case(seed, i, effect_free)
+        )
         effects = [Effect(e["name"], e["params"]) if isinstance(e, dict) else e for e in sim.truth["effects"]]
         # the spec: with an encoder the angle is measured, a speed error or ripple is not there to find
         encoder = kind == "tri" and sim.truth["contract"]["encoder"]
-        truth = [effect_label(e) for e in effects if not (encoder and e.name in ("speed_error", "speed_ripple"))]
+        truth = [
+            effect_label(e) for e in effects if not (encoder and e.name in ("speed_error", "speed_ripple"))
+        ]
         hidden = [effect_label(e) for e in effects]
         f = examine_scan(sim, **cfg)
     except Exception as err:  # noqa: BLE001 - a crash is a result of the bench
-        return {"kind": kind, "i": i, "truth": [], "hidden": [], "verdict": "error", "named": [], "correct": False,
-                "correct_strict": False,
-                "error": f"{type(err).__name__}: {err}", "tb": traceback.format_exc(limit=4), "info": {},
-                "effect_free": effect_free, "params": [], "cpu_s": time.process_time() - t0}
+        return {
+            "kind": kind,
+            "i": i,
+            "truth": [],
+            "hidden": [],
+            "verdict": "error",
+            "named": [],
+            "correct": False,
+            "correct_strict": False,
+            "error": f"{type(err).__name__}: {err}",
+            "tb": traceback.format_exc(limit=4),
+            "info": {},
+            "effect_free": effect_free,
+            "params": [],
+            "cpu_s": time.process_time() - t0,
+        }
     named = [named_label(x) for x in f["named"]]
     look = {}
     correct = score(f["verdict"], named, truth, kind)
     correct_data = correct
-    if kind == "rod" and not correct and truth and (f["verdict"] == "no_missing_effect" or all(t in named for t in truth)):
+    if (
+        kind == "rod"
+        and not correct
+        and truth
+        and (f["verdict"] == "no_missing_effect" or all(t in named for t in truth))
+    ):
         clean, _, _ = _rod_case(seed, i, effect_free, noise_free=True)
         look = data_lookalikes(clean, truth[0], [n for n in named if n not in truth], info["noise_um"] * 1e-3)
         others = [v for k, v in look.items() if k != "(base)"]
-        correct_data = (look["(base)"] < 10.0 if f["verdict"] == "no_missing_effect"
-                        else bool(others) and max(others) < 10.0)
+        correct_data = (
+            look["(base)"] < 10.0
+            if f["verdict"] == "no_missing_effect"
+            else bool(others) and max(others) < 10.0
+        )
     return {
-        "kind": kind, "i": i, "scan_id": f["scan_id"], "truth": truth, "params": [dict(e.params) for e in effects],
-        "hidden": hidden, "effect_free": effect_free or not truth, "verdict": f["verdict"], "named": named,
-        "correct": correct, "correct_strict": score(f["verdict"], named, truth, kind, True),
-        "correct_data": correct_data, "lookalike_rss_over_s2": look,
-        "gap_before_mm": f["gap_before"]["rms_mm"], "gap_after_mm": f["gap_after"]["rms_mm"],
-        "noise_floor_mm": f["noise_floor_mm"], "info": info, "cpu_s": time.process_time() - t0,
+        "kind": kind,
+        "i": i,
+        "scan_id": f["scan_id"],
+        "truth": truth,
+        "params": [dict(e.params) for e in effects],
+        "hidden": hidden,
+        "effect_free": effect_free or not truth,
+        "verdict": f["verdict"],
+        "named": named,
+        "correct": correct,
+        "correct_strict": score(f["verdict"], named, truth, kind, True),
+        "correct_data": correct_data,
+        "lookalike_rss_over_s2": look,
+        "gap_before_mm": f["gap_before"]["rms_mm"],
+        "gap_after_mm": f["gap_after"]["rms_mm"],
+        "noise_floor_mm": f["noise_floor_mm"],
+        "info": info,
+        "cpu_s": time.process_time() - t0,
     }
 
 
@@ -209,34 +274,58 @@ def summarise(rows: list[dict]) -> str:
     shrink = [r["gap_before_mm"] / r["gap_after_mm"] for r in eff if r.get("gap_after_mm")]
     fa = [r for r in free if r["verdict"] != "no_missing_effect"]
     n_ok = sum(r["correct"] for r in rows)
-    lines.append(f"scans {len(rows)} ({sum(r['kind'] == 'tri' for r in rows)} tri, "
-                 f"{sum(r['kind'] == 'rod' for r in rows)} rod); errors {sum(r['verdict'] == 'error' for r in rows)}")
-    lines.append(f"correct naming (all scans) {n_ok}/{len(rows)} = {n_ok / max(len(rows), 1):.1%}; "
-                 f"on effect scans {sum(r['correct'] for r in eff)}/{len(eff)}")
-    lines.append(f"  strict spec look-alikes only (tri beam_tilt/sensor_gain ambiguity counted wrong): "
-                 f"{sum(r['correct_strict'] for r in rows)}/{len(rows)} = "
-                 f"{sum(r['correct_strict'] for r in rows) / max(len(rows), 1):.1%}")
+    lines.append(
+        f"scans {len(rows)} ({sum(r['kind'] == 'tri' for r in rows)} tri, "
+        f"{sum(r['kind'] == 'rod' for r in rows)} rod); errors {sum(r['verdict'] == 'error' for r in rows)}"
+    )
+    lines.append(
+        f"correct naming (all scans) {n_ok}/{len(rows)} = {n_ok / max(len(rows), 1):.1%}; "
+        f"on effect scans {sum(r['correct'] for r in eff)}/{len(eff)}"
+    )
+    lines.append(
+        f"  strict spec look-alikes only (tri beam_tilt/sensor_gain ambiguity counted wrong): "
+        f"{sum(r['correct_strict'] for r in rows)}/{len(rows)} = "
+        f"{sum(r['correct_strict'] for r in rows) / max(len(rows), 1):.1%}"
+    )
     n_kin = sum(1 for r in rows if r["hidden"] and not r["truth"])
-    lines.append(f"  ({n_kin} encoder scans with a hidden speed_error/speed_ripple count as effect-free: spec)")
+    lines.append(
+        f"  ({n_kin} encoder scans with a hidden speed_error/speed_ripple count as effect-free: spec)"
+    )
     n_data = sum(r.get("correct_data", r["correct"]) for r in rows)
-    lines.append(f"  what each rod scan can show (noise-free refit of the same scan, RSS/sigma^2 < 10): an ambiguous "
-                 f"verdict whose other candidates imitate the truth, or 'no missing effect' where the base model "
-                 f"(e.g. a part's free radii) absorbs it, counted correct: {n_data}/{len(rows)} = "
-                 f"{n_data / max(len(rows), 1):.1%}")
-    lines.append(f"false alarms on effect-free scans {len(fa)}/{len(free)} = {len(fa) / max(len(free), 1):.1%}")
+    lines.append(
+        f"  what each rod scan can show (noise-free refit of the same scan, RSS/sigma^2 < 10): an ambiguous "
+        f"verdict whose other candidates imitate the truth, or 'no missing effect' where the base model "
+        f"(e.g. a part's free radii) absorbs it, counted correct: {n_data}/{len(rows)} = "
+        f"{n_data / max(len(rows), 1):.1%}"
+    )
+    lines.append(
+        f"false alarms on effect-free scans {len(fa)}/{len(free)} = {len(fa) / max(len(free), 1):.1%}"
+    )
     lines.append(f"median gap shrink (effect scans) {np.median(shrink) if shrink else float('nan'):.2f}x")
     for kind in ("tri", "rod"):
         sub = [r for r in rows if r["kind"] == kind]
         if sub:
             sf = [r for r in sub if r["effect_free"]]
-            lines.append(f"  {kind}: correct {sum(r['correct'] for r in sub)}/{len(sub)}; false alarms "
-                         f"{sum(r['verdict'] != 'no_missing_effect' for r in sf)}/{len(sf)}")
+            lines.append(
+                f"  {kind}: correct {sum(r['correct'] for r in sub)}/{len(sub)}; false alarms "
+                f"{sum(r['verdict'] != 'no_missing_effect' for r in sf)}/{len(sf)}"
+            )
     table: dict[str, Counter] = defaultdict(Counter)
     for r in rows:
-        k = (r["kind"] + ":" + (r["truth"][0].split("@")[0].split("[")[0] if r["truth"] else
-                                "(none)" if not r["hidden"] else r["hidden"][0] + "+encoder"))
-        table[k]["correct" if r["correct"] else
-                 r["verdict"] + (":" + ",".join(r["named"]) if r["named"] else "")] += 1
+        k = (
+            r["kind"]
+            + ":"
+            + (
+                r["truth"][0].split("@")[0].split("[")[0]
+                if r["truth"]
+                else "(none)"
+                if not r["hidden"]
+                else r["hidden"][0] + "+encoder"
+            )
+        )
+        table[k][
+            "correct" if r["correct"] else r["verdict"] + (":" + ",".join(r["named"]) if r["named"] else "")
+        ] += 1
     lines.append(f"{'hidden effect':<30}{'scans':>6}{'correct':>8}{'share':>7}  other verdicts")
     for k in sorted(table):
         cnt = table[k]
@@ -264,10 +353,12 @@ def profile_one(kind: str, seed: int, i: int, reference: str, top: int = 12) -> 
     def total(fn: str, col: int) -> float:
         return sum(v[col] for k, v in st.stats.items() if k[2] == fn)
 
-    print(f"{kind} {i} {info}: {total('examine_scan', 3):.2f} CPU s (profiled); exact fits "
-          f"{int(total('fit_least_squares', 1))}, model evaluations {int(total('residual', 1))} "
-          f"({total('residual', 3):.2f} s), forward-difference Jacobians {total('jz', 3):.2f} s; "
-          f"{f['verdict']} {[n['effect'] for n in f['named']]}; screen {f['screen']}")
+    print(
+        f"{kind} {i} {info}: {total('examine_scan', 3):.2f} CPU s (profiled); exact fits "
+        f"{int(total('fit_least_squares', 1))}, model evaluations {int(total('residual', 1))} "
+        f"({total('residual', 3):.2f} s), forward-difference Jacobians {total('jz', 3):.2f} s; "
+        f"{f['verdict']} {[n['effect'] for n in f['named']]}; screen {f['screen']}"
+    )
     st.sort_stats("cumulative").print_stats(top)
 
 
@@ -281,8 +372,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--p-free", type=float, default=0.2)
     ap.add_argument("--reference", choices=("truth", "nominal"), default="truth")
     ap.add_argument("--verbose", action="store_true", help="print every wrong scan")
-    ap.add_argument("--profile", default=None, metavar="KIND:I",
-                    help="profile the examination of one scan (e.g. tri:4, rod:2) on the CPU clock and stop")
+    ap.add_argument(
+        "--profile",
+        default=None,
+        metavar="KIND:I",
+        help="profile the examination of one scan (e.g. tri:4, rod:2) on the CPU clock and stop",
+    )
     a, _ = ap.parse_known_args(argv)  # `python -m bench discrepancy` passes its own names
     if a.profile:
         kind, _, i = a.profile.partition(":")
@@ -299,24 +394,31 @@ def main(argv: list[str] | None = None) -> None:
     else:
         rows = [run_one(j) for j in jobs]
     wall = time.perf_counter() - t0
-    reference = ("true beams/layers (stand-in for a perfect calibration)" if a.reference == "truth"
-                 else "device.nominal, d_b and beta free")
+    reference = (
+        "true beams/layers (stand-in for a perfect calibration)"
+        if a.reference == "truth"
+        else "device.nominal, d_b and beta free"
+    )
     print(f"reference: {reference}")
     print(summarise(rows))
     cpu = np.array([r["cpu_s"] for r in rows])
-    print(f"{wall:.0f} s wall, {cpu.mean():.1f} s CPU per scan "
-          f"({a.workers} workers); examination CPU s per scan "
-          f"p50 {np.percentile(cpu, 50):.2f}, p95 {np.percentile(cpu, 95):.2f}, max {cpu.max():.2f} "
-          f"({max(rows, key=lambda r: r['cpu_s'])['kind']} {max(rows, key=lambda r: r['cpu_s'])['i']})")
+    print(
+        f"{wall:.0f} s wall, {cpu.mean():.1f} s CPU per scan "
+        f"({a.workers} workers); examination CPU s per scan "
+        f"p50 {np.percentile(cpu, 50):.2f}, p95 {np.percentile(cpu, 95):.2f}, max {cpu.max():.2f} "
+        f"({max(rows, key=lambda r: r['cpu_s'])['kind']} {max(rows, key=lambda r: r['cpu_s'])['i']})"
+    )
     if a.verbose:
         for r in rows:
             if not r["correct"]:
-                print(f"  WRONG {r['kind']} {r['i']}: truth {r['truth']} {r['params']} -> {r['verdict']} "
-                      f"{r['named']} "
-                      f"{r.get('info')} gap "
-                      f"{r.get('gap_before_mm', 0) * 1e3:.2f}->{r.get('gap_after_mm', 0) * 1e3:.2f} um "
-                      f"floor {r.get('noise_floor_mm', 0) * 1e3:.2f} um {r.get('error', '')} "
-                      f"{ {k: round(v, 2) for k, v in r.get('lookalike_rss_over_s2', {}).items()} or ''}")
+                print(
+                    f"  WRONG {r['kind']} {r['i']}: truth {r['truth']} {r['params']} -> {r['verdict']} "
+                    f"{r['named']} "
+                    f"{r.get('info')} gap "
+                    f"{r.get('gap_before_mm', 0) * 1e3:.2f}->{r.get('gap_after_mm', 0) * 1e3:.2f} um "
+                    f"floor {r.get('noise_floor_mm', 0) * 1e3:.2f} um {r.get('error', '')} "
+                    f"{ {k: round(v, 2) for k, v in r.get('lookalike_rss_over_s2', {}).items()} or '' }"
+                )
                 if r.get("tb"):
                     print(r["tb"])
 

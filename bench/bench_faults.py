@@ -63,19 +63,29 @@ def input_battery(  # noqa: C901 (one branch per kind of input fault and its exp
     import duckdb
 
     from bad_inputs import make_bad_scans, make_stage_cases
-    from fault_roots import (PLAUSIBILITY_CASES, as_nobody, can_drop_to_nobody, checkout_copy, copy_scan,
-                             give_to_nobody, make_crash_root)
+    from fault_roots import (
+        PLAUSIBILITY_CASES,
+        as_nobody,
+        can_drop_to_nobody,
+        checkout_copy,
+        copy_scan,
+        give_to_nobody,
+        make_crash_root,
+    )
 
     raw = tmp / "raw"
-    crash = make_crash_root(demo_raw, raw)  # rod night, refused calibration, empty night, 2026-02-30, umask 077
+    crash = make_crash_root(
+        demo_raw, raw
+    )  # rod night, refused calibration, empty night, 2026-02-30, umask 077
     night20 = demo_raw / "night=2026-11-20"
     for d in sorted(night20.iterdir()):
         if not (raw / "night=2026-11-20" / d.name).exists():
             copy_scan(d, raw, "2026-11-20", d.name[5:])
     bad_night = "2026-11-23"
     good_tri = night20 / "scan=N20261120-TRI01-CAL-P1-A"
-    cases = make_bad_scans(raw, bad_night, good_tri, night20 / "scan=N20261120-ROD01-MEAS-CYL2H",
-                           "N20261120-TRI01-CAL-P1-A")
+    cases = make_bad_scans(
+        raw, bad_night, good_tri, night20 / "scan=N20261120-ROD01-MEAS-CYL2H", "N20261120-TRI01-CAL-P1-A"
+    )
     stage_cases, _ = make_stage_cases(raw, tmp / "truth", bad_night)
     expected = {c.scan_id: (c.file, c.problem) for c in cases + stage_cases}
     for i, (_name, src, edit, text) in enumerate(PLAUSIBILITY_CASES):
@@ -97,8 +107,10 @@ def input_battery(  # noqa: C901 (one branch per kind of input fault and its exp
         user = as_nobody
     t0 = time.perf_counter()
     proc = _run(co, raw, res, home, "catalog", user=user)
-    print(f"input battery: one workflow run over {len(list(raw.glob('night=*/scan=*')))} scan folders in "
-          f"{time.perf_counter() - t0:.0f} s, exit {proc.returncode}")
+    print(
+        f"input battery: one workflow run over {len(list(raw.glob('night=*/scan=*')))} scan folders in "
+        f"{time.perf_counter() - t0:.0f} s, exit {proc.returncode}"
+    )
     raw_same = before is None or _checksums(raw) == before
     if proc.returncode != 0:
         print(proc.stderr[-3000:])
@@ -108,19 +120,36 @@ def input_battery(  # noqa: C901 (one branch per kind of input fault and its exp
     out = []
     for sid in sorted(set(expected) | {crash.unreadable_file, crash.unreadable_folder}):
         st, reason = rows.get(sid, ("missing", "not in the catalog"))
-        out.append(Outcome(sid, "quarantined" if st == "quarantined" else "processed" if st == "ok" else "crashed",
-                           reason or "", raw_same))
+        out.append(
+            Outcome(
+                sid,
+                "quarantined" if st == "quarantined" else "processed" if st == "ok" else "crashed",
+                reason or "",
+                raw_same,
+            )
+        )
     log = (res / "logs" / "build_catalog.log").read_text()
     for line in log.splitlines():
         if "SKIPPED" in line:
-            out.append(Outcome(line.split("SKIPPED ")[1].split(":")[0], "skipped", line.split("SKIPPED ")[1], raw_same))
+            out.append(
+                Outcome(
+                    line.split("SKIPPED ")[1].split(":")[0], "skipped", line.split("SKIPPED ")[1], raw_same
+                )
+            )
     for night in ("2026-11-20", "2026-11-21", crash.empty_night):
-        ok = all((res / "stage" / t / f"night={night}.parquet").is_file() for t in ("scans", "pooled_findings"))
+        ok = all(
+            (res / "stage" / t / f"night={night}.parquet").is_file() for t in ("scans", "pooled_findings")
+        )
         n = con.execute("SELECT count(*) FROM scans WHERE night = ?", [night]).fetchone()[0]
-        out.append(Outcome(f"night {night} "
-                           f"({'rod only, refused calibration' if night == '2026-11-21' else 'empty' if night == crash.empty_night else 'demo + rod + umask 077'})",  # noqa: E501 (one conditional inside the f-string)
-                           "processed" if ok else "crashed", f"{n} scans in the catalog, every stage table written",
-                           raw_same))
+        out.append(
+            Outcome(
+                f"night {night} "
+                f"({'rod only, refused calibration' if night == '2026-11-21' else 'empty' if night == crash.empty_night else 'demo + rod + umask 077'})",  # noqa: E501 (one conditional inside the f-string)
+                "processed" if ok else "crashed",
+                f"{n} scans in the catalog, every stage table written",
+                raw_same,
+            )
+        )
     return out
 
 
@@ -148,33 +177,64 @@ def process_battery(tmp: Path, demo_raw: Path) -> list[Outcome]:
     before = _checksums(raw)
     copied = tmp / "copied-results"
     shutil.copytree(res, copied, symlinks=True)
-    for name, checkout, results in (("night added with cp -a, run from a second checkout", b, res),
-                                    ("night added with cp -a, on a copied results root", a, copied)):
+    for name, checkout, results in (
+        ("night added with cp -a, run from a second checkout", b, res),
+        ("night added with cp -a, on a copied results root", a, copied),
+    ):
         proc = _run(checkout, raw, results, home, "catalog")
         con = duckdb.connect(str(results / "catalog.duckdb"), read_only=True)
         n = con.execute("SELECT count(*) FROM scans WHERE night = '2026-11-21'").fetchone()[0]
         con.close()
-        out.append(Outcome(name, "processed" if proc.returncode == 0 and n == 2 else "crashed",
-                           f"{n} scans of the added night in the catalog", _checksums(raw) == before))
+        out.append(
+            Outcome(
+                name,
+                "processed" if proc.returncode == 0 and n == 2 else "crashed",
+                f"{n} scans of the added night in the catalog",
+                _checksums(raw) == before,
+            )
+        )
     cfg = a / "config" / "config.yaml"
     cfg.write_text(cfg.read_text().replace("  tolerance_mm: 0.015\n", "  tolerance_mm: 0.002\n"))
     proc = _run(a, raw, copied, home, "catalog")
     same = {k: v for k, v in _checksums(copied / "stage").items() if "2026-11-20" in k} == past
-    out.append(Outcome("config edit (verification.tolerance_mm)", "processed" if proc.returncode == 0 and same else "crashed",
-                       "past night's stage tables byte-identical" if same else "PAST NIGHT REWRITTEN",
-                       _checksums(raw) == before))
-    proc = subprocess.run([sys.executable, "-m", "borescan.cli", "recompute", "--from", "2026-11-20", "--results",
-                           str(copied)], cwd=a, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(a / "src")})
+    out.append(
+        Outcome(
+            "config edit (verification.tolerance_mm)",
+            "processed" if proc.returncode == 0 and same else "crashed",
+            "past night's stage tables byte-identical" if same else "PAST NIGHT REWRITTEN",
+            _checksums(raw) == before,
+        )
+    )
+    proc = subprocess.run(
+        [sys.executable, "-m", "borescan.cli", "recompute", "--from", "2026-11-20", "--results", str(copied)],
+        cwd=a,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(a / "src")},
+    )
     rerun = _run(a, raw, copied, home, "catalog")
-    out.append(Outcome("borescan recompute --from 2026-11-20", "processed" if rerun.returncode == 0 else "crashed",
-                       proc.stdout.strip()[:160], _checksums(raw) == before))
+    out.append(
+        Outcome(
+            "borescan recompute --from 2026-11-20",
+            "processed" if rerun.returncode == 0 else "crashed",
+            proc.stdout.strip()[:160],
+            _checksums(raw) == before,
+        )
+    )
     final = res / "catalog.duckdb"
     final.write_bytes(final.read_bytes()[: final.stat().st_size // 2])
     proc = _run(b, raw, res, home, "catalog")
     from borescan import catalog
+
     ok = proc.returncode == 0 and catalog.catalog_damage(final) is None
-    out.append(Outcome("catalog.duckdb cut in half", "processed" if ok else "crashed",
-                       "set aside and rebuilt by the next run" if ok else proc.stderr[-200:], _checksums(raw) == before))
+    out.append(
+        Outcome(
+            "catalog.duckdb cut in half",
+            "processed" if ok else "crashed",
+            "set aside and rebuilt by the next run" if ok else proc.stderr[-200:],
+            _checksums(raw) == before,
+        )
+    )
     out.append(_killed_run(a, demo_raw, tmp))
     return out
 
@@ -187,10 +247,30 @@ def _killed_run(checkout: Path, demo_raw: Path, tmp: Path) -> Outcome:
     _rod_night(demo_raw, raw, "2026-11-20")
     before = _checksums(raw)
     python, _ = _python_for(lambda c: c)
-    cmd = [*python, "-m", "snakemake", "--cores", "2", "catalog", "--config", f"raw_root={raw}", f"results_root={res}"]
-    env = {"PATH": f"{Path(python[0]).parent}:/usr/bin:/bin", "HOME": str(home), "PYTHONPATH": str(checkout / "src")}
-    p = subprocess.Popen(cmd, cwd=checkout, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                         start_new_session=True)
+    cmd = [
+        *python,
+        "-m",
+        "snakemake",
+        "--cores",
+        "2",
+        "catalog",
+        "--config",
+        f"raw_root={raw}",
+        f"results_root={res}",
+    ]
+    env = {
+        "PATH": f"{Path(python[0]).parent}:/usr/bin:/bin",
+        "HOME": str(home),
+        "PYTHONPATH": str(checkout / "src"),
+    }
+    p = subprocess.Popen(
+        cmd,
+        cwd=checkout,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     deadline = time.time() + 300
     while time.time() < deadline and not (res / "stage" / "scans").exists():
         time.sleep(0.2)
@@ -198,8 +278,12 @@ def _killed_run(checkout: Path, demo_raw: Path, tmp: Path) -> Outcome:
     p.wait()
     proc = _run(checkout, raw, res, home, "catalog")
     first = next((line for line in (proc.stdout + proc.stderr).splitlines() if "lock" in line.lower()), "")
-    return Outcome("snakemake killed with SIGKILL mid-run, then rerun", "processed" if proc.returncode == 0 else
-                   "crashed", "recovered by itself" if proc.returncode == 0 else first[:160], _checksums(raw) == before)
+    return Outcome(
+        "snakemake killed with SIGKILL mid-run, then rerun",
+        "processed" if proc.returncode == 0 else "crashed",
+        "recovered by itself" if proc.returncode == 0 else first[:160],
+        _checksums(raw) == before,
+    )
 
 
 def main() -> None:
@@ -216,11 +300,18 @@ def main() -> None:
         outcomes = input_battery(tmp / "in", demo_raw) + process_battery(tmp / "proc", demo_raw)
     width = max(len(o.case) for o in outcomes)
     for o in outcomes:
-        print(f"{o.case:<{width}}  {o.result:<11}  raw "
-              f"{'unchanged' if o.raw_unchanged else 'CHANGED'}  {o.detail}")
-    counts = {r: sum(o.result == r for o in outcomes) for r in ("processed", "quarantined", "skipped", "crashed")}
-    print(f"{len(outcomes)} cases: " + ", ".join(f"{n} {r}" for r, n in counts.items()) +
-          f"; raw changed in {sum(not o.raw_unchanged for o in outcomes)}")
+        print(
+            f"{o.case:<{width}}  {o.result:<11}  raw "
+            f"{'unchanged' if o.raw_unchanged else 'CHANGED'}  {o.detail}"
+        )
+    counts = {
+        r: sum(o.result == r for o in outcomes) for r in ("processed", "quarantined", "skipped", "crashed")
+    }
+    print(
+        f"{len(outcomes)} cases: "
+        + ", ".join(f"{n} {r}" for r, n in counts.items())
+        + f"; raw changed in {sum(not o.raw_unchanged for o in outcomes)}"
+    )
 
 
 if __name__ == "__main__":

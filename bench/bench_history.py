@@ -46,8 +46,17 @@ def demo_results(tmp: Path) -> Path:
     demo.make_demo(tmp / "demo")
     results = tmp / "demo-results"
     snakemake = Path(sys.executable).with_name("snakemake")
-    cmd = [str(snakemake), "catalog", "--cores", "2", "--quiet", "all", "--config",
-           f"raw_root={tmp / 'demo' / 'raw'}", f"results_root={results}"]
+    cmd = [
+        str(snakemake),
+        "catalog",
+        "--cores",
+        "2",
+        "--quiet",
+        "all",
+        "--config",
+        f"raw_root={tmp / 'demo' / 'raw'}",
+        f"results_root={results}",
+    ]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     if proc.returncode != 0:
         print(proc.stderr[-3000:])
@@ -67,7 +76,9 @@ def _snapshot(results: Path, snap: Path) -> None:
         shutil.rmtree(snap)
     snap.mkdir()
     shutil.copyfile(results / "catalog.duckdb", snap / "catalog.duckdb")
-    shutil.copytree(results / "report", snap / "report", copy_function=os.link)  # files are replaced, never edited
+    shutil.copytree(
+        results / "report", snap / "report", copy_function=os.link
+    )  # files are replaced, never edited
     shutil.copyfile(results / "report.html", snap / "report.html")
 
 
@@ -92,8 +103,13 @@ def add_night(results: Path, pool: Path, night: str) -> tuple[float, float, floa
     t1, c1 = time.perf_counter(), time.process_time()
     ru = report.update_report(results)
     t2, c2 = time.perf_counter(), time.process_time()
-    return t1 - t0, t2 - t1, c1 - c0, c2 - c1, \
-        f"catalog {cu.mode} {len(cu.added)} night(s), pages {','.join(ru.rendered)}, {ru.plots_drawn} plots"
+    return (
+        t1 - t0,
+        t2 - t1,
+        c1 - c0,
+        c2 - c1,
+        f"catalog {cu.mode} {len(cu.added)} night(s), pages {','.join(ru.rendered)}, {ru.plots_drawn} plots",
+    )
 
 
 def main() -> None:
@@ -108,18 +124,25 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         t0 = time.perf_counter()
-        source = Path(os.environ["BENCH_HISTORY_SOURCE"]) if os.environ.get("BENCH_HISTORY_SOURCE") else demo_results(tmp)
+        source = (
+            Path(os.environ["BENCH_HISTORY_SOURCE"])
+            if os.environ.get("BENCH_HISTORY_SOURCE")
+            else demo_results(tmp)
+        )
         src = sh.read_source(source)
         results, pool = tmp / "results", tmp / "pool"
         nights = sh.copy_nights(src, results, START, range(n_nights), copies=copies, stage_root=pool)
         per_night = sum(t["scans"].height for t in src.tables.values()) * copies
-        print(f"synthetic history: {n_nights} nights from {START}, {per_night} scans and "
-              f"{len(src.devices) * copies} devices a night, made of {len(src.nights)} processed nights "
-              f"(made in {time.perf_counter() - t0:.0f} s, not timed)", flush=True)
+        print(
+            f"synthetic history: {n_nights} nights from {START}, {per_night} scans and "
+            f"{len(src.devices) * copies} devices a night, made of {len(src.nights)} processed nights "
+            f"(made in {time.perf_counter() - t0:.0f} s, not timed)",
+            flush=True,
+        )
 
         done, rows = 0, {}
         for k in checkpoints:
-            for night in nights[done:k - 1]:  # the history before night k, caught up at once (not timed)
+            for night in nights[done : k - 1]:  # the history before night k, caught up at once (not timed)
                 _move_night(pool, results, night)
             catalog.update_catalog(results)
             report.update_report(results)
@@ -136,31 +159,54 @@ def main() -> None:
             size_mb = (results / "catalog.duckdb").stat().st_size / 1e6
             n_rows = sum(catalog.update_catalog(results).rows.values())  # unchanged: counts only
             med = [statistics.median(r[i] for r in runs) for i in range(4)]
-            rows[k] = (med[0], med[1], statistics.median(r[0] + r[1] for r in runs), med[2], med[3],
-                       statistics.median(r[2] + r[3] for r in runs), size_mb, n_rows)
-            print(f"  night {k:3d} ({nights[k - 1]}): catalog {med[0]:.2f} s, report {med[1]:.2f} s "
-                  f"[{runs[-1][4]}]", flush=True)
+            rows[k] = (
+                med[0],
+                med[1],
+                statistics.median(r[0] + r[1] for r in runs),
+                med[2],
+                med[3],
+                statistics.median(r[2] + r[3] for r in runs),
+                size_mb,
+                n_rows,
+            )
+            print(
+                f"  night {k:3d} ({nights[k - 1]}): catalog {med[0]:.2f} s, report {med[1]:.2f} s "
+                f"[{runs[-1][4]}]",
+                flush=True,
+            )
 
         print()
-        print("adding night k to a history of k-1 nights (median of "
-              f"{repeats}; in-process, Python start-up and imports not included;\n"
-              "CPU time: this process's, not disturbed by other work on a shared machine)")
+        print(
+            "adding night k to a history of k-1 nights (median of "
+            f"{repeats}; in-process, Python start-up and imports not included;\n"
+            "CPU time: this process's, not disturbed by other work on a shared machine)"
+        )
         print(f"{'':28s}" + "".join(f"{'night ' + str(k):>12s}" for k in checkpoints))
-        for label, i, fmt in (("catalog update [s]", 0, "{:12.2f}"), ("report update [s]", 1, "{:12.2f}"),
-                              ("catalog + report [s]", 2, "{:12.2f}"), ("  CPU: catalog [s]", 3, "{:12.2f}"),
-                              ("  CPU: report [s]", 4, "{:12.2f}"), ("  CPU: catalog + report [s]", 5, "{:12.2f}"),
-                              ("catalog.duckdb [MB]", 6, "{:12.1f}"), ("catalog rows", 7, "{:12,d}")):
+        for label, i, fmt in (
+            ("catalog update [s]", 0, "{:12.2f}"),
+            ("report update [s]", 1, "{:12.2f}"),
+            ("catalog + report [s]", 2, "{:12.2f}"),
+            ("  CPU: catalog [s]", 3, "{:12.2f}"),
+            ("  CPU: report [s]", 4, "{:12.2f}"),
+            ("  CPU: catalog + report [s]", 5, "{:12.2f}"),
+            ("catalog.duckdb [MB]", 6, "{:12.1f}"),
+            ("catalog rows", 7, "{:12,d}"),
+        ):
             print(f"{label:28s}" + "".join(fmt.format(rows[k][i]) for k in checkpoints))
         first, last = checkpoints[0], checkpoints[-1]
         for what, i in (("wall time", 2), ("CPU time", 5)):
             ratio = rows[last][i] / rows[first][i]
-            print(f"night {last} / night {first}, {what}: {ratio:.2f}  (target <= {TARGET_RATIO}) "
-                  f"{'OK' if ratio <= TARGET_RATIO else 'MISSED'}")
+            print(
+                f"night {last} / night {first}, {what}: {ratio:.2f}  (target <= {TARGET_RATIO}) "
+                f"{'OK' if ratio <= TARGET_RATIO else 'MISSED'}"
+            )
 
         t0 = time.perf_counter()
         full = catalog.rebuild_catalog(results)
-        print(f"full catalog rebuild over {len(full.added)} nights: {time.perf_counter() - t0:.2f} s "
-              f"(borescan rebuild-catalog; the same tables as the nightly path)")
+        print(
+            f"full catalog rebuild over {len(full.added)} nights: {time.perf_counter() - t0:.2f} s "
+            f"(borescan rebuild-catalog; the same tables as the nightly path)"
+        )
 
         con = catalog.open_catalog(results)
         try:
@@ -174,7 +220,9 @@ def main() -> None:
                     times.append(time.perf_counter() - t0)
                 worst = max(worst, statistics.median(times))
                 print(f"  {name:28s} {statistics.median(times):8.3f} s  {n:8,d} rows")
-            print(f"slowest saved query {worst:.3f} s (target < {TARGET_QUERY_S} s) "
-                  f"{'OK' if worst < TARGET_QUERY_S else 'MISSED'}")
+            print(
+                f"slowest saved query {worst:.3f} s (target < {TARGET_QUERY_S} s) "
+                f"{'OK' if worst < TARGET_QUERY_S else 'MISSED'}"
+            )
         finally:
             con.close()

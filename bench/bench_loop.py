@@ -51,8 +51,14 @@ RUN_BY_DEFAULT = False
 N = 40
 SEED = 7
 #: hidden device effects and the design each is drawn with ("*": speeds, eccentricities or one speed)
-CASES = (("channel_delay", "speeds"), ("sensor_gain", "*"), ("sensor_nonlinearity", "eccentricities"),
-         ("sensor_drift", "*"), ("beam_tilt", "*"), ("channel_delay", "speeds"))
+CASES = (
+    ("channel_delay", "speeds"),
+    ("sensor_gain", "*"),
+    ("sensor_nonlinearity", "eccentricities"),
+    ("sensor_drift", "*"),
+    ("beam_tilt", "*"),
+    ("channel_delay", "speeds"),
+)
 NIGHTS = ("2027-04-01", "2027-04-02")
 
 
@@ -69,18 +75,36 @@ def draw(seed: int, i: int) -> dict:
     if design == "*":
         design = ("speeds", "eccentricities", "one_speed")[int(rng.integers(0, 3))]
     beams, R, range_mm = _device(rng)
-    nominal = Beams(beams.channels, beams.beta_rad + rng.uniform(-0.03, 0.03, 3), beams.rho_mm + rng.uniform(-1, 1, 3),
-                    beams.d_b_mm + rng.uniform(-1, 1, 3))
+    nominal = Beams(
+        beams.channels,
+        beams.beta_rad + rng.uniform(-0.03, 0.03, 3),
+        beams.rho_mm + rng.uniform(-1, 1, 3),
+        beams.d_b_mm + rng.uniform(-1, 1, 3),
+    )
     rows = _designs(rng, design)
     encoder = bool(rng.random() < 0.5)
     noise = float(rng.uniform(0.001, 0.004))
     spr = int(rng.integers(300, 501))
     C = rng.uniform(-300, 300, 2)
-    effect = None if name is None else random_effect(name, rng, beams.channels, rows[0]["rpm"] / 60.0,
-                                                     spr * rows[0]["rpm"] / 60.0)
+    effect = (
+        None
+        if name is None
+        else random_effect(name, rng, beams.channels, rows[0]["rpm"] / 60.0, spr * rows[0]["rpm"] / 60.0)
+    )
     device_id = f"TRI-L{seed}-{i:04d}"
-    common = dict(beams=beams, R=R, range_mm=range_mm, C=C, spr=spr, noise=noise, nominal=nominal, encoder=encoder,
-                  effect=effect, run_scan=None, device_id=device_id)
+    common = dict(
+        beams=beams,
+        R=R,
+        range_mm=range_mm,
+        C=C,
+        spr=spr,
+        noise=noise,
+        nominal=nominal,
+        encoder=encoder,
+        effect=effect,
+        run_scan=None,
+        device_id=device_id,
+    )
     night1 = spindle_scans(rng, rows, nights=[NIGHTS[0]], tag=f"L{seed}-{i:04d}-N1", **common)
     night2 = spindle_scans(rng, rows, nights=[NIGHTS[1]], tag=f"L{seed}-{i:04d}-N2", **common)
     art = gauge_artifact(R)
@@ -88,14 +112,41 @@ def draw(seed: int, i: int) -> dict:
     r = 1.5 * np.sqrt(rng.uniform(0, 1, 10))
     ang = rng.uniform(0, 2 * math.pi, 10)
     xy = np.stack([r * np.cos(ang), r * np.sin(ang)], -1)
-    scene = TriScene(beams=beams, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=R, spindle_xy_mm=(0.0, 0.0),
-                     range_mm=tuple(float(x) for x in range_mm), cte_per_k=11.5e-6, temperature_c=20.0)
-    ver = simulate_tri_static(scene, xy, rng.uniform(0, 2 * math.pi, 10), scan_id=f"L{seed}-{i:04d}-VER",
-                              night=NIGHTS[1], kind="verification", samples_per_pose=20, noise_mm=noise,
-                              seed=int(rng.integers(0, 2**31 - 1)), device_id=device_id, nominal_beams=nominal,
-                              artifact=art, effects=[] if effect is None else [effect])
-    return {"name": name, "design": design, "effect": effect, "night1": night1, "night2": night2, "ver": ver,
-            "noise_mm": noise, "encoder": encoder, "device_id": device_id}
+    scene = TriScene(
+        beams=beams,
+        bore_center_xy_mm=(0.0, 0.0),
+        bore_radius_20_mm=R,
+        spindle_xy_mm=(0.0, 0.0),
+        range_mm=tuple(float(x) for x in range_mm),
+        cte_per_k=11.5e-6,
+        temperature_c=20.0,
+    )
+    ver = simulate_tri_static(
+        scene,
+        xy,
+        rng.uniform(0, 2 * math.pi, 10),
+        scan_id=f"L{seed}-{i:04d}-VER",
+        night=NIGHTS[1],
+        kind="verification",
+        samples_per_pose=20,
+        noise_mm=noise,
+        seed=int(rng.integers(0, 2**31 - 1)),
+        device_id=device_id,
+        nominal_beams=nominal,
+        artifact=art,
+        effects=[] if effect is None else [effect],
+    )
+    return {
+        "name": name,
+        "design": design,
+        "effect": effect,
+        "night1": night1,
+        "night2": night2,
+        "ver": ver,
+        "noise_mm": noise,
+        "encoder": encoder,
+        "device_id": device_id,
+    }
 
 
 def _model_from(findings: dict, device_id: str, channels) -> tuple[str | None, list]:
@@ -108,9 +159,15 @@ def _model_from(findings: dict, device_id: str, channels) -> tuple[str | None, l
         if spec is None or spec.scope != "device":
             continue
         key = n["effect"] + (f"@{n['channel']}" if n.get("channel") else "")
-        row = {"device_id": device_id, "night": NIGHTS[0], "effect": n["effect"], "channel": n.get("channel"),
-               "parameters": json.dumps(n.get("parameters") or {}), "uncertainties": json.dumps(n.get("uncertainties") or {}),
-               "evidence_scans": ",".join(n.get("scans") or [])}
+        row = {
+            "device_id": device_id,
+            "night": NIGHTS[0],
+            "effect": n["effect"],
+            "channel": n.get("channel"),
+            "parameters": json.dumps(n.get("parameters") or {}),
+            "uncertainties": json.dumps(n.get("uncertainties") or {}),
+            "evidence_scans": ",".join(n.get("scans") or []),
+        }
         return key, device_model_at(device_id, [key], [row], NIGHTS[1], channels)
     return None, []
 
@@ -133,8 +190,11 @@ def _residual_ratio(scans, cfg: dict, model) -> tuple[float, bool, object]:
     except CalibrationError:
         cal, accepted = None, False
     try:
-        fit = cal if cal is not None else calibrate_raw_scans(
-            scans, {**cfg["calibration"], "max_residual_to_noise": 1e9}, model=model)
+        fit = (
+            cal
+            if cal is not None
+            else calibrate_raw_scans(scans, {**cfg["calibration"], "max_residual_to_noise": 1e9}, model=model)
+        )
     except CalibrationError:  # not even fitted (no convergence): no residual to show
         return math.nan, False, None
     ratio = max(max(float(x) for x in nu["residual_to_noise"]) for nu in fit.nuisance.values())
@@ -167,37 +227,75 @@ def run_one(job: tuple) -> dict:
     try:
         sc = draw(seed, i)
         with tempfile.TemporaryDirectory(prefix="loop-") as tmp:
+
             def written(sims):
-                return [rawio.read_scan(simulate.write_simulated(s, Path(tmp) / "raw", Path(tmp) / "truth")) for s in sims]
+                return [
+                    rawio.read_scan(simulate.write_simulated(s, Path(tmp) / "raw", Path(tmp) / "truth"))
+                    for s in sims
+                ]
 
             n1, n2, (ver,) = written(sc["night1"]), written(sc["night2"]), written([sc["ver"]])
             _, ok1, cal1 = _residual_ratio(n1, cfg, [])
-            if cal1 is None:  # refused for its residual: examined from the fit as it came out (as bench_pooled)
+            if (
+                cal1 is None
+            ):  # refused for its residual: examined from the fit as it came out (as bench_pooled)
                 try:
                     cal1 = calibrate_raw_scans(n1, {**cfg["calibration"], "max_residual_to_noise": 1e9})
-                except CalibrationError:  # not even fitted: examined as an uncalibrated device (design geometry)
+                except (
+                    CalibrationError
+                ):  # not even fitted: examined as an uncalibrated device (design geometry)
                     cal1 = None
             settings = {**discrepancy_settings(), "max_samples": MAX_SAMPLES}
-            pf = examine_pooled([pooled_scan(s, MAX_SAMPLES) for s in sc["night1"]],
-                                None if cal1 is None else cal1.beams, **settings).findings
-            key, model = _model_from(pf, sc["device_id"], tuple(int(x["channel"]) for x in n1[0].meta["sensors"]))
+            pf = examine_pooled(
+                [pooled_scan(s, MAX_SAMPLES) for s in sc["night1"]],
+                None if cal1 is None else cal1.beams,
+                **settings,
+            ).findings
+            key, model = _model_from(
+                pf, sc["device_id"], tuple(int(x["channel"]) for x in n1[0].meta["sensors"])
+            )
             before, acc_before, cal_before = _residual_ratio(n2, cfg, [])
-            after, acc_after, cal_after = _residual_ratio(n2, cfg, model) if model else (before, acc_before, cal_before)
+            after, acc_after, cal_after = (
+                _residual_ratio(n2, cfg, model) if model else (before, acc_before, cal_before)
+            )
             truth = effect_label(sc["effect"]) if sc["effect"] is not None else None
             named = [label(x) for x in pf["named"]]
-            named_ok = (truth is None and not named) or (truth is not None and named[:1] != [] and (
-                named[0] == truth or (pf["verdict"] == "ambiguous" and _like(named[0], truth))))
-            return {"i": i, "name": sc["name"] or "(none)", "design": sc["design"], "truth": truth,
-                    "verdict": pf["verdict"], "named": named, "named_ok": bool(named_ok), "entered": key,
-                    "value": None if not model else model[0].values(), "u": None if not model else dict(model[0].u),
-                    "true_value": None if sc["effect"] is None else dict(sc["effect"].params),
-                    "night1_accepted": ok1, "residual_before": before, "residual_after": after,
-                    "accepted_before": acc_before, "accepted_after": acc_after,
-                    "ver_before": _verification(ver, cal_before, cfg), "ver_after": _verification(ver, cal_after, cfg),
-                    "noise_mm": sc["noise_mm"], "encoder": sc["encoder"], "cpu_s": time.process_time() - t0}
+            named_ok = (truth is None and not named) or (
+                truth is not None
+                and named[:1] != []
+                and (named[0] == truth or (pf["verdict"] == "ambiguous" and _like(named[0], truth)))
+            )
+            return {
+                "i": i,
+                "name": sc["name"] or "(none)",
+                "design": sc["design"],
+                "truth": truth,
+                "verdict": pf["verdict"],
+                "named": named,
+                "named_ok": bool(named_ok),
+                "entered": key,
+                "value": None if not model else model[0].values(),
+                "u": None if not model else dict(model[0].u),
+                "true_value": None if sc["effect"] is None else dict(sc["effect"].params),
+                "night1_accepted": ok1,
+                "residual_before": before,
+                "residual_after": after,
+                "accepted_before": acc_before,
+                "accepted_after": acc_after,
+                "ver_before": _verification(ver, cal_before, cfg),
+                "ver_after": _verification(ver, cal_after, cfg),
+                "noise_mm": sc["noise_mm"],
+                "encoder": sc["encoder"],
+                "cpu_s": time.process_time() - t0,
+            }
     except Exception as err:  # noqa: BLE001 - a crash is a result of the bench
-        return {"i": i, "name": "error", "error": f"{type(err).__name__}: {err}", "tb": traceback.format_exc(limit=8),
-                "cpu_s": time.process_time() - t0}
+        return {
+            "i": i,
+            "name": "error",
+            "error": f"{type(err).__name__}: {err}",
+            "tb": traceback.format_exc(limit=8),
+            "cpu_s": time.process_time() - t0,
+        }
 
 
 def summarise(rows: list[dict]) -> str:
@@ -205,8 +303,10 @@ def summarise(rows: list[dict]) -> str:
     by = defaultdict(list)
     for r in rows:
         by[r["name"]].append(r)
-    out = [f"{'hidden effect':22s} {'n':>3s} {'named':>7s} {'entered':>8s} {'res/noise before':>17s} "
-           f"{'after':>6s} {'<=1.2':>6s} {'|E|/U before':>13s} {'after':>6s} {'<=1':>5s}"]
+    out = [
+        f"{'hidden effect':22s} {'n':>3s} {'named':>7s} {'entered':>8s} {'res/noise before':>17s} "
+        f"{'after':>6s} {'<=1.2':>6s} {'|E|/U before':>13s} {'after':>6s} {'<=1':>5s}"
+    ]
 
     def med(xs):
         xs = [x for x in xs if x is not None and math.isfinite(x)]
@@ -220,19 +320,25 @@ def summarise(rows: list[dict]) -> str:
         ent = [r for r in rs if r["entered"]]
         res_ok = sum(r["residual_after"] <= 1.2 for r in ent)
         ver_ok = sum(r["ver_after"] is not None and r["ver_after"] <= 1.0 for r in ent)
-        out.append(f"{name:22s} {n:3d} {sum(r['named_ok'] for r in rs):3d}/{n:<3d} {len(ent):3d}/{n:<4d} "
-                   f"{med([r['residual_before'] for r in rs]):>17s} {med([r['residual_after'] for r in ent]):>6s} "
-                   f"{res_ok:3d}/{len(ent):<2d} {med([r['ver_before'] for r in rs]):>13s} "
-                   f"{med([r['ver_after'] for r in ent]):>6s} {ver_ok:2d}/{len(ent):<2d}")
+        out.append(
+            f"{name:22s} {n:3d} {sum(r['named_ok'] for r in rs):3d}/{n:<3d} {len(ent):3d}/{n:<4d} "
+            f"{med([r['residual_before'] for r in rs]):>17s} {med([r['residual_after'] for r in ent]):>6s} "
+            f"{res_ok:3d}/{len(ent):<2d} {med([r['ver_before'] for r in rs]):>13s} "
+            f"{med([r['ver_after'] for r in ent]):>6s} {ver_ok:2d}/{len(ent):<2d}"
+        )
     eff = [r for r in rows if "error" not in r and r["name"] != "(none)"]
     free = [r for r in rows if "error" not in r and r["name"] == "(none)"]
     errors = [r for r in rows if "error" in r]
     if eff:
-        out.append(f"named correctly: {sum(r['named_ok'] for r in eff)}/{len(eff)} "
-                   f"({100 * np.mean([r['named_ok'] for r in eff]):.1f} %)")
+        out.append(
+            f"named correctly: {sum(r['named_ok'] for r in eff)}/{len(eff)} "
+            f"({100 * np.mean([r['named_ok'] for r in eff]):.1f} %)"
+        )
     if free:
-        out.append(f"false alarms (an effect entered an effect-free device): {sum(bool(r['entered']) for r in free)}"
-                   f"/{len(free)}")
+        out.append(
+            f"false alarms (an effect entered an effect-free device): {sum(bool(r['entered']) for r in free)}"
+            f"/{len(free)}"
+        )
     if errors:
         out.append(f"errors: {len(errors)}: " + "; ".join(f"#{r['i']} {r['error']}" for r in errors[:5]))
     return "\n".join(out)

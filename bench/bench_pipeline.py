@@ -41,23 +41,58 @@ def make_night(raw: Path, truth: Path, n_tri: int, n_rod: int) -> int:
         cal = i < 4
         if cal:
             scene = replace(base, spindle_xy_mm=simulate.YANG_P1_XY_MM, phase_rad=0.3 * i)
-            kw = dict(artifact=demo.RG275, spindle_label="P1", center_xy_mm=simulate.YANG_P0_XY_MM, kind="calibration")
+            kw = dict(
+                artifact=demo.RG275,
+                spindle_label="P1",
+                center_xy_mm=simulate.YANG_P0_XY_MM,
+                kind="calibration",
+            )
         else:
             d = 276.0 + 4.0 * (i % 10) / 10
-            scene = replace(base, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=d / 2,
-                            spindle_xy_mm=(1.5 * np.cos(i), 1.5 * np.sin(i)), phase_rad=0.1 * i)
-            kw = dict(artifact={"id": f"HSG-{2000 + i}", "type": "part", "nominal_diameter_mm": round(d, 1),
-                                "cte_per_k": 11.5e-6}, spindle_label="BORE", kind="measurement")
-        sim = simulate.simulate_tri_spindle(scene, n_rev=60, nominal_beams=demo.NOMINAL_BEAMS, scan_id=f"REF-TRI-{i:03d}",
-                                            night=NIGHT, seed=1000 + i, started_at=simulate.started_at_plus(NIGHT, 20, 0),
-                                            device_id="TRI-REF", **kw)
+            scene = replace(
+                base,
+                bore_center_xy_mm=(0.0, 0.0),
+                bore_radius_20_mm=d / 2,
+                spindle_xy_mm=(1.5 * np.cos(i), 1.5 * np.sin(i)),
+                phase_rad=0.1 * i,
+            )
+            kw = dict(
+                artifact={
+                    "id": f"HSG-{2000 + i}",
+                    "type": "part",
+                    "nominal_diameter_mm": round(d, 1),
+                    "cte_per_k": 11.5e-6,
+                },
+                spindle_label="BORE",
+                kind="measurement",
+            )
+        sim = simulate.simulate_tri_spindle(
+            scene,
+            n_rev=60,
+            nominal_beams=demo.NOMINAL_BEAMS,
+            scan_id=f"REF-TRI-{i:03d}",
+            night=NIGHT,
+            seed=1000 + i,
+            started_at=simulate.started_at_plus(NIGHT, 20, 0),
+            device_id="TRI-REF",
+            **kw,
+        )
         simulate.write_simulated(sim, raw, truth)
         readings += sim.lds.height
     for j in range(n_rod):
-        sim = simulate.simulate_rod(simulate.default_rod_scene(), n_poses=24, samples_per_pose=5,
-                                    artifact={"id": f"CYL-{j}", "type": "part", "nominal_diameter_mm": 150.0, "cte_per_k": 11.5e-6},
-                                    features=("H1", "H2"), device_id="ROD-01", scan_id=f"REF-ROD-{j:03d}", night=NIGHT,
-                                    kind="measurement", seed=5000 + j, started_at=simulate.started_at_plus(NIGHT, 21, 0))
+        sim = simulate.simulate_rod(
+            simulate.default_rod_scene(),
+            n_poses=24,
+            samples_per_pose=5,
+            artifact={"id": f"CYL-{j}", "type": "part", "nominal_diameter_mm": 150.0, "cte_per_k": 11.5e-6},
+            features=("H1", "H2"),
+            device_id="ROD-01",
+            scan_id=f"REF-ROD-{j:03d}",
+            night=NIGHT,
+            kind="measurement",
+            seed=5000 + j,
+            started_at=simulate.started_at_plus(NIGHT, 21, 0),
+        )
         simulate.write_simulated(sim, raw, truth)
         readings += sim.lds.height
     return readings
@@ -99,18 +134,28 @@ def main() -> None:
         tmp = Path(tmp)
         t0 = time.perf_counter()
         readings = make_night(tmp / "raw", tmp / "truth", n_tri, n_rod)
-        print(f"reference night: {n_tri} tri scans (60 rev x 660 x 3) + {n_rod} rod scans, {readings:,} "
-              "readings "
-              f"(generated in {time.perf_counter() - t0:.1f} s, not timed)", flush=True)
+        print(
+            f"reference night: {n_tri} tri scans (60 rev x 660 x 3) + {n_rod} rod scans, {readings:,} "
+            "readings "
+            f"(generated in {time.perf_counter() - t0:.1f} s, not timed)",
+            flush=True,
+        )
         snakemake = Path(sys.executable).with_name("snakemake")
         config = ["--config", f"raw_root={tmp / 'raw'}", f"results_root={tmp / 'results'}"]
         t0 = time.perf_counter()
-        papers = subprocess.run([str(snakemake), "papers", "--cores", "2", "--quiet", "all", *config], cwd=ROOT,
-                                capture_output=True, text=True)
+        papers = subprocess.run(
+            [str(snakemake), "papers", "--cores", "2", "--quiet", "all", *config],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+        )
         if papers.returncode != 0:
             print(papers.stderr[-3000:])
             raise SystemExit("papers failed")
-        print(f"papers reproduced first in {time.perf_counter() - t0:.1f} s (not part of a night, not timed)", flush=True)
+        print(
+            f"papers reproduced first in {time.perf_counter() - t0:.1f} s (not part of a night, not timed)",
+            flush=True,
+        )
         for f in (tmp / "results" / "benchmarks").rglob("*.tsv"):
             f.unlink()  # the night's job times only
         cmd = [str(snakemake), "--cores", "2", "--quiet", "all", *config]
@@ -130,4 +175,6 @@ def main() -> None:
         busy = union_seconds([x for iv in jobs.values() for x in iv])
         overhead = max(0.0, wall - busy)
         print(f"some job running     {busy:8.1f} s")
-        print(f"workflow overhead    {overhead:8.1f} s = {100 * overhead / wall:.0f} % of wall (target <= 20 %)")
+        print(
+            f"workflow overhead    {overhead:8.1f} s = {100 * overhead / wall:.0f} % of wall (target <= 20 %)"
+        )

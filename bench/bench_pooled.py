@@ -54,10 +54,20 @@ from borescan.config import schema_defaults
 
 #: Hidden effects and the design each is drawn with ("*": any of speeds, eccentricities, nights).
 CASES = (
-    ("channel_delay", "speeds"), ("sensor_nonlinearity", "eccentricities"), ("sensor_offset", "eccentricities"),
-    ("channel_delay", "one_speed"), ("sensor_gain", "*"), ("sensor_drift", "*"), ("beam_tilt", "*"),
-    ("thermal_expansion", "*"), ("bore_lobing", "*"), ("axis_tilt", "*"), ("speed_ripple", "*"),
-    ("spindle_error_motion", "*"), ("sensor_nonlinearity", "*"), ("channel_delay", "speeds"),
+    ("channel_delay", "speeds"),
+    ("sensor_nonlinearity", "eccentricities"),
+    ("sensor_offset", "eccentricities"),
+    ("channel_delay", "one_speed"),
+    ("sensor_gain", "*"),
+    ("sensor_drift", "*"),
+    ("beam_tilt", "*"),
+    ("thermal_expansion", "*"),
+    ("bore_lobing", "*"),
+    ("axis_tilt", "*"),
+    ("speed_ripple", "*"),
+    ("spindle_error_motion", "*"),
+    ("sensor_nonlinearity", "*"),
+    ("channel_delay", "speeds"),
 )
 RUN_EFFECTS = ("speed_ripple", "spindle_error_motion")
 LOOKALIKES = ({"beam_tilt", "sensor_gain"}, {"axis_tilt", "bore_lobing[k=2]"})
@@ -77,8 +87,12 @@ def _device(rng):
     beta = draw_beam_directions(rng, 3, TRI_CONTRACT["min_beam_separation_rad"])
     rho = rng.uniform(-TRI_CONTRACT["rho_max_mm"], TRI_CONTRACT["rho_max_mm"], 3)
     # readings must stay in range for every direction of an eccentricity up to 3 mm
-    spans = np.concatenate([reading_span_mm(beta, rho, 3.0 * np.array([math.cos(a), math.sin(a)]), R, 512)
-                            for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)])
+    spans = np.concatenate(
+        [
+            reading_span_mm(beta, rho, 3.0 * np.array([math.cos(a), math.sin(a)]), R, 512)
+            for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)
+        ]
+    )
     s_min, s_max = spans.min(axis=0), spans.max(axis=0)
     range_mm = np.array([max(float(rng.uniform(6.0, 10.0)), s_max[j] - s_min[j] + 0.6) for j in range(3)])
     d_b = np.array([rng.uniform(s_max[j] - range_mm[j] + 0.2, s_min[j] - 0.2) for j in range(3)])
@@ -106,18 +120,44 @@ def _designs(rng, design: str) -> list[dict]:
         ecc = rng.uniform(1.0, 2.5, 4)
     else:
         raise ValueError(f"unknown design {design!r}")
-    return [{"night": n, "rpm": r, "direction": d, "ecc_mm": float(e)} for n, r, d, e in zip(nights, rpms, dirs, ecc)]
+    return [
+        {"night": n, "rpm": r, "direction": d, "ecc_mm": float(e)}
+        for n, r, d, e in zip(nights, rpms, dirs, ecc)
+    ]
 
 
 def gauge_artifact(R: float) -> dict:
     """Return the certified ring gauge of radius ``R`` [mm] a scenario's device turns in."""
-    return {"id": f"RG-{round(2 * R)}", "type": "ring_gauge", "nominal_diameter_mm": float(round(2 * R)),
-            "certified_diameter_mm": 2 * R, "u_diameter_mm": 0.0015, "k": 2, "certificate": "RG/2027",
-            "cte_per_k": 11.5e-6}
+    return {
+        "id": f"RG-{round(2 * R)}",
+        "type": "ring_gauge",
+        "nominal_diameter_mm": float(round(2 * R)),
+        "certified_diameter_mm": 2 * R,
+        "u_diameter_mm": 0.0015,
+        "k": 2,
+        "certificate": "RG/2027",
+        "cte_per_k": 11.5e-6,
+    }
 
 
-def spindle_scans(rng, rows: list[dict], *, beams, R, range_mm, C, spr, noise, nominal, encoder, effect, run_scan,
-                  device_id, nights, tag) -> list:
+def spindle_scans(
+    rng,
+    rows: list[dict],
+    *,
+    beams,
+    R,
+    range_mm,
+    C,
+    spr,
+    noise,
+    nominal,
+    encoder,
+    effect,
+    run_scan,
+    device_id,
+    nights,
+    tag,
+) -> list:
     """Return the ring-gauge spindle scans of one design.
 
     Return the ring-gauge spindle scans of one design (:func:`_designs` rows, 12 revolutions each, scan
@@ -130,17 +170,37 @@ def spindle_scans(rng, rows: list[dict], *, beams, R, range_mm, C, spr, noise, n
     for k, s in enumerate(rows):
         a = float(rng.uniform(0, 2 * math.pi))
         S = C + s["ecc_mm"] * np.array([math.cos(a), math.sin(a)])
-        scene = TriScene(beams=beams, bore_center_xy_mm=(float(C[0]), float(C[1])), bore_radius_20_mm=R,
-                         spindle_xy_mm=(float(S[0]), float(S[1])), rpm_nominal=s["rpm"],
-                         phase_rad=float(rng.uniform(0, 2 * math.pi)), direction=s["direction"],
-                         sample_rate_hz=spr * s["rpm"] / 60.0, range_mm=tuple(float(x) for x in range_mm),
-                         cte_per_k=11.5e-6, temperature_c=20.0)
+        scene = TriScene(
+            beams=beams,
+            bore_center_xy_mm=(float(C[0]), float(C[1])),
+            bore_radius_20_mm=R,
+            spindle_xy_mm=(float(S[0]), float(S[1])),
+            rpm_nominal=s["rpm"],
+            phase_rad=float(rng.uniform(0, 2 * math.pi)),
+            direction=s["direction"],
+            sample_rate_hz=spr * s["rpm"] / 60.0,
+            range_mm=tuple(float(x) for x in range_mm),
+            cte_per_k=11.5e-6,
+            temperature_c=20.0,
+        )
         effects = [] if effect is None or (run_scan is not None and k != run_scan) else [effect]
-        sims.append(simulate_tri_spindle(
-            scene, scan_id=f"{tag}-{k}", night=nights[s["night"]], n_rev=12.0, effects=effects,
-            noise_mm=noise, seed=int(rng.integers(0, 2**31 - 1)), device_id=device_id,
-            nominal_beams=nominal, artifact=art, center_xy_mm=(float(C[0]), float(C[1])), encoder=encoder,
-            spindle_rate_hz=200.0))
+        sims.append(
+            simulate_tri_spindle(
+                scene,
+                scan_id=f"{tag}-{k}",
+                night=nights[s["night"]],
+                n_rev=12.0,
+                effects=effects,
+                noise_mm=noise,
+                seed=int(rng.integers(0, 2**31 - 1)),
+                device_id=device_id,
+                nominal_beams=nominal,
+                artifact=art,
+                center_xy_mm=(float(C[0]), float(C[1])),
+                encoder=encoder,
+                spindle_rate_hz=200.0,
+            )
+        )
     return sims
 
 
@@ -156,8 +216,12 @@ def draw_scenario(seed: int, i: int) -> dict:
     if design == "*":
         design = ("speeds", "eccentricities", "nights", "one_speed")[int(rng.integers(0, 4))]
     beams, R, range_mm = _device(rng)
-    nominal = Beams(beams.channels, beams.beta_rad + rng.uniform(-0.03, 0.03, 3), beams.rho_mm + rng.uniform(-1, 1, 3),
-                    beams.d_b_mm + rng.uniform(-1, 1, 3))
+    nominal = Beams(
+        beams.channels,
+        beams.beta_rad + rng.uniform(-0.03, 0.03, 3),
+        beams.rho_mm + rng.uniform(-1, 1, 3),
+        beams.d_b_mm + rng.uniform(-1, 1, 3),
+    )
     scans = _designs(rng, design)
     encoder = bool(rng.random() < 0.5) and name not in ("speed_ripple",)
     noise = float(rng.uniform(0.001, 0.004))
@@ -165,14 +229,39 @@ def draw_scenario(seed: int, i: int) -> dict:
     C = rng.uniform(-300, 300, 2)
     effect = None
     if name is not None:
-        effect = random_effect(name, rng, beams.channels, scans[0]["rpm"] / 60.0, spr * scans[0]["rpm"] / 60.0)
+        effect = random_effect(
+            name, rng, beams.channels, scans[0]["rpm"] / 60.0, spr * scans[0]["rpm"] / 60.0
+        )
     run_scan = int(rng.integers(0, len(scans))) if name in RUN_EFFECTS else None
     nights = ["2027-03-01", "2027-03-02"]
-    sims = spindle_scans(rng, scans, beams=beams, R=R, range_mm=range_mm, C=C, spr=spr, noise=noise, nominal=nominal,
-                         encoder=encoder, effect=effect, run_scan=run_scan, device_id=f"TRI-P{seed}-{i:04d}",
-                         nights=nights, tag=f"P{seed}-{i:04d}")
-    return {"sims": sims, "effect": effect, "name": name, "design": design, "run_scan": run_scan,
-            "nights": [nights[s["night"]] for s in scans], "beams": beams, "noise_mm": noise, "encoder": encoder}
+    sims = spindle_scans(
+        rng,
+        scans,
+        beams=beams,
+        R=R,
+        range_mm=range_mm,
+        C=C,
+        spr=spr,
+        noise=noise,
+        nominal=nominal,
+        encoder=encoder,
+        effect=effect,
+        run_scan=run_scan,
+        device_id=f"TRI-P{seed}-{i:04d}",
+        nights=nights,
+        tag=f"P{seed}-{i:04d}",
+    )
+    return {
+        "sims": sims,
+        "effect": effect,
+        "name": name,
+        "design": design,
+        "run_scan": run_scan,
+        "nights": [nights[s["night"]] for s in scans],
+        "beams": beams,
+        "noise_mm": noise,
+        "encoder": encoder,
+    }
 
 
 def calibrate(sims) -> tuple:
@@ -200,15 +289,21 @@ def calibrate(sims) -> tuple:
     nominal = Beams.from_nominal(meta["device"]["nominal"]["beams"])
     R = meta["artifact"]["certified_diameter_mm"] / 2
     rng_mm = [float(x["range_mm"]) for x in sorted(meta["sensors"], key=lambda x: x["channel"])]
-    kw = dict(center_xy_mm=C, angle_models=am, range_mm=rng_mm, scan_ids=[s.scan_id for s in sims],
-              device_id=meta["device"]["id"])
+    kw = dict(
+        center_xy_mm=C,
+        angle_models=am,
+        range_mm=rng_mm,
+        scan_ids=[s.scan_id for s in sims],
+        device_id=meta["device"]["id"],
+    )
     try:
         return fit_full_calibration(ts, ys, ch, nominal, R, S, **kw), True
     except CalibrationError:
         pass
     try:
-        return fit_full_calibration(ts, ys, ch, nominal, R, S, rule=AcceptanceRule.defaults(max_residual_to_noise=1e9),
-                                    **kw), False
+        return fit_full_calibration(
+            ts, ys, ch, nominal, R, S, rule=AcceptanceRule.defaults(max_residual_to_noise=1e9), **kw
+        ), False
     except CalibrationError:
         return None, False
 
@@ -257,7 +352,9 @@ def value_ok(entry: dict | None, effect) -> bool:
     return abs(float(found) - true) <= tol
 
 
-def correct(verdict: str, named: list[dict], absorbed: list[str] | None, effect, expect_absorbed_: bool) -> bool:
+def correct(
+    verdict: str, named: list[dict], absorbed: list[str] | None, effect, expect_absorbed_: bool
+) -> bool:
     """Return whether a verdict is right by the bench's rule (module doc).
 
     Return the bench's rule (module doc): right names and, for the hidden effect, its value.
@@ -314,13 +411,23 @@ def run_one(job: tuple) -> dict:
             f = analyse_scan(s, **ref, **settings).findings
             named = [label(x) for x in f["named"]]
             hit = sc["run_scan"] is None or s.scan_id.endswith(f"-{sc['run_scan']}")
-            singles.append({"scan_id": s.scan_id, "verdict": f["verdict"], "named": named,
-                            "correct": correct(f["verdict"], f["named"], None, sc["effect"] if hit else None,
-                                               absorbed_expected)})
+            singles.append(
+                {
+                    "scan_id": s.scan_id,
+                    "verdict": f["verdict"],
+                    "named": named,
+                    "correct": correct(
+                        f["verdict"], f["named"], None, sc["effect"] if hit else None, absorbed_expected
+                    ),
+                }
+            )
         t2 = time.process_time()
         latest = next((cals[n] for n in sorted(cals, reverse=True) if cals[n] is not None), None)
-        pe = examine_pooled([pooled_scan(s, MAX_SAMPLES) for s in sc["sims"]],
-                            latest.beams if latest is not None else None, **settings)
+        pe = examine_pooled(
+            [pooled_scan(s, MAX_SAMPLES) for s in sc["sims"]],
+            latest.beams if latest is not None else None,
+            **settings,
+        )
         t3 = time.process_time()
         pf = pe.findings
         named = [label(x) for x in pf["named"]]
@@ -330,21 +437,56 @@ def run_one(job: tuple) -> dict:
         if sc["effect"] is not None and not absorbed_expected:
             hit = next((x for x in pf["named"] if label(x) == truth), None)
             if hit is not None:
-                value = {"true": dict(sc["effect"].params), "found": hit["parameters"], "u": hit["uncertainties"],
-                         "scans": hit.get("scans")}
-        return {"i": i, "name": sc["name"] or "(none)", "design": sc["design"], "truth": truth,
-                "expect_absorbed": absorbed_expected, "singles": singles,
-                "singles_failed": not all(s["correct"] for s in singles), "verdict": pf["verdict"], "named": named,
-                "absorbed": absorbed, "correct": ok, "value": value, "calibration_accepted": all(accepted),
-                "calibrated": all(c is not None for c in cals.values()),
-                "encoder": sc["encoder"], "advice": [a["advice"] for a in pf["absorbed"]],
-                "cpu_single_s": t2 - t1, "cpu_pooled_s": t3 - t2, "cpu_s": time.process_time() - t0}
+                value = {
+                    "true": dict(sc["effect"].params),
+                    "found": hit["parameters"],
+                    "u": hit["uncertainties"],
+                    "scans": hit.get("scans"),
+                }
+        return {
+            "i": i,
+            "name": sc["name"] or "(none)",
+            "design": sc["design"],
+            "truth": truth,
+            "expect_absorbed": absorbed_expected,
+            "singles": singles,
+            "singles_failed": not all(s["correct"] for s in singles),
+            "verdict": pf["verdict"],
+            "named": named,
+            "absorbed": absorbed,
+            "correct": ok,
+            "value": value,
+            "calibration_accepted": all(accepted),
+            "calibrated": all(c is not None for c in cals.values()),
+            "encoder": sc["encoder"],
+            "advice": [a["advice"] for a in pf["absorbed"]],
+            "cpu_single_s": t2 - t1,
+            "cpu_pooled_s": t3 - t2,
+            "cpu_s": time.process_time() - t0,
+        }
     except Exception as err:  # noqa: BLE001 - a crash is a result of the bench
-        return {"i": i, "name": "error", "design": "", "truth": None, "expect_absorbed": False, "singles": [],
-                "singles_failed": True, "verdict": "error", "named": [], "absorbed": [], "correct": False,
-                "value": None, "calibration_accepted": False, "encoder": None, "advice": [],
-                "error": f"{type(err).__name__}: {err}", "tb": traceback.format_exc(limit=6),
-                "cpu_single_s": 0.0, "cpu_pooled_s": 0.0, "cpu_s": time.process_time() - t0}
+        return {
+            "i": i,
+            "name": "error",
+            "design": "",
+            "truth": None,
+            "expect_absorbed": False,
+            "singles": [],
+            "singles_failed": True,
+            "verdict": "error",
+            "named": [],
+            "absorbed": [],
+            "correct": False,
+            "value": None,
+            "calibration_accepted": False,
+            "encoder": None,
+            "advice": [],
+            "error": f"{type(err).__name__}: {err}",
+            "tb": traceback.format_exc(limit=6),
+            "cpu_single_s": 0.0,
+            "cpu_pooled_s": 0.0,
+            "cpu_s": time.process_time() - t0,
+        }
 
 
 # ------------------------------------------------------------------------------------ report
@@ -358,20 +500,28 @@ def summarise(rows: list[dict]) -> str:
     failed = [r for r in eff if r["singles_failed"]]
     n_err = sum(r["verdict"] == "error" for r in rows)
     ran = [r for r in rows if r["verdict"] != "error"]
-    lines.append(f"scenarios {len(rows)} ({len(eff)} with a hidden effect, {len(free)} effect-free, {n_err} errors); "
-                 f"calibrations refused by the acceptance rule: {sum(not r['calibration_accepted'] for r in ran)} "
-                 f"(used as fitted; {sum(not r.get('calibrated', True) for r in ran)} diverged: design geometry "
-                 "instead)")
+    lines.append(
+        f"scenarios {len(rows)} ({len(eff)} with a hidden effect, {len(free)} effect-free, {n_err} errors); "
+        f"calibrations refused by the acceptance rule: {sum(not r['calibration_accepted'] for r in ran)} "
+        f"(used as fitted; {sum(not r.get('calibrated', True) for r in ran)} diverged: design geometry "
+        "instead)"
+    )
     ok_f = sum(r["correct"] for r in failed)
-    lines.append(f"pooled correct where single scans were ambiguous or wrong: {ok_f}/{len(failed)} = "
-                 f"{ok_f / max(len(failed), 1):.1%}")
-    lines.append(f"pooled correct on every effect scenario: {sum(r['correct'] for r in eff)}/{len(eff)}; "
-                 f"single scans all correct: {sum(not r['singles_failed'] for r in eff)}/{len(eff)}")
+    lines.append(
+        f"pooled correct where single scans were ambiguous or wrong: {ok_f}/{len(failed)} = "
+        f"{ok_f / max(len(failed), 1):.1%}"
+    )
+    lines.append(
+        f"pooled correct on every effect scenario: {sum(r['correct'] for r in eff)}/{len(eff)}; "
+        f"single scans all correct: {sum(not r['singles_failed'] for r in eff)}/{len(eff)}"
+    )
     fa = [r for r in free if not r["correct"]]
     fa1 = [r for r in free if r["singles_failed"]]
-    lines.append(f"false alarms on effect-free scenarios: pooled {len(fa)}/{len(free)} = "
-                 f"{len(fa) / max(len(free), 1):.1%}; "
-                 f"some single scan {len(fa1)}/{len(free)}")
+    lines.append(
+        f"false alarms on effect-free scenarios: pooled {len(fa)}/{len(free)} = "
+        f"{len(fa) / max(len(free), 1):.1%}; "
+        f"some single scan {len(fa1)}/{len(free)}"
+    )
     table: dict[str, Counter] = defaultdict(Counter)
     for r in rows:
         key = f"{r['name']} / {r['design']}"
@@ -380,18 +530,28 @@ def summarise(rows: list[dict]) -> str:
         table[key]["pooled_ok"] += r["correct"]
         table[key]["pooled_ok_where_failed"] += r["correct"] and r["singles_failed"]
     lines.append("")
-    lines.append(f"{'hidden effect / design':<40}{'n':>4}{'singles failed':>16}"
-                 f"{'pooled ok':>11}{'ok where failed':>17}")
+    lines.append(
+        f"{'hidden effect / design':<40}{'n':>4}{'singles failed':>16}"
+        f"{'pooled ok':>11}{'ok where failed':>17}"
+    )
     for k in sorted(table):
         c = table[k]
-        lines.append(f"{k:<40}{c['n']:>4}{c['single_failed']:>16}{c['pooled_ok']:>11}"
-                     f"{str(c['pooled_ok_where_failed']) + '/' + str(c['single_failed']):>17}")
+        lines.append(
+            f"{k:<40}{c['n']:>4}{c['single_failed']:>16}{c['pooled_ok']:>11}"
+            f"{str(c['pooled_ok_where_failed']) + '/' + str(c['single_failed']):>17}"
+        )
     vals = [r["value"] for r in rows if r.get("value")]
     dl = [v for v in vals if "tau_s" in v["true"]]
     if dl:
-        z = [abs(v["found"]["tau_s"] - v["true"]["tau_s"]) / v["u"]["u_tau_s"] for v in dl if v["u"].get("u_tau_s")]
+        z = [
+            abs(v["found"]["tau_s"] - v["true"]["tau_s"]) / v["u"]["u_tau_s"]
+            for v in dl
+            if v["u"].get("u_tau_s")
+        ]
         lines.append("")
-        lines.append(f"channel_delay recovered (pooled): |tau - true| / u = {', '.join(f'{x:.1f}' for x in z)}")
+        lines.append(
+            f"channel_delay recovered (pooled): |tau - true| / u = {', '.join(f'{x:.1f}' for x in z)}"
+        )
     return "\n".join(lines)
 
 
@@ -401,7 +561,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--n", type=int, default=40, help="scenarios")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--verbose", action="store_true", help="print every scenario the pooled verdict got wrong")
+    ap.add_argument(
+        "--verbose", action="store_true", help="print every scenario the pooled verdict got wrong"
+    )
     ap.add_argument("--first", type=int, default=0, help="index of the first scenario")
     ap.add_argument("--jsonl", help="append each scenario's row to this file as it finishes")
     ap.add_argument("--from-jsonl", help="summarise the rows kept in this file (runs nothing)")
@@ -427,10 +589,12 @@ def main(argv: list[str] | None = None) -> None:
     wall = time.perf_counter() - t0
     print(summarise(rows))
     ok = [r for r in rows if r["verdict"] != "error"]
-    print(f"{wall:.0f} s wall ({a.workers} workers); CPU per scenario: single scans "
-          f"{np.mean([r['cpu_single_s'] for r in ok]) if ok else 0:.1f} s, pooled "
-          f"{np.mean([r['cpu_pooled_s'] for r in ok]) if ok else 0:.1f} s, all "
-          f"{np.mean([r['cpu_s'] for r in rows]):.1f} s")
+    print(
+        f"{wall:.0f} s wall ({a.workers} workers); CPU per scenario: single scans "
+        f"{np.mean([r['cpu_single_s'] for r in ok]) if ok else 0:.1f} s, pooled "
+        f"{np.mean([r['cpu_pooled_s'] for r in ok]) if ok else 0:.1f} s, all "
+        f"{np.mean([r['cpu_s'] for r in rows]):.1f} s"
+    )
     _print_wrong(rows, a.verbose)
 
 
@@ -438,10 +602,12 @@ def _print_wrong(rows: list[dict], verbose: bool) -> None:
     if verbose:
         for r in rows:
             if not r["correct"] or r["verdict"] == "error":
-                print(f"  WRONG {r['i']} {r['name']} / {r['design']}: truth {r['truth']} -> "
-                      f"{r['verdict']} {r['named']} "
-                      f"absorbed {r['absorbed']}; singles {[(s['verdict'], s['named']) for s in r['singles']]} "
-                      f"{r.get('error', '')}")
+                print(
+                    f"  WRONG {r['i']} {r['name']} / {r['design']}: truth {r['truth']} -> "
+                    f"{r['verdict']} {r['named']} "
+                    f"absorbed {r['absorbed']}; singles {[(s['verdict'], s['named']) for s in r['singles']]} "
+                    f"{r.get('error', '')}"
+                )
                 if r.get("tb"):
                     print(r["tb"])
 

@@ -48,14 +48,20 @@ def main() -> None:
     err_a, err_p = np.array(err_a) * 1e3, np.array(err_p) * 1e3
     rms_a, rms_p = np.sqrt(np.mean(err_a**2)), np.sqrt(np.mean(err_p**2))
     print(f"scans: {len(t_a)} x 12 poses x 2 holes, sigma = {SIG * 1e3:.1f} um (uniform +-20 um)")
-    print(f"solve_rod (LM, exact Jacobian): radius error RMS {rms_a:8.2f} um, max "
-          f"{np.abs(err_a).max():8.2f} um, "
-          f"median time {np.median(t_a) * 1e3:7.2f} ms")
-    print(f"solve_rod_pso (80 x 1500, seeded): radius error RMS {rms_p:8.2f} um, max "
-          f"{np.abs(err_p).max():8.2f} um, "
-          f"median time {np.median(t_p) * 1e3:7.2f} ms")
-    print(f"ratios: PSO/LM time {np.median(t_p) / np.median(t_a):.0f}x, PSO/LM RMS error {rms_p / rms_a:.0f}x "
-          f"(target >= 100x and >= 10x)")
+    print(
+        f"solve_rod (LM, exact Jacobian): radius error RMS {rms_a:8.2f} um, max "
+        f"{np.abs(err_a).max():8.2f} um, "
+        f"median time {np.median(t_a) * 1e3:7.2f} ms"
+    )
+    print(
+        f"solve_rod_pso (80 x 1500, seeded): radius error RMS {rms_p:8.2f} um, max "
+        f"{np.abs(err_p).max():8.2f} um, "
+        f"median time {np.median(t_p) * 1e3:7.2f} ms"
+    )
+    print(
+        f"ratios: PSO/LM time {np.median(t_p) / np.median(t_a):.0f}x, PSO/LM RMS error {rms_p / rms_a:.0f}x "
+        f"(target >= 100x and >= 10x)"
+    )
 
 
 if __name__ == "__main__":

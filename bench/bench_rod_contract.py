@@ -43,13 +43,22 @@ def evaluate(scan: dict) -> dict:
     try:
         sol = solve_rod(s["v"], layers=s["layers"], u_reading_mm=s["sigma"])
     except RodSolveError as err:
-        return {"refused": str(err).split(":")[0] + (": " + str(err).split(":")[1].split("(")[0].strip() if ":" in str(err) else "")}
+        return {
+            "refused": str(err).split(":")[0]
+            + (": " + str(err).split(":")[1].split("(")[0].strip() if ":" in str(err) else "")
+        }
     crb = rod_crb(s["alpha"], layers=s["layers"], holes=s["holes"], axis=s["axis"], sigma_mm=s["sigma"])
     c_true = rod_cost_mm2(s["v"], s["alpha"], s["layers"], s["holes"], s["axis"])
     spread = np.sqrt(2.0 * s["v"].size) * s["sigma"] ** 2
-    return {"z": (sol.diameter_mm - 2 * r_true) / sol.u_diameter_mm, "u_crb": sol.u_radius_mm / crb,
-            "wrong": bool(sol.cost_mm2 > c_true + spread), "cost": sol.cost_mm2, "cost_true": c_true,
-            "err_um": (sol.diameter_mm - 2 * r_true) * 1e3, "ratio": sol.deflection_ratio}
+    return {
+        "z": (sol.diameter_mm - 2 * r_true) / sol.u_diameter_mm,
+        "u_crb": sol.u_radius_mm / crb,
+        "wrong": bool(sol.cost_mm2 > c_true + spread),
+        "cost": sol.cost_mm2,
+        "cost_true": c_true,
+        "err_um": (sol.diameter_mm - 2 * r_true) * 1e3,
+        "ratio": sol.deflection_ratio,
+    }
 
 
 def run_contract(n_scans: int = 240, seed: int = 2017) -> dict:
@@ -66,8 +75,15 @@ def run_contract(n_scans: int = 240, seed: int = 2017) -> dict:
         wrong += res["wrong"]
     z = np.concatenate(z)
     ucrb = np.concatenate(ucrb)
-    return {"n": n_scans, "solved": n_scans - sum(refused.values()), "refused": refused, "z": z, "u_crb": ucrb,
-            "wrong": wrong, "seconds": time.perf_counter() - t}
+    return {
+        "n": n_scans,
+        "solved": n_scans - sum(refused.values()),
+        "refused": refused,
+        "z": z,
+        "u_crb": ucrb,
+        "wrong": wrong,
+        "seconds": time.perf_counter() - t,
+    }
 
 
 def run_discrepancy(n_scans: int = 20, seed: int = 7) -> Counter:
@@ -79,13 +95,29 @@ def run_discrepancy(n_scans: int = 20, seed: int = 7) -> Counter:
     out = Counter()
     for i in range(n_scans):
         s = draw_scan(rng)
-        scene = RodScene(layers=tuple(s["layers"]), holes=tuple(s["holes"]), axis=s["axis"], range_mm=(30.0,) * s["m"])
-        feats = [{"id": f"H{j + 1}", "z_mm": lay.h_mm, "nominal_diameter_mm": round(2 * hh.radius_mm)}
-                 for j, (lay, hh) in enumerate(zip(s["layers"], s["holes"]))]
-        art = {"id": "PART", "type": "part", "nominal_diameter_mm": feats[0]["nominal_diameter_mm"], "cte_per_k": 11.5e-6,
-               "features": feats}
-        scan = simulate_rod(scene, s["alpha"], samples_per_pose=s["k"], noise_mm=s["noise"], seed=1000 + i, artifact=art,
-                            nominal_layers=s["layers"])
+        scene = RodScene(
+            layers=tuple(s["layers"]), holes=tuple(s["holes"]), axis=s["axis"], range_mm=(30.0,) * s["m"]
+        )
+        feats = [
+            {"id": f"H{j + 1}", "z_mm": lay.h_mm, "nominal_diameter_mm": round(2 * hh.radius_mm)}
+            for j, (lay, hh) in enumerate(zip(s["layers"], s["holes"]))
+        ]
+        art = {
+            "id": "PART",
+            "type": "part",
+            "nominal_diameter_mm": feats[0]["nominal_diameter_mm"],
+            "cte_per_k": 11.5e-6,
+            "features": feats,
+        }
+        scan = simulate_rod(
+            scene,
+            s["alpha"],
+            samples_per_pose=s["k"],
+            noise_mm=s["noise"],
+            seed=1000 + i,
+            artifact=art,
+            nominal_layers=s["layers"],
+        )
         f = examine_scan(scan)
         out[f["verdict"]] += 1
     return out
@@ -95,22 +127,30 @@ def main() -> None:
     """Run the rod contract and print its figures."""
     res = run_contract()
     z = res["z"]
-    print(f"effect-free rod scans: {res['n']} drawn, {res['solved']} solved, {res['n'] - res['solved']} "
-          "refused "
-          f"({res['seconds']:.1f} s)")
+    print(
+        f"effect-free rod scans: {res['n']} drawn, {res['solved']} solved, {res['n'] - res['solved']} "
+        "refused "
+        f"({res['seconds']:.1f} s)"
+    )
     for why, k in res["refused"].most_common():
         print(f"  refused {k:3d}: {why}")
-    print(f"diameters: {z.size}; z-scores SD {z.std():.3f}, RMS {np.sqrt(np.mean(z**2)):.3f}, mean "
-          f"{z.mean():+.3f}, "
-          f"max |z| {np.abs(z).max():.2f}; 95 % coverage {np.mean(np.abs(z) < 1.959964):.3f}")
-    print(f"u / CRB: max {res['u_crb'].max():.3f}, median {np.median(res['u_crb']):.3f}; wrong minima: "
-          f"{res['wrong']}")
+    print(
+        f"diameters: {z.size}; z-scores SD {z.std():.3f}, RMS {np.sqrt(np.mean(z**2)):.3f}, mean "
+        f"{z.mean():+.3f}, "
+        f"max |z| {np.abs(z).max():.2f}; 95 % coverage {np.mean(np.abs(z) < 1.959964):.3f}"
+    )
+    print(
+        f"u / CRB: max {res['u_crb'].max():.3f}, median {np.median(res['u_crb']):.3f}; wrong minima: "
+        f"{res['wrong']}"
+    )
     t = time.perf_counter()
     verdicts = run_discrepancy()
     n = sum(verdicts.values())
     fa = n - verdicts.get("no_missing_effect", 0)
-    print(f"discrepancy workflow on {n} effect-free rod scans: {dict(verdicts)}; false-alarm rate {fa / n:.2f} "
-          f"({time.perf_counter() - t:.0f} s)")
+    print(
+        f"discrepancy workflow on {n} effect-free rod scans: {dict(verdicts)}; false-alarm rate {fa / n:.2f} "
+        f"({time.perf_counter() - t:.0f} s)"
+    )
 
 
 if __name__ == "__main__":

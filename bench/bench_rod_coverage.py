@@ -73,20 +73,50 @@ def _hold(rng, layers, d20_mm, T_c, kind, scan_id, artifact, design, sensors, ba
     g = scenarios.draw_rod_geometry(rng)
     m = len(layers)
     holes = tuple(Hole(tuple(float(x) for x in rng.uniform(-0.05, 0.05, 2)), float(d) / 2) for d in d20_mm)
-    scene = simulate.RodScene(layers=tuple(layers), holes=holes, axis=g["axis"], range_mm=(30.0,) * m,
-                              sample_rate_hz=100.0, cte_per_k=CTE, temperature_c=T_c)
-    sim = simulate.simulate_rod(scene, g["alpha"], samples_per_pose=g["k"], noise_mm=sensors["noise_mm"], kind=kind,
-                                artifact=artifact, features=[f"H{j + 1}" for j in range(m)], nominal_layers=design,
-                                scan_id=scan_id, effects=[Effect("thermal_expansion", {"temperature_c": T_c})],
-                                seed=int(rng.integers(2**31)))
+    scene = simulate.RodScene(
+        layers=tuple(layers),
+        holes=holes,
+        axis=g["axis"],
+        range_mm=(30.0,) * m,
+        sample_rate_hz=100.0,
+        cte_per_k=CTE,
+        temperature_c=T_c,
+    )
+    sim = simulate.simulate_rod(
+        scene,
+        g["alpha"],
+        samples_per_pose=g["k"],
+        noise_mm=sensors["noise_mm"],
+        kind=kind,
+        artifact=artifact,
+        features=[f"H{j + 1}" for j in range(m)],
+        nominal_layers=design,
+        scan_id=scan_id,
+        effects=[Effect("thermal_expansion", {"temperature_c": T_c})],
+        seed=int(rng.integers(2**31)),
+    )
     meta = json.loads(json.dumps(sim.meta))
     meta["environment"] = {"temperature_c": T_c + float(rng.uniform(-1, 1)) * sensors["a_T"]}
     meta["artifact"]["cte_per_k"] = CTE + float(rng.uniform(-1, 1)) * sensors["a_alpha"]
-    meta["sensors"] = [dict(s, linearity_fs=sensors["lin_fs"], range_mm=30.0, repeatability_mm=sensors["noise_mm"],
-                            resolution_mm=1e-4) for s in meta["sensors"]]
+    meta["sensors"] = [
+        dict(
+            s,
+            linearity_fs=sensors["lin_fs"],
+            range_mm=30.0,
+            repeatability_mm=sensors["noise_mm"],
+            resolution_mm=1e-4,
+        )
+        for s in meta["sensors"]
+    ]
     err = rng.uniform(-1, 1, m) * sensors["lin_fs"] * 30.0
-    lds = sim.lds.with_columns((pl.col("value_mm") + pl.col("sensor").cast(pl.Int64).replace_strict(
-        {j + 1: float(err[j]) for j in range(m)}, default=0.0)).alias("value_mm"))
+    lds = sim.lds.with_columns(
+        (
+            pl.col("value_mm")
+            + pl.col("sensor")
+            .cast(pl.Int64)
+            .replace_strict({j + 1: float(err[j]) for j in range(m)}, default=0.0)
+        ).alias("value_mm")
+    )
     folder = simulate.write_simulated(replace(sim, meta=meta, lds=lds), base / "raw", base / "truth")
     return rawio.read_scan(folder, raw_root=base / "raw")
 
@@ -103,42 +133,107 @@ def run_chain(job) -> dict:
     g = scenarios.draw_rod_geometry(rng)
     r = np.array([hh.radius_mm for hh in g["holes"]])
     true = tuple(replace(lay, l0_mm=float(rr - 15.0)) for lay, rr in zip(g["layers"], r))
-    design = tuple(replace(lay, l0_mm=lay.l0_mm + float(rng.uniform(-0.03, 0.03)), phi_rad=0.0, d_mm=0.0,
-                           gamma_rad=0.0) for lay in true)
+    design = tuple(
+        replace(lay, l0_mm=lay.l0_mm + float(rng.uniform(-0.03, 0.03)), phi_rad=0.0, d_mm=0.0, gamma_rad=0.0)
+        for lay in true
+    )
     m = len(true)
-    sensors = {"lin_fs": float(10 ** rng.uniform(-5, -3)), "noise_mm": g["noise"],
-               "a_T": float(unc["temperature_accuracy_c"]), "a_alpha": float(unc["cte_accuracy_per_k"])}
+    sensors = {
+        "lin_fs": float(10 ** rng.uniform(-5, -3)),
+        "noise_mm": g["noise"],
+        "a_T": float(unc["temperature_accuracy_c"]),
+        "a_alpha": float(unc["cte_accuracy_per_k"]),
+    }
     U_g, k_g = 0.0012, 2.0
     g20 = 2 * r
     feats = [f"H{j + 1}" for j in range(m)]
-    gset = {"id": f"RGS-{i}", "type": "ring_gauge", "u_diameter_mm": U_g, "k": k_g, "certificate": f"C-{i}",
-            "features": [{"id": f, "z_mm": lay.h_mm, "certified_diameter_mm": float(d + U_g / k_g * rng.standard_normal()),
-                          "gauge_id": f"RG-{i}-{f}"} for f, lay, d in zip(feats, true, g20)]}
-    part = {"id": f"P-{i}", "type": "part", "features": [{"id": f, "z_mm": lay.h_mm, "nominal_diameter_mm": float(d)}
-                                                        for f, lay, d in zip(feats, true, g20)]}
+    gset = {
+        "id": f"RGS-{i}",
+        "type": "ring_gauge",
+        "u_diameter_mm": U_g,
+        "k": k_g,
+        "certificate": f"C-{i}",
+        "features": [
+            {
+                "id": f,
+                "z_mm": lay.h_mm,
+                "certified_diameter_mm": float(d + U_g / k_g * rng.standard_normal()),
+                "gauge_id": f"RG-{i}-{f}",
+            }
+            for f, lay, d in zip(feats, true, g20)
+        ],
+    }
+    part = {
+        "id": f"P-{i}",
+        "type": "part",
+        "features": [
+            {"id": f, "z_mm": lay.h_mm, "nominal_diameter_mm": float(d)}
+            for f, lay, d in zip(feats, true, g20)
+        ],
+    }
     out = {"index": i, "lin_fs": sensors["lin_fs"], "m": m}
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp)
         try:
-            cal = _hold(rng, true, g20, float(rng.uniform(18, 22)), "calibration", f"CAL-{i}", gset, design, sensors,
-                        base / "c")
+            cal = _hold(
+                rng,
+                true,
+                g20,
+                float(rng.uniform(18, 22)),
+                "calibration",
+                f"CAL-{i}",
+                gset,
+                design,
+                sensors,
+                base / "c",
+            )
             channels, means, u_mean, sens = rod_calibration.pose_means_of_scan(cal)
             gauges = rod_calibration.layer_gauges(cal.meta, channels)
             temp, cte = scan_temperature(cal.meta, unc), artifact_cte(cal.meta, unc)
-            r_t = [radius_at_temperature_mm(0.5 * gg["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
-                   for gg in gauges]
+            r_t = [
+                radius_at_temperature_mm(0.5 * gg["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
+                for gg in gauges
+            ]
             layers, sol, _n = rod_calibration.calibrate_l0(means, design, u_mean, r_t)
-            budget = rod_calibration.rod_calibration_budget([lay.l0_mm for lay in layers], sol, gauges, temp, cte,
-                                                            sens, cal.scan_id, float(unc["sensor_resolution_mm"]))
+            budget = rod_calibration.rod_calibration_budget(
+                [lay.l0_mm for lay in layers],
+                sol,
+                gauges,
+                temp,
+                cte,
+                sens,
+                cal.scan_id,
+                float(unc["sensor_resolution_mm"]),
+            )
             blob = json.dumps({"budget": json_ready(budget.to_dict())})
-            rows = [{"channel": lay.channel, "l0_mm": lay.l0_mm, "h_mm": lay.h_mm, "phi_rad": 0.0, "d_mm": 0.0,
-                     "gamma_rad": 0.0, "calibration_json": blob} for lay in layers]
+            rows = [
+                {
+                    "channel": lay.channel,
+                    "l0_mm": lay.l0_mm,
+                    "h_mm": lay.h_mm,
+                    "phi_rad": 0.0,
+                    "d_mm": 0.0,
+                    "gamma_rad": 0.0,
+                    "calibration_json": blob,
+                }
+                for lay in layers
+            ]
             p20 = g20 + rng.uniform(-0.05, 0.05, m)
             T_p = float(rng.uniform(18, 22))
             meas = _hold(rng, true, p20, T_p, "measurement", f"MEAS-{i}", part, design, sensors, base / "m")
             res = rod_calibration.rod_diameters_with_budget(meas, rows, unc, "C")
-            ver = _hold(rng, true, g20, float(rng.uniform(18, 22)), "verification", f"VER-{i}", gset, design, sensors,
-                        base / "v")
+            ver = _hold(
+                rng,
+                true,
+                g20,
+                float(rng.uniform(18, 22)),
+                "verification",
+                f"VER-{i}",
+                gset,
+                design,
+                sensors,
+                base / "v",
+            )
             vres = rod_calibration.rod_diameters_with_budget(ver, rows, unc, "C")
             vrows = rod_calibration.rod_verifications(ver, vres, "C", unc, cfg["laboratory"], 1.0)
         except (ValueError, np.linalg.LinAlgError) as err:
@@ -148,8 +243,10 @@ def run_chain(job) -> dict:
     for rr, d20 in zip(res, p20):
         du = rr["du"]
         dT = d20 * (1 + CTE * (T_p - 20))
-        for key, val, truth, comb in (("D20", du.diameter_20_mm, d20, du.combined_20),
-                                      ("D_T", du.diameter_mm, dT, du.combined_t)):
+        for key, val, truth, comb in (
+            ("D20", du.diameter_20_mm, d20, du.combined_20),
+            ("D_T", du.diameter_mm, dT, du.combined_t),
+        ):
             zs[key].append((val - truth) / comb.u)
             cov[key].append(abs(val - truth) <= comb.U)
     for v, d20 in zip(vrows, g20):
@@ -177,24 +274,31 @@ def main(argv=None) -> int:
         if done % 20 == 0 or done == a.n:
             print(f"  {done}/{a.n} chains ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     ok = [r for r in results if "error" not in r]
-    print(f"Rod calibrate-then-measure coverage: {len(ok)} of {a.n} chains solved (seed {a.seed}); "
-          f"{time.perf_counter() - t0:.0f} s")
+    print(
+        f"Rod calibrate-then-measure coverage: {len(ok)} of {a.n} chains solved (seed {a.seed}); "
+        f"{time.perf_counter() - t0:.0f} s"
+    )
     refused = [r for r in results if "error" in r]
     if refused:
         print(f"  refused by the rod solve ({len(refused)}), first five:")
         for r in refused[:5]:
             print(f"    chain {r['index']}: {r['error']}")
     print(f"{'quantity':<36}{'n':>5}{'covered 95.45 %':>18}{'+- s.e.':>9}{'z SD':>8}{'max |z|':>9}")
-    labels = {"D20": "part hole diameter at 20 degC", "D_T": "part hole diameter at T",
-              "E": "verification error on own gauges"}
+    labels = {
+        "D20": "part hole diameter at 20 degC",
+        "D_T": "part hole diameter at T",
+        "E": "verification error on own gauges",
+    }
     for key, label in labels.items():
         z = np.array([x for r in ok for x in r["z"][key]])
         c = np.array([x for r in ok for x in r["covered"][key]])
         if not z.size:
             continue
         p = c.mean()
-        print(f"{label:<36}{z.size:>5}{100 * p:>17.1f}%{100 * math.sqrt(p * (1 - p) / z.size):>8.1f}%"
-              f"{np.std(z):>8.2f}{np.max(np.abs(z)):>9.2f}")
+        print(
+            f"{label:<36}{z.size:>5}{100 * p:>17.1f}%{100 * math.sqrt(p * (1 - p) / z.size):>8.1f}%"
+            f"{np.std(z):>8.2f}{np.max(np.abs(z)):>9.2f}"
+        )
     return 0
 
 

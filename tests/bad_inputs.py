@@ -57,7 +57,9 @@ def _values(t: pa.Table, col: str) -> np.ndarray:
     return t.column(col).to_numpy(zero_copy_only=False).copy()
 
 
-def make_bad_scans(raw_root: Path, night: str, good_tri: Path, good_rod: Path, earlier_night_scan_id: str) -> list[BadCase]:
+def make_bad_scans(
+    raw_root: Path, night: str, good_tri: Path, good_rod: Path, earlier_night_scan_id: str
+) -> list[BadCase]:
     """Write the battery under ``raw_root/night=<night>/`` and return what each must produce."""
     cases: list[BadCase] = []
 
@@ -109,7 +111,9 @@ def make_bad_scans(raw_root: Path, night: str, good_tri: Path, good_rod: Path, e
     _edit_table(d, "lds.parquet", lambda t: t.drop_columns(["value_mm"]))
 
     d = case("BAD-DTYPE", "lds.parquet", r"sensor")
-    _edit_table(d, "lds.parquet", lambda t: _set_col(t, "sensor", _values(t, "sensor").astype(float), pa.float64()))
+    _edit_table(
+        d, "lds.parquet", lambda t: _set_col(t, "sensor", _values(t, "sensor").astype(float), pa.float64())
+    )
 
     def shuffle_samples(t: pa.Table) -> pa.Table:
         s = _values(t, "sample")
@@ -222,47 +226,128 @@ def make_stage_cases(raw_root: Path, truth_root: Path, night: str) -> tuple[list
 
     # Too few revolutions to calibrate (2 < min_revolutions).
     scene = replace(base, spindle_xy_mm=simulate.YANG_P1_XY_MM)
-    write(simulate.simulate_tri_spindle(scene, n_rev=2, artifact=ring, spindle_label="P1", center_xy_mm=simulate.YANG_P0_XY_MM,
-                                        nominal_beams=demo.NOMINAL_BEAMS, scan_id="BAD-FEW-REVOLUTIONS", night=night,
-                                        kind="calibration", seed=11, started_at=started))
+    write(
+        simulate.simulate_tri_spindle(
+            scene,
+            n_rev=2,
+            artifact=ring,
+            spindle_label="P1",
+            center_xy_mm=simulate.YANG_P0_XY_MM,
+            nominal_beams=demo.NOMINAL_BEAMS,
+            scan_id="BAD-FEW-REVOLUTIONS",
+            night=night,
+            kind="calibration",
+            seed=11,
+            started_at=started,
+        )
+    )
     cases.append(BadCase("BAD-FEW-REVOLUTIONS", "lds.parquet", r"too few revolutions", stage="calibrate"))
 
     # A calibration that cannot converge: the spindle turns at the gauge centre, so the readings
     # are constant and the beam geometry is undetermined (device TRI-02, nothing else calibrates it).
     scene = replace(base, spindle_xy_mm=simulate.YANG_P0_XY_MM)
-    write(simulate.simulate_tri_spindle(scene, n_rev=8, artifact=ring, spindle_label="P0", center_xy_mm=simulate.YANG_P0_XY_MM,
-                                        nominal_beams=demo.NOMINAL_BEAMS, scan_id="BAD-CAL-NO-CONVERGENCE", night=night,
-                                        kind="calibration", seed=12, started_at=started, device_id="TRI-02"))
+    write(
+        simulate.simulate_tri_spindle(
+            scene,
+            n_rev=8,
+            artifact=ring,
+            spindle_label="P0",
+            center_xy_mm=simulate.YANG_P0_XY_MM,
+            nominal_beams=demo.NOMINAL_BEAMS,
+            scan_id="BAD-CAL-NO-CONVERGENCE",
+            night=night,
+            kind="calibration",
+            seed=12,
+            started_at=started,
+            device_id="TRI-02",
+        )
+    )
     cases.append(BadCase("BAD-CAL-NO-CONVERGENCE", "lds.parquet", r"calibration failed", stage="calibrate"))
 
     # A device that has no calibration at all.
     part = {"id": "HSG-9001", "type": "part", "nominal_diameter_mm": 277.0, "cte_per_k": 11.5e-6}
     scene = replace(base, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=138.5)
     xy = [[0.3, -0.2], [-0.4, 0.1], [0.1, 0.5]]
-    write(simulate.simulate_tri_static(scene, xy, [0.1, 1.0, 2.0], artifact=part, nominal_beams=demo.NOMINAL_BEAMS,
-                                       scan_id="BAD-UNCALIBRATED-DEVICE", night=night, kind="measurement", seed=13,
-                                       started_at=started, device_id="TRI-77"))
-    cases.append(BadCase("BAD-UNCALIBRATED-DEVICE", "scan.json", r"no calibration of device TRI-77", stage="measure"))
+    write(
+        simulate.simulate_tri_static(
+            scene,
+            xy,
+            [0.1, 1.0, 2.0],
+            artifact=part,
+            nominal_beams=demo.NOMINAL_BEAMS,
+            scan_id="BAD-UNCALIBRATED-DEVICE",
+            night=night,
+            kind="measurement",
+            seed=13,
+            started_at=started,
+            device_id="TRI-77",
+        )
+    )
+    cases.append(
+        BadCase("BAD-UNCALIBRATED-DEVICE", "scan.json", r"no calibration of device TRI-77", stage="measure")
+    )
 
     # Too few rod poses for Wang Eq. 16 (2 holes need 3m + n - 1 <= mn, i.e. n >= 5).
-    write(simulate.simulate_rod(simulate.default_rod_scene(), n_poses=3, samples_per_pose=3, artifact=dict(part, id="CYL-X"),
-                                features=("H1", "H2"), device_id="ROD-01", scan_id="BAD-FEW-ROD-POSES", night=night,
-                                kind="measurement", seed=14, started_at=started))
+    write(
+        simulate.simulate_rod(
+            simulate.default_rod_scene(),
+            n_poses=3,
+            samples_per_pose=3,
+            artifact=dict(part, id="CYL-X"),
+            features=("H1", "H2"),
+            device_id="ROD-01",
+            scan_id="BAD-FEW-ROD-POSES",
+            night=night,
+            kind="measurement",
+            seed=14,
+            started_at=started,
+        )
+    )
     cases.append(BadCase("BAD-FEW-ROD-POSES", "lds.parquet", r"pose|equations|unknowns", stage="measure"))
 
     # A ring gauge labelled with another gauge's certificate (its id and its diameter): the verification
     # fails (a result, not bad input), and the same night's measurement with that calibration must be
     # refused. (The same certificate id with another value is a certificate conflict, set aside at
     # ingest: tests/test_artifacts.py.)
-    wrong = dict(ring, certified_diameter_mm=ring["certified_diameter_mm"] + 0.05,
-                 certificate=f"{ring.get('certificate')}-OTHER-GAUGE")
+    wrong = dict(
+        ring,
+        certified_diameter_mm=ring["certified_diameter_mm"] + 0.05,
+        certificate=f"{ring.get('certificate')}-OTHER-GAUGE",
+    )
     scene = replace(base, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=ring["certified_diameter_mm"] / 2)
-    write(simulate.simulate_tri_static(scene, xy, [0.1, 1.0, 2.0], artifact=wrong, nominal_beams=demo.NOMINAL_BEAMS,
-                                       scan_id="VER-MISLABELLED-GAUGE", night=night, kind="verification", seed=15,
-                                       started_at=started))
+    write(
+        simulate.simulate_tri_static(
+            scene,
+            xy,
+            [0.1, 1.0, 2.0],
+            artifact=wrong,
+            nominal_beams=demo.NOMINAL_BEAMS,
+            scan_id="VER-MISLABELLED-GAUGE",
+            night=night,
+            kind="verification",
+            seed=15,
+            started_at=started,
+        )
+    )
     scene = replace(base, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=139.0)
-    write(simulate.simulate_tri_static(scene, xy, [0.1, 1.0, 2.0], artifact=dict(part, id="HSG-9002"), nominal_beams=demo.NOMINAL_BEAMS,
-                                       scan_id="MEAS-AFTER-FAILED-VERIFICATION", night=night, kind="measurement", seed=16,
-                                       started_at=started))
-    cases.append(BadCase("MEAS-AFTER-FAILED-VERIFICATION", "scan.json", r"failed its verification", stage="measure"))
-    return cases, {"failed_verification": "VER-MISLABELLED-GAUGE", "refused": "MEAS-AFTER-FAILED-VERIFICATION"}
+    write(
+        simulate.simulate_tri_static(
+            scene,
+            xy,
+            [0.1, 1.0, 2.0],
+            artifact=dict(part, id="HSG-9002"),
+            nominal_beams=demo.NOMINAL_BEAMS,
+            scan_id="MEAS-AFTER-FAILED-VERIFICATION",
+            night=night,
+            kind="measurement",
+            seed=16,
+            started_at=started,
+        )
+    )
+    cases.append(
+        BadCase("MEAS-AFTER-FAILED-VERIFICATION", "scan.json", r"failed its verification", stage="measure")
+    )
+    return cases, {
+        "failed_verification": "VER-MISLABELLED-GAUGE",
+        "refused": "MEAS-AFTER-FAILED-VERIFICATION",
+    }

@@ -23,13 +23,27 @@ def workflow_env(home: Path) -> dict[str, str]:
     """Environment of a workflow run by the tests: this venv's tools, and the package of this
     checkout (the one the tests import) for every job.
     """
-    return {"PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin", "HOME": str(home), "MPLBACKEND": "Agg",
-            "PYTHONPATH": str(ROOT / "src")}
+    return {
+        "PATH": f"{SNAKEMAKE.parent}:/usr/bin:/bin",
+        "HOME": str(home),
+        "MPLBACKEND": "Agg",
+        "PYTHONPATH": str(ROOT / "src"),
+    }
 
 
-def run_snakemake(raw_root: Path, results_root: Path, *extra: str, timeout: float = 900) -> subprocess.CompletedProcess:
+def run_snakemake(
+    raw_root: Path, results_root: Path, *extra: str, timeout: float = 900
+) -> subprocess.CompletedProcess:
     """Run the project's Snakefile like a user would (``snakemake --cores 2``)."""
-    cmd = [str(SNAKEMAKE), "--cores", "2", "--config", f"raw_root={raw_root}", f"results_root={results_root}", *extra]
+    cmd = [
+        str(SNAKEMAKE),
+        "--cores",
+        "2",
+        "--config",
+        f"raw_root={raw_root}",
+        f"results_root={results_root}",
+        *extra,
+    ]
     env = workflow_env(results_root.parent)
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=timeout)
 
@@ -55,5 +69,13 @@ def pipeline_run(tmp_path_factory):
     before = checksums(raw)
     results = base / "results"
     proc = run_snakemake(raw, results)
-    return {"raw": raw, "results": results, "proc": proc, "before": before, "cases": cases, "good_ids": good_ids,
-            "special": special, "truth": base / "demo" / "truth"}
+    return {
+        "raw": raw,
+        "results": results,
+        "proc": proc,
+        "before": before,
+        "cases": cases,
+        "good_ids": good_ids,
+        "special": special,
+        "truth": base / "demo" / "truth",
+    }

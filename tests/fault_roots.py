@@ -83,7 +83,9 @@ def as_nobody(cmd: list[str]) -> list[str]:
 def checkout_copy(root: Path, dst: Path) -> Path:
     """Return a second checkout of the project (its tracked workflow, config and package, no .snakemake)."""
     dst.mkdir(parents=True, exist_ok=True)
-    skip = shutil.ignore_patterns(".git", ".snakemake", "results", "demo", "__pycache__", ".pytest_cache", "*.egg-info")
+    skip = shutil.ignore_patterns(
+        ".git", ".snakemake", "results", "demo", "__pycache__", ".pytest_cache", "*.egg-info"
+    )
     for name in ("Snakefile", "rules", "workflow", "config", "src", "profiles", "data"):
         src = root / name
         if src.is_dir():
@@ -112,26 +114,85 @@ def _set(path: str, value):
         for k in keys[:-1]:
             node = node[int(k)] if k.isdigit() else node[k]
         node[int(keys[-1]) if keys[-1].isdigit() else keys[-1]] = value
+
     return edit
 
 
 #: (case, scan, edit, the problem's text): the issue's findings and their neighbours
 PLAUSIBILITY_CASES = [
-    ("range 1e200", ROD, _set("sensors.0.range_mm", 1e200), "key 'sensors[0].range_mm' 1e+200 mm exceeds plausibility.max_sensor_range_mm 1000 mm"),
-    ("zero linearity", ROD, _set("sensors.1.linearity_fs", 0), "key 'sensors[1].linearity_fs' must be a positive number (a data-sheet uncertainty), got 0"),
-    ("zero repeatability", ROD, _set("sensors.0.repeatability_mm", 0.0), "key 'sensors[0].repeatability_mm' must be a positive number"),
-    ("Fahrenheit", ROD, _set("environment.temperature_c", 68.0), "key 'environment.temperature_c' 68 degC is outside the workshop's range [10, 35] degC"),
-    ("below absolute zero", ROD, _set("environment.temperature_c", -300), "key 'environment.temperature_c' -300 degC is outside"),
-    ("zero gauge uncertainty", ROD, _set("artifact.u_diameter_mm", 0), "key 'artifact.u_diameter_mm' must be a positive number, got 0"),
+    (
+        "range 1e200",
+        ROD,
+        _set("sensors.0.range_mm", 1e200),
+        "key 'sensors[0].range_mm' 1e+200 mm exceeds plausibility.max_sensor_range_mm 1000 mm",
+    ),
+    (
+        "zero linearity",
+        ROD,
+        _set("sensors.1.linearity_fs", 0),
+        "key 'sensors[1].linearity_fs' must be a positive number (a data-sheet uncertainty), got 0",
+    ),
+    (
+        "zero repeatability",
+        ROD,
+        _set("sensors.0.repeatability_mm", 0.0),
+        "key 'sensors[0].repeatability_mm' must be a positive number",
+    ),
+    (
+        "Fahrenheit",
+        ROD,
+        _set("environment.temperature_c", 68.0),
+        "key 'environment.temperature_c' 68 degC is outside the workshop's range [10, 35] degC",
+    ),
+    (
+        "below absolute zero",
+        ROD,
+        _set("environment.temperature_c", -300),
+        "key 'environment.temperature_c' -300 degC is outside",
+    ),
+    (
+        "zero gauge uncertainty",
+        ROD,
+        _set("artifact.u_diameter_mm", 0),
+        "key 'artifact.u_diameter_mm' must be a positive number, got 0",
+    ),
     ("k zero", ROD, _set("artifact.k", 0), "key 'artifact.k' must be a positive number"),
     ("CTE in ppm", ROD, _set("artifact.cte_per_k", 11.5), "key 'artifact.cte_per_k' 11.5 /K is no metal's"),
-    ("negative certified", ROD, _set("artifact.features.0.certified_diameter_mm", -150.0021),
-     "key 'artifact.features[0].certified_diameter_mm' must be a positive number, got -150.0021"),
-    ("far-off certified", ROD, _set("artifact.features.1.certified_diameter_mm", 159.9987),
-     "key 'artifact.features[1].certified_diameter_mm' 159.999 mm is "
-     "9.999 mm from 'artifact.features[1].nominal_diameter_mm' 150 mm"),
-    ("tolerance as text", ROD_MEAS, _set("artifact.features.0.tolerance_mm", "0.02"), "key 'artifact.features[0].tolerance_mm' must be a positive number, got '0.02'"),
-    ("tolerance zero", ROD_MEAS, _set("artifact.features.1.tolerance_mm", 0), "key 'artifact.features[1].tolerance_mm' must be a positive number, got 0"),
-    ("started in 9999", ROD_MEAS, _set("started_at", "9999-12-31T23:00:00Z"), "key 'started_at' 9999-12-31T23:00:00Z is not within night 2026-11-20"),
-    ("started the day before", ROD_MEAS, _set("started_at", "2026-11-19T23:00:00Z"), "key 'started_at' 2026-11-19T23:00:00Z is not within night"),
+    (
+        "negative certified",
+        ROD,
+        _set("artifact.features.0.certified_diameter_mm", -150.0021),
+        "key 'artifact.features[0].certified_diameter_mm' must be a positive number, got -150.0021",
+    ),
+    (
+        "far-off certified",
+        ROD,
+        _set("artifact.features.1.certified_diameter_mm", 159.9987),
+        "key 'artifact.features[1].certified_diameter_mm' 159.999 mm is "
+        "9.999 mm from 'artifact.features[1].nominal_diameter_mm' 150 mm",
+    ),
+    (
+        "tolerance as text",
+        ROD_MEAS,
+        _set("artifact.features.0.tolerance_mm", "0.02"),
+        "key 'artifact.features[0].tolerance_mm' must be a positive number, got '0.02'",
+    ),
+    (
+        "tolerance zero",
+        ROD_MEAS,
+        _set("artifact.features.1.tolerance_mm", 0),
+        "key 'artifact.features[1].tolerance_mm' must be a positive number, got 0",
+    ),
+    (
+        "started in 9999",
+        ROD_MEAS,
+        _set("started_at", "9999-12-31T23:00:00Z"),
+        "key 'started_at' 9999-12-31T23:00:00Z is not within night 2026-11-20",
+    ),
+    (
+        "started the day before",
+        ROD_MEAS,
+        _set("started_at", "2026-11-19T23:00:00Z"),
+        "key 'started_at' 2026-11-19T23:00:00Z is not within night",
+    ),
 ]

@@ -51,8 +51,15 @@ def test_very_large_scan_is_read_with_bounded_memory(tmp_path):
 
     from borescan import simulate
 
-    sim = simulate.simulate_tri_spindle(simulate.default_tri_scene(), n_rev=600, scan_id="HUGE", night="2026-11-22",
-                                        kind="measurement", seed=1, started_at="2026-11-22T20:00:00Z")
+    sim = simulate.simulate_tri_spindle(
+        simulate.default_tri_scene(),
+        n_rev=600,
+        scan_id="HUGE",
+        night="2026-11-22",
+        kind="measurement",
+        seed=1,
+        started_at="2026-11-22T20:00:00Z",
+    )
     d = simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth")
     # the peak RSS of the child alone: Linux starts a forked child's high-water mark (ru_maxrss, VmHWM)
     # at the parent's RSS, so a large test process would be counted; writing 5 to clear_refs resets it
@@ -62,6 +69,8 @@ def test_very_large_scan_is_read_with_bounded_memory(tmp_path):
         "print(m.values_mm.shape[0], next(int(x.split()[1]) for x in open('/proc/self/status') if "
         "x.startswith('VmHWM')))"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split()
     assert int(out[0]) == 600 * 660
     assert int(out[1]) < 400_000  # VmHWM in kB (measured 240 MB: 95 MB of imports, the read, polars)

@@ -46,8 +46,12 @@ def _scan(rng, n_rev=5, N=200, noise_mm=0.002, offset=OFFSET, rpm=60.0, sign=1.0
 
 
 def _nominal(rng):
-    return Beams(TRUE.channels, TRUE.beta_rad + rng.uniform(-0.01, 0.01, 3),
-                 TRUE.rho_mm + rng.uniform(-0.5, 0.5, 3), TRUE.d_b_mm + rng.uniform(-0.1, 0.1, 3))
+    return Beams(
+        TRUE.channels,
+        TRUE.beta_rad + rng.uniform(-0.01, 0.01, 3),
+        TRUE.rho_mm + rng.uniform(-0.5, 0.5, 3),
+        TRUE.d_b_mm + rng.uniform(-0.1, 0.1, 3),
+    )
 
 
 # ----------------------------------------------------------------------------- Yang closed forms
@@ -55,7 +59,9 @@ def _nominal(rng):
 
 def test_eq9_on_printed_coordinates():
     """Eq. 9 on P1, P0 of §3.1 gives 2.3232 mm; the paper prints 2.3222 mm."""
-    assert yang_oe((262.955, -275.502), (262.833, -273.182)) == pytest.approx(np.hypot(0.122, 2.320), abs=1e-12)
+    assert yang_oe((262.955, -275.502), (262.833, -273.182)) == pytest.approx(
+        np.hypot(0.122, 2.320), abs=1e-12
+    )
     assert yang_oe((262.955, -275.502), (262.833, -273.182)) == pytest.approx(2.3232055, abs=1e-7)
 
 
@@ -114,12 +120,17 @@ def _exact_extremes(direction: str, N: int = 625):
     v = tri_spindle_readings(sgn * 2 * np.pi * np.arange(N) / N, OFFSET, TRUE, bore)
     out = {"d_min": [], "d_max": [], "n_min": [], "n_max": []}
     for j in range(3):
+
         def f(k, j=j):
             return tri_spindle_readings(np.array([sgn * 2 * np.pi * k / N]), OFFSET, TRUE, bore)[0, j]
 
         for key, sign, idx in (("min", 1, np.argmin(v[:, j])), ("max", -1, np.argmax(v[:, j]))):
-            res = minimize_scalar(lambda k, sign=sign: sign * f(k), bounds=(idx - 1.5, idx + 1.5), method="bounded",
-                                  options={"xatol": 1e-10})
+            res = minimize_scalar(
+                lambda k, sign=sign: sign * f(k),
+                bounds=(idx - 1.5, idx + 1.5),
+                method="bounded",
+                options={"xatol": 1e-10},
+            )
             out["d_" + key].append(sign * res.fun)
             out["n_" + key].append(res.x)
     return {k: np.array(v) for k, v in out.items()}
@@ -141,8 +152,19 @@ def test_yang_recovers_noise_free_simulation(direction):
     # ccw: advanced <=> rho > 0 (the paper's sampling rule and its geometric definition agree)
     expect = ["advanced" if (rho > 0) == (direction == "ccw") else "backward" for rho in TRUE.rho_mm]
     assert statuses == expect
-    cal = yang_calibration(ex["d_max"], ex["d_min"], statuses, ex["n_min"], N, R_MM, oe,
-                           beta_ref_rad=0.3, direction=direction, device_id="TRI-01", scan_ids=["s1"])
+    cal = yang_calibration(
+        ex["d_max"],
+        ex["d_min"],
+        statuses,
+        ex["n_min"],
+        N,
+        R_MM,
+        oe,
+        beta_ref_rad=0.3,
+        direction=direction,
+        device_id="TRI-01",
+        scan_ids=["s1"],
+    )
     assert np.max(np.abs(cal.beams.rho_mm - TRUE.rho_mm)) < 1e-6
     assert np.max(np.abs(cal.beams.d_b_mm - TRUE.d_b_mm)) < 1e-6
     assert np.max(np.abs(cal.beams.beta_rad - TRUE.beta_rad)) < 2e-6
@@ -172,9 +194,17 @@ def test_printed_eq14_has_the_opposite_sign(direction):
 
 
 def test_yang_to_beams_branch_and_gauge():
-    b = yang_to_beams((1, 2, 3), [1.0, 2.0, 3.0], [130.0, 131.0, 132.0], ["advanced", "backward", "advanced"],
-                      [10.0, 10.0 + 625 / 3, 10.0 + 2 * 625 / 3], 625, 135.0, beta_ref_rad=0.5,
-                      beta_nominal_rad=[0.5, 0.5 - 2.1, 0.5 - 4.2])
+    b = yang_to_beams(
+        (1, 2, 3),
+        [1.0, 2.0, 3.0],
+        [130.0, 131.0, 132.0],
+        ["advanced", "backward", "advanced"],
+        [10.0, 10.0 + 625 / 3, 10.0 + 2 * 625 / 3],
+        625,
+        135.0,
+        beta_ref_rad=0.5,
+        beta_nominal_rad=[0.5, 0.5 - 2.1, 0.5 - 4.2],
+    )
     assert b.beta_rad[0] == 0.5
     assert np.all(np.abs(b.beta_rad - [0.5, 0.5 - 2.1, 0.5 - 4.2]) < 0.1)
     assert list(b.rho_mm) == [1.0, -2.0, 3.0]
@@ -182,10 +212,19 @@ def test_yang_to_beams_branch_and_gauge():
 
 def test_yang_calibration_raises_when_eq8_has_no_real_r():
     """Table 1 inputs with oe from Eq. 9 (2.3232 mm): sensors 2 and 3 have r^2 < 0."""
-    with pytest.raises(CalibrationError, match=r"N20170205-P1: .*no real solution r for channel\(s\) \[2, 3\]"):
-        yang_calibration([7.0549, 6.9256, 5.7177], [2.4067, 2.2804, 1.073], ["backward", "backward", "advanced"],
-                         [312.0, 88.0, 199.0], 660.0, R_MM, yang_oe((262.955, -275.502), (262.833, -273.182)),
-                         scan_ids=["N20170205-P1"])
+    with pytest.raises(
+        CalibrationError, match=r"N20170205-P1: .*no real solution r for channel\(s\) \[2, 3\]"
+    ):
+        yang_calibration(
+            [7.0549, 6.9256, 5.7177],
+            [2.4067, 2.2804, 1.073],
+            ["backward", "backward", "advanced"],
+            [312.0, 88.0, 199.0],
+            660.0,
+            R_MM,
+            yang_oe((262.955, -275.502), (262.833, -273.182)),
+            scan_ids=["N20170205-P1"],
+        )
 
 
 def test_yang_uncertainty_propagation_matches_sensitivities():
@@ -194,11 +233,23 @@ def test_yang_uncertainty_propagation_matches_sensitivities():
     """
     d_max, d_min, oe = np.array([7.0549, 6.9256, 5.7177]), np.array([2.4067, 2.2804, 1.073]), 2.3222
     u_dmax, u_dmin, u_oe = 1e-4, 2e-4, 1e-4
-    cal = yang_calibration(d_max, d_min, ["backward", "backward", "advanced"], [312.0, 88.0, 199.0], 660.0, R_MM, oe,
-                           u_d_max_mm=u_dmax, u_d_min_mm=u_dmin, u_oe_mm=u_oe)
+    cal = yang_calibration(
+        d_max,
+        d_min,
+        ["backward", "backward", "advanced"],
+        [312.0, 88.0, 199.0],
+        660.0,
+        R_MM,
+        oe,
+        u_d_max_mm=u_dmax,
+        u_d_min_mm=u_dmin,
+        u_oe_mm=u_oe,
+    )
     s = yang_sensitivities(d_max, d_min, R_MM, oe)
     u_r = np.sqrt((s["dr_dd_max"] * u_dmax) ** 2 + (s["dr_dd_min"] * u_dmin) ** 2 + (s["dr_doe"] * u_oe) ** 2)
-    u_db = np.sqrt((s["dd_b_dd_max"] * u_dmax) ** 2 + (s["dd_b_dd_min"] * u_dmin) ** 2 + (s["dd_b_doe"] * u_oe) ** 2)
+    u_db = np.sqrt(
+        (s["dd_b_dd_max"] * u_dmax) ** 2 + (s["dd_b_dd_min"] * u_dmin) ** 2 + (s["dd_b_doe"] * u_oe) ** 2
+    )
     assert np.allclose(cal.u_rho_mm, u_r, rtol=1e-4)
     assert np.allclose(cal.u_d_b_mm, u_db, rtol=1e-4)
     # sensor 3's r (1.56 mm) has u(r) of 0.6 mm: no meaningful r from 0.1-0.2 um level input uncertainty
@@ -211,8 +262,12 @@ def test_yang_uncertainty_propagation_matches_sensitivities():
 def test_full_fit_noise_free_is_exact_and_gauge_is_reported():
     rng = np.random.default_rng(1)
     t, v = _scan(rng, n_rev=3, noise_mm=0.0)
-    nominal = Beams(TRUE.channels, TRUE.beta_rad + [0.0, 0.01, -0.01], TRUE.rho_mm + [0.3, -0.3, 0.3], TRUE.d_b_mm + 0.05)
-    cal = fit_full_calibration(t, v, TRUE.channels, nominal, R_MM, rpm=60.0, scan_ids=["A"], device_id="TRI-01")
+    nominal = Beams(
+        TRUE.channels, TRUE.beta_rad + [0.0, 0.01, -0.01], TRUE.rho_mm + [0.3, -0.3, 0.3], TRUE.d_b_mm + 0.05
+    )
+    cal = fit_full_calibration(
+        t, v, TRUE.channels, nominal, R_MM, rpm=60.0, scan_ids=["A"], device_id="TRI-01"
+    )
     assert cal.residual_rms_mm < 1e-9
     assert np.max(np.abs(cal.beams.beta_rad - TRUE.beta_rad)) < 1e-8  # nominal beta_1 = true beta_1 here
     assert np.max(np.abs(cal.beams.rho_mm - TRUE.rho_mm)) < 1e-6
@@ -236,9 +291,12 @@ def test_full_fit_recovers_truth_within_3u():
     rng = np.random.default_rng(5)
     t, v = _scan(rng, n_rev=10, noise_mm=0.002)
     nominal = _nominal(rng)
-    nominal = Beams(nominal.channels, np.r_[TRUE.beta_rad[0], nominal.beta_rad[1:]], nominal.rho_mm, nominal.d_b_mm)
-    cal = fit_full_calibration(t, v, TRUE.channels, nominal, R_MM, rpm=60.0, scan_ids=["N20261121-TRI01-CAL-P1"],
-                               device_id="TRI-01")
+    nominal = Beams(
+        nominal.channels, np.r_[TRUE.beta_rad[0], nominal.beta_rad[1:]], nominal.rho_mm, nominal.d_b_mm
+    )
+    cal = fit_full_calibration(
+        t, v, TRUE.channels, nominal, R_MM, rpm=60.0, scan_ids=["N20261121-TRI01-CAL-P1"], device_id="TRI-01"
+    )
     assert np.all(np.abs(cal.beams.beta_rad[1:] - TRUE.beta_rad[1:]) < 3 * cal.u_beta_rad[1:])
     assert np.all(np.abs(cal.beams.rho_mm - TRUE.rho_mm) < 3 * cal.u_rho_mm)
     assert np.all(np.abs(cal.beams.d_b_mm - TRUE.d_b_mm) < 3 * cal.u_d_b_mm)
@@ -261,9 +319,19 @@ def test_full_fit_two_scans_cw_missing_samples_and_speed_error():
     for v in (v1, v2):
         v[rng.random(v.shape) < 0.03] = np.nan
     nominal = _nominal(rng)
-    nominal = Beams(nominal.channels, np.r_[TRUE.beta_rad[0], nominal.beta_rad[1:]], nominal.rho_mm, nominal.d_b_mm)
-    cal = fit_full_calibration([t1, t2], [v1, v2], TRUE.channels, nominal, R_MM, rpm=[60.0, 60.0], direction="cw",
-                               scan_ids=["P1", "P2"])
+    nominal = Beams(
+        nominal.channels, np.r_[TRUE.beta_rad[0], nominal.beta_rad[1:]], nominal.rho_mm, nominal.d_b_mm
+    )
+    cal = fit_full_calibration(
+        [t1, t2],
+        [v1, v2],
+        TRUE.channels,
+        nominal,
+        R_MM,
+        rpm=[60.0, 60.0],
+        direction="cw",
+        scan_ids=["P1", "P2"],
+    )
     assert np.all(np.abs(cal.beams.beta_rad[1:] - TRUE.beta_rad[1:]) < 3 * cal.u_beta_rad[1:])
     assert np.all(np.abs(cal.beams.rho_mm - TRUE.rho_mm) < 3 * cal.u_rho_mm)
     assert np.all(np.abs(cal.beams.d_b_mm - TRUE.d_b_mm) < 3 * cal.u_d_b_mm)
@@ -271,7 +339,10 @@ def test_full_fit_two_scans_cw_missing_samples_and_speed_error():
         assert cal.nuisance[sid]["oe_mm"] == pytest.approx(np.hypot(*off), abs=5e-3)
         nu = cal.nuisance[sid]
         # fitted with rpm = 60 nominal: the speed found is the true 60.18 rpm (omega < 0: clockwise)
-        assert nu["omega_rad_s"] < 0 and abs(-nu["omega_rad_s"] - 2 * np.pi * 60.18 / 60) < 3 * nu["u_omega_rad_s"]
+        assert (
+            nu["omega_rad_s"] < 0
+            and abs(-nu["omega_rad_s"] - 2 * np.pi * 60.18 / 60) < 3 * nu["u_omega_rad_s"]
+        )
     assert cal.diagnostics["rank_all_free"] == cal.diagnostics["n_params_all_free"] - 3  # 1 + 2 scans
 
 
@@ -280,8 +351,9 @@ def test_non_convergence_raises_naming_the_scan():
     t, v = _scan(rng, n_rev=2)
     nominal = Beams(TRUE.channels, TRUE.beta_rad + 0.02, TRUE.rho_mm + 1.0, TRUE.d_b_mm + 0.2)
     with pytest.raises(CalibrationError, match=r"^N20261121-TRI01-CAL-P1: full_lsq did not converge"):
-        fit_full_calibration(t, v, TRUE.channels, nominal, R_MM, rpm=60.0, max_nfev=2,
-                             scan_ids=["N20261121-TRI01-CAL-P1"])
+        fit_full_calibration(
+            t, v, TRUE.channels, nominal, R_MM, rpm=60.0, max_nfev=2, scan_ids=["N20261121-TRI01-CAL-P1"]
+        )
 
 
 def test_centred_spindle_is_rank_deficient():
@@ -302,8 +374,16 @@ def test_too_few_samples_raises():
 def test_tricalibration_json_round_trip_and_id():
     rng = np.random.default_rng(4)
     t, v = _scan(rng, n_rev=2)
-    cal = fit_full_calibration(t, v, TRUE.channels, TRUE, R_MM, scan_ids=["N20261121-TRI01-CAL-P1"], device_id="TRI-01",
-                               raw_sha256={"lds.parquet": "0" * 64})
+    cal = fit_full_calibration(
+        t,
+        v,
+        TRUE.channels,
+        TRUE,
+        R_MM,
+        scan_ids=["N20261121-TRI01-CAL-P1"],
+        device_id="TRI-01",
+        raw_sha256={"lds.parquet": "0" * 64},
+    )
     d = json.loads(json.dumps(cal.to_dict(), allow_nan=False))
     back = TriCalibration.from_dict(d)
     assert back.calibration_id == cal.calibration_id and back.method == "full_lsq"
@@ -314,8 +394,12 @@ def test_tricalibration_json_round_trip_and_id():
     a = make_calibration_id("TRI-01", ["N20261121-TRI01-CAL-P2", "N20261121-TRI01-CAL-P1"], "full_lsq")
     b = make_calibration_id("TRI-01", ["N20261121-TRI01-CAL-P1", "N20261121-TRI01-CAL-P2"], "full_lsq")
     assert a == b and re.fullmatch(r"TRI-01-20261121-full_lsq-[0-9a-f]{8}", a)
-    assert make_calibration_id("TRI-01", ["x"], "yang2017", night="2026-11-22").startswith("TRI-01-20261122-yang2017-")
-    assert make_calibration_id("TRI-01", ["x"], "yang2017") != make_calibration_id("TRI-01", ["x"], "full_lsq")
+    assert make_calibration_id("TRI-01", ["x"], "yang2017", night="2026-11-22").startswith(
+        "TRI-01-20261122-yang2017-"
+    )
+    assert make_calibration_id("TRI-01", ["x"], "yang2017") != make_calibration_id(
+        "TRI-01", ["x"], "full_lsq"
+    )
 
 
 @pytest.mark.slow
@@ -354,17 +438,27 @@ def _twin_scan(scene, *, encoder, n_rev=20, seed=0, effects=(), noise_mm=0.003, 
 
     from borescan import kinematics, simulate
 
-    sim = simulate.simulate_tri_spindle(scene, n_rev=n_rev, encoder=encoder, seed=seed, effects=effects,
-                                        noise_mm=noise_mm, center_xy_mm=scene.bore_center_xy_mm)
+    sim = simulate.simulate_tri_spindle(
+        scene,
+        n_rev=n_rev,
+        encoder=encoder,
+        seed=seed,
+        effects=effects,
+        noise_mm=noise_mm,
+        center_xy_mm=scene.bore_center_xy_mm,
+    )
     w = sim.lds.pivot(on="sensor", index="t_ns", values="value_mm").sort("t_ns")
     t = w["t_ns"].to_numpy() * 1e-9
     v = w.select([str(c) for c in scene.beams.channels]).to_numpy().astype(float)
     sp = sim.spindle
     if spindle_stream:
         am = kinematics.angle_model_from_arrays(
-            rpm_nominal=scene.rpm_nominal, direction=scene.direction, spindle_t_s=sp["t_ns"].to_numpy() * 1e-9,
+            rpm_nominal=scene.rpm_nominal,
+            direction=scene.direction,
+            spindle_t_s=sp["t_ns"].to_numpy() * 1e-9,
             spindle_angle_rad=sp["angle_rad"].cast(pl.Float64).fill_null(np.nan).to_numpy(),
-            spindle_rpm=sp["rpm"].to_numpy())
+            spindle_rpm=sp["rpm"].to_numpy(),
+        )
     else:
         am = kinematics.angle_model_from_arrays(rpm_nominal=60.0, direction=scene.direction)
     return t, v, am
@@ -375,9 +469,17 @@ def _contract_scene(**kw):
 
     from borescan import simulate
 
-    beams = Beams((1, 2, 3), np.array([0.9, 2.9, 5.1]), np.array([7.2, -3.1, 0.8]), np.array([96.8, 99.0, 98.3]))
-    scene = simulate.default_tri_scene(beams=beams, bore_radius_20_mm=101.5, bore_center_xy_mm=(10.0, -4.0),
-                                       spindle_xy_mm=(11.2, -2.9), sample_rate_hz=450.0, rpm_nominal=60.0)
+    beams = Beams(
+        (1, 2, 3), np.array([0.9, 2.9, 5.1]), np.array([7.2, -3.1, 0.8]), np.array([96.8, 99.0, 98.3])
+    )
+    scene = simulate.default_tri_scene(
+        beams=beams,
+        bore_radius_20_mm=101.5,
+        bore_center_xy_mm=(10.0, -4.0),
+        spindle_xy_mm=(11.2, -2.9),
+        sample_rate_hz=450.0,
+        rpm_nominal=60.0,
+    )
     return replace(scene, **kw)
 
 
@@ -387,8 +489,11 @@ def _z(cal, truth: Beams):
     if cal.diagnostics["beta_reference"] != "absolute":
         dbeta = dbeta - dbeta[0]
         dbeta, u_beta = dbeta[1:], u_beta[1:]
-    return np.r_[dbeta / u_beta, (cal.beams.rho_mm - truth.rho_mm) / cal.u_rho_mm,
-                 (cal.beams.d_b_mm - truth.d_b_mm) / cal.u_d_b_mm]
+    return np.r_[
+        dbeta / u_beta,
+        (cal.beams.rho_mm - truth.rho_mm) / cal.u_rho_mm,
+        (cal.beams.d_b_mm - truth.d_b_mm) / cal.u_d_b_mm,
+    ]
 
 
 RAMP = ((0.0, 60.0), (8.0, 60.0), (9.0, 34.0))
@@ -401,8 +506,17 @@ def test_speed_change_with_and_without_encoder(encoder):
     t, v, am = _twin_scan(scene, encoder=encoder, seed=3)
     truth = scene.beams
     nominal = Beams(truth.channels, truth.beta_rad + 0.018, truth.rho_mm - 0.8, truth.d_b_mm + 0.6)
-    cal = fit_full_calibration(t, v, truth.channels, nominal, scene.bore_radius_20_mm, scene.spindle_xy_mm,
-                               center_xy_mm=scene.bore_center_xy_mm, angle_models=[am], scan_ids=["R"])
+    cal = fit_full_calibration(
+        t,
+        v,
+        truth.channels,
+        nominal,
+        scene.bore_radius_20_mm,
+        scene.spindle_xy_mm,
+        center_xy_mm=scene.bore_center_xy_mm,
+        angle_models=[am],
+        scan_ids=["R"],
+    )
     z = _z(cal, truth)
     assert np.all(np.abs(z) < 4), z
     nu = cal.nuisance["R"]
@@ -423,8 +537,9 @@ def test_mistyped_speed_without_spindle_stream():
 
     scene = _contract_scene(rpm_nominal=64.5)
     t, v, am = _twin_scan(scene, encoder=False, seed=4, spindle_stream=False)
-    cal = fit_full_calibration(t, v, scene.beams.channels, scene.beams, scene.bore_radius_20_mm,
-                               angle_models=[am], scan_ids=["M"])
+    cal = fit_full_calibration(
+        t, v, scene.beams.channels, scene.beams, scene.bore_radius_20_mm, angle_models=[am], scan_ids=["M"]
+    )
     nu = cal.nuisance["M"]
     assert nu["angle_source"] == "nominal"
     assert abs(nu["speed_scale"] - 64.5 / 60.0) < 4 * nu["u_speed_scale"]
@@ -437,8 +552,17 @@ def test_mirror_rho_start_finds_the_true_minimum():
     t, v, am = _twin_scan(scene, encoder=True, seed=5)
     truth = scene.beams
     nominal = Beams(truth.channels, truth.beta_rad, -truth.rho_mm, truth.d_b_mm)
-    cal = fit_full_calibration(t, v, truth.channels, nominal, scene.bore_radius_20_mm, scene.spindle_xy_mm,
-                               center_xy_mm=scene.bore_center_xy_mm, angle_models=[am], scan_ids=["X"])
+    cal = fit_full_calibration(
+        t,
+        v,
+        truth.channels,
+        nominal,
+        scene.bore_radius_20_mm,
+        scene.spindle_xy_mm,
+        center_xy_mm=scene.bore_center_xy_mm,
+        angle_models=[am],
+        scan_ids=["X"],
+    )
     assert np.all(np.sign(cal.beams.rho_mm) == np.sign(truth.rho_mm))
     assert np.all(np.abs(_z(cal, truth)) < 4)
 
@@ -448,12 +572,25 @@ def test_unmodelled_effect_is_refused_with_the_reason():
     from borescan.effects import Effect
 
     scene = _contract_scene()
-    t, v, am = _twin_scan(scene, encoder=True, seed=6,
-                          effects=[Effect("vibration", {"f_hz": 7.3, "a_mm": 0.006, "phase": 0.4})])
-    with pytest.raises(CalibrationError, match=r"^B: calibration refused: B channel 1: residual rms is \d+\.\d\d times "
-                                               r"the readings' own noise floor \(limit 1\.25\)"):
-        fit_full_calibration(t, v, scene.beams.channels, scene.beams, scene.bore_radius_20_mm, scene.spindle_xy_mm,
-                             center_xy_mm=scene.bore_center_xy_mm, angle_models=[am], scan_ids=["B"])
+    t, v, am = _twin_scan(
+        scene, encoder=True, seed=6, effects=[Effect("vibration", {"f_hz": 7.3, "a_mm": 0.006, "phase": 0.4})]
+    )
+    with pytest.raises(
+        CalibrationError,
+        match=r"^B: calibration refused: B channel 1: residual rms is \d+\.\d\d times "
+        r"the readings' own noise floor \(limit 1\.25\)",
+    ):
+        fit_full_calibration(
+            t,
+            v,
+            scene.beams.channels,
+            scene.beams,
+            scene.bore_radius_20_mm,
+            scene.spindle_xy_mm,
+            center_xy_mm=scene.bore_center_xy_mm,
+            angle_models=[am],
+            scan_ids=["B"],
+        )
 
 
 def test_impossible_geometry_is_refused():
@@ -462,7 +599,18 @@ def test_impossible_geometry_is_refused():
 
     scene = _contract_scene()
     t, v, am = _twin_scan(scene, encoder=True, seed=7)
-    with pytest.raises(CalibrationError, match=r"channel 1: \|rho\| = 7\.\d{3} mm exceeds the head radius 5 mm"):
-        fit_full_calibration(t, v, scene.beams.channels, scene.beams, scene.bore_radius_20_mm, scene.spindle_xy_mm,
-                             center_xy_mm=scene.bore_center_xy_mm, angle_models=[am], scan_ids=["H"],
-                             rule=AcceptanceRule.defaults(head_radius_mm=5.0))
+    with pytest.raises(
+        CalibrationError, match=r"channel 1: \|rho\| = 7\.\d{3} mm exceeds the head radius 5 mm"
+    ):
+        fit_full_calibration(
+            t,
+            v,
+            scene.beams.channels,
+            scene.beams,
+            scene.bore_radius_20_mm,
+            scene.spindle_xy_mm,
+            center_xy_mm=scene.bore_center_xy_mm,
+            angle_models=[am],
+            scan_ids=["H"],
+            rule=AcceptanceRule.defaults(head_radius_mm=5.0),
+        )

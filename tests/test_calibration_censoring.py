@@ -11,8 +11,12 @@ import numpy as np
 from borescan.calibration import CENSOR_GUARD_SIGMA, _censoring_keep, fit_full_calibration
 from borescan.geometry import Beams, Bore, tri_spindle_readings
 
-TRUE = Beams((1, 2, 3), np.array([0.3, 0.3 + 2.1, 0.3 + 4.2]), np.array([5.5484, -2.5295, 1.5262]),
-             np.array([132.6718, 132.8883, 134.1108]))
+TRUE = Beams(
+    (1, 2, 3),
+    np.array([0.3, 0.3 + 2.1, 0.3 + 4.2]),
+    np.array([5.5484, -2.5295, 1.5262]),
+    np.array([132.6718, 132.8883, 134.1108]),
+)
 R_MM = 275.029 / 2
 OFFSET = np.array([262.955 - 262.833, -275.502 + 273.182])
 RANGE_MM = 10.0
@@ -43,7 +47,12 @@ def test_censoring_keep_rule():
     y[0, 0] = np.nan  # the sensor nulled it
     keep, lim = _censoring_keep(v, y, np.array([10.0, 10.0]), np.array([0.001, 0.001]))
     assert CENSOR_GUARD_SIGMA == 4.0
-    assert keep[:, 0].tolist() == [False, False, True, True] and keep[:, 1].tolist() == [True, True, False, True]
+    assert keep[:, 0].tolist() == [False, False, True, True] and keep[:, 1].tolist() == [
+        True,
+        True,
+        False,
+        True,
+    ]
     assert lim == {"lower": [True, True], "upper": [True, True]}
     # a sensor with valid readings beyond a stated limit is not censored there
     keep, lim = _censoring_keep(v, v + [0.0, 1.0], np.array([10.0, 10.0]), np.array([0.001, 0.001]))
@@ -66,8 +75,12 @@ def test_censored_readings_do_not_bias_the_calibration():
     censored[(y < 0.0) | (y > RANGE_MM)] = np.nan
     oracle = y.copy()
     oracle[(v <= CENSOR_GUARD_SIGMA * sigma) | (v >= RANGE_MM - CENSOR_GUARD_SIGMA * sigma)] = np.nan
-    nominal = Beams(TRUE.channels, beams.beta_rad + [0.0, 0.01, -0.01], beams.rho_mm + [0.3, -0.3, 0.3],
-                    beams.d_b_mm + 0.05)
+    nominal = Beams(
+        TRUE.channels,
+        beams.beta_rad + [0.0, 0.01, -0.01],
+        beams.rho_mm + [0.3, -0.3, 0.3],
+        beams.d_b_mm + 0.05,
+    )
     kw = dict(rpm=60.0, range_mm=[RANGE_MM] * 3, scan_ids=["A"])
     cal = fit_full_calibration(t, censored, TRUE.channels, nominal, R_MM, **kw)
     ref = fit_full_calibration(t, oracle, TRUE.channels, nominal, R_MM, **kw)

@@ -89,8 +89,11 @@ def _z(cal, truth_beams: Beams) -> np.ndarray:
         z_beta = dbeta / cal.u_beta_rad
     else:  # beta_c - beta_1, its variance from the covariance (beta_1 held: zero rows)
         z_beta = (dbeta[1:] - dbeta[0]) / np.sqrt(np.diag(cov)[3::3])
-    return np.r_[z_beta, (cal.beams.rho_mm - truth_beams.rho_mm) / cal.u_rho_mm,
-                 (cal.beams.d_b_mm - truth_beams.d_b_mm) / cal.u_d_b_mm]
+    return np.r_[
+        z_beta,
+        (cal.beams.rho_mm - truth_beams.rho_mm) / cal.u_rho_mm,
+        (cal.beams.d_b_mm - truth_beams.d_b_mm) / cal.u_d_b_mm,
+    ]
 
 
 # seed 20270619 #8: a skewed rho valley (channel 2 comes out +5.2 mm against -6.07 mm, Delta chi^2 6.8 at the
@@ -123,9 +126,15 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(cal
     checks = {m.channel: m for m in mirror_checks_of(d)}
     for m in d["minima"]:
         if m["source"].startswith("mirror start") and m["delta_ssr_over_s2"] < 4.0:
-            other = [ch for ch, r, r0 in zip(cal.beams.channels, m["rho_mm"], cal.beams.rho_mm) if np.sign(r) != np.sign(r0)]
-            assert other and all(not checks[ch].resolved and checks[ch].refit_delta_chi2 <= m["delta_ssr_over_s2"] + 1e-9
-                                 for ch in other)
+            other = [
+                ch
+                for ch, r, r0 in zip(cal.beams.channels, m["rho_mm"], cal.beams.rho_mm)
+                if np.sign(r) != np.sign(r0)
+            ]
+            assert other and all(
+                not checks[ch].resolved and checks[ch].refit_delta_chi2 <= m["delta_ssr_over_s2"] + 1e-9
+                for ch in other
+            )
     # the uncertainty is honest where the valley is not linear: every z of a resolved beam within 4.5 (a
     # skewed valley makes the truth's z larger than its profile-likelihood distance: sqrt(6.8) = 2.6 for
     # seed 20270619 #8); a flagged beam's truth within 4.5 u of one of its two solutions
@@ -135,8 +144,11 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(cal
     fixed = cal.diagnostics["beta_reference"] != "absolute"
     flagged = [j for j, ch in enumerate(cal.beams.channels) if not checks[ch].resolved]
     nb = c - 1 if fixed else c  # a beta of the fixed reference's frame moves with that beam's sign too
-    resolved_rows = [k for k in range(z.size) if _z_channel(k, c, fixed) not in flagged
-                     and not (fixed and k < nb and 0 in flagged)]
+    resolved_rows = [
+        k
+        for k in range(z.size)
+        if _z_channel(k, c, fixed) not in flagged and not (fixed and k < nb and 0 in flagged)
+    ]
     assert np.all(np.abs(z[resolved_rows]) < 4.5), np.round(z, 2)
     for j in flagged:
         alt = checks[cal.beams.channels[j]].alternative
@@ -165,7 +177,6 @@ def test_accepted_solution_is_the_global_minimum_and_its_u_covers_the_valley(cal
         assert m3.rho_alt_mm < 0 and 0.05 < m3.p_wrong_sign < 0.5
 
 
-
 @pytest.mark.slow
 def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_sensitivities(calibrated):
     """Seed 20270619 #8 (every rho profile non-linear). The calibration's covariance is its budget's
@@ -180,8 +191,13 @@ def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_se
     from borescan.calibration_budget import calibration_budget
     from borescan.artifacts import artifact_cte, scan_temperature
     from borescan.geometry import Bore, tri_static_readings
-    from borescan.measure import DiameterModel, _with_params, diameter_uncertainty, static_diameter, \
-        static_diameter_jacobian
+    from borescan.measure import (
+        DiameterModel,
+        _with_params,
+        diameter_uncertainty,
+        static_diameter,
+        static_diameter_jacobian,
+    )
 
     scan, truth, cfg, x, cal = calibrated(20270619, 9, 8)
     unc = schema_defaults()["uncertainty"]
@@ -193,7 +209,9 @@ def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_se
     # differentiation of the normal equations) come by two computations that agree to about 3e-4
     assert np.max(np.abs(fit_cov - cal.cov) / np.outer(scale, scale)) < 1e-3
     profiles = [p for p in cal.diagnostics["rho_profiles"] if "points" in p]
-    assert len(profiles) == 3 and all(f"fit:{cal.calibration_id}:profile{p['channel']}" in {t.input.key for t in b.terms} for p in profiles)
+    assert len(profiles) == 3 and all(
+        f"fit:{cal.calibration_id}:profile{p['channel']}" in {t.input.key for t in b.terms} for p in profiles
+    )
 
     R = float(x["R"])
     xy = np.array([[0.4, -0.3], [-0.6, 0.2], [0.1, 0.7], [-0.2, -0.5]])
@@ -203,12 +221,27 @@ def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_se
     _, jp, jv, _ = static_diameter_jacobian(v, cal.beams)
     j = jp.mean(axis=0)
     du = diameter_uncertainty(
-        model(cal.beams), jac_params=j, calibration_budget=b, jac_readings=jv.mean(axis=0), u_readings_mm=1e-4,
-        dof_readings=float("inf"), temperature=scan_temperature(scan.meta, unc), cte=artifact_cte(scan.meta, unc),
-        artifact=dict(scan.meta["artifact"]), scan_id="PART", p=0.9545, default_resolution_mm=1e-4,
-        calibration_id=cal.calibration_id, model=model, beams=cal.beams, rho_profiles=cal.diagnostics["rho_profiles"])
+        model(cal.beams),
+        jac_params=j,
+        calibration_budget=b,
+        jac_readings=jv.mean(axis=0),
+        u_readings_mm=1e-4,
+        dof_readings=float("inf"),
+        temperature=scan_temperature(scan.meta, unc),
+        cte=artifact_cte(scan.meta, unc),
+        artifact=dict(scan.meta["artifact"]),
+        scan_id="PART",
+        p=0.9545,
+        default_resolution_mm=1e-4,
+        calibration_id=cal.calibration_id,
+        model=model,
+        beams=cal.beams,
+        rho_profiles=cal.diagnostics["rho_profiles"],
+    )
     rows = {r["key"]: r for r in du.rows_t}
-    d0 = float(np.mean(static_diameter(v, cal.beams).diameter_mm))  # the mean of the poses, as the measure stage
+    d0 = float(
+        np.mean(static_diameter(v, cal.beams).diameter_mm)
+    )  # the mean of the poses, as the measure stage
     for p in profiles:
         key = f"fit:{cal.calibration_id}:profile{p['channel']}"
         pts = np.asarray(p["points"]["delta_params"])
@@ -262,8 +295,10 @@ def test_the_mirror_screen_of_a_long_scan_keeps_what_the_full_search_finds(tmp_p
     # the same minimum (within 0.05 of u(rho)); it may be reached from another channel's mirror start
     for a, b in ((screened, full), (full, screened)):
         for m in near(a.diagnostics["minima"]):
-            assert any(np.all(np.abs(np.subtract(m["rho_mm"], o["rho_mm"])) <= 0.05 * u_f[3:6])
-                       for o in b.diagnostics["minima"]), m
+            assert any(
+                np.all(np.abs(np.subtract(m["rho_mm"], o["rho_mm"])) <= 0.05 * u_f[3:6])
+                for o in b.diagnostics["minima"]
+            ), m
     by_channel = {e["channel"]: e for e in full.diagnostics["mirror_solutions"]}
     for e in entries:
         if e.get("screen", "").endswith("above the kept minimum"):

@@ -23,7 +23,9 @@ def _snapshot(path: Path) -> dict:
     try:
         tables = {t: catalog.table_rows(con, t) for t in catalog.SCHEMA}
         cols = {t: [r[0] for r in con.execute(f"DESCRIBE {t}").fetchall()] for t in catalog.SCHEMA}
-        views = {q: sorted(con.execute(f"SELECT * FROM {q}").fetchall(), key=repr) for q in catalog.saved_queries()}
+        views = {
+            q: sorted(con.execute(f"SELECT * FROM {q}").fetchall(), key=repr) for q in catalog.saved_queries()
+        }
     finally:
         con.close()
     return {"tables": tables, "columns": cols, "views": views}
@@ -32,7 +34,9 @@ def _snapshot(path: Path) -> dict:
 def _rebuilt(res: Path, tmp: Path) -> dict:
     """Return the catalog a full rebuild gives from the same stage files (built in a copy of the folder)."""
     copy = tmp / f"rebuild-{time.monotonic_ns()}"
-    shutil.copytree(res, copy, copy_function=os.link, ignore=shutil.ignore_patterns("catalog.duckdb*", "report*"))
+    shutil.copytree(
+        res, copy, copy_function=os.link, ignore=shutil.ignore_patterns("catalog.duckdb*", "report*")
+    )
     update = catalog.rebuild_catalog(copy)
     assert update.mode == "full"
     return _snapshot(copy / "catalog.duckdb")
@@ -43,24 +47,37 @@ def _rebuilt(res: Path, tmp: Path) -> dict:
 NIGHT_OF_OCTOBER = {"2026-11-20": "2026-10-30"}  # the first night moved to another month
 
 
-def _write_stage(res: Path, tables: dict[str, pl.DataFrame], nights: list[str], remap: dict[str, str]) -> None:
+def _write_stage(
+    res: Path, tables: dict[str, pl.DataFrame], nights: list[str], remap: dict[str, str]
+) -> None:
     """Write the constructed history as the stage files of ``nights``, each night's rows in its own file
     (nights renamed by ``remap``; rows without a night follow their scan, artifacts the first night).
     """
     moved = pl.col("night").replace(remap)
     scans = tables["scans"].with_columns(
-        pl.coalesce([pl.when(pl.col("night") == old).then(pl.col("started_at").str.replace(old, new))
-                     for old, new in remap.items()] + [pl.col("started_at")]).alias("started_at"),
-        moved)
+        pl.coalesce(
+            [
+                pl.when(pl.col("night") == old).then(pl.col("started_at").str.replace(old, new))
+                for old, new in remap.items()
+            ]
+            + [pl.col("started_at")]
+        ).alias("started_at"),
+        moved,
+    )
     night_of = dict(zip(scans["scan_id"], scans["night"], strict=True))
-    cal_night = {r["calibration_id"]: night_of[r["scan_id"]] for r in tables["calibrations"].iter_rows(named=True)}
+    cal_night = {
+        r["calibration_id"]: night_of[r["scan_id"]] for r in tables["calibrations"].iter_rows(named=True)
+    }
     of_scan = pl.col("scan_id").replace_strict(night_of).alias("_n")
     by_table = {
         "scans": scans.with_columns(pl.col("night").alias("_n")),
         "scan_files": tables["scan_files"].with_columns(moved).with_columns(pl.col("night").alias("_n")),
-        "quarantine/stage=ingest": tables["quarantine"].with_columns(moved).with_columns(pl.col("night").alias("_n")),
+        "quarantine/stage=ingest": tables["quarantine"]
+        .with_columns(moved)
+        .with_columns(pl.col("night").alias("_n")),
         "calibration_scans": tables["calibration_scans"].with_columns(
-            pl.col("calibration_id").replace_strict(cal_night).alias("_n")),
+            pl.col("calibration_id").replace_strict(cal_night).alias("_n")
+        ),
         "artifacts": tables["artifacts"].with_columns(pl.lit(min(night_of.values())).alias("_n")),
     }
     for name in ("calibrations", "diameters", "verifications", "findings"):
@@ -96,8 +113,9 @@ def test_nightly_updates_equal_a_rebuild_and_read_only_new_nights(staged, tmp_pa
     assert snap == _rebuilt(res, tmp_path)
     # the derived columns were filled within each night
     con = catalog.open_catalog(res)
-    assert con.execute("SELECT night::VARCHAR, raw_sha256 IS NOT NULL FROM diameters WHERE scan_id = 'PART-8'"
-                       ).fetchone() == ("2026-11-22", True)
+    assert con.execute(
+        "SELECT night::VARCHAR, raw_sha256 IS NOT NULL FROM diameters WHERE scan_id = 'PART-8'"
+    ).fetchone() == ("2026-11-22", True)
     assert con.execute("SELECT count(*) FROM build.sources WHERE night = '2026-11-22'").fetchone()[0] == 9
     con.close()
     assert catalog.update_catalog(res).mode == "unchanged"
@@ -111,12 +129,16 @@ def test_replacing_or_removing_the_newest_night_equals_a_rebuild(staged, tmp_pat
     catalog.update_catalog(res)
     # the newest night re-run with another result: its rows are replaced
     f = res / "stage" / "artifacts" / "night=2026-11-22.parquet"
-    pl.DataFrame({"artifact_id": ["RG-275"], "type": ["ring_gauge"], "certified_diameter_mm": [275.031]}).write_parquet(f)
+    pl.DataFrame(
+        {"artifact_id": ["RG-275"], "type": ["ring_gauge"], "certified_diameter_mm": [275.031]}
+    ).write_parquet(f)
     redo = catalog.update_catalog(res)
     assert (redo.mode, redo.added, redo.removed) == ("append", ("2026-11-22",), ("2026-11-22",))
     assert _snapshot(res / "catalog.duckdb") == _rebuilt(res, tmp_path)
     con = catalog.open_catalog(res)
-    assert con.execute("SELECT certified_diameter_mm FROM artifacts WHERE artifact_id='RG-275'").fetchone() == (275.031,)
+    assert con.execute(
+        "SELECT certified_diameter_mm FROM artifacts WHERE artifact_id='RG-275'"
+    ).fetchone() == (275.031,)
     con.close()
     # the newest night gone: the artifact falls back to its earlier record, links of the night go
     for g in res.glob("stage/**/night=2026-11-22.parquet"):
@@ -141,7 +163,9 @@ def test_an_older_night_changed_rebuilds_everything(staged, tmp_path):
     assert "night 2026-10-30 changed" in update.reason and "2026-11-22" in update.reason
     assert _snapshot(res / "catalog.duckdb") == _rebuilt(res, tmp_path)
     con = catalog.open_catalog(res)
-    assert con.execute("SELECT gap_before_mm FROM findings WHERE scan_id='PART-7'").fetchone()[0] == pytest.approx(0.0122)
+    assert con.execute("SELECT gap_before_mm FROM findings WHERE scan_id='PART-7'").fetchone()[
+        0
+    ] == pytest.approx(0.0122)
     con.close()
 
 
@@ -267,11 +291,17 @@ def test_demo_plus_added_nights_incremental_equals_rebuild(pipeline_run, tmp_pat
     n_scans = len(snap["tables"]["scans"])
     assert n_scans == sum(pl.read_parquet(f).height for f in res.glob("stage/scans/night=*.parquet"))
     # the report drawn night by night equals one drawn from scratch
-    pages = {p.relative_to(res).as_posix(): p.read_bytes() for p in [res / "report.html", *sorted(
-        (res / "report").rglob("*"))] if p.is_file()}
+    pages = {
+        p.relative_to(res).as_posix(): p.read_bytes()
+        for p in [res / "report.html", *sorted((res / "report").rglob("*"))]
+        if p.is_file()
+    }
     report.update_report(res, full=True)
-    again = {p.relative_to(res).as_posix(): p.read_bytes() for p in [res / "report.html", *sorted(
-        (res / "report").rglob("*"))] if p.is_file()}
+    again = {
+        p.relative_to(res).as_posix(): p.read_bytes()
+        for p in [res / "report.html", *sorted((res / "report").rglob("*"))]
+        if p.is_file()
+    }
     assert pages == again
     assert {"report/2026-11/index.html", "report/2026-12/index.html"} <= set(pages)
 
@@ -284,8 +314,9 @@ def test_the_workflow_extends_the_catalog_it_keeps(pipeline_run, tmp_path):
     from conftest import run_snakemake
 
     res = tmp_path / "results"
-    shutil.copytree(pipeline_run["results"], res, copy_function=os.link,
-                    ignore=shutil.ignore_patterns("catalog.duckdb*"))
+    shutil.copytree(
+        pipeline_run["results"], res, copy_function=os.link, ignore=shutil.ignore_patterns("catalog.duckdb*")
+    )
     shutil.copyfile(pipeline_run["results"] / "catalog.duckdb", res / "catalog.duckdb")
     before = _snapshot(res / "catalog.duckdb")
     proc = run_snakemake(pipeline_run["raw"], res, "--forcerun", "build_catalog", "--until", "build_catalog")

@@ -14,10 +14,18 @@ from borescan.config import schema_defaults
 from borescan.uncertainty import Budget
 
 R_MM = 275.029 / 2
-LAB = {"name": "Metrology Lab Example GmbH", "address": "Example Street 1, 12345 Example Town", "country_code": "DE",
-       "performance_location": "at the customer's boring mill", "accreditation": "Accredited by EXAMPLE AB, D-K-00000-00",
-       "customer": "Example Machine Works", "signatory": "A. Example", "signatory_function": "Head of laboratory",
-       "decision_rule": "guard_band", "guard_band_factor": 1.0}
+LAB = {
+    "name": "Metrology Lab Example GmbH",
+    "address": "Example Street 1, 12345 Example Town",
+    "country_code": "DE",
+    "performance_location": "at the customer's boring mill",
+    "accreditation": "Accredited by EXAMPLE AB, D-K-00000-00",
+    "customer": "Example Machine Works",
+    "signatory": "A. Example",
+    "signatory_function": "Head of laboratory",
+    "decision_rule": "guard_band",
+    "guard_band_factor": 1.0,
+}
 
 
 @pytest.fixture(scope="module")
@@ -31,8 +39,15 @@ def calibrated(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("cal")
     scene = simulate.default_tri_scene()
-    sim = simulate.simulate_tri_spindle(scene, scan_id="N20261121-TRI01-CAL-P1", night="2026-11-21", n_rev=5,
-                                        noise_mm=0.002, seed=11, center_xy_mm=scene.bore_center_xy_mm)
+    sim = simulate.simulate_tri_spindle(
+        scene,
+        scan_id="N20261121-TRI01-CAL-P1",
+        night="2026-11-21",
+        n_rev=5,
+        noise_mm=0.002,
+        seed=11,
+        center_xy_mm=scene.bore_center_xy_mm,
+    )
     scan = rawio.read_scan(simulate.write_simulated(sim, tmp / "raw", tmp / "truth"))
     cfg = schema_defaults()
     cal = calibrate_raw_scans([scan], cfg["calibration"], uncertainty=cfg["uncertainty"])
@@ -41,14 +56,35 @@ def calibrated(tmp_path_factory):
     kw = dict(
         device={"id": "TRI-01", "type": "tri_lds", "sensors": scan.meta["sensors"]},
         artifact=dict(scan.meta["artifact"]),
-        conditions={"temperature": {"value_c": 20.0, "u_c": 0.0577, "U_c": 0.0953, "k": 1.65, "assumed": False,
-                                    "source": "scan.json"},
-                    "gauge_radius_at_temperature_mm": x["R"], "position_accuracy_mm": 0.002,
-                    "scans": [{"scan_id": scan.scan_id, "spindle_position": scan.meta["spindle"]["position"],
-                               "center": scan.meta["center"], "rpm": 60.0, "angle_source": "encoder",
-                               "revolutions_recorded": 5.0, "revolutions_with_extrema": 4}]},
-        residuals={"t_s": x["t_s"], "residual_mm": full_residuals(cal, x["t_s"], x["readings"], x["R"], scan.scan_id,
-                                                                  angle_model=x["angle_model"])},
+        conditions={
+            "temperature": {
+                "value_c": 20.0,
+                "u_c": 0.0577,
+                "U_c": 0.0953,
+                "k": 1.65,
+                "assumed": False,
+                "source": "scan.json",
+            },
+            "gauge_radius_at_temperature_mm": x["R"],
+            "position_accuracy_mm": 0.002,
+            "scans": [
+                {
+                    "scan_id": scan.scan_id,
+                    "spindle_position": scan.meta["spindle"]["position"],
+                    "center": scan.meta["center"],
+                    "rpm": 60.0,
+                    "angle_source": "encoder",
+                    "revolutions_recorded": 5.0,
+                    "revolutions_with_extrema": 4,
+                }
+            ],
+        },
+        residuals={
+            "t_s": x["t_s"],
+            "residual_mm": full_residuals(
+                cal, x["t_s"], x["readings"], x["R"], scan.scan_id, angle_model=x["angle_model"]
+            ),
+        },
         raw_files={"scan.json": "b" * 64, "lds.parquet": "a" * 64},
         software_version="0.1.0",
         config_hash="c0ffee12",
@@ -58,10 +94,22 @@ def calibrated(tmp_path_factory):
 
 
 def _verification(passed: bool) -> dict:
-    return {"scan_id": "N20261121-TRI01-VER-RG275", "artifact_id": "RG-275", "measured_mm": 275.0292,
-            "measured_at_t_mm": 275.0292, "certified_mm": 275.029, "error_mm": 0.0002 if passed else 0.02,
-            "expanded_u_error_mm": 0.0189, "k": 1.98, "tolerance_mm": 0.015, "acceptance_limit_mm": 0.015, "passed": passed,
-            "temperature_c": 20.0, "conformity": "PASS" if passed else "FAIL", "budget": []}
+    return {
+        "scan_id": "N20261121-TRI01-VER-RG275",
+        "artifact_id": "RG-275",
+        "measured_mm": 275.0292,
+        "measured_at_t_mm": 275.0292,
+        "certified_mm": 275.029,
+        "error_mm": 0.0002 if passed else 0.02,
+        "expanded_u_error_mm": 0.0189,
+        "k": 1.98,
+        "tolerance_mm": 0.015,
+        "acceptance_limit_mm": 0.015,
+        "passed": passed,
+        "temperature_c": 20.0,
+        "conformity": "PASS" if passed else "FAIL",
+        "budget": [],
+    }
 
 
 def test_regeneration_is_byte_identical(calibrated, tmp_path):
@@ -74,7 +122,11 @@ def test_regeneration_is_byte_identical(calibrated, tmp_path):
         assert b[k].read_bytes() == first[k], k
         assert again[k].read_bytes() == first[k], k
     assert sorted(p.name for p in a["json"].parent.iterdir()) == [
-        "certificate.dcc.xml", "certificate.json", "certificate.pdf", "residuals.png"]
+        "certificate.dcc.xml",
+        "certificate.json",
+        "certificate.pdf",
+        "residuals.png",
+    ]
 
 
 def test_layout_metadata_and_page_x_of_y(calibrated, tmp_path):
@@ -131,14 +183,19 @@ def test_json_content_and_budget(calibrated, tmp_path):
     assert g["distribution"] == "normal" and g["sensitivity_coefficient"] == pytest.approx(0.5, abs=0.01)
     assert g["contribution"] == pytest.approx(0.5 * 0.00075, rel=0.02)
     lin = rows["linearity:" + cal.calibration_id + ":ch2"]
-    assert lin["distribution"] == "rectangular" and lin["sensitivity_coefficient"] == pytest.approx(-1.0, abs=1e-6)
+    assert lin["distribution"] == "rectangular" and lin["sensitivity_coefficient"] == pytest.approx(
+        -1.0, abs=1e-6
+    )
     assert {"fit:" + cal.calibration_id + ":readings", "temperature:N20261121-TRI01-CAL-P1"} <= set(rows)
     for r in mr["results"]:
         eu = r["real"]["expandedUnc"]
         assert {"uncertainty", "coverageFactor", "coverageProbability", "distribution"} <= set(eu)
     # effective base length with its U (it was printed "+- 0.0000")
     assert all(r["expandedUnc"]["uncertainty"] > 1e-3 for r in cert["effective_base_length"])
-    assert cert["artifact"]["certified_diameter_mm"] == 275.029 and cert["conditions"]["temperature"]["value_c"] == 20.0
+    assert (
+        cert["artifact"]["certified_diameter_mm"] == 275.029
+        and cert["conditions"]["temperature"]["value_c"] == 20.0
+    )
     assert cert["software_version"] == "0.1.0" and cert["config_hash"] == "c0ffee12"
 
 
@@ -165,7 +222,9 @@ def test_iso17025_administrative_data_and_placeholders(calibrated, tmp_path):
     cert = json.loads(write_certificate(cal, tmp_path / "e", **kw2)["json"].read_text())
     adm = cert["administrativeData"]
     assert adm["placeholders"] == []
-    assert adm["respPersons"][0]["person"]["name"] == "A. Example" and adm["customer"]["name"] == LAB["customer"]
+    assert (
+        adm["respPersons"][0]["person"]["name"] == "A. Example" and adm["customer"]["name"] == LAB["customer"]
+    )
     kinds = {s.get("refType", s.get("reference")): s for s in adm["statements"]}
     trace = kinds["basic_traceability"]["declaration"]
     assert "Example NMI" in trace and "2027-03-31" in trace
@@ -181,22 +240,50 @@ def mr_equipment(cert):
 def test_certificate_dates_come_from_the_scans():
     from borescan.certificate import certificate_dates
 
-    d = certificate_dates([{"started_at": "2026-11-20T22:14:03Z"}, {"started_at": "2026-11-20T23:50:00Z"}],
-                          [{"started_at": "2026-11-21T00:20:00Z"}], "2026-11-20", 30)
-    assert (d["begin"], d["end"], d["issue"], d["recalibration_due"]) == ("2026-11-20", "2026-11-20", "2026-11-21",
-                                                                          "2026-12-20")
-    d = certificate_dates([{"started_at": "2026-11-20T23:30:00-02:00"}], [], "2026-11-20", 7)  # 01:30 UTC next day
+    d = certificate_dates(
+        [{"started_at": "2026-11-20T22:14:03Z"}, {"started_at": "2026-11-20T23:50:00Z"}],
+        [{"started_at": "2026-11-21T00:20:00Z"}],
+        "2026-11-20",
+        30,
+    )
+    assert (d["begin"], d["end"], d["issue"], d["recalibration_due"]) == (
+        "2026-11-20",
+        "2026-11-20",
+        "2026-11-21",
+        "2026-12-20",
+    )
+    d = certificate_dates(
+        [{"started_at": "2026-11-20T23:30:00-02:00"}], [], "2026-11-20", 7
+    )  # 01:30 UTC next day
     assert d["begin"] == "2026-11-21" and d["recalibration_due"] == "2026-11-27"
 
 
 def test_yang_certificate_without_fit_diagnostics(tmp_path):
-    cal = yang_calibration([7.0549, 6.9256, 5.7177], [2.4067, 2.2804, 1.073], ["backward", "backward", "advanced"],
-                           [312.0, 88.0, 199.0], 660.0, R_MM, 2.3222, device_id="TRI-01", scan_ids=["N20170205-P1"],
-                           u_d_max_mm=1e-4, u_d_min_mm=1e-4)
+    cal = yang_calibration(
+        [7.0549, 6.9256, 5.7177],
+        [2.4067, 2.2804, 1.073],
+        ["backward", "backward", "advanced"],
+        [312.0, 88.0, 199.0],
+        660.0,
+        R_MM,
+        2.3222,
+        device_id="TRI-01",
+        scan_ids=["N20170205-P1"],
+        u_d_max_mm=1e-4,
+        u_d_min_mm=1e-4,
+    )
     t = np.arange(5) * 0.1
-    paths = write_certificate(cal, tmp_path, device={"id": "TRI-01"}, artifact={"id": "RG-275"}, conditions={},
-                              residuals={"t_s": t, "residual_mm": np.zeros((5, 3))}, raw_files={},
-                              software_version="0.1.0", config_hash="x")
+    paths = write_certificate(
+        cal,
+        tmp_path,
+        device={"id": "TRI-01"},
+        artifact={"id": "RG-275"},
+        conditions={},
+        residuals={"t_s": t, "residual_mm": np.zeros((5, 3))},
+        raw_files={},
+        software_version="0.1.0",
+        config_hash="x",
+    )
     cert = json.loads(paths["json"].read_text())
     assert cert["method"] == "yang2017" and cert["fit"]["residual_rms_mm"] is None
     assert cert["parameters"][2]["rho_mm"] == pytest.approx(1.5627026, abs=1e-6)
@@ -213,4 +300,7 @@ def test_no_iso_17025_claim_without_an_accreditation():
     assert "claims no accreditation" in _standard_statement(placeholder)
     assert "in accordance" not in _standard_statement(placeholder)
     text = _standard_statement({"accreditation": "DAkkS D-K-12345-01-00"})
-    assert text == "This certificate is issued in accordance with ISO/IEC 17025:2017 7.8 (DAkkS D-K-12345-01-00)."
+    assert (
+        text
+        == "This certificate is issued in accordance with ISO/IEC 17025:2017 7.8 (DAkkS D-K-12345-01-00)."
+    )

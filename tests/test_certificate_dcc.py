@@ -49,8 +49,10 @@ def test_dsi_units_of_products_and_ratios():
 
 def test_an_invalid_document_is_refused_with_the_reason(tmp_path):
     bad = tmp_path / DCC_FILE
-    bad.write_text('<?xml version="1.0"?><dcc:digitalCalibrationCertificate xmlns:dcc="https://ptb.de/dcc" '
-                   'schemaVersion="3.1.2"/>')
+    bad.write_text(
+        '<?xml version="1.0"?><dcc:digitalCalibrationCertificate xmlns:dcc="https://ptb.de/dcc" '
+        'schemaVersion="3.1.2"/>'
+    )
     with pytest.raises(ValueError, match=f"{DCC_FILE}: not a valid DCC 3.1.2"):
         validate_dcc(bad)
 
@@ -84,8 +86,11 @@ class Checked:
                 if _has_numbers(v):
                     assert k in read, f"{path}: {k} missing from the DCC"
                     self.tree(path + (k,), v, read[k])
-        elif isinstance(printed, list) and printed and all(isinstance(v, int | float) and not isinstance(v, bool)
-                                                            for v in printed):
+        elif (
+            isinstance(printed, list)
+            and printed
+            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in printed)
+        ):
             assert len(read) == len(printed), path
             for i, (a, b) in enumerate(zip(printed, read)):
                 self.num(path + (i,), a, b)
@@ -139,10 +144,15 @@ def check_read_back(  # noqa: C901 (one check per element of the DCC read back)
         eu = r["real"]["expandedUnc"]
         for key, got in (("uncertainty", U), ("coverageFactor", k), ("coverageProbability", p)):
             seen.num(base + ("expandedUnc", key), eu[key], got)
-        budget = rd.tree(_by_ref(mr["dcc:results"]["dcc:result"], "borescan_uncertaintyBudgets")[0]["dcc:data"]) \
-            if mr_in.get("uncertaintyBudget") else {}
-        for key, comb_key in (("standardUncertainty", "standard_uncertainty"),
-                              ("effectiveDegreesOfFreedom", "effective_degrees_of_freedom")):
+        budget = (
+            rd.tree(_by_ref(mr["dcc:results"]["dcc:result"], "borescan_uncertaintyBudgets")[0]["dcc:data"])
+            if mr_in.get("uncertaintyBudget")
+            else {}
+        )
+        for key, comb_key in (
+            ("standardUncertainty", "standard_uncertainty"),
+            ("effectiveDegreesOfFreedom", "effective_degrees_of_freedom"),
+        ):
             if eu.get(key) is not None:
                 seen.num(base + ("expandedUnc", key), eu[key], budget[r["name"]]["combined"][comb_key])
     for i, a in enumerate(names):
@@ -151,11 +161,21 @@ def check_read_back(  # noqa: C901 (one check per element of the DCC read back)
     # budgets, record, verifications, conditions, equipment: by name
     if mr_in.get("uncertaintyBudget"):
         res = _by_ref(mr["dcc:results"]["dcc:result"], "borescan_uncertaintyBudgets")[0]
-        seen.tree(("measurementResults", 0, "uncertaintyBudget"), mr_in["uncertaintyBudget"], rd.tree(res["dcc:data"]))
+        seen.tree(
+            ("measurementResults", 0, "uncertaintyBudget"),
+            mr_in["uncertaintyBudget"],
+            rd.tree(res["dcc:data"]),
+        )
     record = rd.tree(_by_ref(mr["dcc:measurementMetaData"]["dcc:metaData"], "borescan_record")[0]["dcc:data"])
     for key in cert:
-        if key not in ("administrativeData", "measurementResults", "covariance", "verifications", "conformity",
-                       "conditions"):
+        if key not in (
+            "administrativeData",
+            "measurementResults",
+            "covariance",
+            "verifications",
+            "conformity",
+            "conditions",
+        ):
             seen.tree((key,), cert[key], record[key])
     vers = _by_ref(mr["dcc:results"]["dcc:result"], "basic_verification")
     assert len(vers) == len(cert["verifications"])
@@ -169,7 +189,7 @@ def check_read_back(  # noqa: C901 (one check per element of the DCC read back)
     stmts = doc["dcc:administrativeData"]["dcc:statements"]["dcc:statement"]
     conf = _by_ref(stmts, "basic_conformity")[0]
     if cert["conformity"]["conformity"] in ("pass", "fail", "conditionalPass", "conditionalFail"):
-        # conditional: the decision rule cannot decide (U not below the tolerance), on the pass or the fail side
+        # conditional: the rule cannot decide (U not below the tolerance), on the pass or the fail side
         assert conf["dcc:conformity"] == cert["conformity"]["conformity"]
     else:  # no verification: a statement without a verdict (the schema's values are verdicts)
         assert "dcc:conformity" not in conf and rd.text(conf["dcc:declaration"]) == cert["conformity"]["text"]
@@ -184,8 +204,11 @@ def check_read_back(  # noqa: C901 (one check per element of the DCC read back)
         for key, got in (("value_c", v), ("U_c", U), ("k", k)):
             seen.num(("measurementResults", 0, "influenceConditions", "temperature", key), t_in[key], got)
     for key in ("u_c", "halfwidth_c"):
-        seen.num(("measurementResults", 0, "influenceConditions", "temperature", key), t_in[key],
-                 rd.quantity_value(tq[key]))
+        seen.num(
+            ("measurementResults", 0, "influenceConditions", "temperature", key),
+            t_in[key],
+            rd.quantity_value(tq[key]),
+        )
     other = rd.tree(_by_ref(conds, "borescan_calibrationConditions")[0]["dcc:data"])
     for key, v in cond_in.items():
         if key not in ("temperature", "scans"):
@@ -201,11 +224,19 @@ def check_read_back(  # noqa: C901 (one check per element of the DCC read back)
         if "certifiedDiameter" in e_in:
             v, U, k, p = rd.real_value(cd[0]["si:real"])
             seen.num(base + ("certifiedDiameter", "value"), e_in["certifiedDiameter"]["value"], v)
-            seen.num(base + ("certifiedDiameter", "expandedUnc", "uncertainty"),
-                     e_in["certifiedDiameter"]["expandedUnc"]["uncertainty"], U)
-            seen.num(base + ("certifiedDiameter", "expandedUnc", "coverageFactor"),
-                     e_in["certifiedDiameter"]["expandedUnc"]["coverageFactor"], k)
-            assert p == pytest.approx(math.erf(k / math.sqrt(2)), abs=5e-5)  # p of k for a normal distribution
+            seen.num(
+                base + ("certifiedDiameter", "expandedUnc", "uncertainty"),
+                e_in["certifiedDiameter"]["expandedUnc"]["uncertainty"],
+                U,
+            )
+            seen.num(
+                base + ("certifiedDiameter", "expandedUnc", "coverageFactor"),
+                e_in["certifiedDiameter"]["expandedUnc"]["coverageFactor"],
+                k,
+            )
+            assert p == pytest.approx(
+                math.erf(k / math.sqrt(2)), abs=5e-5
+            )  # p of k for a normal distribution
         named = {rd.text(q.get("dcc:name")): q for q in qs}
         for key, val in e_in.items():
             if key != "certifiedDiameter" and isinstance(val, float | int) and not isinstance(val, bool):
@@ -213,11 +244,19 @@ def check_read_back(  # noqa: C901 (one check per element of the DCC read back)
     # the item: its sensors are the device's (record), their serials identifications of the item
     assert cert["administrativeData"]["items"][0]["sensors"] == cert["device"]["sensors"]
     item = rd.as_list(doc["dcc:administrativeData"]["dcc:items"]["dcc:item"])[0]
-    serials = [i["dcc:value"] for i in _by_ref(item["dcc:identifications"]["dcc:identification"], "borescan_sensorSerial")]
+    serials = [
+        i["dcc:value"]
+        for i in _by_ref(item["dcc:identifications"]["dcc:identification"], "borescan_sensorSerial")
+    ]
     assert serials == [s["serial"] for s in cert["device"]["sensors"]]
-    twice = ("conditions", ("administrativeData", "items"))  # stated twice in certificate.json, compared above
+    twice = (
+        "conditions",
+        ("administrativeData", "items"),
+    )  # stated twice in certificate.json, compared above
     missing = {p for p in _numeric_paths(cert, ()) if p[0] not in twice and p[:2] not in twice} - seen.paths
-    assert not missing, f"{cert_dir}: numbers of certificate.json not found in the DCC: {sorted(missing)[:10]}"
+    assert not missing, (
+        f"{cert_dir}: numbers of certificate.json not found in the DCC: {sorted(missing)[:10]}"
+    )
     return len(seen.paths)
 
 
@@ -237,7 +276,9 @@ def test_every_demo_certificate_has_a_valid_dcc_read_back_equal_to_its_json(pipe
 
 
 @pytest.mark.slow
-def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_back_equal(tmp_path, monkeypatch):
+def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_back_equal(
+    tmp_path, monkeypatch
+):
     """A 40-scan contract battery of rod scans (borescan simulate contract --kinds rod): each scan of the
     rod in a certified ring-gauge set is calibrated by the stage's own path (its layers' l0 from the
     gauges) and certified. The PDF is not under test here (tests/test_certificate*.py): its rendering
@@ -253,16 +294,34 @@ def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_ba
     paths = scenarios.write_battery(tmp_path, 40, 0, kinds=("rod",))
     assert len(paths) == 40
     dflt = schema_defaults()
-    ctx = {"uncertainty": dflt["uncertainty"], "laboratory": dflt["laboratory"], "verification": dflt["verification"],
-           "raw_root": tmp_path / "raw", "scans_table": pl.DataFrame(
-               schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8})}
+    ctx = {
+        "uncertainty": dflt["uncertainty"],
+        "laboratory": dflt["laboratory"],
+        "verification": dflt["verification"],
+        "raw_root": tmp_path / "raw",
+        "scans_table": pl.DataFrame(
+            schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8}
+        ),
+    }
     bad, rows, links = [], [], []
     in_gauges = [s for s in map(rawio.read_scan, paths) if s.meta["kind"] == "verification"]
     for scan in in_gauges:
-        calibrate_rod_scan(scan, scan.night, tmp_path / "results", bad, rows, links, lambda _m: None, ctx,
-                           dflt["calibration"])
+        calibrate_rod_scan(
+            scan,
+            scan.night,
+            tmp_path / "results",
+            bad,
+            rows,
+            links,
+            lambda _m: None,
+            ctx,
+            dflt["calibration"],
+        )
     issued = ctx["certificate_rows"]
-    assert len(issued) + len(bad) == len(in_gauges) and len(issued) >= 12, (len(issued), [q.reason for q in bad])
+    assert len(issued) + len(bad) == len(in_gauges) and len(issued) >= 12, (
+        len(issued),
+        [q.reason for q in bad],
+    )
     dirs = sorted(p.parent for p in (tmp_path / "results" / "calibration").glob("*/*/*/certificate.json"))
     assert len(dirs) == len(issued)
     for d in dirs:

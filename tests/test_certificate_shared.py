@@ -19,13 +19,34 @@ from borescan.rod_calibration import RodCalibration
 from borescan.simulate import RodScene, layer_dict
 from borescan.uncertainty import Budget, Input, Term
 
-LAB = {"name": "Lab GmbH", "address": "Street 1", "country_code": "DE", "performance_location": "on site",
-       "accreditation": "D-K-1", "customer": "Works", "signatory": "A. Example", "signatory_function": "Head",
-       "decision_rule": "simple"}
-DATES = {"begin": "2026-11-20", "end": "2026-11-20", "issue": "2026-11-21", "issue_rule": "last scan",
-         "recalibration_due": "2026-12-20", "recalibration_rule": "night + 30 days"}
-GAUGE = {"id": "RGS-150", "certificate": "C-150", "certificate_issuer": "DKD", "certificate_valid_until": "2027-01-01",
-         "certified_diameter_mm": 150.002, "u_diameter_mm": 0.0006, "k": 2}
+LAB = {
+    "name": "Lab GmbH",
+    "address": "Street 1",
+    "country_code": "DE",
+    "performance_location": "on site",
+    "accreditation": "D-K-1",
+    "customer": "Works",
+    "signatory": "A. Example",
+    "signatory_function": "Head",
+    "decision_rule": "simple",
+}
+DATES = {
+    "begin": "2026-11-20",
+    "end": "2026-11-20",
+    "issue": "2026-11-21",
+    "issue_rule": "last scan",
+    "recalibration_due": "2026-12-20",
+    "recalibration_rule": "night + 30 days",
+}
+GAUGE = {
+    "id": "RGS-150",
+    "certificate": "C-150",
+    "certificate_issuer": "DKD",
+    "certificate_valid_until": "2027-01-01",
+    "certified_diameter_mm": 150.002,
+    "u_diameter_mm": 0.0006,
+    "k": 2,
+}
 
 
 def _rod_cal() -> RodCalibration:
@@ -33,30 +54,70 @@ def _rod_cal() -> RodCalibration:
     um).
     """
     budget = Budget(("l0_mm[1]", "l0_mm[2]"), ("mm", "mm"), [71.0012, 70.9991])
-    budget.add(Term(Input("gauge:RGS-150", "gauge diameter", "D", "mm", 150.002, 0.0003, "normal"), [-0.5, -0.5]))
-    budget.add(Term(Input("resolution:ch1", "resolution ch 1", "r", "mm", 0.0, 1e-4, "rectangular"), [1.0, 0.0]))
+    budget.add(
+        Term(Input("gauge:RGS-150", "gauge diameter", "D", "mm", 150.002, 0.0003, "normal"), [-0.5, -0.5])
+    )
+    budget.add(
+        Term(Input("resolution:ch1", "resolution ch 1", "r", "mm", 0.0, 1e-4, "rectangular"), [1.0, 0.0])
+    )
     gauges = tuple(dict(GAUGE, channel=ch, feature=f"H{ch}", radius_at_t_mm=75.001) for ch in (1, 2))
-    return RodCalibration(calibration_id="ROD-01-20261120-rod_gauge-x", device_id="ROD-01", scan_ids=("S1",),
-                          layers=(RodLayer(1, 100.0, 71.0012), RodLayer(2, 300.0, 70.9991, gamma_rad=0.001)),
-                          l0_nominal_mm=np.array([71.0, 71.0]), u_l0_mm=budget.u(), budget=budget, gauges=gauges,
-                          solution=None, iterations=3, residual_rms_mm=0.0004)
+    return RodCalibration(
+        calibration_id="ROD-01-20261120-rod_gauge-x",
+        device_id="ROD-01",
+        scan_ids=("S1",),
+        layers=(RodLayer(1, 100.0, 71.0012), RodLayer(2, 300.0, 70.9991, gamma_rad=0.001)),
+        l0_nominal_mm=np.array([71.0, 71.0]),
+        u_l0_mm=budget.u(),
+        budget=budget,
+        gauges=gauges,
+        solution=None,
+        iterations=3,
+        residual_rms_mm=0.0004,
+    )
 
 
 def _rod_kw(**kw) -> dict:
-    return dict(device={"id": "ROD-01", "type": "rod", "sensors": []}, artifact=dict(GAUGE),
-                temperature=ScanTemperature(20.5, 0.1, 0.1 / math.sqrt(3), False, "scan.json"),
-                cte=ArtifactCte(11.5e-6, 1e-6, 1e-6 / math.sqrt(3), False, "scan.json"), raw_files={"S1/lds": "a" * 64},
-                software_version="0.1.0", config_hash="c0ffee", laboratory=LAB, dates=DATES, **kw)
+    return dict(
+        device={"id": "ROD-01", "type": "rod", "sensors": []},
+        artifact=dict(GAUGE),
+        temperature=ScanTemperature(20.5, 0.1, 0.1 / math.sqrt(3), False, "scan.json"),
+        cte=ArtifactCte(11.5e-6, 1e-6, 1e-6 / math.sqrt(3), False, "scan.json"),
+        raw_files={"S1/lds": "a" * 64},
+        software_version="0.1.0",
+        config_hash="c0ffee",
+        laboratory=LAB,
+        dates=DATES,
+        **kw,
+    )
 
 
 def _tri_cert(verifications=None) -> dict:
-    cal = yang_calibration([7.0549, 6.9256, 5.7177], [2.4067, 2.2804, 1.073], ["backward", "backward", "advanced"],
-                           [312.0, 88.0, 199.0], 660.0, 275.029 / 2, 2.3222, device_id="TRI-01",
-                           scan_ids=["N20170205-P1"], u_d_max_mm=1e-4, u_d_min_mm=1e-4)
-    return C.certificate_dict(cal, device={"id": "TRI-01"}, artifact=dict(GAUGE), conditions={},
-                              residuals={"t_s": np.arange(3) * 0.1, "residual_mm": np.zeros((3, 3))}, raw_files={},
-                              software_version="0.1.0", config_hash="c0ffee", laboratory=LAB, dates=DATES,
-                              verifications=verifications)
+    cal = yang_calibration(
+        [7.0549, 6.9256, 5.7177],
+        [2.4067, 2.2804, 1.073],
+        ["backward", "backward", "advanced"],
+        [312.0, 88.0, 199.0],
+        660.0,
+        275.029 / 2,
+        2.3222,
+        device_id="TRI-01",
+        scan_ids=["N20170205-P1"],
+        u_d_max_mm=1e-4,
+        u_d_min_mm=1e-4,
+    )
+    return C.certificate_dict(
+        cal,
+        device={"id": "TRI-01"},
+        artifact=dict(GAUGE),
+        conditions={},
+        residuals={"t_s": np.arange(3) * 0.1, "residual_mm": np.zeros((3, 3))},
+        raw_files={},
+        software_version="0.1.0",
+        config_hash="c0ffee",
+        laboratory=LAB,
+        dates=DATES,
+        verifications=verifications,
+    )
 
 
 def test_rod_and_three_sensor_certificates_share_their_administrative_data():
@@ -67,17 +128,27 @@ def test_rod_and_three_sensor_certificates_share_their_administrative_data():
     assert rod["items"][0]["name"] == "measuring rod (rod)"
     assert rod["items"][0]["identifications"] == [{"issuer": "customer", "value": "ROD-01"}]
     assert [s.get("refType", s.get("norm")) for s in rod["statements"]] == [
-        "ISO/IEC 17025:2017", "basic_traceability", "basic_decisionRule", "basic_conformity", "basic_recalibration",
-        "borescan_issueDate"]
+        "ISO/IEC 17025:2017",
+        "basic_traceability",
+        "basic_decisionRule",
+        "basic_conformity",
+        "basic_recalibration",
+        "borescan_issueDate",
+    ]
     # the gauge both layers were calibrated in is named once
     trace = rod["statements"][1]["declaration"]
     assert trace == C._traceability_text(GAUGE) and "C-150 (issued by DKD; valid until 2027-01-01)" in trace
-    assert rod["statements"][3] == {"refType": "basic_conformity", "conformity": "fail", "declaration":
-                                    "The device does NOT conform to the verification tolerance under the stated "
-                                    "decision rule: of 2 verifications on certified ring gauges 1 conforms, 1 does "
-                                    "not conform (1 accepted by the rule)."}
+    assert rod["statements"][3] == {
+        "refType": "basic_conformity",
+        "conformity": "fail",
+        "declaration": "The device does NOT conform to the verification tolerance under the stated "
+        "decision rule: of 2 verifications on certified ring gauges 1 conforms, 1 does "
+        "not conform (1 accepted by the rule).",
+    }
     assert rod["statements"][4]["date"] == "2026-12-20"
-    assert rod["coreData"]["issueDate"] == "2026-11-21" and rod["coreData"]["uniqueIdentifier"].startswith("ROD-01")
+    assert rod["coreData"]["issueDate"] == "2026-11-21" and rod["coreData"]["uniqueIdentifier"].startswith(
+        "ROD-01"
+    )
     assert rod["placeholders"] == [] and rod["respPersons"][0]["person"]["name"] == "A. Example"
     for part in ("dccSoftware", "calibrationLaboratory", "respPersons", "customer", "placeholders"):
         assert tri[part] == rod[part]
@@ -121,14 +192,26 @@ class _Recorder:
 
 
 def _row(key, u, contribution, unit="mm", c=1.0):
-    return {"key": key, "quantity": key, "estimate": 0.0, "unit": unit, "standard_uncertainty": u,
-            "distribution": "normal", "degrees_of_freedom": float("inf"), "sensitivity_coefficient": c,
-            "contribution": contribution}
+    return {
+        "key": key,
+        "quantity": key,
+        "estimate": 0.0,
+        "unit": unit,
+        "standard_uncertainty": u,
+        "distribution": "normal",
+        "degrees_of_freedom": float("inf"),
+        "sensitivity_coefficient": c,
+        "contribution": contribution,
+    }
 
 
 def test_verification_budget_lists_inputs_of_5_percent_and_folds_the_rest():
-    rows = [_row("gauge:RG-275@C1", 0.0003, 0.003), _row("readings", 0.0, 0.004),
-            _row("resolution:ch1", 1e-4, 1e-4), _row("cte:RG", 0.0, 0.0)]
+    rows = [
+        _row("gauge:RG-275@C1", 0.0003, 0.003),
+        _row("readings", 0.0, 0.004),
+        _row("resolution:ch1", 1e-4, 1e-4),
+        _row("cte:RG", 0.0, 0.0),
+    ]
     d = _Recorder()
     C._verification_budget(d, {"scan_id": "V1", "budget": rows})
     uc = math.sqrt(0.003**2 + 0.004**2 + 1e-4**2)
@@ -136,10 +219,12 @@ def test_verification_budget_lists_inputs_of_5_percent_and_folds_the_rest():
     assert d.calls[1] == ("para", "Budget of E, V1 (contributions in um):", 7.5)
     _, cols, cells, widths, size, row_h, bold = d.calls[2]
     assert cols == ["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c_i", "u_i [um]"]
-    assert cells == [["gauge RG-275: certified D20", "0.00 um", "0.3 um", "normal", "inf", "1", "3"],
-                     ["readings (scatter)", "0.00 um", "0 um", "normal", "inf", "1", "4"],  # u 0 shown as 0 here
-                     ["2 further inputs (each < 5 % of u_c), combined", "", "", "", "", "", "0.1"],
-                     ["combined standard uncertainty u_c(E)", "", "", "", "", "", f"{1e3 * uc:.3g}"]]
+    assert cells == [
+        ["gauge RG-275: certified D20", "0.00 um", "0.3 um", "normal", "inf", "1", "3"],
+        ["readings (scatter)", "0.00 um", "0 um", "normal", "inf", "1", "4"],  # u 0 shown as 0 here
+        ["2 further inputs (each < 5 % of u_c), combined", "", "", "", "", "", "0.1"],
+        ["combined standard uncertainty u_c(E)", "", "", "", "", "", f"{1e3 * uc:.3g}"],
+    ]
     assert (widths, size, row_h, bold) == ([0.42, 0.12, 0.1, 0.1, 0.06, 0.1, 0.1], 6, 0.013, True)
     d = _Recorder()
     C._verification_budget(d, {"scan_id": "V1", "budget": []})
@@ -147,34 +232,65 @@ def test_verification_budget_lists_inputs_of_5_percent_and_folds_the_rest():
 
 
 def test_rod_layer_budget_drops_negligible_inputs_and_shows_zero_u_as_a_dash():
-    rows = [_row("gauge:RGS-150@C-150", 0.0003, 0.00015, c=-0.5), _row("readings", 0.0, 1e-4),
-            _row("resolution:ch2", 1e-4, 1e-12)]  # 1e-12 mm < 1e-5 u_c: left out
-    comb = {"standard_uncertainty": 0.00018, "effective_degrees_of_freedom": 40.2, "coverage_factor": 2.05,
-            "expanded_uncertainty": 0.000369}
+    rows = [
+        _row("gauge:RGS-150@C-150", 0.0003, 0.00015, c=-0.5),
+        _row("readings", 0.0, 1e-4),
+        _row("resolution:ch2", 1e-4, 1e-12),
+    ]  # 1e-12 mm < 1e-5 u_c: left out
+    comb = {
+        "standard_uncertainty": 0.00018,
+        "effective_degrees_of_freedom": 40.2,
+        "coverage_factor": 2.05,
+        "expanded_uncertainty": 0.000369,
+    }
     d = _Recorder()
     C._rod_layer_budget(d, 2, {"rows": rows, "combined": comb})
     assert d.calls[1] == ("para", "Layer 2 (contributions in um; inputs below 1e-5 u_c left out):", 7.5)
     _, _, cells, widths, size, _, bold = d.calls[2]
-    assert cells == [["gauge RGS-150: certified D20", "0.00 um", "0.3 um", "normal", "inf", "-0.5", "0.15"],
-                     ["readings (scatter)", "0.00 um", "-", "normal", "inf", "1", "0.1"],
-                     ["combined standard uncertainty u_c", "", "", "", "40", "", "0.18"],
-                     ["expanded uncertainty U (k = 2.05)", "", "", "", "", "", "0.369"]]
+    assert cells == [
+        ["gauge RGS-150: certified D20", "0.00 um", "0.3 um", "normal", "inf", "-0.5", "0.15"],
+        ["readings (scatter)", "0.00 um", "-", "normal", "inf", "1", "0.1"],
+        ["combined standard uncertainty u_c", "", "", "", "40", "", "0.18"],
+        ["expanded uncertainty U (k = 2.05)", "", "", "", "", "", "0.369"],
+    ]
     assert (widths, size, bold) == ([0.4, 0.13, 0.1, 0.1, 0.07, 0.09, 0.11], 6.2, True)
     assert d.calls[0] == ("room", round(0.013 * 5 + 0.03, 6))
 
 
 def test_rod_reference_layers_are_the_measurements_rod_layers_in_nominal_format():
-    cals = pl.DataFrame([{"calibration_id": "ROD-G1", "device_id": "ROD-01", "valid_from": "2026-11-10",
-                          "method": "rod_gauge", "channel": ch, "l0_mm": 71.0 + ch * 1e-3, "h_mm": 100.0 * ch,
-                          "phi_rad": float("nan"), "d_mm": None, "gamma_rad": 0.002} for ch in (3, 1, 2)])
+    cals = pl.DataFrame(
+        [
+            {
+                "calibration_id": "ROD-G1",
+                "device_id": "ROD-01",
+                "valid_from": "2026-11-10",
+                "method": "rod_gauge",
+                "channel": ch,
+                "l0_mm": 71.0 + ch * 1e-3,
+                "h_mm": 100.0 * ch,
+                "phi_rad": float("nan"),
+                "d_mm": None,
+                "gamma_rad": 0.002,
+            }
+            for ch in (3, 1, 2)
+        ]
+    )
     kw, ref = discrepancy_reference(cals, "ROD-01", "rod", "2026-11-21")
     assert ref == "calibration ROD-G1"
-    assert kw["layers"] == [{"channel": ch, "h": 100.0 * ch, "phi": 0.0, "d": 0.0, "gamma": 0.002,
-                             "l0": 71.0 + ch * 1e-3} for ch in (1, 2, 3)]
+    assert kw["layers"] == [
+        {"channel": ch, "h": 100.0 * ch, "phi": 0.0, "d": 0.0, "gamma": 0.002, "l0": 71.0 + ch * 1e-3}
+        for ch in (1, 2, 3)
+    ]
     lays = rod_layers(cals, (1, 2, 3))
     assert kw["layers"] == [layer_dict(lay) for lay in lays]
     # the device.nominal format the simulator writes and RodScene.from_dict reads back
-    scene = {"layers": kw["layers"], "holes": [{"center_xy_mm": [0.0, 0.0], "radius_mm": 75.0}] * 3,
-             "axis": {"dx_mm": 0.0, "dy_mm": 0.0, "omega_rad": 0.0, "omega_az_rad": 0.0}, "range_mm": [8.0] * 3,
-             "sample_rate_hz": 100.0, "cte_per_k": 11.5e-6, "temperature_c": 20.0}
+    scene = {
+        "layers": kw["layers"],
+        "holes": [{"center_xy_mm": [0.0, 0.0], "radius_mm": 75.0}] * 3,
+        "axis": {"dx_mm": 0.0, "dy_mm": 0.0, "omega_rad": 0.0, "omega_az_rad": 0.0},
+        "range_mm": [8.0] * 3,
+        "sample_rate_hz": 100.0,
+        "cte_per_k": 11.5e-6,
+        "temperature_c": 20.0,
+    }
     assert list(RodScene.from_dict(scene).layers) == lays

@@ -280,6 +280,7 @@ def _branch_and_bound(P, value, lipschitz, poly=None, tol_mm=1e-10):
 
 def _bb_mic(P, tol_mm=1e-10):
     """Largest f(c) = min_i |p_i - c| (1-Lipschitz) over centres inside the profile polygon."""
+
     def f(C):
         return _chunked(lambda d: d.min(axis=1), C, P)
 
@@ -288,6 +289,7 @@ def _bb_mic(P, tol_mm=1e-10):
 
 def _bb_mcc(P, tol_mm=1e-10):
     """Smallest max_i |p_i - c| (1-Lipschitz)."""
+
     def minus_g(C):
         return -_chunked(lambda d: d.max(axis=1), C, P)
 
@@ -297,6 +299,7 @@ def _bb_mcc(P, tol_mm=1e-10):
 
 def _bb_mz(P, tol_mm=1e-10):
     """Smallest max_i |p_i - c| - min_i |p_i - c| (2-Lipschitz)."""
+
     def width(C):
         return _chunked(lambda d: d.min(axis=1) - d.max(axis=1), C, P)
 
@@ -375,8 +378,14 @@ def _lobed_bore(kind, noise_mm=0.0, dent_mm=0.0, dent_deg=0.0, seed=0):
 
 @pytest.mark.parametrize(
     "kind, noise_mm, dent_mm, dent_deg, seed",
-    [("peanut", 0.001, 0.0, 0.0, 0), ("peanut", 0.002, 0.02, 150.0, 2), ("peanut", 0.003, 0.02, -60.0, 3),
-     ("clover", 0.005, 0.1, 100.0, 4), ("trefoil", 0.002, 0.5, 20.0, 0), ("trefoil", 0.002, 0.3, 60.0, 5)],
+    [
+        ("peanut", 0.001, 0.0, 0.0, 0),
+        ("peanut", 0.002, 0.02, 150.0, 2),
+        ("peanut", 0.003, 0.02, -60.0, 3),
+        ("clover", 0.005, 0.1, 100.0, 4),
+        ("trefoil", 0.002, 0.5, 20.0, 0),
+        ("trefoil", 0.002, 0.3, 60.0, 5),
+    ],
 )
 def test_mici_equals_branch_and_bound_on_lobed_profiles(kind, noise_mm, dent_mm, dent_deg, seed):
     """Lobed bores with noise and a dent: MICI radius = the global maximum found by branch and
@@ -395,8 +404,10 @@ def test_mici_equals_branch_and_bound_on_lobed_profiles(kind, noise_mm, dent_mm,
         assert fit_circle_ls(x, y).center_xy_mm[0] > 40.0 + (50.0**2 - 49.99**2) / 12.0  # right of the waist
     best, c_bb, bound = _bb_mic(P)
     mic = max_inscribed_circle(x, y)
-    print(f"{kind}: MIC r {mic.radius_mm:.9f} at {mic.center_xy_mm}, branch and bound {best:.9f} "
-          f"at {c_bb}, {mic.n_iter} candidates")
+    print(
+        f"{kind}: MIC r {mic.radius_mm:.9f} at {mic.center_xy_mm}, branch and bound {best:.9f} "
+        f"at {c_bb}, {mic.n_iter} candidates"
+    )
     assert best - 1e-12 <= mic.radius_mm <= bound + 1e-12 and bound - best < 1e-9
     dc = np.hypot(*(mic.center_xy_mm - c_bb))
     assert dc < 1e-6
@@ -525,7 +536,9 @@ def test_mic_on_the_reduced_set_equals_the_full_triangulation(case, monkeypatch)
         r[rng.choice(n, 5, replace=False)] = R - 0.3
     x, y = 0.4 + r * np.cos(th), -0.2 + r * np.sin(th)
     sizes, triangulate = [], circlefit._local_max_vertices
-    monkeypatch.setattr(circlefit, "_local_max_vertices", lambda P: (sizes.append(P.shape[0]), triangulate(P))[1])
+    monkeypatch.setattr(
+        circlefit, "_local_max_vertices", lambda P: (sizes.append(P.shape[0]), triangulate(P))[1]
+    )
     reduced = circlefit.max_inscribed_circle(x, y)
     assert max(sizes) < n / 4  # certified on the reduced set, never all points
     monkeypatch.setattr(circlefit, "MIC_BINS", 10 * n)  # n <= 4 MIC_BINS: every point is triangulated
@@ -597,7 +610,11 @@ def test_mzci_on_the_radial_extremes_is_the_mzci_of_all(monkeypatch, bins):
         n = 40_000
         x, y = _awkward_profile(rng, kind, n, 140.0, 0.002, (-0.3, 0.6))
         sizes = []
-        monkeypatch.setattr(cf, "_slp", lambda xs, ys, c0, sizes=sizes, **kw: (sizes.append(xs.size), slp(xs, ys, c0, **kw))[1])
+        monkeypatch.setattr(
+            cf,
+            "_slp",
+            lambda xs, ys, c0, sizes=sizes, **kw: (sizes.append(xs.size), slp(xs, ys, c0, **kw))[1],
+        )
         monkeypatch.setattr(cf, "MZ_BINS", bins)
         fast = cf.min_zone_circle(x, y)
         assert max(sizes) < n / 4  # certified on the reduced set, never all points

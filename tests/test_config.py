@@ -42,12 +42,16 @@ def test_shipped_config_validates_and_holds_the_schema_defaults():
             if isinstance(v, dict):
                 check(v, dflt[k], f"{where}{k}.")
             else:
-                assert v == dflt[k], f"{where}{k}: config/config.yaml says {v!r}, the schema's default is {dflt[k]!r}"
+                assert v == dflt[k], (
+                    f"{where}{k}: config/config.yaml says {v!r}, the schema's default is {dflt[k]!r}"
+                )
 
     check(cfg, defaults, "")
 
 
-@pytest.mark.parametrize("user", [{}, "shipped", {"calibration": {"validity_days": 7}, "signal": {"filter": "gaussian"}}])
+@pytest.mark.parametrize(
+    "user", [{}, "shipped", {"calibration": {"validity_days": 7}, "signal": {"filter": "gaussian"}}]
+)
 def test_load_config_fills_what_snakemake_validate_fills(user, tmp_path):
     user = yaml.safe_load(SHIPPED.read_text()) if user == "shipped" else user
     path = tmp_path / "config.yaml"
@@ -74,7 +78,7 @@ def test_shipped_device_model_validates_and_its_entries_parse():
     validate(copy.deepcopy({**yaml.safe_load(SHIPPED.read_text()), **devices}), str(SCHEMA_PATH))
     assert device_model_effects(devices["devices"], "TRI-01", "2026-11-23") == ()
     assert device_model_effects(devices["devices"], "TRI-01", "2026-11-24") == ("channel_delay@2",)
-    assert "configfile: \"config/devices.yaml\"" in (SHIPPED.parent.parent / "Snakefile").read_text()
+    assert 'configfile: "config/devices.yaml"' in (SHIPPED.parent.parent / "Snakefile").read_text()
 
 
 def test_library_defaults_are_the_schemas():

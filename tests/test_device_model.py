@@ -38,9 +38,13 @@ def test_corrected_readings_are_the_readings_without_the_effect(name):
 def test_several_reading_effects_on_one_channel_are_undone_together_and_nulls_stay_null():
     sc = default_tri_scene()
     t = np.arange(1500) / sc.sample_rate_hz
-    effects = [Effect("sensor_gain", {"channel": 2, "g": -0.004}), Effect("sensor_offset", {"channel": 2, "b_mm": 0.012}),
-               Effect("beam_tilt", {"channel": 1, "gamma_rad": 0.06}), Effect("sensor_nonlinearity", {"channel": 3, "a_mm": 0.01}),
-               Effect("sensor_drift", {"channel": 2, "k_mm_per_s": 0.0015})]
+    effects = [
+        Effect("sensor_gain", {"channel": 2, "g": -0.004}),
+        Effect("sensor_offset", {"channel": 2, "b_mm": 0.012}),
+        Effect("beam_tilt", {"channel": 1, "gamma_rad": 0.06}),
+        Effect("sensor_nonlinearity", {"channel": 3, "a_mm": 0.01}),
+        Effect("sensor_drift", {"channel": 2, "k_mm_per_s": 0.0015}),
+    ]
     v = tri_readings(sc, t, effects)
     v[7, 1] = np.nan
     corrected = tri_correct_readings(t, v, sc.beams.channels, effects, sc.range_mm)
@@ -54,7 +58,10 @@ def test_scene_and_time_base_effects_are_not_corrected_in_the_readings():
     sc = default_tri_scene()
     t = np.arange(100) / sc.sample_rate_hz
     v = tri_readings(sc, t, [])
-    for e in (Effect("thermal_expansion", {"temperature_c": 24.0}), Effect("channel_delay", {"channel": 2, "tau_s": 1e-3})):
+    for e in (
+        Effect("thermal_expansion", {"temperature_c": 24.0}),
+        Effect("channel_delay", {"channel": 2, "tau_s": 1e-3}),
+    ):
         with pytest.raises(ValueError, match="not corrected in the readings"):
             tri_correct_readings(t, v, sc.beams.channels, [e])
 
@@ -62,26 +69,45 @@ def test_scene_and_time_base_effects_are_not_corrected_in_the_readings():
 def test_channel_time_offsets_of_a_device_model():
     from borescan.device_model import DeviceEffect, channel_time_offsets
 
-    m = [DeviceEffect("channel_delay@2", (Effect("channel_delay", {"channel": 2, "tau_s": 1.2e-3}),), {"tau_s": 2e-5}),
-         DeviceEffect("sensor_offset@3", (Effect("sensor_offset", {"channel": 3, "b_mm": 0.01}),), {"b_mm": 1e-3}),
-         DeviceEffect("channel_delay@1")]
+    m = [
+        DeviceEffect(
+            "channel_delay@2", (Effect("channel_delay", {"channel": 2, "tau_s": 1.2e-3}),), {"tau_s": 2e-5}
+        ),
+        DeviceEffect(
+            "sensor_offset@3", (Effect("sensor_offset", {"channel": 3, "b_mm": 0.01}),), {"b_mm": 1e-3}
+        ),
+        DeviceEffect("channel_delay@1"),
+    ]
     assert np.array_equal(channel_time_offsets(m, (1, 2, 3)), [0.0, 1.2e-3, 0.0])
     assert channel_time_offsets(m[1:], (1, 2, 3)) is None
 
 
 def _pooled_row(device_id: str, night: str, tau_s: float, u_tau_s: float) -> dict:
-    return {"device_id": device_id, "night": night, "effect": "channel_delay", "channel": 2,
-            "parameters": json.dumps({"tau_s": tau_s}), "uncertainties": json.dumps({"u_tau_s": u_tau_s}),
-            "evidence_scans": "A,B", "in_device_model": False}
+    return {
+        "device_id": device_id,
+        "night": night,
+        "effect": "channel_delay",
+        "channel": 2,
+        "parameters": json.dumps({"tau_s": tau_s}),
+        "uncertainties": json.dumps({"u_tau_s": u_tau_s}),
+        "evidence_scans": "A,B",
+        "in_device_model": False,
+    }
 
 
 def test_device_model_at_takes_the_latest_earlier_estimate_and_says_when_there_is_none():
     from borescan.device_model import device_model_at
 
-    rows = [_pooled_row("TRI-01", "2026-11-18", 1.0e-3, 5e-5), _pooled_row("TRI-01", "2026-11-19", 1.1e-3, 4e-5),
-            _pooled_row("TRI-01", "2026-11-20", 9.9e-3, 4e-5), _pooled_row("TRI-02", "2026-11-19", 7e-3, 4e-5)]
+    rows = [
+        _pooled_row("TRI-01", "2026-11-18", 1.0e-3, 5e-5),
+        _pooled_row("TRI-01", "2026-11-19", 1.1e-3, 4e-5),
+        _pooled_row("TRI-01", "2026-11-20", 9.9e-3, 4e-5),
+        _pooled_row("TRI-02", "2026-11-19", 7e-3, 4e-5),
+    ]
     (m,) = device_model_at("TRI-01", ["channel_delay@2"], rows, "2026-11-20", (1, 2, 3))
-    assert m.estimated and m.night == "2026-11-19" and m.values() == {"tau_s": 1.1e-3} and m.u == {"tau_s": 4e-5}
+    assert (
+        m.estimated and m.night == "2026-11-19" and m.values() == {"tau_s": 1.1e-3} and m.u == {"tau_s": 4e-5}
+    )
     assert m.effects[0].channel == 2 and m.evidence_scans == ("A", "B")
     (none,) = device_model_at("TRI-01", ["sensor_offset@3"], rows, "2026-11-20", (1, 2, 3))
     assert not none.estimated and none.effects == ()
@@ -104,8 +130,15 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     tau, tau_est, u_tau = 1.2e-3, 1.19e-3, 2e-5
     scene = default_tri_scene()
     delay = Effect("channel_delay", {"channel": 2, "tau_s": tau})
-    sim = simulate.simulate_tri_spindle(scene, scan_id="N20261121-TRI01-CAL", night="2026-11-21", n_rev=20,
-                                        effects=[delay], noise_mm=0.001, seed=3)
+    sim = simulate.simulate_tri_spindle(
+        scene,
+        scan_id="N20261121-TRI01-CAL",
+        night="2026-11-21",
+        n_rev=20,
+        effects=[delay],
+        noise_mm=0.001,
+        seed=3,
+    )
     path = simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth")
     scan = rawio.read_scan(path)
     cfg = schema_defaults()
@@ -136,9 +169,17 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     # a static bore of 150 mm measured with the corrected calibration (a delay shows nothing of a still scene)
     xy = np.asarray(scene.bore_center_xy_mm) + np.array([[0.3, -0.2], [-0.4, 0.5], [0.1, 0.1]])
     ang = np.array([0.2, 2.2, 4.1])
-    meas = simulate.simulate_tri_static(scene, xy, ang, scan_id="N20261121-TRI01-MEAS", night="2026-11-21",
-                                        kind="measurement", noise_mm=0.001, seed=4,
-                                        artifact={"id": "PART-1", "type": "part", "nominal_diameter_mm": 275.0})
+    meas = simulate.simulate_tri_static(
+        scene,
+        xy,
+        ang,
+        scan_id="N20261121-TRI01-MEAS",
+        night="2026-11-21",
+        kind="measurement",
+        noise_mm=0.001,
+        seed=4,
+        artifact={"id": "PART-1", "type": "part", "nominal_diameter_mm": 275.0},
+    )
     mscan = rawio.read_scan(simulate.write_simulated(meas, tmp_path / "raw", tmp_path / "truth"))
     truth_d = 2 * scene.bore_radius_20_mm * (1 + scene.cte_per_k * (scene.temperature_c - 20.0))
     _, du_plain = tri_diameter_with_budget(mscan, plain, unc)
@@ -149,9 +190,17 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
 
     # a rotating measurement of the gauge's bore at half the speed: the channel's angle is taken tau earlier
     slow = replace(scene, rpm_nominal=30.0)
-    rot = simulate.simulate_tri_spindle(slow, scan_id="N20261121-TRI01-ROT", night="2026-11-21", kind="measurement",
-                                        n_rev=5, effects=[delay], noise_mm=0.001, seed=5,
-                                        artifact={"id": "PART-2", "type": "part", "nominal_diameter_mm": 275.0})
+    rot = simulate.simulate_tri_spindle(
+        slow,
+        scan_id="N20261121-TRI01-ROT",
+        night="2026-11-21",
+        kind="measurement",
+        n_rev=5,
+        effects=[delay],
+        noise_mm=0.001,
+        seed=5,
+        artifact={"id": "PART-2", "type": "part", "nominal_diameter_mm": 275.0},
+    )
     rscan = rawio.read_scan(simulate.write_simulated(rot, tmp_path / "raw", tmp_path / "truth"))
     res_r, du_r = tri_diameter_with_budget(rscan, cal, unc)
     assert res_r["method"] == "rotating LS circle"
@@ -162,11 +211,16 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     from borescan.certificate import _fit_part, device_model_text
 
     (entry,) = _fit_part(cal)["device_model"]
-    assert entry["key"] == "channel_delay@2" and entry["values"] == {"tau_s": tau_est} and entry["night"] == "2026-11-20"
-    assert "carried (the readings corrected for it, a channel delay taken in the channel's angle; each value's " \
-        "uncertainty is an input of the budget): channel_delay@2: tau_s = 0.00119 (u 2e-05), from the pooled " \
-        "examination of 2026-11-20 (A, B)." in \
-        device_model_text([entry])
+    assert (
+        entry["key"] == "channel_delay@2"
+        and entry["values"] == {"tau_s": tau_est}
+        and entry["night"] == "2026-11-20"
+    )
+    assert (
+        "carried (the readings corrected for it, a channel delay taken in the channel's angle; each value's "
+        "uncertainty is an input of the budget): channel_delay@2: tau_s = 0.00119 (u 2e-05), from the pooled "
+        "examination of 2026-11-20 (A, B)." in device_model_text([entry])
+    )
     assert "device_model" not in _fit_part(plain)
 
     # the scan's own examination against that calibration: with the device model in its base the delay is
@@ -182,8 +236,10 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     # discrepancy job failed on an Effect in them before)
     assert with_model["device_effects"] == [e.to_dict() for e in carried]
     from borescan.discrepancy import write_findings
-    assert json.loads(write_findings(with_model, tmp_path / "findings").read_text())["device_effects"][0]["name"] == (
-        "channel_delay")
+
+    assert json.loads(write_findings(with_model, tmp_path / "findings").read_text())["device_effects"][0][
+        "name"
+    ] == ("channel_delay")
     assert without["verdict"] != "no_missing_effect"
     assert any(n["effect"] == "channel_delay" and n.get("channel") == 2 for n in without["named"])
 
@@ -192,18 +248,37 @@ def test_an_effect_named_night_after_night_enters_automatically_and_leaves_when_
     from borescan.device_model import auto_keys, device_model_at
 
     def row(night, effect=None, channel=None, model=False, tau=1e-3):
-        return {"device_id": "TRI-01", "night": night, "effect": effect, "channel": channel, "in_device_model": model,
-                "parameters": json.dumps({"tau_s": tau}) if effect else None,
-                "uncertainties": json.dumps({"u_tau_s": 1e-5}) if effect else None, "evidence_scans": "A,B"}
+        return {
+            "device_id": "TRI-01",
+            "night": night,
+            "effect": effect,
+            "channel": channel,
+            "in_device_model": model,
+            "parameters": json.dumps({"tau_s": tau}) if effect else None,
+            "uncertainties": json.dumps({"u_tau_s": 1e-5}) if effect else None,
+            "evidence_scans": "A,B",
+        }
 
-    rows = [row("2026-11-01", "channel_delay", 2), row("2026-11-02", "channel_delay", 2, tau=1.1e-3),
-            row("2026-11-02", "bore_lobing"), row("2026-11-03"), row("2026-11-04", "channel_delay", 2, tau=1.2e-3),
-            row("2026-11-05", "channel_delay", 2, tau=1.3e-3), row("2026-11-05", "sensor_gain", 1, model=True)]
-    assert auto_keys("TRI-01", rows, "2026-11-03", 2) == ["channel_delay@2"]  # 1st and 2nd (lobing: the gauge's)
+    rows = [
+        row("2026-11-01", "channel_delay", 2),
+        row("2026-11-02", "channel_delay", 2, tau=1.1e-3),
+        row("2026-11-02", "bore_lobing"),
+        row("2026-11-03"),
+        row("2026-11-04", "channel_delay", 2, tau=1.2e-3),
+        row("2026-11-05", "channel_delay", 2, tau=1.3e-3),
+        row("2026-11-05", "sensor_gain", 1, model=True),
+    ]
+    assert auto_keys("TRI-01", rows, "2026-11-03", 2) == [
+        "channel_delay@2"
+    ]  # 1st and 2nd (lobing: the gauge's)
     assert auto_keys("TRI-01", rows, "2026-11-04", 2) == []  # the 3rd named nothing: it leaves
     assert auto_keys("TRI-01", rows, "2026-11-06", 2) == ["channel_delay@2"]
-    assert auto_keys("TRI-01", rows, "2026-11-06", 0) == [] and auto_keys("TRI-01", rows, "2026-11-02", 2) == []
+    assert (
+        auto_keys("TRI-01", rows, "2026-11-06", 0) == [] and auto_keys("TRI-01", rows, "2026-11-02", 2) == []
+    )
     (m,) = device_model_at("TRI-01", [], rows, "2026-11-06", (1, 2, 3), auto=["channel_delay@2"])
     assert m.source == "automatic" and m.values() == {"tau_s": 1.3e-3} and m.night == "2026-11-05"
-    (m,) = device_model_at("TRI-01", ["channel_delay@2"], rows, "2026-11-06", (1, 2, 3), auto=["channel_delay@2"])
+    (m,) = device_model_at(
+        "TRI-01", ["channel_delay@2"], rows, "2026-11-06", (1, 2, 3), auto=["channel_delay@2"]
+    )
     assert m.source == "config"

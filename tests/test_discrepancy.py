@@ -32,7 +32,13 @@ def _scan(effects, seed=7, n_rev=6, scene=SCENE, noise_mm=NOISE_MM):
     # find, so scans hiding a kinematic effect carry the commanded profile only
     kinematic = any(e.name in ("speed_error", "speed_ripple") for e in effects)
     return simulate_tri_spindle(
-        scene, scan_id=f"T-{seed}", n_rev=n_rev, effects=effects, noise_mm=noise_mm, seed=seed, encoder=not kinematic
+        scene,
+        scan_id=f"T-{seed}",
+        n_rev=n_rev,
+        effects=effects,
+        noise_mm=noise_mm,
+        seed=seed,
+        encoder=not kinematic,
     )
 
 
@@ -136,9 +142,16 @@ def test_unknown_device_from_nominal_clockwise_and_slow():
     R = 80.0
     rho = np.array([2.0, -4.0, 3.0])
     beams = Beams((1, 2, 3), np.array([1.0, 3.2, 5.1]), rho, np.sqrt(R**2 - rho**2) - 5.0)
-    scene = default_tri_scene(beams=beams, bore_center_xy_mm=(10.0, 20.0), bore_radius_20_mm=R,
-                              spindle_xy_mm=(11.2, 19.5), rpm_nominal=30.0, direction="cw",
-                              sample_rate_hz=100.0, phase_rad=0.0)
+    scene = default_tri_scene(
+        beams=beams,
+        bore_center_xy_mm=(10.0, 20.0),
+        bore_radius_20_mm=R,
+        spindle_xy_mm=(11.2, 19.5),
+        rpm_nominal=30.0,
+        direction="cw",
+        sample_rate_hz=100.0,
+        phase_rad=0.0,
+    )
     e = Effect("speed_error", {"eps": -0.003})
     f = examine_scan(_scan([e], scene=scene, n_rev=5))
     assert [named_label(n) for n in f["named"]] == ["speed_error"]
@@ -178,8 +191,11 @@ def test_gap_plot_of_a_reused_figure_is_the_fresh_one(tmp_path):
     """
     from borescan.discrepancy import plot as plot_mod
 
-    exs = [analyse_scan(_scan([Effect("channel_delay", {"channel": 2, "tau_s": 0.0012})])),  # two panels
-           analyse_scan(_scan([], seed=3, n_rev=4)), analyse_scan(_scan([], seed=4, n_rev=8, noise_mm=0.004))]
+    exs = [
+        analyse_scan(_scan([Effect("channel_delay", {"channel": 2, "tau_s": 0.0012})])),  # two panels
+        analyse_scan(_scan([], seed=3, n_rev=4)),
+        analyse_scan(_scan([], seed=4, n_rev=8, noise_mm=0.004)),
+    ]
     fresh = []
     for k, ex in enumerate(exs):
         plot_mod._FIGURES.clear()
@@ -272,7 +288,9 @@ def test_table2_without_the_csv_uses_the_transcription(tmp_path):
 def test_battery_command_runs(capsys):
     from borescan.commands import discrepancy_battery as cmd
 
-    args = Namespace(n=3, seed=2, threshold=10.0, p_free=0.15, p_pair=0.15, out=None, verbose=False, quiet=True, scale=1.0)
+    args = Namespace(
+        n=3, seed=2, threshold=10.0, p_free=0.15, p_pair=0.15, out=None, verbose=False, quiet=True, scale=1.0
+    )
     assert cmd.run(args) == 0
     out = capsys.readouterr().out
     assert "false-alarm rate" in out and "median gap shrink" in out
@@ -295,8 +313,13 @@ def _rod_case(effects, seed=4, certified=True):
     if certified:
         for ft in feats:
             ft["certified_diameter_mm"] = 150.0
-    art = {"id": "RG-150", "type": "ring_gauge" if certified else "part", "nominal_diameter_mm": 150.0,
-           "cte_per_k": 11.5e-6, "features": feats}
+    art = {
+        "id": "RG-150",
+        "type": "ring_gauge" if certified else "part",
+        "nominal_diameter_mm": 150.0,
+        "cte_per_k": 11.5e-6,
+        "features": feats,
+    }
     return simulate_rod(scene, effects=effects, seed=seed, artifact=art, noise_mm=0.005)
 
 
@@ -351,11 +374,16 @@ def test_free_beams_absorb_calibration_offsets():
     """
     from borescan.geometry import Beams
 
-    nominal = Beams((1, 2, 3), YANG_BEAMS.beta_rad + [0.0, 0.002, -0.003], YANG_BEAMS.rho_mm,
-                    YANG_BEAMS.d_b_mm + [0.02, -0.01, 0.005])
+    nominal = Beams(
+        (1, 2, 3),
+        YANG_BEAMS.beta_rad + [0.0, 0.002, -0.003],
+        YANG_BEAMS.rho_mm,
+        YANG_BEAMS.d_b_mm + [0.02, -0.01, 0.005],
+    )
     lob = Effect("bore_lobing", {"k": 3, "a_mm": 0.005, "phase": 0.4})
-    sim = simulate_tri_spindle(SCENE, n_rev=6, effects=[lob], noise_mm=NOISE_MM, seed=3,
-                               nominal_beams=nominal)
+    sim = simulate_tri_spindle(
+        SCENE, n_rev=6, effects=[lob], noise_mm=NOISE_MM, seed=3, nominal_beams=nominal
+    )
     fixed = examine_scan(sim)
     assert any(n["effect"] == "sensor_offset" and "absorbed_by_calibration" in n for n in fixed["named"])
     free = examine_scan(sim, free_beams=("beta", "d_b"))
@@ -374,10 +402,16 @@ def test_free_rho_examines_a_device_never_calibrated():
     from borescan.geometry import Beams
 
     drho = np.array([0.4, -0.3, 0.25])
-    nominal = Beams((1, 2, 3), YANG_BEAMS.beta_rad + [0.0, 0.002, -0.003], YANG_BEAMS.rho_mm + drho,
-                    YANG_BEAMS.d_b_mm + [0.02, -0.01, 0.005])
+    nominal = Beams(
+        (1, 2, 3),
+        YANG_BEAMS.beta_rad + [0.0, 0.002, -0.003],
+        YANG_BEAMS.rho_mm + drho,
+        YANG_BEAMS.d_b_mm + [0.02, -0.01, 0.005],
+    )
     lob = Effect("bore_lobing", {"k": 3, "a_mm": 0.005, "phase": 0.4})
-    sim = simulate_tri_spindle(SCENE, n_rev=6, effects=[lob], noise_mm=NOISE_MM, seed=3, nominal_beams=nominal)
+    sim = simulate_tri_spindle(
+        SCENE, n_rev=6, effects=[lob], noise_mm=NOISE_MM, seed=3, nominal_beams=nominal
+    )
     part = examine_scan(sim, free_beams=("beta", "d_b"))
     assert part["gap_before"]["rms_mm"] > 1.5 * part["noise_floor_mm"]
     free = examine_scan(sim, free_beams=("beta", "d_b", "rho"))
@@ -411,8 +445,12 @@ def test_examined_against_calibrated_beams():
     """The pipeline passes a calibration: offsets of nominal vs true beams then vanish."""
     from borescan.geometry import Beams
 
-    nominal = Beams((1, 2, 3), YANG_BEAMS.beta_rad + [0.0, 0.002, -0.003], YANG_BEAMS.rho_mm,
-                    YANG_BEAMS.d_b_mm + [0.02, -0.01, 0.005])
+    nominal = Beams(
+        (1, 2, 3),
+        YANG_BEAMS.beta_rad + [0.0, 0.002, -0.003],
+        YANG_BEAMS.rho_mm,
+        YANG_BEAMS.d_b_mm + [0.02, -0.01, 0.005],
+    )
     e = Effect("sensor_drift", {"channel": 1, "k_mm_per_s": 0.002})
     sim = simulate_tri_spindle(SCENE, n_rev=6, effects=[e], noise_mm=NOISE_MM, seed=8, nominal_beams=nominal)
     f = examine_scan(sim, beams=YANG_BEAMS)  # the true beams, as a calibration would give them
@@ -422,8 +460,12 @@ def test_examined_against_calibrated_beams():
 
 def test_part_without_certificate_frees_the_radius():
     """A part's diameter is the measurand: 12 um off nominal is no missing effect, a delay still is."""
-    art = {"id": "P-1", "type": "part", "nominal_diameter_mm": 2 * SCENE.bore_radius_20_mm - 0.024,
-           "cte_per_k": 11.5e-6}
+    art = {
+        "id": "P-1",
+        "type": "part",
+        "nominal_diameter_mm": 2 * SCENE.bore_radius_20_mm - 0.024,
+        "cte_per_k": 11.5e-6,
+    }
     sim = simulate_tri_spindle(SCENE, n_rev=6, noise_mm=NOISE_MM, seed=4, artifact=art)
     f = examine_scan(sim)
     assert f["verdict"] == "no_missing_effect" and f["base_model"]["radius_free"] is True
@@ -473,7 +515,9 @@ def test_outlier_threshold_is_the_bonferroni_quantile():
     hits = np.mean(np.any(np.abs(rng.standard_normal((trials, n))) > k, axis=1))
     assert abs(hits - 0.05) < 4 * np.sqrt(0.05 * 0.95 / trials)
     sec = schema_defaults()["discrepancy"]
-    assert DEFAULTS["threshold"] == sec["delta_bic_threshold"] and DEFAULTS["min_spikes"] == sec["min_outliers"]
+    assert (
+        DEFAULTS["threshold"] == sec["delta_bic_threshold"] and DEFAULTS["min_spikes"] == sec["min_outliers"]
+    )
     assert discrepancy_settings({"delta_bic_threshold": 6.0})["threshold"] == 6.0
 
 
@@ -488,12 +532,34 @@ def test_quantised_rod_readings_are_named_even_below_the_noise():
     layers = (RodLayer(1, 0.0, 60.0, 0.0, 0.0, 0.0), RodLayer(2, 40.0, 50.0, 1.9, 0.0, 0.0))
     holes = (Hole((0.4, -0.3), 75.0), Hole((0.1, 0.5), 65.0))
     scene = RodScene(layers=layers, holes=holes, axis=RodAxis(0.8, -0.5, 0.004, 0.3), range_mm=(30.0, 30.0))
-    feats = [{"id": f"H{j + 1}", "z_mm": lay.h_mm, "nominal_diameter_mm": 2 * h.radius_mm,
-              "certified_diameter_mm": 2 * h.radius_mm} for j, (lay, h) in enumerate(zip(layers, holes))]
-    art = {"id": "MASTER", "type": "part", "nominal_diameter_mm": 150.0, "cte_per_k": 11.5e-6, "features": feats}
+    feats = [
+        {
+            "id": f"H{j + 1}",
+            "z_mm": lay.h_mm,
+            "nominal_diameter_mm": 2 * h.radius_mm,
+            "certified_diameter_mm": 2 * h.radius_mm,
+        }
+        for j, (lay, h) in enumerate(zip(layers, holes))
+    ]
+    art = {
+        "id": "MASTER",
+        "type": "part",
+        "nominal_diameter_mm": 150.0,
+        "cte_per_k": 11.5e-6,
+        "features": feats,
+    }
     alpha = np.random.default_rng(2).uniform(0, 2 * np.pi, 20)
-    sim = simulate_rod(scene, alpha, samples_per_pose=10, noise_mm=0.010, seed=5, artifact=art, nominal_layers=layers,
-                       effects=[Effect("quantization", {"channel": 2, "lsb_mm": 0.005})], scan_id="ROD-Q")
+    sim = simulate_rod(
+        scene,
+        alpha,
+        samples_per_pose=10,
+        noise_mm=0.010,
+        seed=5,
+        artifact=art,
+        nominal_layers=layers,
+        effects=[Effect("quantization", {"channel": 2, "lsb_mm": 0.005})],
+        scan_id="ROD-Q",
+    )
     f = examine_scan(sim)
     q = [n for n in f["named"] if n["effect"] == "quantization"]
     assert f["verdict"] == "missing_effect" and len(q) == 1 and q[0]["channel"] == 2
@@ -548,8 +614,10 @@ def test_declared_sparsity_covers_every_dependence(kind):
     if kind == "tri":
         scan = _scan([], seed=11)
         t_s, ch, vals, _, sp = scan_arrays(scan)
-        model = TriModel(tri_data_from_arrays(scan.meta["scan_id"], scan.meta, t_s, vals, ch, sp),
-                         free_beams=("beta", "d_b", "rho"))
+        model = TriModel(
+            tri_data_from_arrays(scan.meta["scan_id"], scan.meta, t_s, vals, ch, sp),
+            free_beams=("beta", "d_b", "rho"),
+        )
     elif kind == "rod":
         scan = simulate_rod(default_rod_scene(), n_poses=12, samples_per_pose=5, seed=3, scan_id="ROD-S")
         t_s, ch, vals, pose, _ = scan_arrays(scan)
@@ -557,8 +625,14 @@ def test_declared_sparsity_covers_every_dependence(kind):
     else:
         rng = np.random.default_rng(4)
         xy = rng.uniform(-1.0, 1.0, (6, 2))
-        scan = simulate_tri_static(default_tri_scene(bore_center_xy_mm=(0.0, 0.0)), xy, rng.uniform(0, 6, 6),
-                                   samples_per_pose=4, scan_id="STAT-S", seed=2)
+        scan = simulate_tri_static(
+            default_tri_scene(bore_center_xy_mm=(0.0, 0.0)),
+            xy,
+            rng.uniform(0, 6, 6),
+            samples_per_pose=4,
+            scan_id="STAT-S",
+            seed=2,
+        )
         t_s, ch, vals, pose, _ = scan_arrays(scan)
         model = StaticModel(pose_data_from_arrays(scan.meta["scan_id"], scan.meta, t_s, vals, ch, pose))
     rng = np.random.default_rng(1)

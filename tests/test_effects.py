@@ -7,7 +7,15 @@ import numpy as np
 import pytest
 
 from borescan.effects import EFFECTS, Effect, apply_effects, get_effect, nonlinearity_bow, parse_effect
-from borescan.geometry import Bore, Hole, RodAxis, RodLayer, bore_wall_radius, rod_readings, tri_spindle_readings
+from borescan.geometry import (
+    Bore,
+    Hole,
+    RodAxis,
+    RodLayer,
+    bore_wall_radius,
+    rod_readings,
+    tri_spindle_readings,
+)
 from borescan.geometry import wall_points_device
 from borescan.simulate import RodScene, default_tri_scene, rod_readings_with_effects, tri_phi, tri_readings
 
@@ -51,12 +59,22 @@ def test_registry_mirrors_the_spec_table():
     for name, params in SPEC_TABLE.items():
         spec = EFFECTS[name]
         assert set(spec.params) == params
-        assert spec.stage in ("time_base", "kinematics", "spindle_position", "bore", "beam", "reading", "output")
+        assert spec.stage in (
+            "time_base",
+            "kinematics",
+            "spindle_position",
+            "bore",
+            "beam",
+            "reading",
+            "output",
+        )
         assert set(spec.forward) == set(spec.device_types)
 
 
 def test_unknown_names_and_parameters_raise():
-    with pytest.raises(ValueError, match=r"unknown effect 'lens_fog'; valid effects: sensor_offset, .*beam_offset"):
+    with pytest.raises(
+        ValueError, match=r"unknown effect 'lens_fog'; valid effects: sensor_offset, .*beam_offset"
+    ):
         get_effect("lens_fog")
     with pytest.raises(ValueError, match=r"takes parameters \['b_mm', 'channel'\]"):
         Effect("sensor_offset", {"channel": 1, "offset": 0.1})
@@ -81,8 +99,11 @@ def test_sensor_offset_adds_b_on_its_channel_only():
 
 
 def test_same_effect_on_several_channels_composes():
-    v = _with(Effect("sensor_offset", {"channel": 1, "b_mm": 0.01}), Effect("sensor_offset", {"channel": 3, "b_mm": -0.02}),
-              Effect("sensor_gain", {"channel": 1, "g": 0.001}))
+    v = _with(
+        Effect("sensor_offset", {"channel": 1, "b_mm": 0.01}),
+        Effect("sensor_offset", {"channel": 3, "b_mm": -0.02}),
+        Effect("sensor_gain", {"channel": 1, "g": 0.001}),
+    )
     # spec table order inside the reading stage: offset, then gain
     assert np.allclose(v[:, 0], (BASE[:, 0] + 0.01) * 1.001, rtol=0, atol=1e-12)
     assert np.allclose(v[:, 2], BASE[:, 2] - 0.02, rtol=0, atol=1e-12)
@@ -117,7 +138,10 @@ def test_channel_delay_shows_the_reading_of_t_minus_tau():
 
 
 def test_channel_delay_also_delays_drift():
-    v = _with(Effect("channel_delay", {"channel": 1, "tau_s": 0.01}), Effect("sensor_drift", {"channel": 1, "k_mm_per_s": 0.5}))
+    v = _with(
+        Effect("channel_delay", {"channel": 1, "tau_s": 0.01}),
+        Effect("sensor_drift", {"channel": 1, "k_mm_per_s": 0.5}),
+    )
     expect = tri_readings(SCENE, T_S - 0.01)[:, 0] + 0.5 * (T_S - 0.01)
     assert np.max(np.abs(v[:, 0] - expect)) < 1e-10
 
@@ -163,7 +187,9 @@ def _wall_points_machine(v, phi, S):
 def test_axis_tilt_gives_the_ellipse():
     beta, az = 0.01, 0.8
     v = _with(Effect("axis_tilt", {"beta_rad": beta, "azimuth": az}))
-    P = _wall_points_machine(v, 0.4 + 2 * np.pi * T_S, SCENE.spindle_xy_mm) - np.asarray(SCENE.bore_center_xy_mm)
+    P = _wall_points_machine(v, 0.4 + 2 * np.pi * T_S, SCENE.spindle_xy_mm) - np.asarray(
+        SCENE.bore_center_xy_mm
+    )
     x = P[..., 0] * np.cos(az) + P[..., 1] * np.sin(az)
     y = -P[..., 0] * np.sin(az) + P[..., 1] * np.cos(az)
     R = SCENE.bore_radius_20_mm
@@ -174,9 +200,16 @@ def test_axis_tilt_gives_the_ellipse():
 def test_bore_lobing_wall_radius():
     k, a, ph = 3, 0.004, 0.2
     v = _with(Effect("bore_lobing", {"k": k, "a_mm": a, "phase": ph}))
-    P = _wall_points_machine(v, 0.4 + 2 * np.pi * T_S, SCENE.spindle_xy_mm) - np.asarray(SCENE.bore_center_xy_mm)
+    P = _wall_points_machine(v, 0.4 + 2 * np.pi * T_S, SCENE.spindle_xy_mm) - np.asarray(
+        SCENE.bore_center_xy_mm
+    )
     theta = np.arctan2(P[..., 1], P[..., 0])
-    assert np.max(np.abs(np.hypot(P[..., 0], P[..., 1]) - (SCENE.bore_radius_20_mm + a * np.cos(k * (theta - ph))))) < 1e-10
+    assert (
+        np.max(
+            np.abs(np.hypot(P[..., 0], P[..., 1]) - (SCENE.bore_radius_20_mm + a * np.cos(k * (theta - ph))))
+        )
+        < 1e-10
+    )
     with pytest.raises(ValueError, match="k >= 2"):
         _with(Effect("bore_lobing", {"k": 1, "a_mm": a, "phase": ph}))
 
@@ -185,7 +218,9 @@ def test_thermal_expansion_scales_the_radius():
     T = 23.5
     v = _with(Effect("thermal_expansion", {"temperature_c": T}))
     R_T = SCENE.bore_radius_20_mm * (1 + SCENE.cte_per_k * (T - 20))
-    expect = tri_spindle_readings(0.4 + 2 * np.pi * T_S, SCENE.spindle_xy_mm, SCENE.beams, Bore(SCENE.bore_center_xy_mm, R_T))
+    expect = tri_spindle_readings(
+        0.4 + 2 * np.pi * T_S, SCENE.spindle_xy_mm, SCENE.beams, Bore(SCENE.bore_center_xy_mm, R_T)
+    )
     assert np.max(np.abs(v - expect)) < 1e-12
     # about R20 cte dT everywhere (the wall moves outwards along each beam)
     assert np.allclose(v - BASE, SCENE.bore_radius_20_mm * SCENE.cte_per_k * 3.5, rtol=2e-3)
@@ -206,7 +241,9 @@ def test_vibration_adds_a_sine_on_every_channel():
 
 def test_quantization_gives_multiples_of_lsb():
     lsb = 0.001
-    q = apply_effects(BASE, T_S, (1, 2, 3), [Effect("quantization", {"channel": 3, "lsb_mm": lsb})], stages=("output",))
+    q = apply_effects(
+        BASE, T_S, (1, 2, 3), [Effect("quantization", {"channel": 3, "lsb_mm": lsb})], stages=("output",)
+    )
     k = q[:, 2] / lsb
     assert np.max(np.abs(k - np.round(k))) < 1e-9
     assert np.max(np.abs(q[:, 2] - BASE[:, 2])) <= lsb / 2 + 1e-12
@@ -217,8 +254,14 @@ def test_outliers_rate_within_binomial_tolerance():
     n, rate, size = 40000, 0.01, 0.5
     v0 = np.full((n, 3), 5.0)
     rng = np.random.default_rng(7)
-    v = apply_effects(v0, np.zeros(n), (1, 2, 3), [Effect("outliers", {"channel": 2, "rate": rate, "size_mm": size})],
-                      stages=("output",), rng=rng)
+    v = apply_effects(
+        v0,
+        np.zeros(n),
+        (1, 2, 3),
+        [Effect("outliers", {"channel": 2, "rate": rate, "size_mm": size})],
+        stages=("output",),
+        rng=rng,
+    )
     jumped = np.abs(v[:, 1] - 5.0) > 0
     sd = math.sqrt(n * rate * (1 - rate))
     assert abs(jumped.sum() - n * rate) < 4 * sd
@@ -227,8 +270,13 @@ def test_outliers_rate_within_binomial_tolerance():
     assert abs(np.mean(v[jumped, 1] > 5.0) - 0.5) < 0.1
     assert np.array_equal(v[:, [0, 2]], v0[:, [0, 2]])
     with pytest.raises(ValueError, match="needs a numpy Generator"):
-        apply_effects(v0, np.zeros(n), (1, 2, 3), [Effect("outliers", {"channel": 2, "rate": rate, "size_mm": size})],
-                      stages=("output",))
+        apply_effects(
+            v0,
+            np.zeros(n),
+            (1, 2, 3),
+            [Effect("outliers", {"channel": 2, "rate": rate, "size_mm": size})],
+            stages=("output",),
+        )
 
 
 def test_rod_beam_offset_is_wang_eq5():
@@ -237,21 +285,27 @@ def test_rod_beam_offset_is_wang_eq5():
     layers = [RodLayer(1, 100.0, 71.0, d_mm=d), ROD.layers[1]]
     assert np.max(np.abs(v - rod_readings(ALPHA, layers, list(ROD.holes), ROD.axis))) < 1e-12
     # centred rod: a chord at distance d from the centre, l = sqrt(r^2 - d^2)
-    centred = RodScene(layers=ROD.layers, holes=(Hole((0.0, 0.0), 75.0), Hole((0.0, 0.0), 75.0)), axis=RodAxis())
+    centred = RodScene(
+        layers=ROD.layers, holes=(Hole((0.0, 0.0), 75.0), Hole((0.0, 0.0), 75.0)), axis=RodAxis()
+    )
     vc = rod_readings_with_effects(centred, ALPHA, [Effect("beam_offset", {"channel": 2, "d_mm": d})])
     assert np.allclose(vc[:, 1], math.sqrt(75.0**2 - d**2) - 71.0, rtol=0, atol=1e-12)
     assert np.allclose(vc[:, 0], 4.0, rtol=0, atol=1e-12)
 
 
 def test_rod_beam_tilt_and_thermal_and_reading_effects():
-    centred = RodScene(layers=ROD.layers, holes=(Hole((0.0, 0.0), 75.0), Hole((0.0, 0.0), 75.0)), axis=RodAxis())
+    centred = RodScene(
+        layers=ROD.layers, holes=(Hole((0.0, 0.0), 75.0), Hole((0.0, 0.0), 75.0)), axis=RodAxis()
+    )
     g = math.radians(0.5)
     v = rod_readings_with_effects(centred, ALPHA, [Effect("beam_tilt", {"channel": 1, "gamma_rad": g})])
     assert np.allclose(v[:, 0], 75.0 / math.cos(g) - 71.0, rtol=0, atol=1e-12)  # in-plane 75 mm / cos(gamma)
     v = rod_readings_with_effects(centred, ALPHA, [Effect("thermal_expansion", {"temperature_c": 25.0})])
     assert np.allclose(v, 75.0 * (1 + 11.5e-6 * 5) - 71.0, rtol=0, atol=1e-12)
     t = np.linspace(0, 60, ALPHA.size)
-    v = rod_readings_with_effects(ROD, ALPHA, [Effect("sensor_drift", {"channel": 2, "k_mm_per_s": 1e-4})], t_s=t)
+    v = rod_readings_with_effects(
+        ROD, ALPHA, [Effect("sensor_drift", {"channel": 2, "k_mm_per_s": 1e-4})], t_s=t
+    )
     base = rod_readings_with_effects(ROD, ALPHA)
     assert np.allclose(v[:, 1] - base[:, 1], 1e-4 * t, rtol=0, atol=1e-12)
     with pytest.raises(ValueError, match=re.escape("does not apply to a rod")):
@@ -260,7 +314,10 @@ def test_rod_beam_tilt_and_thermal_and_reading_effects():
 
 def test_effects_are_pure():
     before = BASE.copy()
-    _with(Effect("sensor_offset", {"channel": 1, "b_mm": 1.0}), Effect("beam_tilt", {"channel": 1, "gamma_rad": 0.1}))
+    _with(
+        Effect("sensor_offset", {"channel": 1, "b_mm": 1.0}),
+        Effect("beam_tilt", {"channel": 1, "gamma_rad": 0.1}),
+    )
     assert np.array_equal(before, BASE)
     b = Bore((0.0, 0.0), 10.0)
     EFFECTS["thermal_expansion"].forward["tri_lds"](b, {"temperature_c": 30.0}, 1e-5)
@@ -278,13 +335,19 @@ def test_candidates_of_every_scan_kind_come_from_the_registry():
     from borescan.effects import EFFECTS
 
     for kind in ("tri_spindle", "tri_static", "rod"):
-        keys = {t.effect for t in registry_terms(kind, (1, 2, 3), have={"cte": True, "commanded_angle": True,
-                                                                         "vibration_line": True})}
+        keys = {
+            t.effect
+            for t in registry_terms(
+                kind, (1, 2, 3), have={"cte": True, "commanded_angle": True, "vibration_line": True}
+            )
+        }
         assert keys == {n for n, s in EFFECTS.items() if s.candidate.get(kind) == "screen"}
     rod = [t.key for t in registry_terms("rod", (1, 2), have={"cte": True}, freed={"R": {2}})]
     assert "sensor_offset@1" in rod and "sensor_offset@2" not in rod
     assert "sensor_offset@all" not in rod and "thermal_expansion" not in rod and "sensor_gain@2" in rod
-    static = [t.key for t in registry_terms("tri_static", (1, 2, 3), have={"cte": True}, freed={"R": "shared"})]
+    static = [
+        t.key for t in registry_terms("tri_static", (1, 2, 3), have={"cte": True}, freed={"R": "shared"})
+    ]
     assert {"sensor_offset@1", "sensor_offset@2", "sensor_offset@3"} <= set(static)
     assert "sensor_offset@all" not in static and "thermal_expansion" not in static
     free_db = registry_terms("tri_spindle", (1, 2, 3), have={}, freed={"d_b": {1, 2, 3}})

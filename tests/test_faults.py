@@ -22,7 +22,14 @@ import polars as pl
 import pytest
 
 from conftest import ROOT, checksums
-from fault_roots import as_nobody, can_drop_to_nobody, checkout_copy, copy_scan, give_to_nobody, make_crash_root
+from fault_roots import (
+    as_nobody,
+    can_drop_to_nobody,
+    checkout_copy,
+    copy_scan,
+    give_to_nobody,
+    make_crash_root,
+)
 
 from borescan import demo, raw_index, rawio, tables, validation
 from borescan.stages import _common
@@ -42,9 +49,13 @@ def demo_raw(tmp_path_factory):
 
 
 def test_conform_gives_every_column_of_the_table():
-    rod_only = pl.DataFrame({"calibration_id": ["R"], "channel": [1], "l0_mm": [80.0], "calibration_json": ["{}"]})
+    rod_only = pl.DataFrame(
+        {"calibration_id": ["R"], "channel": [1], "l0_mm": [80.0], "calibration_json": ["{}"]}
+    )
     c = tables.conform("calibrations", rod_only)
-    assert list(c.columns)[: len(tables.polars_schema("calibrations"))] == list(tables.polars_schema("calibrations"))
+    assert list(c.columns)[: len(tables.polars_schema("calibrations"))] == list(
+        tables.polars_schema("calibrations")
+    )
     assert c["beta_rad"].to_list() == [None] and c["l0_mm"].to_list() == [80.0]
     assert c.columns[-1] == "calibration_json"  # a stage's extra column kept, after the table's
     empty = tables.conform("scans", pl.DataFrame())
@@ -54,13 +65,25 @@ def test_conform_gives_every_column_of_the_table():
 def test_pooled_stage_with_rod_calibrations_only_and_with_an_empty_night(tmp_path):
     """Issue 40 items 5, 6: rod calibrations and no three-sensor one; a night without scans."""
     rod_cal = tmp_path / "cal.parquet"
-    _common.write_table(pl.DataFrame({"calibration_id": ["ROD-01-nominal"], "device_id": ["ROD-01"],
-                                      "device_type": ["rod"], "channel": [1], "l0_mm": [80.0],
-                                      "valid_from": ["2026-11-20"], "method": ["nominal"]}), rod_cal)
+    _common.write_table(
+        pl.DataFrame(
+            {
+                "calibration_id": ["ROD-01-nominal"],
+                "device_id": ["ROD-01"],
+                "device_type": ["rod"],
+                "channel": [1],
+                "l0_mm": [80.0],
+                "valid_from": ["2026-11-20"],
+                "method": ["nominal"],
+            }
+        ),
+        rod_cal,
+    )
     empty_scans = tmp_path / "scans.parquet"
     _common.write_table(tables.frame("scans", []), empty_scans)
-    findings, drift = stage_pooled(tmp_path / "raw", "2026-11-20", tmp_path, [empty_scans], [rod_cal], {},
-                                   log=lambda _: None)
+    findings, drift = stage_pooled(
+        tmp_path / "raw", "2026-11-20", tmp_path, [empty_scans], [rod_cal], {}, log=lambda _: None
+    )
     assert findings.height == 0 and drift.height == 0
     assert drift.schema == pl.Schema(tables.polars_schema("calibration_drift"))
     assert _common.ok_scans(pl.DataFrame()).height == 0  # no columns at all (a table of an empty night)
@@ -73,7 +96,8 @@ def test_nights_leave_out_an_impossible_date_and_name_it(tmp_path, demo_raw):
     assert rawio.nights(raw) == ["2026-11-20"]
     report = validation.validate_tree(raw)
     assert [str(e) for e in report.problems] == [
-        "-: night=2026-02-30: folder night is not a date YYYY-MM-DD; its scans are not processed"]
+        "-: night=2026-02-30: folder night is not a date YYYY-MM-DD; its scans are not processed"
+    ]
 
 
 def test_an_unreadable_raw_file_quarantines_its_scan_and_the_night_goes_on(tmp_path, demo_raw, monkeypatch):
@@ -107,10 +131,14 @@ def test_an_unreadable_raw_file_quarantines_its_scan_and_the_night_goes_on(tmp_p
     monkeypatch.setattr(rawio.pa, "OSFile", osfile)
     scans, files, bad = stage_ingest(raw, "2026-11-20", res)
     status = dict(zip(scans["scan_id"], scans["status"]))
-    assert status == {"N20261120-ROD01-CAL-RGS150": "ok", "N20261120-ROD01-MEAS-CYL2H": "quarantined",
-                      "N20261120-ROD01-VER-RGS150": "ok"}
+    assert status == {
+        "N20261120-ROD01-CAL-RGS150": "ok",
+        "N20261120-ROD01-MEAS-CYL2H": "quarantined",
+        "N20261120-ROD01-VER-RGS150": "ok",
+    }
     assert [(q.scan_id, q.file, q.reason) for q in bad] == [
-        ("N20261120-ROD01-MEAS-CYL2H", "lds.parquet", "unreadable: Permission denied")]
+        ("N20261120-ROD01-MEAS-CYL2H", "lds.parquet", "unreadable: Permission denied")
+    ]
     assert "lds.parquet" not in set(files.filter(pl.col("scan_id") == "N20261120-ROD01-MEAS-CYL2H")["file"])
 
 
@@ -118,7 +146,9 @@ def test_raw_index_changes_with_the_scans_not_with_a_rerun(tmp_path, demo_raw):
     """A scan added with its old times rewrites the night's manifest (now-dated); nothing else does."""
     raw, res = tmp_path / "raw", tmp_path / "res"
     src = demo_raw / "night=2026-11-20"
-    shutil.copytree(src / "scan=N20261120-ROD01-CAL-RGS150", raw / "night=2026-11-20" / "scan=N20261120-ROD01-CAL-RGS150")
+    shutil.copytree(
+        src / "scan=N20261120-ROD01-CAL-RGS150", raw / "night=2026-11-20" / "scan=N20261120-ROD01-CAL-RGS150"
+    )
     old_ns = 1_700_000_000 * 10**9
     for p in (raw / "night=2026-11-20").rglob("*"):
         os.utime(p, ns=(old_ns, old_ns))
@@ -126,8 +156,9 @@ def test_raw_index_changes_with_the_scans_not_with_a_rerun(tmp_path, demo_raw):
     index = raw_index.raw_index_path(res, "2026-11-20")
     assert index.stat().st_mtime_ns == old_ns
     assert raw_index.refresh_raw_index(raw, res, ["2026-11-20"]) == []  # unchanged: not rewritten
-    subprocess.run(["cp", "-a", str(src / "scan=N20261120-ROD01-MEAS-CYL2H"), str(raw / "night=2026-11-20")],
-                   check=True)
+    subprocess.run(
+        ["cp", "-a", str(src / "scan=N20261120-ROD01-MEAS-CYL2H"), str(raw / "night=2026-11-20")], check=True
+    )
     assert raw_index.refresh_raw_index(raw, res, ["2026-11-20"]) == ["2026-11-20"]
     assert index.stat().st_mtime_ns > old_ns
     assert "scan=N20261120-ROD01-MEAS-CYL2H/lds.parquet" in index.read_text()
@@ -144,13 +175,21 @@ def test_catalog_step_fails_naming_scans_of_the_raw_root_the_history_lacks(tmp_p
     _common.write_table(files, stage / "scan_files" / "night=2026-11-20.parquet")
     lines: list[str] = []
     stage_catalog(res, raw_root=raw, log=lines.append)
-    assert lines == ["SKIPPED night=2026-02-30: folder night is not a date YYYY-MM-DD; its scans are not processed",
-                     "every one of the 3 scans of the raw root is in the history"]
-    copy_scan(demo_raw / "night=2026-11-21" / "scan=N20261121-ROD01-VER-RGS150", raw, "2026-11-21",
-              "N20261121-ROD01-VER-RGS150")
+    assert lines == [
+        "SKIPPED night=2026-02-30: folder night is not a date YYYY-MM-DD; its scans are not processed",
+        "every one of the 3 scans of the raw root is in the history",
+    ]
+    copy_scan(
+        demo_raw / "night=2026-11-21" / "scan=N20261121-ROD01-VER-RGS150",
+        raw,
+        "2026-11-21",
+        "N20261121-ROD01-VER-RGS150",
+    )
     cov = raw_coverage(raw, res / "catalog.duckdb")
     assert cov.missing == ("night=2026-11-21/scan=N20261121-ROD01-VER-RGS150",) and cov.n_scans == 4
-    with pytest.raises(HistoryGapError, match=r"lacks 1 of the 4 scans .*night=2026-11-21/scan=N20261121-ROD01-VER"):
+    with pytest.raises(
+        HistoryGapError, match=r"lacks 1 of the 4 scans .*night=2026-11-21/scan=N20261121-ROD01-VER"
+    ):
         stage_catalog(res, raw_root=raw, log=lines.append)
 
 
@@ -167,7 +206,11 @@ def test_quarantine_records_follow_the_catalog_with_names_that_never_collide(tmp
     meta.write_text(meta.read_text().replace('"kind"', '"kind_typo"'))  # "-" is a valid id: make it bad
     scans, files, bad = stage_ingest(raw, "2026-11-20", res)
     assert sorted(q.scan_id for q in bad) == sorted(odd)
-    for name, df in (("scans", scans), ("scan_files", files), ("quarantine/stage=ingest", _common.quarantine_frame(bad))):
+    for name, df in (
+        ("scans", scans),
+        ("scan_files", files),
+        ("quarantine/stage=ingest", _common.quarantine_frame(bad)),
+    ):
         _common.write_table(df, res / "stage" / name / "night=2026-11-20.parquet")
     (res / "quarantine" / "STALE-FROM-A-REVERTED-EDIT.json").write_text("{}")
     stage_catalog(res, raw_root=raw, log=lambda _: None)
@@ -175,7 +218,9 @@ def test_quarantine_records_follow_the_catalog_with_names_that_never_collide(tmp
     assert len(records) == 4 and not any(p.name.startswith((".", "-")) for p in records)
     by_id = {__import__("json").loads(p.read_text())["scan_id"]: p.name for p in records}
     assert sorted(by_id) == sorted(odd)
-    assert by_id[".."] == _common.quarantine_record_name("..", "2026-11-20") and by_id[".."].startswith("scan-")
+    assert by_id[".."] == _common.quarantine_record_name("..", "2026-11-20") and by_id[".."].startswith(
+        "scan-"
+    )
 
 
 # ------------------------------------------------------------------------- slow: the real workflow
@@ -186,7 +231,12 @@ def _python_for(user_cmd) -> list[str]:
     system's of the same version with this venv's site-packages on PYTHONPATH.
     """
     # through a shell, as Snakemake starts a job's script (setpriv itself may exec what a shell may not)
-    if subprocess.run(user_cmd(["/bin/sh", "-c", f"'{sys.executable}' -c pass"]), capture_output=True).returncode == 0:
+    if (
+        subprocess.run(
+            user_cmd(["/bin/sh", "-c", f"'{sys.executable}' -c pass"]), capture_output=True
+        ).returncode
+        == 0
+    ):
         return [sys.executable], []
     system = shutil.which(f"python{sys.version_info.major}.{sys.version_info.minor}", path="/usr/bin:/bin")
     assert system, "no Python the unprivileged user can run"
@@ -195,10 +245,25 @@ def _python_for(user_cmd) -> list[str]:
 
 def _workflow(checkout: Path, raw: Path, res: Path, home: Path, *extra: str, user=lambda c: c):
     python, site = _python_for(user)
-    env = {"PATH": f"{Path(python[0]).parent}:/usr/bin:/bin", "HOME": str(home), "MPLBACKEND": "Agg",
-           "PYTHONPATH": ":".join([str(checkout / "src"), *site])}
-    cmd = user([*python, "-m", "snakemake", "--cores", "2", *extra, "--config", f"raw_root={raw}",
-                f"results_root={res}"])
+    env = {
+        "PATH": f"{Path(python[0]).parent}:/usr/bin:/bin",
+        "HOME": str(home),
+        "MPLBACKEND": "Agg",
+        "PYTHONPATH": ":".join([str(checkout / "src"), *site]),
+    }
+    cmd = user(
+        [
+            *python,
+            "-m",
+            "snakemake",
+            "--cores",
+            "2",
+            *extra,
+            "--config",
+            f"raw_root={raw}",
+            f"results_root={res}",
+        ]
+    )
     return subprocess.run(cmd, cwd=checkout, capture_output=True, text=True, env=env, timeout=1500)
 
 
@@ -235,17 +300,32 @@ def test_crash_root_workflow_as_a_user_who_is_not_root(open_tmp, demo_raw):
         for table in ("scans", "calibrations", "diameters", "pooled_findings", "calibration_drift"):
             assert (res / "stage" / table / f"night={night}.parquet").is_file(), (table, night)
     con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
-    rows = {s: (str(n), st, r) for s, n, st, r in con.execute("SELECT scan_id, night, status, reason FROM scans").fetchall()}
+    rows = {
+        s: (str(n), st, r)
+        for s, n, st, r in con.execute("SELECT scan_id, night, status, reason FROM scans").fetchall()
+    }
     assert {s: n for s, (n, _, _) in rows.items()} == root.expected_scans
     assert rows[root.unreadable_file][1:] == ("quarantined", "lds.parquet: unreadable: Permission denied")
     assert rows[root.unreadable_folder][1:] == (
-        "quarantined", f"night=2026-11-20/scan={root.unreadable_folder}: cannot list the scan folder: Permission denied")
+        "quarantined",
+        f"night=2026-11-20/scan={root.unreadable_folder}: cannot list the scan folder: Permission denied",
+    )
     assert {s for s, (_, st, _) in rows.items() if st == "ok"} == {
-        "N20261120-ROD01-CAL-RGS150", "N20261120-ROD01-MEAS-CYL2H", "N20261120-ROD01-VER-RGS150",
-        "N20261121-ROD01-VER-RGS150"}  # the two refused calibration scans are quarantined by calibrate
-    assert con.execute("SELECT count(*) FROM diameters WHERE scan_id = 'N20261120-ROD01-MEAS-CYL2H'").fetchone()[0] > 0
+        "N20261120-ROD01-CAL-RGS150",
+        "N20261120-ROD01-MEAS-CYL2H",
+        "N20261120-ROD01-VER-RGS150",
+        "N20261121-ROD01-VER-RGS150",
+    }  # the two refused calibration scans are quarantined by calibrate
+    assert (
+        con.execute("SELECT count(*) FROM diameters WHERE scan_id = 'N20261120-ROD01-MEAS-CYL2H'").fetchone()[
+            0
+        ]
+        > 0
+    )
     log = (res / "logs" / "build_catalog.log").read_text()
-    assert "SKIPPED night=2026-02-30: folder night is not a date YYYY-MM-DD; its scans are not processed" in log
+    assert (
+        "SKIPPED night=2026-02-30: folder night is not a date YYYY-MM-DD; its scans are not processed" in log
+    )
     assert "every one of the 8 scans of the raw root is in the history" in log
     if before is not None:
         assert checksums(root.raw) == before
@@ -291,12 +371,17 @@ def test_a_night_added_with_old_times_runs_from_a_checkout_without_records(tmp_p
     out = _planned(_workflow(b, raw, res, home, "catalog"))
     con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
     assert con.execute("SELECT count(*) FROM scans WHERE night = '2026-11-21'").fetchone()[0] == 2
-    assert "every one of the 5 scans of the raw root is in the history" in (res / "logs" / "build_catalog.log").read_text()
+    assert (
+        "every one of the 5 scans of the raw root is in the history"
+        in (res / "logs" / "build_catalog.log").read_text()
+    )
 
 
 def _verification_tolerances(res: Path) -> dict[str, set[float]]:
-    return {f.name[6:16]: set(pl.read_parquet(f)["tolerance_mm"].to_list())
-            for f in sorted((res / "stage" / "verifications").glob("night=*.parquet"))}
+    return {
+        f.name[6:16]: set(pl.read_parquet(f)["tolerance_mm"].to_list())
+        for f in sorted((res / "stage" / "verifications").glob("night=*.parquet"))
+    }
 
 
 @pytest.mark.slow
@@ -318,8 +403,10 @@ def test_a_config_edit_applies_from_the_next_night_and_recompute_is_explicit(tmp
     cfg.write_text(text.replace("  tolerance_mm: 0.015\n", "  tolerance_mm: 0.03\n"))
     out = _planned(_workflow(a, raw, res, home, "catalog", "--dry-run"))
     assert "Nothing to be done" in out  # before the fix: calibrate and measure of the past night reran
-    assert "the config differs from the one nights 2026-11-20..2026-11-20 (1) were processed with " \
-           "(verification.tolerance_mm)" in out
+    assert (
+        "the config differs from the one nights 2026-11-20..2026-11-20 (1) were processed with "
+        "(verification.tolerance_mm)" in out
+    )
     _rod_night(demo_raw, raw, "2026-11-21")
     _planned(_workflow(a, raw, res, home, "catalog"))
     assert {k: v for k, v in checksums(res / "stage").items() if "2026-11-20" in k} == past
@@ -330,13 +417,22 @@ def test_a_config_edit_applies_from_the_next_night_and_recompute_is_explicit(tmp
     assert sorted(hashes) == ["2026-11-20", "2026-11-21"] and hashes["2026-11-20"] != hashes["2026-11-21"]
 
     env = {**os.environ, "PYTHONPATH": str(a / "src")}
-    proc = subprocess.run([sys.executable, "-m", "borescan.cli", "recompute", "--from", "2026-11-20", "--results",
-                           str(res)], cwd=a, capture_output=True, text=True, env=env)
+    proc = subprocess.run(
+        [sys.executable, "-m", "borescan.cli", "recompute", "--from", "2026-11-20", "--results", str(res)],
+        cwd=a,
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.startswith("change-0001: 1 night(s) (2026-11-20..2026-11-20) will be recomputed with config "
-                                  f"{hashes['2026-11-21']} (changed: verification.tolerance_mm)")
+    assert proc.stdout.startswith(
+        "change-0001: 1 night(s) (2026-11-20..2026-11-20) will be recomputed with config "
+        f"{hashes['2026-11-21']} (changed: verification.tolerance_mm)"
+    )
     kept = res / "versions" / "change-0001"
-    assert {k: v for k, v in checksums(kept / "stage").items()} == {k: v for k, v in past.items() if "2026-11-20" in k}
+    assert {k: v for k, v in checksums(kept / "stage").items()} == {
+        k: v for k, v in past.items() if "2026-11-20" in k
+    }
     out = _planned(_workflow(a, raw, res, home, "catalog", "--dry-run"))
     assert "Verifying calibrations and measuring parts of night 2026-11-20" in out
     # night 2026-11-21 keeps its scans and settings (not ingested again); its measurements, made with
@@ -345,10 +441,21 @@ def test_a_config_edit_applies_from_the_next_night_and_recompute_is_explicit(tmp
     _planned(_workflow(a, raw, res, home, "catalog"))
     assert _verification_tolerances(res) == {"2026-11-20": {0.03}, "2026-11-21": {0.03}}
     con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
-    assert con.execute("SELECT change_id, nights, new_hash, changed_keys, archive FROM config_changes").fetchall() == [
-        ("change-0001", "2026-11-20", hashes["2026-11-21"], "verification.tolerance_mm", "versions/change-0001")]
+    assert con.execute(
+        "SELECT change_id, nights, new_hash, changed_keys, archive FROM config_changes"
+    ).fetchall() == [
+        (
+            "change-0001",
+            "2026-11-20",
+            hashes["2026-11-21"],
+            "verification.tolerance_mm",
+            "versions/change-0001",
+        )
+    ]
     assert con.execute("SELECT recorded_by FROM night_config ORDER BY night").fetchall() == [
-        ("recompute change-0001",), ("first run",)]
+        ("recompute change-0001",),
+        ("first run",),
+    ]
 
 
 def test_a_damaged_catalog_is_named_by_every_reader_and_rebuilt(tmp_path, demo_raw, capsys):
@@ -369,8 +476,10 @@ def test_a_damaged_catalog_is_named_by_every_reader_and_rebuilt(tmp_path, demo_r
     intact = catalog.table_rows(catalog.open_catalog(res), "scans")
     data = final.read_bytes()
     final.write_bytes(data[: len(data) // 2])
-    assert catalog.catalog_damage(final) == f"it has {len(data) // 2} bytes, {len(data)} were written " \
-                                            "(truncated or cut off by a full disk?)"
+    assert (
+        catalog.catalog_damage(final) == f"it has {len(data) // 2} bytes, {len(data)} were written "
+        "(truncated or cut off by a full disk?)"
+    )
     with pytest.raises(catalog.CatalogDamaged, match=r"is damaged: .* borescan rebuild-catalog --results"):
         catalog.open_catalog(res)
     assert main(["sql", "--results", str(res), "SELECT count(*) FROM scans"]) != 0

@@ -21,8 +21,14 @@ def test_straight_line_matches_the_textbook_covariance():
     r = y - X @ beta
     s2 = r @ r / (t.size - 2)
     cov = s2 * np.linalg.inv(X.T @ X)
-    fr = least_squares_fit(lambda p: y - (p[0] + p[1] * t), [0.0, 0.0], ["a_mm", "b_mm_per_s"],
-                           jac=lambda p: -X, ftol=1e-15, xtol=1e-15)
+    fr = least_squares_fit(
+        lambda p: y - (p[0] + p[1] * t),
+        [0.0, 0.0],
+        ["a_mm", "b_mm_per_s"],
+        jac=lambda p: -X,
+        ftol=1e-15,
+        xtol=1e-15,
+    )
     assert fr.success and fr.rank == 2 and fr.dof == t.size - 2
     np.testing.assert_allclose(fr.x, beta, rtol=0, atol=1e-12)
     np.testing.assert_allclose(fr.cov, cov, rtol=1e-9)
@@ -68,7 +74,9 @@ def test_rank_deficiency_and_condition_are_reported():
     np.testing.assert_allclose(js.cov_unit, np.full((2, 2), 1 / (4 * s)), rtol=1e-10)
     # units do not change the condition: scaling a column leaves it unchanged
     J2 = np.column_stack([t, 1 + t**2])
-    assert jacobian_summary(J2).condition == pytest.approx(jacobian_summary(J2 * [1e6, 1e-3]).condition, rel=1e-9)
+    assert jacobian_summary(J2).condition == pytest.approx(
+        jacobian_summary(J2 * [1e6, 1e-3]).condition, rel=1e-9
+    )
 
 
 def test_discrepancy_fits_report_through_the_one_type():

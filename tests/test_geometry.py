@@ -72,7 +72,9 @@ def test_ellipse_and_lobed_bores_are_hit_exactly():
     o = rng.uniform(-3, 3, (200, 2))
     ang = rng.uniform(0, 2 * np.pi, 200)
     d = np.stack([np.cos(ang), np.sin(ang)], -1)
-    bore = Bore((0.0, 0.0), 100.0, tilt_rad=0.01, tilt_azimuth_rad=0.7, lobes=((3, 0.004, 0.2), (2, 0.002, 1.0)))
+    bore = Bore(
+        (0.0, 0.0), 100.0, tilt_rad=0.01, tilt_azimuth_rad=0.7, lobes=((3, 0.004, 0.2), (2, 0.002, 1.0))
+    )
     s = ray_bore_distance(o, d, bore)
     p = o + s[:, None] * d
     theta = np.arctan2(p[:, 1], p[:, 0])
@@ -134,4 +136,6 @@ def test_rod_tilt_and_offset_spot_is_on_cylinder():
     assert np.max(np.abs(np.hypot(P[:, 0], P[:, 1]) - 75.0)) < 1e-10
     # the axis tilts towards its azimuth
     zt = Rm @ np.array([0, 0, 1.0])
-    assert np.arctan2(zt[1], zt[0]) == pytest.approx(0.3) and np.arccos(zt[2]) == pytest.approx(np.deg2rad(1.5))
+    assert np.arctan2(zt[1], zt[0]) == pytest.approx(0.3) and np.arccos(zt[2]) == pytest.approx(
+        np.deg2rad(1.5)
+    )

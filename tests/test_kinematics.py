@@ -22,8 +22,15 @@ def test_profile_integral_is_exact_for_piecewise_linear_speed():
     wk = np.array([2 * np.pi, 2 * np.pi, np.pi])
     t = np.array([0.0, 1.0, 2.0, 2.5, 3.0, 5.0, -1.0])
     ramp_half = 2 * np.pi * 0.5 - 0.5 * np.pi * 0.25  # w0 tau - (w0 - w1) tau^2 / 2 at tau = 0.5
-    expected = [0.0, 2 * np.pi, 4 * np.pi, 4 * np.pi + ramp_half, 4 * np.pi + 1.5 * np.pi, 5.5 * np.pi + 2 * np.pi,
-                -2 * np.pi]
+    expected = [
+        0.0,
+        2 * np.pi,
+        4 * np.pi,
+        4 * np.pi + ramp_half,
+        4 * np.pi + 1.5 * np.pi,
+        5.5 * np.pi + 2 * np.pi,
+        -2 * np.pi,
+    ]
     assert np.allclose(profile_angle_rad(t, tk, wk), expected, atol=1e-12)
 
 
@@ -36,14 +43,27 @@ def test_profile_starts_at_zero_when_the_clock_starts_late():
 
 def test_order_of_preference_encoder_profile_nominal():
     t = np.arange(0.0, 2.0, 0.02)
-    enc = angle_model_from_arrays(rpm_nominal=60, spindle_t_s=t, spindle_angle_rad=0.3 + 2 * np.pi * t,
-                                  spindle_rpm=np.full(t.size, 60.0))
+    enc = angle_model_from_arrays(
+        rpm_nominal=60,
+        spindle_t_s=t,
+        spindle_angle_rad=0.3 + 2 * np.pi * t,
+        spindle_rpm=np.full(t.size, 60.0),
+    )
     assert enc.source == "encoder" and not enc.fits_speed_and_phase
-    assert enc.phi_rad(np.array([0.5]), phase_rad=9.0, speed_scale=3.0)[0] == pytest.approx(0.3 + np.pi, abs=1e-12)
-    prof = angle_model_from_arrays(rpm_nominal=60, direction="cw", spindle_t_s=t,
-                                   spindle_angle_rad=np.full(t.size, np.nan), spindle_rpm=np.full(t.size, 30.0))
+    assert enc.phi_rad(np.array([0.5]), phase_rad=9.0, speed_scale=3.0)[0] == pytest.approx(
+        0.3 + np.pi, abs=1e-12
+    )
+    prof = angle_model_from_arrays(
+        rpm_nominal=60,
+        direction="cw",
+        spindle_t_s=t,
+        spindle_angle_rad=np.full(t.size, np.nan),
+        spindle_rpm=np.full(t.size, 30.0),
+    )
     assert prof.source == "profile" and prof.fits_speed_and_phase
-    assert prof.phi_rad(np.array([1.0]), phase_rad=0.1, speed_scale=1.02)[0] == pytest.approx(0.1 - 1.02 * np.pi)
+    assert prof.phi_rad(np.array([1.0]), phase_rad=0.1, speed_scale=1.02)[0] == pytest.approx(
+        0.1 - 1.02 * np.pi
+    )
     nom = angle_model_from_arrays(rpm_nominal=120, direction="ccw")
     assert nom.source == "nominal" and nom.commanded_rad(np.array([0.25]))[0] == pytest.approx(np.pi)
     with pytest.raises(ValueError, match="rotation angle is unknown"):
@@ -97,13 +117,19 @@ def test_angle_model_of_a_simulated_scan_matches_the_twin():
     from borescan import simulate
     from borescan.kinematics import angle_model_of_scan
 
-    scene = replace(simulate.default_tri_scene(), rpm_profile=((0.0, 60.0), (2.0, 60.0), (3.0, 30.0)),
-                    direction="cw", phase_rad=0.4)
+    scene = replace(
+        simulate.default_tri_scene(),
+        rpm_profile=((0.0, 60.0), (2.0, 60.0), (3.0, 30.0)),
+        direction="cw",
+        phase_rad=0.4,
+    )
     t = np.linspace(0.0, 5.0, 301)
     enc = simulate.simulate_tri_spindle(scene, n_rev=4, encoder=True, seed=1, spindle_rate_hz=50.0)
     am = angle_model_of_scan(enc.meta, enc.spindle)
     assert am.source == "encoder"
-    assert np.max(np.abs(am.phi_rad(t) - simulate.tri_phi(scene, t))) < 1e-4  # spline through the ramp's kinks
+    assert (
+        np.max(np.abs(am.phi_rad(t) - simulate.tri_phi(scene, t))) < 1e-4
+    )  # spline through the ramp's kinks
     prof = simulate.simulate_tri_spindle(scene, n_rev=4, encoder=False, seed=1, spindle_rate_hz=50.0)
     am = angle_model_of_scan(prof.meta, prof.spindle)
     assert am.source == "profile"

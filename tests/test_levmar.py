@@ -36,34 +36,64 @@ def _problems():
         return np.column_stack([-(xy[:, 0] - p[0]) / d, -(xy[:, 1] - p[1]) / d, -np.ones_like(d)])
 
     yield "circle from far", circ_f, circ_j, np.array([0.0, 0.0, 1.0])
-    yield ("Rosenbrock", lambda p: np.array([10 * (p[1] - p[0] ** 2), 1 - p[0]]),
-           lambda p: np.array([[-20 * p[0], 10.0], [-1.0, 0.0]]), np.array([-1.2, 1.0]))
+    yield (
+        "Rosenbrock",
+        lambda p: np.array([10 * (p[1] - p[0] ** 2), 1 - p[0]]),
+        lambda p: np.array([[-20 * p[0], 10.0], [-1.0, 0.0]]),
+        np.array([-1.2, 1.0]),
+    )
     tt = np.linspace(0, 1, 50)
     yy = 1e3 * np.sin(3 * tt) + 1e-3 * tt
-    yield ("badly scaled", lambda p: p[0] * np.sin(p[1] * tt) + p[2] * tt - yy,
-           lambda p: np.column_stack([np.sin(p[1] * tt), p[0] * tt * np.cos(p[1] * tt), tt]),
-           np.array([900.0, 2.9, 0.0]))
+    yield (
+        "badly scaled",
+        lambda p: p[0] * np.sin(p[1] * tt) + p[2] * tt - yy,
+        lambda p: np.column_stack([np.sin(p[1] * tt), p[0] * tt * np.cos(p[1] * tt), tt]),
+        np.array([900.0, 2.9, 0.0]),
+    )
     # a tall harmonic fit like the calibration's: 60 000 readings, 9 parameters, Fortran-ordered J
     phi = np.linspace(0, 40 * np.pi, 60_000)
     truth = np.array([0.3, -0.2, 0.05, 0.01, -0.02, 1.001, 0.4, 5.0, 0.002])
 
     def harm(p):
         a = p[5] * phi + p[6]
-        return (p[7] + p[0] * np.cos(a) + p[1] * np.sin(a) + p[2] * np.cos(2 * a) + p[3] * np.sin(2 * a)
-                + p[4] * np.cos(3 * a) + p[8] * phi)
+        return (
+            p[7]
+            + p[0] * np.cos(a)
+            + p[1] * np.sin(a)
+            + p[2] * np.cos(2 * a)
+            + p[3] * np.sin(2 * a)
+            + p[4] * np.cos(3 * a)
+            + p[8] * phi
+        )
 
     yh = harm(truth) + rng.normal(0, 1e-3, phi.size)
 
     def harm_j(p):
         a = p[5] * phi + p[6]
-        da = (-p[0] * np.sin(a) + p[1] * np.cos(a) - 2 * p[2] * np.sin(2 * a) + 2 * p[3] * np.cos(2 * a)
-              - 3 * p[4] * np.sin(3 * a))
+        da = (
+            -p[0] * np.sin(a)
+            + p[1] * np.cos(a)
+            - 2 * p[2] * np.sin(2 * a)
+            + 2 * p[3] * np.cos(2 * a)
+            - 3 * p[4] * np.sin(3 * a)
+        )
         J = np.empty((phi.size, 9), order="F")
-        J[:, 0], J[:, 1], J[:, 2], J[:, 3], J[:, 4] = np.cos(a), np.sin(a), np.cos(2 * a), np.sin(2 * a), np.cos(3 * a)
+        J[:, 0], J[:, 1], J[:, 2], J[:, 3], J[:, 4] = (
+            np.cos(a),
+            np.sin(a),
+            np.cos(2 * a),
+            np.sin(2 * a),
+            np.cos(3 * a),
+        )
         J[:, 5], J[:, 6], J[:, 7], J[:, 8] = da * phi, da, 1.0, phi
         return J
 
-    yield "tall harmonic", (lambda p: harm(p) - yh), harm_j, truth + np.array([0.02, 0.02, 0, 0, 0, 2e-5, 0.01, 0.01, 0])
+    yield (
+        "tall harmonic",
+        (lambda p: harm(p) - yh),
+        harm_j,
+        truth + np.array([0.02, 0.02, 0, 0, 0, 2e-5, 0.01, 0.01, 0]),
+    )
 
 
 def _rounding_floor_cost(jac, x, ulps=16):
@@ -131,7 +161,9 @@ def test_the_triangular_factor_of_the_stacked_matrix():
 
 def test_non_finite_start_is_refused():
     with pytest.raises(ValueError, match="not finite"):
-        levenberg_marquardt(lambda p: np.array([np.nan, 1.0, p[0]]), np.array([1.0]), lambda p: np.ones((3, 1)))
+        levenberg_marquardt(
+            lambda p: np.array([np.nan, 1.0, p[0]]), np.array([1.0]), lambda p: np.ones((3, 1))
+        )
 
 
 def test_without_the_jacobian_at_the_solution_the_solution_is_the_same():

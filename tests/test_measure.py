@@ -41,8 +41,12 @@ def test_noise_free_static_diameter_exact():
 
 
 def test_more_than_three_channels_uses_ls_circle():
-    b5 = Beams((1, 2, 3, 4, 5), np.linspace(0, 2 * np.pi, 5, endpoint=False) + 0.1,
-               np.array([1.0, -2.0, 0.5, 3.0, -1.0]), np.full(5, 133.0))
+    b5 = Beams(
+        (1, 2, 3, 4, 5),
+        np.linspace(0, 2 * np.pi, 5, endpoint=False) + 0.1,
+        np.array([1.0, -2.0, 0.5, 3.0, -1.0]),
+        np.full(5, 133.0),
+    )
     v = tri_static_readings(np.array([[263.5, -272.0]]), np.array([0.7]), b5, BORE)
     res = static_diameter(v, b5, u_reading_mm=0.002)
     assert res.method == "least-squares circle"
@@ -66,7 +70,9 @@ def test_jacobian_matches_finite_differences():
     for ch in range(3):
         dv = np.zeros(3)
         dv[ch] = h
-        num = (static_diameter_jacobian(v + dv, BEAMS)[0] - static_diameter_jacobian(v - dv, BEAMS)[0]) / (2 * h)
+        num = (static_diameter_jacobian(v + dv, BEAMS)[0] - static_diameter_jacobian(v - dv, BEAMS)[0]) / (
+            2 * h
+        )
         assert np.allclose(num, jv[:, ch], rtol=1e-5, atol=1e-7)
 
 
@@ -127,16 +133,35 @@ def test_verify_temperature_correction_sign():
     assert v.error_mm == pytest.approx(0.0, abs=1e-12) and v.passed
     cold = verify(D20, 0.002, D20, 0.00075, cte, T, 0.005)  # reading the 20 degC size at 23 degC
     # the error is that of the reading brought to 20 degC: D20 / (1 + cte dT) - D20 = -9.4882 um
-    assert cold.error_mm == pytest.approx(-D20 * cte * (T - 20) / (1 + cte * (T - 20)), abs=1e-12) and not cold.passed
+    assert (
+        cold.error_mm == pytest.approx(-D20 * cte * (T - 20) / (1 + cte * (T - 20)), abs=1e-12)
+        and not cold.passed
+    )
     assert cold.measured_mm - cold.certified_mm == pytest.approx(cold.error_mm, abs=1e-12)
     assert cold.measured_at_t_mm == D20 and cold.expected_at_t_mm == pytest.approx(expanded, rel=1e-15)
     assert cold.u_error_mm == pytest.approx(np.hypot(0.002, 0.00075), rel=1e-4)
     row = verification_row("S1", "TRI-01", "RG-275", cold)
-    assert {"scan_id", "device_id", "artifact_id", "measured_mm", "certified_mm", "error_mm",
-            "tolerance_mm", "passed"} <= row.keys()
+    assert {
+        "scan_id",
+        "device_id",
+        "artifact_id",
+        "measured_mm",
+        "certified_mm",
+        "error_mm",
+        "tolerance_mm",
+        "passed",
+    } <= row.keys()
     d = diameter_row("S1", "TRI-01", "RG-275", None, 275.03, 0.004, "CAL1", "static circumcircle")
-    assert list(d)[:8] == ["scan_id", "device_id", "artifact_id", "feature", "diameter_mm",
-                           "u_diameter_mm", "calibration_id", "method"]
+    assert list(d)[:8] == [
+        "scan_id",
+        "device_id",
+        "artifact_id",
+        "feature",
+        "diameter_mm",
+        "u_diameter_mm",
+        "calibration_id",
+        "method",
+    ]
 
 
 def test_measure_scan_on_simulated_raw_scans(tmp_path):
@@ -175,8 +200,10 @@ def test_pose_means_and_counts():
 def test_reading_u_from_linearity_and_repeatability():
     from borescan.measure import mean_reading_u_mm, reading_u_mm
 
-    sensors = {1: {"linearity_fs": 0.0003, "range_mm": 10.0, "repeatability_mm": 0.004},  # a = 3 um rectangular
-               2: {"repeatability_mm": 0.002}}
+    sensors = {
+        1: {"linearity_fs": 0.0003, "range_mm": 10.0, "repeatability_mm": 0.004},  # a = 3 um rectangular
+        2: {"repeatability_mm": 0.002},
+    }
     u = reading_u_mm(sensors, (1, 2, 3))
     np.testing.assert_allclose(u, [np.hypot(0.003 / np.sqrt(3), 0.004), 0.002, 0.0], rtol=1e-15)
     counts = np.array([[100, 4, 9], [25, 16, 9]])
@@ -215,15 +242,32 @@ def test_diameter_budget_against_a_hand_computed_gum_budget():
     u_db, u_rd, a, T, aT, cte, acte = 0.002, 0.001, 0.005, 22.0, 0.2, 11.5e-6, 1e-6
     cov = np.zeros((9, 9))
     cov[2::3, 2::3] = np.eye(3) * u_db**2
-    cal = Budget(tuple(f"p{i}" for i in range(9)), ("-",) * 9, np.zeros(9),
-                 [Term(Input("fit", "fit", "p", "mm", None, 0.004, "normal", 12, "A"), cov=cov)])
+    cal = Budget(
+        tuple(f"p{i}" for i in range(9)),
+        ("-",) * 9,
+        np.zeros(9),
+        [Term(Input("fit", "fit", "p", "mm", None, 0.004, "normal", 12, "A"), cov=cov)],
+    )
     sensors = {ch: {"linearity_fs": a / 10.0, "range_mm": 10.0, "resolution_mm": 0.0001} for ch in (1, 2, 3)}
     temp = ScanTemperature(T, aT, aT / np.sqrt(3), False, "hand")
     ct = ArtifactCte(cte, acte, acte / np.sqrt(3), False, "hand")
-    du = diameter_uncertainty(270.0, jac_params=jp[0], calibration_budget=cal, jac_readings=jv[0], u_readings_mm=u_rd,
-                              dof_readings=9, sensors=sensors, channels=(1, 2, 3), noise_mm=np.full(3, 0.003),
-                              temperature=temp, cte=ct, artifact={"id": "P1"}, scan_id="S", p=0.9545,
-                              default_resolution_mm=0.001)
+    du = diameter_uncertainty(
+        270.0,
+        jac_params=jp[0],
+        calibration_budget=cal,
+        jac_readings=jv[0],
+        u_readings_mm=u_rd,
+        dof_readings=9,
+        sensors=sensors,
+        channels=(1, 2, 3),
+        noise_mm=np.full(3, 0.003),
+        temperature=temp,
+        cte=ct,
+        artifact={"id": "P1"},
+        scan_id="S",
+        p=0.9545,
+        default_resolution_mm=0.001,
+    )
     f = 1 + cte * (T - 20)
     u_cal2, u_lin2 = 3 * (2 / 3) ** 2 * u_db**2, 3 * (2 / 3) ** 2 * a**2 / 3
     uT2 = u_cal2 + u_rd**2 + u_lin2
@@ -233,8 +277,13 @@ def test_diameter_budget_against_a_hand_computed_gum_budget():
     assert du.diameter_20_mm == pytest.approx(270.0 / f, rel=1e-15)
     assert du.thermal_correction_mm == pytest.approx(270.0 / f - 270.0, rel=1e-12)
     assert du.u_thermal_correction_mm == pytest.approx(
-        np.sqrt((270 * cte / f**2) ** 2 * aT**2 / 3 + (270 * (T - 20) / f**2) ** 2 * acte**2 / 3 + (1 / f - 1) ** 2 * uT2),
-        rel=1e-9)
+        np.sqrt(
+            (270 * cte / f**2) ** 2 * aT**2 / 3
+            + (270 * (T - 20) / f**2) ** 2 * acte**2 / 3
+            + (1 / f - 1) ** 2 * uT2
+        ),
+        rel=1e-9,
+    )
     nu = u20_2**2 / ((u_cal2 / f**2) ** 2 / 12 + (u_rd**2 / f**2) ** 2 / 9)
     assert du.combined_20.nu_eff == pytest.approx(nu, rel=1e-9)
     if du.combined_20.method == "GUF":
@@ -253,7 +302,9 @@ def test_decision_rules():
 
     ok, A, text = decide(0.010, 0.008, 0.015, "simple_acceptance")
     assert ok and A == 0.015 and text.startswith("CONFORMS")
-    ok, A, text = decide(0.010, 0.008, 0.015, "guard_band", 1.0)  # A = 15 - 8 um < 10 <= 15: in the guard band
+    ok, A, text = decide(
+        0.010, 0.008, 0.015, "guard_band", 1.0
+    )  # A = 15 - 8 um < 10 <= 15: in the guard band
     assert not ok and A == pytest.approx(0.007) and text.startswith("CANNOT DECIDE") and "w = 8.0 um" in text
     ok, A, text = decide(0.0, 0.020, 0.015, "guard_band")  # U > T: nothing can be shown to conform
     assert not ok and text.startswith("CANNOT DECIDE") and "not smaller than the tolerance" in text
@@ -266,7 +317,9 @@ def test_decision_rules():
 def _tri_cal(beams, cov=None):
     from borescan.calibration import TriCalibration
 
-    return TriCalibration("CAL-T", "TRI-01", beams, np.zeros((9, 9)) if cov is None else cov, "full_lsq", ("C",))
+    return TriCalibration(
+        "CAL-T", "TRI-01", beams, np.zeros((9, 9)) if cov is None else cov, "full_lsq", ("C",)
+    )
 
 
 def _static_scan(tmp_path, temperature_c=20.6, scan_id="T-STATIC", noise_mm=0.002):
@@ -275,8 +328,13 @@ def _static_scan(tmp_path, temperature_c=20.6, scan_id="T-STATIC", noise_mm=0.00
     from borescan.simulate import TriScene, simulate_tri_static, write_simulated
 
     scene = TriScene(beams=BEAMS, bore_center_xy_mm=(262.833, -273.182), bore_radius_20_mm=R)
-    sim = simulate_tri_static(scene, scan_id=scan_id, noise_mm=noise_mm, seed=4,
-                              effects=[Effect("thermal_expansion", {"temperature_c": temperature_c})])
+    sim = simulate_tri_static(
+        scene,
+        scan_id=scan_id,
+        noise_mm=noise_mm,
+        seed=4,
+        effects=[Effect("thermal_expansion", {"temperature_c": temperature_c})],
+    )
     if temperature_c is None or scan_id.endswith("NOTEMP"):
         sim.meta.pop("environment")
     return read_scan(write_simulated(sim, tmp_path / "raw", tmp_path / "truth")), sim
@@ -304,7 +362,9 @@ def test_temperature_explicit_at_t_and_at_20(tmp_path):
     assert abs(row["error_mm"]) < 2e-6 and row["passed"]
     # the same gauge as the calibration's: its certified diameter enters twice and cancels (here the
     # calibration has no budget, so it enters once, with sensitivity -1: u(E) includes U / k = 0.75 um)
-    assert {r["key"]: r for r in v.budget_rows}["gauge:RG-275@RG-275/2026-03:D20"]["contribution"] == pytest.approx(0.00075)
+    assert {r["key"]: r for r in v.budget_rows}["gauge:RG-275@RG-275/2026-03:D20"][
+        "contribution"
+    ] == pytest.approx(0.00075)
 
 
 def test_missing_temperature_is_refused_or_flagged(tmp_path):
@@ -360,8 +420,13 @@ def test_sensitivity_to_every_base_length_sums_to_two(tmp_path):
     assert np.sum(res["jac_readings"]) == pytest.approx(2.0, abs=2e-3)
     assert np.sum(res["jac_params"][2::3]) == pytest.approx(2.0, abs=2e-3)
     scene = TriScene(beams=BEAMS, bore_center_xy_mm=(262.833, -273.182), bore_radius_20_mm=R)
-    rot = read_scan(write_simulated(simulate_tri_spindle(scene, scan_id="T-ROT", n_rev=2.0, noise_mm=0.0),
-                                    tmp_path / "raw", tmp_path / "truth"))
+    rot = read_scan(
+        write_simulated(
+            simulate_tri_spindle(scene, scan_id="T-ROT", n_rev=2.0, noise_mm=0.0),
+            tmp_path / "raw",
+            tmp_path / "truth",
+        )
+    )
     res = measure_scan(rot, BEAMS)
     assert np.sum(res["jac_readings"]) == pytest.approx(2.0, abs=2e-3)
     np.testing.assert_allclose(res["jac_params"][2::3], res["jac_readings"], rtol=1e-4)
@@ -376,10 +441,17 @@ def test_second_order_term_of_the_calibration_hardly_moves_a_diameter_of_the_gau
     """
     from borescan.measure import DiameterModel, _second_order_variance, _with_params
 
-    beams = Beams((1, 2, 3), np.array([0.35, 2.46, 4.56]), np.array([-5.5, -2.5, 1.5]), np.array([132.67, 132.89, 134.11]))
+    beams = Beams(
+        (1, 2, 3),
+        np.array([0.35, 2.46, 4.56]),
+        np.array([-5.5, -2.5, 1.5]),
+        np.array([132.67, 132.89, 134.11]),
+    )
     Rg, u = 275.029 / 2, 1.0
     for Rp in (Rg, Rg + 2.0):
-        v = tri_static_readings(np.array([[0.3, -0.2], [-0.5, 0.4]]), np.array([0.1, 2.0]), beams, Bore((0, 0), Rp))
+        v = tri_static_readings(
+            np.array([[0.3, -0.2], [-0.5, 0.4]]), np.array([0.1, 2.0]), beams, Bore((0, 0), Rp)
+        )
         model = DiameterModel("static", v)
         cov = np.zeros((9, 9))
         cov[2, 2] = 3 * u**4 / (4 * Rg**2)  # channel 1 only
@@ -404,9 +476,15 @@ def test_second_order_term_of_the_calibration_hardly_moves_a_diameter_of_the_gau
 def test_part_feature_picks_the_named_feature_else_the_only_one_else_the_artifact():
     from borescan.measure import part_feature
 
-    art = {"id": "HSG", "nominal_diameter_mm": 300.0, "tolerance_mm": 0.05,
-           "features": [{"id": "H1", "nominal_diameter_mm": 150.0, "tolerance_mm": 0.01},
-                        {"id": "H2", "nominal_diameter_mm": 180.0}]}
+    art = {
+        "id": "HSG",
+        "nominal_diameter_mm": 300.0,
+        "tolerance_mm": 0.05,
+        "features": [
+            {"id": "H1", "nominal_diameter_mm": 150.0, "tolerance_mm": 0.01},
+            {"id": "H2", "nominal_diameter_mm": 180.0},
+        ],
+    }
     assert part_feature(art, "H1") == {"nominal_diameter_mm": 150.0, "tolerance_mm": 0.01}
     # H2 has no tolerance of its own: the artifact's applies
     assert part_feature(art, "H2") == {"nominal_diameter_mm": 180.0, "tolerance_mm": 0.05}
@@ -418,21 +496,28 @@ def test_part_feature_picks_the_named_feature_else_the_only_one_else_the_artifac
     assert part_feature({}, None) == {"nominal_diameter_mm": None, "tolerance_mm": None}
 
 
-@pytest.mark.parametrize("dev_um, U_um, tol_um, rule, verdict", [
-    (+9.0, 4.0, 10.0, "simple_acceptance", "conforms"),          # |9| <= 10
-    (-11.0, 4.0, 10.0, "simple_acceptance", "does not conform"),  # |-11| > 10
-    (+9.0, 4.0, 10.0, "guarded_acceptance", "cannot decide"),     # 10 - 4 = 6 < 9 <= 10
-    (-5.5, 4.0, 10.0, "guarded_acceptance", "conforms"),          # 5.5 <= 6
-    (+9.0, 12.0, 10.0, "simple_acceptance", "cannot decide"),     # U = 12 >= T = 10
-])
-def test_part_conformity_applies_the_decision_rule_to_the_deviation_at_20c(dev_um, U_um, tol_um, rule, verdict):
+@pytest.mark.parametrize(
+    "dev_um, U_um, tol_um, rule, verdict",
+    [
+        (+9.0, 4.0, 10.0, "simple_acceptance", "conforms"),  # |9| <= 10
+        (-11.0, 4.0, 10.0, "simple_acceptance", "does not conform"),  # |-11| > 10
+        (+9.0, 4.0, 10.0, "guarded_acceptance", "cannot decide"),  # 10 - 4 = 6 < 9 <= 10
+        (-5.5, 4.0, 10.0, "guarded_acceptance", "conforms"),  # 5.5 <= 6
+        (+9.0, 12.0, 10.0, "simple_acceptance", "cannot decide"),  # U = 12 >= T = 10
+    ],
+)
+def test_part_conformity_applies_the_decision_rule_to_the_deviation_at_20c(
+    dev_um, U_um, tol_um, rule, verdict
+):
     from borescan.measure import part_conformity
 
     r = part_conformity(150.0 + dev_um * 1e-3, U_um * 1e-3, 150.0, tol_um * 1e-3, rule, 1.0)
     assert r["deviation_mm"] == pytest.approx(dev_um * 1e-3, abs=1e-12)
-    assert r["conformity"].split(" (")[0] == verdict and f"U {U_um:.1f} um, T {tol_um:.1f} um" in r["conformity"]
-    assert part_conformity(150.0, 0.004, None, 0.01)["conformity"] is None      # no nominal: no verdict
-    assert part_conformity(150.0, 0.004, 150.0, None)["deviation_mm"] == 0.0   # no tolerance: deviation only
+    assert (
+        r["conformity"].split(" (")[0] == verdict and f"U {U_um:.1f} um, T {tol_um:.1f} um" in r["conformity"]
+    )
+    assert part_conformity(150.0, 0.004, None, 0.01)["conformity"] is None  # no nominal: no verdict
+    assert part_conformity(150.0, 0.004, 150.0, None)["deviation_mm"] == 0.0  # no tolerance: deviation only
     assert part_conformity(150.0, 0.004, 150.0, None)["conformity"] is None
 
 
@@ -445,8 +530,14 @@ def test_rotating_sensitivities_equal_central_differences_of_the_circle_fit(tmp_
     from borescan.measure import _with_params, measure_scan
 
     scene = simulate.default_tri_scene()
-    sim = simulate.simulate_tri_spindle(scene, n_rev=3, scan_id="SENS", kind="measurement", seed=4,
-                                        artifact={"id": "B", "type": "part", "nominal_diameter_mm": 275.0})
+    sim = simulate.simulate_tri_spindle(
+        scene,
+        n_rev=3,
+        scan_id="SENS",
+        kind="measurement",
+        seed=4,
+        artifact={"id": "B", "type": "part", "nominal_diameter_mm": 275.0},
+    )
     scan = rawio.read_scan(simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth"))
     beams = scene.beams
     res = measure_scan(scan, beams)

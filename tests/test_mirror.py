@@ -28,9 +28,17 @@ R_MM = 137.5
 
 
 def _scene(rho_mm, e_mm, rate_hz=660.0):
-    beams = Beams((1, 2, 3), np.array([0.3, 2.4, 4.3]), np.asarray(rho_mm, float), np.array([128.0, 129.0, 130.0]))
-    return simulate.TriScene(beams=beams, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=R_MM,
-                             spindle_xy_mm=(e_mm, 0.0), sample_rate_hz=rate_hz, range_mm=(20.0, 20.0, 20.0))
+    beams = Beams(
+        (1, 2, 3), np.array([0.3, 2.4, 4.3]), np.asarray(rho_mm, float), np.array([128.0, 129.0, 130.0])
+    )
+    return simulate.TriScene(
+        beams=beams,
+        bore_center_xy_mm=(0.0, 0.0),
+        bore_radius_20_mm=R_MM,
+        spindle_xy_mm=(e_mm, 0.0),
+        sample_rate_hz=rate_hz,
+        range_mm=(20.0, 20.0, 20.0),
+    )
 
 
 @pytest.mark.parametrize("rho_mm", [3.0, 5.0, 8.0])
@@ -42,7 +50,12 @@ def test_depth_formula_is_the_mirror_misfit_of_exact_readings(rho_mm):
     e, sigma = 1.0, 0.002
     scene = _scene([rho_mm, -3.0, 1.0], e)
     b = scene.beams
-    mirror = Beams(b.channels, b.beta_rad + np.array([2 * math.asin(rho_mm / R_MM), 0, 0]), b.rho_mm * [-1, 1, 1], b.d_b_mm)
+    mirror = Beams(
+        b.channels,
+        b.beta_rad + np.array([2 * math.asin(rho_mm / R_MM), 0, 0]),
+        b.rho_mm * [-1, 1, 1],
+        b.d_b_mm,
+    )
     t = np.arange(6600) / 660.0
     dv = simulate.tri_readings(replace(scene, beams=mirror), t)[:, 0] - simulate.tri_readings(scene, t)[:, 0]
     exact = float(np.sum(dv**2) / sigma**2)
@@ -57,7 +70,9 @@ def test_offset_to_resolve_puts_the_mirror_at_k():
     x = offset_to_resolve_mm(R_MM, 0.002, 16000, 1.5262)
     assert predicted_depth([16000], [x], 1.5262, [0.002], R_MM) == pytest.approx(RESOLVED_DCHI2, rel=1e-12)
     assert 1.15 < x < 1.25
-    assert predicted_depth([8000, 8000], [x, x], 1.5262, [0.002, 0.002], R_MM) == pytest.approx(RESOLVED_DCHI2, rel=1e-12)
+    assert predicted_depth([8000, 8000], [x, x], 1.5262, [0.002, 0.002], R_MM) == pytest.approx(
+        RESOLVED_DCHI2, rel=1e-12
+    )
     assert offset_to_resolve_mm(R_MM, 0.002, 16000, 4 * 1.5262) == pytest.approx(x / 2, rel=1e-12)
 
 
@@ -82,9 +97,15 @@ def test_mixture_weights_are_normalised_likelihood_ratios():
     alt = {"params": tuple(range(9)), "cov": tuple(tuple(0.0 for _ in range(9)) for _ in range(9))}
     from borescan.mirror import MirrorSolution
 
-    checks = [BeamMirror(1, 5.0, 1.0, True, 3.0, 2.0, False, 0.0, 0.0, 1.0, MirrorSolution(**alt, delta_chi2=2.0, weight=0)),
-              BeamMirror(2, 1.0, 1.0, False, 0.1, None, True, 1.0, 0.0, 3.0),
-              BeamMirror(3, 4.0, 1.0, True, 4.0, 6.0, False, 0.0, 0.0, 1.0, MirrorSolution(**alt, delta_chi2=6.0, weight=0))]
+    checks = [
+        BeamMirror(
+            1, 5.0, 1.0, True, 3.0, 2.0, False, 0.0, 0.0, 1.0, MirrorSolution(**alt, delta_chi2=2.0, weight=0)
+        ),
+        BeamMirror(2, 1.0, 1.0, False, 0.1, None, True, 1.0, 0.0, 3.0),
+        BeamMirror(
+            3, 4.0, 1.0, True, 4.0, 6.0, False, 0.0, 0.0, 1.0, MirrorSolution(**alt, delta_chi2=6.0, weight=0)
+        ),
+    ]
     comps = mixture_components(np.zeros(9), np.eye(9), checks)
     raw = np.array([1.0, math.exp(-1.0), math.exp(-3.0)])
     assert [w for w, _, _ in comps] == pytest.approx(list(raw / raw.sum()), rel=1e-12)
@@ -111,8 +132,10 @@ def test_fit_flags_only_the_beam_whose_mirror_is_shallow(flagged_fit):
     # beam 1: a mirror, refitted from -rho, deep: resolved; the refit within its noise of Eq. (1) (the refit
     # of the other parameters takes 0-16 % of it, the noise moves it by 2 sqrt(depth) sd)
     assert m1.resolved and m1.refit_delta_chi2 is not None
-    assert abs(m1.refit_delta_chi2 - 0.92 * m1.predicted_delta_chi2) < 3 * 2 * math.sqrt(m1.predicted_delta_chi2) \
-        + 0.1 * m1.predicted_delta_chi2
+    assert (
+        abs(m1.refit_delta_chi2 - 0.92 * m1.predicted_delta_chi2)
+        < 3 * 2 * math.sqrt(m1.predicted_delta_chi2) + 0.1 * m1.predicted_delta_chi2
+    )
     # beam 3: |rho| < sqrt(2) e: no mirror, the refit returned to the solution
     assert not m3.mirror_possible and m3.resolved and m3.refit_delta_chi2 is None
     # beam 2: flagged, two solutions of opposite sign; weights exp(-d/2) normalised; the truth in one of them
@@ -150,7 +173,11 @@ def test_resolved_beams_keep_their_own_curvature(flagged_fit):
             expected += np.asarray(prof["extra_cov_params"])
     m2 = mirror_checks_of(cal.diagnostics)[1]
     d = m2.alternative.params_array - cal.params
-    assert abs(d[7]) > 10 * cal.u_d_b_mm[2] or abs(d[6]) > 3 * cal.u_beta_rad[2] or abs(d[1]) > 3 * cal.u_rho_mm[0]
+    assert (
+        abs(d[7]) > 10 * cal.u_d_b_mm[2]
+        or abs(d[6]) > 3 * cal.u_beta_rad[2]
+        or abs(d[1]) > 3 * cal.u_rho_mm[0]
+    )
     for j in (0, 2):
         blk = slice(3 * j, 3 * j + 3)
         np.testing.assert_allclose(cal.cov[blk, blk], expected[blk, blk], rtol=1e-9, atol=1e-30)
@@ -215,7 +242,9 @@ def test_certificate_json_states_the_undetermined_sign_with_both_solutions(flagg
     _, cal = flagged_fit
     part = rho_sign_part(cal)
     b = {m["channel"]: m for m in part["beams"]}
-    assert b[2]["statement"].startswith("the sign of rho of channel 2 is not determined by this scan: two solutions")
+    assert b[2]["statement"].startswith(
+        "the sign of rho of channel 2 is not determined by this scan: two solutions"
+    )
     alt = b[2]["alternative"]
     assert np.sign(alt["rho_mm"]) == -np.sign(b[2]["u_main"]["rho_mm"])
     assert alt["weight"] + b[2]["weight_main"] == pytest.approx(1.0, abs=1e-12)
@@ -253,10 +282,18 @@ def test_a_diameter_with_a_flagged_calibration_is_the_mixture_or_refused(flagged
     R = R_MM if where == "gauge" else 0.55 * hi
     reach = float(R - min(scene.beams.d_b_mm) + 10.0)
     st = replace(scene, bore_radius_20_mm=R, bore_center_xy_mm=(0.0, 0.0), range_mm=(reach,) * 3)
-    art = {"id": "RG", "type": "ring_gauge", "nominal_diameter_mm": 2 * R, "certified_diameter_mm": 2 * R,
-           "u_diameter_mm": 0.0, "k": 2, "cte_per_k": 0.0}
-    sim = simulate.simulate_tri_static(st, noise_mm=0.002, seed=3, artifact=art, scan_id="STAT1",
-                                       extra_meta=None)
+    art = {
+        "id": "RG",
+        "type": "ring_gauge",
+        "nominal_diameter_mm": 2 * R,
+        "certified_diameter_mm": 2 * R,
+        "u_diameter_mm": 0.0,
+        "k": 2,
+        "cte_per_k": 0.0,
+    }
+    sim = simulate.simulate_tri_static(
+        st, noise_mm=0.002, seed=3, artifact=art, scan_id="STAT1", extra_meta=None
+    )
     scan = rawio.read_scan(simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth"))
     unc = schema_defaults()["uncertainty"]
     if lo <= 2 * R <= hi:
@@ -267,6 +304,9 @@ def test_a_diameter_with_a_flagged_calibration_is_the_mixture_or_refused(flagged
         assert mix.interval_mm[0] <= 2 * R <= mix.interval_mm[1]
         assert du.combined_t.U >= du.combined_t.u * 1.9
     else:
-        with pytest.raises(ValueError, match=r"^STAT1: bore diameter .* outside .* the sign of rho of channel 2 is "
-                                             r"not determined"):
+        with pytest.raises(
+            ValueError,
+            match=r"^STAT1: bore diameter .* outside .* the sign of rho of channel 2 is "
+            r"not determined",
+        ):
             tri_diameter_with_budget(scan, cal, unc)

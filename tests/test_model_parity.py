@@ -64,10 +64,14 @@ OUTPUT_STAGE = {name for name, spec in EFFECTS.items() if spec.stage == "output"
 
 #: Sensible parameter values per effect: the registry's ``example`` (channel effects on channel 2).
 VALUES: dict[str, dict] = {name: dict(spec.example) for name, spec in EFFECTS.items()}
-TRI_EFFECTS = [name for name, spec in EFFECTS.items() if TRI in spec.device_types and name not in OUTPUT_STAGE]
+TRI_EFFECTS = [
+    name for name, spec in EFFECTS.items() if TRI in spec.device_types and name not in OUTPUT_STAGE
+]
 #: a static set has no spindle turning: kinematic and spindle-position effects do not apply to it
 STATIC_EFFECTS = [n for n in TRI_EFFECTS if EFFECTS[n].stage not in ("kinematics", "spindle_position")]
-ROD_EFFECTS = [name for name, spec in EFFECTS.items() if ROD in spec.device_types and name not in OUTPUT_STAGE]
+ROD_EFFECTS = [
+    name for name, spec in EFFECTS.items() if ROD in spec.device_types and name not in OUTPUT_STAGE
+]
 
 SCENES = {
     "ccw": default_tri_scene(sample_rate_hz=120.0, phase_rad=0.7),
@@ -80,11 +84,19 @@ def _data(scene) -> TriData:
     t = np.arange(int(3 * scene.sample_rate_hz)) / scene.sample_rate_hz
     c = len(scene.beams.channels)
     return TriData(
-        scan_id="parity", t_s=t, values_mm=np.zeros((t.size, c)), channels=scene.beams.channels,
-        beams=scene.beams, radius_mm=scene.bore_radius_20_mm, cte_per_k=scene.cte_per_k,
-        omega_rad_s=scene.omega_rad_per_s, direction=1.0 if scene.direction == "ccw" else -1.0,
-        spindle_xy_mm=np.asarray(scene.spindle_xy_mm, dtype=float), center_xy_mm=None,
-        range_mm=np.asarray(scene.range_mm, dtype=float), phase_rad=scene.phase_rad,
+        scan_id="parity",
+        t_s=t,
+        values_mm=np.zeros((t.size, c)),
+        channels=scene.beams.channels,
+        beams=scene.beams,
+        radius_mm=scene.bore_radius_20_mm,
+        cte_per_k=scene.cte_per_k,
+        omega_rad_s=scene.omega_rad_per_s,
+        direction=1.0 if scene.direction == "ccw" else -1.0,
+        spindle_xy_mm=np.asarray(scene.spindle_xy_mm, dtype=float),
+        center_xy_mm=None,
+        range_mm=np.asarray(scene.range_mm, dtype=float),
+        phase_rad=scene.phase_rad,
     )
 
 
@@ -119,9 +131,21 @@ def test_twin_and_fitting_model_give_the_same_readings(name, scene):
 def test_twin_and_fitting_model_agree_on_composed_effects():
     """Several effects at once, one per stage and two on one channel, compose alike."""
     sc = SCENES["ccw"]
-    effects = [Effect(n, VALUES[n]) for n in ("channel_delay", "speed_ripple", "spindle_error_motion",
-                                              "bore_lobing", "axis_tilt", "thermal_expansion", "beam_tilt",
-                                              "sensor_gain", "sensor_drift", "vibration")]
+    effects = [
+        Effect(n, VALUES[n])
+        for n in (
+            "channel_delay",
+            "speed_ripple",
+            "spindle_error_motion",
+            "bore_lobing",
+            "axis_tilt",
+            "thermal_expansion",
+            "beam_tilt",
+            "sensor_gain",
+            "sensor_drift",
+            "vibration",
+        )
+    ]
     effects.append(Effect("sensor_offset", {"channel": 1, "b_mm": -0.02}))
     model = TriModel(_data(sc))
     terms = [_term(e) for e in effects]
@@ -197,7 +221,9 @@ def test_registry_effect_is_recovered_by_the_fitting_model(name):
         if k in ("channel", "k"):
             continue
         if name == "axis_tilt" and k == "azimuth" or k == "phase":
-            d = math.remainder(par[k] - v, 2 * math.pi / (e.params.get("k", 1) if name == "bore_lobing" else 1))
+            d = math.remainder(
+                par[k] - v, 2 * math.pi / (e.params.get("k", 1) if name == "bore_lobing" else 1)
+            )
         else:
             d = par[k] - v
         assert abs(d) <= 4 * unc[k], (k, par[k], v, unc[k])
@@ -261,11 +287,19 @@ def _static_params() -> dict[str, float]:
 
 def _rod_model() -> tuple[RodModel, np.ndarray]:
     """Return the rod fit model of the scene (nominal layers = true layers, certified hole diameters)."""
-    feats = [{"id": f"H{lay.channel}", "z_mm": lay.h_mm, "certified_diameter_mm": 2 * h.radius_mm}
-             for lay, h in zip(ROD_SCENE.layers, ROD_SCENE.holes)]
+    feats = [
+        {"id": f"H{lay.channel}", "z_mm": lay.h_mm, "certified_diameter_mm": 2 * h.radius_mm}
+        for lay, h in zip(ROD_SCENE.layers, ROD_SCENE.holes)
+    ]
     artifact = {"id": "GAUGE-2H", "type": "ring_gauge", "cte_per_k": ROD_SCENE.cte_per_k, "features": feats}
-    sim = simulate_rod(ROD_SCENE, ROD_ALPHA_RAD, nominal_layers=ROD_SCENE.layers, artifact=artifact,
-                       noise_mm=0.0, samples_per_pose=5)
+    sim = simulate_rod(
+        ROD_SCENE,
+        ROD_ALPHA_RAD,
+        nominal_layers=ROD_SCENE.layers,
+        artifact=artifact,
+        noise_mm=0.0,
+        samples_per_pose=5,
+    )
     t, pose = _poses(len(ROD_ALPHA_RAD), 5, ROD_SCENE.sample_rate_hz)
     c = ROD_SCENE.channels
     return RodModel(PoseData("parity-rod", sim.meta, t, np.zeros((t.size, len(c))), c, pose)), pose
@@ -364,10 +398,17 @@ def test_a_new_registry_effect_reaches_the_twin_and_every_fitting_model(monkeypa
     """Registering a bore effect (its registry entry, nothing else) changes the twin's readings of
     every scan kind, and each fitting model gives the twin's readings with it.
     """
-    spec = EffectSpec("bore_scale", (TRI, ROD), {"s": "-"}, "bore", {TRI: _scale_bore, ROD: _scale_bore},
-                      "R' = R (1 + s)", fit=(FitParam("s", "-", 1e-5),),
-                      candidate={"tri_spindle": "screen", "tri_static": "screen", "rod": "screen"},
-                      example={"s": 4e-5})
+    spec = EffectSpec(
+        "bore_scale",
+        (TRI, ROD),
+        {"s": "-"},
+        "bore",
+        {TRI: _scale_bore, ROD: _scale_bore},
+        "R' = R (1 + s)",
+        fit=(FitParam("s", "-", 1e-5),),
+        candidate={"tri_spindle": "screen", "tri_static": "screen", "rod": "screen"},
+        example={"s": 4e-5},
+    )
     monkeypatch.setitem(EFFECTS, "bore_scale", spec)
     effect = Effect("bore_scale", {"s": 4e-5})
     term = _term(effect)
@@ -376,17 +417,25 @@ def test_a_new_registry_effect_reaches_the_twin_and_every_fitting_model(monkeypa
     tri = TriModel(_data(sc))
     twin = tri_readings(sc, tri.data.t_s, [effect])
     assert np.max(np.abs(twin - tri_readings(sc, tri.data.t_s, []))) > 1e-3
-    assert np.max(np.abs(tri.predict({**_base_params(sc), **term_values(term, effect)}, [term]) - twin)) < TOL_MM
+    assert (
+        np.max(np.abs(tri.predict({**_base_params(sc), **term_values(term, effect)}, [term]) - twin)) < TOL_MM
+    )
     assert term in candidate_terms(tri.data, k_max=2)
     # static
     static, _ = _static_model()
     twin = _static_twin([effect])
     assert np.max(np.abs(twin - _static_twin([]))) > 1e-3
-    assert np.max(np.abs(static.predict({**_static_params(), **term_values(term, effect)}, [term]) - twin)) < POSE_TOL_MM
+    assert (
+        np.max(np.abs(static.predict({**_static_params(), **term_values(term, effect)}, [term]) - twin))
+        < POSE_TOL_MM
+    )
     assert term in static.candidate_terms(k_max=2)
     # rod
     rod, _ = _rod_model()
     twin = _rod_twin([effect])
     assert np.max(np.abs(twin - _rod_twin([]))) > 1e-3
-    assert np.max(np.abs(rod.predict({**_rod_params(), **term_values(term, effect)}, [term]) - twin)) < POSE_TOL_MM
+    assert (
+        np.max(np.abs(rod.predict({**_rod_params(), **term_values(term, effect)}, [term]) - twin))
+        < POSE_TOL_MM
+    )
     assert term in rod.candidate_terms(k_max=2)

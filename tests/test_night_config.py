@@ -21,7 +21,10 @@ def _config(tolerance_mm: float) -> dict:
 
 def test_changed_keys_names_nested_additions_and_removals():
     assert night_config.changed_keys({"a": {"b": 1, "c": 2}, "d": 1}, {"a": {"b": 1, "c": 3}, "e": None}) == [
-        "a.c", "d", "e"]
+        "a.c",
+        "d",
+        "e",
+    ]
 
 
 def test_settle_records_a_night_once_and_keeps_it(tmp_path):
@@ -41,8 +44,10 @@ def test_recompute_keeps_the_old_results_records_the_change_and_marks_the_nights
     night_config.settle(tmp_path, ["2026-11-20", "2026-11-21", "2026-11-22"], _config(0.015))
     night_config.settle(tmp_path, ["2026-11-23"], _config(0.002))
     for night in ("2026-11-20", "2026-11-21", "2026-11-22"):
-        write_table(tables.frame("verifications", [{"scan_id": f"V{night}", "tolerance_mm": 0.015}]),
-                    tmp_path / "stage" / "verifications" / f"night={night}.parquet")
+        write_table(
+            tables.frame("verifications", [{"scan_id": f"V{night}", "tolerance_mm": 0.015}]),
+            tmp_path / "stage" / "verifications" / f"night={night}.parquet",
+        )
         index = raw_index_path(tmp_path, night)
         index.parent.mkdir(parents=True, exist_ok=True)
         index.write_text("scan=V/scan.json 1 1\n")
@@ -51,15 +56,23 @@ def test_recompute_keeps_the_old_results_records_the_change_and_marks_the_nights
     assert change.change_id == "change-0001" and change.nights == ("2026-11-21", "2026-11-22")
     assert change.keys == ("verification.tolerance_mm",) and change.archive == "versions/change-0001"
     kept = tmp_path / "versions" / "change-0001" / "stage"
-    assert sorted(p.name for p in (kept / "verifications").iterdir()) == ["night=2026-11-21.parquet",
-                                                                          "night=2026-11-22.parquet"]
-    assert sorted(p.name for p in (kept / "night_config").iterdir()) == ["night=2026-11-21.parquet",
-                                                                         "night=2026-11-22.parquet"]
-    by = {n: night_config.read_record(tmp_path, n).recorded_by for n in ("2026-11-20", "2026-11-21", "2026-11-23")}
+    assert sorted(p.name for p in (kept / "verifications").iterdir()) == [
+        "night=2026-11-21.parquet",
+        "night=2026-11-22.parquet",
+    ]
+    assert sorted(p.name for p in (kept / "night_config").iterdir()) == [
+        "night=2026-11-21.parquet",
+        "night=2026-11-22.parquet",
+    ]
+    by = {
+        n: night_config.read_record(tmp_path, n).recorded_by
+        for n in ("2026-11-20", "2026-11-21", "2026-11-23")
+    }
     assert by == {"2026-11-20": "first run", "2026-11-21": "recompute change-0001", "2026-11-23": "first run"}
     assert raw_index_path(tmp_path, "2026-11-21").stat().st_mtime_ns > 10**18
     assert raw_index_path(tmp_path, "2026-11-20").stat().st_mtime_ns == 10**18
     rows = pl.read_parquet(tmp_path / "stage" / "config_changes" / "night=2026-11-21.parquet")
     assert rows.select("change_id", "nights", "changed_keys").rows() == [
-        ("change-0001", "2026-11-21,2026-11-22", "verification.tolerance_mm")]
+        ("change-0001", "2026-11-21,2026-11-22", "verification.tolerance_mm")
+    ]
     assert night_config.recompute(tmp_path, "2026-11-21", _config(0.002)) is None  # nothing differs any more

@@ -83,8 +83,10 @@ def test_design_geometry_missing_names_the_key_and_the_file():
     assert (o.stage, o.file, o.quarantined) == ("calibrate", "lds.parquet", True)
     assert o.reason.startswith("too few revolutions to calibrate: 3 whole revolutions recorded")
     (o,) = preconditions.expected_outcomes(meta, has_spindle=True, revolutions=(6, 6), min_rev=5)
-    assert (o.file, o.reason) == ("scan.json", preconditions.missing_geometry_reason(
-        "beams", preconditions.CALIBRATION_NEEDS_BEAMS))
+    assert (o.file, o.reason) == (
+        "scan.json",
+        preconditions.missing_geometry_reason("beams", preconditions.CALIBRATION_NEEDS_BEAMS),
+    )
 
 
 @pytest.mark.slow
@@ -109,29 +111,44 @@ def test_each_quarantine_file_holds_the_catalogs_first_reason(night):
         assert f"{rec['file']}: {rec['reason']}" == reason, sid
     # the import-csv example: too short and without device.nominal; calibrate found it first
     rec = json.loads((night["results"] / "quarantine" / "OPT-SHORT-NO-NOMINAL.json").read_text())
-    assert rec["stage"] == "calibrate" and re.match(r"too few revolutions to calibrate: 2 whole revolutions recorded,",
-                                                    rec["reason"]), rec  # 3 turns from an arbitrary phase: 2 whole
+    assert rec["stage"] == "calibrate" and re.match(
+        r"too few revolutions to calibrate: 2 whole revolutions recorded,", rec["reason"]
+    ), rec  # 3 turns from an arbitrary phase: 2 whole
 
 
 @pytest.mark.slow
 def test_a_scan_without_device_nominal_is_measured_and_examined_with_its_calibration(night):
     con = night["con"]
-    for sid in ("OPT-TRI-MEAS-NO-DEVICE-NOMINAL", "OPT-ROD-MEAS-NO-DEVICE-NOMINAL", "OPT-TRI-VER-NO-DEVICE-NOMINAL"):
+    for sid in (
+        "OPT-TRI-MEAS-NO-DEVICE-NOMINAL",
+        "OPT-ROD-MEAS-NO-DEVICE-NOMINAL",
+        "OPT-TRI-VER-NO-DEVICE-NOMINAL",
+    ):
         assert con.execute("SELECT status FROM scans WHERE scan_id = ?", [sid]).fetchone()[0] == "ok", sid
         assert con.execute("SELECT count(*) FROM findings WHERE scan_id = ?", [sid]).fetchone()[0] == 1, sid
     # the same diameter as the complete scan: device.nominal is not an input of a calibrated measurement
-    d = dict(con.execute("SELECT scan_id, diameter_mm FROM diameters WHERE scan_id IN "
-                         "('OPT-TRI-MEAS', 'OPT-TRI-MEAS-NO-DEVICE-NOMINAL')").fetchall())
+    d = dict(
+        con.execute(
+            "SELECT scan_id, diameter_mm FROM diameters WHERE scan_id IN "
+            "('OPT-TRI-MEAS', 'OPT-TRI-MEAS-NO-DEVICE-NOMINAL')"
+        ).fetchall()
+    )
     assert d["OPT-TRI-MEAS"] == d["OPT-TRI-MEAS-NO-DEVICE-NOMINAL"]
-    reason = con.execute("SELECT reason FROM scans WHERE scan_id = 'OPT-TRI-CAL-NO-DEVICE-NOMINAL'").fetchone()[0]
-    assert reason == "scan.json: " + preconditions.missing_geometry_reason("beams", preconditions.CALIBRATION_NEEDS_BEAMS)
+    reason = con.execute(
+        "SELECT reason FROM scans WHERE scan_id = 'OPT-TRI-CAL-NO-DEVICE-NOMINAL'"
+    ).fetchone()[0]
+    assert reason == "scan.json: " + preconditions.missing_geometry_reason(
+        "beams", preconditions.CALIBRATION_NEEDS_BEAMS
+    )
 
 
 @pytest.mark.slow
 def test_validate_predicts_what_the_stages_did(night, capsys):
     code, lines, err = _validate(night["raw"], capsys)
     assert code == 1
-    rows = dict(night["con"].execute("SELECT scan_id, reason FROM scans WHERE status = 'quarantined'").fetchall())
+    rows = dict(
+        night["con"].execute("SELECT scan_id, reason FROM scans WHERE status = 'quarantined'").fetchall()
+    )
     q = {sid: json.loads((night["results"] / "quarantine" / f"{sid}.json").read_text()) for sid in rows}
     predicted = {sid: v for sid, v in lines.items() if not v[1].startswith("note: ")}
     for sid, (file, text) in predicted.items():
@@ -152,7 +169,11 @@ def test_a_nights_log_line_names_the_scans_set_aside_and_why():
     from borescan.stages._common import quarantined_text
 
     long = "x" * 300
-    text = quarantined_text([Quarantined("S1", "2026-11-20", "calibrate", "lds.parquet", "too few revolutions"),
-                             Quarantined("S2", "2026-11-20", "calibrate", "scan.json", long)])
+    text = quarantined_text(
+        [
+            Quarantined("S1", "2026-11-20", "calibrate", "lds.parquet", "too few revolutions"),
+            Quarantined("S2", "2026-11-20", "calibrate", "scan.json", long),
+        ]
+    )
     assert text == f"2 quarantined: S1 (lds.parquet: too few revolutions); S2 (scan.json: {'x' * 157}...)"
     assert quarantined_text([]) == "0 quarantined"

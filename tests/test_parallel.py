@@ -35,12 +35,14 @@ def test_job_environment_sets_the_malloc_settings_and_keeps_the_users():
     got = set_job_environment(env)
     assert got == {"MALLOC_MMAP_THRESHOLD_": str(32 * 2**20), "MALLOC_TRIM_THRESHOLD_": "131072"}
     assert env["PATH"] == "/bin" and set(JOB_MALLOC_ENVIRONMENT) <= set(env)
-    assert set_job_environment({}) == JOB_MALLOC_ENVIRONMENT == {
-        "MALLOC_MMAP_THRESHOLD_": "33554432", "MALLOC_TRIM_THRESHOLD_": "268435456"}
+    assert (
+        set_job_environment({})
+        == JOB_MALLOC_ENVIRONMENT
+        == {"MALLOC_MMAP_THRESHOLD_": "33554432", "MALLOC_TRIM_THRESHOLD_": "268435456"}
+    )
 
 
-
-_JOB_SCRIPT = '''
+_JOB_SCRIPT = """
 import os, sys
 class _Job:
     threads = int(sys.argv[1])
@@ -57,7 +59,7 @@ def square_pid_threads(x):
 if __name__ == "__main__":
     out = list(map_in_order(square_pid_threads, range(40), workers=max(_Job.threads, 1)))  # smk.threads
     print(started, os.getpid(), repr(out))
-'''
+"""
 
 
 def _run_job_script(tmp_path, threads: int):
@@ -67,7 +69,9 @@ def _run_job_script(tmp_path, threads: int):
 
     script = tmp_path / "job.py"
     script.write_text(_JOB_SCRIPT)
-    proc = subprocess.run([sys.executable, str(script), str(threads)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, str(script), str(threads)], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 0, proc.stderr
     started, parent, out = proc.stdout.strip().split(" ", 2)
     return int(started), int(parent), ast.literal_eval(out)
@@ -128,8 +132,11 @@ def test_every_job_of_several_processes_starts_its_workers_before_numpy():
             script = re.search(r'script:\s*\n\s*"\.\./(workflow/scripts/[\w.]+)"', block)
             if "threads:" not in block or script is None:
                 continue
-            lines = [ln for ln in (root / script.group(1)).read_text().splitlines()
-                     if ln.startswith(("import ", "from ", "start_job_workers("))]
+            lines = [
+                ln
+                for ln in (root / script.group(1)).read_text().splitlines()
+                if ln.startswith(("import ", "from ", "start_job_workers("))
+            ]
             assert lines[0] == "from borescan.parallel import start_job_workers", script.group(1)
             assert lines[1].startswith("start_job_workers(globals())"), script.group(1)
             checked.append(script.group(1))

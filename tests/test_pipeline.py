@@ -37,10 +37,15 @@ def test_catalog_has_every_scan_with_checksums(pipeline_run):
     refused = {"N20261121-TRI01-CAL-P1-A", "N20261121-TRI01-CAL-P1-B"}
     assert ok == (set(pipeline_run["good_ids"]) - refused) | {pipeline_run["special"]["failed_verification"]}
     for scan_id in refused:
-        status, reason = con.execute("SELECT status, reason FROM scans WHERE scan_id = ?", [scan_id]).fetchone()
+        status, reason = con.execute(
+            "SELECT status, reason FROM scans WHERE scan_id = ?", [scan_id]
+        ).fetchone()
         assert status == "quarantined"
-        assert re.search(r"calibration refused: .*channel 2: residual rms is 1\.[3-9]\d times the readings' own "
-                         r"noise floor \(limit 1\.25\): the model misses an effect", reason), reason
+        assert re.search(
+            r"calibration refused: .*channel 2: residual rms is 1\.[3-9]\d times the readings' own "
+            r"noise floor \(limit 1\.25\): the model misses an effect",
+            reason,
+        ), reason
     assert all(len(r[3]) == 64 for r in rows)
     for scan_id, night, file, sha in con.execute(
         "SELECT f.scan_id, s.night, f.file, f.sha256 FROM scan_files f JOIN scans s USING (scan_id, "
@@ -64,11 +69,20 @@ def test_slurm_profile_dry_run(tmp_path):
     from borescan import demo
 
     demo.make_demo(tmp_path / "demo")
-    proc = run_snakemake(tmp_path / "demo" / "raw", tmp_path / "results", "--profile", "profiles/slurm", "--dry-run")
+    proc = run_snakemake(
+        tmp_path / "demo" / "raw", tmp_path / "results", "--profile", "profiles/slurm", "--dry-run"
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = proc.stdout + proc.stderr
     assert "slurm_partition=compute" in out
-    for rule in ("ingest_night", "signal_night", "calibrate_night", "measure_night", "build_catalog", "write_report"):
+    for rule in (
+        "ingest_night",
+        "signal_night",
+        "calibrate_night",
+        "measure_night",
+        "build_catalog",
+        "write_report",
+    ):
         assert rule in out
 
 
@@ -88,9 +102,14 @@ def _truth_diameter(truth_root, scan_id, feature):
 
 def test_diameters_agree_with_simulated_truth_within_their_uncertainty(pipeline_run):
     """Every part and gauge diameter of the demo nights lies within 3 u of the truth."""
-    rows = _con(pipeline_run).execute(
-        "SELECT scan_id, feature, diameter_mm, u_diameter_mm, calibration_id FROM diameters "
-        "WHERE night IN ('2026-11-20', '2026-11-21')").fetchall()
+    rows = (
+        _con(pipeline_run)
+        .execute(
+            "SELECT scan_id, feature, diameter_mm, u_diameter_mm, calibration_id FROM diameters "
+            "WHERE night IN ('2026-11-20', '2026-11-21')"
+        )
+        .fetchall()
+    )
     assert len(rows) == 18  # 5 static tri scans + 2 rod holes of the part + 2 of the gauge set per night
     tri_err = []
     for scan_id, feature, d, u, cal_id in rows:
@@ -110,11 +129,17 @@ def test_diameters_agree_with_simulated_truth_within_their_uncertainty(pipeline_
 
 
 def test_verifications_pass_on_the_demo_nights(pipeline_run):
-    rows = _con(pipeline_run).execute(
-        "SELECT scan_id, error_mm, passed, feature FROM verifications WHERE night IN "
-        "('2026-11-20', '2026-11-21')"
-    ).fetchall()
-    assert len(rows) == 8 and all(r[2] for r in rows)  # 2 ring gauges of TRI-01 + 2 layers of ROD-01 per night
+    rows = (
+        _con(pipeline_run)
+        .execute(
+            "SELECT scan_id, error_mm, passed, feature FROM verifications WHERE night IN "
+            "('2026-11-20', '2026-11-21')"
+        )
+        .fetchall()
+    )
+    assert len(rows) == 8 and all(
+        r[2] for r in rows
+    )  # 2 ring gauges of TRI-01 + 2 layers of ROD-01 per night
     assert all(abs(r[1]) < 0.002 for r in rows if r[3] is None)
     assert all(abs(r[1]) < 0.012 for r in rows if r[3] is not None)  # the rod, as its diameters above
 
@@ -122,16 +147,28 @@ def test_verifications_pass_on_the_demo_nights(pipeline_run):
 def test_failed_verification_refuses_later_measurement_and_is_traceable(pipeline_run):
     con = _con(pipeline_run)
     ver = pipeline_run["special"]["failed_verification"]
-    passed, error = con.execute("SELECT passed, error_mm FROM verifications WHERE scan_id = ?", [ver]).fetchone()
+    passed, error = con.execute(
+        "SELECT passed, error_mm FROM verifications WHERE scan_id = ?", [ver]
+    ).fetchone()
     assert not passed and abs(error + 0.05) < 0.003  # the gauge was labelled 50 um too large
-    assert con.execute("SELECT count(*) FROM diameters WHERE scan_id = ?", [pipeline_run["special"]["refused"]]).fetchone()[0] == 0
+    assert (
+        con.execute(
+            "SELECT count(*) FROM diameters WHERE scan_id = ?", [pipeline_run["special"]["refused"]]
+        ).fetchone()[0]
+        == 0
+    )
 
 
 def test_discrepancy_findings_for_every_examined_scan(pipeline_run):
     import json
 
     con = _con(pipeline_run)
-    ok = [r[0] for r in con.execute("SELECT scan_id FROM scans WHERE status = 'ok' AND night IN ('2026-11-20', '2026-11-21')").fetchall()]
+    ok = [
+        r[0]
+        for r in con.execute(
+            "SELECT scan_id FROM scans WHERE status = 'ok' AND night IN ('2026-11-20', '2026-11-21')"
+        ).fetchall()
+    ]
     for scan_id in ok:
         d = pipeline_run["results"] / "discrepancy" / scan_id
         f = json.loads((d / "findings.json").read_text())
@@ -140,10 +177,14 @@ def test_discrepancy_findings_for_every_examined_scan(pipeline_run):
         assert {"gap_before", "gap_after", "noise_floor_mm", "named"} <= set(f)
         assert (d / "gap.png").stat().st_size > 10_000
     # the first night hides no effect at all
-    verdicts = con.execute("SELECT DISTINCT verdict FROM findings f JOIN scans s USING (scan_id) WHERE s.night = '2026-11-20'").fetchall()
+    verdicts = con.execute(
+        "SELECT DISTINCT verdict FROM findings f JOIN scans s USING (scan_id) WHERE s.night = '2026-11-20'"
+    ).fetchall()
     assert verdicts == [("no_missing_effect",)]
     # the second night hides a 1.2 ms channel_delay on channel 2 of one calibration scan
-    named = con.execute("SELECT effect, channel FROM findings WHERE scan_id = 'N20261121-TRI01-CAL-P1-B'").fetchall()
+    named = con.execute(
+        "SELECT effect, channel FROM findings WHERE scan_id = 'N20261121-TRI01-CAL-P1-B'"
+    ).fetchall()
     assert ("channel_delay", 2) in named
 
 
@@ -154,10 +195,15 @@ def test_trace_follows_a_rod_diameter_to_its_gauge_calibration(pipeline_run):
     from borescan import trace
 
     chain = trace.format_trace(trace.trace(pipeline_run["results"], "N20261121-ROD01-MEAS-CYL2H/H1"))
-    for needle in ("-rod_gauge-", "method rod_gauge", "certificate.json sha256", "(matches catalog)",
-                   "calibration scan N20261120-ROD01-CAL-RGS150",
-                   "layer 1 (H1): ring gauge RG-150A, certificate RGS-150/2026-02, certified 150.0021 mm",
-                   "verified by N20261121-ROD01-VER-RGS150 layer H1 (RG-150A)"):
+    for needle in (
+        "-rod_gauge-",
+        "method rod_gauge",
+        "certificate.json sha256",
+        "(matches catalog)",
+        "calibration scan N20261120-ROD01-CAL-RGS150",
+        "layer 1 (H1): ring gauge RG-150A, certificate RGS-150/2026-02, certified 150.0021 mm",
+        "verified by N20261121-ROD01-VER-RGS150 layer H1 (RG-150A)",
+    ):
         assert needle in chain, needle
 
 
@@ -165,7 +211,13 @@ def test_trace_follows_a_part_diameter_to_raw_files(pipeline_run):
     from borescan import trace
 
     chain = trace.format_trace(trace.trace(pipeline_run["results"], "N20261120-TRI01-MEAS-HSG1101"))
-    for needle in ("TRI-01-20261120-full_lsq", "certificate.pdf", "N20261120-TRI01-CAL-P1-A", "RG-275", "lds.parquet"):
+    for needle in (
+        "TRI-01-20261120-full_lsq",
+        "certificate.pdf",
+        "N20261120-TRI01-CAL-P1-A",
+        "RG-275",
+        "lds.parquet",
+    ):
         assert needle in chain
 
 
@@ -206,9 +258,21 @@ def test_two_runs_at_once_do_not_corrupt_results(pipeline_run, tmp_path):
 
     raw, res = tmp_path / "raw", tmp_path / "results"
     _copy_night(pipeline_run["raw"], raw, "2026-11-20")
-    cmd = [str(SNAKEMAKE), "--cores", "1", "--config", f"raw_root={raw}", f"results_root={res}", "--until", "measure_night"]
+    cmd = [
+        str(SNAKEMAKE),
+        "--cores",
+        "1",
+        "--config",
+        f"raw_root={raw}",
+        f"results_root={res}",
+        "--until",
+        "measure_night",
+    ]
     env = workflow_env(tmp_path)
-    procs = [subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)]
+    procs = [
+        subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        for _ in range(2)
+    ]
     outs = [p.communicate(timeout=600)[0] for p in procs]
     codes = [p.returncode for p in procs]
     assert 0 in codes, outs
@@ -232,14 +296,27 @@ def test_interrupted_run_resumes(pipeline_run, tmp_path):
 
     raw, res = tmp_path / "raw", tmp_path / "results"
     _copy_night(pipeline_run["raw"], raw, "2026-11-20")
-    cmd = [str(SNAKEMAKE), "--cores", "2", "--config", f"raw_root={raw}", f"results_root={res}", "--until", "calibrate_night"]
+    cmd = [
+        str(SNAKEMAKE),
+        "--cores",
+        "2",
+        "--config",
+        f"raw_root={raw}",
+        f"results_root={res}",
+        "--until",
+        "calibrate_night",
+    ]
     env = workflow_env(tmp_path)
-    p = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    p = subprocess.Popen(
+        cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     deadline = time.time() + 120
     while time.time() < deadline and not (res / "stage" / "signal_summary").exists():
         time.sleep(0.2)
     os_killpg = __import__("os").killpg
-    os_killpg(p.pid, signal.SIGINT)  # Ctrl-C during calibration (a power loss needs `snakemake --unlock` first)
+    os_killpg(
+        p.pid, signal.SIGINT
+    )  # Ctrl-C during calibration (a power loss needs `snakemake --unlock` first)
     p.wait()
     for f in res.rglob("*.parquet"):
         pl.read_parquet(f)  # nothing half-written
@@ -275,12 +352,25 @@ def test_a_stage_script_runs_by_hand_and_gives_the_rules_output(pipeline_run, tm
     from conftest import ROOT
 
     night = sorted(p.name.removeprefix("night=") for p in pipeline_run["raw"].glob("night=*"))[0]
-    for script, table in (("ingest_night", "scans"), ("signal_night", "signal_summary"),
-                          ("calibrate_night", "calibrations")):
+    for script, table in (
+        ("ingest_night", "scans"),
+        ("signal_night", "signal_summary"),
+        ("calibrate_night", "calibrations"),
+    ):
         proc = subprocess.run(
-            [sys.executable, str(ROOT / "workflow" / "scripts" / f"{script}.py"), f"night={night}",
-             f"raw_root={pipeline_run['raw']}", f"results_root={tmp_path}"],
-            capture_output=True, text=True, cwd=tmp_path, timeout=300, env={**os.environ, "MPLBACKEND": "Agg"})
+            [
+                sys.executable,
+                str(ROOT / "workflow" / "scripts" / f"{script}.py"),
+                f"night={night}",
+                f"raw_root={pipeline_run['raw']}",
+                f"results_root={tmp_path}",
+            ],
+            capture_output=True,
+            text=True,
+            cwd=tmp_path,
+            timeout=300,
+            env={**os.environ, "MPLBACKEND": "Agg"},
+        )
         assert proc.returncode == 0, proc.stderr[-2000:]
         by_hand = pl.read_parquet(tmp_path / "stage" / table / f"night={night}.parquet")
         by_rule = pl.read_parquet(pipeline_run["results"] / "stage" / table / f"night={night}.parquet")
@@ -290,9 +380,17 @@ def test_a_stage_script_runs_by_hand_and_gives_the_rules_output(pipeline_run, tm
         # that stops on a tolerance carries such bits further: equal within their uncertainty, never
         # rounding noise
         _assert_equal_within_uncertainty(by_hand, by_rule, table)
-    proc = subprocess.run([sys.executable, str(ROOT / "workflow" / "scripts" / "signal_night.py"),
-                           f"raw_root={pipeline_run['raw']}"],
-                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "workflow" / "scripts" / "signal_night.py"),
+            f"raw_root={pipeline_run['raw']}",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=300,
+    )
     assert proc.returncode != 0 and "needs the wildcard(s) ['night']" in proc.stderr
 
 
@@ -332,17 +430,37 @@ def test_a_device_model_is_carried_by_a_night_calibration(pipeline_run, tmp_path
     n2 = sorted(p.name.removeprefix("night=") for p in raw.glob("night=*"))[0]  # the first demo night
     n1 = "2026-11-19"  # a pooled examination of the night before
     pooled = tmp_path / "pooled.parquet"
-    pl.DataFrame([{"night": n1, "device_id": "TRI-01", "effect": "sensor_gain", "channel": 2,
-                   "parameters": json.dumps({"g": 0.0}), "uncertainties": json.dumps({"u_g": 2e-4}),
-                   "evidence_scans": "A,B", "in_device_model": False}]).write_parquet(pooled)
+    pl.DataFrame(
+        [
+            {
+                "night": n1,
+                "device_id": "TRI-01",
+                "effect": "sensor_gain",
+                "channel": 2,
+                "parameters": json.dumps({"g": 0.0}),
+                "uncertainties": json.dumps({"u_g": 2e-4}),
+                "evidence_scans": "A,B",
+                "in_device_model": False,
+            }
+        ]
+    ).write_parquet(pooled)
     cfg = schema_defaults()
     lines = []
     cals, _, bad = stage_calibrate(
-        raw, n2, tmp_path, res / "stage" / "scans" / f"night={n2}.parquet",
-        res / "stage" / "signal_summary" / f"night={n2}.parquet", cfg["calibration"], log=lines.append,
-        devices={"TRI-01": {"effects": ["sensor_gain@2", "sensor_offset@3"]}}, pooled_tables=[pooled])
+        raw,
+        n2,
+        tmp_path,
+        res / "stage" / "scans" / f"night={n2}.parquet",
+        res / "stage" / "signal_summary" / f"night={n2}.parquet",
+        cfg["calibration"],
+        log=lines.append,
+        devices={"TRI-01": {"effects": ["sensor_gain@2", "sensor_offset@3"]}},
+        pooled_tables=[pooled],
+    )
     assert not bad
-    run = pl.read_parquet(res / "stage" / "calibrations" / f"night={n2}.parquet").filter(pl.col("device_id") == "TRI-01")
+    run = pl.read_parquet(res / "stage" / "calibrations" / f"night={n2}.parquet").filter(
+        pl.col("device_id") == "TRI-01"
+    )
     mine = cals.filter(pl.col("device_id") == "TRI-01")
     assert mine["beta_rad"].to_list() == pytest.approx(run["beta_rad"].to_list(), abs=1e-12)
     assert mine["d_b_mm"].to_list() == pytest.approx(run["d_b_mm"].to_list(), abs=1e-9)
@@ -353,8 +471,11 @@ def test_a_device_model_is_carried_by_a_night_calibration(pipeline_run, tmp_path
     assert offset["key"] == "sensor_offset@3" and not offset["estimated"]
     b = Budget.from_dict(cal["diagnostics"]["budget"])
     assert [t.input.key for t in b.terms if t.input.key.startswith("device_model:")] == [
-        f"device_model:TRI-01:sensor_gain@2:g@{n1}"]
-    cert = json.loads(next((tmp_path / "calibration").glob(f"night={n2}/TRI-01/*/certificate.json")).read_text())
+        f"device_model:TRI-01:sensor_gain@2:g@{n1}"
+    ]
+    cert = json.loads(
+        next((tmp_path / "calibration").glob(f"night={n2}/TRI-01/*/certificate.json")).read_text()
+    )
     assert [m["key"] for m in cert["fit"]["device_model"]] == ["sensor_gain@2", "sensor_offset@3"]
     assert any("sensor_offset@3 (config) not estimated yet" in x for x in lines)
 
@@ -376,20 +497,28 @@ def test_the_demo_closes_the_loop(pipeline_run):
     truth_tau = 0.0012
     con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
     examined, carrying = LOOP_NIGHTS
-    named = con.execute("SELECT verdict, parameters, uncertainties, evidence_scans, in_device_model FROM pooled_findings "
-                        "WHERE night = ? AND device_id = 'TRI-01' AND effect = 'channel_delay' AND channel = 2",
-                        [examined]).fetchall()
+    named = con.execute(
+        "SELECT verdict, parameters, uncertainties, evidence_scans, in_device_model FROM pooled_findings "
+        "WHERE night = ? AND device_id = 'TRI-01' AND effect = 'channel_delay' AND channel = 2",
+        [examined],
+    ).fetchall()
     assert len(named) == 1 and named[0][0] == "missing_effect" and not named[0][4]
     tau, u_tau = json.loads(named[0][1])["tau_s"], json.loads(named[0][2])["u_tau_s"]
     assert abs(tau - truth_tau) < 4 * u_tau and u_tau < 1e-4
     assert named[0][3] == "N20261123-TRI01-CAL-P1-A,N20261123-TRI01-CAL-P1-B"
-    single = [json.loads(p)["tau_s"] for (p,) in con.execute(
-        "SELECT parameters FROM findings WHERE night = ? AND effect = 'channel_delay'", [examined]).fetchall()]
+    single = [
+        json.loads(p)["tau_s"]
+        for (p,) in con.execute(
+            "SELECT parameters FROM findings WHERE night = ? AND effect = 'channel_delay'", [examined]
+        ).fetchall()
+    ]
     assert single and all(abs(t - truth_tau) > 4 * u_tau for t in single)
 
     def calibration(night):
-        (cj,) = con.execute("SELECT DISTINCT calibration_json FROM calibrations WHERE night = ? AND device_id = 'TRI-01'",
-                            [night]).fetchone()
+        (cj,) = con.execute(
+            "SELECT DISTINCT calibration_json FROM calibrations WHERE night = ? AND device_id = 'TRI-01'",
+            [night],
+        ).fetchone()
         d = json.loads(cj)
         worst = max(max(x for x in nu["residual_to_noise"] if x is not None) for nu in d["nuisance"].values())
         return d["diagnostics"].get("device_model") or [], worst
@@ -421,7 +550,9 @@ def _assert_equal_within_uncertainty(a, b, table: str) -> None:
     floats = [c for c, t in a.schema.items() if t in (pl.Float64, pl.Float32)]
     # certificate.json prints the same floats to their last digit, so its digest differs with them
     digests_of_floats = [c for c in ("certificate_sha256",) if c in a.columns]
-    assert_frame_equal(a.drop(floats + digests_of_floats), b.drop(floats + digests_of_floats), check_exact=True)
+    assert_frame_equal(
+        a.drop(floats + digests_of_floats), b.drop(floats + digests_of_floats), check_exact=True
+    )
     for col in floats:
         x, y = a[col].to_numpy().astype(float), b[col].to_numpy().astype(float)
         assert np.array_equal(np.isnan(x), np.isnan(y)), (table, col)

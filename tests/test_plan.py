@@ -15,14 +15,22 @@ from borescan.geometry import Beams
 from borescan.plan import DeviceDesign, ScanDesign, predict, recommend
 
 R_MM = 137.5
-BEAMS = Beams((1, 2, 3), np.array([0.3, 2.4, 4.3]), np.array([8.0, -6.0, 4.0]), np.array([128.0, 129.0, 130.0]))
+BEAMS = Beams(
+    (1, 2, 3), np.array([0.3, 2.4, 4.3]), np.array([8.0, -6.0, 4.0]), np.array([128.0, 129.0, 130.0])
+)
 SIGMA_MM = 0.002
 SCAN = ScanDesign(offset_mm=4.0, revolutions=5, samples_per_rev=400, encoder=False, positions_known=False)
 
 
 def _fit(seed: int):
-    scene = simulate.TriScene(beams=BEAMS, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=R_MM,
-                              spindle_xy_mm=(4.0, 0.0), sample_rate_hz=400.0, range_mm=(20.0, 20.0, 20.0))
+    scene = simulate.TriScene(
+        beams=BEAMS,
+        bore_center_xy_mm=(0.0, 0.0),
+        bore_radius_20_mm=R_MM,
+        spindle_xy_mm=(4.0, 0.0),
+        sample_rate_hz=400.0,
+        range_mm=(20.0, 20.0, 20.0),
+    )
     t = np.arange(2000) / 400.0
     v = simulate.tri_readings(scene, t)
     y = v + SIGMA_MM * np.random.default_rng(seed).standard_normal(v.shape)
@@ -85,7 +93,8 @@ def test_recommendation_is_the_smallest_scan_reaching_the_target():
     # the offset the mirror check states resolves the smallest rho at this scan's samples
     j = int(np.argmin(np.abs(dev.beams.rho_mm)))
     assert rec.offset_to_resolve_mm[j] == pytest.approx(
-        R * (2 * 25 * SIGMA_MM**2 / (rec.scan.n_samples * dev.beams.rho_mm[j] ** 2)) ** 0.25, rel=1e-12)
+        R * (2 * 25 * SIGMA_MM**2 / (rec.scan.n_samples * dev.beams.rho_mm[j] ** 2)) ** 0.25, rel=1e-12
+    )
     assert math.isfinite(rec.mirror_depth[j])
 
 

@@ -19,6 +19,7 @@ from fault_roots import PLAUSIBILITY_CASES as CASES, ROD, ROD_MEAS, copy_scan  #
 from borescan import demo, measure, validation  # noqa: E402
 from borescan.stages.ingest import stage_ingest  # noqa: E402
 
+
 @pytest.fixture(scope="module")
 def demo_raw(tmp_path_factory):
     base = tmp_path_factory.mktemp("demo")
@@ -66,8 +67,16 @@ def test_workshop_range_comes_from_the_config(bad_root):
     assert validation.plausibility_problems(meta, "PLAUS-03")[0].problem.startswith(CASES[3][3])
 
 
-@pytest.mark.parametrize("error, U, tol", [(0.001, math.inf, 0.015), (0.001, math.nan, 0.015), (math.nan, 0.002, 0.015),
-                                           (0.001, 0.002, 0.0), (0.001, 0.002, math.inf)])
+@pytest.mark.parametrize(
+    "error, U, tol",
+    [
+        (0.001, math.inf, 0.015),
+        (0.001, math.nan, 0.015),
+        (math.nan, 0.002, 0.015),
+        (0.001, 0.002, 0.0),
+        (0.001, 0.002, math.inf),
+    ],
+)
 def test_no_verdict_from_a_number_that_is_not_finite(error, U, tol):
     with pytest.raises(ValueError, match="no verdict"):
         measure.decide(error, U, tol)
@@ -76,10 +85,13 @@ def test_no_verdict_from_a_number_that_is_not_finite(error, U, tol):
 def test_every_verdict_of_the_pipeline_has_a_finite_uncertainty(pipeline_run):
     """Every PASS/FAIL of the demo nights and the bad-input battery stands on a finite U and tolerance."""
     con = duckdb.connect(str(pipeline_run["results"] / "catalog.duckdb"), read_only=True)
-    ver = con.execute("SELECT expanded_u_error_mm, tolerance_mm, error_mm FROM verifications "
-                      "WHERE conformity IS NOT NULL").fetchall()
-    parts = con.execute("SELECT expanded_u_diameter_20_mm, tolerance_mm, deviation_mm FROM diameters "
-                        "WHERE conformity IS NOT NULL").fetchall()
+    ver = con.execute(
+        "SELECT expanded_u_error_mm, tolerance_mm, error_mm FROM verifications WHERE conformity IS NOT NULL"
+    ).fetchall()
+    parts = con.execute(
+        "SELECT expanded_u_diameter_20_mm, tolerance_mm, deviation_mm FROM diameters "
+        "WHERE conformity IS NOT NULL"
+    ).fetchall()
     assert len(ver) >= 4 and len(parts) >= 4
     for row in ver + parts:
         assert all(x is not None and math.isfinite(x) for x in row), row

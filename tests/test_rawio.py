@@ -128,7 +128,9 @@ def test_round_trip_every_column_dtype_nulls_and_layout(root):
     )
     assert scan.spindle.equals(sp, null_equal=True)
     assert scan.spindle["angle_rad"].null_count() == 1
-    assert scan.sha256 == {n: rawio.sha256_file(path / n) for n in ("scan.json", "lds.parquet", "spindle.parquet")}
+    assert scan.sha256 == {
+        n: rawio.sha256_file(path / n) for n in ("scan.json", "lds.parquet", "spindle.parquet")
+    }
     assert all(len(h) == 64 for h in scan.sha256.values())
     assert scan.warnings == []
     assert not [p for p in path.parent.iterdir() if p.name.startswith(".")]  # no temp folder left
@@ -187,12 +189,15 @@ def test_lds_matrix_reshape_path_equals_general_path():
     rng = np.random.default_rng(3)
     n, chans = 500, (1, 2, 4)
     pose = np.where(rng.random(n * 3) < 0.3, -1, np.repeat(np.arange(n) // 50, 3))
-    full = pl.DataFrame({
-        "sample": np.repeat(np.arange(n) * 2, 3), "t_ns": np.repeat(np.arange(n) * 2000, 3),
-        "sensor": np.tile(chans, n).astype(np.int16),
-        "value_mm": pl.Series(rng.uniform(0, 10, n * 3)).fill_nan(None).scatter([5, 77], None),
-        "pose": pl.Series(pose, dtype=pl.Int32).set(pl.Series(pose < 0), None),
-    })
+    full = pl.DataFrame(
+        {
+            "sample": np.repeat(np.arange(n) * 2, 3),
+            "t_ns": np.repeat(np.arange(n) * 2000, 3),
+            "sensor": np.tile(chans, n).astype(np.int16),
+            "value_mm": pl.Series(rng.uniform(0, 10, n * 3)).fill_nan(None).scatter([5, 77], None),
+            "pose": pl.Series(pose, dtype=pl.Int32).set(pl.Series(pose < 0), None),
+        }
+    )
     fast = lds_matrix(SimpleNamespace(lds=full, channels=chans))
     # one extra row of an unlisted-by-data channel forces the general path; drop its column after
     extra = pl.concat([full, full.tail(1).with_columns(pl.lit(9, dtype=pl.Int16).alias("sensor"))])
@@ -214,12 +219,15 @@ def test_lds_matrix_from_chunks_not_aligned_to_samples():
 
     rng = np.random.default_rng(8)
     n, chans = 700, (2, 3, 5)
-    full = pl.DataFrame({
-        "sample": np.repeat(np.arange(n) + 10, 3), "t_ns": np.repeat(np.arange(n) * 1515, 3),
-        "sensor": np.tile(chans, n).astype(np.int16),
-        "value_mm": pl.Series(rng.uniform(0, 10, n * 3)).scatter([0, 4, 500, 1000, 2099], None),
-        "pose": pl.Series([None] * (n * 3), dtype=pl.Int32),
-    })
+    full = pl.DataFrame(
+        {
+            "sample": np.repeat(np.arange(n) + 10, 3),
+            "t_ns": np.repeat(np.arange(n) * 1515, 3),
+            "sensor": np.tile(chans, n).astype(np.int16),
+            "value_mm": pl.Series(rng.uniform(0, 10, n * 3)).scatter([0, 4, 500, 1000, 2099], None),
+            "pose": pl.Series([None] * (n * 3), dtype=pl.Int32),
+        }
+    )
     big = pl.concat([full.head(7), full], rechunk=True).slice(7)  # one chunk starting at an offset
     cuts = [0, 1, 301, 302, 1000, 1501, 2100]  # 1, 300, 1, 698, 501, 599 rows: no chunk a whole sample
     chunked = pl.concat([big.slice(a, b - a) for a, b in zip(cuts, cuts[1:])], rechunk=False)
@@ -247,8 +255,10 @@ def test_lds_matrix_from_chunks_not_aligned_to_samples():
 
 def test_out_of_range_readings_are_warnings_not_errors(root):
     lds = make_lds(null_every=1000).with_columns(
-        value_mm=pl.when((pl.col("sensor") == 2) & (pl.col("sample") < 3)).then(10.5)
-        .when((pl.col("sensor") == 3) & (pl.col("sample") == 7)).then(-0.2)
+        value_mm=pl.when((pl.col("sensor") == 2) & (pl.col("sample") < 3))
+        .then(10.5)
+        .when((pl.col("sensor") == 3) & (pl.col("sample") == 7))
+        .then(-0.2)
         .otherwise(pl.col("value_mm"))
     )
     scan = read_scan(write_scan(root, make_meta(), lds))
@@ -287,13 +297,17 @@ def test_write_rejects_invalid_data_and_writes_nothing(root):
 
 
 def test_reading_never_changes_raw_bytes(scan_dir):
-    before = {p.name: (rawio.sha256_file(p), p.stat().st_mtime_ns, p.stat().st_size) for p in scan_dir.iterdir()}
+    before = {
+        p.name: (rawio.sha256_file(p), p.stat().st_mtime_ns, p.stat().st_size) for p in scan_dir.iterdir()
+    }
     for _ in range(2):
         scan = read_scan(scan_dir)
         lds_matrix(scan)
         read_scan_meta(scan_dir)
     validate_root(scan_dir.parent.parent)
-    after = {p.name: (rawio.sha256_file(p), p.stat().st_mtime_ns, p.stat().st_size) for p in scan_dir.iterdir()}
+    after = {
+        p.name: (rawio.sha256_file(p), p.stat().st_mtime_ns, p.stat().st_size) for p in scan_dir.iterdir()
+    }
     assert after == before
     assert scan.sha256 == {k: v[0] for k, v in before.items()}
 
@@ -326,8 +340,22 @@ def test_unreadable_json(scan_dir, content, match):
 
 @pytest.mark.parametrize(
     "path",
-    ["format", "scan_id", "night", "started_at", "kind", "device", "sample_rate_hz", "sensors", "artifact",
-     "device.id", "device.type", "artifact.id", "artifact.type", "sensors.0.channel"],
+    [
+        "format",
+        "scan_id",
+        "night",
+        "started_at",
+        "kind",
+        "device",
+        "sample_rate_hz",
+        "sensors",
+        "artifact",
+        "device.id",
+        "device.type",
+        "artifact.id",
+        "artifact.type",
+        "sensors.0.channel",
+    ],
 )
 def test_missing_required_key(scan_dir, path):
     def drop(meta):
@@ -383,11 +411,16 @@ def test_infinite_rate_and_bad_enums_and_sensors(scan_dir):
     expect(scan_dir, "scan.json", "sample_rate_hz' must be a finite number")
     rewrite_json(scan_dir, lambda m: m.update(sample_rate_hz=625.0, device={"id": "T", "type": "laser"}))
     expect(scan_dir, "scan.json", "device.type 'laser' not one of tri_lds, rod")
-    rewrite_json(scan_dir, lambda m: m.update(device={"id": "T", "type": "rod"}, artifact={"id": "A", "type": "cup"}))
+    rewrite_json(
+        scan_dir, lambda m: m.update(device={"id": "T", "type": "rod"}, artifact={"id": "A", "type": "cup"})
+    )
     expect(scan_dir, "scan.json", "artifact.type 'cup' not one of ring_gauge, part")
     rewrite_json(scan_dir, lambda m: m.update(artifact={"id": "A", "type": "part"}))
     expect(scan_dir, "lds.parquet", r"pose is null in 120 rows \(first at row 0\); rod scans need it")
-    rewrite_json(scan_dir, lambda m: m.update(device={"id": "T", "type": "tri_lds"}, sensors=[{"channel": 1}, {"channel": 1}]))
+    rewrite_json(
+        scan_dir,
+        lambda m: m.update(device={"id": "T", "type": "tri_lds"}, sensors=[{"channel": 1}, {"channel": 1}]),
+    )
     expect(scan_dir, "scan.json", "channel 1 listed twice in sensors")
     rewrite_json(scan_dir, lambda m: m.update(sensors=[{"channel": 0}]))
     expect(scan_dir, "scan.json", r"sensors\[0\].channel must be in 1..32767, got 0")
@@ -398,7 +431,9 @@ def test_infinite_rate_and_bad_enums_and_sensors(scan_dir):
 
 
 def test_extra_keys_and_columns_are_ignored(scan_dir):
-    rewrite_json(scan_dir, lambda m: m.update(vendor_blob={"x": [1, None]}, device={**m["device"], "firmware": 3}))
+    rewrite_json(
+        scan_dir, lambda m: m.update(vendor_blob={"x": [1, None]}, device={**m["device"], "firmware": 3})
+    )
     rewrite_parquet(scan_dir / "lds.parquet", lambda df: df.with_columns(intensity=pl.lit(0.5)))
     rewrite_parquet(scan_dir / "spindle.parquet", lambda df: df.with_columns(torque=pl.lit(1)))
     scan = read_scan(scan_dir)
@@ -456,24 +491,44 @@ def _set(df, row, col, value):
         (lambda df: _set(df, 4, "sample", None), "column 'sample' has 1 null values"),
         (lambda df: _set(df, 4, "sensor", None), "column 'sensor' has 1 null values"),
         (lambda df: df.with_columns(pl.col("sample") - 1), "negative sample at row 0"),
-        (lambda df: pl.concat([df.slice(6, 3), df.slice(0, 6), df.slice(9)]),
-         r"sample is non-monotonic: decreases at row 3 \(2 -> 0\)"),
-        (lambda df: pl.concat([df.slice(0, 3), df.slice(3, 3).reverse(), df.slice(6)]),
-         r"rows not sorted by \(sample, sensor\): row 4 has sensor 2 after 3"),
+        (
+            lambda df: pl.concat([df.slice(6, 3), df.slice(0, 6), df.slice(9)]),
+            r"sample is non-monotonic: decreases at row 3 \(2 -> 0\)",
+        ),
+        (
+            lambda df: pl.concat([df.slice(0, 3), df.slice(3, 3).reverse(), df.slice(6)]),
+            r"rows not sorted by \(sample, sensor\): row 4 has sensor 2 after 3",
+        ),
         (lambda df: _set(df, 4, "sensor", 1), r"duplicate \(sample, sensor\) = \(1, 1\) at row 4"),
         (lambda df: _set(df, 5, "sensor", 2), r"duplicate \(sample, sensor\) = \(1, 2\) at row 5"),
         (lambda df: _set(df, 4, "t_ns", 1_600_001), r"t_ns differs within sample 1 \(1600000 vs 1600001\)"),
-        (lambda df: df.with_columns(t_ns=pl.when(pl.col("sample") == 5).then(0).otherwise(pl.col("t_ns"))),
-         r"t_ns is non-monotonic: sample 4 -> 5 has t_ns 6400000 -> 0"),
+        (
+            lambda df: df.with_columns(t_ns=pl.when(pl.col("sample") == 5).then(0).otherwise(pl.col("t_ns"))),
+            r"t_ns is non-monotonic: sample 4 -> 5 has t_ns 6400000 -> 0",
+        ),
         (lambda df: df.with_columns(t_ns=pl.col("t_ns") - 5), "negative t_ns at row 0"),
-        (lambda df: df.with_columns(sensor=pl.when(pl.col("sensor") == 3).then(4).otherwise(pl.col("sensor"))),
-         "channel 4 is not listed in scan.json sensors"),
+        (
+            lambda df: df.with_columns(
+                sensor=pl.when(pl.col("sensor") == 3).then(4).otherwise(pl.col("sensor"))
+            ),
+            "channel 4 is not listed in scan.json sensors",
+        ),
         (lambda df: df.filter(pl.col("sensor") != 2), "channel 2 has no valid readings"),
-        (lambda df: df.with_columns(value_mm=pl.when(pl.col("sensor") == 3).then(None).otherwise(pl.col("value_mm"))),
-         "channel 3 has no valid readings"),
-        (lambda df: _set(df, 8, "value_mm", float("nan")), r"value_mm has 1 NaN/inf values \(first at row 8\)"),
+        (
+            lambda df: df.with_columns(
+                value_mm=pl.when(pl.col("sensor") == 3).then(None).otherwise(pl.col("value_mm"))
+            ),
+            "channel 3 has no valid readings",
+        ),
+        (
+            lambda df: _set(df, 8, "value_mm", float("nan")),
+            r"value_mm has 1 NaN/inf values \(first at row 8\)",
+        ),
         (lambda df: _set(df, 9, "value_mm", float("-inf")), "value_mm has 1 NaN/inf values"),
-        (lambda df: _set(df, 9, "pose", 0), r"pose must be null on tri_lds spindle scans \(non-null at row 9\)"),
+        (
+            lambda df: _set(df, 9, "pose", 0),
+            r"pose must be null on tri_lds spindle scans \(non-null at row 9\)",
+        ),
     ],
 )
 def test_bad_lds_rows(scan_dir, mutate, match):
@@ -502,7 +557,10 @@ def test_rod_pose_rules_and_static_tri_pose_allowed(root):
     "mutate, match",
     [
         (lambda df: df.drop("rpm"), "missing column 'rpm'"),
-        (lambda df: df.with_columns(pl.col("x_mm").cast(pl.Float32)), "column 'x_mm' has dtype float, expected double"),
+        (
+            lambda df: df.with_columns(pl.col("x_mm").cast(pl.Float32)),
+            "column 'x_mm' has dtype float, expected double",
+        ),
         (lambda df: df.with_columns(pl.col("t_ns").cast(pl.Int32)), "column 't_ns' has dtype int32"),
         (lambda df: df.head(0), "no rows"),
         (lambda df: _set(df, 10, "t_ns", 0), r"t_ns is non-monotonic at row 10 \(14400000 -> 0\)"),
@@ -541,7 +599,10 @@ def test_symlinks_leaving_the_raw_root_are_rejected(tmp_path, root):
     with pytest.raises(ScanError, match="lds.parquet: resolves to .*, outside the raw root"):
         read_scan(inside)
     problems = validate_root(root)
-    assert {(e.scan_id, e.file) for e in problems} == {("S1", f"night={NIGHT}/scan=S1"), ("S2", "lds.parquet")}
+    assert {(e.scan_id, e.file) for e in problems} == {
+        ("S1", f"night={NIGHT}/scan=S1"),
+        ("S2", "lds.parquet"),
+    }
 
 
 def test_bad_folder_names(root, scan_dir):
@@ -572,8 +633,11 @@ def _tree(root):
     # measurements: a calibration scan this short (and a rod calibration without design layers) would be
     # valid raw data that validate reports as to be set aside by the calibrate stage
     write_scan(root, {**make_meta("A1"), "kind": "measurement"}, make_lds(), make_spindle())
-    write_scan(root, {**make_meta("B1", night="2026-11-22", device_type="rod"), "kind": "measurement"},
-               make_lds(rod=True))
+    write_scan(
+        root,
+        {**make_meta("B1", night="2026-11-22", device_type="rod"), "kind": "measurement"},
+        make_lds(rod=True),
+    )
     return root
 
 
@@ -581,7 +645,9 @@ def test_discover_scans_sorted(root):
     write_scan(root, make_meta("Z9", night="2026-11-20"), make_lds())
     _tree(root)
     assert [(p.parent.name, p.name) for p in rawio.discover_scans(root)] == [
-        ("night=2026-11-20", "scan=Z9"), (f"night={NIGHT}", "scan=A1"), ("night=2026-11-22", "scan=B1")
+        ("night=2026-11-20", "scan=Z9"),
+        (f"night={NIGHT}", "scan=A1"),
+        ("night=2026-11-22", "scan=B1"),
     ]
 
 
@@ -602,7 +668,10 @@ def test_validate_collects_every_problem_and_cli_prints_them(root, capsys):
     rewrite_parquet(a1 / "spindle.parquet", lambda df: df.drop("x_mm"))
     # same scan id again under another night
     shutil.copytree(root / "night=2026-11-22" / "scan=B1", root / "night=2026-11-23" / "scan=B1")
-    rewrite_json(root / "night=2026-11-23" / "scan=B1", lambda m: m.update(night="2026-11-23", started_at="2026-11-23T22:14:03Z"))
+    rewrite_json(
+        root / "night=2026-11-23" / "scan=B1",
+        lambda m: m.update(night="2026-11-23", started_at="2026-11-23T22:14:03Z"),
+    )
     (root / "notes").mkdir()
     (root / f"night={NIGHT}" / "tmp-export").mkdir()
     (root / "night=yesterday").mkdir()

@@ -30,7 +30,9 @@ def test_night_scan_dirs_and_files(tree):
     assert [d.name for d in rawio.night_scan_dirs(tree, "2026-11-20")] == ["scan=A", "scan=B"]
     assert rawio.night_scan_dirs(tree, "2030-01-01") == []
     assert rawio.night_raw_files(tree, "2026-11-21") == [
-        str(tree / "night=2026-11-21" / "scan=B" / "scan.json"), str(tree / "night=2026-11-21" / "scan=C" / "scan.json")]
+        str(tree / "night=2026-11-21" / "scan=B" / "scan.json"),
+        str(tree / "night=2026-11-21" / "scan=C" / "scan.json"),
+    ]
 
 
 def test_earlier_duplicate_ids_depend_only_on_earlier_nights(tree):

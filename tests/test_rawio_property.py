@@ -35,9 +35,19 @@ META = {
 }
 # required key -> JSON kind it must have
 REQUIRED = {
-    ("format",): str, ("scan_id",): str, ("night",): str, ("started_at",): str, ("kind",): str,
-    ("device",): dict, ("device", "id"): str, ("device", "type"): str, ("sample_rate_hz",): float,
-    ("sensors",): list, ("artifact",): dict, ("artifact", "id"): str, ("artifact", "type"): str,
+    ("format",): str,
+    ("scan_id",): str,
+    ("night",): str,
+    ("started_at",): str,
+    ("kind",): str,
+    ("device",): dict,
+    ("device", "id"): str,
+    ("device", "type"): str,
+    ("sample_rate_hz",): float,
+    ("sensors",): list,
+    ("artifact",): dict,
+    ("artifact", "id"): str,
+    ("artifact", "type"): str,
 }
 LDS_DTYPES = {
     "sample": [pl.Int32, pl.Int16, pl.UInt64, pl.Float64],
@@ -65,7 +75,15 @@ def _base_lds() -> pl.DataFrame:
 
 def _base_spindle() -> pl.DataFrame:
     t = np.arange(N, dtype=np.int64) * 1_600_000
-    return pl.DataFrame({"t_ns": t, "angle_rad": t * 6.283e-9, "x_mm": np.ones(N), "y_mm": np.ones(N), "rpm": np.full(N, 60.0)})
+    return pl.DataFrame(
+        {
+            "t_ns": t,
+            "angle_rad": t * 6.283e-9,
+            "x_mm": np.ones(N),
+            "y_mm": np.ones(N),
+            "rpm": np.full(N, 60.0),
+        }
+    )
 
 
 @pytest.fixture(scope="module")
@@ -91,8 +109,16 @@ def _not_kind(kind):
 
 
 json_values = st.recursive(
-    st.one_of(st.none(), st.booleans(), st.integers(), st.floats(allow_nan=False, allow_infinity=False), st.text(max_size=6)),
-    lambda inner: st.one_of(st.lists(inner, max_size=3), st.dictionaries(st.text(max_size=4), inner, max_size=3)),
+    st.one_of(
+        st.none(),
+        st.booleans(),
+        st.integers(),
+        st.floats(allow_nan=False, allow_infinity=False),
+        st.text(max_size=6),
+    ),
+    lambda inner: st.one_of(
+        st.lists(inner, max_size=3), st.dictionaries(st.text(max_size=4), inner, max_size=3)
+    ),
     max_leaves=6,
 )
 
@@ -102,7 +128,9 @@ mutation = st.one_of(
     st.sampled_from(sorted(REQUIRED)).flatmap(
         lambda k: _not_kind(REQUIRED[k]).map(lambda v: ("scan.json", False, "retype", (k, v)))
     ),
-    st.tuples(st.text(min_size=1, max_size=6), json_values).map(lambda kv: ("scan.json", True, "extra_key", kv)),
+    st.tuples(st.text(min_size=1, max_size=6), json_values).map(
+        lambda kv: ("scan.json", True, "extra_key", kv)
+    ),
     st.binary(max_size=60).map(lambda b: ("scan.json", False, "garbage", b)),
     st.sampled_from(sorted(LDS_DTYPES)).map(lambda c: ("lds.parquet", False, "drop_col", c)),
     st.sampled_from(sorted(LDS_DTYPES)).flatmap(
@@ -121,13 +149,16 @@ mutation = st.one_of(
         lambda rv: ("lds.parquet", False, "inject", rv)
     ),
     st.floats(0.0, 0.999).map(lambda f: ("lds.parquet", False, "truncate", f)),
-    st.sampled_from(["t_ns", "angle_rad", "x_mm", "y_mm", "rpm"]).map(lambda c: ("spindle.parquet", False, "drop_col", c)),
+    st.sampled_from(["t_ns", "angle_rad", "x_mm", "y_mm", "rpm"]).map(
+        lambda c: ("spindle.parquet", False, "drop_col", c)
+    ),
     st.floats(0.0, 0.999).map(lambda f: ("spindle.parquet", False, "truncate", f)),
 )
 
 
 def _apply(  # noqa: C901 (one branch per kind of mutation of the property test)
-        scan_dir: Path, muts) -> tuple[bool, set[str]]:
+    scan_dir: Path, muts
+) -> tuple[bool, set[str]]:
     """Apply mutations; return (still valid, files whose content is invalid now)."""
     meta = json.loads((scan_dir / "scan.json").read_text())
     tables = {f: pl.from_arrow(pq.read_table(scan_dir / f)) for f in ("lds.parquet", "spindle.parquet")}
@@ -245,8 +276,12 @@ def test_mutated_scans_are_accepted_only_when_valid(base, muts):
 
 
 @settings(max_examples=200, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
-@given(muts=st.lists(mutation, min_size=1, max_size=3), rod=st.booleans(), spindle=st.booleans(),
-       cuts=st.lists(st.integers(1, N * len(CHANS) - 1), max_size=4))
+@given(
+    muts=st.lists(mutation, min_size=1, max_size=3),
+    rod=st.booleans(),
+    spindle=st.booleans(),
+    cuts=st.lists(st.integers(1, N * len(CHANS) - 1), max_size=4),
+)
 def test_fast_lds_check_agrees_with_the_full_check(base, muts, rod, spindle, cuts):
     """The fast path of the lds check returns exactly the full check's warnings when the table
     has no problem, and declines (None) whenever the full check finds one, both on the wide matrix
@@ -271,7 +306,9 @@ def test_fast_lds_check_agrees_with_the_full_check(base, muts, rod, spindle, cut
         bounds = [0, *sorted({c for c in cuts if c < table.num_rows}), table.num_rows]
         table = pa.concat_tables([table.slice(a, b - a) for a, b in zip(bounds, bounds[1:])])
         if rod:  # a rod scan: poses per sample (valid) or null (invalid)
-            pose = pl.Series(np.repeat(np.arange(table.num_rows // 3 + 1), 3)[: table.num_rows], dtype=pl.Int32)
+            pose = pl.Series(
+                np.repeat(np.arange(table.num_rows // 3 + 1), 3)[: table.num_rows], dtype=pl.Int32
+            )
             table = table.set_column(table.column_names.index("pose"), "pose", pose.to_arrow())
         meta = {**META, "device": {"id": "R", "type": "rod" if rod else "tri_lds"}}
         full = rawio._check_lds_full(table, meta, spindle, p, "lds.parquet")
@@ -288,6 +325,6 @@ def test_fast_lds_check_agrees_with_the_full_check(base, muts, rod, spindle, cut
                 event("usual layout")
                 # a channel listed without rows forces the general scatter (its column all NaN)
                 general = rawio.lds_matrix(SimpleNamespace(lds=pl.from_arrow(table), channels=(*CHANS, 99)))
-                np.testing.assert_array_equal(fast[1].values_mm, general.values_mm[:, :len(CHANS)])
+                np.testing.assert_array_equal(fast[1].values_mm, general.values_mm[:, : len(CHANS)])
                 for k in ("sample", "t_s", "pose"):
                     np.testing.assert_array_equal(getattr(fast[1], k), getattr(general, k))

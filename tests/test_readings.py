@@ -13,10 +13,21 @@ from borescan.config import schema_defaults
 from borescan.effects import Effect
 from borescan.measure import measure_scan
 from borescan.rawio import lds_matrix, read_scan
-from borescan.readings import CleaningPolicy, _median_of_others, cleaning_policy, prepared_matrix, static_spikes
+from borescan.readings import (
+    CleaningPolicy,
+    _median_of_others,
+    cleaning_policy,
+    prepared_matrix,
+    static_spikes,
+)
 from borescan.rod_calibration import pose_means_of_scan
-from borescan.simulate import (default_tri_scene, simulate_rod, simulate_tri_spindle, simulate_tri_static,
-                               write_simulated)
+from borescan.simulate import (
+    default_tri_scene,
+    simulate_rod,
+    simulate_tri_spindle,
+    simulate_tri_static,
+    write_simulated,
+)
 from borescan.stages.calibration_fit import spindle_inputs
 
 DEFAULT = cleaning_policy(schema_defaults()["signal"])
@@ -72,9 +83,16 @@ def test_static_measurement_ignores_spikes(tmp_path):
     """
     scene = default_tri_scene()
     kw = dict(samples_per_pose=40, noise_mm=0.002, seed=11)
-    clean = read_scan(write_simulated(simulate_tri_static(scene, scan_id="S0", **kw), tmp_path / "raw", tmp_path / "t"))
-    dirty = read_scan(write_simulated(simulate_tri_static(scene, scan_id="S1", effects=[_outliers(2)], **kw),
-                                      tmp_path / "raw", tmp_path / "t"))
+    clean = read_scan(
+        write_simulated(simulate_tri_static(scene, scan_id="S0", **kw), tmp_path / "raw", tmp_path / "t")
+    )
+    dirty = read_scan(
+        write_simulated(
+            simulate_tri_static(scene, scan_id="S1", effects=[_outliers(2)], **kw),
+            tmp_path / "raw",
+            tmp_path / "t",
+        )
+    )
     beams = scene.beams
     d0 = measure_scan(clean, beams)["diameter_mm"]
     res = measure_scan(dirty, beams, cleaning=DEFAULT)
@@ -106,9 +124,16 @@ def test_rod_pose_means_ignore_spikes(tmp_path):
     the same scan without them to within the noise of a mean; with the policy off they do not.
     """
     sim_kw = dict(n_poses=12, samples_per_pose=9, seed=4)
-    clean = read_scan(write_simulated(simulate_rod(scan_id="ROD0", **sim_kw), tmp_path / "raw", tmp_path / "t"))
-    dirty = read_scan(write_simulated(simulate_rod(scan_id="ROD1", effects=[_outliers(1, 0.05, 0.3)], **sim_kw),
-                                      tmp_path / "raw", tmp_path / "t"))
+    clean = read_scan(
+        write_simulated(simulate_rod(scan_id="ROD0", **sim_kw), tmp_path / "raw", tmp_path / "t")
+    )
+    dirty = read_scan(
+        write_simulated(
+            simulate_rod(scan_id="ROD1", effects=[_outliers(1, 0.05, 0.3)], **sim_kw),
+            tmp_path / "raw",
+            tmp_path / "t",
+        )
+    )
     v = lds_matrix(dirty).values_mm
     spikes = readings.static_spikes(v, lds_matrix(dirty).pose, DEFAULT.spike_threshold_mad)
     _, m0, _, _ = pose_means_of_scan(clean)

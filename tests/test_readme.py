@@ -85,8 +85,14 @@ def test_every_readme_command_is_checked_and_every_check_is_in_the_readme():
 
 def test_every_docs_link_of_the_readme_exists():
     links = set(re.findall(r"`(docs/[\w.-]+\.md)`", README.read_text(encoding="utf-8")))
-    assert {"docs/import-csv.md", "docs/configuration.md", "docs/migration.md", "docs/papers.md",
-            "docs/operations.md", "docs/ENGINEERING.md"} <= links
+    assert {
+        "docs/import-csv.md",
+        "docs/configuration.md",
+        "docs/migration.md",
+        "docs/papers.md",
+        "docs/operations.md",
+        "docs/ENGINEERING.md",
+    } <= links
     assert sorted(link for link in links if not (ROOT / link).is_file()) == []
 
 
@@ -100,8 +106,21 @@ def places(built, tmp_path, capsys, monkeypatch):  # noqa: F811
     """
     res, _ = built
     raw = tmp_path / "readme_raw"  # make_history has its own raw/ here
-    assert main(["simulate", "tri", "--raw-root", str(raw), "--truth-root", str(tmp_path / "truth"),
-                 "--scan-id", "T1"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "tri",
+                "--raw-root",
+                str(raw),
+                "--truth-root",
+                str(tmp_path / "truth"),
+                "--scan-id",
+                "T1",
+            ]
+        )
+        == 0
+    )
     monkeypatch.chdir(res.parent)
     example = (ROOT / "docs" / "import-csv.md").read_text(encoding="utf-8").split("## Example", 1)[1]
     csv_text, meta_text = re.findall(r"^```(?:yaml)?\n(.*?)^```", example, flags=re.S | re.M)[:2]
@@ -146,8 +165,14 @@ def test_snakemake_commands(places, tmp_path):
             continue
         words = _words(command, places)
         extra = ["--dry-run", "--quiet"] if how == "dry-run" else []
-        proc = subprocess.run([str(SNAKEMAKE), *words[1:], *extra], cwd=ROOT, env=env, capture_output=True,
-                              text=True, timeout=120)
+        proc = subprocess.run(
+            [str(SNAKEMAKE), *words[1:], *extra],
+            cwd=ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert proc.returncode == 0, (command, proc.stderr[-2000:])
 
 
@@ -155,8 +180,9 @@ def test_make_targets_and_the_venv_line():
     for command, how in CHECKED.items():
         if how == "make":
             target = command.split()[1]
-            proc = subprocess.run(["make", "-n", target], cwd=ROOT, capture_output=True, text=True,
-                                  timeout=60)
+            proc = subprocess.run(
+                ["make", "-n", target], cwd=ROOT, capture_output=True, text=True, timeout=60
+            )
             assert proc.returncode == 0, proc.stderr
             assert ("pytest" in proc.stdout) == (target == "test")
             # make run runs the workflow; make test lints it (snakemake --lint) before pytest

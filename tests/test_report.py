@@ -117,12 +117,18 @@ def test_plot_functions_are_pure_and_labelled(results):
     # individuals chart lines: mean, UCL, LCL (in µm) from the hand formula
     err = np.array([0.004, 0.020, -0.001])
     mr_bar = np.mean(np.abs(np.diff(err)))
-    hlines = sorted(round(line.get_ydata()[0], 6) for line in ax_i.get_lines()
-                    if len(set(line.get_ydata())) == 1 and len(line.get_ydata()) == 2)
+    hlines = sorted(
+        round(line.get_ydata()[0], 6)
+        for line in ax_i.get_lines()
+        if len(set(line.get_ydata())) == 1 and len(line.get_ydata()) == 2
+    )
     for expect in (err.mean(), err.mean() + 2.66 * mr_bar, err.mean() - 2.66 * mr_bar):
         assert round(expect * 1e3, 6) in hlines
-    mr_lines = [round(line.get_ydata()[0], 6) for line in ax_mr.get_lines() if len(line.get_ydata()) == 2
-                and len(set(line.get_ydata())) == 1]
+    mr_lines = [
+        round(line.get_ydata()[0], 6)
+        for line in ax_mr.get_lines()
+        if len(line.get_ydata()) == 2 and len(set(line.get_ydata())) == 1
+    ]
     assert round(3.267 * mr_bar * 1e3, 6) in mr_lines
 
     cal_fig = report.plot_calibration_trends(t["calibrations"], "TRI-01")
@@ -148,11 +154,17 @@ def test_report_written_with_sections_and_existing_links(results):
         assert f'<section id="{sid}">' in text
     files = _check_links_resolve(results)
     # the plots, certificates, gap plots and the papers' page are all linked
-    for expect in ("report/2026-11/control_TRI-01.png", "report/2026-11/calibration_TRI-01.png",
-                   "report/2026-11/calibration_ROD-01.png", "report/2026-11/index.html",
-                   "calibration/TRI-01/CAL-A/certificate.pdf",
-                   "calibration/TRI-01/CAL-A/certificate.json", "discrepancy/PART-7/gap.png",
-                   "report/papers.html", "quarantine/BAD-1.json"):
+    for expect in (
+        "report/2026-11/control_TRI-01.png",
+        "report/2026-11/calibration_TRI-01.png",
+        "report/2026-11/calibration_ROD-01.png",
+        "report/2026-11/index.html",
+        "calibration/TRI-01/CAL-A/certificate.pdf",
+        "calibration/TRI-01/CAL-A/certificate.json",
+        "discrepancy/PART-7/gap.png",
+        "report/papers.html",
+        "quarantine/BAD-1.json",
+    ):
         assert expect in files, expect
     # the papers are on their own page, not inline
     assert "papers/wang_fig7.png" not in files and "rho_1_mm" not in text
@@ -163,12 +175,18 @@ def test_report_written_with_sections_and_existing_links(results):
     assert "data:image/png;base64," in papers_text  # the paper's plot embedded
     # the month's own page: the same sections (papers aside), its links relative to report/2026-11/
     month = _check_links_resolve(results, "report/2026-11/index.html")
-    for expect in ("control_TRI-01.png", "../../calibration/TRI-01/CAL-A/certificate.pdf",
-                   "../../discrepancy/PART-7/gap.png", "../../quarantine/BAD-1.json", "../../report.html"):
+    for expect in (
+        "control_TRI-01.png",
+        "../../calibration/TRI-01/CAL-A/certificate.pdf",
+        "../../discrepancy/PART-7/gap.png",
+        "../../quarantine/BAD-1.json",
+        "../../report.html",
+    ):
         assert expect in month, expect
     month_text = (results / "report" / "2026-11" / "index.html").read_text()
-    assert text.split('<section id="calibration">')[1].split("</section>")[0].replace("report/2026-11/", "") == \
-        month_text.split('<section id="calibration">')[1].split("</section>")[0].replace("../../", "")
+    assert text.split('<section id="calibration">')[1].split("</section>")[0].replace(
+        "report/2026-11/", ""
+    ) == month_text.split('<section id="calibration">')[1].split("</section>")[0].replace("../../", "")
     assert '<section id="papers">' not in month_text
     # a certificate whose files are absent is named, not linked
     assert "calibration/ROD-01/ROD-CAL-1/certificate.pdf (missing)" in text
@@ -181,7 +199,11 @@ def test_report_written_with_sections_and_existing_links(results):
     assert "PART-7" in suspect and "PART-8" not in suspect
     # every PNG written is a real PNG
     pngs = list((results / "report").rglob("*.png"))
-    assert sorted(p.name for p in pngs) == ["calibration_ROD-01.png", "calibration_TRI-01.png", "control_TRI-01.png"]
+    assert sorted(p.name for p in pngs) == [
+        "calibration_ROD-01.png",
+        "calibration_TRI-01.png",
+        "control_TRI-01.png",
+    ]
     for png in pngs:
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # parts measured once share one table (a single value has no distribution to plot)
@@ -193,7 +215,8 @@ def test_report_plots_parts_measured_more_than_once(results):
     t = report.load_tables(results)
     dia = t["diameters"]
     again = dia.filter(pl.col("artifact_id") == "P-7").with_columns(
-        pl.lit("PART-7B").alias("scan_id"), (pl.col("diameter_mm") + 0.002).alias("diameter_mm"))
+        pl.lit("PART-7B").alias("scan_id"), (pl.col("diameter_mm") + 0.002).alias("diameter_mm")
+    )
     t["diameters"] = pl.concat([dia, again], how="diagonal_relaxed")
     text = report.write_report(results, t).read_text()
     assert "<h3>Part P-7</h3>" in text and "Parts measured once (2)" in text
@@ -208,7 +231,9 @@ def test_report_links_survive_moving_the_folder(results, tmp_path):
 
 
 def _files(folder):
-    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
 
 
 def test_report_rerun_is_byte_identical(results):
@@ -236,11 +261,19 @@ def test_report_of_empty_catalog(tmp_path):
 
 def test_report_from_given_frames_without_catalog(tmp_path):
     res = tmp_path / "results"
-    ver = pl.DataFrame({
-        "scan_id": ["V1", "V2", "V3", "V4"], "night": ["2026-11-20", "2026-11-21", "2026-11-22", "2026-11-23"],
-        "device_id": ["TRI-02"] * 4, "error_mm": [0.001, 0.003, 0.002, 0.006], "tolerance_mm": [0.015] * 4,
-        "passed": [True] * 4, "calibration_id": ["C"] * 4, "measured_mm": [None] * 4, "certified_mm": [None] * 4,
-    })
+    ver = pl.DataFrame(
+        {
+            "scan_id": ["V1", "V2", "V3", "V4"],
+            "night": ["2026-11-20", "2026-11-21", "2026-11-22", "2026-11-23"],
+            "device_id": ["TRI-02"] * 4,
+            "error_mm": [0.001, 0.003, 0.002, 0.006],
+            "tolerance_mm": [0.015] * 4,
+            "passed": [True] * 4,
+            "calibration_id": ["C"] * 4,
+            "measured_mm": [None] * 4,
+            "certified_mm": [None] * 4,
+        }
+    )
     text = report.write_report(res, {"verifications": ver}).read_text()
     # limits table of the device: mean 0.003, MR-bar 7/3 µm, UCL 0.003 + 2.66 * 0.0023333
     assert f"{0.003 + 2.66 * 0.007 / 3:.6g}" in text
@@ -260,36 +293,93 @@ def _rich_tables(res: Path) -> dict[str, pl.DataFrame]:
     t = make_history(res)
     scans = t["scans"]
     extra = scans.filter(pl.col("scan_id") == "PART-8").with_columns(
-        pl.lit("MEAS-X").alias("scan_id"), pl.lit("TRI-09").alias("device_id"), pl.lit("quarantined").alias("status"),
-        pl.lit("scan.json: no calibration of device TRI-09 on or before night 2026-11-22").alias("reason"))
+        pl.lit("MEAS-X").alias("scan_id"),
+        pl.lit("TRI-09").alias("device_id"),
+        pl.lit("quarantined").alias("status"),
+        pl.lit("scan.json: no calibration of device TRI-09 on or before night 2026-11-22").alias("reason"),
+    )
     t["scans"] = pl.concat([scans, extra])
-    t["quarantine"] = pl.concat([t["quarantine"], pl.DataFrame({
-        "scan_id": ["MEAS-X"], "night": ["2026-11-22"], "stage": ["measure"], "file": ["scan.json"],
-        "reason": ["no calibration of device TRI-09 on or before night 2026-11-22"]})])
+    t["quarantine"] = pl.concat(
+        [
+            t["quarantine"],
+            pl.DataFrame(
+                {
+                    "scan_id": ["MEAS-X"],
+                    "night": ["2026-11-22"],
+                    "stage": ["measure"],
+                    "file": ["scan.json"],
+                    "reason": ["no calibration of device TRI-09 on or before night 2026-11-22"],
+                }
+            ),
+        ]
+    )
     t["diameters"] = t["diameters"].with_columns(
-        pl.Series("temperature_c", [20.4, 20.0, 21.0]), pl.Series("temperature_assumed", [False, True, False]),
+        pl.Series("temperature_c", [20.4, 20.0, 21.0]),
+        pl.Series("temperature_assumed", [False, True, False]),
         pl.Series("diameter_20_mm", [150.0121123456789, 150.0101, 80.0030]),
         pl.Series("u_diameter_20_mm", [0.0022, 0.0021, 0.0041]),
-        pl.Series("expanded_u_diameter_20_mm", [0.0045, 0.0043, 0.0083]), pl.Series("k", [2.05, 2.03, 2.02]),
-        pl.Series("coverage_probability", [0.95, 0.95, 0.95]), pl.Series("tolerance_mm", [None, 0.008, None]))
-    t["artifacts"] = pl.concat([t["artifacts"], pl.DataFrame({
-        "artifact_id": ["P-8"], "type": ["part"], "nominal_diameter_mm": [150.0]})], how="diagonal_relaxed")
+        pl.Series("expanded_u_diameter_20_mm", [0.0045, 0.0043, 0.0083]),
+        pl.Series("k", [2.05, 2.03, 2.02]),
+        pl.Series("coverage_probability", [0.95, 0.95, 0.95]),
+        pl.Series("tolerance_mm", [None, 0.008, None]),
+    )
+    t["artifacts"] = pl.concat(
+        [
+            t["artifacts"],
+            pl.DataFrame({"artifact_id": ["P-8"], "type": ["part"], "nominal_diameter_mm": [150.0]}),
+        ],
+        how="diagonal_relaxed",
+    )
     t["calibrations"] = t["calibrations"].with_columns(
-        pl.when(pl.col("calibration_id") == "ROD-CAL-1").then(pl.lit("2026-11-21")).otherwise(pl.lit("2026-12-20"))
-        .alias("recalibration_due"))
-    named = [{"effect": "sensor_offset", "channel": 1, "parameters": {"b_mm": 0.0031234567},
-              "uncertainties": {"u_b_mm": 0.00041}},
-             {"effect": "sensor_nonlinearity", "channel": 1, "parameters": {"a_mm": 0.0052},
-              "uncertainties": {"u_a_mm": 0.0007}}]
+        pl.when(pl.col("calibration_id") == "ROD-CAL-1")
+        .then(pl.lit("2026-11-21"))
+        .otherwise(pl.lit("2026-12-20"))
+        .alias("recalibration_due")
+    )
+    named = [
+        {
+            "effect": "sensor_offset",
+            "channel": 1,
+            "parameters": {"b_mm": 0.0031234567},
+            "uncertainties": {"u_b_mm": 0.00041},
+        },
+        {
+            "effect": "sensor_nonlinearity",
+            "channel": 1,
+            "parameters": {"a_mm": 0.0052},
+            "uncertainties": {"u_a_mm": 0.0007},
+        },
+    ]
     (res / "discrepancy" / "PART-9").mkdir(parents=True)
-    (res / "discrepancy" / "PART-9" / "findings.json").write_text(json.dumps({
-        "scan_id": "PART-9", "verdict": "ambiguous", "named": named, "gap_before": {"rms_mm": 0.0050123456789},
-        "gap_after": {"rms_mm": 0.0021}, "noise_floor_mm": 0.0020}))
-    t["findings"] = pl.concat([t["findings"], pl.DataFrame({
-        "scan_id": ["PART-9", "PART-9"], "verdict": ["ambiguous", "ambiguous"],
-        "effect": ["sensor_offset", "sensor_nonlinearity"], "channel": [1, 1],
-        "parameters": ['{"b_mm": 0.0031234567}', '{"a_mm": 0.0052}'], "gap_before_mm": [0.0050123456789] * 2,
-        "gap_after_mm": [0.0021] * 2})], how="diagonal_relaxed")
+    (res / "discrepancy" / "PART-9" / "findings.json").write_text(
+        json.dumps(
+            {
+                "scan_id": "PART-9",
+                "verdict": "ambiguous",
+                "named": named,
+                "gap_before": {"rms_mm": 0.0050123456789},
+                "gap_after": {"rms_mm": 0.0021},
+                "noise_floor_mm": 0.0020,
+            }
+        )
+    )
+    t["findings"] = pl.concat(
+        [
+            t["findings"],
+            pl.DataFrame(
+                {
+                    "scan_id": ["PART-9", "PART-9"],
+                    "verdict": ["ambiguous", "ambiguous"],
+                    "effect": ["sensor_offset", "sensor_nonlinearity"],
+                    "channel": [1, 1],
+                    "parameters": ['{"b_mm": 0.0031234567}', '{"a_mm": 0.0052}'],
+                    "gap_before_mm": [0.0050123456789] * 2,
+                    "gap_after_mm": [0.0021] * 2,
+                }
+            ),
+        ],
+        how="diagonal_relaxed",
+    )
     return t
 
 
@@ -319,10 +409,14 @@ def test_summary_per_night_lists_what_needs_attention(rich):
         assert summary.index("2026-11-22") < summary.index("2026-11-21") < summary.index("2026-11-20")
         # every quarantined scan (scans.status or a quarantine row) is listed with its reason and action
         con = catalog.open_catalog(res, read_only=True)
-        quarantined = {r[0]: r[1] for r in con.execute(
-            "SELECT scan_id, any_value(reason) FROM (SELECT scan_id, reason FROM scans WHERE "
-            "status = 'quarantined' "
-            "UNION ALL SELECT scan_id, file || ': ' || reason FROM quarantine) GROUP BY scan_id").fetchall()}
+        quarantined = {
+            r[0]: r[1]
+            for r in con.execute(
+                "SELECT scan_id, any_value(reason) FROM (SELECT scan_id, reason FROM scans WHERE "
+                "status = 'quarantined' "
+                "UNION ALL SELECT scan_id, file || ': ' || reason FROM quarantine) GROUP BY scan_id"
+            ).fetchall()
+        }
         con.close()
         assert set(quarantined) == {"BAD-1", "MEAS-X"}
         for sid, reason in quarantined.items():
@@ -334,8 +428,19 @@ def test_summary_per_night_lists_what_needs_attention(rich):
         # decide (the history has no verdict statements), no verdict for a person
         row = summary.split('href="#night-2026-11-22">2026-11-22</a></td>')[1].split("</tr>")[0]
         cells = re.findall(r"<td[^>]*>(.*?)</td>", row)
-        assert cells == ["4", "calibration 1, measurement 2, verification 1", "1", "1", "1", "1", "1", "0", "1",
-                         "0", "0"]
+        assert cells == [
+            "4",
+            "calibration 1, measurement 2, verification 1",
+            "1",
+            "1",
+            "1",
+            "1",
+            "1",
+            "0",
+            "1",
+            "0",
+            "0",
+        ]
         night22 = summary.split('id="night-2026-11-22"')[1].split("</div>")[0]
         assert "calibration expired</b> ROD-CAL-1" in night22
         assert "calibration superseded: CAL-A of TRI-01 by CAL-B" in night22
@@ -354,7 +459,9 @@ def html_escape(s: str) -> str:
 
 
 def _cell_texts(page: str) -> list[str]:
-    return [re.sub(r"<[^>]+>", " ", c) for c in re.findall(r"<td[^>]*>(.*?)</td>", _without_images(page), re.S)]
+    return [
+        re.sub(r"<[^>]+>", " ", c) for c in re.findall(r"<td[^>]*>(.*?)</td>", _without_images(page), re.S)
+    ]
 
 
 def test_pages_have_no_raw_json_and_no_long_floats(rich):
@@ -363,7 +470,9 @@ def test_pages_have_no_raw_json_and_no_long_floats(rich):
     for page in pages:
         plain = _without_images(page)
         assert '{"' not in plain and "{&quot;" not in plain
-        numbers = [n for cell in _cell_texts(page) for n in re.findall(r"\d+(?:\.\d+)?(?:[eE][-+]?\d+)?", cell)]
+        numbers = [
+            n for cell in _cell_texts(page) for n in re.findall(r"\d+(?:\.\d+)?(?:[eE][-+]?\d+)?", cell)
+        ]
         assert numbers  # the check sees the tables
         for n in numbers:
             mantissa = re.split(r"[eE]", n)[0].replace(".", "").lstrip("0")
@@ -375,13 +484,27 @@ def test_pages_have_no_raw_json_and_no_long_floats(rich):
 def test_parts_show_both_temperatures_uncertainty_and_deviation(rich):
     res, _ = rich
     parts = _section(report.write_report(res).read_text(), "diameters")
-    rows = {re.findall(r"<td[^>]*>(.*?)</td>", r)[1]: [re.sub(r"<[^>]+>", "", c) for c in
-                                                       re.findall(r"<td[^>]*>(.*?)</td>", r)]
-            for r in parts.split("<tr")[1:] if "<td" in r and "PART-" in r}
+    rows = {
+        re.findall(r"<td[^>]*>(.*?)</td>", r)[1]: [
+            re.sub(r"<[^>]+>", "", c) for c in re.findall(r"<td[^>]*>(.*?)</td>", r)
+        ]
+        for r in parts.split("<tr")[1:]
+        if "<td" in r and "PART-" in r
+    }
     # night, scan, part, feature, D at T, T, D at 20, U [µm], k, coverage, nominal, deviation [µm],
     # tolerance, verdict
-    assert rows["PART-8"][4:14] == ["150.0101", "20 (assumed)", "150.0101", "4.30", "2.03", "0.95", "150", "10.1",
-                                    "8.0", "OUT OF TOLERANCE"]
+    assert rows["PART-8"][4:14] == [
+        "150.0101",
+        "20 (assumed)",
+        "150.0101",
+        "4.30",
+        "2.03",
+        "0.95",
+        "150",
+        "10.1",
+        "8.0",
+        "OUT OF TOLERANCE",
+    ]
     assert rows["PART-7"][4:12] == ["150.0123", "20.4", "150.012112", "4.50", "2.05", "0.95", "", ""]
     assert "temperature" in parts and "(assumed)" in parts
 
@@ -400,20 +523,41 @@ def test_discrepancy_in_words_and_ambiguous_explained(rich):
 def test_quarantine_actions_follow_the_readme_classes():
     assert report.quarantine_action("lds.parquet: non-monotonic sample")[0] == "broken file"
     assert report.quarantine_action("lds.parquet: t_ns clock jumps back")[0] == "broken file"
-    assert report.quarantine_action("scan.json: scan_id already used by a scan of night=2026-11-20 (scan ids "
-                                    "are unique across nights)")[0] == "scan id reused"
-    assert report.quarantine_action("lds.parquet: calibration failed: calibration refused: residual")[0] == \
-        "calibration refused"
-    assert report.quarantine_action("latest calibration CAL-A of device TRI-01 failed its verification; "
-                                    "recalibrate")[0] == "calibration failed verification"
-    assert report.quarantine_action("latest calibration CAL-A of device TRI-01 expired (40 days old, validity "
-                                    "30 days)")[0] == "calibration expired"
-    assert report.quarantine_action("too few revolutions to calibrate: 3 whole revolutions")[0] == \
-        "too few revolutions or poses"
+    assert (
+        report.quarantine_action(
+            "scan.json: scan_id already used by a scan of night=2026-11-20 (scan ids "
+            "are unique across nights)"
+        )[0]
+        == "scan id reused"
+    )
+    assert (
+        report.quarantine_action("lds.parquet: calibration failed: calibration refused: residual")[0]
+        == "calibration refused"
+    )
+    assert (
+        report.quarantine_action(
+            "latest calibration CAL-A of device TRI-01 failed its verification; recalibrate"
+        )[0]
+        == "calibration failed verification"
+    )
+    assert (
+        report.quarantine_action(
+            "latest calibration CAL-A of device TRI-01 expired (40 days old, validity 30 days)"
+        )[0]
+        == "calibration expired"
+    )
+    assert (
+        report.quarantine_action("too few revolutions to calibrate: 3 whole revolutions")[0]
+        == "too few revolutions or poses"
+    )
     assert report.quarantine_action("measurement failed: singular matrix")[0] == "processing error"
-    assert report.quarantine_action("scan.json: device.nominal.beams missing (optional in the raw format, but a "
-                                    "three-sensor calibration starts its fit from the design beam geometry)")[0] == \
-        "design geometry missing"
+    assert (
+        report.quarantine_action(
+            "scan.json: device.nominal.beams missing (optional in the raw format, but a "
+            "three-sensor calibration starts its fit from the design beam geometry)"
+        )[0]
+        == "design geometry missing"
+    )
     assert "new scan id" in report.quarantine_action(None)[1]
 
 
@@ -444,16 +588,31 @@ def test_a_later_month_supersedes_a_calibration_without_rewriting_the_earlier_pa
     first = report.update_report(res)
     assert first.rendered == ("2026-11",)
     assert report.update_report(res).rendered == ()  # the same rows: nothing rewritten
-    dec = tables["scans"].filter(pl.col("scan_id") == "CAL-B").with_columns(
-        pl.lit("CAL-C").alias("scan_id"), pl.lit("2026-12-02").alias("night"),
-        pl.lit("2026-12-02T22:00:00Z").alias("started_at"))
+    dec = (
+        tables["scans"]
+        .filter(pl.col("scan_id") == "CAL-B")
+        .with_columns(
+            pl.lit("CAL-C").alias("scan_id"),
+            pl.lit("2026-12-02").alias("night"),
+            pl.lit("2026-12-02T22:00:00Z").alias("started_at"),
+        )
+    )
     tables["scans"] = pl.concat([tables["scans"], dec])
-    tables["calibrations"] = pl.concat([tables["calibrations"], tables["calibrations"].filter(
-        pl.col("calibration_id") == "CAL-B").with_columns(pl.lit("CAL-C").alias("calibration_id"),
-                                                          pl.lit("CAL-C").alias("scan_id"),
-                                                          pl.lit(None, dtype=pl.Utf8).alias("certificate_path"))])
-    tables["calibration_scans"] = pl.concat([tables["calibration_scans"], pl.DataFrame(
-        {"calibration_id": ["CAL-C"], "scan_id": ["CAL-C"]})])
+    tables["calibrations"] = pl.concat(
+        [
+            tables["calibrations"],
+            tables["calibrations"]
+            .filter(pl.col("calibration_id") == "CAL-B")
+            .with_columns(
+                pl.lit("CAL-C").alias("calibration_id"),
+                pl.lit("CAL-C").alias("scan_id"),
+                pl.lit(None, dtype=pl.Utf8).alias("certificate_path"),
+            ),
+        ]
+    )
+    tables["calibration_scans"] = pl.concat(
+        [tables["calibration_scans"], pl.DataFrame({"calibration_id": ["CAL-C"], "scan_id": ["CAL-C"]})]
+    )
     catalog.build_catalog(res, tables)
     second = report.update_report(res)
     assert second.rendered == ("2026-12",)
@@ -491,9 +650,18 @@ def _verifications(n: int, gauges=("RG-275",)) -> pl.DataFrame:
     rows = []
     for i in range(n):
         for g in gauges:
-            rows.append({"scan_id": f"V{i}-{g}", "night": str(dt.date(2026, 1, 1) + dt.timedelta(days=i)),
-                         "device_id": "TRI-01", "artifact_id": g, "error_mm": 0.001 * ((i * 7) % 5) + (0.01 if
-                         g != "RG-275" else 0.0), "tolerance_mm": 0.015, "passed": True, "u_error_mm": 0.0012})
+            rows.append(
+                {
+                    "scan_id": f"V{i}-{g}",
+                    "night": str(dt.date(2026, 1, 1) + dt.timedelta(days=i)),
+                    "device_id": "TRI-01",
+                    "artifact_id": g,
+                    "error_mm": 0.001 * ((i * 7) % 5) + (0.01 if g != "RG-275" else 0.0),
+                    "tolerance_mm": 0.015,
+                    "passed": True,
+                    "u_error_mm": 0.0012,
+                }
+            )
     return pl.DataFrame(rows)
 
 
@@ -507,10 +675,15 @@ def test_control_chart_is_per_gauge_with_marked_rule_breaks(tmp_path):
     labels = [t.get_text() for t in ax_i.get_legend().get_texts()]
     assert "U (k=2)" in labels
     # a point beyond 3 sigma is ringed and named in the legend
-    jump = ver.with_columns(pl.when(pl.col("scan_id") == "V6-RG-275").then(0.05).otherwise(pl.col("error_mm"))
-                            .alias("error_mm"))
-    jump = pl.concat([jump.filter(pl.col("artifact_id") == "RG-275")] * 3).with_row_index().with_columns(
-        pl.format("S{}", pl.col("index")).alias("scan_id")).drop("index")
+    jump = ver.with_columns(
+        pl.when(pl.col("scan_id") == "V6-RG-275").then(0.05).otherwise(pl.col("error_mm")).alias("error_mm")
+    )
+    jump = (
+        pl.concat([jump.filter(pl.col("artifact_id") == "RG-275")] * 3)
+        .with_row_index()
+        .with_columns(pl.format("S{}", pl.col("index")).alias("scan_id"))
+        .drop("index")
+    )
     ax = report.plot_control_chart(jump, "TRI-01", "RG-275").axes[0]
     assert any(t.get_text().startswith("breaks run rule 1") for t in ax.get_legend().get_texts())
     # the report draws one chart per gauge
@@ -518,7 +691,9 @@ def test_control_chart_is_per_gauge_with_marked_rule_breaks(tmp_path):
     text = report.write_report(res, {"verifications": ver}).read_text()
     assert "Device TRI-01 · gauge RG-150" in text and "Device TRI-01 · gauge RG-275" in text
     assert sorted(p.name for p in (res / "report" / "2026-01").glob("control_*.png")) == [
-        "control_TRI-01_RG-150.png", "control_TRI-01_RG-275.png"]
+        "control_TRI-01_RG-150.png",
+        "control_TRI-01_RG-275.png",
+    ]
 
 
 @pytest.mark.parametrize("n", [2, 8, 30, 365])
@@ -548,27 +723,76 @@ def test_device_model_section_shows_pooled_verdicts_device_effects_and_flagged_d
     res = tmp_path / "results"
     t = _rich_tables(res)
     night = t["scans"]["night"].cast(pl.String).max()
-    t["pooled_findings"] = pl.DataFrame({
-        "night": [night] * 2, "device_id": ["TRI-01"] * 2, "verdict": ["missing_effect"] * 2,
-        "effect": ["channel_delay", "sensor_gain"], "channel": [2, 1], "term": ["channel_delay@2", "sensor_gain@1"],
-        "parameters": ['{"tau_s": 0.0012}', '{"g": 0.0011}'],
-        "uncertainties": ['{"u_tau_s": 0.00003}', '{"u_g": 0.0002}'], "evidence_scans": ["CAL-A,CAL-B", None],
-        "in_device_model": [False, True], "absorbed": [None, None], "gap_before_mm": [0.0061] * 2,
-        "gap_after_mm": [0.0021] * 2, "noise_floor_mm": [0.0020] * 2, "reason": [None, None]})
-    t["calibration_drift"] = pl.DataFrame({
-        "night": [night] * 2, "device_id": ["TRI-01"] * 2, "channel": [2, 3], "parameter": ["beta_rad", "rho_mm"],
-        "calibration_id_after": ["CAL-2"] * 2, "change": [0.0040, 0.0001], "u_combined": [0.00085, 0.001],
-        "change_over_u": [4.7, 0.1], "flagged": [True, False], "explained_by": ["channel_delay@2", None]})
+    t["pooled_findings"] = pl.DataFrame(
+        {
+            "night": [night] * 2,
+            "device_id": ["TRI-01"] * 2,
+            "verdict": ["missing_effect"] * 2,
+            "effect": ["channel_delay", "sensor_gain"],
+            "channel": [2, 1],
+            "term": ["channel_delay@2", "sensor_gain@1"],
+            "parameters": ['{"tau_s": 0.0012}', '{"g": 0.0011}'],
+            "uncertainties": ['{"u_tau_s": 0.00003}', '{"u_g": 0.0002}'],
+            "evidence_scans": ["CAL-A,CAL-B", None],
+            "in_device_model": [False, True],
+            "absorbed": [None, None],
+            "gap_before_mm": [0.0061] * 2,
+            "gap_after_mm": [0.0021] * 2,
+            "noise_floor_mm": [0.0020] * 2,
+            "reason": [None, None],
+        }
+    )
+    t["calibration_drift"] = pl.DataFrame(
+        {
+            "night": [night] * 2,
+            "device_id": ["TRI-01"] * 2,
+            "channel": [2, 3],
+            "parameter": ["beta_rad", "rho_mm"],
+            "calibration_id_after": ["CAL-2"] * 2,
+            "change": [0.0040, 0.0001],
+            "u_combined": [0.00085, 0.001],
+            "change_over_u": [4.7, 0.1],
+            "flagged": [True, False],
+            "explained_by": ["channel_delay@2", None],
+        }
+    )
     # the night's calibration of TRI-01 carried channel_delay@2 (from the night before) and listed an offset
     base = t["calibrations"].filter(pl.col("device_id") == "TRI-01").head(1)
-    carried = {"diagnostics": {"device_model": [
-        {"key": "channel_delay@2", "estimated": True, "values": {"tau_s": 0.00119}, "u": {"tau_s": 0.00002},
-         "night": "2026-11-19", "source": "config"},
-        {"key": "sensor_offset@3", "estimated": False, "values": {}, "u": {}, "night": None, "source": "automatic"}]},
-        "nuisance": {"CAL-A": {"residual_to_noise": [1.01, 1.03, 0.99]}}}
-    t["calibrations"] = pl.concat([t["calibrations"], base.with_columns(
-        pl.lit("CAL-DM").alias("calibration_id"), pl.lit(night).alias("night"), pl.lit(night).alias("valid_from"),
-        pl.lit(json.dumps(carried)).alias("calibration_json"))], how="diagonal_relaxed")
+    carried = {
+        "diagnostics": {
+            "device_model": [
+                {
+                    "key": "channel_delay@2",
+                    "estimated": True,
+                    "values": {"tau_s": 0.00119},
+                    "u": {"tau_s": 0.00002},
+                    "night": "2026-11-19",
+                    "source": "config",
+                },
+                {
+                    "key": "sensor_offset@3",
+                    "estimated": False,
+                    "values": {},
+                    "u": {},
+                    "night": None,
+                    "source": "automatic",
+                },
+            ]
+        },
+        "nuisance": {"CAL-A": {"residual_to_noise": [1.01, 1.03, 0.99]}},
+    }
+    t["calibrations"] = pl.concat(
+        [
+            t["calibrations"],
+            base.with_columns(
+                pl.lit("CAL-DM").alias("calibration_id"),
+                pl.lit(night).alias("night"),
+                pl.lit(night).alias("valid_from"),
+                pl.lit(json.dumps(carried)).alias("calibration_json"),
+            ),
+        ],
+        how="diagonal_relaxed",
+    )
     catalog.build_catalog(res, t)
     sec = _section(report.write_report(res).read_text(), "pooled")
     row = sec.split("<td>TRI-01</td>")[1].split("</tr>")[0]
@@ -579,24 +803,40 @@ def test_device_model_section_shows_pooled_verdicts_device_effects_and_flagged_d
     assert "<b>sensor_offset@3</b>: not estimated yet" in cell and "residual 1.03 × noise floor" in cell
     assert ">6.10<" in row and ">2.10<" in row and ">2.00<" in row
     drift = sec.split("Calibration drift (1 flagged of 2 changes)")[1]
-    assert "+4 mrad" in drift and "0.85 mrad" in drift and "channel_delay@2" in drift and "rho_mm" not in drift
+    assert (
+        "+4 mrad" in drift and "0.85 mrad" in drift and "channel_delay@2" in drift and "rho_mm" not in drift
+    )
 
 
 def test_findings_rows_carry_the_uncertainties_the_report_shows(tmp_path):
     """A finding's uncertainties travel in the findings table (no findings.json needed to show value ± u)."""
     from borescan.stages.discrepancy import findings_rows
 
-    rows = findings_rows({"scan_id": "S-1", "verdict": "missing_effect", "gap_before": {"rms_mm": 0.0061},
-                          "gap_after": {"rms_mm": 0.0021}, "noise_floor_mm": 0.002,
-                          "named": [{"effect": "channel_delay", "channel": 2, "parameters": {"tau_s": 0.0012},
-                                     "uncertainties": {"u_tau_s": 0.00003}}]})
+    rows = findings_rows(
+        {
+            "scan_id": "S-1",
+            "verdict": "missing_effect",
+            "gap_before": {"rms_mm": 0.0061},
+            "gap_after": {"rms_mm": 0.0021},
+            "noise_floor_mm": 0.002,
+            "named": [
+                {
+                    "effect": "channel_delay",
+                    "channel": 2,
+                    "parameters": {"tau_s": 0.0012},
+                    "uncertainties": {"u_tau_s": 0.00003},
+                }
+            ],
+        }
+    )
     assert json.loads(rows[0]["uncertainties"]) == {"u_tau_s": 0.00003}
     assert findings_rows({"scan_id": "S-2", "verdict": "no_missing_effect"})[0]["uncertainties"] is None
     res = tmp_path / "results"
     t = _rich_tables(res)
     night = t["scans"]["night"].cast(pl.String).max()
-    t["findings"] = pl.concat([t["findings"], pl.DataFrame([dict(r, night=night) for r in rows])],
-                              how="diagonal_relaxed")
+    t["findings"] = pl.concat(
+        [t["findings"], pl.DataFrame([dict(r, night=night) for r in rows])], how="diagonal_relaxed"
+    )
     catalog.build_catalog(res, t)
     disc = _section(report.write_report(res).read_text(), "discrepancy")
     assert "<b>channel_delay</b> on channel 2: tau_s = 1.200 ± 0.030 ms" in disc
@@ -612,8 +852,11 @@ def test_rod_diameters_without_a_gauge_calibration_need_attention(tmp_path):
     tables = _rich_tables(res)
     rod_scan = tables["diameters"].filter(pl.col("calibration_id") == "ROD-CAL-1")["scan_id"][0]
     tables["diameters"] = tables["diameters"].with_columns(
-        pl.when(pl.col("calibration_id") == "ROD-CAL-1").then(pl.lit(ROD_METHOD_NOMINAL)).otherwise(pl.col("method"))
-        .alias("method"))
+        pl.when(pl.col("calibration_id") == "ROD-CAL-1")
+        .then(pl.lit(ROD_METHOD_NOMINAL))
+        .otherwise(pl.col("method"))
+        .alias("method")
+    )
     catalog.build_catalog(res, tables)
     summary = _section(report.write_report(res).read_text(), "summary")
     assert f"not traceable</b> {rod_scan} (ROD-01)" in summary
@@ -626,28 +869,62 @@ def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
     with what was carried where the carried model changes.
     """
     nights = ["2026-11-21", "2026-11-23", "2026-11-24"]
-    pf = pl.DataFrame({"night": nights + ["2026-11-24"], "device_id": ["TRI-01"] * 3 + ["TRI-02"],
-                       "gap_before_mm": [0.0041, 0.0180, 0.0042, 0.009], "noise_floor_mm": [0.004, 0.004, 0.0040, 0.003]})
-    dm = [{"key": "channel_delay@2", "estimated": True, "values": {"tau_s": 0.00119}, "u": {"tau_s": 0.00002},
-           "night": "2026-11-23"}]
+    pf = pl.DataFrame(
+        {
+            "night": nights + ["2026-11-24"],
+            "device_id": ["TRI-01"] * 3 + ["TRI-02"],
+            "gap_before_mm": [0.0041, 0.0180, 0.0042, 0.009],
+            "noise_floor_mm": [0.004, 0.004, 0.0040, 0.003],
+        }
+    )
+    dm = [
+        {
+            "key": "channel_delay@2",
+            "estimated": True,
+            "values": {"tau_s": 0.00119},
+            "u": {"tau_s": 0.00002},
+            "night": "2026-11-23",
+        }
+    ]
 
     def cal(cid, night, model, ratios):
-        return {"calibration_id": cid, "device_id": "TRI-01", "valid_from": night, "calibration_json": json.dumps(
-            {"diagnostics": {"device_model": model}, "nuisance": {"A": {"residual_to_noise": ratios}}})}
+        return {
+            "calibration_id": cid,
+            "device_id": "TRI-01",
+            "valid_from": night,
+            "calibration_json": json.dumps(
+                {"diagnostics": {"device_model": model}, "nuisance": {"A": {"residual_to_noise": ratios}}}
+            ),
+        }
 
-    newer = [dict(dm[0], values={"tau_s": 0.00121}, night="2026-11-24")]  # the next night's estimate: no new mark
-    cals = pl.DataFrame([cal("C1", nights[0], [], [1.0, 1.02, 0.99]),
-                         cal("C2", nights[1], [dict(dm[0], estimated=False)], [1.0, 4.5, 1.1]),
-                         cal("C3", nights[2], dm, [1.01, 1.03, 1.0]), cal("C4", "2026-11-25", newer, [1.0, 1.0, 1.0])])
-    ver = pl.DataFrame({"night": [nights[1], nights[1], nights[2]], "device_id": ["TRI-01"] * 3,
-                        "error_mm": [-0.004, 0.001, 0.0005], "expanded_u_error_mm": [0.0025, 0.0025, 0.0026]})
+    newer = [
+        dict(dm[0], values={"tau_s": 0.00121}, night="2026-11-24")
+    ]  # the next night's estimate: no new mark
+    cals = pl.DataFrame(
+        [
+            cal("C1", nights[0], [], [1.0, 1.02, 0.99]),
+            cal("C2", nights[1], [dict(dm[0], estimated=False)], [1.0, 4.5, 1.1]),
+            cal("C3", nights[2], dm, [1.01, 1.03, 1.0]),
+            cal("C4", "2026-11-25", newer, [1.0, 1.0, 1.0]),
+        ]
+    )
+    ver = pl.DataFrame(
+        {
+            "night": [nights[1], nights[1], nights[2]],
+            "device_id": ["TRI-01"] * 3,
+            "error_mm": [-0.004, 0.001, 0.0005],
+            "expanded_u_error_mm": [0.0025, 0.0025, 0.0026],
+        }
+    )
     hist = report.device_model_history(pf, cals, ver, "TRI-01")
     assert hist["night"].to_list() == nights + ["2026-11-25"]
     assert hist["pooled_gap_to_noise"].to_list()[:3] == pytest.approx([1.025, 4.5, 1.05])
     assert hist["calibration_residual_to_noise"].to_list() == pytest.approx([1.02, 4.5, 1.03, 1.0])
     assert hist["verification_e_over_u"].to_list()[0] is None
     assert hist["verification_e_over_u"].to_list()[1:3] == pytest.approx([1.6, 0.5 / 2.6])
-    assert hist["verification_error_um"].to_list()[1:3] == pytest.approx([-4.0, 0.5])  # the worst of the night
+    assert hist["verification_error_um"].to_list()[1:3] == pytest.approx(
+        [-4.0, 0.5]
+    )  # the worst of the night
     assert hist["carried"].to_list()[:3] == ["", "", "channel_delay@2 tau_s = 1.190 ± 0.020 ms (2026-11-23)"]
     assert hist["carried_keys"].to_list() == ["", "", "channel_delay@2", "channel_delay@2"]
     fig = report.plot_device_model_gap(hist, "TRI-01")
@@ -656,7 +933,9 @@ def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
     marks = [ln.get_xdata()[0] for ln in ax_g.get_lines() if ln.get_linestyle() == "--"]
     assert marks == [1.5]  # between the night the delay was estimated and the first that carried it
     (note,) = [t.get_text() for t in ax_g.texts]
-    assert note == "device model from here:\nchannel_delay@2\ntau_s = 1.190 ± 0.020 ms\n(estimated 2026-11-23)"
+    assert (
+        note == "device model from here:\nchannel_delay@2\ntau_s = 1.190 ± 0.020 ms\n(estimated 2026-11-23)"
+    )
     assert sorted(t.get_text() for t in ax_v.texts) == ["+0.50 µm", "-4.00 µm"]
     renderer = fig.canvas.get_renderer()
     box, axes = ax_g.texts[0].get_window_extent(renderer), ax_g.get_window_extent(renderer)

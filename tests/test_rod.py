@@ -27,8 +27,10 @@ L0 = [71.0, 71.0]
 SKEW = RodAxis(1.0, 0.5, np.deg2rad(0.3), np.deg2rad(120.0))  # rod axis skew to the holes' axis
 SIG = 0.02 / np.sqrt(3)  # 20 um linearity read as a uniform +-20 um error: sigma = 11.5 um
 # the spec's full layer geometry (beam offset, tilt, in-plane angle)
-GEOM = [RodLayer(1, 100.0, 71.0, phi_rad=0.02, d_mm=0.3, gamma_rad=np.deg2rad(0.3)),
-        RodLayer(2, 400.0, 71.0, phi_rad=-0.05, d_mm=-0.2, gamma_rad=np.deg2rad(-0.4))]
+GEOM = [
+    RodLayer(1, 100.0, 71.0, phi_rad=0.02, d_mm=0.3, gamma_rad=np.deg2rad(0.3)),
+    RodLayer(2, 400.0, 71.0, phi_rad=-0.05, d_mm=-0.2, gamma_rad=np.deg2rad(-0.4)),
+]
 
 
 def _scan(axis=SKEW, n=12, seed=0, noise=True, spread=2 * np.pi, layers=LAYERS):
@@ -49,12 +51,23 @@ def draw_contract_scan(rng):
     m = int(rng.integers(2, 4))
     r = rng.uniform(50.0, 100.0, m)
     h = rng.uniform(50.0, 150.0) + np.concatenate([[0.0], np.cumsum(rng.uniform(100.0, 300.0, m - 1))])
-    layers = [RodLayer(j + 1, h[j], r[j] - 4.0, phi_rad=rng.uniform(-0.1, 0.1), d_mm=rng.uniform(-0.5, 0.5),
-                       gamma_rad=np.deg2rad(rng.uniform(-0.5, 0.5))) for j in range(m)]
+    layers = [
+        RodLayer(
+            j + 1,
+            h[j],
+            r[j] - 4.0,
+            phi_rad=rng.uniform(-0.1, 0.1),
+            d_mm=rng.uniform(-0.5, 0.5),
+            gamma_rad=np.deg2rad(rng.uniform(-0.5, 0.5)),
+        )
+        for j in range(m)
+    ]
     off = rng.uniform(-0.05, 0.05, (m, 2))
     holes = [Hole((off[j, 0], off[j, 1]), r[j]) for j in range(m)]
     e, te = 2.5 * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
-    axis = RodAxis(e * np.cos(te), e * np.sin(te), np.deg2rad(rng.uniform(0.0, 1.0)), rng.uniform(0, 2 * np.pi))
+    axis = RodAxis(
+        e * np.cos(te), e * np.sin(te), np.deg2rad(rng.uniform(0.0, 1.0)), rng.uniform(0, 2 * np.pi)
+    )
     n, k, sig = int(rng.integers(8, 41)), int(rng.integers(5, 31)), rng.uniform(0.002, 0.020)
     alpha = rng.uniform(0, 2 * np.pi, n)
     v0 = rod_readings(alpha, layers, holes, axis)
@@ -72,7 +85,11 @@ def test_solver_model_equals_the_forward_model():
     w = axis.omega_rad * np.array([np.cos(axis.omega_az_rad), np.sin(axis.omega_az_rad)])
     r = np.array([h.radius_mm for h in HOLES])
     z = np.array([lay.h_mm + rr * np.tan(lay.gamma_rad) for lay, rr in zip(GEOM, r)])
-    c = np.array([h.center_xy_mm for h in HOLES]) - [axis.dx_mm, axis.dy_mm] - (z * np.sinc(axis.omega_rad / np.pi))[:, None] * w
+    c = (
+        np.array([h.center_xy_mm for h in HOLES])
+        - [axis.dx_mm, axis.dy_mm]
+        - (z * np.sinc(axis.omega_rad / np.pi))[:, None] * w
+    )
     prob = _RodProblem(v, np.ones_like(v, dtype=bool), GEOM, 0, True, alpha_fix=alpha[0])
     p = prob.pack(r * _k(w @ w), c, alpha, w)
     assert np.max(np.abs(prob.readings(*prob.unpack(p)) - v)) < 1e-12
@@ -93,7 +110,9 @@ def test_noise_free_recovery_exact_with_layer_geometry_and_deflection():
     az = axis.omega_az_rad - alpha[0]
     assert np.mod(sol.deflection_az_rad - az + np.pi / 2, np.pi) - np.pi / 2 == pytest.approx(0.0, abs=1e-5)
     c, s = np.cos(-alpha[0]), np.sin(-alpha[0])
-    assert np.allclose(sol.eccentricity_mm, [c * 1.0 - s * 0.5, s * 1.0 + c * 0.5], atol=1e-6)  # hole 1 at the origin
+    assert np.allclose(
+        sol.eccentricity_mm, [c * 1.0 - s * 0.5, s * 1.0 + c * 0.5], atol=1e-6
+    )  # hole 1 at the origin
     assert sol.cost_mm2 < 1e-20
 
 
@@ -179,7 +198,12 @@ def test_exact_jacobian_matches_finite_differences():
     p, _ = rod_start(L, mask)
     J = rod_jacobian(p, L, mask)
     h = 1e-7
-    num = np.column_stack([(rod_residuals(p + h * e, L, mask) - rod_residuals(p - h * e, L, mask)) / (2 * h) for e in np.eye(p.size)])
+    num = np.column_stack(
+        [
+            (rod_residuals(p + h * e, L, mask) - rod_residuals(p - h * e, L, mask)) / (2 * h)
+            for e in np.eye(p.size)
+        ]
+    )
     assert np.allclose(J, num, atol=1e-6)
 
 
@@ -207,10 +231,15 @@ def test_refuses_poses_that_cannot_separate_the_deflection():
     axis = RodAxis(1.5, 0.5, np.deg2rad(0.5), np.deg2rad(120.0))
     alpha = np.deg2rad(np.linspace(0, 150, 8))
     v = rod_readings(alpha, GEOM, HOLES, axis) + 0.002 * np.random.default_rng(1).standard_normal((8, 2))
-    with pytest.raises(RodSolveError, match=r"deflection not separable from the radii: freeing the rod axis deflection multiplies "
-                                            r"u\(r\) by \d"):
+    with pytest.raises(
+        RodSolveError,
+        match=r"deflection not separable from the radii: freeing the rod axis deflection multiplies "
+        r"u\(r\) by \d",
+    ):
         solve_rod(v, layers=GEOM, u_reading_mm=0.002)
-    sol = solve_rod(v, layers=GEOM, u_reading_mm=0.002, max_deflection_ratio=np.inf)  # the caller may accept it
+    sol = solve_rod(
+        v, layers=GEOM, u_reading_mm=0.002, max_deflection_ratio=np.inf
+    )  # the caller may accept it
     assert sol.deflection_ratio > 10.0
     eq16 = solve_rod(v, layers=GEOM, u_reading_mm=0.002, deflection="none")  # omega held: no such refusal
     assert eq16.method == "eq16"

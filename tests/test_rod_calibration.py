@@ -20,14 +20,24 @@ from borescan.simulate import RodScene, simulate_rod, write_simulated
 UNC = schema_defaults()["uncertainty"]
 CTE = 11.5e-6
 #: true layers: base lengths 12.3 um longer / 8.7 um shorter than the design's 71.0 mm, beams off the axis
-TRUE = (RodLayer(1, 100.0, 71.0123, 0.0, 0.31, math.radians(0.27)),
-        RodLayer(2, 400.0, 70.9913, 0.04, -0.22, math.radians(-0.18)))
+TRUE = (
+    RodLayer(1, 100.0, 71.0123, 0.0, 0.31, math.radians(0.27)),
+    RodLayer(2, 400.0, 70.9913, 0.04, -0.22, math.radians(-0.18)),
+)
 DESIGN = tuple(replace(lay, l0_mm=71.0, phi_rad=0.0, d_mm=0.0, gamma_rad=0.0) for lay in TRUE)
 GAUGE_D = (150.0021, 149.9987)
-GAUGE_SET = {"id": "RGS-150", "type": "ring_gauge", "u_diameter_mm": 0.0012, "k": 2, "certificate": "RGS-150/2026-02",
-             "cte_per_k": CTE,
-             "features": [{"id": "H1", "z_mm": 100.0, "certified_diameter_mm": GAUGE_D[0], "gauge_id": "RG-150A"},
-                          {"id": "H2", "z_mm": 400.0, "certified_diameter_mm": GAUGE_D[1], "gauge_id": "RG-150B"}]}
+GAUGE_SET = {
+    "id": "RGS-150",
+    "type": "ring_gauge",
+    "u_diameter_mm": 0.0012,
+    "k": 2,
+    "certificate": "RGS-150/2026-02",
+    "cte_per_k": CTE,
+    "features": [
+        {"id": "H1", "z_mm": 100.0, "certified_diameter_mm": GAUGE_D[0], "gauge_id": "RG-150A"},
+        {"id": "H2", "z_mm": 400.0, "certified_diameter_mm": GAUGE_D[1], "gauge_id": "RG-150B"},
+    ],
+}
 
 
 def _scene(d_mm, rng, temp_c=20.0):
@@ -37,17 +47,38 @@ def _scene(d_mm, rng, temp_c=20.0):
     """
     e = float(rng.uniform(0.5, 1.5))
     az = float(rng.uniform(0, 2 * np.pi))
-    axis = RodAxis(e * math.cos(az), e * math.sin(az), math.radians(float(rng.uniform(0.12, 0.2))),
-                   az + math.pi / 2 + float(rng.uniform(-0.5, 0.5)))
-    return RodScene(layers=TRUE, holes=(Hole((0.0, 0.0), d_mm[0] / 2), Hole((0.012, -0.021), d_mm[1] / 2)), axis=axis,
-                    range_mm=(8.0, 8.0), sample_rate_hz=100.0, cte_per_k=CTE, temperature_c=temp_c)
+    axis = RodAxis(
+        e * math.cos(az),
+        e * math.sin(az),
+        math.radians(float(rng.uniform(0.12, 0.2))),
+        az + math.pi / 2 + float(rng.uniform(-0.5, 0.5)),
+    )
+    return RodScene(
+        layers=TRUE,
+        holes=(Hole((0.0, 0.0), d_mm[0] / 2), Hole((0.012, -0.021), d_mm[1] / 2)),
+        axis=axis,
+        range_mm=(8.0, 8.0),
+        sample_rate_hz=100.0,
+        cte_per_k=CTE,
+        temperature_c=temp_c,
+    )
 
 
 def _sim(d_mm, seed, kind, artifact, temp_c=20.0, scan_id="SIM-ROD"):
     rng = np.random.default_rng(seed)
     eff = [Effect("thermal_expansion", {"temperature_c": temp_c})] if temp_c != 20.0 else []
-    return simulate_rod(_scene(d_mm, rng, temp_c), n_poses=24, samples_per_pose=5, kind=kind, artifact=artifact,
-                        features=("H1", "H2"), seed=seed + 1, nominal_layers=DESIGN, effects=eff, scan_id=scan_id)
+    return simulate_rod(
+        _scene(d_mm, rng, temp_c),
+        n_poses=24,
+        samples_per_pose=5,
+        kind=kind,
+        artifact=artifact,
+        features=("H1", "H2"),
+        seed=seed + 1,
+        nominal_layers=DESIGN,
+        effects=eff,
+        scan_id=scan_id,
+    )
 
 
 def _raw(sim, tmp_path):
@@ -59,21 +90,41 @@ def _calibrate(scan):
     channels, means, u_mean, sensors = rod_calibration.pose_means_of_scan(scan)
     gauges = rod_calibration.layer_gauges(scan.meta, channels)
     temp, cte = scan_temperature(scan.meta, UNC), artifact_cte(scan.meta, UNC)
-    radius_t = [0.5 * g["certified_diameter_mm"] * (1 + cte.cte_per_k * (temp.temperature_c - 20)) for g in gauges]
+    radius_t = [
+        0.5 * g["certified_diameter_mm"] * (1 + cte.cte_per_k * (temp.temperature_c - 20)) for g in gauges
+    ]
     layers, sol, n = rod_calibration.calibrate_l0(means, DESIGN, u_mean, radius_t)
-    budget = rod_calibration.rod_calibration_budget([lay.l0_mm for lay in layers], sol, gauges, temp, cte, sensors,
-                                                    scan.scan_id, UNC["sensor_resolution_mm"])
+    budget = rod_calibration.rod_calibration_budget(
+        [lay.l0_mm for lay in layers],
+        sol,
+        gauges,
+        temp,
+        cte,
+        sensors,
+        scan.scan_id,
+        UNC["sensor_resolution_mm"],
+    )
     return layers, sol, budget, radius_t, means, u_mean
 
 
 def test_layer_gauges_from_a_gauge_set_a_single_ring_or_refused():
-    meta = {"artifact": GAUGE_SET, "rod": {"layers": [{"channel": 1, "feature": "H1"}, {"channel": 2, "feature": "H2"}]}}
+    meta = {
+        "artifact": GAUGE_SET,
+        "rod": {"layers": [{"channel": 1, "feature": "H1"}, {"channel": 2, "feature": "H2"}]},
+    }
     g = rod_calibration.layer_gauges(meta, [1, 2])
     assert [x["id"] for x in g] == ["RG-150A", "RG-150B"]
     assert [x["certified_diameter_mm"] for x in g] == list(GAUGE_D)
-    assert all(x["u_diameter_mm"] == 0.0012 and x["k"] == 2 and x["certificate"] == "RGS-150/2026-02" for x in g)
-    ring = {"id": "RG-150", "type": "ring_gauge", "certified_diameter_mm": 150.001, "u_diameter_mm": 0.001,
-            "certificate": "C1"}
+    assert all(
+        x["u_diameter_mm"] == 0.0012 and x["k"] == 2 and x["certificate"] == "RGS-150/2026-02" for x in g
+    )
+    ring = {
+        "id": "RG-150",
+        "type": "ring_gauge",
+        "certified_diameter_mm": 150.001,
+        "u_diameter_mm": 0.001,
+        "certificate": "C1",
+    }
     g = rod_calibration.layer_gauges(dict(meta, artifact=ring), [1, 2])
     assert [x["id"] for x in g] == ["RG-150", "RG-150"] and g[0]["k"] == 2
     part = {"id": "P", "type": "part", "features": [{"id": "H1", "nominal_diameter_mm": 150.0}]}
@@ -96,23 +147,47 @@ def test_calibrate_then_measure_removes_the_base_length_error(tmp_path):
     layer 1); with the gauge calibration every diameter is within 4 sigma of the chain's scatter
     (2 sqrt 2 x 1.5 um in radius -> 12 um) of the truth and within 3 u of its own budget.
     """
-    part = {"id": "CYL", "type": "part", "cte_per_k": CTE,
-            "features": [{"id": "H1", "z_mm": 100.0, "nominal_diameter_mm": 150.0},
-                         {"id": "H2", "z_mm": 400.0, "nominal_diameter_mm": 150.0}]}
+    part = {
+        "id": "CYL",
+        "type": "part",
+        "cte_per_k": CTE,
+        "features": [
+            {"id": "H1", "z_mm": 100.0, "nominal_diameter_mm": 150.0},
+            {"id": "H2", "z_mm": 400.0, "nominal_diameter_mm": 150.0},
+        ],
+    }
     d_part = (150.0082, 149.9941)
     cal_err, design_err = [], []
     for seed in range(5):
-        cal = _raw(_sim(GAUGE_D, 100 + seed, "calibration", GAUGE_SET, scan_id=f"CAL{seed}"), tmp_path / f"c{seed}")
+        cal = _raw(
+            _sim(GAUGE_D, 100 + seed, "calibration", GAUGE_SET, scan_id=f"CAL{seed}"), tmp_path / f"c{seed}"
+        )
         layers, _sol, budget, *_ = _calibrate(cal)
-        cal_rows = [{"channel": lay.channel, "l0_mm": lay.l0_mm, "h_mm": lay.h_mm, "phi_rad": 0.0, "d_mm": 0.0,
-                     "gamma_rad": 0.0, "calibration_json": None} for lay in layers]
-        meas = _raw(_sim(d_part, 200 + seed, "measurement", part, scan_id=f"MEAS{seed}"), tmp_path / f"m{seed}")
+        cal_rows = [
+            {
+                "channel": lay.channel,
+                "l0_mm": lay.l0_mm,
+                "h_mm": lay.h_mm,
+                "phi_rad": 0.0,
+                "d_mm": 0.0,
+                "gamma_rad": 0.0,
+                "calibration_json": None,
+            }
+            for lay in layers
+        ]
+        meas = _raw(
+            _sim(d_part, 200 + seed, "measurement", part, scan_id=f"MEAS{seed}"), tmp_path / f"m{seed}"
+        )
         # with the budget: the rows of a recorded calibration
         import json
+
         blob = json.dumps({"budget": json_ready(budget.to_dict())})
-        res = rod_calibration.rod_diameters_with_budget(meas, [dict(r, calibration_json=blob) for r in cal_rows], UNC, "C")
+        res = rod_calibration.rod_diameters_with_budget(
+            meas, [dict(r, calibration_json=blob) for r in cal_rows], UNC, "C"
+        )
         nominal = rod_calibration.rod_diameters_with_budget(
-            meas, [dict(r, l0_mm=71.0) for r in cal_rows], UNC, "N")
+            meas, [dict(r, l0_mm=71.0) for r in cal_rows], UNC, "N"
+        )
         for r, n, d in zip(res, nominal, d_part):
             assert r["traceable"] and not n["traceable"]
             cal_err.append(r["diameter_mm"] - d)
@@ -130,33 +205,52 @@ def test_budget_sensitivities_are_the_closed_forms(tmp_path):
     alpha,
     dl0/dalpha = R20 (T - 20), -1 on each sensor's linearity; one ring for both layers correlates them.
     """
-    ring = {"id": "RG-150", "type": "ring_gauge", "certified_diameter_mm": 150.0021, "u_diameter_mm": 0.0012, "k": 2,
-            "certificate": "C1", "cte_per_k": CTE}
+    ring = {
+        "id": "RG-150",
+        "type": "ring_gauge",
+        "certified_diameter_mm": 150.0021,
+        "u_diameter_mm": 0.0012,
+        "k": 2,
+        "certificate": "C1",
+        "cte_per_k": CTE,
+    }
     scan = _raw(_sim((150.0021, 150.0021), 7, "calibration", ring, temp_c=21.5), tmp_path)
     _layers, _sol, b, *_ = _calibrate(scan)
     terms = {t.input.key: t for t in b.terms}
     f = 1 + CTE * 1.5
     np.testing.assert_allclose(terms["gauge:RG-150@C1:D20"].sensitivity, [f / 2, f / 2], rtol=1e-12)
-    np.testing.assert_allclose(terms[f"temperature:{scan.scan_id}"].sensitivity, [75.00105 * CTE] * 2, rtol=1e-12)
+    np.testing.assert_allclose(
+        terms[f"temperature:{scan.scan_id}"].sensitivity, [75.00105 * CTE] * 2, rtol=1e-12
+    )
     np.testing.assert_allclose(terms["cte:RG-150@C1"].sensitivity, [75.00105 * 1.5] * 2, rtol=1e-12)
     np.testing.assert_allclose(terms[f"linearity:rodcal:{scan.scan_id}:ch1"].sensitivity, [-1.0, 0.0])
     assert terms[f"linearity:rodcal:{scan.scan_id}:ch1"].input.u == pytest.approx(0.0025 * 8.0 / math.sqrt(3))
     cov = b.covariance()
-    shared = (f / 2) ** 2 * 0.0006**2 + (75.00105 * CTE * terms[f"temperature:{scan.scan_id}"].input.u) ** 2 \
+    shared = (
+        (f / 2) ** 2 * 0.0006**2
+        + (75.00105 * CTE * terms[f"temperature:{scan.scan_id}"].input.u) ** 2
         + (75.00105 * 1.5 * terms["cte:RG-150@C1"].input.u) ** 2
+    )
     assert cov[0, 1] == pytest.approx(shared, rel=1e-9)
 
 
 def _cals(*rows):
-    return pl.DataFrame([{"calibration_id": c, "device_id": "ROD-01", "valid_from": v, "method": m, "channel": 1}
-                         for c, v, m in rows])
+    return pl.DataFrame(
+        [
+            {"calibration_id": c, "device_id": "ROD-01", "valid_from": v, "method": m, "channel": 1}
+            for c, v, m in rows
+        ]
+    )
 
 
 def test_a_rod_uses_its_gauge_calibration_else_its_design_geometry_by_policy():
     cals = _cals(("ROD-01-nominal-1", "2026-11-01", "nominal"), ("ROD-01-cal", "2026-11-10", "rod_gauge"))
     assert choose_rod_calibration(cals, set(), "ROD-01", "2026-11-12", 30, False) == ("ROD-01-cal", None)
     # before its first gauge calibration: the design geometry, or refused
-    assert choose_rod_calibration(cals, set(), "ROD-01", "2026-11-05", 30, False) == ("ROD-01-nominal-1", None)
+    assert choose_rod_calibration(cals, set(), "ROD-01", "2026-11-05", 30, False) == (
+        "ROD-01-nominal-1",
+        None,
+    )
     cid, why = choose_rod_calibration(cals, set(), "ROD-01", "2026-11-05", 30, False, "refuse")
     assert cid is None and "no calibration on certified ring gauges" in why
     # an expired or failed gauge calibration is refused, never replaced by the design geometry
@@ -164,7 +258,10 @@ def test_a_rod_uses_its_gauge_calibration_else_its_design_geometry_by_policy():
     assert cid is None and "expired" in why
     cid, why = choose_rod_calibration(cals, {"ROD-01-cal"}, "ROD-01", "2026-11-12", 30, False)
     assert cid is None and "failed its verification" in why
-    assert choose_rod_calibration(cals, {"ROD-01-cal"}, "ROD-01", "2026-11-12", 30, True) == ("ROD-01-cal", None)
+    assert choose_rod_calibration(cals, {"ROD-01-cal"}, "ROD-01", "2026-11-12", 30, True) == (
+        "ROD-01-cal",
+        None,
+    )
     with pytest.raises(ValueError, match="rod_without_calibration"):
         choose_rod_calibration(cals, set(), "ROD-01", "2026-11-12", 30, False, "maybe")
 
@@ -179,22 +276,44 @@ def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan
     from borescan.stages.calibrate_rod import calibrate_rod_scan
 
     dflt = schema_defaults()
-    ctx = {"uncertainty": UNC, "laboratory": dflt["laboratory"], "verification": dflt["verification"],
-           "raw_root": tmp_path / "raw", "scans_table": None}
-    part = {"id": "CYL", "type": "part", "features": [{"id": "H1", "nominal_diameter_mm": 150.0},
-                                                     {"id": "H2", "nominal_diameter_mm": 150.0}]}
+    ctx = {
+        "uncertainty": UNC,
+        "laboratory": dflt["laboratory"],
+        "verification": dflt["verification"],
+        "raw_root": tmp_path / "raw",
+        "scans_table": None,
+    }
+    part = {
+        "id": "CYL",
+        "type": "part",
+        "features": [{"id": "H1", "nominal_diameter_mm": 150.0}, {"id": "H2", "nominal_diameter_mm": 150.0}],
+    }
     bad_scan = _raw(_sim(GAUGE_D, 5, "calibration", part, scan_id="CAL-NO-CERT"), tmp_path)
     good_scan = _raw(_sim(GAUGE_D, 6, "calibration", GAUGE_SET, scan_id="CAL-OK"), tmp_path)
-    before = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (tmp_path / "raw").rglob("*") if p.is_file()}
-    ctx["scans_table"] = pl.DataFrame(schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8,
-                                              "device_id": pl.Utf8})  # no verification scans that night
+    before = {
+        p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (tmp_path / "raw").rglob("*") if p.is_file()
+    }
+    ctx["scans_table"] = pl.DataFrame(
+        schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8}
+    )  # no verification scans that night
     bad, rows, links = [], [], []
     for scan in (bad_scan, good_scan):
-        calibrate_rod_scan(scan, "2026-11-20", tmp_path / "results", bad, rows, links, lambda _m: None, ctx,
-                           dflt["calibration"])
+        calibrate_rod_scan(
+            scan,
+            "2026-11-20",
+            tmp_path / "results",
+            bad,
+            rows,
+            links,
+            lambda _m: None,
+            ctx,
+            dflt["calibration"],
+        )
     assert [(q.scan_id, q.file) for q in bad] == [("CAL-NO-CERT", "scan.json")]
     assert "rod layer 1 (feature 'H1') has no certified diameter" in bad[0].reason
     rec = _json.loads((tmp_path / "results" / "quarantine" / "CAL-NO-CERT.json").read_text())
     assert rec["file"] == "scan.json" and rec["scan_id"] == "CAL-NO-CERT"
     assert {r["scan_id"] for r in rows} == {"CAL-OK"} and len(rows) == 2  # one row per layer of the good scan
-    assert before == {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (tmp_path / "raw").rglob("*") if p.is_file()}
+    assert before == {
+        p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (tmp_path / "raw").rglob("*") if p.is_file()
+    }

@@ -20,8 +20,10 @@ SEED = 20270101
 @pytest.fixture(scope="module")
 def draws():
     """50 scans of one battery seed, in memory."""
-    return [draw_tri_calibration(battery_rng(SEED, i), scan_id=f"T{i:03d}", night="2027-01-01")
-            for i in range(N_DRAWS)]
+    return [
+        draw_tri_calibration(battery_rng(SEED, i), scan_id=f"T{i:03d}", night="2027-01-01")
+        for i in range(N_DRAWS)
+    ]
 
 
 def _scene(sim) -> simulate.TriScene:
@@ -38,9 +40,12 @@ def _matrix(sim) -> tuple[np.ndarray, np.ndarray]:
 def _angle_model(sim) -> kinematics.AngleModel:
     sp = sim.spindle
     return kinematics.angle_model_from_arrays(
-        rpm_nominal=sim.meta["spindle"]["rpm_nominal"], direction=sim.meta["spindle"]["direction"],
-        spindle_t_s=sp["t_ns"].to_numpy() * 1e-9, spindle_angle_rad=sp["angle_rad"].to_numpy(),
-        spindle_rpm=sp["rpm"].to_numpy())
+        rpm_nominal=sim.meta["spindle"]["rpm_nominal"],
+        direction=sim.meta["spindle"]["direction"],
+        spindle_t_s=sp["t_ns"].to_numpy() * 1e-9,
+        spindle_angle_rad=sp["angle_rad"].to_numpy(),
+        spindle_rpm=sp["rpm"].to_numpy(),
+    )
 
 
 def _pick(draws, **want):
@@ -93,7 +98,9 @@ def test_scan_json_reports_positions_with_machine_accuracy_and_a_design_geometry
         assert nom != c["beams"]
         art = meta["artifact"]
         assert art["type"] == "ring_gauge" and art["certified_diameter_mm"] == 2 * c["bore_radius_mm"]
-        assert art["u_diameter_mm"] == 0.0015 and art["k"] == 2 and meta["environment"]["temperature_c"] == 20.0
+        assert (
+            art["u_diameter_mm"] == 0.0015 and art["k"] == 2 and meta["environment"]["temperature_c"] == 20.0
+        )
 
 
 # --------------------------------------------------------------------------- ranges
@@ -133,7 +140,11 @@ def test_ranges_hold_over_50_draws(draws):
         if c["speed_change"]:
             f = c["speed_factor"]
             assert 0.4 <= f <= 0.9 or 1.1 <= f <= 1.6
-            assert 0.5 - 1.0 / c["spindle_rate_hz"] <= c["ramp_end_s"] - c["ramp_start_s"] <= 2.0 + 1.0 / c["spindle_rate_hz"]
+            assert (
+                0.5 - 1.0 / c["spindle_rate_hz"]
+                <= c["ramp_end_s"] - c["ramp_start_s"]
+                <= 2.0 + 1.0 / c["spindle_rate_hz"]
+            )
         # duration of n_rev revolutions of the commanded profile
         t_end = sim.truth["n_samples"] / sim.meta["sample_rate_hz"]
         assert abs(_scene(sim).commanded_angle_rad(t_end) / (2 * np.pi) - c["n_rev"]) < 0.01
@@ -174,7 +185,10 @@ def test_same_seed_gives_byte_identical_lds_parquet(tmp_path):
         assert (pa_ / "scan.json").read_bytes() == (pb / "scan.json").read_bytes()
     # a subset of the battery is the same scans
     sub = scenarios.write_battery(tmp_path / "d", 3, 7, only=[2])
-    assert sub[0].name == b[2].name and (sub[0] / "lds.parquet").read_bytes() == (b[2] / "lds.parquet").read_bytes()
+    assert (
+        sub[0].name == b[2].name
+        and (sub[0] / "lds.parquet").read_bytes() == (b[2] / "lds.parquet").read_bytes()
+    )
     other = scenarios.write_battery(tmp_path / "c", 1, 8)
     assert (other[0] / "lds.parquet").read_bytes() != (a[0] / "lds.parquet").read_bytes()
     idx = json.loads((tmp_path / "b" / "battery.json").read_text())
@@ -195,12 +209,28 @@ def test_cli_simulate_contract(tmp_path, capsys):
     assert e.value.code == 2
     with pytest.raises(ValueError):
         scenarios.write_battery(tmp_path / "y", 0, 1)
-    assert cli.main(["simulate", "contract", "--n", "1", "--seed", "3", "--out", str(tmp_path / "mix"),
-                     "--kinds", "calibration,static,rod"]) == 0
+    assert (
+        cli.main(
+            [
+                "simulate",
+                "contract",
+                "--n",
+                "1",
+                "--seed",
+                "3",
+                "--out",
+                str(tmp_path / "mix"),
+                "--kinds",
+                "calibration,static,rod",
+            ]
+        )
+        == 0
+    )
     names = sorted(p.name for p in (tmp_path / "mix" / "raw").glob("night=*/scan=*"))
     assert names == ["scan=CR3-00000", "scan=CS3-00000", "scan=CT3-00000"]
-    assert {rawio.read_scan(p).meta["device"]["type"] for p in (tmp_path / "mix" / "raw").glob("night=*/scan=*")} \
-        == {"tri_lds", "rod"}
+    assert {
+        rawio.read_scan(p).meta["device"]["type"] for p in (tmp_path / "mix" / "raw").glob("night=*/scan=*")
+    } == {"tri_lds", "rod"}
     assert cli.main(["simulate", "contract", "--n", "1", "--out", str(tmp_path / "z"), "--kinds", "foo"]) == 2
     assert "each kind must be one of" in capsys.readouterr().err
 
@@ -244,8 +274,9 @@ def test_profile_angle_equals_commanded_angle(draws):
         sgn = 1.0 if c["direction"] == "ccw" else -1.0
         np.testing.assert_allclose(am.commanded_rad(t), sgn * scene.commanded_angle_rad(t), rtol=0, atol=1e-9)
         # phi = phase + sgn Phi: the truth's phi is the model's with phase and speed scale 1
-        np.testing.assert_allclose(am.phi_rad(t, phase_rad=scene.phase_rad), simulate.tri_phi(scene, t),
-                                   rtol=0, atol=1e-9)
+        np.testing.assert_allclose(
+            am.phi_rad(t, phase_rad=scene.phase_rad), simulate.tri_phi(scene, t), rtol=0, atol=1e-9
+        )
         n[c["speed_change"]] += 1
     assert n[True] >= 3 and n[False] >= 5
 
@@ -293,7 +324,9 @@ def test_static_sets_over_the_contract_measure_to_their_truth(tmp_path):
         c = sim.truth["contract"]
         kinds.add(c["artifact"])
         d = simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth")
-        res = measure_scan(rawio.read_scan(d, raw_root=tmp_path / "raw"), Beams.from_nominal(c["beams"]), np.zeros((9, 9)))
+        res = measure_scan(
+            rawio.read_scan(d, raw_root=tmp_path / "raw"), Beams.from_nominal(c["beams"]), np.zeros((9, 9))
+        )
         z.append((res["diameter_mm"] - c["diameter_mm"]) / res["u_diameter_mm"])
         assert 75.0 <= c["bore_radius_mm"] <= 200.0 and 3 <= c["n_poses"] <= 12
     z = np.array(z)
@@ -315,7 +348,11 @@ def test_rod_scans_over_the_contract_and_a_mixed_battery(tmp_path):
         c = sim.truth["contract"]
         kinds.add(c["artifact"])
         assert 2 <= len(c["diameters_mm"]) <= 3 and all(100.0 <= d <= 200.0 for d in c["diameters_mm"])
-        assert 8 <= c["n_poses"] <= 40 and c["eccentricity_mm"] <= 2.5 and c["deflection_rad"] <= math.radians(1.0)
+        assert (
+            8 <= c["n_poses"] <= 40
+            and c["eccentricity_mm"] <= 2.5
+            and c["deflection_rad"] <= math.radians(1.0)
+        )
         art = sim.meta["artifact"]
         assert ("certified_diameter_mm" in art["features"][0]) == (c["artifact"] == "ring_gauge")
         lds = sim.lds.sort("sample", "sensor")
@@ -323,18 +360,30 @@ def test_rod_scans_over_the_contract_and_a_mixed_battery(tmp_path):
         vals = lds["value_mm"].to_numpy().reshape(-1, m)
         p = lds["pose"].to_numpy().reshape(-1, m)[:, 0]
         means = np.array([vals[p == k].mean(axis=0) for k in range(c["n_poses"])])
-        layers = [RodLayer(int(lay["channel"]), lay["h"], lay["l0"], lay["phi"], lay["d"], lay["gamma"])
-                  for lay in sim.meta["device"]["nominal"]["layers"]]
+        layers = [
+            RodLayer(int(lay["channel"]), lay["h"], lay["l0"], lay["phi"], lay["d"], lay["gamma"])
+            for lay in sim.meta["device"]["nominal"]["layers"]
+        ]
         sol = solve_rod(means, layers=layers, u_reading_mm=c["noise_mm"] / np.sqrt(c["samples_per_pose"]))
         assert np.all(np.abs(sol.diameter_mm - np.array(c["diameters_mm"])) < 4 * sol.u_diameter_mm)
     assert kinds == {"ring_gauge", "part"}
     paths = scenarios.write_battery(tmp_path / "b", 2, 9, kinds=("calibration", "static", "rod"))
     names = [p.name for p in paths]
-    assert names == ["scan=CT9-00000", "scan=CT9-00001", "scan=CS9-00000", "scan=CS9-00001",
-                     "scan=CR9-00000", "scan=CR9-00001"]
+    assert names == [
+        "scan=CT9-00000",
+        "scan=CT9-00001",
+        "scan=CS9-00000",
+        "scan=CS9-00001",
+        "scan=CR9-00000",
+        "scan=CR9-00001",
+    ]
     only_cal = scenarios.write_battery(tmp_path / "c", 2, 9)
     assert (only_cal[0] / "lds.parquet").read_bytes() == (paths[0] / "lds.parquet").read_bytes()
-    assert json.loads((tmp_path / "b" / "battery.json").read_text())["kinds"] == ["calibration", "static", "rod"]
+    assert json.loads((tmp_path / "b" / "battery.json").read_text())["kinds"] == [
+        "calibration",
+        "static",
+        "rod",
+    ]
     with pytest.raises(ValueError, match="kinds must be among"):
         scenarios.write_battery(tmp_path / "d", 1, 1, kinds=("spindle",))
 
@@ -363,10 +412,17 @@ def test_night_battery_measurements_on_calibrated_devices_and_rod_calibrations(t
     scans' other draws unchanged), every scan valid for ingest.
     """
     kinds = ("calibration", "measurement", "rod_calibration")
-    paths = scenarios.write_battery(tmp_path / "n", 2, 5, kinds=kinds, effect_share=1.0,
-                                    effect_scale_range=(0.3, 3.0), per_night=100)
-    assert [p.name for p in paths] == ["scan=CT5-00000", "scan=CT5-00001", "scan=CM5-00000", "scan=CM5-00001",
-                                       "scan=CK5-00000", "scan=CK5-00001"]
+    paths = scenarios.write_battery(
+        tmp_path / "n", 2, 5, kinds=kinds, effect_share=1.0, effect_scale_range=(0.3, 3.0), per_night=100
+    )
+    assert [p.name for p in paths] == [
+        "scan=CT5-00000",
+        "scan=CT5-00001",
+        "scan=CM5-00000",
+        "scan=CM5-00001",
+        "scan=CK5-00000",
+        "scan=CK5-00001",
+    ]
     assert {p.parent.name for p in paths} == {"night=2027-01-01"}
     scans = {p.name[5:]: rawio.read_scan(p) for p in paths}
     truth = {sid: json.loads((tmp_path / "n" / "truth" / f"{sid}.truth.json").read_text()) for sid in scans}
@@ -380,7 +436,9 @@ def test_night_battery_measurements_on_calibrated_devices_and_rod_calibrations(t
         rc = scans[f"CK5-{i:05d}"].meta
         assert rc["kind"] == "calibration" and rc["device"]["type"] == "rod"
         assert all("certified_diameter_mm" in f for f in rc["artifact"]["features"])
-    free = scenarios.write_battery(tmp_path / "f", 2, 5, kinds=("calibration",), effect_share=0.0, per_night=100)
+    free = scenarios.write_battery(
+        tmp_path / "f", 2, 5, kinds=("calibration",), effect_share=0.0, per_night=100
+    )
     assert all(not json.loads(p.read_text())["effects"] for p in (tmp_path / "f" / "truth").glob("*.json"))
     # the effect-free scan of the same index is the one the plain battery writes (its draws are untouched)
     plain = scenarios.write_battery(tmp_path / "p", 2, 5, per_night=100)

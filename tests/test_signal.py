@@ -40,12 +40,25 @@ N_REV = 660  # samples per revolution of the simulated 60 rpm scans (f_s = 660 H
 
 
 def _beams(rho=(5.5484, -2.5295, 1.5262)):
-    return Beams((1, 2, 3), np.array([0.3, 2.4, 4.5]), np.array(rho, dtype=float),
-                 np.array([132.6718, 132.8883, 134.1108]))
+    return Beams(
+        (1, 2, 3),
+        np.array([0.3, 2.4, 4.5]),
+        np.array(rho, dtype=float),
+        np.array([132.6718, 132.8883, 134.1108]),
+    )
 
 
-def _simulate(n_rev=40, spr=N_REV, eps=0.0, noise_mm=0.0025, seed=0, rho=(5.5484, -2.5295, 1.5262),
-              lobes=(), direction=+1, phi0=0.4):
+def _simulate(
+    n_rev=40,
+    spr=N_REV,
+    eps=0.0,
+    noise_mm=0.0025,
+    seed=0,
+    rho=(5.5484, -2.5295, 1.5262),
+    lobes=(),
+    direction=+1,
+    phi0=0.4,
+):
     """Return readings (n, 3), the device angle per sample and the scene."""
     beams = _beams(rho)
     bore = Bore(CENTER, R_GAUGE, lobes=tuple(lobes))
@@ -62,8 +75,12 @@ def _true_extrema_phi(beams, bore, ch, kind):
     grid = np.linspace(0, 2 * np.pi, 3601)
     v = tri_spindle_readings(grid, SPINDLE, beams, bore)[:, ch]
     g = grid[np.argmin(sign * v)]
-    res = minimize_scalar(lambda p: sign * tri_spindle_readings(np.array([p]), SPINDLE, beams, bore)[0, ch],
-                          bounds=(g - 0.01, g + 0.01), method="bounded", options={"xatol": 1e-12})
+    res = minimize_scalar(
+        lambda p: sign * tri_spindle_readings(np.array([p]), SPINDLE, beams, bore)[0, ch],
+        bounds=(g - 0.01, g + 0.01),
+        method="bounded",
+        options={"xatol": 1e-12},
+    )
     return res.x
 
 
@@ -104,13 +121,16 @@ def test_moving_average_gain_on_sinusoid_matches_closed_form():
     assert np.max(np.abs(yc[inner] - shifted[inner])) < 1e-12
 
 
-@pytest.mark.parametrize("method,params", [
-    ("median", {"window_samples": 7}),
-    ("moving_average", {"window_samples": 9}),
-    ("kalman", {"model": "random_walk", "q_mm2": 1e-6}),
-    ("kalman", {"model": "constant_velocity", "q_mm2": 1e-9}),
-    ("gaussian", {"cutoff_upr": 50.0}),
-])
+@pytest.mark.parametrize(
+    "method,params",
+    [
+        ("median", {"window_samples": 7}),
+        ("moving_average", {"window_samples": 9}),
+        ("kalman", {"model": "random_walk", "q_mm2": 1e-6}),
+        ("kalman", {"model": "constant_velocity", "q_mm2": 1e-9}),
+        ("gaussian", {"cutoff_upr": 50.0}),
+    ],
+)
 def test_filters_never_bridge_gaps(method, params):
     y, *_ = _simulate(n_rev=3)
     y = y[:, :2].copy()
@@ -140,7 +160,7 @@ def test_median_filter_near_nulls_is_the_median_of_the_valid_neighbours(w):
         col = y[:, j]
         padded = np.concatenate([np.full(h, col[0]), col, np.full(h, col[-1])])
         for k in range(col.size):
-            win = padded[k: k + w]
+            win = padded[k : k + w]
             if np.isnan(col[k]):
                 assert np.isnan(out[k, j])
             elif np.isnan(win).any():
@@ -238,7 +258,7 @@ def _spikes_by_definition(y, w=7, threshold=6.0, cand=2.5):
         js = [j for j in range(-h, h + 1) if j and 0 <= k + j < n and not excluded[k + j]]
         if len(js) < 2:
             return np.nan
-        slopes = [(y[k + b] - y[k + a]) / (b - a) for i, a in enumerate(js) for b in js[i + 1:]]
+        slopes = [(y[k + b] - y[k + a]) / (b - a) for i, a in enumerate(js) for b in js[i + 1 :]]
         s = np.median(slopes)
         return np.median([y[k + j] - j * s for j in js])
 
@@ -304,6 +324,7 @@ def test_find_revolutions_bisection_equals_floor_rule():
     """Monotonic coordinates take a bisection path; it must equal revolution = floor(u) row by row,
     exact integer hits and a non-monotonic (general path) coordinate included.
     """
+
     def by_floor(u, sample0):  # one row per run of equal floor(u), sample by sample
         rows = []
         for k, r in enumerate(np.floor(u).astype(int).tolist()):
@@ -314,8 +335,12 @@ def test_find_revolutions_bisection_equals_floor_rule():
         return rows
 
     rng = np.random.default_rng(4)
-    cases = [np.arange(5000) / 659.72, np.arange(1320) / 660.0 - 0.25,
-             np.cumsum(rng.uniform(0, 0.01, 3000)) + 0.3, np.arange(1000) / 200.0 + rng.normal(0, 3e-3, 1000)]
+    cases = [
+        np.arange(5000) / 659.72,
+        np.arange(1320) / 660.0 - 0.25,
+        np.cumsum(rng.uniform(0, 0.01, 3000)) + 0.3,
+        np.arange(1000) / 200.0 + rng.normal(0, 3e-3, 1000),
+    ]
     assert not (np.diff(cases[-1]) >= 0).all()  # the last one exercises the general path
     for u in cases:
         tab = find_revolutions(u, 7)
@@ -337,8 +362,9 @@ def test_period_from_encoder_and_revolution_index():
     assert abs(est.samples_per_rev - spr) < 3 * est.u_samples_per_rev
     assert est.period_disagrees_with_nominal
     y, *_ = _simulate(n_rev=20, eps=eps, phi0=0.4)
-    res = process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, t_s=t_lds, encoder_t_s=t_enc,
-                         encoder_angle_rad=ang)
+    res = process_arrays(
+        y, sample_rate_hz=660.0, rpm_nominal=60.0, t_s=t_lds, encoder_t_s=t_enc, encoder_angle_rad=ang
+    )
     assert res.period.source == "encoder"
     revs = res.revolutions
     # revolution r starts where the angle has advanced by 2 pi r: sample ceil(r spr)
@@ -419,8 +445,9 @@ def test_status_follows_the_beam_side_for_both_rho_signs_and_directions(directio
     """
     rho = (5.5484, -4.0, 2.5)
     y, truth, phi, beams, bore = _simulate(n_rev=40, seed=31, rho=rho, direction=direction)
-    res = process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0,
-                         direction="ccw" if direction > 0 else "cw")
+    res = process_arrays(
+        y, sample_rate_hz=660.0, rpm_nominal=60.0, direction="ccw" if direction > 0 else "cw"
+    )
     summ = res.summary.sort("channel").to_dicts()
     for ch, row in enumerate(summ):
         vmin, vmax = truth[:, ch].min(), truth[:, ch].max()
@@ -472,7 +499,7 @@ def test_extrema_windows_with_gaps_are_dropped_not_bridged():
     ext0, _ = find_extrema(y, u, samples_per_rev=N_REV)
     e0 = ext0.filter((ext0["channel"] == 1) & (ext0["kind"] == "min"))
     c = int(round(e0["sample_pos"][4]))
-    y[c - 30: c + 30, 0] = np.nan  # wipe out one minimum's neighbourhood
+    y[c - 30 : c + 30, 0] = np.nan  # wipe out one minimum's neighbourhood
     ext, info = find_extrema(y, u, samples_per_rev=N_REV)
     e = ext.filter((ext["channel"] == 1) & (ext["kind"] == "min"))
     assert e.height == e0.height - 1
@@ -501,8 +528,11 @@ def test_extrema_equal_for_every_memory_layout_of_the_readings():
 
 def _meta(scan_id):
     return {
-        "format": "borescan-raw/1", "scan_id": scan_id, "night": "2026-11-21",
-        "started_at": "2026-11-21T22:14:03Z", "kind": "calibration",
+        "format": "borescan-raw/1",
+        "scan_id": scan_id,
+        "night": "2026-11-21",
+        "started_at": "2026-11-21T22:14:03Z",
+        "kind": "calibration",
         "device": {"id": "TRI-01", "type": "tri_lds"},
         "sample_rate_hz": 660.0,
         "sensors": [{"channel": c, "model": "HG-C1030", "range_mm": 10.0} for c in (1, 2, 3)],
@@ -524,17 +554,26 @@ def test_process_scan_on_a_raw_scan(tmp_path, with_angle):
     y[500, 1] = np.nan
     y[900, 2] += 0.2
     k = np.arange(n)
-    lds = pl.DataFrame({
-        "sample": np.repeat(k, 3), "t_ns": np.repeat(np.round(k * 1e9 / 660.0), 3).astype(np.int64),
-        "sensor": np.tile([1, 2, 3], n), "value_mm": pl.Series(y.reshape(-1)).fill_nan(None),
-        "pose": pl.Series([None] * (3 * n), dtype=pl.Int32)})
+    lds = pl.DataFrame(
+        {
+            "sample": np.repeat(k, 3),
+            "t_ns": np.repeat(np.round(k * 1e9 / 660.0), 3).astype(np.int64),
+            "sensor": np.tile([1, 2, 3], n),
+            "value_mm": pl.Series(y.reshape(-1)).fill_nan(None),
+            "pose": pl.Series([None] * (3 * n), dtype=pl.Int32),
+        }
+    )
     t_enc = np.arange(0, n / 660.0, 0.005)
     angle = 2 * np.pi * (1 + eps) * t_enc + np.random.default_rng(62).normal(0, 2e-5, t_enc.size)
-    spindle = pl.DataFrame({"t_ns": np.round(t_enc * 1e9).astype(np.int64),
-                            "angle_rad": pl.Series(angle if with_angle else [None] * t_enc.size,
-                                                   dtype=pl.Float64),
-                            "x_mm": np.full(t_enc.size, SPINDLE[0]), "y_mm": np.full(t_enc.size, SPINDLE[1]),
-                            "rpm": np.full(t_enc.size, 60.0)})
+    spindle = pl.DataFrame(
+        {
+            "t_ns": np.round(t_enc * 1e9).astype(np.int64),
+            "angle_rad": pl.Series(angle if with_angle else [None] * t_enc.size, dtype=pl.Float64),
+            "x_mm": np.full(t_enc.size, SPINDLE[0]),
+            "y_mm": np.full(t_enc.size, SPINDLE[1]),
+            "rpm": np.full(t_enc.size, 60.0),
+        }
+    )
     sid = f"S-{int(with_angle)}"
     scan = rawio.read_scan(rawio.write_scan(tmp_path, _meta(sid), lds, spindle))
     res = process_scan(scan)
@@ -547,8 +586,17 @@ def test_process_scan_on_a_raw_scan(tmp_path, with_angle):
     assert set(frames) == {"revolutions", "extrema", "summary", "spacings", "period", "set_aside"}
     assert all(f["scan_id"].unique().to_list() == [sid] for f in frames.values())
     ext = frames["extrema"]
-    assert ext.columns[:9] == ["scan_id", "channel", "revolution", "kind", "sample_pos", "u_sample_pos",
-                               "value_mm", "u_value_mm", "n_valid"]
+    assert ext.columns[:9] == [
+        "scan_id",
+        "channel",
+        "revolution",
+        "kind",
+        "sample_pos",
+        "u_sample_pos",
+        "value_mm",
+        "u_value_mm",
+        "n_valid",
+    ]
     assert ext.height >= 3 * 2 * 11
     for name, f in frames.items():
         f.write_parquet(tmp_path / f"{name}.parquet")
@@ -564,10 +612,13 @@ def test_filter_runs_only_where_it_shapes_a_result(monkeypatch):
     y, *_ = _simulate(n_rev=8, seed=71)
     calls = []
     real = sig.filter_readings
-    monkeypatch.setattr(sig, "filter_readings", lambda *a, **k: calls.append(k.get("method")) or real(*a, **k))
+    monkeypatch.setattr(
+        sig, "filter_readings", lambda *a, **k: calls.append(k.get("method")) or real(*a, **k)
+    )
     plain = process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="none")
-    res = process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="median",
-                         filter_params={"window_samples": 25})
+    res = process_arrays(
+        y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="median", filter_params={"window_samples": 25}
+    )
     assert calls == []
     assert res.extrema.equals(plain.extrema)
     expect = real(res.despiked_mm, method="median", window_samples=25)
@@ -575,8 +626,14 @@ def test_filter_runs_only_where_it_shapes_a_result(monkeypatch):
     assert calls == ["median"]
     _ = res.filtered_mm  # cached: computed once
     assert calls == ["median"]
-    filt = process_arrays(y, sample_rate_hz=660.0, rpm_nominal=60.0, filter="median",
-                          filter_params={"window_samples": 25}, extrema_on="filtered")
+    filt = process_arrays(
+        y,
+        sample_rate_hz=660.0,
+        rpm_nominal=60.0,
+        filter="median",
+        filter_params={"window_samples": 25},
+        extrema_on="filtered",
+    )
     assert calls == ["median", "median"]
     np.testing.assert_array_equal(filt.filtered_mm, expect)
     assert not filt.extrema["value_mm"].equals(plain.extrema["value_mm"])  # fitted on other readings

@@ -38,7 +38,13 @@ from borescan.simulate import (
 )
 
 SCENE = default_tri_scene(phase_rad=1.0)
-LDS_SCHEMA = {"sample": pl.Int64, "t_ns": pl.Int64, "sensor": pl.Int16, "value_mm": pl.Float64, "pose": pl.Int32}
+LDS_SCHEMA = {
+    "sample": pl.Int64,
+    "t_ns": pl.Int64,
+    "sensor": pl.Int16,
+    "value_mm": pl.Float64,
+    "pose": pl.Int32,
+}
 
 
 def _values(lds: pl.DataFrame, c: int) -> np.ndarray:
@@ -55,8 +61,12 @@ def test_ideal_spindle_scan_extremes_satisfy_yang_eq8(ch):
     v = tri_readings(SCENE, t)[:, ch]
     rho, d_b = YANG_BEAMS.rho_mm[ch], YANG_BEAMS.d_b_mm[ch]
     for sign, idx, target in ((1, np.argmin(v), R - oe), (-1, np.argmax(v), R + oe)):
-        res = minimize_scalar(lambda s, sign=sign: sign * tri_readings(SCENE, np.array([s]))[0, ch],
-                              bounds=(t[idx] - 2 / 660, t[idx] + 2 / 660), method="bounded", options={"xatol": 1e-12})
+        res = minimize_scalar(
+            lambda s, sign=sign: sign * tri_readings(SCENE, np.array([s]))[0, ch],
+            bounds=(t[idx] - 2 / 660, t[idx] + 2 / 660),
+            method="bounded",
+            options={"xatol": 1e-12},
+        )
         assert math.hypot(d_b + sign * res.fun, rho) == pytest.approx(target, abs=1e-9)
     # the Yang set-up keeps every reading inside the 10 mm range (Table 1: d_min, d_max)
     assert 0.5 < v.min() and v.max() < 9.5
@@ -69,14 +79,20 @@ def test_default_readings_match_yang_table1():
 
 
 def test_effect_free_rod_satisfies_wang_eq16():
-    scene = RodScene(layers=(RodLayer(1, 100.0, 71.0), RodLayer(2, 400.0, 71.0)),
-                     holes=(Hole((0.2, -0.1), 75.004), Hole((0.02, 0.03), 74.997)), axis=RodAxis(1.4, -0.9))
+    scene = RodScene(
+        layers=(RodLayer(1, 100.0, 71.0), RodLayer(2, 400.0, 71.0)),
+        holes=(Hole((0.2, -0.1), 75.004), Hole((0.02, 0.03), 74.997)),
+        axis=RodAxis(1.4, -0.9),
+    )
     alpha = np.linspace(0, 2 * np.pi, 24, endpoint=False)
     v = rod_readings_with_effects(scene, alpha)
     for j, (lay, hole) in enumerate(zip(scene.layers, scene.holes)):
         l = lay.l0_mm + v[:, j]
         xm, ym = 1.4 - hole.center_xy_mm[0], -0.9 - hole.center_xy_mm[1]
-        assert np.max(np.abs((xm + l * np.cos(alpha)) ** 2 + (ym + l * np.sin(alpha)) ** 2 - hole.radius_mm**2)) < 1e-9
+        assert (
+            np.max(np.abs((xm + l * np.cos(alpha)) ** 2 + (ym + l * np.sin(alpha)) ** 2 - hole.radius_mm**2))
+            < 1e-9
+        )
 
 
 def test_spindle_scan_frames_follow_the_raw_format():
@@ -89,16 +105,26 @@ def test_spindle_scan_frames_follow_the_raw_format():
     t = sim.lds.filter(pl.col("sensor") == 1)["t_ns"].to_numpy()
     assert np.array_equal(t, np.round(np.arange(1320) * 1e9 / 660).astype(np.int64))
     sp = sim.spindle
-    assert dict(sp.schema) == {"t_ns": pl.Int64, "angle_rad": pl.Float64, "x_mm": pl.Float64, "y_mm": pl.Float64,
-                               "rpm": pl.Float64}
+    assert dict(sp.schema) == {
+        "t_ns": pl.Int64,
+        "angle_rad": pl.Float64,
+        "x_mm": pl.Float64,
+        "y_mm": pl.Float64,
+        "rpm": pl.Float64,
+    }
     # the spec: the device frame is the machine frame at encoder angle 0, so the encoder shows phi itself
-    assert np.allclose(sp["angle_rad"].to_numpy(), 1.0 + 2 * np.pi * sp["t_ns"].to_numpy() * 1e-9, rtol=0, atol=1e-12)
+    assert np.allclose(
+        sp["angle_rad"].to_numpy(), 1.0 + 2 * np.pi * sp["t_ns"].to_numpy() * 1e-9, rtol=0, atol=1e-12
+    )
     assert sim.meta["format"] == "borescan-raw/1" and sim.meta["acquisition"]["simulated"] is True
     assert "truth" not in json.dumps(sim.meta)
 
 
 def test_noise_free_scan_equals_the_forward_model_and_noise_has_sigma():
-    effects = [Effect("channel_delay", {"channel": 2, "tau_s": 0.0012}), Effect("sensor_offset", {"channel": 1, "b_mm": 0.02})]
+    effects = [
+        Effect("channel_delay", {"channel": 2, "tau_s": 0.0012}),
+        Effect("sensor_offset", {"channel": 1, "b_mm": 0.02}),
+    ]
     clean = simulate_tri_spindle(SCENE, n_rev=2, noise_mm=0.0, effects=effects)
     t = np.round(np.arange(1320) * 1e9 / 660) * 1e-9
     expect = tri_readings(SCENE, t, effects)
@@ -111,9 +137,15 @@ def test_noise_free_scan_equals_the_forward_model_and_noise_has_sigma():
 
 
 def test_same_seed_same_scan_other_seed_other_noise():
-    a = simulate_tri_spindle(SCENE, n_rev=1, seed=5, effects=[Effect("outliers", {"channel": 1, "rate": 0.05, "size_mm": 0.3})])
-    b = simulate_tri_spindle(SCENE, n_rev=1, seed=5, effects=[Effect("outliers", {"channel": 1, "rate": 0.05, "size_mm": 0.3})])
-    c = simulate_tri_spindle(SCENE, n_rev=1, seed=6, effects=[Effect("outliers", {"channel": 1, "rate": 0.05, "size_mm": 0.3})])
+    a = simulate_tri_spindle(
+        SCENE, n_rev=1, seed=5, effects=[Effect("outliers", {"channel": 1, "rate": 0.05, "size_mm": 0.3})]
+    )
+    b = simulate_tri_spindle(
+        SCENE, n_rev=1, seed=5, effects=[Effect("outliers", {"channel": 1, "rate": 0.05, "size_mm": 0.3})]
+    )
+    c = simulate_tri_spindle(
+        SCENE, n_rev=1, seed=6, effects=[Effect("outliers", {"channel": 1, "rate": 0.05, "size_mm": 0.3})]
+    )
     assert a.lds.equals(b.lds) and a.spindle.equals(b.spindle) and a.meta == b.meta
     assert not a.lds.equals(c.lds)
 
@@ -128,13 +160,18 @@ def test_readings_outside_range_become_null():
 
 
 def test_quantization_after_noise():
-    sim = simulate_tri_spindle(SCENE, n_rev=1, seed=2, effects=[Effect("quantization", {"channel": 2, "lsb_mm": 0.002})])
+    sim = simulate_tri_spindle(
+        SCENE, n_rev=1, seed=2, effects=[Effect("quantization", {"channel": 2, "lsb_mm": 0.002})]
+    )
     k = _values(sim.lds, 3)[:, 1] / 0.002
     assert np.max(np.abs(k - np.round(k))) < 1e-9
 
 
 def test_spindle_stream_reports_commanded_position_and_true_angle():
-    eff = [Effect("spindle_error_motion", {"k": 2, "rho_mm": 0.003, "phase": 0.0}), Effect("speed_error", {"eps": 0.001})]
+    eff = [
+        Effect("spindle_error_motion", {"k": 2, "rho_mm": 0.003, "phase": 0.0}),
+        Effect("speed_error", {"eps": 0.001}),
+    ]
     sim = simulate_tri_spindle(SCENE, n_rev=1, effects=eff)
     assert np.all(sim.spindle["x_mm"].to_numpy() == YANG_P1_XY_MM[0])
     assert np.all(sim.spindle["y_mm"].to_numpy() == YANG_P1_XY_MM[1])
@@ -149,8 +186,14 @@ def test_static_scan_blocks_per_pose_and_circumcircle_gives_the_diameter():
     scene = default_tri_scene(bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=140.0059)
     xy = np.array([[0.3, -0.2], [-1.0, 0.4], [0.0, 1.2]])
     ang = np.array([0.1, 2.0, 4.0])
-    sim = simulate_tri_static(scene, xy, ang, samples_per_pose=7, noise_mm=0.0,
-                              effects=[Effect("thermal_expansion", {"temperature_c": 22.0})])
+    sim = simulate_tri_static(
+        scene,
+        xy,
+        ang,
+        samples_per_pose=7,
+        noise_mm=0.0,
+        effects=[Effect("thermal_expansion", {"temperature_c": 22.0})],
+    )
     assert sim.spindle is None and dict(sim.lds.schema) == LDS_SCHEMA
     assert sim.lds.filter(pl.col("sensor") == 1)["pose"].to_list() == [0] * 7 + [1] * 7 + [2] * 7
     v = _values(sim.lds, 3)
@@ -174,8 +217,14 @@ def test_rod_scan_poses_and_noise_free_readings():
     assert np.max(np.abs(v - rod_readings_with_effects(scene, alpha[pose]))) < 1e-12
     assert np.all((v > 0) & (v < 8))  # l0 = 71 mm puts 150 mm holes mid-span
     assert [lay["feature"] for lay in sim.meta["rod"]["layers"]] == ["H1", "H2"]
-    assert sim.meta["device"]["nominal"]["layers"][0] == {"channel": 1, "h": 100.0, "phi": 0.0, "d": 0.0, "gamma": 0.0,
-                                                          "l0": 71.0}
+    assert sim.meta["device"]["nominal"]["layers"][0] == {
+        "channel": 1,
+        "h": 100.0,
+        "phi": 0.0,
+        "d": 0.0,
+        "gamma": 0.0,
+        "l0": 71.0,
+    }
     assert sim.truth["diameters_mm"] == {"H1": 150.008, "H2": 149.994}
 
 
@@ -189,7 +238,10 @@ def test_fast_circle_path_equals_the_general_geometry():
 
 
 def test_truth_rebuilds_the_scene(tmp_path):
-    eff = [Effect("channel_delay", {"channel": 3, "tau_s": 0.002}), Effect("sensor_gain", {"channel": 1, "g": 1e-3})]
+    eff = [
+        Effect("channel_delay", {"channel": 3, "tau_s": 0.002}),
+        Effect("sensor_gain", {"channel": 1, "g": 1e-3}),
+    ]
     sim = simulate_tri_spindle(SCENE, n_rev=1, effects=eff, noise_mm=0.0, scan_id="TT")
     write_simulated(sim, tmp_path / "raw", tmp_path / "truth")
     truth = load_truth(tmp_path / "truth", "TT")
@@ -203,8 +255,11 @@ def test_truth_rebuilds_the_scene(tmp_path):
 
 def test_write_simulated_keeps_truth_outside_raw(tmp_path):
     raw, truth = tmp_path / "raw", tmp_path / "truth"
-    sims = [simulate_tri_spindle(SCENE, n_rev=1, scan_id="T1"), simulate_tri_static(scan_id="T2"),
-            simulate_rod(scan_id="T3")]
+    sims = [
+        simulate_tri_spindle(SCENE, n_rev=1, scan_id="T1"),
+        simulate_tri_static(scan_id="T2"),
+        simulate_rod(scan_id="T3"),
+    ]
     for s in sims:
         path = write_simulated(s, raw, truth)
         assert path == raw / "night=2026-11-20" / f"scan={s.scan_id}"
@@ -224,19 +279,36 @@ def test_demo_writes_the_listed_scans(tmp_path):
     assert DEMO_NIGHTS == ("2026-11-20", "2026-11-21") + LOOP_NIGHTS
     for night in DEMO_NIGHTS[:2]:
         tag = "N" + night.replace("-", "")
-        for name in ("TRI01-CEN", "TRI01-CAL-P1-A", "TRI01-CAL-P1-B", "TRI01-VER-RG275", "TRI01-VER-RG280",
-                     "ROD01-MEAS-CYL2H", "ROD01-VER-RGS150"):
+        for name in (
+            "TRI01-CEN",
+            "TRI01-CAL-P1-A",
+            "TRI01-CAL-P1-B",
+            "TRI01-VER-RG275",
+            "TRI01-VER-RG280",
+            "ROD01-MEAS-CYL2H",
+            "ROD01-VER-RGS150",
+        ):
             assert f"{tag}-{name}" in ids
         assert sum(i.startswith(f"{tag}-TRI01-MEAS-") for i in ids) == 3
     assert "N20261120-ROD01-CAL-RGS150" in ids  # the rod is calibrated on its ring gauges on the first night
     # the loop nights: TRI-01 calibrated at 60 and 30 rpm with the 1.2 ms delay on channel 2 in every scan
     assert {i for i in ids if i.startswith(("N20261123", "N20261124"))} == {
-        "N20261123-TRI01-CAL-P1-A", "N20261123-TRI01-CAL-P1-B", "N20261123-TRI01-VER-RG275",
-        "N20261124-TRI01-CAL-P1-A", "N20261124-TRI01-CAL-P1-B", "N20261124-TRI01-VER-RG275", "N20261124-TRI01-VER-RG280"}
+        "N20261123-TRI01-CAL-P1-A",
+        "N20261123-TRI01-CAL-P1-B",
+        "N20261123-TRI01-VER-RG275",
+        "N20261124-TRI01-CAL-P1-A",
+        "N20261124-TRI01-CAL-P1-B",
+        "N20261124-TRI01-VER-RG275",
+        "N20261124-TRI01-VER-RG280",
+    }
     for night in LOOP_NIGHTS:
         tag = "N" + night.replace("-", "")
-        speeds = [json.loads((raw / f"night={night}" / f"scan={tag}-TRI01-CAL-P1-{x}" / "scan.json").read_text())
-                  ["spindle"]["rpm_nominal"] for x in "AB"]
+        speeds = [
+            json.loads((raw / f"night={night}" / f"scan={tag}-TRI01-CAL-P1-{x}" / "scan.json").read_text())[
+                "spindle"
+            ]["rpm_nominal"]
+            for x in "AB"
+        ]
         assert speeds == [60.0, 30.0]
         truth = json.loads((tmp_path / "truth" / f"{tag}-TRI01-CAL-P1-B.truth.json").read_text())
         assert truth["effects"] == [{"name": "channel_delay", "params": {"channel": 2, "tau_s": 0.0012}}]

@@ -19,11 +19,16 @@ from snakemake.io import regex_from_filepattern
 from conftest import ROOT, run_snakemake
 
 CATEGORIES = {"Calibration", "Verification", "Diameters", "Discrepancy", "Papers"}
-MONTH_PLOT_CATEGORY = {"calibration": "Calibration", "control": "Verification", "diameters": "Diameters",
-                       "devicemodel": "Calibration"}
+MONTH_PLOT_CATEGORY = {
+    "calibration": "Calibration",
+    "control": "Verification",
+    "diameters": "Diameters",
+    "devicemodel": "Calibration",
+}
 
 
 # ------------------------------------------------------------------ what the rules declare
+
 
 def _call_end(text: str, start: int) -> int:
     """Index just past the parenthesis closing the one at ``start`` (string literals skipped)."""
@@ -60,7 +65,7 @@ def declared_report_items() -> list[dict]:
     for smk in sorted((ROOT / "rules").glob("*.smk")):
         text = smk.read_text()
         for m in re.finditer(r"(?<![\w.])(\w+)\s*=\s*report\(", text):
-            src = text[m.start(0) + len(m.group(0)) - len("report("):_call_end(text, m.end(0) - 1)]
+            src = text[m.start(0) + len(m.group(0)) - len("report(") : _call_end(text, m.end(0) - 1)]
             call = ast.parse(src, mode="eval").body
             kw = {k.arg: k.value for k in call.keywords}
             arg, flags = call.args[0], set()
@@ -73,12 +78,19 @@ def declared_report_items() -> list[dict]:
                     return None
                 return node.id if isinstance(node, ast.Name) else ast.literal_eval(node)
 
-            items.append({
-                "rule": re.findall(r"^rule (\w+):", text[:m.start(0)], re.M)[-1], "name": m.group(1),
-                "smk": smk.name, "template": _template(src, arg), "directory": "directory" in flags,
-                "patterns": value(kw.get("patterns")) or [], "caption": value(kw.get("caption")),
-                "category": value(kw.get("category")), "subcategory": value(kw.get("subcategory")),
-            })
+            items.append(
+                {
+                    "rule": re.findall(r"^rule (\w+):", text[: m.start(0)], re.M)[-1],
+                    "name": m.group(1),
+                    "smk": smk.name,
+                    "template": _template(src, arg),
+                    "directory": "directory" in flags,
+                    "patterns": value(kw.get("patterns")) or [],
+                    "caption": value(kw.get("caption")),
+                    "category": value(kw.get("category")),
+                    "subcategory": value(kw.get("subcategory")),
+                }
+            )
     return items
 
 
@@ -101,6 +113,7 @@ def expected_files(item: dict, results: Path, nights: list[str]) -> set[str]:
 
 # ------------------------------------------------------------------ the report
 
+
 @pytest.fixture(scope="module")
 def snakemake_report(pipeline_run, tmp_path_factory):
     """``snakemake --report report.zip`` over the demo run, unzipped; its results and categories."""
@@ -117,9 +130,15 @@ def snakemake_report(pipeline_run, tmp_path_factory):
         m = re.search(rf'<script id="{script_id}">\s*var {name} = ', page)
         return json.JSONDecoder().raw_decode(page, m.end())[0]
 
-    return {"dir": out / "unzipped" / "report", "members": members, "page": page,
-            "results": var("results", "results"), "categories": var("categories", "categories"),
-            "description": var("workflow-desc", "workflow_desc"), "log": proc.stdout + proc.stderr}
+    return {
+        "dir": out / "unzipped" / "report",
+        "members": members,
+        "page": page,
+        "results": var("results", "results"),
+        "categories": var("categories", "categories"),
+        "description": var("workflow-desc", "workflow_desc"),
+        "log": proc.stdout + proc.stderr,
+    }
 
 
 def _nights(run) -> list[str]:
@@ -130,8 +149,13 @@ def test_every_declared_item_is_in_the_report(pipeline_run, snakemake_report):
     items = declared_report_items()
     # the rules declare the papers, the per-scan and pooled findings, the report page and its month pages
     assert {(i["rule"], i["name"]) for i in items} >= {
-        ("reproduce_papers", "yang_table1"), ("reproduce_papers", "wang_png"), ("discrepancy_night", "scans"),
-        ("pooled_night", "json"), ("write_report", "html"), ("write_report", "pages")}
+        ("reproduce_papers", "yang_table1"),
+        ("reproduce_papers", "wang_png"),
+        ("discrepancy_night", "scans"),
+        ("pooled_night", "json"),
+        ("write_report", "html"),
+        ("write_report", "pages"),
+    }
     results, nights = pipeline_run["results"], _nights(pipeline_run)
     shown = set(snakemake_report["results"])
     expected: set[str] = set()
@@ -158,8 +182,12 @@ def test_discrepancy_findings_of_every_scan_per_night(pipeline_run, snakemake_re
     con = duckdb.connect(str(res / "catalog.duckdb"), read_only=True)
     rows = con.execute("SELECT DISTINCT night, scan_id FROM findings").fetchall()
     examined = {(str(n), s) for n, s in rows}
-    pooled = {(str(n), p) for n, p in con.execute("SELECT DISTINCT night, findings_path FROM pooled_findings "
-                                                  "WHERE findings_path IS NOT NULL").fetchall()}
+    pooled = {
+        (str(n), p)
+        for n, p in con.execute(
+            "SELECT DISTINCT night, findings_path FROM pooled_findings WHERE findings_path IS NOT NULL"
+        ).fetchall()
+    }
     con.close()
     assert len(examined) >= 18 and len(pooled) >= 2  # demo nights: 9 or more scans each, TRI-01 pooled
     cats = snakemake_report["categories"]["Discrepancy"]
@@ -205,7 +233,8 @@ def test_categories_and_captions(pipeline_run, snakemake_report):
     plot_months = {p.parent.name for p in plots}
     for cat, prefix in (("Calibration", ("calibration_", "devicemodel_")), ("Verification", ("control_",))):
         assert sum(len(v) for m, v in cats[cat].items() if m in plot_months) == len(
-            [p for p in plots if p.stem.startswith(prefix)])
+            [p for p in plots if p.stem.startswith(prefix)]
+        )
     assert any(p.stem == "devicemodel_TRI-01" for p in plots)  # the device model's nights (demo loop)
     # the certificates: every file of every calibration of a night, under Calibration / the night,
     # read where outputs.md puts them (a link into the night's folder)
@@ -215,16 +244,24 @@ def test_categories_and_captions(pipeline_run, snakemake_report):
     for pdf in certs:
         night = pdf.parts[-4].removeprefix("night=")
         device, cal_id = pdf.parts[-3], pdf.parts[-2]
-        assert str(pdf) in cats["Calibration"][night] and str(pdf.with_suffix(".json")) in cats["Calibration"][night]
+        assert (
+            str(pdf) in cats["Calibration"][night]
+            and str(pdf.with_suffix(".json")) in cats["Calibration"][night]
+        )
         assert cal_id in results[str(pdf)]["caption"] and "What to do" in results[str(pdf)]["caption"]
         assert (res / "calibration" / device / cal_id / "certificate.pdf").read_bytes() == pdf.read_bytes()
     months = sorted(p.parent.name for p in res.glob("report/*/index.html"))
     assert months == ["2026-11"]
     assert sorted(cats["Diameters"]["Report pages"]) == sorted(
-        [str(res / "report.html")] + [str(res / "report" / m / "index.html") for m in months])
+        [str(res / "report.html")] + [str(res / "report" / m / "index.html") for m in months]
+    )
     assert cats["Papers"]["All papers (page)"] == [str(res / "report" / "papers.html")]
     assert {s: len(v) for s, v in cats["Papers"].items() if s != "All papers (page)"} == {
-        "Yang 2017 Table 1": 2, "Yang 2017 Table 2": 2, "Yang 2017 Table 3": 2, "Wang 2017": 2}
+        "Yang 2017 Table 1": 2,
+        "Yang 2017 Table 2": 2,
+        "Yang 2017 Table 3": 2,
+        "Wang 2017": 2,
+    }
     # every caption rendered: reStructuredText to HTML, its jinja filled in, no docutils complaint
     for path, entry in results.items():
         cap = entry["caption"]

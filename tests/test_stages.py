@@ -17,18 +17,26 @@ STAGES = Path(borescan.__file__).parent / "stages"
 def test_stage_modules_are_small_and_import_at_the_top():
     for f in sorted(STAGES.glob("*.py")):
         text = f.read_text()
-        assert len(text.splitlines()) < 200, f.name
+        # thin: 200 lines before the code was formatted with ruff format, which puts one argument a line
+        # where a call does not fit 110 characters (about 1.5 times the lines)
+        assert len(text.splitlines()) < 320, f.name
         for node in ast.walk(ast.parse(text)):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 inner = [n for n in ast.walk(node) if isinstance(n, (ast.Import, ast.ImportFrom))]
                 assert not inner, f"{f.name}: {node.name} imports inside the function"
 
 
-@pytest.mark.parametrize("module, never", [
-    ("borescan.catalog", ("borescan.stages", "borescan.pipeline")),
-    ("borescan.rawio", ("borescan.stages", "borescan.pipeline", "borescan.catalog")),
-    ("borescan.stages", ("borescan.stages.", "numpy")),  # the package itself imports nothing: common.smk stays light
-])
+@pytest.mark.parametrize(
+    "module, never",
+    [
+        ("borescan.catalog", ("borescan.stages", "borescan.pipeline")),
+        ("borescan.rawio", ("borescan.stages", "borescan.pipeline", "borescan.catalog")),
+        (
+            "borescan.stages",
+            ("borescan.stages.", "numpy"),
+        ),  # the package itself imports nothing: common.smk stays light
+    ],
+)
 def test_library_modules_do_not_import_the_stages(module, never):
     code = f"import sys, {module}; print(sorted(m for m in sys.modules if m.startswith({never!r})))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
@@ -47,8 +55,14 @@ def test_quarantine_record_file_and_row(tmp_path):
     q = Quarantined("S1", "2026-11-20", "signal", "lds.parquet", "clock jump")
     path = write_quarantine_record(tmp_path, q)
     assert path == tmp_path / "quarantine" / "S1.json"
-    assert json.loads(path.read_text()) == {"scan_id": "S1", "night": "2026-11-20", "stage": "signal", "file": "lds.parquet",
-                                            "reason": "clock jump", "message": "S1: lds.parquet: clock jump"}
+    assert json.loads(path.read_text()) == {
+        "scan_id": "S1",
+        "night": "2026-11-20",
+        "stage": "signal",
+        "file": "lds.parquet",
+        "reason": "clock jump",
+        "message": "S1: lds.parquet: clock jump",
+    }
     assert quarantine_frame([q]).row(0) == ("S1", "2026-11-20", "signal", "lds.parquet", "clock jump")
     assert quarantine_frame([]).columns == ["scan_id", "night", "stage", "file", "reason"]
 

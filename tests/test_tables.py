@@ -22,7 +22,10 @@ def test_catalog_uses_the_definitions():
     assert catalog.KEYS == {n: t.key for n, t in tables.TABLES.items()}
     assert tables.polars_schema("findings").get("night") is None  # filled in the catalog from scans
     assert tables.TABLES["findings"].duckdb_types()["night"] == "DATE"
-    assert tables.polars_schema("scans")["night"] == pl.Utf8 and tables.polars_schema("scans")["simulated"] == pl.Boolean
+    assert (
+        tables.polars_schema("scans")["night"] == pl.Utf8
+        and tables.polars_schema("scans")["simulated"] == pl.Boolean
+    )
 
 
 def test_ddl_creates_the_table_with_key_and_extra_columns():
@@ -37,8 +40,16 @@ def test_ddl_creates_the_table_with_key_and_extra_columns():
 
 
 def test_frame_builds_rows_by_name_and_empty_frames_keep_the_schema():
-    df = tables.frame("quarantine", [{"reason": "r", "file": "f", "stage": "ingest", "night": "2026-11-20", "scan_id": "S"}])
-    assert df.columns == ["scan_id", "night", "stage", "file", "reason"] and df.row(0) == ("S", "2026-11-20", "ingest", "f", "r")
+    df = tables.frame(
+        "quarantine", [{"reason": "r", "file": "f", "stage": "ingest", "night": "2026-11-20", "scan_id": "S"}]
+    )
+    assert df.columns == ["scan_id", "night", "stage", "file", "reason"] and df.row(0) == (
+        "S",
+        "2026-11-20",
+        "ingest",
+        "f",
+        "r",
+    )
     empty = tables.frame("findings", [])
     assert empty.height == 0 and empty.schema == tables.polars_schema("findings")
 

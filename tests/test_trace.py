@@ -27,7 +27,9 @@ def test_trace_diameter_prints_full_chain(built, capsys):
         "scan PART-7  night 2026-11-20",
         "calibration CAL-A  device TRI-01",
         "certificate calibration/TRI-01/CAL-A/certificate.pdf",
-        "calibration/TRI-01/CAL-A/certificate.json sha256 " + _sha('{"calibration_id": "CAL-A"}\n') + " (matches catalog)",
+        "calibration/TRI-01/CAL-A/certificate.json sha256 "
+        + _sha('{"calibration_id": "CAL-A"}\n')
+        + " (matches catalog)",
         "calibration scan CAL-A-P1",
         "artifact RG-275 (ring_gauge), certificate RG-275/2026-03, certified 275.029 mm",
         "raw_sha256 " + _sha_of(tables, "CAL-A-P1"),
@@ -41,7 +43,9 @@ def test_trace_diameter_prints_full_chain(built, capsys):
         assert found >= 0, f"missing or out of order: {step!r}\n{out}"
         pos = found
     # every raw file of the measurement and the calibration scans with its own digest
-    files = tables["scan_files"].filter(tables["scan_files"]["scan_id"].is_in(["PART-7", "CAL-A-P1", "CAL-A-P2"]))
+    files = tables["scan_files"].filter(
+        tables["scan_files"]["scan_id"].is_in(["PART-7", "CAL-A-P1", "CAL-A-P2"])
+    )
     for f in files.iter_rows(named=True):
         assert f"{f['file']:<16s} sha256 {f['sha256']}  ({f['bytes']} bytes)" in out
 
@@ -63,12 +67,18 @@ def test_trace_structured_chain(built):
 def test_trace_by_calibration_certificate_and_part(built, capsys):
     res, _ = built
     cal = trace.trace(res, "CAL-A")
-    assert cal["kind"] == "calibration" and [s["scan_id"] for s in cal["calibration"]["scans"]] == ["CAL-A-P1", "CAL-A-P2"]
+    assert cal["kind"] == "calibration" and [s["scan_id"] for s in cal["calibration"]["scans"]] == [
+        "CAL-A-P1",
+        "CAL-A-P2",
+    ]
     # CAL-B is both a scan id and a calibration id: the scan's chain names the calibration made from it
     scan = trace.trace(res, "CAL-B")
     assert scan["kind"] == "scan" and [c["calibration_id"] for c in scan["calibrations"]] == ["CAL-B"]
-    for ident in ("calibration/TRI-01/CAL-B/certificate.json", str(res / "calibration/TRI-01/CAL-B"),
-                  "calibration/TRI-01/CAL-B/certificate.pdf"):
+    for ident in (
+        "calibration/TRI-01/CAL-B/certificate.json",
+        str(res / "calibration/TRI-01/CAL-B"),
+        "calibration/TRI-01/CAL-B/certificate.pdf",
+    ):
         chain = trace.trace(res, ident)
         assert chain["kind"] == "certificate"
         assert [c["calibration_id"] for c in chain["calibrations"]] == ["CAL-B"]
@@ -111,11 +121,15 @@ def test_trace_shows_the_certificate_a_scan_used_not_a_later_record(tmp_path):
     con = duckdb.connect()
     for name in ("scans", "artifacts", "scan_files"):
         con.execute(TABLES[name].ddl())
-    con.execute("INSERT INTO scans (scan_id, night, artifact_id, status, artifact_certificate, "
-                "artifact_certified_diameter_mm, artifact_u_diameter_mm) VALUES "
-                "('CAL-1', '2026-11-20', 'RG-275', 'ok', 'RG-275/2026-03', 275.029, 0.0015)")
-    con.execute("INSERT INTO artifacts (artifact_id, type, certificate, certified_diameter_mm, u_diameter_mm, k) "
-                "VALUES ('RG-275', 'ring_gauge', 'RG-275/2027-01', 275.031, 0.0015, 2)")
+    con.execute(
+        "INSERT INTO scans (scan_id, night, artifact_id, status, artifact_certificate, "
+        "artifact_certified_diameter_mm, artifact_u_diameter_mm) VALUES "
+        "('CAL-1', '2026-11-20', 'RG-275', 'ok', 'RG-275/2026-03', 275.029, 0.0015)"
+    )
+    con.execute(
+        "INSERT INTO artifacts (artifact_id, type, certificate, certified_diameter_mm, u_diameter_mm, k) "
+        "VALUES ('RG-275', 'ring_gauge', 'RG-275/2027-01', 275.031, 0.0015, 2)"
+    )
     t = trace._Tracer(con, tmp_path)
     art = t.scan_artifact(t.scan("CAL-1"))
     assert art["certified_diameter_mm"] == 275.029 and art["certificate"] == "RG-275/2026-03"

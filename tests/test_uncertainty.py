@@ -61,11 +61,24 @@ def test_gum_h1_end_gauge_calibration():
     # by hand: nu_eff = 31.7^4 / (25^4/18 + 9.7^4/25.6 + 2.9^4/50 + 16.6^4/2)
     uc = math.sqrt(25**2 + 9.7**2 + 2.9**2 + 16.675**2)
     assert welch_satterthwaite([25, 9.7, 2.9, 16.675], [18, 25.6, 50, 2]) == pytest.approx(
-        uc**4 / (25**4 / 18 + 9.7**4 / 25.6 + 2.9**4 / 50 + 16.675**4 / 2), rel=1e-12)
+        uc**4 / (25**4 / 18 + 9.7**4 / 25.6 + 2.9**4 / 50 + 16.675**4 / 2), rel=1e-12
+    )
 
 
-@pytest.mark.parametrize("nu, k", [(1, 13.97), (2, 4.53), (3, 3.31), (4, 2.87), (5, 2.65), (10, 2.28), (20, 2.13),
-                                   (50, 2.05), (float("inf"), 2.00)])
+@pytest.mark.parametrize(
+    "nu, k",
+    [
+        (1, 13.97),
+        (2, 4.53),
+        (3, 3.31),
+        (4, 2.87),
+        (5, 2.65),
+        (10, 2.28),
+        (20, 2.13),
+        (50, 2.05),
+        (float("inf"), 2.00),
+    ],
+)
 def test_coverage_factor_matches_gum_table_g2(nu, k):
     """GUM Table G.2, column p = 95.45 %."""
     assert coverage_factor(0.9545, nu) == pytest.approx(k, abs=0.006)
@@ -80,7 +93,9 @@ def test_coverage_factor_truncates_nu_and_checks_p():
 
 def test_standard_uncertainty_of_stated_bounds():
     assert standard_uncertainty(halfwidth=3.0) == pytest.approx(math.sqrt(3.0))
-    assert standard_uncertainty(halfwidth=6.0, distribution="triangular") == pytest.approx(6.0 / math.sqrt(6.0))
+    assert standard_uncertainty(halfwidth=6.0, distribution="triangular") == pytest.approx(
+        6.0 / math.sqrt(6.0)
+    )
     assert standard_uncertainty(halfwidth=2.0, distribution="arcsine") == pytest.approx(math.sqrt(2.0))
     assert standard_uncertainty(expanded=1.5, k=2, distribution="normal") == 0.75
     with pytest.raises(ValueError, match="unknown distribution"):
@@ -98,13 +113,18 @@ def test_linear_coverage_interval_closed_forms():
     assert linear_coverage_interval([("rectangular", 1.0, np.inf)], p) == pytest.approx(p * a, rel=1e-4)
     # two equal rectangulars: triangular on +-2a, P(|Y| <= q) = 1 - (1 - q / 2a)^2
     assert linear_coverage_interval([("rectangular", 1.0, np.inf)] * 2, p) == pytest.approx(
-        2 * a * (1 - math.sqrt(1 - p)), rel=1e-4)
+        2 * a * (1 - math.sqrt(1 - p)), rel=1e-4
+    )
     # arcsine on +-a: P(|X| <= q) = (2 / pi) asin(q / a)
     assert linear_coverage_interval([("arcsine", 1.0, np.inf)], p) == pytest.approx(
-        math.sqrt(2.0) * math.sin(p * math.pi / 2), rel=1e-4)
-    assert linear_coverage_interval([("normal", 1.0, 5)], 0.95) == pytest.approx(stats.t.ppf(0.975, 5), rel=1e-4)
+        math.sqrt(2.0) * math.sin(p * math.pi / 2), rel=1e-4
+    )
+    assert linear_coverage_interval([("normal", 1.0, 5)], 0.95) == pytest.approx(
+        stats.t.ppf(0.975, 5), rel=1e-4
+    )
     assert linear_coverage_interval([("normal", 3.0, np.inf), ("normal", 4.0, np.inf)], p) == pytest.approx(
-        5.0 * stats.norm.ppf(0.5 * (1 + p)), rel=1e-12)
+        5.0 * stats.norm.ppf(0.5 * (1 + p)), rel=1e-12
+    )
 
 
 def test_dominant_rectangular_is_not_given_k2():
@@ -123,7 +143,12 @@ def test_merged_terms_add_sensitivities():
     device (c = +1), the error E = D - D_g subtracts it (c = -1): it cancels.
     """
     g = _inp("gauge:RG-275@C1:D20", 0.75, unit="um")
-    b = Budget(("E",), ("um",), [0.0], [Term(g, [1.0]), Term(_inp("readings", 1.0, unit="um"), [1.0]), Term(g, [-1.0])])
+    b = Budget(
+        ("E",),
+        ("um",),
+        [0.0],
+        [Term(g, [1.0]), Term(_inp("readings", 1.0, unit="um"), [1.0]), Term(g, [-1.0])],
+    )
     m = b.merged()
     assert len(m.terms) == 2 and m.terms[0].sensitivity[0] == 0.0
     assert m.combined(0, 0.9545).u == pytest.approx(1.0)
@@ -133,8 +158,12 @@ def test_merged_terms_add_sensitivities():
 
 def test_budget_round_trip_and_vector_terms():
     cov = np.array([[4.0, 1.0], [1.0, 9.0]])
-    b = Budget(("a", "b"), ("mm", "mm"), [1.0, 2.0],
-               [Term(_inp("fit", 0.002, dof=100), cov=cov), Term(_inp("x", 0.5, "rectangular"), [1.0, -1.0])])
+    b = Budget(
+        ("a", "b"),
+        ("mm", "mm"),
+        [1.0, 2.0],
+        [Term(_inp("fit", 0.002, dof=100), cov=cov), Term(_inp("x", 0.5, "rectangular"), [1.0, -1.0])],
+    )
     back = Budget.from_dict(b.to_dict())
     assert np.array_equal(back.covariance(), b.covariance())
     assert np.allclose(b.covariance(), cov + 0.25 * np.array([[1, -1], [-1, 1]]))
@@ -193,7 +222,12 @@ def test_diameter_budget_against_gum_s1_monte_carlo(a_temp_k, method):
     from borescan.geometry import Beams, Bore, tri_static_readings
     from borescan.measure import diameter_uncertainty, static_diameter_jacobian
 
-    beams = Beams((1, 2, 3), np.array([0.35, 2.46, 4.56]), np.array([-5.5, -2.5, 1.5]), np.array([132.67, 132.89, 134.11]))
+    beams = Beams(
+        (1, 2, 3),
+        np.array([0.35, 2.46, 4.56]),
+        np.array([-5.5, -2.5, 1.5]),
+        np.array([132.67, 132.89, 134.11]),
+    )
     R = 276.4 / 2
     v = tri_static_readings(np.array([[0.4, -0.3]]), np.array([0.2]), beams, Bore((0.0, 0.0), R))[0]
     c = 3
@@ -202,8 +236,12 @@ def test_diameter_budget_against_gum_s1_monte_carlo(a_temp_k, method):
     C_fit = np.diag(sd**2)
     C_fit[1, 2] = C_fit[2, 1] = -0.9 * sd[1] * sd[2]
     theta0 = np.stack([beams.beta_rad, beams.rho_mm, beams.d_b_mm], axis=1).ravel()
-    cal = Budget(tuple(f"p{i}" for i in range(3 * c)), ("rad", "mm", "mm") * c, theta0,
-                 [Term(_inp("fit", 0.004, dof=10_000, unit="mm"), cov=C_fit)])
+    cal = Budget(
+        tuple(f"p{i}" for i in range(3 * c)),
+        ("rad", "mm", "mm") * c,
+        theta0,
+        [Term(_inp("fit", 0.004, dof=10_000, unit="mm"), cov=C_fit)],
+    )
     e_db = np.zeros((c, 3 * c))
     for j in range(c):
         e_db[j, 3 * j + 2] = 1.0
@@ -216,15 +254,30 @@ def test_diameter_budget_against_gum_s1_monte_carlo(a_temp_k, method):
     ct = ArtifactCte(cte, acte, acte / math.sqrt(3), False, "test")
     D, jp, jv, _ = static_diameter_jacobian(v[None, :], beams)
     sensors = {ch: {"linearity_fs": a_lin / 10.0, "range_mm": 10.0, "resolution_mm": 0.0} for ch in (1, 2, 3)}
-    du = diameter_uncertainty(float(D[0]), jac_params=jp[0], calibration_budget=cal, jac_readings=jv[0],
-                              u_readings_mm=u_rd, dof_readings=float("inf"), sensors=sensors, channels=(1, 2, 3),
-                              noise_mm=None, temperature=temp, cte=ct, artifact={"id": "P"}, scan_id="S", p=0.9545,
-                              default_resolution_mm=0.0)
+    du = diameter_uncertainty(
+        float(D[0]),
+        jac_params=jp[0],
+        calibration_budget=cal,
+        jac_readings=jv[0],
+        u_readings_mm=u_rd,
+        dof_readings=float("inf"),
+        sensors=sensors,
+        channels=(1, 2, 3),
+        noise_mm=None,
+        temperature=temp,
+        cte=ct,
+        artifact={"id": "P"},
+        scan_id="S",
+        p=0.9545,
+        default_resolution_mm=0.0,
+    )
 
     rng = np.random.default_rng(20270611)
     n = 400_000
 
-    along = jv[0] / float(jv[0] @ jv[0])  # readings moved so that D moves by x["rd"] (the budget's readings term)
+    along = jv[0] / float(
+        jv[0] @ jv[0]
+    )  # readings moved so that D moves by x["rd"] (the budget's readings term)
 
     def model(x):
         theta = theta0 + x["fit"]
@@ -279,26 +332,35 @@ def test_calibration_sensitivities_against_gum_s1_refits():
     from borescan.geometry import Beams, Bore, tri_spindle_readings
     from borescan.kinematics import angle_model_from_arrays
 
-    truth = Beams((1, 2, 3), np.array([0.3, 2.4, 4.5]), np.array([5.5484, -2.5295, 1.5262]),
-                  np.array([132.6718, 132.8883, 134.1108]))
+    truth = Beams(
+        (1, 2, 3),
+        np.array([0.3, 2.4, 4.5]),
+        np.array([5.5484, -2.5295, 1.5262]),
+        np.array([132.6718, 132.8883, 134.1108]),
+    )
     D20, cte, T, aT, a_pos, a_lin = 275.029, 11.5e-6, 21.0, 0.1, 0.002, 0.004
     R = 0.5 * D20 * (1 + cte * (T - 20))
     rng = np.random.default_rng(5)
     t = np.arange(1000) / 200.0
     S, C = np.array([262.955, -275.502]), np.array([262.833, -273.182])
-    v = tri_spindle_readings(2 * np.pi * t, S - C, truth, Bore((0.0, 0.0), R)) + rng.normal(0, 0.001, (1000, 3))
+    v = tri_spindle_readings(2 * np.pi * t, S - C, truth, Bore((0.0, 0.0), R)) + rng.normal(
+        0, 0.001, (1000, 3)
+    )
     am = angle_model_from_arrays(rpm_nominal=60.0, direction="ccw")
 
     def fit(Rm, vv, Sm, Cm):
-        return fit_full_calibration([t], [vv], truth.channels, truth, Rm, [Sm], center_xy_mm=[Cm], angle_models=[am],
-                                    scan_ids=["A"])
+        return fit_full_calibration(
+            [t], [vv], truth.channels, truth, Rm, [Sm], center_xy_mm=[Cm], angle_models=[am], scan_ids=["A"]
+        )
 
     cal = fit(R, v, S, C)
     sens = full_lsq_sensitivities(cal, [t], [v], R, [am], spindle_xy_mm=[S], center_xy_mm=[C])
     dRdD, dRdT = 0.5 * (1 + cte * (T - 20)), 0.5 * D20 * cte
-    typeB = (np.outer(sens["dR"], sens["dR"]) * (dRdD**2 * 0.00075**2 + dRdT**2 * aT**2 / 3)
-             + sum(np.outer(s_, s_) for s_ in sens["offset_prior"]["A"].T) * (a_pos**2 * 2 / 3)
-             + sens["reading_offset"] @ sens["reading_offset"].T * a_lin**2 / 3)
+    typeB = (
+        np.outer(sens["dR"], sens["dR"]) * (dRdD**2 * 0.00075**2 + dRdT**2 * aT**2 / 3)
+        + sum(np.outer(s_, s_) for s_ in sens["offset_prior"]["A"].T) * (a_pos**2 * 2 / 3)
+        + sens["reading_offset"] @ sens["reading_offset"].T * a_lin**2 / 3
+    )
     draws = []
     for _ in range(150):
         Dg = D20 + 0.00075 * rng.standard_normal()

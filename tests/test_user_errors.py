@@ -22,14 +22,26 @@ def _run(capsys, *argv: str) -> tuple[int, str, str]:
     return code, out.out, out.err
 
 
-@pytest.mark.parametrize("text, message", [
-    ("calibration:\n  validity_days: abc\n", r"calibration\.validity_days: 'abc' is not allowed \(type 'integer'\)"),
-    ("calibration:\n  validity_days: -3\n", r"calibration\.validity_days: -3 is not allowed \(minimum 1\)"),
-    ("calibraton:\n  validity_days: 3\n", r"calibraton: unknown key \(known here: artifacts, calibration, "),
-    ("signal:\n  filtr: median\n", r"signal\.filtr: unknown key \(known here: extrema_on, filter, "),
-    ("a: [\n", r"not YAML"),
-    ("- 1\n", r"a config is a mapping of keys, got list"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (
+            "calibration:\n  validity_days: abc\n",
+            r"calibration\.validity_days: 'abc' is not allowed \(type 'integer'\)",
+        ),
+        (
+            "calibration:\n  validity_days: -3\n",
+            r"calibration\.validity_days: -3 is not allowed \(minimum 1\)",
+        ),
+        (
+            "calibraton:\n  validity_days: 3\n",
+            r"calibraton: unknown key \(known here: artifacts, calibration, ",
+        ),
+        ("signal:\n  filtr: median\n", r"signal\.filtr: unknown key \(known here: extrema_on, filter, "),
+        ("a: [\n", r"not YAML"),
+        ("- 1\n", r"a config is a mapping of keys, got list"),
+    ],
+)
 def test_a_bad_config_is_one_line_naming_the_key(tmp_path, capsys, text, message):
     import re
 
@@ -73,7 +85,9 @@ def test_sql_reads_the_catalog_and_nothing_else(built, tmp_path, capsys):  # noq
     folder.mkdir()
     outside = folder / "outside.csv"
     outside.write_text("secret,value\nkey,42\n")
-    code, out, _ = _run(capsys, "sql", "--results", str(res), "--format", "csv", "SELECT count(*) AS n FROM scans")
+    code, out, _ = _run(
+        capsys, "sql", "--results", str(res), "--format", "csv", "SELECT count(*) AS n FROM scans"
+    )
     assert (code, out) == (0, "n\n11\n")
     refused = {
         "COPY": f"COPY scans TO '{folder / 'scans.csv'}'",
@@ -93,5 +107,7 @@ def test_sql_reads_the_catalog_and_nothing_else(built, tmp_path, capsys):  # noq
         assert "42" not in err and "secret" not in err, what
     assert sorted(p.name for p in folder.iterdir()) == ["outside.csv"]  # nothing written
     # the saved queries (views over the catalog) still run: PART-7 was measured with CAL-A, which failed later
-    code, out, _ = _run(capsys, "sql", "--results", str(res), "--query", "suspect_measurements", "--format", "csv")
+    code, out, _ = _run(
+        capsys, "sql", "--results", str(res), "--query", "suspect_measurements", "--format", "csv"
+    )
     assert code == 0 and "PART-7" in out

@@ -47,13 +47,21 @@ def _issue_cases(raw: Path, truth: Path, night: str) -> list[BadCase]:
     cases = []
 
     def tri(scan_id: str, rate_hz: float) -> Path:
-        sim = simulate.simulate_tri_spindle(simulate.default_tri_scene(sample_rate_hz=rate_hz), n_rev=3,
-                                            scan_id=scan_id, night=night, kind="measurement", seed=5)
+        sim = simulate.simulate_tri_spindle(
+            simulate.default_tri_scene(sample_rate_hz=rate_hz),
+            n_rev=3,
+            scan_id=scan_id,
+            night=night,
+            kind="measurement",
+            seed=5,
+        )
         return simulate.write_simulated(sim, raw, truth)
 
     # a 1 kHz logger whose export says 625 Hz
     _edit_meta(tri("ISSUE-1KHZ-AS-625", 1000.0), sample_rate_hz=625.0)
-    cases.append(BadCase("ISSUE-1KHZ-AS-625", "lds.parquet", r"sample clock runs at 1000 Hz .*sample_rate_hz 625 Hz"))
+    cases.append(
+        BadCase("ISSUE-1KHZ-AS-625", "lds.parquet", r"sample clock runs at 1000 Hz .*sample_rate_hz 625 Hz")
+    )
     # 2 % off the declared rate: refused; 0.5 % off (within RATE_TOLERANCE = 1 %): accepted
     _edit_meta(tri("RATE-2PCT-OFF", 660.0), sample_rate_hz=660.0 * 1.02)
     cases.append(BadCase("RATE-2PCT-OFF", "lds.parquet", r"sample clock runs at 660 Hz"))
@@ -116,7 +124,9 @@ def test_validate_and_ingest_give_the_same_verdict_on_every_case(tree, capsys):
     # the same scans, for the same first reason (ingest's quarantine reason is validate's first line);
     # validate also names what a later stage will set aside
     assert set(quarantined) <= set(first)
-    assert all(p.startswith("will be quarantined at ") for sid, (_, p) in first.items() if sid not in quarantined)
+    assert all(
+        p.startswith("will be quarantined at ") for sid, (_, p) in first.items() if sid not in quarantined
+    )
     for sid, (stage, file, reason) in quarantined.items():
         assert stage == "ingest"
         assert first[sid] == (file, reason), sid
@@ -144,8 +154,10 @@ def test_validate_names_the_earlier_night_of_a_reused_scan_id(tree, capsys):
     _, first, _ = _validate_cli(raw, capsys)
     reused = [sid for sid, (f, p) in first.items() if "already used" in p]
     assert len(reused) == 1 and (raw / "night=2026-11-20" / f"scan={reused[0]}").is_dir()
-    assert first[reused[0]] == ("scan.json",
-                                "scan_id already used by a scan of night=2026-11-20 (scan ids are unique across nights)")
+    assert first[reused[0]] == (
+        "scan.json",
+        "scan_id already used by a scan of night=2026-11-20 (scan ids are unique across nights)",
+    )
 
 
 def test_rate_mismatch_closed_form():
@@ -164,7 +176,9 @@ def test_rate_mismatch_closed_form():
     t = k / 660.0
     t[600:] += 0.5
     assert validation.rate_mismatch(k, t, 660.0) is None
-    assert rawio.clock_jump(k, t, 660.0).startswith("clock jump: t_ns advances 0.501515 s between samples 599 and 600")
+    assert rawio.clock_jump(k, t, 660.0).startswith(
+        "clock jump: t_ns advances 0.501515 s between samples 599 and 600"
+    )
 
 
 def test_validate_reports_what_the_pipeline_would_skip(tmp_path, capsys):
@@ -191,12 +205,15 @@ def _small_good_tree(root: Path) -> Path:
     # measurements: a 5-turn calibration scan has 4 whole revolutions, which validate now says
     # the calibrate stage will refuse (issue 37)
     for sid, night, seed in (("T1", "2026-11-20", 1), ("T2", "2026-11-21", 2)):
-        sim = simulate.simulate_tri_spindle(sc, n_rev=5, scan_id=sid, night=night, kind="measurement", seed=seed)
+        sim = simulate.simulate_tri_spindle(
+            sc, n_rev=5, scan_id=sid, night=night, kind="measurement", seed=seed
+        )
         simulate.write_simulated(sim, raw, truth)
     simulate.write_simulated(simulate.simulate_rod(None, scan_id="R1", seed=3), raw, truth)
     xy = np.array([[0.3, -0.2], [-0.4, 0.1], [0.1, 0.5]])
-    static = simulate.simulate_tri_static(simulate.default_tri_scene(bore_center_xy_mm=(0.0, 0.0)), xy,
-                                          [0.1, 1.0, 2.0], scan_id="S1", seed=4)
+    static = simulate.simulate_tri_static(
+        simulate.default_tri_scene(bore_center_xy_mm=(0.0, 0.0)), xy, [0.1, 1.0, 2.0], scan_id="S1", seed=4
+    )
     simulate.write_simulated(static, raw, truth)
     return raw
 

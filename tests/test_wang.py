@@ -29,8 +29,14 @@ def test_eq7_bound_and_forward_model():
     assert np.max(np.abs(eq7_manufacturing_error_um(l))) < 1.5
     assert eq7_manufacturing_error_um(40.0) == pytest.approx(1.6019, abs=1e-4)
     assert np.allclose(eq7_manufacturing_error_um(l), (d**2 / (2 * l) - l * g**2 / 2) * 1e3, atol=1e-3)
-    assert np.allclose(eq7_simulated_error_um(np.array([75.0, 80.0])), -eq7_manufacturing_error_um(np.array([75.0, 80.0])), atol=1e-3)
-    assert eq7_manufacturing_error_um(10.0) > 12.0  # the bound needs l ~ r large: d^2/(2l) grows for short beams
+    assert np.allclose(
+        eq7_simulated_error_um(np.array([75.0, 80.0])),
+        -eq7_manufacturing_error_um(np.array([75.0, 80.0])),
+        atol=1e-3,
+    )
+    assert (
+        eq7_manufacturing_error_um(10.0) > 12.0
+    )  # the bound needs l ~ r large: d^2/(2l) grows for short beams
 
 
 def test_fig9_zero_installation_error_and_tilt_closed_form():

@@ -34,8 +34,12 @@ def test_the_backup_of_a_relative_results_folder_is_found(tmp_path, monkeypatch)
     backup = tmp_path / ".snakemake" / "backups" / "results" / "report"
     backup.mkdir(parents=True)
     (backup / "index.html").write_text("before the job")
-    assert restore_stale_backups(".snakemake", ["results/report"], log=lambda _m: None) == [Path("results/report")]
-    assert (tmp_path / "results" / "report" / "index.html").read_text() == "before the job" and not backup.exists()
+    assert restore_stale_backups(".snakemake", ["results/report"], log=lambda _m: None) == [
+        Path("results/report")
+    ]
+    assert (
+        tmp_path / "results" / "report" / "index.html"
+    ).read_text() == "before the job" and not backup.exists()
 
 
 def test_idle_timers_are_cancelled_so_the_run_exits_at_once():
@@ -78,13 +82,17 @@ def test_locks_of_a_killed_run_are_released_and_a_live_run_keeps_its_own(tmp_pat
     mine, theirs = locks / "0.input.lock", locks / "1.output.lock"
     mine.write_text("a\n"), theirs.write_text("b\n")
     record_lock_owner(tmp_path / ".snakemake", [mine])  # this (live) process
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
     pid = int(dead.stdout)  # finished: no such process any more
     owner = json.loads((locks / f"borescan-owner-{os.getpid()}.json").read_text())
     (locks / f"borescan-owner-{pid}.json").write_text(json.dumps(dict(owner, pid=pid, locks=[str(theirs)])))
     assert release_stale_locks(tmp_path / ".snakemake") == [pid]
     assert mine.is_file() and not theirs.exists()
     assert release_stale_locks(tmp_path / ".snakemake") == []
+
+
 def test_a_run_log_is_quiet_and_readable(tmp_path):
     """Issue 37 item 8: the default profile prints the rules' messages, not "Shell command: None" (the
     rules run scripts) nor "reason:" lines listing every input of a night job; a mistyped config key

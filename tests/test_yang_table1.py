@@ -27,7 +27,9 @@ def test_transcription():
     assert [r["d_min_mm"] for r in rows] == [2.4067, 2.2804, 1.073]
     assert [r["r_mm"] for r in rows] == [5.5484, 2.5295, 1.5262]
     assert [r["d_b_mm"] for r in rows] == [132.6718, 132.8883, 134.1108]
-    assert rows[2]["half_lsb_d_min_mm"] == pytest.approx(5e-4) and rows[0]["half_lsb_d_min_mm"] == pytest.approx(5e-5)
+    assert rows[2]["half_lsb_d_min_mm"] == pytest.approx(5e-4) and rows[0][
+        "half_lsb_d_min_mm"
+    ] == pytest.approx(5e-5)
 
 
 def test_table1_within_rounding_bounds_with_printed_oe(rep):
@@ -58,7 +60,8 @@ def test_computed_oe_breaks_r(rep):
     assert np.isnan(r2["r_oe_computed_mm"]) and np.isnan(r3["r_oe_computed_mm"])
     for row in rep["rows"]:
         assert row["diff_d_b_oe_computed_um"] - row["diff_d_b_oe_printed_um"] == pytest.approx(
-            row["dd_b_doe"] * 1.0055, rel=1e-3)
+            row["dd_b_doe"] * 1.0055, rel=1e-3
+        )
     # the printed coordinates themselves (1 um digits) allow oe anywhere in about [2.32215, 2.32426]
     lo, hi = rep["oe_computed_range_mm"]
     assert lo < rep["oe_printed_mm"] < hi
@@ -66,7 +69,9 @@ def test_computed_oe_breaks_r(rep):
 
 def test_r_sensitivity_and_rounding_spread(rep):
     r1, r2, r3 = rep["rows"]
-    assert r1["dr_dd_min"] == pytest.approx(-730.5, abs=0.1) and r3["dr_dd_min"] == pytest.approx(-2604.3, abs=0.1)
+    assert r1["dr_dd_min"] == pytest.approx(-730.5, abs=0.1) and r3["dr_dd_min"] == pytest.approx(
+        -2604.3, abs=0.1
+    )
     assert r1["dr_doe"] == pytest.approx(-1462.2, abs=0.1) and r3["dr_doe"] == pytest.approx(-5208.8, abs=0.1)
     assert abs(r1["dr_dR"]) < 0.05
     # sensor 3: rounding alone leaves r anywhere from ~0.4 to ~2.6 mm, 1 in 5 draws have no real r

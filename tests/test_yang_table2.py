@@ -26,7 +26,10 @@ def test_transcription_is_complete_and_marks_the_gaps():
     blanks = [(ch, k) for ch in (1, 2, 3) for k, v in t[ch]["diff"].items() if v is None]
     assert blanks == [(1, ("max", 18)), (2, ("max", 18)), (3, ("max", 18))]
     assert {ch: (t[ch]["mean"]["min"], t[ch]["mean"]["max"]) for ch in (1, 2, 3)} == {
-        1: (328, 332), 2: (329, 331), 3: (331, 329)}
+        1: (328, 332),
+        2: (329, 331),
+        3: (331, 329),
+    }
     with open(TABLE2_CSV) as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == 3 * 2 * 18 + 6

@@ -96,22 +96,35 @@ def scan_temperature(meta: dict, unc_cfg: dict) -> ScanTemperature:
     """
     policy = unc_cfg["missing_temperature"]
     if policy not in MISSING_TEMPERATURE:
-        raise ValueError(f"uncertainty.missing_temperature must be one of {MISSING_TEMPERATURE}, got {policy!r}")
+        raise ValueError(
+            f"uncertainty.missing_temperature must be one of {MISSING_TEMPERATURE}, got {policy!r}"
+        )
     value = (meta.get("environment") or {}).get("temperature_c")
     if value is not None:
         a = float(unc_cfg["temperature_accuracy_c"])
-        return ScanTemperature(float(value), a, a / math.sqrt(3.0), False,
-                               f"scan.json environment.temperature_c; thermometer within +-{a:g} K "
-                               "(uncertainty.temperature_accuracy_c, rectangular)")
+        return ScanTemperature(
+            float(value),
+            a,
+            a / math.sqrt(3.0),
+            False,
+            f"scan.json environment.temperature_c; thermometer within +-{a:g} K "
+            "(uncertainty.temperature_accuracy_c, rectangular)",
+        )
     if policy == "refuse":
         raise MissingTemperature(
             f"{meta.get('scan_id', '<scan>')}: scan.json has no environment.temperature_c and "
             "uncertainty.missing_temperature is 'refuse' (set it to 'assume_20c' to accept such scans "
-            "with the assumed temperature's uncertainty)")
+            "with the assumed temperature's uncertainty)"
+        )
     a = float(unc_cfg["assumed_temperature_accuracy_c"])
-    return ScanTemperature(REFERENCE_TEMPERATURE_C, a, a / math.sqrt(3.0), True,
-                           f"ASSUMED 20 degC: scan.json has no environment.temperature_c; taken within +-{a:g} K "
-                           "(uncertainty.assumed_temperature_accuracy_c, rectangular)")
+    return ScanTemperature(
+        REFERENCE_TEMPERATURE_C,
+        a,
+        a / math.sqrt(3.0),
+        True,
+        f"ASSUMED 20 degC: scan.json has no environment.temperature_c; taken within +-{a:g} K "
+        "(uncertainty.assumed_temperature_accuracy_c, rectangular)",
+    )
 
 
 def artifact_cte(meta: dict, unc_cfg: dict) -> ArtifactCte:
@@ -124,13 +137,23 @@ def artifact_cte(meta: dict, unc_cfg: dict) -> ArtifactCte:
     art = meta.get("artifact") or {}
     if art.get("cte_per_k") is not None:
         a = float(unc_cfg["cte_accuracy_per_k"])
-        return ArtifactCte(float(art["cte_per_k"]), a, a / math.sqrt(3.0), False,
-                           f"scan.json artifact.cte_per_k, within +-{a:g} /K (uncertainty.cte_accuracy_per_k)")
+        return ArtifactCte(
+            float(art["cte_per_k"]),
+            a,
+            a / math.sqrt(3.0),
+            False,
+            f"scan.json artifact.cte_per_k, within +-{a:g} /K (uncertainty.cte_accuracy_per_k)",
+        )
     a = float(unc_cfg["assumed_cte_accuracy_per_k"])
     v = float(unc_cfg["assumed_cte_per_k"])
-    return ArtifactCte(v, a, a / math.sqrt(3.0), True,
-                       f"ASSUMED {v:g} /K within +-{a:g} /K: scan.json artifact has no cte_per_k "
-                       "(uncertainty.assumed_cte_per_k, assumed_cte_accuracy_per_k)")
+    return ArtifactCte(
+        v,
+        a,
+        a / math.sqrt(3.0),
+        True,
+        f"ASSUMED {v:g} /K within +-{a:g} /K: scan.json artifact has no cte_per_k "
+        "(uncertainty.assumed_cte_per_k, assumed_cte_accuracy_per_k)",
+    )
 
 
 def artifact_key(art: dict | None) -> str:
@@ -157,7 +180,9 @@ def radius_at_temperature_mm(radius_20_mm: float, cte_per_k: float, temperature_
     float : the radius [mm], from the ``thermal_expansion`` effect's forward function.
     """
     expand = EFFECTS["thermal_expansion"].forward["tri_lds"]
-    bore = expand(Bore((0.0, 0.0), float(radius_20_mm)), {"temperature_c": float(temperature_c)}, float(cte_per_k))
+    bore = expand(
+        Bore((0.0, 0.0), float(radius_20_mm)), {"temperature_c": float(temperature_c)}, float(cte_per_k)
+    )
     return bore.radius_mm
 
 
@@ -187,7 +212,9 @@ def gauge_radius_mm(meta: dict, temperature_c: float | None = None, cte_per_k: f
     return radius_at_temperature_mm(0.5 * float(d20), float(cte_per_k or 0.0), float(temperature_c))
 
 
-def diameter_at_20(diameter_mm: float, cte_per_k: float, temperature_c: float) -> tuple[float, float, float, float]:
+def diameter_at_20(
+    diameter_mm: float, cte_per_k: float, temperature_c: float
+) -> tuple[float, float, float, float]:
     """Return a diameter measured at ``temperature_c`` brought to 20 degC, with its first derivatives.
 
     D20 = D_T / (1 + alpha (T - 20)) (the inverse of :func:`radius_at_temperature_mm`).
@@ -207,9 +234,16 @@ def artifact_row(meta: dict) -> dict | None:
     art = meta.get("artifact") or {}
     if not art.get("id"):
         return None
-    return {"artifact_id": art["id"], "type": art.get("type"), "certificate": art.get("certificate"),
-            "nominal_diameter_mm": art.get("nominal_diameter_mm"), "certified_diameter_mm": art.get("certified_diameter_mm"),
-            "u_diameter_mm": art.get("u_diameter_mm"), "k": art.get("k"), "cte_per_k": art.get("cte_per_k")}
+    return {
+        "artifact_id": art["id"],
+        "type": art.get("type"),
+        "certificate": art.get("certificate"),
+        "nominal_diameter_mm": art.get("nominal_diameter_mm"),
+        "certified_diameter_mm": art.get("certified_diameter_mm"),
+        "u_diameter_mm": art.get("u_diameter_mm"),
+        "k": art.get("k"),
+        "cte_per_k": art.get("cte_per_k"),
+    }
 
 
 def number_or_none(v) -> float | None:
@@ -231,14 +265,19 @@ def certificate_fields(meta: dict) -> dict:
     """
     art = meta.get("artifact") if isinstance(meta.get("artifact"), dict) else {}
     cert = art.get("certificate")
-    feats = {str(f.get("id")): number_or_none(f.get("certified_diameter_mm"))
-             for f in (art.get("features") or []) if isinstance(f, dict) and f.get("id") is not None}
+    feats = {
+        str(f.get("id")): number_or_none(f.get("certified_diameter_mm"))
+        for f in (art.get("features") or [])
+        if isinstance(f, dict) and f.get("id") is not None
+    }
     feats = {k: v for k, v in sorted(feats.items()) if v is not None}
-    return {"artifact_certificate": None if cert is None else str(cert),
-            "artifact_certified_diameter_mm": number_or_none(art.get("certified_diameter_mm")),
-            "artifact_u_diameter_mm": number_or_none(art.get("u_diameter_mm")),
-            # a gauge set (a rod's rings): each feature's certified diameter, {feature: D20} as JSON
-            "artifact_features_certified": json.dumps(feats, sort_keys=True) if feats else None}
+    return {
+        "artifact_certificate": None if cert is None else str(cert),
+        "artifact_certified_diameter_mm": number_or_none(art.get("certified_diameter_mm")),
+        "artifact_u_diameter_mm": number_or_none(art.get("u_diameter_mm")),
+        # a gauge set (a rod's rings): each feature's certified diameter, {feature: D20} as JSON
+        "artifact_features_certified": json.dumps(feats, sort_keys=True) if feats else None,
+    }
 
 
 #: Two certified values of one certificate that differ by more than this are a conflict [mm].
@@ -271,12 +310,18 @@ def certificate_conflicts(earlier: list[dict], tonight: list[dict]) -> dict[str,
     first: dict[tuple[str, str], dict] = {}
 
     def key(r):
-        if r.get("status") != "ok" or not r.get("artifact_id") or not r.get("artifact_certificate") \
-                or (r.get("artifact_certified_diameter_mm") is None and not r.get("artifact_features_certified")):
+        if (
+            r.get("status") != "ok"
+            or not r.get("artifact_id")
+            or not r.get("artifact_certificate")
+            or (r.get("artifact_certified_diameter_mm") is None and not r.get("artifact_features_certified"))
+        ):
             return None
         return str(r["artifact_id"]), str(r["artifact_certificate"])
 
-    for r in sorted(earlier, key=lambda r: (str(r.get("night")), str(r.get("started_at") or ""), str(r["scan_id"]))):
+    for r in sorted(
+        earlier, key=lambda r: (str(r.get("night")), str(r.get("started_at") or ""), str(r["scan_id"]))
+    ):
         k = key(r)
         if k is not None:
             first.setdefault(k, r)
@@ -288,19 +333,29 @@ def certificate_conflicts(earlier: list[dict], tonight: list[dict]) -> dict[str,
         f = first.setdefault(k, r)
         if f is r:
             continue
-        diffs = [f"{name} {r.get(col)!r} here, {f.get(col)!r} in scan {f['scan_id']} (night {f.get('night')})"
-                 for col, name in (("artifact_certified_diameter_mm", "certified_diameter_mm"),
-                                   ("artifact_u_diameter_mm", "u_diameter_mm"))
-                 if _differ(r.get(col), f.get(col))]
+        diffs = [
+            f"{name} {r.get(col)!r} here, {f.get(col)!r} in scan {f['scan_id']} (night {f.get('night')})"
+            for col, name in (
+                ("artifact_certified_diameter_mm", "certified_diameter_mm"),
+                ("artifact_u_diameter_mm", "u_diameter_mm"),
+            )
+            if _differ(r.get(col), f.get(col))
+        ]
         mine, theirs = _features(r), _features(f)
-        diffs += [f"feature {feat} certified_diameter_mm {mine[feat]!r} here, {theirs[feat]!r} in scan "
-                  f"{f['scan_id']} "
-                  f"(night {f.get('night')})" for feat in sorted(set(mine) & set(theirs))
-                  if _differ(mine[feat], theirs[feat])]
+        diffs += [
+            f"feature {feat} certified_diameter_mm {mine[feat]!r} here, {theirs[feat]!r} in scan "
+            f"{f['scan_id']} "
+            f"(night {f.get('night')})"
+            for feat in sorted(set(mine) & set(theirs))
+            if _differ(mine[feat], theirs[feat])
+        ]
         if diffs:
-            out[str(r["scan_id"])] = (f"artifact {k[0]}, certificate {k[1]}: " + "; ".join(diffs)
-                                      + ". One certificate states one value: a recertified gauge needs its new "
-                                      "certificate id in scan.json; correct the scan under a new scan id")
+            out[str(r["scan_id"])] = (
+                f"artifact {k[0]}, certificate {k[1]}: "
+                + "; ".join(diffs)
+                + ". One certificate states one value: a recertified gauge needs its new "
+                "certificate id in scan.json; correct the scan under a new scan id"
+            )
     return out
 
 

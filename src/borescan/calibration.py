@@ -49,11 +49,24 @@ import numpy as np
 from borescan.atomic import json_ready
 from borescan.config import schema_default
 from borescan.fit import FitResult, fit_result, jacobian_summary
-from borescan.geometry import Beams, Bore, beam_frame, tri_spindle_readings, tri_spindle_readings_channel_major
+from borescan.geometry import (
+    Beams,
+    Bore,
+    beam_frame,
+    tri_spindle_readings,
+    tri_spindle_readings_channel_major,
+)
 from borescan.kinematics import AngleModel, angle_model_from_arrays, estimate_speed_scale
 from borescan.levmar import levenberg_marquardt
-from borescan.mirror import (RESOLVED_DCHI2, BeamMirror, MirrorSolution, mirror_exists, offset_to_resolve_mm,
-                             predicted_depth, valid_bore_radius_range_mm)
+from borescan.mirror import (
+    RESOLVED_DCHI2,
+    BeamMirror,
+    MirrorSolution,
+    mirror_exists,
+    offset_to_resolve_mm,
+    predicted_depth,
+    valid_bore_radius_range_mm,
+)
 from borescan.noise import noise_floor_mm
 from borescan.physics.tri import first_harmonic_start
 
@@ -450,8 +463,16 @@ def yang_calibration(
         oe, R = x[3 * c], x[3 * c + 1]
         d_b, r = yang_d_b_r(dmx, dmn, R, oe)
         b = yang_to_beams(
-            channels, r, d_b, statuses, fs, samples_per_rev, R - oe,
-            beta_ref_rad=beta_ref_rad, beta_nominal_rad=beta_nominal_rad, direction=direction,
+            channels,
+            r,
+            d_b,
+            statuses,
+            fs,
+            samples_per_rev,
+            R - oe,
+            beta_ref_rad=beta_ref_rad,
+            beta_nominal_rad=beta_nominal_rad,
+            direction=direction,
         )
         return np.stack([b.beta_rad, b.rho_mm, b.d_b_mm], axis=1).ravel()
 
@@ -478,8 +499,16 @@ def yang_calibration(
     J[np.abs(J) < 1e-300] = 0.0
     cov = (J * u_x**2) @ J.T
     beams = yang_to_beams(
-        channels, np.abs(p0[1::3]), p0[2::3], statuses, nf, samples_per_rev, R_mm - oe_mm,
-        beta_ref_rad=beta_ref_rad, beta_nominal_rad=beta_nominal_rad, direction=direction,
+        channels,
+        np.abs(p0[1::3]),
+        p0[2::3],
+        statuses,
+        nf,
+        samples_per_rev,
+        R_mm - oe_mm,
+        beta_ref_rad=beta_ref_rad,
+        beta_nominal_rad=beta_nominal_rad,
+        direction=direction,
     )
     return TriCalibration(
         calibration_id=make_calibration_id(device_id, scan_ids, "yang2017", night),
@@ -598,10 +627,12 @@ class AcceptanceRule:
     @classmethod
     def from_config(cls, cal_cfg: Mapping[str, Any]) -> "AcceptanceRule":
         """Return the rule of a config's ``calibration`` section."""
-        return cls(max_residual_to_noise=float(cal_cfg["max_residual_to_noise"]),
-                   head_radius_mm=float(cal_cfg["head_radius_mm"]),
-                   position_accuracy_mm=float(cal_cfg["position_accuracy_mm"]),
-                   speed_scale_range=(float(cal_cfg["speed_scale_min"]), float(cal_cfg["speed_scale_max"])))
+        return cls(
+            max_residual_to_noise=float(cal_cfg["max_residual_to_noise"]),
+            head_radius_mm=float(cal_cfg["head_radius_mm"]),
+            position_accuracy_mm=float(cal_cfg["position_accuracy_mm"]),
+            speed_scale_range=(float(cal_cfg["speed_scale_min"]), float(cal_cfg["speed_scale_max"])),
+        )
 
     @classmethod
     def defaults(cls, **overrides: Any) -> "AcceptanceRule":
@@ -747,8 +778,10 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
     Phis = [am.commanded_rad(t) for am, t in zip(angle_models, ts)]
     tau_c = _channel_offsets(channel_time_offsets_s, c)
     # the angle each reading belongs to: (n, 1) for every channel, (n, c) with carried channel delays
-    Phis_c = [P[:, None] if tau_c is None else am.commanded_rad(t[:, None] - tau_c[None, :])
-              for P, am, t in zip(Phis, angle_models, ts)]
+    Phis_c = [
+        P[:, None] if tau_c is None else am.commanded_rad(t[:, None] - tau_c[None, :])
+        for P, am, t in zip(Phis, angle_models, ts)
+    ]
     commanded = [am.fits_speed_and_phase for am in angle_models]
     free_phase = [commanded[k] and priors[k] is not None for k in range(K)]
     absolute = any(am.source == "encoder" and priors[k] is not None for k, am in enumerate(angle_models))
@@ -813,8 +846,11 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
             col += 1
         nuis_cols.append(d)
     p_free = col
-    internal_names = ([f"psi_{ch}_rad" for j, ch in enumerate(channels) if j > 0 or ch0_free]
-                      + [f"rho_{ch}_mm" for ch in channels] + [f"g_{ch}_mm" for ch in channels])
+    internal_names = (
+        [f"psi_{ch}_rad" for j, ch in enumerate(channels) if j > 0 or ch0_free]
+        + [f"rho_{ch}_mm" for ch in channels]
+        + [f"g_{ch}_mm" for ch in channels]
+    )
     for k in range(K):
         internal_names += [f"{scan_ids[k]}.{name}" for name in nuis_cols[k]]
     n_prior = 2 * sum(p is not None for p in priors)
@@ -841,9 +877,13 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         nuis = []
         for k in range(K):
             cols = nuis_cols[k]
-            nuis.append((np.array([x[cols["ox"]], x[cols["oy"]]]),
-                         x[cols["phase"]] if "phase" in cols else phase_start[k],
-                         x[cols["scale"]] if "scale" in cols else 1.0))
+            nuis.append(
+                (
+                    np.array([x[cols["ox"]], x[cols["oy"]]]),
+                    x[cols["phase"]] if "phase" in cols else phase_start[k],
+                    x[cols["scale"]] if "scale" in cols else 1.0,
+                )
+            )
         return beams, nuis
 
     def pack(beams: Beams, nuis) -> np.ndarray:
@@ -873,7 +913,8 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         return out
 
     def model(  # noqa: C901 (part of the full_lsq fit, to be split into small functions)
-            x: np.ndarray, with_jac: bool, full: bool = False, rows: list | None = None):
+        x: np.ndarray, with_jac: bool, full: bool = False, rows: list | None = None
+    ):
         beams, nuis = unpack(x)
         rho = beams.rho_mm
         dbeta_drho = -1.0 / np.sqrt(np.maximum(R_mm**2 - rho**2, 1e-300))
@@ -942,6 +983,7 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
     d_b0 = np.sqrt(np.maximum(R_mm**2 - nominal.rho_mm**2, 0.0)) - kconst
     start_beams = Beams(channels, nominal.beta_rad.copy(), nominal.rho_mm.copy(), d_b0)
     x0 = pack(start_beams, [(offsets0[k], phase_start[k], scales0[k]) for k in range(K)])
+
     def solve(x_start: np.ndarray, rows=None, nfev: int = max_nfev):
         return levenberg_marquardt(
             lambda x: model(x, False, rows=rows),
@@ -964,9 +1006,16 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
             return x
 
         with np.errstate(all="ignore"):
-            res = levenberg_marquardt(lambda z: model(full(z), False), base[keep],
-                                      lambda z: model(full(z), True)[1].T[keep].T,
-                                      max_nfev=nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10, jac_at_solution=False)
+            res = levenberg_marquardt(
+                lambda z: model(full(z), False),
+                base[keep],
+                lambda z: model(full(z), True)[1].T[keep].T,
+                max_nfev=nfev,
+                xtol=1e-10,
+                ftol=1e-10,
+                gtol=1e-10,
+                jac_at_solution=False,
+            )
         return full(res.x), float(res.cost), bool(res.success) and bool(np.isfinite(res.cost))
 
     # long scans: each mirror start is first fitted on every step-th sample of each scan (the cost's
@@ -1016,19 +1065,29 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
                 if bool(t_sub.success) and np.isfinite(t_sub.cost) and np.isfinite(k_sub.cost):
                     # the mirror's cost above the kept one, scaled to every sample, in chi^2 units
                     d_est = 2.0 * step * float(t_sub.cost - k_sub.cost) / s2_full
-                    u_sub = np.sqrt(np.diag(jacobian_summary(t_sub.jac).cov_unit)
-                                    * 2.0 * float(t_sub.cost) / max(n_obs // step + n_prior - p_free, 1))
+                    u_sub = np.sqrt(
+                        np.diag(jacobian_summary(t_sub.jac).cov_unit)
+                        * 2.0
+                        * float(t_sub.cost)
+                        / max(n_obs // step + n_prior - p_free, 1)
+                    )
                     same = bool(np.all(np.abs(t_sub.x - k_sub.x) <= 0.01 * u_sub))
                     rho_clear = abs(sol.x[i_rho0 + j]) > MIRROR_SCREEN_RHO_U * u_int[i_rho0 + j]
                     if d_est > MIRROR_SCREEN_DCHI2 or (same and rho_clear):
-                        entry = {"channel": int(channels[j]), "cost_kept": float(sol.cost),
-                                 "mirror_taken": False, "screened_every": int(step)}
+                        entry = {
+                            "channel": int(channels[j]),
+                            "cost_kept": float(sol.cost),
+                            "mirror_taken": False,
+                            "screened_every": int(step),
+                        }
                         if same:
                             entry.update(cost_mirror=float(sol.cost), screen="returned to the kept minimum")
                             alts.append(None)
                         else:  # its cost on every sample estimated from the screen's (d_est chi^2 above)
                             cost_est = float(sol.cost) + 0.5 * d_est * s2_full
-                            entry.update(cost_mirror=cost_est, screen=f"{d_est:.0f} s^2 above the kept minimum")
+                            entry.update(
+                                cost_mirror=cost_est, screen=f"{d_est:.0f} s^2 above the kept minimum"
+                            )
                             alts.append(_Screened(x=t_sub.x, cost=cost_est))
                         tried.append(entry)
                         continue
@@ -1037,8 +1096,14 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
                 # sit in a flat valley of a weak rho where LM on every sample crawls: 1000 evaluations seen)
             fine = bool(trial.success) and bool(np.isfinite(trial.cost))
             better = fine and trial.cost < sol.cost
-            tried.append({"channel": int(channels[j]), "cost_kept": float(sol.cost),
-                          "cost_mirror": float(trial.cost), "mirror_taken": better})
+            tried.append(
+                {
+                    "channel": int(channels[j]),
+                    "cost_kept": float(sol.cost),
+                    "cost_mirror": float(trial.cost),
+                    "mirror_taken": better,
+                }
+            )
             alts.append((sol if better else trial) if fine else None)
             if better:
                 sol = trial
@@ -1068,8 +1133,10 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
             if any(sum(v) for v in censored.values()):
                 n_obs = int(sum(m.sum() for m in masks))
                 if n_obs + n_prior <= p_free:
-                    raise CalibrationError(scan_ids, f"{n_obs} valid samples (away from the sensor range limits) "
-                                                     f"for {p_free} parameters")
+                    raise CalibrationError(
+                        scan_ids,
+                        f"{n_obs} valid samples (away from the sensor range limits) for {p_free} parameters",
+                    )
                 with np.errstate(all="ignore"):
                     sol = solve(sol.x)
             sol, mirrors_tried, alternatives = mirror_search(sol)
@@ -1081,8 +1148,9 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
                 raise CalibrationError(
                     scan_ids, f"full_lsq did not converge after {sol.nfev} evaluations ({sol.message})"
                 )
-            fit = fit_result(internal_names, sol.x, r, J, success=converged, message=str(sol.message),
-                             nfev=int(sol.nfev))
+            fit = fit_result(
+                internal_names, sol.x, r, J, success=converged, message=str(sol.message), nfev=int(sol.nfev)
+            )
             rank, cond = fit.rank, fit.condition
             if rank < p_free or cond > cond_max:
                 raise CalibrationError(
@@ -1101,8 +1169,19 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
             # skewed and curved (beta and the other rhos move non-linearly with it)
             profiles, lower = [], None
             for j in range(c):
-                prof, lower = _rho_profile(j, c, sol.x, float(sol.cost), s2, cov_int, cov_free, solve_fixed, public,
-                                           i_rho0 + j, rule.head_radius_mm)
+                prof, lower = _rho_profile(
+                    j,
+                    c,
+                    sol.x,
+                    float(sol.cost),
+                    s2,
+                    cov_int,
+                    cov_free,
+                    solve_fixed,
+                    public,
+                    i_rho0 + j,
+                    rule.head_radius_mm,
+                )
                 prof["channel"] = int(channels[j])
                 profiles.append(prof)
                 if lower is not None:
@@ -1144,9 +1223,24 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
     # ---- the mirror check of every beam (issue 36): Eq. (1) of borescan.mirror next to the explicit refit
     # from -rho; a flagged beam (a mirror within RESOLVED_DCHI2) is carried as two weighted solutions
     checks = _mirror_checks(
-        sol, s2, mirrors_tried, alternatives, cov_free, p_hat, rho_hat, nuis, masks, floors, channels, R_mm,
-        i_rho0=i_rho0, refit=lambda j: solve(mirror_start(sol.x, j)),
-        public=public, params_of=params_of, public_cov=lambda x, C: _public_cov(x, C, c, ch0_free, R_mm))
+        sol,
+        s2,
+        mirrors_tried,
+        alternatives,
+        cov_free,
+        p_hat,
+        rho_hat,
+        nuis,
+        masks,
+        floors,
+        channels,
+        R_mm,
+        i_rho0=i_rho0,
+        refit=lambda j: solve(mirror_start(sol.x, j)),
+        public=public,
+        params_of=params_of,
+        public_cov=lambda x, C: _public_cov(x, C, c, ch0_free, R_mm),
+    )
     flagged = {j for j, m in enumerate(checks) if not m.resolved}
     extra = np.zeros_like(cov_free)
     for j, prof in enumerate(profiles):
@@ -1154,11 +1248,16 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         P, wts = prof.pop("_points", (None, None))
         if M is None:
             continue
-        if j in flagged:  # a flagged beam's profile walks into its mirror's valley: the two solutions carry it
+        if (
+            j in flagged
+        ):  # a flagged beam's profile walks into its mirror's valley: the two solutions carry it
             prof["not_used"] = "the sign of this rho is not resolved: two solutions instead of one spread"
             continue
-        crossed = [int(channels[f]) for f in sorted(flagged)
-                   if np.any(np.sign(p_hat[i_rho0 + f] + P[:, i_rho0 + f]) != np.sign(p_hat[i_rho0 + f]))]
+        crossed = [
+            int(channels[f])
+            for f in sorted(flagged)
+            if np.any(np.sign(p_hat[i_rho0 + f] + P[:, i_rho0 + f]) != np.sign(p_hat[i_rho0 + f]))
+        ]
         if crossed:  # refitted along this rho, a flagged beam went over to its mirror: that is its two
             # solutions' spread, not this beam's own curvature
             prof["not_used"] = f"along this profile the flagged rho of channel(s) {crossed} changed sign"
@@ -1172,7 +1271,10 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         # what a quantity computed from the beams needs to map this spread by itself (a secant per
         # point, not the linear sensitivities): the points, their weights, the linear covariance's column
         # of this rho and the extra covariance this profile adds, all in the calibration's parameter order
-        prof["points"] = {"delta_params": params_of(P).tolist(), "weight": [float(x) for x in wts / wts.sum()]}
+        prof["points"] = {
+            "delta_params": params_of(P).tolist(),
+            "weight": [float(x) for x in wts / wts.sum()],
+        }
         prof["linear_cov_column"] = params_of(cov_free[:, i]).tolist()
         prof["extra_cov_params"] = params_of(params_of(E_psd).T).tolist()
     cov_free = cov_free + extra
@@ -1199,13 +1301,24 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         if any(np.max(np.abs(p_alt - q) / u_pub) < 0.1 for q in seen):
             continue
         seen.append(p_alt)
-        minima.append({"source": f"mirror start of channel {entry['channel']}",
-                       "rho_mm": [float(x) for x in p_alt[i_rho0 : i_rho0 + c]], "delta_ssr_over_s2": float(d_chi2),
-                       "_p": p_alt})
+        minima.append(
+            {
+                "source": f"mirror start of channel {entry['channel']}",
+                "rho_mm": [float(x) for x in p_alt[i_rho0 : i_rho0 + c]],
+                "delta_ssr_over_s2": float(d_chi2),
+                "_p": p_alt,
+            }
+        )
     for prof in profiles:
         for dip in prof.get("profile_minima", []):
-            minima.append({"source": f"profile of rho of channel {prof['channel']}", "rho_mm": dip["rho_mm"],
-                           "delta_ssr_over_s2": dip["delta_ssr_over_s2"], "_p": None})
+            minima.append(
+                {
+                    "source": f"profile of rho of channel {prof['channel']}",
+                    "rho_mm": dip["rho_mm"],
+                    "delta_ssr_over_s2": dip["delta_ssr_over_s2"],
+                    "_p": None,
+                }
+            )
     for m in minima:
         p_alt = m.pop("_p")
         if p_alt is None:
@@ -1215,8 +1328,10 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
         # channel that merely contains this minimum's value of its own rho says nothing about it)
         moved = [j for j in range(c) if abs(p_alt[i_rho0 + j] - p_hat[i_rho0 + j]) > 2.0 * u_pub[i_rho0 + j]]
         spanned = bool(moved) and all(
-            (not profiles[j]["linear"]) and profiles[j]["rho_range_mm"][0] <= p_alt[i_rho0 + j] <= profiles[j]["rho_range_mm"][1]
-            for j in moved)
+            (not profiles[j]["linear"])
+            and profiles[j]["rho_range_mm"][0] <= p_alt[i_rho0 + j] <= profiles[j]["rho_range_mm"][1]
+            for j in moved
+        )
         m["spanned_by_profile"] = bool(spanned)
         # not added to the covariance: a mirror within RESOLVED_DCHI2 is the flagged beam's second solution
         # (diagnostics["mirror_check"]), one further away weighs less than exp(-12.5)
@@ -1251,7 +1366,9 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
             "phase0_rad": float(ph),
             "phase_free": bool(free_phase[k]),
             "speed_scale": float(sc),
-            "u_speed_scale": float(np.sqrt(cov_free[cols["scale"], cols["scale"]])) if "scale" in cols else 0.0,
+            "u_speed_scale": float(np.sqrt(cov_free[cols["scale"], cols["scale"]]))
+            if "scale" in cols
+            else 0.0,
             "omega_rad_s": float(sc * am.mean_omega_rad_s()),
             "residual_rms_mm": float(np.sqrt(np.mean(r[bounds[k] : bounds[k + 1]] ** 2))),
             "noise_floor_mm": [float(f) for f in floors[k]],
@@ -1268,8 +1385,8 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
     ref = "absolute" if absolute else f"channel {channels[0]} fixed"
     gauge = (
         "beams absolute in the encoder frame: the scan's centre and spindle position fix the offset direction"
-        if absolute else
-        f"beta of channel {channels[0]} held at the design value {beta1_fixed!r} rad: a ring gauge "
+        if absolute
+        else f"beta of channel {channels[0]} held at the design value {beta1_fixed!r} rad: a ring gauge "
         "fixes only "
         "beta_c - beta_1, |offset| and beta_1 + phase - angle(offset) per scan, and no scan has both "
         "an encoder "
@@ -1354,11 +1471,13 @@ def fit_full_calibration(  # noqa: C901 (the 698-line full_lsq fit, to become a 
                 "k_sigma": CENSOR_GUARD_SIGMA,
                 "range_mm": [float(x) for x in range_arr],
                 "set_aside": censored,
-                "note": ("valid readings whose fitted value lies within k_sigma noise sigmas of a sensor "
-                         "range limit "
-                         "(0 or range_mm) or beyond it, per scan and channel: the sensor nulls a reading on "
-                         "its noisy "
-                         "value, so near a limit the valid ones are a truncated (biased) sample; not fitted"),
+                "note": (
+                    "valid readings whose fitted value lies within k_sigma noise sigmas of a sensor "
+                    "range limit "
+                    "(0 or range_mm) or beyond it, per scan and channel: the sensor nulls a reading on "
+                    "its noisy "
+                    "value, so near a limit the valid ones are a truncated (biased) sample; not fitted"
+                ),
             },
         },
     )
@@ -1380,8 +1499,26 @@ def _public_cov(x: np.ndarray, cov_int: np.ndarray, c: int, ch0_free: int, R_mm:
     return A @ cov_int @ A.T
 
 
-def _mirror_checks(sol, s2, tried, alternatives, cov_free, p_hat, rho_hat, nuis, masks, floors, channels, R_mm, *,
-                   i_rho0, refit, public, params_of, public_cov) -> list[BeamMirror]:
+def _mirror_checks(
+    sol,
+    s2,
+    tried,
+    alternatives,
+    cov_free,
+    p_hat,
+    rho_hat,
+    nuis,
+    masks,
+    floors,
+    channels,
+    R_mm,
+    *,
+    i_rho0,
+    refit,
+    public,
+    params_of,
+    public_cov,
+) -> list[BeamMirror]:
     """One :class:`borescan.mirror.BeamMirror` per channel (:func:`fit_full_calibration`).
 
     Every minimum of the mirror search (from any beam's start; delta chi^2 = 2 (cost - cost_kept) / s^2)
@@ -1418,19 +1555,34 @@ def _mirror_checks(sol, s2, tried, alternatives, cov_free, p_hat, rho_hat, nuis,
         sigma = float(np.sqrt(np.sum(n_k * sig_k**2) / max(n_k.sum(), 1)))
         x_fix = offset_to_resolve_mm(R_mm, sigma, float(n_k.sum()), rho)
         d_chi2, cand = best.get(j, (None, None))
-        common = dict(channel=int(ch), rho_mm=rho, offset_mm=float(np.max(e_k)),
-                      mirror_possible=mirror_exists(rho, e_k), predicted_delta_chi2=pred, offset_to_resolve_mm=x_fix)
+        common = dict(
+            channel=int(ch),
+            rho_mm=rho,
+            offset_mm=float(np.max(e_k)),
+            mirror_possible=mirror_exists(rho, e_k),
+            predicted_delta_chi2=pred,
+            offset_to_resolve_mm=x_fix,
+        )
         if d_chi2 is not None and d_chi2 < RESOLVED_DCHI2:
             with np.errstate(all="ignore"):
                 trial = refit(j)
-            ok = bool(trial.success) and np.isfinite(trial.cost) and np.sign(public(trial.x)[i_rho0 + j]) != np.sign(rho)
+            ok = (
+                bool(trial.success)
+                and np.isfinite(trial.cost)
+                and np.sign(public(trial.x)[i_rho0 + j]) != np.sign(rho)
+            )
             if not ok or (hasattr(cand, "jac") and cand.cost < trial.cost):
                 trial = cand  # another start found this beam's other sign lower than its own refit
             p_alt = public(trial.x) if hasattr(trial, "jac") else None
             if p_alt is not None and np.sign(p_alt[i_rho0 + j]) != np.sign(rho):
                 d_chi2 = max(2.0 * (float(trial.cost) - float(sol.cost)) / s2, 0.0)
-                fr = fit_result([f"p{i}" for i in range(trial.x.size)], trial.x, np.asarray(trial.fun),
-                                np.asarray(trial.jac), success=True)
+                fr = fit_result(
+                    [f"p{i}" for i in range(trial.x.size)],
+                    trial.x,
+                    np.asarray(trial.fun),
+                    np.asarray(trial.jac),
+                    success=True,
+                )
                 cov_alt = params_of(params_of(public_cov(trial.x, fr.cov)).T)
                 w_alt = float(np.exp(-0.5 * d_chi2))
                 w_main = 1.0 / (1.0 + w_alt)
@@ -1439,15 +1591,28 @@ def _mirror_checks(sol, s2, tried, alternatives, cov_free, p_hat, rho_hat, nuis,
                 u_b = np.sqrt(np.clip(np.diag(params_of(params_of(cov_free).T))[0::3], 0.0, None))
                 u_beta = float(u_b[j]) if u_b[j] > 0 else float(np.min(u_b[u_b > 0], initial=np.inf))
                 lo, hi = valid_bore_radius_range_mm(R_mm, pm, pa, u_beta)
-                out.append(BeamMirror(
-                    **common, refit_delta_chi2=d_chi2, resolved=False, weight_main=w_main, p_wrong_sign=1.0 - w_main,
-                    alternative=MirrorSolution(tuple(float(v) for v in pa), tuple(tuple(float(v) for v in row)
-                                                                               for row in cov_alt),
-                                               d_chi2, 1.0 - w_main),
-                    rho_alt_mm=float(pa[3 * j + 1]), valid_bore_diameter_mm=(2.0 * lo, 2.0 * hi)))
+                out.append(
+                    BeamMirror(
+                        **common,
+                        refit_delta_chi2=d_chi2,
+                        resolved=False,
+                        weight_main=w_main,
+                        p_wrong_sign=1.0 - w_main,
+                        alternative=MirrorSolution(
+                            tuple(float(v) for v in pa),
+                            tuple(tuple(float(v) for v in row) for row in cov_alt),
+                            d_chi2,
+                            1.0 - w_main,
+                        ),
+                        rho_alt_mm=float(pa[3 * j + 1]),
+                        valid_bore_diameter_mm=(2.0 * lo, 2.0 * hi),
+                    )
+                )
                 continue
             d_chi2 = None if p_alt is None or np.sign(p_alt[i_rho0 + j]) == np.sign(rho) else d_chi2
-        out.append(BeamMirror(**common, refit_delta_chi2=d_chi2, resolved=True, weight_main=1.0, p_wrong_sign=0.0))
+        out.append(
+            BeamMirror(**common, refit_delta_chi2=d_chi2, resolved=True, weight_main=1.0, p_wrong_sign=0.0)
+        )
     return out
 
 
@@ -1480,7 +1645,8 @@ _PROFILE_MAX_STEPS = 14
 
 
 def _rho_profile(  # noqa: C901 (part of the full_lsq fit, to be split into small functions)
-        j, c, x_hat, cost0, s2, cov_int, cov_free, solve_fixed, public, i, head_radius_mm):
+    j, c, x_hat, cost0, s2, cov_int, cov_free, solve_fixed, public, i, head_radius_mm
+):
     """Profile of the full-data cost along rho of channel index ``j`` (internal and public index ``i``).
 
     Each point holds rho at a value and minimises the cost over every other parameter
@@ -1570,8 +1736,10 @@ def _rho_profile(  # noqa: C901 (part of the full_lsq fit, to be split into smal
     out["_points"] = (P, wts)
     out["delta_ssr_over_s2_at_ends"] = [float(dchi[0]), float(dchi[-1])]
     out["profile_minima"] = [
-        {"rho_mm": [float(v) for v in public(pts[deltas[k]][0])[i - j : i - j + c]],
-         "delta_ssr_over_s2": float(dchi[k])}
+        {
+            "rho_mm": [float(v) for v in public(pts[deltas[k]][0])[i - j : i - j + c]],
+            "delta_ssr_over_s2": float(dchi[k]),
+        }
         for k in range(1, deltas.size - 1)
         if deltas[k] != 0.0 and dchi[k] < dchi[k - 1] and dchi[k] < dchi[k + 1]
     ]
@@ -1653,19 +1821,27 @@ def _acceptance_problems(beams, nuis, ratios, scan_ids, channels, R_mm, range_ar
     for j, ch in enumerate(channels):
         rho, d_b = float(beams.rho_mm[j]), float(beams.d_b_mm[j])
         if abs(rho) > rule.head_radius_mm:
-            out.append(f"channel {ch}: |rho| = {abs(rho):.3f} mm exceeds the head radius {rule.head_radius_mm:g} mm")
+            out.append(
+                f"channel {ch}: |rho| = {abs(rho):.3f} mm exceeds the head radius {rule.head_radius_mm:g} mm"
+            )
             continue
         oe = max(float(np.hypot(*n[0])) for n in nuis)
         s0 = np.sqrt(max(R_mm**2 - rho**2, 0.0))
         lo, hi = s0 - oe - range_arr[j], s0 + oe
         if not (lo - 0.01 <= d_b <= hi + 0.01):
-            out.append(f"channel {ch}: d_b = {d_b:.4f} mm outside [{lo:.4f}, {hi:.4f}] mm, what a gauge of radius "
-                       f"{R_mm:.4f} mm with offset {oe:.4f} mm and a {range_arr[j]:g} mm sensor allow")
+            out.append(
+                f"channel {ch}: d_b = {d_b:.4f} mm outside [{lo:.4f}, {hi:.4f}] mm, what a gauge of radius "
+                f"{R_mm:.4f} mm with offset {oe:.4f} mm and a {range_arr[j]:g} mm sensor allow"
+            )
     return out
 
 
-def _param_names(channels: Sequence[int], scan_ids: Sequence[str], ch0_free: int = 0,
-                 nuis_cols: list[dict[str, int]] | None = None) -> list[str]:
+def _param_names(
+    channels: Sequence[int],
+    scan_ids: Sequence[str],
+    ch0_free: int = 0,
+    nuis_cols: list[dict[str, int]] | None = None,
+) -> list[str]:
     names = [f"beta_rad[{ch}]" for ch in (channels if ch0_free else channels[1:])]
     names += [f"rho_mm[{ch}]" for ch in channels] + [f"d_b_mm[{ch}]" for ch in channels]
     for k, s in enumerate(scan_ids):
@@ -1679,7 +1855,11 @@ def _param_names(channels: Sequence[int], scan_ids: Sequence[str], ch0_free: int
 
 
 def full_residuals(
-    cal: TriCalibration, t_s, readings_mm, R_mm: float, scan_id: str | None = None,
+    cal: TriCalibration,
+    t_s,
+    readings_mm,
+    R_mm: float,
+    scan_id: str | None = None,
     angle_model: AngleModel | None = None,
 ) -> np.ndarray:
     """Residuals (model - reading) (n, c) [mm] of a ``full_lsq`` calibration on one of its scans.
@@ -1789,7 +1969,11 @@ def full_lsq_sensitivities(  # noqa: C901 (part of the full_lsq fit, to be split
     p = col
     floors = np.array([noise_floor_mm(y, order=4) for y in ys])
     sigma = float(np.sqrt(np.mean(floors**2))) if np.all(np.isfinite(floors)) else 0.0
-    a = float(cal.diagnostics.get("acceptance", {}).get("position_accuracy_mm", AcceptanceRule.defaults().position_accuracy_mm))
+    a = float(
+        cal.diagnostics.get("acceptance", {}).get(
+            "position_accuracy_mm", AcceptanceRule.defaults().position_accuracy_mm
+        )
+    )
     prior_sigma = a * np.sqrt(2.0 / 3.0)
     w = (sigma if sigma > 0 else 1e-3) / prior_sigma
     guard = cal.diagnostics.get("censoring_guard")
@@ -1802,7 +1986,11 @@ def full_lsq_sensitivities(  # noqa: C901 (part of the full_lsq fit, to be split
 
         def phi_at(tt, nu=nu, am=am):
             P = am.commanded_rad(tt)
-            return float(nu["phase0_rad"]) + float(nu.get("speed_scale", 1.0)) * P if am.fits_speed_and_phase else P
+            return (
+                float(nu["phase0_rad"]) + float(nu.get("speed_scale", 1.0)) * P
+                if am.fits_speed_and_phase
+                else P
+            )
 
         tc = np.repeat(ts[k][:, None], c, axis=1) - (0.0 if tau_c is None else tau_c[None, :])
         Phi = am.commanded_rad(tc)
@@ -1868,13 +2056,15 @@ def full_lsq_sensitivities(  # noqa: C901 (part of the full_lsq fit, to be split
 
     dR = vec(-Hinv @ (J.T @ dv_dR))
     reading_offset = np.column_stack([vec(Hinv @ J[chan == j].sum(axis=0)) for j in range(c)])
+
     def response(dys) -> np.ndarray:  # dp = H^-1 J^T dy: readings that move by dy (per scan (n, c))
         return vec(Hinv @ (J.T @ np.concatenate([np.asarray(d, float)[m] for d, m in zip(dys, mask_parts)])))
 
     perturbation = {name: response(dys) for name, dys in (reading_perturbations or {}).items()}
     # a channel's time offset moves the model's readings by df; the fit answers as to readings moved by -df
-    time_offset = np.column_stack([response([-np.where(np.arange(c)[None, :] == j, d, 0.0) for d in dtau_parts])
-                                   for j in range(c)])
+    time_offset = np.column_stack(
+        [response([-np.where(np.arange(c)[None, :] == j, d, 0.0) for d in dtau_parts]) for j in range(c)]
+    )
     offset_prior = {}
     for sid, r0 in prior_cols.items():
         rows = Jp[2 * r0 : 2 * r0 + 2]

@@ -63,16 +63,28 @@ def _device_model_derivatives(model, inputs: list[dict], channels) -> tuple[dict
     for x in inputs:
         y = x.get("readings_recorded", x["readings"])
         for (i, name), dy in device_model.derivatives(
-                model, lambda m, x=x, y=y: device_model.correct(x["t_s"], y, x["channels"], m, x["range_mm"])).items():
+            model, lambda m, x=x, y=y: device_model.correct(x["t_s"], y, x["channels"], m, x["range_mm"])
+        ).items():
             dys.setdefault(f"{i}:{name}", []).append(np.nan_to_num(dy))
-    dtau = {f"{i}:{name}": d for (i, name), d in device_model.derivatives(
-        model, lambda m: device_model.channel_time_offsets(m, channels, zeros=True)).items()}
+    dtau = {
+        f"{i}:{name}": d
+        for (i, name), d in device_model.derivatives(
+            model, lambda m: device_model.channel_time_offsets(m, channels, zeros=True)
+        ).items()
+    }
     return dys, dtau
 
 
 def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budget)
-        cal, inputs: list[dict], uncertainty: dict, *, scan_ids, sensitivities: dict | None = None,
-                       extrema_dof: float | None = None, position_accuracy_mm: float | None = None) -> Budget:
+    cal,
+    inputs: list[dict],
+    uncertainty: dict,
+    *,
+    scan_ids,
+    sensitivities: dict | None = None,
+    extrema_dof: float | None = None,
+    position_accuracy_mm: float | None = None,
+) -> Budget:
     """GUM budget of a calibration's parameters (per channel beta, rho, d_b; the calibration's order).
 
     Terms: the fit's Type A covariance (readings); for ``full_lsq`` the second-order term of d_b in
@@ -109,18 +121,42 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
         model = device_model.from_dicts(cal.diagnostics.get("device_model"))
         dys, dtau = _device_model_derivatives(model, inputs, cal.beams.channels)
         sens = calibration.full_lsq_sensitivities(
-            cal, [x["t_s"] for x in inputs], [x["readings"] for x in inputs], x0["R"], [x["angle_model"] for x in inputs],
-            spindle_xy_mm=[x["spindle_xy"] for x in inputs], center_xy_mm=[x["center_xy"] for x in inputs],
-            reading_perturbations=dys)
+            cal,
+            [x["t_s"] for x in inputs],
+            [x["readings"] for x in inputs],
+            x0["R"],
+            [x["angle_model"] for x in inputs],
+            spindle_xy_mm=[x["spindle_xy"] for x in inputs],
+            center_xy_mm=[x["center_xy"] for x in inputs],
+            reading_perturbations=dys,
+        )
         for key, d in dtau.items():  # each carried parameter: through the readings and the channels' times
             i, name = key.split(":", 1)
-            b.add(Term(device_model.gum_input(cal.device_id, model[int(i)], name),
-                       sens["reading_perturbation"][key] + sens["channel_time_offset"] @ d))
+            b.add(
+                Term(
+                    device_model.gum_input(cal.device_id, model[int(i)], name),
+                    sens["reading_perturbation"][key] + sens["channel_time_offset"] @ d,
+                )
+            )
         n_obs = int(cal.diagnostics.get("n_obs", 0))
-        b.add(Term(Input(f"fit:{cal.calibration_id}:readings", "least-squares fit to the readings (their scatter)",
-                         "v", "mm", None, math.sqrt(sens["s2"]), "normal", float(cal.dof), "A",
-                         f"{n_obs} readings of {', '.join(cal.scan_ids)}; u is the residual standard deviation "
-                         "s = sqrt(SSR / dof)"), cov=sens["cov_readings"]))
+        b.add(
+            Term(
+                Input(
+                    f"fit:{cal.calibration_id}:readings",
+                    "least-squares fit to the readings (their scatter)",
+                    "v",
+                    "mm",
+                    None,
+                    math.sqrt(sens["s2"]),
+                    "normal",
+                    float(cal.dof),
+                    "A",
+                    f"{n_obs} readings of {', '.join(cal.scan_ids)}; u is the residual standard deviation "
+                    "s = sqrt(SSR / dof)",
+                ),
+                cov=sens["cov_readings"],
+            )
+        )
         profiles = list(cal.diagnostics.get("rho_profiles") or [])
         linear = np.ones(c, dtype=bool)  # where a rho's profile was linear, its second-order term of d_b
         for prof in profiles:
@@ -128,35 +164,84 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
         second = np.zeros((3 * c, 3 * c))
         second[2::3, 2::3] = np.diag(np.where(linear, sens["second_order_d_b_mm2"], 0.0))
         if np.any(second > 0):
-            b.add(Term(Input(f"fit:{cal.calibration_id}:second_order", "second-order term of d_b = g - rho^2 / (2R) in rho",
-                             "rho^2", "mm^2", None, 0.0, "normal", source="3 u(rho)^4 / (4 R^2), fit_full_calibration"),
-                       cov=second))
+            b.add(
+                Term(
+                    Input(
+                        f"fit:{cal.calibration_id}:second_order",
+                        "second-order term of d_b = g - rho^2 / (2R) in rho",
+                        "rho^2",
+                        "mm^2",
+                        None,
+                        0.0,
+                        "normal",
+                        source="3 u(rho)^4 / (4 R^2), fit_full_calibration",
+                    ),
+                    cov=second,
+                )
+            )
         rest = sens["cov_extra"] - second
         for prof in profiles:
             if "extra_cov_params" not in prof:
                 continue
             E = np.asarray(prof["extra_cov_params"], dtype=float)
             rest = rest - E
-            b.add(Term(Input(f"fit:{cal.calibration_id}:profile{prof['channel']}",
-                             f"spread along the non-linear profile of rho of channel {prof['channel']} beyond the "
-                             "linear covariance", "rho", "mm", None, 0.0, "normal",
-                             source="fit_full_calibration: likelihood-weighted second moment along the profile "
-                                    f"(rho {prof['rho_range_mm'][0]:.4f} .. {prof['rho_range_mm'][1]:.4f} mm)"),
-                       cov=E))
+            b.add(
+                Term(
+                    Input(
+                        f"fit:{cal.calibration_id}:profile{prof['channel']}",
+                        f"spread along the non-linear profile of rho of channel {prof['channel']} beyond the "
+                        "linear covariance",
+                        "rho",
+                        "mm",
+                        None,
+                        0.0,
+                        "normal",
+                        source="fit_full_calibration: likelihood-weighted second moment along the profile "
+                        f"(rho {prof['rho_range_mm'][0]:.4f} .. {prof['rho_range_mm'][1]:.4f} mm)",
+                    ),
+                    cov=E,
+                )
+            )
         scale = np.sqrt(np.clip(np.diag(cal.cov), 0.0, None))
         for i, part in enumerate(_rank_one_parts(rest, scale)):
-            b.add(Term(Input(f"fit:{cal.calibration_id}:mirror{i + 1}", "unresolved mirror solution (the data do not "
-                             "reject it): position between the two solutions", "lambda", "-", 0.0, 1.0 / math.sqrt(3.0),
-                             "rectangular", source="fit_full_calibration: mirror solution within 4 s^2 of the kept one"),
-                       part * math.sqrt(3.0)))
+            b.add(
+                Term(
+                    Input(
+                        f"fit:{cal.calibration_id}:mirror{i + 1}",
+                        "unresolved mirror solution (the data do not "
+                        "reject it): position between the two solutions",
+                        "lambda",
+                        "-",
+                        0.0,
+                        1.0 / math.sqrt(3.0),
+                        "rectangular",
+                        source="fit_full_calibration: mirror solution within 4 s^2 of the kept one",
+                    ),
+                    part * math.sqrt(3.0),
+                )
+            )
         prior_u = sens["prior_sigma_mm"]
     else:
         if sensitivities is None or position_accuracy_mm is None:
             raise ValueError("a yang2017 budget needs its sensitivities and position_accuracy_mm")
         sens = sensitivities
-        b.add(Term(Input(f"fit:{cal.calibration_id}:extrema", "mean extreme readings and feature points (their scatter)",
-                         "d", "mm", None, 0.0, "normal", float(extrema_dof or float("inf")), "A",
-                         f"Yang 2017 Eq. 8-15 from {scan_ids[0]}"), cov=cal.cov))
+        b.add(
+            Term(
+                Input(
+                    f"fit:{cal.calibration_id}:extrema",
+                    "mean extreme readings and feature points (their scatter)",
+                    "d",
+                    "mm",
+                    None,
+                    0.0,
+                    "normal",
+                    float(extrema_dof or float("inf")),
+                    "A",
+                    f"Yang 2017 Eq. 8-15 from {scan_ids[0]}",
+                ),
+                cov=cal.cov,
+            )
+        )
         prior_u = float(position_accuracy_mm) * math.sqrt(2.0 / 3.0)
     for sid, x in zip(scan_ids, inputs):
         if sid not in sens["offset_prior"] or x["center_xy"] is None:
@@ -165,27 +250,84 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
         # the same reported spindle position and centre in several scans are one quantity (one error)
         where = "S ({:.4f}, {:.4f}) C ({:.4f}, {:.4f})".format(*x["spindle_xy"], *x["center_xy"])
         for axis, name in enumerate("xy"):
-            b.add(Term(Input(f"position:{where}:{name}", f"reported spindle-to-centre offset {name} (S - C), {where} mm",
-                             f"o_{name}", "mm", float(o[axis]), prior_u, "triangular",
-                             source="scan.json spindle.position and center, each within +- the machine's stated "
-                                    "accuracy (calibration.position_accuracy_mm)"),
-                       sens["offset_prior"][sid][:, axis]))
+            b.add(
+                Term(
+                    Input(
+                        f"position:{where}:{name}",
+                        f"reported spindle-to-centre offset {name} (S - C), {where} mm",
+                        f"o_{name}",
+                        "mm",
+                        float(o[axis]),
+                        prior_u,
+                        "triangular",
+                        source="scan.json spindle.position and center, each within +- the machine's stated "
+                        "accuracy (calibration.position_accuracy_mm)",
+                    ),
+                    sens["offset_prior"][sid][:, axis],
+                )
+            )
     gkey = f"gauge:{artifact_key(art)}"
     k_cert = float(art.get("k") or 2.0)
     u_d20 = float(art.get("u_diameter_mm") or 0.0) / k_cert
     f = thermal_expansion_factor(cte.cte_per_k, temp.temperature_c)
     dR = sens["dR"]
-    b.add(Term(Input(f"{gkey}:D20", f"certified diameter of ring gauge {art.get('id')} at 20 degC", "D_g", "mm", d20, u_d20,
-                     "normal", source=f"certificate {art.get('certificate')}: U = {art.get('u_diameter_mm')} mm "
-                                      f"(k = {k_cert:g})"), dR * 0.5 * f))
-    b.add(Term(Input(f"temperature:{scan_ids[0]}", f"temperature of the gauge during {scan_ids[0]}", "T", "degC",
-                     temp.temperature_c, temp.u_c, "rectangular", source=temp.source), dR * 0.5 * d20 * cte.cte_per_k))
-    b.add(Term(Input(f"cte:{artifact_key(art)}", f"expansion coefficient of ring gauge {art.get('id')}", "alpha", "1/K",
-                     cte.cte_per_k, cte.u_per_k, "rectangular", source=cte.source), dR * 0.5 * d20 * dT))
+    b.add(
+        Term(
+            Input(
+                f"{gkey}:D20",
+                f"certified diameter of ring gauge {art.get('id')} at 20 degC",
+                "D_g",
+                "mm",
+                d20,
+                u_d20,
+                "normal",
+                source=f"certificate {art.get('certificate')}: U = {art.get('u_diameter_mm')} mm "
+                f"(k = {k_cert:g})",
+            ),
+            dR * 0.5 * f,
+        )
+    )
+    b.add(
+        Term(
+            Input(
+                f"temperature:{scan_ids[0]}",
+                f"temperature of the gauge during {scan_ids[0]}",
+                "T",
+                "degC",
+                temp.temperature_c,
+                temp.u_c,
+                "rectangular",
+                source=temp.source,
+            ),
+            dR * 0.5 * d20 * cte.cte_per_k,
+        )
+    )
+    b.add(
+        Term(
+            Input(
+                f"cte:{artifact_key(art)}",
+                f"expansion coefficient of ring gauge {art.get('id')}",
+                "alpha",
+                "1/K",
+                cte.cte_per_k,
+                cte.u_per_k,
+                "rectangular",
+                source=cte.source,
+            ),
+            dR * 0.5 * d20 * dT,
+        )
+    )
     ys = [np.asarray(x["readings"], float) for x in inputs]
     noise = np.sqrt(np.mean([noise_floor_mm(y, order=4) ** 2 for y in ys], axis=0))
-    for t in sensor_terms(x0["sensors"], cal.beams.channels, sens["reading_offset"], cal.calibration_id, noise,
-                          float(uncertainty["sensor_resolution_mm"]), "calibration"):
+    for t in sensor_terms(
+        x0["sensors"],
+        cal.beams.channels,
+        sens["reading_offset"],
+        cal.calibration_id,
+        noise,
+        float(uncertainty["sensor_resolution_mm"]),
+        "calibration",
+    ):
         b.add(t)
     return b.merged()
 

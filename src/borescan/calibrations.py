@@ -30,8 +30,20 @@ from borescan.calibration import TriCalibration
 from borescan.geometry import RodLayer
 from borescan.mirror import mirror_checks_of
 
-__all__ = ["choose_calibration", "choose_rod_calibration", "failed_calibration_ids", "days_between", "calibration_rows",
-           "rod_nominal_calibration_rows", "tri_calibration", "order_calibrations", "calibration_roles", "rod_layers", "calibration_drift", "DRIFT_PARAMS"]
+__all__ = [
+    "choose_calibration",
+    "choose_rod_calibration",
+    "failed_calibration_ids",
+    "days_between",
+    "calibration_rows",
+    "rod_nominal_calibration_rows",
+    "tri_calibration",
+    "order_calibrations",
+    "calibration_roles",
+    "rod_layers",
+    "calibration_drift",
+    "DRIFT_PARAMS",
+]
 
 
 def days_between(first_night: str, night: str) -> int:
@@ -81,20 +93,30 @@ def calibration_roles(calibrations: pl.DataFrame, failed_ids: set[str]) -> dict[
         methods = g["method"].fill_null("").to_list() if "method" in g.columns else [""] * len(ids)
         gauge = [i for i, m in zip(ids, methods) if m != "nominal"]
         for k, (cal_id, method) in enumerate(zip(ids, methods)):
-            later = [i for i in ids[k + 1:] if i in gauge] if method != "nominal" else [i for i in ids if i in gauge]
+            later = (
+                [i for i in ids[k + 1 :] if i in gauge]
+                if method != "nominal"
+                else [i for i in ids if i in gauge]
+            )
             if cal_id in failed_ids:
                 out[cal_id] = "failed verification"
             elif method == "nominal" and gauge:
                 out[cal_id] = f"design geometry, replaced by {gauge[0]}" if later else "design geometry"
             elif later or (method == "nominal" and k < len(ids) - 1):
-                out[cal_id] = f"superseded by {(later or ids[k + 1:])[0]}"
+                out[cal_id] = f"superseded by {(later or ids[k + 1 :])[0]}"
             else:
                 out[cal_id] = "latest"
     return out
 
 
-def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_id: str, night: str,
-                       validity_days: int, allow_unverified: bool) -> tuple[str | None, str | None]:
+def choose_calibration(
+    calibrations: pl.DataFrame,
+    failed_ids: set[str],
+    device_id: str,
+    night: str,
+    validity_days: int,
+    allow_unverified: bool,
+) -> tuple[str | None, str | None]:
     """Return the calibration a device's result of ``night`` must use, or the reason there is none.
 
     The latest calibration of the device made on or before the night (same night included; ties broken as
@@ -120,13 +142,23 @@ def choose_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_
         return None, f"latest calibration {cal_id} of device {device_id} failed its verification; recalibrate"
     age = days_between(valid_from, night)
     if age > validity_days:
-        return None, f"latest calibration {cal_id} of device {device_id} expired ({age} days old, validity " f"{validity_days} days)"
+        return (
+            None,
+            f"latest calibration {cal_id} of device {device_id} expired ({age} days old, validity "
+            f"{validity_days} days)",
+        )
     return cal_id, None
 
 
-def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], device_id: str, night: str,
-                           validity_days: int, allow_unverified: bool, without_calibration: str = "measure_nominal"
-                           ) -> tuple[str | None, str | None]:
+def choose_rod_calibration(
+    calibrations: pl.DataFrame,
+    failed_ids: set[str],
+    device_id: str,
+    night: str,
+    validity_days: int,
+    allow_unverified: bool,
+    without_calibration: str = "measure_nominal",
+) -> tuple[str | None, str | None]:
     """Return the calibration a rod's result of ``night`` must use, or the reason there is none.
 
     The rod's ring-gauge calibrations (method ``rod_gauge``) are chosen as a three-sensor device's
@@ -136,8 +168,10 @@ def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], dev
     (``measurement.rod_without_calibration``).
     """
     if without_calibration not in ("measure_nominal", "refuse"):
-        raise ValueError("measurement.rod_without_calibration must be measure_nominal or refuse, got "
-                         f"{without_calibration!r}")
+        raise ValueError(
+            "measurement.rod_without_calibration must be measure_nominal or refuse, got "
+            f"{without_calibration!r}"
+        )
     has_method = calibrations.height > 0 and "method" in calibrations.columns
     method = pl.col("method").fill_null("") if has_method else pl.lit("")
     gauge = calibrations.filter(method != "nominal") if has_method else calibrations.clear()
@@ -145,14 +179,17 @@ def choose_rod_calibration(calibrations: pl.DataFrame, failed_ids: set[str], dev
     if cal_id is not None or not why.startswith("no calibration"):
         return cal_id, why
     if without_calibration == "refuse":
-        return None, (f"rod {device_id} has no calibration on certified ring gauges on or before night {night} "
-                      "(measurement.rod_without_calibration: refuse); its design geometry is not traceable")
+        return None, (
+            f"rod {device_id} has no calibration on certified ring gauges on or before night {night} "
+            "(measurement.rod_without_calibration: refuse); its design geometry is not traceable"
+        )
     nominal = calibrations.filter(method == "nominal") if has_method else calibrations.clear()
     return choose_calibration(nominal, set(), device_id, night, 10**9, True)
 
 
-def calibration_rows(cal: TriCalibration, device_type: str, night: str, certificate_path: str | None,
-                     raw_sha256: str) -> list[dict]:
+def calibration_rows(
+    cal: TriCalibration, device_type: str, night: str, certificate_path: str | None, raw_sha256: str
+) -> list[dict]:
     """Return the ``calibrations`` rows of a three-sensor calibration.
 
     Return the ``calibrations`` rows of a three-sensor calibration: one per channel, valid from
@@ -163,16 +200,30 @@ def calibration_rows(cal: TriCalibration, device_type: str, night: str, certific
     cal_json = json.dumps(cal.to_dict(), sort_keys=True)
     checks = {m.channel: m for m in mirror_checks_of(cal.diagnostics)}
     for i, ch in enumerate(cal.beams.channels):
-        rows.append({
-            "calibration_id": cal.calibration_id, "device_id": cal.device_id, "device_type": device_type,
-            "scan_id": cal.scan_ids[0], "channel": int(ch),
-            "rho_mm": float(cal.beams.rho_mm[i]), "d_b_mm": float(cal.beams.d_b_mm[i]), "beta_rad": float(cal.beams.beta_rad[i]),
-            "u_rho_mm": float(u_rho[i]), "u_d_b_mm": float(u_db[i]), "u_beta_rad": float(u_beta[i]),
-            "method": cal.method, "certificate_path": certificate_path, "night": night, "valid_from": night,
-            "status": "valid", "raw_sha256": raw_sha256, "residual_rms_mm": float(cal.residual_rms_mm),
-            "calibration_json": cal_json,
-            **_mirror_columns(checks.get(int(ch))),
-        })
+        rows.append(
+            {
+                "calibration_id": cal.calibration_id,
+                "device_id": cal.device_id,
+                "device_type": device_type,
+                "scan_id": cal.scan_ids[0],
+                "channel": int(ch),
+                "rho_mm": float(cal.beams.rho_mm[i]),
+                "d_b_mm": float(cal.beams.d_b_mm[i]),
+                "beta_rad": float(cal.beams.beta_rad[i]),
+                "u_rho_mm": float(u_rho[i]),
+                "u_d_b_mm": float(u_db[i]),
+                "u_beta_rad": float(u_beta[i]),
+                "method": cal.method,
+                "certificate_path": certificate_path,
+                "night": night,
+                "valid_from": night,
+                "status": "valid",
+                "raw_sha256": raw_sha256,
+                "residual_rms_mm": float(cal.residual_rms_mm),
+                "calibration_json": cal_json,
+                **_mirror_columns(checks.get(int(ch))),
+            }
+        )
     return rows
 
 
@@ -186,11 +237,15 @@ def _mirror_columns(m) -> dict:
     if m is None:
         return {}
     lo, hi = m.valid_bore_diameter_mm or (None, None)
-    return {"rho_sign_resolved": bool(m.resolved), "mirror_delta_chi2": m.refit_delta_chi2,
-            "mirror_depth_predicted": m.predicted_delta_chi2 if math.isfinite(m.predicted_delta_chi2) else None,
-            "p_wrong_sign": float(m.p_wrong_sign), "valid_bore_min_mm": lo,
-            "valid_bore_max_mm": hi if hi is not None and math.isfinite(hi) else None,
-            "offset_to_resolve_mm": m.offset_to_resolve_mm if math.isfinite(m.offset_to_resolve_mm) else None}
+    return {
+        "rho_sign_resolved": bool(m.resolved),
+        "mirror_delta_chi2": m.refit_delta_chi2,
+        "mirror_depth_predicted": m.predicted_delta_chi2 if math.isfinite(m.predicted_delta_chi2) else None,
+        "p_wrong_sign": float(m.p_wrong_sign),
+        "valid_bore_min_mm": lo,
+        "valid_bore_max_mm": hi if hi is not None and math.isfinite(hi) else None,
+        "offset_to_resolve_mm": m.offset_to_resolve_mm if math.isfinite(m.offset_to_resolve_mm) else None,
+    }
 
 
 def rod_nominal_calibration_rows(meta: dict, night: str, scan_id: str) -> list[dict]:
@@ -199,17 +254,33 @@ def rod_nominal_calibration_rows(meta: dict, night: str, scan_id: str) -> list[d
     The id is ``<device>-nominal-<8 hex of the layers' SHA-256>``, so the same geometry on
     another night is the same calibration. [] when the device lists no layers.
     """
-    layers = sorted(((meta.get("device") or {}).get("nominal") or {}).get("layers") or [], key=lambda l: int(l["channel"]))
+    layers = sorted(
+        ((meta.get("device") or {}).get("nominal") or {}).get("layers") or [], key=lambda l: int(l["channel"])
+    )
     if not layers:
         return []
     digest = hashlib.sha256(json.dumps(layers, sort_keys=True).encode()).hexdigest()[:8]
     cal_id = f"{meta['device']['id']}-nominal-{digest}"
-    return [{
-        "calibration_id": cal_id, "device_id": meta["device"]["id"], "device_type": "rod", "scan_id": scan_id,
-        "channel": int(l["channel"]), "l0_mm": float(l["l0"]), "h_mm": float(l.get("h", float("nan"))),
-        "phi_rad": float(l.get("phi", 0.0)), "d_mm": float(l.get("d", 0.0)), "gamma_rad": float(l.get("gamma", 0.0)),
-        "method": "nominal", "certificate_path": None, "night": night, "valid_from": night, "status": "valid",
-    } for l in layers]
+    return [
+        {
+            "calibration_id": cal_id,
+            "device_id": meta["device"]["id"],
+            "device_type": "rod",
+            "scan_id": scan_id,
+            "channel": int(l["channel"]),
+            "l0_mm": float(l["l0"]),
+            "h_mm": float(l.get("h", float("nan"))),
+            "phi_rad": float(l.get("phi", 0.0)),
+            "d_mm": float(l.get("d", 0.0)),
+            "gamma_rad": float(l.get("gamma", 0.0)),
+            "method": "nominal",
+            "certificate_path": None,
+            "night": night,
+            "valid_from": night,
+            "status": "valid",
+        }
+        for l in layers
+    ]
 
 
 def tri_calibration(calibrations: pl.DataFrame, cal_id: str) -> TriCalibration:
@@ -231,24 +302,44 @@ def rod_layers(layer_rows, channels) -> list[RodLayer]:
         v = r.get(k)
         return float(v) if v is not None and math.isfinite(float(v)) else 0.0
 
-    return [RodLayer(int(ch), num(rows[int(ch)], "h_mm"), float(rows[int(ch)]["l0_mm"]), num(rows[int(ch)], "phi_rad"),
-                     num(rows[int(ch)], "d_mm"), num(rows[int(ch)], "gamma_rad")) for ch in channels]
+    return [
+        RodLayer(
+            int(ch),
+            num(rows[int(ch)], "h_mm"),
+            float(rows[int(ch)]["l0_mm"]),
+            num(rows[int(ch)], "phi_rad"),
+            num(rows[int(ch)], "d_mm"),
+            num(rows[int(ch)], "gamma_rad"),
+        )
+        for ch in channels
+    ]
 
 
 #: Beam parameters compared by :func:`calibration_drift`: (value column, standard uncertainty column).
 DRIFT_PARAMS = (("beta_rad", "u_beta_rad"), ("rho_mm", "u_rho_mm"), ("d_b_mm", "u_d_b_mm"))
 _DRIFT_SCHEMA = {
-    "device_id": pl.String, "channel": pl.Int64, "parameter": pl.String,
-    "calibration_id_before": pl.String, "calibration_id_after": pl.String,
-    "valid_from_before": pl.String, "valid_from_after": pl.String,
-    "value_before": pl.Float64, "value_after": pl.Float64, "change": pl.Float64,
-    "u_before": pl.Float64, "u_after": pl.Float64, "u_combined": pl.Float64,
-    "change_over_u": pl.Float64, "multiple": pl.Float64, "flagged": pl.Boolean,
+    "device_id": pl.String,
+    "channel": pl.Int64,
+    "parameter": pl.String,
+    "calibration_id_before": pl.String,
+    "calibration_id_after": pl.String,
+    "valid_from_before": pl.String,
+    "valid_from_after": pl.String,
+    "value_before": pl.Float64,
+    "value_after": pl.Float64,
+    "change": pl.Float64,
+    "u_before": pl.Float64,
+    "u_after": pl.Float64,
+    "u_combined": pl.Float64,
+    "change_over_u": pl.Float64,
+    "multiple": pl.Float64,
+    "flagged": pl.Boolean,
 }
 
 
 def calibration_drift(  # noqa: C901 (input checks, then per device, channel, parameter and pair)
-        calibrations: pl.DataFrame, multiple: float) -> pl.DataFrame:
+    calibrations: pl.DataFrame, multiple: float
+) -> pl.DataFrame:
     """Return the changes of each beam parameter between consecutive calibrations of a three-sensor device.
 
     For every device and channel the calibrations (rows of the ``calibrations`` table with a
@@ -277,7 +368,9 @@ def calibration_drift(  # noqa: C901 (input checks, then per device, channel, pa
     """
     if not (multiple > 0 and math.isfinite(multiple)):
         raise ValueError(f"drift multiple must be a positive number, got {multiple!r}")
-    need = {"calibration_id", "device_id", "channel", "valid_from"} | {c for pair in DRIFT_PARAMS for c in pair}
+    need = {"calibration_id", "device_id", "channel", "valid_from"} | {
+        c for pair in DRIFT_PARAMS for c in pair
+    }
     if calibrations.height == 0 or not need <= set(calibrations.columns):
         missing = sorted(need - set(calibrations.columns))
         if calibrations.height and missing:
@@ -286,15 +379,17 @@ def calibration_drift(  # noqa: C901 (input checks, then per device, channel, pa
     c = calibrations.filter(pl.col("beta_rad").is_not_null())
     if "method" in c.columns:
         c = c.filter(pl.col("method").fill_null("") != "nominal")
-    c = c.with_columns(pl.col("valid_from").cast(pl.String)).sort("device_id", "channel", "valid_from",
-                                                                   "calibration_id")
+    c = c.with_columns(pl.col("valid_from").cast(pl.String)).sort(
+        "device_id", "channel", "valid_from", "calibration_id"
+    )
     rows = []
     for (device, channel), g in c.group_by(["device_id", "channel"], maintain_order=True):
         recs = g.rows(named=True)
         for par, upar in DRIFT_PARAMS:
             for a, b in zip(recs, recs[1:]):
-                va, vb, ua, ub = (float(x) if x is not None else math.nan
-                                  for x in (a[par], b[par], a[upar], b[upar]))
+                va, vb, ua, ub = (
+                    float(x) if x is not None else math.nan for x in (a[par], b[par], a[upar], b[upar])
+                )
                 d = vb - va
                 if par == "beta_rad":
                     d = math.remainder(d, 2.0 * math.pi)
@@ -305,14 +400,26 @@ def calibration_drift(  # noqa: C901 (input checks, then per device, channel, pa
                     ratio = d / uc
                 else:
                     ratio = math.copysign(math.inf, d) if d else 0.0
-                rows.append({
-                    "device_id": device, "channel": int(channel), "parameter": par,
-                    "calibration_id_before": a["calibration_id"], "calibration_id_after": b["calibration_id"],
-                    "valid_from_before": a["valid_from"], "valid_from_after": b["valid_from"],
-                    "value_before": va, "value_after": vb, "change": d, "u_before": ua, "u_after": ub,
-                    "u_combined": uc, "change_over_u": ratio, "multiple": float(multiple),
-                    "flagged": (not math.isnan(ratio)) and abs(d) > multiple * uc,
-                })
+                rows.append(
+                    {
+                        "device_id": device,
+                        "channel": int(channel),
+                        "parameter": par,
+                        "calibration_id_before": a["calibration_id"],
+                        "calibration_id_after": b["calibration_id"],
+                        "valid_from_before": a["valid_from"],
+                        "valid_from_after": b["valid_from"],
+                        "value_before": va,
+                        "value_after": vb,
+                        "change": d,
+                        "u_before": ua,
+                        "u_after": ub,
+                        "u_combined": uc,
+                        "change_over_u": ratio,
+                        "multiple": float(multiple),
+                        "flagged": (not math.isnan(ratio)) and abs(d) > multiple * uc,
+                    }
+                )
     if not rows:
         return pl.DataFrame(schema=_DRIFT_SCHEMA)
     return pl.DataFrame(rows, schema=_DRIFT_SCHEMA, orient="row")

@@ -208,8 +208,20 @@ def _q(name: str) -> str:
 # --------------------------------------------------------------------------- stage tables
 
 #: History tables the catalog is built from, each the union of ``stage/<table>/night=*.parquet``.
-STAGE_TABLES = ("scans", "scan_files", "calibrations", "calibration_scans", "diameters", "verifications", "findings",
-                "artifacts", "pooled_findings", "calibration_drift", "night_config", "config_changes")
+STAGE_TABLES = (
+    "scans",
+    "scan_files",
+    "calibrations",
+    "calibration_scans",
+    "diameters",
+    "verifications",
+    "findings",
+    "artifacts",
+    "pooled_findings",
+    "calibration_drift",
+    "night_config",
+    "config_changes",
+)
 
 #: The stages in the order a night runs them: a scan's reason in ``scans`` is its earliest stage's.
 STAGE_ORDER = ("ingest", "signal", "calibrate", "measure", "discrepancy")
@@ -233,8 +245,11 @@ def _scan_stage(results_root: Path) -> dict[str, dict[str, tuple[str, str, int, 
     folders = [(name, f"stage/{name}") for name in STAGE_TABLES]
     qdir = results_root / "stage" / "quarantine"
     if qdir.is_dir():
-        folders += [(f"quarantine/{e.name}", f"stage/quarantine/{e.name}") for e in os.scandir(qdir)
-                    if e.is_dir() and e.name.startswith("stage=")]
+        folders += [
+            (f"quarantine/{e.name}", f"stage/quarantine/{e.name}")
+            for e in os.scandir(qdir)
+            if e.is_dir() and e.name.startswith("stage=")
+        ]
     for source, rel in folders:
         try:
             entries = list(os.scandir(results_root / rel))
@@ -243,8 +258,12 @@ def _scan_stage(results_root: Path) -> dict[str, dict[str, tuple[str, str, int, 
         for e in entries:
             if e.name.startswith("night=") and e.name.endswith(".parquet"):
                 st = e.stat()
-                out.setdefault(e.name[len("night="):-len(".parquet")], {})[source] = (
-                    e.path, f"{rel}/{e.name}", st.st_size, st.st_mtime_ns)
+                out.setdefault(e.name[len("night=") : -len(".parquet")], {})[source] = (
+                    e.path,
+                    f"{rel}/{e.name}",
+                    st.st_size,
+                    st.st_mtime_ns,
+                )
     return {n: dict(sorted(v.items())) for n, v in sorted(out.items())}
 
 
@@ -285,7 +304,9 @@ def _read_nights(results_root: Path, files: Mapping[str, Mapping[str, Path]]) ->
                 if bad.height:
                     night = bad[_NIGHT_COL][0]
                     f = next(f for n, _, f in src if n == night)
-                    raise ValueError(f"{f}: rows of night {bad['night'][0]} in the stage file of night {night}")
+                    raise ValueError(
+                        f"{f}: rows of night {bad['night'][0]} in the stage file of night {night}"
+                    )
                 df = df.with_columns(pl.col("night").fill_null(pl.col(_NIGHT_COL)))
         out[table] = df
     if "quarantine" not in out:
@@ -314,18 +335,26 @@ def _assemble(tables: dict[str, pl.DataFrame]) -> dict[str, pl.DataFrame]:
         )
         scans = tables["scans"].join(first, on=["scan_id", "night"], how="left")
         tables["scans"] = scans.with_columns(
-            pl.when(pl.col("_reason").is_not_null()).then(pl.lit("quarantined")).otherwise(pl.col("status")).alias("status"),
+            pl.when(pl.col("_reason").is_not_null())
+            .then(pl.lit("quarantined"))
+            .otherwise(pl.col("status"))
+            .alias("status"),
             pl.coalesce("reason", "_reason").alias("reason"),
         ).drop("_reason")
     if "scans" in tables:
         tables["scans"] = tables["scans"].sort("night", "scan_id")
     if "calibrations" in tables:
-        tables["calibrations"] = tables["calibrations"].sort(_NIGHT_COL, maintain_order=True).unique(
-            ["calibration_id", "channel"], keep="first", maintain_order=True)
+        tables["calibrations"] = (
+            tables["calibrations"]
+            .sort(_NIGHT_COL, maintain_order=True)
+            .unique(["calibration_id", "channel"], keep="first", maintain_order=True)
+        )
     if "calibration_scans" in tables:
         tables["calibration_scans"] = tables["calibration_scans"].unique(maintain_order=True)
     if "artifacts" in tables:
-        tables["artifacts"] = tables["artifacts"].unique(["artifact_id", _NIGHT_COL], keep="last", maintain_order=True)
+        tables["artifacts"] = tables["artifacts"].unique(
+            ["artifact_id", _NIGHT_COL], keep="last", maintain_order=True
+        )
     return tables
 
 
@@ -345,7 +374,9 @@ def read_quarantine(results_root: str | os.PathLike) -> pl.DataFrame:
     return pl.concat(frames, how="diagonal_relaxed").sort("scan_id", "stage")
 
 
-def assemble_history(results_root: str | os.PathLike, nights: list[str] | None = None) -> dict[str, pl.DataFrame]:
+def assemble_history(
+    results_root: str | os.PathLike, nights: list[str] | None = None
+) -> dict[str, pl.DataFrame]:
     """Return the catalog's tables from the stage tables of ``nights`` (default: every night).
 
     A scan any stage set aside is ``quarantined`` (first stage's reason); a row's night comes
@@ -410,9 +441,13 @@ def _create_tables(con: duckdb.DuckDBPyConnection) -> None:
     con.execute(f"CREATE SCHEMA {b}")
     con.execute(f"CREATE TABLE {b}.info (key VARCHAR PRIMARY KEY, value VARCHAR)")
     con.execute(f"CREATE TABLE {b}.sources (night VARCHAR, file VARCHAR, bytes BIGINT, mtime_ns BIGINT)")
-    con.execute(f"CREATE TABLE {b}.calibration_scan_nights (calibration_id VARCHAR, scan_id VARCHAR, night VARCHAR)")
-    con.execute(f"CREATE TABLE {b}.artifact_records AS SELECT CAST(NULL AS VARCHAR) AS night, * FROM artifacts "
-                "LIMIT 0")
+    con.execute(
+        f"CREATE TABLE {b}.calibration_scan_nights (calibration_id VARCHAR, scan_id VARCHAR, night VARCHAR)"
+    )
+    con.execute(
+        f"CREATE TABLE {b}.artifact_records AS SELECT CAST(NULL AS VARCHAR) AS night, * FROM artifacts "
+        "LIMIT 0"
+    )
 
 
 def _schema_fingerprint() -> str:
@@ -449,16 +484,22 @@ def _stage_rows(con: duckdb.DuckDBPyConnection, name: str, df: pl.DataFrame | No
         if name == "artifacts":
             _add_columns(con, f"{BUILD_SCHEMA}.artifact_records", extra)
     cols = _columns(con, name)
-    con.execute(f"CREATE OR REPLACE TEMP TABLE {staging} AS SELECT *, CAST(NULL AS VARCHAR) AS {_NIGHT_COL} "
-                f"FROM {name} LIMIT 0")
+    con.execute(
+        f"CREATE OR REPLACE TEMP TABLE {staging} AS SELECT *, CAST(NULL AS VARCHAR) AS {_NIGHT_COL} "
+        f"FROM {name} LIMIT 0"
+    )
     if df is None:
         return
     try:
-        select = [f"CAST({_q(c)} AS {t})" if c in df.columns else f"CAST(NULL AS {t})" for c, t in cols.items()]
+        select = [
+            f"CAST({_q(c)} AS {t})" if c in df.columns else f"CAST(NULL AS {t})" for c, t in cols.items()
+        ]
         select.append(_q(_NIGHT_COL) if _NIGHT_COL in df.columns else "CAST(NULL AS VARCHAR)")
         con.execute(f"INSERT INTO {staging} SELECT {', '.join(select)} FROM _in")
     except duckdb.ConversionException as err:
-        raise ValueError(f"catalog table {name}: a column does not convert to its catalog type: {err}") from err
+        raise ValueError(
+            f"catalog table {name}: a column does not convert to its catalog type: {err}"
+        ) from err
     finally:
         con.unregister("_in")
 
@@ -475,14 +516,20 @@ def _merge(con: duckdb.DuckDBPyConnection, name: str, source: str | None = None)
     cols = _columns(con, name)
     names = ", ".join(_q(c) for c in cols)
     try:
-        con.execute(f"INSERT INTO {name} ({names}) SELECT {names} FROM {source or _STAGING[name]} "
-                    f"ORDER BY {_order_by(name, cols)}")
+        con.execute(
+            f"INSERT INTO {name} ({names}) SELECT {names} FROM {source or _STAGING[name]} "
+            f"ORDER BY {_order_by(name, cols)}"
+        )
     except duckdb.ConstraintException as err:
         raise ValueError(f"catalog table {name}: duplicate key {KEYS[name]}: {err}") from err
 
 
-def _append(con: duckdb.DuckDBPyConnection, tables: Mapping[str, pl.DataFrame | None], root: Path,
-            direct: bool = False) -> None:
+def _append(
+    con: duckdb.DuckDBPyConnection,
+    tables: Mapping[str, pl.DataFrame | None],
+    root: Path,
+    direct: bool = False,
+) -> None:
     """Add a batch of rows: nights newer than every night in the catalog, or a whole history.
 
     Within the batch the derived columns are filled (:data:`_FILL_SQL`). Then a calibration
@@ -499,9 +546,13 @@ def _append(con: duckdb.DuckDBPyConnection, tables: Mapping[str, pl.DataFrame | 
         if name != "calibrations":
             _merge(con, name)
     # calibrations: the first night's row of a (calibration_id, channel) wins
-    new_only = "" if direct else """WHERE NOT EXISTS (SELECT 1 FROM calibrations c
+    new_only = (
+        ""
+        if direct
+        else """WHERE NOT EXISTS (SELECT 1 FROM calibrations c
         WHERE c.calibration_id IS NOT DISTINCT FROM n.calibration_id
           AND c.channel IS NOT DISTINCT FROM n.channel)"""
+    )
     con.execute(f"CREATE OR REPLACE TEMP TABLE _kept AS SELECT * FROM _new_calibrations n {new_only}")
     _merge(con, "calibrations", "_kept")
     # calibration_scans: the stage's links and each kept calibration's own scan, each night's on record
@@ -516,8 +567,10 @@ def _append(con: duckdb.DuckDBPyConnection, tables: Mapping[str, pl.DataFrame | 
                                                             AND c.scan_id = n.scan_id)
                    ORDER BY 1, 2""")
     # artifacts: each night's record is kept aside; the catalog holds the latest
-    con.execute(f"INSERT INTO {b}.artifact_records BY NAME "
-                f"SELECT * EXCLUDE ({_NIGHT_COL}), {_NIGHT_COL} AS night FROM _new_artifacts")
+    con.execute(
+        f"INSERT INTO {b}.artifact_records BY NAME "
+        f"SELECT * EXCLUDE ({_NIGHT_COL}), {_NIGHT_COL} AS night FROM _new_artifacts"
+    )
     if direct:
         _merge(con, "artifacts")
     else:
@@ -581,7 +634,9 @@ class CatalogUpdate:
     rows: dict[str, int]
 
 
-def _read_manifest(con: duckdb.DuckDBPyConnection) -> tuple[dict[str, str], dict[str, dict[str, tuple[int, int]]]] | None:
+def _read_manifest(
+    con: duckdb.DuckDBPyConnection,
+) -> tuple[dict[str, str], dict[str, dict[str, tuple[int, int]]]] | None:
     """``build.info`` and ``build.sources`` of a catalog (None when it has none)."""
     try:
         info = dict(con.execute(f"SELECT key, value FROM {BUILD_SCHEMA}.info").fetchall())
@@ -595,8 +650,9 @@ def _read_manifest(con: duckdb.DuckDBPyConnection) -> tuple[dict[str, str], dict
 
 
 def _create_views(con: duckdb.DuckDBPyConnection, queries_dir: str | os.PathLike | None) -> None:
-    for (view,) in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'"
-                               ).fetchall():
+    for (view,) in con.execute(
+        "SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'"
+    ).fetchall():
         con.execute(f"DROP VIEW {_q(view)}")
     pending = dict(saved_queries(queries_dir))
     while pending:  # a saved query may read another one: create each once what it reads exists
@@ -624,8 +680,9 @@ def _drop_views(con: duckdb.DuckDBPyConnection) -> None:
     Drop the views: they bind their columns, so out of the way while tables change (created again at the
     end).
     """
-    for (view,) in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'"
-                               ).fetchall():
+    for (view,) in con.execute(
+        "SELECT view_name FROM duckdb_views() WHERE NOT internal AND schema_name = 'main'"
+    ).fetchall():
         con.execute(f"DROP VIEW {_q(view)}")
 
 
@@ -659,7 +716,9 @@ def _write_catalog(final: Path, work, queries_dir, plan=None) -> dict[str, int]:
         _drop_views(con)
         work(con, changes)
         _create_views(con, queries_dir)
-        rows = {name: con.execute(f"SELECT count(*) FROM {_q(name)}").fetchone()[0] for name in sorted(SCHEMA)}
+        rows = {
+            name: con.execute(f"SELECT count(*) FROM {_q(name)}").fetchone()[0] for name in sorted(SCHEMA)
+        }
         con.execute("CHECKPOINT")
         con.close()
         con = None
@@ -704,8 +763,10 @@ def set_aside_damaged(results_root: str | os.PathLike, dry_run: bool = False) ->
     if dry_run:
         return f"the history catalog {final} is damaged ({why}); a run rebuilds it from the stage tables"
     os.replace(final, final.with_name(final.name + ".damaged"))
-    return (f"the history catalog {final} is damaged ({why}): kept as {final.name}.damaged, rebuilt from the "
-            "stage tables by this run")
+    return (
+        f"the history catalog {final} is damaged ({why}): kept as {final.name}.damaged, rebuilt from the "
+        "stage tables by this run"
+    )
 
 
 def catalog_damage(path: str | os.PathLike) -> str | None:
@@ -728,15 +789,20 @@ def catalog_damage(path: str | os.PathLike) -> str | None:
 
 def _set_info(con: duckdb.DuckDBPyConnection, source: str) -> None:
     con.execute(f"DELETE FROM {BUILD_SCHEMA}.info")
-    con.execute(f"INSERT INTO {BUILD_SCHEMA}.info VALUES ('format_version', ?), ('schema', ?), ('source', ?)",
-                [str(FORMAT_VERSION), _schema_fingerprint(), source])
+    con.execute(
+        f"INSERT INTO {BUILD_SCHEMA}.info VALUES ('format_version', ?), ('schema', ?), ('source', ?)",
+        [str(FORMAT_VERSION), _schema_fingerprint(), source],
+    )
 
 
 def _record_sources(con: duckdb.DuckDBPyConnection, sig: Mapping[str, Mapping[str, tuple[int, int]]]) -> None:
     rows = [(n, f, size, mtime) for n, files in sig.items() for f, (size, mtime) in files.items()]
     if rows:
-        df = pl.DataFrame(rows, schema={"night": pl.Utf8, "file": pl.Utf8, "bytes": pl.Int64, "mtime_ns": pl.Int64},
-                          orient="row")
+        df = pl.DataFrame(
+            rows,
+            schema={"night": pl.Utf8, "file": pl.Utf8, "bytes": pl.Int64, "mtime_ns": pl.Int64},
+            orient="row",
+        )
         con.register("_sources", df)
         try:
             con.execute(f"INSERT INTO {BUILD_SCHEMA}.sources SELECT * FROM _sources")
@@ -763,8 +829,13 @@ def update_catalog(  # noqa: C901 (one branch per way the catalog is brought up 
     scan = _scan_stage(root)
     files = {n: {s: v[0] for s, v in d.items()} for n, d in scan.items()}
     now = {n: {v[1]: (v[2], v[3]) for v in d.values()} for n, d in scan.items()}
-    why = {"reason": "full rebuild requested" if full else
-           "no catalog to extend" if not final.exists() else "the catalog could not be opened"}
+    why = {
+        "reason": "full rebuild requested"
+        if full
+        else "no catalog to extend"
+        if not final.exists()
+        else "the catalog could not be opened"
+    }
     damage = catalog_damage(final)
     if damage is not None:
         full, why["reason"] = True, f"the catalog is damaged ({damage}): rebuilt from the stage tables"
@@ -784,8 +855,10 @@ def update_catalog(  # noqa: C901 (one branch per way the catalog is brought up 
         unchanged = [n for n in sources if n in now and n not in changed]
         touched = sorted(set(changed) | set(gone))
         if touched and unchanged and min(touched) <= max(unchanged):
-            why["reason"] = (f"night {min(touched)} changed, and it is not newer than every unchanged night "
-                             f"(newest unchanged: {max(unchanged)})")
+            why["reason"] = (
+                f"night {min(touched)} changed, and it is not newer than every unchanged night "
+                f"(newest unchanged: {max(unchanged)})"
+            )
             return None
         return sorted(set(changed) & set(sources) | set(gone)), sorted(changed)
 
@@ -799,7 +872,9 @@ def update_catalog(  # noqa: C901 (one branch per way the catalog is brought up 
         redo, added = changes
         if redo:
             _remove_nights(con, redo)
-            con.execute(f"DELETE FROM {BUILD_SCHEMA}.sources WHERE night IN (SELECT unnest(?::VARCHAR[]))", [redo])
+            con.execute(
+                f"DELETE FROM {BUILD_SCHEMA}.sources WHERE night IN (SELECT unnest(?::VARCHAR[]))", [redo]
+            )
         if added:
             _append(con, _assemble(_read_nights(root, {n: files[n] for n in added})), root)
             _record_sources(con, {n: now[n] for n in added})
@@ -816,7 +891,9 @@ def update_catalog(  # noqa: C901 (one branch per way the catalog is brought up 
     return CatalogUpdate(final, "append", reason, tuple(added), tuple(redo), rows)
 
 
-def rebuild_catalog(results_root: str | os.PathLike, queries_dir: str | os.PathLike | None = None) -> CatalogUpdate:
+def rebuild_catalog(
+    results_root: str | os.PathLike, queries_dir: str | os.PathLike | None = None
+) -> CatalogUpdate:
     """Rebuild ``<results_root>/catalog.duckdb`` from every stage file (``borescan rebuild-catalog``)."""
     return update_catalog(results_root, queries_dir, full=True)
 
@@ -874,9 +951,11 @@ def open_catalog(results_root: str | os.PathLike, read_only: bool = True) -> duc
         )
     why = catalog_damage(path)
     if why is not None:
-        raise CatalogDamaged(f"the history catalog {path} is damaged: {why}. Rebuild it from the stage tables: "
-                             f"borescan rebuild-catalog --results {Path(results_root)} (the next snakemake run "
-                             "rebuilds it too)")
+        raise CatalogDamaged(
+            f"the history catalog {path} is damaged: {why}. Rebuild it from the stage tables: "
+            f"borescan rebuild-catalog --results {Path(results_root)} (the next snakemake run "
+            "rebuilds it too)"
+        )
     con = duckdb.connect(str(path), read_only=read_only)
     con.execute("SET TimeZone = 'UTC'")
     return con

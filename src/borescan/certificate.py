@@ -51,8 +51,18 @@ from borescan.decision import CANNOT_DECIDE, CONFORMS, DOES_NOT_CONFORM, split_v
 from borescan.certificate_dcc import write_dcc
 from borescan.uncertainty import Budget, Combined, combine, round_uncertainty
 
-__all__ = ["CERTIFICATE_FORMAT", "certificate_dir", "certificate_night_dir", "certificate_dict", "write_certificate", "PLACEHOLDER",
-           "certificate_dates", "calibration_conditions", "write_rod_certificate", "write_certificate_files"]
+__all__ = [
+    "CERTIFICATE_FORMAT",
+    "certificate_dir",
+    "certificate_night_dir",
+    "certificate_dict",
+    "write_certificate",
+    "PLACEHOLDER",
+    "certificate_dates",
+    "calibration_conditions",
+    "write_rod_certificate",
+    "write_certificate_files",
+]
 
 CERTIFICATE_FORMAT = "borescan-certificate/2"
 #: text that marks a laboratory setting left at its default
@@ -60,8 +70,15 @@ PLACEHOLDER = "PLACEHOLDER"
 _PDF_METADATA = {"Creator": None, "Producer": None, "CreationDate": None, "ModDate": None}
 _RC = {"font.family": "DejaVu Sans", "font.size": 8, "svg.hashsalt": "borescan", "pdf.compression": 6}
 _A4 = (8.27, 11.69)
-_UNITS_DSI = {"mm": "\\milli\\metre", "rad": "\\radian", "degC": "\\degreecelsius", "K": "\\kelvin",
-              "1/K": "\\kelvin\\tothe{-1}", "-": "\\one", "um": "\\micro\\metre"}
+_UNITS_DSI = {
+    "mm": "\\milli\\metre",
+    "rad": "\\radian",
+    "degC": "\\degreecelsius",
+    "K": "\\kelvin",
+    "1/K": "\\kelvin\\tothe{-1}",
+    "-": "\\one",
+    "um": "\\micro\\metre",
+}
 _METHOD_TEXT = {
     "full_lsq": (
         "Full-data least-squares calibration (borescan fit_full_calibration): every reading of the "
@@ -75,12 +92,14 @@ _METHOD_TEXT = {
         "stated accuracy. Uncertainty evaluated by the GUM (JCGM 100:2008) law of propagation with "
         "sensitivities "
         "of the least-squares optimum; coverage factor from Welch-Satterthwaite where JCGM 101:2008 (GUM S1) "
-        "validates it, else from the propagated distribution."),
+        "validates it, else from the propagated distribution."
+    ),
     "yang2017": (
         "Yang 2017 extrema method (Eq. 8-15): base length and offset of each beam from the mean "
         "extreme readings, "
         "beam angles from the feature points' timing. Uncertainty evaluated by the GUM (JCGM 100:2008) with "
-        "sensitivities by central differences of the closed forms."),
+        "sensitivities by central differences of the closed forms."
+    ),
     "rod_gauge": (
         "Rod calibration on certified ring gauges (borescan.rod_calibration): the rod is turned by "
         "hand in ring "
@@ -95,7 +114,8 @@ _METHOD_TEXT = {
         "order a constant reading offset, which l0 absorbs). Uncertainty by the GUM (JCGM 100:2008) law of "
         "propagation: the solve's covariance, the gauges' certificates, temperature, expansion "
         "coefficient and "
-        "the sensors' linearity and resolution."),
+        "the sensors' linearity and resolution."
+    ),
 }
 
 
@@ -117,7 +137,9 @@ def certificate_night_dir(results_root: Path | str, cal, night: str) -> Path:
     return Path(results_root) / "calibration" / f"night={night}" / cal.device_id / cal.calibration_id
 
 
-def certificate_dates(scan_metas: list[dict], verification_metas: list[dict], night: str, validity_days: int) -> dict:
+def certificate_dates(
+    scan_metas: list[dict], verification_metas: list[dict], night: str, validity_days: int
+) -> dict:
     """Dates of a certificate from its scans, never the clock (regeneration stays byte-identical).
 
     ``begin``/``end``: the UTC dates of the calibration scans' ``started_at`` (ISO 8601; a scan
@@ -127,6 +149,7 @@ def certificate_dates(scan_metas: list[dict], verification_metas: list[dict], ni
     (:func:`borescan.calibrations.choose_calibration`). ``issue_rule`` and ``recalibration_rule``
     say so in words, for the certificate.
     """
+
     def day(meta: dict) -> str:
         try:
             t = _dt.datetime.fromisoformat(str(meta.get("started_at")).replace("Z", "+00:00"))
@@ -138,19 +161,23 @@ def certificate_dates(scan_metas: list[dict], verification_metas: list[dict], ni
     all_days = sorted(cal_days + [day(m) for m in verification_metas])
     due = (_dt.date.fromisoformat(night) + _dt.timedelta(days=int(validity_days))).isoformat()
     return {
-        "begin": cal_days[0], "end": cal_days[-1], "issue": all_days[-1], "night": night,
+        "begin": cal_days[0],
+        "end": cal_days[-1],
+        "issue": all_days[-1],
+        "night": night,
         "issue_rule": "derived from the data, not the clock: the last UTC date on which a scan "
-                      "reported here was "
-                      "taken (scan.json started_at), so that regenerating the certificate gives the same bytes",
+        "reported here was "
+        "taken (scan.json started_at), so that regenerating the certificate gives the same bytes",
         "recalibration_due": due,
         "recalibration_rule": f"night {night} + calibration.validity_days = {int(validity_days)} days; "
-                              "after it the "
-                              "pipeline refuses the calibration for measurements",
+        "after it the "
+        "pipeline refuses the calibration for measurements",
     }
 
 
-def calibration_conditions(temperature, cte, radius_mm: float, position_accuracy_mm: float, p: float,
-                           scans: list[dict]) -> dict:
+def calibration_conditions(
+    temperature, cte, radius_mm: float, position_accuracy_mm: float, p: float, scans: list[dict]
+) -> dict:
     """Return the influence conditions of a certificate.
 
     Return the influence conditions of a certificate: the gauge's temperature with its uncertainty (U
@@ -160,11 +187,24 @@ def calibration_conditions(temperature, cte, radius_mm: float, position_accuracy
     """
     t_comb = combine([(temperature.u_c, float("inf"), "rectangular")], p)
     return {
-        "temperature": {"value_c": temperature.temperature_c, "u_c": temperature.u_c, "U_c": t_comb.U, "k": t_comb.k,
-                        "halfwidth_c": temperature.halfwidth_c, "distribution": "rectangular",
-                        "assumed": temperature.assumed, "source": temperature.source, "refType": "basic_temperature"},
-        "gauge_cte": {"value_per_k": cte.cte_per_k, "u_per_k": cte.u_per_k, "halfwidth_per_k": cte.halfwidth_per_k,
-                      "assumed": cte.assumed, "source": cte.source},
+        "temperature": {
+            "value_c": temperature.temperature_c,
+            "u_c": temperature.u_c,
+            "U_c": t_comb.U,
+            "k": t_comb.k,
+            "halfwidth_c": temperature.halfwidth_c,
+            "distribution": "rectangular",
+            "assumed": temperature.assumed,
+            "source": temperature.source,
+            "refType": "basic_temperature",
+        },
+        "gauge_cte": {
+            "value_per_k": cte.cte_per_k,
+            "u_per_k": cte.u_per_k,
+            "halfwidth_per_k": cte.halfwidth_per_k,
+            "assumed": cte.assumed,
+            "source": cte.source,
+        },
         "gauge_radius_at_temperature_mm": radius_mm,
         "position_accuracy_mm": position_accuracy_mm,
         "scans": scans,
@@ -245,8 +285,15 @@ def _parameter_rows(cal: TriCalibration, budget: Budget | None, p: float) -> lis
 
 
 def _expanded(comb: Combined, distribution: str = "normal") -> dict:
-    return {"uncertainty": comb.U, "coverageFactor": comb.k, "coverageProbability": comb.p, "distribution": distribution,
-            "standardUncertainty": comb.u, "effectiveDegreesOfFreedom": comb.nu_eff, "coverageMethod": comb.method}
+    return {
+        "uncertainty": comb.U,
+        "coverageFactor": comb.k,
+        "coverageProbability": comb.p,
+        "distribution": distribution,
+        "standardUncertainty": comb.u,
+        "effectiveDegreesOfFreedom": comb.nu_eff,
+        "coverageMethod": comb.method,
+    }
 
 
 def _result(name: str, ref_type: str, held: bool, value: float, unit: str, comb: Combined) -> dict:
@@ -255,8 +302,12 @@ def _result(name: str, ref_type: str, held: bool, value: float, unit: str, comb:
     One DCC result: ``value`` in ``unit`` (a key of ``_UNITS_DSI``: mm, rad, ...) with its D-SI
     expandedUnc.
     """
-    return {"name": name, "refType": ref_type, "held_at_design_value": held,
-            "real": {"value": value, "unit": _UNITS_DSI[unit], "expandedUnc": _expanded(comb)}}
+    return {
+        "name": name,
+        "refType": ref_type,
+        "held_at_design_value": held,
+        "real": {"value": value, "unit": _UNITS_DSI[unit], "expandedUnc": _expanded(comb)},
+    }
 
 
 def _budget_entry(unit: str, rows: list[dict], comb: Combined) -> dict:
@@ -275,21 +326,32 @@ def _statements(lab: dict, dates: dict, conformity: dict, traceability: str) -> 
     text, decision rule, conformity, recalibration due date (ISO date) and how the issue date was derived.
     """
     return [
-        {"norm": "ISO/IEC 17025:2017", "reference": "7.8.2.1 m",
-         "declaration": "The results relate only to the item calibrated. This certificate shall not "
-                        "be reproduced "
-                        "except in full without the written approval of the issuing laboratory."},
+        {
+            "norm": "ISO/IEC 17025:2017",
+            "reference": "7.8.2.1 m",
+            "declaration": "The results relate only to the item calibrated. This certificate shall not "
+            "be reproduced "
+            "except in full without the written approval of the issuing laboratory.",
+        },
         {"refType": "basic_traceability", "declaration": traceability},
         {"refType": "basic_decisionRule", "declaration": _decision_rule_text(lab)},
-        {"refType": "basic_conformity", "conformity": conformity["conformity"], "declaration": conformity["text"]},
-        {"refType": "basic_recalibration", "date": dates.get("recalibration_due"),
-         "declaration": dates.get("recalibration_rule", "")},
+        {
+            "refType": "basic_conformity",
+            "conformity": conformity["conformity"],
+            "declaration": conformity["text"],
+        },
+        {
+            "refType": "basic_recalibration",
+            "date": dates.get("recalibration_due"),
+            "declaration": dates.get("recalibration_rule", ""),
+        },
         {"refType": "borescan_issueDate", "declaration": dates.get("issue_rule", "")},
     ]
 
 
-def _administrative_data(cal, lab: dict, dates: dict, conformity: dict, item: dict, traceability: str,
-                         software_version: str) -> dict:
+def _administrative_data(
+    cal, lab: dict, dates: dict, conformity: dict, item: dict, traceability: str, software_version: str
+) -> dict:
     """Return the DCC ``administrativeData``.
 
     DCC ``administrativeData``: software, core data (ISO dates of calibration and issue), the ``item``,
@@ -297,25 +359,51 @@ def _administrative_data(cal, lab: dict, dates: dict, conformity: dict, item: di
     """
     return {
         "dccSoftware": {"software": [{"name": "borescan", "release": software_version}]},
-        "coreData": {"countryCodeISO3166_1": lab.get("country_code"), "usedLangCodeISO639_1": ["en"],
-                     "mandatoryLangCodeISO639_1": ["en"], "uniqueIdentifier": cal.calibration_id,
-                     "beginPerformanceDate": dates.get("begin"), "endPerformanceDate": dates.get("end"),
-                     "issueDate": dates.get("issue"), "performanceLocation": lab.get("performance_location")},
+        "coreData": {
+            "countryCodeISO3166_1": lab.get("country_code"),
+            "usedLangCodeISO639_1": ["en"],
+            "mandatoryLangCodeISO639_1": ["en"],
+            "uniqueIdentifier": cal.calibration_id,
+            "beginPerformanceDate": dates.get("begin"),
+            "endPerformanceDate": dates.get("end"),
+            "issueDate": dates.get("issue"),
+            "performanceLocation": lab.get("performance_location"),
+        },
         "items": [item],
-        "calibrationLaboratory": {"contact": {"name": lab.get("name"), "location": {"further": lab.get("address")}},
-                                  "accreditation": lab.get("accreditation")},
-        "respPersons": [{"person": {"name": lab.get("signatory")}, "role": lab.get("signatory_function"),
-                         "mainSigner": True}],
+        "calibrationLaboratory": {
+            "contact": {"name": lab.get("name"), "location": {"further": lab.get("address")}},
+            "accreditation": lab.get("accreditation"),
+        },
+        "respPersons": [
+            {
+                "person": {"name": lab.get("signatory")},
+                "role": lab.get("signatory_function"),
+                "mainSigner": True,
+            }
+        ],
         "customer": {"name": lab.get("customer")},
         "statements": _statements(lab, dates, conformity, traceability),
         "placeholders": sorted(k for k, v in lab.items() if isinstance(v, str) and PLACEHOLDER in v),
     }
 
 
-def _shared_part(cal, *, item_name: str, item_id: Any, traceability: str, device: dict, artifact: dict,
-                 conditions: dict, raw_files: dict[str, str], software_version: str, config_hash: str,
-                 laboratory: dict | None, coverage_probability: float, dates: dict | None,
-                 verifications: list[dict] | None) -> dict:
+def _shared_part(
+    cal,
+    *,
+    item_name: str,
+    item_id: Any,
+    traceability: str,
+    device: dict,
+    artifact: dict,
+    conditions: dict,
+    raw_files: dict[str, str],
+    software_version: str,
+    config_hash: str,
+    laboratory: dict | None,
+    coverage_probability: float,
+    dates: dict | None,
+    verifications: list[dict] | None,
+) -> dict:
     """Return the top-level keys every certificate has.
 
     Return the top-level keys every certificate has (three-sensor and rod): identification, coverage
@@ -328,30 +416,62 @@ def _shared_part(cal, *, item_name: str, item_id: Any, traceability: str, device
     dates = dict(dates or {})
     ver = list(verifications or [])
     conformity = _conformity(ver)
-    item = {"name": item_name, "identifications": [{"issuer": "customer", "value": item_id}],
-            "sensors": device.get("sensors", [])}
+    item = {
+        "name": item_name,
+        "identifications": [{"issuer": "customer", "value": item_id}],
+        "sensors": device.get("sensors", []),
+    }
     return {
-        "format": CERTIFICATE_FORMAT, "calibration_id": cal.calibration_id, "device_id": cal.device_id,
-        "method": cal.method, "scan_ids": list(cal.scan_ids), "coverage_probability": float(coverage_probability),
-        "administrativeData": _administrative_data(cal, lab, dates, conformity, item, traceability, software_version),
-        "device": device, "artifact": artifact, "conditions": conditions, "verifications": ver,
-        "conformity": conformity, "dates": dates, "laboratory": lab, "raw_files": dict(sorted(raw_files.items())),
-        "software_version": software_version, "config_hash": config_hash,
+        "format": CERTIFICATE_FORMAT,
+        "calibration_id": cal.calibration_id,
+        "device_id": cal.device_id,
+        "method": cal.method,
+        "scan_ids": list(cal.scan_ids),
+        "coverage_probability": float(coverage_probability),
+        "administrativeData": _administrative_data(
+            cal, lab, dates, conformity, item, traceability, software_version
+        ),
+        "device": device,
+        "artifact": artifact,
+        "conditions": conditions,
+        "verifications": ver,
+        "conformity": conformity,
+        "dates": dates,
+        "laboratory": lab,
+        "raw_files": dict(sorted(raw_files.items())),
+        "software_version": software_version,
+        "config_hash": config_hash,
     }
 
 
-def _measurement_results(name: str, method: str, description: str, uncertainty_norm: str, equipment: list[dict],
-                         conditions: dict, results: list[dict], budgets: dict) -> list[dict]:
+def _measurement_results(
+    name: str,
+    method: str,
+    description: str,
+    uncertainty_norm: str,
+    equipment: list[dict],
+    conditions: dict,
+    results: list[dict],
+    budgets: dict,
+) -> list[dict]:
     """Return the DCC ``measurementResults``.
 
     DCC ``measurementResults``: one result set ``name`` with its method (``description``), the
     uncertainty evaluation's norm, the standards used, the influence conditions, results and budgets.
     """
-    return [{"name": name,
-             "usedMethods": [{"name": method, "description": description},
-                             {"name": "uncertainty", "norm": uncertainty_norm}],
-             "measuringEquipments": equipment, "influenceConditions": conditions, "results": results,
-             "uncertaintyBudget": budgets}]
+    return [
+        {
+            "name": name,
+            "usedMethods": [
+                {"name": method, "description": description},
+                {"name": "uncertainty", "norm": uncertainty_norm},
+            ],
+            "measuringEquipments": equipment,
+            "influenceConditions": conditions,
+            "results": results,
+            "uncertaintyBudget": budgets,
+        }
+    ]
 
 
 def _beam_results(cal: TriCalibration, budget: Budget | None, p: float) -> tuple[list[dict], dict]:
@@ -371,7 +491,9 @@ def _beam_results(cal: TriCalibration, budget: Budget | None, p: float) -> tuple
     return results, budgets
 
 
-def _effective_base_lengths(cal: TriCalibration, budget: Budget | None, conditions: dict, p: float) -> list[dict]:
+def _effective_base_lengths(
+    cal: TriCalibration, budget: Budget | None, conditions: dict, p: float
+) -> list[dict]:
     """Return the effective base lengths g per channel with U.
 
     Per channel g = d_b + rho^2/(2R) [mm] (R the gauge radius at its temperature [mm]) with U for
@@ -385,21 +507,35 @@ def _effective_base_lengths(cal: TriCalibration, budget: Budget | None, conditio
         vec = np.zeros(3 * len(cal.beams.channels))
         rho = float(cal.beams.rho_mm[j])
         vec[3 * j + 1], vec[3 * j + 2] = rho / float(R), 1.0
-        rows.append({"channel": int(ch), "value_mm": float(cal.beams.d_b_mm[j]) + rho**2 / (2.0 * float(R)),
-                     "expandedUnc": _expanded(budget.combined(vec, p))})
+        rows.append(
+            {
+                "channel": int(ch),
+                "value_mm": float(cal.beams.d_b_mm[j]) + rho**2 / (2.0 * float(R)),
+                "expandedUnc": _expanded(budget.combined(vec, p)),
+            }
+        )
     return rows
 
 
 def _gauge_equipment(artifact: dict) -> dict:
     """Return the reference ring gauge as DCC measuring equipment (certified diameter [mm] with U and k)."""
     return {
-        "refType": "basic_normalUsed", "name": "ring gauge",
-        "id": artifact.get("id"), "certificate": artifact.get("certificate"),
-        "issuer": artifact.get("certificate_issuer"), "validUntil": artifact.get("certificate_valid_until"),
-        "certifiedDiameter": {"value": artifact.get("certified_diameter_mm"), "unit": _UNITS_DSI["mm"],
-                              "expandedUnc": {"uncertainty": artifact.get("u_diameter_mm"),
-                                              "coverageFactor": artifact.get("k"), "coverageProbability": None,
-                                              "distribution": "normal"}},
+        "refType": "basic_normalUsed",
+        "name": "ring gauge",
+        "id": artifact.get("id"),
+        "certificate": artifact.get("certificate"),
+        "issuer": artifact.get("certificate_issuer"),
+        "validUntil": artifact.get("certificate_valid_until"),
+        "certifiedDiameter": {
+            "value": artifact.get("certified_diameter_mm"),
+            "unit": _UNITS_DSI["mm"],
+            "expandedUnc": {
+                "uncertainty": artifact.get("u_diameter_mm"),
+                "coverageFactor": artifact.get("k"),
+                "coverageProbability": None,
+                "distribution": "normal",
+            },
+        },
         "cte_per_k": artifact.get("cte_per_k"),
     }
 
@@ -410,17 +546,39 @@ def _fit_part(cal: TriCalibration) -> dict:
     Return the fit's summary (residual rms [mm], dof, rank, condition, convergence, nuisance) and the
     diagnostics a certificate reports.
     """
-    keys = ("gauge", "beta_reference", "acceptance", "n_obs", "n_params", "n_params_all_free", "rank_all_free",
-            "weak_rho_channels", "g_mm", "u_g_mm", "n_minima", "ambiguous_minima")
+    keys = (
+        "gauge",
+        "beta_reference",
+        "acceptance",
+        "n_obs",
+        "n_params",
+        "n_params_all_free",
+        "rank_all_free",
+        "weak_rho_channels",
+        "g_mm",
+        "u_g_mm",
+        "n_minima",
+        "ambiguous_minima",
+    )
     diag = {k: cal.diagnostics[k] for k in keys if k in cal.diagnostics}
     if cal.diagnostics.get("rho_profiles"):  # where the cost along a rho is not the linear one
-        diag["rho_profiled_channels"] = [int(p["channel"]) for p in cal.diagnostics["rho_profiles"]
-                                         if not p.get("linear", True)]
+        diag["rho_profiled_channels"] = [
+            int(p["channel"]) for p in cal.diagnostics["rho_profiles"] if not p.get("linear", True)
+        ]
     if cal.diagnostics.get("device_model"):  # the effects of the device's model the calibration carried
-        diag["device_model"] = [{k: m.get(k) for k in ("key", "estimated", "values", "u", "night", "evidence_scans",
-                                                       "source")} for m in cal.diagnostics["device_model"]]
-    return {"residual_rms_mm": cal.residual_rms_mm, "dof": cal.dof, "rank": cal.rank, "condition": cal.condition,
-            "converged": cal.converged, "nuisance": cal.nuisance, **diag}
+        diag["device_model"] = [
+            {k: m.get(k) for k in ("key", "estimated", "values", "u", "night", "evidence_scans", "source")}
+            for m in cal.diagnostics["device_model"]
+        ]
+    return {
+        "residual_rms_mm": cal.residual_rms_mm,
+        "dof": cal.dof,
+        "rank": cal.rank,
+        "condition": cal.condition,
+        "converged": cal.converged,
+        "nuisance": cal.nuisance,
+        **diag,
+    }
 
 
 def device_model_text(entries: list[dict]) -> str:
@@ -432,17 +590,23 @@ def device_model_text(entries: list[dict]) -> str:
             continue
         vals = ", ".join(f"{k} = {v:.6g} (u {m['u'].get(k, 0.0):.2g})" for k, v in m["values"].items())
         how = " (entered automatically: named night after night)" if m.get("source") == "automatic" else ""
-        carried.append(f"{m['key']}: {vals}, from the pooled examination of {m['night']} "
-                       f"({', '.join(m.get('evidence_scans') or []) or 'its scans'}){how}")
+        carried.append(
+            f"{m['key']}: {vals}, from the pooled examination of {m['night']} "
+            f"({', '.join(m.get('evidence_scans') or []) or 'its scans'}){how}"
+        )
     out = []
     if carried:
-        out.append("Device model carried (the readings corrected for it, a channel delay taken in the channel's "
-                   "angle; each value's uncertainty is an input of the budget): " + "; ".join(carried) + ".")
+        out.append(
+            "Device model carried (the readings corrected for it, a channel delay taken in the channel's "
+            "angle; each value's uncertainty is an input of the budget): " + "; ".join(carried) + "."
+        )
     if listed:
-        out.append("Listed in the device model but not estimated by any earlier pooled examination, so not "
-                   "corrected: "
-                   + ", ".join(listed) + ".")
+        out.append(
+            "Listed in the device model but not estimated by any earlier pooled examination, so not "
+            "corrected: " + ", ".join(listed) + "."
+        )
     return " ".join(out)
+
 
 def certificate_dict(
     cal: TriCalibration,
@@ -468,41 +632,69 @@ def certificate_dict(
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(res**2, axis=0)) if res.size else np.array([])
     budget = _budget_of(cal, budget)
-    p = float(schema_default("uncertainty", "coverage_probability") if coverage_probability is None
-              else coverage_probability)
+    p = float(
+        schema_default("uncertainty", "coverage_probability")
+        if coverage_probability is None
+        else coverage_probability
+    )
     results, budgets = _beam_results(cal, budget, p)
     shared = _shared_part(
-        cal, item_name=f"three-sensor bore measuring device ({device.get('type', 'tri_lds')})",
-        item_id=device.get("id", cal.device_id), traceability=_traceability_text(artifact), device=device,
-        artifact=artifact, conditions=conditions, raw_files=raw_files, software_version=software_version,
-        config_hash=config_hash, laboratory=laboratory, coverage_probability=p, dates=dates,
-        verifications=verifications)
-    return _fixed({
-        **shared,
-        "measurementResults": _measurement_results(
-            "calibrated beam geometry", cal.method, _METHOD_TEXT.get(cal.method, cal.method),
-            "JCGM 100:2008 (GUM); JCGM 101:2008 (GUM S1)", [_gauge_equipment(artifact)], conditions, results, budgets),
-        "parameters": _parameter_rows(cal, budget, p),
-        "effective_base_length": _effective_base_lengths(cal, budget, conditions, p),
-        "covariance": cal.cov,
-        "covariance_fit": cal.diagnostics.get("cov_fit", cal.cov),
-        "correlation": cal.correlation,
-        "fit": _fit_part(cal),
-        "rho_sign": rho_sign_part(cal),
-        "residuals": {"n_samples": int(t.size), "rms_mm_per_channel": rms},
-        "raw_sha256": dict(sorted(cal.raw_sha256.items())),
-    })
+        cal,
+        item_name=f"three-sensor bore measuring device ({device.get('type', 'tri_lds')})",
+        item_id=device.get("id", cal.device_id),
+        traceability=_traceability_text(artifact),
+        device=device,
+        artifact=artifact,
+        conditions=conditions,
+        raw_files=raw_files,
+        software_version=software_version,
+        config_hash=config_hash,
+        laboratory=laboratory,
+        coverage_probability=p,
+        dates=dates,
+        verifications=verifications,
+    )
+    return _fixed(
+        {
+            **shared,
+            "measurementResults": _measurement_results(
+                "calibrated beam geometry",
+                cal.method,
+                _METHOD_TEXT.get(cal.method, cal.method),
+                "JCGM 100:2008 (GUM); JCGM 101:2008 (GUM S1)",
+                [_gauge_equipment(artifact)],
+                conditions,
+                results,
+                budgets,
+            ),
+            "parameters": _parameter_rows(cal, budget, p),
+            "effective_base_length": _effective_base_lengths(cal, budget, conditions, p),
+            "covariance": cal.cov,
+            "covariance_fit": cal.diagnostics.get("cov_fit", cal.cov),
+            "correlation": cal.correlation,
+            "fit": _fit_part(cal),
+            "rho_sign": rho_sign_part(cal),
+            "residuals": {"n_samples": int(t.size), "rms_mm_per_channel": rms},
+            "raw_sha256": dict(sorted(cal.raw_sha256.items())),
+        }
+    )
 
 
 def _traceability_text(art: dict) -> str:
     issuer = art.get("certificate_issuer")
     valid = art.get("certificate_valid_until")
     who = f"issued by {issuer}" if issuer else "issuer not stated in scan.json (artifact.certificate_issuer)"
-    until = f"valid until {valid}" if valid else "validity not stated in scan.json (artifact.certificate_valid_until)"
-    return (f"The results are traceable to the SI unit of length (the metre) through the reference ring gauge "
-            f"{art.get('id')}, certificate {art.get('certificate')} ({who}; {until}), certified diameter "
-            f"{art.get('certified_diameter_mm')} mm at 20 degC with U = {art.get('u_diameter_mm')} mm "
-            f"(k = {art.get('k')}).")
+    until = (
+        f"valid until {valid}"
+        if valid
+        else "validity not stated in scan.json (artifact.certificate_valid_until)"
+    )
+    return (
+        f"The results are traceable to the SI unit of length (the metre) through the reference ring gauge "
+        f"{art.get('id')}, certificate {art.get('certificate')} ({who}; {until}), certified diameter "
+        f"{art.get('certified_diameter_mm')} mm at 20 degC with U = {art.get('u_diameter_mm')} mm "
+        f"(k = {art.get('k')})."
+    )
 
 
 def _standard_statement(lab: dict) -> str:
@@ -513,8 +705,10 @@ def _standard_statement(lab: dict) -> str:
     """
     acc = str(lab.get("accreditation") or "")
     if not acc or acc.upper().startswith("PLACEHOLDER") or "no accreditation" in acc.lower():
-        return ("The content of this certificate follows ISO/IEC 17025:2017 7.8; the laboratory claims no "
-                "accreditation for it.")
+        return (
+            "The content of this certificate follows ISO/IEC 17025:2017 7.8; the laboratory claims no "
+            "accreditation for it."
+        )
     return f"This certificate is issued in accordance with ISO/IEC 17025:2017 7.8 ({acc})."
 
 
@@ -524,46 +718,80 @@ def _decision_rule_text(lab: dict) -> str:
     E is the error of the diameter at 20 degC, T the tolerance, w the guard band.
     """
     f = lab.get("guard_band_factor")
-    tail = ("E the error of the diameter at 20 degC, U(E) its "
-            "expanded uncertainty, T the tolerance. A result whose "
-            "U(E) is not below T is never stated to conform.")
+    tail = (
+        "E the error of the diameter at 20 degC, U(E) its "
+        "expanded uncertainty, T the tolerance. A result whose "
+        "U(E) is not below T is never stated to conform."
+    )
     if lab.get("decision_rule") in ("guard_band", "guarded_acceptance"):
-        return ("Guarded acceptance (ILAC-G8:09/2019 4.2.2, ISO "
-                f"14253-1): conforms when |E| <= T - w, w = {f} U(E); "
-                f"does not conform when |E| > T; between, cannot decide (not accepted). " + tail)
+        return (
+            "Guarded acceptance (ILAC-G8:09/2019 4.2.2, ISO "
+            f"14253-1): conforms when |E| <= T - w, w = {f} U(E); "
+            f"does not conform when |E| > T; between, cannot decide (not accepted). " + tail
+        )
     if lab.get("decision_rule") == "guarded_rejection":
-        return ("Guarded rejection (ILAC-G8:09/2019 4.2.3, ISO "
-                f"14253-1): does not conform when |E| > T + w, w = {f} "
-                f"U(E); conforms when |E| <= T; between, cannot decide (not rejected). " + tail)
-    return ("Simple acceptance (ILAC-G8:09/2019 4.2.1): conforms when |E| <= T (guard band w = 0), else does not "
-            "conform; at the limit the probability of a false accept reaches 50 %. " + tail)
+        return (
+            "Guarded rejection (ILAC-G8:09/2019 4.2.3, ISO "
+            f"14253-1): does not conform when |E| > T + w, w = {f} "
+            f"U(E); conforms when |E| <= T; between, cannot decide (not rejected). " + tail
+        )
+    return (
+        "Simple acceptance (ILAC-G8:09/2019 4.2.1): conforms when |E| <= T (guard band w = 0), else does not "
+        "conform; at the limit the probability of a false accept reaches 50 %. " + tail
+    )
 
 
 def _conformity(ver: list[dict]) -> dict:
     if not ver:
-        return {"conformity": "noStatement",
-                "text": "No verification scan of this device was taken in "
-                        "the calibration night: conformity is not stated."}
-    verdicts = [split_verdict(v.get("conformity"))[0] or (CONFORMS if v.get("passed") else DOES_NOT_CONFORM)
-                for v in ver]
+        return {
+            "conformity": "noStatement",
+            "text": "No verification scan of this device was taken in "
+            "the calibration night: conformity is not stated.",
+        }
+    verdicts = [
+        split_verdict(v.get("conformity"))[0] or (CONFORMS if v.get("passed") else DOES_NOT_CONFORM)
+        for v in ver
+    ]
     ok = all(bool(v.get("passed")) for v in ver)
     n_pass = sum(bool(v.get("passed")) for v in ver)
-    counts = ", ".join(f"{verdicts.count(x)} {x}" for x in (CONFORMS, CANNOT_DECIDE, DOES_NOT_CONFORM) if x in verdicts)
-    guard = sorted({f"{_ver_name(v)}: U(E) {1e3 * v['expanded_u_error_mm']:.1f} um against T "
-                    f"{1e3 * v['tolerance_mm']:.1f} um" for v in ver
-                    if v.get("expanded_u_error_mm") is not None and v["expanded_u_error_mm"] >= v["tolerance_mm"]})
-    overall = DOES_NOT_CONFORM if DOES_NOT_CONFORM in verdicts else CANNOT_DECIDE if CANNOT_DECIDE in verdicts \
+    counts = ", ".join(
+        f"{verdicts.count(x)} {x}" for x in (CONFORMS, CANNOT_DECIDE, DOES_NOT_CONFORM) if x in verdicts
+    )
+    guard = sorted(
+        {
+            f"{_ver_name(v)}: U(E) {1e3 * v['expanded_u_error_mm']:.1f} um against T "
+            f"{1e3 * v['tolerance_mm']:.1f} um"
+            for v in ver
+            if v.get("expanded_u_error_mm") is not None and v["expanded_u_error_mm"] >= v["tolerance_mm"]
+        }
+    )
+    overall = (
+        DOES_NOT_CONFORM
+        if DOES_NOT_CONFORM in verdicts
+        else CANNOT_DECIDE
+        if CANNOT_DECIDE in verdicts
         else CONFORMS
-    head = ("Whether the device conforms to the verification tolerance cannot be decided" if overall == CANNOT_DECIDE
-            else f"The device {overall.replace('does not', 'does NOT')} to the verification tolerance")
-    text = (f"{head} under the stated decision rule: of {len(ver)} "
-            f"verifications on certified ring gauges {counts} "
-            f"({n_pass} accepted by the rule).")
+    )
+    head = (
+        "Whether the device conforms to the verification tolerance cannot be decided"
+        if overall == CANNOT_DECIDE
+        else f"The device {overall.replace('does not', 'does NOT')} to the verification tolerance"
+    )
+    text = (
+        f"{head} under the stated decision rule: of {len(ver)} "
+        f"verifications on certified ring gauges {counts} "
+        f"({n_pass} accepted by the rule)."
+    )
     if guard:
-        text += " The expanded uncertainty is not below the tolerance (" + "; ".join(guard) + \
-                "): these verifications cannot show conformity."
+        text += (
+            " The expanded uncertainty is not below the tolerance ("
+            + "; ".join(guard)
+            + "): these verifications cannot show conformity."
+        )
     # DCC conformity: a verdict that cannot decide is conditional, passed or not by the rule
-    dcc = {CONFORMS: "pass", DOES_NOT_CONFORM: "fail"}.get(overall, "conditionalPass" if ok else "conditionalFail")
+    dcc = {CONFORMS: "pass", DOES_NOT_CONFORM: "fail"}.get(
+        overall, "conditionalPass" if ok else "conditionalFail"
+    )
     return {"conformity": dcc, "text": text}
 
 
@@ -602,15 +830,24 @@ class _Doc:
         self.fig.text(self.LEFT, self.y, text, fontsize=size, weight="bold")
         self.y -= 0.02
 
-    def para(self, text: str, size: float = 7.5, width: int = 120, indent: float = 0.0, style: str = "normal",
-             color: str = "black") -> None:
+    def para(
+        self,
+        text: str,
+        size: float = 7.5,
+        width: int = 120,
+        indent: float = 0.0,
+        style: str = "normal",
+        color: str = "black",
+    ) -> None:
         for line in _wrap(text, width):
             self.room(0.014)
             self.fig.text(self.LEFT + indent, self.y, line, fontsize=size, style=style, color=color)
             self.y -= 0.0125 * size / 7.5
         self.y -= 0.004
 
-    def kv(self, rows: list[tuple[str, str]], key_w: float = 0.23, width: int = 92, size: float = 7.5) -> None:
+    def kv(
+        self, rows: list[tuple[str, str]], key_w: float = 0.23, width: int = 92, size: float = 7.5
+    ) -> None:
         for key, val in rows:
             lines = _wrap(val, width)
             self.room(0.0135 * len(lines))
@@ -620,8 +857,15 @@ class _Doc:
                 self.y -= 0.0135
             self.y -= 0.002
 
-    def table(self, cols: list[str], cells: list[list[str]], widths: list[float] | None = None, size: float = 6.5,
-              row_h: float = 0.0145, bold_last: bool = False) -> None:
+    def table(
+        self,
+        cols: list[str],
+        cells: list[list[str]],
+        widths: list[float] | None = None,
+        size: float = 6.5,
+        row_h: float = 0.0145,
+        bold_last: bool = False,
+    ) -> None:
         n = len(cells) + 1
         h = row_h * n
         self.room(h + 0.01)
@@ -648,14 +892,30 @@ class _Doc:
             fig.text(self.LEFT, 0.948, str(lab.get("address")), fontsize=7)
             fig.text(self.LEFT, 0.936, str(lab.get("accreditation")), fontsize=6.5, style="italic")
             fig.text(self.RIGHT, 0.962, "Calibration certificate", fontsize=10, weight="bold", ha="right")
-            fig.text(self.RIGHT, 0.948, f"No. {c['administrativeData']['coreData']['uniqueIdentifier']}", fontsize=7.5, ha="right")
+            fig.text(
+                self.RIGHT,
+                0.948,
+                f"No. {c['administrativeData']['coreData']['uniqueIdentifier']}",
+                fontsize=7.5,
+                ha="right",
+            )
             fig.text(self.RIGHT, 0.936, f"Page {i + 1} of {n}", fontsize=7.5, ha="right", weight="bold")
             fig.add_artist(_hline(fig, 0.928))
             fig.add_artist(_hline(fig, 0.058))
-            fig.text(self.LEFT, 0.046, "The results relate only to the item calibrated. This certificate shall not be "
-                     "reproduced except in full without the written approval of the issuing laboratory.", fontsize=6)
-            fig.text(self.LEFT, 0.034, f"Issued {c['dates'].get('issue') or 'n/a'} by borescan {c['software_version']} "
-                     f"(config {c['config_hash']}); machine-readable copy: certificate.json", fontsize=6)
+            fig.text(
+                self.LEFT,
+                0.046,
+                "The results relate only to the item calibrated. This certificate shall not be "
+                "reproduced except in full without the written approval of the issuing laboratory.",
+                fontsize=6,
+            )
+            fig.text(
+                self.LEFT,
+                0.034,
+                f"Issued {c['dates'].get('issue') or 'n/a'} by borescan {c['software_version']} "
+                f"(config {c['config_hash']}); machine-readable copy: certificate.json",
+                fontsize=6,
+            )
             fig.text(self.RIGHT, 0.034, f"Page {i + 1} of {n}", fontsize=6, ha="right")
         return self.pages
 
@@ -720,8 +980,13 @@ def _est_text(x: Any, unit: str) -> str:
     return f"{x:.4g} {unit}"
 
 
-_DIST = {"normal": "normal", "rectangular": "rect.", "triangular": "triang.", "arcsine": "U-shaped",
-         "multivariate normal": "normal (vec.)"}
+_DIST = {
+    "normal": "normal",
+    "rectangular": "rect.",
+    "triangular": "triang.",
+    "arcsine": "U-shaped",
+    "multivariate normal": "normal (vec.)",
+}
 
 
 def _dof_text(nu: Any) -> str:
@@ -741,49 +1006,85 @@ def _page_admin(d: _Doc) -> None:
     lab, dates, dev = c["laboratory"], c["dates"], c["device"]
     d.fig.text(d.LEFT, d.y - 0.01, "Calibration certificate", fontsize=18, weight="bold")
     d.y -= 0.035
-    d.fig.text(d.LEFT, d.y, f"Certificate number {c['administrativeData']['coreData']['uniqueIdentifier']}", fontsize=10)
+    d.fig.text(
+        d.LEFT,
+        d.y,
+        f"Certificate number {c['administrativeData']['coreData']['uniqueIdentifier']}",
+        fontsize=10,
+    )
     d.y -= 0.03
     if c["administrativeData"]["placeholders"]:
-        d.para("NOTE: the laboratory settings " + ", ".join(c["administrativeData"]["placeholders"]) + " are the "
-               "defaults of workflow/schemas/config.schema.yaml, placeholders that name no real "
-               "laboratory. Set the "
-               "laboratory section of config/config.yaml before issuing this certificate to anyone.", color="firebrick",
-               size=7.5)
+        d.para(
+            "NOTE: the laboratory settings "
+            + ", ".join(c["administrativeData"]["placeholders"])
+            + " are the "
+            "defaults of workflow/schemas/config.schema.yaml, placeholders that name no real "
+            "laboratory. Set the "
+            "laboratory section of config/config.yaml before issuing this certificate to anyone.",
+            color="firebrick",
+            size=7.5,
+        )
     sensors = dev.get("sensors") or []
     flags = []
     cond = c["conditions"]
     if (cond.get("temperature") or {}).get("assumed"):
-        flags.append("the gauge temperature was not recorded; 20 degC was ASSUMED with a wider uncertainty "
-                     "(uncertainty.missing_temperature)")
+        flags.append(
+            "the gauge temperature was not recorded; 20 degC was ASSUMED with a wider uncertainty "
+            "(uncertainty.missing_temperature)"
+        )
     if (cond.get("gauge_cte") or {}).get("assumed"):
-        flags.append("the gauge's expansion coefficient was not stated; an assumed value with a wide bound was used")
-    d.kv([
-        ("Issuing laboratory", f"{lab.get('name')}, {lab.get('address')}"),
-        ("Accreditation", str(lab.get("accreditation"))),
-        ("Customer", str(lab.get("customer"))),
-        ("Item calibrated", f"{c.get('item', 'three-sensor bore measuring device')} {dev.get('id', c['device_id'])} "
-                            f"(type {dev.get('type', 'tri_lds')}) with {len(sensors)} laser displacement sensors "
-                            "(table on page 2)"),
-        ("Place of calibration", str(lab.get("performance_location"))),
-        ("Date(s) of calibration", _date_range(dates)),
-        ("Date of issue", f"{dates.get('issue') or 'n/a'} ({dates.get('issue_rule', 'not stated')})"),
-        *([("Replaces", c["reissue"]["declaration"])] if (c.get("reissue") or {}).get("replaces") else []),
-        ("Recalibration due", f"{dates.get('recalibration_due') or 'n/a'} ({dates.get('recalibration_rule', '')})"),
-        ("Method", _METHOD_TEXT.get(c["method"], c["method"])),
-        ("Calibration scans", ", ".join(c["scan_ids"])),
-        ("Deviations from the method", "; ".join(flags) if flags else "none"),
-        ("Traceability", c.get("traceability_summary") or f"reference ring gauge {c['artifact'].get('id')}, certificate "
-                         f"{c['artifact'].get('certificate')} (section 4)"),
-        ("Decision rule", _decision_rule_text(lab) + " (section 7)"),
-        ("Conformity", c["conformity"]["text"]),
-        ("Measurement uncertainty", f"Expanded uncertainties U = k u_c with a coverage probability of "
-                                    f"{100 * c['coverage_probability']:.2f} % (about 95 %); k per result (page 3). "
-                                    "Evaluated according to JCGM 100:2008 (GUM) and JCGM 101:2008 (GUM S1); the "
-                                    "budget is on the following pages and in certificate.json."),
-    ])
+        flags.append(
+            "the gauge's expansion coefficient was not stated; an assumed value with a wide bound was used"
+        )
+    d.kv(
+        [
+            ("Issuing laboratory", f"{lab.get('name')}, {lab.get('address')}"),
+            ("Accreditation", str(lab.get("accreditation"))),
+            ("Customer", str(lab.get("customer"))),
+            (
+                "Item calibrated",
+                f"{c.get('item', 'three-sensor bore measuring device')} {dev.get('id', c['device_id'])} "
+                f"(type {dev.get('type', 'tri_lds')}) with {len(sensors)} laser displacement sensors "
+                "(table on page 2)",
+            ),
+            ("Place of calibration", str(lab.get("performance_location"))),
+            ("Date(s) of calibration", _date_range(dates)),
+            ("Date of issue", f"{dates.get('issue') or 'n/a'} ({dates.get('issue_rule', 'not stated')})"),
+            *(
+                [("Replaces", c["reissue"]["declaration"])]
+                if (c.get("reissue") or {}).get("replaces")
+                else []
+            ),
+            (
+                "Recalibration due",
+                f"{dates.get('recalibration_due') or 'n/a'} ({dates.get('recalibration_rule', '')})",
+            ),
+            ("Method", _METHOD_TEXT.get(c["method"], c["method"])),
+            ("Calibration scans", ", ".join(c["scan_ids"])),
+            ("Deviations from the method", "; ".join(flags) if flags else "none"),
+            (
+                "Traceability",
+                c.get("traceability_summary")
+                or f"reference ring gauge {c['artifact'].get('id')}, certificate "
+                f"{c['artifact'].get('certificate')} (section 4)",
+            ),
+            ("Decision rule", _decision_rule_text(lab) + " (section 7)"),
+            ("Conformity", c["conformity"]["text"]),
+            (
+                "Measurement uncertainty",
+                f"Expanded uncertainties U = k u_c with a coverage probability of "
+                f"{100 * c['coverage_probability']:.2f} % (about 95 %); k per result (page 3). "
+                "Evaluated according to JCGM 100:2008 (GUM) and JCGM 101:2008 (GUM S1); the "
+                "budget is on the following pages and in certificate.json.",
+            ),
+        ]
+    )
     d.y -= 0.01
-    d.para(_standard_statement(lab) + " The results relate only to the item calibrated, at the time of calibration. "
-           "The user is responsible for arranging recalibration in due time.")
+    d.para(
+        _standard_statement(lab)
+        + " The results relate only to the item calibrated, at the time of calibration. "
+        "The user is responsible for arranging recalibration in due time."
+    )
     d.y -= 0.03
     d.room(0.09)
     d.fig.text(d.LEFT, d.y, "Authorised signatory", fontsize=8, weight="bold")
@@ -823,20 +1124,41 @@ def _page_item_conditions(d: _Doc) -> None:
 
 def _sensor_table(d: _Doc, dev: dict, device_id: str) -> None:
     """Write the device's sensors as recorded in scan.json, as a table."""
-    d.para(f"Device {dev.get('id', device_id)}, type {dev.get('type', 'tri_lds')}; sensors as recorded in "
-           "scan.json:")
-    cols = ["channel", "model", "serial", "range [mm]", "linearity [% FS]", "linearity +- [um]", "repeatab. [um]",
-            "resolution [um]"]
+    d.para(
+        f"Device {dev.get('id', device_id)}, type {dev.get('type', 'tri_lds')}; sensors as recorded in "
+        "scan.json:"
+    )
+    cols = [
+        "channel",
+        "model",
+        "serial",
+        "range [mm]",
+        "linearity [% FS]",
+        "linearity +- [um]",
+        "repeatab. [um]",
+        "resolution [um]",
+    ]
     cells = []
     for s in dev.get("sensors") or []:
         lin = s.get("linearity_fs")
         rng = s.get("range_mm")
         lin_um = lin * rng * 1e3 if lin is not None and rng is not None else None
-        cells.append([str(s.get("channel")), str(s.get("model", "")), str(s.get("serial", "")), _num(rng, "g"),
-                      _num(None if lin is None else 100 * lin, "g"), _num(lin_um, ".1f"),
-                      _num(None if s.get("repeatability_mm") is None else 1e3 * s["repeatability_mm"], "g"),
-                      _num(None if s.get("resolution_mm") is None else 1e3 * s["resolution_mm"], "g",
-                           none="not stated")])
+        cells.append(
+            [
+                str(s.get("channel")),
+                str(s.get("model", "")),
+                str(s.get("serial", "")),
+                _num(rng, "g"),
+                _num(None if lin is None else 100 * lin, "g"),
+                _num(lin_um, ".1f"),
+                _num(None if s.get("repeatability_mm") is None else 1e3 * s["repeatability_mm"], "g"),
+                _num(
+                    None if s.get("resolution_mm") is None else 1e3 * s["resolution_mm"],
+                    "g",
+                    none="not stated",
+                ),
+            ]
+        )
     if cells:
         d.table(cols, cells, widths=[0.08, 0.13, 0.15, 0.1, 0.13, 0.14, 0.12, 0.15], size=6.8)
 
@@ -854,44 +1176,89 @@ def _page_conditions_traceability(d: _Doc) -> None:
     d.heading("3  Conditions of calibration")
     temp = cond.get("temperature") or {}
     cte = cond.get("gauge_cte") or {}
-    rows = [("Gauge temperature", (f"{_num(temp.get('value_c'), '.2f')} degC, standard uncertainty "
-                                   f"{_num(temp.get('u_c'), '.3f')} K, U = {_num(temp.get('U_c'), '.3f')} K "
-                                   f"(k = {_num(temp.get('k'), '.2f')}, p = {100 * c['coverage_probability']:.2f} %); "
-                                   f"{temp.get('source', 'not stated')}") if temp else "not recorded")]
+    rows = [
+        (
+            "Gauge temperature",
+            (
+                f"{_num(temp.get('value_c'), '.2f')} degC, standard uncertainty "
+                f"{_num(temp.get('u_c'), '.3f')} K, U = {_num(temp.get('U_c'), '.3f')} K "
+                f"(k = {_num(temp.get('k'), '.2f')}, p = {100 * c['coverage_probability']:.2f} %); "
+                f"{temp.get('source', 'not stated')}"
+            )
+            if temp
+            else "not recorded",
+        )
+    ]
     if cte:
-        rows.append(("Gauge expansion coeff.", f"{_ppm(cte.get('value_per_k'))} +- {_ppm(cte.get('halfwidth_per_k'))} "
-                                               f"(rectangular); {cte.get('source', '')}"))
+        rows.append(
+            (
+                "Gauge expansion coeff.",
+                f"{_ppm(cte.get('value_per_k'))} +- {_ppm(cte.get('halfwidth_per_k'))} "
+                f"(rectangular); {cte.get('source', '')}",
+            )
+        )
     if cond.get("gauge_radius_at_temperature_mm") is not None:
-        rows.append(("Gauge radius at T", f"{_num(cond['gauge_radius_at_temperature_mm'], '.5f')} mm "
-                                          "(R = D20/2 (1 + alpha (T - 20 degC)))"))
+        rows.append(
+            (
+                "Gauge radius at T",
+                f"{_num(cond['gauge_radius_at_temperature_mm'], '.5f')} mm "
+                "(R = D20/2 (1 + alpha (T - 20 degC)))",
+            )
+        )
     for sc in cond.get("scans") or []:
         pos = sc.get("spindle_position") or {}
         cen = sc.get("center") or {}
         acc = cond.get("position_accuracy_mm")
         acc_t = f" (each coordinate +-{_num(1e3 * acc, 'g')} um, machine's stated accuracy)" if acc else ""
-        rows.append(("Calibration scan", f"{sc.get('scan_id')}: spindle at ({_num(pos.get('x_mm'), '.3f')}, "
-                                         f"{_num(pos.get('y_mm'), '.3f')}) mm, gauge centre "
-                     f"({_num(cen.get('x_mm'), '.3f')}, {_num(cen.get('y_mm'), '.3f')}) mm{acc_t}; "
-                     f"{_num(sc.get('rpm'), '.1f')} rpm ({sc.get('angle_source', '')}); "
-                     f"{_num(sc.get('revolutions_recorded'), '.1f')} revolutions recorded, "
-                     f"{sc.get('revolutions_with_extrema', 'n/a')} complete with both extrema per channel"))
-    rows.append(("Other conditions", "humidity, pressure and vibration are not recorded in scan.json; they enter no "
-                                     "result"))
+        rows.append(
+            (
+                "Calibration scan",
+                f"{sc.get('scan_id')}: spindle at ({_num(pos.get('x_mm'), '.3f')}, "
+                f"{_num(pos.get('y_mm'), '.3f')}) mm, gauge centre "
+                f"({_num(cen.get('x_mm'), '.3f')}, {_num(cen.get('y_mm'), '.3f')}) mm{acc_t}; "
+                f"{_num(sc.get('rpm'), '.1f')} rpm ({sc.get('angle_source', '')}); "
+                f"{_num(sc.get('revolutions_recorded'), '.1f')} revolutions recorded, "
+                f"{sc.get('revolutions_with_extrema', 'n/a')} complete with both extrema per channel",
+            )
+        )
+    rows.append(
+        (
+            "Other conditions",
+            "humidity, pressure and vibration are not recorded in scan.json; they enter no result",
+        )
+    )
     d.kv(rows, key_w=0.21, width=96)
     d.heading("4  Traceability")
     d.para(_traceability_text(art))
     issuer = art.get("certificate_issuer")
     valid = art.get("certificate_valid_until")
-    chain = [("Reference standard", f"ring gauge {art.get('id')}"),
-             ("Its certificate", f"{art.get('certificate')}, " + (f"issued by {issuer}" if issuer else
-                                 "issuer NOT STATED (scan.json artifact.certificate_issuer)")),
-             ("Valid until", str(valid or "NOT STATED (scan.json artifact.certificate_valid_until)")),
-             ("Certified diameter", f"{_num(art.get('certified_diameter_mm'), '.4f')} mm at 20 degC, U = "
-                                    f"{_num(_scaled(art.get('u_diameter_mm'), 1e3), 'g')} um "
-                                    f"(k = {art.get('k')})")]
+    chain = [
+        ("Reference standard", f"ring gauge {art.get('id')}"),
+        (
+            "Its certificate",
+            f"{art.get('certificate')}, "
+            + (
+                f"issued by {issuer}"
+                if issuer
+                else "issuer NOT STATED (scan.json artifact.certificate_issuer)"
+            ),
+        ),
+        ("Valid until", str(valid or "NOT STATED (scan.json artifact.certificate_valid_until)")),
+        (
+            "Certified diameter",
+            f"{_num(art.get('certified_diameter_mm'), '.4f')} mm at 20 degC, U = "
+            f"{_num(_scaled(art.get('u_diameter_mm'), 1e3), 'g')} um "
+            f"(k = {art.get('k')})",
+        ),
+    ]
     if valid and c["dates"].get("end") and str(valid) < str(c["dates"]["end"]):
-        chain.append(("WARNING", f"the gauge certificate expired on {valid}, before this calibration: traceability is "
-                                 "not established"))
+        chain.append(
+            (
+                "WARNING",
+                f"the gauge certificate expired on {valid}, before this calibration: traceability is "
+                "not established",
+            )
+        )
     d.kv(chain, key_w=0.21, width=96)
 
 
@@ -900,63 +1267,104 @@ def _page_results(d: _Doc) -> None:
     p = c["coverage_probability"]
     d.new_page()
     d.heading("5  Results")
-    d.para("Calibrated beam geometry per channel: direction beta of the beam, its offset rho from the "
-           "rotation axis "
-           "and its base length d_b (the distance from the foot point to the sensor's measuring start). "
-           "Expanded "
-           f"uncertainty U = k u_c for a coverage probability of {100 * p:.2f} %; k from the effective "
-           "degrees of "
-           "freedom (Welch-Satterthwaite) where the GUM S1 check validates it, else from the propagated "
-           "distribution.")
+    d.para(
+        "Calibrated beam geometry per channel: direction beta of the beam, its offset rho from the "
+        "rotation axis "
+        "and its base length d_b (the distance from the foot point to the sensor's measuring start). "
+        "Expanded "
+        f"uncertainty U = k u_c for a coverage probability of {100 * p:.2f} %; k from the effective "
+        "degrees of "
+        "freedom (Welch-Satterthwaite) where the GUM S1 check validates it, else from the propagated "
+        "distribution."
+    )
     cols = ["channel", "quantity", "value", "U", "unit", "k", "nu_eff", "dominant input"]
     cells = []
     results = {r["name"]: r for r in c["measurementResults"][0]["results"]}
     budgets = c["measurementResults"][0]["uncertaintyBudget"]
     for prow in c["parameters"]:
         ch = prow["channel"]
-        for name, unit, label in (("beta_rad", "rad", "beta"), ("rho_mm", "mm", "rho"), ("d_b_mm", "mm", "d_b")):
+        for name, unit, label in (
+            ("beta_rad", "rad", "beta"),
+            ("rho_mm", "mm", "rho"),
+            ("d_b_mm", "mm", "d_b"),
+        ):
             key = f"{name}[{ch}]"
             r = results[key]
             eu = r["real"]["expandedUnc"]
             if r["held_at_design_value"]:
-                cells.append([str(ch), label, _num(r["real"]["value"], ".6f"), "held", unit, "-", "-",
-                              "reference direction (held at design value)"])
+                cells.append(
+                    [
+                        str(ch),
+                        label,
+                        _num(r["real"]["value"], ".6f"),
+                        "held",
+                        unit,
+                        "-",
+                        "-",
+                        "reference direction (held at design value)",
+                    ]
+                )
                 continue
             v, U = _vu(r["real"]["value"], eu["uncertainty"])
             dom = (budgets.get(key, {}).get("combined") or {}).get("dominant_input", "")
-            cells.append([str(ch), label, v, U, unit, _num(eu["coverageFactor"], ".2f"),
-                          _dof_text(eu["effectiveDegreesOfFreedom"]), _dominant_label(dom)])
+            cells.append(
+                [
+                    str(ch),
+                    label,
+                    v,
+                    U,
+                    unit,
+                    _num(eu["coverageFactor"], ".2f"),
+                    _dof_text(eu["effectiveDegreesOfFreedom"]),
+                    _dominant_label(dom),
+                ]
+            )
     d.table(cols, cells, widths=[0.07, 0.08, 0.14, 0.1, 0.05, 0.06, 0.08, 0.42], size=7)
     fit = c["fit"]
     if c.get("effective_base_length"):
-        g = "; ".join(f"channel {r['channel']}: " + " +- ".join(_vu(r["value_mm"], r["expandedUnc"]["uncertainty"])) + " mm"
-                      f" (k = {r['expandedUnc']['coverageFactor']:.2f})" for r in c["effective_base_length"])
-        d.para("Effective base length g = d_b + rho^2/(2R) (R the gauge radius at its temperature), the "
-               "combination the "
-               f"data fix best, with U: {g}. rho and d_b of a channel are correlated; certificate.json "
-               "gives the full "
-               "covariance (combined and of the fit alone) and the correlation matrix.")
+        g = "; ".join(
+            f"channel {r['channel']}: "
+            + " +- ".join(_vu(r["value_mm"], r["expandedUnc"]["uncertainty"]))
+            + " mm"
+            f" (k = {r['expandedUnc']['coverageFactor']:.2f})"
+            for r in c["effective_base_length"]
+        )
+        d.para(
+            "Effective base length g = d_b + rho^2/(2R) (R the gauge radius at its temperature), the "
+            "combination the "
+            f"data fix best, with U: {g}. rho and d_b of a channel are correlated; certificate.json "
+            "gives the full "
+            "covariance (combined and of the fit alone) and the correlation matrix."
+        )
     acc = fit.get("acceptance")
-    d.para(f"Fit: residual rms {_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um, "
-           f"{_num(fit.get('n_obs'), 'g')} readings, {fit.get('dof')} degrees of freedom, Jacobian rank "
-           f"{fit.get('rank')}, "
-           f"condition {_num(fit.get('condition'), '.3g')}; the optimiser "
-           f"{'converged' if fit.get('converged') else 'did NOT converge'}.")
+    d.para(
+        f"Fit: residual rms {_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um, "
+        f"{_num(fit.get('n_obs'), 'g')} readings, {fit.get('dof')} degrees of freedom, Jacobian rank "
+        f"{fit.get('rank')}, "
+        f"condition {_num(fit.get('condition'), '.3g')}; the optimiser "
+        f"{'converged' if fit.get('converged') else 'did NOT converge'}."
+    )
     if acc:
-        d.para(f"Acceptance: largest ratio of a channel's residual rms to its readings' own noise floor "
-               f"{_num(acc.get('residual_to_noise_max'), '.3f')} (limit "
-               f"{_num(acc.get('max_residual_to_noise'), 'g')}); "
-               f"|rho| within the head radius {_num(acc.get('head_radius_mm'), 'g')} mm.")
+        d.para(
+            f"Acceptance: largest ratio of a channel's residual rms to its readings' own noise floor "
+            f"{_num(acc.get('residual_to_noise_max'), '.3f')} (limit "
+            f"{_num(acc.get('max_residual_to_noise'), 'g')}); "
+            f"|rho| within the head radius {_num(acc.get('head_radius_mm'), 'g')} mm."
+        )
     if fit.get("weak_rho_channels"):
-        d.para(f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho), rho is not distinguished from 0; "
-               "U(d_b) of "
-               "these channels includes the second-order term of d_b = g - rho^2/(2R).")
+        d.para(
+            f"Channels {fit['weak_rho_channels']}: |rho| < 2 u(rho), rho is not distinguished from 0; "
+            "U(d_b) of "
+            "these channels includes the second-order term of d_b = g - rho^2/(2R)."
+        )
     if fit.get("rho_profiled_channels"):
-        d.para(f"Channels {fit['rho_profiled_channels']}: the cost along rho is not the linear one (rho "
-               "enters the "
-               "readings mostly through rho^2); their uncertainties come from the profile of the cost "
-               "along rho, "
-               "every other parameter refitted, not from the linearisation alone.")
+        d.para(
+            f"Channels {fit['rho_profiled_channels']}: the cost along rho is not the linear one (rho "
+            "enters the "
+            "readings mostly through rho^2); their uncertainties come from the profile of the cost "
+            "along rho, "
+            "every other parameter refitted, not from the linearisation alone."
+        )
     _rho_sign_paragraphs(d, c)
 
 
@@ -972,22 +1380,26 @@ def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
     flagged = [m for m in checks if not m["resolved"]]
     resolved = [str(m["channel"]) for m in checks if m["resolved"]]
     if resolved:
-        d.para(f"Sign of rho resolved for channel(s) {', '.join(resolved)} (no mirror solution, or one at least "
-               f"{rs['resolved_delta_chi2']:g} in chi^2 above the "
-               "solution): their uncertainties are the fit's own.")
+        d.para(
+            f"Sign of rho resolved for channel(s) {', '.join(resolved)} (no mirror solution, or one at least "
+            f"{rs['resolved_delta_chi2']:g} in chi^2 above the "
+            "solution): their uncertainties are the fit's own."
+        )
     for m in flagged:
         d.para(m["statement"].replace("the sign", "The sign", 1) + ".")
         alt = m["alternative"]
         u_main = m["u_main"]
-        d.para(f"Channel {m['channel']}, solution 1 (weight "
-               f"{m['weight_main']:.4f}): beta {u_main['beta_rad']:.6f} rad, "
-               f"rho {u_main['rho_mm']:+.4f} mm, d_b {u_main['d_b_mm']:.4f} "
-               f"mm; solution 2 (weight {alt['weight']:.4f}, "
-               f"delta chi^2 {alt['delta_chi2']:.2f}): beta "
-               f"{alt['beta_rad']:.6f} rad, rho {alt['rho_mm']:+.4f} mm, "
-               f"d_b {alt['d_b_mm']:.4f} mm. Both solutions' covariances are in certificate.json (rho_sign). "
-               "A diameter measured with this calibration carries both (Monte Carlo, JCGM 101) and is refused "
-               "outside the bore range above.")
+        d.para(
+            f"Channel {m['channel']}, solution 1 (weight "
+            f"{m['weight_main']:.4f}): beta {u_main['beta_rad']:.6f} rad, "
+            f"rho {u_main['rho_mm']:+.4f} mm, d_b {u_main['d_b_mm']:.4f} "
+            f"mm; solution 2 (weight {alt['weight']:.4f}, "
+            f"delta chi^2 {alt['delta_chi2']:.2f}): beta "
+            f"{alt['beta_rad']:.6f} rad, rho {alt['rho_mm']:+.4f} mm, "
+            f"d_b {alt['d_b_mm']:.4f} mm. Both solutions' covariances are in certificate.json (rho_sign). "
+            "A diameter measured with this calibration carries both (Monte Carlo, JCGM 101) and is refused "
+            "outside the bore range above."
+        )
 
 
 def rho_sign_part(cal: TriCalibration) -> dict:
@@ -1005,30 +1417,49 @@ def rho_sign_part(cal: TriCalibration) -> dict:
         e.pop("alternative", None)
         if m.alternative is not None:
             pa = m.alternative.params_array
-            e["u_main"] = {"beta_rad": float(cal.beams.beta_rad[j]), "rho_mm": float(cal.beams.rho_mm[j]),
-                           "d_b_mm": float(cal.beams.d_b_mm[j])}
-            e["alternative"] = {"beta_rad": float(pa[3 * j]), "rho_mm": float(pa[3 * j + 1]), "d_b_mm": float(pa[3 * j + 2]),
-                                "delta_chi2": m.alternative.delta_chi2, "weight": m.alternative.weight,
-                                "params": list(m.alternative.params), "covariance": m.alternative.cov}
+            e["u_main"] = {
+                "beta_rad": float(cal.beams.beta_rad[j]),
+                "rho_mm": float(cal.beams.rho_mm[j]),
+                "d_b_mm": float(cal.beams.d_b_mm[j]),
+            }
+            e["alternative"] = {
+                "beta_rad": float(pa[3 * j]),
+                "rho_mm": float(pa[3 * j + 1]),
+                "d_b_mm": float(pa[3 * j + 2]),
+                "delta_chi2": m.alternative.delta_chi2,
+                "weight": m.alternative.weight,
+                "params": list(m.alternative.params),
+                "covariance": m.alternative.cov,
+            }
             e["main"] = {"params": cal.params.tolist(), "covariance": cal.cov.tolist()}
         beams.append(e)
-    return {"resolved_delta_chi2": RESOLVED_DCHI2, "beams": beams,
-            "note": (cal.diagnostics or {}).get("mirror_note", "")}
+    return {
+        "resolved_delta_chi2": RESOLVED_DCHI2,
+        "beams": beams,
+        "note": (cal.diagnostics or {}).get("mirror_note", ""),
+    }
 
 
 def _dominant_label(key: str) -> str:
     if not key:
         return ""
     kind = key.split(":", 1)[0]
-    labels = {"fit": "fit to the readings (Type A)", "linearity": "sensor linearity", "resolution": "sensor resolution",
-              "gauge": "reference gauge", "temperature": "temperature", "cte": "expansion coefficient",
-              "position": "reported positions", "readings": "readings"}
+    labels = {
+        "fit": "fit to the readings (Type A)",
+        "linearity": "sensor linearity",
+        "resolution": "sensor resolution",
+        "gauge": "reference gauge",
+        "temperature": "temperature",
+        "cte": "expansion coefficient",
+        "position": "reported positions",
+        "readings": "readings",
+    }
     tail = key.rsplit(":", 1)[-1]
     return labels.get(kind, kind) + (f" ({tail})" if kind in ("linearity", "resolution") else "")
 
 
 def _short_id(x: str, n: int = 16) -> str:
-    return x if len(x) <= n else ".." + x[-(n - 2):]
+    return x if len(x) <= n else ".." + x[-(n - 2) :]
 
 
 def _label(row: dict) -> str:
@@ -1037,14 +1468,19 @@ def _label(row: dict) -> str:
     kind, _, rest = key.partition(":")
     tail = key.rsplit(":", 1)[-1]
     if kind == "fit":
-        names = {"readings": "fit to the readings (scatter)", "second_order": "2nd-order term of d_b in rho",
-                 "extrema": "extreme readings (scatter)"}
+        names = {
+            "readings": "fit to the readings (scatter)",
+            "second_order": "2nd-order term of d_b in rho",
+            "extrema": "extreme readings (scatter)",
+        }
         if tail.startswith("profile"):
             return f"rho profile, ch {tail.removeprefix('profile')} (non-linear)"
         return names.get(tail, "unresolved mirror solution " + tail.removeprefix("mirror"))
     if kind == "device_model":  # device_model:<device>:<effect key>:<parameter>@<night>
         parts = rest.split(":")
-        return f"device model {parts[1]} {parts[2].split('@')[0]}" if len(parts) >= 3 else _short_quantity(row)
+        return (
+            f"device model {parts[1]} {parts[2].split('@')[0]}" if len(parts) >= 3 else _short_quantity(row)
+        )
     if kind == "position":
         return f"offset S-C, {tail} (reported positions)"
     if kind == "gauge":
@@ -1067,35 +1503,53 @@ def _tiny(r: dict, uc: float) -> bool:
 
 
 def _budget_tables(  # noqa: C901 (one cell per budget row, parameter kind and held or tiny term)
-        d: _Doc) -> None:
+    d: _Doc,
+) -> None:
     c = d.cert
     budgets = c["measurementResults"][0]["uncertaintyBudget"]
     if not budgets:
         return
     d.new_page()
     d.heading("6  Uncertainty budget")
-    d.para("Per channel, every input x_i of the calibration with its estimate, standard uncertainty u(x_i), "
-           "distribution and degrees of freedom nu_i, and for each result its sensitivity coefficient c_i and "
-           "contribution u_i = |c_i| u(x_i) (GUM 5.1.3). The fit to the readings is a vector input (u(x_i): the "
-           "residual standard deviation per reading); its contribution comes from its covariance. c: for "
-           "beta in rad, "
-           "for rho and d_b in mm, per unit of the input; contributions in urad (beta) and um (rho, d_b); "
-           "0: below "
-           "1e-5 u_c; 'in Type A': a resolution dithered by the readings' noise (GUM F.2.2.1).")
+    d.para(
+        "Per channel, every input x_i of the calibration with its estimate, standard uncertainty u(x_i), "
+        "distribution and degrees of freedom nu_i, and for each result its sensitivity coefficient c_i and "
+        "contribution u_i = |c_i| u(x_i) (GUM 5.1.3). The fit to the readings is a vector input (u(x_i): the "
+        "residual standard deviation per reading); its contribution comes from its covariance. c: for "
+        "beta in rad, "
+        "for rho and d_b in mm, per unit of the input; contributions in urad (beta) and um (rho, d_b); "
+        "0: below "
+        "1e-5 u_c; 'in Type A': a resolution dithered by the readings' noise (GUM F.2.2.1)."
+    )
     fams = ("beta", "rho", "d_b")
     for prow in c["parameters"]:
         ch = prow["channel"]
         keys = [f"beta_rad[{ch}]", f"rho_mm[{ch}]", f"d_b_mm[{ch}]"]
         rows_by = [budgets[k]["rows"] for k in keys]
         comb = [budgets[k]["combined"] for k in keys]
-        cols = ["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c(beta)", "u_i(beta)", "c(rho)", "u_i(rho)",
-                "c(d_b)", "u_i(d_b)"]
+        cols = [
+            "input x_i",
+            "estimate",
+            "u(x_i)",
+            "dist.",
+            "nu_i",
+            "c(beta)",
+            "u_i(beta)",
+            "c(rho)",
+            "u_i(rho)",
+            "c(d_b)",
+            "u_i(d_b)",
+        ]
         cells = []
         for i, row in enumerate(rows_by[0]):
             u_x = row["standard_uncertainty"]
-            cell = [_label(row), _est_text(row["estimate"], row["unit"]),
-                    "-" if not u_x else _u_text(u_x, row["unit"]), _DIST.get(row["distribution"], row["distribution"]),
-                    _dof_text(row["degrees_of_freedom"])]
+            cell = [
+                _label(row),
+                _est_text(row["estimate"], row["unit"]),
+                "-" if not u_x else _u_text(u_x, row["unit"]),
+                _DIST.get(row["distribution"], row["distribution"]),
+                _dof_text(row["degrees_of_freedom"]),
+            ]
             for k, rows in enumerate(rows_by):
                 r = rows[i]
                 if prow[f"held_{fams[k]}"]:
@@ -1111,10 +1565,12 @@ def _budget_tables(  # noqa: C901 (one cell per budget row, parameter kind and h
                 cell.append("-" if cc is None else f"{cc:.3g}")
                 cell.append(f"{r['contribution'] * (1e6 if k == 0 else 1e3):.3g}")
             cells.append(cell)
-        for label, field, scale_fn in (("combined standard uncertainty u_c", "standard_uncertainty", True),
-                                       ("effective degrees of freedom nu_eff", "effective_degrees_of_freedom", None),
-                                       ("coverage factor k", "coverage_factor", False),
-                                       ("expanded uncertainty U = k u_c", "expanded_uncertainty", True)):
+        for label, field, scale_fn in (
+            ("combined standard uncertainty u_c", "standard_uncertainty", True),
+            ("effective degrees of freedom nu_eff", "effective_degrees_of_freedom", None),
+            ("coverage factor k", "coverage_factor", False),
+            ("expanded uncertainty U = k u_c", "expanded_uncertainty", True),
+        ):
             last = [label, "", "", "", ""]
             for k, cb in enumerate(comb):
                 if prow[f"held_{fams[k]}"]:
@@ -1131,17 +1587,25 @@ def _budget_tables(  # noqa: C901 (one cell per budget row, parameter kind and h
             cells.append(last)
         d.room(0.0128 * (len(cells) + 1) + 0.035)
         d.para(f"Channel {ch}", size=8.5)
-        d.table(cols, cells, widths=[0.22, 0.09, 0.07, 0.06, 0.05, 0.065, 0.08, 0.065, 0.08, 0.065, 0.08], size=5.8,
-                row_h=0.0128)
-    d.para("k marked (S1): the t-based factor was not validated by GUM S1 (one rectangular input "
-           "dominates); k is that "
-           "of the propagated distribution. The gauge's expansion coefficient has no first-order effect "
-           "at 20 degC. "
-           "Sensor linearity is an error of every reading of a channel within the data sheet's bound, "
-           "independent "
-           "between the calibration and each later measurement. Reported positions that are the same for "
-           "several "
-           "scans are one input.", size=6.8)
+        d.table(
+            cols,
+            cells,
+            widths=[0.22, 0.09, 0.07, 0.06, 0.05, 0.065, 0.08, 0.065, 0.08, 0.065, 0.08],
+            size=5.8,
+            row_h=0.0128,
+        )
+    d.para(
+        "k marked (S1): the t-based factor was not validated by GUM S1 (one rectangular input "
+        "dominates); k is that "
+        "of the propagated distribution. The gauge's expansion coefficient has no first-order effect "
+        "at 20 degC. "
+        "Sensor linearity is an error of every reading of a channel within the data sheet's bound, "
+        "independent "
+        "between the calibration and each later measurement. Reported positions that are the same for "
+        "several "
+        "scans are one input.",
+        size=6.8,
+    )
 
 
 def _verification_pages(d: _Doc) -> None:
@@ -1153,28 +1617,64 @@ def _verification_pages(d: _Doc) -> None:
     if not ver:
         d.para(c["conformity"]["text"])
     else:
-        d.para("Each verification measures a certified ring gauge with this calibration in the same "
-               "night. The measured "
-               "diameter is brought to 20 degC (ISO 1) with the gauge's expansion coefficient and the recorded "
-               "temperature; E = D20 (measured) - D20 (certified). Where the gauge is the calibration's "
-               "own, its "
-               "certified diameter enters both and largely cancels in U(E).")
-        cols = ["scan", "gauge", "T [degC]", "D(T) [mm]", "D20 [mm]", "cert. [mm]", "E [um]", "U(E) [um]",
-                "k", "T_ol [um]", "A [um]", "verdict"]
+        d.para(
+            "Each verification measures a certified ring gauge with this calibration in the same "
+            "night. The measured "
+            "diameter is brought to 20 degC (ISO 1) with the gauge's expansion coefficient and the recorded "
+            "temperature; E = D20 (measured) - D20 (certified). Where the gauge is the calibration's "
+            "own, its "
+            "certified diameter enters both and largely cancels in U(E)."
+        )
+        cols = [
+            "scan",
+            "gauge",
+            "T [degC]",
+            "D(T) [mm]",
+            "D20 [mm]",
+            "cert. [mm]",
+            "E [um]",
+            "U(E) [um]",
+            "k",
+            "T_ol [um]",
+            "A [um]",
+            "verdict",
+        ]
         cells = []
         for v in ver:
             tflag = " (assumed)" if v.get("temperature_assumed") else ""
-            cells.append([str(v.get("scan_id")), str(v.get("artifact_id")), _num(v.get("temperature_c"), ".2f") + tflag,
-                          _num(v.get("measured_at_t_mm"), ".5f"), _num(v.get("measured_mm"), ".5f"),
-                          _num(v.get("certified_mm"), ".4f"), _num(1e3 * v["error_mm"], "+.2f"),
-                          _num(_scaled(v.get("expanded_u_error_mm"), 1e3), ".2f"),
-                          _num(v.get("k"), ".2f"), _num(1e3 * v["tolerance_mm"], ".1f"),
-                          _num(1e3 * v["acceptance_limit_mm"] if v.get("acceptance_limit_mm") is not None else None, ".2f"),
-                          (split_verdict(v.get("conformity"))[0] or ("conforms" if v.get("passed") else
-                                                                     "does not conform"))])
-        d.table(cols, cells, widths=[0.2, 0.07, 0.08, 0.09, 0.1, 0.08, 0.06, 0.065, 0.04, 0.065, 0.06, 0.05], size=6)
-        d.para("T: recorded temperature; D(T): as measured at T; D20: brought to 20 degC; cert.: certified D20; "
-               "E = D20 - cert.; T_ol: tolerance; A: acceptance limit (T_ol minus the guard band).", size=6.8)
+            cells.append(
+                [
+                    str(v.get("scan_id")),
+                    str(v.get("artifact_id")),
+                    _num(v.get("temperature_c"), ".2f") + tflag,
+                    _num(v.get("measured_at_t_mm"), ".5f"),
+                    _num(v.get("measured_mm"), ".5f"),
+                    _num(v.get("certified_mm"), ".4f"),
+                    _num(1e3 * v["error_mm"], "+.2f"),
+                    _num(_scaled(v.get("expanded_u_error_mm"), 1e3), ".2f"),
+                    _num(v.get("k"), ".2f"),
+                    _num(1e3 * v["tolerance_mm"], ".1f"),
+                    _num(
+                        1e3 * v["acceptance_limit_mm"] if v.get("acceptance_limit_mm") is not None else None,
+                        ".2f",
+                    ),
+                    (
+                        split_verdict(v.get("conformity"))[0]
+                        or ("conforms" if v.get("passed") else "does not conform")
+                    ),
+                ]
+            )
+        d.table(
+            cols,
+            cells,
+            widths=[0.2, 0.07, 0.08, 0.09, 0.1, 0.08, 0.06, 0.065, 0.04, 0.065, 0.06, 0.05],
+            size=6,
+        )
+        d.para(
+            "T: recorded temperature; D(T): as measured at T; D20: brought to 20 degC; cert.: certified D20; "
+            "E = D20 - cert.; T_ol: tolerance; A: acceptance limit (T_ol minus the guard band).",
+            size=6.8,
+        )
         for v in ver:
             d.para(f"{_ver_name(v)}: {v.get('conformity', '')}", size=7)
         d.para("Conformity statement: " + c["conformity"]["text"], size=8)
@@ -1196,10 +1696,15 @@ def _input_cells(r: dict, dash_zero_u: bool) -> list[str]:
     (``contribution`` [mm] times 1e3). ``dash_zero_u``: a zero or missing u(x_i) shows as "-".
     """
     u_x = r["standard_uncertainty"]
-    return [_label(r), _est_text(r["estimate"], r["unit"]), "-" if dash_zero_u and not u_x else _u_text(u_x, r["unit"]),
-            _DIST.get(r["distribution"], r["distribution"]), _dof_text(r["degrees_of_freedom"]),
-            "-" if r["sensitivity_coefficient"] is None else f"{r['sensitivity_coefficient']:.3g}",
-            f"{1e3 * r['contribution']:.3g}"]
+    return [
+        _label(r),
+        _est_text(r["estimate"], r["unit"]),
+        "-" if dash_zero_u and not u_x else _u_text(u_x, r["unit"]),
+        _DIST.get(r["distribution"], r["distribution"]),
+        _dof_text(r["degrees_of_freedom"]),
+        "-" if r["sensitivity_coefficient"] is None else f"{r['sensitivity_coefficient']:.3g}",
+        f"{1e3 * r['contribution']:.3g}",
+    ]
 
 
 def _sum_row(label: str, value_mm: float, dof: str = "") -> list[str]:
@@ -1211,8 +1716,14 @@ def _sum_row(label: str, value_mm: float, dof: str = "") -> list[str]:
     return [label, "", "", "", dof, "", f"{1e3 * value_mm:.3g}"]
 
 
-def _contribution_table(d: _Doc, title: str, rows: list[dict], sums: list[list[str]], layout: tuple[list[float], float],
-                        dash_zero_u: bool) -> None:
+def _contribution_table(
+    d: _Doc,
+    title: str,
+    rows: list[dict],
+    sums: list[list[str]],
+    layout: tuple[list[float], float],
+    dash_zero_u: bool,
+) -> None:
     """Write the budget table of one result.
 
     Write the budget of one result: ``title``, one line per input row (:func:`_input_cells`), then the
@@ -1237,10 +1748,18 @@ def _verification_budget(d: _Doc, v: dict) -> None:
     uc = math.sqrt(sum((r.get("contribution") or 0.0) ** 2 for r in rows))
     big = [r for r in rows if (r.get("contribution") or 0.0) >= 0.05 * uc]
     rest = math.sqrt(max(sum((r.get("contribution") or 0.0) ** 2 for r in rows if r not in big), 0.0))
-    sums = [_sum_row(f"{len(rows) - len(big)} further inputs (each < 5 % of u_c), combined", rest),
-            _sum_row("combined standard uncertainty u_c(E)", uc)]
-    _contribution_table(d, f"Budget of E, {_ver_name(v)} (contributions in um):", big, sums, _VERIFICATION_LAYOUT,
-                        dash_zero_u=False)
+    sums = [
+        _sum_row(f"{len(rows) - len(big)} further inputs (each < 5 % of u_c), combined", rest),
+        _sum_row("combined standard uncertainty u_c(E)", uc),
+    ]
+    _contribution_table(
+        d,
+        f"Budget of E, {_ver_name(v)} (contributions in um):",
+        big,
+        sums,
+        _VERIFICATION_LAYOUT,
+        dash_zero_u=False,
+    )
 
 
 def _rod_layer_budget(d: _Doc, channel: int, budget: dict) -> None:
@@ -1251,25 +1770,42 @@ def _rod_layer_budget(d: _Doc, channel: int, budget: dict) -> None:
     """
     comb = budget["combined"]
     rows = [r for r in budget["rows"] if not _tiny(r, comb["standard_uncertainty"])]
-    sums = [_sum_row("combined standard uncertainty u_c", comb["standard_uncertainty"],
-                     _dof_text(comb.get("effective_degrees_of_freedom"))),
-            _sum_row(f"expanded uncertainty U (k = {comb['coverage_factor']:.2f})", comb["expanded_uncertainty"])]
-    _contribution_table(d, f"Layer {channel} (contributions in um; inputs below 1e-5 u_c left out):", rows, sums,
-                        _ROD_LAYER_LAYOUT, dash_zero_u=True)
+    sums = [
+        _sum_row(
+            "combined standard uncertainty u_c",
+            comb["standard_uncertainty"],
+            _dof_text(comb.get("effective_degrees_of_freedom")),
+        ),
+        _sum_row(f"expanded uncertainty U (k = {comb['coverage_factor']:.2f})", comb["expanded_uncertainty"]),
+    ]
+    _contribution_table(
+        d,
+        f"Layer {channel} (contributions in um; inputs below 1e-5 u_c left out):",
+        rows,
+        sums,
+        _ROD_LAYER_LAYOUT,
+        dash_zero_u=True,
+    )
 
 
 def _ver_name(v: dict) -> str:
     """Return a verification's name in the certificate: its scan, and the layer's feature for a rod."""
-    return f"{v.get('scan_id')}" + (f" layer {v['feature']} ({v.get('artifact_id')})" if v.get("feature") else "")
+    return f"{v.get('scan_id')}" + (
+        f" layer {v['feature']} ({v.get('artifact_id')})" if v.get("feature") else ""
+    )
 
 
 def _page_records(d: _Doc) -> None:
     c = d.cert
     d.new_page()
     d.heading("8  Records")
-    d.kv([("Software", f"borescan {c['software_version']}, configuration hash {c['config_hash']}"),
-          ("Date of issue", f"{c['dates'].get('issue') or 'n/a'}: {c['dates'].get('issue_rule', '')}"),
-          ("Raw data", "SHA-256 of every raw file the calibration used:")])
+    d.kv(
+        [
+            ("Software", f"borescan {c['software_version']}, configuration hash {c['config_hash']}"),
+            ("Date of issue", f"{c['dates'].get('issue') or 'n/a'}: {c['dates'].get('issue_rule', '')}"),
+            ("Raw data", "SHA-256 of every raw file the calibration used:"),
+        ]
+    )
     for name, digest in c["raw_files"].items():
         d.room(0.013)
         d.fig.text(d.LEFT, d.y, name, family="monospace", fontsize=6.5)
@@ -1288,7 +1824,9 @@ def _page_records(d: _Doc) -> None:
     d.para("Residuals of the fit: residuals.png beside this certificate, and the last page.")
 
 
-def _residual_figure(cert: dict, t: np.ndarray, res: np.ndarray, size=(8.27, 5.0), page: bool = False) -> Figure:
+def _residual_figure(
+    cert: dict, t: np.ndarray, res: np.ndarray, size=(8.27, 5.0), page: bool = False
+) -> Figure:
     fig = Figure(figsize=size)
     n_ch = res.shape[1]
     axes = fig.subplots(n_ch, 1, sharex=True, squeeze=False)[:, 0]
@@ -1303,8 +1841,13 @@ def _residual_figure(cert: dict, t: np.ndarray, res: np.ndarray, size=(8.27, 5.0
         ax.set_title(f"channel {ch}: rms {rms:.2f} um", fontsize=8, loc="left")
     axes[-1].set_xlabel("t [s]")
     if page:
-        fig.text(_Doc.LEFT, 0.885, "9  Residuals of the fit (model - reading), first calibration scan", fontsize=10.5,
-                 weight="bold")
+        fig.text(
+            _Doc.LEFT,
+            0.885,
+            "9  Residuals of the fit (model - reading), first calibration scan",
+            fontsize=10.5,
+            weight="bold",
+        )
         fig.subplots_adjust(left=0.12, right=0.94, top=0.84, bottom=0.1, hspace=0.35)
     else:
         fig.suptitle(f"Residuals (model - reading), {cert['calibration_id']}", fontsize=9)
@@ -1370,14 +1913,26 @@ def write_certificate(
     dict with keys json, dcc, pdf, png -> paths. Same inputs give byte-identical files.
     """
     cert = certificate_dict(
-        cal, device=device, artifact=artifact, conditions=conditions, residuals=residuals,
-        raw_files=raw_files, software_version=software_version, config_hash=config_hash, budget=budget,
-        laboratory=laboratory, coverage_probability=coverage_probability, dates=dates, verifications=verifications,
+        cal,
+        device=device,
+        artifact=artifact,
+        conditions=conditions,
+        residuals=residuals,
+        raw_files=raw_files,
+        software_version=software_version,
+        config_hash=config_hash,
+        budget=budget,
+        laboratory=laboratory,
+        coverage_probability=coverage_probability,
+        dates=dates,
+        verifications=verifications,
     )
     return write_certificate_files(cert, out_dir, residuals)
 
 
-def write_certificate_files(cert: dict, out_dir: Path | str, residuals: dict | None = None) -> dict[str, Path]:
+def write_certificate_files(
+    cert: dict, out_dir: Path | str, residuals: dict | None = None
+) -> dict[str, Path]:
     """Write the documents of the certificate whose content is ``cert`` into ``out_dir``.
 
     ``certificate.json``, ``certificate.dcc.xml`` (:mod:`borescan.certificate_dcc`), ``certificate.pdf`` and,
@@ -1439,12 +1994,23 @@ def _rod_parameters(cal) -> list[dict]:
     params = []
     for j, lay in enumerate(cal.layers):
         g = cal.gauges[j]
-        params.append({"channel": int(lay.channel), "feature": g.get("feature"), "l0_mm": float(lay.l0_mm),
-                       "l0_nominal_mm": float(cal.l0_nominal_mm[j]), "u_l0_mm": float(cal.u_l0_mm[j]),
-                       "h_mm": float(lay.h_mm), "phi_rad": float(lay.phi_rad), "d_mm": float(lay.d_mm),
-                       "gamma_rad": float(lay.gamma_rad), "gauge_id": g.get("id"), "gauge_certificate": g.get("certificate"),
-                       "gauge_certified_diameter_mm": g.get("certified_diameter_mm"),
-                       "gauge_radius_at_temperature_mm": g.get("radius_at_t_mm")})
+        params.append(
+            {
+                "channel": int(lay.channel),
+                "feature": g.get("feature"),
+                "l0_mm": float(lay.l0_mm),
+                "l0_nominal_mm": float(cal.l0_nominal_mm[j]),
+                "u_l0_mm": float(cal.u_l0_mm[j]),
+                "h_mm": float(lay.h_mm),
+                "phi_rad": float(lay.phi_rad),
+                "d_mm": float(lay.d_mm),
+                "gamma_rad": float(lay.gamma_rad),
+                "gauge_id": g.get("id"),
+                "gauge_certificate": g.get("certificate"),
+                "gauge_certified_diameter_mm": g.get("certified_diameter_mm"),
+                "gauge_radius_at_temperature_mm": g.get("radius_at_t_mm"),
+            }
+        )
     return params
 
 
@@ -1455,47 +2021,86 @@ def _rod_fit(cal) -> dict:
     condition, number of poses, axis deflection [rad] and eccentricity [mm] (None without a solve).
     """
     sol = cal.solution
-    return {"residual_rms_mm": cal.residual_rms_mm, "iterations": cal.iterations,
-            "solve_method": None if sol is None else sol.method, "rank": None if sol is None else sol.rank,
-            "condition": None if sol is None else sol.condition,
-            "n_poses": None if sol is None else int(np.size(sol.alpha_rad)),
-            "deflection_rad": None if sol is None else sol.deflection_rad,
-            "eccentricity_mm": None if sol is None or sol.eccentricity_mm is None else sol.eccentricity_mm}
+    return {
+        "residual_rms_mm": cal.residual_rms_mm,
+        "iterations": cal.iterations,
+        "solve_method": None if sol is None else sol.method,
+        "rank": None if sol is None else sol.rank,
+        "condition": None if sol is None else sol.condition,
+        "n_poses": None if sol is None else int(np.size(sol.alpha_rad)),
+        "deflection_rad": None if sol is None else sol.deflection_rad,
+        "eccentricity_mm": None if sol is None or sol.eccentricity_mm is None else sol.eccentricity_mm,
+    }
 
 
-def rod_certificate_dict(cal, *, device: dict, artifact: dict, temperature, cte, raw_files: dict[str, str],
-                         software_version: str, config_hash: str, laboratory: dict | None = None,
-                         coverage_probability: float | None = None, dates: dict | None = None,
-                         verifications: list[dict] | None = None) -> dict:
+def rod_certificate_dict(
+    cal,
+    *,
+    device: dict,
+    artifact: dict,
+    temperature,
+    cte,
+    raw_files: dict[str, str],
+    software_version: str,
+    config_hash: str,
+    laboratory: dict | None = None,
+    coverage_probability: float | None = None,
+    dates: dict | None = None,
+    verifications: list[dict] | None = None,
+) -> dict:
     """Return the ``certificate.json`` of a rod calibration.
 
     ``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
     the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
     the budget per layer, each layer's gauge and the solve's diagnostics.
     """
-    p = float(schema_default("uncertainty", "coverage_probability") if coverage_probability is None
-              else coverage_probability)
+    p = float(
+        schema_default("uncertainty", "coverage_probability")
+        if coverage_probability is None
+        else coverage_probability
+    )
     results, budgets = _rod_results(cal, p)
     conditions = calibration_conditions(temperature, cte, None, None, p, [])
-    gauges_text = "; ".join(f"layer {g['channel']}: ring gauge {g['id']}, certificate {g.get('certificate')}"
-                            for g in cal.gauges)
+    gauges_text = "; ".join(
+        f"layer {g['channel']}: ring gauge {g['id']}, certificate {g.get('certificate')}" for g in cal.gauges
+    )
     shared = _shared_part(
-        cal, item_name="measuring rod (rod)", item_id=device.get("id"),
-        traceability=" ".join(_traceability_text(g) for g in _unique_gauges(cal)), device=device, artifact=artifact,
-        conditions=conditions, raw_files=raw_files, software_version=software_version, config_hash=config_hash,
-        laboratory=laboratory, coverage_probability=p, dates=dates, verifications=verifications)
-    return _fixed({
-        **shared,
-        "item": "measuring rod", "traceability_summary": gauges_text + " (section 4)",
-        "measurementResults": _measurement_results(
-            "calibrated rod base lengths", cal.method, _METHOD_TEXT[cal.method], "JCGM 100:2008 (GUM)",
-            [dict(g, refType="basic_normalUsed", name="ring gauge") for g in cal.gauges], conditions, results,
-            budgets),
-        "parameters": _rod_parameters(cal),
-        "covariance": cal.budget.covariance(),
-        "fit": _rod_fit(cal),
-        "gauges": list(cal.gauges),
-    })
+        cal,
+        item_name="measuring rod (rod)",
+        item_id=device.get("id"),
+        traceability=" ".join(_traceability_text(g) for g in _unique_gauges(cal)),
+        device=device,
+        artifact=artifact,
+        conditions=conditions,
+        raw_files=raw_files,
+        software_version=software_version,
+        config_hash=config_hash,
+        laboratory=laboratory,
+        coverage_probability=p,
+        dates=dates,
+        verifications=verifications,
+    )
+    return _fixed(
+        {
+            **shared,
+            "item": "measuring rod",
+            "traceability_summary": gauges_text + " (section 4)",
+            "measurementResults": _measurement_results(
+                "calibrated rod base lengths",
+                cal.method,
+                _METHOD_TEXT[cal.method],
+                "JCGM 100:2008 (GUM)",
+                [dict(g, refType="basic_normalUsed", name="ring gauge") for g in cal.gauges],
+                conditions,
+                results,
+                budgets,
+            ),
+            "parameters": _rod_parameters(cal),
+            "covariance": cal.budget.covariance(),
+            "fit": _rod_fit(cal),
+            "gauges": list(cal.gauges),
+        }
+    )
 
 
 def _unique_gauges(cal) -> list[dict]:
@@ -1523,19 +2128,47 @@ def _rod_page_item_conditions(d: _Doc) -> None:
     d.heading("3  Conditions of calibration")
     temp = c["conditions"].get("temperature") or {}
     cte = c["conditions"].get("gauge_cte") or {}
-    d.kv([("Gauge temperature", f"{_num(temp.get('value_c'), '.2f')} degC, standard uncertainty "
-                                f"{_num(temp.get('u_c'), '.3f')} K (rectangular); {temp.get('source', 'not stated')}"),
-          ("Gauge expansion coeff.", f"{_ppm(cte.get('value_per_k'))} +- {_ppm(cte.get('halfwidth_per_k'))} "
-                                     f"(rectangular); {cte.get('source', '')}"),
-          ("Calibration scans", ", ".join(c["scan_ids"])),
-          ("Other conditions", "humidity, pressure and vibration are not recorded in scan.json; they enter no result")],
-         key_w=0.21, width=96)
+    d.kv(
+        [
+            (
+                "Gauge temperature",
+                f"{_num(temp.get('value_c'), '.2f')} degC, standard uncertainty "
+                f"{_num(temp.get('u_c'), '.3f')} K (rectangular); {temp.get('source', 'not stated')}",
+            ),
+            (
+                "Gauge expansion coeff.",
+                f"{_ppm(cte.get('value_per_k'))} +- {_ppm(cte.get('halfwidth_per_k'))} "
+                f"(rectangular); {cte.get('source', '')}",
+            ),
+            ("Calibration scans", ", ".join(c["scan_ids"])),
+            (
+                "Other conditions",
+                "humidity, pressure and vibration are not recorded in scan.json; they enter no result",
+            ),
+        ],
+        key_w=0.21,
+        width=96,
+    )
     d.heading("4  Traceability")
-    cells = [[str(g["channel"]), str(g.get("feature")), str(g.get("id")), str(g.get("certificate")),
-              _num(g.get("certified_diameter_mm"), ".4f"), _num(_scaled(g.get("u_diameter_mm"), 1e3), "g"),
-              str(g.get("k")), _num(g.get("radius_at_t_mm"), ".5f")] for g in c["gauges"]]
-    d.table(["layer", "feature", "ring gauge", "certificate", "D20 [mm]", "U [um]", "k", "R at T [mm]"], cells,
-            widths=[0.07, 0.09, 0.17, 0.2, 0.12, 0.08, 0.06, 0.13], size=6.8)
+    cells = [
+        [
+            str(g["channel"]),
+            str(g.get("feature")),
+            str(g.get("id")),
+            str(g.get("certificate")),
+            _num(g.get("certified_diameter_mm"), ".4f"),
+            _num(_scaled(g.get("u_diameter_mm"), 1e3), "g"),
+            str(g.get("k")),
+            _num(g.get("radius_at_t_mm"), ".5f"),
+        ]
+        for g in c["gauges"]
+    ]
+    d.table(
+        ["layer", "feature", "ring gauge", "certificate", "D20 [mm]", "U [um]", "k", "R at T [mm]"],
+        cells,
+        widths=[0.07, 0.09, 0.17, 0.2, 0.12, 0.08, 0.06, 0.13],
+        size=6.8,
+    )
     for st in c["administrativeData"]["statements"]:
         if st.get("refType") == "basic_traceability":
             d.para(st["declaration"])
@@ -1551,13 +2184,15 @@ def _rod_page_results(d: _Doc) -> None:
     d.new_page()
     d.heading("5  Results")
     p = c["coverage_probability"]
-    d.para("Calibrated base length l0 of each layer (axis foot to the sensor's measuring start), at which "
-           "the rod solve "
-           "returns the gauge's radius at its temperature. Expanded uncertainty U = k u_c for a coverage "
-           "probability of "
-           f"{100 * p:.2f} %. A rod diameter measured with this calibration moves by 2 (l0 - l0 true): its "
-           "budget takes "
-           "this one with sensitivity 2.")
+    d.para(
+        "Calibrated base length l0 of each layer (axis foot to the sensor's measuring start), at which "
+        "the rod solve "
+        "returns the gauge's radius at its temperature. Expanded uncertainty U = k u_c for a coverage "
+        "probability of "
+        f"{100 * p:.2f} %. A rod diameter measured with this calibration moves by 2 (l0 - l0 true): its "
+        "budget takes "
+        "this one with sensitivity 2."
+    )
     res = {r["name"]: r for r in c["measurementResults"][0]["results"]}
     budgets = c["measurementResults"][0]["uncertaintyBudget"]
     cells = []
@@ -1566,19 +2201,33 @@ def _rod_page_results(d: _Doc) -> None:
         eu = res[key]["real"]["expandedUnc"]
         v, U = _vu(prow["l0_mm"], eu["uncertainty"])
         dom = (budgets.get(key, {}).get("combined") or {}).get("dominant_input", "")
-        cells.append([str(prow["channel"]), _num(prow["l0_nominal_mm"], ".4f"), v, U,
-                      _num(1e3 * (prow["l0_mm"] - prow["l0_nominal_mm"]), "+.2f"), _num(eu["coverageFactor"], ".2f"),
-                      _dominant_label(dom)])
-    d.table(["layer", "design l0 [mm]", "l0 [mm]", "U [mm]", "l0 - design [um]", "k", "dominant input"], cells,
-            widths=[0.07, 0.13, 0.14, 0.1, 0.13, 0.06, 0.37], size=7)
+        cells.append(
+            [
+                str(prow["channel"]),
+                _num(prow["l0_nominal_mm"], ".4f"),
+                v,
+                U,
+                _num(1e3 * (prow["l0_mm"] - prow["l0_nominal_mm"]), "+.2f"),
+                _num(eu["coverageFactor"], ".2f"),
+                _dominant_label(dom),
+            ]
+        )
+    d.table(
+        ["layer", "design l0 [mm]", "l0 [mm]", "U [mm]", "l0 - design [um]", "k", "dominant input"],
+        cells,
+        widths=[0.07, 0.13, 0.14, 0.1, 0.13, 0.06, 0.37],
+        size=7,
+    )
     fit = c["fit"]
-    d.para(f"Rod solve at the calibrated l0 ({fit.get('solve_method')}): residual rms "
-           f"{_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um over {fit.get('n_poses')} poses, "
-           "Jacobian rank "
-           f"{fit.get('rank')}, condition {_num(fit.get('condition'), '.3g')}; rod axis deflection "
-           f"{_num(_scaled(fit.get('deflection_rad'), 180 / math.pi), '.3f')} deg; {fit.get('iterations')} "
-           "solves to "
-           "settle l0.")
+    d.para(
+        f"Rod solve at the calibrated l0 ({fit.get('solve_method')}): residual rms "
+        f"{_num(_scaled(fit.get('residual_rms_mm'), 1e3), '.2f')} um over {fit.get('n_poses')} poses, "
+        "Jacobian rank "
+        f"{fit.get('rank')}, condition {_num(fit.get('condition'), '.3g')}; rod axis deflection "
+        f"{_num(_scaled(fit.get('deflection_rad'), 180 / math.pi), '.3f')} deg; {fit.get('iterations')} "
+        "solves to "
+        "settle l0."
+    )
 
 
 def _rod_pages(cert: dict) -> list[Figure]:

@@ -91,7 +91,11 @@ def _core_data(adm: ET.Element, cert: dict) -> None:
     prev = (cert.get("reissue") or {}).get("replaces")
     if prev:
         h = _sub(core, _d("previousReport"))
-        _text(h, "referral", f"certificate {prev['document_id']}, replaced by this one (ISO/IEC 17025:2017 7.8.8.2)")
+        _text(
+            h,
+            "referral",
+            f"certificate {prev['document_id']}, replaced by this one (ISO/IEC 17025:2017 7.8.8.2)",
+        )
         _sub(h, _d("referralID"), str(prev["document_id"]))
         _sub(h, _d("procedure"), "SHA-256 of its certificate.json")
         _sub(h, _d("value"), str(prev["sha256"]))
@@ -103,15 +107,26 @@ def _item(adm: ET.Element, cert: dict) -> None:
     item = _sub(items, _d("item"))
     _text(item, "name", item_in.get("name") or "")
     sensors = item_in.get("sensors") or []
-    _text(item, "description", *(
-        [f"channel {s.get('channel')}: laser displacement "
-         f"sensor {s.get('model')}, serial {s.get('serial')}, "
-         f"range {s.get('range_mm')} mm, linearity "
-         f"{s.get('linearity_fs')} of full scale, repeatability "
-         f"{s.get('repeatability_mm')} mm" for s in sensors] or ["no sensors listed in scan.json"]))
+    _text(
+        item,
+        "description",
+        *(
+            [
+                f"channel {s.get('channel')}: laser displacement "
+                f"sensor {s.get('model')}, serial {s.get('serial')}, "
+                f"range {s.get('range_mm')} mm, linearity "
+                f"{s.get('linearity_fs')} of full scale, repeatability "
+                f"{s.get('repeatability_mm')} mm"
+                for s in sensors
+            ]
+            or ["no sensors listed in scan.json"]
+        ),
+    )
     man = _sub(item, _d("manufacturer"))
     models = sorted({str(s.get("model")) for s in sensors if s.get("model")})
-    _text(man, "name", "not stated in scan.json" + (f" (sensor models {', '.join(models)})" if models else ""))
+    _text(
+        man, "name", "not stated in scan.json" + (f" (sensor models {', '.join(models)})" if models else "")
+    )
     ids = _sub(item, _d("identifications"))
     for ident_in in item_in.get("identifications") or []:
         ident = _sub(ids, _d("identification"), refType="borescan_deviceId")
@@ -156,22 +171,41 @@ def _statements(cert: dict) -> list[dict]:
     for st in out:  # the issue date of the certificate (DCC 3.1.2 has no coreData element for it)
         if st.get("refType") == "borescan_issueDate":
             st.setdefault("date", adm["coreData"].get("issueDate"))
-    out.append({"refType": "basic_accreditation", "declaration": adm["calibrationLaboratory"].get("accreditation")})
+    out.append(
+        {"refType": "basic_accreditation", "declaration": adm["calibrationLaboratory"].get("accreditation")}
+    )
     out.append({"refType": "basic_performanceLocation", "declaration": lab.get("performance_location")})
     weak = [f"rho of channel {ch} weakly determined" for ch in fit.get("weak_rho_channels") or []]
-    weak += [f"rho of channel {ch}: cost along rho not linear (profiled)" for ch in fit.get("rho_profiled_channels") or []]
+    weak += [
+        f"rho of channel {ch}: cost along rho not linear (profiled)"
+        for ch in fit.get("rho_profiled_channels") or []
+    ]
     if fit.get("n_minima") is not None:
-        weak.append(f"{fit.get('n_minima')} minima of the cost found; "
-                    f"ambiguous: {_plain(fit.get('ambiguous_minima'))}")
+        weak.append(
+            f"{fit.get('n_minima')} minima of the cost found; "
+            f"ambiguous: {_plain(fit.get('ambiguous_minima'))}"
+        )
     if weak:
         out.append({"refType": "borescan_weakParameters", "declaration": "; ".join(weak)})
     model = fit.get("device_model") or []
-    out.append({"refType": "borescan_deviceModel", "declaration": "device-model effects carried: " + (
-        "; ".join(_model_text(m) for m in model) if model else "none")})
+    out.append(
+        {
+            "refType": "borescan_deviceModel",
+            "declaration": "device-model effects carried: "
+            + ("; ".join(_model_text(m) for m in model) if model else "none"),
+        }
+    )
     reissue = cert.get("reissue")
     if reissue and reissue.get("replaces"):
-        out.append({"refType": "borescan_reissue", "norm": "ISO/IEC 17025:2017", "reference": "7.8.8.2",
-                    "date": adm["coreData"].get("issueDate"), "declaration": reissue.get("declaration", "")})
+        out.append(
+            {
+                "refType": "borescan_reissue",
+                "norm": "ISO/IEC 17025:2017",
+                "reference": "7.8.8.2",
+                "date": adm["coreData"].get("issueDate"),
+                "declaration": reissue.get("declaration", ""),
+            }
+        )
     return out
 
 
@@ -179,7 +213,9 @@ def _model_text(m: dict) -> str:
     """One device-model effect in words: its values with their standard uncertainties, the pooled night."""
     if not m.get("estimated"):
         return f"{m.get('key')} listed, not estimated by any earlier pooled examination (not corrected)"
-    vals = ", ".join(f"{k} = {v} (u {(m.get('u') or {}).get(k)})" for k, v in sorted((m.get("values") or {}).items()))
+    vals = ", ".join(
+        f"{k} = {v} (u {(m.get('u') or {}).get(k)})" for k, v in sorted((m.get("values") or {}).items())
+    )
     return f"{m.get('key')}: {vals}, from the pooled examination of {m.get('night')}"
 
 
@@ -204,7 +240,9 @@ def _administrative(root: ET.Element, cert: dict) -> None:
         if p.get("role"):
             _sub(el, _d("role"), str(p["role"]))
         _sub(el, _d("mainSigner"), "true" if p.get("mainSigner") else "false")
-    _contact(adm, "customer", a_in["customer"]["name"], lab.get("customer_email"), lab.get("customer_address"))
+    _contact(
+        adm, "customer", a_in["customer"]["name"], lab.get("customer_email"), lab.get("customer_address")
+    )
     sts = _sub(adm, _d("statements"))
     for st in _statements(cert):
         _statement(sts, st)
@@ -259,15 +297,21 @@ def _gauge_quantities(qs: ET.Element, e: dict) -> None:
     The diameter has the U and k of its certificate; when the certificate gives only k, the coverage
     probability of k for a normal distribution.
     """
-    cd = e.get("certifiedDiameter") or {"value": e.get("certified_diameter_mm"), "expandedUnc": {
-        "uncertainty": e.get("u_diameter_mm"), "coverageFactor": e.get("k")}}
+    cd = e.get("certifiedDiameter") or {
+        "value": e.get("certified_diameter_mm"),
+        "expandedUnc": {"uncertainty": e.get("u_diameter_mm"), "coverageFactor": e.get("k")},
+    }
     if _is_num(cd.get("value")):
         eu = dict(cd.get("expandedUnc") or {})
         if eu.get("coverageProbability") is None and _is_num(eu.get("coverageFactor")):
             eu["coverageProbability"] = float(f"{math.erf(eu['coverageFactor'] / math.sqrt(2.0)):.4g}")
         q = _sub(qs, _d("measuringEquipmentQuantity"), refType="borescan_certifiedDiameter")
-        _text(q, "name", "certified diameter at 20 degC (coverage probability: that of k for a normal distribution "
-                         "where the gauge certificate states only k)")
+        _text(
+            q,
+            "name",
+            "certified diameter at 20 degC (coverage probability: that of k for a normal distribution "
+            "where the gauge certificate states only k)",
+        )
         _real(q, _s("real"), cd["value"], dsi_unit("mm"), expanded=eu)
     for k in sorted(e):
         if k in ("certifiedDiameter", "refType", "name") or not _is_num(e[k]):
@@ -287,15 +331,28 @@ def _conditions(mr: ET.Element, cond: dict, p: float) -> None:
     t = cond.get("temperature") or {}
     el = _sub(lst, _d("influenceCondition"), refType="basic_temperature")
     _text(el, "name", "temperature of the reference gauge")
-    _text(el, "description", f"{t.get('source')}; assumed: {_plain(t.get('assumed'))}; u_c {t.get('u_c')} K, "
-                             f"half-width {t.get('halfwidth_c')} K ({t.get('distribution')})")
+    _text(
+        el,
+        "description",
+        f"{t.get('source')}; assumed: {_plain(t.get('assumed'))}; u_c {t.get('u_c')} K, "
+        f"half-width {t.get('halfwidth_c')} K ({t.get('distribution')})",
+    )
     data = _sub(el, _d("data"))
     if _is_num(t.get("value_c")):
         q = _sub(data, _d("quantity"))
         _text(q, "name", "value_c")
-        _real(q, _s("real"), t["value_c"], dsi_unit("degC"), expanded={
-            "uncertainty": t.get("U_c"), "coverageFactor": t.get("k"), "coverageProbability": p,
-            "distribution": t.get("distribution")})
+        _real(
+            q,
+            _s("real"),
+            t["value_c"],
+            dsi_unit("degC"),
+            expanded={
+                "uncertainty": t.get("U_c"),
+                "coverageFactor": t.get("k"),
+                "coverageProbability": p,
+                "distribution": t.get("distribution"),
+            },
+        )
     else:
         _quantity(data, "value_c", t.get("value_c"))
     for k in ("u_c", "halfwidth_c"):
@@ -325,8 +382,9 @@ def _result_unit(r: dict) -> Unit:
     return dsi_unit(_key_unit(r["name"].split("[", 1)[0]))
 
 
-def _parameter_list(parent: ET.Element, label: str, results: list[dict], idx: list[int], cov: list[list] | None,
-                    p: float) -> None:
+def _parameter_list(
+    parent: ET.Element, label: str, results: list[dict], idx: list[int], cov: list[list] | None, p: float
+) -> None:
     """Return the ``si:list`` of the results ``idx`` with their U and their joint ellipsoidal region.
 
     It is ``si:list`` > ``si:realList``; the region, from ``cov``, is a ``si:ellipsoidalRegion`` (SI units,
@@ -337,7 +395,14 @@ def _parameter_list(parent: ET.Element, label: str, results: list[dict], idx: li
     _sub(rl, _s("label"), label)
     for i in idx:
         r = results[i]
-        _real(rl, _s("real"), r["real"]["value"], _result_unit(r), label=r["name"], expanded=r["real"]["expandedUnc"])
+        _real(
+            rl,
+            _s("real"),
+            r["real"]["value"],
+            _result_unit(r),
+            label=r["name"],
+            expanded=r["real"]["expandedUnc"],
+        )
     if cov is None:
         return
     reg = _sub(rl, _s("ellipsoidalRegion"))
@@ -372,15 +437,23 @@ def _budget(parent: ET.Element, name: str, entry: dict) -> None:
         _text(rows, "name", "rows")
         for i, row in enumerate(entry["rows"]):
             _budget_row(rows, f"rows[{i}]", row, out_unit)
-    _record(lst, "combined", entry.get("combined") or {}, lambda k: dsi_unit(out_unit) if k in (
-        "standard_uncertainty", "expanded_uncertainty") else None)
+    _record(
+        lst,
+        "combined",
+        entry.get("combined") or {},
+        lambda k: dsi_unit(out_unit) if k in ("standard_uncertainty", "expanded_uncertainty") else None,
+    )
 
 
 def _budget_row(parent: ET.Element, name: str, row: dict, out_unit: str) -> None:
     in_unit = row.get("unit") or "-"
-    units = {"estimate": dsi_unit(in_unit), "standard_uncertainty": dsi_unit(in_unit),
-             "contribution": dsi_unit(out_unit), "sensitivity_coefficient": dsi_unit(out_unit, in_unit),
-             "degrees_of_freedom": dsi_unit("-")}
+    units = {
+        "estimate": dsi_unit(in_unit),
+        "standard_uncertainty": dsi_unit(in_unit),
+        "contribution": dsi_unit(out_unit),
+        "sensitivity_coefficient": dsi_unit(out_unit, in_unit),
+        "degrees_of_freedom": dsi_unit("-"),
+    }
     _record(parent, name, row, units.get)
 
 
@@ -394,8 +467,13 @@ def _results(mr: ET.Element, cert: dict, m_in: dict, p: float) -> None:
         what = f"layer {ch}" if rod else f"beam of channel {ch}"
         held = [results[i]["name"] for i in idx if results[i].get("held_at_design_value")]
         _text(res, "name", what)
-        _text(res, "description", ("base length l0" if rod else "direction beta [rad], offset rho [m], base length "
-                                   "d_b [m]") + "; held at design value: " + (", ".join(held) or "none"))
+        _text(
+            res,
+            "description",
+            ("base length l0" if rod else "direction beta [rad], offset rho [m], base length d_b [m]")
+            + "; held at design value: "
+            + (", ".join(held) or "none"),
+        )
         q = _sub(_sub(res, _d("data")), _d("quantity"))
         _parameter_list(q, what, results, idx, cov, p)
     if cov and len(results) > 1:
@@ -440,8 +518,15 @@ def _verification(parent: ET.Element, v: dict) -> None:
 
 
 #: certificate.json keys the DCC states in its own elements; every other key goes into the record
-_STATED = ("administrativeData", "measurementResults", "covariance", "verifications", "conformity", "conditions",
-           "dates")
+_STATED = (
+    "administrativeData",
+    "measurementResults",
+    "covariance",
+    "verifications",
+    "conformity",
+    "conditions",
+    "dates",
+)
 
 
 def _measurement_results(root: ET.Element, cert: dict) -> None:
@@ -460,8 +545,12 @@ def _measurement_results(root: ET.Element, cert: dict) -> None:
         if (cert.get("conformity") or {}).get("conformity") in ("pass", "fail"):
             _sub(md, _d("conformity"), cert["conformity"]["conformity"])
         md = _sub(meta, _d("metaData"), refType="borescan_record")
-        _text(md, "declaration", "the rest of certificate.json (fit, parameters, device, raw file digests, ...), "
-                                 "each number in the unit its name gives")
+        _text(
+            md,
+            "declaration",
+            "the rest of certificate.json (fit, parameters, device, raw file digests, ...), "
+            "each number in the unit its name gives",
+        )
         data = _sub(md, _d("data"))
         for k in sorted(k for k in cert if k not in _STATED):
             _record(data, k, cert[k], _record_unit(k, cert))
@@ -514,7 +603,9 @@ def validate_dcc(source: Path | str | bytes) -> None:
     try:
         import xmlschema
     except ImportError:  # the pipeline writes DCCs without it; only validation needs it
-        raise ImportError("validate_dcc needs xmlschema (in borescan's test extra: pip install xmlschema)") from None
+        raise ImportError(
+            "validate_dcc needs xmlschema (in borescan's test extra: pip install xmlschema)"
+        ) from None
 
     global _SCHEMA
     if _SCHEMA is None:

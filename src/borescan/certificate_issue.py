@@ -53,12 +53,29 @@ __all__ = [
 ISSUE_TABLE = "stage/certificate_issues"
 REISSUE_DIR = "certificates"
 #: --format -> files written
-FORMATS = {"json": ("certificate.json",), "pdf": ("certificate.pdf", "residuals.png"), "dcc": ("certificate.dcc.xml",),
-           "all": ("certificate.json", "certificate.dcc.xml", "certificate.pdf", "residuals.png")}
-_SCHEMA = {"document_id": pl.Utf8, "calibration_id": pl.Utf8, "device_id": pl.Utf8, "night": pl.Utf8,
-           "issue": pl.Int64, "issue_date": pl.Utf8, "replaces": pl.Utf8, "replaces_sha256": pl.Utf8,
-           "laboratory_sha256": pl.Utf8, "folder": pl.Utf8, "files_sha256": pl.Utf8, "content_json": pl.Utf8,
-           "residual_t_s": pl.List(pl.Float64), "residual_mm": pl.List(pl.Float64), "residual_channels": pl.Int64}
+FORMATS = {
+    "json": ("certificate.json",),
+    "pdf": ("certificate.pdf", "residuals.png"),
+    "dcc": ("certificate.dcc.xml",),
+    "all": ("certificate.json", "certificate.dcc.xml", "certificate.pdf", "residuals.png"),
+}
+_SCHEMA = {
+    "document_id": pl.Utf8,
+    "calibration_id": pl.Utf8,
+    "device_id": pl.Utf8,
+    "night": pl.Utf8,
+    "issue": pl.Int64,
+    "issue_date": pl.Utf8,
+    "replaces": pl.Utf8,
+    "replaces_sha256": pl.Utf8,
+    "laboratory_sha256": pl.Utf8,
+    "folder": pl.Utf8,
+    "files_sha256": pl.Utf8,
+    "content_json": pl.Utf8,
+    "residual_t_s": pl.List(pl.Float64),
+    "residual_mm": pl.List(pl.Float64),
+    "residual_channels": pl.Int64,
+}
 #: laboratory keys whose change changes a verdict, not only the letterhead
 _VERDICT_KEYS = ("decision_rule", "guard_band_factor")
 
@@ -99,8 +116,12 @@ def laboratory_sha256(lab: dict) -> str:
     return hashlib.sha256(json.dumps(lab, sort_keys=True).encode()).hexdigest()
 
 
-def issue_row(cert_paths: dict[str, Path], results_root: Path | str, night: str, residuals: dict | None = None,
-              ) -> dict:
+def issue_row(
+    cert_paths: dict[str, Path],
+    results_root: Path | str,
+    night: str,
+    residuals: dict | None = None,
+) -> dict:
     """Return the ``stage/certificate_issues`` row of a certificate just written.
 
     ``cert_paths``: the paths :func:`borescan.certificate.write_certificate_files` returned; ``residuals`` the
@@ -109,20 +130,33 @@ def issue_row(cert_paths: dict[str, Path], results_root: Path | str, night: str,
     cert = json.loads(Path(cert_paths["json"]).read_text())
     out_dir = Path(cert_paths["json"]).parent
     folder = Path("calibration") / cert["device_id"] / cert["calibration_id"]
-    row = {"document_id": cert["administrativeData"]["coreData"]["uniqueIdentifier"],
-           "calibration_id": cert["calibration_id"], "device_id": cert["device_id"], "night": night,
-           "issue": int((cert.get("reissue") or {}).get("issue", 0)), "issue_date": cert["dates"].get("issue"),
-           "replaces": None, "replaces_sha256": None, "laboratory_sha256": laboratory_sha256(cert["laboratory"]),
-           "folder": str(folder),
-           "files_sha256": json.dumps({p.name: sha256_file(p) for p in sorted(out_dir.iterdir()) if p.is_file()},
-                                      sort_keys=True),
-           "content_json": Path(cert_paths["json"]).read_text(), "residual_t_s": None, "residual_mm": None,
-           "residual_channels": None}
+    row = {
+        "document_id": cert["administrativeData"]["coreData"]["uniqueIdentifier"],
+        "calibration_id": cert["calibration_id"],
+        "device_id": cert["device_id"],
+        "night": night,
+        "issue": int((cert.get("reissue") or {}).get("issue", 0)),
+        "issue_date": cert["dates"].get("issue"),
+        "replaces": None,
+        "replaces_sha256": None,
+        "laboratory_sha256": laboratory_sha256(cert["laboratory"]),
+        "folder": str(folder),
+        "files_sha256": json.dumps(
+            {p.name: sha256_file(p) for p in sorted(out_dir.iterdir()) if p.is_file()}, sort_keys=True
+        ),
+        "content_json": Path(cert_paths["json"]).read_text(),
+        "residual_t_s": None,
+        "residual_mm": None,
+        "residual_channels": None,
+    }
     if residuals is not None and "png" in cert_paths:
         res = np.asarray(residuals["residual_mm"], dtype=float)
         res = res[:, None] if res.ndim == 1 else res
-        row.update(residual_t_s=np.asarray(residuals["t_s"], dtype=float).tolist(),
-                   residual_mm=res.ravel().tolist(), residual_channels=int(res.shape[1]))
+        row.update(
+            residual_t_s=np.asarray(residuals["t_s"], dtype=float).tolist(),
+            residual_mm=res.ravel().tolist(),
+            residual_channels=int(res.shape[1]),
+        )
     return row
 
 
@@ -135,12 +169,25 @@ def _issue(r: dict) -> CertificateIssue:
     res = None
     if r.get("residual_channels"):
         t = np.asarray(r["residual_t_s"], dtype=float)
-        res = {"t_s": t, "residual_mm": np.asarray(r["residual_mm"], dtype=float).reshape(t.size, r["residual_channels"])}
+        res = {
+            "t_s": t,
+            "residual_mm": np.asarray(r["residual_mm"], dtype=float).reshape(t.size, r["residual_channels"]),
+        }
     return CertificateIssue(
-        document_id=r["document_id"], calibration_id=r["calibration_id"], device_id=r["device_id"], night=r["night"],
-        issue=int(r["issue"]), issue_date=r["issue_date"], replaces=r["replaces"], replaces_sha256=r["replaces_sha256"],
-        laboratory_sha256=r["laboratory_sha256"], folder=r["folder"], files_sha256=json.loads(r["files_sha256"]),
-        content=json.loads(r["content_json"]), residuals=res)
+        document_id=r["document_id"],
+        calibration_id=r["calibration_id"],
+        device_id=r["device_id"],
+        night=r["night"],
+        issue=int(r["issue"]),
+        issue_date=r["issue_date"],
+        replaces=r["replaces"],
+        replaces_sha256=r["replaces_sha256"],
+        laboratory_sha256=r["laboratory_sha256"],
+        folder=r["folder"],
+        files_sha256=json.loads(r["files_sha256"]),
+        content=json.loads(r["content_json"]),
+        residuals=res,
+    )
 
 
 def read_issues(results_root: Path | str) -> list[CertificateIssue]:
@@ -153,8 +200,12 @@ def read_issues(results_root: Path | str) -> list[CertificateIssue]:
     rows = [r for f in files for r in pl.read_parquet(f).to_dicts()]
     issues = sorted((_issue(r) for r in rows), key=lambda i: (i.calibration_id, i.issue))
     originals = {i.calibration_id: i for i in issues if i.issue == 0}
-    return [i if i.residuals is not None or i.calibration_id not in originals else
-            CertificateIssue(**{**i.__dict__, "residuals": originals[i.calibration_id].residuals}) for i in issues]
+    return [
+        i
+        if i.residuals is not None or i.calibration_id not in originals
+        else CertificateIssue(**{**i.__dict__, "residuals": originals[i.calibration_id].residuals})
+        for i in issues
+    ]
 
 
 def issues_of(results_root: Path | str, ident: str) -> list[CertificateIssue]:
@@ -173,8 +224,11 @@ def _catalog_sha256(results_root: Path, calibration_id: str) -> str | None:
     except FileNotFoundError:
         return None
     try:
-        got = con.execute("SELECT certificate_sha256 FROM calibrations WHERE calibration_id = ? AND "
-                          "certificate_sha256 IS NOT NULL LIMIT 1", [calibration_id]).fetchall()
+        got = con.execute(
+            "SELECT certificate_sha256 FROM calibrations WHERE calibration_id = ? AND "
+            "certificate_sha256 IS NOT NULL LIMIT 1",
+            [calibration_id],
+        ).fetchall()
     finally:
         con.close()
     return got[0][0] if got else None
@@ -190,32 +244,56 @@ def _relabelled(latest: CertificateIssue, lab: dict, issue_date: str) -> dict:
     changed = sorted(k for k in set(lab) | set(old["laboratory"]) if lab.get(k) != old["laboratory"].get(k))
     verdict = [k for k in changed if k in _VERDICT_KEYS]
     if verdict:
-        raise ValueError(f"certificate {latest.document_id}: laboratory.{', '.join(verdict)} changed; that changes the "
-                         "verifications' verdicts, which a reissue cannot restate: recalibrate (rerun the night) instead")
+        raise ValueError(
+            f"certificate {latest.document_id}: laboratory.{', '.join(verdict)} changed; that changes the "
+            "verifications' verdicts, which a reissue cannot restate: recalibrate (rerun the night) instead"
+        )
     n = latest.issue + 1
     doc_id = f"{latest.calibration_id}-R{n}"
-    dates = dict(old["dates"], issue=issue_date,
-                 issue_rule=f"date of this reissue ({issue_date}); the calibration, its data and results are those of "
-                            f"the certificate it replaces")
+    dates = dict(
+        old["dates"],
+        issue=issue_date,
+        issue_rule=f"date of this reissue ({issue_date}); the calibration, its data and results are those of "
+        f"the certificate it replaces",
+    )
     adm = old["administrativeData"]
-    trace = next((s["declaration"] for s in adm["statements"] if s.get("refType") == "basic_traceability"), "")
+    trace = next(
+        (s["declaration"] for s in adm["statements"] if s.get("refType") == "basic_traceability"), ""
+    )
     new = copy.deepcopy(old)
     new["administrativeData"] = certificate._administrative_data(
-        SimpleNamespace(calibration_id=doc_id), lab, dates, old["conformity"], adm["items"][0], trace,
-        adm["dccSoftware"]["software"][0]["release"])
+        SimpleNamespace(calibration_id=doc_id),
+        lab,
+        dates,
+        old["conformity"],
+        adm["items"][0],
+        trace,
+        adm["dccSoftware"]["software"][0]["release"],
+    )
     new.update(laboratory=lab, dates=dates)
     sha = latest.files_sha256.get("certificate.json")
-    new["reissue"] = {"issue": n, "document_id": doc_id, "changed": changed,
-                      "replaces": {"document_id": latest.document_id, "sha256": sha, "issue_date": latest.issue_date},
-                      "declaration": f"This certificate {doc_id} replaces certificate {latest.document_id} issued "
-                                     f"{latest.issue_date} (certificate.json SHA-256 {sha}), which is withdrawn. "
-                                     f"Reason: the laboratory's data changed ({', '.join(changed)}); the "
-                                     "calibration and its results are unchanged."}
+    new["reissue"] = {
+        "issue": n,
+        "document_id": doc_id,
+        "changed": changed,
+        "replaces": {"document_id": latest.document_id, "sha256": sha, "issue_date": latest.issue_date},
+        "declaration": f"This certificate {doc_id} replaces certificate {latest.document_id} issued "
+        f"{latest.issue_date} (certificate.json SHA-256 {sha}), which is withdrawn. "
+        f"Reason: the laboratory's data changed ({', '.join(changed)}); the "
+        "calibration and its results are unchanged.",
+    }
     return json.loads(json.dumps(new, sort_keys=True))
 
 
-def reissue(results_root: Path | str, ident: str, laboratory: dict, *, fmt: str = "all", out_dir: Path | str | None = None,
-            issue_date: str | None = None) -> Reissued:
+def reissue(
+    results_root: Path | str,
+    ident: str,
+    laboratory: dict,
+    *,
+    fmt: str = "all",
+    out_dir: Path | str | None = None,
+    issue_date: str | None = None,
+) -> Reissued:
     """Reissue the certificate of calibration (or document) ``ident`` from the history.
 
     The laboratory data come from the config's ``laboratory`` section (see the module docstring). ``fmt``: a
@@ -226,8 +304,10 @@ def reissue(results_root: Path | str, ident: str, laboratory: dict, *, fmt: str 
     root = Path(results_root)
     issues = issues_of(root, ident)
     if not issues:
-        raise ValueError(f"certificate {ident!r}: no issue recorded in {root / ISSUE_TABLE} (a calibration id or "
-                         "certificate number; run the pipeline first)")
+        raise ValueError(
+            f"certificate {ident!r}: no issue recorded in {root / ISSUE_TABLE} (a calibration id or "
+            "certificate number; run the pipeline first)"
+        )
     if fmt not in FORMATS:
         raise ValueError(f"format {fmt!r}: valid {sorted(FORMATS)}")
     latest = issues[-1]
@@ -248,23 +328,40 @@ def reissue(results_root: Path | str, ident: str, laboratory: dict, *, fmt: str 
                 shutil.copyfile(Path(tmp) / name, target / name)
     record = latest
     if new_doc:
-        row = {**_row_of(latest), "document_id": doc_id, "issue": content["reissue"]["issue"],
-               "issue_date": content["dates"]["issue"], "replaces": latest.document_id,
-               "replaces_sha256": latest.files_sha256.get("certificate.json"),
-               "laboratory_sha256": laboratory_sha256(laboratory), "folder": str(folder),
-               "files_sha256": json.dumps(written, sort_keys=True), "content_json": json.dumps(
-                   content, sort_keys=True, indent=2) + "\n", "residual_t_s": None, "residual_mm": None,
-               "residual_channels": None}
+        row = {
+            **_row_of(latest),
+            "document_id": doc_id,
+            "issue": content["reissue"]["issue"],
+            "issue_date": content["dates"]["issue"],
+            "replaces": latest.document_id,
+            "replaces_sha256": latest.files_sha256.get("certificate.json"),
+            "laboratory_sha256": laboratory_sha256(laboratory),
+            "folder": str(folder),
+            "files_sha256": json.dumps(written, sort_keys=True),
+            "content_json": json.dumps(content, sort_keys=True, indent=2) + "\n",
+            "residual_t_s": None,
+            "residual_mm": None,
+            "residual_channels": None,
+        }
         rec = root / ISSUE_TABLE / "reissues" / f"{doc_id}.parquet"
         rec.parent.mkdir(parents=True, exist_ok=True)
         issue_frame([row]).write_parquet(rec)
         record = _issue(row)
-    agree = {n: (record.files_sha256.get(n) == h if n in record.files_sha256 else None)
-             for n, h in written.items() if n in FORMATS[fmt]}
+    agree = {
+        n: (record.files_sha256.get(n) == h if n in record.files_sha256 else None)
+        for n, h in written.items()
+        if n in FORMATS[fmt]
+    }
     cat = _catalog_sha256(root, latest.calibration_id) if record.issue == 0 else None
     cat_agree = None if cat is None or "certificate.json" not in agree else cat == written["certificate.json"]
-    return Reissued(issue=record, out_dir=target, new_document=new_doc, files={n: written[n] for n in agree},
-                    agree=agree, catalog_agree=cat_agree)
+    return Reissued(
+        issue=record,
+        out_dir=target,
+        new_document=new_doc,
+        files={n: written[n] for n in agree},
+        agree=agree,
+        catalog_agree=cat_agree,
+    )
 
 
 def _default_dir(root: Path, latest: CertificateIssue, folder: Path, new_doc: bool) -> Path:
@@ -278,8 +375,20 @@ def _default_dir(root: Path, latest: CertificateIssue, folder: Path, new_doc: bo
 
 
 def _row_of(i: CertificateIssue) -> dict:
-    return {"document_id": i.document_id, "calibration_id": i.calibration_id, "device_id": i.device_id,
-            "night": i.night, "issue": i.issue, "issue_date": i.issue_date, "replaces": i.replaces,
-            "replaces_sha256": i.replaces_sha256, "laboratory_sha256": i.laboratory_sha256, "folder": i.folder,
-            "files_sha256": json.dumps(i.files_sha256, sort_keys=True), "content_json": json.dumps(i.content),
-            "residual_t_s": None, "residual_mm": None, "residual_channels": None}
+    return {
+        "document_id": i.document_id,
+        "calibration_id": i.calibration_id,
+        "device_id": i.device_id,
+        "night": i.night,
+        "issue": i.issue,
+        "issue_date": i.issue_date,
+        "replaces": i.replaces,
+        "replaces_sha256": i.replaces_sha256,
+        "laboratory_sha256": i.laboratory_sha256,
+        "folder": i.folder,
+        "files_sha256": json.dumps(i.files_sha256, sort_keys=True),
+        "content_json": json.dumps(i.content),
+        "residual_t_s": None,
+        "residual_mm": None,
+        "residual_channels": None,
+    }

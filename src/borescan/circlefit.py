@@ -278,8 +278,9 @@ class _ClosedProfile:
     ths: np.ndarray
 
 
-def _closed_profile(x_mm, y_mm, ls_center_xy_mm, max_gap_deg: float, method: str,
-                    min_points: int = 3) -> _ClosedProfile:
+def _closed_profile(
+    x_mm, y_mm, ls_center_xy_mm, max_gap_deg: float, method: str, min_points: int = 3
+) -> _ClosedProfile:
     x, y, shift = _prep(x_mm, y_mm, min_points=min_points)
     c = _ls_center(x, y, shift, ls_center_xy_mm)
     order, ths = _check_closed(x, y, c, max_gap_deg, method)
@@ -343,8 +344,9 @@ def _welzl(P: np.ndarray, tol: float) -> tuple[np.ndarray, float]:
     return c, r
 
 
-def min_circumscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *, seed: int = 0,
-                             max_gap_deg: float = CLOSED_MAX_GAP_DEG) -> Circle:
+def min_circumscribed_circle(
+    x_mm, y_mm, ls_center_xy_mm=None, *, seed: int = 0, max_gap_deg: float = CLOSED_MAX_GAP_DEG
+) -> Circle:
     """Minimum circumscribed circle (ISO 12181 MCCI), exact (Welzl, expected linear time).
 
     The smallest circle containing every point; defined by 2 or 3 points on it.
@@ -383,7 +385,7 @@ def _mcci(prof: _ClosedProfile, seed: int = 0) -> Circle:
     tol = 1e-12 * scale
     k = MCCI_FARTHEST
     while True:
-        idx = np.argpartition(prof.r, n - k)[n - k:] if k < n else np.arange(n)
+        idx = np.argpartition(prof.r, n - k)[n - k :] if k < n else np.arange(n)
         P = np.column_stack([x[idx], y[idx]])
         if P.shape[0] > 50:  # the enclosing circle of a set is that of its convex hull
             try:
@@ -467,8 +469,14 @@ def _lp_step(nx: np.ndarray, ny: np.ndarray, b: np.ndarray, lim: float, opts: di
         # variables (dcx, dcy, t, s); minimise s - t
         A1 = np.column_stack([-ax, -ay, np.zeros(m), -np.ones(m)])  # d - n.dc <= s
         A2 = np.column_stack([ax, ay, np.ones(m), np.zeros(m)])  # t <= d - n.dc
-        res = linprog([0, 0, -1.0, 1.0], A_ub=np.vstack([A1, A2]), b_ub=np.concatenate([-ab, ab]),
-                      bounds=[(-lim, lim)] * 2 + [(None, None)] * 2, method="highs", options=opts)
+        res = linprog(
+            [0, 0, -1.0, 1.0],
+            A_ub=np.vstack([A1, A2]),
+            b_ub=np.concatenate([-ab, ab]),
+            bounds=[(-lim, lim)] * 2 + [(None, None)] * 2,
+            method="highs",
+            options=opts,
+        )
         if res.status != 0 or active.size == n:
             return res
         lin = b - nx * res.x[0] - ny * res.x[1]  # linearised distance of every point
@@ -484,7 +492,8 @@ def _lp_step(nx: np.ndarray, ny: np.ndarray, b: np.ndarray, lim: float, opts: di
 
 
 def _polish(  # noqa: C901 (the active-set Newton iteration with its exits)
-        x, y, c, kind: str) -> np.ndarray:
+    x, y, c, kind: str
+) -> np.ndarray:
     """Solve the active-set equations exactly (Newton) from a vertex.
 
     MICI: three nearest points equidistant; with more than three (cocircular points, e.g. a
@@ -519,7 +528,9 @@ def _polish(  # noqa: C901 (the active-set Newton iteration with its exits)
             for k in g[1:]:
                 i = g[0]
                 # |p_k - c|^2 - |p_i - c|^2 = 0 is linear in c: 2 (p_i - p_k).c + |p_k|^2 - |p_i|^2
-                F.append((x[k] - cc[0]) ** 2 + (y[k] - cc[1]) ** 2 - (x[i] - cc[0]) ** 2 - (y[i] - cc[1]) ** 2)
+                F.append(
+                    (x[k] - cc[0]) ** 2 + (y[k] - cc[1]) ** 2 - (x[i] - cc[0]) ** 2 - (y[i] - cc[1]) ** 2
+                )
                 J.append([2 * (x[i] - x[k]), 2 * (y[i] - y[k])])
         F, J = np.array(F), np.array(J)
         if F.size != 2:
@@ -531,6 +542,7 @@ def _polish(  # noqa: C901 (the active-set Newton iteration with its exits)
         cc = cc + step
         if np.hypot(*step) < 1e-15 * scale:
             break
+
     # accept only if it does not worsen the objective (guards a wrong active set)
     def obj(cv):
         dv = np.hypot(x - cv[0], y - cv[1])
@@ -652,7 +664,9 @@ def _bin_segments(ths: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
 MIC_BINS = 2048
 
 
-def _mic_centre(P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0, d0: np.ndarray) -> tuple[np.ndarray, int]:
+def _mic_centre(
+    P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0, d0: np.ndarray
+) -> tuple[np.ndarray, int]:
     """Return the centre of the largest empty circle in the profile polygon.
 
     Return the centre of the largest empty circle centred in the profile polygon, and the number of
@@ -708,8 +722,9 @@ def _mic_centre(P: np.ndarray, order: np.ndarray, ths: np.ndarray, c0, d0: np.nd
     return _best_empty_centre(cand, bound, P[:, 0], P[:, 1]), int(cand.shape[0])
 
 
-def max_inscribed_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
-                         max_gap_deg: float = CLOSED_MAX_GAP_DEG) -> Circle:
+def max_inscribed_circle(
+    x_mm, y_mm, ls_center_xy_mm=None, *, max_gap_deg: float = CLOSED_MAX_GAP_DEG
+) -> Circle:
     """Maximum inscribed circle (ISO 12181 MICI) of a closed profile: the global maximum.
 
     The largest circle whose centre lies inside the profile polygon (the points joined in
@@ -767,8 +782,7 @@ def _mici(prof: _ClosedProfile) -> Circle:
     return _make("MICI", x, y, shift, c, r, n_iter=n_cand)
 
 
-def min_zone_circle(x_mm, y_mm, ls_center_xy_mm=None, *,
-                    max_gap_deg: float = CLOSED_MAX_GAP_DEG) -> Circle:
+def min_zone_circle(x_mm, y_mm, ls_center_xy_mm=None, *, max_gap_deg: float = CLOSED_MAX_GAP_DEG) -> Circle:
     """Minimum zone circles (ISO 12181 MZCI): concentric pair of least radial separation.
 
     Sequential LP from the least-squares centre, then the exact active-set polish.
@@ -815,8 +829,9 @@ def _mz_centre(prof: _ClosedProfile) -> tuple[np.ndarray, int]:
     if n > 4 * MZ_BINS:
         starts, counts = _bin_segments(prof.ths, MZ_BINS)
         ds = prof.r[prof.order]
-        ext = ((ds == np.repeat(np.minimum.reduceat(ds, starts), counts))
-               | (ds == np.repeat(np.maximum.reduceat(ds, starts), counts)))
+        ext = (ds == np.repeat(np.minimum.reduceat(ds, starts), counts)) | (
+            ds == np.repeat(np.maximum.reduceat(ds, starts), counts)
+        )
         keep = np.zeros(n, dtype=bool)
         keep[prof.order[ext]] = True
         tol = 1e-12 * float(prof.r.max())  # rounding of the distances, far below any zone width
@@ -904,7 +919,9 @@ def _fourier_lsq(th: np.ndarray, r: np.ndarray, K: int) -> np.ndarray:
     return coef
 
 
-def harmonic_spectrum(theta_rad, r_mm, max_upr: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def harmonic_spectrum(
+    theta_rad, r_mm, max_upr: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Amplitude per undulations per revolution (UPR) of a radial profile r(theta).
 
     Least-squares fit r = a_0 + sum_k a_k cos(k theta) + b_k sin(k theta), k = 1..K; for

@@ -23,7 +23,11 @@ EXIT_BROKEN_PIPE = 141
 #: scan that exists already, ...), reported by their message; anything else is a bug and keeps
 #: its traceback
 _USER_ERRORS: tuple[type[BaseException], ...] = (
-    FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError, PermissionError,
+    FileNotFoundError,
+    FileExistsError,
+    NotADirectoryError,
+    IsADirectoryError,
+    PermissionError,
 )
 
 
@@ -45,9 +49,9 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="borescan",
         description="Bore scans from laser displacement sensors: simulate, import, validate, trace, "
-                    "query, status.",
+        "query, status.",
         epilog="Exit codes: 0 done; 1 the answer is no (problems found, unknown id, query failed); "
-               "2 cannot run as asked (bad arguments, missing files).",
+        "2 cannot run as asked (bad arguments, missing files).",
     )
     parser.add_argument("--version", action="version", version=f"borescan {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -119,9 +123,11 @@ def main(argv: list[str] | None = None) -> int:
         if _is_duckdb_error(err):  # a catalog that is empty, cut short or not a catalog at all
             first = str(err).splitlines()[0] if str(err) else type(err).__name__
             results = getattr(args, "results", "results")
-            print(f"{name}: the history catalog under {results} cannot be read ({first}); rebuild it from the "
-                  f"stage tables with `borescan rebuild-catalog --results {results}`, or rerun the pipeline",
-                  file=sys.stderr)
+            print(
+                f"{name}: the history catalog under {results} cannot be read ({first}); rebuild it from the "
+                f"stage tables with `borescan rebuild-catalog --results {results}`, or rerun the pipeline",
+                file=sys.stderr,
+            )
             return 1
         raise
 

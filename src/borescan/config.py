@@ -17,8 +17,15 @@ import yaml
 
 from borescan.resources import shipped
 
-__all__ = ["SCHEMA_PATH", "ConfigError", "schema_defaults", "schema_default", "check_config", "load_config",
-           "load_configs"]
+__all__ = [
+    "SCHEMA_PATH",
+    "ConfigError",
+    "schema_defaults",
+    "schema_default",
+    "check_config",
+    "load_config",
+    "load_configs",
+]
 
 #: the config schema the package ships (``workflow/schemas/config.schema.yaml`` of a checkout links to it)
 SCHEMA_PATH = shipped("config.schema.yaml")
@@ -90,7 +97,15 @@ def _one_line(err) -> str:
         where = _key_path(err)
         names = ", ".join(f"{where}.{k}" if where != "(top level)" else k for k in extra)
         return f"{names}: unknown key" + (f" (known here: {', '.join(allowed)})" if allowed else "")
-    if err.validator in ("type", "minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "enum", "pattern"):
+    if err.validator in (
+        "type",
+        "minimum",
+        "maximum",
+        "exclusiveMinimum",
+        "exclusiveMaximum",
+        "enum",
+        "pattern",
+    ):
         return f"{_key_path(err)}: {err.instance!r} is not allowed ({err.validator} {err.validator_value!r})"
     return f"{_key_path(err)}: {err.message[:200]}"
 
@@ -105,7 +120,9 @@ def check_config(config: dict, source: str = "config", schema_path: Path | str =
     if errors:
         lines = "; ".join(_one_line(e) for e in errors[:10])
         more = f" (and {len(errors) - 10} more)" if len(errors) > 10 else ""
-        raise ConfigError(f"{source}: {lines}{more} (every key is described in workflow/schemas/config.schema.yaml)")
+        raise ConfigError(
+            f"{source}: {lines}{more} (every key is described in workflow/schemas/config.schema.yaml)"
+        )
 
 
 def load_config(path: Path | str | None = None, schema_path: Path | str = SCHEMA_PATH) -> dict:

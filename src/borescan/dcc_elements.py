@@ -13,8 +13,25 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["NS_DCC", "NS_SI", "Unit", "d", "decimal_text", "dsi_unit", "expanded_unc", "is_num", "key_unit", "nested",
-           "plain", "quantity", "real", "record", "s", "sub", "text"]
+__all__ = [
+    "NS_DCC",
+    "NS_SI",
+    "Unit",
+    "d",
+    "decimal_text",
+    "dsi_unit",
+    "expanded_unc",
+    "is_num",
+    "key_unit",
+    "nested",
+    "plain",
+    "quantity",
+    "real",
+    "record",
+    "s",
+    "sub",
+    "text",
+]
 
 NS_DCC = "https://ptb.de/dcc"
 NS_SI = "https://ptb.de/si"
@@ -23,10 +40,19 @@ ET.register_namespace("si", NS_SI)
 
 #: unit of certificate.json -> (D-SI base units with powers, decimal exponent to SI)
 _UNITS: dict[str, tuple[tuple[tuple[str, int], ...], int]] = {
-    "mm": ((("metre", 1),), -3), "um": ((("metre", 1),), -6), "m": ((("metre", 1),), 0),
-    "mm^2": ((("metre", 2),), -6), "rad": ((("radian", 1),), 0), "rad^2": ((("radian", 2),), 0),
-    "degC": ((("degreecelsius", 1),), 0), "K": ((("kelvin", 1),), 0), "1/K": ((("kelvin", -1),), 0),
-    "s": ((("second", 1),), 0), "rad/s": ((("radian", 1), ("second", -1)), 0), "-": ((), 0), "": ((), 0),
+    "mm": ((("metre", 1),), -3),
+    "um": ((("metre", 1),), -6),
+    "m": ((("metre", 1),), 0),
+    "mm^2": ((("metre", 2),), -6),
+    "rad": ((("radian", 1),), 0),
+    "rad^2": ((("radian", 2),), 0),
+    "degC": ((("degreecelsius", 1),), 0),
+    "K": ((("kelvin", 1),), 0),
+    "1/K": ((("kelvin", -1),), 0),
+    "s": ((("second", 1),), 0),
+    "rad/s": ((("radian", 1), ("second", -1)), 0),
+    "-": ((), 0),
+    "": ((), 0),
 }
 
 
@@ -51,12 +77,16 @@ def dsi_unit(unit: str, per: str | None = None, times: str | None = None) -> Uni
         if u is None:
             continue
         if u not in _UNITS:
-            raise ValueError(f"certificate unit {u!r} has no D-SI form; known: {sorted(k for k in _UNITS if k)}")
+            raise ValueError(
+                f"certificate unit {u!r} has no D-SI form; known: {sorted(k for k in _UNITS if k)}"
+            )
         parts, s = _UNITS[u]
         shift += sign * s
         for base, p in parts:
             powers[base] = powers.get(base, 0) + sign * p
-    text = "".join(f"\\{b}" if p == 1 else f"\\{b}\\tothe{{{p}}}" for b, p in sorted(powers.items()) if p != 0)
+    text = "".join(
+        f"\\{b}" if p == 1 else f"\\{b}\\tothe{{{p}}}" for b, p in sorted(powers.items()) if p != 0
+    )
     return Unit(text or "\\one", shift)
 
 
@@ -141,8 +171,14 @@ def expanded_unc(parent: ET.Element, eu: dict, unit: Unit) -> None:
     sub(el, s("distribution"), str(eu.get("distribution") or "normal"))
 
 
-def real(parent: ET.Element, tag: str, value: float, unit: Unit, label: str | None = None,
-          expanded: dict | None = None) -> ET.Element:
+def real(
+    parent: ET.Element,
+    tag: str,
+    value: float,
+    unit: Unit,
+    label: str | None = None,
+    expanded: dict | None = None,
+) -> ET.Element:
     """Append an ``si:real`` (label, value in ``unit``, optional expanded uncertainty) to ``parent``."""
     el = sub(parent, tag)
     if label is not None:
@@ -154,8 +190,15 @@ def real(parent: ET.Element, tag: str, value: float, unit: Unit, label: str | No
     return el
 
 
-def quantity(parent: ET.Element, name: str, value: Any, unit: Unit | None = None, *, ref_type: str | None = None,
-              expanded: dict | None = None) -> ET.Element:
+def quantity(
+    parent: ET.Element,
+    name: str,
+    value: Any,
+    unit: Unit | None = None,
+    *,
+    ref_type: str | None = None,
+    expanded: dict | None = None,
+) -> ET.Element:
     """Return a ``dcc:quantity`` named ``name`` for a number, a list of numbers or anything else.
 
     A number as ``si:real`` (in ``unit``, default by the name's suffix), a list of numbers as
@@ -189,7 +232,8 @@ def plain(value: Any) -> str:
 def nested(value: Any) -> bool:
     """Whether ``value`` becomes a ``dcc:list`` (a non-empty dict, or a list holding dicts or lists)."""
     return (isinstance(value, dict) and bool(value)) or (
-        isinstance(value, list) and bool(value) and any(isinstance(v, (dict, list)) for v in value))
+        isinstance(value, list) and bool(value) and any(isinstance(v, (dict, list)) for v in value)
+    )
 
 
 def record(parent: ET.Element, name: str, value: Any, unit_of=None, wrap: bool = False) -> None:
@@ -200,7 +244,11 @@ def record(parent: ET.Element, name: str, value: Any, unit_of=None, wrap: bool =
     one.
     """
     if nested(value):
-        items = sorted(value.items()) if isinstance(value, dict) else [(f"{name}[{i}]", v) for i, v in enumerate(value)]
+        items = (
+            sorted(value.items())
+            if isinstance(value, dict)
+            else [(f"{name}[{i}]", v) for i, v in enumerate(value)]
+        )
         lst = sub(parent, d("list"))
         text(lst, "name", name)
         mixed = any(nested(v) for _, v in items)

@@ -27,8 +27,15 @@ import math
 
 from dataclasses import dataclass
 
-__all__ = ["DECISION_RULES", "CONFORMS", "DOES_NOT_CONFORM", "CANNOT_DECIDE", "Decision", "decision",
-           "split_verdict"]
+__all__ = [
+    "DECISION_RULES",
+    "CONFORMS",
+    "DOES_NOT_CONFORM",
+    "CANNOT_DECIDE",
+    "Decision",
+    "decision",
+    "split_verdict",
+]
 
 CONFORMS, DOES_NOT_CONFORM, CANNOT_DECIDE = "conforms", "does not conform", "cannot decide"
 
@@ -71,36 +78,52 @@ class Decision:
     @property
     def short(self) -> str:
         """``conforms (|E| 3.2 um, U 1.1 um, T 15 um, rule: guarded acceptance, w = 1.1 um)``."""
-        return (f"{self.verdict} (|E| {abs(self.error_mm) * 1e3:.1f} um, U {self.U_mm * 1e3:.1f} um, "
-                f"T {self.tolerance_mm * 1e3:.1f} um; {self.rule_text})")
+        return (
+            f"{self.verdict} (|E| {abs(self.error_mm) * 1e3:.1f} um, U {self.U_mm * 1e3:.1f} um, "
+            f"T {self.tolerance_mm * 1e3:.1f} um; {self.rule_text})"
+        )
 
     @property
     def statement(self) -> str:
         """The verdict as a sentence with the rule, the guard band and the numbers it rests on."""
-        text = (f"{self.verdict.upper()}: |E| = {abs(self.error_mm) * 1e3:.2f} "
-                f"um, U(E) = {self.U_mm * 1e3:.2f} um, "
-                f"tolerance T = {self.tolerance_mm * 1e3:.2f} um; rule: {self.rule_text}")
+        text = (
+            f"{self.verdict.upper()}: |E| = {abs(self.error_mm) * 1e3:.2f} "
+            f"um, U(E) = {self.U_mm * 1e3:.2f} um, "
+            f"tolerance T = {self.tolerance_mm * 1e3:.2f} um; rule: {self.rule_text}"
+        )
         if self.verdict == CANNOT_DECIDE:
-            text += ("; U(E) is not smaller than the tolerance" if self.U_mm >= self.tolerance_mm
-                     else "; |E| lies within the guard band")
+            text += (
+                "; U(E) is not smaller than the tolerance"
+                if self.U_mm >= self.tolerance_mm
+                else "; |E| lies within the guard band"
+            )
             text += f", the result is {'accepted' if self.passed else 'not accepted'} by the rule"
         return text
 
 
-def decision(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "simple_acceptance",
-             guard_band_factor: float = 1.0) -> Decision:
+def decision(
+    error_mm: float,
+    U_mm: float,
+    tolerance_mm: float,
+    rule: str = "simple_acceptance",
+    guard_band_factor: float = 1.0,
+) -> Decision:
     """Return the verdict on ``error_mm`` (E) with expanded uncertainty ``U_mm`` against +- ``tolerance_mm``.
 
     ``rule`` is one of the module docstring's rules; the guard band is ``guard_band_factor * U_mm`` for the
     guarded rules, 0 for simple acceptance.
     """
     if rule not in DECISION_RULES:
-        raise ValueError(f"unknown decision rule {rule!r}; valid: {sorted(set(DECISION_RULES) - {'guard_band'})}")
+        raise ValueError(
+            f"unknown decision rule {rule!r}; valid: {sorted(set(DECISION_RULES) - {'guard_band'})}"
+        )
     if not guard_band_factor >= 0:
         raise ValueError(f"guard_band_factor must be >= 0, got {guard_band_factor!r}")
     if not all(math.isfinite(float(x)) for x in (error_mm, U_mm, tolerance_mm)) or not tolerance_mm > 0:
-        raise ValueError(f"no verdict: the error ({error_mm!r} mm), its expanded uncertainty ({U_mm!r} mm) and the "
-                         f"tolerance ({tolerance_mm!r} mm) must be finite numbers, the tolerance positive")
+        raise ValueError(
+            f"no verdict: the error ({error_mm!r} mm), its expanded uncertainty ({U_mm!r} mm) and the "
+            f"tolerance ({tolerance_mm!r} mm) must be finite numbers, the tolerance positive"
+        )
     e, U, T = abs(float(error_mm)), float(U_mm), float(tolerance_mm)
     if rule == "simple_acceptance":
         w, limit = 0.0, T
@@ -131,5 +154,5 @@ def split_verdict(text: str | None) -> tuple[str | None, str]:
     low = text.lower()
     for v in (DOES_NOT_CONFORM, CANNOT_DECIDE, CONFORMS):  # "conforms" is a suffix of none, checked last
         if low.startswith(v):
-            return v, text[len(v):].lstrip(": ").strip().removeprefix("(").removesuffix(")")
+            return v, text[len(v) :].lstrip(": ").strip().removeprefix("(").removesuffix(")")
     return None, text

@@ -24,8 +24,22 @@ from borescan.effects import EFFECTS, Effect
 from borescan.physics.tri import CORRECTABLE_STAGES, tri_correct_readings
 from borescan.uncertainty import Input
 
-__all__ = ["CORRECTABLE_STAGES", "DeviceEffect", "device_model_at", "carried_effects", "correct", "channel_time_offsets",
-           "derivatives", "gum_input", "from_dicts", "input_key", "correct_inputs", "carry", "lookup", "auto_keys"]
+__all__ = [
+    "CORRECTABLE_STAGES",
+    "DeviceEffect",
+    "device_model_at",
+    "carried_effects",
+    "correct",
+    "channel_time_offsets",
+    "derivatives",
+    "gum_input",
+    "from_dicts",
+    "input_key",
+    "correct_inputs",
+    "carry",
+    "lookup",
+    "auto_keys",
+]
 
 #: relative step of the central differences of the corrected readings in a carried parameter
 _STEP = 1e-3
@@ -64,21 +78,40 @@ class DeviceEffect:
 
     def to_dict(self) -> dict:
         """Return the entry as JSON-ready data (:meth:`from_dict` reads it back)."""
-        return {"key": self.key, "effect": self.key.split("@")[0], "estimated": self.estimated,
-                "values": self.values(), "u": {k: float(v) for k, v in self.u.items()}, "night": self.night,
-                "evidence_scans": list(self.evidence_scans), "effects": [e.to_dict() for e in self.effects],
-                "source": self.source}
+        return {
+            "key": self.key,
+            "effect": self.key.split("@")[0],
+            "estimated": self.estimated,
+            "values": self.values(),
+            "u": {k: float(v) for k, v in self.u.items()},
+            "night": self.night,
+            "evidence_scans": list(self.evidence_scans),
+            "effects": [e.to_dict() for e in self.effects],
+            "source": self.source,
+        }
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "DeviceEffect":
         """Return the entry written by :meth:`to_dict`."""
-        return cls(d["key"], tuple(Effect.from_dict(e) for e in d.get("effects") or ()), dict(d.get("u") or {}),
-                   d.get("night"), tuple(d.get("evidence_scans") or ()), d.get("source", "config"))
+        return cls(
+            d["key"],
+            tuple(Effect.from_dict(e) for e in d.get("effects") or ()),
+            dict(d.get("u") or {}),
+            d.get("night"),
+            tuple(d.get("evidence_scans") or ()),
+            d.get("source", "config"),
+        )
 
     def with_value(self, name: str, value: float) -> "DeviceEffect":
         """Return the same entry with parameter ``name`` at ``value`` (every channel of an ``@all`` entry)."""
-        return DeviceEffect(self.key, tuple(Effect(e.name, {**e.params, name: value}) for e in self.effects),
-                            self.u, self.night, self.evidence_scans, self.source)
+        return DeviceEffect(
+            self.key,
+            tuple(Effect(e.name, {**e.params, name: value}) for e in self.effects),
+            self.u,
+            self.night,
+            self.evidence_scans,
+            self.source,
+        )
 
 
 def from_dicts(items: Iterable[Mapping] | None) -> list[DeviceEffect]:
@@ -102,8 +135,14 @@ def _matches(row: Mapping, name: str, channel: str | None) -> bool:
     return ch is not None and int(ch) == int(channel)
 
 
-def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[Mapping], night: str,
-                    channels: Sequence[int], auto: Sequence[str] = ()) -> list[DeviceEffect]:
+def device_model_at(
+    device_id: str,
+    keys: Sequence[str],
+    pooled_rows: Iterable[Mapping],
+    night: str,
+    channels: Sequence[int],
+    auto: Sequence[str] = (),
+) -> list[DeviceEffect]:
     """Return the device model of ``device_id`` as a calibration on ``night`` carries it.
 
     Parameters
@@ -118,8 +157,14 @@ def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[M
     -------
     list of :class:`DeviceEffect`, in the order of ``keys``.
     """
-    rows = sorted((r for r in pooled_rows if r.get("device_id") == device_id and str(r.get("night")) < str(night)
-                   and r.get("parameters")), key=lambda r: str(r["night"]))
+    rows = sorted(
+        (
+            r
+            for r in pooled_rows
+            if r.get("device_id") == device_id and str(r.get("night")) < str(night) and r.get("parameters")
+        ),
+        key=lambda r: str(r["night"]),
+    )
     out = []
     listed = [(k, "config") for k in keys] + [(k, "automatic") for k in auto if k not in set(keys)]
     for key, source in listed:
@@ -141,8 +186,16 @@ def device_model_at(device_id: str, keys: Sequence[str], pooled_rows: Iterable[M
         chans = [int(ch)] if ch not in (None, "all") else (list(channels) if ch == "all" else [None])
         effs = tuple(Effect(name, vals if c is None else {**vals, "channel": c}) for c in chans)
         u = {k: float(u_all.get(f"u_{k}", 0.0) or 0.0) for k in wanted}
-        out.append(DeviceEffect(key, effs, u, str(r["night"]),
-                                tuple(s for s in (r.get("evidence_scans") or "").split(",") if s), source))
+        out.append(
+            DeviceEffect(
+                key,
+                effs,
+                u,
+                str(r["night"]),
+                tuple(s for s in (r.get("evidence_scans") or "").split(",") if s),
+                source,
+            )
+        )
     return out
 
 
@@ -182,8 +235,9 @@ def lookup(keys_of, pooled_rows: Iterable[Mapping], night: str, auto_nights: int
     with ``auto_nights`` > 0 :func:`auto_keys` adds those named night after night.
     """
     rows = list(pooled_rows)
-    return lambda device_id, channels: device_model_at(device_id, keys_of(device_id), rows, night, channels,
-                                                       auto_keys(device_id, rows, night, auto_nights))
+    return lambda device_id, channels: device_model_at(
+        device_id, keys_of(device_id), rows, night, channels, auto_keys(device_id, rows, night, auto_nights)
+    )
 
 
 def carried_effects(model: Iterable[DeviceEffect]) -> list[Effect]:
@@ -203,8 +257,9 @@ def correct(t_s, readings_mm, channels, model: Iterable[DeviceEffect], range_mm)
     return tri_correct_readings(t_s, readings_mm, channels, effs, range_mm)
 
 
-def channel_time_offsets(model: Iterable[DeviceEffect], channels: Sequence[int], *,
-                         zeros: bool = False) -> np.ndarray | None:
+def channel_time_offsets(
+    model: Iterable[DeviceEffect], channels: Sequence[int], *, zeros: bool = False
+) -> np.ndarray | None:
     """Return the per-channel time offsets of the carried time-base effects.
 
     Per channel tau (c,) [s] of the carried time-base effects: channel c's reading at stamp t is the
@@ -214,7 +269,9 @@ def channel_time_offsets(model: Iterable[DeviceEffect], channels: Sequence[int],
     tau = np.zeros(len(channels))
     for e in carried_effects(model):
         if e.spec.stage == "time_base":
-            tau[list(channels).index(e.channel)] += -float(e.spec.forward["tri_lds"](np.zeros(1), e.params)[0])
+            tau[list(channels).index(e.channel)] += -float(
+                e.spec.forward["tri_lds"](np.zeros(1), e.params)[0]
+            )
     return tau if zeros or np.any(tau) else None
 
 
@@ -238,8 +295,10 @@ def derivatives(model: Sequence[DeviceEffect], f) -> dict[tuple[int, str], np.nd
                 continue
             v0 = entry.values()[name]
             h = max(abs(v0), u) * _STEP
-            up, dn = ([m if j != i else entry.with_value(name, v0 + s * h) for j, m in enumerate(model)]
-                      for s in (1.0, -1.0))
+            up, dn = (
+                [m if j != i else entry.with_value(name, v0 + s * h) for j, m in enumerate(model)]
+                for s in (1.0, -1.0)
+            )
             out[(i, name)] = (np.asarray(f(up), dtype=float) - np.asarray(f(dn), dtype=float)) / (2 * h)
     return out
 
@@ -250,11 +309,17 @@ def gum_input(device_id: str, entry: DeviceEffect, name: str) -> Input:
     Return the GUM input of one carried parameter (normal, the pooled fit's standard uncertainty); the same
     key (:func:`input_key`) in a calibration's budget and in a diameter's, so the two add.
     """
-    return Input(input_key(device_id, entry, name), f"{entry.key} {name} (device model, readings corrected for it)",
-                 name, EFFECTS[entry.key.split("@")[0]].params.get(name, "-"), entry.values()[name],
-                 float(entry.u[name]), "normal",
-                 source=f"pooled examination of {device_id} on {entry.night} "
-                        f"({', '.join(entry.evidence_scans) or 'its scans'})")
+    return Input(
+        input_key(device_id, entry, name),
+        f"{entry.key} {name} (device model, readings corrected for it)",
+        name,
+        EFFECTS[entry.key.split("@")[0]].params.get(name, "-"),
+        entry.values()[name],
+        float(entry.u[name]),
+        "normal",
+        source=f"pooled examination of {device_id} on {entry.night} "
+        f"({', '.join(entry.evidence_scans) or 'its scans'})",
+    )
 
 
 def correct_inputs(inputs: list[dict], model) -> list[dict]:
@@ -268,8 +333,14 @@ def correct_inputs(inputs: list[dict], model) -> list[dict]:
     """
     if not any(e.spec.stage in CORRECTABLE_STAGES for e in carried_effects(model)):
         return inputs
-    return [dict(x, readings_recorded=x["readings"], readings=correct(x["t_s"], x["readings"], x["channels"], model,
-                                                                      x["range_mm"])) for x in inputs]
+    return [
+        dict(
+            x,
+            readings_recorded=x["readings"],
+            readings=correct(x["t_s"], x["readings"], x["channels"], model, x["range_mm"]),
+        )
+        for x in inputs
+    ]
 
 
 def carry(model: Sequence[DeviceEffect], device_id: str, inputs: list[dict], log=print) -> list[dict]:
@@ -280,6 +351,12 @@ def carry(model: Sequence[DeviceEffect], device_id: str, inputs: list[dict], log
     """
     for m in model:
         values = ", ".join(f"{k} = {v:.6g} +- {m.u.get(k, float('nan')):.2g}" for k, v in m.values().items())
-        log(f"{device_id}: device model {m.key} ({m.source}) " + (f"carried at {values} (pooled examination of {m.night})"
-                                                                  if m.estimated else "not estimated yet: not corrected"))
+        log(
+            f"{device_id}: device model {m.key} ({m.source}) "
+            + (
+                f"carried at {values} (pooled examination of {m.night})"
+                if m.estimated
+                else "not estimated yet: not corrected"
+            )
+        )
     return correct_inputs(inputs, model)

@@ -229,9 +229,7 @@ class Effect:
         spec = get_effect(self.name)
         given, wanted = set(self.params), set(spec.params)
         if given != wanted:
-            raise ValueError(
-                f"effect {self.name!r} takes parameters {sorted(wanted)}, got {sorted(given)}"
-            )
+            raise ValueError(f"effect {self.name!r} takes parameters {sorted(wanted)}, got {sorted(given)}")
         clean = {}
         for k, v in self.params.items():
             if k in ("channel", "k"):
@@ -479,8 +477,10 @@ def _axis_tilt_from_internal(x: Mapping, u: Mapping | None, k=None) -> tuple[dic
     """beta = |p + i q|^(1/2), azimuth = arg(p + i q) / 2 (mod pi)."""
     m, ang, um, ua = _polar(x["p"], x["q"], _u(u, "p"), _u(u, "q"))
     beta = math.sqrt(m)
-    return ({"beta_rad": beta, "azimuth": _wrap(0.5 * ang, math.pi)},
-            {"beta_rad": um / (2.0 * max(beta, 1e-300)), "azimuth": 0.5 * ua})
+    return (
+        {"beta_rad": beta, "azimuth": _wrap(0.5 * ang, math.pi)},
+        {"beta_rad": um / (2.0 * max(beta, 1e-300)), "azimuth": 0.5 * ua},
+    )
 
 
 def _thermal_to_internal(p: Mapping) -> dict:
@@ -503,94 +503,235 @@ _EVIDENCE = {"tri_spindle": "evidence", "tri_static": "evidence", "rod": "eviden
 EFFECTS: dict[str, EffectSpec] = {
     s.name: s
     for s in [
-        EffectSpec("sensor_offset", (TRI, ROD), {"channel": "channel", "b_mm": "mm"}, "reading",
-                   _reading(_sensor_offset), "v' = v + b",
-                   fit=(FitParam("b_mm", "mm", 1e-3),), candidate=_ALL_KINDS, common=True,
-                   separated_by="another eccentricity",
-                   absorbed_by={"tri_spindle": {"d_b": "d_b_mm of the channel (every d_b when common)",
-                                                "R": "the bore radius (when common)"},
-                                "tri_static": {"d_b": "d_b_mm of the channel", "R": "the bore radius (when common)"},
-                                "rod": {"l0": "l0_mm of the layer", "R": "the hole radius, when free"}},
-                   example={"channel": 2, "b_mm": 0.012}),
-        EffectSpec("sensor_gain", (TRI, ROD), {"channel": "channel", "g": "-"}, "reading",
-                   _reading(_sensor_gain), "v' = v (1 + g)",
-                   fit=(FitParam("g", "-", 1e-4),), candidate=_ALL_KINDS,
-                   example={"channel": 2, "g": -0.004}),
-        EffectSpec("sensor_nonlinearity", (TRI, ROD), {"channel": "channel", "a_mm": "mm"}, "reading",
-                   _reading(_sensor_nonlinearity), "v' = v + a 4u(1 - u), u = v / range_mm",
-                   fit=(FitParam("a_mm", "mm", 1e-3),), candidate=_ALL_KINDS,
-                   separated_by="another eccentricity", example={"channel": 2, "a_mm": 0.01}),
-        EffectSpec("sensor_drift", (TRI, ROD), {"channel": "channel", "k_mm_per_s": "mm/s"}, "reading",
-                   _reading(_sensor_drift), "v' = v + k t",
-                   fit=(FitParam("k_mm_per_s", "mm/s", 1e-5),), candidate=_ALL_KINDS,
-                   example={"channel": 2, "k_mm_per_s": 0.0015}),
-        EffectSpec("channel_delay", (TRI,), {"channel": "channel", "tau_s": "s"}, "time_base",
-                   {TRI: _channel_delay}, "channel c at time t shows the reading of time t - tau",
-                   fit=(FitParam("tau_s", "s", 1e-4),), candidate={"tri_spindle": "screen"},
-                   absorbed_by={"tri_spindle": {"beta": "beta_rad of the channel (at constant speed)"}},
-                   absorbed_unless={"tri_spindle": {"beta": "speeds_differ"}},
-                   separated_by="another spindle speed", example={"channel": 2, "tau_s": 0.0012}),
-        EffectSpec("quantization", (TRI, ROD), {"channel": "channel", "lsb_mm": "mm"}, "output",
-                   _reading(_quantization), "v' = lsb round(v / lsb)", candidate=_EVIDENCE,
-                   example={"channel": 2, "lsb_mm": 0.002}),
-        EffectSpec("outliers", (TRI, ROD), {"channel": "channel", "rate": "-", "size_mm": "mm"}, "output",
-                   _reading(_outliers), "a fraction rate of samples jumps by about +-size", candidate=_EVIDENCE,
-                   example={"channel": 2, "rate": 0.01, "size_mm": 0.05}),
-        EffectSpec("vibration", (TRI,), {"f_hz": "Hz", "a_mm": "mm", "phase": "rad"}, "reading",
-                   {TRI: _vibration}, "v' = v + a sin(2 pi f t + phase)",
-                   fit=(FitParam("f_hz", "Hz", 1e-2), FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
-                   to_internal=_VIBRATION[0], from_internal=_VIBRATION[1],
-                   candidate={"tri_spindle": "screen"}, needs=("vibration_line",), scope="scan",
-                   example={"f_hz": 7.3, "a_mm": 0.004, "phase": 0.4}),
-        EffectSpec("speed_error", (TRI,), {"eps": "-"}, "kinematics",
-                   {TRI: _speed_error}, "the spindle turns at (1 + eps) times the commanded profile",
-                   fit=(FitParam("eps", "-", 1e-4),), candidate={"tri_spindle": "screen"},
-                   needs=("commanded_angle",), scope="scan", separated_by="another spindle speed",
-                   example={"eps": 0.002}),
-        EffectSpec("speed_ripple", (TRI,), {"a_rad": "rad", "phase": "rad"}, "kinematics",
-                   {TRI: _speed_ripple}, "phi(t) = omega t + a sin(omega t + phase)",
-                   fit=(FitParam("A", "rad", 1e-3), FitParam("B", "rad", 1e-3)),
-                   to_internal=_RIPPLE[0], from_internal=_RIPPLE[1],
-                   candidate={"tri_spindle": "screen"}, needs=("commanded_angle",), scope="scan",
-                   example={"a_rad": 0.006, "phase": 1.0}),
-        EffectSpec("spindle_error_motion", (TRI,), {"k": "-", "rho_mm": "mm", "phase": "rad"},
-                   "spindle_position", {TRI: _spindle_error_motion},
-                   "S(phi) = S0 + rho (cos(k phi + phase), sin(k phi + phase))",
-                   fit=(FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
-                   to_internal=_MOTION[0], from_internal=_MOTION[1], candidate={"tri_spindle": "screen"},
-                   scope="scan", example={"k": 3, "rho_mm": 0.006, "phase": 0.5}),
-        EffectSpec("axis_tilt", (TRI,), {"beta_rad": "rad", "azimuth": "rad"}, "bore",
-                   {TRI: _axis_tilt}, "bore is an ellipse R / cos(beta) along azimuth, R across",
-                   fit=(FitParam("p", "rad^2", 1e-4), FitParam("q", "rad^2", 1e-4)),
-                   to_internal=_axis_tilt_to_internal, from_internal=_axis_tilt_from_internal,
-                   candidate={"tri_spindle": "start"}, scope="artifact", orientation="azimuth",
-                   example={"beta_rad": 0.02, "azimuth": 0.6}),
-        EffectSpec("bore_lobing", (TRI,), {"k": "-", "a_mm": "mm", "phase": "rad"}, "bore",
-                   {TRI: _bore_lobing}, "R(theta) = R + a cos(k (theta - phase))",
-                   fit=(FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
-                   to_internal=_LOBING[0], from_internal=_LOBING[1], candidate={"tri_spindle": "screen"},
-                   scope="artifact", orientation="phase", example={"k": 3, "a_mm": 0.005, "phase": 0.4}),
-        EffectSpec("thermal_expansion", (TRI, ROD), {"temperature_c": "degC"}, "bore",
-                   {TRI: _thermal_expansion, ROD: _thermal_expansion}, "R = R20 (1 + cte (T - 20))",
-                   fit=(FitParam("dT", "K", 1.0),), to_internal=_thermal_to_internal,
-                   from_internal=_thermal_from_internal, candidate=_ALL_KINDS, needs=("cte",),
-                   absorbed_by={"tri_spindle": {"d_b": "every d_b_mm (a common offset)", "R": "the bore radius"},
-                                "tri_static": {"d_b": "every d_b_mm (a common offset)", "R": "the bore radius"},
-                                "rod": {"R": "the hole radius, when free"}},
-                   absorbed_unless={"tri_spindle": {"d_b": "radii_differ"}}, scope="night",
-                   example={"temperature_c": 24.0}),
-        EffectSpec("beam_tilt", (TRI, ROD), {"channel": "channel", "gamma_rad": "rad"}, "beam",
-                   {TRI: _beam_tilt_tri, ROD: _beam_tilt_rod}, "reading = in-plane distance / cos(gamma)",
-                   fit=(FitParam("h", "-", 1e-4, 0.0),), to_internal=_beam_tilt_to_internal,
-                   from_internal=_beam_tilt_from_internal, candidate=_ALL_KINDS,
-                   absorbed_by={"rod": {"l0": "l0_mm of the layer (to first order)"}},
-                   example={"channel": 2, "gamma_rad": 0.06}),
-        EffectSpec("beam_offset", (ROD,), {"channel": "channel", "d_mm": "mm"}, "beam",
-                   {ROD: _beam_offset_rod}, "rod: layer c's beam misses the axis by d (Wang 2017 Eq. 5)",
-                   fit=(FitParam("d_mm", "mm", 1e-2),), candidate={"rod": "start"},
-                   absorbed_by={"rod": {"l0": "l0_mm of the layer (acts as a constant -d^2 / (2 r))",
-                                        "R": "the hole radius, when free"}},
-                   example={"channel": 2, "d_mm": 0.3}),
+        EffectSpec(
+            "sensor_offset",
+            (TRI, ROD),
+            {"channel": "channel", "b_mm": "mm"},
+            "reading",
+            _reading(_sensor_offset),
+            "v' = v + b",
+            fit=(FitParam("b_mm", "mm", 1e-3),),
+            candidate=_ALL_KINDS,
+            common=True,
+            separated_by="another eccentricity",
+            absorbed_by={
+                "tri_spindle": {
+                    "d_b": "d_b_mm of the channel (every d_b when common)",
+                    "R": "the bore radius (when common)",
+                },
+                "tri_static": {"d_b": "d_b_mm of the channel", "R": "the bore radius (when common)"},
+                "rod": {"l0": "l0_mm of the layer", "R": "the hole radius, when free"},
+            },
+            example={"channel": 2, "b_mm": 0.012},
+        ),
+        EffectSpec(
+            "sensor_gain",
+            (TRI, ROD),
+            {"channel": "channel", "g": "-"},
+            "reading",
+            _reading(_sensor_gain),
+            "v' = v (1 + g)",
+            fit=(FitParam("g", "-", 1e-4),),
+            candidate=_ALL_KINDS,
+            example={"channel": 2, "g": -0.004},
+        ),
+        EffectSpec(
+            "sensor_nonlinearity",
+            (TRI, ROD),
+            {"channel": "channel", "a_mm": "mm"},
+            "reading",
+            _reading(_sensor_nonlinearity),
+            "v' = v + a 4u(1 - u), u = v / range_mm",
+            fit=(FitParam("a_mm", "mm", 1e-3),),
+            candidate=_ALL_KINDS,
+            separated_by="another eccentricity",
+            example={"channel": 2, "a_mm": 0.01},
+        ),
+        EffectSpec(
+            "sensor_drift",
+            (TRI, ROD),
+            {"channel": "channel", "k_mm_per_s": "mm/s"},
+            "reading",
+            _reading(_sensor_drift),
+            "v' = v + k t",
+            fit=(FitParam("k_mm_per_s", "mm/s", 1e-5),),
+            candidate=_ALL_KINDS,
+            example={"channel": 2, "k_mm_per_s": 0.0015},
+        ),
+        EffectSpec(
+            "channel_delay",
+            (TRI,),
+            {"channel": "channel", "tau_s": "s"},
+            "time_base",
+            {TRI: _channel_delay},
+            "channel c at time t shows the reading of time t - tau",
+            fit=(FitParam("tau_s", "s", 1e-4),),
+            candidate={"tri_spindle": "screen"},
+            absorbed_by={"tri_spindle": {"beta": "beta_rad of the channel (at constant speed)"}},
+            absorbed_unless={"tri_spindle": {"beta": "speeds_differ"}},
+            separated_by="another spindle speed",
+            example={"channel": 2, "tau_s": 0.0012},
+        ),
+        EffectSpec(
+            "quantization",
+            (TRI, ROD),
+            {"channel": "channel", "lsb_mm": "mm"},
+            "output",
+            _reading(_quantization),
+            "v' = lsb round(v / lsb)",
+            candidate=_EVIDENCE,
+            example={"channel": 2, "lsb_mm": 0.002},
+        ),
+        EffectSpec(
+            "outliers",
+            (TRI, ROD),
+            {"channel": "channel", "rate": "-", "size_mm": "mm"},
+            "output",
+            _reading(_outliers),
+            "a fraction rate of samples jumps by about +-size",
+            candidate=_EVIDENCE,
+            example={"channel": 2, "rate": 0.01, "size_mm": 0.05},
+        ),
+        EffectSpec(
+            "vibration",
+            (TRI,),
+            {"f_hz": "Hz", "a_mm": "mm", "phase": "rad"},
+            "reading",
+            {TRI: _vibration},
+            "v' = v + a sin(2 pi f t + phase)",
+            fit=(FitParam("f_hz", "Hz", 1e-2), FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
+            to_internal=_VIBRATION[0],
+            from_internal=_VIBRATION[1],
+            candidate={"tri_spindle": "screen"},
+            needs=("vibration_line",),
+            scope="scan",
+            example={"f_hz": 7.3, "a_mm": 0.004, "phase": 0.4},
+        ),
+        EffectSpec(
+            "speed_error",
+            (TRI,),
+            {"eps": "-"},
+            "kinematics",
+            {TRI: _speed_error},
+            "the spindle turns at (1 + eps) times the commanded profile",
+            fit=(FitParam("eps", "-", 1e-4),),
+            candidate={"tri_spindle": "screen"},
+            needs=("commanded_angle",),
+            scope="scan",
+            separated_by="another spindle speed",
+            example={"eps": 0.002},
+        ),
+        EffectSpec(
+            "speed_ripple",
+            (TRI,),
+            {"a_rad": "rad", "phase": "rad"},
+            "kinematics",
+            {TRI: _speed_ripple},
+            "phi(t) = omega t + a sin(omega t + phase)",
+            fit=(FitParam("A", "rad", 1e-3), FitParam("B", "rad", 1e-3)),
+            to_internal=_RIPPLE[0],
+            from_internal=_RIPPLE[1],
+            candidate={"tri_spindle": "screen"},
+            needs=("commanded_angle",),
+            scope="scan",
+            example={"a_rad": 0.006, "phase": 1.0},
+        ),
+        EffectSpec(
+            "spindle_error_motion",
+            (TRI,),
+            {"k": "-", "rho_mm": "mm", "phase": "rad"},
+            "spindle_position",
+            {TRI: _spindle_error_motion},
+            "S(phi) = S0 + rho (cos(k phi + phase), sin(k phi + phase))",
+            fit=(FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
+            to_internal=_MOTION[0],
+            from_internal=_MOTION[1],
+            candidate={"tri_spindle": "screen"},
+            scope="scan",
+            example={"k": 3, "rho_mm": 0.006, "phase": 0.5},
+        ),
+        EffectSpec(
+            "axis_tilt",
+            (TRI,),
+            {"beta_rad": "rad", "azimuth": "rad"},
+            "bore",
+            {TRI: _axis_tilt},
+            "bore is an ellipse R / cos(beta) along azimuth, R across",
+            fit=(FitParam("p", "rad^2", 1e-4), FitParam("q", "rad^2", 1e-4)),
+            to_internal=_axis_tilt_to_internal,
+            from_internal=_axis_tilt_from_internal,
+            candidate={"tri_spindle": "start"},
+            scope="artifact",
+            orientation="azimuth",
+            example={"beta_rad": 0.02, "azimuth": 0.6},
+        ),
+        EffectSpec(
+            "bore_lobing",
+            (TRI,),
+            {"k": "-", "a_mm": "mm", "phase": "rad"},
+            "bore",
+            {TRI: _bore_lobing},
+            "R(theta) = R + a cos(k (theta - phase))",
+            fit=(FitParam("A", "mm", 1e-3), FitParam("B", "mm", 1e-3)),
+            to_internal=_LOBING[0],
+            from_internal=_LOBING[1],
+            candidate={"tri_spindle": "screen"},
+            scope="artifact",
+            orientation="phase",
+            example={"k": 3, "a_mm": 0.005, "phase": 0.4},
+        ),
+        EffectSpec(
+            "thermal_expansion",
+            (TRI, ROD),
+            {"temperature_c": "degC"},
+            "bore",
+            {TRI: _thermal_expansion, ROD: _thermal_expansion},
+            "R = R20 (1 + cte (T - 20))",
+            fit=(FitParam("dT", "K", 1.0),),
+            to_internal=_thermal_to_internal,
+            from_internal=_thermal_from_internal,
+            candidate=_ALL_KINDS,
+            needs=("cte",),
+            absorbed_by={
+                "tri_spindle": {"d_b": "every d_b_mm (a common offset)", "R": "the bore radius"},
+                "tri_static": {"d_b": "every d_b_mm (a common offset)", "R": "the bore radius"},
+                "rod": {"R": "the hole radius, when free"},
+            },
+            absorbed_unless={"tri_spindle": {"d_b": "radii_differ"}},
+            scope="night",
+            example={"temperature_c": 24.0},
+        ),
+        EffectSpec(
+            "beam_tilt",
+            (TRI, ROD),
+            {"channel": "channel", "gamma_rad": "rad"},
+            "beam",
+            {TRI: _beam_tilt_tri, ROD: _beam_tilt_rod},
+            "reading = in-plane distance / cos(gamma)",
+            fit=(FitParam("h", "-", 1e-4, 0.0),),
+            to_internal=_beam_tilt_to_internal,
+            from_internal=_beam_tilt_from_internal,
+            candidate=_ALL_KINDS,
+            absorbed_by={"rod": {"l0": "l0_mm of the layer (to first order)"}},
+            example={"channel": 2, "gamma_rad": 0.06},
+        ),
+        EffectSpec(
+            "beam_offset",
+            (ROD,),
+            {"channel": "channel", "d_mm": "mm"},
+            "beam",
+            {ROD: _beam_offset_rod},
+            "rod: layer c's beam misses the axis by d (Wang 2017 Eq. 5)",
+            fit=(FitParam("d_mm", "mm", 1e-2),),
+            candidate={"rod": "start"},
+            absorbed_by={
+                "rod": {
+                    "l0": "l0_mm of the layer (acts as a constant -d^2 / (2 r))",
+                    "R": "the hole radius, when free",
+                }
+            },
+            example={"channel": 2, "d_mm": 0.3},
+        ),
     ]
 }
 
@@ -601,8 +742,11 @@ def calibration_absorbers(scan_kind: str) -> dict[str, str]:
     As a finding reports them: the registry's ``absorbed_by`` less the bore radius ``"R"`` (a measurand), for
     the effects some calibration parameter absorbs; read from the registry as it is now.
     """
-    return {name: "; ".join(text for par, text in spec.absorbers(scan_kind).items() if par != "R")
-            for name, spec in EFFECTS.items() if any(par != "R" for par in spec.absorbers(scan_kind))}
+    return {
+        name: "; ".join(text for par, text in spec.absorbers(scan_kind).items() if par != "R")
+        for name, spec in EFFECTS.items()
+        if any(par != "R" for par in spec.absorbers(scan_kind))
+    }
 
 
 def get_effect(name: str) -> EffectSpec:
@@ -659,7 +803,9 @@ def sort_effects(
             raise ValueError(
                 f"effect {e.name!r} names channel {e.channel}, device has channels {tuple(channels)}"
             )
-    order = {name: i for i, name in enumerate(EFFECTS)}  # the registry as it is now (an entry added later counts)
+    order = {
+        name: i for i, name in enumerate(EFFECTS)
+    }  # the registry as it is now (an entry added later counts)
     for e in sorted(effects, key=lambda e: order[e.name]):  # stable: same name keeps given order
         out[e.spec.stage].append(e)
     return out
@@ -729,7 +875,8 @@ _NIGHT = re.compile(r"\d{4}-\d{2}-\d{2}")
 
 
 def device_effect_key(  # noqa: C901 (checks every part of a device-model key, each with its message)
-        key: str, channels: Sequence[int] | None = None, device: str = "") -> tuple[str, int | None]:
+    key: str, channels: Sequence[int] | None = None, device: str = ""
+) -> tuple[str, int | None]:
     """Return (effect name, channel) of a device-model entry.
 
     (effect name, channel) of a device-model entry (a registry key as the findings write it:
@@ -750,14 +897,20 @@ def device_effect_key(  # noqa: C901 (checks every part of a device-model key, e
     if m is None:
         raise ValueError(f"{where}{key!r} is not an effect key (effect, effect@<channel> or effect@all)")
     name, ch, k = m["effect"], m["channel"], m["k"]
-    valid = sorted(n for n, e in EFFECTS.items()
-                   if e.scope == "device" and DEVICE_MODEL_SCAN_KIND in e.candidate and e.fit)
+    valid = sorted(
+        n
+        for n, e in EFFECTS.items()
+        if e.scope == "device" and DEVICE_MODEL_SCAN_KIND in e.candidate and e.fit
+    )
     if name not in EFFECTS:
         raise ValueError(f"{where}unknown effect {name!r} in {key!r}; valid: {valid}")
     spec = EFFECTS[name]
     if name not in valid:
-        why = (f"belongs to the {spec.scope}, not to the device" if spec.scope != "device" else
-               "is not a fitted effect of three-sensor spindle scans")
+        why = (
+            f"belongs to the {spec.scope}, not to the device"
+            if spec.scope != "device"
+            else "is not a fitted effect of three-sensor spindle scans"
+        )
         raise ValueError(f"{where}{name!r} {why}; a device model lists: {valid}")
     if k is not None:
         raise ValueError(f"{where}{key!r}: a device effect has no harmonic [k=...]")
@@ -766,11 +919,15 @@ def device_effect_key(  # noqa: C901 (checks every part of a device-model key, e
             raise ValueError(f"{where}{key!r}: {name} acts on every channel at once; write {name!r}")
         return name, None
     if ch is None:
-        raise ValueError(f"{where}{key!r}: {name} acts on one channel; write {name}@<channel>"
-                         + (" or {name}@all".format(name=name) if spec.common else ""))
+        raise ValueError(
+            f"{where}{key!r}: {name} acts on one channel; write {name}@<channel>"
+            + (" or {name}@all".format(name=name) if spec.common else "")
+        )
     if ch == "all":
         if not spec.common:
-            raise ValueError(f"{where}{key!r}: {name} is not tried as one value on every channel; name a channel")
+            raise ValueError(
+                f"{where}{key!r}: {name} is not tried as one value on every channel; name a channel"
+            )
         return name, 0
     if channels is not None and int(ch) not in channels:
         raise ValueError(f"{where}{key!r}: channel {ch} is not one of the scans' channels {tuple(channels)}")
@@ -794,7 +951,9 @@ def device_model_effects(devices: dict | None, device_id: str, night: str | None
     for item in entry.get("effects") or ():
         if isinstance(item, dict):
             if set(item) - {"effect", "from"} or "effect" not in item:
-                raise ValueError(f"{where}: {item!r}: an entry is an effect key or {{effect: <key>, from: YYYY-MM-DD}}")
+                raise ValueError(
+                    f"{where}: {item!r}: an entry is an effect key or {{effect: <key>, from: YYYY-MM-DD}}"
+                )
             key, frm = str(item["effect"]), str(item.get("from") or "")
             if frm and not _NIGHT.fullmatch(frm):
                 raise ValueError(f"{where}: {key!r}: from {frm!r} is not a night (YYYY-MM-DD)")

@@ -25,8 +25,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["FitResult", "JacobianSummary", "aic", "bic", "difference_groups", "fit_result", "jacobian_summary",
-           "least_squares_fit"]
+__all__ = [
+    "FitResult",
+    "JacobianSummary",
+    "aic",
+    "bic",
+    "difference_groups",
+    "fit_result",
+    "jacobian_summary",
+    "least_squares_fit",
+]
 
 
 def bic(rss: float, n: int, p: int) -> float:
@@ -152,14 +160,35 @@ class FitResult:
 
     def summary(self) -> dict:
         """JSON-safe diagnostics: n, p, dof, rss, rank, condition, sigma, success, message, nfev, aic, bic."""
-        return {"n": int(self.n), "p": int(self.p), "dof": int(self.dof), "rss": float(self.rss),
-                "rank": int(self.rank), "condition": float(self.condition), "sigma": float(self.sigma),
-                "success": bool(self.success), "message": str(self.message), "nfev": int(self.nfev),
-                "aic": self.aic, "bic": self.bic}
+        return {
+            "n": int(self.n),
+            "p": int(self.p),
+            "dof": int(self.dof),
+            "rss": float(self.rss),
+            "rank": int(self.rank),
+            "condition": float(self.condition),
+            "sigma": float(self.sigma),
+            "success": bool(self.success),
+            "message": str(self.message),
+            "nfev": int(self.nfev),
+            "aic": self.aic,
+            "bic": self.bic,
+        }
 
 
-def fit_result(names: Sequence[str], x, residual, J, *, sigma: float | None = None, success: bool = True,
-               message: str = "", nfev: int = 0, rtol: float | None = None, extra: dict | None = None) -> FitResult:
+def fit_result(
+    names: Sequence[str],
+    x,
+    residual,
+    J,
+    *,
+    sigma: float | None = None,
+    success: bool = True,
+    message: str = "",
+    nfev: int = 0,
+    rtol: float | None = None,
+    extra: dict | None = None,
+) -> FitResult:
     """Return the :class:`FitResult` at an optimum ``x`` with residual vector ``residual`` and Jacobian ``J``.
 
     ``sigma`` is the noise scale of the residuals (None: estimated as sqrt(RSS / (n - p)));
@@ -181,8 +210,23 @@ def fit_result(names: Sequence[str], x, residual, J, *, sigma: float | None = No
     else:
         cov, rank, cond = np.zeros((0, 0)), 0, float("nan")
     u = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    return FitResult(names, x, u, cov, r, rss, n, p, rank, cond, float(sigma), bool(success), str(message),
-                     int(nfev), extra)
+    return FitResult(
+        names,
+        x,
+        u,
+        cov,
+        r,
+        rss,
+        n,
+        p,
+        rank,
+        cond,
+        float(sigma),
+        bool(success),
+        str(message),
+        int(nfev),
+        extra,
+    )
 
 
 def least_squares_fit(
@@ -235,6 +279,7 @@ def least_squares_fit(
                         J[:, i] = np.where(sparsity[:, i], col, (f0 - f0) / diff_step)
             return J
     else:
+
         def jz(z: np.ndarray) -> np.ndarray:
             return np.asarray(jac(z * s)) * s
 
@@ -243,7 +288,9 @@ def least_squares_fit(
         z, r, Jz, ok, msg, nfev = res.x, res.fun, res.jac, bool(res.success), str(res.message), int(res.nfev)
     else:
         z, r, Jz, ok, msg, nfev = z0, f(z0), np.zeros((0, 0)), True, "nothing to fit", 1
-    return fit_result(names, z * s, r, Jz / s if z.size else Jz, sigma=sigma, success=ok, message=msg, nfev=nfev)
+    return fit_result(
+        names, z * s, r, Jz / s if z.size else Jz, sigma=sigma, success=ok, message=msg, nfev=nfev
+    )
 
 
 def difference_groups(sparsity: np.ndarray) -> list[list[int]]:

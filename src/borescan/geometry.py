@@ -163,7 +163,9 @@ def _positive_root(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
         return np.where(b <= 0.0, (sq - b) / a, -c / (b + sq))
 
 
-def ray_circle_distance(origin: np.ndarray, direction: np.ndarray, center: np.ndarray, radius: float | np.ndarray) -> np.ndarray:
+def ray_circle_distance(
+    origin: np.ndarray, direction: np.ndarray, center: np.ndarray, radius: float | np.ndarray
+) -> np.ndarray:
     """Distance s > 0 along a unit-direction ray to a circle: |o + s d - C| = R.
 
     Parameters
@@ -192,7 +194,9 @@ def bore_wall_radius(theta_rad: np.ndarray, bore: Bore) -> tuple[np.ndarray, np.
     """
     theta = np.asarray(theta_rad, dtype=float)
     R = float(bore.radius_mm)
-    if bore.tilt_rad == 0.0:  # a circle: r = R (the ellipse's formula gives R to rounding, at 6 transcendentals a point)
+    if (
+        bore.tilt_rad == 0.0
+    ):  # a circle: r = R (the ellipse's formula gives R to rounding, at 6 transcendentals a point)
         r, dr = np.full(theta.shape, R), np.zeros(theta.shape)
     else:
         A = R / np.cos(bore.tilt_rad)
@@ -244,7 +248,9 @@ def _wall_distance(ox, oy, dx, dy, bore: Bore, tol_mm: float = 1e-13, max_iter: 
     return s
 
 
-def ray_bore_distance(origin: np.ndarray, direction: np.ndarray, bore: Bore, *, tol_mm: float = 1e-13, max_iter: int = 60) -> np.ndarray:
+def ray_bore_distance(
+    origin: np.ndarray, direction: np.ndarray, bore: Bore, *, tol_mm: float = 1e-13, max_iter: int = 60
+) -> np.ndarray:
     """Distance s > 0 along rays (unit ``direction``) from inside a bore to its wall.
 
     Circle and ellipse are solved in closed form; lobed bores by Newton iteration on
@@ -266,7 +272,9 @@ def ray_bore_distance(origin: np.ndarray, direction: np.ndarray, bore: Bore, *, 
     return _wall_distance(o[..., 0], o[..., 1], d[..., 0], d[..., 1], bore, tol_mm, max_iter)
 
 
-def tri_spindle_readings(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore) -> np.ndarray:
+def tri_spindle_readings(
+    phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore
+) -> np.ndarray:
     """Return readings of a device turning on a spindle inside a bore (exact; the one implementation).
 
     p_machine = S + Rot(phi) p_device; the reading is v = s - d_b with s > 0 the root of
@@ -291,8 +299,9 @@ def tri_spindle_readings(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: 
     return np.ascontiguousarray(tri_spindle_readings_channel_major(phi_rad, spindle_xy_mm, beams, bore).T)
 
 
-def tri_spindle_readings_channel_major(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams,
-                                       bore: Bore) -> np.ndarray:
+def tri_spindle_readings_channel_major(
+    phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore
+) -> np.ndarray:
     """:func:`tri_spindle_readings` as computed, channel-major: (c, n) (its transpose).
 
     For callers that go on computing per channel (the calibration's Jacobian), without
@@ -307,7 +316,10 @@ def tri_spindle_readings_channel_major(phi_rad: np.ndarray, spindle_xy_mm: np.nd
     # computed channel-major, (c, n): numpy's loops then run along the samples; sample-major (n, c)
     # arrays with (c,) beam constants run an inner loop of c = 3 per sample, ~2x slower. The same
     # operations on the same numbers (cos and sin on phi in its own layout): the readings are bit-identical.
-    beta, rho = np.asarray(beams.beta_rad, dtype=float)[:, None], np.asarray(beams.rho_mm, dtype=float)[:, None]
+    beta, rho = (
+        np.asarray(beams.beta_rad, dtype=float)[:, None],
+        np.asarray(beams.rho_mm, dtype=float)[:, None],
+    )
     cb, sb = np.cos(beta), np.sin(beta)
     fx, fy = -rho * sb, rho * cb
     cp, sp = np.ascontiguousarray(np.cos(phi).T), np.ascontiguousarray(np.sin(phi).T)
@@ -324,7 +336,9 @@ def tri_spindle_readings_channel_major(phi_rad: np.ndarray, spindle_xy_mm: np.nd
     return s - np.asarray(beams.d_b_mm, dtype=float)[:, None]
 
 
-def tri_static_readings(device_xy_mm: np.ndarray, device_angle_rad: np.ndarray, beams: Beams, bore: Bore) -> np.ndarray:
+def tri_static_readings(
+    device_xy_mm: np.ndarray, device_angle_rad: np.ndarray, beams: Beams, bore: Bore
+) -> np.ndarray:
     """Return readings of a static device at position(s) ``device_xy_mm`` (…, 2) and angle(s) (…).
 
     Returns ndarray (…, c) [mm].
@@ -412,7 +426,9 @@ def rod_axis_rotation(axis: RodAxis) -> np.ndarray:
     return np.eye(3) + np.sin(w) * K + (1.0 - np.cos(w)) * (K @ K)
 
 
-def rod_readings(alpha_rad: np.ndarray, layers: list[RodLayer], holes: list[Hole], axis: RodAxis = RodAxis()) -> np.ndarray:
+def rod_readings(
+    alpha_rad: np.ndarray, layers: list[RodLayer], holes: list[Hole], axis: RodAxis = RodAxis()
+) -> np.ndarray:
     """Return readings of the measuring rod at rotations ``alpha_rad`` (exact ray-cylinder).
 
     The beam of layer m starts at o = d n(a) + h z and travels along

@@ -133,7 +133,9 @@ def _cells(df: pl.DataFrame, col: str, decimal: str = ".") -> pl.Series:
 
 
 def _not_a_number(col: str, i: int, cell: str, decimal: str) -> str:
-    hint = " (a decimal comma? use --decimal ,)" if decimal == "." and _DECIMAL_COMMA_RE.fullmatch(cell) else ""
+    hint = (
+        " (a decimal comma? use --decimal ,)" if decimal == "." and _DECIMAL_COMMA_RE.fullmatch(cell) else ""
+    )
     return f"column '{col}': row {i + 1}: {cell!r} is not a number{hint}"
 
 
@@ -229,11 +231,17 @@ def _timestamps_to_ns(df: pl.DataFrame, col: str, path: Path) -> tuple[np.ndarra
             raise _fail(path, f"column '{col}': row {i + 1}: empty time cell")
         parsed = _iso_ns(c)
         if parsed is None:
-            raise _fail(path, f"column '{col}': row {i + 1}: {c!r} is not an ISO 8601 date-time "
-                              "(e.g. 2026-11-21T23:14:03.0016+01:00)")
+            raise _fail(
+                path,
+                f"column '{col}': row {i + 1}: {c!r} is not an ISO 8601 date-time "
+                "(e.g. 2026-11-21T23:14:03.0016+01:00)",
+            )
         if parsed[1] is None:
-            raise _fail(path, f"column '{col}': row {i + 1}: {c!r} has no time zone; add Z (UTC) or an "
-                              "offset such as +01:00")
+            raise _fail(
+                path,
+                f"column '{col}': row {i + 1}: {c!r} has no time zone; add Z (UTC) or an "
+                "offset such as +01:00",
+            )
         out[i] = parsed[0]
     return out, utc_iso(int(out[0]))
 
@@ -248,18 +256,22 @@ def utc_started_at(value: object, label: str) -> tuple[str, bool]:
     """
     parsed = _iso_ns(value) if isinstance(value, str) else None
     if parsed is None:
-        raise CsvImportError(f"{label}: started_at {value!r} is not an ISO 8601 date-time "
-                             "(e.g. 2026-11-21T22:14:03Z)")
+        raise CsvImportError(
+            f"{label}: started_at {value!r} is not an ISO 8601 date-time (e.g. 2026-11-21T22:14:03Z)"
+        )
     ns, off = parsed
     if off is None:
-        raise CsvImportError(f"{label}: started_at {value!r} has no time zone; add Z (UTC) or an offset "
-                             "such as +01:00 (it is stored converted to UTC)")
+        raise CsvImportError(
+            f"{label}: started_at {value!r} has no time zone; add Z (UTC) or an offset "
+            "such as +01:00 (it is stored converted to UTC)"
+        )
     text = utc_iso(ns)
     return text, text != value
 
 
 def read_vendor_csv(  # noqa: C901 (one branch per checked column and format rule of the vendor CSV)
-        csv_path: Path, *, separator: str = ",", decimal: str = ".") -> VendorCsv:
+    csv_path: Path, *, separator: str = ",", decimal: str = "."
+) -> VendorCsv:
     """Parse a vendor CSV export (see module docstring for the accepted columns).
 
     Lines starting with ``#`` are comments. Row numbers in errors count data rows from 1.
@@ -275,8 +287,11 @@ def read_vendor_csv(  # noqa: C901 (one branch per checked column and format rul
     if decimal not in (".", ","):
         raise _fail(path, f"decimal mark must be '.' or ',', got {decimal!r}")
     if decimal == separator:
-        raise _fail(path, f"decimal mark and field separator are both {separator!r}; "
-                          "with --decimal , give --separator ';' (or another character)")
+        raise _fail(
+            path,
+            f"decimal mark and field separator are both {separator!r}; "
+            "with --decimal , give --separator ';' (or another character)",
+        )
     try:
         df = pl.read_csv(
             path, separator=separator, infer_schema=False, comment_prefix="#", truncate_ragged_lines=False
@@ -339,7 +354,9 @@ def read_vendor_csv(  # noqa: C901 (one branch per checked column and format rul
     if not chan_cols:
         raise _fail(path, "no channel columns (expected names like ch1, sensor1, LDS1)")
     channels = tuple(sorted(chan_cols))
-    values = np.column_stack([_floats(df, chan_cols[ch], path, allow_null=True, decimal=decimal) for ch in channels])
+    values = np.column_stack(
+        [_floats(df, chan_cols[ch], path, allow_null=True, decimal=decimal) for ch in channels]
+    )
     used.update(chan_cols.values())
 
     pose = None
@@ -352,7 +369,9 @@ def read_vendor_csv(  # noqa: C901 (one branch per checked column and format rul
         raise _fail(path, "give either encoder_deg or angle_rad, not both")
     for name in _SPINDLE_COLS:
         if name in cols:
-            arr = _floats(df, cols[name], path, allow_null=name in ("encoder_deg", "angle_rad"), decimal=decimal)
+            arr = _floats(
+                df, cols[name], path, allow_null=name in ("encoder_deg", "angle_rad"), decimal=decimal
+            )
             if name == "encoder_deg":
                 spindle["angle_rad"] = np.deg2rad(arr)
             else:
@@ -546,5 +565,9 @@ def _ingest_problems(meta: dict, lds: pl.DataFrame, spindle: pl.DataFrame | None
         root = Path(tmp)
         scan_dir = rawio.write_scan(root, meta, lds, spindle)
         _, problems = validation.scan_problems(scan_dir, root)
-    return [rawio.ScanError(e.scan_id, csv_label if e.file in (rawio.LDS_FILE, rawio.SPINDLE_FILE) else e.file,
-                            e.problem) for e in problems]
+    return [
+        rawio.ScanError(
+            e.scan_id, csv_label if e.file in (rawio.LDS_FILE, rawio.SPINDLE_FILE) else e.file, e.problem
+        )
+        for e in problems
+    ]

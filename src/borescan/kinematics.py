@@ -120,7 +120,9 @@ class AngleModel:
             raise ValueError("an encoder angle needs at least 2 valid samples")
         object.__setattr__(self, "knot_t_s", t)
         object.__setattr__(self, "knot_value", v)
-        object.__setattr__(self, "_last", (None, None, None))  # (t array, Phi(t)): fits evaluate one t again and again
+        object.__setattr__(
+            self, "_last", (None, None, None)
+        )  # (t array, Phi(t)): fits evaluate one t again and again
 
     @property
     def fits_speed_and_phase(self) -> bool:
@@ -159,9 +161,11 @@ class AngleModel:
 
     def describe(self) -> str:
         """Return a sentence saying where the angle comes from."""
-        return {"encoder": "encoder angle interpolated at each reading (absolute frame)",
-                "profile": "integral of the rpm profile, phase and speed scale fitted",
-                "nominal": "rpm_nominal * t, phase and speed scale fitted"}[self.source]
+        return {
+            "encoder": "encoder angle interpolated at each reading (absolute frame)",
+            "profile": "integral of the rpm profile, phase and speed scale fitted",
+            "nominal": "rpm_nominal * t, phase and speed scale fitted",
+        }[self.source]
 
 
 def _readonly_key(t) -> tuple | None:
@@ -243,7 +247,9 @@ def angle_model_from_arrays(
                 signed = r if np.any(r < 0) else sgn * r
                 return AngleModel("profile", ts[ok], signed * RPM_TO_RAD_S)
     if rpm_nominal is None or not np.isfinite(float(rpm_nominal)) or float(rpm_nominal) == 0.0:
-        raise ValueError("no encoder angle, no rpm profile and no spindle.rpm_nominal: the rotation angle is unknown")
+        raise ValueError(
+            "no encoder angle, no rpm profile and no spindle.rpm_nominal: the rotation angle is unknown"
+        )
     return AngleModel("nominal", np.zeros(1), np.array([sgn * abs(float(rpm_nominal)) * RPM_TO_RAD_S]))
 
 
@@ -256,15 +262,21 @@ def angle_model_of_scan(meta: dict, spindle) -> AngleModel:
     sp_meta = meta.get("spindle") or {}
     kw = {}
     if spindle is not None and spindle.height:
-        kw = {"spindle_t_s": spindle["t_ns"].to_numpy().astype(float) * 1e-9,
-              "spindle_angle_rad": spindle["angle_rad"].cast(float).fill_null(np.nan).to_numpy(),
-              "spindle_rpm": spindle["rpm"].cast(float).fill_null(np.nan).to_numpy()}
-    return angle_model_from_arrays(rpm_nominal=sp_meta.get("rpm_nominal"),
-                                   direction=sp_meta.get("direction", "ccw"), **kw)
+        kw = {
+            "spindle_t_s": spindle["t_ns"].to_numpy().astype(float) * 1e-9,
+            "spindle_angle_rad": spindle["angle_rad"].cast(float).fill_null(np.nan).to_numpy(),
+            "spindle_rpm": spindle["rpm"].cast(float).fill_null(np.nan).to_numpy(),
+        }
+    return angle_model_from_arrays(
+        rpm_nominal=sp_meta.get("rpm_nominal"), direction=sp_meta.get("direction", "ccw"), **kw
+    )
 
 
 def speed_scale_from_readings(
-    commanded_rad: np.ndarray, readings_mm: np.ndarray, *, scale_range: tuple[float, float] = (0.25, 4.0),
+    commanded_rad: np.ndarray,
+    readings_mm: np.ndarray,
+    *,
+    scale_range: tuple[float, float] = (0.25, 4.0),
 ) -> float:
     """Coarse speed scale 1 + eps: the readings are periodic in phi = phase + (1 + eps) Phi.
 
@@ -335,8 +347,9 @@ def _first_harmonic_sse(phi: np.ndarray, y: np.ndarray, mask: np.ndarray) -> flo
     return sse
 
 
-def refine_speed_scale(commanded_rad: np.ndarray, readings_mm: np.ndarray, coarse: float,
-                       max_samples: int = 4000) -> float:
+def refine_speed_scale(
+    commanded_rad: np.ndarray, readings_mm: np.ndarray, coarse: float, max_samples: int = 4000
+) -> float:
     """Speed scale 1 + eps minimising the first-harmonic misfit near a coarse spectral estimate.
 
     A grid over +-1.5 spectral bins (bin = 2 pi / span of Phi) with 121 points, then a parabola
@@ -362,8 +375,9 @@ def refine_speed_scale(commanded_rad: np.ndarray, readings_mm: np.ndarray, coars
     return float(grid[i])
 
 
-def estimate_speed_scale(commanded_rad: np.ndarray, readings_mm: np.ndarray,
-                         scale_range: tuple[float, float] = (0.25, 4.0)) -> float:
+def estimate_speed_scale(
+    commanded_rad: np.ndarray, readings_mm: np.ndarray, scale_range: tuple[float, float] = (0.25, 4.0)
+) -> float:
     """:func:`speed_scale_from_readings` refined by :func:`refine_speed_scale`."""
     coarse = speed_scale_from_readings(commanded_rad, readings_mm, scale_range=scale_range)
     return refine_speed_scale(commanded_rad, readings_mm, coarse)

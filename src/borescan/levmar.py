@@ -187,7 +187,9 @@ def levenberg_marquardt(  # noqa: C901 (MINPACK lmder's iteration, kept step for
     if not np.all(np.isfinite(fvec)):
         raise ValueError("Residuals are not finite in the initial point.")
     if fvec.size < n:
-        raise ValueError(f"{fvec.size} residuals for {n} variables: Levenberg-Marquardt needs at least as many")
+        raise ValueError(
+            f"{fvec.size} residuals for {n} variables: Levenberg-Marquardt needs at least as many"
+        )
     nfev, njev = 1, 0
     fnorm = _enorm(fvec)
     par = 0.0
@@ -212,7 +214,7 @@ def levenberg_marquardt(  # noqa: C901 (MINPACK lmder's iteration, kept step for
             delta = factor * xnorm if xnorm != 0.0 else factor
         gnorm = 0.0
         if fnorm != 0.0:
-            g = (R.T @ (qtf / fnorm))
+            g = R.T @ (qtf / fnorm)
             an = acnorm[perm]
             ok = an != 0.0
             if ok.any():
@@ -270,5 +272,13 @@ def levenberg_marquardt(  # noqa: C901 (MINPACK lmder's iteration, kept step for
     if jac_at_solution and (x_of_J is None or not np.array_equal(x_of_J, x)):
         J = np.asarray(jac(x), dtype=float)
     status = _STATUS[info]
-    return LMResult(x=x, cost=0.5 * float(np.dot(fvec, fvec)), fun=fvec, jac=J, nfev=nfev, njev=njev,
-                    status=status, message=MESSAGES[status])
+    return LMResult(
+        x=x,
+        cost=0.5 * float(np.dot(fvec, fvec)),
+        fun=fvec,
+        jac=J,
+        nfev=nfev,
+        njev=njev,
+        status=status,
+        message=MESSAGES[status],
+    )

@@ -92,7 +92,9 @@ class StaticDiameter:
     method: str = "circumcircle"
 
 
-def static_diameter_jacobian(readings_mm, beams: Beams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def static_diameter_jacobian(
+    readings_mm, beams: Beams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Diameter and its exact first derivatives for static readings.
 
     Parameters
@@ -225,7 +227,9 @@ def wall_points_machine(readings_mm, phi_rad, spindle_xy_mm, beams: Beams) -> np
     return S + np.stack([cph * W[..., 0] - sph * W[..., 1], sph * W[..., 0] + cph * W[..., 1]], axis=-1)
 
 
-def measure_rotating(readings_mm, phi_rad, spindle_xy_mm, beams: Beams, *, max_upr: int = 50) -> RotatingResult:
+def measure_rotating(
+    readings_mm, phi_rad, spindle_xy_mm, beams: Beams, *, max_upr: int = 50
+) -> RotatingResult:
     """Diameter, ISO 12181 roundness and harmonic spectrum of a rotating scan.
 
     All channels' wall points (NaN readings dropped) are pooled; the LS circle gives the
@@ -297,7 +301,9 @@ class DiameterModel:
         P = P[np.all(np.isfinite(P), axis=1)]
         return fit_circle_ls(P[:, 0], P[:, 1]).diameter_mm
 
-    def ls_circle(self, beams: Beams, points_mm: np.ndarray | None = None, circle: Circle | None = None) -> Circle:
+    def ls_circle(
+        self, beams: Beams, points_mm: np.ndarray | None = None, circle: Circle | None = None
+    ) -> Circle:
         """Return the least-squares circle of a rotating scan's wall points.
 
         Return the least-squares circle of a rotating scan's finite wall points with ``beams``, fitted once
@@ -309,7 +315,9 @@ class DiameterModel:
             self._circles[key] = circle
         if key not in self._circles:
             if points_mm is None:
-                P = wall_points_machine(self.readings_mm, self.phi_rad, self.spindle_xy_mm, beams).reshape(-1, 2)
+                P = wall_points_machine(self.readings_mm, self.phi_rad, self.spindle_xy_mm, beams).reshape(
+                    -1, 2
+                )
                 points_mm = P[np.all(np.isfinite(P), axis=1)]
             self._circles[key] = fit_circle_ls(points_mm[:, 0], points_mm[:, 1])
         return self._circles[key]
@@ -413,12 +421,16 @@ def measure_scan(scan, beams: Beams, cov_beams=None, device_model=(), cleaning=N
     if sp is not None and sp.height > 1:
         t_sp = sp["t_ns"].to_numpy() * 1e-9
         phi = _rotating_angle(scan, m.t_s, v, channel_time_offsets(device_model, beams.channels))
-        S = np.column_stack([np.interp(m.t_s, t_sp, sp["x_mm"].to_numpy()), np.interp(m.t_s, t_sp, sp["y_mm"].to_numpy())])
+        S = np.column_stack(
+            [np.interp(m.t_s, t_sp, sp["x_mm"].to_numpy()), np.interp(m.t_s, t_sp, sp["y_mm"].to_numpy())]
+        )
         res = measure_rotating(v, phi, S, beams)
         model = DiameterModel("rotating", v, phi, S)
         model.ls_circle(beams, circle=res.circles["LSCI"])  # the same points: fitted once for the budget too
         jp, jv = _rotating_sensitivities(model, beams)
-        u_cal = float(np.sqrt(max(jp @ np.asarray(cov_beams, float) @ jp, 0.0))) if cov_beams is not None else 0.0
+        u_cal = (
+            float(np.sqrt(max(jp @ np.asarray(cov_beams, float) @ jp, 0.0))) if cov_beams is not None else 0.0
+        )
         return {
             "diameter_mm": res.diameter_mm,
             "u_diameter_mm": float(np.hypot(res.u_diameter_mm, u_cal)),
@@ -446,8 +458,15 @@ def measure_scan(scan, beams: Beams, cov_beams=None, device_model=(), cleaning=N
         means.append(vv.mean(axis=0))
         sds.append(sd)
         ns.append(vv.shape[0])
-        poses.append({"pose": int(p), "diameter_mm": res.diameter_mm, "u_diameter_mm": res.u_diameter_mm,
-                      "u_calibration_mm": res.u_calibration_mm, "u_readings_mm": res.u_readings_mm})
+        poses.append(
+            {
+                "pose": int(p),
+                "diameter_mm": res.diameter_mm,
+                "u_diameter_mm": res.u_diameter_mm,
+                "u_calibration_mm": res.u_calibration_mm,
+                "u_readings_mm": res.u_readings_mm,
+            }
+        )
     if not poses:
         raise ValueError(f"{scan.scan_id}: no complete static reading set")
     D = np.array([q["diameter_mm"] for q in poses])
@@ -466,12 +485,19 @@ def measure_scan(scan, beams: Beams, cov_beams=None, device_model=(), cleaning=N
     else:
         dof = float("inf")  # the data sheet's repeatability, larger than the scatter (Type B)
     pooled = np.sqrt(np.sum((n_all[:, None] - 1) * sd_all**2, axis=0) / max(int(np.sum(n_all - 1)), 1))
-    return {"diameter_mm": float(D.mean()), "u_diameter_mm": float(np.sqrt(u_cal**2 + var_mean)),
-            "method": f"static {'circumcircle' if len(beams.channels) == 3 else 'least-squares circle'}, "
-                      f"mean of {k} poses",
-            "poses": poses, "jac_params": np.mean(jps, axis=0), "jac_readings": np.mean(jvs, axis=0),
-            "u_readings_mm": float(np.sqrt(var_mean)), "dof_readings": dof, "noise_mm": pooled,
-            "model": DiameterModel("static", np.array(means))}
+    return {
+        "diameter_mm": float(D.mean()),
+        "u_diameter_mm": float(np.sqrt(u_cal**2 + var_mean)),
+        "method": f"static {'circumcircle' if len(beams.channels) == 3 else 'least-squares circle'}, "
+        f"mean of {k} poses",
+        "poses": poses,
+        "jac_params": np.mean(jps, axis=0),
+        "jac_readings": np.mean(jvs, axis=0),
+        "u_readings_mm": float(np.sqrt(var_mean)),
+        "dof_readings": dof,
+        "noise_mm": pooled,
+        "model": DiameterModel("static", np.array(means)),
+    }
 
 
 # --------------------------------------------------------------------------- readings per pose (rod)
@@ -504,6 +530,7 @@ def reading_u_mm(sensors: dict, channels) -> np.ndarray:
     rectangular +-a (GUM 4.3.7), the repeatability a standard deviation. Missing values count 0.
     ``sensors`` maps channel -> the ``scan.json`` sensor entry.
     """
+
     def one(ch: int) -> float:
         s = sensors.get(ch, {})
         lin = (s.get("linearity_fs") or 0.0) * (s.get("range_mm") or 0.0)
@@ -536,8 +563,15 @@ def sensor_ranges_mm(sensors: dict, channels) -> list[float]:
     return [float((sensors.get(int(ch)) or {}).get("range_mm") or 10.0) for ch in channels]
 
 
-def sensor_terms(sensors: dict, channels, sensitivity: np.ndarray, key: str, noise_mm, default_resolution_mm: float,
-                 what: str) -> list[Term]:
+def sensor_terms(
+    sensors: dict,
+    channels,
+    sensitivity: np.ndarray,
+    key: str,
+    noise_mm,
+    default_resolution_mm: float,
+    what: str,
+) -> list[Term]:
     """Linearity and resolution terms of the sensors of one set of readings (Type B, rectangular).
 
     Parameters
@@ -566,20 +600,47 @@ def sensor_terms(sensors: dict, channels, sensitivity: np.ndarray, key: str, noi
         rng_mm = float(s.get("range_mm") or 0.0)
         lin = float(s.get("linearity_fs") or 0.0) * rng_mm
         label = f"{s.get('model', 'sensor')} {s.get('serial', '')}".strip()
-        terms.append(Term(Input(
-            f"linearity:{key}:ch{int(ch)}", f"linearity deviation, channel {int(ch)} ({what})", f"e_lin,{int(ch)}", "mm",
-            0.0, lin / math.sqrt(3.0), "rectangular", source=f"data sheet of {label}: +-{s.get('linearity_fs')} x "
-            f"{rng_mm:g} mm full scale (scan.json sensors)"), sens[:, j]))
+        terms.append(
+            Term(
+                Input(
+                    f"linearity:{key}:ch{int(ch)}",
+                    f"linearity deviation, channel {int(ch)} ({what})",
+                    f"e_lin,{int(ch)}",
+                    "mm",
+                    0.0,
+                    lin / math.sqrt(3.0),
+                    "rectangular",
+                    source=f"data sheet of {label}: +-{s.get('linearity_fs')} x "
+                    f"{rng_mm:g} mm full scale (scan.json sensors)",
+                ),
+                sens[:, j],
+            )
+        )
         res = s.get("resolution_mm")
         src = "scan.json sensors resolution_mm" if res is not None else "uncertainty.sensor_resolution_mm"
         delta = float(res if res is not None else default_resolution_mm)
         dithered = noise is not None and np.isfinite(noise[j]) and noise[j] >= 0.5 * delta
-        terms.append(Term(
-            Input(f"resolution:{key}:ch{int(ch)}", f"resolution, channel {int(ch)} ({what})", f"e_res,{int(ch)}", "mm",
-                  0.0, delta / math.sqrt(12.0), "rectangular", source=f"{delta:g} mm ({src})"),
-            np.zeros(sens.shape[0]) if dithered else sens[:, j],
-            note=(f"dithered by the readings' noise ({noise[j] * 1e3:.2f} um >= half the resolution): "
-                  "part of the Type A scatter (GUM F.2.2.1)") if dithered else ""))
+        terms.append(
+            Term(
+                Input(
+                    f"resolution:{key}:ch{int(ch)}",
+                    f"resolution, channel {int(ch)} ({what})",
+                    f"e_res,{int(ch)}",
+                    "mm",
+                    0.0,
+                    delta / math.sqrt(12.0),
+                    "rectangular",
+                    source=f"{delta:g} mm ({src})",
+                ),
+                np.zeros(sens.shape[0]) if dithered else sens[:, j],
+                note=(
+                    f"dithered by the readings' noise ({noise[j] * 1e3:.2f} um >= half the resolution): "
+                    "part of the Type A scatter (GUM F.2.2.1)"
+                )
+                if dithered
+                else "",
+            )
+        )
     return terms
 
 
@@ -648,8 +709,12 @@ def _unit_polar(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return rr, d[0] / rr, d[1] / rr
 
 
-def _ls_radius_change(d: np.ndarray, r0: float, max_iter: int = 50,
-                      first: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> float | None:
+def _ls_radius_change(
+    d: np.ndarray,
+    r0: float,
+    max_iter: int = 50,
+    first: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> float | None:
     """Radius change dr [mm] of the least-squares circle of points given relative to a nearby circle.
 
     ``d`` (2, m): the points' x and y minus the start circle's centre [mm]; ``r0`` its radius [mm].
@@ -717,14 +782,17 @@ def _rotating_diameter_changes(model: DiameterModel, beams: Beams, moves) -> lis
     out = []
     for j, dl in moves:
         b = _with_params(beams, dl)
-        one = Beams((b.channels[j],), b.beta_rad[j:j + 1], b.rho_mm[j:j + 1], b.d_b_mm[j:j + 1])
+        one = Beams((b.channels[j],), b.beta_rad[j : j + 1], b.rho_mm[j : j + 1], b.d_b_mm[j : j + 1])
         k = ok[:, j]
         moved = list(blocks)
-        moved[j] = (wall_points_machine(v[k, j:j + 1], phi[k, j], S[k], one)[:, 0] - c0).T
+        moved[j] = (wall_points_machine(v[k, j : j + 1], phi[k, j], S[k], one)[:, 0] - c0).T
         moved_polar = list(polar)
         moved_polar[j] = _unit_polar(moved[j])
-        dr = None if dr0 is None else _ls_radius_change(np.concatenate(moved, axis=1), r0,
-                                                        first=first_step(moved_polar))
+        dr = (
+            None
+            if dr0 is None
+            else _ls_radius_change(np.concatenate(moved, axis=1), r0, first=first_step(moved_polar))
+        )
         out.append(2.0 * (dr - dr0) if dr is not None else model(b) - circ.diameter_mm)
     return out
 
@@ -801,13 +869,30 @@ def _gauge_radius_of(calibration_budget: Budget) -> float | None:
     return None
 
 
-def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_budget: Budget | None = None,
-                         jac_readings=None, u_readings_mm: float, dof_readings: float, sensors: dict | None = None,
-                         channels=(), noise_mm=None, temperature: ScanTemperature, cte: ArtifactCte, artifact: dict,
-                         scan_id: str, p: float, default_resolution_mm: float, readings_what: str = "readings",
-                         calibration_id: str | None = None, model: DiameterModel | None = None,
-                         beams: Beams | None = None, rho_profiles: list[dict] | None = None,
-                         extra_terms: Sequence[tuple[Input, float]] = ()) -> DiameterUncertainty:
+def diameter_uncertainty(
+    diameter_mm: float,
+    *,
+    jac_params=None,
+    calibration_budget: Budget | None = None,
+    jac_readings=None,
+    u_readings_mm: float,
+    dof_readings: float,
+    sensors: dict | None = None,
+    channels=(),
+    noise_mm=None,
+    temperature: ScanTemperature,
+    cte: ArtifactCte,
+    artifact: dict,
+    scan_id: str,
+    p: float,
+    default_resolution_mm: float,
+    readings_what: str = "readings",
+    calibration_id: str | None = None,
+    model: DiameterModel | None = None,
+    beams: Beams | None = None,
+    rho_profiles: list[dict] | None = None,
+    extra_terms: Sequence[tuple[Input, float]] = (),
+) -> DiameterUncertainty:
     """GUM budget of a measured diameter, at the scan's temperature and at 20 degC.
 
     D_T = f(readings, beams); D20 = D_T / (1 + alpha (T - 20)). Terms:
@@ -855,16 +940,26 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
             if model is not None and beams is not None:
                 if key.endswith(":second_order") and t.cov is not None and R_g:
                     var = _second_order_variance(model, beams, t.cov, R_g)
-                    b.add(Term(t.input, cov=np.outer(both, both) * var,
-                               note="D's own curvature along the fit's path (psi, g fixed), not d_b's"))
+                    b.add(
+                        Term(
+                            t.input,
+                            cov=np.outer(both, both) * var,
+                            note="D's own curvature along the fit's path (psi, g fixed), not d_b's",
+                        )
+                    )
                     continue
-                prof = profile_of.get(key[key.rfind(":"):]) if key.startswith("fit:") else None
+                prof = profile_of.get(key[key.rfind(":") :]) if key.startswith("fit:") else None
                 if prof is not None and t.cov is not None:
                     var = _profile_variance(model, beams, prof, jp)
-                    b.add(Term(t.input, cov=np.outer(both, both) * var,
-                               note="D's own spread along the rho profile's points beyond its linear "
-                                    "part, not the "
-                                    "parameters' spread mapped linearly"))
+                    b.add(
+                        Term(
+                            t.input,
+                            cov=np.outer(both, both) * var,
+                            note="D's own spread along the rho profile's points beyond its linear "
+                            "part, not the "
+                            "parameters' spread mapped linearly",
+                        )
+                    )
                     continue
                 if ":mirror" in key and t.sensitivity is not None:
                     dD = model(_with_params(beams, t.sensitivity)) - model(beams)
@@ -874,26 +969,67 @@ def diameter_uncertainty(diameter_mm: float, *, jac_params=None, calibration_bud
     for inp, dD in extra_terms:
         b.add(Term(inp, np.array([1.0, f]) * float(dD)))
     dof = float(dof_readings)
-    b.add(Term(Input(f"readings:{scan_id}", f"scatter of the readings of {scan_id}", "D_rd", "mm", None,
-                     float(u_readings_mm), "normal", dof, "A" if np.isfinite(dof) else "B",
-                     "between/within the poses' diameters" if np.isfinite(dof)
-                     else "sensors' repeatability (data sheet), larger than the scatter"),
-               np.array([1.0, f])))
+    b.add(
+        Term(
+            Input(
+                f"readings:{scan_id}",
+                f"scatter of the readings of {scan_id}",
+                "D_rd",
+                "mm",
+                None,
+                float(u_readings_mm),
+                "normal",
+                dof,
+                "A" if np.isfinite(dof) else "B",
+                "between/within the poses' diameters"
+                if np.isfinite(dof)
+                else "sensors' repeatability (data sheet), larger than the scatter",
+            ),
+            np.array([1.0, f]),
+        )
+    )
     if jac_readings is not None and sensors is not None:
         jv = np.asarray(jac_readings, dtype=float)
-        for t in sensor_terms(sensors, channels, to_both @ jv[None, :], scan_id, noise_mm, default_resolution_mm,
-                              readings_what):
+        for t in sensor_terms(
+            sensors, channels, to_both @ jv[None, :], scan_id, noise_mm, default_resolution_mm, readings_what
+        ):
             b.add(t)
-    b.add(Term(Input(f"temperature:{scan_id}", f"temperature of {artifact.get('id') or 'the artifact'} during {scan_id}",
-                     "T", "degC", temperature.temperature_c, temperature.u_c, "rectangular", source=temperature.source),
-               np.array([0.0, dT_sens])))
-    b.add(Term(Input(f"cte:{artifact_key(artifact)}", f"expansion coefficient of {artifact.get('id') or 'the artifact'}",
-                     "alpha", "1/K", cte.cte_per_k, cte.u_per_k, "rectangular", source=cte.source),
-               np.array([0.0, da_sens])))
+    b.add(
+        Term(
+            Input(
+                f"temperature:{scan_id}",
+                f"temperature of {artifact.get('id') or 'the artifact'} during {scan_id}",
+                "T",
+                "degC",
+                temperature.temperature_c,
+                temperature.u_c,
+                "rectangular",
+                source=temperature.source,
+            ),
+            np.array([0.0, dT_sens]),
+        )
+    )
+    b.add(
+        Term(
+            Input(
+                f"cte:{artifact_key(artifact)}",
+                f"expansion coefficient of {artifact.get('id') or 'the artifact'}",
+                "alpha",
+                "1/K",
+                cte.cte_per_k,
+                cte.u_per_k,
+                "rectangular",
+                source=cte.source,
+            ),
+            np.array([0.0, da_sens]),
+        )
+    )
     b = b.merged()
     ct, c20 = b.combined(0, p), b.combined(1, p)
     corr = b.combined(np.array([-1.0, 1.0]), p)
-    return DiameterUncertainty(float(diameter_mm), ct, d20, c20, temperature, cte, d20 - float(diameter_mm), corr.u, b)
+    return DiameterUncertainty(
+        float(diameter_mm), ct, d20, c20, temperature, cte, d20 - float(diameter_mm), corr.u, b
+    )
 
 
 def calibration_budget_of(cal) -> Budget:
@@ -907,9 +1043,26 @@ def calibration_budget_of(cal) -> Budget:
         return Budget.from_dict(d)
     names = [f"{n}[{ch}]" for ch in cal.beams.channels for n in ("beta_rad", "rho_mm", "d_b_mm")]
     units = ["rad", "mm", "mm"] * len(cal.beams.channels)
-    return Budget(tuple(names), tuple(units), cal.params, [Term(Input(
-        f"calibration:{cal.calibration_id}", f"calibration {cal.calibration_id} (covariance only, no budget recorded)",
-        "p", "-", None, 0.0, "normal", source="TriCalibration.cov"), cov=cal.cov)])
+    return Budget(
+        tuple(names),
+        tuple(units),
+        cal.params,
+        [
+            Term(
+                Input(
+                    f"calibration:{cal.calibration_id}",
+                    f"calibration {cal.calibration_id} (covariance only, no budget recorded)",
+                    "p",
+                    "-",
+                    None,
+                    0.0,
+                    "normal",
+                    source="TriCalibration.cov",
+                ),
+                cov=cal.cov,
+            )
+        ],
+    )
 
 
 def tri_diameter_with_budget(scan, cal, unc_cfg: dict, cleaning=None) -> tuple[dict, DiameterUncertainty]:
@@ -931,18 +1084,34 @@ def tri_diameter_with_budget(scan, cal, unc_cfg: dict, cleaning=None) -> tuple[d
     res = measure_scan(scan, cal.beams, cal.cov, device_model=dm, cleaning=cleaning)
     sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
     du = diameter_uncertainty(
-        res["diameter_mm"], jac_params=res["jac_params"], calibration_budget=calibration_budget_of(cal),
-        jac_readings=res["jac_readings"], u_readings_mm=res["u_readings_mm"], dof_readings=res["dof_readings"],
-        sensors=sensors, channels=cal.beams.channels, noise_mm=res["noise_mm"], temperature=temp, cte=cte,
-        artifact=dict(scan.meta.get("artifact") or {}), scan_id=scan.scan_id,
-        p=float(unc_cfg["coverage_probability"]), default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
-        readings_what="measurement", calibration_id=cal.calibration_id, model=res["model"], beams=cal.beams,
+        res["diameter_mm"],
+        jac_params=res["jac_params"],
+        calibration_budget=calibration_budget_of(cal),
+        jac_readings=res["jac_readings"],
+        u_readings_mm=res["u_readings_mm"],
+        dof_readings=res["dof_readings"],
+        sensors=sensors,
+        channels=cal.beams.channels,
+        noise_mm=res["noise_mm"],
+        temperature=temp,
+        cte=cte,
+        artifact=dict(scan.meta.get("artifact") or {}),
+        scan_id=scan.scan_id,
+        p=float(unc_cfg["coverage_probability"]),
+        default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
+        readings_what="measurement",
+        calibration_id=cal.calibration_id,
+        model=res["model"],
+        beams=cal.beams,
         rho_profiles=(cal.diagnostics or {}).get("rho_profiles"),
-        extra_terms=_device_model_inputs(scan, cal, dm, cleaning))
+        extra_terms=_device_model_inputs(scan, cal, dm, cleaning),
+    )
     return _with_mirror_mixture(scan.scan_id, cal, res, du)
 
 
-def _with_mirror_mixture(scan_id: str, cal, res: dict, du: DiameterUncertainty) -> tuple[dict, DiameterUncertainty]:
+def _with_mirror_mixture(
+    scan_id: str, cal, res: dict, du: DiameterUncertainty
+) -> tuple[dict, DiameterUncertainty]:
     """Return the diameter measured with a calibration that has a flagged beam, or refuse it.
 
     For a calibration with a flagged beam (:mod:`borescan.mirror`): the diameter refused outside the bore
@@ -971,17 +1140,23 @@ def _with_mirror_mixture(scan_id: str, cal, res: dict, du: DiameterUncertainty) 
         comps.append((w, d_k, 0.0 if k == 0 else float(jp @ cov @ jp) - var_main))
     f = du.diameter_20_mm / du.diameter_mm
     p = du.combined_20.p
-    mix = mixture_diameter(comps, f, du.combined_20.u, du.combined_t.u, p, mixture_seed(scan_id, cal.calibration_id))
+    mix = mixture_diameter(
+        comps, f, du.combined_20.u, du.combined_t.u, p, mixture_seed(scan_id, cal.calibration_id)
+    )
     method = f"Monte Carlo (JCGM 101), {len(comps)}-solution mixture of calibration {cal.calibration_id}"
 
     def combined(c, est, u, lo, hi):
         U = max(est - lo, hi - est)
         return _replace(c, u=u, U=U, k=U / u if u > 0 else float("nan"), method=method)
 
-    du2 = _replace(du, diameter_mm=mix.diameter_mm, diameter_20_mm=mix.diameter_20_mm,
-                   combined_t=combined(du.combined_t, mix.diameter_mm, mix.u_mm, *mix.interval_mm),
-                   combined_20=combined(du.combined_20, mix.diameter_20_mm, mix.u_20_mm, *mix.interval_20_mm),
-                   thermal_correction_mm=mix.diameter_20_mm - mix.diameter_mm)
+    du2 = _replace(
+        du,
+        diameter_mm=mix.diameter_mm,
+        diameter_20_mm=mix.diameter_20_mm,
+        combined_t=combined(du.combined_t, mix.diameter_mm, mix.u_mm, *mix.interval_mm),
+        combined_20=combined(du.combined_20, mix.diameter_20_mm, mix.u_20_mm, *mix.interval_20_mm),
+        thermal_correction_mm=mix.diameter_20_mm - mix.diameter_mm,
+    )
     res2 = dict(res, diameter_mm=mix.diameter_mm, u_diameter_mm=mix.u_mm, mirror_mixture=mix)
     return res2, du2
 
@@ -992,7 +1167,9 @@ def _device_model_inputs(scan, cal, dm, cleaning=None) -> list[tuple[Input, floa
     (input, dD/d parameter) of each carried device-model parameter through this scan's own readings
     (:func:`borescan.device_model.derivatives` of :func:`measure_scan`'s diameter).
     """
-    d = device_model.derivatives(dm, lambda m: measure_scan(scan, cal.beams, None, m, cleaning)["diameter_mm"])
+    d = device_model.derivatives(
+        dm, lambda m: measure_scan(scan, cal.beams, None, m, cleaning)["diameter_mm"]
+    )
     return [(device_model.gum_input(cal.device_id, dm[i], name), float(v)) for (i, name), v in d.items()]
 
 
@@ -1002,8 +1179,13 @@ def _device_model_inputs(scan, cal, dm, cleaning=None) -> list[tuple[Input, floa
 DECISION_RULES = tuple(_DECISION_RULES)
 
 
-def decide(error_mm: float, U_mm: float, tolerance_mm: float, rule: str = "simple_acceptance",
-           guard_band_factor: float = 1.0) -> tuple[bool, float, str]:
+def decide(
+    error_mm: float,
+    U_mm: float,
+    tolerance_mm: float,
+    rule: str = "simple_acceptance",
+    guard_band_factor: float = 1.0,
+) -> tuple[bool, float, str]:
     """Return the verdict on |error| against the tolerance by a decision rule.
 
     ISO/IEC 17025 7.8.6, ILAC-G8:09/2019: :func:`borescan.decision.decision`, the one place of the rules.
@@ -1045,8 +1227,18 @@ class Verification:
     budget_rows: tuple = ()
 
 
-def verify(measured_mm, u_measured_mm, certified_diameter_mm, u_cert_mm, cte_per_k, temperature_c, tolerance_mm,
-           decision_rule: str = "simple_acceptance", guard_band_factor: float = 1.0, k: float = 2.0) -> Verification:
+def verify(
+    measured_mm,
+    u_measured_mm,
+    certified_diameter_mm,
+    u_cert_mm,
+    cte_per_k,
+    temperature_c,
+    tolerance_mm,
+    decision_rule: str = "simple_acceptance",
+    guard_band_factor: float = 1.0,
+    k: float = 2.0,
+) -> Verification:
     """Error of a measured diameter against a gauge's certified diameter, pass/fail.
 
     The certificate gives D20 at 20 degC. At temperature T the gauge has expanded to
@@ -1114,12 +1306,21 @@ def part_feature(artifact: dict, feature: str | None) -> dict:
     nominal = number_or_none(src.get("nominal_diameter_mm"))
     if nominal is None and feature is None:
         nominal = number_or_none(artifact.get("nominal_diameter_mm"))
-    return {"nominal_diameter_mm": nominal,
-            "tolerance_mm": number_or_none(src.get("tolerance_mm")) or number_or_none(artifact.get("tolerance_mm"))}
+    return {
+        "nominal_diameter_mm": nominal,
+        "tolerance_mm": number_or_none(src.get("tolerance_mm"))
+        or number_or_none(artifact.get("tolerance_mm")),
+    }
 
 
-def part_conformity(diameter_20_mm: float, U_mm: float, nominal_mm: float | None, tolerance_mm: float | None,
-                    rule: str = "simple_acceptance", guard_band_factor: float = 1.0) -> dict:
+def part_conformity(
+    diameter_20_mm: float,
+    U_mm: float,
+    nominal_mm: float | None,
+    tolerance_mm: float | None,
+    rule: str = "simple_acceptance",
+    guard_band_factor: float = 1.0,
+) -> dict:
     """Return a part's diameter against its nominal and tolerance: deviation at 20 degC and the verdict.
 
     deviation = D20 - nominal; the verdict is :func:`borescan.decision.decision` on (deviation, U,
@@ -1133,12 +1334,22 @@ def part_conformity(diameter_20_mm: float, U_mm: float, nominal_mm: float | None
     verdict = None
     if dev is not None and tolerance_mm is not None:
         verdict = decision(dev, float(U_mm), float(tolerance_mm), rule, guard_band_factor).short
-    return {"nominal_diameter_mm": nominal_mm, "tolerance_mm": tolerance_mm, "deviation_mm": dev,
-            "conformity": verdict}
+    return {
+        "nominal_diameter_mm": nominal_mm,
+        "tolerance_mm": tolerance_mm,
+        "deviation_mm": dev,
+        "conformity": verdict,
+    }
 
 
-def verify_budget(d: DiameterUncertainty, artifact: dict, tolerance_mm: float, p: float,
-                  decision_rule: str = "simple_acceptance", guard_band_factor: float = 1.0) -> Verification:
+def verify_budget(
+    d: DiameterUncertainty,
+    artifact: dict,
+    tolerance_mm: float,
+    p: float,
+    decision_rule: str = "simple_acceptance",
+    guard_band_factor: float = 1.0,
+) -> Verification:
     """Verification of a budgeted diameter against a ring gauge: E = D20 - D20_certified.
 
     The budget of E is that of D20 plus the gauge's certified diameter (sensitivity -1, normal,
@@ -1152,26 +1363,59 @@ def verify_budget(d: DiameterUncertainty, artifact: dict, tolerance_mm: float, p
     k_cert = float(artifact.get("k") or 2.0)
     u_cert = float(artifact.get("u_diameter_mm") or 0.0) / k_cert
     b = d.budget.mapped(np.array([[0.0, 1.0]]), ("E",), ("mm",), [d.diameter_20_mm - cert])
-    b.add(Term(Input(f"gauge:{artifact_key(artifact)}:D20",
-                     f"certified diameter of ring gauge {artifact.get('id')} at 20 degC", "D_g", "mm", cert, u_cert,
-                     "normal", source=f"certificate {artifact.get('certificate')}: U = {artifact.get('u_diameter_mm')} "
-                                      f"mm (k = {k_cert:g})"),
-               np.array([-1.0])))
+    b.add(
+        Term(
+            Input(
+                f"gauge:{artifact_key(artifact)}:D20",
+                f"certified diameter of ring gauge {artifact.get('id')} at 20 degC",
+                "D_g",
+                "mm",
+                cert,
+                u_cert,
+                "normal",
+                source=f"certificate {artifact.get('certificate')}: U = {artifact.get('u_diameter_mm')} "
+                f"mm (k = {k_cert:g})",
+            ),
+            np.array([-1.0]),
+        )
+    )
     b = b.merged()
     comb = b.combined(0, p)
     err = d.diameter_20_mm - cert
     passed, A, text = decide(err, comb.U, tolerance_mm, decision_rule, guard_band_factor)
     f = thermal_expansion_factor(d.cte.cte_per_k, d.temperature.temperature_c)
     return Verification(
-        measured_mm=d.diameter_20_mm, u_measured_mm=d.combined_20.u, certified_mm=cert, expected_at_t_mm=cert * f,
-        error_mm=err, u_error_mm=comb.u, tolerance_mm=float(tolerance_mm), passed=passed,
-        en=err / comb.U if comb.U > 0 else float("inf") * np.sign(err), measured_at_t_mm=d.diameter_mm,
-        temperature_c=d.temperature.temperature_c, U_error_mm=comb.U, k=comb.k, acceptance_limit_mm=A,
-        decision_rule=decision_rule, conformity=text, budget_rows=tuple(json_ready(b.rows(0))))
+        measured_mm=d.diameter_20_mm,
+        u_measured_mm=d.combined_20.u,
+        certified_mm=cert,
+        expected_at_t_mm=cert * f,
+        error_mm=err,
+        u_error_mm=comb.u,
+        tolerance_mm=float(tolerance_mm),
+        passed=passed,
+        en=err / comb.U if comb.U > 0 else float("inf") * np.sign(err),
+        measured_at_t_mm=d.diameter_mm,
+        temperature_c=d.temperature.temperature_c,
+        U_error_mm=comb.U,
+        k=comb.k,
+        acceptance_limit_mm=A,
+        decision_rule=decision_rule,
+        conformity=text,
+        budget_rows=tuple(json_ready(b.rows(0))),
+    )
 
 
-def diameter_row(scan_id, device_id, artifact_id, feature, diameter_mm, u_diameter_mm, calibration_id, method,
-                 uncertainty: DiameterUncertainty | None = None) -> dict:
+def diameter_row(
+    scan_id,
+    device_id,
+    artifact_id,
+    feature,
+    diameter_mm,
+    u_diameter_mm,
+    calibration_id,
+    method,
+    uncertainty: DiameterUncertainty | None = None,
+) -> dict:
     """One row of the catalog's ``diameters`` table (outputs.md column names).
 
     ``diameter_mm`` is at the scan's temperature (``temperature_c``); with ``uncertainty`` the row
@@ -1223,8 +1467,9 @@ def verification_row(scan_id, device_id, artifact_id, v: Verification) -> dict:
     }
 
 
-def verification_for_certificate(scan, cal, unc_cfg: dict, lab_cfg: dict, tolerance_mm: float,
-                                 cleaning=None) -> dict | None:
+def verification_for_certificate(
+    scan, cal, unc_cfg: dict, lab_cfg: dict, tolerance_mm: float, cleaning=None
+) -> dict | None:
     """Return a verification scan measured with ``cal`` as a certificate row.
 
     Return a ring-gauge verification scan measured with ``cal`` and verified (:func:`verify_budget`),
@@ -1236,10 +1481,20 @@ def verification_for_certificate(scan, cal, unc_cfg: dict, lab_cfg: dict, tolera
     if art.get("type") != "ring_gauge" or art.get("certified_diameter_mm") is None:
         return None
     _, du = tri_diameter_with_budget(scan, cal, unc_cfg, cleaning)
-    v = verify_budget(du, art, tolerance_mm, float(unc_cfg["coverage_probability"]), lab_cfg["decision_rule"],
-                      float(lab_cfg["guard_band_factor"]))
+    v = verify_budget(
+        du,
+        art,
+        tolerance_mm,
+        float(unc_cfg["coverage_probability"]),
+        lab_cfg["decision_rule"],
+        float(lab_cfg["guard_band_factor"]),
+    )
     row = verification_row(scan.scan_id, cal.device_id, art.get("id"), v)
     row.pop("budget_json", None)
-    row.update(temperature_assumed=du.temperature.assumed, budget=list(v.budget_rows), certificate=art.get("certificate"),
-               raw_files={f"{scan.scan_id}/{k}": h for k, h in sorted(scan.sha256.items())})
+    row.update(
+        temperature_assumed=du.temperature.assumed,
+        budget=list(v.budget_rows),
+        certificate=art.get("certificate"),
+        raw_files={f"{scan.scan_id}/{k}": h for k, h in sorted(scan.sha256.items())},
+    )
     return row

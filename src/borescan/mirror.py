@@ -87,8 +87,9 @@ def mirror_exists(rho_mm: float, offset_mm) -> bool:
     return bool(abs(rho_mm) > math.sqrt(2.0) * float(np.max(np.atleast_1d(offset_mm))))
 
 
-def offset_to_resolve_mm(radius_mm: float, sigma_mm: float, n_samples: float, rho_mm: float,
-                         k: float = RESOLVED_DCHI2) -> float:
+def offset_to_resolve_mm(
+    radius_mm: float, sigma_mm: float, n_samples: float, rho_mm: float, k: float = RESOLVED_DCHI2
+) -> float:
     """Return the spindle offset at which the mirror lies ``k`` above the minimum.
 
     Eq. (1) solved for e: X = L (2 k sigma^2 / (N rho^2))^(1/4) [mm]; inf for rho = 0 (no mirror to resolve:
@@ -99,8 +100,9 @@ def offset_to_resolve_mm(radius_mm: float, sigma_mm: float, n_samples: float, rh
     return float(radius_mm * (2.0 * k * sigma_mm**2 / (n_samples * rho_mm**2)) ** 0.25)
 
 
-def valid_bore_radius_range_mm(radius_cal_mm: float, params_main, params_alt, u_beta_rad: float,
-                               n_grid: int = 4001) -> tuple[float, float]:
+def valid_bore_radius_range_mm(
+    radius_cal_mm: float, params_main, params_alt, u_beta_rad: float, n_grid: int = 4001
+) -> tuple[float, float]:
     """Return the bore radii L where the two solutions place the wall points alike.
 
     Every pair of beams' relative direction differs between them by at most 2 u(beta).
@@ -123,8 +125,11 @@ def valid_bore_radius_range_mm(radius_cal_mm: float, params_main, params_alt, u_
     pa = np.asarray(params_alt, dtype=float)
     dbeta = (pa[0::3] - pm[0::3] + np.pi) % (2 * np.pi) - np.pi
     x = np.linspace(0.0, 4.0 / radius_cal_mm, n_grid)  # 1/L
-    delta = dbeta[None, :] + np.arcsin(np.clip(pa[1::3][None, :] * x[:, None], -1, 1)) \
+    delta = (
+        dbeta[None, :]
+        + np.arcsin(np.clip(pa[1::3][None, :] * x[:, None], -1, 1))
         - np.arcsin(np.clip(pm[1::3][None, :] * x[:, None], -1, 1))
+    )
     spread = delta.max(axis=1) - delta.min(axis=1)
     good = spread <= 2.0 * u_beta_rad
     i0 = int(np.argmin(np.abs(x - 1.0 / radius_cal_mm)))
@@ -198,26 +203,39 @@ class BeamMirror:
             if isinstance(v, float) and not math.isfinite(v):
                 d[k] = None if math.isnan(v) else ("inf" if v > 0 else "-inf")
         if self.valid_bore_diameter_mm is not None:
-            d["valid_bore_diameter_mm"] = [x if math.isfinite(x) else "inf" for x in self.valid_bore_diameter_mm]
+            d["valid_bore_diameter_mm"] = [
+                x if math.isfinite(x) else "inf" for x in self.valid_bore_diameter_mm
+            ]
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> BeamMirror:
         """Rebuild a BeamMirror from :meth:`to_dict`'s dict."""
+
         def f(x):
             return float("inf") if x == "inf" else float("nan") if x is None else float(x)
 
         alt = d.get("alternative")
         vb = d.get("valid_bore_diameter_mm")
         return cls(
-            channel=int(d["channel"]), rho_mm=f(d["rho_mm"]), offset_mm=f(d["offset_mm"]),
-            mirror_possible=bool(d["mirror_possible"]), predicted_delta_chi2=f(d["predicted_delta_chi2"]),
+            channel=int(d["channel"]),
+            rho_mm=f(d["rho_mm"]),
+            offset_mm=f(d["offset_mm"]),
+            mirror_possible=bool(d["mirror_possible"]),
+            predicted_delta_chi2=f(d["predicted_delta_chi2"]),
             refit_delta_chi2=None if d.get("refit_delta_chi2") is None else f(d["refit_delta_chi2"]),
-            resolved=bool(d["resolved"]), weight_main=f(d["weight_main"]), p_wrong_sign=f(d["p_wrong_sign"]),
+            resolved=bool(d["resolved"]),
+            weight_main=f(d["weight_main"]),
+            p_wrong_sign=f(d["p_wrong_sign"]),
             offset_to_resolve_mm=f(d["offset_to_resolve_mm"]),
-            alternative=None if alt is None else MirrorSolution(
-                tuple(float(x) for x in alt["params"]), tuple(tuple(float(x) for x in row) for row in alt["cov"]),
-                float(alt["delta_chi2"]), float(alt["weight"])),
+            alternative=None
+            if alt is None
+            else MirrorSolution(
+                tuple(float(x) for x in alt["params"]),
+                tuple(tuple(float(x) for x in row) for row in alt["cov"]),
+                float(alt["delta_chi2"]),
+                float(alt["weight"]),
+            ),
             rho_alt_mm=None if d.get("rho_alt_mm") is None else f(d["rho_alt_mm"]),
             valid_bore_diameter_mm=None if vb is None else (f(vb[0]), f(vb[1])),
         )
@@ -225,17 +243,22 @@ class BeamMirror:
     def statement(self) -> str:
         """One sentence for a certificate or report."""
         if self.resolved:
-            how = ("no mirror solution (|rho| <= sqrt(2) e)" if self.refit_delta_chi2 is None
-                   else f"mirror {self.refit_delta_chi2:.1f} chi^2 above the solution")
+            how = (
+                "no mirror solution (|rho| <= sqrt(2) e)"
+                if self.refit_delta_chi2 is None
+                else f"mirror {self.refit_delta_chi2:.1f} chi^2 above the solution"
+            )
             return f"channel {self.channel}: sign of rho resolved ({how})"
         lo, hi = self.valid_bore_diameter_mm or (float("nan"), float("nan"))
         hi_s = "no upper limit" if not math.isfinite(hi) else f"{hi:.1f} mm"
-        return (f"the sign of rho of channel {self.channel} is not determined by this scan: two solutions, "
-                f"rho = {self.rho_mm:+.4f} mm (weight {self.weight_main:.3f}) and "
-                f"{self.rho_alt_mm if self.rho_alt_mm is not None else float('nan'):+.4f} mm "
-                f"(delta chi^2 {self.refit_delta_chi2:.2f}, weight {self.p_wrong_sign:.3f} = probability of the "
-                f"wrong sign); use for bores of diameter {lo:.1f} mm to {hi_s}; a spindle offset of at least "
-                f"{self.offset_to_resolve_mm:.2f} mm from the gauge centre would resolve it")
+        return (
+            f"the sign of rho of channel {self.channel} is not determined by this scan: two solutions, "
+            f"rho = {self.rho_mm:+.4f} mm (weight {self.weight_main:.3f}) and "
+            f"{self.rho_alt_mm if self.rho_alt_mm is not None else float('nan'):+.4f} mm "
+            f"(delta chi^2 {self.refit_delta_chi2:.2f}, weight {self.p_wrong_sign:.3f} = probability of the "
+            f"wrong sign); use for bores of diameter {lo:.1f} mm to {hi_s}; a spindle offset of at least "
+            f"{self.offset_to_resolve_mm:.2f} mm from the gauge centre would resolve it"
+        )
 
 
 def mirror_checks_of(diagnostics: dict | None) -> list[BeamMirror]:
@@ -243,8 +266,9 @@ def mirror_checks_of(diagnostics: dict | None) -> list[BeamMirror]:
     return [BeamMirror.from_dict(d) for d in (diagnostics or {}).get("mirror_check", [])]
 
 
-def mixture_components(params: np.ndarray, cov: np.ndarray,
-                       checks: Sequence[BeamMirror]) -> list[tuple[float, np.ndarray, np.ndarray]]:
+def mixture_components(
+    params: np.ndarray, cov: np.ndarray, checks: Sequence[BeamMirror]
+) -> list[tuple[float, np.ndarray, np.ndarray]]:
     """Return the calibration as a mixture: (weight, params (3c,), cov (3c, 3c)) per component.
 
     The kept solution and one component per flagged beam's mirror, weights exp(-delta chi2 / 2) normalised
@@ -293,8 +317,15 @@ class MixtureDiameter:
 MIXTURE_DRAWS = 1_000_000
 
 
-def mixture_diameter(components: Sequence[tuple[float, float, float]], factor_20: float, u_20_main_mm: float,
-                     u_t_main_mm: float, p: float, seed: int, draws: int = MIXTURE_DRAWS) -> MixtureDiameter:
+def mixture_diameter(
+    components: Sequence[tuple[float, float, float]],
+    factor_20: float,
+    u_20_main_mm: float,
+    u_t_main_mm: float,
+    p: float,
+    seed: int,
+    draws: int = MIXTURE_DRAWS,
+) -> MixtureDiameter:
     """Monte Carlo of a diameter whose calibration has several weighted solutions (JCGM 101:2008).
 
     Parameters
@@ -325,10 +356,19 @@ def mixture_diameter(components: Sequence[tuple[float, float, float]], factor_20
     lo_t, hi_t = np.quantile(x_t, q)
     lo_20, hi_20 = np.quantile(x_20, q)
     return MixtureDiameter(
-        weights=tuple(float(x) for x in w), diameters_mm=tuple(float(x) for x in d),
-        u_components_mm=tuple(float(x) for x in u_t), diameter_mm=float(x_t.mean()), u_mm=float(x_t.std(ddof=1)),
-        interval_mm=(float(lo_t), float(hi_t)), diameter_20_mm=float(x_20.mean()), u_20_mm=float(x_20.std(ddof=1)),
-        interval_20_mm=(float(lo_20), float(hi_20)), p=float(p), draws=int(draws), seed=int(seed))
+        weights=tuple(float(x) for x in w),
+        diameters_mm=tuple(float(x) for x in d),
+        u_components_mm=tuple(float(x) for x in u_t),
+        diameter_mm=float(x_t.mean()),
+        u_mm=float(x_t.std(ddof=1)),
+        interval_mm=(float(lo_t), float(hi_t)),
+        diameter_20_mm=float(x_20.mean()),
+        u_20_mm=float(x_20.std(ddof=1)),
+        interval_20_mm=(float(lo_20), float(hi_20)),
+        p=float(p),
+        draws=int(draws),
+        seed=int(seed),
+    )
 
 
 def mixture_seed(*ids: str) -> int:
@@ -338,7 +378,9 @@ def mixture_seed(*ids: str) -> int:
     return int.from_bytes(hashlib.sha256("\x1f".join(ids).encode()).digest()[:8], "little")
 
 
-def refusal(scan_id: str, calibration_id: str, diameter_mm: float, checks: Sequence[BeamMirror]) -> str | None:
+def refusal(
+    scan_id: str, calibration_id: str, diameter_mm: float, checks: Sequence[BeamMirror]
+) -> str | None:
     """Return the reason a diameter of ``diameter_mm`` may not be measured with this calibration, else None.
 
     That is a flagged beam whose valid bore range excludes it.
@@ -349,11 +391,13 @@ def refusal(scan_id: str, calibration_id: str, diameter_mm: float, checks: Seque
         lo, hi = m.valid_bore_diameter_mm
         if not lo <= diameter_mm <= hi:
             hi_s = "no upper limit" if not math.isfinite(hi) else f"{hi:.1f} mm"
-            return (f"{scan_id}: bore diameter {diameter_mm:.3f} mm "
-                    f"outside {lo:.1f} mm to {hi_s}, the range where "
-                    f"calibration {calibration_id} may be used: the sign of rho of channel {m.channel} is not "
-                    "determined by its scan (probability of the wrong "
-                    f"sign {m.p_wrong_sign:.3f}), and away from the "
-                    f"gauge its two solutions place the wall points apart; recalibrate with the spindle at least "
-                    f"{m.offset_to_resolve_mm:.2f} mm from the gauge centre")
+            return (
+                f"{scan_id}: bore diameter {diameter_mm:.3f} mm "
+                f"outside {lo:.1f} mm to {hi_s}, the range where "
+                f"calibration {calibration_id} may be used: the sign of rho of channel {m.channel} is not "
+                "determined by its scan (probability of the wrong "
+                f"sign {m.p_wrong_sign:.3f}), and away from the "
+                f"gauge its two solutions place the wall points apart; recalibrate with the spindle at least "
+                f"{m.offset_to_resolve_mm:.2f} mm from the gauge centre"
+            )
     return None

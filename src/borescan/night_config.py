@@ -33,8 +33,18 @@ from borescan import tables
 from borescan.atomic import atomic_write_bytes
 from borescan.raw_index import raw_index_path
 
-__all__ = ["RUN_KEYS", "NightConfig", "ConfigChange", "night_settings", "settings_hash", "changed_keys",
-           "record_path", "read_record", "settle", "recompute"]
+__all__ = [
+    "RUN_KEYS",
+    "NightConfig",
+    "ConfigChange",
+    "night_settings",
+    "settings_hash",
+    "changed_keys",
+    "record_path",
+    "read_record",
+    "settle",
+    "recompute",
+]
 
 #: config keys that say where and how fast to run, not how to compute: never part of a night's record
 RUN_KEYS = ("raw_root", "results_root", "stage_workers")
@@ -65,7 +75,9 @@ class ConfigChange:
 
 def night_settings(config: dict) -> dict:
     """Return the settings of ``config`` that a night's results depend on (JSON-normalised)."""
-    return json.loads(json.dumps({k: v for k, v in config.items() if k not in RUN_KEYS}, sort_keys=True, default=str))
+    return json.loads(
+        json.dumps({k: v for k, v in config.items() if k not in RUN_KEYS}, sort_keys=True, default=str)
+    )
 
 
 def settings_hash(settings: dict) -> str:
@@ -106,9 +118,20 @@ def read_record(results_root, night: str) -> NightConfig | None:
 
 
 def _write_record(results_root, rec: NightConfig) -> None:
-    _write_parquet(tables.frame("night_config", [{"night": rec.night, "config_hash": rec.config_hash,
-                                               "config_json": json.dumps(rec.settings, sort_keys=True),
-                                               "recorded_by": rec.recorded_by}]), record_path(results_root, rec.night))
+    _write_parquet(
+        tables.frame(
+            "night_config",
+            [
+                {
+                    "night": rec.night,
+                    "config_hash": rec.config_hash,
+                    "config_json": json.dumps(rec.settings, sort_keys=True),
+                    "recorded_by": rec.recorded_by,
+                }
+            ],
+        ),
+        record_path(results_root, rec.night),
+    )
 
 
 def settle(results_root, nights: list[str], config: dict) -> tuple[dict[str, dict], list[str]]:
@@ -160,7 +183,10 @@ def recompute(results_root, from_night: str, config: dict) -> ConfigChange | Non
     root = Path(results_root)
     current = night_settings(config)
     h = settings_hash(current)
-    recs = [read_record(root, p.name[6:-8]) for p in sorted((root / "stage" / "night_config").glob("night=*.parquet"))]
+    recs = [
+        read_record(root, p.name[6:-8])
+        for p in sorted((root / "stage" / "night_config").glob("night=*.parquet"))
+    ]
     todo = [r for r in recs if r is not None and r.night >= from_night and r.config_hash != h]
     if not todo:
         return None
@@ -171,13 +197,28 @@ def recompute(results_root, from_night: str, config: dict) -> ConfigChange | Non
     for r in todo:
         _archive_night(root, r.night, archive)
     keys = sorted({k for r in todo for k in changed_keys(r.settings, current)})
-    change = ConfigChange(change_id, from_night, tuple(r.night for r in todo), tuple(r.config_hash for r in todo), h,
-                          tuple(keys), str(archive.relative_to(root)))
-    row = {"night": from_night, "change_id": change_id, "nights": ",".join(change.nights),
-           "old_hashes": ",".join(change.old_hashes), "new_hash": h, "changed_keys": ",".join(keys),
-           "archive": change.archive}
+    change = ConfigChange(
+        change_id,
+        from_night,
+        tuple(r.night for r in todo),
+        tuple(r.config_hash for r in todo),
+        h,
+        tuple(keys),
+        str(archive.relative_to(root)),
+    )
+    row = {
+        "night": from_night,
+        "change_id": change_id,
+        "nights": ",".join(change.nights),
+        "old_hashes": ",".join(change.old_hashes),
+        "new_hash": h,
+        "changed_keys": ",".join(keys),
+        "archive": change.archive,
+    }
     before = pl.read_parquet(changes_file) if changes_file.is_file() else tables.frame("config_changes", [])
-    _write_parquet(pl.concat([before, tables.frame("config_changes", [row])], how="diagonal_relaxed"), changes_file)
+    _write_parquet(
+        pl.concat([before, tables.frame("config_changes", [row])], how="diagonal_relaxed"), changes_file
+    )
     for r in todo:
         _write_record(root, NightConfig(r.night, h, current, f"recompute {change_id}"))
         index = raw_index_path(root, r.night)

@@ -18,8 +18,15 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from functools import partial
 from typing import Any, TypeVar
 
-__all__ = ["map_in_order", "map_timed", "workers_for", "MIN_ITEMS_PER_WORKER", "JOB_MALLOC_ENVIRONMENT", "set_job_environment",
-           "start_job_workers"]
+__all__ = [
+    "map_in_order",
+    "map_timed",
+    "workers_for",
+    "MIN_ITEMS_PER_WORKER",
+    "JOB_MALLOC_ENVIRONMENT",
+    "set_job_environment",
+    "start_job_workers",
+]
 
 T = TypeVar("T")
 
@@ -180,7 +187,12 @@ def _spawn_pool(n: int) -> ProcessPoolExecutor:
     return ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"))
 
 
-_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "POLARS_MAX_THREADS": "1"}
+_ONE_THREAD = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "POLARS_MAX_THREADS": "1",
+}
 
 
 def _restore(saved: dict[str, str | None]) -> None:

@@ -177,15 +177,26 @@ def predict(device: DeviceDesign, radius_mm: float, scan: ScanDesign) -> PlanPre
     u = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     u_rel = [math.sqrt(max(cov[3 * j, 3 * j] + cov[0, 0] - 2 * cov[0, 3 * j], 0.0)) for j in range(c)]
     n = scan.n_samples
-    depth = tuple(predicted_depth([n], [scan.offset_mm], float(r), [s], radius_mm) for r, s in zip(beams.rho_mm, sig))
+    depth = tuple(
+        predicted_depth([n], [scan.offset_mm], float(r), [s], radius_mm) for r, s in zip(beams.rho_mm, sig)
+    )
     fix = tuple(offset_to_resolve_mm(radius_mm, float(s), n, float(r)) for r, s in zip(beams.rho_mm, sig))
     rng = np.asarray(device.range_mm, dtype=float)
     in_range = bool(np.all(v.min(axis=0) > 0.0) and np.all(v.max(axis=0) < rng))
     return PlanPrediction(
-        scan=scan, channels=tuple(beams.channels), u_beta_rad=tuple(u[0::3]), u_rho_mm=tuple(u[1::3]),
-        u_d_b_mm=tuple(u[2::3]), u_dbeta_rad=tuple(u_rel), beta_reference="absolute" if absolute else f"channel {beams.channels[0]} fixed",
-        mirror_possible=tuple(mirror_exists(float(r), scan.offset_mm) for r in beams.rho_mm), mirror_depth=depth,
-        offset_to_resolve_mm=fix, in_range=in_range, cov=cov)
+        scan=scan,
+        channels=tuple(beams.channels),
+        u_beta_rad=tuple(u[0::3]),
+        u_rho_mm=tuple(u[1::3]),
+        u_d_b_mm=tuple(u[2::3]),
+        u_dbeta_rad=tuple(u_rel),
+        beta_reference="absolute" if absolute else f"channel {beams.channels[0]} fixed",
+        mirror_possible=tuple(mirror_exists(float(r), scan.offset_mm) for r in beams.rho_mm),
+        mirror_depth=depth,
+        offset_to_resolve_mm=fix,
+        in_range=in_range,
+        cov=cov,
+    )
 
 
 def _meets(p: PlanPrediction, target_u_beta_rad: float) -> bool:
@@ -193,8 +204,14 @@ def _meets(p: PlanPrediction, target_u_beta_rad: float) -> bool:
     return p.in_range and all(p.resolved) and all(u <= target_u_beta_rad for u in u_b)
 
 
-def recommend(device: DeviceDesign, radius_mm: float, base: ScanDesign, target_u_beta_rad: float,
-              offsets_mm: Sequence[float], revolutions: Sequence[float]) -> PlanPrediction | None:
+def recommend(
+    device: DeviceDesign,
+    radius_mm: float,
+    base: ScanDesign,
+    target_u_beta_rad: float,
+    offsets_mm: Sequence[float],
+    revolutions: Sequence[float],
+) -> PlanPrediction | None:
     """Return the smallest scan like ``base`` that reaches the target.
 
     Every u(beta_c - beta_1) <= ``target_u_beta_rad`` (the beams' directions relative to each other; an

@@ -26,9 +26,19 @@ from dataclasses import dataclass
 
 from borescan.geometry import Beams
 
-__all__ = ["MissingScanKey", "MissingDesignGeometry", "design_beams", "design_layers", "has_design_geometry",
-           "missing_geometry_reason", "NO_SPINDLE_REASON", "summary_revolutions", "calibration_revolutions_problem",
-           "StageOutcome", "expected_outcomes"]
+__all__ = [
+    "MissingScanKey",
+    "MissingDesignGeometry",
+    "design_beams",
+    "design_layers",
+    "has_design_geometry",
+    "missing_geometry_reason",
+    "NO_SPINDLE_REASON",
+    "summary_revolutions",
+    "calibration_revolutions_problem",
+    "StageOutcome",
+    "expected_outcomes",
+]
 
 SCAN_JSON = "scan.json"
 
@@ -86,8 +96,10 @@ CALIBRATION_NEEDS_BEAMS = "a three-sensor calibration starts its fit from the de
 #: Why a rod gauge calibration needs it.
 ROD_CALIBRATION_NEEDS_LAYERS = "a rod calibration corrects the design base lengths l0 of its layers"
 #: Why a discrepancy examination needs it when the device has no calibration.
-EXAMINATION_NEEDS_GEOMETRY = ("the device has no calibration to compare the scan with, and the examination "
-                              "otherwise starts from the design geometry")
+EXAMINATION_NEEDS_GEOMETRY = (
+    "the device has no calibration to compare the scan with, and the examination "
+    "otherwise starts from the design geometry"
+)
 
 
 def summary_revolutions(summary) -> tuple[int | None, int]:
@@ -97,7 +109,9 @@ def summary_revolutions(summary) -> tuple[int | None, int]:
     ``n_samples_recorded``, ``n_revolutions_min`` per channel).
     """
     spr = float(summary["period_samples_per_rev"][0])
-    recorded = int(summary["n_samples_recorded"][0] // spr) if "n_samples_recorded" in summary.columns else None
+    recorded = (
+        int(summary["n_samples_recorded"][0] // spr) if "n_samples_recorded" in summary.columns else None
+    )
     return recorded, int(summary["n_revolutions_min"].min())
 
 
@@ -108,12 +122,16 @@ def calibration_revolutions_problem(recorded: int | None, with_extrema: int, min
     ``with_extrema``: revolutions in which every channel has its once-per-revolution minimum.
     """
     if recorded is not None and recorded < min_rev:
-        return (f"too few revolutions to calibrate: {recorded} whole revolutions recorded, "
-                f"at least {min_rev} needed (calibration.min_revolutions)")
+        return (
+            f"too few revolutions to calibrate: {recorded} whole revolutions recorded, "
+            f"at least {min_rev} needed (calibration.min_revolutions)"
+        )
     if with_extrema < min_rev:
-        return (f"calibration failed: a once-per-revolution extremum was found in only {with_extrema} "
-                f"revolutions (at least {min_rev} needed); the readings barely vary with rotation, "
-                "is the spindle at the gauge centre?")
+        return (
+            f"calibration failed: a once-per-revolution extremum was found in only {with_extrema} "
+            f"revolutions (at least {min_rev} needed); the readings barely vary with rotation, "
+            "is the spindle at the gauge centre?"
+        )
     return None
 
 
@@ -135,8 +153,9 @@ class StageOutcome:
         return f"{self.scan_id}: {self.file}: {self.stage}: {what}: {self.reason}"
 
 
-def expected_outcomes(meta: dict, *, has_spindle: bool, revolutions: tuple[int | None, int] | None,
-                      min_rev: int) -> list[StageOutcome]:
+def expected_outcomes(
+    meta: dict, *, has_spindle: bool, revolutions: tuple[int | None, int] | None, min_rev: int
+) -> list[StageOutcome]:
     """Return the preconditions above applied to one accepted scan, in stage order ([] = processed as usual).
 
     ``revolutions``: (recorded, with extrema) of a three-sensor spindle scan from the signal stage's
@@ -155,12 +174,34 @@ def expected_outcomes(meta: dict, *, has_spindle: bool, revolutions: tuple[int |
             if problem:
                 out.append(StageOutcome(sid, "calibrate", "lds.parquet", problem, True))
             elif not geometry:
-                out.append(StageOutcome(sid, "calibrate", SCAN_JSON,
-                                        missing_geometry_reason("beams", CALIBRATION_NEEDS_BEAMS), True))
+                out.append(
+                    StageOutcome(
+                        sid,
+                        "calibrate",
+                        SCAN_JSON,
+                        missing_geometry_reason("beams", CALIBRATION_NEEDS_BEAMS),
+                        True,
+                    )
+                )
     if kind == "calibration" and dev.get("type") == "rod" and not geometry:
-        out.append(StageOutcome(sid, "calibrate", SCAN_JSON,
-                                f"rod calibration: {missing_geometry_reason('layers', ROD_CALIBRATION_NEEDS_LAYERS)}", True))
+        out.append(
+            StageOutcome(
+                sid,
+                "calibrate",
+                SCAN_JSON,
+                f"rod calibration: {missing_geometry_reason('layers', ROD_CALIBRATION_NEEDS_LAYERS)}",
+                True,
+            )
+        )
     if not geometry and not any(o.quarantined for o in out):
-        out.append(StageOutcome(sid, "discrepancy", SCAN_JSON, "no device.nominal: examined against the device's "
-                                "calibration only; quarantined at this stage if the device has none", False))
+        out.append(
+            StageOutcome(
+                sid,
+                "discrepancy",
+                SCAN_JSON,
+                "no device.nominal: examined against the device's "
+                "calibration only; quarantined at this stage if the device has none",
+                False,
+            )
+        )
     return out

@@ -363,7 +363,8 @@ def _type_ok(x: Any, want: str) -> bool:
 
 
 def _check_meta(  # noqa: C901 (one branch per checked field of scan.json)
-        meta: Any, p: _Problems, file: str) -> None:
+    meta: Any, p: _Problems, file: str
+) -> None:
     """Append every ``scan.json`` problem of ``meta`` to ``p`` (no folder checks)."""
     if not isinstance(meta, dict):
         p.add(file, f"top level must be a JSON object, not {_jtype(meta)}")
@@ -457,9 +458,7 @@ def _check_meta(  # noqa: C901 (one branch per checked field of scan.json)
 # table checks (vectorised, on Arrow / numpy)
 
 
-def _check_schema(
-    schema: pa.Schema, want: pa.Schema, p: _Problems, file: str
-) -> bool:
+def _check_schema(schema: pa.Schema, want: pa.Schema, p: _Problems, file: str) -> bool:
     ok = True
     names = schema.names
     for f in want:
@@ -480,9 +479,18 @@ def _check_schema(
 #: numpy dtype of the primitive Arrow types a raw column may have. Their values are read straight from
 #: the Arrow buffers (:func:`_arrow_numpy`): pyarrow's own ``to_numpy`` and ``fill_null`` import pandas on
 #: first use, ~0.35 s in every process that reads a scan (each stage job and worker), for nothing we use.
-_NUMPY_DTYPE = {pa.int8(): np.int8, pa.int16(): np.int16, pa.int32(): np.int32, pa.int64(): np.int64,
-                pa.uint8(): np.uint8, pa.uint16(): np.uint16, pa.uint32(): np.uint32, pa.uint64(): np.uint64,
-                pa.float32(): np.float32, pa.float64(): np.float64}
+_NUMPY_DTYPE = {
+    pa.int8(): np.int8,
+    pa.int16(): np.int16,
+    pa.int32(): np.int32,
+    pa.int64(): np.int64,
+    pa.uint8(): np.uint8,
+    pa.uint16(): np.uint16,
+    pa.uint32(): np.uint32,
+    pa.uint64(): np.uint64,
+    pa.float32(): np.float32,
+    pa.float64(): np.float64,
+}
 
 
 def _arrow_numpy(arr: pa.Array, fill=None) -> np.ndarray:
@@ -500,12 +508,12 @@ def _arrow_numpy(arr: pa.Array, fill=None) -> np.ndarray:
         return arr.to_numpy(zero_copy_only=False)
     if n == 0:
         return np.zeros(0, dtype=dtype)
-    vals = np.frombuffer(arr.buffers()[1], dtype=dtype, count=arr.offset + n)[arr.offset:]
+    vals = np.frombuffer(arr.buffers()[1], dtype=dtype, count=arr.offset + n)[arr.offset :]
     if not arr.null_count:
         return vals
     valid = np.unpackbits(np.frombuffer(arr.buffers()[0], dtype=np.uint8), bitorder="little")
     out = vals.copy()
-    out[valid[arr.offset: arr.offset + n] == 0] = fill
+    out[valid[arr.offset : arr.offset + n] == 0] = fill
     return out
 
 
@@ -533,7 +541,9 @@ def _listed_sensors(meta: dict | None) -> dict[int, dict] | None:
     """``scan.json`` sensors by channel (entries with an integer channel), None when not a list."""
     if meta is None or not isinstance(meta.get("sensors"), list):
         return None
-    return {int(s["channel"]): s for s in meta["sensors"] if isinstance(s, dict) and _is_int(s.get("channel"))}
+    return {
+        int(s["channel"]): s for s in meta["sensors"] if isinstance(s, dict) and _is_int(s.get("channel"))
+    }
 
 
 def _device_type(meta: dict | None) -> Any:
@@ -570,8 +580,9 @@ def _chunk_numpy(arr: pa.Array) -> np.ndarray:
     return _arrow_numpy(arr, np.nan if pa.types.is_floating(arr.type) else None)
 
 
-def _lds_fast_check(table: pa.Table, meta: dict | None, has_spindle: bool, file: str, *, layout: bool = True
-                    ) -> tuple[list[str], LdsMatrix | None] | None:
+def _lds_fast_check(
+    table: pa.Table, meta: dict | None, has_spindle: bool, file: str, *, layout: bool = True
+) -> tuple[list[str], LdsMatrix | None] | None:
     """:func:`_check_lds` for a table that passes every check, in far fewer passes over the data.
 
     Returns (the warnings :func:`_check_lds` would return, the wide matrix when the table is in the
@@ -614,8 +625,13 @@ def _matrix_warnings(mat: LdsMatrix, nulls: int, listed: dict[int, dict], file: 
     c = len(mat.channels)
     if (np.bincount(nan_at % c, minlength=c) >= mat.values_mm.shape[0]).any():
         return None  # a listed channel without valid readings
-    return _range_warnings(lo, hi, listed, file,
-                           lambda j, rng: int(np.count_nonzero((mat.values_mm[:, j] < 0) | (mat.values_mm[:, j] > rng))))
+    return _range_warnings(
+        lo,
+        hi,
+        listed,
+        file,
+        lambda j, rng: int(np.count_nonzero((mat.values_mm[:, j] < 0) | (mat.values_mm[:, j] > rng))),
+    )
 
 
 def _range_warnings(lo: float, hi: float, listed: dict[int, dict], file: str, count_out) -> list[str]:
@@ -654,7 +670,8 @@ def _pose_ok(table: pa.Table, meta: dict | None, has_spindle: bool) -> bool:
 
 
 def _lds_chunk_warnings(  # noqa: C901 (one branch per checked rule of the raw format)
-        table: pa.Table, listed: dict[int, dict] | None, file: str) -> list[str] | None:
+    table: pa.Table, listed: dict[int, dict] | None, file: str
+) -> list[str] | None:
     """Return the checks' warnings on the Arrow chunks as read, or None.
 
     Ordering, finiteness, channel and range checks of any table without nulls where they are not
@@ -678,7 +695,9 @@ def _lds_chunk_warnings(  # noqa: C901 (one branch per checked rule of the raw f
         same = sample[1:] == sample[:-1]
         if not (same | (sample[1:] > sample[:-1])).all():
             return None  # decreasing sample
-        if not np.where(same, (sensor[1:] > sensor[:-1]) & (t_ns[1:] == t_ns[:-1]), t_ns[1:] > t_ns[:-1]).all():
+        if not np.where(
+            same, (sensor[1:] > sensor[:-1]) & (t_ns[1:] == t_ns[:-1]), t_ns[1:] > t_ns[:-1]
+        ).all():
             # unsorted or duplicate (sample, sensor), t_ns differing within a sample or not increasing
             return None
         prev = (sample[-1], t_ns[-1], sensor[-1])
@@ -702,8 +721,16 @@ def _lds_chunk_warnings(  # noqa: C901 (one branch per checked rule of the raw f
         per_ch = per_ch - np.array([np.count_nonzero(sensor_all == ch) for ch in chans], dtype=np.int64)
     if not (per_ch > 0).all():
         return None  # a listed channel without valid readings
-    return _range_warnings(lo, hi, listed, file, lambda j, rng: sum(
-        int(np.count_nonzero((sensor == chans[j]) & ((value < 0) | (value > rng)))) for _, _, sensor, value in chunks))
+    return _range_warnings(
+        lo,
+        hi,
+        listed,
+        file,
+        lambda j, rng: sum(
+            int(np.count_nonzero((sensor == chans[j]) & ((value < 0) | (value > rng))))
+            for _, _, sensor, value in chunks
+        ),
+    )
 
 
 def _check_lds(
@@ -879,8 +906,10 @@ def _frame_to_arrow(df: Any, schema: pa.Schema, p: _Problems, file: str) -> pa.T
     for f in schema:
         c = t.column(f.name)
         if c.type != f.type:
-            castable = pa.types.is_null(c.type) or pa.types.is_integer(c.type) or (
-                pa.types.is_floating(c.type) and pa.types.is_floating(f.type)
+            castable = (
+                pa.types.is_null(c.type)
+                or pa.types.is_integer(c.type)
+                or (pa.types.is_floating(c.type) and pa.types.is_floating(f.type))
             )
             if castable:
                 try:
@@ -1206,8 +1235,11 @@ def nights(raw_root: str | Path) -> list[str]:
     root = Path(raw_root)
     if not root.is_dir():
         return []
-    return sorted(p.name[6:] for p in _listing(root)
-                  if p.name.startswith("night=") and _valid_night(p.name[6:]) and _is_dir(p))
+    return sorted(
+        p.name[6:]
+        for p in _listing(root)
+        if p.name.startswith("night=") and _valid_night(p.name[6:]) and _is_dir(p)
+    )
 
 
 def night_scan_dirs(raw_root: str | Path, night: str) -> list[Path]:
@@ -1217,7 +1249,9 @@ def night_scan_dirs(raw_root: str | Path, night: str) -> list[Path]:
     validated.
     """
     night_dir = Path(raw_root) / f"night={night}"
-    return sorted(p for p in _listing(night_dir) if p.name.startswith("scan=") and len(p.name) > 5 and _is_dir(p))
+    return sorted(
+        p for p in _listing(night_dir) if p.name.startswith("scan=") and len(p.name) > 5 and _is_dir(p)
+    )
 
 
 def night_raw_files(raw_root: str | Path, night: str) -> list[str]:
@@ -1226,8 +1260,12 @@ def night_raw_files(raw_root: str | Path, night: str) -> list[str]:
     Files this user cannot read are left out, and a scan folder that cannot be listed contributes
     none (Snakemake hashes a job's inputs; ingest quarantines the scan, naming the file or folder).
     """
-    return [str(f) for d in night_scan_dirs(raw_root, night) for f in sorted(_listing(d))
-            if _is_file(f) and os.access(f, os.R_OK)]
+    return [
+        str(f)
+        for d in night_scan_dirs(raw_root, night)
+        for f in sorted(_listing(d))
+        if _is_file(f) and os.access(f, os.R_OK)
+    ]
 
 
 def _is_file(path: Path) -> bool:
@@ -1303,8 +1341,10 @@ def clock_jump(sample: np.ndarray, t_s: np.ndarray, sample_rate_hz: float) -> st
     if bad.size == 0:
         return None
     i = int(bad[0])
-    return (f"clock jump: t_ns advances {step[i]:.6g} s between samples {int(sample[i])} and "
-            f"{int(sample[i + 1])}, expected {expected[i]:.6g} s at {sample_rate_hz:g} Hz")
+    return (
+        f"clock jump: t_ns advances {step[i]:.6g} s between samples {int(sample[i])} and "
+        f"{int(sample[i + 1])}, expected {expected[i]:.6g} s at {sample_rate_hz:g} Hz"
+    )
 
 
 def validate_root(raw_root: Path, *, warnings: list[str] | None = None) -> list[ScanError]:
@@ -1335,8 +1375,11 @@ def validate_root(raw_root: Path, *, warnings: list[str] | None = None) -> list[
         sid = scan_dir.name[5:]
         if sid in seen:
             errors.append(
-                ScanError(sid, f"{scan_dir.parent.name}/{scan_dir.name}",
-                          f"scan_id also used in {seen[sid]} (scan ids are unique across nights)")
+                ScanError(
+                    sid,
+                    f"{scan_dir.parent.name}/{scan_dir.name}",
+                    f"scan_id also used in {seen[sid]} (scan ids are unique across nights)",
+                )
             )
         else:
             seen[sid] = scan_dir.parent.name
@@ -1359,8 +1402,11 @@ def tree_problems(raw_root: Path) -> list[ScanError]:
             errors.append(ScanError(_NO_SCAN, entry.name, "not a night=<YYYY-MM-DD> folder"))
             continue
         if not _valid_night(entry.name[6:]):
-            errors.append(ScanError(_NO_SCAN, entry.name, "folder night is not a date YYYY-MM-DD; "
-                                    "its scans are not processed"))
+            errors.append(
+                ScanError(
+                    _NO_SCAN, entry.name, "folder night is not a date YYYY-MM-DD; its scans are not processed"
+                )
+            )
         try:
             subs = sorted(entry.iterdir())
         except OSError as e:
@@ -1370,9 +1416,7 @@ def tree_problems(raw_root: Path) -> list[ScanError]:
             if sub.name.startswith("."):
                 continue
             if not (sub.name.startswith("scan=") and _is_dir(sub)):
-                errors.append(
-                    ScanError(_NO_SCAN, f"{entry.name}/{sub.name}", "not a scan=<scan_id> folder")
-                )
+                errors.append(ScanError(_NO_SCAN, f"{entry.name}/{sub.name}", "not a scan=<scan_id> folder"))
     return errors
 
 
@@ -1508,7 +1552,7 @@ def _residue_column(views: list[np.ndarray], k: int, c: int, n: int, dtype) -> n
     """Rows r = k (mod c) of a chunked column gathered into one array of length ``n``."""
     out = np.empty(n, dtype=dtype)
     for v, g in _residue_views(views, k, c):
-        out[g: g + v.size] = v
+        out[g : g + v.size] = v
     return out
 
 
@@ -1524,13 +1568,14 @@ def _wide_values(col: pa.ChunkedArray, c: int, n: int) -> np.ndarray:
         m = len(ch)
         if not m:
             continue
-        out[r0: r0 + m] = _arrow_numpy(ch, np.nan)
+        out[r0 : r0 + m] = _arrow_numpy(ch, np.nan)
         r0 += m
     return out.reshape(n, c)
 
 
 def _regular_matrix(  # noqa: C901 (one exit per layout that is not the usual one)
-        tab: pa.Table, listed: tuple[int, ...]) -> LdsMatrix | None:
+    tab: pa.Table, listed: tuple[int, ...]
+) -> LdsMatrix | None:
     """Return the wide matrix of an ``lds`` table in the usual layout, or None.
 
     Return the wide matrix of an ``lds`` Arrow table in the usual layout, straight from its chunks; None
@@ -1561,7 +1606,7 @@ def _regular_matrix(  # noqa: C901 (one exit per layout that is not the usual on
         if k:
             for col, first in ((sample, s0), (t_ns, t0)):
                 for v, g in _residue_views(col, k, c):
-                    if not np.array_equal(v, first[g: g + v.size]):
+                    if not np.array_equal(v, first[g : g + v.size]):
                         return None
     pose = tab.column("pose")
     if pose.null_count == rows:
@@ -1570,8 +1615,13 @@ def _regular_matrix(  # noqa: C901 (one exit per layout that is not the usual on
         P = _arrow_numpy(pose.combine_chunks(), -1).astype(np.int64).reshape(-1, c)
         first = np.argmax(P >= 0, axis=1)
         pose_s = P[np.arange(n), first]  # -1 where the whole sample has no pose
-    return LdsMatrix(sample=s0, t_s=t0 / 1e9, channels=listed, values_mm=_wide_values(tab.column("value_mm"), c, n),
-                     pose=pose_s)
+    return LdsMatrix(
+        sample=s0,
+        t_s=t0 / 1e9,
+        channels=listed,
+        values_mm=_wide_values(tab.column("value_mm"), c, n),
+        pose=pose_s,
+    )
 
 
 def _lds_matrix_reshaped(t: pl.DataFrame, listed: tuple[int, ...]) -> LdsMatrix | None:

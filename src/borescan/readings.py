@@ -95,7 +95,9 @@ def _median_of_others(x: np.ndarray) -> np.ndarray:
     return other(m // 2) if m % 2 else 0.5 * (other(m // 2 - 1) + other(m // 2))
 
 
-def clean_matrix(mat: rawio.LdsMatrix, policy: CleaningPolicy, *, spindle: bool) -> tuple[rawio.LdsMatrix, np.ndarray]:
+def clean_matrix(
+    mat: rawio.LdsMatrix, policy: CleaningPolicy, *, spindle: bool
+) -> tuple[rawio.LdsMatrix, np.ndarray]:
     """``mat`` with its spikes set to NaN, and the spike mask (n, c).
 
     ``spindle``: readings along revolutions (Hampel test); otherwise static poses (``mat.pose``;
@@ -103,11 +105,14 @@ def clean_matrix(mat: rawio.LdsMatrix, policy: CleaningPolicy, *, spindle: bool)
     """
     v = np.asarray(mat.values_mm, dtype=float)
     if spindle:
-        clean, spikes = remove_spikes(v, window_samples=policy.spike_window_samples,
-                                      threshold=policy.spike_threshold_mad)
+        clean, spikes = remove_spikes(
+            v, window_samples=policy.spike_window_samples, threshold=policy.spike_threshold_mad
+        )
     else:
         pose = np.asarray(mat.pose)
-        spikes = static_spikes(v, np.zeros_like(pose) if np.all(pose < 0) else pose, policy.spike_threshold_mad)
+        spikes = static_spikes(
+            v, np.zeros_like(pose) if np.all(pose < 0) else pose, policy.spike_threshold_mad
+        )
         clean = np.where(spikes, np.nan, v)
     return replace(mat, values_mm=clean), spikes
 

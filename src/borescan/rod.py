@@ -73,8 +73,17 @@ from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
 from borescan.physics.rod import rod_section_geometry
 
 __all__ = [
-    "RodSolveError", "RodSolution", "rod_residuals", "rod_jacobian", "rod_start", "solve_rod", "solve_rod_pso", "rod_crb",
-    "rod_layers", "rod_section_geometry", "rod_cost_mm2",
+    "RodSolveError",
+    "RodSolution",
+    "rod_residuals",
+    "rod_jacobian",
+    "rod_start",
+    "solve_rod",
+    "solve_rod_pso",
+    "rod_crb",
+    "rod_layers",
+    "rod_section_geometry",
+    "rod_cost_mm2",
 ]
 
 
@@ -260,7 +269,9 @@ def _prepare(readings_mm, l0_mm, n_extra: int = 0):
         )
     per_hole = mask.sum(axis=0)
     if np.any(per_hole < 3):
-        raise RodSolveError(f"underdetermined: holes {list(np.flatnonzero(per_hole < 3) + 1)} have fewer than 3 readings")
+        raise RodSolveError(
+            f"underdetermined: holes {list(np.flatnonzero(per_hole < 3) + 1)} have fewer than 3 readings"
+        )
     return L, mask, keep
 
 
@@ -279,7 +290,9 @@ def _dk(s):
     return 0.25 + 5.0 * s / 24.0
 
 
-def rod_layers(l0_mm=None, layers: Sequence[RodLayer] | None = None, m: int | None = None) -> tuple[RodLayer, ...]:
+def rod_layers(
+    l0_mm=None, layers: Sequence[RodLayer] | None = None, m: int | None = None
+) -> tuple[RodLayer, ...]:
     """Return the layer geometry for the solve.
 
     Layer geometry for the solve: ``layers`` (device nominal or a rod calibration), their l0
@@ -367,7 +380,9 @@ class _RodProblem:
                 for k in range(2):
                     e = np.zeros(2)
                     e[k] = beta_step
-                    J[:, :, -2 + k] = (f(rho, c, alpha, _w_of_beta(b + e, w)) - f(rho, c, alpha, _w_of_beta(b - e, w))) / (2 * beta_step)
+                    J[:, :, -2 + k] = (
+                        f(rho, c, alpha, _w_of_beta(b + e, w)) - f(rho, c, alpha, _w_of_beta(b - e, w))
+                    ) / (2 * beta_step)
         return -J[self.mask]  # residual = V - model
 
 
@@ -406,8 +421,17 @@ def _linear_start(L, mask, alpha, layers):
 
 
 def _lm(prob, p0, n_par):
-    sol = least_squares(prob.residual, p0, jac=prob.jac, method="lm", x_scale="jac",
-                        xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=100 * n_par)
+    sol = least_squares(
+        prob.residual,
+        p0,
+        jac=prob.jac,
+        method="lm",
+        x_scale="jac",
+        xtol=1e-14,
+        ftol=1e-14,
+        gtol=1e-14,
+        max_nfev=100 * n_par,
+    )
     return sol.x, float(sol.fun @ sol.fun), int(sol.nfev)
 
 
@@ -446,7 +470,11 @@ def _deflected_radii(rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD
         G = np.zeros((m, m + 2))
         G[np.arange(m), np.arange(m)] = 1.0 / _k(s)
         G[:, -2:] = -(rho * _dk(s) / _k(s) ** 2)[:, None] * uhat[None, :]
-        return s, np.sqrt(np.clip(np.diag(G @ C @ G.T), 0.0, None)), float(np.sqrt(max(uhat @ Sb @ uhat, 0.0)))
+        return (
+            s,
+            np.sqrt(np.clip(np.diag(G @ C @ G.T), 0.0, None)),
+            float(np.sqrt(max(uhat @ Sb @ uhat, 0.0))),
+        )
     Crr, Crb = C[:m, :m], C[:m, m:]
     Sb_inv = np.linalg.pinv(Sb)
     K = Crb @ Sb_inv
@@ -468,12 +496,16 @@ def _deflected_radii(rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD
     o = np.hypot(w[:, 0], w[:, 1])
     beta = np.column_stack([w[:, 0] ** 2 - w[:, 1] ** 2, 2 * w[:, 0] * w[:, 1]])
     d = beta - b
-    lik = np.exp(-0.5 * np.einsum("ij,jk,ik->i", d, Sb_inv, d)) / (2 * np.pi * np.sqrt(max(ev[0] * ev[1], 1e-300)))
+    lik = np.exp(-0.5 * np.einsum("ij,jk,ik->i", d, Sb_inv, d)) / (
+        2 * np.pi * np.sqrt(max(ev[0] * ev[1], 1e-300))
+    )
     # densities per unit area of the w plane: prior 1 / (2 pi W omega); likelihood 2 omega^2 N(beta)
     prior = np.where(o <= W, 1.0 / (2 * np.pi * W * np.maximum(o, 1e-300)), 0.0)
     wt = prior * lik / (0.5 * prior + np.maximum(o, 1e-300) ** 2 * lik + 1e-300)
     if not np.isfinite(wt.sum()) or wt.sum() <= 0:  # the likelihood lies far outside the prior
-        wt = (o <= W) * np.exp(-0.5 * (np.einsum("ij,jk,ik->i", d, Sb_inv, d) - np.min(np.einsum("ij,jk,ik->i", d, Sb_inv, d))))
+        wt = (o <= W) * np.exp(
+            -0.5 * (np.einsum("ij,jk,ik->i", d, Sb_inv, d) - np.min(np.einsum("ij,jk,ik->i", d, Sb_inv, d)))
+        )
     wt = wt / wt.sum()
     s2 = o**2
     R = (rho[None, :] - (b - beta) @ K.T) / _k(s2)[:, None]
@@ -528,7 +560,8 @@ def _repair_poses(prob, p, max_rounds: int = 3):
 
 
 def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and repairs)
-        prob, L, mask, starts_alpha, deflection):
+    prob, L, mask, starts_alpha, deflection
+):
     """Run the multi-start LM of the rod solve.
 
     Multi-start LM: every start (both reflections) first without deflection, then from the
@@ -645,7 +678,9 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     n_obs = int(mask.sum())
     p0, S = rod_start(L, mask, fix_pose)
     # Noise reference for the centred test: the given u, else the third singular value (m >= 3)
-    sig_ref = u_reading_mm if u_reading_mm is not None else (S[2] / np.sqrt(max(n - 2, 1)) if S.size > 2 else None)
+    sig_ref = (
+        u_reading_mm if u_reading_mm is not None else (S[2] / np.sqrt(max(n - 2, 1)) if S.size > 2 else None)
+    )
     if sig_ref is not None and S[0] < 5.0 * sig_ref * np.sqrt(n):
         if centred != "mean":
             raise RodSolveError(
@@ -659,9 +694,18 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         sd = np.nanstd(Lf, axis=0, ddof=1)
         sig = np.full(m, u_reading_mm) if u_reading_mm is not None else sd
         return RodSolution(
-            radius_mm=r, u_radius_mm=sig / np.sqrt(cnt), xy_mm=np.zeros((m, 2)), alpha_rad=np.full(keep.size, np.nan),
-            residual_rms_mm=float(np.sqrt(np.nanmean((Lf - r) ** 2))), sigma_mm=float(np.mean(sig)),
-            rank=m, n_params=3 * m + n - 1 + (2 if defl else 0), condition=float("inf"), cov=None, method="centred", nfev=0,
+            radius_mm=r,
+            u_radius_mm=sig / np.sqrt(cnt),
+            xy_mm=np.zeros((m, 2)),
+            alpha_rad=np.full(keep.size, np.nan),
+            residual_rms_mm=float(np.sqrt(np.nanmean((Lf - r) ** 2))),
+            sigma_mm=float(np.mean(sig)),
+            rank=m,
+            n_params=3 * m + n - 1 + (2 if defl else 0),
+            condition=float("inf"),
+            cov=None,
+            method="centred",
+            nfev=0,
         )
     a0 = np.insert(p0[3 * m :], fix_pose, 0.0)
     V = L - l0
@@ -686,8 +730,17 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         sigma = float(np.sqrt(e @ e / dof))
     else:
         sigma = float("nan")
-    fit = fit_result(_rod_param_names(m, n, fix_pose, defl), p, e, J, sigma=sigma, success=True, nfev=nfev,
-                     rtol=1e-12, message=f"rod solve, deflection {deflection!r}")
+    fit = fit_result(
+        _rod_param_names(m, n, fix_pose, defl),
+        p,
+        e,
+        J,
+        sigma=sigma,
+        success=True,
+        nfev=nfev,
+        rtol=1e-12,
+        message=f"rod solve, deflection {deflection!r}",
+    )
     cov = fit.cov
     rho, c, alpha, w = prob.unpack(p)
     ref = sigma / np.sqrt(mask.sum(axis=0))
@@ -735,13 +788,31 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     u_ecc = np.sqrt(np.clip(np.diag(cov)[[m, 2 * m]], 0.0, None))
     meth = {"free": "joint", "mle": "joint-mle", "none": "eq16"}[deflection]
     return RodSolution(
-        radius_mm=np.abs(r), u_radius_mm=u_r, xy_mm=-c,
-        alpha_rad=_expand(np.mod(alpha + np.pi, 2 * np.pi) - np.pi, keep), residual_rms_mm=rms, sigma_mm=sigma, rank=rank,
-        n_params=n_par, condition=cond, cov=cov, method=meth, nfev=nfev,
-        center_xy_mm=c, deflection_xy_rad=w.copy(), deflection_rad=float(np.sqrt(max(s, 0.0))),
+        radius_mm=np.abs(r),
+        u_radius_mm=u_r,
+        xy_mm=-c,
+        alpha_rad=_expand(np.mod(alpha + np.pi, 2 * np.pi) - np.pi, keep),
+        residual_rms_mm=rms,
+        sigma_mm=sigma,
+        rank=rank,
+        n_params=n_par,
+        condition=cond,
+        cov=cov,
+        method=meth,
+        nfev=nfev,
+        center_xy_mm=c,
+        deflection_xy_rad=w.copy(),
+        deflection_rad=float(np.sqrt(max(s, 0.0))),
         deflection_az_rad=float(np.arctan2(w[1], w[0])) if np.any(w != 0) else 0.0,
-        deflection_sq_rad2=s, u_deflection_sq_rad2=float(u_s), eccentricity_mm=ecc, u_eccentricity_mm=u_ecc,
-        radius_mle_mm=rho / _k(float(w @ w)), deflection_ratio=dratio, cost_mm2=cost, layers=lays, fit=fit,
+        deflection_sq_rad2=s,
+        u_deflection_sq_rad2=float(u_s),
+        eccentricity_mm=ecc,
+        u_eccentricity_mm=u_ecc,
+        radius_mle_mm=rho / _k(float(w @ w)),
+        deflection_ratio=dratio,
+        cost_mm2=cost,
+        layers=lays,
+        fit=fit,
     )
 
 
@@ -770,9 +841,19 @@ def rod_cost_mm2(readings_mm, alpha_rad, layers, holes, axis) -> float:
     return float(e @ e)
 
 
-def rod_crb(alpha_rad, l_mm=None, xy_mm=None, radius_mm=None, sigma_mm: float | None = None, fix_pose: int = 0, *,
-            layers: Sequence[RodLayer] | None = None, holes: Sequence[Hole] | None = None, axis: RodAxis | None = None,
-            deflection: bool = True) -> np.ndarray:
+def rod_crb(
+    alpha_rad,
+    l_mm=None,
+    xy_mm=None,
+    radius_mm=None,
+    sigma_mm: float | None = None,
+    fix_pose: int = 0,
+    *,
+    layers: Sequence[RodLayer] | None = None,
+    holes: Sequence[Hole] | None = None,
+    axis: RodAxis | None = None,
+    deflection: bool = True,
+) -> np.ndarray:
     r"""Cramér-Rao bound on the radii for Gaussian reading noise sigma.
 
     Exact model (``layers``, ``holes``, ``axis`` given): Fisher information sigma^-2 J^T J of the
@@ -799,8 +880,11 @@ def rod_crb(alpha_rad, l_mm=None, xy_mm=None, radius_mm=None, sigma_mm: float | 
         # the solver's gauge: axis through the origin at z = 0, centres relative to the axis at the
         # spot height
         z = np.array([lay.h_mm for lay in lays]) + r * np.tan([lay.gamma_rad for lay in lays])
-        c = (np.array([h.center_xy_mm for h in holes]) - [ax.dx_mm, ax.dy_mm]
-             - (z * np.sinc(ax.omega_rad / np.pi))[:, None] * w[None, :])
+        c = (
+            np.array([h.center_xy_mm for h in holes])
+            - [ax.dx_mm, ax.dy_mm]
+            - (z * np.sinc(ax.omega_rad / np.pi))[:, None] * w[None, :]
+        )
         prob = _RodProblem(V, np.ones_like(V, dtype=bool), lays, fix_pose, deflection, alpha_fix=a[fix_pose])
         s = float(w @ w)
         p = prob.pack(r * _k(s), c, a, w)
@@ -813,7 +897,10 @@ def rod_crb(alpha_rad, l_mm=None, xy_mm=None, radius_mm=None, sigma_mm: float | 
         rho = r * _k(s)
         G[np.arange(m), np.arange(m)] = 1.0 / _k(s)
         if deflection:
-            G[:, -2:] = -(rho * _dk(s) / _k(s) ** 2)[:, None] * np.array([np.cos(2 * ax.omega_az_rad), np.sin(2 * ax.omega_az_rad)])[None, :]
+            G[:, -2:] = (
+                -(rho * _dk(s) / _k(s) ** 2)[:, None]
+                * np.array([np.cos(2 * ax.omega_az_rad), np.sin(2 * ax.omega_az_rad)])[None, :]
+            )
         return np.sqrt(np.diag(G @ cov @ G.T))
     L = np.asarray(l_mm, float)
     n, m = L.shape
@@ -885,7 +972,16 @@ def solve_rod_pso(
             g, gf = pb[k].copy(), pf[k]
     r, x, y, a = _unpack(g, m, n, 0)
     return RodSolution(
-        radius_mm=r, u_radius_mm=np.full(m, np.nan), xy_mm=np.column_stack([x, y]), alpha_rad=_expand(a, keep),
-        residual_rms_mm=float(np.sqrt(gf / mask.sum())), sigma_mm=float("nan"), rank=-1, n_params=d,
-        condition=float("nan"), cov=None, method="pso", nfev=nfev,
+        radius_mm=r,
+        u_radius_mm=np.full(m, np.nan),
+        xy_mm=np.column_stack([x, y]),
+        alpha_rad=_expand(a, keep),
+        residual_rms_mm=float(np.sqrt(gf / mask.sum())),
+        sigma_mm=float("nan"),
+        rank=-1,
+        n_params=d,
+        condition=float("nan"),
+        cov=None,
+        method="pso",
+        nfev=nfev,
     )

@@ -42,9 +42,20 @@ from .geometry import RodLayer
 from .rod import RodSolution, solve_rod
 from .uncertainty import Budget, Input, Term
 
-__all__ = ["ROD_CALIBRATION_METHOD", "RodCalibration", "layer_gauges", "calibrate_l0", "rod_calibration_budget",
-           "rod_calibration_id", "rod_calibration_rows", "rod_calibration_from_rows", "layer_jacobian",
-           "pose_means_of_scan", "rod_diameters_with_budget", "rod_verifications"]
+__all__ = [
+    "ROD_CALIBRATION_METHOD",
+    "RodCalibration",
+    "layer_gauges",
+    "calibrate_l0",
+    "rod_calibration_budget",
+    "rod_calibration_id",
+    "rod_calibration_rows",
+    "rod_calibration_from_rows",
+    "layer_jacobian",
+    "pose_means_of_scan",
+    "rod_diameters_with_budget",
+    "rod_verifications",
+]
 
 #: ``calibrations.method`` of a rod calibrated on certified ring gauges
 ROD_CALIBRATION_METHOD = "rod_gauge"
@@ -109,14 +120,28 @@ def layer_gauges(meta: dict, channels) -> list[dict]:
         feat = layer_feature.get(int(ch))
         f = feats.get(str(feat)) if feat is not None else None
         if f is not None and f.get("certified_diameter_mm") is not None:
-            g = {"id": f.get("gauge_id") or (f"{art.get('id')}/{feat}" if art.get("id") else str(feat)),
-                 "type": "ring_gauge", "certified_diameter_mm": float(f["certified_diameter_mm"]),
-                 "u_diameter_mm": f.get("u_diameter_mm", art.get("u_diameter_mm")), "k": f.get("k", art.get("k", 2)),
-                 "certificate": f.get("certificate", art.get("certificate")),
-                 "cte_per_k": f.get("cte_per_k", art.get("cte_per_k"))}
+            g = {
+                "id": f.get("gauge_id") or (f"{art.get('id')}/{feat}" if art.get("id") else str(feat)),
+                "type": "ring_gauge",
+                "certified_diameter_mm": float(f["certified_diameter_mm"]),
+                "u_diameter_mm": f.get("u_diameter_mm", art.get("u_diameter_mm")),
+                "k": f.get("k", art.get("k", 2)),
+                "certificate": f.get("certificate", art.get("certificate")),
+                "cte_per_k": f.get("cte_per_k", art.get("cte_per_k")),
+            }
         elif art.get("type") == "ring_gauge" and art.get("certified_diameter_mm") is not None:
-            g = {k: art.get(k) for k in ("id", "type", "certified_diameter_mm", "u_diameter_mm", "k", "certificate",
-                                         "cte_per_k")}
+            g = {
+                k: art.get(k)
+                for k in (
+                    "id",
+                    "type",
+                    "certified_diameter_mm",
+                    "u_diameter_mm",
+                    "k",
+                    "certificate",
+                    "cte_per_k",
+                )
+            }
             g["k"] = g["k"] if g["k"] is not None else 2
         else:
             raise ValueError(
@@ -124,17 +149,21 @@ def layer_gauges(meta: dict, channels) -> list[dict]:
                 "or verification "
                 "needs artifact.features[].certified_diameter_mm for the layer's feature, or a "
                 "ring_gauge artifact "
-                "with certified_diameter_mm")
+                "with certified_diameter_mm"
+            )
         if g["u_diameter_mm"] is None:
-            raise ValueError(f"rod layer {int(ch)}: gauge {g['id']} states no u_diameter_mm (its certificate's U)")
+            raise ValueError(
+                f"rod layer {int(ch)}: gauge {g['id']} states no u_diameter_mm (its certificate's U)"
+            )
         # the expansion coefficient is the artifact's (artifacts.artifact_cte): one input under its key
         g.update(channel=int(ch), feature=feat, cte_key=artifact_key(art))
         out.append(g)
     return out
 
 
-def calibrate_l0(means_mm, layers, u_reading_mm, radius_at_t_mm, *, tol_mm: float = 1e-7, max_iter: int = 10
-                 ) -> tuple[tuple[RodLayer, ...], RodSolution, int]:
+def calibrate_l0(
+    means_mm, layers, u_reading_mm, radius_at_t_mm, *, tol_mm: float = 1e-7, max_iter: int = 10
+) -> tuple[tuple[RodLayer, ...], RodSolution, int]:
     """Return base lengths at which the rod solve returns the gauges' radii (fixed point of the module doc).
 
     Parameters
@@ -162,12 +191,22 @@ def calibrate_l0(means_mm, layers, u_reading_mm, radius_at_t_mm, *, tol_mm: floa
         if np.all(np.abs(step) <= np.maximum(tol_mm, 1e-3 * sol.u_radius_mm)):
             return lays, sol, it
         lays = tuple(replace(lay, l0_mm=float(lay.l0_mm + s)) for lay, s in zip(lays, step))
-    raise ValueError(f"rod calibration did not settle in {max_iter} solves: radius - gauge "
-                     f"{np.array2string(step * 1e3, precision=4)} um")
+    raise ValueError(
+        f"rod calibration did not settle in {max_iter} solves: radius - gauge "
+        f"{np.array2string(step * 1e3, precision=4)} um"
+    )
 
 
-def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list[dict], temperature, cte,
-                           sensors: dict, scan_id: str, default_resolution_mm: float) -> Budget:
+def rod_calibration_budget(
+    calibrated_l0_mm,
+    solution: RodSolution,
+    gauges: list[dict],
+    temperature,
+    cte,
+    sensors: dict,
+    scan_id: str,
+    default_resolution_mm: float,
+) -> Budget:
     """GUM budget of the calibrated base lengths (outputs ``l0_mm[<channel>]``; module doc).
 
     ``temperature`` (:class:`borescan.artifacts.ScanTemperature`) and ``cte``
@@ -179,10 +218,22 @@ def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list
     m = len(chans)
     b = Budget(tuple(f"l0_mm[{ch}]" for ch in chans), ("mm",) * m, np.asarray(calibrated_l0_mm, float))
     u_r = np.asarray(solution.u_radius_mm, dtype=float)
-    b.add(Term(Input(f"fit:{scan_id}:readings", f"rod solve of the readings of {scan_id} (radius of each layer's gauge)",
-                     "r", "mm", None, float(solution.sigma_mm), "normal",
-                     source="rod.solve_rod covariance; u(x_i): standard uncertainty of one mean reading"),
-               cov=np.diag(u_r**2), note="l0 = l0 + R(T) - r: sensitivity -1 on each layer's radius"))
+    b.add(
+        Term(
+            Input(
+                f"fit:{scan_id}:readings",
+                f"rod solve of the readings of {scan_id} (radius of each layer's gauge)",
+                "r",
+                "mm",
+                None,
+                float(solution.sigma_mm),
+                "normal",
+                source="rod.solve_rod covariance; u(x_i): standard uncertainty of one mean reading",
+            ),
+            cov=np.diag(u_r**2),
+            note="l0 = l0 + R(T) - r: sensitivity -1 on each layer's radius",
+        )
+    )
     dT = temperature.temperature_c - 20.0
     f = thermal_expansion_factor(cte.cte_per_k, temperature.temperature_c)
     by_gauge: dict[str, list[int]] = {}
@@ -193,18 +244,56 @@ def rod_calibration_budget(calibrated_l0_mm, solution: RodSolution, gauges: list
         k_cert = float(g.get("k") or 2.0)
         s = np.zeros(m)
         s[js] = 0.5 * f
-        b.add(Term(Input(key, f"certified diameter of ring gauge {g['id']} at 20 degC", "D_g", "mm",
-                         float(g["certified_diameter_mm"]), float(g["u_diameter_mm"]) / k_cert, "normal",
-                         source=f"certificate {g.get('certificate')}: U = {g['u_diameter_mm']} mm (k = "
-                                f"{k_cert:g})"), s))
+        b.add(
+            Term(
+                Input(
+                    key,
+                    f"certified diameter of ring gauge {g['id']} at 20 degC",
+                    "D_g",
+                    "mm",
+                    float(g["certified_diameter_mm"]),
+                    float(g["u_diameter_mm"]) / k_cert,
+                    "normal",
+                    source=f"certificate {g.get('certificate')}: U = {g['u_diameter_mm']} mm (k = "
+                    f"{k_cert:g})",
+                ),
+                s,
+            )
+        )
     r20 = np.array([0.5 * float(g["certified_diameter_mm"]) for g in gauges])
-    b.add(Term(Input(f"temperature:{scan_id}", f"temperature of the gauges during {scan_id}", "T", "degC",
-                     temperature.temperature_c, temperature.u_c, "rectangular", source=temperature.source),
-               r20 * cte.cte_per_k))
-    b.add(Term(Input(f"cte:{gauges[0].get('cte_key') or artifact_key(gauges[0])}", "expansion coefficient of the gauges",
-                     "alpha", "1/K",
-                     cte.cte_per_k, cte.u_per_k, "rectangular", source=cte.source), r20 * dT))
-    for t in sensor_terms(sensors, chans, -np.eye(m), f"rodcal:{scan_id}", None, default_resolution_mm, "calibration"):
+    b.add(
+        Term(
+            Input(
+                f"temperature:{scan_id}",
+                f"temperature of the gauges during {scan_id}",
+                "T",
+                "degC",
+                temperature.temperature_c,
+                temperature.u_c,
+                "rectangular",
+                source=temperature.source,
+            ),
+            r20 * cte.cte_per_k,
+        )
+    )
+    b.add(
+        Term(
+            Input(
+                f"cte:{gauges[0].get('cte_key') or artifact_key(gauges[0])}",
+                "expansion coefficient of the gauges",
+                "alpha",
+                "1/K",
+                cte.cte_per_k,
+                cte.u_per_k,
+                "rectangular",
+                source=cte.source,
+            ),
+            r20 * dT,
+        )
+    )
+    for t in sensor_terms(
+        sensors, chans, -np.eye(m), f"rodcal:{scan_id}", None, default_resolution_mm, "calibration"
+    ):
         b.add(t)
     return b.merged()
 
@@ -227,8 +316,9 @@ def layer_jacobian(channels, channel: int) -> np.ndarray:
     return np.array([2.0 if int(c) == int(channel) else 0.0 for c in channels])
 
 
-def rod_calibration_rows(cal: RodCalibration, night: str, certificate_path: str | None, raw_sha256: str,
-                         p: float) -> list[dict]:
+def rod_calibration_rows(
+    cal: RodCalibration, night: str, certificate_path: str | None, raw_sha256: str, p: float
+) -> list[dict]:
     """Return the ``calibrations`` rows of a rod calibration.
 
     Return the ``calibrations`` rows of a rod calibration (one per layer; l0 with its standard uncertainty
@@ -237,24 +327,46 @@ def rod_calibration_rows(cal: RodCalibration, night: str, certificate_path: str 
     blob = json.dumps(_to_dict(cal), sort_keys=True, allow_nan=False)
     rows = []
     for j, lay in enumerate(cal.layers):
-        rows.append({
-            "calibration_id": cal.calibration_id, "device_id": cal.device_id, "device_type": "rod",
-            "scan_id": cal.scan_ids[0], "channel": int(lay.channel), "l0_mm": float(lay.l0_mm), "h_mm": float(lay.h_mm),
-            "phi_rad": float(lay.phi_rad), "d_mm": float(lay.d_mm), "gamma_rad": float(lay.gamma_rad),
-            "u_l0_mm": float(cal.u_l0_mm[j]), "method": cal.method, "certificate_path": certificate_path,
-            "night": night, "valid_from": night, "status": "valid", "raw_sha256": raw_sha256,
-            "residual_rms_mm": float(cal.residual_rms_mm), "coverage_probability": float(p),
-            "calibration_json": blob,
-        })
+        rows.append(
+            {
+                "calibration_id": cal.calibration_id,
+                "device_id": cal.device_id,
+                "device_type": "rod",
+                "scan_id": cal.scan_ids[0],
+                "channel": int(lay.channel),
+                "l0_mm": float(lay.l0_mm),
+                "h_mm": float(lay.h_mm),
+                "phi_rad": float(lay.phi_rad),
+                "d_mm": float(lay.d_mm),
+                "gamma_rad": float(lay.gamma_rad),
+                "u_l0_mm": float(cal.u_l0_mm[j]),
+                "method": cal.method,
+                "certificate_path": certificate_path,
+                "night": night,
+                "valid_from": night,
+                "status": "valid",
+                "raw_sha256": raw_sha256,
+                "residual_rms_mm": float(cal.residual_rms_mm),
+                "coverage_probability": float(p),
+                "calibration_json": blob,
+            }
+        )
     return rows
 
 
 def _to_dict(cal: RodCalibration) -> dict[str, Any]:
-    return {"calibration_id": cal.calibration_id, "device_id": cal.device_id, "scan_ids": list(cal.scan_ids),
-            "method": cal.method, "l0_nominal_mm": [float(x) for x in cal.l0_nominal_mm],
-            "u_l0_mm": [float(x) for x in cal.u_l0_mm], "budget": json_ready(cal.budget.to_dict()),
-            "gauges": [json_ready(g) for g in cal.gauges], "iterations": cal.iterations,
-            "residual_rms_mm": float(cal.residual_rms_mm)}
+    return {
+        "calibration_id": cal.calibration_id,
+        "device_id": cal.device_id,
+        "scan_ids": list(cal.scan_ids),
+        "method": cal.method,
+        "l0_nominal_mm": [float(x) for x in cal.l0_nominal_mm],
+        "u_l0_mm": [float(x) for x in cal.u_l0_mm],
+        "budget": json_ready(cal.budget.to_dict()),
+        "gauges": [json_ready(g) for g in cal.gauges],
+        "iterations": cal.iterations,
+        "residual_rms_mm": float(cal.residual_rms_mm),
+    }
 
 
 def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget | None]:
@@ -287,8 +399,9 @@ def pose_means_of_scan(scan, cleaning=None) -> tuple[list[int], np.ndarray, floa
     return [int(c) for c in mat.channels], means, u_mean, sensors
 
 
-def rod_diameters_with_budget(scan, layer_rows: list[dict], unc_cfg: dict, calibration_id: str | None = None,
-                              cleaning=None) -> list[dict]:
+def rod_diameters_with_budget(
+    scan, layer_rows: list[dict], unc_cfg: dict, calibration_id: str | None = None, cleaning=None
+) -> list[dict]:
     """Hole diameters of a rod scan with their GUM budgets.
 
     The joint rod solve with the calibration's layers (``layer_rows``: its ``calibrations`` rows,
@@ -321,18 +434,36 @@ def rod_diameters_with_budget(scan, layer_rows: list[dict], unc_cfg: dict, calib
     for j, ch in enumerate(channels):
         f = feat.get(ch) or f"layer{ch}"
         du = diameter_uncertainty(
-            float(sol.diameter_mm[j]), jac_params=None if cal_budget is None else layer_jacobian(cal_chans, ch),
-            calibration_budget=cal_budget, u_readings_mm=float(sol.u_diameter_mm[j]), dof_readings=float("inf"),
-            temperature=temp, cte=cte, artifact=dict(scan.meta.get("artifact") or {}), scan_id=f"{scan.scan_id}/{f}",
-            p=float(unc_cfg["coverage_probability"]), default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
-            calibration_id=calibration_id)
-        out.append({"channel": ch, "feature": f, "diameter_mm": float(sol.diameter_mm[j]), "du": du,
-                    "poses": int(means.shape[0]), "condition": float(sol.condition), "traceable": cal_budget is not None})
+            float(sol.diameter_mm[j]),
+            jac_params=None if cal_budget is None else layer_jacobian(cal_chans, ch),
+            calibration_budget=cal_budget,
+            u_readings_mm=float(sol.u_diameter_mm[j]),
+            dof_readings=float("inf"),
+            temperature=temp,
+            cte=cte,
+            artifact=dict(scan.meta.get("artifact") or {}),
+            scan_id=f"{scan.scan_id}/{f}",
+            p=float(unc_cfg["coverage_probability"]),
+            default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
+            calibration_id=calibration_id,
+        )
+        out.append(
+            {
+                "channel": ch,
+                "feature": f,
+                "diameter_mm": float(sol.diameter_mm[j]),
+                "du": du,
+                "poses": int(means.shape[0]),
+                "condition": float(sol.condition),
+                "traceable": cal_budget is not None,
+            }
+        )
     return out
 
 
-def rod_verifications(scan, diameters: list[dict], calibration_id: str, unc_cfg: dict, lab_cfg: dict,
-                      tolerance_mm: float) -> list[dict]:
+def rod_verifications(
+    scan, diameters: list[dict], calibration_id: str, unc_cfg: dict, lab_cfg: dict, tolerance_mm: float
+) -> list[dict]:
     """Return the ``verifications`` rows of a rod scan in certified gauges.
 
     ``verifications`` rows of a rod scan in certified gauges: each layer's diameter at 20 degC
@@ -347,11 +478,22 @@ def rod_verifications(scan, diameters: list[dict], calibration_id: str, unc_cfg:
     rows = []
     for d in diameters:
         g = gauges[d["channel"]]
-        v = verify_budget(d["du"], g, tolerance_mm, float(unc_cfg["coverage_probability"]), lab_cfg["decision_rule"],
-                          float(lab_cfg["guard_band_factor"]))
+        v = verify_budget(
+            d["du"],
+            g,
+            tolerance_mm,
+            float(unc_cfg["coverage_probability"]),
+            lab_cfg["decision_rule"],
+            float(lab_cfg["guard_band_factor"]),
+        )
         row = verification_row(scan.scan_id, scan.meta["device"]["id"], g["id"], v)
-        row.update(calibration_id=calibration_id, temperature_assumed=d["du"].temperature.assumed,
-                   feature=d["feature"], budget=list(v.budget_rows), certificate=g.get("certificate"),
-                   raw_files={f"{scan.scan_id}/{k}": h for k, h in sorted(scan.sha256.items())})
+        row.update(
+            calibration_id=calibration_id,
+            temperature_assumed=d["du"].temperature.assumed,
+            feature=d["feature"],
+            budget=list(v.budget_rows),
+            certificate=g.get("certificate"),
+            raw_files={f"{scan.scan_id}/{k}": h for k, h in sorted(scan.sha256.items())},
+        )
         rows.append(row)
     return rows

@@ -120,7 +120,9 @@ TRI_CONTRACT: dict = {
 
 
 def draw_beam_directions(
-    rng: np.random.Generator, n_beams: int = 3, min_separation_rad: float = TRI_CONTRACT["min_beam_separation_rad"]
+    rng: np.random.Generator,
+    n_beams: int = 3,
+    min_separation_rad: float = TRI_CONTRACT["min_beam_separation_rad"],
 ) -> np.ndarray:
     """Beam directions beta, uniform on the circle, every pair at least ``min_separation_rad`` apart.
 
@@ -194,8 +196,15 @@ def draw_speed_profile(
     if not change:
         rpm = float(rng.uniform(rpm_lo, rpm_hi))
         spr = int(rng.integers(spr_lo, spr_hi + 1))
-        return {"rpm_nominal": rpm, "samples_per_rev": spr, "sample_rate_hz": spr * rpm / 60.0,
-                "rpm_profile": (), "speed_factor": None, "ramp_start_s": None, "ramp_end_s": None}
+        return {
+            "rpm_nominal": rpm,
+            "samples_per_rev": spr,
+            "sample_rate_hz": spr * rpm / 60.0,
+            "rpm_profile": (),
+            "speed_factor": None,
+            "ramp_start_s": None,
+            "ramp_end_s": None,
+        }
     bins = contract["speed_factor"]
     lo, hi = bins[int(rng.integers(0, len(bins)))]
     f = float(rng.uniform(lo, hi))
@@ -208,8 +217,15 @@ def draw_speed_profile(
     k2 = max(k1 + 1, int(round((t1 + ramp) * spindle_rate_hz)))
     t1_s, t2_s = (float(x) for x in spindle_tick_s(np.array([k1, k2]), spindle_rate_hz))
     profile = ((0.0, rpm), (t1_s, rpm), (t2_s, rpm * f))
-    return {"rpm_nominal": rpm, "samples_per_rev": spr, "sample_rate_hz": spr * rpm / 60.0,
-            "rpm_profile": profile, "speed_factor": f, "ramp_start_s": t1_s, "ramp_end_s": t2_s}
+    return {
+        "rpm_nominal": rpm,
+        "samples_per_rev": spr,
+        "sample_rate_hz": spr * rpm / 60.0,
+        "rpm_profile": profile,
+        "speed_factor": f,
+        "ramp_start_s": t1_s,
+        "ramp_end_s": t2_s,
+    }
 
 
 def reading_span_mm(
@@ -235,7 +251,9 @@ def reading_span_mm(
     c = len(beta_rad)
     beams = Beams(tuple(range(1, c + 1)), np.asarray(beta_rad, float), np.asarray(rho_mm, float), np.zeros(c))
     phi = np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)[:, None]
-    return tri_spindle_readings(phi, np.asarray(offset_xy_mm, float), beams, Bore((0.0, 0.0), float(radius_mm)))
+    return tri_spindle_readings(
+        phi, np.asarray(offset_xy_mm, float), beams, Bore((0.0, 0.0), float(radius_mm))
+    )
 
 
 # --------------------------------------------------------------------------- three-sensor calibration
@@ -303,7 +321,9 @@ def draw_tri_calibration(
     n_rev = int(rng.integers(contract["n_rev"][0], contract["n_rev"][1] + 1))
     spindle_rate_hz = float(rng.uniform(*contract["spindle_rate_hz"]))
     change = bool(rng.random() < contract["p_speed_change"])
-    speed = draw_speed_profile(rng, change=change, n_rev=n_rev, spindle_rate_hz=spindle_rate_hz, contract=contract)
+    speed = draw_speed_profile(
+        rng, change=change, n_rev=n_rev, spindle_rate_hz=spindle_rate_hz, contract=contract
+    )
     encoder = bool(rng.random() < contract["p_encoder"])
     direction = "ccw" if rng.random() < 0.5 else "cw"
     phase = float(rng.uniform(0.0, 2 * math.pi))
@@ -326,25 +346,55 @@ def draw_tri_calibration(
         from borescan.discrepancy.battery import TRI_EFFECTS, random_effect, scale_effect
 
         name = str(rng.choice(TRI_EFFECTS))
-        effects = [scale_effect(random_effect(name, rng, channels, speed["rpm_nominal"] / 60.0, speed["sample_rate_hz"]),
-                                effect_scale)]
+        effects = [
+            scale_effect(
+                random_effect(name, rng, channels, speed["rpm_nominal"] / 60.0, speed["sample_rate_hz"]),
+                effect_scale,
+            )
+        ]
     sim_seed = int(rng.integers(0, 2**31 - 1))
 
     scene = simulate.TriScene(
-        beams=beams, bore_center_xy_mm=(float(C[0]), float(C[1])), bore_radius_20_mm=R,
-        spindle_xy_mm=(float(S[0]), float(S[1])), rpm_nominal=speed["rpm_nominal"], phase_rad=phase,
-        direction=direction, sample_rate_hz=speed["sample_rate_hz"], range_mm=tuple(float(r) for r in range_mm),
-        cte_per_k=contract["cte_per_k"], temperature_c=20.0, rpm_profile=speed["rpm_profile"],
+        beams=beams,
+        bore_center_xy_mm=(float(C[0]), float(C[1])),
+        bore_radius_20_mm=R,
+        spindle_xy_mm=(float(S[0]), float(S[1])),
+        rpm_nominal=speed["rpm_nominal"],
+        phase_rad=phase,
+        direction=direction,
+        sample_rate_hz=speed["sample_rate_hz"],
+        range_mm=tuple(float(r) for r in range_mm),
+        cte_per_k=contract["cte_per_k"],
+        temperature_c=20.0,
+        rpm_profile=speed["rpm_profile"],
     )
     d_nom = round(2 * R)
-    artifact = {"id": f"RG-{d_nom}", "type": "ring_gauge", "nominal_diameter_mm": float(d_nom),
-                "certified_diameter_mm": 2 * R, "u_diameter_mm": contract["gauge_u_diameter_mm"], "k": 2,
-                "certificate": f"RG-{d_nom}/{night[:4]}/{2 * R:.6f}", "cte_per_k": contract["cte_per_k"]}
+    artifact = {
+        "id": f"RG-{d_nom}",
+        "type": "ring_gauge",
+        "nominal_diameter_mm": float(d_nom),
+        "certified_diameter_mm": 2 * R,
+        "u_diameter_mm": contract["gauge_u_diameter_mm"],
+        "k": 2,
+        "certificate": f"RG-{d_nom}/{night[:4]}/{2 * R:.6f}",
+        "cte_per_k": contract["cte_per_k"],
+    }
     sim = simulate.simulate_tri_spindle(
-        scene, scan_id=scan_id, night=night, kind="calibration", n_rev=float(n_rev), effects=effects,
-        noise_mm=noise_mm, seed=sim_seed, device_id=device_id or f"TRI-{scan_id}"[:64], nominal_beams=nominal,
-        artifact=artifact, spindle_label="P1", center_xy_mm=(float(C_rep[0]), float(C_rep[1])) if known else None,
-        encoder=encoder, spindle_rate_hz=spindle_rate_hz,
+        scene,
+        scan_id=scan_id,
+        night=night,
+        kind="calibration",
+        n_rev=float(n_rev),
+        effects=effects,
+        noise_mm=noise_mm,
+        seed=sim_seed,
+        device_id=device_id or f"TRI-{scan_id}"[:64],
+        nominal_beams=nominal,
+        artifact=artifact,
+        spindle_label="P1",
+        center_xy_mm=(float(C_rep[0]), float(C_rep[1])) if known else None,
+        encoder=encoder,
+        spindle_rate_hz=spindle_rate_hz,
     )
     # sporadic nulls
     vals = sim.lds["value_mm"].to_numpy().astype(float, copy=True)
@@ -405,8 +455,15 @@ def draw_tri_calibration(
     return replace(sim, meta=meta, lds=lds, spindle=spindle, truth=truth)
 
 
-def draw_tri_measurement(rng: np.random.Generator, *, scan_id: str, night: str, calibration, effect_free: bool = True,
-                         effect_scale: float = 1.0):
+def draw_tri_measurement(
+    rng: np.random.Generator,
+    *,
+    scan_id: str,
+    night: str,
+    calibration,
+    effect_free: bool = True,
+    effect_scale: float = 1.0,
+):
     """Return a rotating measurement of a part on the device of a calibration scan.
 
     The calibration scan is drawn by :func:`draw_tri_calibration` (``calibration``: that SimulatedScan): the
@@ -423,26 +480,55 @@ def draw_tri_measurement(rng: np.random.Generator, *, scan_id: str, night: str, 
 
     c = calibration.truth["contract"]
     R = float(c["bore_radius_mm"]) + float(rng.uniform(-0.05, 0.05))
-    scene = replace(simulate.TriScene.from_dict(calibration.truth["scene"]), bore_radius_20_mm=R,
-                    phase_rad=float(rng.uniform(0.0, 2 * math.pi)))
+    scene = replace(
+        simulate.TriScene.from_dict(calibration.truth["scene"]),
+        bore_radius_20_mm=R,
+        phase_rad=float(rng.uniform(0.0, 2 * math.pi)),
+    )
     effects = []
     if not effect_free:
         name = str(rng.choice(TRI_EFFECTS))
-        effects = [scale_effect(random_effect(name, rng, (1, 2, 3), scene.rpm_nominal / 60.0, scene.sample_rate_hz),
-                                effect_scale)]
-    art = {"id": f"P-{scan_id}"[:40], "type": "part", "nominal_diameter_mm": float(round(2 * R, 1)),
-           "cte_per_k": TRI_CONTRACT["cte_per_k"]}
+        effects = [
+            scale_effect(
+                random_effect(name, rng, (1, 2, 3), scene.rpm_nominal / 60.0, scene.sample_rate_hz),
+                effect_scale,
+            )
+        ]
+    art = {
+        "id": f"P-{scan_id}"[:40],
+        "type": "part",
+        "nominal_diameter_mm": float(round(2 * R, 1)),
+        "cte_per_k": TRI_CONTRACT["cte_per_k"],
+    }
     sim = simulate.simulate_tri_spindle(
-        scene, scan_id=scan_id, night=night, kind="measurement", n_rev=float(c["n_rev"]), effects=effects,
-        noise_mm=float(c["noise_mm"]), seed=int(rng.integers(0, 2**31 - 1)), device_id=calibration.meta["device"]["id"],
-        nominal_beams=Beams.from_nominal(c["nominal_beams"]), artifact=art, spindle_label="BORE",
-        encoder=bool(c["encoder"]), spindle_rate_hz=float(c["spindle_rate_hz"]),
-        started_at=simulate.started_at_plus(night, 23, 0))
+        scene,
+        scan_id=scan_id,
+        night=night,
+        kind="measurement",
+        n_rev=float(c["n_rev"]),
+        effects=effects,
+        noise_mm=float(c["noise_mm"]),
+        seed=int(rng.integers(0, 2**31 - 1)),
+        device_id=calibration.meta["device"]["id"],
+        nominal_beams=Beams.from_nominal(c["nominal_beams"]),
+        artifact=art,
+        spindle_label="BORE",
+        encoder=bool(c["encoder"]),
+        spindle_rate_hz=float(c["spindle_rate_hz"]),
+        started_at=simulate.started_at_plus(night, 23, 0),
+    )
     truth = dict(sim.truth)
-    truth["contract"] = {"generator": "borescan.scenarios.draw_tri_measurement", "effect_free": not effects,
-                         "calibration_scan_id": calibration.meta["scan_id"], "bore_radius_mm": R,
-                         "beams": c["beams"], "nominal_beams": c["nominal_beams"], "encoder": c["encoder"],
-                         "speed_change": c["speed_change"], "noise_mm": c["noise_mm"]}
+    truth["contract"] = {
+        "generator": "borescan.scenarios.draw_tri_measurement",
+        "effect_free": not effects,
+        "calibration_scan_id": calibration.meta["scan_id"],
+        "bore_radius_mm": R,
+        "beams": c["beams"],
+        "nominal_beams": c["nominal_beams"],
+        "encoder": c["encoder"],
+        "speed_change": c["speed_change"],
+        "noise_mm": c["noise_mm"],
+    }
     return replace(sim, truth=truth)
 
 
@@ -474,23 +560,45 @@ ROD_CONTRACT: dict = {
 def _artifact(kind: str, ident: str, diameters_mm, z_mm, cte_per_k: float, u_mm: float = 0.0015) -> dict:
     """Return a ring-gauge set (certified diameters, u, k = 2) or a part (nominal diameters only)."""
     d = [float(x) for x in diameters_mm]
-    feats = [{"id": f"H{j + 1}", "z_mm": float(z), "nominal_diameter_mm": float(round(x, 1))}
-             for j, (x, z) in enumerate(zip(d, z_mm))]
+    feats = [
+        {"id": f"H{j + 1}", "z_mm": float(z), "nominal_diameter_mm": float(round(x, 1))}
+        for j, (x, z) in enumerate(zip(d, z_mm))
+    ]
     if kind == "ring_gauge":
         for f, x in zip(feats, d):
             f.update({"certified_diameter_mm": x, "u_diameter_mm": u_mm, "k": 2})
-        art = {"id": ident, "type": "ring_gauge", "nominal_diameter_mm": feats[0]["nominal_diameter_mm"],
-               "certified_diameter_mm": d[0], "u_diameter_mm": u_mm, "k": 2, "certificate": f"{ident}/cert",
-               "cte_per_k": cte_per_k}
+        art = {
+            "id": ident,
+            "type": "ring_gauge",
+            "nominal_diameter_mm": feats[0]["nominal_diameter_mm"],
+            "certified_diameter_mm": d[0],
+            "u_diameter_mm": u_mm,
+            "k": 2,
+            "certificate": f"{ident}/cert",
+            "cte_per_k": cte_per_k,
+        }
     else:
-        art = {"id": ident, "type": "part", "nominal_diameter_mm": feats[0]["nominal_diameter_mm"], "cte_per_k": cte_per_k}
+        art = {
+            "id": ident,
+            "type": "part",
+            "nominal_diameter_mm": feats[0]["nominal_diameter_mm"],
+            "cte_per_k": cte_per_k,
+        }
     if len(feats) > 1:
         art["features"] = feats
     return art
 
 
-def draw_tri_static(rng: np.random.Generator, *, scan_id: str, night: str, beams: Beams | None = None,
-                    effect_free: bool = True, contract: dict = STATIC_CONTRACT, effect_scale: float = 1.0):
+def draw_tri_static(
+    rng: np.random.Generator,
+    *,
+    scan_id: str,
+    night: str,
+    beams: Beams | None = None,
+    effect_free: bool = True,
+    contract: dict = STATIC_CONTRACT,
+    effect_scale: float = 1.0,
+):
     """Return a static three-sensor set drawn over the contract.
 
     A ring gauge with a certified diameter (a verification) or a part with a nominal one (a measurement), 3-12
@@ -530,20 +638,44 @@ def draw_tri_static(rng: np.random.Generator, *, scan_id: str, night: str, beams
 
         name = str(rng.choice(("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift")))
         effects = [scale_effect(random_effect(name, rng, (1, 2, 3), 1.0, 1000.0), effect_scale)]
-    scene = simulate.TriScene(beams=dev, bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=R,
-                              range_mm=tuple(float(x) for x in range_mm))
+    scene = simulate.TriScene(
+        beams=dev,
+        bore_center_xy_mm=(0.0, 0.0),
+        bore_radius_20_mm=R,
+        range_mm=tuple(float(x) for x in range_mm),
+    )
     sim = simulate.simulate_tri_static(
-        scene, xy, ang, scan_id=scan_id, night=night, kind="verification" if kind == "ring_gauge" else "measurement",
-        samples_per_pose=int(rng.integers(contract["samples_per_pose"][0], contract["samples_per_pose"][1] + 1)),
-        effects=effects, noise_mm=noise, seed=int(rng.integers(0, 2**31 - 1)), device_id=f"TRI-{scan_id}"[:64],
-        nominal_beams=dev, artifact=art)
+        scene,
+        xy,
+        ang,
+        scan_id=scan_id,
+        night=night,
+        kind="verification" if kind == "ring_gauge" else "measurement",
+        samples_per_pose=int(
+            rng.integers(contract["samples_per_pose"][0], contract["samples_per_pose"][1] + 1)
+        ),
+        effects=effects,
+        noise_mm=noise,
+        seed=int(rng.integers(0, 2**31 - 1)),
+        device_id=f"TRI-{scan_id}"[:64],
+        nominal_beams=dev,
+        artifact=art,
+    )
     meta = json.loads(json.dumps(sim.meta))
     for sensor in meta.get("sensors", []):  # the data sheet states the repeatability the scan has
         sensor["repeatability_mm"] = noise
     truth = dict(sim.truth)
-    truth["contract"] = {"generator": "borescan.scenarios.draw_tri_static", "effect_free": not effects,
-                         "beams": dev.to_nominal(), "bore_radius_mm": R, "diameter_mm": 2 * R, "artifact": kind,
-                         "noise_mm": noise, "n_poses": n_p, "range_mm": [float(x) for x in range_mm]}
+    truth["contract"] = {
+        "generator": "borescan.scenarios.draw_tri_static",
+        "effect_free": not effects,
+        "beams": dev.to_nominal(),
+        "bore_radius_mm": R,
+        "diameter_mm": 2 * R,
+        "artifact": kind,
+        "noise_mm": noise,
+        "n_poses": n_p,
+        "range_mm": [float(x) for x in range_mm],
+    }
     return replace(sim, meta=meta, truth=truth)
 
 
@@ -564,23 +696,52 @@ def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -
     m = int(rng.integers(contract["n_holes"][0], contract["n_holes"][1] + 1))
     r = rng.uniform(*contract["hole_radius_mm"], m)
     h = rng.uniform(50.0, 150.0) + np.concatenate([[0.0], np.cumsum(rng.uniform(100.0, 300.0, m - 1))])
-    layers = [RodLayer(j + 1, float(h[j]), float(r[j] - 4.0), phi_rad=float(rng.uniform(-0.1, 0.1)),
-                       d_mm=float(rng.uniform(-0.5, 0.5)), gamma_rad=float(np.deg2rad(rng.uniform(-0.5, 0.5))))
-              for j in range(m)]
+    layers = [
+        RodLayer(
+            j + 1,
+            float(h[j]),
+            float(r[j] - 4.0),
+            phi_rad=float(rng.uniform(-0.1, 0.1)),
+            d_mm=float(rng.uniform(-0.5, 0.5)),
+            gamma_rad=float(np.deg2rad(rng.uniform(-0.5, 0.5))),
+        )
+        for j in range(m)
+    ]
     off = rng.uniform(-0.05, 0.05, (m, 2))
     holes = [Hole((float(off[j, 0]), float(off[j, 1])), float(r[j])) for j in range(m)]
     e, te = contract["eccentricity_mm"] * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
-    axis = RodAxis(float(e * np.cos(te)), float(e * np.sin(te)),
-                   float(np.deg2rad(rng.uniform(0.0, contract["deflection_deg"]))), float(rng.uniform(0, 2 * np.pi)))
+    axis = RodAxis(
+        float(e * np.cos(te)),
+        float(e * np.sin(te)),
+        float(np.deg2rad(rng.uniform(0.0, contract["deflection_deg"]))),
+        float(rng.uniform(0, 2 * np.pi)),
+    )
     n = int(rng.integers(contract["n_poses"][0], contract["n_poses"][1] + 1))
     k = int(rng.integers(contract["samples_per_pose"][0], contract["samples_per_pose"][1] + 1))
     sig = float(rng.uniform(*contract["noise_mm"]))
     alpha = rng.uniform(0, 2 * np.pi, n)
-    return {"layers": layers, "holes": holes, "axis": axis, "alpha": alpha, "n": n, "k": k, "m": m, "noise": sig}
+    return {
+        "layers": layers,
+        "holes": holes,
+        "axis": axis,
+        "alpha": alpha,
+        "n": n,
+        "k": k,
+        "m": m,
+        "noise": sig,
+    }
 
 
-def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_free: bool = True,
-                  contract: dict = ROD_CONTRACT, effect_scale: float = 1.0, calibration: bool = False):
+def draw_rod_scan(
+    rng: np.random.Generator,
+    *,
+    scan_id: str,
+    night: str,
+    effect_free: bool = True,
+    contract: dict = ROD_CONTRACT,
+    effect_scale: float = 1.0,
+    calibration: bool = False,
+):
     """Return a rod scan drawn over the contract.
 
     The geometry is :func:`draw_rod_geometry`'s, in a ring-gauge set with certified diameters (half of the
@@ -597,34 +758,74 @@ def draw_rod_scan(rng: np.random.Generator, *, scan_id: str, night: str, effect_
     from borescan import simulate
 
     g = draw_rod_geometry(rng, contract)
-    layers = [replace(lay, l0_mm=float(hh.radius_mm - contract["range_mm"] / 2))
-              for lay, hh in zip(g["layers"], g["holes"])]
+    layers = [
+        replace(lay, l0_mm=float(hh.radius_mm - contract["range_mm"] / 2))
+        for lay, hh in zip(g["layers"], g["holes"])
+    ]
     kind = "ring_gauge" if rng.random() < contract["p_ring_gauge"] or calibration else "part"
-    art = _artifact(kind, f"{'RGS' if kind == 'ring_gauge' else 'CYL'}-{scan_id}"[:40],
-                    [2 * hh.radius_mm for hh in g["holes"]], [lay.h_mm for lay in layers], 11.5e-6)
-    scene = simulate.RodScene(layers=tuple(layers), holes=tuple(g["holes"]), axis=g["axis"],
-                              range_mm=(contract["range_mm"],) * g["m"])
+    art = _artifact(
+        kind,
+        f"{'RGS' if kind == 'ring_gauge' else 'CYL'}-{scan_id}"[:40],
+        [2 * hh.radius_mm for hh in g["holes"]],
+        [lay.h_mm for lay in layers],
+        11.5e-6,
+    )
+    scene = simulate.RodScene(
+        layers=tuple(layers),
+        holes=tuple(g["holes"]),
+        axis=g["axis"],
+        range_mm=(contract["range_mm"],) * g["m"],
+    )
     effects = []
     if not effect_free:
         from borescan.discrepancy.battery import random_effect, scale_effect
 
-        name = str(rng.choice(("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift", "quantization",
-                               "outliers", "thermal_expansion", "beam_tilt")))
-        effects = [scale_effect(random_effect(name, rng, scene.channels, 0.1, scene.sample_rate_hz), effect_scale)]
-    sim = simulate.simulate_rod(scene, g["alpha"], samples_per_pose=g["k"], noise_mm=g["noise"],
-                                seed=int(rng.integers(0, 2**31 - 1)), artifact=art, nominal_layers=layers,
-                                effects=effects, scan_id=scan_id, night=night, device_id=f"ROD-{scan_id}"[:64],
-                                kind="calibration" if calibration else "verification" if kind == "ring_gauge"
-                                else "measurement")
+        name = str(
+            rng.choice(
+                (
+                    "sensor_offset",
+                    "sensor_gain",
+                    "sensor_nonlinearity",
+                    "sensor_drift",
+                    "quantization",
+                    "outliers",
+                    "thermal_expansion",
+                    "beam_tilt",
+                )
+            )
+        )
+        effects = [
+            scale_effect(random_effect(name, rng, scene.channels, 0.1, scene.sample_rate_hz), effect_scale)
+        ]
+    sim = simulate.simulate_rod(
+        scene,
+        g["alpha"],
+        samples_per_pose=g["k"],
+        noise_mm=g["noise"],
+        seed=int(rng.integers(0, 2**31 - 1)),
+        artifact=art,
+        nominal_layers=layers,
+        effects=effects,
+        scan_id=scan_id,
+        night=night,
+        device_id=f"ROD-{scan_id}"[:64],
+        kind="calibration" if calibration else "verification" if kind == "ring_gauge" else "measurement",
+    )
     meta = json.loads(json.dumps(sim.meta))
     for sensor in meta.get("sensors", []):  # the data sheet states the repeatability the scan has
         sensor["repeatability_mm"] = g["noise"]
     truth = dict(sim.truth)
-    truth["contract"] = {"generator": "borescan.scenarios.draw_rod_scan", "effect_free": not effects,
-                         "artifact": kind, "diameters_mm": [2 * hh.radius_mm for hh in g["holes"]],
-                         "n_poses": g["n"], "samples_per_pose": g["k"], "noise_mm": g["noise"],
-                         "eccentricity_mm": float(np.hypot(g["axis"].dx_mm, g["axis"].dy_mm)),
-                         "deflection_rad": g["axis"].omega_rad}
+    truth["contract"] = {
+        "generator": "borescan.scenarios.draw_rod_scan",
+        "effect_free": not effects,
+        "artifact": kind,
+        "diameters_mm": [2 * hh.radius_mm for hh in g["holes"]],
+        "n_poses": g["n"],
+        "samples_per_pose": g["k"],
+        "noise_mm": g["noise"],
+        "eccentricity_mm": float(np.hypot(g["axis"].dx_mm, g["axis"].dy_mm)),
+        "deflection_rad": g["axis"].omega_rad,
+    }
     return replace(sim, meta=meta, truth=truth)
 
 
@@ -644,8 +845,13 @@ def battery_rng(seed: int, index: int) -> np.random.Generator:
 
 
 #: battery scan kinds -> (id prefix, child-seed stream): calibration scans keep the stream they always had
-BATTERY_KINDS = {"calibration": ("CT", 0), "static": ("CS", 1), "rod": ("CR", 2), "measurement": ("CM", 3),
-                 "rod_calibration": ("CK", 4)}
+BATTERY_KINDS = {
+    "calibration": ("CT", 0),
+    "static": ("CS", 1),
+    "rod": ("CR", 2),
+    "measurement": ("CM", 3),
+    "rod_calibration": ("CK", 4),
+}
 
 
 def battery_scan_id(seed: int, index: int, kind: str = "calibration") -> str:
@@ -737,29 +943,44 @@ def write_battery(
         night, sid = _battery_night(i, per_night), battery_scan_id(seed, i, kind)
         rng = _kind_rng(seed, i, kind)
         if kind == "measurement":
-            cal = draw_tri_calibration(_kind_rng(seed, i, "calibration"), scan_id=battery_scan_id(seed, i), night=night)
-            sim = draw_tri_measurement(rng, scan_id=sid, night=night, calibration=cal, effect_free=free,
-                                       effect_scale=factor)
+            cal = draw_tri_calibration(
+                _kind_rng(seed, i, "calibration"), scan_id=battery_scan_id(seed, i), night=night
+            )
+            sim = draw_tri_measurement(
+                rng, scan_id=sid, night=night, calibration=cal, effect_free=free, effect_scale=factor
+            )
         elif kind == "rod_calibration":
-            sim = draw_rod_scan(rng, scan_id=sid, night=night, effect_free=free, effect_scale=factor, calibration=True)
+            sim = draw_rod_scan(
+                rng, scan_id=sid, night=night, effect_free=free, effect_scale=factor, calibration=True
+            )
         else:
-            draw = {"calibration": draw_tri_calibration, "static": draw_tri_static, "rod": draw_rod_scan}[kind]
+            draw = {"calibration": draw_tri_calibration, "static": draw_tri_static, "rod": draw_rod_scan}[
+                kind
+            ]
             sim = draw(rng, scan_id=sid, night=night, effect_free=free, effect_scale=factor)
         paths.append(simulate.write_simulated(sim, raw, truth))
         if progress is not None:
             progress(k, len(jobs), paths[-1])
-    index = {"generator": "borescan.scenarios.write_battery", "seed": int(seed), "n": int(n),
-             "effect_free": bool(effect_free), "kinds": list(kinds), "effect_share": effect_share,
-             "effect_scale_range": list(effect_scale_range), "per_night": int(per_night),
-             "scan_ids": [battery_scan_id(seed, i, kind) for kind, i in jobs]}
+    index = {
+        "generator": "borescan.scenarios.write_battery",
+        "seed": int(seed),
+        "n": int(n),
+        "effect_free": bool(effect_free),
+        "kinds": list(kinds),
+        "effect_share": effect_share,
+        "effect_scale_range": list(effect_scale_range),
+        "per_night": int(per_night),
+        "scan_ids": [battery_scan_id(seed, i, kind) for kind, i in jobs],
+    }
     tmp = out_dir / ".battery.json.tmp"
     tmp.write_text(json.dumps(index, indent=2) + "\n")
     os.replace(tmp, out_dir / "battery.json")
     return paths
 
 
-def _effect_draw(seed: int, index: int, kind: str, effect_free: bool, share: float | None,
-                 scale_range: tuple[float, float]) -> tuple[bool, float]:
+def _effect_draw(
+    seed: int, index: int, kind: str, effect_free: bool, share: float | None, scale_range: tuple[float, float]
+) -> tuple[bool, float]:
     """(effect_free, size factor) of scan ``index`` of ``kind`` (see :func:`write_battery`)."""
     if share is None:
         return effect_free, 1.0
@@ -768,6 +989,8 @@ def _effect_draw(seed: int, index: int, kind: str, effect_free: bool, share: flo
     lo, hi = (float(x) for x in scale_range)
     if not 0.0 < lo <= hi:
         raise ValueError(f"effect size factors must satisfy 0 < low <= high, got {scale_range}")
-    rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(index), 10 + BATTERY_KINDS[kind][1])))
+    rng = np.random.default_rng(
+        np.random.SeedSequence(int(seed), spawn_key=(int(index), 10 + BATTERY_KINDS[kind][1]))
+    )
     free = bool(rng.random() >= share)
     return free, float(math.exp(rng.uniform(math.log(lo), math.log(hi))))

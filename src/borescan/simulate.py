@@ -40,7 +40,14 @@ from borescan.geometry import (
     RodLayer,
 )
 from borescan.physics.rod import RodBase, rod_forward, rod_holes_with_effects
-from borescan.physics.tri import TriBase, TriDevice, TriStaticState, bore_with_effects, device_angle, tri_forward
+from borescan.physics.tri import (
+    TriBase,
+    TriDevice,
+    TriStaticState,
+    bore_with_effects,
+    device_angle,
+    tri_forward,
+)
 
 __all__ = [
     "YANG_RING_GAUGE_DIAMETER_MM",
@@ -234,8 +241,12 @@ class RodScene:
         return {
             "layers": [layer_dict(lay) for lay in self.layers],
             "holes": [{"center_xy_mm": list(h.center_xy_mm), "radius_mm": h.radius_mm} for h in self.holes],
-            "axis": {"dx_mm": self.axis.dx_mm, "dy_mm": self.axis.dy_mm,
-                     "omega_rad": self.axis.omega_rad, "omega_az_rad": self.axis.omega_az_rad},
+            "axis": {
+                "dx_mm": self.axis.dx_mm,
+                "dy_mm": self.axis.dy_mm,
+                "omega_rad": self.axis.omega_rad,
+                "omega_az_rad": self.axis.omega_az_rad,
+            },
             "range_mm": list(self.range_mm),
             "sample_rate_hz": self.sample_rate_hz,
             "cte_per_k": self.cte_per_k,
@@ -245,14 +256,28 @@ class RodScene:
     @classmethod
     def from_dict(cls, d: dict) -> "RodScene":
         """Inverse of :meth:`to_dict` (e.g. ``truth["scene"]`` of a rod scan)."""
-        layers = tuple(RodLayer(channel=int(x["channel"]), h_mm=x["h"], l0_mm=x["l0"], phi_rad=x["phi"],
-                                d_mm=x["d"], gamma_rad=x["gamma"]) for x in d["layers"])
+        layers = tuple(
+            RodLayer(
+                channel=int(x["channel"]),
+                h_mm=x["h"],
+                l0_mm=x["l0"],
+                phi_rad=x["phi"],
+                d_mm=x["d"],
+                gamma_rad=x["gamma"],
+            )
+            for x in d["layers"]
+        )
         holes = tuple(Hole(tuple(h["center_xy_mm"]), h["radius_mm"]) for h in d["holes"])
         a = d["axis"]
-        return cls(layers=layers, holes=holes,
-                   axis=RodAxis(a["dx_mm"], a["dy_mm"], a["omega_rad"], a["omega_az_rad"]),
-                   range_mm=tuple(d["range_mm"]), sample_rate_hz=d["sample_rate_hz"],
-                   cte_per_k=d["cte_per_k"], temperature_c=d["temperature_c"])
+        return cls(
+            layers=layers,
+            holes=holes,
+            axis=RodAxis(a["dx_mm"], a["dy_mm"], a["omega_rad"], a["omega_az_rad"]),
+            range_mm=tuple(d["range_mm"]),
+            sample_rate_hz=d["sample_rate_hz"],
+            cte_per_k=d["cte_per_k"],
+            temperature_c=d["temperature_c"],
+        )
 
 
 def layer_dict(lay: RodLayer) -> dict:
@@ -261,8 +286,14 @@ def layer_dict(lay: RodLayer) -> dict:
     Return a rod layer in the spec's names, as ``device.nominal.layers`` of scan.json lists it: channel,
     h [mm], phi [rad], d [mm], gamma [rad], l0 [mm] (inverse of :meth:`RodScene.from_dict`'s layers).
     """
-    return {"channel": int(lay.channel), "h": float(lay.h_mm), "phi": float(lay.phi_rad),
-            "d": float(lay.d_mm), "gamma": float(lay.gamma_rad), "l0": float(lay.l0_mm)}
+    return {
+        "channel": int(lay.channel),
+        "h": float(lay.h_mm),
+        "phi": float(lay.phi_rad),
+        "d": float(lay.d_mm),
+        "gamma": float(lay.gamma_rad),
+        "l0": float(lay.l0_mm),
+    }
 
 
 # --------------------------------------------------------------------------- forward models
@@ -361,8 +392,9 @@ def rod_base(scene: RodScene) -> RodBase:
 
     That is the layers, the effect-free holes and the axis.
     """
-    return RodBase(tuple(scene.layers), tuple(scene.holes), scene.axis, float(scene.cte_per_k),
-                   tuple(scene.range_mm))
+    return RodBase(
+        tuple(scene.layers), tuple(scene.holes), scene.axis, float(scene.cte_per_k), tuple(scene.range_mm)
+    )
 
 
 def rod_readings_with_effects(
@@ -407,8 +439,9 @@ def default_rod_scene(**overrides: Any) -> RodScene:
     scene = RodScene(
         layers=(
             RodLayer(channel=1, h_mm=100.0, l0_mm=71.0, phi_rad=0.0, d_mm=0.3, gamma_rad=math.radians(0.3)),
-            RodLayer(channel=2, h_mm=400.0, l0_mm=71.0, phi_rad=0.05, d_mm=-0.2,
-                     gamma_rad=math.radians(-0.2)),
+            RodLayer(
+                channel=2, h_mm=400.0, l0_mm=71.0, phi_rad=0.05, d_mm=-0.2, gamma_rad=math.radians(-0.2)
+            ),
         ),
         holes=(Hole((0.0, 0.0), 75.004), Hole((0.02, -0.015), 74.997)),
         axis=RodAxis(dx_mm=1.2, dy_mm=-0.8, omega_rad=math.radians(0.1), omega_az_rad=0.7),
@@ -445,21 +478,35 @@ def _t_ns(sample: np.ndarray, rate_hz: float) -> np.ndarray:
 
 
 def _finish_readings(
-    v: np.ndarray, channels, effects: list[Effect], device_type: str, range_mm, noise_mm: float,
+    v: np.ndarray,
+    channels,
+    effects: list[Effect],
+    device_type: str,
+    range_mm,
+    noise_mm: float,
     rng: np.random.Generator,
 ) -> np.ndarray:
     """Noise, then quantization and outliers, then null (NaN) outside [0, range_mm]."""
     v = v + rng.normal(0.0, noise_mm, v.shape) if noise_mm > 0 else v.copy()
-    v = apply_effects(v, np.zeros(v.shape[0]), channels, effects, device_type=device_type,
-                      range_mm=range_mm, stages=("output",), rng=rng)
+    v = apply_effects(
+        v,
+        np.zeros(v.shape[0]),
+        channels,
+        effects,
+        device_type=device_type,
+        range_mm=range_mm,
+        stages=("output",),
+        rng=rng,
+    )
     rng_arr = np.asarray(range_mm, dtype=float)
     with np.errstate(invalid="ignore"):
         v[(v < 0.0) | (v > rng_arr)] = np.nan
     return v
 
 
-def _lds_frame(sample: np.ndarray, t_ns: np.ndarray, channels, values: np.ndarray,
-               pose: np.ndarray | None) -> pl.DataFrame:
+def _lds_frame(
+    sample: np.ndarray, t_ns: np.ndarray, channels, values: np.ndarray, pose: np.ndarray | None
+) -> pl.DataFrame:
     """Long lds frame sorted by sample, then sensor, with the spec's dtypes."""
     n, c = values.shape
     vals = values.reshape(-1)
@@ -476,11 +523,18 @@ def _lds_frame(sample: np.ndarray, t_ns: np.ndarray, channels, values: np.ndarra
     return pl.DataFrame(cols)
 
 
-def _sensors_meta(device_id: str, channels, range_mm, model: str, linearity_fs: float,
-                  repeatability_mm: float) -> list[dict]:
+def _sensors_meta(
+    device_id: str, channels, range_mm, model: str, linearity_fs: float, repeatability_mm: float
+) -> list[dict]:
     return [
-        {"channel": int(c), "model": model, "serial": f"{device_id}-S{int(c)}", "range_mm": float(r),
-         "linearity_fs": linearity_fs, "repeatability_mm": repeatability_mm}
+        {
+            "channel": int(c),
+            "model": model,
+            "serial": f"{device_id}-S{int(c)}",
+            "range_mm": float(r),
+            "linearity_fs": linearity_fs,
+            "repeatability_mm": repeatability_mm,
+        }
         for c, r in zip(channels, range_mm)
     ]
 
@@ -492,8 +546,9 @@ def _temperature(scene_t: float, effects: list[Effect]) -> float:
     return scene_t
 
 
-def _base_meta(scan_id, night, kind, started_at, device, sample_rate_hz, sensors, artifact, temperature_c,
-               seed, extra) -> dict:
+def _base_meta(
+    scan_id, night, kind, started_at, device, sample_rate_hz, sensors, artifact, temperature_c, seed, extra
+) -> dict:
     if started_at is None:
         started_at = f"{night}T22:00:00Z"
     meta = {
@@ -526,14 +581,24 @@ def _default_artifact(diameter_mm: float, cte_per_k: float) -> dict:
     else:
         ident = f"RG-{round(diameter_mm)}"
         cert = f"{ident}/{diameter_mm:.6f}"
-    return {"id": ident, "type": "ring_gauge", "nominal_diameter_mm": diameter_mm,
-            "certified_diameter_mm": diameter_mm, "u_diameter_mm": 0.0015, "k": 2,
-            "certificate": cert, "cte_per_k": cte_per_k}
+    return {
+        "id": ident,
+        "type": "ring_gauge",
+        "nominal_diameter_mm": diameter_mm,
+        "certified_diameter_mm": diameter_mm,
+        "u_diameter_mm": 0.0015,
+        "k": 2,
+        "certificate": cert,
+        "cte_per_k": cte_per_k,
+    }
 
 
 def _tri_device(device_id: str, nominal_beams: Beams | None, truth_beams: Beams) -> dict:
-    return {"id": device_id, "type": "tri_lds",
-            "nominal": {"beams": (nominal_beams or truth_beams).to_nominal()}}
+    return {
+        "id": device_id,
+        "type": "tri_lds",
+        "nominal": {"beams": (nominal_beams or truth_beams).to_nominal()},
+    }
 
 
 def simulate_tri_spindle(
@@ -583,31 +648,63 @@ def simulate_tri_spindle(
     ts_ns = _t_ns(np.arange(m, dtype=np.int64), spindle_rate_hz)
     kinematic = [e for e in effects if e.spec.stage == "kinematics"]
     angle = tri_phi(scene, ts_ns * 1e-9, kinematic)  # the spec: phi(t) is the encoder angle itself
-    spindle = pl.DataFrame({
-        "t_ns": pl.Series("t_ns", ts_ns, dtype=pl.Int64),
-        "angle_rad": pl.Series("angle_rad", angle if encoder else [None] * m, dtype=pl.Float64),
-        "x_mm": pl.Series("x_mm", np.full(m, float(scene.spindle_xy_mm[0])), dtype=pl.Float64),
-        "y_mm": pl.Series("y_mm", np.full(m, float(scene.spindle_xy_mm[1])), dtype=pl.Float64),
-        "rpm": pl.Series("rpm", scene.commanded_rpm(ts_ns * 1e-9), dtype=pl.Float64),
-    })
-    extra = {"spindle": {"rpm_nominal": float(scene.rpm_nominal), "direction": scene.direction,
-                         "position": {"label": spindle_label, "x_mm": float(scene.spindle_xy_mm[0]),
-                                      "y_mm": float(scene.spindle_xy_mm[1])}}}
+    spindle = pl.DataFrame(
+        {
+            "t_ns": pl.Series("t_ns", ts_ns, dtype=pl.Int64),
+            "angle_rad": pl.Series("angle_rad", angle if encoder else [None] * m, dtype=pl.Float64),
+            "x_mm": pl.Series("x_mm", np.full(m, float(scene.spindle_xy_mm[0])), dtype=pl.Float64),
+            "y_mm": pl.Series("y_mm", np.full(m, float(scene.spindle_xy_mm[1])), dtype=pl.Float64),
+            "rpm": pl.Series("rpm", scene.commanded_rpm(ts_ns * 1e-9), dtype=pl.Float64),
+        }
+    )
+    extra = {
+        "spindle": {
+            "rpm_nominal": float(scene.rpm_nominal),
+            "direction": scene.direction,
+            "position": {
+                "label": spindle_label,
+                "x_mm": float(scene.spindle_xy_mm[0]),
+                "y_mm": float(scene.spindle_xy_mm[1]),
+            },
+        }
+    }
     if center_xy_mm is not None:
-        extra["center"] = {"x_mm": float(center_xy_mm[0]), "y_mm": float(center_xy_mm[1]),
-                           "method": "centring scan"}
+        extra["center"] = {
+            "x_mm": float(center_xy_mm[0]),
+            "y_mm": float(center_xy_mm[1]),
+            "method": "centring scan",
+        }
     extra.update(extra_meta or {})
     meta = _base_meta(
-        scan_id, night, kind, started_at, _tri_device(device_id, nominal_beams, scene.beams),
-        scene.sample_rate_hz, _sensors_meta(device_id, channels, scene.range_mm, "HG-C1030", 0.001, 0.010),
+        scan_id,
+        night,
+        kind,
+        started_at,
+        _tri_device(device_id, nominal_beams, scene.beams),
+        scene.sample_rate_hz,
+        _sensors_meta(device_id, channels, scene.range_mm, "HG-C1030", 0.001, 0.010),
         artifact or _default_artifact(2 * scene.bore_radius_20_mm, scene.cte_per_k),
-        _temperature(scene.temperature_c, effects), seed, extra,
+        _temperature(scene.temperature_c, effects),
+        seed,
+        extra,
     )
-    bore = bore_with_effects(scene.bore(), sort_effects(effects, "tri_lds", channels)["bore"],
-                              scene.cte_per_k)
-    truth = _truth(meta, scene.to_dict(), effects, noise_mm, seed, n_samples=n,
-                   extra={"encoder": encoder, "n_rev": n_rev, "bore_radius_mm": bore.radius_mm,
-                          "reading_mean_mm": np.nanmean(v_true, axis=0).tolist()})
+    bore = bore_with_effects(
+        scene.bore(), sort_effects(effects, "tri_lds", channels)["bore"], scene.cte_per_k
+    )
+    truth = _truth(
+        meta,
+        scene.to_dict(),
+        effects,
+        noise_mm,
+        seed,
+        n_samples=n,
+        extra={
+            "encoder": encoder,
+            "n_rev": n_rev,
+            "bore_radius_mm": bore.radius_mm,
+            "reading_mean_mm": np.nanmean(v_true, axis=0).tolist(),
+        },
+    )
     return SimulatedScan(meta, lds, spindle, truth)
 
 
@@ -683,18 +780,34 @@ def simulate_tri_static(
     v = _finish_readings(v_true, channels, effects, "tri_lds", scene.range_mm, noise_mm, rng)
     lds = _lds_frame(sample, t_ns, channels, v, pose)
     meta = _base_meta(
-        scan_id, night, kind, started_at, _tri_device(device_id, nominal_beams, scene.beams),
-        scene.sample_rate_hz, _sensors_meta(device_id, channels, scene.range_mm, "HG-C1030", 0.001, 0.010),
+        scan_id,
+        night,
+        kind,
+        started_at,
+        _tri_device(device_id, nominal_beams, scene.beams),
+        scene.sample_rate_hz,
+        _sensors_meta(device_id, channels, scene.range_mm, "HG-C1030", 0.001, 0.010),
         artifact or _default_artifact(2 * scene.bore_radius_20_mm, scene.cte_per_k),
-        _temperature(scene.temperature_c, effects), seed, extra_meta,
+        _temperature(scene.temperature_c, effects),
+        seed,
+        extra_meta,
     )
-    bore = bore_with_effects(scene.bore(), sort_effects(effects, "tri_lds", channels)["bore"],
-                              scene.cte_per_k)
-    poses = [{"pose": p, "device_xy_mm": xy[p].tolist(), "device_angle_rad": float(ang[p])}
-             for p in range(len(ang))]
-    truth = _truth(meta, scene.to_dict(), effects, noise_mm, seed, n_samples=len(sample),
-                   extra={"poses": poses,
-                          "bore_radius_mm": bore.radius_mm, "diameter_mm": 2 * bore.radius_mm})
+    bore = bore_with_effects(
+        scene.bore(), sort_effects(effects, "tri_lds", channels)["bore"], scene.cte_per_k
+    )
+    poses = [
+        {"pose": p, "device_xy_mm": xy[p].tolist(), "device_angle_rad": float(ang[p])}
+        for p in range(len(ang))
+    ]
+    truth = _truth(
+        meta,
+        scene.to_dict(),
+        effects,
+        noise_mm,
+        seed,
+        n_samples=len(sample),
+        extra={"poses": poses, "bore_radius_mm": bore.radius_mm, "diameter_mm": 2 * bore.radius_mm},
+    )
     return SimulatedScan(meta, lds, None, truth)
 
 
@@ -745,30 +858,64 @@ def simulate_rod(
     if nominal_layers is None:
         nominal_layers = [replace(lay, d_mm=0.0, gamma_rad=0.0, phi_rad=0.0) for lay in scene.layers]
     if artifact is None:
-        artifact = {"id": "PART-2H", "type": "part", "nominal_diameter_mm": 150.0,
-                    "cte_per_k": scene.cte_per_k,
-                    "features": [{"id": f, "z_mm": float(lay.h_mm), "nominal_diameter_mm": 150.0}
-                                 for f, lay in zip(features, scene.layers)]}
-    device = {"id": device_id, "type": "rod",
-              "nominal": {"layers": [layer_dict(lay) for lay in nominal_layers]}}
-    extra = {"rod": {"layers": [{"channel": int(lay.channel), "feature": f, "h_mm": float(lay.h_mm)}
-                                for f, lay in zip(features, scene.layers)]}}
+        artifact = {
+            "id": "PART-2H",
+            "type": "part",
+            "nominal_diameter_mm": 150.0,
+            "cte_per_k": scene.cte_per_k,
+            "features": [
+                {"id": f, "z_mm": float(lay.h_mm), "nominal_diameter_mm": 150.0}
+                for f, lay in zip(features, scene.layers)
+            ],
+        }
+    device = {
+        "id": device_id,
+        "type": "rod",
+        "nominal": {"layers": [layer_dict(lay) for lay in nominal_layers]},
+    }
+    extra = {
+        "rod": {
+            "layers": [
+                {"channel": int(lay.channel), "feature": f, "h_mm": float(lay.h_mm)}
+                for f, lay in zip(features, scene.layers)
+            ]
+        }
+    }
     extra.update(extra_meta or {})
     meta = _base_meta(
-        scan_id, night, kind, started_at, device, scene.sample_rate_hz,
+        scan_id,
+        night,
+        kind,
+        started_at,
+        device,
+        scene.sample_rate_hz,
         _sensors_meta(device_id, channels, scene.range_mm, "OD2-P30W04", 0.0025, 0.020),
-        artifact, _temperature(scene.temperature_c, effects), seed, extra,
+        artifact,
+        _temperature(scene.temperature_c, effects),
+        seed,
+        extra,
     )
-    radii = [h.radius_mm for h in rod_holes_with_effects(scene.holes, sort_effects(effects, "rod", channels)["bore"],
-                                                         scene.cte_per_k)]
-    truth = _truth(meta, scene.to_dict(), effects, noise_mm, seed, n_samples=len(sample),
-                   extra={"alpha_rad": alpha.tolist(),
-                          "diameters_mm": {f: 2 * r for f, r in zip(features, radii)}})
+    radii = [
+        h.radius_mm
+        for h in rod_holes_with_effects(
+            scene.holes, sort_effects(effects, "rod", channels)["bore"], scene.cte_per_k
+        )
+    ]
+    truth = _truth(
+        meta,
+        scene.to_dict(),
+        effects,
+        noise_mm,
+        seed,
+        n_samples=len(sample),
+        extra={"alpha_rad": alpha.tolist(), "diameters_mm": {f: 2 * r for f, r in zip(features, radii)}},
+    )
     return SimulatedScan(meta, lds, None, truth)
 
 
-def _truth(meta: dict, scene: dict, effects: list[Effect], noise_mm: float, seed: int, n_samples: int,
-           extra: dict) -> dict:
+def _truth(
+    meta: dict, scene: dict, effects: list[Effect], noise_mm: float, seed: int, n_samples: int, extra: dict
+) -> dict:
     return {
         "scan_id": meta["scan_id"],
         "night": meta["night"],

@@ -30,8 +30,16 @@ import polars as pl
 
 __all__ = ["SourceNights", "read_source", "copy_nights", "synthetic_night"]
 
-_COPIED_TABLES = ("scans", "scan_files", "calibrations", "calibration_scans", "diameters", "verifications",
-                  "findings", "artifacts")
+_COPIED_TABLES = (
+    "scans",
+    "scan_files",
+    "calibrations",
+    "calibration_scans",
+    "diameters",
+    "verifications",
+    "findings",
+    "artifacts",
+)
 
 
 @dataclass
@@ -190,8 +198,14 @@ def _write(df: pl.DataFrame, path: Path) -> None:
     tmp.replace(path)
 
 
-def copy_nights(src: SourceNights, dest_root: str | os.PathLike, start: str, indices: Iterable[int],
-                copies: int = 1, stage_root: str | os.PathLike | None = None) -> list[str]:
+def copy_nights(
+    src: SourceNights,
+    dest_root: str | os.PathLike,
+    start: str,
+    indices: Iterable[int],
+    copies: int = 1,
+    stage_root: str | os.PathLike | None = None,
+) -> list[str]:
     """Write synthetic nights ``indices`` (0-based from ``start``) into ``dest_root``; return their dates.
 
     ``stage_root`` (default ``dest_root``) is where the ``stage/`` tables go, so the nights can be
@@ -213,7 +227,9 @@ def copy_nights(src: SourceNights, dest_root: str | os.PathLike, start: str, ind
                     per.setdefault(name, []).append(ren.frame(df, shift))
                 _copy_files(src, dest, src_night, ren)
         for name, frames in per.items():
-            _write(pl.concat(frames, how="diagonal_relaxed"), stage / "stage" / name / f"night={night}.parquet")
+            _write(
+                pl.concat(frames, how="diagonal_relaxed"), stage / "stage" / name / f"night={night}.parquet"
+            )
         written.append(night)
     return written
 

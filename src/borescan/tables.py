@@ -90,87 +90,149 @@ def _cols(spec: str) -> tuple[Column, ...]:
 
 _T = [
     # (scan_id, night): a scan id reused in a later night is quarantined but still recorded.
-    Table("scans", _cols("scan_id:text night:date device_id:text device_type:text kind:text artifact_id:text "
-                         "started_at:timestamp status:text reason:text raw_sha256:text raw_path:text simulated:bool "
-                         # the artifact's certificate as this scan's scan.json gives it (kept per scan: history
-                         # that a later scan naming the artifact cannot rewrite)
-                         "artifact_certificate:text artifact_certified_diameter_mm:float artifact_u_diameter_mm:float "
-                         "artifact_features_certified:text"),
-          ("scan_id", "night"), primary=True),
-    Table("scan_files", _cols("scan_id:text file:text sha256:text bytes:int night:date"),
-          ("scan_id", "night", "file"), primary=True),
-    Table("artifacts", _cols("artifact_id:text type:text certificate:text nominal_diameter_mm:float "
-                             "certified_diameter_mm:float u_diameter_mm:float k:float cte_per_k:float"),
-          ("artifact_id",), primary=True),
-    Table("calibrations", _cols(
-        "calibration_id:text device_id:text device_type:text scan_id:text channel:channel "
-        "rho_mm:float d_b_mm:float beta_rad:float u_rho_mm:float u_d_b_mm:float u_beta_rad:float "
-        "l0_mm:float h_mm:float phi_rad:float d_mm:float gamma_rad:float "
-        "u_l0_mm:float u_h_mm:float u_phi_rad:float u_d_mm:float u_gamma_rad:float "
-        "method:text certificate_path:text certificate_sha256:text "
-        "night:date valid_from:date status:text raw_sha256:text "
-        # GUM budget (issue 19): expanded uncertainties (not U_*: DuckDB names ignore case), k, gauge
-        # temperature
-        "expanded_u_beta_rad:float expanded_u_rho_mm:float "
-        "expanded_u_d_b_mm:float k_beta:float k_rho:float k_d_b:float "
-        "coverage_probability:float temperature_c:float temperature_assumed:bool recalibration_due:date "
-        # the mirror check of each beam (issue 36): resolved, or two solutions with the wrong sign's
-        # probability
-        "rho_sign_resolved:bool mirror_delta_chi2:float mirror_depth_predicted:float p_wrong_sign:float "
-        "valid_bore_min_mm:float valid_bore_max_mm:float offset_to_resolve_mm:float"),
-          ("calibration_id", "channel"), primary=True),
-    Table("calibration_scans", _cols("calibration_id:text scan_id:text"), ("calibration_id", "scan_id"), primary=True),
-    Table("diameters", _cols("diameter_id:text scan_id:text night:date device_id:text artifact_id:text feature:text "
-                             "diameter_mm:float u_diameter_mm:float calibration_id:text method:text raw_sha256:text "
-                             # the part's nominal and tolerance (scan.json / config) and the verdict at 20 degC
-                             "nominal_diameter_mm:float tolerance_mm:float deviation_mm:float conformity:text "
-                             # diameter_mm is at temperature_c; diameter_20_mm at 20 degC (ISO 1), with the budget
-                             "temperature_c:float u_temperature_c:float temperature_assumed:bool cte_per_k:float "
-                             "cte_assumed:bool diameter_20_mm:float u_diameter_20_mm:float expanded_u_diameter_20_mm:float "
-                             "expanded_u_diameter_mm:float k:float k_at_t:float coverage_probability:float nu_eff:float "
-                             "coverage_method:text thermal_correction_mm:float u_thermal_correction_mm:float "
-                             "budget_json:text"),
-          ("diameter_id", "method")),
-    Table("verifications", _cols("scan_id:text night:date device_id:text artifact_id:text measured_mm:float "
-                                 "certified_mm:float error_mm:float tolerance_mm:float passed:bool calibration_id:text "
-                                 # measured_mm is at 20 degC (= certified_mm + error_mm); as measured at temperature_c
-                                 "measured_at_t_mm:float temperature_c:float temperature_assumed:bool "
-                                 "expected_at_t_mm:float u_measured_mm:float u_error_mm:float expanded_u_error_mm:float "
-                                 "k:float acceptance_limit_mm:float decision_rule:text conformity:text budget_json:text "
-                                 # a rod verifies each layer in its own gauge: one row per layer (null for tri_lds)
-                                 "feature:text"),
-          ("scan_id", "calibration_id", "feature")),
-    Table("findings", _cols("scan_id:text night:date! verdict:text effect:text channel:channel parameters:text "
-                            "gap_before_mm:float gap_after_mm:float noise_floor_mm:float uncertainties:text"),
-          ("scan_id", "effect", "channel")),
-    Table("quarantine", _cols("scan_id:text night:date stage:text file:text reason:text"),
-          ("scan_id", "night", "stage", "file")),
+    Table(
+        "scans",
+        _cols(
+            "scan_id:text night:date device_id:text device_type:text kind:text artifact_id:text "
+            "started_at:timestamp status:text reason:text raw_sha256:text raw_path:text simulated:bool "
+            # the artifact's certificate as this scan's scan.json gives it (kept per scan: history
+            # that a later scan naming the artifact cannot rewrite)
+            "artifact_certificate:text artifact_certified_diameter_mm:float artifact_u_diameter_mm:float "
+            "artifact_features_certified:text"
+        ),
+        ("scan_id", "night"),
+        primary=True,
+    ),
+    Table(
+        "scan_files",
+        _cols("scan_id:text file:text sha256:text bytes:int night:date"),
+        ("scan_id", "night", "file"),
+        primary=True,
+    ),
+    Table(
+        "artifacts",
+        _cols(
+            "artifact_id:text type:text certificate:text nominal_diameter_mm:float "
+            "certified_diameter_mm:float u_diameter_mm:float k:float cte_per_k:float"
+        ),
+        ("artifact_id",),
+        primary=True,
+    ),
+    Table(
+        "calibrations",
+        _cols(
+            "calibration_id:text device_id:text device_type:text scan_id:text channel:channel "
+            "rho_mm:float d_b_mm:float beta_rad:float u_rho_mm:float u_d_b_mm:float u_beta_rad:float "
+            "l0_mm:float h_mm:float phi_rad:float d_mm:float gamma_rad:float "
+            "u_l0_mm:float u_h_mm:float u_phi_rad:float u_d_mm:float u_gamma_rad:float "
+            "method:text certificate_path:text certificate_sha256:text "
+            "night:date valid_from:date status:text raw_sha256:text "
+            # GUM budget (issue 19): expanded uncertainties (not U_*: DuckDB names ignore case), k, gauge
+            # temperature
+            "expanded_u_beta_rad:float expanded_u_rho_mm:float "
+            "expanded_u_d_b_mm:float k_beta:float k_rho:float k_d_b:float "
+            "coverage_probability:float temperature_c:float temperature_assumed:bool recalibration_due:date "
+            # the mirror check of each beam (issue 36): resolved, or two solutions with the wrong sign's
+            # probability
+            "rho_sign_resolved:bool mirror_delta_chi2:float mirror_depth_predicted:float p_wrong_sign:float "
+            "valid_bore_min_mm:float valid_bore_max_mm:float offset_to_resolve_mm:float"
+        ),
+        ("calibration_id", "channel"),
+        primary=True,
+    ),
+    Table(
+        "calibration_scans",
+        _cols("calibration_id:text scan_id:text"),
+        ("calibration_id", "scan_id"),
+        primary=True,
+    ),
+    Table(
+        "diameters",
+        _cols(
+            "diameter_id:text scan_id:text night:date device_id:text artifact_id:text feature:text "
+            "diameter_mm:float u_diameter_mm:float calibration_id:text method:text raw_sha256:text "
+            # the part's nominal and tolerance (scan.json / config) and the verdict at 20 degC
+            "nominal_diameter_mm:float tolerance_mm:float deviation_mm:float conformity:text "
+            # diameter_mm is at temperature_c; diameter_20_mm at 20 degC (ISO 1), with the budget
+            "temperature_c:float u_temperature_c:float temperature_assumed:bool cte_per_k:float "
+            "cte_assumed:bool diameter_20_mm:float u_diameter_20_mm:float expanded_u_diameter_20_mm:float "
+            "expanded_u_diameter_mm:float k:float k_at_t:float coverage_probability:float nu_eff:float "
+            "coverage_method:text thermal_correction_mm:float u_thermal_correction_mm:float "
+            "budget_json:text"
+        ),
+        ("diameter_id", "method"),
+    ),
+    Table(
+        "verifications",
+        _cols(
+            "scan_id:text night:date device_id:text artifact_id:text measured_mm:float "
+            "certified_mm:float error_mm:float tolerance_mm:float passed:bool calibration_id:text "
+            # measured_mm is at 20 degC (= certified_mm + error_mm); as measured at temperature_c
+            "measured_at_t_mm:float temperature_c:float temperature_assumed:bool "
+            "expected_at_t_mm:float u_measured_mm:float u_error_mm:float expanded_u_error_mm:float "
+            "k:float acceptance_limit_mm:float decision_rule:text conformity:text budget_json:text "
+            # a rod verifies each layer in its own gauge: one row per layer (null for tri_lds)
+            "feature:text"
+        ),
+        ("scan_id", "calibration_id", "feature"),
+    ),
+    Table(
+        "findings",
+        _cols(
+            "scan_id:text night:date! verdict:text effect:text channel:channel parameters:text "
+            "gap_before_mm:float gap_after_mm:float noise_floor_mm:float uncertainties:text"
+        ),
+        ("scan_id", "effect", "channel"),
+    ),
+    Table(
+        "quarantine",
+        _cols("scan_id:text night:date stage:text file:text reason:text"),
+        ("scan_id", "night", "stage", "file"),
+    ),
     # issue 22: pooled examination of a device's spindle scans of a window of nights (one row per named
     # effect, per device-model term, or one row with a null effect); nights and scan_ids comma-separated
-    Table("pooled_findings", _cols(
-        "night:date device_id:text nights:text scan_ids:text verdict:text effect:text "
-        "channel:channel term:text "
-        "group:text parameters:text uncertainties:text evidence_scans:text in_device_model:bool "
-        "device_model:text "
-        "absorbed:text gap_before_mm:float gap_after_mm:float noise_floor_mm:float "
-        "findings_path:text reason:text"),
-          ("night", "device_id", "term")),
+    Table(
+        "pooled_findings",
+        _cols(
+            "night:date device_id:text nights:text scan_ids:text verdict:text effect:text "
+            "channel:channel term:text "
+            "group:text parameters:text uncertainties:text evidence_scans:text in_device_model:bool "
+            "device_model:text "
+            "absorbed:text gap_before_mm:float gap_after_mm:float noise_floor_mm:float "
+            "findings_path:text reason:text"
+        ),
+        ("night", "device_id", "term"),
+    ),
     # issue 22: change of a beam parameter between consecutive calibrations (the later one valid from
     # the night)
-    Table("calibration_drift", _cols(
-        "night:date device_id:text channel:channel parameter:text calibration_id_before:text "
-        "calibration_id_after:text valid_from_before:date valid_from_after:date value_before:float "
-        "value_after:float change:float u_before:float u_after:float u_combined:float "
-        "change_over_u:float "
-        "multiple:float flagged:bool explained_by:text explanation:text"),
-          ("device_id", "channel", "parameter", "calibration_id_after")),
+    Table(
+        "calibration_drift",
+        _cols(
+            "night:date device_id:text channel:channel parameter:text calibration_id_before:text "
+            "calibration_id_after:text valid_from_before:date valid_from_after:date value_before:float "
+            "value_after:float change:float u_before:float u_after:float u_combined:float "
+            "change_over_u:float "
+            "multiple:float flagged:bool explained_by:text explanation:text"
+        ),
+        ("device_id", "channel", "parameter", "calibration_id_after"),
+    ),
     # issue 40: the settings each night was processed with (borescan.night_config), and each
     # recomputation of past nights with other settings (night: the first night recomputed)
-    Table("night_config", _cols("night:date config_hash:text config_json:text recorded_by:text"),
-          ("night",), primary=True),
-    Table("config_changes", _cols("night:date change_id:text nights:text old_hashes:text new_hash:text "
-                                  "changed_keys:text archive:text"),
-          ("change_id",), primary=True),
+    Table(
+        "night_config",
+        _cols("night:date config_hash:text config_json:text recorded_by:text"),
+        ("night",),
+        primary=True,
+    ),
+    Table(
+        "config_changes",
+        _cols(
+            "night:date change_id:text nights:text old_hashes:text new_hash:text "
+            "changed_keys:text archive:text"
+        ),
+        ("change_id",),
+        primary=True,
+    ),
 ]
 
 #: every history table by name, in catalog order

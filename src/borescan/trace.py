@@ -37,7 +37,6 @@ def _rows(con: duckdb.DuckDBPyConnection, sql: str, params: list | tuple = ()) -
     return [dict(zip(cols, r, strict=True)) for r in cur.fetchall()]
 
 
-
 class _Tracer:
     def __init__(self, con: duckdb.DuckDBPyConnection, results_root: Path):
         self.con = con
@@ -51,12 +50,29 @@ class _Tracer:
             node["missing"] = True
             return node
         s = rows[0]
-        node.update({k: s.get(k) for k in ("night", "kind", "device_id", "device_type", "artifact_id",
-                                           "started_at", "status", "reason", "raw_path", "raw_sha256",
-                                           "artifact_certificate", "artifact_certified_diameter_mm",
-                                           "artifact_u_diameter_mm")})
-        node["files"] = _rows(self.con, "SELECT file, sha256, bytes FROM scan_files WHERE scan_id = ? ORDER BY file",
-                              [scan_id])
+        node.update(
+            {
+                k: s.get(k)
+                for k in (
+                    "night",
+                    "kind",
+                    "device_id",
+                    "device_type",
+                    "artifact_id",
+                    "started_at",
+                    "status",
+                    "reason",
+                    "raw_path",
+                    "raw_sha256",
+                    "artifact_certificate",
+                    "artifact_certified_diameter_mm",
+                    "artifact_u_diameter_mm",
+                )
+            }
+        )
+        node["files"] = _rows(
+            self.con, "SELECT file, sha256, bytes FROM scan_files WHERE scan_id = ? ORDER BY file", [scan_id]
+        )
         return node
 
     def artifact(self, artifact_id: str | None) -> dict[str, Any] | None:
@@ -88,8 +104,11 @@ class _Tracer:
         if not path:
             return None
         cj = catalog.certificate_json_path(self.root, path)
-        node: dict[str, Any] = {"path": path, "json_path": os.path.relpath(cj, self.root),
-                                "catalog_sha256": cal.get("certificate_sha256")}
+        node: dict[str, Any] = {
+            "path": path,
+            "json_path": os.path.relpath(cj, self.root),
+            "catalog_sha256": cal.get("certificate_sha256"),
+        }
         node["json_sha256"] = rawio.sha256_file(cj) if cj.is_file() else None
         node["issues"] = self.issues(cal["calibration_id"])
         return node
@@ -105,34 +124,55 @@ class _Tracer:
         out = []
         for i in issues_of(self.root, calibration_id):
             cj = self.root / i.folder / "certificate.json"
-            out.append({"document_id": i.document_id, "issue": i.issue, "issue_date": i.issue_date,
-                        "replaces": i.replaces, "folder": i.folder,
-                        "recorded_sha256": i.files_sha256.get("certificate.json"),
-                        "json_sha256": rawio.sha256_file(cj) if cj.is_file() else None})
+            out.append(
+                {
+                    "document_id": i.document_id,
+                    "issue": i.issue,
+                    "issue_date": i.issue_date,
+                    "replaces": i.replaces,
+                    "folder": i.folder,
+                    "recorded_sha256": i.files_sha256.get("certificate.json"),
+                    "json_sha256": rawio.sha256_file(cj) if cj.is_file() else None,
+                }
+            )
         return out
 
     def calibration(self, calibration_id: str) -> dict[str, Any]:
-        rows = _rows(self.con, "SELECT * FROM calibrations WHERE calibration_id = ? ORDER BY channel",
-                     [calibration_id])
+        rows = _rows(
+            self.con, "SELECT * FROM calibrations WHERE calibration_id = ? ORDER BY channel", [calibration_id]
+        )
         if not rows:
             return {"calibration_id": calibration_id, "missing": True}
         first = rows[0]
-        node: dict[str, Any] = {k: first.get(k) for k in ("calibration_id", "device_id", "method", "valid_from",
-                                                          "status")}
+        node: dict[str, Any] = {
+            k: first.get(k) for k in ("calibration_id", "device_id", "method", "valid_from", "status")
+        }
         # the lifecycle as of the newest night (saved query calibration_lifecycle), when the catalog has it
         try:
-            life = _rows(self.con, "SELECT status, valid_until, status_night, reason FROM calibration_lifecycle "
-                                   "WHERE calibration_id = ?", [calibration_id])
+            life = _rows(
+                self.con,
+                "SELECT status, valid_until, status_night, reason FROM calibration_lifecycle "
+                "WHERE calibration_id = ?",
+                [calibration_id],
+            )
         except duckdb.Error:
             life = []
         if life:
-            node.update(status=life[0]["status"], valid_until=life[0]["valid_until"],
-                        status_reason=life[0]["reason"] if life[0]["status"] != "valid" else None)
+            node.update(
+                status=life[0]["status"],
+                valid_until=life[0]["valid_until"],
+                status_reason=life[0]["reason"] if life[0]["status"] != "valid" else None,
+            )
         node["channels"] = [r["channel"] for r in rows]
         node["certificate"] = self.certificate(first)
-        scan_ids = [r["scan_id"] for r in _rows(
-            self.con, "SELECT scan_id FROM calibration_scans WHERE calibration_id = ? ORDER BY scan_id",
-            [calibration_id])]
+        scan_ids = [
+            r["scan_id"]
+            for r in _rows(
+                self.con,
+                "SELECT scan_id FROM calibration_scans WHERE calibration_id = ? ORDER BY scan_id",
+                [calibration_id],
+            )
+        ]
         if not scan_ids:
             scan_ids = sorted({r["scan_id"] for r in rows if r["scan_id"]})
         scans = []
@@ -149,13 +189,29 @@ class _Tracer:
             "FROM verifications v "
             "LEFT JOIN scans s USING (scan_id) WHERE v.calibration_id "
             "= ? ORDER BY v.night, s.started_at, v.scan_id, v.feature",
-            [calibration_id])
+            [calibration_id],
+        )
         return node
 
     def diameter(self, d: dict[str, Any]) -> dict[str, Any]:
-        node = {k: d.get(k) for k in ("diameter_id", "feature", "diameter_mm", "u_diameter_mm", "method",
-                                      "calibration_id", "temperature_c", "diameter_20_mm", "expanded_u_diameter_20_mm",
-                                      "k", "nominal_diameter_mm", "tolerance_mm", "conformity")}
+        node = {
+            k: d.get(k)
+            for k in (
+                "diameter_id",
+                "feature",
+                "diameter_mm",
+                "u_diameter_mm",
+                "method",
+                "calibration_id",
+                "temperature_c",
+                "diameter_20_mm",
+                "expanded_u_diameter_20_mm",
+                "k",
+                "nominal_diameter_mm",
+                "tolerance_mm",
+                "conformity",
+            )
+        }
         node["scan"] = self.scan(d["scan_id"])
         node["calibration"] = self.calibration(d["calibration_id"]) if d.get("calibration_id") else None
         return node
@@ -173,18 +229,33 @@ class _Tracer:
         cert = self.certificate_match(ident) or self.document_match(ident)
         if cert:
             return {"kind": "certificate", "id": ident, "calibrations": [self.calibration(c) for c in cert]}
-        dia = _rows(con, "SELECT d.* FROM diameters d LEFT JOIN scans s USING (scan_id) WHERE d.artifact_id = ? "
-                         "ORDER BY d.night, s.started_at, d.scan_id, d.feature, d.method", [ident])
+        dia = _rows(
+            con,
+            "SELECT d.* FROM diameters d LEFT JOIN scans s USING (scan_id) WHERE d.artifact_id = ? "
+            "ORDER BY d.night, s.started_at, d.scan_id, d.feature, d.method",
+            [ident],
+        )
         if dia:
             return {"kind": "part", "id": ident, "diameters": [self.diameter(d) for d in dia]}
-        arts = _rows(con, "SELECT artifact_id FROM artifacts WHERE certificate = ? OR artifact_id = ? "
-                          "ORDER BY artifact_id", [ident, ident])
+        arts = _rows(
+            con,
+            "SELECT artifact_id FROM artifacts WHERE certificate = ? OR artifact_id = ? ORDER BY artifact_id",
+            [ident, ident],
+        )
         if arts:
             ids = [a["artifact_id"] for a in arts]
-            cals = _rows(con, "SELECT DISTINCT cs.calibration_id FROM calibration_scans cs JOIN scans s USING (scan_id) "
-                              f"WHERE s.artifact_id IN ({', '.join('?' * len(ids))}) ORDER BY 1", ids)
-            return {"kind": "artifact", "id": ident, "artifacts": [self.artifact(i) for i in ids],
-                    "calibrations": [self.calibration(c["calibration_id"]) for c in cals]}
+            cals = _rows(
+                con,
+                "SELECT DISTINCT cs.calibration_id FROM calibration_scans cs JOIN scans s USING (scan_id) "
+                f"WHERE s.artifact_id IN ({', '.join('?' * len(ids))}) ORDER BY 1",
+                ids,
+            )
+            return {
+                "kind": "artifact",
+                "id": ident,
+                "artifacts": [self.artifact(i) for i in ids],
+                "calibrations": [self.calibration(c["calibration_id"]) for c in cals],
+            }
         raise UnknownId(
             f"unknown id {ident!r}: not a diameter, scan, part, calibration or certificate in "
             f"{catalog.catalog_path(self.root)}"
@@ -196,8 +267,14 @@ class _Tracer:
         out["diameters"] = [self.diameter(d) for d in dia]
         ver = _rows(self.con, "SELECT * FROM verifications WHERE scan_id = ?", [scan_id])
         out["verification"] = ver[0] if ver else None
-        cal_ids = [r["calibration_id"] for r in _rows(
-            self.con, "SELECT DISTINCT calibration_id FROM calibration_scans WHERE scan_id = ? ORDER BY 1", [scan_id])]
+        cal_ids = [
+            r["calibration_id"]
+            for r in _rows(
+                self.con,
+                "SELECT DISTINCT calibration_id FROM calibration_scans WHERE scan_id = ? ORDER BY 1",
+                [scan_id],
+            )
+        ]
         if ver and ver[0].get("calibration_id") and ver[0]["calibration_id"] not in cal_ids:
             out["verification_calibration"] = self.calibration(ver[0]["calibration_id"])
         out["calibrations"] = [self.calibration(c) for c in cal_ids]
@@ -219,8 +296,11 @@ class _Tracer:
                 pass
         folders = {c if c.suffix == "" else c.parent for c in candidates}
         out = []
-        for r in _rows(self.con, "SELECT DISTINCT calibration_id, certificate_path FROM calibrations "
-                                 "WHERE certificate_path IS NOT NULL ORDER BY 1"):
+        for r in _rows(
+            self.con,
+            "SELECT DISTINCT calibration_id, certificate_path FROM calibrations "
+            "WHERE certificate_path IS NOT NULL ORDER BY 1",
+        ):
             cp = Path(r["certificate_path"])
             if cp in candidates or (cp if cp.suffix == "" else cp.parent) in folders:
                 out.append(r["calibration_id"])
@@ -255,8 +335,10 @@ def _fmt(v: Any, unit: str = "") -> str:
 def _scan_lines(s: dict[str, Any], ind: str, label: str = "scan") -> list[str]:
     if s.get("missing"):
         return [f"{ind}{label} {s['scan_id']}  (NOT IN CATALOG)"]
-    head = (f"{ind}{label} {s['scan_id']}  night {_fmt(s.get('night'))}, {_fmt(s.get('kind'))}, "
-            f"device {_fmt(s.get('device_id'))}, artifact {_fmt(s.get('artifact_id'))}, status {s.get('status')}")
+    head = (
+        f"{ind}{label} {s['scan_id']}  night {_fmt(s.get('night'))}, {_fmt(s.get('kind'))}, "
+        f"device {_fmt(s.get('device_id'))}, artifact {_fmt(s.get('artifact_id'))}, status {s.get('status')}"
+    )
     lines = [head]
     if s.get("reason"):
         lines.append(f"{ind}  reason: {s['reason']}")
@@ -270,12 +352,15 @@ def _scan_lines(s: dict[str, Any], ind: str, label: str = "scan") -> list[str]:
                 f"{_fmt(art.get('certificate'))}, "
                 f"certified {_fmt(art.get('certified_diameter_mm'), ' mm')} "
                 f"(u {_fmt(art.get('u_diameter_mm'), ' mm')}, k={_fmt(art.get('k'))})"
-                + (" as this scan used it" if art.get("as_used") else ""))
+                + (" as this scan used it" if art.get("as_used") else "")
+            )
             if art.get("latest"):
                 lt = art["latest"]
-                lines.append(f"{ind}  NOTE: the artifact's latest record differs: certificate "
-                             f"{_fmt(lt.get('certificate'))}, "
-                             f"certified {_fmt(lt.get('certified_diameter_mm'), ' mm')}")
+                lines.append(
+                    f"{ind}  NOTE: the artifact's latest record differs: certificate "
+                    f"{_fmt(lt.get('certificate'))}, "
+                    f"certified {_fmt(lt.get('certified_diameter_mm'), ' mm')}"
+                )
     lines.append(f"{ind}  raw {_fmt(s.get('raw_path'))}")
     lines.append(f"{ind}  raw_sha256 {_fmt(s.get('raw_sha256'))}")
     for f in s.get("files", []):
@@ -290,16 +375,27 @@ def _cert_lines(c: dict[str, Any] | None, ind: str) -> list[str]:
     if c["json_sha256"] is None:
         lines.append(f"{ind}  {c['json_path']}: MISSING on disk (catalog sha256 {_fmt(c['catalog_sha256'])})")
     else:
-        status = ("matches catalog" if c["catalog_sha256"] == c["json_sha256"]
-                  else "not in catalog" if c["catalog_sha256"] is None else
-                  f"DIFFERS from catalog {c['catalog_sha256']}")
+        status = (
+            "matches catalog"
+            if c["catalog_sha256"] == c["json_sha256"]
+            else "not in catalog"
+            if c["catalog_sha256"] is None
+            else f"DIFFERS from catalog {c['catalog_sha256']}"
+        )
         lines.append(f"{ind}  {c['json_path']} sha256 {c['json_sha256']} ({status})")
     for i in c.get("issues") or []:
-        state = ("MISSING on disk" if i["json_sha256"] is None else "matches its record"
-                 if i["json_sha256"] == i["recorded_sha256"] else f"DIFFERS from its record {i['recorded_sha256']}")
+        state = (
+            "MISSING on disk"
+            if i["json_sha256"] is None
+            else "matches its record"
+            if i["json_sha256"] == i["recorded_sha256"]
+            else f"DIFFERS from its record {i['recorded_sha256']}"
+        )
         replaces = f", replaces {i['replaces']}" if i["replaces"] else ""
-        lines.append(f"{ind}  issue {i['issue']}: {i['document_id']} of {_fmt(i['issue_date'])}{replaces}; "
-                     f"{i['folder']}/certificate.json {state}")
+        lines.append(
+            f"{ind}  issue {i['issue']}: {i['document_id']} of {_fmt(i['issue_date'])}{replaces}; "
+            f"{i['folder']}/certificate.json {state}"
+        )
     return lines
 
 
@@ -308,25 +404,32 @@ def _cal_lines(c: dict[str, Any] | None, ind: str) -> list[str]:
         return [f"{ind}calibration: none recorded"]
     if c.get("missing"):
         return [f"{ind}calibration {c['calibration_id']}  (NOT IN CATALOG)"]
-    lines = [f"{ind}calibration {c['calibration_id']}  device {_fmt(c['device_id'])}, method {_fmt(c['method'])}, "
-             f"valid from {_fmt(c['valid_from'])}"
-             + (f" until {_fmt(c['valid_until'])}" if c.get("valid_until") else "")
-             + f", status {_fmt(c['status'])}" + (f" ({c['status_reason']})" if c.get("status_reason") else "")
-             + f", channels {c['channels']}"]
+    lines = [
+        f"{ind}calibration {c['calibration_id']}  device {_fmt(c['device_id'])}, method {_fmt(c['method'])}, "
+        f"valid from {_fmt(c['valid_from'])}"
+        + (f" until {_fmt(c['valid_until'])}" if c.get("valid_until") else "")
+        + f", status {_fmt(c['status'])}"
+        + (f" ({c['status_reason']})" if c.get("status_reason") else "")
+        + f", channels {c['channels']}"
+    ]
     lines += _cert_lines(c["certificate"], ind + "  ")
     for s in c["scans"]:
         lines += _scan_lines(s, ind + "  ", "calibration scan")
     for g in c.get("gauges") or []:
-        lines.append(f"{ind}  layer {g.get('channel')} ({_fmt(g.get('feature'))}): ring gauge "
-                     f"{_fmt(g.get('id'))}, certificate "
-                     f"{_fmt(g.get('certificate'))}, certified {_fmt(g.get('certified_diameter_mm'), ' mm')} "
-                     f"(U {_fmt(g.get('u_diameter_mm'), ' mm')}, k={_fmt(g.get('k'))})")
+        lines.append(
+            f"{ind}  layer {g.get('channel')} ({_fmt(g.get('feature'))}): ring gauge "
+            f"{_fmt(g.get('id'))}, certificate "
+            f"{_fmt(g.get('certificate'))}, certified {_fmt(g.get('certified_diameter_mm'), ' mm')} "
+            f"(U {_fmt(g.get('u_diameter_mm'), ' mm')}, k={_fmt(g.get('k'))})"
+        )
     for v in c["verifications"]:
         verdict = _verdict(v)
         layer = f" layer {v['feature']} ({_fmt(v.get('artifact_id'))})" if v.get("feature") else ""
-        lines.append(f"{ind}  verified by {v['scan_id']}{layer} on {_fmt(v['night'])}: error "
-                     f"{_fmt(v['error_mm'], ' mm')} "
-                     f"(tolerance {_fmt(v['tolerance_mm'], ' mm')}) {verdict}")
+        lines.append(
+            f"{ind}  verified by {v['scan_id']}{layer} on {_fmt(v['night'])}: error "
+            f"{_fmt(v['error_mm'], ' mm')} "
+            f"(tolerance {_fmt(v['tolerance_mm'], ' mm')}) {verdict}"
+        )
     return lines
 
 
@@ -353,21 +456,28 @@ def _verdict(v: dict[str, Any]) -> str:
 
 def _dia_lines(d: dict[str, Any], ind: str) -> list[str]:
     if d.get("diameter_20_mm") is not None:  # the certified value: at 20 degC with U (ISO 1)
-        value = (f"D20 {_fmt(d['diameter_20_mm'], ' mm')} (U {_fmt(d.get('expanded_u_diameter_20_mm'), ' mm')}, "
-                 f"k={_fmt(d.get('k'))}); at {_fmt(d.get('temperature_c'))} degC {_fmt(d['diameter_mm'], ' mm')}")
+        value = (
+            f"D20 {_fmt(d['diameter_20_mm'], ' mm')} (U {_fmt(d.get('expanded_u_diameter_20_mm'), ' mm')}, "
+            f"k={_fmt(d.get('k'))}); at {_fmt(d.get('temperature_c'))} degC {_fmt(d['diameter_mm'], ' mm')}"
+        )
     else:
         value = f"{_fmt(d['diameter_mm'], ' mm')} (u {_fmt(d['u_diameter_mm'], ' mm')}, k=1)"
-    lines = [f"{ind}diameter {d['diameter_id']}  {value}, feature {_fmt(d['feature'])}, method {_fmt(d['method'])}"]
+    lines = [
+        f"{ind}diameter {d['diameter_id']}  {value}, feature {_fmt(d['feature'])}, method {_fmt(d['method'])}"
+    ]
     if d.get("conformity"):
-        lines.append(f"{ind}  against nominal {_fmt(d.get('nominal_diameter_mm'), ' mm')} +- "
-                     f"{_fmt(d.get('tolerance_mm'), ' mm')}: {d['conformity']}")
+        lines.append(
+            f"{ind}  against nominal {_fmt(d.get('nominal_diameter_mm'), ' mm')} +- "
+            f"{_fmt(d.get('tolerance_mm'), ' mm')}: {d['conformity']}"
+        )
     lines += _scan_lines(d["scan"], ind + "  ")
     lines += _cal_lines(d["calibration"], ind + "  ")
     return lines
 
 
 def format_trace(  # noqa: C901 (one branch per kind of fact of the trace)
-        chain: dict[str, Any]) -> str:
+    chain: dict[str, Any],
+) -> str:
     """Indented text of a :func:`trace` result, one fact per line."""
     kind = chain["kind"]
     lines = [f"trace {chain['id']} ({kind})"]
@@ -381,9 +491,11 @@ def format_trace(  # noqa: C901 (one branch per kind of fact of the trace)
         v = chain.get("verification")
         if v:
             verdict = _verdict(v)
-            lines.append(f"  verification: measured {_fmt(v['measured_mm'], ' mm')}, certified "
-                         f"{_fmt(v['certified_mm'], ' mm')}, error {_fmt(v['error_mm'], ' mm')} {verdict}, "
-                         f"calibration {_fmt(v.get('calibration_id'))}")
+            lines.append(
+                f"  verification: measured {_fmt(v['measured_mm'], ' mm')}, certified "
+                f"{_fmt(v['certified_mm'], ' mm')}, error {_fmt(v['error_mm'], ' mm')} {verdict}, "
+                f"calibration {_fmt(v.get('calibration_id'))}"
+            )
         if chain.get("verification_calibration"):
             lines += _cal_lines(chain["verification_calibration"], "  ")
         for c in chain["calibrations"]:
@@ -395,8 +507,10 @@ def format_trace(  # noqa: C901 (one branch per kind of fact of the trace)
             lines += _cal_lines(c, "  ")
     elif kind == "artifact":
         for a in chain["artifacts"]:
-            lines.append(f"  artifact {a['artifact_id']} ({_fmt(a.get('type'))}), certificate "
-                         f"{_fmt(a.get('certificate'))}")
+            lines.append(
+                f"  artifact {a['artifact_id']} ({_fmt(a.get('type'))}), certificate "
+                f"{_fmt(a.get('certificate'))}"
+            )
         for c in chain["calibrations"]:
             lines += _cal_lines(c, "  ")
     return "\n".join(lines) + "\n"

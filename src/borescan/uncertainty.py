@@ -43,7 +43,9 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
-from scipy import special  # the distribution functions themselves: scipy.stats and scipy.signal cost ~1.3 s of
+from scipy import (
+    special,
+)  # the distribution functions themselves: scipy.stats and scipy.signal cost ~1.3 s of
 # imports in every process that loads this module (each stage job and worker), for nothing these need
 
 __all__ = [
@@ -83,8 +85,13 @@ def _check_dist(distribution: str) -> str:
     return distribution
 
 
-def standard_uncertainty(*, halfwidth: float | None = None, expanded: float | None = None, k: float | None = None,
-                         distribution: str = "rectangular") -> float:
+def standard_uncertainty(
+    *,
+    halfwidth: float | None = None,
+    expanded: float | None = None,
+    k: float | None = None,
+    distribution: str = "rectangular",
+) -> float:
     """Return standard uncertainty from a stated bound or an expanded uncertainty.
 
     Parameters
@@ -221,7 +228,9 @@ def _half_span(dist: str, scale: float, nu: float, tail: float = 1e-9) -> float:
     return float(scale * DISTRIBUTIONS[dist])
 
 
-def linear_coverage_interval(terms: Sequence[tuple[str, float, float]], p: float, *, cells_per_u: int = 400) -> float:
+def linear_coverage_interval(
+    terms: Sequence[tuple[str, float, float]], p: float, *, cells_per_u: int = 400
+) -> float:
     """Half-width of the probabilistically symmetric coverage interval of a sum of independent terms.
 
     Y = sum_i Z_i, each Z_i of zero mean, symmetric, with standard uncertainty u_i and a
@@ -320,18 +329,35 @@ class Input:
 
     def to_dict(self) -> dict:
         """Return the input as JSON-ready data (:meth:`from_dict` reads it back)."""
-        return {"key": self.key, "quantity": self.quantity, "symbol": self.symbol, "unit": self.unit,
-                "estimate": self.estimate, "standard_uncertainty": self.u, "distribution": self.distribution,
-                "degrees_of_freedom": None if not np.isfinite(self.dof) else float(self.dof), "type": self.type,
-                "source": self.source}
+        return {
+            "key": self.key,
+            "quantity": self.quantity,
+            "symbol": self.symbol,
+            "unit": self.unit,
+            "estimate": self.estimate,
+            "standard_uncertainty": self.u,
+            "distribution": self.distribution,
+            "degrees_of_freedom": None if not np.isfinite(self.dof) else float(self.dof),
+            "type": self.type,
+            "source": self.source,
+        }
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Input":
         """Return the input written by :meth:`to_dict`."""
         dof = d.get("degrees_of_freedom")
-        return cls(d["key"], d["quantity"], d["symbol"], d["unit"], d.get("estimate"), float(d["standard_uncertainty"]),
-                   d["distribution"], float("inf") if dof is None else float(dof), d.get("type", "B"),
-                   d.get("source", ""))
+        return cls(
+            d["key"],
+            d["quantity"],
+            d["symbol"],
+            d["unit"],
+            d.get("estimate"),
+            float(d["standard_uncertainty"]),
+            d["distribution"],
+            float("inf") if dof is None else float(dof),
+            d.get("type", "B"),
+            d.get("source", ""),
+        )
 
 
 def _array(x) -> np.ndarray | None:
@@ -397,14 +423,19 @@ class Term:
 
     def to_dict(self) -> dict:
         """Return the term as JSON-ready data (:meth:`from_dict` reads it back)."""
-        return {"input": self.input.to_dict(),
-                "sensitivity": None if self.sensitivity is None else self.sensitivity.tolist(),
-                "cov": None if self.cov is None else self.cov.tolist(), "note": self.note}
+        return {
+            "input": self.input.to_dict(),
+            "sensitivity": None if self.sensitivity is None else self.sensitivity.tolist(),
+            "cov": None if self.cov is None else self.cov.tolist(),
+            "note": self.note,
+        }
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Term":
         """Return the term written by :meth:`to_dict`."""
-        return cls(Input.from_dict(d["input"]), _array(d.get("sensitivity")), _array(d.get("cov")), d.get("note", ""))
+        return cls(
+            Input.from_dict(d["input"]), _array(d.get("sensitivity")), _array(d.get("cov")), d.get("note", "")
+        )
 
 
 @dataclass(frozen=True)
@@ -429,14 +460,22 @@ class Combined:
 
     def to_dict(self) -> dict:
         """Return the combined uncertainty as JSON-ready data."""
-        return {"standard_uncertainty": self.u,
-                "effective_degrees_of_freedom": None if not np.isfinite(self.nu_eff) else self.nu_eff,
-                "coverage_probability": self.p, "coverage_factor_guf": self.k_guf,
-                "coverage_factor_propagated": self.k_propagated, "coverage_factor": self.k,
-                "expanded_uncertainty": self.U, "coverage_method": self.method, "dominant_input": self.dominant}
+        return {
+            "standard_uncertainty": self.u,
+            "effective_degrees_of_freedom": None if not np.isfinite(self.nu_eff) else self.nu_eff,
+            "coverage_probability": self.p,
+            "coverage_factor_guf": self.k_guf,
+            "coverage_factor_propagated": self.k_propagated,
+            "coverage_factor": self.k,
+            "expanded_uncertainty": self.U,
+            "coverage_method": self.method,
+            "dominant_input": self.dominant,
+        }
 
 
-def combine(contributions: Sequence[tuple[float, float, str]], p: float, keys: Sequence[str] | None = None) -> Combined:
+def combine(
+    contributions: Sequence[tuple[float, float, str]], p: float, keys: Sequence[str] | None = None
+) -> Combined:
     """Combine independent contributions of one output.
 
     Parameters
@@ -465,8 +504,9 @@ def combine(contributions: Sequence[tuple[float, float, str]], p: float, keys: S
     validated = abs(k_guf * uc - q) <= delta
     k = k_guf if validated else k_prop
     dom = str(keys[int(np.argmax(u))]) if keys is not None and len(keys) else ""
-    return Combined(uc, nu_eff, p, k_guf, k_prop, k, k * uc, "GUF" if validated else "propagation of distributions",
-                    dom)
+    return Combined(
+        uc, nu_eff, p, k_guf, k_prop, k, k * uc, "GUF" if validated else "propagation of distributions", dom
+    )
 
 
 @dataclass
@@ -514,7 +554,9 @@ class Budget:
 
     def mapped(self, A, outputs: Sequence[str], units: Sequence[str], estimates) -> "Budget":
         """Return the budget of y' = A y (+ a constant): every term mapped by A (m', m)."""
-        return Budget(tuple(outputs), tuple(units), np.asarray(estimates, float), [t.mapped(A) for t in self.terms])
+        return Budget(
+            tuple(outputs), tuple(units), np.asarray(estimates, float), [t.mapped(A) for t in self.terms]
+        )
 
     def merged(self) -> "Budget":
         """Terms with the same input key united: sensitivities added (the same quantity used twice)."""
@@ -528,8 +570,11 @@ class Budget:
             prev = by_key[k]
             if prev.sensitivity is None or t.sensitivity is None:
                 raise ValueError(f"input {k} appears twice as a vector term; they cannot be merged")
-            by_key[k] = replace(prev, sensitivity=prev.sensitivity + t.sensitivity,
-                                note="; ".join(x for x in (prev.note, t.note) if x))
+            by_key[k] = replace(
+                prev,
+                sensitivity=prev.sensitivity + t.sensitivity,
+                note="; ".join(x for x in (prev.note, t.note) if x),
+            )
         return Budget(self.outputs, self.units, self.estimates, [by_key[k] for k in order])
 
     def rows(self, j) -> list[dict]:
@@ -539,9 +584,12 @@ class Budget:
         for t in self.terms:
             c, contrib = t.along(j)
             d = t.input.to_dict()
-            d.update(sensitivity_coefficient=c, contribution=contrib,
-                     distribution=t.input.distribution if t.sensitivity is not None else "multivariate normal",
-                     note=t.note)
+            d.update(
+                sensitivity_coefficient=c,
+                contribution=contrib,
+                distribution=t.input.distribution if t.sensitivity is not None else "multivariate normal",
+                note=t.note,
+            )
             rows.append(d)
         return rows
 
@@ -568,21 +616,35 @@ class Budget:
 
     def to_dict(self) -> dict:
         """Return the budget as JSON-ready data (:meth:`from_dict` reads it back)."""
-        return {"outputs": list(self.outputs), "units": list(self.units), "estimates": self.estimates.tolist(),
-                "terms": [t.to_dict() for t in self.terms]}
+        return {
+            "outputs": list(self.outputs),
+            "units": list(self.units),
+            "estimates": self.estimates.tolist(),
+            "terms": [t.to_dict() for t in self.terms],
+        }
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Budget":
         """Return the budget written by :meth:`to_dict`."""
-        return cls(tuple(d["outputs"]), tuple(d["units"]), np.array(d["estimates"], dtype=float),
-                   [Term.from_dict(t) for t in d["terms"]])
+        return cls(
+            tuple(d["outputs"]),
+            tuple(d["units"]),
+            np.array(d["estimates"], dtype=float),
+            [Term.from_dict(t) for t in d["terms"]],
+        )
 
 
 # --------------------------------------------------------------------------- Monte Carlo (GUM S1)
 
 
-def draw(distribution: str, estimate: float, u: float, size: int, rng: np.random.Generator,
-         dof: float = float("inf")) -> np.ndarray:
+def draw(
+    distribution: str,
+    estimate: float,
+    u: float,
+    size: int,
+    rng: np.random.Generator,
+    dof: float = float("inf"),
+) -> np.ndarray:
     """``size`` draws of a quantity with the given estimate, standard uncertainty and distribution.
 
     ``normal`` with finite ``dof``: estimate + u t_dof (GUM S1 6.4.9); ``rectangular`` on
@@ -615,8 +677,13 @@ class MonteCarloResult:
     n: int
 
 
-def monte_carlo(model: Callable[[dict[str, np.ndarray]], np.ndarray], inputs: Mapping[str, Any], p: float, n: int,
-                rng: np.random.Generator) -> MonteCarloResult:
+def monte_carlo(
+    model: Callable[[dict[str, np.ndarray]], np.ndarray],
+    inputs: Mapping[str, Any],
+    p: float,
+    n: int,
+    rng: np.random.Generator,
+) -> MonteCarloResult:
     """Propagate distributions through ``model`` by Monte Carlo (GUM S1 §7).
 
     Parameters
@@ -638,8 +705,9 @@ def monte_carlo(model: Callable[[dict[str, np.ndarray]], np.ndarray], inputs: Ma
             xs[name] = draw(spec.distribution, est, spec.u, n, rng, spec.dof)
         else:
             mean, cov = spec
-            xs[name] = rng.multivariate_normal(np.asarray(mean, float), np.asarray(cov, float), size=n,
-                                               method="eigh")
+            xs[name] = rng.multivariate_normal(
+                np.asarray(mean, float), np.asarray(cov, float), size=n, method="eigh"
+            )
     y = np.asarray(model(xs), dtype=float)
     if y.shape != (n,):
         raise ValueError(f"model must return ({n},) values, got {y.shape}")
@@ -647,7 +715,9 @@ def monte_carlo(model: Callable[[dict[str, np.ndarray]], np.ndarray], inputs: Ma
     return MonteCarloResult(float(np.mean(y)), float(np.std(y, ddof=1)), float(lo), float(hi), p, n)
 
 
-def s1_validate(y: float, U: float, u: float, mc: MonteCarloResult, n_dig: int = 2) -> tuple[bool, float, float, float]:
+def s1_validate(
+    y: float, U: float, u: float, mc: MonteCarloResult, n_dig: int = 2
+) -> tuple[bool, float, float, float]:
     """Validate the GUF interval y +- U by the Monte Carlo interval (GUM S1 §8).
 
     d_low = |y - U - y_low|, d_high = |y + U - y_high|; validated when both are at most the
@@ -683,8 +753,14 @@ def round_uncertainty(U: float, digits: int = 2) -> tuple[float, int]:
     return up, dec
 
 
-def format_value(value: float, U: float, unit: str = "", scale: float = 1.0, unit_U: str | None = None,
-                 scale_U: float | None = None) -> str:
+def format_value(
+    value: float,
+    U: float,
+    unit: str = "",
+    scale: float = 1.0,
+    unit_U: str | None = None,
+    scale_U: float | None = None,
+) -> str:
     """``"value +- U unit"`` with U at two significant digits and the value to the same decimal place.
 
     ``scale``/``unit``: the value is shown as value * scale in ``unit``; U likewise with

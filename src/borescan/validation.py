@@ -39,9 +39,22 @@ from borescan.artifacts import certificate_conflicts, certificate_fields
 from borescan.config import schema_defaults
 from borescan.rawio import ScanError
 
-__all__ = ["DUPLICATE_REASON", "OUT_OF_RANGE_NOTE", "RATE_TOLERANCE", "RawRootError", "require_raw_root",
-           "duplicate_reason", "earlier_night_of", "rate_mismatch", "clock_problem", "scan_problems",
-           "TreeReport", "validate_tree", "Plausibility", "plausibility_problems"]
+__all__ = [
+    "DUPLICATE_REASON",
+    "OUT_OF_RANGE_NOTE",
+    "RATE_TOLERANCE",
+    "RawRootError",
+    "require_raw_root",
+    "duplicate_reason",
+    "earlier_night_of",
+    "rate_mismatch",
+    "clock_problem",
+    "scan_problems",
+    "TreeReport",
+    "validate_tree",
+    "Plausibility",
+    "plausibility_problems",
+]
 
 DUPLICATE_REASON = "scan_id already used by a scan of an earlier night (scan ids are unique across nights)"
 OUT_OF_RANGE_NOTE = "(a sensor reports null when out of range)"
@@ -108,8 +121,10 @@ def rate_mismatch(sample: np.ndarray, t_s: np.ndarray, sample_rate_hz: float) ->
     rate_hz = 1.0 / period_s
     if abs(rate_hz / sample_rate_hz - 1.0) <= RATE_TOLERANCE:
         return None
-    return (f"sample clock runs at {rate_hz:.6g} Hz (median t_ns step {period_s * 1e3:.6g} ms per sample) but "
-            f"scan.json says sample_rate_hz {sample_rate_hz:g} Hz (more than {RATE_TOLERANCE:.0%} apart)")
+    return (
+        f"sample clock runs at {rate_hz:.6g} Hz (median t_ns step {period_s * 1e3:.6g} ms per sample) but "
+        f"scan.json says sample_rate_hz {sample_rate_hz:g} Hz (more than {RATE_TOLERANCE:.0%} apart)"
+    )
 
 
 def clock_problem(scan: rawio.RawScan) -> str | None:
@@ -125,9 +140,14 @@ def clock_problem(scan: rawio.RawScan) -> str | None:
     return rate_mismatch(mat.sample, mat.t_s, rate) or rawio.clock_jump(mat.sample, mat.t_s, rate)
 
 
-def scan_problems(scan_dir: str | Path, raw_root: str | Path, *, duplicate: bool = False,
-                  earlier_night: str | None = None,
-                  limits: Plausibility | None = None) -> tuple[rawio.RawScan | None, list[ScanError]]:
+def scan_problems(
+    scan_dir: str | Path,
+    raw_root: str | Path,
+    *,
+    duplicate: bool = False,
+    earlier_night: str | None = None,
+    limits: Plausibility | None = None,
+) -> tuple[rawio.RawScan | None, list[ScanError]]:
     """Every reason the ingest stage sets this scan aside, in the order above ([] = accepted).
 
     Parameters
@@ -182,8 +202,11 @@ class TreeReport:
     bad_scan_ids: set[str] = field(default_factory=set)
 
 
-def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | None = None,
-                  limits: Plausibility | None = None) -> TreeReport:
+def validate_tree(
+    raw_root: str | Path,
+    progress: Callable[[int, int], None] | None = None,
+    limits: Plausibility | None = None,
+) -> TreeReport:
     """Check a raw tree as the pipeline would ingest it (see the module docstring).
 
     ``progress(i, n)`` is called after each scan. Raises :class:`RawRootError` when ``raw_root``
@@ -203,7 +226,8 @@ def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | N
     stray = [d for d in rawio.discover_scans(root) if d not in listed and d.parent.name[6:] in nights]
     for d in stray:  # e.g. an empty "scan=" folder: the pipeline skips it, say why
         report.problems += rawio.inspect_scan(d, root)[1] or [
-            ScanError("-", f"{d.parent.name}/{d.name}", "not a scan=<scan_id> folder; the pipeline skips it")]
+            ScanError("-", f"{d.parent.name}/{d.name}", "not a scan=<scan_id> folder; the pipeline skips it")
+        ]
     by_night: dict[str, list[dict]] = {}  # the accepted scans' artifact certificates, for the check below
     for i, (d, earlier) in enumerate(jobs):
         scan, problems = scan_problems(d, root, earlier_night=earlier, limits=limits)
@@ -211,10 +235,16 @@ def validate_tree(raw_root: str | Path, progress: Callable[[int, int], None] | N
         if problems:
             report.bad_scan_ids.add(d.name[5:])
         else:
-            by_night.setdefault(d.parent.name[6:], []).append({
-                "scan_id": d.name[5:], "night": d.parent.name[6:], "status": "ok",
-                "started_at": scan.meta.get("started_at"), "artifact_id": (scan.meta.get("artifact") or {}).get("id"),
-                **certificate_fields(scan.meta)})
+            by_night.setdefault(d.parent.name[6:], []).append(
+                {
+                    "scan_id": d.name[5:],
+                    "night": d.parent.name[6:],
+                    "status": "ok",
+                    "started_at": scan.meta.get("started_at"),
+                    "artifact_id": (scan.meta.get("artifact") or {}).get("id"),
+                    **certificate_fields(scan.meta),
+                }
+            )
         if progress is not None:
             progress(i + 1, len(jobs))
     report.n_scans = len(jobs)
@@ -256,16 +286,27 @@ def _positive(x) -> bool:
 def _gauge_problems(node: dict, where: str, limits: Plausibility) -> list[str]:
     """Return the problems in an artifact's or feature's diameters, uncertainty, k, CTE and tolerance."""
     out = []
-    for key in ("nominal_diameter_mm", "certified_diameter_mm", "u_diameter_mm", "k", "cte_per_k", "tolerance_mm"):
+    for key in (
+        "nominal_diameter_mm",
+        "certified_diameter_mm",
+        "u_diameter_mm",
+        "k",
+        "cte_per_k",
+        "tolerance_mm",
+    ):
         if key in node and node[key] is not None and not _positive(node[key]):
             out.append(f"key '{where}.{key}' must be a positive number, got {node[key]!r:.40}")
     cert, nom = node.get("certified_diameter_mm"), node.get("nominal_diameter_mm")
     if _positive(cert) and _positive(nom) and abs(cert - nom) > limits.certified_vs_nominal_max_mm:
-        out.append(f"key '{where}.certified_diameter_mm' {cert:g} mm is {abs(cert - nom):.4g} mm from "
-                   f"'{where}.nominal_diameter_mm' {nom:g} mm (plausibility.certified_vs_nominal_max_mm "
-                   f"{limits.certified_vs_nominal_max_mm:g} mm): a typo?")
+        out.append(
+            f"key '{where}.certified_diameter_mm' {cert:g} mm is {abs(cert - nom):.4g} mm from "
+            f"'{where}.nominal_diameter_mm' {nom:g} mm (plausibility.certified_vs_nominal_max_mm "
+            f"{limits.certified_vs_nominal_max_mm:g} mm): a typo?"
+        )
     if _positive(node.get("cte_per_k")) and node["cte_per_k"] > 1e-4:
-        out.append(f"key '{where}.cte_per_k' {node['cte_per_k']:g} /K is no metal's (1e-4 /K at most): a unit slip?")
+        out.append(
+            f"key '{where}.cte_per_k' {node['cte_per_k']:g} /K is no metal's (1e-4 /K at most): a unit slip?"
+        )
     return out
 
 
@@ -285,19 +326,28 @@ def plausibility_problems(meta: dict, scan_id: str, limits: Plausibility | None 
             continue
         rng = s.get("range_mm")
         if _positive(rng) and rng > limits.max_sensor_range_mm:
-            out.append(f"key 'sensors[{i}].range_mm' {rng:g} mm exceeds plausibility.max_sensor_range_mm "
-                       f"{limits.max_sensor_range_mm:g} mm")
+            out.append(
+                f"key 'sensors[{i}].range_mm' {rng:g} mm exceeds plausibility.max_sensor_range_mm "
+                f"{limits.max_sensor_range_mm:g} mm"
+            )
         for key in ("linearity_fs", "repeatability_mm"):
             if key in s and not _positive(s[key]):
-                out.append(f"key 'sensors[{i}].{key}' must be a positive number (a data-sheet uncertainty), "
-                           f"got {s[key]!r:.40}")
+                out.append(
+                    f"key 'sensors[{i}].{key}' must be a positive number (a data-sheet uncertainty), "
+                    f"got {s[key]!r:.40}"
+                )
     env = meta.get("environment")
     t = env.get("temperature_c") if isinstance(env, dict) else None
-    if isinstance(t, (int, float)) and not isinstance(t, bool) and not (
-            limits.temperature_min_c <= t <= limits.temperature_max_c):
-        out.append(f"key 'environment.temperature_c' {t:g} degC is outside the workshop's range "
-                   f"[{limits.temperature_min_c:g}, {limits.temperature_max_c:g}] "
-                   "degC (plausibility.temperature_*_c)")
+    if (
+        isinstance(t, (int, float))
+        and not isinstance(t, bool)
+        and not (limits.temperature_min_c <= t <= limits.temperature_max_c)
+    ):
+        out.append(
+            f"key 'environment.temperature_c' {t:g} degC is outside the workshop's range "
+            f"[{limits.temperature_min_c:g}, {limits.temperature_max_c:g}] "
+            "degC (plausibility.temperature_*_c)"
+        )
     art = meta.get("artifact")
     if isinstance(art, dict):
         out += _gauge_problems(art, "artifact", limits)

@@ -63,21 +63,37 @@ def rule_job(namespace: dict, script: str | Path, argv: list[str] | None = None)
     wildcards = {k: v for k, v in args.items() if k not in config_keys}
     os.chdir(root)
     with SnakemakeApi() as api:
-        wf = api.workflow(resource_settings=ResourceSettings(cores=1),
-                          config_settings=ConfigSettings(config=overrides),
-                          snakefile=root / "Snakefile", workdir=root)
+        wf = api.workflow(
+            resource_settings=ResourceSettings(cores=1),
+            config_settings=ConfigSettings(config=overrides),
+            snakefile=root / "Snakefile",
+            workdir=root,
+        )
         wf.dag(DAGSettings())
         workflow = wf._workflow
         rule = workflow.get_rule(rule_name)
         missing = set(rule.wildcard_names) - set(wildcards)
         if missing:
-            raise SystemExit(f"{script.name}: rule {rule_name} needs the wildcard(s) {sorted(missing)} "
-                             f"as key=value arguments, e.g. night=2026-11-20")
+            raise SystemExit(
+                f"{script.name}: rule {rule_name} needs the wildcard(s) {sorted(missing)} "
+                f"as key=value arguments, e.g. night=2026-11-20"
+            )
         job = Job(rule, DAG(workflow, rules=[rule]), wildcards_dict=wildcards)
         for f in list(job.output) + list(job.log):
             Path(f).parent.mkdir(parents=True, exist_ok=True)
-        return Snakemake(job.input, job.output, job.params, job.wildcards, 1, job.resources, job.log,
-                         workflow.config, rule_name, None, scriptdir=str(script.parent))
+        return Snakemake(
+            job.input,
+            job.output,
+            job.params,
+            job.wildcards,
+            1,
+            job.resources,
+            job.log,
+            workflow.config,
+            rule_name,
+            None,
+            scriptdir=str(script.parent),
+        )
 
 
 def restore_stale_backups(snakemake_dir: str | Path, folders, log=print) -> list[Path]:
@@ -160,7 +176,9 @@ def record_lock_owner(snakemake_dir: str | Path, lock_files) -> Path:
     """At a run's start (it holds its locks): note which lock files are this process's, on this boot."""
     path = Path(snakemake_dir) / "locks" / f"borescan-owner-{os.getpid()}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"pid": os.getpid(), "boot_id": _boot_id(), "locks": sorted(map(str, lock_files))}))
+    path.write_text(
+        json.dumps({"pid": os.getpid(), "boot_id": _boot_id(), "locks": sorted(map(str, lock_files))})
+    )
     return path
 
 

@@ -15,16 +15,33 @@ def main(smk) -> None:
     with log_to(smk.log[0]) as log:
         issued = []
         cals, links, bad = stage_calibrate(
-            smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
-            smk.input.scans, smk.input.summary, smk.params.calibration, log=log,
-            uncertainty=smk.params.uncertainty, laboratory=smk.params.laboratory,
-            verification=smk.params.verification, devices=smk.params.devices, pooled_tables=list(smk.input.pooled),
-            auto_nights=smk.params.device_model_auto_nights, signal=smk.params.signal, workers=smk.threads,
+            smk.params.raw_root,
+            smk.wildcards.night,
+            smk.params.results_root,
+            smk.input.scans,
+            smk.input.summary,
+            smk.params.calibration,
+            log=log,
+            uncertainty=smk.params.uncertainty,
+            laboratory=smk.params.laboratory,
+            verification=smk.params.verification,
+            devices=smk.params.devices,
+            pooled_tables=list(smk.input.pooled),
+            auto_nights=smk.params.device_model_auto_nights,
+            signal=smk.params.signal,
+            workers=smk.threads,
             certificates=issued,
         )
-        write_stage_outputs(smk.output, bad, calibrations=cals, calibration_scans=links,
-                            certificate_issues=issue_frame(issued))
-        log(f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {quarantined_text(bad)}")
+        write_stage_outputs(
+            smk.output,
+            bad,
+            calibrations=cals,
+            calibration_scans=links,
+            certificate_issues=issue_frame(issued),
+        )
+        log(
+            f"{cals['calibration_id'].n_unique() if cals.height else 0} calibrations, {quarantined_text(bad)}"
+        )
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage

@@ -18,11 +18,19 @@ def main(smk) -> None:
         if Path(smk.output.scans).resolve() != night_dir.resolve():
             raise ValueError(f"rule output {smk.output.scans} is not the stage's folder {night_dir}")
         findings, bad = stage_discrepancy(
-            smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
-            smk.input.scans, list(smk.input.calibrations), smk.params.discrepancy, log=log, workers=smk.threads,
+            smk.params.raw_root,
+            smk.wildcards.night,
+            smk.params.results_root,
+            smk.input.scans,
+            list(smk.input.calibrations),
+            smk.params.discrepancy,
+            log=log,
+            workers=smk.threads,
         )
         write_stage_outputs(smk.output, bad, findings=findings)
-        log(f"{findings['scan_id'].n_unique() if findings.height else 0} scans examined, {len(bad)} set aside")
+        log(
+            f"{findings['scan_id'].n_unique() if findings.height else 0} scans examined, {len(bad)} set aside"
+        )
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage

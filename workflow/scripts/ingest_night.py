@@ -14,8 +14,14 @@ def main(smk) -> None:
     with log_to(smk.log[0]) as log:
         night = smk.wildcards.night
         scans, files, bad = stage_ingest(
-            smk.params.raw_root, night, smk.params.results_root, smk.params.duplicates, workers=smk.threads,
-            earlier_scans=list(smk.input.earlier_scans), on_conflict=smk.params.on_conflict, log=log,
+            smk.params.raw_root,
+            night,
+            smk.params.results_root,
+            smk.params.duplicates,
+            workers=smk.threads,
+            earlier_scans=list(smk.input.earlier_scans),
+            on_conflict=smk.params.on_conflict,
+            log=log,
             plausibility=smk.params.plausibility,
         )
         write_stage_outputs(smk.output, bad, scans=scans, files=files)

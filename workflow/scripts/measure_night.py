@@ -13,11 +13,22 @@ def main(smk) -> None:
     """Run the rule's stage with Snakemake's ``smk`` (inputs, outputs, params, log)."""
     with log_to(smk.log[0]) as log:
         diameters, verifications, artifacts, bad = stage_measure(
-            smk.params.raw_root, smk.wildcards.night, smk.params.results_root,
-            smk.input.scans, list(smk.input.calibrations), list(smk.input.verifications_before),
-            {k: smk.params[k] for k in ("verification", "measurement", "calibration", "uncertainty", "laboratory", "signal")}, log=log, workers=smk.threads,
+            smk.params.raw_root,
+            smk.wildcards.night,
+            smk.params.results_root,
+            smk.input.scans,
+            list(smk.input.calibrations),
+            list(smk.input.verifications_before),
+            {
+                k: smk.params[k]
+                for k in ("verification", "measurement", "calibration", "uncertainty", "laboratory", "signal")
+            },
+            log=log,
+            workers=smk.threads,
         )
-        write_stage_outputs(smk.output, bad, diameters=diameters, verifications=verifications, artifacts=artifacts)
+        write_stage_outputs(
+            smk.output, bad, diameters=diameters, verifications=verifications, artifacts=artifacts
+        )
         log(f"{diameters.height} diameters, {verifications.height} verifications, {quarantined_text(bad)}")
 
 

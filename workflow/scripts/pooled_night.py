@@ -14,12 +14,21 @@ def main(smk) -> None:
     with log_to(smk.log[0]) as log:
         pooled_dir(smk.params.results_root, smk.wildcards.night).mkdir(parents=True, exist_ok=True)
         findings, drift = stage_pooled(
-            smk.params.raw_root, smk.wildcards.night, smk.params.results_root, list(smk.input.scans),
-            list(smk.input.calibrations), smk.params.discrepancy, smk.params.devices, log=log, workers=smk.threads,
+            smk.params.raw_root,
+            smk.wildcards.night,
+            smk.params.results_root,
+            list(smk.input.scans),
+            list(smk.input.calibrations),
+            smk.params.discrepancy,
+            smk.params.devices,
+            log=log,
+            workers=smk.threads,
         )
         write_stage_outputs(smk.output, pooled_findings=findings, calibration_drift=drift)
-        log(f"{findings['device_id'].n_unique() if findings.height else 0} devices examined pooled, "
-            f"{int(drift['flagged'].sum()) if drift.height else 0} calibration drifts flagged")
+        log(
+            f"{findings['device_id'].n_unique() if findings.height else 0} devices examined pooled, "
+            f"{int(drift['flagged'].sum()) if drift.height else 0} calibration drifts flagged"
+        )
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage

@@ -13,12 +13,19 @@ def main(smk) -> None:
     """Run the rule's stage with Snakemake's ``smk`` (inputs, outputs, params, log)."""
     with log_to(smk.log[0]) as log:
         extrema, summary, bad = stage_signal(
-            smk.params.raw_root, smk.wildcards.night,
-            smk.params.results_root, smk.input.scans, smk.params.signal, log=log, workers=smk.threads,
+            smk.params.raw_root,
+            smk.wildcards.night,
+            smk.params.results_root,
+            smk.input.scans,
+            smk.params.signal,
+            log=log,
+            workers=smk.threads,
         )
         write_stage_outputs(smk.output, bad, extrema=extrema, summary=summary)
-        log(f"{summary['scan_id'].n_unique() if summary.height else 0} "
-            f"scans processed, {quarantined_text(bad)}")
+        log(
+            f"{summary['scan_id'].n_unique() if summary.height else 0} "
+            f"scans processed, {quarantined_text(bad)}"
+        )
 
 
 if __name__ == "__main__":  # worker processes import this file; only the job itself runs the stage

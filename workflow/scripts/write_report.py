@@ -12,10 +12,14 @@ def main(smk) -> None:
     """Run the rule's stage with Snakemake's ``smk`` (inputs, outputs, params, log)."""
     with log_to(smk.log[0]) as log:
         update = report.update_report(smk.params.results_root)
-        log(f"{len(update.months)} month(s); pages written: {', '.join(update.rendered) or 'none'}; "
-            f"{update.plots_drawn} plot(s) drawn")
-        log(f"report written to {update.path} (papers: "
-            f"{update.path.parent / report.REPORT_DIR / report.PAPERS_PAGE})")
+        log(
+            f"{len(update.months)} month(s); pages written: {', '.join(update.rendered) or 'none'}; "
+            f"{update.plots_drawn} plot(s) drawn"
+        )
+        log(
+            f"report written to {update.path} (papers: "
+            f"{update.path.parent / report.REPORT_DIR / report.PAPERS_PAGE})"
+        )
 
 
 if __name__ == "__main__":

@@ -20,8 +20,20 @@ import time
 from pathlib import Path
 from typing import TextIO
 
-__all__ = ["UsageError", "CommandFailed", "int_at_least", "positive_int", "nonnegative_int", "probability",
-           "positive_float", "finite_float", "night_date", "Progress", "utc_text", "command_config"]
+__all__ = [
+    "UsageError",
+    "CommandFailed",
+    "int_at_least",
+    "positive_int",
+    "nonnegative_int",
+    "probability",
+    "positive_float",
+    "finite_float",
+    "night_date",
+    "Progress",
+    "utc_text",
+    "command_config",
+]
 
 
 class UsageError(Exception):
@@ -115,8 +127,16 @@ class Progress:
     seconds (the last always). Disabled when ``enabled`` is false.
     """
 
-    def __init__(self, total: int, label: str, *, enabled: bool = True, lines: int = 10,
-                 min_interval_s: float = 1.0, stream: TextIO | None = None):
+    def __init__(
+        self,
+        total: int,
+        label: str,
+        *,
+        enabled: bool = True,
+        lines: int = 10,
+        min_interval_s: float = 1.0,
+        stream: TextIO | None = None,
+    ):
         self.total = max(int(total), 0)
         self.label = label
         self.enabled = enabled and self.total > 0
@@ -138,7 +158,9 @@ class Progress:
         elapsed = now - self.t0
         left = elapsed / done * (self.total - done) if done else math.nan
         tail = f", about {_duration(left)} left" if not last and math.isfinite(left) else ""
-        text = f"{self.label} {done}/{self.total} ({100 * done / self.total:.0f} %), {_duration(elapsed)}{tail}"
+        text = (
+            f"{self.label} {done}/{self.total} ({100 * done / self.total:.0f} %), {_duration(elapsed)}{tail}"
+        )
         print(text + (f"  {note}" if note else ""), file=self.stream or sys.stderr, flush=True)
 
 

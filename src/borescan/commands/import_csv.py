@@ -22,12 +22,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--raw-root", required=True, type=Path, help="raw root to write night=*/scan=* into")
     parser.add_argument("--separator", default=",", help="CSV field separator (default ',')")
-    parser.add_argument("--decimal", default=".", choices=(".", ","),
-                        help="decimal mark of the numbers (default '.'; with ',' give --separator ';')")
-    parser.epilog = ("Times with a UTC offset (started_at, a timestamp column) are stored converted to UTC. "
-                     "The scan is checked as the pipeline's ingest checks it before anything is written. "
-                     "Exit 0: written (the folder is printed); 1: the data were refused (every problem on "
-                     "stderr); 2: a file is missing or the scan id exists with other data.")
+    parser.add_argument(
+        "--decimal",
+        default=".",
+        choices=(".", ","),
+        help="decimal mark of the numbers (default '.'; with ',' give --separator ';')",
+    )
+    parser.epilog = (
+        "Times with a UTC offset (started_at, a timestamp column) are stored converted to UTC. "
+        "The scan is checked as the pipeline's ingest checks it before anything is written. "
+        "Exit 0: written (the folder is printed); 1: the data were refused (every problem on "
+        "stderr); 2: a file is missing or the scan id exists with other data."
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -43,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
         vendor = importcsv.read_vendor_csv(args.csv, separator=args.separator, decimal=args.decimal)
         if vendor.ignored_columns:
             print(f"note: ignored columns {', '.join(vendor.ignored_columns)}", file=sys.stderr)
-        out = importcsv.import_csv(args.csv, args.meta, args.raw_root, separator=args.separator,
-                                   decimal=args.decimal)
+        out = importcsv.import_csv(
+            args.csv, args.meta, args.raw_root, separator=args.separator, decimal=args.decimal
+        )
     except importcsv.CsvImportError as e:
         raise CommandFailed(str(e)) from None
     except FileExistsError as e:

@@ -20,31 +20,61 @@ from pathlib import Path
 from borescan.commands._common import UsageError
 
 NAME = "plan"
-HELP = ("predict a calibration scan's uncertainties (Cramer-Rao) and each beam's mirror depth, and "
-        "recommend the smallest scan reaching a target")
+HELP = (
+    "predict a calibration scan's uncertainties (Cramer-Rao) and each beam's mirror depth, and "
+    "recommend the smallest scan reaching a target"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``borescan plan`` options to ``parser``."""
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--device", choices=("yang", "demo"), help="a built-in device design and its ring gauge")
-    src.add_argument("--scan", type=Path, metavar="DIR", help="a tri_lds scan folder: its design, sensors, gauge, noise")
-    parser.add_argument("--noise-um", type=float, default=None, help="sensor noise sigma [um] (overrides the design's)")
-    parser.add_argument("--range-mm", type=float, default=None, help="sensor range [mm] (overrides the design's)")
-    parser.add_argument("--offset-mm", type=float, default=2.3, help="spindle offset from the gauge centre [mm]")
-    parser.add_argument("--offset-direction-deg", type=float, default=0.0, help="direction of that offset [deg]")
+    src.add_argument(
+        "--scan", type=Path, metavar="DIR", help="a tri_lds scan folder: its design, sensors, gauge, noise"
+    )
+    parser.add_argument(
+        "--noise-um", type=float, default=None, help="sensor noise sigma [um] (overrides the design's)"
+    )
+    parser.add_argument(
+        "--range-mm", type=float, default=None, help="sensor range [mm] (overrides the design's)"
+    )
+    parser.add_argument(
+        "--offset-mm", type=float, default=2.3, help="spindle offset from the gauge centre [mm]"
+    )
+    parser.add_argument(
+        "--offset-direction-deg", type=float, default=0.0, help="direction of that offset [deg]"
+    )
     parser.add_argument("--revolutions", type=float, default=60.0, help="revolutions of the scan")
-    parser.add_argument("--samples-per-rev", type=int, default=660, help="samples per revolution at the first speed")
+    parser.add_argument(
+        "--samples-per-rev", type=int, default=660, help="samples per revolution at the first speed"
+    )
     parser.add_argument("--rpm", type=float, nargs="+", default=[60.0], help="speeds, equal revolutions each")
     parser.add_argument("--direction", choices=("ccw", "cw"), default="ccw")
     parser.add_argument("--no-encoder", action="store_true", help="angle commanded, not measured")
-    parser.add_argument("--positions-unknown", action="store_true", help="scan.json gives no spindle/centre position")
-    parser.add_argument("--target-u-beta-urad", type=float, default=50.0,
-                        help="target u(beta_c - beta_1) [urad] (a common rotation of the beams moves no diameter)")
-    parser.add_argument("--offsets-mm", type=float, nargs="+", default=[0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0],
-                        help="offsets the recommendation tries [mm]")
-    parser.add_argument("--revolutions-grid", type=float, nargs="+", default=[1, 2, 5, 10, 20, 30, 60, 120, 240],
-                        help="revolutions the recommendation tries")
+    parser.add_argument(
+        "--positions-unknown", action="store_true", help="scan.json gives no spindle/centre position"
+    )
+    parser.add_argument(
+        "--target-u-beta-urad",
+        type=float,
+        default=50.0,
+        help="target u(beta_c - beta_1) [urad] (a common rotation of the beams moves no diameter)",
+    )
+    parser.add_argument(
+        "--offsets-mm",
+        type=float,
+        nargs="+",
+        default=[0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0],
+        help="offsets the recommendation tries [mm]",
+    )
+    parser.add_argument(
+        "--revolutions-grid",
+        type=float,
+        nargs="+",
+        default=[1, 2, 5, 10, 20, 30, 60, 120, 240],
+        help="revolutions the recommendation tries",
+    )
 
 
 def _design(args):
@@ -96,20 +126,26 @@ def _design(args):
 
 def _print(p, title: str) -> None:
     s = p.scan
-    print(f"{title}: offset {s.offset_mm:g} mm at {math.degrees(s.offset_direction_rad):g} deg, "
-          f"{s.revolutions:g} rev x {s.samples_per_rev} samples/rev ({s.n_samples} samples per channel), "
-          f"rpm {', '.join(f'{r:g}' for r in s.rpm)}, "
-          f"{'encoder' if s.encoder else 'commanded angle'}, positions "
-          f"{'known' if s.positions_known else 'unknown'}; beams {p.beta_reference}; readings "
-          f"{'inside' if p.in_range else 'OUTSIDE'} the sensors' range")
-    print(f"  {'ch':>3s} {'u(beta) urad':>13s} {'u(beta-beta1)':>14s} "
-          f"{'u(rho) um':>10s} {'u(d_b) um':>10s} {'mirror dchi2':>13s} "
-          f"{'sign':>9s} {'offset to resolve mm':>21s}")
+    print(
+        f"{title}: offset {s.offset_mm:g} mm at {math.degrees(s.offset_direction_rad):g} deg, "
+        f"{s.revolutions:g} rev x {s.samples_per_rev} samples/rev ({s.n_samples} samples per channel), "
+        f"rpm {', '.join(f'{r:g}' for r in s.rpm)}, "
+        f"{'encoder' if s.encoder else 'commanded angle'}, positions "
+        f"{'known' if s.positions_known else 'unknown'}; beams {p.beta_reference}; readings "
+        f"{'inside' if p.in_range else 'OUTSIDE'} the sensors' range"
+    )
+    print(
+        f"  {'ch':>3s} {'u(beta) urad':>13s} {'u(beta-beta1)':>14s} "
+        f"{'u(rho) um':>10s} {'u(d_b) um':>10s} {'mirror dchi2':>13s} "
+        f"{'sign':>9s} {'offset to resolve mm':>21s}"
+    )
     for j, ch in enumerate(p.channels):
         depth = f"{p.mirror_depth[j]:.1f}" if p.mirror_possible[j] else "no mirror"
-        print(f"  {ch:3d} {p.u_beta_rad[j] * 1e6:13.1f} {p.u_dbeta_rad[j] * 1e6:14.1f} "
-              f"{p.u_rho_mm[j] * 1e3:10.2f} {p.u_d_b_mm[j] * 1e3:10.2f} "
-              f"{depth:>13s} {'resolved' if p.resolved[j] else 'FLAGGED':>9s} {p.offset_to_resolve_mm[j]:21.2f}")
+        print(
+            f"  {ch:3d} {p.u_beta_rad[j] * 1e6:13.1f} {p.u_dbeta_rad[j] * 1e6:14.1f} "
+            f"{p.u_rho_mm[j] * 1e3:10.2f} {p.u_d_b_mm[j] * 1e3:10.2f} "
+            f"{depth:>13s} {'resolved' if p.resolved[j] else 'FLAGGED':>9s} {p.offset_to_resolve_mm[j]:21.2f}"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -118,30 +154,48 @@ def run(args: argparse.Namespace) -> int:
     from borescan.plan import ScanDesign, predict, recommend
 
     device, R = _design(args)
-    scan = ScanDesign(offset_mm=args.offset_mm, offset_direction_rad=math.radians(args.offset_direction_deg),
-                      revolutions=args.revolutions, samples_per_rev=args.samples_per_rev, rpm=tuple(args.rpm),
-                      direction=args.direction, encoder=not args.no_encoder,
-                      positions_known=not args.positions_unknown,
-                      position_accuracy_mm=float(schema_defaults()["calibration"]["position_accuracy_mm"]))
-    print(f"gauge radius {R:.4f} mm; noise {', '.join(f'{s * 1e3:.2f}' for s in device.noise_mm)} um; "
-          f"range {', '.join(f'{r:g}' for r in device.range_mm)} mm")
+    scan = ScanDesign(
+        offset_mm=args.offset_mm,
+        offset_direction_rad=math.radians(args.offset_direction_deg),
+        revolutions=args.revolutions,
+        samples_per_rev=args.samples_per_rev,
+        rpm=tuple(args.rpm),
+        direction=args.direction,
+        encoder=not args.no_encoder,
+        positions_known=not args.positions_unknown,
+        position_accuracy_mm=float(schema_defaults()["calibration"]["position_accuracy_mm"]),
+    )
+    print(
+        f"gauge radius {R:.4f} mm; noise {', '.join(f'{s * 1e3:.2f}' for s in device.noise_mm)} um; "
+        f"range {', '.join(f'{r:g}' for r in device.range_mm)} mm"
+    )
     _print(predict(device, R, scan), "proposed")
     target = args.target_u_beta_urad * 1e-6
     rec = recommend(device, R, scan, target, args.offsets_mm, args.revolutions_grid)
     if rec is None:
-        print(f"no scan of {max(args.revolutions_grid):g} revolutions or fewer at offsets up to "
-              f"{max(args.offsets_mm):g} mm reaches u(beta_c - beta_1) "
-              f"<= {args.target_u_beta_urad:g} urad with every rho "
-              "resolved inside the sensors' range: more samples per revolution, lower noise or a longer-range "
-              "sensor (a larger offset) would")
+        print(
+            f"no scan of {max(args.revolutions_grid):g} revolutions or fewer at offsets up to "
+            f"{max(args.offsets_mm):g} mm reaches u(beta_c - beta_1) "
+            f"<= {args.target_u_beta_urad:g} urad with every rho "
+            "resolved inside the sensors' range: more samples per revolution, lower noise or a longer-range "
+            "sensor (a larger offset) would"
+        )
         from dataclasses import replace
 
-        cands = [predict(device, R, replace(scan, revolutions=float(r), offset_mm=float(o)))
-                 for r in args.revolutions_grid for o in args.offsets_mm]
+        cands = [
+            predict(device, R, replace(scan, revolutions=float(r), offset_mm=float(o)))
+            for r in args.revolutions_grid
+            for o in args.offsets_mm
+        ]
         ok = [p for p in cands if p.in_range and all(p.resolved)]
         if ok:
-            best = min(ok, key=lambda p: (round(max(p.u_dbeta_rad) * 1e6, 1), p.scan.n_samples, p.scan.offset_mm))
-            _print(best, f"best reachable of those (u(beta_c - beta_1) <= {max(best.u_dbeta_rad) * 1e6:.0f} urad)")
+            best = min(
+                ok, key=lambda p: (round(max(p.u_dbeta_rad) * 1e6, 1), p.scan.n_samples, p.scan.offset_mm)
+            )
+            _print(
+                best,
+                f"best reachable of those (u(beta_c - beta_1) <= {max(best.u_dbeta_rad) * 1e6:.0f} urad)",
+            )
         return 1
     _print(rec, f"recommended (u(beta_c - beta_1) <= {args.target_u_beta_urad:g} urad, every rho resolved)")
     return 0

@@ -14,8 +14,11 @@ HELP = "rebuild results/catalog.duckdb from every night's stage tables (the nigh
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
-    parser.add_argument("--results", default="results",
-                        help="results folder holding stage/ and catalog.duckdb (default: results)")
+    parser.add_argument(
+        "--results",
+        default="results",
+        help="results folder holding stage/ and catalog.duckdb (default: results)",
+    )
     parser.epilog = (
         "The pipeline's build_catalog step reads only the nights that are new since the last build; "
         "this command reads them all and gives the same tables. The old catalog is replaced only "
@@ -27,8 +30,10 @@ def run(args: argparse.Namespace) -> int:
     """Rebuild the catalog from every night's stage tables; return the exit status."""
     nights = catalog.stage_files(args.results)
     if not nights:
-        print(f"borescan rebuild-catalog: no stage tables under {args.results}/stage (run the pipeline first)",
-              file=sys.stderr)
+        print(
+            f"borescan rebuild-catalog: no stage tables under {args.results}/stage (run the pipeline first)",
+            file=sys.stderr,
+        )
         return 1
     t0 = time.perf_counter()
     try:
@@ -36,7 +41,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         print(f"borescan rebuild-catalog: {err}", file=sys.stderr)
         return 1
-    print(f"full rebuild of {update.path} from {len(update.added)} night(s) in {time.perf_counter() - t0:.1f} s")
+    print(
+        f"full rebuild of {update.path} from {len(update.added)} night(s) in {time.perf_counter() - t0:.1f} s"
+    )
     for table, n in update.rows.items():
         print(f"{table}: {n} rows")
     return 0

@@ -16,19 +16,33 @@ from pathlib import Path
 from borescan.commands._common import UsageError, night_date
 
 NAME = "recompute"
-HELP = ("apply the current config to the nights from --from NIGHT on (new versions beside the old ones, "
-        "a change record); the next snakemake run recomputes them")
+HELP = (
+    "apply the current config to the nights from --from NIGHT on (new versions beside the old ones, "
+    "a change record); the next snakemake run recomputes them"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``borescan recompute`` options to ``parser``."""
-    parser.add_argument("--from", dest="from_night", required=True, type=night_date, metavar="NIGHT",
-                        help="first night (YYYY-MM-DD) to recompute with the current config")
-    parser.add_argument("--results", default="results", type=Path,
-                        help="results folder of the history (default: results)")
-    parser.add_argument("--configfile", action="append", type=Path, metavar="FILE",
-                        help="config file(s) as given to snakemake (default: config/config.yaml and "
-                             "config/devices.yaml, as the Snakefile reads them)")
+    parser.add_argument(
+        "--from",
+        dest="from_night",
+        required=True,
+        type=night_date,
+        metavar="NIGHT",
+        help="first night (YYYY-MM-DD) to recompute with the current config",
+    )
+    parser.add_argument(
+        "--results", default="results", type=Path, help="results folder of the history (default: results)"
+    )
+    parser.add_argument(
+        "--configfile",
+        action="append",
+        type=Path,
+        metavar="FILE",
+        help="config file(s) as given to snakemake (default: config/config.yaml and "
+        "config/devices.yaml, as the Snakefile reads them)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,8 +61,10 @@ def run(args: argparse.Namespace) -> int:
     if change is None:
         print(f"every night from {args.from_night} on already has the current config: nothing to recompute")
         return 0
-    print(f"{change.change_id}: {len(change.nights)} night(s) "
-          f"({change.nights[0]}..{change.nights[-1]}) will be "
-          f"recomputed with config {change.new_hash} (changed: {', '.join(change.keys) or 'none'}); their "
-          f"present results are kept in {args.results / change.archive}. Run snakemake to recompute them.")
+    print(
+        f"{change.change_id}: {len(change.nights)} night(s) "
+        f"({change.nights[0]}..{change.nights[-1]}) will be "
+        f"recomputed with config {change.new_hash} (changed: {', '.join(change.keys) or 'none'}); their "
+        f"present results are kept in {args.results / change.archive}. Run snakemake to recompute them."
+    )
     return 0

@@ -26,17 +26,33 @@ HELP = "run SQL on the history catalog (results/catalog.duckdb), read-only"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
     parser.add_argument("query", nargs="?", help='SQL text, e.g. "SELECT * FROM scans"')
-    parser.add_argument("--results", default="results",
-                        help="results folder holding catalog.duckdb, relative or absolute (default: results)")
-    parser.add_argument("--query", dest="saved", metavar="NAME",
-                        help="run a saved query of workflow/queries (see --list)")
+    parser.add_argument(
+        "--results",
+        default="results",
+        help="results folder holding catalog.duckdb, relative or absolute (default: results)",
+    )
+    parser.add_argument(
+        "--query", dest="saved", metavar="NAME", help="run a saved query of workflow/queries (see --list)"
+    )
     parser.add_argument("--list", action="store_true", help="list the saved queries and what they answer")
-    parser.add_argument("--format", choices=("table", "csv", "json"), default="table",
-                        help="table: aligned and rounded (default); csv, json: full precision")
-    parser.add_argument("--digits", type=int_at_least(1), default=7,
-                        help="significant digits of numbers in the table (default 7)")
-    parser.add_argument("--max-width", type=nonnegative_int, default=40,
-                        help="cut text cells of the table longer than this, 0 = never (default 40)")
+    parser.add_argument(
+        "--format",
+        choices=("table", "csv", "json"),
+        default="table",
+        help="table: aligned and rounded (default); csv, json: full precision",
+    )
+    parser.add_argument(
+        "--digits",
+        type=int_at_least(1),
+        default=7,
+        help="significant digits of numbers in the table (default 7)",
+    )
+    parser.add_argument(
+        "--max-width",
+        type=nonnegative_int,
+        default=40,
+        help="cut text cells of the table longer than this, 0 = never (default 40)",
+    )
     parser.epilog = (
         "The catalog is opened read-only, and queries cannot read or write other files (COPY, ATTACH, "
         "read_csv) or load extensions: export with --format csv > file.csv. Saved queries are also views: "
@@ -135,7 +151,7 @@ def _cut(text: str, width: int) -> str:
     if width <= 0 or len(text) <= width:
         return text
     head = (width - 1) // 3
-    return text[:head] + "\u2026" + text[len(text) - (width - 1 - head):]
+    return text[:head] + "\u2026" + text[len(text) - (width - 1 - head) :]
 
 
 def format_table(columns: list[str], rows: list[tuple], digits: int = 7, max_width: int = 40) -> str:
@@ -144,8 +160,10 @@ def format_table(columns: list[str], rows: list[tuple], digits: int = 7, max_wid
     Aligned text table: header, a rule, one line per row; numbers rounded and right-aligned on
     their decimal point, text left-aligned and cut at ``max_width`` characters (0: never).
     """
-    numeric = [any(r[i] is not None for r in rows) and all(_is_number(r[i]) for r in rows if r[i] is not None)
-               for i in range(len(columns))]
+    numeric = [
+        any(r[i] is not None for r in rows) and all(_is_number(r[i]) for r in rows if r[i] is not None)
+        for i in range(len(columns))
+    ]
     cols = []
     for i in range(len(columns)):
         values = [r[i] for r in rows]
@@ -159,8 +177,10 @@ def format_table(columns: list[str], rows: list[tuple], digits: int = 7, max_wid
         parts = [v.rjust(w) if num else v.ljust(w) for v, w, num in zip(values, widths, numeric, strict=True)]
         return "  ".join(parts).rstrip()
 
-    out = [line([c.rjust(w) if num else c for c, w, num in zip(columns, widths, numeric, strict=True)]),
-           "  ".join("-" * w for w in widths)]
+    out = [
+        line([c.rjust(w) if num else c for c, w, num in zip(columns, widths, numeric, strict=True)]),
+        "  ".join("-" * w for w in widths),
+    ]
     out += [line([col[j] for col in cols]) for j in range(len(rows))]
     return "\n".join(out) + "\n"
 
@@ -171,8 +191,12 @@ def format_table(columns: list[str], rows: list[tuple], digits: int = 7, max_wid
 #: DuckDB settings of the query connection: no file but the catalog is read or written (COPY ... TO,
 #: ATTACH, EXPORT DATABASE, read_csv/read_parquet/glob of any path), no extension installed or loaded,
 #: and the settings locked after the time zone is set, so a query cannot undo them.
-SANDBOX = {"enable_external_access": False, "autoinstall_known_extensions": False,
-           "autoload_known_extensions": False, "allow_community_extensions": False}
+SANDBOX = {
+    "enable_external_access": False,
+    "autoinstall_known_extensions": False,
+    "autoload_known_extensions": False,
+    "allow_community_extensions": False,
+}
 
 
 def query_connection(results: str):
@@ -221,13 +245,16 @@ def _catalog_views(results: str) -> set[str]:
     except (FileNotFoundError, duckdb.Error):
         return set()
     try:
-        return {r[0] for r in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()}
+        return {
+            r[0] for r in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()
+        }
     finally:
         con.close()
 
 
 def run(  # noqa: C901 (one branch per option of the sql command)
-        args: argparse.Namespace) -> int:
+    args: argparse.Namespace,
+) -> int:
     """Run a query (given or saved) on the catalog, or list the saved ones; return the exit status."""
     import duckdb
 
@@ -258,7 +285,9 @@ def run(  # noqa: C901 (one branch per option of the sql command)
     except FileNotFoundError as err:
         raise CommandFailed(str(err)) from None
     except duckdb.PermissionException as err:
-        raise CommandFailed(f"borescan sql reads the catalog only (no files, ATTACH or extensions): {err}") from None
+        raise CommandFailed(
+            f"borescan sql reads the catalog only (no files, ATTACH or extensions): {err}"
+        ) from None
     except duckdb.Error as err:
         raise CommandFailed(str(err)) from None
     if args.format == "csv":

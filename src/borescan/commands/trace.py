@@ -16,10 +16,16 @@ HELP = "show the chain behind a diameter, scan, part, calibration or certificate
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
-    parser.add_argument("id", help="diameter id (SCAN/FEATURE), scan id, part id, calibration id or certificate "
-                                   "path (relative to the current folder or the results folder, or absolute)")
-    parser.add_argument("--results", default="results",
-                        help="results folder holding catalog.duckdb, relative or absolute (default: results)")
+    parser.add_argument(
+        "id",
+        help="diameter id (SCAN/FEATURE), scan id, part id, calibration id or certificate "
+        "path (relative to the current folder or the results folder, or absolute)",
+    )
+    parser.add_argument(
+        "--results",
+        default="results",
+        help="results folder holding catalog.duckdb, relative or absolute (default: results)",
+    )
     parser.add_argument("--json", action="store_true", help="print the chain as JSON instead of text")
 
 

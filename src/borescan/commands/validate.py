@@ -21,22 +21,34 @@ from pathlib import Path
 from borescan.commands._common import Progress, UsageError, command_config
 
 NAME = "validate"
-HELP = ("check scans under RAW_ROOT exactly as the pipeline's ingest does: format, sensor range, "
-        "sample clock, unique ids (one line per problem, exit 1 if any)")
+HELP = (
+    "check scans under RAW_ROOT exactly as the pipeline's ingest does: format, sensor range, "
+    "sample clock, unique ids (one line per problem, exit 1 if any)"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add ``RAW_ROOT``."""
-    parser.add_argument("raw_root", metavar="RAW_ROOT", type=Path,
-                        help="root of night=*/scan=* folders (relative or absolute)")
-    parser.add_argument("--config", type=Path, default=None,
-                        help="pipeline config whose signal and calibration settings the stages use (default: "
-                             "config/config.yaml when present, else the schema's defaults)")
+    parser.add_argument(
+        "raw_root",
+        metavar="RAW_ROOT",
+        type=Path,
+        help="root of night=*/scan=* folders (relative or absolute)",
+    )
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="pipeline config whose signal and calibration settings the stages use (default: "
+        "config/config.yaml when present, else the schema's defaults)",
+    )
     # Before the checks were one, readings outside the sensor range were warnings shown by this
     # flag; they are problems now (ingest quarantines them). Accepted so old scripts keep working.
     parser.add_argument("--warnings", action="store_true", help=argparse.SUPPRESS)
-    parser.epilog = ("Problems go to stdout as 'scan_id: file: problem' ('-' for folders that are not "
-                     "scans), the summary to stderr. Exit 0: all valid; 1: problems; 2: RAW_ROOT missing.")
+    parser.epilog = (
+        "Problems go to stdout as 'scan_id: file: problem' ('-' for folders that are not "
+        "scans), the summary to stderr. Exit 0: all valid; 1: problems; 2: RAW_ROOT missing."
+    )
 
 
 def _plausibility():
@@ -74,12 +86,18 @@ def run(args: argparse.Namespace) -> int:
     outcomes = stage_outcomes(args.raw_root, report.bad_scan_ids, cfg)
     later = sorted({o.scan_id for o in outcomes if o.quarantined})
     for o in outcomes:
-        print(f"{o.scan_id}: {o.file}: will be quarantined at {o.stage}: {o.reason}" if o.quarantined
-              else f"{o.scan_id}: {o.file}: note: {o.stage}: {o.reason}")
+        print(
+            f"{o.scan_id}: {o.file}: will be quarantined at {o.stage}: {o.reason}"
+            if o.quarantined
+            else f"{o.scan_id}: {o.file}: note: {o.stage}: {o.reason}"
+        )
     if report.problems or later:
-        print(f"{len(report.problems) + len(later)} problems; of "
-              f"{report.n_scans} scans {len(report.bad_scan_ids)} "
-              f"invalid (set aside at ingest), {len(later)} to be set aside by a later stage", file=sys.stderr)
+        print(
+            f"{len(report.problems) + len(later)} problems; of "
+            f"{report.n_scans} scans {len(report.bad_scan_ids)} "
+            f"invalid (set aside at ingest), {len(later)} to be set aside by a later stage",
+            file=sys.stderr,
+        )
         return 1
     print(f"{report.n_scans} scans, all valid" + (" (see the notes)" if outcomes else ""))
     return 0
@@ -107,11 +125,17 @@ def stage_outcomes(raw_root: Path, bad_scan_ids: set[str], cfg: dict) -> list:
             revolutions = None
             if scan.spindle is not None and scan.meta["device"]["type"] == "tri_lds":
                 try:
-                    revolutions = preconditions.summary_revolutions(scan_summary(scan, rawio.lds_matrix(scan), opts)[1])
+                    revolutions = preconditions.summary_revolutions(
+                        scan_summary(scan, rawio.lds_matrix(scan), opts)[1]
+                    )
                 except (ValueError, np.linalg.LinAlgError, IndexError) as err:
-                    out.append(preconditions.StageOutcome(scan.scan_id, "signal", rawio.LDS_FILE,
-                                                          f"signal stage failed: {err}", True))
+                    out.append(
+                        preconditions.StageOutcome(
+                            scan.scan_id, "signal", rawio.LDS_FILE, f"signal stage failed: {err}", True
+                        )
+                    )
                     continue
-            out += preconditions.expected_outcomes(scan.meta, has_spindle=scan.spindle is not None,
-                                                   revolutions=revolutions, min_rev=min_rev)
+            out += preconditions.expected_outcomes(
+                scan.meta, has_spindle=scan.spindle is not None, revolutions=revolutions, min_rev=min_rev
+            )
     return out

@@ -25,6 +25,7 @@ def examine_to_dir(scan, out_dir, **cfg) -> dict:
     plot_gap(ex, Path(out_dir) / "gap.png")
     return ex.findings
 
+
 __all__ = [
     "Examination",
     "analyse_scan",

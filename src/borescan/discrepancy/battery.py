@@ -26,10 +26,21 @@ __all__ = ["TRI_EFFECTS", "random_tri_case", "score_case", "run_battery", "Batte
 
 #: Effects of the spec that apply to a three-sensor spindle scan.
 TRI_EFFECTS = (
-    "sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift", "channel_delay", "quantization",
-    "outliers", "vibration", "speed_error", "speed_ripple", "spindle_error_motion", "axis_tilt",
+    "sensor_offset",
+    "sensor_gain",
+    "sensor_nonlinearity",
+    "sensor_drift",
+    "channel_delay",
+    "quantization",
+    "outliers",
+    "vibration",
+    "speed_error",
+    "speed_ripple",
+    "spindle_error_motion",
+    "axis_tilt",
     "bore_lobing",
-    "thermal_expansion", "beam_tilt",
+    "thermal_expansion",
+    "beam_tilt",
 )
 #: Spec look-alikes (labels as "effect@channel" / "effect[k=..]").
 LOOKALIKES = [
@@ -86,10 +97,20 @@ def random_effect(  # noqa: C901 (one branch per effect of the registry)
 
 #: Magnitude parameters of each effect (multiplied by the battery's ``scale``).
 MAGNITUDE = {
-    "sensor_offset": "b_mm", "sensor_gain": "g", "sensor_nonlinearity": "a_mm", "sensor_drift": "k_mm_per_s",
-    "channel_delay": "tau_s", "quantization": "lsb_mm", "outliers": "size_mm", "vibration": "a_mm",
-    "speed_error": "eps", "speed_ripple": "a_rad", "spindle_error_motion": "rho_mm", "axis_tilt": "beta_rad",
-    "bore_lobing": "a_mm", "beam_tilt": "gamma_rad",
+    "sensor_offset": "b_mm",
+    "sensor_gain": "g",
+    "sensor_nonlinearity": "a_mm",
+    "sensor_drift": "k_mm_per_s",
+    "channel_delay": "tau_s",
+    "quantization": "lsb_mm",
+    "outliers": "size_mm",
+    "vibration": "a_mm",
+    "speed_error": "eps",
+    "speed_ripple": "a_rad",
+    "spindle_error_motion": "rho_mm",
+    "axis_tilt": "beta_rad",
+    "bore_lobing": "a_mm",
+    "beam_tilt": "gamma_rad",
 }
 
 
@@ -133,17 +154,30 @@ def random_tri_case(
     spr = int(rng.integers(200, 301))
     rate = spr * rpm / 60.0
     scene = TriScene(
-        beams=beams, bore_center_xy_mm=C, bore_radius_20_mm=R, spindle_xy_mm=S, rpm_nominal=rpm,
-        phase_rad=rng.uniform(0, 2 * np.pi), direction="ccw" if rng.random() < 0.7 else "cw",
-        sample_rate_hz=rate, range_mm=(10.0, 10.0, 10.0), cte_per_k=11.5e-6, temperature_c=20.0,
+        beams=beams,
+        bore_center_xy_mm=C,
+        bore_radius_20_mm=R,
+        spindle_xy_mm=S,
+        rpm_nominal=rpm,
+        phase_rad=rng.uniform(0, 2 * np.pi),
+        direction="ccw" if rng.random() < 0.7 else "cw",
+        sample_rate_hz=rate,
+        range_mm=(10.0, 10.0, 10.0),
+        cte_per_k=11.5e-6,
+        temperature_c=20.0,
     )
     names = [str(x) for x in rng.choice(TRI_EFFECTS, size=n_effects, replace=False)] if n_effects else []
     effects = [_scaled(random_effect(n, rng, beams.channels, rpm / 60.0, rate), scale) for n in names]
     # the spec: with an encoder the angle is measured and a speed error or ripple is not there to find
     kinematic = any(e.name in ("speed_error", "speed_ripple") for e in effects)
     sim = simulate_tri_spindle(
-        scene, scan_id=scan_id, n_rev=int(rng.integers(5, 11)), effects=effects,
-        noise_mm=float(rng.uniform(0.001, 0.004)), seed=int(rng.integers(0, 2**31)), encoder=not kinematic,
+        scene,
+        scan_id=scan_id,
+        n_rev=int(rng.integers(5, 11)),
+        effects=effects,
+        noise_mm=float(rng.uniform(0.001, 0.004)),
+        seed=int(rng.integers(0, 2**31)),
+        encoder=not kinematic,
     )
     return sim, effects
 
@@ -212,8 +246,10 @@ class BatteryResult:
     @property
     def accuracy_lenient(self) -> float:
         """Share correct when an "ambiguous" verdict that lists every hidden effect also counts."""
-        ok = [r["correct"] or (r["verdict"] == "ambiguous" and set(r["truth"]) <= set(r["named"]))
-              for r in self.rows]
+        ok = [
+            r["correct"] or (r["verdict"] == "ambiguous" and set(r["truth"]) <= set(r["named"]))
+            for r in self.rows
+        ]
         return float(np.mean(ok)) if ok else float("nan")
 
     @property
@@ -231,8 +267,9 @@ class BatteryResult:
     @property
     def median_shrink_ceiling(self) -> float:
         """Median gap_before / noise floor: the largest shrink a perfect model could show."""
-        s = [r["gap_before_mm"] / r["noise_floor_mm"] for r in self.rows
-             if r["truth"] and r["noise_floor_mm"]]
+        s = [
+            r["gap_before_mm"] / r["noise_floor_mm"] for r in self.rows if r["truth"] and r["noise_floor_mm"]
+        ]
         return float(np.median(s)) if s else float("nan")
 
     @property
@@ -305,8 +342,22 @@ def run_battery(
 
 #: parameters of each effect that set its size (scaled by :func:`scale_effect`); temperature_c
 #: scales its departure from 20 degC
-_MAGNITUDES = ("b_mm", "g", "a_mm", "k_mm_per_s", "tau_s", "lsb_mm", "size_mm", "eps", "a_rad", "rho_mm",
-               "beta_rad", "gamma_rad", "d_mm", "h")
+_MAGNITUDES = (
+    "b_mm",
+    "g",
+    "a_mm",
+    "k_mm_per_s",
+    "tau_s",
+    "lsb_mm",
+    "size_mm",
+    "eps",
+    "a_rad",
+    "rho_mm",
+    "beta_rad",
+    "gamma_rad",
+    "d_mm",
+    "h",
+)
 
 
 def scale_effect(effect: Effect, factor: float) -> Effect:

@@ -26,13 +26,29 @@ from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arr
 from borescan.discrepancy.tri import Term, TriData, TriModel, tri_data_from_arrays
 from borescan.effects import EFFECTS
 
-__all__ = ["Examination", "discrepancy_settings", "examine_scan", "examine_tri", "analyse_scan", "against_reference",
-           "write_findings", "scan_arrays"]
+__all__ = [
+    "Examination",
+    "discrepancy_settings",
+    "examine_scan",
+    "examine_tri",
+    "analyse_scan",
+    "against_reference",
+    "write_findings",
+    "scan_arrays",
+]
 
 #: config key (``discrepancy:`` section of the schema) -> keyword of :func:`examine_model`
-SETTINGS = {"delta_bic_threshold": "threshold", "max_harmonic": "k_max", "exact_refits": "n_exact",
-            "pair_seeds": "n_pair_seeds", "pair_extensions": "n_pair_ext", "screen_gate": "screen_gate",
-            "outlier_false_rate": "spike_false_rate", "min_outliers": "min_spikes", "max_samples": "max_samples"}
+SETTINGS = {
+    "delta_bic_threshold": "threshold",
+    "max_harmonic": "k_max",
+    "exact_refits": "n_exact",
+    "pair_seeds": "n_pair_seeds",
+    "pair_extensions": "n_pair_ext",
+    "screen_gate": "screen_gate",
+    "outlier_false_rate": "spike_false_rate",
+    "min_outliers": "min_spikes",
+    "max_samples": "max_samples",
+}
 
 
 def discrepancy_settings(section: dict | None = None) -> dict[str, Any]:
@@ -132,8 +148,15 @@ def analyse_scan(scan, **cfg) -> Examination:
     dtype = meta["device"]["type"]
     t_s, channels, vals, pose, spindle = scan_arrays(scan)
     if dtype == "tri_lds" and pose is None:
-        data = tri_data_from_arrays(meta["scan_id"], meta, t_s, vals, channels, spindle,
-                                    max_samples=int(cfg.get("max_samples", DEFAULTS["max_samples"])))
+        data = tri_data_from_arrays(
+            meta["scan_id"],
+            meta,
+            t_s,
+            vals,
+            channels,
+            spindle,
+            max_samples=int(cfg.get("max_samples", DEFAULTS["max_samples"])),
+        )
         return examine_tri(data, **cfg)
     if pose is None:
         raise ValueError(f"{meta['scan_id']}: lds.parquet: a {dtype} scan needs the pose column")
@@ -169,8 +192,9 @@ def examine_scan(scan, **cfg) -> dict:
 # ---------------------------------------------------------------------------- tri spindle
 
 
-def _jacobian_columns(model, p: dict, terms: list[Term], names: list[str], scales: list[float],
-                      f0: np.ndarray | None = None) -> np.ndarray:
+def _jacobian_columns(
+    model, p: dict, terms: list[Term], names: list[str], scales: list[float], f0: np.ndarray | None = None
+) -> np.ndarray:
     """Forward-difference columns of the weighted model over the unmasked samples, per unit scale.
 
     ``f0``: the residual at ``p`` when the caller has it (a candidate term at zero adds nothing:
@@ -216,7 +240,9 @@ def outlier_threshold_sigma(n: int, false_rate: float = 1e-3) -> float:
     (Bonferroni), at least 4. About 5.2 for 6000 samples, 4.9 for 1000 (a fixed 7 missed
     outliers of 5-6 noise levels, which a channel of 1000 readings shows plainly).
     """
-    from scipy.special import ndtri  # the normal quantile (scipy.stats would add ~0.6 s of imports per worker)
+    from scipy.special import (
+        ndtri,
+    )  # the normal quantile (scipy.stats would add ~0.6 s of imports per worker)
 
     return max(4.0, float(-ndtri(false_rate / (2.0 * max(n, 1)))))
 
@@ -279,12 +305,19 @@ def _quantization_evidence(r_mm: np.ndarray, lsb_mm: float, v_mm: np.ndarray) ->
 
 def examine_tri(data: TriData, **cfg) -> Examination:
     """Examine a three-sensor spindle scan given as :class:`TriData` (see :func:`examine_scan`)."""
-    return examine_model(TriModel(data, free_beams=tuple(cfg.get("free_beams", ())),
-                                  device_effects=tuple(cfg.get("device_effects", ()))), **cfg)
+    return examine_model(
+        TriModel(
+            data,
+            free_beams=tuple(cfg.get("free_beams", ())),
+            device_effects=tuple(cfg.get("device_effects", ())),
+        ),
+        **cfg,
+    )
 
 
 def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split into small functions)
-        model, **cfg) -> Examination:
+    model, **cfg
+) -> Examination:
     """Run the examination workflow on any model object (:class:`TriModel`, rod and static models).
 
     The model provides the data, the base parameters and their start, the forward model with
@@ -311,9 +344,15 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
         for st in (start, {**fallback, **{k: v for k, v in start.items() if k.endswith("f_hz")}}):
             xs = [st.get(n, 0.0) for n in names]
             try:
-                fr = fit_least_squares(lambda p: model.residual(p, terms), names, xs, scales,
-                                       sparsity=residual_sparsity(names, model.mask, data.channels,
-                                                                  getattr(data, "pose_index", None)))
+                fr = fit_least_squares(
+                    lambda p: model.residual(p, terms),
+                    names,
+                    xs,
+                    scales,
+                    sparsity=residual_sparsity(
+                        names, model.mask, data.channels, getattr(data, "pose_index", None)
+                    ),
+                )
             except ValueError:
                 continue
             if np.isfinite(fr.rss):
@@ -329,8 +368,11 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
     sig_ref = float(np.sqrt(np.mean(sigma**2))) or 1e-6
     named_extra: list[dict] = []
     # --- outliers: isolated jumps (running-median residual), per channel
-    spikes = model.spike_mask(r0, sigma, k_sigma=outlier_threshold_sigma(int(model.valid.sum(axis=0).max()),
-                                                                          float(c["spike_false_rate"])))
+    spikes = model.spike_mask(
+        r0,
+        sigma,
+        k_sigma=outlier_threshold_sigma(int(model.valid.sum(axis=0).max()), float(c["spike_false_rate"])),
+    )
     all_valid = model.valid.copy()
     for j, ch in enumerate(data.channels):
         cnt = int(spikes[:, j].sum())
@@ -389,9 +431,13 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
                 "channel": ch,
                 "parameters": {"lsb_mm": lsb},
                 "uncertainties": {"u_lsb_mm": lsb * LATTICE_TOL},
-                "evidence": {"delta_bic": dbic, "delta_bic_likelihood": dbic_ll, "lattice": True,
-                             "noise_before_quantization_mm": s_q,
-                             "rounding_noise_mm": lsb / math.sqrt(12.0)},
+                "evidence": {
+                    "delta_bic": dbic,
+                    "delta_bic_likelihood": dbic_ll,
+                    "lattice": True,
+                    "noise_before_quantization_mm": s_q,
+                    "rounding_noise_mm": lsb / math.sqrt(12.0),
+                },
                 "_q": (j, lsb),
             }
         )
@@ -512,11 +558,17 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
         # gains half the threshold at its fit (linearised), no pair can beat the single by the
         # threshold: its exact refits are skipped (as a scan's singles are, above)
         rss1 = float(np.sum(r1**2))
-        gain = max((n_scr * math.log(rss1 / max(rss, 1e-300))
-                    - len([n for n in t2.names() if not n.endswith("f_hz")]) * math.log(n_scr)
-                    for rss, t2, _ in ext), default=-math.inf)
-        if (gain < float(c["screen_gate"]) * T
-                and _rms(model.residual_matrix(p1, [t1]), model.mask) <= 1.5 * float(np.sqrt(np.mean(sigma**2)))):
+        gain = max(
+            (
+                n_scr * math.log(rss1 / max(rss, 1e-300))
+                - len([n for n in t2.names() if not n.endswith("f_hz")]) * math.log(n_scr)
+                for rss, t2, _ in ext
+            ),
+            default=-math.inf,
+        )
+        if gain < float(c["screen_gate"]) * T and _rms(
+            model.residual_matrix(p1, [t1]), model.mask
+        ) <= 1.5 * float(np.sqrt(np.mean(sigma**2))):
             continue
         # a pair counts only if it beats the best single by the threshold (or, with no single
         # passing, the base by it): a seed whose own gain plus its best second term's (linearised)
@@ -561,8 +613,11 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
         if not tied:
             tied = [level[0]]
         after, after_terms = tied[0]
-        runner = min([z[0].bic for z in level if z[0].bic - top >= T]
-                     + ([b for b in skipped_bic if b - top >= T] if level is exact else []), default=None)
+        runner = min(
+            [z[0].bic for z in level if z[0].bic - top >= T]
+            + ([b for b in skipped_bic if b - top >= T] if level is exact else []),
+            default=None,
+        )
         seen_terms = set()
         for fr, ts in tied:
             for t in ts:
@@ -592,7 +647,8 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
         "noise_floor_by_channel_mm": {str(ch): float(s) for ch, s in zip(data.channels, sigma)},
         "threshold_delta_bic": T,
         "config": {
-            k: (list(v) if isinstance(v, tuple) else v) for k, v in c.items()
+            k: (list(v) if isinstance(v, tuple) else v)
+            for k, v in c.items()
             if k not in ("beams", "layers", "device_effects")
         },
         # the device model the reference calibration carried, fitted with the base (Effect.to_dict)
@@ -617,7 +673,8 @@ def examine_model(  # noqa: C901 (the screen/refit/criterion engine, to be split
             "singles_not_refitted": singles_skipped,
             "max_linearised_delta_bic": float(max(screen_dbic)) if screen_dbic else None,
             "best_linearised": [
-                {"terms": [t.key], "delta_bic": float(d)} for d, (_, t, _) in list(zip(screen_dbic, screen))[:3]
+                {"terms": [t.key], "delta_bic": float(d)}
+                for d, (_, t, _) in list(zip(screen_dbic, screen))[:3]
             ],
         },
     }

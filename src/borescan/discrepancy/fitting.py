@@ -63,8 +63,9 @@ _CHANNEL_PARAM = re.compile(r"^(?:dbeta|dd_b|drho|cx|cy|dr)\[(\d+)\]$")
 _CHANNEL_TERM = re.compile(r"^[A-Za-z_]+@(\d+)(?:\[k=\d+\])?\.")
 
 
-def residual_sparsity(names: Sequence[str], mask: np.ndarray, channels: Sequence[int],
-                      pose_index: np.ndarray | None = None) -> np.ndarray:
+def residual_sparsity(
+    names: Sequence[str], mask: np.ndarray, channels: Sequence[int], pose_index: np.ndarray | None = None
+) -> np.ndarray:
     """Which residuals each parameter of the discrepancy models can move: (residuals, parameters) bool.
 
     The residual vector is a model's (samples, channels) residual over ``mask`` (row-major, as

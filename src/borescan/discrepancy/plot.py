@@ -82,34 +82,54 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
     for col in range(n_panels):
         for j, ch in enumerate(channels):
             color = colors[j % 10]
-            lines[0, col, j], = axes[0, col].plot([], [], ".", ms=1.5, color=color, label=f"ch {ch}")
+            (lines[0, col, j],) = axes[0, col].plot([], [], ".", ms=1.5, color=color, label=f"ch {ch}")
             style = "-" if spectrum else "."
-            lines[1, col, j], = axes[1, col].plot([], [], style, lw=0.6, ms=2, color=color, label=f"ch {ch}")
+            (lines[1, col, j],) = axes[1, col].plot(
+                [], [], style, lw=0.6, ms=2, color=color, label=f"ch {ch}"
+            )
         if spectrum:
             for j, ch in enumerate(channels):
-                lines[2, col, j], = axes[2, col].plot([], [], lw=0.8, color=colors[j % 10], label=f"ch {ch}")
+                (lines[2, col, j],) = axes[2, col].plot(
+                    [], [], lw=0.8, color=colors[j % 10], label=f"ch {ch}"
+                )
             axes[2, col].set_xlabel("undulations per revolution [UPR]")
         else:  # pose scans: no revolution; residual per sample index instead
             for j in range(len(channels)):
-                lines[2, col, j], = axes[2, col].plot([], [], ".", ms=2, color=colors[j % 10])
+                (lines[2, col, j],) = axes[2, col].plot([], [], ".", ms=2, color=colors[j % 10])
             axes[2, col].set_xlabel("sample (poses in order)")
         for row in (0, 1):
             for s in (-1.5, 1.5):
                 floor[row, col, s] = axes[row, col].axhline(0.0, ls="--", lw=0.8, color="0.4")
         axes[0, col].set_xlabel(angle_label)
         axes[1, col].set_xlabel("time [s]")
-        axes[0, col].set_title(" ", fontsize=10, y=1.0)  # y given: not moved by the (hidden) title's own layout
+        axes[0, col].set_title(
+            " ", fontsize=10, y=1.0
+        )  # y given: not moved by the (hidden) title's own layout
     axes[0, 0].set_ylabel("residual [um]")
     axes[1, 0].set_ylabel("residual [um]")
     axes[2, 0].set_ylabel("amplitude [um]" if spectrum else "residual [um]")
     legend = axes[0, 0].legend(loc="upper right", fontsize=8, markerscale=5)
     suptitle = fig.suptitle(" ", fontsize=11)
     # fixed margins: tight_layout measures every tick label and costs about as much as the drawing
-    fig.subplots_adjust(left=0.07 if n_panels == 2 else 0.11, right=0.98, bottom=0.06, top=0.92, hspace=0.32,
-                        wspace=0.06)
-    dynamic = [*lines.values(), *floor.values(), *(axes[0, c].title for c in range(n_panels)), legend, suptitle]
-    _FIGURES[key] = {"fig": fig, "axes": axes, "lines": lines, "floor": floor, "suptitle": suptitle,
-                     "dynamic": dynamic, "key": key}
+    fig.subplots_adjust(
+        left=0.07 if n_panels == 2 else 0.11, right=0.98, bottom=0.06, top=0.92, hspace=0.32, wspace=0.06
+    )
+    dynamic = [
+        *lines.values(),
+        *floor.values(),
+        *(axes[0, c].title for c in range(n_panels)),
+        legend,
+        suptitle,
+    ]
+    _FIGURES[key] = {
+        "fig": fig,
+        "axes": axes,
+        "lines": lines,
+        "floor": floor,
+        "suptitle": suptitle,
+        "dynamic": dynamic,
+        "key": key,
+    }
     return _FIGURES[key]
 
 
@@ -139,7 +159,8 @@ def _abs_max(*arrays: np.ndarray) -> float:
 
 
 def plot_gap(  # noqa: C901 (one branch per scan kind and panel of the plot)
-        examination, out_path: str | Path) -> Path:
+    examination, out_path: str | Path
+) -> Path:
     """Write gap.png for one :class:`~borescan.discrepancy.examine.Examination`.
 
     Rows: residual against device angle, against time, spectrum in undulations per revolution
@@ -212,7 +233,9 @@ def plot_gap(  # noqa: C901 (one branch per scan kind and panel of the plot)
         axes[1, col].set_ylim(*limits[0])
         axes[2, col].set_xlim(*limits[2])
         axes[2, col].set_ylim(*limits[3])
-    layout["suptitle"].set_text(f"{f['scan_id']}: {f['verdict']} ({names}); noise floor {floor_um:.2f} um (dashed: +-1.5x)")
+    layout["suptitle"].set_text(
+        f"{f['scan_id']}: {f['verdict']} ({names}); noise floor {floor_um:.2f} um (dashed: +-1.5x)"
+    )
     canvas = fig.canvas
     canvas.restore_region(_background(layout, limits))
     renderer = canvas.get_renderer()
@@ -221,6 +244,12 @@ def plot_gap(  # noqa: C901 (one branch per scan kind and panel of the plot)
     # fast zlib level: one gap plot per scan; encoding at level 1 is ~3x faster, files ~10 % larger
     from matplotlib.image import imsave
 
-    imsave(out, np.asarray(canvas.buffer_rgba()), format="png", dpi=fig.dpi, metadata={"Software": None},
-           pil_kwargs={"compress_level": 1})
+    imsave(
+        out,
+        np.asarray(canvas.buffer_rgba()),
+        format="png",
+        dpi=fig.dpi,
+        metadata={"Software": None},
+        pil_kwargs={"compress_level": 1},
+    )
     return out

@@ -64,8 +64,15 @@ from typing import Any
 
 import numpy as np
 
-from borescan.discrepancy.examine import (Examination, _clean, _lstsq, _named_entry, against_reference, examine_model,
-                                         scan_arrays)
+from borescan.discrepancy.examine import (
+    Examination,
+    _clean,
+    _lstsq,
+    _named_entry,
+    against_reference,
+    examine_model,
+    scan_arrays,
+)
 from borescan.discrepancy.fitting import FitResult, dead_zone, fit_least_squares, noise_floor_mm, spike_mask
 from borescan.discrepancy.tri import (
     SCAN_KIND,
@@ -82,17 +89,39 @@ from borescan.discrepancy.tri import (
 from borescan.effects import EFFECTS, SCOPES, Effect, calibration_absorbers, device_effect_key
 from borescan.geometry import Beams
 
-__all__ = ["PooledScan", "PooledTerm", "PooledData", "PooledModel", "PooledExamination", "CONDITIONS",
-           "pooled_scan", "examine_pooled", "calibration_equivalent", "drift_explanations", "separation",
-           "CARRIER_SHARE", "parse_device_effect"]
+__all__ = [
+    "PooledScan",
+    "PooledTerm",
+    "PooledData",
+    "PooledModel",
+    "PooledExamination",
+    "CONDITIONS",
+    "pooled_scan",
+    "examine_pooled",
+    "calibration_equivalent",
+    "drift_explanations",
+    "separation",
+    "CARRIER_SHARE",
+    "parse_device_effect",
+]
 
 #: Share of the total chi-square decrease that the scans named as carrying the evidence hold.
 CARRIER_SHARE = 0.9
 #: Relative spread below which signed speeds (or gauge radii) count as one.
 SAME_WITHIN = 0.05
 #: Typical magnitudes of the pooled base parameters (finite-difference steps, starts).
-BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dR": 1e-3, "eps": 1e-4, "dpsi": 1e-4, "drho": 1e-2,
-              "dg": 1e-3, "dbeta": 1e-4, "dd_b": 1e-3}
+BASE_SCALE = {
+    "cx": 1e-2,
+    "cy": 1e-2,
+    "phase": 1e-3,
+    "dR": 1e-3,
+    "eps": 1e-4,
+    "dpsi": 1e-4,
+    "drho": 1e-2,
+    "dg": 1e-3,
+    "dbeta": 1e-4,
+    "dd_b": 1e-3,
+}
 
 
 # ----------------------------------------------------------------------------------- inputs
@@ -123,14 +152,18 @@ def pooled_scan(scan, max_samples: int | None = None, beams=None) -> PooledScan:
     meta = against_reference(scan.meta, beams)
     sid = meta["scan_id"]
     if meta["device"]["type"] != "tri_lds":
-        raise ValueError(f"{sid}: scan.json: the pooled examination takes tri_lds spindle scans, "
-                         f"not {meta['device']['type']!r}")
+        raise ValueError(
+            f"{sid}: scan.json: the pooled examination takes tri_lds spindle scans, "
+            f"not {meta['device']['type']!r}"
+        )
     t_s, channels, vals, pose, spindle = scan_arrays(scan)
     if pose is not None:
         raise ValueError(f"{sid}: lds.parquet: a static scan (pose column) is not a spindle scan")
     data = tri_data_from_arrays(sid, meta, t_s, vals, channels, spindle, max_samples=max_samples)
     art = meta.get("artifact") or {}
-    return PooledScan(data, str(meta.get("night", "")), str(art.get("id", "")), str(meta["device"].get("id", "")))
+    return PooledScan(
+        data, str(meta.get("night", "")), str(art.get("id", "")), str(meta["device"].get("id", ""))
+    )
 
 
 # ----------------------------------------------------------------------------------- terms
@@ -203,14 +236,20 @@ def _spread(x: np.ndarray) -> float:
 CONDITIONS: dict[str, Condition] = {
     "speeds_differ": Condition(
         holds=lambda m, ks: _spread(np.concatenate([m.signed_speeds(k) for k in ks])) > SAME_WITHIN,
-        design=lambda m, ks: "signed speeds " + ", ".join(
-            f"{m.scan_ids[k]} {np.median(m.signed_speeds(k)):+.3g}" for k in ks) + " rad/s",
-        separated_by="a scan at another speed (or turning the other way)"),
+        design=lambda m, ks: (
+            "signed speeds "
+            + ", ".join(f"{m.scan_ids[k]} {np.median(m.signed_speeds(k)):+.3g}" for k in ks)
+            + " rad/s"
+        ),
+        separated_by="a scan at another speed (or turning the other way)",
+    ),
     "radii_differ": Condition(
         holds=lambda m, ks: _spread(np.array([m.scans[k].data.radius_mm for k in ks])) > SAME_WITHIN,
-        design=lambda m, ks: "gauge radii " + ", ".join(
-            sorted({f"{m.scans[k].data.radius_mm:.3f}" for k in ks})) + " mm",
-        separated_by="a scan of a gauge of another diameter"),
+        design=lambda m, ks: (
+            "gauge radii " + ", ".join(sorted({f"{m.scans[k].data.radius_mm:.3f}" for k in ks})) + " mm"
+        ),
+        separated_by="a scan of a gauge of another diameter",
+    ),
 }
 
 
@@ -231,8 +270,10 @@ class _ScanModel(TriModel):
         if not any(v.any() for v in d.values()):
             return b
         bm = b.beams
-        return replace(b, beams=Beams(bm.channels, bm.beta_rad + d["dbeta"], bm.rho_mm + d["drho"],
-                                      bm.d_b_mm + d["dd_b"]))
+        return replace(
+            b,
+            beams=Beams(bm.channels, bm.beta_rad + d["dbeta"], bm.rho_mm + d["drho"], bm.d_b_mm + d["dd_b"]),
+        )
 
 
 @dataclass
@@ -276,9 +317,13 @@ class PooledModel:
         return calibration_absorbers(self.scan_kind)
 
     def __init__(  # noqa: C901 (checks every input of the pooled set; pooled is to become an adapter of the device models)
-            self, scans: Sequence[PooledScan], beams: Beams | None = None,
-                 free_beams: tuple[str, ...] = ("beta", "rho", "d_b"), label: str | None = None,
-                 device_effects: Sequence[str] = ()):
+        self,
+        scans: Sequence[PooledScan],
+        beams: Beams | None = None,
+        free_beams: tuple[str, ...] = ("beta", "rho", "d_b"),
+        label: str | None = None,
+        device_effects: Sequence[str] = (),
+    ):
         scans = list(scans)
         if not scans:
             raise ValueError("the pooled examination needs at least one scan")
@@ -291,7 +336,9 @@ class PooledModel:
         channels = scans[0].data.channels
         for s in scans:
             if s.data.channels != channels:
-                raise ValueError(f"{s.scan_id}: channels {s.data.channels} differ from {scans[0].scan_id}'s {channels}")
+                raise ValueError(
+                    f"{s.scan_id}: channels {s.data.channels} differ from {scans[0].scan_id}'s {channels}"
+                )
         devices = {s.device_id for s in scans if s.device_id}
         if len(devices) > 1:
             raise ValueError(f"the pooled scans belong to several devices: {sorted(devices)}")
@@ -302,7 +349,9 @@ class PooledModel:
         if beams is None:
             beams = scans[0].data.beams
         if not set(channels) <= set(beams.channels):
-            raise ValueError(f"{self.label}: the start beams have channels {beams.channels}, the scans {channels}")
+            raise ValueError(
+                f"{self.label}: the start beams have channels {beams.channels}, the scans {channels}"
+            )
         idx = [beams.channels.index(ch) for ch in channels]
         self.start_beams = Beams(channels, beams.beta_rad[idx], beams.rho_mm[idx], beams.d_b_mm[idx])
         self.models = [_ScanModel(replace(s.data, beams=self.start_beams)) for s in scans]
@@ -311,10 +360,14 @@ class PooledModel:
         sizes = [s.data.t_s.size for s in scans]
         self.bounds = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
         self.data = PooledData(
-            scan_id=f"{self.label} ({len(scans)} scans)", scan_ids=self.scan_ids,
+            scan_id=f"{self.label} ({len(scans)} scans)",
+            scan_ids=self.scan_ids,
             t_s=np.concatenate([s.data.t_s for s in scans]),
-            values_mm=np.vstack([s.data.values_mm for s in scans]), channels=channels, bounds=self.bounds,
-            n_total=int(sum(s.data.n_total or s.data.t_s.size for s in scans)))
+            values_mm=np.vstack([s.data.values_mm for s in scans]),
+            channels=channels,
+            bounds=self.bounds,
+            n_total=int(sum(s.data.n_total or s.data.t_s.size for s in scans)),
+        )
         self.valid = np.isfinite(self.data.values_mm)
         self.mask = self.valid.copy()
         for k, m in enumerate(self.models):  # the single-scan models see the pooled mask (views)
@@ -331,7 +384,9 @@ class PooledModel:
         #: the terms of the named entries, in order (see :meth:`term_parameters`)
         self.reported: list[Term] = []
         #: the device model's terms (part of the base model)
-        self.device_terms: list[PooledTerm] = [parse_device_effect(k, channels, self.label) for k in device_effects]
+        self.device_terms: list[PooledTerm] = [
+            parse_device_effect(k, channels, self.label) for k in device_effects
+        ]
         #: the base fit's parameters (see :meth:`base_summary`)
         self.base_values: dict[str, float] = {}
         #: device-model terms these scans cannot separate from a free base parameter (not fitted)
@@ -349,8 +404,12 @@ class PooledModel:
 
     def _nuisance(self, k: int) -> list[str]:
         d = self.scans[k].data
-        return (["cx", "cy"] + (["phase"] if d.free_phase else []) + (["dR"] if d.radius_free else [])
-                + (["eps"] if self.commanded[k] else []))
+        return (
+            ["cx", "cy"]
+            + (["phase"] if d.free_phase else [])
+            + (["dR"] if d.radius_free else [])
+            + (["eps"] if self.commanded[k] else [])
+        )
 
     def _shared_names(self) -> list[str]:
         c = len(self.data.channels)
@@ -376,7 +435,9 @@ class PooledModel:
     def base_scales(self) -> list[float]:
         """Return the typical sizes of :meth:`base_names`' parameters."""
         dev = dict(zip(self._device_term_names(), [s for t in self.device_terms for s in t.scales()]))
-        return [dev[n] if n in dev else BASE_SCALE[n.rsplit(":", 1)[-1].split("[")[0]] for n in self.base_names()]
+        return [
+            dev[n] if n in dev else BASE_SCALE[n.rsplit(":", 1)[-1].split("[")[0]] for n in self.base_names()
+        ]
 
     def base_start(self) -> dict[str, float]:
         """Return the pooled fit's start.
@@ -399,9 +460,13 @@ class PooledModel:
                 if len(tries) > 1:
                     names = [f"{sid}:{n}" for n in self._nuisance(k)]
                     try:
-                        fr = fit_least_squares(lambda q, k=k: self._scan_residual(k, {**out, **q}), names,
-                                               [st[n] for n in names], [BASE_SCALE[n.rsplit(":", 1)[-1]] for n in names],
-                                               max_nfev=30)
+                        fr = fit_least_squares(
+                            lambda q, k=k: self._scan_residual(k, {**out, **q}),
+                            names,
+                            [st[n] for n in names],
+                            [BASE_SCALE[n.rsplit(":", 1)[-1]] for n in names],
+                            max_nfev=30,
+                        )
                     except ValueError:
                         continue
                     if not np.isfinite(fr.rss) or (best is not None and fr.rss >= best[0]):
@@ -536,8 +601,9 @@ class PooledModel:
 
     def residual_matrix(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
         """Unweighted residual (N, c) of the stacked scans [mm], NaN where a reading is null."""
-        return np.vstack([self.scans[k].data.values_mm - self.predict_scan(k, p, terms)
-                          for k in range(len(self.scans))])
+        return np.vstack(
+            [self.scans[k].data.values_mm - self.predict_scan(k, p, terms) for k in range(len(self.scans))]
+        )
 
     def residual(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
         """Weighted residual over the unmasked samples (each scan and channel over its own noise floor)."""
@@ -548,10 +614,12 @@ class PooledModel:
     @property
     def base_description(self) -> str:
         """Return a sentence saying what the base model fits."""
-        return (f"{len(self.scans)} scans of one device: beams ({', '.join(self.free_beams)}) shared and "
-                "free from "
-                "the start geometry; per scan bore centre, phase (moving spindle), radius (uncertified "
-                "artifact), speed scale (commanded angle)")
+        return (
+            f"{len(self.scans)} scans of one device: beams ({', '.join(self.free_beams)}) shared and "
+            "free from "
+            "the start geometry; per scan bore centre, phase (moving spindle), radius (uncertified "
+            "artifact), speed scale (commanded angle)"
+        )
 
     @property
     def rev_hz(self) -> float:
@@ -580,13 +648,21 @@ class PooledModel:
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
         """Return the spike mask of the residuals ``r``, scan by scan with each scan's noise level."""
-        return np.vstack([spike_mask(r[self._rows(k)], self.scan_sigma[k], k_sigma=k_sigma)
-                          for k in range(len(self.scans))])
+        return np.vstack(
+            [
+                spike_mask(r[self._rows(k)], self.scan_sigma[k], k_sigma=k_sigma)
+                for k in range(len(self.scans))
+            ]
+        )
 
     def localise(self, r: np.ndarray, sigma: np.ndarray) -> dict:
         """Return the single-scan localisation of each scan (its own noise floor)."""
-        return {"scans": {sid: m.localise(r[self._rows(k)], self.scan_sigma[k])
-                          for k, (m, sid) in enumerate(zip(self.models, self.scan_ids))}}
+        return {
+            "scans": {
+                sid: m.localise(r[self._rows(k)], self.scan_sigma[k])
+                for k, (m, sid) in enumerate(zip(self.models, self.scan_ids))
+            }
+        }
 
     def vibration_f(self, r: np.ndarray) -> float | None:
         """None: a vibration line belongs to one run (scope ``scan``) and is named per scan."""
@@ -606,16 +682,22 @@ class PooledModel:
         for scope in SCOPES:
             groups = self.groups(scope)
             if len(groups) > 1:  # the part of a group effect common to every group
-                have = {"commanded_angle": all(self.commanded), "vibration_line": False,
-                        "cte": all(bool(s.data.cte_per_k) for s in self.scans)}
+                have = {
+                    "commanded_angle": all(self.commanded),
+                    "vibration_line": False,
+                    "cte": all(bool(s.data.cte_per_k) for s in self.scans),
+                }
                 for t in registry_terms(SCAN_KIND, self.data.channels, have=have, k_max=k_max):
                     if EFFECTS[t.effect].scope == scope and t.effect != "speed_error":
                         why = self.absorption(PooledTerm(t.effect, t.channel, t.k), every)
                         if why is not None:
                             self.absorbed.append({**why, "common_to_groups": True})
             for label, ks in groups:
-                have = {"commanded_angle": all(self.commanded[k] for k in ks), "vibration_line": False,
-                        "cte": all(bool(self.scans[k].data.cte_per_k) for k in ks)}
+                have = {
+                    "commanded_angle": all(self.commanded[k] for k in ks),
+                    "vibration_line": False,
+                    "cte": all(bool(self.scans[k].data.cte_per_k) for k in ks),
+                }
                 for t in registry_terms(SCAN_KIND, self.data.channels, have=have, k_max=k_max):
                     spec = EFFECTS[t.effect]
                     if spec.scope != scope or t.effect == "speed_error":
@@ -664,7 +746,8 @@ class PooledModel:
         return None
 
     def extra_starts(  # noqa: C901 (one branch per effect's extra starts; pooled is to become an adapter of the device models)
-            self, screen: list, keys: set, t1: Term | None) -> list:
+        self, screen: list, keys: set, t1: Term | None
+    ) -> list:
         """Return the starts the linear screen cannot give.
 
         An oriented effect turned in some scans (:attr:`PooledTerm.turns`) is not linear in the
@@ -696,7 +779,11 @@ class PooledModel:
             return out
         for z in screen:
             t = z[1]
-            if t.effect != "bore_lobing" or t.k != 2 or not ("*" in keys or t.key in keys or t.key in oriented):
+            if (
+                t.effect != "bore_lobing"
+                or t.k != 2
+                or not ("*" in keys or t.key in keys or t.key in oriented)
+            ):
                 continue
             start = oriented.get(t.key, z[2])
             out.append((0.0, *self._tilt_from_lobing(t, start)))
@@ -715,8 +802,13 @@ class PooledModel:
                         for j in combo:
                             st = self._mirrored(st, j)
                         try:
-                            fr = fit_least_squares(lambda q, t=t: self.residual(q, [t]), names,
-                                                   [st.get(n, 0.0) for n in names], scales, max_nfev=15)
+                            fr = fit_least_squares(
+                                lambda q, t=t: self.residual(q, [t]),
+                                names,
+                                [st.get(n, 0.0) for n in names],
+                                scales,
+                                max_nfev=15,
+                            )
                         except ValueError:
                             continue
                         if np.isfinite(fr.rss) and (best is None or fr.rss < best.rss):
@@ -724,8 +816,13 @@ class PooledModel:
                 if best is not None:
                     v = best.values()
                     try:
-                        fr = fit_least_squares(lambda q, t=t: self.residual(q, [t]), names, [v[n] for n in names], scales,
-                                               max_nfev=100)
+                        fr = fit_least_squares(
+                            lambda q, t=t: self.residual(q, [t]),
+                            names,
+                            [v[n] for n in names],
+                            scales,
+                            max_nfev=100,
+                        )
                         v = fr.values() if np.isfinite(fr.rss) and fr.rss <= best.rss else v
                     except ValueError:
                         pass
@@ -772,7 +869,9 @@ class PooledModel:
         out[f"drho[{j}]"] = -rho - self.start_beams.rho_mm[j]
         return out
 
-    def _per_scan_estimates(self, t: Term, start: dict[str, float], t1: Term | None) -> tuple[dict | None, float]:
+    def _per_scan_estimates(
+        self, t: Term, start: dict[str, float], t1: Term | None
+    ) -> tuple[dict | None, float]:
         """Return term ``t`` fitted linearly to each scan alone.
 
         Term ``t`` fitted linearly to each scan alone (with that scan's centre, at ``start`` with
@@ -807,7 +906,9 @@ class PooledModel:
             est.setdefault(self.frame_of(k), {n: float(a) for n, a in zip(fit_names, coef[: len(fit_names)])})
         return est, gain
 
-    def _oriented_start(self, t: PooledTerm, start: dict[str, float], t1: Term | None) -> tuple[dict | None, float]:
+    def _oriented_start(
+        self, t: PooledTerm, start: dict[str, float], t1: Term | None
+    ) -> tuple[dict | None, float]:
         """Return the start of a turned term from each scan's own estimate.
 
         Start of a turned term from each scan's own linear estimate of it (at ``start``, with ``t1``):
@@ -859,7 +960,9 @@ class PooledModel:
             arc = np.arcsin(np.clip(rho / R, -1, 1)) - np.arcsin(np.clip(b.rho_mm / R, -1, 1))
             beta = beta + np.array([0.0] + [p.get(f"dpsi[{j}]", 0.0) for j in range(1, c)]) - arc
         if "d_b" in self.free_beams:
-            d_b = d_b + np.array([p.get(f"dg[{j}]", 0.0) for j in range(c)]) - (rho**2 - b.rho_mm**2) / (2 * R)
+            d_b = (
+                d_b + np.array([p.get(f"dg[{j}]", 0.0) for j in range(c)]) - (rho**2 - b.rho_mm**2) / (2 * R)
+            )
         return Beams(b.channels, beta, rho, d_b)
 
     def _beam_deltas(self, p: dict[str, float]) -> dict[str, float]:
@@ -903,15 +1006,19 @@ class PooledModel:
         """
         self.base_values = dict(p)
         b = self.beams_at(p)
-        out = {"beams": b.to_nominal(),
-               "beta_minus_start_rad": [float(x) for x in b.beta_rad - self.start_beams.beta_rad],
-               "rho_minus_start_mm": [float(x) for x in b.rho_mm - self.start_beams.rho_mm],
-               "d_b_minus_start_mm": [float(x) for x in b.d_b_mm - self.start_beams.d_b_mm],
-               "scans": {}}
+        out = {
+            "beams": b.to_nominal(),
+            "beta_minus_start_rad": [float(x) for x in b.beta_rad - self.start_beams.beta_rad],
+            "rho_minus_start_mm": [float(x) for x in b.rho_mm - self.start_beams.rho_mm],
+            "d_b_minus_start_mm": [float(x) for x in b.d_b_mm - self.start_beams.d_b_mm],
+            "scans": {},
+        }
         for k, sid in enumerate(self.scan_ids):
             d = self.scans[k].data
-            e = {"center_xy_mm": [p[f"{sid}:cx"], p[f"{sid}:cy"]],
-                 "radius_mm": d.radius_mm + p.get(f"{sid}:dR", 0.0)}
+            e = {
+                "center_xy_mm": [p[f"{sid}:cx"], p[f"{sid}:cy"]],
+                "radius_mm": d.radius_mm + p.get(f"{sid}:dR", 0.0),
+            }
             if self.commanded[k]:
                 e["speed_scale"] = 1.0 + p[f"{sid}:eps"]
             out["scans"][sid] = e
@@ -927,13 +1034,20 @@ class PooledModel:
         for k, s in enumerate(self.scans):
             d = s.data
             w = self.signed_speeds(k)
-            e = {"night": s.night, "artifact": s.artifact, "radius_mm": d.radius_mm,
-                 "speed_rad_s": [float(np.min(w)), float(np.max(w))],
-                 "angle": "encoder" if d.encoder else "commanded", "samples": int(d.t_s.size)}
+            e = {
+                "night": s.night,
+                "artifact": s.artifact,
+                "radius_mm": d.radius_mm,
+                "speed_rad_s": [float(np.min(w)), float(np.max(w))],
+                "angle": "encoder" if d.encoder else "commanded",
+                "samples": int(d.t_s.size),
+            }
             if p is not None:
                 S = np.asarray(d.spindle_xy_mm, dtype=float)
                 S0 = S.mean(axis=0) if S.ndim == 2 else S
-                e["eccentricity_mm"] = float(np.hypot(S0[0] - p[f"{s.scan_id}:cx"], S0[1] - p[f"{s.scan_id}:cy"]))
+                e["eccentricity_mm"] = float(
+                    np.hypot(S0[0] - p[f"{s.scan_id}:cx"], S0[1] - p[f"{s.scan_id}:cy"])
+                )
             out[s.scan_id] = e
         return out
 
@@ -996,9 +1110,11 @@ def _absorbed_summary(model: PooledModel) -> list[dict]:
         e = out.setdefault(key, {k: v for k, v in a.items() if k != "term"} | {"terms": []})
         e["terms"].append(a["term"])
     for e in out.values():
-        e["advice"] = (f"{e['effect']} cannot be told from {e['absorbed_by']} by these scans"
-                       + (f" ({e['design']}); {e['separated_by']} separates them" if e.get("separated_by") else
-                          "; no scan separates them: a calibration includes it"))
+        e["advice"] = f"{e['effect']} cannot be told from {e['absorbed_by']} by these scans" + (
+            f" ({e['design']}); {e['separated_by']} separates them"
+            if e.get("separated_by")
+            else "; no scan separates them: a calibration includes it"
+        )
     return sorted(out.values(), key=lambda e: (e["effect"], e["parameter"]))
 
 
@@ -1090,26 +1206,52 @@ def drift_explanations(drift, findings: dict) -> list[dict]:
             if n.get("channel") not in (None, row["channel"]):
                 continue
             hits.append(n)
-        eq = {n.get("term", n["effect"]): {sid: e.get(row["parameter"]) for sid, e in
-                                           (n.get("calibration_equivalent") or {}).items()} for n in hits}
-        change = (f"{row['parameter']} of channel {row['channel']} moved by {row['change']:+.4g} "
-                  f"({row['change_over_u']:+.1f} combined u) from {row['calibration_id_before']} "
-                  f"to {row['calibration_id_after']}")
+        eq = {
+            n.get("term", n["effect"]): {
+                sid: e.get(row["parameter"]) for sid, e in (n.get("calibration_equivalent") or {}).items()
+            }
+            for n in hits
+        }
+        change = (
+            f"{row['parameter']} of channel {row['channel']} moved by {row['change']:+.4g} "
+            f"({row['change_over_u']:+.1f} combined u) from {row['calibration_id_before']} "
+            f"to {row['calibration_id_after']}"
+        )
         if hits:
             words = "; ".join(
                 f"{n.get('term', n['effect'])} is absorbed by {spec_text(n['effect'], par)}"
-                + (": a calibration ignoring it moves it by " + ", ".join(
-                    f"{v:+.4g} ({sid})" for sid, v in eq[n.get('term', n['effect'])].items() if isinstance(v, float))
-                   if eq[n.get("term", n["effect"])] else "") for n in hits)
+                + (
+                    ": a calibration ignoring it moves it by "
+                    + ", ".join(
+                        f"{v:+.4g} ({sid})"
+                        for sid, v in eq[n.get("term", n["effect"])].items()
+                        if isinstance(v, float)
+                    )
+                    if eq[n.get("term", n["effect"])]
+                    else ""
+                )
+                for n in hits
+            )
             text = f"{change}; explained by the pooled examination: {words}"
         else:
-            text = (f"{change}; no effect named by the pooled examination of {', '.join(findings['scan_ids'])} "
-                    "is absorbed by it")
-        out.append({"device_id": row["device_id"], "channel": row["channel"], "parameter": row["parameter"],
-                    "calibration_id_before": row["calibration_id_before"],
-                    "calibration_id_after": row["calibration_id_after"], "change": row["change"],
-                    "u_combined": row["u_combined"], "explained_by": [n.get("term", n["effect"]) for n in hits],
-                    "equivalent_change": eq, "explanation": text})
+            text = (
+                f"{change}; no effect named by the pooled examination of {', '.join(findings['scan_ids'])} "
+                "is absorbed by it"
+            )
+        out.append(
+            {
+                "device_id": row["device_id"],
+                "channel": row["channel"],
+                "parameter": row["parameter"],
+                "calibration_id_before": row["calibration_id_before"],
+                "calibration_id_after": row["calibration_id_after"],
+                "change": row["change"],
+                "u_combined": row["u_combined"],
+                "explained_by": [n.get("term", n["effect"]) for n in hits],
+                "equivalent_change": eq,
+                "explanation": text,
+            }
+        )
     return out
 
 
@@ -1119,8 +1261,12 @@ def spec_text(effect: str, par: str) -> str:
 
 
 #: What a scan must change to vary an effect of each registry scope (the other scopes' stay).
-_SCOPE_CHANGE = {"scan": "another scan", "night": "a scan on another night", "artifact": "a scan of another artifact",
-                 "device": "a scan with another device"}
+_SCOPE_CHANGE = {
+    "scan": "another scan",
+    "night": "a scan on another night",
+    "artifact": "a scan of another artifact",
+    "device": "a scan with another device",
+}
 
 
 def separation(a: Term, b: Term) -> str | None:
@@ -1134,8 +1280,10 @@ def separation(a: Term, b: Term) -> str | None:
     if sa == sb:
         return None
     narrow, wide = (a, b) if SCOPES.index(sa) > SCOPES.index(sb) else (b, a)
-    return (f"{_SCOPE_CHANGE[EFFECTS[narrow.effect].scope]} of the same device: {narrow.effect} belongs to the "
-            f"{EFFECTS[narrow.effect].scope}, {wide.effect} to the {EFFECTS[wide.effect].scope}")
+    return (
+        f"{_SCOPE_CHANGE[EFFECTS[narrow.effect].scope]} of the same device: {narrow.effect} belongs to the "
+        f"{EFFECTS[narrow.effect].scope}, {wide.effect} to the {EFFECTS[wide.effect].scope}"
+    )
 
 
 #: Most function evaluations of the fits that check a pair verdict (the search's own fits stop at 60).
@@ -1154,12 +1302,19 @@ def _entry_start(model: PooledModel, t: Term, n: dict) -> dict[str, float]:
     return out
 
 
-def _fit_terms(model: PooledModel, terms: list[Term], start: dict[str, float], max_nfev: int = 60) -> FitResult | None:
+def _fit_terms(
+    model: PooledModel, terms: list[Term], start: dict[str, float], max_nfev: int = 60
+) -> FitResult | None:
     names = model.base_names() + [nm for t in terms for nm in t.names()]
     scales = model.base_scales() + [s for t in terms for s in t.scales()]
     try:
-        fr = fit_least_squares(lambda p: model.residual(p, terms), names, [start.get(nm, 0.0) for nm in names],
-                               scales, max_nfev=max_nfev)
+        fr = fit_least_squares(
+            lambda p: model.residual(p, terms),
+            names,
+            [start.get(nm, 0.0) for nm in names],
+            scales,
+            max_nfev=max_nfev,
+        )
     except ValueError:
         return None
     return fr if np.isfinite(fr.rss) else None
@@ -1184,7 +1339,11 @@ def _check_pair(model: PooledModel, f: dict, terms: list[Term], entries: list[di
         return None
     singles = []
     for t in terms:
-        st = {k: v for k, v in pair.values().items() if not any(k.startswith(o.key + ".") for o in terms if o is not t)}
+        st = {
+            k: v
+            for k, v in pair.values().items()
+            if not any(k.startswith(o.key + ".") for o in terms if o is not t)
+        }
         fr = _fit_terms(model, [t], st, POLISH_NFEV)
         if fr is not None:
             singles.append((fr.bic, t.key, t, fr))
@@ -1198,9 +1357,14 @@ def _check_pair(model: PooledModel, f: dict, terms: list[Term], entries: list[di
 
 
 def examine_pooled(  # noqa: C901 (pooled is to become an adapter of the device models)
-        scans: Sequence[PooledScan], beams: Beams | None = None, *,
-                   free_beams: tuple[str, ...] = ("beta", "rho", "d_b"), label: str | None = None,
-                   device_effects: Sequence[str] = (), **cfg) -> PooledExamination:
+    scans: Sequence[PooledScan],
+    beams: Beams | None = None,
+    *,
+    free_beams: tuple[str, ...] = ("beta", "rho", "d_b"),
+    label: str | None = None,
+    device_effects: Sequence[str] = (),
+    **cfg,
+) -> PooledExamination:
     """Examine the spindle scans of one device together (module doc).
 
     Parameters
@@ -1232,25 +1396,35 @@ def examine_pooled(  # noqa: C901 (pooled is to become an adapter of the device 
     # the named terms, in the order of the named entries (term_parameters is asked once per entry)
     named_terms = [t for t in model.reported if t is not None]
     effect_entries = [n for n in f["named"] if n["effect"] not in ("outliers", "quantization")]
-    if len(named_terms) != len(effect_entries) or any(t.effect != n["effect"]
-                                                      for t, n in zip(named_terms, effect_entries)):
+    if len(named_terms) != len(effect_entries) or any(
+        t.effect != n["effect"] for t, n in zip(named_terms, effect_entries)
+    ):
         raise RuntimeError(f"{model.label}: the named effects and the reported terms disagree")
     for t, n in zip(named_terms, effect_entries):
         n["term"] = t.key
         n["group"] = getattr(t, "group", None)
         shared = [v for b, v in EFFECTS[t.effect].absorbers(SCAN_KIND).items() if b in model.free_beams]
         if n["group"] is not None and shared:
-            n["note"] = "relative to the other pooled scans: a part common to every scan is " + "; ".join(shared)
+            n["note"] = "relative to the other pooled scans: a part common to every scan is " + "; ".join(
+                shared
+            )
     if f["verdict"] == "missing_effect" and len(named_terms) == 2:
         single = _check_pair(model, f, named_terms, effect_entries)
         if single is not None:
             t1 = single["term"]
             entry = _named_entry(t1, single["fit"], SimpleNamespace(bic=f["base_model"]["bic"]), None, model)
-            entry.update({"term": t1.key, "group": getattr(t1, "group", None),
-                          "pair_checked": {"terms": [t.key for t in named_terms],
-                                           "delta_bic_pair_over_single": float(single["fit"].bic - single["pair"].bic),
-                                           "note": "the pair's second term is not needed once the single is fitted "
-                                                   f"to convergence ({POLISH_NFEV} evaluations)"}})
+            entry.update(
+                {
+                    "term": t1.key,
+                    "group": getattr(t1, "group", None),
+                    "pair_checked": {
+                        "terms": [t.key for t in named_terms],
+                        "delta_bic_pair_over_single": float(single["fit"].bic - single["pair"].bic),
+                        "note": "the pair's second term is not needed once the single is fitted "
+                        f"to convergence ({POLISH_NFEV} evaluations)",
+                    },
+                }
+            )
             f["named"] = [n for n in f["named"] if n["effect"] in ("outliers", "quantization")] + [entry]
             named_terms, effect_entries = [t1], [entry]
             r_after = model.residual_matrix(single["fit"].values(), [t1])
@@ -1279,28 +1453,52 @@ def examine_pooled(  # noqa: C901 (pooled is to become an adapter of the device 
                     n["calibration_equivalent"] = eq
     b = model.beams_at(final_values)
     if fit is not None:
-        ub = np.sqrt(np.clip(np.diag(model.beam_covariance(final_values, fit.names, fit.cov)), 0, None)).reshape(-1, 3)
+        ub = np.sqrt(
+            np.clip(np.diag(model.beam_covariance(final_values, fit.names, fit.cov)), 0, None)
+        ).reshape(-1, 3)
     else:
         ub = np.full((len(b.channels), 3), math.nan)
-    beams = {"channels": list(b.channels), "beta_rad": [float(x) for x in b.beta_rad],
-             "rho_mm": [float(x) for x in b.rho_mm], "d_b_mm": [float(x) for x in b.d_b_mm],
-             "u_beta_rad": [float(x) for x in ub[:, 0]], "u_rho_mm": [float(x) for x in ub[:, 1]],
-             "u_d_b_mm": [float(x) for x in ub[:, 2]],
-             "with_terms": [t.key for t in chosen] if fit is not None else None,
-             "note": f"psi = beta + asin(rho / R) of channel {model.data.channels[0]} held at the start (a common "
-                     "turn is each scan's centre): its beta moves only with its rho"}
+    beams = {
+        "channels": list(b.channels),
+        "beta_rad": [float(x) for x in b.beta_rad],
+        "rho_mm": [float(x) for x in b.rho_mm],
+        "d_b_mm": [float(x) for x in b.d_b_mm],
+        "u_beta_rad": [float(x) for x in ub[:, 0]],
+        "u_rho_mm": [float(x) for x in ub[:, 1]],
+        "u_d_b_mm": [float(x) for x in ub[:, 2]],
+        "with_terms": [t.key for t in chosen] if fit is not None else None,
+        "note": f"psi = beta + asin(rho / R) of channel {model.data.channels[0]} held at the start (a common "
+        "turn is each scan's centre): its beta moves only with its rho",
+    }
     in_model = []
     for t in model.device_terms:
         par, unc = term_parameters(t, final_values, fit.uncertainties() if fit is not None else {})
-        in_model.append({"effect": t.effect, "channel": t.channel, "term": t.key, "parameters": par,
-                         "uncertainties": {f"u_{k}": v for k, v in unc.items()}, "note": "in the device model (fitted with the base model, not a "
-                                                       "candidate)"})
+        in_model.append(
+            {
+                "effect": t.effect,
+                "channel": t.channel,
+                "term": t.key,
+                "parameters": par,
+                "uncertainties": {f"u_{k}": v for k, v in unc.items()},
+                "note": "in the device model (fitted with the base model, not a candidate)",
+            }
+        )
     for a in model.device_absorbed:
-        in_model.append({"effect": a["effect"], "channel": parse_device_effect(a["term"]).channel, "term": a["term"],
-                         "parameters": None, "uncertainties": None,
-                         "note": f"in the device model; not fitted: these scans cannot tell it from {a['absorbed_by']}"
-                                 + (f" ({a['design']}; {a['separated_by']} would)" if a.get("separated_by") else
-                                    ", which a calibration fits with it")})
+        in_model.append(
+            {
+                "effect": a["effect"],
+                "channel": parse_device_effect(a["term"]).channel,
+                "term": a["term"],
+                "parameters": None,
+                "uncertainties": None,
+                "note": f"in the device model; not fitted: these scans cannot tell it from {a['absorbed_by']}"
+                + (
+                    f" ({a['design']}; {a['separated_by']} would)"
+                    if a.get("separated_by")
+                    else ", which a calibration fits with it"
+                ),
+            }
+        )
     out = {
         "device_id": model.label,
         "device_model": [t["term"] for t in in_model],
@@ -1311,18 +1509,31 @@ def examine_pooled(  # noqa: C901 (pooled is to become an adapter of the device 
         "named": f["named"],
         "evidence_by_scan": {sid: float(g) for sid, g in zip(model.scan_ids, gain)},
         "absorbed": _absorbed_summary(model),
-        "separation": [{"terms": [named_terms[0].key, t.key],
-                        "separated_by": separation(named_terms[0], t) or "no measurement the registry knows of"}
-                       for t in named_terms[1:]] if f["verdict"] == "ambiguous" else [],
+        "separation": [
+            {
+                "terms": [named_terms[0].key, t.key],
+                "separated_by": separation(named_terms[0], t) or "no measurement the registry knows of",
+            }
+            for t in named_terms[1:]
+        ]
+        if f["verdict"] == "ambiguous"
+        else [],
         "beams": beams,
         "design": model.design(model.base_values),
-        "gap_before": f["gap_before"], "gap_after": f["gap_after"],
-        "noise_floor_mm": f["noise_floor_mm"], "noise_floor_by_channel_mm": f["noise_floor_by_channel_mm"],
-        "noise_floor_by_scan_mm": {sid: [float(x) for x in model.scan_sigma[k]]
-                                   for k, sid in enumerate(model.scan_ids)},
+        "gap_before": f["gap_before"],
+        "gap_after": f["gap_after"],
+        "noise_floor_mm": f["noise_floor_mm"],
+        "noise_floor_by_channel_mm": f["noise_floor_by_channel_mm"],
+        "noise_floor_by_scan_mm": {
+            sid: [float(x) for x in model.scan_sigma[k]] for k, sid in enumerate(model.scan_ids)
+        },
         "threshold_delta_bic": f["threshold_delta_bic"],
-        "candidates": f["candidates"], "screen": f["screen"], "base_model": f["base_model"],
-        "localisation": f["localisation"], "config": f["config"],
-        "samples_used": f["samples_used"], "samples_total": f["samples_total"],
+        "candidates": f["candidates"],
+        "screen": f["screen"],
+        "base_model": f["base_model"],
+        "localisation": f["localisation"],
+        "config": f["config"],
+        "samples_used": f["samples_used"],
+        "samples_total": f["samples_total"],
     }
     return PooledExamination(findings=_clean(out), examination=ex, model=model, fit=fit, terms=chosen)

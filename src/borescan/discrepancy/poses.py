@@ -187,7 +187,9 @@ class RodModel(_PoseModel):
             cert = (f or {}).get("certified_diameter_mm") if f else art.get("certified_diameter_mm")
             dia = cert or (f or {}).get("nominal_diameter_mm") or default_dia
             if dia is None:
-                raise MissingScanKey(f"no certified or nominal diameter for rod layer {c} (artifact.features)")
+                raise MissingScanKey(
+                    f"no certified or nominal diameter for rod layer {c} (artifact.features)"
+                )
             radii.append(float(dia) / 2.0)
             free.append(cert is None)
         self.radius = np.array(radii)
@@ -213,8 +215,10 @@ class RodModel(_PoseModel):
 
     def layers(self) -> list[RodLayer]:
         """Nominal layer geometry (h, l0, phi, d, gamma) of the channels."""
-        return [RodLayer(int(c), float(h), float(l0), float(ph), float(dd), float(g))
-                for c, h, l0, ph, dd, g in zip(self.data.channels, self.h, self.l0, self.phi, self.d, self.gamma)]
+        return [
+            RodLayer(int(c), float(h), float(l0), float(ph), float(dd), float(g))
+            for c, h, l0, ph, dd, g in zip(self.data.channels, self.h, self.l0, self.phi, self.d, self.gamma)
+        ]
 
     def base_start(self):
         """Return the rod model's start from the pose means.
@@ -257,12 +261,14 @@ class RodModel(_PoseModel):
         alpha = np.array([0.0] + [p[f"alpha[{k}]"] for k in range(1, self.n_pose)])
         self._last = np.mod(alpha[self.data.pose_index], 2 * np.pi)
         m = len(self.data.channels)
-        return {"hole_center_mm": [[float(p[f"cx[{j}]"]), float(p[f"cy[{j}]"])] for j in range(m)],
-                "hole_radius_mm": [float(self.radius[j] + p.get(f"dr[{j}]", 0.0)) for j in range(m)],
-                "radius_free": [bool(f) for f in self.radius_free],
-                "deflection_rad": float(np.hypot(p.get("wx", 0.0), p.get("wy", 0.0))),
-                "deflection_az_rad": float(np.arctan2(p.get("wy", 0.0), p.get("wx", 0.0))),
-                "pose_angle_rad": [float(a) for a in alpha]}
+        return {
+            "hole_center_mm": [[float(p[f"cx[{j}]"]), float(p[f"cy[{j}]"])] for j in range(m)],
+            "hole_radius_mm": [float(self.radius[j] + p.get(f"dr[{j}]", 0.0)) for j in range(m)],
+            "radius_free": [bool(f) for f in self.radius_free],
+            "deflection_rad": float(np.hypot(p.get("wx", 0.0), p.get("wy", 0.0))),
+            "deflection_az_rad": float(np.arctan2(p.get("wy", 0.0), p.get("wx", 0.0))),
+            "pose_angle_rad": [float(a) for a in alpha],
+        }
 
     def state(self, p) -> RodState:
         """Return the device's base unknowns at base parameters ``p`` (pose 0 at alpha = 0)."""
@@ -282,14 +288,21 @@ class RodModel(_PoseModel):
         """
         d = self.data
         effects = [e for t in terms for e in term_effects(t, p, d.channels)]
-        with np.errstate(invalid="ignore", divide="ignore"):  # NaN where a start puts the beam outside the hole
+        with np.errstate(
+            invalid="ignore", divide="ignore"
+        ):  # NaN where a start puts the beam outside the hole
             return self.device.predict(self.state(p), d.pose_index, d.t_s, effects)
 
     def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
         """Return the registry's rod candidates; what a layer's free hole radius absorbs is left out."""
         free = {c for c, f in zip(self.data.channels, self.radius_free) if f}
-        return registry_terms(self.scan_kind, self.data.channels, have={"cte": bool(self.data.cte_per_k)},
-                              k_max=k_max, freed={"R": free})
+        return registry_terms(
+            self.scan_kind,
+            self.data.channels,
+            have={"cte": bool(self.data.cte_per_k)},
+            k_max=k_max,
+            freed={"R": free},
+        )
 
     def extra_starts(self, screen, keys, t1):
         """beam_offset is second order at d = 0: start it from the offset screen, d = sqrt(2 r |b|)."""
@@ -359,8 +372,11 @@ class StaticModel(_PoseModel):
     def base_summary(self, p):
         """Return the base fit's device positions at ``p``."""
         self._last = np.zeros(self.data.t_s.size)
-        return {"device_xy_mm": [[float(p[f"sx[{k}]"]), float(p[f"sy[{k}]"])] for k in range(self.n_pose)],
-                "radius_mm": float(self.R + p.get("dR", 0.0)), "radius_free": bool(self.radius_free)}
+        return {
+            "device_xy_mm": [[float(p[f"sx[{k}]"]), float(p[f"sy[{k}]"])] for k in range(self.n_pose)],
+            "radius_mm": float(self.R + p.get("dR", 0.0)),
+            "radius_free": bool(self.radius_free),
+        }
 
     def predict(self, p, terms):
         """Return the readings (n, c) [mm] the three-sensor model predicts with the terms' fitted values.
@@ -377,8 +393,13 @@ class StaticModel(_PoseModel):
 
     def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
         """Return the registry's static candidates; a free bore radius absorbs what every channel shares."""
-        return registry_terms(self.scan_kind, self.data.channels, have={"cte": bool(self.data.cte_per_k)},
-                              k_max=k_max, freed={"R": "shared" if self.radius_free else set()})
+        return registry_terms(
+            self.scan_kind,
+            self.data.channels,
+            have={"cte": bool(self.data.cte_per_k)},
+            k_max=k_max,
+            freed={"R": "shared" if self.radius_free else set()},
+        )
 
     def extra_starts(self, screen, keys, t1):
         """Return no extra starts (the linear screen's start is enough for static scans)."""

@@ -11,7 +11,9 @@ from borescan.simulate import layer_dict
 __all__ = ["discrepancy_reference"]
 
 
-def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_type: str, night: str) -> tuple[dict, str]:
+def discrepancy_reference(
+    calibrations: pl.DataFrame, device_id: str, device_type: str, night: str
+) -> tuple[dict, str]:
     """Return the keywords that fix the reference, and its description.
 
     Return the keywords of :func:`borescan.discrepancy.analyse_scan` that fix the reference, and its
@@ -35,24 +37,35 @@ def discrepancy_reference(calibrations: pl.DataFrame, device_id: str, device_typ
     the model misses, not whether a result may be certified.
     """
     if device_type == "tri_lds" and calibrations.height and "device_id" in calibrations.columns:
-        c = calibrations.filter((pl.col("device_id") == device_id) & (pl.col("valid_from") <= night)
-                                & (pl.col("method") != "nominal"))
+        c = calibrations.filter(
+            (pl.col("device_id") == device_id)
+            & (pl.col("valid_from") <= night)
+            & (pl.col("method") != "nominal")
+        )
         if c.height:
             cal_id = c.sort("valid_from", "calibration_id")["calibration_id"][-1]
             cal = tri_calibration(calibrations, cal_id)
             carried = carried_effects(from_dicts((cal.diagnostics or {}).get("device_model")))
             if carried:
-                return ({"beams": cal.beams, "device_effects": carried},
-                        f"calibration {cal_id} with its device model ({', '.join(str(e) for e in carried)})")
+                return (
+                    {"beams": cal.beams, "device_effects": carried},
+                    f"calibration {cal_id} with its device model ({', '.join(str(e) for e in carried)})",
+                )
             return {"beams": cal.beams}, f"calibration {cal_id}"
     if device_type == "tri_lds":
         return {"free_beams": ("d_b", "beta", "rho")}, "device.nominal (beam geometry free)"
     if device_type == "rod" and calibrations.height and {"device_id", "l0_mm"} <= set(calibrations.columns):
-        c = calibrations.filter((pl.col("device_id") == device_id) & (pl.col("valid_from") <= night)
-                                & (pl.col("method") != "nominal") & pl.col("l0_mm").is_not_null())
+        c = calibrations.filter(
+            (pl.col("device_id") == device_id)
+            & (pl.col("valid_from") <= night)
+            & (pl.col("method") != "nominal")
+            & pl.col("l0_mm").is_not_null()
+        )
         if c.height:
             cal_id = c.sort("valid_from", "calibration_id")["calibration_id"][-1]
             rows = c.filter(pl.col("calibration_id") == cal_id)
             channels = sorted(int(ch) for ch in rows["channel"])
-            return {"layers": [layer_dict(lay) for lay in rod_layers(rows, channels)]}, f"calibration {cal_id}"
+            return {
+                "layers": [layer_dict(lay) for lay in rod_layers(rows, channels)]
+            }, f"calibration {cal_id}"
     return {}, "device.nominal"

@@ -36,11 +36,26 @@ from borescan.config import schema_default
 from borescan.effects import EFFECTS, Effect, calibration_absorbers, sort_effects
 from borescan.geometry import Beams, Bore, tri_spindle_readings
 from borescan.kinematics import AngleModel, angle_model_from_arrays
-from borescan.physics.tri import GEOMETRY_STAGES, TriBase, first_harmonic_start, tri_geometry, tri_reading_stage
+from borescan.physics.tri import (
+    GEOMETRY_STAGES,
+    TriBase,
+    first_harmonic_start,
+    tri_geometry,
+    tri_reading_stage,
+)
 from borescan.preconditions import EXAMINATION_NEEDS_GEOMETRY, MissingScanKey, design_beams
 
-__all__ = ["TriData", "Term", "TriModel", "tri_data_from_arrays", "candidate_terms", "registry_terms", "term_parameters",
-           "term_effects", "term_values"]
+__all__ = [
+    "TriData",
+    "Term",
+    "TriModel",
+    "tri_data_from_arrays",
+    "candidate_terms",
+    "registry_terms",
+    "term_parameters",
+    "term_effects",
+    "term_values",
+]
 
 #: Scan kind of this model in the registry's ``absorbed_by`` / ``candidate``.
 SCAN_KIND = "tri_spindle"
@@ -133,7 +148,12 @@ class TriData:
 
 
 def tri_data_from_arrays(
-    scan_id: str, meta: dict, t_s: np.ndarray, values_mm: np.ndarray, channels, spindle: dict | None = None,
+    scan_id: str,
+    meta: dict,
+    t_s: np.ndarray,
+    values_mm: np.ndarray,
+    channels,
+    spindle: dict | None = None,
     max_samples: int | None = None,
 ) -> TriData:
     """Build :class:`TriData` from ``scan.json`` metadata and the reading matrix.
@@ -166,8 +186,12 @@ def tri_data_from_arrays(
     angle_model = None
     if spindle is not None and len(spindle.get("t_s", [])):
         angle_model = angle_model_from_arrays(
-            rpm_nominal=rpm, direction=sp.get("direction", "ccw"), spindle_t_s=np.asarray(spindle["t_s"], dtype=float),
-            spindle_angle_rad=spindle.get("angle_rad"), spindle_rpm=spindle.get("rpm"))
+            rpm_nominal=rpm,
+            direction=sp.get("direction", "ccw"),
+            spindle_t_s=np.asarray(spindle["t_s"], dtype=float),
+            spindle_angle_rad=spindle.get("angle_rad"),
+            spindle_rpm=spindle.get("rpm"),
+        )
         ts = np.asarray(spindle["t_s"], dtype=float)
         xs = np.interp(t_s, ts, np.asarray(spindle["x_mm"], dtype=float))
         ys = np.interp(t_s, ts, np.asarray(spindle["y_mm"], dtype=float))
@@ -198,7 +222,9 @@ def tri_data_from_arrays(
         beams=beams,
         radius_mm=float(dia) / 2.0,
         cte_per_k=None if cte is None else float(cte),
-        omega_rad_s=abs(angle_model.mean_omega_rad_s()) if angle_model is not None else 2.0 * np.pi * rpm / 60.0,
+        omega_rad_s=abs(angle_model.mean_omega_rad_s())
+        if angle_model is not None
+        else 2.0 * np.pi * rpm / 60.0,
         direction=direction,
         angle_model=angle_model,
         spindle_xy_mm=S,
@@ -247,8 +273,13 @@ class TriModel:
     (beam_tilt), reading (offset, gain, nonlinearity, drift, vibration).
     """
 
-    def __init__(self, data: TriData, weights: np.ndarray | None = None, free_beams: tuple[str, ...] = (),
-                 device_effects=()):
+    def __init__(
+        self,
+        data: TriData,
+        weights: np.ndarray | None = None,
+        free_beams: tuple[str, ...] = (),
+        device_effects=(),
+    ):
         bad = set(free_beams) - {"beta", "d_b", "rho"}
         if bad:
             raise ValueError(f"free_beams takes 'beta', 'd_b' and/or 'rho', got {sorted(bad)}")
@@ -305,8 +336,10 @@ class TriModel:
             keys = {t.key for t in self.device_terms}
             terms = list(self.device_terms) + [t for t in terms if t.key not in keys]
         st = sort_effects([e for t in terms for e in term_effects(t, p, d.channels)], "tri_lds", d.channels)
-        key = (tuple(e for stage in GEOMETRY_STAGES for e in st[stage]),
-               tuple(sorted((k, v) for k, v in p.items() if "." not in k)))
+        key = (
+            tuple(e for stage in GEOMETRY_STAGES for e in st[stage]),
+            tuple(sorted((k, v) for k, v in p.items() if "." not in k)),
+        )
         if self._geo_cache is not None and self._geo_cache[0] == key:
             v, tc = self._geo_cache[1]
         else:
@@ -346,6 +379,7 @@ class TriModel:
     def absorbed_by(self) -> dict[str, str]:
         """Return effect -> the calibration parameters that absorb it (:func:`calibration_absorbers`)."""
         return calibration_absorbers(self.scan_kind)
+
     base_description = "device.nominal beams, artifact R20, spindle position, rpm_nominal"
 
     @property
@@ -355,7 +389,12 @@ class TriModel:
 
     def base_scales(self) -> list[float]:
         """Return the typical sizes of :meth:`base_names`' parameters."""
-        own = dict(zip((n for t in self.device_terms for n in t.names()), (s for t in self.device_terms for s in t.scales())))
+        own = dict(
+            zip(
+                (n for t in self.device_terms for n in t.names()),
+                (s for t in self.device_terms for s in t.scales()),
+            )
+        )
         return [own.get(n, BASE_SCALE.get(n.split("[")[0], 1e-3)) for n in self.base_names()]
 
     def base_start(self) -> dict[str, float]:
@@ -368,9 +407,11 @@ class TriModel:
 
     def base_summary(self, p: dict[str, float]) -> dict:
         """Return the base fit's geometry at ``p`` (centre, radius, beams)."""
-        out = {"center_xy_mm": [float(p["cx"]), float(p["cy"])],
-               "radius_mm": float(self.data.radius_mm + p.get("dR", 0.0)),
-               "radius_free": bool(self.data.radius_free)}
+        out = {
+            "center_xy_mm": [float(p["cx"]), float(p["cy"])],
+            "radius_mm": float(self.data.radius_mm + p.get("dR", 0.0)),
+            "radius_free": bool(self.data.radius_free),
+        }
         c = len(self.data.channels)
         if "beta" in self.free_beams:
             out["beta_minus_nominal_rad"] = [float(p.get(f"dbeta[{j}]", 0.0)) for j in range(c)]
@@ -409,8 +450,11 @@ class TriModel:
         if self.data.radius_free:  # a part's radius is the measurand: it absorbs what every channel shares
             freed["R"] = "shared"
         keys = {t.key for t in self.device_terms}
-        return [t for t in candidate_terms(self.data, k_max=k_max, vibration_f_hz=vibration_f_hz, freed=freed)
-                if t.key not in keys]
+        return [
+            t
+            for t in candidate_terms(self.data, k_max=k_max, vibration_f_hz=vibration_f_hz, freed=freed)
+            if t.key not in keys
+        ]
 
     def extra_starts(self, screen: list, keys: set, t1: Term | None) -> list:
         """Return the starts the linear screen cannot give.
@@ -421,16 +465,22 @@ class TriModel:
         """
         out = []
         lob = next((z for z in screen if z[1].key == "bore_lobing[k=2]"), None)
-        if (t1 is None or t1.effect != "axis_tilt") and lob is not None and (
-            "*" in keys or "bore_lobing[k=2]" in keys
+        if (
+            (t1 is None or t1.effect != "axis_tilt")
+            and lob is not None
+            and ("*" in keys or "bore_lobing[k=2]" in keys)
         ):
             out.append((0.0, Term("axis_tilt"), _tilt_start(lob[2], self.data)))
         if t1 is None and not self.data.encoder:
             eps0 = _rotation_eps(self)
             if eps0 is not None and abs(eps0) > 2e-3:
                 C0 = self.initial_center(eps0)
-                st = {**(screen[0][2] if screen else self.base_start()), "cx": float(C0[0]), "cy": float(C0[1]),
-                      "speed_error.eps": eps0}
+                st = {
+                    **(screen[0][2] if screen else self.base_start()),
+                    "cx": float(C0[0]),
+                    "cy": float(C0[1]),
+                    "speed_error.eps": eps0,
+                }
                 out.append((0.0, Term("speed_error"), st))
         return out
 
@@ -457,8 +507,14 @@ class TriModel:
         return S0 - offset
 
 
-def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: int | None = None,
-                   freed: dict[str, set | str] | None = None) -> list[Term]:
+def registry_terms(
+    scan_kind: str,
+    channels,
+    *,
+    have: dict[str, bool],
+    k_max: int | None = None,
+    freed: dict[str, set | str] | None = None,
+) -> list[Term]:
     """Return the registry's candidate terms for a scan of ``scan_kind``.
 
     Return the registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
@@ -477,8 +533,11 @@ def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: in
     freed = {k: v for k, v in (freed or {}).items() if v}
     if k_max is None:
         k_max = int(schema_default("discrepancy", "max_harmonic"))
-    specs = [s for s in EFFECTS.values()
-             if s.candidate.get(scan_kind) == "screen" and all(have.get(n, False) for n in s.needs)]
+    specs = [
+        s
+        for s in EFFECTS.values()
+        if s.candidate.get(scan_kind) == "screen" and all(have.get(n, False) for n in s.needs)
+    ]
     terms = [Term(s.name, c) for s in specs if s.per_channel for c in channels]
     terms += [Term(s.name, 0) for s in specs if s.per_channel and s.common]
     for s in specs:
@@ -498,20 +557,30 @@ def registry_terms(scan_kind: str, channels, *, have: dict[str, bool], k_max: in
     return [t for t in terms if not absorbed(t)]
 
 
-def candidate_terms(data: TriData, *, k_max: int | None = None, vibration_f_hz: float | None = None,
-                    freed: dict[str, set | str] | None = None) -> list[Term]:
+def candidate_terms(
+    data: TriData,
+    *,
+    k_max: int | None = None,
+    vibration_f_hz: float | None = None,
+    freed: dict[str, set | str] | None = None,
+) -> list[Term]:
     """Return the registry's candidates of a spindle scan.
 
     Return the registry's candidates of a spindle scan (:func:`registry_terms`): ``commanded_angle``
     when the scan has no encoder, ``vibration_line`` when ``vibration_f_hz`` was found, ``cte``
     when the artifact's CTE is known.
     """
-    have = {"commanded_angle": not data.encoder, "vibration_line": vibration_f_hz is not None,
-            "cte": bool(data.cte_per_k)}
+    have = {
+        "commanded_angle": not data.encoder,
+        "vibration_line": vibration_f_hz is not None,
+        "cte": bool(data.cte_per_k),
+    }
     return registry_terms(SCAN_KIND, data.channels, have=have, k_max=k_max, freed=freed)
 
 
-def term_parameters(term: Term, x: dict[str, float], u: dict[str, float], data: TriData | None = None) -> tuple[dict, dict]:
+def term_parameters(
+    term: Term, x: dict[str, float], u: dict[str, float], data: TriData | None = None
+) -> tuple[dict, dict]:
     """Return the spec's parameters of a fitted term and their uncertainties.
 
     Return the spec's parameters of a fitted term and their standard uncertainties (the registry's
@@ -604,8 +673,6 @@ def _localise(model: TriModel, r: np.ndarray, sigma: np.ndarray) -> dict:
     return out
 
 
-
-
 def _tilt_start(lobing_start: dict, data: "TriData") -> dict:
     """Start of an axis_tilt fit from a k = 2 lobing start.
 
@@ -616,8 +683,6 @@ def _tilt_start(lobing_start: dict, data: "TriData") -> dict:
     m = 4.0 / data.radius_mm
     st.update({"axis_tilt.p": m * A, "axis_tilt.q": m * B})
     return st
-
-
 
 
 def _rotation_eps(model: TriModel) -> float | None:

@@ -89,12 +89,25 @@ def _spots(alpha, lay: RodLayer, hole: Hole, axis: RodAxis) -> np.ndarray:
     a = alpha + lay.phi_rad
     u = np.stack([np.cos(a), np.sin(a), 0 * a], -1)
     nvec = np.stack([-np.sin(a), np.cos(a), 0 * a], -1)
-    spot = lay.d_mm * nvec + (l * np.cos(lay.gamma_rad))[:, None] * u + (lay.h_mm + l * np.sin(lay.gamma_rad))[:, None] * np.array([0, 0, 1.0])
+    spot = (
+        lay.d_mm * nvec
+        + (l * np.cos(lay.gamma_rad))[:, None] * u
+        + (lay.h_mm + l * np.sin(lay.gamma_rad))[:, None] * np.array([0, 0, 1.0])
+    )
     return spot @ rod_axis_rotation(axis).T + np.array([axis.dx_mm, axis.dy_mm, 0.0])
 
 
-def fig9_radius_error_um(ecc_mm, omega_rad, *, d_mm=0.5, gamma_rad=np.deg2rad(0.5), h_mm=H_HOLES_MM[1],
-                         ecc_az_rad=0.0, omega_az_rad=np.pi / 2, n_alpha=360) -> dict[str, float]:
+def fig9_radius_error_um(
+    ecc_mm,
+    omega_rad,
+    *,
+    d_mm=0.5,
+    gamma_rad=np.deg2rad(0.5),
+    h_mm=H_HOLES_MM[1],
+    ecc_az_rad=0.0,
+    omega_az_rad=np.pi / 2,
+    n_alpha=360,
+) -> dict[str, float]:
     """Radius error of one hole for eccentricity ``ecc_mm`` and deflection ``omega_rad``.
 
     Returns
@@ -144,8 +157,9 @@ def _fig11_scene():
     return layers, holes, axis
 
 
-def fig11_error_vs_rotations(n_rot=FIG11_ROTATIONS, n_trials: int = FIG11_TRIALS, seed: int = 0,
-                             progress=None) -> dict[str, np.ndarray]:
+def fig11_error_vs_rotations(
+    n_rot=FIG11_ROTATIONS, n_trials: int = FIG11_TRIALS, seed: int = 0, progress=None
+) -> dict[str, np.ndarray]:
     """Monte Carlo diameter error of ``solve_rod`` vs number of rod rotations (poses).
 
     Poses at uniformly random angles, readings + uniform +-20 um. Returns per n: rms_um, p95_um,
@@ -164,7 +178,9 @@ def fig11_error_vs_rotations(n_rot=FIG11_ROTATIONS, n_trials: int = FIG11_TRIALS
             v0 = rod_readings(alpha, layers, holes, axis)
             v = v0 + rng.uniform(-0.02, 0.02, v0.shape)
             try:
-                sol = solve_rod(v, [L0_MM, L0_MM], u_reading_mm=SIGMA_LIN_MM, deflection="none")  # the paper's Eq. 16
+                sol = solve_rod(
+                    v, [L0_MM, L0_MM], u_reading_mm=SIGMA_LIN_MM, deflection="none"
+                )  # the paper's Eq. 16
             except RodSolveError:
                 refused += 1
                 continue
@@ -178,8 +194,10 @@ def fig11_error_vs_rotations(n_rot=FIG11_ROTATIONS, n_trials: int = FIG11_TRIALS
         out["crb_um"].append(float(np.mean(crbs) * 1e3))
         out["refused"].append(refused / n_trials)
         if progress is not None:
-            progress(f"Wang Fig. 11: {n} rotations, {n_trials} trials, RMS {out['rms_um'][-1]:.1f} um "
-                     f"({len(out['n'])} of {len(n_rot)} rotation counts)")
+            progress(
+                f"Wang Fig. 11: {n} rotations, {n_trials} trials, RMS {out['rms_um'][-1]:.1f} um "
+                f"({len(out['n'])} of {len(n_rot)} rotation counts)"
+            )
     return {k: np.array(v) for k, v in out.items()}
 
 
@@ -193,7 +211,10 @@ def reproduce(fig9_steps: int = 7, fig11_trials: int = FIG11_TRIALS, progress=No
     eq7_sim = eq7_simulated_error_um(np.array([75.0, 80.0]))
     eccs = np.linspace(0.0, 3.0, fig9_steps)
     omegas = np.deg2rad(np.linspace(0.0, 1.5, fig9_steps))
-    grid = {k: np.empty((eccs.size, omegas.size)) for k in ("paper_um", "round_um", "flat_um", "model_um", "ellipse_um")}
+    grid = {
+        k: np.empty((eccs.size, omegas.size))
+        for k in ("paper_um", "round_um", "flat_um", "model_um", "ellipse_um")
+    }
     for i, e in enumerate(eccs):
         for j, w in enumerate(omegas):
             res = fig9_radius_error_um(e, w)
@@ -201,11 +222,17 @@ def reproduce(fig9_steps: int = 7, fig11_trials: int = FIG11_TRIALS, progress=No
                 grid[k][i, j] = res[k]
     f11 = fig11_error_vs_rotations(n_trials=fig11_trials, progress=progress)
     return {
-        "eq7": {"l_mm": l, "dl_um": eq7, "max_abs_70_80_um": float(np.max(np.abs(eq7_manufacturing_error_um(np.linspace(70, 80, 11))))),
-                "exceeds_1_5_below_mm": crossing,
-                "at_80_um": float(eq7_manufacturing_error_um(80.0)), "printed_bound_um": 1.5,
-                "simulated_r75_um": float(eq7_sim[0]), "simulated_r80_um": float(eq7_sim[1]),
-                "at_10_um": float(eq7_manufacturing_error_um(10.0))},
+        "eq7": {
+            "l_mm": l,
+            "dl_um": eq7,
+            "max_abs_70_80_um": float(np.max(np.abs(eq7_manufacturing_error_um(np.linspace(70, 80, 11))))),
+            "exceeds_1_5_below_mm": crossing,
+            "at_80_um": float(eq7_manufacturing_error_um(80.0)),
+            "printed_bound_um": 1.5,
+            "simulated_r75_um": float(eq7_sim[0]),
+            "simulated_r80_um": float(eq7_sim[1]),
+            "at_10_um": float(eq7_manufacturing_error_um(10.0)),
+        },
         "eq15": {"computed_um": eq15_total_um(), "printed_um": 24.8},
         "fig9": {"ecc_mm": eccs, "omega_deg": np.rad2deg(omegas), **grid, "printed_bound_um": 10.0},
         "fig11": {**f11, "printed_settled_um": 28.0, "printed_settle_n": 18},
@@ -228,24 +255,42 @@ def write_reproduction(out_dir, fig11_trials: int = FIG11_TRIALS, progress=None)
         w = csv.writer(fh)
         w.writerow(["item", "paper", "reproduced", "note"])
         e7, e15, f9, f11 = rep["eq7"], rep["eq15"], rep["fig9"], rep["fig11"]
-        w.writerow(["Eq. 7 |dl| for l < 80 mm (d 0.5 mm, gamma 0.5 deg)", "< 1.5 um", f"{e7['max_abs_70_80_um']:.3f} um for 70 <= l <= 80 mm; exceeds 1.5 um for l < "
-                                                                                      f"{e7['exceeds_1_5_below_mm']:.1f} mm",
-                    f"dl(80) = {e7['at_80_um']:.3f} um; exact forward model r=75: "
-                    f"{e7['simulated_r75_um']:+.3f} um, "
-                    f"r=80: {e7['simulated_r80_um']:+.3f} um; dl(10 mm) = {e7['at_10_um']:+.2f} um"])
-        w.writerow(["Eq. 15 total", "24.8 um", f"{e15['computed_um']:.3f} um", "sqrt(20^2+10.2^2+1.5^2+10^2+3^2)"])
-        w.writerow(["Fig. 9 max radius error, ecc <= 3 mm, omega <= 1.5 deg", "< 10 um",
-                    f"paper procedure {np.max(f9['paper_um']):.2f} um; Eq. 16 fit "
-                    f"{np.max(np.abs(f9['model_um'])):.2f} um",
-                    "front hole h = 450 mm, ecc along x, deflection towards y"])
+        w.writerow(
+            [
+                "Eq. 7 |dl| for l < 80 mm (d 0.5 mm, gamma 0.5 deg)",
+                "< 1.5 um",
+                f"{e7['max_abs_70_80_um']:.3f} um for 70 <= l <= 80 mm; exceeds 1.5 um for l < "
+                f"{e7['exceeds_1_5_below_mm']:.1f} mm",
+                f"dl(80) = {e7['at_80_um']:.3f} um; exact forward model r=75: "
+                f"{e7['simulated_r75_um']:+.3f} um, "
+                f"r=80: {e7['simulated_r80_um']:+.3f} um; dl(10 mm) = {e7['at_10_um']:+.2f} um",
+            ]
+        )
+        w.writerow(
+            ["Eq. 15 total", "24.8 um", f"{e15['computed_um']:.3f} um", "sqrt(20^2+10.2^2+1.5^2+10^2+3^2)"]
+        )
+        w.writerow(
+            [
+                "Fig. 9 max radius error, ecc <= 3 mm, omega <= 1.5 deg",
+                "< 10 um",
+                f"paper procedure {np.max(f9['paper_um']):.2f} um; Eq. 16 fit "
+                f"{np.max(np.abs(f9['model_um'])):.2f} um",
+                "front hole h = 450 mm, ecc along x, deflection towards y",
+            ]
+        )
         i18 = list(f11["n"]).index(18) if 18 in list(f11["n"]) else -1
-        w.writerow(["Fig. 11 diameter error after >= 18 rotations", "~28 um",
-                    f"RMS {f11['rms_um'][i18]:.1f} um, 95% {f11['p95_um'][i18]:.1f} "
-                    f"um, max {f11['max_um'][i18]:.1f} um at n = {f11['n'][i18]}",
-                    f"sensor noise only (uniform +-20 um); paper includes run-out, install and hole form; "
-                    f"{fig11_trials} trials per n (RMS to about "
-                    f"{100 / np.sqrt(4 * fig11_trials):.0f} %, 95% to about "
-                    f"{118 / np.sqrt(2 * fig11_trials):.0f} %)"])
+        w.writerow(
+            [
+                "Fig. 11 diameter error after >= 18 rotations",
+                "~28 um",
+                f"RMS {f11['rms_um'][i18]:.1f} um, 95% {f11['p95_um'][i18]:.1f} "
+                f"um, max {f11['max_um'][i18]:.1f} um at n = {f11['n'][i18]}",
+                f"sensor noise only (uniform +-20 um); paper includes run-out, install and hole form; "
+                f"{fig11_trials} trials per n (RMS to about "
+                f"{100 / np.sqrt(4 * fig11_trials):.0f} %, 95% to about "
+                f"{118 / np.sqrt(2 * fig11_trials):.0f} %)",
+            ]
+        )
     paths["statements"] = p
     p = out / "wang_fig9.csv"
     with p.open("w", newline="") as fh:
@@ -253,14 +298,23 @@ def write_reproduction(out_dir, fig11_trials: int = FIG11_TRIALS, progress=None)
         w.writerow(["ecc_mm", "omega_deg", "paper_um", "round_um", "flat_um", "model_um", "ellipse_um"])
         for i, e in enumerate(f9["ecc_mm"]):
             for j, om in enumerate(f9["omega_deg"]):
-                w.writerow([f"{e:.3f}", f"{om:.3f}"] + [f"{f9[k][i, j]:.4f}" for k in ("paper_um", "round_um", "flat_um", "model_um", "ellipse_um")])
+                w.writerow(
+                    [f"{e:.3f}", f"{om:.3f}"]
+                    + [
+                        f"{f9[k][i, j]:.4f}"
+                        for k in ("paper_um", "round_um", "flat_um", "model_um", "ellipse_um")
+                    ]
+                )
     paths["fig9"] = p
     p = out / "wang_fig11.csv"
     with p.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["n_rotations", "rms_um", "p95_um", "max_um", "crb_um", "refused_fraction"])
         for k in range(len(f11["n"])):
-            w.writerow([int(f11["n"][k])] + [f"{f11[c][k]:.3f}" for c in ("rms_um", "p95_um", "max_um", "crb_um", "refused")])
+            w.writerow(
+                [int(f11["n"][k])]
+                + [f"{f11[c][k]:.3f}" for c in ("rms_um", "p95_um", "max_um", "crb_um", "refused")]
+            )
     paths["fig11"] = p
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.3))
     a = ax[0]

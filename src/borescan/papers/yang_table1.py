@@ -21,7 +21,14 @@ from borescan.calibration import yang_d_b_r, yang_oe, yang_sensitivities
 from borescan.resources import shipped
 
 __all__ = [
-    "TABLE1_CSV", "P1_XY_MM", "P0_XY_MM", "R_MM", "OE_PRINTED_MM", "load_table1", "reproduce", "write_reproduction",
+    "TABLE1_CSV",
+    "P1_XY_MM",
+    "P0_XY_MM",
+    "R_MM",
+    "OE_PRINTED_MM",
+    "load_table1",
+    "reproduce",
+    "write_reproduction",
 ]
 
 TABLE1_CSV = shipped("papers", "yang2017_table1.csv")
@@ -86,8 +93,11 @@ def reproduce(n_mc: int = 200_000, seed: int = 2017) -> dict:
     oe_comp = yang_oe(P1_XY_MM, P0_XY_MM)
     # Eq. 9 with each coordinate +-half LSB: range of oe
     dx, dy = P1_XY_MM[0] - P0_XY_MM[0], P1_XY_MM[1] - P0_XY_MM[1]
-    corners = [np.hypot(dx + a, dy + b) for a in (-2 * HALF_LSB_COORD_MM, 2 * HALF_LSB_COORD_MM)
-               for b in (-2 * HALF_LSB_COORD_MM, 2 * HALF_LSB_COORD_MM)]
+    corners = [
+        np.hypot(dx + a, dy + b)
+        for a in (-2 * HALF_LSB_COORD_MM, 2 * HALF_LSB_COORD_MM)
+        for b in (-2 * HALF_LSB_COORD_MM, 2 * HALF_LSB_COORD_MM)
+    ]
     rows = []
     for row in load_table1():
         out = dict(row)
@@ -126,12 +136,34 @@ def reproduce(n_mc: int = 200_000, seed: int = 2017) -> dict:
 
 
 CSV_COLUMNS = [
-    "sensor", "d_max_mm", "d_min_mm", "r_mm", "d_b_mm",
-    "r_oe_printed_mm", "diff_r_oe_printed_um", "d_b_oe_printed_mm", "diff_d_b_oe_printed_um",
-    "r_oe_computed_mm", "diff_r_oe_computed_um", "d_b_oe_computed_mm", "diff_d_b_oe_computed_um",
-    "dr_dd_max", "dr_dd_min", "dr_doe", "dr_dR", "dd_b_dd_max", "dd_b_dd_min", "dd_b_doe", "dd_b_dR",
-    "r_round_bound_um", "d_b_round_bound_um", "mc_r_p2.5_mm", "mc_r_p50_mm", "mc_r_p97.5_mm",
-    "mc_r_imaginary_fraction", "oe_from_printed_d_b_mm",
+    "sensor",
+    "d_max_mm",
+    "d_min_mm",
+    "r_mm",
+    "d_b_mm",
+    "r_oe_printed_mm",
+    "diff_r_oe_printed_um",
+    "d_b_oe_printed_mm",
+    "diff_d_b_oe_printed_um",
+    "r_oe_computed_mm",
+    "diff_r_oe_computed_um",
+    "d_b_oe_computed_mm",
+    "diff_d_b_oe_computed_um",
+    "dr_dd_max",
+    "dr_dd_min",
+    "dr_doe",
+    "dr_dR",
+    "dd_b_dd_max",
+    "dd_b_dd_min",
+    "dd_b_doe",
+    "dd_b_dR",
+    "r_round_bound_um",
+    "d_b_round_bound_um",
+    "mc_r_p2.5_mm",
+    "mc_r_p50_mm",
+    "mc_r_p97.5_mm",
+    "mc_r_imaginary_fraction",
+    "oe_from_printed_d_b_mm",
 ]
 
 
@@ -181,8 +213,15 @@ def write_reproduction(out_dir: Path | str) -> dict[str, Path]:
     x = np.arange(len(rep["rows"]))
     for row, xi, col in zip(rep["rows"], x, colors):
         lo, mid, hi = row["mc_r_p2.5_mm"], row["mc_r_p50_mm"], row["mc_r_p97.5_mm"]
-        axes[1].errorbar([xi - 0.1], [mid], yerr=[[mid - lo], [hi - mid]], fmt="s", color=col, capsize=4,
-                         label="computed, 95% range under input rounding" if xi == 0 else None)
+        axes[1].errorbar(
+            [xi - 0.1],
+            [mid],
+            yerr=[[mid - lo], [hi - mid]],
+            fmt="s",
+            color=col,
+            capsize=4,
+            label="computed, 95% range under input rounding" if xi == 0 else None,
+        )
         axes[1].plot([xi + 0.1], [row["r_mm"]], "k^", label="printed" if xi == 0 else None)
     axes[1].set_xticks(x, [f"sensor {r['sensor']}" for r in rep["rows"]])
     axes[1].set_ylabel("r [mm]")

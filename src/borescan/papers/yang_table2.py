@@ -35,8 +35,16 @@ import numpy as np
 from borescan.resources import shipped
 from borescan.signal import beam_status, n_m_counts, theta_t_rad
 
-__all__ = ["TABLE2_CSV", "TABLE1_CSV", "SAMPLES_PER_REV_PRINTED", "SPACINGS_PRINTED", "STATUS_PRINTED",
-           "load_table2", "reproduce", "write_reproduction"]
+__all__ = [
+    "TABLE2_CSV",
+    "TABLE1_CSV",
+    "SAMPLES_PER_REV_PRINTED",
+    "SPACINGS_PRINTED",
+    "STATUS_PRINTED",
+    "load_table2",
+    "reproduce",
+    "write_reproduction",
+]
 
 TABLE2_CSV = shipped("papers", "yang2017_table2.csv")
 TABLE1_CSV = shipped("papers", "yang2017_table1.csv")
@@ -129,10 +137,13 @@ def reproduce(path: Path | str = TABLE2_CSV, table1_path: Path | str = TABLE1_CS
     """
     t = load_table2(path)
     p_all, u_all = _slope([t[ch][k] for ch in sorted(t) for k in ("min", "max")])
-    period = {"printed": SAMPLES_PER_REV_PRINTED, "measured": p_all, "u_measured": u_all,
-              "ratio_measured_to_printed": p_all / SAMPLES_PER_REV_PRINTED}
-    out: dict = {"samples_per_rev": period,
-                 "channels": {}, "spacings": [], "difference_mismatches": []}
+    period = {
+        "printed": SAMPLES_PER_REV_PRINTED,
+        "measured": p_all,
+        "u_measured": u_all,
+        "ratio_measured_to_printed": p_all / SAMPLES_PER_REV_PRINTED,
+    }
+    out: dict = {"samples_per_rev": period, "channels": {}, "spacings": [], "difference_mismatches": []}
     for ch in sorted(t):
         mn, mx = t[ch]["min"], t[ch]["max"]
         n, m = n_m_counts(mn, mx)
@@ -143,41 +154,61 @@ def reproduce(path: Path | str = TABLE2_CSV, table1_path: Path | str = TABLE1_CS
         # printed Difference columns: which one is n
         col_next_to_min = t[ch]["mean"]["min"]
         col_next_to_max = t[ch]["mean"]["max"]
-        printed_n, printed_m = (col_next_to_min, col_next_to_max) if first == "min" else (col_next_to_max,
-                                                                                           col_next_to_min)
+        printed_n, printed_m = (
+            (col_next_to_min, col_next_to_max) if first == "min" else (col_next_to_max, col_next_to_min)
+        )
         st = beam_status(n_mean, m_mean, "ccw")["status"]
         # n - m per revolution pair, with u from its own scatter
         k = min(n.size, m.size)
         nm = n[:k] - m[:k]
         out["channels"][ch] = {
             "first_extremum": first,
-            "n_mean": n_mean, "u_n_mean": u_n, "m_mean": m_mean, "u_m_mean": u_m,
-            "n_minus_m": float(nm.mean()), "u_n_minus_m": float(nm.std(ddof=1) / math.sqrt(k)),
-            "n_count": int(n.size), "m_count": int(m.size),
-            "printed_mean_next_to_min": col_next_to_min, "printed_mean_next_to_max": col_next_to_max,
-            "printed_n": printed_n, "printed_m": printed_m,
-            "status_computed": st, "status_printed": STATUS_PRINTED[ch],
+            "n_mean": n_mean,
+            "u_n_mean": u_n,
+            "m_mean": m_mean,
+            "u_m_mean": u_m,
+            "n_minus_m": float(nm.mean()),
+            "u_n_minus_m": float(nm.std(ddof=1) / math.sqrt(k)),
+            "n_count": int(n.size),
+            "m_count": int(m.size),
+            "printed_mean_next_to_min": col_next_to_min,
+            "printed_mean_next_to_max": col_next_to_max,
+            "printed_n": printed_n,
+            "printed_m": printed_m,
+            "status_computed": st,
+            "status_printed": STATUS_PRINTED[ch],
             "status_agrees": st == STATUS_PRINTED[ch],
-            "samples_per_rev_from_minima": p_min, "u_samples_per_rev_from_minima": u_p_min,
+            "samples_per_rev_from_minima": p_min,
+            "u_samples_per_rev_from_minima": u_p_min,
             "sd_n_samples": float(n.std(ddof=1)),
         }
         out["channels"][ch]["status_if_columns_read_by_position"] = beam_status(
-            col_next_to_min, col_next_to_max, "ccw")["status"]
+            col_next_to_min, col_next_to_max, "ccw"
+        )["status"]
         # printed Difference cells vs differences of the printed Numbers: read row by row
         # (d_min-side cell, then d_max-side cell), the cells are the successive intervals of the
         # time-ordered extremum sequence
-        seq = sorted([(p, "min", i + 1) for i, p in enumerate(mn)]
-                     + [(p, "max", i + 1) for i, p in enumerate(mx)])
+        seq = sorted(
+            [(p, "min", i + 1) for i, p in enumerate(mn)] + [(p, "max", i + 1) for i, p in enumerate(mx)]
+        )
         intervals = [(int(b[0] - a[0]), a, b) for a, b in zip(seq, seq[1:])]
         cells = sorted(t[ch]["diff"].items(), key=lambda kv: (kv[0][1], kv[0][0] != "min"))
         for (kind, row), printed in cells:
             k = 2 * (row - 1) + (0 if kind == "min" else 1)
             computed = intervals[k][0] if k < len(intervals) else None
             if printed != computed:
-                out["difference_mismatches"].append({
-                    "channel": ch, "kind": kind, "row": row, "printed": printed, "computed": computed,
-                    "interval": None if computed is None
-                    else f"{intervals[k][1][0]:.0f} -> {intervals[k][2][0]:.0f}"})
+                out["difference_mismatches"].append(
+                    {
+                        "channel": ch,
+                        "kind": kind,
+                        "row": row,
+                        "printed": printed,
+                        "computed": computed,
+                        "interval": None
+                        if computed is None
+                        else f"{intervals[k][1][0]:.0f} -> {intervals[k][2][0]:.0f}",
+                    }
+                )
     # the printed "Mean" row vs the mean of the printed cells above it
     out["mean_mismatches"] = []
     for ch in sorted(t):
@@ -186,8 +217,15 @@ def reproduce(path: Path | str = TABLE2_CSV, table1_path: Path | str = TABLE1_CS
             mean = float(np.mean(cells))
             printed = t[ch]["mean"][kind]
             if round(mean) != printed:
-                out["mean_mismatches"].append({"channel": ch, "column_next_to": kind, "printed": printed,
-                                               "computed": mean, "cells": len(cells)})
+                out["mean_mismatches"].append(
+                    {
+                        "channel": ch,
+                        "column_next_to": kind,
+                        "printed": printed,
+                        "computed": mean,
+                        "cells": len(cells),
+                    }
+                )
     for (a, b), printed in SPACINGS_PRINTED.items():
         pa, pb = t[a]["min"], t[b]["min"]
         i = np.searchsorted(pb, pa, side="right")
@@ -197,17 +235,31 @@ def reproduce(path: Path | str = TABLE2_CSV, table1_path: Path | str = TABLE1_CS
         th625 = math.degrees(float(theta_t_rad(mean, SAMPLES_PER_REV_PRINTED)))
         thp = math.degrees(float(theta_t_rad(mean, p_all)))
         u_thp = thp * math.hypot(u / mean, u_all / p_all)
-        out["spacings"].append({"from_channel": a, "to_channel": b, "printed": printed, "computed": mean,
-                                "u_computed": u, "count": int(d.size),
-                                "theta_t_deg_at_625": th625, "theta_t_deg_at_measured": thp,
-                                "u_theta_t_deg_at_measured": u_thp, "theta_t_error_deg": th625 - thp})
-    out["spacings_sum"] = {"printed": sum(SPACINGS_PRINTED.values()),
-                           "computed": sum(s["computed"] for s in out["spacings"])}
+        out["spacings"].append(
+            {
+                "from_channel": a,
+                "to_channel": b,
+                "printed": printed,
+                "computed": mean,
+                "u_computed": u,
+                "count": int(d.size),
+                "theta_t_deg_at_625": th625,
+                "theta_t_deg_at_measured": thp,
+                "u_theta_t_deg_at_measured": u_thp,
+                "theta_t_error_deg": th625 - thp,
+            }
+        )
+    out["spacings_sum"] = {
+        "printed": sum(SPACINGS_PRINTED.values()),
+        "computed": sum(s["computed"] for s in out["spacings"]),
+    }
     t1 = _table1(table1_path)
     geo = {}
     for ch, row in t1.items():
-        delta = abs(math.atan(row["r_mm"] / (row["d_b_mm"] + row["d_min_mm"]))
-                    - math.atan(row["r_mm"] / (row["d_b_mm"] + row["d_max_mm"])))
+        delta = abs(
+            math.atan(row["r_mm"] / (row["d_b_mm"] + row["d_min_mm"]))
+            - math.atan(row["r_mm"] / (row["d_b_mm"] + row["d_max_mm"]))
+        )
         geo[ch] = {"n_minus_m_abs_at_measured_P": 2 * delta * p_all / (2 * math.pi)}
     out["geometry_n_minus_m"] = geo
     return out
@@ -237,40 +289,125 @@ def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> li
     rep = reproduce(path)
     rows = []
     sp = rep["samples_per_rev"]
-    rows.append(["samples_per_rev", "", sp["printed"], sp["measured"], sp["u_measured"],
-                 sp["measured"] - sp["printed"], "P from all 108 extrema (common slope); paper says 625"])
+    rows.append(
+        [
+            "samples_per_rev",
+            "",
+            sp["printed"],
+            sp["measured"],
+            sp["u_measured"],
+            sp["measured"] - sp["printed"],
+            "P from all 108 extrema (common slope); paper says 625",
+        ]
+    )
     for ch, c in rep["channels"].items():
         p_min = c["samples_per_rev_from_minima"]
-        rows.append(["samples_per_rev_from_minima", ch, sp["printed"], p_min,
-                     c["u_samples_per_rev_from_minima"], p_min - sp["printed"], ""])
-        rows.append(["n_mean_samples", ch, c["printed_n"], c["n_mean"], c["u_n_mean"],
-                     c["n_mean"] - c["printed_n"], "minimum -> next maximum"])
-        rows.append(["m_mean_samples", ch, c["printed_m"], c["m_mean"], c["u_m_mean"],
-                     c["m_mean"] - c["printed_m"], "maximum -> next minimum"])
+        rows.append(
+            [
+                "samples_per_rev_from_minima",
+                ch,
+                sp["printed"],
+                p_min,
+                c["u_samples_per_rev_from_minima"],
+                p_min - sp["printed"],
+                "",
+            ]
+        )
+        rows.append(
+            [
+                "n_mean_samples",
+                ch,
+                c["printed_n"],
+                c["n_mean"],
+                c["u_n_mean"],
+                c["n_mean"] - c["printed_n"],
+                "minimum -> next maximum",
+            ]
+        )
+        rows.append(
+            [
+                "m_mean_samples",
+                ch,
+                c["printed_m"],
+                c["m_mean"],
+                c["u_m_mean"],
+                c["m_mean"] - c["printed_m"],
+                "maximum -> next minimum",
+            ]
+        )
         geo = rep["geometry_n_minus_m"].get(ch, {}).get("n_minus_m_abs_at_measured_P", float("nan"))
         printed_nm = c["printed_n"] - c["printed_m"]
-        rows.append(["n_minus_m_samples", ch, printed_nm, c["n_minus_m"], c["u_n_minus_m"],
-                     c["n_minus_m"] - printed_nm,
-                     f"geometry (Table 1 r) allows |n-m| = {geo:.2f}"])
-        rows.append(["status", ch, c["status_printed"], c["status_computed"], "",
-                     "agrees" if c["status_agrees"] else "DISAGREES",
-                     "n < m -> backward (ccw); reading the d_min-side column as n gives "
-                     + c["status_if_columns_read_by_position"]])
+        rows.append(
+            [
+                "n_minus_m_samples",
+                ch,
+                printed_nm,
+                c["n_minus_m"],
+                c["u_n_minus_m"],
+                c["n_minus_m"] - printed_nm,
+                f"geometry (Table 1 r) allows |n-m| = {geo:.2f}",
+            ]
+        )
+        rows.append(
+            [
+                "status",
+                ch,
+                c["status_printed"],
+                c["status_computed"],
+                "",
+                "agrees" if c["status_agrees"] else "DISAGREES",
+                "n < m -> backward (ccw); reading the d_min-side column as n gives "
+                + c["status_if_columns_read_by_position"],
+            ]
+        )
     for s in rep["spacings"]:
         pair = f"{s['from_channel']}->{s['to_channel']}"
-        rows.append(["spacing_samples", pair, s["printed"], s["computed"], s["u_computed"],
-                     s["computed"] - s["printed"], "minimum of first to next minimum of second"])
-        rows.append(["theta_t_deg", pair, s["theta_t_deg_at_625"], s["theta_t_deg_at_measured"],
-                     s["u_theta_t_deg_at_measured"], s["theta_t_error_deg"],
-                     "printed column: Eq. 15 with P = 625; computed: with measured P"])
+        rows.append(
+            [
+                "spacing_samples",
+                pair,
+                s["printed"],
+                s["computed"],
+                s["u_computed"],
+                s["computed"] - s["printed"],
+                "minimum of first to next minimum of second",
+            ]
+        )
+        rows.append(
+            [
+                "theta_t_deg",
+                pair,
+                s["theta_t_deg_at_625"],
+                s["theta_t_deg_at_measured"],
+                s["u_theta_t_deg_at_measured"],
+                s["theta_t_error_deg"],
+                "printed column: Eq. 15 with P = 625; computed: with measured P",
+            ]
+        )
     for mm in rep["difference_mismatches"]:
-        rows.append(["difference_cell", f"{mm['channel']}/{mm['kind']}/row {mm['row']}", mm["printed"],
-                     mm["computed"], "", "" if mm["printed"] is None or mm["computed"] is None
-                     else mm["computed"] - mm["printed"], f"interval {mm['interval']}"])
+        rows.append(
+            [
+                "difference_cell",
+                f"{mm['channel']}/{mm['kind']}/row {mm['row']}",
+                mm["printed"],
+                mm["computed"],
+                "",
+                "" if mm["printed"] is None or mm["computed"] is None else mm["computed"] - mm["printed"],
+                f"interval {mm['interval']}",
+            ]
+        )
     for mm in rep["mean_mismatches"]:
-        rows.append(["mean_cell", f"{mm['channel']}/next to {mm['column_next_to']}", mm["printed"],
-                     mm["computed"], "", mm["computed"] - mm["printed"],
-                     f"printed Mean vs mean of the {mm['cells']} printed cells"])
+        rows.append(
+            [
+                "mean_cell",
+                f"{mm['channel']}/next to {mm['column_next_to']}",
+                mm["printed"],
+                mm["computed"],
+                "",
+                mm["computed"] - mm["printed"],
+                f"printed Mean vs mean of the {mm['cells']} printed cells",
+            ]
+        )
     csv_path = out_dir / "yang2017_table2.csv"
     with open(csv_path, "w", newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
@@ -284,16 +421,36 @@ def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> li
     ax = axes[0]
     bars = ((-0.3, "n_mean", "printed_n", "C0", "n"), (0.1, "m_mean", "printed_m", "C1", "m"))
     for off, key, pkey, col, lab in bars:
-        ax.bar(x + off, [rep["channels"][c][pkey] for c in chs], 0.18, color=col, alpha=0.45,
-               label=f"{lab} printed")
-        ax.bar(x + off + 0.2, [rep["channels"][c][key] for c in chs], 0.18, color=col,
-               yerr=[rep["channels"][c]["u_" + key] for c in chs], capsize=3, label=f"{lab} computed")
+        ax.bar(
+            x + off,
+            [rep["channels"][c][pkey] for c in chs],
+            0.18,
+            color=col,
+            alpha=0.45,
+            label=f"{lab} printed",
+        )
+        ax.bar(
+            x + off + 0.2,
+            [rep["channels"][c][key] for c in chs],
+            0.18,
+            color=col,
+            yerr=[rep["channels"][c]["u_" + key] for c in chs],
+            capsize=3,
+            label=f"{lab} computed",
+        )
     for i, c in enumerate(chs):
         cc = rep["channels"][c]
         geo = rep["geometry_n_minus_m"].get(c, {}).get("n_minus_m_abs_at_measured_P", float("nan"))
-        ax.text(i, 333.3, f"printed: {cc['status_printed']}\ncomputed: {cc['status_computed']}\n"
-                f"n-m = {cc['n_minus_m']:.1f} +- {cc['u_n_minus_m']:.1f}\ngeometry: |n-m| <= {geo:.2f}",
-                ha="center", va="bottom", fontsize=8, color="k" if cc["status_agrees"] else "red")
+        ax.text(
+            i,
+            333.3,
+            f"printed: {cc['status_printed']}\ncomputed: {cc['status_computed']}\n"
+            f"n-m = {cc['n_minus_m']:.1f} +- {cc['u_n_minus_m']:.1f}\ngeometry: |n-m| <= {geo:.2f}",
+            ha="center",
+            va="bottom",
+            fontsize=8,
+            color="k" if cc["status_agrees"] else "red",
+        )
     ax.set_ylim(325, 337)
     ax.set_xticks(x, [f"sensor {c}" for c in chs])
     ax.set_ylabel("mean samples between extrema")
@@ -303,8 +460,14 @@ def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> li
     labs = [f"{s['from_channel']}->{s['to_channel']}" for s in rep["spacings"]]
     xx = np.arange(len(labs))
     ax.bar(xx - 0.2, [s["printed"] for s in rep["spacings"]], 0.4, alpha=0.45, label="printed")
-    ax.bar(xx + 0.2, [s["computed"] for s in rep["spacings"]], 0.4,
-           yerr=[s["u_computed"] for s in rep["spacings"]], capsize=3, label="computed from Numbers")
+    ax.bar(
+        xx + 0.2,
+        [s["computed"] for s in rep["spacings"]],
+        0.4,
+        yerr=[s["u_computed"] for s in rep["spacings"]],
+        capsize=3,
+        label="computed from Numbers",
+    )
     for i, s in enumerate(rep["spacings"]):
         ax.text(i, 224.3, f"{s['printed']:.0f} / {s['computed']:.2f}", ha="center", fontsize=8)
     ax.set_ylim(214, 226)
@@ -313,24 +476,34 @@ def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> li
     ax.set_title("minimum spacings (printed 222, 220, 219)")
     ax.legend(fontsize=8, loc="lower right")
     ax = axes[2]
-    ax.bar(xx - 0.2, [s["theta_t_deg_at_625"] for s in rep["spacings"]], 0.4, alpha=0.45,
-           label="P = 625 (paper)")
-    ax.bar(xx + 0.2, [s["theta_t_deg_at_measured"] for s in rep["spacings"]], 0.4,
-           label=f"P = {sp['measured']:.2f} +- {sp['u_measured']:.2f} (measured)")
+    ax.bar(
+        xx - 0.2, [s["theta_t_deg_at_625"] for s in rep["spacings"]], 0.4, alpha=0.45, label="P = 625 (paper)"
+    )
+    ax.bar(
+        xx + 0.2,
+        [s["theta_t_deg_at_measured"] for s in rep["spacings"]],
+        0.4,
+        label=f"P = {sp['measured']:.2f} +- {sp['u_measured']:.2f} (measured)",
+    )
     for i, s in enumerate(rep["spacings"]):
-        ax.text(i, s["theta_t_deg_at_625"] + 0.5, f"+{s['theta_t_error_deg']:.2f} deg", ha="center",
-                fontsize=8)
+        ax.text(
+            i, s["theta_t_deg_at_625"] + 0.5, f"+{s['theta_t_error_deg']:.2f} deg", ha="center", fontsize=8
+        )
     ax.set_ylim(110, 135)
     ax.set_xticks(xx, labs)
     ax.set_ylabel("theta_t = spacing x 360 / P [deg]")
     ax.set_title("Eq. 15 with the printed vs the measured period")
     ax.legend(fontsize=8, loc="lower right")
     nmis = len(rep["difference_mismatches"])
-    mm = "; ".join(f"sensor {m['channel']} Mean printed {m['printed']:.0f}, computed {m['computed']:.2f}"
-                   for m in rep["mean_mismatches"])
-    fig.suptitle(f"Yang 2017 Table 2 reproduced: {nmis} printed Difference cells disagree with the Numbers; "
-                 f"{len(rep['mean_mismatches'])} printed Mean disagrees ({mm})",
-                 fontsize=11)
+    mm = "; ".join(
+        f"sensor {m['channel']} Mean printed {m['printed']:.0f}, computed {m['computed']:.2f}"
+        for m in rep["mean_mismatches"]
+    )
+    fig.suptitle(
+        f"Yang 2017 Table 2 reproduced: {nmis} printed Difference cells disagree with the Numbers; "
+        f"{len(rep['mean_mismatches'])} printed Mean disagrees ({mm})",
+        fontsize=11,
+    )
     fig.tight_layout()
     png_path = out_dir / "yang2017_table2.png"
     fig.savefig(png_path, dpi=110, metadata={"Software": None, "CreationDate": None})

@@ -32,7 +32,16 @@ from borescan.geometry import Beams
 from borescan.measure import static_diameter
 from borescan.resources import shipped
 
-__all__ = ["TABLE1", "SPACINGS", "TABLE2_MINIMA", "load_table3", "table2_period", "beams_for", "reproduce", "write_reproduction"]
+__all__ = [
+    "TABLE1",
+    "SPACINGS",
+    "TABLE2_MINIMA",
+    "load_table3",
+    "table2_period",
+    "beams_for",
+    "reproduce",
+    "write_reproduction",
+]
 
 D_GAUGE_MM = 275.029
 OE_MM = 2.3222  # printed (Eq. 9 on P1/P0 gives 2.3232)
@@ -41,9 +50,66 @@ SPACINGS = {"2->1": 222, "1->3": 220, "3->2": 219}  # feature-point (minimum) sp
 STATUSES = ("backward", "backward", "advanced")
 # Table 2, sample numbers of each sensor's minima (feature points), 18 revolutions
 TABLE2_MINIMA = {
-    1: [312, 971, 1628, 2287, 2949, 3610, 4269, 4926, 5589, 6246, 6909, 7565, 8229, 8887, 9545, 10206, 10866, 11528],
-    2: [88, 749, 1408, 2067, 2729, 3386, 4046, 4707, 5367, 6028, 6686, 7345, 8003, 8663, 9326, 9985, 10645, 11305],
-    3: [531, 1188, 1847, 2511, 3170, 3831, 4489, 5148, 5808, 6468, 7128, 7788, 8446, 9106, 9766, 10420, 11085, 11746],
+    1: [
+        312,
+        971,
+        1628,
+        2287,
+        2949,
+        3610,
+        4269,
+        4926,
+        5589,
+        6246,
+        6909,
+        7565,
+        8229,
+        8887,
+        9545,
+        10206,
+        10866,
+        11528,
+    ],
+    2: [
+        88,
+        749,
+        1408,
+        2067,
+        2729,
+        3386,
+        4046,
+        4707,
+        5367,
+        6028,
+        6686,
+        7345,
+        8003,
+        8663,
+        9326,
+        9985,
+        10645,
+        11305,
+    ],
+    3: [
+        531,
+        1188,
+        1847,
+        2511,
+        3170,
+        3831,
+        4489,
+        5148,
+        5808,
+        6468,
+        7128,
+        7788,
+        8446,
+        9106,
+        9766,
+        10420,
+        11085,
+        11746,
+    ],
 }
 
 
@@ -54,7 +120,9 @@ def _data_dir() -> Path:
 def load_table3(path: Path | None = None) -> dict[str, np.ndarray]:
     """Read ``data/papers/yang2017_table3.csv`` -> readings (10, 3), diameter_mm, error_mm."""
     path = path or _data_dir() / "yang2017_table3.csv"
-    rows = [r for r in csv.DictReader(line for line in path.read_text().splitlines() if not line.startswith("#"))]
+    rows = [
+        r for r in csv.DictReader(line for line in path.read_text().splitlines() if not line.startswith("#"))
+    ]
     return {
         "no": np.array([int(r["no"]) for r in rows]),
         "readings_mm": np.array([[float(r[f"sensor{i}_mm"]) for i in (1, 2, 3)] for r in rows]),
@@ -88,7 +156,11 @@ def table2_period() -> float:
 def table2_spacings() -> dict[str, float]:
     """Mean feature-point spacings computed from the Table 2 minima (not the printed 222/220/219)."""
     m1, m2, m3 = (np.asarray(TABLE2_MINIMA[c], float) for c in (1, 2, 3))
-    return {"2->1": float(np.mean(m1 - m2)), "1->3": float(np.mean(m3 - m1)), "3->2": float(np.mean(m2[1:] - m3[:-1]))}
+    return {
+        "2->1": float(np.mean(m1 - m2)),
+        "1->3": float(np.mean(m3 - m1)),
+        "3->2": float(np.mean(m2[1:] - m3[:-1])),
+    }
 
 
 def _feature_samples(N: float, drop: str, spacings: dict | None = None) -> np.ndarray:
@@ -104,8 +176,14 @@ def _feature_samples(N: float, drop: str, spacings: dict | None = None) -> np.nd
     return np.array([n1, 0.0, n3], dtype=float)
 
 
-def beams_for(signs, theta_c_mode: str, N: float, drop: str = "3->2", X_mm: float | None = None,
-              spacings: dict | None = None) -> Beams:
+def beams_for(
+    signs,
+    theta_c_mode: str,
+    N: float,
+    drop: str = "3->2",
+    X_mm: float | None = None,
+    spacings: dict | None = None,
+) -> Beams:
     """Beams of one alternative (beta_1 = 0; beam angles from Eqs. 12-15).
 
     Counter-clockwise rotation: a beam reaching the feature point theta_t later sits theta_t
@@ -124,7 +202,12 @@ def beams_for(signs, theta_c_mode: str, N: float, drop: str = "3->2", X_mm: floa
         a = np.arcsin(r / X)
         sgn = np.array([1.0 if s == "backward" else -1.0 for s in STATUSES])
         # Eq. 14 for (Line 2 = sensor 2, Line 1 = sensor c): s1 a_c - s2 a_2 (same status) or s1 (a_c + a_2)
-        corr = np.array([sgn[c] * (a[c] - a[1]) if STATUSES[c] == STATUSES[1] else sgn[c] * (a[c] + a[1]) for c in range(3)])
+        corr = np.array(
+            [
+                sgn[c] * (a[c] - a[1]) if STATUSES[c] == STATUSES[1] else sgn[c] * (a[c] + a[1])
+                for c in range(3)
+            ]
+        )
         corr[1] = 0.0  # beta_later = beta_first - (theta_t + theta_c), Eq. 12
     elif theta_c_mode == "none":
         corr = np.zeros(3)
@@ -140,7 +223,7 @@ def _diameters(readings, beams) -> np.ndarray:
 
 
 def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang's Table 3)
-        ) -> dict:
+) -> dict:
     """Compute Table 3 under every alternative and fit the angles that explain it.
 
     Returns
@@ -158,41 +241,60 @@ def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang
     # printed Error vs Diameter - 275.029: equal within the 3-decimal rounding of Diameter?
     mismatch = np.abs(t["error_mm"] - implied)
     check = [
-        {"no": int(n), "error_mm": float(e), "diameter_minus_gauge_mm": float(i), "consistent": bool(m <= 0.0005 + 1e-12),
-         "on_rounding_boundary": bool(abs(m - 0.0005) < 1e-12)}
+        {
+            "no": int(n),
+            "error_mm": float(e),
+            "diameter_minus_gauge_mm": float(i),
+            "consistent": bool(m <= 0.0005 + 1e-12),
+            "on_rounding_boundary": bool(abs(m - 0.0005) < 1e-12),
+        }
         for n, e, i, m in zip(t["no"], t["error_mm"], implied, mismatch)
     ]
     N_meas = table2_period()
     sp_meas = table2_spacings()
     N_close_meas = sum(sp_meas.values())
-    combos = [("printed", None, 625.0, "625 printed"), ("printed", None, N_meas, "Table 2 period"),
-              ("printed", None, 661.0, "661 closure"), ("Table 2", sp_meas, 625.0, "625 printed"),
-              ("Table 2", sp_meas, N_meas, "Table 2 period"), ("Table 2", sp_meas, N_close_meas, "closure")]
+    combos = [
+        ("printed", None, 625.0, "625 printed"),
+        ("printed", None, N_meas, "Table 2 period"),
+        ("printed", None, 661.0, "661 closure"),
+        ("Table 2", sp_meas, 625.0, "625 printed"),
+        ("Table 2", sp_meas, N_meas, "Table 2 period"),
+        ("Table 2", sp_meas, N_close_meas, "closure"),
+    ]
     alts = []
     for signs in itertools.product((1, -1), repeat=3):
         for mode in ("exact", "eq14", "none"):
             for sp_label, sp, N, N_label in combos:
                 closes = N_label.endswith("closure")
-                for drop in (("3->2", "1->3", "2->1") if not closes else ("3->2",)):
+                for drop in ("3->2", "1->3", "2->1") if not closes else ("3->2",):
                     b = beams_for(signs, mode, N, drop, spacings=sp)
                     D = _diameters(v, b)
                     diff = D - target
-                    alts.append({
-                        "signs": tuple(int(s) for s in signs),
-                        "theta_c": mode,
-                        "N": float(N),
-                        "N_label": N_label,
-                        "spacings": sp_label,
-                        "dropped": drop if not closes else "none",
-                        "beta21_deg": float(np.rad2deg(b.beta_rad[1])),
-                        "beta31_deg": float(np.rad2deg(b.beta_rad[2])),
-                        "diameter_mm": D,
-                        "diff_um": diff * 1e3,
-                        "rms_um": float(np.sqrt(np.mean(diff**2)) * 1e3),
-                    })
+                    alts.append(
+                        {
+                            "signs": tuple(int(s) for s in signs),
+                            "theta_c": mode,
+                            "N": float(N),
+                            "N_label": N_label,
+                            "spacings": sp_label,
+                            "dropped": drop if not closes else "none",
+                            "beta21_deg": float(np.rad2deg(b.beta_rad[1])),
+                            "beta31_deg": float(np.rad2deg(b.beta_rad[2])),
+                            "diameter_mm": D,
+                            "diff_um": diff * 1e3,
+                            "rms_um": float(np.sqrt(np.mean(diff**2)) * 1e3),
+                        }
+                    )
     alts.sort(key=lambda a: a["rms_um"])
-    literal = [a for a in alts if a["signs"] == (-1, -1, 1) and a["N"] == 625.0 and a["dropped"] == "3->2"
-               and a["theta_c"] in ("exact", "eq14") and a["spacings"] == "printed"]
+    literal = [
+        a
+        for a in alts
+        if a["signs"] == (-1, -1, 1)
+        and a["N"] == 625.0
+        and a["dropped"] == "3->2"
+        and a["theta_c"] in ("exact", "eq14")
+        and a["spacings"] == "printed"
+    ]
 
     fits = []
     for signs in itertools.product((1, -1), repeat=3):
@@ -201,40 +303,75 @@ def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang
         b0 = beams_for(signs, "none", 661.0)
         best = None
         for start in (b0.beta_rad[1:], 2 * np.pi - b0.beta_rad[1:]):
+
             def f(p, rho=rho):
-                return _diameters(v, Beams((1, 2, 3), np.array([0.0, p[0], p[1]]), rho, TABLE1["d_b_mm"])) - target
+                return (
+                    _diameters(v, Beams((1, 2, 3), np.array([0.0, p[0], p[1]]), rho, TABLE1["d_b_mm"]))
+                    - target
+                )
 
             sol = least_squares(f, start, x_scale=1e-3, xtol=1e-15, ftol=1e-15, gtol=1e-15)
             if best is None or sol.cost < best.cost:
                 best = sol
-        fits.append({"signs": tuple(int(s) for s in signs), "beta21_deg": float(np.rad2deg(best.x[0])),
-                     "beta31_deg": float(np.rad2deg(best.x[1])), "rms_um": float(np.sqrt(2 * best.cost / v.shape[0]) * 1e3),
-                     "diff_um": best.fun * 1e3})
+        fits.append(
+            {
+                "signs": tuple(int(s) for s in signs),
+                "beta21_deg": float(np.rad2deg(best.x[0])),
+                "beta31_deg": float(np.rad2deg(best.x[1])),
+                "rms_um": float(np.sqrt(2 * best.cost / v.shape[0]) * 1e3),
+                "diff_um": best.fun * 1e3,
+            }
+        )
     fits.sort(key=lambda f: f["rms_um"])
     fb = fits[0]
     rho = np.asarray(fb["signs"], float) * TABLE1["r_mm"]
 
     def f3(p):
-        return _diameters(v, Beams((1, 2, 3), np.array([0.0, p[0], p[1]]), rho, TABLE1["d_b_mm"])) + p[2] - target
+        return (
+            _diameters(v, Beams((1, 2, 3), np.array([0.0, p[0], p[1]]), rho, TABLE1["d_b_mm"]))
+            + p[2]
+            - target
+        )
 
-    sol = least_squares(f3, [np.deg2rad(fb["beta21_deg"]), np.deg2rad(fb["beta31_deg"]), 0.0], x_scale=1e-3,
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    sol = least_squares(
+        f3,
+        [np.deg2rad(fb["beta21_deg"]), np.deg2rad(fb["beta31_deg"]), 0.0],
+        x_scale=1e-3,
+        xtol=1e-15,
+        ftol=1e-15,
+        gtol=1e-15,
+    )
     J = sol.jac
     s2 = 2 * sol.cost / (v.shape[0] - 3)
     cov = s2 * np.linalg.inv(J.T @ J)
-    fit_offset = {"signs": fb["signs"], "beta21_deg": float(np.rad2deg(sol.x[0])), "beta31_deg": float(np.rad2deg(sol.x[1])),
-                  "offset_um": float(sol.x[2] * 1e3), "u_offset_um": float(np.sqrt(cov[2, 2]) * 1e3),
-                  "u_beta21_deg": float(np.rad2deg(np.sqrt(cov[0, 0]))), "u_beta31_deg": float(np.rad2deg(np.sqrt(cov[1, 1]))),
-                  "rms_um": float(np.sqrt(2 * sol.cost / v.shape[0]) * 1e3)}
+    fit_offset = {
+        "signs": fb["signs"],
+        "beta21_deg": float(np.rad2deg(sol.x[0])),
+        "beta31_deg": float(np.rad2deg(sol.x[1])),
+        "offset_um": float(sol.x[2] * 1e3),
+        "u_offset_um": float(np.sqrt(cov[2, 2]) * 1e3),
+        "u_beta21_deg": float(np.rad2deg(np.sqrt(cov[0, 0]))),
+        "u_beta31_deg": float(np.rad2deg(np.sqrt(cov[1, 1]))),
+        "rms_um": float(np.sqrt(2 * sol.cost / v.shape[0]) * 1e3),
+    }
+
     # angles that make the ten printed readings give the gauge diameter itself (self-calibration)
     def fg(p):
-        return _diameters(v, Beams((1, 2, 3), np.array([0.0, p[0], p[1]]), rho, TABLE1["d_b_mm"])) - D_GAUGE_MM
+        return (
+            _diameters(v, Beams((1, 2, 3), np.array([0.0, p[0], p[1]]), rho, TABLE1["d_b_mm"])) - D_GAUGE_MM
+        )
 
     sg = least_squares(fg, sol.x[:2], x_scale=1e-3, xtol=1e-15, ftol=1e-15, gtol=1e-15)
     cg = (2 * sg.cost / (v.shape[0] - 2)) * np.linalg.inv(sg.jac.T @ sg.jac)
-    fit_gauge = {"signs": fb["signs"], "beta21_deg": float(np.rad2deg(sg.x[0])), "beta31_deg": float(np.rad2deg(sg.x[1])),
-                 "u_beta21_deg": float(np.rad2deg(np.sqrt(cg[0, 0]))), "u_beta31_deg": float(np.rad2deg(np.sqrt(cg[1, 1]))),
-                 "rms_um": float(np.sqrt(2 * sg.cost / v.shape[0]) * 1e3), "diff_um": sg.fun * 1e3}
+    fit_gauge = {
+        "signs": fb["signs"],
+        "beta21_deg": float(np.rad2deg(sg.x[0])),
+        "beta31_deg": float(np.rad2deg(sg.x[1])),
+        "u_beta21_deg": float(np.rad2deg(np.sqrt(cg[0, 0]))),
+        "u_beta31_deg": float(np.rad2deg(np.sqrt(cg[1, 1]))),
+        "rms_um": float(np.sqrt(2 * sg.cost / v.shape[0]) * 1e3),
+        "diff_um": sg.fun * 1e3,
+    }
     return {
         "fit_to_gauge": fit_gauge,
         "table": t,
@@ -269,36 +406,84 @@ def write_reproduction(out_dir) -> dict[str, Path]:
     p_rows = out / "yang_table3.csv"
     with p_rows.open("w", newline="") as fh:
         w = csv.writer(fh)
-        cols = ["no", "sensor1_mm", "sensor2_mm", "sensor3_mm", "printed_diameter_mm", "printed_error_mm",
-                "target_mm", "best_alternative_mm", "best_diff_um"]
+        cols = [
+            "no",
+            "sensor1_mm",
+            "sensor2_mm",
+            "sensor3_mm",
+            "printed_diameter_mm",
+            "printed_error_mm",
+            "target_mm",
+            "best_alternative_mm",
+            "best_diff_um",
+        ]
         cols += [f"literal_{a['theta_c']}_mm" for a in lit] + [f"literal_{a['theta_c']}_diff_um" for a in lit]
         cols += ["fitted_angles_diff_um"]
         w.writerow(cols)
         for i in range(len(t["no"])):
-            row = [int(t["no"][i]), *[f"{x:.4f}" for x in t["readings_mm"][i]], f"{t['diameter_mm'][i]:.3f}",
-                   f"{t['error_mm'][i]:.4f}", f"{rep['target_mm'][i]:.4f}", f"{best['diameter_mm'][i]:.5f}",
-                   f"{best['diff_um'][i]:.2f}"]
+            row = [
+                int(t["no"][i]),
+                *[f"{x:.4f}" for x in t["readings_mm"][i]],
+                f"{t['diameter_mm'][i]:.3f}",
+                f"{t['error_mm'][i]:.4f}",
+                f"{rep['target_mm'][i]:.4f}",
+                f"{best['diameter_mm'][i]:.5f}",
+                f"{best['diff_um'][i]:.2f}",
+            ]
             row += [f"{a['diameter_mm'][i]:.5f}" for a in lit] + [f"{a['diff_um'][i]:.1f}" for a in lit]
             row += [f"{fit['diff_um'][i]:.3f}"]
             w.writerow(row)
     p_alt = out / "yang_table3_alternatives.csv"
     with p_alt.open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["rho_signs", "theta_c", "spacings", "N", "N_label", "dropped_spacing", "beta21_deg", "beta31_deg", "rms_um"]
-                   + [f"diff_no{i}_um" for i in t["no"]])
+        w.writerow(
+            [
+                "rho_signs",
+                "theta_c",
+                "spacings",
+                "N",
+                "N_label",
+                "dropped_spacing",
+                "beta21_deg",
+                "beta31_deg",
+                "rms_um",
+            ]
+            + [f"diff_no{i}_um" for i in t["no"]]
+        )
         for a in rep["alternatives"]:
-            w.writerow(["".join("+" if s > 0 else "-" for s in a["signs"]), a["theta_c"], a["spacings"], f"{a['N']:.3f}", a["N_label"],
-                        a["dropped"], f"{a['beta21_deg']:.4f}", f"{a['beta31_deg']:.4f}", f"{a['rms_um']:.3f}"]
-                       + [f"{d:.2f}" for d in a["diff_um"]])
+            w.writerow(
+                [
+                    "".join("+" if s > 0 else "-" for s in a["signs"]),
+                    a["theta_c"],
+                    a["spacings"],
+                    f"{a['N']:.3f}",
+                    a["N_label"],
+                    a["dropped"],
+                    f"{a['beta21_deg']:.4f}",
+                    f"{a['beta31_deg']:.4f}",
+                    f"{a['rms_um']:.3f}",
+                ]
+                + [f"{d:.2f}" for d in a["diff_um"]]
+            )
     p_png = out / "yang_table3.png"
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     no = t["no"]
     ax = axes[0]
     ax.axhline(0, color="k", lw=0.6)
-    ax.plot(no, best["diff_um"], "o-", label=f"best: signs {best['signs']}, theta_c={best['theta_c']}, N={best['N']:.0f} "
-            f"(RMS {best['rms_um']:.2f} um)")
+    ax.plot(
+        no,
+        best["diff_um"],
+        "o-",
+        label=f"best: signs {best['signs']}, theta_c={best['theta_c']}, N={best['N']:.0f} "
+        f"(RMS {best['rms_um']:.2f} um)",
+    )
     for a in lit:
-        ax.plot(no, a["diff_um"], "s--", label=f"literal: N=625, theta_c={a['theta_c']} (RMS {a['rms_um']:.0f} um)")
+        ax.plot(
+            no,
+            a["diff_um"],
+            "s--",
+            label=f"literal: N=625, theta_c={a['theta_c']} (RMS {a['rms_um']:.0f} um)",
+        )
     ax.set_yscale("symlog", linthresh=1.0)
     ax.set_xlabel("Table 3 row")
     ax.set_ylabel("computed - printed diameter [um]")
@@ -309,7 +494,13 @@ def write_reproduction(out_dir) -> dict[str, Path]:
     labels = [a["N_label"] for a in rep["alternatives"]]
     for lab, mk in (("625 printed", "v"), ("Table 2 period", "o"), ("661 closure", "*"), ("closure", "P")):
         idx = [i for i, L in enumerate(labels) if L == lab]
-        ax.semilogy(idx, rms[idx], mk, ls="none", label=f"N = {lab}" if lab != "closure" else "N = sum of Table 2 spacings")
+        ax.semilogy(
+            idx,
+            rms[idx],
+            mk,
+            ls="none",
+            label=f"N = {lab}" if lab != "closure" else "N = sum of Table 2 spacings",
+        )
     ax.set_xlabel("alternative (sorted by RMS)")
     ax.set_ylabel("RMS vs printed [um]")
     ax.set_title(f"{len(rms)} convention alternatives")

@@ -144,14 +144,18 @@ def spindle_positions(base: TriBase, phi_rad: np.ndarray, position_effects: Sequ
     return S
 
 
-def bore_with_effects(bore: Bore, bore_effects: Iterable[Effect], cte_per_k: float, device: str = TRI) -> Bore:
+def bore_with_effects(
+    bore: Bore, bore_effects: Iterable[Effect], cte_per_k: float, device: str = TRI
+) -> Bore:
     """Return the bore after the bore-stage effects (step 4), in composition order."""
     for e in bore_effects:
         bore = e.spec.forward[device](bore, e.params, cte_per_k)
     return bore
 
 
-def tri_geometry(base: TriBase, t_s: np.ndarray, st: dict[str, list[Effect]]) -> tuple[np.ndarray, np.ndarray]:
+def tri_geometry(
+    base: TriBase, t_s: np.ndarray, st: dict[str, list[Effect]]
+) -> tuple[np.ndarray, np.ndarray]:
     """Compute steps 1-5: exact readings of the ray geometry with the geometric effects.
 
     Parameters
@@ -172,14 +176,18 @@ def tri_geometry(base: TriBase, t_s: np.ndarray, st: dict[str, list[Effect]]) ->
 
 
 def tri_reading_stage(
-    v_mm: np.ndarray, tc_s: np.ndarray, st: dict[str, list[Effect]], channels: Sequence[int],
+    v_mm: np.ndarray,
+    tc_s: np.ndarray,
+    st: dict[str, list[Effect]],
+    channels: Sequence[int],
     range_mm: Sequence[float] | float,
 ) -> np.ndarray:
     """Apply steps 6-7: beam and reading effects on readings ``v_mm`` (n, c) at channel times ``tc_s``."""
     if not (st["beam"] or st["reading"]):
         return v_mm
-    return apply_effects(v_mm, tc_s, channels, st["beam"] + st["reading"], range_mm=range_mm,
-                         stages=("beam", "reading"))
+    return apply_effects(
+        v_mm, tc_s, channels, st["beam"] + st["reading"], range_mm=range_mm, stages=("beam", "reading")
+    )
 
 
 def tri_forward(base: TriBase, t_s: np.ndarray, effects: Iterable[Effect] = ()) -> np.ndarray:
@@ -203,8 +211,9 @@ def tri_forward(base: TriBase, t_s: np.ndarray, effects: Iterable[Effect] = ()) 
     return tri_reading_stage(v, tc, st, base.channels, base.range_mm)
 
 
-def first_harmonic_start(phi_rad: np.ndarray, readings_mm: np.ndarray, mask: np.ndarray,
-                         beta_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def first_harmonic_start(
+    phi_rad: np.ndarray, readings_mm: np.ndarray, mask: np.ndarray, beta_rad: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Return the spindle's offset from the bore centre from the readings' first harmonic: a linear start.
 
     To first order in the offset o = S - C (the geometry expanded about a centred spindle), channel c
@@ -247,8 +256,14 @@ CORRECTABLE_STAGES: tuple[str, ...] = ("beam", "reading")
 
 
 def tri_correct_readings(
-    t_s: np.ndarray, readings_mm: np.ndarray, channels: Sequence[int], effects: Iterable[Effect],
-    range_mm: Sequence[float] | float = 10.0, *, tol_mm: float = 1e-12, max_iter: int = 50,
+    t_s: np.ndarray,
+    readings_mm: np.ndarray,
+    channels: Sequence[int],
+    effects: Iterable[Effect],
+    range_mm: Sequence[float] | float = 10.0,
+    *,
+    tol_mm: float = 1e-12,
+    max_iter: int = 50,
 ) -> np.ndarray:
     """Return readings corrected for beam and reading effects.
 
@@ -280,8 +295,10 @@ def tri_correct_readings(
     st = sort_effects(effects, TRI, channels)
     other = [e.name for stage, es in st.items() if stage not in CORRECTABLE_STAGES for e in es]
     if other:
-        raise ValueError(f"effects {other} are not corrected in the readings: they change the scene or the time a "
-                         "channel sees (a channel delay is carried by the channel's angle)")
+        raise ValueError(
+            f"effects {other} are not corrected in the readings: they change the scene or the time a "
+            "channel sees (a channel delay is carried by the channel's angle)"
+        )
     v_obs = np.asarray(readings_mm, dtype=float)
     tc = np.asarray(t_s, dtype=float)[:, None]
     v = v_obs.copy()
@@ -291,16 +308,22 @@ def tri_correct_readings(
         v = v_new
         if done:
             return v
-    raise ValueError(f"correcting the readings for {[e.name for e in effects]} did not converge in {max_iter} "
-                     "iterations (is an effect as large as the readings?)")
+    raise ValueError(
+        f"correcting the readings for {[e.name for e in effects]} did not converge in {max_iter} "
+        "iterations (is an effect as large as the readings?)"
+    )
 
 
 # --------------------------------------------------------------------------- static sets
 
 
 def reading_stage_slope(
-    v_mm: np.ndarray, tc_s: np.ndarray, st: dict[str, list[Effect]], channels: Sequence[int],
-    range_mm: Sequence[float] | float, step_mm: float = 1e-4,
+    v_mm: np.ndarray,
+    tc_s: np.ndarray,
+    st: dict[str, list[Effect]],
+    channels: Sequence[int],
+    range_mm: Sequence[float] | float,
+    step_mm: float = 1e-4,
 ) -> np.ndarray:
     """d(steps 6-7)/dv at each reading: how a change of the geometric reading shows in the recorded one.
 
@@ -397,8 +420,9 @@ class TriDevice:
         xy = np.atleast_2d(np.asarray(state.device_xy_mm, dtype=float))
         return tri_spindle_readings(ang, xy, self.beams, bore)[np.asarray(pose_index)], bore
 
-    def predict(self, state: TriStaticState, pose_index: np.ndarray, t_s: np.ndarray,
-                effects: Iterable[Effect] = ()) -> np.ndarray:
+    def predict(
+        self, state: TriStaticState, pose_index: np.ndarray, t_s: np.ndarray, effects: Iterable[Effect] = ()
+    ) -> np.ndarray:
         """Noise-free readings of a static set with effects.
 
         Parameters
@@ -418,8 +442,14 @@ class TriDevice:
         tc = channel_times(t_s, self.channels, st["time_base"])
         return tri_reading_stage(v, tc, st, self.channels, self.range_mm)
 
-    def jacobian(self, state: TriStaticState, pose_index: np.ndarray, t_s: np.ndarray,
-                 effects: Iterable[Effect] = (), radius_step_mm: float = 1e-3) -> TriStaticJacobian:
+    def jacobian(
+        self,
+        state: TriStaticState,
+        pose_index: np.ndarray,
+        t_s: np.ndarray,
+        effects: Iterable[Effect] = (),
+        radius_step_mm: float = 1e-3,
+    ) -> TriStaticJacobian:
         """Analytic derivatives of :meth:`predict` with respect to the base geometry.
 
         The wall point q = o + s d (o = S - C + Rot(a) F, d = Rot(a) u, relative to the bore's
@@ -449,8 +479,10 @@ class TriDevice:
         gx, gy = qx / nq - slope * jx / nq**2, qy / nq - slope * jy / nq**2
         den = gx * dx + gy * dy
         R = state.bore.radius_mm
-        hi, lo = (bore_with_effects(replace(state.bore, radius_mm=R + h), st["bore"], self.cte_per_k)
-                  for h in (radius_step_mm, -radius_step_mm))
+        hi, lo = (
+            bore_with_effects(replace(state.bore, radius_mm=R + h), st["bore"], self.cte_per_k)
+            for h in (radius_step_mm, -radius_step_mm)
+        )
         dwall = (bore_wall_radius(theta, hi)[0] - bore_wall_radius(theta, lo)[0]) / (2.0 * radius_step_mm)
         px, py = _perp(fx + s * dx, fy + s * dy)
         tc = channel_times(t_s, self.channels, st["time_base"])

@@ -15,7 +15,7 @@ from borescan.signal.period import _harmonic_basis, _lsq
 
 def _cubic_design(half_window: int) -> np.ndarray:
     x = np.arange(-half_window, half_window + 1, dtype=float)
-    return np.stack([np.ones_like(x), x, x * x, x ** 3], axis=1)
+    return np.stack([np.ones_like(x), x, x * x, x**3], axis=1)
 
 
 @functools.lru_cache(maxsize=8)
@@ -53,15 +53,19 @@ def fit_extremum_cubic(y_mm: np.ndarray, *, kind: str, sigma_mm: float | None = 
     ok = ~np.isnan(y)
     coef, *_ = np.linalg.lstsq(X[ok], y[ok], rcond=None)
     r = y[ok] - X[ok] @ coef
-    s2 = sigma_mm ** 2 if sigma_mm is not None else float(r @ r) / max(ok.sum() - 4, 1)
+    s2 = sigma_mm**2 if sigma_mm is not None else float(r @ r) / max(ok.sum() - 4, 1)
     cov = s2 * np.linalg.inv(X[ok].T @ X[ok])
     x = float(_cubic_stationary(coef))
     gx = -np.array([0.0, 1.0, 2 * x, 3 * x * x]) / (2 * coef[2] + 6 * coef[3] * x)
-    gv = np.array([1.0, x, x * x, x ** 3])
+    gv = np.array([1.0, x, x * x, x**3])
     good = (coef[2] > 0) if kind == "min" else (coef[2] < 0)
-    return {"x": x, "u_x": math.sqrt(gx @ cov @ gx), "value": float(gv @ coef),
-            "u_value": math.sqrt(gv @ cov @ gv),
-            "ok": bool(good and abs(x) <= w)}
+    return {
+        "x": x,
+        "u_x": math.sqrt(gx @ cov @ gx),
+        "value": float(gv @ coef),
+        "u_value": math.sqrt(gv @ cov @ gv),
+        "ok": bool(good and abs(x) <= w),
+    }
 
 
 def _masked_xtx(X: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -88,13 +92,21 @@ def _row_windows(vt: np.ndarray, k: int) -> tuple[np.ndarray, int | None]:
     isz = vt.itemsize
     if c and n >= k and vt.strides[1] == isz and vt.strides[0] >= n * isz and vt.strides[0] % isz == 0:
         step = vt.strides[0] // isz
-        flat = np.lib.stride_tricks.as_strided(vt, shape=((c - 1) * step + n,), strides=(isz,), writeable=False)
+        flat = np.lib.stride_tricks.as_strided(
+            vt, shape=((c - 1) * step + n,), strides=(isz,), writeable=False
+        )
         return sliding_window_view(flat, k), step
     return sliding_window_view(vt, k, axis=1), None
 
 
-def _fit_windows(windows: tuple[np.ndarray, int | None], chan: np.ndarray, centers: np.ndarray, w: int,
-                 pinv: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fit_windows(
+    windows: tuple[np.ndarray, int | None],
+    chan: np.ndarray,
+    centers: np.ndarray,
+    w: int,
+    pinv: np.ndarray,
+    X: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cubic least-squares fits of the windows of rows ``chan`` centred on ``centers``.
 
     ``windows`` comes from :func:`_row_windows` on the channel rows (c, n) with 2w+1 samples
@@ -139,8 +151,9 @@ def _u_at(u: np.ndarray, pos: np.ndarray) -> np.ndarray:
     return u[i] + (pos - i) * (u[i + 1] - u[i])
 
 
-def _predicted_centers(vt: np.ndarray, u: np.ndarray, w: int, n_harmonics: int
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _predicted_centers(
+    vt: np.ndarray, u: np.ndarray, w: int, n_harmonics: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Return the samples nearest each predicted minimum and maximum.
 
     Step 1 of :func:`find_extrema`: per channel row of ``vt`` (c, n), the sample nearest each
@@ -168,7 +181,9 @@ def _predicted_centers(vt: np.ndarray, u: np.ndarray, w: int, n_harmonics: int
             bb = basis[~okr[:, j]]
             coef_h[:, j] = np.linalg.solve(btb_all - bb.T @ bb, bty[:, j])
     model = gb @ coef_h  # (grid, c)
-    ue = np.concatenate([grid[np.argmin(model, axis=0)], grid[np.argmax(model, axis=0)]])  # (2c,) min then max
+    ue = np.concatenate(
+        [grid[np.argmin(model, axis=0)], grid[np.argmax(model, axis=0)]]
+    )  # (2c,) min then max
     targets = ue[:, None] + revs[None, :]
     inside = (targets >= u[0]) & (targets <= u[-1])
     inside[np.tile(~usable, 2)] = False
@@ -182,9 +197,17 @@ def _predicted_centers(vt: np.ndarray, u: np.ndarray, w: int, n_harmonics: int
     return which % c, ck, which < c, usable
 
 
-def find_extrema(values_mm: np.ndarray, u_rev: np.ndarray, *, half_window_samples: int | None = None,
-                 samples_per_rev: float, min_valid_fraction: float = 0.8, n_harmonics: int = 3,
-                 channels: tuple[int, ...] | None = None, sample0: int = 0) -> tuple[pl.DataFrame, dict]:
+def find_extrema(
+    values_mm: np.ndarray,
+    u_rev: np.ndarray,
+    *,
+    half_window_samples: int | None = None,
+    samples_per_rev: float,
+    min_valid_fraction: float = 0.8,
+    n_harmonics: int = 3,
+    channels: tuple[int, ...] | None = None,
+    sample0: int = 0,
+) -> tuple[pl.DataFrame, dict]:
     """Minima and maxima per revolution and channel at sub-sample precision.
 
     1. Predict: a harmonic model in the revolution coordinate u (linear least squares on a stride
@@ -210,9 +233,16 @@ def find_extrema(values_mm: np.ndarray, u_rev: np.ndarray, *, half_window_sample
     u = np.asarray(u_rev, dtype=float)
     w = int(half_window_samples) if half_window_samples else max(4, int(round(samples_per_rev / 16.0)))
     info = {"dropped": {}, "sigma_mm": {}, "half_window_samples": w}
-    schema = {"channel": pl.Int64, "revolution": pl.Int64, "kind": pl.Utf8, "sample_pos": pl.Float64,
-              "u_sample_pos": pl.Float64, "value_mm": pl.Float64, "u_value_mm": pl.Float64,
-              "n_valid": pl.Int64}
+    schema = {
+        "channel": pl.Int64,
+        "revolution": pl.Int64,
+        "kind": pl.Utf8,
+        "sample_pos": pl.Float64,
+        "u_sample_pos": pl.Float64,
+        "value_mm": pl.Float64,
+        "u_value_mm": pl.Float64,
+        "n_valid": pl.Int64,
+    }
     X, pinv, xtx_inv = _cubic_fit_matrices(w)
     ch, centers, is_min, usable = _predicted_centers(vt, u, w, n_harmonics)
     if not ch.size:
@@ -236,7 +266,15 @@ def find_extrema(values_mm: np.ndarray, u_rev: np.ndarray, *, half_window_sample
         x[mv] = _cubic_stationary(coef[mv])
     # windows that converged onto the same centre (per channel and kind) are one extremum
     _, keep = np.unique((ch * n + centers) * 2 + is_min, return_index=True)
-    ch, centers, coef, Y, bad, x, is_min = ch[keep], centers[keep], coef[keep], Y[keep], bad[keep], x[keep], is_min[keep]
+    ch, centers, coef, Y, bad, x, is_min = (
+        ch[keep],
+        centers[keep],
+        coef[keep],
+        Y[keep],
+        bad[keep],
+        x[keep],
+        is_min[keep],
+    )
     nvalid = (2 * w + 1) - bad.sum(axis=1)
     resid = coef @ X.T
     np.subtract(Y, resid, out=resid)
@@ -251,12 +289,13 @@ def find_extrema(values_mm: np.ndarray, u_rev: np.ndarray, *, half_window_sample
     xx = np.where(np.isfinite(x), x, 0.0)
     sign_ok = np.where(is_min, coef[:, 2] > 0, coef[:, 2] < 0)
     left = ~bad[:, :w].all(axis=1)
-    right = ~bad[:, w + 1:].all(axis=1)
+    right = ~bad[:, w + 1 :].all(axis=1)
     enough = nvalid >= min_valid_fraction * (2 * w + 1)
     good = np.isfinite(x) & sign_ok & (np.abs(x) <= 1.0) & enough & left & right
     gx = -np.stack([np.zeros_like(xx), np.ones_like(xx), 2 * xx, 3 * xx * xx], 1) / (
-        2 * coef[:, 2:3] + 6 * coef[:, 3:4] * xx[:, None])
-    gv = np.stack([np.ones_like(xx), xx, xx * xx, xx ** 3], 1)
+        2 * coef[:, 2:3] + 6 * coef[:, 3:4] * xx[:, None]
+    )
+    gv = np.stack([np.ones_like(xx), xx, xx * xx, xx**3], 1)
     cov = np.broadcast_to(xtx_inv, (xx.size, 4, 4)).copy()
     part = np.flatnonzero(bad.any(axis=1) & good)
     if part.size:  # windows with nulls: their own (X^T X)^-1
@@ -274,13 +313,16 @@ def find_extrema(values_mm: np.ndarray, u_rev: np.ndarray, *, half_window_sample
     g = np.flatnonzero(good)[order]
     pos_g, ch_g = pos_g[order], ch_g[order]
     chan_names = np.asarray(chans, dtype=np.int64)
-    return pl.DataFrame({
-        "channel": chan_names[ch_g],
-        "revolution": np.floor(_u_at(u, pos_g)).astype(np.int64),
-        "kind": pl.Series(["max", "min"])[is_min[g].astype(np.int64)],
-        "sample_pos": (pos_g + sample0).astype(float),
-        "u_sample_pos": ux[g],
-        "value_mm": np.einsum("ri,ri->r", gv[g], coef[g]),
-        "u_value_mm": uv[g],
-        "n_valid": nvalid[g].astype(np.int64),
-    }, schema=schema), info
+    return pl.DataFrame(
+        {
+            "channel": chan_names[ch_g],
+            "revolution": np.floor(_u_at(u, pos_g)).astype(np.int64),
+            "kind": pl.Series(["max", "min"])[is_min[g].astype(np.int64)],
+            "sample_pos": (pos_g + sample0).astype(float),
+            "u_sample_pos": ux[g],
+            "value_mm": np.einsum("ri,ri->r", gv[g], coef[g]),
+            "u_value_mm": uv[g],
+            "n_valid": nvalid[g].astype(np.int64),
+        },
+        schema=schema,
+    ), info

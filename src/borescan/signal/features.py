@@ -51,8 +51,9 @@ def theta_t_rad(spacing_samples: float | np.ndarray, samples_per_rev: float) -> 
     return np.asarray(spacing_samples, dtype=float) * 2.0 * math.pi / float(samples_per_rev)
 
 
-def feature_spacings(min_pos: dict[int, np.ndarray], samples_per_rev: float, u_samples_per_rev: float = 0.0
-                     ) -> pl.DataFrame:
+def feature_spacings(
+    min_pos: dict[int, np.ndarray], samples_per_rev: float, u_samples_per_rev: float = 0.0
+) -> pl.DataFrame:
     """Feature-point (minimum) spacings between channels and theta_t (Yang 2017, Eq. 15).
 
     For each ordered pair (i, j) of consecutive channels (1->2, 2->3, ..., last->first) the
@@ -79,11 +80,26 @@ def feature_spacings(min_pos: dict[int, np.ndarray], samples_per_rev: float, u_s
         u = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else float("nan")
         th = float(theta_t_rad(mean, samples_per_rev))
         u_th = th * math.hypot(u / mean, u_samples_per_rev / samples_per_rev) if mean else float("nan")
-        rows.append({"from_channel": a, "to_channel": b, "spacing_samples": mean, "u_spacing_samples": u,
-                     "count": int(d.size), "theta_t_rad": th, "u_theta_t_rad": u_th})
-    schema = {"from_channel": pl.Int64, "to_channel": pl.Int64, "spacing_samples": pl.Float64,
-              "u_spacing_samples": pl.Float64, "count": pl.Int64, "theta_t_rad": pl.Float64,
-              "u_theta_t_rad": pl.Float64}
+        rows.append(
+            {
+                "from_channel": a,
+                "to_channel": b,
+                "spacing_samples": mean,
+                "u_spacing_samples": u,
+                "count": int(d.size),
+                "theta_t_rad": th,
+                "u_theta_t_rad": u_th,
+            }
+        )
+    schema = {
+        "from_channel": pl.Int64,
+        "to_channel": pl.Int64,
+        "spacing_samples": pl.Float64,
+        "u_spacing_samples": pl.Float64,
+        "count": pl.Int64,
+        "theta_t_rad": pl.Float64,
+        "u_theta_t_rad": pl.Float64,
+    }
     return pl.DataFrame(rows, schema=schema)
 
 
@@ -108,7 +124,20 @@ def feature_points(extrema: pl.DataFrame, samples_per_rev: float) -> pl.DataFram
         mean_ang = math.atan2(np.sin(ang).mean(), np.cos(ang).mean())
         dev = np.angle(np.exp(1j * (ang - mean_ang)))
         u = float(dev.std(ddof=1) / math.sqrt(dev.size)) if dev.size > 1 else float("nan")
-        rows.append({"channel": int(ch), "feature_sample": float(np.mod(mean_ang, 2 * np.pi) * samples_per_rev / (2 * np.pi)),
-                     "u_feature_sample": u * samples_per_rev / (2 * np.pi), "n_revolutions": int(dev.size)})
-    return pl.DataFrame(rows, schema={"channel": pl.Int64, "feature_sample": pl.Float64,
-                                      "u_feature_sample": pl.Float64, "n_revolutions": pl.Int64})
+        rows.append(
+            {
+                "channel": int(ch),
+                "feature_sample": float(np.mod(mean_ang, 2 * np.pi) * samples_per_rev / (2 * np.pi)),
+                "u_feature_sample": u * samples_per_rev / (2 * np.pi),
+                "n_revolutions": int(dev.size),
+            }
+        )
+    return pl.DataFrame(
+        rows,
+        schema={
+            "channel": pl.Int64,
+            "feature_sample": pl.Float64,
+            "u_feature_sample": pl.Float64,
+            "n_revolutions": pl.Int64,
+        },
+    )

@@ -229,13 +229,14 @@ def gaussian_filter_upr(values_mm: np.ndarray, *, cutoff_upr: float, samples_per
         if s0 == 0:
             out[:m] = res
         else:
-            out[m:] = res[m - (n - m):]
+            out[m:] = res[m - (n - m) :]
     out[~ok] = np.nan
     return _back(out, one)
 
 
-def filter_readings(values_mm: np.ndarray, *, method: str = "median", samples_per_rev: float | None = None,
-                    **params: Any) -> np.ndarray:
+def filter_readings(
+    values_mm: np.ndarray, *, method: str = "median", samples_per_rev: float | None = None, **params: Any
+) -> np.ndarray:
     """Apply one filter by name (``FILTERS``) with its keyword parameters.
 
     ``median``/``moving_average``: ``window_samples``, ``causal``; ``kalman``: ``model``,

@@ -21,8 +21,14 @@ def _fundamental(y: np.ndarray, samples_per_rev: float) -> tuple[float, float]:
     return float(math.hypot(coef[1], coef[2])), float(math.atan2(coef[2], coef[1]))
 
 
-def filter_performance(*, revolutions: int = 8, samples_per_rev: int = 660, noise_mm: float = 0.0025,
-                       seed: int = 0, filters: dict | None = None) -> pl.DataFrame:
+def filter_performance(
+    *,
+    revolutions: int = 8,
+    samples_per_rev: int = 660,
+    noise_mm: float = 0.0025,
+    seed: int = 0,
+    filters: dict | None = None,
+) -> pl.DataFrame:
     """Scatter reduction, phase lag and amplitude loss of each filter on a simulated scan.
 
     Yang-like device (Table 1 beams, P1/P0 of §3.1, gauge 275.029 mm) at 60 rpm with
@@ -35,12 +41,20 @@ def filter_performance(*, revolutions: int = 8, samples_per_rev: int = 660, nois
     """
     from borescan.geometry import Beams, Bore, tri_spindle_readings
 
-    beams = Beams((1, 2, 3), np.array([0.3, 2.4, 4.5]), np.array([5.5484, -2.5295, 1.5262]),
-                  np.array([132.6718, 132.8883, 134.1108]))
+    beams = Beams(
+        (1, 2, 3),
+        np.array([0.3, 2.4, 4.5]),
+        np.array([5.5484, -2.5295, 1.5262]),
+        np.array([132.6718, 132.8883, 134.1108]),
+    )
     n = revolutions * samples_per_rev
     k = np.arange(n)
-    truth = tri_spindle_readings(2 * math.pi * k / samples_per_rev, np.array([262.955, -275.502]), beams,
-                                 Bore((262.833, -273.182), 275.029 / 2))[:, 0]
+    truth = tri_spindle_readings(
+        2 * math.pi * k / samples_per_rev,
+        np.array([262.955, -275.502]),
+        beams,
+        Bore((262.833, -273.182), 275.029 / 2),
+    )[:, 0]
     rng = np.random.default_rng(seed)
     y = truth + rng.normal(0.0, noise_mm, n)
     if filters is None:
@@ -52,8 +66,10 @@ def filter_performance(*, revolutions: int = 8, samples_per_rev: int = 660, nois
             "moving average 25 causal": ("moving_average", {"window_samples": 25, "causal": True}),
             "kalman rw causal q=1e-6": ("kalman", {"model": "random_walk", "q_mm2": 1e-6, "smooth": False}),
             "kalman rw smoothed q=1e-6": ("kalman", {"model": "random_walk", "q_mm2": 1e-6}),
-            "kalman cv causal q=1e-9": ("kalman", {"model": "constant_velocity", "q_mm2": 1e-9,
-                                                   "smooth": False}),
+            "kalman cv causal q=1e-9": (
+                "kalman",
+                {"model": "constant_velocity", "q_mm2": 1e-9, "smooth": False},
+            ),
             "kalman cv smoothed q=1e-9": ("kalman", {"model": "constant_velocity", "q_mm2": 1e-9}),
             "gaussian 50 UPR": ("gaussian", {"cutoff_upr": 50.0}),
             "gaussian 30 UPR": ("gaussian", {"cutoff_upr": 30.0}),
@@ -64,16 +80,22 @@ def filter_performance(*, revolutions: int = 8, samples_per_rev: int = 660, nois
     trim = samples_per_rev  # leave the first/last revolution out of the scatter (filter start-up)
     for name, (method, params) in filters.items():
         f = filter_readings(y, method=method, samples_per_rev=samples_per_rev, **params)
-        e = (f - truth)[trim: n - trim].reshape(-1, samples_per_rev)
-        a_f, ph_f = _fundamental(f[trim: n - trim], samples_per_rev)
-        a_t2, ph_t2 = _fundamental(truth[trim: n - trim], samples_per_rev)
+        e = (f - truth)[trim : n - trim].reshape(-1, samples_per_rev)
+        a_f, ph_f = _fundamental(f[trim : n - trim], samples_per_rev)
+        a_t2, ph_t2 = _fundamental(truth[trim : n - trim], samples_per_rev)
         lag = (ph_f - ph_t2 + math.pi) % (2 * math.pi) - math.pi
         mins_f = _mins(f, samples_per_rev, w)
-        rows.append({"filter": name, "beat_um": float(np.mean(np.nanmax(e, 1) - np.nanmin(e, 1))) * 1e3,
-                     "scatter_um": float(np.sqrt(np.nanmean(e * e))) * 1e3,
-                     "lag_rad": lag, "lag_samples": lag * samples_per_rev / (2 * math.pi),
-                     "amplitude_loss_um": (a_t2 - a_f) * 1e3,
-                     "min_shift_samples": float(np.nanmean(mins_f - mins_t))})
+        rows.append(
+            {
+                "filter": name,
+                "beat_um": float(np.mean(np.nanmax(e, 1) - np.nanmin(e, 1))) * 1e3,
+                "scatter_um": float(np.sqrt(np.nanmean(e * e))) * 1e3,
+                "lag_rad": lag,
+                "lag_samples": lag * samples_per_rev / (2 * math.pi),
+                "amplitude_loss_um": (a_t2 - a_f) * 1e3,
+                "min_shift_samples": float(np.nanmean(mins_f - mins_t)),
+            }
+        )
     return pl.DataFrame(rows)
 
 

@@ -41,9 +41,14 @@ def _disagrees(p: float, u: float, nominal: float | None) -> bool:
     return bool(nominal is not None and abs(p - nominal) > 3.0 * u)
 
 
-def period_from_encoder(t_s: np.ndarray, angle_rad: np.ndarray, sample_times_s: np.ndarray, *,
-                        rpm_nominal: float | None = None,
-                        sample_rate_hz: float | None = None) -> PeriodEstimate:
+def period_from_encoder(
+    t_s: np.ndarray,
+    angle_rad: np.ndarray,
+    sample_times_s: np.ndarray,
+    *,
+    rpm_nominal: float | None = None,
+    sample_rate_hz: float | None = None,
+) -> PeriodEstimate:
     """Period in samples from a linear fit of the unwrapped encoder angle against time.
 
     angle = a + omega t (least squares); the sample interval dt comes from a linear fit of the
@@ -94,10 +99,17 @@ def _harmonic_basis(x: np.ndarray, omega: float, n_harmonics: int, trend: bool) 
     return b
 
 
-def period_from_readings(values_mm: np.ndarray, *, samples_per_rev_guess: float | None = None,
-                         n_harmonics: int = 3, trend: bool = True, max_samples: int = 10_000,
-                         rpm_nominal: float | None = None, sample_rate_hz: float | None = None,
-                         direction: str = "ccw") -> PeriodEstimate:
+def period_from_readings(
+    values_mm: np.ndarray,
+    *,
+    samples_per_rev_guess: float | None = None,
+    n_harmonics: int = 3,
+    trend: bool = True,
+    max_samples: int = 10_000,
+    rpm_nominal: float | None = None,
+    sample_rate_hz: float | None = None,
+    direction: str = "ccw",
+) -> PeriodEstimate:
     """Rotation period in samples from the readings: FFT peak, refined by nonlinear least squares.
 
     Model per channel c (k = sample index): v_c(k) = a_c + b_c k + sum_{h<=H} [A_ch cos(h w k) +
@@ -141,7 +153,7 @@ def period_from_readings(values_mm: np.ndarray, *, samples_per_rev_guess: float 
         sel &= (freqs > 0.7 * f0) & (freqs < 1.3 * f0)
     i = int(np.flatnonzero(sel)[np.argmax(spec[sel])])
     if 0 < i < spec.size - 1:
-        la, lb, lc = np.log(spec[i - 1: i + 2] + 1e-300)
+        la, lb, lc = np.log(spec[i - 1 : i + 2] + 1e-300)
         den = la - 2 * lb + lc
         d = 0.5 * (la - lc) / den if den != 0 else 0.0
     else:
@@ -157,7 +169,7 @@ def period_from_readings(values_mm: np.ndarray, *, samples_per_rev_guess: float 
         # d model / d omega per channel: d/dw [A cos(hwx) + B sin(hwx)] = h x (-A sin + B cos)
         harm = basis[:, n0:]
         dcoef = np.empty_like(coef[n0:])
-        dcoef[0::2] = coef[n0 + 1::2]
+        dcoef[0::2] = coef[n0 + 1 :: 2]
         dcoef[1::2] = -coef[n0::2]
         g = x[:, None] * (harm @ (hh[:, None] * dcoef))
         gp = g - basis @ np.linalg.solve(btb, basis.T @ g)
@@ -175,9 +187,14 @@ def period_from_readings(values_mm: np.ndarray, *, samples_per_rev_guess: float 
     return PeriodEstimate(p, u, "readings", nom, _disagrees(p, u, nom), direction)
 
 
-def revolution_coordinate(n_samples: int, period: PeriodEstimate, *, sample_times_s: np.ndarray | None = None,
-                          encoder_t_s: np.ndarray | None = None, encoder_angle_rad: np.ndarray | None = None,
-                          ) -> np.ndarray:
+def revolution_coordinate(
+    n_samples: int,
+    period: PeriodEstimate,
+    *,
+    sample_times_s: np.ndarray | None = None,
+    encoder_t_s: np.ndarray | None = None,
+    encoder_angle_rad: np.ndarray | None = None,
+) -> np.ndarray:
     """Revolutions since the first sample, u(k); ``revolution = floor(u)``.
 
     Encoder: u = s (angle(t_k) - angle(t_0)) / 2 pi with the angle linearly interpolated at the
@@ -215,10 +232,12 @@ def find_revolutions(u_rev: np.ndarray, sample0: int = 0) -> pl.DataFrame:
         ends = np.concatenate([starts[1:] - 1, [rev.size - 1]])
         r = rev[starts]
     complete = (np.arange(r.size) > 0) & (np.arange(r.size) < r.size - 1)
-    return pl.DataFrame({
-        "revolution": r,
-        "first_sample": (starts + sample0).astype(np.int64),
-        "last_sample": (ends + sample0).astype(np.int64),
-        "n_samples": (ends - starts + 1).astype(np.int64),
-        "complete": complete,
-    })
+    return pl.DataFrame(
+        {
+            "revolution": r,
+            "first_sample": (starts + sample0).astype(np.int64),
+            "last_sample": (ends + sample0).astype(np.int64),
+            "n_samples": (ends - starts + 1).astype(np.int64),
+            "complete": complete,
+        }
+    )

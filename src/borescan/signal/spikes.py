@@ -78,8 +78,13 @@ def _mad_scale(r: np.ndarray, max_n: int = 20_000) -> float:
     return sc if sc > 0 else float(np.finfo(float).tiny)
 
 
-def remove_spikes(values_mm: np.ndarray, *, window_samples: int = 7, threshold: float = 6.0,
-                  candidate_threshold: float = _SPIKE_CANDIDATE_THRESHOLD) -> tuple[np.ndarray, np.ndarray]:
+def remove_spikes(
+    values_mm: np.ndarray,
+    *,
+    window_samples: int = 7,
+    threshold: float = 6.0,
+    candidate_threshold: float = _SPIKE_CANDIDATE_THRESHOLD,
+) -> tuple[np.ndarray, np.ndarray]:
     """Set spikes aside as NaN: Hampel test against a robust local-linear reference.
 
     1. Candidates: |v_k - (v_{k-1} + v_{k+1}) / 2| > ``candidate_threshold`` x its MAD scale, and
@@ -101,7 +106,7 @@ def remove_spikes(values_mm: np.ndarray, *, window_samples: int = 7, threshold: 
     h = _check_spike_window(window_samples)
     vp = _padded_rows(v, h)
     found, _ = _despike_rows(vp, h, threshold, candidate_threshold)
-    vt = vp[:, h: vp.shape[1] - h]
+    vt = vp[:, h : vp.shape[1] - h]
     spikes = np.zeros(vt.shape, dtype=bool)
     for j, idx in enumerate(found):
         spikes[j, idx] = True
@@ -120,13 +125,14 @@ def _padded_rows(v: np.ndarray, h: int) -> np.ndarray:
     n, c = v.shape
     vp = np.empty((c, n + 2 * h))
     vp[:, :h] = np.nan
-    vp[:, n + h:] = np.nan
-    vp[:, h: n + h] = v.T
+    vp[:, n + h :] = np.nan
+    vp[:, h : n + h] = v.T
     return vp
 
 
-def _despike_rows(vp: np.ndarray, h: int, threshold: float, candidate_threshold: float
-                  ) -> tuple[list[np.ndarray], np.ndarray]:
+def _despike_rows(
+    vp: np.ndarray, h: int, threshold: float, candidate_threshold: float
+) -> tuple[list[np.ndarray], np.ndarray]:
     """Remove spikes in place on padded rows.
 
     :func:`remove_spikes` in place on rows padded by :func:`_padded_rows` (c, n + 2h); ``h`` is
@@ -138,8 +144,9 @@ def _despike_rows(vp: np.ndarray, h: int, threshold: float, candidate_threshold:
     return [r[0] for r in res], np.array([r[1] for r in res], dtype=np.int64)
 
 
-def _despike_row(row: np.ndarray, h: int, threshold: float, candidate_threshold: float
-                 ) -> tuple[np.ndarray, int]:
+def _despike_row(
+    row: np.ndarray, h: int, threshold: float, candidate_threshold: float
+) -> tuple[np.ndarray, int]:
     """One padded row of :func:`_despike_rows`: (spike indices, null count); spikes set to NaN in place.
 
     The candidate test uses the second difference v_{k+1} - 2 v_k + v_{k-1} (= -2 x the chord of
@@ -147,7 +154,7 @@ def _despike_row(row: np.ndarray, h: int, threshold: float, candidate_threshold:
     in place (so the reference skips them); all but the spikes are restored afterwards.
     """
     n = row.size - 2 * h
-    col = row[h: h + n]
+    col = row[h : h + n]
     if n < 3:
         return np.zeros(0, dtype=np.int64), int(np.isnan(col).sum())
     d1 = np.subtract(col[1:], col[:-1])
@@ -168,6 +175,6 @@ def _despike_row(row: np.ndarray, h: int, threshold: float, candidate_threshold:
     ref = _ll_reference(row, np.concatenate([probe, idx]), 2 * h + 1)  # one call for probes and candidates
     scale = _mad_scale(col[probe] - ref[: probe.size], max_n=probe.size)
     with np.errstate(invalid="ignore"):
-        spike = np.abs(saved - ref[probe.size:]) > threshold * scale
+        spike = np.abs(saved - ref[probe.size :]) > threshold * scale
     col[idx[~spike]] = saved[~spike]
     return idx[spike], int(is_null.sum())

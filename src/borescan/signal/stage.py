@@ -58,15 +58,25 @@ class SignalResult:
         """
         if self.config.get("filter", "none") == "none":
             return self.despiked_mm
-        return filter_readings(self.despiked_mm, method=self.config["filter"],
-                               samples_per_rev=self.period.samples_per_rev, **self.config.get("filter_params", {}))
+        return filter_readings(
+            self.despiked_mm,
+            method=self.config["filter"],
+            samples_per_rev=self.period.samples_per_rev,
+            **self.config.get("filter_params", {}),
+        )
 
     def to_frames(self) -> dict[str, pl.DataFrame]:
         """Tables for Parquet: revolutions, extrema, summary, spacings, period, set_aside (with scan_id)."""
         sid = pl.lit(self.scan_id).alias("scan_id")
         per = pl.DataFrame([self.period.to_dict()])
-        out = {"revolutions": self.revolutions, "extrema": self.extrema, "summary": self.summary,
-               "spacings": self.spacings, "period": per, "set_aside": self.set_aside}
+        out = {
+            "revolutions": self.revolutions,
+            "extrema": self.extrema,
+            "summary": self.summary,
+            "spacings": self.spacings,
+            "period": per,
+            "set_aside": self.set_aside,
+        }
         return {k: (f if "scan_id" in f.columns else f.select(sid, pl.all())) for k, f in out.items()}
 
 
@@ -126,31 +136,48 @@ def process_arrays(
         raise ValueError(f"unknown filter {filter!r}; valid: {', '.join(FILTERS)}")
     vp = _padded_rows(v, h)  # own copy, one contiguous row per channel
     spike_idx, nulls = _despike_rows(vp, h, spike_threshold, _SPIKE_CANDIDATE_THRESHOLD)
-    clean = vp[:, h: h + n].T
+    clean = vp[:, h : h + n].T
     nom = _nominal(sample_rate_hz, rpm_nominal)
     if t_s is None:
         t_s = np.arange(n) / float(sample_rate_hz)
     enc = None if encoder_angle_rad is None else np.asarray(encoder_angle_rad, dtype=float)
     if enc is not None and np.any(~np.isnan(enc)):
-        period = period_from_encoder(encoder_t_s, enc, t_s, rpm_nominal=rpm_nominal,
-                                     sample_rate_hz=sample_rate_hz)
-        u = revolution_coordinate(n, period, sample_times_s=t_s, encoder_t_s=encoder_t_s,
-                                  encoder_angle_rad=enc)
+        period = period_from_encoder(
+            encoder_t_s, enc, t_s, rpm_nominal=rpm_nominal, sample_rate_hz=sample_rate_hz
+        )
+        u = revolution_coordinate(
+            n, period, sample_times_s=t_s, encoder_t_s=encoder_t_s, encoder_angle_rad=enc
+        )
     elif commanded_rad is not None and _speed_changes(commanded_rad):
         period, u = _profile_revolutions(np.asarray(commanded_rad, dtype=float), clean, nom, direction)
     else:
-        period = period_from_readings(clean, samples_per_rev_guess=nom, rpm_nominal=rpm_nominal,
-                                      sample_rate_hz=sample_rate_hz, direction=direction,
-                                      n_harmonics=n_harmonics)
+        period = period_from_readings(
+            clean,
+            samples_per_rev_guess=nom,
+            rpm_nominal=rpm_nominal,
+            sample_rate_hz=sample_rate_hz,
+            direction=direction,
+            n_harmonics=n_harmonics,
+        )
         u = revolution_coordinate(n, period)
     spr = period.samples_per_rev
     filtered = None
     if extrema_on == "filtered":  # otherwise the filter runs only if SignalResult.filtered_mm is read
-        filtered = clean if filter == "none" else filter_readings(clean, method=filter, samples_per_rev=spr,
-                                                                    **(filter_params or {}))
+        filtered = (
+            clean
+            if filter == "none"
+            else filter_readings(clean, method=filter, samples_per_rev=spr, **(filter_params or {}))
+        )
     src = clean if filtered is None else filtered
-    ext, info = find_extrema(src, u, half_window_samples=half_window_samples, samples_per_rev=spr,
-                             channels=chans, sample0=sample0, n_harmonics=n_harmonics)
+    ext, info = find_extrema(
+        src,
+        u,
+        half_window_samples=half_window_samples,
+        samples_per_rev=spr,
+        channels=chans,
+        sample0=sample0,
+        n_harmonics=n_harmonics,
+    )
     e_ch = ext["channel"].to_numpy()
     e_min = (ext["kind"] == "min").to_numpy()
     e_pos = ext["sample_pos"].to_numpy()
@@ -176,27 +203,61 @@ def process_arrays(
         k = min(nn.size, mm.size)
         nm, u_nm = _mean_u(nn[:k] - mm[:k])
         u_nm *= math.sqrt(8.0 / 6.0)
-        srows.append({
-            "channel": ch, "d_min_mm": dmin, "u_d_min_mm": u_dmin, "d_max_mm": dmax, "u_d_max_mm": u_dmax,
-            "n_revolutions_min": int(mn.sum()), "n_revolutions_max": int(mx.sum()),
-            "n_samples": n_mean, "u_n_samples": u_n, "m_samples": m_mean, "u_m_samples": u_m,
-            "n_minus_m_samples": nm, "u_n_minus_m_samples": u_nm,
-            "status": st["status"], "status_significant": bool(abs(nm) >= 3 * u_nm) if k > 1 else False,
-            "rho_sign": st["rho_sign"], "sigma_fit_mm": info["sigma_mm"].get(ch),
-            "extrema_dropped": info["dropped"].get(ch, 0),
-        })
+        srows.append(
+            {
+                "channel": ch,
+                "d_min_mm": dmin,
+                "u_d_min_mm": u_dmin,
+                "d_max_mm": dmax,
+                "u_d_max_mm": u_dmax,
+                "n_revolutions_min": int(mn.sum()),
+                "n_revolutions_max": int(mx.sum()),
+                "n_samples": n_mean,
+                "u_n_samples": u_n,
+                "m_samples": m_mean,
+                "u_m_samples": u_m,
+                "n_minus_m_samples": nm,
+                "u_n_minus_m_samples": u_nm,
+                "status": st["status"],
+                "status_significant": bool(abs(nm) >= 3 * u_nm) if k > 1 else False,
+                "rho_sign": st["rho_sign"],
+                "sigma_fit_mm": info["sigma_mm"].get(ch),
+                "extrema_dropped": info["dropped"].get(ch, 0),
+            }
+        )
     columns = {k: [r[k] for r in srows] for k in (srows[0] if srows else {})}  # by column: faster than rows
     summary = pl.DataFrame({"scan_id": [scan_id] * len(srows)} | columns)
     spac = feature_spacings(min_pos, spr, period.u_samples_per_rev)
     revs = find_revolutions(u, sample0)
-    set_aside = pl.DataFrame({"channel": list(chans), "nulls": nulls.astype(np.int64),
-                              "spikes": np.array([i.size for i in spike_idx], dtype=np.int64)})
-    cfg = {"filter": filter, "filter_params": filter_params or {},
-           "spike_window_samples": spike_window_samples, "spike_threshold": spike_threshold,
-           "half_window_samples": info["half_window_samples"],
-           "extrema_on": extrema_on, "n_harmonics": n_harmonics}
-    res = SignalResult(scan_id, chans, np.arange(n, dtype=np.int64) + sample0, clean, period, revs, ext,
-                       summary, spac, set_aside, cfg)
+    set_aside = pl.DataFrame(
+        {
+            "channel": list(chans),
+            "nulls": nulls.astype(np.int64),
+            "spikes": np.array([i.size for i in spike_idx], dtype=np.int64),
+        }
+    )
+    cfg = {
+        "filter": filter,
+        "filter_params": filter_params or {},
+        "spike_window_samples": spike_window_samples,
+        "spike_threshold": spike_threshold,
+        "half_window_samples": info["half_window_samples"],
+        "extrema_on": extrema_on,
+        "n_harmonics": n_harmonics,
+    }
+    res = SignalResult(
+        scan_id,
+        chans,
+        np.arange(n, dtype=np.int64) + sample0,
+        clean,
+        period,
+        revs,
+        ext,
+        summary,
+        spac,
+        set_aside,
+        cfg,
+    )
     if filtered is not None:
         res.__dict__["filtered_mm"] = filtered  # computed already (the cached property's slot)
     return res
@@ -258,8 +319,17 @@ def process_scan(scan: Any, matrix: Any = None, **cfg: Any) -> SignalResult:
 
         am = angle_model_of_scan(meta, scan.spindle)
         commanded = am.commanded_rad(t_s)
-    kw = dict(sample_rate_hz=float(meta["sample_rate_hz"]), rpm_nominal=sp.get("rpm_nominal"),
-              direction=sp.get("direction", "ccw"), scan_id=scan.scan_id, channels=tuple(mat.channels),
-              sample0=int(full[0]), t_s=t_s, encoder_t_s=enc_t, encoder_angle_rad=enc_a, commanded_rad=commanded)
+    kw = dict(
+        sample_rate_hz=float(meta["sample_rate_hz"]),
+        rpm_nominal=sp.get("rpm_nominal"),
+        direction=sp.get("direction", "ccw"),
+        scan_id=scan.scan_id,
+        channels=tuple(mat.channels),
+        sample0=int(full[0]),
+        t_s=t_s,
+        encoder_t_s=enc_t,
+        encoder_angle_rad=enc_a,
+        commanded_rad=commanded,
+    )
     kw.update(cfg)
     return process_arrays(vals, **kw)

@@ -23,10 +23,25 @@ from borescan.stages.quarantine import (
     write_quarantine_record,
 )
 
-__all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "quarantined_text", "write_table",
-           "write_stage_outputs", "quarantine_record_name", "sync_quarantine_records", "ok_scans", "night_scans",
-           "read_tables", "frames_or_empty", "config_hash",
-           "night_folder", "clear_night_folder", "link_into_night"]
+__all__ = [
+    "Quarantined",
+    "write_quarantine_record",
+    "quarantine",
+    "quarantine_frame",
+    "quarantined_text",
+    "write_table",
+    "write_stage_outputs",
+    "quarantine_record_name",
+    "sync_quarantine_records",
+    "ok_scans",
+    "night_scans",
+    "read_tables",
+    "frames_or_empty",
+    "config_hash",
+    "night_folder",
+    "clear_night_folder",
+    "link_into_night",
+]
 
 
 def config_hash(cfg: dict) -> str:
@@ -59,8 +74,9 @@ def ok_scans(scans_table: str | Path | pl.DataFrame) -> pl.DataFrame:
     return tables.conform("scans", df).filter(pl.col("status") == "ok").sort("scan_id")
 
 
-def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame,
-                **where: str) -> list[tuple[dict, Path]]:
+def night_scans(
+    raw_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame, **where: str
+) -> list[tuple[dict, Path]]:
     """Return the ``ok`` rows of a night's ``scans`` table.
 
     Return the ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their
@@ -69,7 +85,10 @@ def night_scans(raw_root: str | Path, night: str, scans_table: str | Path | pl.D
     df = ok_scans(scans_table)
     for col, value in where.items():
         df = df.filter(pl.col(col) == value)
-    return [(row, Path(raw_root) / f"night={night}" / f"scan={row['scan_id']}") for row in df.iter_rows(named=True)]
+    return [
+        (row, Path(raw_root) / f"night={night}" / f"scan={row['scan_id']}")
+        for row in df.iter_rows(named=True)
+    ]
 
 
 def frames_or_empty(frames: list[pl.DataFrame]) -> pl.DataFrame:

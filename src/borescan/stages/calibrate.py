@@ -25,10 +25,25 @@ from borescan.workflow_log import compute_line
 __all__ = ["stage_calibrate", "calibrate_device", "config_hash"]
 
 
-def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_table, cfg: dict, log=print, *,
-                    uncertainty: dict | None = None, laboratory: dict | None = None, verification: dict | None = None,
-                    devices: dict | None = None, pooled_tables=(), auto_nights: int = 0, signal: dict | None = None,
-                    workers: int = 1, certificates: list | None = None):
+def stage_calibrate(
+    raw_root,
+    night: str,
+    results_root,
+    scans_table,
+    summary_table,
+    cfg: dict,
+    log=print,
+    *,
+    uncertainty: dict | None = None,
+    laboratory: dict | None = None,
+    verification: dict | None = None,
+    devices: dict | None = None,
+    pooled_tables=(),
+    auto_nights: int = 0,
+    signal: dict | None = None,
+    workers: int = 1,
+    certificates: list | None = None,
+):
     """Calibrate every tri_lds device from its calibration scans of the night; write certificates.
 
     ``uncertainty``, ``laboratory``, ``verification``, ``devices``, ``signal`` (the readings' spike
@@ -44,19 +59,28 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
     written (:func:`borescan.certificate_issue.issue_row`).
     """
     dflt = schema_defaults()
-    ctx_args = {"uncertainty": uncertainty or dflt["uncertainty"], "laboratory": laboratory or dflt["laboratory"],
-                "verification": verification or dflt["verification"], "raw_root": raw_root,
-                "scans_table": scans_table, "signal": signal or dflt["signal"], "devices": devices, "night": night,
-                "pooled_rows": [r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()],
-                "auto_nights": auto_nights}
+    ctx_args = {
+        "uncertainty": uncertainty or dflt["uncertainty"],
+        "laboratory": laboratory or dflt["laboratory"],
+        "verification": verification or dflt["verification"],
+        "raw_root": raw_root,
+        "scans_table": scans_table,
+        "signal": signal or dflt["signal"],
+        "devices": devices,
+        "night": night,
+        "pooled_rows": [r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()],
+        "auto_nights": auto_nights,
+    }
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
     clear_night_folder(results_root, "calibration", night)  # certificates of a rerun replace the night's
     by_device: dict[str, list] = {}
     for row, d in night_scans(raw_root, night, scans_table, kind="calibration", device_type="tri_lds"):
         by_device.setdefault(row["device_id"], []).append((row, d))
     jobs = [("tri", items) for _, items in sorted(by_device.items())]
-    jobs += [("rod", [item]) for item in night_scans(raw_root, night, scans_table, kind="calibration",
-                                                     device_type="rod")]
+    jobs += [
+        ("rod", [item])
+        for item in night_scans(raw_root, night, scans_table, kind="calibration", device_type="rod")
+    ]
     if jobs:
         log(f"{len(jobs)} calibration job(s) on {workers_for(len(jobs), workers)} process(es)")
     common = (night, results_root, summary, cfg, ctx_args)
@@ -74,7 +98,9 @@ def stage_calibrate(raw_root, night: str, results_root, scans_table, summary_tab
         log(compute_line(items[0][0]["device_id"] if kind == "tri" else items[0][0]["scan_id"], cpu_s))
     cal_rows, link_rows = made["tri"]
     for row, d in night_scans(raw_root, night, scans_table, device_type="rod"):
-        rows = rod_nominal_calibration_rows(rawio.read_scan_meta(d, raw_root=Path(raw_root)), night, row["scan_id"])
+        rows = rod_nominal_calibration_rows(
+            rawio.read_scan_meta(d, raw_root=Path(raw_root)), night, row["scan_id"]
+        )
         if rows and rows[0]["calibration_id"] not in {r["calibration_id"] for r in cal_rows}:
             cal_rows += rows
             link_rows.append({"calibration_id": rows[0]["calibration_id"], "scan_id": row["scan_id"]})
@@ -96,11 +122,22 @@ def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str],
     ctx = _context(ctx_args)
     cal_rows, link_rows, bad, lines = [], [], [], []
     if kind == "tri":
-        calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows, link_rows, lines.append, ctx)
+        calibrate_tri_device(
+            items, night, results_root, summary, cfg, bad, cal_rows, link_rows, lines.append, ctx
+        )
     else:
-        (_row, d), = items
-        calibrate_rod_scan(rawio.read_scan(d, raw_root=Path(ctx["raw_root"])), night, results_root, bad, cal_rows,
-                           link_rows, lines.append, ctx, cfg)
+        ((_row, d),) = items
+        calibrate_rod_scan(
+            rawio.read_scan(d, raw_root=Path(ctx["raw_root"])),
+            night,
+            results_root,
+            bad,
+            cal_rows,
+            link_rows,
+            lines.append,
+            ctx,
+            cfg,
+        )
     return kind, cal_rows, link_rows, bad, lines, ctx.get("certificate_rows", [])
 
 
@@ -111,8 +148,14 @@ def _context(a: dict) -> dict:
     policy, and the device model each device carries (:func:`borescan.device_model.lookup`).
     """
     devices, night = a["devices"], a["night"]
-    return {"uncertainty": a["uncertainty"], "laboratory": a["laboratory"], "verification": a["verification"],
-            "raw_root": a["raw_root"], "scans_table": a["scans_table"],
-            "cleaning": readings.cleaning_policy(a["signal"]),
-            "device_model": device_model.lookup(lambda dev: device_model_effects(devices, dev, night),
-                                                a["pooled_rows"], night, a["auto_nights"])}
+    return {
+        "uncertainty": a["uncertainty"],
+        "laboratory": a["laboratory"],
+        "verification": a["verification"],
+        "raw_root": a["raw_root"],
+        "scans_table": a["scans_table"],
+        "cleaning": readings.cleaning_policy(a["signal"]),
+        "device_model": device_model.lookup(
+            lambda dev: device_model_effects(devices, dev, night), a["pooled_rows"], night, a["auto_nights"]
+        ),
+    }

@@ -41,21 +41,40 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
     except ValueError as err:  # MissingTemperature is one
         quarantine(results_root, bad, sid, night, "calibrate", "scan.json", f"rod calibration: {err}")
         return
-    radius_t = [radius_at_temperature_mm(0.5 * g["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
-                for g in gauges]
+    radius_t = [
+        radius_at_temperature_mm(0.5 * g["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
+        for g in gauges
+    ]
     try:  # what the readings must give: a solve (RodSolveError is a ValueError) that settles
         cal_layers, sol, n_iter = rod_calibration.calibrate_l0(means, layers, u_mean, radius_t)
     except ValueError as err:
-        quarantine(results_root, bad, sid, night, "calibrate", "lds.parquet", f"rod calibration failed: {err}")
+        quarantine(
+            results_root, bad, sid, night, "calibrate", "lds.parquet", f"rod calibration failed: {err}"
+        )
         return
-    budget = rod_calibration.rod_calibration_budget([lay.l0_mm for lay in cal_layers], sol, gauges, temp, cte, sensors,
-                                                    sid, float(unc["sensor_resolution_mm"]))
+    budget = rod_calibration.rod_calibration_budget(
+        [lay.l0_mm for lay in cal_layers],
+        sol,
+        gauges,
+        temp,
+        cte,
+        sensors,
+        sid,
+        float(unc["sensor_resolution_mm"]),
+    )
     cal = rod_calibration.RodCalibration(
         calibration_id=rod_calibration.rod_calibration_id(meta["device"]["id"], [sid], night),
-        device_id=meta["device"]["id"], scan_ids=(sid,), layers=tuple(cal_layers),
-        l0_nominal_mm=np.array([lay.l0_mm for lay in layers]), u_l0_mm=budget.u(), budget=budget,
-        gauges=tuple(dict(g, radius_at_t_mm=r) for g, r in zip(gauges, radius_t)), solution=sol, iterations=n_iter,
-        residual_rms_mm=float(sol.residual_rms_mm))
+        device_id=meta["device"]["id"],
+        scan_ids=(sid,),
+        layers=tuple(cal_layers),
+        l0_nominal_mm=np.array([lay.l0_mm for lay in layers]),
+        u_l0_mm=budget.u(),
+        budget=budget,
+        gauges=tuple(dict(g, radius_at_t_mm=r) for g, r in zip(gauges, radius_t)),
+        solution=sol,
+        iterations=n_iter,
+        residual_rms_mm=float(sol.residual_rms_mm),
+    )
     out_dir = certificate.certificate_night_dir(results_root, cal, night)
     link = certificate.certificate_dir(results_root, cal)
     rel_cert = str((link / "certificate.pdf").relative_to(Path(results_root)))
@@ -64,14 +83,28 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
     ver_rows, ver_metas = _night_rod_verifications(cal, rows, night, ctx, log)
     dates = certificate.certificate_dates([meta], ver_metas, night, int(cfg["validity_days"]))
     for row in rows:
-        row.update(temperature_c=temp.temperature_c, temperature_assumed=temp.assumed,
-                   recalibration_due=dates["recalibration_due"])
+        row.update(
+            temperature_c=temp.temperature_c,
+            temperature_assumed=temp.assumed,
+            recalibration_due=dates["recalibration_due"],
+        )
     cert_paths = certificate.write_rod_certificate(
-        cal, out_dir, device={"id": cal.device_id, "type": "rod", "sensors": meta.get("sensors", [])},
-        artifact=dict(meta.get("artifact") or {}), temperature=temp, cte=cte, raw_files=raw_files,
-        software_version=__version__, laboratory=lab, coverage_probability=p, dates=dates, verifications=ver_rows,
-        config_hash=config_hash({"calibration": cfg, "uncertainty": unc, "laboratory": lab,
-                                 "verification": ctx["verification"]}))
+        cal,
+        out_dir,
+        device={"id": cal.device_id, "type": "rod", "sensors": meta.get("sensors", [])},
+        artifact=dict(meta.get("artifact") or {}),
+        temperature=temp,
+        cte=cte,
+        raw_files=raw_files,
+        software_version=__version__,
+        laboratory=lab,
+        coverage_probability=p,
+        dates=dates,
+        verifications=ver_rows,
+        config_hash=config_hash(
+            {"calibration": cfg, "uncertainty": unc, "laboratory": lab, "verification": ctx["verification"]}
+        ),
+    )
     link_into_night(link, out_dir)
     issue = certificate_issue.issue_row(cert_paths, results_root, night)
     ctx.setdefault("certificate_rows", []).append(issue)
@@ -79,14 +112,22 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         row["certificate_sha256"] = json.loads(issue["files_sha256"])["certificate.json"]
     cal_rows += rows
     link_rows.append({"calibration_id": cal.calibration_id, "scan_id": sid})
-    log(f"{cal.device_id}: {cal.calibration_id} (rod on ring gauges) from {sid}; l0 - nominal "
-        + ", ".join(f"ch {ch} {1e3 * (a - b):+.2f} um" for ch, a, b in zip(cal.channels, cal.l0_mm, cal.l0_nominal_mm))
-        + "; U(l0) " + ", ".join(f"{budget.combined(j, p).U * 1e3:.2f}" for j in range(len(cal.channels))) + " um"
+    log(
+        f"{cal.device_id}: {cal.calibration_id} (rod on ring gauges) from {sid}; l0 - nominal "
+        + ", ".join(
+            f"ch {ch} {1e3 * (a - b):+.2f} um" for ch, a, b in zip(cal.channels, cal.l0_mm, cal.l0_nominal_mm)
+        )
+        + "; U(l0) "
+        + ", ".join(f"{budget.combined(j, p).U * 1e3:.2f}" for j in range(len(cal.channels)))
+        + " um"
         + f"; {len(ver_rows)} layer verification(s) in the certificate"
-        + (" [gauge temperature ASSUMED 20 degC]" if temp.assumed else ""))
+        + (" [gauge temperature ASSUMED 20 degC]" if temp.assumed else "")
+    )
 
 
-def _night_rod_verifications(cal, rows: list[dict], night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
+def _night_rod_verifications(
+    cal, rows: list[dict], night: str, ctx: dict, log
+) -> tuple[list[dict], list[dict]]:
     """Return the night's gauge verifications of the rod.
 
     Return the night's gauge verifications of the rod made with the new calibration (one row per layer,
@@ -94,13 +135,22 @@ def _night_rod_verifications(cal, rows: list[dict], night: str, ctx: dict, log) 
     measured is left out with a log line (the measure stage quarantines it).
     """
     out, metas = [], []
-    for _row, d in night_scans(ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id):
+    for _row, d in night_scans(
+        ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id
+    ):
         scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
         try:
-            res = rod_calibration.rod_diameters_with_budget(scan, rows, ctx["uncertainty"], cal.calibration_id,
-                                                            ctx.get("cleaning"))
-            out += rod_calibration.rod_verifications(scan, res, cal.calibration_id, ctx["uncertainty"], ctx["laboratory"],
-                                                     float(ctx["verification"]["tolerance_mm"]))
+            res = rod_calibration.rod_diameters_with_budget(
+                scan, rows, ctx["uncertainty"], cal.calibration_id, ctx.get("cleaning")
+            )
+            out += rod_calibration.rod_verifications(
+                scan,
+                res,
+                cal.calibration_id,
+                ctx["uncertainty"],
+                ctx["laboratory"],
+                float(ctx["verification"]["tolerance_mm"]),
+            )
             metas.append(scan.meta)
         except (MissingTemperature, ValueError, np.linalg.LinAlgError) as err:
             log(f"{scan.scan_id}: verification left out of the certificate of {cal.calibration_id}: {err}")

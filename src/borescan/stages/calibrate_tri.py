@@ -18,16 +18,28 @@ from borescan import __version__, calibration, certificate, certificate_issue, d
 from borescan.artifacts import MissingTemperature
 from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows
-from borescan.preconditions import (CALIBRATION_NEEDS_BEAMS, NO_SPINDLE_REASON, calibration_revolutions_problem, design_beams,
-                                    summary_revolutions)
+from borescan.preconditions import (
+    CALIBRATION_NEEDS_BEAMS,
+    NO_SPINDLE_REASON,
+    calibration_revolutions_problem,
+    design_beams,
+    summary_revolutions,
+)
 from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
-from borescan.stages.calibration_fit import (budget_of, fit_device_calibration, scan_conditions, spindle_inputs,
-                                             yang_from_summary)
+from borescan.stages.calibration_fit import (
+    budget_of,
+    fit_device_calibration,
+    scan_conditions,
+    spindle_inputs,
+    yang_from_summary,
+)
 
 __all__ = ["calibrate_tri_device"]
 
 
-def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows, link_rows, log, ctx) -> None:
+def calibrate_tri_device(
+    items, night, results_root, summary, cfg, bad, cal_rows, link_rows, log, ctx
+) -> None:
     """Calibrate one three-sensor device from its calibration scans of the night.
 
     Calibrate one three-sensor device from its calibration scans of the night (``items``: (scans
@@ -57,8 +69,21 @@ def calibrate_tri_device(items, night, results_root, summary, cfg, bad, cal_rows
     # calibrates from one scan's extrema, so each scan gives its own calibration.
     groups = [(scans, inputs)] if method != "yang2017" else [([s], [x]) for s, x in zip(scans, inputs)]
     for group_scans, group_inputs in groups:
-        _calibrate_group(group_scans, group_inputs, method, nominal, summary, night, results_root, cfg, bad,
-                         cal_rows, link_rows, log, ctx)
+        _calibrate_group(
+            group_scans,
+            group_inputs,
+            method,
+            nominal,
+            summary,
+            night,
+            results_root,
+            cfg,
+            bad,
+            cal_rows,
+            link_rows,
+            log,
+            ctx,
+        )
 
 
 def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple[str, str] | str | None:
@@ -76,8 +101,9 @@ def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple
     return None if problem is None else ("lds.parquet", problem)
 
 
-def _calibrate_group(scans, inputs, method, nominal, summary, night, results_root, cfg, bad, cal_rows, link_rows, log,
-                     ctx):
+def _calibrate_group(
+    scans, inputs, method, nominal, summary, night, results_root, cfg, bad, cal_rows, link_rows, log, ctx
+):
     """Calibrate one device from ``scans`` (already checked), budget it, write the certificate, add rows.
 
     A calibration that fails (no convergence, rank deficiency, no real solution, no budget)
@@ -90,38 +116,73 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
     try:
         if method == "yang2017":
             if ctx["device_model"](device_id, inputs[0]["channels"]):
-                log(f"{device_id}: its device model is not carried by yang2017 (extrema of the recorded "
-                    "readings)")
+                log(
+                    f"{device_id}: its device model is not carried by yang2017 (extrema of the recorded "
+                    "readings)"
+                )
             fit = yang_from_summary(scans[0], inputs[0], summary, nominal, night, log=log)
         else:
             model = ctx["device_model"](device_id, inputs[0]["channels"])
             inputs = device_model.carry(model, device_id, inputs, log)
             fit = fit_device_calibration(scans, inputs, nominal, cfg, night=night, model=model)
-        budget = budget_of(fit, scans, inputs, unc, summary=summary, nominal=nominal, night=night,
-                           position_accuracy_mm=float(cfg["position_accuracy_mm"]))
+        budget = budget_of(
+            fit,
+            scans,
+            inputs,
+            unc,
+            summary=summary,
+            nominal=nominal,
+            night=night,
+            position_accuracy_mm=float(cfg["position_accuracy_mm"]),
+        )
     except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
         for s in scans:
-            quarantine(results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}")
+            quarantine(
+                results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}"
+            )
         return
     cal = with_budget(fit, budget)
     out_dir = certificate.certificate_night_dir(results_root, cal, night)
     first = inputs[0]
     residuals = {"t_s": np.zeros(0), "residual_mm": np.zeros((0, len(cal.beams.channels)))}
     if cal.method == "full_lsq":
-        residuals = {"t_s": first["t_s"], "residual_mm": calibration.full_residuals(
-            fit, first["t_s"], first["readings"], first["R"], ids[0], angle_model=first["angle_model"])}
+        residuals = {
+            "t_s": first["t_s"],
+            "residual_mm": calibration.full_residuals(
+                fit, first["t_s"], first["readings"], first["R"], ids[0], angle_model=first["angle_model"]
+            ),
+        }
     ver_rows, ver_metas = _night_verifications(cal, night, ctx, log)
     conditions = certificate.calibration_conditions(
-        first["temperature"], first["cte"], first["R"], float(cfg["position_accuracy_mm"]), p,
-        [scan_conditions(s, x, summary) for s, x in zip(scans, inputs)])
-    dates = certificate.certificate_dates([s.meta for s in scans], ver_metas, night, int(cfg["validity_days"]))
+        first["temperature"],
+        first["cte"],
+        first["R"],
+        float(cfg["position_accuracy_mm"]),
+        p,
+        [scan_conditions(s, x, summary) for s, x in zip(scans, inputs)],
+    )
+    dates = certificate.certificate_dates(
+        [s.meta for s in scans], ver_metas, night, int(cfg["validity_days"])
+    )
     art = scans[0].meta.get("artifact") or {}
     cert_paths = certificate.write_certificate(
-        cal, out_dir, device={"id": device_id, "type": "tri_lds", "sensors": scans[0].meta.get("sensors", [])},
-        artifact=dict(art, k=art.get("k", 2)), conditions=conditions, residuals=residuals, raw_files=raw_files,
-        software_version=__version__, budget=budget, laboratory=lab, coverage_probability=p, dates=dates,
-        config_hash=config_hash({"calibration": cfg, "uncertainty": unc, "laboratory": lab,
-                                 "verification": ctx["verification"]}), verifications=ver_rows)
+        cal,
+        out_dir,
+        device={"id": device_id, "type": "tri_lds", "sensors": scans[0].meta.get("sensors", [])},
+        artifact=dict(art, k=art.get("k", 2)),
+        conditions=conditions,
+        residuals=residuals,
+        raw_files=raw_files,
+        software_version=__version__,
+        budget=budget,
+        laboratory=lab,
+        coverage_probability=p,
+        dates=dates,
+        config_hash=config_hash(
+            {"calibration": cfg, "uncertainty": unc, "laboratory": lab, "verification": ctx["verification"]}
+        ),
+        verifications=ver_rows,
+    )
     link = certificate.certificate_dir(results_root, cal)
     link_into_night(link, out_dir)
     rel_cert = str((link / "certificate.pdf").relative_to(Path(results_root)))
@@ -133,16 +194,22 @@ def _calibrate_group(scans, inputs, method, nominal, summary, night, results_roo
         for k, name in enumerate(("beta_rad", "rho_mm", "d_b_mm")):
             comb = budget.combined(3 * j + k, p)
             row[f"expanded_u_{name}"], row[f"k_{name.rsplit('_', 1)[0]}"] = comb.U, comb.k
-        row.update(coverage_probability=p, temperature_c=first["temperature"].temperature_c,
-                   certificate_sha256=json.loads(issue["files_sha256"])["certificate.json"],
-                   temperature_assumed=first["temperature"].assumed, recalibration_due=dates["recalibration_due"])
+        row.update(
+            coverage_probability=p,
+            temperature_c=first["temperature"].temperature_c,
+            certificate_sha256=json.loads(issue["files_sha256"])["certificate.json"],
+            temperature_assumed=first["temperature"].assumed,
+            recalibration_due=dates["recalibration_due"],
+        )
     cal_rows += rows
     link_rows += [{"calibration_id": cal.calibration_id, "scan_id": sid} for sid in ids]
-    log(f"{device_id}: {cal.calibration_id} ({cal.method}) from {', '.join(ids)}; residual rms "
-        f"{cal.residual_rms_mm * 1e3:.2f} um; U(d_b) " + ", ".join(
-            f"{budget.combined(3 * j + 2, p).U * 1e3:.1f}" for j in range(len(cal.beams.channels)))
+    log(
+        f"{device_id}: {cal.calibration_id} ({cal.method}) from {', '.join(ids)}; residual rms "
+        f"{cal.residual_rms_mm * 1e3:.2f} um; U(d_b) "
+        + ", ".join(f"{budget.combined(3 * j + 2, p).U * 1e3:.1f}" for j in range(len(cal.beams.channels)))
         + f" um; {len(ver_rows)} verification(s) in the certificate"
-        + (" [gauge temperature ASSUMED 20 degC]" if first["temperature"].assumed else ""))
+        + (" [gauge temperature ASSUMED 20 degC]" if first["temperature"].assumed else "")
+    )
 
 
 def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
@@ -153,11 +220,19 @@ def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], l
     cannot be measured is left out with a log line (the measure stage quarantines it).
     """
     rows, metas = [], []
-    for _row, d in night_scans(ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id):
+    for _row, d in night_scans(
+        ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id
+    ):
         scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
         try:
-            row = measure.verification_for_certificate(scan, cal, ctx["uncertainty"], ctx["laboratory"],
-                                                       float(ctx["verification"]["tolerance_mm"]), ctx["cleaning"])
+            row = measure.verification_for_certificate(
+                scan,
+                cal,
+                ctx["uncertainty"],
+                ctx["laboratory"],
+                float(ctx["verification"]["tolerance_mm"]),
+                ctx["cleaning"],
+            )
         except (MissingTemperature, ValueError, np.linalg.LinAlgError) as err:
             log(f"{scan.scan_id}: verification left out of the certificate of {cal.calibration_id}: {err}")
             continue

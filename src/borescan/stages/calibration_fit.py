@@ -25,12 +25,21 @@ from borescan.measure import sensor_ranges_mm
 from borescan.preconditions import CALIBRATION_NEEDS_BEAMS, design_beams
 from borescan.uncertainty import Budget
 
-__all__ = ["spindle_inputs", "scan_conditions", "acceptance_rule", "fit_device_calibration", "calibrate_raw_scans",
-           "yang_from_summary", "yang_sensitivities", "budget_of"]
+__all__ = [
+    "spindle_inputs",
+    "scan_conditions",
+    "acceptance_rule",
+    "fit_device_calibration",
+    "calibrate_raw_scans",
+    "yang_from_summary",
+    "yang_sensitivities",
+    "budget_of",
+]
 
 
-def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None,
-                   cleaning: readings.CleaningPolicy | None = None) -> dict:
+def spindle_inputs(
+    scan: rawio.RawScan, uncertainty: dict | None = None, cleaning: readings.CleaningPolicy | None = None
+) -> dict:
     """Return the fit inputs of a spindle scan.
 
     Return times, despiked readings, rotation angle model, positions, temperature and gauge of a spindle
@@ -64,13 +73,20 @@ def spindle_inputs(scan: rawio.RawScan, uncertainty: dict | None = None,
     temp = scan_temperature(meta, unc)
     cte = artifact_cte(meta, unc)
     return {
-        "t_s": np.asarray(mat.t_s, dtype=float), "readings": clean, "channels": tuple(mat.channels),
-        "spindle_xy": spindle_xy, "center_xy": None if not center else (float(center["x_mm"]), float(center["y_mm"])),
+        "t_s": np.asarray(mat.t_s, dtype=float),
+        "readings": clean,
+        "channels": tuple(mat.channels),
+        "spindle_xy": spindle_xy,
+        "center_xy": None if not center else (float(center["x_mm"]), float(center["y_mm"])),
         "rpm": float(abs(angle_model.mean_omega_rad_s()) * 60.0 / (2.0 * np.pi)),
-        "direction": sp_meta.get("direction", "ccw"), "angle_model": angle_model,
+        "direction": sp_meta.get("direction", "ccw"),
+        "angle_model": angle_model,
         "range_mm": sensor_ranges_mm(sensors, mat.channels),
         "R": gauge_radius_mm(meta, temp.temperature_c, cte.cte_per_k),
-        "temperature": temp, "cte": cte, "artifact": dict(meta.get("artifact") or {}), "sensors": sensors,
+        "temperature": temp,
+        "cte": cte,
+        "artifact": dict(meta.get("artifact") or {}),
+        "sensors": sensors,
     }
 
 
@@ -78,11 +94,19 @@ def scan_conditions(scan: rawio.RawScan, x: dict, summary: pl.DataFrame) -> dict
     """Per-scan conditions of the certificate: positions, speed, revolutions (recorded and with extrema)."""
     s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
     spr = float(s["period_samples_per_rev"][0]) if s.height else 0.0
-    recorded = float(s["n_samples_recorded"][0]) / spr if spr > 0 and "n_samples_recorded" in s.columns else None
-    return {"scan_id": scan.scan_id, "started_at": scan.meta.get("started_at"),
-            "spindle_position": (scan.meta.get("spindle") or {}).get("position"), "center": scan.meta.get("center"),
-            "rpm": x["rpm"], "angle_source": x["angle_model"].source, "revolutions_recorded": recorded,
-            "revolutions_with_extrema": int(s["n_revolutions_min"].min()) if s.height else None}
+    recorded = (
+        float(s["n_samples_recorded"][0]) / spr if spr > 0 and "n_samples_recorded" in s.columns else None
+    )
+    return {
+        "scan_id": scan.scan_id,
+        "started_at": scan.meta.get("started_at"),
+        "spindle_position": (scan.meta.get("spindle") or {}).get("position"),
+        "center": scan.meta.get("center"),
+        "rpm": x["rpm"],
+        "angle_source": x["angle_model"].source,
+        "revolutions_recorded": recorded,
+        "revolutions_with_extrema": int(s["n_revolutions_min"].min()) if s.height else None,
+    }
 
 
 def acceptance_rule(cal_cfg: dict) -> calibration.AcceptanceRule:
@@ -102,8 +126,15 @@ def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: 
     refused.
     """
     raw_files = {f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}
-    cal = _fit(scans, inputs, nominal, cal_cfg, night, raw_files,
-               device_model.channel_time_offsets(model, inputs[0]["channels"]))
+    cal = _fit(
+        scans,
+        inputs,
+        nominal,
+        cal_cfg,
+        night,
+        raw_files,
+        device_model.channel_time_offsets(model, inputs[0]["channels"]),
+    )
     if model:
         cal = replace(cal, diagnostics={**cal.diagnostics, "device_model": [m.to_dict() for m in model]})
     return cal
@@ -111,15 +142,27 @@ def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: 
 
 def _fit(scans, inputs, nominal: Beams, cal_cfg: dict, night, raw_files, tau_s):
     return calibration.fit_full_calibration(
-        [x["t_s"] for x in inputs], [x["readings"] for x in inputs], inputs[0]["channels"], nominal,
-        inputs[0]["R"], [x["spindle_xy"] for x in inputs], center_xy_mm=[x["center_xy"] for x in inputs],
-        angle_models=[x["angle_model"] for x in inputs], range_mm=inputs[0]["range_mm"],
-        rule=acceptance_rule(cal_cfg), scan_ids=[s.scan_id for s in scans],
-        device_id=scans[0].meta["device"]["id"], raw_sha256=raw_files, night=night, channel_time_offsets_s=tau_s,
+        [x["t_s"] for x in inputs],
+        [x["readings"] for x in inputs],
+        inputs[0]["channels"],
+        nominal,
+        inputs[0]["R"],
+        [x["spindle_xy"] for x in inputs],
+        center_xy_mm=[x["center_xy"] for x in inputs],
+        angle_models=[x["angle_model"] for x in inputs],
+        range_mm=inputs[0]["range_mm"],
+        rule=acceptance_rule(cal_cfg),
+        scan_ids=[s.scan_id for s in scans],
+        device_id=scans[0].meta["device"]["id"],
+        raw_sha256=raw_files,
+        night=night,
+        channel_time_offsets_s=tau_s,
     )
 
 
-def calibrate_raw_scans(scans, cal_cfg: dict, night: str | None = None, uncertainty: dict | None = None, model=()):
+def calibrate_raw_scans(
+    scans, cal_cfg: dict, night: str | None = None, uncertainty: dict | None = None, model=()
+):
     """Full-data calibration of the calibration scans ``scans`` (``rawio.RawScan``, one device).
 
     The same path as the night's calibrate stage; ``cal_cfg`` is the config's ``calibration``
@@ -136,7 +179,9 @@ def calibrate_raw_scans(scans, cal_cfg: dict, night: str | None = None, uncertai
     return with_budget(cal, budget_of(cal, scans, inputs, uncertainty))
 
 
-def yang_from_summary(scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, nominal: Beams, night: str, log=print):
+def yang_from_summary(
+    scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, nominal: Beams, night: str, log=print
+):
     """Yang 2017 (Eq. 8-15) from the signal stage's per-channel means of one scan.
 
     Where a channel's status (advanced/backward) is not significant (|n - m| within its
@@ -150,19 +195,36 @@ def yang_from_summary(scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, 
         for i, (ch, ok) in enumerate(zip(s["channel"], s["status_significant"])):
             if not ok:
                 statuses[i] = "advanced" if sgn * nominal.rho_mm[i] > 0 else "backward"
-                log(f"{scan.scan_id}: channel {ch}: status not significant (|n - m| within its uncertainty); "
+                log(
+                    f"{scan.scan_id}: channel {ch}: status not significant (|n - m| within its uncertainty); "
                     f"side of the beam taken from device.nominal (rho {nominal.rho_mm[i]:+.3f} mm): "
-                    f"{statuses[i]}")
+                    f"{statuses[i]}"
+                )
     if inputs["center_xy"] is None:
-        raise ValueError("yang2017 needs scan.json center (the gauge centre from a centring scan) for oe (Eq. 9)")
+        raise ValueError(
+            "yang2017 needs scan.json center (the gauge centre from a centring scan) for oe (Eq. 9)"
+        )
     oe = calibration.yang_oe(inputs["spindle_xy"], inputs["center_xy"])
     spr = float(s["period_samples_per_rev"][0])
     return calibration.yang_calibration(
-        s["d_max_mm"].to_numpy(), s["d_min_mm"].to_numpy(), statuses, s["feature_sample"].to_numpy(), spr, inputs["R"], oe,
-        channels=tuple(int(c) for c in s["channel"]), device_id=scan.meta["device"]["id"], scan_ids=[scan.scan_id],
-        raw_sha256=dict(scan.sha256), beta_ref_rad=float(nominal.beta_rad[0]), beta_nominal_rad=nominal.beta_rad,
-        direction=inputs["direction"], u_d_max_mm=s["u_d_max_mm"].to_numpy(), u_d_min_mm=s["u_d_min_mm"].to_numpy(),
-        u_feature_sample=s["u_feature_sample"].to_numpy(), night=night,
+        s["d_max_mm"].to_numpy(),
+        s["d_min_mm"].to_numpy(),
+        statuses,
+        s["feature_sample"].to_numpy(),
+        spr,
+        inputs["R"],
+        oe,
+        channels=tuple(int(c) for c in s["channel"]),
+        device_id=scan.meta["device"]["id"],
+        scan_ids=[scan.scan_id],
+        raw_sha256=dict(scan.sha256),
+        beta_ref_rad=float(nominal.beta_rad[0]),
+        beta_nominal_rad=nominal.beta_rad,
+        direction=inputs["direction"],
+        u_d_max_mm=s["u_d_max_mm"].to_numpy(),
+        u_d_min_mm=s["u_d_min_mm"].to_numpy(),
+        u_feature_sample=s["u_feature_sample"].to_numpy(),
+        night=night,
     )
 
 
@@ -176,25 +238,50 @@ def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, nig
     to R (h = 1e-4 mm), to each coordinate of the reported offset S - C (through oe = |S - C|) and to
     a constant error of every reading of a channel (its d_max and d_min move together).
     """
+
     def params(R=None, dS=(0.0, 0.0), shift=None) -> np.ndarray:
-        xi = dict(x, R=x["R"] if R is None else R,
-                  spindle_xy=(x["spindle_xy"][0] + dS[0], x["spindle_xy"][1] + dS[1]))
+        xi = dict(
+            x,
+            R=x["R"] if R is None else R,
+            spindle_xy=(x["spindle_xy"][0] + dS[0], x["spindle_xy"][1] + dS[1]),
+        )
         su = summary
         if shift is not None:
             add = pl.Series("add", np.asarray(shift, float))
-            su = summary.filter(pl.col("scan_id") == scan.scan_id).sort("channel").with_columns(
-                (pl.col("d_max_mm") + add).alias("d_max_mm"), (pl.col("d_min_mm") + add).alias("d_min_mm"))
+            su = (
+                summary.filter(pl.col("scan_id") == scan.scan_id)
+                .sort("channel")
+                .with_columns(
+                    (pl.col("d_max_mm") + add).alias("d_max_mm"), (pl.col("d_min_mm") + add).alias("d_min_mm")
+                )
+            )
         return yang_from_summary(scan, xi, su, nominal, night, log=lambda *a: None).params
 
     h, c = 1e-4, len(nominal.channels)
-    return {"dR": (params(R=x["R"] + h) - params(R=x["R"] - h)) / (2 * h),
-            "offset_prior": {scan.scan_id: np.column_stack([(params(dS=e * h) - params(dS=-e * h)) / (2 * h)
-                                                            for e in np.eye(2)])},
-            "reading_offset": np.column_stack([(params(shift=e * h) - params(shift=-e * h)) / (2 * h) for e in np.eye(c)])}
+    return {
+        "dR": (params(R=x["R"] + h) - params(R=x["R"] - h)) / (2 * h),
+        "offset_prior": {
+            scan.scan_id: np.column_stack(
+                [(params(dS=e * h) - params(dS=-e * h)) / (2 * h) for e in np.eye(2)]
+            )
+        },
+        "reading_offset": np.column_stack(
+            [(params(shift=e * h) - params(shift=-e * h)) / (2 * h) for e in np.eye(c)]
+        ),
+    }
 
 
-def budget_of(cal, scans, inputs: list[dict], uncertainty: dict, *, summary: pl.DataFrame | None = None,
-              nominal: Beams | None = None, night: str | None = None, position_accuracy_mm: float | None = None) -> Budget:
+def budget_of(
+    cal,
+    scans,
+    inputs: list[dict],
+    uncertainty: dict,
+    *,
+    summary: pl.DataFrame | None = None,
+    nominal: Beams | None = None,
+    night: str | None = None,
+    position_accuracy_mm: float | None = None,
+) -> Budget:
     """Return the GUM budget of a calibration from its scans.
 
     Return the GUM budget of a calibration from its scans
@@ -208,5 +295,12 @@ def budget_of(cal, scans, inputs: list[dict], uncertainty: dict, *, summary: pl.
     first = summary.filter(pl.col("scan_id") == ids[0])
     n_rev = int(first["n_revolutions_min"].min()) if first.height else 2
     sens = yang_sensitivities(scans[0], inputs[0], summary, nominal, night or scans[0].night)
-    return calibration_budget(cal, inputs, uncertainty, scan_ids=ids, extrema_dof=float(max(n_rev - 1, 1)),
-                              sensitivities=sens, position_accuracy_mm=position_accuracy_mm)
+    return calibration_budget(
+        cal,
+        inputs,
+        uncertainty,
+        scan_ids=ids,
+        extrema_dof=float(max(n_rev - 1, 1)),
+        sensitivities=sens,
+        position_accuracy_mm=position_accuracy_mm,
+    )

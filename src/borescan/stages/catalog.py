@@ -46,12 +46,15 @@ class Coverage:
     def message(self) -> str:
         """One paragraph naming what the history lacks and what to run."""
         nights = sorted({m.split("/")[0] for m in self.missing})
-        named = ", ".join(self.missing[:_NAMED]) + (f" and {len(self.missing) - _NAMED} more"
-                                                    if len(self.missing) > _NAMED else "")
-        return (f"the history lacks {len(self.missing)} of the {self.n_scans} scans of the raw root "
-                f"({', '.join(nights)}): {named}. Run `snakemake --cores N --forcerun ingest_night` to process "
-                "every night of the raw root again (results already present are rewritten identically), "
-                "or `borescan validate RAW_ROOT` to see why a folder is not read")
+        named = ", ".join(self.missing[:_NAMED]) + (
+            f" and {len(self.missing) - _NAMED} more" if len(self.missing) > _NAMED else ""
+        )
+        return (
+            f"the history lacks {len(self.missing)} of the {self.n_scans} scans of the raw root "
+            f"({', '.join(nights)}): {named}. Run `snakemake --cores N --forcerun ingest_night` to process "
+            "every night of the raw root again (results already present are rewritten identically), "
+            "or `borescan validate RAW_ROOT` to see why a folder is not read"
+        )
 
 
 def raw_coverage(raw_root: str | Path, catalog_file: str | Path) -> Coverage:
@@ -76,15 +79,20 @@ def catalog_quarantine(catalog_file: str | Path) -> list[Quarantined]:
             "SELECT scan_id, strftime(night, '%Y-%m-%d'), stage, file, reason FROM quarantine "
             "QUALIFY row_number() OVER (PARTITION BY scan_id, night "
             f"ORDER BY CASE stage {order} ELSE 9 END, file) = 1 "
-            "ORDER BY night, scan_id").fetchall()
+            "ORDER BY night, scan_id"
+        ).fetchall()
     finally:
         con.close()
     return [Quarantined(*r) for r in rows]
 
 
-def stage_catalog(results_root: str | Path, catalog_file: str | Path | None = None,
-                  full: bool = False, raw_root: str | Path | None = None,
-                  log=print) -> catalog.CatalogUpdate:
+def stage_catalog(
+    results_root: str | Path,
+    catalog_file: str | Path | None = None,
+    full: bool = False,
+    raw_root: str | Path | None = None,
+    log=print,
+) -> catalog.CatalogUpdate:
     """Bring ``<results_root>/catalog.duckdb`` up to date (:func:`borescan.catalog.update_catalog`).
 
     Only new nights' stage files are read; ``full=True`` rebuilds from every night. ``catalog_file``,

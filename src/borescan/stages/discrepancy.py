@@ -18,8 +18,15 @@ from borescan import discrepancy, rawio, tables
 from borescan.discrepancy.examine import discrepancy_settings
 from borescan.discrepancy.reference import discrepancy_reference
 from borescan.parallel import map_timed, workers_for
-from borescan.stages._common import (Quarantined, clear_night_folder, link_into_night, night_folder, night_scans,
-                                    quarantine, read_tables)
+from borescan.stages._common import (
+    Quarantined,
+    clear_night_folder,
+    link_into_night,
+    night_folder,
+    night_scans,
+    quarantine,
+    read_tables,
+)
 from borescan.workflow_log import compute_line
 
 __all__ = ["stage_discrepancy", "findings_rows", "discrepancy_one", "findings_night_dir", "findings_dir"]
@@ -46,20 +53,38 @@ def findings_rows(findings: dict) -> list[dict]:
     effect if
     none).
     """
-    base = {"scan_id": findings["scan_id"], "verdict": findings["verdict"],
-            "gap_before_mm": (findings.get("gap_before") or {}).get("rms_mm"),
-            "gap_after_mm": (findings.get("gap_after") or {}).get("rms_mm"),
-            "noise_floor_mm": findings.get("noise_floor_mm")}
+    base = {
+        "scan_id": findings["scan_id"],
+        "verdict": findings["verdict"],
+        "gap_before_mm": (findings.get("gap_before") or {}).get("rms_mm"),
+        "gap_after_mm": (findings.get("gap_after") or {}).get("rms_mm"),
+        "noise_floor_mm": findings.get("noise_floor_mm"),
+    }
     named = findings.get("named") or []
     if not named:
         return [dict(base, effect=None, channel=None, parameters=None, uncertainties=None)]
-    return [dict(base, effect=n.get("effect"), channel=n.get("channel"),
-                 parameters=json.dumps(n.get("parameters") or {}, sort_keys=True),
-                 uncertainties=json.dumps(n.get("uncertainties") or {}, sort_keys=True)) for n in named]
+    return [
+        dict(
+            base,
+            effect=n.get("effect"),
+            channel=n.get("channel"),
+            parameters=json.dumps(n.get("parameters") or {}, sort_keys=True),
+            uncertainties=json.dumps(n.get("uncertainties") or {}, sort_keys=True),
+        )
+        for n in named
+    ]
 
 
-def stage_discrepancy(raw_root, night: str, results_root, scans_table, calibration_tables, cfg: dict,
-                      log=print, workers: int = 1) -> tuple[pl.DataFrame, list[Quarantined]]:
+def stage_discrepancy(
+    raw_root,
+    night: str,
+    results_root,
+    scans_table,
+    calibration_tables,
+    cfg: dict,
+    log=print,
+    workers: int = 1,
+) -> tuple[pl.DataFrame, list[Quarantined]]:
     """Examine every scan of a night for model discrepancy.
 
     Model-discrepancy examination of every scan of a night (``discrepancy/night=<night>/<scan_id>/``,
@@ -103,12 +128,24 @@ def discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
         link_into_night(findings_dir(results_root, scan.scan_id), out_dir)
     except (ValueError, KeyError, ArithmeticError) as err:
         shutil.rmtree(out_dir, ignore_errors=True)  # no half-written findings of a scan set aside
-        quarantine(results_root, bad, scan.scan_id, night, "discrepancy", getattr(err, "file", "lds.parquet"),
-                   f"model-discrepancy examination failed: {err}")
+        quarantine(
+            results_root,
+            bad,
+            scan.scan_id,
+            night,
+            "discrepancy",
+            getattr(err, "file", "lds.parquet"),
+            f"model-discrepancy examination failed: {err}",
+        )
         return [], bad, f"{scan.scan_id}: quarantined ({err})"
-    named = ", ".join(f"{n['effect']}" + (f" ch{n['channel']}" if n.get("channel") else "") for n in findings.get("named", []))
-    msg = (f"{scan.scan_id} vs {ref}: {findings['verdict']}{': ' + named if named else ''} "
-           f"(gap {findings['gap_before']['rms_mm'] * 1e3:.2f} -> "
-           f"{findings['gap_after']['rms_mm'] * 1e3:.2f} um, "
-           f"noise floor {findings['noise_floor_mm'] * 1e3:.2f} um)")
+    named = ", ".join(
+        f"{n['effect']}" + (f" ch{n['channel']}" if n.get("channel") else "")
+        for n in findings.get("named", [])
+    )
+    msg = (
+        f"{scan.scan_id} vs {ref}: {findings['verdict']}{': ' + named if named else ''} "
+        f"(gap {findings['gap_before']['rms_mm'] * 1e3:.2f} -> "
+        f"{findings['gap_after']['rms_mm'] * 1e3:.2f} um, "
+        f"noise floor {findings['noise_floor_mm'] * 1e3:.2f} um)"
+    )
     return findings_rows(findings), bad, msg

@@ -20,9 +20,17 @@ __all__ = ["stage_ingest", "scan_row"]
 DUPLICATE_REASON = validation.DUPLICATE_REASON
 
 
-def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, duplicate_ids: list[str] = (),
-                 workers: int = 1, earlier_scans=(), on_conflict: str = "quarantine",
-                 log=None, plausibility: dict | None = None) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
+def stage_ingest(
+    raw_root: str | Path,
+    night: str,
+    results_root: str | Path,
+    duplicate_ids: list[str] = (),
+    workers: int = 1,
+    earlier_scans=(),
+    on_conflict: str = "quarantine",
+    log=None,
+    plausibility: dict | None = None,
+) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
     """Validate and register every scan of one night (spread over ``workers`` processes).
 
     A scan is quarantined for the first problem :func:`borescan.validation.scan_problems` finds
@@ -42,16 +50,22 @@ def stage_ingest(raw_root: str | Path, night: str, results_root: str | Path, dup
     """
     dup = set(duplicate_ids)
     limits = validation.Plausibility.from_config(plausibility)
-    jobs = [(raw_root, night, results_root, d, d.name[5:] in dup, limits) for d in rawio.night_scan_dirs(raw_root, night)]
+    jobs = [
+        (raw_root, night, results_root, d, d.name[5:] in dup, limits)
+        for d in rawio.night_scan_dirs(raw_root, night)
+    ]
     rows, file_rows, bad = [], [], []
     for row, files, problem in map_in_order(_ingest_one, jobs, workers):
         rows.append(row)
         file_rows += files
         if problem is not None:
             bad.append(problem)
-    before = frames_or_empty([e if isinstance(e, pl.DataFrame) else pl.read_parquet(e) for e in earlier_scans])
-    conflicts = certificate_conflicts(before.to_dicts() if before.height and "artifact_certificate" in before.columns
-                                      else [], rows)
+    before = frames_or_empty(
+        [e if isinstance(e, pl.DataFrame) else pl.read_parquet(e) for e in earlier_scans]
+    )
+    conflicts = certificate_conflicts(
+        before.to_dicts() if before.height and "artifact_certificate" in before.columns else [], rows
+    )
     for row in rows:
         why = conflicts.get(row["scan_id"])
         if why is None:
@@ -75,8 +89,9 @@ def _meta_field(meta: dict, *keys: str) -> str | None:
     return None if cur is None else str(cur)
 
 
-def scan_row(scan_id: str, night: str, scan_dir: Path, meta: dict, hashes: dict[str, str],
-             problem: Quarantined | None) -> dict:
+def scan_row(
+    scan_id: str, night: str, scan_dir: Path, meta: dict, hashes: dict[str, str], problem: Quarantined | None
+) -> dict:
     """Return the ``scans`` row of one scan folder (whatever of ``scan.json`` could be read, else nulls)."""
     acq = meta.get("acquisition")
     return {
@@ -115,7 +130,9 @@ def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
         except OSError:  # an unreadable file (e.g. umask 077 of another user): named by scan_problems
             continue
         hashes[f.name] = digest
-        file_rows.append({"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": size})
+        file_rows.append(
+            {"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": size}
+        )
     meta: dict = {}
     try:
         meta = rawio.read_scan_meta(d)
@@ -123,9 +140,13 @@ def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
         pass
     # the one validator, shared with `borescan validate`: the first problem is the reason
     earlier = validation.earlier_night_of(raw_root, night, scan_id) if duplicate else None
-    _, problems = validation.scan_problems(d, raw_root, duplicate=duplicate, earlier_night=earlier, limits=limits)
+    _, problems = validation.scan_problems(
+        d, raw_root, duplicate=duplicate, earlier_night=earlier, limits=limits
+    )
     # the folder's own id (a ScanError shortens an id that is no valid id to name it)
-    problem = Quarantined(scan_id, night, "ingest", problems[0].file, problems[0].problem) if problems else None
+    problem = (
+        Quarantined(scan_id, night, "ingest", problems[0].file, problems[0].problem) if problems else None
+    )
     if problem is not None:
         write_quarantine_record(results_root, problem)
     return scan_row(scan_id, night, d, meta, hashes, problem), file_rows, problem

@@ -21,7 +21,12 @@ import polars as pl
 from borescan import measure, rawio, readings, rod, rod_calibration
 from borescan.artifacts import MissingTemperature, artifact_row
 from borescan.calibration import CalibrationError
-from borescan.calibrations import choose_calibration, choose_rod_calibration, failed_calibration_ids, tri_calibration
+from borescan.calibrations import (
+    choose_calibration,
+    choose_rod_calibration,
+    failed_calibration_ids,
+    tri_calibration,
+)
 from borescan.config import schema_defaults
 from borescan.parallel import map_timed, workers_for
 from borescan.stages._common import night_scans, quarantine, read_tables
@@ -39,8 +44,17 @@ def section(cfg: dict, name: str) -> dict:
     return cfg[name] if cfg.get(name) is not None else schema_defaults()[name]
 
 
-def stage_measure(raw_root, night: str, results_root, scans_table, calibration_tables, verification_tables_before,
-                  cfg: dict, log=print, workers: int = 1):
+def stage_measure(
+    raw_root,
+    night: str,
+    results_root,
+    scans_table,
+    calibration_tables,
+    verification_tables_before,
+    cfg: dict,
+    log=print,
+    workers: int = 1,
+):
     """Verification scans first, then measurements, each with the calibration it may use.
 
     ``cfg`` holds the config's ``verification``, ``measurement`` and ``calibration`` sections, and
@@ -52,9 +66,16 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
     tol = float(cfg["verification"]["tolerance_mm"])
     allow = bool(cfg["measurement"]["allow_unverified_calibration"])
     validity = int(cfg["calibration"]["validity_days"])
-    unc, lab, clean = section(cfg, "uncertainty"), section(cfg, "laboratory"), readings.cleaning_policy(section(cfg, "signal"))
-    part = {"default_tolerance_mm": cfg["measurement"].get("part_tolerance_mm"), "rule": lab["decision_rule"],
-            "guard_band_factor": float(lab["guard_band_factor"])}
+    unc, lab, clean = (
+        section(cfg, "uncertainty"),
+        section(cfg, "laboratory"),
+        readings.cleaning_policy(section(cfg, "signal")),
+    )
+    part = {
+        "default_tolerance_mm": cfg["measurement"].get("part_tolerance_mm"),
+        "rule": lab["decision_rule"],
+        "guard_band_factor": float(lab["guard_band_factor"]),
+    }
     cals = read_tables(calibration_tables, "calibrations")
     failed = failed_calibration_ids(read_tables(verification_tables_before, "verifications"))
     diam, ver, arts, bad = [], [], {}, []
@@ -63,7 +84,9 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
 
     def job(row, d):
         if row["device_type"] == "rod":
-            cal_id, why = choose_rod_calibration(cals, failed, row["device_id"], night, validity, allow, rod_policy)
+            cal_id, why = choose_rod_calibration(
+                cals, failed, row["device_id"], night, validity, allow, rod_policy
+            )
         else:
             cal_id, why = choose_calibration(cals, failed, row["device_id"], night, validity, allow)
         cal = cals.filter(pl.col("calibration_id") == cal_id) if cal_id is not None else None
@@ -82,7 +105,7 @@ def stage_measure(raw_root, night: str, results_root, scans_table, calibration_t
         return sorted((it for it in items if it[0]["kind"] == kind), key=lambda it: it[0]["scan_id"])
 
     for row, d in of_kind("verification"):
-        (out, cpu_s), = map_timed(measure_one, [job(row, d)])
+        ((out, cpu_s),) = map_timed(measure_one, [job(row, d)])
         log(compute_line(row["scan_id"], cpu_s))
         take(out)
         failed.update(v["calibration_id"] for v in out["verifications"] if not v["passed"])
@@ -134,31 +157,66 @@ def measure_one(job) -> dict:
 
 def _verdicts(out, meta, row, sid, dev, cal_id, res, du, tol, unc, lab, part, results_root, night) -> dict:
     bad = out["quarantined"]  # the diameter with its part verdict, and a gauge scan's verification
-    out["diameters"].append(_with_part(measure.diameter_row(sid, dev, row["artifact_id"], None, res["diameter_mm"],
-                                                            du.combined_t.u, cal_id, res["method"], du),
-                                       meta, None, du, part))
-    msg = (f"{sid}: D = {res['diameter_mm']:.4f} mm at {du.temperature.temperature_c:g} degC, "
-           f"D20 = {du.diameter_20_mm:.4f} mm +- {du.combined_20.U * 1e3:.2f} um (k = {du.combined_20.k:.2f}) "
-           f"({res['method']}, {cal_id})" + _temperature_note(du.temperature))
+    out["diameters"].append(
+        _with_part(
+            measure.diameter_row(
+                sid,
+                dev,
+                row["artifact_id"],
+                None,
+                res["diameter_mm"],
+                du.combined_t.u,
+                cal_id,
+                res["method"],
+                du,
+            ),
+            meta,
+            None,
+            du,
+            part,
+        )
+    )
+    msg = (
+        f"{sid}: D = {res['diameter_mm']:.4f} mm at {du.temperature.temperature_c:g} degC, "
+        f"D20 = {du.diameter_20_mm:.4f} mm +- {du.combined_20.U * 1e3:.2f} um (k = {du.combined_20.k:.2f}) "
+        f"({res['method']}, {cal_id})" + _temperature_note(du.temperature)
+    )
     if row["kind"] == "verification":
         a = meta.get("artifact") or {}
         if a.get("type") != "ring_gauge" or a.get("certified_diameter_mm") is None:
-            quarantine(results_root, bad, sid, night, "measure", "scan.json",
-                       "verification scan needs a ring_gauge artifact with certified_diameter_mm")
+            quarantine(
+                results_root,
+                bad,
+                sid,
+                night,
+                "measure",
+                "scan.json",
+                "verification scan needs a ring_gauge artifact with certified_diameter_mm",
+            )
             return out
-        v = measure.verify_budget(du, a, tol, float(unc["coverage_probability"]), lab["decision_rule"],
-                                  float(lab["guard_band_factor"]))
+        v = measure.verify_budget(
+            du,
+            a,
+            tol,
+            float(unc["coverage_probability"]),
+            lab["decision_rule"],
+            float(lab["guard_band_factor"]),
+        )
         vrow = measure.verification_row(sid, dev, a["id"], v)
         vrow["calibration_id"] = cal_id
         vrow["temperature_assumed"] = du.temperature.assumed
         out["verifications"].append(vrow)
-        msg += f"; error at 20 degC {v.error_mm * 1e3:+.2f} um vs {a['certified_diameter_mm']}: {v.conformity}"
+        msg += (
+            f"; error at 20 degC {v.error_mm * 1e3:+.2f} um vs {a['certified_diameter_mm']}: {v.conformity}"
+        )
     out["log"] = msg
     return out
 
 
 #: ``diameters.method`` of a rod hole measured with the design geometry (no gauge calibration)
-ROD_METHOD_NOMINAL = ROD_METHOD + " with the design base lengths: NOT TRACEABLE (rod never calibrated on ring gauges)"
+ROD_METHOD_NOMINAL = (
+    ROD_METHOD + " with the design base lengths: NOT TRACEABLE (rod never calibrated on ring gauges)"
+)
 
 
 def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root, night, clean) -> dict:
@@ -173,16 +231,42 @@ def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root
     vers = {}
     if row["kind"] == "verification":
         try:
-            vers = {v["feature"]: v for v in rod_calibration.rod_verifications(scan, res, cal_id, unc, lab, tol)}
+            vers = {
+                v["feature"]: v for v in rod_calibration.rod_verifications(scan, res, cal_id, unc, lab, tol)
+            }
         except ValueError as err:
-            quarantine(results_root, out["quarantined"], sid, night, "measure", "scan.json", f"rod verification: {err}")
+            quarantine(
+                results_root,
+                out["quarantined"],
+                sid,
+                night,
+                "measure",
+                "scan.json",
+                f"rod verification: {err}",
+            )
             return out
     notes = []
     for r in res:
         du = r["du"]
-        out["diameters"].append(_with_part(measure.diameter_row(
-            sid, dev, row["artifact_id"], r["feature"], r["diameter_mm"], du.combined_t.u, cal_id,
-            ROD_METHOD if r["traceable"] else ROD_METHOD_NOMINAL, du), meta, r["feature"], du, part))
+        out["diameters"].append(
+            _with_part(
+                measure.diameter_row(
+                    sid,
+                    dev,
+                    row["artifact_id"],
+                    r["feature"],
+                    r["diameter_mm"],
+                    du.combined_t.u,
+                    cal_id,
+                    ROD_METHOD if r["traceable"] else ROD_METHOD_NOMINAL,
+                    du,
+                ),
+                meta,
+                r["feature"],
+                du,
+                part,
+            )
+        )
         note = f"{r['feature']} {r['diameter_mm']:.4f} +- {du.combined_t.u * 1e3:.1f} um"
         v = vers.get(r["feature"])
         if v is not None:
@@ -192,8 +276,12 @@ def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root
             note += f" (error at 20 degC {v['error_mm'] * 1e3:+.2f} um: {'PASS' if v['passed'] else 'FAIL'})"
         notes.append(note)
     traceable = all(r["traceable"] for r in res)
-    out["log"] = (f"{sid}: " + ", ".join(notes) + (f" ({cal_id})" if traceable else " [design geometry, not traceable]")
-                  + _temperature_note(res[0]["du"].temperature if res else None))
+    out["log"] = (
+        f"{sid}: "
+        + ", ".join(notes)
+        + (f" ({cal_id})" if traceable else " [design geometry, not traceable]")
+        + _temperature_note(res[0]["du"].temperature if res else None)
+    )
     return out
 
 
@@ -207,8 +295,16 @@ def _with_part(row: dict, meta: dict, feature, du, part: dict) -> dict:
     """
     f = measure.part_feature(dict(meta.get("artifact") or {}), feature)
     tol = f["tolerance_mm"] if f["tolerance_mm"] is not None else part["default_tolerance_mm"]
-    row.update(measure.part_conformity(du.diameter_20_mm, du.combined_20.U, f["nominal_diameter_mm"],
-                                       None if tol is None else float(tol), part["rule"], part["guard_band_factor"]))
+    row.update(
+        measure.part_conformity(
+            du.diameter_20_mm,
+            du.combined_20.U,
+            f["nominal_diameter_mm"],
+            None if tol is None else float(tol),
+            part["rule"],
+            part["guard_band_factor"],
+        )
+    )
     return row
 
 

@@ -55,23 +55,43 @@ def pooled_rows(findings: dict, night: str, path: str) -> list[dict]:
     of the device model (``in_device_model``); one row with a null effect when there is neither.
     """
     absorbed = "; ".join(a["advice"] for a in findings.get("absorbed") or []) or None
-    base = {"night": night, "device_id": findings["device_id"], "nights": ",".join(findings["nights"]),
-            "scan_ids": ",".join(findings["scan_ids"]), "verdict": findings["verdict"],
-            "gap_before_mm": (findings.get("gap_before") or {}).get("rms_mm"),
-            "gap_after_mm": (findings.get("gap_after") or {}).get("rms_mm"),
-            "noise_floor_mm": findings.get("noise_floor_mm"), "absorbed": absorbed,
-            "device_model": ",".join(findings.get("device_model") or []) or None, "findings_path": path}
-    named = [(n, False) for n in findings.get("named") or []] + [(n, True) for n in findings.get("in_device_model") or []]
+    base = {
+        "night": night,
+        "device_id": findings["device_id"],
+        "nights": ",".join(findings["nights"]),
+        "scan_ids": ",".join(findings["scan_ids"]),
+        "verdict": findings["verdict"],
+        "gap_before_mm": (findings.get("gap_before") or {}).get("rms_mm"),
+        "gap_after_mm": (findings.get("gap_after") or {}).get("rms_mm"),
+        "noise_floor_mm": findings.get("noise_floor_mm"),
+        "absorbed": absorbed,
+        "device_model": ",".join(findings.get("device_model") or []) or None,
+        "findings_path": path,
+    }
+    named = [(n, False) for n in findings.get("named") or []] + [
+        (n, True) for n in findings.get("in_device_model") or []
+    ]
     if not named:
         return [dict(base, effect=None, channel=None, term=None, in_device_model=False)]
-    return [dict(base, effect=n.get("effect"), channel=n.get("channel"), term=n.get("term", n.get("effect")),
-                 group=n.get("group"), parameters=json.dumps(n.get("parameters") or {}, sort_keys=True),
-                 uncertainties=json.dumps(n.get("uncertainties") or {}, sort_keys=True),
-                 evidence_scans=",".join(n.get("scans") or []) or None, in_device_model=model)
-            for n, model in named]
+    return [
+        dict(
+            base,
+            effect=n.get("effect"),
+            channel=n.get("channel"),
+            term=n.get("term", n.get("effect")),
+            group=n.get("group"),
+            parameters=json.dumps(n.get("parameters") or {}, sort_keys=True),
+            uncertainties=json.dumps(n.get("uncertainties") or {}, sort_keys=True),
+            evidence_scans=",".join(n.get("scans") or []) or None,
+            in_device_model=model,
+        )
+        for n, model in named
+    ]
 
 
-def drift_rows(calibrations: pl.DataFrame, night: str, multiple: float, findings: dict[str, dict]) -> list[dict]:
+def drift_rows(
+    calibrations: pl.DataFrame, night: str, multiple: float, findings: dict[str, dict]
+) -> list[dict]:
     """Return the ``calibration_drift`` rows of ``night``.
 
     Return the ``calibration_drift`` rows of ``night`` (pairs whose later calibration is valid from
@@ -86,18 +106,37 @@ def drift_rows(calibrations: pl.DataFrame, night: str, multiple: float, findings
     for r in drift.iter_rows(named=True):
         e = why.get((r["device_id"], r["channel"], r["parameter"], r["calibration_id_after"]))
         if r["flagged"] and e is None:
-            e = {"explained_by": [], "explanation": (
-                f"{r['parameter']} of channel {r['channel']} moved by {r['change']:+.4g} "
-                f"({r['change_over_u']:+.1f} "
-                f"combined u); device {r['device_id']} has no pooled examination on night {night} "
-                "(fewer than two spindle scans of a certified gauge)")}
-        rows.append(dict(r, night=night, explained_by=",".join(e["explained_by"]) if e else None,
-                         explanation=e["explanation"] if e else None))
+            e = {
+                "explained_by": [],
+                "explanation": (
+                    f"{r['parameter']} of channel {r['channel']} moved by {r['change']:+.4g} "
+                    f"({r['change_over_u']:+.1f} "
+                    f"combined u); device {r['device_id']} has no pooled examination on night {night} "
+                    "(fewer than two spindle scans of a certified gauge)"
+                ),
+            }
+        rows.append(
+            dict(
+                r,
+                night=night,
+                explained_by=",".join(e["explained_by"]) if e else None,
+                explanation=e["explanation"] if e else None,
+            )
+        )
     return rows
 
 
-def stage_pooled(raw_root, night: str, results_root, scans_tables, calibration_tables, cfg: dict,
-                 devices: dict | None = None, log=print, workers: int = 1) -> tuple[pl.DataFrame, pl.DataFrame]:
+def stage_pooled(
+    raw_root,
+    night: str,
+    results_root,
+    scans_tables,
+    calibration_tables,
+    cfg: dict,
+    devices: dict | None = None,
+    log=print,
+    workers: int = 1,
+) -> tuple[pl.DataFrame, pl.DataFrame]:
     """Pooled examination of every three-sensor device of the window and the night's drift rows.
 
     ``scans_tables``: the ``scans`` stage tables of the window's nights (the night's last);
@@ -114,19 +153,39 @@ def stage_pooled(raw_root, night: str, results_root, scans_tables, calibration_t
         scans = scans.filter((pl.col("device_type") == "tri_lds") & pl.col("kind").is_in(POOLED_KINDS))
     jobs = []
     for (device,), g in scans.sort("night", "scan_id").group_by(["device_id"], maintain_order=True):
-        dirs = [Path(raw_root) / f"night={r['night']}" / f"scan={r['scan_id']}" for r in g.iter_rows(named=True)]
+        dirs = [
+            Path(raw_root) / f"night={r['night']}" / f"scan={r['scan_id']}" for r in g.iter_rows(named=True)
+        ]
         ref_kw, ref = discrepancy_reference(cals, device, "tri_lds", night)
         effects = device_model_effects(devices, device, night)
-        jobs.append((raw_root, night, str(pooled_dir(results_root, night)), device, dirs, ref_kw, ref, effects,
-                     settings))
+        jobs.append(
+            (
+                raw_root,
+                night,
+                str(pooled_dir(results_root, night)),
+                device,
+                dirs,
+                ref_kw,
+                ref,
+                effects,
+                settings,
+            )
+        )
     log(f"{len(jobs)} device(s) on {workers_for(len(jobs), workers)} process(es)")
     rows, findings = [], {}
     for (device, f, msg), cpu_s in map_timed(pooled_device, jobs, workers):
         log(msg)
         log(compute_line(device, cpu_s))
         if f is not None and "reason" in f:
-            rows.append({"night": night, "device_id": device, "verdict": "failed", "reason": f["reason"],
-                         "scan_ids": ",".join(f["scan_ids"])})
+            rows.append(
+                {
+                    "night": night,
+                    "device_id": device,
+                    "verdict": "failed",
+                    "reason": f["reason"],
+                    "scan_ids": ",".join(f["scan_ids"]),
+                }
+            )
         elif f is not None:
             findings[device] = f
             rows += pooled_rows(f, night, f"discrepancy/pooled/night={night}/{device}.json")
@@ -157,7 +216,15 @@ def pooled_device(job) -> tuple[str, dict | None, str]:
         return device, {"reason": reason, "scan_ids": ids}, f"{device}: {reason}"
     f = ex.findings
     f["reference"] = ref
-    atomic_write_text(Path(out_dir) / f"{device}.json", json.dumps(_clean(f), sort_keys=True, indent=2) + "\n")
+    atomic_write_text(
+        Path(out_dir) / f"{device}.json", json.dumps(_clean(f), sort_keys=True, indent=2) + "\n"
+    )
     named = ", ".join(n.get("term", n["effect"]) for n in f["named"])
-    return device, f, (f"{device} ({len(pooled)} scans vs {ref}): {f['verdict']}{': ' + named if named else ''} "
-                       f"(gap {f['gap_before']['rms_mm'] * 1e3:.2f} -> {f['gap_after']['rms_mm'] * 1e3:.2f} um)")
+    return (
+        device,
+        f,
+        (
+            f"{device} ({len(pooled)} scans vs {ref}): {f['verdict']}{': ' + named if named else ''} "
+            f"(gap {f['gap_before']['rms_mm'] * 1e3:.2f} -> {f['gap_after']['rms_mm'] * 1e3:.2f} um)"
+        ),
+    )

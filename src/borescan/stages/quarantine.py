@@ -14,8 +14,15 @@ from borescan import rawio, tables
 from borescan.atomic import atomic_write_text
 from borescan.catalog import STAGE_ORDER
 
-__all__ = ["Quarantined", "write_quarantine_record", "quarantine", "quarantine_frame", "quarantined_text",
-           "quarantine_record_name", "sync_quarantine_records"]
+__all__ = [
+    "Quarantined",
+    "write_quarantine_record",
+    "quarantine",
+    "quarantine_frame",
+    "quarantined_text",
+    "quarantine_record_name",
+    "sync_quarantine_records",
+]
 
 
 @dataclass(frozen=True)
@@ -50,7 +57,10 @@ def quarantine_record_name(scan_id: str, night: str) -> str:
 
 
 def _record_bytes(q: Quarantined) -> str:  # the record's text (deterministic)
-    return json.dumps(dict(asdict(q), message=f"{q.scan_id}: {q.file}: {q.reason}"), indent=2, sort_keys=True) + "\n"
+    return (
+        json.dumps(dict(asdict(q), message=f"{q.scan_id}: {q.file}: {q.reason}"), indent=2, sort_keys=True)
+        + "\n"
+    )
 
 
 def write_quarantine_record(results_root: str | Path, q: Quarantined) -> Path:
@@ -68,7 +78,11 @@ def write_quarantine_record(results_root: str | Path, q: Quarantined) -> Path:
         old = json.loads(path.read_text())
     except (OSError, ValueError):
         old = None
-    if isinstance(old, dict) and old.get("night") == q.night and _stage_rank(old.get("stage")) < _stage_rank(q.stage):
+    if (
+        isinstance(old, dict)
+        and old.get("night") == q.night
+        and _stage_rank(old.get("stage")) < _stage_rank(q.stage)
+    ):
         return path
     atomic_write_text(path, _record_bytes(q))
     return path
@@ -104,8 +118,9 @@ def sync_quarantine_records(results_root: str | Path, records: list[Quarantined]
     return written, removed
 
 
-def quarantine(results_root, records: list[Quarantined], scan_id: str, night: str, stage: str, file: str,
-               reason: str) -> None:
+def quarantine(
+    results_root, records: list[Quarantined], scan_id: str, night: str, stage: str, file: str, reason: str
+) -> None:
     """Set a scan aside: append its record to ``records`` and write its quarantine file."""
     q = Quarantined(scan_id, night, stage, file, reason)
     records.append(q)

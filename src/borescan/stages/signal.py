@@ -33,12 +33,18 @@ def signal_options(cfg: dict) -> dict:
     elif method == "gaussian":
         params["cutoff_upr"] = float(cfg["gaussian_cutoff_upr"])
     spikes = readings.cleaning_policy(cfg)  # the one spike policy of every stage that fits readings
-    return {"filter": method, "filter_params": params, "spike_threshold": spikes.spike_threshold_mad,
-            "spike_window_samples": spikes.spike_window_samples, "extrema_on": cfg["extrema_on"]}
+    return {
+        "filter": method,
+        "filter_params": params,
+        "spike_threshold": spikes.spike_threshold_mad,
+        "spike_window_samples": spikes.spike_window_samples,
+        "extrema_on": cfg["extrema_on"],
+    }
 
 
-def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log=print,
-                 workers: int = 1) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
+def stage_signal(
+    raw_root, night: str, results_root, scans_table, cfg: dict, log=print, workers: int = 1
+) -> tuple[pl.DataFrame, pl.DataFrame, list[Quarantined]]:
     """Revolutions, sub-sample extrema and per-channel summaries of every spindle scan of a night.
 
     Returns (extrema, summary, quarantined). The summary has one row per scan and channel with
@@ -48,8 +54,10 @@ def stage_signal(raw_root, night: str, results_root, scans_table, cfg: dict, log
     spread over ``workers`` processes.
     """
     opts = signal_options(cfg)
-    jobs = [(raw_root, night, results_root, d, opts)
-            for _, d in night_scans(raw_root, night, scans_table, device_type="tri_lds")]
+    jobs = [
+        (raw_root, night, results_root, d, opts)
+        for _, d in night_scans(raw_root, night, scans_table, device_type="tri_lds")
+    ]
     log(f"{len(jobs)} three-sensor scans on {workers_for(len(jobs), workers)} process(es)")
     extrema, summaries, bad = [], [], []
     for ((ext, summ, q, msg), cpu_s), job in zip(map_timed(signal_one, jobs, workers), jobs):
@@ -82,15 +90,21 @@ def signal_one(job) -> tuple[pl.DataFrame | None, pl.DataFrame | None, list[Quar
     try:
         extrema, summary, res = scan_summary(scan, mat, opts)
     except (ValueError, np.linalg.LinAlgError, IndexError) as err:
-        quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", f"signal stage failed: {err}")
+        quarantine(
+            results_root, bad, scan.scan_id, night, "signal", "lds.parquet", f"signal stage failed: {err}"
+        )
         return None, None, bad, None
     recorded, with_extrema = summary_revolutions(summary)
-    msg = (f"{scan.scan_id}: {recorded} whole revolutions recorded, {with_extrema} with every channel's "
-           f"extremum, {res.period.samples_per_rev:.3f} samples/rev ({res.period.source})")
+    msg = (
+        f"{scan.scan_id}: {recorded} whole revolutions recorded, {with_extrema} with every channel's "
+        f"extremum, {res.period.samples_per_rev:.3f} samples/rev ({res.period.source})"
+    )
     return extrema, summary, bad, msg
 
 
-def scan_summary(scan: rawio.RawScan, mat, opts: dict) -> tuple[pl.DataFrame, pl.DataFrame, signal.SignalResult]:
+def scan_summary(
+    scan: rawio.RawScan, mat, opts: dict
+) -> tuple[pl.DataFrame, pl.DataFrame, signal.SignalResult]:
     """Run the signal stage on one spindle scan (extrema, summary rows per channel, the result).
 
     ``mat`` is its :func:`borescan.rawio.lds_matrix`, ``opts`` :func:`signal_options`. Return (extrema,
@@ -101,7 +115,13 @@ def scan_summary(scan: rawio.RawScan, mat, opts: dict) -> tuple[pl.DataFrame, pl
     frames = res.to_frames()
     period = {(k if k.startswith("period_") else f"period_{k}"): v for k, v in res.period.to_dict().items()}
     feats = signal.feature_points(frames["extrema"], res.period.samples_per_rev).select(
-        "channel", "feature_sample", "u_feature_sample")
-    summary = frames["summary"].join(feats, on="channel", how="left").with_columns(
-        n_samples_recorded=pl.lit(mat.values_mm.shape[0]), **{k: pl.lit(v) for k, v in period.items()})
+        "channel", "feature_sample", "u_feature_sample"
+    )
+    summary = (
+        frames["summary"]
+        .join(feats, on="channel", how="left")
+        .with_columns(
+            n_samples_recorded=pl.lit(mat.values_mm.shape[0]), **{k: pl.lit(v) for k, v in period.items()}
+        )
+    )
     return frames["extrema"], summary, res
