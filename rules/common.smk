@@ -41,7 +41,7 @@ for _device in config["devices"] or {}:  # a mistyped device-model entry stops t
 
 
 def night_setting(*keys):
-    """A rule parameter: the setting ``keys`` (e.g. "verification") of the job's night (NIGHT_SETTINGS);
+    """The setting ``keys`` (e.g. "verification") of the job's night (NIGHT_SETTINGS), for a rule's params;
     None where the night's record has no such key (recorded before the setting existed)."""
 
     def of_night(wildcards):

@@ -1974,11 +1974,16 @@ class _Builder:
                     _verdict_is(DOES_NOT_CONFORM)
                     | (~pl.col("in_tolerance").fill_null(True) & pl.col("conformity").is_null())
                 )
+            # in the order of the scans and their gauges or features, whatever the catalog's row order
+            # (a night appended to the catalog and a rebuilt catalog give the same page)
             undecided = [
                 r
                 for df in (v_n, p_n)
                 if df is not None and df.height and "conformity" in df.columns
-                for r in df.filter(_verdict_is(CANNOT_DECIDE)).iter_rows(named=True)
+                for r in sorted(
+                    df.filter(_verdict_is(CANNOT_DECIDE)).iter_rows(named=True),
+                    key=lambda r: (str(r.get("scan_id")), str(r.get("artifact_id")), str(r.get("feature"))),
+                )
             ]
             person = (
                 f_n.filter(pl.col("verdict").is_in(["missing_effect", "ambiguous"])) if f_n.height else f_n
