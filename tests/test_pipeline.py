@@ -537,11 +537,12 @@ def test_the_demo_closes_the_loop(pipeline_run):
 
 
 def _assert_equal_within_uncertainty(a, b, table: str) -> None:
-    """Every non-float column equal; a float column X with a column u_X within 1e-6 u_X (a millionth of
-    its standard uncertainty); an uncertainty u_X itself to a relative 1e-6 (a u is known to a few per
-    cent at best); any other float column to a relative 1e-9 (0.1 nm on 100 mm); all of them at least to
-    1e-12 (a value at zero, such as the period's uncertainty of a scan whose revolutions all have the same
-    length).
+    """Check every non-float column equal and every float column within its uncertainty.
+
+    A float column X with a column u_X within 1e-6 u_X (a millionth of its standard uncertainty); an
+    uncertainty (u_X, expanded_u_X; known to a few per cent at best) and any other float column to a
+    relative 1e-6; all of them at least to 1e-12 (a value at zero, such as the period's uncertainty of a
+    scan whose revolutions all have the same length).
     """
     import numpy as np
     import polars as pl
@@ -568,7 +569,9 @@ def _assert_equal_within_uncertainty(a, b, table: str) -> None:
             tol = 1e-6 * np.abs(b[f"u_{col}"].to_numpy().astype(float))
             tol = np.where(np.isfinite(tol), tol, 1e-9 * np.abs(y))
         else:
-            tol = (1e-6 if col.startswith("u_") else 1e-9) * np.abs(y) + 1e-12  # 1e-12 of a mm, rad or sample
+            tol = (
+                1e-6 * np.abs(y) + 1e-12
+            )  # an uncertainty (u_, expanded_u_) or a value without one; 1e-12 floor
         diff = np.abs(x - y)
         assert np.all(diff[ok] <= tol[ok]), (table, col, float(np.max(diff[ok] - tol[ok])))
 
