@@ -1,6 +1,6 @@
-"""Three-sensor calibration over the whole contract: >= 200 effect-free scans of borescan.scenarios.
+"""Three-sensor calibration over the whole contract: >= 200 effect-free scans of borescan.synthetic.
 
-Every scan of a fixed-seed contract battery (:func:`borescan.scenarios.write_battery`, written to a
+Every scan of a fixed-seed contract battery (:func:`borescan.synthetic.battery.write_battery`, written to a
 temporary folder) is calibrated by the pipeline's own path,
 ``borescan.stages.calibration_fit.calibrate_raw_scans([rawio.read_scan(path)], cfg["calibration"])`` with the
 validated default config (config/config.yaml, schema defaults filled in). Printed, against the
@@ -12,7 +12,7 @@ acceptance of the issue "A battery over the whole contract":
   the first channel's beta (``diagnostics["beta_reference"] == "channel <c> fixed"``) the
   compared quantity is beta_c - beta_<c> (its variance from ``cov``); with ``"absolute"`` beta itself;
 - u / CRB, the Cramer-Rao bound sigma^2 (J^T J + prior)^-1 of the exact model at the truth (J by
-  central differences of :func:`borescan.simulate.tri_readings` over the beams and the
+  central differences of :func:`borescan.synthetic.scenes.tri_readings` over the beams and the
   nuisance the angle source implies: offset o = S - C always, the phase where the calibration
   frees it, the speed scale without an encoder; beta gauge as the calibration's), on the
   readings that were written (not null). The prior on o where scan.json gives the positions:
@@ -120,7 +120,7 @@ def crb_cov(  # noqa: C901 (one block per parameter kind of the CRB's Jacobian)
 
     Parameters (in this order, the fixed ones left out): beta_c (where ``free_beta``), rho_c,
     d_b_c, o = S - C (2), phase (``free_phase``), speed scale (``free_scale``). J by central
-    differences of :func:`borescan.simulate.tri_readings` (d_b analytically: -1) on the samples
+    differences of :func:`borescan.synthetic.scenes.tri_readings` (d_b analytically: -1) on the samples
     ``mask`` (n, c); information J^T J / sigma^2 plus 1 / prior_sigma^2 on o when given.
     Gauge-fixed betas get zero rows/columns.
     """
@@ -128,7 +128,7 @@ def crb_cov(  # noqa: C901 (one block per parameter kind of the CRB's Jacobian)
 
     from borescan.effects import Effect
     from borescan.geometry import Beams
-    from borescan.simulate import tri_readings
+    from borescan.synthetic.scenes import tri_readings
 
     c = len(scene.beams.channels)
     C = np.asarray(scene.bore_center_xy_mm, float)
@@ -216,7 +216,8 @@ def fitted_readings(cal, scan, t_s: np.ndarray, R_mm: float) -> np.ndarray:
 def evaluate_scan(job: tuple) -> dict:
     """Calibrate one scan and compare with its truth (the row the table is made of)."""
     path, truth_root, cal_cfg = job
-    from borescan import calibration, rawio, simulate
+    from borescan import calibration, rawio
+    from borescan.synthetic import scenes, simulate
     from borescan.artifacts import gauge_radius_mm
     from borescan.stages.calibration_fit import calibrate_raw_scans
 
@@ -243,7 +244,7 @@ def evaluate_scan(job: tuple) -> dict:
         return row
     row["seconds"] = time.perf_counter() - t0
     row["accepted"] = True
-    scene = simulate.TriScene.from_dict(truth["scene"])
+    scene = scenes.TriScene.from_dict(truth["scene"])
     c = len(scene.beams.channels)
     tb = scene.beams
     true_p = np.stack([tb.beta_rad, tb.rho_mm, tb.d_b_mm], axis=1).ravel()
@@ -317,7 +318,7 @@ def evaluate_scan(job: tuple) -> dict:
         row["crb_error"] = str(e)
     # wrong-minimum check over every reading written
     R = gauge_radius_mm(scan.meta)
-    v_true = simulate.tri_readings(scene, t_s)
+    v_true = scenes.tri_readings(scene, t_s)
     ssr_true = float(np.sum((y - v_true)[mask] ** 2))
     try:
         v_fit = fitted_readings(cal, scan, t_s, R)
@@ -358,14 +359,14 @@ def run(
     Write the battery (temp folder unless ``out_dir``; only the scan indices ``only`` if given),
     calibrate every scan; per-scan rows.
     """
-    from borescan import scenarios
+    from borescan.synthetic import battery
 
     workers = workers or min(2, os.cpu_count() or 1)
     cal_cfg = default_calibration_config()
     with tempfile.TemporaryDirectory(prefix="contract-") as tmp:
         base = Path(out_dir) if out_dir else Path(tmp)
         t0 = time.perf_counter()
-        paths = scenarios.write_battery(base, n, seed, only=only)
+        paths = battery.write_battery(base, n, seed, only=only)
         n = len(paths)
         print(f"battery: {n} scans, seed {seed}, written in {time.perf_counter() - t0:.1f} s", flush=True)
         jobs = [(str(p), str(base / "truth"), cal_cfg) for p in paths]

@@ -1,6 +1,6 @@
 """A night drawn over the whole contract, raw to report with ``snakemake --cores 2`` (issue 38).
 
-The night is written by ``borescan simulate contract`` (:func:`borescan.scenarios.write_battery`):
+The night is written by ``borescan simulate contract`` (:func:`borescan.synthetic.battery.write_battery`):
 N scans of each kind (default N = 24, 120 scans) on one night: three-sensor ring-gauge
 calibrations (one device each; one or two speeds, encoder or not, a channel leaving its range,
 nulls), rotating measurements of parts on those devices, static three-sensor sets (ring gauges

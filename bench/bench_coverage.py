@@ -1,7 +1,7 @@
 """Coverage of the GUM budgets: >= 200 simulated calibrate-then-measure chains over the contract.
 
 Each chain (fixed seed, chain i from its own child seed) draws a three-sensor ring-gauge
-calibration scan over the whole contract (:func:`borescan.scenarios.draw_tri_calibration`) and
+calibration scan over the whole contract (:func:`borescan.synthetic.tri_scenarios.draw_tri_calibration`) and
 then draws, from the distributions the budget states, everything the pipeline takes as known:
 
 - the gauge: its true temperature T_g uniform in 18-22 degC (the scene's radius is the gauge at
@@ -78,15 +78,16 @@ def _sensors(meta: dict, lin_fs: float, noise_mm: float) -> list[dict]:
 
 def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
     """Write chain i's calibration and measurement scans (raw) and return its truth."""
-    from borescan import geometry, scenarios, simulate
+    from borescan import geometry
+    from borescan.synthetic import battery, scenes, simulate, tri_scenarios
 
     unc = cfg["uncertainty"]
-    rng = scenarios.battery_rng(seed, i)
-    sid = scenarios.battery_scan_id(seed, i)
+    rng = battery.battery_rng(seed, i)
+    sid = battery.battery_scan_id(seed, i)
     night = "2027-02-01"
-    sim = scenarios.draw_tri_calibration(rng, scan_id=sid, night=night)
+    sim = tri_scenarios.draw_tri_calibration(rng, scan_id=sid, night=night)
     ct = sim.truth["contract"]
-    scene = simulate.TriScene.from_dict(sim.truth["scene"])
+    scene = scenes.TriScene.from_dict(sim.truth["scene"])
     beams = scene.beams
     rng2 = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(i), 1)))
     a_T, a_a = float(unc["temperature_accuracy_c"]), float(unc["cte_accuracy_per_k"])

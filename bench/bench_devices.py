@@ -72,7 +72,7 @@ def run(raw: Path, results: Path, *args: str) -> subprocess.CompletedProcess:
 def main() -> None:
     """Time a night of many devices through the workflow on each number of cores."""
     from bench.bench_pipeline import job_times, union_seconds
-    from borescan import demo
+    from borescan.synthetic import demo
 
     n_devices = int(os.environ.get("BENCH_DEVICES", "20"))
     cores_list = [int(c) for c in os.environ.get("BENCH_DEVICES_CORES", "1,2").split(",")]

@@ -1,10 +1,10 @@
 """Discrepancy workflow on the widened battery: scans drawn over everything the contract allows.
 
-Three-sensor scans come from :func:`borescan.scenarios.draw_tri_calibration` (bore 75-200 mm,
+Three-sensor scans come from :func:`borescan.synthetic.tri_scenarios.draw_tri_calibration` (bore 75-200 mm,
 any beam directions and offsets, speed ramps, encoder or rpm profile, nulls, a channel leaving
 its range; ~20 % effect-free, the rest with one named effect from
 :func:`borescan.discrepancy.battery.random_effect`). Rod scans come from
-:func:`borescan.scenarios.draw_rod_scan` (2-3 holes of 100-200 mm, 8-40 poses, 5-30 readings per
+:func:`borescan.synthetic.rod_scenarios.draw_rod_scan` (2-3 holes of 100-200 mm, 8-40 poses, 5-30 readings per
 pose, noise 2-20 um, eccentricity up to 2.5 mm, deflection up to 1 deg; half in ring-gauge sets
 with certified diameters, half in parts with nominal ones, whose radii are then free), ~20 % effect-free, the
 rest with one rod-applicable
@@ -86,7 +86,8 @@ def score(verdict: str, named: list[str], truth: list[str], kind: str = "tri", s
 
 def _tri_case(seed: int, i: int, effect_free: bool, reference: str):
     from borescan.geometry import Beams
-    from borescan.scenarios import battery_rng, battery_scan_id, draw_tri_calibration
+    from borescan.synthetic.battery import battery_rng, battery_scan_id
+    from borescan.synthetic.tri_scenarios import draw_tri_calibration
 
     rng = battery_rng(seed, i)
     sim = draw_tri_calibration(
@@ -107,7 +108,9 @@ def _tri_case(seed: int, i: int, effect_free: bool, reference: str):
 
 
 def _rod_case(seed: int, i: int, effect_free: bool, noise_free: bool = False):
-    from borescan.scenarios import ROD_CONTRACT, battery_rng, draw_rod_scan
+    from borescan.synthetic.battery import battery_rng
+    from borescan.synthetic.contract import ROD_CONTRACT
+    from borescan.synthetic.rod_scenarios import draw_rod_scan
 
     contract = dict(ROD_CONTRACT, noise_mm=(0.0, 0.0)) if noise_free else ROD_CONTRACT
     rng = battery_rng(seed + 100_000, i)

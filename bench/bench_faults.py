@@ -288,7 +288,7 @@ def _killed_run(checkout: Path, demo_raw: Path, tmp: Path) -> Outcome:
 
 def main() -> None:
     """Run the input and processing fault batteries on the demo nights and print one line per case."""
-    from borescan import demo
+    from borescan.synthetic import demo
 
     with tempfile.TemporaryDirectory(prefix="bench-faults-") as t:
         tmp = Path(t)

@@ -1,7 +1,7 @@
 """A year of nights at the cost of one (issue 21): catalog and report per added night vs history.
 
 A synthetic year is made cheaply from the processed demo nights
-(:mod:`borescan.synthetic_history`: their stage tables copied under new nights and ids; every
+(:mod:`borescan.synthetic.history`: their stage tables copied under new nights and ids; every
 synthetic night holds both demo nights, 18 scans of 2 devices, the same work each night;
 ``BENCH_HISTORY_COPIES=2`` doubles the devices).
 Then night k is added to a history of k-1 nights, for k = 2, 30, 120, 365, and the two history
@@ -41,7 +41,7 @@ TARGET_QUERY_S = 1.0
 
 def demo_results(tmp: Path) -> Path:
     """Return the demo's two nights processed up to the catalog (stage tables, certificates, findings)."""
-    from borescan import demo
+    from borescan.synthetic import demo
 
     demo.make_demo(tmp / "demo")
     results = tmp / "demo-results"
@@ -115,7 +115,7 @@ def add_night(results: Path, pool: Path, night: str) -> tuple[float, float, floa
 def main() -> None:
     """Time the catalog's queries and the report on a synthetic history of many nights."""
     from borescan import catalog, report
-    from borescan import synthetic_history as sh
+    from borescan.synthetic import history as sh
 
     n_nights = int(os.environ.get("BENCH_HISTORY_NIGHTS", "365"))
     copies = int(os.environ.get("BENCH_HISTORY_COPIES", "1"))

@@ -66,8 +66,9 @@ def draw(seed: int, i: int) -> dict:
     """Scenario ``i``: the device, its hidden effect, night 1 and night 2 scans (not yet written)."""
     from borescan.discrepancy.battery import random_effect
     from borescan.geometry import Beams
-    from borescan.scenarios import battery_rng
-    from borescan.simulate import TriScene, simulate_tri_static
+    from borescan.synthetic.battery import battery_rng
+    from borescan.synthetic.scenes import TriScene
+    from borescan.synthetic.simulate import simulate_tri_static
 
     rng = battery_rng(seed + 700_000, i)
     free = i % 4 == 3
@@ -213,7 +214,8 @@ def _verification(ver_scan, cal, cfg: dict) -> float | None:
 
 def run_one(job: tuple) -> dict:
     """Run one closed loop (hidden effect, pooled finding, device model, calibration); return its row."""
-    from borescan import rawio, simulate
+    from borescan import rawio
+    from borescan.synthetic import simulate
     from borescan.config import schema_defaults
     from borescan.discrepancy.examine import discrepancy_settings
     from borescan.discrepancy.pooled import examine_pooled, pooled_scan

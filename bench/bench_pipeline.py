@@ -33,18 +33,18 @@ def make_night(raw: Path, truth: Path, n_tri: int, n_rod: int) -> int:
     """Write the reference night; returns the number of readings."""
     import numpy as np
 
-    from borescan import demo, simulate
+    from borescan.synthetic import demo, scenes, simulate
 
-    base = simulate.default_tri_scene()
+    base = scenes.default_tri_scene()
     readings = 0
     for i in range(n_tri):
         cal = i < 4
         if cal:
-            scene = replace(base, spindle_xy_mm=simulate.YANG_P1_XY_MM, phase_rad=0.3 * i)
+            scene = replace(base, spindle_xy_mm=scenes.YANG_P1_XY_MM, phase_rad=0.3 * i)
             kw = dict(
                 artifact=demo.RG275,
                 spindle_label="P1",
-                center_xy_mm=simulate.YANG_P0_XY_MM,
+                center_xy_mm=scenes.YANG_P0_XY_MM,
                 kind="calibration",
             )
         else:
@@ -81,7 +81,7 @@ def make_night(raw: Path, truth: Path, n_tri: int, n_rod: int) -> int:
         readings += sim.lds.height
     for j in range(n_rod):
         sim = simulate.simulate_rod(
-            simulate.default_rod_scene(),
+            scenes.default_rod_scene(),
             n_poses=24,
             samples_per_pose=5,
             artifact={"id": f"CYL-{j}", "type": "part", "nominal_diameter_mm": 150.0, "cte_per_k": 11.5e-6},

@@ -1,7 +1,7 @@
 """Pooled examination of several scans of one device against examining each scan alone.
 
 Each scenario draws one three-sensor device over the contract's ranges
-(:data:`borescan.scenarios.TRI_CONTRACT`: beam directions at least 20 deg apart, |rho| <= 15 mm,
+(:data:`borescan.synthetic.contract.TRI_CONTRACT`: beam directions at least 20 deg apart, |rho| <= 15 mm,
 gauge radius 75-200 mm, sensor ranges 6-10 mm, noise 1-4 um, encoder or commanded angle) and
 several ring-gauge spindle scans of it with one hidden effect, in one of three designs:
 
@@ -81,7 +81,7 @@ MAX_SAMPLES = int(schema_defaults()["discrepancy"]["pooled_max_samples"])
 def _device(rng):
     """Beams, gauge radius, sensor ranges of one device (the contract's ranges)."""
     from borescan.geometry import Beams
-    from borescan.scenarios import TRI_CONTRACT, draw_beam_directions, reading_span_mm
+    from borescan.synthetic.contract import TRI_CONTRACT, draw_beam_directions, reading_span_mm
 
     R = float(rng.uniform(*TRI_CONTRACT["bore_radius_mm"]))
     beta = draw_beam_directions(rng, 3, TRI_CONTRACT["min_beam_separation_rad"])
@@ -163,7 +163,8 @@ def spindle_scans(
     Return the ring-gauge spindle scans of one design (:func:`_designs` rows, 12 revolutions each, scan
     ``<tag>-<k>``); the hidden ``effect`` in every scan, or only in scan ``run_scan`` when given.
     """
-    from borescan.simulate import TriScene, simulate_tri_spindle
+    from borescan.synthetic.scenes import TriScene
+    from borescan.synthetic.simulate import simulate_tri_spindle
 
     art = gauge_artifact(R)
     sims = []
@@ -207,7 +208,7 @@ def spindle_scans(
 def draw_scenario(seed: int, i: int) -> dict:
     """Scenario ``i`` of battery ``seed``: the simulated scans, the hidden effect, the design."""
     from borescan.discrepancy.battery import random_effect
-    from borescan.scenarios import battery_rng
+    from borescan.synthetic.battery import battery_rng
     from borescan.geometry import Beams
 
     rng = battery_rng(seed + 500_000, i)

@@ -21,13 +21,13 @@ import numpy as np
 
 from borescan.geometry import rod_readings
 from borescan.rod import RodSolveError, rod_cost_mm2, rod_crb, solve_rod
-from borescan.scenarios import draw_rod_geometry
+from borescan.synthetic.rod_scenarios import draw_rod_geometry
 
 
 def draw_scan(rng: np.random.Generator) -> dict:
     """Return one effect-free rod scan over the contract.
 
-    One effect-free rod scan over the contract (:func:`borescan.scenarios.draw_rod_geometry`);
+    One effect-free rod scan over the contract (:func:`borescan.synthetic.rod_scenarios.draw_rod_geometry`);
     pose-mean readings.
     """
     g = draw_rod_geometry(rng)
@@ -89,7 +89,8 @@ def run_contract(n_scans: int = 240, seed: int = 2017) -> dict:
 def run_discrepancy(n_scans: int = 20, seed: int = 7) -> Counter:
     """Verdicts of the discrepancy workflow on effect-free simulated rod scans (contract-like scenes)."""
     from borescan.discrepancy import examine_scan
-    from borescan.simulate import RodScene, simulate_rod
+    from borescan.synthetic.scenes import RodScene
+    from borescan.synthetic.simulate import simulate_rod
 
     rng = np.random.default_rng(seed)
     out = Counter()

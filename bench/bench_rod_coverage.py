@@ -1,7 +1,7 @@
 """Coverage of a rod's GUM budget: calibrate-then-measure chains on certified ring gauges, over the contract.
 
 Each chain (fixed seed, chain i from its own child seed) draws one measuring rod over the
-contract (:func:`borescan.scenarios.draw_rod_geometry`: 2-3 layers 100-300 mm apart, beam angle,
+contract (:func:`borescan.synthetic.rod_scenarios.draw_rod_geometry`: 2-3 layers 100-300 mm apart, beam angle,
 offset and tilt of a real rod, 30 mm sensors mid-range, noise 2-20 um) whose design in scan.json
 has each base length l0 off the truth by U(+-30 um) and phi = d = gamma = 0, and three holds of it
 (each its own eccentricity up to 2.5 mm, deflection up to 1 deg, 8-40 poses at random angles,
@@ -66,14 +66,15 @@ def _hold(rng, layers, d20_mm, T_c, kind, scan_id, artifact, design, sensors, ba
     """
     import polars as pl
 
-    from borescan import rawio, scenarios, simulate
+    from borescan import rawio
+    from borescan.synthetic import rod_scenarios, scenes, simulate
     from borescan.effects import Effect
     from borescan.geometry import Hole
 
-    g = scenarios.draw_rod_geometry(rng)
+    g = rod_scenarios.draw_rod_geometry(rng)
     m = len(layers)
     holes = tuple(Hole(tuple(float(x) for x in rng.uniform(-0.05, 0.05, 2)), float(d) / 2) for d in d20_mm)
-    scene = simulate.RodScene(
+    scene = scenes.RodScene(
         layers=tuple(layers),
         holes=holes,
         axis=g["axis"],
@@ -124,13 +125,14 @@ def _hold(rng, layers, d20_mm, T_c, kind, scan_id, artifact, design, sensors, ba
 def run_chain(job) -> dict:
     """One calibrate-then-measure-then-verify chain: its z-scores and coverage flags."""
     i, seed, cfg = job
-    from borescan import rod_calibration, scenarios
+    from borescan import rod_calibration
+    from borescan.synthetic import rod_scenarios
     from borescan.artifacts import artifact_cte, radius_at_temperature_mm, scan_temperature
     from borescan.atomic import json_ready
 
     unc = cfg["uncertainty"]
     rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(i),)))
-    g = scenarios.draw_rod_geometry(rng)
+    g = rod_scenarios.draw_rod_geometry(rng)
     r = np.array([hh.radius_mm for hh in g["holes"]])
     true = tuple(replace(lay, l0_mm=float(rr - 15.0)) for lay, rr in zip(g["layers"], r))
     design = tuple(

@@ -214,10 +214,10 @@ def make_stage_cases(raw_root: Path, truth_root: Path, night: str) -> tuple[list
     """
     from dataclasses import replace
 
-    from borescan import demo, simulate
+    from borescan.synthetic import demo, scenes, simulate
 
     cases: list[BadCase] = []
-    base = simulate.default_tri_scene()
+    base = scenes.default_tri_scene()
     started = simulate.started_at_plus(night, 23, 0)
     ring = dict(demo.RG275)
 
@@ -225,14 +225,14 @@ def make_stage_cases(raw_root: Path, truth_root: Path, night: str) -> tuple[list
         simulate.write_simulated(sim, raw_root, truth_root)
 
     # Too few revolutions to calibrate (2 < min_revolutions).
-    scene = replace(base, spindle_xy_mm=simulate.YANG_P1_XY_MM)
+    scene = replace(base, spindle_xy_mm=scenes.YANG_P1_XY_MM)
     write(
         simulate.simulate_tri_spindle(
             scene,
             n_rev=2,
             artifact=ring,
             spindle_label="P1",
-            center_xy_mm=simulate.YANG_P0_XY_MM,
+            center_xy_mm=scenes.YANG_P0_XY_MM,
             nominal_beams=demo.NOMINAL_BEAMS,
             scan_id="BAD-FEW-REVOLUTIONS",
             night=night,
@@ -245,14 +245,14 @@ def make_stage_cases(raw_root: Path, truth_root: Path, night: str) -> tuple[list
 
     # A calibration that cannot converge: the spindle turns at the gauge centre, so the readings
     # are constant and the beam geometry is undetermined (device TRI-02, nothing else calibrates it).
-    scene = replace(base, spindle_xy_mm=simulate.YANG_P0_XY_MM)
+    scene = replace(base, spindle_xy_mm=scenes.YANG_P0_XY_MM)
     write(
         simulate.simulate_tri_spindle(
             scene,
             n_rev=8,
             artifact=ring,
             spindle_label="P0",
-            center_xy_mm=simulate.YANG_P0_XY_MM,
+            center_xy_mm=scenes.YANG_P0_XY_MM,
             nominal_beams=demo.NOMINAL_BEAMS,
             scan_id="BAD-CAL-NO-CONVERGENCE",
             night=night,
@@ -290,7 +290,7 @@ def make_stage_cases(raw_root: Path, truth_root: Path, night: str) -> tuple[list
     # Too few rod poses for Wang Eq. 16 (2 holes need 3m + n - 1 <= mn, i.e. n >= 5).
     write(
         simulate.simulate_rod(
-            simulate.default_rod_scene(),
+            scenes.default_rod_scene(),
             n_poses=3,
             samples_per_pose=3,
             artifact=dict(part, id="CYL-X"),

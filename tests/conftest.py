@@ -12,7 +12,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from bad_inputs import make_bad_scans, make_stage_cases  # noqa: E402
 
-from borescan import demo, rawio  # noqa: E402
+from borescan import rawio
+from borescan.synthetic import demo  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = Path(sys.executable).with_name("snakemake")

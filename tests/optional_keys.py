@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from borescan import demo, simulate
+from borescan.synthetic import demo, scenes, simulate
 
 NIGHT = "2026-11-20"
 
@@ -83,16 +83,16 @@ def base_scans() -> list[simulate.SimulatedScan]:
     """Return the night's complete scans: every optional key present where the scan kind has it."""
     rng = np.random.default_rng(37)
     started = iter(simulate.started_at_plus(NIGHT, 22, 2 * i) for i in range(1000))
-    base = simulate.default_tri_scene(temperature_c=20.0, cte_per_k=demo.CTE_STEEL_PER_K)
+    base = scenes.default_tri_scene(temperature_c=20.0, cte_per_k=demo.CTE_STEEL_PER_K)
     out = []
-    scene = replace(base, spindle_xy_mm=simulate.YANG_P1_XY_MM)
+    scene = replace(base, spindle_xy_mm=scenes.YANG_P1_XY_MM)
     out.append(
         simulate.simulate_tri_spindle(
             scene,
             n_rev=6,
             artifact=demo.RG275,
             spindle_label="P1",
-            center_xy_mm=tuple(simulate.YANG_P0_XY_MM),
+            center_xy_mm=tuple(scenes.YANG_P0_XY_MM),
             nominal_beams=demo.NOMINAL_BEAMS,
             scan_id="OPT-TRI-CAL",
             night=NIGHT,
@@ -199,7 +199,7 @@ def base_scans() -> list[simulate.SimulatedScan]:
         n_rev=3,
         artifact=demo.RG275,
         spindle_label="P1",
-        center_xy_mm=tuple(simulate.YANG_P0_XY_MM),
+        center_xy_mm=tuple(scenes.YANG_P0_XY_MM),
         nominal_beams=demo.NOMINAL_BEAMS,
         scan_id="OPT-SHORT-NO-NOMINAL",
         night=NIGHT,

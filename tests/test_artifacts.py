@@ -140,9 +140,9 @@ def test_a_gauge_set_keeps_each_rings_certified_value():
 
 
 def _gauge_scan(raw, truth, sid, night, diameter_mm, cert):
-    from borescan import simulate
+    from borescan.synthetic import scenes, simulate
 
-    scene = simulate.default_tri_scene()
+    scene = scenes.default_tri_scene()
     art = {
         "id": "RG-275",
         "type": "ring_gauge",

@@ -49,10 +49,10 @@ def test_very_large_scan_is_read_with_bounded_memory(tmp_path):
     import subprocess
     import sys
 
-    from borescan import simulate
+    from borescan.synthetic import scenes, simulate
 
     sim = simulate.simulate_tri_spindle(
-        simulate.default_tri_scene(),
+        scenes.default_tri_scene(),
         n_rev=600,
         scan_id="HUGE",
         night="2026-11-22",

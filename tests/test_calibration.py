@@ -436,7 +436,8 @@ def _twin_scan(scene, *, encoder, n_rev=20, seed=0, effects=(), noise_mm=0.003, 
     """
     import polars as pl
 
-    from borescan import kinematics, simulate
+    from borescan import kinematics
+    from borescan.synthetic import simulate
 
     sim = simulate.simulate_tri_spindle(
         scene,
@@ -467,12 +468,12 @@ def _twin_scan(scene, *, encoder, n_rev=20, seed=0, effects=(), noise_mm=0.003, 
 def _contract_scene(**kw):
     from dataclasses import replace
 
-    from borescan import simulate
+    from borescan.synthetic import scenes
 
     beams = Beams(
         (1, 2, 3), np.array([0.9, 2.9, 5.1]), np.array([7.2, -3.1, 0.8]), np.array([96.8, 99.0, 98.3])
     )
-    scene = simulate.default_tri_scene(
+    scene = scenes.default_tri_scene(
         beams=beams,
         bore_radius_20_mm=101.5,
         bore_center_xy_mm=(10.0, -4.0),

@@ -1,6 +1,6 @@
 """The full-data calibration never accepts a wrong minimum (issue 17, item 4).
 
-Contract scans drawn by :func:`borescan.scenarios.write_battery` (fixed seeds), calibrated by the
+Contract scans drawn by :func:`borescan.synthetic.battery.write_battery` (fixed seeds), calibrated by the
 pipeline's own path. The accepted solution must be the global minimum of what the fit minimises,
 SSR + prior penalty, as far as the truth can show it: the truth (in the fit's gauge) is a feasible
 point, so the accepted cost can exceed its cost by no more than the optimizer's tolerance (the
@@ -16,7 +16,8 @@ import math
 import numpy as np
 import pytest
 
-from borescan import rawio, scenarios, simulate
+from borescan import rawio
+from borescan.synthetic import battery, scenes, simulate
 from borescan.config import schema_defaults
 from borescan.geometry import Beams
 from borescan.noise import noise_floor_mm
@@ -24,7 +25,7 @@ from borescan.stages.calibration_fit import fit_device_calibration, spindle_inpu
 
 
 def _calibrate(tmp_path, seed: int, n: int, index: int):
-    path = scenarios.write_battery(tmp_path, n, seed, only=[index])[0]
+    path = battery.write_battery(tmp_path, n, seed, only=[index])[0]
     scan = rawio.read_scan(path)
     truth = simulate.load_truth(tmp_path / "truth", scan.scan_id)
     cfg = schema_defaults()["calibration"]
@@ -55,11 +56,11 @@ def _cost_at_truth(truth, cfg, x) -> tuple[float, float, float]:
     The truth with beta_1 moved to the fit's fixed value and the phase moved back by as much gives
     the same readings: it is a point of the fit's own parameter space.
     """
-    scene = simulate.TriScene.from_dict(truth["scene"])
+    scene = scenes.TriScene.from_dict(truth["scene"])
     ct = truth["contract"]
     y = x["readings"]
     m = np.isfinite(y)
-    v_true = simulate.tri_readings(scene, x["t_s"])
+    v_true = scenes.tri_readings(scene, x["t_s"])
     ssr = float(np.sum((y - v_true)[m] ** 2))
     sigma2 = float(np.mean(noise_floor_mm(y, order=4) ** 2))
     penalty = 0.0

@@ -13,7 +13,7 @@ import pytest
 from test_catalog import make_history
 
 from borescan import catalog, report
-from borescan import synthetic_history as sh
+from borescan.synthetic import history as sh
 from borescan.cli import main as cli_main
 
 

@@ -33,12 +33,13 @@ def calibrated(tmp_path_factory):
     """Return a simulated calibration scan through the pipeline's own path: fit, GUM budget, certificate
     inputs.
     """
-    from borescan import rawio, simulate
+    from borescan import rawio
+    from borescan.synthetic import scenes, simulate
     from borescan.stages.calibration_fit import calibrate_raw_scans, spindle_inputs
     from borescan.certificate import certificate_dates
 
     tmp = tmp_path_factory.mktemp("cal")
-    scene = simulate.default_tri_scene()
+    scene = scenes.default_tri_scene()
     sim = simulate.simulate_tri_spindle(
         scene,
         scan_id="N20261121-TRI01-CAL-P1",

@@ -286,12 +286,13 @@ def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_ba
     """
     import polars as pl
 
-    from borescan import certificate, rawio, scenarios
+    from borescan import certificate, rawio
+    from borescan.synthetic import battery
     from borescan.config import schema_defaults
     from borescan.stages.calibrate_rod import calibrate_rod_scan
 
     monkeypatch.setattr(certificate, "_pdf_bytes", lambda pages, title: b"")
-    paths = scenarios.write_battery(tmp_path, 40, 0, kinds=("rod",))
+    paths = battery.write_battery(tmp_path, 40, 0, kinds=("rod",))
     assert len(paths) == 40
     dflt = schema_defaults()
     ctx = {

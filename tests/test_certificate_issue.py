@@ -51,7 +51,8 @@ def results(tmp_path_factory):
     """
     import polars as pl
 
-    from borescan import certificate, rawio, scenarios, simulate
+    from borescan import certificate, rawio
+    from borescan.synthetic import battery, scenes, simulate
     from borescan.calibration import full_residuals
     from borescan.certificate_issue import ISSUE_TABLE, issue_frame, issue_row
     from borescan.config import load_config
@@ -61,7 +62,7 @@ def results(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("history")
     res, cfg, night = tmp / "results", load_config(CONFIG), "2026-11-21"
-    scene = simulate.default_tri_scene()
+    scene = scenes.default_tri_scene()
     sim = simulate.simulate_tri_spindle(
         scene,
         scan_id="N20261121-TRI01-CAL-P1",
@@ -108,7 +109,7 @@ def results(tmp_path_factory):
     )
     link_into_night(certificate.certificate_dir(res, cal), out)
     rows = {night: [issue_row(paths, res, night, residuals)]}
-    rod_scan = rawio.read_scan(scenarios.write_battery(tmp / "battery", 40, 0, kinds=("rod",), only=[0])[0])
+    rod_scan = rawio.read_scan(battery.write_battery(tmp / "battery", 40, 0, kinds=("rod",), only=[0])[0])
     assert rod_scan.meta["kind"] == "verification"  # the rod in a set of certified ring gauges
     ctx = {
         "uncertainty": cfg["uncertainty"],

@@ -16,7 +16,8 @@ from borescan.calibrations import rod_layers
 from borescan.discrepancy.reference import discrepancy_reference
 from borescan.geometry import RodLayer
 from borescan.rod_calibration import RodCalibration
-from borescan.simulate import RodScene, layer_dict
+from borescan.geometry import layer_dict
+from borescan.synthetic.scenes import RodScene
 from borescan.uncertainty import Budget, Input, Term
 
 LAB = {

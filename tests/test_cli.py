@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from test_catalog import built  # noqa: F401 (the constructed catalog fixture, shared)
 
-from borescan import simulate
+from borescan.synthetic import simulate
 from borescan.cli import main
 from borescan.commands import sql as sql_cmd
 from borescan.commands._common import utc_text

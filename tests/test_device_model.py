@@ -17,7 +17,7 @@ import pytest
 
 from borescan.effects import EFFECTS, Effect
 from borescan.physics.tri import CORRECTABLE_STAGES, tri_correct_readings
-from borescan.simulate import default_tri_scene, tri_readings
+from borescan.synthetic.scenes import default_tri_scene, tri_readings
 
 TRI = "tri_lds"
 CORRECTABLE = [n for n, s in EFFECTS.items() if TRI in s.device_types and s.stage in CORRECTABLE_STAGES]
@@ -121,7 +121,8 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     device-model term of beta_2 is omega u(tau) (closed form); a static bore measured with it is
     within its U of the truth, the same input in its budget.
     """
-    from borescan import rawio, simulate
+    from borescan import rawio
+    from borescan.synthetic import simulate
     from borescan.config import schema_defaults
     from borescan.device_model import device_model_at
     from borescan.measure import tri_diameter_with_budget

@@ -1,6 +1,6 @@
 """Model-discrepancy workflow: hidden effects in simulated scans are found, named and fitted.
 
-Recovery tests: each scan is simulated by :mod:`borescan.simulate` (the project's digital twin,
+Recovery tests: each scan is simulated by :mod:`borescan.synthetic.simulate` (the project's digital twin,
 independent of the workflow's own forward model) with one named effect at a realistic
 magnitude; the workflow sees only the raw scan and the base model.
 """
@@ -21,7 +21,8 @@ from borescan.discrepancy.table2 import TABLE2_NUMBERS
 from borescan.discrepancy.tri import fast_readings
 from borescan.effects import Effect
 from borescan.geometry import Bore, tri_spindle_readings
-from borescan.simulate import YANG_BEAMS, default_tri_scene, simulate_tri_spindle
+from borescan.synthetic.scenes import YANG_BEAMS, default_tri_scene
+from borescan.synthetic.simulate import simulate_tri_spindle
 
 NOISE_MM = 0.002
 SCENE = default_tri_scene(sample_rate_hz=240.0)  # 240 samples per revolution at 60 rpm
@@ -238,7 +239,7 @@ def test_examine_to_dir_writes_both_files(tmp_path):
 
 def test_raw_scan_written_and_read_back(tmp_path):
     from borescan.rawio import read_scan
-    from borescan.simulate import write_simulated
+    from borescan.synthetic.simulate import write_simulated
 
     sim = _scan([Effect("sensor_offset", {"channel": 2, "b_mm": -0.015})])
     path = write_simulated(sim, tmp_path / "raw", tmp_path / "truth")
@@ -301,7 +302,8 @@ def test_battery_command_runs(capsys):
 
 def _rod_case(effects, seed=4, certified=True):
     from borescan.geometry import Hole, RodAxis, RodLayer
-    from borescan.simulate import RodScene, simulate_rod
+    from borescan.synthetic.scenes import RodScene
+    from borescan.synthetic.simulate import simulate_rod
 
     scene = RodScene(
         layers=(RodLayer(1, 100.0, 71.0), RodLayer(2, 400.0, 71.0)),
@@ -354,7 +356,7 @@ def test_rod_part_radius_is_the_measurand_and_absorbs_offsets():
 
 
 def test_static_set_thermal_expansion_is_listed_among_lookalikes():
-    from borescan.simulate import simulate_tri_static
+    from borescan.synthetic.simulate import simulate_tri_static
 
     hot = Effect("thermal_expansion", {"temperature_c": 30.0})
     f = examine_scan(simulate_tri_static(effects=[hot], seed=4))
@@ -476,7 +478,7 @@ def test_part_without_certificate_frees_the_radius():
 
 
 def test_static_set_on_a_part_is_quiet():
-    from borescan.simulate import simulate_tri_static
+    from borescan.synthetic.simulate import simulate_tri_static
 
     art = {"id": "P-2", "type": "part", "nominal_diameter_mm": 275.0, "cte_per_k": 11.5e-6}
     f = examine_scan(simulate_tri_static(effects=[], seed=6, artifact=art))
@@ -527,7 +529,8 @@ def test_quantised_rod_readings_are_named_even_below_the_noise():
     """
     from borescan.effects import Effect
     from borescan.geometry import Hole, RodAxis, RodLayer
-    from borescan.simulate import RodScene, simulate_rod
+    from borescan.synthetic.scenes import RodScene
+    from borescan.synthetic.simulate import simulate_rod
 
     layers = (RodLayer(1, 0.0, 60.0, 0.0, 0.0, 0.0), RodLayer(2, 40.0, 50.0, 1.9, 0.0, 0.0))
     holes = (Hole((0.4, -0.3), 75.0), Hole((0.1, 0.5), 65.0))
@@ -576,7 +579,8 @@ def test_candidate_term_at_zero_is_the_base_model_bit_for_bit(kind):
     from borescan.discrepancy.examine import scan_arrays
     from borescan.discrepancy.poses import RodModel, pose_data_from_arrays
     from borescan.discrepancy.tri import TriModel, tri_data_from_arrays
-    from borescan.simulate import default_rod_scene, simulate_rod
+    from borescan.synthetic.scenes import default_rod_scene
+    from borescan.synthetic.simulate import simulate_rod
 
     if kind == "tri":
         scan = _scan([], seed=11)
@@ -609,7 +613,8 @@ def test_declared_sparsity_covers_every_dependence(kind):
     from borescan.discrepancy.fitting import residual_sparsity
     from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays
     from borescan.discrepancy.tri import TriModel, tri_data_from_arrays
-    from borescan.simulate import default_rod_scene, simulate_rod, simulate_tri_static
+    from borescan.synthetic.scenes import default_rod_scene
+    from borescan.synthetic.simulate import simulate_rod, simulate_tri_static
 
     if kind == "tri":
         scan = _scan([], seed=11)

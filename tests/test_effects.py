@@ -17,7 +17,13 @@ from borescan.geometry import (
     tri_spindle_readings,
 )
 from borescan.geometry import wall_points_device
-from borescan.simulate import RodScene, default_tri_scene, rod_readings_with_effects, tri_phi, tri_readings
+from borescan.synthetic.scenes import (
+    RodScene,
+    default_tri_scene,
+    rod_readings_with_effects,
+    tri_phi,
+    tri_readings,
+)
 
 SCENE = default_tri_scene(phase_rad=0.4)
 T_S = np.arange(0, 2.0, 1 / 660)  # two revolutions at 60 rpm

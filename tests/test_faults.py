@@ -31,7 +31,8 @@ from fault_roots import (
     make_crash_root,
 )
 
-from borescan import demo, raw_index, rawio, tables, validation
+from borescan import raw_index, rawio, tables, validation
+from borescan.synthetic import demo
 from borescan.stages import _common
 from borescan.stages.catalog import HistoryGapError, raw_coverage, stage_catalog
 from borescan.stages.ingest import stage_ingest

@@ -114,11 +114,11 @@ def test_angle_model_of_a_simulated_scan_matches_the_twin():
     """
     from dataclasses import replace
 
-    from borescan import simulate
+    from borescan.synthetic import scenes, simulate
     from borescan.kinematics import angle_model_of_scan
 
     scene = replace(
-        simulate.default_tri_scene(),
+        scenes.default_tri_scene(),
         rpm_profile=((0.0, 60.0), (2.0, 60.0), (3.0, 30.0)),
         direction="cw",
         phase_rad=0.4,
@@ -127,9 +127,7 @@ def test_angle_model_of_a_simulated_scan_matches_the_twin():
     enc = simulate.simulate_tri_spindle(scene, n_rev=4, encoder=True, seed=1, spindle_rate_hz=50.0)
     am = angle_model_of_scan(enc.meta, enc.spindle)
     assert am.source == "encoder"
-    assert (
-        np.max(np.abs(am.phi_rad(t) - simulate.tri_phi(scene, t))) < 1e-4
-    )  # spline through the ramp's kinks
+    assert np.max(np.abs(am.phi_rad(t) - scenes.tri_phi(scene, t))) < 1e-4  # spline through the ramp's kinks
     prof = simulate.simulate_tri_spindle(scene, n_rev=4, encoder=False, seed=1, spindle_rate_hz=50.0)
     am = angle_model_of_scan(prof.meta, prof.spindle)
     assert am.source == "profile"

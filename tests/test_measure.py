@@ -167,7 +167,8 @@ def test_verify_temperature_correction_sign():
 def test_measure_scan_on_simulated_raw_scans(tmp_path):
     """Through borescan-raw/1: a simulated static scan (10 poses) and a spindle scan."""
     from borescan.rawio import read_scan
-    from borescan.simulate import TriScene, simulate_tri_spindle, simulate_tri_static, write_simulated
+    from borescan.synthetic.scenes import TriScene
+    from borescan.synthetic.simulate import simulate_tri_spindle, simulate_tri_static, write_simulated
 
     scene = TriScene(beams=BEAMS, bore_center_xy_mm=(262.833, -273.182), bore_radius_20_mm=R)
     sim = simulate_tri_static(scene, scan_id="T-STATIC", noise_mm=0.0)
@@ -325,7 +326,8 @@ def _tri_cal(beams, cov=None):
 def _static_scan(tmp_path, temperature_c=20.6, scan_id="T-STATIC", noise_mm=0.002):
     from borescan.effects import Effect
     from borescan.rawio import read_scan
-    from borescan.simulate import TriScene, simulate_tri_static, write_simulated
+    from borescan.synthetic.scenes import TriScene
+    from borescan.synthetic.simulate import simulate_tri_static, write_simulated
 
     scene = TriScene(beams=BEAMS, bore_center_xy_mm=(262.833, -273.182), bore_radius_20_mm=R)
     sim = simulate_tri_static(
@@ -394,7 +396,8 @@ def test_missing_temperature_refused_in_calibration_inputs(tmp_path):
     from borescan.artifacts import MissingTemperature
     from borescan.config import schema_defaults
     from borescan.rawio import read_scan
-    from borescan.simulate import TriScene, simulate_tri_spindle, write_simulated
+    from borescan.synthetic.scenes import TriScene
+    from borescan.synthetic.simulate import simulate_tri_spindle, write_simulated
     from borescan.stages.calibration_fit import spindle_inputs
 
     scene = TriScene(beams=BEAMS, bore_center_xy_mm=(262.833, -273.182), bore_radius_20_mm=R)
@@ -413,7 +416,8 @@ def test_sensitivity_to_every_base_length_sums_to_two(tmp_path):
     D grows by about 2 delta, in the static and the rotating evaluation alike.
     """
     from borescan.rawio import read_scan
-    from borescan.simulate import TriScene, simulate_tri_spindle, write_simulated
+    from borescan.synthetic.scenes import TriScene
+    from borescan.synthetic.simulate import simulate_tri_spindle, write_simulated
 
     scan, _ = _static_scan(tmp_path, 20.0)
     res = measure_scan(scan, BEAMS)
@@ -526,10 +530,11 @@ def test_rotating_sensitivities_equal_central_differences_of_the_circle_fit(tmp_
     differences of the whole diameter model (a circle fit per step): to 1e-6 relative, or 1e-7 absolute (the
     differences divide the fit's last digits, about 1e-12 mm, by steps of 1e-5).
     """
-    from borescan import rawio, simulate
+    from borescan import rawio
+    from borescan.synthetic import scenes, simulate
     from borescan.measure import _with_params, measure_scan
 
-    scene = simulate.default_tri_scene()
+    scene = scenes.default_tri_scene()
     sim = simulate.simulate_tri_spindle(
         scene,
         n_rev=3,

@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from borescan import simulate
+from borescan.synthetic import scenes, simulate
 from borescan.calibration import fit_full_calibration
 from borescan.geometry import Beams
 from borescan.mirror import (
@@ -31,7 +31,7 @@ def _scene(rho_mm, e_mm, rate_hz=660.0):
     beams = Beams(
         (1, 2, 3), np.array([0.3, 2.4, 4.3]), np.asarray(rho_mm, float), np.array([128.0, 129.0, 130.0])
     )
-    return simulate.TriScene(
+    return scenes.TriScene(
         beams=beams,
         bore_center_xy_mm=(0.0, 0.0),
         bore_radius_20_mm=R_MM,
@@ -57,7 +57,7 @@ def test_depth_formula_is_the_mirror_misfit_of_exact_readings(rho_mm):
         b.d_b_mm,
     )
     t = np.arange(6600) / 660.0
-    dv = simulate.tri_readings(replace(scene, beams=mirror), t)[:, 0] - simulate.tri_readings(scene, t)[:, 0]
+    dv = scenes.tri_readings(replace(scene, beams=mirror), t)[:, 0] - scenes.tri_readings(scene, t)[:, 0]
     exact = float(np.sum(dv**2) / sigma**2)
     assert predicted_depth([6600], [e], rho_mm, [sigma], R_MM) == pytest.approx(exact, rel=0.015)
 
@@ -120,7 +120,7 @@ def flagged_fit():
     """
     scene = _scene([20.0, -3.0, 0.5], 1.0)
     t = np.arange(3300) / 660.0
-    v = simulate.tri_readings(scene, t)
+    v = scenes.tri_readings(scene, t)
     y = v + 0.002 * np.random.default_rng(11).standard_normal(v.shape)
     cal = fit_full_calibration(t, y, (1, 2, 3), scene.beams, R_MM, rpm=60.0, range_mm=20.0, scan_ids=["MIR"])
     return scene, cal

@@ -4,13 +4,13 @@ For every effect of the registry (:data:`borescan.effects.EFFECTS`) that applies
 the twin and the fitting model at the scene's true geometry (with the effect's parameters
 converted to the fit's by the registry) give the same readings:
 
-- spindle scans: :func:`borescan.simulate.tri_readings` and
+- spindle scans: :func:`borescan.synthetic.scenes.tri_readings` and
   :meth:`borescan.discrepancy.tri.TriModel.predict` (beams, centre, radius, spindle position,
   phase), and the pooled examination's model of the scan
   (:meth:`borescan.discrepancy.pooled.PooledModel.predict_scan`) to 1e-12 mm;
-- static three-sensor sets: :func:`borescan.simulate.tri_static_readings_with_effects` and
+- static three-sensor sets: :func:`borescan.synthetic.scenes.tri_static_readings_with_effects` and
   :meth:`borescan.discrepancy.poses.StaticModel.predict` (device position per pose) to 1e-9 mm;
-- rod scans: :func:`borescan.simulate.rod_readings_with_effects` and
+- rod scans: :func:`borescan.synthetic.scenes.rod_readings_with_effects` and
   :meth:`borescan.discrepancy.poses.RodModel.predict` (pose angles, hole centres relative to the
   axis, radii, deflection) to 1e-9 mm.
 
@@ -44,15 +44,14 @@ from borescan.discrepancy.tri import (
 from borescan.discrepancy.poses import PoseData, RodModel, StaticModel
 from borescan.effects import EFFECTS, Effect, EffectSpec, FitParam
 from borescan.geometry import RodAxis
-from borescan.simulate import (
+from borescan.synthetic.scenes import (
     default_rod_scene,
     default_tri_scene,
     rod_readings_with_effects,
-    simulate_rod,
-    simulate_tri_static,
     tri_readings,
     tri_static_readings_with_effects,
 )
+from borescan.synthetic.simulate import simulate_rod, simulate_tri_static
 
 TOL_MM = 1e-12
 #: static sets and rods: the twin and the fit reach the same geometry through different arithmetic

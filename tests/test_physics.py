@@ -19,7 +19,7 @@ from borescan.effects import Effect
 from borescan.geometry import RodAxis
 from borescan.physics.rod import RodDevice, RodState
 from borescan.physics.tri import TriDevice, TriStaticState
-from borescan.simulate import default_rod_scene, default_tri_scene
+from borescan.synthetic.scenes import default_rod_scene, default_tri_scene
 
 #: central differences with step 1e-6 of readings of ~5 mm: rounding ~1e-10 relative to slopes of ~1
 TOL = 1e-6

@@ -67,7 +67,7 @@ def test_rerun_does_nothing(pipeline_run):
 
 def test_slurm_profile_dry_run(tmp_path):
     """The SLURM profile (snakemake-executor-plugin-slurm) plans the whole workflow."""
-    from borescan import demo
+    from borescan.synthetic import demo
 
     demo.make_demo(tmp_path / "demo")
     proc = run_snakemake(
@@ -492,7 +492,7 @@ def test_the_demo_closes_the_loop(pipeline_run):
 
     import duckdb
 
-    from borescan.demo import LOOP_NIGHTS
+    from borescan.synthetic.demo import LOOP_NIGHTS
 
     res = pipeline_run["results"]
     truth_tau = 0.0012

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from borescan import simulate
+from borescan.synthetic import scenes
 from borescan.calibration import fit_full_calibration
 from borescan.geometry import Beams
 from borescan.plan import DeviceDesign, ScanDesign, predict, recommend
@@ -23,7 +23,7 @@ SCAN = ScanDesign(offset_mm=4.0, revolutions=5, samples_per_rev=400, encoder=Fal
 
 
 def _fit(seed: int):
-    scene = simulate.TriScene(
+    scene = scenes.TriScene(
         beams=BEAMS,
         bore_center_xy_mm=(0.0, 0.0),
         bore_radius_20_mm=R_MM,
@@ -32,7 +32,7 @@ def _fit(seed: int):
         range_mm=(20.0, 20.0, 20.0),
     )
     t = np.arange(2000) / 400.0
-    v = simulate.tri_readings(scene, t)
+    v = scenes.tri_readings(scene, t)
     y = v + SIGMA_MM * np.random.default_rng(seed).standard_normal(v.shape)
     return fit_full_calibration(t, y, (1, 2, 3), BEAMS, R_MM, rpm=60.0, range_mm=20.0, scan_ids=[f"P{seed}"])
 
@@ -72,8 +72,8 @@ def test_recommendation_is_the_smallest_scan_reaching_the_target():
     psi - asin(rho / R), and u(rho) / R stays above 400 urad for offsets the 10 mm range allows; recommend
     says None.)
     """
-    dev = DeviceDesign(simulate.YANG_BEAMS, (SIGMA_MM,) * 3, (10.0,) * 3)
-    R = simulate.YANG_RING_GAUGE_DIAMETER_MM / 2
+    dev = DeviceDesign(scenes.YANG_BEAMS, (SIGMA_MM,) * 3, (10.0,) * 3)
+    R = scenes.YANG_RING_GAUGE_DIAMETER_MM / 2
     base = ScanDesign(offset_mm=1.0, encoder=True, positions_known=True)
     offsets = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0]
     revs = [1, 2, 5, 10, 20, 30, 60]
@@ -106,8 +106,8 @@ def test_plan_command_prints_the_prediction_and_the_recommendation(capsys):
 
     assert main(["plan", "--device", "yang", "--target-u-beta-urad", "1000"]) == 0
     out = capsys.readouterr().out
-    dev = DeviceDesign(simulate.YANG_BEAMS, (SIGMA_MM,) * 3, (10.0,) * 3)
-    p = predict(dev, simulate.YANG_RING_GAUGE_DIAMETER_MM / 2, ScanDesign(offset_mm=2.3, revolutions=60))
+    dev = DeviceDesign(scenes.YANG_BEAMS, (SIGMA_MM,) * 3, (10.0,) * 3)
+    p = predict(dev, scenes.YANG_RING_GAUGE_DIAMETER_MM / 2, ScanDesign(offset_mm=2.3, revolutions=60))
     assert f"{p.u_rho_mm[0] * 1e3:10.2f}" in out
     assert "recommended (u(beta_c - beta_1) <= 1000 urad, every rho resolved): offset 3 mm" in out
     assert main(["plan", "--device", "yang"]) == 1

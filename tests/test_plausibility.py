@@ -16,7 +16,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from fault_roots import PLAUSIBILITY_CASES as CASES, ROD, ROD_MEAS, copy_scan  # noqa: E402
 
-from borescan import demo, measure, validation  # noqa: E402
+from borescan import measure, validation
+from borescan.synthetic import demo  # noqa: E402
 from borescan.stages.ingest import stage_ingest  # noqa: E402
 
 

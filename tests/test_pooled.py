@@ -27,7 +27,8 @@ from borescan.discrepancy.pooled import (
 )
 from borescan.effects import EFFECTS, SCAN_KINDS, SCOPES, Effect
 from borescan.geometry import Beams
-from borescan.simulate import YANG_BEAMS, default_tri_scene, simulate_tri_spindle
+from borescan.synthetic.scenes import YANG_BEAMS, default_tri_scene
+from borescan.synthetic.simulate import simulate_tri_spindle
 
 C_XY = (10.0, -20.0)  # bore centre [mm]
 RATE_HZ = 500.0

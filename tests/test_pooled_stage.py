@@ -16,7 +16,8 @@ from borescan.catalog import STAGE_TABLES, open_catalog, update_catalog
 from borescan.discrepancy.pooled import parse_device_effect
 from borescan.effects import device_model_effects
 from borescan.effects import Effect
-from borescan.simulate import default_tri_scene, simulate_tri_spindle, simulate_tri_static, write_simulated
+from borescan.synthetic.scenes import default_tri_scene
+from borescan.synthetic.simulate import simulate_tri_spindle, simulate_tri_static, write_simulated
 from borescan.stages._common import write_table
 from borescan.stages.ingest import stage_ingest
 from borescan.stages.pooled import drift_rows, pooled_dir, pooled_rows, stage_pooled

@@ -21,8 +21,8 @@ from borescan.readings import (
     static_spikes,
 )
 from borescan.rod_calibration import pose_means_of_scan
-from borescan.simulate import (
-    default_tri_scene,
+from borescan.synthetic.scenes import default_tri_scene
+from borescan.synthetic.simulate import (
     simulate_rod,
     simulate_tri_spindle,
     simulate_tri_static,

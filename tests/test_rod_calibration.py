@@ -15,7 +15,8 @@ from borescan.config import schema_defaults
 from borescan.effects import Effect
 from borescan.geometry import Hole, RodAxis, RodLayer
 from borescan.rod import solve_rod
-from borescan.simulate import RodScene, simulate_rod, write_simulated
+from borescan.synthetic.scenes import RodScene
+from borescan.synthetic.simulate import simulate_rod, write_simulated
 
 UNC = schema_defaults()["uncertainty"]
 CTE = 11.5e-6

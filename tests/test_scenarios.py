@@ -1,5 +1,5 @@
-"""Contract scenarios (borescan.scenarios): valid scans over the whole contract, deterministic, and
-the angle and readings written agree with the truth.
+"""Contract scenarios (borescan.synthetic): valid scans over the whole contract, deterministic, and the
+angle and readings written agree with the truth.
 """
 
 from __future__ import annotations
@@ -10,8 +10,11 @@ import math
 import numpy as np
 import pytest
 
-from borescan import cli, kinematics, rawio, scenarios, simulate
-from borescan.scenarios import TRI_CONTRACT, battery_rng, draw_tri_calibration
+from borescan import cli, kinematics, rawio
+from borescan.synthetic import battery, rod_scenarios, scenes, simulate, tri_scenarios
+from borescan.synthetic.battery import battery_rng
+from borescan.synthetic.contract import TRI_CONTRACT
+from borescan.synthetic.tri_scenarios import draw_tri_calibration
 
 N_DRAWS = 50
 SEED = 20270101
@@ -26,8 +29,8 @@ def draws():
     ]
 
 
-def _scene(sim) -> simulate.TriScene:
-    return simulate.TriScene.from_dict(sim.truth["scene"])
+def _scene(sim) -> scenes.TriScene:
+    return scenes.TriScene.from_dict(sim.truth["scene"])
 
 
 def _matrix(sim) -> tuple[np.ndarray, np.ndarray]:
@@ -178,18 +181,18 @@ def test_out_of_range_channel_and_sporadic_nulls(draws):
 
 
 def test_same_seed_gives_byte_identical_lds_parquet(tmp_path):
-    a = scenarios.write_battery(tmp_path / "a", 2, 7)
-    b = scenarios.write_battery(tmp_path / "b", 3, 7)
+    a = battery.write_battery(tmp_path / "a", 2, 7)
+    b = battery.write_battery(tmp_path / "b", 3, 7)
     for pa_, pb in zip(a, b):
         assert (pa_ / "lds.parquet").read_bytes() == (pb / "lds.parquet").read_bytes()
         assert (pa_ / "scan.json").read_bytes() == (pb / "scan.json").read_bytes()
     # a subset of the battery is the same scans
-    sub = scenarios.write_battery(tmp_path / "d", 3, 7, only=[2])
+    sub = battery.write_battery(tmp_path / "d", 3, 7, only=[2])
     assert (
         sub[0].name == b[2].name
         and (sub[0] / "lds.parquet").read_bytes() == (b[2] / "lds.parquet").read_bytes()
     )
-    other = scenarios.write_battery(tmp_path / "c", 1, 8)
+    other = battery.write_battery(tmp_path / "c", 1, 8)
     assert (other[0] / "lds.parquet").read_bytes() != (a[0] / "lds.parquet").read_bytes()
     idx = json.loads((tmp_path / "b" / "battery.json").read_text())
     assert idx["seed"] == 7 and idx["n"] == 3 and len(idx["scan_ids"]) == 3
@@ -208,7 +211,7 @@ def test_cli_simulate_contract(tmp_path, capsys):
         cli.main(["simulate", "contract", "--n", "0", "--out", str(tmp_path / "x")])
     assert e.value.code == 2
     with pytest.raises(ValueError):
-        scenarios.write_battery(tmp_path / "y", 0, 1)
+        battery.write_battery(tmp_path / "y", 0, 1)
     assert (
         cli.main(
             [
@@ -251,7 +254,7 @@ def test_encoder_angle_equals_tri_phi(draws):
         am = _angle_model(sim)
         assert am.source == "encoder"
         t, _ = _matrix(sim)
-        err = np.abs(am.phi_rad(t) - simulate.tri_phi(_scene(sim), t)).max()
+        err = np.abs(am.phi_rad(t) - scenes.tri_phi(_scene(sim), t)).max()
         if c["speed_change"]:
             n_ramp += 1
             assert err < 1e-4, (sim.scan_id, err)
@@ -275,7 +278,7 @@ def test_profile_angle_equals_commanded_angle(draws):
         np.testing.assert_allclose(am.commanded_rad(t), sgn * scene.commanded_angle_rad(t), rtol=0, atol=1e-9)
         # phi = phase + sgn Phi: the truth's phi is the model's with phase and speed scale 1
         np.testing.assert_allclose(
-            am.phi_rad(t, phase_rad=scene.phase_rad), simulate.tri_phi(scene, t), rtol=0, atol=1e-9
+            am.phi_rad(t, phase_rad=scene.phase_rad), scenes.tri_phi(scene, t), rtol=0, atol=1e-9
         )
         n[c["speed_change"]] += 1
     assert n[True] >= 3 and n[False] >= 5
@@ -296,7 +299,7 @@ def test_effect_free_readings_are_the_model_plus_noise(draws):
         c = sim.truth["contract"]
         assert c["effect_free"] and sim.truth["effects"] == []
         t, v = _matrix(sim)
-        model = simulate.tri_readings(_scene(sim), t)
+        model = scenes.tri_readings(_scene(sim), t)
         ok = np.isfinite(v)
         res = (v - model)[ok]
         assert abs(res.std() / c["noise_mm"] - 1.0) < 0.2
@@ -320,7 +323,7 @@ def test_static_sets_over_the_contract_measure_to_their_truth(tmp_path):
 
     z, kinds = [], set()
     for i in range(24):
-        sim = scenarios.draw_tri_static(battery_rng(5, i), scan_id=f"CS5-{i:05d}", night="2027-01-01")
+        sim = tri_scenarios.draw_tri_static(battery_rng(5, i), scan_id=f"CS5-{i:05d}", night="2027-01-01")
         c = sim.truth["contract"]
         kinds.add(c["artifact"])
         d = simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth")
@@ -344,7 +347,7 @@ def test_rod_scans_over_the_contract_and_a_mixed_battery(tmp_path):
 
     kinds = set()
     for i in range(6):
-        sim = scenarios.draw_rod_scan(battery_rng(6, i), scan_id=f"CR6-{i:05d}", night="2027-01-01")
+        sim = rod_scenarios.draw_rod_scan(battery_rng(6, i), scan_id=f"CR6-{i:05d}", night="2027-01-01")
         c = sim.truth["contract"]
         kinds.add(c["artifact"])
         assert 2 <= len(c["diameters_mm"]) <= 3 and all(100.0 <= d <= 200.0 for d in c["diameters_mm"])
@@ -367,7 +370,7 @@ def test_rod_scans_over_the_contract_and_a_mixed_battery(tmp_path):
         sol = solve_rod(means, layers=layers, u_reading_mm=c["noise_mm"] / np.sqrt(c["samples_per_pose"]))
         assert np.all(np.abs(sol.diameter_mm - np.array(c["diameters_mm"])) < 4 * sol.u_diameter_mm)
     assert kinds == {"ring_gauge", "part"}
-    paths = scenarios.write_battery(tmp_path / "b", 2, 9, kinds=("calibration", "static", "rod"))
+    paths = battery.write_battery(tmp_path / "b", 2, 9, kinds=("calibration", "static", "rod"))
     names = [p.name for p in paths]
     assert names == [
         "scan=CT9-00000",
@@ -377,7 +380,7 @@ def test_rod_scans_over_the_contract_and_a_mixed_battery(tmp_path):
         "scan=CR9-00000",
         "scan=CR9-00001",
     ]
-    only_cal = scenarios.write_battery(tmp_path / "c", 2, 9)
+    only_cal = battery.write_battery(tmp_path / "c", 2, 9)
     assert (only_cal[0] / "lds.parquet").read_bytes() == (paths[0] / "lds.parquet").read_bytes()
     assert json.loads((tmp_path / "b" / "battery.json").read_text())["kinds"] == [
         "calibration",
@@ -385,7 +388,7 @@ def test_rod_scans_over_the_contract_and_a_mixed_battery(tmp_path):
         "rod",
     ]
     with pytest.raises(ValueError, match="kinds must be among"):
-        scenarios.write_battery(tmp_path / "d", 1, 1, kinds=("spindle",))
+        battery.write_battery(tmp_path / "d", 1, 1, kinds=("spindle",))
 
 
 def test_scale_effect_scales_sizes_only():
@@ -412,7 +415,7 @@ def test_night_battery_measurements_on_calibrated_devices_and_rod_calibrations(t
     scans' other draws unchanged), every scan valid for ingest.
     """
     kinds = ("calibration", "measurement", "rod_calibration")
-    paths = scenarios.write_battery(
+    paths = battery.write_battery(
         tmp_path / "n", 2, 5, kinds=kinds, effect_share=1.0, effect_scale_range=(0.3, 3.0), per_night=100
     )
     assert [p.name for p in paths] == [
@@ -436,12 +439,12 @@ def test_night_battery_measurements_on_calibrated_devices_and_rod_calibrations(t
         rc = scans[f"CK5-{i:05d}"].meta
         assert rc["kind"] == "calibration" and rc["device"]["type"] == "rod"
         assert all("certified_diameter_mm" in f for f in rc["artifact"]["features"])
-    free = scenarios.write_battery(
+    free = battery.write_battery(
         tmp_path / "f", 2, 5, kinds=("calibration",), effect_share=0.0, per_night=100
     )
     assert all(not json.loads(p.read_text())["effects"] for p in (tmp_path / "f" / "truth").glob("*.json"))
     # the effect-free scan of the same index is the one the plain battery writes (its draws are untouched)
-    plain = scenarios.write_battery(tmp_path / "p", 2, 5, per_night=100)
+    plain = battery.write_battery(tmp_path / "p", 2, 5, per_night=100)
     assert (plain[0] / "lds.parquet").read_bytes() == (free[0] / "lds.parquet").read_bytes()
     with pytest.raises(ValueError, match="effect share"):
-        scenarios.write_battery(tmp_path / "x", 1, 5, effect_share=1.5)
+        battery.write_battery(tmp_path / "x", 1, 5, effect_share=1.5)

@@ -647,9 +647,10 @@ def test_revolutions_follow_the_rpm_profile_when_the_speed_changes(tmp_path):
     """No encoder, 60 rpm then a ramp to 30 rpm: revolutions come from the profile's angle, not one period."""
     from dataclasses import replace
 
-    from borescan import rawio, simulate
+    from borescan import rawio
+    from borescan.synthetic import scenes, simulate
 
-    scene = replace(simulate.default_tri_scene(), rpm_profile=((0.0, 60.0), (6.0, 60.0), (7.0, 30.0)))
+    scene = replace(scenes.default_tri_scene(), rpm_profile=((0.0, 60.0), (6.0, 60.0), (7.0, 30.0)))
     sim = simulate.simulate_tri_spindle(scene, n_rev=20, encoder=False, seed=2, scan_id="RAMP")
     path = simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth")
     res = process_scan(rawio.read_scan(path))

@@ -9,7 +9,7 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from borescan import rawio
-from borescan.demo import DEMO_NIGHTS, LOOP_NIGHTS, NOMINAL_BEAMS, demo_scans, make_demo
+from borescan.synthetic.demo import DEMO_NIGHTS, LOOP_NIGHTS, NOMINAL_BEAMS, demo_scans, make_demo
 from borescan.effects import Effect, effects_from_dicts
 from borescan.geometry import (
     Beams,
@@ -20,7 +20,7 @@ from borescan.geometry import (
     tri_spindle_readings,
     wall_points_device,
 )
-from borescan.simulate import (
+from borescan.synthetic.scenes import (
     YANG_BEAMS,
     YANG_P0_XY_MM,
     YANG_P1_XY_MM,
@@ -28,12 +28,14 @@ from borescan.simulate import (
     TriScene,
     default_rod_scene,
     default_tri_scene,
-    load_truth,
     rod_readings_with_effects,
+    tri_readings,
+)
+from borescan.synthetic.simulate import (
+    load_truth,
     simulate_rod,
     simulate_tri_spindle,
     simulate_tri_static,
-    tri_readings,
     write_simulated,
 )
 

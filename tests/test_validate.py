@@ -18,7 +18,8 @@ import pyarrow.parquet as pq
 import pytest
 from bad_inputs import BadCase, make_bad_scans, make_stage_cases
 
-from borescan import demo, rawio, simulate, validation
+from borescan import rawio, validation
+from borescan.synthetic import demo, scenes, simulate
 from borescan.cli import main
 from borescan.stages.ingest import stage_ingest
 
@@ -48,7 +49,7 @@ def _issue_cases(raw: Path, truth: Path, night: str) -> list[BadCase]:
 
     def tri(scan_id: str, rate_hz: float) -> Path:
         sim = simulate.simulate_tri_spindle(
-            simulate.default_tri_scene(sample_rate_hz=rate_hz),
+            scenes.default_tri_scene(sample_rate_hz=rate_hz),
             n_rev=3,
             scan_id=scan_id,
             night=night,
@@ -201,7 +202,7 @@ def test_validate_reports_what_the_pipeline_would_skip(tmp_path, capsys):
 def _small_good_tree(root: Path) -> Path:
     """Four small valid scans of every shape (two spindle scans on two nights, a rod, a static)."""
     raw, truth = root / "raw", root / "truth"
-    sc = simulate.default_tri_scene()
+    sc = scenes.default_tri_scene()
     # measurements: a 5-turn calibration scan has 4 whole revolutions, which validate now says
     # the calibrate stage will refuse (issue 37)
     for sid, night, seed in (("T1", "2026-11-20", 1), ("T2", "2026-11-21", 2)):
@@ -212,7 +213,7 @@ def _small_good_tree(root: Path) -> Path:
     simulate.write_simulated(simulate.simulate_rod(None, scan_id="R1", seed=3), raw, truth)
     xy = np.array([[0.3, -0.2], [-0.4, 0.1], [0.1, 0.5]])
     static = simulate.simulate_tri_static(
-        simulate.default_tri_scene(bore_center_xy_mm=(0.0, 0.0)), xy, [0.1, 1.0, 2.0], scan_id="S1", seed=4
+        scenes.default_tri_scene(bore_center_xy_mm=(0.0, 0.0)), xy, [0.1, 1.0, 2.0], scan_id="S1", seed=4
     )
     simulate.write_simulated(static, raw, truth)
     return raw

@@ -100,7 +100,7 @@ def test_a_run_log_is_quiet_and_readable(tmp_path):
     """
     from conftest import run_snakemake
 
-    from borescan import simulate
+    from borescan.synthetic import simulate
 
     raw = tmp_path / "raw"
     for i in range(3):

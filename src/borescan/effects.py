@@ -4,7 +4,7 @@ One :class:`EffectSpec` per name of the spec's "Named effects" table, with exact
 spec's parameter names (``channel`` is the spec's ``c``). Each spec carries the stage of
 the forward model where it acts and one pure forward function per device type.
 
-Stages, in the order the digital twin (:mod:`borescan.simulate`) composes them:
+Stages, in the order the digital twin (:mod:`borescan.synthetic.simulate`) composes them:
 
 ``time_base``
     ``f(t_s, p) -> t_s`` on one channel's times (``channel_delay``).
@@ -88,6 +88,7 @@ __all__ = [
     "calibration_absorbers",
     "parse_effect",
     "effects_from_dicts",
+    "as_effects",
     "effects_to_dicts",
     "sort_effects",
     "device_effect_key",
@@ -781,6 +782,11 @@ def effects_to_dicts(effects: Iterable[Effect]) -> list[dict]:
 def effects_from_dicts(items: Iterable[Mapping]) -> list[Effect]:
     """Return the effects written by :func:`effects_to_dicts`."""
     return [Effect.from_dict(d) for d in items]
+
+
+def as_effects(effects: Iterable[Effect | Mapping] | None) -> list[Effect]:
+    """Return the effects as :class:`Effect` objects: each given as one, or as its dict (``None``: none)."""
+    return [e if isinstance(e, Effect) else Effect.from_dict(e) for e in (effects or ())]
 
 
 def sort_effects(

@@ -27,6 +27,7 @@ __all__ = [
     "Beams",
     "Bore",
     "RodLayer",
+    "layer_dict",
     "Hole",
     "RodAxis",
     "beam_frame",
@@ -393,6 +394,22 @@ class RodLayer:
     phi_rad: float = 0.0
     d_mm: float = 0.0
     gamma_rad: float = 0.0
+
+
+def layer_dict(lay: RodLayer) -> dict:
+    """Return a rod layer in the spec's names.
+
+    Return a rod layer in the spec's names, as ``device.nominal.layers`` of scan.json lists it: channel,
+    h [mm], phi [rad], d [mm], gamma [rad], l0 [mm].
+    """
+    return {
+        "channel": int(lay.channel),
+        "h": float(lay.h_mm),
+        "phi": float(lay.phi_rad),
+        "d": float(lay.d_mm),
+        "gamma": float(lay.gamma_rad),
+        "l0": float(lay.l0_mm),
+    }
 
 
 @dataclass(frozen=True)

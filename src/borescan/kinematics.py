@@ -10,7 +10,7 @@ phi(t) at a reading's time t:
    phi(t) = phase + (1 + eps) Phi(t) with the phase and the speed scale eps free;
 3. ``nominal``: no spindle stream; Phi(t) = omega_nominal t from ``rpm_nominal``, phi as in 2.
 
-The digital twin (:mod:`borescan.simulate`) draws its scans through the same functions, so the
+The digital twin (:mod:`borescan.synthetic.simulate`) draws its scans through the same functions, so the
 model that writes a scan and the model that reads it agree to rounding.
 
 Sign: ``rpm`` is a speed magnitude with ``spindle.direction`` (``ccw`` positive, seen from +z,

@@ -81,19 +81,19 @@ def _design(args):
     """(DeviceDesign, gauge radius [mm]) from the preset or the scan folder, with the overrides."""
     import numpy as np
 
-    from borescan import simulate
     from borescan.geometry import Beams
     from borescan.plan import DeviceDesign
+    from borescan.synthetic import scenes
 
     if args.device == "yang":
-        beams, R, sig, rng = simulate.YANG_BEAMS, simulate.YANG_RING_GAUGE_DIAMETER_MM / 2, 0.002, 10.0
+        beams, R, sig, rng = scenes.YANG_BEAMS, scenes.YANG_RING_GAUGE_DIAMETER_MM / 2, 0.002, 10.0
         c = 3
         sig, rng = (sig,) * c, (rng,) * c
     elif args.device == "demo":
-        from borescan import demo
+        from borescan.synthetic import demo
 
         beams, R = demo.NOMINAL_BEAMS, demo.RG275["certified_diameter_mm"] / 2
-        sig, rng = (simulate.TRI_NOISE_MM,) * 3, (10.0,) * 3
+        sig, rng = (scenes.TRI_NOISE_MM,) * 3, (10.0,) * 3
     else:
         from borescan import rawio
         from borescan.noise import noise_floor_mm

@@ -4,7 +4,7 @@
 ``borescan simulate tri|static|rod --raw-root RAW --truth-root TRUTH ...`` writes one scan, with
 ``--effect NAME:key=value,...`` (repeatable) for the named effects of the spec;
 ``borescan simulate contract --n N --seed S --out DIR`` writes the contract battery
-(:func:`borescan.scenarios.write_battery`: ring-gauge calibration scans drawn over every range
+(:func:`borescan.synthetic.battery.write_battery`: ring-gauge calibration scans drawn over every range
 the raw format and the geometry page allow, ``--kinds`` for static sets, rods, rotating
 measurements and rod calibrations, ``--effect-share`` / ``--effect-scale`` for effects on a share
 of the scans at sizes from just visible to large, ``--per-night``; DIR/raw, DIR/truth, DIR/battery.json).
@@ -112,7 +112,7 @@ def _common(p: argparse.ArgumentParser, kind: str, scan_id: str, noise: float) -
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Sub-subcommands ``demo``, ``tri``, ``static``, ``rod``, ``contract``."""
-    from borescan.simulate import ROD_NOISE_MM, TRI_NOISE_MM, YANG_RING_GAUGE_DIAMETER_MM
+    from borescan.synthetic.scenes import ROD_NOISE_MM, TRI_NOISE_MM, YANG_RING_GAUGE_DIAMETER_MM
 
     sub = parser.add_subparsers(dest="sim_kind", metavar="WHAT", required=True)
     p = sub.add_parser("demo", help="the embedded demo nights (2 nights, TRI-01 and ROD-01)")
@@ -167,7 +167,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser(
         "contract",
         help="battery of scans drawn over the whole contract (calibration, static, rod) "
-        "(borescan.scenarios; fixed seeds, scan i from its own child seed)",
+        "(borescan.synthetic; fixed seeds, scan i from its own child seed)",
     )
     p.add_argument("--n", type=positive_int, default=200, help="number of scans, >= 1 (default 200)")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="battery seed, >= 0 (default 0)")
@@ -209,8 +209,8 @@ def run(args: argparse.Namespace) -> int:
     """Write the requested scans; print the scan folders. Bad input raises :class:`UsageError` (exit 2)."""
     import numpy as np
 
-    from borescan import demo, simulate
     from borescan.effects import parse_effect
+    from borescan.synthetic import demo, scenes, simulate
 
     if args.sim_kind == "demo":
         try:
@@ -238,7 +238,7 @@ def run(args: argparse.Namespace) -> int:
     }
     try:
         if args.sim_kind == "tri":
-            scene = simulate.default_tri_scene(
+            scene = scenes.default_tri_scene(
                 rpm_nominal=args.rpm,
                 sample_rate_hz=args.sample_rate_hz,
                 bore_radius_20_mm=args.diameter_mm / 2,
@@ -254,7 +254,7 @@ def run(args: argparse.Namespace) -> int:
                 **common,
             )
         elif args.sim_kind == "static":
-            scene = simulate.default_tri_scene(
+            scene = scenes.default_tri_scene(
                 bore_center_xy_mm=(0.0, 0.0), bore_radius_20_mm=args.diameter_mm / 2
             )
             rng = np.random.default_rng(args.seed + 1)
@@ -284,15 +284,16 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_contract(args: argparse.Namespace) -> int:
     """``simulate contract``: write the battery, one progress line every ~10 % of the scans."""
-    from borescan import rawio, scenarios
+    from borescan import rawio
+    from borescan.synthetic import battery
 
     if args.n < 1:  # also checked by argparse; kept for programmatic callers
         raise UsageError(f"--n must be >= 1, got {args.n}")
     kinds = tuple(k.strip() for k in str(args.kinds).split(",") if k.strip())
-    unknown = [k for k in kinds if k not in scenarios.BATTERY_KINDS]
+    unknown = [k for k in kinds if k not in battery.BATTERY_KINDS]
     if unknown or not kinds:
         raise UsageError(
-            f"--kinds {args.kinds!r}: each kind must be one of {', '.join(scenarios.BATTERY_KINDS)}"
+            f"--kinds {args.kinds!r}: each kind must be one of {', '.join(battery.BATTERY_KINDS)}"
         )
     bar = Progress(args.n * len(kinds), "  written", stream=sys.stdout, min_interval_s=0.0)
 
@@ -304,7 +305,7 @@ def _run_contract(args: argparse.Namespace) -> int:
         flush=True,
     )
     try:
-        paths = scenarios.write_battery(
+        paths = battery.write_battery(
             args.out,
             args.n,
             args.seed,

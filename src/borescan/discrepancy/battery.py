@@ -138,7 +138,8 @@ def random_tri_case(
     -------
     (SimulatedScan, list of Effect)
     """
-    from borescan.simulate import TriScene, simulate_tri_spindle
+    from borescan.synthetic.scenes import TriScene
+    from borescan.synthetic.simulate import simulate_tri_spindle
 
     beta0 = rng.uniform(0, 2 * np.pi)
     beta = beta0 + np.radians(np.array([0.0, 120.0, 240.0]) + rng.uniform(-10, 10, 3))

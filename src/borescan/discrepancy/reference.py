@@ -6,7 +6,7 @@ import polars as pl
 
 from borescan.calibrations import rod_layers, tri_calibration
 from borescan.device_model import carried_effects, from_dicts
-from borescan.simulate import layer_dict
+from borescan.geometry import layer_dict
 
 __all__ = ["discrepancy_reference"]
 
@@ -31,7 +31,7 @@ def discrepancy_reference(
     then asks what a calibration of this scan could not absorb. A rod is examined against its
     latest calibration on certified ring gauges -> ``{"layers": ...}`` (its layers as
     :func:`borescan.calibrations.rod_layers` reads them for a measurement, in the ``device.nominal``
-    format of :func:`borescan.simulate.layer_dict`: l0, h, d [mm], phi, gamma [rad]), else against
+    format of :func:`borescan.geometry.layer_dict`: l0, h, d [mm], phi, gamma [rad]), else against
     ``device.nominal`` -> ``{}``.
     Unlike a measurement, the examination uses expired or failed calibrations too: it asks what
     the model misses, not whether a result may be certified.

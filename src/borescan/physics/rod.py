@@ -1,6 +1,6 @@
 """The one forward model of a measuring-rod scan: base geometry plus registered effects.
 
-The digital twin (:func:`borescan.simulate.rod_readings_with_effects`) and the rod's discrepancy
+The digital twin (:func:`borescan.synthetic.scenes.rod_readings_with_effects`) and the rod's discrepancy
 model (:class:`borescan.discrepancy.poses.RodModel`) evaluate readings here and nowhere else. The
 physics of each named effect is its forward function in :mod:`borescan.effects`; the ray-cylinder
 reading is :func:`borescan.geometry.rod_readings` (Wang 2017 Eq. 16 when d = gamma = omega = 0).
@@ -16,7 +16,7 @@ Composition order (``shared/spec/geometry-and-effects.md``; stages of :mod:`bore
 4. reading: offset, gain, nonlinearity, drift at the readings' times.
 
 Output-stage effects (noise, ``quantization``, ``outliers``) are the generators' business
-(:func:`borescan.simulate.simulate_rod`). Time-base and kinematic effects do not apply to a rod
+(:func:`borescan.synthetic.simulate.simulate_rod`). Time-base and kinematic effects do not apply to a rod
 (turned by hand, pose by pose).
 
 A fit's base unknowns (:class:`RodState`: pose angles, hole centres relative to the axis at the

@@ -1,6 +1,6 @@
 """The one forward model of a three-sensor spindle scan: base geometry plus registered effects.
 
-The digital twin (:func:`borescan.simulate.tri_readings`) and the discrepancy workflow
+The digital twin (:func:`borescan.synthetic.scenes.tri_readings`) and the discrepancy workflow
 (:meth:`borescan.discrepancy.tri.TriModel.predict`) evaluate readings here and nowhere else.
 The physics of each named effect is its forward function in :mod:`borescan.effects`; the
 ray-to-bore reading is :func:`borescan.geometry.tri_spindle_readings`.
@@ -20,11 +20,11 @@ Composition order (``shared/spec/geometry-and-effects.md``; stages of :mod:`bore
 7. reading: offset, gain, nonlinearity, drift (k t_c), vibration (at t_c).
 
 Output-stage effects (noise, ``quantization``, ``outliers``) are the generators' business
-(:func:`borescan.simulate.simulate_tri_spindle`). Steps 1-7 are noise-free and deterministic.
+(:func:`borescan.synthetic.simulate.simulate_tri_spindle`). Steps 1-7 are noise-free and deterministic.
 
 A static set (no spindle stream) is the same model with one device position and angle per pose
 (:class:`TriDevice`): steps 2-3 are then given, not computed, so kinematic and spindle-position
-effects do not apply; :func:`borescan.simulate.simulate_tri_static` and the static discrepancy
+effects do not apply; :func:`borescan.synthetic.simulate.simulate_tri_static` and the static discrepancy
 model (:class:`borescan.discrepancy.poses.StaticModel`) both call :meth:`TriDevice.predict`.
 """
 

@@ -45,12 +45,9 @@ import numpy as np
 
 from borescan.effects import Effect
 from borescan.geometry import Beams, Hole, RodAxis, RodLayer
-from borescan.simulate import (
-    YANG_P0_XY_MM,
-    YANG_P1_XY_MM,
-    RodScene,
+from borescan.synthetic.scenes import YANG_P0_XY_MM, YANG_P1_XY_MM, RodScene, default_tri_scene
+from borescan.synthetic.simulate import (
     SimulatedScan,
-    default_tri_scene,
     simulate_rod,
     simulate_tri_spindle,
     simulate_tri_static,
