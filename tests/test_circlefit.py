@@ -520,7 +520,7 @@ def test_mic_on_the_reduced_set_equals_the_full_triangulation(case, monkeypatch)
     certificate; it must equal the MICI computed by triangulating every point (MIC_BINS raised so that
     the full path runs), centre and radius to 1e-12 mm.
     """
-    from borescan import circlefit
+    from borescan.circlefit import inscribed as circlefit
 
     rng = np.random.default_rng(7)
     n = 40_000
@@ -578,7 +578,7 @@ def test_mcci_from_the_farthest_points_is_the_mcci_of_all(monkeypatch, farthest)
     point, on profiles whose farthest points from the LS centre are not the MCCI's (lobes, an
     off-centre bump, outward spikes), and every point inside it.
     """
-    import borescan.circlefit as cf
+    import borescan.circlefit.circumscribed as cf
 
     rng = np.random.default_rng(20261124)
     for kind in ("noise", "lobes", "bump", "outward_spikes"):
@@ -602,7 +602,7 @@ def test_mzci_on_the_radial_extremes_is_the_mzci_of_all(monkeypatch, bins):
     pulls the LS centre, inward and outward spikes, a flat). With 16 bins the first zone leaves
     points outside, so the widening runs.
     """
-    import borescan.circlefit as cf
+    import borescan.circlefit.zone as cf
 
     rng = np.random.default_rng(20261125)
     slp = cf._slp

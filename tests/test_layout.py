@@ -20,7 +20,6 @@ OVERSIZED_MODULES = {
     "catalog.py",
     "certificate.py",
     "certificate_dcc.py",
-    "circlefit.py",
     "discrepancy/examine.py",
     "discrepancy/pooled.py",
     "discrepancy/tri.py",
