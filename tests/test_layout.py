@@ -23,7 +23,6 @@ OVERSIZED_MODULES = {
     "discrepancy/examine.py",
     "discrepancy/pooled.py",
     "discrepancy/tri.py",
-    "effects.py",
     "measure.py",
     "rawio.py",
     "report.py",
