@@ -36,8 +36,6 @@ OVERSIZED_FUNCTIONS = {
     "discrepancy/examine.py:examine_model",
     "discrepancy/pooled.py:examine_pooled",
     "measure.py:diameter_uncertainty",
-    "papers/yang_table2.py:write_reproduction",
-    "papers/yang_table3.py:reproduce",
     "rod.py:solve_rod",
     "signal/stage.py:process_arrays",
 }

@@ -273,20 +273,74 @@ def _fmt(x) -> str:
     return str(x)
 
 
-def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> list[Path]:
-    """Write the reproduction of Yang 2017 Table 2; return the paths.
+def _channel_rows(rep: dict, ch, c: dict) -> list[list]:
+    """Return the rows of one channel: P from its minima, n, m, n - m and the status."""
+    sp = rep["samples_per_rev"]
+    rows = []
+    p_min = c["samples_per_rev_from_minima"]
+    rows.append(
+        [
+            "samples_per_rev_from_minima",
+            ch,
+            sp["printed"],
+            p_min,
+            c["u_samples_per_rev_from_minima"],
+            p_min - sp["printed"],
+            "",
+        ]
+    )
+    rows.append(
+        [
+            "n_mean_samples",
+            ch,
+            c["printed_n"],
+            c["n_mean"],
+            c["u_n_mean"],
+            c["n_mean"] - c["printed_n"],
+            "minimum -> next maximum",
+        ]
+    )
+    rows.append(
+        [
+            "m_mean_samples",
+            ch,
+            c["printed_m"],
+            c["m_mean"],
+            c["u_m_mean"],
+            c["m_mean"] - c["printed_m"],
+            "maximum -> next minimum",
+        ]
+    )
+    geo = rep["geometry_n_minus_m"].get(ch, {}).get("n_minus_m_abs_at_measured_P", float("nan"))
+    printed_nm = c["printed_n"] - c["printed_m"]
+    rows.append(
+        [
+            "n_minus_m_samples",
+            ch,
+            printed_nm,
+            c["n_minus_m"],
+            c["u_n_minus_m"],
+            c["n_minus_m"] - printed_nm,
+            f"geometry (Table 1 r) allows |n-m| = {geo:.2f}",
+        ]
+    )
+    rows.append(
+        [
+            "status",
+            ch,
+            c["status_printed"],
+            c["status_computed"],
+            "",
+            "agrees" if c["status_agrees"] else "DISAGREES",
+            "n < m -> backward (ccw); reading the d_min-side column as n gives "
+            + c["status_if_columns_read_by_position"],
+        ]
+    )
+    return rows
 
-    Write ``yang2017_table2.csv`` (quantity, printed, computed, u, difference) and
-    ``yang2017_table2.png`` (computed next to printed) into ``out_dir``; returns the paths.
-    """
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    rep = reproduce(path)
+def _reproduction_rows(rep: dict) -> list[list]:
+    """Return the csv rows: quantity, channel, printed, computed, u, difference, note."""
     rows = []
     sp = rep["samples_per_rev"]
     rows.append(
@@ -301,65 +355,7 @@ def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> li
         ]
     )
     for ch, c in rep["channels"].items():
-        p_min = c["samples_per_rev_from_minima"]
-        rows.append(
-            [
-                "samples_per_rev_from_minima",
-                ch,
-                sp["printed"],
-                p_min,
-                c["u_samples_per_rev_from_minima"],
-                p_min - sp["printed"],
-                "",
-            ]
-        )
-        rows.append(
-            [
-                "n_mean_samples",
-                ch,
-                c["printed_n"],
-                c["n_mean"],
-                c["u_n_mean"],
-                c["n_mean"] - c["printed_n"],
-                "minimum -> next maximum",
-            ]
-        )
-        rows.append(
-            [
-                "m_mean_samples",
-                ch,
-                c["printed_m"],
-                c["m_mean"],
-                c["u_m_mean"],
-                c["m_mean"] - c["printed_m"],
-                "maximum -> next minimum",
-            ]
-        )
-        geo = rep["geometry_n_minus_m"].get(ch, {}).get("n_minus_m_abs_at_measured_P", float("nan"))
-        printed_nm = c["printed_n"] - c["printed_m"]
-        rows.append(
-            [
-                "n_minus_m_samples",
-                ch,
-                printed_nm,
-                c["n_minus_m"],
-                c["u_n_minus_m"],
-                c["n_minus_m"] - printed_nm,
-                f"geometry (Table 1 r) allows |n-m| = {geo:.2f}",
-            ]
-        )
-        rows.append(
-            [
-                "status",
-                ch,
-                c["status_printed"],
-                c["status_computed"],
-                "",
-                "agrees" if c["status_agrees"] else "DISAGREES",
-                "n < m -> backward (ccw); reading the d_min-side column as n gives "
-                + c["status_if_columns_read_by_position"],
-            ]
-        )
+        rows.extend(_channel_rows(rep, ch, c))
     for s in rep["spacings"]:
         pair = f"{s['from_channel']}->{s['to_channel']}"
         rows.append(
@@ -408,17 +404,13 @@ def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> li
                 f"printed Mean vs mean of the {mm['cells']} printed cells",
             ]
         )
-    csv_path = out_dir / "yang2017_table2.csv"
-    with open(csv_path, "w", newline="") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(["quantity", "channel", "printed", "computed", "u_computed", "difference", "note"])
-        for r in rows:
-            w.writerow([_fmt(x) for x in r])
+    return rows
 
-    fig, axes = plt.subplots(1, 3, figsize=(16, 5.2), gridspec_kw={"width_ratios": [1.35, 1, 1]})
+
+def _plot_extrema(ax, rep: dict) -> None:
+    """Draw n and m per channel, printed and computed, with each status."""
     chs = sorted(rep["channels"])
     x = np.arange(len(chs))
-    ax = axes[0]
     bars = ((-0.3, "n_mean", "printed_n", "C0", "n"), (0.1, "m_mean", "printed_m", "C1", "m"))
     for off, key, pkey, col, lab in bars:
         ax.bar(
@@ -456,7 +448,10 @@ def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> li
     ax.set_ylabel("mean samples between extrema")
     ax.set_title("n (min->max), m (max->min), status")
     ax.legend(fontsize=7, ncol=2, loc="lower right")
-    ax = axes[1]
+
+
+def _plot_spacings(ax, rep: dict) -> None:
+    """Draw the minimum spacings, printed and computed from the Numbers."""
     labs = [f"{s['from_channel']}->{s['to_channel']}" for s in rep["spacings"]]
     xx = np.arange(len(labs))
     ax.bar(xx - 0.2, [s["printed"] for s in rep["spacings"]], 0.4, alpha=0.45, label="printed")
@@ -475,7 +470,13 @@ def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> li
     ax.set_ylabel("feature-point spacing [samples]")
     ax.set_title("minimum spacings (printed 222, 220, 219)")
     ax.legend(fontsize=8, loc="lower right")
-    ax = axes[2]
+
+
+def _plot_theta(ax, rep: dict) -> None:
+    """Draw Eq. 15's theta_t with the printed and with the measured period."""
+    sp = rep["samples_per_rev"]
+    labs = [f"{s['from_channel']}->{s['to_channel']}" for s in rep["spacings"]]
+    xx = np.arange(len(labs))
     ax.bar(
         xx - 0.2, [s["theta_t_deg_at_625"] for s in rep["spacings"]], 0.4, alpha=0.45, label="P = 625 (paper)"
     )
@@ -494,6 +495,33 @@ def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> li
     ax.set_ylabel("theta_t = spacing x 360 / P [deg]")
     ax.set_title("Eq. 15 with the printed vs the measured period")
     ax.legend(fontsize=8, loc="lower right")
+
+
+def write_reproduction(out_dir: Path | str, path: Path | str = TABLE2_CSV) -> list[Path]:
+    """Write the reproduction of Yang 2017 Table 2; return the paths.
+
+    Write ``yang2017_table2.csv`` (quantity, printed, computed, u, difference) and
+    ``yang2017_table2.png`` (computed next to printed) into ``out_dir``; returns the paths.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rep = reproduce(path)
+    csv_path = out_dir / "yang2017_table2.csv"
+    with open(csv_path, "w", newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(["quantity", "channel", "printed", "computed", "u_computed", "difference", "note"])
+        for r in _reproduction_rows(rep):
+            w.writerow([_fmt(x) for x in r])
+
+    fig, axes = plt.subplots(1, 3, figsize=(16, 5.2), gridspec_kw={"width_ratios": [1.35, 1, 1]})
+    _plot_extrema(axes[0], rep)
+    _plot_spacings(axes[1], rep)
+    _plot_theta(axes[2], rep)
     nmis = len(rep["difference_mismatches"])
     mm = "; ".join(
         f"sensor {m['channel']} Mean printed {m['printed']:.0f}, computed {m['computed']:.2f}"

@@ -222,21 +222,8 @@ def _diameters(readings, beams) -> np.ndarray:
     return np.asarray(static_diameter(readings, beams).diameter_mm)
 
 
-def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang's Table 3)
-) -> dict:
-    """Compute Table 3 under every alternative and fit the angles that explain it.
-
-    Returns
-    -------
-    dict with keys: table (printed columns), target_mm (275.029 + Error, 0.1 um digits),
-    error_column_check, N_table2, alternatives (list of dicts, sorted by RMS), best, paper_literal,
-    fits (per rho-sign pattern: fitted beta_2 - beta_1, beta_3 - beta_1 [deg], RMS [um]),
-    fit_with_offset (best pattern with a common diameter offset), fit_to_gauge (angles that make
-    the printed readings give 275.029 mm: a self-calibration on Table 3's own data).
-    """
-    t = load_table3()
-    v = t["readings_mm"]
-    target = D_GAUGE_MM + t["error_mm"]
+def _error_column_check(t: dict) -> list[dict]:
+    """Return, per row, whether the printed Error is Diameter - 275.029 within Diameter's rounding."""
     implied = t["diameter_mm"] - D_GAUGE_MM
     # printed Error vs Diameter - 275.029: equal within the 3-decimal rounding of Diameter?
     mismatch = np.abs(t["error_mm"] - implied)
@@ -250,8 +237,11 @@ def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang
         }
         for n, e, i, m in zip(t["no"], t["error_mm"], implied, mismatch)
     ]
-    N_meas = table2_period()
-    sp_meas = table2_spacings()
+    return check
+
+
+def _alternatives(v: np.ndarray, target: np.ndarray, N_meas: float, sp_meas: dict) -> list[dict]:
+    """Return Table 3 under every alternative reading (signs, theta_c, N, spacings, dropped), by RMS."""
     N_close_meas = sum(sp_meas.values())
     combos = [
         ("printed", None, 625.0, "625 printed"),
@@ -286,16 +276,16 @@ def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang
                         }
                     )
     alts.sort(key=lambda a: a["rms_um"])
-    literal = [
-        a
-        for a in alts
-        if a["signs"] == (-1, -1, 1)
-        and a["N"] == 625.0
-        and a["dropped"] == "3->2"
-        and a["theta_c"] in ("exact", "eq14")
-        and a["spacings"] == "printed"
-    ]
+    return alts
 
+
+def _diameters_at(v: np.ndarray, rho: np.ndarray, beta21_rad: float, beta31_rad: float) -> np.ndarray:
+    """Return the ten diameters with beta_1 = 0 and the given angles of beams 2 and 3 (Table 1's d_b)."""
+    return _diameters(v, Beams((1, 2, 3), np.array([0.0, beta21_rad, beta31_rad]), rho, TABLE1["d_b_mm"]))
+
+
+def _sign_fits(v: np.ndarray, target: np.ndarray) -> list[dict]:
+    """Return, per rho-sign pattern, beta_2 - beta_1 and beta_3 - beta_1 fitted to Table 3, by RMS."""
     fits = []
     for signs in itertools.product((1, -1), repeat=3):
         rho = np.asarray(signs, float) * TABLE1["r_mm"]
@@ -305,10 +295,7 @@ def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang
         for start in (b0.beta_rad[1:], 2 * np.pi - b0.beta_rad[1:]):
 
             def f(p, rho=rho):
-                return (
-                    _diameters(v, Beams((1, 2, 3), np.array([0.0, p[0], p[1]]), rho, TABLE1["d_b_mm"]))
-                    - target
-                )
+                return _diameters_at(v, rho, p[0], p[1]) - target
 
             sol = least_squares(f, start, x_scale=1e-3, xtol=1e-15, ftol=1e-15, gtol=1e-15)
             if best is None or sol.cost < best.cost:
@@ -323,15 +310,15 @@ def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang
             }
         )
     fits.sort(key=lambda f: f["rms_um"])
-    fb = fits[0]
+    return fits
+
+
+def _fit_with_offset(v: np.ndarray, target: np.ndarray, fb: dict) -> tuple[dict, np.ndarray]:
+    """Return the best pattern's fit with a common diameter offset, and its solution (angles, offset)."""
     rho = np.asarray(fb["signs"], float) * TABLE1["r_mm"]
 
     def f3(p):
-        return (
-            _diameters(v, Beams((1, 2, 3), np.array([0.0, p[0], p[1]]), rho, TABLE1["d_b_mm"]))
-            + p[2]
-            - target
-        )
+        return _diameters_at(v, rho, p[0], p[1]) + p[2] - target
 
     sol = least_squares(
         f3,
@@ -355,13 +342,17 @@ def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang
         "rms_um": float(np.sqrt(2 * sol.cost / v.shape[0]) * 1e3),
     }
 
-    # angles that make the ten printed readings give the gauge diameter itself (self-calibration)
-    def fg(p):
-        return (
-            _diameters(v, Beams((1, 2, 3), np.array([0.0, p[0], p[1]]), rho, TABLE1["d_b_mm"])) - D_GAUGE_MM
-        )
+    return fit_offset, sol.x
 
-    sg = least_squares(fg, sol.x[:2], x_scale=1e-3, xtol=1e-15, ftol=1e-15, gtol=1e-15)
+
+def _fit_to_gauge(v: np.ndarray, fb: dict, start_rad: np.ndarray) -> dict:
+    """Return the angles with which the ten printed readings give the gauge diameter (self-calibration)."""
+    rho = np.asarray(fb["signs"], float) * TABLE1["r_mm"]
+
+    def fg(p):
+        return _diameters_at(v, rho, p[0], p[1]) - D_GAUGE_MM
+
+    sg = least_squares(fg, start_rad, x_scale=1e-3, xtol=1e-15, ftol=1e-15, gtol=1e-15)
     cg = (2 * sg.cost / (v.shape[0] - 2)) * np.linalg.inv(sg.jac.T @ sg.jac)
     fit_gauge = {
         "signs": fb["signs"],
@@ -372,11 +363,42 @@ def reproduce(  # noqa: C901 (nested loops over the alternative readings of Yang
         "rms_um": float(np.sqrt(2 * sg.cost / v.shape[0]) * 1e3),
         "diff_um": sg.fun * 1e3,
     }
+    return fit_gauge
+
+
+def reproduce() -> dict:
+    """Compute Table 3 under every alternative and fit the angles that explain it.
+
+    Returns
+    -------
+    dict with keys: table (printed columns), target_mm (275.029 + Error, 0.1 um digits),
+    error_column_check, N_table2, alternatives (list of dicts, sorted by RMS), best, paper_literal,
+    fits (per rho-sign pattern: fitted beta_2 - beta_1, beta_3 - beta_1 [deg], RMS [um]),
+    fit_with_offset (best pattern with a common diameter offset), fit_to_gauge (angles that make
+    the printed readings give 275.029 mm: a self-calibration on Table 3's own data).
+    """
+    t = load_table3()
+    v = t["readings_mm"]
+    target = D_GAUGE_MM + t["error_mm"]
+    N_meas = table2_period()
+    sp_meas = table2_spacings()
+    alts = _alternatives(v, target, N_meas, sp_meas)
+    literal = [
+        a
+        for a in alts
+        if a["signs"] == (-1, -1, 1)
+        and a["N"] == 625.0
+        and a["dropped"] == "3->2"
+        and a["theta_c"] in ("exact", "eq14")
+        and a["spacings"] == "printed"
+    ]
+    fits = _sign_fits(v, target)
+    fit_offset, x_offset = _fit_with_offset(v, target, fits[0])
     return {
-        "fit_to_gauge": fit_gauge,
+        "fit_to_gauge": _fit_to_gauge(v, fits[0], x_offset[:2]),
         "table": t,
         "target_mm": target,
-        "error_column_check": check,
+        "error_column_check": _error_column_check(t),
         "N_table2": N_meas,
         "spacings_table2": sp_meas,
         "alternatives": alts,
