@@ -24,7 +24,7 @@ import numpy as np
 
 from borescan import calibration, device_model
 from borescan.artifacts import artifact_key
-from borescan.effects import thermal_expansion_factor
+from borescan.effects import REFERENCE_TEMPERATURE_C, thermal_expansion_factor
 from borescan.measure import sensor_terms
 from borescan.noise import noise_floor_mm
 from borescan.uncertainty import Budget, Input, Term
@@ -116,7 +116,7 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
     c = len(cal.beams.channels)
     art, temp, cte = x0["artifact"], x0["temperature"], x0["cte"]
     d20 = float(art.get("certified_diameter_mm", art.get("nominal_diameter_mm")))
-    dT = temp.temperature_c - 20.0
+    dT = temp.temperature_c - REFERENCE_TEMPERATURE_C
     if cal.method == "full_lsq":
         model = device_model.from_dicts(cal.diagnostics.get("device_model"))
         dys, dtau = _device_model_derivatives(model, inputs, cal.beams.channels)

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from .artifacts import artifact_key
-from .effects import thermal_expansion_factor
+from .effects import REFERENCE_TEMPERATURE_C, thermal_expansion_factor
 from .atomic import json_ready
 from .calibration import make_calibration_id
 from .calibrations import rod_layers
@@ -234,7 +234,7 @@ def rod_calibration_budget(
             note="l0 = l0 + R(T) - r: sensitivity -1 on each layer's radius",
         )
     )
-    dT = temperature.temperature_c - 20.0
+    dT = temperature.temperature_c - REFERENCE_TEMPERATURE_C
     f = thermal_expansion_factor(cte.cte_per_k, temperature.temperature_c)
     by_gauge: dict[str, list[int]] = {}
     for j, g in enumerate(gauges):

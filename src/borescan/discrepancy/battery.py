@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from borescan.effects import Effect
+from borescan.effects import REFERENCE_TEMPERATURE_C, Effect
 from borescan.geometry import Beams
 
 __all__ = ["TRI_EFFECTS", "random_tri_case", "score_case", "run_battery", "BatteryResult", "LOOKALIKES"]
@@ -89,7 +89,7 @@ def random_effect(  # noqa: C901 (one branch per effect of the registry)
     if name == "bore_lobing":
         return Effect(name, {"k": int(rng.integers(2, 7)), "a_mm": u(0.003, 0.01), "phase": u(0, np.pi)})
     if name == "thermal_expansion":
-        return Effect(name, {"temperature_c": 20.0 + _sign(rng) * u(2.0, 6.0)})
+        return Effect(name, {"temperature_c": REFERENCE_TEMPERATURE_C + _sign(rng) * u(2.0, 6.0)})
     if name == "beam_tilt":
         return Effect(name, {"channel": ch, "gamma_rad": u(0.04, 0.08)})
     raise ValueError(f"no random magnitude for {name!r}")
@@ -119,7 +119,7 @@ def _scaled(e: Effect, scale: float) -> Effect:
         return e
     p = dict(e.params)
     if e.name == "thermal_expansion":
-        p["temperature_c"] = 20.0 + scale * (p["temperature_c"] - 20.0)
+        p["temperature_c"] = REFERENCE_TEMPERATURE_C + scale * (p["temperature_c"] - REFERENCE_TEMPERATURE_C)
     else:
         key = MAGNITUDE[e.name]
         p[key] = p[key] * (math.sqrt(scale) if e.name in ("axis_tilt", "beam_tilt") else scale)
@@ -374,5 +374,6 @@ def scale_effect(effect: Effect, factor: float) -> Effect:
         if k in par:
             par[k] = float(par[k]) * float(factor)
     if "temperature_c" in par:
-        par["temperature_c"] = 20.0 + (float(par["temperature_c"]) - 20.0) * float(factor)
+        t_ref = REFERENCE_TEMPERATURE_C
+        par["temperature_c"] = t_ref + (float(par["temperature_c"]) - t_ref) * float(factor)
     return Effect(effect.name, par)
