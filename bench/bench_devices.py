@@ -12,7 +12,7 @@ Then ``snakemake --profile profiles/slurm --dry-run`` shows the SLURM jobs the n
     BENCH_DEVICES=6 python -m bench devices      # smaller night
     BENCH_DEVICES_CORES=2 python -m bench devices  # only one run
 
-A night job spreads its scans over its threads (``stage_workers``), so ingest, signal, measure
+A night job spreads its scans over its rule's threads (2), so ingest, signal, measure
 and discrepancy use both cores, and calibrate_night its devices (one three-sensor device or one
 rod calibration scan per process at a time).
 """

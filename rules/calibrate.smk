@@ -30,7 +30,7 @@ rule calibrate_night:
         devices=night_setting("devices"),
         device_model_auto_nights=night_setting("discrepancy", "device_model_auto_nights"),
         signal=night_setting("signal"),
-    threads: config["stage_workers"]
+    threads: NIGHT_JOB_THREADS
     log:
         f"{RES}/logs/calibrate_night/{{night}}.log",
     benchmark:

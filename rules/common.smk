@@ -12,6 +12,10 @@ from borescan.workflow_log import release_stale_locks
 set_job_environment()  # glibc malloc settings every job inherits (borescan.parallel.JOB_MALLOC_ENVIRONMENT)
 
 RAW = str(validation.require_raw_root(config["raw_root"]))
+#: threads of a night job (ingest, signal, calibrate, measure, discrepancy, pooled): the processes it
+#: spreads its scans (calibrate, pooled: its devices) over (borescan.parallel). Snakemake caps them at
+#: --cores; `--set-threads measure_night=8` (or `set-threads:` in a profile) sets one rule's.
+NIGHT_JOB_THREADS = 2
 RES = config["results_root"]
 NIGHTS = rawio.nights(RAW)
 #: the papers' transcribed tables, shipped with borescan (data/papers/ links to them)

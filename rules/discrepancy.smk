@@ -19,7 +19,7 @@ rule discrepancy_night:
         raw_root=RAW,
         results_root=results_root_for,
         discrepancy=night_setting("discrepancy"),
-    threads: config["stage_workers"]
+    threads: NIGHT_JOB_THREADS
     log:
         f"{RES}/logs/discrepancy_night/{{night}}.log",
     benchmark:
@@ -59,7 +59,7 @@ rule pooled_night:
         results_root=results_root_for,
         discrepancy=night_setting("discrepancy"),
         devices=night_setting("devices"),
-    threads: config["stage_workers"]
+    threads: NIGHT_JOB_THREADS
     log:
         f"{RES}/logs/pooled_night/{{night}}.log",
     benchmark:

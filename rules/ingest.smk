@@ -15,7 +15,7 @@ rule ingest_night:
         duplicates=duplicate_ids_of_night,
         on_conflict=night_setting("artifacts", "on_conflict"),
         plausibility=night_setting("plausibility"),  # None for a night recorded before it existed
-    threads: config["stage_workers"]
+    threads: NIGHT_JOB_THREADS
     log:
         f"{RES}/logs/ingest_night/{{night}}.log",
     benchmark:

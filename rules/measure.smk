@@ -20,7 +20,7 @@ rule measure_night:
         uncertainty=night_setting("uncertainty"),
         laboratory=night_setting("laboratory"),
         signal=night_setting("signal"),
-    threads: config["stage_workers"]
+    threads: NIGHT_JOB_THREADS
     log:
         f"{RES}/logs/measure_night/{{night}}.log",
     benchmark:

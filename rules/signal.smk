@@ -12,7 +12,7 @@ rule signal_night:
         raw_root=RAW,
         results_root=results_root_for,
         signal=night_setting("signal"),
-    threads: config["stage_workers"]
+    threads: NIGHT_JOB_THREADS
     log:
         f"{RES}/logs/signal_night/{{night}}.log",
     benchmark:

@@ -67,6 +67,20 @@ def test_unknown_or_removed_keys_are_refused():
         validate({"measurement": {"sensor_noise_mm": 0.003}}, str(SCHEMA_PATH))
 
 
+def test_a_removed_key_says_what_replaced_it():
+    """stage_workers (a night job's processes) is the rules' threads now.
+
+    The message says so, in one line, and a mistyped key beside it is still named.
+    """
+    from borescan.config import ConfigError, check_config
+
+    with pytest.raises(ConfigError) as err:
+        check_config({**load_config(), "stage_workers": 4, "stage_wrokers": 1}, "config")
+    msg = str(err.value)
+    assert "stage_workers: removed" in msg and "--set-threads <rule>=N" in msg
+    assert "stage_wrokers: unknown key" in msg and "\n" not in msg
+
+
 def test_shipped_device_model_validates_and_its_entries_parse():
     """config/devices.yaml (read by the Snakefile after config.yaml) holds only the devices section,
     valid against the schema, each entry a registry key the device model accepts.

@@ -15,7 +15,7 @@ from borescan.stages._common import write_table
 def _config(tolerance_mm: float) -> dict:
     cfg = load_config()
     cfg["verification"] = {**cfg["verification"], "tolerance_mm": tolerance_mm}
-    cfg["results_root"], cfg["stage_workers"] = "somewhere", 7  # run keys: never part of a night's settings
+    cfg["results_root"] = "somewhere"  # a run key: never part of a night's settings
     return cfg
 
 
@@ -30,7 +30,7 @@ def test_changed_keys_names_nested_additions_and_removals():
 def test_settle_records_a_night_once_and_keeps_it(tmp_path):
     settings, differ = night_config.settle(tmp_path, ["2026-11-20"], _config(0.015))
     assert differ == [] and settings["2026-11-20"]["verification"]["tolerance_mm"] == 0.015
-    assert "results_root" not in settings["2026-11-20"] and "stage_workers" not in settings["2026-11-20"]
+    assert "results_root" not in settings["2026-11-20"]
     rec = night_config.read_record(tmp_path, "2026-11-20")
     assert rec.recorded_by == "first run" and rec.config_hash == night_config.settings_hash(rec.settings)
     settings, differ = night_config.settle(tmp_path, ["2026-11-20", "2026-11-21"], _config(0.002))

@@ -89,14 +89,27 @@ def _key_path(err) -> str:
     return ".".join(str(p) for p in err.absolute_path) or "(top level)"
 
 
+#: keys an earlier version had, with what says it now (docs/migration.md)
+REMOVED_KEYS = {
+    "stage_workers": "removed: a night job's processes are its rule's threads, "
+    "--set-threads <rule>=N (or set-threads: in a profile)",
+}
+
+
 def _one_line(err) -> str:
     """Return a jsonschema error as ``key: problem``, the schema left out."""
     if err.validator == "additionalProperties":
         allowed = sorted((err.schema.get("properties") or {}).keys())
         extra = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []
         where = _key_path(err)
-        names = ", ".join(f"{where}.{k}" if where != "(top level)" else k for k in extra)
-        return f"{names}: unknown key" + (f" (known here: {', '.join(allowed)})" if allowed else "")
+        removed = [k for k in extra if where == "(top level)" and k in REMOVED_KEYS]
+        parts = [f"{k}: {REMOVED_KEYS[k]}" for k in removed]
+        unknown = [k for k in extra if k not in removed]
+        if unknown:
+            names = ", ".join(f"{where}.{k}" if where != "(top level)" else k for k in unknown)
+            known = f" (known here: {', '.join(allowed)})" if allowed else ""
+            parts.append(f"{names}: unknown key{known}")
+        return "; ".join(parts)
     if err.validator in (
         "type",
         "minimum",

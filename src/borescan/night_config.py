@@ -2,8 +2,8 @@
 
 Results already in the history keep the rules they were made under.
 
-A night's jobs take their settings (every section of the config but the roots and
-``stage_workers``) from the night's record, ``<results_root>/stage/night_config/night=<night>.parquet``,
+A night's jobs take their settings (every section of the config but the roots) from the night's
+record, ``<results_root>/stage/night_config/night=<night>.parquet``,
 written the first time the workflow sees the night. An edit of ``config/config.yaml`` therefore
 applies to nights not yet in the history, from the first of them on (as a device model's ``from:``
 does); past nights are neither rerun nor rewritten by it. The catalog has the records as the table
@@ -47,7 +47,7 @@ __all__ = [
 ]
 
 #: config keys that say where and how fast to run, not how to compute: never part of a night's record
-RUN_KEYS = ("raw_root", "results_root", "stage_workers")
+RUN_KEYS = ("raw_root", "results_root")
 
 
 @dataclass(frozen=True)
