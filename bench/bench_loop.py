@@ -3,7 +3,7 @@
 Closing the loop (issue 22): an effect named from pooled scans enters the device model; the
 next calibrations and verifications carry it.
 
-Each scenario draws a three-sensor device over the contract (:func:`bench.bench_pooled._device`)
+Each scenario draws a three-sensor device over the contract (:func:`bench.pooled_scenarios.draw_device`)
 with one hidden device effect that pooled scans can identify, acting in every scan from the first
 night (``channel_delay`` with scans at two speeds and one turning the other way; ``sensor_gain``,
 ``sensor_drift``, ``beam_tilt`` in any design; ``sensor_nonlinearity`` with eccentricities of about
@@ -45,7 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.bench_pooled import MAX_SAMPLES, _designs, _device, _like, gauge_artifact, label, spindle_scans
+from bench.bench_pooled import _like, label
+from bench.pooled_scenarios import MAX_SAMPLES, draw_device, gauge_artifact, scan_designs, spindle_scans
 
 RUN_BY_DEFAULT = False
 N = 40
@@ -75,14 +76,14 @@ def draw(seed: int, i: int) -> dict:
     name, design = (None, "*") if free else CASES[(i - i // 4) % len(CASES)]
     if design == "*":
         design = ("speeds", "eccentricities", "one_speed")[int(rng.integers(0, 3))]
-    beams, R, range_mm = _device(rng)
+    beams, R, range_mm = draw_device(rng)
     nominal = Beams(
         beams.channels,
         beams.beta_rad + rng.uniform(-0.03, 0.03, 3),
         beams.rho_mm + rng.uniform(-1, 1, 3),
         beams.d_b_mm + rng.uniform(-1, 1, 3),
     )
-    rows = _designs(rng, design)
+    rows = scan_designs(rng, design)
     encoder = bool(rng.random() < 0.5)
     noise = float(rng.uniform(0.001, 0.004))
     spr = int(rng.integers(300, 501))
