@@ -16,40 +16,50 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from dataclasses import dataclass
 
 import numpy as np
 
 from borescan.geometry import rod_readings
 from borescan.rod import RodSolveError, rod_cost_mm2, rod_crb, solve_rod
-from borescan.synthetic.rod_scenarios import draw_rod_geometry
+from borescan.synthetic.rod_scenarios import RodDraw, draw_rod_geometry
 
 
-def draw_scan(rng: np.random.Generator) -> dict:
+@dataclass(frozen=True)
+class ContractRodScan:
+    """An effect-free rod scan over the contract: its draw and its pose-mean readings."""
+
+    draw: RodDraw
+    v_mm: np.ndarray  # (n_poses, n_holes) pose-mean readings [mm]
+    sigma_mm: float  # their standard uncertainty, noise / sqrt(readings per pose) [mm]
+
+
+def draw_scan(rng: np.random.Generator) -> ContractRodScan:
     """Return one effect-free rod scan over the contract.
 
     One effect-free rod scan over the contract (:func:`borescan.synthetic.rod_scenarios.draw_rod_geometry`);
     pose-mean readings.
     """
     g = draw_rod_geometry(rng)
-    v0 = rod_readings(g["alpha"], g["layers"], g["holes"], g["axis"])
-    v = v0 + g["noise"] * rng.standard_normal((g["k"],) + v0.shape).mean(axis=0)
-    return {**g, "v": v, "sigma": g["noise"] / np.sqrt(g["k"])}
+    v0 = rod_readings(g.alpha_rad, g.layers, g.holes, g.axis)
+    v = v0 + g.noise_mm * rng.standard_normal((g.samples_per_pose,) + v0.shape).mean(axis=0)
+    return ContractRodScan(g, v, g.noise_mm / np.sqrt(g.samples_per_pose))
 
 
-def evaluate(scan: dict) -> dict:
+def evaluate(scan: ContractRodScan) -> dict:
     """Solve one drawn scan; z-scores, u/CRB and the wrong-minimum test against the truth."""
-    s = scan
-    r_true = np.array([hh.radius_mm for hh in s["holes"]])
+    s, g = scan, scan.draw
+    r_true = np.array([hh.radius_mm for hh in g.holes])
     try:
-        sol = solve_rod(s["v"], layers=s["layers"], u_reading_mm=s["sigma"])
+        sol = solve_rod(s.v_mm, layers=g.layers, u_reading_mm=s.sigma_mm)
     except RodSolveError as err:
         return {
             "refused": str(err).split(":")[0]
             + (": " + str(err).split(":")[1].split("(")[0].strip() if ":" in str(err) else "")
         }
-    crb = rod_crb(s["alpha"], layers=s["layers"], holes=s["holes"], axis=s["axis"], sigma_mm=s["sigma"])
-    c_true = rod_cost_mm2(s["v"], s["alpha"], s["layers"], s["holes"], s["axis"])
-    spread = np.sqrt(2.0 * s["v"].size) * s["sigma"] ** 2
+    crb = rod_crb(g.alpha_rad, layers=g.layers, holes=g.holes, axis=g.axis, sigma_mm=s.sigma_mm)
+    c_true = rod_cost_mm2(s.v_mm, g.alpha_rad, g.layers, g.holes, g.axis)
+    spread = np.sqrt(2.0 * s.v_mm.size) * s.sigma_mm**2
     return {
         "z": (sol.diameter_mm - 2 * r_true) / sol.u_diameter_mm,
         "u_crb": sol.u_radius_mm / crb,
@@ -95,13 +105,11 @@ def run_discrepancy(n_scans: int = 20, seed: int = 7) -> Counter:
     rng = np.random.default_rng(seed)
     out = Counter()
     for i in range(n_scans):
-        s = draw_scan(rng)
-        scene = RodScene(
-            layers=tuple(s["layers"]), holes=tuple(s["holes"]), axis=s["axis"], range_mm=(30.0,) * s["m"]
-        )
+        g = draw_scan(rng).draw
+        scene = RodScene(layers=g.layers, holes=g.holes, axis=g.axis, range_mm=(30.0,) * g.n_holes)
         feats = [
             {"id": f"H{j + 1}", "z_mm": lay.h_mm, "nominal_diameter_mm": round(2 * hh.radius_mm)}
-            for j, (lay, hh) in enumerate(zip(s["layers"], s["holes"]))
+            for j, (lay, hh) in enumerate(zip(g.layers, g.holes))
         ]
         art = {
             "id": "PART",
@@ -112,12 +120,12 @@ def run_discrepancy(n_scans: int = 20, seed: int = 7) -> Counter:
         }
         scan = simulate_rod(
             scene,
-            s["alpha"],
-            samples_per_pose=s["k"],
-            noise_mm=s["noise"],
+            g.alpha_rad,
+            samples_per_pose=g.samples_per_pose,
+            noise_mm=g.noise_mm,
             seed=1000 + i,
             artifact=art,
-            nominal_layers=s["layers"],
+            nominal_layers=g.layers,
         )
         f = examine_scan(scan)
         out[f["verdict"]] += 1

@@ -77,7 +77,7 @@ def _hold(rng, layers, d20_mm, T_c, kind, scan_id, artifact, design, sensors, ba
     scene = scenes.RodScene(
         layers=tuple(layers),
         holes=holes,
-        axis=g["axis"],
+        axis=g.axis,
         range_mm=(30.0,) * m,
         sample_rate_hz=100.0,
         cte_per_k=CTE,
@@ -85,8 +85,8 @@ def _hold(rng, layers, d20_mm, T_c, kind, scan_id, artifact, design, sensors, ba
     )
     sim = simulate.simulate_rod(
         scene,
-        g["alpha"],
-        samples_per_pose=g["k"],
+        g.alpha_rad,
+        samples_per_pose=g.samples_per_pose,
         noise_mm=sensors["noise_mm"],
         kind=kind,
         artifact=artifact,
@@ -133,8 +133,8 @@ def run_chain(job) -> dict:
     unc = cfg["uncertainty"]
     rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(i),)))
     g = rod_scenarios.draw_rod_geometry(rng)
-    r = np.array([hh.radius_mm for hh in g["holes"]])
-    true = tuple(replace(lay, l0_mm=float(rr - 15.0)) for lay, rr in zip(g["layers"], r))
+    r = np.array([hh.radius_mm for hh in g.holes])
+    true = tuple(replace(lay, l0_mm=float(rr - 15.0)) for lay, rr in zip(g.layers, r))
     design = tuple(
         replace(lay, l0_mm=lay.l0_mm + float(rng.uniform(-0.03, 0.03)), phi_rad=0.0, d_mm=0.0, gamma_rad=0.0)
         for lay in true
@@ -142,7 +142,7 @@ def run_chain(job) -> dict:
     m = len(true)
     sensors = {
         "lin_fs": float(10 ** rng.uniform(-5, -3)),
-        "noise_mm": g["noise"],
+        "noise_mm": g.noise_mm,
         "a_T": float(unc["temperature_accuracy_c"]),
         "a_alpha": float(unc["cte_accuracy_per_k"]),
     }

@@ -3,18 +3,41 @@
 from __future__ import annotations
 
 import json
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from borescan.geometry import Hole, RodAxis, RodLayer
 from borescan.synthetic import simulate
 from borescan.synthetic.contract import ROD_CONTRACT, artifact_of
 from borescan.synthetic.scenes import RodScene
 
-__all__ = ["draw_rod_geometry", "draw_rod_scan"]
+__all__ = ["RodDraw", "draw_rod_geometry", "draw_rod_scan"]
 
 
-def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -> dict:
+@dataclass(frozen=True)
+class RodDraw:
+    """A rod geometry drawn over the contract, with its poses and readings per pose."""
+
+    layers: tuple[RodLayer, ...]
+    holes: tuple[Hole, ...]
+    axis: RodAxis
+    alpha_rad: np.ndarray  # (n_poses,) pose angles [rad]
+    samples_per_pose: int
+    noise_mm: float
+
+    @property
+    def n_poses(self) -> int:
+        """Number of poses."""
+        return int(self.alpha_rad.size)
+
+    @property
+    def n_holes(self) -> int:
+        """Number of holes (= layers)."""
+        return len(self.holes)
+
+
+def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -> RodDraw:
     """Return a rod geometry drawn over the contract.
 
     Rod geometry over the contract: 2-3 coaxial holes of radius 50-100 mm 100-300 mm apart,
@@ -23,11 +46,8 @@ def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -
 
     Returns
     -------
-    dict: layers, holes, axis, alpha (pose angles [rad]), n (poses), k (readings per pose),
-    m (holes), noise [mm]
+    RodDraw
     """
-    from borescan.geometry import Hole, RodAxis, RodLayer
-
     m = int(rng.integers(contract["n_holes"][0], contract["n_holes"][1] + 1))
     r = rng.uniform(*contract["hole_radius_mm"], m)
     h = rng.uniform(50.0, 150.0) + np.concatenate([[0.0], np.cumsum(rng.uniform(100.0, 300.0, m - 1))])
@@ -55,16 +75,7 @@ def draw_rod_geometry(rng: np.random.Generator, contract: dict = ROD_CONTRACT) -
     k = int(rng.integers(contract["samples_per_pose"][0], contract["samples_per_pose"][1] + 1))
     sig = float(rng.uniform(*contract["noise_mm"]))
     alpha = rng.uniform(0, 2 * np.pi, n)
-    return {
-        "layers": layers,
-        "holes": holes,
-        "axis": axis,
-        "alpha": alpha,
-        "n": n,
-        "k": k,
-        "m": m,
-        "noise": sig,
-    }
+    return RodDraw(tuple(layers), tuple(holes), axis, alpha, k, sig)
 
 
 def draw_rod_scan(
@@ -94,21 +105,21 @@ def draw_rod_scan(
     g = draw_rod_geometry(rng, contract)
     layers = [
         replace(lay, l0_mm=float(hh.radius_mm - contract["range_mm"] / 2))
-        for lay, hh in zip(g["layers"], g["holes"])
+        for lay, hh in zip(g.layers, g.holes)
     ]
     kind = "ring_gauge" if rng.random() < contract["p_ring_gauge"] or calibration else "part"
     art = artifact_of(
         kind,
         f"{'RGS' if kind == 'ring_gauge' else 'CYL'}-{scan_id}"[:40],
-        [2 * hh.radius_mm for hh in g["holes"]],
+        [2 * hh.radius_mm for hh in g.holes],
         [lay.h_mm for lay in layers],
         11.5e-6,
     )
     scene = RodScene(
         layers=tuple(layers),
-        holes=tuple(g["holes"]),
-        axis=g["axis"],
-        range_mm=(contract["range_mm"],) * g["m"],
+        holes=g.holes,
+        axis=g.axis,
+        range_mm=(contract["range_mm"],) * g.n_holes,
     )
     effects = []
     if not effect_free:
@@ -133,9 +144,9 @@ def draw_rod_scan(
         ]
     sim = simulate.simulate_rod(
         scene,
-        g["alpha"],
-        samples_per_pose=g["k"],
-        noise_mm=g["noise"],
+        g.alpha_rad,
+        samples_per_pose=g.samples_per_pose,
+        noise_mm=g.noise_mm,
         seed=int(rng.integers(0, 2**31 - 1)),
         artifact=art,
         nominal_layers=layers,
@@ -147,17 +158,17 @@ def draw_rod_scan(
     )
     meta = json.loads(json.dumps(sim.meta))
     for sensor in meta.get("sensors", []):  # the data sheet states the repeatability the scan has
-        sensor["repeatability_mm"] = g["noise"]
+        sensor["repeatability_mm"] = g.noise_mm
     truth = dict(sim.truth)
     truth["contract"] = {
         "generator": "borescan.synthetic.rod_scenarios.draw_rod_scan",
         "effect_free": not effects,
         "artifact": kind,
-        "diameters_mm": [2 * hh.radius_mm for hh in g["holes"]],
-        "n_poses": g["n"],
-        "samples_per_pose": g["k"],
-        "noise_mm": g["noise"],
-        "eccentricity_mm": float(np.hypot(g["axis"].dx_mm, g["axis"].dy_mm)),
-        "deflection_rad": g["axis"].omega_rad,
+        "diameters_mm": [2 * hh.radius_mm for hh in g.holes],
+        "n_poses": g.n_poses,
+        "samples_per_pose": g.samples_per_pose,
+        "noise_mm": g.noise_mm,
+        "eccentricity_mm": float(np.hypot(g.axis.dx_mm, g.axis.dy_mm)),
+        "deflection_rad": g.axis.omega_rad,
     }
     return replace(sim, meta=meta, truth=truth)
