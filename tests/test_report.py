@@ -432,7 +432,7 @@ def test_summary_per_night_lists_what_needs_attention(rich):
         assert "Fix the export or rescan" in summary and "Calibrate the device" in summary
         # the overview row of the 22nd: 4 scans in, 1 quarantined, CAL-B made, ROD-CAL-1 expired,
         # CAL-A superseded, 1 verification passed, none failed, 1 part out of tolerance, none that cannot
-        # decide (the history has no verdict statements), no verdict for a person
+        # decide (the history has no verdict statements), no verdict for a person, no pooled verdict, no drift
         row = summary.split('href="#night-2026-11-22">2026-11-22</a></td>')[1].split("</tr>")[0]
         cells = re.findall(r"<td[^>]*>(.*?)</td>", row)
         assert cells == [
@@ -445,6 +445,8 @@ def test_summary_per_night_lists_what_needs_attention(rich):
             "1",
             "0",
             "1",
+            "0",
+            "0",
             "0",
             "0",
         ]

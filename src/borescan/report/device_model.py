@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import html
 import json
+import re
 from typing import Any
 
 import numpy as np
@@ -14,8 +15,60 @@ from borescan.report.plots import _LABEL_BOX, _xticks
 from borescan.report.text import _e, _parameters_text
 
 
+#: How the calibrate stage states a refused channel's residual: "residual rms is 1.45 times the
+#: readings' own noise floor".
+_REFUSED_RATIO = re.compile(r"residual rms is ([0-9.]+) times the readings' own noise floor")
+
+
+def refused_calibrations(scans: pl.DataFrame | None, quarantine: pl.DataFrame | None) -> pl.DataFrame:
+    """Return the calibrations refused per device and night, from the quarantine records of the catalog.
+
+    Columns ``night``, ``device_id``, ``scan_ids`` (comma-separated) and ``residual_to_noise``: the
+    largest residual over the noise floor the refusal states (null when it states none). A calibration
+    refused on several scans is one row.
+    """
+    schema = {"night": pl.Utf8, "device_id": pl.Utf8, "scan_ids": pl.Utf8, "residual_to_noise": pl.Float64}
+    if scans is None or quarantine is None or quarantine.height == 0 or scans.height == 0:
+        return pl.DataFrame(schema=schema)
+    q = quarantine.filter(pl.col("reason").fill_null("").str.contains("calibration refused"))
+    q = q.join(scans.select("scan_id", "device_id").unique("scan_id"), on="scan_id", how="left")
+    rows: dict[tuple[str, str], dict] = {}
+    for r in q.sort("night", "scan_id").iter_rows(named=True):
+        x = rows.setdefault(
+            (str(r["night"]), r["device_id"]),
+            {
+                "night": str(r["night"]),
+                "device_id": r["device_id"],
+                "scan_ids": [],
+                "residual_to_noise": None,
+            },
+        )
+        x["scan_ids"].append(r["scan_id"])
+        ratios = [float(v) for v in _REFUSED_RATIO.findall(r["reason"])]
+        if ratios:
+            x["residual_to_noise"] = max(ratios + [x["residual_to_noise"] or 0.0])
+    out = [{**x, "scan_ids": ",".join(x["scan_ids"])} for x in rows.values()]
+    return pl.DataFrame(out, schema=schema)
+
+
+def _largest_e_over_u(ver: pl.DataFrame | None, device_id: str) -> list[dict[str, Any]]:
+    """Return per night the device's verification with the largest |error| / U (``e``), as rows."""
+    if ver is None or ver.height == 0 or "expanded_u_error_mm" not in ver.columns:
+        return []
+    v = (
+        ver.filter((pl.col("device_id") == device_id) & (pl.col("expanded_u_error_mm") > 0))
+        .with_columns(e=pl.col("error_mm").abs() / pl.col("expanded_u_error_mm"))
+        .sort("e", descending=True)
+    )
+    return v.unique("night", keep="first").to_dicts()
+
+
 def device_model_history(
-    pooled: pl.DataFrame | None, cal: pl.DataFrame | None, ver: pl.DataFrame | None, device_id: str
+    pooled: pl.DataFrame | None,
+    cal: pl.DataFrame | None,
+    ver: pl.DataFrame | None,
+    device_id: str,
+    refused: pl.DataFrame | None = None,
 ) -> pl.DataFrame:
     """Per night of one device, what its device model did to the gaps (issue 22, "gap shown over time").
 
@@ -27,7 +80,9 @@ def device_model_history(
     ``carried`` (what the night's calibration carried of the device model with an estimate, e.g.
     ``channel_delay@2 tau_s = 1.19 ± 0.02 ms (2026-11-23)``; "" when nothing) and ``carried_keys``
     (its effects, ``channel_delay@2``: the model's composition, which changes only by a decision,
-    while the estimates follow each night). A night without a figure has null there.
+    while the estimates follow each night); ``refused_residual_to_noise``: a calibration of the night
+    that was refused (``refused``: :func:`refused_calibrations`), its worst residual over the noise
+    floor (NaN when its reason states none). A night without a figure has null there.
     """
     rows: dict[str, dict[str, Any]] = {}
 
@@ -42,6 +97,7 @@ def device_model_history(
                 "verification_error_um": None,
                 "carried": "",
                 "carried_keys": "",
+                "refused_residual_to_noise": None,
             },
         )
 
@@ -62,16 +118,14 @@ def device_model_history(
             est = [m for m in entries if m.get("estimated")]
             x["carried"] = "; ".join(f"{m['key']} {_text_of(m)} ({m.get('night')})" for m in est)
             x["carried_keys"] = ", ".join(m["key"] for m in est)
-    if ver is not None and ver.height and "expanded_u_error_mm" in ver.columns:
-        v = (
-            ver.filter((pl.col("device_id") == device_id) & (pl.col("expanded_u_error_mm") > 0))
-            .with_columns(e=pl.col("error_mm").abs() / pl.col("expanded_u_error_mm"))
-            .sort("e", descending=True)
+    for r in _largest_e_over_u(ver, device_id):
+        row(r["night"]).update(
+            verification_e_over_u=float(r["e"]), verification_error_um=float(r["error_mm"]) * 1e3
         )
-        for r in v.unique("night", keep="first").iter_rows(named=True):
-            row(r["night"]).update(
-                verification_e_over_u=float(r["e"]), verification_error_um=float(r["error_mm"]) * 1e3
-            )
+    if refused is not None and refused.height:
+        for r in refused.filter(pl.col("device_id") == device_id).iter_rows(named=True):
+            ratio = r["residual_to_noise"]
+            row(r["night"])["refused_residual_to_noise"] = float("nan") if ratio is None else float(ratio)
     schema = {
         "night": pl.Utf8,
         "pooled_gap_to_noise": pl.Float64,
@@ -80,6 +134,7 @@ def device_model_history(
         "verification_error_um": pl.Float64,
         "carried": pl.Utf8,
         "carried_keys": pl.Utf8,
+        "refused_residual_to_noise": pl.Float64,
     }
     return pl.DataFrame([rows[k] for k in sorted(rows)], schema=schema)
 
@@ -121,10 +176,38 @@ def plot_device_model_gap(hist: pl.DataFrame, device_id: str) -> Figure:
     ):
         y = hist[col].cast(pl.Float64).fill_null(float("nan")).to_numpy()
         ax_g.plot(x, y, mk + "-", ms=6, label=name)
+    if "refused_residual_to_noise" in hist.columns:
+        refused = hist["refused_residual_to_noise"].cast(pl.Float64).to_numpy()
+        known = ~np.isnan(refused)  # a null (no refusal) reads as NaN; a refusal without a ratio too
+        if known.any():
+            ax_g.plot(
+                x[known],
+                refused[known],
+                "X",
+                color="C3",
+                ms=9,
+                ls="none",
+                label="calibration refused: residual / noise floor",
+            )
+        unknown = hist["refused_residual_to_noise"].is_nan().fill_null(False).to_numpy()
+        for xi in x[unknown]:
+            ax_g.annotate(
+                "calibration refused",
+                (xi, 0.5),
+                xycoords=("data", "axes fraction"),
+                fontsize=7,
+                color="C3",
+                ha="center",
+                bbox=_LABEL_BOX,
+            )
     ax_g.axhline(1.0, color="k", lw=1)
     ax_g.set_ylabel("rms / noise floor")
     ratios = hist.select(
-        pl.col("pooled_gap_to_noise", "calibration_residual_to_noise").cast(pl.Float64)
+        pl.col(
+            c
+            for c in ("pooled_gap_to_noise", "calibration_residual_to_noise", "refused_residual_to_noise")
+            if c in hist.columns
+        ).cast(pl.Float64)
     ).to_numpy()
     top = float(np.nanmax(np.r_[1.0, ratios.astype(float).ravel()]))
     ax_g.set_ylim(0.0, 1.45 * top)  # room above the points for the legend; the model's labels sit low

@@ -26,6 +26,7 @@ from borescan.report.section_calibration import calibration, verification
 from borescan.report.section_findings import discrepancy, pooled
 from borescan.report.section_parts import diameters
 from borescan.report.section_summary import quarantine, summary
+from borescan.report.decisions import device_status, device_status_html
 from borescan.report.page import Page, _EMPTY, _PlotCache
 from borescan.report.text import _e, _img, _link, _table
 
@@ -121,6 +122,17 @@ MONTH_SECTIONS = tuple(s for s in SECTIONS if s[0] != "papers")
 
 #: The papers' page, under the report folder.
 PAPERS_PAGE = "papers.html"
+
+
+def _devices(con, as_of: str) -> str:
+    """Return the status table of every device of the catalog as of the night ``as_of`` (HTML)."""
+    cur = con.cursor()  # a result of another query may be open on con (DuckDB 2)
+    cal = cur.sql(
+        "SELECT c.*, s.started_at FROM calibrations c LEFT JOIN (SELECT DISTINCT ON (scan_id) scan_id, "
+        "started_at FROM scans ORDER BY scan_id, night) s ON s.scan_id = c.scan_id"
+    ).pl()
+    ver = cur.sql("SELECT calibration_id, passed FROM verifications").pl()
+    return device_status_html(device_status(cal, ver, as_of), as_of)
 
 
 def _page(title: str, header: str, nav: str, body: str, footer: str = "") -> str:
@@ -277,6 +289,8 @@ def _update(  # noqa: C901 (one branch per page, month and section of the report
             body.append(f'<section id="{sid}"><h2>{title}</h2>{_EMPTY[sid]}</section>')
         else:
             fragment = _place(parts[month]["sections"][sid], "", f"{REPORT_DIR}/{month}/")
+            if sid == "summary" and totals["last"]:  # the whole history's devices, before the nights
+                fragment = _devices(con, str(totals["last"])) + fragment
             body.append(f'<section id="{sid}"><h2>{title} · {_e(month)}</h2>{fragment}</section>')
     counts = {m: (n, s, q) for m, n, s, q in _month_summary(con)}
     rows = [

@@ -7,7 +7,12 @@ import json
 import polars as pl
 
 from borescan.report.actions import _verdict_note
-from borescan.report.device_model import _carried_by_calibrations, device_model_history, plot_device_model_gap
+from borescan.report.device_model import (
+    _carried_by_calibrations,
+    device_model_history,
+    plot_device_model_gap,
+    refused_calibrations,
+)
 from borescan.report.page import Page, _EMPTY
 from borescan.report.text import _e, _link, _num, _parameters_text, _table, _um, _uncertainties
 
@@ -163,8 +168,11 @@ def pooled(  # noqa: C901 (one branch per optional column of the report's pooled
                 num_cols={7, 8, 9},
             )
         )
+        refused = refused_calibrations(page.t.get("scans"), page.t.get("quarantine"))
         for dev in sorted(pf["device_id"].drop_nulls().unique().to_list()):
-            hist = device_model_history(pf, page.t.get("calibrations"), page.t.get("verifications"), dev)
+            hist = device_model_history(
+                pf, page.t.get("calibrations"), page.t.get("verifications"), dev, refused
+            )
             if hist.height >= 2:
                 out.append(
                     page.figure(

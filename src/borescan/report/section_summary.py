@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import polars as pl
 
 from borescan.decision import CANNOT_DECIDE, DOES_NOT_CONFORM, split_verdict
 from borescan.report.actions import _verdict_note, quarantine_action
+from borescan.report.decisions import drift_items, pooled_items, refused_note
 from borescan.report.page import Page, _EMPTY
 from borescan.report.section_parts import part_rows
 from borescan.report.text import _e, _link, _table, _um, _verdict_is
@@ -72,32 +74,121 @@ def quarantine(page: Page) -> str:
     )
 
 
+@dataclass(frozen=True)
+class NightItems:
+    """What one night of the summary lists, and whether it needs a person (``attention``)."""
+
+    night: str
+    quarantined: list[dict[str, Any]]
+    made: pl.DataFrame
+    superseded: pl.DataFrame
+    expired: pl.DataFrame
+    failed: pl.DataFrame
+    out_of_tolerance: pl.DataFrame | None
+    person: pl.DataFrame  # per-scan discrepancy verdicts for a person
+    untraceable: pl.DataFrame | None
+    undecided: list[dict[str, Any]]  # verdicts that cannot decide (U too large or in the guard band)
+    pooled: list[str]  # the pooled verdicts (HTML items)
+    drifts: list[tuple[bool, str]]  # flagged calibration drifts: (explained, HTML item)
+    findings: pl.DataFrame  # the night's findings (a refused calibration's discrepancy verdict)
+    attention: bool
+
+
+_EVENTS = {
+    "night": pl.Utf8,
+    "event": pl.Utf8,
+    "calibration_id": pl.Utf8,
+    "device_id": pl.Utf8,
+    "other_id": pl.Utf8,
+}
+
+
+def _of(df: pl.DataFrame | None, night: str) -> pl.DataFrame | None:
+    return df.filter(pl.col("night").cast(pl.Utf8) == night) if df is not None and df.height else df
+
+
+def _night_items(page: Page, night: str, parts: pl.DataFrame | None, quarantined: list[dict]) -> NightItems:
+    """Return what the summary lists for ``night`` (``parts``: :func:`part_rows` of the page)."""
+    t = page.t
+    ev = t.get("calibration_events")
+    v_n, f_n = _of(t["verifications"], night), _of(t["findings"], night)
+    e_n = _of(ev if ev is not None else pl.DataFrame(schema=_EVENTS), night)
+    p_n = _of(parts, night)
+    made, superseded, expired = (
+        e_n.filter(pl.col("event") == k) if e_n.height else e_n for k in ("made", "superseded", "expired")
+    )
+    failed = v_n.filter(~pl.col("passed").fill_null(True)) if v_n.height else v_n
+    out_tol = p_n.filter(~pl.col("in_tolerance")) if p_n is not None and p_n.height else None
+    if out_tol is not None and "conformity" in p_n.columns:  # the stage's verdict under the rule
+        out_tol = p_n.filter(
+            _verdict_is(DOES_NOT_CONFORM)
+            | (~pl.col("in_tolerance").fill_null(True) & pl.col("conformity").is_null())
+        )
+    # in the order of the scans and their gauges or features, whatever the catalog's row order
+    # (a night appended to the catalog and a rebuilt catalog give the same page)
+    undecided = [
+        r
+        for df in (v_n, p_n)
+        if df is not None and df.height and "conformity" in df.columns
+        for r in sorted(
+            df.filter(_verdict_is(CANNOT_DECIDE)).iter_rows(named=True),
+            key=lambda r: (str(r.get("scan_id")), str(r.get("artifact_id")), str(r.get("feature"))),
+        )
+    ]
+    person = f_n.filter(pl.col("verdict").is_in(["missing_effect", "ambiguous"])) if f_n.height else f_n
+    untraceable = (
+        p_n.filter(pl.col("method").fill_null("").str.contains("NOT TRACEABLE"))
+        if p_n is not None and p_n.height and "method" in p_n.columns
+        else None
+    )
+    pooled = pooled_items(_of(t.get("pooled_findings"), night))
+    drifts = drift_items(_of(t.get("calibration_drift"), night), t.get("calibrations"))
+    q_n = [q for q in quarantined if q["night"] == night]
+    attention = (
+        bool(q_n)
+        or failed.height > 0
+        or (out_tol is not None and out_tol.height > 0)
+        or person.height > 0
+        or expired.height > 0
+        or (untraceable is not None and untraceable.height > 0)
+        or bool(undecided)
+        or bool(pooled)
+        or any(not explained for explained, _ in drifts)
+    )
+    return NightItems(
+        night,
+        q_n,
+        made,
+        superseded,
+        expired,
+        failed,
+        out_tol,
+        person,
+        untraceable,
+        undecided,
+        pooled,
+        drifts,
+        f_n,
+        attention,
+    )
+
+
 def summary(page: Page) -> str:
     """Night by night, newest first: what came in and what needs a person."""
     t = page.t
-    sc, ver, fnd = t["scans"], t["verifications"], t["findings"]
-    ev = t.get("calibration_events")
-    ev = (
-        ev
-        if ev is not None
-        else pl.DataFrame(
-            schema={
-                "night": pl.Utf8,
-                "event": pl.Utf8,
-                "calibration_id": pl.Utf8,
-                "device_id": pl.Utf8,
-                "other_id": pl.Utf8,
-            }
-        )
-    )
+    sc = t["scans"]
     parts = part_rows(page) if t["diameters"].height else None
     quarantined = quarantined_scans(page)
-
-    def of(df, night):
-        return df.filter(pl.col("night").cast(pl.Utf8) == night) if df is not None and df.height else df
-
     nights = set()
-    for df in (sc, ver, fnd, ev, parts):
+    for name in (
+        "scans",
+        "verifications",
+        "findings",
+        "calibration_events",
+        "pooled_findings",
+        "calibration_drift",
+    ):
+        df = t.get(name)
         if df is not None and df.height and "night" in df.columns:
             nights |= {str(n) for n in df["night"].drop_nulls().to_list()}
     nights |= {q["night"] for q in quarantined if q["night"]}
@@ -105,82 +196,31 @@ def summary(page: Page) -> str:
         return '<p class="empty">No nights in the catalog.</p>'
     rows, classes, details = [], [], []
     for night in sorted(nights, reverse=True):
-        s_n, v_n, f_n, e_n = of(sc, night), of(ver, night), of(fnd, night), of(ev, night)
-        p_n = of(parts, night)
-        q_n = [q for q in quarantined if q["night"] == night]
+        n = _night_items(page, night, parts, quarantined)
+        s_n, v_n, p_n = _of(sc, night), _of(t["verifications"], night), _of(parts, night)
         kinds = s_n.group_by("kind").len().sort("kind").rows() if s_n.height else []
-        made, superseded, expired = (
-            e_n.filter(pl.col("event") == k) if e_n.height else e_n for k in ("made", "superseded", "expired")
-        )
-        failed = v_n.filter(~pl.col("passed").fill_null(True)) if v_n.height else v_n
-        out_tol = p_n.filter(~pl.col("in_tolerance")) if p_n is not None and p_n.height else None
-        if out_tol is not None and "conformity" in p_n.columns:  # the stage's verdict under the rule
-            out_tol = p_n.filter(
-                _verdict_is(DOES_NOT_CONFORM)
-                | (~pl.col("in_tolerance").fill_null(True) & pl.col("conformity").is_null())
-            )
-        # in the order of the scans and their gauges or features, whatever the catalog's row order
-        # (a night appended to the catalog and a rebuilt catalog give the same page)
-        undecided = [
-            r
-            for df in (v_n, p_n)
-            if df is not None and df.height and "conformity" in df.columns
-            for r in sorted(
-                df.filter(_verdict_is(CANNOT_DECIDE)).iter_rows(named=True),
-                key=lambda r: (str(r.get("scan_id")), str(r.get("artifact_id")), str(r.get("feature"))),
-            )
-        ]
-        person = f_n.filter(pl.col("verdict").is_in(["missing_effect", "ambiguous"])) if f_n.height else f_n
-        person_scans = person["scan_id"].unique(maintain_order=True).to_list() if person.height else []
-        untraceable = (
-            p_n.filter(pl.col("method").fill_null("").str.contains("NOT TRACEABLE"))
-            if p_n is not None and p_n.height and "method" in p_n.columns
-            else None
-        )
-        n_out = 0 if out_tol is None else out_tol.height
         known_tol = p_n is not None and p_n.height and p_n["tolerance_mm"].drop_nulls().len() > 0
-        attention = (
-            bool(q_n)
-            or failed.height > 0
-            or n_out > 0
-            or bool(person_scans)
-            or expired.height > 0
-            or (untraceable is not None and untraceable.height > 0)
-            or bool(undecided)
-        )
+        unexplained = sum(not e for e, _ in n.drifts)
         rows.append(
             [
                 f'<a href="#night-{night}">{_e(night)}</a>',
                 str(s_n.height),
-                _e(", ".join(f"{k} {n}" for k, n in kinds)),
-                str(len(q_n)),
-                str(made.height),
-                str(expired.height),
-                str(superseded.height),
-                str(v_n.height - failed.height),
-                str(failed.height),
-                str(n_out) if known_tol else "–",
-                str(len(undecided)),
-                str(len(person_scans)),
+                _e(", ".join(f"{k} {c}" for k, c in kinds)),
+                str(len(n.quarantined)),
+                str(n.made.height),
+                str(n.expired.height),
+                str(n.superseded.height),
+                str(v_n.height - n.failed.height),
+                str(n.failed.height),
+                str(0 if n.out_of_tolerance is None else n.out_of_tolerance.height) if known_tol else "–",
+                str(len(n.undecided)),
+                str(n.person["scan_id"].n_unique() if n.person.height else 0),
+                str(len(n.pooled)),
+                f"{len(n.drifts)}" + (f" ({unexplained} not explained)" if unexplained else ""),
             ]
         )
-        classes.append("fail" if attention else "")
-        details.append(
-            _night_detail(
-                page,
-                night,
-                q_n,
-                made,
-                superseded,
-                expired,
-                failed,
-                out_tol,
-                person,
-                attention,
-                untraceable,
-                undecided,
-            )
-        )
+        classes.append("fail" if n.attention else "")
+        details.append(_night_detail(page, n))
     head = [
         "night",
         "scans in",
@@ -194,40 +234,40 @@ def summary(page: Page) -> str:
         "parts out of tolerance",
         "cannot decide (U too large)",
         "verdicts for a person",
+        "pooled verdicts",
+        "drifts flagged",
     ]
     return (
-        '<p class="note">Newest night first. A red row needs attention; its details follow the table. '
-        "“–”: no part tolerance recorded. Verdicts under the decision rule of the laboratory "
-        "(laboratory.decision_rule); “cannot decide”: the expanded uncertainty is not below the "
-        "tolerance, or the result lies in the guard band.</p>"
-        + _table(head, rows, classes, num_cols=set(range(3, 12)) | {1})
+        '<p class="note">Newest night first: what each night asks of a person (red: something to decide), '
+        "then the counts. Verdicts under the decision rule of the laboratory (laboratory.decision_rule); "
+        "“cannot decide”: the expanded uncertainty is not below the tolerance, or the result lies in the "
+        "guard band. “–”: no part tolerance recorded.</p>"
         + "".join(details)
+        + _table(head, rows, classes, num_cols=set(range(3, 14)) | {1})
     )
 
 
-def _night_detail(  # noqa: C901 (one branch per kind of item a night can list)
-    page,
-    night,
-    q_n,
-    made,
-    superseded,
-    expired,
-    failed,
-    out_tol,
-    person,
-    attention,
-    untraceable=None,
-    undecided=(),
-) -> str:
-    items = []
-    for q in q_n:
+_UNDECIDED_ACTION = (
+    '<br><span class="action">what to do: the uncertainty is too large for the tolerance or the result '
+    "lies in the guard band: lower U (more poses, a better sensor, a recent calibration) or remeasure; a "
+    "wider tolerance or another decision rule is the customer's decision, not the report's.</span>"
+)
+
+
+def _night_detail(page: Page, n: NightItems) -> str:  # noqa: C901 (one branch per kind of item)
+    """Return the night's box: its decisions first (drifts not explained, pooled verdicts, quarantines)."""
+    # the decisions first: drifts no verdict explains, the pooled verdicts and the drifts they explain
+    items = [html for explained, html in n.drifts if not explained] + list(n.pooled)
+    items += [html for explained, html in n.drifts if explained]
+    for q in n.quarantined:
         rec = page.link(f"quarantine/{q['scan_id']}.json")
+        refused = refused_note(q["scan_id"], n.findings) if q["class"] == "calibration refused" else ""
         items.append(
             f"<li><b>quarantined</b> {_link(rec, q['scan_id']) if rec else _e(q['scan_id'])}"
-            f" ({_e(q['device_id'] or '?')}, {_e(q['kind'] or '?')}): {_e('; '.join(q['reasons']))}"
+            f" ({_e(q['device_id'] or '?')}, {_e(q['kind'] or '?')}): {_e('; '.join(q['reasons']))}{refused}"
             f'<br><span class="action">{_e(q["class"])} — what to do: {_e(q["action"])}</span></li>'
         )
-    for r in failed.iter_rows(named=True):
+    for r in n.failed.iter_rows(named=True):
         items.append(
             f"<li><b>verification failed</b> {_e(r['scan_id'])} ({_e(r['device_id'])}"
             f"{', gauge ' + _e(r['artifact_id']) if r.get('artifact_id') else ''}): error "
@@ -237,33 +277,32 @@ def _night_detail(  # noqa: C901 (one branch per kind of item a night can list)
             "measurements, and the measurements made with it are listed under Verification as put in "
             "doubt.</span></li>"
         )
-    for r in expired.iter_rows(named=True):
+    for r in n.expired.iter_rows(named=True):
         items.append(
             f"<li><b>calibration expired</b> {_e(r['calibration_id'])} of {_e(r['device_id'])}"
             '<br><span class="action">what to do: recalibrate before the next measurement.</span></li>'
         )
-    for r in out_tol.iter_rows(named=True) if out_tol is not None else []:
+    for r in n.out_of_tolerance.iter_rows(named=True) if n.out_of_tolerance is not None else []:
         items.append(
             f"<li><b>part out of tolerance</b> {_e(r['artifact_id'])} {_e(r.get('feature') or '')} "
             f"(scan {_e(r['scan_id'])}): deviation {_um(r['deviation_mm'])} µm, tolerance "
             f"±{_um(r['tolerance_mm'])} µm</li>"
         )
-    for r in undecided:
+    for k, r in enumerate(n.undecided):
         what = (
             f"verification {_e(r['scan_id'])} ({_e(r.get('device_id'))}, gauge {_e(r.get('artifact_id'))})"
             if "certified_mm" in r
             else f"part {_e(r.get('artifact_id'))} {_e(r.get('feature') or '')} (scan {_e(r['scan_id'])})"
         )
+        last = k == len(n.undecided) - 1  # what to do, once for all of them
         items.append(
             f"<li><b>cannot decide</b> {what}: {_e(split_verdict(r.get('conformity'))[1])}"
-            '<br><span class="action">what to do: the uncertainty is too large for the tolerance or '
-            "the result lies in the guard band: lower U (more poses, a better sensor, a recent "
-            "calibration) or remeasure; a wider tolerance or another decision rule is the "
-            "customer's decision, not the report's.</span></li>"
+            + (_UNDECIDED_ACTION if last else "")
+            + "</li>"
         )
     for (sid,), grp in (
-        untraceable.group_by("scan_id", maintain_order=True)
-        if untraceable is not None and untraceable.height
+        n.untraceable.group_by("scan_id", maintain_order=True)
+        if n.untraceable is not None and n.untraceable.height
         else []
     ):
         items.append(
@@ -274,7 +313,7 @@ def _night_detail(  # noqa: C901 (one branch per kind of item a night can list)
             "(a rod calibration scan); until then these diameters carry no traceability "
             "(measurement.rod_without_calibration: refuse sets such scans aside).</span></li>"
         )
-    for (sid,), grp in person.group_by("scan_id", maintain_order=True) if person.height else []:
+    for (sid,), grp in n.person.group_by("scan_id", maintain_order=True) if n.person.height else []:
         verdict = grp["verdict"][0]
         named = ", ".join(
             f"{e}" + (f" (channel {c})" if c is not None else "")
@@ -288,14 +327,16 @@ def _night_detail(  # noqa: C901 (one branch per kind of item a night can list)
             + f'<br><span class="action">{_verdict_note(verdict, grp["effect"].drop_nulls().to_list())}'
             "</span></li>"
         )
-    for r in made.iter_rows(named=True):
+    for r in n.made.iter_rows(named=True):
         items.append(f"<li>calibration made: {_e(r['calibration_id'])} of {_e(r['device_id'])}</li>")
-    for r in superseded.iter_rows(named=True):
+    for r in n.superseded.iter_rows(named=True):
         items.append(
             f"<li>calibration superseded: {_e(r['calibration_id'])} of {_e(r['device_id'])} by "
             f"{_e(r['other_id'])}</li>"
         )
     if not items:
         return ""
-    cls = "night" if attention else "night quiet"
-    return f'<div class="{cls}" id="night-{_e(night)}"><h3>{_e(night)}</h3><ul>{"".join(items)}</ul></div>'
+    cls = "night" if n.attention else "night quiet"
+    return (
+        f'<div class="{cls}" id="night-{_e(n.night)}"><h3>{_e(n.night)}</h3><ul>{"".join(items)}</ul></div>'
+    )
