@@ -90,7 +90,7 @@ class NightItems:
     undecided: list[dict[str, Any]]  # verdicts that cannot decide (U too large or in the guard band)
     pooled: list[str]  # the pooled verdicts (HTML items)
     drifts: list[tuple[bool, str]]  # flagged calibration drifts: (explained, HTML item)
-    findings: pl.DataFrame  # the night's findings (a refused calibration's discrepancy verdict)
+    findings: pl.DataFrame  # the page's findings (a refused calibration's discrepancy verdict, by scan id)
     attention: bool
 
 
@@ -168,7 +168,7 @@ def _night_items(page: Page, night: str, parts: pl.DataFrame | None, quarantined
         undecided,
         pooled,
         drifts,
-        f_n,
+        t["findings"],
         attention,
     )
 
