@@ -199,7 +199,7 @@ def test_report_written_with_sections_and_existing_links(results):
     assert "calibration/ROD-01/ROD-CAL-1/certificate.pdf (missing)" in text
     assert "lds.parquet: non-monotonic sample" in text
     assert "missing_effect" in text and "channel_delay" in text
-    assert "tau_s = 1.2 ms" in text  # the finding's parameter in words, with its unit
+    assert "tau = 1.200 ms" in text  # the finding's parameter in words, with its unit (not tau_s in ms)
     assert "VER-21" in text and "FAILED" in text
     # the suspect measurement (PART-7 used CAL-A, which failed on the 21st) is listed
     suspect = text.split("Measurements put in doubt")[1].split("</table>")[0]
@@ -282,9 +282,9 @@ def test_report_from_given_frames_without_catalog(tmp_path):
         }
     )
     text = write_report(res, {"verifications": ver}).read_text()
-    # limits table of the device: mean 0.003, MR-bar 7/3 µm, UCL 0.003 + 2.66 * 0.0023333
-    assert f"{0.003 + 2.66 * 0.007 / 3:.6g}" in text
-    assert f"{3.267 * 0.007 / 3:.6g}" in text
+    # limits table of the device in µm, as its chart: mean 3, MR-bar 7/3 µm, UCL 3 + 2.66 * 7/3
+    assert f">{3.0 + 2.66 * 7.0 / 3:.2f}<" in text and ">9.21<" in text
+    assert f">{3.267 * 7.0 / 3:.2f}<" in text
     assert (res / "report" / "2026-11" / "control_TRI-02.png").is_file()
 
 
@@ -487,7 +487,7 @@ def test_pages_have_no_raw_json_and_no_long_floats(rich):
             mantissa = re.split(r"[eE]", n)[0].replace(".", "").lstrip("0")
             assert len(mantissa) <= 9 or "." not in n, n
     # the values that had 11 to 13 digits are rounded
-    assert "150.012112" in pages[0] and "150.0121123456789" not in pages[0]
+    assert "150.0121" in pages[0] and "150.01211" not in pages[0]  # diameters to 0.1 µm
 
 
 def test_parts_show_both_temperatures_uncertainty_and_deviation(rich):
@@ -508,13 +508,13 @@ def test_parts_show_both_temperatures_uncertainty_and_deviation(rich):
         "150.0101",
         "4.30",
         "2.03",
-        "0.95",
-        "150",
+        "0.9500",
+        "150.0000",
         "10.1",
         "8.0",
         "OUT OF TOLERANCE",
     ]
-    assert rows["PART-7"][4:12] == ["150.0123", "20.4", "150.012112", "4.50", "2.05", "0.95", "", ""]
+    assert rows["PART-7"][4:12] == ["150.0123", "20.4", "150.0121", "4.50", "2.05", "0.9500", "", ""]
     assert "temperature" in parts and "(assumed)" in parts
 
 
@@ -522,8 +522,8 @@ def test_discrepancy_in_words_and_ambiguous_explained(rich):
     res, _ = rich
     disc = _section(write_report(res).read_text(), "discrepancy")
     part9 = disc.split("<td>PART-9</td>")[1].split("</tr>")[0]
-    assert "<b>sensor_offset</b> on channel 1: b_mm = 3.12 ± 0.41 µm" in part9
-    assert "<b>sensor_nonlinearity</b> on channel 1: a_mm = 5.20 ± 0.70 µm" in part9
+    assert "<b>sensor_offset</b> on channel 1: b = 3.12 ± 0.41 µm" in part9
+    assert "<b>sensor_nonlinearity</b> on channel 1: a = 5.20 ± 0.70 µm" in part9
     assert "Ambiguous between sensor_nonlinearity, sensor_offset" in part9 and "equally well" in part9
     assert "another eccentricity" in part9
     assert ">5.01<" in part9 and ">2.10<" in part9  # gaps in µm rms, rounded
@@ -803,15 +803,19 @@ def test_device_model_section_shows_pooled_verdicts_device_effects_and_flagged_d
     catalog.build_catalog(res, t)
     sec = _section(write_report(res).read_text(), "pooled")
     row = sec.split("<td>TRI-01</td>")[1].split("</tr>")[0]
-    assert "<b>channel_delay</b> on channel 2: tau_s = 1.200 ± 0.030 ms (evidence: CAL-A,CAL-B)" in row
+    assert "<b>channel_delay</b> on channel 2: tau = 1.200 ± 0.030 ms (evidence: CAL-A,CAL-B)" in row
     assert "<b>sensor_gain</b> on channel 1" in row.split("</td><td>")[2]  # the device-model column
     cell = row.split("</td><td>")[3]  # what the night's calibration carried, and its residual
-    assert "<b>channel_delay@2</b>: tau_s = 1.190 ± 0.020 ms (from 2026-11-19)" in cell
+    assert "<b>channel_delay@2</b>: tau = 1.190 ± 0.020 ms (from 2026-11-19)" in cell
     assert "<b>sensor_offset@3</b>: not estimated yet" in cell and "residual 1.03 × noise floor" in cell
     assert ">6.10<" in row and ">2.10<" in row and ">2.00<" in row
     drift = sec.split("Calibration drift (1 flagged of 2 changes)")[1]
     assert (
-        "+4 mrad" in drift and "0.85 mrad" in drift and "channel_delay@2" in drift and "rho_mm" not in drift
+        "+4.00 mrad" in drift
+        and "0.85 mrad" in drift
+        and "+4.70" in drift
+        and "channel_delay@2" in drift
+        and "rho_mm" not in drift
     )
 
 
@@ -846,7 +850,7 @@ def test_findings_rows_carry_the_uncertainties_the_report_shows(tmp_path):
     )
     catalog.build_catalog(res, t)
     disc = _section(write_report(res).read_text(), "discrepancy")
-    assert "<b>channel_delay</b> on channel 2: tau_s = 1.200 ± 0.030 ms" in disc
+    assert "<b>channel_delay</b> on channel 2: tau = 1.200 ± 0.030 ms" in disc
 
 
 def test_rod_diameters_without_a_gauge_calibration_need_attention(tmp_path):
@@ -932,7 +936,7 @@ def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
     assert hist["verification_error_um"].to_list()[1:3] == pytest.approx(
         [-4.0, 0.5]
     )  # the worst of the night
-    assert hist["carried"].to_list()[:3] == ["", "", "channel_delay@2 tau_s = 1.190 ± 0.020 ms (2026-11-23)"]
+    assert hist["carried"].to_list()[:3] == ["", "", "channel_delay@2 tau = 1.190 ± 0.020 ms (2026-11-23)"]
     assert hist["carried_keys"].to_list() == ["", "", "channel_delay@2", "channel_delay@2"]
     fig = plot_device_model_gap(hist, "TRI-01")
     FigureCanvasAgg(fig).draw()
@@ -940,9 +944,7 @@ def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
     marks = [ln.get_xdata()[0] for ln in ax_g.get_lines() if ln.get_linestyle() == "--"]
     assert marks == [1.5]  # between the night the delay was estimated and the first that carried it
     (note,) = [t.get_text() for t in ax_g.texts]
-    assert (
-        note == "device model from here:\nchannel_delay@2\ntau_s = 1.190 ± 0.020 ms\n(estimated 2026-11-23)"
-    )
+    assert note == "device model from here:\nchannel_delay@2\ntau = 1.190 ± 0.020 ms\n(estimated 2026-11-23)"
     assert sorted(t.get_text() for t in ax_v.texts) == ["+0.50 µm", "-4.00 µm"]
     renderer = fig.canvas.get_renderer()
     box, axes = ax_g.texts[0].get_window_extent(renderer), ax_g.get_window_extent(renderer)

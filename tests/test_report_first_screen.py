@@ -90,14 +90,14 @@ def test_pooled_verdict_comes_with_the_devices_yaml_entry_that_adds_the_effect(t
     cls, box = _night(summary, "2026-11-21")
     assert cls == "night"
     item = box.split("<b>pooled verdict missing_effect</b>")[1].split("</li>")[0]
-    assert "<b>channel_delay</b> on channel 2: tau_s = 1.151 ± 0.031 ms" in item  # GUM 7.2.6 rounding
+    assert "<b>channel_delay</b> on channel 2: tau = 1.151 ± 0.031 ms" in item  # GUM 7.2.6 rounding
     assert "evidence: CAL-A-P1,CAL-A-P2" in item
     (entry,) = re.findall(r"<pre>(.*?)</pre>", item, re.S)
     pasted = yaml.safe_load(html.unescape(entry))
     # what the workflow reads: the effect from the night after the verdict, not before
     assert device_model_effects(pasted["devices"], "TRI-01", "2026-11-22") == ("channel_delay@2",)
     assert device_model_effects(pasted["devices"], "TRI-01", "2026-11-21") == ()
-    assert "tau_s = 1.151 ± 0.031 ms, named on 2026-11-21" in html.unescape(entry)  # the value, as a comment
+    assert "tau = 1.151 ± 0.031 ms, named on 2026-11-21" in html.unescape(entry)  # the value, as a comment
     # the drift it explains is on the same screen, in mrad and in u
     change, u = DRIFT[0][1], DRIFT[0][2]
     assert f"{change * 1e3:+.2f} mrad = {change / u:+.2f} u" == "-5.69 mrad = -3.67 u"

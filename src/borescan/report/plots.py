@@ -33,15 +33,34 @@ def _labels(df: pl.DataFrame, id_col: str = "scan_id") -> list[str]:
 MAX_TICK_LABELS = 8
 
 
-def _xticks(ax, labels: list[str], most: int = MAX_TICK_LABELS) -> None:
-    """Label the x positions 0..n-1; with more than ``most`` labels, every k-th."""
+#: Width of one character of a 7 pt tick label [in], with room between labels (DejaVu Sans averages
+#: about 0.55 em a character).
+_CHAR_WIDTH_IN = 0.075
+
+
+def _xticks(ax, labels: list[str], most: int = MAX_TICK_LABELS, width_in: float | None = None) -> None:
+    """Label the x positions 0..n-1; with more than ``most`` labels, every k-th.
+
+    The labels are slanted when there are many of them, or, given the axes' width ``width_in`` [in],
+    when their longest lines side by side would not fit in it (long scan ids would overlap).
+    """
     step = -(-len(labels) // most) if labels else 1
     pos = list(range(0, len(labels), step))
     ax.set_xticks(pos)
     slant = len(pos) > max(2, most // 2)  # a narrow panel slants its labels sooner
+    if width_in is not None and pos:
+        longest = max(len(line) for i in pos for line in labels[i].split("\n"))
+        slant = slant or len(pos) * longest * _CHAR_WIDTH_IN > width_in
     ax.set_xticklabels(
         [labels[i] for i in pos], rotation=45 if slant else 0, ha="right" if slant else "center", fontsize=7
     )
+
+
+def _held(df: pl.DataFrame, p: str, up: str) -> bool:
+    """Whether ``p`` has one value in every row and no uncertainty (held, not fitted: a flat panel)."""
+    per_channel = df.drop_nulls(p).group_by("channel").agg(pl.col(p).n_unique().alias("n"))
+    u = df[up].fill_null(0.0).abs().max() if up in df.columns else 0.0
+    return bool((per_channel["n"] == 1).all()) and not u
 
 
 def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
@@ -52,7 +71,9 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
     ``valid_from`` order, labelled with night and calibration scan.
     """
     df = cal.filter(pl.col("device_id") == device_id).sort("valid_from", "calibration_id", "channel")
-    params = [p for p in TRI_PARAMS + ROD_PARAMS if p[0] in df.columns and df[p[0]].drop_nulls().len() > 0]
+    present = [p for p in TRI_PARAMS + ROD_PARAMS if p[0] in df.columns and df[p[0]].drop_nulls().len() > 0]
+    held = [p for p, up in present if _held(df, p, up)]
+    params = [p for p in present if p[0] not in held] or present
     channels = sorted(df["channel"].drop_nulls().unique().to_list())
     cal_order = (
         df.select("calibration_id", "valid_from", "scan_id")
@@ -60,9 +81,17 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
         .sort("valid_from", "calibration_id")
     )
     pos = {c: i for i, c in enumerate(cal_order["calibration_id"].to_list())}
+    design = (
+        set(df.filter(pl.col("method") == "nominal")["calibration_id"]) if "method" in df.columns else set()
+    )
     labels = [
-        f"{v}\n{s}"
-        for v, s in zip(cal_order["valid_from"].to_list(), cal_order["scan_id"].to_list(), strict=True)
+        f"{v}\n{'design geometry' if c in design else s}"
+        for v, s, c in zip(
+            cal_order["valid_from"].to_list(),
+            cal_order["scan_id"].to_list(),
+            cal_order["calibration_id"].to_list(),
+            strict=True,
+        )
     ]
     if len(channels) <= 1:  # one channel (a one-layer rod): parameters side by side, three to a row
         nc = min(max(len(params), 1), 3)
@@ -98,7 +127,12 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
             else:
                 _xticks(axes[i][j], labels, most=4)  # a 3.2 in panel holds a few two-line labels
                 axes[i][j].tick_params(axis="x", labelbottom=i == nr - 1 or (i + 1, j) not in used)
-    fig.suptitle(f"{device_id}: calibration parameters (error bars: U (k=2))", fontsize=10)
+    fixed = (
+        f"\nnot fitted (the same value in every calibration, no uncertainty): {', '.join(held)}"
+        if held and params != present
+        else ""
+    )
+    fig.suptitle(f"{device_id}: calibration parameters (error bars: U (k=2)){fixed}", fontsize=10)
     return fig
 
 
@@ -323,14 +357,14 @@ def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
             tol = sub["tolerance_mm"].drop_nulls() if "tolerance_mm" in sub.columns else nom.clear()
             if tol.len():
                 ax.axhspan(n0 - float(tol[0]), n0 + float(tol[0]), color="C2", alpha=0.12, label="tolerance")
-        ax.set_title(f"feature {feat or '?'} (n={sub.height})", fontsize=9)
+        ax.set_title(f"feature {feat} (n={sub.height})" if feat else f"n={sub.height}", fontsize=9)
         ax.set_ylabel(f"diameter {where} [mm]", fontsize=8)
         ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         ax.tick_params(axis="y", labelsize=7)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6, loc="best")
         ax.set_xlim(-0.5, max(sub.height - 0.5, 0.5))
-        _xticks(ax, _labels(sub))
+        _xticks(ax, _labels(sub), width_in=panel_w)
     for k in range(len(features), nr * nc):
         axes[k // nc][k % nc].set_visible(False)
     fig.suptitle(f"part {artifact_id}: diameters {where} (error bars: U (k=2))", fontsize=10)

@@ -10,7 +10,7 @@ from borescan.calibrations import calibration_roles, failed_calibration_ids, ord
 from borescan.report.page import Page, _EMPTY
 from borescan.report.plots import plot_calibration_trends, plot_control_chart
 from borescan.report.spc import MR_D2, RUN_RULES, control_limits, run_rules
-from borescan.report.text import _e, _link, _num, _table, _temperature, _um, _verdict_cell
+from borescan.report.text import _e, _link, _mm, _table, _temperature, _um, _verdict_cell
 
 
 def calibration(page: Page) -> str:
@@ -134,15 +134,15 @@ def _gauge_chart(page: Page, dev: str, gauge: str | None, sub: pl.DataFrame, sev
         out.append(page.figure(plot_control_chart, sub, dev, name, f"control chart of {dev}"))
     out.append(
         _table(
-            ["n", "mean [mm]", "MR̄ [mm]", "UCL [mm]", "LCL [mm]", "MR UCL [mm]"],
+            ["n", "mean [µm]", "MR̄ [µm]", "UCL [µm]", "LCL [µm]", "MR UCL [µm]"],
             [
                 [
                     str(sub.height),
-                    _num(lim["mean"]),
-                    _num(lim["mr_bar"]),
-                    _num(lim["ucl"]),
-                    _num(lim["lcl"]),
-                    _num(lim["mr_ucl"]),
+                    _um(lim["mean"], 2),
+                    _um(lim["mr_bar"], 2),
+                    _um(lim["ucl"], 2),
+                    _um(lim["lcl"], 2),
+                    _um(lim["mr_ucl"], 2),
                 ]
             ],
             num_cols={0, 1, 2, 3, 4, 5},
@@ -160,8 +160,8 @@ def _gauge_chart(page: Page, dev: str, gauge: str | None, sub: pl.DataFrame, sev
                 _e(r.get("night")),
                 _e(r["scan_id"]),
                 _e(r.get("calibration_id")),
-                _num(r.get("measured_mm"), 9),
-                _num(r.get("certified_mm"), 9),
+                _mm(r.get("measured_mm")),
+                _mm(r.get("certified_mm")),
                 _um(r.get("error_mm")),
                 _um(2.0 * u if u is not None else None),
                 _um(r.get("tolerance_mm")),
@@ -209,11 +209,11 @@ def _suspect(page: Page) -> str:
                 _e(r["scan_id"]),
                 _e(r["artifact_id"]),
                 _e(r["feature"]),
-                _num(r["diameter_mm"], 9),
+                _mm(r["diameter_mm"]),
                 _e(r["calibration_id"]),
                 _e(r["failed_verification_scan_id"]),
                 _e(r["failed_night"]),
-                _num(r["failed_error_mm"]),
+                _um(r["failed_error_mm"]),
             ]
             for r in sus.iter_rows(named=True)
         ]
@@ -228,7 +228,7 @@ def _suspect(page: Page) -> str:
                     "calibration",
                     "failed verification",
                     "on",
-                    "its error [mm]",
+                    "its error [µm]",
                 ],
                 rows,
                 ["fail"] * len(rows),

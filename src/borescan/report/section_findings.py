@@ -14,7 +14,7 @@ from borescan.report.device_model import (
     refused_calibrations,
 )
 from borescan.report.page import Page, _EMPTY
-from borescan.report.text import _e, _link, _num, _parameters_text, _table, _um, _uncertainties
+from borescan.report.text import _e, _link, _parameters_text, _table, _um, _uncertainties
 
 
 def discrepancy(page: Page) -> str:
@@ -197,9 +197,9 @@ def pooled(  # noqa: C901 (one branch per optional column of the report's pooled
                         _e(r["device_id"]),
                         _e(r["channel"]),
                         _e(r["parameter"]),
-                        f"{r['change'] * f:+.3g} {name}",
-                        f"{r['u_combined'] * f:.2g} {name}",
-                        _num(r.get("change_over_u"), 3),
+                        f"{r['change'] * f:+.2f} {name}",
+                        f"{r['u_combined'] * f:.2f} {name}",
+                        "" if r.get("change_over_u") is None else f"{r['change_over_u']:+.2f}",
                         _e(r.get("explained_by") or "not explained"),
                         _e(r.get("calibration_id_after")),
                     ]

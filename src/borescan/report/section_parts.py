@@ -7,7 +7,7 @@ import polars as pl
 
 from borescan.report.page import Page, _EMPTY
 from borescan.report.plots import plot_diameters
-from borescan.report.text import _e, _num, _table, _temperature, _um, _verdict_cell
+from borescan.report.text import _e, _mm, _table, _temperature, _um, _verdict_cell
 
 
 def part_rows(page: Page) -> pl.DataFrame:
@@ -54,13 +54,13 @@ def _parts_table(df: pl.DataFrame) -> str:
                 _e(r.get("scan_id")),
                 _e(r["artifact_id"]),
                 _e(r.get("feature")),
-                _num(r.get("diameter_mm"), 9),
+                _mm(r.get("diameter_mm")),
                 _temperature(r.get("temperature_c"), r.get("temperature_assumed")),
-                _num(r.get("diameter_20_mm"), 9),
+                _mm(r.get("diameter_20_mm")),
                 _um(big_u, 2),
-                _num(k, 3),
-                _num(r.get("coverage_probability"), 4),
-                _num(r.get("nominal_mm"), 9),
+                "" if k is None else f"{k:.2f}",
+                "" if r.get("coverage_probability") is None else f"{r['coverage_probability']:.4f}",
+                _mm(r.get("nominal_mm")),
                 _um(r.get("deviation_mm")),
                 _um(r.get("tolerance_mm")),
                 verdict,
@@ -138,10 +138,10 @@ def diameters(page: Page) -> str:
             [
                 _e(r["feature"]),
                 str(r["n"]),
-                _num(r["mean"], 9),
+                _mm(r["mean"]),
                 _um(r["sd"], 2),
-                _num(r["min"], 9),
-                _num(r["max"], 9),
+                _mm(r["min"]),
+                _mm(r["max"]),
             ]
             for r in stats.iter_rows(named=True)
         ]

@@ -41,9 +41,24 @@ def format_quantity(value: float | None, u: float | None = None, unit: str = "")
             unit, v, uu = "µs", v * 1e3, (uu * 1e3 if uu else None)
     tail = f" {unit}" if unit else ""
     if uu is None:
-        return f"{v:.4g}{tail}"
+        return f"{_significant(v, 4)}{tail}"
     dec = max(0, 1 - int(math.floor(math.log10(uu))))
     return f"{v:.{dec}f} ± {uu:.{dec}f}{tail}"
+
+
+def _significant(v: float, digits: int) -> str:
+    """Return ``v`` with ``digits`` significant digits in positional notation (never ``1.67e+03``)."""
+    if v == 0.0:
+        return "0"
+    dec = max(0, digits - 1 - int(math.floor(math.log10(abs(v)))))
+    return f"{round(v, dec):.{dec}f}"
+
+
+def _mm(v_mm: Any, decimals: int = 4) -> str:
+    """Return a length in mm with ``decimals`` decimals (4: to 0.1 µm; "" when missing)."""
+    if v_mm is None or not np.isfinite(float(v_mm)):
+        return ""
+    return f"{float(v_mm):.{decimals}f}"
 
 
 def _e(v: Any) -> str:
@@ -178,7 +193,8 @@ def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -
     """Return a finding's parameters in words.
 
     Return a finding's parameters (JSON text of the findings table) in words:
-    ``tau_s = 1.200 ± 0.030 ms``.
+    ``tau = 1.200 ± 0.030 ms``: a name's unit suffix (``tau_s``) is left out, the unit shown is the
+    value's (which may be a smaller one, ms for s).
     """
     if not parameters:
         return ""
@@ -193,7 +209,8 @@ def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -
     for name, v in sorted(values.items()):
         if isinstance(v, int | float) and not isinstance(v, bool):
             unit = units.get(name) or _unit_of(name)
-            out.append(f"{_e(name)} = {_e(format_quantity(float(v), u.get(name), unit))}")
+            shown = _without_unit(name)
+            out.append(f"{_e(shown)} = {_e(format_quantity(float(v), u.get(name), unit))}")
         elif isinstance(v, dict):  # per-scan values (pooled findings): how many, not all of them
             out.append(f"{_e(name)}: {len(v)} values")
         else:
@@ -201,16 +218,28 @@ def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -
     return "; ".join(out)
 
 
+#: Unit suffixes of parameter names and their units.
+_UNIT_SUFFIXES = (
+    ("_mm_per_s", "mm/s"),
+    ("_mm", "mm"),
+    ("_s", "s"),
+    ("_rad", "rad"),
+    ("_hz", "Hz"),
+    ("_c", "°C"),
+)
+
+
+def _without_unit(name: str) -> str:
+    """Return a parameter's name without its unit suffix (``b_mm`` -> ``b``), the name when it has none."""
+    for suffix, _unit in _UNIT_SUFFIXES:
+        if name.endswith(suffix) and len(name) > len(suffix):
+            return name[: -len(suffix)]
+    return name
+
+
 def _unit_of(name: str) -> str:
     """Return the unit a parameter's name ends in (``_mm``, ``_s``, ``_rad``, ``_hz``), "-" otherwise."""
-    for suffix, unit in (
-        ("_mm_per_s", "mm/s"),
-        ("_mm", "mm"),
-        ("_s", "s"),
-        ("_rad", "rad"),
-        ("_hz", "Hz"),
-        ("_c", "degC"),
-    ):
+    for suffix, unit in _UNIT_SUFFIXES:
         if name.endswith(suffix):
             return unit
     return "-"
