@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import polars as pl
@@ -99,3 +100,56 @@ def test_calibration_plot_leaves_out_parameters_held_at_their_design_values():
     assert "h_mm, phi_rad, d_mm, gamma_rad" in title
     labels = [t.get_text() for t in shown[0].get_xticklabels() if t.get_text()]
     assert sorted(labels) == sorted(["2026-11-20\ndesign geometry", "2026-11-20\nN20261120-ROD01-CAL-RGS150"])
+
+
+def test_papers_page_leads_with_printed_ours_why_read_from_the_reproductions(tmp_path):
+    """The "ours" column is computed from the reproductions' CSVs (here constructed), not copied."""
+    from borescan.report.pages import write_report
+    from test_catalog import make_history
+
+    from borescan import catalog
+
+    res = tmp_path / "results"
+    catalog.build_catalog(res, make_history(res))
+    papers = res / "papers"
+    papers.mkdir()
+    pl.DataFrame(
+        {
+            "quantity": ["samples_per_rev", "samples_per_rev_from_minima"],
+            "channel": [None, "1"],
+            "printed": ["625.0000", "625.0000"],
+            "computed": ["659.7176", "659.7626"],
+            "u_computed": [0.0258, 0.0740],
+        }
+    ).write_csv(papers / "yang2017_table2.csv")
+    diffs = [0.18, -0.22, 0.24, 0.17]
+    pl.DataFrame({"no": [1, 2, 3, 4], "literal_eq14_diff_um": [-177.6, -239.5, -111.9, 300.0]}).write_csv(
+        papers / "yang_table3.csv"
+    )
+    pl.DataFrame(
+        {"theta_c": ["none", "eq14"], "N": [661.0, 659.7], "rms_um": [_rms_of(diffs), 229.0]}
+    ).write_csv(papers / "yang_table3_alternatives.csv")
+    pl.DataFrame(
+        {"item": ["Eq. 15 total"], "paper": ["24.8 um"], "reproduced": ["24.805 um"], "note": ["sqrt(sum)"]}
+    ).write_csv(papers / "wang_statements.csv")
+    write_report(res)
+    page = (res / "report" / "papers.html").read_text()
+    table = page.split('<h3 class="headline">')[1].split("</table>")[0]
+    rows = [re.findall(r"<td>(.*?)</td>", r) for r in table.split("<tr>")[2:]]
+    assert [r[1] for r in rows] == [
+        "§3.2: 625 samples per revolution",
+        "Table 3 diameters",
+        "Eq. 15 total: 24.8 um",
+    ]
+    assert rows[0][2] == "659.72 ± 0.03 from Table 2&#x27;s own sample numbers"
+    literal = _rms_of([-177.6, -239.5, -111.9, 300.0])
+    assert rows[1][2].startswith(
+        f"reproduced to {_rms_of(diffs):.2f} µm RMS only with θ = θ_t, no θ_c and N = 661"
+    )
+    assert f"misses by {literal:.0f} µm RMS" in rows[1][2]
+    assert rows[2][2:4] == ["24.805 um", "sqrt(sum)"]
+    assert 'href="../papers/wang_statements.csv"' in table
+
+
+def _rms_of(values: list[float]) -> float:
+    return math.sqrt(sum(v * v for v in values) / len(values))

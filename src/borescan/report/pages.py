@@ -27,6 +27,7 @@ from borescan.report.section_findings import discrepancy, pooled
 from borescan.report.section_parts import diameters
 from borescan.report.section_summary import quarantine, summary
 from borescan.report.decisions import device_status, device_status_html
+from borescan.report.papers_table import papers_rows
 from borescan.report.page import Page, _EMPTY, _PlotCache
 from borescan.report.text import _e, _img, _link, _table
 
@@ -65,6 +66,29 @@ a.plot{display:inline-block}
 """
 
 
+def _papers_headline(page: Page, pdir: Path) -> str:
+    """Return the printed | ours | why table of the reproductions in ``pdir`` (HTML; "" without one)."""
+    rows = papers_rows(pdir)
+    if not rows:
+        return ""
+    cells = [
+        [
+            _e(r.paper),
+            _e(r.printed),
+            _e(r.ours),
+            _e(r.why),
+            _link(page.up + (pdir / r.source).relative_to(page.root).as_posix(), r.source),
+        ]
+        for r in rows
+    ]
+    return (
+        '<h3 class="headline">What the papers print and what their reproduction here gives</h3>'
+        '<p class="note">"ours" is read from this results folder\'s reproductions (papers/); the '
+        "arguments behind each difference are in docs/papers.md.</p>"
+        + _table(["paper", "printed", "ours", "why", "from"], cells)
+    )
+
+
 def papers(page: Page) -> str:
     """Return the papers' page body: every PNG and CSV under ``papers/`` (CSV tables up to 200 rows)."""
     pdir = page.root / "papers"
@@ -75,7 +99,7 @@ def papers(page: Page) -> str:
     )
     if not files:
         return '<p class="empty">No paper reproductions under papers/.</p>'
-    out = []
+    out = [_papers_headline(page, pdir)]
     for f in files:
         rel = page.up + f.relative_to(page.root).as_posix()
         out.append(f"<h3>{_link(rel, f.relative_to(pdir).as_posix())}</h3>")
