@@ -32,11 +32,11 @@ def test_values_without_uncertainty_keep_four_significant_digits_and_no_exponent
 def test_a_parameter_is_named_without_a_unit_it_is_not_shown_in():
     text = _parameters_text(
         "sensor_offset",
-        json.dumps({"b_mm": 0.000907, "tau_s": 0.0012, "rho_mm": 5.51}),
+        json.dumps({"b_mm": 0.000907, "tau_s": 0.0012, "rho_mm": 5.51, "k": 2}),
         {"b_mm": 0.00003, "tau_s": 0.00003},
     )
-    # b_mm = 0.907 ± 0.030 um was the bug: the name said mm, the value was in µm
-    assert text == "b = 0.907 ± 0.030 µm; rho = 5.510 mm; tau = 1.200 ± 0.030 ms"
+    # b_mm = 0.907 ± 0.030 um was the bug: the name said mm, the value was in µm; an order k is an integer
+    assert text == "b = 0.907 ± 0.030 µm; k = 2; rho = 5.510 mm; tau = 1.200 ± 0.030 ms"
 
 
 def test_part_plot_labels_do_not_overlap():

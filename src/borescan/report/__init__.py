@@ -3,9 +3,10 @@
 Modules: :mod:`.pages` (``update_report``, ``write_report``: the pages and what changed, with
 :mod:`.data`), :mod:`.page` (one page's links and plot cache), one module per section
 (:mod:`.section_summary`, :mod:`.section_calibration`, :mod:`.section_parts`,
-:mod:`.section_findings`), :mod:`.plots` and :mod:`.device_model` (pure plots), :mod:`.spc`
-(control limits, run rules), :mod:`.text` (numbers with units, HTML cells), :mod:`.actions`
-(what a person does).
+:mod:`.section_findings`; :mod:`.decisions` builds the first screen's devices and decisions,
+:mod:`.papers_table` the papers' printed | ours | why), :mod:`.plots` and :mod:`.device_model`
+(pure plots), :mod:`.spc` (control limits, run rules), :mod:`.text` (numbers with units, HTML
+cells), :mod:`.actions` (what a person does).
 
 :func:`update_report` (:func:`write_report`) reads the history catalog and writes
 self-contained HTML pages (inline CSS, plots embedded as base64 ``data:`` images, a print
@@ -16,11 +17,16 @@ each embedded image); ``report.html`` shows the totals of the whole history, the
 sections and a link to every month; the paper reproductions have their own page,
 ``report/papers.html``. Sections:
 
-- **Summary** (first): one row per night, newest first: scans in, quarantined, calibrations
-  made / expired / superseded, verifications passed / failed, parts out of tolerance, discrepancy
-  verdicts that need a person; below it, night by night, every quarantined scan with its reason
-  and what to do (:func:`quarantine_action`, the README's "When something needs attention"),
-  every failed verification, part out of tolerance and verdict to look at.
+- **Summary** (first): on ``report.html`` each device's current calibration, valid until and days
+  left as of the last night; then night by night, newest first, what it asks of a person: its
+  decisions first (a drift no pooled verdict explains, a pooled verdict with the
+  ``config/devices.yaml`` entry to paste, refused calibrations with their discrepancy verdict),
+  every quarantined scan with its reason and what to do (:func:`quarantine_action`, the README's
+  "When something needs attention"), failed verifications, parts out of tolerance, verdicts that
+  cannot decide with their rule and guard band, discrepancy verdicts to look at; then a table with
+  one row per night (scans in, quarantined, calibrations made / expired / superseded,
+  verifications passed / failed, parts out of tolerance, cannot decide, verdicts for a person,
+  pooled verdicts, drifts flagged).
 - **Calibration**: parameter trends per device and channel with error bars U (k=2), links to
   each certificate (PDF and JSON), the date recalibration is due.
 - **Verification**: per device and ring gauge an individuals and moving-range control chart of

@@ -207,7 +207,9 @@ def _parameters_text(effect: str, parameters: str | None, u: dict[str, float]) -
     units = dict(getattr(EFFECTS.get(effect), "params", {}) or {})
     out = []
     for name, v in sorted(values.items()):
-        if isinstance(v, int | float) and not isinstance(v, bool):
+        if isinstance(v, int) and not isinstance(v, bool):  # a count or an order (k = 2), not a measurement
+            out.append(f"{_e(_without_unit(name))} = {v}")
+        elif isinstance(v, float):
             unit = units.get(name) or _unit_of(name)
             shown = _without_unit(name)
             out.append(f"{_e(shown)} = {_e(format_quantity(float(v), u.get(name), unit))}")
