@@ -153,3 +153,27 @@ def test_papers_page_leads_with_printed_ours_why_read_from_the_reproductions(tmp
 
 def _rms_of(values: list[float]) -> float:
     return math.sqrt(sum(v * v for v in values) / len(values))
+
+
+def test_control_chart_shows_the_error_bars_whole():
+    """The demo's verifications: errors under 1 µm with U (k=2) near 19 µm; no bar is cut at the axes."""
+    from borescan.report.plots import plot_control_chart
+
+    err_mm = [0.00047, -0.00013, 0.00075, 0.00015]
+    u_mm = [0.0094, 0.0094, 0.00944, 0.0094]
+    ver = pl.DataFrame(
+        {
+            "night": ["2026-11-20", "2026-11-21", "2026-11-23", "2026-11-24"],
+            "scan_id": [f"V{i}" for i in range(4)],
+            "device_id": ["TRI-01"] * 4,
+            "error_mm": err_mm,
+            "u_error_mm": u_mm,
+            "passed": [True] * 4,
+            "tolerance_mm": [0.015] * 4,
+        }
+    )
+    fig = plot_control_chart(ver, "TRI-01")
+    lo, hi = fig.axes[0].get_ylim()
+    tops = [(e + 2 * u) * 1e3 for e, u in zip(err_mm, u_mm)]
+    bottoms = [(e - 2 * u) * 1e3 for e, u in zip(err_mm, u_mm)]
+    assert lo < min(bottoms) and max(tops) < hi

@@ -185,8 +185,10 @@ def plot_control_chart(  # noqa: C901 (one branch per optional element of the ch
     fig = Figure(figsize=(8.0, 5.8), layout="constrained")
     ax_i, ax_mr = fig.subplots(2, 1, sharex=True, height_ratios=(3, 2))
     ax_i.plot(x, y, "-", color="0.6", lw=0.8 if small else 1)
+    bars = np.full(df.height, np.nan)  # U (k=2) [µm] where the rows give it
     if "u_error_mm" in df.columns and df["u_error_mm"].drop_nulls().len():
         big_u = 2.0 * df["u_error_mm"].cast(pl.Float64).fill_null(float("nan")).to_numpy() * 1e3
+        bars = big_u
         ax_i.errorbar(
             x,
             y,
@@ -227,6 +229,8 @@ def plot_control_chart(  # noqa: C901 (one branch per optional element of the ch
                     va="bottom",
                 )
     lo, hi = (float(np.nanmin(y)), float(np.nanmax(y))) if np.isfinite(y).any() else (-1.0, 1.0)
+    if np.isfinite(y - bars).any():  # the error bars whole, not cut at the axes
+        lo, hi = min(lo, float(np.nanmin(y - bars))), max(hi, float(np.nanmax(y + bars)))
     for val, style, name in (
         (lim["mean"], "-", "mean"),
         (lim["ucl"], "--", "UCL"),
