@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import html
+import math
 from dataclasses import dataclass
 
 import polars as pl
@@ -242,6 +243,13 @@ def _absorbs(key: str, parameter: str) -> bool:
     )
 
 
+def _signed(v: float | None, factor: float = 1.0, sign: str = "+") -> str:
+    """Return ``v * factor`` with two decimals (a sign with ``sign="+"``), "n/a" when missing."""
+    if v is None or not math.isfinite(v):
+        return "n/a"
+    return f"{v * factor:{sign}.2f}"
+
+
 def drift_items(dr: pl.DataFrame | None, cal: pl.DataFrame | None = None) -> list[tuple[bool, str]]:
     """Return a night's flagged calibration drifts as summary items: (explained?, HTML ``<li>``).
 
@@ -262,8 +270,8 @@ def drift_items(dr: pl.DataFrame | None, cal: pl.DataFrame | None = None) -> lis
         text = (
             f"<b>drift{'' if explained else ' NOT EXPLAINED'}</b> {_e(r['device_id'])} "
             f"channel {_e(r['channel'])} "
-            f"{_e(r['parameter'])}: {r['change'] * f:+.2f} {unit} = {r['change_over_u']:+.2f} u "
-            f"(u combined {r['u_combined'] * f:.2f} {unit}{limit}) since the previous calibration"
+            f"{_e(r['parameter'])}: {_signed(r['change'], f)} {unit} = {_signed(r['change_over_u'])} u "
+            f"(u combined {_signed(r['u_combined'], f, '')} {unit}{limit}) since the previous calibration"
         )
         model = [k for k in entered.get((r["device_id"], str(r["night"])), []) if _absorbs(k, r["parameter"])]
         if explained:

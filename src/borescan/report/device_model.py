@@ -30,7 +30,9 @@ def refused_calibrations(scans: pl.DataFrame | None, quarantine: pl.DataFrame | 
     schema = {"night": pl.Utf8, "device_id": pl.Utf8, "scan_ids": pl.Utf8, "residual_to_noise": pl.Float64}
     if scans is None or quarantine is None or quarantine.height == 0 or scans.height == 0:
         return pl.DataFrame(schema=schema)
-    q = quarantine.filter(pl.col("reason").fill_null("").str.contains("calibration refused"))
+    q = quarantine.filter(
+        pl.col("reason").fill_null("").str.contains("calibration refused") & pl.col("night").is_not_null()
+    )
     q = q.join(scans.select("scan_id", "device_id").unique("scan_id"), on="scan_id", how="left")
     rows: dict[tuple[str, str], dict] = {}
     for r in q.sort("night", "scan_id").iter_rows(named=True):
