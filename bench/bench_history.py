@@ -6,7 +6,7 @@ synthetic night holds both demo nights, 18 scans of 2 devices, the same work eac
 ``BENCH_HISTORY_COPIES=2`` doubles the devices).
 Then night k is added to a history of k-1 nights, for k = 2, 30, 120, 365, and the two history
 steps the workflow runs after a night's stage jobs are timed in this process:
-``catalog.update_catalog`` (rule build_catalog) and ``report.update_report`` (rule
+``catalog.update_catalog`` (rule build_catalog) and ``update_report`` (rule
 write_report). Each add is timed ``BENCH_HISTORY_REPEATS`` times from the same saved state
 (median shown). Prints the catalog's size, a full rebuild for comparison and the time of every
 saved query (``workflow/queries``) over the year. Targets: adding night 365 costs at most 1.2
@@ -95,13 +95,14 @@ def add_night(results: Path, pool: Path, night: str) -> tuple[float, float, floa
     Returns (catalog s, report s, catalog CPU s, report CPU s, what was done); CPU time is this
     process's, all threads, so other work on a shared machine does not count.
     """
-    from borescan import catalog, report
+    from borescan import catalog
+    from borescan.report.pages import update_report
 
     _move_night(pool, results, night)
     t0, c0 = time.perf_counter(), time.process_time()
     cu = catalog.update_catalog(results)
     t1, c1 = time.perf_counter(), time.process_time()
-    ru = report.update_report(results)
+    ru = update_report(results)
     t2, c2 = time.perf_counter(), time.process_time()
     return (
         t1 - t0,
@@ -114,7 +115,8 @@ def add_night(results: Path, pool: Path, night: str) -> tuple[float, float, floa
 
 def main() -> None:
     """Time the catalog's queries and the report on a synthetic history of many nights."""
-    from borescan import catalog, report
+    from borescan import catalog
+    from borescan.report.pages import update_report
     from borescan.synthetic import history as sh
 
     n_nights = int(os.environ.get("BENCH_HISTORY_NIGHTS", "365"))
@@ -145,7 +147,7 @@ def main() -> None:
             for night in nights[done : k - 1]:  # the history before night k, caught up at once (not timed)
                 _move_night(pool, results, night)
             catalog.update_catalog(results)
-            report.update_report(results)
+            update_report(results)
             done = k - 1
             snap = tmp / "snapshot"
             _snapshot(results, snap)

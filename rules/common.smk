@@ -120,7 +120,7 @@ def scans_of_pooled_window(wildcards):
     return [f"{RES}/stage/scans/night={n}.parquet" for n in window]
 
 
-#: month plots of results/report/<YYYY-MM>/ (named by borescan.report) -> category of `snakemake --report`
+#: month plots of results/report/<YYYY-MM>/ (named by borescan.report.pages) -> category of `snakemake --report`
 MONTH_PLOT_CATEGORY = {"calibration": "Calibration", "control": "Verification", "diameters": "Diameters",
                        "devicemodel": "Calibration"}
 

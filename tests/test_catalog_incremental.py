@@ -12,7 +12,8 @@ import polars as pl
 import pytest
 from test_catalog import make_history
 
-from borescan import catalog, report
+from borescan import catalog
+from borescan.report.pages import update_report
 from borescan.synthetic import history as sh
 from borescan.cli import main as cli_main
 
@@ -218,7 +219,7 @@ def test_a_failed_verification_updates_the_earlier_month_page(staged):
     res, tables = staged
     _write_stage(res, tables, ["2026-10-30"], NIGHT_OF_OCTOBER)
     catalog.update_catalog(res)
-    first = report.update_report(res)
+    first = update_report(res)
     assert first.rendered == ("2026-10",)
     october = res / "report" / "2026-10" / "index.html"
     doubt = october.read_text().split("Measurements put in doubt")[1].split("</section>")[0]
@@ -226,7 +227,7 @@ def test_a_failed_verification_updates_the_earlier_month_page(staged):
     plots_before = {p.name: p.stat().st_mtime_ns for p in october.parent.glob("*.png")}
     _write_stage(res, tables, ["2026-11-21"], NIGHT_OF_OCTOBER)
     catalog.update_catalog(res)
-    second = report.update_report(res)
+    second = update_report(res)
     assert second.rendered == ("2026-10", "2026-11")
     doubt = october.read_text().split("Measurements put in doubt")[1].split("</section>")[0]
     assert "PART-7" in doubt and "VER-21" in doubt
@@ -234,7 +235,7 @@ def test_a_failed_verification_updates_the_earlier_month_page(staged):
     # the summary shows the latest month and links every month's page
     summary = (res / "report.html").read_text()
     assert "Calibration · 2026-11" in summary and 'href="report/2026-10/index.html"' in summary
-    third = report.update_report(res)
+    third = update_report(res)
     assert (third.rendered, third.plots_drawn) == ((), 0)
 
 
@@ -263,7 +264,7 @@ def test_demo_plus_added_nights_incremental_equals_rebuild(pipeline_run, tmp_pat
             os.link(f, target)
         update = catalog.update_catalog(res)
         assert update.added == (night,)
-        report.update_report(res)
+        update_report(res)
     src = sh.read_source(src_res)
     pool = tmp_path / "pool"
     added = sh.copy_nights(src, res, "2026-11-28", range(6), stage_root=pool)
@@ -275,7 +276,7 @@ def test_demo_plus_added_nights_incremental_equals_rebuild(pipeline_run, tmp_pat
             target.parent.mkdir(parents=True, exist_ok=True)
             os.replace(f, target)
         assert catalog.update_catalog(res).mode == "append"
-        updates.append(report.update_report(res))
+        updates.append(update_report(res))
     assert updates[-1].rendered == ("2026-12",)
     november = {p.name: p.stat().st_mtime_ns for p in (res / "report" / "2026-11").iterdir()}
     # the newest night re-run: replaced in the catalog, December's page only
@@ -283,7 +284,7 @@ def test_demo_plus_added_nights_incremental_equals_rebuild(pipeline_run, tmp_pat
         f.touch()
     redo = catalog.update_catalog(res)
     assert (redo.added, redo.removed) == ((added[-1],), (added[-1],))
-    assert report.update_report(res).rendered == ()  # the same rows: nothing to draw
+    assert update_report(res).rendered == ()  # the same rows: nothing to draw
     assert {p.name: p.stat().st_mtime_ns for p in (res / "report" / "2026-11").iterdir()} == november
 
     snap = _snapshot(res / "catalog.duckdb")
@@ -296,7 +297,7 @@ def test_demo_plus_added_nights_incremental_equals_rebuild(pipeline_run, tmp_pat
         for p in [res / "report.html", *sorted((res / "report").rglob("*"))]
         if p.is_file()
     }
-    report.update_report(res, full=True)
+    update_report(res, full=True)
     again = {
         p.relative_to(res).as_posix(): p.read_bytes()
         for p in [res / "report.html", *sorted((res / "report").rglob("*"))]

@@ -67,7 +67,8 @@ def test_trace_and_report_show_the_verdict_with_its_rule(tmp_path, capsys):
     import polars as pl
     from test_catalog import make_history
 
-    from borescan import catalog, report
+    from borescan import catalog
+    from borescan.report.pages import write_report
     from borescan.cli import main
 
     res = tmp_path / "results"
@@ -90,7 +91,7 @@ def test_trace_and_report_show_the_verdict_with_its_rule(tmp_path, capsys):
     assert (
         "VER-21 on 2026-11-21: error +0.0200 mm (tolerance 0.015 mm) CANNOT DECIDE" in capsys.readouterr().out
     )
-    html = report.write_report(res).read_text() + "".join(
+    html = write_report(res).read_text() + "".join(
         p.read_text() for p in sorted((res / "report").glob("*/index.html"))
     )
     assert '<span class="warn">CANNOT DECIDE</span><br><small>|E| = 20.00 um, U(E) = 18.00 um' in html

@@ -256,7 +256,7 @@ def test_report_lists_a_flagged_beam_with_what_to_do(flagged_fit):
     import polars as pl
 
     from borescan.calibrations import calibration_rows
-    from borescan.report import _rho_sign_notes
+    from borescan.report.section_calibration import _rho_sign_notes
 
     _, cal = flagged_fit
     html = _rho_sign_notes(pl.DataFrame(calibration_rows(cal, "tri_lds", "2026-11-20", None, "f" * 64)))

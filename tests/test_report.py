@@ -18,7 +18,14 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from test_catalog import make_history
 
-from borescan import catalog, report
+from borescan import catalog
+from borescan.report.actions import quarantine_action
+from borescan.report.data import load_tables
+from borescan.report.device_model import device_model_history, plot_device_model_gap
+from borescan.report.pages import update_report, write_report
+from borescan.report.plots import MAX_TICK_LABELS, plot_calibration_trends, plot_control_chart, plot_diameters
+from borescan.report.spc import control_limits, run_rules
+from borescan.report.text import format_quantity
 
 
 class _Links(HTMLParser):
@@ -80,7 +87,7 @@ def results(tmp_path):
 
 def test_control_limits_against_hand_computation():
     # x = 1, 3, 2, 6 -> MR = 2, 1, 4 ; MR-bar = 7/3 ; mean = 3
-    lim = report.control_limits([1.0, 3.0, 2.0, 6.0])
+    lim = control_limits([1.0, 3.0, 2.0, 6.0])
     assert lim["mean"] == pytest.approx(3.0)
     np.testing.assert_allclose(lim["mr"], [2.0, 1.0, 4.0])
     assert lim["mr_bar"] == pytest.approx(7 / 3)
@@ -92,9 +99,9 @@ def test_control_limits_against_hand_computation():
 
 
 def test_control_limits_nan_and_single_value():
-    lim = report.control_limits([0.004, float("nan"), 0.006])
+    lim = control_limits([0.004, float("nan"), 0.006])
     assert lim["mean"] == pytest.approx(0.005) and lim["mr_bar"] == pytest.approx(0.002)
-    one = report.control_limits([0.004])
+    one = control_limits([0.004])
     assert one["mean"] == pytest.approx(0.004) and np.isnan(one["ucl"]) and one["mr"].size == 0
 
 
@@ -102,13 +109,13 @@ def test_control_limits_nan_and_single_value():
 
 
 def _frames(results):
-    return report.load_tables(results)
+    return load_tables(results)
 
 
 def test_plot_functions_are_pure_and_labelled(results):
     t = _frames(results)
     before = t["verifications"].clone()
-    fig = report.plot_control_chart(t["verifications"], "TRI-01")
+    fig = plot_control_chart(t["verifications"], "TRI-01")
     assert isinstance(fig, Figure)
     ax_i, ax_mr = fig.axes
     assert t["verifications"].equals(before)
@@ -131,14 +138,14 @@ def test_plot_functions_are_pure_and_labelled(results):
     ]
     assert round(3.267 * mr_bar * 1e3, 6) in mr_lines
 
-    cal_fig = report.plot_calibration_trends(t["calibrations"], "TRI-01")
+    cal_fig = plot_calibration_trends(t["calibrations"], "TRI-01")
     assert len([a for a in cal_fig.axes if a.get_visible()]) == 9  # 3 parameters x 3 channels
     bottom = [tick.get_text() for tick in cal_fig.axes[-1].get_xticklabels()]
     assert bottom == ["2026-11-20\nCAL-A-P1", "2026-11-22\nCAL-B"]
-    rod_fig = report.plot_calibration_trends(t["calibrations"], "ROD-01")
+    rod_fig = plot_calibration_trends(t["calibrations"], "ROD-01")
     assert len([a for a in rod_fig.axes if a.get_visible()]) == 5  # l0, h, phi, d, gamma
 
-    dia_fig = report.plot_diameters(t["diameters"], "P-7")
+    dia_fig = plot_diameters(t["diameters"], "P-7")
     (ax,) = [a for a in dia_fig.axes if a.get_visible()]
     assert [tick.get_text() for tick in ax.get_xticklabels()] == ["2026-11-20\nPART-7"]
 
@@ -147,7 +154,7 @@ def test_plot_functions_are_pure_and_labelled(results):
 
 
 def test_report_written_with_sections_and_existing_links(results):
-    page = report.write_report(results)
+    page = write_report(results)
     assert page == results / "report.html"
     text = page.read_text()
     for sid in ("summary", "calibration", "verification", "diameters", "discrepancy", "papers", "quarantine"):
@@ -192,7 +199,7 @@ def test_report_written_with_sections_and_existing_links(results):
     assert "calibration/ROD-01/ROD-CAL-1/certificate.pdf (missing)" in text
     assert "lds.parquet: non-monotonic sample" in text
     assert "missing_effect" in text and "channel_delay" in text
-    assert "tau_s = 1.2 ms" in text  # the finding's parameter in words, with its unit
+    assert "tau = 1.200 ms" in text  # the finding's parameter in words, with its unit (not tau_s in ms)
     assert "VER-21" in text and "FAILED" in text
     # the suspect measurement (PART-7 used CAL-A, which failed on the 21st) is listed
     suspect = text.split("Measurements put in doubt")[1].split("</table>")[0]
@@ -212,19 +219,19 @@ def test_report_written_with_sections_and_existing_links(results):
 
 
 def test_report_plots_parts_measured_more_than_once(results):
-    t = report.load_tables(results)
+    t = load_tables(results)
     dia = t["diameters"]
     again = dia.filter(pl.col("artifact_id") == "P-7").with_columns(
         pl.lit("PART-7B").alias("scan_id"), (pl.col("diameter_mm") + 0.002).alias("diameter_mm")
     )
     t["diameters"] = pl.concat([dia, again], how="diagonal_relaxed")
-    text = report.write_report(results, t).read_text()
+    text = write_report(results, t).read_text()
     assert "<h3>Part P-7</h3>" in text and "Parts measured once (2)" in text
     assert (results / "report" / "2026-11" / "diameters_P-7.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_report_links_survive_moving_the_folder(results, tmp_path):
-    report.write_report(results)
+    write_report(results)
     moved = tmp_path / "elsewhere" / "results-copy"
     shutil.move(str(results), str(moved))
     assert _check_links_resolve(moved)
@@ -237,13 +244,13 @@ def _files(folder):
 
 
 def test_report_rerun_is_byte_identical(results):
-    report.write_report(results)
+    write_report(results)
     first = _files(results / "report")
     html1 = (results / "report.html").read_bytes()
-    report.write_report(results)
+    write_report(results)
     assert _files(results / "report") == first
     assert (results / "report.html").read_bytes() == html1
-    report.write_report(results, full=True)  # everything drawn again: the same bytes
+    write_report(results, full=True)  # everything drawn again: the same bytes
     assert _files(results / "report") == first
     assert (results / "report.html").read_bytes() == html1
 
@@ -251,7 +258,7 @@ def test_report_rerun_is_byte_identical(results):
 def test_report_of_empty_catalog(tmp_path):
     res = tmp_path / "results"
     catalog.build_catalog(res, {})
-    text = report.write_report(res).read_text()
+    text = write_report(res).read_text()
     assert "No calibrations in the catalog." in text
     assert "No verifications in the catalog." in text
     assert "No quarantined scans." in text
@@ -274,10 +281,10 @@ def test_report_from_given_frames_without_catalog(tmp_path):
             "certified_mm": [None] * 4,
         }
     )
-    text = report.write_report(res, {"verifications": ver}).read_text()
-    # limits table of the device: mean 0.003, MR-bar 7/3 µm, UCL 0.003 + 2.66 * 0.0023333
-    assert f"{0.003 + 2.66 * 0.007 / 3:.6g}" in text
-    assert f"{3.267 * 0.007 / 3:.6g}" in text
+    text = write_report(res, {"verifications": ver}).read_text()
+    # limits table of the device in µm, as its chart: mean 3, MR-bar 7/3 µm, UCL 3 + 2.66 * 7/3
+    assert f">{3.0 + 2.66 * 7.0 / 3:.2f}<" in text and ">9.21<" in text
+    assert f">{3.267 * 7.0 / 3:.2f}<" in text
     assert (res / "report" / "2026-11" / "control_TRI-02.png").is_file()
 
 
@@ -401,7 +408,7 @@ def _without_images(text: str) -> str:
 
 def test_summary_per_night_lists_what_needs_attention(rich):
     res, _ = rich
-    text = report.write_report(res).read_text()
+    text = write_report(res).read_text()
     month_text = (res / "report" / "2026-11" / "index.html").read_text()
     for page in (text, month_text):
         summary = _section(page, "summary")
@@ -421,11 +428,11 @@ def test_summary_per_night_lists_what_needs_attention(rich):
         assert set(quarantined) == {"BAD-1", "MEAS-X"}
         for sid, reason in quarantined.items():
             assert sid in summary, sid
-            assert html_escape(report.quarantine_action(reason)[1]) in summary, sid
+            assert html_escape(quarantine_action(reason)[1]) in summary, sid
         assert "Fix the export or rescan" in summary and "Calibrate the device" in summary
         # the overview row of the 22nd: 4 scans in, 1 quarantined, CAL-B made, ROD-CAL-1 expired,
         # CAL-A superseded, 1 verification passed, none failed, 1 part out of tolerance, none that cannot
-        # decide (the history has no verdict statements), no verdict for a person
+        # decide (the history has no verdict statements), no verdict for a person, no pooled verdict, no drift
         row = summary.split('href="#night-2026-11-22">2026-11-22</a></td>')[1].split("</tr>")[0]
         cells = re.findall(r"<td[^>]*>(.*?)</td>", row)
         assert cells == [
@@ -438,6 +445,8 @@ def test_summary_per_night_lists_what_needs_attention(rich):
             "1",
             "0",
             "1",
+            "0",
+            "0",
             "0",
             "0",
         ]
@@ -466,7 +475,7 @@ def _cell_texts(page: str) -> list[str]:
 
 def test_pages_have_no_raw_json_and_no_long_floats(rich):
     res, _ = rich
-    pages = [report.write_report(res).read_text(), (res / "report" / "2026-11" / "index.html").read_text()]
+    pages = [write_report(res).read_text(), (res / "report" / "2026-11" / "index.html").read_text()]
     for page in pages:
         plain = _without_images(page)
         assert '{"' not in plain and "{&quot;" not in plain
@@ -478,12 +487,12 @@ def test_pages_have_no_raw_json_and_no_long_floats(rich):
             mantissa = re.split(r"[eE]", n)[0].replace(".", "").lstrip("0")
             assert len(mantissa) <= 9 or "." not in n, n
     # the values that had 11 to 13 digits are rounded
-    assert "150.012112" in pages[0] and "150.0121123456789" not in pages[0]
+    assert "150.0121" in pages[0] and "150.01211" not in pages[0]  # diameters to 0.1 µm
 
 
 def test_parts_show_both_temperatures_uncertainty_and_deviation(rich):
     res, _ = rich
-    parts = _section(report.write_report(res).read_text(), "diameters")
+    parts = _section(write_report(res).read_text(), "diameters")
     rows = {
         re.findall(r"<td[^>]*>(.*?)</td>", r)[1]: [
             re.sub(r"<[^>]+>", "", c) for c in re.findall(r"<td[^>]*>(.*?)</td>", r)
@@ -499,81 +508,79 @@ def test_parts_show_both_temperatures_uncertainty_and_deviation(rich):
         "150.0101",
         "4.30",
         "2.03",
-        "0.95",
-        "150",
+        "0.9500",
+        "150.0000",
         "10.1",
         "8.0",
         "OUT OF TOLERANCE",
     ]
-    assert rows["PART-7"][4:12] == ["150.0123", "20.4", "150.012112", "4.50", "2.05", "0.95", "", ""]
+    assert rows["PART-7"][4:12] == ["150.0123", "20.4", "150.0121", "4.50", "2.05", "0.9500", "", ""]
     assert "temperature" in parts and "(assumed)" in parts
 
 
 def test_discrepancy_in_words_and_ambiguous_explained(rich):
     res, _ = rich
-    disc = _section(report.write_report(res).read_text(), "discrepancy")
+    disc = _section(write_report(res).read_text(), "discrepancy")
     part9 = disc.split("<td>PART-9</td>")[1].split("</tr>")[0]
-    assert "<b>sensor_offset</b> on channel 1: b_mm = 3.12 ± 0.41 µm" in part9
-    assert "<b>sensor_nonlinearity</b> on channel 1: a_mm = 5.20 ± 0.70 µm" in part9
+    assert "<b>sensor_offset</b> on channel 1: b = 3.12 ± 0.41 µm" in part9
+    assert "<b>sensor_nonlinearity</b> on channel 1: a = 5.20 ± 0.70 µm" in part9
     assert "Ambiguous between sensor_nonlinearity, sensor_offset" in part9 and "equally well" in part9
     assert "another eccentricity" in part9
     assert ">5.01<" in part9 and ">2.10<" in part9  # gaps in µm rms, rounded
 
 
 def test_quarantine_actions_follow_the_readme_classes():
-    assert report.quarantine_action("lds.parquet: non-monotonic sample")[0] == "broken file"
-    assert report.quarantine_action("lds.parquet: t_ns clock jumps back")[0] == "broken file"
+    assert quarantine_action("lds.parquet: non-monotonic sample")[0] == "broken file"
+    assert quarantine_action("lds.parquet: t_ns clock jumps back")[0] == "broken file"
     assert (
-        report.quarantine_action(
+        quarantine_action(
             "scan.json: scan_id already used by a scan of night=2026-11-20 (scan ids "
             "are unique across nights)"
         )[0]
         == "scan id reused"
     )
     assert (
-        report.quarantine_action("lds.parquet: calibration failed: calibration refused: residual")[0]
+        quarantine_action("lds.parquet: calibration failed: calibration refused: residual")[0]
         == "calibration refused"
     )
     assert (
-        report.quarantine_action(
-            "latest calibration CAL-A of device TRI-01 failed its verification; recalibrate"
-        )[0]
+        quarantine_action("latest calibration CAL-A of device TRI-01 failed its verification; recalibrate")[0]
         == "calibration failed verification"
     )
     assert (
-        report.quarantine_action(
+        quarantine_action(
             "latest calibration CAL-A of device TRI-01 expired (40 days old, validity 30 days)"
         )[0]
         == "calibration expired"
     )
     assert (
-        report.quarantine_action("too few revolutions to calibrate: 3 whole revolutions")[0]
+        quarantine_action("too few revolutions to calibrate: 3 whole revolutions")[0]
         == "too few revolutions or poses"
     )
-    assert report.quarantine_action("measurement failed: singular matrix")[0] == "processing error"
+    assert quarantine_action("measurement failed: singular matrix")[0] == "processing error"
     assert (
-        report.quarantine_action(
+        quarantine_action(
             "scan.json: device.nominal.beams missing (optional in the raw format, but a "
             "three-sensor calibration starts its fit from the design beam geometry)"
         )[0]
         == "design geometry missing"
     )
-    assert "new scan id" in report.quarantine_action(None)[1]
+    assert "new scan id" in quarantine_action(None)[1]
 
 
 def test_format_quantity_rounds_to_the_uncertainty():
-    assert report.format_quantity(0.0012, 0.00003, "s") == "1.200 ± 0.030 ms"
-    assert report.format_quantity(3e-6, 4e-7, "s") == "3.00 ± 0.40 µs"
-    assert report.format_quantity(150.01234567, 0.0021, "mm") == "150.0123 ± 0.0021 mm"
-    assert report.format_quantity(0.0031234567, None, "mm") == "3.123 µm"
-    assert report.format_quantity(1.0002, 0.00004, "-") == "1.000200 ± 0.000040"
-    assert report.format_quantity(float("nan"), 0.1, "mm") == ""
+    assert format_quantity(0.0012, 0.00003, "s") == "1.200 ± 0.030 ms"
+    assert format_quantity(3e-6, 4e-7, "s") == "3.00 ± 0.40 µs"
+    assert format_quantity(150.01234567, 0.0021, "mm") == "150.0123 ± 0.0021 mm"
+    assert format_quantity(0.0031234567, None, "mm") == "3.123 µm"
+    assert format_quantity(1.0002, 0.00004, "-") == "1.000200 ± 0.000040"
+    assert format_quantity(float("nan"), 0.1, "mm") == ""
 
 
 def test_pages_are_self_contained_with_a_print_stylesheet(rich):
     res, _ = rich
     for rel in ("report.html", "report/2026-11/index.html"):
-        report.write_report(res)
+        write_report(res)
         page = (res / rel).read_text()
         srcs = re.findall(r'<img src="([^"]*)"', page)
         assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs), rel
@@ -585,9 +592,9 @@ def test_pages_are_self_contained_with_a_print_stylesheet(rich):
 
 def test_a_later_month_supersedes_a_calibration_without_rewriting_the_earlier_page(rich):
     res, tables = rich
-    first = report.update_report(res)
+    first = update_report(res)
     assert first.rendered == ("2026-11",)
-    assert report.update_report(res).rendered == ()  # the same rows: nothing rewritten
+    assert update_report(res).rendered == ()  # the same rows: nothing rewritten
     dec = (
         tables["scans"]
         .filter(pl.col("scan_id") == "CAL-B")
@@ -614,7 +621,7 @@ def test_a_later_month_supersedes_a_calibration_without_rewriting_the_earlier_pa
         [tables["calibration_scans"], pl.DataFrame({"calibration_id": ["CAL-C"], "scan_id": ["CAL-C"]})]
     )
     catalog.build_catalog(res, tables)
-    second = report.update_report(res)
+    second = update_report(res)
     assert second.rendered == ("2026-12",)
     december = _section((res / "report" / "2026-12" / "index.html").read_text(), "summary")
     assert "calibration superseded: CAL-B of TRI-01 by CAL-C" in december
@@ -626,22 +633,22 @@ def test_a_later_month_supersedes_a_calibration_without_rewriting_the_earlier_pa
 
 def test_run_rules_on_constructed_series():
     # centre 0, sigma 1
-    rule1 = report.run_rules([0.5, -3.2, 1.0, 3.0, 3.01], 0.0, 1.0)
+    rule1 = run_rules([0.5, -3.2, 1.0, 3.0, 3.01], 0.0, 1.0)
     assert rule1[1].tolist() == [False, True, False, False, True]  # beyond, not at, 3 sigma
     # two of three beyond 2 sigma on the same side: indices 1 and 3 (window 1-3); 6 and 7 opposite sides: no
-    rule2 = report.run_rules([0.0, 2.5, 0.1, 2.2, 0.0, 0.0, 2.5, -2.5, 0.0], 0.0, 1.0)[2]
+    rule2 = run_rules([0.0, 2.5, 0.1, 2.2, 0.0, 0.0, 2.5, -2.5, 0.0], 0.0, 1.0)[2]
     assert np.nonzero(rule2)[0].tolist() == [1, 3]
     # 2 of 3 below -2 sigma
-    assert np.nonzero(report.run_rules([-2.1, -2.1, 0.0], 0.0, 1.0)[2])[0].tolist() == [0, 1]
+    assert np.nonzero(run_rules([-2.1, -2.1, 0.0], 0.0, 1.0)[2])[0].tolist() == [0, 1]
     # eight in a row above the centre (values 10.1 around centre 10): 8 points flagged; seven are not enough
     above = [9.0] + [10.1] * 8 + [9.5] + [10.2] * 7
-    r4 = report.run_rules(above, 10.0, 1.0)[4]
+    r4 = run_rules(above, 10.0, 1.0)[4]
     assert np.nonzero(r4)[0].tolist() == list(range(1, 9))
     # a run of 9 below: all nine; a NaN breaks a run
-    assert report.run_rules([-1.0] * 9, 0.0, 1.0)[4].sum() == 9
-    assert report.run_rules([-1.0] * 4 + [np.nan] + [-1.0] * 4, 0.0, 1.0)[4].sum() == 0
+    assert run_rules([-1.0] * 9, 0.0, 1.0)[4].sum() == 9
+    assert run_rules([-1.0] * 4 + [np.nan] + [-1.0] * 4, 0.0, 1.0)[4].sum() == 0
     # no spread: no judgement
-    assert not any(v.any() for v in report.run_rules([1.0, 5.0], 1.0, 0.0).values())
+    assert not any(v.any() for v in run_rules([1.0, 5.0], 1.0, 0.0).values())
 
 
 def _verifications(n: int, gauges=("RG-275",)) -> pl.DataFrame:
@@ -667,7 +674,7 @@ def _verifications(n: int, gauges=("RG-275",)) -> pl.DataFrame:
 
 def test_control_chart_is_per_gauge_with_marked_rule_breaks(tmp_path):
     ver = _verifications(12, ("RG-275", "RG-150"))
-    fig = report.plot_control_chart(ver, "TRI-01", "RG-150")
+    fig = plot_control_chart(ver, "TRI-01", "RG-150")
     ax_i = fig.axes[0]
     assert "gauge RG-150" in ax_i.get_title()
     points = [line for line in ax_i.get_lines() if line.get_label() == "passed"][0]
@@ -684,11 +691,11 @@ def test_control_chart_is_per_gauge_with_marked_rule_breaks(tmp_path):
         .with_columns(pl.format("S{}", pl.col("index")).alias("scan_id"))
         .drop("index")
     )
-    ax = report.plot_control_chart(jump, "TRI-01", "RG-275").axes[0]
+    ax = plot_control_chart(jump, "TRI-01", "RG-275").axes[0]
     assert any(t.get_text().startswith("breaks run rule 1") for t in ax.get_legend().get_texts())
     # the report draws one chart per gauge
     res = tmp_path / "results"
-    text = report.write_report(res, {"verifications": ver}).read_text()
+    text = write_report(res, {"verifications": ver}).read_text()
     assert "Device TRI-01 · gauge RG-150" in text and "Device TRI-01 · gauge RG-275" in text
     assert sorted(p.name for p in (res / "report" / "2026-01").glob("control_*.png")) == [
         "control_TRI-01_RG-150.png",
@@ -698,11 +705,11 @@ def test_control_chart_is_per_gauge_with_marked_rule_breaks(tmp_path):
 
 @pytest.mark.parametrize("n", [2, 8, 30, 365])
 def test_control_chart_axis_readable_and_tolerance_label_inside(n):
-    fig = report.plot_control_chart(_verifications(n), "TRI-01", "RG-275")
+    fig = plot_control_chart(_verifications(n), "TRI-01", "RG-275")
     FigureCanvasAgg(fig).draw()
     ax_i, ax_mr = fig.axes
     labels = [t for t in ax_mr.get_xticklabels() if t.get_text()]
-    assert 2 <= len(labels) <= report.MAX_TICK_LABELS or len(labels) == n
+    assert 2 <= len(labels) <= MAX_TICK_LABELS or len(labels) == n
     renderer = fig.canvas.get_renderer()
     boxes = [t.get_window_extent(renderer) for t in labels]
     assert all(a.x1 <= b.x0 + 1 for a, b in zip(boxes, boxes[1:])), "tick labels overlap"
@@ -794,17 +801,21 @@ def test_device_model_section_shows_pooled_verdicts_device_effects_and_flagged_d
         how="diagonal_relaxed",
     )
     catalog.build_catalog(res, t)
-    sec = _section(report.write_report(res).read_text(), "pooled")
+    sec = _section(write_report(res).read_text(), "pooled")
     row = sec.split("<td>TRI-01</td>")[1].split("</tr>")[0]
-    assert "<b>channel_delay</b> on channel 2: tau_s = 1.200 ± 0.030 ms (evidence: CAL-A,CAL-B)" in row
+    assert "<b>channel_delay</b> on channel 2: tau = 1.200 ± 0.030 ms (evidence: CAL-A,CAL-B)" in row
     assert "<b>sensor_gain</b> on channel 1" in row.split("</td><td>")[2]  # the device-model column
     cell = row.split("</td><td>")[3]  # what the night's calibration carried, and its residual
-    assert "<b>channel_delay@2</b>: tau_s = 1.190 ± 0.020 ms (from 2026-11-19)" in cell
+    assert "<b>channel_delay@2</b>: tau = 1.190 ± 0.020 ms (from 2026-11-19)" in cell
     assert "<b>sensor_offset@3</b>: not estimated yet" in cell and "residual 1.03 × noise floor" in cell
     assert ">6.10<" in row and ">2.10<" in row and ">2.00<" in row
     drift = sec.split("Calibration drift (1 flagged of 2 changes)")[1]
     assert (
-        "+4 mrad" in drift and "0.85 mrad" in drift and "channel_delay@2" in drift and "rho_mm" not in drift
+        "+4.00 mrad" in drift
+        and "0.85 mrad" in drift
+        and "+4.70" in drift
+        and "channel_delay@2" in drift
+        and "rho_mm" not in drift
     )
 
 
@@ -838,8 +849,8 @@ def test_findings_rows_carry_the_uncertainties_the_report_shows(tmp_path):
         [t["findings"], pl.DataFrame([dict(r, night=night) for r in rows])], how="diagonal_relaxed"
     )
     catalog.build_catalog(res, t)
-    disc = _section(report.write_report(res).read_text(), "discrepancy")
-    assert "<b>channel_delay</b> on channel 2: tau_s = 1.200 ± 0.030 ms" in disc
+    disc = _section(write_report(res).read_text(), "discrepancy")
+    assert "<b>channel_delay</b> on channel 2: tau = 1.200 ± 0.030 ms" in disc
 
 
 def test_rod_diameters_without_a_gauge_calibration_need_attention(tmp_path):
@@ -858,7 +869,7 @@ def test_rod_diameters_without_a_gauge_calibration_need_attention(tmp_path):
         .alias("method")
     )
     catalog.build_catalog(res, tables)
-    summary = _section(report.write_report(res).read_text(), "summary")
+    summary = _section(write_report(res).read_text(), "summary")
     assert f"not traceable</b> {rod_scan} (ROD-01)" in summary
     assert "calibrate the rod in its certified ring gauges" in summary
 
@@ -916,7 +927,7 @@ def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
             "expanded_u_error_mm": [0.0025, 0.0025, 0.0026],
         }
     )
-    hist = report.device_model_history(pf, cals, ver, "TRI-01")
+    hist = device_model_history(pf, cals, ver, "TRI-01")
     assert hist["night"].to_list() == nights + ["2026-11-25"]
     assert hist["pooled_gap_to_noise"].to_list()[:3] == pytest.approx([1.025, 4.5, 1.05])
     assert hist["calibration_residual_to_noise"].to_list() == pytest.approx([1.02, 4.5, 1.03, 1.0])
@@ -925,17 +936,15 @@ def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
     assert hist["verification_error_um"].to_list()[1:3] == pytest.approx(
         [-4.0, 0.5]
     )  # the worst of the night
-    assert hist["carried"].to_list()[:3] == ["", "", "channel_delay@2 tau_s = 1.190 ± 0.020 ms (2026-11-23)"]
+    assert hist["carried"].to_list()[:3] == ["", "", "channel_delay@2 tau = 1.190 ± 0.020 ms (2026-11-23)"]
     assert hist["carried_keys"].to_list() == ["", "", "channel_delay@2", "channel_delay@2"]
-    fig = report.plot_device_model_gap(hist, "TRI-01")
+    fig = plot_device_model_gap(hist, "TRI-01")
     FigureCanvasAgg(fig).draw()
     ax_g, ax_v = fig.axes
     marks = [ln.get_xdata()[0] for ln in ax_g.get_lines() if ln.get_linestyle() == "--"]
     assert marks == [1.5]  # between the night the delay was estimated and the first that carried it
     (note,) = [t.get_text() for t in ax_g.texts]
-    assert (
-        note == "device model from here:\nchannel_delay@2\ntau_s = 1.190 ± 0.020 ms\n(estimated 2026-11-23)"
-    )
+    assert note == "device model from here:\nchannel_delay@2\ntau = 1.190 ± 0.020 ms\n(estimated 2026-11-23)"
     assert sorted(t.get_text() for t in ax_v.texts) == ["+0.50 µm", "-4.00 µm"]
     renderer = fig.canvas.get_renderer()
     box, axes = ax_g.texts[0].get_window_extent(renderer), ax_g.get_window_extent(renderer)

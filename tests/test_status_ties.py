@@ -95,11 +95,11 @@ def test_status_names_the_gauge_calibration_and_the_later_one(tmp_path, capsys):
 def test_report_calibration_table_agrees_with_status(tmp_path):
     import re
 
-    from borescan import report
+    from borescan.report.pages import write_report
 
     res = tmp_path / "results"
     _tied_history(res)
-    html = report.write_report(res).read_text()
+    html = write_report(res).read_text()
     for page in sorted((res / "report").glob("2026-11/index.html")):
         html += page.read_text()
     role = {}

@@ -4,22 +4,19 @@ Rule write_report: results_root/report.html, the month pages (redrawn where rows
 report/papers.html.
 """
 
-from borescan import report
+from borescan.report.pages import PAPERS_PAGE, REPORT_DIR, update_report
 from borescan.workflow_log import log_to, rule_job
 
 
 def main(smk) -> None:
     """Run the rule's stage with Snakemake's ``smk`` (inputs, outputs, params, log)."""
     with log_to(smk.log[0]) as log:
-        update = report.update_report(smk.params.results_root)
+        update = update_report(smk.params.results_root)
         log(
             f"{len(update.months)} month(s); pages written: {', '.join(update.rendered) or 'none'}; "
             f"{update.plots_drawn} plot(s) drawn"
         )
-        log(
-            f"report written to {update.path} (papers: "
-            f"{update.path.parent / report.REPORT_DIR / report.PAPERS_PAGE})"
-        )
+        log(f"report written to {update.path} (papers: {update.path.parent / REPORT_DIR / PAPERS_PAGE})")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,100 @@
+"""One page's context (links, plots drawn only when their input changed) and empty-section texts."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+from pathlib import Path
+
+import polars as pl
+
+from borescan.atomic import atomic_write_bytes, atomic_write_text
+from borescan.report.data import _code_fingerprint, frame_fingerprint
+from borescan.report.plots import _png_bytes
+from borescan.report.text import _img, _rel, _safe
+
+
+class _PlotCache:
+    """Plots of one month folder: file name -> fingerprint of its input (``plots.json``).
+
+    A plot whose input and code are unchanged is not drawn again.
+    """
+
+    def __init__(self, folder: Path, use: bool = True):
+        self.folder = folder
+        self.file = folder / "plots.json"
+        self.old: dict[str, str] = {}
+        if use and self.file.is_file():
+            with contextlib.suppress(ValueError):
+                self.old = json.loads(self.file.read_text())
+        self.new: dict[str, str] = {}
+        self.drawn = 0
+
+    def get(self, fname: str, key: str, draw) -> bytes:
+        """Return the PNG ``fname``: drawn when its key changed or the file is gone, else read back."""
+        if self.old.get(fname) != key or not (self.folder / fname).is_file():
+            png = _png_bytes(draw())
+            atomic_write_bytes(self.folder / fname, png)
+            self.drawn += 1
+        else:
+            png = (self.folder / fname).read_bytes()
+        self.new[fname] = key
+        return png
+
+    def save(self) -> None:
+        """Record the plots of the page just written and remove the ones it no longer shows."""
+        for f in self.folder.glob("*.png"):
+            if f.name not in self.new:
+                f.unlink()
+        atomic_write_text(self.file, json.dumps(self.new, indent=1, sort_keys=True) + "\n")
+
+
+class Page:
+    """The sections of one page over ``tables`` (a month's rows).
+
+    ``up``: the page's path back to the results folder ("" for ``report.html``, ``"../../"`` for
+    a month page); ``plots``: the month's plot folder as seen from the page.
+    """
+
+    def __init__(
+        self, root: Path, tables: dict[str, pl.DataFrame], cache: _PlotCache, up: str = "", plots: str = ""
+    ):
+        self.root = root
+        self.t = tables
+        self.cache = cache
+        self.up = up
+        self.plots = plots
+        self.code = _code_fingerprint()
+
+    def link(self, path: str | None) -> str | None:
+        """Return the page's relative link to a results file, None when it does not exist."""
+        rel = _rel(self.root, path)
+        return None if rel is None else self.up + rel
+
+    def figure(self, plot, data: pl.DataFrame, key: str, name: str, alt: str, *args) -> str:
+        """Draw ``plot(data, key, *args)`` as ``<month>/<name>.png`` when its input changed.
+
+        ``plot(data, key, *args)`` as ``<month>/<name>.png``, drawn only when its input changed;
+        embedded in the page as a ``data:`` image that links to the PNG file.
+        """
+        fname = _safe(name) + ".png"
+        fp = hashlib.sha256(
+            f"{self.code} {plot.__name__} {key} {args} {frame_fingerprint(data)}".encode()
+        ).hexdigest()[:16]
+        png = self.cache.get(fname, fp, lambda: plot(data, key, *args))
+        return _img(self.plots + fname, png, alt)
+
+    # ---------------------------------------------------------------- sections
+
+
+#: What a section says when the catalog holds no rows for it.
+_EMPTY = {
+    "calibration": '<p class="empty">No calibrations in the catalog.</p>',
+    "verification": '<p class="empty">No verifications in the catalog.</p>',
+    "diameters": '<p class="empty">No diameters in the catalog.</p>',
+    "discrepancy": '<p class="empty">No findings in the catalog.</p>',
+    "pooled": '<p class="empty">No pooled examination in the catalog.</p>',
+    "quarantine": '<p class="empty">No quarantined scans.</p>',
+    "summary": '<p class="empty">No nights in the catalog.</p>',
+}
