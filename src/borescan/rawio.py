@@ -81,6 +81,8 @@ SPINDLE_FILE = "spindle.parquet"
 KINDS = ("calibration", "centering", "verification", "measurement")
 DEVICE_TYPES = ("tri_lds", "rod")
 ARTIFACT_TYPES = ("ring_gauge", "part")
+#: ``spindle.direction`` seen from +z (spec "Units and frames"): counter-clockwise or clockwise.
+DIRECTIONS = ("ccw", "cw")
 
 SCAN_ID_RE = re.compile(r"[A-Za-z0-9_-]{1,64}")
 NIGHT_RE = re.compile(r"\d{4}-\d{2}-\d{2}")
@@ -452,6 +454,11 @@ def _check_meta(  # noqa: C901 (one branch per checked field of scan.json)
             v = node[path[-1]]
             what = "a finite number" if want == _NUM else f"a JSON {want}"
             p.add(file, f"key '{'.'.join(path)}' must be {what}, got {_jtype(v)} {v!r:.40}")
+    direction = (
+        (meta.get("spindle") or {}).get("direction") if isinstance(meta.get("spindle"), dict) else None
+    )
+    if isinstance(direction, str) and direction.strip().lower() not in DIRECTIONS:
+        p.add(file, f"key 'spindle.direction' must be one of {', '.join(DIRECTIONS)}, got {direction!r:.40}")
 
 
 # ---------------------------------------------------------------------------------------------
