@@ -2,12 +2,14 @@
 
 Input faults (one scan or folder each, beside the untouched demo night, one workflow run
 ``snakemake --cores 2 catalog``, as the user nobody when run as root): the bad-input battery of the
-tests (``tests/bad_inputs.py``: format, tables, clocks, symlinks, stage faults), the absurd numbers
-of ``scan.json`` (``tests/fault_roots.py``: range, temperatures, uncertainties, tolerances, dates,
-certified diameters), files and a folder written with umask 077 by another user, an empty night, a
-night folder that is no date, a rod-only night. Process faults (a rod night each, small runs): a
-night added with its old times run from a second checkout, the same on a copied results root, a
-config edit, a recomputation asked for, a catalog cut in half, a run killed with SIGKILL.
+tests (``tests/bad_inputs.py``: format, tables, clocks, spindle streams in other units, symlinks,
+stage faults), a joint calibration spoiled by one scan's encoder stream (the scan blamed alone, its
+partner used), the absurd numbers of ``scan.json`` (``tests/fault_roots.py``: range, temperatures,
+uncertainties, tolerances, dates, certified diameters), files and a folder written with umask 077 by
+another user, an empty night, a night folder that is no date, a rod-only night. Process faults (a rod
+night each, small runs): a night added with its old times run from a second checkout, the same on a
+copied results root, a config edit, a recomputation asked for, a catalog cut in half, a run killed
+with SIGKILL.
 
 Per case one line: processed / quarantined (the reason, which names the key, file or folder) /
 skipped (the reason) / crashed, and whether the raw files stayed byte-identical.
