@@ -2,12 +2,14 @@
 
 Input faults (one scan or folder each, beside the untouched demo night, one workflow run
 ``snakemake --cores 2 catalog``, as the user nobody when run as root): the bad-input battery of the
-tests (``tests/bad_inputs.py``: format, tables, clocks, symlinks, stage faults), the absurd numbers
-of ``scan.json`` (``tests/fault_roots.py``: range, temperatures, uncertainties, tolerances, dates,
-certified diameters), files and a folder written with umask 077 by another user, an empty night, a
-night folder that is no date, a rod-only night. Process faults (a rod night each, small runs): a
-night added with its old times run from a second checkout, the same on a copied results root, a
-config edit, a recomputation asked for, a catalog cut in half, a run killed with SIGKILL.
+tests (``tests/bad_inputs.py``: format, tables, clocks, spindle streams in other units, symlinks,
+stage faults), a joint calibration spoiled by one scan's encoder stream (the scan blamed alone, its
+partner used), the absurd numbers of ``scan.json`` (``tests/fault_roots.py``: range, temperatures,
+uncertainties, tolerances, dates, certified diameters), files and a folder written with umask 077 by
+another user, an empty night, a night folder that is no date, a rod-only night. Process faults (a rod
+night each, small runs): a night added with its old times run from a second checkout, the same on a
+copied results root, a config edit, a recomputation asked for, a catalog cut in half, a run killed
+with SIGKILL.
 
 Per case one line: processed / quarantined (the reason, which names the key, file or folder) /
 skipped (the reason) / crashed, and whether the raw files stayed byte-identical.
@@ -95,6 +97,7 @@ def input_battery(  # noqa: C901 (one branch per kind of input fault and its exp
         edit(meta)
         (d / "scan.json").write_text(json.dumps(meta, indent=1))
         expected[f"PLAUS-{i:02d}"] = ("scan.json", text)
+    expected.update(_joint_fit_cases(night20, raw, bad_night))
     for p in raw.rglob("*"):
         if "UMASK077" not in str(p):
             p.chmod(0o755 if p.is_dir() else 0o644)
@@ -150,6 +153,36 @@ def input_battery(  # noqa: C901 (one branch per kind of input fault and its exp
                 raw_same,
             )
         )
+    return out
+
+
+def _joint_fit_cases(night20: Path, raw: Path, night: str) -> dict[str, tuple[str, str]]:
+    """Write a device's two calibration scans, one with an encoder stream that does not fit its readings.
+
+    The angle is 1.5 times what it was (it passes every format check): the joint fit fails, the spoiled
+    scan is blamed alone and its partner calibrates the device (issue 40 item 11).
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from fault_roots import copy_scan
+
+    out = {}
+    for src, sid in (
+        ("N20261120-TRI01-CAL-P1-A", "JOINT-FIT-SPOILED"),
+        ("N20261120-TRI01-CAL-P1-B", "JOINT-FIT-PARTNER"),
+    ):
+        d = copy_scan(night20 / f"scan={src}", raw, night, sid)
+        meta = json.loads((d / "scan.json").read_text())
+        meta["device"]["id"], meta["started_at"] = "TRI-09", meta["started_at"].replace("2026-11-20", night)
+        (d / "scan.json").write_text(json.dumps(meta, indent=1))
+        out[sid] = ("calibrate stage", "calibration failed on its own") if "SPOILED" in sid else ("", "")
+    d = raw / f"night={night}" / "scan=JOINT-FIT-SPOILED"
+    t = pq.read_table(d / "spindle.parquet")
+    a = t.column("angle_rad").to_numpy()
+    i = t.schema.get_field_index("angle_rad")
+    pq.write_table(
+        t.set_column(i, t.schema.field(i), pa.array(a[0] + 1.5 * (a - a[0]))), d / "spindle.parquet"
+    )
     return out
 
 

@@ -6,8 +6,8 @@ from borescan.catalog import set_aside_damaged
 from borescan.effects import device_model_effects
 from borescan.parallel import set_job_environment
 from borescan.resources import shipped
-from borescan.raw_index import raw_index_path, refresh_raw_index
-from borescan.workflow_log import release_stale_locks
+from borescan.raw_index import night_index_paths
+from borescan.workflow_log import is_dry_run, release_stale_locks
 
 set_job_environment()  # glibc malloc settings every job inherits (borescan.parallel.JOB_MALLOC_ENVIRONMENT)
 
@@ -16,24 +16,26 @@ RAW = str(validation.require_raw_root(config["raw_root"]))
 #: spreads its scans (calibrate, pooled: its devices) over (borescan.parallel). Snakemake caps them at
 #: --cores; `--set-threads measure_night=8` (or `set-threads:` in a profile) sets one rule's.
 NIGHT_JOB_THREADS = 2
+DRY_RUN = is_dry_run(workflow)  # snakemake -n: nothing below writes under the results root
 RES = config["results_root"]
 NIGHTS = rawio.nights(RAW)
 #: the papers' transcribed tables, shipped with borescan (data/papers/ links to them)
 PAPER_TRANSCRIPTIONS = [str(shipped("papers", f"yang2017_table{i}.csv")) for i in (1, 2, 3)]
 # each night's manifest (its scan folders, files, sizes, times) rewritten when it changed: an input
 # of ingest_night, so the raw root decides what runs whatever the files' times and the checkout
-refresh_raw_index(RAW, RES, NIGHTS)
+# (a dry run writes nothing under the results root: its changed manifests go to a temporary folder)
+RAW_INDEX = night_index_paths(RAW, RES, NIGHTS, dry_run=DRY_RUN)
 # the locks a run killed with SIGKILL left behind (its process is gone) are released; others stay
 for _pid in release_stale_locks(".snakemake"):
     print(f"borescan: released the lock of run {_pid}, which was killed before it finished; its jobs rerun",
           file=sys.stderr)
 # a catalog cut off (a full disk, a copy interrupted) is set aside: build_catalog rebuilds it, the report follows
-_damaged = set_aside_damaged(RES, dry_run=workflow.dryrun)
+_damaged = set_aside_damaged(RES, dry_run=DRY_RUN)
 if _damaged:
     print(f"borescan: {_damaged}", file=sys.stderr)
 # the settings each night is processed with: its record (borescan.night_config), else the current
 # config (recorded now); an edit of the config applies to nights not yet in the history
-NIGHT_SETTINGS, _differ = night_config.settle(RES, NIGHTS, config)
+NIGHT_SETTINGS, _differ = night_config.settle(RES, NIGHTS, config, record=not DRY_RUN)
 if _differ:
     _keys = sorted({k for n in _differ for k in night_config.changed_keys(NIGHT_SETTINGS[n], night_config.night_settings(config))})
     print(f"borescan: the config differs from the one nights {_differ[0]}..{_differ[-1]} ({len(_differ)}) were "
@@ -76,7 +78,7 @@ def stage_table(table):
 
 
 def raw_index_of_night(wildcards):
-    return str(raw_index_path(RES, wildcards.night))
+    return str(RAW_INDEX[wildcards.night])
 
 
 def raw_files_of_night(wildcards):

@@ -188,6 +188,16 @@ def make_bad_scans(
     d = case("BAD-SPINDLE-COLUMNS", "spindle.parquet", r"x_mm")
     _edit_table(d, "spindle.parquet", lambda t: t.drop_columns(["x_mm"]))
 
+    # Spindle streams in other units (issue 40 item 11): named with their column, not "barely vary".
+    d = case("BAD-SPINDLE-CLOCK-US", "spindle.parquet", r"^t_ns spans .* not in nanoseconds")
+    _edit_table(d, "spindle.parquet", lambda t: _set_col(t, "t_ns", _values(t, "t_ns") // 1000))
+
+    d = case("BAD-SPINDLE-ANGLE-DEG", "spindle.parquet", r"^angle_rad turns at .* impossible rotation speed")
+    _edit_table(d, "spindle.parquet", lambda t: _set_col(t, "angle_rad", np.degrees(_values(t, "angle_rad"))))
+
+    d = case("BAD-SPINDLE-DIRECTION", "scan.json", r"spindle\.direction")
+    _edit_meta(d, lambda m: m["spindle"].update(direction="sideways"))
+
     d = case("BAD-POSE-ON-SPINDLE-SCAN", "lds.parquet", r"pose")
     _edit_table(d, "lds.parquet", lambda t: _set_col(t, "pose", np.zeros(t.num_rows, dtype=np.int32)))
 
@@ -262,7 +272,9 @@ def make_stage_cases(raw_root: Path, truth_root: Path, night: str) -> tuple[list
             device_id="TRI-02",
         )
     )
-    cases.append(BadCase("BAD-CAL-NO-CONVERGENCE", "lds.parquet", r"calibration failed", stage="calibrate"))
+    cases.append(
+        BadCase("BAD-CAL-NO-CONVERGENCE", "calibrate stage", r"calibration failed", stage="calibrate")
+    )
 
     # A device that has no calibration at all.
     part = {"id": "HSG-9001", "type": "part", "nominal_diameter_mm": 277.0, "cte_per_k": 11.5e-6}

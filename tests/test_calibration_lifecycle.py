@@ -98,7 +98,7 @@ def con():
             }
         ],
     )
-    catalog._create_views(con, None)
+    catalog.build._create_views(con, None)
     return con
 
 
@@ -200,7 +200,7 @@ def test_superseded_before_due_never_expires_and_a_rod_design_is_superseded_by_i
             }
         ],
     )
-    catalog._create_views(con, None)
+    catalog.build._create_views(con, None)
     got = con.execute(
         "SELECT calibration_id, status, CAST(night AS VARCHAR), other_id, method "
         "FROM calibration_status_history"

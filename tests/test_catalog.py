@@ -10,7 +10,7 @@ import duckdb
 import polars as pl
 import pytest
 
-from borescan import atomic, catalog
+from borescan import atomic, catalog, rawio
 from borescan.cli import main as cli_main
 
 TOL = 0.015
@@ -180,7 +180,7 @@ def make_history(results_root: Path) -> dict[str, pl.DataFrame]:
                 "started_at": t0,
                 "status": status,
                 "reason": reason,
-                "raw_sha256": catalog.combined_sha256(shas),
+                "raw_sha256": rawio.combined_sha256(shas),
                 "raw_path": str(d),
                 "simulated": True,
             }
@@ -444,7 +444,7 @@ def test_catalog_has_outputs_md_columns_and_types(built):
 def test_combined_sha256_is_over_sorted_name_lines():
     import hashlib
 
-    got = catalog.combined_sha256({"scan.json": "bb", "lds.parquet": "aa"})
+    got = rawio.combined_sha256({"scan.json": "bb", "lds.parquet": "aa"})
     assert got == hashlib.sha256(b"lds.parquet:aa\nscan.json:bb\n").hexdigest()
 
 
@@ -765,7 +765,7 @@ def test_slurm_profile_keys_are_snakemake_options(tmp_path):
 def test_sql_saved_query_falls_back_to_catalog_view(built, capsys, monkeypatch, tmp_path):
     """Without the workflow/queries folder (a plain install) --query uses the view in the catalog."""
     res, _ = built
-    monkeypatch.setattr(catalog, "DEFAULT_QUERIES_DIR", tmp_path / "no-queries-here")
+    monkeypatch.setattr(catalog.queries, "DEFAULT_QUERIES_DIR", tmp_path / "no-queries-here")
     assert catalog.saved_queries() == {}
     assert cli_main(["sql", "--results", str(res), "--query", "suspect_measurements", "--format", "csv"]) == 0
     lines = capsys.readouterr().out.splitlines()

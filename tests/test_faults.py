@@ -19,6 +19,7 @@ from pathlib import Path
 
 import duckdb
 import polars as pl
+import pyarrow as pa
 import pytest
 
 from conftest import ROOT, checksums
@@ -113,7 +114,7 @@ def test_an_unreadable_raw_file_quarantines_its_scan_and_the_night_goes_on(tmp_p
     for d in sorted(src.glob("scan=*ROD01*")):
         copy_scan(d, raw, "2026-11-20", d.name[5:])
     locked = raw / "night=2026-11-20" / "scan=N20261120-ROD01-MEAS-CYL2H" / "lds.parquet"
-    real_hash, real_osfile = rawio.sha256_file, rawio.pa.OSFile
+    real_hash, real_osfile = rawio.sha256_file, pa.OSFile
 
     def refused(path) -> bool:
         return Path(path) == locked
@@ -129,7 +130,7 @@ def test_an_unreadable_raw_file_quarantines_its_scan_and_the_night_goes_on(tmp_p
         return real_osfile(path, *a, **k)
 
     monkeypatch.setattr(rawio, "sha256_file", sha256_file)
-    monkeypatch.setattr(rawio.pa, "OSFile", osfile)
+    monkeypatch.setattr(pa, "OSFile", osfile)
     scans, files, bad = stage_ingest(raw, "2026-11-20", res)
     status = dict(zip(scans["scan_id"], scans["status"]))
     assert status == {

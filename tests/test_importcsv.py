@@ -108,7 +108,7 @@ def test_spindle_columns_pose_t_ns_and_yaml_metadata(tmp_path):
     n = 20
     rows = []
     for i in range(n):
-        enc = "" if i == 4 else repr(i * 18.0)
+        enc = "" if i == 4 else repr(i * 0.024)  # 2.5 rpm (rpm_nominal) at 1.6 ms per sample
         rows.append(
             [str(10_000_000_000 + i * 1_600_000), repr(1.0 + i), repr(2.0 + i), enc, "0.25", str(i // 5)]
         )
@@ -136,7 +136,7 @@ def test_spindle_columns_pose_t_ns_and_yaml_metadata(tmp_path):
     assert sp["angle_rad"].null_count() == 1 and sp["angle_rad"][4] is None
     np.testing.assert_allclose(
         sp["angle_rad"].drop_nulls().to_numpy(),
-        np.deg2rad(np.delete(np.arange(n) * 18.0, 4)),
+        np.deg2rad(np.delete(np.arange(n) * 0.024, 4)),
         rtol=0,
         atol=1e-15,
     )

@@ -235,7 +235,7 @@ def test_lds_matrix_from_chunks_not_aligned_to_samples():
     extra = pl.concat([full, full.tail(1).with_columns(pl.lit(9, dtype=pl.Int16).alias("sensor"))])
     general = lds_matrix(SimpleNamespace(lds=extra, channels=chans))
     for frame in (full, big, chunked):
-        assert rawio._lds_matrix_reshaped(frame, chans) is not None  # the chunk path applies
+        assert rawio.matrix._lds_matrix_reshaped(frame, chans) is not None  # the chunk path applies
         m = lds_matrix(SimpleNamespace(lds=frame, channels=chans))
         np.testing.assert_array_equal(m.values_mm, general.values_mm[:, :3])
         np.testing.assert_array_equal(m.sample, general.sample)
@@ -246,7 +246,7 @@ def test_lds_matrix_from_chunks_not_aligned_to_samples():
     # their samples disagree; the general scatter must decide (one more sample, with channel 5 only)
     lag = (pl.col("sensor") == 5) & (pl.int_range(pl.len()) >= 5)
     odd = chunked.with_columns(sample=pl.when(lag).then(pl.col("sample") + 1).otherwise(pl.col("sample")))
-    assert rawio._lds_matrix_reshaped(odd, chans) is None
+    assert rawio.matrix._lds_matrix_reshaped(odd, chans) is None
     m = lds_matrix(SimpleNamespace(lds=odd, channels=chans))
     assert m.values_mm.shape == (n + 1, 3)
     assert np.isnan(m.values_mm[1, 2]) and np.isnan(m.values_mm[-1, :2]).all()
@@ -740,18 +740,20 @@ def test_lds_fast_check_on_columns_chunked_differently():
     tab = rechunk(rechunk(tab, "sample", 50), "value_mm", 17)
     assert [len(c) for c in tab.column("sample").chunks] != [len(c) for c in tab.column("value_mm").chunks]
     meta = make_meta()
-    p = rawio._Problems("S1")
-    full = rawio._check_lds_full(tab, meta, True, p, "lds.parquet")
+    p = rawio.meta._Problems("S1")
+    full = rawio.lds._check_lds_full(tab, meta, True, p, "lds.parquet")
     assert not p.errors and full == ["lds.parquet: channel 3: 1 readings outside [0, 10] mm"]
-    warnings, mat = rawio._lds_fast_check(tab, meta, True, "lds.parquet")  # the usual layout: on the matrix
+    warnings, mat = rawio.lds._lds_fast_check(
+        tab, meta, True, "lds.parquet"
+    )  # the usual layout: on the matrix
     assert warnings == full and mat is not None and mat.values_mm[5 // 3, 5 % 3] == 12.5
-    listed = rawio._listed_sensors(meta)
-    assert rawio._lds_chunk_warnings(tab, listed, "lds.parquet") == full  # and chunk by chunk
+    listed = rawio.lds._listed_sensors(meta)
+    assert rawio.lds._lds_chunk_warnings(tab, listed, "lds.parquet") == full  # and chunk by chunk
     sample = tab.column("sample").combine_chunks().to_numpy().copy()
     sample[60] = 0
     bad = tab.set_column(0, "sample", pa.chunked_array([sample[:50], sample[50:]]))
-    assert rawio._lds_fast_check(bad, meta, True, "lds.parquet") is None
-    assert rawio._lds_chunk_warnings(bad, listed, "lds.parquet") is None
+    assert rawio.lds._lds_fast_check(bad, meta, True, "lds.parquet") is None
+    assert rawio.lds._lds_chunk_warnings(bad, listed, "lds.parquet") is None
 
 
 def test_read_scan_keeps_the_matrix_its_check_built(root):

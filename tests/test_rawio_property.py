@@ -18,6 +18,8 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
+from borescan.rawio import lds as raw_lds
+from borescan.rawio import meta as raw_meta
 from borescan.rawio import ScanError, lds_matrix, read_scan, validate_root, write_scan
 
 N, CHANS = 24, (1, 2, 3)
@@ -299,8 +301,8 @@ def test_fast_lds_check_agrees_with_the_full_check(base, muts, rod, spindle, cut
             pf = pq.ParquetFile(scan_dir / "lds.parquet")
         except Exception:  # noqa: BLE001 - a truncated file never reaches the data checks
             return
-        p = rawio._Problems("P1")
-        if not rawio._check_schema(pf.schema_arrow, rawio.LDS_SCHEMA, p, "lds.parquet"):
+        p = raw_meta._Problems("P1")
+        if not raw_lds._check_schema(pf.schema_arrow, rawio.LDS_SCHEMA, p, "lds.parquet"):
             return
         table = pf.read(columns=rawio.LDS_SCHEMA.names)
         bounds = [0, *sorted({c for c in cuts if c < table.num_rows}), table.num_rows]
@@ -311,16 +313,16 @@ def test_fast_lds_check_agrees_with_the_full_check(base, muts, rod, spindle, cut
             )
             table = table.set_column(table.column_names.index("pose"), "pose", pose.to_arrow())
         meta = {**META, "device": {"id": "R", "type": "rod" if rod else "tri_lds"}}
-        full = rawio._check_lds_full(table, meta, spindle, p, "lds.parquet")
-        fast = rawio._lds_fast_check(table, meta, spindle, "lds.parquet")
+        full = raw_lds._check_lds_full(table, meta, spindle, p, "lds.parquet")
+        fast = raw_lds._lds_fast_check(table, meta, spindle, "lds.parquet")
         if p.errors:
             event("problem")
             assert fast is None
-            assert rawio._lds_fast_check(table, meta, spindle, "lds.parquet", layout=False) is None
+            assert raw_lds._lds_fast_check(table, meta, spindle, "lds.parquet", layout=False) is None
         else:
             event("clean, with warnings" if full else "clean")
             assert fast is not None and fast[0] == full
-            assert rawio._lds_fast_check(table, meta, spindle, "lds.parquet", layout=False) == (full, None)
+            assert raw_lds._lds_fast_check(table, meta, spindle, "lds.parquet", layout=False) == (full, None)
             if fast[1] is not None:  # checked on the wide matrix: it is the general long -> wide one
                 event("usual layout")
                 # a channel listed without rows forces the general scatter (its column all NaN)

@@ -225,7 +225,7 @@ def test_validate_exits_0_every_time_in_fresh_processes(tmp_path):
 
     The abort at exit ("terminate called without an active exception", exit 134) came from Arrow's
     thread pool releasing Python-owned buffers after the interpreter had begun to shut down
-    (rawio._read_parquet read through a Python file object). With that reader this harness saw
+    (rawio.reader._read_parquet read through a Python file object). With that reader this harness saw
     8 aborts in 200 runs on this tree (4 %); the chance of 200 clean runs at that rate is 3e-4.
     """
     raw = _small_good_tree(tmp_path)

@@ -134,11 +134,14 @@ def _write_record(results_root, rec: NightConfig) -> None:
     )
 
 
-def settle(results_root, nights: list[str], config: dict) -> tuple[dict[str, dict], list[str]]:
+def settle(
+    results_root, nights: list[str], config: dict, *, record: bool = True
+) -> tuple[dict[str, dict], list[str]]:
     """Each night's settings: its record, else the current config (recorded now for it).
 
     Returns (night -> settings, the recorded nights whose settings differ from the current config).
-    A results root that cannot be written gets no record (the run stops at its first output).
+    A results root that cannot be written gets no record (the run stops at its first output); nor does a
+    dry run (``record=False``: the settings a run would record, nothing written).
     """
     current = night_settings(config)
     h = settings_hash(current)
@@ -148,7 +151,8 @@ def settle(results_root, nights: list[str], config: dict) -> tuple[dict[str, dic
         if rec is None:
             rec = NightConfig(night, h, current, "first run")
             try:
-                _write_record(results_root, rec)
+                if record:
+                    _write_record(results_root, rec)
             except OSError:
                 pass
         elif rec.config_hash != h:

@@ -34,7 +34,9 @@ __all__ = [
     "has_design_geometry",
     "missing_geometry_reason",
     "NO_SPINDLE_REASON",
+    "CALIBRATE_STAGE",
     "summary_revolutions",
+    "summary_period_source",
     "calibration_revolutions_problem",
     "StageOutcome",
     "expected_outcomes",
@@ -115,22 +117,44 @@ def summary_revolutions(summary) -> tuple[int | None, int]:
     return recorded, int(summary["n_revolutions_min"].min())
 
 
-def calibration_revolutions_problem(recorded: int | None, with_extrema: int, min_rev: int) -> str | None:
-    """Why a spindle scan is too short to calibrate from; None when it is long enough.
+#: The ``file`` of a calibration's quarantine record when no raw file is at fault (a fit that fails, readings
+#: that barely vary with rotation): the record names the stage, never a file that is fine.
+CALIBRATE_STAGE = "calibrate stage"
+
+
+def summary_period_source(summary) -> str | None:
+    """Return where the signal stage took one scan's rotation period from (``encoder``, ``profile``, ...)."""
+    return str(summary["period_source"][0]) if "period_source" in summary.columns else None
+
+
+def calibration_revolutions_problem(
+    recorded: int | None, with_extrema: int, min_rev: int, period_source: str | None = None
+) -> tuple[str, str] | None:
+    """Why a spindle scan is too short to calibrate from, as (file, reason); None when it is long enough.
 
     ``recorded``: whole revolutions recorded (samples // samples per revolution; None if not known);
-    ``with_extrema``: revolutions in which every channel has its once-per-revolution minimum.
+    ``with_extrema``: revolutions in which every channel has its once-per-revolution minimum. Too few
+    revolutions recorded is the content of ``lds.parquet``; too few with an extremum is what the calibrate
+    stage finds in readings that are otherwise fine (:data:`CALIBRATE_STAGE`); when the period came from the
+    spindle stream (``period_source`` ``encoder`` or ``profile``), that stream is the other suspect.
     """
     if recorded is not None and recorded < min_rev:
         return (
+            "lds.parquet",
             f"too few revolutions to calibrate: {recorded} whole revolutions recorded, "
-            f"at least {min_rev} needed (calibration.min_revolutions)"
+            f"at least {min_rev} needed (calibration.min_revolutions)",
         )
     if with_extrema < min_rev:
         return (
+            CALIBRATE_STAGE,
             f"calibration failed: a once-per-revolution extremum was found in only {with_extrema} "
             f"revolutions (at least {min_rev} needed); the readings barely vary with rotation, "
             "is the spindle at the gauge centre?"
+            + (
+                f" Or the rotation period taken from spindle.parquet ({period_source}) does not match them"
+                if period_source in ("encoder", "profile")
+                else ""
+            ),
         )
     return None
 
@@ -154,7 +178,12 @@ class StageOutcome:
 
 
 def expected_outcomes(
-    meta: dict, *, has_spindle: bool, revolutions: tuple[int | None, int] | None, min_rev: int
+    meta: dict,
+    *,
+    has_spindle: bool,
+    revolutions: tuple[int | None, int] | None,
+    min_rev: int,
+    period_source: str | None = None,
 ) -> list[StageOutcome]:
     """Return the preconditions above applied to one accepted scan, in stage order ([] = processed as usual).
 
@@ -170,9 +199,13 @@ def expected_outcomes(
         if not has_spindle:
             out.append(StageOutcome(sid, "calibrate", "spindle.parquet", NO_SPINDLE_REASON, True))
         else:  # in the stage's order: the revolutions, then the design geometry
-            problem = None if revolutions is None else calibration_revolutions_problem(*revolutions, min_rev)
+            problem = (
+                None
+                if revolutions is None
+                else calibration_revolutions_problem(*revolutions, min_rev, period_source)
+            )
             if problem:
-                out.append(StageOutcome(sid, "calibrate", "lds.parquet", problem, True))
+                out.append(StageOutcome(sid, "calibrate", *problem, True))
             elif not geometry:
                 out.append(
                     StageOutcome(

@@ -5,13 +5,16 @@ It, not file times, decides what reruns.
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 from borescan import rawio
 from borescan.atomic import atomic_write_text
 
-__all__ = ["raw_index_path", "refresh_raw_index"]
+__all__ = ["raw_index_path", "refresh_raw_index", "night_index_paths"]
 
 
 def raw_index_path(results_root, night: str) -> Path:
@@ -33,21 +36,45 @@ def refresh_raw_index(raw_root, results_root, nights: list[str]) -> list[str]:
     (results made before the manifest existed stay as they are). A results root that cannot be
     written is left alone (the run then stops at its first output, naming it).
     """
-    changed = []
+    return [night for night, _, first in _refresh(raw_root, results_root, nights, results_root) if not first]
+
+
+def _refresh(raw_root, results_root, nights: list[str], into) -> list[tuple[str, Path, bool]]:
+    """Write the manifests that differ from those under ``results_root`` into ``into``.
+
+    As :func:`refresh_raw_index` writes them; return (night, path written, written for the first time).
+    """
+    written = []
     for night in nights:
-        path = raw_index_path(results_root, night)
+        path, old = raw_index_path(into, night), raw_index_path(results_root, night)
         text = rawio.night_manifest(raw_root, night)
         try:
-            existed = path.is_file()
-            if existed and path.read_text() == text:
+            existed = old.is_file()
+            if existed and old.read_text() == text:
                 continue
             atomic_write_text(path, text)
             if not existed:
                 times = [int(t) for line in text.splitlines() for t in line.split()[2:3]]
                 if times:
                     os.utime(path, ns=(max(times), max(times)))
-                continue
         except OSError:
             continue
-        changed.append(night)
-    return changed
+        written.append((night, path, not existed))
+    return written
+
+
+def night_index_paths(raw_root, results_root, nights: list[str], dry_run: bool) -> dict[str, Path]:
+    """Return the manifest each night's ingest reads (night -> path), refreshed first.
+
+    A run refreshes the manifests under the results root (:func:`refresh_raw_index`). A dry run
+    (``snakemake -n``) writes nothing there: the manifests that are new or changed are written to a
+    temporary folder (removed when the process exits), with the times a run would give them, so the
+    dry run lists the jobs the run will make.
+    """
+    paths = {n: raw_index_path(results_root, n) for n in nights}
+    into = results_root
+    if dry_run:
+        into = Path(tempfile.mkdtemp(prefix="borescan-dry-run-index-"))
+        atexit.register(shutil.rmtree, into, ignore_errors=True)
+    paths.update({n: path for n, path, _ in _refresh(raw_root, results_root, nights, into)})
+    return paths

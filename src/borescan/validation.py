@@ -16,6 +16,9 @@ scan when it returns a problem (the first one becomes the quarantine reason), an
    sample clock: the ``t_ns`` step per sample must match ``sample_rate_hz`` (median step within
    :data:`RATE_TOLERANCE`, :func:`rate_mismatch`), and no single step may be off by more than
    half a period (:func:`borescan.rawio.clock_jump`);
+   and the spindle stream in the format's units (:func:`spindle_problem`): its ``t_ns`` spans the
+   readings' seconds, its encoder turns at the speed its ``rpm`` (else ``spindle.rpm_nominal``) says,
+   its ``rpm`` near ``spindle.rpm_nominal``, each within a factor :data:`SPINDLE_UNIT_FACTOR`;
 5. the numbers of ``scan.json`` that feed a result against what a gauge room can produce
    (:func:`plausibility_problems`, bounds from the config's ``plausibility`` section).
 
@@ -49,6 +52,8 @@ __all__ = [
     "earlier_night_of",
     "rate_mismatch",
     "clock_problem",
+    "SPINDLE_UNIT_FACTOR",
+    "spindle_problem",
     "scan_problems",
     "TreeReport",
     "validate_tree",
@@ -140,6 +145,62 @@ def clock_problem(scan: rawio.RawScan) -> str | None:
     return rate_mismatch(mat.sample, mat.t_s, rate) or rawio.clock_jump(mat.sample, mat.t_s, rate)
 
 
+#: How far (a factor either way) a spindle stream may disagree with the readings and scan.json before it is
+#: taken for a stream in other units: a clock in microseconds is a factor 1000 off, an angle in degrees 57, an
+#: rpm logged in rad/s 9.5; a real stream agrees within percent (a controller logging once a second spans the
+#: same seconds as readings at 625 Hz, a two-speed pair states each speed).
+SPINDLE_UNIT_FACTOR = 5.0
+
+
+def _apart(a: float, b: float) -> bool:
+    return not (b / SPINDLE_UNIT_FACTOR <= a <= b * SPINDLE_UNIT_FACTOR)
+
+
+def spindle_problem(scan: rawio.RawScan) -> str | None:
+    """Return what is impossible in a spindle stream's units (naming the column), or None.
+
+    In order: ``t_ns`` (the stream's seconds against those of lds.parquet's readings: both are time since the
+    scan start), ``angle_rad`` (the encoder's mean speed, its travel over its time, against the stream's
+    ``rpm`` median, else ``spindle.rpm_nominal``), ``rpm`` (its median against ``spindle.rpm_nominal``).
+    A disagreement beyond :data:`SPINDLE_UNIT_FACTOR` is another unit, not a slower or faster spindle.
+    """
+    sp = scan.spindle
+    if sp is None or sp.height < 2:
+        return None
+    t_s = sp["t_ns"].to_numpy().astype(float) * 1e-9
+    lds_t_s = np.asarray(rawio.lds_matrix(scan).t_s, dtype=float)
+    span_s, lds_span_s = float(t_s[-1] - t_s[0]), float(lds_t_s[-1] - lds_t_s[0])
+    if lds_span_s > 0 and _apart(span_s, lds_span_s):
+        return (
+            f"t_ns spans {span_s:.6g} s where the readings of lds.parquet span {lds_span_s:.6g} s "
+            f"({span_s / lds_span_s:.3g} times): the spindle clock is not in nanoseconds since the scan "
+            "start (an impossible sample period of the stream; raw format: time in integer nanoseconds)"
+        )
+    nominal = (scan.meta.get("spindle") or {}).get("rpm_nominal")
+    nominal = float(nominal) if nominal is not None and float(nominal) > 0 else None
+    rpm = np.abs(sp["rpm"].cast(float).fill_null(np.nan).to_numpy())
+    rpm = rpm[np.isfinite(rpm)]
+    logged = float(np.median(rpm)) if rpm.size and np.median(rpm) > 0 else None
+    angle = sp["angle_rad"].cast(float).fill_null(np.nan).to_numpy()
+    ok = np.isfinite(angle)
+    ref, ref_name = (logged, "its rpm column") if logged else (nominal, "scan.json spindle.rpm_nominal")
+    if ok.sum() >= 2 and ref is not None and t_s[ok][-1] > t_s[ok][0]:
+        turned = (
+            float(np.abs(np.diff(angle[ok])).sum()) / float(t_s[ok][-1] - t_s[ok][0]) * 60 / (2 * math.pi)
+        )
+        if _apart(turned, ref):
+            return (
+                f"angle_rad turns at {turned:.4g} rpm over t_ns where {ref_name} says {ref:.4g} rpm: an "
+                "impossible rotation speed (the angle not in radians, or the clock not in nanoseconds)"
+            )
+    if logged is not None and nominal is not None and _apart(logged, nominal):
+        return (
+            f"rpm is {logged:.4g} (median) where scan.json spindle.rpm_nominal is {nominal:.4g}: an "
+            "impossible rotation speed (rpm not in revolutions per minute)"
+        )
+    return None
+
+
 def scan_problems(
     scan_dir: str | Path,
     raw_root: str | Path,
@@ -179,6 +240,9 @@ def scan_problems(
     clock = clock_problem(scan)
     if clock:
         problems.append(ScanError(scan.scan_id, rawio.LDS_FILE, clock))
+    spindle = spindle_problem(scan)
+    if spindle:
+        problems.append(ScanError(scan.scan_id, rawio.SPINDLE_FILE, spindle))
     problems += plausibility_problems(scan.meta, scan.scan_id, limits)
     return scan, problems
 

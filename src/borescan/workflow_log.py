@@ -201,3 +201,22 @@ def release_stale_locks(snakemake_dir: str | Path) -> list[int]:
         owner.unlink(missing_ok=True)
         gone.append(int(rec["pid"]))
     return gone
+
+
+def is_dry_run(workflow=None, argv: list[str] | None = None) -> bool:
+    """Return whether the Snakemake run that parses the Snakefile is a dry run (``-n``, ``--dry-run``).
+
+    ``workflow.dryrun`` is known only once the executor is chosen, after the Snakefile is parsed (it is False
+    while ``rules/common.smk`` runs, Snakemake 9.27), so the command line (``argv``, default ``sys.argv``) is
+    read with Snakemake's own parser (combined flags such as ``-np`` included). An unreadable command line is
+    not a dry run.
+    """
+    if workflow is not None and getattr(workflow, "dryrun", False):
+        return True
+    from snakemake.cli import get_argument_parser
+
+    try:
+        args, _ = get_argument_parser().parse_known_args(sys.argv[1:] if argv is None else argv)
+    except (SystemExit, ValueError):  # argparse exits on what it cannot read
+        return False
+    return bool(getattr(args, "dryrun", False))

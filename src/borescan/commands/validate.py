@@ -47,7 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warnings", action="store_true", help=argparse.SUPPRESS)
     parser.epilog = (
         "Problems go to stdout as 'scan_id: file: problem' ('-' for folders that are not "
-        "scans), the summary to stderr. Exit 0: all valid; 1: problems; 2: RAW_ROOT missing."
+        "scans), the summary to stderr. Exit 0: all valid; 1: problems, or no scans under RAW_ROOT; "
+        "2: RAW_ROOT missing."
     )
 
 
@@ -65,7 +66,7 @@ def _plausibility():
 
 def run(args: argparse.Namespace) -> int:
     """Print ``scan_id: file: problem`` lines; exit 1 if any, else a summary and exit 0."""
-    from borescan import validation
+    from borescan import rawio, validation
 
     progress = None
     if sys.stderr.isatty():  # a person waiting; cron logs get only the result
@@ -83,6 +84,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(err)) from None
     for e in report.problems:
         print(e)
+    if report.n_scans == 0:  # nothing to validate is not "all valid": a wrong path or an empty share
+        nights = rawio.nights(args.raw_root)
+        where = f"{len(nights)} night folder(s), none with a scan" if nights else "no night=YYYY-MM-DD folder"
+        print(f"no scans under RAW_ROOT {args.raw_root} ({where})", file=sys.stderr)
+        return 1
     outcomes = stage_outcomes(args.raw_root, report.bad_scan_ids, cfg)
     later = sorted({o.scan_id for o in outcomes if o.quarantined})
     for o in outcomes:
@@ -122,12 +128,12 @@ def stage_outcomes(raw_root: Path, bad_scan_ids: set[str], cfg: dict) -> list:
             if d.name[5:] in bad_scan_ids:
                 continue
             scan = rawio.read_scan(d, raw_root=Path(raw_root))
-            revolutions = None
+            revolutions = source = None
             if scan.spindle is not None and scan.meta["device"]["type"] == "tri_lds":
                 try:
-                    revolutions = preconditions.summary_revolutions(
-                        scan_summary(scan, rawio.lds_matrix(scan), opts)[1]
-                    )
+                    summary = scan_summary(scan, rawio.lds_matrix(scan), opts)[1]
+                    revolutions = preconditions.summary_revolutions(summary)
+                    source = preconditions.summary_period_source(summary)
                 except (ValueError, np.linalg.LinAlgError, IndexError) as err:
                     out.append(
                         preconditions.StageOutcome(
@@ -136,6 +142,10 @@ def stage_outcomes(raw_root: Path, bad_scan_ids: set[str], cfg: dict) -> list:
                     )
                     continue
             out += preconditions.expected_outcomes(
-                scan.meta, has_spindle=scan.spindle is not None, revolutions=revolutions, min_rev=min_rev
+                scan.meta,
+                has_spindle=scan.spindle is not None,
+                revolutions=revolutions,
+                min_rev=min_rev,
+                period_source=source,
             )
     return out

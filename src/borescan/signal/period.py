@@ -70,6 +70,8 @@ def period_from_encoder(
     k = np.arange(ts.size, dtype=float)
     kc = k - k.mean()
     dt = float(np.dot(kc, ts - ts.mean()) / np.dot(kc, kc)) if ts.size > 1 else 1.0 / float(sample_rate_hz)
+    if not (omega != 0.0 and math.isfinite(omega) and dt > 0.0):
+        raise ValueError(f"spindle.parquet: angle_rad does not turn (speed {omega:g} rad/s): no period")
     p = 2.0 * math.pi / (abs(omega) * dt)
     u = p * u_omega / abs(omega)
     nom = _nominal(sample_rate_hz if sample_rate_hz else 1.0 / dt, rpm_nominal)

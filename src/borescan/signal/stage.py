@@ -137,29 +137,19 @@ def process_arrays(
     vp = _padded_rows(v, h)  # own copy, one contiguous row per channel
     spike_idx, nulls = _despike_rows(vp, h, spike_threshold, _SPIKE_CANDIDATE_THRESHOLD)
     clean = vp[:, h : h + n].T
-    nom = _nominal(sample_rate_hz, rpm_nominal)
     if t_s is None:
         t_s = np.arange(n) / float(sample_rate_hz)
-    enc = None if encoder_angle_rad is None else np.asarray(encoder_angle_rad, dtype=float)
-    if enc is not None and np.any(~np.isnan(enc)):
-        period = period_from_encoder(
-            encoder_t_s, enc, t_s, rpm_nominal=rpm_nominal, sample_rate_hz=sample_rate_hz
-        )
-        u = revolution_coordinate(
-            n, period, sample_times_s=t_s, encoder_t_s=encoder_t_s, encoder_angle_rad=enc
-        )
-    elif commanded_rad is not None and _speed_changes(commanded_rad):
-        period, u = _profile_revolutions(np.asarray(commanded_rad, dtype=float), clean, nom, direction)
-    else:
-        period = period_from_readings(
-            clean,
-            samples_per_rev_guess=nom,
-            rpm_nominal=rpm_nominal,
-            sample_rate_hz=sample_rate_hz,
-            direction=direction,
-            n_harmonics=n_harmonics,
-        )
-        u = revolution_coordinate(n, period)
+    period, u = _period_and_revolutions(
+        clean,
+        t_s,
+        sample_rate_hz,
+        rpm_nominal,
+        direction,
+        encoder_t_s,
+        encoder_angle_rad,
+        commanded_rad,
+        n_harmonics,
+    )
     spr = period.samples_per_rev
     filtered = None
     if extrema_on == "filtered":  # otherwise the filter runs only if SignalResult.filtered_mm is read
@@ -178,11 +168,93 @@ def process_arrays(
         sample0=sample0,
         n_harmonics=n_harmonics,
     )
+    summary, min_pos = _channel_summary(ext, info, chans, period, scan_id)
+    ext = ext.select(pl.lit(scan_id).alias("scan_id"), pl.all())
+    spac = feature_spacings(min_pos, spr, period.u_samples_per_rev)
+    revs = find_revolutions(u, sample0)
+    set_aside = pl.DataFrame(
+        {
+            "channel": list(chans),
+            "nulls": nulls.astype(np.int64),
+            "spikes": np.array([i.size for i in spike_idx], dtype=np.int64),
+        }
+    )
+    cfg = {
+        "filter": filter,
+        "filter_params": filter_params or {},
+        "spike_window_samples": spike_window_samples,
+        "spike_threshold": spike_threshold,
+        "half_window_samples": info["half_window_samples"],
+        "extrema_on": extrema_on,
+        "n_harmonics": n_harmonics,
+    }
+    res = SignalResult(
+        scan_id,
+        chans,
+        np.arange(n, dtype=np.int64) + sample0,
+        clean,
+        period,
+        revs,
+        ext,
+        summary,
+        spac,
+        set_aside,
+        cfg,
+    )
+    if filtered is not None:
+        res.__dict__["filtered_mm"] = filtered  # computed already (the cached property's slot)
+    return res
+
+
+def _period_and_revolutions(
+    clean,
+    t_s,
+    sample_rate_hz,
+    rpm_nominal,
+    direction,
+    encoder_t_s,
+    encoder_angle_rad,
+    commanded_rad,
+    n_harmonics,
+):
+    """Return the rotation period and each sample's revolution coordinate (see :func:`process_arrays`).
+
+    From the encoder when it has an angle, else from the rpm profile's commanded angle when the speed
+    changes during the scan, else from the readings.
+    """
+    n = clean.shape[0]
+    nom = _nominal(sample_rate_hz, rpm_nominal)
+    enc = None if encoder_angle_rad is None else np.asarray(encoder_angle_rad, dtype=float)
+    if enc is not None and np.any(~np.isnan(enc)):
+        period = period_from_encoder(
+            encoder_t_s, enc, t_s, rpm_nominal=rpm_nominal, sample_rate_hz=sample_rate_hz
+        )
+        return period, revolution_coordinate(
+            n, period, sample_times_s=t_s, encoder_t_s=encoder_t_s, encoder_angle_rad=enc
+        )
+    if commanded_rad is not None and _speed_changes(commanded_rad):
+        return _profile_revolutions(np.asarray(commanded_rad, dtype=float), clean, nom, direction)
+    period = period_from_readings(
+        clean,
+        samples_per_rev_guess=nom,
+        rpm_nominal=rpm_nominal,
+        sample_rate_hz=sample_rate_hz,
+        direction=direction,
+        n_harmonics=n_harmonics,
+    )
+    return period, revolution_coordinate(n, period)
+
+
+def _channel_summary(ext: pl.DataFrame, info: dict, chans, period, scan_id: str) -> tuple[pl.DataFrame, dict]:
+    """Return the per-channel summary rows of the extrema and each channel's minima positions.
+
+    Mean d_min/d_max with their uncertainties, n/m counts, status and its significance (see
+    :func:`process_arrays`).
+    """
     e_ch = ext["channel"].to_numpy()
     e_min = (ext["kind"] == "min").to_numpy()
     e_pos = ext["sample_pos"].to_numpy()
     e_val = ext["value_mm"].to_numpy()
-    ext = ext.select(pl.lit(scan_id).alias("scan_id"), pl.all())
     srows = []
     min_pos = {}
     for ch in chans:
@@ -227,40 +299,7 @@ def process_arrays(
         )
     columns = {k: [r[k] for r in srows] for k in (srows[0] if srows else {})}  # by column: faster than rows
     summary = pl.DataFrame({"scan_id": [scan_id] * len(srows)} | columns)
-    spac = feature_spacings(min_pos, spr, period.u_samples_per_rev)
-    revs = find_revolutions(u, sample0)
-    set_aside = pl.DataFrame(
-        {
-            "channel": list(chans),
-            "nulls": nulls.astype(np.int64),
-            "spikes": np.array([i.size for i in spike_idx], dtype=np.int64),
-        }
-    )
-    cfg = {
-        "filter": filter,
-        "filter_params": filter_params or {},
-        "spike_window_samples": spike_window_samples,
-        "spike_threshold": spike_threshold,
-        "half_window_samples": info["half_window_samples"],
-        "extrema_on": extrema_on,
-        "n_harmonics": n_harmonics,
-    }
-    res = SignalResult(
-        scan_id,
-        chans,
-        np.arange(n, dtype=np.int64) + sample0,
-        clean,
-        period,
-        revs,
-        ext,
-        summary,
-        spac,
-        set_aside,
-        cfg,
-    )
-    if filtered is not None:
-        res.__dict__["filtered_mm"] = filtered  # computed already (the cached property's slot)
-    return res
+    return summary, min_pos
 
 
 def _speed_changes(commanded_rad: np.ndarray) -> bool:

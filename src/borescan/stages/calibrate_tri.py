@@ -19,13 +19,15 @@ from borescan.artifacts import MissingTemperature
 from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows
 from borescan.preconditions import (
+    CALIBRATE_STAGE,
     CALIBRATION_NEEDS_BEAMS,
     NO_SPINDLE_REASON,
     calibration_revolutions_problem,
     design_beams,
+    summary_period_source,
     summary_revolutions,
 )
-from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
+from borescan.stages._common import config_hash, link_into_night, night_scans, ok_scans, quarantine
 from borescan.stages.calibration_fit import (
     budget_of,
     fit_device_calibration,
@@ -48,11 +50,13 @@ def calibrate_tri_device(
     """
     method, min_rev = cfg["method"], int(cfg["min_revolutions"])
     scans, inputs, nominal = [], [], None
+    lost = _set_aside_at_ingest(ctx["scans_table"], items[0][0]["device_id"])
     for _row, d in items:
         scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
         problem = _unusable(scan, summary, min_rev)
         if problem == "":
-            continue  # set aside by the signal stage already
+            lost.append(f"{scan.scan_id} (set aside by the signal stage)")
+            continue
         if problem is None:
             try:
                 beams = design_beams(scan.meta, CALIBRATION_NEEDS_BEAMS)
@@ -63,6 +67,8 @@ def calibrate_tri_device(
             except ValueError as err:  # MissingDesignGeometry is one
                 problem = ("scan.json", str(err))
         quarantine(results_root, bad, scan.scan_id, night, "calibrate", *problem)
+        lost.append(f"{scan.scan_id} ({problem[0]}: {problem[1]})")
+    ctx["lost_partners"] = lost
     if not scans:
         return
     # full_lsq fits all calibration scans of the device together; the paper's method
@@ -97,8 +103,19 @@ def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple
         return ("spindle.parquet", NO_SPINDLE_REASON)
     if s.height == 0:
         return ""
-    problem = calibration_revolutions_problem(*summary_revolutions(s), min_rev)
-    return None if problem is None else ("lds.parquet", problem)
+    return calibration_revolutions_problem(*summary_revolutions(s), min_rev, summary_period_source(s))
+
+
+def _set_aside_at_ingest(scans_table, device_id: str) -> list[str]:
+    """Return the device's calibration scans of the night that ingest set aside, each with its reason."""
+    df = pl.read_parquet(scans_table) if not isinstance(scans_table, pl.DataFrame) else scans_table
+    if not df.height or "device_id" not in df.columns:
+        return []
+    ok = set(ok_scans(df)["scan_id"])
+    rows = df.filter(
+        (pl.col("device_id") == device_id) & (pl.col("kind") == "calibration") & ~pl.col("scan_id").is_in(ok)
+    )
+    return [f"{r['scan_id']} (set aside at ingest: {r['reason']})" for r in rows.sort("scan_id").to_dicts()]
 
 
 def _calibrate_group(
@@ -136,10 +153,10 @@ def _calibrate_group(
             position_accuracy_mm=float(cfg["position_accuracy_mm"]),
         )
     except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
-        for s in scans:
-            quarantine(
-                results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}"
-            )
+        kept = _blame_failed_fit(scans, inputs, err, nominal, night, results_root, cfg, bad, ctx)
+        if kept:
+            args = (method, nominal, summary, night, results_root, cfg, bad, cal_rows, link_rows, log, ctx)
+            _calibrate_group([scans[i] for i in kept], [inputs[i] for i in kept], *args)
         return
     cal = with_budget(fit, budget)
     out_dir = certificate.certificate_night_dir(results_root, cal, night)
@@ -210,6 +227,52 @@ def _calibrate_group(
         + f" um; {len(ver_rows)} verification(s) in the certificate"
         + (" [gauge temperature ASSUMED 20 degC]" if first["temperature"].assumed else "")
     )
+
+
+def _blame_failed_fit(scans, inputs, err, nominal, night, results_root, cfg, bad, ctx) -> list[int]:
+    """Quarantine the scans of a failed calibration, each with the cause; return those still usable.
+
+    A joint fit of several scans that fails is tried scan by scan: when some scans calibrate alone and others
+    do not, only those that do not are set aside (their own failure and the joint one named), and the indices
+    of the others are returned to be calibrated without them. Otherwise every scan is set aside with the fit's
+    failure. The record names the stage (:data:`CALIBRATE_STAGE`), not a raw file, and lists the partner
+    scans set aside before the fit (``ctx["lost_partners"]``): a scan that cannot be calibrated alone says
+    it lost them.
+    """
+    alone: list[str | None] = []
+    if len(scans) > 1 and cfg["method"] != "yang2017":
+        for s, x in zip(scans, inputs):
+            try:
+                fit_device_calibration([s], [x], nominal, cfg, night=night)
+                alone.append(None)
+            except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as own:
+                alone.append(str(own))
+    kept = [i for i, why in enumerate(alone) if why is None]
+    if kept and len(kept) < len(scans):
+        others = ", ".join(scans[i].scan_id for i in kept)
+        for s, why in zip(scans, alone):
+            if why is not None:
+                reason = f"calibration failed on its own: {why} (the joint fit with {others} failed too)"
+                quarantine(results_root, bad, s.scan_id, night, "calibrate", CALIBRATE_STAGE, reason)
+                ctx.setdefault("lost_partners", []).append(f"{s.scan_id} ({CALIBRATE_STAGE}: {reason})")
+        return kept
+    lost = ctx.get("lost_partners") or []
+    tail = (
+        f"; calibrated without its partner scan(s) set aside before the fit: {'; '.join(lost)}"
+        if lost
+        else ""
+    )
+    for s in scans:
+        quarantine(
+            results_root,
+            bad,
+            s.scan_id,
+            night,
+            "calibrate",
+            CALIBRATE_STAGE,
+            f"calibration failed: {err}{tail}",
+        )
+    return []
 
 
 def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
