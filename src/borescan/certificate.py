@@ -25,8 +25,9 @@ element names of the PTB Digital Calibration Certificate (DCC 3.x: ``administrat
 Regenerating from the same inputs gives byte-identical files: JSON with sorted keys and floats
 rounded to 12 significant digits; PDF without CreationDate/ModDate/Producer/Creator; PNG without
 the Software key; figures built on fresh ``matplotlib.figure.Figure`` objects (no pyplot state).
-The issue date is therefore not the wall clock: it is derived from the data (the last date on
-which a scan of the calibration or of its verifications was taken), and the certificate says so.
+The issue date is therefore not the wall clock at writing: it is the UTC date the workflow first
+processed the night, kept in the night's record (:func:`borescan.night_config.first_processed`), and
+the certificate says so.
 """
 
 from __future__ import annotations
@@ -137,14 +138,13 @@ def certificate_night_dir(results_root: Path | str, cal, night: str) -> Path:
     return Path(results_root) / "calibration" / f"night={night}" / cal.device_id / cal.calibration_id
 
 
-def certificate_dates(
-    scan_metas: list[dict], verification_metas: list[dict], night: str, validity_days: int
-) -> dict:
-    """Dates of a certificate from its scans, never the clock (regeneration stays byte-identical).
+def certificate_dates(scan_metas: list[dict], night: str, validity_days: int, issue_date: str) -> dict:
+    """Dates of a certificate from its scans and its night's record, never the clock at writing.
 
     ``begin``/``end``: the UTC dates of the calibration scans' ``started_at`` (ISO 8601; a scan
-    without a readable one counts as the night); ``issue``: the last date of any scan the
-    certificate reports (calibration and verification scans); ``recalibration_due``: the night +
+    without a readable one counts as the night); ``issue``: ``issue_date``, the date the workflow first
+    processed the night (:func:`borescan.night_config.first_processed`), so that a
+    certificate regenerated later keeps its date and bytes; ``recalibration_due``: the night +
     ``calibration.validity_days``, the last night on which a measurement may use the calibration
     (:func:`borescan.calibrations.choose_calibration`). ``issue_rule`` and ``recalibration_rule``
     say so in words, for the certificate.
@@ -158,16 +158,14 @@ def certificate_dates(
         return (t.astimezone(_dt.timezone.utc) if t.tzinfo is not None else t).date().isoformat()
 
     cal_days = sorted(day(m) for m in scan_metas) or [night]
-    all_days = sorted(cal_days + [day(m) for m in verification_metas])
     due = (_dt.date.fromisoformat(night) + _dt.timedelta(days=int(validity_days))).isoformat()
     return {
         "begin": cal_days[0],
         "end": cal_days[-1],
-        "issue": all_days[-1],
+        "issue": _dt.date.fromisoformat(issue_date).isoformat(),
         "night": night,
-        "issue_rule": "derived from the data, not the clock: the last UTC date on which a scan "
-        "reported here was "
-        "taken (scan.json started_at), so that regenerating the certificate gives the same bytes",
+        "issue_rule": "the UTC date the night was first processed (recorded in stage/night_config), so that "
+        "regenerating the certificate gives the same bytes",
         "recalibration_due": due,
         "recalibration_rule": f"night {night} + calibration.validity_days = {int(validity_days)} days; "
         "after it the "
