@@ -288,6 +288,7 @@ def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_ba
 
     from borescan import certificate, rawio, scenarios
     from borescan.config import schema_defaults
+    from borescan import night_config
     from borescan.stages.calibrate_rod import calibrate_rod_scan
 
     monkeypatch.setattr(certificate, "_pdf_bytes", lambda pages, title: b"")
@@ -305,6 +306,7 @@ def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_ba
     }
     bad, rows, links = [], [], []
     in_gauges = [s for s in map(rawio.read_scan, paths) if s.meta["kind"] == "verification"]
+    night_config.settle(tmp_path / "results", sorted({s.night for s in in_gauges}), dflt)  # as the workflow
     for scan in in_gauges:
         calibrate_rod_scan(
             scan,

@@ -294,3 +294,39 @@ def test_rod_reference_layers_are_the_measurements_rod_layers_in_nominal_format(
         "temperature_c": 20.0,
     }
     assert list(RodScene.from_dict(scene).layers) == lays
+
+
+def test_rod_residuals_per_pose_are_the_solves_and_are_drawn(tmp_path):
+    """residuals.png of a rod certificate: model - reading of the solve per pose and layer (outputs.md)."""
+    from borescan.geometry import Hole, RodAxis, rod_readings
+    from borescan.rod import solve_rod
+
+    layers = [RodLayer(1, 100.0, 71.0), RodLayer(2, 400.0, 71.0)]
+    holes = [Hole((0.0, 0.0), 75.0), Hole((0.01, -0.02), 75.012)]
+    rng = np.random.default_rng(5)
+    alpha = np.sort(rng.uniform(0, 2 * np.pi, 16))
+    v = rod_readings(alpha, layers, holes, RodAxis(1.0, 0.5, np.deg2rad(0.3), 2.1))
+    v = v + 0.002 * rng.standard_normal(v.shape)
+    v[4, 1] = np.nan  # a reading missing: pose 4, seen by one layer only, is dropped by the solve
+    sol = solve_rod(v, layers=layers, u_reading_mm=0.002)
+    pr = C.rod_pose_residuals(sol, v)
+    r = pr["residual_mm"]
+    assert r.shape == v.shape and np.isnan(r[4]).all() and np.isnan(pr["pose_angle_rad"][4])
+    assert np.isfinite(np.delete(r, 4, axis=0)).all()
+    # the solve's own rms (mean over the readings it used) and cost
+    assert np.sqrt(np.nanmean(r**2)) == pytest.approx(sol.residual_rms_mm, rel=1e-12)
+    # model = reading + (model - reading): readings the solution explains exactly, so a solve of them
+    # leaves nothing (with the sign reversed it would leave twice the noise)
+    again = solve_rod(v + r, layers=layers, u_reading_mm=0.002)
+    assert again.residual_rms_mm < 1e-3 * sol.residual_rms_mm
+    cal = _rod_cal()
+    pr2 = {"pose_angle_rad": alpha, "residual_mm": r}
+    a = C.write_rod_certificate(cal, tmp_path / "a", residuals=pr2, **_rod_kw())
+    b = C.write_rod_certificate(cal, tmp_path / "b", residuals=pr2, **_rod_kw())
+    assert a["png"].name == "residuals.png" and a["png"].read_bytes() == b["png"].read_bytes()
+    cert = json.loads(a["json"].read_text())
+    assert np.allclose(
+        np.array(cert["fit"]["pose_residuals"]["residual_mm"], dtype=float), r, rtol=1e-11, equal_nan=True
+    )
+    with pytest.raises(ValueError, match="no least-squares fit"):
+        C.rod_pose_residuals(None, v)

@@ -1819,7 +1819,9 @@ def _page_records(d: _Doc) -> None:
             d.fig.text(0.42, d.y, digest, family="monospace", fontsize=6.5)
             d.y -= 0.012
     d.y -= 0.01
-    d.para("Residuals of the fit: residuals.png beside this certificate, and the last page.")
+    rod = (c.get("device") or {}).get("type") == "rod"
+    if not rod or (c.get("fit") or {}).get("pose_residuals") is not None:
+        d.para("Residuals of the fit: residuals.png beside this certificate, and the last page.")
 
 
 def _residual_figure(
@@ -1851,6 +1853,43 @@ def _residual_figure(
         fig.suptitle(f"Residuals (model - reading), {cert['calibration_id']}", fontsize=9)
         fig.tight_layout()
     return fig
+
+
+def _rod_residual_figure(cert: dict, size=(8.27, 5.0), page: bool = False) -> Figure:
+    """Residuals (model - reading) of the rod solve per layer against the pose angle [deg], in um."""
+    pr = cert["fit"]["pose_residuals"]
+    alpha = np.degrees(np.asarray([np.nan if a is None else a for a in pr["pose_angle_rad"]], dtype=float))
+    res = np.asarray([[np.nan if x is None else x for x in row] for row in pr["residual_mm"]], dtype=float)
+    fig = Figure(figsize=size)
+    axes = fig.subplots(res.shape[1], 1, sharex=True, squeeze=False)[:, 0]
+    for j, (ax, prow) in enumerate(zip(axes, cert["parameters"])):
+        ok = np.isfinite(res[:, j]) & np.isfinite(alpha)
+        ax.plot(alpha[ok], res[ok, j] * 1e3, "o", ms=3, color=f"C{j}")
+        ax.axhline(0.0, color="k", lw=0.5)
+        rms = float(np.sqrt(np.mean(res[ok, j] ** 2))) * 1e3 if ok.any() else float("nan")
+        ax.set_ylabel(f"layer {prow['channel']} [um]")
+        ax.set_title(
+            f"layer {prow['channel']} ({prow.get('feature')}): rms {rms:.2f} um over {int(ok.sum())} poses",
+            fontsize=8,
+            loc="left",
+        )
+    axes[-1].set_xlabel("pose angle [deg]")
+    if page:
+        fig.text(
+            _Doc.LEFT, 0.885, "9  Residuals of the rod solve (model - reading)", fontsize=10.5, weight="bold"
+        )
+        fig.subplots_adjust(left=0.12, right=0.94, top=0.84, bottom=0.1, hspace=0.35)
+    else:
+        fig.suptitle(f"Residuals of the rod solve (model - reading), {cert['calibration_id']}", fontsize=9)
+        fig.tight_layout()
+    return fig
+
+
+def _png_bytes(fig: Figure) -> bytes:
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format="png", metadata={"Software": None})
+    return buf.getvalue()
 
 
 def _pages(cert: dict, t: np.ndarray, res: np.ndarray) -> list[Figure]:
@@ -1948,15 +1987,14 @@ def write_certificate_files(
     paths["dcc"] = write_dcc(cert, out_dir)
     with matplotlib.rc_context(_RC):
         if (cert.get("device") or {}).get("type") == "rod":
+            if (cert.get("fit") or {}).get("pose_residuals") is not None:
+                paths["png"] = out_dir / "residuals.png"
+                atomic_write_bytes(paths["png"], _png_bytes(_rod_residual_figure(cert)))
             atomic_write_bytes(paths["pdf"], _pdf_bytes(_rod_pages(cert), title))
             return paths
         t, res = _residual_arrays(residuals)
         paths["png"] = out_dir / "residuals.png"
-        fig = _residual_figure(cert, t, res)
-        FigureCanvasAgg(fig)
-        buf = io.BytesIO()
-        fig.savefig(buf, dpi=110, format="png", metadata={"Software": None})
-        atomic_write_bytes(paths["png"], buf.getvalue())
+        atomic_write_bytes(paths["png"], _png_bytes(_residual_figure(cert, t, res)))
         atomic_write_bytes(paths["pdf"], _pdf_bytes(_pages(cert, t, res), title))
     return paths
 
@@ -2012,6 +2050,32 @@ def _rod_parameters(cal) -> list[dict]:
     return params
 
 
+def rod_pose_residuals(sol, pose_means_mm) -> dict:
+    """Return the rod solve's residuals (model - reading) per pose and layer, for ``residuals.png``.
+
+    ``sol``: the :class:`borescan.rod.RodSolution` the calibration settled at; ``pose_means_mm``: the (n, m)
+    mean readings it solved. Returns ``pose_angle_rad`` (n,) and ``residual_mm`` (n, m) [mm], NaN where
+    the solve used no reading (a pose it dropped, a missing reading). Raises ValueError for a solve
+    without a least-squares fit (``centred``, ``pso``) or whose residuals do not match the readings.
+    """
+    if sol is None or sol.fit is None:
+        raise ValueError("the rod solve has no least-squares fit: no residuals per pose")
+    v = np.asarray(pose_means_mm, dtype=float)
+    keep = np.isfinite(sol.alpha_rad)  # the poses the solve kept (the others have no angle)
+    mask = np.isfinite(v[keep])
+    e = np.asarray(sol.fit.residual, dtype=float)  # reading - model over the kept readings, pose-major
+    if v.ndim != 2 or keep.size != v.shape[0] or e.size != int(mask.sum()):
+        raise ValueError(
+            f"rod residuals: {e.size} residuals for {int(mask.sum())} readings of "
+            f"{int(keep.sum())} poses kept of {v.shape}"
+        )
+    kept = np.full(mask.shape, np.nan)
+    kept[mask] = -e
+    out = np.full(v.shape, np.nan)
+    out[keep] = kept
+    return {"pose_angle_rad": np.asarray(sol.alpha_rad, dtype=float), "residual_mm": out}
+
+
 def _rod_fit(cal) -> dict:
     """Return the summary of the rod solve at the calibrated l0.
 
@@ -2045,12 +2109,15 @@ def rod_certificate_dict(
     coverage_probability: float | None = None,
     dates: dict | None = None,
     verifications: list[dict] | None = None,
+    residuals: dict | None = None,
 ) -> dict:
     """Return the ``certificate.json`` of a rod calibration.
 
     ``certificate.json`` of a rod calibration (:class:`borescan.rod_calibration.RodCalibration`):
     the same administrative part as a three-sensor certificate, results l0 per layer with U and k,
-    the budget per layer, each layer's gauge and the solve's diagnostics.
+    the budget per layer, each layer's gauge and the solve's diagnostics, with its residuals per pose
+    and layer (``residuals``: :func:`rod_pose_residuals`; ``fit.pose_residuals``, drawn as
+    ``residuals.png``).
     """
     p = float(
         schema_default("uncertainty", "coverage_probability")
@@ -2095,7 +2162,15 @@ def rod_certificate_dict(
             ),
             "parameters": _rod_parameters(cal),
             "covariance": cal.budget.covariance(),
-            "fit": _rod_fit(cal),
+            "fit": dict(
+                _rod_fit(cal),
+                pose_residuals=None
+                if residuals is None
+                else {
+                    "pose_angle_rad": residuals["pose_angle_rad"],
+                    "residual_mm": residuals["residual_mm"],
+                },
+            ),
             "gauges": list(cal.gauges),
         }
     )
@@ -2240,6 +2315,8 @@ def _rod_pages(cert: dict) -> list[Figure]:
         _rod_layer_budget(d, prow["channel"], budgets[f"l0_mm[{prow['channel']}]"])
     _verification_pages(d)
     _page_records(d)
+    if (cert.get("fit") or {}).get("pose_residuals") is not None:
+        d.pages.append(_rod_residual_figure(cert, size=_A4, page=True))
     return d.finish()
 
 

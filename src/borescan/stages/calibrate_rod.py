@@ -103,6 +103,7 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         coverage_probability=p,
         dates=dates,
         verifications=ver_rows,
+        residuals=certificate.rod_pose_residuals(sol, means),
         config_hash=config_hash(
             {"calibration": cfg, "uncertainty": unc, "laboratory": lab, "verification": ctx["verification"]}
         ),
