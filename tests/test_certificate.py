@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from borescan.calibration import full_residuals, yang_calibration
-from borescan.certificate import PLACEHOLDER, _pages, certificate_dir, write_certificate
+from borescan.certificate import PLACEHOLDER, certificate_dir, write_certificate
+from borescan.certificate.write import _pages
 from borescan.config import schema_defaults
 from borescan.uncertainty import Budget
 
@@ -292,7 +293,7 @@ def test_yang_certificate_without_fit_diagnostics(tmp_path):
 
 def test_no_iso_17025_claim_without_an_accreditation():
     """Issue 37 item 10: "issued in accordance with ISO/IEC 17025" only under a stated accreditation."""
-    from borescan.certificate import _standard_statement
+    from borescan.certificate.admin import _standard_statement
     from borescan.config import schema_defaults
 
     placeholder = schema_defaults()["laboratory"]

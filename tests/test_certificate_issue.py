@@ -21,7 +21,7 @@ import dcc_reader as rd
 from test_catalog import built  # noqa: F401 (the catalog fixture, shared)
 
 from borescan import night_config
-from borescan.certificate_dcc import DCC_FILE
+from borescan.certificate.dcc import DCC_FILE
 from borescan.certificate_issue import issues_of
 from borescan.cli import main
 

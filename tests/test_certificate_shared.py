@@ -10,6 +10,8 @@ import polars as pl
 import pytest
 
 from borescan import certificate as C
+from borescan.certificate.admin import _traceability_text
+from borescan.certificate.budget_pages import _rod_layer_budget, _verification_budget
 from borescan.artifacts import ArtifactCte, ScanTemperature
 from borescan.calibration import yang_calibration
 from borescan.calibrations import rod_layers
@@ -137,7 +139,7 @@ def test_rod_and_three_sensor_certificates_share_their_administrative_data():
     ]
     # the gauge both layers were calibrated in is named once
     trace = rod["statements"][1]["declaration"]
-    assert trace == C._traceability_text(GAUGE) and "C-150 (issued by DKD; valid until 2027-01-01)" in trace
+    assert trace == _traceability_text(GAUGE) and "C-150 (issued by DKD; valid until 2027-01-01)" in trace
     assert rod["statements"][3] == {
         "refType": "basic_conformity",
         "conformity": "fail",
@@ -213,7 +215,7 @@ def test_verification_budget_lists_inputs_of_5_percent_and_folds_the_rest():
         _row("cte:RG", 0.0, 0.0),
     ]
     d = _Recorder()
-    C._verification_budget(d, {"scan_id": "V1", "budget": rows})
+    _verification_budget(d, {"scan_id": "V1", "budget": rows})
     uc = math.sqrt(0.003**2 + 0.004**2 + 1e-4**2)
     assert d.calls[0] == ("room", round(0.013 * 5 + 0.03, 6))
     assert d.calls[1] == ("para", "Budget of E, V1 (contributions in um):", 7.5)
@@ -227,7 +229,7 @@ def test_verification_budget_lists_inputs_of_5_percent_and_folds_the_rest():
     ]
     assert (widths, size, row_h, bold) == ([0.42, 0.12, 0.1, 0.1, 0.06, 0.1, 0.1], 6, 0.013, True)
     d = _Recorder()
-    C._verification_budget(d, {"scan_id": "V1", "budget": []})
+    _verification_budget(d, {"scan_id": "V1", "budget": []})
     assert d.calls == []
 
 
@@ -244,7 +246,7 @@ def test_rod_layer_budget_drops_negligible_inputs_and_shows_zero_u_as_a_dash():
         "expanded_uncertainty": 0.000369,
     }
     d = _Recorder()
-    C._rod_layer_budget(d, 2, {"rows": rows, "combined": comb})
+    _rod_layer_budget(d, 2, {"rows": rows, "combined": comb})
     assert d.calls[1] == ("para", "Layer 2 (contributions in um; inputs below 1e-5 u_c left out):", 7.5)
     _, _, cells, widths, size, _, bold = d.calls[2]
     assert cells == [
