@@ -222,8 +222,8 @@ def test_verification_budget_lists_inputs_of_5_percent_and_folds_the_rest():
     _, cols, cells, widths, size, row_h, bold = d.calls[2]
     assert cols == ["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c_i", "u_i [um]"]
     assert cells == [
-        ["gauge RG-275: certified D20", "0.00 um", "0.3 um", "normal", "inf", "1", "3"],
-        ["readings (scatter)", "0.00 um", "0 um", "normal", "inf", "1", "4"],  # u 0 shown as 0 here
+        ["gauge RG-275: certified D20", "0.00000 mm", "0.00030 mm", "normal", "inf", "1", "3"],
+        ["readings (scatter)", "0 um", "0 um", "normal", "inf", "1", "4"],  # u 0 shown as 0 here
         ["2 further inputs (each < 5 % of u_c), combined", "", "", "", "", "", "0.1"],
         ["combined standard uncertainty u_c(E)", "", "", "", "", "", f"{1e3 * uc:.3g}"],
     ]
@@ -250,8 +250,8 @@ def test_rod_layer_budget_drops_negligible_inputs_and_shows_zero_u_as_a_dash():
     assert d.calls[1] == ("para", "Layer 2 (contributions in um; inputs below 1e-5 u_c left out):", 7.5)
     _, _, cells, widths, size, _, bold = d.calls[2]
     assert cells == [
-        ["gauge RGS-150: certified D20", "0.00 um", "0.3 um", "normal", "inf", "-0.5", "0.15"],
-        ["readings (scatter)", "0.00 um", "-", "normal", "inf", "1", "0.1"],
+        ["gauge RGS-150: certified D20", "0.00000 mm", "0.00030 mm", "normal", "inf", "-0.5", "0.15"],
+        ["readings (scatter)", "0 um", "-", "normal", "inf", "1", "0.1"],
         ["combined standard uncertainty u_c", "", "", "", "40", "", "0.18"],
         ["expanded uncertainty U (k = 2.05)", "", "", "", "", "", "0.369"],
     ]
@@ -332,3 +332,32 @@ def test_rod_residuals_per_pose_are_the_solves_and_are_drawn(tmp_path):
     )
     with pytest.raises(ValueError, match="no least-squares fit"):
         C.rod_pose_residuals(None, v)
+
+
+def test_budget_numbers_one_style_units_per_quantity_and_no_exponent():
+    """An input's estimate and u in one unit chosen for the quantity (not by its size), the estimate with
+    u's decimals (u to 2 significant digits, rounded up); sensitivities and contributions never in
+    exponent notation (the certificate printed 1.67e+03 urad, 122.00 um beside -2.3200 mm).
+    """
+    from borescan.certificate.layout import _est_u_text, _label, _sig
+
+    assert (_sig(1670.4), _sig(-6.66e-5), _sig(-0.5), _sig(850.2), _sig(0.0)) == (
+        "1670",
+        "-0.0000666",
+        "-0.5",
+        "850",
+        "0",
+    )
+    assert _est_u_text(0.122, 0.00163, "mm", "position:x") == ("0.1220 mm", "0.0017 mm")
+    assert _est_u_text(-2.32, 0.00163, "mm", "position:y") == ("-2.3200 mm", "0.0017 mm")
+    assert _est_u_text(275.029, 0.00075, "mm", "gauge:RG-275@C") == ("275.02900 mm", "0.00075 mm")
+    assert _est_u_text(0.0, 0.00577, "mm", "linearity:ch1") == ("0.0 um", "5.8 um")
+    assert _est_u_text(None, 0.004, "mm", "fit:readings") == ("-", "4.0 um")
+    tau = "device_model:TRI-01:channel_delay@2:tau_s@2026-11-23"
+    assert _est_u_text(0.00115141, 3.08e-5, "s", tau) == ("1.151 ms", "0.031 ms")
+    assert _est_u_text(20.0, 0.0577, "degC", "temperature:S") == ("20.000 degC", "0.058 K")
+    assert _est_u_text(11.5e-6, 0.58e-6, "1/K", "cte:RG-275@C") == ("11.50 ppm/K", "0.58 ppm/K")
+    # a label keeps the whole scan id
+    assert _label({"key": "temperature:N20261124-TRI01-CAL-P1-A", "quantity": "t"}) == (
+        "temperature, N20261124-TRI01-CAL-P1-A"
+    )

@@ -9,12 +9,12 @@ from borescan.certificate.layout import (
     _DIST,
     _Doc,
     _dof_text,
-    _est_text,
+    _est_u_text,
     _label,
     _num,
     _scaled,
     _tiny,
-    _u_text,
+    _sig,
 )
 from borescan.decision import split_verdict
 
@@ -34,7 +34,8 @@ def _budget_tables(  # noqa: C901 (one cell per budget row, parameter kind and h
         "contribution u_i = |c_i| u(x_i) (GUM 5.1.3). The fit to the readings is a vector input (u(x_i): the "
         "residual standard deviation per reading); its contribution comes from its covariance. c: for "
         "beta in rad, "
-        "for rho and d_b in mm, per unit of the input; contributions in urad (beta) and um (rho, d_b); "
+        "for rho and d_b in mm, per unit of the input in certificate.json (mm, rad, degC, 1/K, s); "
+        "contributions in mrad (beta) and um (rho, d_b); "
         "0: below "
         "1e-5 u_c; 'in Type A': a resolution dithered by the readings' noise (GUM F.2.2.1)."
     )
@@ -60,10 +61,11 @@ def _budget_tables(  # noqa: C901 (one cell per budget row, parameter kind and h
         cells = []
         for i, row in enumerate(rows_by[0]):
             u_x = row["standard_uncertainty"]
+            est, u_txt = _est_u_text(row["estimate"], u_x, row["unit"], row.get("key", ""))
             cell = [
                 _label(row),
-                _est_text(row["estimate"], row["unit"]),
-                "-" if not u_x else _u_text(u_x, row["unit"]),
+                est,
+                "-" if not u_x else u_txt,
                 _DIST.get(row["distribution"], row["distribution"]),
                 _dof_text(row["degrees_of_freedom"]),
             ]
@@ -79,8 +81,8 @@ def _budget_tables(  # noqa: C901 (one cell per budget row, parameter kind and h
                     cell += ["0", "0"]
                     continue
                 cc = r["sensitivity_coefficient"]
-                cell.append("-" if cc is None else f"{cc:.3g}")
-                cell.append(f"{r['contribution'] * (1e6 if k == 0 else 1e3):.3g}")
+                cell.append("-" if cc is None else _sig(cc))
+                cell.append(_sig(r["contribution"] * 1e3))  # beta: mrad, rho and d_b: um
             cells.append(cell)
         for label, field, scale_fn in (
             ("combined standard uncertainty u_c", "standard_uncertainty", True),
@@ -97,7 +99,7 @@ def _budget_tables(  # noqa: C901 (one cell per budget row, parameter kind and h
                 if scale_fn is None:
                     txt = _dof_text(v)
                 elif scale_fn:
-                    txt = f"{v * (1e6 if k == 0 else 1e3):.3g} {'urad' if k == 0 else 'um'}"
+                    txt = f"{_sig(v * 1e3)} {'mrad' if k == 0 else 'um'}"
                 else:
                     txt = f"{v:.2f}" + ("" if cb.get("coverage_method") == "GUF" else " (S1)")
                 last += ["", txt]
@@ -107,7 +109,7 @@ def _budget_tables(  # noqa: C901 (one cell per budget row, parameter kind and h
         d.table(
             cols,
             cells,
-            widths=[0.22, 0.09, 0.07, 0.06, 0.05, 0.065, 0.08, 0.065, 0.08, 0.065, 0.08],
+            widths=[0.22, 0.09, 0.075, 0.07, 0.05, 0.06, 0.08, 0.06, 0.08, 0.06, 0.08],
             size=5.8,
             row_h=0.0128,
         )
@@ -215,14 +217,15 @@ def _input_cells(r: dict, dash_zero_u: bool) -> list[str]:
     (``contribution`` [mm] times 1e3). ``dash_zero_u``: a zero or missing u(x_i) shows as "-".
     """
     u_x = r["standard_uncertainty"]
+    est, u_txt = _est_u_text(r["estimate"], u_x, r["unit"], r.get("key", ""))
     return [
         _label(r),
-        _est_text(r["estimate"], r["unit"]),
-        "-" if dash_zero_u and not u_x else _u_text(u_x, r["unit"]),
+        est,
+        "-" if dash_zero_u and not u_x else u_txt,
         _DIST.get(r["distribution"], r["distribution"]),
         _dof_text(r["degrees_of_freedom"]),
-        "-" if r["sensitivity_coefficient"] is None else f"{r['sensitivity_coefficient']:.3g}",
-        f"{1e3 * r['contribution']:.3g}",
+        "-" if r["sensitivity_coefficient"] is None else _sig(r["sensitivity_coefficient"]),
+        _sig(1e3 * r["contribution"]),
     ]
 
 
@@ -232,7 +235,7 @@ def _sum_row(label: str, value_mm: float, dof: str = "") -> list[str]:
     Return a summary line of a budget table: ``label``, ``dof`` in the nu_i column, ``value_mm`` [mm] in
     um.
     """
-    return [label, "", "", "", dof, "", f"{1e3 * value_mm:.3g}"]
+    return [label, "", "", "", dof, "", _sig(1e3 * value_mm)]
 
 
 def _contribution_table(

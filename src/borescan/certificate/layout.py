@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import textwrap
 from typing import Any
 
@@ -171,32 +172,58 @@ def _vu(value: float, U: float, scale: float = 1.0) -> tuple[str, str]:
     return f"{value * scale:.{d}f}", f"{Ur:.{d}f}"
 
 
-def _u_text(u: Any, unit: str) -> str:
-    if u is None:
-        return "(vector)"
-    u = float(u)
-    if unit == "degC":
-        return f"{u:.3g} K"
-    if unit == "mm":
-        return f"{u * 1e3:.3g} um"
-    if unit == "rad":
-        return f"{u * 1e3:.3g} mrad"
-    if unit == "1/K":
-        return f"{u * 1e6:.2g}e-6 /K"
-    return f"{u:.3g} {unit}"
+def _sig(x: Any, digits: int = 3, none: str = "n/a") -> str:
+    """Return ``x`` to ``digits`` significant digits in fixed-point notation, trailing zeros dropped.
+
+    ``1670`` for 1.67e3, ``0.0000666`` for 6.66e-5, ``-0.5`` for -0.5: never an exponent.
+    """
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return none
+    if not np.isfinite(x):
+        return none
+    if x == 0.0:
+        return "0"
+    dec = max(digits - 1 - math.floor(math.log10(abs(x))), 0)
+    text = f"{round(x, dec):.{dec}f}"
+    return text.rstrip("0").rstrip(".") if "." in text else text
 
 
-def _est_text(x: Any, unit: str) -> str:
-    if x is None:
-        return "-"
-    x = float(x)
-    if unit == "1/K":
-        return f"{x * 1e6:.3g}e-6 /K"
-    if unit == "degC":
-        return f"{x:.2f} degC"
-    if unit == "mm":
-        return f"{x:.4f} mm" if abs(x) >= 1 else f"{x * 1e3:.2f} um"
-    return f"{x:.4g} {unit}"
+#: the unit a budget input is shown in, by its unit and kind: (factor from the JSON unit, value unit,
+#: uncertainty unit). Positions and gauge diameters in mm, small lengths (linearity, resolution, the
+#: fit's scatter) in um, angles in mrad, times in ms, expansion coefficients in ppm/K (10^-6/K).
+_DISPLAY_UNITS = {
+    ("mm", "position"): (1.0, "mm", "mm"),
+    ("mm", "gauge"): (1.0, "mm", "mm"),
+    ("mm", None): (1e3, "um", "um"),
+    ("rad", None): (1e3, "mrad", "mrad"),
+    ("s", None): (1e3, "ms", "ms"),
+    ("degC", None): (1.0, "degC", "K"),
+    ("1/K", None): (1e6, "ppm/K", "ppm/K"),
+}
+
+
+def _display_unit(unit: str, key: str) -> tuple[float, str, str]:
+    kind = str(key).partition(":")[0]
+    return _DISPLAY_UNITS.get((unit, kind)) or _DISPLAY_UNITS.get((unit, None)) or (1.0, unit, unit)
+
+
+def _est_u_text(x: Any, u: Any, unit: str, key: str = "") -> tuple[str, str]:
+    """Return a budget input's estimate and standard uncertainty as table cells.
+
+    Both in the unit chosen for the input (:data:`_DISPLAY_UNITS`); u to 2 significant digits (rounded
+    up, as U on the results page) and the estimate with the same decimals; "-" for a missing estimate,
+    "(vector)" for a vector input's missing u.
+    """
+    scale, vunit, uunit = _display_unit(unit, key)
+    if u is None or not np.isfinite(float(u)) or float(u) == 0.0:
+        est = "-" if x is None else f"{_sig(float(x) * scale, 4)} {vunit}"
+        return est, "(vector)" if u is None else f"0 {uunit}"
+    ur, dec = round_uncertainty(float(u) * scale)
+    d = max(dec, 0)
+    est = "-" if x is None else f"{float(x) * scale:.{d}f} {vunit}"
+    return est, f"{ur:.{d}f} {uunit}"
 
 
 _DIST = {
@@ -251,10 +278,6 @@ def _dominant_label(key: str) -> str:
     return labels.get(kind, kind) + (f" ({tail})" if kind in ("linearity", "resolution") else "")
 
 
-def _short_id(x: str, n: int = 16) -> str:
-    return x if len(x) <= n else ".." + x[-(n - 2) :]
-
-
 def _label(row: dict) -> str:
     """Short name of a budget row for the PDF tables (the full one is in certificate.json)."""
     key = str(row.get("key", ""))
@@ -279,7 +302,7 @@ def _label(row: dict) -> str:
     if kind == "gauge":
         return f"gauge {rest.split('@')[0]}: certified D20"
     if kind == "temperature":
-        return f"temperature, {_short_id(rest)}"
+        return f"temperature, {rest}"
     if kind == "cte":
         return f"expansion coeff., {rest.split('@')[0]}"
     if kind in ("linearity", "resolution"):
