@@ -941,3 +941,35 @@ def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
     box, axes = ax_g.texts[0].get_window_extent(renderer), ax_g.get_window_extent(renderer)
     assert axes.x0 <= box.x0 and box.x1 <= axes.x1  # the label stays inside the axes
     assert [t.get_text() for t in ax_v.get_xticklabels() if t.get_text()] == nights + ["2026-11-25"]
+
+
+def test_calibration_trends_give_a_panel_only_to_parameters_that_change():
+    """A rod's design geometry (h, phi, d, gamma) is the same in every calibration: no flat panels,
+    one line in the title with the values; l0, which the calibrations change, keeps its panels.
+    """
+    import polars as pl
+
+    from borescan.report import plot_calibration_trends
+
+    rows = [
+        {
+            "device_id": "ROD-01",
+            "calibration_id": f"C{k}",
+            "valid_from": f"2026-11-2{k}",
+            "scan_id": f"S{k}",
+            "channel": ch,
+            "l0_mm": 71.0 + 0.01 * k + 0.001 * ch,
+            "u_l0_mm": 0.01,
+            "h_mm": 100.0 * ch,
+            "phi_rad": 0.0,
+            "d_mm": 0.0,
+            "gamma_rad": 0.0,
+        }
+        for k in (0, 1)
+        for ch in (1, 2)
+    ]
+    fig = plot_calibration_trends(pl.DataFrame(rows), "ROD-01")
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(shown) == 2 and {ax.get_title() for ax in shown} == {"channel 1", "channel 2"}
+    title = fig._suptitle.get_text()
+    assert "h_mm 100, 200; phi_rad 0, 0; d_mm 0, 0; gamma_rad 0, 0" in title

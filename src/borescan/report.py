@@ -337,6 +337,9 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
     df = cal.filter(pl.col("device_id") == device_id).sort("valid_from", "calibration_id", "channel")
     params = [p for p in TRI_PARAMS + ROD_PARAMS if p[0] in df.columns and df[p[0]].drop_nulls().len() > 0]
     channels = sorted(df["channel"].drop_nulls().unique().to_list())
+    # a parameter no calibration changed (a rod layer's design geometry) gets no panel, only a line
+    flat = [p for p in params if _constant_per_channel(df, *p)] if len(params) > 1 else []
+    params = [p for p in params if p not in flat] or params
     cal_order = (
         df.select("calibration_id", "valid_from", "scan_id")
         .unique("calibration_id", keep="first")
@@ -381,8 +384,27 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
             else:
                 _xticks(axes[i][j], labels, most=4)  # a 3.2 in panel holds a few two-line labels
                 axes[i][j].tick_params(axis="x", labelbottom=i == nr - 1 or (i + 1, j) not in used)
-    fig.suptitle(f"{device_id}: calibration parameters (error bars: U (k=2))", fontsize=10)
+    title = f"{device_id}: calibration parameters (error bars: U (k=2))"
+    if flat:
+        same = "; ".join(
+            f"{p} "
+            + ", ".join(f"{df.filter(pl.col('channel') == ch)[p].drop_nulls()[0]:g}" for ch in channels)
+            for p, _ in flat
+        )
+        title += f"\nthe same in every calibration (channel {', '.join(map(str, channels))}): {same}"
+    fig.suptitle(title, fontsize=10 if not flat else 9)
     return fig
+
+
+def _constant_per_channel(df: pl.DataFrame, param: str, u_param: str) -> bool:
+    """Return whether ``param`` has one value per channel in every calibration, without uncertainty."""
+    for _, sub in df.group_by("channel"):
+        values = sub[param].drop_nulls()
+        if values.n_unique() > 1:
+            return False
+        if u_param in sub.columns and (sub[u_param].fill_null(0.0) != 0.0).any():
+            return False
+    return True
 
 
 #: A label drawn over data stays legible.
