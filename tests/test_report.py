@@ -973,3 +973,34 @@ def test_calibration_trends_give_a_panel_only_to_parameters_that_change():
     assert len(shown) == 2 and {ax.get_title() for ax in shown} == {"channel 1", "channel 2"}
     title = fig._suptitle.get_text()
     assert "h_mm 100, 200; phi_rad 0, 0; d_mm 0, 0; gamma_rad 0, 0" in title
+
+
+def test_part_plot_labels_that_would_overlap_are_slanted_and_a_gauge_is_the_bore():
+    """RG-275: four night / scan-id labels side by side on one 3.8 in panel overlapped; a ring gauge
+    (no feature in scan.json) was titled "feature ?".
+    """
+    import polars as pl
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from borescan.report import plot_diameters
+
+    rows = [
+        {
+            "artifact_id": "RG-275",
+            "feature": None,
+            "night": f"2026-11-2{k}",
+            "scan_id": f"N2026112{k}-TRI01-VER-RG275",
+            "diameter_mm": 275.03,
+            "u_diameter_mm": 0.009,
+        }
+        for k in range(4)
+    ]
+    fig = plot_diameters(pl.DataFrame(rows), "RG-275")
+    (ax,) = fig.axes
+    assert ax.get_title() == "the bore (n=4)"
+    FigureCanvasAgg(fig).draw()
+    labels = [t for t in ax.get_xticklabels() if t.get_text()]
+    assert len(labels) == 4 and all(t.get_rotation() == 45 for t in labels)
+    # upright they would overlap: together wider than the panel
+    upright = sum(t.get_window_extent().width for t in labels) / np.sqrt(0.5)
+    assert upright > ax.get_window_extent().width

@@ -314,11 +314,17 @@ MAX_TICK_LABELS = 8
 
 
 def _xticks(ax, labels: list[str], most: int = MAX_TICK_LABELS) -> None:
-    """Label the x positions 0..n-1; with more than ``most`` labels, every k-th."""
+    """Label the x positions 0..n-1; with more than ``most`` labels, every k-th.
+
+    Labels are slanted when there are many, or when the longest line of one (7 pt, about 0.6 em a
+    character) is wider than the panel's room per label: side by side they would overlap.
+    """
     step = -(-len(labels) // most) if labels else 1
     pos = list(range(0, len(labels), step))
     ax.set_xticks(pos)
-    slant = len(pos) > max(2, most // 2)  # a narrow panel slants its labels sooner
+    longest = max((len(line) for i in pos for line in str(labels[i]).split("\n")), default=0)
+    room_pt = ax.get_position().width * ax.figure.get_figwidth() * 72.0 / max(len(pos), 1)
+    slant = len(pos) > max(2, most // 2) or longest * 0.6 * 7 > 0.9 * room_pt
     ax.set_xticklabels(
         [labels[i] for i in pos], rotation=45 if slant else 0, ha="right" if slant else "center", fontsize=7
     )
@@ -357,7 +363,8 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
     else:
         nr, nc = max(len(params), 1), len(channels)
         cells = [(i, j, p, ch) for i, p in enumerate(params) for j, ch in enumerate(channels)]
-    fig = Figure(figsize=(3.2 * nc + 1.0, 2.2 * nr + 1.0), layout="constrained")
+    # at least 4.2 in high: one row of panels keeps its height beside slanted labels
+    fig = Figure(figsize=(3.2 * nc + 1.0, max(2.2 * nr + 1.0, 4.2)), layout="constrained")
     axes = fig.subplots(nr, nc, squeeze=False, sharex=True)
     used = set()
     for i, j, (p, up), ch in cells:
@@ -781,7 +788,7 @@ def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
             tol = sub["tolerance_mm"].drop_nulls() if "tolerance_mm" in sub.columns else nom.clear()
             if tol.len():
                 ax.axhspan(n0 - float(tol[0]), n0 + float(tol[0]), color="C2", alpha=0.12, label="tolerance")
-        ax.set_title(f"feature {feat or '?'} (n={sub.height})", fontsize=9)
+        ax.set_title(f"{f'feature {feat}' if feat else 'the bore'} (n={sub.height})", fontsize=9)
         ax.set_ylabel(f"diameter {where} [mm]", fontsize=8)
         ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         ax.tick_params(axis="y", labelsize=7)
