@@ -1004,3 +1004,44 @@ def test_part_plot_labels_that_would_overlap_are_slanted_and_a_gauge_is_the_bore
     # upright they would overlap: together wider than the panel
     upright = sum(t.get_window_extent().width for t in labels) / np.sqrt(0.5)
     assert upright > ax.get_window_extent().width
+
+
+def test_device_model_plot_shows_a_refused_calibration_marked_refused():
+    """The demo's calibration of 2026-11-21 was refused (residual 1.44 x the noise floor): it was left
+    out of the device-model plot; now it is a point of its own, marked refused, off the issued ones' line.
+    """
+    import polars as pl
+
+    from borescan.report import device_model_history, plot_device_model_gap
+
+    why = (
+        "lds.parquet: calibration failed: A,B channel 2: residual rms is 1.44 times the readings' own "
+        "noise floor (limit 1.25): the model misses an effect"
+    )
+    scans = pl.DataFrame(
+        [
+            {"scan_id": "A", "night": "2026-11-21", "device_id": "TRI-01", "kind": "calibration"},
+            {"scan_id": "B", "night": "2026-11-21", "device_id": "TRI-01", "kind": "calibration"},
+            {"scan_id": "C", "night": "2026-11-22", "device_id": "TRI-01", "kind": "calibration"},
+            {"scan_id": "D", "night": "2026-11-21", "device_id": "TRI-02", "kind": "calibration"},
+        ]
+    ).with_columns(
+        status=pl.lit("quarantined"),
+        reason=pl.Series([why, why, "scan.json: no temperature", why]),
+    )
+    pooled = pl.DataFrame(
+        {
+            "device_id": ["TRI-01"] * 2,
+            "night": ["2026-11-20", "2026-11-21"],
+            "gap_before_mm": [0.004, 0.005],
+            "noise_floor_mm": [0.004, 0.004],
+        }
+    )
+    hist = device_model_history(pooled, None, None, "TRI-01", scans)
+    got = hist.select("night", "calibration_residual_to_noise", "calibration_refused").rows()
+    assert got == [("2026-11-20", None, False), ("2026-11-21", 1.44, True)]  # C: set aside, not refused
+    fig = plot_device_model_gap(hist, "TRI-01")
+    ax = fig.axes[0]
+    (mark,) = [ln for ln in ax.get_lines() if ln.get_label() == "calibration refused"]
+    assert list(mark.get_xdata()) == [1] and list(mark.get_ydata()) == [1.44]
+    assert any(t.get_text() == "refused" for t in ax.texts)

@@ -54,6 +54,7 @@ import hashlib
 import html
 import io
 import json
+import re
 import os
 import shutil
 from dataclasses import dataclass
@@ -584,7 +585,11 @@ def plot_control_chart(  # noqa: C901 (one branch per optional element of the ch
 
 
 def device_model_history(
-    pooled: pl.DataFrame | None, cal: pl.DataFrame | None, ver: pl.DataFrame | None, device_id: str
+    pooled: pl.DataFrame | None,
+    cal: pl.DataFrame | None,
+    ver: pl.DataFrame | None,
+    device_id: str,
+    refused: pl.DataFrame | None = None,
 ) -> pl.DataFrame:
     """Per night of one device, what its device model did to the gaps (issue 22, "gap shown over time").
 
@@ -596,7 +601,10 @@ def device_model_history(
     ``carried`` (what the night's calibration carried of the device model with an estimate, e.g.
     ``channel_delay@2 tau_s = 1.19 ± 0.02 ms (2026-11-23)``; "" when nothing) and ``carried_keys``
     (its effects, ``channel_delay@2``: the model's composition, which changes only by a decision,
-    while the estimates follow each night). A night without a figure has null there.
+    while the estimates follow each night); ``calibration_refused``: the night's calibration was refused
+    (``refused``: the ``scans`` rows with their calibrate-stage ``reason``; ``calibration_residual_to_noise``
+    then the ratio the refusal names, "residual rms is 1.44 times the readings' own noise floor").
+    A night without a figure has null there.
     """
     rows: dict[str, dict[str, Any]] = {}
 
@@ -611,6 +619,7 @@ def device_model_history(
                 "verification_error_um": None,
                 "carried": "",
                 "carried_keys": "",
+                "calibration_refused": False,
             },
         )
 
@@ -631,6 +640,10 @@ def device_model_history(
             est = [m for m in entries if m.get("estimated")]
             x["carried"] = "; ".join(f"{m['key']} {_text_of(m)} ({m.get('night')})" for m in est)
             x["carried_keys"] = ", ".join(m["key"] for m in est)
+    for night, ratio in _refused_ratios(refused, device_id).items():
+        x = row(night)
+        x["calibration_refused"] = True
+        x["calibration_residual_to_noise"] = max(ratio, x["calibration_residual_to_noise"] or 0.0)
     if ver is not None and ver.height and "expanded_u_error_mm" in ver.columns:
         v = (
             ver.filter((pl.col("device_id") == device_id) & (pl.col("expanded_u_error_mm") > 0))
@@ -649,8 +662,34 @@ def device_model_history(
         "verification_error_um": pl.Float64,
         "carried": pl.Utf8,
         "carried_keys": pl.Utf8,
+        "calibration_refused": pl.Boolean,
     }
     return pl.DataFrame([rows[k] for k in sorted(rows)], schema=schema)
+
+
+#: the refusal of a calibration whose model misses an effect (calibration.py's acceptance), its ratio
+_REFUSED_RATIO = re.compile(r"residual rms is ([0-9.]+) times the readings' own noise floor")
+
+
+def _refused_ratios(scans: pl.DataFrame | None, device_id: str) -> dict[str, float]:
+    """Return night -> residual / noise floor of the device's calibrations refused for it (``scans`` rows).
+
+    A calibration scan set aside for another reason (a file, the temperature) was not refused: left out.
+    """
+    out: dict[str, float] = {}
+    if scans is None or not scans.height:
+        return out
+    mine = scans.filter(
+        (pl.col("device_id") == device_id)
+        & (pl.col("kind") == "calibration")
+        & (pl.col("status") == "quarantined")
+    )
+    for r in mine.iter_rows(named=True):
+        ratio = _REFUSED_RATIO.search(str(r.get("reason") or ""))
+        if ratio is not None:
+            night = str(r["night"])
+            out[night] = max(float(ratio.group(1)), out.get(night, 0.0))
+    return out
 
 
 def _text_of(entry: dict) -> str:
@@ -689,6 +728,23 @@ def plot_device_model_gap(hist: pl.DataFrame, device_id: str) -> Figure:
         ("calibration_residual_to_noise", "s", "calibration: residual / noise floor"),
     ):
         y = hist[col].cast(pl.Float64).fill_null(float("nan")).to_numpy()
+        if col == "calibration_residual_to_noise" and "calibration_refused" in hist.columns:
+            no = hist["calibration_refused"].fill_null(False).to_numpy()
+            line = ax_g.plot(x, np.where(no, np.nan, y), mk + "-", ms=6, label=name)[0]
+            if no.any():  # a refused calibration: its ratio, marked, off the line of the issued ones
+                ax_g.plot(
+                    x[no], y[no], "X", ms=9, color=line.get_color(), mec="C3", label="calibration refused"
+                )
+                for xi, yi in zip(x[no], y[no]):
+                    ax_g.annotate(
+                        "refused",
+                        (xi, yi),
+                        xytext=(7, -3),
+                        textcoords="offset points",
+                        fontsize=7,
+                        color="C3",
+                    )
+            continue
         ax_g.plot(x, y, mk + "-", ms=6, label=name)
     ax_g.axhline(1.0, color="k", lw=1)
     ax_g.set_ylabel("rms / noise floor")
@@ -1789,7 +1845,9 @@ class _Builder:
                 )
             )
             for dev in sorted(pf["device_id"].drop_nulls().unique().to_list()):
-                hist = device_model_history(pf, self.t.get("calibrations"), self.t.get("verifications"), dev)
+                hist = device_model_history(
+                    pf, self.t.get("calibrations"), self.t.get("verifications"), dev, self.t.get("scans")
+                )
                 if hist.height >= 2:
                     out.append(
                         self.figure(
