@@ -1,7 +1,7 @@
 """An independent reader of certificate.dcc.xml for the tests: xmlschema's decoder (against the
 schema shipped with the package) into a dict, then the numbers by name, back in the units of
 certificate.json (lengths in mm: the D-SI unit's power of the metre says by how much to scale).
-Nothing here comes from the writer (borescan.certificate_dcc) but the schema's location.
+Nothing here comes from the writer (borescan.certificate.dcc) but the schema's location.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import xmlschema
 
-from borescan.certificate_dcc import schema_path
+from borescan.certificate.dcc import schema_path
 
 
 @lru_cache(maxsize=1)

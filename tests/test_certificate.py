@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from borescan.calibration import full_residuals, yang_calibration
-from borescan.certificate import PLACEHOLDER, _pages, certificate_dir, write_certificate
+from borescan.certificate import PLACEHOLDER, certificate_dir, write_certificate
+from borescan.certificate.write import _pages
 from borescan.config import schema_defaults
 from borescan.uncertainty import Budget
 
@@ -53,7 +54,7 @@ def calibrated(tmp_path_factory):
     cfg = schema_defaults()
     cal = calibrate_raw_scans([scan], cfg["calibration"], uncertainty=cfg["uncertainty"])
     x = spindle_inputs(scan, cfg["uncertainty"])
-    dates = certificate_dates([scan.meta], [], "2026-11-21", 30)
+    dates = certificate_dates([scan.meta], "2026-11-21", 30, "2026-11-22")
     kw = dict(
         device={"id": "TRI-01", "type": "tri_lds", "sensors": scan.meta["sensors"]},
         artifact=dict(scan.meta["artifact"]),
@@ -206,8 +207,8 @@ def test_iso17025_administrative_data_and_placeholders(calibrated, tmp_path):
     adm = cert["administrativeData"]
     core = adm["coreData"]
     assert core["uniqueIdentifier"] == cal.calibration_id
-    assert core["beginPerformanceDate"] == core["endPerformanceDate"] == core["issueDate"] == "2026-11-21"
-    assert "not the clock" in cert["dates"]["issue_rule"]
+    assert core["beginPerformanceDate"] == core["endPerformanceDate"] == "2026-11-21"
+    assert core["issueDate"] == "2026-11-22" and "first processed" in cert["dates"]["issue_rule"]
     assert cert["dates"]["recalibration_due"] == "2026-12-21"
     # the defaults are placeholders and the certificate says which
     assert set(adm["placeholders"]) >= {"name", "address", "accreditation", "customer", "signatory"}
@@ -238,25 +239,24 @@ def mr_equipment(cert):
     return cert["measurementResults"][0]["measuringEquipments"][0]
 
 
-def test_certificate_dates_come_from_the_scans():
+def test_certificate_dates_come_from_the_scans_and_the_night_record():
     from borescan.certificate import certificate_dates
 
     d = certificate_dates(
         [{"started_at": "2026-11-20T22:14:03Z"}, {"started_at": "2026-11-20T23:50:00Z"}],
-        [{"started_at": "2026-11-21T00:20:00Z"}],
         "2026-11-20",
         30,
+        "2026-11-27",
     )
     assert (d["begin"], d["end"], d["issue"], d["recalibration_due"]) == (
         "2026-11-20",
         "2026-11-20",
-        "2026-11-21",
+        "2026-11-27",
         "2026-12-20",
     )
-    d = certificate_dates(
-        [{"started_at": "2026-11-20T23:30:00-02:00"}], [], "2026-11-20", 7
-    )  # 01:30 UTC next day
-    assert d["begin"] == "2026-11-21" and d["recalibration_due"] == "2026-11-27"
+    assert "first processed" in d["issue_rule"]
+    d = certificate_dates([{"started_at": "2026-11-20T23:30:00-02:00"}], "2026-11-20", 7, "2026-11-21")
+    assert d["begin"] == "2026-11-21" and d["recalibration_due"] == "2026-11-27"  # 01:30 UTC next day
 
 
 def test_yang_certificate_without_fit_diagnostics(tmp_path):
@@ -294,7 +294,7 @@ def test_yang_certificate_without_fit_diagnostics(tmp_path):
 
 def test_no_iso_17025_claim_without_an_accreditation():
     """Issue 37 item 10: "issued in accordance with ISO/IEC 17025" only under a stated accreditation."""
-    from borescan.certificate import _standard_statement
+    from borescan.certificate.admin import _standard_statement
     from borescan.config import schema_defaults
 
     placeholder = schema_defaults()["laboratory"]

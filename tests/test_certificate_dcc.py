@@ -16,7 +16,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 import dcc_reader as rd
 
-from borescan.certificate_dcc import DCC_FILE, decimal_text, dsi_unit, validate_dcc
+from borescan.certificate.dcc import DCC_FILE, validate_dcc
+from borescan.certificate.dcc_elements import decimal_text, dsi_unit
 
 
 def test_decimal_text_moves_the_exponent_and_keeps_every_digit():
@@ -286,12 +287,13 @@ def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_ba
     """
     import polars as pl
 
-    from borescan import certificate, rawio
-    from borescan.synthetic import battery
+    from borescan import night_config, rawio
+    from borescan.certificate import write
     from borescan.config import schema_defaults
     from borescan.stages.calibrate_rod import calibrate_rod_scan
+    from borescan.synthetic import battery
 
-    monkeypatch.setattr(certificate, "_pdf_bytes", lambda pages, title: b"")
+    monkeypatch.setattr(write, "_pdf_bytes", lambda pages, title: b"")
     paths = battery.write_battery(tmp_path, 40, 0, kinds=("rod",))
     assert len(paths) == 40
     dflt = schema_defaults()
@@ -306,6 +308,7 @@ def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_ba
     }
     bad, rows, links = [], [], []
     in_gauges = [s for s in map(rawio.read_scan, paths) if s.meta["kind"] == "verification"]
+    night_config.settle(tmp_path / "results", sorted({s.night for s in in_gauges}), dflt)  # as the workflow
     for scan in in_gauges:
         calibrate_rod_scan(
             scan,

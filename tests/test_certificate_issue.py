@@ -20,7 +20,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 import dcc_reader as rd
 from test_catalog import built  # noqa: F401 (the catalog fixture, shared)
 
-from borescan.certificate_dcc import DCC_FILE
+from borescan import night_config
+from borescan.certificate.dcc import DCC_FILE
 from borescan.certificate_issue import issues_of
 from borescan.cli import main
 
@@ -105,7 +106,7 @@ def results(tmp_path_factory):
         software_version="0.1.0",
         config_hash="c0ffee12",
         laboratory=cfg["laboratory"],
-        dates=certificate.certificate_dates([scan.meta], [], night, 30),
+        dates=certificate.certificate_dates([scan.meta], night, 30, night),
     )
     link_into_night(certificate.certificate_dir(res, cal), out)
     rows = {night: [issue_row(paths, res, night, residuals)]}
@@ -121,6 +122,7 @@ def results(tmp_path_factory):
         ),
     }
     bad: list = []
+    night_config.settle(res, [rod_scan.night], cfg)  # as the workflow does first: the date of issue
     calibrate_rod_scan(rod_scan, rod_scan.night, res, bad, [], [], lambda _m: None, ctx, cfg["calibration"])
     assert not bad and len(ctx["certificate_rows"]) == 1
     rows[rod_scan.night] = ctx["certificate_rows"]

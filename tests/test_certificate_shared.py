@@ -10,6 +10,8 @@ import polars as pl
 import pytest
 
 from borescan import certificate as C
+from borescan.certificate.admin import _traceability_text
+from borescan.certificate.budget_pages import _rod_layer_budget, _verification_budget
 from borescan.artifacts import ArtifactCte, ScanTemperature
 from borescan.calibration import yang_calibration
 from borescan.calibrations import rod_layers
@@ -138,7 +140,7 @@ def test_rod_and_three_sensor_certificates_share_their_administrative_data():
     ]
     # the gauge both layers were calibrated in is named once
     trace = rod["statements"][1]["declaration"]
-    assert trace == C._traceability_text(GAUGE) and "C-150 (issued by DKD; valid until 2027-01-01)" in trace
+    assert trace == _traceability_text(GAUGE) and "C-150 (issued by DKD; valid until 2027-01-01)" in trace
     assert rod["statements"][3] == {
         "refType": "basic_conformity",
         "conformity": "fail",
@@ -214,21 +216,21 @@ def test_verification_budget_lists_inputs_of_5_percent_and_folds_the_rest():
         _row("cte:RG", 0.0, 0.0),
     ]
     d = _Recorder()
-    C._verification_budget(d, {"scan_id": "V1", "budget": rows})
+    _verification_budget(d, {"scan_id": "V1", "budget": rows})
     uc = math.sqrt(0.003**2 + 0.004**2 + 1e-4**2)
     assert d.calls[0] == ("room", round(0.013 * 5 + 0.03, 6))
     assert d.calls[1] == ("para", "Budget of E, V1 (contributions in um):", 7.5)
     _, cols, cells, widths, size, row_h, bold = d.calls[2]
     assert cols == ["input x_i", "estimate", "u(x_i)", "dist.", "nu_i", "c_i", "u_i [um]"]
     assert cells == [
-        ["gauge RG-275: certified D20", "0.00 um", "0.3 um", "normal", "inf", "1", "3"],
-        ["readings (scatter)", "0.00 um", "0 um", "normal", "inf", "1", "4"],  # u 0 shown as 0 here
+        ["gauge RG-275: certified D20", "0.00000 mm", "0.00030 mm", "normal", "inf", "1", "3"],
+        ["readings (scatter)", "0 um", "0 um", "normal", "inf", "1", "4"],  # u 0 shown as 0 here
         ["2 further inputs (each < 5 % of u_c), combined", "", "", "", "", "", "0.1"],
         ["combined standard uncertainty u_c(E)", "", "", "", "", "", f"{1e3 * uc:.3g}"],
     ]
     assert (widths, size, row_h, bold) == ([0.42, 0.12, 0.1, 0.1, 0.06, 0.1, 0.1], 6, 0.013, True)
     d = _Recorder()
-    C._verification_budget(d, {"scan_id": "V1", "budget": []})
+    _verification_budget(d, {"scan_id": "V1", "budget": []})
     assert d.calls == []
 
 
@@ -245,12 +247,12 @@ def test_rod_layer_budget_drops_negligible_inputs_and_shows_zero_u_as_a_dash():
         "expanded_uncertainty": 0.000369,
     }
     d = _Recorder()
-    C._rod_layer_budget(d, 2, {"rows": rows, "combined": comb})
+    _rod_layer_budget(d, 2, {"rows": rows, "combined": comb})
     assert d.calls[1] == ("para", "Layer 2 (contributions in um; inputs below 1e-5 u_c left out):", 7.5)
     _, _, cells, widths, size, _, bold = d.calls[2]
     assert cells == [
-        ["gauge RGS-150: certified D20", "0.00 um", "0.3 um", "normal", "inf", "-0.5", "0.15"],
-        ["readings (scatter)", "0.00 um", "-", "normal", "inf", "1", "0.1"],
+        ["gauge RGS-150: certified D20", "0.00000 mm", "0.00030 mm", "normal", "inf", "-0.5", "0.15"],
+        ["readings (scatter)", "0 um", "-", "normal", "inf", "1", "0.1"],
         ["combined standard uncertainty u_c", "", "", "", "40", "", "0.18"],
         ["expanded uncertainty U (k = 2.05)", "", "", "", "", "", "0.369"],
     ]
@@ -295,3 +297,68 @@ def test_rod_reference_layers_are_the_measurements_rod_layers_in_nominal_format(
         "temperature_c": 20.0,
     }
     assert list(RodScene.from_dict(scene).layers) == lays
+
+
+def test_rod_residuals_per_pose_are_the_solves_and_are_drawn(tmp_path):
+    """residuals.png of a rod certificate: model - reading of the solve per pose and layer (outputs.md)."""
+    from borescan.geometry import Hole, RodAxis, rod_readings
+    from borescan.rod import solve_rod
+
+    layers = [RodLayer(1, 100.0, 71.0), RodLayer(2, 400.0, 71.0)]
+    holes = [Hole((0.0, 0.0), 75.0), Hole((0.01, -0.02), 75.012)]
+    rng = np.random.default_rng(5)
+    alpha = np.sort(rng.uniform(0, 2 * np.pi, 16))
+    v = rod_readings(alpha, layers, holes, RodAxis(1.0, 0.5, np.deg2rad(0.3), 2.1))
+    v = v + 0.002 * rng.standard_normal(v.shape)
+    v[4, 1] = np.nan  # a reading missing: pose 4, seen by one layer only, is dropped by the solve
+    sol = solve_rod(v, layers=layers, u_reading_mm=0.002)
+    pr = C.rod_pose_residuals(sol, v)
+    r = pr["residual_mm"]
+    assert r.shape == v.shape and np.isnan(r[4]).all() and np.isnan(pr["pose_angle_rad"][4])
+    assert np.isfinite(np.delete(r, 4, axis=0)).all()
+    # the solve's own rms (mean over the readings it used) and cost
+    assert np.sqrt(np.nanmean(r**2)) == pytest.approx(sol.residual_rms_mm, rel=1e-12)
+    # model = reading + (model - reading): readings the solution explains exactly, so a solve of them
+    # leaves nothing (with the sign reversed it would leave twice the noise)
+    again = solve_rod(v + r, layers=layers, u_reading_mm=0.002)
+    assert again.residual_rms_mm < 1e-3 * sol.residual_rms_mm
+    cal = _rod_cal()
+    pr2 = {"pose_angle_rad": alpha, "residual_mm": r}
+    a = C.write_rod_certificate(cal, tmp_path / "a", residuals=pr2, **_rod_kw())
+    b = C.write_rod_certificate(cal, tmp_path / "b", residuals=pr2, **_rod_kw())
+    assert a["png"].name == "residuals.png" and a["png"].read_bytes() == b["png"].read_bytes()
+    cert = json.loads(a["json"].read_text())
+    assert np.allclose(
+        np.array(cert["fit"]["pose_residuals"]["residual_mm"], dtype=float), r, rtol=1e-11, equal_nan=True
+    )
+    with pytest.raises(ValueError, match="no least-squares fit"):
+        C.rod_pose_residuals(None, v)
+
+
+def test_budget_numbers_one_style_units_per_quantity_and_no_exponent():
+    """An input's estimate and u in one unit chosen for the quantity (not by its size), the estimate with
+    u's decimals (u to 2 significant digits, rounded up); sensitivities and contributions never in
+    exponent notation (the certificate printed 1.67e+03 urad, 122.00 um beside -2.3200 mm).
+    """
+    from borescan.certificate.layout import _est_u_text, _label, _sig
+
+    assert (_sig(1670.4), _sig(-6.66e-5), _sig(-0.5), _sig(850.2), _sig(0.0)) == (
+        "1670",
+        "-0.0000666",
+        "-0.5",
+        "850",
+        "0",
+    )
+    assert _est_u_text(0.122, 0.00163, "mm", "position:x") == ("0.1220 mm", "0.0017 mm")
+    assert _est_u_text(-2.32, 0.00163, "mm", "position:y") == ("-2.3200 mm", "0.0017 mm")
+    assert _est_u_text(275.029, 0.00075, "mm", "gauge:RG-275@C") == ("275.02900 mm", "0.00075 mm")
+    assert _est_u_text(0.0, 0.00577, "mm", "linearity:ch1") == ("0.0 um", "5.8 um")
+    assert _est_u_text(None, 0.004, "mm", "fit:readings") == ("-", "4.0 um")
+    tau = "device_model:TRI-01:channel_delay@2:tau_s@2026-11-23"
+    assert _est_u_text(0.00115141, 3.08e-5, "s", tau) == ("1.151 ms", "0.031 ms")
+    assert _est_u_text(20.0, 0.0577, "degC", "temperature:S") == ("20.000 degC", "0.058 K")
+    assert _est_u_text(11.5e-6, 0.58e-6, "1/K", "cte:RG-275@C") == ("11.50 ppm/K", "0.58 ppm/K")
+    # a label keeps the whole scan id
+    assert _label({"key": "temperature:N20261124-TRI01-CAL-P1-A", "quantity": "t"}) == (
+        "temperature, N20261124-TRI01-CAL-P1-A"
+    )

@@ -454,3 +454,24 @@ def test_demo_into_a_folder_with_other_scans(tmp_path, capsys):
 def test_no_command_prints_help_and_exits_2(capsys):
     code, out, _ = _run(capsys)
     assert code == 2 and "status" in out and "validate" in out and "Exit codes:" in out
+
+
+def test_sql_never_cuts_an_id(capsys):
+    from borescan.commands.sql import format_table
+
+    long_id = "TRI-01-20261124-full_lsq-d625a251"
+    note = "a reason text longer than the width, cut in the middle"
+    out = format_table(
+        ["calibration_id", "diameter_id", "reason"], [(long_id, "N-TRI01-MEAS/B1", note)], 7, 20
+    )
+    row = out.splitlines()[2]
+    assert long_id in row and "N-TRI01-MEAS/B1" in row
+    assert note not in row and "\u2026" in row  # other text is still cut at --max-width
+
+
+def test_simulate_demo_help_counts_the_demo_nights(capsys):
+    from borescan.demo import DEMO_NIGHTS
+
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    assert f"({len(DEMO_NIGHTS)} nights, TRI-01 and ROD-01)" in capsys.readouterr().out

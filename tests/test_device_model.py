@@ -209,7 +209,8 @@ def test_a_carried_channel_delay_corrects_the_calibration_and_its_u_enters_the_b
     assert any(t.input.key == key[0].input.key for t in du_r.budget.terms)
 
     # the certificate names the effect the calibration carried, with its value, u and evidence
-    from borescan.certificate import _fit_part, device_model_text
+    from borescan.certificate import device_model_text
+    from borescan.certificate.tri import _fit_part
 
     (entry,) = _fit_part(cal)["device_model"]
     assert (

@@ -658,3 +658,23 @@ def test_declared_sparsity_covers_every_dependence(kind):
             outside = ~S[:, i] & np.isfinite(col)
             assert not np.any(col[outside] != 0.0), f"{kind}: {n} moves residuals outside its support"
         assert not S.all() or kind == "tri"
+
+
+def test_gap_plot_of_a_static_scan_has_no_angle_panel_and_its_title_fits(tmp_path):
+    """The poses of a static scan share one angle: no panel against it (it was one vertical stripe at
+    0 deg); the two-line title stays inside the figure (a long scan id was clipped at both ends).
+    """
+    from borescan.discrepancy import plot as plot_mod
+    from borescan.simulate import simulate_tri_static
+
+    ex = analyse_scan(simulate_tri_static(effects=[], seed=5))
+    assert np.ptp(ex.angle_rad[np.isfinite(ex.angle_rad)]) == 0.0
+    png = plot_gap(ex, tmp_path / "gap.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    layout = plot_mod._figure(1, tuple(ex.channels), bool(ex.rev_hz), None)
+    assert layout["rows"] == {"time": 0, "last": 1} and layout["axes"].shape == (2, 1)
+    assert ("angle", 0, 0) not in layout["lines"]
+    fig, title = layout["fig"], layout["suptitle"]
+    assert title.get_text().count("\n") == 1 and ex.findings["scan_id"] in title.get_text()
+    box = title.get_window_extent(fig.canvas.get_renderer())
+    assert 0 <= box.x0 and box.x1 <= fig.bbox.x1 and box.y1 <= fig.bbox.y1

@@ -500,6 +500,19 @@ def test_part_feature_picks_the_named_feature_else_the_only_one_else_the_artifac
     assert part_feature({}, None) == {"nominal_diameter_mm": None, "tolerance_mm": None}
 
 
+def test_a_three_sensor_diameter_of_a_one_bore_part_keeps_its_feature():
+    """The diameter of a three-sensor part scan belongs to the part's only feature (its id ``scan/B1``,
+    ``trace`` names it), none for a ring gauge or a part of several features the scan does not name.
+    """
+    from borescan.measure import only_feature_id, part_feature
+
+    one = {"id": "HSG-1101", "features": [{"id": "B1", "nominal_diameter_mm": 276.4, "tolerance_mm": 0.01}]}
+    assert only_feature_id(one) == "B1"
+    assert part_feature(one, only_feature_id(one)) == part_feature(one, None)  # the same verdict as before
+    assert only_feature_id({"id": "RG-275", "type": "ring_gauge"}) is None
+    assert only_feature_id({"features": [{"id": "H1"}, {"id": "H2"}]}) is None
+
+
 @pytest.mark.parametrize(
     "dev_um, U_um, tol_um, rule, verdict",
     [

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import datetime as dt
+import json
 import os
 
 import polars as pl
+import pytest
 
 from borescan import night_config, tables
 from borescan.config import load_config
@@ -76,3 +79,56 @@ def test_recompute_keeps_the_old_results_records_the_change_and_marks_the_nights
         ("change-0001", "2026-11-21,2026-11-22", "verification.tolerance_mm")
     ]
     assert night_config.recompute(tmp_path, "2026-11-21", _config(0.002)) is None  # nothing differs any more
+
+
+def test_the_date_of_issue_is_the_day_the_night_was_first_processed(tmp_path, monkeypatch):
+    from borescan.certificate import certificate_dates
+
+    night = "2026-11-20"
+    before = dt.datetime.now(dt.UTC).date().isoformat()
+    night_config.settle(tmp_path, [night], _config(0.015))
+    after = dt.datetime.now(dt.UTC).date().isoformat()
+    today = night_config.first_processed(tmp_path, night)
+    assert today in (before, after)
+    scans = [{"started_at": "2026-11-20T22:14:03Z"}]
+    assert certificate_dates(scans, night, 30, today)["issue"] == today
+    # processed again days later (a rerun, a regenerated certificate, a recomputation): the same date
+    monkeypatch.setattr(night_config, "_today", lambda: "2027-03-01")
+    night_config.settle(tmp_path, [night, "2026-11-21"], _config(0.015))
+    assert night_config.first_processed(tmp_path, night) == today
+    assert night_config.first_processed(tmp_path, "2026-11-21") == "2027-03-01"  # a new night: its own day
+    assert night_config.recompute(tmp_path, night, _config(0.002)).nights == (night, "2026-11-21")
+    assert night_config.first_processed(tmp_path, night) == today
+    assert (
+        certificate_dates(scans, night, 30, night_config.first_processed(tmp_path, night))["issue"] == today
+    )
+
+
+def test_a_record_from_before_the_date_was_kept_gets_its_files_date_once(tmp_path):
+    night = "2026-11-20"
+    path = night_config.record_path(tmp_path, night)
+    path.parent.mkdir(parents=True)
+    settings = night_config.night_settings(_config(0.015))
+    pl.DataFrame(
+        {
+            "night": [night],
+            "config_hash": [night_config.settings_hash(settings)],
+            "config_json": [json.dumps(settings, sort_keys=True)],
+            "recorded_by": ["first run"],
+        }
+    ).write_parquet(path)
+    stamp_s = 1_795_000_000  # 2026-11-18 11:06:40 UTC
+    os.utime(path, (stamp_s, stamp_s))
+    assert night_config.read_record(tmp_path, night).first_processed is None
+    night_config.settle(tmp_path, [night], _config(0.015))
+    assert night_config.first_processed(tmp_path, night) == "2026-11-18"
+    os.utime(path, None)  # a later write of the file no longer moves the date
+    night_config.settle(tmp_path, [night], _config(0.015))
+    assert night_config.first_processed(tmp_path, night) == "2026-11-18"
+
+
+def test_a_night_without_a_record_has_no_date_of_issue_and_says_where_it_looked(tmp_path):
+    with pytest.raises(
+        ValueError, match=r"night 2026-11-20: .*night_config/night=2026-11-20.parquet does not exist"
+    ):
+        night_config.first_processed(tmp_path, "2026-11-20")

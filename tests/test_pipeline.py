@@ -423,6 +423,7 @@ def test_a_device_model_is_carried_by_a_night_calibration(pipeline_run, tmp_path
 
     import polars as pl
 
+    from borescan import night_config
     from borescan.config import schema_defaults
     from borescan.stages.calibrate import stage_calibrate
     from borescan.uncertainty import Budget
@@ -446,6 +447,7 @@ def test_a_device_model_is_carried_by_a_night_calibration(pipeline_run, tmp_path
         ]
     ).write_parquet(pooled)
     cfg = schema_defaults()
+    night_config.settle(tmp_path, [n2], cfg)  # the night's record (date of issue), as the workflow first does
     lines = []
     cals, _, bad = stage_calibrate(
         raw,

@@ -950,3 +950,107 @@ def test_device_model_history_and_its_plot_mark_the_night_the_model_changed():
     box, axes = ax_g.texts[0].get_window_extent(renderer), ax_g.get_window_extent(renderer)
     assert axes.x0 <= box.x0 and box.x1 <= axes.x1  # the label stays inside the axes
     assert [t.get_text() for t in ax_v.get_xticklabels() if t.get_text()] == nights + ["2026-11-25"]
+
+
+def test_calibration_trends_give_a_panel_only_to_parameters_that_change():
+    """A rod's design geometry (h, phi, d, gamma) is the same in every calibration: no flat panels,
+    one line in the title with the values; l0, which the calibrations change, keeps its panels.
+    """
+    import polars as pl
+
+    from borescan.report import plot_calibration_trends
+
+    rows = [
+        {
+            "device_id": "ROD-01",
+            "calibration_id": f"C{k}",
+            "valid_from": f"2026-11-2{k}",
+            "scan_id": f"S{k}",
+            "channel": ch,
+            "l0_mm": 71.0 + 0.01 * k + 0.001 * ch,
+            "u_l0_mm": 0.01,
+            "h_mm": 100.0 * ch,
+            "phi_rad": 0.0,
+            "d_mm": 0.0,
+            "gamma_rad": 0.0,
+        }
+        for k in (0, 1)
+        for ch in (1, 2)
+    ]
+    fig = plot_calibration_trends(pl.DataFrame(rows), "ROD-01")
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(shown) == 2 and {ax.get_title() for ax in shown} == {"channel 1", "channel 2"}
+    title = fig._suptitle.get_text()
+    assert "h_mm 100, 200; phi_rad 0, 0; d_mm 0, 0; gamma_rad 0, 0" in title
+
+
+def test_part_plot_labels_that_would_overlap_are_slanted_and_a_gauge_is_the_bore():
+    """RG-275: four night / scan-id labels side by side on one 3.8 in panel overlapped; a ring gauge
+    (no feature in scan.json) was titled "feature ?".
+    """
+    import polars as pl
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from borescan.report import plot_diameters
+
+    rows = [
+        {
+            "artifact_id": "RG-275",
+            "feature": None,
+            "night": f"2026-11-2{k}",
+            "scan_id": f"N2026112{k}-TRI01-VER-RG275",
+            "diameter_mm": 275.03,
+            "u_diameter_mm": 0.009,
+        }
+        for k in range(4)
+    ]
+    fig = plot_diameters(pl.DataFrame(rows), "RG-275")
+    (ax,) = fig.axes
+    assert ax.get_title() == "the bore (n=4)"
+    FigureCanvasAgg(fig).draw()
+    labels = [t for t in ax.get_xticklabels() if t.get_text()]
+    assert len(labels) == 4 and all(t.get_rotation() == 45 for t in labels)
+    # upright they would overlap: together wider than the panel
+    upright = sum(t.get_window_extent().width for t in labels) / np.sqrt(0.5)
+    assert upright > ax.get_window_extent().width
+
+
+def test_device_model_plot_shows_a_refused_calibration_marked_refused():
+    """The demo's calibration of 2026-11-21 was refused (residual 1.44 x the noise floor): it was left
+    out of the device-model plot; now it is a point of its own, marked refused, off the issued ones' line.
+    """
+    import polars as pl
+
+    from borescan.report import device_model_history, plot_device_model_gap
+
+    why = (
+        "lds.parquet: calibration failed: A,B channel 2: residual rms is 1.44 times the readings' own "
+        "noise floor (limit 1.25): the model misses an effect"
+    )
+    scans = pl.DataFrame(
+        [
+            {"scan_id": "A", "night": "2026-11-21", "device_id": "TRI-01", "kind": "calibration"},
+            {"scan_id": "B", "night": "2026-11-21", "device_id": "TRI-01", "kind": "calibration"},
+            {"scan_id": "C", "night": "2026-11-22", "device_id": "TRI-01", "kind": "calibration"},
+            {"scan_id": "D", "night": "2026-11-21", "device_id": "TRI-02", "kind": "calibration"},
+        ]
+    ).with_columns(
+        status=pl.lit("quarantined"),
+        reason=pl.Series([why, why, "scan.json: no temperature", why]),
+    )
+    pooled = pl.DataFrame(
+        {
+            "device_id": ["TRI-01"] * 2,
+            "night": ["2026-11-20", "2026-11-21"],
+            "gap_before_mm": [0.004, 0.005],
+            "noise_floor_mm": [0.004, 0.004],
+        }
+    )
+    hist = device_model_history(pooled, None, None, "TRI-01", scans)
+    got = hist.select("night", "calibration_residual_to_noise", "calibration_refused").rows()
+    assert got == [("2026-11-20", None, False), ("2026-11-21", 1.44, True)]  # C: set aside, not refused
+    fig = plot_device_model_gap(hist, "TRI-01")
+    ax = fig.axes[0]
+    (mark,) = [ln for ln in ax.get_lines() if ln.get_label() == "calibration refused"]
+    assert list(mark.get_xdata()) == [1] and list(mark.get_ydata()) == [1.44]
+    assert any(t.get_text() == "refused" for t in ax.texts)

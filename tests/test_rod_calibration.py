@@ -274,6 +274,7 @@ def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan
     import hashlib
     import json as _json
 
+    from borescan import night_config
     from borescan.stages.calibrate_rod import calibrate_rod_scan
 
     dflt = schema_defaults()
@@ -298,6 +299,7 @@ def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan
         schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8}
     )  # no verification scans that night
     bad, rows, links = [], [], []
+    night_config.settle(tmp_path / "results", ["2026-11-20"], dflt)  # as the workflow does first
     for scan in (bad_scan, good_scan):
         calibrate_rod_scan(
             scan,
@@ -315,6 +317,14 @@ def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan
     rec = _json.loads((tmp_path / "results" / "quarantine" / "CAL-NO-CERT.json").read_text())
     assert rec["file"] == "scan.json" and rec["scan_id"] == "CAL-NO-CERT"
     assert {r["scan_id"] for r in rows} == {"CAL-OK"} and len(rows) == 2  # one row per layer of the good scan
+    # the good scan's certificate has the residuals.png its records section points to (outputs.md)
+    (folder,) = {p.parent for p in (tmp_path / "results" / "calibration").rglob("certificate.pdf")}
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "certificate.dcc.xml",
+        "certificate.json",
+        "certificate.pdf",
+        "residuals.png",
+    ]
     assert before == {
         p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (tmp_path / "raw").rglob("*") if p.is_file()
     }

@@ -137,3 +137,20 @@ def test_trace_shows_the_certificate_a_scan_used_not_a_later_record(tmp_path):
     lines = trace._scan_lines(dict(t.scan("CAL-1"), artifact=art), "")
     assert any("certified 275.029 mm" in x and "as this scan used it" in x for x in lines)
     assert any(x.startswith("  NOTE: the artifact's latest record differs") and "275.031" in x for x in lines)
+
+
+def test_a_diameter_names_its_feature_or_the_bore_never_feature_question_mark():
+    base = {
+        "diameter_20_mm": 276.4131,
+        "expanded_u_diameter_20_mm": 0.0091,
+        "k": 2.0,
+        "temperature_c": 20.4,
+        "diameter_mm": 276.4144,
+        "method": "static circumcircle",
+        "scan": {"scan_id": "S", "missing": True},
+        "calibration": None,
+    }
+    part = trace._dia_lines(dict(base, diameter_id="S/B1", feature="B1"), "")[0]
+    gauge = trace._dia_lines(dict(base, diameter_id="S/", feature=None), "")[0]
+    assert ", feature B1, method static circumcircle" in part
+    assert ", the bore, method static circumcircle" in gauge and "?" not in gauge

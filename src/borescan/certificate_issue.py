@@ -34,6 +34,7 @@ import numpy as np
 import polars as pl
 
 from borescan import certificate
+from borescan.certificate.admin import _administrative_data
 from borescan.rawio import sha256_file
 
 __all__ = [
@@ -261,7 +262,7 @@ def _relabelled(latest: CertificateIssue, lab: dict, issue_date: str) -> dict:
         (s["declaration"] for s in adm["statements"] if s.get("refType") == "basic_traceability"), ""
     )
     new = copy.deepcopy(old)
-    new["administrativeData"] = certificate._administrative_data(
+    new["administrativeData"] = _administrative_data(
         SimpleNamespace(calibration_id=doc_id),
         lab,
         dates,

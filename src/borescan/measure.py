@@ -1284,6 +1284,15 @@ def verify(
     )
 
 
+def only_feature_id(artifact: dict) -> str | None:
+    """Return the id of the artifact's only feature (the bore a three-sensor scan measures), else None.
+
+    None when scan.json lists no feature (a ring gauge) or several (the scan does not say which).
+    """
+    feats = [f for f in (artifact.get("features") or []) if isinstance(f, dict) and f.get("id") is not None]
+    return str(feats[0]["id"]) if len(feats) == 1 else None
+
+
 def part_feature(artifact: dict, feature: str | None) -> dict:
     """Return the scan.json feature a diameter belongs to.
 

@@ -15,10 +15,15 @@ records the new settings for each night from ``NIGHT`` on and a change record
 (``stage/config_changes/``, catalog table ``config_changes``: the nights, the old and new hashes and
 the keys that differ), and marks the nights' raw manifests so that the next run recomputes them
 (whatever checkout runs it).
+
+A record also keeps ``first_processed``, the UTC date the workflow first saw the night: the date of
+issue of the night's certificates (:func:`first_processed`), so that a certificate regenerated later
+carries the same date and the same bytes. A recomputation keeps it.
 """
 
 from __future__ import annotations
 
+import datetime as _dt
 import hashlib
 import io
 import json
@@ -42,6 +47,7 @@ __all__ = [
     "changed_keys",
     "record_path",
     "read_record",
+    "first_processed",
     "settle",
     "recompute",
 ]
@@ -58,6 +64,8 @@ class NightConfig:
     config_hash: str
     settings: dict
     recorded_by: str
+    #: UTC date (ISO) the workflow first saw the night; None in a record written before it was kept
+    first_processed: str | None = None
 
 
 @dataclass(frozen=True)
@@ -114,7 +122,39 @@ def read_record(results_root, night: str) -> NightConfig | None:
     if not path.is_file():
         return None
     row = pl.read_parquet(path).row(0, named=True)
-    return NightConfig(night, row["config_hash"], json.loads(row["config_json"]), row["recorded_by"])
+    first = row.get("first_processed")
+    return NightConfig(
+        night,
+        row["config_hash"],
+        json.loads(row["config_json"]),
+        row["recorded_by"],
+        str(first) if first is not None else None,
+    )
+
+
+def first_processed(results_root, night: str) -> str:
+    """Return the UTC date (ISO) the workflow first processed ``night``: its certificates' date of issue.
+
+    Raises ValueError naming the record when the night has none (the workflow writes it when it first
+    sees the night, before any job) or the record has no date.
+    """
+    rec = read_record(results_root, night)
+    if rec is None or rec.first_processed is None:
+        raise ValueError(
+            f"night {night}: {record_path(results_root, night)} "
+            + ("does not exist" if rec is None else "has no first_processed date")
+            + " (the workflow records it when it first sees the night)"
+        )
+    return rec.first_processed
+
+
+def _today() -> str:
+    return _dt.datetime.now(_dt.UTC).date().isoformat()
+
+
+def _record_date(path: Path) -> str:
+    """UTC date of a record file's last write: when a record from before ``first_processed`` was made."""
+    return _dt.datetime.fromtimestamp(path.stat().st_mtime, _dt.UTC).date().isoformat()
 
 
 def _write_record(results_root, rec: NightConfig) -> None:
@@ -127,6 +167,7 @@ def _write_record(results_root, rec: NightConfig) -> None:
                     "config_hash": rec.config_hash,
                     "config_json": json.dumps(rec.settings, sort_keys=True),
                     "recorded_by": rec.recorded_by,
+                    "first_processed": rec.first_processed,
                 }
             ],
         ),
@@ -142,6 +183,7 @@ def settle(
     Returns (night -> settings, the recorded nights whose settings differ from the current config).
     A results root that cannot be written gets no record (the run stops at its first output); nor does a
     dry run (``record=False``: the settings a run would record, nothing written).
+    A record written before ``first_processed`` was kept gets the date its file was written, once.
     """
     current = night_settings(config)
     h = settings_hash(current)
@@ -149,13 +191,25 @@ def settle(
     for night in nights:
         rec = read_record(results_root, night)
         if rec is None:
-            rec = NightConfig(night, h, current, "first run")
+            rec = NightConfig(night, h, current, "first run", _today())
             try:
                 if record:
                     _write_record(results_root, rec)
             except OSError:
                 pass
-        elif rec.config_hash != h:
+        elif rec.first_processed is None:
+            dated = NightConfig(
+                night,
+                rec.config_hash,
+                rec.settings,
+                rec.recorded_by,
+                _record_date(record_path(results_root, night)),
+            )
+            try:
+                _write_record(results_root, dated)
+            except OSError:
+                pass
+        if rec.config_hash != h:
             differ.append(night)
         out[night] = rec.settings
     return out, differ
@@ -224,7 +278,9 @@ def recompute(results_root, from_night: str, config: dict) -> ConfigChange | Non
         pl.concat([before, tables.frame("config_changes", [row])], how="diagonal_relaxed"), changes_file
     )
     for r in todo:
-        _write_record(root, NightConfig(r.night, h, current, f"recompute {change_id}"))
+        _write_record(
+            root, NightConfig(r.night, h, current, f"recompute {change_id}", r.first_processed or _today())
+        )
         index = raw_index_path(root, r.night)
         if index.is_file():
             os.utime(index)  # now: the night's jobs are older than an input, whichever checkout runs

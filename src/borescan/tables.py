@@ -220,7 +220,7 @@ _T = [
     # recomputation of past nights with other settings (night: the first night recomputed)
     Table(
         "night_config",
-        _cols("night:date config_hash:text config_json:text recorded_by:text"),
+        _cols("night:date config_hash:text config_json:text recorded_by:text first_processed:date"),
         ("night",),
         primary=True,
     ),

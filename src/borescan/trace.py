@@ -462,9 +462,9 @@ def _dia_lines(d: dict[str, Any], ind: str) -> list[str]:
         )
     else:
         value = f"{_fmt(d['diameter_mm'], ' mm')} (u {_fmt(d['u_diameter_mm'], ' mm')}, k=1)"
-    lines = [
-        f"{ind}diameter {d['diameter_id']}  {value}, feature {_fmt(d['feature'])}, method {_fmt(d['method'])}"
-    ]
+    # a ring gauge (scan.json lists no feature) is one bore
+    feature = "the bore" if d.get("feature") is None else f"feature {d['feature']}"
+    lines = [f"{ind}diameter {d['diameter_id']}  {value}, {feature}, method {_fmt(d['method'])}"]
     if d.get("conformity"):
         lines.append(
             f"{ind}  against nominal {_fmt(d.get('nominal_diameter_mm'), ' mm')} +- "

@@ -115,7 +115,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from borescan.synthetic.scenes import ROD_NOISE_MM, TRI_NOISE_MM, YANG_RING_GAUGE_DIAMETER_MM
 
     sub = parser.add_subparsers(dest="sim_kind", metavar="WHAT", required=True)
-    p = sub.add_parser("demo", help="the embedded demo nights (2 nights, TRI-01 and ROD-01)")
+    p = sub.add_parser("demo", help="the embedded demo nights (4 nights, TRI-01 and ROD-01)")
     p.add_argument(
         "--out", type=Path, required=True, help="output folder (DIR/raw, DIR/truth, DIR/.complete)"
     )

@@ -1,7 +1,7 @@
 """``borescan sql``: run SQL (or a saved query) on the history catalog, read-only.
 
 Output formats: ``table`` (default; numbers rounded to ``--digits`` significant digits and aligned
-on the decimal point, long text cut at ``--max-width`` characters), ``csv`` and ``json`` (full
+on the decimal point, long text but no id cut at ``--max-width`` characters), ``csv`` and ``json`` (full
 precision, for programs). Times are shown with their zone: the catalog's TIMESTAMP values are
 UTC (:mod:`borescan.catalog`) and print as ``2026-11-21T22:14:03Z``.
 """
@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-width",
         type=nonnegative_int,
         default=40,
-        help="cut text cells of the table longer than this, 0 = never (default 40)",
+        help="cut text cells longer than this, 0 = never (default 40); ids (id, *_id) are never cut",
     )
     parser.epilog = (
         "The catalog is opened read-only, and queries cannot read or write other files (COPY, ATTACH, "
@@ -154,11 +154,18 @@ def _cut(text: str, width: int) -> str:
     return text[:head] + "\u2026" + text[len(text) - (width - 1 - head) :]
 
 
+def _is_id(column: str) -> bool:
+    """Return whether ``column`` holds identifiers (``id``, ``*_id``, ``*_ids``): shown whole, never cut."""
+    name = column.lower()
+    return name == "id" or name.endswith(("_id", "_ids"))
+
+
 def format_table(columns: list[str], rows: list[tuple], digits: int = 7, max_width: int = 40) -> str:
     """Return an aligned text table.
 
     Aligned text table: header, a rule, one line per row; numbers rounded and right-aligned on
-    their decimal point, text left-aligned and cut at ``max_width`` characters (0: never).
+    their decimal point, text left-aligned and cut at ``max_width`` characters (0: never), except
+    identifiers (:func:`_is_id`), which are always whole.
     """
     numeric = [
         any(r[i] is not None for r in rows) and all(_is_number(r[i]) for r in rows if r[i] is not None)
@@ -170,7 +177,7 @@ def format_table(columns: list[str], rows: list[tuple], digits: int = 7, max_wid
         if numeric[i]:
             cols.append(_number_cells(values, digits))
         else:
-            cols.append([_cut(_text(v), max_width) for v in values])
+            cols.append([_cut(_text(v), 0 if _is_id(columns[i]) else max_width) for v in values])
     widths = [max([len(c)] + [len(x) for x in col]) for c, col in zip(columns, cols, strict=True)]
 
     def line(values: list[str]) -> str:

@@ -60,11 +60,45 @@ _BACKGROUNDS: dict[tuple, object] = {}
 MAX_BACKGROUNDS = 32
 
 
-def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_label: str) -> dict:
+def _column(
+    ax, rows: dict, col: int, channels, colors, spectrum: bool, angle_label, lines: dict, floor: dict
+):
+    """Add one column's (empty) lines, noise-floor lines, labels and title to the axes ``ax`` of a layout."""
+    residual_rows = [name for name in ("angle", "time") if name in rows]
+    for j, ch in enumerate(channels):
+        color = colors[j % 10]
+        if "angle" in rows:
+            (lines["angle", col, j],) = ax[rows["angle"]].plot(
+                [], [], ".", ms=1.5, color=color, label=f"ch {ch}"
+            )
+        style = "-" if spectrum else "."
+        (lines["time", col, j],) = ax[rows["time"]].plot(
+            [], [], style, lw=0.6, ms=2, color=color, label=f"ch {ch}"
+        )
+    last = ax[rows["last"]]
+    if spectrum:
+        for j, ch in enumerate(channels):
+            (lines["last", col, j],) = last.plot([], [], lw=0.8, color=colors[j % 10], label=f"ch {ch}")
+        last.set_xlabel("undulations per revolution [UPR]")
+    else:  # pose scans: no revolution; residual per sample index instead
+        for j in range(len(channels)):
+            (lines["last", col, j],) = last.plot([], [], ".", ms=2, color=colors[j % 10])
+        last.set_xlabel("sample (poses in order)")
+    for row in residual_rows:
+        for s in (-1.5, 1.5):
+            floor[row, col, s] = ax[rows[row]].axhline(0.0, ls="--", lw=0.8, color="0.4")
+    if "angle" in rows:
+        ax[rows["angle"]].set_xlabel(angle_label)
+    ax[rows["time"]].set_xlabel("time [s]")
+    ax[0].set_title(" ", fontsize=10, y=1.0)  # y given: not moved by the (hidden) title's own layout
+
+
+def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_label: str | None) -> dict:
     """Return the figure of a layout, built on first use (see :data:`_FIGURES`).
 
-    Returns a dict: ``fig``, ``axes`` (3, n_panels), ``lines[(row, col, channel index)]``,
-    ``floor[(row, col, sign)]`` (the dashed noise-floor lines), ``suptitle`` and ``dynamic``: every
+    Returns a dict: ``fig``, ``axes`` (rows, n_panels), ``rows`` (row name -> index: ``angle`` unless
+    ``angle_label`` is None, ``time``, ``last``), ``lines[(row name, col, channel index)]``,
+    ``floor[(row name, col, sign)]`` (the dashed noise-floor lines), ``suptitle`` and ``dynamic``: every
     artist that changes from scan to scan (drawn over the background).
     """
     from matplotlib import rcParams
@@ -74,45 +108,29 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
     key = (n_panels, channels, spectrum, angle_label)
     if key in _FIGURES:
         return _FIGURES[key]
-    fig = Figure(figsize=(12 if n_panels == 2 else 7, 9.5))
+    names = (["angle"] if angle_label is not None else []) + ["time", "last"]
+    rows = {name: i for i, name in enumerate(names)}
+    fig = Figure(figsize=(12 if n_panels == 2 else 7, 9.5 if len(rows) == 3 else 6.8))
     FigureCanvasAgg(fig)
-    axes = fig.subplots(3, n_panels, sharey="row", squeeze=False)
+    axes = fig.subplots(len(rows), n_panels, sharey="row", squeeze=False)
     colors = rcParams["axes.prop_cycle"].by_key()["color"]
     lines, floor = {}, {}
+    residual_rows = [name for name in ("angle", "time") if name in rows]
     for col in range(n_panels):
-        for j, ch in enumerate(channels):
-            color = colors[j % 10]
-            (lines[0, col, j],) = axes[0, col].plot([], [], ".", ms=1.5, color=color, label=f"ch {ch}")
-            style = "-" if spectrum else "."
-            (lines[1, col, j],) = axes[1, col].plot(
-                [], [], style, lw=0.6, ms=2, color=color, label=f"ch {ch}"
-            )
-        if spectrum:
-            for j, ch in enumerate(channels):
-                (lines[2, col, j],) = axes[2, col].plot(
-                    [], [], lw=0.8, color=colors[j % 10], label=f"ch {ch}"
-                )
-            axes[2, col].set_xlabel("undulations per revolution [UPR]")
-        else:  # pose scans: no revolution; residual per sample index instead
-            for j in range(len(channels)):
-                (lines[2, col, j],) = axes[2, col].plot([], [], ".", ms=2, color=colors[j % 10])
-            axes[2, col].set_xlabel("sample (poses in order)")
-        for row in (0, 1):
-            for s in (-1.5, 1.5):
-                floor[row, col, s] = axes[row, col].axhline(0.0, ls="--", lw=0.8, color="0.4")
-        axes[0, col].set_xlabel(angle_label)
-        axes[1, col].set_xlabel("time [s]")
-        axes[0, col].set_title(
-            " ", fontsize=10, y=1.0
-        )  # y given: not moved by the (hidden) title's own layout
-    axes[0, 0].set_ylabel("residual [um]")
-    axes[1, 0].set_ylabel("residual [um]")
-    axes[2, 0].set_ylabel("amplitude [um]" if spectrum else "residual [um]")
+        _column(axes[:, col], rows, col, channels, colors, spectrum, angle_label, lines, floor)
+    for row in residual_rows:
+        axes[rows[row], 0].set_ylabel("residual [um]")
+    axes[rows["last"], 0].set_ylabel("amplitude [um]" if spectrum else "residual [um]")
     legend = axes[0, 0].legend(loc="upper right", fontsize=8, markerscale=5)
-    suptitle = fig.suptitle(" ", fontsize=11)
+    suptitle = fig.suptitle(" ", fontsize=10.5)  # two lines: the scan and verdict, the noise floor
     # fixed margins: tight_layout measures every tick label and costs about as much as the drawing
     fig.subplots_adjust(
-        left=0.07 if n_panels == 2 else 0.11, right=0.98, bottom=0.06, top=0.92, hspace=0.32, wspace=0.06
+        left=0.07 if n_panels == 2 else 0.11,
+        right=0.98,
+        bottom=0.06 if len(rows) == 3 else 0.085,
+        top=0.9 if len(rows) == 3 else 0.86,
+        hspace=0.32 if len(rows) == 3 else 0.36,
+        wspace=0.06,
     )
     dynamic = [
         *lines.values(),
@@ -124,6 +142,7 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
     _FIGURES[key] = {
         "fig": fig,
         "axes": axes,
+        "rows": rows,
         "lines": lines,
         "floor": floor,
         "suptitle": suptitle,
@@ -163,9 +182,10 @@ def plot_gap(  # noqa: C901 (one branch per scan kind and panel of the plot)
 ) -> Path:
     """Write gap.png for one :class:`~borescan.discrepancy.examine.Examination`.
 
-    Rows: residual against device angle, against time, spectrum in undulations per revolution
-    (UPR; pose scans: residual per sample); left column before (base model), right column after
-    adding the named effect(s).
+    Rows: residual against device angle (left out where every sample has the same angle, as the
+    poses of a static scan), against time, spectrum in undulations per revolution (UPR; pose scans:
+    residual per sample); left column before (base model), right column after adding the named
+    effect(s). The title's two lines: the scan and its verdict, the noise floor.
     Dashed lines mark +-1.5 noise floor. Residual axes are symmetric, +-L with L the largest
     residual (or 1.5 noise floors) rounded up by :func:`nice_ceiling`; time, sample and
     amplitude axes run from 0 to their largest value rounded up alike. So scans of a night
@@ -191,32 +211,37 @@ def plot_gap(  # noqa: C901 (one branch per scan kind and panel of the plot)
         ]
     else:  # nothing added: "after" would repeat "before"
         panels = [(ex.residual_before_mm, "base model (nothing added)", f["gap_before"]["rms_mm"])]
-    layout = _figure(len(panels), tuple(ex.channels), bool(ex.rev_hz), ex.angle_label)
+    angle_deg = np.degrees(ex.angle_rad)
+    seen = angle_deg[np.isfinite(angle_deg)]
+    # a static scan's poses share one angle: a panel against it would be one vertical stripe
+    has_angle = bool(seen.size) and float(np.ptp(seen)) > 0.0
+    layout = _figure(len(panels), tuple(ex.channels), bool(ex.rev_hz), ex.angle_label if has_angle else None)
     fig, axes, lines, floor = layout["fig"], layout["axes"], layout["lines"], layout["floor"]
+    rows = layout["rows"]
     # examined blocks of a long scan are separated in time: break the line there
     dt = np.diff(ex.t_s)
     cut = np.flatnonzero(dt > 5.0 * np.median(dt)) + 1 if dt.size else np.zeros(0, dtype=int)
     t_line = np.insert(ex.t_s, cut, np.nan)
-    angle_deg = np.degrees(ex.angle_rad)
     upr_max, amp_max = 30.0, 0.0
     for col, (r, label, gap) in enumerate(panels):
         for j in range(len(ex.channels)):
             y = r[:, j] * 1e3
-            lines[0, col, j].set_data(angle_deg, y)
-            lines[1, col, j].set_data(t_line, np.insert(y, cut, np.nan))
+            if has_angle:
+                lines["angle", col, j].set_data(angle_deg, y)
+            lines["time", col, j].set_data(t_line, np.insert(y, cut, np.nan))
         if ex.rev_hz:
             nb = leading_block(ex.t_s)
             upr, amp = _spectrum(r[:nb], float(np.median(np.diff(ex.t_s[:nb]))), ex.rev_hz)
             for j in range(len(ex.channels)):
-                lines[2, col, j].set_data(upr, amp[:, j] * 1e3)
+                lines["last", col, j].set_data(upr, amp[:, j] * 1e3)
             upr_max = min(upr_max, float(upr.max()) if upr.size else 30.0)
             amp_max = max(amp_max, _abs_max(amp[upr <= 30.0] * 1e3))
         else:
             for j in range(len(ex.channels)):
-                lines[2, col, j].set_data(np.arange(r.shape[0]), r[:, j] * 1e3)
-        for row in (0, 1):
-            for s in (-1.5, 1.5):
-                floor[row, col, s].set_ydata([s * floor_um, s * floor_um])
+                lines["last", col, j].set_data(np.arange(r.shape[0]), r[:, j] * 1e3)
+        for (_row, c, s), line in floor.items():
+            if c == col:
+                line.set_ydata([s * floor_um, s * floor_um])
         axes[0, col].title.set_text(f"{label}: rms {gap * 1e3:.2f} um" if gap is not None else label)
     res_lim = nice_ceiling(HEADROOM * max(_abs_max(*(r * 1e3 for r, _, _ in panels)), 1.5 * floor_um))
     t_lim = nice_ceiling(HEADROOM * float(np.nanmax(ex.t_s))) if ex.t_s.size else 1.0
@@ -227,14 +252,15 @@ def plot_gap(  # noqa: C901 (one branch per scan kind and panel of the plot)
         row2 = ((-MARGIN * n_lim, n_lim), (-res_lim, res_lim))
     limits = ((-res_lim, res_lim), (-MARGIN * t_lim, t_lim), *row2)
     for col in range(len(panels)):
-        axes[0, col].set_xlim(0, 360)
-        axes[0, col].set_ylim(*limits[0])
-        axes[1, col].set_xlim(*limits[1])
-        axes[1, col].set_ylim(*limits[0])
-        axes[2, col].set_xlim(*limits[2])
-        axes[2, col].set_ylim(*limits[3])
+        if has_angle:
+            axes[rows["angle"], col].set_xlim(0, 360)
+            axes[rows["angle"], col].set_ylim(*limits[0])
+        axes[rows["time"], col].set_xlim(*limits[1])
+        axes[rows["time"], col].set_ylim(*limits[0])
+        axes[rows["last"], col].set_xlim(*limits[2])
+        axes[rows["last"], col].set_ylim(*limits[3])
     layout["suptitle"].set_text(
-        f"{f['scan_id']}: {f['verdict']} ({names}); noise floor {floor_um:.2f} um (dashed: +-1.5x)"
+        f"{f['scan_id']}: {f['verdict']} ({names})\nnoise floor {floor_um:.2f} um (dashed: +-1.5x)"
     )
     canvas = fig.canvas
     canvas.restore_region(_background(layout, limits))

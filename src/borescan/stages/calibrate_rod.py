@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from borescan import __version__, certificate, certificate_issue, rawio, rod_calibration
+from borescan import __version__, certificate, certificate_issue, night_config, rawio, rod_calibration
 from borescan.artifacts import MissingTemperature, artifact_cte, radius_at_temperature_mm, scan_temperature
 from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
 from borescan.preconditions import ROD_CALIBRATION_NEEDS_LAYERS, design_layers
@@ -80,8 +80,10 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
     rel_cert = str((link / "certificate.pdf").relative_to(Path(results_root)))
     raw_files = {f"{sid}/{k}": v for k, v in sorted(scan.sha256.items())}
     rows = rod_calibration.rod_calibration_rows(cal, night, rel_cert, rawio.combined_sha256(raw_files), p)
-    ver_rows, ver_metas = _night_rod_verifications(cal, rows, night, ctx, log)
-    dates = certificate.certificate_dates([meta], ver_metas, night, int(cfg["validity_days"]))
+    ver_rows, _ = _night_rod_verifications(cal, rows, night, ctx, log)
+    dates = certificate.certificate_dates(
+        [meta], night, int(cfg["validity_days"]), night_config.first_processed(results_root, night)
+    )
     for row in rows:
         row.update(
             temperature_c=temp.temperature_c,
@@ -101,6 +103,7 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         coverage_probability=p,
         dates=dates,
         verifications=ver_rows,
+        residuals=certificate.rod_pose_residuals(sol, means),
         config_hash=config_hash(
             {"calibration": cfg, "uncertainty": unc, "laboratory": lab, "verification": ctx["verification"]}
         ),

@@ -3,7 +3,8 @@
 The device's scans of the night are fitted together (``full_lsq``) or one by one (``yang2017``);
 each calibration carries its GUM budget (:mod:`borescan.calibration_budget`), its covariance the
 budget's combined one, and gets its certificate (ISO/IEC 17025 7.8) with the night's verifications
-of the device made with it; its dates come from the data (:func:`certificate.certificate_dates`).
+of the device made with it; its dates come from the data and the night's record
+(:func:`certificate.certificate_dates`).
 """
 
 from __future__ import annotations
@@ -14,7 +15,16 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from borescan import __version__, calibration, certificate, certificate_issue, device_model, measure, rawio
+from borescan import (
+    __version__,
+    calibration,
+    certificate,
+    certificate_issue,
+    device_model,
+    measure,
+    night_config,
+    rawio,
+)
 from borescan.artifacts import MissingTemperature
 from borescan.calibration_budget import with_budget
 from borescan.calibrations import calibration_rows
@@ -169,7 +179,7 @@ def _calibrate_group(
                 fit, first["t_s"], first["readings"], first["R"], ids[0], angle_model=first["angle_model"]
             ),
         }
-    ver_rows, ver_metas = _night_verifications(cal, night, ctx, log)
+    ver_rows, _ = _night_verifications(cal, night, ctx, log)
     conditions = certificate.calibration_conditions(
         first["temperature"],
         first["cte"],
@@ -179,7 +189,10 @@ def _calibrate_group(
         [scan_conditions(s, x, summary) for s, x in zip(scans, inputs)],
     )
     dates = certificate.certificate_dates(
-        [s.meta for s in scans], ver_metas, night, int(cfg["validity_days"])
+        [s.meta for s in scans],
+        night,
+        int(cfg["validity_days"]),
+        night_config.first_processed(results_root, night),
     )
     art = scans[0].meta.get("artifact") or {}
     cert_paths = certificate.write_certificate(

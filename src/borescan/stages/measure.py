@@ -157,13 +157,14 @@ def measure_one(job) -> dict:
 
 def _verdicts(out, meta, row, sid, dev, cal_id, res, du, tol, unc, lab, part, results_root, night) -> dict:
     bad = out["quarantined"]  # the diameter with its part verdict, and a gauge scan's verification
+    feature = measure.only_feature_id(dict(meta.get("artifact") or {}))  # the bore of a one-bore part
     out["diameters"].append(
         _with_part(
             measure.diameter_row(
                 sid,
                 dev,
                 row["artifact_id"],
-                None,
+                feature,
                 res["diameter_mm"],
                 du.combined_t.u,
                 cal_id,
@@ -171,7 +172,7 @@ def _verdicts(out, meta, row, sid, dev, cal_id, res, du, tol, unc, lab, part, re
                 du,
             ),
             meta,
-            None,
+            feature,
             du,
             part,
         )

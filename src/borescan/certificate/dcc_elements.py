@@ -1,6 +1,7 @@
 """The XML of a Digital Calibration Certificate: D-SI units and decimals, DCC element helpers.
 
-Used by :mod:`borescan.certificate_dcc`. A certificate.json unit (``mm``, ``rad``, ``degC``, ``1/K``,
+Used by :mod:`borescan.certificate.dcc` and :mod:`borescan.certificate.dcc_results`.
+A certificate.json unit (``mm``, ``rad``, ``degC``, ``1/K``,
 ...) becomes a D-SI unit and a decimal exponent (:func:`dsi_unit`); a number is written with the
 JSON's digits, the unit prefix moved into the exponent (:func:`decimal_text`); a certificate.json
 subtree becomes named ``dcc:list`` / ``dcc:quantity`` elements (:func:`record`).

@@ -1,0 +1,185 @@
+"""Write a certificate's documents: certificate.json, certificate.dcc.xml, certificate.pdf, residuals.png."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.backends.backend_pdf import PdfPages
+from matplotlib.figure import Figure
+
+from borescan.atomic import atomic_write_bytes, atomic_write_text
+from borescan.calibration import TriCalibration
+from borescan.certificate.budget_pages import _budget_tables, _page_records, _verification_pages
+from borescan.certificate.content import _residual_arrays
+from borescan.certificate.dcc import write_dcc
+from borescan.certificate.layout import _A4, _PDF_METADATA, _RC, _Doc
+from borescan.certificate.pages import _page_admin, _page_item_conditions, _page_results
+from borescan.certificate.rod import _rod_pages, _rod_residual_figure, rod_certificate_dict
+from borescan.certificate.tri import certificate_dict
+from borescan.uncertainty import Budget
+
+
+def _residual_figure(
+    cert: dict, t: np.ndarray, res: np.ndarray, size=(8.27, 5.0), page: bool = False
+) -> Figure:
+    fig = Figure(figsize=size)
+    n_ch = res.shape[1]
+    axes = fig.subplots(n_ch, 1, sharex=True, squeeze=False)[:, 0]
+    channels = [int(r["channel"]) for r in cert["parameters"]]
+    chans = channels if len(channels) == n_ch else list(range(1, n_ch + 1))
+    for ax, j, ch in zip(axes, range(n_ch), chans):
+        ax.plot(t, res[:, j] * 1e3, lw=0.5, color=f"C{j}")
+        ax.axhline(0.0, color="k", lw=0.5)
+        with np.errstate(invalid="ignore"):
+            rms = float(np.sqrt(np.nanmean(res[:, j] ** 2))) * 1e3 if res.size else float("nan")
+        ax.set_ylabel(f"ch {ch} [um]")
+        ax.set_title(f"channel {ch}: rms {rms:.2f} um", fontsize=8, loc="left")
+    axes[-1].set_xlabel("t [s]")
+    if page:
+        fig.text(
+            _Doc.LEFT,
+            0.885,
+            "9  Residuals of the fit (model - reading), first calibration scan",
+            fontsize=10.5,
+            weight="bold",
+        )
+        fig.subplots_adjust(left=0.12, right=0.94, top=0.84, bottom=0.1, hspace=0.35)
+    else:
+        fig.suptitle(f"Residuals (model - reading), {cert['calibration_id']}", fontsize=9)
+        fig.tight_layout()
+    return fig
+
+
+def _png_bytes(fig: Figure) -> bytes:
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format="png", metadata={"Software": None})
+    return buf.getvalue()
+
+
+def _pages(cert: dict, t: np.ndarray, res: np.ndarray) -> list[Figure]:
+    d = _Doc(cert)
+    _page_admin(d)
+    _page_item_conditions(d)
+    _page_results(d)
+    _budget_tables(d)
+    _verification_pages(d)
+    _page_records(d)
+    d.pages.append(_residual_figure(cert, t, res, size=_A4, page=True))
+    return d.finish()
+
+
+def write_certificate(
+    cal: TriCalibration,
+    out_dir: Path | str,
+    *,
+    device: dict,
+    artifact: dict,
+    conditions: dict,
+    residuals: dict,
+    raw_files: dict[str, str],
+    software_version: str,
+    config_hash: str,
+    budget: Budget | None = None,
+    laboratory: dict | None = None,
+    coverage_probability: float | None = None,
+    dates: dict | None = None,
+    verifications: list[dict] | None = None,
+) -> dict[str, Path]:
+    """Write ``certificate.json``, ``certificate.pdf`` and ``residuals.png`` into ``out_dir``.
+
+    Parameters
+    ----------
+    cal : TriCalibration (``cov`` the combined covariance of its budget)
+    out_dir : results_root/calibration/<device_id>/<calibration_id>/ (see :func:`certificate_dir`)
+    device : dict, e.g. {"id", "type", "sensors" (scan.json sensor entries)}
+    artifact : scan.json artifact of the gauge (id, certificate, certified_diameter_mm, u_diameter_mm,
+        k, cte_per_k; certificate_issuer and certificate_valid_until when known)
+    conditions : influence conditions: ``temperature`` {value_c, u_c, U_c, k, source, assumed},
+        ``gauge_cte``, ``gauge_radius_at_temperature_mm``, ``position_accuracy_mm``, ``scans`` (per
+        scan: scan_id, spindle_position, center, rpm, angle_source, revolutions_recorded,
+        revolutions_with_extrema)
+    residuals : dict with t_s (n,) [s] and residual_mm (n, c) [mm] (model - reading)
+    raw_files : file name -> sha256 hex digest
+    software_version, config_hash : str
+    budget : the calibration's GUM budget (default: ``cal.diagnostics["budget"]``)
+    laboratory : the config's ``laboratory`` section (default: its schema defaults, placeholders)
+    coverage_probability : of every U (None: the schema's uncertainty.coverage_probability)
+    dates : ``begin``, ``end`` (dates of calibration), ``issue``, ``issue_rule``,
+        ``recalibration_due``, ``recalibration_rule`` (ISO dates and the text saying how each was derived)
+    verifications : rows of the night's verifications with this calibration
+        (:func:`borescan.measure.verification_row` plus ``budget``: its budget rows)
+
+    Returns
+    -------
+    dict with keys json, dcc, pdf, png -> paths. Same inputs give byte-identical files.
+    """
+    cert = certificate_dict(
+        cal,
+        device=device,
+        artifact=artifact,
+        conditions=conditions,
+        residuals=residuals,
+        raw_files=raw_files,
+        software_version=software_version,
+        config_hash=config_hash,
+        budget=budget,
+        laboratory=laboratory,
+        coverage_probability=coverage_probability,
+        dates=dates,
+        verifications=verifications,
+    )
+    return write_certificate_files(cert, out_dir, residuals)
+
+
+def write_certificate_files(
+    cert: dict, out_dir: Path | str, residuals: dict | None = None
+) -> dict[str, Path]:
+    """Write the documents of the certificate whose content is ``cert`` into ``out_dir``.
+
+    ``certificate.json``, ``certificate.dcc.xml`` (:mod:`borescan.certificate.dcc`), ``certificate.pdf`` and,
+    for a three-sensor certificate, ``residuals.png`` (``residuals``: t_s [s], residual_mm [mm]). Returns the
+    paths by key (json, dcc, pdf, png); the same content gives the same bytes.
+    """
+    import matplotlib
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    title = f"Calibration certificate {cert['administrativeData']['coreData']['uniqueIdentifier']}"
+    paths = {"json": out_dir / "certificate.json", "pdf": out_dir / "certificate.pdf"}
+    # unique temporary names (atomic.py): two runs writing the same certificate never meet
+    atomic_write_text(paths["json"], json.dumps(cert, sort_keys=True, indent=2, allow_nan=False) + "\n")
+    paths["dcc"] = write_dcc(cert, out_dir)
+    with matplotlib.rc_context(_RC):
+        if (cert.get("device") or {}).get("type") == "rod":
+            if (cert.get("fit") or {}).get("pose_residuals") is not None:
+                paths["png"] = out_dir / "residuals.png"
+                atomic_write_bytes(paths["png"], _png_bytes(_rod_residual_figure(cert)))
+            atomic_write_bytes(paths["pdf"], _pdf_bytes(_rod_pages(cert), title))
+            return paths
+        t, res = _residual_arrays(residuals)
+        paths["png"] = out_dir / "residuals.png"
+        atomic_write_bytes(paths["png"], _png_bytes(_residual_figure(cert, t, res)))
+        atomic_write_bytes(paths["pdf"], _pdf_bytes(_pages(cert, t, res), title))
+    return paths
+
+
+def _pdf_bytes(pages: list[Figure], title: str) -> bytes:
+    buf = io.BytesIO()
+    with PdfPages(buf, metadata=dict(_PDF_METADATA, Title=title)) as pdf:
+        for page in pages:
+            pdf.savefig(page)
+    return buf.getvalue()
+
+
+def write_rod_certificate(cal, out_dir: Path | str, **kw) -> dict[str, Path]:
+    """Write ``certificate.json``, ``certificate.dcc.xml`` and ``certificate.pdf`` of a rod calibration.
+
+    Into ``out_dir``, from the arguments of :func:`rod_certificate_dict`. Same inputs give byte-identical
+    files.
+    """
+    return write_certificate_files(rod_certificate_dict(cal, **kw), out_dir)
