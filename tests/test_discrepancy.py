@@ -487,7 +487,7 @@ def test_screen_skips_undefined_jacobians():
     """A screen column that leaves the model undefined (NaN: a ray missing the bore, a pose with
     no reading) skips that candidate instead of failing the examination (SVD did not converge).
     """
-    from borescan.discrepancy.examine import _lstsq
+    from borescan.discrepancy.search import lstsq as _lstsq
 
     J = np.eye(3)
     assert np.allclose(_lstsq(J, np.ones(3)), np.ones(3))
@@ -503,7 +503,8 @@ def test_outlier_threshold_is_the_bonferroni_quantile():
     from scipy.stats import norm
 
     from borescan.config import schema_defaults
-    from borescan.discrepancy.examine import DEFAULTS, discrepancy_settings, outlier_threshold_sigma
+    from borescan.discrepancy.evidence import outlier_threshold_sigma
+    from borescan.discrepancy.examine import DEFAULTS, discrepancy_settings
 
     assert outlier_threshold_sigma(1000, 1e-3) == pytest.approx(norm.isf(5e-7), rel=1e-12)
     assert 4.8 < outlier_threshold_sigma(1000) < 5.0 and 5.1 < outlier_threshold_sigma(6000) < 5.4

@@ -55,6 +55,10 @@ __all__ = [
     "term_parameters",
     "term_effects",
     "term_values",
+    "SAME_WITHIN",
+    "relative_spread",
+    "signed_speeds",
+    "speeds_differ",
 ]
 
 #: Scan kind of this model in the registry's ``absorbed_by`` / ``candidate``.
@@ -450,9 +454,12 @@ class TriModel:
         if self.data.radius_free:  # a part's radius is the measurand: it absorbs what every channel shares
             freed["R"] = "shared"
         keys = {t.key for t in self.device_terms}
+        conditions = frozenset({"speeds_differ"} if speeds_differ(self.data) else ())
         return [
             t
-            for t in candidate_terms(self.data, k_max=k_max, vibration_f_hz=vibration_f_hz, freed=freed)
+            for t in candidate_terms(
+                self.data, k_max=k_max, vibration_f_hz=vibration_f_hz, freed=freed, conditions=conditions
+            )
             if t.key not in keys
         ]
 
@@ -514,6 +521,7 @@ def registry_terms(
     have: dict[str, bool],
     k_max: int | None = None,
     freed: dict[str, set | str] | None = None,
+    conditions: frozenset[str] = frozenset(),
 ) -> list[Term]:
     """Return the registry's candidate terms for a scan of ``scan_kind``.
 
@@ -528,7 +536,9 @@ def registry_terms(
     channels whose own copy of it is free (a per-channel term is absorbed when its channel is in
     the set, a common term when the set is not empty), or to ``"shared"`` for one parameter of
     every channel (absorbs only the common terms: a bore radius absorbs a common offset, not one
-    channel's). ``k_max`` None: the schema's ``discrepancy.max_harmonic``.
+    channel's), unless the scan meets the registry's ``absorbed_unless[scan_kind]`` condition for that
+    parameter (``conditions``, e.g. ``"speeds_differ"``: a delay is a change of beta only at one speed).
+    ``k_max`` None: the schema's ``discrepancy.max_harmonic``.
     """
     freed = {k: v for k, v in (freed or {}).items() if v}
     if k_max is None:
@@ -546,9 +556,10 @@ def registry_terms(
 
     def absorbed(t: Term) -> bool:
         common = t.channel in (0, None)
+        unless = EFFECTS[t.effect].absorbed_unless.get(scan_kind, {})
         for b in EFFECTS[t.effect].absorbers(scan_kind):
             f = freed.get(b)
-            if f is None:
+            if f is None or unless.get(b) in conditions:
                 continue
             if common or (f != "shared" and t.channel in f):
                 return True
@@ -563,6 +574,7 @@ def candidate_terms(
     k_max: int | None = None,
     vibration_f_hz: float | None = None,
     freed: dict[str, set | str] | None = None,
+    conditions: frozenset[str] = frozenset(),
 ) -> list[Term]:
     """Return the registry's candidates of a spindle scan.
 
@@ -575,7 +587,37 @@ def candidate_terms(
         "vibration_line": vibration_f_hz is not None,
         "cte": bool(data.cte_per_k),
     }
-    return registry_terms(SCAN_KIND, data.channels, have=have, k_max=k_max, freed=freed)
+    return registry_terms(
+        SCAN_KIND, data.channels, have=have, k_max=k_max, freed=freed, conditions=conditions
+    )
+
+
+#: two values are "the same" (one speed, one radius) when their spread is below this share of their mean
+SAME_WITHIN = 0.05
+
+
+def relative_spread(x: np.ndarray) -> float:
+    """Spread (peak to peak) of values relative to their mean magnitude (0 for one value)."""
+    x = np.asarray(x, dtype=float)
+    m = float(np.mean(np.abs(x))) if x.size else 0.0
+    return float(np.ptp(x) / m) if x.size and m > 0 else 0.0
+
+
+def signed_speeds(data: TriData) -> np.ndarray:
+    """Signed angular speed of a scan at its samples (direction d(turned)/dt) [rad/s]."""
+    t = data.t_s
+    if t.size < 2:
+        return np.array([data.direction * data.omega_rad_s])
+    return data.direction * np.gradient(data.turned_rad(t), t)
+
+
+def speeds_differ(data: TriData) -> bool:
+    """Return True when the scan turns at more than one speed (spread above :data:`SAME_WITHIN`).
+
+    Then a channel's delay is no longer a change of its beam direction beta (the registry's
+    ``absorbed_unless``): a freed beta does not hide it.
+    """
+    return relative_spread(signed_speeds(data)) > SAME_WITHIN
 
 
 def term_parameters(
