@@ -25,8 +25,9 @@ from borescan.discrepancy.evidence import output_stage_evidence
 from borescan.discrepancy.fitting import FitResult
 from borescan.discrepancy.judge import Rejection, explanation, judge, plausible_ranges
 from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays
-from borescan.discrepancy.search import Candidate, Fitter, Search, rms, search_candidates
+from borescan.discrepancy.search import Candidate, Fitter, Search, jacobian_columns, rms, search_candidates
 from borescan.discrepancy.tri import Term, TriData, TriModel, tri_data_from_arrays
+from borescan.effects import EFFECTS
 
 __all__ = [
     "Examination",
@@ -282,8 +283,16 @@ def decide(model, base: FitResult, found: Search, sigma_mm: np.ndarray, c: dict)
     """
     T = float(c["threshold"])
     ranges = plausible_ranges(c.get("plausible"))
-    singles, rej1 = judge(model, found.singles, sigma_mm, ranges, base.bic)
-    pairs, rej2 = judge(model, found.pairs, sigma_mm, ranges, base.bic)
+    sig_ref = float(np.sqrt(np.mean(sigma_mm**2))) or 1e-6
+    cache: list[np.ndarray] = []
+
+    def absorbable() -> np.ndarray:  # the base Jacobian, computed once and only when a rule needs it
+        if not cache:
+            cache.append(jacobian_columns(model, base.values(), [], list(base.names), model.base_scales()))
+        return cache[0]
+
+    singles, rej1 = judge(model, found.singles, absorbable, sig_ref, ranges, base.bic, T)
+    pairs, rej2 = judge(model, found.pairs, absorbable, sig_ref, ranges, base.bic, T)
     rejected = sorted(rej1 + rej2, key=lambda z: -z.delta_bic)
     level: list[Candidate] = []
     if singles and base.bic - singles[0].fit.bic > T:
@@ -313,8 +322,34 @@ def decide(model, base: FitResult, found: Search, sigma_mm: np.ndarray, c: dict)
     )
 
 
-def _statement(verdict: str, named: list[dict], explained: str, remaining: dict | None, rejected) -> str:
+def not_testable(model) -> list[str]:
+    """Return the artifact's effects (registry scope ``artifact``) a scan of the model's kind cannot show.
+
+    E.g. a static three-sensor set cannot show the bore's form (``bore_lobing``, ``axis_tilt``): a gap such
+    an effect leaves is named as its look-alikes, so the finding says which were not tried.
+    """
+    return [
+        name
+        for name, spec in EFFECTS.items()
+        if spec.scope == "artifact"
+        and model.device_type in spec.device_types
+        and model.scan_kind not in spec.candidate
+    ]
+
+
+def _statement(
+    verdict: str, named: list[dict], explained: str, remaining: dict | None, rejected, untried: list[str]
+) -> str:
     """Return the finding in one sentence a person can act on."""
+    if verdict != "no_missing_effect" and untried:
+        note = f"; a scan of this kind cannot show the artifact's {', '.join(untried)}, which were not tried"
+    else:
+        note = ""
+    return _sentence(verdict, named, explained, remaining, rejected) + note
+
+
+def _sentence(verdict: str, named: list[dict], explained: str, remaining: dict | None, rejected) -> str:
+    """Return what the verdict says, without the note on untried effects."""
     labels = [n["effect"] + (f" on channel {n['channel']}" if n.get("channel") else "") for n in named]
     if verdict == "no_missing_effect":
         return "the residual is at the noise floor: no effect is missing"
@@ -360,7 +395,8 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
         "scan_id": data.scan_id,
         "verdict": verdict,
         "explained": explained,
-        "statement": _statement(verdict, dec.named, explained, remaining, dec.rejected),
+        "statement": _statement(verdict, dec.named, explained, remaining, dec.rejected, not_testable(model)),
+        "not_tried": not_testable(model),
         "remaining": remaining,
         "named": named,
         "rejected": [z.to_dict() for z in dec.rejected[:8]],

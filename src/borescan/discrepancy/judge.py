@@ -21,6 +21,7 @@ remains (:func:`explanation`).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -158,13 +159,14 @@ def _reaches_all(t: Term) -> bool:
     return t.channel == 0 or not EFFECTS[t.effect].per_channel
 
 
-def scope_conflict(model, cand: Candidate, sigma_mm: np.ndarray) -> str | None:
+def scope_conflict(model, cand: Candidate, absorbable: np.ndarray, sig_ref_mm: float) -> str | None:
     """Return why a candidate gives a one-channel pattern to effects that reach every channel, or None.
 
     The signature of the candidate's every-channel terms (bore, spindle, time base, a common value) is the
-    change of the prediction when they are set to zero at the fit, per channel in noise units; it must not
-    sit on one channel (share above :data:`CONFINED_SHARE` of a chi-square above 9, with at least two
-    channels).
+    change of the weighted prediction when they are set to zero at the fit; its part the base model cannot
+    absorb (orthogonal to the columns of ``absorbable``, the base Jacobian) is what the data show of them.
+    That part must not sit on one channel: a share above :data:`CONFINED_SHARE` of a chi-square above 9
+    (noise units, ``sig_ref_mm`` the weighted noise floor) on one channel of two or more is a conflict.
     """
     wide = [t for t in cand.terms if _reaches_all(t)]
     if not wide or len(model.data.channels) < 2:
@@ -176,35 +178,52 @@ def scope_conflict(model, cand: Candidate, sigma_mm: np.ndarray) -> str | None:
             if not n.endswith("f_hz"):
                 off[n] = 0.0
     terms = list(cand.terms)
-    s = model.predict(p, terms) - model.predict(off, terms)
-    e = np.array(
-        [np.sum((s[model.mask[:, j], j] / max(float(sigma_mm[j]), 1e-12)) ** 2) for j in range(s.shape[1])]
-    )
-    total = float(np.nansum(e))
-    if total <= 9.0:
+    s = model.residual(off, terms) - model.residual(p, terms)
+    if absorbable.size and np.all(np.isfinite(absorbable)) and np.all(np.isfinite(s)):
+        s = s - absorbable @ np.linalg.lstsq(absorbable, s, rcond=None)[0]
+    chan = np.nonzero(model.mask)[1]
+    e = np.bincount(chan, weights=(s / max(sig_ref_mm, 1e-12)) ** 2, minlength=len(model.data.channels))
+    total = float(np.sum(e))
+    if not np.isfinite(total) or total <= 9.0:
         return None
-    j = int(np.nanargmax(e))
+    j = int(np.argmax(e))
     if e[j] / total <= CONFINED_SHARE:
         return None
-    ch = model.data.channels[j]
     names = " + ".join(t.key for t in wide)
     return (
-        f"{names} would reach every channel, but the fit puts {e[j] / total:.0%} of its signature on channel "
-        f"{ch} alone: a pattern of one channel belongs to that channel's sensor or beam"
+        f"{names} would reach every channel, but what the data show of it ({e[j] / total:.0%} of its "
+        f"signature) is on channel {model.data.channels[j]} alone: a pattern of one channel belongs to that "
+        "channel's sensor or beam"
     )
 
 
 def judge(
-    model, cands: list[Candidate], sigma_mm: np.ndarray, ranges: dict[str, PlausibleRange], base_bic: float
+    model,
+    cands: list[Candidate],
+    absorbable: Callable[[], np.ndarray],
+    sig_ref_mm: float,
+    ranges: dict[str, PlausibleRange],
+    base_bic: float,
+    threshold: float,
 ) -> tuple[list[Candidate], list[Rejection]]:
-    """Split candidates into those that may be named and the rejected ones (with their sentences)."""
+    """Split candidates into those that may be named and the rejected ones (with their sentences).
+
+    Only candidates that pass the ``threshold`` (Delta BIC against the base) are judged; the others could
+    not be named anyway and are kept for the runner-up. ``absorbable()``: the base model's weighted Jacobian
+    at its fit (what the base absorbs, for :func:`scope_conflict`); ``sig_ref_mm`` the weighted noise floor.
+    """
     keep, out = [], []
     for c in cands:
-        for rule, why in (
-            ("implausible", implausible(model, c, ranges)),
-            ("unphysical", unphysical(c)),
-            ("scope", scope_conflict(model, c, sigma_mm)),
-        ):
+        if base_bic - c.fit.bic <= threshold:
+            keep.append(c)
+            continue
+        rules = (
+            ("implausible", lambda c=c: implausible(model, c, ranges)),
+            ("unphysical", lambda c=c: unphysical(c)),
+            ("scope", lambda c=c: scope_conflict(model, c, absorbable(), sig_ref_mm)),
+        )
+        for rule, check in rules:
+            why = check()
             if why:
                 out.append(Rejection(c.keys, rule, float(base_bic - c.fit.bic), why))
                 break
