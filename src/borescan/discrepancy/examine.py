@@ -38,6 +38,7 @@ __all__ = [
     "against_reference",
     "write_findings",
     "scan_arrays",
+    "model_of",
 ]
 
 #: config key (``discrepancy:`` section of the schema) -> keyword of :func:`examine_model`
@@ -147,8 +148,12 @@ def against_reference(meta: dict, beams=None, layers=None) -> dict:
     return meta
 
 
-def analyse_scan(scan, **cfg) -> Examination:
-    """Examine a ``RawScan`` (any ``borescan-raw/1`` scan): see :func:`examine_scan`."""
+def model_of(scan, **cfg):
+    """Return the model an examination of ``scan`` fits: a spindle, rod or static model.
+
+    ``cfg`` as :func:`examine_scan` takes it (the reference ``beams`` / ``layers``, ``free_beams``,
+    ``device_effects``, ``max_samples``).
+    """
     meta = against_reference(scan.meta, cfg.get("beams"), cfg.get("layers"))  # a calibrated device, if given
     dtype = meta["device"]["type"]
     t_s, channels, vals, pose, spindle = scan_arrays(scan)
@@ -162,15 +167,24 @@ def analyse_scan(scan, **cfg) -> Examination:
             spindle,
             max_samples=int(cfg.get("max_samples", DEFAULTS["max_samples"])),
         )
-        return examine_tri(data, **cfg)
+        return TriModel(
+            data,
+            free_beams=tuple(cfg.get("free_beams", ())),
+            device_effects=tuple(cfg.get("device_effects", ())),
+        )
     if pose is None:
         raise ValueError(f"{meta['scan_id']}: lds.parquet: a {dtype} scan needs the pose column")
     pdata = pose_data_from_arrays(meta["scan_id"], meta, t_s, vals, channels, pose)
     if dtype == "rod":
-        return examine_model(RodModel(pdata), **cfg)
+        return RodModel(pdata)
     if dtype == "tri_lds":
-        return examine_model(StaticModel(pdata), **cfg)
+        return StaticModel(pdata)
     raise ValueError(f"{meta['scan_id']}: scan.json: unknown device type {dtype!r}")
+
+
+def analyse_scan(scan, **cfg) -> Examination:
+    """Examine a ``RawScan`` (any ``borescan-raw/1`` scan): see :func:`examine_scan`."""
+    return examine_model(model_of(scan, **cfg), **cfg)
 
 
 def examine_scan(scan, **cfg) -> dict:
