@@ -218,7 +218,8 @@ def run_one(job: tuple) -> dict:
                 sim, _ = _draw(kind, seed, i, effect_free, scale, False)
                 effects, truth = _truth(sim, kind)
                 z = math.sqrt(_chi2(model_of(clean, **kw, **cfg), [], {}) / sigma**2)
-        row["invisible"] = bool(effects) and z < Z_MIN  # not visible within the plausible range
+        # not visible within the plausible range (quantization and outliers are named by their own tests)
+        row["invisible"] = bool(effects) and effects[0].name not in EVIDENCE and z < Z_MIN
         t0 = time.process_time()
         f = examine_scan(sim, **kw, **cfg)
         cpu = time.process_time() - t0
@@ -297,7 +298,7 @@ def _score(f, named, truth, effects, clean, kw, cfg, sigma, z) -> tuple[bool, di
     """Return the issue's rule (module doc) and each extra's delta chi2 over the truth's own misfit."""
     from borescan.discrepancy.examine import model_of
 
-    if not truth or z * z < 9.0:
+    if not truth or (z * z < 9.0 and not any(e.name in EVIDENCE for e in effects)):
         return f["verdict"] == "no_missing_effect", {}
     if f["verdict"] == "no_missing_effect" or any(t not in named for t in truth):
         return False, {}

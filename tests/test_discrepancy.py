@@ -293,7 +293,7 @@ def test_battery_command_runs(capsys):
     )
     assert cmd.run(args) == 0
     out = capsys.readouterr().out
-    assert "false-alarm rate" in out and "median gap shrink" in out
+    assert "false-alarm rate" in out and "gap after at the noise floor" in out
 
 
 # ---------------------------------------------------------------------------- rod and static sets

@@ -18,6 +18,7 @@ from borescan.discrepancy.judge import plausible_ranges
 from borescan.discrepancy.tri import TriModel, speeds_differ, tri_data_from_arrays
 from borescan.effects import EFFECTS, Effect
 from borescan.simulate import default_tri_scene, simulate_tri_spindle
+from test_discrepancy import _rod_case  # the rod on certified rings of the recovery tests
 
 SCENE = default_tri_scene(sample_rate_hz=240.0)
 #: the scan turns 3 s at 60 rpm, then speeds up to 120 rpm within 0.5 s
@@ -136,3 +137,48 @@ def test_rejection_sentences_of_an_effect_free_scan_are_none():
     assert (f["verdict"], f["named"], f["explained"]) == ("no_missing_effect", [], "fully")
     assert not [r for r in f["rejected"] if r["delta_bic"] > f["threshold_delta_bic"]]
     assert np.isfinite(f["gap_after_over_floor"])
+
+
+def _entry(effect, channel, **par):
+    unc = {f"u_{k}": 0.003 if k == "b_mm" else 0.1 * abs(v) for k, v in par.items()}
+    return {"effect": effect, "channel": channel, "parameters": par, "uncertainties": unc}
+
+
+@pytest.mark.parametrize(
+    "b_mm,dropped",
+    [(0.012, "beam_offset"), (-0.012, "beam_tilt"), (0.004, None)],
+    ids=["long", "short", "unsigned"],
+)
+def test_a_rod_class_keeps_only_the_members_whose_sign_fits(b_mm, dropped):
+    """A beam offset only shortens a reading, a beam tilt only lengthens it; a shift within 2 u has no sign."""
+    from borescan.discrepancy.classes import rod_classes
+
+    named = [
+        _entry("sensor_offset", 2, b_mm=b_mm),
+        _entry("sensor_gain", 2, g=0.003),
+        _entry("beam_tilt", 2, gamma_rad=0.02),
+        _entry("beam_offset", 2, d_mm=1.2),
+        _entry("sensor_nonlinearity", 2, a_mm=0.01),
+    ]
+    left, classes = rod_classes(named)
+    (k,) = classes
+    assert k.channel == 2 and k.shift_um == pytest.approx(1e3 * b_mm) and k.u_shift_um == pytest.approx(3.0)
+    want = {"sensor_offset", "sensor_gain", "beam_tilt", "beam_offset"} - {dropped}
+    assert set(k.members) == want and k.dropped == ([dropped] if dropped else [])
+    assert {n["effect"] for n in left} == want | {"sensor_nonlinearity"}
+    assert k.nonlinearity and "sensor_nonlinearity" not in k.members
+    way = "long" if b_mm > 0 else "short"
+    assert k.sentence.startswith(f"layer 2 reads {abs(1e3 * b_mm):.3g} +- 3 um {way}: offset-like")
+    assert "recalibrate l0 of layer 2" in k.sentence
+
+
+def test_a_rod_verdict_says_what_the_data_fix_and_what_to_do():
+    """A 12 um offset of one layer of a rod on certified rings: the class, the fixed shift, the advice."""
+    f = examine_scan(_rod_case([Effect("sensor_offset", {"channel": 2, "b_mm": 0.012})]))
+    assert f["verdict"] == "ambiguous" and f["classes"]
+    layer2 = [k for k in f["classes"] if k["channel"] == 2]
+    assert layer2 and {"sensor_offset", "beam_tilt"} <= set(layer2[0]["members"])
+    assert "beam_offset" not in layer2[0]["members"]  # a beam offset cannot lengthen a reading
+    k = layer2[0]
+    assert abs(k["reads_long_um"] - 12.0) < 3 * k["u_reads_long_um"]
+    assert "layer 2 reads" in f["statement"] and "recalibrate l0 of layer 2" in f["statement"]

@@ -21,6 +21,7 @@ import numpy as np
 
 from borescan.atomic import atomic_write_text
 from borescan.config import schema_defaults
+from borescan.discrepancy.classes import rod_classes
 from borescan.discrepancy.evidence import output_stage_evidence
 from borescan.discrepancy.fitting import FitResult
 from borescan.discrepancy.judge import Rejection, explanation, judge, plausible_ranges
@@ -188,7 +189,7 @@ def analyse_scan(scan, **cfg) -> Examination:
 
 
 def examine_scan(scan, **cfg) -> dict:
-    """Find where model and data disagree, name the missing effect and show the gap shrink.
+    """Find where model and data disagree, name the missing effect and show the gap it leaves.
 
     Parameters
     ----------
@@ -362,6 +363,28 @@ def _statement(
     return _sentence(verdict, named, explained, remaining, rejected) + note
 
 
+def _class_statement(classes, named: list[dict], explained: str, remaining: dict | None) -> str:
+    """Return a rod verdict's sentence: each layer's class (what the data fix, the advice), then the rest."""
+    inside = {(m, k.channel) for k in classes for m in k.members}
+    rest = [
+        n["effect"] + (f" on layer {n['channel']}" if n.get("channel") else "")
+        for n in named
+        if (n["effect"], n.get("channel")) not in inside
+        and not (n["effect"] == "sensor_nonlinearity" and any(k.channel == n.get("channel") for k in classes))
+    ]
+    out = classes[0].sentence
+    if len(classes) > 1:  # the classes are alternatives: each explains the scan as well as the others
+        out = "one layer reads off and this scan cannot tell which: " + "; or ".join(
+            k.sentence for k in classes
+        )
+    if rest:
+        out += "; or, fitting as well: " + ", ".join(rest)
+    if explained == "partly" and remaining:
+        ratio = remaining["gap_after_over_floor"]
+        out += f"; only partly explained: the gap after is {ratio:.3g}x the noise floor"
+    return out
+
+
 def _sentence(verdict: str, named: list[dict], explained: str, remaining: dict | None, rejected) -> str:
     """Return what the verdict says, without the note on untried effects."""
     labels = [n["effect"] + (f" on channel {n['channel']}" if n.get("channel") else "") for n in named]
@@ -387,7 +410,8 @@ def _sentence(verdict: str, named: list[dict], explained: str, remaining: dict |
 def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision, r_after) -> dict:
     """Return the findings.json content of one examination (``outputs.md`` plus the workflow's details)."""
     data = model.data
-    named = list(out.named) + dec.named
+    dec_named, classes = rod_classes(dec.named) if model.device_type == "rod" else (dec.named, [])
+    named = list(out.named) + dec_named
     verdict = dec.verdict
     if out.named and verdict == "no_missing_effect":
         verdict = "missing_effect"
@@ -409,7 +433,10 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
         "scan_id": data.scan_id,
         "verdict": verdict,
         "explained": explained,
-        "statement": _statement(verdict, dec.named, explained, remaining, dec.rejected, not_testable(model)),
+        "statement": _statement(verdict, dec_named, explained, remaining, dec.rejected, not_testable(model))
+        if not classes
+        else _class_statement(classes, dec_named, explained, remaining),
+        "classes": [k.to_dict() for k in classes],
         "not_tried": not_testable(model),
         "remaining": remaining,
         "named": named,
