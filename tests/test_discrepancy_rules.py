@@ -150,7 +150,7 @@ def _entry(effect, channel, **par):
     ids=["long", "short", "unsigned"],
 )
 def test_a_rod_class_keeps_only_the_members_whose_sign_fits(b_mm, dropped):
-    """A beam offset only shortens a reading, a beam tilt only lengthens it; a shift within 2 u has no sign."""
+    """A beam offset only shortens a reading, a beam tilt only lengthens it; a shift within 2 u: no sign."""
     from borescan.discrepancy.classes import rod_classes
 
     named = [
