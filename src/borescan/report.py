@@ -70,6 +70,7 @@ from borescan import catalog
 from borescan.atomic import atomic_write_bytes, atomic_write_text
 from borescan.calibrations import calibration_roles, failed_calibration_ids, order_calibrations
 from borescan.decision import CANNOT_DECIDE, CONFORMS, DOES_NOT_CONFORM, split_verdict
+from borescan.config import schema_default
 from borescan.effects import EFFECTS
 from borescan.tables import TABLES
 
@@ -1640,7 +1641,9 @@ class _Builder:
                     r["effect"], r.get("parameters"), uncertainties.get((r["effect"], r.get("channel")), {})
                 )
                 effects.append(f"<b>{_e(r['effect'])}</b>{_e(where)}" + (f": {pars}" if pars else ""))
-            note = _verdict_note(verdict, [r["effect"] for r in recs if r.get("effect")])
+            note = _e(first.get("statement") or "") or _verdict_note(
+                verdict, [r["effect"] for r in recs if r.get("effect")]
+            )
             rows.append(
                 [
                     _e(sid),
@@ -1653,8 +1656,18 @@ class _Builder:
                     links,
                 ]
             )
+            # flagged for a person only where the gap before stands above the noise floor (floor_ratio)
+            visible = (first.get("gap_before_mm") or 0.0) > _FLOOR_RATIO * (
+                first.get("noise_floor_mm") or 0.0
+            )
             classes.append(
-                "fail" if verdict == "missing_effect" else "warn" if verdict == "ambiguous" else ""
+                ""
+                if not visible
+                else "fail"
+                if verdict == "missing_effect"
+                else "warn"
+                if verdict == "ambiguous"
+                else ""
             )
         out.append(
             _table(
@@ -2302,6 +2315,10 @@ def _unit_of(name: str) -> str:
         if name.endswith(suffix):
             return unit
     return "-"
+
+
+#: a gap before within this multiple of the noise floor is at the floor (schema discrepancy.floor_ratio)
+_FLOOR_RATIO = float(schema_default("discrepancy", "floor_ratio"))
 
 
 def _verdict_note(verdict: str, effects: list[str]) -> str:
