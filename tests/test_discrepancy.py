@@ -18,9 +18,7 @@ from borescan.discrepancy import analyse_scan, examine_scan, examine_table2, plo
 from borescan.discrepancy.battery import named_label, score_case
 from borescan.discrepancy.fitting import noise_floor_mm
 from borescan.discrepancy.table2 import TABLE2_NUMBERS
-from borescan.discrepancy.tri import fast_readings
 from borescan.effects import Effect
-from borescan.geometry import Bore, tri_spindle_readings
 from borescan.simulate import YANG_BEAMS, default_tri_scene, simulate_tri_spindle
 
 NOISE_MM = 0.002
@@ -244,17 +242,6 @@ def test_raw_scan_written_and_read_back(tmp_path):
     path = write_simulated(sim, tmp_path / "raw", tmp_path / "truth")
     f = examine_scan(read_scan(path))
     assert [named_label(n) for n in f["named"]] == ["sensor_offset@2"]
-
-
-def test_fast_readings_equal_exact_geometry():
-    phi = np.linspace(0.0, 20.0, 500)
-    S = np.array([262.955, -275.502])
-    for bore in (
-        Bore((262.833, -273.182), 137.5),
-        Bore((262.833, -273.182), 137.5, 0.02, 0.3, ((3, 0.01, 0.2), (2, 0.005, 1.0))),
-    ):
-        exact = tri_spindle_readings(phi, S, YANG_BEAMS, bore)
-        assert np.max(np.abs(fast_readings(phi, S, YANG_BEAMS, bore) - exact)) < 1e-10
 
 
 def test_noise_floor_ignores_smooth_misfit():

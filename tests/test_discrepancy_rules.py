@@ -15,7 +15,8 @@ from borescan.discrepancy import examine_scan
 from borescan.discrepancy.battery import named_label
 from borescan.discrepancy.examine import scan_arrays
 from borescan.discrepancy.judge import plausible_ranges
-from borescan.discrepancy.tri import TriModel, speeds_differ, tri_data_from_arrays
+from borescan.discrepancy.tri import TriModel, tri_data_from_arrays
+from borescan.discrepancy.tri_signals import speeds_differ
 from borescan.effects import EFFECTS, Effect
 from borescan.simulate import default_tri_scene, simulate_tri_spindle
 from test_discrepancy import _rod_case  # the rod on certified rings of the recovery tests

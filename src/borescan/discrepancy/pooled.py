@@ -74,17 +74,19 @@ from borescan.discrepancy.examine import (
 )
 from borescan.discrepancy.search import lstsq
 from borescan.discrepancy.fitting import FitResult, dead_zone, fit_least_squares, noise_floor_mm, spike_mask
-from borescan.discrepancy.tri import (
+from borescan.discrepancy.tri_signals import (
     SAME_WITHIN,
+    relative_spread,
+    rotation_eps,
+    signed_speeds,
+    tilt_start,
+)
+from borescan.discrepancy.tri import (
     SCAN_KIND,
     Term,
     TriData,
     TriModel,
-    _rotation_eps,
-    _tilt_start,
     registry_terms,
-    relative_spread,
-    signed_speeds,
     term_parameters,
     term_values,
     tri_data_from_arrays,
@@ -445,7 +447,7 @@ class PooledModel:
         for k, (m, sid) in enumerate(zip(self.models, self.scan_ids)):
             tries = [0.0]
             if self.commanded[k]:
-                e0 = _rotation_eps(m)
+                e0 = rotation_eps(m)
                 if e0 is not None and abs(e0) > 2e-3:
                     tries.append(float(e0))
             best = None
@@ -826,7 +828,7 @@ class PooledModel:
         lob = {"bore_lobing[k=2].A": start[f"{t.key}.A"], "bore_lobing[k=2].B": start[f"{t.key}.B"]}
         tilt = PooledTerm("axis_tilt", None, None, t.group, t.turns)
         st = {n: v for n, v in start.items() if not n.startswith(t.key + ".")}
-        for n, v in _tilt_start(lob, SimpleNamespace(radius_mm=R)).items():
+        for n, v in tilt_start(lob, SimpleNamespace(radius_mm=R)).items():
             st[f"{tilt.key}.{n.split('.', 1)[1]}"] = v
         for sid in t.turns:  # the ellipse turns with the k = 2 form
             st[f"{tilt.key}.turn@{sid}"] = start.get(f"{t.key}.turn@{sid}", 0.0)
