@@ -19,12 +19,14 @@ alarms on effect-free scans, the share of claims whose gap after is at the noise
 ``floor_ratio``), candidates outside their plausible range, a table per effect and per z band, and the
 examination's CPU-time percentiles (one core per scan).
 
-Run: ``python -m bench discrepancy_contract --n 300 --workers 2`` (``--verbose`` lists every wrong scan).
+Run: ``python -m bench discrepancy_contract --n 300 --workers 2`` (``--verbose`` lists every wrong scan;
+``--out rows.jsonl`` keeps each scan's row as it ends, ``--summarise rows.jsonl`` prints their table).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import time
 import traceback
@@ -396,13 +398,27 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--p-free", type=float, default=0.2)
     ap.add_argument("--z-max", type=float, default=300.0)
     ap.add_argument("--verbose", action="store_true", help="print every wrong scan")
+    ap.add_argument("--out", default=None, help="write each scan's row to this JSON-lines file as it ends")
+    ap.add_argument(
+        "--summarise", default=None, metavar="JSONL", help="print the table of a rows file and stop"
+    )
     a, _ = ap.parse_known_args(argv)  # `python -m bench discrepancy_contract` passes its own names
+    if a.summarise:
+        with open(a.summarise) as fh:
+            rows = [json.loads(line) for line in fh if line.strip()]
+        print(f"{a.summarise}: {len(rows)} scans")
+        print(summarise(rows))
+        return
     jobs = _jobs(a.n, a.seed, a.p_free, a.z_max)
+    out = open(a.out, "w") if a.out else None  # noqa: SIM115 (held open while the scans run)
     t0 = time.perf_counter()
     rows = []
     with ProcessPoolExecutor(a.workers) as ex:
         for r in ex.map(run_one, jobs, chunksize=1):
             rows.append(r)
+            if out is not None:
+                out.write(json.dumps({k: v for k, v in r.items() if k != "tb"}, default=float) + "\n")
+                out.flush()
             if a.verbose and not r["correct"]:
                 print(
                     f"  WRONG {r['kind']} {r['i']} z {r.get('z', 0):.0f}: truth {r['truth']} -> "
@@ -410,6 +426,8 @@ def main(argv: list[str] | None = None) -> None:
                     f"{r.get('explained')} {r['named']} {r.get('extras_chi2') or ''} {r.get('error', '')}",
                     flush=True,
                 )
+    if out is not None:
+        out.close()
     print(f"seed {a.seed}, {a.n} scans, {time.perf_counter() - t0:.0f} s wall on {a.workers} workers")
     print(summarise(rows))
 

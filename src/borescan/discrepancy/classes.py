@@ -9,8 +9,9 @@ but incomplete. The verdict also says, per layer:
 - the class: ``offset-like``, absorbed by a calibration of the layer's l0;
 - only members whose sign fits: a beam offset only shortens a reading (-d^2 / (2 r)), a beam tilt only
   lengthens it (1 / cos(gamma)); a gain either way;
-- ``sensor_nonlinearity`` apart: its bow has a second harmonic that some scans resolve, so it is listed
-  beside the class, not in it;
+- ``sensor_nonlinearity``: its bow has a second harmonic that some scans resolve; where it does, the bow
+  is named on its own (it is then not tied with the class); where it fits as well as the class, it is a
+  look-alike the class lists (``nonlinearity_also_fits``) and is not named apart;
 - the advice: recalibrate l0 of the layer on a certified ring gauge.
 """
 
@@ -83,8 +84,8 @@ def _shift(entries: list[dict]) -> tuple[float | None, float | None]:
 def rod_classes(named: list[dict]) -> tuple[list[dict], list[LayerClass]]:
     """Group a rod verdict's named entries into per-layer offset-like classes; drop wrong-sign members.
 
-    Returns the named entries left (a member whose sign does not fit the layer's fixed shift removed) and
-    the classes of layers with at least two offset-like members.
+    Returns the named entries left (a member whose sign does not fit the layer's fixed shift removed, and a
+    bow tied with its layer's class) and the classes of layers with at least two offset-like members.
     """
     by_layer: dict[int, list[dict]] = {}
     for n in named:
@@ -108,4 +109,9 @@ def rod_classes(named: list[dict]) -> tuple[list[dict], list[LayerClass]]:
             continue
         nonlin = any(n["effect"] == "sensor_nonlinearity" and n.get("channel") == ch for n in named)
         classes.append(LayerClass(ch, shift, u, members, dropped, nonlin))
+    for k in classes:  # a bow tied with the class is one of its look-alikes: listed in it, not named apart
+        if k.nonlinearity:
+            drop |= {
+                id(n) for n in named if n["effect"] == "sensor_nonlinearity" and n.get("channel") == k.channel
+            }
     return [n for n in named if id(n) not in drop], classes
