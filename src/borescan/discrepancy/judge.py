@@ -113,11 +113,17 @@ def _where(t: Term) -> str:
 
 
 def _range_of(model, t: Term) -> float | None:
-    rng = np.atleast_1d(getattr(model.data, "range_mm", np.array([])))
-    chans = list(model.data.channels)
-    if t.channel in chans and rng.size == len(chans):
-        return float(rng[chans.index(t.channel)])
-    return float(np.min(rng)) if rng.size else None
+    """Return the sensor range [mm] of the term's channel (the smallest for an every-channel term), or None.
+
+    Read from the model's data, else from its scans' (a pooled model); None when no range is known.
+    """
+    datas = [model.data] + [getattr(k, "data", None) for k in getattr(model, "scans", ())]
+    for d in datas:
+        rng = np.atleast_1d(getattr(d, "range_mm", np.array([])))
+        chans = list(getattr(d, "channels", ()))
+        if rng.size and rng.size == len(chans):
+            return float(rng[chans.index(t.channel)]) if t.channel in chans else float(np.min(rng))
+    return None
 
 
 def implausible(model, cand: Candidate, ranges: dict[str, PlausibleRange]) -> str | None:
@@ -131,7 +137,10 @@ def implausible(model, cand: Candidate, ranges: dict[str, PlausibleRange]) -> st
         if pr.parameter not in par:
             continue
         v, uv = float(par[pr.parameter]), float(unc.get(pr.parameter, math.nan))
-        lo, hi = pr.bounds(_range_of(model, t))
+        range_mm = _range_of(model, t)
+        if pr.per_range and range_mm is None:
+            continue  # a limit in sensor ranges with no range known: not judged
+        lo, hi = pr.bounds(range_mm)
         if not lo <= v <= hi:
             unit = EFFECTS[t.effect].params.get(pr.parameter, "")
             return (
