@@ -80,7 +80,7 @@ import sys
 from pathlib import Path
 from borescan import demo, rawio, scenarios, simulate
 from borescan.stages import calibrate, discrepancy, measure, signal  # noqa: F401 (their imports)
-from borescan.discrepancy.examine import outlier_threshold_sigma
+from borescan.discrepancy.evidence import outlier_threshold_sigma
 from borescan.uncertainty import coverage_factor, linear_coverage_interval
 raw, truth = Path({str(tmp_path)!r}) / "raw", Path({str(tmp_path)!r}) / "truth"
 for s in demo.demo_scans()[:11]:

@@ -180,7 +180,7 @@ _T = [
         "findings",
         _cols(
             "scan_id:text night:date! verdict:text effect:text channel:channel parameters:text "
-            "gap_before_mm:float gap_after_mm:float noise_floor_mm:float uncertainties:text"
+            "gap_before_mm:float gap_after_mm:float noise_floor_mm:float uncertainties:text statement:text"
         ),
         ("scan_id", "effect", "channel"),
     ),

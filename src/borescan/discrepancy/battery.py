@@ -260,23 +260,21 @@ class BatteryResult:
         return float(np.mean([r["verdict"] != "no_missing_effect" for r in free])) if free else float("nan")
 
     @property
-    def median_shrink(self) -> float:
-        """Median ratio of the gap before to the gap after, over scans with an effect."""
-        s = [r["gap_before_mm"] / r["gap_after_mm"] for r in self.rows if r["truth"] and r["gap_after_mm"]]
-        return float(np.median(s)) if s else float("nan")
-
-    @property
-    def median_shrink_ceiling(self) -> float:
-        """Median gap_before / noise floor: the largest shrink a perfect model could show."""
-        s = [
-            r["gap_before_mm"] / r["noise_floor_mm"] for r in self.rows if r["truth"] and r["noise_floor_mm"]
-        ]
-        return float(np.median(s)) if s else float("nan")
-
-    @property
     def share_at_floor(self) -> float:
-        """Share of effect scans with gap_after <= 1.5 noise floor."""
-        s = [r["gap_after_mm"] <= 1.5 * r["noise_floor_mm"] for r in self.rows if r["truth"]]
+        """Share of the scans with an effect claimed whose gap after is at the noise floor.
+
+        At the floor: within the schema's ``discrepancy.floor_ratio`` (1.10) of it. This replaces the old
+        "gap shrink" (gap before / gap after), which is capped by gap before / floor, about 1 for a
+        just-visible effect, and so said little.
+        """
+        from borescan.config import schema_default
+
+        ratio = float(schema_default("discrepancy", "floor_ratio"))
+        s = [
+            r["gap_after_mm"] <= ratio * r["noise_floor_mm"]
+            for r in self.rows
+            if r["verdict"] != "no_missing_effect"
+        ]
         return float(np.mean(s)) if s else float("nan")
 
     def confusion(self) -> dict[str, Counter]:

@@ -67,20 +67,25 @@ import numpy as np
 from borescan.discrepancy.examine import (
     Examination,
     _clean,
-    _lstsq,
     _named_entry,
     against_reference,
     examine_model,
     scan_arrays,
 )
+from borescan.discrepancy.search import lstsq
 from borescan.discrepancy.fitting import FitResult, dead_zone, fit_least_squares, noise_floor_mm, spike_mask
+from borescan.discrepancy.tri_signals import (
+    SAME_WITHIN,
+    relative_spread,
+    rotation_eps,
+    signed_speeds,
+    tilt_start,
+)
 from borescan.discrepancy.tri import (
     SCAN_KIND,
     Term,
     TriData,
     TriModel,
-    _rotation_eps,
-    _tilt_start,
     registry_terms,
     term_parameters,
     term_values,
@@ -107,8 +112,6 @@ __all__ = [
 
 #: Share of the total chi-square decrease that the scans named as carrying the evidence hold.
 CARRIER_SHARE = 0.9
-#: Relative spread below which signed speeds (or gauge radii) count as one.
-SAME_WITHIN = 0.05
 #: Typical magnitudes of the pooled base parameters (finite-difference steps, starts).
 BASE_SCALE = {
     "cx": 1e-2,
@@ -226,16 +229,9 @@ class Condition:
     separated_by: str
 
 
-def _spread(x: np.ndarray) -> float:
-    """Spread of values relative to their mean magnitude (0 for one value)."""
-    x = np.asarray(x, dtype=float)
-    m = float(np.mean(np.abs(x))) if x.size else 0.0
-    return float(np.ptp(x) / m) if x.size and m > 0 else 0.0
-
-
 CONDITIONS: dict[str, Condition] = {
     "speeds_differ": Condition(
-        holds=lambda m, ks: _spread(np.concatenate([m.signed_speeds(k) for k in ks])) > SAME_WITHIN,
+        holds=lambda m, ks: relative_spread(np.concatenate([m.signed_speeds(k) for k in ks])) > SAME_WITHIN,
         design=lambda m, ks: (
             "signed speeds "
             + ", ".join(f"{m.scan_ids[k]} {np.median(m.signed_speeds(k)):+.3g}" for k in ks)
@@ -244,7 +240,7 @@ CONDITIONS: dict[str, Condition] = {
         separated_by="a scan at another speed (or turning the other way)",
     ),
     "radii_differ": Condition(
-        holds=lambda m, ks: _spread(np.array([m.scans[k].data.radius_mm for k in ks])) > SAME_WITHIN,
+        holds=lambda m, ks: relative_spread(np.array([m.scans[k].data.radius_mm for k in ks])) > SAME_WITHIN,
         design=lambda m, ks: (
             "gauge radii " + ", ".join(sorted({f"{m.scans[k].data.radius_mm:.3f}" for k in ks})) + " mm"
         ),
@@ -451,7 +447,7 @@ class PooledModel:
         for k, (m, sid) in enumerate(zip(self.models, self.scan_ids)):
             tries = [0.0]
             if self.commanded[k]:
-                e0 = _rotation_eps(m)
+                e0 = rotation_eps(m)
                 if e0 is not None and abs(e0) > 2e-3:
                     tries.append(float(e0))
             best = None
@@ -559,12 +555,7 @@ class PooledModel:
 
     def signed_speeds(self, k: int) -> np.ndarray:
         """Signed angular speed of scan ``k`` at its samples (direction d(turned)/dt) [rad/s]."""
-        d = self.scans[k].data
-        t = d.t_s
-        if t.size < 2:
-            return np.array([d.direction * d.omega_rad_s])
-        x = d.turned_rad(t)
-        return d.direction * np.gradient(x, t)
+        return signed_speeds(self.scans[k].data)
 
     # ------------------------------------------------------------------ forward
     def _scan_params(self, k: int, p: dict[str, float], terms: list[Term]) -> tuple[dict, list[Term]]:
@@ -837,7 +828,7 @@ class PooledModel:
         lob = {"bore_lobing[k=2].A": start[f"{t.key}.A"], "bore_lobing[k=2].B": start[f"{t.key}.B"]}
         tilt = PooledTerm("axis_tilt", None, None, t.group, t.turns)
         st = {n: v for n, v in start.items() if not n.startswith(t.key + ".")}
-        for n, v in _tilt_start(lob, SimpleNamespace(radius_mm=R)).items():
+        for n, v in tilt_start(lob, SimpleNamespace(radius_mm=R)).items():
             st[f"{tilt.key}.{n.split('.', 1)[1]}"] = v
         for sid in t.turns:  # the ellipse turns with the k = 2 form
             st[f"{tilt.key}.turn@{sid}"] = start.get(f"{t.key}.turn@{sid}", 0.0)
@@ -898,7 +889,7 @@ class PooledModel:
                 qq[n] += BASE_SCALE[n]
                 cols.append(((self.models[k].predict(qq, own) - f0) / BASE_SCALE[n] * w)[ok])
             J = np.stack(cols, axis=1)
-            coef = _lstsq(J, r0)
+            coef = lstsq(J, r0)
             if coef is None:
                 return None, 0.0
             res = r0 - J @ coef

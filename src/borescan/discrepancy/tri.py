@@ -25,16 +25,15 @@ the forward model the digital twin uses.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from borescan.discrepancy.fitting import block_indices, dead_zone, leading_block, noise_floor_mm, spike_mask
+from borescan.discrepancy.fitting import block_indices, dead_zone, noise_floor_mm, spike_mask
+from borescan.discrepancy.tri_signals import localise, rotation_eps, speeds_differ, tilt_start, vibration_peak
 from borescan.config import schema_default
 from borescan.effects import EFFECTS, Effect, calibration_absorbers, sort_effects
-from borescan.geometry import Beams, Bore, tri_spindle_readings
+from borescan.geometry import Beams, Bore
 from borescan.kinematics import AngleModel, angle_model_from_arrays
 from borescan.physics.tri import (
     GEOMETRY_STAGES,
@@ -261,10 +260,6 @@ def term_values(term: Term, effect: Effect) -> dict[str, float]:
     return {f"{term.key}.{n}": v for n, v in effect.spec.internal(effect.params).items()}
 
 
-#: The ray-to-bore readings (one implementation: :func:`borescan.geometry.tri_spindle_readings`).
-fast_readings = tri_spindle_readings
-
-
 class TriModel:
     """Forward model of a spindle scan: base geometry plus any set of :class:`Term`.
 
@@ -433,11 +428,11 @@ class TriModel:
 
     def localise(self, r: np.ndarray, sigma: np.ndarray) -> dict:
         """Return where in the scan the residuals ``r`` concentrate."""
-        return _localise(self, r, sigma)
+        return localise(self, r, sigma)
 
     def vibration_f(self, r: np.ndarray) -> float | None:
         """Return the frequency [Hz] of the residuals' vibration peak, or None."""
-        return _vibration_peak(self, r)[0]
+        return vibration_peak(self, r)[0]
 
     def candidate_terms(self, *, k_max: int | None = None, vibration_f_hz: float | None = None) -> list[Term]:
         """Return every applicable term, less those a freed base parameter absorbs.
@@ -450,9 +445,12 @@ class TriModel:
         if self.data.radius_free:  # a part's radius is the measurand: it absorbs what every channel shares
             freed["R"] = "shared"
         keys = {t.key for t in self.device_terms}
+        conditions = frozenset({"speeds_differ"} if speeds_differ(self.data) else ())
         return [
             t
-            for t in candidate_terms(self.data, k_max=k_max, vibration_f_hz=vibration_f_hz, freed=freed)
+            for t in candidate_terms(
+                self.data, k_max=k_max, vibration_f_hz=vibration_f_hz, freed=freed, conditions=conditions
+            )
             if t.key not in keys
         ]
 
@@ -470,9 +468,9 @@ class TriModel:
             and lob is not None
             and ("*" in keys or "bore_lobing[k=2]" in keys)
         ):
-            out.append((0.0, Term("axis_tilt"), _tilt_start(lob[2], self.data)))
+            out.append((0.0, Term("axis_tilt"), tilt_start(lob[2], self.data)))
         if t1 is None and not self.data.encoder:
-            eps0 = _rotation_eps(self)
+            eps0 = rotation_eps(self)
             if eps0 is not None and abs(eps0) > 2e-3:
                 C0 = self.initial_center(eps0)
                 st = {
@@ -514,6 +512,7 @@ def registry_terms(
     have: dict[str, bool],
     k_max: int | None = None,
     freed: dict[str, set | str] | None = None,
+    conditions: frozenset[str] = frozenset(),
 ) -> list[Term]:
     """Return the registry's candidate terms for a scan of ``scan_kind``.
 
@@ -528,7 +527,9 @@ def registry_terms(
     channels whose own copy of it is free (a per-channel term is absorbed when its channel is in
     the set, a common term when the set is not empty), or to ``"shared"`` for one parameter of
     every channel (absorbs only the common terms: a bore radius absorbs a common offset, not one
-    channel's). ``k_max`` None: the schema's ``discrepancy.max_harmonic``.
+    channel's), unless the scan meets the registry's ``absorbed_unless[scan_kind]`` condition for that
+    parameter (``conditions``, e.g. ``"speeds_differ"``: a delay is a change of beta only at one speed).
+    ``k_max`` None: the schema's ``discrepancy.max_harmonic``.
     """
     freed = {k: v for k, v in (freed or {}).items() if v}
     if k_max is None:
@@ -546,9 +547,10 @@ def registry_terms(
 
     def absorbed(t: Term) -> bool:
         common = t.channel in (0, None)
+        unless = EFFECTS[t.effect].absorbed_unless.get(scan_kind, {})
         for b in EFFECTS[t.effect].absorbers(scan_kind):
             f = freed.get(b)
-            if f is None:
+            if f is None or unless.get(b) in conditions:
                 continue
             if common or (f != "shared" and t.channel in f):
                 return True
@@ -563,6 +565,7 @@ def candidate_terms(
     k_max: int | None = None,
     vibration_f_hz: float | None = None,
     freed: dict[str, set | str] | None = None,
+    conditions: frozenset[str] = frozenset(),
 ) -> list[Term]:
     """Return the registry's candidates of a spindle scan.
 
@@ -575,7 +578,9 @@ def candidate_terms(
         "vibration_line": vibration_f_hz is not None,
         "cte": bool(data.cte_per_k),
     }
-    return registry_terms(SCAN_KIND, data.channels, have=have, k_max=k_max, freed=freed)
+    return registry_terms(
+        SCAN_KIND, data.channels, have=have, k_max=k_max, freed=freed, conditions=conditions
+    )
 
 
 def term_parameters(
@@ -592,124 +597,3 @@ def term_parameters(
     xi = {q.name: x[f"{term.key}.{q.name}"] for q in spec.fit}
     ui = {q.name: u.get(f"{term.key}.{q.name}", float("nan")) for q in spec.fit}
     return spec.spec_params(xi, ui, term.k)
-
-
-def _vibration_peak(model: TriModel, r: np.ndarray) -> tuple[float | None, float]:
-    """Frequency [Hz] of the strongest residual line that is not a whole multiple of the rotation."""
-    d = model.data
-    n = leading_block(d.t_s)
-    r = r[:n]
-    if n < 16:
-        return None, 0.0
-    dt = float(np.median(np.diff(d.t_s[:n])))
-    rr = np.where(np.isfinite(r), r, 0.0)
-    rr = rr - rr.mean(axis=0)
-    nfft = 1 << int(math.ceil(math.log2(n * 8)))
-    spec = np.abs(np.fft.rfft(rr, nfft, axis=0)) ** 2
-    power = spec.sum(axis=1)
-    f = np.fft.rfftfreq(nfft, dt)
-    upr = f / d.rev_hz
-    far = np.abs(upr - np.round(upr)) > 0.25
-    far &= upr > 0.5
-    if not far.any():
-        return None, 0.0
-    i = int(np.argmax(np.where(far, power, -1.0)))
-    if 0 < i < power.size - 1:
-        a, b, c = power[i - 1], power[i], power[i + 1]
-        den = a - 2 * b + c
-        off = 0.5 * (a - c) / den if den != 0 else 0.0
-        return float(f[i] + off * (f[1] - f[0])), float(power[i])
-    return float(f[i]), float(power[i])
-
-
-def _localise(model: TriModel, r: np.ndarray, sigma: np.ndarray) -> dict:
-    """Where the base residual sits: channels, part of the revolution, UPR spectrum, trends."""
-    d = model.data
-    out: dict[str, Any] = {"channels": {}, "revolution": {}, "spectrum_upr": []}
-    phi = np.mod(d.direction * d.omega_rad_s * d.t_s, 2 * np.pi)
-    for j, ch in enumerate(d.channels):
-        ok = np.isfinite(r[:, j]) & model.mask[:, j]
-        x = r[ok, j]
-        rms = float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
-        tt = d.t_s[ok]
-        vv = d.values_mm[ok, j]
-        slope_t = float(np.polyfit(tt, x, 1)[0]) if x.size > 2 and np.ptp(tt) > 0 else 0.0
-        slope_v = float(np.polyfit(vv, x, 1)[0]) if x.size > 2 and np.ptp(vv) > 0 else 0.0
-        out["channels"][str(ch)] = {
-            "rms_mm": rms,
-            "mean_mm": float(np.mean(x)) if x.size else float("nan"),
-            "noise_mm": float(sigma[j]),
-            "excess": rms / max(float(sigma[j]), 1e-12),
-            "trend_mm_per_s": slope_t,
-            "trend_per_mm_reading": slope_v,
-        }
-    bins = np.linspace(0, 2 * np.pi, 13)
-    ib = np.clip(np.digitize(phi, bins) - 1, 0, 11)
-    rr = np.where(model.mask, r, np.nan)
-    for b in range(12):
-        seg = rr[ib == b]
-        seg = seg[np.isfinite(seg)]
-        out["revolution"][f"{int(round(np.degrees(bins[b])))}-{int(round(np.degrees(bins[b + 1])))}deg"] = (
-            float(np.sqrt(np.mean(seg**2))) if seg.size else float("nan")
-        )
-    n = leading_block(d.t_s)
-    if n >= 16:
-        dt = float(np.median(np.diff(d.t_s[:n])))
-        z = np.where(np.isfinite(rr[:n]), rr[:n], 0.0)
-        z = z - z.mean(axis=0)
-        nfft = 1 << int(math.ceil(math.log2(n * 4)))
-        amp = 2.0 * np.abs(np.fft.rfft(z, nfft, axis=0)) / n
-        upr = np.fft.rfftfreq(nfft, dt) / d.rev_hz
-        tot = np.sqrt((amp**2).sum(axis=1))
-        peaks = [i for i in range(1, tot.size - 1) if tot[i] >= tot[i - 1] and tot[i] > tot[i + 1]]
-        peaks.sort(key=lambda i: -tot[i])
-        for i in peaks[:5]:
-            out["spectrum_upr"].append(
-                {
-                    "upr": float(upr[i]),
-                    "amplitude_mm": {str(ch): float(amp[i, j]) for j, ch in enumerate(d.channels)},
-                }
-            )
-    return out
-
-
-def _tilt_start(lobing_start: dict, data: "TriData") -> dict:
-    """Start of an axis_tilt fit from a k = 2 lobing start.
-
-    The ellipse is r ~ R + (R beta^2 / 4)(1 + cos 2(theta - azimuth)): beta^2 = 4 a / R.
-    """
-    A, B = lobing_start["bore_lobing[k=2].A"], lobing_start["bore_lobing[k=2].B"]
-    st = {n: v for n, v in lobing_start.items() if not n.startswith("bore_lobing[k=2]")}
-    m = 4.0 / data.radius_mm
-    st.update({"axis_tilt.p": m * A, "axis_tilt.q": m * B})
-    return st
-
-
-def _rotation_eps(model: TriModel) -> float | None:
-    """Return the relative speed error from the readings' rotation line, or None.
-
-    Relative speed error from the strongest line of the readings within +-30 % of the nominal
-    rotation frequency (the eccentricity undulates once per revolution); None without one.
-    """
-    d = model.data
-    n = leading_block(d.t_s)
-    if n < 32:
-        return None
-    dt = float(np.median(np.diff(d.t_s[:n])))
-    v = np.where(model.valid[:n], d.values_mm[:n], np.nan)
-    v = v - np.nanmean(v, axis=0)
-    v = np.where(np.isfinite(v), v, 0.0)
-    nfft = 1 << int(math.ceil(math.log2(n * 16)))
-    power = (np.abs(np.fft.rfft(v, nfft, axis=0)) ** 2).sum(axis=1)
-    f = np.fft.rfftfreq(nfft, dt)
-    band = (f > 0.7 * d.rev_hz) & (f < 1.3 * d.rev_hz)
-    if not band.any():
-        return None
-    i = int(np.argmax(np.where(band, power, -1.0)))
-    if 0 < i < power.size - 1:
-        a, b, c = power[i - 1], power[i], power[i + 1]
-        den = a - 2 * b + c
-        fi = f[i] + (0.5 * (a - c) / den if den != 0 else 0.0) * (f[1] - f[0])
-    else:
-        fi = f[i]
-    return float(fi / d.rev_hz - 1.0)

@@ -6,6 +6,7 @@ import json
 
 import polars as pl
 
+from borescan.config import schema_default
 from borescan.report.actions import _verdict_note
 from borescan.report.device_model import (
     _carried_by_calibrations,
@@ -15,6 +16,10 @@ from borescan.report.device_model import (
 )
 from borescan.report.page import Page, _EMPTY
 from borescan.report.text import _e, _link, _parameters_text, _table, _um, _uncertainties
+
+
+#: a gap before within this multiple of the noise floor is at the floor (schema discrepancy.floor_ratio)
+_FLOOR_RATIO = float(schema_default("discrepancy", "floor_ratio"))
 
 
 def discrepancy(page: Page) -> str:
@@ -50,7 +55,9 @@ def discrepancy(page: Page) -> str:
                 r["effect"], r.get("parameters"), uncertainties.get((r["effect"], r.get("channel")), {})
             )
             effects.append(f"<b>{_e(r['effect'])}</b>{_e(where)}" + (f": {pars}" if pars else ""))
-        note = _verdict_note(verdict, [r["effect"] for r in recs if r.get("effect")])
+        note = _e(first.get("statement") or "") or _verdict_note(
+            verdict, [r["effect"] for r in recs if r.get("effect")]
+        )
         rows.append(
             [
                 _e(sid),
@@ -63,7 +70,10 @@ def discrepancy(page: Page) -> str:
                 links,
             ]
         )
-        classes.append("fail" if verdict == "missing_effect" else "warn" if verdict == "ambiguous" else "")
+        # flagged for a person only where the gap before stands above the noise floor (floor_ratio)
+        visible = (first.get("gap_before_mm") or 0.0) > _FLOOR_RATIO * (first.get("noise_floor_mm") or 0.0)
+        flag = "fail" if verdict == "missing_effect" else "warn" if verdict == "ambiguous" else ""
+        classes.append(flag if visible else "")
     out.append(
         _table(
             [

@@ -59,6 +59,7 @@ def findings_rows(findings: dict) -> list[dict]:
         "gap_before_mm": (findings.get("gap_before") or {}).get("rms_mm"),
         "gap_after_mm": (findings.get("gap_after") or {}).get("rms_mm"),
         "noise_floor_mm": findings.get("noise_floor_mm"),
+        "statement": findings.get("statement"),  # the verdict in one sentence (explained fully or partly)
     }
     named = findings.get("named") or []
     if not named:

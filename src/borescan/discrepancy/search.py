@@ -1,0 +1,262 @@
+"""The candidate search of one examination: linear screen, exact refits of singles, then pairs.
+
+Every candidate is compared on one footing, the Bayesian information criterion of its weighted fit
+(``BIC = n ln(RSS / n) + p ln(n)``): the linearised screen at the base fit estimates it, an exact refit
+replaces the estimate. Exact refits are made only where the screen cannot decide (a candidate whose
+linearised gain falls more than twice the threshold short of the best exact single can neither be named
+nor seed a pair that counts); the nonlinear starts (axis tilt from the k = 2 lobing, a large speed error
+from the readings' rotation line) are always refitted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from borescan.discrepancy.fitting import FitResult, fit_least_squares, residual_sparsity
+from borescan.discrepancy.tri import Term
+
+__all__ = ["Candidate", "Fitter", "Search", "jacobian_columns", "lstsq", "rms", "search_candidates"]
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """An exact fit of the base model with one or two candidate terms."""
+
+    fit: FitResult
+    terms: tuple[Term, ...]
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """The terms' keys (``sensor_gain@2``, ``bore_lobing[k=3]``)."""
+        return tuple(t.key for t in self.terms)
+
+
+@dataclass(frozen=True)
+class Screened:
+    """A candidate of the linear screen: its linearised RSS, the term and the start it gives."""
+
+    rss: float
+    term: Term
+    start: dict
+
+
+def jacobian_columns(
+    model, p: dict, terms: list[Term], names: list[str], scales: list[float], f0: np.ndarray | None = None
+) -> np.ndarray:
+    """Forward-difference columns of the weighted model over the unmasked samples, per unit scale.
+
+    ``f0``: the residual at ``p`` when the caller has it (a candidate term at zero adds nothing:
+    its residual is the one without it, bit for bit), else it is evaluated here.
+    """
+    if f0 is None:
+        f0 = model.residual(p, terms)
+    cols = []
+    for n, s in zip(names, scales):
+        q = dict(p)
+        q[n] = q[n] + s
+        cols.append(f0 - model.residual(q, terms))  # d(model)/d(param) * scale
+    return np.stack(cols, axis=1) if cols else np.zeros((f0.size, 0))
+
+
+def lstsq(J: np.ndarray, r: np.ndarray) -> np.ndarray | None:
+    """Return the linearised least-squares step of the screen, or None.
+
+    None when the Jacobian or the residual is not finite (a finite-difference step left the model
+    undefined) or the solver fails.
+    """
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
+        return None
+    try:
+        return np.linalg.lstsq(J, r, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        return None
+
+
+def rms(r: np.ndarray, mask: np.ndarray) -> float:
+    """Root mean square of the finite residuals under ``mask`` (NaN for none) [mm]."""
+    x = r[mask & np.isfinite(r)]
+    return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
+
+
+def _fitted(t: Term) -> tuple[list[str], list[float]]:
+    """Return a term's linearly screened names and scales (a vibration's frequency is held at its start)."""
+    keep = [(n, s) for n, s in zip(t.names(), t.scales()) if not n.endswith("f_hz")]
+    return [n for n, _ in keep], [s for _, s in keep]
+
+
+class Fitter:
+    """Exact fits of the base model plus terms, with the base fit as the fallback start."""
+
+    def __init__(self, model):
+        self.model = model
+        self.base_names = model.base_names()
+        self.base_scales = model.base_scales()
+        self.fallback: dict[str, float] = {}
+
+    def __call__(self, terms: list[Term], start: dict[str, float]) -> FitResult | None:
+        """Fit base + terms from ``start``; None when the model cannot be fitted.
+
+        If the model is undefined there (a ray missing the bore), from the base fit with zero effects;
+        None when that fails too.
+        """
+        model = self.model
+        names = self.base_names + [n for t in terms for n in t.names()]
+        scales = self.base_scales + [s for t in terms for s in t.scales()]
+        sparsity = residual_sparsity(
+            names, model.mask, model.data.channels, getattr(model.data, "pose_index", None)
+        )
+        for st in (start, {**self.fallback, **{k: v for k, v in start.items() if k.endswith("f_hz")}}):
+            xs = [st.get(n, 0.0) for n in names]
+            try:
+                fr = fit_least_squares(
+                    lambda p: model.residual(p, terms), names, xs, scales, sparsity=sparsity
+                )
+            except ValueError:
+                continue
+            if np.isfinite(fr.rss):
+                return fr
+        return None
+
+
+def linear_screen(
+    fitter: Fitter, p0: dict, seed: list[Term], terms: list[Term], vib_start: dict
+) -> list[Screened]:
+    """Linearised refits of every term beside ``seed`` at the fit ``p0`` (of base + seed), best first."""
+    model = fitter.model
+    r = model.residual(p0, seed)
+    names0 = fitter.base_names + [n for t in seed for n in t.names()]
+    scales0 = fitter.base_scales + [s for t in seed for s in t.scales()]
+    J0 = jacobian_columns(model, p0, seed, names0, scales0, f0=r)
+    out = []
+    for t in terms:
+        if not seed and t.channel == 0 and len(model.data.channels) == 1:
+            continue  # a common term is the channel's own
+        if seed and (t.key == seed[0].key or (t.effect == seed[0].effect and t.channel == seed[0].channel)):
+            continue
+        vib = vib_start if (not seed or t.effect == "vibration") else {}
+        pt = {**p0, **{n: 0.0 for n in t.names()}, **vib}
+        tn, ts = _fitted(t)
+        J = np.hstack([J0, jacobian_columns(model, pt, [*seed, t], tn, ts, f0=r)])
+        coef = lstsq(J, r)
+        if coef is None:  # the term's start leaves the model undefined (a ray missing the bore)
+            continue
+        start = dict(pt)
+        for n, s, a in zip(names0 + tn, scales0 + ts, coef):
+            start[n] = start[n] + a * s
+        out.append(Screened(float(np.sum((r - J @ coef) ** 2)), t, start))
+    out.sort(key=lambda z: z.rss)
+    return out
+
+
+@dataclass
+class Search:
+    """Everything the candidate search found (exact singles and pairs, best first) and its bookkeeping."""
+
+    singles: list[Candidate] = field(default_factory=list)
+    pairs: list[Candidate] = field(default_factory=list)
+    screen: list[Screened] = field(default_factory=list)
+    screen_dbic: list[float] = field(default_factory=list)
+    gated: bool = False
+    singles_skipped: int = 0
+    skipped_bic: list[float] = field(default_factory=list)
+    pairs_refitted: int = 0
+
+
+def _lin_dbic(rss_before: float, rss: float, t: Term, n: int) -> float:
+    """Linearised Delta BIC of adding ``t`` (its screened parameters) to a fit of RSS ``rss_before``."""
+    return float(n * math.log(rss_before / max(rss, 1e-300)) - len(_fitted(t)[0]) * math.log(n))
+
+
+def search_candidates(
+    fitter: Fitter, base: FitResult, terms: list[Term], c: dict, sig_ref: float, vib_start: dict
+) -> Search:
+    """Screen every term, refit the singles the screen cannot rule out, extend the best by pairs."""
+    model = fitter.model
+    T = float(c["threshold"])
+    p0 = base.values()
+    out = Search(screen=linear_screen(fitter, p0, [], terms, vib_start))
+    rvec = model.residual(p0, [])
+    rss_base = float(np.sum(rvec**2))
+    n_scr = max(int(rvec.size), 2)
+    out.screen_dbic = [_lin_dbic(rss_base, z.rss, z.term, n_scr) for z in out.screen]
+    # gate: a scan whose base residual is at the noise floor and whose best linearised candidate is far
+    # below the threshold skips the exact refits (for the small effects such a screen allows, the
+    # linearisation is accurate, and a pair gains about the sum of its singles)
+    gap0 = rms(model.residual_matrix(p0, []), model.mask)
+    out.gated = bool(
+        out.screen and max(out.screen_dbic) < float(c["screen_gate"]) * T and gap0 <= 1.5 * sig_ref
+    )
+    if out.gated:
+        return out
+    chosen = out.screen[: int(c["n_exact"])]
+    keys = {z.term.key for z in chosen}
+    chosen = chosen + model.extra_starts(_as_tuples(out.screen), keys, None)
+    best_gain = -math.inf
+    for z in chosen:
+        z = z if isinstance(z, Screened) else Screened(*z)
+        dlin = _lin_dbic(rss_base, z.rss, z.term, n_scr) if z.rss > 0.0 else math.inf
+        if dlin < min(best_gain - 2.0 * T, 0.5 * best_gain):
+            out.singles_skipped += 1
+            out.skipped_bic.append(base.bic - dlin)
+            continue
+        fr = fitter([z.term], z.start)
+        if fr is not None:
+            out.singles.append(Candidate(fr, (z.term,)))
+            best_gain = max(best_gain, base.bic - fr.bic)
+    out.singles.sort(key=lambda z: z.fit.bic)
+    seen_keys: set[str] = set()
+    uniq = []
+    for z in out.singles:
+        if z.keys[0] not in seen_keys:
+            seen_keys.add(z.keys[0])
+            uniq.append(z)
+    out.singles = uniq
+    _search_pairs(fitter, base, terms, c, sig_ref, vib_start, out)
+    return out
+
+
+def _as_tuples(screen: list[Screened]) -> list[tuple]:
+    """Return the screen as the models' ``extra_starts`` read it: (rss, term, start) tuples."""
+    return [(z.rss, z.term, z.start) for z in screen]
+
+
+def _search_pairs(
+    fitter: Fitter, base: FitResult, terms: list[Term], c: dict, sig_ref: float, vib_start: dict, out: Search
+) -> None:
+    """Extend the best singles by a second term (screened linearly at the single's fit); refit the pairs."""
+    model = fitter.model
+    T = float(c["threshold"])
+    seen = set()
+    for seed in out.singles[: int(c["n_pair_seeds"])]:
+        (t1,) = seed.terms
+        p1 = seed.fit.values()
+        ext = linear_screen(fitter, p1, [t1], terms, vib_start)
+        r1 = model.residual(p1, [t1])
+        rss1 = float(np.sum(r1**2))
+        n = max(int(r1.size), 2)
+        gain = max((_lin_dbic(rss1, z.rss, z.term, n) for z in ext), default=-math.inf)
+        # the single's gate: where the single leaves the gap at the noise floor and no second term gains
+        # half the threshold at its fit (linearised), no pair can beat the single by the threshold
+        if gain < float(c["screen_gate"]) * T and rms(model.residual_matrix(p1, [t1]), model.mask) <= (
+            1.5 * sig_ref
+        ):
+            continue
+        # a pair counts only if it beats the best single by the threshold (or, with no single passing,
+        # the base by it): a seed whose own gain plus its best second term's falls short cannot get there
+        if (base.bic - seed.fit.bic) + max(gain, 0.0) < max(base.bic - out.singles[0].fit.bic, 0.0):
+            continue
+        n_ext = int(c["n_pair_ext"])
+        more = model.extra_starts(_as_tuples(ext), {z.term.key for z in ext[:n_ext]} | {"*"}, t1)
+        for z in ext[:n_ext] + [Screened(*m) for m in more]:
+            key = tuple(sorted((t1.key, z.term.key)))
+            if key in seen:
+                continue
+            seen.add(key)
+            fr = fitter([t1, z.term], z.start)
+            out.pairs_refitted += 1
+            if fr is not None:
+                out.pairs.append(Candidate(fr, (t1, z.term)))
+    out.pairs.sort(key=lambda z: z.fit.bic)

@@ -1,0 +1,185 @@
+"""The rules a named effect must meet: scope (channel or bore), plausibility, a fit at the noise floor.
+
+Each scan is simulated by the digital twin (:mod:`borescan.simulate`) with a known hidden effect; the
+workflow sees the raw scan only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from borescan.discrepancy import examine_scan
+from borescan.discrepancy.battery import named_label
+from borescan.discrepancy.examine import scan_arrays
+from borescan.discrepancy.judge import plausible_ranges
+from borescan.discrepancy.tri import TriModel, tri_data_from_arrays
+from borescan.discrepancy.tri_signals import speeds_differ
+from borescan.effects import EFFECTS, Effect
+from borescan.simulate import default_tri_scene, simulate_tri_spindle
+from test_discrepancy import _rod_case  # the rod on certified rings of the recovery tests
+
+SCENE = default_tri_scene(sample_rate_hz=240.0)
+#: the scan turns 3 s at 60 rpm, then speeds up to 120 rpm within 0.5 s
+TWO_SPEEDS = replace(SCENE, rpm_profile=((0.0, 60.0), (3.0, 60.0), (3.5, 120.0)), sample_rate_hz=480.0)
+ALL_BEAMS_FREE = ("beta", "d_b", "rho")
+SPEC_VERDICTS = {"missing_effect", "no_missing_effect", "ambiguous"}
+
+
+def _sim(effects, scene=SCENE, seed=3, n_rev=8, noise_mm=0.002):
+    return simulate_tri_spindle(
+        scene, scan_id=f"R-{seed}", n_rev=n_rev, effects=effects, noise_mm=noise_mm, seed=seed
+    )
+
+
+def _model(sim, free_beams=()):
+    t_s, ch, vals, _, spindle = scan_arrays(sim)
+    return TriModel(
+        tri_data_from_arrays(sim.scan_id, sim.meta, t_s, vals, ch, spindle), free_beams=free_beams
+    )
+
+
+def test_a_delay_is_absorbed_by_a_free_beta_at_one_speed_and_named_at_two():
+    delay = Effect("channel_delay", {"channel": 2, "tau_s": 0.0005})
+    one, two = _sim([delay]), _sim([delay], scene=TWO_SPEEDS)
+    m1, m2 = _model(one, ALL_BEAMS_FREE), _model(two, ALL_BEAMS_FREE)
+    assert not speeds_differ(m1.data) and speeds_differ(m2.data)
+    assert not any(t.effect == "channel_delay" for t in m1.candidate_terms())
+    assert {t.key for t in m2.candidate_terms() if t.effect == "channel_delay"} == {
+        "channel_delay@1",
+        "channel_delay@2",
+        "channel_delay@3",
+    }
+    f = examine_scan(two, free_beams=ALL_BEAMS_FREE)
+    assert (f["verdict"], [named_label(n) for n in f["named"]]) == ("missing_effect", ["channel_delay@2"])
+    n = f["named"][0]
+    assert abs(n["parameters"]["tau_s"] - 0.0005) < 3 * n["uncertainties"]["u_tau_s"]
+    assert f["explained"] == "fully" and f["gap_after_over_floor"] <= 1.10
+
+
+@pytest.mark.parametrize(
+    "effect",
+    [
+        Effect("sensor_gain", {"channel": 2, "g": 0.008}),
+        Effect("sensor_nonlinearity", {"channel": 3, "a_mm": 0.03}),
+    ],
+    ids=["gain", "nonlinearity"],
+)
+def test_a_one_channel_effect_is_never_given_to_the_bore_or_the_spindle(effect):
+    """With the beams free (a device examined against its design), a gain or bow of one sensor leaves a
+    pattern on its own channel only; bore and spindle effects, which reach every channel, are rejected.
+    """
+    f = examine_scan(_sim([effect]), free_beams=ALL_BEAMS_FREE)
+    labels = [named_label(n) for n in f["named"]]
+    assert labels and all(EFFECTS[n["effect"]].per_channel for n in f["named"]), labels
+    assert {n["channel"] for n in f["named"]} == {effect.channel}, labels
+    assert f"{effect.name}@{effect.channel}" in labels
+    for r in f["rejected"]:
+        if r["rule"] == "scope":
+            assert f"on channel {effect.channel} alone" in r["why"]
+
+
+def test_a_bore_effect_is_not_taken_for_a_one_channel_pattern():
+    lob = Effect("bore_lobing", {"k": 3, "a_mm": 0.005, "phase": 0.4})
+    f = examine_scan(_sim([lob]), free_beams=ALL_BEAMS_FREE)
+    assert [named_label(n) for n in f["named"]] == ["bore_lobing[k=3]"]
+    assert not [r for r in f["rejected"] if r["rule"] == "scope"]
+
+
+def test_an_implausible_candidate_is_dropped_and_the_finding_says_so():
+    """A 1.2 mm offset on a 10 mm sensor: no sensor of this range has it; the finding names the value."""
+    f = examine_scan(_sim([Effect("sensor_offset", {"channel": 3, "b_mm": 1.2})]))
+    assert f["verdict"] in SPEC_VERDICTS
+    assert not any(n["effect"] == "sensor_offset" for n in f["named"])
+    limit = plausible_ranges()["sensor_offset"].bounds(10.0)[1]
+    why = [r["why"] for r in f["rejected"] if r["terms"] == ["sensor_offset@3"]]
+    assert why and "explained only by sensor_offset on channel 3 with b_mm = 1.2" in why[0]
+    assert f"to {limit:.4g} mm" in why[0]
+    if not f["named"]:
+        assert f["explained"] == "none" and "no plausible candidate" in f["statement"]
+    wide = {"parameter": "b_mm", "high": 0.2, "per_range": True, "reason": "a test allows 2 mm"}
+    g = examine_scan(
+        _sim([Effect("sensor_offset", {"channel": 3, "b_mm": 1.2})]), plausible={"sensor_offset": wide}
+    )
+    n = [x for x in g["named"] if named_label(x) == "sensor_offset@3"]
+    assert n and abs(n[0]["parameters"]["b_mm"] - 1.2) < 3 * n[0]["uncertainties"]["u_b_mm"] + 1e-4
+
+
+def test_a_plausible_range_names_a_known_effect_and_parameter():
+    with pytest.raises(ValueError, match="unknown effect 'sensor_gane'"):
+        plausible_ranges({"sensor_gane": {"parameter": "g", "high": 1.0, "reason": "-"}})
+    for r in plausible_ranges().values():
+        assert r.parameter in EFFECTS[r.effect].params and r.low < r.high and r.reason
+
+
+def test_a_single_that_leaves_a_gap_is_only_partly_explained():
+    """Two effects, pairs switched off: the best single is named, but what remains is said."""
+    effects = [
+        Effect("bore_lobing", {"k": 3, "a_mm": 0.006, "phase": 0.4}),
+        Effect("sensor_drift", {"channel": 2, "k_mm_per_s": 0.002}),
+    ]
+    f = examine_scan(_sim(effects), n_pair_seeds=0)
+    assert f["verdict"] in SPEC_VERDICTS - {"no_missing_effect"}
+    assert f["explained"] == "partly" and f["statement"].startswith("partly explained by")
+    rem = f["remaining"]
+    assert rem["gap_after_over_floor"] > 1.10 and rem["gap_after_over_floor"] == pytest.approx(
+        f["gap_after"]["rms_mm"] / f["noise_floor_mm"]
+    )
+    assert rem["channels_above_floor"], rem
+    full = examine_scan(_sim(effects))
+    assert full["explained"] == "fully" and full["gap_after_over_floor"] <= 1.10
+    assert {named_label(n) for n in full["named"]} == {"bore_lobing[k=3]", "sensor_drift@2"}
+
+
+def test_rejection_sentences_of_an_effect_free_scan_are_none():
+    f = examine_scan(_sim([], seed=11))
+    assert (f["verdict"], f["named"], f["explained"]) == ("no_missing_effect", [], "fully")
+    assert not [r for r in f["rejected"] if r["delta_bic"] > f["threshold_delta_bic"]]
+    assert np.isfinite(f["gap_after_over_floor"])
+
+
+def _entry(effect, channel, **par):
+    unc = {f"u_{k}": 0.003 if k == "b_mm" else 0.1 * abs(v) for k, v in par.items()}
+    return {"effect": effect, "channel": channel, "parameters": par, "uncertainties": unc}
+
+
+@pytest.mark.parametrize(
+    "b_mm,dropped",
+    [(0.012, "beam_offset"), (-0.012, "beam_tilt"), (0.004, None)],
+    ids=["long", "short", "unsigned"],
+)
+def test_a_rod_class_keeps_only_the_members_whose_sign_fits(b_mm, dropped):
+    """A beam offset only shortens a reading, a beam tilt only lengthens it; a shift within 2 u: no sign."""
+    from borescan.discrepancy.classes import rod_classes
+
+    named = [
+        _entry("sensor_offset", 2, b_mm=b_mm),
+        _entry("sensor_gain", 2, g=0.003),
+        _entry("beam_tilt", 2, gamma_rad=0.02),
+        _entry("beam_offset", 2, d_mm=1.2),
+        _entry("sensor_nonlinearity", 2, a_mm=0.01),
+    ]
+    left, classes = rod_classes(named)
+    (k,) = classes
+    assert k.channel == 2 and k.shift_um == pytest.approx(1e3 * b_mm) and k.u_shift_um == pytest.approx(3.0)
+    want = {"sensor_offset", "sensor_gain", "beam_tilt", "beam_offset"} - {dropped}
+    assert set(k.members) == want and k.dropped == ([dropped] if dropped else [])
+    assert {n["effect"] for n in left} == want  # the tied bow is listed in the class, not named apart
+    assert k.nonlinearity and "sensor_nonlinearity" not in k.members
+    way = "long" if b_mm > 0 else "short"
+    assert k.sentence.startswith(f"layer 2 reads {abs(1e3 * b_mm):.3g} +- 3 um {way}: offset-like")
+    assert "recalibrate l0 of layer 2" in k.sentence
+
+
+def test_a_rod_verdict_says_what_the_data_fix_and_what_to_do():
+    """A 12 um offset of one layer of a rod on certified rings: the class, the fixed shift, the advice."""
+    f = examine_scan(_rod_case([Effect("sensor_offset", {"channel": 2, "b_mm": 0.012})]))
+    assert f["verdict"] == "ambiguous" and f["classes"]
+    layer2 = [k for k in f["classes"] if k["channel"] == 2]
+    assert layer2 and {"sensor_offset", "beam_tilt"} <= set(layer2[0]["members"])
+    assert "beam_offset" not in layer2[0]["members"]  # a beam offset cannot lengthen a reading
+    k = layer2[0]
+    assert abs(k["reads_long_um"] - 12.0) < 3 * k["u_reads_long_um"]
+    assert "layer 2 reads" in f["statement"] and "recalibrate l0 of layer 2" in f["statement"]
