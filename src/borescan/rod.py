@@ -441,13 +441,49 @@ def _magnitude(b, half_tr):
     return np.sign(q) * np.sqrt(np.abs(q))
 
 
+@dataclass(frozen=True)
+class CoaxialPrior:
+    """What the holes' common axis tells about the deflection (module doc, "Deflection").
+
+    The holes a rod measures are coaxial: every hole's centre lies within +-``tolerance_mm`` of
+    their common axis in each coordinate (rectangular, standard uncertainty tolerance / sqrt(3),
+    independent between holes). The solve's centres are relative to the rod axis at each spot,
+    so hole_m - hole_1 = c_m - c_1 + (z_m - z_1) sin(omega) (cos omega_az, sin omega_az): the
+    centres fix the deflection vector to about tolerance / (z_m - z_1).
+
+    center_mm : (m, 2) the solve's centres c_m; spot_z_mm : (m,) height of each spot along the rod
+    """
+
+    center_mm: np.ndarray
+    spot_z_mm: np.ndarray
+    tolerance_mm: float
+
+
+def _coaxial_terms(coax: CoaxialPrior, m: int):
+    """Linear pieces of the coaxial prior in the stacked centres [cx (m), cy (m)].
+
+    Returns (D, Z, S0): D (2(m-1), 2m) hole-minus-hole-1 differences, Z (2(m-1), 2) the axis
+    term per unit w, S0 the differences' prior covariance.
+    """
+    D1 = np.hstack([-np.ones((m - 1, 1)), np.eye(m - 1)])
+    D = np.block([[D1, np.zeros_like(D1)], [np.zeros_like(D1), D1]])
+    dz = coax.spot_z_mm[1:] - coax.spot_z_mm[0]
+    Z = np.zeros((2 * (m - 1), 2))
+    Z[: m - 1, 0] = dz
+    Z[m - 1 :, 1] = dz
+    S0 = (coax.tolerance_mm**2 / 3.0) * (D @ D.T)
+    return D, Z, S0
+
+
 #: bound of the deflection prior [rad]: a hand-held rod deflects by a few degrees at most (the
 #: contract's rods <= 1 deg; 2 deg leaves a factor 2). A deflection the data put clearly beyond it
 #: (|beta_hat| - 3 sd > bound^2) widens the bound to cover the likelihood: never truncated.
 MAX_DEFLECTION_RAD = float(np.deg2rad(2.0))
 
 
-def _deflected_radii(rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD, n_draw: int = 4000):
+def _deflected_radii(
+    rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD, n_draw: int = 4000, coax=None
+):
     """omega^2 estimate s, u(r_m) and u(s) for r_m = rho_m / k(omega^2) (module doc, "Deflection").
 
     "free": the readings are linear in beta near 0, so the likelihood of beta (the other unknowns
@@ -475,10 +511,25 @@ def _deflected_radii(rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD
             np.sqrt(np.clip(np.diag(G @ C @ G.T), 0.0, None)),
             float(np.sqrt(max(uhat @ Sb @ uhat, 0.0))),
         )
-    Crr, Crb = C[:m, :m], C[:m, m:]
+    return _posterior_radii(rho, b, cov, m, max_deflection_rad, n_draw, coax)
+
+
+def _posterior_radii(rho, b, cov, m, max_deflection_rad, n_draw, coax):  # noqa: C901
+    """Average the radii over the posterior of w ("free" branch of :func:`_deflected_radii`).
+
+    Proposals (each n_draw): the bound prior, the likelihood of beta pushed to w (either root),
+    and, with a coaxial prior, the deflection the centres imply. Given w, the other unknowns are
+    Gaussian (the fit's covariance conditioned on beta = w^2, then on the coaxial differences).
+    """
+    P = cov.shape[0]
+    ib = np.array([P - 2, P - 1])
+    it = np.arange(3 * m) if coax is not None else np.arange(m)
+    Sb = cov[np.ix_(ib, ib)]
     Sb_inv = np.linalg.pinv(Sb)
-    K = Crb @ Sb_inv
-    cond = np.clip(np.diag(Crr - K @ Crb.T), 0.0, None)
+    Ctb = cov[np.ix_(it, ib)]
+    K = Ctb @ Sb_inv
+    Ctt = cov[np.ix_(it, it)] - K @ Ctb.T  # the unknowns given beta
+    nb = float(np.hypot(*b))
     ev, V = np.linalg.eigh(Sb)
     ev = np.clip(ev, 0.0, None)
     W = float(max_deflection_rad)
@@ -489,26 +540,54 @@ def _deflected_radii(rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD
     om = W * rng.random(n_draw)
     az = rng.uniform(0.0, 2 * np.pi, n_draw)
     w1 = np.column_stack([om * np.cos(az), om * np.sin(az)])
-    # proposal 2: the likelihood N(beta_hat, Sigma_beta), pushed to w = sqrt(beta)
+    # proposal 2: the likelihood N(beta_hat, Sigma_beta), pushed to w = +-sqrt(beta)
     B = b + (rng.standard_normal((n_draw, 2)) * np.sqrt(ev)) @ V.T
     zc = np.sqrt(B[:, 0] + 1j * B[:, 1])
-    w = np.vstack([w1, np.column_stack([zc.real, zc.imag])])
+    w2 = np.column_stack([zc.real, zc.imag]) * rng.choice([-1.0, 1.0], n_draw)[:, None]
+    parts = [w1, w2]
+    if coax is not None:
+        D, Z, S0 = _coaxial_terms(coax, m)
+        Ccc = Ctt[m:, m:]
+        S = D @ Ccc @ D.T + S0
+        S_inv = np.linalg.inv(S)
+        c_hat = np.concatenate([coax.center_mm[:, 0], coax.center_mm[:, 1]])
+        Fw = Z.T @ S_inv @ Z
+        cov_w = 4.0 * np.linalg.inv(Fw)  # twice the SD: a proposal wider than the posterior
+        w_c = -np.linalg.solve(Fw, Z.T @ S_inv @ (D @ c_hat))
+        parts.append(rng.multivariate_normal(w_c, cov_w, n_draw, method="cholesky"))
+    w = np.vstack(parts)
     o = np.hypot(w[:, 0], w[:, 1])
     beta = np.column_stack([w[:, 0] ** 2 - w[:, 1] ** 2, 2 * w[:, 0] * w[:, 1]])
     d = beta - b
-    lik = np.exp(-0.5 * np.einsum("ij,jk,ik->i", d, Sb_inv, d)) / (
-        2 * np.pi * np.sqrt(max(ev[0] * ev[1], 1e-300))
-    )
+    q_lik = np.einsum("ij,jk,ik->i", d, Sb_inv, d)
+    lik = np.exp(-0.5 * q_lik) / (2 * np.pi * np.sqrt(max(ev[0] * ev[1], 1e-300)))
     # densities per unit area of the w plane: prior 1 / (2 pi W omega); likelihood 2 omega^2 N(beta)
     prior = np.where(o <= W, 1.0 / (2 * np.pi * W * np.maximum(o, 1e-300)), 0.0)
-    wt = prior * lik / (0.5 * prior + np.maximum(o, 1e-300) ** 2 * lik + 1e-300)
-    if not np.isfinite(wt.sum()) or wt.sum() <= 0:  # the likelihood lies far outside the prior
-        wt = (o <= W) * np.exp(
-            -0.5 * (np.einsum("ij,jk,ik->i", d, Sb_inv, d) - np.min(np.einsum("ij,jk,ik->i", d, Sb_inv, d)))
+    if coax is None:
+        mix = 0.5 * prior + np.maximum(o, 1e-300) ** 2 * lik
+        log_coax = np.zeros(o.size)
+        cond = np.clip(np.diag(Ctt), 0.0, None)
+    else:
+        th = np.concatenate([rho, c_hat])[None, :] + d @ K.T  # the unknowns at beta: hat - K (b - beta)
+        dw = w - w_c
+        q3 = np.exp(-0.5 * np.einsum("ij,jk,ik->i", dw, np.linalg.inv(cov_w), dw)) / (
+            2 * np.pi * np.sqrt(np.linalg.det(cov_w))
         )
+        mix = (prior + 2.0 * np.maximum(o, 1e-300) ** 2 * lik + q3) / 3.0
+        v = th[:, m:] @ D.T + (np.sinc(o / np.pi)[:, None] * w) @ Z.T  # hole_m - hole_1 at w
+        log_coax = -0.5 * np.einsum("ij,jk,ik->i", v, S_inv, v)
+        G = Ctt[:m, m:] @ D.T @ S_inv  # rho's update by the coaxial differences
+        theta = th[:, :m] - v @ G.T
+        cond = np.clip(np.diag(Ctt[:m, :m] - G @ D @ Ctt[m:, :m]), 0.0, None)
+    target = prior * lik * np.exp(log_coax - np.max(log_coax, initial=0.0))
+    wt = target / (mix + 1e-300)
+    if not np.isfinite(wt.sum()) or wt.sum() <= 0:  # the likelihood lies far outside the prior
+        wt = (o <= W) * np.exp(-0.5 * (q_lik - np.min(q_lik)) + log_coax - np.max(log_coax))
     wt = wt / wt.sum()
     s2 = o**2
-    R = (rho[None, :] - (b - beta) @ K.T) / _k(s2)[:, None]
+    if coax is None:
+        theta = rho[None, :] + d @ K.T
+    R = theta / _k(s2)[:, None]
     r = wt @ R
     sm = float(wt @ s2)
     u_r = np.sqrt(wt @ (R - r) ** 2 + cond / _k(sm) ** 2)
@@ -626,6 +705,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     max_u_ratio: float = 50.0,
     max_deflection_ratio: float = 10.0,
     max_deflection_rad: float = MAX_DEFLECTION_RAD,
+    coaxiality_mm: float | None = None,
     centred: str = "refuse",
 ) -> RodSolution:
     r"""Solve the exact rod model (spec "Measuring rod"; Wang 2017 Eq. 16 generalised) jointly.
@@ -652,6 +732,10 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         sigma / sqrt(n_m), the uncertainty of a centred rod's mean reading
     max_deflection_ratio : refuse when freeing the deflection multiplies some u(r_m) by more than
         this (the poses do not separate the section's ellipse from the radius)
+    max_deflection_rad : bound of the deflection prior [rad] (``MAX_DEFLECTION_RAD``)
+    coaxiality_mm : the holes share one axis within this tolerance [mm] (each centre within +- it,
+        per coordinate): the centres then fix the deflection (:class:`CoaxialPrior`); None: the
+        deflection is constrained by the readings' ellipse and the bound only
 
     Returns
     -------
@@ -761,14 +845,22 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         )
     b = _beta(w)
     if defl:
-        out = _deflected_radii(rho, b, cov, m, deflection, max_deflection_rad)
+        coax = None
+        if coaxiality_mm is not None and deflection == "free":
+            spot_z = np.array([lay.h_mm for lay in lays]) + rho * np.tan([lay.gamma_rad for lay in lays])
+            if np.ptp(spot_z) > 0:
+                coax = CoaxialPrior(c, spot_z, float(coaxiality_mm))
+        out = _deflected_radii(rho, b, cov, m, deflection, max_deflection_rad, coax=coax)
         s, u_r, u_s = out[:3]
         r_post = out[3] if len(out) > 3 else None
-        # linearised, worst deflection direction: u(r) with omega free over u(r) with it held
+        # linearised, worst deflection direction: u(r) with omega free over u(r) with it held (with
+        # the coaxial prior: the posterior u(r) over it)
         q = rho / 4.0
         Crb = cov[:m, -2:]
         lam = float(np.linalg.eigvalsh(cov[-2:, -2:])[-1])
         u_lin = np.sqrt(np.diag(cov)[:m] + 2 * q * np.linalg.norm(Crb, axis=1) + q**2 * max(lam, 0.0))
+        if coax is not None:
+            u_lin = u_r
         with np.errstate(invalid="ignore", divide="ignore"):
             dratio = float(np.nanmax(u_lin / u_fixed))
         if dratio > max_deflection_ratio:
@@ -853,6 +945,7 @@ def rod_crb(
     holes: Sequence[Hole] | None = None,
     axis: RodAxis | None = None,
     deflection: bool = True,
+    coaxiality_mm: float | None = None,
 ) -> np.ndarray:
     r"""Cramér-Rao bound on the radii for Gaussian reading noise sigma.
 
@@ -864,6 +957,9 @@ def rod_crb(
 
     Legacy form (``l_mm`` (n, m) = l0 + v, ``xy_mm``, ``radius_mm``): Wang Eq. 16 (no deflection),
     with the noise of e_nm = sigma de/dl, de/dl = (X c + Y s)/rho; CRB = (J^T W J)^-1.
+
+    ``coaxiality_mm`` adds the information of the holes' coaxiality (:class:`CoaxialPrior`, the
+    solve's prior of the same name): the bound the solve with that prior can reach.
 
     Returns
     -------
@@ -888,10 +984,12 @@ def rod_crb(
         prob = _RodProblem(V, np.ones_like(V, dtype=bool), lays, fix_pose, deflection, alpha_fix=a[fix_pose])
         s = float(w @ w)
         p = prob.pack(r * _k(s), c, a, w)
-        J = prob.jac(p, beta_step=1e-4 if deflection else None)
+        J = prob.jac(p, beta_step=1e-4 if deflection else None) / sigma_mm
+        if deflection and coaxiality_mm is not None:
+            J = np.vstack([J, _coaxial_rows(lays, r, c, w, coaxiality_mm, prob.n_par)])
         col = np.linalg.norm(J, axis=0)
         col[col == 0] = 1.0
-        F = (J / col).T @ (J / col) / sigma_mm**2
+        F = (J / col).T @ (J / col)
         cov = np.linalg.pinv(F) / np.outer(col, col)
         G = np.zeros((m, prob.n_par))
         rho = r * _k(s)
@@ -913,6 +1011,27 @@ def rod_crb(
     dedl = ((X * c + Y * s) / np.hypot(X, Y))[mask]
     F = J.T @ (J / (sigma_mm * dedl)[:, None] ** 2)
     return np.sqrt(np.diag(np.linalg.inv(F))[:m])
+
+
+def _coaxial_rows(layers, r, c, w, tolerance_mm, n_par) -> np.ndarray:
+    """Whitened rows of the coaxial prior (:class:`CoaxialPrior`) in [rho, cx, cy, alpha, beta].
+
+    d(hole_m - hole_1)/d(c, beta) at the deflection vector w, whitened by the prior's covariance;
+    beta = w^2 (complex), so d w / d beta = 1 / (2 w) (large when the deflection is small: then
+    the centres fix beta = w^2 all the better).
+    """
+    m = len(layers)
+    z = np.array([lay.h_mm for lay in layers]) + r * np.tan([lay.gamma_rad for lay in layers])
+    coax = CoaxialPrior(np.asarray(c, float), z, float(tolerance_mm))
+    D, Z, S0 = _coaxial_terms(coax, m)
+    wz = complex(max(float(np.hypot(*w)), 1e-9), 0.0) if not np.any(w) else complex(w[0], w[1])
+    inv = 1.0 / (2.0 * wz)  # d w / d beta as a complex number
+    dw_db = np.array([[inv.real, -inv.imag], [inv.imag, inv.real]])
+    rows = np.zeros((2 * (m - 1), n_par))
+    rows[:, m : 3 * m] = D
+    rows[:, -2:] = Z @ dw_db * np.sinc(float(np.hypot(*w)) / np.pi)
+    Lc = np.linalg.cholesky(S0)
+    return np.linalg.solve(Lc, rows)
 
 
 def solve_rod_pso(

@@ -38,6 +38,7 @@ from .effects import thermal_expansion_factor
 from .atomic import json_ready
 from .calibration import make_calibration_id
 from .calibrations import rod_layers
+from .config import schema_default
 from .geometry import RodLayer
 from .rod import RodSolution, solve_rod
 from .uncertainty import Budget, Input, Term
@@ -46,6 +47,7 @@ __all__ = [
     "ROD_CALIBRATION_METHOD",
     "RodCalibration",
     "layer_gauges",
+    "rod_coaxiality_mm",
     "calibrate_l0",
     "rod_calibration_budget",
     "rod_calibration_id",
@@ -97,6 +99,15 @@ class RodCalibration:
     def l0_mm(self) -> np.ndarray:
         """Base lengths l0 [mm] of the layers."""
         return np.array([lay.l0_mm for lay in self.layers], dtype=float)
+
+
+def rod_coaxiality_mm(unc_cfg: dict) -> float | None:
+    """Return the holes' coaxiality tolerance (``uncertainty.rod_hole_coaxiality_mm``) [mm]."""
+    if "rod_hole_coaxiality_mm" in unc_cfg:
+        v = unc_cfg["rod_hole_coaxiality_mm"]
+    else:
+        v = schema_default("uncertainty", "rod_hole_coaxiality_mm")
+    return None if v is None else float(v)
 
 
 def layer_gauges(meta: dict, channels) -> list[dict]:
@@ -162,7 +173,14 @@ def layer_gauges(meta: dict, channels) -> list[dict]:
 
 
 def calibrate_l0(
-    means_mm, layers, u_reading_mm, radius_at_t_mm, *, tol_mm: float = 1e-7, max_iter: int = 10
+    means_mm,
+    layers,
+    u_reading_mm,
+    radius_at_t_mm,
+    *,
+    coaxiality_mm: float | None = None,
+    tol_mm: float = 1e-7,
+    max_iter: int = 10,
 ) -> tuple[tuple[RodLayer, ...], RodSolution, int]:
     """Return base lengths at which the rod solve returns the gauges' radii (fixed point of the module doc).
 
@@ -172,6 +190,7 @@ def calibrate_l0(
     layers : RodLayer per column (start: the nominal geometry)
     u_reading_mm : standard uncertainty of one mean [mm] (None: from the residuals)
     radius_at_t_mm : (m,) each gauge's radius at the scan's temperature [mm]
+    coaxiality_mm : the gauges' coaxiality (``uncertainty.rod_hole_coaxiality_mm``; :func:`rod_coaxiality_mm`)
 
     Returns
     -------
@@ -184,7 +203,7 @@ def calibrate_l0(
     target = np.asarray(radius_at_t_mm, dtype=float)
     lays = tuple(layers)
     for it in range(1, max_iter + 1):
-        sol = solve_rod(means_mm, layers=lays, u_reading_mm=u_reading_mm)
+        sol = solve_rod(means_mm, layers=lays, u_reading_mm=u_reading_mm, coaxiality_mm=coaxiality_mm)
         step = target - sol.radius_mm
         # settled when the step is below tol_mm or a thousandth of the radius' own uncertainty (the
         # solve's optimiser tolerance and its deflection average make r(l0) rough at the nm level)
@@ -427,7 +446,12 @@ def rod_diameters_with_budget(
     if missing:
         raise ValueError(f"calibration {calibration_id} has no rod layer for channel(s) {missing}")
     temp, cte = scan_temperature(scan.meta, unc_cfg), artifact_cte(scan.meta, unc_cfg)
-    sol = solve_rod(means, layers=[by_ch[c] for c in channels], u_reading_mm=u_mean)
+    sol = solve_rod(
+        means,
+        layers=[by_ch[c] for c in channels],
+        u_reading_mm=u_mean,
+        coaxiality_mm=rod_coaxiality_mm(unc_cfg),
+    )
     feat = {int(l["channel"]): l.get("feature") for l in (scan.meta.get("rod") or {}).get("layers", [])}
     cal_chans = sorted(by_ch)
     out = []
