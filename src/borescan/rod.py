@@ -853,14 +853,14 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         out = _deflected_radii(rho, b, cov, m, deflection, max_deflection_rad, coax=coax)
         s, u_r, u_s = out[:3]
         r_post = out[3] if len(out) > 3 else None
-        # linearised, worst deflection direction: u(r) with omega free over u(r) with it held (with
-        # the coaxial prior: the posterior u(r) over it)
+        # linearised, worst deflection direction: u(r) with omega free over u(r) with it held, from
+        # the readings alone (with the coaxial prior too: where the readings cannot separate the
+        # deflection, their beta is far from linear and the prior's beta would move rho along a
+        # false line)
         q = rho / 4.0
         Crb = cov[:m, -2:]
         lam = float(np.linalg.eigvalsh(cov[-2:, -2:])[-1])
         u_lin = np.sqrt(np.diag(cov)[:m] + 2 * q * np.linalg.norm(Crb, axis=1) + q**2 * max(lam, 0.0))
-        if coax is not None:
-            u_lin = u_r
         with np.errstate(invalid="ignore", divide="ignore"):
             dratio = float(np.nanmax(u_lin / u_fixed))
         if dratio > max_deflection_ratio:
