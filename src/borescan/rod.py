@@ -107,6 +107,8 @@ class RodSolution:
     center_xy_mm : (m, 2) hole centre relative to the axis at the spot height (= -xy_mm)
     deflection_xy_rad : (2,) maximum-likelihood w = omega (cos omega_az, sin omega_az) [rad]
     deflection_rad, deflection_az_rad : omega (from the debiased omega^2, 0 if negative), omega_az
+    deflection_posterior_xy_rad : (2,) the posterior mean of w with the coaxial prior (the centres
+        fix its sign), else sqrt(s) along the maximum-likelihood w [rad]
     deflection_sq_rad2, u_deflection_sq_rad2 : the estimate s of omega^2 (may be < 0) and its u
     eccentricity_mm, u_eccentricity_mm : (2,) axis at z = 0 minus hole 1's centre [mm]
     radius_mle_mm : (m,) radii at the maximum-likelihood omega; deflection_ratio : max u(r) with
@@ -133,6 +135,7 @@ class RodSolution:
     deflection_rad: float = 0.0
     deflection_az_rad: float = 0.0
     deflection_sq_rad2: float = 0.0
+    deflection_posterior_xy_rad: np.ndarray = field(default_factory=lambda: np.zeros(2))
     u_deflection_sq_rad2: float = float("nan")
     eccentricity_mm: np.ndarray | None = None
     u_eccentricity_mm: np.ndarray | None = None
@@ -591,7 +594,8 @@ def _posterior_radii(rho, b, cov, m, max_deflection_rad, n_draw, coax):  # noqa:
     r = wt @ R
     sm = float(wt @ s2)
     u_r = np.sqrt(wt @ (R - r) ** 2 + cond / _k(sm) ** 2)
-    return sm, u_r, float(np.sqrt(wt @ (s2 - sm) ** 2)), r
+    w_mean = wt @ w if coax is not None else None  # without the centres, w and -w are alike
+    return sm, u_r, float(np.sqrt(wt @ (s2 - sm) ** 2)), r, w_mean
 
 
 #: largest deflection a start may take [rad] (5.7 deg; the contract's rods deflect <= 1 deg)
@@ -853,6 +857,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         out = _deflected_radii(rho, b, cov, m, deflection, max_deflection_rad, coax=coax)
         s, u_r, u_s = out[:3]
         r_post = out[3] if len(out) > 3 else None
+        w_post = out[4] if len(out) > 4 else None
         # linearised, worst deflection direction: u(r) with omega free over u(r) with it held, from
         # the readings alone (with the coaxial prior too: where the readings cannot separate the
         # deflection, their beta is far from linear and the prior's beta would move rho along a
@@ -872,7 +877,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
                 f"tilted section (u(omega^2) = {u_s:.3g} rad^2) - add poses spread around the circle"
             )
     else:
-        s, u_s, dratio, r_post = 0.0, 0.0, 1.0, None
+        s, u_s, dratio, r_post, w_post = 0.0, 0.0, 1.0, None, None
         u_r = u_fixed
     r = rho / _k(s) if r_post is None else r_post
     holes, _ = rod_section_geometry(lays, c, rho / _k(float(w @ w)), w)
@@ -897,6 +902,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         deflection_rad=float(np.sqrt(max(s, 0.0))),
         deflection_az_rad=float(np.arctan2(w[1], w[0])) if np.any(w != 0) else 0.0,
         deflection_sq_rad2=s,
+        deflection_posterior_xy_rad=_posterior_vector(w_post, w, s),
         u_deflection_sq_rad2=float(u_s),
         eccentricity_mm=ecc,
         u_eccentricity_mm=u_ecc,
@@ -906,6 +912,14 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         layers=lays,
         fit=fit,
     )
+
+
+def _posterior_vector(w_post, w_mle, s) -> np.ndarray:
+    """Return the deflection vector reported: the posterior mean, else sqrt(s) along the MLE direction."""
+    if w_post is not None:
+        return np.asarray(w_post, dtype=float)
+    n = float(np.hypot(*w_mle))
+    return np.zeros(2) if n == 0 else np.sqrt(max(s, 0.0)) * np.asarray(w_mle) / n
 
 
 def _rod_param_names(m: int, n: int, fix_pose: int, deflection: bool) -> tuple[str, ...]:
