@@ -327,3 +327,34 @@ def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan
     assert before == {
         p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (tmp_path / "raw").rglob("*") if p.is_file()
     }
+
+
+def test_rod_verification_names_its_largest_input_and_what_would_reduce_it(tmp_path):
+    """Each layer's row names the budget's largest contribution; when U(E) is not below the tolerance
+    (a 1 um tolerance here) it says what would reduce it, and nothing when the verdict is decided.
+    """
+    import json
+
+    cal = _raw(_sim(GAUGE_D, 11, "calibration", GAUGE_SET, scan_id="CALV"), tmp_path / "c")
+    layers, _sol, budget, *_ = _calibrate(cal)
+    blob = json.dumps({"budget": json_ready(budget.to_dict())})
+    rows = [
+        {"channel": lay.channel, "l0_mm": lay.l0_mm, "h_mm": lay.h_mm, "calibration_json": blob}
+        for lay in layers
+    ]
+    ver = _raw(_sim(GAUGE_D, 12, "verification", GAUGE_SET, scan_id="VERV"), tmp_path / "v")
+    res = rod_calibration.rod_diameters_with_budget(ver, rows, UNC, "C")
+    lab = schema_defaults()["laboratory"]
+    tight = rod_calibration.rod_verifications(ver, res, "C", UNC, lab, 0.001)
+    for row in tight:
+        top = max(row["budget"], key=lambda b: abs(b["contribution"]))
+        assert row["dominant_input"] == top["key"]
+        kind = top["key"].split(":")[0]
+        expect = {
+            "linearity": "data-sheet linearity",
+            "fit": "a calibration with more poses",
+            "readings": "poses",
+        }
+        assert expect.get(kind, "stated") in row["dominant_fix"]
+    loose = rod_calibration.rod_verifications(ver, res, "C", UNC, lab, 1.0)
+    assert all(r["dominant_fix"] is None and r["dominant_input"] for r in loose)

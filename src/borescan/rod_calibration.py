@@ -480,6 +480,7 @@ def rod_diameters_with_budget(
                 "poses": int(means.shape[0]),
                 "condition": float(sol.condition),
                 "traceable": cal_budget is not None,
+                "solution": sol,
             }
         )
     return out
@@ -492,7 +493,9 @@ def rod_verifications(
 
     ``verifications`` rows of a rod scan in certified gauges: each layer's diameter at 20 degC
     against its gauge (:func:`layer_gauges`, :func:`borescan.measure.verify_budget`), one row per
-    layer with ``feature``, the budget rows (``budget``) and the scan's raw files.
+    layer with ``feature``, the budget rows (``budget``) and the scan's raw files; the budget's
+    largest input (``dominant_input``, its key) and, when U(E) is not below the tolerance, what
+    would reduce it (``dominant_fix``, :func:`_dominant_fix`).
 
     Raises ValueError when a layer has no certified gauge.
     """
@@ -511,6 +514,14 @@ def rod_verifications(
             float(lab_cfg["guard_band_factor"]),
         )
         row = verification_row(scan.scan_id, scan.meta["device"]["id"], g["id"], v)
+        top = max(v.budget_rows, key=lambda b: abs(b.get("contribution") or 0.0), default=None)
+        undecided = not v.U_error_mm < tolerance_mm
+        row.update(
+            dominant_input=None if top is None else top["key"],
+            dominant_fix=_dominant_fix(top["key"], d, unc_cfg, tolerance_mm / v.k)
+            if undecided and top
+            else None,
+        )
         row.update(
             calibration_id=calibration_id,
             temperature_assumed=d["du"].temperature.assumed,
@@ -521,3 +532,43 @@ def rod_verifications(
         )
         rows.append(row)
     return rows
+
+
+def _dominant_fix(key: str, diameter: dict, unc_cfg: dict, u_allowed_mm: float) -> str:
+    """Say what would reduce a rod verification's largest input ``key`` (a budget key).
+
+    ``u_allowed_mm``: the u(E) at which U(E) equals the tolerance. This hold's readings: the fewest
+    poses, per angular spread, that bring its u(D) to half of it with the rod held as in this scan
+    (:func:`borescan.plan_rod.recommend_rod`); the calibration hold's readings: a new calibration
+    with more poses; a data-sheet input (linearity, resolution): no hold reduces it.
+    """
+    from .plan_rod import hold_of_solution, recommend_rod
+
+    target_mm = 0.5 * u_allowed_mm
+    if key.startswith("readings:"):
+        hold = hold_of_solution(diameter["solution"], rod_coaxiality_mm(unc_cfg))
+        for spread, best in recommend_rod(hold, target_mm, spreads_rad=(2 * np.pi, 1.5 * np.pi, np.pi)):
+            if best is not None:
+                j = [lay.channel for lay in hold.layers].index(diameter["channel"])
+                return (
+                    f"this hold's readings: {best.hold.n_poses} poses over {np.degrees(spread):.0f} deg, "
+                    "the rod held as in this scan, would bring its u(D) to "
+                    f"{best.u_diameter_mm[j] * 1e3:.1f} um (now "
+                    f"{diameter['solution'].u_diameter_mm[j] * 1e3:.1f} um; borescan plan --rod-scan)"
+                )
+        return (
+            f"this hold's readings: no hold of up to 256 poses with the rod held as in this scan brings "
+            f"u(D) to {target_mm * 1e3:.1f} um: hold the rod more skew to the holes or average more "
+            "readings per pose (borescan plan --rod-scan)"
+        )
+    if key.startswith("fit:"):
+        return (
+            f"the calibration hold {key.split(':')[1]}'s readings: a calibration with more poses (borescan "
+            f"plan --rod-scan on that scan gives how many for u(D) <= {target_mm * 1e3:.1f} um)"
+        )
+    if key.startswith("linearity:"):
+        return (
+            "the sensors' data-sheet linearity: no hold of the rod reduces it; a linearity calibration of "
+            "the sensors over their range (or sensors of better linearity) would"
+        )
+    return f"{key} is a stated (certificate or data-sheet) input: no hold of the rod reduces it"
