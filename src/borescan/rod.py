@@ -239,17 +239,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     n, m = L.shape
     n_obs = int(mask.sum())
     p0, S = rod_start(L, mask, fix_pose)
-    # Noise reference for the centred test: the given u, else the third singular value (m >= 3)
-    sig_ref = (
-        u_reading_mm if u_reading_mm is not None else (S[2] / np.sqrt(max(n - 2, 1)) if S.size > 2 else None)
-    )
-    if sig_ref is not None and S[0] < 5.0 * sig_ref * np.sqrt(n):
-        if centred != "mean":
-            raise RodSolveError(
-                "degenerate geometry: readings constant within the noise - either the rod is centred "
-                "(angles undetermined; pass centred='mean' if the poses were spread around the circle) "
-                "or all poses are at nearly one angle (radii undetermined)"
-            )
+    if _readings_constant(S, n, u_reading_mm, centred):
         return _centred_solution(L, mask, keep, u_reading_mm, 3 * m + n - 1 + (2 if defl else 0))
     a0 = np.insert(p0[3 * m :], fix_pose, 0.0)
     V = L - l0
@@ -328,6 +318,25 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         layers=lays,
         fit=fit,
     )
+
+
+def _readings_constant(S, n, u_reading_mm, centred) -> bool:
+    """Return whether the readings are constant within the noise (centred rod); refused unless "mean".
+
+    The noise reference: the given u, else the third singular value S[2] of the centred readings (m >= 3).
+    """
+    sig_ref = (
+        u_reading_mm if u_reading_mm is not None else (S[2] / np.sqrt(max(n - 2, 1)) if S.size > 2 else None)
+    )
+    if sig_ref is None or S[0] >= 5.0 * sig_ref * np.sqrt(n):
+        return False
+    if centred != "mean":
+        raise RodSolveError(
+            "degenerate geometry: readings constant within the noise - either the rod is centred "
+            "(angles undetermined; pass centred='mean' if the poses were spread around the circle) "
+            "or all poses are at nearly one angle (radii undetermined)"
+        )
+    return True
 
 
 def _centred_solution(L, mask, keep, u_reading_mm, n_par) -> RodSolution:
