@@ -196,7 +196,9 @@ def run_chain(job) -> dict:
                 radius_at_temperature_mm(0.5 * gg["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
                 for gg in gauges
             ]
-            layers, sol, _n = rod_calibration.calibrate_l0(means, design, u_mean, r_t)
+            layers, sol, _n = rod_calibration.calibrate_l0(
+                means, design, u_mean, r_t, coaxiality_mm=rod_calibration.rod_coaxiality_mm(unc)
+            )
             budget = rod_calibration.rod_calibration_budget(
                 [lay.l0_mm for lay in layers],
                 sol,

@@ -194,11 +194,11 @@ def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_se
     from borescan.geometry import Bore, tri_static_readings
     from borescan.measure import (
         DiameterModel,
-        _with_params,
         diameter_uncertainty,
         static_diameter,
         static_diameter_jacobian,
     )
+    from borescan.measure.rotating import _with_params
 
     scan, truth, cfg, x, cal = calibrated(20270619, 9, 8)
     unc = schema_defaults()["uncertainty"]

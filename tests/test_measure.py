@@ -443,7 +443,9 @@ def test_second_order_term_of_the_calibration_hardly_moves_a_diameter_of_the_gau
     the rms of D's second-order part (D - its linear part) is sqrt(3) |q| u^2 as the budget says
     (within 10 %), and a hundred times smaller than the d_b term mapped linearly (7 um).
     """
-    from borescan.measure import DiameterModel, _second_order_variance, _with_params
+    from borescan.measure import DiameterModel
+    from borescan.measure.budget import _second_order_variance
+    from borescan.measure.rotating import _with_params
 
     beams = Beams(
         (1, 2, 3),
@@ -544,8 +546,9 @@ def test_rotating_sensitivities_equal_central_differences_of_the_circle_fit(tmp_
     differences divide the fit's last digits, about 1e-12 mm, by steps of 1e-5).
     """
     from borescan import rawio
+    from borescan.measure import measure_scan
+    from borescan.measure.rotating import _with_params
     from borescan.synthetic import scenes, simulate
-    from borescan.measure import _with_params, measure_scan
 
     scene = scenes.default_tri_scene()
     sim = simulate.simulate_tri_spindle(
@@ -606,7 +609,7 @@ def test_rotating_sensitivities_against_refits_over_the_contract(seed):
     readings): the linearised circle response neglects the residuals' curvature (residuals over R), which
     leaves about 1e-9 of that scale (at most 1.1e-9 measured on twelve such scans).
     """
-    from borescan.measure import _rotating_sensitivities, _with_params
+    from borescan.measure.rotating import _rotating_sensitivities, _with_params
 
     model, beams, R = _contract_rotating_model(seed)
     jp, jv = _rotating_sensitivities(model, beams)
@@ -632,7 +635,9 @@ def test_second_order_variance_of_a_rotating_scan_equals_fresh_circle_fits(seed,
     reference night's scans where the term is a million times smaller (the fresh fits' own last digits
     over q u^2).
     """
-    from borescan.measure import DiameterModel, _second_order_variance, _with_params
+    from borescan.measure import DiameterModel
+    from borescan.measure.budget import _second_order_variance
+    from borescan.measure.rotating import _with_params
 
     model, beams, R = _contract_rotating_model(seed)
     rng = np.random.default_rng(100 + seed)

@@ -6,18 +6,10 @@ import numpy as np
 import pytest
 
 from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
-from borescan.rod import (
-    RodSolveError,
-    _k,
-    _RodProblem,
-    rod_cost_mm2,
-    rod_crb,
-    rod_jacobian,
-    rod_residuals,
-    rod_section_geometry,
-    rod_start,
-    solve_rod,
-)
+from borescan.physics.rod import rod_section_geometry
+from borescan.rod import RodSolveError, rod_cost_mm2, rod_crb, solve_rod
+from borescan.rod_eq16 import rod_jacobian, rod_residuals, rod_start
+from borescan.rod_model import _k, _RodProblem
 
 # Wang 2017 Section 4: two 150 mm ring gauges on a 500 mm rod; OD2-P30W04 span 8 mm.
 LAYERS = [RodLayer(1, 100.0, 71.0), RodLayer(2, 400.0, 71.0)]

@@ -94,7 +94,9 @@ def _calibrate(scan):
     radius_t = [
         0.5 * g["certified_diameter_mm"] * (1 + cte.cte_per_k * (temp.temperature_c - 20)) for g in gauges
     ]
-    layers, sol, n = rod_calibration.calibrate_l0(means, DESIGN, u_mean, radius_t)
+    layers, sol, n = rod_calibration.calibrate_l0(
+        means, DESIGN, u_mean, radius_t, coaxiality_mm=rod_calibration.rod_coaxiality_mm(UNC)
+    )
     budget = rod_calibration.rod_calibration_budget(
         [lay.l0_mm for lay in layers],
         sol,
@@ -137,7 +139,9 @@ def test_calibrated_base_lengths_make_the_solve_return_the_gauges(tmp_path):
     """The fixed point holds (radius = gauge radius at T within 1e-7 mm) and l0 moves towards the truth."""
     scan = _raw(_sim(GAUGE_D, 3, "calibration", GAUGE_SET, temp_c=21.0), tmp_path)
     layers, _sol, budget, radius_t, means, u_mean = _calibrate(scan)
-    again = solve_rod(means, layers=layers, u_reading_mm=u_mean)
+    again = solve_rod(
+        means, layers=layers, u_reading_mm=u_mean, coaxiality_mm=rod_calibration.rod_coaxiality_mm(UNC)
+    )
     np.testing.assert_allclose(again.radius_mm, radius_t, atol=2e-7)
     err = np.array([c.l0_mm - t.l0_mm for c, t in zip(layers, TRUE)])
     assert np.all(np.abs(err) <= 3 * budget.u()), (err, budget.u())
@@ -158,7 +162,7 @@ def test_calibrate_then_measure_removes_the_base_length_error(tmp_path):
         ],
     }
     d_part = (150.0082, 149.9941)
-    cal_err, design_err = [], []
+    cal_err, design_err, design_u = [], [], []
     for seed in range(5):
         cal = _raw(
             _sim(GAUGE_D, 100 + seed, "calibration", GAUGE_SET, scan_id=f"CAL{seed}"), tmp_path / f"c{seed}"
@@ -193,12 +197,18 @@ def test_calibrate_then_measure_removes_the_base_length_error(tmp_path):
             assert r["traceable"] and not n["traceable"]
             cal_err.append(r["diameter_mm"] - d)
             design_err.append(n["diameter_mm"] - d)
+            design_u.append(n["du"].combined_t.u)
             assert abs(r["diameter_mm"] - d) <= 3 * r["du"].combined_t.u
             # the calibration's budget is in the diameter's: larger u than the design geometry's
             assert r["du"].combined_t.u > n["du"].combined_t.u
     cal_err, design_err = np.array(cal_err).reshape(-1, 2), np.array(design_err).reshape(-1, 2)
-    assert np.all(np.abs(cal_err) < 0.012), cal_err * 1e3
-    assert np.all(design_err[:, 0] < -0.020), design_err * 1e3  # layer 1: l0 12.3 um longer than designed
+    # each within 3 u (above); together far below the design geometry's error of layer 1 (> 20 um)
+    assert np.sqrt(np.mean(cal_err**2)) < 0.5 * np.min(np.abs(design_err[:, 0])), cal_err * 1e3
+    # layer 1's l0 is 12.3 um longer than designed: the design geometry's diameters 24.6 um short
+    l0_short = 2 * (TRUE[0].l0_mm - DESIGN[0].l0_mm)
+    design_u = np.array(design_u).reshape(-1, 2)
+    assert np.all(np.abs(design_err[:, 0] + l0_short) < 3 * design_u[:, 0]), design_err * 1e3
+    assert np.all(design_err[:, 0] < -0.5 * l0_short), design_err * 1e3
 
 
 def test_budget_sensitivities_are_the_closed_forms(tmp_path):
@@ -328,3 +338,34 @@ def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan
     assert before == {
         p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (tmp_path / "raw").rglob("*") if p.is_file()
     }
+
+
+def test_rod_verification_names_its_largest_input_and_what_would_reduce_it(tmp_path):
+    """Each layer's row names the budget's largest contribution; when U(E) is not below the tolerance
+    (a 1 um tolerance here) it says what would reduce it, and nothing when the verdict is decided.
+    """
+    import json
+
+    cal = _raw(_sim(GAUGE_D, 11, "calibration", GAUGE_SET, scan_id="CALV"), tmp_path / "c")
+    layers, _sol, budget, *_ = _calibrate(cal)
+    blob = json.dumps({"budget": json_ready(budget.to_dict())})
+    rows = [
+        {"channel": lay.channel, "l0_mm": lay.l0_mm, "h_mm": lay.h_mm, "calibration_json": blob}
+        for lay in layers
+    ]
+    ver = _raw(_sim(GAUGE_D, 12, "verification", GAUGE_SET, scan_id="VERV"), tmp_path / "v")
+    res = rod_calibration.rod_diameters_with_budget(ver, rows, UNC, "C")
+    lab = schema_defaults()["laboratory"]
+    tight = rod_calibration.rod_verifications(ver, res, "C", UNC, lab, 0.001)
+    for row in tight:
+        top = max(row["budget"], key=lambda b: abs(b["contribution"]))
+        assert row["dominant_input"] == top["key"]
+        kind = top["key"].split(":")[0]
+        expect = {
+            "linearity": "data-sheet linearity",
+            "fit": "a calibration with more poses",
+            "readings": "poses",
+        }
+        assert expect.get(kind, "stated") in row["dominant_fix"]
+    loose = rod_calibration.rod_verifications(ver, res, "C", UNC, lab, 1.0)
+    assert all(r["dominant_fix"] is None and r["dominant_input"] for r in loose)

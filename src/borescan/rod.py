@@ -34,8 +34,15 @@ direction the data may barely see; the local Cramer-Rao bound at the truth depen
 direction (through the rho-beta correlation) and is not attainable by any estimator when
 |beta| is below its noise. The default ("free") averages r = rho(beta) / k(|beta|) over the
 posterior of w under a bounded prior (omega ~ U(0, ``MAX_DEFLECTION_RAD`` = 2 deg), widened when
-the data put omega clearly beyond it): see ``_deflected_radii``. ``deflection="mle"`` gives r at
-|beta_hat|; "none" holds omega = 0.
+the data put omega clearly beyond it): see ``rod_deflection._deflected_radii``.
+``deflection="mle"`` gives r at |beta_hat|; "none" holds omega = 0.
+
+The holes' coaxiality (``coaxiality_mm``; the pipeline's ``uncertainty.rod_hole_coaxiality_mm``)
+fixes w where the ellipse cannot: the centres c_m are relative to the axis at each spot, so
+hole_m - hole_1 = c_m - c_1 + (z_m - z_1) sin(omega) u(omega_az), and holes coaxial within t give
+w to about t / (z_m - z_1) (``rod_deflection.CoaxialPrior``): on the demo's holds (layers 300 mm
+apart, t = 50 um) omega is found within 5 % where the ellipse alone left it anywhere in 0-2 deg.
+The posterior then conditions rho and the centres on beta = w^2 and on the coaxial differences.
 
 Start: the rank-2 structure of the readings gives the pose angles up to a
 rotation and a reflection (SVD + ellipse fit, below), a linear fit the radii and centres; LM
@@ -63,32 +70,40 @@ assumes the poses were spread around the circle as the procedure prescribes.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from borescan.fit import FitResult, fit_result, jacobian_summary
 from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
 from borescan.physics.rod import rod_section_geometry
+from borescan.rod_deflection import (
+    MAX_DEFLECTION_RAD,
+    CoaxialPrior,
+    _coaxial_rows,
+    _deflected_radii,
+    _posterior_vector,
+)
+from borescan.rod_eq16 import RodSolveError, _prepare, _unpack, rod_jacobian, rod_start
+from borescan.rod_model import (
+    _beta,
+    _dk,
+    _expand,
+    _k,
+    _RodProblem,
+    _rod_param_names,
+    _solve_core,
+    rod_layers,
+)
 
 __all__ = [
     "RodSolveError",
     "RodSolution",
-    "rod_residuals",
-    "rod_jacobian",
-    "rod_start",
     "solve_rod",
     "solve_rod_pso",
     "rod_crb",
-    "rod_layers",
-    "rod_section_geometry",
     "rod_cost_mm2",
 ]
-
-
-class RodSolveError(ValueError):
-    """The rod equations cannot determine the radii (too few readings or degenerate geometry)."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +122,8 @@ class RodSolution:
     center_xy_mm : (m, 2) hole centre relative to the axis at the spot height (= -xy_mm)
     deflection_xy_rad : (2,) maximum-likelihood w = omega (cos omega_az, sin omega_az) [rad]
     deflection_rad, deflection_az_rad : omega (from the debiased omega^2, 0 if negative), omega_az
+    deflection_posterior_xy_rad : (2,) the posterior mean of w with the coaxial prior (the centres
+        fix its sign), else sqrt(s) along the maximum-likelihood w [rad]
     deflection_sq_rad2, u_deflection_sq_rad2 : the estimate s of omega^2 (may be < 0) and its u
     eccentricity_mm, u_eccentricity_mm : (2,) axis at z = 0 minus hole 1's centre [mm]
     radius_mle_mm : (m,) radii at the maximum-likelihood omega; deflection_ratio : max u(r) with
@@ -133,6 +150,7 @@ class RodSolution:
     deflection_rad: float = 0.0
     deflection_az_rad: float = 0.0
     deflection_sq_rad2: float = 0.0
+    deflection_posterior_xy_rad: np.ndarray = field(default_factory=lambda: np.zeros(2))
     u_deflection_sq_rad2: float = float("nan")
     eccentricity_mm: np.ndarray | None = None
     u_eccentricity_mm: np.ndarray | None = None
@@ -153,467 +171,6 @@ class RodSolution:
         return 2.0 * self.u_radius_mm
 
 
-def _unpack(p, m, n, fix):
-    r, x, y = p[:m], p[m : 2 * m], p[2 * m : 3 * m]
-    alpha = np.insert(p[3 * m :], fix, 0.0)
-    return r, x, y, alpha
-
-
-def rod_residuals(p, L, mask, fix=0):
-    r"""Residuals e_nm (Wang Eq. 16) of the observed entries, parameter order [r, x, y, alpha\fix].
-
-    L : (n, m) l = l0 + v [mm] (any value where ``mask`` is False).
-    """
-    n, m = L.shape
-    r, x, y, a = _unpack(p, m, n, fix)
-    c, s = np.cos(a)[:, None], np.sin(a)[:, None]
-    e = np.hypot(x + L * c, y + L * s) - r
-    return e[mask]
-
-
-def rod_jacobian(p, L, mask, fix=0):
-    """Exact Jacobian of :func:`rod_residuals`, shape (n_obs, 3m + n - 1)."""
-    n, m = L.shape
-    r, x, y, a = _unpack(p, m, n, fix)
-    c, s = np.cos(a)[:, None], np.sin(a)[:, None]
-    X, Y = x + L * c, y + L * s
-    rho = np.hypot(X, Y)
-    J = np.zeros((n, m, 3 * m + n))
-    idx = np.arange(m)
-    J[:, idx, idx] = -1.0
-    J[:, idx, m + idx] = X / rho
-    J[:, idx, 2 * m + idx] = Y / rho
-    da = L * (y * c - x * s) / rho  # (n, m)
-    J[np.arange(n)[:, None], idx[None, :], 3 * m + np.arange(n)[:, None]] = da
-    J = np.delete(J, 3 * m + fix, axis=2)
-    return J[mask]
-
-
-def _ellipse_angles(Q: np.ndarray) -> np.ndarray | None:
-    """Angles a_n with Q_n = A (cos a_n, sin a_n) + q0 (algebraic conic fit); None if no ellipse."""
-    q1, q2 = Q[:, 0], Q[:, 1]
-    sc = np.sqrt(np.mean(q1**2 + q2**2))
-    if not np.isfinite(sc) or sc == 0:
-        return None
-    q1, q2 = q1 / sc, q2 / sc
-    D = np.column_stack([q1 * q1, q1 * q2, q2 * q2, q1, q2])
-    coef, *_ = np.linalg.lstsq(D, np.ones_like(q1), rcond=None)
-    a, b, c, d, e = coef
-    M = np.array([[a, b / 2], [b / 2, c]])
-    g = np.array([d, e])
-    try:
-        q0 = -0.5 * np.linalg.solve(M, g)
-    except np.linalg.LinAlgError:
-        return None
-    k = 1.0 + q0 @ M @ q0
-    P = M / k
-    w, V = np.linalg.eigh(P)
-    if np.any(w <= 0):
-        return None
-    G = V @ np.diag(np.sqrt(w)) @ V.T
-    U = (np.column_stack([q1, q2]) - q0) @ G.T
-    return np.arctan2(U[:, 1], U[:, 0])
-
-
-def rod_start(L: np.ndarray, mask: np.ndarray, fix: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    r"""Start values [r, x, y, alpha\fix] from the rank-2 structure of the readings (module doc).
-
-    Returns
-    -------
-    p0 : ndarray (3m + n - 1,); singular values of the column-centred reading matrix
-    """
-    n, m = L.shape
-    Lf = np.where(mask, L, np.nan)
-    mu = np.nanmean(Lf, axis=0)
-    Lc = np.where(mask, L - mu, 0.0)
-    U, S, _ = np.linalg.svd(Lc, full_matrices=False)
-    alpha = None
-    if m >= 2 and S.size >= 2:
-        alpha = _ellipse_angles(U[:, :2] * S[:2])
-    if alpha is None:
-        alpha = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    alpha = np.mod(alpha - alpha[fix] + np.pi, 2 * np.pi) - np.pi
-    r, p = _first_harmonic(L, mask, [alpha] * m)
-    return np.concatenate([r, p[:, 0], p[:, 1], np.delete(alpha, fix)]), S
-
-
-def _prepare(readings_mm, l0_mm, n_extra: int = 0):
-    """Return l = l0 + v, the observation mask and the poses kept.
-
-    l = l0 + v, the observation mask and the poses kept (those with >= 2 readings: a pose
-    seen by one layer only determines its own angle and nothing else, so it is dropped).
-    ``n_extra`` unknowns beyond Wang's 3m + n - 1 (2 for the deflection).
-    """
-    v = np.asarray(readings_mm, dtype=float)
-    if v.ndim != 2:
-        raise RodSolveError(f"readings must be (poses, holes), got shape {v.shape}")
-    m = v.shape[1]
-    L = v + np.broadcast_to(np.asarray(l0_mm, dtype=float), (m,))
-    keep = np.isfinite(L).sum(axis=1) >= 2
-    L = L[keep]
-    mask = np.isfinite(L)
-    n = L.shape[0]
-    n_obs = int(mask.sum())
-    n_par = 3 * m + n - 1 + n_extra
-    if m < 2:
-        raise RodSolveError(
-            f"underdetermined: one hole gives {int(np.isfinite(v).sum())} readings for 3 + n - 1 unknowns; "
-            "Wang Eq. 16 needs at least two layers sharing the pose angles"
-        )
-    if n_obs < n_par:
-        label = "3m + n - 1" + (f" + {n_extra}" if n_extra else "")
-        need = int(np.ceil((3 * m - 1 + n_extra) / (m - 1)))
-        raise RodSolveError(
-            f"underdetermined: {n_obs} readings < {label} = {n_par} unknowns "
-            f"(m = {m} holes, n = {n} poses with >= 2 readings; need n >= {need} complete poses)"
-        )
-    per_hole = mask.sum(axis=0)
-    if np.any(per_hole < 3):
-        raise RodSolveError(
-            f"underdetermined: holes {list(np.flatnonzero(per_hole < 3) + 1)} have fewer than 3 readings"
-        )
-    return L, mask, keep
-
-
-# --------------------------------------------------------------------------- deflection-aware model
-
-
-def _k(s):
-    """Mean-radius factor of the tilted section, s = omega^2 [rad^2]: (1 + 1/cos omega) / 2 to O(s^2).
-
-    Analytic in s, so a negative s (the debiased estimate of a small omega^2) is allowed.
-    """
-    return 1.0 + s / 4.0 + 5.0 * s * s / 48.0
-
-
-def _dk(s):
-    return 0.25 + 5.0 * s / 24.0
-
-
-def rod_layers(
-    l0_mm=None, layers: Sequence[RodLayer] | None = None, m: int | None = None
-) -> tuple[RodLayer, ...]:
-    """Return the layer geometry for the solve.
-
-    Layer geometry for the solve: ``layers`` (device nominal or a rod calibration), their l0
-    replaced by ``l0_mm`` when both are given; l0 alone gives phi = d = gamma = 0 (Wang Eq. 16).
-    """
-    if layers is None:
-        if l0_mm is None:
-            raise ValueError("rod_layers needs l0_mm or layers")
-        l0 = np.broadcast_to(np.asarray(l0_mm, dtype=float), (m,) if m is not None else np.shape(l0_mm))
-        return tuple(RodLayer(channel=j + 1, h_mm=0.0, l0_mm=float(x)) for j, x in enumerate(l0))
-    out = tuple(layers)
-    if l0_mm is not None:
-        l0 = np.broadcast_to(np.asarray(l0_mm, dtype=float), (len(out),))
-        out = tuple(replace(lay, l0_mm=float(x)) for lay, x in zip(out, l0))
-    return out
-
-
-class _RodProblem:
-    r"""Exact forward model in the solver's unknowns p = [rho (m), cx (m), cy (m), alpha\fix (n-1), w (2)].
-
-    rho_m = r_m k(omega^2) is the mean radius of section m; w the deflection vector (omitted when
-    ``deflection`` is False). Readings from :func:`borescan.geometry.rod_readings` only.
-    """
-
-    def __init__(self, V, mask, layers, fix, deflection, alpha_fix=0.0):
-        self.V, self.mask, self.layers, self.fix = V, mask, tuple(layers), fix
-        self.n, self.m = V.shape
-        self.deflection = deflection
-        self.alpha_fix = alpha_fix
-        self.n_par = 3 * self.m + self.n - 1 + (2 if deflection else 0)
-        self.Vz = np.where(mask, V, 0.0)
-
-    def unpack(self, p):
-        m, n = self.m, self.n
-        rho, cx, cy = p[:m], p[m : 2 * m], p[2 * m : 3 * m]
-        alpha = np.insert(p[3 * m : 3 * m + n - 1], self.fix, self.alpha_fix)
-        w = p[3 * m + n - 1 :] if self.deflection else np.zeros(2)
-        return rho, np.column_stack([cx, cy]), alpha, np.asarray(w, dtype=float)
-
-    def pack(self, rho, c, alpha, w=None):
-        parts = [rho, c[:, 0], c[:, 1], np.delete(alpha, self.fix)]
-        if self.deflection:
-            parts.append(np.zeros(2) if w is None else w)
-        return np.concatenate(parts)
-
-    def readings(self, rho, c, alpha, w):
-        s = w[0] ** 2 + w[1] ** 2
-        holes, axis = rod_section_geometry(self.layers, c, rho / _k(s), w)
-        return rod_readings(alpha, list(self.layers), holes, axis)
-
-    def residual(self, p):
-        e = np.where(self.mask, self.V - self.readings(*self.unpack(p)), 0.0)
-        return e[self.mask]
-
-    def jac(self, p, beta_step=None):
-        """Return d(model)/dp by central differences in blocks.
-
-        d(model)/dp by central differences in blocks (a pose angle moves its row only, a hole's
-        unknowns its column only: 12 model evaluations). With ``beta_step`` the last two columns
-        are secants in beta = w^2 (complex square) instead: the statistics' coordinates.
-        """
-        rho, c, alpha, w = self.unpack(p)
-        n, m = self.n, self.m
-        J = np.zeros((n, m, self.n_par))
-        f = self.readings
-        h = 1e-6
-        d = (f(rho, c, alpha + h, w) - f(rho, c, alpha - h, w)) / (2 * h)
-        free = np.delete(np.arange(n), self.fix)
-        J[free, :, 3 * m + np.arange(n - 1)] = d[free]
-        idx = np.arange(m)
-        hr = 1e-5
-        J[:, idx, idx] = (f(rho + hr, c, alpha, w) - f(rho - hr, c, alpha, w)) / (2 * hr)
-        for k in range(2):
-            e = np.zeros((1, 2))
-            e[0, k] = hr
-            J[:, idx, (1 + k) * m + idx] = (f(rho, c + e, alpha, w) - f(rho, c - e, alpha, w)) / (2 * hr)
-        if self.deflection:
-            if beta_step is None:
-                for k in range(2):
-                    e = np.zeros(2)
-                    e[k] = h
-                    J[:, :, -2 + k] = (f(rho, c, alpha, w + e) - f(rho, c, alpha, w - e)) / (2 * h)
-            else:
-                b = _beta(w)
-                for k in range(2):
-                    e = np.zeros(2)
-                    e[k] = beta_step
-                    J[:, :, -2 + k] = (
-                        f(rho, c, alpha, _w_of_beta(b + e, w)) - f(rho, c, alpha, _w_of_beta(b - e, w))
-                    ) / (2 * beta_step)
-        return -J[self.mask]  # residual = V - model
-
-
-def _beta(w):
-    """beta = w^2 as a complex square: omega^2 (cos 2 omega_az, sin 2 omega_az)."""
-    return np.array([w[0] ** 2 - w[1] ** 2, 2 * w[0] * w[1]])
-
-
-def _w_of_beta(b, w_ref):
-    """Complex square root of beta on the branch nearest ``w_ref``."""
-    z = np.sqrt(complex(b[0], b[1]))
-    if z.real * w_ref[0] + z.imag * w_ref[1] < 0:
-        z = -z
-    return np.array([z.real, z.imag])
-
-
-def _first_harmonic(L, mask, angles):
-    """Return the rod's linear start, per layer r (m,) and p (m, 2).
-
-    Per layer j, l = r_j - p_j . u(a_j) by linear least squares (Eq. 16 to first order in the eccentricity),
-    a_j = ``angles[j]`` (n,): the one linear start of the rod. Returns r (m,), p (m, 2).
-    """
-    n, m = L.shape
-    r, p = np.empty(m), np.empty((m, 2))
-    for j in range(m):
-        A = np.column_stack([np.ones(n), -np.cos(angles[j]), -np.sin(angles[j])])
-        ok = mask[:, j]
-        (r[j], p[j, 0], p[j, 1]), *_ = np.linalg.lstsq(A[ok], L[ok, j], rcond=None)
-    return r, p
-
-
-def _linear_start(L, mask, alpha, layers):
-    """Per layer, l = r - p . u(alpha + phi) (:func:`_first_harmonic`); centre = -p."""
-    r, p = _first_harmonic(L, mask, [alpha + lay.phi_rad for lay in layers])
-    return r, -p
-
-
-def _lm(prob, p0, n_par):
-    sol = least_squares(
-        prob.residual,
-        p0,
-        jac=prob.jac,
-        method="lm",
-        x_scale="jac",
-        xtol=1e-14,
-        ftol=1e-14,
-        gtol=1e-14,
-        max_nfev=100 * n_par,
-    )
-    return sol.x, float(sol.fun @ sol.fun), int(sol.nfev)
-
-
-def _magnitude(b, half_tr):
-    """Debiased signed magnitude of beta (module doc): sign(q) sqrt|q|, q = |b|^2 - tr(Sigma)/2."""
-    q = b[..., 0] ** 2 + b[..., 1] ** 2 - half_tr
-    return np.sign(q) * np.sqrt(np.abs(q))
-
-
-#: bound of the deflection prior [rad]: a hand-held rod deflects by a few degrees at most (the
-#: contract's rods <= 1 deg; 2 deg leaves a factor 2). A deflection the data put clearly beyond it
-#: (|beta_hat| - 3 sd > bound^2) widens the bound to cover the likelihood: never truncated.
-MAX_DEFLECTION_RAD = float(np.deg2rad(2.0))
-
-
-def _deflected_radii(rho, b, cov, m, mode, max_deflection_rad=MAX_DEFLECTION_RAD, n_draw: int = 4000):
-    """omega^2 estimate s, u(r_m) and u(s) for r_m = rho_m / k(omega^2) (module doc, "Deflection").
-
-    "free": the readings are linear in beta near 0, so the likelihood of beta (the other unknowns
-    profiled) is N(beta_hat, Sigma_beta) and, given beta, rho_m(beta) = rho_hat_m - K_m (beta_hat - beta)
-    (K = Sigma_rho,beta Sigma_beta^-1) with variance Sigma_rho|beta. r is averaged over the posterior
-    of w under the prior omega ~ U(0, ``max_deflection_rad``) (widened when the data demand), azimuth uniform
-    (importance sampling
-    from a fixed-seed mixture of the prior and the likelihood): r_m = E[rho_m(beta) / k(|beta|)],
-    u^2 = Var[rho_m(beta) / k] + Sigma_rho|beta / k^2, s = E[omega^2], u(s) its posterior SD.
-    The direction of a deflection that the data barely see is averaged over instead of fixed at
-    its noisy estimate. "mle": s = |beta_hat|, u by the delta method along beta_hat.
-    """
-    idx = np.r_[np.arange(m), cov.shape[0] - 2, cov.shape[0] - 1]
-    C = cov[np.ix_(idx, idx)]
-    Sb = C[-2:, -2:]
-    nb = float(np.hypot(*b))
-    uhat = b / nb if nb > 0 else np.array([1.0, 0.0])
-    if mode == "mle":
-        s = nb
-        G = np.zeros((m, m + 2))
-        G[np.arange(m), np.arange(m)] = 1.0 / _k(s)
-        G[:, -2:] = -(rho * _dk(s) / _k(s) ** 2)[:, None] * uhat[None, :]
-        return (
-            s,
-            np.sqrt(np.clip(np.diag(G @ C @ G.T), 0.0, None)),
-            float(np.sqrt(max(uhat @ Sb @ uhat, 0.0))),
-        )
-    Crr, Crb = C[:m, :m], C[:m, m:]
-    Sb_inv = np.linalg.pinv(Sb)
-    K = Crb @ Sb_inv
-    cond = np.clip(np.diag(Crr - K @ Crb.T), 0.0, None)
-    ev, V = np.linalg.eigh(Sb)
-    ev = np.clip(ev, 0.0, None)
-    W = float(max_deflection_rad)
-    if nb - 3.0 * np.sqrt(ev[-1]) > W**2:  # the data put omega clearly beyond the bound
-        W = float(np.sqrt(nb + 3.0 * np.sqrt(ev[-1])))
-    rng = np.random.default_rng(0)
-    # proposal 1: the prior (omega uniform on [0, W], azimuth uniform)
-    om = W * rng.random(n_draw)
-    az = rng.uniform(0.0, 2 * np.pi, n_draw)
-    w1 = np.column_stack([om * np.cos(az), om * np.sin(az)])
-    # proposal 2: the likelihood N(beta_hat, Sigma_beta), pushed to w = sqrt(beta)
-    B = b + (rng.standard_normal((n_draw, 2)) * np.sqrt(ev)) @ V.T
-    zc = np.sqrt(B[:, 0] + 1j * B[:, 1])
-    w = np.vstack([w1, np.column_stack([zc.real, zc.imag])])
-    o = np.hypot(w[:, 0], w[:, 1])
-    beta = np.column_stack([w[:, 0] ** 2 - w[:, 1] ** 2, 2 * w[:, 0] * w[:, 1]])
-    d = beta - b
-    lik = np.exp(-0.5 * np.einsum("ij,jk,ik->i", d, Sb_inv, d)) / (
-        2 * np.pi * np.sqrt(max(ev[0] * ev[1], 1e-300))
-    )
-    # densities per unit area of the w plane: prior 1 / (2 pi W omega); likelihood 2 omega^2 N(beta)
-    prior = np.where(o <= W, 1.0 / (2 * np.pi * W * np.maximum(o, 1e-300)), 0.0)
-    wt = prior * lik / (0.5 * prior + np.maximum(o, 1e-300) ** 2 * lik + 1e-300)
-    if not np.isfinite(wt.sum()) or wt.sum() <= 0:  # the likelihood lies far outside the prior
-        wt = (o <= W) * np.exp(
-            -0.5 * (np.einsum("ij,jk,ik->i", d, Sb_inv, d) - np.min(np.einsum("ij,jk,ik->i", d, Sb_inv, d)))
-        )
-    wt = wt / wt.sum()
-    s2 = o**2
-    R = (rho[None, :] - (b - beta) @ K.T) / _k(s2)[:, None]
-    r = wt @ R
-    sm = float(wt @ s2)
-    u_r = np.sqrt(wt @ (R - r) ** 2 + cond / _k(sm) ** 2)
-    return sm, u_r, float(np.sqrt(wt @ (s2 - sm) ** 2)), r
-
-
-#: largest deflection a start may take [rad] (5.7 deg; the contract's rods deflect <= 1 deg)
-_MAX_START_RAD = 0.1
-#: pose-angle grid of the per-pose profile (module doc, "Start")
-_POSE_GRID = np.linspace(-np.pi, np.pi, 360, endpoint=False)
-
-
-def _repair_poses(prob, p, max_rounds: int = 3):
-    """Repair the pose angles by a per-pose profile.
-
-    Per-pose angle profile: with the holes and the axis held, each pose angle is searched on a
-    grid over the whole circle; a pose whose grid minimum is clearly below its current cost is
-    moved there and the joint LM re-run. A single pose angle can sit in a local minimum of its
-    own (its readings are periodic in alpha_n) which LM cannot leave; this finds it.
-    """
-    cost = float(prob.residual(p) @ prob.residual(p))
-    nfev = 0
-    for _ in range(max_rounds):
-        rho, c, alpha, w = prob.unpack(p)
-        s = float(w @ w)
-        holes, axis = rod_section_geometry(prob.layers, c, rho / _k(s), w)
-        G = rod_readings(_POSE_GRID, list(prob.layers), holes, axis)  # (g, m)
-        cur = np.where(prob.mask, prob.V - prob.readings(rho, c, alpha, w), 0.0)
-        cur = np.sum(cur**2, axis=1)
-        d = np.where(prob.mask[:, None, :], prob.Vz[:, None, :] - G[None, :, :], 0.0)
-        grid_cost = np.sum(d**2, axis=2)  # (n, g)
-        k = np.argmin(grid_cost, axis=1)
-        best = grid_cost[np.arange(prob.n), k]
-        move = best < 0.5 * cur  # a clear improvement: the pose sits in another basin
-        move[prob.fix] = False
-        if not np.any(move):
-            break
-        alpha = alpha.copy()
-        alpha[move] = _POSE_GRID[k[move]]
-        try:
-            p1, cost1, kf = _lm(prob, prob.pack(rho, c, alpha, w if prob.deflection else None), prob.n_par)
-        except ValueError:
-            break
-        nfev += kf
-        if not (np.isfinite(cost1) and cost1 < cost):
-            break
-        p, cost = p1, cost1
-    return p, cost, nfev
-
-
-def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and repairs)
-    prob, L, mask, starts_alpha, deflection
-):
-    """Run the multi-start LM of the rod solve.
-
-    Multi-start LM: every start (both reflections) first without deflection, then from the
-    closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0); the
-    lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`).
-    """
-    best, nfev = None, 0
-    flat = _RodProblem(prob.V, mask, prob.layers, prob.fix, False)
-    for alpha0 in starts_alpha:
-        r0, c0 = _linear_start(L, mask, alpha0, prob.layers)
-        p, cost, k = _lm(flat, flat.pack(r0, c0, alpha0), flat.n_par)
-        nfev += k
-        p, cost, k = _repair_poses(flat, p)
-        nfev += k
-        cand = [(p, cost)]
-        if deflection:
-            rho, c, alpha, _ = flat.unpack(p)
-            full = prob.pack(rho, c, alpha, np.zeros(2))
-            J = prob.jac(full, beta_step=1e-4)
-            step, *_ = np.linalg.lstsq(J, -prob.residual(full), rcond=None)
-            b = step[-2:]
-            w0 = _w_of_beta(b, np.array([1.0, 0.0]))
-            om0 = float(np.hypot(*w0))
-            if om0 < 1e-4:
-                w0 = np.array([1e-3, 0.0])
-            elif om0 > _MAX_START_RAD:  # an ill-conditioned step: keep the rays inside the holes
-                w0 = w0 * (_MAX_START_RAD / om0)
-            cand = [(full, float(prob.residual(full) @ prob.residual(full)))]
-            for sgn in (1.0, -1.0):
-                try:
-                    p1, cost1, k = _lm(prob, prob.pack(rho, c, alpha, sgn * w0), prob.n_par)
-                except ValueError:  # the start puts a beam outside its hole
-                    continue
-                nfev += k
-                # a minimum beyond _MAX_START_RAD is a low-signal wander, not a hand-held rod: not taken
-                if np.isfinite(cost1) and np.hypot(*prob.unpack(p1)[3]) <= _MAX_START_RAD:
-                    cand.append((p1, cost1))
-        for p1, cost1 in cand:
-            if best is None or cost1 < best[1]:
-                best = (p1, cost1)
-    p, cost = best
-    if deflection:
-        try:
-            p1, cost1, k = _repair_poses(prob, p)
-            nfev += k
-            if cost1 < cost and np.hypot(*prob.unpack(p1)[3]) <= _MAX_START_RAD:
-                p, cost = p1, cost1
-        except ValueError:
-            pass
-    return p, cost, nfev
-
-
 def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     readings_mm,
     l0_mm=None,
@@ -626,6 +183,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     max_u_ratio: float = 50.0,
     max_deflection_ratio: float = 10.0,
     max_deflection_rad: float = MAX_DEFLECTION_RAD,
+    coaxiality_mm: float | None = None,
     centred: str = "refuse",
 ) -> RodSolution:
     r"""Solve the exact rod model (spec "Measuring rod"; Wang 2017 Eq. 16 generalised) jointly.
@@ -652,6 +210,10 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         sigma / sqrt(n_m), the uncertainty of a centred rod's mean reading
     max_deflection_ratio : refuse when freeing the deflection multiplies some u(r_m) by more than
         this (the poses do not separate the section's ellipse from the radius)
+    max_deflection_rad : bound of the deflection prior [rad] (``MAX_DEFLECTION_RAD``)
+    coaxiality_mm : the holes share one axis within this tolerance [mm] (each centre within +- it,
+        per coordinate): the centres then fix the deflection (:class:`CoaxialPrior`); None: the
+        deflection is constrained by the readings' ellipse and the bound only
 
     Returns
     -------
@@ -677,36 +239,8 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     n, m = L.shape
     n_obs = int(mask.sum())
     p0, S = rod_start(L, mask, fix_pose)
-    # Noise reference for the centred test: the given u, else the third singular value (m >= 3)
-    sig_ref = (
-        u_reading_mm if u_reading_mm is not None else (S[2] / np.sqrt(max(n - 2, 1)) if S.size > 2 else None)
-    )
-    if sig_ref is not None and S[0] < 5.0 * sig_ref * np.sqrt(n):
-        if centred != "mean":
-            raise RodSolveError(
-                "degenerate geometry: readings constant within the noise - either the rod is centred "
-                "(angles undetermined; pass centred='mean' if the poses were spread around the circle) "
-                "or all poses are at nearly one angle (radii undetermined)"
-            )
-        Lf = np.where(mask, L, np.nan)
-        r = np.nanmean(Lf, axis=0)
-        cnt = mask.sum(axis=0)
-        sd = np.nanstd(Lf, axis=0, ddof=1)
-        sig = np.full(m, u_reading_mm) if u_reading_mm is not None else sd
-        return RodSolution(
-            radius_mm=r,
-            u_radius_mm=sig / np.sqrt(cnt),
-            xy_mm=np.zeros((m, 2)),
-            alpha_rad=np.full(keep.size, np.nan),
-            residual_rms_mm=float(np.sqrt(np.nanmean((Lf - r) ** 2))),
-            sigma_mm=float(np.mean(sig)),
-            rank=m,
-            n_params=3 * m + n - 1 + (2 if defl else 0),
-            condition=float("inf"),
-            cov=None,
-            method="centred",
-            nfev=0,
-        )
+    if _readings_constant(S, n, u_reading_mm, centred):
+        return _centred_solution(L, mask, keep, u_reading_mm, 3 * m + n - 1 + (2 if defl else 0))
     a0 = np.insert(p0[3 * m :], fix_pose, 0.0)
     V = L - l0
     prob = _RodProblem(V, mask, lays, fix_pose, defl)
@@ -743,44 +277,13 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     )
     cov = fit.cov
     rho, c, alpha, w = prob.unpack(p)
-    ref = sigma / np.sqrt(mask.sum(axis=0))
+    u_fixed = _u_radii_held(J, cov, sigma, mask, defl, max_u_ratio, cond)
     if defl:
-        nb = n_par - 2
-        cov0 = sigma**2 * jacobian_summary(J[:, :nb], rtol=1e-12).cov_unit
-        u_fixed = np.sqrt(np.diag(cov0)[:m])
-    else:
-        u_fixed = np.sqrt(np.diag(cov)[:m])
-    ratio = u_fixed / ref
-    if np.any(ratio > max_u_ratio):
-        raise RodSolveError(
-            f"degenerate geometry: radii ill-determined, u(r) = {np.array2string(u_fixed, precision=4)} "
-            "mm is up to "
-            f"{ratio.max():.0f} x sigma/sqrt(n) (condition {cond:.3g}); the offsets (x_m, y_m) are "
-            "nearly collinear "
-            "with the axis (rod parallel to, or intersecting, the holes' axis) or the poses are bunched"
+        s, u_r, u_s, r_post, w_post, dratio = _deflection_part(
+            rho, c, w, cov, lays, deflection, u_fixed, coaxiality_mm, max_deflection_rad, max_deflection_ratio
         )
-    b = _beta(w)
-    if defl:
-        out = _deflected_radii(rho, b, cov, m, deflection, max_deflection_rad)
-        s, u_r, u_s = out[:3]
-        r_post = out[3] if len(out) > 3 else None
-        # linearised, worst deflection direction: u(r) with omega free over u(r) with it held
-        q = rho / 4.0
-        Crb = cov[:m, -2:]
-        lam = float(np.linalg.eigvalsh(cov[-2:, -2:])[-1])
-        u_lin = np.sqrt(np.diag(cov)[:m] + 2 * q * np.linalg.norm(Crb, axis=1) + q**2 * max(lam, 0.0))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            dratio = float(np.nanmax(u_lin / u_fixed))
-        if dratio > max_deflection_ratio:
-            raise RodSolveError(
-                "deflection not separable from the radii: freeing the rod axis deflection multiplies "
-                "u(r) by "
-                f"{dratio:.1f} (> {max_deflection_ratio:g}); the poses do not span the second harmonic "
-                "of the "
-                f"tilted section (u(omega^2) = {u_s:.3g} rad^2) - add poses spread around the circle"
-            )
     else:
-        s, u_s, dratio, r_post = 0.0, 0.0, 1.0, None
+        s, u_s, dratio, r_post, w_post = 0.0, 0.0, 1.0, None, None
         u_r = u_fixed
     r = rho / _k(s) if r_post is None else r_post
     holes, _ = rod_section_geometry(lays, c, rho / _k(float(w @ w)), w)
@@ -805,6 +308,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         deflection_rad=float(np.sqrt(max(s, 0.0))),
         deflection_az_rad=float(np.arctan2(w[1], w[0])) if np.any(w != 0) else 0.0,
         deflection_sq_rad2=s,
+        deflection_posterior_xy_rad=_posterior_vector(w_post, w, s),
         u_deflection_sq_rad2=float(u_s),
         eccentricity_mm=ecc,
         u_eccentricity_mm=u_ecc,
@@ -816,17 +320,111 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     )
 
 
-def _rod_param_names(m: int, n: int, fix_pose: int, deflection: bool) -> tuple[str, ...]:
-    """Names of the joint solve's parameter vector [rho (m), cx (m), cy (m), alpha (n - 1), w (2)]."""
-    names = [f"rho_{j + 1}_mm" for j in range(m)] + [f"cx_{j + 1}_mm" for j in range(m)]
-    names += [f"cy_{j + 1}_mm" for j in range(m)] + [f"alpha_{i}_rad" for i in range(n) if i != fix_pose]
-    return tuple(names + (["w_x_rad", "w_y_rad"] if deflection else []))
+def _readings_constant(S, n, u_reading_mm, centred) -> bool:
+    """Return whether the readings are constant within the noise (centred rod); refused unless "mean".
+
+    The noise reference: the given u, else the third singular value S[2] of the centred readings (m >= 3).
+    """
+    sig_ref = (
+        u_reading_mm if u_reading_mm is not None else (S[2] / np.sqrt(max(n - 2, 1)) if S.size > 2 else None)
+    )
+    if sig_ref is None or S[0] >= 5.0 * sig_ref * np.sqrt(n):
+        return False
+    if centred != "mean":
+        raise RodSolveError(
+            "degenerate geometry: readings constant within the noise - either the rod is centred "
+            "(angles undetermined; pass centred='mean' if the poses were spread around the circle) "
+            "or all poses are at nearly one angle (radii undetermined)"
+        )
+    return True
 
 
-def _expand(a, keep):
-    out = np.full(keep.size, np.nan)
-    out[keep] = a
-    return out
+def _centred_solution(L, mask, keep, u_reading_mm, n_par) -> RodSolution:
+    """Return the radii of a centred rod: the mean readings, u = sigma / sqrt(n_m) (``centred="mean"``)."""
+    m = L.shape[1]
+    Lf = np.where(mask, L, np.nan)
+    r = np.nanmean(Lf, axis=0)
+    cnt = mask.sum(axis=0)
+    sd = np.nanstd(Lf, axis=0, ddof=1)
+    sig = np.full(m, u_reading_mm) if u_reading_mm is not None else sd
+    return RodSolution(
+        radius_mm=r,
+        u_radius_mm=sig / np.sqrt(cnt),
+        xy_mm=np.zeros((m, 2)),
+        alpha_rad=np.full(keep.size, np.nan),
+        residual_rms_mm=float(np.sqrt(np.nanmean((Lf - r) ** 2))),
+        sigma_mm=float(np.mean(sig)),
+        rank=m,
+        n_params=n_par,
+        condition=float("inf"),
+        cov=None,
+        method="centred",
+        nfev=0,
+    )
+
+
+def _u_radii_held(J, cov, sigma, mask, defl, max_u_ratio, cond) -> np.ndarray:
+    """Return u(r_m) with the deflection held; refuse radii the geometry leaves ill-determined."""
+    m = mask.shape[1]
+    n_par = J.shape[1]
+    ref = sigma / np.sqrt(mask.sum(axis=0))
+    if defl:
+        nb = n_par - 2
+        cov0 = sigma**2 * jacobian_summary(J[:, :nb], rtol=1e-12).cov_unit
+        u_fixed = np.sqrt(np.diag(cov0)[:m])
+    else:
+        u_fixed = np.sqrt(np.diag(cov)[:m])
+    ratio = u_fixed / ref
+    if np.any(ratio > max_u_ratio):
+        raise RodSolveError(
+            f"degenerate geometry: radii ill-determined, u(r) = {np.array2string(u_fixed, precision=4)} "
+            "mm is up to "
+            f"{ratio.max():.0f} x sigma/sqrt(n) (condition {cond:.3g}); the offsets (x_m, y_m) are "
+            "nearly collinear "
+            "with the axis (rod parallel to, or intersecting, the holes' axis) or the poses are bunched"
+        )
+    return u_fixed
+
+
+def _deflection_part(
+    rho, c, w, cov, lays, deflection, u_fixed, coaxiality_mm, max_deflection_rad, max_deflection_ratio
+):
+    """Return (s, u(r), u(s), r, posterior w, deflection ratio) of a solve with the deflection free.
+
+    The radii averaged over the deflection (:func:`borescan.rod_deflection._deflected_radii`, with
+    the holes' coaxiality when given); refused when the readings cannot separate the deflection
+    from the radii (module doc, "Refusals").
+    """
+    m = rho.size
+    b = _beta(w)
+    coax = None
+    if coaxiality_mm is not None and deflection == "free":
+        spot_z = np.array([lay.h_mm for lay in lays]) + rho * np.tan([lay.gamma_rad for lay in lays])
+        if np.ptp(spot_z) > 0:
+            coax = CoaxialPrior(c, spot_z, float(coaxiality_mm))
+    out = _deflected_radii(rho, b, cov, m, deflection, max_deflection_rad, coax=coax)
+    s, u_r, u_s = out[:3]
+    r_post = out[3] if len(out) > 3 else None
+    w_post = out[4] if len(out) > 4 else None
+    # linearised, worst deflection direction: u(r) with omega free over u(r) with it held, from
+    # the readings alone (with the coaxial prior too: where the readings cannot separate the
+    # deflection, their beta is far from linear and the prior's beta would move rho along a
+    # false line)
+    q = rho / 4.0
+    Crb = cov[:m, -2:]
+    lam = float(np.linalg.eigvalsh(cov[-2:, -2:])[-1])
+    u_lin = np.sqrt(np.diag(cov)[:m] + 2 * q * np.linalg.norm(Crb, axis=1) + q**2 * max(lam, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dratio = float(np.nanmax(u_lin / u_fixed))
+    if dratio > max_deflection_ratio:
+        raise RodSolveError(
+            "deflection not separable from the radii: freeing the rod axis deflection multiplies "
+            "u(r) by "
+            f"{dratio:.1f} (> {max_deflection_ratio:g}); the poses do not span the second harmonic "
+            "of the "
+            f"tilted section (u(omega^2) = {u_s:.3g} rad^2) - add poses spread around the circle"
+        )
+    return s, u_r, u_s, r_post, w_post, dratio
 
 
 def rod_cost_mm2(readings_mm, alpha_rad, layers, holes, axis) -> float:
@@ -853,6 +451,7 @@ def rod_crb(
     holes: Sequence[Hole] | None = None,
     axis: RodAxis | None = None,
     deflection: bool = True,
+    coaxiality_mm: float | None = None,
 ) -> np.ndarray:
     r"""Cramér-Rao bound on the radii for Gaussian reading noise sigma.
 
@@ -864,6 +463,9 @@ def rod_crb(
 
     Legacy form (``l_mm`` (n, m) = l0 + v, ``xy_mm``, ``radius_mm``): Wang Eq. 16 (no deflection),
     with the noise of e_nm = sigma de/dl, de/dl = (X c + Y s)/rho; CRB = (J^T W J)^-1.
+
+    ``coaxiality_mm`` adds the information of the holes' coaxiality (:class:`CoaxialPrior`, the
+    solve's prior of the same name): the bound the solve with that prior can reach.
 
     Returns
     -------
@@ -888,10 +490,12 @@ def rod_crb(
         prob = _RodProblem(V, np.ones_like(V, dtype=bool), lays, fix_pose, deflection, alpha_fix=a[fix_pose])
         s = float(w @ w)
         p = prob.pack(r * _k(s), c, a, w)
-        J = prob.jac(p, beta_step=1e-4 if deflection else None)
+        J = prob.jac(p, beta_step=1e-4 if deflection else None) / sigma_mm
+        if deflection and coaxiality_mm is not None:
+            J = np.vstack([J, _coaxial_rows(lays, r, c, w, coaxiality_mm, prob.n_par)])
         col = np.linalg.norm(J, axis=0)
         col[col == 0] = 1.0
-        F = (J / col).T @ (J / col) / sigma_mm**2
+        F = (J / col).T @ (J / col)
         cov = np.linalg.pinv(F) / np.outer(col, col)
         G = np.zeros((m, prob.n_par))
         rho = r * _k(s)

@@ -38,6 +38,7 @@ from .effects import REFERENCE_TEMPERATURE_C, thermal_expansion_factor
 from .atomic import json_ready
 from .calibration import make_calibration_id
 from .calibrations import rod_layers
+from .config import schema_default
 from .geometry import RodLayer
 from .rod import RodSolution, solve_rod
 from .uncertainty import Budget, Input, Term
@@ -46,6 +47,7 @@ __all__ = [
     "ROD_CALIBRATION_METHOD",
     "RodCalibration",
     "layer_gauges",
+    "rod_coaxiality_mm",
     "calibrate_l0",
     "rod_calibration_budget",
     "rod_calibration_id",
@@ -97,6 +99,15 @@ class RodCalibration:
     def l0_mm(self) -> np.ndarray:
         """Base lengths l0 [mm] of the layers."""
         return np.array([lay.l0_mm for lay in self.layers], dtype=float)
+
+
+def rod_coaxiality_mm(unc_cfg: dict) -> float | None:
+    """Return the holes' coaxiality tolerance (``uncertainty.rod_hole_coaxiality_mm``) [mm]."""
+    if "rod_hole_coaxiality_mm" in unc_cfg:
+        v = unc_cfg["rod_hole_coaxiality_mm"]
+    else:
+        v = schema_default("uncertainty", "rod_hole_coaxiality_mm")
+    return None if v is None else float(v)
 
 
 def layer_gauges(meta: dict, channels) -> list[dict]:
@@ -162,7 +173,14 @@ def layer_gauges(meta: dict, channels) -> list[dict]:
 
 
 def calibrate_l0(
-    means_mm, layers, u_reading_mm, radius_at_t_mm, *, tol_mm: float = 1e-7, max_iter: int = 10
+    means_mm,
+    layers,
+    u_reading_mm,
+    radius_at_t_mm,
+    *,
+    coaxiality_mm: float | None = None,
+    tol_mm: float = 1e-7,
+    max_iter: int = 10,
 ) -> tuple[tuple[RodLayer, ...], RodSolution, int]:
     """Return base lengths at which the rod solve returns the gauges' radii (fixed point of the module doc).
 
@@ -172,6 +190,7 @@ def calibrate_l0(
     layers : RodLayer per column (start: the nominal geometry)
     u_reading_mm : standard uncertainty of one mean [mm] (None: from the residuals)
     radius_at_t_mm : (m,) each gauge's radius at the scan's temperature [mm]
+    coaxiality_mm : the gauges' coaxiality (``uncertainty.rod_hole_coaxiality_mm``; :func:`rod_coaxiality_mm`)
 
     Returns
     -------
@@ -184,7 +203,7 @@ def calibrate_l0(
     target = np.asarray(radius_at_t_mm, dtype=float)
     lays = tuple(layers)
     for it in range(1, max_iter + 1):
-        sol = solve_rod(means_mm, layers=lays, u_reading_mm=u_reading_mm)
+        sol = solve_rod(means_mm, layers=lays, u_reading_mm=u_reading_mm, coaxiality_mm=coaxiality_mm)
         step = target - sol.radius_mm
         # settled when the step is below tol_mm or a thousandth of the radius' own uncertainty (the
         # solve's optimiser tolerance and its deflection average make r(l0) rough at the nm level)
@@ -427,7 +446,12 @@ def rod_diameters_with_budget(
     if missing:
         raise ValueError(f"calibration {calibration_id} has no rod layer for channel(s) {missing}")
     temp, cte = scan_temperature(scan.meta, unc_cfg), artifact_cte(scan.meta, unc_cfg)
-    sol = solve_rod(means, layers=[by_ch[c] for c in channels], u_reading_mm=u_mean)
+    sol = solve_rod(
+        means,
+        layers=[by_ch[c] for c in channels],
+        u_reading_mm=u_mean,
+        coaxiality_mm=rod_coaxiality_mm(unc_cfg),
+    )
     feat = {int(l["channel"]): l.get("feature") for l in (scan.meta.get("rod") or {}).get("layers", [])}
     cal_chans = sorted(by_ch)
     out = []
@@ -456,6 +480,7 @@ def rod_diameters_with_budget(
                 "poses": int(means.shape[0]),
                 "condition": float(sol.condition),
                 "traceable": cal_budget is not None,
+                "solution": sol,
             }
         )
     return out
@@ -468,7 +493,9 @@ def rod_verifications(
 
     ``verifications`` rows of a rod scan in certified gauges: each layer's diameter at 20 degC
     against its gauge (:func:`layer_gauges`, :func:`borescan.measure.verify_budget`), one row per
-    layer with ``feature``, the budget rows (``budget``) and the scan's raw files.
+    layer with ``feature``, the budget rows (``budget``) and the scan's raw files; the budget's
+    largest input (``dominant_input``, its key) and, when U(E) is not below the tolerance, what
+    would reduce it (``dominant_fix``, :func:`_dominant_fix`).
 
     Raises ValueError when a layer has no certified gauge.
     """
@@ -487,6 +514,14 @@ def rod_verifications(
             float(lab_cfg["guard_band_factor"]),
         )
         row = verification_row(scan.scan_id, scan.meta["device"]["id"], g["id"], v)
+        top = max(v.budget_rows, key=lambda b: abs(b.get("contribution") or 0.0), default=None)
+        undecided = not v.U_error_mm < tolerance_mm
+        row.update(
+            dominant_input=None if top is None else top["key"],
+            dominant_fix=_dominant_fix(top["key"], d, unc_cfg, tolerance_mm / v.k)
+            if undecided and top
+            else None,
+        )
         row.update(
             calibration_id=calibration_id,
             temperature_assumed=d["du"].temperature.assumed,
@@ -497,3 +532,43 @@ def rod_verifications(
         )
         rows.append(row)
     return rows
+
+
+def _dominant_fix(key: str, diameter: dict, unc_cfg: dict, u_allowed_mm: float) -> str:
+    """Say what would reduce a rod verification's largest input ``key`` (a budget key).
+
+    ``u_allowed_mm``: the u(E) at which U(E) equals the tolerance. This hold's readings: the fewest
+    poses, per angular spread, that bring its u(D) to half of it with the rod held as in this scan
+    (:func:`borescan.plan_rod.recommend_rod`); the calibration hold's readings: a new calibration
+    with more poses; a data-sheet input (linearity, resolution): no hold reduces it.
+    """
+    from .plan_rod import hold_of_solution, recommend_rod
+
+    target_mm = 0.5 * u_allowed_mm
+    if key.startswith("readings:"):
+        hold = hold_of_solution(diameter["solution"], rod_coaxiality_mm(unc_cfg))
+        for spread, best in recommend_rod(hold, target_mm, spreads_rad=(2 * np.pi, 1.5 * np.pi, np.pi)):
+            if best is not None:
+                j = [lay.channel for lay in hold.layers].index(diameter["channel"])
+                return (
+                    f"this hold's readings: {best.hold.n_poses} poses over {np.degrees(spread):.0f} deg, "
+                    "the rod held as in this scan, would bring its u(D) to "
+                    f"{best.u_diameter_mm[j] * 1e3:.1f} um (now "
+                    f"{diameter['solution'].u_diameter_mm[j] * 1e3:.1f} um; borescan plan --rod-scan)"
+                )
+        return (
+            f"this hold's readings: no hold of up to 256 poses with the rod held as in this scan brings "
+            f"u(D) to {target_mm * 1e3:.1f} um: hold the rod more skew to the holes or average more "
+            "readings per pose (borescan plan --rod-scan)"
+        )
+    if key.startswith("fit:"):
+        return (
+            f"the calibration hold {key.split(':')[1]}'s readings: a calibration with more poses (borescan "
+            f"plan --rod-scan on that scan gives how many for u(D) <= {target_mm * 1e3:.1f} um)"
+        )
+    if key.startswith("linearity:"):
+        return (
+            "the sensors' data-sheet linearity: no hold of the rod reduces it; a linearity calibration of "
+            "the sensors over their range (or sensors of better linearity) would"
+        )
+    return f"{key} is a stated (certificate or data-sheet) input: no hold of the rod reduces it"

@@ -33,6 +33,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src.add_argument(
         "--scan", type=Path, metavar="DIR", help="a tri_lds scan folder: its design, sensors, gauge, noise"
     )
+    src.add_argument(
+        "--rod-scan",
+        type=Path,
+        metavar="DIR",
+        help="a rod scan folder (one hold): the poses and spread that bring its u(D) to --target-u-d-um",
+    )
+    parser.add_argument(
+        "--target-u-d-um", type=float, default=2.5, help="rod: target standard uncertainty of a diameter [um]"
+    )
+    parser.add_argument(
+        "--poses-grid",
+        type=int,
+        nargs="+",
+        default=[8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256],
+        help="rod: numbers of poses the recommendation tries",
+    )
+    parser.add_argument(
+        "--spreads-deg",
+        type=float,
+        nargs="+",
+        default=[90.0, 180.0, 270.0, 360.0],
+        help="rod: arcs the poses may cover [deg]",
+    )
     parser.add_argument(
         "--noise-um", type=float, default=None, help="sensor noise sigma [um] (overrides the design's)"
     )
@@ -153,6 +176,8 @@ def run(args: argparse.Namespace) -> int:
     from borescan.config import schema_defaults
     from borescan.plan import ScanDesign, predict, recommend
 
+    if args.rod_scan is not None:
+        return _run_rod(args)
     device, R = _design(args)
     scan = ScanDesign(
         offset_mm=args.offset_mm,
@@ -199,3 +224,65 @@ def run(args: argparse.Namespace) -> int:
         return 1
     _print(rec, f"recommended (u(beta_c - beta_1) <= {args.target_u_beta_urad:g} urad, every rho resolved)")
     return 0
+
+
+def _run_rod(args: argparse.Namespace) -> int:
+    """Print a hold's u(D), solved and planned, and per spread the fewest poses reaching the target."""
+    from borescan import rawio, rod_calibration
+    from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
+    from borescan.config import load_config
+    from borescan.plan_rod import hold_of_solution, predict_rod, recommend_rod
+    from borescan.preconditions import design_layers
+    from borescan.rod import RodSolveError, solve_rod
+
+    try:
+        scan = rawio.read_scan(args.rod_scan)
+        design_layers(scan.meta, "the plan solves the hold with the design layers")
+    except (rawio.ScanError, ValueError) as err:
+        raise UsageError(str(err)) from None
+    if (scan.meta.get("device") or {}).get("type") != "rod":
+        raise UsageError(f"{scan.scan_id}: scan.json: not a rod scan")
+    coax = rod_calibration.rod_coaxiality_mm(load_config()["uncertainty"])
+    channels, means, u_mean, _s = rod_calibration.pose_means_of_scan(scan)
+    layers = rod_layers(rod_nominal_calibration_rows(scan.meta, scan.night, scan.scan_id), channels)
+    try:
+        sol = solve_rod(means, layers=layers, u_reading_mm=u_mean, coaxiality_mm=coax)
+    except RodSolveError as err:
+        print(f"{scan.scan_id}: lds.parquet: the hold gives no radii: {err}")
+        return 1
+    hold = hold_of_solution(sol, coax)
+    here = predict_rod(hold)
+    um = ", ".join
+    print(
+        f"{scan.scan_id}: {hold.n_poses} poses over {math.degrees(hold.spread_rad):.0f} deg, pose-mean "
+        f"u {hold.sigma_mm * 1e3:.2f} um, deflection {hold.axis.omega_rad * 1e3:.2f} mrad, holes' coaxiality "
+        f"{'not used' if coax is None else f'{coax:g} mm'}"
+    )
+    print(f"  u(D) of the solve [um]: {um(f'{x * 1e3:.2f}' for x in sol.u_diameter_mm)}")
+    print(
+        "  u(D) planned for these poses equally spaced [um]: "
+        + um(f"{x * 1e3:.2f}" for x in here.u_diameter_mm)
+    )
+    spreads = [math.radians(d) for d in args.spreads_deg]
+    target = args.target_u_d_um * 1e-3
+    ok = False
+    for spread, best in recommend_rod(hold, target, args.poses_grid, spreads):
+        if best is None:
+            print(
+                f"  over {math.degrees(spread):3.0f} deg: no hold of up to {max(args.poses_grid)} poses "
+                "reaches "
+                f"u(D) <= {args.target_u_d_um:g} um"
+            )
+        else:
+            ok = True
+            print(
+                f"  over {math.degrees(spread):3.0f} deg: {best.hold.n_poses} poses give u(D) "
+                f"{um(f'{x * 1e3:.2f}' for x in best.u_diameter_mm)} um"
+            )
+    if not ok:
+        print(
+            "  the rod held as in this scan cannot reach the target with more poses alone: hold it more "
+            "skew to the holes (a larger deflection across its eccentricity), or lower the noise of a pose "
+            "mean (more readings per pose)"
+        )
+    return 0 if ok else 1

@@ -226,7 +226,8 @@ class RodModel(_PoseModel):
         Pose means solved by ``rod.solve_rod`` (deflection free, maximum likelihood); on refusal
         the closed-form Eq. 16 start with w = 0.
         """
-        from borescan.rod import RodSolveError, rod_start, solve_rod
+        from borescan.rod import RodSolveError, solve_rod
+        from borescan.rod_eq16 import rod_start
 
         d = self.data
         m = len(d.channels)

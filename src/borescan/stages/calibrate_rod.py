@@ -46,7 +46,9 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         for g in gauges
     ]
     try:  # what the readings must give: a solve (RodSolveError is a ValueError) that settles
-        cal_layers, sol, n_iter = rod_calibration.calibrate_l0(means, layers, u_mean, radius_t)
+        cal_layers, sol, n_iter = rod_calibration.calibrate_l0(
+            means, layers, u_mean, radius_t, coaxiality_mm=rod_calibration.rod_coaxiality_mm(unc)
+        )
     except ValueError as err:
         quarantine(
             results_root, bad, sid, night, "calibrate", "lds.parquet", f"rod calibration failed: {err}"

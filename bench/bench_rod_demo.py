@@ -1,0 +1,95 @@
+"""The demo rod's gauge verifications through the library path of the calibrate and measure stages.
+
+The rod's ring-gauge calibration scan of a raw root (``*ROD01-CAL*``: ``rod_calibration.calibrate_l0``
+and its budget with the holes' coaxiality of the config) and each of its verification scans
+(``*ROD01-VER*``: ``rod_diameters_with_budget``, ``rod_verifications`` against the config's
+tolerance). Printed per layer: the error E, U(E), the verdict, the budget's largest inputs and
+``dominant_fix``. ``--coaxiality none`` repeats it with the deflection bound alone (the radii
+averaged over omega uniform on 0-2 deg).
+
+Run: ``python -m bench.bench_rod_demo --raw RAW_ROOT`` (``borescan simulate demo`` writes one);
+``python -m bench rod_demo`` uses ``$BORESCAN_DEMO_RAW`` or skips with a note.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+RUN_BY_DEFAULT = False
+
+
+def run(raw_root: Path, coaxiality: str | None = None) -> list[dict]:
+    """Return the verification rows of the demo rod (the calibration of the first night)."""
+    from borescan import rawio, rod_calibration
+    from borescan.artifacts import artifact_cte, radius_at_temperature_mm, scan_temperature
+    from borescan.atomic import json_ready
+    from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
+    from borescan.config import load_config
+
+    cfg = load_config()
+    unc = dict(cfg["uncertainty"])
+    if coaxiality is not None:
+        unc["rod_hole_coaxiality_mm"] = None if coaxiality == "none" else float(coaxiality)
+    cal = rawio.read_scan(sorted(raw_root.glob("*/scan=*ROD01-CAL*"))[0], raw_root=raw_root)
+    ch, means, u_mean, sens = rod_calibration.pose_means_of_scan(cal)
+    nominal = rod_nominal_calibration_rows(cal.meta, cal.night, cal.scan_id)
+    gauges = rod_calibration.layer_gauges(cal.meta, ch)
+    temp, cte = scan_temperature(cal.meta, unc), artifact_cte(cal.meta, unc)
+    r_t = [
+        radius_at_temperature_mm(0.5 * g["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
+        for g in gauges
+    ]
+    lays, sol, _n = rod_calibration.calibrate_l0(
+        means, rod_layers(nominal, ch), u_mean, r_t, coaxiality_mm=rod_calibration.rod_coaxiality_mm(unc)
+    )
+    budget = rod_calibration.rod_calibration_budget(
+        [lay.l0_mm for lay in lays],
+        sol,
+        gauges,
+        temp,
+        cte,
+        sens,
+        cal.scan_id,
+        float(unc["sensor_resolution_mm"]),
+    )
+    blob = json.dumps({"budget": json_ready(budget.to_dict())})
+    rows = [
+        dict(r, l0_mm=lay.l0_mm, calibration_json=blob)
+        for r, lay in zip(sorted(nominal, key=lambda r: r["channel"]), lays)
+    ]
+    out = []
+    for d in sorted(raw_root.glob("*/scan=*ROD01-VER*")):
+        ver = rawio.read_scan(d, raw_root=raw_root)
+        res = rod_calibration.rod_diameters_with_budget(ver, rows, unc, cal.scan_id)
+        out += rod_calibration.rod_verifications(
+            ver, res, cal.scan_id, unc, cfg["laboratory"], float(cfg["verification"]["tolerance_mm"])
+        )
+    return out
+
+
+def main(argv=None) -> None:
+    """Print the demo rod's verifications (module doc)."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--raw", type=Path, default=os.environ.get("BORESCAN_DEMO_RAW"))
+    ap.add_argument("--coaxiality", default=None, help="mm, or 'none' (default: the config's)")
+    args = ap.parse_args([] if argv is None and __name__ != "__main__" else argv)
+    if args.raw is None:
+        print("no demo raw root: pass --raw or set BORESCAN_DEMO_RAW (borescan simulate demo writes one)")
+        return
+    for r in run(args.raw, args.coaxiality):
+        top = sorted(r["budget"], key=lambda b: -abs(b["contribution"]))[:2]
+        print(
+            f"{r['scan_id']} {r['feature']}: E {r['error_mm'] * 1e3:+.2f} um, U(E) "
+            f"{r['expanded_u_error_mm'] * 1e3:.2f} um "
+            f"(k {r['k']:.2f}); largest: "
+            + ", ".join(f"{b['key']} {b['contribution'] * 1e3:.1f} um" for b in top)
+        )
+        if r["dominant_fix"]:
+            print(f"    to reduce it: {r['dominant_fix']}")
+
+
+if __name__ == "__main__":
+    main()

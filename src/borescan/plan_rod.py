@@ -1,0 +1,125 @@
+"""What a rod hold will fix (``borescan plan --rod-scan``): poses and spread that reach a target u(D).
+
+A hold of the measuring rod (one scan: the rod turned by hand through n poses inside coaxial holes)
+determines each hole's radius to its Cramer-Rao bound (:func:`borescan.rod.rod_crb`, with the
+holes' coaxiality as the solve takes it, ``uncertainty.rod_hole_coaxiality_mm``), which depends on
+the number of poses, their angular spread and how the rod sits: its eccentricity (the layers'
+offsets from the axis) and its deflection across that eccentricity (which makes the offsets of the
+layers non-collinear with the axis, Wang 2017's condition). :func:`hold_of_solution` takes these
+from a solve of the hold, :func:`predict_rod` gives the bound of a proposed hold and
+:func:`recommend_rod` the fewest poses, per angular spread, that bring u(D) = 2 u(r) of every hole
+to a target. Poses are taken equally spaced over the spread (a hand-turned rod's poses spread as
+well as the operator manages: the bound of equal spacing is a lower limit).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from borescan.geometry import Hole, RodAxis, RodLayer
+from borescan.rod import RodSolution, rod_crb
+
+__all__ = ["RodHold", "RodPlanPrediction", "hold_of_solution", "predict_rod", "recommend_rod"]
+
+
+@dataclass(frozen=True)
+class RodHold:
+    """A rod hold as the plan sees it.
+
+    layers : the rod's layers; holes : the holes (centres and radii, in the frame of ``axis``)
+    axis : the rod axis (through (dx, dy) at z = 0, deflection omega towards omega_az)
+    sigma_mm : standard uncertainty of one pose mean [mm]; n_poses; spread_rad : arc the poses cover
+    coaxiality_mm : the holes' coaxiality the solve takes (None: the deflection bound only)
+    """
+
+    layers: tuple[RodLayer, ...]
+    holes: tuple[Hole, ...]
+    axis: RodAxis
+    sigma_mm: float
+    n_poses: int
+    spread_rad: float
+    coaxiality_mm: float | None
+
+
+@dataclass(frozen=True)
+class RodPlanPrediction:
+    """Cramer-Rao standard uncertainty of each hole's diameter for one hold, u_diameter_mm (m,) [mm]."""
+
+    hold: RodHold
+    u_diameter_mm: tuple[float, ...]
+
+
+def _pose_spread_rad(alpha_rad: np.ndarray) -> float:
+    """Arc covered by the pose angles: 2 pi minus the largest gap between neighbours [rad]."""
+    a = np.sort(np.mod(alpha_rad[np.isfinite(alpha_rad)], 2 * np.pi))
+    if a.size < 2:
+        return 0.0
+    gaps = np.diff(np.concatenate([a, [a[0] + 2 * np.pi]]))
+    return float(2 * np.pi - gaps.max())
+
+
+def hold_of_solution(sol: RodSolution, coaxiality_mm: float | None) -> RodHold:
+    """Return the hold a rod solve describes, in the solve's own frame.
+
+    The axis through the origin at z = 0 with the reported deflection vector, each hole's centre
+    its solved centre c_m (relative to the axis at the spot) plus the axis' offset at the spot
+    height z_m = h_m + r_m tan(gamma_m); the pose-mean noise, the number of poses and their spread.
+    """
+    w = np.asarray(sol.deflection_posterior_xy_rad, dtype=float)
+    omega = float(np.hypot(*w))
+    u_az = w / omega if omega > 0 else np.zeros(2)
+    r = np.asarray(sol.radius_mm, dtype=float)
+    z = np.array([lay.h_mm for lay in sol.layers]) + r * np.tan([lay.gamma_rad for lay in sol.layers])
+    c = np.asarray(sol.center_xy_mm, dtype=float) + (z * math.sin(omega))[:, None] * u_az[None, :]
+    alpha = np.asarray(sol.alpha_rad, dtype=float)
+    return RodHold(
+        layers=tuple(sol.layers),
+        holes=tuple(Hole((float(x), float(y)), float(rr)) for (x, y), rr in zip(c, r)),
+        axis=RodAxis(0.0, 0.0, omega, float(np.arctan2(w[1], w[0]))),
+        sigma_mm=float(sol.sigma_mm),
+        n_poses=int(np.isfinite(alpha).sum()),
+        spread_rad=_pose_spread_rad(alpha),
+        coaxiality_mm=coaxiality_mm,
+    )
+
+
+def predict_rod(hold: RodHold) -> RodPlanPrediction:
+    """Return the Cramer-Rao u(D) of every hole for ``hold``'s poses equally spaced over its spread."""
+    full = hold.spread_rad >= 2 * np.pi - 1e-9
+    alpha = np.linspace(0.0, hold.spread_rad, hold.n_poses, endpoint=not full)
+    u_r = rod_crb(
+        alpha,
+        layers=hold.layers,
+        holes=hold.holes,
+        axis=hold.axis,
+        sigma_mm=hold.sigma_mm,
+        coaxiality_mm=hold.coaxiality_mm,
+    )
+    return RodPlanPrediction(hold, tuple(float(2 * u) for u in u_r))
+
+
+def recommend_rod(
+    hold: RodHold,
+    target_u_diameter_mm: float,
+    poses: Sequence[int] = (8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256),
+    spreads_rad: Sequence[float] = (math.pi / 2, math.pi, 1.5 * math.pi, 2 * math.pi),
+) -> list[tuple[float, RodPlanPrediction | None]]:
+    """Return, per angular spread, the hold with the fewest ``poses`` reaching the target (None: none does).
+
+    The target: every hole's u(D) <= ``target_u_diameter_mm``; the rod held as in ``hold`` (same
+    eccentricity and deflection, same noise of a pose mean).
+    """
+    out = []
+    for spread in spreads_rad:
+        best = None
+        for n in sorted(poses):
+            p = predict_rod(replace(hold, n_poses=int(n), spread_rad=float(spread)))
+            if max(p.u_diameter_mm) <= target_u_diameter_mm:
+                best = p
+                break
+        out.append((float(spread), best))
+    return out

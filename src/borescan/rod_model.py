@@ -1,0 +1,273 @@
+"""The rod solve's forward model in its unknowns and its multi-start Levenberg-Marquardt.
+
+:class:`_RodProblem` gives the exact readings (:func:`borescan.geometry.rod_readings`) in the
+unknowns [rho (m), cx (m), cy (m), alpha (n - 1), w (2)] and their Jacobian; :func:`_solve_core`
+runs the starts and repairs that :func:`borescan.rod.solve_rod` describes ("Start").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from borescan.geometry import RodLayer, rod_readings
+from borescan.physics.rod import rod_section_geometry
+from borescan.rod_eq16 import _linear_start
+
+__all__ = ["rod_layers"]
+
+
+# --------------------------------------------------------------------------- deflection-aware model
+
+
+def _k(s):
+    """Mean-radius factor of the tilted section, s = omega^2 [rad^2]: (1 + 1/cos omega) / 2 to O(s^2).
+
+    Analytic in s, so a negative s (the debiased estimate of a small omega^2) is allowed.
+    """
+    return 1.0 + s / 4.0 + 5.0 * s * s / 48.0
+
+
+def _dk(s):
+    return 0.25 + 5.0 * s / 24.0
+
+
+def rod_layers(
+    l0_mm=None, layers: Sequence[RodLayer] | None = None, m: int | None = None
+) -> tuple[RodLayer, ...]:
+    """Return the layer geometry for the solve.
+
+    Layer geometry for the solve: ``layers`` (device nominal or a rod calibration), their l0
+    replaced by ``l0_mm`` when both are given; l0 alone gives phi = d = gamma = 0 (Wang Eq. 16).
+    """
+    if layers is None:
+        if l0_mm is None:
+            raise ValueError("rod_layers needs l0_mm or layers")
+        l0 = np.broadcast_to(np.asarray(l0_mm, dtype=float), (m,) if m is not None else np.shape(l0_mm))
+        return tuple(RodLayer(channel=j + 1, h_mm=0.0, l0_mm=float(x)) for j, x in enumerate(l0))
+    out = tuple(layers)
+    if l0_mm is not None:
+        l0 = np.broadcast_to(np.asarray(l0_mm, dtype=float), (len(out),))
+        out = tuple(replace(lay, l0_mm=float(x)) for lay, x in zip(out, l0))
+    return out
+
+
+class _RodProblem:
+    r"""Exact forward model in the solver's unknowns p = [rho (m), cx (m), cy (m), alpha\fix (n-1), w (2)].
+
+    rho_m = r_m k(omega^2) is the mean radius of section m; w the deflection vector (omitted when
+    ``deflection`` is False). Readings from :func:`borescan.geometry.rod_readings` only.
+    """
+
+    def __init__(self, V, mask, layers, fix, deflection, alpha_fix=0.0):
+        self.V, self.mask, self.layers, self.fix = V, mask, tuple(layers), fix
+        self.n, self.m = V.shape
+        self.deflection = deflection
+        self.alpha_fix = alpha_fix
+        self.n_par = 3 * self.m + self.n - 1 + (2 if deflection else 0)
+        self.Vz = np.where(mask, V, 0.0)
+
+    def unpack(self, p):
+        m, n = self.m, self.n
+        rho, cx, cy = p[:m], p[m : 2 * m], p[2 * m : 3 * m]
+        alpha = np.insert(p[3 * m : 3 * m + n - 1], self.fix, self.alpha_fix)
+        w = p[3 * m + n - 1 :] if self.deflection else np.zeros(2)
+        return rho, np.column_stack([cx, cy]), alpha, np.asarray(w, dtype=float)
+
+    def pack(self, rho, c, alpha, w=None):
+        parts = [rho, c[:, 0], c[:, 1], np.delete(alpha, self.fix)]
+        if self.deflection:
+            parts.append(np.zeros(2) if w is None else w)
+        return np.concatenate(parts)
+
+    def readings(self, rho, c, alpha, w):
+        s = w[0] ** 2 + w[1] ** 2
+        holes, axis = rod_section_geometry(self.layers, c, rho / _k(s), w)
+        return rod_readings(alpha, list(self.layers), holes, axis)
+
+    def residual(self, p):
+        e = np.where(self.mask, self.V - self.readings(*self.unpack(p)), 0.0)
+        return e[self.mask]
+
+    def jac(self, p, beta_step=None):
+        """Return d(model)/dp by central differences in blocks.
+
+        d(model)/dp by central differences in blocks (a pose angle moves its row only, a hole's
+        unknowns its column only: 12 model evaluations). With ``beta_step`` the last two columns
+        are secants in beta = w^2 (complex square) instead: the statistics' coordinates.
+        """
+        rho, c, alpha, w = self.unpack(p)
+        n, m = self.n, self.m
+        J = np.zeros((n, m, self.n_par))
+        f = self.readings
+        h = 1e-6
+        d = (f(rho, c, alpha + h, w) - f(rho, c, alpha - h, w)) / (2 * h)
+        free = np.delete(np.arange(n), self.fix)
+        J[free, :, 3 * m + np.arange(n - 1)] = d[free]
+        idx = np.arange(m)
+        hr = 1e-5
+        J[:, idx, idx] = (f(rho + hr, c, alpha, w) - f(rho - hr, c, alpha, w)) / (2 * hr)
+        for k in range(2):
+            e = np.zeros((1, 2))
+            e[0, k] = hr
+            J[:, idx, (1 + k) * m + idx] = (f(rho, c + e, alpha, w) - f(rho, c - e, alpha, w)) / (2 * hr)
+        if self.deflection:
+            if beta_step is None:
+                for k in range(2):
+                    e = np.zeros(2)
+                    e[k] = h
+                    J[:, :, -2 + k] = (f(rho, c, alpha, w + e) - f(rho, c, alpha, w - e)) / (2 * h)
+            else:
+                b = _beta(w)
+                for k in range(2):
+                    e = np.zeros(2)
+                    e[k] = beta_step
+                    J[:, :, -2 + k] = (
+                        f(rho, c, alpha, _w_of_beta(b + e, w)) - f(rho, c, alpha, _w_of_beta(b - e, w))
+                    ) / (2 * beta_step)
+        return -J[self.mask]  # residual = V - model
+
+
+def _beta(w):
+    """beta = w^2 as a complex square: omega^2 (cos 2 omega_az, sin 2 omega_az)."""
+    return np.array([w[0] ** 2 - w[1] ** 2, 2 * w[0] * w[1]])
+
+
+def _w_of_beta(b, w_ref):
+    """Complex square root of beta on the branch nearest ``w_ref``."""
+    z = np.sqrt(complex(b[0], b[1]))
+    if z.real * w_ref[0] + z.imag * w_ref[1] < 0:
+        z = -z
+    return np.array([z.real, z.imag])
+
+
+def _lm(prob, p0, n_par):
+    sol = least_squares(
+        prob.residual,
+        p0,
+        jac=prob.jac,
+        method="lm",
+        x_scale="jac",
+        xtol=1e-14,
+        ftol=1e-14,
+        gtol=1e-14,
+        max_nfev=100 * n_par,
+    )
+    return sol.x, float(sol.fun @ sol.fun), int(sol.nfev)
+
+
+#: largest deflection a start may take [rad] (5.7 deg; the contract's rods deflect <= 1 deg)
+_MAX_START_RAD = 0.1
+
+
+#: pose-angle grid of the per-pose profile (module doc, "Start")
+_POSE_GRID = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+
+
+def _repair_poses(prob, p, max_rounds: int = 3):
+    """Repair the pose angles by a per-pose profile.
+
+    Per-pose angle profile: with the holes and the axis held, each pose angle is searched on a
+    grid over the whole circle; a pose whose grid minimum is clearly below its current cost is
+    moved there and the joint LM re-run. A single pose angle can sit in a local minimum of its
+    own (its readings are periodic in alpha_n) which LM cannot leave; this finds it.
+    """
+    cost = float(prob.residual(p) @ prob.residual(p))
+    nfev = 0
+    for _ in range(max_rounds):
+        rho, c, alpha, w = prob.unpack(p)
+        s = float(w @ w)
+        holes, axis = rod_section_geometry(prob.layers, c, rho / _k(s), w)
+        G = rod_readings(_POSE_GRID, list(prob.layers), holes, axis)  # (g, m)
+        cur = np.where(prob.mask, prob.V - prob.readings(rho, c, alpha, w), 0.0)
+        cur = np.sum(cur**2, axis=1)
+        d = np.where(prob.mask[:, None, :], prob.Vz[:, None, :] - G[None, :, :], 0.0)
+        grid_cost = np.sum(d**2, axis=2)  # (n, g)
+        k = np.argmin(grid_cost, axis=1)
+        best = grid_cost[np.arange(prob.n), k]
+        move = best < 0.5 * cur  # a clear improvement: the pose sits in another basin
+        move[prob.fix] = False
+        if not np.any(move):
+            break
+        alpha = alpha.copy()
+        alpha[move] = _POSE_GRID[k[move]]
+        try:
+            p1, cost1, kf = _lm(prob, prob.pack(rho, c, alpha, w if prob.deflection else None), prob.n_par)
+        except ValueError:
+            break
+        nfev += kf
+        if not (np.isfinite(cost1) and cost1 < cost):
+            break
+        p, cost = p1, cost1
+    return p, cost, nfev
+
+
+def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and repairs)
+    prob, L, mask, starts_alpha, deflection
+):
+    """Run the multi-start LM of the rod solve.
+
+    Multi-start LM: every start (both reflections) first without deflection, then from the
+    closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0); the
+    lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`).
+    """
+    best, nfev = None, 0
+    flat = _RodProblem(prob.V, mask, prob.layers, prob.fix, False)
+    for alpha0 in starts_alpha:
+        r0, c0 = _linear_start(L, mask, alpha0, prob.layers)
+        p, cost, k = _lm(flat, flat.pack(r0, c0, alpha0), flat.n_par)
+        nfev += k
+        p, cost, k = _repair_poses(flat, p)
+        nfev += k
+        cand = [(p, cost)]
+        if deflection:
+            rho, c, alpha, _ = flat.unpack(p)
+            full = prob.pack(rho, c, alpha, np.zeros(2))
+            J = prob.jac(full, beta_step=1e-4)
+            step, *_ = np.linalg.lstsq(J, -prob.residual(full), rcond=None)
+            b = step[-2:]
+            w0 = _w_of_beta(b, np.array([1.0, 0.0]))
+            om0 = float(np.hypot(*w0))
+            if om0 < 1e-4:
+                w0 = np.array([1e-3, 0.0])
+            elif om0 > _MAX_START_RAD:  # an ill-conditioned step: keep the rays inside the holes
+                w0 = w0 * (_MAX_START_RAD / om0)
+            cand = [(full, float(prob.residual(full) @ prob.residual(full)))]
+            for sgn in (1.0, -1.0):
+                try:
+                    p1, cost1, k = _lm(prob, prob.pack(rho, c, alpha, sgn * w0), prob.n_par)
+                except ValueError:  # the start puts a beam outside its hole
+                    continue
+                nfev += k
+                # a minimum beyond _MAX_START_RAD is a low-signal wander, not a hand-held rod: not taken
+                if np.isfinite(cost1) and np.hypot(*prob.unpack(p1)[3]) <= _MAX_START_RAD:
+                    cand.append((p1, cost1))
+        for p1, cost1 in cand:
+            if best is None or cost1 < best[1]:
+                best = (p1, cost1)
+    p, cost = best
+    if deflection:
+        try:
+            p1, cost1, k = _repair_poses(prob, p)
+            nfev += k
+            if cost1 < cost and np.hypot(*prob.unpack(p1)[3]) <= _MAX_START_RAD:
+                p, cost = p1, cost1
+        except ValueError:
+            pass
+    return p, cost, nfev
+
+
+def _rod_param_names(m: int, n: int, fix_pose: int, deflection: bool) -> tuple[str, ...]:
+    """Names of the joint solve's parameter vector [rho (m), cx (m), cy (m), alpha (n - 1), w (2)]."""
+    names = [f"rho_{j + 1}_mm" for j in range(m)] + [f"cx_{j + 1}_mm" for j in range(m)]
+    names += [f"cy_{j + 1}_mm" for j in range(m)] + [f"alpha_{i}_rad" for i in range(n) if i != fix_pose]
+    return tuple(names + (["w_x_rad", "w_y_rad"] if deflection else []))
+
+
+def _expand(a, keep):
+    out = np.full(keep.size, np.nan)
+    out[keep] = a
+    return out
