@@ -58,28 +58,31 @@ def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_f
 
     Noise-free: the same draw with zero noise.
     """
-    from borescan import scenarios as sc
+    from borescan.synthetic import battery as sb
+    from borescan.synthetic import contract as sct
+    from borescan.synthetic import rod_scenarios as rs
+    from borescan.synthetic import tri_scenarios as ts
     from borescan.geometry import Beams
 
     def nf(contract):
         return dict(contract, noise_mm=(0.0, 0.0)) if noise_free else contract
 
-    rng = sc.battery_rng(seed + 1000 * sc.BATTERY_KINDS[kind][1], i)
-    sid = sc.battery_scan_id(seed, i, kind)
+    rng = sb.battery_rng(seed + 1000 * sb.BATTERY_KINDS[kind][1], i)
+    sid = sb.battery_scan_id(seed, i, kind)
     night = "2027-01-01"
     if kind in ("calibration", "measurement"):
-        cal_rng = sc.battery_rng(seed, i) if kind == "measurement" else rng
-        cal = sc.draw_tri_calibration(
+        cal_rng = sb.battery_rng(seed, i) if kind == "measurement" else rng
+        cal = ts.draw_tri_calibration(
             cal_rng,
             scan_id=sid,
             night=night,
             effect_free=effect_free or kind == "measurement",
-            contract=nf(sc.TRI_CONTRACT),
+            contract=nf(sct.TRI_CONTRACT),
             effect_scale=scale,
         )
         sim = cal
         if kind == "measurement":
-            sim = sc.draw_tri_measurement(
+            sim = ts.draw_tri_measurement(
                 rng,
                 scan_id=sid + "M",
                 night=night,
@@ -91,21 +94,21 @@ def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_f
             return sim, {"beams": Beams.from_nominal(sim.truth["contract"]["beams"])}
         return sim, {"free_beams": ("d_b", "beta", "rho")}
     if kind == "static":
-        sim = sc.draw_tri_static(
+        sim = ts.draw_tri_static(
             rng,
             scan_id=sid,
             night=night,
             effect_free=effect_free,
-            contract=nf(sc.STATIC_CONTRACT),
+            contract=nf(sct.STATIC_CONTRACT),
             effect_scale=scale,
         )
         return sim, {"beams": Beams.from_nominal(sim.truth["contract"]["beams"])}
-    sim = sc.draw_rod_scan(
+    sim = rs.draw_rod_scan(
         rng,
         scan_id=sid,
         night=night,
         effect_free=effect_free,
-        contract=nf(sc.ROD_CONTRACT),
+        contract=nf(sct.ROD_CONTRACT),
         effect_scale=scale,
         calibration=kind == "rod_calibration",
     )

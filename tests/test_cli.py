@@ -470,7 +470,7 @@ def test_sql_never_cuts_an_id(capsys):
 
 
 def test_simulate_demo_help_counts_the_demo_nights(capsys):
-    from borescan.demo import DEMO_NIGHTS
+    from borescan.synthetic.demo import DEMO_NIGHTS
 
     with pytest.raises(SystemExit):
         main(["simulate", "--help"])

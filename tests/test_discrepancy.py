@@ -19,7 +19,6 @@ from borescan.discrepancy.battery import named_label, score_case
 from borescan.discrepancy.fitting import noise_floor_mm
 from borescan.discrepancy.table2 import TABLE2_NUMBERS
 from borescan.effects import Effect
-from borescan.geometry import Bore, tri_spindle_readings
 from borescan.synthetic.scenes import YANG_BEAMS, default_tri_scene
 from borescan.synthetic.simulate import simulate_tri_spindle
 
@@ -654,7 +653,7 @@ def test_gap_plot_of_a_static_scan_has_no_angle_panel_and_its_title_fits(tmp_pat
     0 deg); the two-line title stays inside the figure (a long scan id was clipped at both ends).
     """
     from borescan.discrepancy import plot as plot_mod
-    from borescan.simulate import simulate_tri_static
+    from borescan.synthetic.simulate import simulate_tri_static
 
     ex = analyse_scan(simulate_tri_static(effects=[], seed=5))
     assert np.ptp(ex.angle_rad[np.isfinite(ex.angle_rad)]) == 0.0

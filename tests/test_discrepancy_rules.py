@@ -18,7 +18,8 @@ from borescan.discrepancy.judge import plausible_ranges
 from borescan.discrepancy.tri import TriModel, tri_data_from_arrays
 from borescan.discrepancy.tri_signals import speeds_differ
 from borescan.effects import EFFECTS, Effect
-from borescan.simulate import default_tri_scene, simulate_tri_spindle
+from borescan.synthetic.scenes import default_tri_scene
+from borescan.synthetic.simulate import simulate_tri_spindle
 from test_discrepancy import _rod_case  # the rod on certified rings of the recovery tests
 
 SCENE = default_tri_scene(sample_rate_hz=240.0)

@@ -23,7 +23,8 @@ import pyarrow.parquet as pq
 import pytest
 from fault_roots import copy_scan
 
-from borescan import demo, rawio, validation
+from borescan import rawio, validation
+from borescan.synthetic import demo
 from borescan.config import load_config
 from borescan.preconditions import CALIBRATE_STAGE
 from borescan.signal.period import period_from_encoder

@@ -78,7 +78,8 @@ def test_plan_command_for_a_rod_hold(tmp_path, capsys):
     poses for the target (exit 0 when one reaches it); a missing folder is a usage error (exit 2).
     """
     from borescan.cli import main
-    from borescan.simulate import RodScene, simulate_rod, write_simulated
+    from borescan.synthetic.scenes import RodScene
+    from borescan.synthetic.simulate import simulate_rod, write_simulated
 
     scene = RodScene(layers=GEOM, holes=HOLES, axis=AXIS, range_mm=(8.0, 8.0), sample_rate_hz=100.0)
     art = {

@@ -958,7 +958,7 @@ def test_calibration_trends_give_a_panel_only_to_parameters_that_change():
     """
     import polars as pl
 
-    from borescan.report import plot_calibration_trends
+    from borescan.report.plots import plot_calibration_trends
 
     rows = [
         {
@@ -991,7 +991,7 @@ def test_part_plot_labels_that_would_overlap_are_slanted_and_a_gauge_is_the_bore
     import polars as pl
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from borescan.report import plot_diameters
+    from borescan.report.plots import plot_diameters
 
     rows = [
         {
@@ -1021,7 +1021,7 @@ def test_device_model_plot_shows_a_refused_calibration_marked_refused():
     """
     import polars as pl
 
-    from borescan.report import device_model_history, plot_device_model_gap
+    from borescan.report.device_model import device_model_history, plot_device_model_gap
 
     why = (
         "lds.parquet: calibration failed: A,B channel 2: residual rms is 1.44 times the readings' own "

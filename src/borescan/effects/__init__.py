@@ -72,7 +72,7 @@ from ``borescan.effects``.
 from __future__ import annotations
 
 from borescan.effects.compose import apply_effects, sort_effects
-from borescan.effects.device_keys import device_effect_key, device_model_effects
+from borescan.effects.device_keys import DEVICE_MODEL_SCAN_KIND, device_effect_key, device_model_effects
 from borescan.effects.functions import REFERENCE_TEMPERATURE_C, nonlinearity_bow, thermal_expansion_factor
 from borescan.effects.registry import (
     EFFECTS,
@@ -87,6 +87,7 @@ from borescan.effects.registry import (
 from borescan.effects.spec import SCAN_KINDS, SCOPES, STAGES, EffectSpec, FitParam
 
 __all__ = [
+    "DEVICE_MODEL_SCAN_KIND",
     "STAGES",
     "SCAN_KINDS",
     "SCOPES",
