@@ -127,8 +127,13 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
             else:
                 _xticks(axes[i][j], labels, most=4)  # a 3.2 in panel holds a few two-line labels
                 axes[i][j].tick_params(axis="x", labelbottom=i == nr - 1 or (i + 1, j) not in used)
+    values = "; ".join(
+        f"{p} " + ", ".join(f"{df.filter(pl.col('channel') == ch)[p].drop_nulls()[0]:g}" for ch in channels)
+        for p in held
+    )
     fixed = (
-        f"\nnot fitted (the same value in every calibration, no uncertainty): {', '.join(held)}"
+        f"\nnot fitted (the same in every calibration, no uncertainty; channel "
+        f"{', '.join(map(str, channels))}): {values}"
         if held and params != present
         else ""
     )
@@ -361,7 +366,7 @@ def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
             tol = sub["tolerance_mm"].drop_nulls() if "tolerance_mm" in sub.columns else nom.clear()
             if tol.len():
                 ax.axhspan(n0 - float(tol[0]), n0 + float(tol[0]), color="C2", alpha=0.12, label="tolerance")
-        ax.set_title(f"feature {feat} (n={sub.height})" if feat else f"n={sub.height}", fontsize=9)
+        ax.set_title(f"feature {feat} (n={sub.height})" if feat else f"the bore (n={sub.height})", fontsize=9)
         ax.set_ylabel(f"diameter {where} [mm]", fontsize=8)
         ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         ax.tick_params(axis="y", labelsize=7)
