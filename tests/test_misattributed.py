@@ -23,7 +23,7 @@ import pyarrow.parquet as pq
 import pytest
 from fault_roots import copy_scan
 
-from borescan import rawio, validation
+from borescan import night_config, rawio, validation
 from borescan.synthetic import demo
 from borescan.config import load_config
 from borescan.preconditions import CALIBRATE_STAGE
@@ -130,6 +130,7 @@ def test_a_direction_outside_the_spec_is_refused_naming_the_key(tmp_path, night2
 def _through_calibrate(raw: Path, tmp: Path, **cal) -> tuple[dict, list, list]:
     """Run ingest, signal and calibrate: (quarantines by scan, calibration ids, scans calibrated from)."""
     cfg, res = load_config(), tmp / "res"
+    night_config.settle(res, [NIGHT], cfg)  # the night's record (date of issue), as the workflow first does
     scans, _, bad = stage_ingest(raw, NIGHT, res)
     write_table(scans, tmp / "scans.parquet")
     _, summary, q = stage_signal(raw, NIGHT, res, tmp / "scans.parquet", cfg["signal"], log=lambda _: None)
