@@ -78,16 +78,17 @@ def test_a_worker_reading_and_measuring_scans_does_not_load_pandas_scipy_stats_o
     code = f"""
 import sys
 from pathlib import Path
-from borescan import demo, rawio, scenarios, simulate
+from borescan import rawio
+from borescan.synthetic import battery, demo, simulate
 from borescan.stages import calibrate, discrepancy, measure, signal  # noqa: F401 (their imports)
 from borescan.discrepancy.evidence import outlier_threshold_sigma
 from borescan.uncertainty import coverage_factor, linear_coverage_interval
 raw, truth = Path({str(tmp_path)!r}) / "raw", Path({str(tmp_path)!r}) / "truth"
 for s in demo.demo_scans()[:11]:
     simulate.write_simulated(s, raw, truth)
-battery = Path({str(tmp_path)!r}) / "battery"
-scenarios.write_battery(battery, 2, 20270611, only=[1])  # channels out of range: null readings
-for d in rawio.discover_scans(raw) + rawio.discover_scans(battery / "raw"):
+battery_dir = Path({str(tmp_path)!r}) / "battery"
+battery.write_battery(battery_dir, 2, 20270611, only=[1])  # channels out of range: null readings
+for d in rawio.discover_scans(raw) + rawio.discover_scans(battery_dir / "raw"):
     scan = rawio.read_scan(d)
     rawio.lds_matrix(scan)
 outlier_threshold_sigma(6000)
