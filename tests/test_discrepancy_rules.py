@@ -184,3 +184,22 @@ def test_a_rod_verdict_says_what_the_data_fix_and_what_to_do():
     k = layer2[0]
     assert abs(k["reads_long_um"] - 12.0) < 3 * k["u_reads_long_um"]
     assert "layer 2 reads" in f["statement"] and "recalibrate l0 of layer 2" in f["statement"]
+
+
+@pytest.mark.slow
+def test_a_small_contract_battery_names_its_effects_by_the_issue_rule():
+    """The first 12 scans of the issue-35 battery (seed 1; bench/bench_discrepancy_contract.py): of those
+    whose effect is visible (z >= 10 within its plausible range) or effect-free, at least 80 % are right by
+    the issue's rule (the 300-scan run of docs/ENGINEERING.md: 87.6 %); no false alarm; no implausible name.
+    """
+    from bench.bench_discrepancy_contract import _jobs, run_one
+
+    rows = [run_one(job) for job in _jobs(12, 1, 0.2, 300.0)]
+    counted = [r for r in rows if not r.get("invisible")]
+    assert not [r for r in rows if r["verdict"] == "error"], [r.get("error") for r in rows]
+    assert len(counted) >= 8
+    assert sum(r["correct"] for r in counted) >= 0.8 * len(counted), [
+        (r["kind"], r["truth"], r["verdict"], r["named"]) for r in counted if not r["correct"]
+    ]
+    assert all(r["verdict"] == "no_missing_effect" for r in counted if not r["truth"])
+    assert sum(r["implausible"] for r in rows) == 0

@@ -306,8 +306,8 @@ def decide(model, base: FitResult, found: Search, sigma_mm: np.ndarray, c: dict)
             cache.append(jacobian_columns(model, base.values(), [], list(base.names), model.base_scales()))
         return cache[0]
 
-    singles, rej1 = judge(model, found.singles, absorbable, sig_ref, ranges, base.bic, T)
-    pairs, rej2 = judge(model, found.pairs, absorbable, sig_ref, ranges, base.bic, T)
+    singles, rej1 = judge(model, found.singles, absorbable, sig_ref, ranges, base.bic)
+    pairs, rej2 = judge(model, found.pairs, absorbable, sig_ref, ranges, base.bic)
     rejected = sorted(rej1 + rej2, key=lambda z: -z.delta_bic)
     level: list[Candidate] = []
     if singles and base.bic - singles[0].fit.bic > T:

@@ -213,19 +213,15 @@ def judge(
     sig_ref_mm: float,
     ranges: dict[str, PlausibleRange],
     base_bic: float,
-    threshold: float,
 ) -> tuple[list[Candidate], list[Rejection]]:
     """Split candidates into those that may be named and the rejected ones (with their sentences).
 
-    Only candidates that pass the ``threshold`` (Delta BIC against the base) are judged; the others could
-    not be named anyway and are kept for the runner-up. ``absorbable()``: the base model's weighted Jacobian
-    at its fit (what the base absorbs, for :func:`scope_conflict`); ``sig_ref_mm`` the weighted noise floor.
+    Every candidate is judged: one below the threshold may still be tied with the best (within the threshold
+    of it) and so be named. ``absorbable()``: the base model's weighted Jacobian at its fit (what the base
+    absorbs, for :func:`scope_conflict`); ``sig_ref_mm`` the weighted noise floor.
     """
     keep, out = [], []
     for c in cands:
-        if base_bic - c.fit.bic <= threshold:
-            keep.append(c)
-            continue
         rules = (
             ("implausible", lambda c=c: implausible(model, c, ranges)),
             ("unphysical", lambda c=c: unphysical(c)),
