@@ -11,7 +11,7 @@ import pytest
 
 from borescan import certificate as C
 from borescan.artifacts import ArtifactCte, ScanTemperature
-from borescan.calibration import yang_calibration
+from borescan.calibrate.yang import yang_calibration
 from borescan.calibrations import rod_layers
 from borescan.discrepancy.reference import discrepancy_reference
 from borescan.geometry import RodLayer

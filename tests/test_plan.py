@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from borescan import simulate
-from borescan.calibration import fit_full_calibration
+from borescan.calibrate.full_fit import fit_full_calibration
 from borescan.geometry import Beams
 from borescan.plan import DeviceDesign, ScanDesign, predict, recommend
 

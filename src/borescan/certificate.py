@@ -45,7 +45,7 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
 from borescan.atomic import atomic_write_bytes, atomic_write_text
-from borescan.calibration import TriCalibration
+from borescan.calibrate.result import TriCalibration
 from borescan.config import schema_default
 from borescan.decision import CANNOT_DECIDE, CONFORMS, DOES_NOT_CONFORM, split_verdict
 from borescan.certificate_dcc import write_dcc

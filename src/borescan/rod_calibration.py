@@ -302,7 +302,7 @@ def rod_calibration_id(device_id: str, scan_ids, night: str) -> str:
     """Return the deterministic id of a rod calibration.
 
     Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>``
-    (:func:`borescan.calibration.make_calibration_id`).
+    (:func:`borescan.calibrate.result.make_calibration_id`).
     """
     return make_calibration_id(device_id, scan_ids, ROD_CALIBRATION_METHOD, night)
 

@@ -1,7 +1,7 @@
 """Stage ``calibrate_night``, three-sensor devices: one device's calibration from its ring-gauge scans.
 
 The device's scans of the night are fitted together (``full_lsq``) or one by one (``yang2017``);
-each calibration carries its GUM budget (:mod:`borescan.calibration_budget`), its covariance the
+each calibration carries its GUM budget (:mod:`borescan.calibrate.budget`), its covariance the
 budget's combined one, and gets its certificate (ISO/IEC 17025 7.8) with the night's verifications
 of the device made with it; its dates come from the data (:func:`certificate.certificate_dates`).
 """
@@ -14,9 +14,11 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from borescan import __version__, calibration, certificate, certificate_issue, device_model, measure, rawio
+from borescan import __version__, certificate, certificate_issue, device_model, measure, rawio
 from borescan.artifacts import MissingTemperature
-from borescan.calibration_budget import with_budget
+from borescan.calibrate.budget import with_budget
+from borescan.calibrate.result import CalibrationError
+from borescan.calibrate.sensitivities import full_residuals
 from borescan.calibrations import calibration_rows
 from borescan.preconditions import (
     CALIBRATION_NEEDS_BEAMS,
@@ -135,7 +137,7 @@ def _calibrate_group(
             night=night,
             position_accuracy_mm=float(cfg["position_accuracy_mm"]),
         )
-    except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+    except (CalibrationError, ValueError, np.linalg.LinAlgError) as err:
         for s in scans:
             quarantine(
                 results_root, bad, s.scan_id, night, "calibrate", "lds.parquet", f"calibration failed: {err}"
@@ -148,7 +150,7 @@ def _calibrate_group(
     if cal.method == "full_lsq":
         residuals = {
             "t_s": first["t_s"],
-            "residual_mm": calibration.full_residuals(
+            "residual_mm": full_residuals(
                 fit, first["t_s"], first["readings"], first["R"], ids[0], angle_model=first["angle_model"]
             ),
         }
