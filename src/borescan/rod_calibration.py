@@ -36,7 +36,7 @@ import numpy as np
 from .artifacts import artifact_key
 from .effects import thermal_expansion_factor
 from .atomic import json_ready
-from .calibration import make_calibration_id
+from .calibrate.result import make_calibration_id
 from .calibrations import rod_layers
 from .geometry import RodLayer
 from .rod import RodSolution, solve_rod
