@@ -12,7 +12,9 @@ import sys
 
 import numpy as np
 
-from borescan.calibration import CalibrationError, fit_full_calibration, yang_calibration, yang_status
+from borescan.calibrate.full_fit import fit_full_calibration
+from borescan.calibrate.result import CalibrationError
+from borescan.calibrate.yang import yang_calibration, yang_status
 from borescan.geometry import (
     Beams,
     Bore,

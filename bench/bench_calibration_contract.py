@@ -206,7 +206,8 @@ def fitted_readings(cal, scan, t_s: np.ndarray, R_mm: float) -> np.ndarray:
 def evaluate_scan(job: tuple) -> dict:
     """Calibrate one scan and compare with its truth (the row the table is made of)."""
     path, truth_root, cal_cfg = job
-    from borescan import calibration, rawio
+    from borescan import rawio
+    from borescan.calibrate.result import CalibrationError
     from borescan.synthetic import scenes, simulate
     from borescan.artifacts import gauge_radius_mm
     from borescan.stages.calibration_fit import calibrate_raw_scans
@@ -226,7 +227,7 @@ def evaluate_scan(job: tuple) -> dict:
     t0 = time.perf_counter()
     try:
         cal = calibrate_raw_scans([scan], cal_cfg)
-    except calibration.CalibrationError as e:
+    except CalibrationError as e:
         row.update(accepted=False, reason=e.problem, seconds=time.perf_counter() - t0)
         return row
     except Exception as e:  # noqa: BLE001 - a crash is a refusal of another kind; the table says which

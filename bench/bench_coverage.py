@@ -184,7 +184,8 @@ def evaluate_chain(job: tuple) -> dict:
     U.
     """
     truth, cfg = job
-    from borescan import calibration, measure, rawio
+    from borescan import measure, rawio
+    from borescan.calibrate.result import CalibrationError
     from borescan.geometry import Beams
     from borescan.stages.calibration_fit import calibrate_raw_scans
     from borescan.uncertainty import Budget
@@ -196,7 +197,7 @@ def evaluate_chain(job: tuple) -> dict:
     scan = rawio.read_scan(Path(truth["cal_path"]))
     try:
         cal = calibrate_raw_scans([scan], cfg["calibration"], uncertainty=unc)
-    except calibration.CalibrationError as e:
+    except CalibrationError as e:
         row.update(accepted=False, reason=e.problem, seconds=time.perf_counter() - t0)
         return row
     row["accepted"] = True

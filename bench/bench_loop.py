@@ -182,7 +182,7 @@ def _residual_ratio(scans, cfg: dict, model) -> tuple[float, bool, object]:
     None);
     NaN when the fit does not converge even without the acceptance rule.
     """
-    from borescan.calibration import CalibrationError
+    from borescan.calibrate.result import CalibrationError
     from borescan.stages.calibration_fit import calibrate_raw_scans
 
     unc = cfg["uncertainty"]
@@ -220,7 +220,7 @@ def run_one(job: tuple) -> dict:
     from borescan.config import schema_defaults
     from borescan.discrepancy.examine import discrepancy_settings
     from borescan.discrepancy.pooled import examine_pooled, pooled_scan
-    from borescan.calibration import CalibrationError
+    from borescan.calibrate.result import CalibrationError
     from borescan.discrepancy.battery import effect_label
     from borescan.stages.calibration_fit import calibrate_raw_scans
 

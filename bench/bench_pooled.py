@@ -17,7 +17,7 @@ spindle_error_motion), which act in one scan; magnitudes from
 :func:`borescan.discrepancy.battery.random_effect`. A quarter of the scenarios are effect-free.
 
 Reference, as a night does it: the night's scans are calibrated together
-(:func:`borescan.calibration.fit_full_calibration`, with the scans' centre and spindle position as
+(:func:`borescan.calibrate.full_fit.fit_full_calibration`, with the scans' centre and spindle position as
 priors; a calibration refused by the acceptance rule is still used, as fitted, and counted).
 Each scan is examined alone against its night's calibration (``beams=``), and all scans are
 examined together (:func:`borescan.discrepancy.pooled.examine_pooled`) starting from the latest

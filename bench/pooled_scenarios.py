@@ -232,7 +232,8 @@ def calibrate(sims) -> tuple:
     one that fails otherwise (a diverged fit) is None: the scans are then examined as the pipeline
     examines an uncalibrated device (``device.nominal``, beam lengths and angles free).
     """
-    from borescan.calibration import AcceptanceRule, CalibrationError, fit_full_calibration
+    from borescan.calibrate.full_fit import fit_full_calibration
+    from borescan.calibrate.result import AcceptanceRule, CalibrationError
     from borescan.discrepancy.examine import scan_arrays
     from borescan.geometry import Beams
     from borescan.kinematics import angle_model_of_scan

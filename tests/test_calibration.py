@@ -11,12 +11,10 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from borescan.calibration import (
-    CalibrationError,
-    TriCalibration,
-    fit_full_calibration,
-    full_residuals,
-    make_calibration_id,
+from borescan.calibrate.full_fit import fit_full_calibration
+from borescan.calibrate.result import CalibrationError, TriCalibration, make_calibration_id
+from borescan.calibrate.sensitivities import full_residuals
+from borescan.calibrate.yang import (
     yang_calibration,
     yang_d_b_r,
     yang_oe,
@@ -596,7 +594,7 @@ def test_unmodelled_effect_is_refused_with_the_reason():
 
 def test_impossible_geometry_is_refused():
     """A head radius smaller than a beam's true offset: the fit is refused for physics, not noise."""
-    from borescan.calibration import AcceptanceRule
+    from borescan.calibrate.result import AcceptanceRule
 
     scene = _contract_scene()
     t, v, am = _twin_scan(scene, encoder=True, seed=7)

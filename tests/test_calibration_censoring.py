@@ -8,7 +8,8 @@ lies within ``CENSOR_GUARD_SIGMA`` sigma of a limit, a selection on the model, n
 
 import numpy as np
 
-from borescan.calibration import CENSOR_GUARD_SIGMA, _censoring_keep, fit_full_calibration
+from borescan.calibrate.censoring import CENSOR_GUARD_SIGMA, censoring_keep
+from borescan.calibrate.full_fit import fit_full_calibration
 from borescan.geometry import Beams, Bore, tri_spindle_readings
 
 TRUE = Beams(
@@ -45,7 +46,7 @@ def test_censoring_keep_rule():
     v = np.array([[-0.01, 5.0], [0.003, 5.0], [0.05, 9.998], [0.05, 9.5]])
     y = v.copy()
     y[0, 0] = np.nan  # the sensor nulled it
-    keep, lim = _censoring_keep(v, y, np.array([10.0, 10.0]), np.array([0.001, 0.001]))
+    keep, lim = censoring_keep(v, y, np.array([10.0, 10.0]), np.array([0.001, 0.001]))
     assert CENSOR_GUARD_SIGMA == 4.0
     assert keep[:, 0].tolist() == [False, False, True, True] and keep[:, 1].tolist() == [
         True,
@@ -55,7 +56,7 @@ def test_censoring_keep_rule():
     ]
     assert lim == {"lower": [True, True], "upper": [True, True]}
     # a sensor with valid readings beyond a stated limit is not censored there
-    keep, lim = _censoring_keep(v, v + [0.0, 1.0], np.array([10.0, 10.0]), np.array([0.001, 0.001]))
+    keep, lim = censoring_keep(v, v + [0.0, 1.0], np.array([10.0, 10.0]), np.array([0.001, 0.001]))
     assert lim == {"lower": [False, True], "upper": [True, False]}
     assert keep[:, 0].all() and keep[2, 1]
 

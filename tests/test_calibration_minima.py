@@ -189,7 +189,7 @@ def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_se
     is hundreds of times larger (the over-coverage of issue 19's coverage study: z SD 0.28 on such
     chains).
     """
-    from borescan.calibration_budget import calibration_budget
+    from borescan.calibrate.budget import calibration_budget
     from borescan.artifacts import artifact_cte, scan_temperature
     from borescan.geometry import Bore, tri_static_readings
     from borescan.measure import (
@@ -269,15 +269,15 @@ def test_the_mirror_screen_of_a_long_scan_keeps_what_the_full_search_finds(tmp_p
     screened minimum's Delta within 5
     standard deviations of the estimate's (sqrt(4 step Delta)) of the refitted one.
     """
-    from borescan import calibration
+    from borescan.calibrate import mirror_search
 
     scan, truth, cfg, x, screened = _calibrate(tmp_path / "a", 20270611, 200, index)
     n_obs = screened.diagnostics["n_obs"]
-    step = n_obs // calibration.MIRROR_SCREEN_READINGS
+    step = n_obs // mirror_search.MIRROR_SCREEN_READINGS
     assert step >= 2
     entries = screened.diagnostics["mirror_solutions"]
     assert all(e.get("screened_every") == step for e in entries if "screen" in e)
-    monkeypatch.setattr(calibration, "MIRROR_SCREEN_READINGS", 10**12)
+    monkeypatch.setattr(mirror_search, "MIRROR_SCREEN_READINGS", 10**12)
     *_, full = _calibrate(tmp_path / "b", 20270611, 200, index)
     assert all("screen" not in e for e in full.diagnostics["mirror_solutions"])
     u_s = np.r_[screened.u_beta_rad, screened.u_rho_mm, screened.u_d_b_mm]

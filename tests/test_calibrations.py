@@ -7,7 +7,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from borescan.calibration import TriCalibration
+from borescan.calibrate.result import TriCalibration
 from borescan.calibrations import (
     calibration_drift,
     calibration_rows,

@@ -8,7 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from borescan.calibration import full_residuals, yang_calibration
+from borescan.calibrate.sensitivities import full_residuals
+from borescan.calibrate.yang import yang_calibration
 from borescan.certificate import PLACEHOLDER, certificate_dir, write_certificate
 from borescan.certificate.write import _pages
 from borescan.config import schema_defaults

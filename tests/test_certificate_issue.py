@@ -53,8 +53,8 @@ def results(tmp_path_factory):
     import polars as pl
 
     from borescan import certificate, rawio
+    from borescan.calibrate.sensitivities import full_residuals
     from borescan.synthetic import battery, scenes, simulate
-    from borescan.calibration import full_residuals
     from borescan.certificate_issue import ISSUE_TABLE, issue_frame, issue_row
     from borescan.config import load_config
     from borescan.stages._common import link_into_night

@@ -13,7 +13,7 @@ from borescan import certificate as C
 from borescan.certificate.admin import _traceability_text
 from borescan.certificate.budget_pages import _rod_layer_budget, _verification_budget
 from borescan.artifacts import ArtifactCte, ScanTemperature
-from borescan.calibration import yang_calibration
+from borescan.calibrate.yang import yang_calibration
 from borescan.calibrations import rod_layers
 from borescan.discrepancy.reference import discrepancy_reference
 from borescan.geometry import RodLayer

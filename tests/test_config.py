@@ -97,7 +97,7 @@ def test_shipped_device_model_validates_and_its_entries_parse():
 
 def test_library_defaults_are_the_schemas():
     """A keyword a caller leaves unset takes the schema's default (no copy of it in the code)."""
-    from borescan.calibration import AcceptanceRule
+    from borescan.calibrate.result import AcceptanceRule
     from borescan.config import load_config, schema_default
     from borescan.discrepancy.tri import registry_terms
 

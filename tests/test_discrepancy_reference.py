@@ -5,7 +5,7 @@ import json
 import numpy as np
 import polars as pl
 
-from borescan.calibration import TriCalibration
+from borescan.calibrate.result import TriCalibration
 from borescan.discrepancy.reference import discrepancy_reference
 from borescan.geometry import Beams
 

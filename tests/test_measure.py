@@ -316,7 +316,7 @@ def test_decision_rules():
 
 
 def _tri_cal(beams, cov=None):
-    from borescan.calibration import TriCalibration
+    from borescan.calibrate.result import TriCalibration
 
     return TriCalibration(
         "CAL-T", "TRI-01", beams, np.zeros((9, 9)) if cov is None else cov, "full_lsq", ("C",)

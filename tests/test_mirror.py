@@ -11,8 +11,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from borescan.calibrate.full_fit import fit_full_calibration
 from borescan.synthetic import scenes, simulate
-from borescan.calibration import fit_full_calibration
 from borescan.geometry import Beams
 from borescan.mirror import (
     RESOLVED_DCHI2,
@@ -156,13 +156,21 @@ def test_resolved_beams_keep_their_own_curvature(flagged_fit):
     mapped to (beta, rho, d_b), plus what their own rho profiles and d_b's second-order term add: nothing from
     beam 2's mirror (whose parameters shift the offset and beta_2 by many u).
     """
-    from borescan.calibration import _public_cov, _public_index
+    from borescan.calibrate.problem import public_index
+    from borescan.physics.tri_params import dbeta_drho_at_psi, dd_b_drho_at_g
 
     _, cal = flagged_fit
     c = 3
-    idx = _public_index(c, 0)
+    idx = public_index(c, 0)
     ok = idx >= 0
-    lin = _public_cov(cal.fit.x, cal.fit.cov, c, 0, R_MM)
+    # internal (psi, rho, g, nuisance) -> public (beta, rho, d_b, nuisance), beta of channel 1 fixed
+    rho = cal.fit.x[c - 1 : 2 * c - 1]
+    A = np.eye(cal.fit.x.size)
+    for j in range(c):
+        A[2 * c - 1 + j, c - 1 + j] = dd_b_drho_at_g(rho, R_MM)[j]
+        if j > 0:
+            A[j - 1, c - 1 + j] = dbeta_drho_at_psi(rho, R_MM)[j]
+    lin = A @ cal.fit.cov @ A.T
     expected = np.zeros((3 * c, 3 * c))
     expected[np.ix_(ok, ok)] = lin[np.ix_(idx[ok], idx[ok])]
     for prof in cal.diagnostics["rho_profiles"]:

@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
+from borescan.calibrate.full_fit import fit_full_calibration
 from borescan.synthetic import scenes
-from borescan.calibration import fit_full_calibration
 from borescan.geometry import Beams
 from borescan.plan import DeviceDesign, ScanDesign, predict, recommend
 

@@ -328,7 +328,8 @@ def test_calibration_sensitivities_against_gum_s1_refits():
     the sample SD within +-20 % (its sampling error at 150 draws is about 6 %) wherever the Type B
     part is more than a tenth of the parameter's u, and below a fifth of u elsewhere.
     """
-    from borescan.calibration import fit_full_calibration, full_lsq_sensitivities
+    from borescan.calibrate.full_fit import fit_full_calibration
+    from borescan.calibrate.sensitivities import full_lsq_sensitivities
     from borescan.geometry import Beams, Bore, tri_spindle_readings
     from borescan.kinematics import angle_model_from_arrays
 

@@ -1,7 +1,7 @@
 """Calibration records of the history: their ``calibrations`` rows, and which one a result may use.
 
 A calibration is recorded as one row per channel (``calibrations`` table of ``outputs.md``); a
-tri_lds row carries the whole :class:`~borescan.calibration.TriCalibration` as
+tri_lds row carries the whole :class:`~borescan.calibrate.result.TriCalibration` as
 ``calibration_json``, so a measurement rebuilds the exact object. A rod's layer geometry
 (Wang 2017 calibrates nothing) is recorded as a calibration with method ``nominal`` so that its
 diameters, too, name the geometry they used.
@@ -26,7 +26,7 @@ import math
 
 import polars as pl
 
-from borescan.calibration import TriCalibration
+from borescan.calibrate.result import TriCalibration
 from borescan.geometry import RodLayer
 from borescan.mirror import mirror_checks_of
 

@@ -1,6 +1,6 @@
 """One least-squares result type and the linear algebra every fit of the project shares.
 
-The three-sensor calibration (:func:`borescan.calibration.fit_full_calibration`), the rod solve
+The three-sensor calibration (:func:`borescan.calibrate.full_fit.fit_full_calibration`), the rod solve
 (:func:`borescan.rod.solve_rod`) and the discrepancy workflow
 (:func:`borescan.discrepancy.fitting.fit_least_squares`) each minimise a sum of squared
 (weighted) residuals with ``scipy.optimize.least_squares``; what they report about the optimum

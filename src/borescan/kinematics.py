@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from borescan.physics.tri import commanded_device_angle
+
 __all__ = [
     "SOURCES",
     "AngleModel",
@@ -150,7 +152,7 @@ class AngleModel:
         """Device angle phi(t) = phase + scale Phi(t) (``encoder``: the interpolated angle itself)."""
         if self.source == "encoder":
             return self.commanded_rad(t_s)
-        return phase_rad + speed_scale * self.commanded_rad(t_s)
+        return commanded_device_angle(self.commanded_rad(t_s), phase_rad, speed_scale)
 
     def mean_omega_rad_s(self) -> float:
         """Signed mean angular speed over the spindle clock [rad/s] (nominal: the constant speed)."""

@@ -8,8 +8,8 @@ beam's mirror depth (:func:`borescan.mirror.predicted_depth`); :func:`recommend`
 scan reaching a target (u(beta) at most a stated value, every rho's sign resolved).
 
 The bound is sigma^2 (J^T J + prior)^-1 with J the readings' analytic Jacobian of
-:func:`borescan.calibration._readings_and_jacobian` (the calibration's, not a second geometry) at the
-design, over the free parameters of :func:`borescan.calibration.fit_full_calibration` for that scan:
+:func:`borescan.physics.tri.tri_spindle_jacobian` (the calibration's, not a second geometry) at the
+design, over the free parameters of :func:`borescan.calibrate.full_fit.fit_full_calibration` for that scan:
 per channel beta (the first one held unless an encoder angle and known positions make the beams
 absolute), rho, d_b; the offset o = S - C (2; prior u = a sqrt(2/3) per coordinate when positions are
 known); with a commanded angle the speed scale, and the phase where positions are known. d_b adds
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from borescan.calibration import _readings_and_jacobian
+from borescan.physics.tri import tri_spindle_jacobian
 from borescan.geometry import Beams
 from borescan.mirror import RESOLVED_DCHI2, mirror_exists, offset_to_resolve_mm, predicted_depth
 
@@ -131,7 +131,7 @@ def predict(device: DeviceDesign, radius_mm: float, scan: ScanDesign) -> PlanPre
     c = len(beams.channels)
     phi, Phi = scan_angles_rad(scan)
     o = scan.offset_mm * np.array([math.cos(scan.offset_direction_rad), math.sin(scan.offset_direction_rad)])
-    v, jac = _readings_and_jacobian(phi, beams, o, float(radius_mm))  # v (n, c); jac[...] (c, n)
+    v, jac = tri_spindle_jacobian(phi, beams, o, float(radius_mm))  # v (n, c); jac[...] (c, n)
     sig = np.asarray(device.noise_mm, dtype=float)
     absolute = scan.encoder and scan.positions_known
     cols, names = [], []

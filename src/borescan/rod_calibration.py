@@ -36,7 +36,7 @@ import numpy as np
 from .artifacts import artifact_key
 from .effects import REFERENCE_TEMPERATURE_C, thermal_expansion_factor
 from .atomic import json_ready
-from .calibration import make_calibration_id
+from .calibrate.result import make_calibration_id
 from .calibrations import rod_layers
 from .config import schema_default
 from .geometry import RodLayer
@@ -321,7 +321,7 @@ def rod_calibration_id(device_id: str, scan_ids, night: str) -> str:
     """Return the deterministic id of a rod calibration.
 
     Deterministic id ``<device>-<YYYYMMDD>-rod_gauge-<8 hex>``
-    (:func:`borescan.calibration.make_calibration_id`).
+    (:func:`borescan.calibrate.result.make_calibration_id`).
     """
     return make_calibration_id(device_id, scan_ids, ROD_CALIBRATION_METHOD, night)
 

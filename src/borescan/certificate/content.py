@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from borescan.calibration import TriCalibration
+from borescan.calibrate.result import TriCalibration
 from borescan.uncertainty import Budget, Combined, combine
 
 CERTIFICATE_FORMAT = "borescan-certificate/2"

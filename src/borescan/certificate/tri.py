@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from borescan.calibration import TriCalibration
+from borescan.calibrate.result import TriCalibration
 from borescan.certificate.admin import (
     _gauge_equipment,
     _measurement_results,

@@ -12,7 +12,7 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
 from borescan.atomic import atomic_write_bytes, atomic_write_text
-from borescan.calibration import TriCalibration
+from borescan.calibrate.result import TriCalibration
 from borescan.certificate.budget_pages import _budget_tables, _page_records, _verification_pages
 from borescan.certificate.content import _residual_arrays
 from borescan.certificate.dcc import write_dcc

@@ -11,7 +11,7 @@ forward model :func:`borescan.physics.tri.tri_forward` of the twin), lmfit style
 
 - device parameters, shared by every scan and unprefixed: the beam geometry as offsets from a
   start (a calibration) in the calibration's straightened form (the quantities the data fix best,
-  :func:`borescan.calibration.fit_full_calibration`): ``dpsi[j]`` of psi = beta + asin(rho / R)
+  :func:`borescan.calibrate.full_fit.fit_full_calibration`): ``dpsi[j]`` of psi = beta + asin(rho / R)
   (every channel but the first: a common turn is each scan's centre), ``drho[j]``, ``dg[j]`` of
   g = d_b + rho^2 / (2 R) (j the channel's index, R the mean gauge radius); a weakly determined
   rho then moves along the valley instead of across it;
@@ -93,6 +93,7 @@ from borescan.discrepancy.tri import (
 )
 from borescan.effects import EFFECTS, SCOPES, Effect, calibration_absorbers, device_effect_key
 from borescan.geometry import Beams
+from borescan.physics.tri_params import straighten, unstraighten
 
 __all__ = [
     "PooledScan",
@@ -946,15 +947,16 @@ class PooledModel:
         b = self.start_beams
         R = self.R_mm
         rho = b.rho_mm + np.array([p.get(f"drho[{j}]", 0.0) for j in range(c)])
-        beta, d_b = b.beta_rad.copy(), b.d_b_mm.copy()
-        if "beta" in self.free_beams:
-            arc = np.arcsin(np.clip(rho / R, -1, 1)) - np.arcsin(np.clip(b.rho_mm / R, -1, 1))
-            beta = beta + np.array([0.0] + [p.get(f"dpsi[{j}]", 0.0) for j in range(1, c)]) - arc
-        if "d_b" in self.free_beams:
-            d_b = (
-                d_b + np.array([p.get(f"dg[{j}]", 0.0) for j in range(c)]) - (rho**2 - b.rho_mm**2) / (2 * R)
-            )
-        return Beams(b.channels, beta, rho, d_b)
+        psi, g = straighten(b.beta_rad, b.rho_mm, b.d_b_mm, R)
+        psi = psi + np.array([0.0] + [p.get(f"dpsi[{j}]", 0.0) for j in range(1, c)])
+        g = g + np.array([p.get(f"dg[{j}]", 0.0) for j in range(c)])
+        beta, d_b = unstraighten(psi, rho, g, R)
+        return Beams(
+            b.channels,
+            beta if "beta" in self.free_beams else b.beta_rad.copy(),
+            rho,
+            d_b if "d_b" in self.free_beams else b.d_b_mm.copy(),
+        )
 
     def _beam_deltas(self, p: dict[str, float]) -> dict[str, float]:
         """Return the single-scan models' beam offsets ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` at ``p``."""

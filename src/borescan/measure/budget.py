@@ -223,7 +223,7 @@ def _profile_variance(model: DiameterModel, beams: Beams, prof: dict, jac_params
     """Variance of D from a non-linear rho profile of the calibration, beyond its linear part.
 
     The calibration walks the cost along one rho, every other parameter refitted, and weighs each
-    point by its likelihood ratio (:func:`borescan.calibration.fit_full_calibration`); the parameters'
+    point by its likelihood ratio (:func:`borescan.calibrate.full_fit.fit_full_calibration`); the parameters'
     second moment there replaces their linear covariance along that rho where it is larger. D is
     evaluated at each point, M_D = sum w (D(p_k) - D(p))^2; the linear covariance already gives D
     (J . c)^2 / u_lin^2 along that rho (c the linear covariance's column of rho, J = dD/dp); the

@@ -3,7 +3,7 @@
 Inputs: the printed mean extremes d_max, d_min per sensor (``data/papers/yang2017_table1.csv``),
 R = 275.029 / 2 mm (§3.1 step 1) and oe both as printed (2.3222 mm, step 5) and as Eq. 9 gives on
 the printed spindle coordinates P1 = (262.955, -275.502), P0 = (262.833, -273.182) (2.3232 mm).
-Closed forms: :func:`borescan.calibration.yang_d_b_r` (Eqs. 8, 10, 11).
+Closed forms: :func:`borescan.calibrate.yang.yang_d_b_r` (Eqs. 8, 10, 11).
 
 r = sqrt((R - oe)^2 - (d_b + d_min)^2) subtracts two numbers near 135 mm, so the printed inputs'
 rounding moves r by tens to hundreds of micrometres: the sensitivities and the spread of r under
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from borescan.calibration import yang_d_b_r, yang_oe, yang_sensitivities
+from borescan.calibrate.yang import yang_d_b_r, yang_oe, yang_sensitivities
 from borescan.resources import shipped
 
 __all__ = [

@@ -36,7 +36,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from borescan.effects import Effect, apply_effects, sort_effects
-from borescan.geometry import Beams, Bore, bore_wall_radius, tri_spindle_readings
+from borescan.geometry import (
+    Beams,
+    Bore,
+    beam_frame,
+    bore_wall_radius,
+    tri_spindle_readings,
+    tri_spindle_readings_channel_major,
+)
 
 __all__ = [
     "TriBase",
@@ -51,6 +58,8 @@ __all__ = [
     "CORRECTABLE_STAGES",
     "tri_correct_readings",
     "first_harmonic_start",
+    "commanded_device_angle",
+    "tri_spindle_jacobian",
     "TriStaticState",
     "TriStaticJacobian",
     "TriDevice",
@@ -246,6 +255,64 @@ def first_harmonic_start(
     sol, *_ = np.linalg.lstsq(A, b, rcond=None)
     sse = float(np.sum((A @ sol - b) ** 2))
     return sol[:2], sol[2:], sse
+
+
+def commanded_device_angle(commanded_rad: np.ndarray, phase_rad: float, speed_scale: float) -> np.ndarray:
+    """Device angle phi = phase + scale Phi of a turned angle Phi the fit takes as commanded [rad].
+
+    Step 2 of the module doc with ``speed_error`` of eps = scale - 1: ``commanded_rad`` is the signed
+    commanded angle (direction x, :meth:`borescan.kinematics.AngleModel.commanded_rad`), so
+    phase + direction (1 + eps) x = phase + scale Phi. The one place of this kinematics for the fits
+    (:mod:`borescan.calibrate`, :meth:`borescan.kinematics.AngleModel.phi_rad`).
+    """
+    return phase_rad + speed_scale * commanded_rad
+
+
+def tri_spindle_jacobian(
+    phi: np.ndarray, beams: Beams, offset: np.ndarray, R: float
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Return the exact readings of a spindle scan on a ring gauge at device angles ``phi``, with derivatives.
+
+    Exact readings (n, c) at device angles ``phi`` (n,) (or per channel, (n, c) / (n, 1)) and
+    their analytic derivatives, channel-major: each ``jac[...]`` is (c, n) (``.T`` is the (n, c) view).
+
+    The wall point is P = o + Rot(phi)(F + s u) with the gauge centre at the origin; implicit
+    differentiation of |P|^2 = R^2 gives ds/dp = -(P . dP/dp) / (P . Rot(phi) u).
+    ``jac["phi"]`` is dv/dphi (the chain rule gives phase and speed-scale columns). Computed
+    channel-major for numpy's long inner loops, as :func:`borescan.geometry.tri_spindle_readings`.
+    The gauge of the calibration (a circle, no effects): the readings are those of :func:`tri_forward`
+    (checked in the tests), the derivatives against its central differences.
+    """
+    phi = np.asarray(phi, dtype=float)
+    phi = phi[:, None] if phi.ndim == 1 else phi
+    v_cn = tri_spindle_readings_channel_major(phi, offset, beams, Bore((0.0, 0.0), R))  # (c, n)
+    s = v_cn + np.asarray(beams.d_b_mm, dtype=float)[:, None]
+    F, u = beam_frame(beams.beta_rad, beams.rho_mm)  # (c, 2)
+    n_vec = np.stack([-u[:, 1], u[:, 0]], axis=-1)
+    cph, sph = np.ascontiguousarray(np.cos(phi).T), np.ascontiguousarray(np.sin(phi).T)  # (1 or c, n)
+
+    def rot(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return cph * a[:, 0:1] - sph * a[:, 1:2], sph * a[:, 0:1] + cph * a[:, 1:2]
+
+    dev_x, dev_y = F[:, 0:1] + s * u[:, 0:1], F[:, 1:2] + s * u[:, 1:2]  # device-frame wall points
+    wx = cph * dev_x - sph * dev_y
+    wy = sph * dev_x + cph * dev_y
+    Px, Py = offset[0] + wx, offset[1] + wy
+    ux, uy = rot(u)
+    den = Px * ux + Py * uy
+    nx, ny = rot(n_vec)
+    rho = np.asarray(beams.rho_mm, dtype=float)[:, None]
+    # dP/dbeta = Rot(phi)(-rho u + s n)
+    dbx, dby = -rho * ux + s * nx, -rho * uy + s * ny
+    jac = {
+        "beta": -(Px * dbx + Py * dby) / den,
+        "rho": -(Px * nx + Py * ny) / den,
+        "ox": -Px / den,
+        "oy": -Py / den,
+        # dP/dphi = perp(Rot(phi)(F + s u)) = (-wy, wx)
+        "phi": -(Px * (-wy) + Py * wx) / den,
+    }
+    return v_cn.T, jac
 
 
 #: Stages whose effects recorded readings can be corrected for pointwise, without the scene: what a

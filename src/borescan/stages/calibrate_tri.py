@@ -1,7 +1,7 @@
 """Stage ``calibrate_night``, three-sensor devices: one device's calibration from its ring-gauge scans.
 
 The device's scans of the night are fitted together (``full_lsq``) or one by one (``yang2017``);
-each calibration carries its GUM budget (:mod:`borescan.calibration_budget`), its covariance the
+each calibration carries its GUM budget (:mod:`borescan.calibrate.budget`), its covariance the
 budget's combined one, and gets its certificate (ISO/IEC 17025 7.8) with the night's verifications
 of the device made with it; its dates come from the data and the night's record
 (:func:`certificate.certificate_dates`).
@@ -15,18 +15,11 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from borescan import (
-    __version__,
-    calibration,
-    certificate,
-    certificate_issue,
-    device_model,
-    measure,
-    night_config,
-    rawio,
-)
+from borescan import __version__, certificate, certificate_issue, device_model, measure, night_config, rawio
 from borescan.artifacts import MissingTemperature
-from borescan.calibration_budget import with_budget
+from borescan.calibrate.budget import with_budget
+from borescan.calibrate.result import CalibrationError
+from borescan.calibrate.sensitivities import full_residuals
 from borescan.calibrations import calibration_rows
 from borescan.preconditions import (
     CALIBRATE_STAGE,
@@ -162,7 +155,7 @@ def _calibrate_group(
             night=night,
             position_accuracy_mm=float(cfg["position_accuracy_mm"]),
         )
-    except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+    except (CalibrationError, ValueError, np.linalg.LinAlgError) as err:
         kept = _blame_failed_fit(scans, inputs, err, nominal, night, results_root, cfg, bad, ctx)
         if kept:
             args = (method, nominal, summary, night, results_root, cfg, bad, cal_rows, link_rows, log, ctx)
@@ -175,7 +168,7 @@ def _calibrate_group(
     if cal.method == "full_lsq":
         residuals = {
             "t_s": first["t_s"],
-            "residual_mm": calibration.full_residuals(
+            "residual_mm": full_residuals(
                 fit, first["t_s"], first["readings"], first["R"], ids[0], angle_model=first["angle_model"]
             ),
         }
@@ -258,7 +251,7 @@ def _blame_failed_fit(scans, inputs, err, nominal, night, results_root, cfg, bad
             try:
                 fit_device_calibration([s], [x], nominal, cfg, night=night)
                 alone.append(None)
-            except (calibration.CalibrationError, ValueError, np.linalg.LinAlgError) as own:
+            except (CalibrationError, ValueError, np.linalg.LinAlgError) as own:
                 alone.append(str(own))
     kept = [i for i, why in enumerate(alone) if why is None]
     if kept and len(kept) < len(scans):

@@ -5,7 +5,7 @@ spindle scans, and Yang 2017 (Eq. 8-15) from the signal stage's per-channel extr
 
 Used by the calibrate stage (:mod:`borescan.stages.calibrate`) and by benchmarks that calibrate
 raw scans the way a night does (:func:`calibrate_raw_scans`). :func:`budget_of` gives a
-calibration its GUM budget (:mod:`borescan.calibration_budget`); for Yang 2017 with the
+calibration its GUM budget (:mod:`borescan.calibrate.budget`); for Yang 2017 with the
 sensitivities of :func:`yang_sensitivities`.
 """
 
@@ -16,9 +16,12 @@ from dataclasses import replace
 import numpy as np
 import polars as pl
 
-from borescan import calibration, device_model, kinematics, rawio, readings
+from borescan import device_model, kinematics, rawio, readings
 from borescan.artifacts import artifact_cte, gauge_radius_mm, scan_temperature
-from borescan.calibration_budget import calibration_budget, with_budget
+from borescan.calibrate.budget import calibration_budget, with_budget
+from borescan.calibrate.full_fit import fit_full_calibration
+from borescan.calibrate.result import AcceptanceRule
+from borescan.calibrate.yang import yang_calibration, yang_oe
 from borescan.config import schema_defaults
 from borescan.geometry import Beams
 from borescan.measure import sensor_ranges_mm
@@ -109,9 +112,9 @@ def scan_conditions(scan: rawio.RawScan, x: dict, summary: pl.DataFrame) -> dict
     }
 
 
-def acceptance_rule(cal_cfg: dict) -> calibration.AcceptanceRule:
-    """Return the calibration section's acceptance settings as a :class:`calibration.AcceptanceRule`."""
-    return calibration.AcceptanceRule.from_config(cal_cfg)
+def acceptance_rule(cal_cfg: dict) -> AcceptanceRule:
+    """Return the calibration section's acceptance settings as an :class:`AcceptanceRule`."""
+    return AcceptanceRule.from_config(cal_cfg)
 
 
 def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: str | None = None, model=()):
@@ -122,7 +125,7 @@ def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: 
     calibration's
     ``diagnostics["device_model"]``).
 
-    Raises ``calibration.CalibrationError`` (naming the scans and the reason) when the fit fails or is
+    Raises ``CalibrationError`` (naming the scans and the reason) when the fit fails or is
     refused.
     """
     raw_files = {f"{s.scan_id}/{k}": v for s in scans for k, v in sorted(s.sha256.items())}
@@ -141,7 +144,7 @@ def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: 
 
 
 def _fit(scans, inputs, nominal: Beams, cal_cfg: dict, night, raw_files, tau_s):
-    return calibration.fit_full_calibration(
+    return fit_full_calibration(
         [x["t_s"] for x in inputs],
         [x["readings"] for x in inputs],
         inputs[0]["channels"],
@@ -169,7 +172,7 @@ def calibrate_raw_scans(
     section with its schema defaults. Without ``uncertainty`` the fit's own result (covariance of
     the fit alone); with the config's ``uncertainty`` section, the calibration with its GUM budget
     (:func:`with_budget`), as the stage certifies it; ``model``: the device model carried
-    (:func:`borescan.device_model.device_model_at`). Raises ``calibration.CalibrationError``.
+    (:func:`borescan.device_model.device_model_at`). Raises ``CalibrationError``.
     """
     inputs = device_model.correct_inputs([spindle_inputs(s, uncertainty) for s in scans], model)
     nominal = design_beams(scans[0].meta, CALIBRATION_NEEDS_BEAMS)
@@ -204,9 +207,9 @@ def yang_from_summary(
         raise ValueError(
             "yang2017 needs scan.json center (the gauge centre from a centring scan) for oe (Eq. 9)"
         )
-    oe = calibration.yang_oe(inputs["spindle_xy"], inputs["center_xy"])
+    oe = yang_oe(inputs["spindle_xy"], inputs["center_xy"])
     spr = float(s["period_samples_per_rev"][0])
-    return calibration.yang_calibration(
+    return yang_calibration(
         s["d_max_mm"].to_numpy(),
         s["d_min_mm"].to_numpy(),
         statuses,
@@ -285,7 +288,7 @@ def budget_of(
     """Return the GUM budget of a calibration from its scans.
 
     Return the GUM budget of a calibration from its scans
-    (:func:`borescan.calibration_budget.calibration_budget`);
+    (:func:`borescan.calibrate.budget.calibration_budget`);
     a ``yang2017`` one also needs the signal ``summary``, ``nominal``, ``night`` and
     ``position_accuracy_mm``.
     """

@@ -20,7 +20,7 @@ import polars as pl
 
 from borescan import measure, rawio, readings, rod, rod_calibration
 from borescan.artifacts import MissingTemperature, artifact_row
-from borescan.calibration import CalibrationError
+from borescan.calibrate.result import CalibrationError
 from borescan.calibrations import (
     choose_calibration,
     choose_rod_calibration,

@@ -8,7 +8,7 @@ priors, and what the fit takes as known is added: the gauge's certified diameter
 certificate), the scan's temperature and the gauge's expansion coefficient (through the gauge
 radius R = D20 / 2 (1 + alpha (T - 20))), each sensor's linearity and resolution, and each
 parameter of a device-model effect the readings were corrected for (:mod:`borescan.device_model`).
-Sensitivities: :func:`borescan.calibration.full_lsq_sensitivities` (implicit differentiation of
+Sensitivities: :func:`borescan.calibrate.sensitivities.full_lsq_sensitivities` (implicit differentiation of
 the least-squares optimum); a Yang 2017 calibration passes its own (central differences of its
 closed forms, :func:`borescan.stages.calibration_fit.yang_sensitivities`).
 :func:`with_budget` puts the combined covariance into the calibration (so the catalog's u_*
@@ -22,7 +22,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from borescan import calibration, device_model
+from borescan import device_model
+from borescan.calibrate.sensitivities import full_lsq_sensitivities
 from borescan.artifacts import artifact_key
 from borescan.effects import REFERENCE_TEMPERATURE_C, thermal_expansion_factor
 from borescan.measure import sensor_terms
@@ -75,7 +76,7 @@ def _device_model_derivatives(model, inputs: list[dict], channels) -> tuple[dict
     return dys, dtau
 
 
-def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budget)
+def calibration_budget(
     cal,
     inputs: list[dict],
     uncertainty: dict,
@@ -110,139 +111,177 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
         ``reading_offset`` (3c, c); its covariance is then the Type A term with ``extrema_dof``
     position_accuracy_mm : the machine's stated accuracy (``yang2017``; full_lsq states its own)
     """
-    x0 = inputs[0]
     names, units = parameter_labels(cal)
     b = Budget(tuple(names), tuple(units), cal.params)
-    c = len(cal.beams.channels)
-    art, temp, cte = x0["artifact"], x0["temperature"], x0["cte"]
-    d20 = float(art.get("certified_diameter_mm", art.get("nominal_diameter_mm")))
-    dT = temp.temperature_c - REFERENCE_TEMPERATURE_C
     if cal.method == "full_lsq":
-        model = device_model.from_dicts(cal.diagnostics.get("device_model"))
-        dys, dtau = _device_model_derivatives(model, inputs, cal.beams.channels)
-        sens = calibration.full_lsq_sensitivities(
-            cal,
-            [x["t_s"] for x in inputs],
-            [x["readings"] for x in inputs],
-            x0["R"],
-            [x["angle_model"] for x in inputs],
-            spindle_xy_mm=[x["spindle_xy"] for x in inputs],
-            center_xy_mm=[x["center_xy"] for x in inputs],
-            reading_perturbations=dys,
-        )
-        for key, d in dtau.items():  # each carried parameter: through the readings and the channels' times
-            i, name = key.split(":", 1)
-            b.add(
-                Term(
-                    device_model.gum_input(cal.device_id, model[int(i)], name),
-                    sens["reading_perturbation"][key] + sens["channel_time_offset"] @ d,
-                )
-            )
-        n_obs = int(cal.diagnostics.get("n_obs", 0))
-        b.add(
-            Term(
-                Input(
-                    f"fit:{cal.calibration_id}:readings",
-                    "least-squares fit to the readings (their scatter)",
-                    "v",
-                    "mm",
-                    None,
-                    math.sqrt(sens["s2"]),
-                    "normal",
-                    float(cal.dof),
-                    "A",
-                    f"{n_obs} readings of {', '.join(cal.scan_ids)}; u is the residual standard deviation "
-                    "s = sqrt(SSR / dof)",
-                ),
-                cov=sens["cov_readings"],
-            )
-        )
-        profiles = list(cal.diagnostics.get("rho_profiles") or [])
-        linear = np.ones(c, dtype=bool)  # where a rho's profile was linear, its second-order term of d_b
-        for prof in profiles:
-            linear[list(cal.beams.channels).index(int(prof["channel"]))] = bool(prof.get("linear", True))
-        second = np.zeros((3 * c, 3 * c))
-        second[2::3, 2::3] = np.diag(np.where(linear, sens["second_order_d_b_mm2"], 0.0))
-        if np.any(second > 0):
-            b.add(
-                Term(
-                    Input(
-                        f"fit:{cal.calibration_id}:second_order",
-                        "second-order term of d_b = g - rho^2 / (2R) in rho",
-                        "rho^2",
-                        "mm^2",
-                        None,
-                        0.0,
-                        "normal",
-                        source="3 u(rho)^4 / (4 R^2), fit_full_calibration",
-                    ),
-                    cov=second,
-                )
-            )
-        rest = sens["cov_extra"] - second
-        for prof in profiles:
-            if "extra_cov_params" not in prof:
-                continue
-            E = np.asarray(prof["extra_cov_params"], dtype=float)
-            rest = rest - E
-            b.add(
-                Term(
-                    Input(
-                        f"fit:{cal.calibration_id}:profile{prof['channel']}",
-                        f"spread along the non-linear profile of rho of channel {prof['channel']} beyond the "
-                        "linear covariance",
-                        "rho",
-                        "mm",
-                        None,
-                        0.0,
-                        "normal",
-                        source="fit_full_calibration: likelihood-weighted second moment along the profile "
-                        f"(rho {prof['rho_range_mm'][0]:.4f} .. {prof['rho_range_mm'][1]:.4f} mm)",
-                    ),
-                    cov=E,
-                )
-            )
-        scale = np.sqrt(np.clip(np.diag(cal.cov), 0.0, None))
-        for i, part in enumerate(_rank_one_parts(rest, scale)):
-            b.add(
-                Term(
-                    Input(
-                        f"fit:{cal.calibration_id}:mirror{i + 1}",
-                        "unresolved mirror solution (the data do not "
-                        "reject it): position between the two solutions",
-                        "lambda",
-                        "-",
-                        0.0,
-                        1.0 / math.sqrt(3.0),
-                        "rectangular",
-                        source="fit_full_calibration: mirror solution within 4 s^2 of the kept one",
-                    ),
-                    part * math.sqrt(3.0),
-                )
-            )
+        sens, terms = _full_lsq_terms(cal, inputs)
         prior_u = sens["prior_sigma_mm"]
     else:
         if sensitivities is None or position_accuracy_mm is None:
             raise ValueError("a yang2017 budget needs its sensitivities and position_accuracy_mm")
         sens = sensitivities
-        b.add(
+        terms = [_yang_term(cal, scan_ids, extrema_dof)]
+        prior_u = float(position_accuracy_mm) * math.sqrt(2.0 / 3.0)
+    terms += _position_terms(scan_ids, inputs, sens, prior_u)
+    terms += _gauge_terms(inputs[0], scan_ids, sens["dR"])
+    ys = [np.asarray(x["readings"], float) for x in inputs]
+    noise = np.sqrt(np.mean([noise_floor_mm(y, order=4) ** 2 for y in ys], axis=0))
+    terms += sensor_terms(
+        inputs[0]["sensors"],
+        cal.beams.channels,
+        sens["reading_offset"],
+        cal.calibration_id,
+        noise,
+        float(uncertainty["sensor_resolution_mm"]),
+        "calibration",
+    )
+    for t in terms:
+        b.add(t)
+    return b.merged()
+
+
+def _full_lsq_terms(cal, inputs: list[dict]) -> tuple[dict, list[Term]]:
+    """Return a ``full_lsq`` calibration's sensitivities and its fit's terms.
+
+    Terms: each carried device-model parameter, the readings' Type A part, the second-order term of
+    d_b in rho, each non-linear profile's spread and each unresolved mirror's direction.
+    """
+    x0 = inputs[0]
+    model = device_model.from_dicts(cal.diagnostics.get("device_model"))
+    dys, dtau = _device_model_derivatives(model, inputs, cal.beams.channels)
+    sens = full_lsq_sensitivities(
+        cal,
+        [x["t_s"] for x in inputs],
+        [x["readings"] for x in inputs],
+        x0["R"],
+        [x["angle_model"] for x in inputs],
+        spindle_xy_mm=[x["spindle_xy"] for x in inputs],
+        center_xy_mm=[x["center_xy"] for x in inputs],
+        reading_perturbations=dys,
+    )
+    terms = []
+    for key, d in dtau.items():  # each carried parameter: through the readings and the channels' times
+        i, name = key.split(":", 1)
+        terms.append(
+            Term(
+                device_model.gum_input(cal.device_id, model[int(i)], name),
+                sens["reading_perturbation"][key] + sens["channel_time_offset"] @ d,
+            )
+        )
+    n_obs = int(cal.diagnostics.get("n_obs", 0))
+    terms.append(
+        Term(
+            Input(
+                f"fit:{cal.calibration_id}:readings",
+                "least-squares fit to the readings (their scatter)",
+                "v",
+                "mm",
+                None,
+                math.sqrt(sens["s2"]),
+                "normal",
+                float(cal.dof),
+                "A",
+                f"{n_obs} readings of {', '.join(cal.scan_ids)}; u is the residual standard deviation "
+                "s = sqrt(SSR / dof)",
+            ),
+            cov=sens["cov_readings"],
+        )
+    )
+    return sens, terms + _fit_extra_terms(cal, sens)
+
+
+def _fit_extra_terms(cal, sens: dict) -> list[Term]:
+    """Return the terms of the fit's covariance beyond the linear one (second order, profiles, mirrors)."""
+    c = len(cal.beams.channels)
+    profiles = list(cal.diagnostics.get("rho_profiles") or [])
+    linear = np.ones(c, dtype=bool)  # where a rho's profile was linear, its second-order term of d_b
+    for prof in profiles:
+        linear[list(cal.beams.channels).index(int(prof["channel"]))] = bool(prof.get("linear", True))
+    second = np.zeros((3 * c, 3 * c))
+    second[2::3, 2::3] = np.diag(np.where(linear, sens["second_order_d_b_mm2"], 0.0))
+    terms = []
+    if np.any(second > 0):
+        terms.append(
             Term(
                 Input(
-                    f"fit:{cal.calibration_id}:extrema",
-                    "mean extreme readings and feature points (their scatter)",
-                    "d",
+                    f"fit:{cal.calibration_id}:second_order",
+                    "second-order term of d_b = g - rho^2 / (2R) in rho",
+                    "rho^2",
+                    "mm^2",
+                    None,
+                    0.0,
+                    "normal",
+                    source="3 u(rho)^4 / (4 R^2), fit_full_calibration",
+                ),
+                cov=second,
+            )
+        )
+    rest = sens["cov_extra"] - second
+    for prof in profiles:
+        if "extra_cov_params" not in prof:
+            continue
+        E = np.asarray(prof["extra_cov_params"], dtype=float)
+        rest = rest - E
+        terms.append(
+            Term(
+                Input(
+                    f"fit:{cal.calibration_id}:profile{prof['channel']}",
+                    f"spread along the non-linear profile of rho of channel {prof['channel']} beyond the "
+                    "linear covariance",
+                    "rho",
                     "mm",
                     None,
                     0.0,
                     "normal",
-                    float(extrema_dof or float("inf")),
-                    "A",
-                    f"Yang 2017 Eq. 8-15 from {scan_ids[0]}",
+                    source="fit_full_calibration: likelihood-weighted second moment along the profile "
+                    f"(rho {prof['rho_range_mm'][0]:.4f} .. {prof['rho_range_mm'][1]:.4f} mm)",
                 ),
-                cov=cal.cov,
+                cov=E,
             )
         )
-        prior_u = float(position_accuracy_mm) * math.sqrt(2.0 / 3.0)
+    scale = np.sqrt(np.clip(np.diag(cal.cov), 0.0, None))
+    for i, part in enumerate(_rank_one_parts(rest, scale)):
+        terms.append(
+            Term(
+                Input(
+                    f"fit:{cal.calibration_id}:mirror{i + 1}",
+                    "unresolved mirror solution (the data do not "
+                    "reject it): position between the two solutions",
+                    "lambda",
+                    "-",
+                    0.0,
+                    1.0 / math.sqrt(3.0),
+                    "rectangular",
+                    source="fit_full_calibration: mirror solution within 4 s^2 of the kept one",
+                ),
+                part * math.sqrt(3.0),
+            )
+        )
+    return terms
+
+
+def _yang_term(cal, scan_ids, extrema_dof: float | None) -> Term:
+    """Return a Yang 2017 calibration's Type A term (its covariance from the extrema's scatter)."""
+    return Term(
+        Input(
+            f"fit:{cal.calibration_id}:extrema",
+            "mean extreme readings and feature points (their scatter)",
+            "d",
+            "mm",
+            None,
+            0.0,
+            "normal",
+            float(extrema_dof or float("inf")),
+            "A",
+            f"Yang 2017 Eq. 8-15 from {scan_ids[0]}",
+        ),
+        cov=cal.cov,
+    )
+
+
+def _position_terms(scan_ids, inputs: list[dict], sens: dict, prior_u: float) -> list[Term]:
+    """Return the terms of each scan's reported offset S - C (triangular, per coordinate)."""
+    terms = []
     for sid, x in zip(scan_ids, inputs):
         if sid not in sens["offset_prior"] or x["center_xy"] is None:
             continue
@@ -250,7 +289,7 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
         # the same reported spindle position and centre in several scans are one quantity (one error)
         where = "S ({:.4f}, {:.4f}) C ({:.4f}, {:.4f})".format(*x["spindle_xy"], *x["center_xy"])
         for axis, name in enumerate("xy"):
-            b.add(
+            terms.append(
                 Term(
                     Input(
                         f"position:{where}:{name}",
@@ -266,12 +305,19 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
                     sens["offset_prior"][sid][:, axis],
                 )
             )
+    return terms
+
+
+def _gauge_terms(x0: dict, scan_ids, dR: np.ndarray) -> list[Term]:
+    """Return the gauge radius's terms: certified diameter, temperature, expansion coefficient."""
+    art, temp, cte = x0["artifact"], x0["temperature"], x0["cte"]
+    d20 = float(art.get("certified_diameter_mm", art.get("nominal_diameter_mm")))
+    dT = temp.temperature_c - REFERENCE_TEMPERATURE_C
     gkey = f"gauge:{artifact_key(art)}"
     k_cert = float(art.get("k") or 2.0)
     u_d20 = float(art.get("u_diameter_mm") or 0.0) / k_cert
     f = thermal_expansion_factor(cte.cte_per_k, temp.temperature_c)
-    dR = sens["dR"]
-    b.add(
+    return [
         Term(
             Input(
                 f"{gkey}:D20",
@@ -285,9 +331,7 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
                 f"(k = {k_cert:g})",
             ),
             dR * 0.5 * f,
-        )
-    )
-    b.add(
+        ),
         Term(
             Input(
                 f"temperature:{scan_ids[0]}",
@@ -300,9 +344,7 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
                 source=temp.source,
             ),
             dR * 0.5 * d20 * cte.cte_per_k,
-        )
-    )
-    b.add(
+        ),
         Term(
             Input(
                 f"cte:{artifact_key(art)}",
@@ -315,21 +357,8 @@ def calibration_budget(  # noqa: C901 (one branch per input kind of the GUM budg
                 source=cte.source,
             ),
             dR * 0.5 * d20 * dT,
-        )
-    )
-    ys = [np.asarray(x["readings"], float) for x in inputs]
-    noise = np.sqrt(np.mean([noise_floor_mm(y, order=4) ** 2 for y in ys], axis=0))
-    for t in sensor_terms(
-        x0["sensors"],
-        cal.beams.channels,
-        sens["reading_offset"],
-        cal.calibration_id,
-        noise,
-        float(uncertainty["sensor_resolution_mm"]),
-        "calibration",
-    ):
-        b.add(t)
-    return b.merged()
+        ),
+    ]
 
 
 def with_budget(cal, budget: Budget):

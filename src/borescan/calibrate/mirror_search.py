@@ -1,0 +1,300 @@
+"""The mirror solutions of the full-data calibration: each beam's rho of the other sign, refitted.
+
+rho_c -> -rho_c at fixed psi and g keeps the first harmonic and the mean level, so each beam has
+two minima of nearly equal cost that only the second harmonic's phase tells apart. The search
+(:func:`mirror_search`) refits from every beam's mirror (:func:`mirror_start`) and keeps the lower
+cost; on long scans a screen on every step-th sample first sets aside the mirrors far above the
+kept cost or returning to it (:data:`MIRROR_SCREEN_READINGS`). Each beam's check
+(:func:`mirror_checks`, :mod:`borescan.mirror`, issue 36) is built from what the search found.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from borescan.calibrate.problem import FullProblem
+from borescan.calibrate.residuals import solve
+from borescan.fit import fit_result, jacobian_summary
+from borescan.levmar import LMResult
+from borescan.mirror import (
+    RESOLVED_DCHI2,
+    BeamMirror,
+    MirrorSolution,
+    mirror_exists,
+    offset_to_resolve_mm,
+    predicted_depth,
+    valid_bore_radius_range_mm,
+)
+from borescan.physics.tri_params import rho_arc_rad
+
+__all__ = [
+    "MIRROR_SCREEN_READINGS",
+    "MIRROR_SCREEN_DCHI2",
+    "MIRROR_SCREEN_RHO_U",
+    "Screened",
+    "MirrorSearch",
+    "mirror_start",
+    "mirror_search",
+    "mirror_checks",
+]
+
+#: the mirror search on long scans: with more than twice this many valid readings each mirror start is
+#: first fitted on every step-th sample (step = n_obs // this); a mirror whose screened cost, scaled to
+#: every sample, lies more than MIRROR_SCREEN_DCHI2 s^2 above the kept minimum's (its weight
+#: exp(-Delta/2) is nil; the scaled estimate's standard deviation is sqrt(4 step Delta), 20 s^2 at
+#: Delta = 12.5, step 8), or that returns to the kept minimum while that beam's rho lies more than
+#: MIRROR_SCREEN_RHO_U of its u from 0, is not refitted on every sample
+MIRROR_SCREEN_READINGS = 50_000
+MIRROR_SCREEN_DCHI2 = 200.0
+MIRROR_SCREEN_RHO_U = 10.0
+
+
+@dataclass(frozen=True)
+class Screened:
+    """A mirror minimum set aside by the screen: its parameters there and its estimated full cost."""
+
+    x: np.ndarray
+    cost: float
+
+
+@dataclass(frozen=True)
+class MirrorSearch:
+    """What a mirror search gives: the kept solution, the log of each start, each start's minimum.
+
+    ``tried`` (one dict per start, JSON-safe) is aligned with ``alternatives`` (the start's minimum:
+    an :class:`~borescan.levmar.LMResult`, a :class:`Screened`, or None when it failed or returned).
+    """
+
+    sol: LMResult
+    tried: tuple[dict, ...]
+    alternatives: tuple[Any, ...]
+
+
+def mirror_start(pb: FullProblem, x: np.ndarray, j: int) -> np.ndarray:
+    """Return the mirror of beam ``j`` (rho -> -rho at fixed psi and g).
+
+    The gauge-fixed first beam's psi is not free: flipping its rho moves psi_1 by delta = -2 asin(rho_1 /
+    R), and the readings depend on psi_c + phase - angle(o), so every other psi moves by delta too and
+    each scan's frame turns by delta (its offset without a prior, else its free phase back by delta).
+    """
+    i_rho0 = pb.i_rho0
+    xf = np.array(x, dtype=float, copy=True)
+    xf[i_rho0 + j] = -xf[i_rho0 + j]
+    if j == 0 and not pb.ch0_free:
+        delta = -2.0 * float(rho_arc_rad(x[i_rho0], pb.R_mm))
+        xf[: pb.c - 1] += delta
+        cd, sd = np.cos(delta), np.sin(delta)
+        for k, cl in enumerate(pb.cols):
+            if pb.priors[k] is None:
+                ox, oy = x[cl.ox], x[cl.oy]
+                xf[cl.ox], xf[cl.oy] = cd * ox - sd * oy, sd * ox + cd * oy
+            elif cl.phase is not None:
+                xf[cl.phase] -= delta
+    return xf
+
+
+def screen_rows(pb: FullProblem) -> tuple[int, list | None]:
+    """Return the screen's step and rows (every step-th sample of each scan; None: no screen)."""
+    step = max(1, pb.n_obs // MIRROR_SCREEN_READINGS)
+    return step, ([slice(None, None, step)] * pb.K if step > 1 else None)
+
+
+@dataclass(frozen=True)
+class _Kept:
+    """The kept solution refitted on the screen's samples, its s^2 on every sample, u of its parameters."""
+
+    sub: LMResult
+    s2_full: float
+    u_int: np.ndarray
+
+
+def _kept_on_screen(pb: FullProblem, sol: LMResult, rows: list) -> _Kept:
+    with np.errstate(all="ignore"):
+        k_sub = solve(pb, sol.x, rows=rows)
+    s2_full = 2.0 * float(sol.cost) / max(pb.n_obs + pb.n_prior - pb.n_params, 1)
+    u_int = np.sqrt(np.diag(jacobian_summary(sol.jac).cov_unit) * s2_full)
+    return _Kept(k_sub, s2_full, u_int)
+
+
+def _screen_one(pb: FullProblem, sol: LMResult, xf: np.ndarray, j: int, kept: _Kept, step: int, rows: list):
+    """Return (log entry, alternative) when the screen sets beam ``j``'s mirror aside, else None."""
+    with np.errstate(all="ignore"):
+        t_sub = solve(pb, xf, rows=rows)
+    k_sub = kept.sub
+    if not (bool(t_sub.success) and np.isfinite(t_sub.cost) and np.isfinite(k_sub.cost)):
+        return None
+    # the mirror's cost above the kept one, scaled to every sample, in chi^2 units
+    d_est = 2.0 * step * float(t_sub.cost - k_sub.cost) / kept.s2_full
+    u_sub = np.sqrt(
+        np.diag(jacobian_summary(t_sub.jac).cov_unit)
+        * 2.0
+        * float(t_sub.cost)
+        / max(pb.n_obs // step + pb.n_prior - pb.n_params, 1)
+    )
+    same = bool(np.all(np.abs(t_sub.x - k_sub.x) <= 0.01 * u_sub))
+    i = pb.i_rho0 + j
+    rho_clear = abs(sol.x[i]) > MIRROR_SCREEN_RHO_U * kept.u_int[i]
+    if not (d_est > MIRROR_SCREEN_DCHI2 or (same and rho_clear)):
+        return None
+    entry = {
+        "channel": int(pb.channels[j]),
+        "cost_kept": float(sol.cost),
+        "mirror_taken": False,
+        "screened_every": int(step),
+    }
+    if same:
+        entry.update(cost_mirror=float(sol.cost), screen="returned to the kept minimum")
+        return entry, None
+    # its cost on every sample estimated from the screen's (d_est chi^2 above)
+    cost_est = float(sol.cost) + 0.5 * d_est * kept.s2_full
+    entry.update(cost_mirror=cost_est, screen=f"{d_est:.0f} s^2 above the kept minimum")
+    return entry, Screened(x=t_sub.x, cost=cost_est)
+
+
+def mirror_search(pb: FullProblem, sol: LMResult) -> MirrorSearch:
+    """Refit from every beam's mirror (:func:`mirror_start`); keep the lowest cost."""
+    step, rows = screen_rows(pb)
+    tried, alts = [], []
+    kept = None
+    for j in range(pb.c):
+        xf = mirror_start(pb, sol.x, j)
+        if rows is not None:
+            kept = kept or _kept_on_screen(pb, sol, rows)
+            screened = _screen_one(pb, sol, xf, j, kept, step, rows)
+            if screened is not None:
+                tried.append(screened[0])
+                alts.append(screened[1])
+                continue
+        with np.errstate(all="ignore"):
+            trial = solve(pb, xf)  # from the flipped start, as without a screen (the screen's solution can
+            # sit in a flat valley of a weak rho where LM on every sample crawls: 1000 evaluations seen)
+        fine = bool(trial.success) and bool(np.isfinite(trial.cost))
+        better = fine and trial.cost < sol.cost
+        tried.append(
+            {
+                "channel": int(pb.channels[j]),
+                "cost_kept": float(sol.cost),
+                "cost_mirror": float(trial.cost),
+                "mirror_taken": better,
+            }
+        )
+        alts.append((sol if better else trial) if fine else None)
+        if better:
+            sol = trial
+            kept = None
+    return MirrorSearch(sol, tuple(tried), tuple(alts))
+
+
+def _candidates(
+    pb: FullProblem, sol, s2, alternatives, cov_free, p_hat, rho_hat
+) -> dict[int, tuple[float, Any]]:
+    """Return per beam the lowest minimum of the search with that beam's rho of the other sign."""
+    u_pub = np.sqrt(np.clip(np.diag(cov_free), 0.0, None))
+    u_pub[u_pub == 0] = 1.0
+    best: dict[int, tuple[float, Any]] = {}
+    for alt in alternatives:
+        if alt is None or not np.isfinite(alt.cost):
+            continue
+        p_alt = pb.public(alt.x)
+        if bool(np.max(np.abs(p_alt - p_hat) / u_pub) < 0.1):
+            continue
+        d_alt = max(2.0 * (float(alt.cost) - float(sol.cost)) / s2, 0.0)
+        for j in range(pb.c):
+            if (
+                np.sign(p_alt[pb.i_rho0 + j]) != np.sign(rho_hat[j])
+                and d_alt < best.get(j, (np.inf, None))[0]
+            ):
+                best[j] = (d_alt, alt)
+    return best
+
+
+def _flagged_mirror(
+    pb: FullProblem, sol, s2, trial, p_alt, cov_free, p_hat, j: int, common: dict
+) -> BeamMirror:
+    """Return the check of beam ``j`` carried as two weighted solutions (the kept one and ``trial``)."""
+    d_chi2 = max(2.0 * (float(trial.cost) - float(sol.cost)) / s2, 0.0)
+    fr = fit_result(
+        [f"p{i}" for i in range(trial.x.size)],
+        trial.x,
+        np.asarray(trial.fun),
+        np.asarray(trial.jac),
+        success=True,
+    )
+    cov_alt = pb.params_of(pb.params_of(pb.public_cov(trial.x, fr.cov)).T)
+    w_alt = float(np.exp(-0.5 * d_chi2))
+    w_main = 1.0 / (1.0 + w_alt)
+    pa, pm = pb.params_of(p_alt), pb.params_of(p_hat)
+    # the beam's direction uncertainty (a gauge-fixed beta: the smallest of the other beams')
+    u_b = np.sqrt(np.clip(np.diag(pb.params_of(pb.params_of(cov_free).T))[0::3], 0.0, None))
+    u_beta = float(u_b[j]) if u_b[j] > 0 else float(np.min(u_b[u_b > 0], initial=np.inf))
+    lo, hi = valid_bore_radius_range_mm(pb.R_mm, pm, pa, u_beta)
+    return BeamMirror(
+        **common,
+        refit_delta_chi2=d_chi2,
+        resolved=False,
+        weight_main=w_main,
+        p_wrong_sign=1.0 - w_main,
+        alternative=MirrorSolution(
+            tuple(float(v) for v in pa),
+            tuple(tuple(float(v) for v in row) for row in cov_alt),
+            d_chi2,
+            1.0 - w_main,
+        ),
+        rho_alt_mm=float(pa[3 * j + 1]),
+        valid_bore_diameter_mm=(2.0 * lo, 2.0 * hi),
+    )
+
+
+def mirror_checks(pb: FullProblem, sol, s2: float, search: MirrorSearch, cov_free, nuis) -> list[BeamMirror]:
+    """One :class:`borescan.mirror.BeamMirror` per channel.
+
+    Every minimum of the mirror search (from any beam's start; delta chi^2 = 2 (cost - cost_kept) / s^2)
+    is a candidate mirror of each beam whose rho it has of the other sign; the lowest is the beam's. No
+    mirror: no such minimum (the refits returned to the kept solution, within 0.1 u of every parameter,
+    or kept the sign). A beam whose mirror lies within :data:`borescan.mirror.RESOLVED_DCHI2` is refitted
+    once more from the final solution's mirror; that refit, or the candidate where it is lower, is its
+    second solution, with covariance from its own Jacobian. Weights exp(-delta chi^2 / 2) over the kept
+    solution and this beam's mirror.
+    """
+    p_hat = pb.public(sol.x)
+    rho_hat = pb.unpack(sol.x)[0].rho_mm
+    best = _candidates(pb, sol, s2, search.alternatives, cov_free, p_hat, rho_hat)
+    e_k = np.array([float(np.hypot(*n.offset_mm)) for n in nuis])
+    out = []
+    for j, ch in enumerate(pb.channels):
+        n_k = np.array([int(m[:, j].sum()) for m in pb.masks])
+        sig_k = np.asarray(pb.floors, float)[:, j]
+        rho = float(rho_hat[j])
+        sigma = float(np.sqrt(np.sum(n_k * sig_k**2) / max(n_k.sum(), 1)))
+        common = dict(
+            channel=int(ch),
+            rho_mm=rho,
+            offset_mm=float(np.max(e_k)),
+            mirror_possible=mirror_exists(rho, e_k),
+            predicted_delta_chi2=predicted_depth(n_k, e_k, rho, sig_k, pb.R_mm),
+            offset_to_resolve_mm=offset_to_resolve_mm(pb.R_mm, sigma, float(n_k.sum()), rho),
+        )
+        d_chi2, cand = best.get(j, (None, None))
+        if d_chi2 is not None and d_chi2 < RESOLVED_DCHI2:
+            with np.errstate(all="ignore"):
+                trial = solve(pb, mirror_start(pb, sol.x, j))
+            i = pb.i_rho0 + j
+            ok = (
+                bool(trial.success)
+                and np.isfinite(trial.cost)
+                and np.sign(pb.public(trial.x)[i]) != np.sign(rho)
+            )
+            if not ok or (hasattr(cand, "jac") and cand.cost < trial.cost):
+                trial = cand  # another start found this beam's other sign lower than its own refit
+            p_alt = pb.public(trial.x) if hasattr(trial, "jac") else None
+            if p_alt is not None and np.sign(p_alt[i]) != np.sign(rho):
+                out.append(_flagged_mirror(pb, sol, s2, trial, p_alt, cov_free, p_hat, j, common))
+                continue
+            d_chi2 = None if p_alt is None or np.sign(p_alt[i]) == np.sign(rho) else d_chi2
+        out.append(
+            BeamMirror(**common, refit_delta_chi2=d_chi2, resolved=True, weight_main=1.0, p_wrong_sign=0.0)
+        )
+    return out

@@ -1,0 +1,158 @@
+"""Residuals and analytic Jacobian of the full-data calibration, and its least-squares solves.
+
+The readings are the device model's (:mod:`borescan.physics.tri`): the exact ray-to-gauge geometry
+and its analytic derivatives (:func:`~borescan.physics.tri.tri_spindle_jacobian`) at the device
+angle of the commanded kinematics (:func:`~borescan.physics.tri.commanded_device_angle`). Rows: per
+scan the valid readings sample by sample, channel by channel, then the prior rows
+w (o - o_reported) of the scans with a reported offset.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from borescan.calibrate.problem import FullProblem, ScanNuisance
+from borescan.geometry import Beams, Bore, tri_spindle_readings
+from borescan.levmar import LMResult, levenberg_marquardt
+from borescan.physics.tri import commanded_device_angle, tri_spindle_jacobian
+from borescan.physics.tri_params import dbeta_drho_at_psi, dd_b_drho_at_g
+
+__all__ = ["device_angles", "model_readings", "residuals", "residuals_and_jacobian", "solve", "solve_fixed"]
+
+
+def device_angles(pb: FullProblem, k: int, nu: ScanNuisance) -> np.ndarray:
+    """Return the device angle of each reading of scan ``k``, (n, 1) or (n, c) [rad]."""
+    a = pb.commanded_rad[k]
+    return commanded_device_angle(a, nu.phase_rad, nu.speed_scale) if pb.commanded[k] else a
+
+
+def model_readings(pb: FullProblem, beams: Beams, k: int, nu: ScanNuisance, sel=slice(None)) -> np.ndarray:
+    """Return the model's readings (n, c) of scan ``k`` (rows ``sel``) [mm]: the gauge at the origin."""
+    return tri_spindle_readings(device_angles(pb, k, nu)[sel], nu.offset_mm, beams, Bore((0.0, 0.0), pb.R_mm))
+
+
+def _prior_rows(pb: FullProblem, nuis: list[ScanNuisance]) -> list[np.ndarray]:
+    return [pb.prior_w * (nu.offset_mm - p) for nu, p in zip(nuis, pb.priors) if p is not None]
+
+
+def residuals(pb: FullProblem, x: np.ndarray, rows: list | None = None) -> np.ndarray:
+    """Return model - readings of the used readings, then the prior rows, at internal vector ``x``.
+
+    ``rows``: per scan the samples to use (a slice), None for all.
+    """
+    beams, nuis = pb.unpack(x)
+    parts = []
+    for k, nu in enumerate(nuis):
+        sel = slice(None) if rows is None else rows[k]
+        v = model_readings(pb, beams, k, nu, sel)
+        parts.append((v - pb.ys[k][sel])[pb.masks[k][sel]])
+    return np.concatenate(parts + _prior_rows(pb, nuis))
+
+
+def residuals_and_jacobian(
+    pb: FullProblem, x: np.ndarray, rows: list | None = None, full: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return the residuals (:func:`residuals`) and their analytic Jacobian in the internal parameters.
+
+    ``full``: 1 + K columns more, d/d beta of the first channel and d/d phase of each scan (all
+    free: the rank of the gauge). The Jacobian is filled column by column into its transpose
+    (ncols, rows) and returned as J = JT.T, Fortran-ordered, the layout MINPACK works in.
+    """
+    beams, nuis = pb.unpack(x)
+    blocks, parts = [], []
+    for k, nu in enumerate(nuis):
+        sel = slice(None) if rows is None else rows[k]
+        v, jac = tri_spindle_jacobian(device_angles(pb, k, nu)[sel], beams, nu.offset_mm, pb.R_mm)
+        blocks.append((k, sel, jac))
+        parts.append((v - pb.ys[k][sel])[pb.masks[k][sel]])
+    r = np.concatenate(parts + _prior_rows(pb, nuis))
+    JT = np.zeros((pb.n_params + (1 + pb.K if full else 0), r.size))
+    b0 = 0
+    for k, sel, jac in blocks:
+        b0 = _fill_scan_block(pb, JT, b0, k, sel, jac, beams.rho_mm, full)
+    for k, p in enumerate(pb.priors):
+        if p is not None:
+            JT[pb.cols[k].ox, b0] = pb.prior_w
+            JT[pb.cols[k].oy, b0 + 1] = pb.prior_w
+            b0 += 2
+    return r, JT.T
+
+
+def _fill_scan_block(
+    pb: FullProblem, JT, b0: int, k: int, sel, jac: dict, rho: np.ndarray, full: bool
+) -> int:
+    """Fill scan ``k``'s rows (from ``b0``) of the transposed Jacobian; return the next row."""
+    c, m = pb.c, pb.masks[k][sel]
+    n_k = int(m.sum())
+    at = (np.cumsum(m.ravel()) - 1).reshape(m.shape)  # row of each valid reading in the block
+    rows_of = [b0 + at[m[:, j], j] for j in range(c)]
+    dbeta_drho = dbeta_drho_at_psi(rho, pb.R_mm)
+    dd_b_drho = dd_b_drho_at_g(rho, pb.R_mm)
+    for j in range(c):
+        mj, rj = m[:, j], rows_of[j]
+        if pb.beta_free(j):
+            JT[j - 1 + pb.ch0_free, rj] = jac["beta"][j, mj]
+        # d/drho at fixed psi and g: beta moves by dbeta_drho, d_b by dd_b_drho (v = s - d_b)
+        drho = jac["rho"][j, mj] - dd_b_drho[j]
+        if pb.beta_free(j):
+            drho = drho + jac["beta"][j, mj] * dbeta_drho[j]
+        JT[pb.i_rho0 + j, rj] = drho
+        JT[pb.i_g0 + j, rj] = -1.0
+    blk = slice(b0, b0 + n_k)
+    cl = pb.cols[k]
+    JT[cl.ox, blk] = jac["ox"].T[m]
+    JT[cl.oy, blk] = jac["oy"].T[m]
+    dphi = jac["phi"].T[m]
+    if cl.phase is not None:
+        JT[cl.phase, blk] = dphi
+    if cl.scale is not None:
+        JT[cl.scale, blk] = (jac["phi"].T * pb.commanded_rad[k][sel])[m]
+    if full:
+        if not pb.ch0_free:
+            JT[pb.n_params, rows_of[0]] = jac["beta"][0, m[:, 0]]
+        JT[pb.n_params + 1 + k, blk] = dphi
+    return b0 + n_k
+
+
+def solve(
+    pb: FullProblem, x_start: np.ndarray, rows: list | None = None, nfev: int | None = None
+) -> LMResult:
+    """Least-squares minimum from ``x_start`` (MINPACK's Levenberg-Marquardt, analytic Jacobian)."""
+    return levenberg_marquardt(
+        lambda x: residuals(pb, x, rows=rows),
+        x_start,
+        lambda x: residuals_and_jacobian(pb, x, rows=rows)[1],
+        max_nfev=pb.max_nfev if nfev is None else nfev,
+        xtol=1e-10,
+        ftol=1e-10,
+        gtol=1e-10,
+    )
+
+
+def solve_fixed(
+    pb: FullProblem, x_start: np.ndarray, i_fix: int, nfev: int = 30
+) -> tuple[np.ndarray, float, bool]:
+    """Minimum of the cost over every internal parameter but ``i_fix`` (held at ``x_start[i_fix]``).
+
+    Returns (internal vector, cost, converged to a finite cost).
+    """
+    keep = np.arange(pb.n_params) != i_fix
+    base = np.array(x_start, dtype=float)
+
+    def full(z: np.ndarray) -> np.ndarray:
+        x = base.copy()
+        x[keep] = z
+        return x
+
+    with np.errstate(all="ignore"):
+        res = levenberg_marquardt(
+            lambda z: residuals(pb, full(z)),
+            base[keep],
+            lambda z: residuals_and_jacobian(pb, full(z))[1].T[keep].T,
+            max_nfev=nfev,
+            xtol=1e-10,
+            ftol=1e-10,
+            gtol=1e-10,
+            jac_at_solution=False,
+        )
+    return full(res.x), float(res.cost), bool(res.success) and bool(np.isfinite(res.cost))
