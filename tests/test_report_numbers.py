@@ -178,3 +178,33 @@ def test_control_chart_shows_the_error_bars_whole():
     tops = [(e + 2 * u) * 1e3 for e, u in zip(err_mm, u_mm)]
     bottoms = [(e - 2 * u) * 1e3 for e, u in zip(err_mm, u_mm)]
     assert lo < min(bottoms) and max(tops) < hi
+
+
+def test_control_chart_marks_each_verification_by_its_verdict():
+    """A verification that cannot decide (U not below T) was drawn as "passed": each point now
+    carries its verdict under the decision rule, so the chart says what the summary says.
+    """
+    from borescan.report.plots import plot_control_chart
+
+    ver = pl.DataFrame(
+        {
+            "night": ["2026-11-20", "2026-11-21", "2026-11-23", "2026-11-24"],
+            "scan_id": [f"V{i}" for i in range(4)],
+            "device_id": ["TRI-01"] * 4,
+            "error_mm": [0.0005, 0.002, 0.0007, 0.02],
+            "u_error_mm": [0.0094, 0.002, 0.0094, 0.002],
+            "passed": [True, True, True, False],
+            "conformity": ["cannot decide", "conforms", "cannot decide", "does not conform"],
+            "tolerance_mm": [0.015] * 4,
+        }
+    )
+    ax = plot_control_chart(ver, "TRI-01").axes[0]
+    points = {
+        line.get_label(): list(line.get_xdata())
+        for line in ax.get_lines()
+        if not line.get_label().startswith("_")
+    }
+    assert points["conforms"] == [1]
+    assert points["cannot decide (U too large)"] == [0, 2]
+    assert points["does not conform"] == [3]
+    assert "passed" not in points

@@ -9,6 +9,7 @@ import polars as pl
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from borescan.decision import CANNOT_DECIDE
 from borescan.report.spc import MR_D2, RUN_RULES, control_limits, run_rules
 
 TRI_PARAMS = (("beta_rad", "u_beta_rad"), ("rho_mm", "u_rho_mm"), ("d_b_mm", "u_d_b_mm"))
@@ -205,9 +206,33 @@ def plot_control_chart(  # noqa: C901 (one branch per optional element of the ch
             capsize=0 if small else 2,
             label="U (k=2)",
         )
-    ax_i.plot(x[passed], y[passed], "o", color="C0", ms=ms, label="passed")
-    if (~passed).any():
-        ax_i.plot(x[~passed], y[~passed], "s", color="C3", ms=ms + 1, label="failed")
+    # each point by its verdict under the decision rule; rows without one by the acceptance alone
+    verdict = (
+        df["conformity"].cast(pl.Utf8).fill_null("").to_numpy()
+        if "conformity" in df.columns
+        else np.full(df.height, "")
+    )
+    undecided = verdict == CANNOT_DECIDE
+    shown_pass = passed & ~undecided
+    ax_i.plot(
+        x[shown_pass],
+        y[shown_pass],
+        "o",
+        color="C0",
+        ms=ms,
+        label="conforms" if "conformity" in df.columns else "passed",
+    )
+    if undecided.any():
+        ax_i.plot(x[undecided], y[undecided], "D", color="C1", ms=ms, label="cannot decide (U too large)")
+    if (~passed & ~undecided).any():
+        ax_i.plot(
+            x[~passed & ~undecided],
+            y[~passed & ~undecided],
+            "s",
+            color="C3",
+            ms=ms + 1,
+            label="does not conform",
+        )
     broken = rules[1] | rules[2] | rules[4]
     if broken.any():
         ax_i.plot(
