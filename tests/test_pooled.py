@@ -19,12 +19,12 @@ from borescan.discrepancy.pooled import (
     CONDITIONS,
     PooledModel,
     PooledTerm,
-    _carriers,
     drift_explanations,
     examine_pooled,
     pooled_scan,
     separation,
 )
+from borescan.discrepancy.pooled.verdict import _carriers
 from borescan.effects import EFFECTS, SCAN_KINDS, SCOPES, Effect
 from borescan.geometry import Beams
 from borescan.synthetic.scenes import YANG_BEAMS, default_tri_scene
