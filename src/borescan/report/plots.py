@@ -165,6 +165,38 @@ def _night_ticks(ax, nights: list, ids: list, most: int = MAX_TICK_LABELS) -> No
         ax.set_xticks(firsts, minor=True)
 
 
+def _moving_range_panel(ax_mr, lim: dict, x: np.ndarray, ms: float, small: bool) -> None:
+    """Draw the moving-range chart of :func:`plot_control_chart`: MR [µm], MR̄ and its UCL."""
+    mr = lim["mr"] * 1e3
+    ax_mr.plot(x[1:], mr, "o-", color="C0", ms=ms - 1, lw=0.8 if small else 1)
+    if np.isfinite(lim["mr_bar"]):
+        ax_mr.axhline(lim["mr_bar"] * 1e3, color="k", lw=1)
+        ax_mr.axhline(lim["mr_ucl"] * 1e3, ls="--", color="C1", lw=1)
+        ax_mr.annotate(
+            f"MR̄ {lim['mr_bar'] * 1e3:.2f}",
+            (0.995, lim["mr_bar"] * 1e3),
+            xycoords=("axes fraction", "data"),
+            fontsize=7,
+            va="bottom",
+            ha="right",
+            bbox=_LABEL_BOX,
+        )
+        ax_mr.annotate(
+            f"UCL {lim['mr_ucl'] * 1e3:.2f}",
+            (0.995, lim["mr_ucl"] * 1e3),
+            xycoords=("axes fraction", "data"),
+            fontsize=7,
+            va="bottom",
+            ha="right",
+            bbox=_LABEL_BOX,
+        )
+        ax_mr.set_ylim(0.0, max(float(np.nanmax(mr)) if mr.size else 0.0, lim["mr_ucl"] * 1e3) * 1.15 or 1.0)
+    ax_mr.axhline(0.0, color="0.7", lw=0.8)
+    ax_mr.set_ylabel("moving range [µm]")
+    ax_mr.set_title("moving range chart", fontsize=10)
+    ax_mr.grid(alpha=0.3)
+
+
 def plot_control_chart(  # noqa: C901 (one branch per optional element of the chart)
     ver: pl.DataFrame, device_id: str, artifact_id: str | None = None
 ) -> Figure:
@@ -302,34 +334,7 @@ def plot_control_chart(  # noqa: C901 (one branch per optional element of the ch
     ax_i.set_title(f"{device_id}{gauge}: verification error, individuals chart", fontsize=10)
     ax_i.legend(fontsize=7, loc="lower left", ncols=4, framealpha=0.85)
     ax_i.grid(alpha=0.3)
-    mr = lim["mr"] * 1e3
-    ax_mr.plot(x[1:], mr, "o-", color="C0", ms=ms - 1, lw=0.8 if small else 1)
-    if np.isfinite(lim["mr_bar"]):
-        ax_mr.axhline(lim["mr_bar"] * 1e3, color="k", lw=1)
-        ax_mr.axhline(lim["mr_ucl"] * 1e3, ls="--", color="C1", lw=1)
-        ax_mr.annotate(
-            f"MR̄ {lim['mr_bar'] * 1e3:.2f}",
-            (0.995, lim["mr_bar"] * 1e3),
-            xycoords=("axes fraction", "data"),
-            fontsize=7,
-            va="bottom",
-            ha="right",
-            bbox=_LABEL_BOX,
-        )
-        ax_mr.annotate(
-            f"UCL {lim['mr_ucl'] * 1e3:.2f}",
-            (0.995, lim["mr_ucl"] * 1e3),
-            xycoords=("axes fraction", "data"),
-            fontsize=7,
-            va="bottom",
-            ha="right",
-            bbox=_LABEL_BOX,
-        )
-        ax_mr.set_ylim(0.0, max(float(np.nanmax(mr)) if mr.size else 0.0, lim["mr_ucl"] * 1e3) * 1.15 or 1.0)
-    ax_mr.axhline(0.0, color="0.7", lw=0.8)
-    ax_mr.set_ylabel("moving range [µm]")
-    ax_mr.set_title("moving range chart", fontsize=10)
-    ax_mr.grid(alpha=0.3)
+    _moving_range_panel(ax_mr, lim, x, ms, small)
     ax_mr.set_xlim(-0.5, max(df.height - 0.5, 0.5))
     _night_ticks(
         ax_mr,
