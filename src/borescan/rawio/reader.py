@@ -6,6 +6,7 @@ import copy
 import dataclasses
 import hashlib
 import os
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -207,6 +208,7 @@ class _ScanCache:
         self._night: str | None = None
         self._items: OrderedDict[tuple, tuple[tuple, RawScan | _MetaRead, int]] = OrderedDict()
         self._bytes = 0
+        self._lock = threading.Lock()  # readers on threads of one process
 
     @staticmethod
     def key(scan_dir: Path, raw_root: Path | None) -> tuple[str, str, str]:
@@ -216,32 +218,35 @@ class _ScanCache:
 
     def clear(self) -> None:
         """Forget every scan."""
-        self._items.clear()
-        self._bytes, self._night = 0, None
+        with self._lock:
+            self._items.clear()
+            self._bytes, self._night = 0, None
 
     def get(self, key: tuple, stamp: tuple | None) -> RawScan | _MetaRead | None:
         """Return the kept read of ``key`` if its files still carry ``stamp``."""
-        item = self._items.get(key)
-        if item is None or stamp is None or item[0] != stamp:
-            return None
-        self._items.move_to_end(key)
-        return item[1]
+        with self._lock:
+            item = self._items.get(key)
+            if item is None or stamp is None or item[0] != stamp:
+                return None
+            self._items.move_to_end(key)
+            return item[1]
 
     def put(self, key: tuple, stamp: tuple, found: RawScan | _MetaRead) -> None:
         """Keep a valid read of ``key`` (its files' ``stamp`` unchanged over the read)."""
-        night = os.path.dirname(key[0])
-        if night != self._night:
-            self.clear()
-            self._night = night
-        old = self._items.pop(key, None)
-        if old is not None:
-            self._bytes -= old[2]
         n = _nbytes(found) if isinstance(found, RawScan) else 0
-        self._items[key] = (stamp, found, n)
-        self._bytes += n
-        while self._bytes > self.max_bytes and len(self._items) > 1:
-            _, (_, _, gone) = self._items.popitem(last=False)
-            self._bytes -= gone
+        night = os.path.dirname(key[0])
+        with self._lock:
+            if night != self._night:
+                self._items.clear()
+                self._bytes, self._night = 0, night
+            old = self._items.pop(key, None)
+            if old is not None:
+                self._bytes -= old[2]
+            self._items[key] = (stamp, found, n)
+            self._bytes += n
+            while self._bytes > self.max_bytes and len(self._items) > 1:
+                _, (_, _, gone) = self._items.popitem(last=False)
+                self._bytes -= gone
 
 
 _SCAN_CACHE = _ScanCache(_CACHE_MAX_BYTES)
