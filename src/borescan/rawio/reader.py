@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import hashlib
 import os
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -140,10 +145,169 @@ def _meta_folder_checks(meta: dict, sid: str | None, night: str | None, p: _Prob
         p.add(SCAN_JSON, f"night {mnight!r:.40} differs from the folder name night={night}")
 
 
-def _inspect(  # noqa: C901 (one branch per raw file and problem of a scan folder)
+# ---------------------------------------------------------------------------------------------
+# the night's valid scans, parsed once per process
+
+# Bound of the cache: the raw data of one demo night is about 30 MB in memory; a night of large
+# scans keeps its most recently read ones within this (least recently used first out).
+_CACHE_MAX_BYTES = 1 << 30
+
+
+@dataclass(frozen=True)
+class _MetaRead:
+    """A valid ``scan.json`` read alone (:func:`read_scan_meta`) and the SHA-256 of its bytes."""
+
+    meta: dict
+    sha256: str | None
+
+
+def _stamp(scan_dir: Path) -> tuple | None:
+    """Return what identifies the folder's files on disk now; None when one cannot be examined.
+
+    For the folder and each raw file: the entry itself (``lstat``: a replaced symlink) and what it
+    resolves to (device, inode, size, mtime_ns, ctime_ns: a rewritten, replaced or chmod-ed file).
+    """
+    out: list[tuple | None] = []
+    for path in (scan_dir, scan_dir / SCAN_JSON, scan_dir / LDS_FILE, scan_dir / SPINDLE_FILE):
+        try:
+            entry = os.lstat(path)
+        except FileNotFoundError:
+            out.append(None)
+            continue
+        except OSError:
+            return None
+        try:
+            st = os.stat(path)
+        except OSError:
+            return None
+        out.append(
+            (entry.st_ino, entry.st_mtime_ns, st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+            + (st.st_ctime_ns,)
+        )
+    return tuple(out)
+
+
+def _nbytes(scan: RawScan) -> int:
+    n = scan.lds.estimated_size() + (scan.spindle.estimated_size() if scan.spindle is not None else 0)
+    if scan._matrix is not None:
+        m = scan._matrix[1]
+        n += sum(a.nbytes for a in (m.sample, m.t_s, m.values_mm, m.pose))
+    return n
+
+
+class _ScanCache:
+    """The valid scans of one night folder read by this process, each served while its files are unchanged.
+
+    A scan of another night folder empties it first (memory bounded to one night, and to
+    ``_CACHE_MAX_BYTES``). Only valid reads are kept: a bad scan is read again, with its problems.
+    """
+
+    def __init__(self, max_bytes: int) -> None:
+        self.enabled = True
+        self.max_bytes = max_bytes
+        self._night: str | None = None
+        self._items: OrderedDict[tuple, tuple[tuple, RawScan | _MetaRead, int]] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()  # readers on threads of one process
+
+    @staticmethod
+    def key(scan_dir: Path, raw_root: Path | None) -> tuple[str, str, str]:
+        """Return the folder as given, where it resolves and the raw root it must stay in."""
+        root = raw_root if raw_root is not None else scan_dir.parent.parent
+        return os.path.abspath(scan_dir), os.path.realpath(scan_dir), os.path.realpath(root)
+
+    def clear(self) -> None:
+        """Forget every scan."""
+        with self._lock:
+            self._items.clear()
+            self._bytes, self._night = 0, None
+
+    def get(self, key: tuple, stamp: tuple | None) -> RawScan | _MetaRead | None:
+        """Return the kept read of ``key`` if its files still carry ``stamp``."""
+        with self._lock:
+            item = self._items.get(key)
+            if item is None or stamp is None or item[0] != stamp:
+                return None
+            self._items.move_to_end(key)
+            return item[1]
+
+    def put(self, key: tuple, stamp: tuple, found: RawScan | _MetaRead) -> None:
+        """Keep a valid read of ``key`` (its files' ``stamp`` unchanged over the read)."""
+        n = _nbytes(found) if isinstance(found, RawScan) else 0
+        night = os.path.dirname(key[0])
+        with self._lock:
+            if night != self._night:
+                self._items.clear()
+                self._bytes, self._night = 0, night
+            old = self._items.pop(key, None)
+            if old is not None:
+                self._bytes -= old[2]
+            self._items[key] = (stamp, found, n)
+            self._bytes += n
+            while self._bytes > self.max_bytes and len(self._items) > 1:
+                _, (_, _, gone) = self._items.popitem(last=False)
+                self._bytes -= gone
+
+
+_SCAN_CACHE = _ScanCache(_CACHE_MAX_BYTES)
+
+
+def _handout(scan: RawScan) -> RawScan:
+    """Return a caller's own copy of a kept scan.
+
+    Its dicts and lists copied, frames cloned (the data shared, immutable in polars), the wide
+    matrix's arrays read-only: a caller cannot change what the next one gets.
+    """
+    lds = scan.lds.clone()
+    return dataclasses.replace(
+        scan,
+        meta=copy.deepcopy(scan.meta),
+        lds=lds,
+        spindle=scan.spindle.clone() if scan.spindle is not None else None,
+        files=dict(scan.files),
+        warnings=list(scan.warnings),
+        _digests=dict(scan._digests),
+        _matrix=(lds, scan._matrix[1]) if scan._matrix is not None else None,
+    )
+
+
+def _unwrap(found: RawScan | _MetaRead | None, errors: list[ScanError]):
+    return (found.meta if isinstance(found, _MetaRead) else found), errors
+
+
+def _inspect(
     scan_dir: Path, raw_root: Path | None = None, meta_only: bool = False
 ) -> tuple[RawScan | dict | None, list[ScanError]]:
+    """Read and validate a scan folder, through this process's cache of the night's valid scans."""
     scan_dir = Path(scan_dir)
+    cache = _SCAN_CACHE
+    if not cache.enabled:
+        return _unwrap(*_inspect_files(scan_dir, raw_root, meta_only))
+    key = cache.key(scan_dir, raw_root)
+    stamp = _stamp(scan_dir)
+    hit = cache.get(key, stamp)
+    if isinstance(hit, RawScan):
+        return (copy.deepcopy(hit.meta) if meta_only else _handout(hit)), []
+    known = hit if isinstance(hit, _MetaRead) else None
+    if meta_only and known is not None:
+        return copy.deepcopy(known.meta), []
+    found, errors = _inspect_files(scan_dir, raw_root, meta_only, known)
+    if errors or stamp is None or _stamp(scan_dir) != stamp:
+        return _unwrap(found, errors)  # only valid scans of unchanged folders are kept
+    if meta_only:
+        cache.put(key, stamp, found)
+        return copy.deepcopy(found.meta), errors
+    cache.put(key, stamp, found)
+    return _handout(found), errors
+
+
+def _inspect_files(  # noqa: C901 (one branch per raw file and problem of a scan folder)
+    scan_dir: Path, raw_root: Path | None = None, meta_only: bool = False, known: _MetaRead | None = None
+) -> tuple[RawScan | dict | None, list[ScanError]]:
+    """Read and validate a scan folder from its files (``known``: its ``scan.json`` already parsed).
+
+    Returns ``(RawScan, [])``, ``(_MetaRead, [])`` with ``meta_only`` or ``(None, problems)``.
+    """
     p = _Problems(_scan_id_from_dir(scan_dir))
     sid, night = _check_folder(scan_dir, raw_root, p)
     if p:
@@ -154,7 +318,9 @@ def _inspect(  # noqa: C901 (one branch per raw file and problem of a scan folde
     lds_path = _open_file(scan_dir, LDS_FILE, real_root, p, required=True) if not meta_only else None
     sp_path = _open_file(scan_dir, SPINDLE_FILE, real_root, p, required=False) if not meta_only else None
     meta, meta_digest = (None, None)
-    if meta_path is not None:
+    if meta_path is not None and known is not None:
+        meta, meta_digest = copy.deepcopy(known.meta), known.sha256
+    elif meta_path is not None:
         meta, meta_digest = _read_meta_file(meta_path, p)
     meta_ok = False
     if meta is not None:
@@ -164,7 +330,7 @@ def _inspect(  # noqa: C901 (one branch per raw file and problem of a scan folde
             _meta_folder_checks(meta, sid, night, p)
         meta_ok = len(p.errors) == n0
     if meta_only:
-        return (meta if not p else None), p.errors
+        return (_MetaRead(meta, meta_digest) if not p else None), p.errors
     has_spindle_file = os.path.lexists(scan_dir / SPINDLE_FILE)
     lds_tab = _read_parquet(lds_path, LDS_FILE, LDS_SCHEMA, p) if lds_path is not None else None
     sp_tab = _read_parquet(sp_path, SPINDLE_FILE, SPINDLE_SCHEMA, p) if sp_path is not None else None

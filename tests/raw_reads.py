@@ -1,0 +1,146 @@
+"""Count the raw parses of one night's stages run in one process (issue 34: raw read once).
+
+:func:`count_night_reads` patches the two parsers of :mod:`borescan.rawio.reader` (``_read_parquet``
+for ``lds.parquet`` / ``spindle.parquet``, ``_read_meta_file`` for ``scan.json``), runs ingest, signal,
+calibrate, measure and discrepancy on one night the way the workflow's scripts call them (one worker,
+so every read happens in this process; the raw cache emptied before each stage, as in its own job)
+and returns the parses per stage, file kind and scan folder.
+
+By hand: ``PYTHONPATH=src python tests/raw_reads.py /tmp/demo_raw/raw 2026-11-20 [--no-cache]``.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import polars as pl
+
+from borescan import night_config
+from borescan.config import load_config
+from borescan.rawio import reader
+from borescan.stages._common import write_table
+from borescan.stages.calibrate import stage_calibrate
+from borescan.stages.discrepancy import stage_discrepancy
+from borescan.stages.ingest import stage_ingest
+from borescan.stages.measure import stage_measure
+from borescan.stages.signal import stage_signal
+
+STAGES = ("ingest", "signal", "calibrate", "measure", "discrepancy")
+
+
+@dataclass(frozen=True)
+class NightReads:
+    """Raw parses of one night: ``(stage, file name, scan folder name) -> parses``, and the stages' tables."""
+
+    parses: dict[tuple[str, str, str], int]
+    tables: dict[str, pl.DataFrame]
+
+    def per_kind(self, stage: str | None = None) -> dict[str, int]:
+        """File name -> parses (of one stage, or of all)."""
+        out: Counter = Counter()
+        for (st, name, _), n in self.parses.items():
+            if stage is None or st == stage:
+                out[name] += n
+        return dict(sorted(out.items()))
+
+
+def _begin(stage: list[str], name: str) -> None:
+    """Start a stage: in the workflow each runs in its own process, so nothing read before is kept."""
+    stage[0] = name
+    reader._SCAN_CACHE.clear()
+
+
+def _run_stages(raw: Path, night: str, out: Path, stage: list[str]) -> dict[str, pl.DataFrame]:
+    cfg, res = load_config(), out / "res"
+    quiet = lambda _: None  # noqa: E731
+    night_config.settle(res, [night], cfg)
+    _begin(stage, "ingest")
+    scans, _, _ = stage_ingest(raw, night, res)
+    write_table(scans, out / "scans.parquet")
+    _begin(stage, "signal")
+    _, summary, _ = stage_signal(raw, night, res, out / "scans.parquet", cfg["signal"], log=quiet)
+    write_table(summary, out / "summary.parquet")
+    _begin(stage, "calibrate")
+    cals, _, _ = stage_calibrate(
+        raw,
+        night,
+        res,
+        out / "scans.parquet",
+        out / "summary.parquet",
+        cfg["calibration"],
+        log=quiet,
+        uncertainty=cfg["uncertainty"],
+        laboratory=cfg["laboratory"],
+        verification=cfg["verification"],
+        devices=cfg["devices"],
+        signal=cfg["signal"],
+    )
+    write_table(cals, out / "calibrations.parquet")
+    _begin(stage, "measure")
+    mcfg = {
+        k: cfg[k]
+        for k in ("verification", "measurement", "calibration", "uncertainty", "laboratory", "signal")
+    }
+    diameters, verifications, _, _ = stage_measure(
+        raw, night, res, out / "scans.parquet", [out / "calibrations.parquet"], [], mcfg, log=quiet
+    )
+    _begin(stage, "discrepancy")
+    findings, _ = stage_discrepancy(
+        raw, night, res, out / "scans.parquet", [out / "calibrations.parquet"], cfg["discrepancy"], log=quiet
+    )
+    return {
+        "scans": scans,
+        "summary": summary,
+        "calibrations": cals,
+        "diameters": diameters,
+        "verifications": verifications,
+        "findings": findings,
+    }
+
+
+def count_night_reads(raw: Path, night: str, out: Path, monkeypatch) -> NightReads:
+    """Run the night's stages in this process, counting every raw parse (``monkeypatch``: pytest's)."""
+    parses: Counter = Counter()
+    stage = ["-"]
+    read_parquet, read_meta = reader._read_parquet, reader._read_meta_file
+
+    def counted_parquet(path, fname, schema, p):
+        parses[(stage[0], fname, Path(path).parent.name)] += 1
+        return read_parquet(path, fname, schema, p)
+
+    def counted_meta(path, p):
+        parses[(stage[0], reader.SCAN_JSON, Path(path).parent.name)] += 1
+        return read_meta(path, p)
+
+    monkeypatch.setattr(reader, "_read_parquet", counted_parquet)
+    monkeypatch.setattr(reader, "_read_meta_file", counted_meta)
+    tables = _run_stages(Path(raw), night, Path(out), stage)
+    return NightReads(dict(parses), tables)
+
+
+if __name__ == "__main__":
+    import pytest
+
+    with pytest.MonkeyPatch.context() as mp, tempfile.TemporaryDirectory() as tmp:
+        mp.setattr(reader._SCAN_CACHE, "enabled", "--no-cache" not in sys.argv[3:])
+        reads = count_night_reads(Path(sys.argv[1]), sys.argv[2], Path(tmp), mp)
+    per_scan = Counter()
+    for (_, name, scan), n in reads.parses.items():
+        per_scan[(name, scan)] += n
+    print(f"{'stage':<12} " + " ".join(f"{k:>16}" for k in ("scan.json", "lds.parquet", "spindle.parquet")))
+    for st in STAGES:
+        kinds = reads.per_kind(st)
+        print(
+            f"{st:<12} "
+            + " ".join(f"{kinds.get(k, 0):>16}" for k in ("scan.json", "lds.parquet", "spindle.parquet"))
+        )
+    total = reads.per_kind()
+    print(
+        f"{'total':<12} "
+        + " ".join(f"{total.get(k, 0):>16}" for k in ("scan.json", "lds.parquet", "spindle.parquet"))
+    )
+    print("most parses of one file:", max(per_scan.values()) if per_scan else 0)
