@@ -539,10 +539,20 @@ def test_the_demo_closes_the_loop(pipeline_run):
     assert (res / "report" / carrying[:7] / "devicemodel_TRI-01.png").is_file()
 
 
+#: values found by an iteration that stops at a stated fraction of their uncertainty, compared to it: a
+#: rod's base lengths l0 settle when the solve's radii are within 1e-3 u of the gauges'
+#: (rod_calibration.calibrate_l0); on an AMD EPYC host the process layout's last bits moved the stop from
+#: solve 2 to solve 4 (l0 5e-6 mm apart)
+SETTLED_TO_U = {"l0_mm": 1e-3}
+#: JSON keys that count the solver's steps, not a result: they follow the stop above
+SOLVER_PATH_KEYS = {"iterations"}
+
+
 def _assert_equal_within_uncertainty(a, b, table: str) -> None:
     """Check every non-float column equal and every float column within its uncertainty.
 
-    A float column X with a column u_X within 1e-6 u_X (a millionth of its standard uncertainty); an
+    A float column X with a column u_X within 1e-6 u_X (a millionth of its standard uncertainty; an
+    iterated value within the fraction of u_X it settles to, ``SETTLED_TO_U``); an
     uncertainty (u_X, expanded_u_X; known to a few per cent at best) and any other float column to a
     relative 1e-6; all of them at least to 1e-12 (a value at zero, such as the period's uncertainty of a
     scan whose revolutions all have the same length).
@@ -569,7 +579,7 @@ def _assert_equal_within_uncertainty(a, b, table: str) -> None:
         assert np.array_equal(np.isnan(x), np.isnan(y)), (table, col)
         ok = ~np.isnan(x)
         if f"u_{col}" in a.columns:
-            tol = 1e-6 * np.abs(b[f"u_{col}"].to_numpy().astype(float))
+            tol = SETTLED_TO_U.get(col, 1e-6) * np.abs(b[f"u_{col}"].to_numpy().astype(float))
             tol = np.where(np.isfinite(tol), tol, 1e-9 * np.abs(y))
         else:
             tol = (
@@ -589,7 +599,8 @@ def _assert_json_close(x, y, where: str) -> None:
     if isinstance(x, dict) and isinstance(y, dict):
         assert x.keys() == y.keys(), where
         for k in x:
-            _assert_json_close(x[k], y[k], f"{where}.{k}")
+            if k not in SOLVER_PATH_KEYS:
+                _assert_json_close(x[k], y[k], f"{where}.{k}")
     elif isinstance(x, list) and isinstance(y, list):
         assert len(x) == len(y), where
         numbers = all(isinstance(v, float | int) and not isinstance(v, bool) for v in x + y)
