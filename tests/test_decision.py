@@ -97,3 +97,16 @@ def test_trace_and_report_show_the_verdict_with_its_rule(tmp_path, capsys):
     assert '<span class="warn">CANNOT DECIDE</span><br><small>|E| = 20.00 um, U(E) = 18.00 um' in html
     # the night's summary counts it and says what to do
     assert "<li><b>cannot decide</b> verification VER-21 (TRI-01, gauge RG-275): |E| = 20.00 um" in html
+
+
+def test_a_result_that_cannot_decide_never_reads_as_accepted():
+    """The statement of a 'cannot decide' said "the result is accepted by the rule" (the demo's
+    verifications, U(E) 18.8 um against T 15 um): it now says where |E| lies and that conformity cannot be
+    stated.
+    """
+    inside = decision(0.0005, 0.0188, 0.015)
+    outside = decision(0.016, 0.0188, 0.015)
+    assert inside.verdict == outside.verdict == CANNOT_DECIDE
+    assert "accepted" not in inside.statement and "accepted" not in outside.statement
+    assert inside.statement.endswith("|E| is within the acceptance limit, but conformity cannot be stated")
+    assert outside.statement.endswith("|E| is beyond the acceptance limit, but conformity cannot be stated")

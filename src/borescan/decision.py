@@ -97,7 +97,10 @@ class Decision:
                 if self.U_mm >= self.tolerance_mm
                 else "; |E| lies within the guard band"
             )
-            text += f", the result is {'accepted' if self.passed else 'not accepted'} by the rule"
+            text += (
+                f"; |E| is {'within' if self.passed else 'beyond'} the acceptance limit, "
+                "but conformity cannot be stated"
+            )
         return text
 
 

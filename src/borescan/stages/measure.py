@@ -274,7 +274,11 @@ def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root
             for k in ("budget", "certificate", "raw_files"):
                 v.pop(k, None)
             out["verifications"].append(v)
-            note += f" (error at 20 degC {v['error_mm'] * 1e3:+.2f} um: {'PASS' if v['passed'] else 'FAIL'})"
+            note += (
+                f" (error at 20 degC {v['error_mm'] * 1e3:+.2f} um, "
+                f"U(E) {v['expanded_u_error_mm'] * 1e3:.1f} um: "
+                f"{str(v['conformity']).upper()}, rule {v['decision_rule']})"
+            )
         notes.append(note)
     traceable = all(r["traceable"] for r in res)
     out["log"] = (
