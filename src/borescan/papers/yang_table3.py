@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
+from borescan.discrepancy.table2 import TABLE2_NUMBERS
 from borescan.geometry import Beams
 from borescan.measure import static_diameter
 from borescan.resources import shipped
@@ -48,69 +49,9 @@ OE_MM = 2.3222  # printed (Eq. 9 on P1/P0 gives 2.3232)
 TABLE1 = {"r_mm": np.array([5.5484, 2.5295, 1.5262]), "d_b_mm": np.array([132.6718, 132.8883, 134.1108])}
 SPACINGS = {"2->1": 222, "1->3": 220, "3->2": 219}  # feature-point (minimum) spacings, samples
 STATUSES = ("backward", "backward", "advanced")
-# Table 2, sample numbers of each sensor's minima (feature points), 18 revolutions
-TABLE2_MINIMA = {
-    1: [
-        312,
-        971,
-        1628,
-        2287,
-        2949,
-        3610,
-        4269,
-        4926,
-        5589,
-        6246,
-        6909,
-        7565,
-        8229,
-        8887,
-        9545,
-        10206,
-        10866,
-        11528,
-    ],
-    2: [
-        88,
-        749,
-        1408,
-        2067,
-        2729,
-        3386,
-        4046,
-        4707,
-        5367,
-        6028,
-        6686,
-        7345,
-        8003,
-        8663,
-        9326,
-        9985,
-        10645,
-        11305,
-    ],
-    3: [
-        531,
-        1188,
-        1847,
-        2511,
-        3170,
-        3831,
-        4489,
-        5148,
-        5808,
-        6468,
-        7128,
-        7788,
-        8446,
-        9106,
-        9766,
-        10420,
-        11085,
-        11746,
-    ],
-}
+# Table 2, sample numbers of each sensor's minima (feature points), 18 revolutions: the one transcription,
+# borescan.discrepancy.table2.TABLE2_NUMBERS
+TABLE2_MINIMA = {c: TABLE2_NUMBERS[(c, "min")] for c in (1, 2, 3)}
 
 
 def _data_dir() -> Path:
