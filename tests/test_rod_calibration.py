@@ -369,3 +369,15 @@ def test_rod_verification_names_its_largest_input_and_what_would_reduce_it(tmp_p
         assert expect.get(kind, "stated") in row["dominant_fix"]
     loose = rod_calibration.rod_verifications(ver, res, "C", UNC, lab, 1.0)
     assert all(r["dominant_fix"] is None and r["dominant_input"] for r in loose)
+    # the two columns reach the stage table and the catalog (outputs.md's verifications, extended)
+    from borescan import catalog, tables
+
+    cols = tables.polars_schema("verifications")
+    stage = tables.frame("verifications", [{k: v for k, v in r.items() if k in cols} for r in tight])
+    catalog.build_catalog(tmp_path / "results", {"verifications": stage})
+    con = catalog.open_catalog(tmp_path / "results")
+    got = con.execute(
+        "SELECT feature, dominant_input, dominant_fix FROM verifications ORDER BY feature"
+    ).fetchall()
+    con.close()
+    assert got == sorted((r["feature"], r["dominant_input"], r["dominant_fix"]) for r in tight)

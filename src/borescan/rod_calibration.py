@@ -514,14 +514,9 @@ def rod_verifications(
             float(lab_cfg["guard_band_factor"]),
         )
         row = verification_row(scan.scan_id, scan.meta["device"]["id"], g["id"], v)
-        top = max(v.budget_rows, key=lambda b: abs(b.get("contribution") or 0.0), default=None)
-        undecided = not v.U_error_mm < tolerance_mm
-        row.update(
-            dominant_input=None if top is None else top["key"],
-            dominant_fix=_dominant_fix(top["key"], d, unc_cfg, tolerance_mm / v.k)
-            if undecided and top
-            else None,
-        )
+        top = row["dominant_input"]
+        if top is not None and not v.U_error_mm < tolerance_mm:
+            row["dominant_fix"] = _dominant_fix(top, d, unc_cfg, tolerance_mm / v.k)
         row.update(
             calibration_id=calibration_id,
             temperature_assumed=d["du"].temperature.assumed,

@@ -172,7 +172,10 @@ _T = [
             "expected_at_t_mm:float u_measured_mm:float u_error_mm:float expanded_u_error_mm:float "
             "k:float acceptance_limit_mm:float decision_rule:text conformity:text budget_json:text "
             # a rod verifies each layer in its own gauge: one row per layer (null for tri_lds)
-            "feature:text"
+            "feature:text "
+            # the budget's largest input (its key) and, when U(E) is not below the tolerance, what would
+            # reduce it (rod: rod_calibration.rod_verifications; null when nothing is said)
+            "dominant_input:text dominant_fix:text"
         ),
         ("scan_id", "calibration_id", "feature"),
     ),

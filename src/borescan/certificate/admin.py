@@ -271,6 +271,11 @@ def _conformity(ver: list[dict]) -> dict:
         {
             f"{_ver_name(v)}: U(E) {1e3 * v['expanded_u_error_mm']:.1f} um against T "
             f"{1e3 * v['tolerance_mm']:.1f} um"
+            + (
+                f", largest input {v['dominant_input']}, fixed by {v['dominant_fix']}"
+                if v.get("dominant_fix")
+                else ""
+            )
             for v in ver
             if v.get("expanded_u_error_mm") is not None and v["expanded_u_error_mm"] >= v["tolerance_mm"]
         }

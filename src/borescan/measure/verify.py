@@ -309,8 +309,10 @@ def verification_row(scan_id, device_id, artifact_id, v: Verification) -> dict:
 
     ``measured_mm`` is the measured diameter at 20 degC, so measured_mm - certified_mm = error_mm;
     ``measured_at_t_mm`` is as measured at ``temperature_c``, where the gauge measured
-    ``expected_at_t_mm``.
+    ``expected_at_t_mm``. ``dominant_input``: the key of the budget's largest contribution to u(E)
+    (None without a budget); ``dominant_fix`` (what would reduce it) is the caller's to say, None here.
     """
+    top = max(v.budget_rows or (), key=lambda b: abs(b.get("contribution") or 0.0), default=None)
     return {
         "scan_id": str(scan_id),
         "device_id": str(device_id),
@@ -331,6 +333,8 @@ def verification_row(scan_id, device_id, artifact_id, v: Verification) -> dict:
         "decision_rule": v.decision_rule,
         "conformity": v.conformity,
         "budget_json": json.dumps(list(v.budget_rows), sort_keys=True) if v.budget_rows else None,
+        "dominant_input": None if top is None else str(top["key"]),
+        "dominant_fix": None,
     }
 
 

@@ -297,6 +297,11 @@ def _night_detail(page: Page, n: NightItems) -> str:  # noqa: C901 (one branch p
         last = k == len(n.undecided) - 1  # what to do, once for all of them
         items.append(
             f"<li><b>cannot decide</b> {what}: {_e(split_verdict(r.get('conformity'))[1])}"
+            + (
+                f"; largest input {_e(r['dominant_input'])}: {_e(r['dominant_fix'])}"
+                if r.get("dominant_fix")
+                else ""
+            )
             + (_UNDECIDED_ACTION if last else "")
             + "</li>"
         )
