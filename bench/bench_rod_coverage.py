@@ -12,9 +12,11 @@ pipeline takes as known:
 - the gauge set: one ring per layer of true D20 = 2 r (r 50-100 mm), certificates stating D20 +
   N(0, (U/k)^2) (U = 1.2 um, k = 2); true temperature U(18, 22) degC, stated within
   +-``uncertainty.temperature_accuracy_c``; expansion coefficient within +-``uncertainty.cte_accuracy_per_k``;
-- the sensors: linearity_fs log-uniform in 1e-5 .. 1e-3 of the range, and a linearity error per
-  layer U(+-linearity_fs range) added to every reading of each hold independently (the budget's
-  model); repeatability = the readings' true noise;
+- the sensors: linearity_fs log-uniform in 1e-5 .. 1e-3 of the range, and one linearity curve per
+  sensor (a random cubic in v / range less its best straight line, +-linearity_fs range at its
+  largest) added to every reading of every hold: a data sheet's linearity bounds one systematic
+  curve, which the calibration's l0 absorbs at the gauges' readings (the budget's model,
+  ``measure.linearity_terms``); repeatability = the readings' true noise;
 - the part: holes of the gauges' D20 + U(+-50 um), at their own temperature U(18, 22) degC.
 
 The pipeline's own path then calibrates (``rod_calibration.calibrate_l0`` + its budget) and
@@ -50,6 +52,7 @@ SEED = 20270701
 RUN_BY_DEFAULT = False
 ROOT = Path(__file__).resolve().parents[1]
 CTE = 11.5e-6
+RANGE_MM = 30.0
 
 
 def _config() -> dict:
@@ -109,23 +112,41 @@ def _hold(rng, layers, d20_mm, T_c, kind, scan_id, artifact, design, sensors, ba
         )
         for s in meta["sensors"]
     ]
-    err = rng.uniform(-1, 1, m) * sensors["lin_fs"] * 30.0
-    lds = sim.lds.with_columns(
-        (
-            pl.col("value_mm")
-            + pl.col("sensor")
-            .cast(pl.Int64)
-            .replace_strict({j + 1: float(err[j]) for j in range(m)}, default=0.0)
-        ).alias("value_mm")
-    )
+    v = _with_linearity(sim.lds["value_mm"].to_numpy(), sim.lds["sensor"].cast(pl.Int64).to_numpy(), sensors)
+    lds = sim.lds.with_columns(pl.Series("value_mm", v, dtype=sim.lds.schema["value_mm"]))
     folder = simulate.write_simulated(replace(sim, meta=meta, lds=lds), base / "raw", base / "truth")
     return rawio.read_scan(folder, raw_root=base / "raw")
 
 
+def _linearity_curve_mm(coef, a_mm: float, v_mm):
+    """Return the sensor's linearity deviation at readings ``v_mm`` [mm].
+
+    A cubic in v / range (coefficients ``coef``) less its best straight line over the range, scaled
+    to +-a at its largest.
+    """
+    u = np.linspace(0.0, 1.0, 301)
+    curve = np.polynomial.polynomial.polyval(u, coef)
+    line = np.polyfit(u, curve, 1)
+    dev = curve - np.polyval(line, u)
+    scale = a_mm / np.max(np.abs(dev))
+    x = np.asarray(v_mm, dtype=float) / RANGE_MM
+    return scale * (np.polynomial.polynomial.polyval(x, coef) - np.polyval(line, x))
+
+
+def _with_linearity(v_mm, sensor, sensors):
+    """Return the readings with each sensor's one linearity curve added (the same curve in every hold)."""
+    out = np.array(v_mm, dtype=float)
+    for j, coef in enumerate(sensors["curves"]):
+        on = (sensor == j + 1) & np.isfinite(out)
+        out[on] += sensors["lin_scale"] * _linearity_curve_mm(coef, sensors["lin_fs"] * RANGE_MM, out[on])
+    return out
+
+
 def run_chain(job) -> dict:
     """One calibrate-then-measure-then-verify chain: its z-scores and coverage flags."""
-    i, seed, cfg = job
+    i, seed, cfg, oracle = job
     from borescan import rod_calibration
+    from borescan.measure import hold_readings
     from borescan.synthetic import rod_scenarios
     from borescan.artifacts import artifact_cte, radius_at_temperature_mm, scan_temperature
     from borescan.atomic import json_ready
@@ -139,12 +160,16 @@ def run_chain(job) -> dict:
         replace(lay, l0_mm=lay.l0_mm + float(rng.uniform(-0.03, 0.03)), phi_rad=0.0, d_mm=0.0, gamma_rad=0.0)
         for lay in true
     )
+    if "geometry" in oracle:  # the design's phi, d, gamma are the truth (l0 still off): what they cost
+        design = tuple(replace(t, l0_mm=d.l0_mm) for t, d in zip(true, design))
     m = len(true)
     sensors = {
         "lin_fs": float(10 ** rng.uniform(-5, -3)),
         "noise_mm": g.noise_mm,
         "a_T": float(unc["temperature_accuracy_c"]),
         "a_alpha": float(unc["cte_accuracy_per_k"]),
+        "lin_scale": 0.0 if "linearity" in oracle else 1.0,
+        "curves": rng.standard_normal((m, 4)),  # each sensor's one linearity curve (cubic)
     }
     U_g, k_g = 0.0012, 2.0
     g20 = 2 * r
@@ -209,7 +234,12 @@ def run_chain(job) -> dict:
                 cal.scan_id,
                 float(unc["sensor_resolution_mm"]),
             )
-            blob = json.dumps({"budget": json_ready(budget.to_dict())})
+            blob = json.dumps(
+                {
+                    "budget": json_ready(budget.to_dict()),
+                    "hold_readings": hold_readings(means),
+                }
+            )
             rows = [
                 {
                     "channel": lay.channel,
@@ -244,6 +274,7 @@ def run_chain(job) -> dict:
             return dict(out, error=str(err)[:160])
     zs = {"D20": [], "D_T": [], "E": []}
     cov = {"D20": [], "D_T": [], "E": []}
+    errs = {"D20": [], "E": []}
     for rr, d20 in zip(res, p20):
         du = rr["du"]
         dT = d20 * (1 + CTE * (T_p - 20))
@@ -253,11 +284,13 @@ def run_chain(job) -> dict:
         ):
             zs[key].append((val - truth) / comb.u)
             cov[key].append(abs(val - truth) <= comb.U)
+        errs["D20"].append(float(du.diameter_20_mm - d20))
     for v, d20 in zip(vrows, g20):
         e = v["measured_mm"] - d20  # the error of the gauge's measured D20 against its true D20
         zs["E"].append(e / v["u_error_mm"])
         cov["E"].append(abs(e) <= v["expanded_u_error_mm"])
-    return dict(out, z=zs, covered=cov)
+        errs["E"].append(float(e))
+    return dict(out, z=zs, covered=cov, error_mm=errs)
 
 
 def main(argv=None) -> int:
@@ -266,18 +299,29 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=N_CHAINS, help="chains (default %(default)s)")
     ap.add_argument("--seed", type=int, default=SEED)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument(
+        "--oracle",
+        default="",
+        help="comma-separated inputs made exact, for the error's decomposition: geometry (the design's phi, "
+        "d, gamma are the truth), linearity (no linearity error)",
+    )
+    ap.add_argument("--dump", type=Path, help="write each chain's z-scores and errors [mm] to this JSON file")
     a = ap.parse_args(argv)
     if a.n < 1:
         ap.error("--n must be at least 1")
     cfg = _config()
     t0 = time.perf_counter()
     results, done = [], 0
-    for r in map_in_order(run_chain, [(i, a.seed, cfg) for i in range(a.n)], a.workers):
+    for r in map_in_order(
+        run_chain, [(i, a.seed, cfg, tuple(filter(None, a.oracle.split(",")))) for i in range(a.n)], a.workers
+    ):
         results.append(r)
         done += 1
         if done % 20 == 0 or done == a.n:
             print(f"  {done}/{a.n} chains ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     ok = [r for r in results if "error" not in r]
+    if a.dump:
+        a.dump.write_text(json.dumps(results, default=float))
     print(
         f"Rod calibrate-then-measure coverage: {len(ok)} of {a.n} chains solved (seed {a.seed}); "
         f"{time.perf_counter() - t0:.0f} s"

@@ -1,5 +1,6 @@
 """Rod calibration on certified ring gauges: base lengths, their budget, and which calibration a rod uses."""
 
+import json
 import math
 from dataclasses import replace
 
@@ -65,9 +66,10 @@ def _scene(d_mm, rng, temp_c=20.0):
     )
 
 
-def _sim(d_mm, seed, kind, artifact, temp_c=20.0, scan_id="SIM-ROD"):
+def _sim(d_mm, seed, kind, artifact, temp_c=20.0, scan_id="SIM-ROD", effects=()):
     rng = np.random.default_rng(seed)
     eff = [Effect("thermal_expansion", {"temperature_c": temp_c})] if temp_c != 20.0 else []
+    eff = eff + list(effects)
     return simulate_rod(
         _scene(d_mm, rng, temp_c),
         n_poses=24,
@@ -344,8 +346,6 @@ def test_rod_verification_names_its_largest_input_and_what_would_reduce_it(tmp_p
     """Each layer's row names the budget's largest contribution; when U(E) is not below the tolerance
     (a 1 um tolerance here) it says what would reduce it, and nothing when the verdict is decided.
     """
-    import json
-
     cal = _raw(_sim(GAUGE_D, 11, "calibration", GAUGE_SET, scan_id="CALV"), tmp_path / "c")
     layers, _sol, budget, *_ = _calibrate(cal)
     blob = json.dumps({"budget": json_ready(budget.to_dict())})
@@ -381,3 +381,70 @@ def test_rod_verification_names_its_largest_input_and_what_would_reduce_it(tmp_p
     ).fetchall()
     con.close()
     assert got == sorted((r["feature"], r["dominant_input"], r["dominant_fix"]) for r in tight)
+
+
+def test_linearity_curve_is_absorbed_by_the_calibration_up_to_its_change(tmp_path):
+    """A sensor's data-sheet linearity is one curve read in every hold (simulated truth: the spec's
+    bow, a = 20 um = the data sheet's 0.0025 x 8 mm on both sensors). The calibration's l0 absorbs it
+    at the gauges' readings; a verification in the same gauges is off only by the curve's change
+    between the holds. The budget says so: the calibration's linearity input cancels (sensitivity 0
+    on D) and the change term's bound (Markov, cubic) covers the error the curve makes, which is far
+    below the 2 a a whole curve could make.
+    """
+    from borescan.measure import hold_readings
+
+    bow = [Effect("sensor_nonlinearity", {"channel": c, "a_mm": 0.02}) for c in (1, 2)]
+    d_with, d_without, budgets = [], [], []
+    for effects, out in ((bow, d_with), ((), d_without)):
+        base = tmp_path / ("bow" if effects else "clean")
+        cal = _raw(_sim(GAUGE_D, 31, "calibration", GAUGE_SET, scan_id="CALL", effects=effects), base / "c")
+        layers, _sol, budget, _r, means, _u = _calibrate(cal)
+        blob = json.dumps({"budget": json_ready(budget.to_dict()), "hold_readings": hold_readings(means)})
+        rows = [
+            {"channel": lay.channel, "l0_mm": lay.l0_mm, "h_mm": lay.h_mm, "calibration_json": blob}
+            for lay in layers
+        ]
+        ver = _raw(_sim(GAUGE_D, 32, "verification", GAUGE_SET, scan_id="VERL", effects=effects), base / "v")
+        res = rod_calibration.rod_diameters_with_budget(ver, rows, UNC, "C")
+        out.extend(r["diameter_mm"] for r in res)
+        budgets.append([r["du"].budget for r in res])
+    a = 0.0025 * 8.0
+    for j, b in enumerate(budgets[0]):
+        terms = {t.input.key: t for t in b.terms}
+        cal_key = f"linearity:rodcal:CALL:ch{j + 1}"
+        assert np.allclose(terms[cal_key].sensitivity, 0.0, atol=1e-12)  # absorbed, then read again
+        (change,) = [t for k, t in terms.items() if k.startswith("linearity:VERL/")]
+        half = change.input.u * math.sqrt(3.0)
+        assert 0 < half <= 2 * a  # at most a whole curve at each hold (8 mm sensors read much of it here)
+        # the curve's effect on the diameter (same noise, with and without it): within the bound
+        assert abs(d_with[j] - d_without[j]) <= 2.0 * half
+
+
+def test_linearity_change_bound_is_markovs_and_holds_for_cubic_curves():
+    """The bound of measure.linearity_change_mm: Chebyshev's T3 (|T3| <= 1) attains Markov's slope
+    2 n^2 a / R at the end of the range, and over random cubics bounded by a and random holds (pose
+    means uniform around a mean reading) the change of the hold-averaged curve stays within it.
+    """
+    from borescan.measure import linearity_change_mm
+
+    a, R = 0.01, 30.0
+    cheb = np.polynomial.chebyshev.Chebyshev([0, 0, 0, a], domain=[0, R])
+    h = 1e-4
+    slope = (cheb(R) - cheb(R - h)) / h
+    assert linearity_change_mm(a, R, h, 0.0, 3) == pytest.approx(abs(slope) * h, rel=1e-3)
+    assert linearity_change_mm(a, R, 50.0, 0.0, 3) == 2 * a  # never more than the whole curve, twice
+    rng = np.random.default_rng(7)
+    u = np.linspace(0, R, 3001)
+    worst = 0.0
+    for _ in range(300):
+        p = np.polynomial.Polynomial(rng.standard_normal(4), domain=[0, R])
+        p = p * (a / np.max(np.abs(p(u))))
+        holds = []
+        for _h in range(2):
+            v = rng.uniform(2, R - 2) + rng.uniform(0.2, 2.0) * np.cos(rng.uniform(0, 2 * np.pi, 24))
+            holds.append((v.mean(), v.var(), p(v).mean()))
+        (m1, s1, f1), (m2, s2, f2) = holds
+        bound = linearity_change_mm(a, R, m2 - m1, s1 + s2, 3)
+        assert abs(f2 - f1) <= bound * (1 + 1e-9)
+        worst = max(worst, abs(f2 - f1) / bound)
+    assert worst > 0.2  # a bound, not a wild over-estimate

@@ -385,21 +385,24 @@ def _to_dict(cal: RodCalibration) -> dict[str, Any]:
         "gauges": [json_ready(g) for g in cal.gauges],
         "iterations": cal.iterations,
         "residual_rms_mm": float(cal.residual_rms_mm),
+        "hold_readings": cal.diagnostics.get("hold_readings"),
     }
 
 
-def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget | None]:
-    """Return the layers and budget of a recorded rod calibration.
+def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget | None, dict | None]:
+    """Return the layers, budget and calibration hold's readings of a recorded rod calibration.
 
-    Layers and budget of a recorded rod calibration (``calibrations`` rows of one id); the
-    budget is None for the ``nominal`` record (design geometry, nothing calibrated).
+    Layers, budget and :func:`hold_readings` of a recorded rod calibration (``calibrations`` rows
+    of one id); budget and hold are None for the ``nominal`` record (design geometry, nothing
+    calibrated), the hold None for a record made before it was kept.
     """
     rows = sorted(rows, key=lambda r: int(r["channel"]))
     layers = rod_layers(rows, [int(r["channel"]) for r in rows])
     blob = rows[0].get("calibration_json") if rows else None
     if not blob:
-        return layers, None
-    return layers, Budget.from_dict(json.loads(blob)["budget"])
+        return layers, None, None
+    d = json.loads(blob)
+    return layers, Budget.from_dict(d["budget"]), d.get("hold_readings")
 
 
 def pose_means_of_scan(scan, cleaning=None) -> tuple[list[int], np.ndarray, float | None, dict]:
@@ -408,13 +411,15 @@ def pose_means_of_scan(scan, cleaning=None) -> tuple[list[int], np.ndarray, floa
     (channels, mean reading per pose and layer (n, m), u of one mean from the data sheet, sensors)
     of a rod scan (:func:`borescan.measure.pose_means`, :func:`borescan.measure.mean_reading_u_mm`)
     over its readings cleaned by the spike policy ``cleaning`` (:func:`borescan.readings.prepared_matrix`).
+    The mean's u is the sensors' repeatability: their linearity is one systematic curve, not a
+    scatter, and enters the budgets as such (:func:`borescan.measure.linearity_terms`).
     """
     from . import measure, readings
 
     mat = readings.prepared_matrix(scan, cleaning)
     _poses, means, counts = measure.pose_means(mat.values_mm, mat.pose)
     sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
-    u_mean = measure.mean_reading_u_mm(measure.reading_u_mm(sensors, mat.channels), counts)
+    u_mean = measure.mean_reading_u_mm(measure.reading_u_mm(sensors, mat.channels, linearity=False), counts)
     return [int(c) for c in mat.channels], means, u_mean, sensors
 
 
@@ -436,11 +441,12 @@ def rod_diameters_with_budget(
     Raises :class:`borescan.artifacts.MissingTemperature`, :class:`borescan.rod.RodSolveError`,
     ValueError (a channel the calibration has no layer for).
     """
+    from . import measure
     from .artifacts import artifact_cte, scan_temperature
     from .measure import diameter_uncertainty
 
-    channels, means, u_mean, _sensors = pose_means_of_scan(scan, cleaning)
-    layers, cal_budget = rod_calibration_from_rows(layer_rows)
+    channels, means, u_mean, sensors = pose_means_of_scan(scan, cleaning)
+    layers, cal_budget, cal_hold = rod_calibration_from_rows(layer_rows)
     by_ch = {int(lay.channel): lay for lay in layers}
     missing = sorted(set(channels) - set(by_ch))
     if missing:
@@ -454,9 +460,16 @@ def rod_diameters_with_budget(
     )
     feat = {int(l["channel"]): l.get("feature") for l in (scan.meta.get("rod") or {}).get("layers", [])}
     cal_chans = sorted(by_ch)
+    here = measure.hold_readings(means)
+    degree = int(
+        unc_cfg.get("linearity_curve_degree") or schema_default("uncertainty", "linearity_curve_degree")
+    )
     out = []
     for j, ch in enumerate(channels):
         f = feat.get(ch) or f"layer{ch}"
+        lin = measure.linearity_terms(
+            sensors, ch, j, here, cal_budget, cal_hold, cal_chans, f"{scan.scan_id}/{f}", degree
+        )
         du = diameter_uncertainty(
             float(sol.diameter_mm[j]),
             jac_params=None if cal_budget is None else layer_jacobian(cal_chans, ch),
@@ -470,6 +483,7 @@ def rod_diameters_with_budget(
             p=float(unc_cfg["coverage_probability"]),
             default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
             calibration_id=calibration_id,
+            extra_terms=lin,
         )
         out.append(
             {

@@ -29,7 +29,16 @@ decision rule (:func:`decide`, ILAC-G8:09/2019).
 
 from __future__ import annotations
 
-from .sensors import mean_reading_u_mm, pose_means, reading_u_mm, sensor_ranges_mm, sensor_terms
+from .sensors import (
+    hold_readings,
+    linearity_change_mm,
+    linearity_terms,
+    mean_reading_u_mm,
+    pose_means,
+    reading_u_mm,
+    sensor_ranges_mm,
+    sensor_terms,
+)
 from .static import StaticDiameter, static_diameter, static_diameter_jacobian
 from .rotating import RotatingResult, wall_points_machine, measure_rotating, measure_scan, DiameterModel
 from .budget import DiameterUncertainty, diameter_uncertainty
@@ -63,6 +72,9 @@ __all__ = [
     "verify",
     "pose_means",
     "reading_u_mm",
+    "hold_readings",
+    "linearity_change_mm",
+    "linearity_terms",
     "mean_reading_u_mm",
     "diameter_row",
     "verification_row",

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 import numpy as np
-from ..uncertainty import Input, Term
+from ..uncertainty import Budget, Input, Term
 
 __all__ = [
     "pose_means",
@@ -15,6 +15,9 @@ __all__ = [
     "mean_reading_u_mm",
     "sensor_ranges_mm",
     "sensor_terms",
+    "linearity_change_mm",
+    "hold_readings",
+    "linearity_terms",
 ]
 
 
@@ -41,17 +44,19 @@ def pose_means(values_mm, pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return poses, means, counts
 
 
-def reading_u_mm(sensors: dict, channels) -> np.ndarray:
+def reading_u_mm(sensors: dict, channels, *, linearity: bool = True) -> np.ndarray:
     """Return standard uncertainty of one reading per channel from the sensors' data sheet [mm].
 
     u = hypot(linearity_fs * range_mm / sqrt(3), repeatability_mm): the stated linearity is a
     rectangular +-a (GUM 4.3.7), the repeatability a standard deviation. Missing values count 0.
-    ``sensors`` maps channel -> the ``scan.json`` sensor entry.
+    ``sensors`` maps channel -> the ``scan.json`` sensor entry. ``linearity=False``: the
+    repeatability alone (a rod, whose budget carries the linearity as the systematic curve it is,
+    :func:`linearity_change_mm`, instead of a scatter that averages out over readings).
     """
 
     def one(ch: int) -> float:
         s = sensors.get(ch, {})
-        lin = (s.get("linearity_fs") or 0.0) * (s.get("range_mm") or 0.0)
+        lin = (s.get("linearity_fs") or 0.0) * (s.get("range_mm") or 0.0) if linearity else 0.0
         return float(np.hypot(lin / np.sqrt(3), s.get("repeatability_mm") or 0.0))
 
     return np.array([one(int(ch)) for ch in channels])
@@ -160,3 +165,119 @@ def sensor_terms(
             )
         )
     return terms
+
+
+def linearity_change_mm(
+    a_mm: float, range_mm: float, mean_change_mm: float, var_sum_mm2: float, degree: int
+) -> float:
+    """Bound on the change of a sensor's linearity deviation between two holds' mean readings [mm].
+
+    A data sheet's linearity +-a is a bound on one systematic curve f(v) of the sensor over its
+    range R, not a scatter: every hold of a rod reads the same curve. A calibration on gauges
+    absorbs the hold's mean of f into l0, so a later hold's radius is off by the change of that
+    mean, E_m f - E_c f. With f a polynomial of degree n (``uncertainty.linearity_curve_degree``:
+    3 covers a bow and an S-shape) bounded by a on the range, Markov's inequality bounds its
+    slope |f'| <= 2 n^2 a / R and curvature |f''| <= 4 n^2 (n^2 - 1) a / (3 R^2); the mean of f
+    over a hold whose readings have mean v and variance s^2 is f(v) + f''(xi) s^2 / 2 (Taylor with
+    the remainder; the first-order term averages to 0). So
+
+        |E_m f - E_c f| <= min(2 a, |f'|max |v_m - v_c| + |f''|max (s_m^2 + s_c^2) / 2).
+
+    ``mean_change_mm`` = v_m - v_c, ``var_sum_mm2`` = s_m^2 + s_c^2 (the two holds' pose means).
+    Returns the half-width of the rectangular distribution (u = bound / sqrt 3, GUM 4.3.7).
+    """
+    if a_mm <= 0 or range_mm <= 0:
+        return 0.0
+    n2 = float(degree) ** 2
+    slope = 2.0 * n2 * a_mm / range_mm
+    curvature = 4.0 * n2 * (n2 - 1.0) * a_mm / (3.0 * range_mm**2)
+    return float(min(2.0 * a_mm, slope * abs(mean_change_mm) + 0.5 * curvature * abs(var_sum_mm2)))
+
+
+def hold_readings(means_mm) -> dict[str, list[float]]:
+    """Return where a hold reads in each sensor's range: the pose means' mean and variance per layer.
+
+    ``means_mm`` (n, m) pose means. {"mean_mm": (m,), "var_mm2": (m,)}: what
+    :func:`borescan.measure.linearity_change_mm` compares between a calibration and a later hold.
+    """
+    v = np.asarray(means_mm, dtype=float)
+    return {
+        "mean_mm": [float(x) for x in np.nanmean(v, axis=0)],
+        "var_mm2": [float(x) for x in np.nanvar(v, axis=0)],
+    }
+
+
+def linearity_terms(
+    sensors: dict,
+    channel: int,
+    j: int,
+    here: dict,
+    cal_budget: Budget | None,
+    cal_hold: dict | None,
+    cal_channels: list[int],
+    scan_id: str,
+    degree: int,
+) -> list[tuple[Input, float]]:
+    """Return the linearity inputs of one rod diameter, as (input, dD_T / d input) for ``extra_terms``.
+
+    The sensor's data-sheet curve f (+-a = linearity_fs x range) is the same in every hold. The
+    calibration's l0 took up its mean over the calibration hold (the input
+    ``linearity:rodcal:<scan>:ch<c>`` of :func:`borescan.rod_calibration.rod_calibration_budget`,
+    sensitivity -2 on D through l0); this hold reads the same
+    curve, so that input enters again with +2 and cancels, and what is left is the curve's change
+    between the two holds' readings (``here`` and ``cal_hold``: :func:`hold_readings`), rectangular
+    within :func:`borescan.measure.linearity_change_mm`. Without a calibration (design geometry),
+    or one that did not record its hold, the whole curve: +-a, sensitivity 2.
+    """
+    s = sensors.get(int(channel), {}) or {}
+    range_mm = float(s.get("range_mm") or 0.0)
+    a = float(s.get("linearity_fs") or 0.0) * range_mm
+    label = f"{s.get('model', 'sensor')} {s.get('serial', '')}".strip()
+    src = f"data sheet of {label}: +-{s.get('linearity_fs')} x {range_mm:g} mm full scale (scan.json sensors)"
+    cal_key = None
+    if cal_budget is not None and cal_hold is not None:
+        cal_key = next(
+            (
+                t.input
+                for t in cal_budget.terms
+                if t.input.key.startswith("linearity:") and t.input.key.endswith(f":ch{int(channel)}")
+            ),
+            None,
+        )
+    if cal_key is None:
+        return [
+            (
+                Input(
+                    f"linearity:{scan_id}:ch{int(channel)}",
+                    f"linearity deviation, channel {int(channel)} (measurement; nothing absorbed it)",
+                    f"e_lin,{int(channel)}",
+                    "mm",
+                    0.0,
+                    a / np.sqrt(3.0),
+                    "rectangular",
+                    source=src,
+                ),
+                2.0,
+            )
+        ]
+    k = cal_channels.index(int(channel))
+    dv = here["mean_mm"][j] - cal_hold["mean_mm"][k]
+    var_sum = here["var_mm2"][j] + cal_hold["var_mm2"][k]
+    half = linearity_change_mm(a, range_mm, dv, var_sum, degree)
+    return [
+        (cal_key, 2.0),
+        (
+            Input(
+                f"linearity:{scan_id}:ch{int(channel)}",
+                f"linearity curve's change from the calibration's readings, channel {int(channel)}",
+                f"Delta e_lin,{int(channel)}",
+                "mm",
+                0.0,
+                half / np.sqrt(3.0),
+                "rectangular",
+                source=f"{src}; curve of degree <= {degree}, mean reading {dv * 1e3:+.1f} um from the "
+                f"calibration's (borescan.measure.linearity_change_mm)",
+            ),
+            2.0,
+        ),
+    ]

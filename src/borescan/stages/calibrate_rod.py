@@ -16,6 +16,7 @@ import polars as pl
 from borescan import __version__, certificate, certificate_issue, night_config, rawio, rod_calibration
 from borescan.artifacts import MissingTemperature, artifact_cte, radius_at_temperature_mm, scan_temperature
 from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
+from borescan.measure import hold_readings
 from borescan.preconditions import ROD_CALIBRATION_NEEDS_LAYERS, design_layers
 from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
 
@@ -76,6 +77,7 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         solution=sol,
         iterations=n_iter,
         residual_rms_mm=float(sol.residual_rms_mm),
+        diagnostics={"hold_readings": hold_readings(means)},
     )
     out_dir = certificate.certificate_night_dir(results_root, cal, night)
     link = certificate.certificate_dir(results_root, cal)
