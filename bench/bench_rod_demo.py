@@ -28,6 +28,7 @@ def run(raw_root: Path, coaxiality: str | None = None) -> list[dict]:
     from borescan.atomic import json_ready
     from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
     from borescan.config import load_config
+    from borescan.measure import hold_readings
 
     cfg = load_config()
     unc = dict(cfg["uncertainty"])
@@ -55,7 +56,7 @@ def run(raw_root: Path, coaxiality: str | None = None) -> list[dict]:
         cal.scan_id,
         float(unc["sensor_resolution_mm"]),
     )
-    blob = json.dumps({"budget": json_ready(budget.to_dict())})
+    blob = json.dumps({"budget": json_ready(budget.to_dict()), "hold_readings": hold_readings(means)})
     rows = [
         dict(r, l0_mm=lay.l0_mm, calibration_json=blob)
         for r, lay in zip(sorted(nominal, key=lambda r: r["channel"]), lays)

@@ -362,7 +362,7 @@ def test_rod_verification_names_its_largest_input_and_what_would_reduce_it(tmp_p
         assert row["dominant_input"] == top["key"]
         kind = top["key"].split(":")[0]
         expect = {
-            "linearity": "data-sheet linearity",
+            "linearity": "linearity",
             "fit": "a calibration with more poses",
             "readings": "poses",
         }
@@ -422,8 +422,9 @@ def test_linearity_curve_is_absorbed_by_the_calibration_up_to_its_change(tmp_pat
 
 def test_linearity_change_bound_is_markovs_and_holds_for_cubic_curves():
     """The bound of measure.linearity_change_mm: Chebyshev's T3 (|T3| <= 1) attains Markov's slope
-    2 n^2 a / R at the end of the range, and over random cubics bounded by a and random holds (pose
-    means uniform around a mean reading) the change of the hold-averaged curve stays within it.
+    2 n^2 a / R at the end of the range, the curvature term is Markov's, and over random cubics
+    bounded by a and random holds (24 poses around a mean reading, uneven) the change of the
+    hold-averaged curve stays within it (exact for a cubic: mean, variance and third moment).
     """
     from borescan.measure import linearity_change_mm
 
@@ -431,8 +432,16 @@ def test_linearity_change_bound_is_markovs_and_holds_for_cubic_curves():
     cheb = np.polynomial.chebyshev.Chebyshev([0, 0, 0, a], domain=[0, R])
     h = 1e-4
     slope = (cheb(R) - cheb(R - h)) / h
-    assert linearity_change_mm(a, R, h, 0.0, 3) == pytest.approx(abs(slope) * h, rel=1e-3)
-    assert linearity_change_mm(a, R, 50.0, 0.0, 3) == 2 * a  # never more than the whole curve, twice
+
+    def hold(mean_mm, var_mm2=0.0, m3_mm3=0.0):
+        return {"mean_mm": mean_mm, "var_mm2": var_mm2, "m3_mm3": m3_mm3}
+
+    assert linearity_change_mm(a, R, hold(R - h), hold(R), 3) == pytest.approx(abs(slope) * h, rel=1e-3)
+    assert linearity_change_mm(a, R, hold(0.0), hold(R), 3) == 2 * a  # never more than twice the curve
+    # the curvature term: T3'' = 24 at the end (Markov's n^2 (n^2 - 1) / 3), (2 / R)^2 a per mm^2
+    assert linearity_change_mm(a, R, hold(15.0, 1.0), hold(15.0, 2.0), 3) == pytest.approx(
+        0.5 * 24 * (2 / R) ** 2 * a * 1.0, rel=1e-12
+    )
     rng = np.random.default_rng(7)
     u = np.linspace(0, R, 3001)
     worst = 0.0
@@ -442,9 +451,9 @@ def test_linearity_change_bound_is_markovs_and_holds_for_cubic_curves():
         holds = []
         for _h in range(2):
             v = rng.uniform(2, R - 2) + rng.uniform(0.2, 2.0) * np.cos(rng.uniform(0, 2 * np.pi, 24))
-            holds.append((v.mean(), v.var(), p(v).mean()))
-        (m1, s1, f1), (m2, s2, f2) = holds
-        bound = linearity_change_mm(a, R, m2 - m1, s1 + s2, 3)
+            holds.append((hold(v.mean(), v.var(), np.mean((v - v.mean()) ** 3)), p(v).mean()))
+        (h1, f1), (h2, f2) = holds
+        bound = linearity_change_mm(a, R, h1, h2, 3)
         assert abs(f2 - f1) <= bound * (1 + 1e-9)
         worst = max(worst, abs(f2 - f1) / bound)
     assert worst > 0.2  # a bound, not a wild over-estimate

@@ -495,6 +495,11 @@ def rod_diameters_with_budget(
                 "condition": float(sol.condition),
                 "traceable": cal_budget is not None,
                 "solution": sol,
+                # where this hold and the calibration's read the sensor's range (the linearity's change)
+                "spread_mm": float(np.sqrt(here["var_mm2"][j])),
+                "cal_spread_mm": None
+                if cal_hold is None
+                else float(np.sqrt(cal_hold["var_mm2"][cal_chans.index(ch)])),
             }
         )
     return out
@@ -574,6 +579,14 @@ def _dominant_fix(key: str, diameter: dict, unc_cfg: dict, u_allowed_mm: float) 
         return (
             f"the calibration hold {key.split(':')[1]}'s readings: a calibration with more poses (borescan "
             f"plan --rod-scan on that scan gives how many for u(D) <= {target_mm * 1e3:.1f} um)"
+        )
+    if key.startswith("linearity:") and diameter.get("cal_spread_mm") is not None:
+        return (
+            "the change of the sensor's linearity curve between the calibration hold's readings and this "
+            f"hold's (their spread over the poses {diameter['cal_spread_mm'] * 1e3:.0f} um and "
+            f"{diameter['spread_mm'] * 1e3:.0f} um): hold the rod with the eccentricity of the calibration, "
+            "or calibrate with it held as it will be measured (the same spread), or sensors of better "
+            "linearity (borescan.measure.linearity_change_mm)"
         )
     if key.startswith("linearity:"):
         return (

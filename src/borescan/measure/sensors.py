@@ -167,43 +167,66 @@ def sensor_terms(
     return terms
 
 
-def linearity_change_mm(
-    a_mm: float, range_mm: float, mean_change_mm: float, var_sum_mm2: float, degree: int
-) -> float:
-    """Bound on the change of a sensor's linearity deviation between two holds' mean readings [mm].
+def _markov_mm(a_mm: float, range_mm: float, degree: int, k: int) -> float:
+    """Return Markov's bound on the k-th derivative of a degree-n polynomial with |f| <= a on a range R.
+
+    T_n^(k)(1) (2 / R)^k a, T_n^(k)(1) = prod_{j < k} (n^2 - j^2) / (2 j + 1); 0 for k > n.
+    """
+    if k > degree:
+        return 0.0
+    t = 1.0
+    for j in range(k):
+        t *= (degree**2 - j**2) / (2 * j + 1)
+    return float(t * (2.0 / range_mm) ** k * a_mm)
+
+
+def linearity_change_mm(a_mm: float, range_mm: float, cal: dict, here: dict, degree: int) -> float:
+    """Bound on the change of a sensor's linearity deviation between two holds' readings [mm].
 
     A data sheet's linearity +-a is a bound on one systematic curve f(v) of the sensor over its
     range R, not a scatter: every hold of a rod reads the same curve. A calibration on gauges
     absorbs the hold's mean of f into l0, so a later hold's radius is off by the change of that
-    mean, E_m f - E_c f. With f a polynomial of degree n (``uncertainty.linearity_curve_degree``:
-    3 covers a bow and an S-shape) bounded by a on the range, Markov's inequality bounds its
-    slope |f'| <= 2 n^2 a / R and curvature |f''| <= 4 n^2 (n^2 - 1) a / (3 R^2); the mean of f
-    over a hold whose readings have mean v and variance s^2 is f(v) + f''(xi) s^2 / 2 (Taylor with
-    the remainder; the first-order term averages to 0). So
+    mean, E_m f - E_c f. f is taken as a polynomial of degree n <= ``degree``
+    (``uncertainty.linearity_curve_degree``: 3 covers a bow and an S-shape) bounded by a on the
+    range: Markov's inequality bounds its derivatives, |f^(k)| <= S_k (:func:`_markov_mm`). For a
+    hold whose pose means have mean v, variance s2 and third central moment m3 (``cal``, ``here``:
+    :func:`hold_readings` of one layer), E f = f(v) + f2(v) s2 / 2 + f3 m3 / 6 exactly for n <= 3
+    (f2, f3 the second and third derivatives), so
 
-        |E_m f - E_c f| <= min(2 a, |f'|max |v_m - v_c| + |f''|max (s_m^2 + s_c^2) / 2).
+        |E_m f - E_c f| <= S1 |dv| + S2 |s2_m - s2_c| / 2 + S3 (|dv| max(s2) / 2 + |m3_m - m3_c| / 6),
 
-    ``mean_change_mm`` = v_m - v_c, ``var_sum_mm2`` = s_m^2 + s_c^2 (the two holds' pose means).
+    dv = v_m - v_c; for n > 3 the remainder form S1 |dv| + S2 (s2_m + s2_c) / 2. Never more than 2 a.
     Returns the half-width of the rectangular distribution (u = bound / sqrt 3, GUM 4.3.7).
     """
     if a_mm <= 0 or range_mm <= 0:
         return 0.0
-    n2 = float(degree) ** 2
-    slope = 2.0 * n2 * a_mm / range_mm
-    curvature = 4.0 * n2 * (n2 - 1.0) * a_mm / (3.0 * range_mm**2)
-    return float(min(2.0 * a_mm, slope * abs(mean_change_mm) + 0.5 * curvature * abs(var_sum_mm2)))
+    s1, s2, s3 = (_markov_mm(a_mm, range_mm, degree, k) for k in (1, 2, 3))
+    dv = abs(here["mean_mm"] - cal["mean_mm"])
+    if degree <= 3:
+        b = (
+            s1 * dv
+            + 0.5 * s2 * abs(here["var_mm2"] - cal["var_mm2"])
+            + s3
+            * (0.5 * dv * max(here["var_mm2"], cal["var_mm2"]) + abs(here["m3_mm3"] - cal["m3_mm3"]) / 6.0)
+        )
+    else:
+        b = s1 * dv + 0.5 * s2 * (here["var_mm2"] + cal["var_mm2"])
+    return float(min(2.0 * a_mm, b))
 
 
 def hold_readings(means_mm) -> dict[str, list[float]]:
     """Return where a hold reads in each sensor's range: the pose means' mean and variance per layer.
 
-    ``means_mm`` (n, m) pose means. {"mean_mm": (m,), "var_mm2": (m,)}: what
+    ``means_mm`` (n, m) pose means. {"mean_mm", "var_mm2", "m3_mm3"}: each (m,), the mean,
+    variance and third central moment over the poses; what
     :func:`borescan.measure.linearity_change_mm` compares between a calibration and a later hold.
     """
     v = np.asarray(means_mm, dtype=float)
+    c = v - np.nanmean(v, axis=0)
     return {
         "mean_mm": [float(x) for x in np.nanmean(v, axis=0)],
-        "var_mm2": [float(x) for x in np.nanvar(v, axis=0)],
+        "var_mm2": [float(x) for x in np.nanmean(c**2, axis=0)],
+        "m3_mm3": [float(x) for x in np.nanmean(c**3, axis=0)],
     }
 
 
@@ -261,9 +284,10 @@ def linearity_terms(
             )
         ]
     k = cal_channels.index(int(channel))
-    dv = here["mean_mm"][j] - cal_hold["mean_mm"][k]
-    var_sum = here["var_mm2"][j] + cal_hold["var_mm2"][k]
-    half = linearity_change_mm(a, range_mm, dv, var_sum, degree)
+    at_cal = {q: v[k] for q, v in cal_hold.items()}
+    at_here = {q: v[j] for q, v in here.items()}
+    dv = at_here["mean_mm"] - at_cal["mean_mm"]
+    half = linearity_change_mm(a, range_mm, at_cal, at_here, degree)
     return [
         (cal_key, 2.0),
         (
