@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from borescan.geometry import rod_readings
+from borescan.plan_rod import hold_of_solution, predict_rod
 from borescan.rod import RodSolveError, rod_cost_mm2, rod_crb, solve_rod
 from borescan.rod_calibration import rod_coaxiality_mm
 from borescan.synthetic.rod_scenarios import RodDraw, draw_rod_geometry
@@ -69,6 +70,9 @@ def evaluate(scan: ContractRodScan) -> dict:
         sigma_mm=s.sigma_mm,
         coaxiality_mm=COAXIALITY_MM,
     )
+    hold = hold_of_solution(sol, COAXIALITY_MM)  # borescan plan --rod-scan's view of this scan
+    plan_own = np.asarray(predict_rod(hold).u_diameter_mm)
+    plan_even = np.asarray(predict_rod(replace(hold, alpha_rad=None)).u_diameter_mm)
     c_true = rod_cost_mm2(s.v_mm, g.alpha_rad, g.layers, g.holes, g.axis)
     spread = np.sqrt(2.0 * s.v_mm.size) * s.sigma_mm**2
     return {
@@ -80,6 +84,8 @@ def evaluate(scan: ContractRodScan) -> dict:
         "err_um": (sol.diameter_mm - 2 * r_true) * 1e3,
         "err_crb": (sol.radius_mm - r_true) / crb,
         "ratio": sol.deflection_ratio,
+        "plan_own": plan_own / sol.u_diameter_mm,
+        "plan_even": plan_even / sol.u_diameter_mm,
     }
 
 
@@ -87,6 +93,7 @@ def run_contract(n_scans: int = 240, seed: int = 2017) -> dict:
     """Solve ``n_scans`` effect-free rod scans; return their z scores, CRB ratios and refusals."""
     rng = np.random.default_rng(seed)
     z, ucrb, err_crb, wrong, refused, t = [], [], [], 0, Counter(), time.perf_counter()
+    plan_own, plan_even = [], []
     for _ in range(n_scans):
         res = evaluate(draw_scan(rng))
         if "refused" in res:
@@ -95,6 +102,8 @@ def run_contract(n_scans: int = 240, seed: int = 2017) -> dict:
         z.append(res["z"])
         ucrb.append(res["u_crb"])
         err_crb.append(res["err_crb"])
+        plan_own.append(res["plan_own"])
+        plan_even.append(res["plan_even"])
         wrong += res["wrong"]
     z = np.concatenate(z)
     ucrb = np.concatenate(ucrb)
@@ -105,6 +114,8 @@ def run_contract(n_scans: int = 240, seed: int = 2017) -> dict:
         "z": z,
         "u_crb": ucrb,
         "err_crb": np.concatenate(err_crb),
+        "plan_own": np.concatenate(plan_own),
+        "plan_even": np.concatenate(plan_even),
         "wrong": wrong,
         "seconds": time.perf_counter() - t,
     }
@@ -167,6 +178,13 @@ def main() -> None:
         f"{res['wrong']}"
     )
     print(f"errors / CRB: rms {np.sqrt(np.mean(res['err_crb'] ** 2)):.3f} (an efficient estimator: 1)")
+    for key, what in (("plan_own", "the hold's own poses"), ("plan_even", "its poses equally spaced")):
+        q = res[key]
+        print(
+            f"borescan plan --rod-scan u(D) / the solve's u(D), {what}: median {np.median(q):.3f}, "
+            f"5-95 % {np.quantile(q, 0.05):.3f}-{np.quantile(q, 0.95):.3f}, within 10 % "
+            f"{100 * np.mean(np.abs(q - 1) <= 0.1):.1f} %"
+        )
     t = time.perf_counter()
     verdicts = run_discrepancy()
     n = sum(verdicts.values())

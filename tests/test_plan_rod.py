@@ -104,3 +104,20 @@ def test_plan_command_for_a_rod_hold(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "PLAN-ROD: 24 poses" in out and "over 360 deg: 8 poses give u(D)" in out
     assert main(["plan", "--rod-scan", str(tmp_path / "nonexistent")]) == 2
+
+
+def test_a_solved_hold_is_planned_at_its_own_poses():
+    """Poses at random (20 in 0-330 deg): the plan of the solved hold, at its own pose
+    angles, is the bound at the truth for those angles within 2 %; equally spaced over the same
+    spread it is another number (what a proposed hold of 20 poses would give).
+    """
+    alpha = np.sort(np.random.default_rng(5).uniform(0.0, np.deg2rad(330.0), 20))
+    alpha -= alpha[0]
+    v = rod_readings(alpha, list(GEOM), list(HOLES), AXIS)
+    sol = solve_rod(v, layers=GEOM, u_reading_mm=SIG, coaxiality_mm=TOL)
+    hold = hold_of_solution(sol, TOL)
+    assert np.max(np.abs(np.angle(np.exp(1j * (np.array(hold.alpha_rad) - alpha))))) < 1e-6
+    truth = 2 * rod_crb(alpha, layers=GEOM, holes=HOLES, axis=AXIS, sigma_mm=SIG, coaxiality_mm=TOL)
+    np.testing.assert_allclose(predict_rod(hold).u_diameter_mm, truth, rtol=0.02)
+    even = np.array(predict_rod(replace(hold, alpha_rad=None)).u_diameter_mm)
+    assert np.max(np.abs(even / truth - 1)) > 0.05

@@ -34,6 +34,7 @@ class RodHold:
     axis : the rod axis (through (dx, dy) at z = 0, deflection omega towards omega_az)
     sigma_mm : standard uncertainty of one pose mean [mm]; n_poses; spread_rad : arc the poses cover
     coaxiality_mm : the holes' coaxiality the solve takes (None: the deflection bound only)
+    alpha_rad : the hold's own pose angles (a solved hold; None: poses equally spaced over the spread)
     """
 
     layers: tuple[RodLayer, ...]
@@ -43,6 +44,7 @@ class RodHold:
     n_poses: int
     spread_rad: float
     coaxiality_mm: float | None
+    alpha_rad: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -84,13 +86,21 @@ def hold_of_solution(sol: RodSolution, coaxiality_mm: float | None) -> RodHold:
         n_poses=int(np.isfinite(alpha).sum()),
         spread_rad=_pose_spread_rad(alpha),
         coaxiality_mm=coaxiality_mm,
+        alpha_rad=tuple(float(a) for a in alpha[np.isfinite(alpha)]),
     )
 
 
 def predict_rod(hold: RodHold) -> RodPlanPrediction:
-    """Return the Cramer-Rao u(D) of every hole for ``hold``'s poses equally spaced over its spread."""
+    """Return the Cramer-Rao u(D) of every hole for ``hold``'s poses.
+
+    Its own pose angles when it has them (a solved hold: what this hold fixed), else ``n_poses``
+    equally spaced over its spread (a proposed hold).
+    """
     full = hold.spread_rad >= 2 * np.pi - 1e-9
-    alpha = np.linspace(0.0, hold.spread_rad, hold.n_poses, endpoint=not full)
+    if hold.alpha_rad is not None and len(hold.alpha_rad) == hold.n_poses:
+        alpha = np.asarray(hold.alpha_rad, dtype=float)
+    else:
+        alpha = np.linspace(0.0, hold.spread_rad, hold.n_poses, endpoint=not full)
     u_r = rod_crb(
         alpha,
         layers=hold.layers,
@@ -117,7 +127,7 @@ def recommend_rod(
     for spread in spreads_rad:
         best = None
         for n in sorted(poses):
-            p = predict_rod(replace(hold, n_poses=int(n), spread_rad=float(spread)))
+            p = predict_rod(replace(hold, n_poses=int(n), spread_rad=float(spread), alpha_rad=None))
             if max(p.u_diameter_mm) <= target_u_diameter_mm:
                 best = p
                 break

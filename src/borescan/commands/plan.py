@@ -13,6 +13,7 @@ resolved and every reading inside its sensor's range.
 
 from __future__ import annotations
 
+import dataclasses
 import argparse
 import math
 from pathlib import Path
@@ -259,9 +260,11 @@ def _run_rod(args: argparse.Namespace) -> int:
         f"{'not used' if coax is None else f'{coax:g} mm'}"
     )
     print(f"  u(D) of the solve [um]: {um(f'{x * 1e3:.2f}' for x in sol.u_diameter_mm)}")
+    print(f"  u(D) planned for this hold's poses [um]: {um(f'{x * 1e3:.2f}' for x in here.u_diameter_mm)}")
+    even = predict_rod(dataclasses.replace(hold, alpha_rad=None))
     print(
         "  u(D) planned for these poses equally spaced [um]: "
-        + um(f"{x * 1e3:.2f}" for x in here.u_diameter_mm)
+        + um(f"{x * 1e3:.2f}" for x in even.u_diameter_mm)
     )
     spreads = [math.radians(d) for d in args.spreads_deg]
     target = args.target_u_d_um * 1e-3
