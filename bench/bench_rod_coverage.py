@@ -27,8 +27,14 @@ chains whose poses cannot determine the radii are refused by the solve, with the
 base length itself has no truth to score: l0 takes up the beam offset and tilt and the solve's
 deflection average, which is its purpose.
 
+To find which input an error comes from, ``--oracle geometry`` gives the solve the true phi, d,
+gamma (l0 still off) and ``--oracle linearity`` drops the sensors' linearity curves; the chains
+draw the same numbers either way, so ``--dump FILE`` of two runs pairs each error with its
+counterpart (the difference is that input's share, to compare with its budget term).
+
 Run: ``python -m bench rod_coverage`` or
-``python -m bench.bench_rod_coverage [--n 200] [--seed 20270701] [--workers 2]``.
+``python -m bench.bench_rod_coverage [--n 200] [--seed 20270701] [--workers 2] [--oracle geometry]
+[--dump FILE]``.
 """
 
 from __future__ import annotations
