@@ -1,9 +1,11 @@
 """The one forward model of a three-sensor spindle scan: base geometry plus registered effects.
 
-The digital twin (:func:`borescan.synthetic.scenes.tri_readings`) and the discrepancy workflow
-(:meth:`borescan.discrepancy.tri.TriModel.predict`) evaluate readings here and nowhere else.
-The physics of each named effect is its forward function in :mod:`borescan.effects`; the
-ray-to-bore reading is :func:`borescan.geometry.tri_spindle_readings`.
+The digital twin (:func:`borescan.synthetic.scenes.tri_readings`), the discrepancy workflow
+(:meth:`borescan.discrepancy.tri.TriModel.predict`) and the full-data calibration
+(:mod:`borescan.calibrate.residuals`: :func:`tri_readings_at`, :func:`commanded_device_angle`,
+:func:`tri_spindle_jacobian`) evaluate readings here and nowhere else. The physics of each named
+effect is its forward function in :mod:`borescan.effects`; the ray-to-bore reading is
+:func:`borescan.geometry.tri_spindle_readings`.
 
 Composition order (``shared/spec/geometry-and-effects.md``; stages of :mod:`borescan.effects`):
 
