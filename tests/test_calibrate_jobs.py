@@ -8,8 +8,12 @@ from pathlib import Path
 import polars as pl
 
 from borescan.config import schema_defaults
-from borescan.stages.calibrate import CalibrationJob, CalibrationJobResult, CalibrationSettings
-from borescan.stages.calibrate_tri import CalibrationOutcome
+from borescan.stages.calibrate_jobs import (
+    CalibrationJob,
+    CalibrationJobResult,
+    CalibrationOutcome,
+    CalibrationSettings,
+)
 from borescan.stages.quarantine import Quarantined
 
 

@@ -8,103 +8,28 @@ processes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import polars as pl
 
-from borescan import device_model, rawio, readings
+from borescan import rawio
 from borescan.calibrations import rod_nominal_calibration_rows
 from borescan.config import schema_defaults
-from borescan.effects import device_model_effects
 from borescan.parallel import map_timed, workers_for
 from borescan.stages._common import clear_night_folder, config_hash, night_scans
 from borescan.stages.calibrate_rod import calibrate_rod_scan
-from borescan.stages.calibrate_tri import (
+from borescan.stages.calibrate_jobs import (
+    CalibrationJob,
+    CalibrationJobResult,
     CalibrationOutcome,
+    CalibrationSettings,
     TriCalibrationContext,
     TriDeviceJob,
-    calibrate_tri_device,
 )
+from borescan.stages.calibrate_tri import calibrate_tri_device
 from borescan.workflow_log import compute_line
 
-__all__ = ["CalibrationSettings", "CalibrationJob", "stage_calibrate", "calibrate_device", "config_hash"]
-
-
-@dataclass(frozen=True)
-class CalibrationSettings:
-    """What every calibration job of a night reads besides its scans (picklable: jobs run in processes).
-
-    Attributes
-    ----------
-    uncertainty, laboratory, verification, signal : the config's sections of those names.
-    raw_root : the raw data's root; scans_table : the night's ``scans`` table (path or frame).
-    devices : the config's ``devices`` section (the device models users decided), or None.
-    night : the night; pooled_rows : earlier nights' pooled findings (a device model's values).
-    auto_nights : ``discrepancy.device_model_auto_nights``.
-    """
-
-    uncertainty: dict
-    laboratory: dict
-    verification: dict
-    signal: dict
-    raw_root: Path
-    scans_table: Path | pl.DataFrame
-    devices: dict | None
-    night: str
-    pooled_rows: tuple[dict, ...]
-    auto_nights: int
-
-    def context(self) -> TriCalibrationContext:
-        """Return a job's context: these sections, the readings' cleaning policy, the device model lookup."""
-        devices, night = self.devices, self.night
-        return TriCalibrationContext(
-            uncertainty=self.uncertainty,
-            laboratory=self.laboratory,
-            verification=self.verification,
-            raw_root=Path(self.raw_root),
-            scans_table=self.scans_table,
-            cleaning=readings.cleaning_policy(self.signal),
-            device_model=device_model.lookup(
-                lambda dev: device_model_effects(devices, dev, night),
-                self.pooled_rows,
-                night,
-                self.auto_nights,
-            ),
-        )
-
-
-@dataclass(frozen=True)
-class CalibrationJob:
-    """One job of :func:`stage_calibrate`: a three-sensor device's calibration scans or one rod's scan.
-
-    Attributes
-    ----------
-    kind : ``"tri"`` or ``"rod"``; items : (scans row, raw folder) of each scan (one for a rod).
-    results_root : where certificates and quarantine records go; summary : the signal stage's summary.
-    cfg : the config's ``calibration`` section; settings : :class:`CalibrationSettings`.
-    """
-
-    kind: str
-    items: tuple[tuple[dict, Path], ...]
-    results_root: Path
-    summary: pl.DataFrame
-    cfg: dict
-    settings: CalibrationSettings
-
-    @property
-    def name(self) -> str:
-        """Return the job's name in the log: the device id (three-sensor) or the scan id (rod)."""
-        return self.items[0][0]["device_id"] if self.kind == "tri" else self.items[0][0]["scan_id"]
-
-
-@dataclass(frozen=True)
-class CalibrationJobResult:
-    """What a job made (:class:`~borescan.stages.calibrate_tri.CalibrationOutcome`) and its log lines."""
-
-    kind: str
-    outcome: CalibrationOutcome
-    log_lines: tuple[str, ...]
+__all__ = ["stage_calibrate", "calibrate_device", "config_hash"]
 
 
 def stage_calibrate(

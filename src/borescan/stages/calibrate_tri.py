@@ -10,8 +10,6 @@ of the device made with it; its dates come from the data and the night's record
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +21,6 @@ from borescan.calibrate.budget import with_budget
 from borescan.calibrate.result import CalibrationError
 from borescan.calibrate.sensitivities import full_residuals
 from borescan.calibrations import calibration_rows
-from borescan.device_model import DeviceEffect
 from borescan.geometry import Beams
 from borescan.preconditions import (
     CALIBRATE_STAGE,
@@ -34,11 +31,16 @@ from borescan.preconditions import (
     summary_period_source,
     summary_revolutions,
 )
-from borescan.readings import CleaningPolicy
 from borescan.stages._common import config_hash, link_into_night, night_scans, ok_scans
-from borescan.stages.quarantine import Quarantined, write_quarantine_record
-from borescan.stages.calibration_fit import (
+from borescan.stages.calibrate_jobs import (
+    CalibrationOutcome,
+    FitBlame,
     SpindleInputs,
+    TriCalibrationContext,
+    TriDeviceJob,
+    UsableScans,
+)
+from borescan.stages.calibration_fit import (
     budget_of,
     fit_device_calibration,
     scan_conditions,
@@ -46,100 +48,7 @@ from borescan.stages.calibration_fit import (
     yang_from_summary,
 )
 
-__all__ = ["TriCalibrationContext", "TriDeviceJob", "CalibrationOutcome", "calibrate_tri_device"]
-
-
-@dataclass(frozen=True)
-class TriCalibrationContext:
-    """What a calibration job reads besides its scans.
-
-    Attributes
-    ----------
-    uncertainty, laboratory, verification : the config's sections of those names.
-    raw_root : the raw data's root; scans_table : the night's ``scans`` table (path or frame).
-    cleaning : the readings' spike policy (:func:`borescan.readings.cleaning_policy`).
-    device_model : (device id, channels) -> the device model a calibration carries
-        (:func:`borescan.device_model.lookup`).
-    """
-
-    uncertainty: dict
-    laboratory: dict
-    verification: dict
-    raw_root: Path
-    scans_table: Path | pl.DataFrame
-    cleaning: CleaningPolicy
-    device_model: Callable[[str, Sequence[int]], list[DeviceEffect]]
-
-
-@dataclass(frozen=True)
-class TriDeviceJob:
-    """One three-sensor device's calibration job of a night.
-
-    Attributes
-    ----------
-    items : the device's calibration scans, (scans row, raw folder) each.
-    night : the night; results_root : where certificates and quarantine records go.
-    summary : the signal stage's per-channel summary of the night.
-    cfg : the config's ``calibration`` section; ctx : :class:`TriCalibrationContext`.
-    log : where the job's log lines go.
-    """
-
-    items: tuple[tuple[dict, Path], ...]
-    night: str
-    results_root: Path
-    summary: pl.DataFrame
-    cfg: dict
-    ctx: TriCalibrationContext
-    log: Callable[[str], None]
-
-    def set_aside(self, scan_id: str, file: str, reason: str) -> Quarantined:
-        """Quarantine a scan of the job (write its record) and return the record."""
-        q = Quarantined(scan_id, self.night, "calibrate", file, reason)
-        write_quarantine_record(self.results_root, q)
-        return q
-
-
-@dataclass(frozen=True)
-class CalibrationOutcome:
-    """What a calibration job made: table rows, scans set aside, certificates issued.
-
-    Attributes
-    ----------
-    calibration_rows : rows of the ``calibrations`` table.
-    calibration_scan_rows : rows of ``calibration_scans`` (calibration id, scan id).
-    quarantined : the scans set aside, each with its reason.
-    certificate_rows : ``stage/certificate_issues`` rows (:func:`borescan.certificate_issue.issue_row`).
-    """
-
-    calibration_rows: tuple[dict, ...] = ()
-    calibration_scan_rows: tuple[dict, ...] = ()
-    quarantined: tuple[Quarantined, ...] = ()
-    certificate_rows: tuple[dict, ...] = ()
-
-    def __add__(self, other: "CalibrationOutcome") -> "CalibrationOutcome":
-        """Return both outcomes, this one's rows first."""
-        return CalibrationOutcome(
-            self.calibration_rows + other.calibration_rows,
-            self.calibration_scan_rows + other.calibration_scan_rows,
-            self.quarantined + other.quarantined,
-            self.certificate_rows + other.certificate_rows,
-        )
-
-
-@dataclass(frozen=True)
-class _UsableScans:
-    """A device's calibration scans of the night that a fit can use, and what was set aside.
-
-    scans, inputs : the usable scans and their fit inputs (:func:`spindle_inputs`); nominal : the design
-    geometry of the first (the start of the fit); lost : each scan set aside before the fit with its
-    reason (a failed fit's record names them); quarantined : the records this stage wrote.
-    """
-
-    scans: tuple[rawio.RawScan, ...]
-    inputs: tuple[SpindleInputs, ...]
-    nominal: Beams | None
-    lost: tuple[str, ...]
-    quarantined: tuple[Quarantined, ...]
+__all__ = ["calibrate_tri_device"]
 
 
 def calibrate_tri_device(job: TriDeviceJob) -> CalibrationOutcome:
@@ -163,7 +72,7 @@ def calibrate_tri_device(job: TriDeviceJob) -> CalibrationOutcome:
     return out
 
 
-def _usable_scans(job: TriDeviceJob) -> _UsableScans:
+def _usable_scans(job: TriDeviceJob) -> UsableScans:
     """Read the job's scans; set aside those a calibration cannot use, each with its reason."""
     min_rev = int(job.cfg["min_revolutions"])
     scans, inputs, nominal, bad = [], [], None, []
@@ -185,7 +94,7 @@ def _usable_scans(job: TriDeviceJob) -> _UsableScans:
                 problem = ("scan.json", str(err))
         bad.append(job.set_aside(scan.scan_id, *problem))
         lost.append(f"{scan.scan_id} ({problem[0]}: {problem[1]})")
-    return _UsableScans(tuple(scans), tuple(inputs), nominal, tuple(lost), tuple(bad))
+    return UsableScans(tuple(scans), tuple(inputs), nominal, tuple(lost), tuple(bad))
 
 
 def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple[str, str] | str | None:
@@ -303,14 +212,7 @@ def _certify(job: TriDeviceJob, scans: list, inputs: list[SpindleInputs], cal, b
         laboratory=ctx.laboratory,
         coverage_probability=p,
         dates=dates,
-        config_hash=config_hash(
-            {
-                "calibration": cfg,
-                "uncertainty": ctx.uncertainty,
-                "laboratory": ctx.laboratory,
-                "verification": ctx.verification,
-            }
-        ),
+        config_hash=config_hash(job.config_sections()),
         verifications=ver_rows,
     )
     link = certificate.certificate_dir(results_root, cal)
@@ -344,15 +246,6 @@ def _certify(job: TriDeviceJob, scans: list, inputs: list[SpindleInputs], cal, b
     )
 
 
-@dataclass(frozen=True)
-class _Blame:
-    """What a failed fit did to its scans: the records written, the scans still usable, the ones lost."""
-
-    quarantined: tuple[Quarantined, ...]
-    kept: tuple[int, ...]
-    lost: tuple[str, ...]
-
-
 def _blame_failed_fit(
     job: TriDeviceJob,
     scans: list,
@@ -360,7 +253,7 @@ def _blame_failed_fit(
     err: Exception,
     nominal: Beams,
     lost: tuple[str, ...],
-) -> _Blame:
+) -> FitBlame:
     """Quarantine the scans of a failed calibration, each with the cause; say which are still usable.
 
     A joint fit of several scans that fails is tried scan by scan: when some scans calibrate alone and others
@@ -386,14 +279,14 @@ def _blame_failed_fit(
                 reason = f"calibration failed on its own: {why} (the joint fit with {others} failed too)"
                 bad.append(job.set_aside(s.scan_id, CALIBRATE_STAGE, reason))
                 gone.append(f"{s.scan_id} ({CALIBRATE_STAGE}: {reason})")
-        return _Blame(tuple(bad), kept, tuple(gone))
+        return FitBlame(tuple(bad), kept, tuple(gone))
     tail = (
         f"; calibrated without its partner scan(s) set aside before the fit: {'; '.join(lost)}"
         if lost
         else ""
     )
     bad = tuple(job.set_aside(s.scan_id, CALIBRATE_STAGE, f"calibration failed: {err}{tail}") for s in scans)
-    return _Blame(bad, (), ())
+    return FitBlame(bad, (), ())
 
 
 def _night_verifications(cal, night: str, ctx: TriCalibrationContext, log) -> list[dict]:

@@ -11,13 +11,13 @@ sensitivities of :func:`yang_sensitivities`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 import polars as pl
 
 from borescan import device_model, kinematics, rawio, readings
-from borescan.artifacts import ArtifactCte, ScanTemperature, artifact_cte, gauge_radius_mm, scan_temperature
+from borescan.artifacts import artifact_cte, gauge_radius_mm, scan_temperature
 from borescan.calibrate.budget import calibration_budget, with_budget
 from borescan.calibrate.full_fit import fit_full_calibration
 from borescan.calibrate.result import AcceptanceRule
@@ -26,10 +26,10 @@ from borescan.config import schema_defaults
 from borescan.geometry import Beams
 from borescan.measure import sensor_ranges_mm
 from borescan.preconditions import CALIBRATION_NEEDS_BEAMS, design_beams
+from borescan.stages.calibrate_jobs import SpindleInputs
 from borescan.uncertainty import Budget
 
 __all__ = [
-    "SpindleInputs",
     "spindle_inputs",
     "scan_conditions",
     "acceptance_rule",
@@ -39,39 +39,6 @@ __all__ = [
     "yang_sensitivities",
     "budget_of",
 ]
-
-
-@dataclass(frozen=True)
-class SpindleInputs:
-    """The fit inputs of one spindle scan (:func:`spindle_inputs`).
-
-    Attributes
-    ----------
-    t_s : (n,) sample times [s]; readings_mm : (n, c) despiked readings (corrected for the device
-        model's beam and reading effects when one is carried, :func:`borescan.device_model.correct_inputs`).
-    readings_recorded_mm : the readings before that correction, None when not corrected.
-    channels : the channels of the columns; range_mm : (c,) sensor ranges; sensors : scan.json's per channel.
-    spindle_xy_mm : the reported spindle position S; center_xy_mm : the reported gauge centre C, or None.
-    rpm : mean speed [rev/min]; direction : ``ccw`` or ``cw``; angle_model : where the angle comes from.
-    radius_mm : the gauge's radius at the scan's temperature; temperature, cte : how they were taken.
-    artifact : scan.json's ``artifact``.
-    """
-
-    t_s: np.ndarray
-    readings_mm: np.ndarray
-    channels: tuple[int, ...]
-    spindle_xy_mm: tuple[float, float]
-    center_xy_mm: tuple[float, float] | None
-    rpm: float
-    direction: str
-    angle_model: kinematics.AngleModel
-    range_mm: np.ndarray
-    radius_mm: float
-    temperature: ScanTemperature
-    cte: ArtifactCte
-    artifact: dict
-    sensors: dict
-    readings_recorded_mm: np.ndarray | None = None
 
 
 def spindle_inputs(
