@@ -58,9 +58,9 @@ def _cost_at_truth(truth, cfg, x) -> tuple[float, float, float]:
     """
     scene = scenes.TriScene.from_dict(truth["scene"])
     ct = truth["contract"]
-    y = x["readings"]
+    y = x.readings_mm
     m = np.isfinite(y)
-    v_true = scenes.tri_readings(scene, x["t_s"])
+    v_true = scenes.tri_readings(scene, x.t_s)
     ssr = float(np.sum((y - v_true)[m] ** 2))
     sigma2 = float(np.mean(noise_floor_mm(y, order=4) ** 2))
     penalty = 0.0
@@ -214,7 +214,7 @@ def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_se
         f"fit:{cal.calibration_id}:profile{p['channel']}" in {t.input.key for t in b.terms} for p in profiles
     )
 
-    R = float(x["R"])
+    R = float(x.radius_mm)
     xy = np.array([[0.4, -0.3], [-0.6, 0.2], [0.1, 0.7], [-0.2, -0.5]])
     ang = np.array([0.3, 1.9, 3.4, 5.0])
     v = tri_static_readings(xy, ang, cal.beams, Bore((0.0, 0.0), R + 0.05))

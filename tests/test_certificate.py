@@ -68,7 +68,7 @@ def calibrated(tmp_path_factory):
                 "assumed": False,
                 "source": "scan.json",
             },
-            "gauge_radius_at_temperature_mm": x["R"],
+            "gauge_radius_at_temperature_mm": x.radius_mm,
             "position_accuracy_mm": 0.002,
             "scans": [
                 {
@@ -83,9 +83,9 @@ def calibrated(tmp_path_factory):
             ],
         },
         residuals={
-            "t_s": x["t_s"],
+            "t_s": x.t_s,
             "residual_mm": full_residuals(
-                cal, x["t_s"], x["readings"], x["R"], scan.scan_id, angle_model=x["angle_model"]
+                cal, x.t_s, x.readings_mm, x.radius_mm, scan.scan_id, angle_model=x.angle_model
             ),
         },
         raw_files={"scan.json": "b" * 64, "lds.parquet": "a" * 64},

@@ -77,9 +77,9 @@ def results(tmp_path_factory):
     cal = calibrate_raw_scans([scan], cfg["calibration"], uncertainty=cfg["uncertainty"])
     x = spindle_inputs(scan, cfg["uncertainty"])
     residuals = {
-        "t_s": x["t_s"],
+        "t_s": x.t_s,
         "residual_mm": full_residuals(
-            cal, x["t_s"], x["readings"], x["R"], scan.scan_id, angle_model=x["angle_model"]
+            cal, x.t_s, x.readings_mm, x.radius_mm, scan.scan_id, angle_model=x.angle_model
         ),
     }
     out = certificate.certificate_night_dir(res, cal, night)
@@ -99,7 +99,7 @@ def results(tmp_path_factory):
                 "assumed": False,
                 "source": "scan.json",
             },
-            "gauge_radius_at_temperature_mm": x["R"],
+            "gauge_radius_at_temperature_mm": x.radius_mm,
             "position_accuracy_mm": 0.002,
             "scans": [],
         },

@@ -11,6 +11,7 @@ from borescan.geometry import (
     RodAxis,
     RodLayer,
     bore_wall_radius,
+    centred_beam_length_mm,
     circumcircle,
     ray_bore_distance,
     rod_readings,
@@ -32,6 +33,18 @@ SPINDLE = np.array([262.955, -275.502])  # P1 of Yang 2017: oe = 2.3222 mm
 
 def _reading(phi, ch):
     return tri_spindle_readings(np.array([phi]), SPINDLE, BEAMS, Bore(tuple(CENTER), R_GAUGE))[0, ch]
+
+
+def test_a_centred_device_reads_its_centred_beam_length_less_d_b():
+    """Spindle on the bore centre: every reading at every angle is sqrt(R^2 - rho^2) - d_b (to 1e-9 mm)."""
+    phis = np.linspace(0.0, 2.0 * np.pi, 37)
+    v = tri_spindle_readings(phis, CENTER, BEAMS, Bore(tuple(CENTER), R_GAUGE))
+    expect = np.sqrt(R_GAUGE**2 - BEAMS.rho_mm**2) - BEAMS.d_b_mm
+    assert np.allclose(
+        centred_beam_length_mm(BEAMS.rho_mm, R_GAUGE) - BEAMS.d_b_mm, expect, rtol=0, atol=1e-12
+    )
+    assert np.abs(v - expect[None, :]).max() < 1e-9
+    assert centred_beam_length_mm(R_GAUGE + 1.0, R_GAUGE) == 0.0  # a beam outside a centred bore: clipped
 
 
 @pytest.mark.parametrize("ch", [0, 1, 2])

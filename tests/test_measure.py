@@ -408,7 +408,7 @@ def test_missing_temperature_refused_in_calibration_inputs(tmp_path):
     with pytest.raises(MissingTemperature, match="C-NOTEMP"):
         spindle_inputs(scan, dict(unc, missing_temperature="refuse"))
     x = spindle_inputs(scan, dict(unc, missing_temperature="assume_20c"))
-    assert x["temperature"].assumed and x["R"] == pytest.approx(R, rel=1e-15)
+    assert x.temperature.assumed and x.radius_mm == pytest.approx(R, rel=1e-15)
 
 
 def test_sensitivity_to_every_base_length_sums_to_two(tmp_path):

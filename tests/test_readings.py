@@ -113,8 +113,8 @@ def test_spindle_stages_share_the_policy(tmp_path):
     cleaned = prepared_matrix(scan, DEFAULT).values_mm
     set_aside = np.isnan(cleaned) & np.isfinite(raw)
     assert set_aside[:, 0].sum() >= 0.5 * 0.01 * raw.shape[0] and not set_aside[:, 1:].any()
-    assert np.array_equal(spindle_inputs(scan, cleaning=DEFAULT)["readings"], cleaned, equal_nan=True)
-    assert np.array_equal(spindle_inputs(scan, cleaning=OFF)["readings"], raw, equal_nan=True)
+    assert np.array_equal(spindle_inputs(scan, cleaning=DEFAULT).readings_mm, cleaned, equal_nan=True)
+    assert np.array_equal(spindle_inputs(scan, cleaning=OFF).readings_mm, raw, equal_nan=True)
     on = measure_scan(scan, scene.beams, cleaning=DEFAULT)["diameter_mm"]
     assert measure_scan(scan, scene.beams, cleaning=OFF)["diameter_mm"] != on
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -322,28 +322,27 @@ def gum_input(device_id: str, entry: DeviceEffect, name: str) -> Input:
     )
 
 
-def correct_inputs(inputs: list[dict], model) -> list[dict]:
+def correct_inputs(inputs: list, model) -> list:
     """Return a calibration's per-scan inputs with corrected readings.
 
-    Per scan inputs of a calibration (``t_s``, ``readings``, ``channels``, ``range_mm``:
-    :func:`borescan.stages.calibration_fit.spindle_inputs`) with the readings corrected for the model's
-    beam and reading effects (:func:`correct`; a channel delay is carried by the fit's angles); the
-    recorded readings are kept as ``readings_recorded`` (the budget differentiates the correction
-    there, :func:`derivatives`). Unchanged without such effects.
+    Per scan inputs of a calibration (:class:`borescan.stages.calibration_fit.SpindleInputs`) with the
+    readings corrected for the model's beam and reading effects (:func:`correct`; a channel delay is
+    carried by the fit's angles); the recorded readings are kept as ``readings_recorded_mm`` (the
+    budget differentiates the correction there, :func:`derivatives`). Unchanged without such effects.
     """
     if not any(e.spec.stage in CORRECTABLE_STAGES for e in carried_effects(model)):
         return inputs
     return [
-        dict(
+        replace(
             x,
-            readings_recorded=x["readings"],
-            readings=correct(x["t_s"], x["readings"], x["channels"], model, x["range_mm"]),
+            readings_recorded_mm=x.readings_mm,
+            readings_mm=correct(x.t_s, x.readings_mm, x.channels, model, x.range_mm),
         )
         for x in inputs
     ]
 
 
-def carry(model: Sequence[DeviceEffect], device_id: str, inputs: list[dict], log=print) -> list[dict]:
+def carry(model: Sequence[DeviceEffect], device_id: str, inputs: list, log=print) -> list:
     """Log what a calibration carries of its device model; return corrected inputs.
 
     Say in the log what a calibration of ``device_id`` carries of its ``model`` and return its inputs

@@ -31,8 +31,8 @@ __all__ = [
     "Hole",
     "RodAxis",
     "beam_frame",
+    "centred_beam_length_mm",
     "wall_points_device",
-    "ray_circle_distance",
     "ray_bore_distance",
     "bore_wall_radius",
     "tri_spindle_readings",
@@ -137,6 +137,16 @@ def beam_frame(beta_rad: np.ndarray, rho_mm: np.ndarray) -> tuple[np.ndarray, np
     return rho[..., None] * n, u
 
 
+def centred_beam_length_mm(rho_mm: np.ndarray | float, radius_mm: float) -> np.ndarray:
+    """Return s0 = sqrt(R^2 - rho^2): foot point to wall along a beam, the bore centred on the rotation axis.
+
+    Yang 2017 Eq. 8 with O' at the centre (|O'W| = R): a centred device reads v0 = s0 - d_b. Clipped at
+    0 where |rho| > R (no such beam meets the wall of a centred bore) [mm].
+    """
+    rho = np.asarray(rho_mm, dtype=float)
+    return np.sqrt(np.maximum(radius_mm**2 - rho**2, 0.0))
+
+
 def wall_points_device(readings_mm: np.ndarray, beams: Beams) -> np.ndarray:
     """Wall points W = F + (d_b + v) u in the device frame.
 
@@ -162,29 +172,6 @@ def _positive_root(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         sq = np.sqrt(b * b - a * c)  # NaN where the ray misses: then both branches are NaN
         return np.where(b <= 0.0, (sq - b) / a, -c / (b + sq))
-
-
-def ray_circle_distance(
-    origin: np.ndarray, direction: np.ndarray, center: np.ndarray, radius: float | np.ndarray
-) -> np.ndarray:
-    """Distance s > 0 along a unit-direction ray to a circle: |o + s d - C| = R.
-
-    Parameters
-    ----------
-    origin, direction : ndarray (..., 2); ``direction`` need not be unit length (s is then
-        measured in units of |d|).
-    center : (2,) or (..., 2) [mm]; radius : [mm]
-
-    Returns
-    -------
-    ndarray (...) [mm]; NaN where the ray misses (origin outside and pointing away).
-    """
-    w = np.asarray(origin, dtype=float) - np.asarray(center, dtype=float)
-    d = np.asarray(direction, dtype=float)
-    a = np.einsum("...i,...i->...", d, d)
-    b = np.einsum("...i,...i->...", w, d)
-    c = np.einsum("...i,...i->...", w, w) - np.asarray(radius, dtype=float) ** 2
-    return _positive_root(a, b, c)
 
 
 def bore_wall_radius(theta_rad: np.ndarray, bore: Bore) -> tuple[np.ndarray, np.ndarray]:

@@ -53,7 +53,7 @@ def _rank_one_parts(C: np.ndarray, scale: np.ndarray, rel: float = 1e-6) -> list
     return [sc * V[:, i] * math.sqrt(w[i]) for i in range(w.size) if w[i] > rel]
 
 
-def _device_model_derivatives(model, inputs: list[dict], channels) -> tuple[dict, dict]:
+def _device_model_derivatives(model, inputs: list, channels) -> tuple[dict, dict]:
     """Return the derivatives of the corrected readings and time offsets per carried parameter.
 
     Per carried parameter (``"<entry index>:<name>"``): d(corrected readings)/d(parameter) per scan
@@ -62,9 +62,9 @@ def _device_model_derivatives(model, inputs: list[dict], channels) -> tuple[dict
     """
     dys: dict[str, list[np.ndarray]] = {}
     for x in inputs:
-        y = x.get("readings_recorded", x["readings"])
+        y = x.readings_mm if x.readings_recorded_mm is None else x.readings_recorded_mm
         for (i, name), dy in device_model.derivatives(
-            model, lambda m, x=x, y=y: device_model.correct(x["t_s"], y, x["channels"], m, x["range_mm"])
+            model, lambda m, x=x, y=y: device_model.correct(x.t_s, y, x.channels, m, x.range_mm)
         ).items():
             dys.setdefault(f"{i}:{name}", []).append(np.nan_to_num(dy))
     dtau = {
@@ -78,7 +78,7 @@ def _device_model_derivatives(model, inputs: list[dict], channels) -> tuple[dict
 
 def calibration_budget(
     cal,
-    inputs: list[dict],
+    inputs: list,
     uncertainty: dict,
     *,
     scan_ids,
@@ -104,7 +104,7 @@ def calibration_budget(
     Parameters
     ----------
     cal : the fitted TriCalibration (its ``cov`` the fit's own)
-    inputs : per scan the dict of :func:`borescan.stages.calibration_fit.spindle_inputs`
+    inputs : per scan :class:`borescan.stages.calibration_fit.SpindleInputs`
     uncertainty : the config's ``uncertainty`` section
     scan_ids : the scans, in the order of ``inputs``
     sensitivities : for a ``yang2017`` calibration: ``dR`` (3c,), ``offset_prior`` {scan_id: (3c, 2)},
@@ -124,10 +124,10 @@ def calibration_budget(
         prior_u = float(position_accuracy_mm) * math.sqrt(2.0 / 3.0)
     terms += _position_terms(scan_ids, inputs, sens, prior_u)
     terms += _gauge_terms(inputs[0], scan_ids, sens["dR"])
-    ys = [np.asarray(x["readings"], float) for x in inputs]
+    ys = [np.asarray(x.readings_mm, float) for x in inputs]
     noise = np.sqrt(np.mean([noise_floor_mm(y, order=4) ** 2 for y in ys], axis=0))
     terms += sensor_terms(
-        inputs[0]["sensors"],
+        inputs[0].sensors,
         cal.beams.channels,
         sens["reading_offset"],
         cal.calibration_id,
@@ -140,7 +140,7 @@ def calibration_budget(
     return b.merged()
 
 
-def _full_lsq_terms(cal, inputs: list[dict]) -> tuple[dict, list[Term]]:
+def _full_lsq_terms(cal, inputs: list) -> tuple[dict, list[Term]]:
     """Return a ``full_lsq`` calibration's sensitivities and its fit's terms.
 
     Terms: each carried device-model parameter, the readings' Type A part, the second-order term of
@@ -151,12 +151,12 @@ def _full_lsq_terms(cal, inputs: list[dict]) -> tuple[dict, list[Term]]:
     dys, dtau = _device_model_derivatives(model, inputs, cal.beams.channels)
     sens = full_lsq_sensitivities(
         cal,
-        [x["t_s"] for x in inputs],
-        [x["readings"] for x in inputs],
-        x0["R"],
-        [x["angle_model"] for x in inputs],
-        spindle_xy_mm=[x["spindle_xy"] for x in inputs],
-        center_xy_mm=[x["center_xy"] for x in inputs],
+        [x.t_s for x in inputs],
+        [x.readings_mm for x in inputs],
+        x0.radius_mm,
+        [x.angle_model for x in inputs],
+        spindle_xy_mm=[x.spindle_xy_mm for x in inputs],
+        center_xy_mm=[x.center_xy_mm for x in inputs],
         reading_perturbations=dys,
     )
     terms = []
@@ -279,15 +279,15 @@ def _yang_term(cal, scan_ids, extrema_dof: float | None) -> Term:
     )
 
 
-def _position_terms(scan_ids, inputs: list[dict], sens: dict, prior_u: float) -> list[Term]:
+def _position_terms(scan_ids, inputs: list, sens: dict, prior_u: float) -> list[Term]:
     """Return the terms of each scan's reported offset S - C (triangular, per coordinate)."""
     terms = []
     for sid, x in zip(scan_ids, inputs):
-        if sid not in sens["offset_prior"] or x["center_xy"] is None:
+        if sid not in sens["offset_prior"] or x.center_xy_mm is None:
             continue
-        o = np.subtract(x["spindle_xy"], x["center_xy"])
+        o = np.subtract(x.spindle_xy_mm, x.center_xy_mm)
         # the same reported spindle position and centre in several scans are one quantity (one error)
-        where = "S ({:.4f}, {:.4f}) C ({:.4f}, {:.4f})".format(*x["spindle_xy"], *x["center_xy"])
+        where = "S ({:.4f}, {:.4f}) C ({:.4f}, {:.4f})".format(*x.spindle_xy_mm, *x.center_xy_mm)
         for axis, name in enumerate("xy"):
             terms.append(
                 Term(
@@ -308,9 +308,9 @@ def _position_terms(scan_ids, inputs: list[dict], sens: dict, prior_u: float) ->
     return terms
 
 
-def _gauge_terms(x0: dict, scan_ids, dR: np.ndarray) -> list[Term]:
+def _gauge_terms(x0, scan_ids, dR: np.ndarray) -> list[Term]:
     """Return the gauge radius's terms: certified diameter, temperature, expansion coefficient."""
-    art, temp, cte = x0["artifact"], x0["temperature"], x0["cte"]
+    art, temp, cte = x0.artifact, x0.temperature, x0.cte
     d20 = float(art.get("certified_diameter_mm", art.get("nominal_diameter_mm")))
     dT = temp.temperature_c - REFERENCE_TEMPERATURE_C
     gkey = f"gauge:{artifact_key(art)}"

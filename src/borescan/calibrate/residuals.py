@@ -1,8 +1,11 @@
 """Residuals and analytic Jacobian of the full-data calibration, and its least-squares solves.
 
-The readings are the device model's (:mod:`borescan.physics.tri`): the exact ray-to-gauge geometry
-and its analytic derivatives (:func:`~borescan.physics.tri.tri_spindle_jacobian`) at the device
-angle of the commanded kinematics (:func:`~borescan.physics.tri.commanded_device_angle`). Rows: per
+The readings are the device model's (:mod:`borescan.physics.tri`): its step 5 on the ring gauge
+(:func:`~borescan.physics.tri.tri_readings_at`, the step :func:`~borescan.physics.tri.tri_forward`
+takes) and its analytic derivatives (:func:`~borescan.physics.tri.tri_spindle_jacobian`) at the
+device angle of the commanded kinematics with ``speed_error`` of the registry
+(:func:`~borescan.physics.tri.commanded_device_angle`); channel delays are in the commanded angle of
+each reading (step 1, taken once by :mod:`borescan.calibrate.starts`). Rows: per
 scan the valid readings sample by sample, channel by channel, then the prior rows
 w (o - o_reported) of the scans with a reported offset.
 """
@@ -12,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 
 from borescan.calibrate.problem import FullProblem, ScanNuisance
-from borescan.geometry import Beams, Bore, tri_spindle_readings
+from borescan.geometry import Beams, Bore
 from borescan.levmar import LMResult, levenberg_marquardt
-from borescan.physics.tri import commanded_device_angle, tri_spindle_jacobian
+from borescan.physics.tri import commanded_device_angle, tri_readings_at, tri_spindle_jacobian
 from borescan.physics.tri_params import dbeta_drho_at_psi, dd_b_drho_at_g
 
 __all__ = ["device_angles", "model_readings", "residuals", "residuals_and_jacobian", "solve", "solve_fixed"]
@@ -28,7 +31,7 @@ def device_angles(pb: FullProblem, k: int, nu: ScanNuisance) -> np.ndarray:
 
 def model_readings(pb: FullProblem, beams: Beams, k: int, nu: ScanNuisance, sel=slice(None)) -> np.ndarray:
     """Return the model's readings (n, c) of scan ``k`` (rows ``sel``) [mm]: the gauge at the origin."""
-    return tri_spindle_readings(device_angles(pb, k, nu)[sel], nu.offset_mm, beams, Bore((0.0, 0.0), pb.R_mm))
+    return tri_readings_at(device_angles(pb, k, nu)[sel], nu.offset_mm, beams, Bore((0.0, 0.0), pb.R_mm))
 
 
 def _prior_rows(pb: FullProblem, nuis: list[ScanNuisance]) -> list[np.ndarray]:

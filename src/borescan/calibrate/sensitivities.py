@@ -22,10 +22,10 @@ from borescan.calibrate.problem import (
     public_index,
 )
 from borescan.calibrate.result import AcceptanceRule, TriCalibration
-from borescan.geometry import Bore, tri_spindle_readings
+from borescan.geometry import Bore
 from borescan.kinematics import AngleModel
 from borescan.noise import noise_floor_mm
-from borescan.physics.tri import commanded_device_angle, tri_spindle_jacobian
+from borescan.physics.tri import commanded_device_angle, tri_readings_at, tri_spindle_jacobian
 
 __all__ = ["full_residuals", "full_lsq_sensitivities"]
 
@@ -55,7 +55,7 @@ def full_residuals(
     else:
         phi = angle_model.phi_rad(t, nu["phase0_rad"], nu.get("speed_scale", 1.0))
     off = np.array([nu["offset_x_mm"], nu["offset_y_mm"]])
-    model = tri_spindle_readings(phi, off, cal.beams, Bore((0.0, 0.0), R_mm))
+    model = tri_readings_at(phi, off, cal.beams, Bore((0.0, 0.0), R_mm))
     return model - np.asarray(readings_mm, dtype=float)
 
 

@@ -24,7 +24,7 @@ from borescan.calibrate.problem import (
     per_scan_xy,
 )
 from borescan.calibrate.result import AcceptanceRule, CalibrationError
-from borescan.geometry import Beams
+from borescan.geometry import Beams, centred_beam_length_mm
 from borescan.kinematics import AngleModel, angle_model_from_arrays, estimate_speed_scale
 from borescan.noise import noise_floor_mm
 from borescan.physics.tri import first_harmonic_start
@@ -233,6 +233,6 @@ def start_vector(pb: FullProblem, nominal: Beams, starts: ScanStarts) -> np.ndar
     level, so each beam has two minima of nearly equal cost that only the second harmonic's phase
     tells apart (:mod:`borescan.calibrate.mirror_search`).
     """
-    d_b0 = np.sqrt(np.maximum(pb.R_mm**2 - nominal.rho_mm**2, 0.0)) - starts.levels_mm
+    d_b0 = centred_beam_length_mm(nominal.rho_mm, pb.R_mm) - starts.levels_mm
     beams = Beams(pb.channels, nominal.beta_rad.copy(), nominal.rho_mm.copy(), d_b0)
     return pb.pack(beams, starts.nuisance)

@@ -15,7 +15,7 @@ import numpy as np
 from borescan.calibrate.problem import FullProblem, ScanNuisance
 from borescan.calibrate.profiles import ProfileResult
 from borescan.calibrate.result import AcceptanceRule
-from borescan.geometry import Beams
+from borescan.geometry import Beams, centred_beam_length_mm
 from borescan.mirror import RESOLVED_DCHI2
 
 __all__ = ["Minima", "distinct_minima", "scan_figures", "acceptance_problems", "NOTES"]
@@ -164,7 +164,7 @@ def acceptance_problems(
             )
             continue
         oe = max(float(np.hypot(*n.offset_mm)) for n in nuis)
-        s0 = np.sqrt(max(R_mm**2 - rho**2, 0.0))
+        s0 = float(centred_beam_length_mm(rho, R_mm))
         lo, hi = s0 - oe - range_arr[j], s0 + oe
         if not (lo - 0.01 <= d_b <= hi + 0.01):
             out.append(

@@ -24,6 +24,7 @@ from borescan.certificate.content import (
     _result,
 )
 from borescan.config import schema_default
+from borescan.physics.tri_params import straighten
 from borescan.uncertainty import Budget
 
 
@@ -63,7 +64,7 @@ def _effective_base_lengths(
         rows.append(
             {
                 "channel": int(ch),
-                "value_mm": float(cal.beams.d_b_mm[j]) + rho**2 / (2.0 * float(R)),
+                "value_mm": float(straighten(cal.beams.beta_rad[j], rho, cal.beams.d_b_mm[j], float(R))[1]),
                 "expandedUnc": _expanded(budget.combined(vec, p)),
             }
         )

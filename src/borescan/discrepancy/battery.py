@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from borescan.effects import REFERENCE_TEMPERATURE_C, Effect
-from borescan.geometry import Beams
+from borescan.geometry import Beams, centred_beam_length_mm
 
 __all__ = ["TRI_EFFECTS", "random_tri_case", "score_case", "run_battery", "BatteryResult", "LOOKALIKES"]
 
@@ -146,7 +146,7 @@ def random_tri_case(
     R = rng.uniform(50.0, 150.0)
     rho = rng.uniform(1.0, 6.0, 3) * np.where(rng.random(3) < 0.5, -1.0, 1.0)
     mean_v = rng.uniform(4.0, 6.0, 3)
-    d_b = np.sqrt(R**2 - rho**2) - mean_v
+    d_b = centred_beam_length_mm(rho, R) - mean_v
     beams = Beams((1, 2, 3), beta, rho, d_b)
     ecc, ea = rng.uniform(0.5, 2.0), rng.uniform(0, 2 * np.pi)
     C = (rng.uniform(-300, 300), rng.uniform(-300, 300))

@@ -36,7 +36,7 @@ from borescan.discrepancy.fitting import dead_zone
 from borescan.noise import noise_floor_mm
 from borescan.discrepancy.tri import Term, registry_terms, term_effects, term_parameters
 from borescan.effects import calibration_absorbers
-from borescan.geometry import Beams, Bore, RodLayer
+from borescan.geometry import Beams, Bore, RodLayer, centred_beam_length_mm
 from borescan.physics.rod import RodDevice, RodState
 from borescan.physics.tri import TriDevice, TriStaticState
 from borescan.preconditions import EXAMINATION_NEEDS_GEOMETRY, MissingScanKey, design_beams, design_layers
@@ -360,7 +360,7 @@ class StaticModel(_PoseModel):
     def base_start(self):
         """Per pose, to first order v_c = m_c - S . u_c (m_c the centred reading): least squares."""
         d = self.data
-        m0 = np.sqrt(self.R**2 - self.beams.rho_mm**2) - self.beams.d_b_mm
+        m0 = centred_beam_length_mm(self.beams.rho_mm, self.R) - self.beams.d_b_mm
         U = np.stack([np.cos(self.beams.beta_rad), np.sin(self.beams.beta_rad)], axis=1)
         out = {}
         for k in range(self.n_pose):

@@ -14,6 +14,7 @@ import numpy as np
 from ..artifacts import ArtifactCte, ScanTemperature, artifact_key, diameter_at_20
 from ..atomic import json_ready
 from ..geometry import Beams
+from ..physics.tri_params import straighten, unstraighten
 from ..uncertainty import Budget, Combined, Input, Term
 from .rotating import DiameterModel, _with_params, wall_points_machine
 from .sensors import sensor_terms
@@ -198,9 +199,11 @@ def _second_order_variance(model: DiameterModel, beams: Beams, cov_second: np.nd
         rho = float(beams.rho_mm[j])
         for h in (u, -u):
             dl = np.zeros(3 * c)
-            dl[3 * j] = -(np.arcsin(np.clip((rho + h) / R_mm, -1, 1)) - np.arcsin(np.clip(rho / R_mm, -1, 1)))
+            psi, g = straighten(beams.beta_rad[j], rho, beams.d_b_mm[j], R_mm)
+            beta_h, d_b_h = unstraighten(psi, rho + h, g, R_mm)  # rho moved at fixed psi and g
+            dl[3 * j] = beta_h - beams.beta_rad[j]
             dl[3 * j + 1] = h
-            dl[3 * j + 2] = -(2.0 * rho * h + h * h) / (2.0 * R_mm)
+            dl[3 * j + 2] = d_b_h - beams.d_b_mm[j]
             moves.append((j, dl))
         us.append(u)
     if not moves:

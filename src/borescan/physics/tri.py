@@ -1,9 +1,11 @@
 """The one forward model of a three-sensor spindle scan: base geometry plus registered effects.
 
-The digital twin (:func:`borescan.synthetic.scenes.tri_readings`) and the discrepancy workflow
-(:meth:`borescan.discrepancy.tri.TriModel.predict`) evaluate readings here and nowhere else.
-The physics of each named effect is its forward function in :mod:`borescan.effects`; the
-ray-to-bore reading is :func:`borescan.geometry.tri_spindle_readings`.
+The digital twin (:func:`borescan.synthetic.scenes.tri_readings`), the discrepancy workflow
+(:meth:`borescan.discrepancy.tri.TriModel.predict`) and the full-data calibration
+(:mod:`borescan.calibrate.residuals`: :func:`tri_readings_at`, :func:`commanded_device_angle`,
+:func:`tri_spindle_jacobian`) evaluate readings here and nowhere else. The physics of each named
+effect is its forward function in :mod:`borescan.effects`; the ray-to-bore reading is
+:func:`borescan.geometry.tri_spindle_readings`.
 
 Composition order (``shared/spec/geometry-and-effects.md``; stages of :mod:`borescan.effects`):
 
@@ -35,7 +37,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from borescan.effects import Effect, apply_effects, sort_effects
+from borescan.effects import EFFECTS, Effect, apply_effects, sort_effects
 from borescan.geometry import (
     Beams,
     Bore,
@@ -53,6 +55,7 @@ __all__ = [
     "spindle_positions",
     "bore_with_effects",
     "tri_geometry",
+    "tri_readings_at",
     "tri_reading_stage",
     "tri_forward",
     "CORRECTABLE_STAGES",
@@ -67,6 +70,7 @@ __all__ = [
 ]
 
 TRI = "tri_lds"
+_SPEED_ERROR = EFFECTS["speed_error"].forward[TRI]
 #: Stages that change the ray geometry (steps 1-5); the rest act on the readings.
 GEOMETRY_STAGES: tuple[str, ...] = ("time_base", "kinematics", "spindle_position", "bore")
 
@@ -181,7 +185,28 @@ def tri_geometry(
     phi = device_angle(base, tc, st["kinematics"])
     S = spindle_positions(base, phi, st["spindle_position"])
     bore = bore_with_effects(base.bore, st["bore"], base.cte_per_k)
-    return tri_spindle_readings(phi, S, base.beams, bore), tc
+    return tri_readings_at(phi, S, base.beams, bore), tc
+
+
+def tri_readings_at(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore) -> np.ndarray:
+    """Step 5: exact readings at given device angles and spindle positions in a bore (its effects applied).
+
+    The step of :func:`tri_forward` (through :func:`tri_geometry`), of the static sets
+    (:meth:`TriDevice.predict`) and of the full-data calibration on its ring gauge
+    (:mod:`borescan.calibrate.residuals`): v = s - d_b, s > 0 the root of
+    |S + Rot(phi)(F + s u) - C| = r_wall (:func:`borescan.geometry.tri_spindle_readings`).
+
+    Parameters
+    ----------
+    phi_rad : ndarray (n,) or (n, c) device angle [rad]
+    spindle_xy_mm : ndarray (2,), (n, 2) or (n, c, 2) spindle axis S [mm]
+    beams : Beams; bore : Bore (after step 4)
+
+    Returns
+    -------
+    ndarray (n, c) [mm]; NaN where a beam misses.
+    """
+    return tri_spindle_readings(phi_rad, spindle_xy_mm, beams, bore)
 
 
 def tri_reading_stage(
@@ -263,9 +288,10 @@ def commanded_device_angle(commanded_rad: np.ndarray, phase_rad: float, speed_sc
     Step 2 of the module doc with ``speed_error`` of eps = scale - 1: ``commanded_rad`` is the signed
     commanded angle (direction x, :meth:`borescan.kinematics.AngleModel.commanded_rad`), so
     phase + direction (1 + eps) x = phase + scale Phi. The one place of this kinematics for the fits
-    (:mod:`borescan.calibrate`, :meth:`borescan.kinematics.AngleModel.phi_rad`).
+    (:mod:`borescan.calibrate`, :meth:`borescan.kinematics.AngleModel.phi_rad`), through the registry's
+    ``speed_error`` forward function (:func:`device_angle` applies the same one in :func:`tri_forward`).
     """
-    return phase_rad + speed_scale * commanded_rad
+    return phase_rad + _SPEED_ERROR(commanded_rad, {"eps": speed_scale - 1.0})
 
 
 def tri_spindle_jacobian(
@@ -485,7 +511,7 @@ class TriDevice:
         bore = bore_with_effects(state.bore, st["bore"], self.cte_per_k)
         ang = np.atleast_1d(np.asarray(state.device_angle_rad, dtype=float))
         xy = np.atleast_2d(np.asarray(state.device_xy_mm, dtype=float))
-        return tri_spindle_readings(ang, xy, self.beams, bore)[np.asarray(pose_index)], bore
+        return tri_readings_at(ang, xy, self.beams, bore)[np.asarray(pose_index)], bore
 
     def predict(
         self, state: TriStaticState, pose_index: np.ndarray, t_s: np.ndarray, effects: Iterable[Effect] = ()

@@ -12,13 +12,20 @@ from pathlib import Path
 
 import polars as pl
 
-from borescan import device_model, rawio, readings
+from borescan import rawio
 from borescan.calibrations import rod_nominal_calibration_rows
 from borescan.config import schema_defaults
-from borescan.effects import device_model_effects
 from borescan.parallel import map_timed, workers_for
 from borescan.stages._common import clear_night_folder, config_hash, night_scans
 from borescan.stages.calibrate_rod import calibrate_rod_scan
+from borescan.stages.calibrate_jobs import (
+    CalibrationJob,
+    CalibrationJobResult,
+    CalibrationOutcome,
+    CalibrationSettings,
+    TriCalibrationContext,
+    TriDeviceJob,
+)
 from borescan.stages.calibrate_tri import calibrate_tri_device
 from borescan.workflow_log import compute_line
 
@@ -59,44 +66,40 @@ def stage_calibrate(
     written (:func:`borescan.certificate_issue.issue_row`).
     """
     dflt = schema_defaults()
-    ctx_args = {
-        "uncertainty": uncertainty or dflt["uncertainty"],
-        "laboratory": laboratory or dflt["laboratory"],
-        "verification": verification or dflt["verification"],
-        "raw_root": raw_root,
-        "scans_table": scans_table,
-        "signal": signal or dflt["signal"],
-        "devices": devices,
-        "night": night,
-        "pooled_rows": [r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()],
-        "auto_nights": auto_nights,
-    }
+    settings = CalibrationSettings(
+        uncertainty=uncertainty or dflt["uncertainty"],
+        laboratory=laboratory or dflt["laboratory"],
+        verification=verification or dflt["verification"],
+        signal=signal or dflt["signal"],
+        raw_root=Path(raw_root),
+        scans_table=scans_table,
+        devices=devices,
+        night=night,
+        pooled_rows=tuple(r for t in pooled_tables or () for r in pl.read_parquet(t).to_dicts()),
+        auto_nights=auto_nights,
+    )
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
     clear_night_folder(results_root, "calibration", night)  # certificates of a rerun replace the night's
     by_device: dict[str, list] = {}
     for row, d in night_scans(raw_root, night, scans_table, kind="calibration", device_type="tri_lds"):
         by_device.setdefault(row["device_id"], []).append((row, d))
-    jobs = [("tri", items) for _, items in sorted(by_device.items())]
-    jobs += [
-        ("rod", [item])
+    groups = [("tri", tuple(items)) for _, items in sorted(by_device.items())]
+    groups += [
+        ("rod", (item,))
         for item in night_scans(raw_root, night, scans_table, kind="calibration", device_type="rod")
     ]
+    jobs = [CalibrationJob(kind, items, Path(results_root), summary, cfg, settings) for kind, items in groups]
     if jobs:
         log(f"{len(jobs)} calibration job(s) on {workers_for(len(jobs), workers)} process(es)")
-    common = (night, results_root, summary, cfg, ctx_args)
-    made = {"tri": ([], []), "rod": ([], [])}  # kind -> (calibrations rows, calibration_scans rows)
-    bad = []
-    timed = map_timed(calibrate_device, [(k, it, common) for k, it in jobs], workers)
-    for ((kind, rows, links, q, lines, issued), cpu_s), (_, items) in zip(timed, jobs):
+    made = {"tri": CalibrationOutcome(), "rod": CalibrationOutcome()}
+    for (res, cpu_s), job in zip(map_timed(calibrate_device, jobs, workers), jobs):
         if certificates is not None:
-            certificates.extend(issued)
-        made[kind][0].extend(rows)
-        made[kind][1].extend(links)
-        bad += q
-        for line in lines:
+            certificates.extend(res.outcome.certificate_rows)
+        made[res.kind] = made[res.kind] + res.outcome
+        for line in res.log_lines:
             log(line)
-        log(compute_line(items[0][0]["device_id"] if kind == "tri" else items[0][0]["scan_id"], cpu_s))
-    cal_rows, link_rows = made["tri"]
+        log(compute_line(job.name, cpu_s))
+    cal_rows, link_rows = list(made["tri"].calibration_rows), list(made["tri"].calibration_scan_rows)
     for row, d in night_scans(raw_root, night, scans_table, device_type="rod"):
         rows = rod_nominal_calibration_rows(
             rawio.read_scan_meta(d, raw_root=Path(raw_root)), night, row["scan_id"]
@@ -104,58 +107,53 @@ def stage_calibrate(
         if rows and rows[0]["calibration_id"] not in {r["calibration_id"] for r in cal_rows}:
             cal_rows += rows
             link_rows.append({"calibration_id": rows[0]["calibration_id"], "scan_id": row["scan_id"]})
-    cal_rows += made["rod"][0]
-    link_rows += made["rod"][1]
+    cal_rows += made["rod"].calibration_rows
+    link_rows += made["rod"].calibration_scan_rows
     cals = pl.DataFrame(cal_rows, infer_schema_length=None) if cal_rows else pl.DataFrame()
     links = pl.DataFrame(link_rows) if link_rows else pl.DataFrame()
-    return cals, links, bad
+    return cals, links, list(made["tri"].quarantined + made["rod"].quarantined)
 
 
-def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str], list[dict]]:
-    """Run one job of :func:`stage_calibrate`.
-
-    A three-sensor device's calibration scans of the night (``"tri"``) or one rod calibration scan
-    (``"rod"``). Returns (kind, calibrations rows, calibration_scans rows, quarantined, log lines, certificate
-    issue rows).
-    """
-    kind, items, (night, results_root, summary, cfg, ctx_args) = job
-    ctx = _context(ctx_args)
-    cal_rows, link_rows, bad, lines = [], [], [], []
-    if kind == "tri":
-        calibrate_tri_device(
-            items, night, results_root, summary, cfg, bad, cal_rows, link_rows, lines.append, ctx
+def calibrate_device(job: CalibrationJob) -> CalibrationJobResult:
+    """Run one job of :func:`stage_calibrate` (in a worker process): its outcome and its log lines."""
+    ctx, lines = job.settings.context(), []
+    night = job.settings.night
+    if job.kind == "tri":
+        outcome = calibrate_tri_device(
+            TriDeviceJob(job.items, night, job.results_root, job.summary, job.cfg, ctx, lines.append)
         )
     else:
-        ((_row, d),) = items
-        calibrate_rod_scan(
-            rawio.read_scan(d, raw_root=Path(ctx["raw_root"])),
-            night,
-            results_root,
-            bad,
-            cal_rows,
-            link_rows,
-            lines.append,
-            ctx,
-            cfg,
-        )
-    return kind, cal_rows, link_rows, bad, lines, ctx.get("certificate_rows", [])
+        outcome = _calibrate_rod(job, ctx, lines.append)
+    return CalibrationJobResult(job.kind, outcome, tuple(lines))
 
 
-def _context(a: dict) -> dict:
-    """Return what a calibration job reads besides its scans.
+def _calibrate_rod(job: CalibrationJob, ctx: TriCalibrationContext, log) -> CalibrationOutcome:
+    """Calibrate a rod job's scan and return what it made.
 
-    Return what a calibration job reads besides its scans: the config sections, the readings' cleaning
-    policy, and the device model each device carries (:func:`borescan.device_model.lookup`).
+    :func:`borescan.stages.calibrate_rod.calibrate_rod_scan` (the rod owner's) takes its context as a
+    dict and returns its rows through lists; they are turned into a :class:`CalibrationOutcome` here.
     """
-    devices, night = a["devices"], a["night"]
-    return {
-        "uncertainty": a["uncertainty"],
-        "laboratory": a["laboratory"],
-        "verification": a["verification"],
-        "raw_root": a["raw_root"],
-        "scans_table": a["scans_table"],
-        "cleaning": readings.cleaning_policy(a["signal"]),
-        "device_model": device_model.lookup(
-            lambda dev: device_model_effects(devices, dev, night), a["pooled_rows"], night, a["auto_nights"]
-        ),
+    ((_row, d),) = job.items
+    rod_ctx = {
+        "uncertainty": ctx.uncertainty,
+        "laboratory": ctx.laboratory,
+        "verification": ctx.verification,
+        "raw_root": ctx.raw_root,
+        "scans_table": ctx.scans_table,
+        "cleaning": ctx.cleaning,
     }
+    cal_rows, link_rows, bad = [], [], []
+    calibrate_rod_scan(
+        rawio.read_scan(d, raw_root=ctx.raw_root),
+        job.settings.night,
+        job.results_root,
+        bad,
+        cal_rows,
+        link_rows,
+        log,
+        rod_ctx,
+        job.cfg,
+    )
+    return CalibrationOutcome(
+        tuple(cal_rows), tuple(link_rows), tuple(bad), tuple(rod_ctx.get("certificate_rows", ()))
+    )

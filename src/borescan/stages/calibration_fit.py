@@ -26,6 +26,7 @@ from borescan.config import schema_defaults
 from borescan.geometry import Beams
 from borescan.measure import sensor_ranges_mm
 from borescan.preconditions import CALIBRATION_NEEDS_BEAMS, design_beams
+from borescan.stages.calibrate_jobs import SpindleInputs
 from borescan.uncertainty import Budget
 
 __all__ = [
@@ -42,7 +43,7 @@ __all__ = [
 
 def spindle_inputs(
     scan: rawio.RawScan, uncertainty: dict | None = None, cleaning: readings.CleaningPolicy | None = None
-) -> dict:
+) -> SpindleInputs:
     """Return the fit inputs of a spindle scan.
 
     Return times, despiked readings, rotation angle model, positions, temperature and gauge of a spindle
@@ -75,25 +76,25 @@ def spindle_inputs(
     unc = uncertainty or schema_defaults()["uncertainty"]
     temp = scan_temperature(meta, unc)
     cte = artifact_cte(meta, unc)
-    return {
-        "t_s": np.asarray(mat.t_s, dtype=float),
-        "readings": clean,
-        "channels": tuple(mat.channels),
-        "spindle_xy": spindle_xy,
-        "center_xy": None if not center else (float(center["x_mm"]), float(center["y_mm"])),
-        "rpm": float(abs(angle_model.mean_omega_rad_s()) * 60.0 / (2.0 * np.pi)),
-        "direction": sp_meta.get("direction", "ccw"),
-        "angle_model": angle_model,
-        "range_mm": sensor_ranges_mm(sensors, mat.channels),
-        "R": gauge_radius_mm(meta, temp.temperature_c, cte.cte_per_k),
-        "temperature": temp,
-        "cte": cte,
-        "artifact": dict(meta.get("artifact") or {}),
-        "sensors": sensors,
-    }
+    return SpindleInputs(
+        t_s=np.asarray(mat.t_s, dtype=float),
+        readings_mm=clean,
+        channels=tuple(mat.channels),
+        spindle_xy_mm=spindle_xy,
+        center_xy_mm=None if not center else (float(center["x_mm"]), float(center["y_mm"])),
+        rpm=float(abs(angle_model.mean_omega_rad_s()) * 60.0 / (2.0 * np.pi)),
+        direction=sp_meta.get("direction", "ccw"),
+        angle_model=angle_model,
+        range_mm=sensor_ranges_mm(sensors, mat.channels),
+        radius_mm=gauge_radius_mm(meta, temp.temperature_c, cte.cte_per_k),
+        temperature=temp,
+        cte=cte,
+        artifact=dict(meta.get("artifact") or {}),
+        sensors=sensors,
+    )
 
 
-def scan_conditions(scan: rawio.RawScan, x: dict, summary: pl.DataFrame) -> dict:
+def scan_conditions(scan: rawio.RawScan, x: SpindleInputs, summary: pl.DataFrame) -> dict:
     """Per-scan conditions of the certificate: positions, speed, revolutions (recorded and with extrema)."""
     s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
     spr = float(s["period_samples_per_rev"][0]) if s.height else 0.0
@@ -105,8 +106,8 @@ def scan_conditions(scan: rawio.RawScan, x: dict, summary: pl.DataFrame) -> dict
         "started_at": scan.meta.get("started_at"),
         "spindle_position": (scan.meta.get("spindle") or {}).get("position"),
         "center": scan.meta.get("center"),
-        "rpm": x["rpm"],
-        "angle_source": x["angle_model"].source,
+        "rpm": x.rpm,
+        "angle_source": x.angle_model.source,
         "revolutions_recorded": recorded,
         "revolutions_with_extrema": int(s["n_revolutions_min"].min()) if s.height else None,
     }
@@ -136,7 +137,7 @@ def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: 
         cal_cfg,
         night,
         raw_files,
-        device_model.channel_time_offsets(model, inputs[0]["channels"]),
+        device_model.channel_time_offsets(model, inputs[0].channels),
     )
     if model:
         cal = replace(cal, diagnostics={**cal.diagnostics, "device_model": [m.to_dict() for m in model]})
@@ -145,15 +146,15 @@ def fit_device_calibration(scans, inputs, nominal: Beams, cal_cfg: dict, night: 
 
 def _fit(scans, inputs, nominal: Beams, cal_cfg: dict, night, raw_files, tau_s):
     return fit_full_calibration(
-        [x["t_s"] for x in inputs],
-        [x["readings"] for x in inputs],
-        inputs[0]["channels"],
+        [x.t_s for x in inputs],
+        [x.readings_mm for x in inputs],
+        inputs[0].channels,
         nominal,
-        inputs[0]["R"],
-        [x["spindle_xy"] for x in inputs],
-        center_xy_mm=[x["center_xy"] for x in inputs],
-        angle_models=[x["angle_model"] for x in inputs],
-        range_mm=inputs[0]["range_mm"],
+        inputs[0].radius_mm,
+        [x.spindle_xy_mm for x in inputs],
+        center_xy_mm=[x.center_xy_mm for x in inputs],
+        angle_models=[x.angle_model for x in inputs],
+        range_mm=inputs[0].range_mm,
         rule=acceptance_rule(cal_cfg),
         scan_ids=[s.scan_id for s in scans],
         device_id=scans[0].meta["device"]["id"],
@@ -183,7 +184,7 @@ def calibrate_raw_scans(
 
 
 def yang_from_summary(
-    scan: rawio.RawScan, inputs: dict, summary: pl.DataFrame, nominal: Beams, night: str, log=print
+    scan: rawio.RawScan, inputs: SpindleInputs, summary: pl.DataFrame, nominal: Beams, night: str, log=print
 ):
     """Yang 2017 (Eq. 8-15) from the signal stage's per-channel means of one scan.
 
@@ -194,7 +195,7 @@ def yang_from_summary(
     s = summary.filter(pl.col("scan_id") == scan.scan_id).sort("channel")
     statuses = list(s["status"])
     if "status_significant" in s.columns:
-        sgn = 1.0 if inputs["direction"] == "ccw" else -1.0
+        sgn = 1.0 if inputs.direction == "ccw" else -1.0
         for i, (ch, ok) in enumerate(zip(s["channel"], s["status_significant"])):
             if not ok:
                 statuses[i] = "advanced" if sgn * nominal.rho_mm[i] > 0 else "backward"
@@ -203,11 +204,11 @@ def yang_from_summary(
                     f"side of the beam taken from device.nominal (rho {nominal.rho_mm[i]:+.3f} mm): "
                     f"{statuses[i]}"
                 )
-    if inputs["center_xy"] is None:
+    if inputs.center_xy_mm is None:
         raise ValueError(
             "yang2017 needs scan.json center (the gauge centre from a centring scan) for oe (Eq. 9)"
         )
-    oe = yang_oe(inputs["spindle_xy"], inputs["center_xy"])
+    oe = yang_oe(inputs.spindle_xy_mm, inputs.center_xy_mm)
     spr = float(s["period_samples_per_rev"][0])
     return yang_calibration(
         s["d_max_mm"].to_numpy(),
@@ -215,7 +216,7 @@ def yang_from_summary(
         statuses,
         s["feature_sample"].to_numpy(),
         spr,
-        inputs["R"],
+        inputs.radius_mm,
         oe,
         channels=tuple(int(c) for c in s["channel"]),
         device_id=scan.meta["device"]["id"],
@@ -223,7 +224,7 @@ def yang_from_summary(
         raw_sha256=dict(scan.sha256),
         beta_ref_rad=float(nominal.beta_rad[0]),
         beta_nominal_rad=nominal.beta_rad,
-        direction=inputs["direction"],
+        direction=inputs.direction,
         u_d_max_mm=s["u_d_max_mm"].to_numpy(),
         u_d_min_mm=s["u_d_min_mm"].to_numpy(),
         u_feature_sample=s["u_feature_sample"].to_numpy(),
@@ -234,7 +235,7 @@ def yang_from_summary(
 # --------------------------------------------------------------------------- GUM budget
 
 
-def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, night: str) -> dict:
+def yang_sensitivities(scan, x: SpindleInputs, summary: pl.DataFrame, nominal: Beams, night: str) -> dict:
     """Return the sensitivities of Yang 2017's closed forms.
 
     Central-difference sensitivities (3c,) of Yang 2017's closed forms (:func:`yang_from_summary`):
@@ -243,10 +244,10 @@ def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, nig
     """
 
     def params(R=None, dS=(0.0, 0.0), shift=None) -> np.ndarray:
-        xi = dict(
+        xi = replace(
             x,
-            R=x["R"] if R is None else R,
-            spindle_xy=(x["spindle_xy"][0] + dS[0], x["spindle_xy"][1] + dS[1]),
+            radius_mm=x.radius_mm if R is None else R,
+            spindle_xy_mm=(x.spindle_xy_mm[0] + dS[0], x.spindle_xy_mm[1] + dS[1]),
         )
         su = summary
         if shift is not None:
@@ -262,7 +263,7 @@ def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, nig
 
     h, c = 1e-4, len(nominal.channels)
     return {
-        "dR": (params(R=x["R"] + h) - params(R=x["R"] - h)) / (2 * h),
+        "dR": (params(R=x.radius_mm + h) - params(R=x.radius_mm - h)) / (2 * h),
         "offset_prior": {
             scan.scan_id: np.column_stack(
                 [(params(dS=e * h) - params(dS=-e * h)) / (2 * h) for e in np.eye(2)]
@@ -277,7 +278,7 @@ def yang_sensitivities(scan, x: dict, summary: pl.DataFrame, nominal: Beams, nig
 def budget_of(
     cal,
     scans,
-    inputs: list[dict],
+    inputs: list[SpindleInputs],
     uncertainty: dict,
     *,
     summary: pl.DataFrame | None = None,
