@@ -44,6 +44,19 @@ from borescan.preconditions import EXAMINATION_NEEDS_GEOMETRY, MissingScanKey, d
 __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
 
 
+def _median_of_others(x: np.ndarray) -> np.ndarray:
+    """Return, for each reading of ``x`` (finite, at least 2), the median of the other readings."""
+    order = np.argsort(x, kind="stable")
+    xs, rank = x[order], np.empty(x.size, dtype=int)
+    rank[order] = np.arange(x.size)
+    m = x.size - 1
+
+    def qth(q: int) -> np.ndarray:  # the q-th smallest of the others: one rank up where it was removed
+        return np.where(rank > q, xs[q], xs[q + 1])
+
+    return qth(m // 2) if m % 2 else 0.5 * (qth(m // 2 - 1) + qth(m // 2))
+
+
 class PoseData:
     """Readings of a pose scan with the metadata the models need."""
 
@@ -98,19 +111,33 @@ class _PoseModel:
         """
         return noise_floor_mm(r, order=1, keep=self.data.pose_index[1:] == self.data.pose_index[:-1])
 
+    #: a pose scan names a single jump: its leave-one-out test (:meth:`spike_mask`) holds a channel's
+    #: chance of a false jump at the examination's ``outlier_false_rate`` (Bonferroni), so a second jump
+    #: is not needed to tell a jump from noise (at rate x readings ~ 1, most rod outliers are one jump)
+    min_spikes = 1
+
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
-        """Return readings further than ``k_sigma`` noise levels from their pose median."""
+        """Return readings further than ``k_sigma`` standard deviations from their pose's other readings.
+
+        Robust with few readings per pose (5-30): each reading is compared with the median of the other
+        n - 1 readings of its pose (a jump does not pull its own reference), and the difference is scaled by
+        its standard deviation under Gaussian noise, sigma sqrt(1 + pi / (2 (n - 1))) (the median's variance
+        is pi sigma^2 / (2 m) for m readings), so ``k_sigma`` keeps the false-alarm rate it was chosen for. A
+        pose with fewer than 4 finite readings is not tested.
+        """
         out = np.zeros(r.shape, dtype=bool)
         idx = self.data.pose_index
-        for j in range(r.shape[1]):
-            med = np.full(r.shape[0], np.nan)
-            for p in np.unique(idx):
-                sel = idx == p
-                x = r[sel, j]
-                if np.isfinite(x).sum() >= 3:
-                    med[sel] = np.nanmedian(x)
-            with np.errstate(invalid="ignore"):
-                out[:, j] = np.abs(r[:, j] - med) > k_sigma * max(float(sigma[j]), 1e-12)
+        for p in range(len(self.data.poses)):
+            rows = np.flatnonzero(idx == p)
+            for j in range(r.shape[1]):
+                x = r[rows, j]
+                ok = np.flatnonzero(np.isfinite(x))
+                m = ok.size - 1
+                if m < 3:
+                    continue
+                others = _median_of_others(x[ok])
+                scale = max(float(sigma[j]), 1e-12) * math.sqrt(1.0 + math.pi / (2.0 * m))
+                out[rows[ok], j] = np.abs(x[ok] - others) > k_sigma * scale
         return out
 
     def localise(self, r: np.ndarray, sigma: np.ndarray) -> dict:
