@@ -34,9 +34,10 @@ import math
 import time
 import traceback
 from collections import defaultdict
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+
+from borescan.parallel import map_in_order
 
 RUN_BY_DEFAULT = False
 #: scan kinds of the battery and their shares
@@ -455,19 +456,19 @@ def main(argv: list[str] | None = None) -> None:
     out = open(a.out, "w") if a.out else None  # noqa: SIM115 (held open while the scans run)
     t0 = time.perf_counter()
     rows = []
-    with ProcessPoolExecutor(a.workers) as ex:
-        for r in ex.map(run_one, jobs, chunksize=1):
-            rows.append(r)
-            if out is not None:
-                out.write(json.dumps({k: v for k, v in r.items() if k != "tb"}, default=float) + "\n")
-                out.flush()
-            if a.verbose and not r["correct"]:
-                print(
-                    f"  WRONG {r['kind']} {r['i']} z {r.get('z', 0):.0f}: truth {r['truth']} -> "
-                    f"{r['verdict']} "
-                    f"{r.get('explained')} {r['named']} {r.get('extras_chi2') or ''} {r.get('error', '')}",
-                    flush=True,
-                )
+    # workers spawned with one BLAS thread each (parallel.map_in_order; --workers 1 runs here)
+    for r in map_in_order(run_one, jobs, a.workers):
+        rows.append(r)
+        if out is not None:
+            out.write(json.dumps({k: v for k, v in r.items() if k != "tb"}, default=float) + "\n")
+            out.flush()
+        if a.verbose and not r["correct"]:
+            print(
+                f"  WRONG {r['kind']} {r['i']} z {r.get('z', 0):.0f}: truth {r['truth']} -> "
+                f"{r['verdict']} "
+                f"{r.get('explained')} {r['named']} {r.get('extras_chi2') or ''} {r.get('error', '')}",
+                flush=True,
+            )
     if out is not None:
         out.close()
     print(f"seed {a.seed}, {a.n} scans, {time.perf_counter() - t0:.0f} s wall on {a.workers} workers")
