@@ -58,7 +58,7 @@ def test_one_jump_in_a_pose_of_five_is_found_and_nothing_else():
 
 def test_one_jump_of_a_rod_scan_is_named_and_an_effect_free_rod_is_quiet():
     """A rod on certified rings (noise 5 um): one reading jumped by 60 um is named ``outliers`` at rate
-    1 / readings of its channel; the same scan without the jump names nothing.
+    1 / readings of its channel and the statement says so; the same scan without the jump names nothing.
     """
     sim = _rod_case([])
     assert examine_scan(sim)["verdict"] == "no_missing_effect"
@@ -68,3 +68,5 @@ def test_one_jump_of_a_rod_scan_is_named_and_an_effect_free_rod_is_quiet():
     f = examine_scan(replace(sim, lds=sim.lds.with_columns(pl.Series("value_mm", values))))
     (out,) = [n for n in f["named"] if n["effect"] == "outliers"]
     assert out["channel"] == 2 and out["parameters"]["rate"] == pytest.approx(1.0 / np.sum(sensor == 2))
+    assert f["verdict"] == "missing_effect" and [n["effect"] for n in f["named"]] == ["outliers"]
+    assert f["statement"] == "explained by outliers on channel 2: the gap after is at the noise floor"
