@@ -44,6 +44,10 @@ from borescan.preconditions import EXAMINATION_NEEDS_GEOMETRY, MissingScanKey, d
 __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
 
 
+#: degrees of freedom of a MAD noise estimate per difference (its asymptotic efficiency, Gaussian noise)
+MAD_DOF_PER_DIFF = 0.37
+
+
 def _median_of_others(x: np.ndarray) -> np.ndarray:
     """Return, for each reading of ``x`` (finite, at least 2), the median of the other readings."""
     order = np.argsort(x, kind="stable")
@@ -117,16 +121,26 @@ class _PoseModel:
     min_spikes = 1
 
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
-        """Return readings further than ``k_sigma`` standard deviations from their pose's other readings.
+        """Return readings further than ``k_sigma`` (its tail probability) from their pose's other readings.
 
         Robust with few readings per pose (5-30): each reading is compared with the median of the other
-        n - 1 readings of its pose (a jump does not pull its own reference), and the difference is scaled by
-        its standard deviation under Gaussian noise, sigma sqrt(1 + pi / (2 (n - 1))) (the median's variance
-        is pi sigma^2 / (2 m) for m readings), so ``k_sigma`` keeps the false-alarm rate it was chosen for. A
-        pose with fewer than 4 finite readings is not tested.
+        m = n - 1 readings of its pose (a jump does not pull its own reference), the difference scaled by
+        its standard deviation under Gaussian noise, sigma sqrt(1 + pi / (2 m)) (a median of m readings
+        has variance about pi sigma^2 / (2 m)). sigma is itself estimated, from the within-pose
+        differences (:meth:`noise_floor`, a MAD: about 0.37 degrees of freedom per difference), so the
+        threshold is the Student t quantile with those degrees of freedom at the tail probability
+        ``k_sigma`` has under the normal law: the false-alarm rate ``k_sigma`` was chosen for holds when
+        a scan of 50 readings per channel estimates its noise from 40 differences. A pose with fewer than
+        4 finite readings is not tested.
         """
+        from scipy.special import ndtr, stdtrit  # the normal tail and Student's t quantile
+
         out = np.zeros(r.shape, dtype=bool)
         idx = self.data.pose_index
+        finite = np.isfinite(r)
+        n_diff = finite.sum(axis=0) - np.array([len(np.unique(idx[finite[:, j]])) for j in range(r.shape[1])])
+        tail = float(ndtr(-k_sigma))
+        k_t = [-float(stdtrit(max(MAD_DOF_PER_DIFF * n, 1.0), tail)) for n in n_diff]
         for p in range(len(self.data.poses)):
             rows = np.flatnonzero(idx == p)
             for j in range(r.shape[1]):
@@ -135,9 +149,8 @@ class _PoseModel:
                 m = ok.size - 1
                 if m < 3:
                     continue
-                others = _median_of_others(x[ok])
                 scale = max(float(sigma[j]), 1e-12) * math.sqrt(1.0 + math.pi / (2.0 * m))
-                out[rows[ok], j] = np.abs(x[ok] - others) > k_sigma * scale
+                out[rows[ok], j] = np.abs(x[ok] - _median_of_others(x[ok])) > k_t[j] * scale
         return out
 
     def localise(self, r: np.ndarray, sigma: np.ndarray) -> dict:
