@@ -44,6 +44,8 @@ from borescan.preconditions import EXAMINATION_NEEDS_GEOMETRY, MissingScanKey, d
 __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
 
 
+#: a rod layer's terms that screen level with its offset (the offset-like class and the bow)
+LOOKALIKE_TERMS = ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "beam_tilt")
 #: degrees of freedom of a MAD noise estimate per difference (its asymptotic efficiency, Gaussian noise)
 MAD_DOF_PER_DIFF = 0.37
 
@@ -346,13 +348,27 @@ class RodModel(_PoseModel):
         )
 
     def extra_starts(self, screen, keys, t1):
-        """beam_offset is second order at d = 0: start it from the offset screen, d = sqrt(2 r |b|)."""
+        """Return the starts of a chosen layer's offset-like look-alikes the screen's cut left out.
+
+        A layer's offset, gain, bow and beam tilt screen level with each other (issue 17, point 2), so
+        the exact refits' cut can keep two of them and drop the rest (on a rod calibration the screen
+        ranked layer 1's four above layer 2's, and the exact fits put layer 2 four times higher): each one
+        of a layer with a chosen member is refitted from its screen start. ``beam_offset`` is second
+        order at d = 0: started from the layer's offset screen, d = sqrt(2 r |b|).
+        """
+        layers = {
+            z[1].channel
+            for z in screen
+            if z[1].effect in LOOKALIKE_TERMS and z[1].channel not in (None, 0) and z[1].key in keys
+        }
         out = []
         for z in screen:
             t = z[1]
-            if t.effect != "sensor_offset" or t.channel in (None, 0):
+            if t.channel in (None, 0) or (t1 is not None and t1.channel == t.channel):
                 continue
-            if not ("*" in keys or t.key in keys) or (t1 is not None and t1.channel == t.channel):
+            if t.effect in LOOKALIKE_TERMS and t.channel in layers and t.key not in keys and "*" not in keys:
+                out.append(z)
+            if t.effect != "sensor_offset" or not ("*" in keys or t.channel in layers):
                 continue
             j = self.data.channels.index(t.channel)
             b = z[2][f"{t.key}.b_mm"]
