@@ -71,3 +71,22 @@ def test_one_jump_of_a_rod_scan_is_named_and_an_effect_free_rod_is_quiet():
     assert out["channel"] == 2 and out["parameters"]["rate"] == pytest.approx(1.0 / np.sum(sensor == 2))
     assert f["verdict"] == "missing_effect" and [n["effect"] for n in f["named"]] == ["outliers"]
     assert f["statement"] == "explained by outliers on channel 2: the gap after is at the noise floor"
+
+
+def test_a_rod_bow_at_mid_range_is_listed_in_its_layer_class():
+    """A 6 um bow of sensor 2 whose readings sit near mid-range (u ~ 0.5, where 4u(1 - u) is flat): no
+    second harmonic to resolve, so the verdict names layer 2's offset-like class, lists the bow in it and
+    says what the data fix: the layer reads long by a 4u(1 - u) averaged over its readings (within 3 u).
+    """
+    from borescan.effects import Effect
+
+    a_mm = 0.006
+    sim = _rod_case([Effect("sensor_nonlinearity", {"channel": 2, "a_mm": a_mm})])
+    f = examine_scan(sim)
+    (k,) = [k for k in f["classes"] if k["channel"] == 2]
+    assert f["verdict"] == "ambiguous" and k["nonlinearity_also_fits"]
+    assert {"sensor_offset", "sensor_gain", "beam_tilt"} <= set(k["members"])
+    assert "beam_offset" not in k["members"]  # a beam offset cannot lengthen a reading
+    u = sim.lds.filter(pl.col("sensor") == 2)["value_mm"].to_numpy() / 8.0  # the rod's 8 mm range
+    assert abs(k["reads_long_um"] - 1e3 * a_mm * np.mean(4 * u * (1 - u))) < 3 * k["u_reads_long_um"]
+    assert "recalibrate l0 of layer 2" in f["statement"] and "sensor_nonlinearity" in f["statement"]
