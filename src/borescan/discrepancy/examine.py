@@ -382,6 +382,7 @@ def _class_statement(classes, named: list[dict], explained: str, remaining: dict
     if explained == "partly" and remaining:
         ratio = remaining["gap_after_over_floor"]
         out += f"; only partly explained: the gap after is {ratio:.3g}x the noise floor"
+        out += "" if remaining.get("fit_converged", True) else " and the fit did not converge"
     return out
 
 
@@ -433,7 +434,9 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
         "scan_id": data.scan_id,
         "verdict": verdict,
         "explained": explained,
-        "statement": _statement(verdict, dec_named, explained, remaining, dec.rejected, not_testable(model))
+        "statement": _statement(  # outliers or quantization alone: what explains the scan
+            verdict, dec_named or list(out.named), explained, remaining, dec.rejected, not_testable(model)
+        )
         if not classes
         else _class_statement(classes, dec_named, explained, remaining),
         "classes": [k.to_dict() for k in classes],

@@ -44,6 +44,25 @@ from borescan.preconditions import EXAMINATION_NEEDS_GEOMETRY, MissingScanKey, d
 __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
 
 
+#: a rod layer's terms that screen level with its offset (the offset-like class and the bow)
+LOOKALIKE_TERMS = ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "beam_tilt")
+#: degrees of freedom of a MAD noise estimate per difference (its asymptotic efficiency, Gaussian noise)
+MAD_DOF_PER_DIFF = 0.37
+
+
+def _median_of_others(x: np.ndarray) -> np.ndarray:
+    """Return, for each reading of ``x`` (finite, at least 2), the median of the other readings."""
+    order = np.argsort(x, kind="stable")
+    xs, rank = x[order], np.empty(x.size, dtype=int)
+    rank[order] = np.arange(x.size)
+    m = x.size - 1
+
+    def qth(q: int) -> np.ndarray:  # the q-th smallest of the others: one rank up where it was removed
+        return np.where(rank > q, xs[q], xs[q + 1])
+
+    return qth(m // 2) if m % 2 else 0.5 * (qth(m // 2 - 1) + qth(m // 2))
+
+
 class PoseData:
     """Readings of a pose scan with the metadata the models need."""
 
@@ -98,19 +117,42 @@ class _PoseModel:
         """
         return noise_floor_mm(r, order=1, keep=self.data.pose_index[1:] == self.data.pose_index[:-1])
 
+    #: a pose scan names a single jump: its leave-one-out test (:meth:`spike_mask`) holds a channel's
+    #: chance of a false jump at the examination's ``outlier_false_rate`` (Bonferroni), so a second jump
+    #: is not needed to tell a jump from noise (at rate x readings ~ 1, most rod outliers are one jump)
+    min_spikes = 1
+
     def spike_mask(self, r: np.ndarray, sigma: np.ndarray, k_sigma: float) -> np.ndarray:
-        """Return readings further than ``k_sigma`` noise levels from their pose median."""
+        """Return readings further than ``k_sigma`` (its tail probability) from their pose's other readings.
+
+        Robust with few readings per pose (5-30): each reading is compared with the median of the other
+        m = n - 1 readings of its pose (a jump does not pull its own reference), the difference scaled by
+        its standard deviation under Gaussian noise, sigma sqrt(1 + pi / (2 m)) (a median of m readings
+        has variance about pi sigma^2 / (2 m)). sigma is itself estimated, from the within-pose
+        differences (:meth:`noise_floor`, a MAD: about 0.37 degrees of freedom per difference), so the
+        threshold is the Student t quantile with those degrees of freedom at the tail probability
+        ``k_sigma`` has under the normal law: the false-alarm rate ``k_sigma`` was chosen for holds when
+        a scan of 50 readings per channel estimates its noise from 40 differences. A pose with fewer than
+        4 finite readings is not tested.
+        """
+        from scipy.special import ndtr, stdtrit  # the normal tail and Student's t quantile
+
         out = np.zeros(r.shape, dtype=bool)
         idx = self.data.pose_index
-        for j in range(r.shape[1]):
-            med = np.full(r.shape[0], np.nan)
-            for p in np.unique(idx):
-                sel = idx == p
-                x = r[sel, j]
-                if np.isfinite(x).sum() >= 3:
-                    med[sel] = np.nanmedian(x)
-            with np.errstate(invalid="ignore"):
-                out[:, j] = np.abs(r[:, j] - med) > k_sigma * max(float(sigma[j]), 1e-12)
+        finite = np.isfinite(r)
+        n_diff = finite.sum(axis=0) - np.array([len(np.unique(idx[finite[:, j]])) for j in range(r.shape[1])])
+        tail = float(ndtr(-k_sigma))
+        k_t = [-float(stdtrit(max(MAD_DOF_PER_DIFF * n, 1.0), tail)) for n in n_diff]
+        for p in range(len(self.data.poses)):
+            rows = np.flatnonzero(idx == p)
+            for j in range(r.shape[1]):
+                x = r[rows, j]
+                ok = np.flatnonzero(np.isfinite(x))
+                m = ok.size - 1
+                if m < 3:
+                    continue
+                scale = max(float(sigma[j]), 1e-12) * math.sqrt(1.0 + math.pi / (2.0 * m))
+                out[rows[ok], j] = np.abs(x[ok] - _median_of_others(x[ok])) > k_t[j] * scale
         return out
 
     def localise(self, r: np.ndarray, sigma: np.ndarray) -> dict:
@@ -306,13 +348,27 @@ class RodModel(_PoseModel):
         )
 
     def extra_starts(self, screen, keys, t1):
-        """beam_offset is second order at d = 0: start it from the offset screen, d = sqrt(2 r |b|)."""
+        """Return the starts of a chosen layer's offset-like look-alikes the screen's cut left out.
+
+        A layer's offset, gain, bow and beam tilt screen level with each other (issue 17, point 2), so
+        the exact refits' cut can keep two of them and drop the rest (on a rod calibration the screen
+        ranked layer 1's four above layer 2's, and the exact fits put layer 2 four times higher): each one
+        of a layer with a chosen member is refitted from its screen start. ``beam_offset`` is second
+        order at d = 0: started from the layer's offset screen, d = sqrt(2 r |b|).
+        """
+        layers = {
+            z[1].channel
+            for z in screen
+            if z[1].effect in LOOKALIKE_TERMS and z[1].channel not in (None, 0) and z[1].key in keys
+        }
         out = []
         for z in screen:
             t = z[1]
-            if t.effect != "sensor_offset" or t.channel in (None, 0):
+            if t.channel in (None, 0) or (t1 is not None and t1.channel == t.channel):
                 continue
-            if not ("*" in keys or t.key in keys) or (t1 is not None and t1.channel == t.channel):
+            if t.effect in LOOKALIKE_TERMS and t.channel in layers and t.key not in keys and "*" not in keys:
+                out.append(z)
+            if t.effect != "sensor_offset" or not ("*" in keys or t.channel in layers):
                 continue
             j = self.data.channels.index(t.channel)
             b = z[2][f"{t.key}.b_mm"]

@@ -1,0 +1,92 @@
+"""The outlier test of pose scans (rods, static sets): few readings per pose, one jump named."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import polars as pl
+import pytest
+from test_discrepancy import _rod_case  # the rod on certified rings of the recovery tests
+
+from borescan.discrepancy import examine_scan
+from borescan.discrepancy.evidence import outlier_threshold_sigma
+from borescan.discrepancy.poses import _median_of_others, _PoseModel, pose_data_from_arrays
+
+
+def _pose_model(values_mm: np.ndarray, per_pose: int) -> _PoseModel:
+    n = values_mm.shape[0]
+    pose = np.repeat(np.arange(n // per_pose), per_pose)
+    chans = tuple(range(1, values_mm.shape[1] + 1))
+    return _PoseModel(pose_data_from_arrays("T", {}, np.arange(n) * 0.01, values_mm, chans, pose))
+
+
+def test_median_of_the_others_is_the_median_without_each_reading():
+    """Against numpy's median of the readings with one deleted, odd and even counts, ties included."""
+    rng = np.random.default_rng(3)
+    for n in range(2, 14):
+        x = np.round(rng.standard_normal(n), 1)  # ties
+        want = [np.median(np.delete(x, i)) for i in range(n)]
+        np.testing.assert_allclose(_median_of_others(x), want, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("per_pose", [5, 9, 30])
+def test_gaussian_pose_scan_passes_the_outlier_threshold_at_most_at_its_false_rate(per_pose):
+    """Gaussian noise, 11 poses of 5-30 readings, the noise level estimated from the scan itself (as the
+    examination does): a channel shows a jump with chance <= the false rate.
+
+    The threshold is the Bonferroni quantile at false rate 0.05 (large, so 600 channels measure it); the
+    share of channels with a jump must not exceed 0.05 by more than 4 binomial standard deviations.
+    """
+    rng = np.random.default_rng(per_pose)
+    n_pose, channels = 11, 600
+    v = rng.standard_normal((n_pose * per_pose, channels))
+    model = _pose_model(v, per_pose)
+    k = outlier_threshold_sigma(v.shape[0], 0.05)
+    hits = np.mean(model.spike_mask(v, model.noise_floor(v), k).any(axis=0))
+    assert hits <= 0.05 + 4 * np.sqrt(0.05 * 0.95 / channels)
+
+
+def test_one_jump_in_a_pose_of_five_is_found_and_nothing_else():
+    """A 6 sigma jump among 5 readings of one pose (a plain pose median would move towards it)."""
+    rng = np.random.default_rng(7)
+    v = rng.standard_normal((60, 3))
+    v[17, 1] += 6.0 * np.sign(v[17, 1] - np.median(v[15:20, 1]) or 1.0)
+    model = _pose_model(v, 5)
+    spikes = model.spike_mask(v, np.ones(3), outlier_threshold_sigma(60, 1e-3))
+    assert spikes[17, 1] and spikes.sum() == 1
+
+
+def test_one_jump_of_a_rod_scan_is_named_and_an_effect_free_rod_is_quiet():
+    """A rod on certified rings (noise 5 um): one reading jumped by 60 um is named ``outliers`` at rate
+    1 / readings of its channel and the statement says so; the same scan without the jump names nothing.
+    """
+    sim = _rod_case([])
+    assert examine_scan(sim)["verdict"] == "no_missing_effect"
+    sensor = sim.lds["sensor"].to_numpy()
+    values = sim.lds["value_mm"].to_numpy().copy()
+    values[np.flatnonzero(sensor == 2)[40]] += 0.060
+    f = examine_scan(replace(sim, lds=sim.lds.with_columns(pl.Series("value_mm", values))))
+    (out,) = [n for n in f["named"] if n["effect"] == "outliers"]
+    assert out["channel"] == 2 and out["parameters"]["rate"] == pytest.approx(1.0 / np.sum(sensor == 2))
+    assert f["verdict"] == "missing_effect" and [n["effect"] for n in f["named"]] == ["outliers"]
+    assert f["statement"] == "explained by outliers on channel 2: the gap after is at the noise floor"
+
+
+def test_a_rod_bow_at_mid_range_is_listed_in_its_layer_class():
+    """A 6 um bow of sensor 2 whose readings sit near mid-range (u ~ 0.5, where 4u(1 - u) is flat): no
+    second harmonic to resolve, so the verdict names layer 2's offset-like class, lists the bow in it and
+    says what the data fix: the layer reads long by a 4u(1 - u) averaged over its readings (within 3 u).
+    """
+    from borescan.effects import Effect
+
+    a_mm = 0.006
+    sim = _rod_case([Effect("sensor_nonlinearity", {"channel": 2, "a_mm": a_mm})])
+    f = examine_scan(sim)
+    (k,) = [k for k in f["classes"] if k["channel"] == 2]
+    assert f["verdict"] == "ambiguous" and k["nonlinearity_also_fits"]
+    assert {"sensor_offset", "sensor_gain", "beam_tilt"} <= set(k["members"])
+    assert "beam_offset" not in k["members"]  # a beam offset cannot lengthen a reading
+    u = sim.lds.filter(pl.col("sensor") == 2)["value_mm"].to_numpy() / 8.0  # the rod's 8 mm range
+    assert abs(k["reads_long_um"] - 1e3 * a_mm * np.mean(4 * u * (1 - u))) < 3 * k["u_reads_long_um"]
+    assert "recalibrate l0 of layer 2" in f["statement"] and "sensor_nonlinearity" in f["statement"]
