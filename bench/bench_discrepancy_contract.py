@@ -19,7 +19,8 @@ alarms on effect-free scans, the share of claims whose gap after is at the noise
 ``floor_ratio``), candidates outside their plausible range, a table per effect and per z band, and the
 examination's CPU-time percentiles (one core per scan).
 
-Run: ``python -m bench discrepancy_contract --n 300 --workers 2`` (``--verbose`` lists every wrong scan;
+Run: ``python -m bench discrepancy_contract --n 300 --workers 2`` (``--kinds static,calibration`` keeps the
+first n scans of those kinds, each the same draw as in the full run; ``--verbose`` lists every wrong scan;
 ``--out rows.jsonl`` keeps each scan's row as it ends, ``--summarise rows.jsonl`` prints their table).
 """
 
@@ -379,16 +380,23 @@ def summarise(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def _jobs(n: int, seed: int, p_free: float, z_max: float) -> list[tuple]:
+def _jobs(n: int, seed: int, p_free: float, z_max: float, kinds_kept: tuple[str, ...] = ()) -> list[tuple]:
+    """Return the first ``n`` scans of the seed's sequence whose kind is in ``kinds_kept`` (all by default).
+
+    Scan ``i`` is the same draw with or without the filter, so a filtered run repeats a full run's scans.
+    """
     sel = np.random.default_rng([seed, 35])
     kinds = [k for k, _ in KINDS]
     share = np.array([s for _, s in KINDS])
     out = []
-    for i in range(n):
+    i = 0
+    while len(out) < n:
         kind = kinds[int(sel.choice(len(kinds), p=share / share.sum()))]
         free = bool(sel.random() < p_free)
         z = float(math.exp(sel.uniform(math.log(Z_MIN), math.log(z_max))))
-        out.append((kind, seed, i, free, z))
+        if not kinds_kept or kind in kinds_kept:
+            out.append((kind, seed, i, free, z))
+        i += 1
     return out
 
 
@@ -400,6 +408,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--p-free", type=float, default=0.2)
     ap.add_argument("--z-max", type=float, default=300.0)
+    ap.add_argument(
+        "--kinds",
+        default="",
+        help=f"comma-separated scan kinds to keep (of {', '.join(k for k, _ in KINDS)}; all by default)",
+    )
     ap.add_argument("--verbose", action="store_true", help="print every wrong scan")
     ap.add_argument("--out", default=None, help="write each scan's row to this JSON-lines file as it ends")
     ap.add_argument(
@@ -412,7 +425,11 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{a.summarise}: {len(rows)} scans")
         print(summarise(rows))
         return
-    jobs = _jobs(a.n, a.seed, a.p_free, a.z_max)
+    kinds_kept = tuple(k for k in a.kinds.split(",") if k)
+    unknown = sorted(set(kinds_kept) - {k for k, _ in KINDS})
+    if unknown:
+        ap.error(f"--kinds: unknown kind(s) {', '.join(unknown)}; known: {', '.join(k for k, _ in KINDS)}")
+    jobs = _jobs(a.n, a.seed, a.p_free, a.z_max, kinds_kept)
     out = open(a.out, "w") if a.out else None  # noqa: SIM115 (held open while the scans run)
     t0 = time.perf_counter()
     rows = []

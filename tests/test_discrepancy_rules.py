@@ -203,3 +203,15 @@ def test_a_small_contract_battery_names_its_effects_by_the_issue_rule():
     ]
     assert all(r["verdict"] == "no_missing_effect" for r in counted if not r["truth"])
     assert sum(r["implausible"] for r in rows) == 0
+
+
+def test_the_battery_kinds_filter_keeps_each_scans_draw():
+    """``--kinds`` keeps the first n scans of those kinds from the seed's one sequence: scan i is the same
+    draw (kind, effect-free or not, target z) as in the unfiltered run.
+    """
+    from bench.bench_discrepancy_contract import _jobs
+
+    full = _jobs(80, 1, 0.2, 300.0)
+    static = _jobs(5, 1, 0.2, 300.0, ("static",))
+    assert len(static) == 5 and all(j[0] == "static" for j in static)
+    assert static == [j for j in full if j[0] == "static"][:5]
