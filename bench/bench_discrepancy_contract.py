@@ -8,7 +8,12 @@ a part's radii free) and rod calibrations. About 20 % are effect-free; the other
 the base model absorbs what it can, has z = sqrt(delta chi2) drawn log-uniformly from 10 ("just visible") to
 ``--z-max`` (the z of a draw is measured on a noise-free twin of the same scan, over the samples the
 examination sees, and the size scaled to the target: linearly, or by its square root for the tilts whose
-readings go with the angle squared; the z the scan then has is recorded).
+readings go with the angle squared; the z the scan then has is recorded). Of the scans with an effect,
+``--p-pair`` (15 %) carry a second one, drawn on its own stream from the kind's fitted effects (another
+name, any channel; no speed effect under an encoder) and sized the same way to its own target z, measured
+on the same scan with the first effect at a millionth of its size; a pair is banded by its weaker effect's
+z and scored by the same rule (both true effects named, the extras within delta chi2 <= 9 of the pair's
+own misfit).
 
 Scoring (issue 35): a scan is correct when the true effect is named and every other name explains a
 noise-free refit of the same scan within delta chi2 <= 9 of the true effect's own misfit (with the registry's
@@ -16,8 +21,9 @@ signs: a beam tilt only lengthens a reading), at most two such extras; or, effec
 model alone within delta chi2 < 9 of the noise-free scan), when the verdict is "no_missing_effect". The
 strict score (only the spec's named look-alike pairs as extras) is printed beside it. Also printed: false
 alarms on effect-free scans, the share of claims whose gap after is at the noise floor (within
-``floor_ratio``), candidates outside their plausible range, a table per effect and per z band, and the
-examination's CPU-time percentiles (one core per scan).
+``floor_ratio``), candidates outside their plausible range, a table per kind, per effect (a pair under each
+of its effects), for single effects and pairs and per z band, each with the examination's CPU-time
+percentiles (one core per scan).
 
 Run: ``python -m bench discrepancy_contract --n 300 --workers 2`` (``--kinds static,calibration`` keeps the
 first n scans of those kinds, each the same draw as in the full run; ``--verbose`` lists every wrong scan;
@@ -52,12 +58,29 @@ SPEC_LOOKALIKES = [({"axis_tilt"}, {"bore_lobing[k=2]"}), ({"thermal_expansion"}
 SQUARE_LAW = ("beam_tilt", "axis_tilt")
 #: effects named by their own evidence, not by a fitted term (no noise-free refit)
 EVIDENCE = ("quantization", "outliers")
+#: share of the scans with an effect that carry a second one (issue 35: pairs of effects)
+P_PAIR = 0.15
+#: the first effect's scale while the second one's z is measured: a millionth of its size adds ~1e-12 of its
+#: delta chi2, and keeps a quantization step defined (a step of zero is not)
+TINY = 1e-6
+_SENSOR = ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift")
+_TRI_FITTED = (*_SENSOR, "channel_delay", "vibration", "speed_error", "speed_ripple", "spindle_error_motion")
+_TRI_FITTED += ("axis_tilt", "bore_lobing", "thermal_expansion", "beam_tilt")
+_ROD_FITTED = (*_SENSOR, "thermal_expansion", "beam_tilt")
+#: the effects a pair's second effect is drawn from, per kind (those its scenario draws, fitted terms)
+SECOND = {
+    "calibration": _TRI_FITTED,
+    "measurement": _TRI_FITTED,
+    "static": _SENSOR,
+    "rod": _ROD_FITTED,
+    "rod_calibration": _ROD_FITTED,
+}
 
 
-def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_free: bool):
+def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_free: bool, extra: tuple = ()):
     """Draw scan ``i`` of ``kind`` and return it with its examination keywords.
 
-    Noise-free: the same draw with zero noise.
+    Noise-free: the same draw with zero noise. ``extra``: a pair's second effect, added as it is.
     """
     from borescan.synthetic import battery as sb
     from borescan.synthetic import contract as sct
@@ -80,6 +103,7 @@ def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_f
             effect_free=effect_free or kind == "measurement",
             contract=nf(sct.TRI_CONTRACT),
             effect_scale=scale,
+            extra_effects=extra if kind == "calibration" else (),
         )
         sim = cal
         if kind == "measurement":
@@ -90,6 +114,7 @@ def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_f
                 calibration=cal,
                 effect_free=effect_free,
                 effect_scale=scale,
+                extra_effects=extra,
             )
         if kind == "measurement":  # the pipeline examines a measurement against its device's calibration
             return sim, {"beams": Beams.from_nominal(sim.truth["contract"]["beams"])}
@@ -102,6 +127,7 @@ def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_f
             effect_free=effect_free,
             contract=nf(sct.STATIC_CONTRACT),
             effect_scale=scale,
+            extra_effects=extra,
         )
         return sim, {"beams": Beams.from_nominal(sim.truth["contract"]["beams"])}
     sim = rs.draw_rod_scan(
@@ -111,6 +137,7 @@ def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_f
         effect_free=effect_free,
         contract=nf(sct.ROD_CONTRACT),
         effect_scale=scale,
+        extra_effects=extra,
         calibration=kind == "rod_calibration",
     )
     return sim, {}
@@ -200,32 +227,84 @@ def strict_ok(verdict: str, named: list[str], truth: list[str]) -> bool:
     )
 
 
+def _z(
+    kind: str, seed: int, i: int, free: bool, scale: float, extra: tuple, kw: dict, cfg: dict, sigma: float
+):
+    """Return z = sqrt(delta chi2) of the noise-free twin's effects after the base model absorbs them."""
+    from borescan.discrepancy.examine import model_of
+
+    clean, _ = _draw(kind, seed, i, free, scale, True, extra)
+    return math.sqrt(_chi2(model_of(clean, **kw, **cfg), [], {}) / sigma**2)
+
+
+def _second_effect(kind: str, seed: int, i: int, first, sim):
+    """Draw a pair's second effect (own stream): another of the kind's fitted effects, on any channel.
+
+    Speed effects are left out under an encoder (nothing to find there).
+    """
+    from borescan.discrepancy.battery import random_effect
+
+    encoder = bool(sim.truth.get("contract", {}).get("encoder"))
+    names = [n for n in SECOND[kind] if n != first.name and not (encoder and n.startswith("speed_"))]
+    rng = np.random.default_rng([seed, 35, 3, i])
+    name = names[int(rng.integers(len(names)))]
+    channels = tuple(sorted(int(c["channel"]) for c in sim.meta.get("sensors", []))) or (1, 2, 3)
+    rev_hz = float((sim.truth.get("scene") or {}).get("rpm_nominal") or 6.0) / 60.0
+    return random_effect(name, rng, channels, rev_hz, float(sim.meta.get("sample_rate_hz") or 1000.0))
+
+
+def _sized(job: tuple, kw: dict, cfg: dict, sim, sigma: float) -> tuple[float, tuple, list[float]]:
+    """Return the first effect's scale, the (sized) second effect and each effect's z (module doc)."""
+    from borescan.discrepancy.battery import scale_effect
+
+    kind, seed, i, free, z_target, z2_target = job
+    effects, _ = _truth(sim, kind)
+    scale, z_each = 1.0, []
+    if not effects or sigma <= 0:
+        return scale, (), z_each
+    first = effects[0]
+    z1 = _z(kind, seed, i, free, 1.0, (), kw, cfg, sigma)
+    if first.name not in EVIDENCE and z1 > 0:
+        r = z_target / z1
+        scale = _capped(first, math.sqrt(r) if first.name in SQUARE_LAW else r, sim)
+        z1 = _z(kind, seed, i, free, scale, (), kw, cfg, sigma)
+    z_each.append(z1)
+    if z2_target is None:
+        return scale, (), z_each
+    e2 = _second_effect(kind, seed, i, first, sim)
+    z2 = _z(kind, seed, i, free, TINY, (e2,), kw, cfg, sigma)  # the first at ~0: the same scan
+    if z2 > 0:
+        r = z2_target / z2
+        e2 = scale_effect(e2, _capped(e2, math.sqrt(r) if e2.name in SQUARE_LAW else r, sim))
+        z2 = _z(kind, seed, i, free, TINY, (e2,), kw, cfg, sigma)
+    z_each.append(z2)
+    return scale, (e2,), z_each
+
+
 def run_one(job: tuple) -> dict:
     """Draw, gate and examine one scan; the row of the result table."""
     from borescan.discrepancy.battery import named_label
     from borescan.discrepancy.examine import discrepancy_settings, examine_scan, model_of
-    from borescan.discrepancy.judge import implausible, plausible_ranges  # noqa: F401 (checked below)
 
-    kind, seed, i, effect_free, z_target = job
-    row = {"kind": kind, "i": i, "effect_free": effect_free}
+    kind, seed, i, effect_free, _, z2_target = job
+    row = {"kind": kind, "i": i, "effect_free": effect_free, "pair": z2_target is not None}
     try:
         cfg = discrepancy_settings()
-        clean, kw = _draw(kind, seed, i, effect_free, 1.0, True)
-        sim, _ = _draw(kind, seed, i, effect_free, 1.0, False)
+        sim, kw = _draw(kind, seed, i, effect_free, 1.0, False)
         sigma = float(sim.truth.get("contract", {}).get("noise_mm") or sim.truth.get("noise_sigma_mm") or 0.0)
+        scale, extra, z_each = _sized(job, kw, cfg, sim, sigma)
+        clean, _ = _draw(kind, seed, i, effect_free, scale, True, extra)
+        sim, _ = _draw(kind, seed, i, effect_free, scale, False, extra)
         effects, truth = _truth(sim, kind)
-        scale, z = 1.0, 0.0
-        if effects and sigma > 0:
-            z = math.sqrt(_chi2(model_of(clean, **kw, **cfg), [], {}) / sigma**2)
-            if effects[0].name not in EVIDENCE and z > 0:
-                r = z_target / z
-                scale = _capped(effects[0], math.sqrt(r) if effects[0].name in SQUARE_LAW else r, sim)
-                clean, _ = _draw(kind, seed, i, effect_free, scale, True)
-                sim, _ = _draw(kind, seed, i, effect_free, scale, False)
-                effects, truth = _truth(sim, kind)
-                z = math.sqrt(_chi2(model_of(clean, **kw, **cfg), [], {}) / sigma**2)
+        z = (
+            math.sqrt(_chi2(model_of(clean, **kw, **cfg), [], {}) / sigma**2)
+            if effects and sigma > 0
+            else 0.0
+        )
         # not visible within the plausible range (quantization and outliers are named by their own tests)
-        row["invisible"] = bool(effects) and effects[0].name not in EVIDENCE and z < Z_MIN
+        row["invisible"] = any(
+            e.name not in EVIDENCE and ze < Z_MIN for e, ze in zip(effects, z_each)
+        ) or bool(effects and all(e.name not in EVIDENCE for e in effects) and z < Z_MIN)
         t0 = time.process_time()
         f = examine_scan(sim, **kw, **cfg)
         cpu = time.process_time() - t0
@@ -246,7 +325,10 @@ def run_one(job: tuple) -> dict:
     row.update(
         truth=truth,
         params=[dict(e.params) for e in effects],
-        z=z if truth else 0.0,
+        # a pair is banded by its weaker effect (the one harder to see)
+        z=min(z_each or [z]) if truth else 0.0,
+        z_each=z_each,
+        z_all=z if truth else 0.0,
         verdict=f["verdict"],
         explained=f.get("explained"),
         named=named,
@@ -335,7 +417,12 @@ def _line(label: str, rows: list[dict]) -> str:
     n = len(rows)
     ok = sum(r["correct"] for r in rows)
     st = sum(r["strict"] for r in rows)
-    return f"{label:<28}{n:>6}{ok:>8}{ok / max(n, 1):>8.0%}{st:>8}{st / max(n, 1):>8.0%}"
+    cpu = [r["cpu_s"] for r in rows if r["verdict"] != "error"] or [0.0]
+    p50, p95, top = np.percentile(cpu, 50), np.percentile(cpu, 95), max(cpu)
+    return (
+        f"{label:<28}{n:>6}{ok:>8}{ok / max(n, 1):>8.0%}{st:>8}{st / max(n, 1):>8.0%}"
+        f"{p50:>8.2f}{p95:>8.2f}{top:>8.2f}"
+    )
 
 
 def summarise(rows: list[dict]) -> str:
@@ -367,25 +454,33 @@ def summarise(rows: list[dict]) -> str:
         f"named candidates outside their plausible range: {sum(r.get('implausible', 0) for r in rows)}",
         f"examination CPU s per scan: p50 {np.percentile(cpu, 50):.2f}, p95 {np.percentile(cpu, 95):.2f}, "
         f"max {cpu.max():.2f}",
-        f"{'':<28}{'scans':>6}{'correct':>8}{'share':>8}{'strict':>8}{'share':>8}",
+        f"{'':<28}{'scans':>6}{'correct':>8}{'share':>8}{'strict':>8}{'share':>8}"
+        f"{'cpu p50':>8}{'p95':>8}{'max':>8}",
     ]
     by_kind, by_effect, by_band = defaultdict(list), defaultdict(list), defaultdict(list)
     for r in rows:
         by_kind[r["kind"]].append(r)
-        by_effect[r["truth"][0].split("@")[0].split("[")[0] if r["truth"] else "(none)"].append(r)
+        for name in {t.split("@")[0].split("[")[0] for t in r["truth"]} or {"(none)"}:
+            by_effect[name].append(r)  # a pair counts under each of its effects
         by_band[_band(r.get("z", 0.0))].append(r)
     lines += [_line(f"kind {k}", v) for k, v in sorted(by_kind.items())]
+    lines += [_line("one effect", [r for r in rows if len(r["truth"]) == 1])]
+    lines += [_line("two effects (pairs)", [r for r in rows if len(r["truth"]) == 2])]
     lines += [_line(f"z {k}", v) for k, v in sorted(by_band.items())]
     lines += [_line(k, v) for k, v in sorted(by_effect.items())]
     return "\n".join(lines)
 
 
-def _jobs(n: int, seed: int, p_free: float, z_max: float, kinds_kept: tuple[str, ...] = ()) -> list[tuple]:
+def _jobs(
+    n: int, seed: int, p_free: float, z_max: float, kinds_kept: tuple[str, ...] = (), p_pair: float = P_PAIR
+) -> list[tuple]:
     """Return the first ``n`` scans of the seed's sequence whose kind is in ``kinds_kept`` (all by default).
 
     Scan ``i`` is the same draw with or without the filter, so a filtered run repeats a full run's scans.
+    A job is (kind, seed, i, effect-free, target z, the second effect's target z or None).
     """
     sel = np.random.default_rng([seed, 35])
+    pairs = np.random.default_rng([seed, 35, 2])  # its own stream: a scan's kind and z do not depend on it
     kinds = [k for k, _ in KINDS]
     share = np.array([s for _, s in KINDS])
     out = []
@@ -394,8 +489,10 @@ def _jobs(n: int, seed: int, p_free: float, z_max: float, kinds_kept: tuple[str,
         kind = kinds[int(sel.choice(len(kinds), p=share / share.sum()))]
         free = bool(sel.random() < p_free)
         z = float(math.exp(sel.uniform(math.log(Z_MIN), math.log(z_max))))
+        pair = bool(pairs.random() < p_pair) and not free
+        z2 = float(math.exp(pairs.uniform(math.log(Z_MIN), math.log(z_max))))
         if not kinds_kept or kind in kinds_kept:
-            out.append((kind, seed, i, free, z))
+            out.append((kind, seed, i, free, z, z2 if pair else None))
         i += 1
     return out
 
@@ -408,6 +505,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--p-free", type=float, default=0.2)
     ap.add_argument("--z-max", type=float, default=300.0)
+    ap.add_argument("--p-pair", type=float, default=P_PAIR, help="share of scans with an effect that get two")
     ap.add_argument(
         "--kinds",
         default="",
@@ -429,7 +527,7 @@ def main(argv: list[str] | None = None) -> None:
     unknown = sorted(set(kinds_kept) - {k for k, _ in KINDS})
     if unknown:
         ap.error(f"--kinds: unknown kind(s) {', '.join(unknown)}; known: {', '.join(k for k, _ in KINDS)}")
-    jobs = _jobs(a.n, a.seed, a.p_free, a.z_max, kinds_kept)
+    jobs = _jobs(a.n, a.seed, a.p_free, a.z_max, kinds_kept, a.p_pair)
     out = open(a.out, "w") if a.out else None  # noqa: SIM115 (held open while the scans run)
     t0 = time.perf_counter()
     rows = []

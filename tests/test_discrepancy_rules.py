@@ -215,3 +215,18 @@ def test_the_battery_kinds_filter_keeps_each_scans_draw():
     static = _jobs(5, 1, 0.2, 300.0, ("static",))
     assert len(static) == 5 and all(j[0] == "static" for j in static)
     assert static == [j for j in full if j[0] == "static"][:5]
+
+
+def test_the_battery_pairs_leave_each_scans_other_draws_alone():
+    """A pair's second effect comes from its own stream: with or without pairs, scan i has the same kind,
+    effect-free flag and first target z; only scans with an effect get a second one, z >= 10 each.
+    """
+    from bench.bench_discrepancy_contract import Z_MIN, _jobs
+
+    none = _jobs(60, 1, 0.2, 300.0, (), 0.0)
+    half = _jobs(60, 1, 0.2, 300.0, (), 0.5)
+    assert [j[:5] for j in none] == [j[:5] for j in half]
+    assert all(j[5] is None for j in none)
+    pairs = [j for j in half if j[5] is not None]
+    assert 15 <= len(pairs) <= 35 and not any(j[3] for j in pairs)
+    assert all(Z_MIN <= j[5] <= 300.0 for j in pairs)
