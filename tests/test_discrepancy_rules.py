@@ -230,3 +230,29 @@ def test_the_battery_pairs_leave_each_scans_other_draws_alone():
     pairs = [j for j in half if j[5] is not None]
     assert 15 <= len(pairs) <= 35 and not any(j[3] for j in pairs)
     assert all(Z_MIN <= j[5] <= 300.0 for j in pairs)
+
+
+def test_the_screens_shared_base_projection_is_the_joint_least_squares_fit():
+    """BaseProjection (one SVD of the base columns for the whole screen) gives the RSS and coefficients of
+    numpy's joint least-squares solve of [J0, Jt], also when J0 is rank-deficient (a base column twice).
+    """
+    from borescan.discrepancy.search import BaseProjection
+
+    rng = np.random.default_rng(7)
+    n = 400
+    J0 = rng.normal(size=(n, 5))
+    J0 = np.hstack([J0, J0[:, :1]])  # rank 5 of 6: lstsq's minimum-norm solution
+    r = rng.normal(size=n)
+    proj = BaseProjection(J0, r)
+    for k in (1, 2, 3):
+        Jt = rng.normal(size=(n, k))
+        rss, coef = proj.fit(Jt)
+        J = np.hstack([J0, Jt])
+        ref = np.linalg.lstsq(J, r, rcond=None)[0]
+        rss_ref = float(np.sum((r - J @ ref) ** 2))
+        assert abs(rss - rss_ref) <= 1e-9 * rss_ref
+        # fitted values agree (the coefficients of the duplicated column are split differently by design
+        # only within the null space, which moves no fitted value)
+        assert np.allclose(J @ coef, J @ ref, rtol=0, atol=1e-9 * np.linalg.norm(r))
+        assert np.allclose(coef[-k:], ref[-k:], rtol=0, atol=1e-9)
+    assert proj.fit(np.full((n, 1), np.nan)) is None
