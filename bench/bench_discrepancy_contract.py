@@ -28,6 +28,8 @@ percentiles (one core per scan).
 Run: ``python -m bench discrepancy_contract --n 300 --workers 2`` (``--kinds static,calibration`` keeps the
 first n scans of those kinds, each the same draw as in the full run; ``--verbose`` lists every wrong scan;
 ``--out rows.jsonl`` keeps each scan's row as it ends, ``--summarise rows.jsonl`` prints their table).
+The scans run on spawned workers with one BLAS thread each, as in the pipeline (:mod:`borescan.parallel`);
+``--workers 1`` runs them in this process (``OPENBLAS_NUM_THREADS=1`` for one core's CPU time).
 """
 
 from __future__ import annotations
@@ -38,9 +40,10 @@ import math
 import time
 import traceback
 from collections import defaultdict
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+
+from borescan.parallel import map_in_order
 
 RUN_BY_DEFAULT = False
 #: scan kinds of the battery and their shares
@@ -531,19 +534,21 @@ def main(argv: list[str] | None = None) -> None:
     out = open(a.out, "w") if a.out else None  # noqa: SIM115 (held open while the scans run)
     t0 = time.perf_counter()
     rows = []
-    with ProcessPoolExecutor(a.workers) as ex:
-        for r in ex.map(run_one, jobs, chunksize=1):
-            rows.append(r)
-            if out is not None:
-                out.write(json.dumps({k: v for k, v in r.items() if k != "tb"}, default=float) + "\n")
-                out.flush()
-            if a.verbose and not r["correct"]:
-                print(
-                    f"  WRONG {r['kind']} {r['i']} z {r.get('z', 0):.0f}: truth {r['truth']} -> "
-                    f"{r['verdict']} "
-                    f"{r.get('explained')} {r['named']} {r.get('extras_chi2') or ''} {r.get('error', '')}",
-                    flush=True,
-                )
+    # spawned workers with one BLAS thread each, as the pipeline's (borescan.parallel): a scan's CPU time is
+    # then one core's (forked workers kept the parent's BLAS threads, whose spinning on a loaded machine
+    # counted several times the work); --workers 1 runs here, with the BLAS threads the environment sets
+    for r in map_in_order(run_one, jobs, a.workers):
+        rows.append(r)
+        if out is not None:
+            out.write(json.dumps({k: v for k, v in r.items() if k != "tb"}, default=float) + "\n")
+            out.flush()
+        if a.verbose and not r["correct"]:
+            print(
+                f"  WRONG {r['kind']} {r['i']} z {r.get('z', 0):.0f}: truth {r['truth']} -> "
+                f"{r['verdict']} "
+                f"{r.get('explained')} {r['named']} {r.get('extras_chi2') or ''} {r.get('error', '')}",
+                flush=True,
+            )
     if out is not None:
         out.close()
     print(f"seed {a.seed}, {a.n} scans, {time.perf_counter() - t0:.0f} s wall on {a.workers} workers")
