@@ -12,8 +12,8 @@ readings go with the angle squared; the z the scan then has is recorded). Of the
 ``--p-pair`` (15 %) carry a second one, drawn on its own stream from the kind's fitted effects (another
 name, any channel; no speed effect under an encoder) and sized the same way to its own target z, measured
 on the same scan with the first effect at a millionth of its size; a pair is banded by its weaker effect's
-z and scored by the same rule (both true effects named, the extras within delta chi2 <= 9 of the pair's
-own misfit).
+z and scored by the same rule (both true effects named; an extra, standing in for either true effect beside
+the other, within delta chi2 <= 9 of the pair's own misfit).
 
 Scoring (issue 35): a scan is correct when the true effect is named and every other name explains a
 noise-free refit of the same scan within delta chi2 <= 9 of the true effect's own misfit (with the registry's
@@ -399,13 +399,17 @@ def _score(f, named, truth, effects, clean, kw, cfg, sigma, z) -> tuple[bool, di
     if len(extras) > 2 or any(n.split("@")[0].split("[")[0] in EVIDENCE for n in extras):
         return False, {}
     starts = _starts(f["named"], effects)
-    model = model_of(clean, **kw, **cfg)
-    own = _chi2(
-        model, [_term_of(t) for t in truth], {k: v for t in truth for k, v in starts.get(t, {}).items()}
-    )
+    fitted = [t for t in truth if t.split("@")[0] not in EVIDENCE]  # evidence effects: in every refit's data
+
+    def chi2(labels: list[str]) -> float:
+        st = {k: v for t in labels for k, v in starts.get(t, {}).items()}
+        return _chi2(model_of(clean, **kw, **cfg), [_term_of(t) for t in labels], st)
+
+    own = chi2(fitted)
     out = {}
-    for n in extras:
-        out[n] = (_chi2(model_of(clean, **kw, **cfg), [_term_of(n)], starts.get(n, {})) - own) / sigma**2
+    for n in extras:  # an extra stands in for one of the true effects (a pair's other effect stays)
+        options = [[u for u in fitted if u != t] + [n] for t in fitted] or [[n]]
+        out[n] = (min(chi2(o) for o in options) - own) / sigma**2
     return all(v <= 9.0 for v in out.values()), out
 
 
