@@ -16,18 +16,21 @@ from itertools import product
 
 import numpy as np
 
+from borescan.discrepancy.tri import TriModel
+
 __all__ = ["mirrored_rho_starts"]
 
 
 def mirrored_rho_starts(model, p: dict[str, float]) -> list[dict[str, float]]:
     """Return one start per channel: its rho mirrored, its direction (or the frame) turned to match.
 
-    Empty unless the model frees rho (``model.free_beams``). The turn's sign (and, for the first beam,
-    whose direction is held, whether the other beams and the phase turn instead) is the one whose start
-    has the lowest RSS: a cheap evaluation per choice, the fit comes after.
+    Empty unless the model is one scan's :class:`TriModel` and frees rho (``model.free_beams``). The
+    turn's sign (and, for the first beam, whose direction is held, whether the other beams and the phase
+    turn instead) is the one whose start has the lowest RSS: a cheap evaluation per choice, the fit
+    comes after.
     """
-    if "rho" not in getattr(model, "free_beams", ()):
-        return []
+    if not isinstance(model, TriModel) or "rho" not in model.free_beams:
+        return []  # one scan's three-sensor model only (a pooled model's shared beams are its own)
     d = model.data
     radius = float(d.radius_mm + p.get("dR", 0.0))
     c = len(d.channels)
