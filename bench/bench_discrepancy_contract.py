@@ -8,7 +8,12 @@ a part's radii free) and rod calibrations. About 20 % are effect-free; the other
 the base model absorbs what it can, has z = sqrt(delta chi2) drawn log-uniformly from 10 ("just visible") to
 ``--z-max`` (the z of a draw is measured on a noise-free twin of the same scan, over the samples the
 examination sees, and the size scaled to the target: linearly, or by its square root for the tilts whose
-readings go with the angle squared; the z the scan then has is recorded).
+readings go with the angle squared; the z the scan then has is recorded). Of the scans with an effect,
+``--p-pair`` (15 %) carry a second one, drawn on its own stream from the kind's fitted effects (another
+name, any channel; no speed effect under an encoder) and sized the same way to its own target z, measured
+on the same scan with the first effect at a millionth of its size; a pair is banded by its weaker effect's
+z and scored by the same rule (both true effects named; an extra, standing in for either true effect beside
+the other, within delta chi2 <= 9 of the pair's own misfit).
 
 Scoring (issue 35): a scan is correct when the true effect is named and every other name explains a
 noise-free refit of the same scan within delta chi2 <= 9 of the true effect's own misfit (with the registry's
@@ -18,12 +23,15 @@ named); or, effect-free (or with the base model alone within delta chi2 < 9 of t
 outliers that hit no reading), when the verdict is "no_missing_effect". The
 strict score (only the spec's named look-alike pairs as extras) is printed beside it. Also printed: false
 alarms on effect-free scans, the share of claims whose gap after is at the noise floor (within
-``floor_ratio``), candidates outside their plausible range, a table per effect and per z band, and the
-examination's CPU-time percentiles (one core per scan).
+``floor_ratio``), candidates outside their plausible range, a table per kind, per effect (a pair under each
+of its effects), for single effects and pairs and per z band, each with the examination's CPU-time
+percentiles (one core per scan).
 
-Run: ``python -m bench discrepancy_contract --n 300 --workers 2`` (``--verbose`` lists every wrong scan;
-``--out rows.jsonl`` keeps each scan's row as it ends, ``--summarise rows.jsonl`` prints their table;
-``--kinds rod,rod_calibration`` examines only those kinds of the same draws).
+Run: ``python -m bench discrepancy_contract --n 300 --workers 2`` (``--kinds static,calibration`` keeps the
+first n scans of those kinds, each the same draw as in the full run; ``--verbose`` lists every wrong scan;
+``--out rows.jsonl`` keeps each scan's row as it ends, ``--summarise rows.jsonl`` prints their table).
+The scans run on spawned workers with one BLAS thread each, as in the pipeline (:mod:`borescan.parallel`);
+``--workers 1`` runs them in this process (``OPENBLAS_NUM_THREADS=1`` for one core's CPU time).
 """
 
 from __future__ import annotations
@@ -55,12 +63,29 @@ SPEC_LOOKALIKES = [({"axis_tilt"}, {"bore_lobing[k=2]"}), ({"thermal_expansion"}
 SQUARE_LAW = ("beam_tilt", "axis_tilt")
 #: effects named by their own evidence, not by a fitted term (no noise-free refit)
 EVIDENCE = ("quantization", "outliers")
+#: share of the scans with an effect that carry a second one (issue 35: pairs of effects)
+P_PAIR = 0.15
+#: the first effect's scale while the second one's z is measured: a millionth of its size adds ~1e-12 of its
+#: delta chi2, and keeps a quantization step defined (a step of zero is not)
+TINY = 1e-6
+_SENSOR = ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "sensor_drift")
+_TRI_FITTED = (*_SENSOR, "channel_delay", "vibration", "speed_error", "speed_ripple", "spindle_error_motion")
+_TRI_FITTED += ("axis_tilt", "bore_lobing", "thermal_expansion", "beam_tilt")
+_ROD_FITTED = (*_SENSOR, "thermal_expansion", "beam_tilt")
+#: the effects a pair's second effect is drawn from, per kind (those its scenario draws, fitted terms)
+SECOND = {
+    "calibration": _TRI_FITTED,
+    "measurement": _TRI_FITTED,
+    "static": _SENSOR,
+    "rod": _ROD_FITTED,
+    "rod_calibration": _ROD_FITTED,
+}
 
 
-def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_free: bool):
+def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_free: bool, extra: tuple = ()):
     """Draw scan ``i`` of ``kind`` and return it with its examination keywords.
 
-    Noise-free: the same draw with zero noise.
+    Noise-free: the same draw with zero noise. ``extra``: a pair's second effect, added as it is.
     """
     from borescan.synthetic import battery as sb
     from borescan.synthetic import contract as sct
@@ -83,6 +108,7 @@ def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_f
             effect_free=effect_free or kind == "measurement",
             contract=nf(sct.TRI_CONTRACT),
             effect_scale=scale,
+            extra_effects=extra if kind == "calibration" else (),
         )
         sim = cal
         if kind == "measurement":
@@ -93,6 +119,7 @@ def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_f
                 calibration=cal,
                 effect_free=effect_free,
                 effect_scale=scale,
+                extra_effects=extra,
             )
         if kind == "measurement":  # the pipeline examines a measurement against its device's calibration
             return sim, {"beams": Beams.from_nominal(sim.truth["contract"]["beams"])}
@@ -105,6 +132,7 @@ def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_f
             effect_free=effect_free,
             contract=nf(sct.STATIC_CONTRACT),
             effect_scale=scale,
+            extra_effects=extra,
         )
         return sim, {"beams": Beams.from_nominal(sim.truth["contract"]["beams"])}
     sim = rs.draw_rod_scan(
@@ -114,6 +142,7 @@ def _draw(kind: str, seed: int, i: int, effect_free: bool, scale: float, noise_f
         effect_free=effect_free,
         contract=nf(sct.ROD_CONTRACT),
         effect_scale=scale,
+        extra_effects=extra,
         calibration=kind == "rod_calibration",
     )
     return sim, {}
@@ -203,33 +232,89 @@ def strict_ok(verdict: str, named: list[str], truth: list[str]) -> bool:
     )
 
 
+def _z(
+    kind: str, seed: int, i: int, free: bool, scale: float, extra: tuple, kw: dict, cfg: dict, sigma: float
+):
+    """Return z = sqrt(delta chi2) of the noise-free twin's effects after the base model absorbs them."""
+    from borescan.discrepancy.examine import model_of
+
+    clean, _ = _draw(kind, seed, i, free, scale, True, extra)
+    return math.sqrt(_chi2(model_of(clean, **kw, **cfg), [], {}) / sigma**2)
+
+
+def _second_effect(kind: str, seed: int, i: int, first, sim):
+    """Draw a pair's second effect (own stream): another of the kind's fitted effects, on any channel.
+
+    Speed effects are left out under an encoder (nothing to find there).
+    """
+    from borescan.discrepancy.battery import random_effect
+
+    encoder = bool(sim.truth.get("contract", {}).get("encoder"))
+    names = [n for n in SECOND[kind] if n != first.name and not (encoder and n.startswith("speed_"))]
+    rng = np.random.default_rng([seed, 35, 3, i])
+    name = names[int(rng.integers(len(names)))]
+    channels = tuple(sorted(int(c["channel"]) for c in sim.meta.get("sensors", []))) or (1, 2, 3)
+    rev_hz = float((sim.truth.get("scene") or {}).get("rpm_nominal") or 6.0) / 60.0
+    return random_effect(name, rng, channels, rev_hz, float(sim.meta.get("sample_rate_hz") or 1000.0))
+
+
+def _sized(job: tuple, kw: dict, cfg: dict, sim, sigma: float) -> tuple[float, tuple, list[float]]:
+    """Return the first effect's scale, the (sized) second effect and each effect's z (module doc)."""
+    from borescan.discrepancy.battery import scale_effect
+
+    kind, seed, i, free, z_target, z2_target = job
+    effects, _ = _truth(sim, kind)
+    scale, z_each = 1.0, []
+    if not effects or sigma <= 0:
+        return scale, (), z_each
+    first = effects[0]
+    z1 = _z(kind, seed, i, free, 1.0, (), kw, cfg, sigma)
+    if first.name not in EVIDENCE and z1 > 0:
+        r = z_target / z1
+        scale = _capped(first, math.sqrt(r) if first.name in SQUARE_LAW else r, sim)
+        z1 = _z(kind, seed, i, free, scale, (), kw, cfg, sigma)
+    z_each.append(z1)
+    if z2_target is None:
+        return scale, (), z_each
+    e2 = _second_effect(kind, seed, i, first, sim)
+    z2 = _z(kind, seed, i, free, TINY, (e2,), kw, cfg, sigma)  # the first at ~0: the same scan
+    if z2 > 0:
+        r = z2_target / z2
+        e2 = scale_effect(e2, _capped(e2, math.sqrt(r) if e2.name in SQUARE_LAW else r, sim))
+        z2 = _z(kind, seed, i, free, TINY, (e2,), kw, cfg, sigma)
+    z_each.append(z2)
+    return scale, (e2,), z_each
+
+
 def run_one(job: tuple) -> dict:
     """Draw, gate and examine one scan; the row of the result table."""
     from borescan.discrepancy.battery import named_label
     from borescan.discrepancy.examine import discrepancy_settings, examine_scan, model_of
-    from borescan.discrepancy.judge import implausible, plausible_ranges  # noqa: F401 (checked below)
 
-    kind, seed, i, effect_free, z_target = job
-    row = {"kind": kind, "i": i, "effect_free": effect_free}
+    kind, seed, i, effect_free, _, z2_target = job
+    row = {"kind": kind, "i": i, "effect_free": effect_free, "pair": z2_target is not None}
     try:
         cfg = discrepancy_settings()
-        clean, kw = _draw(kind, seed, i, effect_free, 1.0, True)
-        sim, _ = _draw(kind, seed, i, effect_free, 1.0, False)
+        sim, kw = _draw(kind, seed, i, effect_free, 1.0, False)
         sigma = float(sim.truth.get("contract", {}).get("noise_mm") or sim.truth.get("noise_sigma_mm") or 0.0)
+        scale, extra, z_each = _sized(job, kw, cfg, sim, sigma)
+        clean, _ = _draw(kind, seed, i, effect_free, scale, True, extra)
+        sim, _ = _draw(kind, seed, i, effect_free, scale, False, extra)
         effects, truth = _truth(sim, kind)
-        scale, z = 1.0, 0.0
-        if effects and sigma > 0:
-            z = math.sqrt(_chi2(model_of(clean, **kw, **cfg), [], {}) / sigma**2)
-            if effects[0].name not in EVIDENCE and z > 0:
-                r = z_target / z
-                scale = _capped(effects[0], math.sqrt(r) if effects[0].name in SQUARE_LAW else r, sim)
-                clean, _ = _draw(kind, seed, i, effect_free, scale, True)
-                sim, _ = _draw(kind, seed, i, effect_free, scale, False)
-                effects, truth = _truth(sim, kind)
-                z = math.sqrt(_chi2(model_of(clean, **kw, **cfg), [], {}) / sigma**2)
+        z = (
+            math.sqrt(_chi2(model_of(clean, **kw, **cfg), [], {}) / sigma**2)
+            if effects and sigma > 0
+            else 0.0
+        )
         # not visible within the plausible range (quantization and outliers are named by their own tests)
-        row["invisible"] = bool(effects) and effects[0].name not in EVIDENCE and z < Z_MIN
-        if effects and effects[0].name == "outliers" and _jumps(kind, seed, i, effect_free, sim) == 0:
+        row["invisible"] = any(
+            e.name not in EVIDENCE and ze < Z_MIN for e, ze in zip(effects, z_each)
+        ) or bool(effects and all(e.name not in EVIDENCE for e in effects) and z < Z_MIN)
+        if (
+            len(effects) == 1
+            and effects[0].name == "outliers"
+            and _jumps(kind, seed, i, effect_free, sim, extra) == 0
+        ):
             row["unrealised"], effects, truth = truth, [], []  # no reading hit: an effect-free scan
         t0 = time.process_time()
         f = examine_scan(sim, **kw, **cfg)
@@ -253,7 +338,10 @@ def run_one(job: tuple) -> dict:
     row.update(
         truth=truth,
         params=[dict(e.params) for e in effects],
-        z=z if truth else 0.0,
+        # a pair is banded by its weaker effect (the one harder to see)
+        z=min(z_each or [z]) if truth else 0.0,
+        z_each=z_each,
+        z_all=z if truth else 0.0,
         verdict=f["verdict"],
         explained=f.get("explained"),
         named=named,
@@ -267,13 +355,13 @@ def run_one(job: tuple) -> dict:
     return row
 
 
-def _jumps(kind: str, seed: int, i: int, effect_free: bool, sim) -> int:
+def _jumps(kind: str, seed: int, i: int, effect_free: bool, sim, extra: tuple = ()) -> int:
     """Return how many readings the outliers of ``sim`` hit (at rate x readings ~ 1, some scans get none).
 
     The same draw with the jumps scaled to nothing consumes the same random numbers: it differs only where
     a jump hit.
     """
-    tiny, _ = _draw(kind, seed, i, effect_free, 1e-9, False)
+    tiny, _ = _draw(kind, seed, i, effect_free, 1e-9, False, extra)
     a, b = sim.lds["value_mm"].to_numpy(), tiny.lds["value_mm"].to_numpy()
     return int(np.sum(np.abs(np.nan_to_num(a) - np.nan_to_num(b)) > 1e-6))
 
@@ -346,13 +434,17 @@ def _score(f, named, truth, effects, clean, kw, cfg, sigma, z) -> tuple[bool, di
     if _units(extras, f) > 2 or any(n.split("@")[0].split("[")[0] in EVIDENCE for n in extras):
         return False, {}
     starts = _starts(f["named"], effects)
-    model = model_of(clean, **kw, **cfg)
-    own = _chi2(
-        model, [_term_of(t) for t in truth], {k: v for t in truth for k, v in starts.get(t, {}).items()}
-    )
+    fitted = [t for t in truth if t.split("@")[0] not in EVIDENCE]  # evidence effects: in every refit's data
+
+    def chi2(labels: list[str]) -> float:
+        st = {k: v for t in labels for k, v in starts.get(t, {}).items()}
+        return _chi2(model_of(clean, **kw, **cfg), [_term_of(t) for t in labels], st)
+
+    own = chi2(fitted)
     out = {}
-    for n in extras:
-        out[n] = (_chi2(model_of(clean, **kw, **cfg), [_term_of(n)], starts.get(n, {})) - own) / sigma**2
+    for n in extras:  # an extra stands in for one of the true effects (a pair's other effect stays)
+        options = [[u for u in fitted if u != t] + [n] for t in fitted] or [[n]]
+        out[n] = (min(chi2(o) for o in options) - own) / sigma**2
     return all(v <= 9.0 for v in out.values()), out
 
 
@@ -367,7 +459,12 @@ def _line(label: str, rows: list[dict]) -> str:
     n = len(rows)
     ok = sum(r["correct"] for r in rows)
     st = sum(r["strict"] for r in rows)
-    return f"{label:<28}{n:>6}{ok:>8}{ok / max(n, 1):>8.0%}{st:>8}{st / max(n, 1):>8.0%}"
+    cpu = [r["cpu_s"] for r in rows if r["verdict"] != "error"] or [0.0]
+    p50, p95, top = np.percentile(cpu, 50), np.percentile(cpu, 95), max(cpu)
+    return (
+        f"{label:<28}{n:>6}{ok:>8}{ok / max(n, 1):>8.0%}{st:>8}{st / max(n, 1):>8.0%}"
+        f"{p50:>8.2f}{p95:>8.2f}{top:>8.2f}"
+    )
 
 
 def summarise(rows: list[dict]) -> str:
@@ -399,29 +496,46 @@ def summarise(rows: list[dict]) -> str:
         f"named candidates outside their plausible range: {sum(r.get('implausible', 0) for r in rows)}",
         f"examination CPU s per scan: p50 {np.percentile(cpu, 50):.2f}, p95 {np.percentile(cpu, 95):.2f}, "
         f"max {cpu.max():.2f}",
-        f"{'':<28}{'scans':>6}{'correct':>8}{'share':>8}{'strict':>8}{'share':>8}",
+        f"{'':<28}{'scans':>6}{'correct':>8}{'share':>8}{'strict':>8}{'share':>8}"
+        f"{'cpu p50':>8}{'p95':>8}{'max':>8}",
     ]
     by_kind, by_effect, by_band = defaultdict(list), defaultdict(list), defaultdict(list)
     for r in rows:
         by_kind[r["kind"]].append(r)
-        by_effect[r["truth"][0].split("@")[0].split("[")[0] if r["truth"] else "(none)"].append(r)
+        for name in {t.split("@")[0].split("[")[0] for t in r["truth"]} or {"(none)"}:
+            by_effect[name].append(r)  # a pair counts under each of its effects
         by_band[_band(r.get("z", 0.0))].append(r)
     lines += [_line(f"kind {k}", v) for k, v in sorted(by_kind.items())]
+    lines += [_line("one effect", [r for r in rows if len(r["truth"]) == 1])]
+    lines += [_line("two effects (pairs)", [r for r in rows if len(r["truth"]) == 2])]
     lines += [_line(f"z {k}", v) for k, v in sorted(by_band.items())]
     lines += [_line(k, v) for k, v in sorted(by_effect.items())]
     return "\n".join(lines)
 
 
-def _jobs(n: int, seed: int, p_free: float, z_max: float) -> list[tuple]:
+def _jobs(
+    n: int, seed: int, p_free: float, z_max: float, kinds_kept: tuple[str, ...] = (), p_pair: float = P_PAIR
+) -> list[tuple]:
+    """Return the first ``n`` scans of the seed's sequence whose kind is in ``kinds_kept`` (all by default).
+
+    Scan ``i`` is the same draw with or without the filter, so a filtered run repeats a full run's scans.
+    A job is (kind, seed, i, effect-free, target z, the second effect's target z or None).
+    """
     sel = np.random.default_rng([seed, 35])
+    pairs = np.random.default_rng([seed, 35, 2])  # its own stream: a scan's kind and z do not depend on it
     kinds = [k for k, _ in KINDS]
     share = np.array([s for _, s in KINDS])
     out = []
-    for i in range(n):
+    i = 0
+    while len(out) < n:
         kind = kinds[int(sel.choice(len(kinds), p=share / share.sum()))]
         free = bool(sel.random() < p_free)
         z = float(math.exp(sel.uniform(math.log(Z_MIN), math.log(z_max))))
-        out.append((kind, seed, i, free, z))
+        pair = bool(pairs.random() < p_pair) and not free
+        z2 = float(math.exp(pairs.uniform(math.log(Z_MIN), math.log(z_max))))
+        if not kinds_kept or kind in kinds_kept:
+            out.append((kind, seed, i, free, z, z2 if pair else None))
+        i += 1
     return out
 
 
@@ -433,12 +547,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--p-free", type=float, default=0.2)
     ap.add_argument("--z-max", type=float, default=300.0)
-    ap.add_argument("--verbose", action="store_true", help="print every wrong scan")
+    ap.add_argument("--p-pair", type=float, default=P_PAIR, help="share of scans with an effect that get two")
     ap.add_argument(
         "--kinds",
-        default=None,
-        help="examine only these scan kinds (comma-separated, e.g. rod,rod_calibration)",
+        default="",
+        help=f"comma-separated scan kinds to keep (of {', '.join(k for k, _ in KINDS)}; all by default)",
     )
+    ap.add_argument("--verbose", action="store_true", help="print every wrong scan")
     ap.add_argument("--out", default=None, help="write each scan's row to this JSON-lines file as it ends")
     ap.add_argument(
         "--summarise", default=None, metavar="JSONL", help="print the table of a rows file and stop"
@@ -450,13 +565,17 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{a.summarise}: {len(rows)} scans")
         print(summarise(rows))
         return
-    jobs = _jobs(a.n, a.seed, a.p_free, a.z_max)
-    if a.kinds:  # the same draws as the whole battery, only the kinds asked for examined
-        jobs = [j for j in jobs if j[0] in a.kinds.split(",")]
+    kinds_kept = tuple(k for k in a.kinds.split(",") if k)
+    unknown = sorted(set(kinds_kept) - {k for k, _ in KINDS})
+    if unknown:
+        ap.error(f"--kinds: unknown kind(s) {', '.join(unknown)}; known: {', '.join(k for k, _ in KINDS)}")
+    jobs = _jobs(a.n, a.seed, a.p_free, a.z_max, kinds_kept, a.p_pair)
     out = open(a.out, "w") if a.out else None  # noqa: SIM115 (held open while the scans run)
     t0 = time.perf_counter()
     rows = []
-    # workers spawned with one BLAS thread each (parallel.map_in_order; --workers 1 runs here)
+    # spawned workers with one BLAS thread each, as the pipeline's (borescan.parallel): a scan's CPU time is
+    # then one core's (forked workers kept the parent's BLAS threads, whose spinning on a loaded machine
+    # counted several times the work); --workers 1 runs here, with the BLAS threads the environment sets
     for r in map_in_order(run_one, jobs, a.workers):
         rows.append(r)
         if out is not None:

@@ -26,6 +26,7 @@ from borescan.discrepancy.evidence import output_stage_evidence
 from borescan.discrepancy.fitting import FitResult
 from borescan.discrepancy.judge import Rejection, explanation, judge, plausible_ranges
 from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays
+from borescan.discrepancy.tri_starts import mirrored_rho_starts
 from borescan.discrepancy.search import Candidate, Fitter, Search, jacobian_columns, rms, search_candidates
 from borescan.discrepancy.tri import Term, TriData, TriModel, tri_data_from_arrays
 from borescan.effects import EFFECTS
@@ -256,7 +257,7 @@ def examine_model(model, **cfg) -> Examination:
         false_rate=float(c["spike_false_rate"]),
         min_spikes=int(c["min_spikes"]),
     )
-    base = out.base
+    base = _mirror_checked(model, fitter, out.base, out.sig_ref_mm, float(c["floor_ratio"]))
     r0 = model.residual_matrix(base.values(), [])
     loc = model.localise(r0, out.sigma_mm)
     f_vib = model.vibration_f(np.where(model.mask, r0, np.nan))
@@ -276,6 +277,22 @@ def examine_model(model, **cfg) -> Examination:
         rev_hz=model.rev_hz,
         angle_label=model.angle_label,
     )
+
+
+def _mirror_checked(model, fitter: Fitter, base: FitResult, sig_ref: float, floor_ratio: float) -> FitResult:
+    """Return the base fit, or the fit from a mirrored beam offset where that fits lower (:mod:`.tri_starts`).
+
+    Tried only where the base already leaves the gap within ``floor_ratio`` of the noise floor: there a
+    lower mirror is the geometry's own minimum; above it a large effect is missing and a mirror would only
+    absorb part of it.
+    """
+    if rms(model.residual_matrix(base.values(), []), model.mask) > floor_ratio * sig_ref:
+        return base
+    for st in mirrored_rho_starts(model, base.values()):
+        fr = fitter([], st)
+        if fr is not None and fr.rss < base.rss:
+            base = fr
+    return base
 
 
 @dataclass

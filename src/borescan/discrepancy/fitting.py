@@ -37,6 +37,8 @@ def fit_least_squares(
     fixed: dict[str, float] | None = None,
     max_nfev: int = 60,
     sparsity: np.ndarray | None = None,
+    ftol: float = 1e-8,
+    xtol: float = 1e-8,
 ) -> FitResult:
     """Minimise ``sum(residual_fn(params)**2)`` over ``names`` (others from ``fixed``).
 
@@ -52,7 +54,9 @@ def fit_least_squares(
         p.update(zip(names, x))
         return residual_fn(p)
 
-    return least_squares_fit(fun, x0, names, scale=scale, max_nfev=max_nfev, sparsity=sparsity)
+    return least_squares_fit(
+        fun, x0, names, scale=scale, max_nfev=max_nfev, sparsity=sparsity, ftol=ftol, xtol=xtol
+    )
 
 
 #: base parameters of one pose (rod pose angle, static device position) and of one channel

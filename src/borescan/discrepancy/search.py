@@ -18,7 +18,16 @@ import numpy as np
 from borescan.discrepancy.fitting import FitResult, fit_least_squares, residual_sparsity
 from borescan.discrepancy.tri import Term
 
-__all__ = ["Candidate", "Fitter", "Search", "jacobian_columns", "lstsq", "rms", "search_candidates"]
+__all__ = [
+    "BaseProjection",
+    "Candidate",
+    "Fitter",
+    "Search",
+    "jacobian_columns",
+    "lstsq",
+    "rms",
+    "search_candidates",
+]
 
 
 @dataclass(frozen=True)
@@ -75,6 +84,52 @@ def lstsq(J: np.ndarray, r: np.ndarray) -> np.ndarray | None:
         return None
 
 
+class BaseProjection:
+    """The linearised fit of the base (or base + seed) columns, shared by every screened term.
+
+    The joint least-squares fit of ``[J0, Jt]`` to ``r`` is the fit of the term's columns projected off
+    ``J0``'s span to the projected residual, then ``J0``'s coefficients for what the term leaves: one SVD
+    of ``J0`` for the whole screen instead of one least-squares solve of the full matrix per term.
+    Singular values below ``lstsq``'s default cut (machine epsilon times the larger dimension, relative to
+    the largest of the joint matrix, bounded here by the larger of ``J0``'s and the term columns' norm)
+    are dropped, as the joint solve drops them.
+    """
+
+    def __init__(self, J0: np.ndarray, r: np.ndarray):
+        self.ok = bool(np.all(np.isfinite(J0)) and np.all(np.isfinite(r)))
+        self.r = r
+        m = max(J0.shape[0], J0.shape[1] + 1)
+        self.eps = np.finfo(float).eps * m
+        if not self.ok or J0.shape[1] == 0:
+            self.U, self.Vs, self.s0 = np.zeros((r.size, 0)), np.zeros((J0.shape[1], 0)), 0.0
+            self.r_perp = r
+            return
+        U, s, Vt = np.linalg.svd(J0, full_matrices=False)
+        self.s0 = float(s[0])
+        keep = s > self.eps * self.s0
+        self.U, self.Vs = U[:, keep], Vt[keep].T / s[keep]
+        self.r_perp = r - self.U @ (self.U.T @ r)
+
+    def fit(self, Jt: np.ndarray) -> tuple[float, np.ndarray] | None:
+        """Return the linearised RSS of base + term and the coefficients (base columns first), or None.
+
+        None when the term's columns are not finite (a finite-difference step left the model undefined).
+        """
+        if not (self.ok and np.all(np.isfinite(Jt))):
+            return None
+        Tp = Jt - self.U @ (self.U.T @ Jt)
+        try:
+            Ut, st, Vtt = np.linalg.svd(Tp, full_matrices=False)
+        except np.linalg.LinAlgError:
+            return None
+        cut = self.eps * max(self.s0, float(np.linalg.norm(Jt)))  # Frobenius: >= the 2-norm, no SVD
+        keep = st > cut
+        c_t = Vtt[keep].T @ ((Ut[:, keep].T @ self.r_perp) / st[keep])
+        resid = self.r_perp - Tp @ c_t
+        c_0 = self.Vs @ (self.U.T @ (self.r - Jt @ c_t))
+        return float(resid @ resid), np.concatenate([c_0, c_t])
+
+
 def rms(r: np.ndarray, mask: np.ndarray) -> float:
     """Root mean square of the finite residuals under ``mask`` (NaN for none) [mm]."""
     x = r[mask & np.isfinite(r)]
@@ -129,7 +184,7 @@ def linear_screen(
     r = model.residual(p0, seed)
     names0 = fitter.base_names + [n for t in seed for n in t.names()]
     scales0 = fitter.base_scales + [s for t in seed for s in t.scales()]
-    J0 = jacobian_columns(model, p0, seed, names0, scales0, f0=r)
+    proj = BaseProjection(jacobian_columns(model, p0, seed, names0, scales0, f0=r), r)
     out = []
     for t in terms:
         if not seed and t.channel == 0 and len(model.data.channels) == 1:
@@ -139,14 +194,14 @@ def linear_screen(
         vib = vib_start if (not seed or t.effect == "vibration") else {}
         pt = {**p0, **{n: 0.0 for n in t.names()}, **vib}
         tn, ts = _fitted(t)
-        J = np.hstack([J0, jacobian_columns(model, pt, [*seed, t], tn, ts, f0=r)])
-        coef = lstsq(J, r)
-        if coef is None:  # the term's start leaves the model undefined (a ray missing the bore)
+        fitted = proj.fit(jacobian_columns(model, pt, [*seed, t], tn, ts, f0=r))
+        if fitted is None:  # the term's start leaves the model undefined (a ray missing the bore)
             continue
+        rss, coef = fitted
         start = dict(pt)
         for n, s, a in zip(names0 + tn, scales0 + ts, coef):
             start[n] = start[n] + a * s
-        out.append(Screened(float(np.sum((r - J @ coef) ** 2)), t, start))
+        out.append(Screened(rss, t, start))
     out.sort(key=lambda z: z.rss)
     return out
 
@@ -235,7 +290,8 @@ def _search_pairs(
     """Extend the best singles by a second term (screened linearly at the single's fit); refit the pairs."""
     model = fitter.model
     T = float(c["threshold"])
-    seen = set()
+    seen: set = set()
+    todo: list[tuple] = []
     for seed in out.singles[: int(c["n_pair_seeds"])]:
         (t1,) = seed.terms
         p1 = seed.fit.values()
@@ -256,13 +312,28 @@ def _search_pairs(
             continue
         n_ext = int(c["n_pair_ext"])
         more = model.extra_starts(_as_tuples(ext), {z.term.key for z in ext[:n_ext]} | {"*"}, t1)
-        for z in ext[:n_ext] + [Screened(*m) for m in more]:
-            key = tuple(sorted((t1.key, z.term.key)))
-            if key in seen:
-                continue
-            seen.add(key)
-            fr = fitter([t1, z.term], z.start)
-            out.pairs_refitted += 1
-            if fr is not None:
-                out.pairs.append(Candidate(fr, (t1, z.term)))
+        for z in ext[:n_ext]:  # the pair's BIC as the screen at the single's fit estimates it
+            todo.append((seed.fit.bic - _lin_dbic(rss1, z.rss, z.term, n), t1, z))
+        todo += [(-math.inf, t1, Screened(*m)) for m in more]  # nonlinear starts: always refitted
+    # exact refits only where the screen cannot decide: first the pairs whose estimate comes within
+    # (1 - screen_gate) T of the bar a pair must pass (T below the best single and the base), then, if one
+    # passed, those whose estimate may tie with the best pair (within T of it, the same margin)
+    bar = min([base.bic] + [z.fit.bic for z in out.singles[:1]]) - T
+    slack = (1.0 - float(c["screen_gate"])) * T
+    _refit_pairs(fitter, [z for z in todo if z[0] < bar + slack], seen, out)
+    if out.pairs and out.pairs[0].fit.bic < bar:
+        _refit_pairs(fitter, [z for z in todo if z[0] < out.pairs[0].fit.bic + T + slack], seen, out)
+
+
+def _refit_pairs(fitter: Fitter, todo: list[tuple], seen: set, out: Search) -> None:
+    """Refit each (estimate, first term, screened second term) pair not refitted yet; pairs best first."""
+    for _, t1, z in todo:
+        key = tuple(sorted((t1.key, z.term.key)))
+        if key in seen:
+            continue
+        seen.add(key)
+        fr = fitter([t1, z.term], z.start)
+        out.pairs_refitted += 1
+        if fr is not None:
+            out.pairs.append(Candidate(fr, (t1, z.term)))
     out.pairs.sort(key=lambda z: z.fit.bic)

@@ -86,6 +86,7 @@ def draw_rod_scan(
     effect_free: bool = True,
     contract: dict = ROD_CONTRACT,
     effect_scale: float = 1.0,
+    extra_effects: tuple = (),
     calibration: bool = False,
 ):
     """Return a rod scan drawn over the contract.
@@ -142,6 +143,7 @@ def draw_rod_scan(
         effects = [
             scale_effect(random_effect(name, rng, scene.channels, 0.1, scene.sample_rate_hz), effect_scale)
         ]
+    effects = [*effects, *extra_effects]  # a second effect, drawn and sized by the caller
     sim = simulate.simulate_rod(
         scene,
         g.alpha_rad,

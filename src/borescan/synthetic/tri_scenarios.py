@@ -221,6 +221,7 @@ def draw_tri_calibration(
     device_id: str | None = None,
     contract: dict = TRI_CONTRACT,
     effect_scale: float = 1.0,
+    extra_effects: tuple = (),
 ):
     """Return a ring-gauge calibration spindle scan drawn over the contract (module doc).
 
@@ -234,6 +235,8 @@ def draw_tri_calibration(
         scan has its own beams)
     contract : ranges, :data:`~borescan.synthetic.contract.TRI_CONTRACT` by default
     effect_scale : the effect's magnitude times this (:func:`borescan.discrepancy.battery.scale_effect`)
+    extra_effects : effects added as they are (a pair's second effect, sized by the caller); the other
+        draws are the same with or without them
 
     Returns
     -------
@@ -270,6 +273,7 @@ def draw_tri_calibration(
         temperature_c=20.0,
         rpm_profile=mo.speed["rpm_profile"],
     )
+    effects = [*effects, *extra_effects]  # a second effect, drawn and sized by the caller
     sim = simulate.simulate_tri_spindle(
         scene,
         scan_id=scan_id,
@@ -308,6 +312,7 @@ def draw_tri_measurement(
     calibration,
     effect_free: bool = True,
     effect_scale: float = 1.0,
+    extra_effects: tuple = (),
 ):
     """Return a rotating measurement of a part on the device of a calibration scan.
 
@@ -345,6 +350,7 @@ def draw_tri_measurement(
         "nominal_diameter_mm": float(round(2 * R, 1)),
         "cte_per_k": TRI_CONTRACT["cte_per_k"],
     }
+    effects = [*effects, *extra_effects]  # a second effect, drawn and sized by the caller
     sim = simulate.simulate_tri_spindle(
         scene,
         scan_id=scan_id,
@@ -386,6 +392,7 @@ def draw_tri_static(
     effect_free: bool = True,
     contract: dict = STATIC_CONTRACT,
     effect_scale: float = 1.0,
+    extra_effects: tuple = (),
 ):
     """Return a static three-sensor set drawn over the contract.
 
@@ -437,6 +444,7 @@ def draw_tri_static(
         bore_radius_20_mm=R,
         range_mm=tuple(float(x) for x in range_mm),
     )
+    effects = [*effects, *extra_effects]  # a second effect, drawn and sized by the caller
     sim = simulate.simulate_tri_static(
         scene,
         xy,
