@@ -11,7 +11,10 @@ acceptance of the issue "A battery over the whole contract":
   the pooled SD; the coverage of the 95 % intervals (|z| <= 1.96). Where the calibration holds
   the first channel's beta (``diagnostics["beta_reference"] == "channel <c> fixed"``) the
   compared quantity is beta_c - beta_<c> (its variance from ``cov``); with ``"absolute"`` beta itself;
-- u / CRB, the Cramer-Rao bound sigma^2 (J^T J + prior)^-1 of the exact model at the truth (J by
+- u / CRB, the Cramer-Rao bound sigma^2 (J^T J + prior)^-1 of the exact model at the truth (for d_b
+  plus the second-order term 3 CRB(rho)^4 / (4 R^2) of d_b = g - rho^2 / (2R), R the gauge radius at the
+  scan's temperature: the mean square error of d_b from an efficient (g, rho), which the CRB of d_b alone
+  understates where rho is weak and no estimator reaches there; J by
   central differences of :func:`borescan.synthetic.scenes.tri_readings` over the beams and the
   nuisance the angle source implies: offset o = S - C always, the phase where the calibration
   frees it, the speed scale without an encoder; beta gauge as the calibration's), on the
@@ -205,6 +208,11 @@ def fitted_readings(cal, scan, t_s: np.ndarray, R_mm: float) -> np.ndarray:
 
 def evaluate_scan(job: tuple) -> dict:
     """Calibrate one scan and compare with its truth (the row the table is made of)."""
+    return evaluate_scan_with_calibration(job)[0]
+
+
+def evaluate_scan_with_calibration(job: tuple):  # noqa: C901 (one block per figure of the row)
+    """Return the row of :func:`evaluate_scan` and the calibration it compared (None when refused)."""
     path, truth_root, cal_cfg = job
     from borescan import rawio
     from borescan.calibrate.result import CalibrationError
@@ -229,10 +237,10 @@ def evaluate_scan(job: tuple) -> dict:
         cal = calibrate_raw_scans([scan], cal_cfg)
     except CalibrationError as e:
         row.update(accepted=False, reason=e.problem, seconds=time.perf_counter() - t0)
-        return row
+        return row, None
     except Exception as e:  # noqa: BLE001 - a crash is a refusal of another kind; the table says which
         row.update(accepted=False, reason=f"{type(e).__name__}: {e}", seconds=time.perf_counter() - t0)
-        return row
+        return row, None
     row["seconds"] = time.perf_counter() - t0
     row["accepted"] = True
     scene = scenes.TriScene.from_dict(truth["scene"])
@@ -303,7 +311,16 @@ def evaluate_scan(job: tuple) -> dict:
             free_scale=not encoder,
             prior_sigma_mm=prior,
         )
-        row["u_crb"] = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", A, crb, A), 0.0, None)).tolist()
+        var_crb = np.einsum("ij,jk,ik->i", A, crb, A)
+        # d_b = g - rho^2 / (2R) from an efficient (g, rho): its mean square error carries the second-order
+        # term 3 u(rho)^4 / (4 R^2) (rho_hat^2 has mean rho^2 + u^2 and variance 4 rho^2 u^2 + 2 u^4), which
+        # no estimator of d_b avoids where rho is weak (at rho = 0 the CRB of d_b is u(g)'s)
+        rho_var = np.diag(crb)[1::3]
+        for k, fm in enumerate(fam):
+            if fm == "d_b":
+                j = int(np.argmax(A[k, 2::3]))
+                var_crb[k] += 3.0 * rho_var[j] ** 2 / (4.0 * gauge_radius_mm(scan.meta) ** 2)
+        row["u_crb"] = np.sqrt(np.clip(var_crb, 0.0, None)).tolist()
     except np.linalg.LinAlgError as e:
         row["u_crb"] = None
         row["crb_error"] = str(e)
@@ -335,7 +352,7 @@ def evaluate_scan(job: tuple) -> dict:
         ssr_excess_sigma2=(ssr_fit - ssr_true) / ct["noise_mm"] ** 2,
         prior_penalty_true=p_true,
     )
-    return row
+    return row, cal
 
 
 def run(

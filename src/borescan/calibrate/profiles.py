@@ -200,13 +200,15 @@ def profile_covariance(
 
     Where the profile of a rho is not the linear prediction, the spread of every parameter along it
     (likelihood-weighted second moment about the estimate) replaces the linear part along that rho
-    wherever it is larger (PSD part of the difference: never smaller than the linear covariance).
+    wherever it is larger (PSD part of the difference: never smaller than the linear covariance); over
+    several such profiles each parameter gets the largest excess one of them gives, not their sum
+    (:func:`_largest_per_parameter`).
     A flagged beam's profile (its sign not resolved, ``flagged``), or one along which a flagged rho
     changed sign, adds nothing: the two solutions carry it. Each used profile's ``info`` gets its
     points, weights and extra covariance in the calibration's parameter order.
     """
     i_rho0 = pb.i_rho0
-    extra = np.zeros_like(cov_free)
+    parts: list[tuple[dict, np.ndarray]] = []
     for j, prof in enumerate(profiles):
         M, P, wts, info = prof.second_moment, prof.points, prof.weights, prof.info
         if M is None:
@@ -226,8 +228,7 @@ def profile_covariance(
         i = i_rho0 + j
         E = M - np.outer(cov_free[:, i], cov_free[:, i]) / cov_free[i, i]
         w, V = np.linalg.eigh(0.5 * (E + E.T))
-        E_psd = (V * np.clip(w, 0.0, None)) @ V.T
-        extra += E_psd
+        parts.append((info, (V * np.clip(w, 0.0, None)) @ V.T))
         info["u_rho_profile_mm"] = float(np.sqrt(M[i, i]))
         # what a quantity computed from the beams needs to map this spread by itself (a secant per
         # point, not the linear sensitivities): the points, their weights, the linear covariance's column
@@ -237,5 +238,24 @@ def profile_covariance(
             "weight": [float(x) for x in wts / wts.sum()],
         }
         info["linear_cov_column"] = pb.params_of(cov_free[:, i]).tolist()
-        info["extra_cov_params"] = pb.params_of(pb.params_of(E_psd).T).tolist()
-    return cov_free + extra
+    extra = _largest_per_parameter([E for _, E in parts])
+    for (info, _), E in zip(parts, extra):
+        info["extra_cov_params"] = pb.params_of(pb.params_of(E).T).tolist()
+    return cov_free + sum(extra, np.zeros_like(cov_free))
+
+
+def _largest_per_parameter(parts: list[np.ndarray]) -> list[np.ndarray]:
+    """Return the profiles' extra covariances scaled so that each parameter gets the largest one's excess.
+
+    Each profile j gives var(q) = linear + E_j[q, q] (the spread of q's conditional mean along rho_j on top
+    of its linear conditional variance); adding every E_j counted a correlated excess once per profile
+    (u / CRB of 1.3 on beams whose own profile gave 0.94-0.99, ``bench.bench_calibration_contract`` scan 5).
+    Their sum S is scaled by D = diag(sqrt(max_j E_j[q, q] / S[q, q])): D S D keeps S's correlations and
+    stays positive semi-definite, and each E_j becomes D E_j D (the parts still add up to it).
+    """
+    if not parts:
+        return []
+    S = sum(parts, np.zeros_like(parts[0]))
+    top = np.max([np.diag(E) for E in parts], axis=0)
+    d = np.sqrt(np.divide(top, np.diag(S), out=np.zeros_like(top), where=np.diag(S) > 0))
+    return [E * np.outer(d, d) for E in parts]
