@@ -311,7 +311,8 @@ def test_the_mirror_screen_of_a_long_scan_keeps_what_the_full_search_finds(tmp_p
 
 # seed 20270611 #5 (encoder, positions known, 59 revolutions): all three rho profiles skewed (Delta chi^2 at
 # rho -+ 2 u of 2.4 / 4.5, 4.2 / 2.5, 3.4 / 3.7); each parameter's largest excess over the profiles gives
-# u / CRB 1.00-1.21 (the weak beam, rho -1.1 mm at a bound of 0.82 mm, takes another profile's excess);
+# u / CRB 1.00-1.21 (the weak beam, rho -1.1 mm at a bound of 0.82 mm, takes another profile's excess;
+# no upper limit is set from that figure);
 # adding every profile's excess to every parameter made them 1.07-1.70 (about 20 s of CPU alone)
 @pytest.mark.slow
 def test_non_linear_profiles_widen_each_parameter_once_and_u_meets_the_bound(tmp_path):
@@ -324,8 +325,11 @@ def test_non_linear_profiles_widen_each_parameter_once_and_u_meets_the_bound(tmp
     ratio = np.array(row["u"]) / np.array(row["u_crb"])
     # the bound: central differences of the twin at the truth, the calibration's nuisance and priors
     is_rho_or_beta = np.array([f != "d_b" for f in row["families"]])
-    assert np.all((ratio[is_rho_or_beta] >= 0.9) & (ratio[is_rho_or_beta] <= 1.3)), ratio.round(3).tolist()
-    assert np.median(ratio[is_rho_or_beta]) < 1.05
+    # no parameter below its bound; the typical one at it (the summed excess put the median at 1.2). No upper
+    # limit per parameter: a skewed profile's beam is wider than the local bound by its own profile's excess
+    # (checked below), which the Cramer-Rao bound of a non-Gaussian minimum does not describe
+    assert np.all(ratio[is_rho_or_beta] >= 0.9), ratio.round(3).tolist()
+    assert np.median(ratio[is_rho_or_beta]) < 1.05, ratio.round(3).tolist()
     used = [p for p in cal.diagnostics["rho_profiles"] if "extra_cov_params" in p]
     assert len(used) == 3
     for p in used:  # each rho at least as wide as its own profile (the largest excess one profile gives)
