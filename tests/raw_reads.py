@@ -1,10 +1,11 @@
-"""Count the raw parses of one night's stages run in one process (issue 34: raw read once).
+"""Count the raw parses of one night's stages run in one process (issue 34: raw read once per night).
 
 :func:`count_night_reads` patches the two parsers of :mod:`borescan.rawio.reader` (``_read_parquet``
 for ``lds.parquet`` / ``spindle.parquet``, ``_read_meta_file`` for ``scan.json``), runs ingest, signal,
-calibrate, measure and discrepancy on one night the way the workflow's scripts call them (one worker,
-so every read happens in this process; the raw cache emptied before each stage, as in its own job)
-and returns the parses per stage, file kind and scan folder.
+calibrate, measure, discrepancy and pooled on one night the way the workflow's scripts call them (one
+worker, so every read happens in this process; the raw cache emptied before each stage, as in its own
+job) and returns the parses per stage, file kind and scan folder. Ingest validates each raw file and
+writes the night's readings store (:mod:`borescan.rawio.store`); the later stages read that store.
 
 By hand: ``PYTHONPATH=src python tests/raw_reads.py /tmp/demo_raw/raw 2026-11-20 [--no-cache]``.
 """
@@ -27,9 +28,10 @@ from borescan.stages.calibrate import stage_calibrate
 from borescan.stages.discrepancy import stage_discrepancy
 from borescan.stages.ingest import stage_ingest
 from borescan.stages.measure import stage_measure
+from borescan.stages.pooled import pooled_dir, stage_pooled
 from borescan.stages.signal import stage_signal
 
-STAGES = ("ingest", "signal", "calibrate", "measure", "discrepancy")
+STAGES = ("ingest", "signal", "calibrate", "measure", "discrepancy", "pooled")
 
 
 @dataclass(frozen=True)
@@ -92,6 +94,18 @@ def _run_stages(raw: Path, night: str, out: Path, stage: list[str]) -> dict[str,
     findings, _ = stage_discrepancy(
         raw, night, res, out / "scans.parquet", [out / "calibrations.parquet"], cfg["discrepancy"], log=quiet
     )
+    _begin(stage, "pooled")
+    pooled_dir(res, night).mkdir(parents=True, exist_ok=True)
+    pooled, drift = stage_pooled(
+        raw,
+        night,
+        res,
+        [out / "scans.parquet"],
+        [out / "calibrations.parquet"],
+        cfg["discrepancy"],
+        cfg["devices"],
+        log=quiet,
+    )
     return {
         "scans": scans,
         "summary": summary,
@@ -99,6 +113,8 @@ def _run_stages(raw: Path, night: str, out: Path, stage: list[str]) -> dict[str,
         "diameters": diameters,
         "verifications": verifications,
         "findings": findings,
+        "pooled_findings": pooled,
+        "calibration_drift": drift,
     }
 
 

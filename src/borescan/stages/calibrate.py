@@ -8,7 +8,6 @@ processes.
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import polars as pl
 
@@ -64,6 +63,7 @@ def stage_calibrate(
         "laboratory": laboratory or dflt["laboratory"],
         "verification": verification or dflt["verification"],
         "raw_root": raw_root,
+        "results_root": results_root,
         "scans_table": scans_table,
         "signal": signal or dflt["signal"],
         "devices": devices,
@@ -74,12 +74,12 @@ def stage_calibrate(
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
     clear_night_folder(results_root, "calibration", night)  # certificates of a rerun replace the night's
     by_device: dict[str, list] = {}
-    for row, d in night_scans(raw_root, night, scans_table, kind="calibration", device_type="tri_lds"):
+    for row, d in night_scans(results_root, night, scans_table, kind="calibration", device_type="tri_lds"):
         by_device.setdefault(row["device_id"], []).append((row, d))
     jobs = [("tri", items) for _, items in sorted(by_device.items())]
     jobs += [
         ("rod", [item])
-        for item in night_scans(raw_root, night, scans_table, kind="calibration", device_type="rod")
+        for item in night_scans(results_root, night, scans_table, kind="calibration", device_type="rod")
     ]
     if jobs:
         log(f"{len(jobs)} calibration job(s) on {workers_for(len(jobs), workers)} process(es)")
@@ -97,10 +97,8 @@ def stage_calibrate(
             log(line)
         log(compute_line(items[0][0]["device_id"] if kind == "tri" else items[0][0]["scan_id"], cpu_s))
     cal_rows, link_rows = made["tri"]
-    for row, d in night_scans(raw_root, night, scans_table, device_type="rod"):
-        rows = rod_nominal_calibration_rows(
-            rawio.read_scan_meta(d, raw_root=Path(raw_root)), night, row["scan_id"]
-        )
+    for row, d in night_scans(results_root, night, scans_table, device_type="rod"):
+        rows = rod_nominal_calibration_rows(rawio.load_scan_json(d), night, row["scan_id"])
         if rows and rows[0]["calibration_id"] not in {r["calibration_id"] for r in cal_rows}:
             cal_rows += rows
             link_rows.append({"calibration_id": rows[0]["calibration_id"], "scan_id": row["scan_id"]})
@@ -128,7 +126,7 @@ def calibrate_device(job) -> tuple[str, list[dict], list[dict], list, list[str],
     else:
         ((_row, d),) = items
         calibrate_rod_scan(
-            rawio.read_scan(d, raw_root=Path(ctx["raw_root"])),
+            rawio.load_stored_scan(d),
             night,
             results_root,
             bad,
@@ -153,6 +151,7 @@ def _context(a: dict) -> dict:
         "laboratory": a["laboratory"],
         "verification": a["verification"],
         "raw_root": a["raw_root"],
+        "results_root": a["results_root"],
         "scans_table": a["scans_table"],
         "cleaning": readings.cleaning_policy(a["signal"]),
         "device_model": device_model.lookup(

@@ -141,9 +141,9 @@ def _night_rod_verifications(
     """
     out, metas = [], []
     for _row, d in night_scans(
-        ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id
+        ctx["results_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id
     ):
-        scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
+        scan = rawio.load_stored_scan(d)
         try:
             res = rod_calibration.rod_diameters_with_budget(
                 scan, rows, ctx["uncertainty"], cal.calibration_id, ctx.get("cleaning")

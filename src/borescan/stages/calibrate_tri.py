@@ -55,7 +55,7 @@ def calibrate_tri_device(
     scans, inputs, nominal = [], [], None
     lost = _set_aside_at_ingest(ctx["scans_table"], items[0][0]["device_id"])
     for _row, d in items:
-        scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
+        scan = rawio.load_stored_scan(d)
         problem = _unusable(scan, summary, min_rev)
         if problem == "":
             lost.append(f"{scan.scan_id} (set aside by the signal stage)")
@@ -290,9 +290,9 @@ def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], l
     """
     rows, metas = [], []
     for _row, d in night_scans(
-        ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id
+        ctx["results_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id
     ):
-        scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
+        scan = rawio.load_stored_scan(d)
         try:
             row = measure.verification_for_certificate(
                 scan,
