@@ -2,7 +2,7 @@
 
 This package is the only place that touches raw files; its public names are importable from
 ``borescan.rawio``. Its modules: :mod:`~borescan.rawio.format` (names, schemas, ``ScanError``,
-``RawScan``, ``LdsMatrix``, digests), :mod:`~borescan.rawio.meta` (``scan.json``),
+``RawScan``, ``ScanMeta``, ``LdsMatrix``, digests), :mod:`~borescan.rawio.meta` (``scan.json``),
 :mod:`~borescan.rawio.lds` (the Parquet tables), :mod:`~borescan.rawio.reader` (one scan folder),
 :mod:`~borescan.rawio.layout` (finding scans and nights, manifests, a root's problems),
 :mod:`~borescan.rawio.writer` (atomic writes), :mod:`~borescan.rawio.matrix` (the wide view),
@@ -52,6 +52,7 @@ from borescan.rawio.format import (
     LdsMatrix,
     RawScan,
     ScanError,
+    ScanMeta,
     combined_sha256,
     sha256_file,
 )
@@ -70,7 +71,6 @@ from borescan.rawio.lds import check_scan_data
 from borescan.rawio.matrix import lds_matrix
 from borescan.rawio.reader import inspect_scan, read_scan, read_scan_meta
 from borescan.rawio.store import (
-    ScanMeta,
     clear_readings_dir,
     load_scan_json,
     load_scan_meta,

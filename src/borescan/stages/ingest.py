@@ -137,16 +137,17 @@ def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
         file_rows.append(
             {"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": size}
         )
-    meta: dict = {}
-    try:
-        meta = rawio.read_scan_meta(d)
-    except rawio.ScanError:
-        pass
     # the one validator, shared with `borescan validate`: the first problem is the reason
     earlier = validation.earlier_night_of(raw_root, night, scan_id) if duplicate else None
     scan, problems = validation.scan_problems(
         d, raw_root, duplicate=duplicate, earlier_night=earlier, limits=limits
     )
+    meta: dict = scan.meta if scan is not None else {}
+    if scan is None:  # a scan that cannot be read whole: its row gets what scan.json gives
+        try:
+            meta = rawio.read_scan_meta(d)
+        except rawio.ScanError:
+            pass
     # the folder's own id (a ScanError shortens an id that is no valid id to name it)
     problem = (
         Quarantined(scan_id, night, "ingest", problems[0].file, problems[0].problem) if problems else None

@@ -83,7 +83,7 @@ def signal_one(job) -> tuple[pl.DataFrame | None, pl.DataFrame | None, list[Quar
     if scan.spindle is None:
         return None, None, bad, None  # static readings: no revolutions
     mat = rawio.lds_matrix(scan)
-    jump = rawio.clock_jump(np.asarray(mat.sample), np.asarray(mat.t_s), float(scan.meta["sample_rate_hz"]))
+    jump = rawio.clock_jump(np.asarray(mat.sample), np.asarray(mat.t_s), scan.scan_meta.sample_rate_hz)
     if jump:
         quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", jump)
         return None, None, bad, None
