@@ -63,7 +63,6 @@ def stage_calibrate(
         "laboratory": laboratory or dflt["laboratory"],
         "verification": verification or dflt["verification"],
         "raw_root": raw_root,
-        "results_root": results_root,
         "scans_table": scans_table,
         "signal": signal or dflt["signal"],
         "devices": devices,
@@ -151,7 +150,6 @@ def _context(a: dict) -> dict:
         "laboratory": a["laboratory"],
         "verification": a["verification"],
         "raw_root": a["raw_root"],
-        "results_root": a["results_root"],
         "scans_table": a["scans_table"],
         "cleaning": readings.cleaning_policy(a["signal"]),
         "device_model": device_model.lookup(

@@ -48,7 +48,7 @@ def calibrate_tri_device(
     """Calibrate one three-sensor device from its calibration scans of the night.
 
     Calibrate one three-sensor device from its calibration scans of the night (``items``: (scans
-    row, raw folder) each), write the certificates, add the rows; a scan that cannot be used, or a
+    row, stored folder) each), write the certificates, add the rows; a scan that cannot be used, or a
     calibration that fails, is quarantined with the reason.
     """
     method, min_rev = cfg["method"], int(cfg["min_revolutions"])
@@ -172,7 +172,7 @@ def _calibrate_group(
                 fit, first["t_s"], first["readings"], first["R"], ids[0], angle_model=first["angle_model"]
             ),
         }
-    ver_rows, _ = _night_verifications(cal, night, ctx, log)
+    ver_rows, _ = _night_verifications(cal, night, results_root, ctx, log)
     conditions = certificate.calibration_conditions(
         first["temperature"],
         first["cte"],
@@ -281,7 +281,7 @@ def _blame_failed_fit(scans, inputs, err, nominal, night, results_root, cfg, bad
     return []
 
 
-def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], list[dict]]:
+def _night_verifications(cal, night: str, results_root, ctx: dict, log) -> tuple[list[dict], list[dict]]:
     """Return the night's ring-gauge verifications of the calibration's device.
 
     Return the night's ring-gauge verifications of the calibration's device, made with it
@@ -290,7 +290,7 @@ def _night_verifications(cal, night: str, ctx: dict, log) -> tuple[list[dict], l
     """
     rows, metas = [], []
     for _row, d in night_scans(
-        ctx["results_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id
+        results_root, night, ctx["scans_table"], kind="verification", device_id=cal.device_id
     ):
         scan = rawio.load_stored_scan(d)
         try:
