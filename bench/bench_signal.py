@@ -8,18 +8,18 @@ same run, best of several repeats, throughput in readings (rows of the long tabl
 - plain read: the five ``lds.parquet`` columns by the faster of ``polars.read_parquet`` and
   ``pyarrow.parquet.read_table`` (both multi-threaded);
 - whole stage: what the night's signal job does for one scan (``borescan.stages.signal.signal_one``): read
-  and validate the folder (``rawio.read_scan``), the wide matrix, the clock check, spikes, period,
+  the scan as ingest stored it (``rawio.load_stored_scan``: the raw folder is read and validated once, by
+  ingest, ``rawio.read_scan``, timed below), the wide matrix, the clock check, spikes, period,
   extrema, n/m, status, spacings, feature points, the summary row. Not included: writing the
   night's tables (once per night, for all scans);
 - processing only: ``rawio.lds_matrix`` + ``signal.process_arrays`` on the table in memory (the
   figure this benchmark printed before it measured the whole stage).
 
-Also prints where the time goes (each step on its own; in the stage ``read_scan``'s check builds
-the wide matrix, so ``lds_matrix`` there costs nothing: it is timed here on a scan without that
-matrix), the stage's time besides its read next to the read's own (the budget 0.5x leaves) and
-the pyarrow read on one thread (the threaded read keeps both cores busy, so there is no idle core
-to overlap with), and the filter table of ``signal.filter_performance`` (scatter reduction, phase
-lag, amplitude loss per filter).
+Also prints where the time goes (each step on its own; ``lds_matrix`` is timed on a scan without the
+matrix ``read_scan``'s check builds, as the stage's stored scan is), the stage's time besides its
+read next to the read's own (the budget 0.5x leaves) and the pyarrow read on one thread (the
+threaded read keeps both cores busy, so there is no idle core to overlap with), and the filter
+table of ``signal.filter_performance`` (scatter reduction, phase lag, amplitude loss per filter).
 """
 
 from __future__ import annotations
@@ -123,7 +123,11 @@ def main() -> dict:
         folder, rows = _write_scan(raw)
         lds_path = folder / rawio.LDS_FILE
         opts = signal_options(load_config()["signal"])
-        job = (raw, NIGHT, Path(tmp) / "results", folder, opts)
+        # the stage reads the scan as ingest stored it (borescan.rawio.store), not the raw folder
+        scan0 = rawio.read_scan(folder, raw_root=raw)
+        stored = rawio.stored_scan_dir(Path(tmp) / "results", NIGHT, scan0.scan_id)
+        rawio.write_stored_scan(stored, scan0, scan0.sha256)
+        job = (raw, NIGHT, Path(tmp) / "results", stored, opts)
 
         def read_polars() -> pl.DataFrame:
             return pl.read_parquet(lds_path, columns=COLUMNS)

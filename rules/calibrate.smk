@@ -4,7 +4,7 @@ rule calibrate_night:
     input:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",
         summary=f"{RES}/stage/signal_summary/night={{night}}.parquet",
-        raw=raw_files_of_night,
+        readings=f"{RES}/stage/readings/night={{night}}",  # ingest's validated scans: raw is read once, by ingest
         pooled=pooled_findings_before_night,
     output:
         calibrations=f"{RES}/stage/calibrations/night={{night}}.parquet",

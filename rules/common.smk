@@ -122,6 +122,12 @@ def scans_of_pooled_window(wildcards):
     return [f"{RES}/stage/scans/night={n}.parquet" for n in window]
 
 
+def readings_of_pooled_window(wildcards):
+    """Readings stores (ingest's, borescan.rawio.store) of the nights of scans_of_pooled_window."""
+    return [p.replace("/stage/scans/", "/stage/readings/").removesuffix(".parquet")
+            for p in scans_of_pooled_window(wildcards)]
+
+
 #: month plots of results/report/<YYYY-MM>/ (named by borescan.report.pages) -> category of `snakemake --report`
 MONTH_PLOT_CATEGORY = {"calibration": "Calibration", "control": "Verification", "diameters": "Diameters",
                        "devicemodel": "Calibration"}

@@ -4,7 +4,7 @@ rule discrepancy_night:
     input:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",
         calibrations=calibrations_up_to_night,
-        raw=raw_files_of_night,
+        readings=f"{RES}/stage/readings/night={{night}}",  # ingest's validated scans: raw is read once, by ingest
     output:
         findings=f"{RES}/stage/findings/night={{night}}.parquet",
         quarantine=f"{RES}/stage/quarantine/stage=discrepancy/night={{night}}.parquet",
@@ -44,7 +44,7 @@ rule pooled_night:
     input:
         scans=scans_of_pooled_window,
         calibrations=calibrations_up_to_night,
-        raw=raw_files_of_night,
+        readings=readings_of_pooled_window,  # the window's nights' readings stores (ingest)
     output:
         pooled_findings=f"{RES}/stage/pooled_findings/night={{night}}.parquet",
         calibration_drift=f"{RES}/stage/calibration_drift/night={{night}}.parquet",

@@ -9,6 +9,8 @@ rule ingest_night:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",
         files=f"{RES}/stage/scan_files/night={{night}}.parquet",
         quarantine=f"{RES}/stage/quarantine/stage=ingest/night={{night}}.parquet",
+        # the night's valid scans as ingest read them (borescan.rawio.store): what every later stage reads
+        readings=directory(f"{RES}/stage/readings/night={{night}}"),
     params:
         raw_root=RAW,
         results_root=results_root_for,

@@ -5,7 +5,7 @@ rule measure_night:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",
         calibrations=calibrations_up_to_night,
         verifications_before=verifications_before_night,
-        raw=raw_files_of_night,
+        readings=f"{RES}/stage/readings/night={{night}}",  # ingest's validated scans: raw is read once, by ingest
     output:
         diameters=f"{RES}/stage/diameters/night={{night}}.parquet",
         verifications=f"{RES}/stage/verifications/night={{night}}.parquet",

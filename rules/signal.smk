@@ -3,7 +3,7 @@ rule signal_night:
         "Filtering readings, finding revolutions and extrema for night {wildcards.night}"
     input:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",
-        raw=raw_files_of_night,
+        readings=f"{RES}/stage/readings/night={{night}}",  # ingest's validated scans: raw is read once, by ingest
     output:
         extrema=f"{RES}/stage/extrema/night={{night}}.parquet",
         summary=f"{RES}/stage/signal_summary/night={{night}}.parquet",

@@ -1,18 +1,22 @@
-"""Count the raw parses of one night's stages run in one process (issue 34: raw read once).
+"""Count the raw parses of one night's stages run in one process (issue 34: raw read once per night).
 
 :func:`count_night_reads` patches the two parsers of :mod:`borescan.rawio.reader` (``_read_parquet``
 for ``lds.parquet`` / ``spindle.parquet``, ``_read_meta_file`` for ``scan.json``), runs ingest, signal,
-calibrate, measure and discrepancy on one night the way the workflow's scripts call them (one worker,
-so every read happens in this process; the raw cache emptied before each stage, as in its own job)
-and returns the parses per stage, file kind and scan folder.
+calibrate, measure, discrepancy and pooled on one night the way the workflow's scripts call them (one
+worker, so every read happens in this process; the raw cache emptied before each stage, as in its own
+job) and returns the parses per stage, file kind and scan folder. Ingest validates each raw file and
+writes the night's readings store (:mod:`borescan.rawio.store`); the later stages read that store.
 
-By hand: ``PYTHONPATH=src python tests/raw_reads.py /tmp/demo_raw/raw 2026-11-20 [--no-cache]``.
+By hand: ``PYTHONPATH=src python tests/raw_reads.py /tmp/demo_raw/raw 2026-11-20 [--no-cache] [--read-cpu]``
+(``--read-cpu``: also :func:`read_cpu_s`, the CPU time of a stage's read of the night's scans, from raw
+and from ingest's store).
 """
 
 from __future__ import annotations
 
 import sys
 import tempfile
+import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +24,7 @@ from pathlib import Path
 import polars as pl
 
 from borescan import night_config
+from borescan import rawio
 from borescan.config import load_config
 from borescan.rawio import reader
 from borescan.stages._common import write_table
@@ -27,9 +32,10 @@ from borescan.stages.calibrate import stage_calibrate
 from borescan.stages.discrepancy import stage_discrepancy
 from borescan.stages.ingest import stage_ingest
 from borescan.stages.measure import stage_measure
+from borescan.stages.pooled import pooled_dir, stage_pooled
 from borescan.stages.signal import stage_signal
 
-STAGES = ("ingest", "signal", "calibrate", "measure", "discrepancy")
+STAGES = ("ingest", "signal", "calibrate", "measure", "discrepancy", "pooled")
 
 
 @dataclass(frozen=True)
@@ -92,6 +98,18 @@ def _run_stages(raw: Path, night: str, out: Path, stage: list[str]) -> dict[str,
     findings, _ = stage_discrepancy(
         raw, night, res, out / "scans.parquet", [out / "calibrations.parquet"], cfg["discrepancy"], log=quiet
     )
+    _begin(stage, "pooled")
+    pooled_dir(res, night).mkdir(parents=True, exist_ok=True)
+    pooled, drift = stage_pooled(
+        raw,
+        night,
+        res,
+        [out / "scans.parquet"],
+        [out / "calibrations.parquet"],
+        cfg["discrepancy"],
+        cfg["devices"],
+        log=quiet,
+    )
     return {
         "scans": scans,
         "summary": summary,
@@ -99,6 +117,8 @@ def _run_stages(raw: Path, night: str, out: Path, stage: list[str]) -> dict[str,
         "diameters": diameters,
         "verifications": verifications,
         "findings": findings,
+        "pooled_findings": pooled,
+        "calibration_drift": drift,
     }
 
 
@@ -122,12 +142,41 @@ def count_night_reads(raw: Path, night: str, out: Path, monkeypatch) -> NightRea
     return NightReads(dict(parses), tables)
 
 
+def read_cpu_s(raw: Path, night: str, results_root: Path, repeats: int = 5) -> tuple[float, float]:
+    """CPU seconds of one process to read the night's stored scans and their wide matrices.
+
+    Returns (from raw: ``rawio.read_scan`` with the reader's cache off, what each stage job did
+    before; from ingest's store: ``rawio.load_stored_scan``), each the sum over the scans of the best
+    of ``repeats`` reads, the two reads of a scan alternated.
+    """
+    enabled = reader._SCAN_CACHE.enabled
+    reader._SCAN_CACHE.enabled = False
+    from_raw = from_store = 0.0
+    try:
+        for folder in sorted(rawio.readings_dir(results_root, night).iterdir()):
+            raw_dir = Path(raw) / f"night={night}" / folder.name
+            best = [float("inf"), float("inf")]
+            for _ in range(repeats):
+                for i in (0, 1):
+                    t0 = time.process_time()
+                    scan = rawio.load_stored_scan(folder) if i else rawio.read_scan(raw_dir, raw_root=raw)
+                    rawio.lds_matrix(scan)
+                    best[i] = min(best[i], time.process_time() - t0)
+            from_raw += best[0]
+            from_store += best[1]
+    finally:
+        reader._SCAN_CACHE.enabled = enabled
+    return from_raw, from_store
+
+
 if __name__ == "__main__":
     import pytest
 
     with pytest.MonkeyPatch.context() as mp, tempfile.TemporaryDirectory() as tmp:
         mp.setattr(reader._SCAN_CACHE, "enabled", "--no-cache" not in sys.argv[3:])
         reads = count_night_reads(Path(sys.argv[1]), sys.argv[2], Path(tmp), mp)
+        timed = "--read-cpu" in sys.argv[3:]
+        cpu = read_cpu_s(Path(sys.argv[1]), sys.argv[2], Path(tmp) / "res") if timed else None
     per_scan = Counter()
     for (_, name, scan), n in reads.parses.items():
         per_scan[(name, scan)] += n
@@ -144,3 +193,5 @@ if __name__ == "__main__":
         + " ".join(f"{total.get(k, 0):>16}" for k in ("scan.json", "lds.parquet", "spindle.parquet"))
     )
     print("most parses of one file:", max(per_scan.values()) if per_scan else 0)
+    if cpu is not None:
+        print(f"CPU s to read the night's stored scans: from raw {cpu[0]:.3f}, from the store {cpu[1]:.3f}")

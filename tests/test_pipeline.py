@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import duckdb
 import pytest
@@ -449,6 +451,9 @@ def test_a_device_model_is_carried_by_a_night_calibration(pipeline_run, tmp_path
     ).write_parquet(pooled)
     cfg = schema_defaults()
     night_config.settle(tmp_path, [n2], cfg)  # the night's record (date of issue), as the workflow first does
+    # the run's readings store (ingest's output, what the calibrate stage reads) under this results root
+    store = Path("stage") / "readings" / f"night={n2}"
+    shutil.copytree(res / store, tmp_path / store)
     lines = []
     cals, _, bad = stage_calibrate(
         raw,

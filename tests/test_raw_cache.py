@@ -1,8 +1,9 @@
-"""Raw files parsed once per scan per process (issue 34 item 4): the reader's cache of a night's valid scans.
+"""Raw files parsed once per scan per night (issue 34 item 4): the reader's cache and the readings store.
 
 Bound of the design: within one process (one stage job or one of its workers) each raw file of a
-night is parsed at most once while it is unchanged on disk; a stage job reads each file at most
-once, so a night of the workflow parses each file at most once per stage that reads it.
+night is parsed at most once while it is unchanged on disk; ingest is the only stage that reads raw
+files (it stores what it validated, :mod:`borescan.rawio.store`), so a night of the workflow parses
+each raw file once.
 """
 
 from __future__ import annotations
@@ -181,22 +182,24 @@ def test_memory_holds_one_night_and_stays_within_its_bound(tmp_path, one_night, 
     assert cache._bytes == reader._nbytes(kept[1]) > 0  # the last scan read is kept even when larger
 
 
-@pytest.mark.slow  # a demo night's five stages twice (about 20 s each)
-def test_a_demo_night_parses_each_raw_file_at_most_once_per_stage_with_the_same_results(
+@pytest.mark.slow  # a demo night's six stages twice (about 25 s each)
+def test_a_demo_night_parses_each_raw_file_once_in_ingest_and_never_after_with_the_same_results(
     tmp_path, monkeypatch
 ):
     demo.make_demo(tmp_path / "demo")
     raw = tmp_path / "demo" / "raw"
     reads = count_night_reads(raw, NIGHT, tmp_path / "cached", monkeypatch)
     files = {(d.name, f.name) for d in rawio.night_scan_dirs(raw, NIGHT) for f in d.iterdir()}
-    for stage in STAGES:
-        mine = {(scan, name): n for (st, name, scan), n in reads.parses.items() if st == stage}
-        assert mine and all(n == 1 for n in mine.values()), (stage, mine)
-        assert set(mine) <= files
-    # ingest validates every file of the night
-    assert {(s, n) for (st, n, s) in reads.parses if st == "ingest"} == files
+    # ingest validates every file of the night once; every later stage reads ingest's store
+    ingest = {(scan, name): n for (st, name, scan), n in reads.parses.items() if st == "ingest"}
+    assert ingest == {f: 1 for f in files}
+    per_stage = {st: sum(n for (s, _, _), n in reads.parses.items() if s == st) for st in STAGES}
+    assert per_stage == {"ingest": len(files), **{st: 0 for st in STAGES if st != "ingest"}}
+    assert sum(reads.parses.values()) == len(files)
+    assert all(reads.tables[t].height for t in ("scans", "summary", "calibrations", "diameters"))
+    # without the reader's cache the night parses the same files the same number of times
     monkeypatch.setattr(reader._SCAN_CACHE, "enabled", False)
     plain = count_night_reads(raw, NIGHT, tmp_path / "plain", monkeypatch)
-    assert sum(plain.parses.values()) > sum(reads.parses.values())
+    assert plain.parses == reads.parses
     for name, table in reads.tables.items():
-        assert_frame_equal(table, plain.tables[name], check_exact=True), name
+        assert_frame_equal(table, plain.tables[name], check_exact=True)

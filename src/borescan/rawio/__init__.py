@@ -2,10 +2,12 @@
 
 This package is the only place that touches raw files; its public names are importable from
 ``borescan.rawio``. Its modules: :mod:`~borescan.rawio.format` (names, schemas, ``ScanError``,
-``RawScan``, ``LdsMatrix``, digests), :mod:`~borescan.rawio.meta` (``scan.json``),
+``RawScan``, ``ScanMeta``, ``LdsMatrix``, digests), :mod:`~borescan.rawio.meta` (``scan.json``),
 :mod:`~borescan.rawio.lds` (the Parquet tables), :mod:`~borescan.rawio.reader` (one scan folder),
 :mod:`~borescan.rawio.layout` (finding scans and nights, manifests, a root's problems),
-:mod:`~borescan.rawio.writer` (atomic writes), :mod:`~borescan.rawio.matrix` (the wide view). Layout::
+:mod:`~borescan.rawio.writer` (atomic writes), :mod:`~borescan.rawio.matrix` (the wide view),
+:mod:`~borescan.rawio.store` (the validated readings store ingest writes and later stages read,
+``ScanMeta``). Layout::
 
     <raw_root>/night=<YYYY-MM-DD>/scan=<scan_id>/
         scan.json        required   metadata
@@ -50,6 +52,7 @@ from borescan.rawio.format import (
     LdsMatrix,
     RawScan,
     ScanError,
+    ScanMeta,
     combined_sha256,
     sha256_file,
 )
@@ -67,6 +70,15 @@ from borescan.rawio.layout import (
 from borescan.rawio.lds import check_scan_data
 from borescan.rawio.matrix import lds_matrix
 from borescan.rawio.reader import inspect_scan, read_scan, read_scan_meta
+from borescan.rawio.store import (
+    clear_readings_dir,
+    load_scan_json,
+    load_scan_meta,
+    load_stored_scan,
+    readings_dir,
+    stored_scan_dir,
+    write_stored_scan,
+)
 from borescan.rawio.writer import write_scan
 
 __all__ = [
@@ -85,6 +97,14 @@ __all__ = [
     "inspect_scan",
     "read_scan_meta",
     "write_scan",
+    "ScanMeta",
+    "readings_dir",
+    "stored_scan_dir",
+    "clear_readings_dir",
+    "write_stored_scan",
+    "load_stored_scan",
+    "load_scan_meta",
+    "load_scan_json",
     "discover_scans",
     "nights",
     "night_scan_dirs",

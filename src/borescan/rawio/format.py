@@ -1,11 +1,12 @@
-"""The raw format's names, schemas and types: ``ScanError``, ``RawScan``, ``LdsMatrix``, file digests."""
+"""The raw format: names, schemas, ``ScanError``, ``ScanMeta``, ``RawScan``, ``LdsMatrix``, digests."""
 
 from __future__ import annotations
 
 import hashlib
 import re
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import polars as pl
@@ -72,6 +73,116 @@ class ScanError(Exception):
         return (type(self), (self.scan_id, self.file, self.problem))
 
 
+def _number(value: Any) -> float | None:
+    return None if value is None or isinstance(value, bool) else float(value)
+
+
+def _section(meta: dict, key: str) -> dict:
+    value = meta.get(key)
+    return value if isinstance(value, dict) else {}
+
+
+@dataclass(frozen=True)
+class ScanMeta:
+    """The ``scan.json`` fields the stages use, typed (``borescan-raw/1``; None where absent).
+
+    Attributes
+    ----------
+    scan_id, night, kind, started_at : str
+        Identity of the scan (``started_at`` as written, UTC).
+    device_id, device_type : str
+        ``device.id`` and ``device.type`` (``tri_lds`` or ``rod``).
+    sample_rate_hz : float
+        ``sample_rate_hz``.
+    channels : tuple of int
+        Channels listed in ``sensors``, ascending.
+    artifact_id, artifact_type : str or None
+        ``artifact.id`` and ``artifact.type`` (``ring_gauge`` or ``part``).
+    certified_diameter_mm, u_diameter_mm, nominal_diameter_mm, cte_per_k : float or None
+        The artifact's certificate values (at 20 degC) and its expansion coefficient [1/K].
+    temperature_c : float or None
+        ``environment.temperature_c``.
+    rpm_nominal : float or None
+        ``spindle.rpm_nominal``.
+    direction : str or None
+        ``spindle.direction`` (``ccw`` or ``cw``).
+    spindle_x_mm, spindle_y_mm : float or None
+        ``spindle.position`` of a three-sensor scan.
+    has_device_nominal : bool
+        Whether ``device.nominal`` is given (the device's nominal geometry).
+    simulated : bool
+        ``acquisition.simulated``.
+    """
+
+    scan_id: str
+    night: str
+    kind: str
+    started_at: str
+    device_id: str
+    device_type: str
+    sample_rate_hz: float
+    channels: tuple[int, ...]
+    artifact_id: str | None = None
+    artifact_type: str | None = None
+    certified_diameter_mm: float | None = None
+    u_diameter_mm: float | None = None
+    nominal_diameter_mm: float | None = None
+    cte_per_k: float | None = None
+    temperature_c: float | None = None
+    rpm_nominal: float | None = None
+    direction: str | None = None
+    spindle_x_mm: float | None = None
+    spindle_y_mm: float | None = None
+    has_device_nominal: bool = False
+    simulated: bool = False
+
+    @classmethod
+    def from_scan_json(cls, meta: dict) -> ScanMeta:
+        """Return the typed fields of a parsed, validated ``scan.json``."""
+        device, art = _section(meta, "device"), _section(meta, "artifact")
+        spindle = _section(meta, "spindle")
+        position = spindle.get("position") if isinstance(spindle.get("position"), dict) else {}
+        art_id = art.get("id")
+        return cls(
+            scan_id=str(meta["scan_id"]),
+            night=str(meta["night"]),
+            kind=str(meta["kind"]),
+            started_at=str(meta["started_at"]),
+            device_id=str(device["id"]),
+            device_type=str(device["type"]),
+            sample_rate_hz=float(meta["sample_rate_hz"]),
+            channels=tuple(sorted(int(s["channel"]) for s in meta.get("sensors") or ())),
+            artifact_id=None if art_id is None else str(art_id),
+            artifact_type=art.get("type"),
+            certified_diameter_mm=_number(art.get("certified_diameter_mm")),
+            u_diameter_mm=_number(art.get("u_diameter_mm")),
+            nominal_diameter_mm=_number(art.get("nominal_diameter_mm")),
+            cte_per_k=_number(art.get("cte_per_k")),
+            temperature_c=_number(_section(meta, "environment").get("temperature_c")),
+            rpm_nominal=_number(spindle.get("rpm_nominal")),
+            direction=spindle.get("direction"),
+            spindle_x_mm=_number(position.get("x_mm")),
+            spindle_y_mm=_number(position.get("y_mm")),
+            has_device_nominal=isinstance(device.get("nominal"), dict),
+            simulated=bool(_section(meta, "acquisition").get("simulated", False)),
+        )
+
+    def to_dict(self) -> dict:
+        """JSON-ready fields (``channels`` as a list)."""
+        out = asdict(self)
+        out["channels"] = list(self.channels)
+        return out
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ScanMeta:
+        """Inverse of :meth:`to_dict`; a field this version does not know is an error."""
+        known = {f.name for f in fields(cls)}
+        extra = set(d) - known
+        if extra:
+            raise ValueError(f"unknown ScanMeta fields {sorted(extra)}")
+        return cls(**{**d, "channels": tuple(int(c) for c in d["channels"])})
+
+
 @dataclass
 class RawScan:
     """One validated raw scan.
@@ -122,6 +233,11 @@ class RawScan:
     def device_type(self) -> str:
         """``meta["device"]["type"]`` (``tri_lds`` or ``rod``)."""
         return self.meta["device"]["type"]
+
+    @property
+    def scan_meta(self) -> ScanMeta:
+        """The typed fields of ``meta`` the stages use (:class:`ScanMeta`)."""
+        return ScanMeta.from_scan_json(self.meta)
 
     @property
     def channels(self) -> tuple[int, ...]:

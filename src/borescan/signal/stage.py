@@ -345,8 +345,7 @@ def process_scan(scan: Any, matrix: Any = None, **cfg: Any) -> SignalResult:
         v2[sample - sample[0]] = vals
         vals = v2
         t_s = np.interp(full, sample, t_s)
-    meta = scan.meta
-    sp = meta.get("spindle") or {}
+    sm = scan.scan_meta  # typed scan.json fields (rawio.ScanMeta)
     enc_t = enc_a = commanded = None
     if scan.spindle is not None and "angle_rad" in scan.spindle.columns:
         a = scan.spindle["angle_rad"].cast(pl.Float64).to_numpy()
@@ -356,12 +355,12 @@ def process_scan(scan: Any, matrix: Any = None, **cfg: Any) -> SignalResult:
     if enc_a is None and scan.spindle is not None and scan.spindle.height > 1:
         from borescan.kinematics import angle_model_of_scan
 
-        am = angle_model_of_scan(meta, scan.spindle)
+        am = angle_model_of_scan(scan.meta, scan.spindle)
         commanded = am.commanded_rad(t_s)
     kw = dict(
-        sample_rate_hz=float(meta["sample_rate_hz"]),
-        rpm_nominal=sp.get("rpm_nominal"),
-        direction=sp.get("direction", "ccw"),
+        sample_rate_hz=sm.sample_rate_hz,
+        rpm_nominal=sm.rpm_nominal,
+        direction=sm.direction or "ccw",
         scan_id=scan.scan_id,
         channels=tuple(mat.channels),
         sample0=int(full[0]),

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import polars as pl
 
-from borescan import tables
+from borescan import rawio, tables
 from borescan.atomic import atomic_write_bytes
 from borescan.stages.quarantine import (
     Quarantined,
@@ -75,19 +75,18 @@ def ok_scans(scans_table: str | Path | pl.DataFrame) -> pl.DataFrame:
 
 
 def night_scans(
-    raw_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame, **where: str
+    results_root: str | Path, night: str, scans_table: str | Path | pl.DataFrame, **where: str
 ) -> list[tuple[dict, Path]]:
-    """Return the ``ok`` rows of a night's ``scans`` table.
+    """Return the ``ok`` rows of a night's ``scans`` table with their folders in the readings store.
 
-    Return the ``ok`` rows of a night's ``scans`` table (optionally filtered, e.g. kind=...) with their
-    folders.
+    Optionally filtered (e.g. kind=...); each folder is read by :func:`borescan.rawio.load_stored_scan`
+    (ingest's validated readings and ``ScanMeta``: later stages never read raw files).
     """
     df = ok_scans(scans_table)
     for col, value in where.items():
         df = df.filter(pl.col(col) == value)
     return [
-        (row, Path(raw_root) / f"night={night}" / f"scan={row['scan_id']}")
-        for row in df.iter_rows(named=True)
+        (row, rawio.stored_scan_dir(results_root, night, row["scan_id"])) for row in df.iter_rows(named=True)
     ]
 
 

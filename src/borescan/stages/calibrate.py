@@ -8,6 +8,7 @@ processes.
 
 from __future__ import annotations
 
+
 from pathlib import Path
 
 import polars as pl
@@ -81,12 +82,12 @@ def stage_calibrate(
     summary = pl.read_parquet(summary_table) if not isinstance(summary_table, pl.DataFrame) else summary_table
     clear_night_folder(results_root, "calibration", night)  # certificates of a rerun replace the night's
     by_device: dict[str, list] = {}
-    for row, d in night_scans(raw_root, night, scans_table, kind="calibration", device_type="tri_lds"):
+    for row, d in night_scans(results_root, night, scans_table, kind="calibration", device_type="tri_lds"):
         by_device.setdefault(row["device_id"], []).append((row, d))
     groups = [("tri", tuple(items)) for _, items in sorted(by_device.items())]
     groups += [
         ("rod", (item,))
-        for item in night_scans(raw_root, night, scans_table, kind="calibration", device_type="rod")
+        for item in night_scans(results_root, night, scans_table, kind="calibration", device_type="rod")
     ]
     jobs = [CalibrationJob(kind, items, Path(results_root), summary, cfg, settings) for kind, items in groups]
     if jobs:
@@ -100,10 +101,8 @@ def stage_calibrate(
             log(line)
         log(compute_line(job.name, cpu_s))
     cal_rows, link_rows = list(made["tri"].calibration_rows), list(made["tri"].calibration_scan_rows)
-    for row, d in night_scans(raw_root, night, scans_table, device_type="rod"):
-        rows = rod_nominal_calibration_rows(
-            rawio.read_scan_meta(d, raw_root=Path(raw_root)), night, row["scan_id"]
-        )
+    for row, d in night_scans(results_root, night, scans_table, device_type="rod"):
+        rows = rod_nominal_calibration_rows(rawio.load_scan_json(d), night, row["scan_id"])
         if rows and rows[0]["calibration_id"] not in {r["calibration_id"] for r in cal_rows}:
             cal_rows += rows
             link_rows.append({"calibration_id": rows[0]["calibration_id"], "scan_id": row["scan_id"]})
@@ -144,7 +143,7 @@ def _calibrate_rod(job: CalibrationJob, ctx: TriCalibrationContext, log) -> Cali
     }
     cal_rows, link_rows, bad = [], [], []
     calibrate_rod_scan(
-        rawio.read_scan(d, raw_root=ctx.raw_root),
+        rawio.load_stored_scan(d),
         job.settings.night,
         job.results_root,
         bad,

@@ -84,7 +84,7 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
     rel_cert = str((link / "certificate.pdf").relative_to(Path(results_root)))
     raw_files = {f"{sid}/{k}": v for k, v in sorted(scan.sha256.items())}
     rows = rod_calibration.rod_calibration_rows(cal, night, rel_cert, rawio.combined_sha256(raw_files), p)
-    ver_rows, _ = _night_rod_verifications(cal, rows, night, ctx, log)
+    ver_rows, _ = _night_rod_verifications(cal, rows, night, results_root, ctx, log)
     dates = certificate.certificate_dates(
         [meta], night, int(cfg["validity_days"]), night_config.first_processed(results_root, night)
     )
@@ -133,7 +133,7 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
 
 
 def _night_rod_verifications(
-    cal, rows: list[dict], night: str, ctx: dict, log
+    cal, rows: list[dict], night: str, results_root, ctx: dict, log
 ) -> tuple[list[dict], list[dict]]:
     """Return the night's gauge verifications of the rod.
 
@@ -143,9 +143,9 @@ def _night_rod_verifications(
     """
     out, metas = [], []
     for _row, d in night_scans(
-        ctx["raw_root"], night, ctx["scans_table"], kind="verification", device_id=cal.device_id
+        results_root, night, ctx["scans_table"], kind="verification", device_id=cal.device_id
     ):
-        scan = rawio.read_scan(d, raw_root=Path(ctx["raw_root"]))
+        scan = rawio.load_stored_scan(d)
         try:
             res = rod_calibration.rod_diameters_with_budget(
                 scan, rows, ctx["uncertainty"], cal.calibration_id, ctx.get("cleaning")

@@ -78,7 +78,7 @@ def _usable_scans(job: TriDeviceJob) -> UsableScans:
     scans, inputs, nominal, bad = [], [], None, []
     lost = _set_aside_at_ingest(job.ctx.scans_table, job.items[0][0]["device_id"])
     for _row, d in job.items:
-        scan = rawio.read_scan(d, raw_root=Path(job.ctx.raw_root))
+        scan = rawio.load_stored_scan(d)
         problem = _unusable(scan, job.summary, min_rev)
         if problem == "":
             lost.append(f"{scan.scan_id} (set aside by the signal stage)")
@@ -183,7 +183,7 @@ def _certify(job: TriDeviceJob, scans: list, inputs: list[SpindleInputs], cal, b
                 cal, first.t_s, first.readings_mm, first.radius_mm, ids[0], angle_model=first.angle_model
             ),
         }
-    ver_rows = _night_verifications(cal, night, ctx, job.log)
+    ver_rows = _night_verifications(cal, night, job.results_root, ctx, job.log)
     conditions = certificate.calibration_conditions(
         first.temperature,
         first.cte,
@@ -289,7 +289,7 @@ def _blame_failed_fit(
     return FitBlame(bad, (), ())
 
 
-def _night_verifications(cal, night: str, ctx: TriCalibrationContext, log) -> list[dict]:
+def _night_verifications(cal, night: str, results_root, ctx: TriCalibrationContext, log) -> list[dict]:
     """Return the night's ring-gauge verifications of the calibration's device.
 
     Return the night's ring-gauge verifications of the calibration's device, made with it
@@ -298,9 +298,9 @@ def _night_verifications(cal, night: str, ctx: TriCalibrationContext, log) -> li
     """
     rows = []
     for _row, d in night_scans(
-        ctx.raw_root, night, ctx.scans_table, kind="verification", device_id=cal.device_id
+        results_root, night, ctx.scans_table, kind="verification", device_id=cal.device_id
     ):
-        scan = rawio.read_scan(d, raw_root=Path(ctx.raw_root))
+        scan = rawio.load_stored_scan(d)
         try:
             row = measure.verification_for_certificate(
                 scan,

@@ -101,7 +101,7 @@ def stage_discrepancy(
     clear_night_folder(results_root, "discrepancy", night)
     cals = read_tables(calibration_tables or [], "calibrations")
     jobs = []
-    for row, d in night_scans(raw_root, night, scans_table):
+    for row, d in night_scans(results_root, night, scans_table):
         ref_kw, ref = discrepancy_reference(cals, row["device_id"], row["device_type"], night)
         jobs.append((raw_root, night, results_root, d, settings, ref_kw, ref))
     log(f"{len(jobs)} scans on {workers_for(len(jobs), workers)} process(es)")
@@ -118,7 +118,7 @@ def discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
     """Examine one scan, write findings.json and gap.png: (findings rows, quarantined, log line)."""
     raw_root, night, results_root, d, settings, ref_kw, ref = job
     bad: list[Quarantined] = []
-    scan = rawio.read_scan(d, raw_root=Path(raw_root))
+    scan = rawio.load_stored_scan(d)
     out_dir = findings_night_dir(results_root, night) / scan.scan_id
     try:
         ex = discrepancy.analyse_scan(scan, **settings, **ref_kw)

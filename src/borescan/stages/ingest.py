@@ -39,8 +39,11 @@ def stage_ingest(
 
     Returns the ``scans`` rows (status ``ok`` or ``quarantined`` with the reason), the
     ``scan_files`` rows (SHA-256 and size of every raw file, bad scans included) and the
-    quarantine records (also written as ``quarantine/<scan_id>.json``). ``duplicate_ids``
-    (:func:`borescan.rawio.earlier_duplicate_ids`) are quarantined: an earlier night has them.
+    quarantine records (also written as ``quarantine/<scan_id>.json``). Each valid scan's readings
+    and ``ScanMeta`` go to the night's readings store (:mod:`borescan.rawio.store`,
+    ``<results_root>/stage/readings/night=<night>/``), which every later stage reads instead of raw.
+    ``duplicate_ids`` (:func:`borescan.rawio.earlier_duplicate_ids`) are quarantined: an earlier
+    night has them.
 
     ``earlier_scans``: the ``scans`` tables (paths or frames) of earlier nights. A scan whose
     artifact certificate contradicts an earlier record of the same certificate
@@ -50,6 +53,7 @@ def stage_ingest(
     """
     dup = set(duplicate_ids)
     limits = validation.Plausibility.from_config(plausibility)
+    rawio.clear_readings_dir(results_root, night)  # the night's store holds the scans this run accepts
     jobs = [
         (raw_root, night, results_root, d, d.name[5:] in dup, limits)
         for d in rawio.night_scan_dirs(raw_root, night)
@@ -133,20 +137,23 @@ def _ingest_one(job) -> tuple[dict, list[dict], Quarantined | None]:
         file_rows.append(
             {"scan_id": scan_id, "night": night, "file": f.name, "sha256": digest, "bytes": size}
         )
-    meta: dict = {}
-    try:
-        meta = rawio.read_scan_meta(d)
-    except rawio.ScanError:
-        pass
     # the one validator, shared with `borescan validate`: the first problem is the reason
     earlier = validation.earlier_night_of(raw_root, night, scan_id) if duplicate else None
-    _, problems = validation.scan_problems(
+    scan, problems = validation.scan_problems(
         d, raw_root, duplicate=duplicate, earlier_night=earlier, limits=limits
     )
+    meta: dict = scan.meta if scan is not None else {}
+    if scan is None:  # a scan that cannot be read whole: its row gets what scan.json gives
+        try:
+            meta = rawio.read_scan_meta(d)
+        except rawio.ScanError:
+            pass
     # the folder's own id (a ScanError shortens an id that is no valid id to name it)
     problem = (
         Quarantined(scan_id, night, "ingest", problems[0].file, problems[0].problem) if problems else None
     )
     if problem is not None:
         write_quarantine_record(results_root, problem)
+    else:  # what later stages read instead of the raw files (borescan.rawio.store)
+        rawio.write_stored_scan(rawio.stored_scan_dir(results_root, night, scan_id), scan, hashes)
     return scan_row(scan_id, night, d, meta, hashes, problem), file_rows, problem

@@ -13,7 +13,6 @@ certificate and decides by the ``laboratory`` section's decision rule.
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import polars as pl
@@ -79,7 +78,7 @@ def stage_measure(
     cals = read_tables(calibration_tables, "calibrations")
     failed = failed_calibration_ids(read_tables(verification_tables_before, "verifications"))
     diam, ver, arts, bad = [], [], {}, []
-    items = night_scans(raw_root, night, scans_table)
+    items = night_scans(results_root, night, scans_table)
     rod_policy = cfg["measurement"]["rod_without_calibration"]
 
     def job(row, d):
@@ -131,7 +130,7 @@ def measure_one(job) -> dict:
     raw_root, night, results_root, row, d, cal_id, why, cals, tol, unc, lab, part, clean = job
     out = {"diameters": [], "verifications": [], "quarantined": [], "artifact": None, "log": None}
     bad = out["quarantined"]
-    scan = rawio.read_scan(d, raw_root=Path(raw_root))
+    scan = rawio.load_stored_scan(d)
     meta, sid, dev = scan.meta, scan.scan_id, row["device_id"]
     out["artifact"] = artifact_row(meta)
     if cal_id is None:

@@ -154,7 +154,7 @@ def stage_pooled(
     jobs = []
     for (device,), g in scans.sort("night", "scan_id").group_by(["device_id"], maintain_order=True):
         dirs = [
-            Path(raw_root) / f"night={r['night']}" / f"scan={r['scan_id']}" for r in g.iter_rows(named=True)
+            rawio.stored_scan_dir(results_root, r["night"], r["scan_id"]) for r in g.iter_rows(named=True)
         ]
         ref_kw, ref = discrepancy_reference(cals, device, "tri_lds", night)
         effects = device_model_effects(devices, device, night)
@@ -203,7 +203,7 @@ def pooled_device(job) -> tuple[str, dict | None, str]:
     line).
     """
     raw_root, night, out_dir, device, dirs, ref_kw, ref, effects, settings = job
-    scans = [rawio.read_scan(d, raw_root=Path(raw_root)) for d in dirs]
+    scans = [rawio.load_stored_scan(d) for d in dirs]
     spindle = [s for s in scans if "pose" not in s.lds.columns or s.lds["pose"].null_count() == s.lds.height]
     if len(spindle) < 2:
         return device, None, f"{device}: {len(spindle)} spindle scan(s) of a certified gauge: nothing to pool"

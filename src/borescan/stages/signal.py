@@ -56,7 +56,7 @@ def stage_signal(
     opts = signal_options(cfg)
     jobs = [
         (raw_root, night, results_root, d, opts)
-        for _, d in night_scans(raw_root, night, scans_table, device_type="tri_lds")
+        for _, d in night_scans(results_root, night, scans_table, device_type="tri_lds")
     ]
     log(f"{len(jobs)} three-sensor scans on {workers_for(len(jobs), workers)} process(es)")
     extrema, summaries, bad = [], [], []
@@ -74,16 +74,16 @@ def stage_signal(
 def signal_one(job) -> tuple[pl.DataFrame | None, pl.DataFrame | None, list[Quarantined], str | None]:
     """Run the signal stage of one scan.
 
-    Signal stage of one scan ``(raw_root, night, results_root, scan_dir, options)``:
+    Signal stage of one scan ``(raw_root, night, results_root, stored scan folder, options)``:
     (extrema, summary, quarantined, log line); None frames when skipped (static scans).
     """
     raw_root, night, results_root, d, opts = job
     bad: list[Quarantined] = []
-    scan = rawio.read_scan(d, raw_root=Path(raw_root))
+    scan = rawio.load_stored_scan(d)
     if scan.spindle is None:
         return None, None, bad, None  # static readings: no revolutions
     mat = rawio.lds_matrix(scan)
-    jump = rawio.clock_jump(np.asarray(mat.sample), np.asarray(mat.t_s), float(scan.meta["sample_rate_hz"]))
+    jump = rawio.clock_jump(np.asarray(mat.sample), np.asarray(mat.t_s), scan.scan_meta.sample_rate_hz)
     if jump:
         quarantine(results_root, bad, scan.scan_id, night, "signal", "lds.parquet", jump)
         return None, None, bad, None
