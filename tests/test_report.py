@@ -1009,7 +1009,9 @@ def test_calibration_trends_give_a_panel_only_to_parameters_that_change():
     shown = [ax for ax in fig.axes if ax.get_visible()]
     assert len(shown) == 2 and {ax.get_title() for ax in shown} == {"channel 1", "channel 2"}
     title = fig._suptitle.get_text()
-    assert "h_mm 100, 200; phi_rad 0, 0; d_mm 0, 0; gamma_rad 0, 0" in title
+    assert "h_mm 100, 200; phi_rad 0, 0; d_mm 0, 0; gamma_rad 0, 0" in " ".join(title.split())
+    # wrapped to the figure's width (it ran off both sides of a two-channel figure)
+    assert max(len(line) for line in title.splitlines()) <= 12 * fig.get_figwidth()
 
 
 def test_part_plot_labels_that_would_overlap_are_slanted_and_a_gauge_is_the_bore():
