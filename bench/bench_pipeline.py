@@ -170,9 +170,10 @@ class TimedRun:
 def run_timed(cmd: list[str], cwd: Path, sample_every_s: float = 1.0) -> TimedRun:
     """Run ``cmd`` and return its :class:`TimedRun`.
 
-    The CPU time is not stretched by other programs on the machine as the wall time is, so a stage's cost
-    can be read from it under any load; the load average says how far the wall time can be trusted
-    (on this 2-core machine, a load above 2 means the run waited for a core).
+    The CPU time stretches far less than the wall time when other programs share the cores, but it does
+    stretch (2-4x at a load of 20-27 on 2 cores against 10): the load average says how far either can be
+    trusted (on a 2-core machine a load above 2 means the run waited for a core); compare runs taken
+    alternately at a similar load.
     """
     loads: list[float] = []
     done = threading.Event()

@@ -1,4 +1,4 @@
-"""What the night benchmarks read: a run's CPU time under any load, and each job's from its log."""
+"""What the night benchmarks read: a run's CPU and load, each job's CPU from its log, two roots compared."""
 
 import os
 import sys

@@ -187,8 +187,10 @@ def job_cpu(before_stage_s: float = 0.0) -> JobCpu:
 
     ``getrusage``: exact, unlike a sampled figure (Snakemake's ``benchmark:`` files take ``cpu_time``
     from samples of the job's process tree every 0.5 s for its first 15 s, every 30 s after, so a
-    worker's last seconds and a long job's tail are missed), and unchanged by other programs' load,
-    which only stretches the wall time.
+    worker's last seconds and a long job's tail are missed). Far less stretched by other programs'
+    load than the wall time, but not immune: with 20-27 runnable processes on 2 cores the same work
+    took 2-4 times the CPU seconds it takes at a load of 10 (caches shared, cores switched every few
+    ms), so compare figures taken at a similar load.
     """
     me = resource.getrusage(resource.RUSAGE_SELF)
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
