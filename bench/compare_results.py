@@ -3,7 +3,7 @@
 For a change that moves a whole-night number (issue 38): run the same night with the old and the new
 code into two results roots, then
 
-    python -m bench.compare_results RESULTS_OLD RESULTS_NEW
+    python -m bench.compare_results RESULTS_OLD RESULTS_NEW [--ignore scans.raw_path]
 
 Every table of the catalog (``catalog.duckdb``: each table's columns and its rows in key order, and
 each saved query's rows) and every file of a certificate (``calibration/night=*/**``: json, dcc.xml,
@@ -84,9 +84,24 @@ def _column_differences(cols: list[str], old: list[tuple], new: list[tuple]) -> 
     return tuple(diffs)
 
 
-def compare_catalogs(old: Path, new: Path) -> list[TableDifference]:
-    """Return the tables and saved queries that differ between the catalogs of two results roots."""
+def _without(snapshot: dict, ignore: set[str]) -> dict:
+    """Drop the columns named ``table.column`` in ``ignore`` from a :func:`catalog_snapshot`."""
+    out = {}
+    for t, (cols, rows) in snapshot.items():
+        keep = [j for j, c in enumerate(cols) if f"{t}.{c}" not in ignore]
+        out[t] = ([cols[j] for j in keep], sorted((tuple(r[j] for j in keep) for r in rows), key=repr))
+    return out
+
+
+def compare_catalogs(old: Path, new: Path, ignore: set[str] = frozenset()) -> list[TableDifference]:
+    """Return the tables and saved queries that differ between the catalogs of two results roots.
+
+    ``ignore``: columns left out, as ``table.column`` (``scans.raw_path`` when the two runs read the
+    same scans from two raw roots).
+    """
     a, b = catalog_snapshot(old), catalog_snapshot(new)
+    if ignore:
+        a, b = _without(a, ignore), _without(b, ignore)
     out = []
     for t in sorted(set(a) | set(b)):
         if t not in a or t not in b:
@@ -129,11 +144,18 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("old", type=Path)
     ap.add_argument("new", type=Path)
+    ap.add_argument(
+        "--ignore",
+        action="append",
+        default=[],
+        metavar="TABLE.COLUMN",
+        help="leave a column out (e.g. scans.raw_path when the runs read two copies of the raw root)",
+    )
     a = ap.parse_args(argv)
     for root in (a.old, a.new):
         if not (root / "catalog.duckdb").is_file():
             raise SystemExit(f"{root}: no catalog.duckdb (not a results root, or the night did not finish)")
-    tables = compare_catalogs(a.old, a.new)
+    tables = compare_catalogs(a.old, a.new, set(a.ignore))
     n_tables = len(catalog_snapshot(a.old))
     n_files, files = compare_certificates(a.old, a.new)
     print(f"catalog: {n_tables - len(tables)} of {n_tables} tables and saved queries the same")

@@ -94,6 +94,7 @@ def test_compare_results_names_the_table_column_and_certificate_file_that_differ
     assert n == 2 and files == [
         "TRI-1/TRI-1-20270101-full_lsq-0/certificate.pdf".join(["night=2027-01-01/", ""])
     ]
+    assert compare_catalogs(old, new, {"scans.artifact_certified_diameter_mm"}) == []
     capsys.readouterr()
     assert main([str(old), str(new)]) == 1
     out = capsys.readouterr().out
