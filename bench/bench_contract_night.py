@@ -10,7 +10,9 @@ battery's realistic size (just visible to large), so that some calibrations are 
 their devices are examined against the design geometry with the beams free.
 
 The reproduction of the papers runs first into the same results folder, untimed (not part of a
-night). Then the night is timed: wall time, each rule's job time (Snakemake's benchmark files),
+night). Then the night is timed: wall time, the load average meanwhile, the CPU time of the whole
+run, of Snakemake itself and of each rule's jobs (workers and imports included: each job log's last
+line, ``borescan.workflow_log.job_cpu_line``), each rule's job time (Snakemake's benchmark files),
 and per stage the percentiles (50, 95, max) of the CPU seconds of each scan's (calibration:
 each device's; pooled: each device's) work, read from the ``compute <item> <s> s`` lines the
 stages write to their logs (:func:`borescan.workflow_log.compute_line`; never into a table).
@@ -36,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.bench_pipeline import job_times, union_seconds
+from bench.bench_pipeline import job_cpu, job_times, run_timed, union_seconds
 
 ROOT = Path(__file__).resolve().parents[1]
 KINDS = "calibration,measurement,static,rod,rod_calibration"
@@ -100,17 +102,20 @@ def run_night(raw: Path, results: Path, cores: int) -> dict:
         f"raw_root={raw}",
         f"results_root={results}",
     ]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
-    wall = time.perf_counter() - t0
-    if proc.returncode != 0:
-        print(proc.stderr[-3000:])
+    run = run_timed(cmd, ROOT)
+    if run.returncode != 0:
+        print(run.stderr[-3000:])
         raise SystemExit("pipeline failed")
     jobs = job_times(results)
     busy = union_seconds([x for iv in jobs.values() for x in iv])
+    cpu = {r: sum(v) for r, v in job_cpu(results, run.started_at).items()}
     return {
-        "wall": wall,
+        "wall": run.wall_s,
+        "cpu": run.cpu_s,
+        "snakemake_cpu": run.cpu_s - sum(cpu.values()),
+        "load": (run.load_min, run.load_median, run.load_max),
         "jobs": {r: sum(b - a for a, b in iv) for r, iv in jobs.items()},
+        "jobs_cpu": cpu,
         "busy": busy,
         "compute": compute_seconds(results),
     }
@@ -133,13 +138,22 @@ def report(runs: dict[int, dict], n_scans: int) -> None:
         + "".join(f"{runs[c]['wall']:14.1f}" for c in cores)
         + "   (target <= 60 s on 2 cores)"
     )
-    print(f"{'some job running [s]':34}" + "".join(f"{runs[c]['busy']:14.1f}" for c in cores))
+
+    def row(label: str, cell) -> None:
+        print(f"{label:34}" + "".join(f"{cell(runs[c]):>14}" for c in cores))
+
+    row("load average (min-max)", lambda r: f"{r['load'][0]:.1f}-{r['load'][2]:.1f}")
+    print(f"{'':34}(on 2 cores a load above 2 means the run waited for a core: read the CPU seconds)")
+    row("CPU, Snakemake and all jobs [s]", lambda r: f"{r['cpu']:.1f}")
+    row("CPU, Snakemake itself [s]", lambda r: f"{r['snakemake_cpu']:.1f}")
+    row("some job running [s]", lambda r: f"{r['busy']:.1f}")
     rules = sorted(
-        {r for c in cores for r in runs[c]["jobs"]}, key=lambda r: -runs[cores[-1]]["jobs"].get(r, 0.0)
+        {r for c in cores for r in runs[c]["jobs"]}, key=lambda r: -runs[cores[-1]]["jobs_cpu"].get(r, 0.0)
     )
-    print("job time per rule [s]")
-    for r in rules:
-        print(f"  {r:32}" + "".join(f"{runs[c]['jobs'].get(r, float('nan')):14.1f}" for c in cores))
+    print("per rule: job time / CPU [s] (CPU: user + sys of the job and its workers, imports included)")
+    nan = float("nan")
+    for rule in rules:
+        row(f"  {rule}", lambda r, k=rule: f"{r['jobs'].get(k, nan):.1f} / {r['jobs_cpu'].get(k, nan):.1f}")
     print("per-item compute [CPU s]: items  p50  p95  max (slowest item)   (targets: p95 < 2 s, max <= 10 s)")
     for stage in STAGES:
         for c in cores:

@@ -288,6 +288,34 @@ def test_report_from_given_frames_without_catalog(tmp_path):
     assert (res / "report" / "2026-11" / "control_TRI-02.png").is_file()
 
 
+def test_a_gauge_verified_once_gets_a_note_instead_of_an_empty_chart(tmp_path):
+    """One verification of a device on a gauge has no moving range, hence no control limits: the
+    report says so and draws no chart (a contract night verifies most rod gauges once); the
+    device's other gauge, verified twice, keeps its chart.
+    """
+    res = tmp_path / "results"
+    ver = pl.DataFrame(
+        {
+            "scan_id": ["V1", "V2", "V3"],
+            "night": ["2026-11-20", "2026-11-21", "2026-11-21"],
+            "device_id": ["ROD-01"] * 3,
+            "artifact_id": ["RGS-1/H1", "RGS-1/H1", "RGS-1/H2"],
+            "error_mm": [0.001, 0.003, 0.002],
+            "tolerance_mm": [0.015] * 3,
+            "passed": [True] * 3,
+            "calibration_id": ["C"] * 3,
+            "measured_mm": [None] * 3,
+            "certified_mm": [None] * 3,
+        }
+    )
+    text = write_report(res, {"verifications": ver}).read_text()
+    assert 'Device ROD-01 · gauge RGS-1/H2</h3><p class="note">One verification: no control chart' in text
+    assert 'Device ROD-01 · gauge RGS-1/H1</h3><p class="note">One verification' not in text
+    charts = sorted(p.name for p in (res / "report" / "2026-11").glob("control_*.png"))
+    assert charts == ["control_ROD-01_RGS-1_H1.png"], charts
+    assert ">V3<" in text  # the single verification's row is still in its table
+
+
 # --------------------------------------------------------------------------- what needs attention
 
 
@@ -981,7 +1009,9 @@ def test_calibration_trends_give_a_panel_only_to_parameters_that_change():
     shown = [ax for ax in fig.axes if ax.get_visible()]
     assert len(shown) == 2 and {ax.get_title() for ax in shown} == {"channel 1", "channel 2"}
     title = fig._suptitle.get_text()
-    assert "h_mm 100, 200; phi_rad 0, 0; d_mm 0, 0; gamma_rad 0, 0" in title
+    assert "h_mm 100, 200; phi_rad 0, 0; d_mm 0, 0; gamma_rad 0, 0" in " ".join(title.split())
+    # wrapped to the figure's width (it ran off both sides of a two-channel figure)
+    assert max(len(line) for line in title.splitlines()) <= 12 * fig.get_figwidth()
 
 
 def test_part_plot_labels_that_would_overlap_are_slanted_and_a_gauge_is_the_bore():

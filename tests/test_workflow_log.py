@@ -115,3 +115,54 @@ def test_a_run_log_is_quiet_and_readable(tmp_path):
     log = proc.stdout + proc.stderr
     assert proc.returncode != 0 and len(log.splitlines()) < 15, log[-3000:]
     assert "calibraton: unknown key (known here: artifacts, calibration," in log
+
+
+def _burn_cpu(seconds: float) -> float:
+    """Spin on this process's CPU clock for ``seconds``; return the process's CPU time at the end."""
+    import time
+
+    t0 = time.process_time()
+    while time.process_time() - t0 < seconds:
+        sum(i * i for i in range(1000))
+    return time.process_time()
+
+
+def test_a_jobs_last_log_line_counts_the_cpu_of_its_workers(tmp_path):
+    """log_to's last line is the job's CPU: a worker of the job's pool (parallel.start_job_workers) is
+    stopped and waited for first, so the CPU it spent (0.3 s, read on its own clock) is in the line's
+    worker seconds; the line's user + sys equals its own process + workers (printed to 1 ms each).
+    """
+    import time
+
+    from borescan import parallel
+    from borescan.workflow_log import job_cpu, log_to, parse_job_cpu
+
+    before = job_cpu()
+    pool = parallel._spawn_pool(1)
+    parallel._JOB_POOL.update(pool=pool, workers=2)
+    log_file = tmp_path / "logs" / "job.log"
+    with log_to(log_file) as log:
+        worker_cpu_s = pool.submit(_burn_cpu, 0.3).result()
+        log("one item")
+    assert not parallel._JOB_POOL  # stopped: the worker has exited (its CPU is counted below)
+    lines = log_file.read_text().splitlines()
+    assert lines[0].endswith("one item") and len(lines) == 2
+    cpu = parse_job_cpu(lines[-1])
+    assert cpu is not None
+    # the worker's whole life (interpreter start, imports, the burn) is at least what its clock read
+    assert cpu.workers_s - before.workers_s >= worker_cpu_s - 0.01
+    assert abs(cpu.total_s - (cpu.own_s + cpu.workers_s)) <= 0.004
+    assert 0.0 <= cpu.before_stage_s <= cpu.own_s <= time.process_time() + 0.01
+
+
+def test_a_job_that_fails_writes_no_cpu_line(tmp_path):
+    """On an error the log ends where the job stopped: no CPU line is added after the traceback's cause."""
+    import pytest
+
+    from borescan.workflow_log import log_to
+
+    log_file = tmp_path / "job.log"
+    with pytest.raises(ValueError), log_to(log_file) as log:
+        log("started")
+        raise ValueError("bad scan")
+    assert log_file.read_text().splitlines()[-1].endswith("started")

@@ -26,6 +26,7 @@ __all__ = [
     "JOB_MALLOC_ENVIRONMENT",
     "set_job_environment",
     "start_job_workers",
+    "stop_job_workers",
 ]
 
 T = TypeVar("T")
@@ -177,6 +178,21 @@ def start_job_workers(namespace: dict) -> int:
         pool.submit(int)  # spawns a worker now: it imports the job's script while this process does
     _JOB_POOL.update(pool=pool, workers=workers)
     return workers
+
+
+def stop_job_workers() -> int:
+    """Shut down the workers :func:`start_job_workers` spawned and wait until they have exited.
+
+    Once they have exited (and been waited for) their CPU time counts in this process's
+    ``resource.getrusage(RUSAGE_CHILDREN)`` (``workflow_log.job_cpu``). Returns the number of
+    workers stopped (0 where there were none); :func:`map_in_order` spawns its own afterwards.
+    """
+    pool = _JOB_POOL.get("pool")
+    n = int(_JOB_POOL.get("workers", 1)) - 1 if pool is not None else 0
+    _JOB_POOL.clear()
+    if pool is not None:
+        pool.shutdown(wait=True)
+    return n
 
 
 #: the job's pool from :func:`start_job_workers`: {"pool": ProcessPoolExecutor, "workers": int}

@@ -3,22 +3,29 @@
 from __future__ import annotations
 
 import contextlib
-import re
 import json
 import os
+import re
+import resource
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator
 
 
 @contextlib.contextmanager
 def log_to(path: str | Path) -> Iterator[Callable[[str], None]]:
-    """Yield a ``log(msg)`` function writing timestamped-by-elapsed-time lines to ``path`` and stderr."""
+    """Yield a ``log(msg)`` function writing timestamped-by-elapsed-time lines to ``path`` and stderr.
+
+    When the block ends without an error, the job's workers (``parallel.start_job_workers``) are
+    stopped and its last line is the job's CPU time (:func:`job_cpu_line`).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    before_s = time.process_time()  # this process's start and imports
     with path.open("w") as fh:
 
         def log(msg: str) -> None:
@@ -28,6 +35,10 @@ def log_to(path: str | Path) -> Iterator[Callable[[str], None]]:
             print(line, file=sys.stderr, flush=True)
 
         yield log
+        from borescan.parallel import stop_job_workers
+
+        stop_job_workers()
+        log(job_cpu_line(job_cpu(before_s)))
 
 
 def rule_job(namespace: dict, script: str | Path, argv: list[str] | None = None):
@@ -150,6 +161,77 @@ def compute_line(item: str, seconds: float) -> str:
     byte-identical).
     """
     return f"compute {item} {seconds:.3f} s"
+
+
+@dataclass(frozen=True)
+class JobCpu:
+    """CPU seconds (user + system) of a job: its own process and the child processes it has waited for."""
+
+    user_s: float
+    sys_s: float
+    #: this process, from its start (the interpreter, the script's imports included)
+    own_s: float
+    #: of ``own_s``, before the stage began (the process's start and imports, up to :func:`log_to`)
+    before_stage_s: float
+    #: its worker processes (spawned interpreters, their imports included) that have exited
+    workers_s: float
+
+    @property
+    def total_s(self) -> float:
+        """User plus system seconds of the process and its exited children."""
+        return self.user_s + self.sys_s
+
+
+def job_cpu(before_stage_s: float = 0.0) -> JobCpu:
+    """Return the CPU time of this process and of its child processes that have ended and been waited for.
+
+    ``getrusage``: exact, unlike a sampled figure (Snakemake's ``benchmark:`` files take ``cpu_time``
+    from samples of the job's process tree every 0.5 s for its first 15 s, every 30 s after, so a
+    worker's last seconds and a long job's tail are missed). Far less stretched by other programs'
+    load than the wall time, but not immune: with 20-27 runnable processes on 2 cores the same work
+    took 2-4 times the CPU seconds it takes at a load of 10 (caches shared, cores switched every few
+    ms), so compare figures taken at a similar load.
+    """
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return JobCpu(
+        user_s=me.ru_utime + kids.ru_utime,
+        sys_s=me.ru_stime + kids.ru_stime,
+        own_s=me.ru_utime + me.ru_stime,
+        before_stage_s=before_stage_s,
+        workers_s=kids.ru_utime + kids.ru_stime,
+    )
+
+
+#: a job's last log line (:func:`job_cpu_line`); ``python -m bench contract_night`` and ``pipeline`` read it
+JOB_CPU_RE = re.compile(
+    r"job cpu (?P<total>[0-9.]+) s \(user (?P<user>[0-9.]+) s, sys (?P<sys>[0-9.]+) s; "
+    r"this process (?P<own>[0-9.]+) s, (?P<before>[0-9.]+) s of it before the stage; "
+    r"worker processes (?P<workers>[0-9.]+) s\)$"
+)
+
+
+def job_cpu_line(cpu: JobCpu) -> str:
+    """Return the log line of a job's CPU seconds (the log only, like :func:`compute_line`)."""
+    return (
+        f"job cpu {cpu.total_s:.3f} s (user {cpu.user_s:.3f} s, sys {cpu.sys_s:.3f} s; "
+        f"this process {cpu.own_s:.3f} s, {cpu.before_stage_s:.3f} s of it before the stage; "
+        f"worker processes {cpu.workers_s:.3f} s)"
+    )
+
+
+def parse_job_cpu(line: str) -> JobCpu | None:
+    """Return the :class:`JobCpu` of a :func:`job_cpu_line` (its log prefix allowed), else None."""
+    m = JOB_CPU_RE.search(line)
+    if m is None:
+        return None
+    return JobCpu(
+        user_s=float(m["user"]),
+        sys_s=float(m["sys"]),
+        own_s=float(m["own"]),
+        before_stage_s=float(m["before"]),
+        workers_s=float(m["workers"]),
+    )
 
 
 # ------------------------------------------------------------------------ locks of a killed run

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import textwrap
 
 import numpy as np
 import polars as pl
@@ -133,8 +134,12 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
         for p in held
     )
     fixed = (
-        f"\nnot fitted (the same in every calibration, no uncertainty; channel "
-        f"{', '.join(map(str, channels))}): {values}"
+        "\n"
+        + textwrap.fill(  # wrapped to the figure's width (about 12 characters an inch at 10 pt)
+            f"not fitted (the same in every calibration, no uncertainty; channel "
+            f"{', '.join(map(str, channels))}): {values}",
+            width=int(12 * fig.get_figwidth()),
+        )
         if held and params != present
         else ""
     )

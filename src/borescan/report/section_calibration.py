@@ -99,6 +99,12 @@ def calibration(page: Page) -> str:
     return "".join(out)
 
 
+#: verifications of one device and gauge (on one page) from which a control chart is drawn: one point has
+#: no moving range, so no limits (a contract night verifies most rod gauges once: 40 empty charts, half
+#: the report's CPU)
+MIN_CHART_POINTS = 2
+
+
 def verification(page: Page) -> str:
     """Return the Verification section: control charts per device and gauge, and the measurements in doubt."""
     ver = page.t["verifications"]
@@ -126,7 +132,12 @@ def _gauge_chart(page: Page, dev: str, gauge: str | None, sub: pl.DataFrame, sev
     lim = control_limits(sub["error_mm"].to_numpy())
     out = [f"<h3>Device {_e(dev)}" + (f" · gauge {_e(gauge)}" if gauge else "") + "</h3>"]
     name = f"control_{dev}_{gauge}" if several and gauge else f"control_{dev}"
-    if gauge:
+    if sub.height < MIN_CHART_POINTS:  # no moving range, no limits: the table below says it all
+        out.append(
+            f'<p class="note">One verification: no control chart until there are {MIN_CHART_POINTS} '
+            "(its limits come from the moving ranges of successive verifications).</p>"
+        )
+    elif gauge:
         out.append(
             page.figure(plot_control_chart, sub, dev, name, f"control chart of {dev} on {gauge}", gauge)
         )
