@@ -37,6 +37,7 @@ START = "2027-01-01"
 CHECKPOINTS = (2, 30, 120, 365)
 TARGET_RATIO = 1.2
 TARGET_QUERY_S = 1.0
+CATALOG_FILES = ("catalog.duckdb", "catalog.duckdb.sha256")
 
 
 def demo_results(tmp: Path) -> Path:
@@ -75,7 +76,8 @@ def _snapshot(results: Path, snap: Path) -> None:
     if snap.exists():
         shutil.rmtree(snap)
     snap.mkdir()
-    shutil.copyfile(results / "catalog.duckdb", snap / "catalog.duckdb")
+    for name in CATALOG_FILES:  # the catalog and its seal: a catalog restored without it reads as damaged
+        shutil.copyfile(results / name, snap / name)
     shutil.copytree(
         results / "report", snap / "report", copy_function=os.link
     )  # files are replaced, never edited
@@ -83,7 +85,8 @@ def _snapshot(results: Path, snap: Path) -> None:
 
 
 def _restore(results: Path, snap: Path) -> None:
-    shutil.copyfile(snap / "catalog.duckdb", results / "catalog.duckdb")
+    for name in CATALOG_FILES:
+        shutil.copyfile(snap / name, results / name)
     shutil.rmtree(results / "report")
     shutil.copytree(snap / "report", results / "report", copy_function=os.link)
     shutil.copyfile(snap / "report.html", results / "report.html")
