@@ -290,6 +290,7 @@ def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_ba
     from borescan import night_config, rawio
     from borescan.certificate import write
     from borescan.config import schema_defaults
+    from borescan.stages.calibrate_jobs import CalibrationOutcome, RodCalibrationContext
     from borescan.stages.calibrate_rod import calibrate_rod_scan
     from borescan.synthetic import battery
 
@@ -297,31 +298,20 @@ def test_every_certificate_of_a_40_scan_contract_battery_has_a_valid_dcc_read_ba
     paths = battery.write_battery(tmp_path, 40, 0, kinds=("rod",))
     assert len(paths) == 40
     dflt = schema_defaults()
-    ctx = {
-        "uncertainty": dflt["uncertainty"],
-        "laboratory": dflt["laboratory"],
-        "verification": dflt["verification"],
-        "raw_root": tmp_path / "raw",
-        "scans_table": pl.DataFrame(
-            schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8}
-        ),
-    }
-    bad, rows, links = [], [], []
+    ctx = RodCalibrationContext(
+        dflt["uncertainty"],
+        dflt["laboratory"],
+        dflt["verification"],
+        pl.DataFrame(schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8}),
+    )
     in_gauges = [s for s in map(rawio.read_scan, paths) if s.meta["kind"] == "verification"]
     night_config.settle(tmp_path / "results", sorted({s.night for s in in_gauges}), dflt)  # as the workflow
+    made = CalibrationOutcome()
     for scan in in_gauges:
-        calibrate_rod_scan(
-            scan,
-            scan.night,
-            tmp_path / "results",
-            bad,
-            rows,
-            links,
-            lambda _m: None,
-            ctx,
-            dflt["calibration"],
+        made = made + calibrate_rod_scan(
+            scan, scan.night, tmp_path / "results", ctx, dflt["calibration"], lambda _m: None
         )
-    issued = ctx["certificate_rows"]
+    issued, bad = list(made.certificate_rows), list(made.quarantined)
     assert len(issued) + len(bad) == len(in_gauges) and len(issued) >= 12, (
         len(issued),
         [q.reason for q in bad],

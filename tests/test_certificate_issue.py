@@ -58,6 +58,7 @@ def results(tmp_path_factory):
     from borescan.certificate_issue import ISSUE_TABLE, issue_frame, issue_row
     from borescan.config import load_config
     from borescan.stages._common import link_into_night
+    from borescan.stages.calibrate_jobs import RodCalibrationContext
     from borescan.stages.calibrate_rod import calibrate_rod_scan
     from borescan.stages.calibration_fit import calibrate_raw_scans, spindle_inputs
 
@@ -112,20 +113,16 @@ def results(tmp_path_factory):
     rows = {night: [issue_row(paths, res, night, residuals)]}
     rod_scan = rawio.read_scan(battery.write_battery(tmp / "battery", 40, 0, kinds=("rod",), only=[0])[0])
     assert rod_scan.meta["kind"] == "verification"  # the rod in a set of certified ring gauges
-    ctx = {
-        "uncertainty": cfg["uncertainty"],
-        "laboratory": cfg["laboratory"],
-        "verification": cfg["verification"],
-        "raw_root": tmp / "battery" / "raw",
-        "scans_table": pl.DataFrame(
-            schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8}
-        ),
-    }
-    bad: list = []
+    ctx = RodCalibrationContext(
+        cfg["uncertainty"],
+        cfg["laboratory"],
+        cfg["verification"],
+        pl.DataFrame(schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8}),
+    )
     night_config.settle(res, [rod_scan.night], cfg)  # as the workflow does first: the date of issue
-    calibrate_rod_scan(rod_scan, rod_scan.night, res, bad, [], [], lambda _m: None, ctx, cfg["calibration"])
-    assert not bad and len(ctx["certificate_rows"]) == 1
-    rows[rod_scan.night] = ctx["certificate_rows"]
+    made = calibrate_rod_scan(rod_scan, rod_scan.night, res, ctx, cfg["calibration"], lambda _m: None)
+    assert not made.quarantined and len(made.certificate_rows) == 1
+    rows[rod_scan.night] = list(made.certificate_rows)
     for n, r in rows.items():
         f = res / ISSUE_TABLE / f"night={n}.parquet"
         f.parent.mkdir(parents=True, exist_ok=True)

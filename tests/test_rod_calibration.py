@@ -287,16 +287,10 @@ def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan
     import json as _json
 
     from borescan import night_config
+    from borescan.stages.calibrate_jobs import CalibrationOutcome, RodCalibrationContext
     from borescan.stages.calibrate_rod import calibrate_rod_scan
 
     dflt = schema_defaults()
-    ctx = {
-        "uncertainty": UNC,
-        "laboratory": dflt["laboratory"],
-        "verification": dflt["verification"],
-        "raw_root": tmp_path / "raw",
-        "scans_table": None,
-    }
     part = {
         "id": "CYL",
         "type": "part",
@@ -307,28 +301,25 @@ def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan
     before = {
         p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (tmp_path / "raw").rglob("*") if p.is_file()
     }
-    ctx["scans_table"] = pl.DataFrame(
-        schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8}
+    ctx = RodCalibrationContext(
+        UNC,
+        dflt["laboratory"],
+        dflt["verification"],
+        pl.DataFrame(schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8}),
     )  # no verification scans that night
-    bad, rows, links = [], [], []
     night_config.settle(tmp_path / "results", ["2026-11-20"], dflt)  # as the workflow does first
+    made = CalibrationOutcome()
     for scan in (bad_scan, good_scan):
-        calibrate_rod_scan(
-            scan,
-            "2026-11-20",
-            tmp_path / "results",
-            bad,
-            rows,
-            links,
-            lambda _m: None,
-            ctx,
-            dflt["calibration"],
+        made = made + calibrate_rod_scan(
+            scan, "2026-11-20", tmp_path / "results", ctx, dflt["calibration"], lambda _m: None
         )
+    bad, rows, links = list(made.quarantined), list(made.calibration_rows), list(made.calibration_scan_rows)
     assert [(q.scan_id, q.file) for q in bad] == [("CAL-NO-CERT", "scan.json")]
     assert "rod layer 1 (feature 'H1') has no certified diameter" in bad[0].reason
     rec = _json.loads((tmp_path / "results" / "quarantine" / "CAL-NO-CERT.json").read_text())
     assert rec["file"] == "scan.json" and rec["scan_id"] == "CAL-NO-CERT"
     assert {r["scan_id"] for r in rows} == {"CAL-OK"} and len(rows) == 2  # one row per layer of the good scan
+    assert [link["scan_id"] for link in links] == ["CAL-OK"]  # one calibration_scans row
     # the good scan's certificate has the residuals.png its records section points to (outputs.md)
     (folder,) = {p.parent for p in (tmp_path / "results" / "calibration").rglob("certificate.pdf")}
     assert sorted(p.name for p in folder.iterdir()) == [

@@ -24,6 +24,7 @@ from borescan.stages.calibrate_jobs import (
     CalibrationJobResult,
     CalibrationOutcome,
     CalibrationSettings,
+    RodCalibrationContext,
     TriCalibrationContext,
     TriDeviceJob,
 )
@@ -127,32 +128,11 @@ def calibrate_device(job: CalibrationJob) -> CalibrationJobResult:
 
 
 def _calibrate_rod(job: CalibrationJob, ctx: TriCalibrationContext, log) -> CalibrationOutcome:
-    """Calibrate a rod job's scan and return what it made.
-
-    :func:`borescan.stages.calibrate_rod.calibrate_rod_scan` (the rod owner's) takes its context as a
-    dict and returns its rows through lists; they are turned into a :class:`CalibrationOutcome` here.
-    """
+    """Calibrate a rod job's scan (:func:`borescan.stages.calibrate_rod.calibrate_rod_scan`)."""
     ((_row, d),) = job.items
-    rod_ctx = {
-        "uncertainty": ctx.uncertainty,
-        "laboratory": ctx.laboratory,
-        "verification": ctx.verification,
-        "raw_root": ctx.raw_root,
-        "scans_table": ctx.scans_table,
-        "cleaning": ctx.cleaning,
-    }
-    cal_rows, link_rows, bad = [], [], []
-    calibrate_rod_scan(
-        rawio.load_stored_scan(d),
-        job.settings.night,
-        job.results_root,
-        bad,
-        cal_rows,
-        link_rows,
-        log,
-        rod_ctx,
-        job.cfg,
+    rod_ctx = RodCalibrationContext(
+        ctx.uncertainty, ctx.laboratory, ctx.verification, ctx.scans_table, ctx.cleaning
     )
-    return CalibrationOutcome(
-        tuple(cal_rows), tuple(link_rows), tuple(bad), tuple(rod_ctx.get("certificate_rows", ()))
+    return calibrate_rod_scan(
+        rawio.load_stored_scan(d), job.settings.night, job.results_root, rod_ctx, job.cfg, log
     )

@@ -95,6 +95,24 @@ class TriCalibrationContext:
 
 
 @dataclass(frozen=True)
+class RodCalibrationContext:
+    """What a rod calibration job reads besides its scan.
+
+    Attributes
+    ----------
+    uncertainty, laboratory, verification : the config's sections of those names.
+    scans_table : the night's ``scans`` table (the night's verification scans are found in it).
+    cleaning : the readings' spike policy (:func:`borescan.readings.cleaning_policy`); None: none.
+    """
+
+    uncertainty: dict
+    laboratory: dict
+    verification: dict
+    scans_table: Path | pl.DataFrame
+    cleaning: CleaningPolicy | None = None
+
+
+@dataclass(frozen=True)
 class TriDeviceJob:
     """One three-sensor device's calibration job of a night.
 

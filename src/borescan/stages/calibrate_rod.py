@@ -19,29 +19,34 @@ from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
 from borescan.measure import hold_readings
 from borescan.preconditions import ROD_CALIBRATION_NEEDS_LAYERS, design_layers
 from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
+from borescan.stages.calibrate_jobs import CalibrationOutcome, RodCalibrationContext
 
 __all__ = ["calibrate_rod_scan"]
 
 
-def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log, ctx, cfg) -> None:
+def calibrate_rod_scan(
+    scan: rawio.RawScan, night: str, results_root, ctx: RodCalibrationContext, cfg: dict, log
+) -> CalibrationOutcome:
     """Calibrate a rod's base lengths from one ring-gauge scan.
 
     Calibrate a rod's base lengths from one ring-gauge scan (:mod:`borescan.rod_calibration`), write
-    its certificate, add its rows; a scan that cannot give a calibration is quarantined with the reason.
+    its certificate and return its rows; a scan that cannot give a calibration is quarantined with the
+    reason (in the outcome's ``quarantined``).
     """
-    unc, lab = ctx["uncertainty"], ctx["laboratory"]
+    unc, lab = ctx.uncertainty, ctx.laboratory
+    bad: list = []
     p = float(unc["coverage_probability"])
     meta, sid = scan.meta, scan.scan_id
     try:  # what scan.json must give: the design layers, a certified gauge per layer, the temperature
         design_layers(meta, ROD_CALIBRATION_NEEDS_LAYERS)  # MissingDesignGeometry names what is missing
         nominal = pl.DataFrame(rod_nominal_calibration_rows(meta, night, sid))
-        channels, means, u_mean, sensors = rod_calibration.pose_means_of_scan(scan, ctx.get("cleaning"))
+        channels, means, u_mean, sensors = rod_calibration.pose_means_of_scan(scan, ctx.cleaning)
         layers = rod_layers(nominal, channels)
         gauges = rod_calibration.layer_gauges(meta, channels)
         temp, cte = scan_temperature(meta, unc), artifact_cte(meta, unc)
     except ValueError as err:  # MissingTemperature is one
         quarantine(results_root, bad, sid, night, "calibrate", "scan.json", f"rod calibration: {err}")
-        return
+        return CalibrationOutcome(quarantined=tuple(bad))
     radius_t = [
         radius_at_temperature_mm(0.5 * g["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
         for g in gauges
@@ -54,7 +59,7 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         quarantine(
             results_root, bad, sid, night, "calibrate", "lds.parquet", f"rod calibration failed: {err}"
         )
-        return
+        return CalibrationOutcome(quarantined=tuple(bad))
     budget = rod_calibration.rod_calibration_budget(
         [lay.l0_mm for lay in cal_layers],
         sol,
@@ -109,16 +114,13 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         verifications=ver_rows,
         residuals=certificate.rod_pose_residuals(sol, means),
         config_hash=config_hash(
-            {"calibration": cfg, "uncertainty": unc, "laboratory": lab, "verification": ctx["verification"]}
+            {"calibration": cfg, "uncertainty": unc, "laboratory": lab, "verification": ctx.verification}
         ),
     )
     link_into_night(link, out_dir)
     issue = certificate_issue.issue_row(cert_paths, results_root, night)
-    ctx.setdefault("certificate_rows", []).append(issue)
     for row in rows:
         row["certificate_sha256"] = json.loads(issue["files_sha256"])["certificate.json"]
-    cal_rows += rows
-    link_rows.append({"calibration_id": cal.calibration_id, "scan_id": sid})
     log(
         f"{cal.device_id}: {cal.calibration_id} (rod on ring gauges) from {sid}; l0 - nominal "
         + ", ".join(
@@ -130,10 +132,15 @@ def calibrate_rod_scan(scan, night, results_root, bad, cal_rows, link_rows, log,
         + f"; {len(ver_rows)} layer verification(s) in the certificate"
         + (" [gauge temperature ASSUMED 20 degC]" if temp.assumed else "")
     )
+    return CalibrationOutcome(
+        calibration_rows=tuple(rows),
+        calibration_scan_rows=({"calibration_id": cal.calibration_id, "scan_id": sid},),
+        certificate_rows=(issue,),
+    )
 
 
 def _night_rod_verifications(
-    cal, rows: list[dict], night: str, results_root, ctx: dict, log
+    cal, rows: list[dict], night: str, results_root, ctx: RodCalibrationContext, log
 ) -> tuple[list[dict], list[dict]]:
     """Return the night's gauge verifications of the rod.
 
@@ -143,20 +150,20 @@ def _night_rod_verifications(
     """
     out, metas = [], []
     for _row, d in night_scans(
-        results_root, night, ctx["scans_table"], kind="verification", device_id=cal.device_id
+        results_root, night, ctx.scans_table, kind="verification", device_id=cal.device_id
     ):
         scan = rawio.load_stored_scan(d)
         try:
             res = rod_calibration.rod_diameters_with_budget(
-                scan, rows, ctx["uncertainty"], cal.calibration_id, ctx.get("cleaning")
+                scan, rows, ctx.uncertainty, cal.calibration_id, ctx.cleaning
             )
             out += rod_calibration.rod_verifications(
                 scan,
                 res,
                 cal.calibration_id,
-                ctx["uncertainty"],
-                ctx["laboratory"],
-                float(ctx["verification"]["tolerance_mm"]),
+                ctx.uncertainty,
+                ctx.laboratory,
+                float(ctx.verification["tolerance_mm"]),
             )
             metas.append(scan.meta)
         except (MissingTemperature, ValueError, np.linalg.LinAlgError) as err:
