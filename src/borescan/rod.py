@@ -493,10 +493,7 @@ def rod_crb(
         J = prob.jac(p, beta_step=1e-4 if deflection else None) / sigma_mm
         if deflection and coaxiality_mm is not None:
             J = np.vstack([J, _coaxial_rows(lays, r, c, w, coaxiality_mm, prob.n_par)])
-        col = np.linalg.norm(J, axis=0)
-        col[col == 0] = 1.0
-        F = (J / col).T @ (J / col)
-        cov = np.linalg.pinv(F) / np.outer(col, col)
+        cov = _cov_without_poses(J, 3 * m, n - 1)
         G = np.zeros((m, prob.n_par))
         rho = r * _k(s)
         G[np.arange(m), np.arange(m)] = 1.0 / _k(s)
@@ -505,6 +502,7 @@ def rod_crb(
                 -(rho * _dk(s) / _k(s) ** 2)[:, None]
                 * np.array([np.cos(2 * ax.omega_az_rad), np.sin(2 * ax.omega_az_rad)])[None, :]
             )
+        G = np.delete(G, np.s_[3 * m : 3 * m + n - 1], axis=1)
         return np.sqrt(np.diag(G @ cov @ G.T))
     L = np.asarray(l_mm, float)
     n, m = L.shape
@@ -517,6 +515,32 @@ def rod_crb(
     dedl = ((X * c + Y * s) / np.hypot(X, Y))[mask]
     F = J.T @ (J / (sigma_mm * dedl)[:, None] ** 2)
     return np.sqrt(np.diag(np.linalg.inv(F))[:m])
+
+
+def _cov_without_poses(J: np.ndarray, i0: int, n_alpha: int) -> np.ndarray:
+    """Return the covariance bound of the unknowns other than the pose angles (Fisher matrix J^T J).
+
+    The pose angles are columns ``i0 .. i0 + n_alpha`` of ``J``; each moves only its own pose's
+    readings, so their block of the (column-scaled) Fisher matrix is diagonal and eliminating
+    them leaves the Schur complement A - B D^-1 B^T of the other unknowns: its pseudo-inverse is
+    their block of the full matrix's inverse, at a cost linear in the number of poses instead of
+    cubic. Where an angle has no information (a zero diagonal) or the block is not diagonal, the
+    full Fisher matrix is pseudo-inverted instead.
+    """
+    col = np.linalg.norm(J, axis=0)
+    col[col == 0] = 1.0
+    Js = J / col
+    ia = np.arange(i0, i0 + n_alpha)
+    io = np.delete(np.arange(J.shape[1]), ia)
+    Ja, Jo = Js[:, ia], Js[:, io]
+    d = np.einsum("ij,ij->j", Ja, Ja)
+    diagonal = np.count_nonzero(Ja, axis=1).max(initial=0) <= 1
+    if diagonal and np.all(d > 1e-12):
+        B = Jo.T @ Ja
+        cov = np.linalg.pinv(Jo.T @ Jo - (B / d) @ B.T)
+    else:
+        cov = np.linalg.pinv(Js.T @ Js)[np.ix_(io, io)]
+    return cov / np.outer(col[io], col[io])
 
 
 def solve_rod_pso(
