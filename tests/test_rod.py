@@ -267,7 +267,7 @@ def test_pose_angles_eliminated_from_the_bound_as_the_full_inverse():
     unknowns, columns scaled over 6 decades); with an angle of no information it falls back to the
     full pseudo-inverse (the same numbers).
     """
-    from borescan.rod import _cov_without_poses
+    from borescan.rod_model import _cov_without_poses
 
     rng = np.random.default_rng(11)
     n, m, k = 40, 3, 11

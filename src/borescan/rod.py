@@ -87,6 +87,7 @@ from borescan.rod_deflection import (
 from borescan.rod_eq16 import RodSolveError, _prepare, _unpack, rod_jacobian, rod_start
 from borescan.rod_model import (
     _beta,
+    _cov_without_poses,
     _dk,
     _expand,
     _k,
@@ -515,32 +516,6 @@ def rod_crb(
     dedl = ((X * c + Y * s) / np.hypot(X, Y))[mask]
     F = J.T @ (J / (sigma_mm * dedl)[:, None] ** 2)
     return np.sqrt(np.diag(np.linalg.inv(F))[:m])
-
-
-def _cov_without_poses(J: np.ndarray, i0: int, n_alpha: int) -> np.ndarray:
-    """Return the covariance bound of the unknowns other than the pose angles (Fisher matrix J^T J).
-
-    The pose angles are columns ``i0 .. i0 + n_alpha`` of ``J``; each moves only its own pose's
-    readings, so their block of the (column-scaled) Fisher matrix is diagonal and eliminating
-    them leaves the Schur complement A - B D^-1 B^T of the other unknowns: its pseudo-inverse is
-    their block of the full matrix's inverse, at a cost linear in the number of poses instead of
-    cubic. Where an angle has no information (a zero diagonal) or the block is not diagonal, the
-    full Fisher matrix is pseudo-inverted instead.
-    """
-    col = np.linalg.norm(J, axis=0)
-    col[col == 0] = 1.0
-    Js = J / col
-    ia = np.arange(i0, i0 + n_alpha)
-    io = np.delete(np.arange(J.shape[1]), ia)
-    Ja, Jo = Js[:, ia], Js[:, io]
-    d = np.einsum("ij,ij->j", Ja, Ja)
-    diagonal = np.count_nonzero(Ja, axis=1).max(initial=0) <= 1
-    if diagonal and np.all(d > 1e-12):
-        B = Jo.T @ Ja
-        cov = np.linalg.pinv(Jo.T @ Jo - (B / d) @ B.T)
-    else:
-        cov = np.linalg.pinv(Js.T @ Js)[np.ix_(io, io)]
-    return cov / np.outer(col[io], col[io])
 
 
 def solve_rod_pso(
