@@ -258,3 +258,30 @@ def test_centred_rod_gives_radii_without_angles():
     assert sol.method == "centred" and np.all(np.isnan(sol.alpha_rad))
     assert np.all(np.abs(sol.radius_mm - R_TRUE) < 3 * sol.u_radius_mm)
     assert np.allclose(sol.u_radius_mm, SIG / np.sqrt(20))
+
+
+def test_pose_angles_eliminated_from_the_bound_as_the_full_inverse():
+    """rod_crb's elimination of the pose angles (each moves only its own pose's readings: a diagonal
+    block of the Fisher matrix) gives the other unknowns' block of the full Fisher matrix's inverse,
+    within 1e-9 relative, on a random Jacobian of that structure (40 poses x 3 readings, 11 other
+    unknowns, columns scaled over 6 decades); with an angle of no information it falls back to the
+    full pseudo-inverse (the same numbers).
+    """
+    from borescan.rod_model import _cov_without_poses
+
+    rng = np.random.default_rng(11)
+    n, m, k = 40, 3, 11
+    J = np.zeros((n * m + 4, k + n - 1))
+    J[:, :k] = rng.standard_normal((n * m + 4, k)) * np.logspace(-3, 3, k)
+    for i in range(1, n):  # pose 0's angle is the fixed one
+        J[i * m : (i + 1) * m, k + i - 1] = rng.standard_normal(m) * 50.0
+    P = np.linalg.pinv(J)  # (J^T J)^+ = J^+ J^+T, from the SVD of J itself (the better conditioned)
+    full = (P @ P.T)[:k, :k]
+    cov = _cov_without_poses(J, k, n - 1)
+    np.testing.assert_allclose(
+        cov, full, rtol=1e-9, atol=1e-9 * np.sqrt(np.outer(np.diag(full), np.diag(full))).max()
+    )
+    J[2 * m : 3 * m, k + 1] = 0.0  # pose 2's angle unseen: singular, the pseudo-inverse of the whole
+    P = np.linalg.pinv(J)
+    ref = (P @ P.T)[:k, :k]
+    np.testing.assert_allclose(_cov_without_poses(J, k, n - 1), ref, rtol=1e-9)

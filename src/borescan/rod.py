@@ -87,6 +87,7 @@ from borescan.rod_deflection import (
 from borescan.rod_eq16 import RodSolveError, _prepare, _unpack, rod_jacobian, rod_start
 from borescan.rod_model import (
     _beta,
+    _cov_without_poses,
     _dk,
     _expand,
     _k,
@@ -493,10 +494,7 @@ def rod_crb(
         J = prob.jac(p, beta_step=1e-4 if deflection else None) / sigma_mm
         if deflection and coaxiality_mm is not None:
             J = np.vstack([J, _coaxial_rows(lays, r, c, w, coaxiality_mm, prob.n_par)])
-        col = np.linalg.norm(J, axis=0)
-        col[col == 0] = 1.0
-        F = (J / col).T @ (J / col)
-        cov = np.linalg.pinv(F) / np.outer(col, col)
+        cov = _cov_without_poses(J, 3 * m, n - 1)
         G = np.zeros((m, prob.n_par))
         rho = r * _k(s)
         G[np.arange(m), np.arange(m)] = 1.0 / _k(s)
@@ -505,6 +503,7 @@ def rod_crb(
                 -(rho * _dk(s) / _k(s) ** 2)[:, None]
                 * np.array([np.cos(2 * ax.omega_az_rad), np.sin(2 * ax.omega_az_rad)])[None, :]
             )
+        G = np.delete(G, np.s_[3 * m : 3 * m + n - 1], axis=1)
         return np.sqrt(np.diag(G @ cov @ G.T))
     L = np.asarray(l_mm, float)
     n, m = L.shape

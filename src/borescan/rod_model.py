@@ -1,7 +1,8 @@
 """The rod solve's forward model in its unknowns and its multi-start Levenberg-Marquardt.
 
 :class:`_RodProblem` gives the exact readings (:func:`borescan.geometry.rod_readings`) in the
-unknowns [rho (m), cx (m), cy (m), alpha (n - 1), w (2)] and their Jacobian; :func:`_solve_core`
+unknowns [rho (m), cx (m), cy (m), alpha (n - 1), w (2)] and their Jacobian (with
+:func:`_cov_without_poses`, the bound of the unknowns other than the pose angles); :func:`_solve_core`
 runs the starts and repairs that :func:`borescan.rod.solve_rod` describes ("Start").
 """
 
@@ -129,6 +130,32 @@ class _RodProblem:
                         f(rho, c, alpha, _w_of_beta(b + e, w)) - f(rho, c, alpha, _w_of_beta(b - e, w))
                     ) / (2 * beta_step)
         return -J[self.mask]  # residual = V - model
+
+
+def _cov_without_poses(J: np.ndarray, i0: int, n_alpha: int) -> np.ndarray:
+    """Return the covariance bound of the unknowns other than the pose angles (Fisher matrix J^T J).
+
+    The pose angles are columns ``i0 .. i0 + n_alpha`` of ``J``; each moves only its own pose's
+    readings, so their block of the (column-scaled) Fisher matrix is diagonal and eliminating
+    them leaves the Schur complement A - B D^-1 B^T of the other unknowns: its pseudo-inverse is
+    their block of the full matrix's inverse, at a cost linear in the number of poses instead of
+    cubic. Where an angle has no information (a zero diagonal) or the block is not diagonal, the
+    full Fisher matrix is pseudo-inverted instead.
+    """
+    col = np.linalg.norm(J, axis=0)
+    col[col == 0] = 1.0
+    Js = J / col
+    ia = np.arange(i0, i0 + n_alpha)
+    io = np.delete(np.arange(J.shape[1]), ia)
+    Ja, Jo = Js[:, ia], Js[:, io]
+    d = np.einsum("ij,ij->j", Ja, Ja)
+    diagonal = np.count_nonzero(Ja, axis=1).max(initial=0) <= 1
+    if diagonal and np.all(d > 1e-12):
+        B = Jo.T @ Ja
+        cov = np.linalg.pinv(Jo.T @ Jo - (B / d) @ B.T)
+    else:
+        cov = np.linalg.pinv(Js.T @ Js)[np.ix_(io, io)]
+    return cov / np.outer(col[io], col[io])
 
 
 def _beta(w):
