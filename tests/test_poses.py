@@ -153,7 +153,7 @@ def test_a_one_channel_offset_of_a_static_set_is_named_as_its_class():
     w = {int(c): v for c, v in k["zero_weights"].items()}
     assert abs(k["combination_um"] - w[2] * 20.0) < 3 * k["u_combination_um"]
     assert sum(w.values()) == pytest.approx(1.0)
-    assert f["statement"].startswith("offset-like: one combination of the channels' zeroes is fixed")
+    assert f["statement"].startswith("offset-like: one combination of the channels' zeroes b_c is fixed")
     assert "recalibrate the sensors' zeroes" in f["statement"]
     f0 = examine_scan(simulate_tri_static(effects=[], seed=5))
     assert f0["verdict"] == "no_missing_effect" and f0["classes"] == []

@@ -166,7 +166,7 @@ class StaticClass:
         """Return the class in words, with what the data fix and the advice."""
         value = "" if self.q_um is None else f" = {self.q_um:.3g} +- {self.u_q_um:.2g} um"
         return (
-            f"offset-like: one combination of the channels' zeroes is fixed: {self.combination}{value} "
+            f"offset-like: one combination of the channels' zeroes b_c is fixed: {self.combination}{value} "
             f"({', '.join(self.members)} explain it alike); recalibrate the sensors' zeroes, a calibration "
             "on the ring gauge"
         )
