@@ -114,6 +114,7 @@ def test_static_class_drops_a_beam_member_whose_sign_does_not_fit():
     positive weight cannot give it and is dropped; a beam tilt (only lengthens) stays; a member 12 above the
     best (beyond delta chi2 9) is not in the class.
     """
+    from borescan.discrepancy.battery import named_label
     from borescan.discrepancy.classes import static_classes
 
     def entry(effect, ch, dbic, b=None):
@@ -128,13 +129,21 @@ def test_static_class_drops_a_beam_member_whose_sign_does_not_fit():
         entry("beam_tilt", 3, 496.0),
         entry("sensor_gain", 2, 488.0),
     ]
-    left, (k,) = static_classes(named, {1: 1 / 3, 2: 1 / 3, 3: 1 / 3})
+    tied = [(named_label(n),) for n in named]
+    left, (k,) = static_classes(named, {1: 1 / 3, 2: 1 / 3, 3: 1 / 3}, tied)
     assert k.q_um == pytest.approx(10.0) and k.u_q_um == pytest.approx(0.5)
     assert k.members == ["sensor_offset@1", "sensor_offset@2", "beam_tilt@3"]
     assert k.dropped == ["beam_offset@3"] and [n["effect"] for n in left].count("beam_offset") == 0
     assert "sensor_gain" in [n["effect"] for n in left] and not k.holds(named[-1])
+    w = {1: 1 / 3, 2: 1 / 3, 3: 1 / 3}
     one_channel = [entry("sensor_offset", 1, 500.0, 0.030), entry("sensor_gain", 1, 499.0)]
-    assert static_classes(one_channel, {1: 1 / 3, 2: 1 / 3, 3: 1 / 3}) == (one_channel, [])
+    assert static_classes(one_channel, w, [(named_label(n),) for n in one_channel]) == (one_channel, [])
+    # the two terms of one pair explain the gap together, not alike; a term both pairs need is no member
+    pair = [entry("sensor_gain", 1, 500.0), entry("sensor_gain", 2, 500.0)]
+    assert static_classes(pair, w, [("sensor_gain@1", "sensor_gain@2")]) == (pair, [])
+    two = [*pair, entry("sensor_gain", 3, 499.0)]
+    _, (k,) = static_classes(two, w, [("sensor_gain@1", "sensor_gain@2"), ("sensor_gain@1", "sensor_gain@3")])
+    assert k.members == ["sensor_gain@2", "sensor_gain@3"] and k.q_um is None
 
 
 def test_a_one_channel_offset_of_a_static_set_is_named_as_its_class():
@@ -157,3 +166,16 @@ def test_a_one_channel_offset_of_a_static_set_is_named_as_its_class():
     assert "recalibrate the sensors' zeroes" in f["statement"]
     f0 = examine_scan(simulate_tri_static(effects=[], seed=5))
     assert f0["verdict"] == "no_missing_effect" and f0["classes"] == []
+
+
+def test_a_pair_of_a_static_set_is_named_together_and_is_no_class():
+    """The demo's first RG280 verification (a static set): one candidate, a pair of gains, explains the gap;
+    the verdict names the two together, not as look-alikes, and builds no offset-like class from the two
+    terms of one candidate.
+    """
+    from borescan.synthetic.demo import demo_scans
+
+    (scan,) = [s for s in demo_scans() if s.scan_id == "N20261120-TRI01-VER-RG280"]
+    f = examine_scan(scan)
+    assert f["verdict"] == "missing_effect" and len(f["named"]) == 2 and f["classes"] == []
+    assert " together with " in f["statement"] and "look alike" not in f["statement"]

@@ -212,20 +212,27 @@ def _label(n: dict) -> str:
     return n["effect"] + (f"@{n['channel']}" if n.get("channel") is not None else "@all")
 
 
-def static_classes(named: list[dict], weights: dict[int, float]) -> tuple[list[dict], list[StaticClass]]:
+def static_classes(
+    named: list[dict], weights: dict[int, float], tied: list[tuple[str, ...]]
+) -> tuple[list[dict], list[StaticClass]]:
     """Group a static set's named entries into its offset-like class; drop wrong-sign members.
 
-    Members: named offset-like entries (:data:`STATIC_MEMBERS`, one channel or every channel) within
-    :data:`TIE_CHI2` of the best named entry's evidence, on at least two channels (or one and every
-    channel). Returns the named entries left (wrong-sign beam members removed) and the class, if any.
+    ``tied``: the term keys of each tied candidate (single or pair) the entries come from. Members are
+    alternatives: named offset-like entries (:data:`STATIC_MEMBERS`, one channel or every channel) that
+    some tied candidate does without (a term every candidate needs, or the two terms of the one candidate,
+    explain the gap together, not alike), within :data:`TIE_CHI2` of the best named entry's evidence, on at
+    least two channels (or one and every channel). Returns the named entries left (wrong-sign beam members
+    removed) and the class, if any.
     """
-    if not weights or not named:
+    if not weights or not named or len(tied) < 2:
         return named, []
     best = max(float(n["evidence"]["delta_bic"]) for n in named)
     cand = [
         n
         for n in named
-        if n["effect"] in STATIC_MEMBERS and best - float(n["evidence"]["delta_bic"]) <= TIE_CHI2
+        if n["effect"] in STATIC_MEMBERS
+        and best - float(n["evidence"]["delta_bic"]) <= TIE_CHI2
+        and any(_label(n) not in keys for keys in tied)
     ]
     if len({n.get("channel") for n in cand}) < 2:
         return named, []

@@ -409,9 +409,12 @@ def _sentence(verdict: str, named: list[dict], explained: str, remaining: dict |
     if not named:
         why = "; ".join(z.sentence for z in rejected[:3])
         return f"a gap no plausible candidate explains: {why}"
-    what = (
-        labels[0] if len(labels) == 1 else "one of " + ", ".join(labels) + " (they look alike in this scan)"
-    )
+    if len(labels) == 1:
+        what = labels[0]
+    elif verdict == "missing_effect":  # one candidate (a pair, or the evidence effects): together, not alike
+        what = " together with ".join(labels)
+    else:
+        what = "one of " + ", ".join(labels) + " (they look alike in this scan)"
     if explained == "fully":
         return f"explained by {what}: the gap after is at the noise floor"
     rem = remaining or {}
@@ -430,9 +433,8 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
     if model.device_type == "rod":
         dec_named, classes = rod_classes(dec.named)
     elif model.scan_kind == "tri_static":
-        dec_named, classes = static_classes(
-            dec.named, zero_weights(model.data.channels, model.beams.beta_rad)
-        )
+        weights = zero_weights(model.data.channels, model.beams.beta_rad)
+        dec_named, classes = static_classes(dec.named, weights, [z.keys for z in dec.named_fits])
     named = list(out.named) + dec_named
     verdict = dec.verdict
     if out.named and verdict == "no_missing_effect":
