@@ -367,12 +367,20 @@ def _jumps(kind: str, seed: int, i: int, effect_free: bool, sim, extra: tuple = 
 
 
 def _units(extras: list[str], f: dict) -> int:
-    """Return how many names the extras make: a rod layer's offset-like class is one name (issue 35)."""
+    """Return how many names the extras make: an offset-like class is one name (issue 35).
+
+    A rod layer's class holds its layer's offset-like members and bow; a static set's class holds the
+    members it lists (offsets, gains, bows and beams of several channels). Each member is still an extra
+    that must explain the noise-free refit within delta chi2 <= 9 (:func:`_score`).
+    """
     from borescan.discrepancy.classes import OFFSET_LIKE
 
-    layers = {int(k["channel"]) for k in f.get("classes", [])}
+    layers = {int(k["channel"]) for k in f.get("classes", []) if k.get("channel") is not None}
+    static = {m for k in f.get("classes", []) if k.get("channel") is None for m in k["members"]}
 
     def unit(n: str) -> str:
+        if n in static:
+            return "class@static"
         name, _, ch = n.partition("@")
         in_class = ch.isdigit() and int(ch) in layers and name in (*OFFSET_LIKE, "sensor_nonlinearity")
         return f"class@{ch}" if in_class else n

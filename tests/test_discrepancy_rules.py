@@ -217,6 +217,22 @@ def test_the_battery_kinds_filter_keeps_each_scans_draw():
     assert static == [j for j in full if j[0] == "static"][:5]
 
 
+def test_the_bench_counts_an_offset_like_class_as_one_name():
+    """Issue 35's rule: a rod layer's class and a static set's class each count as one name among the
+    extras; a name outside the classes counts on its own (each member is still refitted by ``_score``).
+    """
+    from bench.bench_discrepancy_contract import _units
+
+    static = {
+        "classes": [{"channel": None, "members": ["sensor_offset@1", "sensor_offset@3", "sensor_gain@2"]}]
+    }
+    assert _units(["sensor_offset@1", "sensor_offset@3", "sensor_gain@2"], static) == 1
+    assert _units(["sensor_offset@1", "sensor_gain@3", "thermal_expansion"], static) == 3
+    rod = {"classes": [{"channel": 2, "members": ["sensor_offset", "beam_tilt"]}]}
+    assert _units(["sensor_offset@2", "beam_tilt@2", "sensor_nonlinearity@2", "sensor_offset@1"], rod) == 2
+    assert _units(["sensor_offset@1", "sensor_offset@3"], {"classes": []}) == 2
+
+
 def test_the_battery_pairs_leave_each_scans_other_draws_alone():
     """A pair's second effect comes from its own stream: with or without pairs, scan i has the same kind,
     effect-free flag and first target z; only scans with an effect get a second one, z >= 10 each.

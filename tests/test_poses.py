@@ -90,3 +90,92 @@ def test_a_rod_bow_at_mid_range_is_listed_in_its_layer_class():
     u = sim.lds.filter(pl.col("sensor") == 2)["value_mm"].to_numpy() / 8.0  # the rod's 8 mm range
     assert abs(k["reads_long_um"] - 1e3 * a_mm * np.mean(4 * u * (1 - u))) < 3 * k["u_reads_long_um"]
     assert "recalibrate l0 of layer 2" in f["statement"] and "sensor_nonlinearity" in f["statement"]
+
+
+def test_zero_weights_span_what_the_device_positions_cannot_absorb():
+    """``w`` is orthogonal to both beam directions (a pose's position absorbs those) and sums to 1: beams
+    120 degrees apart give the mean zero (1/3 each); beams at 0, 90 and 180 degrees give (1/2, 0, 1/2).
+    """
+    from borescan.discrepancy.classes import zero_weights
+
+    for beta in ([0.3, 0.3 + 2 * np.pi / 3, 0.3 + 4 * np.pi / 3], [0.1, 1.9, 4.0]):
+        w = np.array(list(zero_weights([1, 2, 3], beta).values()))
+        U = np.stack([np.cos(beta), np.sin(beta)], axis=1)
+        assert np.abs(U.T @ w).max() < 1e-12 and w.sum() == pytest.approx(1.0, abs=1e-12)
+    w = zero_weights([1, 2, 3], np.deg2rad([0.0, 120.0, 240.0]))
+    assert list(w.values()) == pytest.approx([1 / 3] * 3, abs=1e-12)
+    w = zero_weights([1, 2, 3], np.deg2rad([0.0, 90.0, 180.0]))
+    assert list(w.values()) == pytest.approx([0.5, 0.0, 0.5], abs=1e-12)
+    assert zero_weights([1, 2], [0.0, 1.0]) == {}
+
+
+def test_static_class_drops_a_beam_member_whose_sign_does_not_fit():
+    """With q = w_1 b_1 = +10 um (20 sigma), a beam offset (only shortens a reading) on a channel of
+    positive weight cannot give it and is dropped; a beam tilt (only lengthens) stays; a member 12 above the
+    best (beyond delta chi2 9) is not in the class.
+    """
+    from borescan.discrepancy.battery import named_label
+    from borescan.discrepancy.classes import static_classes
+
+    def entry(effect, ch, dbic, b=None):
+        par, unc = ({"b_mm": b}, {"u_b_mm": 0.0015}) if b is not None else ({}, {})
+        return {"effect": effect, "channel": ch, "parameters": par, "uncertainties": unc,
+                "evidence": {"delta_bic": dbic}}  # fmt: skip
+
+    named = [
+        entry("sensor_offset", 1, 500.0, 0.030),
+        entry("sensor_offset", 2, 498.0, 0.030),
+        entry("beam_offset", 3, 497.0),
+        entry("beam_tilt", 3, 496.0),
+        entry("sensor_gain", 2, 488.0),
+    ]
+    tied = [(named_label(n),) for n in named]
+    left, (k,) = static_classes(named, {1: 1 / 3, 2: 1 / 3, 3: 1 / 3}, tied)
+    assert k.q_um == pytest.approx(10.0) and k.u_q_um == pytest.approx(0.5)
+    assert k.members == ["sensor_offset@1", "sensor_offset@2", "beam_tilt@3"]
+    assert k.dropped == ["beam_offset@3"] and [n["effect"] for n in left].count("beam_offset") == 0
+    assert "sensor_gain" in [n["effect"] for n in left] and not k.holds(named[-1])
+    w = {1: 1 / 3, 2: 1 / 3, 3: 1 / 3}
+    one_channel = [entry("sensor_offset", 1, 500.0, 0.030), entry("sensor_gain", 1, 499.0)]
+    assert static_classes(one_channel, w, [(named_label(n),) for n in one_channel]) == (one_channel, [])
+    # the two terms of one pair explain the gap together, not alike; a term both pairs need is no member
+    pair = [entry("sensor_gain", 1, 500.0), entry("sensor_gain", 2, 500.0)]
+    assert static_classes(pair, w, [("sensor_gain@1", "sensor_gain@2")]) == (pair, [])
+    two = [*pair, entry("sensor_gain", 3, 499.0)]
+    _, (k,) = static_classes(two, w, [("sensor_gain@1", "sensor_gain@2"), ("sensor_gain@1", "sensor_gain@3")])
+    assert k.members == ["sensor_gain@2", "sensor_gain@3"] and k.q_um is None
+
+
+def test_a_one_channel_offset_of_a_static_set_is_named_as_its_class():
+    """A 20 um offset of sensor 2 on a simulated static set (certified ring): the offsets of every
+    channel tie, so the verdict names the offset-like class with what the data fix, w_2 x 20 um (within
+    3 u), lists the three offsets and advises recalibrating the zeroes; the effect-free set has no class.
+    """
+    from borescan.effects import Effect
+    from borescan.synthetic.simulate import simulate_tri_static
+
+    sim = simulate_tri_static(effects=[Effect("sensor_offset", {"channel": 2, "b_mm": 0.020})], seed=4)
+    f = examine_scan(sim)
+    (k,) = f["classes"]
+    assert f["verdict"] == "ambiguous" and k["channel"] is None
+    assert {"sensor_offset@1", "sensor_offset@2", "sensor_offset@3"} <= set(k["members"])
+    w = {int(c): v for c, v in k["zero_weights"].items()}
+    assert abs(k["combination_um"] - w[2] * 20.0) < 3 * k["u_combination_um"]
+    assert sum(w.values()) == pytest.approx(1.0)
+    assert f["statement"].startswith("offset-like: one combination of the channels' zeroes b_c is fixed")
+    assert "recalibrate the sensors' zeroes" in f["statement"]
+    f0 = examine_scan(simulate_tri_static(effects=[], seed=5))
+    assert f0["verdict"] == "no_missing_effect" and f0["classes"] == []
+
+
+def test_a_pair_of_a_static_set_is_named_together_and_is_no_class():
+    """The demo's first RG280 verification (a static set): one candidate, a pair of gains, explains the gap;
+    the verdict names the two together, not as look-alikes, and builds no offset-like class from the two
+    terms of one candidate.
+    """
+    from borescan.synthetic.demo import demo_scans
+
+    (scan,) = [s for s in demo_scans() if s.scan_id == "N20261120-TRI01-VER-RG280"]
+    f = examine_scan(scan)
+    assert f["verdict"] == "missing_effect" and len(f["named"]) == 2 and f["classes"] == []
+    assert " together with " in f["statement"] and "look alike" not in f["statement"]

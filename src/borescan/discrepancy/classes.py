@@ -13,13 +13,26 @@ but incomplete. The verdict also says, per layer:
   is named on its own (it is then not tied with the class); where it fits as well as the class, it is a
   look-alike the class lists (``nonlinearity_also_fits``) and is not named apart;
 - the advice: recalibrate l0 of the layer on a certified ring gauge.
+
+A static three-sensor set has the same problem across channels (:func:`static_classes`). Each pose's device
+position (two coordinates) absorbs, to first order, any change of the three readings along the beams'
+directions ``u_c = (cos beta_c, sin beta_c)``: of the channels' zeroes the data fix only the combination
+``q = sum_c w_c b_c`` with ``w`` orthogonal to both columns of ``U`` (scaled so its weights sum to 1: with
+beams 120 degrees apart, ``q`` is the mean zero; the pose-to-pose change of the sensitivities breaks the tie
+only weakly). An offset on any one channel (``b_c = q / w_c``), or on every channel, a gain or a bow of a
+channel (near-constant readings) and a beam's tilt or offset then explain the gap alike: where two or more
+of them are named within delta chi2 <= 9 of the best, the verdict names the class, what the data fix
+(``q`` +- u, from the best offset member), the members (a tilt only where ``w_c q > 0``, a beam offset only
+where ``w_c q < 0``) and the advice: recalibrate the sensors' zeroes, a calibration on the ring gauge.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-__all__ = ["OFFSET_LIKE", "LayerClass", "rod_classes"]
+import numpy as np
+
+__all__ = ["OFFSET_LIKE", "LayerClass", "rod_classes", "StaticClass", "static_classes", "zero_weights"]
 
 #: the members of the offset-like class of one rod layer, and the sign of the shift each can give
 #: (+1 lengthens, -1 shortens, 0 either)
@@ -34,6 +47,8 @@ class LayerClass:
 
     channel: int
     shift_um: float | None
+    #: what a channel is called in the verdict's sentence
+    where = "layer"
     u_shift_um: float | None
     members: list[str] = field(default_factory=list)
     dropped: list[str] = field(default_factory=list)
@@ -54,6 +69,12 @@ class LayerClass:
         if self.nonlinearity:
             out += f"; a bow of sensor {self.channel} (sensor_nonlinearity) fits as well and is not resolved"
         return out
+
+    def holds(self, n: dict) -> bool:
+        """Return whether the named entry ``n`` is one of the class's members (or its tied bow)."""
+        return n.get("channel") == self.channel and (
+            n["effect"] in self.members or n["effect"] == "sensor_nonlinearity"
+        )
 
     def to_dict(self) -> dict:
         """Return the JSON-ready form (findings.json ``classes``)."""
@@ -115,3 +136,124 @@ def rod_classes(named: list[dict]) -> tuple[list[dict], list[LayerClass]]:
                 id(n) for n in named if n["effect"] == "sensor_nonlinearity" and n.get("channel") == k.channel
             }
     return [n for n in named if id(n) not in drop], classes
+
+
+#: a static set's class members (OFFSET_LIKE and the bow): all read near-constant on near-constant readings
+STATIC_MEMBERS = (*OFFSET_LIKE, "sensor_nonlinearity")
+#: delta chi2 to the best fit within which a member explains the gap as well (issue 35's rule)
+TIE_CHI2 = 9.0
+
+
+@dataclass
+class StaticClass:
+    """The offset-like class of a static three-sensor set: one combination of the channels' zeroes."""
+
+    weights: dict[int, float]
+    q_um: float | None
+    u_q_um: float | None
+    members: list[str] = field(default_factory=list)
+    dropped: list[str] = field(default_factory=list)
+    #: what a channel is called in the verdict's sentence
+    where = "channel"
+
+    @property
+    def combination(self) -> str:
+        """Return the fixed combination in words: ``0.333 b1 + 0.333 b2 + 0.333 b3``."""
+        return " + ".join(f"{w:.3g} b{ch}" for ch, w in sorted(self.weights.items())).replace("+ -", "- ")
+
+    @property
+    def sentence(self) -> str:
+        """Return the class in words, with what the data fix and the advice."""
+        value = "" if self.q_um is None else f" = {self.q_um:.3g} +- {self.u_q_um:.2g} um"
+        return (
+            f"offset-like: one combination of the channels' zeroes b_c is fixed: {self.combination}{value} "
+            f"({', '.join(self.members)} explain it alike); recalibrate the sensors' zeroes, a calibration "
+            "on the ring gauge"
+        )
+
+    def holds(self, n: dict) -> bool:
+        """Return whether the named entry ``n`` is one of the class's members."""
+        return _label(n) in self.members
+
+    def to_dict(self) -> dict:
+        """Return the JSON-ready form (findings.json ``classes``)."""
+        return {
+            "class": "offset-like",
+            "channel": None,
+            "zero_weights": {str(ch): w for ch, w in sorted(self.weights.items())},
+            "combination_um": self.q_um,
+            "u_combination_um": self.u_q_um,
+            "members": self.members,
+            "dropped_for_sign": self.dropped,
+            "absorbed_by": "a calibration of the sensors' zeroes (d_b_mm) on the ring gauge",
+            "advice": "recalibrate the sensors' zeroes: a calibration on the ring gauge",
+            "statement": self.sentence,
+        }
+
+
+def zero_weights(channels, beta_rad) -> dict[int, float]:
+    """Return ``w``: the combination of the channels' zeroes a static set fixes (module doc), sum 1.
+
+    ``w`` spans the null space of ``U^T`` (rows ``(cos beta_c, sin beta_c)``); scaled to sum 1 unless its
+    weights nearly cancel, then to largest weight 1. Empty when the channels are fewer than three.
+    """
+    b = np.asarray(beta_rad, dtype=float)
+    if b.size < 3:
+        return {}
+    U = np.stack([np.cos(b), np.sin(b)], axis=1)
+    _, _, vt = np.linalg.svd(U.T)
+    w = vt[-1]
+    s = float(np.sum(w))
+    w = w / s if abs(s) > 0.1 * float(np.sum(np.abs(w))) else w / w[np.argmax(np.abs(w))]
+    return {int(ch): float(x) for ch, x in zip(channels, w)}
+
+
+def _label(n: dict) -> str:
+    return n["effect"] + (f"@{n['channel']}" if n.get("channel") is not None else "@all")
+
+
+def static_classes(
+    named: list[dict], weights: dict[int, float], tied: list[tuple[str, ...]]
+) -> tuple[list[dict], list[StaticClass]]:
+    """Group a static set's named entries into its offset-like class; drop wrong-sign members.
+
+    ``tied``: the term keys of each tied candidate (single or pair) the entries come from. Members are
+    alternatives: named offset-like entries (:data:`STATIC_MEMBERS`, one channel or every channel) that
+    some tied candidate does without (a term every candidate needs, or the two terms of the one candidate,
+    explain the gap together, not alike), within :data:`TIE_CHI2` of the best named entry's evidence, on at
+    least two channels (or one and every channel). Returns the named entries left (wrong-sign beam members
+    removed) and the class, if any.
+    """
+    if not weights or not named or len(tied) < 2:
+        return named, []
+    best = max(float(n["evidence"]["delta_bic"]) for n in named)
+    cand = [
+        n
+        for n in named
+        if n["effect"] in STATIC_MEMBERS
+        and best - float(n["evidence"]["delta_bic"]) <= TIE_CHI2
+        and any(_label(n) not in keys for keys in tied)
+    ]
+    if len({n.get("channel") for n in cand}) < 2:
+        return named, []
+    q = u = None
+    for n in sorted(cand, key=lambda n: -float(n["evidence"]["delta_bic"])):  # the best offset member
+        b, ub = n["parameters"].get("b_mm"), n["uncertainties"].get("u_b_mm")
+        if n["effect"] != "sensor_offset" or b is None or ub is None:
+            continue
+        w = weights.get(int(n["channel"])) if n.get("channel") is not None else sum(weights.values())
+        if w is not None:
+            q, u = 1e3 * w * float(b), 1e3 * abs(w) * float(ub)
+            break
+    sign = 0 if q is None or abs(q) <= SIGN_SIGMAS * u else (1 if q > 0 else -1)
+    members, dropped, drop = [], [], set()
+    for n in cand:
+        s, w = OFFSET_LIKE.get(n["effect"], 0), weights.get(n.get("channel") or 0, 0.0)
+        if sign and s and s * w * sign < 0:
+            dropped.append(_label(n))
+            drop.add(id(n))
+        else:
+            members.append(_label(n))
+    if len(members) < 2:
+        return named, []
+    return [n for n in named if id(n) not in drop], [StaticClass(weights, q, u, members, dropped)]

@@ -21,7 +21,7 @@ import numpy as np
 
 from borescan.atomic import atomic_write_text
 from borescan.config import schema_defaults
-from borescan.discrepancy.classes import rod_classes
+from borescan.discrepancy.classes import rod_classes, static_classes, zero_weights
 from borescan.discrepancy.evidence import output_stage_evidence
 from borescan.discrepancy.fitting import FitResult
 from borescan.discrepancy.judge import Rejection, explanation, judge, plausible_ranges
@@ -381,13 +381,11 @@ def _statement(
 
 
 def _class_statement(classes, named: list[dict], explained: str, remaining: dict | None) -> str:
-    """Return a rod verdict's sentence: each layer's class (what the data fix, the advice), then the rest."""
-    inside = {(m, k.channel) for k in classes for m in k.members}
+    """Return a verdict's sentence with classes: each class (what the data fix, the advice), then the rest."""
     rest = [
-        n["effect"] + (f" on layer {n['channel']}" if n.get("channel") else "")
+        n["effect"] + (f" on {classes[0].where} {n['channel']}" if n.get("channel") else "")
         for n in named
-        if (n["effect"], n.get("channel")) not in inside
-        and not (n["effect"] == "sensor_nonlinearity" and any(k.channel == n.get("channel") for k in classes))
+        if not any(k.holds(n) for k in classes)
     ]
     out = classes[0].sentence
     if len(classes) > 1:  # the classes are alternatives: each explains the scan as well as the others
@@ -411,9 +409,12 @@ def _sentence(verdict: str, named: list[dict], explained: str, remaining: dict |
     if not named:
         why = "; ".join(z.sentence for z in rejected[:3])
         return f"a gap no plausible candidate explains: {why}"
-    what = (
-        labels[0] if len(labels) == 1 else "one of " + ", ".join(labels) + " (they look alike in this scan)"
-    )
+    if len(labels) == 1:
+        what = labels[0]
+    elif verdict == "missing_effect":  # one candidate (a pair, or the evidence effects): together, not alike
+        what = " together with ".join(labels)
+    else:
+        what = "one of " + ", ".join(labels) + " (they look alike in this scan)"
     if explained == "fully":
         return f"explained by {what}: the gap after is at the noise floor"
     rem = remaining or {}
@@ -428,7 +429,12 @@ def _sentence(verdict: str, named: list[dict], explained: str, remaining: dict |
 def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision, r_after) -> dict:
     """Return the findings.json content of one examination (``outputs.md`` plus the workflow's details)."""
     data = model.data
-    dec_named, classes = rod_classes(dec.named) if model.device_type == "rod" else (dec.named, [])
+    dec_named, classes = dec.named, []
+    if model.device_type == "rod":
+        dec_named, classes = rod_classes(dec.named)
+    elif model.scan_kind == "tri_static":
+        weights = zero_weights(model.data.channels, model.beams.beta_rad)
+        dec_named, classes = static_classes(dec.named, weights, [z.keys for z in dec.named_fits])
     named = list(out.named) + dec_named
     verdict = dec.verdict
     if out.named and verdict == "no_missing_effect":

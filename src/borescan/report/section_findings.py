@@ -33,7 +33,10 @@ def discrepancy(page: Page) -> str:
         "of the residual before and after adding the named effect, against the readings' noise floor. "
         "<b>missing_effect</b>: the model misses the named effect (service the device if it persists); "
         "<b>ambiguous</b>: several named effects explain the data equally well, all listed; "
-        "<b>no_missing_effect</b>: the residual is at the noise floor.</p>"
+        "<b>no_missing_effect</b>: the residual is at the noise floor; "
+        "<b>offset-like</b>: effects that shift readings alike (offsets, gains, bows, beams) tie; "
+        "the statement gives what the data fix (a rod layer's reading shift, or a static set's "
+        "combination of its channels' zeroes) and the calibration that absorbs it.</p>"
     ]
     rows, classes = [], []
     for (sid,), grp in fnd.group_by("scan_id", maintain_order=True):
