@@ -115,17 +115,20 @@ def pooled_findings_before_night(wildcards):
     return [f"{RES}/stage/pooled_findings/night={n}.parquet" for n in NIGHTS if n < wildcards.night]
 
 
-def scans_of_pooled_window(wildcards):
-    """Scans tables of the night and of the discrepancy.pooled_window_nights - 1 nights before it."""
+def pooled_window_nights(wildcards):
+    """The night and the discrepancy.pooled_window_nights - 1 nights before it."""
     upto = [n for n in NIGHTS if n <= wildcards.night]
-    window = upto[-int(NIGHT_SETTINGS[wildcards.night]["discrepancy"]["pooled_window_nights"]):]
-    return [f"{RES}/stage/scans/night={n}.parquet" for n in window]
+    return upto[-int(NIGHT_SETTINGS[wildcards.night]["discrepancy"]["pooled_window_nights"]):]
+
+
+def scans_of_pooled_window(wildcards):
+    """Scans tables of the nights of pooled_window_nights."""
+    return [f"{RES}/stage/scans/night={n}.parquet" for n in pooled_window_nights(wildcards)]
 
 
 def readings_of_pooled_window(wildcards):
-    """Readings stores (ingest's, borescan.rawio.store) of the nights of scans_of_pooled_window."""
-    return [p.replace("/stage/scans/", "/stage/readings/").removesuffix(".parquet")
-            for p in scans_of_pooled_window(wildcards)]
+    """Readings stores (ingest's, borescan.rawio.store) of the nights of pooled_window_nights."""
+    return [f"{RES}/stage/readings/night={n}" for n in pooled_window_nights(wildcards)]
 
 
 #: month plots of results/report/<YYYY-MM>/ (named by borescan.report.pages) -> category of `snakemake --report`
