@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 from borescan.effects import EFFECTS, REFERENCE_TEMPERATURE_C, thermal_expansion_factor
 from borescan.geometry import Bore
+from borescan.uncertainty import Input
 
 __all__ = [
     "REFERENCE_TEMPERATURE_C",
@@ -63,6 +64,12 @@ class ScanTemperature:
     assumed: bool
     source: str
 
+    def budget_input(self, key: str, quantity: str) -> Input:
+        """Return this temperature as a GUM input (T, degC, rectangular) of a budget."""
+        return Input(
+            key, quantity, "T", "degC", self.temperature_c, self.u_c, "rectangular", source=self.source
+        )
+
 
 @dataclass(frozen=True)
 class ArtifactCte:
@@ -77,6 +84,12 @@ class ArtifactCte:
     u_per_k: float
     assumed: bool
     source: str
+
+    def budget_input(self, key: str, quantity: str) -> Input:
+        """Return this coefficient as a GUM input (alpha, 1/K, rectangular) of a budget."""
+        return Input(
+            key, quantity, "alpha", "1/K", self.cte_per_k, self.u_per_k, "rectangular", source=self.source
+        )
 
 
 def scan_temperature(meta: dict, unc_cfg: dict) -> ScanTemperature:

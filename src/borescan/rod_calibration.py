@@ -282,30 +282,15 @@ def rod_calibration_budget(
     r20 = np.array([0.5 * float(g["certified_diameter_mm"]) for g in gauges])
     b.add(
         Term(
-            Input(
-                f"temperature:{scan_id}",
-                f"temperature of the gauges during {scan_id}",
-                "T",
-                "degC",
-                temperature.temperature_c,
-                temperature.u_c,
-                "rectangular",
-                source=temperature.source,
-            ),
+            temperature.budget_input(f"temperature:{scan_id}", f"temperature of the gauges during {scan_id}"),
             r20 * cte.cte_per_k,
         )
     )
     b.add(
         Term(
-            Input(
+            cte.budget_input(
                 f"cte:{gauges[0].get('cte_key') or artifact_key(gauges[0])}",
                 "expansion coefficient of the gauges",
-                "alpha",
-                "1/K",
-                cte.cte_per_k,
-                cte.u_per_k,
-                "rectangular",
-                source=cte.source,
             ),
             r20 * dT,
         )

@@ -333,28 +333,12 @@ def _gauge_terms(x0, scan_ids, dR: np.ndarray) -> list[Term]:
             dR * 0.5 * f,
         ),
         Term(
-            Input(
-                f"temperature:{scan_ids[0]}",
-                f"temperature of the gauge during {scan_ids[0]}",
-                "T",
-                "degC",
-                temp.temperature_c,
-                temp.u_c,
-                "rectangular",
-                source=temp.source,
-            ),
+            temp.budget_input(f"temperature:{scan_ids[0]}", f"temperature of the gauge during {scan_ids[0]}"),
             dR * 0.5 * d20 * cte.cte_per_k,
         ),
         Term(
-            Input(
-                f"cte:{artifact_key(art)}",
-                f"expansion coefficient of ring gauge {art.get('id')}",
-                "alpha",
-                "1/K",
-                cte.cte_per_k,
-                cte.u_per_k,
-                "rectangular",
-                source=cte.source,
+            cte.budget_input(
+                f"cte:{artifact_key(art)}", f"expansion coefficient of ring gauge {art.get('id')}"
             ),
             dR * 0.5 * d20 * dT,
         ),

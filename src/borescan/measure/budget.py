@@ -389,30 +389,18 @@ def diameter_uncertainty(
             b.add(t)
     b.add(
         Term(
-            Input(
+            temperature.budget_input(
                 f"temperature:{scan_id}",
                 f"temperature of {artifact.get('id') or 'the artifact'} during {scan_id}",
-                "T",
-                "degC",
-                temperature.temperature_c,
-                temperature.u_c,
-                "rectangular",
-                source=temperature.source,
             ),
             np.array([0.0, dT_sens]),
         )
     )
     b.add(
         Term(
-            Input(
+            cte.budget_input(
                 f"cte:{artifact_key(artifact)}",
                 f"expansion coefficient of {artifact.get('id') or 'the artifact'}",
-                "alpha",
-                "1/K",
-                cte.cte_per_k,
-                cte.u_per_k,
-                "rectangular",
-                source=cte.source,
             ),
             np.array([0.0, da_sens]),
         )
