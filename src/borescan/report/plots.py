@@ -177,24 +177,16 @@ def _moving_range_panel(ax_mr, lim: dict, x: np.ndarray, ms: float, small: bool)
     if np.isfinite(lim["mr_bar"]):
         ax_mr.axhline(lim["mr_bar"] * 1e3, color="k", lw=1)
         ax_mr.axhline(lim["mr_ucl"] * 1e3, ls="--", color="C1", lw=1)
-        ax_mr.annotate(
-            f"MR̄ {lim['mr_bar'] * 1e3:.2f}",
-            (0.995, lim["mr_bar"] * 1e3),
-            xycoords=("axes fraction", "data"),
-            fontsize=7,
-            va="bottom",
-            ha="right",
-            bbox=_LABEL_BOX,
-        )
-        ax_mr.annotate(
-            f"UCL {lim['mr_ucl'] * 1e3:.2f}",
-            (0.995, lim["mr_ucl"] * 1e3),
-            xycoords=("axes fraction", "data"),
-            fontsize=7,
-            va="bottom",
-            ha="right",
-            bbox=_LABEL_BOX,
-        )
+        for label, key in (("MR̄", "mr_bar"), ("UCL", "mr_ucl")):
+            ax_mr.annotate(
+                f"{label} {lim[key] * 1e3:.2f}",
+                (0.995, lim[key] * 1e3),
+                xycoords=("axes fraction", "data"),
+                fontsize=7,
+                va="bottom",
+                ha="right",
+                bbox=_LABEL_BOX,
+            )
         ax_mr.set_ylim(0.0, max(float(np.nanmax(mr)) if mr.size else 0.0, lim["mr_ucl"] * 1e3) * 1.15 or 1.0)
     ax_mr.axhline(0.0, color="0.7", lw=0.8)
     ax_mr.set_ylabel("moving range [µm]")
