@@ -20,6 +20,13 @@ stages write to their logs (:func:`borescan.workflow_log.compute_line`; never in
     python -m bench contract_night                      # N = 24 per kind, --cores 2
     python -m bench.bench_contract_night --cores 1 2    # the same night on 1 and 2 cores, side by side
     BENCH_CONTRACT_N=8 python -m bench contract_night   # scaled down
+    python -m bench.bench_contract_night --keep K       # keep the night and its results in K
+    OPENBLAS_NUM_THREADS=1 python -m bench.bench_contract_night --devices K/results_cores2 --repeat 2
+
+``--devices RESULTS`` times the three-sensor calibrations alone: the calibrate stage's job of every
+tri_lds device of the night (:func:`borescan.stages.calibrate.calibrate_device`: fit, budget,
+certificate) run again in this process on a copy of a kept results root, each on the CPU clock
+(``time.process_time``); run it with two checkouts' ``PYTHONPATH`` in turn to compare them.
 
 Targets (issue 38, benchmark not test): <= 60 s wall on 2 cores, no scan's stage work over 10 s,
 95th percentile under 2 s.
@@ -121,6 +128,51 @@ def run_night(raw: Path, results: Path, cores: int) -> dict:
     }
 
 
+def device_cpu(results: Path, repeat: int) -> dict[str, list[float]]:
+    """CPU seconds of each three-sensor device's calibrate job of a kept night, ``repeat`` times each.
+
+    The jobs are those :func:`borescan.stages.calibrate.stage_calibrate` builds (the config's schema
+    defaults), run in this process on a copy of ``results`` (a job writes its certificates there).
+    """
+    from borescan.config import schema_defaults
+    from borescan.stages._common import night_scans
+    from borescan.stages.calibrate import calibrate_device
+    from borescan.stages.calibrate_jobs import CalibrationJob, CalibrationSettings
+
+    import polars as pl
+
+    dflt = schema_defaults()
+    stage = results / "stage"
+    scans_table = stage / "scans" / f"night={NIGHT}.parquet"
+    summary = pl.read_parquet(stage / "signal_summary" / f"night={NIGHT}.parquet")
+    out: dict[str, list[float]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp) / "results"
+        shutil.copytree(results, copy, symlinks=True)
+        settings = CalibrationSettings(
+            uncertainty=dflt["uncertainty"],
+            laboratory=dflt["laboratory"],
+            verification=dflt["verification"],
+            signal=dflt["signal"],
+            raw_root=copy,
+            scans_table=scans_table,
+            devices=None,
+            night=NIGHT,
+            pooled_rows=(),
+            auto_nights=0,
+        )
+        by_device: dict[str, list] = {}
+        for row, d in night_scans(copy, NIGHT, scans_table, kind="calibration", device_type="tri_lds"):
+            by_device.setdefault(row["device_id"], []).append((row, d))
+        for device, items in sorted(by_device.items()):
+            job = CalibrationJob("tri", tuple(items), copy, summary, dflt["calibration"], settings)
+            for _ in range(repeat):
+                t0 = time.process_time()
+                calibrate_device(job)
+                out.setdefault(device, []).append(time.process_time() - t0)
+    return out
+
+
 def percentiles(items: list[tuple[str, float]]) -> tuple[float, float, float, str]:
     """Return the median, 95th percentile and maximum of the timings, and the slowest item's name."""
     s = np.array([x for _, x in items])
@@ -176,7 +228,15 @@ def main(argv: list[str] | None = None) -> None:
         "--cores", type=int, nargs="+", default=[2], help="run the night once per value, side by side"
     )
     ap.add_argument("--keep", type=Path, default=None, help="keep the night and its results in this folder")
+    ap.add_argument(
+        "--devices", type=Path, default=None, help="time the three-sensor calibrations of a kept run"
+    )
+    ap.add_argument("--repeat", type=int, default=1, help="with --devices: runs of each device's job")
     a, _ = ap.parse_known_args(argv if argv is not None else sys.argv[1:])
+    if a.devices is not None:
+        for device, cpu in device_cpu(a.devices, a.repeat).items():
+            print(f"{device:20} " + " ".join(f"{x:7.3f}" for x in cpu) + "  CPU s")
+        return
     with tempfile.TemporaryDirectory() as tmp:
         work = a.keep or Path(tmp)
         night = work / "night"

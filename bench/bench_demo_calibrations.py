@@ -60,13 +60,26 @@ def fit_demo(raw: Path) -> tuple[dict[str, np.ndarray], float]:
 
 
 def compare(old: dict[str, np.ndarray], new: dict[str, np.ndarray]) -> float:
-    """Print max |dp| / u (u the old one) and the cost ratio per calibration; return the largest |dp| / u."""
+    """Print max |dp| / u (u the old one), u new / old and the cost ratio per calibration.
+
+    Returns the largest |dp| / u. Each u that moved by more than 1e-4 of itself is listed by parameter.
+    """
     worst = 0.0
+    names = ("beta", "rho", "d_b")
     for key in sorted({k.rsplit("/", 1)[0] for k in old}):
-        dp = np.abs(new[f"{key}/params"] - old[f"{key}/params"]) / old[f"{key}/u"]
+        u_old, u_new = old[f"{key}/u"], new[f"{key}/u"]
+        held = u_old == 0  # the gauge-fixed beta
+        dp = np.abs(new[f"{key}/params"] - old[f"{key}/params"])[~held] / u_old[~held]
         ratio = float(new[f"{key}/cost"][0] / old[f"{key}/cost"][0])
+        u_ratio = np.ones_like(u_old)
+        u_ratio[~held] = u_new[~held] / u_old[~held]
         worst = max(worst, float(dp.max()))
-        print(f"{key}: max |dp|/u {dp.max():.2e}, cost ratio new/old {ratio:.15f}")
+        print(
+            f"{key}: max |dp|/u {dp.max():.2e}, u new/old {u_ratio.min():.6f}-{u_ratio.max():.6f}, "
+            f"cost ratio new/old {ratio:.15f}"
+        )
+        for i in np.flatnonzero(np.abs(u_ratio - 1.0) > 1e-4):
+            print(f"    u({names[i % 3]} of channel {i // 3 + 1}) {u_old[i]:.6g} -> {u_new[i]:.6g}")
     return worst
 
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from borescan.calibrate.full_fit import fit_full_calibration
+from borescan.calibrate.mirror_search import MIRROR_CLEAR_DCHI2
 from borescan.synthetic import scenes, simulate
 from borescan.geometry import Beams
 from borescan.mirror import (
@@ -129,13 +130,21 @@ def flagged_fit():
 def test_fit_flags_only_the_beam_whose_mirror_is_shallow(flagged_fit):
     scene, cal = flagged_fit
     m1, m2, m3 = mirror_checks_of(cal.diagnostics)
-    # beam 1: a mirror, refitted from -rho, deep: resolved; the refit within its noise of Eq. (1) (the refit
-    # of the other parameters takes 0-16 % of it, the noise moves it by 2 sqrt(depth) sd)
-    assert m1.resolved and m1.refit_delta_chi2 is not None
+    # beam 1: a mirror, deep: resolved without the refit from -rho (issue 38), its predicted depth and the
+    # unrefitted mirror start both far above; the start within its noise of Eq. (1) (the formula is the
+    # start's second-harmonic difference to first order; the noise moves it by 2 sqrt(depth) sd)
+    assert m1.resolved and m1.refit_delta_chi2 is None and not m1.refitted
+    assert min(m1.predicted_delta_chi2, m1.start_delta_chi2) >= MIRROR_CLEAR_DCHI2
     assert (
-        abs(m1.refit_delta_chi2 - 0.92 * m1.predicted_delta_chi2)
+        abs(m1.start_delta_chi2 - m1.predicted_delta_chi2)
         < 3 * 2 * math.sqrt(m1.predicted_delta_chi2) + 0.1 * m1.predicted_delta_chi2
     )
+    assert "mirror predicted" in m1.statement() and "resolved" in m1.statement()
+    assert {p["channel"]: "not_profiled" in p for p in cal.diagnostics["rho_profiles"]} == {
+        1: True,
+        2: True,
+        3: True,
+    }
     # beam 3: |rho| < sqrt(2) e: no mirror, the refit returned to the solution
     assert not m3.mirror_possible and m3.resolved and m3.refit_delta_chi2 is None
     # beam 2: flagged, two solutions of opposite sign; weights exp(-d/2) normalised; the truth in one of them
@@ -149,6 +158,31 @@ def test_fit_flags_only_the_beam_whose_mirror_is_shallow(flagged_fit):
     z_alt = abs(alt.params[4] - scene.beams.rho_mm[1]) / math.sqrt(alt.cov[4][4])
     assert min(z_main, z_alt) < 4.0
     assert "the sign of rho of channel 2 is not determined by this scan" in m2.statement()
+
+
+def test_the_refit_of_a_deep_mirror_changes_nothing(flagged_fit, monkeypatch):
+    """The same scan with every mirror refitted (the check's threshold for skipping it lifted): beam 1's
+    refit lies within its noise of Eq. (1) (the refit of the other parameters takes 0-16 % of it, the noise
+    moves it by 2 sqrt(depth) sd), far above 25, and every parameter and u is the one of the fit that
+    skipped it (the optimizer's tolerance).
+    """
+    from borescan.calibrate import mirror_search
+
+    scene, cal = flagged_fit
+    monkeypatch.setattr(mirror_search, "MIRROR_CLEAR_DCHI2", math.inf)
+    t = np.arange(3300) / 660.0
+    y = scenes.tri_readings(scene, t) + 0.002 * np.random.default_rng(11).standard_normal((t.size, 3))
+    full = fit_full_calibration(t, y, (1, 2, 3), scene.beams, R_MM, rpm=60.0, range_mm=20.0, scan_ids=["MIR"])
+    m1 = mirror_checks_of(full.diagnostics)[0]
+    assert m1.refitted and m1.resolved and m1.refit_delta_chi2 > MIRROR_CLEAR_DCHI2
+    assert (
+        abs(m1.refit_delta_chi2 - 0.92 * m1.predicted_delta_chi2)
+        < 3 * 2 * math.sqrt(m1.predicted_delta_chi2) + 0.1 * m1.predicted_delta_chi2
+    )
+    u = np.sqrt(np.diag(cal.cov))
+    held = u == 0
+    assert np.all(np.abs(full.params - cal.params)[~held] <= 1e-4 * u[~held])
+    np.testing.assert_allclose(np.sqrt(np.diag(full.cov)), u, rtol=1e-4)
 
 
 def test_resolved_beams_keep_their_own_curvature(flagged_fit):

@@ -179,7 +179,11 @@ class BeamMirror:
     ``resolved``: no mirror or refit_delta_chi2 >= :data:`RESOLVED_DCHI2`; for a flagged beam
     ``weight_main`` and ``p_wrong_sign`` (the two solutions' normalised weights), ``alternative`` and
     ``valid_bore_diameter_mm`` (where the calibration may be used); ``offset_to_resolve_mm`` the
-    spindle offset X that would put the mirror at delta chi2 = 25 on a scan of the same samples.
+    spindle offset X that would put the mirror at delta chi2 = 25 on a scan of the same samples;
+    ``refitted``: whether the refit from -rho was made (issue 38: not where no mirror is possible or where
+    the predicted depth and ``start_delta_chi2``, the cost at the unrefitted mirror start, which the refit
+    could only lower, are both far above the threshold,
+    :data:`borescan.calibrate.mirror_search.MIRROR_CLEAR_DCHI2`).
     """
 
     channel: int
@@ -195,6 +199,8 @@ class BeamMirror:
     alternative: MirrorSolution | None = None
     rho_alt_mm: float | None = None
     valid_bore_diameter_mm: tuple[float, float] | None = None
+    refitted: bool = True
+    start_delta_chi2: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Return the fields as a JSON-ready dict (NaN as None, infinities as ``"inf"`` or ``"-inf"``)."""
@@ -238,16 +244,21 @@ class BeamMirror:
             ),
             rho_alt_mm=None if d.get("rho_alt_mm") is None else f(d["rho_alt_mm"]),
             valid_bore_diameter_mm=None if vb is None else (f(vb[0]), f(vb[1])),
+            refitted=bool(d.get("refitted", True)),
+            start_delta_chi2=None if d.get("start_delta_chi2") is None else f(d["start_delta_chi2"]),
         )
 
     def statement(self) -> str:
         """One sentence for a certificate or report."""
         if self.resolved:
-            how = (
-                "no mirror solution (|rho| <= sqrt(2) e)"
-                if self.refit_delta_chi2 is None
-                else f"mirror {self.refit_delta_chi2:.1f} chi^2 above the solution"
-            )
+            if self.refit_delta_chi2 is not None:
+                how = f"mirror {self.refit_delta_chi2:.1f} chi^2 above the solution"
+            elif not self.mirror_possible:
+                how = "no mirror solution (|rho| <= sqrt(2) e)"
+            elif not self.refitted:
+                how = f"mirror predicted {self.predicted_delta_chi2:.1f} chi^2 above the solution"
+            else:
+                how = "the refit from -rho returned to this solution"
             return f"channel {self.channel}: sign of rho resolved ({how})"
         lo, hi = self.valid_bore_diameter_mm or (float("nan"), float("nan"))
         hi_s = "no upper limit" if not math.isfinite(hi) else f"{hi:.1f} mm"

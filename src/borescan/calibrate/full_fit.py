@@ -87,6 +87,7 @@ from borescan.fit import FitResult, fit_result
 from borescan.geometry import Beams
 from borescan.kinematics import AngleModel
 from borescan.levmar import LMResult
+from borescan.mirror import RESOLVED_DCHI2, BeamMirror
 
 __all__ = ["fit_full_calibration"]
 
@@ -196,7 +197,7 @@ def _first_solution(pb: FullProblem, x0: np.ndarray) -> tuple[FullProblem, Mirro
 
 @dataclass(frozen=True)
 class _Solved:
-    """The kept solution with its linearisation (at the last profiled solution) and its profiles.
+    """The kept solution with its linearisation (at the last profiled solution), mirror checks and profiles.
 
     ``r`` and ``fit`` are those of the last linearisation; after three rounds that each found a lower
     minimum along a profile, ``sol`` is the last refit (as before the split).
@@ -210,6 +211,7 @@ class _Solved:
     profiles: list[ProfileResult]
     tried: tuple[dict, ...]
     alternatives: tuple
+    checks: list[BeamMirror]
 
 
 def _linearised(pb: FullProblem, sol: LMResult) -> tuple[FitResult, np.ndarray]:
@@ -236,19 +238,41 @@ def _linearised(pb: FullProblem, sol: LMResult) -> tuple[FitResult, np.ndarray]:
     return fit, pb.public_cov(sol.x, fit.cov)
 
 
+def _needs_profile(check: BeamMirror) -> bool:
+    """Return whether a beam's rho is profiled (issue 38).
+
+    Its mirror was refitted, found no separate minimum within :data:`~borescan.mirror.RESOLVED_DCHI2` (a
+    flagged beam's two solutions carry its spread), and is predicted within it: a valley through both
+    signs. Every other beam is one Gaussian value on its own curvature.
+    """
+    if not (check.resolved and check.refitted and check.mirror_possible):
+        return False
+    depth = min(
+        check.predicted_delta_chi2, np.inf if check.refit_delta_chi2 is None else check.refit_delta_chi2
+    )
+    return bool(depth < RESOLVED_DCHI2)
+
+
 def _profiled(pb: FullProblem, search: MirrorSearch) -> _Solved:
-    """Linearise at the kept solution and profile each rho; refit from a lower point a profile finds.
+    """Linearise at the kept solution, check each beam's mirror and profile the rho that need it.
 
     Up to three rounds: a lower cost along a profile (the optimizer had stopped short of the minimum)
-    is refitted, its mirrors searched, and the new solution linearised and profiled again.
+    is refitted, its mirrors searched, and the new solution linearised, checked and profiled again.
     """
     sol, tried, alts = search.sol, search.tried, search.alternatives
     for _round in range(3):
         fit, cov_free = _linearised(pb, sol)
         r = np.asarray(sol.fun)
+        nuis = pb.unpack(sol.x)[1]
+        same = search.sol is sol  # the search's decisions and own refits were made at this solution
+        found = MirrorSearch(sol, tried, alts, search.triage if same else (), search.own if same else ())
+        checks = mirror_checks(pb, sol, fit.sigma**2, found, cov_free, nuis)
         profiles, lower = [], None
-        for j in range(pb.c):
-            prof = rho_profile(pb, j, sol.x, float(sol.cost), fit.sigma**2, fit.cov, cov_free)
+        for j, check in enumerate(checks):
+            if _needs_profile(check):
+                prof = rho_profile(pb, j, sol.x, float(sol.cost), fit.sigma**2, fit.cov, cov_free)
+            else:
+                prof = ProfileResult({"linear": True, "not_profiled": NOTES["not_profiled"]})
             prof.info["channel"] = int(pb.channels[j])
             profiles.append(prof)
             if prof.lower is not None:
@@ -260,9 +284,9 @@ def _profiled(pb: FullProblem, search: MirrorSearch) -> _Solved:
             trial = solve(pb, lower)
         if not (bool(trial.success) and np.isfinite(trial.cost) and trial.cost < sol.cost):
             break
-        more = mirror_search(pb, trial)
-        sol, tried, alts = more.sol, tried + more.tried, alts + more.alternatives
-    return _Solved(pb, sol, r, fit, cov_free, profiles, tried, alts)
+        search = mirror_search(pb, trial)
+        sol, tried, alts = search.sol, tried + search.tried, alts + search.alternatives
+    return _Solved(pb, sol, r, fit, cov_free, profiles, tried, alts, checks)
 
 
 def _rank_all_free(pb: FullProblem, x: np.ndarray) -> int:
@@ -285,7 +309,7 @@ def _calibration(s: _Solved, censored: dict) -> dict:
     p_hat = pb.public(sol.x)
     u2_rho = np.diag(s.cov_free)[pb.i_rho0 : pb.i_rho0 + pb.c].copy()
     # the mirror check of every beam (issue 36): a flagged beam is carried as two weighted solutions
-    checks = mirror_checks(pb, sol, s2, MirrorSearch(sol, s.tried, s.alternatives), s.cov_free, nuis)
+    checks = s.checks
     flagged = {j for j, m in enumerate(checks) if not m.resolved}
     cov_free = profile_covariance(pb, s.profiles, s.cov_free, p_hat, flagged)
     # d_b = g - rho^2 / (2R) is quadratic in rho: with rho ~ N(rho_hat, u^2) the linear term above

@@ -2,9 +2,12 @@
 
 rho_c -> -rho_c at fixed psi and g keeps the first harmonic and the mean level, so each beam has
 two minima of nearly equal cost that only the second harmonic's phase tells apart. The search
-(:func:`mirror_search`) refits from every beam's mirror (:func:`mirror_start`) and keeps the lower
-cost; on long scans a screen on every step-th sample first sets aside the mirrors far above the
-kept cost or returning to it (:data:`MIRROR_SCREEN_READINGS`). Each beam's check
+(:func:`mirror_search`) refits from the mirror (:func:`mirror_start`) of every beam the mirror check
+needs it for and keeps the lower cost (issue 38, :func:`triage`): a beam with no mirror (|rho| + 2 u(rho)
+<= sqrt(2) e), or whose predicted depth (:func:`borescan.mirror.predicted_depth`) and unrefitted
+mirror start both lie at least :data:`MIRROR_CLEAR_DCHI2` above the kept minimum, is resolved without
+a refit. On long scans a screen on every step-th sample first sets aside the refitted mirrors far
+above the kept cost or returning to it (:data:`MIRROR_SCREEN_READINGS`). Each beam's check
 (:func:`mirror_checks`, :mod:`borescan.mirror`, issue 36) is built from what the search found.
 """
 
@@ -16,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from borescan.calibrate.problem import FullProblem
-from borescan.calibrate.residuals import solve
+from borescan.calibrate.residuals import residuals, solve
 from borescan.fit import fit_result, jacobian_summary
 from borescan.levmar import LMResult
 from borescan.mirror import (
@@ -31,6 +34,10 @@ from borescan.mirror import (
 from borescan.physics.tri_params import rho_arc_rad
 
 __all__ = [
+    "MIRROR_CLEAR_DCHI2",
+    "MIRROR_RHO_MARGIN_U",
+    "BeamTriage",
+    "triage",
     "MIRROR_SCREEN_READINGS",
     "MIRROR_SCREEN_DCHI2",
     "MIRROR_SCREEN_RHO_U",
@@ -51,6 +58,77 @@ MIRROR_SCREEN_READINGS = 50_000
 MIRROR_SCREEN_DCHI2 = 200.0
 MIRROR_SCREEN_RHO_U = 10.0
 
+#: a beam whose predicted mirror depth (Eq. (1) of :mod:`borescan.mirror`) and unrefitted mirror start
+#: (rho -> -rho at fixed psi and g, every other parameter kept) both lie at least this far above the kept
+#: minimum (chi^2 units, four times :data:`~borescan.mirror.RESOLVED_DCHI2`) is resolved without the
+#: exact refit from -rho. A refit only lowers the start's cost; on the first 25 scans of the contract
+#: battery (seed 20270611) a refitted separate mirror lay at 0.69-1.0 of its start and 0.48-1.23 of the
+#: prediction (the 0.48 at a depth of 10), so at 100 it stays far above 25. A start below the kept
+#: minimum (the fit sits in the mirror's valley) is always refitted.
+MIRROR_CLEAR_DCHI2 = 4.0 * RESOLVED_DCHI2
+#: a mirror may exist when |rho| + this many u(rho) exceeds sqrt(2) e (the margin of the fitted rho)
+MIRROR_RHO_MARGIN_U = 2.0
+
+
+@dataclass(frozen=True)
+class BeamTriage:
+    """Whether a beam's mirror is refitted, decided at a solution (:func:`triage`).
+
+    Attributes
+    ----------
+    predicted_delta_chi2 : Eq. (1) of :mod:`borescan.mirror` at the solution's rho, offsets and noise.
+    start_delta_chi2 : 2 (cost at the unrefitted mirror start - cost) / s^2; None when not evaluated
+        (no mirror possible).
+    refit : whether the exact refit from -rho is needed; reason : why not (empty when refitted).
+    """
+
+    predicted_delta_chi2: float
+    start_delta_chi2: float | None
+    refit: bool
+    reason: str = ""
+
+    def log(self) -> dict:
+        """Return the JSON-safe entry of the mirror search's log for a beam not refitted."""
+        out = {"predicted_delta_chi2": float(self.predicted_delta_chi2), "not_refitted": self.reason}
+        if self.start_delta_chi2 is not None:
+            out["start_delta_chi2"] = float(self.start_delta_chi2)
+        return out
+
+
+def _depth_inputs(pb: FullProblem, x: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return beam ``j``'s valid readings per scan, the scans' offsets e [mm] and the channel's noise [mm]."""
+    e_k = np.array([float(np.hypot(*n.offset_mm)) for n in pb.unpack(x)[1]])
+    n_k = np.array([int(m[:, j].sum()) for m in pb.masks])
+    return n_k, e_k, np.asarray(pb.floors, float)[:, j]
+
+
+def triage(pb: FullProblem, sol: LMResult, j: int, u_rho_mm: float) -> BeamTriage:
+    """Decide whether beam ``j``'s mirror must be refitted at solution ``sol`` (module doc).
+
+    No mirror is possible where |rho| + :data:`MIRROR_RHO_MARGIN_U` u(rho) <= sqrt(2) e; otherwise the cost at
+    the unrefitted mirror start is evaluated (one evaluation of the residuals) and the beam is resolved
+    without a refit when it and the predicted depth are both at least :data:`MIRROR_CLEAR_DCHI2`.
+    """
+    rho = float(pb.unpack(sol.x)[0].rho_mm[j])
+    n_k, e_k, sig_k = _depth_inputs(pb, sol.x, j)
+    d_pred = predicted_depth(n_k, e_k, rho, sig_k, pb.R_mm)
+    if not mirror_exists(abs(rho) + MIRROR_RHO_MARGIN_U * u_rho_mm, e_k):
+        return BeamTriage(
+            d_pred, None, False, f"no mirror: |rho| + {MIRROR_RHO_MARGIN_U:g} u(rho) <= sqrt(2) e"
+        )
+    s2 = 2.0 * float(sol.cost) / max(pb.n_obs + pb.n_prior - pb.n_params, 1)
+    with np.errstate(all="ignore"):
+        r = residuals(pb, mirror_start(pb, sol.x, j))
+    d_start = float(r @ r - 2.0 * float(sol.cost)) / s2
+    if np.isfinite(d_start) and min(d_pred, d_start) >= MIRROR_CLEAR_DCHI2:
+        return BeamTriage(
+            d_pred,
+            d_start,
+            False,
+            f"predicted depth and unrefitted mirror start both >= {MIRROR_CLEAR_DCHI2:g} above the solution",
+        )
+    return BeamTriage(d_pred, d_start, True)
+
 
 @dataclass(frozen=True)
 class Screened:
@@ -65,12 +143,17 @@ class MirrorSearch:
     """What a mirror search gives: the kept solution, the log of each start, each start's minimum.
 
     ``tried`` (one dict per start, JSON-safe) is aligned with ``alternatives`` (the start's minimum:
-    an :class:`~borescan.levmar.LMResult`, a :class:`Screened`, or None when it failed or returned).
+    an :class:`~borescan.levmar.LMResult`, a :class:`Screened`, or None when it failed, returned or was
+    not refitted). ``triage``: per beam the decision at the kept solution (:func:`triage`), empty when the
+    search did not run; ``own``: per beam index, the exact refit from its mirror at the kept solution
+    (what :func:`mirror_checks` would refit again).
     """
 
     sol: LMResult
     tried: tuple[dict, ...]
     alternatives: tuple[Any, ...]
+    triage: tuple[BeamTriage, ...] = ()
+    own: tuple[tuple[int, LMResult], ...] = ()
 
 
 def mirror_start(pb: FullProblem, x: np.ndarray, j: int) -> np.ndarray:
@@ -154,12 +237,29 @@ def _screen_one(pb: FullProblem, sol: LMResult, xf: np.ndarray, j: int, kept: _K
     return entry, Screened(x=t_sub.x, cost=cost_est)
 
 
+def _u_rho(pb: FullProblem, sol: LMResult) -> np.ndarray:
+    """Return u of each rho at ``sol`` from its Jacobian (s^2 (J^T J)^-1)."""
+    s2 = 2.0 * float(sol.cost) / max(pb.n_obs + pb.n_prior - pb.n_params, 1)
+    u = np.sqrt(np.clip(np.diag(jacobian_summary(sol.jac).cov_unit) * s2, 0.0, None))
+    return u[pb.i_rho0 : pb.i_rho0 + pb.c]
+
+
 def mirror_search(pb: FullProblem, sol: LMResult) -> MirrorSearch:
-    """Refit from every beam's mirror (:func:`mirror_start`); keep the lowest cost."""
+    """Refit from the mirror of each beam that needs it (:func:`triage`); keep the lowest cost."""
     step, rows = screen_rows(pb)
-    tried, alts = [], []
+    tried, alts, own = [], [], {}
     kept = None
+    u_rho = _u_rho(pb, sol)
+    decided: dict[int, BeamTriage] = {}
     for j in range(pb.c):
+        decided[j] = tri = triage(pb, sol, j, float(u_rho[j]))
+        if not tri.refit:
+            tried.append(
+                {"channel": int(pb.channels[j]), "cost_kept": float(sol.cost), "mirror_taken": False}
+            )
+            tried[-1].update(tri.log())
+            alts.append(None)
+            continue
         xf = mirror_start(pb, sol.x, j)
         if rows is not None:
             kept = kept or _kept_on_screen(pb, sol, rows)
@@ -182,10 +282,16 @@ def mirror_search(pb: FullProblem, sol: LMResult) -> MirrorSearch:
             }
         )
         alts.append((sol if better else trial) if fine else None)
+        own[j] = (sol, trial)
         if better:
             sol = trial
             kept = None
-    return MirrorSearch(sol, tuple(tried), tuple(alts))
+            u_rho = _u_rho(pb, sol)
+            decided = {}  # the decisions so far were at the solution left behind
+    # the decisions at the kept solution: those taken after the last change, the others again
+    final = tuple(decided.get(j) or triage(pb, sol, j, float(u_rho[j])) for j in range(pb.c))
+    refits = tuple((j, t) for j, (at, t) in sorted(own.items()) if at is sol)
+    return MirrorSearch(sol, tuple(tried), tuple(alts), final, refits)
 
 
 def _candidates(
@@ -254,21 +360,23 @@ def mirror_checks(pb: FullProblem, sol, s2: float, search: MirrorSearch, cov_fre
     Every minimum of the mirror search (from any beam's start; delta chi^2 = 2 (cost - cost_kept) / s^2)
     is a candidate mirror of each beam whose rho it has of the other sign; the lowest is the beam's. No
     mirror: no such minimum (the refits returned to the kept solution, within 0.1 u of every parameter,
-    or kept the sign). A beam whose mirror lies within :data:`borescan.mirror.RESOLVED_DCHI2` is refitted
-    once more from the final solution's mirror; that refit, or the candidate where it is lower, is its
+    or kept the sign, or the beam was not refitted: :func:`triage`). A beam whose mirror lies within
+    :data:`borescan.mirror.RESOLVED_DCHI2` is refitted once more from the final solution's mirror (the
+    search's own refit from there when it has one); that refit, or the candidate where it is lower, is its
     second solution, with covariance from its own Jacobian. Weights exp(-delta chi^2 / 2) over the kept
     solution and this beam's mirror.
     """
     p_hat = pb.public(sol.x)
     rho_hat = pb.unpack(sol.x)[0].rho_mm
     best = _candidates(pb, sol, s2, search.alternatives, cov_free, p_hat, rho_hat)
-    e_k = np.array([float(np.hypot(*n.offset_mm)) for n in nuis])
+    decided = search.triage if search.sol is sol else ()
+    own = dict(search.own) if search.sol is sol else {}
     out = []
     for j, ch in enumerate(pb.channels):
-        n_k = np.array([int(m[:, j].sum()) for m in pb.masks])
-        sig_k = np.asarray(pb.floors, float)[:, j]
+        n_k, e_k, sig_k = _depth_inputs(pb, sol.x, j)
         rho = float(rho_hat[j])
         sigma = float(np.sqrt(np.sum(n_k * sig_k**2) / max(n_k.sum(), 1)))
+        tri = decided[j] if decided else None
         common = dict(
             channel=int(ch),
             rho_mm=rho,
@@ -276,11 +384,16 @@ def mirror_checks(pb: FullProblem, sol, s2: float, search: MirrorSearch, cov_fre
             mirror_possible=mirror_exists(rho, e_k),
             predicted_delta_chi2=predicted_depth(n_k, e_k, rho, sig_k, pb.R_mm),
             offset_to_resolve_mm=offset_to_resolve_mm(pb.R_mm, sigma, float(n_k.sum()), rho),
+            refitted=tri is None or tri.refit,
+            start_delta_chi2=None if tri is None else tri.start_delta_chi2,
         )
         d_chi2, cand = best.get(j, (None, None))
         if d_chi2 is not None and d_chi2 < RESOLVED_DCHI2:
-            with np.errstate(all="ignore"):
-                trial = solve(pb, mirror_start(pb, sol.x, j))
+            common["refitted"] = True
+            trial = own.get(j)
+            if trial is None:
+                with np.errstate(all="ignore"):
+                    trial = solve(pb, mirror_start(pb, sol.x, j))
             i = pb.i_rho0 + j
             ok = (
                 bool(trial.success)

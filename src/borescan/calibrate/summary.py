@@ -197,11 +197,16 @@ NOTES = {
         "carried as two weighted solutions"
     ),
     "rho_profile_note": (
-        "per channel the cost profiled along rho (every other parameter refitted): linear when "
-        "at rho +- 2 u "
+        "the cost profiled along rho (every other parameter refitted) where the mirror check needs it: "
+        "a beam whose mirror was refitted, found no separate minimum within "
+        f"{RESOLVED_DCHI2:g} chi^2 and is predicted within it; linear when at rho +- 2 u "
         "it rises by 4 +- 1 s^2 and bends no parameter by more than u / 2; otherwise the "
         "likelihood-weighted "
         "spread of every parameter along the profile enters the covariance"
+    ),
+    "not_profiled": (
+        "not profiled: its sign is resolved (no mirror, or the mirror predicted or refitted at least "
+        f"{RESOLVED_DCHI2:g} chi^2 above) or flagged (two solutions): one value, u from its own curvature"
     ),
     "weak_rho_note": (
         "|rho| < 2 u(rho): rho is not distinguished from 0; d_b = g - rho^2/(2R) is then far from "
