@@ -22,14 +22,15 @@ Starting values that cannot miss: the speed scale from the readings' spectrum ov
 ``rule.speed_scale_range`` refined on the first-harmonic misfit; offset and levels from the
 linear first harmonic; the beams from the design. Internally beta + asin(rho / R) and
 d_b + rho^2 / (2 R) (the quantities the data fix best) are the fitted parameters, which
-straightens the valleys; then every beam's mirror solution (rho of opposite sign at the same
-first harmonic, a second minimum of nearly equal cost) is refitted on every sample and the
-lower cost kept (``diagnostics["mirror_solutions"]``; on long scans a screen on every step-th
-sample first sets aside the mirrors far above the kept cost or returning to it,
-:data:`~borescan.calibrate.mirror_search.MIRROR_SCREEN_READINGS`). rho enters the readings mostly through
+straightens the valleys; then each beam's mirror solution (rho of opposite sign at the same
+first harmonic, a second minimum of nearly equal cost) is refitted on every sample where the mirror
+check needs it and the lower cost kept (``diagnostics["mirror_solutions"]``; a beam without a
+mirror, or whose predicted depth and unrefitted mirror start both lie far above the kept minimum, is
+not refitted: :func:`~borescan.calibrate.mirror_search.triage`). rho enters the readings mostly through
 rho^2 (the first harmonic's amplitude |o| sqrt(1 + rho^2 / R^2)), so its cost valley can be
-skewed and curved, beta moving non-linearly with it: each rho's profile (every other parameter
-refitted) is checked at rho +- 2 u; where it is not the linear one it is walked out to
+skewed and curved, beta moving non-linearly with it: the profile of each rho whose beam the mirror
+check leaves near the threshold without a separate mirror (every other parameter refitted) is checked
+at rho +- 2 u; where it is not the linear one it is walked out to
 Delta chi^2 = 12.5 and the likelihood-weighted spread of every parameter along it enters the
 covariance (``diagnostics["rho_profiles"]``); a lower cost found on the way is refitted and kept.
 Distinct minima (mirror starts, dips along a profile) are listed with 2 (cost - cost_kept) / s^2

@@ -6,8 +6,8 @@ two minima of nearly equal cost that only the second harmonic's phase tells apar
 needs it for and keeps the lower cost (issue 38, :func:`triage`): a beam with no mirror (|rho| + 2 u(rho)
 <= sqrt(2) e), or whose predicted depth (:func:`borescan.mirror.predicted_depth`) and unrefitted
 mirror start both lie at least :data:`MIRROR_CLEAR_DCHI2` above the kept minimum, is resolved without
-a refit. On long scans a screen on every step-th sample first sets aside the refitted mirrors far
-above the kept cost or returning to it (:data:`MIRROR_SCREEN_READINGS`). Each beam's check
+a refit (this replaced a screen that fitted every mirror start on a subsample of a long scan first:
+the triage costs one evaluation of the residuals a beam). Each beam's check
 (:func:`mirror_checks`, :mod:`borescan.mirror`, issue 36) is built from what the search found.
 """
 
@@ -38,25 +38,11 @@ __all__ = [
     "MIRROR_RHO_MARGIN_U",
     "BeamTriage",
     "triage",
-    "MIRROR_SCREEN_READINGS",
-    "MIRROR_SCREEN_DCHI2",
-    "MIRROR_SCREEN_RHO_U",
-    "Screened",
     "MirrorSearch",
     "mirror_start",
     "mirror_search",
     "mirror_checks",
 ]
-
-#: the mirror search on long scans: with more than twice this many valid readings each mirror start is
-#: first fitted on every step-th sample (step = n_obs // this); a mirror whose screened cost, scaled to
-#: every sample, lies more than MIRROR_SCREEN_DCHI2 s^2 above the kept minimum's (its weight
-#: exp(-Delta/2) is nil; the scaled estimate's standard deviation is sqrt(4 step Delta), 20 s^2 at
-#: Delta = 12.5, step 8), or that returns to the kept minimum while that beam's rho lies more than
-#: MIRROR_SCREEN_RHO_U of its u from 0, is not refitted on every sample
-MIRROR_SCREEN_READINGS = 50_000
-MIRROR_SCREEN_DCHI2 = 200.0
-MIRROR_SCREEN_RHO_U = 10.0
 
 #: a beam whose predicted mirror depth (Eq. (1) of :mod:`borescan.mirror`) and unrefitted mirror start
 #: (rho -> -rho at fixed psi and g, every other parameter kept) both lie at least this far above the kept
@@ -131,22 +117,14 @@ def triage(pb: FullProblem, sol: LMResult, j: int, u_rho_mm: float) -> BeamTriag
 
 
 @dataclass(frozen=True)
-class Screened:
-    """A mirror minimum set aside by the screen: its parameters there and its estimated full cost."""
-
-    x: np.ndarray
-    cost: float
-
-
-@dataclass(frozen=True)
 class MirrorSearch:
     """What a mirror search gives: the kept solution, the log of each start, each start's minimum.
 
     ``tried`` (one dict per start, JSON-safe) is aligned with ``alternatives`` (the start's minimum:
-    an :class:`~borescan.levmar.LMResult`, a :class:`Screened`, or None when it failed, returned or was
-    not refitted). ``triage``: per beam the decision at the kept solution (:func:`triage`), empty when the
-    search did not run; ``own``: per beam index, the exact refit from its mirror at the kept solution
-    (what :func:`mirror_checks` would refit again).
+    an :class:`~borescan.levmar.LMResult`, or None when it failed or was not refitted). ``triage``: per
+    beam the decision at the kept solution (:func:`triage`), empty when the search did not run;
+    ``own``: per beam index, the exact refit from its mirror at the kept solution (what
+    :func:`mirror_checks` would refit again).
     """
 
     sol: LMResult
@@ -179,64 +157,6 @@ def mirror_start(pb: FullProblem, x: np.ndarray, j: int) -> np.ndarray:
     return xf
 
 
-def screen_rows(pb: FullProblem) -> tuple[int, list | None]:
-    """Return the screen's step and rows (every step-th sample of each scan; None: no screen)."""
-    step = max(1, pb.n_obs // MIRROR_SCREEN_READINGS)
-    return step, ([slice(None, None, step)] * pb.K if step > 1 else None)
-
-
-@dataclass(frozen=True)
-class _Kept:
-    """The kept solution refitted on the screen's samples, its s^2 on every sample, u of its parameters."""
-
-    sub: LMResult
-    s2_full: float
-    u_int: np.ndarray
-
-
-def _kept_on_screen(pb: FullProblem, sol: LMResult, rows: list) -> _Kept:
-    with np.errstate(all="ignore"):
-        k_sub = solve(pb, sol.x, rows=rows)
-    s2_full = 2.0 * float(sol.cost) / max(pb.n_obs + pb.n_prior - pb.n_params, 1)
-    u_int = np.sqrt(np.diag(jacobian_summary(sol.jac).cov_unit) * s2_full)
-    return _Kept(k_sub, s2_full, u_int)
-
-
-def _screen_one(pb: FullProblem, sol: LMResult, xf: np.ndarray, j: int, kept: _Kept, step: int, rows: list):
-    """Return (log entry, alternative) when the screen sets beam ``j``'s mirror aside, else None."""
-    with np.errstate(all="ignore"):
-        t_sub = solve(pb, xf, rows=rows)
-    k_sub = kept.sub
-    if not (bool(t_sub.success) and np.isfinite(t_sub.cost) and np.isfinite(k_sub.cost)):
-        return None
-    # the mirror's cost above the kept one, scaled to every sample, in chi^2 units
-    d_est = 2.0 * step * float(t_sub.cost - k_sub.cost) / kept.s2_full
-    u_sub = np.sqrt(
-        np.diag(jacobian_summary(t_sub.jac).cov_unit)
-        * 2.0
-        * float(t_sub.cost)
-        / max(pb.n_obs // step + pb.n_prior - pb.n_params, 1)
-    )
-    same = bool(np.all(np.abs(t_sub.x - k_sub.x) <= 0.01 * u_sub))
-    i = pb.i_rho0 + j
-    rho_clear = abs(sol.x[i]) > MIRROR_SCREEN_RHO_U * kept.u_int[i]
-    if not (d_est > MIRROR_SCREEN_DCHI2 or (same and rho_clear)):
-        return None
-    entry = {
-        "channel": int(pb.channels[j]),
-        "cost_kept": float(sol.cost),
-        "mirror_taken": False,
-        "screened_every": int(step),
-    }
-    if same:
-        entry.update(cost_mirror=float(sol.cost), screen="returned to the kept minimum")
-        return entry, None
-    # its cost on every sample estimated from the screen's (d_est chi^2 above)
-    cost_est = float(sol.cost) + 0.5 * d_est * kept.s2_full
-    entry.update(cost_mirror=cost_est, screen=f"{d_est:.0f} s^2 above the kept minimum")
-    return entry, Screened(x=t_sub.x, cost=cost_est)
-
-
 def _u_rho(pb: FullProblem, sol: LMResult) -> np.ndarray:
     """Return u of each rho at ``sol`` from its Jacobian (s^2 (J^T J)^-1)."""
     s2 = 2.0 * float(sol.cost) / max(pb.n_obs + pb.n_prior - pb.n_params, 1)
@@ -246,9 +166,7 @@ def _u_rho(pb: FullProblem, sol: LMResult) -> np.ndarray:
 
 def mirror_search(pb: FullProblem, sol: LMResult) -> MirrorSearch:
     """Refit from the mirror of each beam that needs it (:func:`triage`); keep the lowest cost."""
-    step, rows = screen_rows(pb)
     tried, alts, own = [], [], {}
-    kept = None
     u_rho = _u_rho(pb, sol)
     decided: dict[int, BeamTriage] = {}
     for j in range(pb.c):
@@ -260,17 +178,8 @@ def mirror_search(pb: FullProblem, sol: LMResult) -> MirrorSearch:
             tried[-1].update(tri.log())
             alts.append(None)
             continue
-        xf = mirror_start(pb, sol.x, j)
-        if rows is not None:
-            kept = kept or _kept_on_screen(pb, sol, rows)
-            screened = _screen_one(pb, sol, xf, j, kept, step, rows)
-            if screened is not None:
-                tried.append(screened[0])
-                alts.append(screened[1])
-                continue
         with np.errstate(all="ignore"):
-            trial = solve(pb, xf)  # from the flipped start, as without a screen (the screen's solution can
-            # sit in a flat valley of a weak rho where LM on every sample crawls: 1000 evaluations seen)
+            trial = solve(pb, mirror_start(pb, sol.x, j))
         fine = bool(trial.success) and bool(np.isfinite(trial.cost))
         better = fine and trial.cost < sol.cost
         tried.append(
@@ -285,7 +194,6 @@ def mirror_search(pb: FullProblem, sol: LMResult) -> MirrorSearch:
         own[j] = (sol, trial)
         if better:
             sol = trial
-            kept = None
             u_rho = _u_rho(pb, sol)
             decided = {}  # the decisions so far were at the solution left behind
     # the decisions at the kept solution: those taken after the last change, the others again
@@ -400,13 +308,13 @@ def mirror_checks(pb: FullProblem, sol, s2: float, search: MirrorSearch, cov_fre
                 and np.isfinite(trial.cost)
                 and np.sign(pb.public(trial.x)[i]) != np.sign(rho)
             )
-            if not ok or (hasattr(cand, "jac") and cand.cost < trial.cost):
+            if not ok or cand.cost < trial.cost:
                 trial = cand  # another start found this beam's other sign lower than its own refit
-            p_alt = pb.public(trial.x) if hasattr(trial, "jac") else None
-            if p_alt is not None and np.sign(p_alt[i]) != np.sign(rho):
+            p_alt = pb.public(trial.x)
+            if np.sign(p_alt[i]) != np.sign(rho):
                 out.append(_flagged_mirror(pb, sol, s2, trial, p_alt, cov_free, p_hat, j, common))
                 continue
-            d_chi2 = None if p_alt is None or np.sign(p_alt[i]) == np.sign(rho) else d_chi2
+            d_chi2 = None
         out.append(
             BeamMirror(**common, refit_delta_chi2=d_chi2, resolved=True, weight_main=1.0, p_wrong_sign=0.0)
         )
