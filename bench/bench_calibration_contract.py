@@ -275,6 +275,11 @@ def evaluate_scan_with_calibration(job: tuple):  # noqa: C901 (one block per fig
         {
             "channel": int(ch),
             "resolved": bool(checks[ch].resolved) if ch in checks else True,
+            # the certificate's rule (borescan.mirror): a mirror possible at the fit and its depth < 25
+            "sign_determined": bool(checks[ch].sign_determined) if ch in checks else True,
+            "formula_at_fit": bool(
+                ch in checks and checks[ch].mirror_possible and checks[ch].predicted_delta_chi2 < 25.0
+            ),
             "refit_delta_chi2": checks[ch].refit_delta_chi2 if ch in checks else None,
             "p_wrong_sign": float(checks[ch].p_wrong_sign) if ch in checks else 0.0,
             "sign_right": bool(np.sign(cal.beams.rho_mm[j]) == np.sign(tb.rho_mm[j])),

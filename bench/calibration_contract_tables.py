@@ -99,6 +99,10 @@ def mirror_summary(rows: list[dict]) -> dict:
 
     Resolved beams' z (SD, 95 % coverage, u / CRB in [0.9, 1.2]), the flagged count against Eq. (1)'s at the
     truth, and among flagged beams the observed wrong-sign rate against the stated probabilities (their mean).
+    The count of beams whose sign the scan does not determine follows the certificate's rule
+    (:attr:`borescan.mirror.BeamMirror.sign_determined`: a mirror possible at the fit and its depth below 25,
+    the refit's where it found a separate minimum, else Eq. (1) at the fit): the flagged (two solutions)
+    plus those in one valley through both signs; printed beside Eq. (1) alone at the fit and at the truth.
     """
     z, ratio, e_crb, n_beams, n_flag, n_formula, p_stated, wrong, sign_err_resolved = (
         [],
@@ -111,6 +115,7 @@ def mirror_summary(rows: list[dict]) -> dict:
         [],
         0,
     )
+    n_undetermined = n_at_fit = 0  # the certificate's rule, and Eq. (1) alone at the fit
     for r in rows:
         if not r.get("accepted") or "mirror" not in r:
             continue
@@ -120,6 +125,8 @@ def mirror_summary(rows: list[dict]) -> dict:
         for j, m in enumerate(r["mirror"]):
             n_beams += 1
             n_formula += int(m["formula_flagged"])
+            n_undetermined += int(not m.get("sign_determined", m["resolved"]))
+            n_at_fit += int(m.get("formula_at_fit", False))
             k_rho = sum(1 for x in fam if x == "beta") + j
             u_crb_rho = (r.get("u_crb") or [0.0] * len(fam))[k_rho]
             if m["resolved"]:  # a gross error only where the sign means something: |rho| > 2 CRB
@@ -141,6 +148,8 @@ def mirror_summary(rows: list[dict]) -> dict:
         "beams": n_beams,
         "flagged": n_flag,
         "formula_flagged": n_formula,
+        "sign_undetermined": n_undetermined,
+        "formula_at_fit": n_at_fit,
         "resolved_z_sd": float(np.std(z)) if z.size else float("nan"),
         "resolved_cover95": float(np.mean(np.abs(z) <= 1.959964)) if z.size else float("nan"),
         "resolved_u_crb_in_0.9_1.2": float(np.mean((ratio >= 0.9) & (ratio <= 1.2)))
@@ -245,6 +254,12 @@ def print_table(  # noqa: C901 (one line per table of the bench's printout)
             f"{r['beta_reference']}, weak rho {r['weak_rho']}): z = {np.round(zz, 2).tolist()}"
         )
     ms = mirror_summary(rows)
+    print(
+        f"sign of rho not determined (the certificate's rule): {ms['sign_undetermined']} of {ms['beams']} "
+        f"beams ({ms['flagged']} with two solutions, {ms['sign_undetermined'] - ms['flagged']} in one valley "
+        f"through both signs); Eq. (1) < 25 at the fit: {ms['formula_at_fit']}, at the truth: "
+        f"{ms['formula_flagged']}"
+    )
     print(
         f"mirror check (issue 36): {ms['flagged']} of {ms['beams']} beams flagged (Eq. (1) at the truth: "
         f"{ms['formula_flagged']}); resolved beams: z SD {ms['resolved_z_sd']:.3f}, cover95 "

@@ -211,6 +211,10 @@ def test_a_diameter_maps_a_non_linear_rho_profile_by_itself_not_by_its_linear_se
     # differentiation of the normal equations) come by two computations that agree to about 3e-4
     assert np.max(np.abs(fit_cov - cal.cov) / np.outer(scale, scale)) < 1e-3
     profiles = [p for p in cal.diagnostics["rho_profiles"] if "points" in p]
+    from borescan.mirror import mirror_checks_of
+
+    m2 = mirror_checks_of(cal.diagnostics)[1]  # one valley through both signs: the sign not determined
+    assert m2.one_valley and not m2.sign_determined and "one valley" in m2.statement()
     assert [p["channel"] for p in profiles] == [2] and all(
         f"fit:{cal.calibration_id}:profile{p['channel']}" in {t.input.key for t in b.terms} for p in profiles
     )

@@ -16,6 +16,7 @@ from borescan.calibrate.mirror_search import MIRROR_CLEAR_DCHI2
 from borescan.synthetic import scenes, simulate
 from borescan.geometry import Beams
 from borescan.mirror import (
+    MirrorSolution,
     RESOLVED_DCHI2,
     BeamMirror,
     mirror_checks_of,
@@ -113,6 +114,33 @@ def test_mixture_weights_are_normalised_likelihood_ratios():
     assert BeamMirror.from_dict(checks[0].to_dict()) == checks[0]
 
 
+def test_one_rule_says_whether_the_scan_determines_the_sign():
+    """A mirror possible at the fit and its depth < 25 (the refit's where it found a separate minimum, else
+    Eq. (1)): not determined, flagged with two solutions or in one valley; otherwise determined.
+    """
+    alt = MirrorSolution((0.0,) * 9, tuple((0.0,) * 9 for _ in range(9)), 4.0, 0.1)
+
+    def beam(possible, predicted, refit, resolved):
+        return BeamMirror(
+            1, 5.0, 1.0, possible, predicted, refit, resolved, 1.0, 0.0, 2.0, None if resolved else alt
+        )
+
+    cases = [
+        (beam(False, 3.0, None, True), True, False),  # no mirror (|rho| <= sqrt(2) e)
+        (beam(True, 30.0, None, True), True, False),  # predicted >= 25, no separate minimum
+        (beam(True, 10.0, 40.0, True), True, False),  # the refit found it 40 above: the refit decides
+        (beam(True, 30.0, 4.0, False), False, False),  # a separate minimum 4 above: two solutions
+        (beam(True, 10.0, None, True), False, True),  # predicted 10, the refit slid back: one valley
+    ]
+    for m, determined, valley in cases:
+        assert (m.sign_determined, m.one_valley) == (determined, valley), m
+        d = m.to_dict()
+        assert (d["sign_determined"], d["one_valley"]) == (determined, valley)
+        assert BeamMirror.from_dict(d) == m
+    assert "one valley through both signs" in cases[4][0].statement()
+    assert "not determined by this scan" in cases[4][0].statement()
+
+
 @pytest.fixture(scope="module")
 def flagged_fit():
     """Commanded angle, no positions, 5 revolutions of 660 samples, sigma 2 um, e = 1 mm: beam 1 (rho 20 mm,
@@ -147,6 +175,7 @@ def test_fit_flags_only_the_beam_whose_mirror_is_shallow(flagged_fit):
     }
     # beam 3: |rho| < sqrt(2) e: no mirror, the refit returned to the solution
     assert not m3.mirror_possible and m3.resolved and m3.refit_delta_chi2 is None
+    assert [m.sign_determined for m in (m1, m2, m3)] == [True, False, True]
     # beam 2: flagged, two solutions of opposite sign; weights exp(-d/2) normalised; the truth in one of them
     assert not m2.resolved and m2.refit_delta_chi2 < RESOLVED_DCHI2
     assert np.sign(m2.rho_alt_mm) == -np.sign(m2.rho_mm)

@@ -18,13 +18,20 @@ above the true minimum (:func:`predicted_depth`; the fit's other parameters abso
 an explicit refit from -rho gives the exact value, ``diagnostics["mirror_check"]``). A mirror exists
 only when |rho| > sqrt(2) e (below that the refit from -rho returns to the kept minimum).
 
-The decision (issue 36): a beam is *resolved* when no mirror exists or delta_chi2_m >= 25
-(:data:`RESOLVED_DCHI2`): one Gaussian value with u from its own curvature. Otherwise it is
-*flagged*: two solutions, each with its covariance, delta chi2 and weight exp(-delta chi2 / 2)
-(normalised), the probability of the wrong sign (the mirror's weight), the bore range in which the
-calibration may be used (:func:`valid_bore_radius_range_mm`: the two solutions agree at the gauge,
-their wall points rotate apart by 2 rho (1/L_cal - 1/L) elsewhere), and the spindle offset that
-would resolve it, (1) solved for e at delta_chi2_m = K (:func:`offset_to_resolve_mm`).
+The decision (issue 36): the sign of a beam's rho is *determined* by the scan
+(:attr:`BeamMirror.sign_determined`) unless a mirror is possible at the fitted rho (|rho| > sqrt(2) e)
+and its depth is below 25 (:data:`RESOLVED_DCHI2`), the depth being the explicit refit's where the
+refit from -rho found a separate minimum of the other sign, else Eq. (1) at the fit: one rule for the
+certificate and the contract bench's count. A determined sign gives one Gaussian value with u from its
+own curvature. An undetermined one takes one of two forms. A separate minimum within 25: the beam is
+*flagged* (``resolved`` False), two solutions, each with its covariance, delta chi2 and weight
+exp(-delta chi2 / 2) (normalised), the probability of the wrong sign (the mirror's weight), the bore
+range in which the calibration may be used (:func:`valid_bore_radius_range_mm`: the two solutions agree
+at the gauge, their wall points rotate apart by 2 rho (1/L_cal - 1/L) elsewhere), and the spindle offset
+that would resolve it, (1) solved for e at delta_chi2_m = K (:func:`offset_to_resolve_mm`). No separate
+minimum (:attr:`BeamMirror.one_valley`: the refit slides back through rho = 0, u(rho) ~ |rho|): one
+value whose u spans both signs, the rho profile's spread (:mod:`borescan.calibrate.profiles`), and the
+same offset to resolve it.
 """
 
 from __future__ import annotations
@@ -202,9 +209,32 @@ class BeamMirror:
     refitted: bool = True
     start_delta_chi2: float | None = None
 
+    @property
+    def one_valley(self) -> bool:
+        """Return whether the mirror is predicted within 25 but the refit found no separate minimum.
+
+        One valley through both signs: the sign is not determined, and the rho profile carries the spread.
+        """
+        return bool(
+            self.resolved
+            and self.mirror_possible
+            and self.refit_delta_chi2 is None
+            and self.predicted_delta_chi2 < RESOLVED_DCHI2
+        )
+
+    @property
+    def sign_determined(self) -> bool:
+        """Return whether the scan determines the sign of rho (module doc: one rule, two forms when not)."""
+        return bool(self.resolved and not self.one_valley)
+
     def to_dict(self) -> dict[str, Any]:
-        """Return the fields as a JSON-ready dict (NaN as None, infinities as ``"inf"`` or ``"-inf"``)."""
+        """Return the fields as a JSON-ready dict (NaN as None, infinities as ``"inf"`` or ``"-inf"``).
+
+        With ``sign_determined`` and ``one_valley`` (derived, not read back by :meth:`from_dict`).
+        """
         d = asdict(self)
+        d["sign_determined"] = self.sign_determined
+        d["one_valley"] = self.one_valley
         for k, v in d.items():
             if isinstance(v, float) and not math.isfinite(v):
                 d[k] = None if math.isnan(v) else ("inf" if v > 0 else "-inf")
@@ -250,6 +280,14 @@ class BeamMirror:
 
     def statement(self) -> str:
         """One sentence for a certificate or report."""
+        if self.one_valley:
+            return (
+                f"the sign of rho of channel {self.channel} is not determined by this scan: one valley "
+                f"through both signs (mirror predicted {self.predicted_delta_chi2:.1f} chi^2 above, the "
+                f"refit from -rho found no separate minimum); rho = {self.rho_mm:+.4f} mm with u spanning "
+                f"both signs; a spindle offset of at least {self.offset_to_resolve_mm:.2f} mm from the "
+                "gauge centre would resolve it"
+            )
         if self.resolved:
             if self.refit_delta_chi2 is not None:
                 how = f"mirror {self.refit_delta_chi2:.1f} chi^2 above the solution"

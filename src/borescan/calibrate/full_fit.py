@@ -88,7 +88,7 @@ from borescan.fit import FitResult, fit_result
 from borescan.geometry import Beams
 from borescan.kinematics import AngleModel
 from borescan.levmar import LMResult
-from borescan.mirror import RESOLVED_DCHI2, BeamMirror
+from borescan.mirror import BeamMirror
 
 __all__ = ["fit_full_calibration"]
 
@@ -239,23 +239,12 @@ def _linearised(pb: FullProblem, sol: LMResult) -> tuple[FitResult, np.ndarray]:
     return fit, pb.public_cov(sol.x, fit.cov)
 
 
-def _needs_profile(check: BeamMirror) -> bool:
-    """Return whether a beam's rho is profiled (issue 38).
-
-    Its mirror was refitted, found no separate minimum within :data:`~borescan.mirror.RESOLVED_DCHI2` (a
-    flagged beam's two solutions carry its spread), and is predicted within it: a valley through both
-    signs. Every other beam is one Gaussian value on its own curvature.
-    """
-    if not (check.resolved and check.refitted and check.mirror_possible):
-        return False
-    depth = min(
-        check.predicted_delta_chi2, np.inf if check.refit_delta_chi2 is None else check.refit_delta_chi2
-    )
-    return bool(depth < RESOLVED_DCHI2)
-
-
 def _profiled(pb: FullProblem, search: MirrorSearch) -> _Solved:
     """Linearise at the kept solution, check each beam's mirror and profile the rho that need it.
+
+    A rho is profiled where the mirror check leaves its beam in one valley through both signs
+    (:attr:`borescan.mirror.BeamMirror.one_valley`); every other beam is one Gaussian value on its own
+    curvature (issue 38), a flagged one with its second solution.
 
     Up to three rounds: a lower cost along a profile (the optimizer had stopped short of the minimum)
     is refitted, its mirrors searched, and the new solution linearised, checked and profiled again.
@@ -270,7 +259,7 @@ def _profiled(pb: FullProblem, search: MirrorSearch) -> _Solved:
         checks = mirror_checks(pb, sol, fit.sigma**2, found, cov_free, nuis)
         profiles, lower = [], None
         for j, check in enumerate(checks):
-            if _needs_profile(check):
+            if check.one_valley:  # the sign undetermined, no separate minimum: its valley's spread
                 prof = rho_profile(pb, j, sol.x, float(sol.cost), fit.sigma**2, fit.cov, cov_free)
             else:
                 prof = ProfileResult({"linear": True, "not_profiled": NOTES["not_profiled"]})
