@@ -383,7 +383,12 @@ def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
     if not checks:
         return
     flagged = [m for m in checks if not m["resolved"]]
-    resolved = [str(m["channel"]) for m in checks if m["resolved"]]
+    # one rule (borescan.mirror.BeamMirror.sign_determined): a beam in one valley through both signs is not
+    # resolved either; its statement says so
+    resolved = [str(m["channel"]) for m in checks if m.get("sign_determined", m["resolved"])]
+    for m in checks:
+        if m.get("one_valley"):
+            d.para(m["statement"].replace("the sign", "The sign", 1) + ".")
     if resolved:
         d.para(
             f"Sign of rho resolved for channel(s) {', '.join(resolved)} (no mirror solution, or one at least "
