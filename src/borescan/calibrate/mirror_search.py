@@ -91,18 +91,21 @@ def _depth_inputs(pb: FullProblem, x: np.ndarray, j: int) -> tuple[np.ndarray, n
 def triage(pb: FullProblem, sol: LMResult, j: int, u_rho_mm: float) -> BeamTriage:
     """Decide whether beam ``j``'s mirror must be refitted at solution ``sol`` (module doc).
 
-    No mirror is possible where |rho| + :data:`MIRROR_RHO_MARGIN_U` u(rho) <= sqrt(2) e; otherwise the cost at
-    the unrefitted mirror start is evaluated (one evaluation of the residuals) and the beam is resolved
-    without a refit when it and the predicted depth are both at least :data:`MIRROR_CLEAR_DCHI2`.
+    No mirror is possible where |rho| + :data:`MIRROR_RHO_MARGIN_U` u(rho) <= sqrt(2) e (u finite);
+    otherwise the cost at the unrefitted mirror start is evaluated (one evaluation of the residuals) and
+    the beam is resolved without a refit when it and the predicted depth are both at least
+    :data:`MIRROR_CLEAR_DCHI2` (a fit without residual cost, s^2 = 0, is always refitted).
     """
     rho = float(pb.unpack(sol.x)[0].rho_mm[j])
     n_k, e_k, sig_k = _depth_inputs(pb, sol.x, j)
     d_pred = predicted_depth(n_k, e_k, rho, sig_k, pb.R_mm)
-    if not mirror_exists(abs(rho) + MIRROR_RHO_MARGIN_U * u_rho_mm, e_k):
+    if np.isfinite(u_rho_mm) and not mirror_exists(abs(rho) + MIRROR_RHO_MARGIN_U * u_rho_mm, e_k):
         return BeamTriage(
             d_pred, None, False, f"no mirror: |rho| + {MIRROR_RHO_MARGIN_U:g} u(rho) <= sqrt(2) e"
         )
     s2 = 2.0 * float(sol.cost) / max(pb.n_obs + pb.n_prior - pb.n_params, 1)
+    if not s2 > 0.0:
+        return BeamTriage(d_pred, None, True)
     with np.errstate(all="ignore"):
         r = residuals(pb, mirror_start(pb, sol.x, j))
     d_start = float(r @ r - 2.0 * float(sol.cost)) / s2
