@@ -8,6 +8,7 @@ the PDF, and the JSON, DCC and residual plot together. Compare two checkouts by 
 same command with ``PYTHONPATH=<checkout>/src`` (a shared machine stretches CPU times too).
 
     python -m bench.bench_certificate RESULTS_ROOT [--out DIR] [--profile]
+    BENCH_CERT_SOURCE=RESULTS_ROOT python -m bench certificate
 
 ``--out DIR`` keeps the documents written (one folder per certificate) to compare them with another
 checkout's (``cmp``, or render the PDF pages to PNG); ``--profile`` prints the cProfile of writing
@@ -83,7 +84,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("results", type=Path, nargs="?", default=os.environ.get("BENCH_CERT_SOURCE"))
     ap.add_argument("--out", type=Path, help="keep the documents written here")
     ap.add_argument("--profile", action="store_true", help="cProfile of writing the PDFs")
-    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    # run by `python -m bench certificate` the command line is the runner's: the root from BENCH_CERT_SOURCE
+    args = ap.parse_args(([] if __name__ != "__main__" else sys.argv[1:]) if argv is None else argv)
     if args.results is None:
         raise SystemExit("name a results root with rod calibrations (or set BENCH_CERT_SOURCE)")
     repeats = int(os.environ.get("BENCH_CERT_REPEATS", "3"))
