@@ -325,3 +325,32 @@ def test_the_workflow_extends_the_catalog_it_keeps(pipeline_run, tmp_path):
     log = (res / "logs" / "build_catalog.log").read_text()
     assert "unchanged: no stage file changed" in log, log
     assert _snapshot(res / "catalog.duckdb") == before
+
+
+def test_synthetic_nights_move_a_calibrations_due_date_with_its_night(tmp_path):
+    """A copied calibration falls due as long after its new night as the source's after its own (a due
+    date left behind would make every synthetic calibration expire in the source's month).
+    """
+    src_root, dest = tmp_path / "src", tmp_path / "dest"
+    for name, df in {
+        "scans": pl.DataFrame({"scan_id": ["S-20261120"], "night": ["2026-11-20"], "device_id": ["D"]}),
+        "calibrations": pl.DataFrame(
+            {
+                "calibration_id": ["D-20261120-x"],
+                "night": ["2026-11-20"],
+                "valid_from": ["2026-11-20"],
+                "recalibration_due": ["2026-12-20"],
+            }
+        ),
+    }.items():
+        (src_root / "stage" / name).mkdir(parents=True)
+        df.write_parquet(src_root / "stage" / name / "night=2026-11-20.parquet")
+    nights = sh.copy_nights(sh.read_source(src_root), dest, "2027-03-01", [40])
+    assert nights == ["2027-04-10"]
+    cal = pl.read_parquet(dest / "stage" / "calibrations" / "night=2027-04-10.parquet")
+    assert cal.row(0, named=True) == {
+        "calibration_id": "D-20270410-x",
+        "night": "2027-04-10",
+        "valid_from": "2027-04-10",
+        "recalibration_due": "2027-05-10",  # 30 days after, as 2026-12-20 is after 2026-11-20
+    }

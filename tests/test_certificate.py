@@ -306,3 +306,40 @@ def test_no_iso_17025_claim_without_an_accreditation():
         text
         == "This certificate is issued in accordance with ISO/IEC 17025:2017 7.8 (DAkkS D-K-12345-01-00)."
     )
+
+
+def test_table_cells_sit_where_matplotlibs_table_puts_them():
+    """The PDF's tables (drawn straight on the page) put every cell's text where ``Axes.table`` with the
+    same rectangle, column widths and centred cells puts it: the layout the pages had before.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from borescan.certificate.layout import _Doc
+
+    cols, cells, widths = ["a", "bb", "ccc"], [["1", "22", "333"], ["4", "55", "666"]], [0.2, 0.5, 0.3]
+    doc = _Doc({"laboratory": {}})
+    top, row_h = doc.y, 0.02
+    doc.table(cols, cells, widths=widths, size=7, row_h=row_h, bold_last=True)
+    h = row_h * 3
+    assert doc.y == pytest.approx(top - h - 0.012, abs=1e-12)
+    texts = {t.get_text(): t for t in doc.fig.texts}
+    assert {t.get_weight() for s, t in texts.items() if s in ("a", "4", "666")} == {"bold"}
+    assert texts["1"].get_weight() == "normal"
+
+    ref = Figure(figsize=doc.fig.get_size_inches())
+    ax = ref.add_axes([_Doc.LEFT, top - h, _Doc.RIGHT - _Doc.LEFT, h])
+    tab = ax.table(cellText=cells, colLabels=cols, colWidths=widths, bbox=[0, 0, 1, 1], cellLoc="center")
+    tab.auto_set_font_size(False)
+    tab.set_fontsize(7)
+    for (r, _c), cell in tab.get_celld().items():  # the old code's bold header and last row
+        if r in (0, 2):
+            cell.get_text().set_weight("bold")
+    renderer = FigureCanvasAgg(ref).get_renderer()
+    tab.draw(renderer)  # places the cells
+    mine = FigureCanvasAgg(doc.fig).get_renderer()
+    for (r, c), cell in tab.get_celld().items():
+        want = cell.get_text().get_window_extent(renderer)
+        got = texts[cell.get_text().get_text()].get_window_extent(mine)
+        # the same text at the same size: the same box, to well under a pixel at the figure's dpi
+        np.testing.assert_allclose(got.get_points(), want.get_points(), atol=1e-6, err_msg=f"cell {r},{c}")

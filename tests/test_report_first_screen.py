@@ -240,3 +240,75 @@ def test_refused_calibration_in_the_summary_names_its_discrepancy_verdict(tmp_pa
     item = box.split("VER-21")[1].split("</li>")[0]
     assert "discrepancy verdict: <b>ambiguous</b>: channel_delay (channel 2), sensor_offset" in item
     assert "calibration refused — what to do" in item
+
+
+def test_device_status_table_reads_only_the_current_calibrations():
+    """The first screen's device table, read from the rows that can be current, equals the table over
+    every calibration and verification of the history, on every night: a rod's design geometry made
+    after its gauge calibration, a failed verification, a device calibrated only later.
+    """
+    from borescan.report.data import _memory_catalog
+    from borescan.report.decisions import device_status, device_status_html
+    from borescan.report.pages import _devices
+
+    cals = [  # calibration_id, device, valid_from, method, recalibration_due, scan
+        ("CAL-A", "TRI-01", "2026-11-20", "yang", "2026-12-20", "S1"),
+        ("CAL-B", "TRI-01", "2026-11-22", "yang", "2026-11-26", "S2"),
+        ("NOM-1", "ROD-01", "2026-11-19", "nominal", None, "S3"),
+        ("GAU-R", "ROD-01", "2026-11-21", "rod_gauge", "2026-12-21", "S4"),
+        ("NOM-2", "ROD-01", "2026-11-23", "nominal", None, "S5"),
+        ("LATE", "DEV-3", "2026-11-30", "yang", "2026-12-30", "S6"),
+    ]
+    cal = pl.DataFrame(
+        [(c, d, v, m, r, s, ch) for c, d, v, m, r, s in cals for ch in (1, 2)],
+        schema=[
+            "calibration_id",
+            "device_id",
+            "valid_from",
+            "method",
+            "recalibration_due",
+            "scan_id",
+            "channel",
+        ],
+        orient="row",
+    )
+    scans = pl.DataFrame(
+        {
+            "scan_id": [c[5] for c in cals],
+            "night": [c[2] for c in cals],
+            "device_id": [c[1] for c in cals],
+            "started_at": [f"{c[2]}T22:00:00Z" for c in cals],
+        }
+    )
+    ver = pl.DataFrame(
+        {"calibration_id": ["CAL-A", "CAL-B"], "passed": [True, False], "night": ["2026-11-21", "2026-11-23"]}
+    )
+    con = _memory_catalog({"calibrations": cal, "scans": scans, "verifications": ver})
+    try:
+        states = {}
+        for as_of in ("2026-11-18", "2026-11-20", "2026-11-21", "2026-11-22", "2026-11-23", "2026-11-30"):
+            full = con.sql(
+                "SELECT c.*, s.started_at FROM calibrations c LEFT JOIN (SELECT DISTINCT ON (scan_id) "
+                "scan_id, started_at FROM scans ORDER BY scan_id, night) s ON s.scan_id = c.scan_id"
+            ).pl()
+            every = device_status(
+                full, con.sql("SELECT calibration_id, passed FROM verifications").pl(), as_of
+            )
+            assert _devices(con, as_of) == device_status_html(every, as_of), as_of
+            states[as_of] = {s.device_id: (s.calibration_id, s.state) for s in every}
+    finally:
+        con.close()
+    # the cases the comparison covers
+    assert states["2026-11-18"] == {
+        "TRI-01": (None, "no calibration"),
+        "ROD-01": (None, "no calibration"),
+        "DEV-3": (None, "no calibration"),
+    }
+    assert states["2026-11-20"]["ROD-01"] == ("NOM-1", "design geometry")
+    assert states["2026-11-23"] == {
+        "TRI-01": ("CAL-B", "failed verification"),
+        "ROD-01": ("GAU-R", "valid"),
+        "DEV-3": (None, "no calibration"),
+    }
+    assert states["2026-11-30"]["TRI-01"] == ("CAL-B", "failed verification")
+    assert states["2026-11-30"]["DEV-3"] == ("LATE", "valid")

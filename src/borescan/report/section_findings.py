@@ -39,8 +39,10 @@ def discrepancy(page: Page) -> str:
         "combination of its channels' zeroes) and the calibration that absorbs it.</p>"
     ]
     rows, classes = [], []
-    for (sid,), grp in fnd.group_by("scan_id", maintain_order=True):
-        recs = grp.to_dicts()
+    by_scan: dict[str | None, list[dict]] = {}  # the rows of each scan, scans in first-seen order
+    for r in fnd.to_dicts():  # one conversion: a polars group per scan cost ~0.2 ms each
+        by_scan.setdefault(r["scan_id"], []).append(r)
+    for sid, recs in by_scan.items():
         first = recs[0]
         uncertainties = _finding_uncertainties(page, sid, recs)
         gap = page.link(f"discrepancy/{sid}/gap.png")

@@ -155,7 +155,7 @@ class _Renamer:
                 out.append(col.map_elements(self.text, return_dtype=pl.Utf8))
             elif c in ("night", "valid_from"):
                 out.append(col.map_elements(lambda s: self.dates.get(s, s), return_dtype=pl.Utf8))
-            elif c == "started_at":
+            elif c in ("started_at", "recalibration_due"):  # a calibration falls due as long after it
                 out.append(col.map_elements(lambda s: _shift_time(s, shift_days), return_dtype=pl.Utf8))
             else:
                 out.append(col)
