@@ -174,6 +174,34 @@ def test_a_rod_class_keeps_only_the_members_whose_sign_fits(b_mm, dropped):
     assert "recalibrate l0 of layer 2" in k.sentence
 
 
+def test_a_measurement_verdict_names_a_channels_offset_like_class():
+    """Battery measurement 258 of seed 1 (examined against its calibration, the beams held): a gain of
+    1.4e-4 on channel 1 at z 11. The channel's readings vary only by the bore's eccentricity about their
+    mean, so its gain (g v ~ g mean(v)), beam tilt (v (1 + h)), offset and bow tie: the verdict names the
+    class, and what the data fix is the channel's shift, g mean(v) of the noise-free readings (within 3 u).
+    """
+    from bench.bench_discrepancy_contract import _draw, _jobs, _sized
+    from borescan.discrepancy.examine import discrepancy_settings
+
+    cfg = discrepancy_settings()
+    job = next(j for j in _jobs(260, 1, 0.2, 300.0) if j[2] == 258)
+    sim, kw = _draw("measurement", 1, 258, False, 1.0, False)
+    scale = _sized(job, kw, cfg, sim, float(sim.truth["contract"]["noise_mm"]))[0]
+    clean, _ = _draw("measurement", 1, 258, False, scale, True)
+    noisy, _ = _draw("measurement", 1, 258, False, scale, False)
+    (truth,) = clean.truth["effects"]
+    assert truth["name"] == "sensor_gain" and truth["params"]["channel"] == 1
+    f = examine_scan(noisy, **kw, **cfg)
+    (k,) = [k for k in f["classes"] if k["channel"] == 1]
+    assert {"sensor_gain", "beam_tilt", "sensor_offset"} <= set(k["members"])
+    _, channels, values_mm, _, _ = scan_arrays(clean)
+    v1 = values_mm[:, list(channels).index(1)]
+    shift_um = 1e3 * truth["params"]["g"] / (1.0 + truth["params"]["g"]) * float(np.nanmean(v1))
+    assert abs(k["reads_long_um"] - shift_um) < 3.0 * k["u_reads_long_um"]
+    assert "d_b" in k["absorbed_by"] and "recalibrate" in k["advice"]
+    assert f["statement"].startswith(f"channel 1 reads {k['reads_long_um']:.3g} +- ")
+
+
 def test_a_rod_verdict_says_what_the_data_fix_and_what_to_do():
     """A 12 um offset of one layer of a rod on certified rings: the class, the fixed shift, the advice."""
     f = examine_scan(_rod_case([Effect("sensor_offset", {"channel": 2, "b_mm": 0.012})]))
