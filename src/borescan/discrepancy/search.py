@@ -157,23 +157,28 @@ class Fitter:
         self.base_names = model.base_names()
         self.base_scales = model.base_scales()
         self.fallback: dict[str, float] = {}
+        #: the base frees beam geometry (a calibration): rho and d_b of a beam trade along a flat valley
+        #: (for a circle they move a reading alike to first order), where the fits need more evaluations
+        #: and a start away from it (the rod and static models' fits are left as they were: their caps
+        #: are their budgets, and a restart there doubled the cost of fits that were not in such a valley)
+        self.flat_valley = bool(getattr(model, "free_beams", ()))
 
     def __call__(self, terms: list[Term], start: dict[str, float]) -> FitResult | None:
         """Fit base + terms from ``start``; None when the model cannot be fitted.
 
         If the model is undefined there (a ray missing the bore), from the base fit with zero effects;
-        None when that fails too. A base fit (no terms) may take up to :data:`BASE_MAX_NFEV` evaluations. A
-        fit with terms that stops at its evaluation cap is fitted again with
-        the base parameters at the base model's own start (the terms' values kept), the lower RSS kept:
-        a base fit that absorbed a large missing effect moves the nuisance parameters far along a flat
-        valley (a calibration's beam offsets 12 mm out to mimic an axis tilt's ellipse), from where the
+        None when that fails too. Where the base frees beam geometry (``flat_valley``), a base fit (no
+        terms) may take up to :data:`BASE_MAX_NFEV` evaluations, and a fit with terms that stops at its
+        evaluation cap is fitted again with the base parameters at the base model's own start (the terms'
+        values kept), the lower RSS kept: a base fit that absorbed a large missing effect moves the beams
+        far along their flat valley (offsets 12 mm out to mimic an axis tilt's ellipse), from where the
         term's fit crawls back for hundreds of evaluations, while from the base's start it lands in a few
         (:func:`_restart`).
         """
         if not terms:
-            return self._fit(terms, start, BASE_MAX_NFEV)
+            return self._fit(terms, start, BASE_MAX_NFEV if self.flat_valley else 60)
         fr = self._fit(terms, start)
-        if fr is None or fr.success:
+        if fr is None or fr.success or not self.flat_valley:
             return fr
         again = self._fit(terms, _restart(start, self.model.base_start(), self.base_names))
         return again if again is not None and again.rss < fr.rss else fr
