@@ -14,6 +14,12 @@ but incomplete. The verdict also says, per layer:
   look-alike the class lists (``nonlinearity_also_fits``) and is not named apart;
 - the advice: recalibrate l0 of the layer on a certified ring gauge.
 
+A three-sensor spindle scan examined against its calibration (the beams held) has it per channel
+(:func:`spindle_classes`): a channel's readings vary only by the bore's eccentricity about a mean standoff,
+so its offset b, its gain g (g v ~ g v_mean), its beam tilt (v / cos gamma = v (1 + h), a gain that only
+lengthens) and its bow read alike unless the eccentricity resolves the varying part; the class is absorbed
+by a calibration of the channel's d_b.
+
 A static three-sensor set has the same problem across channels (:func:`static_classes`). Each pose's device
 position (two coordinates) absorbs, to first order, any change of the three readings along the beams'
 directions ``u_c = (cos beta_c, sin beta_c)``: of the channels' zeroes the data fix only the combination
@@ -28,11 +34,20 @@ where ``w_c q < 0``) and the advice: recalibrate the sensors' zeroes, a calibrat
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-__all__ = ["OFFSET_LIKE", "LayerClass", "rod_classes", "StaticClass", "static_classes", "zero_weights"]
+__all__ = [
+    "OFFSET_LIKE",
+    "LayerClass",
+    "rod_classes",
+    "ChannelClass",
+    "spindle_classes",
+    "StaticClass",
+    "static_classes",
+    "zero_weights",
+]
 
 #: the members of the offset-like class of one rod layer, and the sign of the shift each can give
 #: (+1 lengthens, -1 shortens, 0 either)
@@ -136,6 +151,48 @@ def rod_classes(named: list[dict]) -> tuple[list[dict], list[LayerClass]]:
                 id(n) for n in named if n["effect"] == "sensor_nonlinearity" and n.get("channel") == k.channel
             }
     return [n for n in named if id(n) not in drop], classes
+
+
+@dataclass
+class ChannelClass(LayerClass):
+    """The offset-like class of one channel of a spindle scan examined against its calibration."""
+
+    where = "channel"
+
+    @property
+    def sentence(self) -> str:
+        """Return the class in words, with what the data fix and the advice."""
+        if self.shift_um is not None:
+            way = "long" if self.shift_um > 0 else "short"
+            fixed = f"channel {self.channel} reads {abs(self.shift_um):.3g} +- {self.u_shift_um:.2g} um {way}"
+        else:
+            fixed = f"channel {self.channel} reads off by a constant"
+        out = (
+            f"{fixed}: offset-like ({', '.join(self.members)}), absorbed by a calibration of its d_b; "
+            f"recalibrate the device on the ring gauge (d_b of channel {self.channel})"
+        )
+        if self.nonlinearity:
+            out += f"; a bow of sensor {self.channel} (sensor_nonlinearity) fits as well and is not resolved"
+        return out
+
+    def to_dict(self) -> dict:
+        """Return the JSON-ready form (findings.json ``classes``)."""
+        return {
+            **super().to_dict(),
+            "absorbed_by": "a calibration of d_b_mm of the channel",
+            "advice": f"recalibrate the device on the ring gauge (d_b of channel {self.channel})",
+            "statement": self.sentence,
+        }
+
+
+def spindle_classes(named: list[dict]) -> tuple[list[dict], list[ChannelClass]]:
+    """Group a spindle scan's named entries into per-channel offset-like classes (as :func:`rod_classes`).
+
+    For a scan examined with its beams held (a channel's offset is then a candidate): the grouping, the
+    signs and the tied bow are the rod layer's; only the words (channel, d_b) differ.
+    """
+    named, layers = rod_classes(named)
+    return named, [ChannelClass(**{f.name: getattr(k, f.name) for f in fields(k)}) for k in layers]
 
 
 #: a static set's class members (OFFSET_LIKE and the bow): all read near-constant on near-constant readings

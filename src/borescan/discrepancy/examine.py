@@ -21,7 +21,7 @@ import numpy as np
 
 from borescan.atomic import atomic_write_text
 from borescan.config import schema_defaults
-from borescan.discrepancy.classes import rod_classes, static_classes, zero_weights
+from borescan.discrepancy.classes import rod_classes, spindle_classes, static_classes, zero_weights
 from borescan.discrepancy.evidence import output_stage_evidence
 from borescan.discrepancy.fitting import FitResult
 from borescan.discrepancy.judge import Rejection, explanation, judge, plausible_ranges
@@ -435,6 +435,8 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
     elif model.scan_kind == "tri_static":
         weights = zero_weights(model.data.channels, model.beams.beta_rad)
         dec_named, classes = static_classes(dec.named, weights, [z.keys for z in dec.named_fits])
+    elif model.scan_kind == "tri_spindle" and "d_b" not in getattr(model, "free_beams", ("d_b",)):
+        dec_named, classes = spindle_classes(dec.named)  # the beams held: a channel's offset is a candidate
     named = list(out.named) + dec_named
     verdict = dec.verdict
     if out.named and verdict == "no_missing_effect":
