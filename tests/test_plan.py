@@ -114,3 +114,44 @@ def test_plan_command_prints_the_prediction_and_the_recommendation(capsys):
     assert "best reachable of those" in capsys.readouterr().out
     assert main(["plan", "--scan", "/nonexistent/scan=X"]) == 2
     assert "scan" in capsys.readouterr().err
+
+
+def test_large_bore_with_short_range_sensors_says_no_offset_resolves_the_sign(capsys):
+    """R 500 mm, 5 mm sensors read at mid-range, rho 8 mm, sigma 4 um, 4000 samples: the offset that
+    resolves the sign (Eq. (1) solved for e, about 3.7 mm) exceeds what the range allows (about 2.5 mm), so
+    the plan says no offset does; the samples it names put the mirror exactly 25 in chi^2 above at the
+    largest offset (mirror.predicted_depth, Eq. (1)), and that offset keeps every reading inside (0, 5 mm)
+    while 1 % more does not.
+    """
+    from borescan.commands.plan import _print
+    from borescan.plan import largest_offset_mm, samples_to_resolve
+    from borescan.physics.tri import tri_spindle_jacobian
+    from borescan.mirror import predicted_depth
+
+    r_mm = 500.0
+    beams = Beams((1, 2, 3), np.array([0.2, 2.3, 4.4]), np.array([8.0, -8.0, 8.0]), np.full(3, 0.0))
+    # d_b so that each centred reading is 2.5 mm (mid-range): v = sqrt(R^2 - rho^2) - d_b at o = 0
+    beams = Beams(beams.channels, beams.beta_rad, beams.rho_mm, np.sqrt(r_mm**2 - beams.rho_mm**2) - 2.5)
+    dev = DeviceDesign(beams, (0.004,) * 3, (5.0,) * 3)
+    e_max = largest_offset_mm(dev, r_mm)
+    phi = np.linspace(0.0, 2 * math.pi, 720, endpoint=False)
+    v_in, _ = tri_spindle_jacobian(phi, beams, np.array([e_max, 0.0]), r_mm)
+    v_out, _ = tri_spindle_jacobian(phi, beams, np.array([1.01 * e_max, 0.0]), r_mm)
+    assert v_in.min() > 0.0 and v_in.max() < 5.0
+    assert v_out.min() <= 0.0 or v_out.max() >= 5.0
+    assert e_max == pytest.approx(2.5, abs=0.1)  # the reading moves by about +-e around 2.5 mm
+    p = predict(dev, r_mm, ScanDesign(offset_mm=2.0, revolutions=10, samples_per_rev=400))
+    assert p.offset_limit_mm == e_max
+    assert p.offset_to_resolve_mm[0] > e_max
+    assert p.offset_can_resolve == (False, False, False)
+    n_fix = samples_to_resolve(r_mm, 0.004, e_max, 8.0)
+    assert predicted_depth([n_fix], [e_max], 8.0, [0.004], r_mm) == pytest.approx(25.0, rel=1e-12)
+    _print(p, "proposed")
+    out = capsys.readouterr().out
+    assert out.count("no offset resolves the sign of rho") == 3
+    assert f"take {math.ceil(n_fix)} samples per channel" in out
+    # Yang's design: the 10 mm sensors allow the offset that resolves every beam at Yang's scan
+    yang = DeviceDesign(scenes.YANG_BEAMS, (SIGMA_MM,) * 3, (10.0,) * 3)
+    q = predict(yang, scenes.YANG_RING_GAUGE_DIAMETER_MM / 2, ScanDesign(offset_mm=2.3232, revolutions=24))
+    assert q.offset_can_resolve == (True, True, True)
+    assert max(q.offset_to_resolve_mm) < q.offset_limit_mm

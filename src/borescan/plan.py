@@ -28,7 +28,16 @@ from borescan.physics.tri import tri_spindle_jacobian
 from borescan.geometry import Beams
 from borescan.mirror import RESOLVED_DCHI2, mirror_exists, offset_to_resolve_mm, predicted_depth
 
-__all__ = ["DeviceDesign", "PlanPrediction", "ScanDesign", "predict", "recommend", "scan_angles_rad"]
+__all__ = [
+    "DeviceDesign",
+    "PlanPrediction",
+    "ScanDesign",
+    "largest_offset_mm",
+    "predict",
+    "recommend",
+    "samples_to_resolve",
+    "scan_angles_rad",
+]
 
 
 @dataclass(frozen=True)
@@ -91,12 +100,28 @@ class PlanPrediction:
     mirror_depth: tuple[float, ...]
     offset_to_resolve_mm: tuple[float, ...]
     in_range: bool
+    rho_mm: tuple[float, ...]
+    noise_mm: tuple[float, ...]
+    radius_mm: float
+    offset_limit_mm: float
     cov: np.ndarray = field(repr=False, compare=False)
 
     @property
     def resolved(self) -> tuple[bool, ...]:
         """Per beam: no mirror, or its depth at least :data:`borescan.mirror.RESOLVED_DCHI2`."""
         return tuple((not p) or d >= RESOLVED_DCHI2 for p, d in zip(self.mirror_possible, self.mirror_depth))
+
+    @property
+    def offset_can_resolve(self) -> tuple[bool, ...]:
+        """Per beam: some offset inside the sensors' range resolves its sign at this scan's samples.
+
+        False where the offset that resolves it exceeds :attr:`offset_limit_mm` while a mirror still exists
+        there: only more samples (lower noise) or a longer-range sensor would (:func:`samples_to_resolve`).
+        """
+        e = self.offset_limit_mm
+        return tuple(
+            x <= e or not mirror_exists(float(r), e) for x, r in zip(self.offset_to_resolve_mm, self.rho_mm)
+        )
 
 
 def scan_angles_rad(scan: ScanDesign) -> tuple[np.ndarray, np.ndarray]:
@@ -115,6 +140,44 @@ def scan_angles_rad(scan: ScanDesign) -> tuple[np.ndarray, np.ndarray]:
         start = parts[-1][-1] + 2.0 * math.pi * r / 60.0 / rate_hz if t.size else start
     Phi = np.concatenate(parts)
     return sgn * Phi, sgn * Phi
+
+
+def largest_offset_mm(device: DeviceDesign, radius_mm: float, n_angles: int = 720) -> float:
+    """Return the largest spindle offset that keeps every beam's reading inside (0, range) over a turn [mm].
+
+    Bisection on e over the readings of :func:`borescan.physics.tri.tri_spindle_jacobian` at ``n_angles``
+    device angles (the offset's direction relative to the beams sweeps a full turn as the spindle turns);
+    0 when even the centred spindle puts a reading outside.
+    """
+    phi = np.linspace(0.0, 2.0 * math.pi, n_angles, endpoint=False)
+    rng = np.asarray(device.range_mm, dtype=float)
+
+    def inside(e: float) -> bool:
+        v, _ = tri_spindle_jacobian(phi, device.beams, np.array([e, 0.0]), float(radius_mm))
+        return bool(np.all(v.min(axis=0) > 0.0) and np.all(v.max(axis=0) < rng))
+
+    if not inside(0.0):
+        return 0.0
+    lo, hi = 0.0, float(np.max(rng))
+    while inside(hi) and hi < radius_mm:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if inside(mid) else (lo, mid)
+    return lo
+
+
+def samples_to_resolve(
+    radius_mm: float, sigma_mm: float, offset_mm: float, rho_mm: float, k: float = RESOLVED_DCHI2
+) -> float:
+    """Return the samples per channel that put a beam's mirror ``k`` above the minimum at ``offset_mm``.
+
+    Eq. (1) of :mod:`borescan.mirror` solved for N: N = 2 k sigma^2 L^4 / (rho^2 e^4) [-]; inf where rho or e
+    is 0.
+    """
+    if rho_mm == 0.0 or offset_mm <= 0.0:
+        return float("inf")
+    return float(2.0 * k * sigma_mm**2 * radius_mm**4 / (rho_mm**2 * offset_mm**4))
 
 
 def predict(device: DeviceDesign, radius_mm: float, scan: ScanDesign) -> PlanPrediction:
@@ -195,6 +258,10 @@ def predict(device: DeviceDesign, radius_mm: float, scan: ScanDesign) -> PlanPre
         mirror_depth=depth,
         offset_to_resolve_mm=fix,
         in_range=in_range,
+        rho_mm=tuple(float(r) for r in beams.rho_mm),
+        noise_mm=tuple(float(x) for x in sig),
+        radius_mm=float(radius_mm),
+        offset_limit_mm=largest_offset_mm(device, radius_mm),
         cov=cov,
     )
 

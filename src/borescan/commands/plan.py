@@ -149,6 +149,8 @@ def _design(args):
 
 
 def _print(p, title: str) -> None:
+    from borescan.plan import samples_to_resolve
+
     s = p.scan
     print(
         f"{title}: offset {s.offset_mm:g} mm at {math.degrees(s.offset_direction_rad):g} deg, "
@@ -170,6 +172,16 @@ def _print(p, title: str) -> None:
             f"{p.u_rho_mm[j] * 1e3:10.2f} {p.u_d_b_mm[j] * 1e3:10.2f} "
             f"{depth:>13s} {'resolved' if p.resolved[j] else 'FLAGGED':>9s} {p.offset_to_resolve_mm[j]:21.2f}"
         )
+    for j, ch in enumerate(p.channels):
+        if not p.offset_can_resolve[j]:
+            n_fix = samples_to_resolve(p.radius_mm, p.noise_mm[j], p.offset_limit_mm, p.rho_mm[j])
+            print(
+                f"  channel {ch}: no offset resolves the sign of rho ({p.rho_mm[j]:g} mm): it needs "
+                f"{p.offset_to_resolve_mm[j]:.2f} mm and the sensors' range allows "
+                f"{p.offset_limit_mm:.2f} mm; "
+                f"take {math.ceil(n_fix)} samples per channel at that offset (more revolutions or samples "
+                "per revolution) or a longer-range sensor"
+            )
 
 
 def run(args: argparse.Namespace) -> int:
