@@ -35,6 +35,7 @@ from borescan.config import schema_default
 from borescan.effects import EFFECTS, Effect, calibration_absorbers, sort_effects
 from borescan.geometry import Beams, Bore
 from borescan.kinematics import AngleModel, angle_model_from_arrays
+from borescan.physics.tri_params import straighten, unstraighten
 from borescan.physics.tri import (
     GEOMETRY_STAGES,
     TriBase,
@@ -58,7 +59,7 @@ __all__ = [
 
 #: Scan kind of this model in the registry's ``absorbed_by`` / ``candidate``.
 SCAN_KIND = "tri_spindle"
-BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dbeta": 1e-4, "dd_b": 1e-3, "drho": 1e-2, "dR": 1e-3}
+BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dpsi": 1e-4, "dg": 1e-3, "drho": 1e-2, "dR": 1e-3}
 
 
 @dataclass(frozen=True)
@@ -298,17 +299,8 @@ class TriModel:
     def base(self, p: dict[str, float]) -> TriBase:
         """Return the base geometry at base parameters ``p`` (centre, phase, radius, freed beams)."""
         d = self.data
-        beams = d.beams
-        if self.free_beams:
-            c = len(d.channels)
-            beams = Beams(
-                d.channels,
-                beams.beta_rad + np.array([p.get(f"dbeta[{j}]", 0.0) for j in range(c)]),
-                beams.rho_mm + np.array([p.get(f"drho[{j}]", 0.0) for j in range(c)]),
-                beams.d_b_mm + np.array([p.get(f"dd_b[{j}]", 0.0) for j in range(c)]),
-            )
         return TriBase(
-            beams=beams,
+            beams=self.beams_at(p),
             bore=Bore((p["cx"], p["cy"]), d.radius_mm + p.get("dR", 0.0)),
             spindle_xy_mm=np.asarray(d.spindle_xy_mm, dtype=float),
             turned_rad=d.turned_rad,
@@ -316,6 +308,37 @@ class TriModel:
             direction=d.direction,
             cte_per_k=d.cte_per_k or 0.0,
             range_mm=d.range_mm,
+        )
+
+    def beams_at(self, p: dict[str, float]) -> Beams:
+        """Return the beams at base parameters ``p``: the design moved by the freed dpsi, drho, dg.
+
+        A freed beam moves in the parameters a circle fixes best (:mod:`borescan.physics.tri_params`):
+        its wall direction psi = beta + asin(rho / R) (``dpsi[j]``), its offset rho (``drho[j]``) and
+        its level g = d_b + rho^2 / (2 R) (``dg[j]``). In (beta, rho, d_b) a beam's rho and d_b trade
+        along a flat valley (d_b ~ g - rho^2 / (2 R)) where the fits crawl for hundreds of evaluations;
+        in (psi, rho, g) that valley is an axis. With rho held, dpsi is dbeta and dg is dd_b; a beam
+        parameter that is not freed keeps its design value (its straightened ones then move with rho).
+        """
+        d = self.data
+        b = d.beams
+        if not self.free_beams:
+            return b
+        c = len(d.channels)
+        R = float(d.radius_mm)
+        psi, g = straighten(b.beta_rad, b.rho_mm, b.d_b_mm, R)
+        rho = b.rho_mm + np.array([p.get(f"drho[{j}]", 0.0) for j in range(c)])
+        beta, d_b = unstraighten(
+            psi + np.array([p.get(f"dpsi[{j}]", 0.0) for j in range(c)]),
+            rho,
+            g + np.array([p.get(f"dg[{j}]", 0.0) for j in range(c)]),
+            R,
+        )
+        return Beams(
+            d.channels,
+            beta if "beta" in self.free_beams else b.beta_rad.copy(),
+            rho,
+            d_b if "d_b" in self.free_beams else b.d_b_mm.copy(),
         )
 
     def predict(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
@@ -358,9 +381,9 @@ class TriModel:
         names = ["cx", "cy"] + (["phase"] if self.data.free_phase else [])
         names += ["dR"] if self.data.radius_free else []
         if "beta" in self.free_beams:  # the first beam's direction stays: a common turn is the centre's
-            names += [f"dbeta[{j}]" for j in range(1, c)]
+            names += [f"dpsi[{j}]" for j in range(1, c)]
         if "d_b" in self.free_beams:
-            names += [f"dd_b[{j}]" for j in range(c)]
+            names += [f"dg[{j}]" for j in range(c)]
         if "rho" in self.free_beams:  # a device never calibrated: its design offsets are off by up to mm
             names += [f"drho[{j}]" for j in range(c)]
         return names + [n for t in self.device_terms for n in t.names()]
@@ -407,13 +430,13 @@ class TriModel:
             "radius_mm": float(self.data.radius_mm + p.get("dR", 0.0)),
             "radius_free": bool(self.data.radius_free),
         }
-        c = len(self.data.channels)
+        b, b0 = self.beams_at(p), self.data.beams
         if "beta" in self.free_beams:
-            out["beta_minus_nominal_rad"] = [float(p.get(f"dbeta[{j}]", 0.0)) for j in range(c)]
+            out["beta_minus_nominal_rad"] = [float(x) for x in b.beta_rad - b0.beta_rad]
         if "d_b" in self.free_beams:
-            out["d_b_minus_nominal_mm"] = [float(p.get(f"dd_b[{j}]", 0.0)) for j in range(c)]
+            out["d_b_minus_nominal_mm"] = [float(x) for x in b.d_b_mm - b0.d_b_mm]
         if "rho" in self.free_beams:
-            out["rho_minus_nominal_mm"] = [float(p.get(f"drho[{j}]", 0.0)) for j in range(c)]
+            out["rho_minus_nominal_mm"] = [float(x) for x in b.rho_mm - b0.rho_mm]
         if self.device_terms:
             out["device_model"] = {n: float(p[n]) for t in self.device_terms for n in t.names()}
         return out
