@@ -7,7 +7,8 @@ On a ring gauge of radius R a beam's readings depend on its direction and offset
 
 and on rho itself only weakly (mostly through rho^2). Fits whose cost valleys run along rho at
 fixed psi and g (the full-data calibration, :mod:`borescan.calibrate.full_fit`; the pooled
-discrepancy fit, :mod:`borescan.discrepancy.pooled`) take (psi, rho, g) as their parameters; this
+discrepancy fit, :mod:`borescan.discrepancy.pooled`; one scan's examination with its beams free,
+:meth:`borescan.discrepancy.tri.TriModel.beams_at`) take (psi, rho, g) as their parameters; this
 module is the one place of the map and its derivatives. The mirror of a beam (rho -> -rho at the
 same psi and g) keeps the first harmonic and the mean level.
 """
