@@ -7,12 +7,10 @@ nominal) diameter, the spindle at ``spindle.position`` (or the spindle stream) t
 start phase when the spindle moves during the scan (for a fixed spindle and a round bore the
 phase is the same thing as the direction of the centre offset).
 
-Why the beams are not freed: ``sensor_offset`` on a channel is exactly a change of that
-channel's d_b, ``channel_delay`` exactly a change of its beta (at constant speed), and
-``thermal_expansion`` exactly a common change of every d_b. Freeing those base parameters
-would make these effects invisible; holding them at the stated geometry keeps them
-identifiable, and a finding of such an effect says which calibration parameter would absorb
-it (a calibration matter rather than a missing physical effect).
+Why the beams are held (unless compared with the design, :mod:`.reference`): ``sensor_offset`` is
+exactly a change of a channel's d_b, ``channel_delay`` of its beta (at one speed), ``thermal_expansion``
+a common change of every d_b. Freeing them makes these effects invisible; held, they stay identifiable
+and a finding says which calibration parameter would absorb it (a calibration matter).
 
 Each candidate is a :class:`Term`: one named effect of the spec, its channel (if any) and its
 fitted parameters. The registry (:data:`borescan.effects.EFFECTS`) is the vocabulary: it gives
@@ -35,7 +33,7 @@ from borescan.config import schema_default
 from borescan.effects import EFFECTS, Effect, calibration_absorbers, sort_effects
 from borescan.geometry import Beams, Bore
 from borescan.kinematics import AngleModel, angle_model_from_arrays
-from borescan.physics.tri_params import straighten, unstraighten
+from borescan.physics.tri_params import moved_beams
 from borescan.physics.tri import (
     GEOMETRY_STAGES,
     TriBase,
@@ -311,35 +309,14 @@ class TriModel:
         )
 
     def beams_at(self, p: dict[str, float]) -> Beams:
-        """Return the beams at base parameters ``p``: the design moved by the freed dpsi, drho, dg.
-
-        A freed beam moves in the parameters a circle fixes best (:mod:`borescan.physics.tri_params`):
-        its wall direction psi = beta + asin(rho / R) (``dpsi[j]``), its offset rho (``drho[j]``) and
-        its level g = d_b + rho^2 / (2 R) (``dg[j]``). In (beta, rho, d_b) a beam's rho and d_b trade
-        along a flat valley (d_b ~ g - rho^2 / (2 R)) where the fits crawl for hundreds of evaluations;
-        in (psi, rho, g) that valley is an axis. With rho held, dpsi is dbeta and dg is dd_b; a beam
-        parameter that is not freed keeps its design value (its straightened ones then move with rho).
-        """
-        d = self.data
-        b = d.beams
+        """Return the beams at ``p``: the design moved by the freed dpsi, drho, dg [j] (``moved_beams``)."""
+        # in (psi, rho, g) the flat rho/d_b valley of (beta, rho, d_b), d_b ~ g - rho^2 / (2 R), is an axis
+        c = len(self.data.channels)
         if not self.free_beams:
-            return b
-        c = len(d.channels)
-        R = float(d.radius_mm)
-        psi, g = straighten(b.beta_rad, b.rho_mm, b.d_b_mm, R)
-        rho = b.rho_mm + np.array([p.get(f"drho[{j}]", 0.0) for j in range(c)])
-        beta, d_b = unstraighten(
-            psi + np.array([p.get(f"dpsi[{j}]", 0.0) for j in range(c)]),
-            rho,
-            g + np.array([p.get(f"dg[{j}]", 0.0) for j in range(c)]),
-            R,
-        )
-        return Beams(
-            d.channels,
-            beta if "beta" in self.free_beams else b.beta_rad.copy(),
-            rho,
-            d_b if "d_b" in self.free_beams else b.d_b_mm.copy(),
-        )
+            return self.data.beams
+        dpsi, drho, dg = ([p.get(f"{n}[{j}]", 0.0) for j in range(c)] for n in ("dpsi", "drho", "dg"))
+        R = float(self.data.radius_mm)
+        return moved_beams(self.data.beams, R, np.array(dpsi), np.array(drho), np.array(dg), self.free_beams)
 
     def predict(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
         """Return readings (n, c) [mm] for full parameters ``p`` (base + every term's fitted names).
