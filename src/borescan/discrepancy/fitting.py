@@ -62,7 +62,7 @@ def fit_least_squares(
 #: base parameters of one pose (rod pose angle, static device position) and of one channel
 #: (three-sensor beam geometry, a rod layer's hole centre and radius), by name
 _POSE_PARAM = re.compile(r"^(?:alpha|sx|sy)\[(\d+)\]$")
-_CHANNEL_PARAM = re.compile(r"^(?:dbeta|dd_b|drho|cx|cy|dr)\[(\d+)\]$")
+_CHANNEL_PARAM = re.compile(r"^(?:dpsi|dg|drho|cx|cy|dr)\[(\d+)\]$")
 #: a term on one channel: ``<effect>@<channel>[k=..].<name>``
 _CHANNEL_TERM = re.compile(r"^[A-Za-z_]+@(\d+)(?:\[k=\d+\])?\.")
 
@@ -74,7 +74,7 @@ def residual_sparsity(
 
     The residual vector is a model's (samples, channels) residual over ``mask`` (row-major, as
     ``model.residual`` returns it). A pose's parameters (``alpha[k]``, ``sx[k]``, ``sy[k]``) move
-    the samples of pose k (``pose_index``), a channel's (``dbeta[j]``, ``dd_b[j]``, ``drho[j]``;
+    the samples of pose k (``pose_index``), a channel's (``dpsi[j]``, ``dg[j]``, ``drho[j]``;
     a rod layer's ``cx[j]``, ``cy[j]``, ``dr[j]``: j the channel's position) and a term on one
     channel (``sensor_gain@2.h``) that channel's; every other parameter every residual.
     """

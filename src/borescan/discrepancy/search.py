@@ -157,10 +157,11 @@ class Fitter:
         self.base_names = model.base_names()
         self.base_scales = model.base_scales()
         self.fallback: dict[str, float] = {}
-        #: the base frees beam geometry (a calibration): rho and d_b of a beam trade along a flat valley
-        #: (for a circle they move a reading alike to first order), where the fits need more evaluations
-        #: and a start away from it (the rod and static models' fits are left as they were: their caps
-        #: are their budgets, and a restart there doubled the cost of fits that were not in such a valley)
+        #: the base frees beam geometry (a calibration): fitted in (psi, rho, g) (``TriModel.beams_at``) the
+        #: rho/d_b valley of (beta, rho, d_b) is an axis, but a base fit that absorbs a large missing effect
+        #: still moves rho by mm to tens of mm, where a candidate's fit may need more evaluations or a start
+        #: nearer the design (the rod and static models' fits are left as they were: their caps are their
+        #: budgets, and a restart there doubled the cost of fits that were not in such a valley)
         self.flat_valley = bool(getattr(model, "free_beams", ()))
 
     def __call__(self, terms: list[Term], start: dict[str, float]) -> FitResult | None:
@@ -171,9 +172,8 @@ class Fitter:
         terms) may take up to :data:`BASE_MAX_NFEV` evaluations, and a fit with terms that stops at its
         evaluation cap is fitted again with the base parameters at the base model's own start (the terms'
         values kept), the lower RSS kept: a base fit that absorbed a large missing effect moves the beams
-        far along their flat valley (offsets 12 mm out to mimic an axis tilt's ellipse), from where the
-        term's fit crawls back for hundreds of evaluations, while from the base's start it lands in a few
-        (:func:`_restart`).
+        far out (offsets 12 mm out to mimic an axis tilt's ellipse), from where the term's fit may stop at
+        its cap, while from the base's start it lands in a few (:func:`_restart`).
         """
         if not terms:
             return self._fit(terms, start, BASE_MAX_NFEV if self.flat_valley else 60)

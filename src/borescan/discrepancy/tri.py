@@ -7,12 +7,10 @@ nominal) diameter, the spindle at ``spindle.position`` (or the spindle stream) t
 start phase when the spindle moves during the scan (for a fixed spindle and a round bore the
 phase is the same thing as the direction of the centre offset).
 
-Why the beams are not freed: ``sensor_offset`` on a channel is exactly a change of that
-channel's d_b, ``channel_delay`` exactly a change of its beta (at constant speed), and
-``thermal_expansion`` exactly a common change of every d_b. Freeing those base parameters
-would make these effects invisible; holding them at the stated geometry keeps them
-identifiable, and a finding of such an effect says which calibration parameter would absorb
-it (a calibration matter rather than a missing physical effect).
+Why the beams are held (unless compared with the design, :mod:`.reference`): ``sensor_offset`` is
+exactly a change of a channel's d_b, ``channel_delay`` of its beta (at one speed), ``thermal_expansion``
+a common change of every d_b. Freeing them makes these effects invisible; held, they stay identifiable
+and a finding says which calibration parameter would absorb it (a calibration matter).
 
 Each candidate is a :class:`Term`: one named effect of the spec, its channel (if any) and its
 fitted parameters. The registry (:data:`borescan.effects.EFFECTS`) is the vocabulary: it gives
@@ -35,6 +33,7 @@ from borescan.config import schema_default
 from borescan.effects import EFFECTS, Effect, calibration_absorbers, sort_effects
 from borescan.geometry import Beams, Bore
 from borescan.kinematics import AngleModel, angle_model_from_arrays
+from borescan.physics.tri_params import moved_beams
 from borescan.physics.tri import (
     GEOMETRY_STAGES,
     TriBase,
@@ -58,7 +57,7 @@ __all__ = [
 
 #: Scan kind of this model in the registry's ``absorbed_by`` / ``candidate``.
 SCAN_KIND = "tri_spindle"
-BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dbeta": 1e-4, "dd_b": 1e-3, "drho": 1e-2, "dR": 1e-3}
+BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dpsi": 1e-4, "dg": 1e-3, "drho": 1e-2, "dR": 1e-3}
 
 
 @dataclass(frozen=True)
@@ -298,17 +297,8 @@ class TriModel:
     def base(self, p: dict[str, float]) -> TriBase:
         """Return the base geometry at base parameters ``p`` (centre, phase, radius, freed beams)."""
         d = self.data
-        beams = d.beams
-        if self.free_beams:
-            c = len(d.channels)
-            beams = Beams(
-                d.channels,
-                beams.beta_rad + np.array([p.get(f"dbeta[{j}]", 0.0) for j in range(c)]),
-                beams.rho_mm + np.array([p.get(f"drho[{j}]", 0.0) for j in range(c)]),
-                beams.d_b_mm + np.array([p.get(f"dd_b[{j}]", 0.0) for j in range(c)]),
-            )
         return TriBase(
-            beams=beams,
+            beams=self.beams_at(p),
             bore=Bore((p["cx"], p["cy"]), d.radius_mm + p.get("dR", 0.0)),
             spindle_xy_mm=np.asarray(d.spindle_xy_mm, dtype=float),
             turned_rad=d.turned_rad,
@@ -317,6 +307,16 @@ class TriModel:
             cte_per_k=d.cte_per_k or 0.0,
             range_mm=d.range_mm,
         )
+
+    def beams_at(self, p: dict[str, float]) -> Beams:
+        """Return the beams at ``p``: the design moved by the freed dpsi, drho, dg [j] (``moved_beams``)."""
+        # in (psi, rho, g) the flat rho/d_b valley of (beta, rho, d_b), d_b ~ g - rho^2 / (2 R), is an axis
+        c = len(self.data.channels)
+        if not self.free_beams:
+            return self.data.beams
+        dpsi, drho, dg = ([p.get(f"{n}[{j}]", 0.0) for j in range(c)] for n in ("dpsi", "drho", "dg"))
+        R = float(self.data.radius_mm)
+        return moved_beams(self.data.beams, R, np.array(dpsi), np.array(drho), np.array(dg), self.free_beams)
 
     def predict(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
         """Return readings (n, c) [mm] for full parameters ``p`` (base + every term's fitted names).
@@ -358,9 +358,9 @@ class TriModel:
         names = ["cx", "cy"] + (["phase"] if self.data.free_phase else [])
         names += ["dR"] if self.data.radius_free else []
         if "beta" in self.free_beams:  # the first beam's direction stays: a common turn is the centre's
-            names += [f"dbeta[{j}]" for j in range(1, c)]
+            names += [f"dpsi[{j}]" for j in range(1, c)]
         if "d_b" in self.free_beams:
-            names += [f"dd_b[{j}]" for j in range(c)]
+            names += [f"dg[{j}]" for j in range(c)]
         if "rho" in self.free_beams:  # a device never calibrated: its design offsets are off by up to mm
             names += [f"drho[{j}]" for j in range(c)]
         return names + [n for t in self.device_terms for n in t.names()]
@@ -407,13 +407,13 @@ class TriModel:
             "radius_mm": float(self.data.radius_mm + p.get("dR", 0.0)),
             "radius_free": bool(self.data.radius_free),
         }
-        c = len(self.data.channels)
+        b, b0 = self.beams_at(p), self.data.beams
         if "beta" in self.free_beams:
-            out["beta_minus_nominal_rad"] = [float(p.get(f"dbeta[{j}]", 0.0)) for j in range(c)]
+            out["beta_minus_nominal_rad"] = [float(x) for x in b.beta_rad - b0.beta_rad]
         if "d_b" in self.free_beams:
-            out["d_b_minus_nominal_mm"] = [float(p.get(f"dd_b[{j}]", 0.0)) for j in range(c)]
+            out["d_b_minus_nominal_mm"] = [float(x) for x in b.d_b_mm - b0.d_b_mm]
         if "rho" in self.free_beams:
-            out["rho_minus_nominal_mm"] = [float(p.get(f"drho[{j}]", 0.0)) for j in range(c)]
+            out["rho_minus_nominal_mm"] = [float(x) for x in b.rho_mm - b0.rho_mm]
         if self.device_terms:
             out["device_model"] = {n: float(p[n]) for t in self.device_terms for n in t.names()}
         return out

@@ -22,12 +22,13 @@ __all__ = ["mirrored_rho_starts"]
 
 
 def mirrored_rho_starts(model, p: dict[str, float]) -> list[dict[str, float]]:
-    """Return one start per channel: its rho mirrored, its direction (or the frame) turned to match.
+    """Return one start per channel: its rho mirrored at the same wall direction psi and level g.
 
-    Empty unless the model is one scan's :class:`TriModel` and frees rho (``model.free_beams``). The
-    turn's sign (and, for the first beam, whose direction is held, whether the other beams and the phase
-    turn instead) is the one whose start has the lowest RSS: a cheap evaluation per choice, the fit
-    comes after.
+    Empty unless the model is one scan's :class:`TriModel` and frees rho (``model.free_beams``; its
+    beams move in (psi, rho, g), :meth:`TriModel.beams_at`). Besides the plain mirror, the beam's psi
+    turned by -4 asin(rho / R) (for the first beam, whose psi is held, the other beams turned the other
+    way) and the phase turned by +-2 asin(rho / R) are tried; the start of lowest RSS is kept: a cheap
+    evaluation per choice, the fit comes after.
     """
     if not isinstance(model, TriModel) or "rho" not in model.free_beams:
         return []  # one scan's three-sensor model only (a pooled model's shared beams are its own)
@@ -48,17 +49,16 @@ def _mirror(model, p: dict[str, float], j: int, rho: float, delta: float) -> dic
     """Return channel j's mirrored start of lowest RSS over the turn's signs, or None (none finite)."""
     rho_design = float(model.data.beams.rho_mm[j])
     best, best_rss = None, math.inf
-    for s_beam, s_frame in product((1.0, -1.0), (1.0, -1.0, 0.0)):
+    for turn, s_frame in product((0.0, -2.0 * delta), (1.0, -1.0, 0.0)):
         if s_frame and "phase" not in p:
             continue
         st = dict(p)
         st[f"drho[{j}]"] = -rho - rho_design
-        if f"dbeta[{j}]" in st:
-            st[f"dbeta[{j}]"] += s_beam * delta
-        else:  # the held first beam: the others turn the other way and the frame with them
-            for k in range(len(model.data.channels)):
-                if f"dbeta[{k}]" in st:
-                    st[f"dbeta[{k}]"] -= s_beam * delta
+        if j > 0:
+            st[f"dpsi[{j}]"] = st.get(f"dpsi[{j}]", 0.0) + turn
+        else:  # the held first beam: the others turn the other way
+            for k in range(1, len(model.data.channels)):
+                st[f"dpsi[{k}]"] = st.get(f"dpsi[{k}]", 0.0) - turn
         if s_frame:
             st["phase"] += s_frame * delta
         r = model.residual(st, [])

@@ -7,7 +7,8 @@ On a ring gauge of radius R a beam's readings depend on its direction and offset
 
 and on rho itself only weakly (mostly through rho^2). Fits whose cost valleys run along rho at
 fixed psi and g (the full-data calibration, :mod:`borescan.calibrate.full_fit`; the pooled
-discrepancy fit, :mod:`borescan.discrepancy.pooled`) take (psi, rho, g) as their parameters; this
+discrepancy fit, :mod:`borescan.discrepancy.pooled`; one scan's examination with its beams free,
+:meth:`borescan.discrepancy.tri.TriModel.beams_at`) take (psi, rho, g) as their parameters; this
 module is the one place of the map and its derivatives. The mirror of a beam (rho -> -rho at the
 same psi and g) keeps the first harmonic and the mean level.
 """
@@ -16,7 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rho_arc_rad", "straighten", "unstraighten", "dbeta_drho_at_psi", "dd_b_drho_at_g"]
+from borescan.geometry import Beams
+
+__all__ = ["rho_arc_rad", "straighten", "unstraighten", "moved_beams", "dbeta_drho_at_psi", "dd_b_drho_at_g"]
 
 
 def rho_arc_rad(rho_mm: np.ndarray, R_mm: float) -> np.ndarray:
@@ -36,6 +39,25 @@ def unstraighten(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return (beta [rad], d_b [mm]) of beams (psi, rho, g): the inverse of :func:`straighten`."""
     return psi_rad - rho_arc_rad(rho_mm, R_mm), g_mm - rho_mm**2 / (2.0 * R_mm)
+
+
+def moved_beams(
+    beams: Beams,
+    R_mm: float,
+    dpsi_rad: np.ndarray,
+    drho_mm: np.ndarray,
+    dg_mm: np.ndarray,
+    free=("beta", "d_b"),
+) -> Beams:
+    """Return ``beams`` moved by (dpsi, drho, dg) on radius ``R_mm``; beta, d_b not in ``free`` kept."""
+    psi, g = straighten(beams.beta_rad, beams.rho_mm, beams.d_b_mm, R_mm)
+    beta, d_b = unstraighten(psi + dpsi_rad, beams.rho_mm + drho_mm, g + dg_mm, R_mm)
+    return Beams(
+        beams.channels,
+        beta if "beta" in free else beams.beta_rad.copy(),
+        beams.rho_mm + drho_mm,
+        d_b if "d_b" in free else beams.d_b_mm.copy(),
+    )
 
 
 def dbeta_drho_at_psi(rho_mm: np.ndarray, R_mm: float) -> np.ndarray:

@@ -11,7 +11,7 @@ import numpy as np
 
 from borescan.discrepancy.pooled.terms import BASE_SCALE
 from borescan.geometry import Beams
-from borescan.physics.tri_params import straighten, unstraighten
+from borescan.physics.tri_params import moved_beams
 
 
 class BeamsAndDesign:
@@ -24,19 +24,10 @@ class BeamsAndDesign:
     def beams_at(self, p: dict[str, float]) -> Beams:
         """Return the shared beam geometry at pooled parameters ``p`` (module doc: psi, rho, g)."""
         c = len(self.data.channels)
-        b = self.start_beams
-        R = self.R_mm
-        rho = b.rho_mm + np.array([p.get(f"drho[{j}]", 0.0) for j in range(c)])
-        psi, g = straighten(b.beta_rad, b.rho_mm, b.d_b_mm, R)
-        psi = psi + np.array([0.0] + [p.get(f"dpsi[{j}]", 0.0) for j in range(1, c)])
-        g = g + np.array([p.get(f"dg[{j}]", 0.0) for j in range(c)])
-        beta, d_b = unstraighten(psi, rho, g, R)
-        return Beams(
-            b.channels,
-            beta if "beta" in self.free_beams else b.beta_rad.copy(),
-            rho,
-            d_b if "d_b" in self.free_beams else b.d_b_mm.copy(),
+        dpsi, drho, dg = (
+            np.array([p.get(f"{n}[{j}]", 0.0) for j in range(c)]) for n in ("dpsi", "drho", "dg")
         )
+        return moved_beams(self.start_beams, self.R_mm, dpsi, drho, dg, self.free_beams)
 
     def _beam_deltas(self, p: dict[str, float]) -> dict[str, float]:
         """Return the single-scan models' beam offsets ``dbeta[j]``, ``drho[j]``, ``dd_b[j]`` at ``p``."""
