@@ -530,6 +530,60 @@ def test_speed_change_with_and_without_encoder(encoder):
     assert max(nu["residual_to_noise"]) < 1.1
 
 
+def test_stated_u_rho_is_the_curvature_of_the_rho_profile():
+    """A speed change read by the encoder (the kind of contract scan whose errors were 2-3 u, issue 36).
+
+    The profile chi2 of each rho (SSR / sigma^2 minimised over every other parameter, rho held at the
+    fit +- its stated u) rises by 1 where the stated u is the data's own curvature; the tolerance
+    0.75-1.3 allows the valley's curvature (d_b = g - rho^2 / (2R)) and nothing like a missed
+    parameter or an unused prior, which would move it by factors.
+    """
+    from scipy.optimize import least_squares
+
+    from borescan.geometry import Bore, tri_spindle_readings
+
+    scene = _contract_scene(rpm_profile=RAMP, phase_rad=1.3, direction="cw")
+    sigma_mm = 0.003
+    t, v, am = _twin_scan(scene, encoder=True, seed=3, noise_mm=sigma_mm)
+    truth = scene.beams
+    cal = fit_full_calibration(
+        t,
+        v,
+        truth.channels,
+        truth,
+        scene.bore_radius_20_mm,
+        scene.spindle_xy_mm,
+        center_xy_mm=scene.bore_center_xy_mm,
+        angle_models=[am],
+        scan_ids=["P"],
+    )
+    phi, ok = am.phi_rad(t), np.isfinite(v)
+    nu = cal.nuisance["P"]
+    x_fit = np.r_[cal.params, nu["offset_x_mm"], nu["offset_y_mm"]]
+
+    def chi2_min(x0, held):
+        free = [i for i in range(x0.size) if i not in held]
+
+        def res(z):
+            x = x0.copy()
+            x[free] = z
+            b = x[:9].reshape(3, 3)
+            vm = tri_spindle_readings(
+                phi, x[9:11], Beams(truth.channels, *b.T), Bore((0.0, 0.0), scene.bore_radius_20_mm)
+            )
+            return (v - vm)[ok] / sigma_mm
+
+        return 2.0 * least_squares(res, x0[free], method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12).cost
+
+    base = chi2_min(x_fit, [])
+    for k in range(3):
+        for sign in (-1.0, 1.0):
+            x0 = x_fit.copy()
+            x0[3 * k + 1] += sign * cal.u_rho_mm[k]
+            rise = chi2_min(x0, [3 * k + 1]) - base
+            assert 0.75 < rise < 1.3, (k, sign, rise)
+
+
 def test_mistyped_speed_without_spindle_stream():
     """No spindle stream, rpm_nominal 60 while the spindle turns at 64.5 rpm (7.5 % off)."""
     from dataclasses import replace
