@@ -83,7 +83,8 @@ def group_fingerprints(df: pl.DataFrame | None, by: str) -> dict[str | None, str
         .agg("h")
     )
     return {
-        k: hashlib.sha256(schema + np.asarray(h, dtype=np.uint64).tobytes()).hexdigest()[:16] for k, h in groups.iter_rows()
+        k: hashlib.sha256(schema + np.asarray(h, dtype=np.uint64).tobytes()).hexdigest()[:16]
+        for k, h in groups.iter_rows()
     }
 
 

@@ -228,12 +228,17 @@ def _month_page(month: str, parts: dict[str, Any]) -> str:
 
 @dataclass(frozen=True)
 class ReportUpdate:
-    """What :func:`update_report` did: the page, the months whose page was (re)written, plots drawn."""
+    """What :func:`update_report` did: the page, the months whose page was (re)written, plots drawn.
+
+    ``pieces_rendered``: the month pages' pieces (a night's summary box, a scan's findings row)
+    rendered rather than reused from ``pieces.json``.
+    """
 
     path: Path
     months: tuple[str, ...]
     rendered: tuple[str, ...]
     plots_drawn: int
+    pieces_rendered: int = 0
 
 
 def update_report(
@@ -273,7 +278,7 @@ def _update(  # noqa: C901 (one branch per page, month and section of the report
         if d.is_dir() and d.name not in prints:
             shutil.rmtree(d)
     totals = _totals(con)
-    rendered, drawn = [], 0
+    rendered, drawn, n_pieces = [], 0, 0
     parts: dict[str, Any] = {}
     for month, fp in prints.items():
         # page.json: the fingerprint the page was written for (small: read for every month);
@@ -298,6 +303,7 @@ def _update(  # noqa: C901 (one branch per page, month and section of the report
         atomic_write_text(done, json.dumps({"fingerprint": fp}) + "\n")
         rendered.append(month)
         drawn += cache.drawn
+        n_pieces += pieces.rendered
     dated = [m for m in prints if m != "undated"] or list(prints)
     month = dated[-1] if dated else None
     if month is not None and month not in parts:
@@ -358,7 +364,7 @@ def _update(  # noqa: C901 (one branch per page, month and section of the report
     page = atomic_write_text(
         root / "report.html", _page("borescan report", _header(totals), nav, "".join(body), footer)
     )
-    return ReportUpdate(page, tuple(prints), tuple(rendered), drawn)
+    return ReportUpdate(page, tuple(prints), tuple(rendered), drawn, n_pieces)
 
 
 def write_report(
