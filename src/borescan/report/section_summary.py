@@ -248,7 +248,8 @@ def _night_keys(page: Page, parts: pl.DataFrame | None, quarantined: list[dict])
     """Return night -> digest of every row its summary box and row read.
 
     The night's rows of each table and of the parts; with its drifts, the page's calibrations
-    (which device-model effects they entered); with its quarantines, the findings of those scans
+    valid from that night or before (which device-model effects the night's calibration entered);
+    with its quarantines, the findings of those scans
     (a refused calibration's verdict is looked up by scan).
     """
     t = page.t
@@ -258,9 +259,10 @@ def _night_keys(page: Page, parts: pl.DataFrame | None, quarantined: list[dict])
             per.setdefault(str(night), []).append((name, fp))
     drift = t.get("calibration_drift")
     if drift is not None and drift.height:
-        cal = frame_fingerprint(t["calibrations"])
+        # the device-model effects a night's calibration entered: its calibrations and the earlier ones
+        cal = sorted((str(k), fp) for k, fp in group_fingerprints(t["calibrations"], "valid_from").items())
         for night in {str(n) for n in drift["night"].to_list()}:
-            per.setdefault(night, []).append(("calibrations", cal))
+            per.setdefault(night, []).append(("calibrations", [fp for k, fp in cal if k <= night]))
     fnd = t["findings"]
     for night in {q["night"] for q in quarantined if q["night"]}:
         ids = [q["scan_id"] for q in quarantined if q["night"] == night]
