@@ -1043,3 +1043,54 @@ def test_part_plot_labels_that_would_overlap_are_slanted_and_a_gauge_is_the_bore
     # upright they would overlap: together wider than the panel
     upright = sum(t.get_window_extent().width for t in labels) / np.sqrt(0.5)
     assert upright > ax.get_window_extent().width
+
+
+def test_a_month_assembled_from_cached_pieces_equals_one_built_from_scratch(rich, tmp_path):
+    """The month page grown night by night (each night's summary box and each scan's findings row
+    reused from pieces.json while their rows and linked files are unchanged) equals the page built
+    from scratch, byte for byte; a linked file that appears or a findings.json read for the
+    uncertainties that changes re-renders the pieces showing it.
+    """
+    res, _ = rich
+    tables = load_tables(res)
+    nights = sorted({str(n) for n in tables["scans"]["night"].drop_nulls().to_list()})
+    assert len(nights) == 3
+
+    def upto(last: str) -> dict[str, pl.DataFrame]:
+        return {
+            name: df.filter(pl.col("night").is_null() | (pl.col("night").cast(pl.Utf8) <= last))
+            if "night" in df.columns
+            else df
+            for name, df in tables.items()
+        }
+
+    # PART-7's findings are of the first night, PART-9's of the second, PART-8's of the third
+    updates = [update_report(res, upto(nights[0]))]
+    (res / "discrepancy" / "PART-7" / "gap.png").unlink()  # a linked file goes
+    updates.append(update_report(res, upto(nights[1])))
+    part9 = res / "discrepancy" / "PART-9" / "findings.json"  # PART-9's row reads its uncertainties
+    part9.write_text(part9.read_text().replace('"u_a_mm": 0.0007', '"u_a_mm": 0.0009'))
+    updates.append(update_report(res, upto(nights[2])))
+    assert [u.rendered for u in updates] == [("2026-11",)] * 3
+    pieces = json.loads((res / "report" / "2026-11" / "pieces.json").read_text())
+    assert len(pieces) == len(nights) + tables["findings"]["scan_id"].n_unique() == 6
+    # each night renders its own box and its scans' rows; the second also PART-7's row and the first
+    # night's box (both linked the gap plot of PART-7 that went), the third PART-9's row (its findings.json
+    # changed); every other piece is reused
+    assert [u.pieces_rendered for u in updates] == [2, 4, 3]
+    grown = {p.name: p.read_bytes() for p in (res / "report" / "2026-11").iterdir()}
+    grown["report.html"] = (res / "report.html").read_bytes()
+
+    scratch = tmp_path / "scratch"
+    shutil.copytree(res, scratch, ignore=shutil.ignore_patterns("report*"))
+    built = update_report(scratch, tables, full=True)
+    assert built.pieces_rendered == len(pieces)
+    fresh = {p.name: p.read_bytes() for p in (scratch / "report" / "2026-11").iterdir()}
+    fresh["report.html"] = (scratch / "report.html").read_bytes()
+    assert sorted(grown) == sorted(fresh)
+    for name in grown:
+        if name != "pieces.json":  # it records each linked file's time, which the copy changed
+            assert grown[name] == fresh[name], name
+    page = _without_images(grown["index.html"].decode())
+    assert "PART-7" in _section(page, "summary") and "PART-7/gap.png" not in page
+    assert "0.9" in _section(page, "discrepancy") and "0.7" not in _section(page, "discrepancy")

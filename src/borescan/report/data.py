@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import duckdb
+import numpy as np
 import polars as pl
 
 from borescan import catalog
@@ -65,6 +66,28 @@ def frame_fingerprint(df: pl.DataFrame) -> str:
     if df.height and df.width:
         h.update(df.hash_rows().to_numpy().tobytes())
     return h.hexdigest()[:16]
+
+
+def group_fingerprints(df: pl.DataFrame | None, by: str) -> dict[str | None, str]:
+    """Value of column ``by`` (as text) -> SHA-256 (16 hex) of the frame's rows with it.
+
+    The digest is of the rows as a multiset (their hashes sorted): a page's row order follows
+    from the rows' contents (:data:`_ORDER`), and rows that tie in it come in any order from
+    DuckDB. The frame's schema is part of every digest; one row hash over the whole frame, so a
+    month's nights (or scans) are fingerprinted at the cost of one pass, whatever their number.
+    """
+    if df is None or df.height == 0 or df.width == 0:
+        return {}
+    schema = repr([(c, str(t)) for c, t in df.schema.items()]).encode()
+    groups = (
+        pl.DataFrame({"k": df[by].cast(pl.Utf8), "h": df.hash_rows()})
+        .group_by("k", maintain_order=True)
+        .agg(pl.col("h").sort())
+    )
+    return {
+        k: hashlib.sha256(schema + np.asarray(h, dtype=np.uint64).tobytes()).hexdigest()[:16]
+        for k, h in groups.iter_rows()
+    }
 
 
 _MONTH = "coalesce(strftime(CAST({t}night AS DATE), '%Y-%m'), 'undated')"

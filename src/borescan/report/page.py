@@ -5,7 +5,9 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import os
 from pathlib import Path
+from typing import Any, Callable
 
 import polars as pl
 
@@ -50,15 +52,54 @@ class _PlotCache:
         atomic_write_text(self.file, json.dumps(self.new, indent=1, sort_keys=True) + "\n")
 
 
+class _PieceCache:
+    """HTML pieces of one month folder (``pieces.json``): key -> the piece and the files it looked at.
+
+    A piece (a night's summary box and row, a scan's findings row) is keyed by the digest of the
+    rows it shows; it is reused while those rows, the report's code and every results file the
+    piece linked to or read (present or not, size and time) are unchanged, so a month's earlier
+    nights are not rendered again when a night is added.
+    """
+
+    def __init__(self, folder: Path, use: bool = True):
+        self.file = folder / "pieces.json"
+        self.old: dict[str, dict[str, Any]] = {}
+        if use and self.file.is_file():
+            with contextlib.suppress(ValueError):
+                self.old = json.loads(self.file.read_text())
+        self.new: dict[str, dict[str, Any]] = {}
+        self.rendered = 0
+
+    def save(self) -> None:
+        """Record the pieces of the page just written (the others are dropped)."""
+        atomic_write_text(self.file, json.dumps(self.new, sort_keys=True) + "\n")
+
+
+def _file_state(path: Path) -> list[int] | None:
+    """Return [mtime_ns, size] of a file, None when it does not exist."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return [st.st_mtime_ns, st.st_size]
+
+
 class Page:
     """The sections of one page over ``tables`` (a month's rows).
 
     ``up``: the page's path back to the results folder ("" for ``report.html``, ``"../../"`` for
-    a month page); ``plots``: the month's plot folder as seen from the page.
+    a month page); ``plots``: the month's plot folder as seen from the page; ``pieces``: the
+    month's cached pieces (:meth:`piece`; None renders every piece).
     """
 
     def __init__(
-        self, root: Path, tables: dict[str, pl.DataFrame], cache: _PlotCache, up: str = "", plots: str = ""
+        self,
+        root: Path,
+        tables: dict[str, pl.DataFrame],
+        cache: _PlotCache,
+        up: str = "",
+        plots: str = "",
+        pieces: _PieceCache | None = None,
     ):
         self.root = root
         self.t = tables
@@ -66,11 +107,47 @@ class Page:
         self.up = up
         self.plots = plots
         self.code = _code_fingerprint()
+        self.pieces = pieces
+        self._seen: dict[str, dict[str, Any]] | None = None  # what the piece being rendered looked at
 
     def link(self, path: str | None) -> str | None:
         """Return the page's relative link to a results file, None when it does not exist."""
         rel = _rel(self.root, path)
+        if self._seen is not None and path:
+            self._seen["links"][path] = rel
         return None if rel is None else self.up + rel
+
+    def read_text(self, path: Path) -> str:
+        """Return a results file's text (OSError when unreadable), remembered by the piece being rendered."""
+        if self._seen is not None:
+            self._seen["files"][str(path)] = _file_state(path)
+        return path.read_text()
+
+    def piece(self, kind: str, rows_key: str, render: Callable[[], Any]) -> Any:
+        """Return ``render()`` (JSON: lists, dicts, text), reused from ``pieces.json`` when unchanged.
+
+        ``rows_key`` is the digest of the rows the piece shows (:func:`group_fingerprints`); the
+        piece is rendered again when it, the report's code, or a file it linked to or read changed.
+        """
+        key = hashlib.sha256(f"{self.code} {kind} {rows_key}".encode()).hexdigest()[:16]
+        old = self.pieces.old.get(key) if self.pieces is not None else None
+        if (
+            old is not None
+            and all(_rel(self.root, p) == rel for p, rel in old["links"].items())
+            and all(_file_state(Path(p)) == st for p, st in old["files"].items())
+        ):
+            self.pieces.new[key] = old
+            return old["value"]
+        self._seen = {"links": {}, "files": {}}
+        try:
+            value = json.loads(json.dumps(render()))  # what a reuse returns: lists, not tuples
+            seen = self._seen
+        finally:
+            self._seen = None
+        if self.pieces is not None:
+            self.pieces.new[key] = {"value": value, **seen}
+            self.pieces.rendered += 1
+        return value
 
     def figure(self, plot, data: pl.DataFrame, key: str, name: str, alt: str, *args) -> str:
         """Draw ``plot(data, key, *args)`` as ``<month>/<name>.png`` when its input changed.

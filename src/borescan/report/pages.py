@@ -28,7 +28,7 @@ from borescan.report.section_parts import diameters
 from borescan.report.section_summary import quarantine, summary
 from borescan.report.decisions import device_status, device_status_html
 from borescan.report.papers_table import papers_rows
-from borescan.report.page import Page, _EMPTY, _PlotCache
+from borescan.report.page import Page, _EMPTY, _PieceCache, _PlotCache
 from borescan.report.text import _e, _img, _link, _table
 
 REPORT_DIR = "report"
@@ -200,10 +200,10 @@ _UP, _PLOTS = "@@UP@@", "@@PLOTS@@"
 
 
 def _month_sections(
-    root: Path, month: str, tables: dict[str, pl.DataFrame], cache: _PlotCache
+    root: Path, month: str, tables: dict[str, pl.DataFrame], cache: _PlotCache, pieces: _PieceCache
 ) -> dict[str, Any]:
     """Return a month's header counts and section bodies, with the link placeholders."""
-    page = Page(root, tables, cache, up=_UP, plots=_PLOTS)
+    page = Page(root, tables, cache, up=_UP, plots=_PLOTS, pieces=pieces)
     return {
         "counts": _counts(tables),
         "sections": {sid: BUILDERS[sid](page) for sid, _title in MONTH_SECTIONS},
@@ -228,12 +228,17 @@ def _month_page(month: str, parts: dict[str, Any]) -> str:
 
 @dataclass(frozen=True)
 class ReportUpdate:
-    """What :func:`update_report` did: the page, the months whose page was (re)written, plots drawn."""
+    """What :func:`update_report` did: the page, the months whose page was (re)written, plots drawn.
+
+    ``pieces_rendered``: the month pages' pieces (a night's summary box, a scan's findings row)
+    rendered rather than reused from ``pieces.json``.
+    """
 
     path: Path
     months: tuple[str, ...]
     rendered: tuple[str, ...]
     plots_drawn: int
+    pieces_rendered: int = 0
 
 
 def update_report(
@@ -273,7 +278,7 @@ def _update(  # noqa: C901 (one branch per page, month and section of the report
         if d.is_dir() and d.name not in prints:
             shutil.rmtree(d)
     totals = _totals(con)
-    rendered, drawn = [], 0
+    rendered, drawn, n_pieces = [], 0, 0
     parts: dict[str, Any] = {}
     for month, fp in prints.items():
         # page.json: the fingerprint the page was written for (small: read for every month);
@@ -289,14 +294,16 @@ def _update(  # noqa: C901 (one branch per page, month and section of the report
             with contextlib.suppress(ValueError):
                 if json.loads(done.read_text()).get("fingerprint") == fp:
                     continue
-        cache = _PlotCache(folder, use=not full)
-        parts[month] = _month_sections(root, month, _month_tables(con, month), cache)
+        cache, pieces = _PlotCache(folder, use=not full), _PieceCache(folder, use=not full)
+        parts[month] = _month_sections(root, month, _month_tables(con, month), cache, pieces)
         atomic_write_text(folder / "index.html", _month_page(month, parts[month]))
         cache.save()
+        pieces.save()
         atomic_write_text(folder / "sections.json", json.dumps(parts[month], sort_keys=True) + "\n")
         atomic_write_text(done, json.dumps({"fingerprint": fp}) + "\n")
         rendered.append(month)
         drawn += cache.drawn
+        n_pieces += pieces.rendered
     dated = [m for m in prints if m != "undated"] or list(prints)
     month = dated[-1] if dated else None
     if month is not None and month not in parts:
@@ -357,7 +364,7 @@ def _update(  # noqa: C901 (one branch per page, month and section of the report
     page = atomic_write_text(
         root / "report.html", _page("borescan report", _header(totals), nav, "".join(body), footer)
     )
-    return ReportUpdate(page, tuple(prints), tuple(rendered), drawn)
+    return ReportUpdate(page, tuple(prints), tuple(rendered), drawn, n_pieces)
 
 
 def write_report(

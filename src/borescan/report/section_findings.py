@@ -14,6 +14,7 @@ from borescan.report.device_model import (
     plot_device_model_gap,
     refused_calibrations,
 )
+from borescan.report.data import group_fingerprints
 from borescan.report.page import Page, _EMPTY
 from borescan.report.text import _e, _link, _parameters_text, _table, _um, _uncertainties
 
@@ -39,46 +40,21 @@ def discrepancy(page: Page) -> str:
         "combination of its channels' zeroes) and the calibration that absorbs it.</p>"
     ]
     rows, classes = [], []
-    by_scan: dict[str | None, list[dict]] = {}  # the rows of each scan, scans in first-seen order
-    for r in fnd.to_dicts():  # one conversion: a polars group per scan cost ~0.2 ms each
-        by_scan.setdefault(r["scan_id"], []).append(r)
-    for sid, recs in by_scan.items():
-        first = recs[0]
-        uncertainties = _finding_uncertainties(page, sid, recs)
-        gap = page.link(f"discrepancy/{sid}/gap.png")
-        fj = page.link(f"discrepancy/{sid}/findings.json")
-        links = " ".join(
-            x for x in (_link(gap, "gap.png") if gap else "", _link(fj, "findings.json") if fj else "") if x
-        )
-        verdict = first["verdict"]
-        effects = []
-        for r in recs:
-            if not r.get("effect"):
-                continue
-            where = f" on channel {r['channel']}" if r.get("channel") is not None else ""
-            pars = _parameters_text(
-                r["effect"], r.get("parameters"), uncertainties.get((r["effect"], r.get("channel")), {})
-            )
-            effects.append(f"<b>{_e(r['effect'])}</b>{_e(where)}" + (f": {pars}" if pars else ""))
-        note = _e(first.get("statement") or "") or _verdict_note(
-            verdict, [r["effect"] for r in recs if r.get("effect")]
-        )
-        rows.append(
-            [
-                _e(sid),
-                _e(first.get("night")),
-                f"<b>{_e(verdict)}</b>" + (f"<br>{note}" if note else ""),
-                "<br>".join(effects),
-                _um(first.get("gap_before_mm"), 2),
-                _um(first.get("gap_after_mm"), 2),
-                _um(first.get("noise_floor_mm"), 2),
-                links,
-            ]
-        )
-        # flagged for a person only where the gap before stands above the noise floor (floor_ratio)
-        visible = (first.get("gap_before_mm") or 0.0) > _FLOOR_RATIO * (first.get("noise_floor_mm") or 0.0)
-        flag = "fail" if verdict == "missing_effect" else "warn" if verdict == "ambiguous" else ""
-        classes.append(flag if visible else "")
+    keys = group_fingerprints(fnd, "scan_id")  # a scan's row is rendered again only when its rows change
+    recs_of: dict[str | None, list[dict]] | None = None  # the rows of each scan, converted when needed
+    for sid in dict.fromkeys(fnd["scan_id"].to_list()):  # scans in first-seen order
+
+        def render(sid=sid) -> list:
+            nonlocal recs_of
+            if recs_of is None:  # one conversion: a polars group per scan cost ~0.2 ms each
+                recs_of = {}
+                for r in fnd.to_dicts():
+                    recs_of.setdefault(r["scan_id"], []).append(r)
+            return _finding_row(page, sid, recs_of[sid])
+
+        row, cls = page.piece("findings scan", f"{sid} {keys.get(sid)}", render)
+        rows.append(row)
+        classes.append(cls)
     out.append(
         _table(
             [
@@ -97,6 +73,44 @@ def discrepancy(page: Page) -> str:
         )
     )
     return "".join(out)
+
+
+def _finding_row(page: Page, sid: str | None, recs: list[dict]) -> list:
+    """Return a scan's row of the Discrepancy table (cells) and its class ("fail", "warn" or "")."""
+    first = recs[0]
+    uncertainties = _finding_uncertainties(page, sid, recs)
+    gap = page.link(f"discrepancy/{sid}/gap.png")
+    fj = page.link(f"discrepancy/{sid}/findings.json")
+    links = " ".join(
+        x for x in (_link(gap, "gap.png") if gap else "", _link(fj, "findings.json") if fj else "") if x
+    )
+    verdict = first["verdict"]
+    effects = []
+    for r in recs:
+        if not r.get("effect"):
+            continue
+        where = f" on channel {r['channel']}" if r.get("channel") is not None else ""
+        pars = _parameters_text(
+            r["effect"], r.get("parameters"), uncertainties.get((r["effect"], r.get("channel")), {})
+        )
+        effects.append(f"<b>{_e(r['effect'])}</b>{_e(where)}" + (f": {pars}" if pars else ""))
+    note = _e(first.get("statement") or "") or _verdict_note(
+        verdict, [r["effect"] for r in recs if r.get("effect")]
+    )
+    row = [
+        _e(sid),
+        _e(first.get("night")),
+        f"<b>{_e(verdict)}</b>" + (f"<br>{note}" if note else ""),
+        "<br>".join(effects),
+        _um(first.get("gap_before_mm"), 2),
+        _um(first.get("gap_after_mm"), 2),
+        _um(first.get("noise_floor_mm"), 2),
+        links,
+    ]
+    # flagged for a person only where the gap before stands above the noise floor (floor_ratio)
+    visible = (first.get("gap_before_mm") or 0.0) > _FLOOR_RATIO * (first.get("noise_floor_mm") or 0.0)
+    flag = "fail" if verdict == "missing_effect" else "warn" if verdict == "ambiguous" else ""
+    return [row, flag if visible else ""]
 
 
 def pooled(  # noqa: C901 (one branch per optional column of the report's pooled table)
@@ -255,7 +269,7 @@ def _finding_uncertainties(page: Page, scan_id: str, recs: list[dict] = ()) -> d
         return out
     path = page.root / "discrepancy" / scan_id / "findings.json"
     try:
-        named = json.loads(path.read_text()).get("named") or []
+        named = json.loads(page.read_text(path)).get("named") or []
     except (OSError, ValueError, AttributeError):
         return {}
     return {

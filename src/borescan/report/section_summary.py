@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -9,6 +10,7 @@ import polars as pl
 
 from borescan.decision import CANNOT_DECIDE, DOES_NOT_CONFORM, split_verdict
 from borescan.report.actions import _verdict_note, quarantine_action
+from borescan.report.data import frame_fingerprint, group_fingerprints
 from borescan.report.decisions import drift_items, pooled_items, refused_note
 from borescan.report.page import Page, _EMPTY
 from borescan.report.section_parts import part_rows
@@ -176,7 +178,6 @@ def _night_items(page: Page, night: str, parts: pl.DataFrame | None, quarantined
 def summary(page: Page) -> str:
     """Night by night, newest first: what came in and what needs a person."""
     t = page.t
-    sc = t["scans"]
     parts = part_rows(page) if t["diameters"].height else None
     quarantined = quarantined_scans(page)
     nights = set()
@@ -194,33 +195,17 @@ def summary(page: Page) -> str:
     nights |= {q["night"] for q in quarantined if q["night"]}
     if not nights:
         return '<p class="empty">No nights in the catalog.</p>'
+    keys = _night_keys(page, parts, quarantined)
     rows, classes, details = [], [], []
     for night in sorted(nights, reverse=True):
-        n = _night_items(page, night, parts, quarantined)
-        s_n, v_n, p_n = _of(sc, night), _of(t["verifications"], night), _of(parts, night)
-        kinds = s_n.group_by("kind").len().sort("kind").rows() if s_n.height else []
-        known_tol = p_n is not None and p_n.height and p_n["tolerance_mm"].drop_nulls().len() > 0
-        unexplained = sum(not e for e, _ in n.drifts)
-        rows.append(
-            [
-                f'<a href="#night-{night}">{_e(night)}</a>',
-                str(s_n.height),
-                _e(", ".join(f"{k} {c}" for k, c in kinds)),
-                str(len(n.quarantined)),
-                str(n.made.height),
-                str(n.expired.height),
-                str(n.superseded.height),
-                str(v_n.height - n.failed.height),
-                str(n.failed.height),
-                str(0 if n.out_of_tolerance is None else n.out_of_tolerance.height) if known_tol else "–",
-                str(len(n.undecided)),
-                str(n.person["scan_id"].n_unique() if n.person.height else 0),
-                str(len(n.pooled)),
-                f"{len(n.drifts)}" + (f" ({unexplained} not explained)" if unexplained else ""),
-            ]
+        row, cls, detail = page.piece(
+            "summary night",
+            f"{night} {keys.get(night)}",
+            lambda night=night: _night_piece(page, night, parts, quarantined),
         )
-        classes.append("fail" if n.attention else "")
-        details.append(_night_detail(page, n))
+        rows.append(row)
+        classes.append(cls)
+        details.append(detail)
     head = [
         "night",
         "scans in",
@@ -245,6 +230,72 @@ def summary(page: Page) -> str:
         + "".join(details)
         + _table(head, rows, classes, num_cols=set(range(3, 14)) | {1})
     )
+
+
+#: The tables whose rows of a night the night's summary box and row show (besides ``parts``).
+_NIGHT_SOURCES = (
+    "scans",
+    "verifications",
+    "findings",
+    "calibration_events",
+    "pooled_findings",
+    "calibration_drift",
+    "quarantine",
+)
+
+
+def _night_keys(page: Page, parts: pl.DataFrame | None, quarantined: list[dict]) -> dict[str, str]:
+    """Return night -> digest of every row its summary box and row read.
+
+    The night's rows of each table and of the parts; with its drifts, the page's calibrations
+    valid from that night or before (which device-model effects the night's calibration entered);
+    with its quarantines, the findings of those scans
+    (a refused calibration's verdict is looked up by scan).
+    """
+    t = page.t
+    per: dict[str, list] = {}
+    for name, df in [(n, t.get(n)) for n in _NIGHT_SOURCES] + [("parts", parts)]:
+        for night, fp in group_fingerprints(df, "night").items():
+            per.setdefault(str(night), []).append((name, fp))
+    drift = t.get("calibration_drift")
+    if drift is not None and drift.height:
+        # the device-model effects a night's calibration entered: its calibrations and the earlier ones
+        cal = sorted((str(k), fp) for k, fp in group_fingerprints(t["calibrations"], "valid_from").items())
+        for night in {str(n) for n in drift["night"].to_list()}:
+            per.setdefault(night, []).append(("calibrations", [fp for k, fp in cal if k <= night]))
+    fnd = t["findings"]
+    for night in {q["night"] for q in quarantined if q["night"]}:
+        ids = [q["scan_id"] for q in quarantined if q["night"] == night]
+        mine = fnd.filter(pl.col("scan_id").is_in(ids)) if fnd.height else fnd
+        per.setdefault(night, []).append(("findings of its quarantined scans", frame_fingerprint(mine)))
+    return {night: json.dumps(sorted(v)) for night, v in per.items()}
+
+
+def _night_piece(page: Page, night: str, parts: pl.DataFrame | None, quarantined: list[dict]) -> list:
+    """Return the summary's row of ``night`` (cells), its class and its box (HTML)."""
+    t = page.t
+    n = _night_items(page, night, parts, quarantined)
+    s_n, v_n, p_n = _of(t["scans"], night), _of(t["verifications"], night), _of(parts, night)
+    kinds = s_n.group_by("kind").len().sort("kind").rows() if s_n.height else []
+    known_tol = p_n is not None and p_n.height and p_n["tolerance_mm"].drop_nulls().len() > 0
+    unexplained = sum(not e for e, _ in n.drifts)
+    row = [
+        f'<a href="#night-{night}">{_e(night)}</a>',
+        str(s_n.height),
+        _e(", ".join(f"{k} {c}" for k, c in kinds)),
+        str(len(n.quarantined)),
+        str(n.made.height),
+        str(n.expired.height),
+        str(n.superseded.height),
+        str(v_n.height - n.failed.height),
+        str(n.failed.height),
+        str(0 if n.out_of_tolerance is None else n.out_of_tolerance.height) if known_tol else "–",
+        str(len(n.undecided)),
+        str(n.person["scan_id"].n_unique() if n.person.height else 0),
+        str(len(n.pooled)),
+        f"{len(n.drifts)}" + (f" ({unexplained} not explained)" if unexplained else ""),
+    ]
+    return [row, "fail" if n.attention else "", _night_detail(page, n)]
 
 
 _UNDECIDED_ACTION = (
