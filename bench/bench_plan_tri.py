@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.bench_calibration_contract import SEED, crb_cov
+from bench.bench_calibration_contract import SEED, _compared, crb_cov
 
 N_SCANS = 200
 
@@ -81,23 +81,7 @@ def _compared_u(cov: np.ndarray, c: int, absolute: bool) -> tuple[list[str], np.
     beta_c (absolute) or beta_c - beta_first, then rho_c, then d_b_c (the order of the rows of
     bench_calibration_contract).
     """
-    rows, fam = [], []
-    for j in range(c):
-        if not absolute and j == 0:
-            continue
-        a = np.zeros(3 * c)
-        a[3 * j] = 1.0
-        if not absolute:
-            a[0] = -1.0
-        rows.append(a)
-        fam.append("beta")
-    for k, name in ((1, "rho"), (2, "d_b")):
-        for j in range(c):
-            a = np.zeros(3 * c)
-            a[3 * j + k] = 1.0
-            rows.append(a)
-            fam.append(name)
-    A = np.array(rows)
+    A, fam = _compared(None, None if absolute else 0, c)
     return fam, np.sqrt(np.clip(np.einsum("ij,jk,ik->i", A, cov, A), 0.0, None))
 
 
