@@ -64,22 +64,30 @@ class LayerClass:
     shift_um: float | None
     #: what a channel is called in the verdict's sentence
     where = "layer"
+    #: what absorbs the class, in the sentence and in findings.json
+    absorbed_in_words = "a calibration of l0"
+    absorbed_by = "a calibration of l0_mm of the layer"
     u_shift_um: float | None
     members: list[str] = field(default_factory=list)
     dropped: list[str] = field(default_factory=list)
     nonlinearity: bool = False
 
     @property
+    def advice(self) -> str:
+        """Return what to do about the class."""
+        return f"recalibrate l0 of layer {self.channel} on a certified ring gauge"
+
+    @property
     def sentence(self) -> str:
         """Return the class in words, with what the data fix and the advice."""
         if self.shift_um is not None:
             way = "long" if self.shift_um > 0 else "short"
-            fixed = f"layer {self.channel} reads {abs(self.shift_um):.3g} +- {self.u_shift_um:.2g} um {way}"
+            reads = f"{abs(self.shift_um):.3g} +- {self.u_shift_um:.2g} um {way}"
         else:
-            fixed = f"layer {self.channel} reads off by a constant"
+            reads = "off by a constant"
         out = (
-            f"{fixed}: offset-like ({', '.join(self.members)}), absorbed by a calibration of l0; "
-            f"recalibrate l0 of layer {self.channel} on a certified ring gauge"
+            f"{self.where} {self.channel} reads {reads}: offset-like ({', '.join(self.members)}), "
+            f"absorbed by {self.absorbed_in_words}; {self.advice}"
         )
         if self.nonlinearity:
             out += f"; a bow of sensor {self.channel} (sensor_nonlinearity) fits as well and is not resolved"
@@ -101,8 +109,8 @@ class LayerClass:
             "members": self.members,
             "dropped_for_sign": self.dropped,
             "nonlinearity_also_fits": self.nonlinearity,
-            "absorbed_by": "a calibration of l0_mm of the layer",
-            "advice": f"recalibrate l0 of layer {self.channel} on a certified ring gauge",
+            "absorbed_by": self.absorbed_by,
+            "advice": self.advice,
             "statement": self.sentence,
         }
 
@@ -158,31 +166,13 @@ class ChannelClass(LayerClass):
     """The offset-like class of one channel of a spindle scan examined against its calibration."""
 
     where = "channel"
+    absorbed_in_words = "a calibration of its d_b"
+    absorbed_by = "a calibration of d_b_mm of the channel"
 
     @property
-    def sentence(self) -> str:
-        """Return the class in words, with what the data fix and the advice."""
-        if self.shift_um is not None:
-            way = "long" if self.shift_um > 0 else "short"
-            fixed = f"channel {self.channel} reads {abs(self.shift_um):.3g} +- {self.u_shift_um:.2g} um {way}"
-        else:
-            fixed = f"channel {self.channel} reads off by a constant"
-        out = (
-            f"{fixed}: offset-like ({', '.join(self.members)}), absorbed by a calibration of its d_b; "
-            f"recalibrate the device on the ring gauge (d_b of channel {self.channel})"
-        )
-        if self.nonlinearity:
-            out += f"; a bow of sensor {self.channel} (sensor_nonlinearity) fits as well and is not resolved"
-        return out
-
-    def to_dict(self) -> dict:
-        """Return the JSON-ready form (findings.json ``classes``)."""
-        return {
-            **super().to_dict(),
-            "absorbed_by": "a calibration of d_b_mm of the channel",
-            "advice": f"recalibrate the device on the ring gauge (d_b of channel {self.channel})",
-            "statement": self.sentence,
-        }
+    def advice(self) -> str:
+        """Return what to do about the class."""
+        return f"recalibrate the device on the ring gauge (d_b of channel {self.channel})"
 
 
 def spindle_classes(named: list[dict]) -> tuple[list[dict], list[ChannelClass]]:
