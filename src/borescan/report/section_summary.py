@@ -175,20 +175,24 @@ def _night_items(page: Page, night: str, parts: pl.DataFrame | None, quarantined
     )
 
 
+#: The catalog tables whose nights the summary lists (the quarantined scans' nights come with them).
+_NIGHT_TABLES = (
+    "scans",
+    "verifications",
+    "findings",
+    "calibration_events",
+    "pooled_findings",
+    "calibration_drift",
+)
+
+
 def summary(page: Page) -> str:
     """Night by night, newest first: what came in and what needs a person."""
     t = page.t
     parts = part_rows(page) if t["diameters"].height else None
     quarantined = quarantined_scans(page)
     nights = set()
-    for name in (
-        "scans",
-        "verifications",
-        "findings",
-        "calibration_events",
-        "pooled_findings",
-        "calibration_drift",
-    ):
+    for name in _NIGHT_TABLES:
         df = t.get(name)
         if df is not None and df.height and "night" in df.columns:
             nights |= {str(n) for n in df["night"].drop_nulls().to_list()}
@@ -233,15 +237,7 @@ def summary(page: Page) -> str:
 
 
 #: The tables whose rows of a night the night's summary box and row show (besides ``parts``).
-_NIGHT_SOURCES = (
-    "scans",
-    "verifications",
-    "findings",
-    "calibration_events",
-    "pooled_findings",
-    "calibration_drift",
-    "quarantine",
-)
+_NIGHT_SOURCES = (*_NIGHT_TABLES, "quarantine")
 
 
 def _night_keys(page: Page, parts: pl.DataFrame | None, quarantined: list[dict]) -> dict[str, str]:
