@@ -180,10 +180,14 @@ def samples_to_resolve(
     return float(2.0 * k * sigma_mm**2 * radius_mm**4 / (rho_mm**2 * offset_mm**4))
 
 
-def predict(device: DeviceDesign, radius_mm: float, scan: ScanDesign) -> PlanPrediction:
+def predict(
+    device: DeviceDesign, radius_mm: float, scan: ScanDesign, offset_limit_mm: float | None = None
+) -> PlanPrediction:
     """Return the Cramer-Rao bound of every calibrated parameter and each beam's mirror for ``scan``.
 
-    On a gauge of radius ``radius_mm`` (module doc).
+    On a gauge of radius ``radius_mm`` (module doc). ``offset_limit_mm``: :func:`largest_offset_mm` of this
+    device and gauge when the caller already has it (it depends on neither the offset nor the revolutions);
+    computed here when None.
 
     Returns
     -------
@@ -261,7 +265,7 @@ def predict(device: DeviceDesign, radius_mm: float, scan: ScanDesign) -> PlanPre
         rho_mm=tuple(float(r) for r in beams.rho_mm),
         noise_mm=tuple(float(x) for x in sig),
         radius_mm=float(radius_mm),
-        offset_limit_mm=largest_offset_mm(device, radius_mm),
+        offset_limit_mm=largest_offset_mm(device, radius_mm) if offset_limit_mm is None else offset_limit_mm,
         cov=cov,
     )
 
@@ -286,9 +290,12 @@ def recommend(
     sensor's range. Smallest: fewest revolutions, then the smallest offset (candidates ``revolutions`` x
     ``offsets_mm``). None when none does.
     """
+    limit_mm = largest_offset_mm(device, radius_mm)
     for rev in sorted(revolutions):
         for off in sorted(offsets_mm):
-            p = predict(device, radius_mm, replace(base, revolutions=float(rev), offset_mm=float(off)))
+            p = predict(
+                device, radius_mm, replace(base, revolutions=float(rev), offset_mm=float(off)), limit_mm
+            )
             if _meets(p, target_u_beta_rad):
                 return p
     return None

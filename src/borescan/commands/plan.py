@@ -187,7 +187,7 @@ def _print(p, title: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """Print the proposed scan's predicted uncertainties (or a recommended scan); return the exit status."""
     from borescan.config import schema_defaults
-    from borescan.plan import ScanDesign, predict, recommend
+    from borescan.plan import ScanDesign, largest_offset_mm, predict, recommend
 
     if args.rod_scan is not None:
         return _run_rod(args)
@@ -220,8 +220,9 @@ def run(args: argparse.Namespace) -> int:
         )
         from dataclasses import replace
 
+        limit_mm = largest_offset_mm(device, R)
         cands = [
-            predict(device, R, replace(scan, revolutions=float(r), offset_mm=float(o)))
+            predict(device, R, replace(scan, revolutions=float(r), offset_mm=float(o)), limit_mm)
             for r in args.revolutions_grid
             for o in args.offsets_mm
         ]
