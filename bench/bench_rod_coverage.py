@@ -251,9 +251,9 @@ def run_chain(job) -> dict:
                     "channel": lay.channel,
                     "l0_mm": lay.l0_mm,
                     "h_mm": lay.h_mm,
-                    "phi_rad": 0.0,
-                    "d_mm": 0.0,
-                    "gamma_rad": 0.0,
+                    "phi_rad": lay.phi_rad,
+                    "d_mm": lay.d_mm,
+                    "gamma_rad": lay.gamma_rad,
                     "calibration_json": blob,
                 }
                 for lay in layers
