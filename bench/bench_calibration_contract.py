@@ -180,6 +180,48 @@ def crb_cov(  # noqa: C901 (one block per parameter kind of the CRB's Jacobian)
     return out
 
 
+def crb_compared(scene, scan, cal, ct: dict, A: np.ndarray, families: list[str]) -> np.ndarray:
+    """Return the Cramer-Rao u of the compared quantities ``A`` at the point ``scene``, in ``cal``'s gauge.
+
+    :func:`crb_cov` on the readings written, the nuisance the calibration frees (phase where it frees it,
+    the speed scale without an encoder), the prior on o the scenario draws; for d_b plus the second-order
+    term 3 CRB(rho)^4 / (4 R^2) of d_b = g - rho^2 / (2R) (module doc). ``scene`` is the truth for the
+    bench's bound; :mod:`bench.bench_calibration_band` passes the fit's beams to get the bound at the fit.
+    """
+    from borescan import rawio
+    from borescan.artifacts import gauge_radius_mm
+
+    c = len(scene.beams.channels)
+    f = fixed_channel(cal.diagnostics.get("beta_reference", "absolute"), cal.beams.channels)
+    mat = rawio.lds_matrix(scan)
+    t_s = np.asarray(mat.t_s, dtype=float)
+    mask = np.isfinite(np.asarray(mat.values_mm, dtype=float))
+    nu = cal.nuisance.get(scan.scan_id, {})
+    encoder = ct["angle_source"] == "encoder"
+    prior = ct["position_error_mm"] * math.sqrt(2.0 / 3.0) if ct["position_known"] else None
+    crb = crb_cov(
+        scene,
+        t_s,
+        mask,
+        ct["noise_mm"],
+        free_beta=[f is None or j != f for j in range(c)],
+        free_phase=bool(nu.get("phase_free", (not encoder) and ct["position_known"])),
+        free_scale=not encoder,
+        prior_sigma_mm=prior,
+    )
+    var_crb = np.einsum("ij,jk,ik->i", A, crb, A)
+    # d_b = g - rho^2 / (2R) from an efficient (g, rho): its mean square error carries the second-order
+    # term 3 u(rho)^4 / (4 R^2) (rho_hat^2 has mean rho^2 + u^2 and variance 4 rho^2 u^2 + 2 u^4), which
+    # no estimator of d_b avoids where rho is weak (at rho = 0 the CRB of d_b is u(g)'s)
+    rho_var = np.diag(crb)[1::3]
+    R = gauge_radius_mm(scan.meta)
+    for k, fm in enumerate(families):
+        if fm == "d_b":
+            j = int(np.argmax(A[k, 2::3]))
+            var_crb[k] += 3.0 * rho_var[j] ** 2 / (4.0 * R**2)
+    return np.sqrt(np.clip(var_crb, 0.0, None))
+
+
 def fitted_readings(cal, scan, t_s: np.ndarray, R_mm: float) -> np.ndarray:
     """Return the readings (n, c) of the accepted fit.
 
@@ -302,30 +344,8 @@ def evaluate_scan_with_calibration(job: tuple):  # noqa: C901 (one block per fig
     t_s = np.asarray(mat.t_s, dtype=float)
     y = np.asarray(mat.values_mm, dtype=float)
     mask = np.isfinite(y)
-    nu = cal.nuisance.get(scan.scan_id, {})
-    encoder = ct["angle_source"] == "encoder"
-    prior = ct["position_error_mm"] * math.sqrt(2.0 / 3.0) if ct["position_known"] else None
     try:
-        crb = crb_cov(
-            scene,
-            t_s,
-            mask,
-            ct["noise_mm"],
-            free_beta=[f is None or j != f for j in range(c)],
-            free_phase=bool(nu.get("phase_free", (not encoder) and ct["position_known"])),
-            free_scale=not encoder,
-            prior_sigma_mm=prior,
-        )
-        var_crb = np.einsum("ij,jk,ik->i", A, crb, A)
-        # d_b = g - rho^2 / (2R) from an efficient (g, rho): its mean square error carries the second-order
-        # term 3 u(rho)^4 / (4 R^2) (rho_hat^2 has mean rho^2 + u^2 and variance 4 rho^2 u^2 + 2 u^4), which
-        # no estimator of d_b avoids where rho is weak (at rho = 0 the CRB of d_b is u(g)'s)
-        rho_var = np.diag(crb)[1::3]
-        for k, fm in enumerate(fam):
-            if fm == "d_b":
-                j = int(np.argmax(A[k, 2::3]))
-                var_crb[k] += 3.0 * rho_var[j] ** 2 / (4.0 * gauge_radius_mm(scan.meta) ** 2)
-        row["u_crb"] = np.sqrt(np.clip(var_crb, 0.0, None)).tolist()
+        row["u_crb"] = crb_compared(scene, scan, cal, ct, A, fam).tolist()
     except np.linalg.LinAlgError as e:
         row["u_crb"] = None
         row["crb_error"] = str(e)
