@@ -141,6 +141,55 @@ def test_one_rule_says_whether_the_scan_determines_the_sign():
     assert "not determined by this scan" in cases[4][0].statement()
 
 
+def test_the_fix_respects_the_sensors_range():
+    """The advice names the offset X only where the range allows it; else the samples that would resolve the
+    sign at the largest allowed offset (Eq. (1) at 25 there), or the offsets at which no mirror exists.
+    """
+    from borescan.plan import samples_to_resolve
+
+    L, sigma, n, rho = 500.0, 0.004, 4000.0, 8.0
+    x = offset_to_resolve_mm(L, sigma, n, rho)  # 3.74 mm
+    alt = MirrorSolution((0.0,) * 9, tuple((0.0,) * 9 for _ in range(9)), 4.0, 0.1)
+
+    def beam(limit, rho_mm=rho):
+        n_fix = samples_to_resolve(L, sigma, limit, rho_mm) if limit is not None else None
+        return BeamMirror(
+            1,
+            rho_mm,
+            1.0,
+            True,
+            4.0,
+            4.0,
+            False,
+            0.9,
+            0.1,
+            x,
+            alt,
+            -rho_mm,
+            (900.0, 1100.0),
+            offset_limit_mm=limit,
+            samples_to_resolve=n_fix,
+        )
+
+    assert (
+        beam(None).fix() == f"a spindle offset of at least {x:.2f} mm from the gauge centre would resolve it"
+    )
+    inside = beam(5.0)
+    assert f"at least {x:.2f} mm" in inside.fix() and "allows up to 5.00 mm" in inside.fix()
+    short = beam(2.5)  # 5 mm sensors at mid-range: the offset X is out of reach
+    n_fix = short.samples_to_resolve
+    assert predicted_depth([n_fix], [2.5], rho, [sigma], L) == pytest.approx(RESOLVED_DCHI2, rel=1e-12)
+    text = short.fix()
+    assert text.startswith("no spindle offset the sensors' range allows resolves it")
+    assert f"needs {x:.2f} mm and the range allows 2.50 mm" in text
+    assert f"take {math.ceil(n_fix)} samples per channel" in text and "longer-range sensor" in text
+    assert text in short.statement()
+    assert BeamMirror.from_dict(short.to_dict()) == short
+    # a beam with |rho| <= sqrt(2) e at the largest offset has no mirror there: the advice is that band
+    small = beam(2.5, rho_mm=3.0)
+    assert small.fix().startswith(f"a spindle offset between {3.0 / math.sqrt(2.0):.2f} and 2.50 mm")
+
+
 @pytest.fixture(scope="module")
 def flagged_fit():
     """Commanded angle, no positions, 5 revolutions of 660 samples, sigma 2 um, e = 1 mm: beam 1 (rho 20 mm,
@@ -293,6 +342,21 @@ def test_a_bore_outside_the_valid_range_is_refused_with_the_reason(flagged_fit):
     why = refusal("S1", cal.calibration_id, 0.5 * lo, checks)
     assert why.startswith(f"S1: bore diameter {0.5 * lo:.3f} mm outside {lo:.1f} mm to ")
     assert "the sign of rho of channel 2 is not determined by its scan" in why
+
+
+def test_a_flagged_beam_carries_the_offset_the_range_allows(flagged_fit):
+    """The calibration gives an undetermined beam the largest offset its fitted beams and the sensors' range
+    allow (:func:`borescan.plan.largest_offset_mm`, computed here independently), and its statement the fix.
+    """
+    from borescan.plan import DeviceDesign, largest_offset_mm
+
+    _, cal = flagged_fit
+    m1, m2, m3 = mirror_checks_of(cal.diagnostics)
+    assert m1.offset_limit_mm is None and m3.offset_limit_mm is None  # determined: nothing to advise
+    device = DeviceDesign(cal.beams, (0.002,) * 3, (20.0,) * 3)
+    assert m2.offset_limit_mm == pytest.approx(largest_offset_mm(device, R_MM), abs=1e-6)
+    assert m2.offset_to_resolve_mm < m2.offset_limit_mm  # 20 mm sensors: the offset X is allowed
+    assert m2.fix() in m2.statement() and f"allows up to {m2.offset_limit_mm:.2f} mm" in m2.statement()
 
 
 def test_calibration_rows_carry_each_beams_mirror_check(flagged_fit):

@@ -190,7 +190,10 @@ class BeamMirror:
     ``refitted``: whether the refit from -rho was made (issue 38: not where no mirror is possible or where
     the predicted depth and ``start_delta_chi2``, the cost at the unrefitted mirror start, which the refit
     could only lower, are both far above the threshold,
-    :data:`borescan.calibrate.mirror_search.MIRROR_CLEAR_DCHI2`).
+    :data:`borescan.calibrate.mirror_search.MIRROR_CLEAR_DCHI2`). Where the sign is not determined,
+    ``offset_limit_mm`` is the largest offset the sensors' range allows at this gauge
+    (:func:`borescan.plan.largest_offset_mm`) and ``samples_to_resolve`` the samples per channel that
+    would resolve it at that offset (:func:`borescan.plan.samples_to_resolve`); :meth:`fix` says which.
     """
 
     channel: int
@@ -208,6 +211,8 @@ class BeamMirror:
     valid_bore_diameter_mm: tuple[float, float] | None = None
     refitted: bool = True
     start_delta_chi2: float | None = None
+    offset_limit_mm: float | None = None
+    samples_to_resolve: float | None = None
 
     @property
     def one_valley(self) -> bool:
@@ -276,6 +281,39 @@ class BeamMirror:
             valid_bore_diameter_mm=None if vb is None else (f(vb[0]), f(vb[1])),
             refitted=bool(d.get("refitted", True)),
             start_delta_chi2=None if d.get("start_delta_chi2") is None else f(d["start_delta_chi2"]),
+            offset_limit_mm=None if d.get("offset_limit_mm") is None else f(d["offset_limit_mm"]),
+            samples_to_resolve=None if d.get("samples_to_resolve") is None else f(d["samples_to_resolve"]),
+        )
+
+    def fix(self) -> str:
+        """Return what would resolve the sign, within the sensors' range (``borescan plan``'s rule).
+
+        The offset X that puts the mirror at delta chi^2 = 25 where the range allows it (or the offsets
+        at which no mirror exists, |rho| <= sqrt(2) e); where no allowed offset resolves it, the samples
+        per channel that would at the largest allowed offset, or a longer-range sensor.
+        """
+        x, lim = self.offset_to_resolve_mm, self.offset_limit_mm
+        if lim is None or not math.isfinite(lim):
+            return f"a spindle offset of at least {x:.2f} mm from the gauge centre would resolve it"
+        if x <= lim:
+            return (
+                f"a spindle offset of at least {x:.2f} mm from the gauge centre would resolve it "
+                f"(the sensors' range allows up to {lim:.2f} mm)"
+            )
+        if not mirror_exists(self.rho_mm, lim):
+            return (
+                f"a spindle offset between {abs(self.rho_mm) / math.sqrt(2.0):.2f} and {lim:.2f} mm from the "
+                "gauge centre (the most the sensors' range allows) would resolve it: there no mirror exists"
+            )
+        n = self.samples_to_resolve
+        take = (
+            f"{math.ceil(n)} samples per channel at that offset (more revolutions or samples per revolution)"
+            if n is not None and math.isfinite(n)
+            else "more samples"
+        )
+        return (
+            f"no spindle offset the sensors' range allows resolves it: it needs {x:.2f} mm and the range "
+            f"allows {lim:.2f} mm; take {take} or a longer-range sensor"
         )
 
     def statement(self) -> str:
@@ -285,8 +323,7 @@ class BeamMirror:
                 f"the sign of rho of channel {self.channel} is not determined by this scan: one valley "
                 f"through both signs (mirror predicted {self.predicted_delta_chi2:.1f} chi^2 above, the "
                 f"refit from -rho found no separate minimum); rho = {self.rho_mm:+.4f} mm with u spanning "
-                f"both signs; a spindle offset of at least {self.offset_to_resolve_mm:.2f} mm from the "
-                "gauge centre would resolve it"
+                f"both signs; {self.fix()}"
             )
         if self.resolved:
             if self.refit_delta_chi2 is not None:
@@ -305,8 +342,7 @@ class BeamMirror:
             f"rho = {self.rho_mm:+.4f} mm (weight {self.weight_main:.3f}) and "
             f"{self.rho_alt_mm if self.rho_alt_mm is not None else float('nan'):+.4f} mm "
             f"(delta chi^2 {self.refit_delta_chi2:.2f}, weight {self.p_wrong_sign:.3f} = probability of the "
-            f"wrong sign); use for bores of diameter {lo:.1f} mm to {hi_s}; a spindle offset of at least "
-            f"{self.offset_to_resolve_mm:.2f} mm from the gauge centre would resolve it"
+            f"wrong sign); use for bores of diameter {lo:.1f} mm to {hi_s}; {self.fix()}"
         )
 
 
@@ -446,7 +482,6 @@ def refusal(
                 f"calibration {calibration_id} may be used: the sign of rho of channel {m.channel} is not "
                 "determined by its scan (probability of the wrong "
                 f"sign {m.p_wrong_sign:.3f}), and away from the "
-                f"gauge its two solutions place the wall points apart; recalibrate with the spindle at least "
-                f"{m.offset_to_resolve_mm:.2f} mm from the gauge centre"
+                f"gauge its two solutions place the wall points apart; to recalibrate: {m.fix()}"
             )
     return None

@@ -13,7 +13,7 @@ the triage costs one evaluation of the residuals a beam). Each beam's check
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -321,4 +321,33 @@ def mirror_checks(pb: FullProblem, sol, s2: float, search: MirrorSearch, cov_fre
         out.append(
             BeamMirror(**common, refit_delta_chi2=d_chi2, resolved=True, weight_main=1.0, p_wrong_sign=0.0)
         )
+    return _with_range_limit(pb, sol.x, out)
+
+
+def _with_range_limit(pb: FullProblem, x: np.ndarray, checks: list[BeamMirror]) -> list[BeamMirror]:
+    """Give each beam whose sign is not determined the largest offset the sensors' range allows.
+
+    :func:`borescan.plan.largest_offset_mm` of the fitted beams with the sensors' ranges on this gauge,
+    and the samples per channel that would resolve the beam at that offset
+    (:func:`borescan.plan.samples_to_resolve`): what :meth:`borescan.mirror.BeamMirror.fix` advises.
+    Computed only where some sign is not determined.
+    """
+    if all(m.sign_determined for m in checks):
+        return checks
+    from borescan.plan import DeviceDesign, largest_offset_mm, samples_to_resolve
+
+    beams = pb.unpack(x)[0]
+    sig = np.asarray(pb.floors, float).max(axis=0)
+    limit = largest_offset_mm(
+        DeviceDesign(beams, tuple(float(v) for v in sig), tuple(float(v) for v in pb.range_mm)), pb.R_mm
+    )
+    out = []
+    for j, m in enumerate(checks):
+        if m.sign_determined:
+            out.append(m)
+            continue
+        n_k = np.array([int(mk[:, j].sum()) for mk in pb.masks])
+        sigma = float(np.sqrt(np.sum(n_k * np.asarray(pb.floors, float)[:, j] ** 2) / max(n_k.sum(), 1)))
+        n_fix = samples_to_resolve(pb.R_mm, sigma, limit, m.rho_mm) if limit > 0 else float("inf")
+        out.append(replace(m, offset_limit_mm=float(limit), samples_to_resolve=float(n_fix)))
     return out
