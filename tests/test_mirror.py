@@ -398,6 +398,7 @@ def test_report_lists_a_flagged_beam_with_what_to_do(flagged_fit):
     m2 = mirror_checks_of(cal.diagnostics)[1]
     assert html.count("<li>") == 1 and "the sign of rho of channel 2 is not determined by its scan" in html
     assert f"at least {m2.offset_to_resolve_mm:.2f} mm from the gauge centre" in html
+    assert f"the sensors&#x27; range allows up to {m2.offset_limit_mm:.2f} mm" in html  # the fix, escaped
 
 
 @pytest.mark.parametrize("where", ["gauge", "beyond"])

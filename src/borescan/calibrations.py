@@ -245,6 +245,8 @@ def _mirror_columns(m) -> dict:
         "valid_bore_min_mm": lo,
         "valid_bore_max_mm": hi if hi is not None and math.isfinite(hi) else None,
         "offset_to_resolve_mm": m.offset_to_resolve_mm if math.isfinite(m.offset_to_resolve_mm) else None,
+        # what would resolve an undetermined sign within the sensors' range (BeamMirror.fix)
+        "rho_sign_fix": None if m.sign_determined else m.fix(),
     }
 
 

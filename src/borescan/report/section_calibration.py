@@ -274,8 +274,12 @@ def _rho_sign_notes(cal: pl.DataFrame) -> str:
             f"determined by its scan (two solutions, probability of the wrong sign "
             f"{r['p_wrong_sign']:.3f}, the mirror {r['mirror_delta_chi2']:.2f} in chi² above); diameters "
             f"carry both solutions and are measured only for bores of {rng}"
-            f'<br><span class="action">what to do: recalibrate with the spindle at least '
-            f"{'n/a' if fix is None else f'{fix:.2f}'} mm from the gauge centre (borescan plan predicts "
-            "the scan)</span></li>"
+            f'<br><span class="action">what to do: recalibrate: '
+            + (
+                _e(r["rho_sign_fix"])
+                if r.get("rho_sign_fix")
+                else f"the spindle at least {'n/a' if fix is None else f'{fix:.2f}'} mm from the gauge centre"
+            )
+            + " (borescan plan predicts the scan)</span></li>"
         )
     return f'<ul class="notes">{"".join(items)}</ul>' if items else ""
