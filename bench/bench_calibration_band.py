@@ -19,7 +19,15 @@ out-of-band quantities u / crb_fit (is the stated u the fit's own bound?) and cr
 the information move between the fit and the truth?); and the issue's hypothesis for weak rho, that
 crb_fit / crb_truth - 1 follows about 2 z / sqrt(depth).
 
-Run: ``python -m bench.bench_calibration_band --n 200 --workers 2 [--battery /tmp/pb200] [--rows OUT]``.
+``--weak-anchor-mc N``: instead, N noise draws of one scene with a weak anchor (two strong beams, rho 12 and
+-9 mm, and rho_3 = 0.6 mm with u(rho_3) about 1.9 mm; commanded angle, no positions, 5 revolutions of 660
+samples, sigma 8 um, e = 2 mm on a 137.5 mm gauge, the scene of ``tests/test_calibration_shared_mode.py``),
+each calibrated (``fit_full_calibration``): for the strong beams' rho and d_b, the spread of the errors over
+the bound at the truth (:func:`borescan.plan.predict`), the stated u's z SD and coverage, u / CRB(truth) and
+u / CRB(fit) in [0.9, 1.2], and the coverage a u equal to the truth's bound would have.
+
+Run: ``python -m bench.bench_calibration_band --n 200 --workers 2 [--battery /tmp/pb200] [--rows OUT]``;
+``python -m bench.bench_calibration_band --weak-anchor-mc 200 --workers 2``.
 """
 
 from __future__ import annotations
@@ -272,6 +280,93 @@ def print_tables(recs: list[dict]) -> dict:  # noqa: C901 (one block per split o
     return {"share": _share(recs), "share_fit": _share(recs, "crb_fit"), "out": len(out)}
 
 
+#: the weak-anchor scene of ``--weak-anchor-mc`` (module doc)
+MC_RADIUS_MM, MC_OFFSET_MM, MC_SIGMA_MM = 137.5, 2.0, 0.008
+MC_RHO_MM = (12.0, -9.0, 0.6)
+MC_SEED = 100
+
+
+def _mc_scene():
+    from borescan.geometry import Beams
+    from borescan.synthetic import scenes
+
+    beams = Beams((1, 2, 3), np.array([0.3, 2.4, 4.3]), np.array(MC_RHO_MM), np.array([128.0, 129.0, 130.0]))
+    return scenes.TriScene(
+        beams=beams,
+        bore_center_xy_mm=(0.0, 0.0),
+        bore_radius_20_mm=MC_RADIUS_MM,
+        spindle_xy_mm=(MC_OFFSET_MM, 0.0),
+        sample_rate_hz=660.0,
+        range_mm=(20.0, 20.0, 20.0),
+    )
+
+
+def _mc_bound(beams):
+    """Return (u_rho, u_d_b) per channel of :func:`borescan.plan.predict` for the MC scan at ``beams``."""
+    from borescan.plan import DeviceDesign, ScanDesign, predict
+
+    scan = ScanDesign(
+        offset_mm=MC_OFFSET_MM,
+        revolutions=5,
+        samples_per_rev=660,
+        rpm=(60.0,),
+        encoder=False,
+        positions_known=False,
+    )
+    p = predict(DeviceDesign(beams, (MC_SIGMA_MM,) * 3, (20.0,) * 3), MC_RADIUS_MM, scan)
+    return np.array(p.u_rho_mm), np.array(p.u_d_b_mm)
+
+
+def mc_draw(seed: int) -> dict:
+    """Calibrate one noise draw of the weak-anchor scene; return errors, stated u and the bound at the fit."""
+    from borescan.calibrate.full_fit import fit_full_calibration
+    from borescan.synthetic import scenes
+
+    sc = _mc_scene()
+    t = np.arange(3300) / 660.0
+    y = scenes.tri_readings(sc, t) + MC_SIGMA_MM * np.random.default_rng(seed).standard_normal((t.size, 3))
+    cal = fit_full_calibration(
+        t, y, (1, 2, 3), sc.beams, MC_RADIUS_MM, rpm=60.0, range_mm=20.0, scan_ids=["MC"]
+    )
+    true_p = np.stack([sc.beams.beta_rad, sc.beams.rho_mm, sc.beams.d_b_mm], axis=1).ravel()
+    u_rho, u_db = _mc_bound(cal.beams)
+    return {
+        "err": (cal.params - true_p).tolist(),
+        "u": np.sqrt(np.diag(cal.cov)).tolist(),
+        "rho3_mm": float(cal.beams.rho_mm[2]),
+        "crb_fit_rho": u_rho.tolist(),
+        "crb_fit_db": u_db.tolist(),
+    }
+
+
+def weak_anchor_mc(draws: int, workers: int) -> None:
+    """Print the weak-anchor Monte Carlo's figures (module doc)."""
+    sc = _mc_scene()
+    ct_rho, ct_db = _mc_bound(sc.beams)
+    d = list(map_in_order(mc_draw, range(MC_SEED, MC_SEED + draws), workers))
+    err, u = np.array([x["err"] for x in d]), np.array([x["u"] for x in d])
+    r3 = np.array([x["rho3_mm"] for x in d])
+    print(
+        f"weak-anchor scene, {draws} draws: rho_3 true {MC_RHO_MM[2]} mm, CRB {ct_rho[2]:.2f} mm, "
+        f"fitted 5/50/95 % {np.percentile(r3, 5):.2f} / {np.median(r3):.2f} / {np.percentile(r3, 95):.2f} mm"
+    )
+    for j in (0, 1):
+        for k, fam, ct, cf in (
+            (3 * j + 1, "rho", ct_rho[j], np.array([x["crb_fit_rho"][j] for x in d])),
+            (3 * j + 2, "d_b", ct_db[j], np.array([x["crb_fit_db"][j] for x in d])),
+        ):
+            e, uu = err[:, k], u[:, k]
+            z, rt, rf = e / uu, uu / ct, uu / cf
+            print(
+                f"  channel {j + 1} {fam}: errors SD / CRB(truth) {e.std() / ct:.3f}; stated u: z SD "
+                f"{z.std():.3f}, cover95 {np.mean(np.abs(z) <= 1.959964):.1%}; u / CRB(truth) 5/50/95 % "
+                f"{np.percentile(rt, 5):.2f} / {np.median(rt):.2f} / {np.percentile(rt, 95):.2f}, "
+                f"in [0.9, 1.2] {np.mean((rt >= 0.9) & (rt <= 1.2)):.1%}; u / CRB(fit) in [0.9, 1.2] "
+                f"{np.mean((rf >= 0.9) & (rf <= 1.2)):.1%}; a u = CRB(truth) would cover "
+                f"{np.mean(np.abs(e / ct) <= 1.959964):.1%}"
+            )
+
+
 def main(argv: list[str] | None = None) -> None:
     """Calibrate the battery and print the band's splits (options: ``--help``)."""
     from borescan.synthetic import battery
@@ -286,7 +381,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--only", type=str, default=None, metavar="I,J,...")
     p.add_argument("--rows", type=Path, default=None, help="write the records here (JSON lines)")
     p.add_argument("--from-rows", type=Path, default=None, help="print the tables of records written before")
+    p.add_argument(
+        "--weak-anchor-mc", type=int, default=None, metavar="N", help="the weak-anchor Monte Carlo"
+    )
     args = p.parse_args([] if argv is None else argv)
+    if args.weak_anchor_mc is not None:
+        weak_anchor_mc(args.weak_anchor_mc, args.workers or min(2, os.cpu_count() or 1))
+        return
     if args.from_rows is not None:
         print_tables([json.loads(s) for s in args.from_rows.read_text().splitlines() if s.strip()])
         return
