@@ -280,6 +280,6 @@ def _rho_sign_notes(cal: pl.DataFrame) -> str:
                 if r.get("rho_sign_fix")
                 else f"the spindle at least {'n/a' if fix is None else f'{fix:.2f}'} mm from the gauge centre"
             )
-            + " (borescan plan predicts the scan)</span></li>"
+            + "; borescan plan predicts the scan</span></li>"
         )
     return f'<ul class="notes">{"".join(items)}</ul>' if items else ""
