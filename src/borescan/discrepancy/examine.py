@@ -27,15 +27,7 @@ from borescan.discrepancy.fitting import FitResult
 from borescan.discrepancy.judge import Rejection, explanation, judge, plausible_ranges
 from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays
 from borescan.discrepancy.tri_starts import mirrored_rho_starts
-from borescan.discrepancy.search import (
-    FIRST_BASE_MAX_NFEV,
-    Candidate,
-    Fitter,
-    Search,
-    jacobian_columns,
-    rms,
-    search_candidates,
-)
+from borescan.discrepancy.search import Candidate, Fitter, Search, jacobian_columns, rms, search_candidates
 from borescan.discrepancy.tri import Term, TriData, TriModel, tri_data_from_arrays
 from borescan.effects import EFFECTS
 
@@ -246,7 +238,7 @@ def examine_model(model, **cfg) -> Examination:
     data = model.data
     fitter = Fitter(model)
     start0 = model.base_start()
-    base = fitter([], {n: start0.get(n, 0.0) for n in fitter.base_names}, FIRST_BASE_MAX_NFEV)
+    base = fitter([], {n: start0.get(n, 0.0) for n in fitter.base_names})
     if base is None:
         raise ValueError(f"{data.scan_id}: the base model does not reach the data (beams miss the bore)")
     fitter.fallback.update(base.values())

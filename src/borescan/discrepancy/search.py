@@ -19,8 +19,6 @@ from borescan.discrepancy.fitting import FitResult, fit_least_squares, residual_
 from borescan.discrepancy.tri import Term
 
 __all__ = [
-    "BASE_MAX_NFEV",
-    "FIRST_BASE_MAX_NFEV",
     "BaseProjection",
     "Candidate",
     "Fitter",
@@ -149,12 +147,6 @@ def _fitted(t: Term) -> tuple[list[str], list[float]]:
 #: eccentricity (battery calibration 201 of seed 1: stopped at 60 its RSS was 35 % above the converged
 #: one, and every candidate "gained" ~4800 in BIC by finishing the base's own fit)
 BASE_MAX_NFEV = 300
-#: evaluation cap of an examination's first base fit, made before the channels are weighted: it feeds
-#: only the model-free noise floors (fourth differences) and the outlier search (residual minus its running
-#: median), which a smooth misfit does not change; the weighted base fit that follows continues from it with
-#: :data:`BASE_MAX_NFEV` (two base fits of 300 evaluations each were 1.7 s of 4.3 s CPU on battery
-#: calibration 264 of seed 2, an axis tilt at z 150 the free beams try to absorb)
-FIRST_BASE_MAX_NFEV = 60
 
 
 class Fitter:
@@ -172,9 +164,7 @@ class Fitter:
         #: budgets, and a restart there doubled the cost of fits that were not in such a valley)
         self.flat_valley = bool(getattr(model, "free_beams", ()))
 
-    def __call__(
-        self, terms: list[Term], start: dict[str, float], base_max_nfev: int | None = None
-    ) -> FitResult | None:
+    def __call__(self, terms: list[Term], start: dict[str, float]) -> FitResult | None:
         """Fit base + terms from ``start``; None when the model cannot be fitted.
 
         If the model is undefined there (a ray missing the bore), from the base fit with zero effects;
@@ -183,12 +173,10 @@ class Fitter:
         evaluation cap is fitted again with the base parameters at the base model's own start (the terms'
         values kept), the lower RSS kept: a base fit that absorbed a large missing effect moves the beams
         far out (offsets 12 mm out to mimic an axis tilt's ellipse), from where the term's fit may stop at
-        its cap, while from the base's start it lands in a few (:func:`_restart`). ``base_max_nfev``: a
-        lower cap of a base fit (an examination's first, unweighted one: :data:`FIRST_BASE_MAX_NFEV`).
+        its cap, while from the base's start it lands in a few (:func:`_restart`).
         """
         if not terms:
-            cap = BASE_MAX_NFEV if self.flat_valley else 60
-            return self._fit(terms, start, cap if base_max_nfev is None else min(cap, base_max_nfev))
+            return self._fit(terms, start, BASE_MAX_NFEV if self.flat_valley else 60)
         fr = self._fit(terms, start)
         if fr is None or fr.success or not self.flat_valley:
             return fr
