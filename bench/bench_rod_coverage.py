@@ -244,6 +244,7 @@ def run_chain(job) -> dict:
                 {
                     "budget": json_ready(budget.to_dict()),
                     "hold_readings": hold_readings(means),
+                    "layer_geometry": rod_calibration.layer_geometry_record(means, layers, u_mean, unc),
                 }
             )
             rows = [

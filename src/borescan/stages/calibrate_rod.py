@@ -82,7 +82,10 @@ def calibrate_rod_scan(
         solution=sol,
         iterations=n_iter,
         residual_rms_mm=float(sol.residual_rms_mm),
-        diagnostics={"hold_readings": hold_readings(means)},
+        diagnostics={
+            "hold_readings": hold_readings(means),
+            "layer_geometry": rod_calibration.layer_geometry_record(means, cal_layers, u_mean, unc),
+        },
     )
     out_dir = certificate.certificate_night_dir(results_root, cal, night)
     link = certificate.certificate_dir(results_root, cal)
