@@ -148,6 +148,7 @@ def _verify(holds, unc, truth=None):
     return res, rod_calibration.rod_verifications(ver, res, "C", unc, LAB, 0.002)
 
 
+@pytest.mark.slow
 def test_layer_geometry_is_in_the_verification_budget_and_covers_its_error(holds):
     """The layer geometry's share of each verification error (simulated truth: the same readings solved
     with the true phi, d, gamma and a calibration made with them) is covered by the input: within 3 u

@@ -43,6 +43,7 @@ __all__ = [
     "calibration_draws",
     "hold_radius_shifts_mm",
     "layer_geometry_input",
+    "layer_geometry_information",
 ]
 
 #: seed of the geometry draws (one fixed set: reruns and every hold of a calibration share it)
@@ -200,3 +201,52 @@ def layer_geometry_input(
         ),
         1.0,
     )
+
+
+def layer_geometry_information(
+    means_mm, layers, u_reading_mm, coaxiality_mm, prior: LayerGeometryPrior
+) -> np.ndarray:
+    """Return what a hold's readings fix of the layers' geometry: posterior over prior SD per direction.
+
+    The hold's Fisher matrix in the solve's unknowns [rho, c, alpha, beta] (rho standing in for l0,
+    which a calibration hold leaves free), the coaxial prior's rows, and the 3m geometry unknowns
+    (phi, d, gamma per layer; central differences of the exact readings at the solve's minimum),
+    with the stated tolerances as a prior (rectangular SDs); the geometry's block of the posterior
+    covariance, in prior-SD units, eigen-decomposed. Returns its eigenvalues' square roots,
+    ascending (3m,): 1 is a direction the readings do not inform, 0.1 one they fix to a tenth of
+    its tolerance.
+    """
+    from .rod_deflection import _coaxial_rows
+    from .rod_eq16 import _prepare, rod_start
+    from .rod_model import _RodProblem, _solve_core
+
+    lays = tuple(layers)
+    l0 = np.array([lay.l0_mm for lay in lays])
+    L, mask, _keep = _prepare(np.asarray(means_mm, dtype=float), l0, 2)
+    n, m = L.shape
+    p0, _S = rod_start(L, mask, 0)
+    a0 = np.insert(p0[3 * m :], 0, 0.0)
+    prob = _RodProblem(L - l0, mask, lays, 0, True)
+    p, _cost, _nfev = _solve_core(prob, L, mask, [a0, -a0], True)
+    sigma = float(u_reading_mm)
+    Jp = -prob.jac(p, beta_step=1e-4) / sigma  # d(model)/dp, whitened
+    u_g = np.tile(prior.bounds / np.sqrt(3.0), m)
+    Jg = np.zeros((Jp.shape[0], 3 * m))
+    for k in range(m):
+        for q in range(3):
+            h = 1e-3 * u_g[3 * k + q]
+            rows = []
+            for sg in (1.0, -1.0):
+                off = np.zeros((m, 3))
+                off[k, q] = sg * h
+                pr = _RodProblem(prob.V, mask, _shifted(lays, off), 0, True)
+                rows.append(pr.readings(*pr.unpack(p))[mask])
+            Jg[:, 3 * k + q] = (rows[0] - rows[1]) / (2 * h) / sigma * u_g[3 * k + q]  # per prior SD
+    rho, c, _alpha, w = prob.unpack(p)
+    if coaxiality_mm is not None:
+        C = _coaxial_rows(lays, rho, c, w, float(coaxiality_mm), prob.n_par)
+        Jp = np.vstack([Jp, C])
+        Jg = np.vstack([Jg, np.zeros((C.shape[0], 3 * m))])
+    A = np.block([[Jp.T @ Jp, Jp.T @ Jg], [Jg.T @ Jp, Jg.T @ Jg + np.eye(3 * m)]])
+    cov_g = np.linalg.pinv(A)[-3 * m :, -3 * m :]
+    return np.sqrt(np.clip(np.linalg.eigvalsh(0.5 * (cov_g + cov_g.T)), 0.0, None))
