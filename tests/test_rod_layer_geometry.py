@@ -210,3 +210,21 @@ def test_layer_geometry_input_is_the_rms_of_the_draws_and_deterministic(holds):
     again = rod_calibration.rod_layer_draws_from_rows(_calibration_rows(cal, unc))
     assert np.array_equal(again.offsets, draws.offsets)
     assert np.array_equal(again.cal_shift_mm, draws.cal_shift_mm)
+
+
+def test_layer_geometry_information_scales_as_the_readings_fisher_matrix(holds):
+    """What a hold fixes of phi, d, gamma (posterior over prior SD per direction, ascending, each <= 1):
+    without the coaxial prior every row of the information is a reading's, so the data's eigenvalues
+    lambda = 1 / s^2 - 1 scale as 1 / sigma^2 (sigma / 10: 100 lambda, to 1e-3, the finite differences'
+    and pseudo-inverse's noise; directions with lambda > 0.01).
+    """
+    cal, _ver = holds
+    _ch, means, u_mean, _s = rod_calibration.pose_means_of_scan(cal)
+    prior = rod_layer_geometry.layer_geometry_prior(UNC)
+    s1 = rod_layer_geometry.layer_geometry_information(means, DESIGN, u_mean, None, prior)
+    s10 = rod_layer_geometry.layer_geometry_information(means, DESIGN, 0.1 * u_mean, None, prior)
+    assert s1.shape == (9,) and np.all(np.diff(s1) >= 0) and np.all(s1 <= 1.0 + 1e-6)
+    lam1, lam10 = 1.0 / s1**2 - 1.0, 1.0 / s10**2 - 1.0
+    informed = lam1 > 1e-2
+    assert informed.any()
+    np.testing.assert_allclose(lam10[informed], 100.0 * lam1[informed], rtol=1e-3)
