@@ -13,8 +13,9 @@ gauges' radii at their temperature:
 
 iterated until the step is below 1e-7 mm or u(r) / 1000 (a fixed point with contraction O(e^2 / r^2); two or
 three solves). The other
-layer constants (phi, d, gamma, h) stay at their nominal values: to first order a beam offset or
-tilt changes every reading of a layer by a constant, which l0 absorbs.
+layer constants (phi, d, gamma, h) stay at their nominal values: l0 absorbs what a beam angle, offset
+or tilt does at the calibration hold's eccentricity and deflection; what it does at a later hold's
+is that diameter's ``layer_geometry`` input (:mod:`borescan.rod_layer_geometry`).
 
 GUM budget of l0 (outputs l0 of every layer; :class:`borescan.uncertainty.Budget`): the solve's
 radius uncertainty (readings; sensitivity -1), each gauge's certified diameter (f / 2; a gauge

@@ -70,7 +70,8 @@ class LayerGeometryDraws:
     """Geometry draws about the design and the calibration hold's radius shift at each.
 
     offsets : (k, m, 3) the draws' (phi [rad], d [mm], gamma [rad]) offsets of each layer
-    cal_shift_mm : (k, m) R_C(design + offset) - R_C(design) of the calibration hold [mm]
+    cal_shift_mm : (k, m) R_C(design + offset) - R_C(design) of the calibration hold [mm] (NaN where
+        the solve refused that draw; null in the record)
     bounds : the half-widths drawn within (phi [rad], d [mm], gamma [rad])
     """
 
@@ -82,7 +83,7 @@ class LayerGeometryDraws:
         """JSON-ready (the calibration's record)."""
         return {
             "offsets": self.offsets.tolist(),
-            "cal_shift_mm": self.cal_shift_mm.tolist(),
+            "cal_shift_mm": [[None if np.isnan(x) else float(x) for x in row] for row in self.cal_shift_mm],
             "bounds": list(self.bounds),
         }
 
@@ -93,7 +94,7 @@ class LayerGeometryDraws:
             return None
         return cls(
             np.asarray(d["offsets"], dtype=float),
-            np.asarray(d["cal_shift_mm"], dtype=float),
+            np.array([[np.nan if x is None else x for x in row] for row in d["cal_shift_mm"]], dtype=float),
             tuple(float(b) for b in d["bounds"]),
         )
 
