@@ -34,7 +34,7 @@ counterpart (the difference is that input's share, to compare with its budget te
 
 Run: ``python -m bench rod_coverage`` or
 ``python -m bench.bench_rod_coverage [--n 200] [--seed 20270701] [--workers 2] [--oracle geometry]
-[--dump FILE]``.
+[--dump FILE] [--fisher]``.
 """
 
 from __future__ import annotations
@@ -148,14 +148,9 @@ def _with_linearity(v_mm, sensor, sensors):
     return out
 
 
-def run_chain(job) -> dict:
-    """One calibrate-then-measure-then-verify chain: its z-scores and coverage flags."""
-    i, seed, cfg, oracle = job
-    from borescan import rod_calibration
-    from borescan.measure import hold_readings
+def _chain_setup(i, seed, cfg, oracle):
+    """Return chain i's draws before its holds: rng, true and design layers, sensors, gauge set, part, D20."""
     from borescan.synthetic import rod_scenarios
-    from borescan.artifacts import artifact_cte, radius_at_temperature_mm, scan_temperature
-    from borescan.atomic import json_ready
 
     unc = cfg["uncertainty"]
     rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(i),)))
@@ -204,6 +199,20 @@ def run_chain(job) -> dict:
             for f, lay, d in zip(feats, true, g20)
         ],
     }
+    return rng, true, design, sensors, gset, part, g20
+
+
+def run_chain(job) -> dict:
+    """One calibrate-then-measure-then-verify chain: its z-scores and coverage flags."""
+    i, seed, cfg, oracle = job
+    from borescan import rod_calibration
+    from borescan.measure import hold_readings
+    from borescan.artifacts import artifact_cte, radius_at_temperature_mm, scan_temperature
+    from borescan.atomic import json_ready
+
+    unc = cfg["uncertainty"]
+    rng, true, design, sensors, gset, part, g20 = _chain_setup(i, seed, cfg, oracle)
+    m = len(true)
     out = {"index": i, "lin_fs": sensors["lin_fs"], "m": m}
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp)
@@ -244,6 +253,7 @@ def run_chain(job) -> dict:
                 {
                     "budget": json_ready(budget.to_dict()),
                     "hold_readings": hold_readings(means),
+                    "layer_geometry": rod_calibration.layer_geometry_record(means, layers, u_mean, unc),
                 }
             )
             rows = [
@@ -299,6 +309,52 @@ def run_chain(job) -> dict:
     return dict(out, z=zs, covered=cov, error_mm=errs)
 
 
+def fisher_chain(job) -> dict:
+    """Return what chain i's calibration hold fixes of the layers' phi, d, gamma (posterior / prior SD)."""
+    i, seed, cfg, oracle = job
+    from borescan import rod_calibration
+    from borescan.rod_layer_geometry import layer_geometry_information, layer_geometry_prior
+
+    unc = cfg["uncertainty"]
+    rng, true, design, sensors, gset, _part, g20 = _chain_setup(i, seed, cfg, oracle)
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            cal = _hold(
+                rng,
+                true,
+                g20,
+                float(rng.uniform(18, 22)),
+                "calibration",
+                f"CAL-{i}",
+                gset,
+                design,
+                sensors,
+                Path(tmp),
+            )
+            _ch, means, u_mean, _s = rod_calibration.pose_means_of_scan(cal)
+            sd = layer_geometry_information(
+                means, design, u_mean, rod_calibration.rod_coaxiality_mm(unc), layer_geometry_prior(unc)
+            )
+        except (ValueError, np.linalg.LinAlgError) as err:
+            return {"index": i, "error": str(err)[:160]}
+    return {"index": i, "sd_ratio": sd.tolist()}
+
+
+def _print_fisher(results) -> None:
+    ok = [r for r in results if "error" not in r]
+    best = np.array([r["sd_ratio"][0] for r in ok])
+    all_sd = np.concatenate([r["sd_ratio"] for r in ok])
+    print(
+        f"Calibration holds' information on the layers' phi, d, gamma ({len(ok)} of {len(results)} holds; "
+        "posterior SD / the tolerances' rectangular SD per direction):"
+    )
+    print(
+        f"  best-fixed direction per hold: median {np.median(best):.2f}, 5-95 % "
+        f"{np.percentile(best, 5):.2f}-{np.percentile(best, 95):.2f}; directions below 0.5: "
+        f"{int(np.sum(all_sd < 0.5))} of {all_sd.size}, above 0.9: {int(np.sum(all_sd > 0.9))}"
+    )
+
+
 def main(argv=None) -> int:
     """Run the rod chains and print the coverage table (options: ``--help``); return 0."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -312,11 +368,20 @@ def main(argv=None) -> int:
         "d, gamma are the truth), linearity (no linearity error)",
     )
     ap.add_argument("--dump", type=Path, help="write each chain's z-scores and errors [mm] to this JSON file")
+    ap.add_argument(
+        "--fisher",
+        action="store_true",
+        help="instead: what each chain's calibration hold fixes of the layers' phi, d, gamma (Fisher)",
+    )
     a = ap.parse_args(argv)
     if a.n < 1:
         ap.error("--n must be at least 1")
     cfg = _config()
     t0 = time.perf_counter()
+    if a.fisher:
+        jobs = [(i, a.seed, cfg, ()) for i in range(a.n)]
+        _print_fisher(list(map_in_order(fisher_chain, jobs, a.workers)))
+        return 0
     results, done = [], 0
     for r in map_in_order(
         run_chain, [(i, a.seed, cfg, tuple(filter(None, a.oracle.split(",")))) for i in range(a.n)], a.workers

@@ -56,7 +56,13 @@ def run(raw_root: Path, coaxiality: str | None = None) -> list[dict]:
         cal.scan_id,
         float(unc["sensor_resolution_mm"]),
     )
-    blob = json.dumps({"budget": json_ready(budget.to_dict()), "hold_readings": hold_readings(means)})
+    blob = json.dumps(
+        {
+            "budget": json_ready(budget.to_dict()),
+            "hold_readings": hold_readings(means),
+            "layer_geometry": rod_calibration.layer_geometry_record(means, lays, u_mean, unc),
+        }
+    )
     rows = [
         dict(r, l0_mm=lay.l0_mm, calibration_json=blob)
         for r, lay in zip(sorted(nominal, key=lambda r: r["channel"]), lays)

@@ -1,10 +1,10 @@
 """CPU of the rod hold plan (``plan_rod.recommend_rod``) on the demo rod's verification holds.
 
 The measure stage asks it, for each verification layer whose U(E) is not below the tolerance,
-what would reduce it (``rod_calibration._dominant_fix``: the fewest poses over 360, 270 and 180 deg
+what would reduce it (``plan_rod.dominant_fix``: the fewest poses over 360, 270 and 180 deg
 that bring u(D) to half the allowed u(E)). This bench runs the demo rod's verifications
 (:func:`bench.bench_rod_demo.run`), keeps each verification hold and the target that
-``_dominant_fix`` is given, and times ``recommend_rod`` on each with those spreads on the CPU clock
+``dominant_fix`` is given, and times ``recommend_rod`` on each with those spreads on the CPU clock
 of this process (``time.process_time``: pin BLAS to one thread, ``OPENBLAS_NUM_THREADS=1``, or its
 spinning threads are counted too), best of ``--repeat``. Printed per hold: CPU s and the
 recommendation per spread. Compare two checkouts by running it with each one's ``src`` on
@@ -24,30 +24,29 @@ from pathlib import Path
 
 RUN_BY_DEFAULT = False
 
-#: the spreads ``rod_calibration._dominant_fix`` asks for [rad]
+#: the spreads ``plan_rod.dominant_fix`` asks for [rad]
 SPREADS_RAD = (2 * math.pi, 1.5 * math.pi, math.pi)
 
 
 def holds(raw_root: Path) -> list[tuple]:
     """Return (hold, target u(D) [mm]) of every verification layer whose fix the measure stage asks for."""
-    from borescan import rod_calibration
+    from borescan import plan_rod
     from borescan.plan_rod import hold_of_solution
 
     from . import bench_rod_demo
 
     seen = []
-    ask = rod_calibration._dominant_fix
+    ask = plan_rod.dominant_fix
 
-    def record(key, diameter, unc_cfg, u_allowed_mm):
-        coax = rod_calibration.rod_coaxiality_mm(unc_cfg)
-        seen.append((hold_of_solution(diameter["solution"], coax), 0.5 * u_allowed_mm))
-        return ask(key, diameter, unc_cfg, u_allowed_mm)
+    def record(key, diameter, coaxiality_mm, u_allowed_mm):
+        seen.append((hold_of_solution(diameter["solution"], coaxiality_mm), 0.5 * u_allowed_mm))
+        return ask(key, diameter, coaxiality_mm, u_allowed_mm)
 
-    rod_calibration._dominant_fix = record
+    plan_rod.dominant_fix = record
     try:
         bench_rod_demo.run(raw_root)
     finally:
-        rod_calibration._dominant_fix = ask
+        plan_rod.dominant_fix = ask
     return seen
 
 

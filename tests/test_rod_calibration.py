@@ -333,6 +333,45 @@ def test_a_rod_calibration_scan_without_certified_rings_is_set_aside_naming_scan
     }
 
 
+def test_a_rod_calibration_hold_that_fixes_no_radii_is_set_aside_with_what_would(tmp_path):
+    """A calibration hold whose poses are bunched: the solve refuses it; the scan is quarantined
+    naming lds.parquet, the solve's reason and the hold that would do.
+    """
+    from borescan import night_config
+    from borescan.stages.calibrate_jobs import RodCalibrationContext
+    from borescan.stages.calibrate_rod import calibrate_rod_scan
+
+    dflt = schema_defaults()
+    scene = _scene(GAUGE_D, np.random.default_rng(7))
+    sim = simulate_rod(
+        scene,
+        np.linspace(0.0, 0.2, 24),  # the poses bunched within 11 deg
+        samples_per_pose=5,
+        kind="calibration",
+        artifact=GAUGE_SET,
+        features=("H1", "H2"),
+        seed=8,
+        nominal_layers=DESIGN,
+        scan_id="CAL-BUNCHED",
+    )
+    scan = _raw(sim, tmp_path)
+    ctx = RodCalibrationContext(
+        UNC,
+        dflt["laboratory"],
+        dflt["verification"],
+        pl.DataFrame(schema={"scan_id": pl.Utf8, "status": pl.Utf8, "kind": pl.Utf8, "device_id": pl.Utf8}),
+    )
+    night_config.settle(tmp_path / "results", ["2026-11-20"], dflt)
+    made = calibrate_rod_scan(
+        scan, "2026-11-20", tmp_path / "results", ctx, dflt["calibration"], lambda _m: None
+    )
+    assert not made.calibration_rows
+    (q,) = made.quarantined
+    assert (q.scan_id, q.file) == ("CAL-BUNCHED", "lds.parquet")
+    assert "degenerate geometry" in q.reason and "deflected across its eccentricity" in q.reason
+    assert "borescan plan --rod-scan" in q.reason
+
+
 def test_rod_verification_names_its_largest_input_and_what_would_reduce_it(tmp_path):
     """Each layer's row names the budget's largest contribution; when U(E) is not below the tolerance
     (a 1 um tolerance here) it says what would reduce it, and nothing when the verdict is decided.

@@ -23,7 +23,7 @@ import numpy as np
 from borescan.geometry import Hole, RodAxis, RodLayer
 from borescan.rod import RodSolution, rod_crb
 
-__all__ = ["RodHold", "RodPlanPrediction", "hold_of_solution", "predict_rod", "recommend_rod"]
+__all__ = ["RodHold", "RodPlanPrediction", "dominant_fix", "hold_of_solution", "predict_rod", "recommend_rod"]
 
 
 @dataclass(frozen=True)
@@ -176,3 +176,57 @@ def _fewest_poses(
         if n not in missed and reaches(n):
             return tried[n]
     return None
+
+
+def dominant_fix(key: str, diameter: dict, coaxiality_mm: float | None, u_allowed_mm: float) -> str:
+    """Say what would reduce a rod verification's largest input ``key`` (a budget key).
+
+    ``diameter``: a row of :func:`borescan.rod_calibration.rod_diameters_with_budget`;
+    ``coaxiality_mm``: the holes' coaxiality the solve took; ``u_allowed_mm``: the u(E) at which U(E)
+    equals the tolerance. This hold's readings: the fewest poses, per angular spread, that bring its
+    u(D) to half of it with the rod held as in this scan (:func:`recommend_rod`); the calibration
+    hold's readings: a new calibration with more poses; the layer geometry: a hold as the
+    calibration's; a data-sheet input (linearity, resolution): no hold reduces it.
+    """
+    target_mm = 0.5 * u_allowed_mm
+    if key.startswith("readings:"):
+        hold = hold_of_solution(diameter["solution"], coaxiality_mm)
+        for spread, best in recommend_rod(hold, target_mm, spreads_rad=(2 * np.pi, 1.5 * np.pi, np.pi)):
+            if best is not None:
+                j = [lay.channel for lay in hold.layers].index(diameter["channel"])
+                return (
+                    f"this hold's readings: {best.hold.n_poses} poses over {np.degrees(spread):.0f} deg, "
+                    "the rod held as in this scan, would bring its u(D) to "
+                    f"{best.u_diameter_mm[j] * 1e3:.1f} um (now "
+                    f"{diameter['solution'].u_diameter_mm[j] * 1e3:.1f} um; borescan plan --rod-scan)"
+                )
+        return (
+            f"this hold's readings: no hold of up to 256 poses with the rod held as in this scan brings "
+            f"u(D) to {target_mm * 1e3:.1f} um: hold the rod more skew to the holes or average more "
+            "readings per pose (borescan plan --rod-scan)"
+        )
+    if key.startswith("fit:"):
+        return (
+            f"the calibration hold {key.split(':')[1]}'s readings: a calibration with more poses (borescan "
+            f"plan --rod-scan on that scan gives how many for u(D) <= {target_mm * 1e3:.1f} um)"
+        )
+    if key.startswith("linearity:") and diameter.get("cal_spread_mm") is not None:
+        return (
+            "the change of the sensor's linearity curve between the calibration hold's readings and this "
+            f"hold's (their spread over the poses {diameter['cal_spread_mm'] * 1e3:.0f} um and "
+            f"{diameter['spread_mm'] * 1e3:.0f} um): hold the rod with the eccentricity of the calibration, "
+            "or calibrate with it held as it will be measured (the same spread), or sensors of better "
+            "linearity (borescan.measure.linearity_change_mm)"
+        )
+    if key.startswith("layer_geometry:"):
+        return (
+            "the rod layers' phi, d, gamma, taken as the design's: the calibration's l0 absorbed them at the "
+            "calibration hold's eccentricity and deflection only; hold the rod as it was held in the "
+            "calibration, or calibrate in a hold that sits as this one (borescan.rod_layer_geometry)"
+        )
+    if key.startswith("linearity:"):
+        return (
+            "the sensors' data-sheet linearity: no hold of the rod reduces it; a linearity calibration of "
+            "the sensors over their range (or sensors of better linearity) would"
+        )
+    return f"{key} is a stated (certificate or data-sheet) input: no hold of the rod reduces it"

@@ -13,8 +13,9 @@ gauges' radii at their temperature:
 
 iterated until the step is below 1e-7 mm or u(r) / 1000 (a fixed point with contraction O(e^2 / r^2); two or
 three solves). The other
-layer constants (phi, d, gamma, h) stay at their nominal values: to first order a beam offset or
-tilt changes every reading of a layer by a constant, which l0 absorbs.
+layer constants (phi, d, gamma, h) stay at their nominal values: l0 absorbs what a beam angle, offset
+or tilt does at the calibration hold's eccentricity and deflection; what it does at a later hold's
+is that diameter's ``layer_geometry`` input (:mod:`borescan.rod_layer_geometry`).
 
 GUM budget of l0 (outputs l0 of every layer; :class:`borescan.uncertainty.Budget`): the solve's
 radius uncertainty (readings; sensitivity -1), each gauge's certified diameter (f / 2; a gauge
@@ -41,6 +42,13 @@ from .calibrations import rod_layers
 from .config import schema_default
 from .geometry import RodLayer
 from .rod import RodSolution, solve_rod
+from .rod_layer_geometry import (
+    LayerGeometryDraws,
+    calibration_draws,
+    hold_radius_shifts_mm,
+    layer_geometry_input,
+    layer_geometry_prior,
+)
 from .uncertainty import Budget, Input, Term
 
 __all__ = [
@@ -53,6 +61,8 @@ __all__ = [
     "rod_calibration_id",
     "rod_calibration_rows",
     "rod_calibration_from_rows",
+    "rod_layer_draws_from_rows",
+    "layer_geometry_record",
     "layer_jacobian",
     "pose_means_of_scan",
     "rod_diameters_with_budget",
@@ -371,6 +381,7 @@ def _to_dict(cal: RodCalibration) -> dict[str, Any]:
         "iterations": cal.iterations,
         "residual_rms_mm": float(cal.residual_rms_mm),
         "hold_readings": cal.diagnostics.get("hold_readings"),
+        "layer_geometry": cal.diagnostics.get("layer_geometry"),
     }
 
 
@@ -388,6 +399,23 @@ def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget 
         return layers, None, None
     d = json.loads(blob)
     return layers, Budget.from_dict(d["budget"]), d.get("hold_readings")
+
+
+def layer_geometry_record(means_mm, layers, u_reading_mm, unc_cfg: dict) -> dict | None:
+    """Return the calibration hold's layer-geometry draws as recorded (None: ``rod_layer_geometry_draws`` 0).
+
+    ``layers``: the calibrated ones (:func:`borescan.rod_layer_geometry.calibration_draws`).
+    """
+    prior = layer_geometry_prior(unc_cfg)
+    if prior.draws < 1:
+        return None
+    return calibration_draws(means_mm, layers, u_reading_mm, rod_coaxiality_mm(unc_cfg), prior).to_dict()
+
+
+def rod_layer_draws_from_rows(rows: list[dict]) -> LayerGeometryDraws | None:
+    """Return the layer-geometry draws a rod calibration recorded (None: none recorded, or the design)."""
+    blob = rows[0].get("calibration_json") if rows else None
+    return LayerGeometryDraws.from_dict(json.loads(blob).get("layer_geometry")) if blob else None
 
 
 def pose_means_of_scan(scan, cleaning=None) -> tuple[list[int], np.ndarray, float | None, dict]:
@@ -417,7 +445,9 @@ def rod_diameters_with_budget(
     a ring-gauge calibration or the design geometry), each mean reading's uncertainty from the
     sensors' data sheet; the budget (:func:`borescan.measure.diameter_uncertainty`) adds the
     calibration's budget with sensitivity 2 on the layer's l0 (none for the design geometry), the
-    scan's temperature and the artifact's expansion coefficient. ``cleaning``: the spike policy
+    scan's temperature and the artifact's expansion coefficient, and the layers' phi, d, gamma
+    against the calibration hold's (:mod:`borescan.rod_layer_geometry`, when the calibration recorded
+    its draws). ``cleaning``: the spike policy
     (:func:`pose_means_of_scan`).
 
     Returns one dict per layer: channel, feature, diameter_mm (at the scan's temperature), du
@@ -445,6 +475,14 @@ def rod_diameters_with_budget(
     )
     feat = {int(l["channel"]): l.get("feature") for l in (scan.meta.get("rod") or {}).get("layers", [])}
     cal_chans = sorted(by_ch)
+    draws = rod_layer_draws_from_rows(layer_rows) if cal_budget is not None else None
+    geo_shift = (
+        None
+        if draws is None
+        else hold_radius_shifts_mm(
+            means, [by_ch[c] for c in channels], u_mean, rod_coaxiality_mm(unc_cfg), draws
+        )
+    )
     here = measure.hold_readings(means)
     degree = int(
         unc_cfg.get("linearity_curve_degree") or schema_default("uncertainty", "linearity_curve_degree")
@@ -455,6 +493,13 @@ def rod_diameters_with_budget(
         lin = measure.linearity_terms(
             sensors, ch, j, here, cal_budget, cal_hold, cal_chans, f"{scan.scan_id}/{f}", degree
         )
+        geo = (
+            None
+            if geo_shift is None
+            else layer_geometry_input(draws, geo_shift, j, cal_chans.index(ch), f"{scan.scan_id}/{f}", ch)
+        )
+        if geo is not None:
+            lin = [*lin, geo]
         du = diameter_uncertainty(
             float(sol.diameter_mm[j]),
             jac_params=None if cal_budget is None else layer_jacobian(cal_chans, ch),
@@ -499,10 +544,11 @@ def rod_verifications(
     against its gauge (:func:`layer_gauges`, :func:`borescan.measure.verify_budget`), one row per
     layer with ``feature``, the budget rows (``budget``) and the scan's raw files; the budget's
     largest input (``dominant_input``, its key) and, when U(E) is not below the tolerance, what
-    would reduce it (``dominant_fix``, :func:`_dominant_fix`).
+    would reduce it (``dominant_fix``, :func:`borescan.plan_rod.dominant_fix`).
 
     Raises ValueError when a layer has no certified gauge.
     """
+    from . import plan_rod
     from .measure import verification_row, verify_budget
 
     gauges = {g["channel"]: g for g in layer_gauges(scan.meta, [d["channel"] for d in diameters])}
@@ -520,7 +566,9 @@ def rod_verifications(
         row = verification_row(scan.scan_id, scan.meta["device"]["id"], g["id"], v)
         top = row["dominant_input"]
         if top is not None and not v.U_error_mm < tolerance_mm:
-            row["dominant_fix"] = _dominant_fix(top, d, unc_cfg, tolerance_mm / v.k)
+            row["dominant_fix"] = plan_rod.dominant_fix(
+                top, d, rod_coaxiality_mm(unc_cfg), tolerance_mm / v.k
+            )
         row.update(
             calibration_id=calibration_id,
             temperature_assumed=d["du"].temperature.assumed,
@@ -531,51 +579,3 @@ def rod_verifications(
         )
         rows.append(row)
     return rows
-
-
-def _dominant_fix(key: str, diameter: dict, unc_cfg: dict, u_allowed_mm: float) -> str:
-    """Say what would reduce a rod verification's largest input ``key`` (a budget key).
-
-    ``u_allowed_mm``: the u(E) at which U(E) equals the tolerance. This hold's readings: the fewest
-    poses, per angular spread, that bring its u(D) to half of it with the rod held as in this scan
-    (:func:`borescan.plan_rod.recommend_rod`); the calibration hold's readings: a new calibration
-    with more poses; a data-sheet input (linearity, resolution): no hold reduces it.
-    """
-    from .plan_rod import hold_of_solution, recommend_rod
-
-    target_mm = 0.5 * u_allowed_mm
-    if key.startswith("readings:"):
-        hold = hold_of_solution(diameter["solution"], rod_coaxiality_mm(unc_cfg))
-        for spread, best in recommend_rod(hold, target_mm, spreads_rad=(2 * np.pi, 1.5 * np.pi, np.pi)):
-            if best is not None:
-                j = [lay.channel for lay in hold.layers].index(diameter["channel"])
-                return (
-                    f"this hold's readings: {best.hold.n_poses} poses over {np.degrees(spread):.0f} deg, "
-                    "the rod held as in this scan, would bring its u(D) to "
-                    f"{best.u_diameter_mm[j] * 1e3:.1f} um (now "
-                    f"{diameter['solution'].u_diameter_mm[j] * 1e3:.1f} um; borescan plan --rod-scan)"
-                )
-        return (
-            f"this hold's readings: no hold of up to 256 poses with the rod held as in this scan brings "
-            f"u(D) to {target_mm * 1e3:.1f} um: hold the rod more skew to the holes or average more "
-            "readings per pose (borescan plan --rod-scan)"
-        )
-    if key.startswith("fit:"):
-        return (
-            f"the calibration hold {key.split(':')[1]}'s readings: a calibration with more poses (borescan "
-            f"plan --rod-scan on that scan gives how many for u(D) <= {target_mm * 1e3:.1f} um)"
-        )
-    if key.startswith("linearity:") and diameter.get("cal_spread_mm") is not None:
-        return (
-            "the change of the sensor's linearity curve between the calibration hold's readings and this "
-            f"hold's (their spread over the poses {diameter['cal_spread_mm'] * 1e3:.0f} um and "
-            f"{diameter['spread_mm'] * 1e3:.0f} um): hold the rod with the eccentricity of the calibration, "
-            "or calibrate with it held as it will be measured (the same spread), or sensors of better "
-            "linearity (borescan.measure.linearity_change_mm)"
-        )
-    if key.startswith("linearity:"):
-        return (
-            "the sensors' data-sheet linearity: no hold of the rod reduces it; a linearity calibration of "
-            "the sensors over their range (or sensors of better linearity) would"
-        )
-    return f"{key} is a stated (certificate or data-sheet) input: no hold of the rod reduces it"

@@ -18,6 +18,7 @@ from borescan.artifacts import MissingTemperature, artifact_cte, radius_at_tempe
 from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
 from borescan.measure import hold_readings
 from borescan.preconditions import ROD_CALIBRATION_NEEDS_LAYERS, design_layers
+from borescan.rod import RodSolveError
 from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
 from borescan.stages.calibrate_jobs import CalibrationOutcome, RodCalibrationContext
 
@@ -56,8 +57,15 @@ def calibrate_rod_scan(
             means, layers, u_mean, radius_t, coaxiality_mm=rod_calibration.rod_coaxiality_mm(unc)
         )
     except ValueError as err:
+        fix = (
+            "; a new calibration hold: the rod deflected across its eccentricity (skew to the gauges' axis), "
+            "the poses spread round the circle; `borescan plan --rod-scan <its folder>` gives the poses and "
+            "spread that bring its u(D) to a target"
+            if isinstance(err, RodSolveError)
+            else ""
+        )
         quarantine(
-            results_root, bad, sid, night, "calibrate", "lds.parquet", f"rod calibration failed: {err}"
+            results_root, bad, sid, night, "calibrate", "lds.parquet", f"rod calibration failed: {err}{fix}"
         )
         return CalibrationOutcome(quarantined=tuple(bad))
     budget = rod_calibration.rod_calibration_budget(
@@ -82,7 +90,10 @@ def calibrate_rod_scan(
         solution=sol,
         iterations=n_iter,
         residual_rms_mm=float(sol.residual_rms_mm),
-        diagnostics={"hold_readings": hold_readings(means)},
+        diagnostics={
+            "hold_readings": hold_readings(means),
+            "layer_geometry": rod_calibration.layer_geometry_record(means, cal_layers, u_mean, unc),
+        },
     )
     out_dir = certificate.certificate_night_dir(results_root, cal, night)
     link = certificate.certificate_dir(results_root, cal)
