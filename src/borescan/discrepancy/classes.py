@@ -38,6 +38,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from borescan.effects import functions as fx
+
 __all__ = [
     "OFFSET_LIKE",
     "LayerClass",
@@ -200,6 +202,8 @@ class StaticClass:
     u_q_um: float | None
     members: list[str] = field(default_factory=list)
     dropped: list[str] = field(default_factory=list)
+    #: the member ``q`` was derived from (``sensor_gain@1``); None when no member gave it
+    q_from: str | None = None
     #: what a channel is called in the verdict's sentence
     where = "channel"
 
@@ -212,6 +216,8 @@ class StaticClass:
     def sentence(self) -> str:
         """Return the class in words, with what the data fix and the advice."""
         value = "" if self.q_um is None else f" = {self.q_um:.3g} +- {self.u_q_um:.2g} um"
+        if self.q_um is not None and self.q_from is not None and not self.q_from.startswith("sensor_offset"):
+            value += f" (the shift {self.q_from} gives the set's readings)"
         return (
             f"offset-like: one combination of the channels' zeroes b_c is fixed: {self.combination}{value} "
             f"({', '.join(self.members)} explain it alike); recalibrate the sensors' zeroes, a calibration "
@@ -230,6 +236,7 @@ class StaticClass:
             "zero_weights": {str(ch): w for ch, w in sorted(self.weights.items())},
             "combination_um": self.q_um,
             "u_combination_um": self.u_q_um,
+            "combination_from": self.q_from,
             "members": self.members,
             "dropped_for_sign": self.dropped,
             "absorbed_by": "a calibration of the sensors' zeroes (d_b_mm) on the ring gauge",
@@ -259,8 +266,56 @@ def _label(n: dict) -> str:
     return n["effect"] + (f"@{n['channel']}" if n.get("channel") is not None else "@all")
 
 
+#: the change of a channel's readings ``v`` [mm] (range ``r`` [mm]) each static member gives with its spec
+#: parameters ``p`` (:mod:`borescan.effects.functions`, the effects' one definition), and its parameter's name
+_SHIFT = {
+    "sensor_offset": ("b_mm", lambda v, p, r: fx.sensor_offset(v, None, p, r) - v),
+    "sensor_gain": ("g", lambda v, p, r: fx.sensor_gain(v, None, p, r) - v),
+    "sensor_nonlinearity": ("a_mm", lambda v, p, r: fx.sensor_nonlinearity(v, None, p, r) - v),
+    "beam_tilt": ("gamma_rad", lambda v, p, r: fx.beam_tilt_tri(v, p) - v),
+}
+
+
+def _combination(
+    cand: list[dict], weights: dict[int, float], readings: dict[int, tuple[np.ndarray, float]]
+) -> tuple[float | None, float | None, str | None]:
+    """Return ``q`` +- u [um] and the member it comes from: the best member that gives it.
+
+    An offset member gives ``w_c b`` (every channel: ``sum w b``); a gain, bow or beam tilt the mean shift of
+    the channel's readings, ``w_c mean(f(v) - v)``, its u from the parameter's through the derivative of that
+    mean (the members explain the gap alike, so the best one's shift is what the data fix).
+    """
+    for n in sorted(cand, key=lambda n: -float(n["evidence"]["delta_bic"])):
+        name, shift = _SHIFT.get(n["effect"], (None, None))
+        x, ux = n["parameters"].get(name), n["uncertainties"].get(f"u_{name}")
+        if shift is None or x is None or ux is None:
+            continue
+        chans = list(weights) if n.get("channel") is None else [int(n["channel"])]
+        if n["effect"] != "sensor_offset" and not all(c in readings for c in chans):
+            continue
+        if not all(c in weights for c in chans):
+            continue
+
+        def q_of(value: float, chans=chans, name=name, shift=shift) -> float:
+            if name == "b_mm":
+                return 1e3 * value * sum(weights[c] for c in chans)
+            return 1e3 * sum(
+                weights[c] * float(np.mean(shift(readings[c][0], {name: value}, readings[c][1])))
+                for c in chans
+            )
+
+        x, ux = float(x), float(ux)
+        step = max(abs(x), float(ux), 1e-12) * 1e-4
+        slope = (q_of(x + step) - q_of(x - step)) / (2.0 * step)
+        return q_of(x), abs(slope) * ux, _label(n)
+    return None, None, None
+
+
 def static_classes(
-    named: list[dict], weights: dict[int, float], tied: list[tuple[str, ...]]
+    named: list[dict],
+    weights: dict[int, float],
+    tied: list[tuple[str, ...]],
+    readings: dict[int, tuple[np.ndarray, float]] | None = None,
 ) -> tuple[list[dict], list[StaticClass]]:
     """Group a static set's named entries into its offset-like class; drop wrong-sign members.
 
@@ -268,8 +323,9 @@ def static_classes(
     alternatives: named offset-like entries (:data:`STATIC_MEMBERS`, one channel or every channel) that
     some tied candidate does without (a term every candidate needs, or the two terms of the one candidate,
     explain the gap together, not alike), within :data:`TIE_CHI2` of the best named entry's evidence, on at
-    least two channels (or one and every channel). Returns the named entries left (wrong-sign beam members
-    removed) and the class, if any.
+    least two channels (or one and every channel). ``readings``: each channel's valid readings [mm] and
+    range [mm], from which a member other than an offset gives ``q`` (:func:`_combination`). Returns the
+    named entries left (wrong-sign beam members removed) and the class, if any.
     """
     if not weights or not named or len(tied) < 2:
         return named, []
@@ -283,15 +339,7 @@ def static_classes(
     ]
     if len({n.get("channel") for n in cand}) < 2:
         return named, []
-    q = u = None
-    for n in sorted(cand, key=lambda n: -float(n["evidence"]["delta_bic"])):  # the best offset member
-        b, ub = n["parameters"].get("b_mm"), n["uncertainties"].get("u_b_mm")
-        if n["effect"] != "sensor_offset" or b is None or ub is None:
-            continue
-        w = weights.get(int(n["channel"])) if n.get("channel") is not None else sum(weights.values())
-        if w is not None:
-            q, u = 1e3 * w * float(b), 1e3 * abs(w) * float(ub)
-            break
+    q, u, q_from = _combination(cand, weights, readings or {})
     sign = 0 if q is None or abs(q) <= SIGN_SIGMAS * u else (1 if q > 0 else -1)
     members, dropped, drop = [], [], set()
     for n in cand:
@@ -303,4 +351,4 @@ def static_classes(
             members.append(_label(n))
     if len(members) < 2:
         return named, []
-    return [n for n in named if id(n) not in drop], [StaticClass(weights, q, u, members, dropped)]
+    return [n for n in named if id(n) not in drop], [StaticClass(weights, q, u, members, dropped, q_from)]

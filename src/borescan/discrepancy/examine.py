@@ -434,7 +434,11 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
         dec_named, classes = rod_classes(dec.named)
     elif model.scan_kind == "tri_static":
         weights = zero_weights(model.data.channels, model.beams.beta_rad)
-        dec_named, classes = static_classes(dec.named, weights, [z.keys for z in dec.named_fits])
+        v = np.where(model.valid, data.values_mm, np.nan)
+        readings = {
+            ch: (v[:, i][np.isfinite(v[:, i])], float(data.range_mm[i])) for i, ch in enumerate(data.channels)
+        }
+        dec_named, classes = static_classes(dec.named, weights, [z.keys for z in dec.named_fits], readings)
     elif model.scan_kind == "tri_spindle" and "d_b" not in getattr(model, "free_beams", ("d_b",)):
         dec_named, classes = spindle_classes(dec.named)  # the beams held: a channel's offset is a candidate
     named = list(out.named) + dec_named

@@ -1,0 +1,41 @@
+"""A static set's offset-like class says what the data fix when no member is an offset."""
+
+import numpy as np
+import pytest
+
+from borescan.discrepancy.classes import static_classes
+
+
+def _entry(effect, ch, dbic, name, x, ux):
+    return {"effect": effect, "channel": ch, "parameters": {name: x}, "uncertainties": {f"u_{name}": ux},
+            "evidence": {"delta_bic": dbic}}  # fmt: skip
+
+
+def test_a_class_of_gains_and_tilts_gives_the_combination_its_best_member_implies():
+    """No offset member: q is the best member's mean shift of its channel's readings times the channel's
+    weight, in closed form w_c g mean(v) for a gain (u: w_c u_g mean(v)) and w_c mean(v) (1 / cos gamma - 1)
+    for a beam tilt (u: w_c mean(v) tan(gamma) / cos(gamma) u_gamma); the sentence states the value.
+    """
+    rng = np.random.default_rng(3)
+    w = {1: 0.25, 2: 0.35, 3: 0.40}
+    readings = {c: (rng.uniform(3.0, 7.0, 200), 10.0) for c in w}
+    named = [
+        _entry("sensor_gain", 1, 80.0, "g", -0.0024, 0.0003),
+        _entry("beam_tilt", 3, 79.0, "gamma_rad", 0.084, 0.0045),
+        _entry("sensor_gain", 2, 78.5, "g", 0.0035, 0.0004),
+    ]
+    tied = [("sensor_gain@1",), ("beam_tilt@3",), ("sensor_gain@2",)]
+    _, (k,) = static_classes(named, w, tied, readings)
+    v1 = readings[1][0].mean()
+    assert k.q_from == "sensor_gain@1"
+    assert k.q_um == pytest.approx(1e3 * 0.25 * -0.0024 * v1, rel=1e-9)
+    assert k.u_q_um == pytest.approx(1e3 * 0.25 * 0.0003 * v1, rel=1e-6)
+    assert f"= {k.q_um:.3g} +- {k.u_q_um:.2g} um (the shift sensor_gain@1 gives" in k.sentence
+    # the tilt alone (the gain dropped): the second-order shift of 1 / cos
+    _, (k,) = static_classes(named[1:], w, tied[1:], readings)
+    v3, g = readings[3][0].mean(), 0.084
+    assert k.q_um == pytest.approx(1e3 * 0.40 * v3 * (1 / np.cos(g) - 1), rel=1e-9)
+    assert k.u_q_um == pytest.approx(1e3 * 0.40 * v3 * np.tan(g) / np.cos(g) * 0.0045, rel=1e-6)
+    # without the readings a gain gives no value (the sentence then says only the combination)
+    _, (k,) = static_classes(named, w, tied)
+    assert k.q_um is None and k.q_from is None and "=" not in k.sentence
