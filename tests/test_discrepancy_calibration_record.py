@@ -29,8 +29,12 @@ def test_the_calibration_scans_findings_are_read_per_scan_in_the_calibrations_or
         CalibrationFinding(CAL, "CAL-B", "missing_effect", ("channel_delay@2",)),
     ]
     assert got[1].to_dict() == {
-        "calibration_id": CAL, "scan_id": "CAL-B", "verdict": "missing_effect", "effects": ["channel_delay@2"]
-    }  # fmt: skip
+        "calibration_id": CAL,
+        "scan_id": "CAL-B",
+        "verdict": "missing_effect",
+        "effects": ["channel_delay@2"],
+        "thermal_as_recorded": False,
+    }
 
 
 def test_a_verdict_read_against_a_flawed_calibration_leads_with_it():
@@ -64,3 +68,25 @@ def test_a_verdict_read_against_a_flawed_calibration_leads_with_it():
         f"its calibration {CAL} was itself found to carry one of sensor_offset, thermal_expansion "
         "(they look alike there) (A)"
     )
+
+
+def test_a_calibration_whose_scans_show_only_its_recorded_thermal_expansion_is_no_flaw():
+    """Warm calibration scans name thermal expansion at 20.57 +- 0.02 degC, tied with a common offset; read at
+    20.6 degC the calibration corrected for it, so a scan read against it is not told to recalibrate; recorded
+    at 20.0 degC the same finding is a flaw.
+    """
+    import json
+
+    rows = [
+        {"scan_id": "A", "verdict": "ambiguous", "effect": "sensor_offset", "channel": None,
+         "parameters": json.dumps({"b_mm": 0.0009}), "uncertainties": json.dumps({"u_b_mm": 3e-5})},
+        {"scan_id": "A", "verdict": "ambiguous", "effect": "thermal_expansion", "channel": None,
+         "parameters": json.dumps({"temperature_c": 20.573}),
+         "uncertainties": json.dumps({"u_temperature_c": 0.019})},
+    ]  # fmt: skip
+    f = {"verdict": "ambiguous", "statement": "offset-like"}
+    (warm,) = calibration_findings(CAL, ("A",), rows, 20.6)
+    assert warm.thermal_as_recorded and not warm.flawed
+    assert with_calibration_findings(f, [warm])["statement"] == "offset-like"
+    (cold,) = calibration_findings(CAL, ("A",), rows, 20.0)
+    assert cold.flawed and with_calibration_findings(f, [cold])["statement"].startswith("its calibration")

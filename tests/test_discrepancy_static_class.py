@@ -39,3 +39,25 @@ def test_a_class_of_gains_and_tilts_gives_the_combination_its_best_member_implie
     # without the readings a gain gives no value (the sentence then says only the combination)
     _, (k,) = static_classes(named, w, tied)
     assert k.q_um is None and k.q_from is None and "=" not in k.sentence
+
+
+def test_a_gauge_expanded_as_at_its_recorded_temperature_is_said_to_be_so():
+    """A static set on a ring gauge at 30 degC: named thermal expansion at the temperature scan.json records
+    (within 3 u) leads the verdict as the artifact's expansion, nothing to recalibrate; the same scan with 20
+    degC recorded names the same expansion, but not as recorded (the statement does not say so).
+    """
+    from borescan.discrepancy import examine_scan
+    from borescan.effects import Effect
+    from borescan.synthetic.simulate import simulate_tri_static
+
+    hot = [Effect("thermal_expansion", {"temperature_c": 30.0})]
+    f = examine_scan(simulate_tri_static(effects=hot, seed=4))
+    rec = f["thermal_as_recorded"]
+    assert rec["recorded_temperature_c"] == 30.0
+    assert abs(rec["temperature_c"] - 30.0) <= 3 * rec["u_temperature_c"]
+    assert f["statement"].startswith("the artifact expanded as at its recorded temperature 30 degC (fitted")
+    assert "nothing to recalibrate; it fits as well as: " in f["statement"]
+    cold = simulate_tri_static(effects=hot, seed=4, extra_meta={"environment": {"temperature_c": 20.0}})
+    f = examine_scan(cold)
+    assert "thermal_expansion" in [n["effect"] for n in f["named"]]
+    assert f["thermal_as_recorded"] is None and "recorded temperature" not in f["statement"]

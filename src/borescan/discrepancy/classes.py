@@ -49,6 +49,8 @@ __all__ = [
     "StaticClass",
     "static_classes",
     "zero_weights",
+    "RecordedThermal",
+    "recorded_thermal",
 ]
 
 #: the members of the offset-like class of one rod layer, and the sign of the shift each can give
@@ -352,3 +354,59 @@ def static_classes(
     if len(members) < 2:
         return named, []
     return [n for n in named if id(n) not in drop], [StaticClass(weights, q, u, members, dropped, q_from)]
+
+
+#: a fitted temperature within this many standard uncertainties of the recorded one is the recorded one
+RECORDED_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class RecordedThermal:
+    """A named ``thermal_expansion`` at the temperature ``scan.json`` records: the artifact's expansion.
+
+    The calibration and the measurement read the gauge at its recorded temperature, so this is the physics
+    the pipeline already corrects for, not a flaw to fix; the look-alikes it ties with (a common zero offset)
+    fit only as well.
+    """
+
+    temperature_c: float
+    u_temperature_c: float
+    recorded_c: float
+
+    @property
+    def sentence(self) -> str:
+        """Return the finding in words, with what (not) to do."""
+        return (
+            f"the artifact expanded as at its recorded temperature {self.recorded_c:.3g} degC (fitted "
+            f"{self.temperature_c:.4g} +- {self.u_temperature_c:.2g} degC): thermal expansion, which the "
+            "calibration and the measurement correct for; nothing to recalibrate"
+        )
+
+    def to_dict(self) -> dict:
+        """Return the JSON-ready form (findings.json ``thermal_as_recorded``)."""
+        return {
+            "temperature_c": self.temperature_c,
+            "u_temperature_c": self.u_temperature_c,
+            "recorded_temperature_c": self.recorded_c,
+            "statement": self.sentence,
+        }
+
+
+def recorded_thermal(named: list[dict], recorded_c: float | None) -> RecordedThermal | None:
+    """Return the named ``thermal_expansion`` at the recorded temperature (within 3 u), else None."""
+    if recorded_c is None:
+        return None
+    for n in named:
+        if n.get("effect") != "thermal_expansion":
+            continue
+        t, u = (
+            (n.get("parameters") or {}).get("temperature_c"),
+            (n.get("uncertainties") or {}).get("u_temperature_c"),
+        )
+        if (
+            t is not None
+            and u is not None
+            and abs(float(t) - float(recorded_c)) <= RECORDED_SIGMAS * float(u)
+        ):
+            return RecordedThermal(float(t), float(u), float(recorded_c))
+    return None

@@ -119,15 +119,24 @@ def stage_discrepancy(
         log(msg)
         log(compute_line(msg.split(" ", 1)[0].rstrip(":"), cpu_s))
     earlier = read_tables(findings_tables or [], "findings").to_dicts()
-    rows = _with_calibration_records(results_root, night, rows, earlier, read_against)
+    temps = {}
+    if cals.height and "temperature_c" in cals.columns:
+        temps = {
+            r["calibration_id"]: r["temperature_c"]
+            for r in cals.select("calibration_id", "temperature_c").to_dicts()
+        }
+    rows = _with_calibration_records(results_root, night, rows, earlier, read_against, temps)
     return tables.frame("findings", rows), bad
 
 
-def _with_calibration_records(results_root, night: str, rows: list[dict], earlier: list[dict], read_against):
+def _with_calibration_records(
+    results_root, night: str, rows: list[dict], earlier: list[dict], read_against, cal_temperatures: dict
+):
     """Add ``calibration_findings`` to each examined scan's findings.json; return the night's rows updated.
 
     ``read_against``: scan id -> the calibration it was examined against (None: the design, or a rod). A scan
     of that calibration itself gets ``null`` (it is the record), as does one read against no calibration.
+    ``cal_temperatures``: calibration id -> the temperature [degC] it read its gauge at.
     """
     out = []
     for sid in dict.fromkeys(r["scan_id"] for r in rows):
@@ -137,7 +146,9 @@ def _with_calibration_records(results_root, night: str, rows: list[dict], earlie
         if cal is None or sid in cal.scan_ids:
             findings["calibration_findings"] = None
         else:
-            record = calibration_findings(cal.calibration_id, cal.scan_ids, earlier + rows)
+            record = calibration_findings(
+                cal.calibration_id, cal.scan_ids, earlier + rows, cal_temperatures.get(cal.calibration_id)
+            )
             findings = with_calibration_findings(findings, record)
         discrepancy.write_findings(findings, path)
         out += findings_rows(findings)
