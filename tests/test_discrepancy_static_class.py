@@ -56,7 +56,7 @@ def test_a_gauge_expanded_as_at_its_recorded_temperature_is_said_to_be_so():
     assert rec["recorded_temperature_c"] == 30.0
     assert abs(rec["temperature_c"] - 30.0) <= 3 * rec["u_temperature_c"]
     assert f["statement"].startswith("the artifact expanded as at its recorded temperature 30 degC (fitted")
-    assert "nothing to recalibrate; it fits as well as: " in f["statement"]
+    assert "nothing to recalibrate; what fits as well: " in f["statement"]
     cold = simulate_tri_static(effects=hot, seed=4, extra_meta={"environment": {"temperature_c": 20.0}})
     f = examine_scan(cold)
     assert "thermal_expansion" in [n["effect"] for n in f["named"]]

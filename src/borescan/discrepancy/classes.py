@@ -281,13 +281,13 @@ _SHIFT = {
 def _combination(
     cand: list[dict], weights: dict[int, float], readings: dict[int, tuple[np.ndarray, float]]
 ) -> tuple[float | None, float | None, str | None]:
-    """Return ``q`` +- u [um] and the member it comes from: the best member that gives it.
+    """Return ``q`` +- u [um] and the member it comes from: the best offset member, else the best member.
 
     An offset member gives ``w_c b`` (every channel: ``sum w b``); a gain, bow or beam tilt the mean shift of
     the channel's readings, ``w_c mean(f(v) - v)``, its u from the parameter's through the derivative of that
     mean (the members explain the gap alike, so the best one's shift is what the data fix).
     """
-    for n in sorted(cand, key=lambda n: -float(n["evidence"]["delta_bic"])):
+    for n in sorted(cand, key=lambda n: (n["effect"] != "sensor_offset", -float(n["evidence"]["delta_bic"]))):
         name, shift = _SHIFT.get(n["effect"], (None, None))
         x, ux = n["parameters"].get(name), n["uncertainties"].get(f"u_{name}")
         if shift is None or x is None or ux is None:

@@ -276,7 +276,7 @@ def examine_model(model, **cfg) -> Examination:
     thermal = recorded_thermal(findings["named"], _recorded_temperature_c(model.data))
     findings["thermal_as_recorded"] = None if thermal is None else thermal.to_dict()
     if thermal is not None:  # a known cause first: what the look-alikes alone would have said follows
-        findings["statement"] = f"{thermal.sentence}; it fits as well as: {findings['statement']}"
+        findings["statement"] = f"{thermal.sentence}; what fits as well: {findings['statement']}"
     return Examination(
         findings=_clean(findings),
         t_s=data.t_s,
