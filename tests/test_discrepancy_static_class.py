@@ -61,3 +61,32 @@ def test_a_gauge_expanded_as_at_its_recorded_temperature_is_said_to_be_so():
     f = examine_scan(cold)
     assert "thermal_expansion" in [n["effect"] for n in f["named"]]
     assert f["thermal_as_recorded"] is None and "recorded temperature" not in f["statement"]
+
+
+def test_a_static_set_of_a_lobed_part_says_the_radius_changes_from_pose_to_pose():
+    """HSG-1105 of the demo, simulated: a part (no certified diameter, radius free) with a 3-lobing of 4 um,
+    measured static in 6 poses whose angles put 3 theta evenly over a cycle. With beams about 120 degrees
+    apart each pose reads its own radius R + a cos(3 (theta_p - phase)), so the spread of the poses' radii
+    is a / sqrt(2) = 2.83 um rms (closed form); the verdict ends with that alternative. The same set on a
+    certified ring gauge (radius held) and the lobe-free part have no such line.
+    """
+    from borescan.discrepancy import examine_scan
+    from borescan.effects import Effect
+    from borescan.synthetic.simulate import default_tri_scene, simulate_tri_static
+
+    part = {"id": "HSG-T", "type": "part", "nominal_diameter_mm": 275.029, "cte_per_k": 1.15e-05}
+    angles = 2 * np.pi * np.arange(6) / 18.0
+    off = np.array([[0.5, 0.2], [-0.4, 0.3], [0.1, -0.6], [0.6, 0.5], [-0.3, -0.2], [0.2, 0.7]])
+    xy = np.asarray(default_tri_scene().bore_center_xy_mm) + off  # within 0.8 mm of the bore centre
+    lobes = [Effect("bore_lobing", {"k": 3, "a_mm": 0.004, "phase": 0.4})]
+    kw = dict(device_xy_mm=xy, device_angle_rad=angles, kind="measurement", artifact=part, seed=7)
+    f = examine_scan(simulate_tri_static(effects=lobes, **kw))
+    form = f["pose_radii"]
+    u_pose_um = 1e3 * f["noise_floor_mm"] / np.sqrt(3 * 20)  # one pose's mean over 3 channels x 20 samples
+    assert f["verdict"] != "no_missing_effect" and form["dof"] == 5
+    assert abs(form["rms_um"] - 4.0 / np.sqrt(2)) < 0.15 * 4.0 / np.sqrt(2) + 3 * u_pose_um
+    assert f["statement"].endswith(form["statement"]) and "or the part is out of round" in f["statement"]
+    gauge = examine_scan(simulate_tri_static(effects=lobes, device_xy_mm=xy, device_angle_rad=angles, seed=7))
+    assert gauge["pose_radii"] is None
+    clean = examine_scan(simulate_tri_static(effects=[], **kw))
+    assert clean["verdict"] == "no_missing_effect" and clean["pose_radii"] is None

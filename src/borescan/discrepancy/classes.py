@@ -51,6 +51,9 @@ __all__ = [
     "zero_weights",
     "RecordedThermal",
     "recorded_thermal",
+    "PoseRadii",
+    "pose_radii",
+    "other_readings",
 ]
 
 #: the members of the offset-like class of one rod layer, and the sign of the shift each can give
@@ -410,3 +413,103 @@ def recorded_thermal(named: list[dict], recorded_c: float | None) -> RecordedThe
         ):
             return RecordedThermal(float(t), float(u), float(recorded_c))
     return None
+
+
+@dataclass(frozen=True)
+class PoseRadii:
+    """How much the radius a static set's three channels see changes from pose to pose, beyond the noise.
+
+    ``q_p = sum_c w_c mean_p(r_c)`` of the base fit's residuals is, to first order, pose p's radius change
+    (the device positions absorb the rest); with the radius free only its change between poses is seen.
+    A part out of round gives it (its lobes at the device's unrecorded angle of each pose), and so does any
+    channel effect (gain, drift, ...): the set cannot tell them apart.
+    rms_um : rms of q_p about their weighted mean; chi2 : of that spread, ``dof`` = poses - 1;
+    gap_chi2 : what the named effects explain of the gap (sum of (r_before^2 - r_after^2) / sigma_c^2).
+    """
+
+    rms_um: float
+    chi2: float
+    dof: int
+    gap_chi2: float
+
+    @property
+    def sentence(self) -> str:
+        """Return the alternative in words, with what to do."""
+        return (
+            f"or the part is out of round: the radius the channels see changes from pose to pose by "
+            f"{self.rms_um:.2g} um rms (chi2 {self.chi2:.0f} on {self.dof} poses, of the {self.gap_chi2:.0f} "
+            "the named effects explain), and a static set, which does not record the device's angle per "
+            "pose, cannot resolve lobes; scan the part rotating, or a ring gauge with the same poses, to tell"
+        )
+
+    def to_dict(self) -> dict:
+        """Return the JSON-ready form (findings.json ``pose_radii``)."""
+        return {"rms_um": self.rms_um, "chi2": self.chi2, "dof": self.dof, "gap_chi2": self.gap_chi2,
+                "statement": self.sentence}  # fmt: skip
+
+
+def pose_radii(
+    r_before: np.ndarray, r_after: np.ndarray, pose_index: np.ndarray, weights: dict[int, float], sigma_mm
+) -> PoseRadii | None:
+    """Return the pose-to-pose radius change of a static set whose radius is free, if it explains as well.
+
+    ``r_before``, ``r_after`` (n, c): residuals [mm] of the base fit and after the named effects (NaN where
+    masked); ``sigma_mm`` (c,): the channels' noise. None when fewer than three poses, or when the spread's
+    chi2 falls more than :data:`TIE_CHI2` short of what the named effects explain (then it is no alternative).
+    """
+    w, s = np.array(list(weights.values())), np.asarray(sigma_mm, dtype=float)
+    poses = np.unique(pose_index)
+    if w.size != r_before.shape[1] or poses.size < 3:
+        return None
+    q, u2 = [], []
+    for k in poses:
+        rk = r_before[pose_index == k]
+        n = np.sum(np.isfinite(rk), axis=0)
+        if np.any(n == 0):
+            return None
+        q.append(float(np.sum(w * np.nanmean(rk, axis=0))))
+        u2.append(float(np.sum(w**2 * s**2 / n)))
+    q, u2 = np.array(q), np.array(u2)
+    mean = float(np.sum(q / u2) / np.sum(1.0 / u2))
+    chi2 = float(np.sum((q - mean) ** 2 / u2))
+    ok = np.isfinite(r_before) & np.isfinite(r_after)
+    gap = float(
+        np.sum(np.where(ok, (np.nan_to_num(r_before) ** 2 - np.nan_to_num(r_after) ** 2) / s**2, 0.0))
+    )
+    if chi2 < gap - TIE_CHI2:
+        return None
+    return PoseRadii(float(1e3 * np.sqrt(np.mean((q - mean) ** 2))), chi2, int(poses.size - 1), gap)
+
+
+def other_readings(model, findings: dict, r0, r_after, sigma_mm) -> None:
+    """Add to ``findings`` what else explains the gap, in place: a known cause first, a form last.
+
+    ``thermal_as_recorded``: a named thermal expansion at the recorded temperature leads the statement
+    (:func:`recorded_thermal`); ``pose_radii``: a static set of a part (radius
+    free) whose gap a pose-to-pose change of the radius explains as well ends with it
+    (:func:`pose_radii`); each None where it does not apply.
+    """
+    thermal = recorded_thermal(findings["named"], recorded_temperature_c(model.data))
+    findings["thermal_as_recorded"] = None if thermal is None else thermal.to_dict()
+    if thermal is not None:  # a known cause first: what the look-alikes alone would have said follows
+        findings["statement"] = f"{thermal.sentence}; what fits as well: {findings['statement']}"
+    form = None
+    if model.scan_kind == "tri_static" and model.radius_free and findings["verdict"] != "no_missing_effect":
+        form = pose_radii(
+            np.where(model.mask, r0, np.nan),
+            np.where(model.mask, r_after, np.nan),
+            model.data.pose_index,
+            zero_weights(model.data.channels, model.beams.beta_rad),
+            sigma_mm,
+        )
+    findings["pose_radii"] = None if form is None else form.to_dict()
+    if form is not None:
+        findings["statement"] += f"; {form.sentence}"
+
+
+def recorded_temperature_c(data) -> float | None:
+    """Return the temperature [degC] ``scan.json`` records for the scan (``environment``), None if absent."""
+    t = getattr(data, "temperature_c", None)
+    if t is None:
+        t = ((getattr(data, "meta", None) or {}).get("environment") or {}).get("temperature_c")
+    return None if t is None else float(t)

@@ -22,7 +22,7 @@ import numpy as np
 from borescan.atomic import atomic_write_text
 from borescan.config import schema_defaults
 from borescan.discrepancy.classes import (
-    recorded_thermal,
+    other_readings,
     rod_classes,
     spindle_classes,
     static_classes,
@@ -273,10 +273,7 @@ def examine_model(model, **cfg) -> Examination:
     decision = decide(model, base, found, out.sigma_mm, c)
     r_after = model.residual_matrix(decision.after.values(), list(decision.after_terms))
     findings = _findings(model, c, base, out, loc, found, decision, r_after)
-    thermal = recorded_thermal(findings["named"], _recorded_temperature_c(model.data))
-    findings["thermal_as_recorded"] = None if thermal is None else thermal.to_dict()
-    if thermal is not None:  # a known cause first: what the look-alikes alone would have said follows
-        findings["statement"] = f"{thermal.sentence}; what fits as well: {findings['statement']}"
+    other_readings(model, findings, r0, r_after, out.sigma_mm)
     return Examination(
         findings=_clean(findings),
         t_s=data.t_s,
@@ -384,7 +381,7 @@ def _statement(
 ) -> str:
     """Return the finding in one sentence a person can act on."""
     if verdict != "no_missing_effect" and untried:
-        note = f"; a scan of this kind cannot show the artifact's {', '.join(untried)}, which were not tried"
+        note = f"; a scan of this kind cannot fit the artifact's {', '.join(untried)}, which were not tried"
     else:
         note = ""
     return _sentence(verdict, named, explained, remaining, rejected) + note
@@ -434,14 +431,6 @@ def _sentence(verdict: str, named: list[dict], explained: str, remaining: dict |
         f"partly explained by {what}: the gap after is {rem.get('gap_after_over_floor', math.nan):.3g}x the "
         f"noise floor" + (f" ({chans})" if chans else "") + conv + "; something else is missing"
     )
-
-
-def _recorded_temperature_c(data) -> float | None:
-    """Return the temperature [degC] ``scan.json`` records for the scan (``environment``), None if absent."""
-    t = getattr(data, "temperature_c", None)
-    if t is None:
-        t = ((getattr(data, "meta", None) or {}).get("environment") or {}).get("temperature_c")
-    return None if t is None else float(t)
 
 
 def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision, r_after) -> dict:
