@@ -90,3 +90,26 @@ def test_a_static_set_of_a_lobed_part_says_the_radius_changes_from_pose_to_pose(
     assert gauge["pose_radii"] is None
     clean = examine_scan(simulate_tri_static(effects=[], **kw))
     assert clean["verdict"] == "no_missing_effect" and clean["pose_radii"] is None
+
+
+def test_a_recorded_expansion_tied_with_a_channel_effect_does_not_say_nothing_to_recalibrate():
+    """The demo's warm calibration scan N20261121-TRI01-CAL-P1-B: thermal expansion at 20.58 +- 0.02 degC
+    (recorded 20.6) ties with a common zero and a channel delay on channel 2 (truth: both the expansion and
+    a 1.2 ms delay). The common zero is the expansion's look-alike; the delay is not, so it is named to be
+    checked; 20.0 recorded is 29 u away: not the recorded expansion.
+    """
+    from borescan.discrepancy.classes import recorded_thermal
+
+    def entry(effect, ch, par, unc):
+        return {"effect": effect, "channel": ch, "parameters": par, "uncertainties": unc}
+
+    named = [
+        entry("channel_delay", 2, {"tau_s": 0.0012}, {"u_tau_s": 1e-5}),
+        entry("thermal_expansion", None, {"temperature_c": 20.576}, {"u_temperature_c": 0.019}),
+        entry("sensor_offset", None, {"b_mm": 0.0009}, {"u_b_mm": 3e-5}),
+    ]
+    k = recorded_thermal(named, 20.6)
+    assert k.others == ("channel_delay@2",) and "nothing to recalibrate" not in k.sentence
+    assert k.sentence.endswith("but channel_delay@2 fit as well and are not its look-alikes: check them")
+    assert recorded_thermal(named[1:], 20.6).sentence.endswith("; nothing to recalibrate")
+    assert recorded_thermal(named, 20.0) is None

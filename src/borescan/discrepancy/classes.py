@@ -375,15 +375,21 @@ class RecordedThermal:
     temperature_c: float
     u_temperature_c: float
     recorded_c: float
+    #: names fitting as well that are not the expansion's look-alikes (a common zero or its class): then
+    #: the scan cannot say there is nothing to fix
+    others: tuple[str, ...] = ()
 
     @property
     def sentence(self) -> str:
         """Return the finding in words, with what (not) to do."""
-        return (
+        what = (
             f"the artifact expanded as at its recorded temperature {self.recorded_c:.3g} degC (fitted "
             f"{self.temperature_c:.4g} +- {self.u_temperature_c:.2g} degC): thermal expansion, which the "
-            "calibration and the measurement correct for; nothing to recalibrate"
+            "calibration and the measurement correct for"
         )
+        if self.others:
+            return f"{what}; but {', '.join(self.others)} fit as well and are not its look-alikes: check them"
+        return f"{what}; nothing to recalibrate"
 
     def to_dict(self) -> dict:
         """Return the JSON-ready form (findings.json ``thermal_as_recorded``)."""
@@ -391,12 +397,19 @@ class RecordedThermal:
             "temperature_c": self.temperature_c,
             "u_temperature_c": self.u_temperature_c,
             "recorded_temperature_c": self.recorded_c,
+            "others": list(self.others),
             "statement": self.sentence,
         }
 
 
-def recorded_thermal(named: list[dict], recorded_c: float | None) -> RecordedThermal | None:
-    """Return the named ``thermal_expansion`` at the recorded temperature (within 3 u), else None."""
+def recorded_thermal(
+    named: list[dict], recorded_c: float | None, lookalikes: frozenset[str] = frozenset({"sensor_offset@all"})
+) -> RecordedThermal | None:
+    """Return the named ``thermal_expansion`` at the recorded temperature (within 3 u), else None.
+
+    ``lookalikes``: labels (``effect@channel``) of the names that are the expansion's look-alikes; any other
+    named effect is listed in ``others``.
+    """
     if recorded_c is None:
         return None
     for n in named:
@@ -411,7 +424,12 @@ def recorded_thermal(named: list[dict], recorded_c: float | None) -> RecordedThe
             and u is not None
             and abs(float(t) - float(recorded_c)) <= RECORDED_SIGMAS * float(u)
         ):
-            return RecordedThermal(float(t), float(u), float(recorded_c))
+            others = tuple(
+                _label(m)
+                for m in named
+                if m.get("effect") != "thermal_expansion" and _label(m) not in lookalikes
+            )
+            return RecordedThermal(float(t), float(u), float(recorded_c), others)
     return None
 
 
@@ -489,7 +507,11 @@ def other_readings(model, findings: dict, r0, r_after, sigma_mm) -> None:
     free) whose gap a pose-to-pose change of the radius explains as well ends with it
     (:func:`pose_radii`); each None where it does not apply.
     """
-    thermal = recorded_thermal(findings["named"], recorded_temperature_c(model.data))
+    # a static class of zeroes (channel None) is the common zero's look-alike, as the common zero itself
+    alike = {m for k in findings["classes"] if k.get("channel") is None for m in k.get("members", [])}
+    thermal = recorded_thermal(
+        findings["named"], recorded_temperature_c(model.data), frozenset(alike | {"sensor_offset@all"})
+    )
     findings["thermal_as_recorded"] = None if thermal is None else thermal.to_dict()
     if thermal is not None:  # a known cause first: what the look-alikes alone would have said follows
         findings["statement"] = f"{thermal.sentence}; what fits as well: {findings['statement']}"
