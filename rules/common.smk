@@ -99,6 +99,11 @@ def scans_before_night(wildcards):
     return [f"{RES}/stage/scans/night={n}.parquet" for n in NIGHTS if n < wildcards.night]
 
 
+def findings_before_night(wildcards):
+    """Findings tables of earlier nights (a scan read against an earlier calibration gets its scans' findings)."""
+    return [f"{RES}/stage/findings/night={n}.parquet" for n in NIGHTS if n < wildcards.night]
+
+
 def verifications_before_night(wildcards):
     """Verification tables of earlier nights (a calibration that failed one is refused)."""
     return [f"{RES}/stage/verifications/night={n}.parquet" for n in NIGHTS if n < wildcards.night]

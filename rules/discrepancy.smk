@@ -5,6 +5,7 @@ rule discrepancy_night:
         scans=f"{RES}/stage/scans/night={{night}}.parquet",
         calibrations=calibrations_up_to_night,
         readings=f"{RES}/stage/readings/night={{night}}",  # ingest's validated scans: raw is read once, by ingest
+        findings_before=findings_before_night,  # what earlier nights' calibration scans were found to carry
     output:
         findings=f"{RES}/stage/findings/night={{night}}.parquet",
         quarantine=f"{RES}/stage/quarantine/stage=discrepancy/night={{night}}.parquet",

@@ -26,6 +26,7 @@ def main(smk) -> None:
             smk.params.discrepancy,
             log=log,
             workers=smk.threads,
+            findings_tables=list(smk.input.findings_before),
         )
         write_stage_outputs(smk.output, bad, findings=findings)
         log(

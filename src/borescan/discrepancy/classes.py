@@ -38,6 +38,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from borescan.effects import functions as fx
+
 __all__ = [
     "OFFSET_LIKE",
     "LayerClass",
@@ -47,6 +49,11 @@ __all__ = [
     "StaticClass",
     "static_classes",
     "zero_weights",
+    "RecordedThermal",
+    "recorded_thermal",
+    "PoseRadii",
+    "pose_radii",
+    "other_readings",
 ]
 
 #: the members of the offset-like class of one rod layer, and the sign of the shift each can give
@@ -200,6 +207,8 @@ class StaticClass:
     u_q_um: float | None
     members: list[str] = field(default_factory=list)
     dropped: list[str] = field(default_factory=list)
+    #: the member ``q`` was derived from (``sensor_gain@1``); None when no member gave it
+    q_from: str | None = None
     #: what a channel is called in the verdict's sentence
     where = "channel"
 
@@ -212,6 +221,8 @@ class StaticClass:
     def sentence(self) -> str:
         """Return the class in words, with what the data fix and the advice."""
         value = "" if self.q_um is None else f" = {self.q_um:.3g} +- {self.u_q_um:.2g} um"
+        if self.q_um is not None and self.q_from is not None and not self.q_from.startswith("sensor_offset"):
+            value += f" (the shift {self.q_from} gives the set's readings)"
         return (
             f"offset-like: one combination of the channels' zeroes b_c is fixed: {self.combination}{value} "
             f"({', '.join(self.members)} explain it alike); recalibrate the sensors' zeroes, a calibration "
@@ -230,6 +241,7 @@ class StaticClass:
             "zero_weights": {str(ch): w for ch, w in sorted(self.weights.items())},
             "combination_um": self.q_um,
             "u_combination_um": self.u_q_um,
+            "combination_from": self.q_from,
             "members": self.members,
             "dropped_for_sign": self.dropped,
             "absorbed_by": "a calibration of the sensors' zeroes (d_b_mm) on the ring gauge",
@@ -259,8 +271,56 @@ def _label(n: dict) -> str:
     return n["effect"] + (f"@{n['channel']}" if n.get("channel") is not None else "@all")
 
 
+#: the change of a channel's readings ``v`` [mm] (range ``r`` [mm]) each static member gives with its spec
+#: parameters ``p`` (:mod:`borescan.effects.functions`, the effects' one definition), and its parameter's name
+_SHIFT = {
+    "sensor_offset": ("b_mm", lambda v, p, r: fx.sensor_offset(v, None, p, r) - v),
+    "sensor_gain": ("g", lambda v, p, r: fx.sensor_gain(v, None, p, r) - v),
+    "sensor_nonlinearity": ("a_mm", lambda v, p, r: fx.sensor_nonlinearity(v, None, p, r) - v),
+    "beam_tilt": ("gamma_rad", lambda v, p, r: fx.beam_tilt_tri(v, p) - v),
+}
+
+
+def _combination(
+    cand: list[dict], weights: dict[int, float], readings: dict[int, tuple[np.ndarray, float]]
+) -> tuple[float | None, float | None, str | None]:
+    """Return ``q`` +- u [um] and the member it comes from: the best offset member, else the best member.
+
+    An offset member gives ``w_c b`` (every channel: ``sum w b``); a gain, bow or beam tilt the mean shift of
+    the channel's readings, ``w_c mean(f(v) - v)``, its u from the parameter's through the derivative of that
+    mean (the members explain the gap alike, so the best one's shift is what the data fix).
+    """
+    for n in sorted(cand, key=lambda n: (n["effect"] != "sensor_offset", -float(n["evidence"]["delta_bic"]))):
+        name, shift = _SHIFT.get(n["effect"], (None, None))
+        x, ux = n["parameters"].get(name), n["uncertainties"].get(f"u_{name}")
+        if shift is None or x is None or ux is None:
+            continue
+        chans = list(weights) if n.get("channel") is None else [int(n["channel"])]
+        if n["effect"] != "sensor_offset" and not all(c in readings for c in chans):
+            continue
+        if not all(c in weights for c in chans):
+            continue
+
+        def q_of(value: float, chans=chans, name=name, shift=shift) -> float:
+            if name == "b_mm":
+                return 1e3 * value * sum(weights[c] for c in chans)
+            return 1e3 * sum(
+                weights[c] * float(np.mean(shift(readings[c][0], {name: value}, readings[c][1])))
+                for c in chans
+            )
+
+        x, ux = float(x), float(ux)
+        step = max(abs(x), float(ux), 1e-12) * 1e-4
+        slope = (q_of(x + step) - q_of(x - step)) / (2.0 * step)
+        return q_of(x), abs(slope) * ux, _label(n)
+    return None, None, None
+
+
 def static_classes(
-    named: list[dict], weights: dict[int, float], tied: list[tuple[str, ...]]
+    named: list[dict],
+    weights: dict[int, float],
+    tied: list[tuple[str, ...]],
+    readings: dict[int, tuple[np.ndarray, float]] | None = None,
 ) -> tuple[list[dict], list[StaticClass]]:
     """Group a static set's named entries into its offset-like class; drop wrong-sign members.
 
@@ -268,8 +328,9 @@ def static_classes(
     alternatives: named offset-like entries (:data:`STATIC_MEMBERS`, one channel or every channel) that
     some tied candidate does without (a term every candidate needs, or the two terms of the one candidate,
     explain the gap together, not alike), within :data:`TIE_CHI2` of the best named entry's evidence, on at
-    least two channels (or one and every channel). Returns the named entries left (wrong-sign beam members
-    removed) and the class, if any.
+    least two channels (or one and every channel). ``readings``: each channel's valid readings [mm] and
+    range [mm], from which a member other than an offset gives ``q`` (:func:`_combination`). Returns the
+    named entries left (wrong-sign beam members removed) and the class, if any.
     """
     if not weights or not named or len(tied) < 2:
         return named, []
@@ -283,15 +344,7 @@ def static_classes(
     ]
     if len({n.get("channel") for n in cand}) < 2:
         return named, []
-    q = u = None
-    for n in sorted(cand, key=lambda n: -float(n["evidence"]["delta_bic"])):  # the best offset member
-        b, ub = n["parameters"].get("b_mm"), n["uncertainties"].get("u_b_mm")
-        if n["effect"] != "sensor_offset" or b is None or ub is None:
-            continue
-        w = weights.get(int(n["channel"])) if n.get("channel") is not None else sum(weights.values())
-        if w is not None:
-            q, u = 1e3 * w * float(b), 1e3 * abs(w) * float(ub)
-            break
+    q, u, q_from = _combination(cand, weights, readings or {})
     sign = 0 if q is None or abs(q) <= SIGN_SIGMAS * u else (1 if q > 0 else -1)
     members, dropped, drop = [], [], set()
     for n in cand:
@@ -303,4 +356,182 @@ def static_classes(
             members.append(_label(n))
     if len(members) < 2:
         return named, []
-    return [n for n in named if id(n) not in drop], [StaticClass(weights, q, u, members, dropped)]
+    return [n for n in named if id(n) not in drop], [StaticClass(weights, q, u, members, dropped, q_from)]
+
+
+#: a fitted temperature within this many standard uncertainties of the recorded one is the recorded one
+RECORDED_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class RecordedThermal:
+    """A named ``thermal_expansion`` at the temperature ``scan.json`` records: the artifact's expansion.
+
+    The calibration and the measurement read the gauge at its recorded temperature, so this is the physics
+    the pipeline already corrects for, not a flaw to fix; the look-alikes it ties with (a common zero offset)
+    fit only as well.
+    """
+
+    temperature_c: float
+    u_temperature_c: float
+    recorded_c: float
+    #: names fitting as well that are not the expansion's look-alikes (a common zero or its class): then
+    #: the scan cannot say there is nothing to fix
+    others: tuple[str, ...] = ()
+
+    @property
+    def sentence(self) -> str:
+        """Return the finding in words, with what (not) to do."""
+        what = (
+            f"the artifact expanded as at its recorded temperature {self.recorded_c:.3g} degC (fitted "
+            f"{self.temperature_c:.4g} +- {self.u_temperature_c:.2g} degC): thermal expansion, which the "
+            "calibration and the measurement correct for"
+        )
+        if self.others:
+            return f"{what}; but {', '.join(self.others)} fit as well and are not its look-alikes: check them"
+        return f"{what}; nothing to recalibrate"
+
+    def to_dict(self) -> dict:
+        """Return the JSON-ready form (findings.json ``thermal_as_recorded``)."""
+        return {
+            "temperature_c": self.temperature_c,
+            "u_temperature_c": self.u_temperature_c,
+            "recorded_temperature_c": self.recorded_c,
+            "others": list(self.others),
+            "statement": self.sentence,
+        }
+
+
+def recorded_thermal(
+    named: list[dict], recorded_c: float | None, lookalikes: frozenset[str] = frozenset({"sensor_offset@all"})
+) -> RecordedThermal | None:
+    """Return the named ``thermal_expansion`` at the recorded temperature (within 3 u), else None.
+
+    ``lookalikes``: labels (``effect@channel``) of the names that are the expansion's look-alikes; any other
+    named effect is listed in ``others``.
+    """
+    if recorded_c is None:
+        return None
+    for n in named:
+        if n.get("effect") != "thermal_expansion":
+            continue
+        t, u = (
+            (n.get("parameters") or {}).get("temperature_c"),
+            (n.get("uncertainties") or {}).get("u_temperature_c"),
+        )
+        if (
+            t is not None
+            and u is not None
+            and abs(float(t) - float(recorded_c)) <= RECORDED_SIGMAS * float(u)
+        ):
+            others = tuple(
+                _label(m)
+                for m in named
+                if m.get("effect") != "thermal_expansion" and _label(m) not in lookalikes
+            )
+            return RecordedThermal(float(t), float(u), float(recorded_c), others)
+    return None
+
+
+@dataclass(frozen=True)
+class PoseRadii:
+    """How much the radius a static set's three channels see changes from pose to pose, beyond the noise.
+
+    ``q_p = sum_c w_c mean_p(r_c)`` of the base fit's residuals is, to first order, pose p's radius change
+    (the device positions absorb the rest); with the radius free only its change between poses is seen.
+    A part out of round gives it (its lobes at the device's unrecorded angle of each pose), and so does any
+    channel effect (gain, drift, ...): the set cannot tell them apart.
+    rms_um : rms of q_p about their weighted mean; chi2 : of that spread, ``dof`` = poses - 1;
+    gap_chi2 : what the named effects explain of the gap (sum of (r_before^2 - r_after^2) / sigma_c^2).
+    """
+
+    rms_um: float
+    chi2: float
+    dof: int
+    gap_chi2: float
+
+    @property
+    def sentence(self) -> str:
+        """Return the alternative in words, with what to do."""
+        return (
+            f"or the part is out of round: the radius the channels see changes from pose to pose by "
+            f"{self.rms_um:.2g} um rms (chi2 {self.chi2:.0f} on {self.dof} poses, of the {self.gap_chi2:.0f} "
+            "the named effects explain), and a static set, which does not record the device's angle per "
+            "pose, cannot resolve lobes; scan the part rotating, or a ring gauge with the same poses, to tell"
+        )
+
+    def to_dict(self) -> dict:
+        """Return the JSON-ready form (findings.json ``pose_radii``)."""
+        return {"rms_um": self.rms_um, "chi2": self.chi2, "dof": self.dof, "gap_chi2": self.gap_chi2,
+                "statement": self.sentence}  # fmt: skip
+
+
+def pose_radii(
+    r_before: np.ndarray, r_after: np.ndarray, pose_index: np.ndarray, weights: dict[int, float], sigma_mm
+) -> PoseRadii | None:
+    """Return the pose-to-pose radius change of a static set whose radius is free, if it explains as well.
+
+    ``r_before``, ``r_after`` (n, c): residuals [mm] of the base fit and after the named effects (NaN where
+    masked); ``sigma_mm`` (c,): the channels' noise. None when fewer than three poses, or when the spread's
+    chi2 falls more than :data:`TIE_CHI2` short of what the named effects explain (then it is no alternative).
+    """
+    w, s = np.array(list(weights.values())), np.asarray(sigma_mm, dtype=float)
+    poses = np.unique(pose_index)
+    if w.size != r_before.shape[1] or poses.size < 3:
+        return None
+    q, u2 = [], []
+    for k in poses:
+        rk = r_before[pose_index == k]
+        n = np.sum(np.isfinite(rk), axis=0)
+        if np.any(n == 0):
+            return None
+        q.append(float(np.sum(w * np.nanmean(rk, axis=0))))
+        u2.append(float(np.sum(w**2 * s**2 / n)))
+    q, u2 = np.array(q), np.array(u2)
+    mean = float(np.sum(q / u2) / np.sum(1.0 / u2))
+    chi2 = float(np.sum((q - mean) ** 2 / u2))
+    ok = np.isfinite(r_before) & np.isfinite(r_after)
+    gap = float(
+        np.sum(np.where(ok, (np.nan_to_num(r_before) ** 2 - np.nan_to_num(r_after) ** 2) / s**2, 0.0))
+    )
+    if chi2 < gap - TIE_CHI2:
+        return None
+    return PoseRadii(float(1e3 * np.sqrt(np.mean((q - mean) ** 2))), chi2, int(poses.size - 1), gap)
+
+
+def other_readings(model, findings: dict, r0, r_after, sigma_mm) -> None:
+    """Add to ``findings`` what else explains the gap, in place: a known cause first, a form last.
+
+    ``thermal_as_recorded``: a named thermal expansion at the recorded temperature leads the statement
+    (:func:`recorded_thermal`); ``pose_radii``: a static set of a part (radius
+    free) whose gap a pose-to-pose change of the radius explains as well ends with it
+    (:func:`pose_radii`); each None where it does not apply.
+    """
+    # a static class of zeroes (channel None) is the common zero's look-alike, as the common zero itself
+    alike = {m for k in findings["classes"] if k.get("channel") is None for m in k.get("members", [])}
+    thermal = recorded_thermal(
+        findings["named"], recorded_temperature_c(model.data), frozenset(alike | {"sensor_offset@all"})
+    )
+    findings["thermal_as_recorded"] = None if thermal is None else thermal.to_dict()
+    if thermal is not None:  # a known cause first: what the look-alikes alone would have said follows
+        findings["statement"] = f"{thermal.sentence}; what fits as well: {findings['statement']}"
+    form = None
+    if model.scan_kind == "tri_static" and model.radius_free and findings["verdict"] != "no_missing_effect":
+        form = pose_radii(
+            np.where(model.mask, r0, np.nan),
+            np.where(model.mask, r_after, np.nan),
+            model.data.pose_index,
+            zero_weights(model.data.channels, model.beams.beta_rad),
+            sigma_mm,
+        )
+    findings["pose_radii"] = None if form is None else form.to_dict()
+    if form is not None:
+        findings["statement"] += f"; {form.sentence}"
+
+
+def recorded_temperature_c(data) -> float | None:
+    """Return the temperature [degC] ``scan.json`` records for the scan (``environment``), None if absent."""
+    t = getattr(data, "temperature_c", None)
+    if t is None:
+        t = ((getattr(data, "meta", None) or {}).get("environment") or {}).get("temperature_c")
+    return None if t is None else float(t)

@@ -21,7 +21,13 @@ import numpy as np
 
 from borescan.atomic import atomic_write_text
 from borescan.config import schema_defaults
-from borescan.discrepancy.classes import rod_classes, spindle_classes, static_classes, zero_weights
+from borescan.discrepancy.classes import (
+    other_readings,
+    rod_classes,
+    spindle_classes,
+    static_classes,
+    zero_weights,
+)
 from borescan.discrepancy.evidence import output_stage_evidence
 from borescan.discrepancy.fitting import FitResult
 from borescan.discrepancy.judge import Rejection, explanation, judge, plausible_ranges
@@ -267,6 +273,7 @@ def examine_model(model, **cfg) -> Examination:
     decision = decide(model, base, found, out.sigma_mm, c)
     r_after = model.residual_matrix(decision.after.values(), list(decision.after_terms))
     findings = _findings(model, c, base, out, loc, found, decision, r_after)
+    other_readings(model, findings, r0, r_after, out.sigma_mm)
     return Examination(
         findings=_clean(findings),
         t_s=data.t_s,
@@ -374,7 +381,7 @@ def _statement(
 ) -> str:
     """Return the finding in one sentence a person can act on."""
     if verdict != "no_missing_effect" and untried:
-        note = f"; a scan of this kind cannot show the artifact's {', '.join(untried)}, which were not tried"
+        note = f"; a scan of this kind cannot fit the artifact's {', '.join(untried)}, which were not tried"
     else:
         note = ""
     return _sentence(verdict, named, explained, remaining, rejected) + note
@@ -434,7 +441,11 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
         dec_named, classes = rod_classes(dec.named)
     elif model.scan_kind == "tri_static":
         weights = zero_weights(model.data.channels, model.beams.beta_rad)
-        dec_named, classes = static_classes(dec.named, weights, [z.keys for z in dec.named_fits])
+        v = np.where(model.valid, data.values_mm, np.nan)
+        readings = {
+            ch: (v[:, i][np.isfinite(v[:, i])], float(data.range_mm[i])) for i, ch in enumerate(data.channels)
+        }
+        dec_named, classes = static_classes(dec.named, weights, [z.keys for z in dec.named_fits], readings)
     elif model.scan_kind == "tri_spindle" and "d_b" not in getattr(model, "free_beams", ("d_b",)):
         dec_named, classes = spindle_classes(dec.named)  # the beams held: a channel's offset is a candidate
     named = list(out.named) + dec_named

@@ -8,7 +8,7 @@ from borescan.calibrations import rod_layers, tri_calibration
 from borescan.device_model import carried_effects, from_dicts
 from borescan.geometry import layer_dict
 
-__all__ = ["discrepancy_reference"]
+__all__ = ["discrepancy_reference", "reference_calibration"]
 
 
 def discrepancy_reference(
@@ -37,14 +37,9 @@ def discrepancy_reference(
     the model misses, not whether a result may be certified.
     """
     if device_type == "tri_lds" and calibrations.height and "device_id" in calibrations.columns:
-        c = calibrations.filter(
-            (pl.col("device_id") == device_id)
-            & (pl.col("valid_from") <= night)
-            & (pl.col("method") != "nominal")
-        )
-        if c.height:
-            cal_id = c.sort("valid_from", "calibration_id")["calibration_id"][-1]
-            cal = tri_calibration(calibrations, cal_id)
+        cal = reference_calibration(calibrations, device_id, device_type, night)
+        if cal is not None:
+            cal_id = cal.calibration_id
             carried = carried_effects(from_dicts((cal.diagnostics or {}).get("device_model")))
             if carried:
                 return (
@@ -69,3 +64,20 @@ def discrepancy_reference(
                 "layers": [layer_dict(lay) for lay in rod_layers(rows, channels)]
             }, f"calibration {cal_id}"
     return {}, "device.nominal"
+
+
+def reference_calibration(calibrations: pl.DataFrame, device_id: str, device_type: str, night: str):
+    """Return the three-sensor calibration :func:`discrepancy_reference` examines the device's scans against.
+
+    The latest calibration made on or before the night (ties broken by calibration id; ``nominal`` records
+    excluded), a :class:`~borescan.calibrate.result.TriCalibration` (its ``scan_ids`` are the scans it was
+    made from); None for a rod or a device without one.
+    """
+    if device_type != "tri_lds" or not calibrations.height or "device_id" not in calibrations.columns:
+        return None
+    c = calibrations.filter(
+        (pl.col("device_id") == device_id) & (pl.col("valid_from") <= night) & (pl.col("method") != "nominal")
+    )
+    if not c.height:
+        return None
+    return tri_calibration(calibrations, c.sort("valid_from", "calibration_id")["calibration_id"][-1])

@@ -15,8 +15,9 @@ from pathlib import Path
 import polars as pl
 
 from borescan import discrepancy, rawio, tables
+from borescan.discrepancy.calibration_record import calibration_findings, with_calibration_findings
 from borescan.discrepancy.examine import discrepancy_settings
-from borescan.discrepancy.reference import discrepancy_reference
+from borescan.discrepancy.reference import discrepancy_reference, reference_calibration
 from borescan.parallel import map_timed, workers_for
 from borescan.stages._common import (
     Quarantined,
@@ -85,6 +86,7 @@ def stage_discrepancy(
     cfg: dict,
     log=print,
     workers: int = 1,
+    findings_tables=None,
 ) -> tuple[pl.DataFrame, list[Quarantined]]:
     """Examine every scan of a night for model discrepancy.
 
@@ -95,15 +97,20 @@ def stage_discrepancy(
     says; the named missing effect, the gap before and after and the noise floor go to
     ``findings.json`` (with ``reference`` naming what the scan was compared with), the residual
     plots to ``gap.png``. ``cfg`` is the config's ``discrepancy`` section. Scans are spread over
-    ``workers`` processes.
+    ``workers`` processes. A scan read against a three-sensor calibration then gets what the examinations
+    of that calibration's own scans found (``calibration_findings``: this night's, or an earlier night's in
+    ``findings_tables``; :mod:`borescan.discrepancy.calibration_record`).
     """
     settings = discrepancy_settings(cfg)
     clear_night_folder(results_root, "discrepancy", night)
     cals = read_tables(calibration_tables or [], "calibrations")
-    jobs = []
+    jobs, read_against = [], {}
     for row, d in night_scans(results_root, night, scans_table):
         ref_kw, ref = discrepancy_reference(cals, row["device_id"], row["device_type"], night)
         jobs.append((raw_root, night, results_root, d, settings, ref_kw, ref))
+        read_against[row["scan_id"]] = reference_calibration(
+            cals, row["device_id"], row["device_type"], night
+        )
     log(f"{len(jobs)} scans on {workers_for(len(jobs), workers)} process(es)")
     rows, bad = [], []
     for (r, q, msg), cpu_s in map_timed(discrepancy_one, jobs, workers):
@@ -111,7 +118,41 @@ def stage_discrepancy(
         bad += q
         log(msg)
         log(compute_line(msg.split(" ", 1)[0].rstrip(":"), cpu_s))
+    earlier = read_tables(findings_tables or [], "findings").to_dicts()
+    temps = {}
+    if cals.height and "temperature_c" in cals.columns:
+        temps = {
+            r["calibration_id"]: r["temperature_c"]
+            for r in cals.select("calibration_id", "temperature_c").to_dicts()
+        }
+    rows = _with_calibration_records(results_root, night, rows, earlier, read_against, temps)
     return tables.frame("findings", rows), bad
+
+
+def _with_calibration_records(
+    results_root, night: str, rows: list[dict], earlier: list[dict], read_against, cal_temperatures: dict
+):
+    """Add ``calibration_findings`` to each examined scan's findings.json; return the night's rows updated.
+
+    ``read_against``: scan id -> the calibration it was examined against (None: the design, or a rod). A scan
+    of that calibration itself gets ``null`` (it is the record), as does one read against no calibration.
+    ``cal_temperatures``: calibration id -> the temperature [degC] it read its gauge at.
+    """
+    out = []
+    for sid in dict.fromkeys(r["scan_id"] for r in rows):
+        path = findings_night_dir(results_root, night) / sid
+        findings = json.loads((path / "findings.json").read_text())
+        cal = read_against.get(sid)
+        if cal is None or sid in cal.scan_ids:
+            findings["calibration_findings"] = None
+        else:
+            record = calibration_findings(
+                cal.calibration_id, cal.scan_ids, earlier + rows, cal_temperatures.get(cal.calibration_id)
+            )
+            findings = with_calibration_findings(findings, record)
+        discrepancy.write_findings(findings, path)
+        out += findings_rows(findings)
+    return out
 
 
 def discrepancy_one(job) -> tuple[list[dict], list[Quarantined], str]:
