@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import textwrap
+from collections.abc import Iterator
 from typing import Any
 
+import matplotlib
 import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
@@ -44,6 +47,22 @@ def _pdf_rc(cert: dict) -> dict:
     except UnicodeEncodeError:
         return dict(_RC)
     return {**_RC, **_PDF_CORE_RC}
+
+
+@contextlib.contextmanager
+def _pdf_context(cert: dict) -> Iterator[None]:
+    """Draw and write the certificate's PDF pages inside this.
+
+    Its settings (:func:`_pdf_rc`), and matplotlib's warning that the core fonts' regular weight is named
+    Medium silenced.
+    """
+    log, quiet = logging.getLogger("matplotlib.font_manager"), _HelveticaWeightFilter()
+    log.addFilter(quiet)
+    try:
+        with matplotlib.rc_context(_pdf_rc(cert)):
+            yield
+    finally:
+        log.removeFilter(quiet)
 
 
 class _HelveticaWeightFilter(logging.Filter):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import io
 import json
-import logging
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +16,7 @@ from borescan.calibrate.result import TriCalibration
 from borescan.certificate.budget_pages import _budget_tables, _page_records, _verification_pages
 from borescan.certificate.content import _residual_arrays
 from borescan.certificate.dcc import write_dcc
-from borescan.certificate.layout import _A4, _PDF_METADATA, _RC, _Doc, _HelveticaWeightFilter, _pdf_rc
+from borescan.certificate.layout import _A4, _PDF_METADATA, _RC, _Doc, _pdf_context
 from borescan.certificate.pages import _page_admin, _page_item_conditions, _page_results
 from borescan.certificate.rod import _rod_pages, _rod_residual_figure, rod_certificate_dict
 from borescan.certificate.tri import certificate_dict
@@ -166,14 +165,9 @@ def write_certificate_files(
         elif (cert.get("fit") or {}).get("pose_residuals") is not None:
             paths["png"] = out_dir / "residuals.png"
             atomic_write_bytes(paths["png"], _png_bytes(_rod_residual_figure(cert)))
-    fm_log, quiet = logging.getLogger("matplotlib.font_manager"), _HelveticaWeightFilter()
-    fm_log.addFilter(quiet)
-    try:
-        with matplotlib.rc_context(_pdf_rc(cert)):
-            pages = _rod_pages(cert) if rod else _pages(cert, t, res)
-            atomic_write_bytes(paths["pdf"], _pdf_bytes(pages, title))
-    finally:
-        fm_log.removeFilter(quiet)
+    with _pdf_context(cert):
+        pages = _rod_pages(cert) if rod else _pages(cert, t, res)
+        atomic_write_bytes(paths["pdf"], _pdf_bytes(pages, title))
     return paths
 
 
