@@ -343,3 +343,54 @@ def test_table_cells_sit_where_matplotlibs_table_puts_them():
         got = texts[cell.get_text().get_text()].get_window_extent(mine)
         # the same text at the same size: the same box, to well under a pixel at the figure's dpi
         np.testing.assert_allclose(got.get_points(), want.get_points(), atol=1e-6, err_msg=f"cell {r},{c}")
+
+
+def _pdf_streams(pdf: bytes) -> bytes:
+    """Return the PDF's streams, inflated (matplotlib compresses each with zlib), joined."""
+    import zlib
+
+    out = []
+    for m in re.finditer(rb"stream\r?\n(.*?)\r?\nendstream", pdf, re.S):
+        try:
+            out.append(zlib.decompress(m.group(1)))
+        except zlib.error:
+            out.append(m.group(1))
+    return b"\n".join(out)
+
+
+def _pdf_string(text: str) -> bytes:
+    """Return ``text`` as a PDF string literal in WinAnsi, escaped as matplotlib writes it."""
+    esc = text.replace("\\", "\\\\").replace("(", "\\(").replace(")", "\\)").replace("\r", "\\r")
+    return b"(" + esc.encode("cp1252") + b")"
+
+
+def test_pdf_text_is_written_whole_in_the_core_helvetica(calibrated, tmp_path):
+    """Every string the pages draw is one text show of a core font, nothing embedded (issue 38's cost)."""
+    cal, kw = calibrated
+    paths = write_certificate(cal, tmp_path / "c", **kw, verifications=[_verification(True)])
+    pdf = paths["pdf"].read_bytes()
+    assert b"/BaseFont /Helvetica" in pdf and b"/BaseFont /Helvetica-Bold" in pdf
+    assert b"/CharProcs" not in pdf and b"/FontFile" not in pdf  # no Type 3 glyphs, no embedded font
+    content = _pdf_streams(pdf)
+    cert = json.loads(paths["json"].read_text())
+    t, res = np.asarray(kw["residuals"]["t_s"]), np.asarray(kw["residuals"]["residual_mm"])
+    texts = [x.get_text() for fig in _pages(cert, t, res) for x in fig.texts if x.get_text()]
+    assert len(texts) > 300
+    missing = [s for s in texts if _pdf_string(s) not in content]
+    assert missing == []
+    assert b"\xe2\x88\x92" not in content  # the residual axes' minus is WinAnsi's hyphen-minus
+
+
+def test_pdf_beyond_winansi_keeps_the_embedded_font(calibrated, tmp_path):
+    """A laboratory named in Polish: Helvetica's WinAnsi has no L-stroke, so the PDF embeds DejaVu Sans."""
+    from borescan.certificate.layout import _pdf_rc
+
+    cal, kw = calibrated
+    lab = dict(schema_defaults()["laboratory"], name="Laboratorium Metrologii \u0141\u00f3d\u017a")
+    paths = write_certificate(cal, tmp_path / "c", **kw, laboratory=lab)
+    cert = json.loads(paths["json"].read_text())
+    assert cert["laboratory"]["name"] == lab["name"]
+    assert _pdf_rc(cert)["font.family"] == "DejaVu Sans" and "pdf.use14corefonts" not in _pdf_rc(cert)
+    pdf = paths["pdf"].read_bytes()
+    assert b"/BaseFont /Helvetica" not in pdf
+    assert b"/CharProcs" in pdf and b"DejaVuSans" in pdf  # Type 3 glyphs of the embedded DejaVu Sans

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
 import textwrap
+from collections.abc import Iterator
 from typing import Any
 
+import matplotlib
 import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
@@ -16,6 +20,67 @@ from borescan.uncertainty import round_uncertainty
 _PDF_METADATA = {"Creator": None, "Producer": None, "CreationDate": None, "ModDate": None}
 
 _RC = {"font.family": "DejaVu Sans", "font.size": 8, "svg.hashsalt": "borescan", "pdf.compression": 6}
+
+#: The PDF's text set in Helvetica, one of the PDF standard's 14 fonts every reader has (nothing embedded):
+#: matplotlib then writes each string whole, measured from the font's AFM metrics, instead of shaping,
+#: tracking and subsetting DejaVu Sans glyph by glyph (about half a three-sensor certificate's CPU). Those
+#: fonts encode WinAnsi (cp1252) only, so the residual axes' minus is the ASCII hyphen-minus; see
+#: :func:`_pdf_rc` for a certificate whose text needs more than WinAnsi.
+_PDF_CORE_RC = {
+    "font.family": "Helvetica",
+    "pdf.use14corefonts": True,
+    "axes.unicode_minus": False,
+}
+
+
+def _pdf_rc(cert: dict) -> dict:
+    """Return the matplotlib settings of the certificate's PDF pages.
+
+    Helvetica (:data:`_PDF_CORE_RC`) when every string of ``cert`` is in WinAnsi (cp1252); otherwise the
+    embedded DejaVu Sans of :data:`_RC`, which has the glyphs (a laboratory name in Polish, a Greek
+    letter in a remark), so no character is ever replaced.
+    """
+    import json
+
+    try:
+        json.dumps(cert, ensure_ascii=False, sort_keys=True).encode("cp1252")
+    except UnicodeEncodeError:
+        return dict(_RC)
+    return {**_RC, **_PDF_CORE_RC}
+
+
+@contextlib.contextmanager
+def _pdf_context(cert: dict) -> Iterator[None]:
+    """Draw and write the certificate's PDF pages inside this.
+
+    Its settings (:func:`_pdf_rc`), and matplotlib's warning that the core fonts' regular weight is named
+    Medium silenced.
+    """
+    log, quiet = logging.getLogger("matplotlib.font_manager"), _HelveticaWeightFilter()
+    log.addFilter(quiet)
+    try:
+        with matplotlib.rc_context(_pdf_rc(cert)):
+            yield
+    finally:
+        log.removeFilter(quiet)
+
+
+class _HelveticaWeightFilter(logging.Filter):
+    """Drop matplotlib's "Failed to find font weight normal for Helvetica (Courier), now using medium".
+
+    The regular weight of the core fonts' AFM files is named Medium: it is the font asked for, not a
+    substitute, so the warning would only clutter every calibration job's log.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (
+            str(record.msg).startswith("findfont: Failed to find font weight")
+            and isinstance(record.args, tuple)
+            and len(record.args) == 3
+            and record.args[1] in ("Helvetica", "Courier")
+            and record.args[2] == "medium"
+        )
+
 
 _A4 = (8.27, 11.69)
 

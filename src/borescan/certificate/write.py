@@ -16,7 +16,7 @@ from borescan.calibrate.result import TriCalibration
 from borescan.certificate.budget_pages import _budget_tables, _page_records, _verification_pages
 from borescan.certificate.content import _residual_arrays
 from borescan.certificate.dcc import write_dcc
-from borescan.certificate.layout import _A4, _PDF_METADATA, _RC, _Doc
+from borescan.certificate.layout import _A4, _PDF_METADATA, _RC, _Doc, _pdf_context
 from borescan.certificate.pages import _page_admin, _page_item_conditions, _page_results
 from borescan.certificate.rod import _rod_pages, _rod_residual_figure, rod_certificate_dict
 from borescan.certificate.tri import certificate_dict
@@ -154,17 +154,20 @@ def write_certificate_files(
     # unique temporary names (atomic.py): two runs writing the same certificate never meet
     atomic_write_text(paths["json"], json.dumps(cert, sort_keys=True, indent=2, allow_nan=False) + "\n")
     paths["dcc"] = write_dcc(cert, out_dir)
-    with matplotlib.rc_context(_RC):
-        if (cert.get("device") or {}).get("type") == "rod":
-            if (cert.get("fit") or {}).get("pose_residuals") is not None:
-                paths["png"] = out_dir / "residuals.png"
-                atomic_write_bytes(paths["png"], _png_bytes(_rod_residual_figure(cert)))
-            atomic_write_bytes(paths["pdf"], _pdf_bytes(_rod_pages(cert), title))
-            return paths
+    rod = (cert.get("device") or {}).get("type") == "rod"
+    if not rod:
         t, res = _residual_arrays(residuals)
-        paths["png"] = out_dir / "residuals.png"
-        atomic_write_bytes(paths["png"], _png_bytes(_residual_figure(cert, t, res)))
-        atomic_write_bytes(paths["pdf"], _pdf_bytes(_pages(cert, t, res), title))
+    # the PNG in DejaVu Sans (_RC); the PDF's pages drawn and written in their own settings (_pdf_rc)
+    with matplotlib.rc_context(_RC):
+        if not rod:
+            paths["png"] = out_dir / "residuals.png"
+            atomic_write_bytes(paths["png"], _png_bytes(_residual_figure(cert, t, res)))
+        elif (cert.get("fit") or {}).get("pose_residuals") is not None:
+            paths["png"] = out_dir / "residuals.png"
+            atomic_write_bytes(paths["png"], _png_bytes(_rod_residual_figure(cert)))
+    with _pdf_context(cert):
+        pages = _rod_pages(cert) if rod else _pages(cert, t, res)
+        atomic_write_bytes(paths["pdf"], _pdf_bytes(pages, title))
     return paths
 
 
