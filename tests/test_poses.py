@@ -245,3 +245,32 @@ def test_rod_model_at_the_true_geometry_and_temperature_is_the_simulated_thermal
     # the radius left by the base alone: cte dT R = 11.5e-6 x 10 K x (50-100 mm) = 6-12 um on some layer
     r_base = model.residual_matrix(p, [])
     assert np.nanmax(np.abs(r_base)) > 5e-3
+
+
+def test_thermal_start_of_a_ring_gauge_rod_lands_on_the_true_temperature():
+    """A rod in certified rings 13.25 K below 20 degC (noise-free): the thermal start from the radii solved
+    free is the true dT to 0.1 K, and the exact fit from it leaves the readings at below 0.05 of the
+    contract's smallest noise (2 um) with dT within 0.01 K (the truth is a zero of the model: the parity
+    test above).
+    """
+    from borescan.discrepancy.examine import discrepancy_settings, model_of
+    from borescan.discrepancy.search import Fitter
+    from borescan.effects import Effect
+    from borescan.synthetic import contract as sct
+    from borescan.synthetic import rod_scenarios as rs
+
+    sim = rs.draw_rod_scan(
+        np.random.default_rng(4),
+        scan_id="COLD",
+        night="2027-01-01",
+        contract=dict(sct.ROD_CONTRACT, noise_mm=(0.0, 0.0)),
+        extra_effects=(Effect("thermal_expansion", {"temperature_c": 6.75}),),
+    )
+    model = model_of(sim, **discrepancy_settings())
+    assert not model.radius_free.any()
+    ((_, term, start),) = model._thermal_start()
+    assert abs(start["thermal_expansion.dT"] + 13.25) < 0.1
+    fit = Fitter(model)([term], start)
+    rms_mm = float(np.sqrt(np.nanmean(model.residual_matrix(fit.values(), [term])[model.mask] ** 2)))
+    assert rms_mm < 0.05 * sct.ROD_CONTRACT["noise_mm"][0]
+    assert abs(fit.values()["thermal_expansion.dT"] + 13.25) < 0.01
