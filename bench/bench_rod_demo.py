@@ -60,7 +60,7 @@ def run(raw_root: Path, coaxiality: str | None = None) -> list[dict]:
         {
             "budget": json_ready(budget.to_dict()),
             "hold_readings": hold_readings(means),
-            "layer_geometry": rod_calibration.layer_geometry_record(means, lays, u_mean, unc),
+            "layer_geometry": rod_calibration.layer_geometry_record(means, lays, u_mean, unc, sol),
         }
     )
     rows = [
