@@ -222,10 +222,11 @@ def test_layer_geometry_input_is_the_rms_of_the_draws_and_deterministic(holds):
 def test_refinement_is_the_full_solve_where_the_minimum_only_moved(holds):
     """Each draw's refinement (one local LM from the nominal solve) against the full solve (every
     start, reflection and pose repair) on the chain-3-like verification hold: where the full solve's
-    minimum is the nominal's moved (no pose moved by more than 0.01 rad, the deflection by 5 mrad, a third of its flip to -w;
-    the shifts are 0.5-2.7 um) the radii and their u agree to 1 nm, the LM's tolerance, not the
-    micrometres the geometry moves them by; where the refined minimum fits more than 9 chi^2 worse than
-    the nominal's, the default basin refuses it (the caller then solves afresh).
+    minimum is the nominal's moved (no pose moved by more than 0.01 rad, the deflection by 5 mrad, a
+    third of its flip to -w; the shifts are 0.5-2.7 um) the radii and their u agree to 1 nm (the
+    optimisers' tolerances leave 1e-5 um), not the micrometres the geometry moves them by; where
+    the refined minimum fits more than 9 chi^2 worse than the nominal's, the default basin refuses
+    it (the caller then solves afresh).
     """
     from borescan.rod import solve_rod
     from borescan.rod_refine import RodBasin, RodBasinError, refine_rod
