@@ -253,7 +253,7 @@ def run_chain(job) -> dict:
                 {
                     "budget": json_ready(budget.to_dict()),
                     "hold_readings": hold_readings(means),
-                    "layer_geometry": rod_calibration.layer_geometry_record(means, layers, u_mean, unc),
+                    "layer_geometry": rod_calibration.layer_geometry_record(means, layers, u_mean, unc, sol),
                 }
             )
             rows = [
@@ -291,6 +291,7 @@ def run_chain(job) -> dict:
     zs = {"D20": [], "D_T": [], "E": []}
     cov = {"D20": [], "D_T": [], "E": []}
     errs = {"D20": [], "E": []}
+    u_geo = {"D20": [_geo_u(rr["du"].rows_20) for rr in res], "E": [_geo_u(v["budget"]) for v in vrows]}
     for rr, d20 in zip(res, p20):
         du = rr["du"]
         dT = d20 * (1 + CTE * (T_p - 20))
@@ -306,7 +307,14 @@ def run_chain(job) -> dict:
         zs["E"].append(e / v["u_error_mm"])
         cov["E"].append(abs(e) <= v["expanded_u_error_mm"])
         errs["E"].append(float(e))
-    return dict(out, z=zs, covered=cov, error_mm=errs)
+    return dict(out, z=zs, covered=cov, error_mm=errs, u_geo_mm=u_geo)
+
+
+def _geo_u(rows: list[dict]) -> float:
+    """Return the layer geometry's standard uncertainty in a budget's rows [mm] (0: no such input)."""
+    return next(
+        (float(b["standard_uncertainty"]) for b in rows if b["key"].startswith("layer_geometry:")), 0.0
+    )
 
 
 def fisher_chain(job) -> dict:
@@ -367,7 +375,11 @@ def main(argv=None) -> int:
         help="comma-separated inputs made exact, for the error's decomposition: geometry (the design's phi, "
         "d, gamma are the truth), linearity (no linearity error)",
     )
-    ap.add_argument("--dump", type=Path, help="write each chain's z-scores and errors [mm] to this JSON file")
+    ap.add_argument(
+        "--dump",
+        type=Path,
+        help="write each chain's z-scores, errors and layer-geometry u [mm] to this JSON file",
+    )
     ap.add_argument(
         "--fisher",
         action="store_true",

@@ -16,13 +16,18 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import time
 from pathlib import Path
 
 RUN_BY_DEFAULT = False
 
 
-def run(raw_root: Path, coaxiality: str | None = None) -> list[dict]:
-    """Return the verification rows of the demo rod (the calibration of the first night)."""
+def run(raw_root: Path, coaxiality: str | None = None, cpu_s: dict | None = None) -> list[dict]:
+    """Return the verification rows of the demo rod (the calibration of the first night).
+
+    ``cpu_s``: filled with the CPU seconds of each item (the calibration, each verification and
+    each rod measurement scan ``*ROD01-MEAS*``, whose diameters are solved but not returned).
+    """
     from borescan import rawio, rod_calibration
     from borescan.artifacts import artifact_cte, radius_at_temperature_mm, scan_temperature
     from borescan.atomic import json_ready
@@ -34,6 +39,8 @@ def run(raw_root: Path, coaxiality: str | None = None) -> list[dict]:
     unc = dict(cfg["uncertainty"])
     if coaxiality is not None:
         unc["rod_hole_coaxiality_mm"] = None if coaxiality == "none" else float(coaxiality)
+    cpu_s = {} if cpu_s is None else cpu_s
+    t0 = time.process_time()
     cal = rawio.read_scan(sorted(raw_root.glob("*/scan=*ROD01-CAL*"))[0], raw_root=raw_root)
     ch, means, u_mean, sens = rod_calibration.pose_means_of_scan(cal)
     nominal = rod_nominal_calibration_rows(cal.meta, cal.night, cal.scan_id)
@@ -60,20 +67,24 @@ def run(raw_root: Path, coaxiality: str | None = None) -> list[dict]:
         {
             "budget": json_ready(budget.to_dict()),
             "hold_readings": hold_readings(means),
-            "layer_geometry": rod_calibration.layer_geometry_record(means, lays, u_mean, unc),
+            "layer_geometry": rod_calibration.layer_geometry_record(means, lays, u_mean, unc, sol),
         }
     )
     rows = [
         dict(r, l0_mm=lay.l0_mm, calibration_json=blob)
         for r, lay in zip(sorted(nominal, key=lambda r: r["channel"]), lays)
     ]
+    cpu_s[cal.scan_id] = time.process_time() - t0
     out = []
-    for d in sorted(raw_root.glob("*/scan=*ROD01-VER*")):
-        ver = rawio.read_scan(d, raw_root=raw_root)
-        res = rod_calibration.rod_diameters_with_budget(ver, rows, unc, cal.scan_id)
-        out += rod_calibration.rod_verifications(
-            ver, res, cal.scan_id, unc, cfg["laboratory"], float(cfg["verification"]["tolerance_mm"])
-        )
+    for d in sorted(raw_root.glob("*/scan=*ROD01-VER*")) + sorted(raw_root.glob("*/scan=*ROD01-MEAS*")):
+        t0 = time.process_time()
+        scan = rawio.read_scan(d, raw_root=raw_root)
+        res = rod_calibration.rod_diameters_with_budget(scan, rows, unc, cal.scan_id)
+        if "-VER-" in scan.scan_id:
+            out += rod_calibration.rod_verifications(
+                scan, res, cal.scan_id, unc, cfg["laboratory"], float(cfg["verification"]["tolerance_mm"])
+            )
+        cpu_s[scan.scan_id] = time.process_time() - t0
     return out
 
 
@@ -86,7 +97,8 @@ def main(argv=None) -> None:
     if args.raw is None:
         print("no demo raw root: pass --raw or set BORESCAN_DEMO_RAW (borescan simulate demo writes one)")
         return
-    for r in run(args.raw, args.coaxiality):
+    cpu_s: dict = {}
+    for r in run(args.raw, args.coaxiality, cpu_s):
         top = sorted(r["budget"], key=lambda b: -abs(b["contribution"]))[:2]
         print(
             f"{r['scan_id']} {r['feature']}: E {r['error_mm'] * 1e3:+.2f} um, U(E) "
@@ -96,6 +108,8 @@ def main(argv=None) -> None:
         )
         if r["dominant_fix"]:
             print(f"    to reduce it: {r['dominant_fix']}")
+    for sid, t in cpu_s.items():
+        print(f"compute {sid} {t:.2f} s")
 
 
 if __name__ == "__main__":

@@ -182,9 +182,11 @@ def test_layer_geometry_is_in_the_verification_budget_and_covers_its_error(holds
 
 def test_layer_geometry_input_is_the_rms_of_the_draws_and_deterministic(holds):
     """The input's u is the root mean square of -2 [(R_H(g) - R_H(0)) - (R_C(g) - R_C(0))] over the
-    draws, recomputed here from the solves themselves; a rerun gives the same draws and u.
+    draws, recomputed here from the solves themselves (each draw refined from the nominal solve, a
+    full solve where the refinement leaves its basin); a rerun gives the same draws and u.
     """
     from borescan.rod import solve_rod
+    from borescan.rod_refine import RodBasinError, refine_rod
 
     cal, ver = holds
     unc = dict(UNC, rod_layer_geometry_draws=6)
@@ -196,20 +198,62 @@ def test_layer_geometry_input_is_the_rms_of_the_draws_and_deterministic(holds):
     layers, *_ = rod_calibration.rod_calibration_from_rows(rows)
     _ch, means, u_mean, _s = rod_calibration.pose_means_of_scan(ver)
     coax = rod_calibration.rod_coaxiality_mm(UNC)
-    r0 = solve_rod(means, layers=layers, u_reading_mm=u_mean, coaxiality_mm=coax).radius_mm
-    e = []
+    kw = dict(u_reading_mm=u_mean, coaxiality_mm=coax)
+    nom = solve_rod(means, layers=layers, **kw)
+    e, n_full = [], 0
     for off, dc in zip(draws.offsets, draws.cal_shift_mm):
         lays = [replace(lay, phi_rad=o[0], d_mm=o[1], gamma_rad=o[2]) for lay, o in zip(layers, off)]
-        dr = solve_rod(means, layers=lays, u_reading_mm=u_mean, coaxiality_mm=coax).radius_mm - r0
-        e.append(-2.0 * (dr - dc))
-    shift = rod_layer_geometry.hold_radius_shifts_mm(means, layers, u_mean, coax, draws)
+        try:
+            sol = refine_rod(means, nom, layers=lays, **kw)
+        except RodBasinError:
+            sol, n_full = solve_rod(means, layers=lays, **kw), n_full + 1
+        e.append(-2.0 * (sol.radius_mm - nom.radius_mm - dc))
+    shift = rod_layer_geometry.hold_radius_shifts(means, layers, u_mean, coax, draws)
+    assert shift.full_solves == n_full
     for j in range(3):
-        inp, sens = rod_layer_geometry.layer_geometry_input(draws, shift, j, j, "VER-G/H", j + 1)
+        inp, sens = rod_layer_geometry.layer_geometry_input(draws, shift.shift_mm, j, j, "VER-G/H", j + 1)
         assert sens == 1.0 and inp.dof == 5
         assert inp.u == pytest.approx(np.sqrt(np.mean(np.array(e)[:, j] ** 2)), rel=1e-9)
     again = rod_calibration.rod_layer_draws_from_rows(_calibration_rows(cal, unc))
     assert np.array_equal(again.offsets, draws.offsets)
     assert np.array_equal(again.cal_shift_mm, draws.cal_shift_mm)
+
+
+def test_refinement_is_the_full_solve_where_the_minimum_only_moved(holds):
+    """Each draw's refinement (one local LM from the nominal solve) against the full solve (every
+    start, reflection and pose repair) on the chain-3-like verification hold: where the full solve's
+    minimum is the nominal's moved (no pose moved by more than 0.01 rad, the deflection by 5 mrad, a
+    third of its flip to -w; the shifts are 0.5-2.7 um) the radii and their u agree to 1 nm (the
+    optimisers' tolerances leave 1e-5 um), not the micrometres the geometry moves them by; where
+    the refined minimum fits more than 9 chi^2 worse than the nominal's, the default basin refuses
+    it (the caller then solves afresh).
+    """
+    from borescan.rod import solve_rod
+    from borescan.rod_refine import RodBasin, RodBasinError, refine_rod
+
+    cal, ver = holds
+    rows = _calibration_rows(cal, dict(UNC, rod_layer_geometry_draws=0))
+    layers, *_ = rod_calibration.rod_calibration_from_rows(rows)
+    _ch, means, u_mean, _s = rod_calibration.pose_means_of_scan(ver)
+    kw = dict(u_reading_mm=u_mean, coaxiality_mm=rod_calibration.rod_coaxiality_mm(UNC))
+    nom = solve_rod(means, layers=layers, **kw)
+    prior = rod_layer_geometry.layer_geometry_prior(UNC)
+    same, refused = 0, 0
+    for off in rod_layer_geometry._offsets(prior, 3)[:8]:
+        lays = rod_layer_geometry._shifted(layers, off)
+        full = solve_rod(means, layers=lays, **kw)
+        ref = refine_rod(means, nom, layers=lays, basin=RodBasin(np.inf, np.inf, np.inf), **kw)
+        moved = np.nanmax(np.abs(np.mod(full.alpha_rad - nom.alpha_rad + np.pi, 2 * np.pi) - np.pi))
+        if moved < 0.01 and np.hypot(*(full.deflection_xy_rad - nom.deflection_xy_rad)) < 5e-3:
+            same += 1
+            assert np.max(np.abs(full.radius_mm - nom.radius_mm)) > 3e-4  # the geometry moved them
+            np.testing.assert_allclose(ref.radius_mm, full.radius_mm, rtol=0, atol=1e-6)
+            np.testing.assert_allclose(ref.u_radius_mm, full.u_radius_mm, rtol=1e-4)
+        if (ref.cost_mm2 - nom.cost_mm2) / nom.sigma_mm**2 > 9.0:
+            refused += 1
+            with pytest.raises(RodBasinError, match="basin"):
+                refine_rod(means, nom, layers=lays, **kw)
+    assert same >= 2 and refused >= 1, (same, refused)
 
 
 def test_layer_geometry_information_scales_as_the_readings_fisher_matrix(holds):

@@ -79,14 +79,12 @@ from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
 from borescan.physics.rod import rod_section_geometry
 from borescan.rod_deflection import (
     MAX_DEFLECTION_RAD,
-    CoaxialPrior,
     _coaxial_rows,
-    _deflected_radii,
+    _deflection_part,
     _posterior_vector,
 )
 from borescan.rod_eq16 import RodSolveError, _prepare, _unpack, rod_jacobian, rod_start
 from borescan.rod_model import (
-    _beta,
     _cov_without_poses,
     _dk,
     _expand,
@@ -172,6 +170,19 @@ class RodSolution:
         return 2.0 * self.u_radius_mm
 
 
+@dataclass(frozen=True)
+class _Limits:
+    """The settings of :func:`solve_rod` that act after its minimum is found (its parameters)."""
+
+    u_reading_mm: float | None
+    deflection: str = "free"
+    max_condition: float = 1e8
+    max_u_ratio: float = 50.0
+    max_deflection_ratio: float = 10.0
+    max_deflection_rad: float = MAX_DEFLECTION_RAD
+    coaxiality_mm: float | None = None
+
+
 def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     readings_mm,
     l0_mm=None,
@@ -180,10 +191,10 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     u_reading_mm: float | None = None,
     fix_pose: int = 0,
     deflection: str = "free",
-    max_condition: float = 1e8,
-    max_u_ratio: float = 50.0,
-    max_deflection_ratio: float = 10.0,
-    max_deflection_rad: float = MAX_DEFLECTION_RAD,
+    max_condition: float = _Limits.max_condition,
+    max_u_ratio: float = _Limits.max_u_ratio,
+    max_deflection_ratio: float = _Limits.max_deflection_ratio,
+    max_deflection_rad: float = _Limits.max_deflection_rad,
     coaxiality_mm: float | None = None,
     centred: str = "refuse",
 ) -> RodSolution:
@@ -238,7 +249,6 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     defl = deflection != "none"
     L, mask, keep = _prepare(v_in, l0, 2 if defl else 0)
     n, m = L.shape
-    n_obs = int(mask.sum())
     p0, S = rod_start(L, mask, fix_pose)
     if _readings_constant(S, n, u_reading_mm, centred):
         return _centred_solution(L, mask, keep, u_reading_mm, 3 * m + n - 1 + (2 if defl else 0))
@@ -246,11 +256,29 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     V = L - l0
     prob = _RodProblem(V, mask, lays, fix_pose, defl)
     p, cost, nfev = _solve_core(prob, L, mask, [a0, -a0], defl)
+    lim = _Limits(
+        u_reading_mm,
+        deflection,
+        max_condition,
+        max_u_ratio,
+        max_deflection_ratio,
+        max_deflection_rad,
+        coaxiality_mm,
+    )
+    return _solution(prob, p, cost, nfev, keep, lim)
+
+
+def _solution(prob: _RodProblem, p, cost: float, nfev: int, keep, lim: _Limits) -> RodSolution:
+    """Return the solve's result at its minimum ``p``: covariance, refusals, radii over the deflection."""
+    mask, lays, deflection, defl = prob.mask, prob.layers, lim.deflection, prob.deflection
+    n, m = prob.n, prob.m
+    n_obs = int(mask.sum())
+    u_reading_mm, coaxiality_mm = lim.u_reading_mm, lim.coaxiality_mm
     n_par = prob.n_par
     J = prob.jac(p, beta_step=1e-4 if defl else None)
     js = jacobian_summary(J, rtol=1e-12)
     rank, cond = js.rank, js.condition
-    if rank < n_par or cond > max_condition:
+    if rank < n_par or cond > lim.max_condition:
         raise RodSolveError(
             f"degenerate geometry: Jacobian rank {rank} of {n_par}, condition {cond:.3g} "
             f"(poses bunched at one angle, or the rod axis parallel to / intersecting the holes' axis "
@@ -266,7 +294,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     else:
         sigma = float("nan")
     fit = fit_result(
-        _rod_param_names(m, n, fix_pose, defl),
+        _rod_param_names(m, n, prob.fix, defl),
         p,
         e,
         J,
@@ -278,10 +306,19 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     )
     cov = fit.cov
     rho, c, alpha, w = prob.unpack(p)
-    u_fixed = _u_radii_held(J, cov, sigma, mask, defl, max_u_ratio, cond)
+    u_fixed = _u_radii_held(J, cov, sigma, mask, defl, lim.max_u_ratio, cond)
     if defl:
         s, u_r, u_s, r_post, w_post, dratio = _deflection_part(
-            rho, c, w, cov, lays, deflection, u_fixed, coaxiality_mm, max_deflection_rad, max_deflection_ratio
+            rho,
+            c,
+            w,
+            cov,
+            lays,
+            deflection,
+            u_fixed,
+            coaxiality_mm,
+            lim.max_deflection_rad,
+            lim.max_deflection_ratio,
         )
     else:
         s, u_s, dratio, r_post, w_post = 0.0, 0.0, 1.0, None, None
@@ -385,47 +422,6 @@ def _u_radii_held(J, cov, sigma, mask, defl, max_u_ratio, cond) -> np.ndarray:
             "with the axis (rod parallel to, or intersecting, the holes' axis) or the poses are bunched"
         )
     return u_fixed
-
-
-def _deflection_part(
-    rho, c, w, cov, lays, deflection, u_fixed, coaxiality_mm, max_deflection_rad, max_deflection_ratio
-):
-    """Return (s, u(r), u(s), r, posterior w, deflection ratio) of a solve with the deflection free.
-
-    The radii averaged over the deflection (:func:`borescan.rod_deflection._deflected_radii`, with
-    the holes' coaxiality when given); refused when the readings cannot separate the deflection
-    from the radii (module doc, "Refusals").
-    """
-    m = rho.size
-    b = _beta(w)
-    coax = None
-    if coaxiality_mm is not None and deflection == "free":
-        spot_z = np.array([lay.h_mm for lay in lays]) + rho * np.tan([lay.gamma_rad for lay in lays])
-        if np.ptp(spot_z) > 0:
-            coax = CoaxialPrior(c, spot_z, float(coaxiality_mm))
-    out = _deflected_radii(rho, b, cov, m, deflection, max_deflection_rad, coax=coax)
-    s, u_r, u_s = out[:3]
-    r_post = out[3] if len(out) > 3 else None
-    w_post = out[4] if len(out) > 4 else None
-    # linearised, worst deflection direction: u(r) with omega free over u(r) with it held, from
-    # the readings alone (with the coaxial prior too: where the readings cannot separate the
-    # deflection, their beta is far from linear and the prior's beta would move rho along a
-    # false line)
-    q = rho / 4.0
-    Crb = cov[:m, -2:]
-    lam = float(np.linalg.eigvalsh(cov[-2:, -2:])[-1])
-    u_lin = np.sqrt(np.diag(cov)[:m] + 2 * q * np.linalg.norm(Crb, axis=1) + q**2 * max(lam, 0.0))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        dratio = float(np.nanmax(u_lin / u_fixed))
-    if dratio > max_deflection_ratio:
-        raise RodSolveError(
-            "deflection not separable from the radii: freeing the rod axis deflection multiplies "
-            "u(r) by "
-            f"{dratio:.1f} (> {max_deflection_ratio:g}); the poses do not span the second harmonic "
-            "of the "
-            f"tilted section (u(omega^2) = {u_s:.3g} rad^2) - add poses spread around the circle"
-        )
-    return s, u_r, u_s, r_post, w_post, dratio
 
 
 def rod_cost_mm2(readings_mm, alpha_rad, layers, holes, axis) -> float:

@@ -45,7 +45,7 @@ from .rod import RodSolution, solve_rod
 from .rod_layer_geometry import (
     LayerGeometryDraws,
     calibration_draws,
-    hold_radius_shifts_mm,
+    hold_radius_shifts,
     layer_geometry_input,
     layer_geometry_prior,
 )
@@ -401,15 +401,19 @@ def rod_calibration_from_rows(rows: list[dict]) -> tuple[list[RodLayer], Budget 
     return layers, Budget.from_dict(d["budget"]), d.get("hold_readings")
 
 
-def layer_geometry_record(means_mm, layers, u_reading_mm, unc_cfg: dict) -> dict | None:
+def layer_geometry_record(
+    means_mm, layers, u_reading_mm, unc_cfg: dict, nominal: RodSolution | None = None
+) -> dict | None:
     """Return the calibration hold's layer-geometry draws as recorded (None: ``rod_layer_geometry_draws`` 0).
 
-    ``layers``: the calibrated ones (:func:`borescan.rod_layer_geometry.calibration_draws`).
+    ``layers``: the calibrated ones, ``nominal`` the solve at them (:func:`calibrate_l0`'s; solved
+    here when None; :func:`borescan.rod_layer_geometry.calibration_draws`).
     """
     prior = layer_geometry_prior(unc_cfg)
     if prior.draws < 1:
         return None
-    return calibration_draws(means_mm, layers, u_reading_mm, rod_coaxiality_mm(unc_cfg), prior).to_dict()
+    coax = rod_coaxiality_mm(unc_cfg)
+    return calibration_draws(means_mm, layers, u_reading_mm, coax, prior, nominal).to_dict()
 
 
 def rod_layer_draws_from_rows(rows: list[dict]) -> LayerGeometryDraws | None:
@@ -479,9 +483,9 @@ def rod_diameters_with_budget(
     geo_shift = (
         None
         if draws is None
-        else hold_radius_shifts_mm(
-            means, [by_ch[c] for c in channels], u_mean, rod_coaxiality_mm(unc_cfg), draws
-        )
+        else hold_radius_shifts(
+            means, [by_ch[c] for c in channels], u_mean, rod_coaxiality_mm(unc_cfg), draws, sol
+        ).shift_mm
     )
     here = measure.hold_readings(means)
     degree = int(

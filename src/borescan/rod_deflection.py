@@ -3,7 +3,8 @@
 See :mod:`borescan.rod`, "Deflection". :func:`_deflected_radii` turns the solve's rho and beta with
 their covariance into radii r = rho / k(omega^2) averaged over the posterior of the deflection
 vector w (a bound prior on omega, the readings' likelihood of beta, and with :class:`CoaxialPrior`
-the centres' evidence); :func:`_coaxial_rows` is the same prior's information for the bound.
+the centres' evidence); :func:`_coaxial_rows` is the same prior's information for the bound;
+:func:`_deflection_part` is the solve's step from its minimum to those radii.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from borescan.rod_model import _dk, _k
+from borescan.rod_eq16 import RodSolveError
+from borescan.rod_model import _beta, _dk, _k
 
 __all__ = ["CoaxialPrior", "MAX_DEFLECTION_RAD"]
 
@@ -204,3 +206,44 @@ def _posterior_vector(w_post, w_mle, s) -> np.ndarray:
         return np.asarray(w_post, dtype=float)
     n = float(np.hypot(*w_mle))
     return np.zeros(2) if n == 0 else np.sqrt(max(s, 0.0)) * np.asarray(w_mle) / n
+
+
+def _deflection_part(
+    rho, c, w, cov, lays, deflection, u_fixed, coaxiality_mm, max_deflection_rad, max_deflection_ratio
+):
+    """Return (s, u(r), u(s), r, posterior w, deflection ratio) of a solve with the deflection free.
+
+    The radii averaged over the deflection (:func:`_deflected_radii`, with the holes' coaxiality
+    when given); refused when the readings cannot separate the deflection from the radii
+    (:mod:`borescan.rod`, "Refusals").
+    """
+    m = rho.size
+    b = _beta(w)
+    coax = None
+    if coaxiality_mm is not None and deflection == "free":
+        spot_z = np.array([lay.h_mm for lay in lays]) + rho * np.tan([lay.gamma_rad for lay in lays])
+        if np.ptp(spot_z) > 0:
+            coax = CoaxialPrior(c, spot_z, float(coaxiality_mm))
+    out = _deflected_radii(rho, b, cov, m, deflection, max_deflection_rad, coax=coax)
+    s, u_r, u_s = out[:3]
+    r_post = out[3] if len(out) > 3 else None
+    w_post = out[4] if len(out) > 4 else None
+    # linearised, worst deflection direction: u(r) with omega free over u(r) with it held, from
+    # the readings alone (with the coaxial prior too: where the readings cannot separate the
+    # deflection, their beta is far from linear and the prior's beta would move rho along a
+    # false line)
+    q = rho / 4.0
+    Crb = cov[:m, -2:]
+    lam = float(np.linalg.eigvalsh(cov[-2:, -2:])[-1])
+    u_lin = np.sqrt(np.diag(cov)[:m] + 2 * q * np.linalg.norm(Crb, axis=1) + q**2 * max(lam, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dratio = float(np.nanmax(u_lin / u_fixed))
+    if dratio > max_deflection_ratio:
+        raise RodSolveError(
+            "deflection not separable from the radii: freeing the rod axis deflection multiplies "
+            "u(r) by "
+            f"{dratio:.1f} (> {max_deflection_ratio:g}); the poses do not span the second harmonic "
+            "of the "
+            f"tilted section (u(omega^2) = {u_s:.3g} rad^2) - add poses spread around the circle"
+        )
+    return s, u_r, u_s, r_post, w_post, dratio

@@ -171,16 +171,16 @@ def _w_of_beta(b, w_ref):
     return np.array([z.real, z.imag])
 
 
-def _lm(prob, p0, n_par):
+def _lm(prob, p0, n_par, tol: float = 1e-14):
     sol = least_squares(
         prob.residual,
         p0,
         jac=prob.jac,
         method="lm",
         x_scale="jac",
-        xtol=1e-14,
-        ftol=1e-14,
-        gtol=1e-14,
+        xtol=tol,
+        ftol=tol,
+        gtol=tol,
         max_nfev=100 * n_par,
     )
     return sol.x, float(sol.fun @ sol.fun), int(sol.nfev)

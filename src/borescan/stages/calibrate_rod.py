@@ -92,7 +92,7 @@ def calibrate_rod_scan(
         residual_rms_mm=float(sol.residual_rms_mm),
         diagnostics={
             "hold_readings": hold_readings(means),
-            "layer_geometry": rod_calibration.layer_geometry_record(means, cal_layers, u_mean, unc),
+            "layer_geometry": rod_calibration.layer_geometry_record(means, cal_layers, u_mean, unc, sol),
         },
     )
     out_dir = certificate.certificate_night_dir(results_root, cal, night)
