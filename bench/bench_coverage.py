@@ -76,16 +76,68 @@ def _sensors(meta: dict, lin_fs: float, noise_mm: float) -> list[dict]:
     ]
 
 
-def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
-    """Write chain i's calibration and measurement scans (raw) and return its truth."""
+#: ``--flagged``: the contract's ranges with bores to R 500 mm (the spec sets no upper limit; issue 36's
+#: acceptance battery reaches R 500 mm)
+FLAGGED_BORE_RADIUS_MM = (75.0, 500.0)
+#: ``--flagged``: candidate scenes drawn per chain before the chain is given up
+FLAGGED_ATTEMPTS = 200
+
+
+def shallowest_mirror(truth: dict) -> float:
+    """Return the smallest Eq. (1) mirror depth delta chi2_m over the beams at the truth; inf if none exists.
+
+    :func:`borescan.mirror.predicted_depth` with the scan's samples, the true spindle offset, each beam's
+    true rho, the noise and the gauge radius; beams with |rho| <= sqrt(2) e have no mirror.
+    """
+    from borescan.mirror import mirror_exists, predicted_depth
+
+    ct = truth["contract"]
+    e = float(np.hypot(*np.subtract(ct["spindle_xy_mm"], ct["center_xy_mm"])))
+    rho = [float(b["rho"]) for b in ct["beams"]]
+    depths = [
+        predicted_depth([ct["n_samples"]], [e], r, [ct["noise_mm"]], float(ct["bore_radius_mm"]))
+        for r in rho
+        if mirror_exists(r, e)
+    ]
+    return min(depths, default=float("inf"))
+
+
+def _draw_calibration(i: int, seed: int, flagged: bool):
+    """Return chain i's calibration scene; with ``flagged`` the first with a mirror shallower than 25.
+
+    Candidates (``SeedSequence(seed, spawn_key=(i, 2, a))``, a = 0, 1, ...) are drawn over the contract with
+    bores to :data:`FLAGGED_BORE_RADIUS_MM` and kept when :func:`shallowest_mirror` < 25
+    (:data:`borescan.mirror.RESOLVED_DCHI2`): conditioning on the truth, every draw is still the contract's.
+    """
+    from borescan.mirror import RESOLVED_DCHI2
+    from borescan.synthetic import battery, contract, tri_scenarios
+
+    sid, night = battery.battery_scan_id(seed, i), "2027-02-01"
+    if not flagged:
+        return tri_scenarios.draw_tri_calibration(battery.battery_rng(seed, i), scan_id=sid, night=night)
+    wide = dict(contract.TRI_CONTRACT, bore_radius_mm=FLAGGED_BORE_RADIUS_MM)
+    for a in range(FLAGGED_ATTEMPTS):
+        rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(i), 2, a)))
+        sim = tri_scenarios.draw_tri_calibration(rng, scan_id=sid, night=night, contract=wide)
+        if shallowest_mirror(sim.truth) < RESOLVED_DCHI2:
+            return sim
+    raise RuntimeError(f"chain {i}: no scene with a mirror shallower than 25 in {FLAGGED_ATTEMPTS} draws")
+
+
+def draw_chain(i: int, seed: int, base: Path, cfg: dict, flagged: bool = False) -> dict:
+    """Write chain i's calibration and measurement scans (raw) and return its truth.
+
+    With ``flagged`` (issue 36): the calibration from :func:`_draw_calibration`, and the part a bore of
+    another size than the gauge: R + U(-w, w), w 90 % of the smallest sensor range (what the static
+    poses' readings allow), redrawn until every reading is in range.
+    """
     from borescan import geometry
-    from borescan.synthetic import battery, scenes, simulate, tri_scenarios
+    from borescan.synthetic import battery, scenes, simulate
 
     unc = cfg["uncertainty"]
-    rng = battery.battery_rng(seed, i)
     sid = battery.battery_scan_id(seed, i)
     night = "2027-02-01"
-    sim = tri_scenarios.draw_tri_calibration(rng, scan_id=sid, night=night)
+    sim = _draw_calibration(i, seed, flagged)
     ct = sim.truth["contract"]
     scene = scenes.TriScene.from_dict(sim.truth["scene"])
     beams = scene.beams
@@ -112,8 +164,9 @@ def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
     ecc = float(ct["spindle_offset_mm"])
     C = np.asarray(ct["center_xy_mm"], float)
     part = None
+    half_width_mm = 0.9 * float(np.min(ct["range_mm"])) if flagged else 0.1
     for _ in range(200):
-        R_p = R_T + float(rng2.uniform(-0.1, 0.1))
+        R_p = R_T + float(rng2.uniform(-half_width_mm, half_width_mm))
         r = 0.5 * ecc * np.sqrt(rng2.uniform(0, 1, 10))
         ang = rng2.uniform(0, 2 * np.pi, 10)
         xy = C + np.stack([r * np.cos(ang), r * np.sin(ang)], -1)
@@ -136,6 +189,8 @@ def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
         "position_known": ct["position_known"],
         "gauge_D20_mm": D20_g,
         "meas_path": None,
+        "gauge_radius_mm": R_T,
+        "shallowest_mirror": shallowest_mirror(sim.truth),
     }
     if part is None:
         return out
@@ -223,6 +278,7 @@ def evaluate_chain(job: tuple) -> dict:
             params.append(
                 {
                     "family": fam,
+                    "channel": int(tb.channels[j]),
                     "err": err,
                     "u": comb.u,
                     "U": comb.U,
@@ -234,11 +290,35 @@ def evaluate_chain(job: tuple) -> dict:
     row["weak_rho"] = list(cal.diagnostics.get("weak_rho_channels", []))
     from borescan.mirror import mirror_checks_of
 
-    row["flagged"] = any(not m.resolved for m in mirror_checks_of(cal.diagnostics))
+    checks = mirror_checks_of(cal.diagnostics)
+    row["flagged"] = any(not m.resolved for m in checks)
+    # issue 36: per flagged beam the stated probability of the wrong sign and whether the kept sign is wrong
+    row["flagged_beams"] = [
+        {
+            "channel": int(m.channel),
+            "p_wrong_sign": float(m.p_wrong_sign),
+            "wrong_sign": bool(np.sign(cal.beams.rho_mm[j]) != np.sign(tb.rho_mm[j])),
+        }
+        for m in checks
+        if not m.resolved
+        for j in [list(cal.beams.channels).index(int(m.channel))]
+    ]
+    row["shallowest_mirror"] = truth.get("shallowest_mirror")
+    row["part_over_gauge"] = truth.get("part_DT_mm", float("nan")) / (2 * truth["gauge_radius_mm"])
     if truth.get("meas_path"):
         pscan = rawio.read_scan(Path(truth["meas_path"]))
         try:
-            _, du = measure.tri_diameter_with_budget(pscan, cal, unc)
+            pres, du = measure.tri_diameter_with_budget(pscan, cal, unc)
+            mix = pres.get("mirror_mixture")
+            row["mixture"] = mix is not None
+            # the coverage interval itself: the mixture's probabilistically symmetric one (JCGM 101 7.7),
+            # else the GUM's D +- U
+            lo20, hi20 = (
+                mix.interval_20_mm if mix is not None else (du.diameter_20_mm - du.combined_20.U,) * 2
+            )
+            lot, hit = mix.interval_mm if mix is not None else (du.diameter_mm - du.combined_t.U,) * 2
+            if mix is None:
+                hi20, hit = du.diameter_20_mm + du.combined_20.U, du.diameter_mm + du.combined_t.U
             row["diameters"] = [
                 {
                     "family": "D at 20 degC",
@@ -247,6 +327,7 @@ def evaluate_chain(job: tuple) -> dict:
                     "U": du.combined_20.U,
                     "k": du.combined_20.k,
                     "dominant": du.combined_20.dominant.split(":", 1)[0],
+                    "interval_err": [lo20 - truth["part_D20_mm"], hi20 - truth["part_D20_mm"]],
                 },
                 {
                     "family": "D at T",
@@ -255,6 +336,7 @@ def evaluate_chain(job: tuple) -> dict:
                     "U": du.combined_t.U,
                     "k": du.combined_t.k,
                     "dominant": du.combined_t.dominant.split(":", 1)[0],
+                    "interval_err": [lot - truth["part_DT_mm"], hit - truth["part_DT_mm"]],
                 },
             ]
         except ValueError as e:
@@ -264,7 +346,11 @@ def evaluate_chain(job: tuple) -> dict:
 
 
 def run(
-    n: int = N_CHAINS, seed: int = SEED, workers: int | None = None, rows_path: Path | None = None
+    n: int = N_CHAINS,
+    seed: int = SEED,
+    workers: int | None = None,
+    rows_path: Path | None = None,
+    flagged: bool = False,
 ) -> list[dict]:
     """Draw, write, calibrate and measure ``n`` chains; return per-chain rows.
 
@@ -275,7 +361,7 @@ def run(
     cfg = _config()
     with tempfile.TemporaryDirectory(prefix="coverage-") as tmp:
         t0 = time.perf_counter()
-        truths = [draw_chain(i, seed, Path(tmp), cfg) for i in range(n)]
+        truths = [draw_chain(i, seed, Path(tmp), cfg, flagged) for i in range(n)]
         print(f"{n} chains drawn and written in {time.perf_counter() - t0:.0f} s (seed {seed})", flush=True)
         jobs = [(t, cfg) for t in truths]
         rows: list[dict] = []
@@ -301,6 +387,17 @@ def run(
     return rows
 
 
+def covered(x: dict) -> bool:
+    """Whether the quantity's 95 % interval holds the truth.
+
+    Its own interval (a mixture's is asymmetric) when the row has one, else err within +-U.
+    """
+    if "interval_err" in x:
+        lo, hi = x["interval_err"]
+        return bool(lo <= 0.0 <= hi)
+    return bool(abs(x["err"]) <= x["U"])
+
+
 def _stats(items: list[dict]) -> dict:
     if not items:
         return {
@@ -310,7 +407,7 @@ def _stats(items: list[dict]) -> dict:
             "z_sd": float("nan"),
             "k_mean": float("nan"),
         }
-    cov = np.array([abs(x["err"]) <= x["U"] for x in items], float)
+    cov = np.array([covered(x) for x in items], float)
     z = np.array([x["err"] / x["u"] for x in items if x["u"] > 0])
     return {
         "n": len(items),
@@ -343,6 +440,77 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
+def flagged_summary(rows: list[dict]) -> dict:
+    """Return issue 36's figures of the chains whose calibration has a flagged beam.
+
+    Diameters measured with them (the two-solution mixture, JCGM 101): 95 % coverage of their own intervals
+    and z SD; measurements refused (outside the valid bore range, or otherwise) counted apart; among flagged
+    beams the wrong-sign main solutions observed against the stated probabilities (their sum, and the
+    Poisson-binomial P of that many or more).
+    """
+    from bench.calibration_contract_tables import p_at_least
+
+    acc = [r for r in rows if r.get("accepted") and r.get("flagged")]
+    beams = [b for r in acc for b in r.get("flagged_beams", [])]
+    wrong = sum(int(b["wrong_sign"]) for b in beams)
+    p_stated = [b["p_wrong_sign"] for b in beams]
+    out = {
+        "flagged_chains": len(acc),
+        "parts_measured": sum(1 for r in acc if r.get("diameters")),
+        "mixtures": sum(1 for r in acc if r.get("mixture")),
+        "refused_valid_range": sum(1 for r in acc if "the range where" in r.get("measure_error", "")),
+        "refused_other": sorted(
+            r["measure_error"][:160]
+            for r in acc
+            if r.get("measure_error") and "the range where" not in r["measure_error"]
+        ),
+        "no_part": sum(1 for r in acc if not r.get("diameters") and not r.get("measure_error")),
+        "flagged_beams": len(beams),
+        "wrong_sign": wrong,
+        "wrong_sign_stated": float(sum(p_stated)),
+        "wrong_sign_p_at_least": p_at_least(p_stated, wrong) if beams else float("nan"),
+        "families": {},
+    }
+    for fam in ("D at 20 degC", "D at T"):
+        out["families"][fam] = _stats([x for r in acc for x in r.get("diameters", []) if x["family"] == fam])
+        out["families"][fam + ", wrong sign kept"] = _stats(
+            [
+                x
+                for r in acc
+                if any(b["wrong_sign"] for b in r.get("flagged_beams", []))
+                for x in r.get("diameters", [])
+                if x["family"] == fam
+            ]
+        )
+    return out
+
+
+def print_flagged(rows: list[dict]) -> dict:
+    """Print :func:`flagged_summary` of the rows; return it."""
+    f = flagged_summary(rows)
+    print(
+        f"flagged calibrations (a beam's sign of rho not determined): {f['flagged_chains']}, parts measured "
+        f"{f['parts_measured']} ({f['mixtures']} as a two-solution mixture), refused outside the valid bore "
+        f"range {f['refused_valid_range']}, refused otherwise {len(f['refused_other'])}, no part drawn "
+        f"{f['no_part']}"
+    )
+    for why in f["refused_other"]:
+        print(f"  refused: {why}")
+    for fam, d in f["families"].items():
+        if d["n"]:
+            ok = "yes" if 0.93 <= d["cover"] <= 0.97 else "NO"
+            print(
+                f"  {fam:30s} n {d['n']:4d}  cover95 {d['cover']:6.1%} +- {d['se']:.1%}  "
+                f"z SD {d['z_sd']:.3f}  max|z| {d['z_max']:.2f}  accept 93-97 % {ok}"
+            )
+    print(
+        f"  flagged beams {f['flagged_beams']}: wrong-sign main solution {f['wrong_sign']}, stated "
+        f"{f['wrong_sign_stated']:.2f} (sum of the weights); P(that many or more | stated weights) "
+        f"{f['wrong_sign_p_at_least']:.2f}"
+    )
+    return f
+
+
 def print_table(rows: list[dict]) -> dict:
     """Print the coverage table of the rows; return :func:`summarize` of them."""
     s = summarize(rows)
@@ -363,19 +531,7 @@ def print_table(rows: list[dict]) -> dict:
             f"{fam:16s} {d['n']:5d} {d['cover']:8.1%} {d['se']:6.1%} {d['z_sd']:6.3f} {d['z_max']:7.2f} "
             f"{d['k_mean']:7.3f}  {ok}"
         )
-    # issue 36: diameters measured with a calibration whose sign of some rho its scan did not determine
-    # (the two-solution mixture by Monte Carlo, or refused outside the valid bore range)
-    acc = [r for r in rows if r.get("accepted") and r.get("flagged")]
-    for fam in ("D at 20 degC", "D at T"):
-        d = _stats([x for r in acc for x in r.get("diameters", []) if x["family"] == fam])
-        print(
-            f"flagged calibrations, {fam}: n {d['n']}, cover95 "
-            f"{d['cover']:.1%} +- {d['se']:.1%}, z SD {d['z_sd']:.3f}"
-        )
-    print(
-        f"flagged calibrations: {len(acc)}, measurements refused "
-        f"{sum(1 for r in acc if r.get('measure_error'))}"
-    )
+    print_flagged(rows)
     print("by the budget's dominant input:")
     for fam, by in s["by_dominant"].items():
         for dom, d in by.items():
@@ -396,11 +552,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--table", type=Path, default=None, help="only print the table of rows written earlier by --rows"
     )
+    ap.add_argument(
+        "--flagged",
+        action="store_true",
+        help="issue 36: only scenes whose Eq. (1) mirror depth is below 25 for a beam (bores to R 500 mm), "
+        "parts of other sizes than the gauge (within the sensors' range)",
+    )
     args = ap.parse_args([] if argv is None else argv)
     if args.table is not None:
         print_table([json.loads(line) for line in args.table.read_text().splitlines() if line.strip()])
         return
-    rows = run(args.n, args.seed, args.workers, args.rows)
+    rows = run(args.n, args.seed, args.workers, args.rows, args.flagged)
     print_table(rows)
 
 
