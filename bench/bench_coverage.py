@@ -471,6 +471,17 @@ def flagged_summary(rows: list[dict]) -> dict:
         "wrong_sign_p_at_least": p_at_least(p_stated, wrong) if beams else float("nan"),
         "families": {},
     }
+    for fam in ("beta", "rho", "d_b"):  # the calibration's own values: the flagged beams' kept solution apart
+        for what, keep in (("resolved beams", False), ("flagged beams, kept solution", True)):
+            out["families"][f"{fam}, {what}"] = _stats(
+                [
+                    x
+                    for r in acc
+                    for x in r["params"]
+                    if x["family"] == fam
+                    and (x.get("channel") in {b["channel"] for b in r.get("flagged_beams", [])}) == keep
+                ]
+            )
     for fam in ("D at 20 degC", "D at T"):
         out["families"][fam] = _stats([x for r in acc for x in r.get("diameters", []) if x["family"] == fam])
         out["families"][fam + ", wrong sign kept"] = _stats(
@@ -500,7 +511,7 @@ def print_flagged(rows: list[dict]) -> dict:
         if d["n"]:
             ok = "yes" if 0.93 <= d["cover"] <= 0.97 else "NO"
             print(
-                f"  {fam:30s} n {d['n']:4d}  cover95 {d['cover']:6.1%} +- {d['se']:.1%}  "
+                f"  {fam:34s} n {d['n']:4d}  cover95 {d['cover']:6.1%} +- {d['se']:.1%}  "
                 f"z SD {d['z_sd']:.3f}  max|z| {d['z_max']:.2f}  accept 93-97 % {ok}"
             )
     print(
