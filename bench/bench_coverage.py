@@ -440,6 +440,10 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
+#: bins of the stated probability of the wrong sign in which the observed wrong signs are counted
+WEIGHT_BINS = ((0.0, 0.01), (0.01, 0.1), (0.1, 0.3), (0.3, 0.51))
+
+
 def flagged_summary(rows: list[dict]) -> dict:
     """Return issue 36's figures of the chains whose calibration has a flagged beam.
 
@@ -470,6 +474,17 @@ def flagged_summary(rows: list[dict]) -> dict:
         "wrong_sign_stated": float(sum(p_stated)),
         "wrong_sign_p_at_least": p_at_least(p_stated, wrong) if beams else float("nan"),
         "families": {},
+        # calibration of the weights: per bin of the stated probability, beams, wrong signs, stated sum
+        "by_weight": [
+            (
+                lo,
+                hi,
+                sum(1 for b in beams if lo <= b["p_wrong_sign"] < hi),
+                sum(int(b["wrong_sign"]) for b in beams if lo <= b["p_wrong_sign"] < hi),
+                float(sum(b["p_wrong_sign"] for b in beams if lo <= b["p_wrong_sign"] < hi)),
+            )
+            for lo, hi in WEIGHT_BINS
+        ],
     }
     for fam in ("beta", "rho", "d_b"):  # the calibration's own values: the flagged beams' kept solution apart
         for what, keep in (("resolved beams", False), ("flagged beams, kept solution", True)):
@@ -519,6 +534,8 @@ def print_flagged(rows: list[dict]) -> dict:
         f"{f['wrong_sign_stated']:.2f} (sum of the weights); P(that many or more | stated weights) "
         f"{f['wrong_sign_p_at_least']:.2f}"
     )
+    for lo, hi, n, w, st in f["by_weight"]:
+        print(f"    stated p in [{lo:.2f}, {hi:.2f}): beams {n:3d}, wrong sign {w:3d}, stated {st:6.2f}")
     return f
 
 
