@@ -27,8 +27,16 @@ share of 95.45 % intervals (k from the budget) that cover the truth, with its bi
 error, the z-score SD, and the same split by the budget's dominant input. Acceptance (issue 19):
 93-97 % for every row of the first table.
 
+``--flagged`` (issue 36): only calibration scenes in which Eq. (1) of :mod:`borescan.mirror` at the truth
+puts some beam's mirror less than 25 in chi^2 above the minimum (the contract's draws with bores to R 500 mm,
+kept by that condition alone), and a part of another size than the gauge (R + U(-w, w), w 90 % of the
+smallest sensor range, as far as the static poses' readings stay in range): printed besides, for the chains
+whose calibration has a flagged beam, the coverage of the diameters' own 95 % intervals (the two-solution
+mixture, JCGM 101), refusals outside the valid bore range apart from other refusals, and the wrong-sign main
+solutions against the stated probabilities.
+
 Run: ``python -m bench coverage`` or
-``python -m bench.bench_coverage [--n 200] [--seed 20270619] [--workers 2]``.
+``python -m bench.bench_coverage [--n 200] [--seed 20270619] [--workers 2] [--flagged]``.
 """
 
 from __future__ import annotations
