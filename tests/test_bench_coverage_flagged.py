@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from bench.bench_coverage import _draw_calibration, covered, flagged_summary
+from bench.bench_coverage import covered
+from bench.coverage_flagged import draw_calibration as _draw_calibration, flagged_summary
 
 
 def test_flagged_scenes_have_a_shallow_mirror_and_the_default_draw_is_the_batterys():
