@@ -89,8 +89,8 @@ def draw_chain(i: int, seed: int, base: Path, cfg: dict, flagged: bool = False) 
     """Write chain i's calibration and measurement scans (raw) and return its truth.
 
     With ``flagged`` (issue 36): the calibration from :func:`bench.coverage_flagged.draw_calibration`, and
-    the part a bore of another size than the gauge: R + U(-w, w), w 90 % of the smallest sensor range (what the static
-    poses' readings allow), redrawn until every reading is in range.
+    the part a bore of another size than the gauge: R + U(-w, w), w 90 % of the smallest sensor range
+    (what the static poses' readings allow), redrawn until every reading is in range.
     """
     from borescan import geometry
     from borescan.synthetic import battery, scenes, simulate
