@@ -27,8 +27,16 @@ share of 95.45 % intervals (k from the budget) that cover the truth, with its bi
 error, the z-score SD, and the same split by the budget's dominant input. Acceptance (issue 19):
 93-97 % for every row of the first table.
 
+``--flagged`` (issue 36): only calibration scenes in which Eq. (1) of :mod:`borescan.mirror` at the truth
+puts some beam's mirror less than 25 in chi^2 above the minimum (the contract's draws with bores to R 500 mm,
+kept by that condition alone), and a part of another size than the gauge (R + U(-w, w), w 90 % of the
+smallest sensor range, as far as the static poses' readings stay in range): printed besides, for the chains
+whose calibration has a flagged beam, the coverage of the diameters' own 95 % intervals (the two-solution
+mixture, JCGM 101), refusals outside the valid bore range apart from other refusals, and the wrong-sign main
+solutions against the stated probabilities.
+
 Run: ``python -m bench coverage`` or
-``python -m bench.bench_coverage [--n 200] [--seed 20270619] [--workers 2]``.
+``python -m bench.bench_coverage [--n 200] [--seed 20270619] [--workers 2] [--flagged]``.
 """
 
 from __future__ import annotations
@@ -45,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.coverage_flagged import draw_calibration, print_flagged, shallowest_mirror
 from borescan.parallel import map_in_order
 
 N_CHAINS = 200
@@ -76,16 +85,20 @@ def _sensors(meta: dict, lin_fs: float, noise_mm: float) -> list[dict]:
     ]
 
 
-def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
-    """Write chain i's calibration and measurement scans (raw) and return its truth."""
+def draw_chain(i: int, seed: int, base: Path, cfg: dict, flagged: bool = False) -> dict:
+    """Write chain i's calibration and measurement scans (raw) and return its truth.
+
+    With ``flagged`` (issue 36): the calibration from :func:`bench.coverage_flagged.draw_calibration`, and
+    the part a bore of another size than the gauge: R + U(-w, w), w 90 % of the smallest sensor range
+    (what the static poses' readings allow), redrawn until every reading is in range.
+    """
     from borescan import geometry
-    from borescan.synthetic import battery, scenes, simulate, tri_scenarios
+    from borescan.synthetic import battery, scenes, simulate
 
     unc = cfg["uncertainty"]
-    rng = battery.battery_rng(seed, i)
     sid = battery.battery_scan_id(seed, i)
     night = "2027-02-01"
-    sim = tri_scenarios.draw_tri_calibration(rng, scan_id=sid, night=night)
+    sim = draw_calibration(i, seed, flagged)
     ct = sim.truth["contract"]
     scene = scenes.TriScene.from_dict(sim.truth["scene"])
     beams = scene.beams
@@ -112,8 +125,9 @@ def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
     ecc = float(ct["spindle_offset_mm"])
     C = np.asarray(ct["center_xy_mm"], float)
     part = None
+    half_width_mm = 0.9 * float(np.min(ct["range_mm"])) if flagged else 0.1
     for _ in range(200):
-        R_p = R_T + float(rng2.uniform(-0.1, 0.1))
+        R_p = R_T + float(rng2.uniform(-half_width_mm, half_width_mm))
         r = 0.5 * ecc * np.sqrt(rng2.uniform(0, 1, 10))
         ang = rng2.uniform(0, 2 * np.pi, 10)
         xy = C + np.stack([r * np.cos(ang), r * np.sin(ang)], -1)
@@ -136,6 +150,8 @@ def draw_chain(i: int, seed: int, base: Path, cfg: dict) -> dict:
         "position_known": ct["position_known"],
         "gauge_D20_mm": D20_g,
         "meas_path": None,
+        "gauge_radius_mm": R_T,
+        "shallowest_mirror": shallowest_mirror(sim.truth),
     }
     if part is None:
         return out
@@ -223,6 +239,7 @@ def evaluate_chain(job: tuple) -> dict:
             params.append(
                 {
                     "family": fam,
+                    "channel": int(tb.channels[j]),
                     "err": err,
                     "u": comb.u,
                     "U": comb.U,
@@ -234,11 +251,35 @@ def evaluate_chain(job: tuple) -> dict:
     row["weak_rho"] = list(cal.diagnostics.get("weak_rho_channels", []))
     from borescan.mirror import mirror_checks_of
 
-    row["flagged"] = any(not m.resolved for m in mirror_checks_of(cal.diagnostics))
+    checks = mirror_checks_of(cal.diagnostics)
+    row["flagged"] = any(not m.resolved for m in checks)
+    # issue 36: per flagged beam the stated probability of the wrong sign and whether the kept sign is wrong
+    row["flagged_beams"] = [
+        {
+            "channel": int(m.channel),
+            "p_wrong_sign": float(m.p_wrong_sign),
+            "wrong_sign": bool(np.sign(cal.beams.rho_mm[j]) != np.sign(tb.rho_mm[j])),
+        }
+        for m in checks
+        if not m.resolved
+        for j in [list(cal.beams.channels).index(int(m.channel))]
+    ]
+    row["shallowest_mirror"] = truth.get("shallowest_mirror")
+    row["part_over_gauge"] = truth.get("part_DT_mm", float("nan")) / (2 * truth["gauge_radius_mm"])
     if truth.get("meas_path"):
         pscan = rawio.read_scan(Path(truth["meas_path"]))
         try:
-            _, du = measure.tri_diameter_with_budget(pscan, cal, unc)
+            pres, du = measure.tri_diameter_with_budget(pscan, cal, unc)
+            mix = pres.get("mirror_mixture")
+            row["mixture"] = mix is not None
+            # the coverage interval itself: the mixture's probabilistically symmetric one (JCGM 101 7.7),
+            # else the GUM's D +- U
+            lo20, hi20 = (
+                mix.interval_20_mm if mix is not None else (du.diameter_20_mm - du.combined_20.U,) * 2
+            )
+            lot, hit = mix.interval_mm if mix is not None else (du.diameter_mm - du.combined_t.U,) * 2
+            if mix is None:
+                hi20, hit = du.diameter_20_mm + du.combined_20.U, du.diameter_mm + du.combined_t.U
             row["diameters"] = [
                 {
                     "family": "D at 20 degC",
@@ -247,6 +288,7 @@ def evaluate_chain(job: tuple) -> dict:
                     "U": du.combined_20.U,
                     "k": du.combined_20.k,
                     "dominant": du.combined_20.dominant.split(":", 1)[0],
+                    "interval_err": [lo20 - truth["part_D20_mm"], hi20 - truth["part_D20_mm"]],
                 },
                 {
                     "family": "D at T",
@@ -255,6 +297,7 @@ def evaluate_chain(job: tuple) -> dict:
                     "U": du.combined_t.U,
                     "k": du.combined_t.k,
                     "dominant": du.combined_t.dominant.split(":", 1)[0],
+                    "interval_err": [lot - truth["part_DT_mm"], hit - truth["part_DT_mm"]],
                 },
             ]
         except ValueError as e:
@@ -264,7 +307,11 @@ def evaluate_chain(job: tuple) -> dict:
 
 
 def run(
-    n: int = N_CHAINS, seed: int = SEED, workers: int | None = None, rows_path: Path | None = None
+    n: int = N_CHAINS,
+    seed: int = SEED,
+    workers: int | None = None,
+    rows_path: Path | None = None,
+    flagged: bool = False,
 ) -> list[dict]:
     """Draw, write, calibrate and measure ``n`` chains; return per-chain rows.
 
@@ -275,7 +322,7 @@ def run(
     cfg = _config()
     with tempfile.TemporaryDirectory(prefix="coverage-") as tmp:
         t0 = time.perf_counter()
-        truths = [draw_chain(i, seed, Path(tmp), cfg) for i in range(n)]
+        truths = [draw_chain(i, seed, Path(tmp), cfg, flagged) for i in range(n)]
         print(f"{n} chains drawn and written in {time.perf_counter() - t0:.0f} s (seed {seed})", flush=True)
         jobs = [(t, cfg) for t in truths]
         rows: list[dict] = []
@@ -301,6 +348,17 @@ def run(
     return rows
 
 
+def covered(x: dict) -> bool:
+    """Whether the quantity's 95 % interval holds the truth.
+
+    Its own interval (a mixture's is asymmetric) when the row has one, else err within +-U.
+    """
+    if "interval_err" in x:
+        lo, hi = x["interval_err"]
+        return bool(lo <= 0.0 <= hi)
+    return bool(abs(x["err"]) <= x["U"])
+
+
 def _stats(items: list[dict]) -> dict:
     if not items:
         return {
@@ -310,7 +368,7 @@ def _stats(items: list[dict]) -> dict:
             "z_sd": float("nan"),
             "k_mean": float("nan"),
         }
-    cov = np.array([abs(x["err"]) <= x["U"] for x in items], float)
+    cov = np.array([covered(x) for x in items], float)
     z = np.array([x["err"] / x["u"] for x in items if x["u"] > 0])
     return {
         "n": len(items),
@@ -363,19 +421,7 @@ def print_table(rows: list[dict]) -> dict:
             f"{fam:16s} {d['n']:5d} {d['cover']:8.1%} {d['se']:6.1%} {d['z_sd']:6.3f} {d['z_max']:7.2f} "
             f"{d['k_mean']:7.3f}  {ok}"
         )
-    # issue 36: diameters measured with a calibration whose sign of some rho its scan did not determine
-    # (the two-solution mixture by Monte Carlo, or refused outside the valid bore range)
-    acc = [r for r in rows if r.get("accepted") and r.get("flagged")]
-    for fam in ("D at 20 degC", "D at T"):
-        d = _stats([x for r in acc for x in r.get("diameters", []) if x["family"] == fam])
-        print(
-            f"flagged calibrations, {fam}: n {d['n']}, cover95 "
-            f"{d['cover']:.1%} +- {d['se']:.1%}, z SD {d['z_sd']:.3f}"
-        )
-    print(
-        f"flagged calibrations: {len(acc)}, measurements refused "
-        f"{sum(1 for r in acc if r.get('measure_error'))}"
-    )
+    print_flagged(rows)
     print("by the budget's dominant input:")
     for fam, by in s["by_dominant"].items():
         for dom, d in by.items():
@@ -396,11 +442,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--table", type=Path, default=None, help="only print the table of rows written earlier by --rows"
     )
+    ap.add_argument(
+        "--flagged",
+        action="store_true",
+        help="issue 36: only scenes whose Eq. (1) mirror depth is below 25 for a beam (bores to R 500 mm), "
+        "parts of other sizes than the gauge (within the sensors' range)",
+    )
     args = ap.parse_args([] if argv is None else argv)
     if args.table is not None:
         print_table([json.loads(line) for line in args.table.read_text().splitlines() if line.strip()])
         return
-    rows = run(args.n, args.seed, args.workers, args.rows)
+    rows = run(args.n, args.seed, args.workers, args.rows, args.flagged)
     print_table(rows)
 
 

@@ -111,7 +111,7 @@ def weakest_rho_over_u(row: dict) -> float:
     )
 
 
-def _at_least(p: list[float], k: int) -> float:
+def p_at_least(p: list[float], k: int) -> float:
     """Return P(X >= k), X the wrong signs under the stated probabilities ``p`` (Poisson-binomial)."""
     dist = np.array([1.0])
     for q in p:
@@ -191,7 +191,7 @@ def mirror_summary(rows: list[dict]) -> dict:
         "flagged_wrong_sign_observed": float(np.mean(wrong)) if wrong else float("nan"),
         "flagged_wrong_sign_stated": float(np.mean(p_stated)) if p_stated else float("nan"),
         "flagged_wrong_sign_count": int(sum(wrong)),
-        "flagged_wrong_sign_p_at_least": _at_least(p_stated, int(sum(wrong))),
+        "flagged_wrong_sign_p_at_least": p_at_least(p_stated, int(sum(wrong))),
     }
 
 

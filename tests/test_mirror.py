@@ -446,3 +446,75 @@ def test_a_diameter_with_a_flagged_calibration_is_the_mixture_or_refused(flagged
             r"not determined",
         ):
             tri_diameter_with_budget(scan, cal, unc)
+
+
+def test_small_probabilities_read_as_numbers_not_zero():
+    """exp(-8.2) = 2.7e-4 reads "3e-4", not "0.000"; its complement "1 - 3e-4", not "1.000"; three
+    decimals from 0.001 to 0.999; the statement of a flagged beam uses the same form.
+    """
+    from borescan.mirror import format_probability
+
+    assert format_probability(math.exp(-8.2)) == "3e-4"
+    assert format_probability(1.0 - math.exp(-8.2)) == "1 - 3e-4"
+    assert format_probability(math.exp(-12.5)) == "4e-6"
+    assert [format_probability(p) for p in (0.184, 0.001, 0.999, 0.0, 1.0)] == [
+        "0.184",
+        "0.001",
+        "0.999",
+        "0",
+        "1",
+    ]
+    assert format_probability(float("nan")) == "n/a"
+    m = BeamMirror.from_dict(
+        dict(
+            BeamMirror(2, 5.0, 1.0, True, 3.0, 8.2, False, 0.0, 0.0, 1.0).to_dict(),
+            weight_main=1.0 - math.exp(-4.1),
+            p_wrong_sign=math.exp(-4.1),
+            refit_delta_chi2=8.2,
+            rho_alt_mm=-5.0,
+        )
+    )
+    assert "weight 0.017 = probability of the wrong sign" in m.statement()
+
+
+def test_the_mirror_component_maps_its_covariance_through_its_own_derivatives(flagged_fit, tmp_path):
+    """A static scan of a bore 3 mm larger than the gauge, measured with the flagged calibration: the
+    mirror component's variance is dD/dp at the MIRROR's beams (central differences of D, an independent
+    computation, against the exact form to 1e-6) through the mirror's covariance; the kept solution's dD/dp
+    differs there.
+    """
+    from borescan import rawio
+    from borescan.config import schema_defaults
+    from borescan.measure import tri_diameter_with_budget
+
+    scene, cal = flagged_fit
+    m2 = mirror_checks_of(cal.diagnostics)[1]
+    R = R_MM + 3.0
+    assert m2.valid_bore_diameter_mm[0] <= 2 * R <= m2.valid_bore_diameter_mm[1]
+    st = replace(scene, bore_radius_20_mm=R, bore_center_xy_mm=(0.0, 0.0), range_mm=(30.0,) * 3)
+    art = {"id": "RG", "type": "ring_gauge", "nominal_diameter_mm": 2 * R, "certified_diameter_mm": 2 * R}
+    art.update(u_diameter_mm=0.0, k=2, cte_per_k=0.0)
+    sim = simulate.simulate_tri_static(st, noise_mm=0.002, seed=5, artifact=art, scan_id="STAT2")
+    scan = rawio.read_scan(simulate.write_simulated(sim, tmp_path / "raw", tmp_path / "truth"))
+    res, du = tri_diameter_with_budget(scan, cal, schema_defaults()["uncertainty"])
+    mix, model = res["mirror_mixture"], res["model"]
+    pa, cov_a = m2.alternative.params_array, m2.alternative.cov_array
+    steps = np.tile([1e-6, 1e-4, 1e-4], 3)
+
+    def d_of(p):
+        return model(Beams(cal.beams.channels, p[0::3], p[1::3], p[2::3]))
+
+    g = np.array([(d_of(pa + h * e) - d_of(pa - h * e)) / (2 * h) for h, e in zip(steps, np.eye(9))])
+    from borescan.measure.tri import _jac_params_at
+
+    np.testing.assert_allclose(
+        _jac_params_at(model, Beams(cal.beams.channels, pa[0::3], pa[1::3], pa[2::3])),
+        g,
+        rtol=1e-6,
+        atol=1e-7,
+    )
+    jp = np.asarray(res["jac_params"], float)
+    cov_fit = np.asarray(cal.diagnostics.get("cov_fit", cal.cov), float)
+    extra = max(float(g @ cov_a @ g) - float(jp @ cov_fit @ jp), 0.0)
+    assert mix.u_components_mm[1] ** 2 == pytest.approx(mix.u_components_mm[0] ** 2 + extra, rel=1e-4)
+    assert abs(float(jp @ cov_a @ jp) - float(g @ cov_a @ g)) > 1e-3 * float(g @ cov_a @ g)

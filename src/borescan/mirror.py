@@ -48,6 +48,7 @@ __all__ = [
     "BeamMirror",
     "MirrorSolution",
     "MixtureDiameter",
+    "format_probability",
     "mirror_checks_of",
     "mirror_exists",
     "mixture_components",
@@ -63,6 +64,24 @@ __all__ = [
 #: exp(-25/2) = 3.7e-6 (issue 36: from 25 the local Cramer-Rao bound holds; from 9 to 25 the two
 #: modes are sharp and separate; below 9 even the main one is not Gaussian)
 RESOLVED_DCHI2 = 25.0
+
+
+def format_probability(p: float) -> str:
+    """Return a probability or weight as text that never reads 0 or 1 when it is not.
+
+    From 0.001 to 0.999: three decimals ("0.184"); below 0.001 one significant digit ("3e-4", for
+    exp(-8.2)); above 0.999 as 1 minus that ("1 - 3e-4"); exactly 0 or 1 as "0" / "1"; nan as "n/a".
+    """
+    if not math.isfinite(p):
+        return "n/a"
+    if p <= 0.0 or p >= 1.0:
+        return "0" if p <= 0.0 else "1"
+    if p < 0.001:
+        mant, exp = f"{p:.0e}".split("e")
+        return f"{mant}e{int(exp)}"
+    if p > 0.999:
+        return f"1 - {format_probability(1.0 - p)}"
+    return f"{p:.3f}"
 
 
 def predicted_depth(n_samples, offset_mm, rho_mm: float, sigma_mm, radius_mm: float) -> float:
@@ -339,9 +358,10 @@ class BeamMirror:
         hi_s = "no upper limit" if not math.isfinite(hi) else f"{hi:.1f} mm"
         return (
             f"the sign of rho of channel {self.channel} is not determined by this scan: two solutions, "
-            f"rho = {self.rho_mm:+.4f} mm (weight {self.weight_main:.3f}) and "
+            f"rho = {self.rho_mm:+.4f} mm (weight {format_probability(self.weight_main)}) and "
             f"{self.rho_alt_mm if self.rho_alt_mm is not None else float('nan'):+.4f} mm "
-            f"(delta chi^2 {self.refit_delta_chi2:.2f}, weight {self.p_wrong_sign:.3f} = probability of the "
+            f"(delta chi^2 {self.refit_delta_chi2:.2f}, weight {format_probability(self.p_wrong_sign)} = "
+            "probability of the "
             f"wrong sign); use for bores of diameter {lo:.1f} mm to {hi_s}; {self.fix()}"
         )
 
@@ -481,7 +501,7 @@ def refusal(
                 f"outside {lo:.1f} mm to {hi_s}, the range where "
                 f"calibration {calibration_id} may be used: the sign of rho of channel {m.channel} is not "
                 "determined by its scan (probability of the wrong "
-                f"sign {m.p_wrong_sign:.3f}), and away from the "
+                f"sign {format_probability(m.p_wrong_sign)}), and away from the "
                 f"gauge its two solutions place the wall points apart; to recalibrate: {m.fix()}"
             )
     return None

@@ -17,6 +17,7 @@ from borescan.certificate.layout import (
     _wrap,
 )
 from borescan.certificate.tri import device_model_text
+from borescan.mirror import format_probability
 
 
 def _page_admin(d: _Doc) -> None:
@@ -401,9 +402,9 @@ def _rho_sign_paragraphs(d: _Doc, c: dict) -> None:
         u_main = m["u_main"]
         d.para(
             f"Channel {m['channel']}, solution 1 (weight "
-            f"{m['weight_main']:.4f}): beta {u_main['beta_rad']:.6f} rad, "
+            f"{format_probability(m['weight_main'])}): beta {u_main['beta_rad']:.6f} rad, "
             f"rho {u_main['rho_mm']:+.4f} mm, d_b {u_main['d_b_mm']:.4f} "
-            f"mm; solution 2 (weight {alt['weight']:.4f}, "
+            f"mm; solution 2 (weight {format_probability(alt['weight'])}, "
             f"delta chi^2 {alt['delta_chi2']:.2f}): beta "
             f"{alt['beta_rad']:.6f} rad, rho {alt['rho_mm']:+.4f} mm, "
             f"d_b {alt['d_b_mm']:.4f} mm. Both solutions' covariances are in certificate.json (rho_sign). "

@@ -125,7 +125,10 @@ def _with_mirror_mixture(
         p3 = np.asarray(params, dtype=float)
         beams = Beams(cal.beams.channels, p3[0::3], p3[1::3], p3[2::3])
         d_k = float(res["diameter_mm"]) if k == 0 else float(res["model"](beams))
-        comps.append((w, d_k, 0.0 if k == 0 else float(jp @ cov @ jp) - var_main))
+        # a solution's covariance maps through D's derivatives at that solution: near-degenerate fits are
+        # precise only along their own solution's direction (the kept one's derivatives inflated it 1e2-1e5 x)
+        jp_k = jp if k == 0 else _jac_params_at(res["model"], beams)
+        comps.append((w, d_k, 0.0 if k == 0 else float(jp_k @ cov @ jp_k) - var_main))
     f = du.diameter_20_mm / du.diameter_mm
     p = du.combined_20.p
     mix = mixture_diameter(
@@ -147,6 +150,16 @@ def _with_mirror_mixture(
     )
     res2 = dict(res, diameter_mm=mix.diameter_mm, u_diameter_mm=mix.u_mm, mirror_mixture=mix)
     return res2, du2
+
+
+def _jac_params_at(model, beams: Beams) -> np.ndarray:
+    """Return dD/d(beta, rho, d_b) (3c,) of the scan's diameter ``model`` at ``beams`` (the exact forms)."""
+    from .rotating import _rotating_sensitivities
+    from .static import static_diameter_jacobian
+
+    if model.kind == "static":
+        return np.mean(static_diameter_jacobian(model.readings_mm, beams)[1], axis=0)
+    return _rotating_sensitivities(model, beams)[0]
 
 
 def _device_model_inputs(scan, cal, dm, cleaning=None) -> list[tuple[Input, float]]:

@@ -7,6 +7,7 @@ import polars as pl
 
 from borescan import catalog
 from borescan.calibrations import calibration_roles, failed_calibration_ids, order_calibrations
+from borescan.mirror import format_probability
 from borescan.report.page import Page, _EMPTY
 from borescan.report.plots import plot_calibration_trends, plot_control_chart
 from borescan.report.spc import MR_D2, RUN_RULES, control_limits, run_rules
@@ -272,7 +273,8 @@ def _rho_sign_notes(cal: pl.DataFrame) -> str:
         items.append(
             f"<li><b>{_e(r['calibration_id'])}</b>: the sign of rho of channel {r['channel']} is not "
             f"determined by its scan (two solutions, probability of the wrong sign "
-            f"{r['p_wrong_sign']:.3f}, the mirror {r['mirror_delta_chi2']:.2f} in chi² above); diameters "
+            f"{format_probability(r['p_wrong_sign'])}, "
+            f"the mirror {r['mirror_delta_chi2']:.2f} in chi² above); diameters "
             f"carry both solutions and are measured only for bores of {rng}"
             f'<br><span class="action">what to do: recalibrate: '
             + (
