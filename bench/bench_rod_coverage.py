@@ -124,6 +124,22 @@ def _hold(rng, layers, d20_mm, T_c, kind, scan_id, artifact, design, sensors, ba
     return rawio.read_scan(folder, raw_root=base / "raw")
 
 
+def _calibration_hold(rng, layers, d20_mm, i, gauges, design, sensors, folder: Path):
+    """Write chain ``i``'s calibration hold on its ring-gauge set (temperature drawn at 18-22 degC)."""
+    return _hold(
+        rng,
+        layers,
+        d20_mm,
+        float(rng.uniform(18, 22)),
+        "calibration",
+        f"CAL-{i}",
+        gauges,
+        design,
+        sensors,
+        folder,
+    )
+
+
 def _linearity_curve_mm(coef, a_mm: float, v_mm):
     """Return the sensor's linearity deviation at readings ``v_mm`` [mm].
 
@@ -217,18 +233,7 @@ def run_chain(job) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp)
         try:
-            cal = _hold(
-                rng,
-                true,
-                g20,
-                float(rng.uniform(18, 22)),
-                "calibration",
-                f"CAL-{i}",
-                gset,
-                design,
-                sensors,
-                base / "c",
-            )
+            cal = _calibration_hold(rng, true, g20, i, gset, design, sensors, base / "c")
             channels, means, u_mean, sens = rod_calibration.pose_means_of_scan(cal)
             gauges = rod_calibration.layer_gauges(cal.meta, channels)
             temp, cte = scan_temperature(cal.meta, unc), artifact_cte(cal.meta, unc)
@@ -327,18 +332,7 @@ def fisher_chain(job) -> dict:
     rng, true, design, sensors, gset, _part, g20 = _chain_setup(i, seed, cfg, oracle)
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            cal = _hold(
-                rng,
-                true,
-                g20,
-                float(rng.uniform(18, 22)),
-                "calibration",
-                f"CAL-{i}",
-                gset,
-                design,
-                sensors,
-                Path(tmp),
-            )
+            cal = _calibration_hold(rng, true, g20, i, gset, design, sensors, Path(tmp))
             _ch, means, u_mean, _s = rod_calibration.pose_means_of_scan(cal)
             sd = layer_geometry_information(
                 means, design, u_mean, rod_calibration.rod_coaxiality_mm(unc), layer_geometry_prior(unc)
