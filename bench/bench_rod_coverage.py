@@ -19,8 +19,8 @@ pipeline takes as known:
   ``measure.linearity_terms``); repeatability = the readings' true noise;
 - the part: holes of the gauges' D20 + U(+-50 um), at their own temperature U(18, 22) degC.
 
-The pipeline's own path then calibrates (``rod_calibration.calibrate_l0`` + its budget) and
-measures (``rod_calibration.rod_diameters_with_budget``, ``rod_verifications``). Printed: the share
+The pipeline's own path then calibrates (``rod_calibration.calibrate_hold``, as the stage does) and
+measures (``measure.rod_diameters_with_budget``, ``rod_verifications``). Printed: the share
 of 95.45 % intervals (k from the budget) that cover each true diameter (at 20 degC and at the
 measured temperature) and the verification error, with binomial standard errors and z-score SDs;
 chains whose poses cannot determine the radii are refused by the solve, with the reason. The
@@ -222,9 +222,7 @@ def run_chain(job) -> dict:
     """One calibrate-then-measure-then-verify chain: its z-scores and coverage flags."""
     i, seed, cfg, oracle = job
     from borescan import rod_calibration
-    from borescan.measure import hold_readings
-    from borescan.artifacts import artifact_cte, radius_at_temperature_mm, scan_temperature
-    from borescan.atomic import json_ready
+    from borescan import measure
 
     unc = cfg["uncertainty"]
     rng, true, design, sensors, gset, part, g20 = _chain_setup(i, seed, cfg, oracle)
@@ -234,49 +232,12 @@ def run_chain(job) -> dict:
         base = Path(tmp)
         try:
             cal = _calibration_hold(rng, true, g20, i, gset, design, sensors, base / "c")
-            channels, means, u_mean, sens = rod_calibration.pose_means_of_scan(cal)
-            gauges = rod_calibration.layer_gauges(cal.meta, channels)
-            temp, cte = scan_temperature(cal.meta, unc), artifact_cte(cal.meta, unc)
-            r_t = [
-                radius_at_temperature_mm(0.5 * gg["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
-                for gg in gauges
-            ]
-            layers, sol, _n = rod_calibration.calibrate_l0(
-                means, design, u_mean, r_t, coaxiality_mm=rod_calibration.rod_coaxiality_mm(unc)
-            )
-            budget = rod_calibration.rod_calibration_budget(
-                [lay.l0_mm for lay in layers],
-                sol,
-                gauges,
-                temp,
-                cte,
-                sens,
-                cal.scan_id,
-                float(unc["sensor_resolution_mm"]),
-            )
-            blob = json.dumps(
-                {
-                    "budget": json_ready(budget.to_dict()),
-                    "hold_readings": hold_readings(means),
-                    "layer_geometry": rod_calibration.layer_geometry_record(means, layers, u_mean, unc, sol),
-                }
-            )
-            rows = [
-                {
-                    "channel": lay.channel,
-                    "l0_mm": lay.l0_mm,
-                    "h_mm": lay.h_mm,
-                    "phi_rad": lay.phi_rad,
-                    "d_mm": lay.d_mm,
-                    "gamma_rad": lay.gamma_rad,
-                    "calibration_json": blob,
-                }
-                for lay in layers
-            ]
+            hold = rod_calibration.calibrate_hold(cal, unc, design)
+            rows = hold.rows(cal.night, None, float(unc["coverage_probability"]))
             p20 = g20 + rng.uniform(-0.05, 0.05, m)
             T_p = float(rng.uniform(18, 22))
             meas = _hold(rng, true, p20, T_p, "measurement", f"MEAS-{i}", part, design, sensors, base / "m")
-            res = rod_calibration.rod_diameters_with_budget(meas, rows, unc, "C")
+            res = measure.rod_diameters_with_budget(meas, rows, unc, "C")
             ver = _hold(
                 rng,
                 true,
@@ -289,8 +250,8 @@ def run_chain(job) -> dict:
                 sensors,
                 base / "v",
             )
-            vres = rod_calibration.rod_diameters_with_budget(ver, rows, unc, "C")
-            vrows = rod_calibration.rod_verifications(ver, vres, "C", unc, cfg["laboratory"], 1.0)
+            vres = measure.rod_diameters_with_budget(ver, rows, unc, "C")
+            vrows = measure.rod_verifications(ver, vres, "C", unc, cfg["laboratory"], 1.0)
         except (ValueError, np.linalg.LinAlgError) as err:
             return dict(out, error=str(err)[:160])
     zs = {"D20": [], "D_T": [], "E": []}

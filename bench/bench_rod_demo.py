@@ -1,7 +1,7 @@
 """The demo rod's gauge verifications through the library path of the calibrate and measure stages.
 
-The rod's ring-gauge calibration scan of a raw root (``*ROD01-CAL*``: ``rod_calibration.calibrate_l0``
-and its budget with the holes' coaxiality of the config) and each of its verification scans
+The rod's ring-gauge calibration scan of a raw root (``*ROD01-CAL*``: ``rod_calibration.calibrate_hold``,
+as the stage does, with the holes' coaxiality of the config) and each of its verification scans
 (``*ROD01-VER*``: ``rod_diameters_with_budget``, ``rod_verifications`` against the config's
 tolerance). Printed per layer: the error E, U(E), the verdict, the budget's largest inputs and
 ``dominant_fix``. ``--coaxiality none`` repeats it with the deflection bound alone (the radii
@@ -14,7 +14,6 @@ Run: ``python -m bench.bench_rod_demo --raw RAW_ROOT`` (``borescan simulate demo
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -29,11 +28,8 @@ def run(raw_root: Path, coaxiality: str | None = None, cpu_s: dict | None = None
     each rod measurement scan ``*ROD01-MEAS*``, whose diameters are solved but not returned).
     """
     from borescan import rawio, rod_calibration
-    from borescan.artifacts import artifact_cte, radius_at_temperature_mm, scan_temperature
-    from borescan.atomic import json_ready
-    from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
     from borescan.config import load_config
-    from borescan.measure import hold_readings
+    from borescan import measure
 
     cfg = load_config()
     unc = dict(cfg["uncertainty"])
@@ -42,46 +38,15 @@ def run(raw_root: Path, coaxiality: str | None = None, cpu_s: dict | None = None
     cpu_s = {} if cpu_s is None else cpu_s
     t0 = time.process_time()
     cal = rawio.read_scan(sorted(raw_root.glob("*/scan=*ROD01-CAL*"))[0], raw_root=raw_root)
-    ch, means, u_mean, sens = rod_calibration.pose_means_of_scan(cal)
-    nominal = rod_nominal_calibration_rows(cal.meta, cal.night, cal.scan_id)
-    gauges = rod_calibration.layer_gauges(cal.meta, ch)
-    temp, cte = scan_temperature(cal.meta, unc), artifact_cte(cal.meta, unc)
-    r_t = [
-        radius_at_temperature_mm(0.5 * g["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
-        for g in gauges
-    ]
-    lays, sol, _n = rod_calibration.calibrate_l0(
-        means, rod_layers(nominal, ch), u_mean, r_t, coaxiality_mm=rod_calibration.rod_coaxiality_mm(unc)
-    )
-    budget = rod_calibration.rod_calibration_budget(
-        [lay.l0_mm for lay in lays],
-        sol,
-        gauges,
-        temp,
-        cte,
-        sens,
-        cal.scan_id,
-        float(unc["sensor_resolution_mm"]),
-    )
-    blob = json.dumps(
-        {
-            "budget": json_ready(budget.to_dict()),
-            "hold_readings": hold_readings(means),
-            "layer_geometry": rod_calibration.layer_geometry_record(means, lays, u_mean, unc, sol),
-        }
-    )
-    rows = [
-        dict(r, l0_mm=lay.l0_mm, calibration_json=blob)
-        for r, lay in zip(sorted(nominal, key=lambda r: r["channel"]), lays)
-    ]
+    rows = rod_calibration.calibrate_hold(cal, unc).rows(cal.night, None, float(unc["coverage_probability"]))
     cpu_s[cal.scan_id] = time.process_time() - t0
     out = []
     for d in sorted(raw_root.glob("*/scan=*ROD01-VER*")) + sorted(raw_root.glob("*/scan=*ROD01-MEAS*")):
         t0 = time.process_time()
         scan = rawio.read_scan(d, raw_root=raw_root)
-        res = rod_calibration.rod_diameters_with_budget(scan, rows, unc, cal.scan_id)
+        res = measure.rod_diameters_with_budget(scan, rows, unc, cal.scan_id)
         if "-VER-" in scan.scan_id:
-            out += rod_calibration.rod_verifications(
+            out += measure.rod_verifications(
                 scan, res, cal.scan_id, unc, cfg["laboratory"], float(cfg["verification"]["tolerance_mm"])
             )
         cpu_s[scan.scan_id] = time.process_time() - t0

@@ -1,6 +1,5 @@
 """Rod calibration on certified ring gauges: base lengths, their budget, and which calibration a rod uses."""
 
-import json
 import math
 from dataclasses import replace
 
@@ -9,12 +8,11 @@ import polars as pl
 import pytest
 
 from borescan import rawio, rod_calibration
-from borescan.atomic import json_ready
-from borescan.artifacts import artifact_cte, scan_temperature
 from borescan.calibrations import choose_rod_calibration
 from borescan.config import schema_defaults
 from borescan.effects import Effect
 from borescan.geometry import Hole, RodAxis, RodLayer
+from borescan import measure
 from borescan.rod import solve_rod
 from borescan.synthetic.scenes import RodScene
 from borescan.synthetic.simulate import simulate_rod, write_simulated
@@ -90,26 +88,13 @@ def _raw(sim, tmp_path):
 
 
 def _calibrate(scan):
-    channels, means, u_mean, sensors = rod_calibration.pose_means_of_scan(scan)
-    gauges = rod_calibration.layer_gauges(scan.meta, channels)
-    temp, cte = scan_temperature(scan.meta, UNC), artifact_cte(scan.meta, UNC)
-    radius_t = [
-        0.5 * g["certified_diameter_mm"] * (1 + cte.cte_per_k * (temp.temperature_c - 20)) for g in gauges
-    ]
-    layers, sol, n = rod_calibration.calibrate_l0(
-        means, DESIGN, u_mean, radius_t, coaxiality_mm=rod_calibration.rod_coaxiality_mm(UNC)
-    )
-    budget = rod_calibration.rod_calibration_budget(
-        [lay.l0_mm for lay in layers],
-        sol,
-        gauges,
-        temp,
-        cte,
-        sensors,
-        scan.scan_id,
-        UNC["sensor_resolution_mm"],
-    )
-    return layers, sol, budget, radius_t, means, u_mean
+    """Calibrate l0 in ``scan`` as the stage does (from the design in its scan.json)."""
+    return rod_calibration.calibrate_hold(scan, UNC)
+
+
+def _rows(scan):
+    """Return the ``calibrations`` rows of the calibration in ``scan`` (with budget, hold, draws)."""
+    return _calibrate(scan).rows(scan.night, None, UNC["coverage_probability"])
 
 
 def test_layer_gauges_from_a_gauge_set_a_single_ring_or_refused():
@@ -140,11 +125,18 @@ def test_layer_gauges_from_a_gauge_set_a_single_ring_or_refused():
 def test_calibrated_base_lengths_make_the_solve_return_the_gauges(tmp_path):
     """The fixed point holds (radius = gauge radius at T within 1e-7 mm) and l0 moves towards the truth."""
     scan = _raw(_sim(GAUGE_D, 3, "calibration", GAUGE_SET, temp_c=21.0), tmp_path)
-    layers, _sol, budget, radius_t, means, u_mean = _calibrate(scan)
+    hold = _calibrate(scan)
+    layers, budget = hold.calibration.layers, hold.calibration.budget
     again = solve_rod(
-        means, layers=layers, u_reading_mm=u_mean, coaxiality_mm=rod_calibration.rod_coaxiality_mm(UNC)
+        hold.means_mm,
+        layers=layers,
+        u_reading_mm=hold.u_mean_mm,
+        coaxiality_mm=rod_calibration.rod_coaxiality_mm(UNC),
     )
+    # the gauges at the scan's temperature (spec thermal_expansion: R = R20 (1 + alpha (T - 20)))
+    radius_t = [0.5 * d * (1 + CTE * 1.0) for d in GAUGE_D]
     np.testing.assert_allclose(again.radius_mm, radius_t, atol=2e-7)
+    assert [g["radius_at_t_mm"] for g in hold.calibration.gauges] == pytest.approx(radius_t, abs=1e-12)
     err = np.array([c.l0_mm - t.l0_mm for c, t in zip(layers, TRUE)])
     assert np.all(np.abs(err) <= 3 * budget.u()), (err, budget.u())
 
@@ -169,31 +161,14 @@ def test_calibrate_then_measure_removes_the_base_length_error(tmp_path):
         cal = _raw(
             _sim(GAUGE_D, 100 + seed, "calibration", GAUGE_SET, scan_id=f"CAL{seed}"), tmp_path / f"c{seed}"
         )
-        layers, _sol, budget, *_ = _calibrate(cal)
-        cal_rows = [
-            {
-                "channel": lay.channel,
-                "l0_mm": lay.l0_mm,
-                "h_mm": lay.h_mm,
-                "phi_rad": 0.0,
-                "d_mm": 0.0,
-                "gamma_rad": 0.0,
-                "calibration_json": None,
-            }
-            for lay in layers
-        ]
+        cal_rows = _rows(cal)
         meas = _raw(
             _sim(d_part, 200 + seed, "measurement", part, scan_id=f"MEAS{seed}"), tmp_path / f"m{seed}"
         )
-        # with the budget: the rows of a recorded calibration
-        import json
-
-        blob = json.dumps({"budget": json_ready(budget.to_dict())})
-        res = rod_calibration.rod_diameters_with_budget(
-            meas, [dict(r, calibration_json=blob) for r in cal_rows], UNC, "C"
-        )
-        nominal = rod_calibration.rod_diameters_with_budget(
-            meas, [dict(r, l0_mm=71.0) for r in cal_rows], UNC, "N"
+        # with the budget: the rows of a recorded calibration; the design geometry's: no record
+        res = measure.rod_diameters_with_budget(meas, cal_rows, UNC, "C")
+        nominal = measure.rod_diameters_with_budget(
+            meas, [dict(r, l0_mm=71.0, calibration_json=None) for r in cal_rows], UNC, "N"
         )
         for r, n, d in zip(res, nominal, d_part):
             assert r["traceable"] and not n["traceable"]
@@ -201,8 +176,12 @@ def test_calibrate_then_measure_removes_the_base_length_error(tmp_path):
             design_err.append(n["diameter_mm"] - d)
             design_u.append(n["du"].combined_t.u)
             assert abs(r["diameter_mm"] - d) <= 3 * r["du"].combined_t.u
-            # the calibration's budget is in the diameter's: larger u than the design geometry's
-            assert r["du"].combined_t.u > n["du"].combined_t.u
+            # the calibration's budget is in the diameter's (its readings and gauges), none in the design's
+            keys = {tt.input.key for tt in r["du"].budget.terms}
+            assert {f"fit:CAL{seed}:readings", "gauge:RG-150A@RGS-150/2026-02:D20"} <= keys, keys
+            assert not any(
+                k.startswith(("fit:CAL", "gauge:")) for k in (tt.input.key for tt in n["du"].budget.terms)
+            )
     cal_err, design_err = np.array(cal_err).reshape(-1, 2), np.array(design_err).reshape(-1, 2)
     # each within 3 u (above); together far below the design geometry's error of layer 1 (> 20 um)
     assert np.sqrt(np.mean(cal_err**2)) < 0.5 * np.min(np.abs(design_err[:, 0])), cal_err * 1e3
@@ -228,7 +207,7 @@ def test_budget_sensitivities_are_the_closed_forms(tmp_path):
         "cte_per_k": CTE,
     }
     scan = _raw(_sim((150.0021, 150.0021), 7, "calibration", ring, temp_c=21.5), tmp_path)
-    _layers, _sol, b, *_ = _calibrate(scan)
+    b = _calibrate(scan).calibration.budget
     terms = {t.input.key: t for t in b.terms}
     f = 1 + CTE * 1.5
     np.testing.assert_allclose(terms["gauge:RG-150@C1:D20"].sensitivity, [f / 2, f / 2], rtol=1e-12)
@@ -377,16 +356,11 @@ def test_rod_verification_names_its_largest_input_and_what_would_reduce_it(tmp_p
     (a 1 um tolerance here) it says what would reduce it, and nothing when the verdict is decided.
     """
     cal = _raw(_sim(GAUGE_D, 11, "calibration", GAUGE_SET, scan_id="CALV"), tmp_path / "c")
-    layers, _sol, budget, *_ = _calibrate(cal)
-    blob = json.dumps({"budget": json_ready(budget.to_dict())})
-    rows = [
-        {"channel": lay.channel, "l0_mm": lay.l0_mm, "h_mm": lay.h_mm, "calibration_json": blob}
-        for lay in layers
-    ]
+    rows = _rows(cal)
     ver = _raw(_sim(GAUGE_D, 12, "verification", GAUGE_SET, scan_id="VERV"), tmp_path / "v")
-    res = rod_calibration.rod_diameters_with_budget(ver, rows, UNC, "C")
+    res = measure.rod_diameters_with_budget(ver, rows, UNC, "C")
     lab = schema_defaults()["laboratory"]
-    tight = rod_calibration.rod_verifications(ver, res, "C", UNC, lab, 0.001)
+    tight = measure.rod_verifications(ver, res, "C", UNC, lab, 0.001)
     for row in tight:
         top = max(row["budget"], key=lambda b: abs(b["contribution"]))
         assert row["dominant_input"] == top["key"]
@@ -397,7 +371,7 @@ def test_rod_verification_names_its_largest_input_and_what_would_reduce_it(tmp_p
             "readings": "poses",
         }
         assert expect.get(kind, "stated") in row["dominant_fix"]
-    loose = rod_calibration.rod_verifications(ver, res, "C", UNC, lab, 1.0)
+    loose = measure.rod_verifications(ver, res, "C", UNC, lab, 1.0)
     assert all(r["dominant_fix"] is None and r["dominant_input"] for r in loose)
     # the two columns reach the stage table and the catalog (outputs.md's verifications, extended)
     from borescan import catalog, tables
@@ -421,21 +395,14 @@ def test_linearity_curve_is_absorbed_by_the_calibration_up_to_its_change(tmp_pat
     on D) and the change term's bound (Markov, cubic) covers the error the curve makes, which is far
     below the 2 a a whole curve could make.
     """
-    from borescan.measure import hold_readings
-
     bow = [Effect("sensor_nonlinearity", {"channel": c, "a_mm": 0.02}) for c in (1, 2)]
     d_with, d_without, budgets = [], [], []
     for effects, out in ((bow, d_with), ((), d_without)):
         base = tmp_path / ("bow" if effects else "clean")
         cal = _raw(_sim(GAUGE_D, 31, "calibration", GAUGE_SET, scan_id="CALL", effects=effects), base / "c")
-        layers, _sol, budget, _r, means, _u = _calibrate(cal)
-        blob = json.dumps({"budget": json_ready(budget.to_dict()), "hold_readings": hold_readings(means)})
-        rows = [
-            {"channel": lay.channel, "l0_mm": lay.l0_mm, "h_mm": lay.h_mm, "calibration_json": blob}
-            for lay in layers
-        ]
+        rows = _rows(cal)
         ver = _raw(_sim(GAUGE_D, 32, "verification", GAUGE_SET, scan_id="VERL", effects=effects), base / "v")
-        res = rod_calibration.rod_diameters_with_budget(ver, rows, UNC, "C")
+        res = measure.rod_diameters_with_budget(ver, rows, UNC, "C")
         out.extend(r["diameter_mm"] for r in res)
         budgets.append([r["du"].budget for r in res])
     a = 0.0025 * 8.0

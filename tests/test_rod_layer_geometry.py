@@ -14,11 +14,9 @@ import numpy as np
 import pytest
 
 from borescan import rawio, rod_calibration, rod_layer_geometry
-from borescan.artifacts import artifact_cte, scan_temperature
-from borescan.atomic import json_ready
 from borescan.config import schema_defaults
 from borescan.geometry import Hole, RodAxis, RodLayer
-from borescan.measure import hold_readings
+from borescan import measure
 from borescan.synthetic.scenes import RodScene
 from borescan.synthetic.simulate import simulate_rod, write_simulated
 
@@ -91,43 +89,13 @@ def _hold(tmp_path, kind, scan_id, axis, n_poses, samples_per_pose, seed):
 
 
 def _calibration_rows(scan, unc, layers_of_truth=None):
-    """Calibrate l0 in ``scan`` as the stage does and return the calibration's rows (with its record)."""
-    channels, means, u_mean, sensors = rod_calibration.pose_means_of_scan(scan)
-    gauges = rod_calibration.layer_gauges(scan.meta, channels)
-    temp, cte = scan_temperature(scan.meta, unc), artifact_cte(scan.meta, unc)
-    radius_t = [0.5 * g["certified_diameter_mm"] for g in gauges]
+    """Calibrate l0 in ``scan`` as the stage does and return the calibration's rows (with its record).
+
+    From the design, or from ``layers_of_truth``; the gauges at the scan's temperature (20 degC here).
+    """
     start = DESIGN if layers_of_truth is None else layers_of_truth
-    coax = rod_calibration.rod_coaxiality_mm(unc)
-    layers, sol, _n = rod_calibration.calibrate_l0(means, start, u_mean, radius_t, coaxiality_mm=coax)
-    budget = rod_calibration.rod_calibration_budget(
-        [lay.l0_mm for lay in layers],
-        sol,
-        gauges,
-        temp,
-        cte,
-        sensors,
-        scan.scan_id,
-        unc["sensor_resolution_mm"],
-    )
-    blob = json.dumps(
-        {
-            "budget": json_ready(budget.to_dict()),
-            "hold_readings": hold_readings(means),
-            "layer_geometry": rod_calibration.layer_geometry_record(means, layers, u_mean, unc),
-        }
-    )
-    return [
-        {
-            "channel": lay.channel,
-            "l0_mm": lay.l0_mm,
-            "h_mm": lay.h_mm,
-            "phi_rad": lay.phi_rad,
-            "d_mm": lay.d_mm,
-            "gamma_rad": lay.gamma_rad,
-            "calibration_json": blob,
-        }
-        for lay in layers
-    ]
+    hold = rod_calibration.calibrate_hold(scan, unc, start)
+    return hold.rows(scan.night, None, unc["coverage_probability"])
 
 
 @pytest.fixture(scope="module")
@@ -143,9 +111,9 @@ def holds(tmp_path_factory):
 def _verify(holds, unc, truth=None):
     cal, ver = holds
     rows = _calibration_rows(cal, unc, truth)
-    res = rod_calibration.rod_diameters_with_budget(ver, rows, unc, "C")
+    res = measure.rod_diameters_with_budget(ver, rows, unc, "C")
     # a 2 um tolerance: U(E) above it, so every row says what would reduce its largest input
-    return res, rod_calibration.rod_verifications(ver, res, "C", unc, LAB, 0.002)
+    return res, measure.rod_verifications(ver, res, "C", unc, LAB, 0.002)
 
 
 @pytest.mark.slow

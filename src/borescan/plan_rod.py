@@ -181,7 +181,7 @@ def _fewest_poses(
 def dominant_fix(key: str, diameter: dict, coaxiality_mm: float | None, u_allowed_mm: float) -> str:
     """Say what would reduce a rod verification's largest input ``key`` (a budget key).
 
-    ``diameter``: a row of :func:`borescan.rod_calibration.rod_diameters_with_budget`;
+    ``diameter``: a row of :func:`borescan.measure.rod_diameters_with_budget`;
     ``coaxiality_mm``: the holes' coaxiality the solve took; ``u_allowed_mm``: the u(E) at which U(E)
     equals the tolerance. This hold's readings: the fewest poses, per angular spread, that bring its
     u(D) to half of it with the rod held as in this scan (:func:`recommend_rod`); the calibration

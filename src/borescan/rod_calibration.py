@@ -34,19 +34,25 @@ from typing import Any
 
 import numpy as np
 
-from .artifacts import artifact_key
+from .artifacts import (
+    ArtifactCte,
+    ScanTemperature,
+    artifact_cte,
+    artifact_key,
+    radius_at_temperature_mm,
+    scan_temperature,
+)
 from .effects import REFERENCE_TEMPERATURE_C, thermal_expansion_factor
 from .atomic import json_ready
 from .calibrate.result import make_calibration_id
-from .calibrations import rod_layers
+from .calibrations import rod_layers, rod_nominal_calibration_rows
 from .config import schema_default
 from .geometry import RodLayer
+from .preconditions import ROD_CALIBRATION_NEEDS_LAYERS, design_layers
 from .rod import RodSolution, solve_rod
 from .rod_layer_geometry import (
     LayerGeometryDraws,
     calibration_draws,
-    hold_radius_shifts,
-    layer_geometry_input,
     layer_geometry_prior,
 )
 from .uncertainty import Budget, Input, Term
@@ -54,6 +60,9 @@ from .uncertainty import Budget, Input, Term
 __all__ = [
     "ROD_CALIBRATION_METHOD",
     "RodCalibration",
+    "RodCalibrationHold",
+    "RodCalibrationInputError",
+    "calibrate_hold",
     "layer_gauges",
     "rod_coaxiality_mm",
     "calibrate_l0",
@@ -63,10 +72,7 @@ __all__ = [
     "rod_calibration_from_rows",
     "rod_layer_draws_from_rows",
     "layer_geometry_record",
-    "layer_jacobian",
     "pose_means_of_scan",
-    "rod_diameters_with_budget",
-    "rod_verifications",
 ]
 
 #: ``calibrations.method`` of a rod calibrated on certified ring gauges
@@ -321,13 +327,98 @@ def rod_calibration_id(device_id: str, scan_ids, night: str) -> str:
     return make_calibration_id(device_id, scan_ids, ROD_CALIBRATION_METHOD, night)
 
 
-def layer_jacobian(channels, channel: int) -> np.ndarray:
-    """Return d D_channel / d l0 of every layer.
+class RodCalibrationInputError(ValueError):
+    """A rod calibration scan lacks what its scan.json must give (design layers, a gauge per layer, T)."""
 
-    d D_channel / d l0 of every layer (2 on its own layer, 0 elsewhere): a diameter's sensitivity
-    to the calibration's outputs.
+
+@dataclass(frozen=True)
+class RodCalibrationHold:
+    """One ring-gauge hold of a rod calibrated (:func:`calibrate_hold`).
+
+    calibration : the calibration (layers, budget, the solve at them; ``diagnostics`` with the hold's
+        readings and its layer-geometry draws, as recorded in ``calibration_json``)
+    means_mm : (n, m) mean reading per pose and layer [mm]; u_mean_mm : u of one mean [mm]
+    temperature, cte : the gauges' temperature and expansion coefficient
+    sensors : channel -> scan.json entry; raw_files : ``<scan>/<file>`` -> SHA-256 of the raw files
     """
-    return np.array([2.0 if int(c) == int(channel) else 0.0 for c in channels])
+
+    calibration: RodCalibration
+    means_mm: np.ndarray
+    u_mean_mm: float | None
+    temperature: ScanTemperature
+    cte: ArtifactCte
+    sensors: dict
+    raw_files: dict
+
+    def rows(self, night: str, certificate_path: str | None, p: float) -> list[dict]:
+        """Return the calibration's ``calibrations`` rows (:func:`rod_calibration_rows`)."""
+        from .rawio import combined_sha256
+
+        return rod_calibration_rows(
+            self.calibration, night, certificate_path, combined_sha256(self.raw_files), p
+        )
+
+
+def calibrate_hold(
+    scan, unc_cfg: dict, start=None, *, night: str | None = None, cleaning=None
+) -> RodCalibrationHold:
+    """Calibrate a rod's base lengths from one ring-gauge scan (the module doc's step, whole).
+
+    The pose means (:func:`pose_means_of_scan`, spike policy ``cleaning``), each layer's gauge
+    (:func:`layer_gauges`) at the scan's temperature (R20 (1 + alpha (T - 20)): the gauges as the
+    rod reads them, spec ``thermal_expansion``), the fixed point (:func:`calibrate_l0`) from
+    ``start`` (RodLayer per channel; None: the design, ``device.nominal.layers``), its budget
+    (:func:`rod_calibration_budget`) and the layer-geometry draws (:func:`layer_geometry_record`, at
+    the fixed point's own solve). ``night``: of the calibration id (None: the scan's).
+
+    Raises
+    ------
+    RodCalibrationInputError: scan.json lacks the design layers, a layer's certified gauge or the
+    temperature (MissingTemperature's message); borescan.rod.RodSolveError: the readings give no
+    radii (the message says what hold would); ValueError: the fixed point does not settle.
+    """
+    meta, sid = scan.meta, scan.scan_id
+    night = scan.night if night is None else night
+    try:
+        if start is None:
+            design_layers(meta, ROD_CALIBRATION_NEEDS_LAYERS)  # MissingDesignGeometry names what is missing
+            nominal = rod_nominal_calibration_rows(meta, night, sid)
+        channels, means, u_mean, sensors = pose_means_of_scan(scan, cleaning)
+        layers = tuple(rod_layers(nominal, channels) if start is None else start)
+        gauges = layer_gauges(meta, channels)
+        temp, cte = scan_temperature(meta, unc_cfg), artifact_cte(meta, unc_cfg)
+    except ValueError as err:  # MissingTemperature is one
+        raise RodCalibrationInputError(str(err)) from err
+    radius_t = [
+        radius_at_temperature_mm(0.5 * g["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
+        for g in gauges
+    ]
+    coax = rod_coaxiality_mm(unc_cfg)
+    cal_layers, sol, n_iter = calibrate_l0(means, layers, u_mean, radius_t, coaxiality_mm=coax)
+    l0 = [lay.l0_mm for lay in cal_layers]
+    res = float(unc_cfg["sensor_resolution_mm"])
+    budget = rod_calibration_budget(l0, sol, gauges, temp, cte, sensors, sid, res)
+    from .measure import hold_readings
+
+    cal = RodCalibration(
+        calibration_id=rod_calibration_id(meta["device"]["id"], [sid], night),
+        device_id=meta["device"]["id"],
+        scan_ids=(sid,),
+        layers=tuple(cal_layers),
+        l0_nominal_mm=np.array([lay.l0_mm for lay in layers]),
+        u_l0_mm=budget.u(),
+        budget=budget,
+        gauges=tuple(dict(g, radius_at_t_mm=r) for g, r in zip(gauges, radius_t)),
+        solution=sol,
+        iterations=n_iter,
+        residual_rms_mm=float(sol.residual_rms_mm),
+        diagnostics={
+            "hold_readings": hold_readings(means),
+            "layer_geometry": layer_geometry_record(means, cal_layers, u_mean, unc_cfg, sol),
+        },
+    )
+    raw_files = {f"{sid}/{k}": v for k, v in sorted(scan.sha256.items())}
+    return RodCalibrationHold(cal, means, u_mean, temp, cte, sensors, raw_files)
 
 
 def rod_calibration_rows(
@@ -438,148 +529,3 @@ def pose_means_of_scan(scan, cleaning=None) -> tuple[list[int], np.ndarray, floa
     sensors = {int(s["channel"]): s for s in scan.meta.get("sensors", [])}
     u_mean = measure.mean_reading_u_mm(measure.reading_u_mm(sensors, mat.channels, linearity=False), counts)
     return [int(c) for c in mat.channels], means, u_mean, sensors
-
-
-def rod_diameters_with_budget(
-    scan, layer_rows: list[dict], unc_cfg: dict, calibration_id: str | None = None, cleaning=None
-) -> list[dict]:
-    """Hole diameters of a rod scan with their GUM budgets.
-
-    The joint rod solve with the calibration's layers (``layer_rows``: its ``calibrations`` rows,
-    a ring-gauge calibration or the design geometry), each mean reading's uncertainty from the
-    sensors' data sheet; the budget (:func:`borescan.measure.diameter_uncertainty`) adds the
-    calibration's budget with sensitivity 2 on the layer's l0 (none for the design geometry), the
-    scan's temperature and the artifact's expansion coefficient, and the layers' phi, d, gamma
-    against the calibration hold's (:mod:`borescan.rod_layer_geometry`, when the calibration recorded
-    its draws). ``cleaning``: the spike policy
-    (:func:`pose_means_of_scan`).
-
-    Returns one dict per layer: channel, feature, diameter_mm (at the scan's temperature), du
-    (:class:`borescan.measure.DiameterUncertainty`), poses, condition, traceable (a gauge calibration).
-
-    Raises :class:`borescan.artifacts.MissingTemperature`, :class:`borescan.rod.RodSolveError`,
-    ValueError (a channel the calibration has no layer for).
-    """
-    from . import measure
-    from .artifacts import artifact_cte, scan_temperature
-    from .measure import diameter_uncertainty
-
-    channels, means, u_mean, sensors = pose_means_of_scan(scan, cleaning)
-    layers, cal_budget, cal_hold = rod_calibration_from_rows(layer_rows)
-    by_ch = {int(lay.channel): lay for lay in layers}
-    missing = sorted(set(channels) - set(by_ch))
-    if missing:
-        raise ValueError(f"calibration {calibration_id} has no rod layer for channel(s) {missing}")
-    temp, cte = scan_temperature(scan.meta, unc_cfg), artifact_cte(scan.meta, unc_cfg)
-    sol = solve_rod(
-        means,
-        layers=[by_ch[c] for c in channels],
-        u_reading_mm=u_mean,
-        coaxiality_mm=rod_coaxiality_mm(unc_cfg),
-    )
-    feat = {int(l["channel"]): l.get("feature") for l in (scan.meta.get("rod") or {}).get("layers", [])}
-    cal_chans = sorted(by_ch)
-    draws = rod_layer_draws_from_rows(layer_rows) if cal_budget is not None else None
-    geo_shift = (
-        None
-        if draws is None
-        else hold_radius_shifts(
-            means, [by_ch[c] for c in channels], u_mean, rod_coaxiality_mm(unc_cfg), draws, sol
-        ).shift_mm
-    )
-    here = measure.hold_readings(means)
-    degree = int(
-        unc_cfg.get("linearity_curve_degree") or schema_default("uncertainty", "linearity_curve_degree")
-    )
-    out = []
-    for j, ch in enumerate(channels):
-        f = feat.get(ch) or f"layer{ch}"
-        lin = measure.linearity_terms(
-            sensors, ch, j, here, cal_budget, cal_hold, cal_chans, f"{scan.scan_id}/{f}", degree
-        )
-        geo = (
-            None
-            if geo_shift is None
-            else layer_geometry_input(draws, geo_shift, j, cal_chans.index(ch), f"{scan.scan_id}/{f}", ch)
-        )
-        if geo is not None:
-            lin = [*lin, geo]
-        du = diameter_uncertainty(
-            float(sol.diameter_mm[j]),
-            jac_params=None if cal_budget is None else layer_jacobian(cal_chans, ch),
-            calibration_budget=cal_budget,
-            u_readings_mm=float(sol.u_diameter_mm[j]),
-            dof_readings=float("inf"),
-            temperature=temp,
-            cte=cte,
-            artifact=dict(scan.meta.get("artifact") or {}),
-            scan_id=f"{scan.scan_id}/{f}",
-            p=float(unc_cfg["coverage_probability"]),
-            default_resolution_mm=float(unc_cfg["sensor_resolution_mm"]),
-            calibration_id=calibration_id,
-            extra_terms=lin,
-        )
-        out.append(
-            {
-                "channel": ch,
-                "feature": f,
-                "diameter_mm": float(sol.diameter_mm[j]),
-                "du": du,
-                "poses": int(means.shape[0]),
-                "condition": float(sol.condition),
-                "traceable": cal_budget is not None,
-                "solution": sol,
-                # where this hold and the calibration's read the sensor's range (the linearity's change)
-                "spread_mm": float(np.sqrt(here["var_mm2"][j])),
-                "cal_spread_mm": None
-                if cal_hold is None
-                else float(np.sqrt(cal_hold["var_mm2"][cal_chans.index(ch)])),
-            }
-        )
-    return out
-
-
-def rod_verifications(
-    scan, diameters: list[dict], calibration_id: str, unc_cfg: dict, lab_cfg: dict, tolerance_mm: float
-) -> list[dict]:
-    """Return the ``verifications`` rows of a rod scan in certified gauges.
-
-    ``verifications`` rows of a rod scan in certified gauges: each layer's diameter at 20 degC
-    against its gauge (:func:`layer_gauges`, :func:`borescan.measure.verify_budget`), one row per
-    layer with ``feature``, the budget rows (``budget``) and the scan's raw files; the budget's
-    largest input (``dominant_input``, its key) and, when U(E) is not below the tolerance, what
-    would reduce it (``dominant_fix``, :func:`borescan.plan_rod.dominant_fix`).
-
-    Raises ValueError when a layer has no certified gauge.
-    """
-    from . import plan_rod
-    from .measure import verification_row, verify_budget
-
-    gauges = {g["channel"]: g for g in layer_gauges(scan.meta, [d["channel"] for d in diameters])}
-    rows = []
-    for d in diameters:
-        g = gauges[d["channel"]]
-        v = verify_budget(
-            d["du"],
-            g,
-            tolerance_mm,
-            float(unc_cfg["coverage_probability"]),
-            lab_cfg["decision_rule"],
-            float(lab_cfg["guard_band_factor"]),
-        )
-        row = verification_row(scan.scan_id, scan.meta["device"]["id"], g["id"], v)
-        top = row["dominant_input"]
-        if top is not None and not v.U_error_mm < tolerance_mm:
-            row["dominant_fix"] = plan_rod.dominant_fix(
-                top, d, rod_coaxiality_mm(unc_cfg), tolerance_mm / v.k
-            )
-        row.update(
-            calibration_id=calibration_id,
-            temperature_assumed=d["du"].temperature.assumed,
-            feature=d["feature"],
-            budget=list(v.budget_rows),
-            certificate=g.get("certificate"),
-            raw_files={f"{scan.scan_id}/{k}": h for k, h in sorted(scan.sha256.items())},
-        )
-        rows.append(row)
-    return rows

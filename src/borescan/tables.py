@@ -174,7 +174,7 @@ _T = [
             # a rod verifies each layer in its own gauge: one row per layer (null for tri_lds)
             "feature:text "
             # the budget's largest input (its key) and, when U(E) is not below the tolerance, what would
-            # reduce it (rod: rod_calibration.rod_verifications; null when nothing is said)
+            # reduce it (rod: measure.rod_verifications; null when nothing is said)
             "dominant_input:text dominant_fix:text"
         ),
         ("scan_id", "calibration_id", "feature"),

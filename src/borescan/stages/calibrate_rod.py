@@ -11,13 +11,10 @@ import json
 from pathlib import Path
 
 import numpy as np
-import polars as pl
 
 from borescan import __version__, certificate, certificate_issue, night_config, rawio, rod_calibration
-from borescan.artifacts import MissingTemperature, artifact_cte, radius_at_temperature_mm, scan_temperature
-from borescan.calibrations import rod_layers, rod_nominal_calibration_rows
-from borescan.measure import hold_readings
-from borescan.preconditions import ROD_CALIBRATION_NEEDS_LAYERS, design_layers
+from borescan.artifacts import MissingTemperature
+from borescan import measure
 from borescan.rod import RodSolveError
 from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
 from borescan.stages.calibrate_jobs import CalibrationOutcome, RodCalibrationContext
@@ -38,25 +35,12 @@ def calibrate_rod_scan(
     bad: list = []
     p = float(unc["coverage_probability"])
     meta, sid = scan.meta, scan.scan_id
-    try:  # what scan.json must give: the design layers, a certified gauge per layer, the temperature
-        design_layers(meta, ROD_CALIBRATION_NEEDS_LAYERS)  # MissingDesignGeometry names what is missing
-        nominal = pl.DataFrame(rod_nominal_calibration_rows(meta, night, sid))
-        channels, means, u_mean, sensors = rod_calibration.pose_means_of_scan(scan, ctx.cleaning)
-        layers = rod_layers(nominal, channels)
-        gauges = rod_calibration.layer_gauges(meta, channels)
-        temp, cte = scan_temperature(meta, unc), artifact_cte(meta, unc)
-    except ValueError as err:  # MissingTemperature is one
+    try:
+        hold = rod_calibration.calibrate_hold(scan, unc, night=night, cleaning=ctx.cleaning)
+    except rod_calibration.RodCalibrationInputError as err:  # what scan.json must give
         quarantine(results_root, bad, sid, night, "calibrate", "scan.json", f"rod calibration: {err}")
         return CalibrationOutcome(quarantined=tuple(bad))
-    radius_t = [
-        radius_at_temperature_mm(0.5 * g["certified_diameter_mm"], cte.cte_per_k, temp.temperature_c)
-        for g in gauges
-    ]
-    try:  # what the readings must give: a solve (RodSolveError is a ValueError) that settles
-        cal_layers, sol, n_iter = rod_calibration.calibrate_l0(
-            means, layers, u_mean, radius_t, coaxiality_mm=rod_calibration.rod_coaxiality_mm(unc)
-        )
-    except ValueError as err:
+    except ValueError as err:  # what the readings must give: a solve (RodSolveError) that settles
         fix = (
             "; a new calibration hold: the rod deflected across its eccentricity (skew to the gauges' axis), "
             "the poses spread round the circle; `borescan plan --rod-scan <its folder>` gives the poses and "
@@ -68,38 +52,12 @@ def calibrate_rod_scan(
             results_root, bad, sid, night, "calibrate", "lds.parquet", f"rod calibration failed: {err}{fix}"
         )
         return CalibrationOutcome(quarantined=tuple(bad))
-    budget = rod_calibration.rod_calibration_budget(
-        [lay.l0_mm for lay in cal_layers],
-        sol,
-        gauges,
-        temp,
-        cte,
-        sensors,
-        sid,
-        float(unc["sensor_resolution_mm"]),
-    )
-    cal = rod_calibration.RodCalibration(
-        calibration_id=rod_calibration.rod_calibration_id(meta["device"]["id"], [sid], night),
-        device_id=meta["device"]["id"],
-        scan_ids=(sid,),
-        layers=tuple(cal_layers),
-        l0_nominal_mm=np.array([lay.l0_mm for lay in layers]),
-        u_l0_mm=budget.u(),
-        budget=budget,
-        gauges=tuple(dict(g, radius_at_t_mm=r) for g, r in zip(gauges, radius_t)),
-        solution=sol,
-        iterations=n_iter,
-        residual_rms_mm=float(sol.residual_rms_mm),
-        diagnostics={
-            "hold_readings": hold_readings(means),
-            "layer_geometry": rod_calibration.layer_geometry_record(means, cal_layers, u_mean, unc, sol),
-        },
-    )
+    cal, temp, cte, budget = hold.calibration, hold.temperature, hold.cte, hold.calibration.budget
     out_dir = certificate.certificate_night_dir(results_root, cal, night)
     link = certificate.certificate_dir(results_root, cal)
     rel_cert = str((link / "certificate.pdf").relative_to(Path(results_root)))
-    raw_files = {f"{sid}/{k}": v for k, v in sorted(scan.sha256.items())}
-    rows = rod_calibration.rod_calibration_rows(cal, night, rel_cert, rawio.combined_sha256(raw_files), p)
+    raw_files = hold.raw_files
+    rows = hold.rows(night, rel_cert, p)
     ver_rows, _ = _night_rod_verifications(cal, rows, night, results_root, ctx, log)
     dates = certificate.certificate_dates(
         [meta], night, int(cfg["validity_days"]), night_config.first_processed(results_root, night)
@@ -123,7 +81,7 @@ def calibrate_rod_scan(
         coverage_probability=p,
         dates=dates,
         verifications=ver_rows,
-        residuals=certificate.rod_pose_residuals(sol, means),
+        residuals=certificate.rod_pose_residuals(cal.solution, hold.means_mm),
         config_hash=config_hash(
             {"calibration": cfg, "uncertainty": unc, "laboratory": lab, "verification": ctx.verification}
         ),
@@ -156,7 +114,7 @@ def _night_rod_verifications(
     """Return the night's gauge verifications of the rod.
 
     Return the night's gauge verifications of the rod made with the new calibration (one row per layer,
-    :func:`borescan.rod_calibration.rod_verifications`) and their scan.json; a scan that cannot be
+    :func:`borescan.measure.rod_verifications`) and their scan.json; a scan that cannot be
     measured is left out with a log line (the measure stage quarantines it).
     """
     out, metas = [], []
@@ -165,10 +123,10 @@ def _night_rod_verifications(
     ):
         scan = rawio.load_stored_scan(d)
         try:
-            res = rod_calibration.rod_diameters_with_budget(
+            res = measure.rod_diameters_with_budget(
                 scan, rows, ctx.uncertainty, cal.calibration_id, ctx.cleaning
             )
-            out += rod_calibration.rod_verifications(
+            out += measure.rod_verifications(
                 scan,
                 res,
                 cal.calibration_id,

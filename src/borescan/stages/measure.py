@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from borescan import measure, rawio, readings, rod, rod_calibration
+from borescan import measure, rawio, readings, rod
 from borescan.artifacts import MissingTemperature, artifact_row
 from borescan.calibrate.result import CalibrationError
 from borescan.calibrations import (
@@ -223,17 +223,15 @@ def _measure_rod(out, scan, row, cal_id, cals, tol, unc, lab, part, results_root
     """Return the diameters of a rod scan with their GUM budgets.
 
     Diameters of a rod scan with their GUM budgets
-    (:func:`borescan.rod_calibration.rod_diameters_with_budget`);
+    (:func:`borescan.measure.rod_diameters_with_budget`);
     for a verification scan, each layer's error against its certified gauge.
     """
     meta, sid, dev = scan.meta, scan.scan_id, row["device_id"]
-    res = rod_calibration.rod_diameters_with_budget(scan, cals.rows(named=True), unc, cal_id, clean)
+    res = measure.rod_diameters_with_budget(scan, cals.rows(named=True), unc, cal_id, clean)
     vers = {}
     if row["kind"] == "verification":
         try:
-            vers = {
-                v["feature"]: v for v in rod_calibration.rod_verifications(scan, res, cal_id, unc, lab, tol)
-            }
+            vers = {v["feature"]: v for v in measure.rod_verifications(scan, res, cal_id, unc, lab, tol)}
         except ValueError as err:
             quarantine(
                 results_root,
