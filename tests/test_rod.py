@@ -8,6 +8,7 @@ import pytest
 from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
 from borescan.physics.rod import rod_section_geometry
 from borescan.rod import RodSolveError, rod_cost_mm2, rod_crb, solve_rod
+from borescan.rod_eq16 import HOLD_FIX
 from borescan.rod_eq16 import rod_jacobian, rod_residuals, rod_start
 from borescan.rod_model import _k, _RodProblem
 
@@ -248,6 +249,35 @@ def test_refuses_parallel_rod_and_bunched_poses():
     _, v = _scan(spread=np.deg2rad(20.0))  # bunched, but not flat: ill-conditioned joint solve
     with pytest.raises(RodSolveError, match="degenerate geometry"):
         solve_rod(v, L0, u_reading_mm=SIG)
+
+
+def test_every_refusal_a_new_hold_would_fix_says_which_hold_and_where_to_plan_it():
+    """The solve's own refusal names the hold that would give radii and ``borescan plan --rod-scan``
+    (so every caller says it: the calibrate and measure stages, the plan, the benches); a refusal
+    that no hold fixes (one hole, readings of the wrong shape) does not.
+    """
+    hold_refused = [
+        (_scan(n=5)[1], {}),  # underdetermined
+        (_scan(axis=RodAxis(1.0, 0.5, 0.0, 0.0))[1], {"u_reading_mm": SIG}),  # rod parallel to the holes
+        (_scan(spread=np.deg2rad(2.0))[1], {"u_reading_mm": SIG}),  # constant readings
+        (_scan(spread=np.deg2rad(20.0))[1], {"u_reading_mm": SIG}),  # bunched poses
+        (_scan(axis=RodAxis(), n=20, seed=4)[1], {"u_reading_mm": SIG}),  # centred rod
+    ]
+    for v, kw in hold_refused:
+        with pytest.raises(RodSolveError) as err:
+            solve_rod(v, L0, **kw)
+        assert str(err.value).endswith(HOLD_FIX), str(err.value)
+    axis = RodAxis(1.5, 0.5, np.deg2rad(0.5), np.deg2rad(120.0))  # deflection not separable
+    alpha = np.deg2rad(np.linspace(0, 150, 8))
+    v = rod_readings(alpha, GEOM, HOLES, axis) + 0.002 * np.random.default_rng(1).standard_normal((8, 2))
+    with pytest.raises(RodSolveError, match="deflection not separable") as err:
+        solve_rod(v, layers=GEOM, u_reading_mm=0.002)
+    assert str(err.value).endswith(HOLD_FIX)
+    assert "borescan plan --rod-scan" in HOLD_FIX and "deflected across its eccentricity" in HOLD_FIX
+    for bad in (_scan()[1][:, :1], np.zeros(6)):
+        with pytest.raises(RodSolveError) as err:
+            solve_rod(bad, L0[:1] if bad.ndim == 2 else L0)
+        assert HOLD_FIX not in str(err.value)
 
 
 def test_centred_rod_gives_radii_without_angles():

@@ -51,10 +51,12 @@ linear in beta) and LM from w = +-sqrt(beta); the lowest cost wins. A per-pose a
 (each pose searched on a 1 deg grid with the rest held, LM re-run when a pose moves) frees pose
 angles stuck in a local minimum of their own (``_repair_poses``).
 
-Refusals (RodSolveError): fewer readings than unknowns; degenerate geometry (rank or condition of
-the column-scaled Jacobian, or u(r) with omega held > ``max_u_ratio`` sigma/sqrt(n): offsets
-(x_m, y_m) collinear with the axis, a rod parallel to the holes, poses bunched); a deflection the
-poses cannot separate from the radii (freeing omega multiplies u(r) by > ``max_deflection_ratio``).
+Refusals (RodSolveError; those a new hold would fix end with ``rod_eq16.HOLD_FIX``, what hold and
+where ``borescan plan --rod-scan`` plans it): fewer readings than unknowns; degenerate geometry
+(rank or condition of the column-scaled Jacobian, or u(r) with omega held > ``max_u_ratio``
+sigma/sqrt(n): offsets (x_m, y_m) collinear with the axis, a rod parallel to the holes, poses
+bunched); a deflection the poses cannot separate from the radii (freeing omega multiplies u(r) by >
+``max_deflection_ratio``).
 
 Eq. 16 helpers (``rod_residuals``, ``rod_jacobian``, ``rod_start``; pose-0 frame, x_m, y_m the
 axis minus the centre): unknowns r_m, x_m, y_m (3m) and a_n (n - 1). To first order
@@ -83,7 +85,7 @@ from borescan.rod_deflection import (
     _deflection_part,
     _posterior_vector,
 )
-from borescan.rod_eq16 import RodSolveError, _prepare, _unpack, rod_jacobian, rod_start
+from borescan.rod_eq16 import RodSolveError, _prepare, _unpack, hold_refusal, rod_jacobian, rod_start
 from borescan.rod_model import (
     _cov_without_poses,
     _dk,
@@ -279,7 +281,7 @@ def _solution(prob: _RodProblem, p, cost: float, nfev: int, keep, lim: _Limits) 
     js = jacobian_summary(J, rtol=1e-12)
     rank, cond = js.rank, js.condition
     if rank < n_par or cond > lim.max_condition:
-        raise RodSolveError(
+        raise hold_refusal(
             f"degenerate geometry: Jacobian rank {rank} of {n_par}, condition {cond:.3g} "
             f"(poses bunched at one angle, or the rod axis parallel to / intersecting the holes' axis "
             "so that the offsets (x_m, y_m) are collinear with the axis)"
@@ -369,7 +371,7 @@ def _readings_constant(S, n, u_reading_mm, centred) -> bool:
     if sig_ref is None or S[0] >= 5.0 * sig_ref * np.sqrt(n):
         return False
     if centred != "mean":
-        raise RodSolveError(
+        raise hold_refusal(
             "degenerate geometry: readings constant within the noise - either the rod is centred "
             "(angles undetermined; pass centred='mean' if the poses were spread around the circle) "
             "or all poses are at nearly one angle (radii undetermined)"
@@ -414,7 +416,7 @@ def _u_radii_held(J, cov, sigma, mask, defl, max_u_ratio, cond) -> np.ndarray:
         u_fixed = np.sqrt(np.diag(cov)[:m])
     ratio = u_fixed / ref
     if np.any(ratio > max_u_ratio):
-        raise RodSolveError(
+        raise hold_refusal(
             f"degenerate geometry: radii ill-determined, u(r) = {np.array2string(u_fixed, precision=4)} "
             "mm is up to "
             f"{ratio.max():.0f} x sigma/sqrt(n) (condition {cond:.3g}); the offsets (x_m, y_m) are "

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from borescan.rod_eq16 import RodSolveError
+from borescan.rod_eq16 import hold_refusal
 from borescan.rod_model import _beta, _dk, _k
 
 __all__ = ["CoaxialPrior", "MAX_DEFLECTION_RAD"]
@@ -239,7 +239,7 @@ def _deflection_part(
     with np.errstate(invalid="ignore", divide="ignore"):
         dratio = float(np.nanmax(u_lin / u_fixed))
     if dratio > max_deflection_ratio:
-        raise RodSolveError(
+        raise hold_refusal(
             "deflection not separable from the radii: freeing the rod axis deflection multiplies "
             "u(r) by "
             f"{dratio:.1f} (> {max_deflection_ratio:g}); the poses do not span the second harmonic "

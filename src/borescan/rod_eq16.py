@@ -13,11 +13,24 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["RodSolveError", "rod_residuals", "rod_jacobian", "rod_start"]
+__all__ = ["RodSolveError", "HOLD_FIX", "hold_refusal", "rod_residuals", "rod_jacobian", "rod_start"]
 
 
 class RodSolveError(ValueError):
     """The rod equations cannot determine the radii (too few readings or degenerate geometry)."""
+
+
+#: what would give radii where a hold's poses do not: said by every refusal that a new hold would fix
+HOLD_FIX = (
+    "a new hold: the rod deflected across its eccentricity (skew to the holes' axis), the poses spread "
+    "round the circle; `borescan plan --rod-scan <its folder>` gives the poses and spread that bring its "
+    "u(D) to a target"
+)
+
+
+def hold_refusal(reason: str) -> RodSolveError:
+    """Return the refusal of a hold whose poses cannot give the radii: ``reason``, then :data:`HOLD_FIX`."""
+    return RodSolveError(f"{reason}; {HOLD_FIX}")
 
 
 def _unpack(p, m, n, fix):
@@ -130,13 +143,13 @@ def _prepare(readings_mm, l0_mm, n_extra: int = 0):
     if n_obs < n_par:
         label = "3m + n - 1" + (f" + {n_extra}" if n_extra else "")
         need = int(np.ceil((3 * m - 1 + n_extra) / (m - 1)))
-        raise RodSolveError(
+        raise hold_refusal(
             f"underdetermined: {n_obs} readings < {label} = {n_par} unknowns "
             f"(m = {m} holes, n = {n} poses with >= 2 readings; need n >= {need} complete poses)"
         )
     per_hole = mask.sum(axis=0)
     if np.any(per_hole < 3):
-        raise RodSolveError(
+        raise hold_refusal(
             f"underdetermined: holes {list(np.flatnonzero(per_hole < 3) + 1)} have fewer than 3 readings"
         )
     return L, mask, keep

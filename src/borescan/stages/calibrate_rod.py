@@ -15,7 +15,6 @@ import numpy as np
 from borescan import __version__, certificate, certificate_issue, night_config, rawio, rod_calibration
 from borescan.artifacts import MissingTemperature
 from borescan import measure
-from borescan.rod import RodSolveError
 from borescan.stages._common import config_hash, link_into_night, night_scans, quarantine
 from borescan.stages.calibrate_jobs import CalibrationOutcome, RodCalibrationContext
 
@@ -40,16 +39,9 @@ def calibrate_rod_scan(
     except rod_calibration.RodCalibrationInputError as err:  # what scan.json must give
         quarantine(results_root, bad, sid, night, "calibrate", "scan.json", f"rod calibration: {err}")
         return CalibrationOutcome(quarantined=tuple(bad))
-    except ValueError as err:  # what the readings must give: a solve (RodSolveError) that settles
-        fix = (
-            "; a new calibration hold: the rod deflected across its eccentricity (skew to the gauges' axis), "
-            "the poses spread round the circle; `borescan plan --rod-scan <its folder>` gives the poses and "
-            "spread that bring its u(D) to a target"
-            if isinstance(err, RodSolveError)
-            else ""
-        )
+    except ValueError as err:  # the readings: a solve (a RodSolveError says what hold would do) that settles
         quarantine(
-            results_root, bad, sid, night, "calibrate", "lds.parquet", f"rod calibration failed: {err}{fix}"
+            results_root, bad, sid, night, "calibrate", "lds.parquet", f"rod calibration failed: {err}"
         )
         return CalibrationOutcome(quarantined=tuple(bad))
     cal, temp, cte, budget = hold.calibration, hold.temperature, hold.cte, hold.calibration.budget
