@@ -72,7 +72,7 @@ assumes the poses were spread around the circle as the procedure prescribes.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -85,6 +85,7 @@ from borescan.rod_deflection import (
     _deflection_part,
     _posterior_vector,
 )
+from borescan.rod_minima import other_minima
 from borescan.rod_eq16 import RodSolveError, _prepare, _unpack, hold_refusal, rod_jacobian, rod_start
 from borescan.rod_model import (
     _cov_without_poses,
@@ -130,6 +131,7 @@ class RodSolution:
     radius_mle_mm : (m,) radii at the maximum-likelihood omega; deflection_ratio : max u(r) with
         omega free / u(r) with omega held; cost_mm2 : sum of squared residuals at the solution
     layers : the layer geometry used
+    other_minima : other minima within 25 chi^2, with weights (:class:`borescan.rod_minima.RodMinimum`)
     fit : the joint solve's :class:`borescan.fit.FitResult` (parameter order as ``cov``; None for
         "centred" and "pso")
     """
@@ -160,6 +162,7 @@ class RodSolution:
     cost_mm2: float = float("nan")
     layers: tuple = ()
     fit: FitResult | None = None
+    other_minima: tuple = ()
 
     @property
     def diameter_mm(self) -> np.ndarray:
@@ -257,7 +260,8 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     a0 = np.insert(p0[3 * m :], fix_pose, 0.0)
     V = L - l0
     prob = _RodProblem(V, mask, lays, fix_pose, defl)
-    p, cost, nfev = _solve_core(prob, L, mask, [a0, -a0], defl)
+    starts: list = []
+    p, cost, nfev = _solve_core(prob, L, mask, [a0, -a0], defl, starts)
     lim = _Limits(
         u_reading_mm,
         deflection,
@@ -267,7 +271,12 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         max_deflection_rad,
         coaxiality_mm,
     )
-    return _solution(prob, p, cost, nfev, keep, lim)
+    sol = _solution(prob, p, cost, nfev, keep, lim)
+    alpha_of, radii_at = (
+        (lambda q: prob.unpack(q)[2]),
+        (lambda q, c: _solution(prob, q, c, 0, keep, lim).radius_mm),
+    )
+    return replace(sol, other_minima=other_minima(starts, p, cost, sol, alpha_of, radii_at))
 
 
 def _solution(prob: _RodProblem, p, cost: float, nfev: int, keep, lim: _Limits) -> RodSolution:

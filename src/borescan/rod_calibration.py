@@ -50,6 +50,7 @@ from .config import schema_default
 from .geometry import RodLayer
 from .preconditions import ROD_CALIBRATION_NEEDS_LAYERS, design_layers
 from .rod import RodSolution, solve_rod
+from .rod_minima import DELTA_CHI2_MAX, minima_radius_cov
 from .rod_layer_geometry import (
     LayerGeometryDraws,
     calibration_draws,
@@ -67,6 +68,7 @@ __all__ = [
     "rod_coaxiality_mm",
     "calibrate_l0",
     "rod_calibration_budget",
+    "minima_term",
     "rod_calibration_id",
     "rod_calibration_rows",
     "rod_calibration_from_rows",
@@ -269,6 +271,8 @@ def rod_calibration_budget(
             note="l0 = l0 + R(T) - r: sensitivity -1 on each layer's radius",
         )
     )
+    if solution.other_minima:  # the solve's choice between minima the readings do not rule out
+        b.add(minima_term(solution, f"rod_minima:{scan_id}", f"the rod solve's minimum of {scan_id}"))
     dT = temperature.temperature_c - REFERENCE_TEMPERATURE_C
     f = thermal_expansion_factor(cte.cte_per_k, temperature.temperature_c)
     by_gauge: dict[str, list[int]] = {}
@@ -316,6 +320,35 @@ def rod_calibration_budget(
     ):
         b.add(t)
     return b.merged()
+
+
+def minima_term(solution: RodSolution, key: str, what: str) -> Term:
+    """Return the choice between the solve's minima as one input on the radii (sensitivity +-1).
+
+    Its covariance is :func:`borescan.rod_minima.minima_radius_cov` (the chosen radii reported;
+    the others' offsets with their weights), its source lists each minimum's chi^2 and weight.
+    """
+    cov = minima_radius_cov(solution.radius_mm, solution.other_minima)
+    alts = "; ".join(
+        f"dchi2 {mk.delta_chi2:.2f}, weight {mk.weight:.3f}, r - r0 "
+        + ", ".join(f"{1e3 * d:+.2f}" for d in mk.radius_mm - solution.radius_mm)
+        + " um"
+        for mk in solution.other_minima
+    )
+    return Term(
+        Input(
+            key,
+            f"{what}: other minima within {DELTA_CHI2_MAX:g} chi2 (the chosen one reported)",
+            "r_k - r_0",
+            "mm",
+            0.0,
+            float(np.sqrt(np.max(np.diag(cov)))),
+            "normal",
+            source=f"rod solve's starts (borescan.rod_minima): {alts}",
+        ),
+        cov=cov,
+        note="the choice's root mean square error over the minima's weights (mean folded in)",
+    )
 
 
 def rod_calibration_id(device_id: str, scan_ids, night: str) -> str:

@@ -233,13 +233,14 @@ def _repair_poses(prob, p, max_rounds: int = 3):
 
 
 def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and repairs)
-    prob, L, mask, starts_alpha, deflection
+    prob, L, mask, starts_alpha, deflection, minima: list | None = None
 ):
     """Run the multi-start LM of the rod solve.
 
     Multi-start LM: every start (both reflections) first without deflection, then from the
     closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0); the
-    lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`).
+    lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`). ``minima``: when
+    given, every start's LM minimum (p, cost) is appended to it (:mod:`borescan.rod_minima`).
     """
     best, nfev = None, 0
     flat = _RodProblem(prob.V, mask, prob.layers, prob.fix, False)
@@ -272,6 +273,8 @@ def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and r
                 # a minimum beyond _MAX_START_RAD is a low-signal wander, not a hand-held rod: not taken
                 if np.isfinite(cost1) and np.hypot(*prob.unpack(p1)[3]) <= _MAX_START_RAD:
                     cand.append((p1, cost1))
+        if minima is not None:  # the LM minima (with deflection: not the w = 0 start point)
+            minima.extend(cand[1:] if deflection else cand)
         for p1, cost1 in cand:
             if best is None or cost1 < best[1]:
                 best = (p1, cost1)

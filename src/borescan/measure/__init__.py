@@ -43,7 +43,7 @@ from .static import StaticDiameter, static_diameter, static_diameter_jacobian
 from .rotating import RotatingResult, wall_points_machine, measure_rotating, measure_scan, DiameterModel
 from .budget import DiameterUncertainty, diameter_uncertainty
 from .tri import calibration_budget_of, tri_diameter_with_budget
-from .rod import layer_jacobian, rod_diameters_with_budget, rod_verifications
+from .rod import layer_jacobian, minima_input, rod_diameters_with_budget, rod_verifications
 from .verify import (
     only_feature_id,
     part_feature,
@@ -90,6 +90,7 @@ __all__ = [
     "calibration_budget_of",
     "tri_diameter_with_budget",
     "layer_jacobian",
+    "minima_input",
     "rod_diameters_with_budget",
     "rod_verifications",
     "verification_for_certificate",

@@ -22,8 +22,9 @@ from ..rod_calibration import (
     rod_layer_draws_from_rows,
 )
 from ..rod_layer_geometry import hold_radius_shifts, layer_geometry_input
+from ..rod_minima import DELTA_CHI2_MAX, minima_radius_cov
 
-__all__ = ["layer_jacobian", "rod_diameters_with_budget", "rod_verifications"]
+__all__ = ["layer_jacobian", "minima_input", "rod_diameters_with_budget", "rod_verifications"]
 
 
 def layer_jacobian(channels, channel: int) -> np.ndarray:
@@ -33,6 +34,34 @@ def layer_jacobian(channels, channel: int) -> np.ndarray:
     to the calibration's outputs.
     """
     return np.array([2.0 if int(c) == int(channel) else 0.0 for c in channels])
+
+
+def minima_input(sol, j: int, scan_label: str, channel: int):
+    """Return the choice between the solve's minima as layer ``j``'s diameter input (input, dD / d input).
+
+    u = 2 sqrt(sum_k w_k (r_kj - r_0j)^2) (:mod:`borescan.rod_minima`), the minima listed in its source.
+    """
+    from ..uncertainty import Input
+
+    u = 2.0 * float(np.sqrt(minima_radius_cov(sol.radius_mm, sol.other_minima)[j, j]))
+    alts = "; ".join(
+        f"dchi2 {mk.delta_chi2:.2f}, weight {mk.weight:.3f}, D - D0 {2e3 * (r[j] - sol.radius_mm[j]):+.2f} um"
+        for mk, r in ((mk, mk.radius_mm) for mk in sol.other_minima)
+    )
+    return (
+        Input(
+            f"rod_minima:{scan_label}:ch{int(channel)}",
+            f"the rod solve's minimum (channel {int(channel)}): other minima within {DELTA_CHI2_MAX:g} chi2, "
+            "the chosen one reported",
+            f"e_min,{int(channel)}",
+            "mm",
+            0.0,
+            u,
+            "normal",
+            source=f"rod solve's starts (borescan.rod_minima; root mean square over the weights): {alts}",
+        ),
+        1.0,
+    )
 
 
 def rod_diameters_with_budget(
@@ -99,6 +128,8 @@ def rod_diameters_with_budget(
         )
         if geo is not None:
             lin = [*lin, geo]
+        if sol.other_minima:  # the solve's choice between minima this hold's readings do not rule out
+            lin = [*lin, minima_input(sol, j, f"{scan.scan_id}/{f}", ch)]
         du = diameter_uncertainty(
             float(sol.diameter_mm[j]),
             jac_params=None if cal_budget is None else layer_jacobian(cal_chans, ch),
@@ -126,6 +157,7 @@ def rod_diameters_with_budget(
                 "solution": sol,
                 # where this hold and the calibration's read the sensor's range (the linearity's change)
                 "spread_mm": float(np.sqrt(here["var_mm2"][j])),
+                "other_minima": [mk.to_dict() for mk in sol.other_minima],
                 "cal_spread_mm": None
                 if cal_hold is None
                 else float(np.sqrt(cal_hold["var_mm2"][cal_chans.index(ch)])),
