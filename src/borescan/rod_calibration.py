@@ -18,12 +18,14 @@ or tilt does at the calibration hold's eccentricity and deflection; what it does
 is that diameter's ``layer_geometry`` input (:mod:`borescan.rod_layer_geometry`).
 
 GUM budget of l0 (outputs l0 of every layer; :class:`borescan.uncertainty.Budget`): the solve's
-radius uncertainty (readings; sensitivity -1), each gauge's certified diameter (f / 2; a gauge
-used by several layers is one input), the gauges' temperature (R20 alpha) and expansion
-coefficient (R20 (T - 20)), and each sensor's linearity and resolution in the calibration
-(sensitivity -1: l0 takes up a constant reading error, which then reappears, independently, in a
-measurement at another point of the range). A rod diameter measured with the calibration takes
-the whole budget with sensitivity 2 on its layer's l0 (:func:`borescan.measure.diameter_uncertainty`).
+radius uncertainty (readings; sensitivity -1), the choice between the solve's minima where another
+lies within 25 chi2 (:mod:`borescan.rod_minima`, :func:`minima_term`), each gauge's certified
+diameter (f / 2; a gauge used by several layers is one input), the gauges' temperature (R20 alpha)
+and expansion coefficient (R20 (T - 20)), and each sensor's linearity and resolution in the
+calibration (sensitivity -1: l0 takes up a constant reading error, which then reappears,
+independently, in a measurement at another point of the range). A rod diameter measured with the
+calibration takes the whole budget with sensitivity 2 on its layer's l0
+(:func:`borescan.measure.diameter_uncertainty`).
 """
 
 from __future__ import annotations
