@@ -501,7 +501,7 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
         "device_type": model.device_type,
         "base_model": {
             "free": base_names if len(base_names) <= 8 else [*base_names[:8], f"({len(base_names)} in all)"],
-            "fixed": model.base_description,
+            "fixed": base_fixed(model, c),
             **model.base_summary(base.values()),
             "bic": base.bic,
         },
@@ -518,6 +518,25 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
             ],
         },
     }
+
+
+def base_fixed(model, c: dict) -> str:
+    """Return what the base model held fixed (findings.json's ``base_model.fixed``).
+
+    The model's own description names the design (``device.nominal``); a scan examined against a
+    calibration (``beams`` or ``layers`` given) held that calibration's geometry instead, and beams freed in
+    the base (``free_beams``) only started from it.
+    """
+    text = model.base_description
+    if "device.nominal" not in text:  # a pooled model says itself what it shares and frees
+        return text
+    if c.get("beams") is not None or c.get("layers") is not None:
+        text = text.replace("device.nominal", "the given calibration's", 1)
+    free = tuple(getattr(model, "free_beams", ()))
+    if free:
+        held = " (the first beam's direction held)" if "beta" in free else ""
+        text = text.replace(" beams", f" beams as the start of their free {', '.join(free)}{held}", 1)
+    return text
 
 
 def _named_entry(t: Term, fr: FitResult, base: FitResult, runner_bic: float | None, model) -> dict:
