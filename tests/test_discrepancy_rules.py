@@ -108,6 +108,26 @@ def test_an_implausible_candidate_is_dropped_and_the_finding_says_so():
     assert n and abs(n[0]["parameters"]["b_mm"] - 1.2) < 3 * n[0]["uncertainties"]["u_b_mm"] + 1e-4
 
 
+def test_a_fit_within_two_uncertainties_of_its_plausible_bound_is_kept():
+    """A candidate is dropped only when it needs a value beyond its bound: its fit more than BOUND_SIGMAS
+    (2) standard uncertainties past it. The same offset fit with the bound 1 u below its value is kept
+    (and named), with the bound 3 u below it dropped.
+    """
+    from borescan.discrepancy.judge import BOUND_SIGMAS
+
+    sim = _sim([Effect("sensor_offset", {"channel": 3, "b_mm": 0.3})], noise_mm=0.02)
+    wide = {"parameter": "b_mm", "high": 0.2, "per_range": True, "reason": "a test allows 2 mm"}
+    (n,) = [x for x in examine_scan(sim, plausible={"sensor_offset": wide})["named"] if x["channel"] == 3]
+    b, u = n["parameters"]["b_mm"], n["uncertainties"]["u_b_mm"]
+    assert BOUND_SIGMAS == 2.0 and u > 0
+    for k, kept in ((1.0, True), (3.0, False)):
+        bound = {**wide, "high": (b - k * u) / 10.0}  # per range: the channel's range is 10 mm
+        f = examine_scan(sim, plausible={"sensor_offset": bound})
+        assert any(named_label(x) == "sensor_offset@3" for x in f["named"]) is kept, (k, f["named"])
+        rejected = [r for r in f["rejected"] if r["terms"] == ["sensor_offset@3"]]
+        assert bool(rejected) is not kept
+
+
 def test_a_plausible_range_names_a_known_effect_and_parameter():
     with pytest.raises(ValueError, match="unknown effect 'sensor_gane'"):
         plausible_ranges({"sensor_gane": {"parameter": "g", "high": 1.0, "reason": "-"}})
@@ -499,3 +519,25 @@ def test_a_vibration_line_is_refined_over_every_examined_block():
     r = line[:, None] + rng.normal(0.0, 2.7e-3, (t.size, 3))
     f = _refined_over_blocks(t, r, f_true - 0.03, rate / 1500)
     assert abs(f - f_true) < 0.1 / (t[-1] - t[0])
+
+
+def test_a_vibration_hidden_by_a_large_lobing_in_the_base_residual_is_found_beside_it():
+    """A 5 um 2-lobing leaks into the base residual's spectrum and outshines a 0.4 um vibration there (the
+    strongest line off the rotation's harmonics is near 2 Hz, the vibration at 12.57 Hz): the vibration's
+    start for a pair is taken from the lobing single's residual, so the pair is named with the vibration's
+    frequency and amplitude within 3 u of the truth (battery calibration 135 of seed 2).
+    """
+    from borescan.discrepancy.search import Fitter
+
+    vib = Effect("vibration", {"f_hz": 12.57, "a_mm": 0.0004, "phase": 4.5})
+    sim = _sim([Effect("bore_lobing", {"k": 2, "a_mm": 0.005, "phase": 0.7}), vib], seed=5, noise_mm=0.001)
+    m = _model(sim)
+    fit = Fitter(m)
+    st = m.base_start()
+    base = fit([], {n: st.get(n, 0.0) for n in fit.base_names})
+    assert abs(m.vibration_f(np.where(m.mask, m.residual_matrix(base.values(), []), np.nan)) - 12.57) > 1.0
+    f = examine_scan(sim)
+    assert sorted(named_label(n) for n in f["named"]) == ["bore_lobing[k=2]", "vibration"]
+    (v,) = [n for n in f["named"] if n["effect"] == "vibration"]
+    for k in ("f_hz", "a_mm"):
+        assert abs(v["parameters"][k] - vib.params[k]) <= 3 * v["uncertainties"][f"u_{k}"], k
