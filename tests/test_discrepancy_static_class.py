@@ -159,3 +159,28 @@ def test_a_static_set_refits_every_zero_member_where_the_cut_kept_one():
     got = [z[1].key for z in extra(None, screen, {"sensor_offset@all", "*"}, Term("sensor_offset", 1))]
     assert got == ["thermal_expansion", "sensor_offset@2"]
     assert extra(None, screen, {"sensor_nonlinearity@1", "sensor_gain@2"}, None) == []
+
+
+def test_a_term_every_tied_pair_holds_is_said_together_with_the_class():
+    """Battery static 143 of seed 2: a bow on channel 1 in every tied pair beside the zero members. The bow
+    is needed with the class, not an alternative to it: "together with the class", never "fitting as well";
+    a term only some tied candidates hold is an alternative.
+    """
+    from borescan.discrepancy.classes import class_statement
+
+    w = {1: 0.5, 2: 0.45, 3: 0.05}
+    bow = _entry("sensor_nonlinearity", 1, 2011.4, "a_mm", 0.043, 0.001)
+    named = [
+        bow,
+        _entry("sensor_offset", 1, 2011.4, "b_mm", 0.018, 0.001),
+        _entry("sensor_offset", 2, 2011.2, "b_mm", 0.019, 0.001),
+    ]
+    tied = [("sensor_nonlinearity@1", "sensor_offset@1"), ("sensor_nonlinearity@1", "sensor_offset@2")]
+    left, classes = static_classes(named, w, tied)
+    assert classes[0].members == ["sensor_offset@1", "sensor_offset@2"]
+    needed = frozenset.intersection(*(frozenset(k) for k in tied))
+    s = class_statement(classes, left, "fully", None, needed)
+    assert s.endswith("; together with the class: sensor_nonlinearity on channel 1")
+    assert "fitting as well" not in s
+    s = class_statement(classes, left, "fully", None, frozenset())
+    assert s.endswith("; or, fitting as well: sensor_nonlinearity on channel 1")

@@ -57,6 +57,7 @@ __all__ = [
     "PoseRadii",
     "pose_radii",
     "other_readings",
+    "class_statement",
 ]
 
 #: the members of the offset-like class of one rod layer, and the sign of the shift each can give
@@ -371,6 +372,37 @@ def static_classes(
     if len(members) < 2:
         return named, []
     return [n for n in named if id(n) not in drop], [StaticClass(weights, q, u, members, dropped, q_from)]
+
+
+def class_statement(
+    classes, named: list[dict], explained: str, remaining: dict | None, needed: frozenset = frozenset()
+) -> str:
+    """Return a verdict's sentence with classes: each class (what the data fix, the advice), then the rest.
+
+    ``needed``: labels of the terms every tied candidate holds (a pair's other effect): said "together
+    with" the class, not "fitting as well".
+    """
+    words = {
+        id(n): n["effect"] + (f" on {classes[0].where} {n['channel']}" if n.get("channel") else "")
+        for n in named
+    }
+    rest = [n for n in named if not any(k.holds(n) for k in classes)]
+    together = [words[id(n)] for n in rest if _label(n) in needed]
+    rest = [words[id(n)] for n in rest if _label(n) not in needed]
+    out = classes[0].sentence
+    if len(classes) > 1:  # the classes are alternatives: each explains the scan as well as the others
+        out = "one layer reads off and this scan cannot tell which: " + "; or ".join(
+            k.sentence for k in classes
+        )
+    if together:
+        out += "; together with the class: " + " and ".join(together)
+    if rest:
+        out += "; or, fitting as well: " + ", ".join(rest)
+    if explained == "partly" and remaining:
+        ratio = remaining["gap_after_over_floor"]
+        out += f"; only partly explained: the gap after is {ratio:.3g}x the noise floor"
+        out += "" if remaining.get("fit_converged", True) else " and the fit did not converge"
+    return out
 
 
 #: a fitted temperature within this many standard uncertainties of the recorded one is the recorded one
