@@ -415,10 +415,10 @@ def _capped(effect, factor: float, sim) -> float:
 def _implausible_named(f: dict, sim) -> tuple[int, int]:
     """Named candidates outside their plausible range (the bench's independent check).
 
-    Returns those beyond it by more than ``judge.BOUND_SIGMAS`` standard uncertainties (what the workflow
-    drops: the data need the value) and those outside within that (a fit whose uncertainty reaches inside).
+    Returns those the range does not admit (``PlausibleRange.admits``: beyond the bound by more than 2 u or
+    a tenth of the range's half-width; what the workflow drops) and those outside it that it admits.
     """
-    from borescan.discrepancy.judge import BOUND_SIGMAS, plausible_ranges
+    from borescan.discrepancy.judge import plausible_ranges
 
     ranges = plausible_ranges()
     rng_mm = {int(s["channel"]): float(s.get("range_mm") or 10.0) for s in sim.meta.get("sensors", [])}
@@ -427,11 +427,12 @@ def _implausible_named(f: dict, sim) -> tuple[int, int]:
         pr = ranges.get(n["effect"])
         if pr is None or pr.parameter not in n["parameters"]:
             continue
-        lo, hi = pr.bounds(rng_mm.get(n.get("channel") or 0, min(rng_mm.values(), default=10.0)))
+        range_mm = rng_mm.get(n.get("channel") or 0, min(rng_mm.values(), default=10.0))
+        lo, hi = pr.bounds(range_mm)
         v = n["parameters"][pr.parameter]
         u = (n.get("uncertainties") or {}).get(f"u_{pr.parameter}") or 0.0
         if not lo <= v <= hi:
-            far = not lo - BOUND_SIGMAS * u <= v <= hi + BOUND_SIGMAS * u
+            far = not pr.admits(v, u, range_mm)
             beyond, within = beyond + far, within + (not far)
     return beyond, within
 
@@ -510,7 +511,8 @@ def summarise(rows: list[dict]) -> str:
         f"{len(at_floor) / max(len(claims), 1):.1%}; 'partly explained' "
         f"{sum(r.get('explained') == 'partly' for r in claims)}",
         f"named candidates outside their plausible range: {sum(r.get('implausible', 0) for r in rows)} "
-        f"beyond 2 u, {sum(r.get('outside_within_u', 0) for r in rows)} within 2 u of it",
+        f"beyond its margin, {sum(r.get('outside_within_u', 0) for r in rows)} within it (2 u, at most a "
+        "tenth of the half-width)",
         f"examination CPU s per scan: p50 {np.percentile(cpu, 50):.2f}, p95 {np.percentile(cpu, 95):.2f}, "
         f"max {cpu.max():.2f}",
         f"{'':<28}{'scans':>6}{'correct':>8}{'share':>8}{'strict':>8}{'share':>8}"

@@ -128,6 +128,22 @@ def test_a_fit_within_two_uncertainties_of_its_plausible_bound_is_kept():
         assert bool(rejected) is not kept
 
 
+def test_a_plausible_range_is_widened_by_two_u_but_not_past_a_tenth_of_its_half_width():
+    """The battery's cases (seed 2 static 110; seed 1 static 1 and 632): a bow of 0.1003 +- 0.014 mm against
+    0.1 mm is admitted (2 u = 0.028, capped at 0.01); an offset of -0.986 +- 0.27 mm against 0.5 mm is not
+    (its spread may not widen the range by 0.54); 0.5143 +- 0.012 against 0.5 is (2 u = 0.024 < 0.05),
+    0.53 +- 0.012 is not; a non-finite u widens nothing.
+    """
+    from borescan.discrepancy.judge import PlausibleRange
+
+    bow = PlausibleRange("sensor_nonlinearity", "a_mm", -0.01, 0.01, True, "-")
+    offset = PlausibleRange("sensor_offset", "b_mm", -0.05, 0.05, True, "-")
+    assert bow.admits(0.1003, 0.014, 10.0) and not bow.admits(0.1101, 0.014, 10.0)
+    assert not offset.admits(-0.986, 0.27, 10.0) and offset.admits(-0.549, 0.27, 10.0)
+    assert offset.admits(0.5143, 0.012, 10.0) and not offset.admits(0.53, 0.012, 10.0)
+    assert offset.admits(0.5, float("nan"), 10.0) and not offset.admits(0.5001, float("nan"), 10.0)
+
+
 def test_a_plausible_range_names_a_known_effect_and_parameter():
     with pytest.raises(ValueError, match="unknown effect 'sensor_gane'"):
         plausible_ranges({"sensor_gane": {"parameter": "g", "high": 1.0, "reason": "-"}})
