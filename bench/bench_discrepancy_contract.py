@@ -350,7 +350,7 @@ def run_one(job: tuple) -> dict:
         statement=f.get("statement", ""),
         strict=strict_ok(f["verdict"], named, truth),
     )
-    row["implausible"] = _implausible_named(f, sim)
+    row["implausible"], row["outside_within_u"] = _implausible_named(f, sim)
     row["correct"], row["extras_chi2"] = _score(f, named, truth, effects, clean, kw, cfg, sigma, z)
     return row
 
@@ -412,20 +412,29 @@ def _capped(effect, factor: float, sim) -> float:
     return a
 
 
-def _implausible_named(f: dict, sim) -> int:
-    """Named candidates whose value lies outside its plausible range (the bench's independent check)."""
+def _implausible_named(f: dict, sim) -> tuple[int, int]:
+    """Named candidates outside their plausible range (the bench's independent check).
+
+    Returns those the range does not admit (``PlausibleRange.admits``: beyond the bound by more than 2 u or
+    a tenth of the range's half-width; what the workflow drops) and those outside it that it admits.
+    """
     from borescan.discrepancy.judge import plausible_ranges
 
     ranges = plausible_ranges()
     rng_mm = {int(s["channel"]): float(s.get("range_mm") or 10.0) for s in sim.meta.get("sensors", [])}
-    bad = 0
+    beyond = within = 0
     for n in f["named"]:
         pr = ranges.get(n["effect"])
         if pr is None or pr.parameter not in n["parameters"]:
             continue
-        lo, hi = pr.bounds(rng_mm.get(n.get("channel") or 0, min(rng_mm.values(), default=10.0)))
-        bad += not lo <= n["parameters"][pr.parameter] <= hi
-    return bad
+        range_mm = rng_mm.get(n.get("channel") or 0, min(rng_mm.values(), default=10.0))
+        lo, hi = pr.bounds(range_mm)
+        v = n["parameters"][pr.parameter]
+        u = (n.get("uncertainties") or {}).get(f"u_{pr.parameter}") or 0.0
+        if not lo <= v <= hi:
+            far = not pr.admits(v, u, range_mm)
+            beyond, within = beyond + far, within + (not far)
+    return beyond, within
 
 
 def _score(f, named, truth, effects, clean, kw, cfg, sigma, z) -> tuple[bool, dict]:
@@ -501,7 +510,9 @@ def summarise(rows: list[dict]) -> str:
         f"gap after at the noise floor (<= 1.10x) where an effect is claimed {len(at_floor)}/{len(claims)} = "
         f"{len(at_floor) / max(len(claims), 1):.1%}; 'partly explained' "
         f"{sum(r.get('explained') == 'partly' for r in claims)}",
-        f"named candidates outside their plausible range: {sum(r.get('implausible', 0) for r in rows)}",
+        f"named candidates outside their plausible range: {sum(r.get('implausible', 0) for r in rows)} "
+        f"beyond its margin, {sum(r.get('outside_within_u', 0) for r in rows)} within it (2 u, at most a "
+        "tenth of the half-width)",
         f"examination CPU s per scan: p50 {np.percentile(cpu, 50):.2f}, p95 {np.percentile(cpu, 95):.2f}, "
         f"max {cpu.max():.2f}",
         f"{'':<28}{'scans':>6}{'correct':>8}{'share':>8}{'strict':>8}{'share':>8}"

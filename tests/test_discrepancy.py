@@ -444,7 +444,22 @@ def test_examined_against_calibrated_beams():
     sim = simulate_tri_spindle(SCENE, n_rev=6, effects=[e], noise_mm=NOISE_MM, seed=8, nominal_beams=nominal)
     f = examine_scan(sim, beams=YANG_BEAMS)  # the true beams, as a calibration would give them
     assert f["examined_against"] == "calibration given to the workflow"
+    assert f["base_model"]["fixed"].startswith("the given calibration's beams, artifact R20")
+    assert "device.nominal" not in f["base_model"]["fixed"]
     assert [named_label(n) for n in f["named"]] == ["sensor_drift@1"]
+
+
+def test_base_model_fixed_says_what_was_held():
+    """base_model.fixed names the design, a calibration's beams, or the design as the start of free beams."""
+    from borescan.discrepancy.examine import base_fixed, model_of
+
+    sim = simulate_tri_spindle(SCENE, n_rev=2, noise_mm=NOISE_MM, seed=3)
+    design = base_fixed(model_of(sim), {})
+    assert design == "device.nominal beams, artifact R20, spindle position, rpm_nominal"
+    cal = base_fixed(model_of(sim, beams=YANG_BEAMS), {"beams": YANG_BEAMS})
+    assert cal == "the given calibration's beams, artifact R20, spindle position, rpm_nominal"
+    free = base_fixed(model_of(sim, free_beams=("d_b", "beta", "rho")), {})
+    assert free.startswith("device.nominal beams as the start of their free d_b, beta, rho (the first beam")
 
 
 def test_part_without_certificate_frees_the_radius():

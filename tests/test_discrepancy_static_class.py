@@ -113,3 +113,74 @@ def test_a_recorded_expansion_tied_with_a_channel_effect_does_not_say_nothing_to
     assert k.sentence.endswith("but channel_delay@2 fit as well and are not its look-alikes: check them")
     assert recorded_thermal(named[1:], 20.6).sentence.endswith("; nothing to recalibrate")
     assert recorded_thermal(named, 20.0) is None
+
+
+def test_a_gauges_expansion_is_a_member_of_the_static_class_and_the_advice_says_so():
+    """A thermal expansion of a certified gauge moves the wall along every beam alike: the common zero's
+    look-alike (spec), so the class holds it (labelled without a channel, as the findings name it) and the
+    advice adds the recorded temperature; offsets give q = w . b in closed form.
+    """
+    w = {1: 0.3, 2: 0.3, 3: 0.4}
+    named = [
+        _entry("sensor_offset", 2, 100.0, "b_mm", -0.010, 0.0002),
+        {**_entry("thermal_expansion", None, 99.0, "temperature_c", 15.0, 0.3)},
+        {**_entry("sensor_offset", None, 98.5, "b_mm", -0.003, 0.0001), "channels": [1, 2, 3]},
+    ]
+    tied = [("sensor_offset@2",), ("thermal_expansion",), ("sensor_offset@all",)]
+    left, (k,) = static_classes(named, w, tied)
+    assert k.members == ["sensor_offset@2", "thermal_expansion", "sensor_offset@all"]
+    assert left == named
+    assert k.q_um == pytest.approx(1e3 * 0.3 * -0.010, rel=1e-12)
+    assert "check the temperature scan.json records" in k.sentence
+    _, (k,) = static_classes([named[0], named[2]], w, [tied[0], tied[2]])
+    assert "temperature" not in k.sentence
+
+
+def test_a_static_set_refits_every_zero_member_where_the_cut_kept_one():
+    """The zero members (each channel's offset, the common one, the expansion) screen level: where the
+    exact refits' cut keeps one, the others are refitted from their screen starts; beside a pair's first
+    term too, never the first term itself; nothing where no zero member was chosen.
+    """
+    from borescan.discrepancy.poses import StaticModel
+    from borescan.discrepancy.tri import Term
+
+    screen = [
+        (1.0, Term("sensor_nonlinearity", 1), {"a": 1}),
+        (2.0, Term("sensor_offset", 1), {"b": 1}),
+        (2.1, Term("sensor_offset", 0), {"b": 0}),
+        (2.2, Term("thermal_expansion", None), {"t": 1}),
+        (2.3, Term("sensor_offset", 2), {"b": 2}),
+        (3.0, Term("sensor_gain", 2), {"g": 2}),
+    ]
+    extra = StaticModel.extra_starts
+    keys = {"sensor_nonlinearity@1", "sensor_offset@1"}
+    got = [z[1].key for z in extra(None, screen, keys, None)]
+    assert got == ["sensor_offset@all", "thermal_expansion", "sensor_offset@2"]
+    got = [z[1].key for z in extra(None, screen, {"sensor_offset@all", "*"}, Term("sensor_offset", 1))]
+    assert got == ["thermal_expansion", "sensor_offset@2"]
+    assert extra(None, screen, {"sensor_nonlinearity@1", "sensor_gain@2"}, None) == []
+
+
+def test_a_term_every_tied_pair_holds_is_said_together_with_the_class():
+    """Battery static 143 of seed 2: a bow on channel 1 in every tied pair beside the zero members. The bow
+    is needed with the class, not an alternative to it: "together with the class", never "fitting as well";
+    a term only some tied candidates hold is an alternative.
+    """
+    from borescan.discrepancy.classes import class_statement
+
+    w = {1: 0.5, 2: 0.45, 3: 0.05}
+    bow = _entry("sensor_nonlinearity", 1, 2011.4, "a_mm", 0.043, 0.001)
+    named = [
+        bow,
+        _entry("sensor_offset", 1, 2011.4, "b_mm", 0.018, 0.001),
+        _entry("sensor_offset", 2, 2011.2, "b_mm", 0.019, 0.001),
+    ]
+    tied = [("sensor_nonlinearity@1", "sensor_offset@1"), ("sensor_nonlinearity@1", "sensor_offset@2")]
+    left, classes = static_classes(named, w, tied)
+    assert classes[0].members == ["sensor_offset@1", "sensor_offset@2"]
+    needed = frozenset.intersection(*(frozenset(k) for k in tied))
+    s = class_statement(classes, left, "fully", None, needed)
+    assert s.endswith("; together with the class: sensor_nonlinearity on channel 1")
+    assert "fitting as well" not in s
+    s = class_statement(classes, left, "fully", None, frozenset())
+    assert s.endswith("; or, fitting as well: sensor_nonlinearity on channel 1")

@@ -25,11 +25,13 @@ position (two coordinates) absorbs, to first order, any change of the three read
 directions ``u_c = (cos beta_c, sin beta_c)``: of the channels' zeroes the data fix only the combination
 ``q = sum_c w_c b_c`` with ``w`` orthogonal to both columns of ``U`` (scaled so its weights sum to 1: with
 beams 120 degrees apart, ``q`` is the mean zero; the pose-to-pose change of the sensitivities breaks the tie
-only weakly). An offset on any one channel (``b_c = q / w_c``), or on every channel, a gain or a bow of a
-channel (near-constant readings) and a beam's tilt or offset then explain the gap alike: where two or more
-of them are named within delta chi2 <= 9 of the best, the verdict names the class, what the data fix
-(``q`` +- u, from the best offset member), the members (a tilt only where ``w_c q > 0``, a beam offset only
-where ``w_c q < 0``) and the advice: recalibrate the sensors' zeroes, a calibration on the ring gauge.
+only weakly). An offset on any one channel (``b_c = q / w_c``), or on every channel, a thermal expansion
+of a certified gauge (its wall moves along every beam alike: the spec's look-alike of the common zero), a
+gain or a bow of a channel (near-constant readings) and a beam's tilt or offset then explain the gap alike:
+where two or more of them are named within delta chi2 <= 9 of the best, the verdict names the class, what
+the data fix (``q`` +- u, from the best offset member), the members (a tilt only where ``w_c q > 0``, a beam
+offset only where ``w_c q < 0``) and the advice: recalibrate the sensors' zeroes, a calibration on the ring
+gauge (or, with the expansion a member, check the gauge's recorded temperature).
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from borescan.effects import EFFECTS
 from borescan.effects import functions as fx
 
 __all__ = [
@@ -54,6 +57,7 @@ __all__ = [
     "PoseRadii",
     "pose_radii",
     "other_readings",
+    "class_statement",
 ]
 
 #: the members of the offset-like class of one rod layer, and the sign of the shift each can give
@@ -193,7 +197,9 @@ def spindle_classes(named: list[dict]) -> tuple[list[dict], list[ChannelClass]]:
 
 
 #: a static set's class members (OFFSET_LIKE and the bow): all read near-constant on near-constant readings
-STATIC_MEMBERS = (*OFFSET_LIKE, "sensor_nonlinearity")
+#: the members of a static set's class: a thermal expansion moves a certified gauge's wall along every beam
+#: alike, a common zero (the spec's look-alike of ``sensor_offset`` on every channel)
+STATIC_MEMBERS = (*OFFSET_LIKE, "sensor_nonlinearity", "thermal_expansion")
 #: delta chi2 to the best fit within which a member explains the gap as well (issue 35's rule)
 TIE_CHI2 = 9.0
 
@@ -223,10 +229,15 @@ class StaticClass:
         value = "" if self.q_um is None else f" = {self.q_um:.3g} +- {self.u_q_um:.2g} um"
         if self.q_um is not None and self.q_from is not None and not self.q_from.startswith("sensor_offset"):
             value += f" (the shift {self.q_from} gives the set's readings)"
+        warm = (
+            "; or the gauge was not at 20 degC (thermal_expansion): check the temperature scan.json records"
+            if "thermal_expansion" in self.members
+            else ""
+        )
         return (
             f"offset-like: one combination of the channels' zeroes b_c is fixed: {self.combination}{value} "
             f"({', '.join(self.members)} explain it alike); recalibrate the sensors' zeroes, a calibration "
-            "on the ring gauge"
+            f"on the ring gauge{warm}"
         )
 
     def holds(self, n: dict) -> bool:
@@ -268,7 +279,11 @@ def zero_weights(channels, beta_rad) -> dict[int, float]:
 
 
 def _label(n: dict) -> str:
-    return n["effect"] + (f"@{n['channel']}" if n.get("channel") is not None else "@all")
+    """Return ``effect@channel``, ``effect@all`` (a per-channel effect on every channel) or ``effect``."""
+    if n.get("channel") is not None:
+        return f"{n['effect']}@{n['channel']}"
+    spec = EFFECTS.get(n["effect"])
+    return n["effect"] + ("@all" if spec is None or spec.per_channel else "")
 
 
 #: the change of a channel's readings ``v`` [mm] (range ``r`` [mm]) each static member gives with its spec
@@ -357,6 +372,37 @@ def static_classes(
     if len(members) < 2:
         return named, []
     return [n for n in named if id(n) not in drop], [StaticClass(weights, q, u, members, dropped, q_from)]
+
+
+def class_statement(
+    classes, named: list[dict], explained: str, remaining: dict | None, needed: frozenset = frozenset()
+) -> str:
+    """Return a verdict's sentence with classes: each class (what the data fix, the advice), then the rest.
+
+    ``needed``: labels of the terms every tied candidate holds (a pair's other effect): said "together
+    with" the class, not "fitting as well".
+    """
+    words = {
+        id(n): n["effect"] + (f" on {classes[0].where} {n['channel']}" if n.get("channel") else "")
+        for n in named
+    }
+    rest = [n for n in named if not any(k.holds(n) for k in classes)]
+    together = [words[id(n)] for n in rest if _label(n) in needed]
+    rest = [words[id(n)] for n in rest if _label(n) not in needed]
+    out = classes[0].sentence
+    if len(classes) > 1:  # the classes are alternatives: each explains the scan as well as the others
+        out = "one layer reads off and this scan cannot tell which: " + "; or ".join(
+            k.sentence for k in classes
+        )
+    if together:
+        out += "; together with the class: " + " and ".join(together)
+    if rest:
+        out += "; or, fitting as well: " + ", ".join(rest)
+    if explained == "partly" and remaining:
+        ratio = remaining["gap_after_over_floor"]
+        out += f"; only partly explained: the gap after is {ratio:.3g}x the noise floor"
+        out += "" if remaining.get("fit_converged", True) else " and the fit did not converge"
+    return out
 
 
 #: a fitted temperature within this many standard uncertainties of the recorded one is the recorded one

@@ -22,6 +22,7 @@ import numpy as np
 from borescan.atomic import atomic_write_text
 from borescan.config import schema_defaults
 from borescan.discrepancy.classes import (
+    class_statement,
     other_readings,
     rod_classes,
     spindle_classes,
@@ -387,27 +388,6 @@ def _statement(
     return _sentence(verdict, named, explained, remaining, rejected) + note
 
 
-def _class_statement(classes, named: list[dict], explained: str, remaining: dict | None) -> str:
-    """Return a verdict's sentence with classes: each class (what the data fix, the advice), then the rest."""
-    rest = [
-        n["effect"] + (f" on {classes[0].where} {n['channel']}" if n.get("channel") else "")
-        for n in named
-        if not any(k.holds(n) for k in classes)
-    ]
-    out = classes[0].sentence
-    if len(classes) > 1:  # the classes are alternatives: each explains the scan as well as the others
-        out = "one layer reads off and this scan cannot tell which: " + "; or ".join(
-            k.sentence for k in classes
-        )
-    if rest:
-        out += "; or, fitting as well: " + ", ".join(rest)
-    if explained == "partly" and remaining:
-        ratio = remaining["gap_after_over_floor"]
-        out += f"; only partly explained: the gap after is {ratio:.3g}x the noise floor"
-        out += "" if remaining.get("fit_converged", True) else " and the fit did not converge"
-    return out
-
-
 def _sentence(verdict: str, named: list[dict], explained: str, remaining: dict | None, rejected) -> str:
     """Return what the verdict says, without the note on untried effects."""
     labels = [n["effect"] + (f" on channel {n['channel']}" if n.get("channel") else "") for n in named]
@@ -474,7 +454,13 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
             verdict, dec_named or list(out.named), explained, remaining, dec.rejected, not_testable(model)
         )
         if not classes
-        else _class_statement(classes, dec_named, explained, remaining),
+        else class_statement(
+            classes,
+            dec_named,
+            explained,
+            remaining,
+            frozenset.intersection(*(frozenset(z.keys) for z in dec.named_fits or [Candidate(base, ())])),
+        ),
         "classes": [k.to_dict() for k in classes],
         "not_tried": not_testable(model),
         "remaining": remaining,
@@ -501,7 +487,7 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
         "device_type": model.device_type,
         "base_model": {
             "free": base_names if len(base_names) <= 8 else [*base_names[:8], f"({len(base_names)} in all)"],
-            "fixed": model.base_description,
+            "fixed": base_fixed(model, c),
             **model.base_summary(base.values()),
             "bic": base.bic,
         },
@@ -518,6 +504,25 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
             ],
         },
     }
+
+
+def base_fixed(model, c: dict) -> str:
+    """Return what the base model held fixed (findings.json's ``base_model.fixed``).
+
+    The model's own description names the design (``device.nominal``); a scan examined against a
+    calibration (``beams`` or ``layers`` given) held that calibration's geometry instead, and beams freed in
+    the base (``free_beams``) only started from it.
+    """
+    text = model.base_description
+    if "device.nominal" not in text:  # a pooled model says itself what it shares and frees
+        return text
+    if c.get("beams") is not None or c.get("layers") is not None:
+        text = text.replace("device.nominal", "the given calibration's", 1)
+    free = tuple(getattr(model, "free_beams", ()))
+    if free:
+        held = " (the first beam's direction held)" if "beta" in free else ""
+        text = text.replace(" beams", f" beams as the start of their free {', '.join(free)}{held}", 1)
+    return text
 
 
 def _named_entry(t: Term, fr: FitResult, base: FitResult, runner_bic: float | None, model) -> dict:

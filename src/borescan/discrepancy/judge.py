@@ -4,10 +4,15 @@ Three rules, each stated once and applied to every candidate (singles and pairs)
 criterion chooses among them:
 
 - **plausible**: every fitted size within its plausible range (schema ``discrepancy.plausible_ranges``,
-  each with its reason); outside, the candidate is dropped and the finding says so ("explained only by a
-  1.70 mm sensor offset on channel 3: no sensor of this range has ...");
-- **physical**: within the registry's bounds (a beam tilt only lengthens a reading), to two standard
-  uncertainties;
+  each with its reason), to :data:`BOUND_SIGMAS` standard uncertainties but no more than
+  :data:`PLAUSIBLE_MARGIN` of the range's half-width (:meth:`PlausibleRange.admits`); a candidate that
+  needs a value farther out is dropped and the finding says so ("explained only by a 1.70 mm sensor
+  offset on channel 3: no sensor of this range has ..."). A fit within its uncertainty of a bound does
+  not need the value beyond it (battery static 110 of seed 2: a true bow of 0.090 mm, fitted 0.1003 +-
+  0.014 mm with its gain, was dropped against the 0.1 mm bound and the scan named as another channel's
+  gain);
+- **physical**: within the registry's bounds (a beam tilt only lengthens a reading), to
+  :data:`BOUND_SIGMAS` standard uncertainties;
 - **scope-consistent**: a bore's form, the spindle's motion or speed and the time base reach every channel
   that sees the bore, each through its own beam geometry; a candidate whose effects of that scope reach,
   together, one channel only (their signatures cancel on the others: what the base cannot absorb of them
@@ -41,6 +46,8 @@ __all__ = [
     "scope_conflict",
     "judge",
     "explanation",
+    "BOUND_SIGMAS",
+    "PLAUSIBLE_MARGIN",
     "CONFINED_SHARE",
     "SEEN_CHI2",
 ]
@@ -48,6 +55,13 @@ __all__ = [
 #: a combination of artifact/spindle/time-scope effects whose signature puts this share of its chi-square
 #: on one channel reaches that channel only (three channels that see a bore share it about equally)
 CONFINED_SHARE = 0.8
+#: a fitted value needs a bound's far side (plausible or physical) when it lies this many standard
+#: uncertainties beyond it
+BOUND_SIGMAS = 2.0
+#: the most a fit's uncertainty widens a plausible range, as a share of the range's half-width: a poorly
+#: determined value (a static set's single-channel offset, 0.99 +- 0.27 mm against 0.5 mm) is not made
+#: plausible by its own spread
+PLAUSIBLE_MARGIN = 0.1
 #: chi-square (noise units) of a signature that the data see: a confined signature reaches the other
 #: channels when its part there is above this
 SEEN_CHI2 = 9.0
@@ -71,6 +85,16 @@ class PlausibleRange:
         """Return the bounds in the parameter's unit (a per-range bound times ``range_mm``)."""
         f = float(range_mm) if self.per_range and range_mm else 1.0
         return self.low * f, self.high * f
+
+    def admits(self, value: float, u: float, range_mm: float | None) -> bool:
+        """Return whether a fitted ``value`` +- ``u`` is plausible.
+
+        Plausible: within the bounds widened by :data:`BOUND_SIGMAS` u, at most :data:`PLAUSIBLE_MARGIN` of
+        the range's half-width (a non-finite u widens nothing).
+        """
+        lo, hi = self.bounds(range_mm)
+        slack = min(BOUND_SIGMAS * u, PLAUSIBLE_MARGIN * 0.5 * (hi - lo)) if math.isfinite(u) else 0.0
+        return lo - slack <= value <= hi + slack
 
 
 def plausible_ranges(section: dict | None = None) -> dict[str, PlausibleRange]:
@@ -132,7 +156,7 @@ def _range_of(model, t: Term) -> float | None:
 
 
 def implausible(model, cand: Candidate, ranges: dict[str, PlausibleRange]) -> str | None:
-    """Return the sentence of the first fitted size outside its plausible range, or None."""
+    """Return the sentence of the first fitted size its plausible range does not admit, or None."""
     x, u = cand.fit.values(), cand.fit.uncertainties()
     for t in cand.terms:
         pr = ranges.get(t.effect)
@@ -145,8 +169,8 @@ def implausible(model, cand: Candidate, ranges: dict[str, PlausibleRange]) -> st
         range_mm = _range_of(model, t)
         if pr.per_range and range_mm is None:
             continue  # a limit in sensor ranges with no range known: not judged
-        lo, hi = pr.bounds(range_mm)
-        if not lo <= v <= hi:
+        if not pr.admits(v, uv, range_mm):
+            lo, hi = pr.bounds(range_mm)
             unit = EFFECTS[t.effect].params.get(pr.parameter, "")
             return (
                 f"explained only by {t.effect}{_where(t)} with {pr.parameter} = {v:.4g} +- {uv:.2g} {unit}, "
@@ -161,7 +185,7 @@ def unphysical(cand: Candidate) -> str | None:
     for t in cand.terms:
         for q in EFFECTS[t.effect].fit:
             n = f"{t.key}.{q.name}"
-            if v[n] < q.lower - 2.0 * u[n] or v[n] > q.upper + 2.0 * u[n]:
+            if v[n] < q.lower - BOUND_SIGMAS * u[n] or v[n] > q.upper + BOUND_SIGMAS * u[n]:
                 return (
                     f"{t.key} needs {q.name} = {v[n]:.3g}, outside its physical bounds [{q.lower}, {q.upper}]"
                 )

@@ -46,6 +46,8 @@ __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
 
 #: a rod layer's terms that screen level with its offset (the offset-like class and the bow)
 LOOKALIKE_TERMS = ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "beam_tilt")
+#: a static set's zero members, refitted together (:meth:`StaticModel.extra_starts`)
+ZERO_MEMBERS = ("sensor_offset", "thermal_expansion")
 #: degrees of freedom of a MAD noise estimate per difference (its asymptotic efficiency, Gaussian noise)
 MAD_DOF_PER_DIFF = 0.37
 
@@ -483,5 +485,18 @@ class StaticModel(_PoseModel):
         )
 
     def extra_starts(self, screen, keys, t1):
-        """Return no extra starts (the linear screen's start is enough for static scans)."""
-        return []
+        """Return the screen starts of the set's zero members the exact refits' cut left out.
+
+        The zeroes of a static set (an offset of any channel or of every channel, a gauge's thermal
+        expansion) move the readings along the beams alike, and the data fix one combination of them
+        (:mod:`~borescan.discrepancy.classes`): they screen level with each other, so the cut can keep
+        some and drop the rest, and a pair's second term among them is then the one the noise favoured
+        (battery static 143 of seed 2: a bow with an offset on channel 2, fitted only with channel 1's
+        offset, the common one and the expansion). Where one zero member is chosen, each other is refitted
+        from its screen start (beside ``t1``, a pair's first term, when given).
+        """
+        chosen = {k for k in keys if k != "*"}
+        zero = [z for z in screen if z[1].effect in ZERO_MEMBERS and (t1 is None or z[1].key != t1.key)]
+        if not any(z[1].key in chosen for z in zero):
+            return []
+        return [z for z in zero if z[1].key not in chosen]
