@@ -384,10 +384,32 @@ class RodModel(_PoseModel):
             b = z[2][f"{t.key}.b_mm"]
             st = {k: v for k, v in z[2].items() if not k.startswith(t.key)}
             st[f"beam_offset@{t.channel}.d_mm"] = math.sqrt(2.0 * self.radius[j] * max(abs(b), 1e-6))
-            out.append((0.0, Term("beam_offset", t.channel), st))
+            out.append((0.0, Term("beam_offset", t.channel, device=self.device_type), st))
+            out += self._tilt_starts(j, b, st)
         if t1 is None and any(z[1].effect == "thermal_expansion" for z in screen):
             out += self._thermal_start()
         return out
+
+    def _tilt_starts(self, j: int, b_mm: float, start: dict) -> list[tuple]:
+        """Return ``beam_tilt`` starts of layer ``j`` that lengthen its readings by the offset's ``b_mm``.
+
+        The tilt gamma adds to the layer's own gamma0 and lengthens the beam l by l (sec(gamma0 + gamma) -
+        sec gamma0): even in gamma0 + gamma, so a fit from gamma = 0 (its column there is l tan gamma0, near
+        zero) may not reach either side, and the base fit has already bent the pose angles and the
+        deflection to absorb part of it (rod 10 of the battery, seed 1). Both roots of
+        sec(gamma0 + gamma) = sec gamma0 + b / l, l the layer's mean beam length, are started, with the base
+        parameters of the offset's screen (``start``); none where b shortens the beam below gamma = -gamma0.
+        """
+        ch = self.data.channels[j]
+        v = self.data.values_mm[:, j]
+        length = float(np.nanmean(v[self.valid[:, j]])) + self.l0[j] if self.valid[:, j].any() else math.nan
+        g0 = float(self.gamma[j])
+        sec = 1.0 / math.cos(g0) + b_mm / length if length > 0 else math.nan
+        if not sec >= 1.0:
+            return []
+        g = math.acos(1.0 / sec)
+        term = Term("beam_tilt", ch, device=self.device_type)
+        return [(0.0, term, {**start, f"beam_tilt@{ch}.gamma_rad": s * g - g0}) for s in (1.0, -1.0)]
 
     def _thermal_start(self) -> list[tuple]:
         """Return the thermal start of :meth:`extra_starts` (empty without a CTE or a certified radius)."""
@@ -399,7 +421,7 @@ class RodModel(_PoseModel):
         if not np.all(np.isfinite(ratio)):
             return []
         st["thermal_expansion.dT"] = float(np.mean(ratio) / cte)
-        return [(0.0, Term("thermal_expansion", None), st)]
+        return [(0.0, Term("thermal_expansion", None, device=self.device_type), st)]
 
 
 # ---------------------------------------------------------------------------- static tri set
