@@ -29,6 +29,7 @@ says "ambiguous" and lists them.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -46,6 +47,12 @@ __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
 
 #: a rod layer's terms that screen level with its offset (the offset-like class and the bow)
 LOOKALIKE_TERMS = ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "beam_tilt")
+#: evaluations per unknown of each LM of the pose-means solve that starts a rod's base fit
+#: (``rod.solve_rod``'s ``nfev_per_par``; a solve's own is 100): a start, finished by the base fit.
+#: On a part whose deflection the poses do not separate from the radii (condition ~1e8) every LM
+#: crawled to 100 per unknown (rod 284 of the battery, seed 2: 6 LMs of 2700 evaluations, 14 of the
+#: examination's 15 CPU s)
+START_NFEV_PER_PAR = 10
 #: degrees of freedom of a MAD noise estimate per difference (its asymptotic efficiency, Gaussian noise)
 MAD_DOF_PER_DIFF = 0.37
 
@@ -238,6 +245,7 @@ class RodModel(_PoseModel):
         #: layers whose hole radius is a free base parameter (no certified diameter: it is the measurand)
         self.radius_free = np.array(free)
         self.n_pose = len(data.poses)
+        self._start: dict[str, float] | None = None
         #: the rod's model (:mod:`borescan.physics.rod`), the digital twin's
         self.device = RodDevice(tuple(self.layers()), data.cte_per_k or 0.0, tuple(data.range_mm))
 
@@ -266,8 +274,15 @@ class RodModel(_PoseModel):
         """Return the rod model's start from the pose means.
 
         Pose means solved by ``rod.solve_rod`` (deflection free, maximum likelihood); on refusal
-        the closed-form Eq. 16 start with w = 0.
+        the closed-form Eq. 16 start with w = 0. Solved once (the pose means do not change); a copy
+        is returned.
         """
+        if self._start is None:
+            self._start = self._pose_means_start()
+        return dict(self._start)
+
+    def _pose_means_start(self) -> dict[str, float]:
+        """Return :meth:`base_start`'s start, solved from the pose means."""
         from borescan.rod import RodSolveError, solve_rod
         from borescan.rod_eq16 import rod_start
 
@@ -281,7 +296,12 @@ class RodModel(_PoseModel):
         w = np.zeros(2)
         try:
             sol = solve_rod(
-                V, layers=self.layers(), deflection="mle", max_deflection_ratio=np.inf, max_u_ratio=np.inf
+                V,
+                layers=self.layers(),
+                deflection="mle",
+                max_deflection_ratio=np.inf,
+                max_u_ratio=np.inf,
+                nfev_per_par=START_NFEV_PER_PAR,
             )
             a = np.nan_to_num(sol.alpha_rad)
             c, w, r = sol.center_xy_mm, sol.deflection_xy_rad, sol.radius_mm
@@ -388,6 +408,33 @@ class RodModel(_PoseModel):
             out += self._tilt_starts(j, b, st)
         if t1 is None and any(z[1].effect == "thermal_expansion" for z in screen):
             out += self._thermal_start()
+        return out
+
+    def settle_screen(self, screen: list) -> list:
+        """Return the linear screen with each layer's ``beam_tilt`` started where it lengthens as its offset.
+
+        At gamma = 0 a tilt's column is about l tan(gamma0), near zero, so its linearised start is
+        meaningless (6006 rad on rod 284 of the battery, seed 2, as the second term of a pair). It is
+        replaced by the root of :meth:`_tilt_starts` for the same layer's screened offset whose sign is the
+        linear start's, with that offset's base parameters; gamma = 0 where the screen has no such offset or
+        no tilt lengthens that much.
+        """
+        offsets = {z.term.channel: z for z in screen if z.term.effect == "sensor_offset"}
+        out = []
+        for z in screen:
+            if z.term.effect == "beam_tilt" and z.term.channel not in (None, 0):
+                name = f"{z.term.key}.gamma_rad"
+                start = {**z.start, name: 0.0}
+                off = offsets.get(z.term.channel)
+                if off is not None:
+                    key = f"{off.term.key}.b_mm"
+                    base = {k: v for k, v in off.start.items() if k != key}
+                    j = self.data.channels.index(z.term.channel)
+                    roots = [st for _, _, st in self._tilt_starts(j, off.start[key], base)]
+                    same = [st for st in roots if (st[name] > 0) == (z.start[name] > 0)]
+                    start = (same or roots or [start])[0]
+                z = replace(z, start=start)
+            out.append(z)
         return out
 
     def _tilt_starts(self, j: int, b_mm: float, start: dict) -> list[tuple]:

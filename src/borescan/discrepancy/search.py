@@ -240,6 +240,7 @@ def linear_screen(
         for n, s, a in zip(names0 + tn, scales0 + ts, coef):
             start[n] = start[n] + a * s
         out.append(Screened(rss, t, start))
+    out = getattr(model, "settle_screen", list)(out)  # starts a model knows better than the linearisation
     out.sort(key=lambda z: z.rss)
     return out
 
