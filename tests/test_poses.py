@@ -343,3 +343,34 @@ def test_tilt_starts_are_both_roots_of_the_offsets_lengthening():
         assert length * (1.0 / math.cos(g0 + g) - 1.0 / math.cos(g0)) == pytest.approx(b_mm, rel=1e-9)
     assert {math.copysign(1.0, st["beam_tilt@1.gamma_rad"] + g0) for _, _, st in starts} == {1.0, -1.0}
     assert model._tilt_starts(j, -length, {}) == []
+
+
+def test_the_screen_starts_a_rod_tilt_at_its_offsets_root_of_the_linear_starts_sign():
+    """A screened ``beam_tilt`` (its linearised start meaningless: its column at 0 is l tan gamma0) starts at
+    the root of :meth:`RodModel._tilt_starts` for the same layer's screened offset whose sign is the linear
+    start's, with the offset's base parameters; with no offset screened for its layer, at gamma = 0.
+    """
+    from borescan.discrepancy.examine import discrepancy_settings, model_of
+    from borescan.discrepancy.search import Screened
+    from borescan.discrepancy.tri import Term
+    from borescan.synthetic import contract as sct
+    from borescan.synthetic import rod_scenarios as rs
+
+    sim = rs.draw_rod_scan(
+        np.random.default_rng(4), scan_id="T", night="2027-01-01", contract=dict(sct.ROD_CONTRACT)
+    )
+    model = model_of(sim, **discrepancy_settings())
+    tilt1, tilt2 = (Term("beam_tilt", c, device="rod") for c in (1, 2))
+    offset1 = Term("sensor_offset", 1, device="rod")
+    screen = [
+        Screened(1.0, tilt1, {"alpha[1]": 0.1, "beam_tilt@1.gamma_rad": 6006.0}),
+        Screened(2.0, offset1, {"alpha[1]": 0.2, "sensor_offset@1.b_mm": 0.03}),
+        Screened(3.0, tilt2, {"alpha[1]": 0.3, "beam_tilt@2.gamma_rad": -5.0}),
+    ]
+    settled = model.settle_screen(screen)
+    assert [z.term.key for z in settled] == ["beam_tilt@1", "sensor_offset@1", "beam_tilt@2"]
+    roots = [st["beam_tilt@1.gamma_rad"] for _, _, st in model._tilt_starts(0, 0.03, {})]
+    (positive,) = [g for g in roots if g > 0]
+    assert settled[0].start == {"alpha[1]": 0.2, "beam_tilt@1.gamma_rad": positive}
+    assert settled[1] == screen[1]
+    assert settled[2].start == {"alpha[1]": 0.3, "beam_tilt@2.gamma_rad": 0.0}
