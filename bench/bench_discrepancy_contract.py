@@ -162,7 +162,8 @@ def _truth(sim, kind: str) -> tuple[list, list[str]]:
     return seen, [effect_label(e) for e in seen]
 
 
-def _term_of(label: str):
+def _term_of(label: str, device: str | None = None):
+    """Return the term of a label (``sensor_gain@2``), fitted in ``device``'s parameterisation (registry)."""
     from borescan.discrepancy.tri import Term
 
     name, _, rest = label.partition("@")
@@ -171,7 +172,7 @@ def _term_of(label: str):
         if "[k=" in part:
             k = int(part.partition("[k=")[2].rstrip("]"))
     name, rest = name.partition("[k=")[0], rest.partition("[k=")[0]
-    return Term(name, None if not rest else 0 if rest == "all" else int(rest), k)
+    return Term(name, None if not rest else 0 if rest == "all" else int(rest), k, device=device)
 
 
 def _chi2(model, terms, start: dict) -> float:
@@ -193,7 +194,7 @@ def _chi2(model, terms, start: dict) -> float:
     return float(fr.rss)
 
 
-def _starts(named_entries: list[dict], effects: list) -> dict[str, dict]:
+def _starts(named_entries: list[dict], effects: list, device: str | None) -> dict[str, dict]:
     """Fit starts of each label: the true effect's own values, and a named effect's fitted ones."""
     from borescan.discrepancy.battery import effect_label, named_label
     from borescan.discrepancy.tri import term_values
@@ -202,7 +203,7 @@ def _starts(named_entries: list[dict], effects: list) -> dict[str, dict]:
     out = {}
     for e in effects:
         if e.name not in EVIDENCE:
-            out[effect_label(e)] = term_values(_term_of(effect_label(e)), e)
+            out[effect_label(e)] = term_values(_term_of(effect_label(e), device), e)
     for n in named_entries:
         lab = named_label(n)
         if lab in out or n["effect"] in EVIDENCE:
@@ -213,7 +214,7 @@ def _starts(named_entries: list[dict], effects: list) -> dict[str, dict]:
         elif n.get("channels"):
             par["channel"] = n["channels"][0]
         try:
-            out[lab] = term_values(_term_of(lab), Effect(n["effect"], par))
+            out[lab] = term_values(_term_of(lab, device), Effect(n["effect"], par))
         except (ValueError, KeyError):
             out[lab] = {}
     return out
@@ -450,12 +451,13 @@ def _score(f, named, truth, effects, clean, kw, cfg, sigma, z) -> tuple[bool, di
         return True, {}
     if _units(extras, f) > 2 or any(n.split("@")[0].split("[")[0] in EVIDENCE for n in extras):
         return False, {}
-    starts = _starts(f["named"], effects)
+    model = model_of(clean, **kw, **cfg)
+    starts = _starts(f["named"], effects, model.device_type)
     fitted = [t for t in truth if t.split("@")[0] not in EVIDENCE]  # evidence effects: in every refit's data
 
     def chi2(labels: list[str]) -> float:
         st = {k: v for t in labels for k, v in starts.get(t, {}).items()}
-        return _chi2(model_of(clean, **kw, **cfg), [_term_of(t) for t in labels], st)
+        return _chi2(model, [_term_of(t, model.device_type) for t in labels], st)
 
     own = chi2(fitted)
     out = {}

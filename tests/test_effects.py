@@ -239,6 +239,29 @@ def test_beam_tilt_divides_by_cos_gamma():
     assert np.array_equal(v[:, 1:], BASE[:, 1:])
 
 
+def test_beam_tilt_is_fitted_even_on_the_three_sensor_device_and_signed_on_a_rod():
+    """The registry's per-device fit parameters of ``beam_tilt``.
+
+    Three-sensor: h = 1 / cos(gamma) - 1 >= 0 (its reading v / cos gamma is even in gamma), so -gamma reads
+    back as +gamma. Rod: the signed gamma added to the layer's own (both signs read back, unbounded).
+    """
+    spec = EFFECTS["beam_tilt"]
+    assert [q.name for q in spec.fit_params()] == ["h"] and spec.fit_params()[0].lower == 0.0
+    assert spec.fit_params("tri_lds") == spec.fit_params()
+    (q,) = spec.fit_params("rod")
+    assert (q.name, q.unit, q.lower, q.upper) == ("gamma_rad", "rad", -math.inf, math.inf)
+    for g in (0.07, -0.07):
+        h = spec.internal({"gamma_rad": g})["h"]
+        assert h == pytest.approx(1.0 / math.cos(g) - 1.0, rel=1e-14)
+        assert spec.spec_params({"h": h})[0]["gamma_rad"] == pytest.approx(abs(g), rel=1e-12)
+        x = spec.internal({"gamma_rad": g}, "rod")
+        assert x == {"gamma_rad": g}
+        par, unc = spec.spec_params(x, {"gamma_rad": 0.003}, None, "rod")
+        assert par == {"gamma_rad": g} and unc == {"gamma_rad": 0.003}
+    # an effect without a device's own parameterisation fits the same way on both devices
+    assert EFFECTS["sensor_gain"].fit_params("rod") == EFFECTS["sensor_gain"].fit
+
+
 def test_vibration_adds_a_sine_on_every_channel():
     f, a, ph = 7.3, 0.002, 1.1
     v = _with(Effect("vibration", {"f_hz": f, "a_mm": a, "phase": ph}))

@@ -274,3 +274,103 @@ def test_thermal_start_of_a_ring_gauge_rod_lands_on_the_true_temperature():
     rms_mm = float(np.sqrt(np.nanmean(model.residual_matrix(fit.values(), [term])[model.mask] ** 2)))
     assert rms_mm < 0.05 * sct.ROD_CONTRACT["noise_mm"][0]
     assert abs(fit.values()["thermal_expansion.dT"] + 13.25) < 0.01
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+@pytest.mark.parametrize("gamma_rad", [0.09, -0.09])
+def test_rod_model_with_the_true_signed_beam_tilt_is_the_simulated_scan(seed, gamma_rad):
+    """Parity of a rod's ``beam_tilt`` of either sign (the registry's rod parameterisation: the signed gamma).
+
+    A noise-free contract rod scan (seed 0: a part; seed 4: a ring-gauge set) whose layer 1 is tilted by
+    +-0.09 rad on top of its own gamma0: at the true base parameters the rod model with the rod's term at the
+    true gamma reproduces the readings to below 1e-3 of the contract's smallest noise (2 um). The three-sensor
+    parameterisation (h = 1 / cos(gamma) - 1, even in gamma) cannot: for -0.09 it adds +0.09 to gamma0, and
+    leaves more than 10 um rms (0.05-0.07 mm measured).
+    """
+    from borescan.discrepancy.examine import discrepancy_settings, model_of
+    from borescan.discrepancy.tri import Term, term_values
+    from borescan.effects import Effect
+    from borescan.synthetic import contract as sct
+    from borescan.synthetic import rod_scenarios as rs
+
+    effect = Effect("beam_tilt", {"channel": 1, "gamma_rad": gamma_rad})
+    sim = rs.draw_rod_scan(
+        np.random.default_rng(seed),
+        scan_id="TILT",
+        night="2027-01-01",
+        contract=dict(sct.ROD_CONTRACT, noise_mm=(0.0, 0.0)),
+        extra_effects=(effect,),
+    )
+    model = model_of(sim, **discrepancy_settings())
+    (term,) = [t for t in model.candidate_terms() if t.key == "beam_tilt@1"]
+    values = term_values(term, effect)
+    assert values == {"beam_tilt@1.gamma_rad": pytest.approx(gamma_rad, abs=1e-15)}
+    p = _true_rod_base(model, sim)
+    sigma_mm = sct.ROD_CONTRACT["noise_mm"][0]
+    r_true = model.residual_matrix({**p, **values}, [term])  # [mm]
+    assert np.nanmax(np.abs(r_true)) < 1e-3 * sigma_mm
+    even = Term("beam_tilt", 1)  # the effect's default (three-sensor) parameterisation
+    r_even = model.residual_matrix({**p, **term_values(even, effect)}, [even])
+    rms_even_mm = float(np.sqrt(np.nanmean(r_even**2)))
+    assert (rms_even_mm > 1e-2) == (gamma_rad < 0)
+
+
+def test_tilt_starts_are_both_roots_of_the_offsets_lengthening():
+    """A rod layer's beam-tilt starts lengthen its mean beam l by the offset b: l (sec(g0 + g) - sec g0) = b.
+
+    Both roots (the beam tilted up or down past its own gamma0), checked on the closed form; a shortening
+    that no tilt can give (below gamma = -gamma0) gives no start.
+    """
+    import math
+
+    from borescan.discrepancy.examine import discrepancy_settings, model_of
+    from borescan.synthetic import contract as sct
+    from borescan.synthetic import rod_scenarios as rs
+
+    sim = rs.draw_rod_scan(
+        np.random.default_rng(4), scan_id="T", night="2027-01-01", contract=dict(sct.ROD_CONTRACT)
+    )
+    model = model_of(sim, **discrepancy_settings())
+    j, b_mm = 0, 0.05
+    starts = model._tilt_starts(j, b_mm, {"alpha[1]": 0.25})
+    assert len(starts) == 2
+    ok = model.valid[:, j]
+    length = float(np.mean(model.data.values_mm[ok, j])) + model.l0[j]
+    g0 = float(model.gamma[j])
+    for _, term, st in starts:
+        assert term.key == "beam_tilt@1" and term.device == "rod" and st["alpha[1]"] == 0.25
+        g = st["beam_tilt@1.gamma_rad"]
+        assert length * (1.0 / math.cos(g0 + g) - 1.0 / math.cos(g0)) == pytest.approx(b_mm, rel=1e-9)
+    assert {math.copysign(1.0, st["beam_tilt@1.gamma_rad"] + g0) for _, _, st in starts} == {1.0, -1.0}
+    assert model._tilt_starts(j, -length, {}) == []
+
+
+def test_the_screen_starts_a_rod_tilt_at_its_offsets_root_of_the_linear_starts_sign():
+    """A screened ``beam_tilt`` (its linearised start meaningless: its column at 0 is l tan gamma0) starts at
+    the root of :meth:`RodModel._tilt_starts` for the same layer's screened offset whose sign is the linear
+    start's, with the offset's base parameters; with no offset screened for its layer, at gamma = 0.
+    """
+    from borescan.discrepancy.examine import discrepancy_settings, model_of
+    from borescan.discrepancy.search import Screened
+    from borescan.discrepancy.tri import Term
+    from borescan.synthetic import contract as sct
+    from borescan.synthetic import rod_scenarios as rs
+
+    sim = rs.draw_rod_scan(
+        np.random.default_rng(4), scan_id="T", night="2027-01-01", contract=dict(sct.ROD_CONTRACT)
+    )
+    model = model_of(sim, **discrepancy_settings())
+    tilt1, tilt2 = (Term("beam_tilt", c, device="rod") for c in (1, 2))
+    offset1 = Term("sensor_offset", 1, device="rod")
+    screen = [
+        Screened(1.0, tilt1, {"alpha[1]": 0.1, "beam_tilt@1.gamma_rad": 6006.0}),
+        Screened(2.0, offset1, {"alpha[1]": 0.2, "sensor_offset@1.b_mm": 0.03}),
+        Screened(3.0, tilt2, {"alpha[1]": 0.3, "beam_tilt@2.gamma_rad": -5.0}),
+    ]
+    settled = model.settle_screen(screen)
+    assert [z.term.key for z in settled] == ["beam_tilt@1", "sensor_offset@1", "beam_tilt@2"]
+    roots = [st["beam_tilt@1.gamma_rad"] for _, _, st in model._tilt_starts(0, 0.03, {})]
+    (positive,) = [g for g in roots if g > 0]
+    assert settled[0].start == {"alpha[1]": 0.2, "beam_tilt@1.gamma_rad": positive}
+    assert settled[1] == screen[1]
+    assert settled[2].start == {"alpha[1]": 0.3, "beam_tilt@2.gamma_rad": 0.0}

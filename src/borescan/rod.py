@@ -202,6 +202,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     max_deflection_rad: float = _Limits.max_deflection_rad,
     coaxiality_mm: float | None = None,
     centred: str = "refuse",
+    nfev_per_par: int = 100,
 ) -> RodSolution:
     r"""Solve the exact rod model (spec "Measuring rod"; Wang 2017 Eq. 16 generalised) jointly.
 
@@ -222,6 +223,8 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
         The data cannot tell a centred rod (angles undetermined, r = mean l) from an eccentric
         rod with all poses at one angle (r undetermined); "mean" asserts the poses were spread
         around the circle and returns r_m = mean_n l_nm, u = sigma / sqrt(n_m)
+    nfev_per_par : each LM of the multi-start stops after this many evaluations per unknown (a start's
+        budget where the minimum need not be reached exactly)
     max_condition : refuse when the column-scaled Jacobian is worse conditioned than this
     max_u_ratio : refuse when some u(r_m) with omega held exceeds this multiple of
         sigma / sqrt(n_m), the uncertainty of a centred rod's mean reading
@@ -261,7 +264,7 @@ def solve_rod(  # noqa: C901 (input checks and one branch per deflection option)
     V = L - l0
     prob = _RodProblem(V, mask, lays, fix_pose, defl)
     starts: list = []
-    p, cost, nfev = _solve_core(prob, L, mask, [a0, -a0], defl, starts)
+    p, cost, nfev = _solve_core(prob, L, mask, [a0, -a0], defl, starts, nfev_per_par)
     lim = _Limits(
         u_reading_mm,
         deflection,

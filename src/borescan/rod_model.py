@@ -171,7 +171,7 @@ def _w_of_beta(b, w_ref):
     return np.array([z.real, z.imag])
 
 
-def _lm(prob, p0, n_par, tol: float = 1e-14):
+def _lm(prob, p0, n_par, tol: float = 1e-14, nfev_per_par: int = 100):
     sol = least_squares(
         prob.residual,
         p0,
@@ -181,7 +181,7 @@ def _lm(prob, p0, n_par, tol: float = 1e-14):
         xtol=tol,
         ftol=tol,
         gtol=tol,
-        max_nfev=100 * n_par,
+        max_nfev=nfev_per_par * n_par,
     )
     return sol.x, float(sol.fun @ sol.fun), int(sol.nfev)
 
@@ -194,7 +194,7 @@ _MAX_START_RAD = 0.1
 _POSE_GRID = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 
 
-def _repair_poses(prob, p, max_rounds: int = 3):
+def _repair_poses(prob, p, max_rounds: int = 3, nfev_per_par: int = 100):
     """Repair the pose angles by a per-pose profile.
 
     Per-pose angle profile: with the holes and the axis held, each pose angle is searched on a
@@ -222,7 +222,8 @@ def _repair_poses(prob, p, max_rounds: int = 3):
         alpha = alpha.copy()
         alpha[move] = _POSE_GRID[k[move]]
         try:
-            p1, cost1, kf = _lm(prob, prob.pack(rho, c, alpha, w if prob.deflection else None), prob.n_par)
+            p0 = prob.pack(rho, c, alpha, w if prob.deflection else None)
+            p1, cost1, kf = _lm(prob, p0, prob.n_par, 1e-14, nfev_per_par)
         except ValueError:
             break
         nfev += kf
@@ -233,22 +234,24 @@ def _repair_poses(prob, p, max_rounds: int = 3):
 
 
 def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and repairs)
-    prob, L, mask, starts_alpha, deflection, minima: list | None = None
+    prob, L, mask, starts_alpha, deflection, minima: list | None = None, nfev_per_par: int = 100
 ):
     """Run the multi-start LM of the rod solve.
 
     Multi-start LM: every start (both reflections) first without deflection, then from the
     closed-form deflection start +-sqrt(beta_lin) (a Gauss-Newton step in beta at w = 0); the
     lowest cost wins, then the per-pose angle profile (:func:`_repair_poses`). ``minima``: when
-    given, every start's LM minimum (p, cost) is appended to it (:mod:`borescan.rod_minima`).
+    given, every start's LM minimum (p, cost) is appended to it (:mod:`borescan.rod_minima`). Each LM
+    stops after ``nfev_per_par`` evaluations per parameter (a start's budget; a solve's default 100).
     """
+    kw = {"tol": 1e-14, "nfev_per_par": nfev_per_par}
     best, nfev = None, 0
     flat = _RodProblem(prob.V, mask, prob.layers, prob.fix, False)
     for alpha0 in starts_alpha:
         r0, c0 = _linear_start(L, mask, alpha0, prob.layers)
-        p, cost, k = _lm(flat, flat.pack(r0, c0, alpha0), flat.n_par)
+        p, cost, k = _lm(flat, flat.pack(r0, c0, alpha0), flat.n_par, **kw)
         nfev += k
-        p, cost, k = _repair_poses(flat, p)
+        p, cost, k = _repair_poses(flat, p, nfev_per_par=nfev_per_par)
         nfev += k
         cand = [(p, cost)]
         if deflection:
@@ -266,7 +269,7 @@ def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and r
             cand = [(full, float(prob.residual(full) @ prob.residual(full)))]
             for sgn in (1.0, -1.0):
                 try:
-                    p1, cost1, k = _lm(prob, prob.pack(rho, c, alpha, sgn * w0), prob.n_par)
+                    p1, cost1, k = _lm(prob, prob.pack(rho, c, alpha, sgn * w0), prob.n_par, **kw)
                 except ValueError:  # the start puts a beam outside its hole
                     continue
                 nfev += k
@@ -281,7 +284,7 @@ def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and r
     p, cost = best
     if deflection:
         try:
-            p1, cost1, k = _repair_poses(prob, p)
+            p1, cost1, k = _repair_poses(prob, p, nfev_per_par=nfev_per_par)
             nfev += k
             if cost1 < cost and np.hypot(*prob.unpack(p1)[3]) <= _MAX_START_RAD:
                 p, cost = p1, cost1

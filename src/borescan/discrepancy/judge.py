@@ -183,7 +183,7 @@ def unphysical(cand: Candidate) -> str | None:
     """Return why a fit needs a value more than two standard uncertainties outside its registry bounds."""
     v, u = cand.fit.values(), cand.fit.uncertainties()
     for t in cand.terms:
-        for q in EFFECTS[t.effect].fit:
+        for q in EFFECTS[t.effect].fit_params(t.device):
             n = f"{t.key}.{q.name}"
             if v[n] < q.lower - BOUND_SIGMAS * u[n] or v[n] > q.upper + BOUND_SIGMAS * u[n]:
                 return (

@@ -29,6 +29,7 @@ says "ambiguous" and lists them.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -48,6 +49,12 @@ __all__ = ["PoseData", "RodModel", "StaticModel", "pose_data_from_arrays"]
 LOOKALIKE_TERMS = ("sensor_offset", "sensor_gain", "sensor_nonlinearity", "beam_tilt")
 #: a static set's zero members, refitted together (:meth:`StaticModel.extra_starts`)
 ZERO_MEMBERS = ("sensor_offset", "thermal_expansion")
+#: evaluations per unknown of each LM of the pose-means solve that starts a rod's base fit
+#: (``rod.solve_rod``'s ``nfev_per_par``; a solve's own is 100): a start, finished by the base fit.
+#: On a part whose deflection the poses do not separate from the radii (condition ~1e8) every LM
+#: crawled to 100 per unknown (rod 284 of the battery, seed 2: 6 LMs of 2700 evaluations, 14 of the
+#: examination's 15 CPU s)
+START_NFEV_PER_PAR = 10
 #: degrees of freedom of a MAD noise estimate per difference (its asymptotic efficiency, Gaussian noise)
 MAD_DOF_PER_DIFF = 0.37
 
@@ -210,6 +217,13 @@ class RodModel(_PoseModel):
     device_type = "rod"
     base_description = "device.nominal layers (l0, phi, d, gamma), feature nominal radii"
     scan_kind = "rod"
+    #: the search's base fit gets its larger budget and a capped candidate fit is refitted from
+    #: :meth:`base_start` (``search.Fitter``): the pose angles, centres and deflection mimic an effect along a
+    #: long valley, where a base fit stopped at 60 evaluations is far from its minimum and a candidate from
+    #: there does not land (battery seed 2 rod 282, a gain of layer 1: the base 30312 sigma^2 at 60
+    #: evaluations, 18541 at its minimum after 868; the gain from the base fit stopped at 2449-6883, from
+    #: the pose-means start at the noise, 1562, in 26)
+    flat_valley = True
 
     def __init__(self, data: PoseData):
         super().__init__(data)
@@ -240,6 +254,7 @@ class RodModel(_PoseModel):
         #: layers whose hole radius is a free base parameter (no certified diameter: it is the measurand)
         self.radius_free = np.array(free)
         self.n_pose = len(data.poses)
+        self._start: dict[str, float] | None = None
         #: the rod's model (:mod:`borescan.physics.rod`), the digital twin's
         self.device = RodDevice(tuple(self.layers()), data.cte_per_k or 0.0, tuple(data.range_mm))
 
@@ -268,8 +283,15 @@ class RodModel(_PoseModel):
         """Return the rod model's start from the pose means.
 
         Pose means solved by ``rod.solve_rod`` (deflection free, maximum likelihood); on refusal
-        the closed-form Eq. 16 start with w = 0.
+        the closed-form Eq. 16 start with w = 0. Solved once (the pose means do not change); a copy
+        is returned.
         """
+        if self._start is None:
+            self._start = self._pose_means_start()
+        return dict(self._start)
+
+    def _pose_means_start(self) -> dict[str, float]:
+        """Return :meth:`base_start`'s start, solved from the pose means."""
         from borescan.rod import RodSolveError, solve_rod
         from borescan.rod_eq16 import rod_start
 
@@ -283,7 +305,12 @@ class RodModel(_PoseModel):
         w = np.zeros(2)
         try:
             sol = solve_rod(
-                V, layers=self.layers(), deflection="mle", max_deflection_ratio=np.inf, max_u_ratio=np.inf
+                V,
+                layers=self.layers(),
+                deflection="mle",
+                max_deflection_ratio=np.inf,
+                max_u_ratio=np.inf,
+                nfev_per_par=START_NFEV_PER_PAR,
             )
             a = np.nan_to_num(sol.alpha_rad)
             c, w, r = sol.center_xy_mm, sol.deflection_xy_rad, sol.radius_mm
@@ -386,10 +413,59 @@ class RodModel(_PoseModel):
             b = z[2][f"{t.key}.b_mm"]
             st = {k: v for k, v in z[2].items() if not k.startswith(t.key)}
             st[f"beam_offset@{t.channel}.d_mm"] = math.sqrt(2.0 * self.radius[j] * max(abs(b), 1e-6))
-            out.append((0.0, Term("beam_offset", t.channel), st))
+            out.append((0.0, Term("beam_offset", t.channel, device=self.device_type), st))
+            out += self._tilt_starts(j, b, st)
         if t1 is None and any(z[1].effect == "thermal_expansion" for z in screen):
             out += self._thermal_start()
         return out
+
+    def settle_screen(self, screen: list) -> list:
+        """Return the linear screen with each layer's ``beam_tilt`` started where it lengthens as its offset.
+
+        At gamma = 0 a tilt's column is about l tan(gamma0), near zero, so its linearised start is
+        meaningless (6006 rad on rod 284 of the battery, seed 2, as the second term of a pair). It is
+        replaced by the root of :meth:`_tilt_starts` for the same layer's screened offset whose sign is the
+        linear start's, with that offset's base parameters; gamma = 0 where the screen has no such offset or
+        no tilt lengthens that much.
+        """
+        offsets = {z.term.channel: z for z in screen if z.term.effect == "sensor_offset"}
+        out = []
+        for z in screen:
+            if z.term.effect == "beam_tilt" and z.term.channel not in (None, 0):
+                name = f"{z.term.key}.gamma_rad"
+                start = {**z.start, name: 0.0}
+                off = offsets.get(z.term.channel)
+                if off is not None:
+                    key = f"{off.term.key}.b_mm"
+                    base = {k: v for k, v in off.start.items() if k != key}
+                    j = self.data.channels.index(z.term.channel)
+                    roots = [st for _, _, st in self._tilt_starts(j, off.start[key], base)]
+                    same = [st for st in roots if (st[name] > 0) == (z.start[name] > 0)]
+                    start = (same or roots or [start])[0]
+                z = replace(z, start=start)
+            out.append(z)
+        return out
+
+    def _tilt_starts(self, j: int, b_mm: float, start: dict) -> list[tuple]:
+        """Return ``beam_tilt`` starts of layer ``j`` that lengthen its readings by the offset's ``b_mm``.
+
+        The tilt gamma adds to the layer's own gamma0 and lengthens the beam l by l (sec(gamma0 + gamma) -
+        sec gamma0): even in gamma0 + gamma, so a fit from gamma = 0 (its column there is l tan gamma0, near
+        zero) may not reach either side, and the base fit has already bent the pose angles and the
+        deflection to absorb part of it (rod 10 of the battery, seed 1). Both roots of
+        sec(gamma0 + gamma) = sec gamma0 + b / l, l the layer's mean beam length, are started, with the base
+        parameters of the offset's screen (``start``); none where b shortens the beam below gamma = -gamma0.
+        """
+        ch = self.data.channels[j]
+        v = self.data.values_mm[:, j]
+        length = float(np.nanmean(v[self.valid[:, j]])) + self.l0[j] if self.valid[:, j].any() else math.nan
+        g0 = float(self.gamma[j])
+        sec = 1.0 / math.cos(g0) + b_mm / length if length > 0 else math.nan
+        if not sec >= 1.0:
+            return []
+        g = math.acos(1.0 / sec)
+        term = Term("beam_tilt", ch, device=self.device_type)
+        return [(0.0, term, {**start, f"beam_tilt@{ch}.gamma_rad": s * g - g0}) for s in (1.0, -1.0)]
 
     def _thermal_start(self) -> list[tuple]:
         """Return the thermal start of :meth:`extra_starts` (empty without a CTE or a certified radius)."""
@@ -401,7 +477,7 @@ class RodModel(_PoseModel):
         if not np.all(np.isfinite(ratio)):
             return []
         st["thermal_expansion.dT"] = float(np.mean(ratio) / cte)
-        return [(0.0, Term("thermal_expansion", None), st)]
+        return [(0.0, Term("thermal_expansion", None, device=self.device_type), st)]
 
 
 # ---------------------------------------------------------------------------- static tri set

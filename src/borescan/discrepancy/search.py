@@ -160,9 +160,9 @@ class Fitter:
         #: the base frees beam geometry (a calibration): fitted in (psi, rho, g) (``TriModel.beams_at``) the
         #: rho/d_b valley of (beta, rho, d_b) is an axis, but a base fit that absorbs a large missing effect
         #: still moves rho by mm to tens of mm, where a candidate's fit may need more evaluations or a start
-        #: nearer the design (the rod and static models' fits are left as they were: their caps are their
-        #: budgets, and a restart there doubled the cost of fits that were not in such a valley)
-        self.flat_valley = bool(getattr(model, "free_beams", ()))
+        #: nearer the design; a rod model has such a valley too (its ``flat_valley``: pose angles, centres and
+        #: deflection); the static model's fits are left as they were (their caps are their budgets)
+        self.flat_valley = bool(getattr(model, "free_beams", ()) or getattr(model, "flat_valley", False))
 
     def __call__(self, terms: list[Term], start: dict[str, float]) -> FitResult | None:
         """Fit base + terms from ``start``; None when the model cannot be fitted.
@@ -240,6 +240,7 @@ def linear_screen(
         for n, s, a in zip(names0 + tn, scales0 + ts, coef):
             start[n] = start[n] + a * s
         out.append(Screened(rss, t, start))
+    out = getattr(model, "settle_screen", list)(out)  # starts a model knows better than the linearisation
     out.sort(key=lambda z: z.rss)
     return out
 

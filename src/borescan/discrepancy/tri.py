@@ -23,14 +23,14 @@ the forward model the digital twin uses.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from borescan.discrepancy.fitting import block_indices, dead_zone, noise_floor_mm, spike_mask
 from borescan.discrepancy.tri_signals import localise, rotation_eps, speeds_differ, tilt_start, vibration_peak
 from borescan.config import schema_default
-from borescan.effects import EFFECTS, Effect, calibration_absorbers, sort_effects
+from borescan.effects import EFFECTS, SCAN_KIND_DEVICE, Effect, calibration_absorbers, sort_effects
 from borescan.geometry import Beams, Bore
 from borescan.kinematics import AngleModel, angle_model_from_arrays
 from borescan.physics.tri_params import moved_beams
@@ -64,13 +64,14 @@ BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dpsi": 1e-4, "dg": 1e-3, "
 class Term:
     """One candidate: a named effect of the spec on one channel (or none) with a harmonic ``k``.
 
-    ``channel=0`` means the same parameter on every channel (the look-alike of
-    ``thermal_expansion`` for ``sensor_offset``).
+    ``channel=0`` means the same parameter on every channel (the look-alike of ``thermal_expansion`` for
+    ``sensor_offset``); ``device``: whose fit parameterisation (registry ``fit_params``; None the default).
     """
 
     effect: str
     channel: int | None = None
     k: int | None = None
+    device: str | None = field(default=None, compare=False, kw_only=True)
 
     @property
     def key(self) -> str:
@@ -84,11 +85,11 @@ class Term:
 
     def names(self) -> list[str]:
         """Prefixed fitted parameter names, e.g. ``bore_lobing[k=3].A`` (registry ``fit``)."""
-        return [f"{self.key}.{q.name}" for q in EFFECTS[self.effect].fit]
+        return [f"{self.key}.{q.name}" for q in EFFECTS[self.effect].fit_params(self.device)]
 
     def scales(self) -> list[float]:
         """Typical magnitudes of :meth:`names` (registry ``fit``)."""
-        return [q.scale for q in EFFECTS[self.effect].fit]
+        return [q.scale for q in EFFECTS[self.effect].fit_params(self.device)]
 
 
 @dataclass
@@ -237,13 +238,12 @@ def tri_data_from_arrays(
 def term_effects(term: Term, p: dict[str, float], channels) -> list[Effect]:
     """Return the spec's effects of a fitted term.
 
-    Return the spec's effects of a fitted term: its fitted values ``p[f"{term.key}.{name}"]``
-    converted by the registry (:meth:`~borescan.effects.EffectSpec.spec_params`); a
-    per-channel term with ``channel`` 0 (or None) is one effect per channel.
+    Its fitted values ``p[f"{term.key}.{name}"]`` converted by the registry for the term's device
+    (:meth:`~borescan.effects.EffectSpec.spec_params`); channel 0 (or None): one effect per channel.
     """
     spec = EFFECTS[term.effect]
-    x = {q.name: p[f"{term.key}.{q.name}"] for q in spec.fit}
-    par, _ = spec.spec_params(x, None, term.k)
+    x = {q.name: p[f"{term.key}.{q.name}"] for q in spec.fit_params(term.device)}
+    par, _ = spec.spec_params(x, None, term.k, term.device)
     if spec.per_channel:
         chans = channels if term.channel in (None, 0) else (term.channel,)
         return [Effect(term.effect, {"channel": c, **par}) for c in chans]
@@ -256,7 +256,7 @@ def term_values(term: Term, effect: Effect) -> dict[str, float]:
     Inverse of :func:`term_effects`: the term's fitted values ``{f"{term.key}.{name}": value}``
     of a spec effect (:meth:`~borescan.effects.EffectSpec.internal`).
     """
-    return {f"{term.key}.{n}": v for n, v in effect.spec.internal(effect.params).items()}
+    return {f"{term.key}.{n}": v for n, v in effect.spec.internal(effect.params, term.device).items()}
 
 
 class TriModel:
@@ -539,11 +539,11 @@ def registry_terms(
         for s in EFFECTS.values()
         if s.candidate.get(scan_kind) == "screen" and all(have.get(n, False) for n in s.needs)
     ]
-    terms = [Term(s.name, c) for s in specs if s.per_channel for c in channels]
-    terms += [Term(s.name, 0) for s in specs if s.per_channel and s.common]
-    for s in specs:
-        if not s.per_channel:
-            terms += [Term(s.name, None, k) for k in range(2, k_max + 1)] if s.harmonic else [Term(s.name)]
+    dev = SCAN_KIND_DEVICE[scan_kind]
+    terms = [Term(s.name, c, device=dev) for s in specs if s.per_channel for c in channels]
+    terms += [Term(s.name, 0, device=dev) for s in specs if s.per_channel and s.common]
+    for s in (s for s in specs if not s.per_channel):
+        terms += [Term(s.name, None, k, device=dev) for k in (range(2, k_max + 1) if s.harmonic else [None])]
 
     def absorbed(t: Term) -> bool:
         common = t.channel in (0, None)
@@ -591,9 +591,9 @@ def term_parameters(
     Return the spec's parameters of a fitted term and their standard uncertainties (the registry's
     :meth:`~borescan.effects.EffectSpec.spec_params`).
     """
-    spec = EFFECTS[term.effect]
-    if not spec.fit:
+    spec, fit = EFFECTS[term.effect], EFFECTS[term.effect].fit_params(term.device)
+    if not fit:
         raise ValueError(f"no parameter conversion for {term.effect!r}")
-    xi = {q.name: x[f"{term.key}.{q.name}"] for q in spec.fit}
-    ui = {q.name: u.get(f"{term.key}.{q.name}", float("nan")) for q in spec.fit}
-    return spec.spec_params(xi, ui, term.k)
+    xi = {q.name: x[f"{term.key}.{q.name}"] for q in fit}
+    ui = {q.name: u.get(f"{term.key}.{q.name}", float("nan")) for q in fit}
+    return spec.spec_params(xi, ui, term.k, term.device)

@@ -38,7 +38,10 @@ parameters, e.g. ``sensor_gain@2.g``). Each spec carries
   with ``to_internal`` / ``from_internal`` beside the effect where they differ from the
   spec's parameters for conditioning (an amplitude and phase as A = a cos(phase),
   B = a sin(phase); ``beam_tilt`` as h = 1 / cos(gamma) - 1; ``axis_tilt`` as
-  p + i q = beta^2 exp(2 i azimuth); ``thermal_expansion`` as dT = T - 20);
+  p + i q = beta^2 exp(2 i azimuth); ``thermal_expansion`` as dT = T - 20), and ``device_fit``
+  where one device fits an effect otherwise (:class:`DeviceFit`: a rod's ``beam_tilt`` is the
+  signed gamma added to its layer's own, not the three-sensor reading's even h; a term takes the
+  parameterisation of its scan kind's device, :data:`SCAN_KIND_DEVICE`);
 - ``absorbed_by``: per scan kind (:data:`SCAN_KINDS`), the base parameters that absorb the
   effect, with the text a finding reports (``"R"``: the bore radius, which absorbs only the
   form common to every channel);
@@ -84,14 +87,24 @@ from borescan.effects.registry import (
     get_effect,
     parse_effect,
 )
-from borescan.effects.spec import SCAN_KINDS, SCOPES, STAGES, EffectSpec, FitParam
+from borescan.effects.spec import (
+    SCAN_KIND_DEVICE,
+    SCAN_KINDS,
+    SCOPES,
+    STAGES,
+    DeviceFit,
+    EffectSpec,
+    FitParam,
+)
 
 __all__ = [
     "DEVICE_MODEL_SCAN_KIND",
     "STAGES",
     "SCAN_KINDS",
+    "SCAN_KIND_DEVICE",
     "SCOPES",
     "FitParam",
+    "DeviceFit",
     "EffectSpec",
     "Effect",
     "EFFECTS",

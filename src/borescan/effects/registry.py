@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from borescan.effects import functions as fx
-from borescan.effects.spec import ROD, TRI, EffectSpec, FitParam
+from borescan.effects.spec import ROD, TRI, DeviceFit, EffectSpec, FitParam
 
 __all__ = [
     "Effect",
@@ -295,6 +295,9 @@ EFFECTS: dict[str, EffectSpec] = {
             fit=(FitParam("h", "-", 1e-4, 0.0),),
             to_internal=fx.beam_tilt_to_internal,
             from_internal=fx.beam_tilt_from_internal,
+            # a rod layer's tilt adds to its own gamma0: the sign matters (first order in gamma0 gamma, and
+            # with the axis deflected), so a rod fits the signed gamma itself
+            device_fit={ROD: DeviceFit((FitParam("gamma_rad", "rad", 1e-2),))},
             candidate=_ALL_KINDS,
             absorbed_by={"rod": {"l0": "l0_mm of the layer (to first order)"}},
             example={"channel": 2, "gamma_rad": 0.06},

@@ -7,13 +7,25 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["STAGES", "TRI", "ROD", "SCAN_KINDS", "SCOPES", "FitParam", "EffectSpec"]
+__all__ = [
+    "STAGES",
+    "TRI",
+    "ROD",
+    "SCAN_KINDS",
+    "SCAN_KIND_DEVICE",
+    "SCOPES",
+    "FitParam",
+    "DeviceFit",
+    "EffectSpec",
+]
 
 STAGES: tuple[str, ...] = ("time_base", "kinematics", "spindle_position", "bore", "beam", "reading", "output")
 TRI = "tri_lds"
 ROD = "rod"
 #: Scan kinds the registry describes absorption and candidacy for.
 SCAN_KINDS: tuple[str, ...] = ("tri_spindle", "tri_static", "rod")
+#: The device type of each scan kind (whose fit parameterisation, ``EffectSpec.fit_params``, its terms take).
+SCAN_KIND_DEVICE: Mapping[str, str] = {"tri_spindle": TRI, "tri_static": TRI, "rod": ROD}
 #: What an effect belongs to when scans are examined together (``EffectSpec.scope``).
 SCOPES: tuple[str, ...] = ("device", "night", "artifact", "scan")
 
@@ -35,6 +47,21 @@ class FitParam:
     scale: float
     lower: float = -math.inf
     upper: float = math.inf
+
+
+@dataclass(frozen=True)
+class DeviceFit:
+    """A device's own fit parameterisation of an effect, where it differs from the effect's ``fit``.
+
+    Attributes
+    ----------
+    fit : the parameters a fit of this device varies.
+    to_internal, from_internal : as :class:`EffectSpec`'s (None: the same names and values).
+    """
+
+    fit: tuple[FitParam, ...]
+    to_internal: Callable[[Mapping[str, float]], dict] | None = None
+    from_internal: Callable[..., tuple[dict, dict]] | None = None
 
 
 @dataclass(frozen=True)
@@ -65,6 +92,9 @@ class EffectSpec:
         report advises it (README "When something needs attention"); "" when no such advice.
     example : sensible parameter values (spec names; channel 2 for channel effects), for tests,
         demos and docs.
+    device_fit : device type -> :class:`DeviceFit`, that device's fit parameterisation where it is not
+        ``fit`` / ``to_internal`` / ``from_internal`` (a rod's ``beam_tilt`` adds a signed gamma to its
+        layer's own, where the three-sensor reading divides by cos gamma, even in gamma).
     """
 
     name: str
@@ -85,6 +115,16 @@ class EffectSpec:
     absorbed_unless: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
     orientation: str | None = None
     separated_by: str = ""
+    device_fit: Mapping[str, DeviceFit] = field(default_factory=dict)
+
+    def _fit_of(self, device: str | None) -> DeviceFit:
+        """Return the fit parameterisation of ``device`` (None: the effect's default)."""
+        own = self.device_fit.get(device) if device is not None else None
+        return own if own is not None else DeviceFit(self.fit, self.to_internal, self.from_internal)
+
+    def fit_params(self, device: str | None = None) -> tuple[FitParam, ...]:
+        """Return the parameters a fit of ``device`` varies (None: the effect's default ``fit``)."""
+        return self._fit_of(device).fit
 
     @property
     def per_channel(self) -> bool:
@@ -96,27 +136,36 @@ class EffectSpec:
         """True when the effect has a whole-number harmonic ``k`` (one term per k)."""
         return "k" in self.params
 
-    def internal(self, params: Mapping[str, float]) -> dict[str, float]:
-        """Return the fit's values ``{fit name: value}`` of the spec's ``params`` (``to_internal``)."""
-        if self.to_internal is not None:
-            return self.to_internal(params)
-        return {q.name: float(params[q.name]) for q in self.fit}
+    def internal(self, params: Mapping[str, float], device: str | None = None) -> dict[str, float]:
+        """Return the fit's values ``{fit name: value}`` of the spec's ``params`` (``to_internal``).
+
+        ``device``: whose parameterisation (:meth:`fit_params`); None the effect's default.
+        """
+        f = self._fit_of(device)
+        if f.to_internal is not None:
+            return f.to_internal(params)
+        return {q.name: float(params[q.name]) for q in f.fit}
 
     def spec_params(
-        self, x: Mapping[str, float], u: Mapping[str, float] | None = None, k: int | None = None
+        self,
+        x: Mapping[str, float],
+        u: Mapping[str, float] | None = None,
+        k: int | None = None,
+        device: str | None = None,
     ) -> tuple[dict[str, Any], dict[str, float]]:
         """Return the spec's parameters of fitted values ``x``.
 
         Return the spec's parameters (and their standard uncertainties when ``u`` is given) of
-        fitted values ``x`` (``{fit name: value}``), clipped to the fit's bounds first;
-        ``channel`` is not included, ``k`` is for harmonic effects.
+        fitted values ``x`` (``{fit name: value}``) of ``device``'s parameterisation (:meth:`fit_params`),
+        clipped to the fit's bounds first; ``channel`` is not included, ``k`` is for harmonic effects.
         """
-        x = {q.name: min(max(float(x[q.name]), q.lower), q.upper) for q in self.fit}
-        if self.from_internal is not None:
-            par, unc = self.from_internal(x, u, k)
+        f = self._fit_of(device)
+        x = {q.name: min(max(float(x[q.name]), q.lower), q.upper) for q in f.fit}
+        if f.from_internal is not None:
+            par, unc = f.from_internal(x, u, k)
         else:
             par = dict(x)
-            unc = {} if u is None else {q.name: u.get(q.name, math.nan) for q in self.fit}
+            unc = {} if u is None else {q.name: u.get(q.name, math.nan) for q in f.fit}
         if self.harmonic:
             par = {"k": k, **par}
         return par, unc
