@@ -751,6 +751,41 @@ def test_control_chart_axis_readable_and_tolerance_label_inside(n):
         assert inside.y0 - 1 <= b.y0 and b.y1 <= inside.y1 + 1, text.get_text()
 
 
+def test_control_chart_marks_every_night_as_matplotlibs_minor_ticks_would():
+    """A month of 1-3 verifications a night: every night's first point gets a tick (labelled every
+    k-th night, a short mark for the others) on both panels, and the marks, one artist a panel, give
+    the very pixels matplotlib's own minor ticks at those nights give (both drawn here).
+    """
+    import datetime as dt
+
+    from matplotlib.lines import TICKDOWN
+
+    per_night = [1 + (k * 5) % 3 for k in range(31)]
+    ver = pl.concat(
+        _verifications(n).with_columns(
+            pl.lit(str(dt.date(2026, 1, 1) + dt.timedelta(days=k))).alias("night"),
+            pl.format("V{}-{}", pl.lit(k), pl.col("scan_id")).alias("scan_id"),
+        )
+        for k, n in enumerate(per_night)
+    )
+    firsts = np.cumsum([0, *per_night[:-1]]).tolist()  # each night's first point, counted independently
+    fig = plot_control_chart(ver, "TRI-01", "RG-275")
+    ax_i, ax_mr = fig.axes
+    labelled = [int(x) for x in ax_mr.get_xticks()]
+    assert len(ax_mr.get_xticklabels()) == len(labelled) <= MAX_TICK_LABELS
+    for ax in (ax_i, ax_mr):
+        (marks,) = [line for line in ax.get_lines() if line.get_marker() == TICKDOWN]
+        assert sorted(labelled + [int(x) for x in marks.get_xdata()]) == firsts
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    ours = np.asarray(canvas.buffer_rgba()).copy()
+    for ax in (ax_i, ax_mr):
+        [line for line in ax.get_lines() if line.get_marker() == TICKDOWN][0].remove()
+    ax_mr.set_xticks(firsts, minor=True)  # matplotlib drops the minor ticks on labelled nights
+    canvas.draw()
+    assert np.array_equal(ours, np.asarray(canvas.buffer_rgba()))
+
+
 def test_device_model_section_shows_pooled_verdicts_device_effects_and_flagged_drift(tmp_path):
     """The pooled examination and calibration drift in words: value ± u, evidence scans, the device
     model's effects apart from named ones, the gap against the noise floor, flagged drifts only.

@@ -5,10 +5,12 @@ from __future__ import annotations
 import io
 import textwrap
 
+import matplotlib as mpl
 import numpy as np
 import polars as pl
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import TICKDOWN, Line2D
 
 from borescan.decision import CANNOT_DECIDE
 from borescan.report.spc import MR_D2, RUN_RULES, control_limits, run_rules
@@ -151,12 +153,40 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
 _LABEL_BOX = {"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.75}
 
 
-def _night_ticks(ax, nights: list, ids: list, most: int = MAX_TICK_LABELS) -> None:
-    """Return the axis ticks that label points by night.
+def _night_marks(axes: list, at: list[int]) -> None:
+    """Mark x positions ``at`` below each of ``axes`` as matplotlib draws a minor x tick there.
 
-    Label points 0..n-1 by night: every point as "night / scan" when there are at most ``most``,
-    else at most ``most`` nights (the first point of every k-th night), a minor tick per night.
+    One artist per axes for all the marks (minor ticks are an artist set each, laid out and drawn
+    one by one): the same marker, size, width and colour as the ``xtick.minor`` style, kept out of
+    the layout as tick marks are.
     """
+    if not at:
+        return
+    for ax in axes:
+        ax.add_artist(
+            Line2D(
+                at,
+                [0.0] * len(at),
+                transform=ax.get_xaxis_transform(),
+                linestyle="none",
+                marker=TICKDOWN,
+                markersize=mpl.rcParams["xtick.minor.size"],
+                markeredgewidth=mpl.rcParams["xtick.minor.width"],
+                color=mpl.rcParams["xtick.color"],
+                markeredgecolor=mpl.rcParams["xtick.color"],
+                clip_on=False,
+                in_layout=False,
+            )
+        )
+
+
+def _night_ticks(axes: list, nights: list, ids: list, most: int = MAX_TICK_LABELS) -> None:
+    """Label points 0..n-1 on the shared x axis of ``axes`` (the last one shows the labels) by night.
+
+    Every point as "night / scan" when there are at most ``most``, else at most ``most`` nights
+    (the first point of every k-th night) and a short mark per night (:func:`_night_marks`).
+    """
+    ax = axes[-1]
     n = len(nights)
     if n <= most:
         _xticks(ax, [f"{'' if d is None else d}\n{i}" for d, i in zip(nights, ids, strict=True)], most)
@@ -166,8 +196,9 @@ def _night_ticks(ax, nights: list, ids: list, most: int = MAX_TICK_LABELS) -> No
     pos = firsts[::step]
     ax.set_xticks(pos)
     ax.set_xticklabels([str(nights[i]) for i in pos], rotation=30, ha="right", fontsize=7)
-    if len(firsts) <= 120:  # a minor tick per night while they stay apart
-        ax.set_xticks(firsts, minor=True)
+    if len(firsts) <= 120:  # a mark per night while they stay apart; a labelled night has its tick
+        labelled = set(pos)
+        _night_marks(axes, [i for i in firsts if i not in labelled])
 
 
 def _moving_range_panel(ax_mr, lim: dict, x: np.ndarray, ms: float, small: bool) -> None:
@@ -334,7 +365,7 @@ def plot_control_chart(  # noqa: C901 (one branch per optional element of the ch
     _moving_range_panel(ax_mr, lim, x, ms, small)
     ax_mr.set_xlim(-0.5, max(df.height - 0.5, 0.5))
     _night_ticks(
-        ax_mr,
+        [ax_i, ax_mr],
         df["night"].cast(pl.Utf8).to_list() if "night" in df.columns else [None] * df.height,
         df["scan_id"].to_list(),
     )
