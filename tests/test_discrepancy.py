@@ -681,3 +681,30 @@ def test_gap_plot_of_a_static_scan_has_no_angle_panel_and_its_title_fits(tmp_pat
     assert title.get_text().count("\n") == 1 and ex.findings["scan_id"] in title.get_text()
     box = title.get_window_extent(fig.canvas.get_renderer())
     assert 0 <= box.x0 and box.x1 <= fig.bbox.x1 and box.y1 <= fig.bbox.y1
+
+
+def test_rounding_of_a_quantised_measurement_is_not_taken_for_outliers():
+    """Issue 35: a measurement quantised to 6 um (noise 4.9 um) was named outliers + quantization on the
+    same channel: the jump test took the rounding's largest residuals for jumps. The truth holds the
+    rounding only, so quantization alone must be named (scan 120 of seed 2's measurement battery).
+    """
+    from borescan.discrepancy.examine import discrepancy_settings
+    from borescan.geometry import Beams
+    from borescan.synthetic import battery as sb
+    from borescan.synthetic import contract as sct
+    from borescan.synthetic import tri_scenarios as ts
+
+    seed, i = 2, 120
+    sid = sb.battery_scan_id(seed, i, "measurement")
+    cal = ts.draw_tri_calibration(
+        sb.battery_rng(seed, i), scan_id=sid, night="2027-01-01", effect_free=True, contract=sct.TRI_CONTRACT
+    )
+    rng = sb.battery_rng(seed + 1000 * sb.BATTERY_KINDS["measurement"][1], i)
+    sim = ts.draw_tri_measurement(
+        rng, scan_id=sid + "M", night="2027-01-01", calibration=cal, effect_free=False
+    )
+    assert [e["name"] if isinstance(e, dict) else e.name for e in sim.truth["effects"]] == ["quantization"]
+    beams = Beams.from_nominal(sim.truth["contract"]["beams"])
+    f = examine_scan(sim, beams=beams, **discrepancy_settings())
+    assert [named_label(n) for n in f["named"]] == ["quantization@1"], f["statement"]
+    assert f["gap_after"]["rms_mm"] <= 1.10 * f["noise_floor_mm"]

@@ -122,8 +122,16 @@ class OutputStage:
 def _outliers(model, r0: np.ndarray, sigma: np.ndarray, false_rate: float, min_spikes: int) -> list[dict]:
     """Find each channel's isolated jumps, mask them in ``model.mask``; their findings (evidence to come)."""
     data = model.data
+    # A quantised channel's readings carry a rounding error of up to lsb / 2 (standard deviation
+    # lsb / sqrt 12) that a noise floor from differences of lattice values underrates: the jump test
+    # adds it, so the rounding's largest residuals are not taken for outliers (issue 35).
+    sig_test = np.array(sigma, dtype=float)
+    for j in range(len(data.channels)):
+        lsb = lattice_lsb(data.values_mm[model.valid[:, j], j])
+        if lsb is not None:
+            sig_test[j] = math.hypot(sig_test[j], lsb / math.sqrt(12.0))
     spikes = model.spike_mask(
-        r0, sigma, k_sigma=outlier_threshold_sigma(int(model.valid.sum(axis=0).max()), false_rate)
+        r0, sig_test, k_sigma=outlier_threshold_sigma(int(model.valid.sum(axis=0).max()), false_rate)
     )
     out = []
     for j, ch in enumerate(data.channels):
