@@ -3,7 +3,7 @@
 ``python -m bench.bench_rod_examination SEED KIND:I ...`` (``OPENBLAS_NUM_THREADS=1``): each draw of the
 contract battery (:mod:`bench.bench_discrepancy_contract`, its first 300 rod draws of ``SEED``, sized the
 same) is examined twice in turn by each behaviour in one process, CPU by ``time.process_time``: "old" holds
-``search.Fitter.stall_bic`` at 0 (one base fit of up to ``BASE_MAX_NFEV`` evaluations, every capped
+``search.Fitter.refit_gain_bic`` at 0 (one base fit of up to ``BASE_MAX_NFEV`` evaluations, every capped
 candidate refitted from the base start), "new" is the examination as shipped. Prints the CPU seconds and
 the verdict and names of each.
 """
@@ -20,10 +20,10 @@ from borescan.discrepancy.search import Fitter
 
 
 class _HeldFitter(Fitter):
-    """The fitter with ``stall_bic`` held at 0 (the behaviour before the rod's stall rule)."""
+    """The fitter with ``refit_gain_bic`` held at 0 (the behaviour before the rod's stall rule)."""
 
     def __setattr__(self, k, v):
-        super().__setattr__(k, 0.0 if k == "stall_bic" else v)
+        super().__setattr__(k, 0.0 if k == "refit_gain_bic" else v)
 
 
 def main(argv: list[str]) -> None:

@@ -163,12 +163,10 @@ class Fitter:
         #: nearer the design; a rod model has such a valley too (its ``flat_valley``: pose angles, centres and
         #: deflection); the static model's fits are left as they were (their caps are their budgets)
         self.flat_valley = bool(getattr(model, "free_beams", ()) or getattr(model, "flat_valley", False))
-        #: BIC a base fit's further 60 evaluations must gain to go on, and by which a capped candidate may
-        #: trail the best converged fit of as many terms and still be refitted from the base's start (the
-        #: examination of a rod sets its decision threshold; 0: one base fit of up to BASE_MAX_NFEV and
-        #: every capped candidate refitted, as for a three-sensor calibration's free beams)
-        self.stall_bic = 0.0
-        self.best_bic: dict[int, float] = {}
+        #: BIC a capped candidate must have gained over the last base fit to be refitted from the base's
+        #: start (the examination of a rod sets its decision threshold; 0: every capped candidate refitted)
+        self.refit_gain_bic = 0.0
+        self.base_bic = math.inf
 
     def __call__(self, terms: list[Term], start: dict[str, float]) -> FitResult | None:
         """Fit base + terms from ``start``; None when the model cannot be fitted.
@@ -182,45 +180,16 @@ class Fitter:
         its cap, while from the base's start it lands in a few (:func:`_restart`).
         """
         if not terms:
-            return self._base_fit(start)
-        fr = self._fit(terms, start)
-        best = self.best_bic.get(len(terms), math.inf)
-        if fr is not None and fr.success:
-            self.best_bic[len(terms)] = min(best, fr.bic)
-        if (
-            fr is None
-            or fr.success
-            or not self.flat_valley
-            or (self.stall_bic > 0 and fr.bic > best + self.stall_bic)
-        ):
+            fr = self._fit(terms, start, BASE_MAX_NFEV if self.flat_valley else 60)
+            self.base_bic = fr.bic if fr is not None else math.inf
             return fr
+        fr = self._fit(terms, start)
+        if fr is None or fr.success or not self.flat_valley:
+            return fr
+        if self.refit_gain_bic > 0.0 and fr.bic > self.base_bic - self.refit_gain_bic:
+            return fr  # capped where it started: it gained nothing over the base (see refit_gain_bic)
         again = self._fit(terms, _restart(start, self.model.base_start(), self.base_names))
-        fr = again if again is not None and again.rss < fr.rss else fr
-        self.best_bic[len(terms)] = min(best, fr.bic)
-        return fr
-
-    def _base_fit(self, start: dict[str, float]) -> FitResult | None:
-        """Fit the base alone: in steps of 60 evaluations up to :data:`BASE_MAX_NFEV` where ``flat_valley``.
-
-        A step follows only while the last one gained at least ``stall_bic`` in BIC: a base crawling along
-        its valley by less than that per 60 evaluations (rod calibration 165 of the battery, seed 2: 300
-        evaluations for 0.4 % of its RSS) is left there, as a capped base that still falls fast is not
-        (rod 282: 30312 -> 18541 sigma^2 over 868 evaluations).
-        """
-        if self.stall_bic <= 0.0:
-            return self._fit([], start, BASE_MAX_NFEV if self.flat_valley else 60)
-        fr = self._fit([], start)
-        used = fr.nfev if fr is not None else 0
-        while self.flat_valley and fr is not None and not fr.success and used < BASE_MAX_NFEV:
-            more = self._fit([], fr.values(), min(60, BASE_MAX_NFEV - used))
-            if more is None:
-                break
-            used += max(more.nfev, 1)
-            gained = fr.bic - more.bic
-            fr = more if more.rss < fr.rss else fr
-            if more.success or gained < self.stall_bic:
-                break
-        return fr
+        return again if again is not None and again.rss < fr.rss else fr
 
     def _fit(self, terms: list[Term], start: dict[str, float], max_nfev: int = 60) -> FitResult | None:
         """Fit base + terms from ``start``, else from the fallback (the base fit, zero effects)."""
