@@ -244,7 +244,6 @@ def examine_model(model, **cfg) -> Examination:
     c = {**DEFAULTS, **cfg}
     data = model.data
     fitter = Fitter(model)
-    fitter.refit_gain_bic = float(c["threshold"]) if getattr(model, "flat_valley", False) else 0.0
     start0 = model.base_start()
     base = fitter([], {n: start0.get(n, 0.0) for n in fitter.base_names})
     if base is None:

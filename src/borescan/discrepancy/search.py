@@ -163,10 +163,6 @@ class Fitter:
         #: nearer the design; a rod model has such a valley too (its ``flat_valley``: pose angles, centres and
         #: deflection); the static model's fits are left as they were (their caps are their budgets)
         self.flat_valley = bool(getattr(model, "free_beams", ()) or getattr(model, "flat_valley", False))
-        #: BIC a capped candidate must have gained over the last base fit to be refitted from the base's
-        #: start (the examination of a rod sets its decision threshold; 0: every capped candidate refitted)
-        self.refit_gain_bic = 0.0
-        self.base_bic = math.inf
 
     def __call__(self, terms: list[Term], start: dict[str, float]) -> FitResult | None:
         """Fit base + terms from ``start``; None when the model cannot be fitted.
@@ -180,14 +176,10 @@ class Fitter:
         its cap, while from the base's start it lands in a few (:func:`_restart`).
         """
         if not terms:
-            fr = self._fit(terms, start, BASE_MAX_NFEV if self.flat_valley else 60)
-            self.base_bic = fr.bic if fr is not None else math.inf
-            return fr
+            return self._fit(terms, start, BASE_MAX_NFEV if self.flat_valley else 60)
         fr = self._fit(terms, start)
         if fr is None or fr.success or not self.flat_valley:
             return fr
-        if self.refit_gain_bic > 0.0 and fr.bic > self.base_bic - self.refit_gain_bic:
-            return fr  # capped where it started: it gained nothing over the base (see refit_gain_bic)
         again = self._fit(terms, _restart(start, self.model.base_start(), self.base_names))
         return again if again is not None and again.rss < fr.rss else fr
 
