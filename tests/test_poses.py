@@ -374,3 +374,38 @@ def test_the_screen_starts_a_rod_tilt_at_its_offsets_root_of_the_linear_starts_s
     assert settled[0].start == {"alpha[1]": 0.2, "beam_tilt@1.gamma_rad": positive}
     assert settled[1] == screen[1]
     assert settled[2].start == {"alpha[1]": 0.3, "beam_tilt@2.gamma_rad": 0.0}
+
+
+def test_a_rod_tilt_is_judged_plausible_on_the_beams_own_angle():
+    """A rod's ``beam_tilt`` gamma adds to its layer's nominal gamma0; the plausible range (|angle| <= 0.1
+    rad, no uncertainty slack here) judges gamma0 + gamma: a fitted gamma just past -0.1 whose beam sits
+    inside is kept (seed 1 rod 10 of the battery: -0.1015 on a beam at -0.096), one whose beam is past it
+    is refused and the sentence gives the beam's angle.
+    """
+    from borescan.discrepancy.examine import discrepancy_settings, model_of
+    from borescan.discrepancy.judge import implausible, plausible_ranges
+    from borescan.discrepancy.search import Candidate
+    from borescan.discrepancy.tri import Term
+    from borescan.fit import FitResult
+    from borescan.synthetic import contract as sct
+    from borescan.synthetic import rod_scenarios as rs
+
+    sim = rs.draw_rod_scan(
+        np.random.default_rng(4), scan_id="T", night="2027-01-01", contract=dict(sct.ROD_CONTRACT)
+    )
+    model = model_of(sim, **discrepancy_settings())
+    g0 = float(model.gamma[0])
+    assert g0 > 1e-4  # the drawn layer has a nominal out-of-plane angle (0.00077 rad)
+    ranges = plausible_ranges()
+    high = ranges["beam_tilt"].high
+    term = Term("beam_tilt", 1, device="rod")
+
+    def candidate(gamma_rad: float) -> Candidate:
+        z = np.zeros((1, 1))
+        fit = FitResult(("beam_tilt@1.gamma_rad",), np.array([gamma_rad]), np.zeros(1), z, z[0], 0.0, 1, 1)
+        return Candidate(fit, (term,))
+
+    assert implausible(model, candidate(-high - 0.5 * g0), ranges) is None
+    why = implausible(model, candidate(high - 0.5 * g0), ranges)  # inside as fitted, its beam past
+    assert why is not None and f"the nominal {g0:.4g} + gamma_rad = {high + 0.5 * g0:.4g}" in why
+    assert model.plausibility_origin(Term("sensor_offset", 1, device="rod"), "b_mm") == 0.0

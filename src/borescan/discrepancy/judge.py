@@ -156,7 +156,11 @@ def _range_of(model, t: Term) -> float | None:
 
 
 def implausible(model, cand: Candidate, ranges: dict[str, PlausibleRange]) -> str | None:
-    """Return the sentence of the first fitted size its plausible range does not admit, or None."""
+    """Return the sentence of the first fitted size its plausible range does not admit, or None.
+
+    The size judged is the fitted value plus the model's ``plausibility_origin`` where it has one (a rod's
+    beam tilt adds to its layer's nominal angle: the beam's own angle is judged).
+    """
     x, u = cand.fit.values(), cand.fit.uncertainties()
     for t in cand.terms:
         pr = ranges.get(t.effect)
@@ -166,6 +170,9 @@ def implausible(model, cand: Candidate, ranges: dict[str, PlausibleRange]) -> st
         if pr.parameter not in par:
             continue
         v, uv = float(par[pr.parameter]), float(unc.get(pr.parameter, math.nan))
+        origin = model.plausibility_origin(t, pr.parameter) if hasattr(model, "plausibility_origin") else 0.0
+        v += origin
+        name = pr.parameter if origin == 0.0 else f"the nominal {origin:.4g} + {pr.parameter}"
         range_mm = _range_of(model, t)
         if pr.per_range and range_mm is None:
             continue  # a limit in sensor ranges with no range known: not judged
@@ -173,7 +180,7 @@ def implausible(model, cand: Candidate, ranges: dict[str, PlausibleRange]) -> st
             lo, hi = pr.bounds(range_mm)
             unit = EFFECTS[t.effect].params.get(pr.parameter, "")
             return (
-                f"explained only by {t.effect}{_where(t)} with {pr.parameter} = {v:.4g} +- {uv:.2g} {unit}, "
+                f"explained only by {t.effect}{_where(t)} with {name} = {v:.4g} +- {uv:.2g} {unit}, "
                 f"outside the plausible {lo:.4g} to {hi:.4g} {unit}: {pr.reason}"
             )
     return None

@@ -467,6 +467,17 @@ class RodModel(_PoseModel):
         term = Term("beam_tilt", ch, device=self.device_type)
         return [(0.0, term, {**start, f"beam_tilt@{ch}.gamma_rad": s * g - g0}) for s in (1.0, -1.0)]
 
+    def plausibility_origin(self, t: Term, parameter: str) -> float:
+        """Return what a fitted size is added to before its plausible range judges it (``judge.implausible``).
+
+        A rod's ``beam_tilt`` gamma adds to its layer's nominal out-of-plane angle gamma0, so the beam's
+        angle gamma0 + gamma is judged (seed 1 rod 10 of the battery: the mirror root gamma = -0.1015 is a
+        beam at -0.096 rad, inside 0.1); every other size is judged as fitted (0).
+        """
+        if t.effect == "beam_tilt" and parameter == "gamma_rad" and t.channel in self.data.channels:
+            return float(self.gamma[self.data.channels.index(t.channel)])
+        return 0.0
+
     def _thermal_start(self) -> list[tuple]:
         """Return the thermal start of :meth:`extra_starts` (empty without a CTE or a certified radius)."""
         cte, fixed = self.data.cte_per_k, ~self.radius_free
