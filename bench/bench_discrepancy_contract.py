@@ -430,12 +430,25 @@ def _implausible_named(f: dict, sim) -> tuple[int, int]:
             continue
         range_mm = rng_mm.get(n.get("channel") or 0, min(rng_mm.values(), default=10.0))
         lo, hi = pr.bounds(range_mm)
-        v = n["parameters"][pr.parameter]
+        v = n["parameters"][pr.parameter] + _beam_angle_origin(n, sim)
         u = (n.get("uncertainties") or {}).get(f"u_{pr.parameter}") or 0.0
         if not lo <= v <= hi:
             far = not pr.admits(v, u, range_mm)
             beyond, within = beyond + far, within + (not far)
     return beyond, within
+
+
+def _beam_angle_origin(n: dict, sim) -> float:
+    """Return a rod beam tilt's layer angle gamma0 (``device.nominal.layers``), 0 for anything else.
+
+    A rod's ``beam_tilt`` gamma adds to its layer's design out-of-plane angle, so the beam's angle
+    gamma0 + gamma is what the plausible range judges (the workflow's ``RodModel.plausibility_origin``).
+    """
+    if n["effect"] != "beam_tilt" or (sim.meta.get("device") or {}).get("type") != "rod":
+        return 0.0
+    layers = ((sim.meta.get("device") or {}).get("nominal") or {}).get("layers") or []
+    gamma0 = {int(lay["channel"]): float(lay.get("gamma") or 0.0) for lay in layers}
+    return gamma0.get(int(n.get("channel") or 0), 0.0)
 
 
 def _score(f, named, truth, effects, clean, kw, cfg, sigma, z) -> tuple[bool, dict]:
