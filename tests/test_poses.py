@@ -181,6 +181,28 @@ def test_a_pair_of_a_static_set_is_named_together_and_is_no_class():
     assert " together with " in f["statement"] and "look alike" not in f["statement"]
 
 
+def _rod_scan_and_model(
+    seed: int, scan_id: str, *effects, noise_free: bool = False, calibration: bool = False
+):
+    """Return a rod scan drawn over the contract (night 2027-01-01, ``effects`` added, noise-free when asked)
+    and the examination's model of it.
+    """
+    from borescan.discrepancy.examine import discrepancy_settings, model_of
+    from borescan.synthetic import contract as sct
+    from borescan.synthetic import rod_scenarios as rs
+
+    contract = dict(sct.ROD_CONTRACT, noise_mm=(0.0, 0.0)) if noise_free else dict(sct.ROD_CONTRACT)
+    sim = rs.draw_rod_scan(
+        np.random.default_rng(seed),
+        scan_id=scan_id,
+        night="2027-01-01",
+        contract=contract,
+        extra_effects=tuple(effects),
+        calibration=calibration,
+    )
+    return sim, model_of(sim, **discrepancy_settings())
+
+
 def _true_rod_base(model, sim) -> dict:
     """Return the rod model's base parameters of a simulated scan's truth.
 
@@ -220,22 +242,12 @@ def test_rod_model_at_the_true_geometry_and_temperature_is_the_simulated_thermal
     parameters and the true dT the model's readings are the scan's to below 1e-3 of the contract's
     smallest noise (2 um); without the term they are not (the cte dT R of each hole is left).
     """
-    from borescan.discrepancy.examine import discrepancy_settings, model_of
     from borescan.discrepancy.tri import Term, term_values
     from borescan.effects import Effect
     from borescan.synthetic import contract as sct
-    from borescan.synthetic import rod_scenarios as rs
 
     effect = Effect("thermal_expansion", {"temperature_c": 30.0})
-    sim = rs.draw_rod_scan(
-        np.random.default_rng(seed),
-        scan_id="THERMAL",
-        night="2027-01-01",
-        contract=dict(sct.ROD_CONTRACT, noise_mm=(0.0, 0.0)),
-        extra_effects=(effect,),
-        calibration=calibration,
-    )
-    model = model_of(sim, **discrepancy_settings())
+    sim, model = _rod_scan_and_model(seed, "THERMAL", effect, noise_free=True, calibration=calibration)
     assert model.radius_free.all() == (sim.truth["contract"]["artifact"] == "part")
     p = _true_rod_base(model, sim)
     term = Term("thermal_expansion", None)
@@ -253,20 +265,13 @@ def test_thermal_start_of_a_ring_gauge_rod_lands_on_the_true_temperature():
     contract's smallest noise (2 um) with dT within 0.01 K (the truth is a zero of the model: the parity
     test above).
     """
-    from borescan.discrepancy.examine import discrepancy_settings, model_of
     from borescan.discrepancy.search import Fitter
     from borescan.effects import Effect
     from borescan.synthetic import contract as sct
-    from borescan.synthetic import rod_scenarios as rs
 
-    sim = rs.draw_rod_scan(
-        np.random.default_rng(4),
-        scan_id="COLD",
-        night="2027-01-01",
-        contract=dict(sct.ROD_CONTRACT, noise_mm=(0.0, 0.0)),
-        extra_effects=(Effect("thermal_expansion", {"temperature_c": 6.75}),),
+    _, model = _rod_scan_and_model(
+        4, "COLD", Effect("thermal_expansion", {"temperature_c": 6.75}), noise_free=True
     )
-    model = model_of(sim, **discrepancy_settings())
     assert not model.radius_free.any()
     ((_, term, start),) = model._thermal_start()
     assert abs(start["thermal_expansion.dT"] + 13.25) < 0.1
@@ -287,21 +292,12 @@ def test_rod_model_with_the_true_signed_beam_tilt_is_the_simulated_scan(seed, ga
     parameterisation (h = 1 / cos(gamma) - 1, even in gamma) cannot: for -0.09 it adds +0.09 to gamma0, and
     leaves more than 10 um rms (0.05-0.07 mm measured).
     """
-    from borescan.discrepancy.examine import discrepancy_settings, model_of
     from borescan.discrepancy.tri import Term, term_values
     from borescan.effects import Effect
     from borescan.synthetic import contract as sct
-    from borescan.synthetic import rod_scenarios as rs
 
     effect = Effect("beam_tilt", {"channel": 1, "gamma_rad": gamma_rad})
-    sim = rs.draw_rod_scan(
-        np.random.default_rng(seed),
-        scan_id="TILT",
-        night="2027-01-01",
-        contract=dict(sct.ROD_CONTRACT, noise_mm=(0.0, 0.0)),
-        extra_effects=(effect,),
-    )
-    model = model_of(sim, **discrepancy_settings())
+    sim, model = _rod_scan_and_model(seed, "TILT", effect, noise_free=True)
     (term,) = [t for t in model.candidate_terms() if t.key == "beam_tilt@1"]
     values = term_values(term, effect)
     assert values == {"beam_tilt@1.gamma_rad": pytest.approx(gamma_rad, abs=1e-15)}
@@ -323,14 +319,7 @@ def test_tilt_starts_are_both_roots_of_the_offsets_lengthening():
     """
     import math
 
-    from borescan.discrepancy.examine import discrepancy_settings, model_of
-    from borescan.synthetic import contract as sct
-    from borescan.synthetic import rod_scenarios as rs
-
-    sim = rs.draw_rod_scan(
-        np.random.default_rng(4), scan_id="T", night="2027-01-01", contract=dict(sct.ROD_CONTRACT)
-    )
-    model = model_of(sim, **discrepancy_settings())
+    _, model = _rod_scan_and_model(4, "T")
     j, b_mm = 0, 0.05
     starts = model._tilt_starts(j, b_mm, {"alpha[1]": 0.25})
     assert len(starts) == 2
@@ -350,16 +339,10 @@ def test_the_screen_starts_a_rod_tilt_at_its_offsets_root_of_the_linear_starts_s
     the root of :meth:`RodModel._tilt_starts` for the same layer's screened offset whose sign is the linear
     start's, with the offset's base parameters; with no offset screened for its layer, at gamma = 0.
     """
-    from borescan.discrepancy.examine import discrepancy_settings, model_of
     from borescan.discrepancy.search import Screened
     from borescan.discrepancy.tri import Term
-    from borescan.synthetic import contract as sct
-    from borescan.synthetic import rod_scenarios as rs
 
-    sim = rs.draw_rod_scan(
-        np.random.default_rng(4), scan_id="T", night="2027-01-01", contract=dict(sct.ROD_CONTRACT)
-    )
-    model = model_of(sim, **discrepancy_settings())
+    _, model = _rod_scan_and_model(4, "T")
     tilt1, tilt2 = (Term("beam_tilt", c, device="rod") for c in (1, 2))
     offset1 = Term("sensor_offset", 1, device="rod")
     screen = [
@@ -382,18 +365,12 @@ def test_a_rod_tilt_is_judged_plausible_on_the_beams_own_angle():
     inside is kept (seed 1 rod 10 of the battery: -0.1015 on a beam at -0.096), one whose beam is past it
     is refused and the sentence gives the beam's angle.
     """
-    from borescan.discrepancy.examine import discrepancy_settings, model_of
     from borescan.discrepancy.judge import implausible, plausible_ranges
     from borescan.discrepancy.search import Candidate
     from borescan.discrepancy.tri import Term
     from borescan.fit import FitResult
-    from borescan.synthetic import contract as sct
-    from borescan.synthetic import rod_scenarios as rs
 
-    sim = rs.draw_rod_scan(
-        np.random.default_rng(4), scan_id="T", night="2027-01-01", contract=dict(sct.ROD_CONTRACT)
-    )
-    model = model_of(sim, **discrepancy_settings())
+    _, model = _rod_scan_and_model(4, "T")
     g0 = float(model.gamma[0])
     assert g0 > 1e-4  # the drawn layer has a nominal out-of-plane angle (0.00077 rad)
     ranges = plausible_ranges()
