@@ -37,6 +37,16 @@ def _labels(df: pl.DataFrame, id_col: str = "scan_id") -> list[str]:
 MAX_TICK_LABELS = 8
 
 
+#: More points than this on a panel are drawn small, without caps and with thin lines (their
+#: error bars' caps would merge).
+_DENSE_POINTS = 30
+
+
+#: Error bars of a few points, and of more than :data:`_DENSE_POINTS`.
+_POINT_STYLE = {"ms": 4, "capsize": 3}
+_DENSE_STYLE = {"ms": 2.5, "capsize": 0, "lw": 0.8, "elinewidth": 0.8}
+
+
 #: Width of one character of a 7 pt tick label [in], with room between labels (DejaVu Sans averages
 #: about 0.55 em a character).
 _CHAR_WIDTH_IN = 0.075
@@ -67,12 +77,35 @@ def _held(df: pl.DataFrame, p: str, up: str) -> bool:
     return bool((per_channel["n"] == 1).all()) and not u
 
 
+#: Labelled calibrations on a trend panel (3.2 in: a few two-line labels).
+_TREND_LABELS = 4
+
+
+def _trend_xaxis(axes, used: set, labels: list[str], nights: list[str], ids: list[str]) -> None:
+    """Label the shared x axis of a trend grid on its bottom panels; hide the unused panels.
+
+    Up to :data:`_TREND_LABELS` calibrations each as "night / scan" (a 3.2 in panel holds a few
+    two-line labels), more by night as the control charts (:func:`_night_ticks`).
+    """
+    for i, row in enumerate(axes):
+        for j, ax in enumerate(row):
+            if (i, j) not in used:
+                ax.set_visible(False)
+                continue
+            if len(labels) <= _TREND_LABELS:
+                _xticks(ax, labels, most=_TREND_LABELS)
+            else:
+                _night_ticks([ax], nights, ids, most=_TREND_LABELS)
+            ax.tick_params(axis="x", labelbottom=i == len(axes) - 1 or (i + 1, j) not in used)
+
+
 def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
     """Calibration parameters of one device over its calibrations, one panel per parameter and channel.
 
     ``cal`` has the ``calibrations`` columns; rows of other devices are ignored. Error bars are
     U (k=2) = 2·u of the standard uncertainties where present. The x axis lists the calibrations in
-    ``valid_from`` order, labelled with night and calibration scan.
+    ``valid_from`` order, labelled with night and calibration scan; beyond four calibrations by
+    night (thinned, a mark per night), and beyond 30 drawn small, without caps.
     """
     df = cal.filter(pl.col("device_id") == device_id).sort("valid_from", "calibration_id", "channel")
     present = [p for p in TRI_PARAMS + ROD_PARAMS if p[0] in df.columns and df[p[0]].drop_nulls().len() > 0]
@@ -88,6 +121,7 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
     design = (
         set(df.filter(pl.col("method") == "nominal")["calibration_id"]) if "method" in df.columns else set()
     )
+    nights = [str(v) for v in cal_order["valid_from"].to_list()]
     labels = [
         f"{v}\n{'design geometry' if c in design else s}"
         for v, s, c in zip(
@@ -104,6 +138,7 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
     else:
         nr, nc = max(len(params), 1), len(channels)
         cells = [(i, j, p, ch) for i, p in enumerate(params) for j, ch in enumerate(channels)]
+    dense = len(labels) > _DENSE_POINTS
     fig = Figure(figsize=(3.2 * nc + 1.0, 2.2 * nr + 1.0), layout="constrained")
     axes = fig.subplots(nr, nc, squeeze=False, sharex=True)
     used = set()
@@ -114,7 +149,7 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
         x = [pos[c] for c in sub["calibration_id"].to_list()]
         y = sub[p].to_numpy()
         err = 2.0 * sub[up].fill_null(0.0).to_numpy() if up in sub.columns else None
-        ax.errorbar(x, y, yerr=err, fmt="o-", ms=4, capsize=3, color="C0")
+        ax.errorbar(x, y, yerr=err, fmt="o-", color="C0", **(_DENSE_STYLE if dense else _POINT_STYLE))
         ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         ax.grid(alpha=0.3)
         if len(channels) <= 1:
@@ -124,13 +159,7 @@ def plot_calibration_trends(cal: pl.DataFrame, device_id: str) -> Figure:
         if j == 0 or len(channels) <= 1:
             ax.set_ylabel(p, fontsize=8)
         ax.tick_params(axis="y", labelsize=7)
-    for i in range(nr):
-        for j in range(nc):
-            if (i, j) not in used:
-                axes[i][j].set_visible(False)
-            else:
-                _xticks(axes[i][j], labels, most=4)  # a 3.2 in panel holds a few two-line labels
-                axes[i][j].tick_params(axis="x", labelbottom=i == nr - 1 or (i + 1, j) not in used)
+    _trend_xaxis(axes, used, labels, nights, cal_order["scan_id"].to_list())
     values = "; ".join(
         f"{p} " + ", ".join(f"{df.filter(pl.col('channel') == ch)[p].drop_nulls()[0]:g}" for ch in channels)
         for p in held
@@ -388,6 +417,10 @@ def _part_values(df: pl.DataFrame) -> tuple[np.ndarray, np.ndarray, bool]:
     return d.fill_null(float("nan")).to_numpy(), 2.0 * u.fill_null(0.0).to_numpy(), at20
 
 
+#: A part's panel: width per measurement [in] and the figure's widest [in].
+_PART_POINT_IN, _PART_MAX_IN = 0.06, 8.0
+
+
 def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
     """Diameters of one part, one panel per feature: each scan with U (k=2) error bars, mean line.
 
@@ -395,14 +428,18 @@ def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
     (``diameter_20_mm``, ``u_diameter_20_mm``) where every row has them, else as measured; error
     bars U = 2u. The nominal (``nominal_mm``, see :func:`update_report`) is a dashed line and the
     tolerance band (``tolerance_mm``) shaded where known. The x axis is the measurement order,
-    labelled with night and scan.
+    labelled with night and scan; beyond :data:`MAX_TICK_LABELS` measurements by night (thinned, a
+    mark per night, as the control charts).
     """
     df = dia.filter(pl.col("artifact_id") == artifact_id)
     features = sorted(df["feature"].fill_null("").unique().to_list())
     nc = min(len(features), 3) or 1
     nr = -(-max(len(features), 1) // nc)
     most = max([df.filter(pl.col("feature").fill_null("") == f).height for f in features] + [1])
-    panel_w = min(max(3.8, 0.42 * most), 12.0 / nc)
+    # a few points: room for every "night / scan" label; more: labelled by night (thinned), so the
+    # width follows the points up to a page's width, and dense points lose their caps
+    panel_w = min(max(3.8, _PART_POINT_IN * most), max(3.8, _PART_MAX_IN / nc))
+    style = _DENSE_STYLE if most > _DENSE_POINTS else _POINT_STYLE
     fig = Figure(figsize=(panel_w * nc + 0.8, 3.2 * nr + 0.8), layout="constrained")
     axes = fig.subplots(nr, nc, squeeze=False)
     where = "as measured"
@@ -412,7 +449,7 @@ def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
         y, big_u, at20 = _part_values(sub)
         where = "at 20 °C" if at20 else where
         x = np.arange(sub.height)
-        ax.errorbar(x, y, yerr=big_u, fmt="o", ms=4, capsize=3, color="C0", label="U (k=2)")
+        ax.errorbar(x, y, yerr=big_u, fmt="o", color="C0", label="U (k=2)", **style)
         if sub.height:
             ax.axhline(float(np.nanmean(y)), color="k", lw=0.8, label="mean")
         nom = (
@@ -431,7 +468,10 @@ def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6, loc="best")
         ax.set_xlim(-0.5, max(sub.height - 0.5, 0.5))
-        _xticks(ax, _labels(sub), width_in=panel_w)
+        if sub.height <= MAX_TICK_LABELS or "night" not in sub.columns:
+            _xticks(ax, _labels(sub), width_in=panel_w)
+        else:
+            _night_ticks([ax], sub["night"].cast(pl.Utf8).to_list(), sub["scan_id"].to_list())
     for k in range(len(features), nr * nc):
         axes[k // nc][k % nc].set_visible(False)
     fig.suptitle(f"part {artifact_id}: diameters {where} (error bars: U (k=2))", fontsize=10)

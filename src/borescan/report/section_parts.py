@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import polars as pl
 
+from borescan.report.data import group_fingerprints
 from borescan.report.page import Page, _EMPTY
 from borescan.report.plots import plot_diameters
 from borescan.report.text import _e, _mm, _table, _temperature, _um, _verdict_cell
@@ -92,6 +93,28 @@ def _parts_table(df: pl.DataFrame) -> str:
     )
 
 
+def _part_tables(sub: pl.DataFrame) -> str:
+    """Return a part's statistics per feature (n, mean, sd, min, max) and its rows (HTML)."""
+    stats = (
+        sub.group_by("feature")
+        .agg(
+            pl.len().alias("n"),
+            pl.col("_value_mm").mean().alias("mean"),
+            pl.col("_value_mm").std().alias("sd"),
+            pl.col("_value_mm").min().alias("min"),
+            pl.col("_value_mm").max().alias("max"),
+        )
+        .sort("feature")
+    )
+    rows = [
+        [_e(r["feature"]), str(r["n"]), _mm(r["mean"]), _um(r["sd"], 2), _mm(r["min"]), _mm(r["max"])]
+        for r in stats.iter_rows(named=True)
+    ]
+    return _table(
+        ["feature", "n", "mean [mm]", "sd [µm]", "min [mm]", "max [mm]"], rows, num_cols={1, 2, 3, 4, 5}
+    ) + _parts_table(sub)
+
+
 def diameters(page: Page) -> str:
     """Return the Parts section: diameters at T and at 20 °C with U, nominal, tolerance and verdict."""
     dia = page.t["diameters"]
@@ -119,38 +142,10 @@ def diameters(page: Page) -> str:
         )
         out.append(f"<h3>Parts measured once ({len(once)})</h3>")
         out.append(_parts_table(single))
+    keys = group_fingerprints(dia, "artifact_id")  # a part's tables: rendered again when its rows change
     for part in sorted(set(dia["artifact_id"].unique().to_list()) - once):
         sub = dia.filter(pl.col("artifact_id") == part)
         out.append(f"<h3>Part {_e(part)}</h3>")
         out.append(page.figure(plot_diameters, sub, part, f"diameters_{part}", f"diameters of {part}"))
-        stats = (
-            sub.group_by("feature")
-            .agg(
-                pl.len().alias("n"),
-                pl.col("_value_mm").mean().alias("mean"),
-                pl.col("_value_mm").std().alias("sd"),
-                pl.col("_value_mm").min().alias("min"),
-                pl.col("_value_mm").max().alias("max"),
-            )
-            .sort("feature")
-        )
-        rows = [
-            [
-                _e(r["feature"]),
-                str(r["n"]),
-                _mm(r["mean"]),
-                _um(r["sd"], 2),
-                _mm(r["min"]),
-                _mm(r["max"]),
-            ]
-            for r in stats.iter_rows(named=True)
-        ]
-        out.append(
-            _table(
-                ["feature", "n", "mean [mm]", "sd [µm]", "min [mm]", "max [mm]"],
-                rows,
-                num_cols={1, 2, 3, 4, 5},
-            )
-        )
-        out.append(_parts_table(sub))
+        out.append(page.piece("part tables", f"{part} {keys.get(part)}", lambda sub=sub: _part_tables(sub)))
     return "".join(out)
