@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import datetime as dt
 import functools
 import hashlib
 import json
@@ -132,6 +133,9 @@ _MONTH_ROWS = {
     "suspect_measurements": "SELECT {m} AS _m, t.* FROM suspect_measurements t",
 }
 
+#: Sources whose month is the month of their own ``night`` column (a DATE).
+_OWN_NIGHT = frozenset(_MONTH_ROWS) - {"calibration_scans"}
+
 #: Row order of each table on a page.
 _ORDER = {
     "scans": "night, started_at, scan_id",
@@ -201,8 +205,13 @@ def _month_tables(con, month: str) -> dict[str, pl.DataFrame]:
                 "ON s.scan_id = t.scan_id AND s.night IS NOT DISTINCT FROM t.night"
             )
             order, drop = "device_id, night, _start NULLS LAST, scan_id", "_m, _start"
+        where, params = "_m = ?", [month]
+        if name in _OWN_NIGHT and month != "undated":  # the same rows, found without reading the others
+            first = dt.date.fromisoformat(f"{month}-01")
+            where += " AND CAST(q.night AS DATE) >= ? AND CAST(q.night AS DATE) < ?"
+            params += [first, (first + dt.timedelta(days=31)).replace(day=1)]
         out[name] = con.sql(
-            f"SELECT * EXCLUDE ({drop}) FROM ({sql}) q WHERE _m = ? ORDER BY {order}", params=[month]
+            f"SELECT * EXCLUDE ({drop}) FROM ({sql}) q WHERE {where} ORDER BY {order}", params=params
         ).pl()
     return out
 
