@@ -218,6 +218,23 @@ def test_report_written_with_sections_and_existing_links(results):
     assert all(p in once for p in ("P-7", "P-8", "P-9")) and "diameters_P-7.png" not in files
 
 
+def test_report_from_a_relative_results_folder_links_what_an_absolute_one_does(
+    results, tmp_path, monkeypatch
+):
+    """The workflow passes ``results`` relative to the working folder: the page is the same, with the
+    certificate's JSON linked (it was looked for under ``results/results/`` and left out).
+    """
+    absolute = write_report(results).read_text()
+    assert "calibration/TRI-01/CAL-A/certificate.json" in _check_links_resolve(results)
+    shutil.copytree(results, tmp_path / "elsewhere" / "results", ignore=shutil.ignore_patterns("report*"))
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    relative = write_report(Path("results")).read_text()
+    assert "calibration/TRI-01/CAL-A/certificate.json" in _check_links_resolve(
+        tmp_path / "elsewhere" / "results"
+    )
+    assert relative == absolute
+
+
 def test_report_plots_parts_measured_more_than_once(results):
     t = load_tables(results)
     dia = t["diameters"]

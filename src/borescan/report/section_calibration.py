@@ -59,7 +59,9 @@ def calibration(page: Page) -> str:
             scans = scans_of.get(r["calibration_id"], [])
             cert = r.get("certificate_path")
             pdf = page.link(cert)
-            cj = catalog.certificate_json_path(page.root, cert) if cert else None
+            # as the catalog names it (relative to the results folder, or absolute): page.link makes it
+            # relative to the page; joined to a relative results folder it was looked for under it twice
+            cj = catalog.certificate_json_path("", cert) if cert else None
             json_link = page.link(str(cj)) if cj else None
             links = " ".join(
                 x
