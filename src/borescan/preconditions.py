@@ -24,6 +24,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import polars as pl
+
 from borescan.geometry import Beams
 
 __all__ = [
@@ -104,17 +106,23 @@ EXAMINATION_NEEDS_GEOMETRY = (
 )
 
 
-def summary_revolutions(summary) -> tuple[int | None, int]:
+def summary_revolutions(summary, method: str = "full_lsq") -> tuple[int | None, int]:
     """Return (whole revolutions recorded, revolutions with every channel's extremum) of one scan.
 
     From its rows of the signal stage's summary (a polars frame: ``period_samples_per_rev``,
-    ``n_samples_recorded``, ``n_revolutions_min`` per channel).
+    ``n_samples_recorded``, ``n_revolutions_min`` and ``n_revolutions_max`` per channel). The
+    paper's closed forms (``method`` ``yang2017``) need each channel's minimum; the full fit needs
+    each channel to turn with the spindle, its minimum or its maximum: a channel whose readings leave
+    its range at one end of each turn (the contract allows it) still fixes its beam.
     """
     spr = float(summary["period_samples_per_rev"][0])
     recorded = (
         int(summary["n_samples_recorded"][0] // spr) if "n_samples_recorded" in summary.columns else None
     )
-    return recorded, int(summary["n_revolutions_min"].min())
+    per_channel = summary["n_revolutions_min"]
+    if method != "yang2017" and "n_revolutions_max" in summary.columns:
+        per_channel = summary.select(pl.max_horizontal("n_revolutions_min", "n_revolutions_max"))[:, 0]
+    return recorded, int(per_channel.min())
 
 
 #: The ``file`` of a calibration's quarantine record when no raw file is at fault (a fit that fails, readings

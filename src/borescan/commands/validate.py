@@ -132,7 +132,7 @@ def stage_outcomes(raw_root: Path, bad_scan_ids: set[str], cfg: dict) -> list:
             if scan.spindle is not None and scan.meta["device"]["type"] == "tri_lds":
                 try:
                     summary = scan_summary(scan, rawio.lds_matrix(scan), opts)[1]
-                    revolutions = preconditions.summary_revolutions(summary)
+                    revolutions = preconditions.summary_revolutions(summary, cfg["calibration"]["method"])
                     source = preconditions.summary_period_source(summary)
                 except (ValueError, np.linalg.LinAlgError, IndexError) as err:
                     out.append(

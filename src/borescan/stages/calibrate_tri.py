@@ -79,7 +79,7 @@ def _usable_scans(job: TriDeviceJob) -> UsableScans:
     lost = _set_aside_at_ingest(job.ctx.scans_table, job.items[0][0]["device_id"])
     for _row, d in job.items:
         scan = rawio.load_stored_scan(d)
-        problem = _unusable(scan, job.summary, min_rev)
+        problem = _unusable(scan, job.summary, min_rev, job.cfg["method"])
         if problem == "":
             lost.append(f"{scan.scan_id} (set aside by the signal stage)")
             continue
@@ -97,18 +97,16 @@ def _usable_scans(job: TriDeviceJob) -> UsableScans:
     return UsableScans(tuple(scans), tuple(inputs), nominal, tuple(lost), tuple(bad))
 
 
-def _unusable(scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int) -> tuple[str, str] | str | None:
-    """Return why a calibration scan cannot be used, or None.
-
-    Why a calibration scan cannot be used, as (file, reason); "" when the signal stage set it aside; None
-    if usable.
-    """
+def _unusable(
+    scan: rawio.RawScan, summary: pl.DataFrame, min_rev: int, method: str
+) -> tuple[str, str] | str | None:
+    """Why ``method`` cannot use a scan: (file, reason); "" if the signal stage set it aside; None."""
     s = summary.filter(pl.col("scan_id") == scan.scan_id) if summary.height else summary
     if scan.spindle is None:
         return ("spindle.parquet", NO_SPINDLE_REASON)
     if s.height == 0:
         return ""
-    return calibration_revolutions_problem(*summary_revolutions(s), min_rev, summary_period_source(s))
+    return calibration_revolutions_problem(*summary_revolutions(s, method), min_rev, summary_period_source(s))
 
 
 def _set_aside_at_ingest(scans_table, device_id: str) -> list[str]:

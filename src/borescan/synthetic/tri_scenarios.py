@@ -130,12 +130,17 @@ def _draw_report(rng: np.random.Generator, contract: dict, beams: Beams) -> _Rep
 
 
 def _ring_gauge(radius_mm: float, night: str, contract: dict) -> dict:
-    """Return the ring gauge of a calibration scan: certified diameter 2 R, u from the contract, k = 2."""
+    """Return the ring gauge of a calibration scan: certified diameter 2 R, u from the contract, k = 2.
+
+    Its nominal is its size to the micrometre, as a ring gauge's is (the spec's example): a nominal
+    rounded to the millimetre lay up to 0.5 mm from the certificate, and ingest set such a scan aside
+    as a likely typo (``plausibility.certified_vs_nominal_max_mm``).
+    """
     d_nom = round(2 * radius_mm)
     return {
         "id": f"RG-{d_nom}",
         "type": "ring_gauge",
-        "nominal_diameter_mm": float(d_nom),
+        "nominal_diameter_mm": round(2 * radius_mm, 3),
         "certified_diameter_mm": 2 * radius_mm,
         "u_diameter_mm": contract["gauge_u_diameter_mm"],
         "k": 2,
@@ -425,9 +430,9 @@ def draw_tri_static(
     dev = Beams((1, 2, 3), beta, rho, d_b)
     noise = float(rng.uniform(*contract["noise_mm"]))
     kind = "ring_gauge" if rng.random() < contract["p_ring_gauge"] else "part"
-    art = artifact_of(
+    art = artifact_of(  # one gauge or part per scan: two gauges of one night never share an id
         kind,
-        f"{'RG' if kind == 'ring_gauge' else 'P'}-{round(2 * R)}",
+        f"{'RG' if kind == 'ring_gauge' else 'P'}-{round(2 * R)}-{scan_id}"[:40],
         [2 * R],
         [0.0],
         TRI_CONTRACT["cte_per_k"],
