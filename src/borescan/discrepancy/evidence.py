@@ -119,15 +119,22 @@ class OutputStage:
         return float(np.sqrt(np.mean(self.sigma_mm**2))) or 1e-6
 
 
-def _outliers(model, r0: np.ndarray, sigma: np.ndarray, false_rate: float, min_spikes: int) -> list[dict]:
+def _lattices(model) -> list[float | None]:
+    """Return each channel's lattice step (:func:`lattice_lsb` of its valid readings), else None."""
+    data = model.data
+    return [lattice_lsb(data.values_mm[model.valid[:, j], j]) for j in range(len(data.channels))]
+
+
+def _outliers(
+    model, r0: np.ndarray, sigma: np.ndarray, false_rate: float, min_spikes: int, lsbs: list[float | None]
+) -> list[dict]:
     """Find each channel's isolated jumps, mask them in ``model.mask``; their findings (evidence to come)."""
     data = model.data
     # A quantised channel's readings carry a rounding error of up to lsb / 2 (standard deviation
     # lsb / sqrt 12) that a noise floor from differences of lattice values underrates: the jump test
     # adds it, so the rounding's largest residuals are not taken for outliers (issue 35).
     sig_test = np.array(sigma, dtype=float)
-    for j in range(len(data.channels)):
-        lsb = lattice_lsb(data.values_mm[model.valid[:, j], j])
+    for j, lsb in enumerate(lsbs):
         if lsb is not None:
             sig_test[j] = math.hypot(sig_test[j], lsb / math.sqrt(12.0))
     spikes = model.spike_mask(
@@ -157,12 +164,11 @@ def _outliers(model, r0: np.ndarray, sigma: np.ndarray, false_rate: float, min_s
     return out
 
 
-def _quantization(model, r0: np.ndarray) -> list[dict]:
-    """Return the findings of channels whose every reading lies on one lattice."""
+def _quantization(model, r0: np.ndarray, lsbs: list[float | None]) -> list[dict]:
+    """Return the findings of channels whose every reading lies on one lattice (``lsbs``: their steps)."""
     data = model.data
     out = []
-    for j, ch in enumerate(data.channels):
-        lsb = lattice_lsb(data.values_mm[model.valid[:, j], j])
+    for j, (ch, lsb) in enumerate(zip(data.channels, lsbs, strict=True)):
         if lsb is None:
             continue
         ok = model.mask[:, j]
@@ -212,7 +218,8 @@ def output_stage_evidence(
     sigma = model.noise_floor(r0)
     sig_ref = float(np.sqrt(np.mean(sigma**2))) or 1e-6
     all_valid = model.valid.copy()
-    named = _outliers(model, r0, sigma, false_rate, min_spikes)
+    lsbs = _lattices(model)  # model.valid is fixed: the lattices hold for the outliers and the quantisation
+    named = _outliers(model, r0, sigma, false_rate, min_spikes, lsbs)
     w = sig_ref / np.maximum(sigma, 1e-9 * sig_ref)
     model.weights = w
     base = refit(base.values()) or base
@@ -229,7 +236,7 @@ def output_stage_evidence(
                 n_res * np.log(rss_with / max(rss_without, 1e-300)) - e["_mask"].sum() * np.log(n_res)
             )
         }
-    named += _quantization(model, r0)
+    named += _quantization(model, r0, lsbs)
     named = [e for e in named if e["evidence"]["delta_bic"] > threshold]
     half = np.zeros(len(data.channels))
     for e in named:  # a quantised sensor's floor includes the rounding noise lsb^2 / 12
