@@ -93,7 +93,7 @@ def _parts_table(df: pl.DataFrame) -> str:
     )
 
 
-def _part_tables(sub: pl.DataFrame) -> str:
+def _part_statistics_and_rows(sub: pl.DataFrame) -> str:
     """Return a part's statistics per feature (n, mean, sd, min, max) and its rows (HTML)."""
     stats = (
         sub.group_by("feature")
@@ -147,5 +147,9 @@ def diameters(page: Page) -> str:
         sub = dia.filter(pl.col("artifact_id") == part)
         out.append(f"<h3>Part {_e(part)}</h3>")
         out.append(page.figure(plot_diameters, sub, part, f"diameters_{part}", f"diameters of {part}"))
-        out.append(page.piece("part tables", f"{part} {keys.get(part)}", lambda sub=sub: _part_tables(sub)))
+        out.append(
+            page.piece(
+                "part tables", f"{part} {keys.get(part)}", lambda sub=sub: _part_statistics_and_rows(sub)
+            )
+        )
     return "".join(out)
