@@ -68,11 +68,19 @@ def demo_results(tmp: Path) -> Path:
     return results
 
 
-def _move_night(src_root: Path, dst_root: Path, night: str) -> None:
+def _move_night(src_root: Path, dst_root: Path, night: str, place=os.replace) -> None:
+    """Move a night's stage files from one results root to another (``place=os.link``: link them)."""
     for f in src_root.glob(f"stage/**/night={night}.parquet"):
         target = dst_root / f.relative_to(src_root)
         target.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(f, target)
+        place(f, target)
+
+
+def _own_catalog(src_results: Path, dst_results: Path) -> None:
+    """Give a hard-linked copy of a results root its own catalog and seal (written in place)."""
+    for name in CATALOG_FILES:
+        os.unlink(dst_results / name)
+        shutil.copyfile(src_results / name, dst_results / name)
 
 
 def _save_state(results: Path, pool: Path, night: str, state: Path) -> Path:
@@ -81,13 +89,8 @@ def _save_state(results: Path, pool: Path, night: str, state: Path) -> Path:
     Every file of the results is replaced, never edited, except the catalog and its seal (copied).
     """
     shutil.copytree(results, state / "results", copy_function=os.link)
-    for name in CATALOG_FILES:
-        os.unlink(state / "results" / name)
-        shutil.copyfile(results / name, state / "results" / name)
-    for f in pool.glob(f"stage/**/night={night}.parquet"):
-        target = state / "pool" / f.relative_to(pool)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        os.link(f, target)
+    _own_catalog(results, state / "results")
+    _move_night(pool, state / "pool", night, place=os.link)
     return state
 
 
@@ -96,9 +99,7 @@ def _fresh_run(state: Path, run: Path) -> Path:
     if run.exists():
         shutil.rmtree(run)
     shutil.copytree(state, run, copy_function=os.link)
-    for name in CATALOG_FILES:  # the catalog is written in place: a copy of its own
-        os.unlink(run / "results" / name)
-        shutil.copyfile(state / "results" / name, run / "results" / name)
+    _own_catalog(state / "results", run / "results")
     return run
 
 
