@@ -157,3 +157,51 @@ def test_map_timed_keeps_order_and_gives_each_items_cpu_seconds():
     m = COMPUTE_RE.search("[  1.00 s] " + compute_line("CT5-00001", 1.23456))
     assert m and m["item"] == "CT5-00001" and float(m["seconds"]) == 1.235
     assert re.fullmatch(r"compute \S+ [0-9.]+ s", compute_line("TRI-01", 0.5))
+
+
+_SHARING_SCRIPT = """
+import multiprocessing, os, sys, time
+class _Job:
+    threads = 2
+snakemake = _Job()
+from borescan.parallel import start_job_workers
+start_job_workers(globals())
+from borescan.parallel import map_in_order
+PARENT = os.getpid()
+_taken = []
+
+def item(x):
+    if multiprocessing.parent_process() is None:  # the job's own process (a worker has a parent)
+        _taken.append(x)
+        if len(_taken) == 1:
+            time.sleep(3.0)  # the caller's first item is a long one
+    else:
+        time.sleep(0.01)
+    return x, os.getpid()
+
+if __name__ == "__main__":
+    out = list(map_in_order(item, range(40), workers=2))
+    print(PARENT, repr(out))
+"""
+
+
+def test_the_worker_goes_on_while_the_caller_computes_a_long_item(tmp_path):
+    """The job's own process and its worker share one queue: while the caller spends 3 s on one item,
+    the worker takes every other item (0.01 s each) instead of waiting with the one or two it was
+    handed; the results still come back in order.
+    """
+    import ast
+    import subprocess
+    import sys
+
+    script = tmp_path / "job.py"
+    script.write_text(_SHARING_SCRIPT)
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    parent, out = proc.stdout.strip().split(" ", 1)
+    out = ast.literal_eval(out)
+    assert [x for x, _ in out] == list(range(40))
+    by_caller = [x for x, p in out if p == int(parent)]
+    # the caller takes an item only when it is free: its long one, and any taken before the worker had
+    # finished importing (the worker needs 0.4 s for the rest, the caller's item lasts 3 s)
+    assert 1 <= len(by_caller) <= 5, by_caller

@@ -14,7 +14,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import ProcessPoolExecutor, wait
 from functools import partial
 from typing import Any, TypeVar
 
@@ -116,39 +116,35 @@ def map_in_order(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1)
         _restore(saved)
 
 
-#: items handed to each spawned worker ahead of the one it is working on, in
-#: :func:`_map_with_caller`: it never waits for the calling process, and the night's last items
-#: are shared out within about one item
-AHEAD_PER_WORKER = 1
-
-
 def _map_with_caller(fn, items: list, pool: ProcessPoolExecutor, n_spawned: int) -> Iterator:
-    """Map in order on spawned workers and the calling process.
+    """Map in order on spawned workers and the calling process, sharing one queue.
 
-    :func:`map_in_order` on ``n_spawned`` workers of ``pool`` and the calling process: the
-    workers are kept busy, the caller takes the next item whenever it is free, and results are
-    yielded in input order as soon as they are complete from the first item on.
+    :func:`map_in_order` on ``n_spawned`` workers of ``pool`` and the calling process: every item
+    is submitted at once, the workers take them in order, and the caller takes the first item no
+    worker has started (its pending future cancelled) whenever it is free; results are yielded in
+    input order as soon as they are complete from the first item on. Neither side waits for the
+    other while an item is left: a scan of seconds on one side no longer leaves the other idle
+    (a queue of a few items ahead did on a night of scans from 0.01 to 3 s: the discrepancy job's
+    worker computed 16.5 CPU s to its caller's 23.7). At the end a worker holds at most one item
+    queued beyond the one it computes (the pool's call queue).
     """
-    results: dict[int, Any] = {}
-    running: dict[Future, int] = {}
-    nxt = first = 0
+    futures = [pool.submit(fn, it) for it in items]
+    mine: dict[int, Any] = {}
+    take = first = 0
     try:
         while first < len(items):
-            while nxt < len(items) and len(running) < (1 + AHEAD_PER_WORKER) * n_spawned:
-                running[pool.submit(fn, items[nxt])] = nxt
-                nxt += 1
-            if nxt < len(items):
-                results[nxt] = fn(items[nxt])
-                nxt += 1
-            elif first not in results:
-                wait(running, return_when=FIRST_COMPLETED)
-            for fut in [f for f in running if f.done()]:
-                results[running.pop(fut)] = fut.result()
-            while first in results:
-                yield results.pop(first)
+            while take < len(items) and not futures[take].cancel():  # started (or done) by a worker
+                take += 1
+            if take < len(items):
+                mine[take] = fn(items[take])
+                take += 1
+            else:
+                wait([futures[first]])
+            while first < len(items) and (first in mine or futures[first].done()):
+                yield mine.pop(first) if first in mine else futures[first].result()
                 first += 1
     finally:
-        for fut in running:
+        for fut in futures:
             fut.cancel()
 
 
