@@ -27,6 +27,7 @@ rule write_report:
                      ]),
     params:
         results_root=results_root_for,
+    threads: NIGHT_JOB_THREADS  # the month's changed plots are drawn on the job's processes
     log:
         f"{RES}/logs/write_report.log",
     benchmark:

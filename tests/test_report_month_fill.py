@@ -156,3 +156,31 @@ def test_a_parts_tables_are_rendered_again_only_when_its_rows_change(tmp_path):
     built = update_report(scratch, {"diameters": dia}, full=True)
     assert built.pieces_rendered == 2
     assert (scratch / "report" / "2027-12" / "index.html").read_bytes() == grown
+
+
+def test_a_months_plots_drawn_on_two_processes_are_the_plots_drawn_on_one(tmp_path):
+    """Nine parts' diameter plots drawn together after the sections, on two processes: every PNG and
+    every page byte for byte what one process draws (a worker has the same matplotlib settings), and
+    a second update draws none (each PNG is read back where its input is unchanged).
+    """
+    dia = pl.concat(
+        [
+            _gauge_rows(2, nights=NIGHTS[:2]).with_columns(
+                pl.lit(f"P-{k}").alias("artifact_id"), pl.format("P{}-{}", pl.lit(k), pl.col("scan_id"))
+            )
+            for k in range(9)
+        ]
+    ).with_columns(pl.col("night").str.to_date())
+    pages = {}
+    for workers in (1, 2):
+        res = tmp_path / f"results{workers}"
+        first = update_report(res, {"diameters": dia}, workers=workers)
+        assert first.plots_drawn == 9
+        assert update_report(res, {"diameters": dia}, workers=workers).plots_drawn == 0
+        month = res / "report" / "2027-12"
+        pages[workers] = {
+            f.name: f.read_bytes() for f in sorted(month.iterdir()) if f.suffix in (".png", ".html")
+        } | {"report.html": (res / "report.html").read_bytes()}
+        assert b"@@PNG" not in pages[workers]["index.html"] + pages[workers]["report.html"]
+    assert len([f for f in pages[1] if f.endswith(".png")]) == 9
+    assert pages[2] == pages[1]

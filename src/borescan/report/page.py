@@ -2,25 +2,49 @@
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import hashlib
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import polars as pl
 
 from borescan.atomic import atomic_write_bytes, atomic_write_text
+from borescan.parallel import map_in_order
 from borescan.report.data import _code_fingerprint, frame_fingerprint
 from borescan.report.plots import _png_bytes
 from borescan.report.text import _img, _rel, _safe
 
 
+@dataclass(frozen=True)
+class PlotJob:
+    """A plot to draw: ``plot(data, key, *args)`` as the month's PNG ``fname`` (sent to a worker)."""
+
+    fname: str
+    plot: Callable[..., Any]
+    data: pl.DataFrame
+    key: str
+    args: tuple
+
+
+def draw_plot(job: PlotJob) -> bytes:
+    """Return the PNG of ``job`` (run on the report job's processes by :meth:`_PlotCache.draw`)."""
+    return _png_bytes(job.plot(job.data, job.key, *job.args))
+
+
+#: What a page holds where a plot still to be drawn goes (the PNG's base64, by :meth:`_PlotCache.draw`).
+_PENDING = "@@PNG {}@@"
+
+
 class _PlotCache:
     """Plots of one month folder: file name -> fingerprint of its input (``plots.json``).
 
-    A plot whose input and code are unchanged is not drawn again.
+    A plot whose input and code are unchanged is not drawn again. The others are drawn together
+    once the page's sections are rendered (:meth:`draw`), on the report job's processes.
     """
 
     def __init__(self, folder: Path, use: bool = True):
@@ -31,18 +55,33 @@ class _PlotCache:
             with contextlib.suppress(ValueError):
                 self.old = json.loads(self.file.read_text())
         self.new: dict[str, str] = {}
+        self.pending: dict[str, PlotJob] = {}
         self.drawn = 0
 
-    def get(self, fname: str, key: str, draw) -> bytes:
-        """Return the PNG ``fname``: drawn when its key changed or the file is gone, else read back."""
-        if self.old.get(fname) != key or not (self.folder / fname).is_file():
-            png = _png_bytes(draw())
-            atomic_write_bytes(self.folder / fname, png)
+    def embedded(self, key: str, job: PlotJob) -> str:
+        """Return the PNG ``job.fname`` as base64, read back when its key is unchanged.
+
+        Where the key changed or the file is gone, a placeholder that :meth:`draw` replaces.
+        """
+        self.new[job.fname] = key
+        if self.old.get(job.fname) == key and (self.folder / job.fname).is_file():
+            return base64.b64encode((self.folder / job.fname).read_bytes()).decode("ascii")
+        self.pending[job.fname] = job
+        return _PENDING.format(job.fname)
+
+    def draw(self, workers: int = 1) -> dict[str, str]:
+        """Draw the pending plots on up to ``workers`` processes and write them.
+
+        Returns placeholder -> base64 of the PNG, for :func:`fill_plots`.
+        """
+        jobs = list(self.pending.values())
+        out = {}
+        for job, png in zip(jobs, map_in_order(draw_plot, jobs, workers), strict=True):
+            atomic_write_bytes(self.folder / job.fname, png)
+            out[_PENDING.format(job.fname)] = base64.b64encode(png).decode("ascii")
             self.drawn += 1
-        else:
-            png = (self.folder / fname).read_bytes()
-        self.new[fname] = key
-        return png
+        self.pending.clear()
+        return out
 
     def save(self) -> None:
         """Record the plots of the page just written and remove the ones it no longer shows."""
@@ -50,6 +89,13 @@ class _PlotCache:
             if f.name not in self.new:
                 f.unlink()
         atomic_write_text(self.file, json.dumps(self.new, indent=1, sort_keys=True) + "\n")
+
+
+def fill_plots(fragment: str, drawn: dict[str, str]) -> str:
+    """Return ``fragment`` with the placeholders of :meth:`_PlotCache.embedded` replaced by the PNGs."""
+    for token, data in drawn.items():
+        fragment = fragment.replace(token, data)
+    return fragment
 
 
 class _PieceCache:
@@ -152,15 +198,15 @@ class Page:
     def figure(self, plot, data: pl.DataFrame, key: str, name: str, alt: str, *args) -> str:
         """Draw ``plot(data, key, *args)`` as ``<month>/<name>.png`` when its input changed.
 
-        ``plot(data, key, *args)`` as ``<month>/<name>.png``, drawn only when its input changed;
-        embedded in the page as a ``data:`` image that links to the PNG file.
+        ``plot(data, key, *args)`` as ``<month>/<name>.png``, drawn only when its input changed (by
+        :meth:`_PlotCache.draw`, which fills in the placeholder returned meanwhile); embedded in the
+        page as a ``data:`` image that links to the PNG file.
         """
         fname = _safe(name) + ".png"
         fp = hashlib.sha256(
             f"{self.code} {plot.__name__} {key} {args} {frame_fingerprint(data)}".encode()
         ).hexdigest()[:16]
-        png = self.cache.get(fname, fp, lambda: plot(data, key, *args))
-        return _img(self.plots + fname, png, alt)
+        return _img(self.plots + fname, self.cache.embedded(fp, PlotJob(fname, plot, data, key, args)), alt)
 
     # ---------------------------------------------------------------- sections
 

@@ -28,7 +28,7 @@ from borescan.report.section_parts import diameters
 from borescan.report.section_summary import quarantine, summary
 from borescan.report.decisions import device_status, device_status_html
 from borescan.report.papers_table import papers_rows
-from borescan.report.page import Page, _EMPTY, _PieceCache, _PlotCache
+from borescan.report.page import Page, _EMPTY, _PieceCache, _PlotCache, fill_plots
 from borescan.report.text import _e, _img, _link, _table
 
 REPORT_DIR = "report"
@@ -200,13 +200,23 @@ _UP, _PLOTS = "@@UP@@", "@@PLOTS@@"
 
 
 def _month_sections(
-    root: Path, month: str, tables: dict[str, pl.DataFrame], cache: _PlotCache, pieces: _PieceCache
+    root: Path,
+    month: str,
+    tables: dict[str, pl.DataFrame],
+    cache: _PlotCache,
+    pieces: _PieceCache,
+    workers: int = 1,
 ) -> dict[str, Any]:
-    """Return a month's header counts and section bodies, with the link placeholders."""
+    """Return a month's header counts and section bodies, with the link placeholders.
+
+    Its plots that changed are drawn on up to ``workers`` processes.
+    """
     page = Page(root, tables, cache, up=_UP, plots=_PLOTS, pieces=pieces)
+    sections = {sid: BUILDERS[sid](page) for sid, _title in MONTH_SECTIONS}
+    drawn = cache.draw(workers)  # the month's changed plots, together on the job's processes
     return {
         "counts": _counts(tables),
-        "sections": {sid: BUILDERS[sid](page) for sid, _title in MONTH_SECTIONS},
+        "sections": {sid: fill_plots(body, drawn) for sid, body in sections.items()},
     }
 
 
@@ -242,7 +252,10 @@ class ReportUpdate:
 
 
 def update_report(
-    results_root: str | os.PathLike, tables: dict[str, pl.DataFrame] | None = None, full: bool = False
+    results_root: str | os.PathLike,
+    tables: dict[str, pl.DataFrame] | None = None,
+    full: bool = False,
+    workers: int = 1,
 ) -> ReportUpdate:
     """Write ``<results_root>/report.html`` and the month pages ``report/<YYYY-MM>/index.html``.
 
@@ -252,7 +265,8 @@ def update_report(
     (:func:`month_fingerprints`) and a plot is drawn only when its input changed, so a new night
     costs about one month's page whatever the length of the history; ``full=True`` redraws all.
     ``tables`` (name -> polars frame, as :func:`load_tables` returns) replaces the catalog.
-    Every file is written atomically; links are relative to where the page is.
+    Every file is written atomically; links are relative to where the page is. The plots to draw
+    are drawn on up to ``workers`` processes (the same bytes on any number).
     """
     root = Path(results_root)
     if tables is None:
@@ -260,13 +274,13 @@ def update_report(
     else:
         con = _memory_catalog({k: v for k, v in tables.items() if v is not None})
     try:
-        return _update(root, con, full)
+        return _update(root, con, full, workers)
     finally:
         con.close()
 
 
 def _update(  # noqa: C901 (one branch per page, month and section of the report)
-    root: Path, con, full: bool
+    root: Path, con, full: bool, workers: int = 1
 ) -> ReportUpdate:
     report_dir = root / REPORT_DIR
     report_dir.mkdir(parents=True, exist_ok=True)
@@ -295,7 +309,7 @@ def _update(  # noqa: C901 (one branch per page, month and section of the report
                 if json.loads(done.read_text()).get("fingerprint") == fp:
                     continue
         cache, pieces = _PlotCache(folder, use=not full), _PieceCache(folder, use=not full)
-        parts[month] = _month_sections(root, month, _month_tables(con, month), cache, pieces)
+        parts[month] = _month_sections(root, month, _month_tables(con, month), cache, pieces, workers)
         atomic_write_text(folder / "index.html", _month_page(month, parts[month]))
         cache.save()
         pieces.save()

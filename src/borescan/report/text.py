@@ -113,9 +113,12 @@ def _table(
     return "".join(out)
 
 
-def _img(href: str, png: bytes, alt: str) -> str:
-    """Return a PNG embedded as a base64 ``data:`` image (the page stands alone), linked to its file."""
-    data = base64.b64encode(png).decode("ascii")
+def _img(href: str, png: bytes | str, alt: str) -> str:
+    """Return a PNG embedded as a base64 ``data:`` image (the page stands alone), linked to its file.
+
+    ``png``: the PNG's bytes, or already its base64 text.
+    """
+    data = png if isinstance(png, str) else base64.b64encode(png).decode("ascii")
     return (
         f'<a class="plot" href="{html.escape(href, quote=True)}">'
         f'<img src="data:image/png;base64,{data}" alt="{_e(alt)}"></a>'
