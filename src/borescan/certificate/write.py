@@ -23,6 +23,35 @@ from borescan.certificate.tri import certificate_dict
 from borescan.uncertainty import Budget
 
 
+#: runs of samples a residual trace is drawn with: its minimum and maximum in each run, in time order. The
+#: first calibration scan's 20 000-95 000 samples a channel took 40 % of the certificate's drawing (PNG and
+#: PDF); 2000 runs over the page's 6.5 in axis (300 an inch, the PNG's 110 dpi axis about 800 pixels)
+#: still draw every extreme reading where it is, and the trace looks the same
+TRACE_RUNS = 2000
+
+
+def trace_envelope(t: np.ndarray, y: np.ndarray, runs: int = TRACE_RUNS) -> tuple[np.ndarray, np.ndarray]:
+    """Return the samples of ``y(t)`` that draw its trace: each run's minimum and maximum, in time order.
+
+    The samples are cut into ``runs`` runs of equal length; where a run is that short or shorter
+    (two samples or fewer) every sample is returned. NaN samples (no reading) are passed over; a
+    run with nothing else gives NaN, which breaks the line as the samples did.
+    """
+    n = y.size
+    per = -(-n // max(int(runs), 1))
+    if per <= 2:
+        return t, y
+    pad = -n % per
+    tt = np.concatenate([t, np.full(pad, np.nan)]).reshape(-1, per)
+    yy = np.concatenate([y, np.full(pad, np.nan)]).reshape(-1, per)
+    missing = np.isnan(yy)
+    lo = np.argmin(np.where(missing, np.inf, yy), axis=1)
+    hi = np.argmax(np.where(missing, -np.inf, yy), axis=1)
+    rows = np.arange(yy.shape[0])[:, None]
+    at = np.stack([np.minimum(lo, hi), np.maximum(lo, hi)], axis=1)
+    return tt[rows, at].ravel(), yy[rows, at].ravel()
+
+
 def _residual_figure(
     cert: dict, t: np.ndarray, res: np.ndarray, size=(8.27, 5.0), page: bool = False
 ) -> Figure:
@@ -32,7 +61,7 @@ def _residual_figure(
     channels = [int(r["channel"]) for r in cert["parameters"]]
     chans = channels if len(channels) == n_ch else list(range(1, n_ch + 1))
     for ax, j, ch in zip(axes, range(n_ch), chans):
-        ax.plot(t, res[:, j] * 1e3, lw=0.5, color=f"C{j}")
+        ax.plot(*trace_envelope(t, res[:, j] * 1e3), lw=0.5, color=f"C{j}")
         ax.axhline(0.0, color="k", lw=0.5)
         with np.errstate(invalid="ignore"):
             rms = float(np.sqrt(np.nanmean(res[:, j] ** 2))) * 1e3 if res.size else float("nan")
