@@ -164,7 +164,6 @@ def test_report_written_with_sections_and_existing_links(results):
     for expect in (
         "report/2026-11/control_TRI-01.png",
         "report/2026-11/calibration_TRI-01.png",
-        "report/2026-11/calibration_ROD-01.png",
         "report/2026-11/index.html",
         "calibration/TRI-01/CAL-A/certificate.pdf",
         "calibration/TRI-01/CAL-A/certificate.json",
@@ -206,11 +205,23 @@ def test_report_written_with_sections_and_existing_links(results):
     assert "PART-7" in suspect and "PART-8" not in suspect
     # every PNG written is a real PNG
     pngs = list((results / "report").rglob("*.png"))
-    assert sorted(p.name for p in pngs) == [
-        "calibration_ROD-01.png",
-        "calibration_TRI-01.png",
-        "control_TRI-01.png",
-    ]
+    assert sorted(p.name for p in pngs) == ["calibration_TRI-01.png", "control_TRI-01.png"]
+    # ROD-01 has one calibration: no trend of one point a panel, its values instead (held: no ±)
+    rod = text.split("<h3>Device ROD-01</h3>")[1].split("<h3>")[0]
+    assert rod.startswith('<p class="note">One calibration so far') and "calibration_ROD-01" not in rod
+    values = rod.split("<tbody>")[1].split("</tbody>")[0]
+    assert (
+        values
+        == "<tr>"
+        + "".join(
+            f"<td{c}>{v}</td>"
+            for c, v in zip(
+                ["", *[' class="num"'] * 5],
+                ["1", "120.0 mm", "100.0 mm", "10.00 mrad", "0.2000 mm", "3.000 mrad"],
+            )
+        )
+        + "</tr>"
+    )
     for png in pngs:
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # parts measured once share one table (a single value has no distribution to plot)
@@ -1146,3 +1157,31 @@ def test_a_month_assembled_from_cached_pieces_equals_one_built_from_scratch(rich
     page = _without_images(grown["index.html"].decode())
     assert "PART-7" in _section(page, "summary") and "PART-7/gap.png" not in page
     assert "0.9" in _section(page, "discrepancy") and "0.7" not in _section(page, "discrepancy")
+
+
+def test_one_calibration_is_a_table_of_its_values_with_U_at_k2():
+    """A device's single calibration: a row per channel, each fitted value ± U (k = 2) = 2 u, as the trend's
+    error bars would show it (GUM rounding: U to two digits, the value to the same place).
+    """
+    from borescan.report.section_calibration import _parameter_values
+
+    cal = pl.DataFrame(
+        {
+            "calibration_id": ["C1"] * 2,
+            "channel": [2, 1],
+            "beta_rad": [4.1887902, 2.0943951],
+            "u_beta_rad": [1e-4, 1e-4],
+            "rho_mm": [0.0123, -0.004],
+            "u_rho_mm": [0.0005, 0.0005],
+            "d_b_mm": [151.27312, 157.70934],
+            "u_d_b_mm": [0.012, 0.012],
+            "l0_mm": [None, None],
+        }
+    )
+    html = _parameter_values(cal)
+    assert "<th>beta</th><th>rho</th><th>d_b</th></tr>" in html and "l0" not in html
+    rows = html.split("<tbody>")[1].split("</tbody>")[0].split("</tr>")[:-1]
+    assert [r.replace('<td class="num">', "<td>").replace("<tr>", "") for r in rows] == [
+        "<td>1</td><td>2.09440 ± 0.00020 rad</td><td>-4.0 ± 1.0 µm</td><td>157.709 ± 0.024 mm</td>",
+        "<td>2</td><td>4.18879 ± 0.00020 rad</td><td>12.3 ± 1.0 µm</td><td>151.273 ± 0.024 mm</td>",
+    ]

@@ -9,9 +9,20 @@ from borescan import catalog
 from borescan.calibrations import calibration_roles, failed_calibration_ids, order_calibrations
 from borescan.mirror import format_probability
 from borescan.report.page import Page, _EMPTY
-from borescan.report.plots import plot_calibration_trends, plot_control_chart
+from borescan.report.plots import ROD_PARAMS, TRI_PARAMS, plot_calibration_trends, plot_control_chart
 from borescan.report.spc import MR_D2, RUN_RULES, control_limits, run_rules
-from borescan.report.text import _e, _link, _mm, _table, _temperature, _um, _verdict_cell
+from borescan.report.text import (
+    _e,
+    _link,
+    _mm,
+    _table,
+    _temperature,
+    _um,
+    _unit_of,
+    _verdict_cell,
+    _without_unit,
+    format_quantity,
+)
 
 
 def calibration(page: Page) -> str:
@@ -43,7 +54,8 @@ def calibration(page: Page) -> str:
     for dev in sorted(cal["device_id"].drop_nulls().unique().to_list()):
         out.append(f"<h3>Device {_e(dev)}</h3>")
         mine = cal.filter(pl.col("device_id") == dev)
-        if mine.filter(pl.col("method") != "nominal").height:  # design geometry does not trend: table only
+        fitted = mine.filter(pl.col("method") != "nominal")  # design geometry alone does not trend
+        if fitted.height and mine["calibration_id"].n_unique() >= 2:
             out.append(
                 page.figure(
                     plot_calibration_trends,
@@ -53,6 +65,8 @@ def calibration(page: Page) -> str:
                     f"calibration parameters of {dev}",
                 )
             )
+        elif fitted.height:  # one calibration: its values, a trend from the second on
+            out.append(_parameter_values(fitted))
         rows = []
         per = order_calibrations(mine.unique("calibration_id", keep="first", maintain_order=True))
         for r in per.iter_rows(named=True):
@@ -100,6 +114,29 @@ def calibration(page: Page) -> str:
         )
         out.append(_rho_sign_notes(mine))
     return "".join(out)
+
+
+def _parameter_values(cal: pl.DataFrame) -> str:
+    """Return one calibration's parameters, a row per channel: value ± U (k = 2), as a trend's error bars.
+
+    A plot of one point a panel showed the same numbers less legibly (and took half the report's
+    drawing on a night of new devices); a value without ± was held, not fitted.
+    """
+    present = [(p, up) for p, up in TRI_PARAMS + ROD_PARAMS if p in cal.columns and cal[p].drop_nulls().len()]
+    rows = [
+        [_e(r["channel"])]
+        + [format_quantity(r[p], 2.0 * r[up] if r.get(up) else None, _unit_of(p)) for p, up in present]
+        for r in cal.sort("channel").iter_rows(named=True)
+    ]
+    return (
+        '<p class="note">One calibration so far: its parameters (± U, k = 2; a value without ± was held, '
+        "not fitted). The trend over calibrations is drawn from the second on.</p>"
+        + _table(
+            ["channel", *(_without_unit(p) for p, _ in present)],
+            rows,
+            num_cols=set(range(1, len(present) + 1)),
+        )
+    )
 
 
 #: verifications of one device and gauge (on one page) from which a control chart is drawn: one point has
