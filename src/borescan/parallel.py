@@ -103,7 +103,7 @@ def map_in_order(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1)
             yield fn(it)
         return
     if _JOB_POOL and _JOB_POOL["workers"] >= workers:
-        yield from _map_with_caller(fn, items, _JOB_POOL["pool"], workers - 1)
+        yield from _map_with_caller(fn, items, _JOB_POOL["pool"])
         return
     saved = {k: os.environ.get(k) for k in _ONE_THREAD}
     os.environ.update(_ONE_THREAD)  # each worker one BLAS thread: the workers already fill the cores
@@ -116,10 +116,10 @@ def map_in_order(fn: Callable[[Any], T], items: Iterable[Any], workers: int = 1)
         _restore(saved)
 
 
-def _map_with_caller(fn, items: list, pool: ProcessPoolExecutor, n_spawned: int) -> Iterator:
+def _map_with_caller(fn, items: list, pool: ProcessPoolExecutor) -> Iterator:
     """Map in order on spawned workers and the calling process, sharing one queue.
 
-    :func:`map_in_order` on ``n_spawned`` workers of ``pool`` and the calling process: every item
+    :func:`map_in_order` on the workers of ``pool`` and the calling process: every item
     is submitted at once, the workers take them in order, and the caller takes the first item no
     worker has started (its pending future cancelled) whenever it is free; results are yielded in
     input order as soon as they are complete from the first item on. Neither side waits for the
