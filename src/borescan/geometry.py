@@ -453,21 +453,24 @@ def rod_readings(
     """
     alpha = np.atleast_1d(np.asarray(alpha_rad, dtype=float))
     Rm = rod_axis_rotation(axis)
-    T = np.array([axis.dx_mm, axis.dy_mm, 0.0])
-    out = np.empty((alpha.size, len(layers)))
-    for j, (lay, hole) in enumerate(zip(layers, holes)):
-        a = alpha + lay.phi_rad
-        u = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)
-        n = np.stack([-np.sin(a), np.cos(a), np.zeros_like(a)], axis=-1)
-        z = np.array([0.0, 0.0, 1.0])
-        o = lay.d_mm * n + lay.h_mm * z
-        e = np.cos(lay.gamma_rad) * u + np.sin(lay.gamma_rad) * z
-        O = o @ Rm.T + T
-        E = e @ Rm.T
-        w = O[:, :2] - np.asarray(hole.center_xy_mm, dtype=float)
-        d2 = E[:, :2]
-        qa = np.einsum("ij,ij->i", d2, d2)
-        qb = np.einsum("ij,ij->i", w, d2)
-        qc = np.einsum("ij,ij->i", w, w) - hole.radius_mm**2
-        out[:, j] = _positive_root(qa, qb, qc) - lay.l0_mm
-    return out
+    # every layer at once, (n, m): a pose's beams in the rod frame, u = (cos a, sin a, 0),
+    # n = (-sin a, cos a, 0), then their x and y in the part frame (the z row of Rm is not needed)
+    phi, d, h, gamma, l0 = (
+        np.array([getattr(lay, k) for lay in layers], dtype=float)
+        for k in ("phi_rad", "d_mm", "h_mm", "gamma_rad", "l0_mm")
+    )
+    center = np.array([hole.center_xy_mm for hole in holes], dtype=float).reshape(-1, 2)
+    radius = np.array([hole.radius_mm for hole in holes], dtype=float)
+    a = alpha[:, None] + phi
+    ca, sa = np.cos(a), np.sin(a)
+    ox, oy, oz = -d * sa, d * ca, h  # o = d n + h z
+    cg, sg = np.cos(gamma), np.sin(gamma)
+    ex, ey, ez = cg * ca, cg * sa, sg  # e = cos(gamma) u + sin(gamma) z
+    wx = Rm[0, 0] * ox + Rm[0, 1] * oy + Rm[0, 2] * oz + axis.dx_mm - center[:, 0]
+    wy = Rm[1, 0] * ox + Rm[1, 1] * oy + Rm[1, 2] * oz + axis.dy_mm - center[:, 1]
+    Ex = Rm[0, 0] * ex + Rm[0, 1] * ey + Rm[0, 2] * ez
+    Ey = Rm[1, 0] * ex + Rm[1, 1] * ey + Rm[1, 2] * ez
+    qa = Ex * Ex + Ey * Ey
+    qb = wx * Ex + wy * Ey
+    qc = wx * wx + wy * wy - radius**2
+    return _positive_root(qa, qb, qc) - l0
