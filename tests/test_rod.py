@@ -290,12 +290,44 @@ def test_centred_rod_gives_radii_without_angles():
     assert np.allclose(sol.u_radius_mm, SIG / np.sqrt(20))
 
 
+def test_a_solve_at_the_design_layers_does_not_depend_on_the_readings_last_bits():
+    """At phi = d = 0 the mirror image of a minimum (alpha -> -alpha, cy -> -cy, w_y -> -w_y) and its
+    deflection's sign (w -> -w) are minima exactly as low; the multi-start found one or another as
+    the readings' last bits fell (each of 6 holds below gave 3-4 images over 6 perturbations of 2 ulp,
+    radii apart by up to 1 % of u: the deflection is averaged over by sampling, which is not
+    symmetric). The solve takes one image by sign (beta_y = 2 w_x w_y >= 0): the same image and the
+    same radii to 1e-4 u whatever the last bits.
+    """
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        axis = RodAxis(1.5, 0.8, np.deg2rad(rng.uniform(0.3, 1.0)), rng.uniform(0, 2 * np.pi))
+        alpha = rng.uniform(0, 2 * np.pi, 24)
+        v = rod_readings(alpha, LAYERS, HOLES, axis) + 0.001 * rng.standard_normal((24, 2))
+        sols = [
+            solve_rod(
+                v + rng.integers(-2, 3, v.shape) * np.spacing(np.abs(v)) * (t > 0),
+                layers=LAYERS,
+                u_reading_mm=0.001,
+                coaxiality_mm=0.05,
+            )
+            for t in range(5)
+        ]
+        images = {
+            (*np.sign(s.deflection_xy_rad), np.sign(np.sum(np.sin(s.alpha_rad)))) for s in sols
+        }
+        assert len(images) == 1, (seed, images)
+        w = sols[0].deflection_xy_rad
+        assert w[0] * w[1] > 0, (seed, w)
+        for s in sols[1:]:
+            assert np.all(np.abs(s.radius_mm - sols[0].radius_mm) <= 1e-4 * sols[0].u_radius_mm), seed
+
+
 def test_pose_angles_eliminated_from_the_bound_as_the_full_inverse():
     """rod_crb's elimination of the pose angles (each moves only its own pose's readings: a diagonal
     block of the Fisher matrix) gives the other unknowns' block of the full Fisher matrix's inverse,
     within 1e-9 relative, on a random Jacobian of that structure (40 poses x 3 readings, 11 other
     unknowns, columns scaled over 6 decades); with an angle of no information it falls back to the
-    full pseudo-inverse (the same numbers).
+    full pseudo-inverse (the same numbers, each within 1e-9 of sqrt(C_ii C_jj)).
     """
     from borescan.rod_model import _cov_without_poses
 
@@ -314,4 +346,7 @@ def test_pose_angles_eliminated_from_the_bound_as_the_full_inverse():
     J[2 * m : 3 * m, k + 1] = 0.0  # pose 2's angle unseen: singular, the pseudo-inverse of the whole
     P = np.linalg.pinv(J)
     ref = (P @ P.T)[:k, :k]
-    np.testing.assert_allclose(_cov_without_poses(J, k, n - 1), ref, rtol=1e-9)
+    # an entry within 1e-9 of its row's and column's scale, sqrt(C_ii C_jj) (|C_ij| is at most that): a
+    # small entry carries the rounding of the large ones (1.2e-9 relative on an Intel Xeon host)
+    scale = np.sqrt(np.outer(np.diag(ref), np.diag(ref)))
+    assert np.all(np.abs(_cov_without_poses(J, k, n - 1) - ref) <= 1e-9 * scale)

@@ -290,7 +290,66 @@ def _solve_core(  # noqa: C901 (the multi-start with its deflection starts and r
                 p, cost = p1, cost1
         except ValueError:
             pass
+    p, cost = _canonical_image(prob, p, cost)
     return p, cost, nfev
+
+
+#: two minima whose costs agree to this relative amount are one minimum seen in a symmetry's images
+_IMAGE_RTOL = 1e-9
+
+
+def _images(prob, p) -> list:
+    """Return ``p`` and its images under the model's symmetries that hold at the design layers.
+
+    The mirror y -> -y (alpha -> -alpha, cy -> -cy, w_y -> -w_y; exact where every layer has
+    phi = d = 0 and the fixed pose is at 0) and the deflection's sign (w -> -w: the same beta).
+    Whether an image is a minimum as low is for the caller to check.
+    """
+    rho, c, alpha, w = prob.unpack(p)
+    mirror = prob.alpha_fix == 0.0
+    out = []
+    for flip in (False, True) if mirror else (False,):
+        for sign in (1.0, -1.0) if prob.deflection else (1.0,):
+            cm = np.column_stack([c[:, 0], -c[:, 1]]) if flip else c
+            am = -alpha if flip else alpha
+            wm = sign * (np.array([w[0], -w[1]]) if flip else w)
+            out.append(prob.pack(rho, cm, am, wm if prob.deflection else None))
+    return out
+
+
+def _image_key(prob, p) -> tuple:
+    """Order the images of one minimum: beta_y > 0 first, then sum sin(alpha) > 0, then w_x > 0."""
+    _rho, _c, alpha, w = prob.unpack(p)
+    nw = float(w @ w)
+    by = 2.0 * w[0] * w[1]
+    sa = float(np.sum(np.sin(alpha)))
+
+    def sign(x: float, scale: float) -> int:
+        return 0 if abs(x) <= 1e-9 * scale else int(np.sign(x))
+
+    return (sign(by, nw), sign(sa, prob.n), sign(w[0], np.sqrt(nw)), sign(w[1], np.sqrt(nw)))
+
+
+def _canonical_image(prob, p, cost: float) -> tuple[np.ndarray, float]:
+    """Return the canonical one of the minimum's images that are as low (:func:`_images`).
+
+    At the design layers the mirror image of a minimum is an exact minimum as low, and the
+    multi-start finds either, decided by the last bits of the readings; what follows the solve
+    (the radii averaged over the deflection by sampling, the layer-geometry draws refined from it)
+    is not exactly symmetric, so the image is chosen by sign (:func:`_image_key`), not by those
+    bits. Images whose cost is not within ``_IMAGE_RTOL`` of ``cost`` (the symmetry broken by the
+    layers) are not taken.
+    """
+    tied = [(p, cost)]
+    for q in _images(prob, p)[1:]:
+        try:
+            r = prob.residual(q)
+        except ValueError:  # an image that puts a beam outside its hole
+            continue
+        cq = float(r @ r)
+        if np.isfinite(cq) and abs(cq - cost) <= _IMAGE_RTOL * cost:
+            tied.append((q, cq))
+    return max(tied, key=lambda t: _image_key(prob, t[0]))
 
 
 def _rod_param_names(m: int, n: int, fix_pose: int, deflection: bool) -> tuple[str, ...]:
