@@ -41,6 +41,9 @@ __all__ = [
     "circumcircle",
     "rod_axis_rotation",
     "rod_readings",
+    "rod_axis_rotation_xy",
+    "rod_ray_readings",
+    "rod_layer_arrays",
 ]
 
 
@@ -430,6 +433,66 @@ def rod_axis_rotation(axis: RodAxis) -> np.ndarray:
     return np.eye(3) + np.sin(w) * K + (1.0 - np.cos(w)) * (K @ K)
 
 
+def rod_axis_rotation_xy(omega_rad, omega_az_rad) -> np.ndarray:
+    """Return the x and y rows of :func:`rod_axis_rotation`, for arrays of poses (..., 2, 3).
+
+    With k = (-sin az, cos az, 0): R = I + sin(omega) K + (1 - cos(omega)) K K (Rodrigues), written
+    out; equal to :func:`rod_axis_rotation`'s rows to rounding.
+    """
+    om, az = np.asarray(omega_rad, dtype=float), np.asarray(omega_az_rad, dtype=float)
+    kx, ky = -np.sin(az), np.cos(az)
+    s, c1 = np.sin(om), 1.0 - np.cos(om)
+    zero = np.zeros_like(om)
+    return np.stack(
+        [
+            np.stack([1.0 - c1 * ky * ky, c1 * kx * ky, s * ky], axis=-1),
+            np.stack([c1 * kx * ky, 1.0 - c1 * kx * kx, -s * kx + zero], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def rod_ray_readings(
+    alpha_rad, layer_arrays, center_xy_mm, radius_mm, rotation_xy, shift_xy_mm
+) -> np.ndarray:
+    """Return the readings of :func:`rod_readings` from arrays: one geometry or a stack (..., n, m).
+
+    alpha_rad (..., n); layer_arrays: phi [rad], d [mm], h [mm], gamma [rad], l0 [mm], each (m,);
+    center_xy_mm (..., m, 2), radius_mm (..., m): the holes; rotation_xy (..., 2, 3): the x and y
+    rows of the rod axis's rotation (:func:`rod_axis_rotation_xy`); shift_xy_mm (..., 2): the axis's
+    eccentricity (dx, dy). A fit's Jacobian evaluates all its perturbed geometries in one call.
+    """
+    phi, d, h, gamma, l0 = layer_arrays
+    alpha = np.asarray(alpha_rad, dtype=float)
+    R = np.asarray(rotation_xy, dtype=float)[..., None, None, :, :]  # (..., 1, 1, 2, 3)
+    center = np.asarray(center_xy_mm, dtype=float)[..., None, :, :]  # (..., 1, m, 2)
+    radius = np.asarray(radius_mm, dtype=float)[..., None, :]
+    shift = np.asarray(shift_xy_mm, dtype=float)[..., None, None, :]
+    # a pose's beams in the rod frame, u = (cos a, sin a, 0), n = (-sin a, cos a, 0), then their x and
+    # y in the part frame (the z row of the rotation is not needed)
+    a = alpha[..., :, None] + phi
+    ca, sa = np.cos(a), np.sin(a)
+    ox, oy = -d * sa, d * ca  # o = d n + h z
+    cg, sg = np.cos(gamma), np.sin(gamma)
+    ex, ey = cg * ca, cg * sa  # e = cos(gamma) u + sin(gamma) z
+    wx = R[..., 0, 0] * ox + R[..., 0, 1] * oy + R[..., 0, 2] * h + shift[..., 0] - center[..., 0]
+    wy = R[..., 1, 0] * ox + R[..., 1, 1] * oy + R[..., 1, 2] * h + shift[..., 1] - center[..., 1]
+    Ex = R[..., 0, 0] * ex + R[..., 0, 1] * ey + R[..., 0, 2] * sg
+    Ey = R[..., 1, 0] * ex + R[..., 1, 1] * ey + R[..., 1, 2] * sg
+    qa = Ex * Ex + Ey * Ey
+    qb = wx * Ex + wy * Ey
+    qc = wx * wx + wy * wy - radius**2
+    return _positive_root(qa, qb, qc) - l0
+
+
+def rod_layer_arrays(layers) -> tuple[np.ndarray, ...]:
+    """Return the layers' (phi [rad], d [mm], h [mm], gamma [rad], l0 [mm]) as arrays (m,) each."""
+    return tuple(
+        np.array([getattr(lay, k) for lay in layers], dtype=float)
+        for k in ("phi_rad", "d_mm", "h_mm", "gamma_rad", "l0_mm")
+    )
+
+
 def rod_readings(
     alpha_rad: np.ndarray, layers: list[RodLayer], holes: list[Hole], axis: RodAxis = RodAxis()
 ) -> np.ndarray:
@@ -440,7 +503,7 @@ def rod_readings(
     part frame by the rod axis pose and intersected with the hole cylinder
     (x - a_m)^2 + (y - b_m)^2 = r_m^2. The reading is v = l - l0. With gamma = d = omega = 0
     this is Wang 2017 Eq. 16: (x_m + l cos a)^2 + (y_m + l sin a)^2 = r_m^2 with
-    (x_m, y_m) = (dx - a_m, dy - b_m).
+    (x_m, y_m) = (dx - a_m, dy - b_m). Computed by :func:`rod_ray_readings`.
 
     Parameters
     ----------
@@ -452,25 +515,13 @@ def rod_readings(
     ndarray (n, m) readings [mm]
     """
     alpha = np.atleast_1d(np.asarray(alpha_rad, dtype=float))
-    Rm = rod_axis_rotation(axis)
-    # every layer at once, (n, m): a pose's beams in the rod frame, u = (cos a, sin a, 0),
-    # n = (-sin a, cos a, 0), then their x and y in the part frame (the z row of Rm is not needed)
-    phi, d, h, gamma, l0 = (
-        np.array([getattr(lay, k) for lay in layers], dtype=float)
-        for k in ("phi_rad", "d_mm", "h_mm", "gamma_rad", "l0_mm")
-    )
     center = np.array([hole.center_xy_mm for hole in holes], dtype=float).reshape(-1, 2)
     radius = np.array([hole.radius_mm for hole in holes], dtype=float)
-    a = alpha[:, None] + phi
-    ca, sa = np.cos(a), np.sin(a)
-    ox, oy, oz = -d * sa, d * ca, h  # o = d n + h z
-    cg, sg = np.cos(gamma), np.sin(gamma)
-    ex, ey, ez = cg * ca, cg * sa, sg  # e = cos(gamma) u + sin(gamma) z
-    wx = Rm[0, 0] * ox + Rm[0, 1] * oy + Rm[0, 2] * oz + axis.dx_mm - center[:, 0]
-    wy = Rm[1, 0] * ox + Rm[1, 1] * oy + Rm[1, 2] * oz + axis.dy_mm - center[:, 1]
-    Ex = Rm[0, 0] * ex + Rm[0, 1] * ey + Rm[0, 2] * ez
-    Ey = Rm[1, 0] * ex + Rm[1, 1] * ey + Rm[1, 2] * ez
-    qa = Ex * Ex + Ey * Ey
-    qb = wx * Ex + wy * Ey
-    qc = wx * wx + wy * wy - radius**2
-    return _positive_root(qa, qb, qc) - l0
+    return rod_ray_readings(
+        alpha,
+        rod_layer_arrays(layers),
+        center,
+        radius,
+        rod_axis_rotation_xy(axis.omega_rad, axis.omega_az_rad),
+        (axis.dx_mm, axis.dy_mm),
+    )

@@ -14,8 +14,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import least_squares
 
-from borescan.geometry import RodLayer, rod_readings
-from borescan.physics.rod import rod_section_geometry
+from borescan.geometry import RodLayer, rod_axis_rotation_xy, rod_layer_arrays, rod_ray_readings, rod_readings
+from borescan.physics.rod import rod_section_arrays, rod_section_geometry
 from borescan.rod_eq16 import _linear_start
 
 __all__ = ["rod_layers"]
@@ -70,6 +70,7 @@ class _RodProblem:
         self.alpha_fix = alpha_fix
         self.n_par = 3 * self.m + self.n - 1 + (2 if deflection else 0)
         self.Vz = np.where(mask, V, 0.0)
+        self._arrays = rod_layer_arrays(self.layers)
 
     def unpack(self, p):
         m, n = self.m, self.n
@@ -85,9 +86,19 @@ class _RodProblem:
         return np.concatenate(parts)
 
     def readings(self, rho, c, alpha, w):
-        s = w[0] ** 2 + w[1] ** 2
-        holes, axis = rod_section_geometry(self.layers, c, rho / _k(s), w)
-        return rod_readings(alpha, list(self.layers), holes, axis)
+        """Return the readings (n, m) at the unknowns, or (B, n, m) at B sets of them stacked.
+
+        :func:`borescan.physics.rod.rod_section_geometry` and :func:`borescan.geometry.rod_readings`
+        on arrays (:func:`~borescan.physics.rod.rod_section_arrays`,
+        :func:`~borescan.geometry.rod_ray_readings`): rho (..., m), c (..., m, 2), alpha (..., n),
+        w (..., 2).
+        """
+        w = np.asarray(w, dtype=float)
+        s = w[..., 0] ** 2 + w[..., 1] ** 2
+        r = rho / _k(s)[..., None]
+        _phi, _d, h, gamma, _l0 = self._arrays
+        ctr, om, az = rod_section_arrays(h, gamma, c, r, w)
+        return rod_ray_readings(alpha, self._arrays, ctr, r, rod_axis_rotation_xy(om, az), np.zeros(2))
 
     def residual(self, p):
         e = np.where(self.mask, self.V - self.readings(*self.unpack(p)), 0.0)
@@ -97,38 +108,45 @@ class _RodProblem:
         """Return d(model)/dp by central differences in blocks.
 
         d(model)/dp by central differences in blocks (a pose angle moves its row only, a hole's
-        unknowns its column only: 12 model evaluations). With ``beta_step`` the last two columns
-        are secants in beta = w^2 (complex square) instead: the statistics' coordinates.
+        unknowns its column only: 12 model evaluations, made in one call of :meth:`readings`).
+        With ``beta_step`` the last two columns are secants in beta = w^2 (complex square) instead:
+        the statistics' coordinates.
         """
         rho, c, alpha, w = self.unpack(p)
         n, m = self.n, self.m
-        J = np.zeros((n, m, self.n_par))
-        f = self.readings
-        h = 1e-6
-        d = (f(rho, c, alpha + h, w) - f(rho, c, alpha - h, w)) / (2 * h)
-        free = np.delete(np.arange(n), self.fix)
-        J[free, :, 3 * m + np.arange(n - 1)] = d[free]
-        idx = np.arange(m)
-        hr = 1e-5
-        J[:, idx, idx] = (f(rho + hr, c, alpha, w) - f(rho - hr, c, alpha, w)) / (2 * hr)
-        for k in range(2):
-            e = np.zeros((1, 2))
-            e[0, k] = hr
-            J[:, idx, (1 + k) * m + idx] = (f(rho, c + e, alpha, w) - f(rho, c - e, alpha, w)) / (2 * hr)
+        h, hr = 1e-6, 1e-5
+        # the perturbed unknowns, in pairs (+, -): alpha, rho, cx, cy, then w or beta
+        steps = [(0, h), (1, hr), (2, hr), (3, hr)]
         if self.deflection:
-            if beta_step is None:
-                for k in range(2):
+            steps += [(4, h), (5, h)] if beta_step is None else [(6, beta_step), (7, beta_step)]
+        B = 2 * len(steps)
+        R, C, A, W = (np.repeat(x[None], B, axis=0) for x in (rho, c, alpha, w))
+        for i, (what, step) in enumerate(steps):
+            for k, sgn in ((2 * i, 1.0), (2 * i + 1, -1.0)):
+                if what == 0:
+                    A[k] += sgn * step
+                elif what == 1:
+                    R[k] += sgn * step
+                elif what in (2, 3):
+                    C[k, :, what - 2] += sgn * step
+                elif what in (4, 5):
+                    W[k, what - 4] += sgn * step
+                else:
                     e = np.zeros(2)
-                    e[k] = h
-                    J[:, :, -2 + k] = (f(rho, c, alpha, w + e) - f(rho, c, alpha, w - e)) / (2 * h)
-            else:
-                b = _beta(w)
-                for k in range(2):
-                    e = np.zeros(2)
-                    e[k] = beta_step
-                    J[:, :, -2 + k] = (
-                        f(rho, c, alpha, _w_of_beta(b + e, w)) - f(rho, c, alpha, _w_of_beta(b - e, w))
-                    ) / (2 * beta_step)
+                    e[what - 6] = sgn * step
+                    W[k] = _w_of_beta(_beta(w) + e, w)
+        F = self.readings(R, C, A, W)
+        D = [(F[2 * i] - F[2 * i + 1]) / (2 * step) for i, (_what, step) in enumerate(steps)]
+        J = np.zeros((n, m, self.n_par))
+        free = np.delete(np.arange(n), self.fix)
+        J[free, :, 3 * m + np.arange(n - 1)] = D[0][free]
+        idx = np.arange(m)
+        J[:, idx, idx] = D[1]
+        J[:, idx, m + idx] = D[2]
+        J[:, idx, 2 * m + idx] = D[3]
+        if self.deflection:
+            J[:, :, -2] = D[4]
+            J[:, :, -1] = D[5]
         return -J[self.mask]  # residual = V - model
 
 

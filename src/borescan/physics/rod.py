@@ -44,6 +44,7 @@ __all__ = [
     "rod_holes_with_effects",
     "rod_reading_stage",
     "rod_section_geometry",
+    "rod_section_arrays",
 ]
 
 ROD = "rod"
@@ -168,16 +169,28 @@ def rod_section_geometry(
     """
     c = np.asarray(center_xy_mm, dtype=float).reshape(-1, 2)
     r = np.asarray(radius_mm, dtype=float).reshape(-1)
-    w = np.asarray(deflection_xy_rad, dtype=float)
-    om = float(np.hypot(w[0], w[1]))
-    az = float(np.arctan2(w[1], w[0])) if om > 0 else 0.0
     h = np.array([lay.h_mm for lay in layers])
     g = np.array([lay.gamma_rad for lay in layers])
-    z = h + r * np.tan(g)
-    ctr = c + (z * np.sinc(om / np.pi))[:, None] * w[None, :]
+    ctr, om, az = rod_section_arrays(h, g, c, r, deflection_xy_rad)
     return [Hole((float(x), float(y)), float(rr)) for (x, y), rr in zip(ctr, r, strict=True)], RodAxis(
-        0.0, 0.0, om, az
+        0.0, 0.0, float(om), float(az)
     )
+
+
+def rod_section_arrays(h_mm, gamma_rad, center_xy_mm, radius_mm, deflection_xy_rad):
+    """:func:`rod_section_geometry` on arrays, for one fit's unknowns or a stack of them.
+
+    h_mm, gamma_rad (m,): the layers'; center_xy_mm (..., m, 2), radius_mm (..., m), deflection_xy_rad
+    (..., 2). Returns the holes' centres (..., m, 2) and the axis's omega and azimuth (...) [rad].
+    """
+    c = np.asarray(center_xy_mm, dtype=float)
+    r = np.asarray(radius_mm, dtype=float)
+    w = np.asarray(deflection_xy_rad, dtype=float)
+    om = np.hypot(w[..., 0], w[..., 1])
+    az = np.where(om > 0, np.arctan2(w[..., 1], w[..., 0]), 0.0)
+    z = h_mm + r * np.tan(gamma_rad)
+    ctr = c + (z * np.sinc(om / np.pi)[..., None])[..., None] * w[..., None, :]
+    return ctr, om, az
 
 
 @dataclass(frozen=True)
