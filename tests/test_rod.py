@@ -352,9 +352,7 @@ def test_a_solve_at_the_design_layers_does_not_depend_on_the_readings_last_bits(
             )
             for t in range(5)
         ]
-        images = {
-            (*np.sign(s.deflection_xy_rad), np.sign(np.sum(np.sin(s.alpha_rad)))) for s in sols
-        }
+        images = {(*np.sign(s.deflection_xy_rad), np.sign(np.sum(np.sin(s.alpha_rad)))) for s in sols}
         assert len(images) == 1, (seed, images)
         w = sols[0].deflection_xy_rad
         assert w[0] * w[1] > 0, (seed, w)
