@@ -21,9 +21,8 @@ Gauge freedoms (removed, not estimated): a rotation of the whole set-up about th
 (dx, dy) is reported relative to hole 1's centre: ``eccentricity_mm``); and the axis shift
 z_m tan(omega) at each layer, which is exactly a centre shift and is moved into c_m. The
 mirror image (alpha -> -alpha) is a near-symmetry (broken by d, phi only at second order):
-both reflections are started. At phi = d = 0 it is exact, as is the deflection's sign (w -> -w);
-of the images as low the solve takes the one with beta_y = 2 w_x w_y >= 0 (then sum sin alpha > 0,
-then w_x > 0: ``rod_model._canonical_image``), not the one the readings' last bits led to.
+both reflections are started; exact at phi = d = 0, as is w -> -w, where the solve takes the image
+with beta_y >= 0 (``rod_model._canonical_image``), not the one the readings' last bits led to.
 
 Deflection (identifiability). With the centres free, what is left of omega is the tilt of the
 beam plane against the hole: the section is an ellipse, semi-axes r/cos(omega) along omega_az
