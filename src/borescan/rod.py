@@ -80,12 +80,7 @@ import numpy as np
 from borescan.fit import FitResult, fit_result, jacobian_summary
 from borescan.geometry import Hole, RodAxis, RodLayer, rod_readings
 from borescan.physics.rod import rod_section_geometry
-from borescan.rod_deflection import (
-    MAX_DEFLECTION_RAD,
-    _coaxial_rows,
-    _deflection_part,
-    _posterior_vector,
-)
+from borescan.rod_deflection import MAX_DEFLECTION_RAD, _coaxial_rows, _deflection_part, _posterior_vector
 from borescan.rod_minima import other_minima
 from borescan.rod_eq16 import RodSolveError, _prepare, _unpack, hold_refusal, rod_jacobian, rod_start
 from borescan.rod_model import (
