@@ -42,3 +42,39 @@ def test_a_short_trace_is_drawn_sample_by_sample():
     t, y = np.arange(3000.0), np.cos(np.arange(3000.0))
     te, ye = trace_envelope(t, y, runs=2000)  # runs of two samples: nothing to leave out
     assert te is t and ye is y
+
+
+def test_residual_panel_titles_sit_where_matplotlib_would_place_them():
+    """The residual panels' titles are placed at the top of their axes without matplotlib measuring every
+    y tick label at each drawing (layout._fixed_title): the page is pixel for pixel the one matplotlib's
+    own title placement gives, for residuals of a few um and of thousands of um (whose labels would
+    otherwise take a "1e3" multiplier, written in full now).
+    """
+    import io
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from borescan.certificate import write
+
+    def png(fig):
+        FigureCanvasAgg(fig)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=60)
+        return np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(buf))
+
+    cert = {"calibration_id": "C", "parameters": [{"channel": c} for c in (1, 2, 3)]}
+    rng = np.random.default_rng(8)
+    t = np.arange(3000) / 500.0
+    for scale_mm in (0.002, 0.004):
+        res = rng.normal(0.0, scale_mm, (t.size, 3))
+        ours = png(write._residual_figure(cert, t, res))
+        fig = write._residual_figure(cert, t, res)
+        for ax in fig.axes:  # matplotlib's own placement of the same titles
+            ax.set_title(ax.get_title(loc="left"), fontsize=8, loc="left")
+            ax._autotitlepos = True
+        assert np.array_equal(ours, png(fig)), scale_mm
+    big = write._residual_figure(cert, t, rng.normal(0.0, 30.0, (t.size, 3)))
+    FigureCanvasAgg(big).draw()
+    labels = [lab.get_text() for ax in big.axes for lab in ax.get_yticklabels()]
+    assert not any(ax.yaxis.get_offset_text().get_text() for ax in big.axes)
+    assert any(len(lab.replace("−", "").replace("-", "")) >= 5 for lab in labels)  # e.g. 50000 written out

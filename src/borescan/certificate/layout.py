@@ -405,3 +405,15 @@ def _label(row: dict) -> str:
 def _tiny(r: dict, uc: float) -> bool:
     c = r.get("contribution") or 0.0
     return uc > 0 and c < 1e-5 * uc
+
+
+def _fixed_title(ax, text: str) -> None:
+    """Title ``text`` at the top left of a residual panel, where matplotlib would put it, without measuring.
+
+    Left to itself, matplotlib measures every y tick label of the panel at each drawing to see
+    whether the axis's offset text ("1e3", "+1000") would cover the title (a tenth of a certificate's
+    CPU); the panel's y labels are written in full instead (no offset text, no multiplier), so the
+    title stays at the top of the axes, where it was placed: the same pixels.
+    """
+    ax.ticklabel_format(axis="y", style="plain", useOffset=False)
+    ax.set_title(text, fontsize=8, loc="left", y=1.0)

@@ -10,7 +10,7 @@ from matplotlib.figure import Figure
 from borescan.certificate.admin import _measurement_results, _shared_part, _traceability_text
 from borescan.certificate.budget_pages import _page_records, _rod_layer_budget, _verification_pages
 from borescan.certificate.content import _METHOD_TEXT, _budget_entry, _fixed, _result, calibration_conditions
-from borescan.certificate.layout import _A4, _Doc, _dominant_label, _num, _ppm, _scaled, _vu
+from borescan.certificate.layout import _A4, _Doc, _dominant_label, _fixed_title, _num, _ppm, _scaled, _vu
 from borescan.certificate.pages import _page_admin, _sensor_table
 from borescan.config import schema_default
 
@@ -28,11 +28,8 @@ def _rod_residual_figure(cert: dict, size=(8.27, 5.0), page: bool = False) -> Fi
         ax.axhline(0.0, color="k", lw=0.5)
         rms = float(np.sqrt(np.mean(res[ok, j] ** 2))) * 1e3 if ok.any() else float("nan")
         ax.set_ylabel(f"layer {prow['channel']} [um]")
-        ax.set_title(
-            f"layer {prow['channel']} ({prow.get('feature')}): rms {rms:.2f} um over {int(ok.sum())} poses",
-            fontsize=8,
-            loc="left",
-        )
+        layer = f"layer {prow['channel']} ({prow.get('feature')})"
+        _fixed_title(ax, f"{layer}: rms {rms:.2f} um over {int(ok.sum())} poses")
     axes[-1].set_xlabel("pose angle [deg]")
     if page:
         fig.text(

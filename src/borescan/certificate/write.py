@@ -16,7 +16,7 @@ from borescan.calibrate.result import TriCalibration
 from borescan.certificate.budget_pages import _budget_tables, _page_records, _verification_pages
 from borescan.certificate.content import _residual_arrays
 from borescan.certificate.dcc import write_dcc
-from borescan.certificate.layout import _A4, _PDF_METADATA, _RC, _Doc, _pdf_context
+from borescan.certificate.layout import _A4, _PDF_METADATA, _RC, _Doc, _fixed_title, _pdf_context
 from borescan.certificate.pages import _page_admin, _page_item_conditions, _page_results
 from borescan.certificate.rod import _rod_pages, _rod_residual_figure, rod_certificate_dict
 from borescan.certificate.tri import certificate_dict
@@ -66,7 +66,7 @@ def _residual_figure(
         with np.errstate(invalid="ignore"):
             rms = float(np.sqrt(np.nanmean(res[:, j] ** 2))) * 1e3 if res.size else float("nan")
         ax.set_ylabel(f"ch {ch} [um]")
-        ax.set_title(f"channel {ch}: rms {rms:.2f} um", fontsize=8, loc="left")
+        _fixed_title(ax, f"channel {ch}: rms {rms:.2f} um")
     axes[-1].set_xlabel("t [s]")
     if page:
         fig.text(
