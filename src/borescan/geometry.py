@@ -442,11 +442,10 @@ def rod_axis_rotation_xy(omega_rad, omega_az_rad) -> np.ndarray:
     om, az = np.asarray(omega_rad, dtype=float), np.asarray(omega_az_rad, dtype=float)
     kx, ky = -np.sin(az), np.cos(az)
     s, c1 = np.sin(om), 1.0 - np.cos(om)
-    zero = np.zeros_like(om)
     return np.stack(
         [
             np.stack([1.0 - c1 * ky * ky, c1 * kx * ky, s * ky], axis=-1),
-            np.stack([c1 * kx * ky, 1.0 - c1 * kx * kx, -s * kx + zero], axis=-1),
+            np.stack([c1 * kx * ky, 1.0 - c1 * kx * kx, -s * kx], axis=-1),
         ],
         axis=-2,
     )

@@ -14,8 +14,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import least_squares
 
-from borescan.geometry import RodLayer, rod_axis_rotation_xy, rod_layer_arrays, rod_ray_readings, rod_readings
-from borescan.physics.rod import rod_section_arrays, rod_section_geometry
+from borescan.geometry import RodLayer, rod_axis_rotation_xy, rod_layer_arrays, rod_ray_readings
+from borescan.physics.rod import rod_section_arrays
 from borescan.rod_eq16 import _linear_start
 
 __all__ = ["rod_layers"]
@@ -115,28 +115,25 @@ class _RodProblem:
         rho, c, alpha, w = self.unpack(p)
         n, m = self.n, self.m
         h, hr = 1e-6, 1e-5
-        # the perturbed unknowns, in pairs (+, -): alpha, rho, cx, cy, then w or beta
-        steps = [(0, h), (1, hr), (2, hr), (3, hr)]
-        if self.deflection:
-            steps += [(4, h), (5, h)] if beta_step is None else [(6, beta_step), (7, beta_step)]
-        B = 2 * len(steps)
-        R, C, A, W = (np.repeat(x[None], B, axis=0) for x in (rho, c, alpha, w))
-        for i, (what, step) in enumerate(steps):
-            for k, sgn in ((2 * i, 1.0), (2 * i + 1, -1.0)):
-                if what == 0:
-                    A[k] += sgn * step
-                elif what == 1:
-                    R[k] += sgn * step
-                elif what in (2, 3):
-                    C[k, :, what - 2] += sgn * step
-                elif what in (4, 5):
-                    W[k, what - 4] += sgn * step
-                else:
-                    e = np.zeros(2)
-                    e[what - 6] = sgn * step
-                    W[k] = _w_of_beta(_beta(w) + e, w)
-        F = self.readings(R, C, A, W)
-        D = [(F[2 * i] - F[2 * i + 1]) / (2 * step) for i, (_what, step) in enumerate(steps)]
+        ex, ey = np.array([1.0, 0.0]), np.array([0.0, 1.0])
+        # (step, unknowns stepped +, unknowns stepped -): the poses, the radii, the centres' x and y
+        # (every hole's at once), then w or beta
+        pairs = [
+            (h, (rho, c, alpha + h, w), (rho, c, alpha - h, w)),
+            (hr, (rho + hr, c, alpha, w), (rho - hr, c, alpha, w)),
+            *((hr, (rho, c + hr * e, alpha, w), (rho, c - hr * e, alpha, w)) for e in (ex, ey)),
+        ]
+        if self.deflection and beta_step is None:
+            pairs += [(h, (rho, c, alpha, w + h * e), (rho, c, alpha, w - h * e)) for e in (ex, ey)]
+        elif self.deflection:
+            b, bs = _beta(w), beta_step
+            pairs += [
+                (bs, (rho, c, alpha, _w_of_beta(b + bs * e, w)), (rho, c, alpha, _w_of_beta(b - bs * e, w)))
+                for e in (ex, ey)
+            ]
+        stacked = [u for _step, plus, minus in pairs for u in (plus, minus)]
+        F = self.readings(*(np.stack(x) for x in zip(*stacked)))
+        D = [(F[2 * i] - F[2 * i + 1]) / (2 * step) for i, (step, _plus, _minus) in enumerate(pairs)]
         J = np.zeros((n, m, self.n_par))
         free = np.delete(np.arange(n), self.fix)
         J[free, :, 3 * m + np.arange(n - 1)] = D[0][free]
@@ -224,9 +221,7 @@ def _repair_poses(prob, p, max_rounds: int = 3, nfev_per_par: int = 100):
     nfev = 0
     for _ in range(max_rounds):
         rho, c, alpha, w = prob.unpack(p)
-        s = float(w @ w)
-        holes, axis = rod_section_geometry(prob.layers, c, rho / _k(s), w)
-        G = rod_readings(_POSE_GRID, list(prob.layers), holes, axis)  # (g, m)
+        G = prob.readings(rho, c, _POSE_GRID, w)  # (g, m): every pose angle of the grid
         cur = np.where(prob.mask, prob.V - prob.readings(rho, c, alpha, w), 0.0)
         cur = np.sum(cur**2, axis=1)
         d = np.where(prob.mask[:, None, :], prob.Vz[:, None, :] - G[None, :, :], 0.0)
