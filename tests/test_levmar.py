@@ -159,6 +159,26 @@ def test_the_triangular_factor_of_the_stacked_matrix():
     np.testing.assert_allclose(Rs.T @ Rs, A[:3].T @ A[:3], atol=1e-6)
 
 
+def test_the_blocked_factor_is_the_one_factor_of_the_whole_matrix():
+    """Blocks of QR_BLOCK_ROWS, the last one shorter than a row per column: R of one LAPACK QR of [J f]."""
+    from borescan.levmar import QR_BLOCK_ROWS
+
+    rng = np.random.default_rng(11)
+    n = 12
+    m = 3 * QR_BLOCK_ROWS + 5  # the last block has 5 rows for 13 columns
+    J = np.asfortranarray(rng.normal(size=(m, n)) * np.logspace(-3, 3, n))
+    f = rng.normal(size=m)
+    R = qr_of_stacked(J, f)
+    A = np.column_stack([J, f])
+    _, R_one = np.linalg.qr(A)
+    # unique up to the signs of its rows: compare |R| and the Gram matrix, to rounding
+    scale = np.abs(R_one).max(axis=1, keepdims=True)
+    np.testing.assert_allclose(np.abs(R) / scale, np.abs(R_one) / scale, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(R.T @ R, A.T @ A, rtol=1e-11, atol=1e-9)
+    x, *_ = np.linalg.lstsq(J, f, rcond=None)
+    assert abs(R[n, n]) == pytest.approx(np.linalg.norm(J @ x - f), rel=1e-10)
+
+
 def test_non_finite_start_is_refused():
     with pytest.raises(ValueError, match="not finite"):
         levenberg_marquardt(

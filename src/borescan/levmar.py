@@ -62,24 +62,55 @@ class LMResult:
         return self.status > 0
 
 
+#: rows per block of :func:`qr_of_stacked`: a block of [J f] (2048 x up to ~30 columns) stays in the
+#: core's cache while LAPACK factors it; one factorisation of the whole tall matrix streams it from
+#: memory once per column (``geqrf``'s panel is the whole matrix when n < its block size)
+QR_BLOCK_ROWS = 2048
+
+
 def qr_of_stacked(J: np.ndarray, f: np.ndarray) -> np.ndarray:
     """Return the triangular factor of [J f].
 
     Return the (n+1) x (n+1) triangular factor of [J f] (LAPACK ``geqrf``): R of J, Q^T f and
-    |residual|.
+    |residual|. Tall matrices are factored by blocks of :data:`QR_BLOCK_ROWS` rows and the blocks'
+    triangles stacked and factored again (the tall-skinny QR of Demmel, Grigori, Hoemmen and Langou,
+    SIAM J. Sci. Comput. 34 (2012) A206): the same R up to the signs of its rows and rounding, which
+    nothing downstream sees (R^T R = [J f]^T [J f]; the step, the column norms and the corner |residual|
+    do not depend on the rows' signs).
     """
+    m, n = J.shape
+    if m <= QR_BLOCK_ROWS:
+        return _triangle(_stacked(J, f))
+    buf = np.empty((QR_BLOCK_ROWS, n + 1), order="F")
+    parts = []
+    for s in range(0, m, QR_BLOCK_ROWS):
+        rows = min(QR_BLOCK_ROWS, m - s)
+        A = buf if rows == QR_BLOCK_ROWS else np.empty((rows, n + 1), order="F")
+        A[:, :n] = J[s : s + rows]
+        A[:, n] = f[s : s + rows]
+        parts.append(_triangle(A)[: min(rows, n + 1)])
+    return _triangle(np.asfortranarray(np.vstack(parts)))
+
+
+def _stacked(J: np.ndarray, f: np.ndarray) -> np.ndarray:
     m, n = J.shape
     A = np.empty((m, n + 1), order="F")
     A[:, :n] = J
     A[:, n] = f
-    if m < n + 1:  # fewer rows than columns + 1
-        A = np.vstack([A, np.zeros((n + 1 - m, n + 1))])
+    return A
+
+
+def _triangle(A: np.ndarray) -> np.ndarray:
+    """Return the (n+1) x (n+1) triangular factor of the Fortran-ordered A (m x (n+1)); A is overwritten."""
+    k = A.shape[1]
+    if A.shape[0] < k:  # fewer rows than columns: padded with zero rows
+        A = np.asfortranarray(np.vstack([A, np.zeros((k - A.shape[0], k))]))
     lwork, info = dgeqrf_lwork(*A.shape)
     # geqrf itself (scipy.linalg.qr would also build triu of the whole m x (n+1) array)
     a, _, _, info = dgeqrf(A, lwork=int(lwork), overwrite_a=True)
     if info != 0:
         raise ValueError(f"LAPACK dgeqrf failed (info {info})")
-    return np.triu(a[: n + 1])
+    return np.triu(a[:k])
 
 
 def _enorm(v: np.ndarray) -> float:

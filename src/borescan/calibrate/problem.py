@@ -16,7 +16,7 @@ the calibration's own (3c,) vector is (beta, rho, d_b) per channel (:meth:`FullP
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -171,6 +171,9 @@ class FullProblem:
     rule: AcceptanceRule
     max_nfev: int = 1000
     cond_max: float = 1e10
+    #: per (scan, rows, first row) the Jacobian rows of each channel's valid readings
+    #: (:func:`borescan.calibrate.residuals.block_rows`); a problem with other masks starts empty
+    row_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     # ---- sizes and offsets
     @property

@@ -20,7 +20,15 @@ from borescan.levmar import LMResult, levenberg_marquardt
 from borescan.physics.tri import commanded_device_angle, tri_readings_at, tri_spindle_jacobian
 from borescan.physics.tri_params import dbeta_drho_at_psi, dd_b_drho_at_g
 
-__all__ = ["device_angles", "model_readings", "residuals", "residuals_and_jacobian", "solve", "solve_fixed"]
+__all__ = [
+    "device_angles",
+    "model_readings",
+    "residuals",
+    "residuals_and_jacobian",
+    "solve",
+    "solve_fixed",
+    "block_rows",
+]
 
 
 def device_angles(pb: FullProblem, k: int, nu: ScanNuisance) -> np.ndarray:
@@ -81,24 +89,38 @@ def residuals_and_jacobian(
     return r, JT.T
 
 
+def block_rows(pb: FullProblem, k: int, sel: slice, b0: int) -> tuple[int, list[np.ndarray]]:
+    """Return scan ``k``'s valid readings (rows ``sel``) and each channel's rows of the Jacobian from ``b0``.
+
+    The rows are sample by sample, channel by channel; they depend on the mask only, so they are
+    computed once per problem and block (``pb.row_cache``), not at every Jacobian.
+    """
+    key = (k, sel.start, sel.stop, sel.step, b0)
+    hit = pb.row_cache.get(key)
+    if hit is None:
+        m = pb.masks[k][sel]
+        at = (np.cumsum(m.ravel()) - 1).reshape(m.shape)  # row of each valid reading in the block
+        hit = (int(m.sum()), [b0 + at[m[:, j], j] for j in range(pb.c)])
+        pb.row_cache[key] = hit
+    return hit
+
+
 def _fill_scan_block(
     pb: FullProblem, JT, b0: int, k: int, sel, jac: dict, rho: np.ndarray, full: bool
 ) -> int:
     """Fill scan ``k``'s rows (from ``b0``) of the transposed Jacobian; return the next row."""
     c, m = pb.c, pb.masks[k][sel]
-    n_k = int(m.sum())
-    at = (np.cumsum(m.ravel()) - 1).reshape(m.shape)  # row of each valid reading in the block
-    rows_of = [b0 + at[m[:, j], j] for j in range(c)]
+    n_k, rows_of = block_rows(pb, k, sel, b0)
     dbeta_drho = dbeta_drho_at_psi(rho, pb.R_mm)
     dd_b_drho = dd_b_drho_at_g(rho, pb.R_mm)
     for j in range(c):
         mj, rj = m[:, j], rows_of[j]
-        if pb.beta_free(j):
-            JT[j - 1 + pb.ch0_free, rj] = jac["beta"][j, mj]
         # d/drho at fixed psi and g: beta moves by dbeta_drho, d_b by dd_b_drho (v = s - d_b)
         drho = jac["rho"][j, mj] - dd_b_drho[j]
         if pb.beta_free(j):
-            drho = drho + jac["beta"][j, mj] * dbeta_drho[j]
+            dbeta = jac["beta"][j, mj]
+            JT[j - 1 + pb.ch0_free, rj] = dbeta
+            drho = drho + dbeta * dbeta_drho[j]
         JT[pb.i_rho0 + j, rj] = drho
         JT[pb.i_g0 + j, rj] = -1.0
     blk = slice(b0, b0 + n_k)
