@@ -142,3 +142,36 @@ def test_grouped_differences_give_the_dense_fit_bit_for_bit():
     assert np.array_equal(grouped.x, dense.x) and grouped.rss == dense.rss
     assert np.array_equal(grouped.cov, dense.cov)
     assert dense.success and np.max(np.abs(dense.x[:n_blocks] - truth)) < 5 * np.max(dense.u[:n_blocks])
+
+
+def test_a_fit_is_scipy_least_squares_lm_to_rounding():
+    """least_squares_fit iterates as scipy.optimize.least_squares(method="lm") (MINPACK lmder, x_scale
+    "jac"), its QR by LAPACK: the same minimum, evaluation count, status and Jacobian to rounding, on a
+    nonlinear problem with forward differences in scaled variables (the discrepancy workflow's fits).
+    """
+    from scipy.optimize import least_squares
+
+    rng = np.random.default_rng(17)
+    t = np.linspace(0.0, 4.0, 3000)
+    y = 1.5 * np.exp(-0.8 * t) * np.cos(3.1 * t + 0.4) + 0.02 + 0.005 * rng.standard_normal(t.size)
+
+    def fun(p):
+        return y - (p[0] * np.exp(-p[1] * t) * np.cos(p[2] * t + p[3]) + p[4])
+
+    x0, scale = [1.0, 0.5, 3.0, 0.0, 0.0], np.array([1.0, 0.1, 0.1, 0.1, 0.01])
+    fr = least_squares_fit(fun, x0, list("abcde"), scale=scale, xtol=1e-10, ftol=1e-12, gtol=1e-8)
+
+    def jz(z):  # least_squares_fit's forward differences of step 1e-4 in z = x / scale
+        f0 = fun(z * scale)
+        return np.column_stack([(fun((z + 1e-4 * e) * scale) - f0) / 1e-4 for e in np.eye(5)])
+
+    ref = least_squares(
+        lambda z: fun(z * scale), np.array(x0) / scale, jac=jz, method="lm", xtol=1e-10, ftol=1e-12, gtol=1e-8
+    )
+    assert fr.success and ref.success and fr.nfev == ref.nfev
+    np.testing.assert_allclose(fr.x, ref.x * scale, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(fr.rss, 2.0 * ref.cost, rtol=1e-9)
+    np.testing.assert_allclose(fr.cov, fr.cov.T)
+    J_ref = ref.jac / scale
+    cov_ref = np.linalg.inv(J_ref.T @ J_ref) * fr.sigma**2
+    np.testing.assert_allclose(fr.cov, cov_ref, rtol=1e-6)

@@ -3,15 +3,16 @@
 The three-sensor calibration (:func:`borescan.calibrate.full_fit.fit_full_calibration`), the rod solve
 (:func:`borescan.rod.solve_rod`) and the discrepancy workflow
 (:func:`borescan.discrepancy.fitting.fit_least_squares`) each minimise a sum of squared
-(weighted) residuals with ``scipy.optimize.least_squares``; what they report about the optimum
+(weighted) residuals by MINPACK's Levenberg-Marquardt (:mod:`borescan.levmar`, the iteration of
+``scipy.optimize.least_squares(method="lm")`` on a LAPACK QR); what they report about the optimum
 comes from here, once:
 
 - :func:`jacobian_summary`: rank and condition of the column-scaled Jacobian and the unit-noise
   covariance ``(J^T J)^+`` from its SVD (pseudo-inverse over the numerical rank);
 - :func:`fit_result`: the :class:`FitResult` (values, standard uncertainties, covariance,
   correlation, residuals, RSS, rank, condition, success, message, AIC / BIC) at an optimum;
-- :func:`least_squares_fit`: ``scipy.optimize.least_squares`` (Levenberg-Marquardt) wrapped to
-  return a :class:`FitResult`, with an analytic Jacobian or scaled forward differences.
+- :func:`least_squares_fit`: Levenberg-Marquardt (:func:`borescan.levmar.levenberg_marquardt`) wrapped
+  to return a :class:`FitResult`, with an analytic Jacobian or scaled forward differences.
 
 Information criteria of a Gaussian least-squares fit with the variance profiled out
 (Burnham & Anderson 2002, Sec. 2.2): ``AIC = n ln(RSS/n) + 2p``, ``BIC = n ln(RSS/n) + p ln n``.
@@ -23,7 +24,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
+
+from borescan.levmar import levenberg_marquardt
 
 __all__ = [
     "FitResult",
@@ -284,7 +286,8 @@ def least_squares_fit(
             return np.asarray(jac(z * s)) * s
 
     if z0.size:
-        res = least_squares(f, z0, jac=jz, method="lm", max_nfev=max_nfev, xtol=xtol, ftol=ftol, gtol=gtol)
+        # least_squares(f, z0, jac=jz, method="lm") to rounding, its QR by LAPACK (borescan.levmar)
+        res = levenberg_marquardt(f, z0, jz, max_nfev=max_nfev, xtol=xtol, ftol=ftol, gtol=gtol)
         z, r, Jz, ok, msg, nfev = res.x, res.fun, res.jac, bool(res.success), str(res.message), int(res.nfev)
     else:
         z, r, Jz, ok, msg, nfev = z0, f(z0), np.zeros((0, 0)), True, "nothing to fit", 1
