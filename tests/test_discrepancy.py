@@ -708,3 +708,41 @@ def test_rounding_of_a_quantised_measurement_is_not_taken_for_outliers():
     f = examine_scan(sim, beams=beams, **discrepancy_settings())
     assert [named_label(n) for n in f["named"]] == ["quantization@1"], f["statement"]
     assert f["gap_after"]["rms_mm"] <= 1.10 * f["noise_floor_mm"]
+
+
+@pytest.mark.parametrize("key", ["sensor_gain@2", "beam_tilt@1", "thermal_expansion"])
+def test_a_rod_fit_with_its_differences_in_one_stacked_call_is_the_fit_one_step_at_a_time(key):
+    """The rod's forward differences in the base unknowns predicted as one stack (``RodDevice.predict_stack``
+    through the search's ``_residual_stack``): the same fit as one prediction per step, to rounding
+    (a reading, a beam and a bore-stage candidate; the bore's takes the state-by-state path).
+    """
+    from borescan.discrepancy.fitting import fit_least_squares, residual_sparsity
+    from borescan.discrepancy.poses import RodModel, pose_data_from_arrays
+    from borescan.discrepancy.examine import scan_arrays
+    from borescan.discrepancy.search import _residual_stack
+
+    scan = _rod_case([Effect("sensor_gain", {"channel": 2, "g": 0.004})])
+    t_s, ch, vals, pose, _ = scan_arrays(scan)
+    model = RodModel(pose_data_from_arrays(scan.meta["scan_id"], scan.meta, t_s, vals, ch, pose))
+    (term,) = [t for t in model.candidate_terms() if t.key == key]
+    names = model.base_names() + list(term.names())
+    scales = model.base_scales() + list(term.scales())
+    start = model.base_start()
+    xs = [start.get(n, 0.0) for n in names]
+    sparsity = residual_sparsity(names, model.mask, model.data.channels, model.data.pose_index)
+    fits = [
+        fit_least_squares(
+            lambda p: model.residual(p, [term]),
+            names,
+            xs,
+            scales,
+            sparsity=sparsity,
+            max_nfev=600,
+            residual_stack_fn=stack,
+        )
+        for stack in (None, _residual_stack(model, [term]))
+    ]
+    one, stacked = fits
+    assert one.success and stacked.success and one.nfev == stacked.nfev
+    np.testing.assert_allclose(stacked.x, one.x, rtol=0, atol=1e-9 * np.max(one.u))
+    np.testing.assert_allclose(stacked.rss, one.rss, rtol=1e-9)

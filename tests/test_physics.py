@@ -151,3 +151,30 @@ def test_rod_device_base_is_the_geometry_of_its_unknowns():
     base = device.base(replace(state, deflection_xy_rad=np.zeros(2)))
     assert [h.center_xy_mm for h in base.holes] == [tuple(c) for c in state.center_xy_mm]
     assert base.axis == RodAxis(0.0, 0.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("case", [*ROD_EFFECTS, "beam_and_reading_no_bore"])
+def test_rod_stacked_prediction_is_the_prediction_state_by_state(case):
+    """A fit's forward differences in one call (:meth:`RodDevice.predict_stack`): every state of the stack
+    (pose angles, centres, radii, deflection moved one at a time, as its Jacobian's groups) predicts what
+    :meth:`RodDevice.predict` gives for it alone, to the rounding of numpy's vectorised loops (1e-12 mm);
+    a bore-stage effect (thermal expansion) takes the state-by-state path.
+    """
+    device, state, pose, t = _rod_case()
+    if case == "beam_and_reading_no_bore":
+        effects = [e for e in ROD_EFFECTS["beam_and_reading"] if e.name != "thermal_expansion"]
+    else:
+        effects = ROD_EFFECTS[case]
+    states = [
+        state,
+        replace(state, alpha_rad=state.alpha_rad + 1e-4),
+        replace(state, center_xy_mm=state.center_xy_mm + np.array([[1e-3, 0.0], [0.0, -2e-3]])),
+        replace(state, radius_mm=state.radius_mm + np.array([0.0, 5e-3])),
+        replace(state, deflection_xy_rad=state.deflection_xy_rad * 1.5 + 1e-4),
+    ]
+    stacked = device.predict_stack(states, pose, t, effects)
+    assert stacked.shape == (len(states), pose.size, 2)
+    for s, v in zip(states, stacked, strict=True):
+        one = device.predict(s, pose, t, effects)
+        assert np.all(np.isfinite(one))
+        np.testing.assert_allclose(v, one, rtol=0, atol=1e-12)

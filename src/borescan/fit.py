@@ -245,6 +245,7 @@ def least_squares_fit(
     ftol: float = 1e-12,
     gtol: float = 1e-8,
     sparsity: np.ndarray | None = None,
+    fun_stack: Callable[[list[np.ndarray]], list[np.ndarray]] | None = None,
 ) -> FitResult:
     """Minimise ``sum(fun(x)**2)`` (Levenberg-Marquardt) and return its :class:`FitResult`.
 
@@ -254,6 +255,8 @@ def least_squares_fit(
     where a residual may depend on the parameter) lets parameters whose residuals do not overlap
     share one step (:func:`difference_groups`): the same Jacobian, bit for bit, from fewer
     evaluations of ``fun`` when it is right (e.g. one angle per pose, one beam per channel).
+    ``fun_stack`` (optional): ``fun`` at each of a list of points, in one call; the forward differences'
+    steps are then evaluated together (a model that predicts a stack of states at once).
     A failed optimisation is reported in ``success`` and ``message``, not raised.
     """
     names = tuple(names)
@@ -265,21 +268,8 @@ def least_squares_fit(
 
     if jac is None:
         groups = difference_groups(sparsity) if sparsity is not None else [[i] for i in range(z0.size)]
-
-        def jz(z: np.ndarray) -> np.ndarray:
-            f0 = f(z)
-            J = np.empty((f0.size, z.size))
-            for g in groups:
-                zz = z.copy()
-                zz[g] += diff_step
-                col = (f(zz) - f0) / diff_step
-                if len(g) == 1:
-                    J[:, g[0]] = col
-                else:  # each parameter of the group moves only its own residuals (elsewhere: the
-                    # column a step of it alone gives, (f0 - f0) / step: 0, NaN where f0 is NaN)
-                    for i in g:
-                        J[:, i] = np.where(sparsity[:, i], col, (f0 - f0) / diff_step)
-            return J
+        f_stack = None if fun_stack is None else (lambda zs: fun_stack([zz * s for zz in zs]))
+        jz = _difference_jacobian(f, f_stack, groups, sparsity, diff_step)
     else:
 
         def jz(z: np.ndarray) -> np.ndarray:
@@ -294,6 +284,35 @@ def least_squares_fit(
     return fit_result(
         names, z * s, r, Jz / s if z.size else Jz, sigma=sigma, success=ok, message=msg, nfev=nfev
     )
+
+
+def _difference_jacobian(f, f_stack, groups: list[list[int]], sparsity, step: float):
+    """Return the forward-difference Jacobian of ``f`` (:func:`least_squares_fit`'s, in scaled variables).
+
+    One step per group of columns (:func:`difference_groups`); ``f_stack`` (``f`` at a list of points in
+    one call) evaluates the steps together, else ``f`` one step at a time.
+    """
+
+    def jz(z: np.ndarray) -> np.ndarray:
+        f0 = f(z)
+        J = np.empty((f0.size, z.size))
+        zs = []
+        for g in groups:
+            zz = z.copy()
+            zz[g] += step
+            zs.append(zz)
+        fs = f_stack(zs) if f_stack is not None else (f(zz) for zz in zs)
+        for g, fg in zip(groups, fs, strict=True):
+            col = (fg - f0) / step
+            if len(g) == 1:
+                J[:, g[0]] = col
+            else:  # each parameter of the group moves only its own residuals (elsewhere: the
+                # column a step of it alone gives, (f0 - f0) / step: 0, NaN where f0 is NaN)
+                for i in g:
+                    J[:, i] = np.where(sparsity[:, i], col, (f0 - f0) / step)
+        return J
+
+    return jz
 
 
 def difference_groups(sparsity: np.ndarray) -> list[list[int]]:

@@ -39,12 +39,15 @@ def fit_least_squares(
     sparsity: np.ndarray | None = None,
     ftol: float = 1e-8,
     xtol: float = 1e-8,
+    residual_stack_fn: Callable[[list[dict[str, float]]], list[np.ndarray]] | None = None,
 ) -> FitResult:
     """Minimise ``sum(residual_fn(params)**2)`` over ``names`` (others from ``fixed``).
 
     Parameters are scaled by ``scale`` (typical magnitudes) so that forward differences with a
     relative step of 1e-4 of the scale give accurate Jacobians (:func:`borescan.fit.least_squares_fit`);
-    ``sparsity`` (:func:`residual_sparsity`) lets parameters of different poses or channels share a step.
+    ``sparsity`` (:func:`residual_sparsity`) lets parameters of different poses or channels share a step;
+    ``residual_stack_fn`` (``residual_fn`` at a list of parameter sets in one call) evaluates the steps
+    together.
     """
     names = tuple(names)
     fixed = dict(fixed or {})
@@ -54,8 +57,19 @@ def fit_least_squares(
         p.update(zip(names, x))
         return residual_fn(p)
 
+    def fun_stack(xs: list[np.ndarray]) -> list[np.ndarray]:
+        return residual_stack_fn([{**fixed, **dict(zip(names, x))} for x in xs])
+
     return least_squares_fit(
-        fun, x0, names, scale=scale, max_nfev=max_nfev, sparsity=sparsity, ftol=ftol, xtol=xtol
+        fun,
+        x0,
+        names,
+        scale=scale,
+        max_nfev=max_nfev,
+        sparsity=sparsity,
+        ftol=ftol,
+        xtol=xtol,
+        fun_stack=fun_stack if residual_stack_fn is not None else None,
     )
 
 

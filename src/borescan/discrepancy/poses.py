@@ -113,8 +113,11 @@ class _PoseModel:
         self._last = None
 
     def residual(self, p, terms):
-        r = dead_zone(self.data.values_mm - self.predict(p, terms), self.dead_zone_mm) * self.weights
-        return r[self.mask]
+        return self.weighted(self.predict(p, terms))
+
+    def weighted(self, predicted: np.ndarray) -> np.ndarray:
+        """Return the weighted residual vector over the unmasked samples of predicted readings (n, m)."""
+        return (dead_zone(self.data.values_mm - predicted, self.dead_zone_mm) * self.weights)[self.mask]
 
     def residual_matrix(self, p, terms):
         return self.data.values_mm - self.predict(p, terms)
@@ -368,6 +371,13 @@ class RodModel(_PoseModel):
             invalid="ignore", divide="ignore"
         ):  # NaN where a start puts the beam outside the hole
             return self.device.predict(self.state(p), d.pose_index, d.t_s, effects)
+
+    def predict_stack(self, ps: list, terms) -> np.ndarray:
+        """:meth:`predict` at each of ``ps`` (same term values) as a stack (S, n, m), one kernel call."""
+        d = self.data
+        effects = [e for t in terms for e in term_effects(t, ps[0], d.channels)]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.device.predict_stack([self.state(p) for p in ps], d.pose_index, d.t_s, effects)
 
     def candidate_terms(self, *, k_max=None, vibration_f_hz=None):
         """Return the registry's rod candidates; what a layer's free hole radius absorbs is left out."""

@@ -191,6 +191,7 @@ class Fitter:
         sparsity = residual_sparsity(
             names, model.mask, model.data.channels, getattr(model.data, "pose_index", None)
         )
+        stack = _residual_stack(model, terms)  # the forward differences in one call, where it can
         for st in (start, {**self.fallback, **{k: v for k, v in start.items() if k.endswith("f_hz")}}):
             xs = [st.get(n, 0.0) for n in names]
             try:
@@ -201,12 +202,39 @@ class Fitter:
                     scales,
                     sparsity=sparsity,
                     max_nfev=max_nfev,
+                    residual_stack_fn=stack,
                 )
             except ValueError:
                 continue
             if np.isfinite(fr.rss):
                 return fr
         return None
+
+
+def _residual_stack(model, terms: list[Term]):
+    """Return ``model.residual`` at a list of parameter sets, or None without ``model.predict_stack``.
+
+    The sets that share their term values (forward differences in base parameters) are predicted in one
+    stacked call each (the effects are the same for the whole stack); a set alone, one by one.
+    """
+    predict_stack = getattr(model, "predict_stack", None)
+    if predict_stack is None:
+        return None
+    names = [n for t in terms for n in t.names()]
+
+    def run(ps: list[dict[str, float]]) -> list[np.ndarray]:
+        keys = [tuple(q.get(n) for n in names) for q in ps]
+        out: list = [None] * len(ps)
+        for key in dict.fromkeys(keys):  # the sets with the same term values, in order of appearance
+            idx = [i for i, k in enumerate(keys) if k == key]
+            if len(idx) == 1:
+                out[idx[0]] = model.residual(ps[idx[0]], terms)
+                continue
+            for i, v in zip(idx, predict_stack([ps[i] for i in idx], terms), strict=True):
+                out[i] = model.weighted(v)
+        return out
+
+    return run
 
 
 def _restart(start: dict[str, float], base_start: dict[str, float], base_names: list[str]) -> dict:

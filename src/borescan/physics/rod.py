@@ -32,7 +32,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from borescan.effects import Effect, apply_effects, sort_effects
-from borescan.geometry import Bore, Hole, RodAxis, RodLayer, rod_axis_rotation, rod_readings
+from borescan.geometry import (
+    Bore,
+    Hole,
+    RodAxis,
+    RodLayer,
+    rod_axis_rotation,
+    rod_axis_rotation_xy,
+    rod_layer_arrays,
+    rod_ray_readings,
+    rod_readings,
+)
 
 __all__ = [
     "RodBase",
@@ -266,6 +276,38 @@ class RodDevice:
         """Noise-free readings (n, m) [mm] of the poses ``pose_index`` (n,) at times ``t_s`` (n,)."""
         alpha = np.asarray(state.alpha_rad, dtype=float)[np.asarray(pose_index)]
         return rod_forward(self.base(state), alpha, t_s, effects)
+
+    def predict_stack(
+        self,
+        states: Sequence[RodState],
+        pose_index: np.ndarray,
+        t_s: np.ndarray | None = None,
+        effects: Iterable[Effect] = (),
+    ) -> np.ndarray:
+        """:meth:`predict` at each of ``states`` with the same ``effects``, as a stack (S, n, m) [mm].
+
+        One call of the ray kernel (:func:`borescan.geometry.rod_ray_readings`) for every state: a fit's
+        forward differences in the base unknowns. The same numbers as :meth:`predict` state by state, to
+        the rounding of numpy's vectorised loops; with bore-stage effects (which act on each state's holes)
+        it is :meth:`predict` state by state.
+        """
+        st = _stages(effects, self.channels)
+        if st["bore"]:
+            return np.stack([self.predict(s, pose_index, t_s, effects) for s in states])
+        lay = rod_layer_arrays(rod_layers_with_effects(self.layers, st["beam"]))
+        h = np.array([x.h_mm for x in self.layers])
+        g = np.array([x.gamma_rad for x in self.layers])
+        r = np.stack([np.asarray(s.radius_mm, dtype=float) for s in states])
+        ctr, om, az = rod_section_arrays(
+            h,
+            g,
+            np.stack([np.asarray(s.center_xy_mm, dtype=float).reshape(-1, 2) for s in states]),
+            r,
+            np.stack([np.asarray(s.deflection_xy_rad, dtype=float) for s in states]),
+        )
+        alpha = np.stack([np.asarray(s.alpha_rad, dtype=float) for s in states])[:, np.asarray(pose_index)]
+        v = rod_ray_readings(alpha, lay, ctr, r, rod_axis_rotation_xy(om, az), np.zeros((len(states), 2)))
+        return np.stack([rod_reading_stage(vk, t_s, st, self.channels, self.range_mm) for vk in v])
 
     def jacobian(
         self,
