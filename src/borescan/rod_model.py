@@ -14,8 +14,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import least_squares
 
-from borescan.geometry import RodLayer, rod_axis_rotation_xy, rod_layer_arrays, rod_ray_readings
-from borescan.physics.rod import rod_section_arrays
+from borescan.geometry import RodLayer, rod_layer_arrays
+from borescan.physics.rod import rod_section_readings
 from borescan.rod_eq16 import _linear_start
 
 __all__ = ["rod_layers"]
@@ -88,17 +88,13 @@ class _RodProblem:
     def readings(self, rho, c, alpha, w):
         """Return the readings (n, m) at the unknowns, or (B, n, m) at B sets of them stacked.
 
-        :func:`borescan.physics.rod.rod_section_geometry` and :func:`borescan.geometry.rod_readings`
-        on arrays (:func:`~borescan.physics.rod.rod_section_arrays`,
-        :func:`~borescan.geometry.rod_ray_readings`): rho (..., m), c (..., m, 2), alpha (..., n),
-        w (..., 2).
+        :func:`borescan.physics.rod.rod_section_readings` (rho over the deflection's factor is the
+        radius): rho (..., m), c (..., m, 2), alpha (..., n), w (..., 2).
         """
         w = np.asarray(w, dtype=float)
         s = w[..., 0] ** 2 + w[..., 1] ** 2
         r = rho / _k(s)[..., None]
-        _phi, _d, h, gamma, _l0 = self._arrays
-        ctr, om, az = rod_section_arrays(h, gamma, c, r, w)
-        return rod_ray_readings(alpha, self._arrays, ctr, r, rod_axis_rotation_xy(om, az), np.zeros(2))
+        return rod_section_readings(alpha, self._arrays, c, r, w)
 
     def residual(self, p):
         e = np.where(self.mask, self.V - self.readings(*self.unpack(p)), 0.0)

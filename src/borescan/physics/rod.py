@@ -55,6 +55,7 @@ __all__ = [
     "rod_reading_stage",
     "rod_section_geometry",
     "rod_section_arrays",
+    "rod_section_readings",
 ]
 
 ROD = "rod"
@@ -203,6 +204,23 @@ def rod_section_arrays(h_mm, gamma_rad, center_xy_mm, radius_mm, deflection_xy_r
     return ctr, om, az
 
 
+def rod_section_readings(alpha_rad, layer_arrays, center_xy_mm, radius_mm, deflection_xy_rad, section=None):
+    """Return the readings (..., n, m) at a rod fit's unknowns, one set or a stack of them [mm].
+
+    The holes and axis of :func:`rod_section_arrays`, then the ray kernel
+    (:func:`borescan.geometry.rod_ray_readings`): :func:`rod_section_geometry` and
+    :func:`borescan.geometry.rod_readings` on arrays. ``layer_arrays``: the beams' (phi, d, h, gamma, l0)
+    (:func:`borescan.geometry.rod_layer_arrays`, after any beam effect); ``section``: the (h, gamma) the
+    centres are referred to (the layers before beam effects; default: ``layer_arrays``'). alpha_rad
+    (..., n), center_xy_mm (..., m, 2), radius_mm (..., m), deflection_xy_rad (..., 2).
+    """
+    _phi, _d, h, gamma, _l0 = layer_arrays
+    h, gamma = (h, gamma) if section is None else section
+    ctr, om, az = rod_section_arrays(h, gamma, center_xy_mm, radius_mm, deflection_xy_rad)
+    shift = np.zeros(np.shape(om) + (2,))  # the gauge: the axis through the part origin
+    return rod_ray_readings(alpha_rad, layer_arrays, ctr, radius_mm, rod_axis_rotation_xy(om, az), shift)
+
+
 @dataclass(frozen=True)
 class RodState:
     """A rod fit's base unknowns (:func:`rod_section_geometry`).
@@ -294,19 +312,14 @@ class RodDevice:
         st = _stages(effects, self.channels)
         if st["bore"]:
             return np.stack([self.predict(s, pose_index, t_s, effects) for s in states])
-        lay = rod_layer_arrays(rod_layers_with_effects(self.layers, st["beam"]))
-        h = np.array([x.h_mm for x in self.layers])
-        g = np.array([x.gamma_rad for x in self.layers])
-        r = np.stack([np.asarray(s.radius_mm, dtype=float) for s in states])
-        ctr, om, az = rod_section_arrays(
-            h,
-            g,
+        v = rod_section_readings(
+            np.stack([np.asarray(s.alpha_rad, dtype=float) for s in states])[:, np.asarray(pose_index)],
+            rod_layer_arrays(rod_layers_with_effects(self.layers, st["beam"])),
             np.stack([np.asarray(s.center_xy_mm, dtype=float).reshape(-1, 2) for s in states]),
-            r,
+            np.stack([np.asarray(s.radius_mm, dtype=float) for s in states]),
             np.stack([np.asarray(s.deflection_xy_rad, dtype=float) for s in states]),
+            section=(np.array([x.h_mm for x in self.layers]), np.array([x.gamma_rad for x in self.layers])),
         )
-        alpha = np.stack([np.asarray(s.alpha_rad, dtype=float) for s in states])[:, np.asarray(pose_index)]
-        v = rod_ray_readings(alpha, lay, ctr, r, rod_axis_rotation_xy(om, az), np.zeros((len(states), 2)))
         return np.stack([rod_reading_stage(vk, t_s, st, self.channels, self.range_mm) for vk in v])
 
     def jacobian(
