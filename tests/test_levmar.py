@@ -211,3 +211,87 @@ def test_a_rank_deficient_jacobian_reaches_the_least_squares_cost():
     x_ls, *_ = np.linalg.lstsq(X, b, rcond=None)
     assert res.success
     assert res.cost == pytest.approx(0.5 * np.sum((X @ x_ls - b) ** 2), rel=1e-12)
+
+
+def test_the_factor_from_the_normal_equations_is_the_factor_of_the_stacked_matrix():
+    """R from J^T J, J^T f, f^T f (Cholesky of the column-scaled J^T J) against the QR of [J f]: the
+    same up to its rows' signs, within 1e-10 of each row's largest entry (eps cond^2 of the scaled J,
+    about 1e2 here); None for a zero column or a scaled condition number above NORMAL_COND_MAX.
+    """
+    from borescan.levmar import NORMAL_COND_MAX, triangle_of_normal_equations
+
+    rng = np.random.default_rng(13)
+    J = np.asfortranarray(rng.normal(size=(20_000, 9)) * np.logspace(-4, 4, 9))
+    f = rng.normal(size=20_000)
+    R = triangle_of_normal_equations(J.T @ J, J.T @ f, float(f @ f))
+    R_qr = qr_of_stacked(J, f)
+    scale = np.abs(R_qr).max(axis=1, keepdims=True)
+    np.testing.assert_allclose(np.abs(R) / scale, np.abs(R_qr) / scale, rtol=0, atol=1e-10)
+    assert np.all(np.diag(R)[:-1] > 0)
+    J0 = J.copy()
+    J0[:, 3] = 0.0
+    assert triangle_of_normal_equations(J0.T @ J0, J0.T @ f, float(f @ f)) is None
+    # two columns that differ by 1e-6 of their norm: scaled condition number about 1e6
+    Jc = J.copy()
+    ratio = np.linalg.norm(Jc[:, 4]) / np.linalg.norm(Jc[:, 5])
+    Jc[:, 4] = Jc[:, 5] * ratio * (1 + 1e-6 * rng.normal(size=Jc.shape[0]))
+    assert np.linalg.cond(Jc / np.linalg.norm(Jc, axis=0)) > NORMAL_COND_MAX
+    assert triangle_of_normal_equations(Jc.T @ Jc, Jc.T @ f, float(f @ f)) is None
+
+
+def test_the_iteration_from_the_normal_equations_is_the_iteration_from_the_jacobian():
+    """``normal=`` (the factor from J^T J and J^T f) against the factor of J, on every test problem:
+    counts within one, the same minimum (as in test_the_iteration_is_minpacks); ``fun`` and ``jac`` of
+    the result at its ``x``.
+    """
+    for name, f, j, x0 in _problems():
+        calls = []
+
+        def normal(x, fx, j=j, calls=calls):
+            calls.append(1)
+            J = j(x)
+            return J.T @ J, J.T @ fx
+
+        a = levenberg_marquardt(f, x0, j, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+        b = levenberg_marquardt(f, x0, j, xtol=1e-10, ftol=1e-10, gtol=1e-10, normal=normal)
+        assert a.success and b.success, name
+        assert len(calls) == b.njev and abs(b.nfev - a.nfev) <= 1 and abs(b.njev - a.njev) <= 1, name
+        floor = _rounding_floor_cost(a.jac, a.x)
+        assert abs(b.cost - a.cost) <= 1e-9 * a.cost + floor, name
+        zero_residual = a.cost <= floor
+        s2 = 2 * max(a.cost, floor) / max(a.fun.size - a.x.size, 1)
+        u = np.sqrt(np.diag(np.linalg.inv(a.jac.T @ a.jac)) * s2)
+        assert np.all(np.abs(b.x - a.x) <= (1.0 if zero_residual else 1e-5) * u + 1e-12 * np.abs(a.x)), name
+        np.testing.assert_array_equal(b.fun, f(b.x))
+        np.testing.assert_array_equal(b.jac, j(b.x))
+
+
+def test_an_ill_conditioned_jacobian_is_factored_itself():
+    """Where the normal equations are refused (scaled condition number above NORMAL_COND_MAX) every
+    iteration factors J: the iterates are those without ``normal``, bit for bit.
+    """
+    from borescan.levmar import NORMAL_COND_MAX
+
+    rng = np.random.default_rng(17)
+    t = np.linspace(0.0, 1.0, 3000)
+    g = t * (1.0 + 1e-6 * np.cos(7.0 * t))  # nearly the column t: scaled condition number about 1e7
+    y = 1.0 * t + 2.0 * g + 3.0 * np.exp(-0.5 * t) + rng.normal(0, 1e-4, t.size)
+
+    def f(p):
+        return p[0] * t + p[1] * g + p[2] * np.exp(-p[3] * t) - y
+
+    def j(p):
+        e = np.exp(-p[3] * t)
+        return np.column_stack([t, g, e, -p[2] * t * e])
+
+    x0 = np.array([0.9, 2.1, 3.1, 0.45])
+    J0 = j(x0)
+    assert np.linalg.cond(J0 / np.linalg.norm(J0, axis=0)) > 10 * NORMAL_COND_MAX
+    a = levenberg_marquardt(f, x0, j)
+    jacs = []
+    b = levenberg_marquardt(
+        f, x0, lambda p: jacs.append(1) or j(p), normal=lambda p, fx: (j(p).T @ j(p), j(p).T @ fx)
+    )
+    assert len(jacs) >= b.njev  # every iteration fell back to J (and one more at the solution, if moved)
+    np.testing.assert_array_equal(a.x, b.x)
+    assert (a.nfev, a.njev, a.status) == (b.nfev, b.njev, b.status)

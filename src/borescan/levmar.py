@@ -13,6 +13,11 @@ Jacobian's column norms, ``factor=100``) follows ``lmder.f`` and ``lmpar.f`` lin
 iterates are MINPACK's to rounding; the damped sub-problem ``qrsolv`` is solved by a QR of the
 small (2n x n) stacked matrix [R; sqrt(par) D P] instead of Givens rotations (same factor).
 
+A caller that can form J^T J and J^T f cheaper than J (the calibration's Jacobian has at most seven
+non-zero entries a row) passes ``normal``: an iteration then takes R from the Cholesky factor of the
+column-scaled J^T J where the scaled J is well conditioned (:data:`NORMAL_COND_MAX`), and factors J
+itself elsewhere, so an ill-conditioned problem iterates exactly as without it.
+
 Reference: J. J. Moré, "The Levenberg-Marquardt algorithm: implementation and theory", in
 Numerical Analysis, Lecture Notes in Mathematics 630, Springer 1978, pp. 105-116; MINPACK-1
 ``lmder.f``, ``lmpar.f``, ``qrsolv.f`` (Argonne, 1980).
@@ -27,7 +32,7 @@ import numpy as np
 from scipy.linalg import qr, solve_triangular
 from scipy.linalg.lapack import dgeqrf, dgeqrf_lwork
 
-__all__ = ["LMResult", "levenberg_marquardt", "qr_of_stacked"]
+__all__ = ["LMResult", "levenberg_marquardt", "qr_of_stacked", "triangle_of_normal_equations"]
 
 #: The messages of ``scipy.optimize.least_squares`` for its status codes (certificates quote them).
 MESSAGES = {
@@ -50,7 +55,7 @@ class LMResult:
     x: np.ndarray
     cost: float
     fun: np.ndarray
-    jac: np.ndarray
+    jac: np.ndarray | None
     nfev: int
     njev: int
     status: int
@@ -90,6 +95,41 @@ def qr_of_stacked(J: np.ndarray, f: np.ndarray) -> np.ndarray:
         A[:, n] = f[s : s + rows]
         parts.append(_triangle(A)[: min(rows, n + 1)])
     return _triangle(np.asfortranarray(np.vstack(parts)))
+
+
+#: the largest condition number of the column-scaled Jacobian for which an iteration takes its
+#: triangular factor from the normal equations (:func:`triangle_of_normal_equations`): a Cholesky
+#: factor of J^T J carries a relative error of about eps cond^2 (2e-6 here) into the step, which the
+#: next iterate's exact residuals correct; above it the iteration factors J itself
+NORMAL_COND_MAX = 1e5
+
+
+def triangle_of_normal_equations(JtJ: np.ndarray, Jtf: np.ndarray, ftf: float) -> np.ndarray | None:
+    """Return the triangular factor of [J f] from J^T J, J^T f and f^T f, or None.
+
+    R (upper triangular, R^T R = J^T J) is the Cholesky factor of J^T J scaled to unit column norms
+    (Cholesky is exact to eps cond^2 of the scaled matrix, van der Sluis 1969), Q^T f solves
+    R^T (Q^T f) = J^T f and the corner is sqrt(f^T f - |Q^T f|^2) (0 when rounding makes it
+    negative): the factor :func:`qr_of_stacked` returns, up to its rows' signs and rounding. None when
+    a column of J is zero or not finite, the Cholesky fails, or the scaled factor's condition number
+    exceeds :data:`NORMAL_COND_MAX`: then only a QR of J itself is accurate enough.
+    """
+    n = JtJ.shape[0]
+    d = np.sqrt(np.diag(JtJ))
+    if not (np.all(np.isfinite(d)) and np.all(d > 0.0) and np.all(np.isfinite(Jtf))):
+        return None
+    try:
+        Rs = np.linalg.cholesky(JtJ / np.outer(d, d)).T
+    except np.linalg.LinAlgError:
+        return None
+    sv = np.linalg.svd(Rs, compute_uv=False)
+    if not sv[-1] * NORMAL_COND_MAX > sv[0]:
+        return None
+    R0 = np.zeros((n + 1, n + 1))
+    R0[:n, :n] = Rs * d
+    R0[:n, n] = qtf = solve_triangular(R0[:n, :n], Jtf, trans="T", lower=False, check_finite=False)
+    R0[n, n] = np.sqrt(max(ftf - float(qtf @ qtf), 0.0))
+    return R0
 
 
 def _stacked(J: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -201,13 +241,20 @@ def levenberg_marquardt(  # noqa: C901 (MINPACK lmder's iteration, kept step for
     max_nfev: int | None = None,
     factor: float = 100.0,
     jac_at_solution: bool = True,
+    normal: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> LMResult:
     """Minimise ``0.5 |fun(x)|^2`` as ``least_squares(fun, x0, jac=jac, method="lm", x_scale="jac")``.
 
     Same iteration, tolerances, counts (``nfev`` function evaluations including the first, ``njev``
     Jacobian evaluations inside the iteration), status codes and messages; ``fun`` and ``jac`` of
     the result are at ``x`` (``jac_at_solution=False``: ``jac`` is the last one evaluated, which may be
-    at an earlier iterate, for callers that need only ``x`` and ``cost``; it saves one evaluation).
+    at an earlier iterate, for callers that need only ``x`` and ``cost``; it saves one evaluation, and
+    it is None when every iteration took the normal equations).
+
+    ``normal(x, f)``, when given, returns J^T J and J^T f at ``x`` (``f`` the residuals there) without
+    forming J: an iteration takes its triangular factor from them where J is well enough conditioned
+    (:func:`triangle_of_normal_equations`), else from ``jac``. For a tall J with few non-zero entries
+    per row (a calibration's readings) they cost a fraction of J and its QR.
     Raises ``ValueError`` when the residuals at ``x0`` are not finite.
     """
     x = np.array(x0, dtype=float)
@@ -231,10 +278,12 @@ def levenberg_marquardt(  # noqa: C901 (MINPACK lmder's iteration, kept step for
     J = None
     x_of_J = None
     while info == 0:
-        J = np.asarray(jac(x), dtype=float)
-        x_of_J = x.copy()
+        R0 = None if normal is None else triangle_of_normal_equations(*normal(x, fvec), fnorm**2)
+        if R0 is None:
+            J = np.asarray(jac(x), dtype=float)
+            x_of_J = x.copy()
+            R0 = qr_of_stacked(J, fvec)
         njev += 1
-        R0 = qr_of_stacked(J, fvec)
         acnorm = np.sqrt(np.sum(R0[:, :n] ** 2, axis=0))  # column norms of J
         Q2, R, perm = qr(R0[:, :n], mode="economic", pivoting=True, check_finite=False)
         R = R[:n]

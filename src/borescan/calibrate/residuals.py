@@ -7,7 +7,8 @@ device angle of the commanded kinematics with ``speed_error`` of the registry
 (:func:`~borescan.physics.tri.commanded_device_angle`); channel delays are in the commanded angle of
 each reading (step 1, taken once by :mod:`borescan.calibrate.starts`). Rows: per
 scan the valid readings sample by sample, channel by channel, then the prior rows
-w (o - o_reported) of the scans with a reported offset.
+w (o - o_reported) of the scans with a reported offset. The solves' iterations take J^T J and J^T f
+channel by channel (:func:`normal_equations`) instead of the whole J and its QR.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ __all__ = [
     "model_readings",
     "residuals",
     "residuals_and_jacobian",
+    "normal_equations",
     "solve",
     "solve_fixed",
     "block_rows",
@@ -89,6 +91,12 @@ def residuals_and_jacobian(
     return r, JT.T
 
 
+def _kept(normal: tuple[np.ndarray, np.ndarray], keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """J^T J and J^T f of the Jacobian's columns ``keep``."""
+    JtJ, Jtf = normal
+    return JtJ[np.ix_(keep, keep)], Jtf[keep]
+
+
 def block_rows(pb: FullProblem, k: int, sel: slice, b0: int) -> tuple[int, list[np.ndarray]]:
     """Return scan ``k``'s valid readings (rows ``sel``) and each channel's rows of the Jacobian from ``b0``.
 
@@ -139,10 +147,93 @@ def _fill_scan_block(
     return b0 + n_k
 
 
+def normal_equations(
+    pb: FullProblem, x: np.ndarray, f: np.ndarray, rows: list | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return J^T J and J^T f of :func:`residuals_and_jacobian`'s J at ``x``, without forming J.
+
+    ``f``: the residuals at ``x`` (:func:`residuals`, same ``rows``). A reading of channel j of scan
+    k has at most seven non-zero derivatives (beta_j, rho_j, g_j, the scan's offset, phase and speed
+    scale), so each channel's readings are gathered with those columns and ``f`` into one narrow
+    block and its products added in (a prior row has one). The same sums as J^T J of the whole
+    Jacobian, in another order: equal to rounding (``tests/test_calibrate_full.py``).
+    """
+    beams, nuis = pb.unpack(x)
+    n = pb.n_params
+    G = np.zeros((n + 1, n + 1))  # [J f]^T [J f]; its last row and column hold J^T f
+    b0 = 0
+    for k, nu in enumerate(nuis):
+        sel = slice(None) if rows is None else rows[k]
+        _, jac = tri_spindle_jacobian(device_angles(pb, k, nu)[sel], beams, nu.offset_mm, pb.R_mm)
+        b0 = _add_scan_products(pb, G, f, b0, k, sel, jac, beams.rho_mm)
+    for k, p in enumerate(pb.priors):
+        if p is not None:
+            cl = pb.cols[k]
+            for i, col in enumerate((cl.ox, cl.oy)):
+                G[col, col] += pb.prior_w**2
+                G[col, n] += pb.prior_w * f[b0 + i]
+            b0 += 2
+    return G[:n, :n], G[:n, n]
+
+
+def _add_scan_products(
+    pb: FullProblem, G: np.ndarray, f: np.ndarray, b0: int, k: int, sel, jac: dict, rho: np.ndarray
+) -> int:
+    """Add scan ``k``'s rows (from ``b0``) to [J f]^T [J f] (:func:`normal_equations`); return the next row.
+
+    Channel j's block holds, per valid reading, the derivatives :func:`_fill_scan_block` writes for it
+    (d/dbeta_j, d/drho_j at fixed psi and g, d/dg_j = -1, the offset's, the phase's, the speed
+    scale's) and its residual.
+    """
+    n_k, rows_of = block_rows(pb, k, sel, b0)
+    samples = _channel_samples(pb, k, sel)
+    dbeta_drho = dbeta_drho_at_psi(rho, pb.R_mm)
+    dd_b_drho = dd_b_drho_at_g(rho, pb.R_mm)
+    cl = pb.cols[k]
+    cmd = pb.commanded_rad[k][sel]
+    for j in range(pb.c):
+        at = samples[j]
+        idx = ([j - 1 + pb.ch0_free] if pb.beta_free(j) else []) + [pb.i_rho0 + j, pb.i_g0 + j, cl.ox, cl.oy]
+        idx += [i for i in (cl.phase, cl.scale) if i is not None] + [pb.n_params]
+        A = np.empty((at.size, len(idx)), order="F")
+        i_rho = int(pb.beta_free(j))
+        np.take(jac["rho"][j], at, out=A[:, i_rho])
+        A[:, i_rho] -= dd_b_drho[j]
+        if i_rho:  # beta_j free: rho at fixed psi moves beta by dbeta_drho
+            np.take(jac["beta"][j], at, out=A[:, 0])
+            A[:, i_rho] += A[:, 0] * dbeta_drho[j]
+        A[:, i_rho + 1] = -1.0
+        np.take(jac["ox"][j], at, out=A[:, i_rho + 2])
+        np.take(jac["oy"][j], at, out=A[:, i_rho + 3])
+        if cl.phase is not None or cl.scale is not None:
+            dphi = np.take(jac["phi"][j], at)
+            if cl.phase is not None:
+                A[:, i_rho + 4] = dphi
+            if cl.scale is not None:
+                A[:, -2] = dphi * np.take(cmd[:, j if cmd.shape[1] > 1 else 0], at)
+        np.take(f, rows_of[j], out=A[:, -1])
+        G[np.ix_(idx, idx)] += A.T @ A
+    return b0 + n_k
+
+
+def _channel_samples(pb: FullProblem, k: int, sel: slice) -> list[np.ndarray]:
+    """Return per channel the samples (rows ``sel`` of scan ``k``) with a valid reading (cached)."""
+    key = ("samples", k, sel.start, sel.stop, sel.step)
+    hit = pb.row_cache.get(key)
+    if hit is None:
+        m = pb.masks[k][sel]
+        hit = pb.row_cache[key] = [np.flatnonzero(m[:, j]) for j in range(pb.c)]
+    return hit
+
+
 def solve(
     pb: FullProblem, x_start: np.ndarray, rows: list | None = None, nfev: int | None = None
 ) -> LMResult:
-    """Least-squares minimum from ``x_start`` (MINPACK's Levenberg-Marquardt, analytic Jacobian)."""
+    """Least-squares minimum from ``x_start`` (MINPACK's Levenberg-Marquardt, analytic Jacobian).
+
+    An iteration takes its triangular factor from the normal equations where the scaled Jacobian is
+    well conditioned (:func:`normal_equations`, :func:`borescan.levmar.triangle_of_normal_equations`).
+    """
     return levenberg_marquardt(
         lambda x: residuals(pb, x, rows=rows),
         x_start,
@@ -151,6 +242,7 @@ def solve(
         xtol=1e-10,
         ftol=1e-10,
         gtol=1e-10,
+        normal=lambda x, f: normal_equations(pb, x, f, rows=rows),
     )
 
 
@@ -179,5 +271,6 @@ def solve_fixed(
             ftol=1e-10,
             gtol=1e-10,
             jac_at_solution=False,
+            normal=lambda z, f: _kept(normal_equations(pb, full(z), f), keep),
         )
     return full(res.x), float(res.cost), bool(res.success) and bool(np.isfinite(res.cost))
