@@ -175,3 +175,27 @@ def test_a_fit_is_scipy_least_squares_lm_to_rounding():
     J_ref = ref.jac / scale
     cov_ref = np.linalg.inv(J_ref.T @ J_ref) * fr.sigma**2
     np.testing.assert_allclose(fr.cov, cov_ref, rtol=1e-6)
+
+
+def test_a_fit_never_evaluates_its_model_twice_at_one_point():
+    """The forward differences start from the residuals the iteration has just computed at the point
+    (an accepted step), not from a new evaluation: no two consecutive calls of ``fun`` at one point,
+    and the fit is the one whose differences evaluate ``fun`` there again (same x, bit for bit).
+    """
+    rng = np.random.default_rng(23)
+    t = np.linspace(0.0, 4.0, 2000)
+    y = 1.5 * np.exp(-0.8 * t) * np.cos(3.1 * t + 0.4) + 0.02 + 0.005 * rng.standard_normal(t.size)
+
+    def fun(p):
+        return y - (p[0] * np.exp(-p[1] * t) * np.cos(p[2] * t + p[3]) + p[4])
+
+    points = []
+
+    def counted(p):
+        points.append(np.array(p))
+        return fun(p)
+
+    x0, scale = [1.0, 0.5, 3.0, 0.0, 0.0], np.array([1.0, 0.1, 0.1, 0.1, 0.01])
+    fr = least_squares_fit(counted, x0, list("abcde"), scale=scale)
+    assert fr.success and len(points) > 10
+    assert not any(np.array_equal(a, b) for a, b in zip(points, points[1:]))

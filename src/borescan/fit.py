@@ -262,9 +262,16 @@ def least_squares_fit(
     names = tuple(names)
     s = np.ones(len(names)) if scale is None else np.asarray(scale, dtype=float)
     z0 = np.asarray(x0, dtype=float) / s
+    last: list = [None, None]  # the last point evaluated and its residuals
 
     def f(z: np.ndarray) -> np.ndarray:
-        return fun(z * s)
+        # the iteration asks for J where it has just evaluated fun (an accepted step), and the
+        # differences start from fun there: that point's residuals are not computed twice
+        if last[0] is not None and np.array_equal(z, last[0]):
+            return last[1]
+        out = fun(z * s)
+        last[0], last[1] = np.array(z, dtype=float), np.array(out, dtype=float)
+        return out
 
     if jac is None:
         groups = difference_groups(sparsity) if sparsity is not None else [[i] for i in range(z0.size)]
