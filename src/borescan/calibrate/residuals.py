@@ -54,11 +54,14 @@ def residuals(pb: FullProblem, x: np.ndarray, rows: list | None = None) -> np.nd
     ``rows``: per scan the samples to use (a slice), None for all.
     """
     beams, nuis = pb.unpack(x)
-    parts = []
+    parts, readings = [], []
     for k, nu in enumerate(nuis):
         sel = slice(None) if rows is None else rows[k]
         v = model_readings(pb, beams, k, nu, sel)
+        readings.append(v)
         parts.append((v - pb.ys[k][sel])[pb.masks[k][sel]])
+    if rows is None:  # the iteration asks for J^T J where it has just evaluated the residuals
+        pb.row_cache["readings"] = (np.asarray(x, dtype=float).tobytes(), readings)
     return np.concatenate(parts + _prior_rows(pb, nuis))
 
 
@@ -162,9 +165,15 @@ def normal_equations(
     n = pb.n_params
     G = np.zeros((n + 1, n + 1))  # [J f]^T [J f]; its last row and column hold J^T f
     b0 = 0
+    known = pb.row_cache.get("readings")
+    if rows is not None or known is None or known[0] != np.asarray(x, dtype=float).tobytes():
+        known = None  # the readings at x, when :func:`residuals` has just computed them
     for k, nu in enumerate(nuis):
         sel = slice(None) if rows is None else rows[k]
-        _, jac = tri_spindle_jacobian(device_angles(pb, k, nu)[sel], beams, nu.offset_mm, pb.R_mm)
+        v_cn = None if known is None else known[1][k].T
+        _, jac = tri_spindle_jacobian(
+            device_angles(pb, k, nu)[sel], beams, nu.offset_mm, pb.R_mm, readings_cn=v_cn
+        )
         b0 = _add_scan_products(pb, G, f, b0, k, sel, jac, beams.rho_mm)
     for k, p in enumerate(pb.priors):
         if p is not None:

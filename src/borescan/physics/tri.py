@@ -295,7 +295,7 @@ def commanded_device_angle(commanded_rad: np.ndarray, phase_rad: float, speed_sc
 
 
 def tri_spindle_jacobian(
-    phi: np.ndarray, beams: Beams, offset: np.ndarray, R: float
+    phi: np.ndarray, beams: Beams, offset: np.ndarray, R: float, readings_cn: np.ndarray | None = None
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Return the exact readings of a spindle scan on a ring gauge at device angles ``phi``, with derivatives.
 
@@ -307,11 +307,16 @@ def tri_spindle_jacobian(
     ``jac["phi"]`` is dv/dphi (the chain rule gives phase and speed-scale columns). Computed
     channel-major for numpy's long inner loops, as :func:`borescan.geometry.tri_spindle_readings`.
     The gauge of the calibration (a circle, no effects): the readings are those of :func:`tri_forward`
-    (checked in the tests), the derivatives against its central differences.
+    (checked in the tests), the derivatives against its central differences. ``readings_cn``: the
+    readings (c, n) at these angles when the caller has them already (the calibration's residuals).
     """
     phi = np.asarray(phi, dtype=float)
     phi = phi[:, None] if phi.ndim == 1 else phi
-    v_cn = tri_spindle_readings_channel_major(phi, offset, beams, Bore((0.0, 0.0), R))  # (c, n)
+    v_cn = (
+        tri_spindle_readings_channel_major(phi, offset, beams, Bore((0.0, 0.0), R))  # (c, n)
+        if readings_cn is None
+        else readings_cn
+    )
     s = v_cn + np.asarray(beams.d_b_mm, dtype=float)[:, None]
     F, u = beam_frame(beams.beta_rad, beams.rho_mm)  # (c, 2)
     n_vec = np.stack([-u[:, 1], u[:, 0]], axis=-1)
