@@ -107,6 +107,22 @@ def _rounding_floor_cost(jac, x, ulps=16):
     return float(np.max(0.5 * np.sum((jac * step) ** 2, axis=0)))
 
 
+def _assert_same_minimum(a, b, name: str) -> None:
+    """Assert that the fits ``a`` (the reference) and ``b`` reached the same minimum.
+
+    Costs equal far below a change of chi-square of one (relative 1e-9), or both at the rounding floor of
+    a zero residual, which decides the last digits differently on another CPU or BLAS; and the same
+    parameters: far below their standard uncertainty (1e-5 u) where the residual is real, within the
+    uncertainty that the rounding floor leaves where the residual is zero (any point there is the minimum).
+    """
+    floor = _rounding_floor_cost(a.jac, a.x)
+    assert abs(b.cost - a.cost) <= 1e-9 * a.cost + floor, name
+    zero_residual = a.cost <= floor
+    s2 = 2 * max(a.cost, floor) / max(a.fun.size - a.x.size, 1)
+    u = np.sqrt(np.diag(np.linalg.inv(a.jac.T @ a.jac)) * s2)
+    assert np.all(np.abs(b.x - a.x) <= (1.0 if zero_residual else 1e-5) * u + 1e-12 * np.abs(a.x)), name
+
+
 @pytest.mark.parametrize("tol", [1e-8, 1e-10, 1e-12])
 def test_the_iteration_is_minpacks(tol):
     for name, f, j, x0 in _problems():
@@ -117,18 +133,7 @@ def test_the_iteration_is_minpacks(tol):
         assert a.success and b.success, name
         assert abs(b.nfev - a.nfev) <= 1 and abs(b.njev - a.njev) <= 1, name
         assert b.message == MESSAGES[b.status]
-        # the same minimum: costs equal far below a change of chi-square of one (relative 1e-9), or both at
-        # the rounding floor of a zero residual, which decides the last digits differently on another CPU
-        # or BLAS
-        floor = _rounding_floor_cost(a.jac, a.x)
-        assert abs(b.cost - a.cost) <= 1e-9 * a.cost + floor, name
-        # and the same parameters: far below their standard uncertainty where the residual is real; within
-        # the uncertainty that the rounding floor leaves where the residual is zero (any point there is the
-        # minimum)
-        zero_residual = a.cost <= floor
-        s2 = 2 * max(a.cost, floor) / max(a.fun.size - a.x.size, 1)
-        u = np.sqrt(np.diag(np.linalg.inv(a.jac.T @ a.jac)) * s2)
-        assert np.all(np.abs(b.x - a.x) <= (1.0 if zero_residual else 1e-5) * u + 1e-12 * np.abs(a.x)), name
+        _assert_same_minimum(a, b, name)
         np.testing.assert_allclose(b.fun, f(b.x), rtol=0, atol=0)
         np.testing.assert_allclose(b.jac, j(b.x), rtol=0, atol=0)
 
@@ -256,12 +261,7 @@ def test_the_iteration_from_the_normal_equations_is_the_iteration_from_the_jacob
         b = levenberg_marquardt(f, x0, j, xtol=1e-10, ftol=1e-10, gtol=1e-10, normal=normal)
         assert a.success and b.success, name
         assert len(calls) == b.njev and abs(b.nfev - a.nfev) <= 1 and abs(b.njev - a.njev) <= 1, name
-        floor = _rounding_floor_cost(a.jac, a.x)
-        assert abs(b.cost - a.cost) <= 1e-9 * a.cost + floor, name
-        zero_residual = a.cost <= floor
-        s2 = 2 * max(a.cost, floor) / max(a.fun.size - a.x.size, 1)
-        u = np.sqrt(np.diag(np.linalg.inv(a.jac.T @ a.jac)) * s2)
-        assert np.all(np.abs(b.x - a.x) <= (1.0 if zero_residual else 1e-5) * u + 1e-12 * np.abs(a.x)), name
+        _assert_same_minimum(a, b, name)
         np.testing.assert_array_equal(b.fun, f(b.x))
         np.testing.assert_array_equal(b.jac, j(b.x))
 
