@@ -120,34 +120,51 @@ def _fill_scan_block(
     pb: FullProblem, JT, b0: int, k: int, sel, jac: dict, rho: np.ndarray, full: bool
 ) -> int:
     """Fill scan ``k``'s rows (from ``b0``) of the transposed Jacobian; return the next row."""
-    c, m = pb.c, pb.masks[k][sel]
     n_k, rows_of = block_rows(pb, k, sel, b0)
-    dbeta_drho = dbeta_drho_at_psi(rho, pb.R_mm)
-    dd_b_drho = dd_b_drho_at_g(rho, pb.R_mm)
-    for j in range(c):
-        mj, rj = m[:, j], rows_of[j]
-        # d/drho at fixed psi and g: beta moves by dbeta_drho, d_b by dd_b_drho (v = s - d_b)
-        drho = jac["rho"][j, mj] - dd_b_drho[j]
-        if pb.beta_free(j):
-            dbeta = jac["beta"][j, mj]
-            JT[j - 1 + pb.ch0_free, rj] = dbeta
-            drho = drho + dbeta * dbeta_drho[j]
-        JT[pb.i_rho0 + j, rj] = drho
-        JT[pb.i_g0 + j, rj] = -1.0
-    blk = slice(b0, b0 + n_k)
-    cl = pb.cols[k]
-    JT[cl.ox, blk] = jac["ox"].T[m]
-    JT[cl.oy, blk] = jac["oy"].T[m]
-    dphi = jac["phi"].T[m]
-    if cl.phase is not None:
-        JT[cl.phase, blk] = dphi
-    if cl.scale is not None:
-        JT[cl.scale, blk] = (jac["phi"].T * pb.commanded_rad[k][sel])[m]
-    if full:
-        if not pb.ch0_free:
-            JT[pb.n_params, rows_of[0]] = jac["beta"][0, m[:, 0]]
-        JT[pb.n_params + 1 + k, blk] = dphi
+    samples = _channel_samples(pb, k, sel)
+    for j in range(pb.c):
+        idx, A = _channel_block(pb, k, sel, j, samples[j], jac, rho)
+        for i, col in enumerate(idx):
+            JT[col, rows_of[j]] = A[:, i]
+        if full:
+            if j == 0 and not pb.ch0_free:
+                JT[pb.n_params, rows_of[0]] = np.take(jac["beta"][0], samples[0])
+            JT[pb.n_params + 1 + k, rows_of[j]] = np.take(jac["phi"][j], samples[j])
     return b0 + n_k
+
+
+def _channel_block(
+    pb: FullProblem, k: int, sel, j: int, at: np.ndarray, jac: dict, rho: np.ndarray, extra: int = 0
+) -> tuple[list[int], np.ndarray]:
+    """Return the parameters a valid reading of channel ``j`` of scan ``k`` depends on, and its derivatives.
+
+    The derivatives at the samples ``at``, Fortran-ordered, one column per parameter and ``extra``
+    columns more left for the caller: d/dbeta_j (beta free), d/drho_j at fixed psi and g (beta moves by
+    dbeta_drho, d_b by dd_b_drho: v = s - d_b), d/dg_j = -1, the offset's, the phase's and the speed
+    scale's. The one place :func:`_fill_scan_block` and :func:`_add_scan_products` take them from.
+    """
+    cl = pb.cols[k]
+    beta_free = pb.beta_free(j)
+    idx = ([j - 1 + pb.ch0_free] if beta_free else []) + [pb.i_rho0 + j, pb.i_g0 + j, cl.ox, cl.oy]
+    idx += [i for i in (cl.phase, cl.scale) if i is not None]
+    A = np.empty((at.size, len(idx) + extra), order="F")
+    i_rho = int(beta_free)
+    np.take(jac["rho"][j], at, out=A[:, i_rho])
+    A[:, i_rho] -= dd_b_drho_at_g(rho, pb.R_mm)[j]
+    if beta_free:
+        np.take(jac["beta"][j], at, out=A[:, 0])
+        A[:, i_rho] += A[:, 0] * dbeta_drho_at_psi(rho, pb.R_mm)[j]
+    A[:, i_rho + 1] = -1.0
+    np.take(jac["ox"][j], at, out=A[:, i_rho + 2])
+    np.take(jac["oy"][j], at, out=A[:, i_rho + 3])
+    if cl.phase is not None or cl.scale is not None:
+        dphi = np.take(jac["phi"][j], at)
+        if cl.phase is not None:
+            A[:, i_rho + 4] = dphi
+        if cl.scale is not None:
+            cmd = pb.commanded_rad[k][sel]
+            A[:, len(idx) - 1] = dphi * np.take(cmd[:, j if cmd.shape[1] > 1 else 0], at)
+    return idx, A
 
 
 def normal_equations(
@@ -159,7 +176,7 @@ def normal_equations(
     k has at most seven non-zero derivatives (beta_j, rho_j, g_j, the scan's offset, phase and speed
     scale), so each channel's readings are gathered with those columns and ``f`` into one narrow
     block and its products added in (a prior row has one). The same sums as J^T J of the whole
-    Jacobian, in another order: equal to rounding (``tests/test_calibrate_full.py``).
+    Jacobian, in another order: equal to rounding (``tests/test_calibrate_model.py``).
     """
     beams, nuis = pb.unpack(x)
     n = pb.n_params
@@ -190,37 +207,15 @@ def _add_scan_products(
 ) -> int:
     """Add scan ``k``'s rows (from ``b0``) to [J f]^T [J f] (:func:`normal_equations`); return the next row.
 
-    Channel j's block holds, per valid reading, the derivatives :func:`_fill_scan_block` writes for it
-    (d/dbeta_j, d/drho_j at fixed psi and g, d/dg_j = -1, the offset's, the phase's, the speed
-    scale's) and its residual.
+    Channel j's block holds, per valid reading, its derivatives (:func:`_channel_block`, the ones
+    :func:`_fill_scan_block` writes) and its residual.
     """
     n_k, rows_of = block_rows(pb, k, sel, b0)
     samples = _channel_samples(pb, k, sel)
-    dbeta_drho = dbeta_drho_at_psi(rho, pb.R_mm)
-    dd_b_drho = dd_b_drho_at_g(rho, pb.R_mm)
-    cl = pb.cols[k]
-    cmd = pb.commanded_rad[k][sel]
     for j in range(pb.c):
-        at = samples[j]
-        idx = ([j - 1 + pb.ch0_free] if pb.beta_free(j) else []) + [pb.i_rho0 + j, pb.i_g0 + j, cl.ox, cl.oy]
-        idx += [i for i in (cl.phase, cl.scale) if i is not None] + [pb.n_params]
-        A = np.empty((at.size, len(idx)), order="F")
-        i_rho = int(pb.beta_free(j))
-        np.take(jac["rho"][j], at, out=A[:, i_rho])
-        A[:, i_rho] -= dd_b_drho[j]
-        if i_rho:  # beta_j free: rho at fixed psi moves beta by dbeta_drho
-            np.take(jac["beta"][j], at, out=A[:, 0])
-            A[:, i_rho] += A[:, 0] * dbeta_drho[j]
-        A[:, i_rho + 1] = -1.0
-        np.take(jac["ox"][j], at, out=A[:, i_rho + 2])
-        np.take(jac["oy"][j], at, out=A[:, i_rho + 3])
-        if cl.phase is not None or cl.scale is not None:
-            dphi = np.take(jac["phi"][j], at)
-            if cl.phase is not None:
-                A[:, i_rho + 4] = dphi
-            if cl.scale is not None:
-                A[:, -2] = dphi * np.take(cmd[:, j if cmd.shape[1] > 1 else 0], at)
+        idx, A = _channel_block(pb, k, sel, j, samples[j], jac, rho, extra=1)
         np.take(f, rows_of[j], out=A[:, -1])
+        idx = idx + [pb.n_params]
         G[np.ix_(idx, idx)] += A.T @ A
     return b0 + n_k
 
