@@ -268,7 +268,8 @@ def test_the_iteration_from_the_normal_equations_is_the_iteration_from_the_jacob
 
 def test_an_ill_conditioned_jacobian_is_factored_itself():
     """Where the normal equations are refused (scaled condition number above NORMAL_COND_MAX) every
-    iteration factors J: the iterates are those without ``normal``, bit for bit.
+    iteration factors J: the iterates are those without ``normal``, bit for bit, and the normal
+    equations are not formed again after their first refusal.
     """
     from borescan.levmar import NORMAL_COND_MAX
 
@@ -288,10 +289,14 @@ def test_an_ill_conditioned_jacobian_is_factored_itself():
     J0 = j(x0)
     assert np.linalg.cond(J0 / np.linalg.norm(J0, axis=0)) > 10 * NORMAL_COND_MAX
     a = levenberg_marquardt(f, x0, j)
-    jacs = []
+    jacs, normals = [], []
     b = levenberg_marquardt(
-        f, x0, lambda p: jacs.append(1) or j(p), normal=lambda p, fx: (j(p).T @ j(p), j(p).T @ fx)
+        f,
+        x0,
+        lambda p: jacs.append(1) or j(p),
+        normal=lambda p, fx: normals.append(1) or (j(p).T @ j(p), j(p).T @ fx),
     )
     assert len(jacs) >= b.njev  # every iteration fell back to J (and one more at the solution, if moved)
+    assert len(normals) == 1 < b.njev
     np.testing.assert_array_equal(a.x, b.x)
     assert (a.nfev, a.njev, a.status) == (b.nfev, b.njev, b.status)

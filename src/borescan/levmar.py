@@ -16,7 +16,8 @@ small (2n x n) stacked matrix [R; sqrt(par) D P] instead of Givens rotations (sa
 A caller that can form J^T J and J^T f cheaper than J (the calibration's Jacobian has at most seven
 non-zero entries a row) passes ``normal``: an iteration then takes R from the Cholesky factor of the
 column-scaled J^T J where the scaled J is well conditioned (:data:`NORMAL_COND_MAX`), and factors J
-itself elsewhere, so an ill-conditioned problem iterates exactly as without it.
+itself from the first iterate where it is not, so an ill-conditioned problem iterates exactly as
+without it.
 
 Reference: J. J. Moré, "The Levenberg-Marquardt algorithm: implementation and theory", in
 Numerical Analysis, Lecture Notes in Mathematics 630, Springer 1978, pp. 105-116; MINPACK-1
@@ -253,7 +254,8 @@ def levenberg_marquardt(  # noqa: C901 (MINPACK lmder's iteration, kept step for
 
     ``normal(x, f)``, when given, returns J^T J and J^T f at ``x`` (``f`` the residuals there) without
     forming J: an iteration takes its triangular factor from them where J is well enough conditioned
-    (:func:`triangle_of_normal_equations`), else from ``jac``. For a tall J with few non-zero entries
+    (:func:`triangle_of_normal_equations`); from their first refusal on, every iteration factors
+    ``jac`` itself (J's conditioning changes little between iterates). For a tall J with few non-zero entries
     per row (a calibration's readings) they cost a fraction of J and its QR.
     Raises ``ValueError`` when the residuals at ``x0`` are not finite.
     """
@@ -280,6 +282,7 @@ def levenberg_marquardt(  # noqa: C901 (MINPACK lmder's iteration, kept step for
     while info == 0:
         R0 = None if normal is None else triangle_of_normal_equations(*normal(x, fvec), fnorm**2)
         if R0 is None:
+            normal = None  # refused once (ill-conditioned): J itself for the rest, not both each time
             J = np.asarray(jac(x), dtype=float)
             x_of_J = x.copy()
             R0 = qr_of_stacked(J, fvec)
