@@ -153,3 +153,31 @@ def test_repeated_evaluation_on_fixed_times_is_cached_and_exact():
     assert model.commanded_rad(w) is not model.commanded_rad(w)  # writable: evaluated every time
     w[0] = 0.5
     assert model.commanded_rad(w)[0] == pytest.approx(model.commanded_rad(np.array([0.5]))[0])
+
+
+@pytest.mark.parametrize("revolutions", [0.7, 3.0, 25.0])
+def test_first_harmonic_misfit_over_the_grid_is_each_scale_s_least_squares(revolutions):
+    """first_harmonic_sse_grid (every scale at once, normal equations) against numpy's lstsq of each scale and
+    channel on its own (the SVD), nulls and a channel with too few readings included: the same sums of
+    squares to 1e-10 relative, so refine_speed_scale picks the same grid point and parabola.
+    """
+    from borescan.kinematics import first_harmonic_sse_grid
+
+    rng = np.random.default_rng(7)
+    n = 1500
+    Phi = np.linspace(0.0, 2 * np.pi * revolutions, n)
+    y = np.stack([4.0 + 0.08 * np.cos(1.03 * Phi + b) for b in (0.1, 2.0, 4.1)], axis=1)
+    y += 0.002 * rng.standard_normal(y.shape)
+    mask = rng.random(y.shape) > 0.05
+    mask[3:, 2] = False  # three readings: left out
+    scales = 1.03 + np.linspace(-0.05, 0.05, 21)
+    expected = np.zeros(scales.size)
+    for i, g in enumerate(scales):
+        for j in range(2):
+            m = mask[:, j]
+            A = np.column_stack([np.ones(m.sum()), np.cos(g * Phi[m]), np.sin(g * Phi[m])])
+            r = A @ np.linalg.lstsq(A, y[m, j], rcond=None)[0] - y[m, j]
+            expected[i] += r @ r
+    got = first_harmonic_sse_grid(scales, Phi, y, mask)
+    np.testing.assert_allclose(got, expected, rtol=1e-10)
+    assert np.argmin(got) == np.argmin(expected)

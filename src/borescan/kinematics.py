@@ -37,6 +37,7 @@ __all__ = [
     "speed_scale_from_readings",
     "refine_speed_scale",
     "estimate_speed_scale",
+    "first_harmonic_sse_grid",
 ]
 
 SOURCES = ("encoder", "profile", "nominal")
@@ -313,13 +314,14 @@ def speed_scale_from_readings(
     n_grid = 1 << int(math.ceil(math.log2(n_grid)))
     grid = x[0] + np.arange(n_grid) * (span / n_grid)
     power = np.zeros(n_grid // 2 + 1)
+    window = np.hanning(n_grid)  # up to 2^20 points: once, not per channel
     for j in range(y.shape[1]):
         ok = np.isfinite(y[:, j])
         if ok.sum() < 8:
             continue
         yj = np.interp(grid, x[ok], y[ok, j])
         yj = yj - yj.mean()
-        power += np.abs(np.fft.rfft(yj * np.hanning(n_grid))) ** 2
+        power += np.abs(np.fft.rfft(yj * window)) ** 2
     # bin k is k / span cycles per rad of Phi, i.e. 2 pi k / span cycles per revolution of Phi
     cyc = 2.0 * math.pi * np.arange(power.size) / span
     band = (cyc >= scale_range[0]) & (cyc <= scale_range[1])
@@ -335,17 +337,41 @@ def speed_scale_from_readings(
     return float(2.0 * math.pi * (k + dk) / span)
 
 
-def _first_harmonic_sse(phi: np.ndarray, y: np.ndarray, mask: np.ndarray) -> float:
-    """Misfit of v_c ~ k_c + a_c cos(phi) + b_c sin(phi), each channel on its own."""
-    sse = 0.0
+def first_harmonic_sse_grid(
+    scales: np.ndarray, commanded_rad: np.ndarray, readings_mm: np.ndarray, mask: np.ndarray
+) -> np.ndarray:
+    """Misfit of v_c ~ k_c + a_c cos(phi) + b_c sin(phi), each channel on its own, at phi = g Phi per scale g.
+
+    The sum over channels of each channel's least-squares residual sum of squares [mm^2], one value per
+    scale of ``scales`` (G,), for the readings ``readings_mm`` (n, c) at commanded angles ``commanded_rad``
+    (n,) [rad] that ``mask`` (n, c) keeps (a channel with fewer than four is left out). Every scale is
+    solved at once: the 3 x 3 normal equations of (1, cos, sin) per scale in one batch, then the residuals
+    themselves (so the sum of squares is off by |A d|^2 for a solution error d: second order, no
+    cancellation against |v|^2). Each channel's columns are well conditioned over the revolution or more
+    of a scan; cos and sin are computed once for all channels.
+    """
+    g = np.asarray(scales, dtype=float)
+    y = np.asarray(readings_mm, dtype=float)
+    phi = np.multiply.outer(g, np.asarray(commanded_rad, dtype=float))
+    cos_all, sin_all = np.cos(phi), np.sin(phi)
+    sse = np.zeros(g.size)
     for j in range(y.shape[1]):
         m = mask[:, j]
-        if m.sum() < 4:
+        n = int(m.sum())
+        if n < 4:
             continue
-        A = np.column_stack([np.ones(m.sum()), np.cos(phi[m]), np.sin(phi[m])])
-        sol, *_ = np.linalg.lstsq(A, y[m, j], rcond=None)
-        r = A @ sol - y[m, j]
-        sse += float(r @ r)
+        c, s, v = cos_all[:, m], sin_all[:, m], y[m, j]
+        normal = np.empty((g.size, 3, 3))
+        normal[:, 0, 0] = n
+        normal[:, 0, 1] = normal[:, 1, 0] = c.sum(axis=1)
+        normal[:, 0, 2] = normal[:, 2, 0] = s.sum(axis=1)
+        normal[:, 1, 1] = np.einsum("gn,gn->g", c, c)
+        normal[:, 2, 2] = np.einsum("gn,gn->g", s, s)
+        normal[:, 1, 2] = normal[:, 2, 1] = np.einsum("gn,gn->g", c, s)
+        rhs = np.stack([np.full(g.size, v.sum()), c @ v, s @ v], axis=1)
+        k_a_b = np.linalg.solve(normal, rhs[..., None])[..., 0]
+        r = k_a_b[:, :1] + k_a_b[:, 1:2] * c + k_a_b[:, 2:] * s - v
+        sse += np.einsum("gn,gn->g", r, r)
     return sse
 
 
@@ -367,7 +393,7 @@ def refine_speed_scale(
     span = float(np.ptp(Phi)) or 1.0
     half = 1.5 * 2.0 * math.pi / span
     grid = coarse + np.linspace(-half, half, 121)
-    sse = np.array([_first_harmonic_sse(g * P, ys, ms) for g in grid])
+    sse = first_harmonic_sse_grid(grid, P, ys, ms)
     i = int(np.argmin(sse))
     if 0 < i < grid.size - 1:
         a, b, c = sse[i - 1 : i + 2]
