@@ -381,6 +381,38 @@ def test_pdf_text_is_written_whole_in_the_core_helvetica(calibrated, tmp_path):
     assert b"\xe2\x88\x92" not in content  # the residual axes' minus is WinAnsi's hyphen-minus
 
 
+def test_core_font_metrics_are_parsed_once_and_the_pdf_is_the_same(calibrated, tmp_path, monkeypatch):
+    """The PDF writer gets each core font's AFM parsed once per process (layout._core_font_metrics): two
+    certificates parse each file once, the documents are byte for byte those of matplotlib's own parse, and
+    the writer's parser is matplotlib's again after the certificate.
+    """
+    import matplotlib._afm
+    from matplotlib.backends import backend_pdf
+
+    from borescan.certificate import layout
+
+    cal, kw = calibrated
+    parsed: list[str] = []
+
+    class CountingAFM(matplotlib._afm.AFM):
+        def __init__(self, fh):
+            parsed.append(fh.name)
+            super().__init__(fh)
+
+    monkeypatch.setattr(matplotlib._afm, "AFM", CountingAFM)
+    monkeypatch.setattr(layout, "_AFM_BY_FILE", {})
+    own = backend_pdf.AFM
+    a = write_certificate(cal, tmp_path / "a", **kw)["pdf"].read_bytes()
+    b = write_certificate(cal, tmp_path / "b", **kw)["pdf"].read_bytes()
+    assert backend_pdf.AFM is own
+    assert a == b and len(parsed) >= 2 and len(parsed) == len(set(parsed))  # Helvetica, Helvetica-Bold, ...
+    # matplotlib's own parse for every document: the same bytes
+    monkeypatch.setattr(layout, "_core_font_metrics", lambda fh: CountingAFM(fh))
+    parsed.clear()
+    c = write_certificate(cal, tmp_path / "c", **kw)["pdf"].read_bytes()
+    assert c == a and len(parsed) >= 2
+
+
 def test_pdf_beyond_winansi_keeps_the_embedded_font(calibrated, tmp_path):
     """A laboratory named in Polish: Helvetica's WinAnsi has no L-stroke, so the PDF embeds DejaVu Sans."""
     from borescan.certificate.layout import _pdf_rc
