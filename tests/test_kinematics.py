@@ -181,3 +181,27 @@ def test_first_harmonic_misfit_over_the_grid_is_each_scale_s_least_squares(revol
     got = first_harmonic_sse_grid(scales, Phi, y, mask)
     np.testing.assert_allclose(got, expected, rtol=1e-10)
     assert np.argmin(got) == np.argmin(expected)
+
+
+def test_first_harmonic_misfit_of_readings_at_one_angle_is_lstsq_s():
+    """A channel whose readings (four or more) all sit at one commanded angle (a stopped spindle) makes the
+    normal equations singular: its misfit is then numpy's lstsq's (the least-norm solution), not an error.
+    """
+    from borescan.kinematics import first_harmonic_sse_grid
+
+    Phi = np.linspace(0.0, 20.0, 400)
+    y = np.stack([2.0 + 0.1 * np.cos(Phi), 1.5 + 0.1 * np.cos(Phi + 1.0)], axis=1)
+    mask = np.ones(y.shape, dtype=bool)
+    mask[:, 1] = False
+    Phi[100:106] = Phi[100]
+    mask[100:106, 1] = True
+    y[100:106, 1] = [0.30, 0.31, 0.29, 0.30, 0.32, 0.28]
+    scales = np.array([0.98, 1.0, 1.02])
+    expected = np.zeros(scales.size)
+    for i, g in enumerate(scales):
+        for j in range(2):
+            m = mask[:, j]
+            A = np.column_stack([np.ones(m.sum()), np.cos(g * Phi[m]), np.sin(g * Phi[m])])
+            r = A @ np.linalg.lstsq(A, y[m, j], rcond=None)[0] - y[m, j]
+            expected[i] += r @ r
+    np.testing.assert_allclose(first_harmonic_sse_grid(scales, Phi, y, mask), expected, rtol=1e-9, atol=1e-15)

@@ -369,7 +369,11 @@ def first_harmonic_sse_grid(
         normal[:, 2, 2] = np.einsum("gn,gn->g", s, s)
         normal[:, 1, 2] = normal[:, 2, 1] = np.einsum("gn,gn->g", c, s)
         rhs = np.stack([np.full(g.size, v.sum()), c @ v, s @ v], axis=1)
-        k_a_b = np.linalg.solve(normal, rhs[..., None])[..., 0]
+        try:
+            k_a_b = np.linalg.solve(normal, rhs[..., None])[..., 0]
+        except np.linalg.LinAlgError:  # readings at fewer than three distinct angles: the least-norm
+            # least-squares solution, as lstsq gives it (pinv(A^T A) A^T = pinv(A): the same residuals)
+            k_a_b = np.einsum("gij,gj->gi", np.linalg.pinv(normal), rhs)
         r = k_a_b[:, :1] + k_a_b[:, 1:2] * c + k_a_b[:, 2:] * s - v
         sse += np.einsum("gn,gn->g", r, r)
     return sse
