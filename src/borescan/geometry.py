@@ -35,6 +35,7 @@ __all__ = [
     "wall_points_device",
     "ray_bore_distance",
     "bore_wall_radius",
+    "bore_wall_function",
     "tri_spindle_readings",
     "tri_spindle_readings_channel_major",
     "tri_static_readings",
@@ -201,6 +202,23 @@ def bore_wall_radius(theta_rad: np.ndarray, bore: Bore) -> tuple[np.ndarray, np.
         r = r + a * np.cos(k * (theta - ph))
         dr = dr - a * k * np.sin(k * (theta - ph))
     return r, dr
+
+
+def bore_wall_function(x_mm: np.ndarray, y_mm: np.ndarray, bore: Bore) -> tuple[np.ndarray, ...]:
+    """Wall function g(P) = |P - C| - r(theta(P)) of a bore at points P = (x, y), and its gradient.
+
+    g is zero on the wall, positive outside, and its gradient is the one :func:`_wall_distance`'s Newton
+    steps use: grad g = (P - C) / |P - C| - r'(theta) grad theta, grad theta = perp(P - C) / |P - C|^2.
+
+    Returns
+    -------
+    g [mm], dg/dx [-], dg/dy [-], arrays like ``x_mm``.
+    """
+    px, py = x_mm - bore.center_xy_mm[0], y_mm - bore.center_xy_mm[1]
+    rp = np.hypot(px, py)
+    r, dr = bore_wall_radius(np.arctan2(py, px), bore)
+    q = dr / (rp * rp)
+    return rp - r, px / rp + q * py, py / rp - q * px
 
 
 def _wall_distance(ox, oy, dx, dy, bore: Bore, tol_mm: float = 1e-13, max_iter: int = 60) -> np.ndarray:

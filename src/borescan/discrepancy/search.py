@@ -53,20 +53,31 @@ class Screened:
 
 
 def jacobian_columns(
-    model, p: dict, terms: list[Term], names: list[str], scales: list[float], f0: np.ndarray | None = None
+    model,
+    p: dict,
+    terms: list[Term],
+    names: list[str],
+    scales: list[float],
+    f0: np.ndarray | None = None,
+    about: tuple[dict, list[Term]] | None = None,
 ) -> np.ndarray:
     """Forward-difference columns of the weighted model over the unmasked samples, per unit scale.
 
     ``f0``: the residual at ``p`` when the caller has it (a candidate term at zero adds nothing:
-    its residual is the one without it, bit for bit), else it is evaluated here.
+    its residual is the one without it, bit for bit), else it is evaluated here. ``about``: the point
+    (parameters, terms) ``p`` adds zero-valued terms to; a model with ``residual_first_order`` then takes
+    the steps it can to first order about it (the tri model's bore and spindle-position steps,
+    :mod:`borescan.discrepancy.tri_screen`), the others exactly.
     """
     if f0 is None:
         f0 = model.residual(p, terms)
+    first_order = getattr(model, "residual_first_order", None) if about is not None else None
     cols = []
     for n, s in zip(names, scales):
         q = dict(p)
         q[n] = q[n] + s
-        cols.append(f0 - model.residual(q, terms))  # d(model)/d(param) * scale
+        r = None if first_order is None else first_order(about, q, terms)
+        cols.append(f0 - (model.residual(q, terms) if r is None else r))  # d(model)/d(param) * scale
     return np.stack(cols, axis=1) if cols else np.zeros((f0.size, 0))
 
 
@@ -260,7 +271,7 @@ def linear_screen(
         vib = vib_start if (not seed or t.effect == "vibration") else {}
         pt = {**p0, **{n: 0.0 for n in t.names()}, **vib}
         tn, ts = _fitted(t)
-        fitted = proj.fit(jacobian_columns(model, pt, [*seed, t], tn, ts, f0=r))
+        fitted = proj.fit(jacobian_columns(model, pt, [*seed, t], tn, ts, f0=r, about=(p0, seed)))
         if fitted is None:  # the term's start leaves the model undefined (a ray missing the bore)
             continue
         rss, coef = fitted

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from borescan.discrepancy.fitting import block_indices, dead_zone, noise_floor_mm, spike_mask
+from borescan.discrepancy.tri_screen import FirstOrderResidual
 from borescan.discrepancy.tri_signals import localise, rotation_eps, speeds_differ, tilt_start, vibration_peak
 from borescan.config import schema_default
 from borescan.effects import EFFECTS, SCAN_KIND_DEVICE, Effect, calibration_absorbers, sort_effects
@@ -292,6 +293,7 @@ class TriModel:
         #: half cell of coarsely quantised channels (c,) or None (see ``examine_model``)
         self.dead_zone_mm: np.ndarray | None = None
         self._geo_cache: tuple | None = None
+        self.residual_first_order = FirstOrderResidual(self)  # the linear screen's bore and spindle columns
 
     # ------------------------------------------------------------------ forward
     def base(self, p: dict[str, float]) -> TriBase:
@@ -327,10 +329,7 @@ class TriModel:
         beam- or reading-stage parameter (offset, gain, ...) leaves it as it was.
         """
         d = self.data
-        if self.device_terms:
-            keys = {t.key for t in self.device_terms}
-            terms = list(self.device_terms) + [t for t in terms if t.key not in keys]
-        st = sort_effects([e for t in terms for e in term_effects(t, p, d.channels)], "tri_lds", d.channels)
+        st = self.stages(p, terms)
         key = (
             tuple(e for stage in GEOMETRY_STAGES for e in st[stage]),
             tuple(sorted((k, v) for k, v in p.items() if "." not in k)),
@@ -342,9 +341,21 @@ class TriModel:
             self._geo_cache = (key, (v, tc))
         return tri_reading_stage(v, tc, st, d.channels, d.range_mm)
 
+    def stages(self, p: dict[str, float], terms: list[Term]) -> dict[str, list[Effect]]:
+        """Return the effects of the device model and ``terms`` at ``p``, grouped by stage."""
+        d = self.data
+        if self.device_terms:
+            keys = {t.key for t in self.device_terms}
+            terms = list(self.device_terms) + [t for t in terms if t.key not in keys]
+        return sort_effects([e for t in terms for e in term_effects(t, p, d.channels)], "tri_lds", d.channels)
+
     def residual(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
         """Weighted residual vector (data - model) over the unmasked samples."""
-        r = dead_zone(self.data.values_mm - self.predict(p, terms), self.dead_zone_mm) * self.weights
+        return self.weighted(self.predict(p, terms))
+
+    def weighted(self, predicted_mm: np.ndarray) -> np.ndarray:
+        """Weighted residual vector of predicted readings (n, c) over the unmasked samples."""
+        r = dead_zone(self.data.values_mm - predicted_mm, self.dead_zone_mm) * self.weights
         return r[self.mask]
 
     def residual_matrix(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:

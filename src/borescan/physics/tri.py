@@ -55,6 +55,7 @@ __all__ = [
     "spindle_positions",
     "bore_with_effects",
     "tri_geometry",
+    "tri_scene",
     "tri_readings_at",
     "tri_reading_stage",
     "tri_forward",
@@ -145,13 +146,15 @@ def spindle_positions(base: TriBase, phi_rad: np.ndarray, position_effects: Sequ
 
     Returns
     -------
-    ndarray (2,) or (n, 2) without effects, else (n, c, 2) [mm].
+    ndarray (2,) or (n, 2) without effects, else (n, 1, 2) where every channel has the sample's angle
+    (``phi_rad`` (n,) or (n, 1): the position is computed once per sample) or (n, c, 2) [mm].
     """
     S = np.asarray(base.spindle_xy_mm, dtype=float)
     if not position_effects:
         return S
-    phi = np.broadcast_to(phi_rad, (phi_rad.shape[0], len(base.channels)))
-    S = np.broadcast_to(S[:, None, :] if S.ndim == 2 else S, phi.shape + (2,))
+    phi = np.asarray(phi_rad, dtype=float)
+    phi = phi[:, None] if phi.ndim == 1 else phi
+    S = S[:, None, :] if S.ndim == 2 else S
     for e in position_effects:
         S = e.spec.forward[TRI](S, phi, e.params)
     return S
@@ -181,11 +184,16 @@ def tri_geometry(
     -------
     v : ndarray (n, c) [mm]; tc : ndarray (n, 1) or (n, c), the channel times [s].
     """
+    tc, phi, S, bore = tri_scene(base, t_s, st)
+    return tri_readings_at(phi, S, base.beams, bore), tc
+
+
+def tri_scene(base: TriBase, t_s: np.ndarray, st: dict[str, list[Effect]]) -> tuple:
+    """Compute steps 1-4 of :func:`tri_geometry`: channel times tc, device angle phi, spindle axis S, bore."""
     tc = channel_times(t_s, base.channels, st["time_base"])
     phi = device_angle(base, tc, st["kinematics"])
     S = spindle_positions(base, phi, st["spindle_position"])
-    bore = bore_with_effects(base.bore, st["bore"], base.cte_per_k)
-    return tri_readings_at(phi, S, base.beams, bore), tc
+    return tc, phi, S, bore_with_effects(base.bore, st["bore"], base.cte_per_k)
 
 
 def tri_readings_at(phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore) -> np.ndarray:
