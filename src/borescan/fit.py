@@ -245,7 +245,7 @@ def least_squares_fit(
     ftol: float = 1e-12,
     gtol: float = 1e-8,
     sparsity: np.ndarray | None = None,
-    fun_stack: Callable[[list[np.ndarray]], list[np.ndarray]] | None = None,
+    fun_stack: Callable[[np.ndarray, list[np.ndarray]], list[np.ndarray]] | None = None,
 ) -> FitResult:
     """Minimise ``sum(fun(x)**2)`` (Levenberg-Marquardt) and return its :class:`FitResult`.
 
@@ -255,8 +255,9 @@ def least_squares_fit(
     where a residual may depend on the parameter) lets parameters whose residuals do not overlap
     share one step (:func:`difference_groups`): the same Jacobian, bit for bit, from fewer
     evaluations of ``fun`` when it is right (e.g. one angle per pose, one beam per channel).
-    ``fun_stack`` (optional): ``fun`` at each of a list of points, in one call; the forward differences'
-    steps are then evaluated together (a model that predicts a stack of states at once).
+    ``fun_stack`` (optional): ``fun_stack(x, xs)`` is ``fun`` at each of the forward differences' steps
+    ``xs`` from ``x``, in one call: a model that predicts a stack of states at once, or that takes a small
+    step from ``x`` to first order (the tri examination's bore and spindle parameters).
     A failed optimisation is reported in ``success`` and ``message``, not raised.
     """
     names = tuple(names)
@@ -275,7 +276,7 @@ def least_squares_fit(
 
     if jac is None:
         groups = difference_groups(sparsity) if sparsity is not None else [[i] for i in range(z0.size)]
-        f_stack = None if fun_stack is None else (lambda zs: fun_stack([zz * s for zz in zs]))
+        f_stack = None if fun_stack is None else (lambda z, zs: fun_stack(z * s, [zz * s for zz in zs]))
         jz = _difference_jacobian(f, f_stack, groups, sparsity, diff_step)
     else:
 
@@ -296,8 +297,8 @@ def least_squares_fit(
 def _difference_jacobian(f, f_stack, groups: list[list[int]], sparsity, step: float):
     """Return the forward-difference Jacobian of ``f`` (:func:`least_squares_fit`'s, in scaled variables).
 
-    One step per group of columns (:func:`difference_groups`); ``f_stack`` (``f`` at a list of points in
-    one call) evaluates the steps together, else ``f`` one step at a time.
+    One step per group of columns (:func:`difference_groups`); ``f_stack`` (``f_stack(z, zs)``: ``f`` at the
+    steps ``zs`` from ``z`` in one call) evaluates the steps together, else ``f`` one step at a time.
     """
 
     def jz(z: np.ndarray) -> np.ndarray:
@@ -308,7 +309,7 @@ def _difference_jacobian(f, f_stack, groups: list[list[int]], sparsity, step: fl
             zz = z.copy()
             zz[g] += step
             zs.append(zz)
-        fs = f_stack(zs) if f_stack is not None else (f(zz) for zz in zs)
+        fs = f_stack(z, zs) if f_stack is not None else (f(zz) for zz in zs)
         for g, fg in zip(groups, fs, strict=True):
             col = (fg - f0) / step
             if len(g) == 1:

@@ -205,20 +205,20 @@ def bore_wall_radius(theta_rad: np.ndarray, bore: Bore) -> tuple[np.ndarray, np.
 
 
 def bore_wall_function(x_mm: np.ndarray, y_mm: np.ndarray, bore: Bore) -> tuple[np.ndarray, ...]:
-    """Wall function g(P) = |P - C| - r(theta(P)) of a bore at points P = (x, y), and its gradient.
+    """Return the wall function g(P) = |P - C| - r(theta(P)) of a bore at points P = (x, y), and its gradient.
 
     g is zero on the wall, positive outside, and its gradient is the one :func:`_wall_distance`'s Newton
     steps use: grad g = (P - C) / |P - C| - r'(theta) grad theta, grad theta = perp(P - C) / |P - C|^2.
 
     Returns
     -------
-    g [mm], dg/dx [-], dg/dy [-], arrays like ``x_mm``.
+    g [mm], dg/dx [-], dg/dy [-], |P - C| [mm], theta [rad]: arrays like ``x_mm``.
     """
     px, py = x_mm - bore.center_xy_mm[0], y_mm - bore.center_xy_mm[1]
-    rp = np.hypot(px, py)
-    r, dr = bore_wall_radius(np.arctan2(py, px), bore)
+    rp, theta = np.hypot(px, py), np.arctan2(py, px)
+    r, dr = bore_wall_radius(theta, bore)
     q = dr / (rp * rp)
-    return rp - r, px / rp + q * py, py / rp - q * px
+    return rp - r, px / rp + q * py, py / rp - q * px, rp, theta
 
 
 def _wall_distance(ox, oy, dx, dy, bore: Bore, tol_mm: float = 1e-13, max_iter: int = 60) -> np.ndarray:

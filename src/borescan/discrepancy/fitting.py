@@ -39,15 +39,15 @@ def fit_least_squares(
     sparsity: np.ndarray | None = None,
     ftol: float = 1e-8,
     xtol: float = 1e-8,
-    residual_stack_fn: Callable[[list[dict[str, float]]], list[np.ndarray]] | None = None,
+    residual_stack_fn: Callable[[dict[str, float], list[dict[str, float]]], list[np.ndarray]] | None = None,
 ) -> FitResult:
     """Minimise ``sum(residual_fn(params)**2)`` over ``names`` (others from ``fixed``).
 
     Parameters are scaled by ``scale`` (typical magnitudes) so that forward differences with a
     relative step of 1e-4 of the scale give accurate Jacobians (:func:`borescan.fit.least_squares_fit`);
     ``sparsity`` (:func:`residual_sparsity`) lets parameters of different poses or channels share a step;
-    ``residual_stack_fn`` (``residual_fn`` at a list of parameter sets in one call) evaluates the steps
-    together.
+    ``residual_stack_fn(p, ps)`` (``residual_fn`` at the forward differences' steps ``ps`` from ``p``, in one
+    call) evaluates the steps together.
     """
     names = tuple(names)
     fixed = dict(fixed or {})
@@ -57,8 +57,10 @@ def fit_least_squares(
         p.update(zip(names, x))
         return residual_fn(p)
 
-    def fun_stack(xs: list[np.ndarray]) -> list[np.ndarray]:
-        return residual_stack_fn([{**fixed, **dict(zip(names, x))} for x in xs])
+    def fun_stack(x: np.ndarray, xs: list[np.ndarray]) -> list[np.ndarray]:
+        return residual_stack_fn(
+            {**fixed, **dict(zip(names, x))}, [{**fixed, **dict(zip(names, y))} for y in xs]
+        )
 
     return least_squares_fit(
         fun,

@@ -223,17 +223,28 @@ class Fitter:
 
 
 def _residual_stack(model, terms: list[Term]):
-    """Return ``model.residual`` at a list of parameter sets, or None without ``model.predict_stack``.
+    """Return ``model.residual`` at the forward differences' steps from a point, or None.
 
-    The sets that share their term values (forward differences in base parameters) are predicted in one
-    stacked call each (the effects are the same for the whole stack); a set alone, one by one.
+    ``run(p, ps)``: the residuals at the steps ``ps`` from ``p``. With ``model.predict_stack`` (the rod) the
+    sets that share their term values (forward differences in base parameters) are predicted in one
+    stacked call each (the effects are the same for the whole stack), a set alone one by one. With
+    ``model.residual_first_order`` (the tri model) a step in the bore or the spindle axis is taken to first
+    order about ``p`` (:mod:`borescan.discrepancy.tri_screen`), any other exactly. None for neither.
     """
+    first_order = getattr(model, "residual_first_order", None)
+    if first_order is not None:
+
+        def run_first_order(p: dict[str, float], ps: list[dict[str, float]]) -> list[np.ndarray]:
+            out = [first_order((p, terms), q, terms) for q in ps]
+            return [model.residual(q, terms) if r is None else r for q, r in zip(ps, out, strict=True)]
+
+        return run_first_order
     predict_stack = getattr(model, "predict_stack", None)
     if predict_stack is None:
         return None
     names = [n for t in terms for n in t.names()]
 
-    def run(ps: list[dict[str, float]]) -> list[np.ndarray]:
+    def run(p: dict[str, float], ps: list[dict[str, float]]) -> list[np.ndarray]:
         keys = [tuple(q.get(n) for n in names) for q in ps]
         out: list = [None] * len(ps)
         for key in dict.fromkeys(keys):  # the sets with the same term values, in order of appearance

@@ -330,16 +330,18 @@ class TriModel:
         """
         d = self.data
         st = self.stages(p, terms)
+        v, tc = self.geometry(p, st)
+        return tri_reading_stage(v, tc, st, d.channels, d.range_mm)
+
+    def geometry(self, p: dict[str, float], st: dict[str, list[Effect]]) -> tuple[np.ndarray, np.ndarray]:
+        """Return the exact readings (n, c) of the ray geometry and the channel times at ``p`` and ``st``."""
         key = (
             tuple(e for stage in GEOMETRY_STAGES for e in st[stage]),
             tuple(sorted((k, v) for k, v in p.items() if "." not in k)),
         )
-        if self._geo_cache is not None and self._geo_cache[0] == key:
-            v, tc = self._geo_cache[1]
-        else:
-            v, tc = tri_geometry(self.base(p), d.t_s, st)
-            self._geo_cache = (key, (v, tc))
-        return tri_reading_stage(v, tc, st, d.channels, d.range_mm)
+        if self._geo_cache is None or self._geo_cache[0] != key:
+            self._geo_cache = (key, tri_geometry(self.base(p), self.data.t_s, st))
+        return self._geo_cache[1]
 
     def stages(self, p: dict[str, float], terms: list[Term]) -> dict[str, list[Effect]]:
         """Return the effects of the device model and ``terms`` at ``p``, grouped by stage."""
@@ -361,6 +363,9 @@ class TriModel:
     def residual_matrix(self, p: dict[str, float], terms: list[Term]) -> np.ndarray:
         """Unweighted residual (n, c) [mm], NaN where the reading is null."""
         return self.data.values_mm - self.predict(p, terms)
+
+    #: base parameters that move only the bore (:meth:`base`): the centre and the radius
+    bore_parameters = ("cx", "cy", "dR")
 
     # ------------------------------------------------------------------ helpers
     def base_names(self) -> list[str]:

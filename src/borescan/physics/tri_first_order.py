@@ -1,25 +1,27 @@
 """Three-sensor spindle readings to first order in a small change of the spindle position and the bore.
 
-The linear screen of the discrepancy workflow (:func:`borescan.discrepancy.search.linear_screen`) asks,
-at the base fit, how each candidate effect would move the readings. For a bore effect (``bore_lobing``,
-``axis_tilt``, ``thermal_expansion``) or a spindle-position effect (``spindle_error_motion``) the exact
+The discrepancy workflow asks, at a fit, how a small step of a bore or spindle-position parameter would
+move the readings: the linear screen's candidate columns (:func:`borescan.discrepancy.search.linear_screen`)
+and the exact fits' forward differences in the bore's centre and radius, ``bore_lobing``, ``axis_tilt``,
+``thermal_expansion`` and ``spindle_error_motion`` (:mod:`borescan.discrepancy.tri_screen`). The exact
 answer solves the ray-to-wall intersection again (Newton iterations for a lobed bore,
 :func:`borescan.geometry.tri_spindle_readings`). To first order it is the implicit derivative of the
 wall condition at the wall points the exact solve has found (step 5 of :mod:`borescan.physics.tri`):
 
     g(P) = |P - C| - r(theta(P)) = 0,   P = S + Rot(phi)(F + s u),   v = s - d_b
-    dv = ds = -(g'(P) - g(P) + grad g . dS) / (grad g . d),   d = Rot(phi) u
+    dv = ds = -(g'(P) - g(P) + grad g . (dS - dC)) / (grad g . d),   d = Rot(phi) u
 
-with g' the wall function of the changed bore at the same points
-(:func:`borescan.geometry.bore_wall_function`) and dS the change of the spindle axis. The device angle
-and the beams are those of the base: a kinematic, time-base or beam change is not taken here. The error
+with g' the wall function of the changed bore's shape about the old centre at the same points
+(:func:`borescan.geometry.bore_wall_function`), dS the change of the spindle axis and dC that of the
+bore's centre (a move of the whole bore is a move of the spindle the other way). The device angle and
+the beams are those of the point: a kinematic, time-base or beam change is not taken here. The error
 is of second order in the change, about |change|^2 / R (a micrometre's lobing on a 20 mm bore: 1e-8 mm;
 ``tests/test_tri_first_order.py``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -42,7 +44,8 @@ class TriWallPoints:
     inv_den : (c, n) 1 / (grad g . d) [-].
     spindle_x_mm, spindle_y_mm : the spindle axis S the points were computed with, channel-major
         (scalars, (1, n) or (c, n)) [mm].
-    center_xy_mm : the bore centre C; r_mm, theta_rad : (c, n) |P - C| and the polar angle of P about C.
+    bore : the bore the points are on; center_xy_mm : its centre C; r_mm, theta_rad : (c, n) |P - C| and
+        the polar angle of P about C.
     """
 
     readings_mm: np.ndarray
@@ -54,6 +57,7 @@ class TriWallPoints:
     inv_den: np.ndarray
     spindle_x_mm: np.ndarray | float
     spindle_y_mm: np.ndarray | float
+    bore: Bore
     center_xy_mm: tuple[float, float]
     r_mm: np.ndarray
     theta_rad: np.ndarray
@@ -87,10 +91,9 @@ def tri_wall_points(
     x = sx + cph * dev_x - sph * dev_y
     y = sy + sph * dev_x + cph * dev_y
     dx, dy = cph * u[:, 0:1] - sph * u[:, 1:2], sph * u[:, 0:1] + cph * u[:, 1:2]
-    g, gx, gy = bore_wall_function(x, y, bore)
+    g, gx, gy, r, theta = bore_wall_function(x, y, bore)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv_den = 1.0 / (gx * dx + gy * dy)
-    px, py = x - bore.center_xy_mm[0], y - bore.center_xy_mm[1]
     return TriWallPoints(
         np.asarray(readings_mm, dtype=float),
         x,
@@ -101,9 +104,10 @@ def tri_wall_points(
         inv_den,
         sx,
         sy,
+        bore,
         tuple(bore.center_xy_mm),
-        np.hypot(px, py),
-        np.arctan2(py, px),
+        r,
+        theta,
     )
 
 
@@ -115,13 +119,19 @@ def tri_readings_first_order(
     To first order about ``wall`` (module doc); None for either leaves it as the wall points had it.
     """
     ds = np.zeros_like(wall.x_mm)
-    if bore is not None:
-        if tuple(bore.center_xy_mm) == wall.center_xy_mm:  # the points' polar coordinates are the wall's
-            g = wall.r_mm - bore_wall_radius(wall.theta_rad, bore)[0]
-        else:
-            g = bore_wall_function(wall.x_mm, wall.y_mm, bore)[0]
-        ds -= (g - wall.g_mm) * wall.inv_den
+    # a move of the bore's centre by dC is, to first order, a move of the spindle axis by -dC
+    dx, dy = 0.0, 0.0
     if spindle_xy_mm is not None:
         sx, sy = _channel_major_xy(spindle_xy_mm)
-        ds -= wall.kx * (sx - wall.spindle_x_mm) + wall.ky * (sy - wall.spindle_y_mm)
+        dx, dy = sx - wall.spindle_x_mm, sy - wall.spindle_y_mm
+    if bore is not None:
+        dx, dy = (
+            dx - (bore.center_xy_mm[0] - wall.center_xy_mm[0]),
+            dy - (bore.center_xy_mm[1] - wall.center_xy_mm[1]),
+        )
+        shape = replace(bore, center_xy_mm=wall.center_xy_mm)  # the new shape about the points' centre
+        if shape != wall.bore:
+            ds -= (wall.r_mm - bore_wall_radius(wall.theta_rad, shape)[0] - wall.g_mm) * wall.inv_den
+    if not (np.isscalar(dx) and dx == 0.0 and np.isscalar(dy) and dy == 0.0):
+        ds -= wall.kx * dx + wall.ky * dy
     return wall.readings_mm + ds.T
