@@ -164,7 +164,7 @@ def _truth(sim, kind: str) -> tuple[list, list[str]]:
 
 def _term_of(label: str, device: str | None = None):
     """Return the term of a label (``sensor_gain@2``), fitted in ``device``'s parameterisation (registry)."""
-    from borescan.discrepancy.tri import Term
+    from borescan.discrepancy.terms import Term
 
     name, _, rest = label.partition("@")
     k = None
@@ -197,7 +197,7 @@ def _chi2(model, terms, start: dict) -> float:
 def _starts(named_entries: list[dict], effects: list, device: str | None) -> dict[str, dict]:
     """Fit starts of each label: the true effect's own values, and a named effect's fitted ones."""
     from borescan.discrepancy.battery import effect_label, named_label
-    from borescan.discrepancy.tri import term_values
+    from borescan.discrepancy.terms import term_values
     from borescan.effects import Effect
 
     out = {}

@@ -99,7 +99,7 @@ def test_library_defaults_are_the_schemas():
     """A keyword a caller leaves unset takes the schema's default (no copy of it in the code)."""
     from borescan.calibrate.result import AcceptanceRule
     from borescan.config import load_config, schema_default
-    from borescan.discrepancy.tri import registry_terms
+    from borescan.discrepancy.terms import registry_terms
 
     cfg = load_config()
     assert AcceptanceRule.defaults() == AcceptanceRule.from_config(cfg["calibration"])

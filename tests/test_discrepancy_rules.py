@@ -246,7 +246,7 @@ def test_a_spindle_motion_whose_unabsorbed_part_sits_on_one_channel_is_still_nam
     """
     from bench.bench_discrepancy_contract import _chi2, _draw, _jobs, _sized, _term_of
     from borescan.discrepancy.examine import discrepancy_settings, model_of
-    from borescan.discrepancy.tri import term_values
+    from borescan.discrepancy.terms import term_values
     from borescan.effects import Effect
 
     cfg = discrepancy_settings()
@@ -488,7 +488,7 @@ def test_a_tilt_fit_from_the_base_start_lands_and_the_examination_names_it():
     from bench.bench_discrepancy_contract import _draw, _jobs, _sized
     from borescan.discrepancy.examine import discrepancy_settings, examine_scan, model_of
     from borescan.discrepancy.search import Fitter, _restart
-    from borescan.discrepancy.tri import Term, term_values
+    from borescan.discrepancy.terms import Term, term_values
 
     cfg = discrepancy_settings()
     job = next(j for j in _jobs(270, 1, 0.2, 300.0) if j[2] == 269)
@@ -568,7 +568,7 @@ def test_a_pair_whose_gain_is_its_singles_convergence_gives_way_to_the_single_re
     from types import SimpleNamespace
 
     from borescan.discrepancy.search import Candidate, Search, _singles_from_pairs
-    from borescan.discrepancy.tri import Term
+    from borescan.discrepancy.terms import Term
 
     def fit(bic, **values):
         return SimpleNamespace(bic=bic, values=lambda: dict(values))

@@ -142,7 +142,7 @@ def test_a_static_set_refits_every_zero_member_where_the_cut_kept_one():
     term too, never the first term itself; nothing where no zero member was chosen.
     """
     from borescan.discrepancy.poses import StaticModel
-    from borescan.discrepancy.tri import Term
+    from borescan.discrepancy.terms import Term
 
     screen = [
         (1.0, Term("sensor_nonlinearity", 1), {"a": 1}),

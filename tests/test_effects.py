@@ -360,7 +360,7 @@ def test_candidates_of_every_scan_kind_come_from_the_registry():
     freed base parameter absorbs: a rod layer's free hole radius its own offset (and everything
     common), a free bore radius only what every channel shares.
     """
-    from borescan.discrepancy.tri import registry_terms
+    from borescan.discrepancy.terms import registry_terms
     from borescan.effects import EFFECTS
 
     for kind in ("tri_spindle", "tri_static", "rod"):

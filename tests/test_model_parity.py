@@ -32,15 +32,8 @@ import math
 import numpy as np
 import pytest
 
-from borescan.discrepancy.tri import (
-    Term,
-    TriData,
-    TriModel,
-    candidate_terms,
-    term_effects,
-    term_parameters,
-    term_values,
-)
+from borescan.discrepancy.terms import Term, term_effects, term_parameters, term_values
+from borescan.discrepancy.tri import TriData, TriModel, candidate_terms
 from borescan.discrepancy.poses import PoseData, RodModel, StaticModel
 from borescan.effects import EFFECTS, Effect, EffectSpec, FitParam
 from borescan.geometry import RodAxis

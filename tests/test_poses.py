@@ -242,7 +242,7 @@ def test_rod_model_at_the_true_geometry_and_temperature_is_the_simulated_thermal
     parameters and the true dT the model's readings are the scan's to below 1e-3 of the contract's
     smallest noise (2 um); without the term they are not (the cte dT R of each hole is left).
     """
-    from borescan.discrepancy.tri import Term, term_values
+    from borescan.discrepancy.terms import Term, term_values
     from borescan.effects import Effect
     from borescan.synthetic import contract as sct
 
@@ -292,7 +292,7 @@ def test_rod_model_with_the_true_signed_beam_tilt_is_the_simulated_scan(seed, ga
     parameterisation (h = 1 / cos(gamma) - 1, even in gamma) cannot: for -0.09 it adds +0.09 to gamma0, and
     leaves more than 10 um rms (0.05-0.07 mm measured).
     """
-    from borescan.discrepancy.tri import Term, term_values
+    from borescan.discrepancy.terms import Term, term_values
     from borescan.effects import Effect
     from borescan.synthetic import contract as sct
 
@@ -340,7 +340,7 @@ def test_the_screen_starts_a_rod_tilt_at_its_offsets_root_of_the_linear_starts_s
     start's, with the offset's base parameters; with no offset screened for its layer, at gamma = 0.
     """
     from borescan.discrepancy.search import Screened
-    from borescan.discrepancy.tri import Term
+    from borescan.discrepancy.terms import Term
 
     _, model = _rod_scan_and_model(4, "T")
     tilt1, tilt2 = (Term("beam_tilt", c, device="rod") for c in (1, 2))
@@ -367,7 +367,7 @@ def test_a_rod_tilt_is_judged_plausible_on_the_beams_own_angle():
     """
     from borescan.discrepancy.judge import implausible, plausible_ranges
     from borescan.discrepancy.search import Candidate
-    from borescan.discrepancy.tri import Term
+    from borescan.discrepancy.terms import Term
     from borescan.fit import FitResult
 
     _, model = _rod_scan_and_model(4, "T")

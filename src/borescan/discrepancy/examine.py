@@ -35,7 +35,8 @@ from borescan.discrepancy.judge import Rejection, explanation, judge, plausible_
 from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays
 from borescan.discrepancy.tri_starts import mirrored_rho_starts
 from borescan.discrepancy.search import Candidate, Fitter, Search, jacobian_columns, rms, search_candidates
-from borescan.discrepancy.tri import Term, TriData, TriModel, tri_data_from_arrays
+from borescan.discrepancy.terms import Term
+from borescan.discrepancy.tri import TriData, TriModel, tri_data_from_arrays
 from borescan.effects import EFFECTS
 
 __all__ = [

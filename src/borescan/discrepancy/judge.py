@@ -34,7 +34,7 @@ import numpy as np
 
 from borescan.config import schema_default
 from borescan.discrepancy.search import Candidate, rms
-from borescan.discrepancy.tri import Term, term_parameters
+from borescan.discrepancy.terms import Term, term_parameters
 from borescan.effects import EFFECTS
 
 __all__ = [

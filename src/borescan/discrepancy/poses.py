@@ -35,7 +35,7 @@ import numpy as np
 
 from borescan.discrepancy.fitting import dead_zone
 from borescan.noise import noise_floor_mm
-from borescan.discrepancy.tri import Term, registry_terms, term_effects, term_parameters
+from borescan.discrepancy.terms import Term, registry_terms, term_effects, term_parameters
 from borescan.effects import calibration_absorbers
 from borescan.geometry import Beams, Bore, RodLayer, centred_beam_length_mm
 from borescan.physics.rod import RodDevice, RodState
@@ -205,7 +205,7 @@ class _PoseModel:
     def term_parameters(self, term: Term, x: dict, u: dict):
         if term.effect == "beam_offset":  # the rod's own term; the rest convert as on the spindle
             return {"d_mm": abs(x[f"{term.key}.d_mm"])}, {"d_mm": u.get(f"{term.key}.d_mm", float("nan"))}
-        return term_parameters(term, x, u, None)
+        return term_parameters(term, x, u)
 
     def plot_angle(self) -> np.ndarray:
         return np.zeros(self.data.t_s.size) if self._last is None else self._last

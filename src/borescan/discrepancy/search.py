@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from borescan.discrepancy.fitting import FitResult, fit_least_squares, residual_sparsity
-from borescan.discrepancy.tri import Term
+from borescan.discrepancy.terms import Term
 
 __all__ = [
     "BaseProjection",

@@ -12,26 +12,26 @@ exactly a change of a channel's d_b, ``channel_delay`` of its beta (at one speed
 a common change of every d_b. Freeing them makes these effects invisible; held, they stay identifiable
 and a finding says which calibration parameter would absorb it (a calibration matter).
 
-Each candidate is a :class:`Term`: one named effect of the spec, its channel (if any) and its
-fitted parameters. The registry (:data:`borescan.effects.EFFECTS`) is the vocabulary: it gives
-each term its fitted parameters (phase-type effects in Cartesian form (A, B), linear near
-zero amplitude), their conversion to the spec's parameters, which base parameters absorb it
-and whether it is a candidate of a spindle scan. :meth:`TriModel.predict` converts the fitted
+Each candidate is a :class:`~borescan.discrepancy.terms.Term`: one named effect of the spec, its
+channel (if any) and its fitted parameters. The registry (:data:`borescan.effects.EFFECTS`) is the
+vocabulary: it gives each term its fitted parameters (phase-type effects in Cartesian form (A, B),
+linear near zero amplitude), their conversion to the spec's parameters, which base parameters absorb
+it and whether it is a candidate of a spindle scan. :meth:`TriModel.predict` converts the fitted
 values to the spec's parameters and evaluates :func:`borescan.physics.tri.tri_forward`'s composition,
 the forward model the digital twin uses.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from borescan.discrepancy.fitting import block_indices, dead_zone, noise_floor_mm, spike_mask
+from borescan.discrepancy.terms import Term, registry_terms, term_effects, term_parameters, term_values
 from borescan.discrepancy.tri_screen import FirstOrderResidual
 from borescan.discrepancy.tri_signals import localise, rotation_eps, speeds_differ, tilt_start, vibration_peak
-from borescan.config import schema_default
-from borescan.effects import EFFECTS, SCAN_KIND_DEVICE, Effect, calibration_absorbers, sort_effects
+from borescan.effects import Effect, calibration_absorbers, sort_effects
 from borescan.geometry import Beams, Bore
 from borescan.kinematics import AngleModel, angle_model_from_arrays
 from borescan.physics.tri_params import moved_beams
@@ -44,53 +44,11 @@ from borescan.physics.tri import (
 )
 from borescan.preconditions import EXAMINATION_NEEDS_GEOMETRY, MissingScanKey, design_beams
 
-__all__ = [
-    "TriData",
-    "Term",
-    "TriModel",
-    "tri_data_from_arrays",
-    "candidate_terms",
-    "registry_terms",
-    "term_parameters",
-    "term_effects",
-    "term_values",
-]
+__all__ = ["TriData", "TriModel", "tri_data_from_arrays", "candidate_terms"]
 
 #: Scan kind of this model in the registry's ``absorbed_by`` / ``candidate``.
 SCAN_KIND = "tri_spindle"
 BASE_SCALE = {"cx": 1e-2, "cy": 1e-2, "phase": 1e-3, "dpsi": 1e-4, "dg": 1e-3, "drho": 1e-2, "dR": 1e-3}
-
-
-@dataclass(frozen=True)
-class Term:
-    """One candidate: a named effect of the spec on one channel (or none) with a harmonic ``k``.
-
-    ``channel=0`` means the same parameter on every channel (the look-alike of ``thermal_expansion`` for
-    ``sensor_offset``); ``device``: whose fit parameterisation (registry ``fit_params``; None the default).
-    """
-
-    effect: str
-    channel: int | None = None
-    k: int | None = None
-    device: str | None = field(default=None, compare=False, kw_only=True)
-
-    @property
-    def key(self) -> str:
-        """The term's key: the effect, ``@channel`` and ``k`` where they apply."""
-        s = self.effect
-        if self.channel is not None:
-            s += "@" + ("all" if self.channel == 0 else str(self.channel))
-        if self.k is not None:
-            s += f"[k={self.k}]"
-        return s
-
-    def names(self) -> list[str]:
-        """Prefixed fitted parameter names, e.g. ``bore_lobing[k=3].A`` (registry ``fit``)."""
-        return [f"{self.key}.{q.name}" for q in EFFECTS[self.effect].fit_params(self.device)]
-
-    def scales(self) -> list[float]:
-        """Typical magnitudes of :meth:`names` (registry ``fit``)."""
-        return [q.scale for q in EFFECTS[self.effect].fit_params(self.device)]
 
 
 @dataclass
@@ -234,30 +192,6 @@ def tri_data_from_arrays(
         free_phase=free_phase,
         temperature_c=None if env.get("temperature_c") is None else float(env["temperature_c"]),
     )
-
-
-def term_effects(term: Term, p: dict[str, float], channels) -> list[Effect]:
-    """Return the spec's effects of a fitted term.
-
-    Its fitted values ``p[f"{term.key}.{name}"]`` converted by the registry for the term's device
-    (:meth:`~borescan.effects.EffectSpec.spec_params`); channel 0 (or None): one effect per channel.
-    """
-    spec = EFFECTS[term.effect]
-    x = {q.name: p[f"{term.key}.{q.name}"] for q in spec.fit_params(term.device)}
-    par, _ = spec.spec_params(x, None, term.k, term.device)
-    if spec.per_channel:
-        chans = channels if term.channel in (None, 0) else (term.channel,)
-        return [Effect(term.effect, {"channel": c, **par}) for c in chans]
-    return [Effect(term.effect, par)]
-
-
-def term_values(term: Term, effect: Effect) -> dict[str, float]:
-    """Return the term's fitted values of a spec effect.
-
-    Inverse of :func:`term_effects`: the term's fitted values ``{f"{term.key}.{name}": value}``
-    of a spec effect (:meth:`~borescan.effects.EffectSpec.internal`).
-    """
-    return {f"{term.key}.{n}": v for n, v in effect.spec.internal(effect.params, term.device).items()}
 
 
 class TriModel:
@@ -500,7 +434,7 @@ class TriModel:
 
     def term_parameters(self, term: Term, x: dict, u: dict) -> tuple[dict, dict]:
         """Return a term's parameters and their uncertainties from the fit's ``x`` and ``u``."""
-        return term_parameters(term, x, u, self.data)
+        return term_parameters(term, x, u)
 
     def plot_angle(self) -> np.ndarray:
         """Return the spindle angle [rad] of every sample, for the plots."""
@@ -519,60 +453,6 @@ class TriModel:
         S0 = S.mean(axis=0) if S.ndim == 2 else S
         offset, _, _ = first_harmonic_start(phi, d.values_mm, self.valid, d.beams.beta_rad)
         return S0 - offset
-
-
-def registry_terms(
-    scan_kind: str,
-    channels,
-    *,
-    have: dict[str, bool],
-    k_max: int | None = None,
-    freed: dict[str, set | str] | None = None,
-    conditions: frozenset[str] = frozenset(),
-) -> list[Term]:
-    """Return the registry's candidate terms for a scan of ``scan_kind``.
-
-    Return the registry's candidate terms for a scan of ``scan_kind`` (``"tri_spindle"``,
-    ``"tri_static"``, ``"rod"``): the only list of candidates the workflow has.
-
-    Every effect whose ``candidate[scan_kind]`` is ``"screen"`` and whose ``needs`` the scan meets
-    (``have``: need -> met): per-channel effects one term per channel, then the ``common`` ones
-    as one term on every channel (channel 0), then the others, one term per harmonic
-    k = 2..k_max where the effect has one. Terms a freed base parameter absorbs (the registry's
-    ``absorbed_by[scan_kind]``) are left out: ``freed`` maps a base parameter to the set of
-    channels whose own copy of it is free (a per-channel term is absorbed when its channel is in
-    the set, a common term when the set is not empty), or to ``"shared"`` for one parameter of
-    every channel (absorbs only the common terms: a bore radius absorbs a common offset, not one
-    channel's), unless the scan meets the registry's ``absorbed_unless[scan_kind]`` condition for that
-    parameter (``conditions``, e.g. ``"speeds_differ"``: a delay is a change of beta only at one speed).
-    ``k_max`` None: the schema's ``discrepancy.max_harmonic``.
-    """
-    freed = {k: v for k, v in (freed or {}).items() if v}
-    if k_max is None:
-        k_max = int(schema_default("discrepancy", "max_harmonic"))
-    specs = [
-        s
-        for s in EFFECTS.values()
-        if s.candidate.get(scan_kind) == "screen" and all(have.get(n, False) for n in s.needs)
-    ]
-    dev = SCAN_KIND_DEVICE[scan_kind]
-    terms = [Term(s.name, c, device=dev) for s in specs if s.per_channel for c in channels]
-    terms += [Term(s.name, 0, device=dev) for s in specs if s.per_channel and s.common]
-    for s in (s for s in specs if not s.per_channel):
-        terms += [Term(s.name, None, k, device=dev) for k in (range(2, k_max + 1) if s.harmonic else [None])]
-
-    def absorbed(t: Term) -> bool:
-        common = t.channel in (0, None)
-        unless = EFFECTS[t.effect].absorbed_unless.get(scan_kind, {})
-        for b in EFFECTS[t.effect].absorbers(scan_kind):
-            f = freed.get(b)
-            if f is None or unless.get(b) in conditions:
-                continue
-            if common or (f != "shared" and t.channel in f):
-                return True
-        return False
-
-    return [t for t in terms if not absorbed(t)]
 
 
 def candidate_terms(
@@ -597,19 +477,3 @@ def candidate_terms(
     return registry_terms(
         SCAN_KIND, data.channels, have=have, k_max=k_max, freed=freed, conditions=conditions
     )
-
-
-def term_parameters(
-    term: Term, x: dict[str, float], u: dict[str, float], data: TriData | None = None
-) -> tuple[dict, dict]:
-    """Return the spec's parameters of a fitted term and their uncertainties.
-
-    Return the spec's parameters of a fitted term and their standard uncertainties (the registry's
-    :meth:`~borescan.effects.EffectSpec.spec_params`).
-    """
-    spec, fit = EFFECTS[term.effect], EFFECTS[term.effect].fit_params(term.device)
-    if not fit:
-        raise ValueError(f"no parameter conversion for {term.effect!r}")
-    xi = {q.name: x[f"{term.key}.{q.name}"] for q in fit}
-    ui = {q.name: u.get(f"{term.key}.{q.name}", float("nan")) for q in fit}
-    return spec.spec_params(xi, ui, term.k, term.device)

@@ -174,15 +174,8 @@ def tri_geometry(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Compute steps 1-5: exact readings of the ray geometry with the geometric effects.
 
-    Parameters
-    ----------
-    base : TriBase
-    t_s : ndarray (n,) sample times since scan start [s]
-    st : effects grouped by stage (:func:`borescan.effects.sort_effects`)
-
-    Returns
-    -------
-    v : ndarray (n, c) [mm]; tc : ndarray (n, 1) or (n, c), the channel times [s].
+    ``t_s`` (n,) sample times since scan start [s]; ``st`` effects grouped by stage (:func:`sort_effects`).
+    Returns v (n, c) [mm] and the channel times tc (n, 1) or (n, c) [s].
     """
     tc, phi, S, bore = tri_scene(base, t_s, st)
     return tri_readings_at(phi, S, base.beams, bore), tc

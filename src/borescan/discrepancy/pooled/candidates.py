@@ -16,7 +16,8 @@ import numpy as np
 from borescan.discrepancy.fitting import fit_least_squares, noise_floor_mm, spike_mask
 from borescan.discrepancy.pooled.terms import BASE_SCALE, CONDITIONS, PooledTerm
 from borescan.discrepancy.search import lstsq
-from borescan.discrepancy.tri import SCAN_KIND, Term, registry_terms, term_parameters
+from borescan.discrepancy.terms import Term, registry_terms, term_parameters
+from borescan.discrepancy.tri import SCAN_KIND
 from borescan.discrepancy.tri_signals import tilt_start
 from borescan.effects import EFFECTS, SCOPES
 

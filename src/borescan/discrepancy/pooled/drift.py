@@ -10,7 +10,8 @@ import numpy as np
 
 from borescan.discrepancy.pooled.model import PooledModel
 from borescan.discrepancy.pooled.terms import BASE_SCALE
-from borescan.discrepancy.tri import SCAN_KIND, Term
+from borescan.discrepancy.terms import Term
+from borescan.discrepancy.tri import SCAN_KIND
 from borescan.effects import EFFECTS
 
 #: Registry base parameter -> column of the calibrations table.

@@ -16,7 +16,8 @@ from borescan.discrepancy.fitting import dead_zone, fit_least_squares
 from borescan.discrepancy.pooled.beams import BeamsAndDesign
 from borescan.discrepancy.pooled.candidates import CandidateSearch
 from borescan.discrepancy.pooled.terms import _SPEED, BASE_SCALE, PooledScan, PooledTerm, parse_device_effect
-from borescan.discrepancy.tri import SCAN_KIND, Term, TriModel
+from borescan.discrepancy.terms import Term
+from borescan.discrepancy.tri import SCAN_KIND, TriModel
 from borescan.discrepancy.tri_signals import rotation_eps, signed_speeds
 from borescan.effects import EFFECTS, SCOPES, calibration_absorbers
 from borescan.geometry import Beams

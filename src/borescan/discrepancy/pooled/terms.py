@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from borescan.discrepancy.examine import against_reference, scan_arrays
-from borescan.discrepancy.tri import Term, TriData, tri_data_from_arrays
+from borescan.discrepancy.terms import Term
+from borescan.discrepancy.tri import TriData, tri_data_from_arrays
 from borescan.discrepancy.tri_signals import SAME_WITHIN, relative_spread
 from borescan.effects import device_effect_key
 

@@ -18,7 +18,8 @@ from borescan.discrepancy.fitting import FitResult, fit_least_squares
 from borescan.discrepancy.pooled.drift import calibration_equivalent
 from borescan.discrepancy.pooled.model import PooledModel
 from borescan.discrepancy.pooled.terms import PooledScan, parse_device_effect
-from borescan.discrepancy.tri import SCAN_KIND, Term, term_parameters, term_values
+from borescan.discrepancy.terms import Term, term_parameters, term_values
+from borescan.discrepancy.tri import SCAN_KIND
 from borescan.effects import EFFECTS, SCOPES, Effect
 from borescan.geometry import Beams
 
