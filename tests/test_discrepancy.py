@@ -179,8 +179,19 @@ def test_findings_file_is_deterministic_and_in_the_spec_format(tmp_path):
     n = d["named"][0]
     assert {"effect", "channel", "parameters", "evidence"} <= set(n) and "delta_bic" in n["evidence"]
     assert n["channel"] == 2 and "tau_s" in n["parameters"]
+    import matplotlib
+
+    from borescan.discrepancy import plot as plot_mod
+
+    hinting = matplotlib.rcParams["text.hinting"]
     png = plot_gap(ex, tmp_path / "gap.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    # its text drawn unhinted inside the plot only: the process's (the certificates' PNGs) as it was
+    assert matplotlib.rcParams["text.hinting"] == hinting != plot_mod.TEXT_RENDERING["text.hinting"]
+    angle_axes = plot_mod._figure(2, tuple(ex.channels), True, ex.angle_label)["axes"][0]  # before, after
+    for ax in angle_axes:  # the angle in quarter turns
+        lo, hi = ax.get_xlim()
+        assert [float(t) for t in ax.get_xticks() if lo <= t <= hi] == [0.0, 90.0, 180.0, 270.0, 360.0]
 
 
 def test_gap_plot_of_a_reused_figure_is_the_fresh_one(tmp_path):
