@@ -388,3 +388,19 @@ def test_pose_angles_eliminated_from_the_bound_as_the_full_inverse():
     # small entry carries the rounding of the large ones (1.2e-9 relative on an Intel Xeon host)
     scale = np.sqrt(np.outer(np.diag(ref), np.diag(ref)))
     assert np.all(np.abs(_cov_without_poses(J, k, n - 1) - ref) <= 1e-9 * scale)
+
+
+def test_the_posteriors_quadratic_forms_are_the_three_index_sums():
+    """``rod_deflection._quadratic_forms`` (the importance sampling's likelihoods over 12 000 draws of the
+    deflection) is x_i^T A x_i of every row: the einsum it replaced, within rounding, for a symmetric and
+    a general A, rows of 2 (the deflection) and of 2 (m - 1) (a coaxial prior's hole differences).
+    """
+    from borescan.rod_deflection import _quadratic_forms
+
+    rng = np.random.default_rng(4)
+    for p in (2, 4, 6):
+        x = rng.standard_normal((12_000, p)) * 10.0 ** rng.uniform(-6, 0, p)
+        for A in (rng.standard_normal((p, p)), np.cov(rng.standard_normal((p, 3 * p)))):
+            want = np.einsum("ij,jk,ik->i", x, A, x)
+            scale = np.einsum("ij,jk,ik->i", np.abs(x), np.abs(A), np.abs(x))  # the sum of |terms|
+            assert np.all(np.abs(_quadratic_forms(x, A) - want) <= 1e-14 * scale)

@@ -98,6 +98,16 @@ def _deflected_radii(
     return _posterior_radii(rho, b, cov, m, max_deflection_rad, n_draw, coax)
 
 
+def _quadratic_forms(x: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Return x_i^T A x_i for every row x_i of ``x`` (n, p), A (p, p).
+
+    One matrix product and a row sum: ``np.einsum("ij,jk,ik->i", x, A, x)`` loops over the three indices
+    in one unoptimised kernel, 0.7 ms for 12 000 rows of 2 where this takes 0.1 ms (the same sums to
+    rounding).
+    """
+    return np.sum((x @ A) * x, axis=1)
+
+
 def _posterior_radii(rho, b, cov, m, max_deflection_rad, n_draw, coax):  # noqa: C901
     """Average the radii over the posterior of w ("free" branch of :func:`_deflected_radii`).
 
@@ -143,7 +153,7 @@ def _posterior_radii(rho, b, cov, m, max_deflection_rad, n_draw, coax):  # noqa:
     o = np.hypot(w[:, 0], w[:, 1])
     beta = np.column_stack([w[:, 0] ** 2 - w[:, 1] ** 2, 2 * w[:, 0] * w[:, 1]])
     d = beta - b
-    q_lik = np.einsum("ij,jk,ik->i", d, Sb_inv, d)
+    q_lik = _quadratic_forms(d, Sb_inv)
     lik = np.exp(-0.5 * q_lik) / (2 * np.pi * np.sqrt(max(ev[0] * ev[1], 1e-300)))
     # densities per unit area of the w plane: prior 1 / (2 pi W omega); likelihood 2 omega^2 N(beta)
     prior = np.where(o <= W, 1.0 / (2 * np.pi * W * np.maximum(o, 1e-300)), 0.0)
@@ -154,12 +164,12 @@ def _posterior_radii(rho, b, cov, m, max_deflection_rad, n_draw, coax):  # noqa:
     else:
         th = np.concatenate([rho, c_hat])[None, :] + d @ K.T  # the unknowns at beta: hat - K (b - beta)
         dw = w - w_c
-        q3 = np.exp(-0.5 * np.einsum("ij,jk,ik->i", dw, np.linalg.inv(cov_w), dw)) / (
+        q3 = np.exp(-0.5 * _quadratic_forms(dw, np.linalg.inv(cov_w))) / (
             2 * np.pi * np.sqrt(np.linalg.det(cov_w))
         )
         mix = (prior + 2.0 * np.maximum(o, 1e-300) ** 2 * lik + q3) / 3.0
         v = th[:, m:] @ D.T + (np.sinc(o / np.pi)[:, None] * w) @ Z.T  # hole_m - hole_1 at w
-        log_coax = -0.5 * np.einsum("ij,jk,ik->i", v, S_inv, v)
+        log_coax = -0.5 * _quadratic_forms(v, S_inv)
         G = Ctt[:m, m:] @ D.T @ S_inv  # rho's update by the coaxial differences
         theta = th[:, :m] - v @ G.T
         cond = np.clip(np.diag(Ctt[:m, :m] - G @ D @ Ctt[m:, :m]), 0.0, None)
