@@ -633,3 +633,34 @@ def test_line_power_by_turned_phasors_is_the_direct_transform():
     got = _line_power(t, rc, grid[0], 0.25 / 26.0, grid.size)
     assert np.max(np.abs(got - direct)) <= 1e-11 * direct.max()
     assert abs(grid[int(np.argmax(got))] - 4.31) < 0.25 / 26.0
+
+
+def test_candidates_whose_bics_tie_go_by_their_keys_not_by_their_last_digits():
+    """Look-alikes fit alike to their convergence (a gain and a beam tilt on one channel: BICs equal to
+    1e-9); their order, and so which of them the verdict reads first, goes by their keys, whatever the
+    last digits (another CPU, a step taken otherwise). Candidates apart by more than the tie keep their
+    BIC order.
+    """
+    from types import SimpleNamespace
+
+    from borescan.discrepancy.search import BIC_TIE, by_bic, tie_sorted
+
+    def cand(key, bic):
+        return SimpleNamespace(keys=(key,), fit=SimpleNamespace(bic=bic))
+
+    for eps in (0.0, 1e-9, -1e-9, 0.4 * BIC_TIE, -0.4 * BIC_TIE):
+        got = by_bic([cand("sensor_gain@1", 100.0 + eps), cand("z_far", 90.0), cand("beam_tilt@1", 100.0)])
+        assert [z.keys[0] for z in got] == ["z_far", "beam_tilt@1", "sensor_gain@1"], eps
+    got = by_bic([cand("sensor_gain@1", 100.0), cand("beam_tilt@1", 100.0 + 3 * BIC_TIE)])
+    assert [z.keys[0] for z in got] == ["sensor_gain@1", "beam_tilt@1"]
+    # the reports' orders (highest gain first) alike
+    rows = [
+        {"terms": ["b"], "delta_bic": 5.0},
+        {"terms": ["a"], "delta_bic": 5.0 + 1e-9},
+        {"terms": ["c"], "delta_bic": 9.0},
+    ]
+    assert [r["terms"][0] for r in tie_sorted(rows, lambda r: -r["delta_bic"], lambda r: r["terms"])] == [
+        "c",
+        "a",
+        "b",
+    ]

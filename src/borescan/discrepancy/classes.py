@@ -40,6 +40,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from borescan.discrepancy.search import tie_sorted
 from borescan.effects import EFFECTS
 from borescan.effects import functions as fx
 
@@ -305,7 +306,10 @@ def _combination(
     the channel's readings, ``w_c mean(f(v) - v)``, its u from the parameter's through the derivative of that
     mean (the members explain the gap alike, so the best one's shift is what the data fix).
     """
-    for n in sorted(cand, key=lambda n: (n["effect"] != "sensor_offset", -float(n["evidence"]["delta_bic"]))):
+    by_gain = tie_sorted(
+        cand, lambda n: -float(n["evidence"]["delta_bic"]), lambda n: (n["effect"], n.get("channel") or 0)
+    )
+    for n in sorted(by_gain, key=lambda n: n["effect"] != "sensor_offset"):
         name, shift = _SHIFT.get(n["effect"], (None, None))
         x, ux = n["parameters"].get(name), n["uncertainties"].get(f"u_{name}")
         if shift is None or x is None or ux is None:

@@ -34,7 +34,15 @@ from borescan.discrepancy.fitting import FitResult
 from borescan.discrepancy.judge import Rejection, explanation, judge, plausible_ranges
 from borescan.discrepancy.poses import RodModel, StaticModel, pose_data_from_arrays
 from borescan.discrepancy.tri_starts import mirrored_rho_starts
-from borescan.discrepancy.search import Candidate, Fitter, Search, jacobian_columns, rms, search_candidates
+from borescan.discrepancy.search import (
+    Candidate,
+    Fitter,
+    Search,
+    jacobian_columns,
+    rms,
+    search_candidates,
+    tie_sorted,
+)
 from borescan.discrepancy.terms import Term
 from borescan.discrepancy.tri import TriData, TriModel, tri_data_from_arrays
 from borescan.effects import EFFECTS
@@ -334,7 +342,7 @@ def decide(model, base: FitResult, found: Search, sigma_mm: np.ndarray, c: dict)
 
     singles, rej1 = judge(model, found.singles, absorbable, sig_ref, ranges, base.bic)
     pairs, rej2 = judge(model, found.pairs, absorbable, sig_ref, ranges, base.bic)
-    rejected = sorted(rej1 + rej2, key=lambda z: -z.delta_bic)
+    rejected = tie_sorted(rej1 + rej2, lambda z: -z.delta_bic, lambda z: z.terms)
     level: list[Candidate] = []
     if singles and base.bic - singles[0].fit.bic > T:
         level = pairs if pairs and singles[0].fit.bic - pairs[0].fit.bic > T else singles
@@ -446,7 +454,7 @@ def _findings(model, c: dict, base, out, loc: dict, found: Search, dec: Decision
     cand_report = [
         {"terms": list(z.keys), "delta_bic": float(base.bic - z.fit.bic)} for z in found.singles + found.pairs
     ]
-    cand_report.sort(key=lambda z: -z["delta_bic"])
+    cand_report = tie_sorted(cand_report, lambda z: -z["delta_bic"], lambda z: z["terms"])
     return {
         "scan_id": data.scan_id,
         "verdict": verdict,
