@@ -102,8 +102,8 @@ def _quadratic_forms(x: np.ndarray, A: np.ndarray) -> np.ndarray:
     """Return x_i^T A x_i for every row x_i of ``x`` (n, p), A (p, p).
 
     One matrix product and a row sum: ``np.einsum("ij,jk,ik->i", x, A, x)`` loops over the three indices
-    in one unoptimised kernel, 0.7 ms for 12 000 rows of 2 where this takes 0.1 ms (the same sums to
-    rounding).
+    in one unoptimised kernel, 0.38 ms for 12 000 rows of 2 (0.62 ms for rows of 4) where this takes 0.23
+    (0.26) ms; the same sums to rounding.
     """
     return np.sum((x @ A) * x, axis=1)
 
