@@ -38,6 +38,7 @@ __all__ = [
     "bore_wall_function",
     "tri_spindle_readings",
     "tri_spindle_readings_channel_major",
+    "spindle_axis_channel_major",
     "tri_static_readings",
     "circumcircle",
     "rod_axis_rotation",
@@ -308,6 +309,20 @@ def tri_spindle_readings(
     return np.ascontiguousarray(tri_spindle_readings_channel_major(phi_rad, spindle_xy_mm, beams, bore).T)
 
 
+def spindle_axis_channel_major(spindle_xy_mm: np.ndarray) -> tuple:
+    """Return the spindle axis S (2,), (n, 2) or (n, c, 2) as channel-major x and y [mm].
+
+    Scalars, (1, n) or (c, n): the layout the channel-major ray kernels compute in
+    (:func:`tri_spindle_readings_channel_major`, :mod:`borescan.physics.tri_first_order`).
+    """
+    S = np.asarray(spindle_xy_mm, dtype=float)
+    if S.ndim == 1:
+        return S[0], S[1]
+    if S.ndim == 2:
+        S = S[:, None, :]
+    return np.ascontiguousarray(S[..., 0].T), np.ascontiguousarray(S[..., 1].T)
+
+
 def tri_spindle_readings_channel_major(
     phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore
 ) -> np.ndarray:
@@ -319,9 +334,6 @@ def tri_spindle_readings_channel_major(
     phi = np.asarray(phi_rad, dtype=float)
     if phi.ndim == 1:
         phi = phi[:, None]
-    S = np.asarray(spindle_xy_mm, dtype=float)
-    if S.ndim == 2:
-        S = S[:, None, :]
     # computed channel-major, (c, n): numpy's loops then run along the samples; sample-major (n, c)
     # arrays with (c,) beam constants run an inner loop of c = 3 per sample, ~2x slower. The same
     # operations on the same numbers (cos and sin on phi in its own layout): the readings are bit-identical.
@@ -332,11 +344,8 @@ def tri_spindle_readings_channel_major(
     cb, sb = np.cos(beta), np.sin(beta)
     fx, fy = -rho * sb, rho * cb
     cp, sp = np.ascontiguousarray(np.cos(phi).T), np.ascontiguousarray(np.sin(phi).T)
-    if S.ndim == 1:
-        sx, sy = S[0] - bore.center_xy_mm[0], S[1] - bore.center_xy_mm[1]
-    else:
-        sx = np.ascontiguousarray(S[..., 0].T) - bore.center_xy_mm[0]
-        sy = np.ascontiguousarray(S[..., 1].T) - bore.center_xy_mm[1]
+    sx, sy = spindle_axis_channel_major(spindle_xy_mm)
+    sx, sy = sx - bore.center_xy_mm[0], sy - bore.center_xy_mm[1]
     ox = sx + cp * fx - sp * fy
     oy = sy + sp * fx + cp * fy
     dx = cp * cb - sp * sb

@@ -269,13 +269,18 @@ class TriModel:
 
     def geometry(self, p: dict[str, float], st: dict[str, list[Effect]]) -> tuple[np.ndarray, np.ndarray]:
         """Return the exact readings (n, c) of the ray geometry and the channel times at ``p`` and ``st``."""
-        key = (
-            tuple(e for stage in GEOMETRY_STAGES for e in st[stage]),
-            tuple(sorted((k, v) for k, v in p.items() if "." not in k)),
-        )
+        key = self.geometry_key(p, st)
         if self._geo_cache is None or self._geo_cache[0] != key:
             self._geo_cache = (key, tri_geometry(self.base(p), self.data.t_s, st))
         return self._geo_cache[1]
+
+    @staticmethod
+    def geometry_key(p: dict[str, float], st: dict[str, list[Effect]]) -> tuple:
+        """Return what the ray geometry at ``p`` and ``st`` depends on: geometric effects, base parameters."""
+        return (
+            tuple(e for stage in GEOMETRY_STAGES for e in st[stage]),
+            tuple(sorted((k, v) for k, v in p.items() if "." not in k)),
+        )
 
     def stages(self, p: dict[str, float], terms: list[Term]) -> dict[str, list[Effect]]:
         """Return the effects of the device model and ``terms`` at ``p``, grouped by stage."""

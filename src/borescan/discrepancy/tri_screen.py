@@ -18,8 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from borescan.physics.tri import GEOMETRY_STAGES, bore_with_effects, spindle_positions, tri_reading_stage
-from borescan.physics.tri import tri_scene
+from borescan.physics.tri import bore_with_effects, spindle_positions, tri_reading_stage, tri_scene
 from borescan.physics.tri_first_order import tri_readings_first_order, tri_wall_points
 
 __all__ = ["FIRST_ORDER_STAGES", "FirstOrderResidual"]
@@ -54,10 +53,7 @@ class FirstOrderResidual:
         st0, st1 = m.stages(p0, terms0), m.stages(q, terms)
         if any(st1[s] != st0[s] for s in st1 if s not in FIRST_ORDER_STAGES):
             return None
-        key = (
-            tuple(e for s in GEOMETRY_STAGES for e in st0[s]),
-            tuple(sorted((k, v) for k, v in p0.items() if "." not in k)),
-        )
+        key = m.geometry_key(p0, st0)
         if key != self._key:  # the wall points of the point stepped from, once per screen or Jacobian
             base = m.base(p0)
             tc, phi, S, bore = tri_scene(base, m.data.t_s, st0)

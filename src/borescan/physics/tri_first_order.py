@@ -25,7 +25,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from borescan.geometry import Beams, Bore, beam_frame, bore_wall_function, bore_wall_radius
+from borescan.geometry import (
+    Beams,
+    Bore,
+    beam_frame,
+    bore_wall_function,
+    bore_wall_radius,
+    spindle_axis_channel_major,
+)
 
 __all__ = ["TriWallPoints", "tri_wall_points", "tri_readings_first_order"]
 
@@ -63,16 +70,6 @@ class TriWallPoints:
     theta_rad: np.ndarray
 
 
-def _channel_major_xy(spindle_xy_mm: np.ndarray) -> tuple[np.ndarray | float, np.ndarray | float]:
-    """Spindle axis (2,), (n, 2) or (n, c, 2) as channel-major x and y (scalars, (1, n) or (c, n))."""
-    S = np.asarray(spindle_xy_mm, dtype=float)
-    if S.ndim == 1:
-        return float(S[0]), float(S[1])
-    if S.ndim == 2:
-        return S[:, 0][None, :], S[:, 1][None, :]
-    return np.ascontiguousarray(S[..., 0].T), np.ascontiguousarray(S[..., 1].T)
-
-
 def tri_wall_points(
     phi_rad: np.ndarray, spindle_xy_mm: np.ndarray, beams: Beams, bore: Bore, readings_mm: np.ndarray
 ) -> TriWallPoints:
@@ -87,7 +84,7 @@ def tri_wall_points(
     F, u = beam_frame(beams.beta_rad, beams.rho_mm)  # (c, 2)
     s = np.asarray(readings_mm, dtype=float).T + np.asarray(beams.d_b_mm, dtype=float)[:, None]
     dev_x, dev_y = F[:, 0:1] + s * u[:, 0:1], F[:, 1:2] + s * u[:, 1:2]
-    sx, sy = _channel_major_xy(spindle_xy_mm)
+    sx, sy = spindle_axis_channel_major(spindle_xy_mm)
     x = sx + cph * dev_x - sph * dev_y
     y = sy + sph * dev_x + cph * dev_y
     dx, dy = cph * u[:, 0:1] - sph * u[:, 1:2], sph * u[:, 0:1] + cph * u[:, 1:2]
@@ -122,7 +119,7 @@ def tri_readings_first_order(
     # a move of the bore's centre by dC is, to first order, a move of the spindle axis by -dC
     dx, dy = 0.0, 0.0
     if spindle_xy_mm is not None:
-        sx, sy = _channel_major_xy(spindle_xy_mm)
+        sx, sy = spindle_axis_channel_major(spindle_xy_mm)
         dx, dy = sx - wall.spindle_x_mm, sy - wall.spindle_y_mm
     if bore is not None:
         dx, dy = (
