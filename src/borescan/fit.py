@@ -301,6 +301,9 @@ def _difference_jacobian(f, f_stack, groups: list[list[int]], sparsity, step: fl
     steps ``zs`` from ``z`` in one call) evaluates the steps together, else ``f`` one step at a time.
     """
 
+    # the residuals each parameter of a shared step moves (a fit's sparsity is fixed: found once)
+    support = {i: np.flatnonzero(sparsity[:, i]) for g in groups if len(g) > 1 for i in g}
+
     def jz(z: np.ndarray) -> np.ndarray:
         f0 = f(z)
         J = np.empty((f0.size, z.size))
@@ -310,14 +313,17 @@ def _difference_jacobian(f, f_stack, groups: list[list[int]], sparsity, step: fl
             zz[g] += step
             zs.append(zz)
         fs = f_stack(z, zs) if f_stack is not None else (f(zz) for zz in zs)
+        rest = None
         for g, fg in zip(groups, fs, strict=True):
             col = (fg - f0) / step
             if len(g) == 1:
                 J[:, g[0]] = col
-            else:  # each parameter of the group moves only its own residuals (elsewhere: the
-                # column a step of it alone gives, (f0 - f0) / step: 0, NaN where f0 is NaN)
+            else:  # each parameter of the group moves only its own residuals; elsewhere the column a
+                # step of it alone gives, (f0 - f0) / step: 0, NaN where f0 is NaN
+                rest = (f0 - f0) / step if rest is None else rest
+                J[:, g] = rest[:, None]
                 for i in g:
-                    J[:, i] = np.where(sparsity[:, i], col, (f0 - f0) / step)
+                    J[support[i], i] = col[support[i]]
         return J
 
     return jz
