@@ -300,7 +300,6 @@ def _difference_jacobian(f, f_stack, groups: list[list[int]], sparsity, step: fl
     One step per group of columns (:func:`difference_groups`); ``f_stack`` (``f_stack(z, zs)``: ``f`` at the
     steps ``zs`` from ``z`` in one call) evaluates the steps together, else ``f`` one step at a time.
     """
-
     # the residuals each parameter of a shared step moves (a fit's sparsity is fixed: found once)
     support = {i: np.flatnonzero(sparsity[:, i]) for g in groups if len(g) > 1 for i in g}
 
