@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import textwrap
 
 import matplotlib as mpl
@@ -13,6 +12,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import TICKDOWN, Line2D
 
 from borescan.decision import CANNOT_DECIDE
+from borescan.png import rgb_png
 from borescan.report.spc import MR_D2, RUN_RULES, control_limits, run_rules
 
 TRI_PARAMS = (("beta_rad", "u_beta_rad"), ("rho_mm", "u_rho_mm"), ("d_b_mm", "u_d_b_mm"))
@@ -23,7 +23,8 @@ ROD_PARAMS = (
     ("d_mm", "u_d_mm"),
     ("gamma_rad", "u_gamma_rad"),
 )
-PNG_META = {"Software": None}
+#: the report plots' resolution
+PNG_DPI = 100
 
 
 def _labels(df: pl.DataFrame, id_col: str = "scan_id") -> list[str]:
@@ -479,7 +480,8 @@ def plot_diameters(dia: pl.DataFrame, artifact_id: str) -> Figure:
 
 
 def _png_bytes(fig: Figure) -> bytes:
-    FigureCanvasAgg(fig)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100, metadata=PNG_META)
-    return buf.getvalue()
+    """Return the PNG of ``fig`` at 100 dpi: the pixels savefig draws, written by :mod:`borescan.png`."""
+    canvas = FigureCanvasAgg(fig)
+    fig.set_dpi(PNG_DPI)
+    canvas.draw()
+    return rgb_png(np.asarray(canvas.buffer_rgba()), dpi=PNG_DPI)
