@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
@@ -274,6 +275,10 @@ def test_every_demo_certificate_has_a_valid_dcc_read_back_equal_to_its_json(pipe
         assert (d / DCC_FILE).is_file(), d
         validate_dcc(d / DCC_FILE)
         assert check_read_back(d) > 200, d
+        # the bytes ElementTree's own UTF-8 writer gives (declaration and all): dcc_bytes serialises to text
+        # and encodes once, the same document
+        data = (d / DCC_FILE).read_bytes()
+        assert ET.tostring(ET.fromstring(data), encoding="UTF-8", xml_declaration=True) + b"\n" == data, d
 
 
 @pytest.mark.slow
