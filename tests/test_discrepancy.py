@@ -687,7 +687,7 @@ def test_gap_plot_composed_from_cached_parts_is_the_whole_figure_drawn(tmp_path)
     plot_gap(ex, tmp_path / "gap.png")
     layout = plot_mod._figure(2, tuple(ex.channels), True, ex.angle_label)
     fig = layout["fig"]
-    scan_artists = [a for a in layout["dynamic"] if a is not layout["legend_artist"]]
+    scan_artists = layout["dynamic"]
     for a in scan_artists:
         a.set_visible(False)
     try:

@@ -38,7 +38,8 @@ def rgb_png(pixels: np.ndarray, dpi: float | None = None, level: int = 1) -> byt
     if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] not in (3, 4):
         raise ValueError(f"rgb_png needs (height, width, 3 or 4) uint8 pixels, got {a.dtype} {a.shape}")
     h, w = a.shape[:2]
-    rows = np.zeros((h, 1 + 3 * w), dtype=np.uint8)  # each row: filter type 0, then its RGB bytes
+    rows = np.empty((h, 1 + 3 * w), dtype=np.uint8)  # each row: filter type 0, then its RGB bytes
+    rows[:, 0] = 0
     rows[:, 1:].reshape(h, w, 3)[...] = a[..., :3]
     out = [PNG_SIGNATURE, _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))]
     if dpi is not None:

@@ -108,9 +108,10 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
 
     Returns a dict: ``fig``, ``axes`` (rows, n_panels), ``rows`` (row name -> index: ``angle`` unless
     ``angle_label`` is None, ``time``, ``last``), ``lines[(row name, col, channel index)]``,
-    ``floor[(row name, col, sign)]`` (the dashed noise-floor lines), ``suptitle``, ``legend_artist`` and
-    ``dynamic``: every artist that changes from scan to scan, and the legend (drawn over the data). Once
-    drawn, ``frame`` and ``legend`` hold their images (:func:`_frame`, :func:`_draw`).
+    ``floor[(row name, col, sign)]`` (the dashed noise-floor lines), ``suptitle``, ``dynamic``: every
+    artist that changes from scan to scan, in drawing order, and ``legend_artist`` (the same in every scan,
+    drawn over the data). Once drawn, ``frame`` and ``legend`` hold their images (:func:`_frame`,
+    :func:`_draw`).
     """
     from matplotlib import rcParams
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -147,7 +148,6 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
         *lines.values(),
         *floor.values(),
         *(axes[0, c].title for c in range(n_panels)),
-        legend,
         suptitle,
     ]
     _FIGURES[key] = {
@@ -167,11 +167,12 @@ def _figure(n_panels: int, channels: tuple[int, ...], spectrum: bool, angle_labe
 def _frame(layout: dict):
     """Return the rendered frame of ``layout``: the figure and its axes without their axes and scan artists.
 
-    Drawn once per layout (its :func:`_figure` ``dynamic`` artists and every x and y axis hidden).
+    Drawn once per layout (its :func:`_figure` ``dynamic`` artists, legend and every x and y axis hidden).
     """
     if "frame" not in layout:
         fig = layout["fig"]
-        hidden = [*layout["dynamic"], *(a for ax in layout["axes"].ravel() for a in (ax.xaxis, ax.yaxis))]
+        axes = (a for ax in layout["axes"].ravel() for a in (ax.xaxis, ax.yaxis))
+        hidden = [*layout["dynamic"], layout["legend_artist"], *axes]
         for a in hidden:
             a.set_visible(False)
         fig.canvas.draw()
@@ -227,8 +228,8 @@ def _draw(layout: dict) -> None:
 
     The frame (:func:`_frame`) restored, every axis's image (:func:`_axis_strip`) and the scan's artists
     drawn over it, then the legend (the same in every scan of a layout: its image, drawn alone once). The
-    pixels of a whole-figure draw to within one level where a tick meets a spine (the axes drawn over the
-    spines instead of under them).
+    pixels of a whole-figure draw to within two levels: the legend's alpha blended in one step instead of
+    two, and a tick meeting a spine drawn in the other order (the axes over the spines, not under them).
     """
     strips = [
         _axis_strip(layout, row, col, axis)
@@ -242,8 +243,7 @@ def _draw(layout: dict) -> None:
     renderer = canvas.get_renderer()
     _draw_images(renderer, strips)
     for a in layout["dynamic"]:
-        if a is not layout["legend_artist"]:
-            a.draw(renderer)
+        a.draw(renderer)
     _draw_images(renderer, [layout["legend"]])
 
 
