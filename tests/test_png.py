@@ -66,3 +66,33 @@ def test_anything_but_8_bit_rgb_or_rgba_is_refused():
     for bad in (np.zeros((4, 4), np.uint8), np.zeros((4, 4, 3), np.uint16), np.zeros((4, 4, 2), np.uint8)):
         with pytest.raises(ValueError, match="uint8 pixels"):
             rgb_png(bad)
+
+
+def test_a_report_plot_is_the_picture_savefig_draws():
+    """report.plots._png_bytes writes the pixels matplotlib's savefig draws at 100 dpi (opaque), pixel for
+    pixel, and its pHYs says 100 dpi: a figure as the report's (constrained layout, error bars, rotated
+    labels, a legend and text).
+    """
+    from matplotlib.figure import Figure
+
+    from borescan.report.plots import PNG_DPI, _png_bytes
+
+    def figure():
+        fig = Figure(figsize=(6.4, 3.2), layout="constrained")
+        ax = fig.subplots()
+        x = np.arange(31)
+        ax.errorbar(x, np.sin(x / 4.0), yerr=0.2, fmt="o", ms=3, label="conforms")
+        ax.axhline(0.5, ls="--", color="C1")
+        ax.set_xticks(x[::5], [f"2027-12-{d:02d}" for d in x[::5] + 1], rotation=30, ha="right")
+        ax.set_ylabel("error [µm]")
+        ax.legend(loc="lower left")
+        fig.suptitle("TRI-01, gauge RG-275")
+        return fig
+
+    buf = io.BytesIO()
+    figure().savefig(buf, format="png", dpi=PNG_DPI)
+    want = np.asarray(Image.open(buf))
+    got = Image.open(io.BytesIO(_png_bytes(figure())))
+    assert np.all(want[..., 3] == 255)  # savefig's picture is opaque: its RGB is all there is to compare
+    assert np.array_equal(np.asarray(got), want[..., :3])
+    assert got.info["dpi"] == pytest.approx((PNG_DPI, PNG_DPI), abs=0.5 * 0.0254)
