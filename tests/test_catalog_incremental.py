@@ -354,3 +354,57 @@ def test_synthetic_nights_move_a_calibrations_due_date_with_its_night(tmp_path):
         "valid_from": "2027-04-10",
         "recalibration_due": "2027-05-10",  # 30 days after, as 2026-12-20 is after 2026-11-20
     }
+
+
+def test_a_calibrations_record_changed_alone_is_seen_by_its_digest(staged):
+    """The catalog keeps each calibration record's SHA-256 beside it (``calibration_json_sha256``), and the
+    report's month fingerprints hash the digest instead of the record: a record changed alone still renders
+    its month again (and no other), and tables given without the digest (their SHA-256 taken by DuckDB)
+    fingerprint the months as the same tables with the catalog's digest.
+    """
+    import hashlib
+
+    from borescan.report import data
+
+    res, tables = staged
+    nights = ["2026-10-30", "2026-11-21", "2026-11-22"]
+
+    def with_records(tag: str) -> dict[str, pl.DataFrame]:
+        record = pl.concat_str(
+            pl.lit('{"calibration_id": "'), "calibration_id", pl.lit(f'", "note": "{tag}"}}')
+        )
+        cal = tables["calibrations"].with_columns(record.alias("calibration_json"))
+        return {**tables, "calibrations": cal}
+
+    _write_stage(res, with_records("first"), nights, NIGHT_OF_OCTOBER)
+    catalog.update_catalog(res)
+    assert update_report(res).rendered == ("2026-10", "2026-11")
+    con = catalog.open_catalog(res)
+    rows = con.execute(
+        "SELECT calibration_json, calibration_json_sha256, sha256(calibration_json) FROM calibrations"
+    ).fetchall()
+    file_prints = data.month_fingerprints(con)
+    con.close()
+    assert len(rows) == tables["calibrations"].height == 7
+    assert all(d == hashlib.sha256(j.encode()).hexdigest() == s for j, d, s in rows)
+    assert set(file_prints) == {"2026-10", "2026-11"}
+    loaded = data.load_tables(res)
+    prints = []
+    for given in (loaded, {**loaded, "calibrations": loaded["calibrations"].drop("calibration_json_sha256")}):
+        mem = data._memory_catalog(given)
+        prints.append(data.month_fingerprints(mem))
+        mem.close()
+    assert prints[0] == prints[1]
+    # CAL-B (the newest night, November) gets another record, every other column the same
+    changed = with_records("first")
+    changed["calibrations"] = changed["calibrations"].with_columns(
+        pl.when(pl.col("calibration_id") == "CAL-B")
+        .then(pl.col("calibration_json").str.replace("first", "second"))
+        .otherwise(pl.col("calibration_json"))
+        .alias("calibration_json")
+    )
+    _write_stage(res, changed, nights[2:], NIGHT_OF_OCTOBER)
+    update = catalog.update_catalog(res)
+    assert (update.mode, update.removed, update.added) == ("append", ("2026-11-22",), ("2026-11-22",))
+    assert update_report(res).rendered == ("2026-11",)
+    assert update_report(res).rendered == ()

@@ -135,7 +135,10 @@ _T = [
             # the mirror check of each beam (issue 36): resolved, or two solutions with the wrong sign's
             # probability
             "rho_sign_resolved:bool mirror_delta_chi2:float mirror_depth_predicted:float p_wrong_sign:float "
-            "valid_bore_min_mm:float valid_bore_max_mm:float offset_to_resolve_mm:float rho_sign_fix:text"
+            "valid_bore_min_mm:float valid_bore_max_mm:float offset_to_resolve_mm:float rho_sign_fix:text "
+            # SHA-256 of the row's calibration_json (the stage's full record, kept after these columns): a
+            # changed calibration is told by its digest, without reading every calibration's record
+            "calibration_json_sha256:text!"
         ),
         ("calibration_id", "channel"),
         primary=True,

@@ -339,8 +339,9 @@ def upsert_rows(con: duckdb.DuckDBPyConnection, table: str, df: pl.DataFrame) ->
     try:
         cond = " AND ".join(f"t.{_q(k)} IS NOT DISTINCT FROM u.{_q(k)}" for k in keys)
         con.execute(f"DELETE FROM {_q(table)} t WHERE EXISTS (SELECT 1 FROM _up u WHERE {cond})")
-        cols = [c for c in SCHEMA[table] if c in df.columns]
-        casts = ", ".join(f"CAST({_q(c)} AS {SCHEMA[table][c]})" for c in cols)
+        have = _columns(con, table)  # the defined columns and the extra ones kept (calibration_json)
+        cols = [c for c in have if c in df.columns]
+        casts = ", ".join(f"CAST({_q(c)} AS {have[c]})" for c in cols)
         con.execute(f"INSERT INTO {_q(table)} ({', '.join(_q(c) for c in cols)}) SELECT {casts} FROM _up")
     finally:
         con.unregister("_up")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import os
 from collections.abc import Mapping
@@ -57,6 +58,17 @@ def _prepare(name: str, df: pl.DataFrame, results_root: Path) -> pl.DataFrame:
                 sha = sha256_file(cj) if cj.is_file() else None
             shas.append(sha)
         df = df.with_columns(pl.Series("certificate_sha256", shas, dtype=pl.Utf8))
+    if name == "calibrations" and "calibration_json" in cols:
+        df = df.with_columns(
+            pl.Series(
+                "calibration_json_sha256",
+                [
+                    None if j is None else hashlib.sha256(j.encode()).hexdigest()
+                    for j in df["calibration_json"]
+                ],
+                dtype=pl.Utf8,
+            )
+        )
     return df
 
 

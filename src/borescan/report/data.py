@@ -171,6 +171,27 @@ def _sources(con) -> dict[str, str]:
     }
 
 
+#: the catalog's digest of a calibration's record (``calibration_json``), written with it
+JSON_DIGEST = "calibration_json_sha256"
+
+
+def _fingerprint_sources(con) -> dict[str, str]:
+    """:func:`_sources`, with each calibration's record (``calibration_json``) stood for by its digest.
+
+    Where the catalog keeps ``calibration_json_sha256`` beside ``calibration_json`` (its catalog, in which
+    the two are written together) the digest is hashed instead of the record: the same changes are seen
+    without reading, and decompressing, every calibration's record of the history (about 24 kB each).
+    """
+    srcs = _sources(con)
+    if "calibrations" in srcs:
+        cols = {r[0] for r in con.execute("DESCRIBE calibrations").fetchall()}
+        if {"calibration_json", JSON_DIGEST} <= cols:
+            srcs["calibrations"] = (
+                f"SELECT {_month_sql('t')} AS _m, t.* EXCLUDE (calibration_json) FROM calibrations t"
+            )
+    return srcs
+
+
 def month_fingerprints(con) -> dict[str, str]:
     """Month (``YYYY-MM`` of the night, or ``undated``) -> fingerprint of every row its page shows.
 
@@ -178,7 +199,7 @@ def month_fingerprints(con) -> dict[str, str]:
     finding which months changed costs milliseconds even for years of nights.
     """
     parts: dict[str, list] = {}
-    for name, sql in _sources(con).items():
+    for name, sql in _fingerprint_sources(con).items():
         for m, n, h in con.execute(
             f"SELECT _m, count(*), sum(hash(q)::HUGEINT) FROM ({sql}) q GROUP BY _m"
         ).fetchall():
@@ -273,6 +294,9 @@ def _memory_catalog(tables: dict[str, pl.DataFrame]):
             else f"CAST(NULL AS {t}) AS {catalog._q(c)}"
             for c, t in cols.items()
         ]
+        if name == "calibrations" and "calibration_json" in df.columns and JSON_DIGEST not in df.columns:
+            # as the catalog writes them: the record's digest beside it (_fingerprint_sources reads it)
+            select[list(cols).index(JSON_DIGEST)] = f"sha256(calibration_json) AS {JSON_DIGEST}"
         select += [catalog._q(c) for c in df.columns if c not in cols]
         con.execute(f"CREATE TABLE {name} AS SELECT {', '.join(select)} FROM _in")
         con.unregister("_in")
