@@ -770,3 +770,22 @@ def test_sql_saved_query_falls_back_to_catalog_view(built, capsys, monkeypatch, 
     assert cli_main(["sql", "--results", str(res), "--query", "suspect_measurements", "--format", "csv"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 2 and lines[1].startswith("PART-7,2026-11-20,TRI-01,P-7,bore,150.0123")
+
+
+def test_upsert_rows_keeps_a_calibrations_record_and_its_digest(tmp_path):
+    import hashlib
+
+    res = tmp_path / "results"
+    tables = make_history(res)
+    cal = tables["calibrations"].with_columns(pl.lit('{"v": 1}').alias("calibration_json"))
+    catalog.build_catalog(res, {**tables, "calibrations": cal})
+    con = catalog.open_catalog(res, read_only=False)
+    row = cal.filter(pl.col("calibration_id") == "CAL-B").with_columns(
+        pl.lit('{"v": 2}').alias("calibration_json")
+    )
+    assert catalog.upsert_rows(con, "calibrations", row) == 3  # its three channels
+    got = con.execute(
+        "SELECT calibration_json, calibration_json_sha256 FROM calibrations WHERE calibration_id = 'CAL-B'"
+    ).fetchall()
+    con.close()
+    assert got == [('{"v": 2}', hashlib.sha256(b'{"v": 2}').hexdigest())] * 3
