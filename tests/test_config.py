@@ -110,3 +110,20 @@ def test_library_defaults_are_the_schemas():
     assert lobes == set(range(2, k_max + 1))
     with pytest.raises(KeyError, match="uncertainty.no_such_key"):
         schema_default("uncertainty", "no_such_key")
+
+
+def test_the_shipped_schema_reads_the_same_on_either_yaml_loader_and_each_caller_gets_a_copy():
+    """The schema is parsed on libyaml where PyYAML has it: the same objects as the pure-Python safe loader.
+
+    The defaults a caller gets are its own: changing them changes no other caller's.
+    """
+    from borescan import config
+
+    text = Path(SCHEMA_PATH).read_text()
+    assert yaml.load(text, Loader=config._SCHEMA_LOADER) == yaml.safe_load(text)
+    stated = yaml.safe_load(text)["properties"]["uncertainty"]["properties"]["coverage_probability"][
+        "default"
+    ]
+    first = schema_defaults()
+    first["uncertainty"]["coverage_probability"] = -1.0
+    assert schema_defaults()["uncertainty"]["coverage_probability"] == stated

@@ -13,6 +13,7 @@ from borescan.uncertainty import (
     Budget,
     Input,
     Term,
+    chi2_quantile,
     combine,
     coverage_factor,
     draw,
@@ -89,6 +90,25 @@ def test_coverage_factor_truncates_nu_and_checks_p():
     assert coverage_factor(0.95, 16.9, truncate=False) < coverage_factor(0.95, 16)
     with pytest.raises(ValueError, match="coverage probability"):
         coverage_factor(1.2)
+
+
+def test_chi2_quantile_closed_forms_table_and_scipy_stats():
+    """chi2_quantile against closed forms (1 and 2 degrees of freedom), the printed table and scipy.stats.
+
+    One degree of freedom: the square of the two-sided normal quantile. Two: the exponential's, -2 ln(1 - p).
+    Table values at p = 0.95 (3.841, 5.991, 7.815, 9.488 for 1-4 degrees of freedom). Equal, bit for bit, to
+    scipy.stats.chi2.ppf, which evaluates the same formula: the DCC's coverage factors do not move.
+    """
+    for p in (0.5, 0.6827, 0.9, 0.95, 0.9545, 0.99, 0.9973):
+        assert chi2_quantile(p, 1) == pytest.approx(coverage_factor(p) ** 2, rel=1e-12)
+        assert chi2_quantile(p, 2) == pytest.approx(-2.0 * math.log1p(-p), rel=1e-12)
+        for dof in range(1, 13):
+            assert chi2_quantile(p, dof) == stats.chi2.ppf(p, dof)
+    for dof, x in ((1, 3.841), (2, 5.991), (3, 7.815), (4, 9.488)):
+        assert chi2_quantile(0.95, dof) == pytest.approx(x, abs=5e-4)
+    for p, dof in ((0.0, 2), (1.0, 2), (0.95, 0)):
+        with pytest.raises(ValueError):
+            chi2_quantile(p, dof)
 
 
 def test_standard_uncertainty_of_stated_bounds():

@@ -16,6 +16,7 @@ from borescan.certificate.dcc_elements import record as _record
 from borescan.certificate.dcc_elements import s as _s
 from borescan.certificate.dcc_elements import sub as _sub
 from borescan.certificate.dcc_elements import text as _text
+from borescan.uncertainty.coverage import chi2_quantile
 
 
 def _methods(mr: ET.Element, cert: dict, m_in: dict) -> None:
@@ -182,9 +183,7 @@ def _parameter_list(
             c = _sub(col, _s("covariance"))
             _sub(c, _s("value"), decimal_text(cov[ib][ia], u.shift))
             _sub(c, _s("unit"), u.text)
-    from scipy.stats import chi2  # here, not at the top: a worker that measures scans never loads scipy.stats
-
-    _sub(reg, _s("coverageFactor"), decimal_text(float(f"{math.sqrt(chi2.ppf(p, len(idx))):.6g}")))
+    _sub(reg, _s("coverageFactor"), decimal_text(float(f"{math.sqrt(chi2_quantile(p, len(idx))):.6g}")))
     _sub(reg, _s("coverageProbability"), decimal_text(p))
     _sub(reg, _s("distribution"), "normal")
 

@@ -43,6 +43,7 @@ from .coverage import (
     standard_uncertainty,
     welch_satterthwaite,
     coverage_factor,
+    chi2_quantile,
     numerical_tolerance,
     linear_coverage_interval,
 )
@@ -54,6 +55,7 @@ __all__ = [
     "standard_uncertainty",
     "welch_satterthwaite",
     "coverage_factor",
+    "chi2_quantile",
     "numerical_tolerance",
     "linear_coverage_interval",
     "Input",
