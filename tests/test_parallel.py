@@ -43,7 +43,7 @@ def test_job_environment_sets_the_malloc_settings_and_keeps_the_users():
 
 
 _JOB_SCRIPT = """
-import os, sys
+import os, sys, time
 class _Job:
     threads = int(sys.argv[1])
 if _Job.threads:
@@ -54,6 +54,12 @@ import numpy  # after: the BLAS threads of this process are fixed here
 from borescan.parallel import map_in_order
 
 def square_pid_threads(x):
+    barrier = os.environ.get("JOB_TEST_BARRIER")  # a folder: each process that takes an item leaves its pid
+    if barrier:
+        open(os.path.join(barrier, str(os.getpid())), "w").close()
+        deadline = time.monotonic() + 60.0
+        while x == 0 and len(os.listdir(barrier)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)  # item 0 waits until the other process has taken an item too
     return x * x, os.getpid(), os.environ.get("OPENBLAS_NUM_THREADS"), os.environ.get("POLARS_MAX_THREADS")
 
 if __name__ == "__main__":
@@ -62,15 +68,24 @@ if __name__ == "__main__":
 """
 
 
-def _run_job_script(tmp_path, threads: int):
+def _run_job_script(tmp_path, threads: int, barrier: bool = False):
+    """Run the job script; ``barrier``: its first item waits until a second process has taken an item.
+
+    Without it, 40 items of microseconds may all be done by the job's own process before its worker
+    has finished importing (a loaded machine): which process takes what is the queue's, not the test's.
+    """
     import ast
     import subprocess
     import sys
 
     script = tmp_path / "job.py"
     script.write_text(_JOB_SCRIPT)
+    env = dict(os.environ)
+    if barrier:
+        (tmp_path / "pids").mkdir(exist_ok=True)
+        env["JOB_TEST_BARRIER"] = str(tmp_path / "pids")
     proc = subprocess.run(
-        [sys.executable, str(script), str(threads)], capture_output=True, text=True, timeout=120
+        [sys.executable, str(script), str(threads)], capture_output=True, text=True, timeout=120, env=env
     )
     assert proc.returncode == 0, proc.stderr
     started, parent, out = proc.stdout.strip().split(" ", 2)
@@ -82,7 +97,7 @@ def test_a_job_started_early_computes_in_its_own_process_and_one_worker(tmp_path
     the job's process is the other; both run with one BLAS and polars thread (so a scan's result
     does not depend on the process that took it), and the results come back in order.
     """
-    started, parent, out = _run_job_script(tmp_path, threads=2)
+    started, parent, out = _run_job_script(tmp_path, threads=2, barrier=True)
     assert started == 2
     assert [v for v, *_ in out] == [x * x for x in range(40)]
     pids = {p for _, p, _, _ in out}
