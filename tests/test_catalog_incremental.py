@@ -359,7 +359,7 @@ def test_synthetic_nights_move_a_calibrations_due_date_with_its_night(tmp_path):
 def test_a_calibrations_record_changed_alone_is_seen_by_its_digest(staged):
     """The catalog keeps each calibration record's SHA-256 beside it (``calibration_json_sha256``), and the
     report's month fingerprints hash the digest instead of the record: a record changed alone still renders
-    its month again (and no other), and tables given without the digest (their SHA-256 taken by DuckDB)
+    its month again (and no other), and tables given without the digest (catalog.with_record_digest)
     fingerprint the months as the same tables with the catalog's digest.
     """
     import hashlib

@@ -55,7 +55,14 @@ from borescan.catalog.build import (
     update_catalog,
     upsert_rows,
 )
-from borescan.catalog.history import assemble_history, read_quarantine, read_stage_table, stage_files
+from borescan.catalog.history import (
+    RECORD_DIGEST,
+    assemble_history,
+    read_quarantine,
+    read_stage_table,
+    stage_files,
+    with_record_digest,
+)
 from borescan.catalog.names import (
     BUILD_SCHEMA,
     CATALOG_NAME,
@@ -83,6 +90,8 @@ __all__ = [
     "STAGE_TABLES",
     "STAGE_ORDER",
     "assemble_history",
+    "RECORD_DIGEST",
+    "with_record_digest",
     "build_catalog",
     "rebuild_catalog",
     "stage_files",

@@ -58,18 +58,25 @@ def _prepare(name: str, df: pl.DataFrame, results_root: Path) -> pl.DataFrame:
                 sha = sha256_file(cj) if cj.is_file() else None
             shas.append(sha)
         df = df.with_columns(pl.Series("certificate_sha256", shas, dtype=pl.Utf8))
-    if name == "calibrations" and "calibration_json" in cols:
-        df = df.with_columns(
-            pl.Series(
-                "calibration_json_sha256",
-                [
-                    None if j is None else hashlib.sha256(j.encode()).hexdigest()
-                    for j in df["calibration_json"]
-                ],
-                dtype=pl.Utf8,
-            )
-        )
+    if name == "calibrations":
+        df = with_record_digest(df)
     return df
+
+
+#: the catalog's column with the SHA-256 of each calibration's record (``calibration_json``)
+RECORD_DIGEST = "calibration_json_sha256"
+
+
+def with_record_digest(calibrations: pl.DataFrame) -> pl.DataFrame:
+    """Return calibration rows with :data:`RECORD_DIGEST`, the SHA-256 (hex) of their ``calibration_json``.
+
+    Rows without a record get None; a frame without the column is returned as it is.
+    """
+    if "calibration_json" not in calibrations.columns:
+        return calibrations
+    records = calibrations["calibration_json"]
+    digests = [None if j is None else hashlib.sha256(j.encode()).hexdigest() for j in records]
+    return calibrations.with_columns(pl.Series(RECORD_DIGEST, digests, dtype=pl.Utf8))
 
 
 def _scan_stage(results_root: Path) -> dict[str, dict[str, tuple[str, str, int, int]]]:

@@ -171,10 +171,6 @@ def _sources(con) -> dict[str, str]:
     }
 
 
-#: the catalog's digest of a calibration's record (``calibration_json``), written with it
-JSON_DIGEST = "calibration_json_sha256"
-
-
 def _fingerprint_sources(con) -> dict[str, str]:
     """:func:`_sources`, with each calibration's record (``calibration_json``) stood for by its digest.
 
@@ -185,7 +181,7 @@ def _fingerprint_sources(con) -> dict[str, str]:
     srcs = _sources(con)
     if "calibrations" in srcs:
         cols = {r[0] for r in con.execute("DESCRIBE calibrations").fetchall()}
-        if {"calibration_json", JSON_DIGEST} <= cols:
+        if {"calibration_json", catalog.RECORD_DIGEST} <= cols:
             srcs["calibrations"] = (
                 f"SELECT {_month_sql('t')} AS _m, t.* EXCLUDE (calibration_json) FROM calibrations t"
             )
@@ -287,6 +283,8 @@ def _memory_catalog(tables: dict[str, pl.DataFrame]):
         if df is None or df.width == 0:
             con.execute(TABLES[name].ddl())
             continue
+        if name == "calibrations" and catalog.RECORD_DIGEST not in df.columns:
+            df = catalog.with_record_digest(df)  # as the catalog writes them (_fingerprint_sources reads it)
         con.register("_in", df)
         select = [
             f"CAST({catalog._q(c)} AS {t}) AS {catalog._q(c)}"
@@ -294,9 +292,6 @@ def _memory_catalog(tables: dict[str, pl.DataFrame]):
             else f"CAST(NULL AS {t}) AS {catalog._q(c)}"
             for c, t in cols.items()
         ]
-        if name == "calibrations" and "calibration_json" in df.columns and JSON_DIGEST not in df.columns:
-            # as the catalog writes them: the record's digest beside it (_fingerprint_sources reads it)
-            select[list(cols).index(JSON_DIGEST)] = f"sha256(calibration_json) AS {JSON_DIGEST}"
         select += [catalog._q(c) for c in df.columns if c not in cols]
         con.execute(f"CREATE TABLE {name} AS SELECT {', '.join(select)} FROM _in")
         con.unregister("_in")
